@@ -1,0 +1,36 @@
+"""Units of magnetic field and their conversion to microtesla (uT), the library's unit.
+
+1 gauss = 100 uT; 1 nT (= 1 gamma) = 0.001 uT. ``counts`` are raw sensor codes with no known scale.
+"""
+
+from __future__ import annotations
+
+import enum
+
+
+class FieldUnit(enum.Enum):
+    """Unit of a raw magnetometer column."""
+
+    UT = "ut"
+    GAUSS = "gauss"
+    NT = "nt"
+    COUNTS = "counts"
+
+    @classmethod
+    def parse(cls, name: str) -> "FieldUnit":
+        try:
+            return cls(name.strip().lower())
+        except ValueError:
+            choices = ", ".join(u.value for u in cls)
+            raise ValueError(f"unknown field unit {name!r}: use one of {choices}") from None
+
+
+#: microtesla per one unit; None where the scale is unknown (raw counts).
+UT_PER_UNIT: dict[FieldUnit, float | None] = {
+    FieldUnit.UT: 1.0,
+    FieldUnit.GAUSS: 100.0,
+    FieldUnit.NT: 0.001,
+    FieldUnit.COUNTS: None,
+}
+
+STANDARD_GRAVITY_MS2 = 9.80665

@@ -1,0 +1,68 @@
+"""The ``magnet`` command: one subcommand per module, imported only when that subcommand runs.
+
+Each command module exposes ``add_arguments(parser)`` and ``run(args) -> int``. A ``ValueError`` (bad input a user can
+fix) or ``OSError`` (a file or device that cannot be opened) becomes one line on stderr and exit status 2; never a
+traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+#: subcommand -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "fit": ("services.fit_cmd", "fit a calibration to a CSV of raw samples"),
+    "heading": ("services.heading_cmd", "apply a calibration to a CSV and print headings"),
+    "bench": ("services.bench", "benchmarks that print figures (accuracy, fit, pipeline)"),
+    "sample": ("services.sample_cmd", "read a sensor (or its emulator) and print CSV"),
+    "selftest": ("services.selftest_cmd", "run the HMC5883L self-test"),
+    "edge": ("services.edge", "publish raw samples of one or many devices over Zenoh"),
+    "calibrator": ("services.calibrator", "collect, fit, gate, store and serve calibrations over Zenoh"),
+    "compass": ("services.compass", "apply calibrations and publish headings over Zenoh"),
+    "router": ("services.router", "run a Zenoh router"),
+    "get": ("services.remote", "query a device's calibration (or its history)"),
+    "watch": ("services.remote", "print headings as they are published"),
+    "calibrate": ("services.remote", "start, follow, commit or abort a calibration session"),
+    "up": ("services.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="magnet", description="Magnetometer calibration and compass service.")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    selected = sys.argv[1] if len(sys.argv) > 1 else None
+    for name, (module_name, help_text) in COMMANDS.items():
+        child = sub.add_parser(name, help=help_text, description=help_text)
+        # Only the chosen command's module is imported, so `magnet fit` never loads zenoh.
+        if name == selected or selected in (None, "-h", "--help"):
+            if name == selected:
+                module = importlib.import_module(module_name)
+                getattr(module, f"add_{name}_arguments", module.add_arguments)(child)
+        child.set_defaults(_module=module_name, _name=name)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    if argv is not None:
+        sys.argv = [sys.argv[0], *argv]
+    parser = build_parser()
+    args = parser.parse_args(sys.argv[1:])
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
+    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    module = importlib.import_module(args._module)
+    runner = getattr(module, f"run_{args._name}", None) or module.run
+    try:
+        return int(runner(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+    except (ValueError, OSError) as exc:
+        print(f"magnet {args._name}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
