@@ -1,0 +1,35 @@
+"""``magnet bench accuracy|fit|pipeline``: benchmarks that print figures (targets live here, not in timed tests)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+#: benchmark -> (module, function)
+BENCHMARKS: dict[str, tuple[str, str]] = {
+    "accuracy": ("services.bench_accuracy", "run_accuracy_benchmark"),
+    "fit": ("services.bench_fit", "run_fit_benchmark"),
+    "pipeline": ("services.bench_pipeline", "run_pipeline_benchmark"),
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("benchmark", choices=sorted(BENCHMARKS))
+    parser.add_argument("--devices", type=int, default=1000, help="pipeline: simulated devices (default 1000)")
+    parser.add_argument("--rate", type=float, default=100.0, help="pipeline: samples/s per device (default 100)")
+    parser.add_argument("--batch", type=int, default=10, help="pipeline: samples per message (default 10)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="pipeline: measuring time per rate (default 10)")
+
+
+def run(args: argparse.Namespace) -> int:
+    module_name, function_name = BENCHMARKS[args.benchmark]
+    function = getattr(importlib.import_module(module_name), function_name)
+    if args.benchmark == "pipeline":
+        if args.devices < 1 or args.rate <= 0 or args.batch < 1 or args.seconds <= 0:
+            raise ValueError("--devices, --rate, --batch and --seconds must be positive")
+        result = function(devices=args.devices, rate=args.rate, batch=args.batch, seconds=args.seconds)
+    else:
+        result = function()
+    if isinstance(result, str):
+        print(result)
+    return 0

@@ -1,0 +1,110 @@
+"""``magnet fit``: fit a calibration to a CSV of raw samples and write the record as JSON.
+
+Exit status 0 when the quality gate accepts the fit; 1 when it is rejected (the reason on stderr, an existing
+``--out`` file left untouched); 2 for bad input (one line on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from magnet.calibration import Method, fit
+from magnet.geomag import earth_field, parse_location
+from magnet.model import Calibration
+from magnet.units import FieldUnit
+from services.csvio import SampleTable, read_samples
+
+EXIT_REJECTED = 1
+
+
+def add_field_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options that say where the device is: shared by ``fit`` and ``heading``."""
+    parser.add_argument("--location", metavar="LAT,LON[,ALT_M]", help="place, for the World Magnetic Model (WMM2025)")
+    parser.add_argument("--date", metavar="YYYY-MM-DD", help="date for the World Magnetic Model (default: today)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", metavar="FILE.csv", help="CSV with a header row: mx,my,mz required, ax,ay,az optional")
+    parser.add_argument("--method", required=True, choices=[m.value for m in Method])
+    parser.add_argument("--unit", default="ut", choices=[u.value for u in FieldUnit],
+                        help="unit of the mx,my,mz columns (default ut)")
+    parser.add_argument("--field-ut", type=float, metavar="F", help="expected field strength in uT")
+    add_field_arguments(parser)
+    parser.add_argument("--horizontal", type=float, metavar="H",
+                        help="turntable: known horizontal field component (its unit is the output unit)")
+    parser.add_argument("--vertical", type=float, metavar="V",
+                        help="turntable: known vertical component along the upward axis (negative in the north)")
+    parser.add_argument("--robust-extremes", action="store_true",
+                        help="minmax: pull each new extreme in slowly (0.2 new, 0.8 old) to resist spikes")
+    parser.add_argument("--out", metavar="cal.json", help="write the record here (default: stdout)")
+
+
+def expected_field_ut(args: argparse.Namespace) -> float | None:
+    """The field strength to scale to, in uT: --field-ut, or the WMM at --location, or None."""
+    if args.field_ut is not None and args.location:
+        raise ValueError("give either --field-ut or --location, not both")
+    if args.field_ut is not None:
+        if not (0 < args.field_ut < 1000):
+            raise ValueError(f"--field-ut {args.field_ut} is not a plausible field strength in uT (Earth: 22-67)")
+        return float(args.field_ut)
+    if args.location:
+        lat, lon, alt_m = parse_location(args.location)
+        return earth_field(lat, lon, alt_m, args.date).total_ut
+    if args.date:
+        raise ValueError("--date needs --location")
+    return None
+
+
+def _fit_turntable(table: SampleTable, args: argparse.Namespace) -> Calibration:
+    from magnet.turntable import fit_turntable
+
+    if args.horizontal is None or args.vertical is None:
+        raise ValueError("the turntable method needs --horizontal and --vertical (the known field components)")
+    return fit_turntable(table.mag, table.text("mounting"), table.numeric("heading_deg"),
+                         args.horizontal, args.vertical)
+
+
+def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
+    """Run the chosen method on the samples."""
+    if args.method == Method.TURNTABLE.value:
+        return _fit_turntable(table, args)
+    if args.horizontal is not None or args.vertical is not None:
+        raise ValueError("--horizontal/--vertical are for --method turntable only")
+    return fit(table.mag, args.method, acc=table.acc, unit=args.unit, field_ut=expected_field_ut(args),
+               robust_extremes=args.robust_extremes)
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` so that a crash leaves either the old file or the new one, never half."""
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=directory)
+    try:
+        with os.fdopen(fd, "w") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def run(args: argparse.Namespace) -> int:
+    table = read_samples(args.file)
+    calibration = fit_table(table, args)
+    text = json.dumps(calibration.to_dict(), indent=2) + "\n"
+    if not calibration.accepted:
+        print(f"magnet fit: rejected: {calibration.reason}", file=sys.stderr)
+        if not args.out:
+            sys.stdout.write(text)
+        return EXIT_REJECTED
+    if args.out:
+        write_atomically(Path(args.out), text)
+    else:
+        sys.stdout.write(text)
+    return 0
