@@ -1,0 +1,386 @@
+"""The wire format: key expressions and msgpack messages between edge, calibrator, compass and their clients.
+
+Every payload is a msgpack map with ``v`` (schema version, ``WIRE_VERSION``) and ``device``. Field names carry their
+unit. Keys are ``<prefix>/<device>/<kind>`` with the device id as one key chunk (see ``Kind``). Decoders turn lists
+into numpy arrays and reject anything malformed with ``WireError``, whose ``cause`` is a short token a service counts
+drops by (``DropCounter``). Pure: no sockets, no clocks, no zenoh.
+
+Messages (arrays aligned sample by sample, N = batch length):
+
+- raw: ``{v, device, seq, sensor, t_ns: [N ints], mag_ut: [[x, y, z]] * N, acc_ms2: [[x, y, z]] * N (optional),
+  truth: {heading_deg: [N], pitch_deg: [N], roll_deg: [N]} (optional, simulator only)}``
+- calibration: ``Calibration.to_dict()`` plus ``v, device, id (content id), created_ns``
+- progress: ``{v, device, state, method, session, samples, coverage, cells_hit, cell_count, missing: [str],
+  residual_rms_ut, reason, t_ns}``
+- heading: ``{v, device, seq, t_ns: [N], heading_deg: [N] (magnetic), true_heading_deg: [N], pitch_deg: [N],
+  roll_deg: [N], field_ut: [[x, y, z]] * N, declination_deg, calibration_id, flags: [N ints]}``
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+from typing import Any, Mapping
+
+import msgpack
+import numpy as np
+
+from magnet.model import Calibration
+
+WIRE_VERSION = 1
+DEFAULT_PREFIX = "magnet"
+#: Larger payloads are refused before they are unpacked.
+MAX_PAYLOAD_BYTES = 4 * 1024 * 1024
+#: Most samples in one raw or heading batch.
+MAX_BATCH_SAMPLES = 10_000
+#: Magnitudes beyond these are not a magnetometer or an accelerometer on Earth (a +-8 gauss chip reads 800 uT).
+MAX_FIELD_UT = 5_000.0
+MAX_ACC_MS2 = 2_000.0
+_FORBIDDEN_ID_CHARS = frozenset("/*$?#")
+_FORBIDDEN_PREFIX_CHARS = frozenset("*$?#")
+_TRUTH_FIELDS = ("heading_deg", "pitch_deg", "roll_deg")
+
+
+class WireError(ValueError):
+    """A message that cannot be used. ``cause`` is a short token to count drops by."""
+
+    def __init__(self, cause: str, message: str) -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
+class Kind(enum.Enum):
+    """What a key carries: the key suffix after ``<prefix>/<device>/``."""
+
+    RAW = "raw"
+    CALIBRATION = "calibration"
+    HISTORY = "calibration/history"
+    PROGRESS = "calibration/progress"
+    CALIBRATE = "calibrate"
+    HEADING = "heading"
+
+
+def validate_device_id(device: Any) -> str:
+    """Return ``device`` if it is a usable single key chunk, else raise ValueError saying why."""
+    if not isinstance(device, str) or not device:
+        raise ValueError("a device id must be a non-empty string")
+    bad = sorted(set(device) & _FORBIDDEN_ID_CHARS)
+    if bad:
+        raise ValueError(f"device id {device!r} contains {' '.join(bad)}: ids may not contain / * $ ? #")
+    if len(device) > 128 or not device.isprintable() or device.strip() != device:
+        raise ValueError(f"device id {device!r} must be printable, without surrounding spaces, at most 128 chars")
+    return device
+
+
+def validate_prefix(prefix: str) -> str:
+    """Return ``prefix`` (one or more key chunks, no wildcards) or raise ValueError."""
+    if not isinstance(prefix, str) or not prefix or prefix.startswith("/") or prefix.endswith("/") or "//" in prefix:
+        raise ValueError(f"key prefix {prefix!r} must be non-empty chunks separated by single '/'")
+    bad = sorted(set(prefix) & _FORBIDDEN_PREFIX_CHARS)
+    if bad:
+        raise ValueError(f"key prefix {prefix!r} contains {' '.join(bad)}: no wildcards or special characters")
+    return prefix
+
+
+def key(prefix: str, device: str, kind: Kind) -> str:
+    """``<prefix>/<device>/<kind>``; ``device`` may be ``*`` to match every device."""
+    if device != "*":
+        validate_device_id(device)
+    return f"{prefix}/{device}/{kind.value}"
+
+
+def device_from_key(prefix: str, key_expr: str, kind: Kind) -> str:
+    """The device chunk of ``<prefix>/<device>/<kind>``; WireError if the key has another shape."""
+    head, tail = f"{prefix}/", f"/{kind.value}"
+    if not (key_expr.startswith(head) and key_expr.endswith(tail)):
+        raise WireError("bad-key", f"key {key_expr!r} is not {head}<device>{tail}")
+    device = key_expr[len(head):-len(tail)]
+    try:
+        return validate_device_id(device)
+    except ValueError as exc:
+        raise WireError("bad-key", str(exc)) from None
+
+
+def status_key(prefix: str, service: str) -> str:
+    """Queryable key of a service's counters: ``<prefix>/@status/<service>``."""
+    return f"{prefix}/@status/{service}"
+
+
+def liveliness_key(prefix: str, role: str, name: str) -> str:
+    """Liveliness token key: ``<prefix>/@alive/<role>/<name>`` (role: edge, device, calibrator, compass, router)."""
+    return f"{prefix}/@alive/{role}/{name}"
+
+
+# --------------------------------------------------------------------------------------------------------- records
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RawBatch:
+    """N raw samples of one device. t_ns (N,) int64 ns; mag_ut (N, 3) uT body frame; acc_ms2 (N, 3) m/s^2 or None;
+    truth: {"heading_deg", "pitch_deg", "roll_deg"} -> (N,) degrees, simulator only, else None."""
+
+    device: str
+    seq: int
+    sensor: str
+    t_ns: np.ndarray
+    mag_ut: np.ndarray
+    acc_ms2: np.ndarray | None = None
+    truth: Mapping[str, np.ndarray] | None = None
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HeadingBatch:
+    """N headings of one device, aligned with one raw batch. Angles in degrees, field_ut (N, 3) corrected uT,
+    flags (N,) ``magnet.heading.HeadingFlag`` bits, declination_deg east-positive."""
+
+    device: str
+    seq: int
+    t_ns: np.ndarray
+    heading_deg: np.ndarray
+    true_heading_deg: np.ndarray
+    pitch_deg: np.ndarray
+    roll_deg: np.ndarray
+    field_ut: np.ndarray
+    declination_deg: float
+    calibration_id: str
+    flags: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class CalibrationMessage:
+    """A calibration as published: the record plus the device, its content id and when it was made (ns)."""
+
+    device: str
+    id: str
+    created_ns: int
+    calibration: Calibration
+
+
+# ---------------------------------------------------------------------------------------------------------- counting
+
+
+class DropCounter:
+    """Counts dropped messages by cause. ``count`` returns True the first time a cause is seen (log it then)."""
+
+    def __init__(self) -> None:
+        self.counts: dict[str, int] = {}
+
+    def count(self, cause: str) -> bool:
+        first = cause not in self.counts
+        self.counts[cause] = self.counts.get(cause, 0) + 1
+        return first
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+
+# ------------------------------------------------------------------------------------------------------- primitives
+
+
+def pack(message: Mapping[str, Any]) -> bytes:
+    """msgpack bytes of a map (with ``v`` added when missing)."""
+    if "v" not in message:
+        message = {"v": WIRE_VERSION, **message}
+    return msgpack.packb(message, use_bin_type=True)
+
+
+def unpack(payload: bytes | bytearray | memoryview) -> dict[str, Any]:
+    """The map inside ``payload``; WireError when oversized, not msgpack, not a map or of another version."""
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise WireError("oversized", f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+    try:
+        message = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several unrelated types for garbage
+        raise WireError("not-msgpack", f"payload is not msgpack: {type(exc).__name__}") from None
+    if not isinstance(message, dict):
+        raise WireError("not-a-map", f"payload is a msgpack {type(message).__name__}, not a map")
+    if message.get("v") != WIRE_VERSION:
+        raise WireError("wrong-version", f"schema version {message.get('v')!r}, expected {WIRE_VERSION}")
+    return message
+
+
+def _device(message: Mapping[str, Any]) -> str:
+    try:
+        return validate_device_id(message.get("device"))
+    except ValueError as exc:
+        raise WireError("bad-device", str(exc)) from None
+
+
+def _int(message: Mapping[str, Any], name: str, default: int | None = None) -> int:
+    value = message.get(name, default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise WireError("bad-field", f"{name} must be an integer, got {type(value).__name__}")
+    return value
+
+
+def _array(value: Any, name: str, shape_tail: tuple[int, ...], limit: float | None) -> np.ndarray:
+    """float64 array of shape (N, *shape_tail), finite, |x| <= limit."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WireError("bad-shape", f"{name} is not an array of numbers") from None
+    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
+        raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected (N, {', '.join(map(str, shape_tail))})")
+    if arr.shape[0] > MAX_BATCH_SAMPLES:
+        raise WireError("oversized", f"{name} holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
+    if not np.isfinite(arr).all():
+        raise WireError("non-finite", f"{name} holds non-finite values")
+    if limit is not None and arr.size and np.abs(arr).max() > limit:
+        raise WireError("absurd-magnitude", f"{name} holds values beyond +-{limit:g}")
+    return arr
+
+
+def _time_array(value: Any) -> np.ndarray:
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError, OverflowError):
+        raise WireError("bad-shape", "t_ns is not an array of integers") from None
+    if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "iu"):
+        raise WireError("bad-shape", f"t_ns must be a list of integers, got shape {arr.shape} dtype {arr.dtype}")
+    if arr.shape[0] > MAX_BATCH_SAMPLES:
+        raise WireError("oversized", f"t_ns holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
+    return arr.astype(np.int64)
+
+
+def _check_length(n: int, arrays: Mapping[str, np.ndarray]) -> None:
+    for name, arr in arrays.items():
+        if arr.shape[0] != n:
+            raise WireError("bad-shape", f"{name} holds {arr.shape[0]} samples but t_ns holds {n}")
+
+
+# ------------------------------------------------------------------------------------------------------------ raw
+
+
+def encode_raw(batch: RawBatch) -> bytes:
+    message: dict[str, Any] = {
+        "v": WIRE_VERSION,
+        "device": batch.device,
+        "seq": int(batch.seq),
+        "sensor": batch.sensor,
+        "t_ns": np.asarray(batch.t_ns, dtype=np.int64).tolist(),
+        "mag_ut": np.asarray(batch.mag_ut, dtype=float).tolist(),
+    }
+    if batch.acc_ms2 is not None:
+        message["acc_ms2"] = np.asarray(batch.acc_ms2, dtype=float).tolist()
+    if batch.truth is not None:
+        message["truth"] = {name: np.asarray(batch.truth[name], dtype=float).tolist() for name in _TRUTH_FIELDS}
+    return msgpack.packb(message, use_bin_type=True)
+
+
+def decode_raw(payload: bytes | bytearray | memoryview) -> RawBatch:
+    """RawBatch from a payload; WireError (with ``cause``) for anything malformed or physically impossible."""
+    message = unpack(payload)
+    device = _device(message)
+    t_ns = _time_array(message.get("t_ns"))
+    n = t_ns.shape[0]
+    if n == 0:
+        raise WireError("empty", "a raw batch holds no samples")
+    mag = _array(message.get("mag_ut"), "mag_ut", (3,), MAX_FIELD_UT)
+    arrays = {"mag_ut": mag}
+    acc = None
+    if message.get("acc_ms2") is not None:
+        acc = arrays["acc_ms2"] = _array(message["acc_ms2"], "acc_ms2", (3,), MAX_ACC_MS2)
+    truth = None
+    if message.get("truth") is not None:
+        raw_truth = message["truth"]
+        if not isinstance(raw_truth, dict):
+            raise WireError("bad-field", "truth must be a map")
+        truth = {name: _array(raw_truth.get(name), f"truth.{name}", (), 1e4) for name in _TRUTH_FIELDS}
+        arrays.update(truth)
+    _check_length(n, arrays)
+    sensor = message.get("sensor", "")
+    if not isinstance(sensor, str):
+        raise WireError("bad-field", "sensor must be a string")
+    return RawBatch(device, _int(message, "seq", 0), sensor, t_ns, mag, acc, truth)
+
+
+# -------------------------------------------------------------------------------------------------------- heading
+
+
+def encode_heading(batch: HeadingBatch) -> bytes:
+    return msgpack.packb({
+        "v": WIRE_VERSION,
+        "device": batch.device,
+        "seq": int(batch.seq),
+        "t_ns": np.asarray(batch.t_ns, dtype=np.int64).tolist(),
+        "heading_deg": np.asarray(batch.heading_deg, dtype=float).tolist(),
+        "true_heading_deg": np.asarray(batch.true_heading_deg, dtype=float).tolist(),
+        "pitch_deg": np.asarray(batch.pitch_deg, dtype=float).tolist(),
+        "roll_deg": np.asarray(batch.roll_deg, dtype=float).tolist(),
+        "field_ut": np.asarray(batch.field_ut, dtype=float).tolist(),
+        "declination_deg": float(batch.declination_deg),
+        "calibration_id": batch.calibration_id,
+        "flags": np.asarray(batch.flags, dtype=np.int64).tolist(),
+    }, use_bin_type=True)
+
+
+def decode_heading(payload: bytes | bytearray | memoryview) -> HeadingBatch:
+    message = unpack(payload)
+    device = _device(message)
+    t_ns = _time_array(message.get("t_ns"))
+    angles = {name: _array(message.get(name), name, (), 1e4)
+              for name in ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg")}
+    field = _array(message.get("field_ut"), "field_ut", (3,), None)
+    flags = _time_array(message.get("flags"))
+    _check_length(t_ns.shape[0], {**angles, "field_ut": field, "flags": flags})
+    declination = message.get("declination_deg", 0.0)
+    if not isinstance(declination, (int, float)) or not math.isfinite(declination):
+        raise WireError("bad-field", "declination_deg must be a finite number")
+    return HeadingBatch(device, _int(message, "seq", 0), t_ns, field_ut=field, flags=flags,
+                        declination_deg=float(declination), calibration_id=str(message.get("calibration_id", "")),
+                        **angles)
+
+
+# ---------------------------------------------------------------------------------------------------- calibration
+
+
+def calibration_record(device: str, calibration: Calibration, created_ns: int) -> dict[str, Any]:
+    """The published map: ``Calibration.to_dict()`` plus ``v, device, id, created_ns`` (JSON-able)."""
+    return {"v": WIRE_VERSION, "device": validate_device_id(device), "id": calibration.content_id,
+            "created_ns": int(created_ns), **calibration.to_dict()}
+
+
+def encode_calibration(device: str, calibration: Calibration, created_ns: int) -> bytes:
+    return msgpack.packb(calibration_record(device, calibration, created_ns), use_bin_type=True)
+
+
+def calibration_from_record(record: Mapping[str, Any]) -> CalibrationMessage:
+    """Validate a calibration map (as ``calibration_record`` builds it); WireError when unusable."""
+    if record.get("v") != WIRE_VERSION:
+        raise WireError("wrong-version", f"schema version {record.get('v')!r}, expected {WIRE_VERSION}")
+    device = _device(record)
+    try:
+        calibration = Calibration.from_dict(record)
+    except (ValueError, TypeError) as exc:
+        raise WireError("bad-calibration", f"unusable calibration: {exc}") from None
+    if np.abs(calibration.offset).max() > MAX_FIELD_UT * 10 or not np.isfinite(np.linalg.cond(calibration.matrix)) \
+            or np.linalg.cond(calibration.matrix) > 1e6:
+        raise WireError("absurd-magnitude", "calibration offset is absurd or its matrix is singular")
+    created_ns = _int(record, "created_ns", 0)
+    return CalibrationMessage(device, calibration.content_id, created_ns, calibration)
+
+
+def decode_calibration(payload: bytes | bytearray | memoryview) -> CalibrationMessage:
+    return calibration_from_record(unpack(payload))
+
+
+# ------------------------------------------------------------------------------------------------------- progress
+
+
+def encode_progress(device: str, progress: Mapping[str, Any]) -> bytes:
+    """Progress map of a calibration in collection; ``progress`` holds state, samples, coverage, missing, ..."""
+    return msgpack.packb({"v": WIRE_VERSION, "device": validate_device_id(device), **progress}, use_bin_type=True)
+
+
+def decode_progress(payload: bytes | bytearray | memoryview) -> dict[str, Any]:
+    message = unpack(payload)
+    _device(message)
+    return message

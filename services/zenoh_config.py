@@ -1,0 +1,132 @@
+"""Common Zenoh options of every service, the config built from them, and small shell helpers the services share.
+
+Options: ``--config FILE.json5``, ``--mode peer|client|router``, ``--connect ENDPOINT`` (repeatable), ``--listen
+ENDPOINT`` (repeatable), ``--no-multicast-scouting``, ``--prefix P``. Options given on the command line override the
+file. Zenoh's default peer listens on every interface and scouts by multicast: for a local pipeline pin ``--listen
+tcp/127.0.0.1:PORT`` and pass ``--no-multicast-scouting`` (``loopback_arguments`` builds exactly that).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import socket
+import threading
+from pathlib import Path
+from typing import Any, Sequence
+
+from magnet.wire import DEFAULT_PREFIX, validate_prefix
+
+log = logging.getLogger(__name__)
+
+MODES = ("peer", "client", "router")
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = "peer") -> None:
+    group = parser.add_argument_group("zenoh")
+    group.add_argument("--config", metavar="FILE.json5", help="a Zenoh configuration file (json5)")
+    group.add_argument("--mode", choices=MODES, default=None, help=f"session mode (default {default_mode})")
+    group.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    group.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                       help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    group.add_argument("--no-multicast-scouting", action="store_true", help="do not scout for peers by multicast")
+    group.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key prefix (default {DEFAULT_PREFIX})")
+    parser.set_defaults(_default_mode=default_mode)
+
+
+def config_json5(args: argparse.Namespace) -> dict[str, str]:
+    """Config path -> json5 value for every option given (what ``build_config`` inserts)."""
+    mode = getattr(args, "mode", None) or getattr(args, "_default_mode", "peer")
+    values = {"mode": json.dumps(mode)}
+    if args.connect:
+        values["connect/endpoints"] = json.dumps(list(args.connect))
+    if args.listen:
+        values["listen/endpoints"] = json.dumps(list(args.listen))
+    if args.no_multicast_scouting:
+        values["scouting/multicast/enabled"] = "false"
+    return values
+
+
+def build_config(args: argparse.Namespace):
+    """A ``zenoh.Config`` from the file (if any) and the options. ValueError/OSError for a bad file or option."""
+    import zenoh
+
+    validate_prefix(args.prefix)
+    if args.config:
+        path = Path(args.config)
+        if not path.is_file():
+            raise OSError(f"zenoh config file {path} not found")
+        try:
+            conf = zenoh.Config.from_file(str(path))
+        except Exception as exc:  # zenoh raises ZError for any bad file
+            raise ValueError(f"zenoh config file {path} is not valid: {exc}") from None
+    else:
+        conf = zenoh.Config()
+    for path_key, value in config_json5(args).items():
+        if path_key == "mode" and args.config and not args.mode:
+            continue  # the file's mode stands unless --mode is given
+        try:
+            conf.insert_json5(path_key, value)
+        except Exception as exc:
+            raise ValueError(f"zenoh option {path_key}={value} refused: {exc}") from None
+    return conf
+
+
+def open_session(args: argparse.Namespace):
+    """Open a session from the options; use it as a context manager so it is closed (or the process never exits)."""
+    import zenoh
+
+    zenoh.try_init_log_from_env()
+    conf = build_config(args)
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:
+        raise OSError(f"cannot open a zenoh session: {exc}") from None
+
+
+def loopback_arguments(listen_port: int | None, connect_ports: Sequence[int] = ()) -> list[str]:
+    """Command-line options for a local pipeline: listen on 127.0.0.1 only, connect explicitly, no multicast."""
+    options = ["--no-multicast-scouting"]
+    if listen_port is not None:
+        options += ["--listen", f"tcp/127.0.0.1:{listen_port}"]
+    for port in connect_ports:
+        options += ["--connect", f"tcp/127.0.0.1:{port}"]
+    return options
+
+
+def free_ports(count: int) -> list[int]:
+    """``count`` distinct TCP ports free on 127.0.0.1 right now."""
+    sockets, ports = [], []
+    try:
+        for _ in range(count):
+            sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            sock.bind(("127.0.0.1", 0))
+            sockets.append(sock)
+            ports.append(sock.getsockname()[1])
+    finally:
+        for sock in sockets:
+            sock.close()
+    return ports
+
+
+def stop_event() -> threading.Event:
+    """An event set on SIGTERM or SIGINT (Ctrl-C), so a service loop can end and close its session cleanly."""
+    event = threading.Event()
+
+    def _handler(signum: int, _frame: Any) -> None:
+        log.info("signal %d: stopping", signum)
+        event.set()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _handler)
+        signal.signal(signal.SIGINT, _handler)
+    return event
+
+
+def payload_bytes(sample_or_query: Any) -> bytes:
+    """The payload of a zenoh Sample (or Query; b"" when it has none) as bytes."""
+    payload = sample_or_query.payload
+    return b"" if payload is None else payload.to_bytes()

@@ -1,0 +1,116 @@
+"""The wire format: round trips, key shapes, and every kind of malformed message refused with a countable cause."""
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from hypothesis.extra import numpy as hnp
+
+from magnet import wire
+from magnet.model import Calibration
+
+
+def _raw(n=5, acc=True, truth=False, device="dev-1"):
+    rng = np.random.default_rng(0)
+    return wire.RawBatch(device, 7, "lsm303dlh", np.arange(n, dtype=np.int64) * 10_000_000 + 1_700_000_000_000_000_000,
+                         rng.normal(0, 40, (n, 3)), rng.normal(0, 9.8, (n, 3)) if acc else None,
+                         {k: rng.uniform(0, 360, n) for k in ("heading_deg", "pitch_deg", "roll_deg")} if truth else None)
+
+
+finite = st.floats(-4000, 4000, allow_nan=False)
+
+
+@settings(max_examples=40, deadline=None)
+@given(mag=hnp.arrays(np.float64, st.tuples(st.integers(1, 60), st.just(3)), elements=finite), acc=st.booleans())
+def test_raw_round_trip_is_exact(mag, acc):
+    n = mag.shape[0]
+    batch = wire.RawBatch("d", 3, "sim", np.arange(n, dtype=np.int64), mag, mag / 100 if acc else None)
+    back = wire.decode_raw(wire.encode_raw(batch))
+    assert back.device == "d" and back.seq == 3 and back.sensor == "sim"
+    np.testing.assert_array_equal(back.mag_ut, mag)
+    np.testing.assert_array_equal(back.t_ns, np.arange(n))
+    assert (back.acc_ms2 is None) == (not acc)
+
+
+def test_raw_with_truth_keeps_truth_and_int64_times():
+    batch = _raw(truth=True)
+    back = wire.decode_raw(wire.encode_raw(batch))
+    assert back.t_ns.dtype == np.int64 and back.t_ns[0] == batch.t_ns[0]
+    np.testing.assert_allclose(back.truth["heading_deg"], batch.truth["heading_deg"])
+
+
+def _mutate(**changes):
+    message = msgpack.unpackb(wire.encode_raw(_raw()))
+    message.update(changes)
+    return msgpack.packb({k: v for k, v in message.items() if v is not ...})
+
+
+@pytest.mark.parametrize("payload, cause", [
+    (b"\xc1garbage", "not-msgpack"),
+    (msgpack.packb([1, 2, 3]), "not-a-map"),
+    (_mutate(v=2), "wrong-version"),
+    (_mutate(v=...), "wrong-version"),
+    (_mutate(device="a/b"), "bad-device"),
+    (_mutate(device=""), "bad-device"),
+    (_mutate(mag_ut=[[1, 2]] * 5), "bad-shape"),
+    (_mutate(mag_ut=[[1.0, 2.0, 3.0]] * 4), "bad-shape"),
+    (_mutate(mag_ut=[[float("nan"), 2.0, 3.0]] * 5), "non-finite"),
+    (_mutate(mag_ut=[[1e7, 2.0, 3.0]] * 5), "absurd-magnitude"),
+    (_mutate(acc_ms2=[[1e6, 0, 0]] * 5), "absurd-magnitude"),
+    (_mutate(t_ns=[1.5] * 5), "bad-shape"),
+    (_mutate(t_ns=[], mag_ut=[], acc_ms2=None), "empty"),
+    (_mutate(mag_ut="hello"), "bad-shape"),
+    (_mutate(seq="x"), "bad-field"),
+    (b"\x00" * (wire.MAX_PAYLOAD_BYTES + 1), "oversized"),
+])
+def test_malformed_raw_is_refused_with_its_cause(payload, cause):
+    with pytest.raises(wire.WireError) as info:
+        wire.decode_raw(payload)
+    assert info.value.cause == cause
+
+
+def test_heading_round_trip():
+    n = 4
+    batch = wire.HeadingBatch("dev", 2, np.arange(n), np.full(n, 10.0), np.full(n, 15.0), np.zeros(n), np.ones(n),
+                              np.ones((n, 3)), 5.0, "abc", np.array([1, 1, 3, 1]))
+    back = wire.decode_heading(wire.encode_heading(batch))
+    np.testing.assert_array_equal(back.true_heading_deg, 15.0)
+    assert back.calibration_id == "abc" and back.declination_deg == 5.0 and back.flags.tolist() == [1, 1, 3, 1]
+
+
+def test_calibration_message_carries_record_id_and_time():
+    cal = Calibration("ellipsoid", [1.0, 2.0, 3.0], np.diag([1.1, 0.9, 1.0]), field_strength=50.0)
+    message = wire.decode_calibration(wire.encode_calibration("dev", cal, 123))
+    assert message.device == "dev" and message.created_ns == 123 and message.id == cal.content_id
+    np.testing.assert_allclose(message.calibration.offset, [1, 2, 3])
+    record = msgpack.unpackb(wire.encode_calibration("dev", cal, 123))
+    assert record["method"] == "ellipsoid" and record["id"] == cal.content_id and record["v"] == 1
+
+
+def test_singular_or_malformed_calibration_is_refused():
+    record = wire.calibration_record("dev", Calibration("x", [0, 0, 0], np.eye(3)), 1)
+    with pytest.raises(wire.WireError):
+        wire.calibration_from_record({**record, "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 0]]})
+    with pytest.raises(wire.WireError):
+        wire.calibration_from_record({**record, "offset": [1, 2]})
+
+
+@pytest.mark.parametrize("device", ["", "a/b", "a*", "$x", "q?", "h#", " lead", 5])
+def test_bad_device_ids_are_refused(device):
+    with pytest.raises(ValueError):
+        wire.validate_device_id(device)
+
+
+def test_keys_and_device_from_key():
+    assert wire.key("magnet", "d1", wire.Kind.HISTORY) == "magnet/d1/calibration/history"
+    assert wire.device_from_key("fleet/a", "fleet/a/d-9/raw", wire.Kind.RAW) == "d-9"
+    with pytest.raises(wire.WireError):
+        wire.device_from_key("magnet", "magnet/x/y/raw", wire.Kind.RAW)
+    with pytest.raises(ValueError):
+        wire.validate_prefix("magnet/*")
+
+
+def test_drop_counter_reports_each_cause_once():
+    counter = wire.DropCounter()
+    assert [counter.count(c) for c in ("a", "a", "b", "a")] == [True, False, True, False]
+    assert counter.counts == {"a": 3, "b": 1} and counter.total == 4
