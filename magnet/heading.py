@@ -1,0 +1,167 @@
+"""Heading, pitch and roll from a (calibrated) magnetometer and an accelerometer, vectorized over samples.
+
+Conventions (DESIGN.md section 2): body x forward, y right, z down. ``acc`` is specific force in m/s^2 (any unit
+works where only directions matter): a level, still device reads (0, 0, -g). Pitch is positive nose up, roll
+positive right side down. Heading is in degrees [0, 360), clockwise from north, of the body x axis; magnetic heading
+comes from the field, true heading = magnetic + declination (east positive, seed 001 eq. 1).
+
+Every function takes arrays of shape (..., 3) (a single (3,) sample works too) and returns shape (...).
+"""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+#: below this fraction of the norm a vector is treated as missing (no tilt, no horizontal field)
+_TINY = 1e-12
+
+
+class HeadingFlag(enum.IntFlag):
+    """Flags carried by each heading (bit values are part of the wire format)."""
+
+    NONE = 0
+    CALIBRATED = 1       # a calibration was applied
+    NO_TILT = 2          # no usable accelerometer sample: heading assumes the device is level
+    FIELD_DISTURBED = 4  # |B| is far from the expected field strength (magnet, iron or bad calibration nearby)
+    DIP_DISTURBED = 8    # the angle between field and gravity is far from the expected inclination
+
+
+def wrap_deg(angle_deg) -> np.ndarray:
+    """Angles wrapped to [0, 360)."""
+    wrapped = np.mod(np.asarray(angle_deg, dtype=float), 360.0)
+    return np.where(wrapped >= 360.0, 0.0, wrapped)  # mod of a tiny negative number can round up to 360
+
+
+def angle_difference_deg(a_deg, b_deg) -> np.ndarray:
+    """Signed difference a - b wrapped to [-180, 180): the right way to compare two headings."""
+    return np.mod(np.asarray(a_deg, dtype=float) - np.asarray(b_deg, dtype=float) + 180.0, 360.0) - 180.0
+
+
+def pitch_roll_deg(acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pitch and roll (degrees) from specific force ``acc`` (..., 3), the device assumed still.
+
+    With f = acc, the Z-Y-X attitude (see ``magnet.attitude``) gives f = g (sin p, -sin r cos p, -cos r cos p), so
+
+        pitch = atan2(f_x, sqrt(f_y^2 + f_z^2))   in [-90, 90]
+        roll  = atan2(-f_y, -f_z)                 in (-180, 180]
+    """
+    f = np.asarray(acc, dtype=float)
+    pitch = np.degrees(np.arctan2(f[..., 0], np.hypot(f[..., 1], f[..., 2])))
+    roll = np.degrees(np.arctan2(-f[..., 1], -f[..., 2]))
+    return pitch, np.where(roll <= -180.0, 180.0, roll)
+
+
+def level_heading_deg(field: np.ndarray) -> np.ndarray:
+    """Magnetic heading of a level device from the field (..., 3) in the body frame (seed 001 eqs. 2-5).
+
+    A level device at heading h sees the horizontal field H as (H cos h, -H sin h) on its x (forward) and y (right)
+    axes, so h = atan2(-B_y, B_x), quadrant-correct, in [0, 360).
+    """
+    b = np.asarray(field, dtype=float)
+    return wrap_deg(np.degrees(np.arctan2(-b[..., 1], b[..., 0])))
+
+
+def _horizontal_frame(field: np.ndarray, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """down (unit), east and north (both of length |B_horizontal|) in body coordinates, each (..., 3)."""
+    f = np.asarray(acc, dtype=float)
+    b = np.asarray(field, dtype=float)
+    norm = np.linalg.norm(f, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        down = np.where(norm > _TINY, -f / norm, np.nan)
+    east = np.cross(down, b)
+    north = np.cross(east, down)
+    return down, east, north
+
+
+def tilt_compensated_heading_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """Magnetic heading (degrees, [0, 360)) of a tilted device from the field (..., 3) and specific force (..., 3).
+
+    Cross-product form (no Euler angles, so no singularity short of the x axis pointing straight up or down):
+    with d = -acc / |acc| the down direction in body axes,
+
+        e = d x B   (east, horizontal, |e| = |B_horizontal|)
+        n = e x d   (north, horizontal, same length)
+        heading = atan2(e_x, n_x)
+
+    since the body x axis has components (cos h cos p) on north and (sin h cos p) on east. Samples with a zero
+    accelerometer reading give NaN.
+    """
+    _, east, north = _horizontal_frame(field, acc)
+    return wrap_deg(np.degrees(np.arctan2(east[..., 0], north[..., 0])))
+
+
+def heading_uncertainty_deg(field: np.ndarray, acc: np.ndarray, field_error_ut: float) -> np.ndarray:
+    """One-sigma heading uncertainty (degrees) from a field error ``field_error_ut`` (uT, e.g. the calibration's
+    residual RMS) and the horizontal field the device sees: atan(error / |B_horizontal|); 180 where there is no
+    horizontal field."""
+    _, east, _ = _horizontal_frame(field, acc)
+    horizontal = np.linalg.norm(east, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sigma = np.degrees(np.arctan2(float(field_error_ut), horizontal))
+    return np.where(horizontal > _TINY, sigma, 180.0)
+
+
+def true_heading_deg(magnetic_deg, declination_deg) -> np.ndarray:
+    """True heading = magnetic heading + declination (east positive), wrapped to [0, 360)."""
+    return wrap_deg(np.asarray(magnetic_deg, dtype=float) + np.asarray(declination_deg, dtype=float))
+
+
+def smooth_heading_deg(heading_deg: np.ndarray, window: int) -> np.ndarray:
+    """Trailing sliding-window circular mean (seed 004's sliding window, done on the circle).
+
+    Output i is the direction of the sum of unit vectors of headings i-window+1 .. i (fewer at the start), so 359 and
+    1 average to 0, never 180. heading (N,) in degrees -> (N,) in [0, 360). ``window`` >= 1 samples.
+    """
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
+        raise ValueError(f"smoothing window must be a whole number of samples >= 1, got {window!r}")
+    h = np.radians(np.asarray(heading_deg, dtype=float))
+    if h.ndim != 1:
+        raise ValueError(f"headings must be a 1-D array, got shape {h.shape}")
+    sums = []
+    for part in (np.cos(h), np.sin(h)):
+        cumulative = np.concatenate([[0.0], np.cumsum(part)])
+        upper = np.arange(1, h.size + 1)
+        sums.append(cumulative[upper] - cumulative[np.maximum(upper - window, 0)])
+    return wrap_deg(np.degrees(np.arctan2(sums[1], sums[0])))
+
+
+def dip_angle_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """Dip of the field below the horizon, degrees in [-90, 90]: asin(B . d / |B|) with d = -acc / |acc| (down).
+
+    It equals the local inclination whatever the attitude, so it checks both calibration and disturbance.
+    """
+    down, _, _ = _horizontal_frame(field, acc)
+    b = np.asarray(field, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sine = np.sum(b * down, axis=-1) / np.linalg.norm(b, axis=-1)
+    return np.degrees(np.arcsin(np.clip(sine, -1.0, 1.0)))
+
+
+def disturbance_flags(field: np.ndarray, acc: np.ndarray | None, expected_ut: float | None,
+                      expected_dip_deg: float | None, field_tol_pct: float = 15.0,
+                      dip_tol_deg: float = 5.0) -> np.ndarray:
+    """HeadingFlag bits (int, shape (...)) for corrected fields (..., 3) in uT and specific force (..., 3) or None.
+
+    FIELD_DISTURBED: | |B| - expected_ut | > field_tol_pct % of expected_ut (skipped when expected_ut is None or 0).
+    DIP_DISTURBED: |dip - expected_dip_deg| > dip_tol_deg (skipped without acc or expected dip).
+    NO_TILT: acc is None, or a sample's acc is zero or not finite. CALIBRATED is the caller's to add.
+    """
+    b = np.asarray(field, dtype=float)
+    flags = np.zeros(b.shape[:-1], dtype=np.int64)
+    if expected_ut:
+        magnitude = np.linalg.norm(b, axis=-1)
+        disturbed = ~(np.abs(magnitude - expected_ut) <= expected_ut * field_tol_pct / 100.0)
+        flags |= np.where(disturbed, int(HeadingFlag.FIELD_DISTURBED), 0)
+    if acc is None:
+        return flags | int(HeadingFlag.NO_TILT)
+    f = np.broadcast_to(np.asarray(acc, dtype=float), b.shape)
+    norm = np.linalg.norm(f, axis=-1)
+    no_tilt = ~(np.isfinite(norm) & (norm > _TINY))
+    flags |= np.where(no_tilt, int(HeadingFlag.NO_TILT), 0)
+    if expected_dip_deg is not None:
+        dip = dip_angle_deg(b, f)
+        dip_off = np.abs(dip - expected_dip_deg) > dip_tol_deg
+        flags |= np.where(dip_off & ~no_tilt, int(HeadingFlag.DIP_DISTURBED), 0)
+    return flags
