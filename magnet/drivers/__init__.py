@@ -1,0 +1,60 @@
+"""Sensor drivers over an injected smbus2-style bus, and ``open_sensor`` by name.
+
+``magnet.drivers.<chip>.<CHIP>(bus, address=DEFAULT, orientation=None)`` with ``.read() -> Reading`` (see
+``magnet.drivers.base`` for the reading, orientation names, retries and health). Nothing here imports smbus2: the
+service opens ``smbus2.SMBus(n)`` and passes it in, or passes an emulator from ``magnet.emulators``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from magnet.drivers.base import Combined, Health, Reading, RetryPolicy, Sensor, SensorError, orientation_matrix
+
+__all__ = ["Combined", "Health", "Reading", "RetryPolicy", "Sensor", "SensorError", "SENSORS", "open_sensor",
+           "orientation_matrix"]
+
+
+def _hmc5883l(bus: Any, address: int | None, orientation: Any, **kw: Any) -> Sensor:
+    from magnet.drivers.hmc5883l import DEFAULT_ADDRESS, HMC5883L
+    return HMC5883L(bus, address or DEFAULT_ADDRESS, orientation, **kw)
+
+
+def _qmc5883l(bus: Any, address: int | None, orientation: Any, **kw: Any) -> Sensor:
+    from magnet.drivers.qmc5883l import DEFAULT_ADDRESS, QMC5883L
+    return QMC5883L(bus, address or DEFAULT_ADDRESS, orientation, **kw)
+
+
+def _lsm303dlh(bus: Any, address: int | None, orientation: Any, **kw: Any) -> Sensor:
+    from magnet.drivers.lsm303dlh import DEFAULT_ADDRESS, LSM303DLH
+    return LSM303DLH(bus, address or DEFAULT_ADDRESS, orientation, **kw)
+
+
+def _ak09918c_bma456(bus: Any, address: int | None, orientation: Any, *, acc_address: int | None = None,
+                     **kw: Any) -> Sensor:
+    from magnet.drivers import ak09918c, bma456
+    return Combined(ak09918c.AK09918C(bus, address or ak09918c.DEFAULT_ADDRESS, orientation, **kw),
+                    bma456.BMA456(bus, acc_address or bma456.DEFAULT_ADDRESS, orientation, **kw))
+
+
+#: sensor name -> (factory(bus, address, orientation, **options), has an accelerometer, one-line description)
+SENSORS: dict[str, tuple[Callable[..., Sensor], bool, str]] = {
+    "hmc5883l": (_hmc5883l, False, "Honeywell HMC5883L magnetometer at 0x1E"),
+    "qmc5883l": (_qmc5883l, False, "QST QMC5883L magnetometer at 0x0D"),
+    "lsm303dlh": (_lsm303dlh, True, "ST LSM303DLH magnetometer 0x1E + accelerometer 0x18"),
+    "ak09918c+bma456": (_ak09918c_bma456, True, "AKM AK09918C magnetometer 0x0C + Bosch BMA456 accelerometer 0x18"),
+}
+
+
+def open_sensor(name: str, bus: Any, address: int | None = None, orientation: Any = None, **options: Any) -> Sensor:
+    """The driver for sensor ``name`` on ``bus`` (address None = the chip's default; for a pair, the magnetometer's;
+    ``acc_address=`` moves the accelerometer). ``options`` go to the driver (``retry``, ``sleep``, settings)."""
+    try:
+        factory = SENSORS[name.strip().lower()][0]
+    except KeyError:
+        raise ValueError(f"unknown sensor {name!r}: use one of {', '.join(SENSORS)}") from None
+    return factory(bus, address, orientation, **options)
+
+
+def has_accelerometer(name: str) -> bool:
+    return SENSORS[name.strip().lower()][1]

@@ -1,0 +1,280 @@
+"""What every sensor driver shares: the reading, the mounting orientation, I2C access with bounded retries, health.
+
+A driver talks to its chip through an injected ``bus`` object with the smbus2 ``SMBus`` methods it uses
+(``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``, ``write_i2c_block_data``). On hardware the service
+passes ``smbus2.SMBus(1)``; in tests it passes an emulator from ``magnet.emulators``. Nothing here imports smbus2.
+
+Failure policy (chosen once, for every driver):
+- An ``OSError`` whose errno is transient (EIO, EREMOTEIO, EBUSY, ETIMEDOUT, EAGAIN) is retried up to
+  ``RetryPolicy.attempts`` times with exponential backoff capped at ``max_delay_s`` (the sleep is injectable).
+- ``read()`` never raises for I/O trouble: when the retries are exhausted (or the error is not transient) it returns a
+  ``Reading`` with ``failed=True`` and no field, and the ``Health`` counters say so; after ``unhealthy_after``
+  consecutive failed reads the sensor reports ``healthy == False``. The next good read makes it healthy again.
+- Construction (identity check, configuration) raises ``SensorError`` (an ``OSError``) with a message that says what
+  to check, because a sensor that cannot be set up is a configuration problem, not a glitch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import logging
+import math
+import re
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: errnos of an I2C transfer worth retrying: bus noise, clock stretching, arbitration loss, a NACK in mid-transfer.
+TRANSIENT_ERRNOS = frozenset({errno.EIO, errno.EREMOTEIO, errno.EBUSY, errno.ETIMEDOUT, errno.EAGAIN})
+
+
+class SensorError(OSError):
+    """A sensor cannot be used: wrong chip at the address, no answer after the retries, bad configuration."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Reading:
+    """One sample of a sensor, in the body frame.
+
+    Attributes:
+        mag_ut: magnetic field, shape (3,), uT; None when there is no magnetometer, no new data, an overflow or a
+            failed transfer.
+        acc_ms2: specific force, shape (3,), m/s^2 (a level still device reads about (0, 0, -9.81)); None when there
+            is no accelerometer or its read failed.
+        overflow: an axis saturated (the value is withheld, never passed on as a field).
+        ready: the chip had a new sample (False: nothing new since the last read; no field is given).
+        failed: the transfer failed after the retries (see ``Health``).
+        raw: the magnetometer's raw codes in the chip's own axis order x, y, z (shape (3,), int), when read.
+    """
+
+    mag_ut: np.ndarray | None = None
+    acc_ms2: np.ndarray | None = None
+    overflow: bool = False
+    ready: bool = True
+    failed: bool = False
+    raw: np.ndarray | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True when the reading carries a usable field or acceleration."""
+        return not self.failed and self.ready and not self.overflow and (
+            self.mag_ut is not None or self.acc_ms2 is not None)
+
+
+FAILED = Reading(ready=False, failed=True)
+NOT_READY = Reading(ready=False)
+
+
+# --------------------------------------------------------------------------------------------------- orientation
+
+_AXIS_ROTATIONS: dict[str, Callable[[float], np.ndarray]] = {
+    "roll": lambda a: np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]]),
+    "pitch": lambda a: np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]]),
+    "yaw": lambda a: np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]]),
+}
+_TOKEN = re.compile(r"(roll|pitch|yaw)_?(\d+)")
+
+
+def _rotation_from_name(name: str) -> np.ndarray:
+    text = name.strip().lower()
+    text = text.removeprefix("rotation_")
+    if text in ("", "none", "identity"):
+        return np.eye(3)
+    matrix = np.eye(3)
+    rest = _TOKEN.sub("", text).strip("_+ ,")
+    if rest.replace("_", "").replace("+", "").replace(" ", "").replace(",", ""):
+        raise ValueError(f"unknown orientation {name!r}: use names such as 'none', 'yaw90', 'roll180', "
+                         "'roll180_yaw90', 'pitch270' (ArduPilot ROTATION_* names) or 9 numbers of a 3x3 matrix")
+    for axis, degrees in _TOKEN.findall(text):
+        if int(degrees) % 45:
+            raise ValueError(f"orientation {name!r}: angles must be multiples of 45 degrees, got {degrees}")
+        matrix = _AXIS_ROTATIONS[axis](math.radians(int(degrees))) @ matrix
+    return np.round(matrix, 12)
+
+
+def orientation_matrix(orientation: Any) -> np.ndarray:
+    """The 3x3 matrix R that maps a vector in the chip's marked axes to the body frame: v_body = R @ v_chip.
+
+    ``orientation`` is None (chip axes are the body axes), a name in ArduPilot's ROTATION_* style (``"yaw90"``,
+    ``"roll180"``, ``"ROTATION_ROLL_180_YAW_90"``, ``"pitch270"``; rotations are applied in the order written, so
+    ``roll180_yaw90`` = Rz(90) @ Rx(180), as ArduPilot does), a 3x3 matrix, or 9 numbers (row-major, or a string
+    of them separated by commas). The matrix must be a proper rotation (orthonormal, determinant +1).
+    """
+    if orientation is None:
+        return np.eye(3)
+    if isinstance(orientation, str) and not re.search(r"[a-z]", orientation.lower()):
+        orientation = [float(v) for v in orientation.replace(";", ",").split(",") if v.strip()]
+    if isinstance(orientation, str):
+        return _rotation_from_name(orientation)
+    matrix = np.asarray(orientation, dtype=float)
+    if matrix.size != 9:
+        raise ValueError(f"an orientation matrix needs 9 numbers (3x3 row-major), got {matrix.size}")
+    matrix = matrix.reshape(3, 3)
+    if not np.allclose(matrix @ matrix.T, np.eye(3), atol=1e-6) or np.linalg.det(matrix) < 0:
+        raise ValueError("an orientation matrix must be a rotation (orthonormal rows, determinant +1); "
+                         f"got {matrix.tolist()}")
+    return matrix
+
+
+# --------------------------------------------------------------------------------------------------- retry, health
+
+@dataclasses.dataclass(frozen=True)
+class RetryPolicy:
+    """Bounded exponential backoff for transient I2C errors: delays base, base*factor, ... capped at max_delay_s."""
+
+    attempts: int = 4
+    base_delay_s: float = 0.002
+    factor: float = 2.0
+    max_delay_s: float = 0.05
+    unhealthy_after: int = 3
+
+    def __post_init__(self) -> None:
+        if self.attempts < 1:
+            raise ValueError(f"retry attempts must be >= 1, got {self.attempts}")
+        if self.base_delay_s < 0 or self.max_delay_s < 0:
+            raise ValueError("retry delays must be >= 0")
+
+    def delay_s(self, retry_index: int) -> float:
+        """Delay before retry number ``retry_index`` (0-based), in seconds."""
+        return min(self.max_delay_s, self.base_delay_s * self.factor ** retry_index)
+
+
+@dataclasses.dataclass
+class Health:
+    """Counters of one sensor's bus traffic (mutable: the driver updates them as it goes)."""
+
+    transfers: int = 0
+    errors: int = 0
+    retries: int = 0
+    reads: int = 0
+    failed_reads: int = 0
+    consecutive_failures: int = 0
+    errors_by_errno: dict[int, int] = dataclasses.field(default_factory=dict)
+    last_error: str = ""
+    unhealthy_after: int = 3
+
+    @property
+    def healthy(self) -> bool:
+        return self.consecutive_failures < self.unhealthy_after
+
+    def as_dict(self) -> dict[str, Any]:
+        out = dataclasses.asdict(self)
+        out["healthy"] = self.healthy
+        return out
+
+
+class I2CDevice:
+    """One chip at one I2C address, with every transfer retried per ``RetryPolicy`` and counted in ``Health``."""
+
+    def __init__(self, bus: Any, address: int, *, retry: RetryPolicy | None = None,
+                 sleep: Callable[[float], None] = time.sleep, health: Health | None = None) -> None:
+        if not 0x03 <= int(address) <= 0x77:
+            raise ValueError(f"I2C address must be in 0x03..0x77, got {address:#x}")
+        self.bus = bus
+        self.address = int(address)
+        self.retry = retry or RetryPolicy()
+        self.sleep = sleep
+        self.health = health or Health(unhealthy_after=self.retry.unhealthy_after)
+
+    def _transfer(self, method: str, *args: Any) -> Any:
+        call = getattr(self.bus, method)
+        for attempt in range(self.retry.attempts):
+            self.health.transfers += 1
+            try:
+                return call(self.address, *args)
+            except OSError as exc:
+                self.health.errors += 1
+                code = exc.errno or 0
+                self.health.errors_by_errno[code] = self.health.errors_by_errno.get(code, 0) + 1
+                self.health.last_error = f"{method} at {self.address:#04x}: {exc}"
+                if code not in TRANSIENT_ERRNOS or attempt + 1 == self.retry.attempts:
+                    raise SensorError(code, f"I2C {method} at address {self.address:#04x} failed after "
+                                            f"{attempt + 1} attempt(s): {exc.strerror or exc}") from exc
+                self.health.retries += 1
+                self.sleep(self.retry.delay_s(attempt))
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def read_byte(self, register: int) -> int:
+        return int(self._transfer("read_byte_data", register))
+
+    def write_byte(self, register: int, value: int) -> None:
+        self._transfer("write_byte_data", register, value & 0xFF)
+
+    def read_block(self, register: int, length: int) -> list[int]:
+        data = list(self._transfer("read_i2c_block_data", register, length))
+        if len(data) != length:
+            raise SensorError(errno.EIO, f"short read at {self.address:#04x}: {len(data)} of {length} bytes")
+        return data
+
+    def write_block(self, register: int, values: list[int]) -> None:
+        self._transfer("write_i2c_block_data", register, [v & 0xFF for v in values])
+
+
+def to_signed(value: int, bits: int = 16) -> int:
+    """Two's complement of an unsigned ``bits``-bit integer."""
+    value &= (1 << bits) - 1
+    return value - (1 << bits) if value & (1 << (bits - 1)) else value
+
+
+class Sensor:
+    """Base of every driver: ``read()`` wraps the chip-specific ``_read()`` in the failure policy above.
+
+    Subclasses set ``self.device`` (an ``I2CDevice``) or ``self.devices``, and implement ``_read() -> Reading``
+    in the chip's axes; the base rotates ``mag_ut`` and ``acc_ms2`` into the body frame with ``self.rotation``.
+    """
+
+    rotation: np.ndarray = np.eye(3)
+    devices: tuple[I2CDevice, ...] = ()
+
+    def _read(self) -> Reading:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    @property
+    def health(self) -> Health:
+        return self.devices[0].health
+
+    def read(self) -> Reading:
+        """One sample in the body frame; never raises for bus errors (see the module's failure policy)."""
+        health = self.health
+        health.reads += 1
+        try:
+            reading = self._read()
+        except SensorError as exc:
+            health.failed_reads += 1
+            health.consecutive_failures += 1
+            if health.consecutive_failures == health.unhealthy_after:
+                log.warning("sensor at %#04x unhealthy after %d failed reads: %s",
+                            self.devices[0].address, health.consecutive_failures, exc)
+            return FAILED
+        health.consecutive_failures = 0
+        return self._to_body(reading)
+
+    def _to_body(self, reading: Reading) -> Reading:
+        rotate = (lambda v: None if v is None else self.rotation @ v)
+        return dataclasses.replace(reading, mag_ut=rotate(reading.mag_ut), acc_ms2=rotate(reading.acc_ms2))
+
+
+class Combined(Sensor):
+    """A magnetometer and an accelerometer read together as one sensor (e.g. AK09918C + BMA456).
+
+    ``read()`` reads the magnetometer, then the accelerometer, and merges them: field and flags from the
+    magnetometer, ``acc_ms2`` from the accelerometer (None if that read failed). Each part keeps its own orientation.
+    """
+
+    def __init__(self, magnetometer: Sensor, accelerometer: Sensor) -> None:
+        self.magnetometer = magnetometer
+        self.accelerometer = accelerometer
+        self.devices = (*magnetometer.devices, *accelerometer.devices)
+
+    @property
+    def health(self) -> Health:
+        return self.magnetometer.health
+
+    def read(self) -> Reading:
+        mag = self.magnetometer.read()
+        acc = self.accelerometer.read()
+        return dataclasses.replace(mag, acc_ms2=acc.acc_ms2)

@@ -1,0 +1,259 @@
+"""Register-level chip emulators: what they share.
+
+An emulator is an I2C device with a 256-byte register map and an address pointer. It implements the smbus2
+``SMBus`` methods drivers use (``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``,
+``write_i2c_block_data``, ``read_byte``, ``write_byte``, ``read_word_data``, ``write_word_data``, ``close``), so a
+driver cannot tell it from ``smbus2.SMBus(1)`` with the chip on it. Several emulators share one bus through
+``EmulatedBus``; a single emulator is also a bus by itself (it answers only its own addresses; any other address
+gets EREMOTEIO, as a NACK does on a Raspberry Pi).
+
+Behaviour follows the datasheets, written independently of the drivers. Time: with ``clock=None`` a chip in
+continuous mode has a new measurement ready as soon as the previous one has been read (no waiting, for fast tests
+and ``magnet sample --emulate``); with ``clock`` (a callable returning seconds) measurements complete at the chip's
+output data rate, so "not ready" and data overrun can be exercised.
+
+The true field comes from a ``source`` with ``.measure() -> (mag_ut (3,), acc_ms2 (3,))`` in the body frame (the
+simulator's ``SensorStream``); ``ConstantSource`` is the stand-in. ``rotation`` (3x3) maps body to chip axes
+(chip = rotation @ body); identity means the chip's marked axes are the body axes.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from typing import Any, Callable, Iterable, Mapping
+
+import numpy as np
+
+STANDARD_GRAVITY_MS2 = 9.80665
+
+
+class ConstantSource:
+    """A still, level device in a constant field: ``measure()`` always returns the same (mag_ut, acc_ms2)."""
+
+    def __init__(self, mag_ut=(20.0, 0.0, 45.0), acc_ms2=(0.0, 0.0, -STANDARD_GRAVITY_MS2)) -> None:
+        self.mag_ut = np.asarray(mag_ut, dtype=float)
+        self.acc_ms2 = np.asarray(acc_ms2, dtype=float)
+        self.count = 0
+
+    def measure(self) -> tuple[np.ndarray, np.ndarray]:
+        self.count += 1
+        return self.mag_ut.copy(), self.acc_ms2.copy()
+
+
+class SourceTap:
+    """Shares one source between the chips of a package (magnetometer + accelerometer) so both see one sample.
+
+    ``mag()`` draws a new sample from the source; ``acc()`` returns the accelerometer part of the latest sample
+    (drawing one if there is none yet). The magnetometer is the pace-setter, as in ``magnet sample``.
+    """
+
+    def __init__(self, source: Any) -> None:
+        self.source = source if source is not None else ConstantSource()
+        self._latest: tuple[np.ndarray, np.ndarray] | None = None
+
+    def mag(self) -> np.ndarray:
+        self._latest = tuple(np.asarray(v, dtype=float) for v in self.source.measure())
+        return self._latest[0]
+
+    def acc(self) -> np.ndarray:
+        if self._latest is None:
+            self.mag()
+        return self._latest[1]
+
+
+class FaultInjector:
+    """Makes bus transactions fail with an ``OSError`` of a chosen errno.
+
+    ``schedule``: a mapping {transaction index: errno} or a sequence with an errno (or 0/None for success) per
+    transaction, counted from 0 on this injector. ``probability``: chance per transaction (after the schedule),
+    drawing the errno from ``errnos`` with a seeded generator. ``injected`` counts the failures raised.
+    """
+
+    def __init__(self, schedule: Mapping[int, int] | Iterable[int | None] = (), probability: float = 0.0,
+                 errnos: Iterable[int] = (errno.EIO,), seed: int = 0) -> None:
+        if not 0.0 <= probability <= 1.0:
+            raise ValueError(f"fault probability must be within 0..1, got {probability}")
+        self.schedule = dict(schedule) if isinstance(schedule, Mapping) else dict(enumerate(schedule))
+        self.probability = probability
+        self.errnos = tuple(errnos)
+        self.rng = np.random.default_rng(seed)
+        self.transactions = 0
+        self.injected = 0
+
+    def check(self) -> None:
+        index = self.transactions
+        self.transactions += 1
+        code = self.schedule.get(index)
+        if not code and self.probability and self.rng.random() < self.probability:
+            code = self.errnos[int(self.rng.integers(len(self.errnos)))]
+        if code:
+            self.injected += 1
+            raise OSError(code, os.strerror(code))
+
+
+def _nack(address: int) -> OSError:
+    return OSError(errno.EREMOTEIO, f"{os.strerror(errno.EREMOTEIO)} (no device at {address:#04x})")
+
+
+class RegisterDevice:
+    """One emulated chip: register map, address pointer, transactions. Subclasses add the chip's behaviour through
+    ``_update()`` (called at the start of every transaction: measurements due), ``_on_read(register)``,
+    ``_on_write(register, value)``, ``_after_read(registers)`` and ``_next_pointer(register)``."""
+
+    addresses: tuple[int, ...] = ()
+    read_only: frozenset[int] = frozenset()
+
+    def __init__(self, *, clock: Callable[[], float] | None = None, faults: FaultInjector | None = None) -> None:
+        self.regs = bytearray(256)
+        self.pointer = 0
+        self.clock = clock
+        self.faults = faults
+        self.transactions = 0
+        self.closed = False
+
+    # ---- behaviour hooks
+    def _update(self) -> None:
+        """Complete any measurement that is due (the chip's own timing)."""
+
+    def _on_read(self, register: int) -> int:
+        return self.regs[register]
+
+    def _on_write(self, register: int, value: int) -> None:
+        if register not in self.read_only:
+            self.regs[register] = value
+
+    def _after_read(self, registers: list[int]) -> None:
+        """Side effects of one read transaction (status bits, locks) once all its bytes went out."""
+
+    def _next_pointer(self, register: int) -> int:
+        return (register + 1) & 0xFF
+
+    def _translate(self, register: int) -> tuple[int, bool]:
+        """(start register, auto-increment?) for a sub-address as sent on the bus."""
+        return register & 0xFF, True
+
+    # ---- transactions
+    def _begin(self, address: int) -> None:
+        if address not in self.addresses:
+            raise _nack(address)
+        if self.closed:
+            raise OSError(errno.EBADF, "bus closed")
+        if self.faults is not None:
+            self.faults.check()
+        self.transactions += 1
+        self._update()
+
+    def _read(self, address: int, register: int | None, length: int) -> list[int]:
+        self._begin(address)
+        if register is not None:
+            self.pointer, increment = self._translate(register)
+        else:
+            increment = True
+        out, touched = [], []
+        for _ in range(length):
+            touched.append(self.pointer)
+            out.append(self._on_read(self.pointer) & 0xFF)
+            if increment:
+                self.pointer = self._next_pointer(self.pointer)
+        self._after_read(touched)
+        return out
+
+    def _write(self, address: int, register: int, values: list[int]) -> None:
+        self._begin(address)
+        self.pointer, increment = self._translate(register)
+        for value in values:
+            if not 0 <= int(value) <= 0xFF:
+                raise ValueError(f"byte out of range: {value}")
+            self._on_write(self.pointer, int(value))
+            if increment:
+                self.pointer = self._next_pointer(self.pointer)
+
+    # ---- the smbus2 SMBus methods
+    def read_byte_data(self, i2c_addr: int, register: int, force: Any = None) -> int:
+        return self._read(i2c_addr, register, 1)[0]
+
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: Any = None) -> None:
+        self._write(i2c_addr, register, [value])
+
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force: Any = None) -> list[int]:
+        if not 1 <= length <= 32:
+            raise ValueError(f"block length must be 1..32, got {length}")  # smbus2 does the same
+        return self._read(i2c_addr, register, length)
+
+    def write_i2c_block_data(self, i2c_addr: int, register: int, data: list[int], force: Any = None) -> None:
+        self._write(i2c_addr, register, list(data))
+
+    def read_byte(self, i2c_addr: int, force: Any = None) -> int:
+        return self._read(i2c_addr, None, 1)[0]
+
+    def write_byte(self, i2c_addr: int, value: int, force: Any = None) -> None:
+        self._begin(i2c_addr)
+        self.pointer = self._translate(value)[0]
+
+    def read_word_data(self, i2c_addr: int, register: int, force: Any = None) -> int:
+        low, high = self._read(i2c_addr, register, 2)
+        return low | (high << 8)
+
+    def write_word_data(self, i2c_addr: int, register: int, value: int, force: Any = None) -> None:
+        self._write(i2c_addr, register, [value & 0xFF, (value >> 8) & 0xFF])
+
+    def close(self) -> None:
+        self.closed = True
+
+    def __enter__(self) -> "RegisterDevice":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # ---- helpers for subclasses
+    def now(self) -> float | None:
+        return None if self.clock is None else float(self.clock())
+
+
+class EmulatedBus:
+    """Several emulated chips on one bus, dispatched by address (the smbus2 methods, like ``SMBus``)."""
+
+    def __init__(self, *devices: RegisterDevice, faults: FaultInjector | None = None) -> None:
+        self.devices: dict[int, RegisterDevice] = {}
+        for device in devices:
+            for address in device.addresses:
+                if address in self.devices:
+                    raise ValueError(f"two emulated devices answer at {address:#04x}")
+                self.devices[address] = device
+        self.faults = faults
+
+    def _device(self, address: int) -> RegisterDevice:
+        if self.faults is not None:
+            self.faults.check()
+        try:
+            return self.devices[address]
+        except KeyError:
+            raise _nack(address) from None
+
+    def __getattr__(self, method: str) -> Callable[..., Any]:
+        if method not in _SMBUS_METHODS:
+            raise AttributeError(method)
+        return lambda address, *args, **kw: getattr(self._device(address), method)(address, *args, **kw)
+
+    def close(self) -> None:
+        for device in self.devices.values():
+            device.close()
+
+
+_SMBUS_METHODS = frozenset({"read_byte_data", "write_byte_data", "read_i2c_block_data", "write_i2c_block_data",
+                            "read_byte", "write_byte", "read_word_data", "write_word_data"})
+
+
+def sensitivity_factor(gain_error: Any, temperature_c: float, tempco_per_k: float,
+                       reference_c: float = 25.0) -> np.ndarray:
+    """Per-axis sensitivity multiplier (3,): (1 + gain_error) * (1 + tempco_per_k * (temperature_c - reference_c))."""
+    error = np.broadcast_to(np.asarray(gain_error, dtype=float), (3,))
+    return (1.0 + error) * (1.0 + tempco_per_k * (temperature_c - reference_c))
+
+
+def to_bytes(value: int, bits: int = 16) -> tuple[int, int]:
+    """(high byte, low byte) of a two's complement value."""
+    raw = int(value) & ((1 << bits) - 1)
+    return (raw >> 8) & 0xFF, raw & 0xFF
