@@ -363,4 +363,6 @@ def gate(quality: Mapping[str, Any], thresholds: GateThresholds | None = None) -
 def _summary(q: Mapping[str, Any]) -> str:
     ut, pct = _num(q, "residual_rms_ut"), _num(q, "residual_rms_pct")
     residual = f"residual {ut:.2f} uT ({pct:.2f} %)" if ut is not None else f"residual {pct:.2f} %"
+    if q.get("geometry") == Geometry.TURNTABLE.value:
+        return f"accepted: {residual}"
     return f"accepted: {residual}, coverage {100 * float(q.get('coverage', 0)):.0f} %"

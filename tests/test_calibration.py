@@ -1,0 +1,274 @@
+"""Calibration methods on synthetic data with known truth: recovery, invariances, refusals."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from magnet.calibration import FitError, Method, fit, fit_shape
+
+FIELD_UT = 50.0
+DIP_DEG = 65.0
+
+
+# ------------------------------------------------------------------------------------------------- helpers
+
+
+def unit_vectors(rng: np.random.Generator, n: int) -> np.ndarray:
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
+    """n uniformly random rotation matrices (n, 3, 3), from unit quaternions."""
+    q = rng.normal(size=(n, 4))
+    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1),
+    ], axis=1)
+
+
+def rotation_about(axis: np.ndarray, angle_deg: float) -> np.ndarray:
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    a = math.radians(angle_deg)
+    return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * k @ k
+
+
+def symmetric_soft_iron(rng: np.random.Generator, amplitude: float) -> np.ndarray:
+    """A symmetric positive-definite matrix I + E with |E_ij| <= amplitude."""
+    e = rng.uniform(-amplitude, amplitude, size=(3, 3))
+    return np.eye(3) + (e + e.T) / 2
+
+
+def distort(field: np.ndarray, correction: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Raw readings u = correction^-1 B + offset for true fields B (N, 3)."""
+    return field @ np.linalg.inv(correction).T + offset
+
+
+def polar_rotation(matrix: np.ndarray) -> np.ndarray:
+    u, _, vt = np.linalg.svd(matrix)
+    return u @ vt
+
+
+def rotation_angle_deg(r: np.ndarray) -> float:
+    return math.degrees(math.acos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+
+
+def tumble(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(field (n,3) uT, specific force (n,3) m/s^2) in the body frame for random attitudes."""
+    dip = math.radians(DIP_DEG)
+    field_ned = FIELD_UT * np.array([math.cos(dip), 0.0, math.sin(dip)])
+    world_to_body = random_rotations(rng, n)
+    field = world_to_body @ field_ned
+    acc = world_to_body @ np.array([0.0, 0.0, -9.81])
+    return field, acc
+
+
+# ------------------------------------------------------------------------------------------------- recovery
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), hard_factor=st.floats(0.0, 3.0), soft=st.floats(0.0, 0.2))
+def test_ellipsoid_recovers_hard_and_soft_iron(seed, hard_factor, soft):
+    rng = np.random.default_rng(seed)
+    correction = symmetric_soft_iron(rng, soft)
+    offset = unit_vectors(rng, 1)[0] * hard_factor * FIELD_UT
+    field = unit_vectors(rng, 2000) * FIELD_UT
+    raw = distort(field, correction, offset) + rng.normal(scale=0.3, size=field.shape)
+    cal = fit(raw, Method.ELLIPSOID, field_ut=FIELD_UT)
+    assert np.allclose(cal.offset, offset, atol=0.15)
+    assert np.allclose(cal.matrix, correction, atol=5e-3)
+    assert cal.accepted, cal.reason
+    assert cal.quality["residual_rms_ut"] < 0.4
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), shift=st.tuples(*[st.floats(-500, 500)] * 3))
+def test_translating_the_data_shifts_only_the_offset(seed, shift):
+    rng = np.random.default_rng(seed)
+    raw = distort(unit_vectors(rng, 500) * FIELD_UT, symmetric_soft_iron(rng, 0.2), rng.normal(size=3) * 40)
+    raw += rng.normal(scale=0.5, size=raw.shape)
+    base, _ = fit_shape(raw, "ellipsoid")
+    moved, _ = fit_shape(raw + np.array(shift), "ellipsoid")
+    assert np.allclose(moved.offset - base.offset, shift, atol=1e-6)
+    assert np.allclose(moved.matrix, base.matrix, atol=1e-8)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), method=st.sampled_from(["minmax", "sphere", "ellipsoid"]))
+def test_apply_then_invert_round_trips(seed, method):
+    rng = np.random.default_rng(seed)
+    raw = distort(unit_vectors(rng, 300) * FIELD_UT, symmetric_soft_iron(rng, 0.2), rng.normal(size=3) * 60)
+    cal, _ = fit_shape(raw, method)
+    back = np.linalg.solve(cal.matrix, cal.apply(raw).T).T + cal.offset
+    assert np.allclose(back, raw, atol=1e-8)
+
+
+@settings(max_examples=10, deadline=None)
+@given(gains=st.tuples(*[st.floats(0.6, 1.6)] * 3), offset=st.tuples(*[st.floats(-150, 150)] * 3))
+def test_minmax_recovers_axis_aligned_scale(gains, offset):
+    rng = np.random.default_rng(1)
+    directions = np.vstack([np.eye(3), -np.eye(3), unit_vectors(rng, 200)])
+    raw = directions * FIELD_UT * np.array(gains) + np.array(offset)
+    cal = fit(raw, "minmax", field_ut=FIELD_UT)
+    assert np.allclose(cal.offset, offset, atol=1e-9)
+    assert np.allclose(np.diag(cal.matrix), 1.0 / np.array(gains), rtol=1e-9)
+    assert np.allclose(np.linalg.norm(cal.apply(directions[:6] * FIELD_UT * gains + offset), axis=1), FIELD_UT)
+
+
+def test_sphere_recovers_hard_iron_and_radius():
+    rng = np.random.default_rng(3)
+    raw = unit_vectors(rng, 1000) * 48.0 + np.array([30.0, -70.0, 12.0]) + rng.normal(scale=0.3, size=(1000, 3))
+    cal = fit(raw, "sphere")
+    assert np.allclose(cal.offset, [30.0, -70.0, 12.0], atol=0.1)
+    assert cal.field_strength == pytest.approx(48.0, abs=0.05)
+    assert cal.output_unit == "ut"
+
+
+def test_robust_extremes_resist_a_spike():
+    rng = np.random.default_rng(4)
+    raw = unit_vectors(rng, 3000) * FIELD_UT
+    raw[1500] = [900.0, 0.0, 0.0]  # one wild sample
+    plain = fit(raw, "minmax")
+    robust = fit(raw, "minmax", robust_extremes=True)
+    assert plain.offset[0] > 400  # the spike drags the plain extremes
+    # seed 003's pull moves an extreme a fifth of the way to the spike, so a lone spike does a fifth of the harm
+    assert abs(robust.offset[0]) < 0.25 * abs(plain.offset[0])
+
+
+def test_minmax2d_follows_the_seed_formula_and_leaves_z_alone():
+    angle = np.radians(np.arange(0, 360, 2))
+    raw = np.column_stack([20 * np.cos(angle) + 5, 30 * np.sin(angle) - 8, np.full(angle.shape, -40.0)])
+    cal = fit(raw, "minmax2d", unit="ut")
+    assert np.allclose(cal.offset, [5, -8, 0])
+    assert np.allclose(cal.matrix, np.diag([1.5, 1.0, 1.0]))  # Xsf = 60/40, Ysf = max(1, 40/60)
+    assert cal.quality["geometry"] == "circle"
+    assert cal.quality["residual_rms_pct"] < 1e-6
+    assert cal.accepted, cal.reason
+
+
+def test_units_scale_the_output():
+    rng = np.random.default_rng(5)
+    raw_gauss = (unit_vectors(rng, 500) * FIELD_UT + [10, 20, 30]) / 100.0
+    cal = fit(raw_gauss, "ellipsoid", unit="gauss")
+    assert cal.output_unit == "ut" and cal.unit == "gauss"
+    assert cal.field_strength == pytest.approx(FIELD_UT, rel=1e-6)
+    counts = fit(raw_gauss * 1090, "ellipsoid", unit="counts")
+    assert counts.output_unit == "counts"
+    assert counts.field_strength == pytest.approx(FIELD_UT / 100 * 1090, rel=1e-6)
+    scaled = fit(raw_gauss * 1090, "ellipsoid", unit="counts", field_ut=48.0)
+    assert scaled.output_unit == "ut"
+    assert np.linalg.norm(scaled.apply(raw_gauss * 1090), axis=1).mean() == pytest.approx(48.0, rel=1e-4)
+
+
+def test_fit_of_10000_samples_is_fast():
+    """Sanity bound only (the benchmark measures): a single fit, quality and held-out refit included."""
+    import time
+
+    rng = np.random.default_rng(6)
+    raw = distort(unit_vectors(rng, 10_000) * FIELD_UT, symmetric_soft_iron(rng, 0.2), [100.0, -50.0, 20.0])
+    fit(raw, "ellipsoid")
+    start = time.perf_counter()
+    fit_shape(raw, "ellipsoid")
+    assert time.perf_counter() - start < 0.5
+
+
+# ------------------------------------------------------------------------------------------------- alignment
+
+
+def test_ellipsoid_align_recovers_a_5_degree_misalignment():
+    rng = np.random.default_rng(7)
+    field, acc = tumble(rng, 4000)
+    misalignment = rotation_about([1.0, -2.0, 0.5], 5.0)
+    soft = symmetric_soft_iron(rng, 0.15)
+    raw = distort(field, misalignment @ soft, [40.0, -90.0, 25.0]) + rng.normal(scale=0.3, size=field.shape)
+    acc_noisy = acc + rng.normal(scale=0.02, size=acc.shape)
+    plain = fit(raw, "ellipsoid", acc=acc_noisy, field_ut=FIELD_UT)
+    aligned = fit(raw, "ellipsoid+align", acc=acc_noisy, field_ut=FIELD_UT)
+    assert rotation_angle_deg(polar_rotation(plain.matrix).T @ misalignment) == pytest.approx(5.0, abs=0.1)
+    error_deg = rotation_angle_deg(polar_rotation(aligned.matrix).T @ misalignment)
+    assert error_deg < 0.2
+    # what is left of the dip spread is the noise (0.3 uT of 50 uT is ~0.35 deg); 5 deg of misalignment adds degrees
+    assert aligned.quality["dip_spread_deg"] < 0.5 < 2.0 < plain.quality["dip_spread_deg"]
+    assert "misalignment" in aligned.reason
+
+
+def test_ellipsoid_align_says_not_observable_for_level_gravity():
+    rng = np.random.default_rng(8)
+    field, _ = tumble(rng, 2000)
+    raw = distort(field, rotation_about([0, 0, 1], 5.0), [10.0, 0.0, 0.0])
+    level = np.tile([0.0, 0.0, -9.81], (len(raw), 1))
+    cal = fit(raw, "ellipsoid+align", acc=level)
+    assert "not observable" in cal.reason and "gravity directions do not span" in cal.reason
+    plain, _ = fit_shape(raw, "ellipsoid")
+    assert np.allclose(cal.matrix, plain.matrix)
+
+
+# ------------------------------------------------------------------------------------------------- refusals
+
+
+def _sphere_samples(n: int = 200) -> np.ndarray:
+    return unit_vectors(np.random.default_rng(9), n) * FIELD_UT
+
+
+@pytest.mark.parametrize("method", ["minmax", "sphere", "ellipsoid"])
+def test_too_few_samples(method):
+    with pytest.raises(FitError, match="only 5 samples"):
+        fit(_sphere_samples(5), method)
+
+
+def test_non_finite_values():
+    raw = _sphere_samples()
+    raw[17, 1] = np.nan
+    with pytest.raises(FitError, match="NaN or infinite.*row 17"):
+        fit(raw, "ellipsoid")
+
+
+@pytest.mark.parametrize("shape", [(100,), (100, 2), (3, 100, 3)])
+def test_wrong_shape(shape):
+    with pytest.raises(FitError, match=r"\(N, 3\)"):
+        fit(np.ones(shape), "ellipsoid")
+
+
+@pytest.mark.parametrize("method", ["minmax", "sphere", "ellipsoid", "ellipsoid+align"])
+def test_coplanar_level_turn_is_refused_by_3d_methods(method):
+    angle = np.linspace(0, 2 * np.pi, 400)
+    raw = np.column_stack([20 * np.cos(angle), 20 * np.sin(angle), np.full(angle.shape, 45.0)])
+    with pytest.raises(FitError, match="coplanar"):
+        fit(raw, method, acc=np.tile([0, 0, -9.81], (400, 1)))
+
+
+def test_hyperboloid_is_not_an_ellipsoid():
+    rng = np.random.default_rng(10)
+    z = rng.uniform(-2, 2, 1000)
+    phi = rng.uniform(0, 2 * np.pi, 1000)
+    r = np.sqrt(1 + z * z)
+    raw = 30 * np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+    with pytest.raises(FitError, match="hyperboloid"):
+        fit(raw, "ellipsoid")
+
+
+def test_align_without_acc_and_bad_acc():
+    with pytest.raises(FitError, match="needs accelerometer"):
+        fit(_sphere_samples(), "ellipsoid+align")
+    with pytest.raises(FitError, match="shape"):
+        fit(_sphere_samples(), "ellipsoid+align", acc=np.ones((10, 3)))
+
+
+def test_unknown_method_and_bad_field():
+    with pytest.raises(ValueError, match="unknown calibration method 'bogus'"):
+        fit(_sphere_samples(), "bogus")
+    with pytest.raises(FitError, match="positive"):
+        fit(_sphere_samples(), "ellipsoid", field_ut=-3.0)
+
+
+def test_turntable_through_fit_points_to_fit_turntable():
+    with pytest.raises(FitError, match="fit_turntable"):
+        fit(_sphere_samples(), "turntable")
