@@ -22,9 +22,10 @@ Trajectories (``Trajectory``), each a periodic function of the sample index with
   y down (roll +90). The sensor-frame field is then exactly seed 000's eqs. 2 and 5 with Bv the *up* component of the
   field (negative in the northern hemisphere): a = (Bh cos K, Bh sin K, Bv), b = (Bh cos K, -Bv, Bh sin K). Both are
   physical attitudes (the table turns clockwise seen from above, as headings do), so no sign had to be forced.
-- TUMBLE: smooth "figure 8" over the whole sphere: pitch = 85 sin(11 turns), roll turning 7 times and heading 3
-  times over the run, with phases and senses drawn from the seed (coprime counts: the gravity direction crosses every
-  latitude 22 times, so every direction is visited).
+- TUMBLE: smooth "figure 8" over the whole sphere: over one run pitch = 85 sin(21 cycles), roll turns 13 times and
+  heading 8 times, with phases and senses drawn from the seed. The Fibonacci counts keep the path from closing on
+  itself early, so field and gravity directions cover the sphere evenly (every one of 100 equal-area cells from 1000
+  samples on). The speed follows the run's length: at 3000 samples and 50 Hz pitch swings at 0.35 Hz.
 - TENFACE: our reading of seed 003's ten-face procedure (its figure is not in the text): the device rests on each of
   its six faces and on four 45-degree edges (pitch +-45, roll +-45) and is turned a full circle about the vertical on
   each; it is set down on the next face between stations (no transition samples).
@@ -59,8 +60,10 @@ TENFACE_STATIONS = (  # (pitch_deg, roll_deg): six faces, then four 45-degree ed
     (0.0, 0.0), (0.0, 180.0), (0.0, 90.0), (0.0, -90.0), (90.0, 0.0), (-90.0, 0.0),
     (45.0, 0.0), (-45.0, 0.0), (0.0, 45.0), (0.0, -45.0),
 )
-TUMBLE_CYCLES = (11, 7, 3)     # pitch oscillations, roll turns, heading turns over one run
+TUMBLE_CYCLES = (21, 13, 8)    # pitch oscillations, roll turns, heading turns over one run (Fibonacci: no short
+                               # Lissajous repeats, so the run covers every field and gravity direction)
 TUMBLE_PITCH_AMPLITUDE_DEG = 85.0
+GOLDEN_RATIO_MINOR = (5 ** 0.5 - 1) / 2   # 0.618...
 
 
 class Trajectory(enum.Enum):
@@ -385,8 +388,9 @@ class FleetBatch:
 
 class FleetSimulator:
     """D devices tumbling smoothly at one place, each with its own random hard and soft iron (``errors[d]``) and its
-    own trajectory: pitch = 85 sin(2 pi f_p t + phase), roll and heading turning at f_r and f_y turns/s (random per
-    device, 0.05-0.15, 0.04-0.12 and 0.01-0.05 Hz, random senses). ``step(n)`` advances every device by n samples."""
+    own trajectory: pitch = 85 sin(2 pi f_p t + phase), roll and heading turning at f_r and f_y turns/s, random per
+    device: f_p 0.15-0.25 Hz, f_r about 0.618 f_p and f_y about 0.382 f_p (golden ratios, +-2 %, random senses: the
+    path never closes early, so each device covers the sphere in about two minutes). ``step(n)`` advances every device by n samples."""
 
     def __init__(self, n_devices: int, rate_hz: float = 100.0, seed: int = 0, lat_deg: float = DEFAULT_LAT_DEG,
                  lon_deg: float = DEFAULT_LON_DEG, date: Any = DEFAULT_DATE, noise_ut: float = 0.3, *,
@@ -406,9 +410,12 @@ class FleetSimulator:
                                 noise_ut=noise_ut, acc_noise_ms2=acc_noise_ms2)
             for _ in range(self.n_devices))
         d = self.n_devices
-        self._frequency_hz = np.stack([setup.uniform(0.05, 0.15, d),
-                                       setup.uniform(0.04, 0.12, d) * setup.choice([-1.0, 1.0], d),
-                                       setup.uniform(0.01, 0.05, d) * setup.choice([-1.0, 1.0], d)], axis=1)
+        pitch_hz = setup.uniform(0.15, 0.25, d)
+        self._frequency_hz = np.stack([
+            pitch_hz,
+            pitch_hz * GOLDEN_RATIO_MINOR * setup.uniform(0.98, 1.02, d) * setup.choice([-1.0, 1.0], d),
+            pitch_hz * GOLDEN_RATIO_MINOR ** 2 * setup.uniform(0.98, 1.02, d) * setup.choice([-1.0, 1.0], d),
+        ], axis=1)
         self._phase = setup.uniform(0.0, 2.0 * np.pi, (d, 3))
         self._distortion = np.stack([e.distortion for e in self.errors])      # (D, 3, 3)
         self._hard_iron = np.stack([e.hard_iron_ut for e in self.errors])     # (D, 3)
