@@ -107,11 +107,12 @@ def _check_inputs(mag, mounting, heading_deg) -> tuple[np.ndarray, np.ndarray, n
 
 
 def fit_turntable(mag: np.ndarray, mounting: np.ndarray, heading_deg: np.ndarray, horizontal: float,
-                  vertical: float, variant: str = "closed", *, unit: str = "counts", field_unit: str = "nt",
+                  vertical: float, variant: str = "closed", *, unit: str = "counts", field_unit: str = "ut",
                   gate_thresholds: GateThresholds | None = None) -> Calibration:
     """Calibration from turntable samples: mag (N,3) raw, mounting (N,) "a"/"b", heading_deg (N,) table angle.
 
-    horizontal, vertical: Bh and Bv in ``field_unit`` (the output unit of the record). variant "closed" uses the
+    horizontal, vertical: Bh and Bv in ``field_unit`` (the output unit of the record; uT by default, "nt" for the
+    seed's gammas). variant "closed" uses the
     per-angle averages at 0/90/180/270 (a) and 0/180 (b); "lsq" uses every sample. The record's quality adds
     ``vector_rms`` (RMS of |A (u - b) - T|, field unit) to the usual figures; the gate ignores coverage (a turntable
     gives two great circles by design).

@@ -83,7 +83,7 @@ def _samples(include_360: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 def test_fit_turntable_closed_matches_closed_form_and_table_3():
     mag, mounting, heading = _samples()
-    cal = fit_turntable(mag, mounting, heading, BH, BV)
+    cal = fit_turntable(mag, mounting, heading, BH, BV, field_unit="nt")
     k, u0 = closed_form(_readings(MOUNT_A), _readings(MOUNT_B), BH, BV)
     assert np.allclose(cal.matrix, np.linalg.inv(k)) and np.allclose(cal.offset, u0)
     assert cal.method == "turntable" and cal.output_unit == "nt"
@@ -97,8 +97,8 @@ def test_fit_turntable_closed_matches_closed_form_and_table_3():
 
 def test_lsq_variant_on_the_seed_data():
     mag, mounting, heading = _samples()
-    closed = fit_turntable(mag, mounting, heading, BH, BV)
-    lsq = fit_turntable(mag, mounting, heading, BH, BV, variant="lsq")
+    closed = fit_turntable(mag, mounting, heading, BH, BV, field_unit="nt")
+    lsq = fit_turntable(mag, mounting, heading, BH, BV, variant="lsq", field_unit="nt")
     assert lsq.method == "turntable-lsq"
     # the least-squares solution is optimal over all 24 readings, so it cannot fit them worse than the closed form
     assert lsq.quality["vector_rms"] <= closed.quality["vector_rms"]
@@ -126,7 +126,7 @@ def test_lsq_and_closed_form_agree_on_consistent_data():
     heading = np.concatenate([angles, angles])
     fitted = {}
     for variant in ("closed", "lsq"):
-        cal = fit_turntable(mag, np.array(mounting), heading, BH, BV, variant=variant)
+        cal = fit_turntable(mag, np.array(mounting), heading, BH, BV, variant=variant, field_unit="nt")
         fitted[variant] = np.linalg.inv(cal.matrix)
         # 0.3-code noise against gains of ~0.012 code/nT: K to 0.1 % of a gain, u0 to a fraction of a code
         assert np.allclose(fitted[variant], k_true, atol=1e-3 * 0.013), variant
@@ -137,12 +137,14 @@ def test_lsq_and_closed_form_agree_on_consistent_data():
 
 def test_360_joins_0_and_missing_angles_are_named():
     mag, mounting, heading = _samples(include_360=True)
-    cal = fit_turntable(mag, mounting, heading, BH, BV)
+    cal = fit_turntable(mag, mounting, heading, BH, BV, field_unit="nt")
     assert cal.sample_count == 26
+    assert cal.offset != pytest.approx(fit_turntable(*_samples(), BH, BV, field_unit="nt").offset)  # 360 averaged in
     keep = ~((mounting == "a") & (heading == 90))
     with pytest.raises(FitError, match="mounting a at 90 deg"):
-        fit_turntable(mag[keep], mounting[keep], heading[keep], BH, BV)
-    assert fit_turntable(mag[keep], mounting[keep], heading[keep], BH, BV, variant="lsq").offset.shape == (3,)
+        fit_turntable(mag[keep], mounting[keep], heading[keep], BH, BV, field_unit="nt")
+    lsq = fit_turntable(mag[keep], mounting[keep], heading[keep], BH, BV, variant="lsq", field_unit="nt")
+    assert lsq.sample_count == int(keep.sum())
 
 
 def test_bad_turntable_input():
@@ -150,8 +152,8 @@ def test_bad_turntable_input():
     with pytest.raises(FitError, match="both mountings"):
         least_squares(mag[mounting == "a"], field_in_sensor("a", heading[mounting == "a"], BH, BV))
     with pytest.raises(FitError, match="unknown mounting"):
-        fit_turntable(mag, np.where(mounting == "a", "c", "b"), heading, BH, BV)
+        fit_turntable(mag, np.where(mounting == "a", "c", "b"), heading, BH, BV, field_unit="nt")
     with pytest.raises(FitError, match="one entry per sample"):
-        fit_turntable(mag, mounting[:-1], heading, BH, BV)
+        fit_turntable(mag, mounting[:-1], heading, BH, BV, field_unit="nt")
     with pytest.raises(FitError, match="variant"):
         fit_turntable(mag, mounting, heading, BH, BV, variant="magic")
