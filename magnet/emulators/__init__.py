@@ -8,3 +8,27 @@ field and specific force in the body frame.
 from magnet.emulators.base import ConstantSource, EmulatedBus, FaultInjector, SourceTap
 
 __all__ = ["ConstantSource", "EmulatedBus", "FaultInjector", "SourceTap"]
+
+
+def emulator_for(name: str, source=None, **options):
+    """The emulated bus for sensor ``name`` (as in ``magnet.drivers.SENSORS``), fed by ``source``.
+
+    For ``ak09918c+bma456`` and ``lsm303dlh`` the bus holds both chips sharing the source. ``options`` go to the
+    magnetometer's emulator (``gain_error``, ``temperature_c``, ``tempco_per_k``, ``rotation``, ``clock``, ``faults``).
+    """
+    from magnet.emulators import ak09918c, hmc5883l, lsm303dlh, qmc5883l
+
+    table = {
+        "hmc5883l": hmc5883l.HMC5883LEmulator,
+        "qmc5883l": qmc5883l.QMC5883LEmulator,
+        "lsm303dlh": lsm303dlh.LSM303DLHEmulator,
+        "ak09918c+bma456": ak09918c.ak09918c_bma456_bus,
+    }
+    try:
+        factory = table[name.strip().lower()]
+    except KeyError:
+        raise ValueError(f"no emulator for sensor {name!r}: use one of {', '.join(table)}") from None
+    return factory(source, **options)
+
+
+__all__.append("emulator_for")
