@@ -1,0 +1,258 @@
+"""``magnet compass``: apply each device's calibration to its raw batches, tilt-compensate with the accelerometer, add
+the WMM declination, and publish one heading message per raw batch on ``<prefix>/<device>/heading``.
+
+On start it queries every stored calibration (``<prefix>/*/calibration``) and then follows new ones (subscriber);
+a device with none is asked for again now and then, and meanwhile gets headings from its raw field (flag
+CALIBRATED clear). Zenoh delivers into channels; this process's own loop drains them, decodes, computes a whole
+drain of batches at once (vectorized over every sample of every device) and publishes, never inside a callback.
+Counters (received, published, dropped by cause) answer on ``<prefix>/@status/<name>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import time
+from typing import Any
+
+import numpy as np
+
+from magnet import heading as hd
+from magnet import wire
+from magnet.model import Calibration
+from services.zenoh_config import add_zenoh_arguments, open_session, payload_bytes, stop_event
+
+log = logging.getLogger("magnet.compass")
+
+MAX_DRAIN = 4000          # raw messages computed together at most
+CHANNEL_CAPACITY = 65536  # raw messages queued between zenoh and this loop
+REQUERY_S = 5.0           # how often to ask again for the calibration of a device that has none
+IDLE_SLEEP_S = 0.0003
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--location", help="LAT,LON[,ALT_M] for the WMM declination and expected field "
+                                           "(without it: declination 0, no field/dip disturbance check)")
+    parser.add_argument("--date", help="date for the WMM (YYYY-MM-DD; default today)")
+    parser.add_argument("--window", type=int, default=1, help="circular sliding mean over N headings (default 1)")
+    parser.add_argument("--name", default="compass", help="service name for liveliness and status (default compass)")
+    parser.add_argument("--devices", default="*",
+                        help="key expression of the devices this instance serves (default *, all); e.g. 'line-1-*'")
+    add_zenoh_arguments(parser)
+
+
+@dataclasses.dataclass(frozen=True)
+class Earth:
+    """What the compass expects at its location: declination (deg, east +), |B| (uT), dip (deg); None = unknown."""
+
+    declination_deg: float = 0.0
+    total_ut: float | None = None
+    inclination_deg: float | None = None
+
+    @classmethod
+    def from_args(cls, location: str | None, date: str | None) -> "Earth":
+        if not location:
+            return cls()
+        from magnet.geomag import earth_field, parse_location
+
+        lat, lon, alt = parse_location(location)
+        field = earth_field(lat, lon, alt, date)
+        return cls(field.declination_deg, field.total_ut, field.inclination_deg)
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceCalibration:
+    id: str
+    calibration: Calibration
+
+
+def compute_headings(mag_ut: np.ndarray, acc_ms2: np.ndarray, offsets: np.ndarray, matrices: np.ndarray,
+                     calibrated: np.ndarray, earth: Earth) -> dict[str, np.ndarray]:
+    """Headings for S samples of any devices at once.
+
+    mag_ut (S, 3) raw uT; acc_ms2 (S, 3) m/s^2 with NaN rows where a sample has no accelerometer; offsets (S, 3) and
+    matrices (S, 3, 3) the calibration of each sample's device (B = A (u - b), see ``magnet.model``); calibrated (S,)
+    bool. Returns field_ut (S, 3), heading_deg (magnetic), pitch_deg, roll_deg (0 without acc), flags (S,) int.
+    """
+    field = np.einsum("sij,sj->si", matrices, mag_ut - offsets)
+    has_acc = np.isfinite(acc_ms2).all(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)
+        pitch, roll = hd.pitch_roll_deg(acc_ms2)
+    heading = np.where(has_acc & np.isfinite(tilted), tilted, hd.level_heading_deg(field))
+    flags = hd.disturbance_flags(field, acc_ms2, earth.total_ut, earth.inclination_deg)
+    flags |= np.where(calibrated, int(hd.HeadingFlag.CALIBRATED), 0)
+    return {"field_ut": field, "heading_deg": heading, "pitch_deg": np.where(has_acc, pitch, 0.0),
+            "roll_deg": np.where(has_acc, roll, 0.0), "flags": flags}
+
+
+class Compass:
+    """State of the compass loop: calibrations in force, smoothing tails, counters. No zenoh inside."""
+
+    def __init__(self, earth: Earth, window: int) -> None:
+        if window < 1:
+            raise ValueError(f"--window must be >= 1, got {window}")
+        self.earth = earth
+        self.window = window
+        self.calibrations: dict[str, DeviceCalibration] = {}
+        self.tails: dict[str, np.ndarray] = {}
+        self.drops = wire.DropCounter()
+        self.received_batches = self.received_samples = self.published_batches = 0
+        self.calibration_updates = 0
+
+    def drop(self, exc: wire.WireError, what: str) -> None:
+        if self.drops.count(f"{what}:{exc.cause}"):
+            log.warning("dropping malformed %s message (%s): %s; further ones only counted", what, exc.cause, exc)
+
+    def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> None:
+        try:
+            message = wire.decode_calibration(payload)
+            if wire.device_from_key(prefix, key_expr, wire.Kind.CALIBRATION) != message.device:
+                raise wire.WireError("key-mismatch", f"key {key_expr} carries device {message.device}")
+        except wire.WireError as exc:
+            self.drop(exc, "calibration")
+            return
+        current = self.calibrations.get(message.device)
+        if current is None or current.id != message.id:
+            self.calibrations[message.device] = DeviceCalibration(message.id, message.calibration)
+            self.calibration_updates += 1
+            log.info("calibration %s (%s) in force for %s", message.id, message.calibration.method, message.device)
+
+    def decode(self, items: list[tuple[str, bytes]], prefix: str) -> list[wire.RawBatch]:
+        batches = []
+        for key_expr, payload in items:
+            try:
+                batch = wire.decode_raw(payload)
+                if wire.device_from_key(prefix, key_expr, wire.Kind.RAW) != batch.device:
+                    raise wire.WireError("key-mismatch", f"key {key_expr} carries device {batch.device}")
+            except wire.WireError as exc:
+                self.drop(exc, "raw")
+                continue
+            batches.append(batch)
+        return batches
+
+    def process(self, batches: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
+        """Heading batches, one per raw batch, computed in one vectorized pass."""
+        if not batches:
+            return []
+        counts = np.array([len(b) for b in batches])
+        mag = np.concatenate([b.mag_ut for b in batches])
+        acc = np.concatenate([b.acc_ms2 if b.acc_ms2 is not None else np.full((len(b), 3), np.nan) for b in batches])
+        cals = [self.calibrations.get(b.device) for b in batches]
+        offsets = np.repeat(np.array([c.calibration.offset if c else np.zeros(3) for c in cals]), counts, axis=0)
+        matrices = np.repeat(np.array([c.calibration.matrix if c else np.eye(3) for c in cals]), counts, axis=0)
+        calibrated = np.repeat(np.array([c is not None for c in cals]), counts)
+        out = compute_headings(mag, acc, offsets, matrices, calibrated, self.earth)
+        self.received_batches += len(batches)
+        self.received_samples += int(counts.sum())
+        bounds = np.concatenate([[0], np.cumsum(counts)])
+        results = []
+        for i, (batch, cal) in enumerate(zip(batches, cals)):
+            part = slice(bounds[i], bounds[i + 1])
+            magnetic = self._smooth(batch.device, out["heading_deg"][part])
+            results.append(wire.HeadingBatch(
+                batch.device, batch.seq, batch.t_ns, magnetic,
+                hd.true_heading_deg(magnetic, self.earth.declination_deg), out["pitch_deg"][part],
+                out["roll_deg"][part], out["field_ut"][part], self.earth.declination_deg, cal.id if cal else "",
+                out["flags"][part]))
+        return results
+
+    def _smooth(self, device: str, heading: np.ndarray) -> np.ndarray:
+        if self.window == 1:
+            return heading
+        tail = self.tails.get(device, np.empty(0))
+        joined = np.concatenate([tail, heading])
+        self.tails[device] = joined[-(self.window - 1):]
+        return hd.smooth_heading_deg(joined, self.window)[-heading.size:]
+
+    def status(self, name: str) -> dict[str, Any]:
+        return {"v": wire.WIRE_VERSION, "service": "compass", "name": name,
+                "received_batches": self.received_batches, "received_samples": self.received_samples,
+                "published_batches": self.published_batches, "calibrations": len(self.calibrations),
+                "calibration_updates": self.calibration_updates, "dropped": dict(self.drops.counts),
+                "dropped_total": self.drops.total}
+
+
+def _drain(handler: Any, limit: int) -> list[Any]:
+    """Up to ``limit`` items a zenoh handler holds now (an empty, closed channel gives none)."""
+    import zenoh
+
+    items = []
+    while len(items) < limit:
+        try:
+            item = handler.try_recv()
+        except zenoh.ZError:  # closed: a finished query's replies
+            break
+        if item is None:
+            break
+        items.append(item)
+    return items
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+
+    compass = Compass(Earth.from_args(args.location, args.date), args.window)
+    stop = stop_event()
+    prefix = args.prefix
+    devices = args.devices
+    with open_session(args) as session:
+        token = session.liveliness().declare_token(wire.liveliness_key(prefix, "compass", args.name))
+        raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+        cal_sub = session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
+        status_q = session.declare_queryable(wire.status_key(prefix, args.name), zenoh.handlers.FifoChannel(64))
+        publishers: dict[str, Any] = {}
+        pending: list[tuple[float, Any]] = [(time.monotonic() + 3.0, session.get(f"{prefix}/{devices}/calibration",
+                                                                                    timeout=3.0))]
+        asked: dict[str, float] = {"*": time.monotonic()}
+        log.info("compass %s: serving %s/%s, declination %.2f deg", args.name, prefix, devices,
+                 compass.earth.declination_deg)
+        while not stop.is_set():
+            busy = False
+            pending = _poll_replies(pending, compass, prefix)
+            for sample in _drain(cal_sub, 1000):
+                compass.accept_calibration(payload_bytes(sample), str(sample.key_expr), prefix)
+            for query in _drain(status_q, 64):
+                query.reply(wire.status_key(prefix, args.name), wire.pack(compass.status(args.name)))
+                query.drop()  # finalize now: the asker waits for it
+            samples = _drain(raw_sub, MAX_DRAIN)
+            if samples:
+                busy = True
+                batches = compass.decode([(str(s.key_expr), payload_bytes(s)) for s in samples], prefix)
+                for result in compass.process(batches):
+                    publisher = publishers.get(result.device)
+                    if publisher is None:
+                        publisher = publishers[result.device] = session.declare_publisher(
+                            wire.key(prefix, result.device, wire.Kind.HEADING))
+                    publisher.put(wire.encode_heading(result))
+                    compass.published_batches += 1
+                pending += _ask_missing(session, compass, batches, asked, prefix, devices)
+            if not busy:
+                time.sleep(IDLE_SLEEP_S)
+        token.undeclare()
+    log.info("compass stopped: %s", compass.status(args.name))
+    return 0
+
+
+def _poll_replies(pending: list[tuple[float, Any]], compass: Compass, prefix: str) -> list[tuple[float, Any]]:
+    """Take the replies of calibration queries that arrived; keep the queries that may still answer."""
+    still = []
+    now = time.monotonic()
+    for deadline, handler in pending:
+        for reply in _drain(handler, 10_000):
+            if reply.ok is not None:
+                compass.accept_calibration(payload_bytes(reply.ok), str(reply.ok.key_expr), prefix)
+        if now < deadline:
+            still.append((deadline, handler))
+    return still
+
+
+def _ask_missing(session: Any, compass: Compass, batches: list[wire.RawBatch], asked: dict[str, float],
+                 prefix: str, devices: str) -> list[tuple[float, Any]]:
+    """One query for every calibration when a device was seen without one (at most every REQUERY_S)."""
+    now = time.monotonic()
+    if now - asked.get("*", now) < REQUERY_S or all(b.device in compass.calibrations for b in batches):
+        return []
+    asked["*"] = now
+    return [(now + 2.0, session.get(f"{prefix}/{devices}/calibration", timeout=2.0))]

@@ -1,0 +1,136 @@
+"""Remote tools printing JSON: ``magnet get calibration DEVICE [--history]``, ``magnet watch heading [DEVICE]``,
+``magnet calibrate DEVICE start|status|commit|abort [--method M]``.
+
+Exit status: 0 with an answer, 1 when nobody answered (no calibrator reachable, or no calibration for the device).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from typing import Any
+
+from magnet import wire
+from services.zenoh_config import add_zenoh_arguments, open_session, payload_bytes, stop_event
+
+log = logging.getLogger("magnet.remote")
+
+#: what `watch` can follow -> key kind
+WATCHABLE = {"heading": wire.Kind.HEADING, "progress": wire.Kind.PROGRESS, "calibration": wire.Kind.CALIBRATION,
+             "raw": wire.Kind.RAW}
+ACTIONS = ("start", "status", "commit", "abort")
+
+
+def _print(value: Any) -> None:
+    print(json.dumps(value, sort_keys=True), flush=True)
+
+
+def _decode(payload: bytes) -> Any:
+    try:
+        return wire.unpack(payload)
+    except wire.WireError as exc:
+        return {"error": str(exc)}
+
+
+def _query(args: argparse.Namespace, selector: str) -> list[Any]:
+    """Decoded replies to ``selector``; error replies go to stderr."""
+    with open_session(args) as session:
+        out = []
+        for reply in session.get(selector, timeout=args.timeout):
+            if reply.ok is not None:
+                out.append(_decode(payload_bytes(reply.ok)))
+            else:
+                print(f"magnet: {payload_bytes(reply.err).decode(errors='replace')}", file=sys.stderr)
+        return out
+
+
+# ----------------------------------------------------------------------------------------------------------- get
+
+
+def add_get_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("what", choices=["calibration"], help="what to query")
+    parser.add_argument("device", help="device id (or a key expression such as '*')")
+    parser.add_argument("--history", action="store_true", help="earlier calibrations too, newest first")
+    parser.add_argument("--limit", type=int, default=20, help="with --history: at most this many (default 20)")
+    parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers (default 3)")
+    add_zenoh_arguments(parser)
+
+
+def run_get(args: argparse.Namespace) -> int:
+    if args.device != "*":
+        wire.validate_device_id(args.device)
+    kind = wire.Kind.HISTORY if args.history else wire.Kind.CALIBRATION
+    selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if args.history else "")
+    replies = _query(args, selector)
+    if not replies:
+        print(f"magnet get: no calibration for {args.device} (is a calibrator running and reachable?)",
+              file=sys.stderr)
+        return 1
+    for reply in replies:
+        _print(reply)
+    return 0
+
+
+# --------------------------------------------------------------------------------------------------------- watch
+
+
+def add_watch_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("what", choices=list(WATCHABLE), help="what to follow")
+    parser.add_argument("device", nargs="?", default="*", help="device id (default: every device)")
+    parser.add_argument("--count", type=int, help="stop after this many messages")
+    parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    add_zenoh_arguments(parser)
+
+
+def run_watch(args: argparse.Namespace) -> int:
+    if args.device != "*":
+        wire.validate_device_id(args.device)
+    stop = stop_event()
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+    printed = 0
+    with open_session(args) as session:
+        subscriber = session.declare_subscriber(f"{args.prefix}/{args.device}/{WATCHABLE[args.what].value}")
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            sample = subscriber.try_recv()
+            if sample is None:
+                time.sleep(0.002)
+                continue
+            _print({"key": str(sample.key_expr), **_as_map(_decode(payload_bytes(sample)))})
+            printed += 1
+            if args.count is not None and printed >= args.count:
+                break
+    return 0
+
+
+def _as_map(value: Any) -> dict[str, Any]:
+    return value if isinstance(value, dict) else {"value": value}
+
+
+# ----------------------------------------------------------------------------------------------------- calibrate
+
+
+def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("device", help="device id")
+    parser.add_argument("action", choices=ACTIONS, help="what to do with the device's calibration session")
+    parser.add_argument("--method", help="fit method for 'start' (default: the calibrator's)")
+    parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the answer (default 5)")
+    add_zenoh_arguments(parser)
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    wire.validate_device_id(args.device)
+    params = f"action={args.action}" + (f";method={args.method}" if args.method else "")
+    replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATE.value}?{params}")
+    if not replies:
+        print(f"magnet calibrate: no calibrator answered for {args.device}", file=sys.stderr)
+        return 1
+    for reply in replies:
+        _print(reply)
+    return 0 if all(isinstance(r, dict) and r.get("ok", False) for r in replies) else 1
+
+
+# services.cli looks up ``add_arguments``/``run`` as a fallback even where ``add_<name>_arguments`` exists
+add_arguments, run = add_get_arguments, run_get
