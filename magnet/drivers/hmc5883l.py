@@ -122,7 +122,11 @@ class HMC5883L(Sensor):
 
     def configure(self, settings: HMC5883LSettings) -> None:
         """Write Config A, Config B and Mode (Mode last: it starts the measurement)."""
+        previous = getattr(self, "settings", None)
+        old_gain = previous.gain if previous else self.device.read_byte(REG_CONFIG_B) >> 5
         self.settings = settings
+        # the datasheet: the first measurement after a gain change is still at the old gain, so it is discarded
+        self._discard = int(old_gain != settings.gain)
         self.device.write_byte(REG_CONFIG_A, settings.config_a)
         self.device.write_byte(REG_CONFIG_B, settings.config_b)
         self.device.write_byte(REG_MODE, int(settings.mode))
@@ -132,13 +136,17 @@ class HMC5883L(Sensor):
         return 100.0 / LSB_PER_GAUSS[self.settings.gain]
 
     def read_counts(self) -> tuple[np.ndarray | None, int]:
-        """Poll Status, then read the six data bytes if RDY: (counts x, y, z or None, status byte)."""
+        """Poll Status, then read the six data bytes if RDY: (counts x, y, z or None, status byte). None also for
+        the measurement discarded after a gain change."""
         status = self.device.read_byte(REG_STATUS)
         if not status & STATUS_RDY:
             return None, status
         counts = decode_data(self.device.read_block(REG_DATA, 6))
         if self.settings.mode == Mode.SINGLE:
             self.device.write_byte(REG_MODE, int(Mode.SINGLE))
+        if self._discard:
+            self._discard -= 1
+            return None, status & ~STATUS_RDY
         return counts, status
 
     def _read(self) -> Reading:
@@ -149,10 +157,10 @@ class HMC5883L(Sensor):
             return Reading(overflow=True, raw=counts)
         return Reading(mag_ut=counts * self.ut_per_count * self.axis_scale, raw=counts)
 
-    def self_test(self, gain: int = 5, *, discard: int = 1, average: int = 1, max_polls: int = 50,
+    def self_test(self, gain: int = 5, *, discard: int = 0, average: int = 1, max_polls: int = 50,
                   poll_s: float = 0.07) -> SelfTestResult:
         """Datasheet self-test: positive then negative bias at ``gain``, each the mean of ``average`` readings
-        after discarding ``discard`` (the first after a change is at the old settings); the configuration in force
+        after discarding ``discard`` more (the one after a gain change is always dropped); the configuration in force
         before the test is restored afterwards, whatever happens."""
         saved = self.settings
         try:

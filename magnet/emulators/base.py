@@ -52,13 +52,21 @@ class SourceTap:
         self.source = source if source is not None else ConstantSource()
         self._latest: tuple[np.ndarray, np.ndarray] | None = None
 
-    def mag(self) -> np.ndarray:
+        self._unused_by_mag = False   # the accelerometer drew the latest sample first: the magnetometer gets it too
+
+    def _draw(self) -> None:
         self._latest = tuple(np.asarray(v, dtype=float) for v in self.source.measure())
+
+    def mag(self) -> np.ndarray:
+        if not self._unused_by_mag:
+            self._draw()
+        self._unused_by_mag = False
         return self._latest[0]
 
     def acc(self) -> np.ndarray:
         if self._latest is None:
-            self.mag()
+            self._draw()
+            self._unused_by_mag = True
         return self._latest[1]
 
 
