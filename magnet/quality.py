@@ -310,14 +310,23 @@ def _check_holdout(q: Mapping[str, Any], t: GateThresholds) -> str | None:
     return _residual_reason(q, t, "holdout_rms", t.max_holdout_factor, "held-out residual")
 
 
+#: what to do about a large residual, by geometry
+_RESIDUAL_ADVICE: dict[str, str] = {
+    Geometry.SPHERE.value: "keep magnets and metal away, move slowly, and check the sensor is not saturating",
+    Geometry.CIRCLE.value: ("the turn is not a circle after min/max scaling (a tilted ellipse from cross-axis soft "
+                            "iron, or the device tilted while turning): keep it level, or tumble it and use ellipsoid"),
+    Geometry.TURNTABLE.value: ("the readings do not fit one linear model: check the mountings, the table angles and "
+                               "the field components"),
+}
+
+
 def _residual_reason(q: Mapping[str, Any], t: GateThresholds, prefix: str, factor: float, name: str) -> str | None:
     ut, pct = _num(q, f"{prefix}_ut"), _num(q, f"{prefix}_pct")
+    advice = _RESIDUAL_ADVICE.get(q.get("geometry", Geometry.SPHERE.value), _RESIDUAL_ADVICE["sphere"])
     if ut is not None and ut > factor * t.max_residual_ut:
-        return (f"{name} {ut:.2f} uT > {factor * t.max_residual_ut:.2f} uT: keep magnets and metal away, "
-                "move slowly, and check the sensor is not saturating")
+        return f"{name} {ut:.2f} uT > {factor * t.max_residual_ut:.2f} uT: {advice}"
     if pct is not None and pct > factor * t.max_residual_pct:
-        return (f"{name} {pct:.1f} % > {factor * t.max_residual_pct:.1f} %: keep magnets and metal away, "
-                "move slowly, and check the sensor is not saturating")
+        return f"{name} {pct:.1f} % > {factor * t.max_residual_pct:.1f} %: {advice}"
     return None
 
 

@@ -151,3 +151,13 @@ def test_assess_dip_spread_and_soft_iron_condition():
     ok, reason = gate(q)
     assert not ok and "soft-iron axis ratio 4.00" not in reason  # 4 is within the default limit of 5
     assert not gate({**q, "soft_iron_condition": 7.0})[0]
+
+
+def test_minmax2d_refuses_a_tilted_ellipse_with_fitting_advice():
+    heading = np.radians(np.linspace(0, 360, 720, endpoint=False))
+    horizontal = np.column_stack([20 * np.cos(heading), -20 * np.sin(heading)])
+    cross = np.array([[1.0, 0.25], [0.25, 1.0]])  # cross-axis soft iron: the ellipse's axes are at 45 deg
+    raw = np.column_stack([horizontal @ cross.T, np.full(720, 45.0)])
+    cal = fit(raw, "minmax2d")
+    assert not cal.accepted
+    assert "tilted ellipse" in cal.reason and "use ellipsoid" in cal.reason
