@@ -55,6 +55,8 @@ class LSM303DLHMagnetometer(Sensor):
             raise SensorError(f"no LSM303DLH magnetometer at {self.device.address:#04x}: identification reads "
                               f"{found!r}, expected {IDENTITY!r}")
         self.gain = gain
+        # as on the HMC5883L, the first measurement after a gain change is at the old gain: drop it
+        self._discard = int(self.device.read_byte(0x01) >> 5 != gain)
         self.device.write_byte(0x00, RATE_75HZ)
         self.device.write_byte(0x01, gain << 5)
         self.device.write_byte(0x02, 0x00)
@@ -64,6 +66,9 @@ class LSM303DLHMagnetometer(Sensor):
             return NOT_READY
         block = self.device.read_block(0x03, 6)
         counts = np.array([to_signed((block[i] << 8) | block[i + 1]) for i in (0, 2, 4)])
+        if self._discard:
+            self._discard -= 1
+            return NOT_READY
         if np.any(counts == OVERFLOW):
             return Reading(overflow=True, raw=counts)
         return Reading(mag_ut=counts / np.array(LSB_PER_GAUSS[self.gain]) * 100.0, raw=counts)
