@@ -42,11 +42,10 @@ from typing import Any
 
 import numpy as np
 
+from magnet.attitude import axis_angle_matrix, euler_to_matrix, matrix_to_euler, random_rotations
 from magnet.geomag import EarthField, earth_field
 from magnet.model import Calibration
 from magnet.units import STANDARD_GRAVITY_MS2
-
-from magnet.attitude import euler_to_matrix, random_rotations
 
 DEFAULT_LAT_DEG = 50.45   # Kyiv, where seed 000's turntable field (Bh 18964 nT, Bv -46962 nT) is typical
 DEFAULT_LON_DEG = 30.52
@@ -162,8 +161,6 @@ class SensorErrors:
         soft = axes @ np.diag(rng.uniform(1.0 - soft_iron_max, 1.0 + soft_iron_max, 3)) @ axes.T
         misalignment = (0.0, 0.0, 0.0)
         if misalignment_deg:
-            from magnet.attitude import axis_angle_matrix, matrix_to_euler
-
             tilt = axis_angle_matrix(rng.standard_normal(3), misalignment_deg)
             yaw, pitch, roll = matrix_to_euler(tilt)
             misalignment = (float(roll), float(pitch), float((yaw + 180.0) % 360.0 - 180.0))

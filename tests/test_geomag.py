@@ -89,3 +89,10 @@ def test_parse_location():
     for bad in ["50.45", "a,b", "1,2,3,4", "95,0", "", "50,"]:
         with pytest.raises(ValueError, match="LAT|latitude|location"):
             parse_location(bad)
+
+
+def test_kyiv_field_is_close_to_the_one_seed_000_used():
+    # seed 000 (Kyiv, 2017): Bh = 18964 nT, Bv = -46962 nT (up component); the field drifts only slowly
+    field = earth_field(50.45, 30.52, 180.0, 2026.0)
+    assert field.horizontal_ut == pytest.approx(18.964, rel=0.05)
+    assert -field.down_ut == pytest.approx(-46.962, rel=0.03)
