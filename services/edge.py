@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
 import json
 import logging
 import time
@@ -30,13 +29,6 @@ from services.zenoh_config import add_zenoh_arguments, open_session, stop_event
 
 log = logging.getLogger("magnet.edge")
 
-#: sensor name -> (emulator module, emulator class) for ``--emulate``; drivers come from ``magnet.drivers.open_sensor``.
-EMULATORS: dict[str, tuple[str, str]] = {
-    "hmc5883l": ("magnet.emulators.hmc5883l", "HMC5883LEmulator"),
-    "qmc5883l": ("magnet.emulators.qmc5883l", "QMC5883LEmulator"),
-    "lsm303dlh": ("magnet.emulators.lsm303dlh", "LSM303DLHEmulator"),
-    "ak09918c+bma456": ("magnet.emulators.ak09918c", "AK09918CEmulator"),
-}
 SIMULATOR_SENSOR = "sim"
 MAX_BACKOFF_S = 2.0
 
@@ -60,7 +52,7 @@ def parse_soft_iron(text: str) -> np.ndarray:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="dev", help="device id (one key chunk); a fleet uses <ID>-000, ...")
     parser.add_argument("--sensor", default=SIMULATOR_SENSOR,
-                        help=f"chip name ({', '.join(EMULATORS)}) or 'sim' for the simulator alone")
+                        help="chip name (hmc5883l, qmc5883l, lsm303dlh, ak09918c+bma456) or 'sim' for the simulator alone")
     parser.add_argument("--bus", type=int, help="I2C bus number of a real chip (/dev/i2c-N)")
     parser.add_argument("--address", type=lambda s: int(s, 0), help="I2C address of a real chip (e.g. 0x1e)")
     parser.add_argument("--emulate", action="store_true", help="emulate the chip (or the fleet) instead of a bus")
@@ -200,11 +192,10 @@ class ChipSource:
         self.settings = settings
         self.stream = None
         if args.emulate:
-            if settings.sensor not in EMULATORS:
-                raise ValueError(f"no emulator for sensor {settings.sensor!r}: use one of {', '.join(EMULATORS)}")
-            module_name, class_name = EMULATORS[settings.sensor]
+            from magnet.emulators import emulator_for
+
             self.stream = _sensor_stream(args)
-            bus = getattr(importlib.import_module(module_name), class_name)(source=self.stream)
+            bus = emulator_for(settings.sensor, self.stream)
         else:
             if args.bus is None:
                 raise ValueError("a real sensor needs --bus N (or --emulate)")

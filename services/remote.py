@@ -51,8 +51,9 @@ def _query(args: argparse.Namespace, selector: str) -> list[Any]:
 
 
 def add_get_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("what", choices=["calibration"], help="what to query")
-    parser.add_argument("device", help="device id (or a key expression such as '*')")
+    parser.add_argument("what", choices=["calibration", "status"],
+                        help="a device's calibration, or a service's status counters")
+    parser.add_argument("device", help="device id (or '*'); for status: the service name (calibrator, compass, '*')")
     parser.add_argument("--history", action="store_true", help="earlier calibrations too, newest first")
     parser.add_argument("--limit", type=int, default=20, help="with --history: at most this many (default 20)")
     parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers (default 3)")
@@ -62,6 +63,11 @@ def add_get_arguments(parser: argparse.ArgumentParser) -> None:
 def run_get(args: argparse.Namespace) -> int:
     if args.device != "*":
         wire.validate_device_id(args.device)
+    if args.what == "status":
+        replies = _query(args, wire.status_key(args.prefix, args.device))
+        for reply in replies:
+            _print(reply)
+        return 0 if replies else 1
     kind = wire.Kind.HISTORY if args.history else wire.Kind.CALIBRATION
     selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if args.history else "")
     replies = _query(args, selector)

@@ -1,0 +1,198 @@
+"""The services end to end, each in its own process on loopback (explicit ports, no multicast), bounded in time.
+
+- an emulated LSM303DLH with known hard and soft iron -> the calibrator accepts a calibration whose offset is within
+  1 uT of the truth -> the compass's true heading agrees with the simulator's truth -> another process queries the
+  coefficients and the history;
+- kill -9 of the calibrator, restart: the stored calibration is served again; compass restart picks it up; garbage
+  on the raw and calibration keys is counted and everything keeps serving.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from magnet.heading import angle_difference_deg
+from services.zenoh_config import free_ports
+
+MAGNET = [sys.executable, "-m", "services.cli"]
+NO_SCOUT = ["--no-multicast-scouting"]
+HARD_IRON = np.array([25.0, -15.0, 10.0])
+SOFT_IRON = "1.10,0.05,0,0.05,0.92,0.02,0,0.02,1.0"
+LOCATION = "50.45,30.52"
+
+
+def _listen(port):
+    return [*NO_SCOUT, "--listen", f"tcp/127.0.0.1:{port}"]
+
+
+def _connect(*ports):
+    return [arg for port in ports for arg in ("--connect", f"tcp/127.0.0.1:{port}")]
+
+
+class Processes:
+    """Services started for one test, logs in tmp_path, all stopped at the end."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        self.tmp_path, self.procs = tmp_path, {}
+
+    def start(self, name, *args):
+        log = open(self.tmp_path / f"{name}.log", "w")
+        self.procs[name] = subprocess.Popen([*MAGNET, *args], stdout=log, stderr=subprocess.STDOUT,
+                                            cwd=Path(__file__).resolve().parents[1])
+        return self.procs[name]
+
+    def alive(self, name):
+        return self.procs[name].poll() is None
+
+    def log(self, name):
+        return (self.tmp_path / f"{name}.log").read_text()
+
+    def stop_all(self):
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for name, proc in self.procs.items():
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@pytest.fixture
+def procs(tmp_path):
+    p = Processes(tmp_path)
+    yield p
+    p.stop_all()
+
+
+def magnet(*args, timeout=15):
+    """Run a remote tool; (exit status, JSON lines)."""
+    out = subprocess.run([*MAGNET, *args], capture_output=True, text=True, timeout=timeout)
+    return out.returncode, [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
+
+
+def wait_for(check, timeout_s, what):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        result = check()
+        if result:
+            return result
+        time.sleep(0.3)
+    pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def get_calibration(device, port):
+    code, lines = magnet("get", "calibration", device, *NO_SCOUT, *_connect(port), "--timeout", "2")
+    return lines[0] if code == 0 and lines else None
+
+
+def get_status(service, port):
+    code, lines = magnet("get", "status", service, *NO_SCOUT, *_connect(port), "--timeout", "2")
+    return lines[0] if code == 0 and lines else None
+
+
+def start_pipeline(procs, tmp_path, device, sensor, cal_port, comp_port, edge_port):
+    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "cal.db"), *_listen(cal_port))
+    procs.start("compass", "compass", "--location", LOCATION, *_listen(comp_port), *_connect(cal_port))
+    procs.start("edge", "edge", "--device", device, "--sensor", sensor, "--emulate", "--rate", "500", "--batch", "25",
+                "--hard-iron", ",".join(map(str, HARD_IRON)), "--soft-iron", SOFT_IRON, "--location", LOCATION,
+                "--trajectory-samples", "2000", *_listen(edge_port), *_connect(cal_port, comp_port))
+
+
+def test_emulated_lsm303dlh_is_calibrated_and_headings_match_the_truth(procs, tmp_path):
+    cal_port, comp_port, edge_port = free_ports(3)
+    start_pipeline(procs, tmp_path, "lsm-1", "lsm303dlh", cal_port, comp_port, edge_port)
+    record = wait_for(lambda: get_calibration("lsm-1", cal_port), 40, "an accepted calibration")
+    assert record["accepted"] and record["device"] == "lsm-1" and record["method"] == "ellipsoid"
+    offset_error = np.abs(np.array(record["offset"]) - HARD_IRON).max()
+    assert offset_error < 1.0, f"offset {record['offset']} vs hard iron {HARD_IRON}"
+
+    # headings and raw batches (which carry the simulator's truth) of the same batches, joined by seq
+    watch = [*NO_SCOUT, "--count", "60"]
+    headings = subprocess.Popen([*MAGNET, "watch", "heading", "lsm-1", *watch, *_connect(comp_port)],
+                                stdout=subprocess.PIPE, text=True)
+    raws = subprocess.Popen([*MAGNET, "watch", "raw", "lsm-1", *watch, *_connect(edge_port)],
+                            stdout=subprocess.PIPE, text=True)
+    heading_out, _ = headings.communicate(timeout=30)
+    raw_out, _ = raws.communicate(timeout=30)
+    by_seq = {m["seq"]: m for m in map(json.loads, raw_out.splitlines())}
+    errors = []
+    for message in map(json.loads, heading_out.splitlines()):
+        raw = by_seq.get(message["seq"])
+        if raw is None or message["calibration_id"] != record["id"]:
+            continue
+        assert all(f & 1 for f in message["flags"]), "CALIBRATED flag set on calibrated headings"
+        pitch = np.array(raw["truth"]["pitch_deg"])
+        usable = np.abs(pitch) < 70  # near vertical the heading of the x axis is undefined
+        errors += list(angle_difference_deg(np.array(message["true_heading_deg"]),
+                                            np.array(raw["truth"]["heading_deg"]))[usable])
+    assert len(errors) > 200, f"only {len(errors)} comparable samples"
+    rms = float(np.sqrt(np.mean(np.square(errors))))
+    assert rms < 2.0, f"true heading RMS error {rms:.2f} deg"
+
+    code, lines = magnet("get", "calibration", "lsm-1", "--history", *NO_SCOUT, *_connect(cal_port))
+    assert code == 0 and lines[0]["records"][0]["id"] == record["id"]
+    assert lines[0]["records"][0]["matrix"] == record["matrix"]
+
+
+GARBAGE = r"""
+import sys, msgpack, zenoh
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", '["tcp/127.0.0.1:%s", "tcp/127.0.0.1:%s"]' % (sys.argv[1], sys.argv[2]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+good = {"v": 1, "device": "g-1", "seq": 0, "sensor": "x", "t_ns": [1], "mag_ut": [[1.0, 2.0, 3.0]]}
+payloads = [b"\xc1not msgpack", msgpack.packb([1, 2]), msgpack.packb({**good, "v": 9}),
+            msgpack.packb({**good, "mag_ut": [[float("nan"), 0.0, 0.0]]}), msgpack.packb({**good, "mag_ut": [[1e9, 0, 0]]}),
+            msgpack.packb({**good, "mag_ut": [[1.0, 2.0]]}), msgpack.packb({**good, "device": "other"}), b"\x00" * 5_000_000]
+with zenoh.open(conf) as session:
+    import time; time.sleep(0.5)
+    for payload in payloads:
+        session.put("magnet/g-1/raw", payload)
+        session.put("magnet/g-1/calibration", payload)
+    session.put("magnet/g-1/calibration", msgpack.packb({"v": 1, "device": "g-1", "offset": [0, 0], "matrix": [[1]]}))
+    time.sleep(0.5)
+"""
+
+
+def test_restarts_keep_calibrations_and_garbage_is_counted(procs, tmp_path):
+    cal_port, comp_port, edge_port, cal2_port, comp2_port = free_ports(5)
+    start_pipeline(procs, tmp_path, "sim-1", "sim", cal_port, comp_port, edge_port)
+    first = wait_for(lambda: get_calibration("sim-1", cal_port), 40, "an accepted calibration")
+
+    os.kill(procs.procs["calibrator"].pid, signal.SIGKILL)
+    procs.procs["calibrator"].wait()
+    procs.start("calibrator2", "calibrator", "--db", str(tmp_path / "cal.db"), *_listen(cal2_port),
+                *_connect(comp_port, edge_port))
+    again = wait_for(lambda: get_calibration("sim-1", cal2_port), 20, "the stored calibration after kill -9")
+    assert again == first
+
+    procs.procs["compass"].send_signal(signal.SIGTERM)
+    assert procs.procs["compass"].wait(timeout=10) == 0, "compass stops cleanly on SIGTERM"
+    procs.start("compass2", "compass", "--location", LOCATION, *_listen(comp2_port), *_connect(cal2_port, edge_port))
+    status = wait_for(lambda: (s := get_status("compass", comp2_port)) and s["calibrations"] == 1 and s, 20,
+                      "the restarted compass to hold the calibration")
+    code, lines = magnet("watch", "heading", "sim-1", "--count", "3", *NO_SCOUT, *_connect(comp2_port))
+    assert code == 0 and all(m["calibration_id"] == first["id"] for m in lines)
+
+    subprocess.run([sys.executable, "-c", GARBAGE, str(comp2_port), str(cal2_port)], check=True, timeout=30)
+    compass_status = wait_for(lambda: (s := get_status("compass", comp2_port)) and s["dropped_total"] >= 15 and s,
+                              10, "the compass to count the garbage")
+    calibrator_status = get_status("calibrator", cal2_port)
+    assert calibrator_status["dropped_total"] >= 7, calibrator_status
+    assert {"raw:not-msgpack", "raw:wrong-version", "raw:non-finite", "calibration:bad-calibration"} \
+        <= set(compass_status["dropped"])
+    assert compass_status["calibrations"] == 1, "garbage changed no calibration"
+    assert get_calibration("sim-1", cal2_port) == first
+    code, lines = magnet("watch", "heading", "sim-1", "--count", "2", *NO_SCOUT, *_connect(comp2_port))
+    assert code == 0 and len(lines) == 2, "the compass keeps serving"
+    assert procs.alive("calibrator2") and procs.alive("compass2") and procs.alive("edge")
