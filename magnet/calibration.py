@@ -25,7 +25,9 @@ Methods (``Method``):
   part positive definite and the right side after centring positive); then Levenberg-Marquardt on the radial
   residuals e_i = |M (u_i - b)| - 1 over b (3) and symmetric M (6) with the analytic Jacobian
   de/db = -M^T n_i, de/dM_jk = n_j d_k + n_k d_j (n_i = M d_i / |M d_i|, d_i = u_i - b). Then r = det(M)^(-1/3)
-  (the geometric mean of the semi-axes) and S = r M (det S = 1).
+  (the geometric mean of the semi-axes) and S = r M (det S = 1). Outliers (spikes) are left out twice: before
+  the fit, samples farther than 3x the median distance from the median sample; after it, samples whose radial
+  residual lies beyond 6 robust sigmas (1.4826 MAD), followed by one more refinement. Neither drops more than 10 %.
 - ``ellipsoid+align``: the ellipsoid, then the rotation R between the magnetometer and accelerometer frames so that
   the dip is constant: with g_i the gravity directions (-acc normalised) and m_i the corrected field directions,
   g_i . (R m_i) = sin(dip) for every i. Start: linear least squares for N with g_i^T N m_i = 1, R0 = nearest
@@ -86,6 +88,12 @@ MAX_SCATTER_FOR_3D = 50.0
 MIN_GRAVITY_SPREAD = 0.02
 #: largest condition number of the alignment Gauss-Newton normal matrix
 MAX_ALIGN_CONDITION = 1e6
+#: a sample farther from the median sample than this many times the median distance is a spike (before any fit)
+GROSS_OUTLIER_FACTOR = 3.0
+#: after the fit, samples whose radial residual is beyond this many robust sigmas are left out and the fit refined
+OUTLIER_SIGMAS = 6.0
+#: outlier rejection never drops more than this fraction of the samples (beyond it the data are not "mostly good")
+MAX_OUTLIER_FRACTION = 0.1
 #: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
 #: it did not see (blocks, not single samples: neighbours in time are nearly the same reading)
 HOLDOUT_BLOCK = 20
@@ -193,10 +201,36 @@ def _sphere(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
 
 def _ellipsoid(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
     _check_spread_3d(mag, Method.ELLIPSOID)
-    offset, shape = _algebraic_ellipsoid(mag)
-    offset, shape = _refine_ellipsoid(mag, offset, shape)
+    keep = _gross_inliers(mag)
+    offset, shape = _algebraic_ellipsoid(mag[keep])
+    offset, shape = _refine_ellipsoid(mag[keep], offset, shape)
+    inliers = _radial_inliers(mag, offset, shape)
+    if not np.array_equal(inliers, keep):
+        offset, shape = _refine_ellipsoid(mag[inliers], offset, shape)
+    dropped = int((~inliers).sum())
     radius = float(np.linalg.det(shape) ** (-1.0 / 3.0))
-    return Shape(offset, shape * radius, radius)
+    note = f"{dropped} outlier sample(s) left out of the fit" if dropped else ""
+    return Shape(offset, shape * radius, radius, note)
+
+
+def _gross_inliers(mag: np.ndarray) -> np.ndarray:
+    """(N,) bool: samples within GROSS_OUTLIER_FACTOR times the median distance from the median sample (spikes out).
+
+    On an ellipsoid the distances from a point near its centre are all of the order of its radius, so a spike of a
+    few radii stands out even before any fit. All samples are kept when more than MAX_OUTLIER_FRACTION would go.
+    """
+    distance = np.linalg.norm(mag - np.median(mag, axis=0), axis=1)
+    keep = distance <= GROSS_OUTLIER_FACTOR * np.median(distance)
+    return keep if keep.mean() >= 1 - MAX_OUTLIER_FRACTION else np.ones(len(mag), dtype=bool)
+
+
+def _radial_inliers(mag: np.ndarray, offset: np.ndarray, shape: np.ndarray) -> np.ndarray:
+    """(N,) bool: radial residuals within OUTLIER_SIGMAS robust sigmas (1.4826 MAD) of their median."""
+    res = np.linalg.norm((mag - offset) @ shape, axis=1) - 1.0
+    deviation = np.abs(res - np.median(res))
+    sigma = 1.4826 * np.median(deviation)
+    keep = deviation <= OUTLIER_SIGMAS * max(sigma, 1e-12)
+    return keep if keep.mean() >= 1 - MAX_OUTLIER_FRACTION else np.ones(len(mag), dtype=bool)
 
 
 def _algebraic_ellipsoid(mag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -275,10 +309,16 @@ def _ellipsoid_align(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> S
     field /= np.linalg.norm(field, axis=1, keepdims=True)
     rotation, why_not = align_rotation(field, gravity)
     if rotation is None:
-        return dataclasses.replace(base, note=f"alignment not observable: {why_not}; kept the plain ellipsoid")
+        return dataclasses.replace(base, note=_join(base.note, f"alignment not observable: {why_not}; kept the "
+                                                               "plain ellipsoid"))
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rotation) - 1) / 2))))
     return dataclasses.replace(base, matrix=rotation @ base.matrix,
-                               note=f"magnetometer-accelerometer misalignment {angle:.2f} deg corrected")
+                               note=_join(base.note, f"magnetometer-accelerometer misalignment {angle:.2f} deg "
+                                                     "corrected"))
+
+
+def _join(*notes: str) -> str:
+    return "; ".join(note for note in notes if note)
 
 
 def _gravity_spread(gravity: np.ndarray) -> float:

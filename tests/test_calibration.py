@@ -146,6 +146,23 @@ def test_robust_extremes_resist_a_spike():
     assert abs(robust.offset[0]) < 0.25 * abs(plain.offset[0])
 
 
+@pytest.mark.parametrize("spike_ut", [30.0, 600.0])  # moderate (inside 3 radii) and gross spikes
+def test_ellipsoid_leaves_spikes_out(spike_ut):
+    rng = np.random.default_rng(11)
+    correction = symmetric_soft_iron(rng, 0.2)
+    offset = np.array([80.0, -40.0, 100.0])
+    raw = distort(unit_vectors(rng, 3000) * FIELD_UT, correction, offset) + rng.normal(scale=0.3, size=(3000, 3))
+    spiky = raw.copy()
+    hit = rng.choice(len(raw), 45, replace=False)  # 1.5 % of the samples
+    spiky[hit] += unit_vectors(rng, len(hit)) * spike_ut
+    cal = fit(spiky, "ellipsoid", field_ut=FIELD_UT)
+    assert np.allclose(cal.offset, offset, atol=0.15)
+    assert np.allclose(cal.matrix, correction, atol=5e-3)
+    assert "outlier sample(s) left out" in cal.reason
+    dropped = int(cal.reason.split(" outlier")[0].split()[-1])
+    assert 35 <= dropped <= 50
+
+
 def test_minmax2d_follows_the_seed_formula_and_leaves_z_alone():
     angle = np.radians(np.arange(0, 360, 2))
     raw = np.column_stack([20 * np.cos(angle) + 5, 30 * np.sin(angle) - 8, np.full(angle.shape, -40.0)])
