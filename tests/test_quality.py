@@ -161,3 +161,11 @@ def test_minmax2d_refuses_a_tilted_ellipse_with_fitting_advice():
     cal = fit(raw, "minmax2d")
     assert not cal.accepted
     assert "tilted ellipse" in cal.reason and "use ellipsoid" in cal.reason
+
+
+def test_a_level_turn_has_its_own_residual_limit():
+    figures = {"residual_rms_ut": 0.8, "residual_rms_pct": 4.0, "coverage": 1.0, "scatter_condition": 1.2}
+    assert gate({**figures, "geometry": "circle"})[0]
+    ok, reason = gate({**figures, "geometry": "sphere"})
+    assert not ok and "residual 4.0 % > 3.5 %" in reason
+    assert not gate({**figures, "geometry": "circle", "residual_rms_pct": 5.5})[0]
