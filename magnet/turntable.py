@@ -84,9 +84,17 @@ def least_squares(mag: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def average_by_angle(mag: np.ndarray, heading_deg: np.ndarray) -> dict[int, np.ndarray]:
-    """Mean reading (3,) per table heading rounded to whole degrees modulo 360 (so 360 joins 0)."""
-    angles = np.rint(np.asarray(heading_deg, dtype=float)).astype(int) % 360
-    return {int(angle): mag[angles == angle].mean(axis=0) for angle in np.unique(angles)}
+    """Mean reading (3,) per table heading rounded to whole degrees modulo 360.
+
+    A reading at 360 deg is kept apart from 0 deg: seed 000 records it to show that the turn closed, and its closed
+    form uses the 0 deg readings. It stands in for 0 deg only where no 0 deg reading exists.
+    """
+    rounded = np.rint(np.asarray(heading_deg, dtype=float)).astype(int)
+    angles = np.where(rounded == 360, 360, rounded % 360)
+    means = {int(angle): mag[angles == angle].mean(axis=0) for angle in np.unique(angles)}
+    if 0 not in means and 360 in means:
+        means[0] = means[360]
+    return means
 
 
 def _check_inputs(mag, mounting, heading_deg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -39,6 +39,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="turntable: known horizontal field component (its unit is the output unit)")
     parser.add_argument("--vertical", type=float, metavar="V",
                         help="turntable: known vertical component along the upward axis (negative in the north)")
+    parser.add_argument("--field-unit", default="ut", choices=[u.value for u in FieldUnit if u is not FieldUnit.COUNTS],
+                        help="turntable: unit of --horizontal/--vertical and of the corrected field (default ut; "
+                             "nt for gammas)")
+    parser.add_argument("--turntable-variant", default="closed", choices=("closed", "lsq"),
+                        help="turntable: closed form from the 0/90/180/270 readings (seed 000) or least squares "
+                             "over every angle")
     parser.add_argument("--robust-extremes", action="store_true",
                         help="minmax: pull each new extreme in slowly (0.2 new, 0.8 old) to resist spikes")
     parser.add_argument("--out", metavar="cal.json", help="write the record here (default: stdout)")
@@ -65,8 +71,8 @@ def _fit_turntable(table: SampleTable, args: argparse.Namespace) -> Calibration:
 
     if args.horizontal is None or args.vertical is None:
         raise ValueError("the turntable method needs --horizontal and --vertical (the known field components)")
-    return fit_turntable(table.mag, table.text("mounting"), table.numeric("heading_deg"),
-                         args.horizontal, args.vertical)
+    return fit_turntable(table.mag, table.text("mounting"), table.numeric("heading_deg"), args.horizontal,
+                         args.vertical, args.turntable_variant, unit=args.unit, field_unit=args.field_unit)
 
 
 def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:

@@ -191,3 +191,31 @@ def test_heading_with_location_uses_wmm_declination(sphere_csv: Path, tmp_path: 
     row = [float(v) for v in lines[1].split(",")]
     declination = (row[header.index("true_heading_deg")] - row[header.index("heading_deg")]) % 360.0
     assert 7.0 < declination < 10.5  # Kyiv, WMM2025 mid-2026: about 8.5 deg east
+
+
+SEED_TABLE_1 = """0 240.3558 232.6558 -258.4923 256.7519 -282.8714 114.7131
+90 11.7449 -0.6559 -11.2143 279.9059 -283.6456 325.0541
+180 -213.7425 -222.0211 -254.4305 262.3875 -272.8729 122.2481
+270 13.9952 10.4205 -499.7591 238.7882 -270.5577 -90.3142
+360 240.1131 233.0065 -257.2397 256.5758 -281.6103 114.9137"""
+SEED_TABLE_2_K = np.array([[0.012, -5.9333e-5, -1.1079e-4], [-1.0709e-4, 0.0129, -0.0019],
+                           [-2.6362e-4, -3.4507e-4, 0.0088]])
+SEED_TABLE_2_U0 = np.array([8.1037, -345.3406, 134.6858])
+
+
+def test_fit_turntable_on_the_seed_table_gives_table_2_and_is_honestly_rejected(tmp_path: Path):
+    lines = ["mounting,heading_deg,mx,my,mz"]
+    for row in SEED_TABLE_1.splitlines():
+        k, xa, xb, ya, yb, za, zb = row.split()
+        lines += [f"a,{k},{xa},{ya},{za}", f"b,{k},{xb},{yb},{zb}"]
+    path = tmp_path / "seed.csv"
+    path.write_text("\n".join(lines) + "\n")
+    result = magnet("fit", str(path), "--method", "turntable", "--unit", "counts", "--horizontal", "18964",
+                    "--vertical", "-46962", "--field-unit", "nt")
+    record = json.loads(result.stdout)
+    k = np.linalg.inv(np.array(record["matrix"]))
+    # the printed digits, within the rounding of Table 1 (see tests/test_turntable.py for the exact bound)
+    assert np.allclose(k, SEED_TABLE_2_K, rtol=0.03, atol=3e-9)
+    assert np.allclose(record["offset"], SEED_TABLE_2_U0, atol=2e-4)
+    # the seed's two mountings disagree by several percent (its own Table 3 spans |T| 47,000-55,000 gamma)
+    assert result.returncode == 1 and "one linear model" in result.stderr

@@ -135,11 +135,15 @@ def test_lsq_and_closed_form_agree_on_consistent_data():
     assert np.allclose(fitted["closed"], fitted["lsq"], atol=1e-3 * 0.013)
 
 
-def test_360_joins_0_and_missing_angles_are_named():
+def test_360_is_a_closing_check_not_averaged_into_0_and_missing_angles_are_named():
     mag, mounting, heading = _samples(include_360=True)
     cal = fit_turntable(mag, mounting, heading, BH, BV, field_unit="nt")
     assert cal.sample_count == 26
-    assert cal.offset != pytest.approx(fit_turntable(*_samples(), BH, BV, field_unit="nt").offset)  # 360 averaged in
+    # seed 000's closed form uses the 0 deg readings; the 360 deg row only shows that the turn closed
+    assert cal.offset == pytest.approx(fit_turntable(*_samples(), BH, BV, field_unit="nt").offset)
+    only_360 = ~(heading == 0)
+    from_360 = fit_turntable(mag[only_360], mounting[only_360], heading[only_360], BH, BV, field_unit="nt")
+    assert from_360.offset != pytest.approx(cal.offset)  # with no 0 deg reading, 360 stands in for it
     keep = ~((mounting == "a") & (heading == 90))
     with pytest.raises(FitError, match="mounting a at 90 deg"):
         fit_turntable(mag[keep], mounting[keep], heading[keep], BH, BV, field_unit="nt")
