@@ -275,31 +275,48 @@ def encode_raw(batch: RawBatch) -> bytes:
     return msgpack.packb(message, use_bin_type=True)
 
 
-def decode_raw(payload: bytes | bytearray | memoryview) -> RawBatch:
-    """RawBatch from a payload; WireError (with ``cause``) for anything malformed or physically impossible."""
+def decode_raw(payload: bytes | bytearray | memoryview, *, with_truth: bool = True) -> RawBatch:
+    """RawBatch from a payload; WireError (with ``cause``) for anything malformed or physically impossible.
+
+    ``with_truth=False`` skips the simulator's truth (faster, for consumers that do not use it)."""
     message = unpack(payload)
     device = _device(message)
     t_ns = _time_array(message.get("t_ns"))
     n = t_ns.shape[0]
     if n == 0:
         raise WireError("empty", "a raw batch holds no samples")
-    mag = _array(message.get("mag_ut"), "mag_ut", (3,), MAX_FIELD_UT)
-    arrays = {"mag_ut": mag}
-    acc = None
-    if message.get("acc_ms2") is not None:
-        acc = arrays["acc_ms2"] = _array(message["acc_ms2"], "acc_ms2", (3,), MAX_ACC_MS2)
+    mag, acc = _vectors(message.get("mag_ut"), message.get("acc_ms2"), n)
     truth = None
-    if message.get("truth") is not None:
+    if with_truth and message.get("truth") is not None:
         raw_truth = message["truth"]
         if not isinstance(raw_truth, dict):
             raise WireError("bad-field", "truth must be a map")
         truth = {name: _array(raw_truth.get(name), f"truth.{name}", (), 1e4) for name in _TRUTH_FIELDS}
-        arrays.update(truth)
-    _check_length(n, arrays)
+        _check_length(n, truth)
     sensor = message.get("sensor", "")
     if not isinstance(sensor, str):
         raise WireError("bad-field", "sensor must be a string")
     return RawBatch(device, _int(message, "seq", 0), sensor, t_ns, mag, acc, truth)
+
+
+def _vectors(mag: Any, acc: Any, n: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """mag (n, 3) and acc (n, 3) or None, converted and checked in one pass (the hot path of every consumer)."""
+    try:
+        both = np.array(mag if acc is None else (mag, acc), dtype=np.float64)
+    except (TypeError, ValueError):
+        raise WireError("bad-shape", "mag_ut/acc_ms2 are not arrays of numbers of the same shape") from None
+    expected = (n, 3) if acc is None else (2, n, 3)
+    if both.shape != expected:
+        raise WireError("bad-shape", f"mag_ut/acc_ms2 have shape {both.shape}, expected {expected} (N = len(t_ns))")
+    if not np.isfinite(both).all():
+        raise WireError("non-finite", "mag_ut or acc_ms2 holds non-finite values")
+    if acc is None:
+        if np.abs(both).max() > MAX_FIELD_UT:
+            raise WireError("absurd-magnitude", f"mag_ut holds values beyond +-{MAX_FIELD_UT:g}")
+        return both, None
+    if np.abs(both[0]).max() > MAX_FIELD_UT or np.abs(both[1]).max() > MAX_ACC_MS2:
+        raise WireError("absurd-magnitude", f"mag_ut beyond +-{MAX_FIELD_UT:g} or acc_ms2 beyond +-{MAX_ACC_MS2:g}")
+    return both[0], both[1]
 
 
 # -------------------------------------------------------------------------------------------------------- heading

@@ -29,6 +29,7 @@ MAX_DRAIN = 4000          # raw messages computed together at most
 CHANNEL_CAPACITY = 65536  # raw messages queued between zenoh and this loop
 REQUERY_S = 5.0           # how often to ask again for the calibration of a device that has none
 IDLE_SLEEP_S = 0.0003
+_ZERO3, _EYE3 = np.zeros(3), np.eye(3)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -123,7 +124,7 @@ class Compass:
         batches = []
         for key_expr, payload in items:
             try:
-                batch = wire.decode_raw(payload)
+                batch = wire.decode_raw(payload, with_truth=False)
                 if wire.device_from_key(prefix, key_expr, wire.Kind.RAW) != batch.device:
                     raise wire.WireError("key-mismatch", f"key {key_expr} carries device {batch.device}")
             except wire.WireError as exc:
@@ -140,23 +141,23 @@ class Compass:
         mag = np.concatenate([b.mag_ut for b in batches])
         acc = np.concatenate([b.acc_ms2 if b.acc_ms2 is not None else np.full((len(b), 3), np.nan) for b in batches])
         cals = [self.calibrations.get(b.device) for b in batches]
-        offsets = np.repeat(np.array([c.calibration.offset if c else np.zeros(3) for c in cals]), counts, axis=0)
-        matrices = np.repeat(np.array([c.calibration.matrix if c else np.eye(3) for c in cals]), counts, axis=0)
+        offsets = np.repeat(np.array([c.calibration.offset if c else _ZERO3 for c in cals]), counts, axis=0)
+        matrices = np.repeat(np.array([c.calibration.matrix if c else _EYE3 for c in cals]), counts, axis=0)
         calibrated = np.repeat(np.array([c is not None for c in cals]), counts)
         out = compute_headings(mag, acc, offsets, matrices, calibrated, self.earth)
         self.received_batches += len(batches)
         self.received_samples += int(counts.sum())
         bounds = np.concatenate([[0], np.cumsum(counts)])
-        results = []
-        for i, (batch, cal) in enumerate(zip(batches, cals)):
-            part = slice(bounds[i], bounds[i + 1])
-            magnetic = self._smooth(batch.device, out["heading_deg"][part])
-            results.append(wire.HeadingBatch(
-                batch.device, batch.seq, batch.t_ns, magnetic,
-                hd.true_heading_deg(magnetic, self.earth.declination_deg), out["pitch_deg"][part],
-                out["roll_deg"][part], out["field_ut"][part], self.earth.declination_deg, cal.id if cal else "",
-                out["flags"][part]))
-        return results
+        if self.window > 1:
+            out["heading_deg"] = np.concatenate([self._smooth(b.device, out["heading_deg"][bounds[i]:bounds[i + 1]])
+                                                 for i, b in enumerate(batches)])
+        true_heading = hd.true_heading_deg(out["heading_deg"], self.earth.declination_deg)
+        spans = list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
+        columns = [[a[lo:hi] for lo, hi in spans] for a in (out["heading_deg"], true_heading, out["pitch_deg"],
+                                                            out["roll_deg"], out["field_ut"], out["flags"])]
+        return [wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, magnetic, true, pitch, roll, field,
+                                  self.earth.declination_deg, cal.id if cal else "", flags)
+                for batch, cal, magnetic, true, pitch, roll, field, flags in zip(batches, cals, *columns)]
 
     def _smooth(self, device: str, heading: np.ndarray) -> np.ndarray:
         if self.window == 1:

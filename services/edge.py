@@ -31,6 +31,7 @@ log = logging.getLogger("magnet.edge")
 
 SIMULATOR_SENSOR = "sim"
 MAX_BACKOFF_S = 2.0
+FLEET_SLOTS = 20
 
 
 def _floats(text: str, counts: tuple[int, ...], name: str) -> np.ndarray:
@@ -283,11 +284,25 @@ def run(args: argparse.Namespace) -> int:
         def done() -> bool:
             return stop.is_set() or (deadline is not None and time.monotonic() >= deadline)
 
+        # a fleet's devices are spread evenly over each period (real devices do not tick together), each slot
+        # stamped when it goes out
+        slots = min(len(ids), FLEET_SLOTS) if isinstance(source, FleetSource) else 1
+        sample_ns = int(1e9 / settings.rate_hz)
         for seq, end_ns in enumerate(_ticks(period, done)):
-            for batch in source.batches(seq, end_ns):
-                publishers[batch.device].put(wire.encode_raw(batch))
-                published_samples += len(batch)
-                published_batches += 1
+            tick = time.monotonic()
+            batches = source.batches(seq, end_ns)
+            for slot in range(slots):
+                if slot:
+                    delay = tick + slot * period / slots - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                    now_ns = time.time_ns()
+                for batch in batches[slot::slots]:
+                    if slot:
+                        batch = dataclasses.replace(batch, t_ns=_stamp(len(batch), now_ns, sample_ns))
+                    publishers[batch.device].put(wire.encode_raw(batch))
+                    published_samples += len(batch)
+                    published_batches += 1
         for token in tokens:
             token.undeclare()
     seconds = time.monotonic() - started
