@@ -35,6 +35,7 @@ log = logging.getLogger("magnet.calibrator")
 
 FINE_BANDS = 24      # equal-area bands in z (uniform in z = equal area on the sphere) ...
 FINE_SECTORS = 48    # ... times sectors in longitude: 1152 fine cells, one kept sample each
+REBIN_SHIFT_UT = 2.0  # re-sort kept samples into cells when the cloud's centre moved this far
 FIT_EVERY_NEW = 25   # fit again after this many newly kept samples
 FIT_INTERVAL_S = 0.5
 PROGRESS_INTERVAL_S = 0.5
@@ -112,6 +113,7 @@ class Collection:
         self.occupied = np.zeros(FINE_BANDS * FINE_SECTORS, dtype=bool)
         self.lo = np.full(3, np.inf)
         self.hi = np.full(3, -np.inf)
+        self.binned_centre: np.ndarray | None = None
         self.last_fit_kept = 0
         self.last_fit_s = -np.inf
         self.last_fit: Calibration | None = None
@@ -119,7 +121,8 @@ class Collection:
 
     @property
     def centre(self) -> np.ndarray:
-        return (self.lo + self.hi) / 2
+        """Running centre of the raw cloud, (max + min) / 2 per axis, uT (zeros before any sample)."""
+        return (self.lo + self.hi) / 2 if self.seen else np.zeros(3)
 
     def add(self, mag: np.ndarray, acc: np.ndarray | None) -> int:
         """Keep the samples of a batch whose fine cell is still empty; returns how many were kept."""
@@ -128,10 +131,13 @@ class Collection:
         self.hi = np.maximum(self.hi, mag.max(axis=0))
         if acc is None:
             self.has_acc = False
+        centre = self.centre
+        if self.binned_centre is None or np.abs(centre - self.binned_centre).max() > REBIN_SHIFT_UT:
+            self._rebin(centre)
         room = self.capacity - self.kept
         if room <= 0:
             return 0
-        cells = fine_cells(mag - self.centre)
+        cells = fine_cells(mag - centre)
         unique, first = np.unique(cells, return_index=True)
         new = first[~self.occupied[unique]][:room]
         if new.size == 0:
@@ -142,6 +148,20 @@ class Collection:
             self.acc[self.kept:self.kept + new.size] = acc[new]
         self.kept += new.size
         return int(new.size)
+
+    def _rebin(self, centre: np.ndarray) -> None:
+        """Sort the kept samples into cells around the new centre, keeping the first of each cell."""
+        self.binned_centre = centre
+        self.occupied[:] = False
+        if not self.kept:
+            return
+        cells = fine_cells(self.mag[:self.kept] - centre)
+        unique, first = np.unique(cells, return_index=True)
+        first = np.sort(first)
+        self.mag[:first.size] = self.mag[first]
+        self.acc[:first.size] = self.acc[first]
+        self.kept = int(first.size)
+        self.occupied[unique] = True
 
     def samples(self) -> tuple[np.ndarray, np.ndarray | None]:
         return self.mag[:self.kept], (self.acc[:self.kept] if self.has_acc else None)
@@ -266,8 +286,14 @@ class Calibrator:
                    seen=collection.seen, coverage=cov.fraction, cells_hit=cov.cells_hit, cell_count=cov.cell_count,
                    missing=list(cov.missing),
                    residual_rms_ut=None if last is None else last.quality.get("residual_rms_ut"),
-                   accepted=None if last is None else bool(last.accepted), reason=collection.last_reason)
+                   accepted=None if last is None else bool(last.accepted),
+                   reason=collection.last_reason or self._waiting_reason(collection, cov))
         return out
+
+    def _waiting_reason(self, collection: Collection, cov: Any) -> str:
+        advice = ", ".join(cov.missing) or "move through more attitudes"
+        return (f"{collection.kept} of {self.settings.min_samples} evenly spread samples, coverage "
+                f"{cov.fraction:.0%}: {advice}")
 
     def _progress(self, device: str) -> None:
         self.last_progress[device] = self.clock()

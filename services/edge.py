@@ -32,6 +32,8 @@ log = logging.getLogger("magnet.edge")
 SIMULATOR_SENSOR = "sim"
 MAX_BACKOFF_S = 2.0
 FLEET_SLOTS = 20
+MATCH_WAIT_S = 3.0   # at start, wait this long at most for a subscriber (so the first batches are not lost)
+FLUSH_S = 0.3
 
 
 def _floats(text: str, counts: tuple[int, ...], name: str) -> np.ndarray:
@@ -264,20 +266,27 @@ def _ticks(period_s: float, stop: Callable[[], bool]) -> Iterator[int]:
         yield wall0 + int((time.monotonic() - start) * 1e9)
 
 
+def _wait_for_subscribers(publisher: Any, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not publisher.matching_status.matching and time.monotonic() < deadline:
+        time.sleep(0.02)
+
+
 def run(args: argparse.Namespace) -> int:
     settings = EdgeSettings(args.device, args.sensor, args.rate, args.batch, args.duration)
     source = make_source(args, settings)
     stop = stop_event()
     ids = getattr(source, "ids", [settings.device])
     published_samples = published_batches = 0
-    started = time.monotonic()
-    deadline = None if settings.duration_s is None else started + settings.duration_s
     with open_session(args) as session:
         tokens = [session.liveliness().declare_token(wire.liveliness_key(args.prefix, "edge", f"{settings.device}"))]
         tokens += [session.liveliness().declare_token(wire.liveliness_key(args.prefix, "device", d)) for d in ids]
         publishers = {d: session.declare_publisher(wire.key(args.prefix, d, wire.Kind.RAW)) for d in ids}
         log.info("edge: %d device(s), %s at %.1f Hz, batches of %d", len(ids), settings.sensor, settings.rate_hz,
                  settings.batch)
+        _wait_for_subscribers(publishers[ids[0]], MATCH_WAIT_S)
+        started = time.monotonic()
+        deadline = None if settings.duration_s is None else started + settings.duration_s
         # a chip source paces itself through its reads; simulated sources are paced by the clock
         period = 0.0 if isinstance(source, ChipSource) and not args.emulate else settings.batch / settings.rate_hz
 
@@ -303,9 +312,10 @@ def run(args: argparse.Namespace) -> int:
                     publishers[batch.device].put(wire.encode_raw(batch))
                     published_samples += len(batch)
                     published_batches += 1
+        seconds = time.monotonic() - started
+        time.sleep(FLUSH_S)  # let the last batches leave before the session closes
         for token in tokens:
             token.undeclare()
-    seconds = time.monotonic() - started
     print(json.dumps({"devices": len(ids), "published_samples": published_samples,
                       "published_batches": published_batches, "seconds": round(seconds, 3),
                       "read_errors": getattr(source, "read_errors", 0)}), flush=True)

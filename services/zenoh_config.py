@@ -14,6 +14,7 @@ import logging
 import signal
 import socket
 import threading
+import time
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -22,6 +23,7 @@ from magnet.wire import DEFAULT_PREFIX, validate_prefix
 log = logging.getLogger(__name__)
 
 MODES = ("peer", "client", "router")
+OPEN_RETRY_S = 5.0
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = "peer") -> None:
@@ -80,11 +82,16 @@ def open_session(args: argparse.Namespace):
     import zenoh
 
     zenoh.try_init_log_from_env()
-    conf = build_config(args)
-    try:
-        return zenoh.open(conf)
-    except Exception as exc:
-        raise OSError(f"cannot open a zenoh session: {exc}") from None
+    deadline = time.monotonic() + OPEN_RETRY_S
+    while True:
+        try:
+            return zenoh.open(build_config(args))
+        except (ValueError, OSError):
+            raise
+        except Exception as exc:  # e.g. a client whose router is not up yet: retry a little, then give up
+            if time.monotonic() >= deadline:
+                raise OSError(f"cannot open a zenoh session: {exc}") from None
+            time.sleep(0.2)
 
 
 def loopback_arguments(listen_port: int | None, connect_ports: Sequence[int] = ()) -> list[str]:

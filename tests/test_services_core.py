@@ -1,0 +1,144 @@
+"""The services' logic without Zenoh: the calibrator's collection, gate, sessions and store; the compass's maths."""
+
+import numpy as np
+import pytest
+
+from magnet import wire
+from magnet.heading import HeadingFlag
+from magnet.model import Calibration
+from magnet.simulator import SensorErrors, SimulatorConfig, simulate
+from services.calibrator import Calibrator, CalibratorSettings, Collection, fine_cells
+from services.compass import Compass, Earth
+from services.store import CalibrationStore
+
+HARD = np.array([30.0, -12.0, 8.0])
+SOFT = np.array([[1.1, 0.04, 0.0], [0.04, 0.9, 0.02], [0.0, 0.02, 1.0]])
+
+
+def _run(count=3000, seed=0):
+    return simulate(SimulatorConfig(count=count, seed=seed, errors=SensorErrors(hard_iron_ut=HARD, soft_iron=SOFT,
+                                                                                noise_ut=0.3)))
+
+
+def _feed(calibrator, run, device="d", batch=25):
+    for seq, start in enumerate(range(0, len(run.t_s), batch)):
+        part = slice(start, start + batch)
+        raw = wire.RawBatch(device, seq, "sim", np.arange(start, start + len(run.t_s[part])), run.mag_ut[part],
+                            run.acc_ms2[part])
+        calibrator.on_raw(f"magnet/{device}/raw", wire.encode_raw(raw), "magnet")
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        self.t += 0.01
+        return self.t
+
+
+@pytest.fixture
+def store(tmp_path):
+    with CalibrationStore(tmp_path / "c.db") as s:
+        yield s
+
+
+def _calibrator(store, published, **settings):
+    return Calibrator(store, CalibratorSettings(**settings), lambda k, d, p: published.append((k, d, p)),
+                      clock=FakeClock(), clock_ns=lambda: 42)
+
+
+def test_collection_keeps_one_sample_per_fine_cell_and_stays_bounded():
+    collection = Collection("ellipsoid", False, capacity=300)
+    run = _run()
+    for start in range(0, 3000, 50):
+        collection.add(run.mag_ut[start:start + 50], run.acc_ms2[start:start + 50])
+    assert collection.seen == 3000 and collection.kept == 300
+    mag, acc = collection.samples()
+    assert len(np.unique(fine_cells(mag - collection.centre))) >= 260  # evenly spread (the centre moves a little)
+    assert acc.shape == (300, 3)
+
+
+def test_automatic_calibration_is_stored_published_and_then_collection_stops(store):
+    published = []
+    calibrator = _calibrator(store, published)
+    _feed(calibrator, _run())
+    record = store.latest("d")
+    assert record is not None and record["accepted"]
+    np.testing.assert_allclose(record["offset"], HARD, atol=1.0)
+    assert calibrator.state("d").value == "calibrated" and "d" not in calibrator.collections
+    kinds = [k for k, d, p in published]
+    assert wire.Kind.CALIBRATION in kinds and wire.Kind.PROGRESS in kinds
+    assert wire.decode_calibration([p for k, d, p in published if k is wire.Kind.CALIBRATION][0]).id == record["id"]
+    # a restarted calibrator serves what it stored
+    again = _calibrator(store, [])
+    assert again.in_force["d"]["id"] == record["id"] and again.state("d").value == "calibrated"
+
+
+def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
+    published = []
+    calibrator = _calibrator(store, published, min_coverage=0.0)
+    spin = simulate(SimulatorConfig(trajectory="spin", count=2000, errors=SensorErrors(hard_iron_ut=HARD,
+                                                                                       noise_ut=0.3)))
+    _feed(calibrator, spin)
+    assert store.latest("d") is None
+    progress = wire.decode_progress([p for k, d, p in published if k is wire.Kind.PROGRESS][-1])
+    assert progress["state"] == "collecting" and progress["coverage"] < 0.5, progress
+    assert progress["missing"] and "coverage" in progress["reason"], progress
+    assert calibrator.counters["accepted"] == 0
+
+
+def test_session_commit_abort_and_status(store):
+    calibrator = _calibrator(store, [], auto=False)
+    assert not calibrator.session("d", "commit", None)["ok"]
+    started = calibrator.session("d", "start", "sphere")
+    assert started["ok"] and started["state"] == "session" and started["progress"]["method"] == "sphere"
+    assert calibrator.session("d", "abort", None)["ok"] and calibrator.state("d").value == "idle"
+    calibrator.session("d", "start", "ellipsoid")
+    _feed(calibrator, _run())
+    assert store.latest("d") is None, "a session stores only on commit"
+    committed = calibrator.session("d", "commit", None)
+    assert committed["ok"] and committed["calibration"]["id"] == store.latest("d")["id"]
+    assert calibrator.session("d", "status", None)["state"] == "calibrated"
+    with pytest.raises(ValueError):
+        calibrator.session("d", "explode", None)
+    with pytest.raises(ValueError):
+        calibrator.session("d", "start", "no-such-method")
+
+
+def test_compass_applies_calibration_tilt_and_declination():
+    run = simulate(SimulatorConfig(count=600, errors=SensorErrors(hard_iron_ut=HARD, soft_iron=SOFT)))  # no noise
+    truth = SensorErrors(hard_iron_ut=HARD, soft_iron=SOFT).true_calibration()
+    compass = Compass(Earth(declination_deg=7.0), window=1)
+    compass.accept_calibration(wire.encode_calibration("d", truth, 1), "magnet/d/calibration", "magnet")
+    raw = wire.RawBatch("d", 3, "sim", np.arange(600), run.mag_ut, run.acc_ms2)
+    [out] = compass.process([raw])
+    usable = np.abs(run.pitch_deg) < 85
+    error = (out.heading_deg - run.magnetic_heading_deg + 180) % 360 - 180
+    assert np.abs(error[usable]).max() < 1e-6
+    np.testing.assert_allclose((out.true_heading_deg - out.heading_deg) % 360, 7.0, atol=1e-9)
+    np.testing.assert_allclose(out.pitch_deg[usable], run.pitch_deg[usable], atol=1e-6)
+    assert np.all(out.flags & HeadingFlag.CALIBRATED) and out.calibration_id == truth.content_id
+
+
+def test_compass_without_acc_or_calibration_flags_it_and_counts_garbage():
+    compass = Compass(Earth(), window=3)
+    raw = wire.RawBatch("x", 0, "sim", np.arange(4), np.tile([20.0, 0.0, 40.0], (4, 1)), None)
+    [out] = compass.process([raw])
+    assert np.all(out.flags & HeadingFlag.NO_TILT) and not np.any(out.flags & HeadingFlag.CALIBRATED)
+    np.testing.assert_allclose(out.heading_deg, 0.0, atol=1e-9)
+    assert compass.decode([("magnet/x/raw", b"junk"), ("magnet/y/raw", wire.encode_raw(raw))], "magnet") == []
+    compass.accept_calibration(b"\x93\x01\x02\x03", "magnet/x/calibration", "magnet")
+    assert compass.drops.counts == {"raw:not-msgpack": 1, "raw:key-mismatch": 1, "calibration:not-a-map": 1}
+    assert compass.calibrations == {}
+
+
+def test_compass_identity_when_uncalibrated_matches_raw_field():
+    compass = Compass(Earth(), window=1)
+    raw = wire.RawBatch("x", 0, "sim", np.arange(2), np.array([[10.0, -10.0, 40.0], [0.0, 10.0, 40.0]]),
+                        np.tile([0.0, 0.0, -9.8], (2, 1)))
+    [out] = compass.process([raw])
+    np.testing.assert_allclose(out.field_ut, raw.mag_ut)
+    np.testing.assert_allclose(out.heading_deg, [45.0, 270.0], atol=1e-9)
+    np.testing.assert_allclose(out.pitch_deg, 0.0, atol=1e-9)
+    assert Calibration  # the record type the compass applies
