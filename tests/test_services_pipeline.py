@@ -138,6 +138,7 @@ def test_emulated_lsm303dlh_is_calibrated_and_headings_match_the_truth(procs, tm
                                             np.array(raw["truth"]["heading_deg"]))[usable])
     assert len(errors) > 200, f"only {len(errors)} comparable samples"
     rms = float(np.sqrt(np.mean(np.square(errors))))
+    print(f"true heading RMS error {rms:.3f} deg over {len(errors)} samples")
     assert rms < 2.0, f"true heading RMS error {rms:.2f} deg"
 
     code, lines = magnet("get", "calibration", "lsm-1", "--history", *NO_SCOUT, *_connect(cal_port))
@@ -188,6 +189,7 @@ def test_restarts_keep_calibrations_and_garbage_is_counted(procs, tmp_path):
     compass_status = wait_for(lambda: (s := get_status("compass", comp2_port)) and s["dropped_total"] >= 15 and s,
                               10, "the compass to count the garbage")
     calibrator_status = get_status("calibrator", cal2_port)
+    print("compass drops", compass_status["dropped"], "calibrator drops", calibrator_status["dropped"])
     assert calibrator_status["dropped_total"] >= 7, calibrator_status
     assert {"raw:not-msgpack", "raw:wrong-version", "raw:non-finite", "calibration:bad-calibration"} \
         <= set(compass_status["dropped"])
