@@ -30,31 +30,37 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _handler(module, specific: str, generic: str):
+    """The module's function named ``specific`` (e.g. ``run_get``), else the one named ``generic`` (``run``)."""
+    function = getattr(module, specific, None)
+    return function if function is not None else getattr(module, generic)
+
+
+def _chosen_command(argv: list[str]) -> str | None:
+    """The first word of argv that names a command (options such as -v may come before it)."""
+    return next((word for word in argv if word in COMMANDS), None)
+
+
+def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="magnet", description="Magnetometer calibration and compass service.")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    selected = sys.argv[1] if len(sys.argv) > 1 else None
+    chosen = _chosen_command(argv)
     for name, (module_name, help_text) in COMMANDS.items():
         child = sub.add_parser(name, help=help_text, description=help_text)
-        # Only the chosen command's module is imported, so `magnet fit` never loads zenoh.
-        if name == selected or selected in (None, "-h", "--help"):
-            if name == selected:
-                module = importlib.import_module(module_name)
-                getattr(module, f"add_{name}_arguments", module.add_arguments)(child)
+        if name == chosen:  # only the chosen command's module is imported, so `magnet fit` never loads zenoh
+            _handler(importlib.import_module(module_name), f"add_{name}_arguments", "add_arguments")(child)
         child.set_defaults(_module=module_name, _name=name)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    if argv is not None:
-        sys.argv = [sys.argv[0], *argv]
-    parser = build_parser()
-    args = parser.parse_args(sys.argv[1:])
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser(argv).parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     module = importlib.import_module(args._module)
-    runner = getattr(module, f"run_{args._name}", None) or module.run
+    runner = _handler(module, f"run_{args._name}", "run")
     try:
         return int(runner(args) or 0)
     except KeyboardInterrupt:
