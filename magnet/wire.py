@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import msgpack
 import numpy as np
@@ -319,6 +319,136 @@ def _vectors(mag: Any, acc: Any, n: int) -> tuple[np.ndarray, np.ndarray | None]
     return both[0], both[1]
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class RawColumns:
+    """B raw batches decoded together, S samples in all, batch after batch.
+
+    devices, seqs: per batch (B); counts (B,) int samples per batch; t_ns (S,) int64; mag_ut (S, 3) uT;
+    acc_ms2 (S, 3) m/s^2 with NaN rows for batches that carry no accelerometer."""
+
+    devices: list[str]
+    seqs: list[int]
+    counts: np.ndarray
+    t_ns: np.ndarray
+    mag_ut: np.ndarray
+    acc_ms2: np.ndarray
+
+    @classmethod
+    def from_batches(cls, batches: Sequence[RawBatch]) -> "RawColumns":
+        nan3 = np.full((1, 3), np.nan)
+        return cls([b.device for b in batches], [b.seq for b in batches],
+                   np.array([len(b) for b in batches], dtype=np.int64),
+                   np.concatenate([b.t_ns for b in batches]).astype(np.int64) if batches else np.empty(0, np.int64),
+                   np.concatenate([b.mag_ut for b in batches]) if batches else np.empty((0, 3)),
+                   np.concatenate([b.acc_ms2 if b.acc_ms2 is not None else np.repeat(nan3, len(b), 0)
+                                   for b in batches]) if batches else np.empty((0, 3)))
+
+    def batches(self) -> list[RawBatch]:
+        """One RawBatch (views) per batch."""
+        bounds = np.concatenate([[0], np.cumsum(self.counts)]).tolist()
+        out = []
+        for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])):
+            acc = self.acc_ms2[lo:hi]
+            out.append(RawBatch(self.devices[i], self.seqs[i], "", self.t_ns[lo:hi], self.mag_ut[lo:hi],
+                                None if np.isnan(acc).all() else acc))
+        return out
+
+    def select(self, keep: np.ndarray) -> "RawColumns":
+        """The batches where ``keep`` (B,) bool is True."""
+        per_sample = np.repeat(keep, self.counts)
+        return RawColumns([d for d, k in zip(self.devices, keep) if k], [q for q, k in zip(self.seqs, keep) if k],
+                          self.counts[keep], self.t_ns[per_sample], self.mag_ut[per_sample], self.acc_ms2[per_sample])
+
+
+def decode_raw_many(payloads: Sequence[bytes]) -> tuple[RawColumns, list[tuple[int, WireError]]]:
+    """Decode many raw payloads at once (the hot path of a busy consumer) with the same checks as ``decode_raw``.
+
+    Returns the good batches as columns, in input order, and (index, WireError) for each payload refused. Each
+    message's structure is checked in Python and the numbers of all messages in one numpy pass; a message in any
+    doubt goes through ``decode_raw`` for its exact verdict. ``truth`` is not decoded."""
+    plain: list[tuple[int, dict]] = []
+    doubtful: list[int] = []
+    errors: list[tuple[int, WireError]] = []
+    for index, payload in enumerate(payloads):
+        try:
+            message = unpack(payload)
+        except WireError as exc:
+            errors.append((index, exc))
+            continue
+        if _plain_raw(message):
+            plain.append((index, message))
+        else:
+            doubtful.append(index)
+    ok, columns = _columns_of(plain) if plain else (np.zeros(0, bool), None)
+    doubtful += [index for (index, _), fine in zip(plain, ok) if not fine]
+    rescued: dict[int, RawBatch] = {}
+    for index in doubtful:
+        try:
+            rescued[index] = decode_raw(payloads[index], with_truth=False)
+        except WireError as exc:
+            errors.append((index, exc))
+    fast = columns.select(ok) if columns is not None else RawColumns.from_batches([])
+    if rescued:  # rare: fall back to batch objects to keep the input order
+        fast_indices = [index for (index, _), fine in zip(plain, ok) if fine]
+        batches = dict(zip(fast_indices, fast.batches())) | rescued
+        fast = RawColumns.from_batches([batches[index] for index in sorted(batches)])
+    return fast, sorted(errors, key=lambda item: item[0])
+
+
+def _plain_raw(message: Mapping[str, Any]) -> bool:
+    """True when the message's structure is the ordinary one (the numbers are checked later, all together)."""
+    t_ns, mag, acc, device, seq = (message.get(k) for k in ("t_ns", "mag_ut", "acc_ms2", "device", "seq"))
+    n = len(t_ns) if type(t_ns) is list else 0
+    return (0 < n <= MAX_BATCH_SAMPLES and type(mag) is list and len(mag) == n
+            and (acc is None or (type(acc) is list and len(acc) == n))
+            and type(device) is str and device in _valid_ids(device)
+            and type(seq) is int and type(message.get("sensor", "")) is str)
+
+
+_VALID_IDS: set[str] = set()
+
+
+def _valid_ids(device: str) -> set[str]:
+    """The cache of device ids seen valid (validated once each)."""
+    if device not in _VALID_IDS and len(_VALID_IDS) < 100_000:
+        try:
+            _VALID_IDS.add(validate_device_id(device))
+        except ValueError:
+            pass
+    return _VALID_IDS
+
+
+def _columns_of(items: list[tuple[int, dict]]) -> tuple[np.ndarray, RawColumns | None]:
+    """(ok (B,), columns) for plain messages; all not ok when their numbers do not form arrays (judged one by one)."""
+    messages = [m for _, m in items]
+    counts = np.array([len(m["t_ns"]) for m in messages], dtype=np.int64)
+    t_all: list = []
+    mag_all: list = []
+    acc_all: list = []
+    nan_rows = [[math.nan] * 3]
+    for m, n in zip(messages, counts.tolist()):
+        t_all += m["t_ns"]
+        mag_all += m["mag_ut"]
+        acc = m.get("acc_ms2")
+        acc_all += acc if acc is not None else nan_rows * n
+    try:
+        t_ns = np.array(t_all)
+        mag = np.array(mag_all, dtype=np.float64)
+        acc = np.array(acc_all, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return np.zeros(len(messages), bool), None
+    if t_ns.dtype.kind not in "iu" or mag.shape != (len(t_all), 3) or acc.shape != mag.shape:
+        return np.zeros(len(messages), bool), None
+    has_acc = np.repeat(np.array([m.get("acc_ms2") is not None for m in messages]), counts)
+    sample_ok = (np.isfinite(mag).all(axis=1) & (np.abs(mag) <= MAX_FIELD_UT).all(axis=1)
+                 & (~has_acc | (np.isfinite(acc).all(axis=1) & (np.abs(acc) <= MAX_ACC_MS2).all(axis=1))))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    ok = np.logical_and.reduceat(sample_ok, starts) if len(sample_ok) else np.zeros(0, bool)
+    columns = RawColumns([m["device"] for m in messages], [m["seq"] for m in messages], counts,
+                         t_ns.astype(np.int64), mag, acc)
+    return ok, columns
+
+
 # -------------------------------------------------------------------------------------------------------- heading
 
 
@@ -337,6 +467,26 @@ def encode_heading(batch: HeadingBatch) -> bytes:
         "calibration_id": batch.calibration_id,
         "flags": np.asarray(batch.flags, dtype=np.int64).tolist(),
     }, use_bin_type=True)
+
+
+def encode_headings(columns: RawColumns, heading_deg: np.ndarray, true_heading_deg: np.ndarray,
+                    pitch_deg: np.ndarray, roll_deg: np.ndarray, field_ut: np.ndarray, flags: np.ndarray,
+                    declination_deg: float, calibration_ids: Sequence[str]) -> list[bytes]:
+    """One heading message per batch of ``columns`` (byte for byte what ``encode_heading`` gives for each).
+
+    The arrays are aligned with ``columns``' S samples; each is turned into Python lists once and sliced per batch."""
+    t_ns, heading, true_heading, pitch, roll, field, flag = (
+        np.asarray(a, dtype=dtype).tolist() for a, dtype in (
+            (columns.t_ns, np.int64), (heading_deg, float), (true_heading_deg, float), (pitch_deg, float),
+            (roll_deg, float), (field_ut, float), (flags, np.int64)))
+    bounds = np.concatenate([[0], np.cumsum(columns.counts)]).tolist()
+    declination = float(declination_deg)
+    return [msgpack.packb({
+        "v": WIRE_VERSION, "device": device, "seq": int(seq), "t_ns": t_ns[lo:hi], "heading_deg": heading[lo:hi],
+        "true_heading_deg": true_heading[lo:hi], "pitch_deg": pitch[lo:hi], "roll_deg": roll[lo:hi],
+        "field_ut": field[lo:hi], "declination_deg": declination, "calibration_id": cal_id, "flags": flag[lo:hi],
+    }, use_bin_type=True) for device, seq, cal_id, lo, hi in zip(columns.devices, columns.seqs, calibration_ids,
+                                                                  bounds[:-1], bounds[1:])]
 
 
 def decode_heading(payload: bytes | bytearray | memoryview) -> HeadingBatch:

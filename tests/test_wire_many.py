@@ -1,0 +1,71 @@
+"""The batch decoder and encoder of the compass's hot path agree with the one-message ones, verdict for verdict."""
+
+import msgpack
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from magnet import wire
+
+
+def _raw(device: str, n: int = 3, acc: bool = True, seq: int = 1) -> wire.RawBatch:
+    rng = np.random.default_rng(len(device) + n)
+    return wire.RawBatch(device, seq, "sim", np.arange(n, dtype=np.int64) + 10**18, rng.normal(0, 30, (n, 3)),
+                         rng.normal(0, 5, (n, 3)) if acc else None)
+
+
+GARBAGE = [
+    b"junk",
+    msgpack.packb([1, 2, 3]),
+    msgpack.packb({"v": 2, "device": "a", "t_ns": [1], "mag_ut": [[1, 2, 3]]}),
+    msgpack.packb({"v": 1, "device": "a/b", "seq": 1, "t_ns": [1], "mag_ut": [[1, 2, 3]]}),
+    msgpack.packb({"v": 1, "device": "n", "seq": 1, "t_ns": [1, 2], "mag_ut": [[1, 2, float("nan")], [1, 2, 3]]}),
+    msgpack.packb({"v": 1, "device": "r", "seq": 1, "t_ns": [1, 2], "mag_ut": [[1, 2], [1, 2, 3]]}),
+    msgpack.packb({"v": 1, "device": "m", "seq": 1, "t_ns": [1], "mag_ut": [[1e9, 0, 0]]}),
+    msgpack.packb({"v": 1, "device": "g", "seq": 1, "t_ns": [1], "mag_ut": [[1, 2, 3]], "acc_ms2": [[1e6, 0, 0]]}),
+    msgpack.packb({"v": 1, "device": "t", "seq": 1, "t_ns": [1.5], "mag_ut": [[1, 2, 3]]}),
+    msgpack.packb({"v": 1, "device": "e", "seq": 1, "t_ns": [], "mag_ut": []}),
+    msgpack.packb({"v": 1, "device": "q", "t_ns": [1, 2], "mag_ut": [[1, 2, 3], [4, 5, 6]]}),  # no seq: valid
+]
+
+
+def _one_by_one(payloads):
+    good, bad = [], []
+    for index, payload in enumerate(payloads):
+        try:
+            good.append(wire.decode_raw(payload, with_truth=False))
+        except wire.WireError as exc:
+            bad.append((index, exc.cause))
+    return good, bad
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.one_of(st.sampled_from(GARBAGE), st.tuples(st.sampled_from("abcd"), st.integers(1, 5),
+                                                              st.booleans())), max_size=12))
+def test_decode_raw_many_gives_the_verdicts_and_order_of_decode_raw(items):
+    payloads = [item if isinstance(item, bytes) else wire.encode_raw(_raw(item[0], item[1], item[2]))
+                for item in items]
+    columns, errors = wire.decode_raw_many(payloads)
+    good, bad = _one_by_one(payloads)
+    assert [(i, e.cause) for i, e in errors] == bad
+    assert columns.devices == [b.device for b in good]
+    assert columns.counts.tolist() == [len(b) for b in good]
+    if good:
+        np.testing.assert_array_equal(columns.mag_ut, np.concatenate([b.mag_ut for b in good]))
+        np.testing.assert_array_equal(columns.t_ns, np.concatenate([b.t_ns for b in good]))
+        for batch, again in zip(good, columns.batches()):
+            assert (batch.acc_ms2 is None) == (again.acc_ms2 is None)
+
+
+def test_encode_headings_matches_encode_heading_byte_for_byte():
+    batches = [_raw("a", 3), _raw("b", 1, acc=False), _raw("c", 4)]
+    columns = wire.RawColumns.from_batches(batches)
+    s = int(columns.counts.sum())
+    arrays = [np.linspace(0, 359, s), np.linspace(5, 4, s), np.zeros(s), np.ones(s), np.arange(3.0 * s).reshape(s, 3),
+              np.arange(s)]
+    payloads = wire.encode_headings(columns, *arrays, 7.5, ["id-a", "", "id-c"])
+    bounds = np.concatenate([[0], np.cumsum(columns.counts)])
+    for i, batch in enumerate(batches):
+        lo, hi = bounds[i], bounds[i + 1]
+        one = wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, *(a[lo:hi] for a in arrays[:5]), 7.5,
+                                ["id-a", "", "id-c"][i], arrays[5][lo:hi])
+        assert payloads[i] == wire.encode_heading(one)
