@@ -23,6 +23,7 @@ import numpy as np
 from services.zenoh_config import free_ports, loopback_arguments
 
 MAX_RATE_STEPS = 6
+BISECT_STEPS = 2
 DRAIN_S = 1.5          # after the edge stops, wait this long without new headings
 STARTUP_TIMEOUT_S = 15
 
@@ -132,15 +133,17 @@ def run_once(devices: int, rate: float, batch: int, seconds: float) -> PipelineR
 
 
 def run_pipeline_benchmark(devices: int, rate: float, batch: int, seconds: float) -> None:
-    """Print one line per run: the given rate, then doubled rates until loss; then the highest rate without loss."""
+    """Print one line per run: the given rate, then doubled rates until loss, then BISECT_STEPS halvings of the gap
+    between the best rate without loss and the first with loss; last, the highest rate without loss."""
     if devices < 1 or rate <= 0 or batch < 1 or seconds <= 0:
         raise ValueError("devices, rate, batch and seconds must all be positive")
     best: PipelineRun | None = None
+    lossy: float | None = None
     current = float(rate)
     for _ in range(MAX_RATE_STEPS):
-        result = run_once(devices, current, batch, seconds)
-        print(result.line(), flush=True)
+        result = _report(run_once(devices, current, batch, seconds))
         if result.lost:
+            lossy = current
             break
         best = result
         if result.generated_rate < 0.9 * result.target_rate:
@@ -148,8 +151,20 @@ def run_pipeline_benchmark(devices: int, rate: float, batch: int, seconds: float
                   f"generator, not the compass", flush=True)
             break
         current *= 2
+    for _ in range(BISECT_STEPS if best is not None and lossy is not None else 0):
+        middle = (best.rate_hz + lossy) / 2
+        result = _report(run_once(devices, middle, batch, seconds))
+        if result.lost:
+            lossy = middle
+        else:
+            best = result
     if best is None:
         print("loss already at the first rate: no rate without loss found", flush=True)
     else:
         print(f"highest rate without loss: {best.generated_rate:,.0f} samples/s ({best.devices} devices x "
               f"{best.rate_hz:g} Hz, batch {best.batch}), p99 latency {best.latency_p99_ms:.2f} ms", flush=True)
+
+
+def _report(result: PipelineRun) -> PipelineRun:
+    print(result.line(), flush=True)
+    return result
