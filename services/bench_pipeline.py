@@ -146,6 +146,10 @@ def run_pipeline_benchmark(devices: int, rate: float, batch: int, seconds: float
             lossy = current
             break
         best = result
+        if result.generated_rate < 0.9 * result.target_rate and seconds < 10 * batch / current:
+            print(f"each device sends one batch every {batch / current:g} s: give --seconds of at least "
+                  f"{10 * batch / current:g} for a fair rate", flush=True)
+            break
         if result.generated_rate < 0.9 * result.target_rate:
             print(f"the edge process generates at most {result.generated_rate:,.0f} samples/s here: the limit is the "
                   f"generator, not the compass", flush=True)
