@@ -29,7 +29,7 @@ import numpy as np
 from magnet import wire
 from magnet.model import Calibration
 from services.store import CalibrationStore
-from services.zenoh_config import add_zenoh_arguments, open_session, payload_bytes, stop_event
+from services.zenoh_config import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.calibrator")
 
@@ -351,22 +351,6 @@ class Calibrator:
 # ------------------------------------------------------------------------------------------------------- shell
 
 
-def _drain(handler: Any, limit: int) -> list[Any]:
-    """Up to ``limit`` items a zenoh handler holds now (an empty, closed channel gives none)."""
-    import zenoh
-
-    items = []
-    while len(items) < limit:
-        try:
-            item = handler.try_recv()
-        except zenoh.ZError:  # closed: a finished query's replies
-            break
-        if item is None:
-            break
-        items.append(item)
-    return items
-
-
 def _field_ut(args: argparse.Namespace) -> float | None:
     if args.field_ut is not None:
         return args.field_ut
@@ -454,11 +438,11 @@ def run(args: argparse.Namespace) -> int:
             publish(wire.Kind.CALIBRATION, device, wire.pack(record))
         log.info("calibrator %s: %d calibration(s) in store %s", args.name, len(calibrator.in_force), store.path)
         while not stop.is_set():
-            samples = _drain(raw_sub, 2000)
+            samples = drain(raw_sub, 2000)
             for sample in samples:
                 calibrator.on_raw(str(sample.key_expr), payload_bytes(sample), prefix)
             for answer, queryable in queryables:
-                for query in _drain(queryable, 64):
+                for query in drain(queryable, 64):
                     answer(query, calibrator, prefix)
                     query.drop()  # finalize now: the asker waits for it
             if not samples:

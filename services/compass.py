@@ -21,7 +21,7 @@ import numpy as np
 from magnet import heading as hd
 from magnet import wire
 from magnet.model import Calibration
-from services.zenoh_config import add_zenoh_arguments, open_session, payload_bytes, stop_event
+from services.zenoh_config import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.compass")
 
@@ -209,22 +209,6 @@ class Compass:
                 "dropped_total": self.drops.total}
 
 
-def _drain(handler: Any, limit: int) -> list[Any]:
-    """Up to ``limit`` items a zenoh handler holds now (an empty, closed channel gives none)."""
-    import zenoh
-
-    items = []
-    while len(items) < limit:
-        try:
-            item = handler.try_recv()
-        except zenoh.ZError:  # closed: a finished query's replies
-            break
-        if item is None:
-            break
-        items.append(item)
-    return items
-
-
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
@@ -246,12 +230,12 @@ def run(args: argparse.Namespace) -> int:
         while not stop.is_set():
             busy = False
             pending = _poll_replies(pending, compass, prefix)
-            for sample in _drain(cal_sub, 1000):
+            for sample in drain(cal_sub, 1000):
                 compass.accept_calibration(payload_bytes(sample), str(sample.key_expr), prefix)
-            for query in _drain(status_q, 64):
+            for query in drain(status_q, 64):
                 query.reply(wire.status_key(prefix, args.name), wire.pack(compass.status(args.name)))
                 query.drop()  # finalize now: the asker waits for it
-            samples = _drain(raw_sub, MAX_DRAIN)
+            samples = drain(raw_sub, MAX_DRAIN)
             if samples:
                 busy = True
                 columns = compass.decode_columns([(str(s.key_expr), s.payload.to_bytes()) for s in samples], prefix)
@@ -273,7 +257,7 @@ def _poll_replies(pending: list[tuple[float, Any]], compass: Compass, prefix: st
     still = []
     now = time.monotonic()
     for deadline, handler in pending:
-        for reply in _drain(handler, 10_000):
+        for reply in drain(handler, 10_000):
             if reply.ok is not None:
                 compass.accept_calibration(payload_bytes(reply.ok), str(reply.ok.key_expr), prefix)
         if now < deadline:

@@ -137,3 +137,19 @@ def payload_bytes(sample_or_query: Any) -> bytes:
     """The payload of a zenoh Sample (or Query; b"" when it has none) as bytes."""
     payload = sample_or_query.payload
     return b"" if payload is None else payload.to_bytes()
+
+
+def drain(handler: Any, limit: int) -> list[Any]:
+    """Up to ``limit`` items a zenoh handler holds now (an empty, closed channel gives none)."""
+    import zenoh
+
+    items = []
+    while len(items) < limit:
+        try:
+            item = handler.try_recv()
+        except zenoh.ZError:  # closed: a finished query's replies
+            break
+        if item is None:
+            break
+        items.append(item)
+    return items
