@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import time
 
 from magnet import wire
 from services.zenoh_config import add_zenoh_arguments, open_session, stop_event

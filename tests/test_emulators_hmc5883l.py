@@ -2,7 +2,6 @@
 
 import errno
 
-import numpy as np
 import pytest
 
 from magnet.emulators.base import ConstantSource, FaultInjector

@@ -180,7 +180,7 @@ def test_restarts_keep_calibrations_and_garbage_is_counted(procs, tmp_path):
     procs.procs["compass"].send_signal(signal.SIGTERM)
     assert procs.procs["compass"].wait(timeout=10) == 0, "compass stops cleanly on SIGTERM"
     procs.start("compass2", "compass", "--location", LOCATION, *_listen(comp2_port), *_connect(cal2_port, edge_port))
-    status = wait_for(lambda: (s := get_status("compass", comp2_port)) and s["calibrations"] == 1 and s, 20,
+    wait_for(lambda: (s := get_status("compass", comp2_port)) and s["calibrations"] == 1 and s, 20,
                       "the restarted compass to hold the calibration")
     code, lines = magnet("watch", "heading", "sim-1", "--count", "3", *NO_SCOUT, *_connect(comp2_port))
     assert code == 0 and all(m["calibration_id"] == first["id"] for m in lines)

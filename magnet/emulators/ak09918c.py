@@ -15,28 +15,19 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.emulators.base import FaultInjector, RegisterDevice, SourceTap, sensitivity_factor
+from magnet.emulators.base import FaultInjector, MagnetometerDevice, SourceTap
 
 UT_PER_LSB = 0.15
 _CONTINUOUS_HZ = {0x02: 10.0, 0x04: 20.0, 0x06: 50.0, 0x08: 100.0}
 _SELF_TEST_COUNTS = np.array([30, -40, -400])
 
 
-class AK09918CEmulator(RegisterDevice):
+class AK09918CEmulator(MagnetometerDevice):
     addresses = (0x0C,)
 
-    def __init__(self, source: Any = None, *, address: int | None = None, gain_error=(0.0, 0.0, 0.0),
-                 temperature_c: float = 25.0, tempco_per_k: float = 0.0, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                 tap: SourceTap | None = None) -> None:
-        super().__init__(clock=clock, faults=faults)
-        if address is not None:
-            self.addresses = (address,)
-        self.tap = tap or SourceTap(source)
-        self.gain_error = gain_error
-        self.temperature_c = temperature_c
-        self.tempco_per_k = tempco_per_k
-        self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+    def __init__(self, source: Any = None, **options: Any) -> None:
+        """``options``: see ``MagnetometerDevice`` and ``SensorDevice``."""
+        super().__init__(source, **options)
         self._reset()
 
     def _reset(self) -> None:
@@ -57,7 +48,7 @@ class AK09918CEmulator(RegisterDevice):
             counts = _SELF_TEST_COUNTS.copy()
         else:
             field = self.rotation @ self.tap.mag()
-            sens = sensitivity_factor(self.gain_error, self.temperature_c, self.tempco_per_k)
+            sens = self.sensitivity()
             counts = np.clip(np.round(field * sens / UT_PER_LSB), -32752, 32752).astype(int)
         self.measurements += 1
         if self.protected:
@@ -72,22 +63,12 @@ class AK09918CEmulator(RegisterDevice):
         self.unread = True
 
     def _update(self) -> None:
-        now = self.now()
         if self.pending and self.mode in (0x01, 0x10):
             self.pending = False
             self._measure()
             self.regs[0x31] = 0x00
         elif self.mode in _CONTINUOUS_HZ:
-            period = 1.0 / _CONTINUOUS_HZ[self.mode]
-            if now is None:
-                if not self.unread and not self.protected:
-                    self._measure()
-                return
-            if self.next_due is None:
-                self.next_due = now + period
-            while now >= self.next_due:
-                self._measure()
-                self.next_due += period
+            self._measure_continuously(1.0 / _CONTINUOUS_HZ[self.mode], may_measure=not self.protected)
 
     def _after_read(self, registers: list[int]) -> None:
         if any(0x10 <= r <= 0x17 for r in registers):

@@ -261,6 +261,57 @@ def sensitivity_factor(gain_error: Any, temperature_c: float, tempco_per_k: floa
     return (1.0 + error) * (1.0 + tempco_per_k * (temperature_c - reference_c))
 
 
+class SensorDevice(RegisterDevice):
+    """A chip that senses the source: ``address`` overrides the chip's own, ``tap`` shares one source sample between
+    the chips of one package, ``rotation`` (3x3) maps body to chip axes (identity: the marked axes are the body's)."""
+
+    def __init__(self, source: Any = None, *, address: int | None = None, rotation: Any = None,
+                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
+                 tap: SourceTap | None = None) -> None:
+        super().__init__(clock=clock, faults=faults)
+        if address is not None:
+            self.addresses = (address,)
+        self.tap = tap or SourceTap(source)
+        self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+        self.unread = False                 # a measurement placed and not yet read
+        self.next_due: float | None = None  # clock time of the next continuous measurement
+
+    def _measure(self) -> None:
+        """Take one measurement from the source into the data registers."""
+        raise NotImplementedError
+
+    def _measure_continuously(self, period_s: float, may_measure: bool = True) -> None:
+        """Continuous mode. With no clock: a new measurement as soon as the last one was read (when
+        ``may_measure``). With a clock: one every ``period_s`` seconds from the first call, several at once when
+        reads fell behind (the chip overwrites unread data)."""
+        now = self.now()
+        if now is None:
+            if not self.unread and may_measure:
+                self._measure()
+            return
+        if self.next_due is None:
+            self.next_due = now + period_s
+        while now >= self.next_due:
+            self._measure()
+            self.next_due += period_s
+
+
+class MagnetometerDevice(SensorDevice):
+    """A magnetometer chip: adds a per-axis ``gain_error`` and a gain drift of ``tempco_per_k`` per kelvin away from
+    25 deg C at ``temperature_c`` (``sensitivity()``, see ``sensitivity_factor``)."""
+
+    def __init__(self, source: Any = None, *, gain_error: Any = (0.0, 0.0, 0.0), temperature_c: float = 25.0,
+                 tempco_per_k: float = 0.0, **common: Any) -> None:
+        super().__init__(source, **common)
+        self.gain_error = np.asarray(gain_error, dtype=float)
+        self.temperature_c = temperature_c
+        self.tempco_per_k = tempco_per_k
+
+    def sensitivity(self) -> np.ndarray:
+        """Per-axis sensitivity multiplier (3,) now."""
+        return sensitivity_factor(self.gain_error, self.temperature_c, self.tempco_per_k)
+
+
 def to_bytes(value: int, bits: int = 16) -> tuple[int, int]:
     """(high byte, low byte) of a two's complement value."""
     raw = int(value) & ((1 << bits) - 1)

@@ -9,11 +9,11 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from magnet.emulators.base import STANDARD_GRAVITY_MS2, FaultInjector, RegisterDevice, SourceTap
+from magnet.emulators.base import STANDARD_GRAVITY_MS2, SensorDevice
 
 _LSB_PER_G = (16384.0, 8192.0, 4096.0, 2048.0)
 _POWER_ON = {0x00: 0x16, 0x40: 0xA8, 0x41: 0x01, 0x7C: 0x03, 0x7D: 0x00}
@@ -21,17 +21,12 @@ _ODR_HZ = {1: 0.78125, 2: 1.5625, 3: 3.125, 4: 6.25, 5: 12.5, 6: 25.0, 7: 50.0, 
            11: 800.0, 12: 1600.0}
 
 
-class BMA456Emulator(RegisterDevice):
+class BMA456Emulator(SensorDevice):
     addresses = (0x18,)
 
-    def __init__(self, source: Any = None, *, address: int | None = None, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                 tap: SourceTap | None = None) -> None:
-        super().__init__(clock=clock, faults=faults)
-        if address is not None:
-            self.addresses = (address,)
-        self.tap = tap or SourceTap(source)
-        self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+    def __init__(self, source: Any = None, **options: Any) -> None:
+        """``options``: see ``SensorDevice``."""
+        super().__init__(source, **options)
         self._reset()
 
     def _reset(self) -> None:
@@ -55,19 +50,8 @@ class BMA456Emulator(RegisterDevice):
         self.unread = True
 
     def _update(self) -> None:
-        if not self.enabled:
-            return
-        now = self.now()
-        if now is None:
-            if not self.unread:
-                self._measure()
-            return
-        period = 1.0 / _ODR_HZ.get(self.regs[0x40] & 0x0F, 100.0)
-        if self.next_due is None:
-            self.next_due = now + period
-        while now >= self.next_due:
-            self._measure()
-            self.next_due += period
+        if self.enabled:
+            self._measure_continuously(1.0 / _ODR_HZ.get(self.regs[0x40] & 0x0F, 100.0))
 
     def _after_read(self, registers: list[int]) -> None:
         if any(0x12 <= r <= 0x17 for r in registers):

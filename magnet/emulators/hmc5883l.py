@@ -14,16 +14,16 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from magnet.emulators.base import FaultInjector, RegisterDevice, SourceTap, sensitivity_factor, to_bytes
+from magnet.emulators.base import MagnetometerDevice, to_bytes
 
 SINGLE_MEASUREMENT_S = 0.006
 
 
-class AMRMagnetometerEmulator(RegisterDevice):
+class AMRMagnetometerEmulator(MagnetometerDevice):
     """Shared machinery of the Honeywell-style AMR magnetometers (HMC5883L, LSM303DLH magnetometer)."""
 
     #: register slot 0..2 -> axis index (x 0, y 1, z 2)
@@ -38,18 +38,9 @@ class AMRMagnetometerEmulator(RegisterDevice):
     writable = frozenset({0x00, 0x01, 0x02})
     data_registers = frozenset(range(0x03, 0x09))
 
-    def __init__(self, source: Any = None, *, address: int | None = None, gain_error=(0.0, 0.0, 0.0),
-                 temperature_c: float = 25.0, tempco_per_k: float = 0.0, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                 tap: SourceTap | None = None) -> None:
-        super().__init__(clock=clock, faults=faults)
-        if address is not None:
-            self.addresses = (address,)
-        self.tap = tap or SourceTap(source)
-        self.gain_error = np.asarray(gain_error, dtype=float)
-        self.temperature_c = temperature_c
-        self.tempco_per_k = tempco_per_k
-        self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+    def __init__(self, source: Any = None, **options: Any) -> None:
+        """``options``: see ``MagnetometerDevice`` and ``SensorDevice``."""
+        super().__init__(source, **options)
         for register, value in self.power_on.items():
             self.regs[register] = value
         self.active_gain = self.regs[0x01] >> 5
@@ -68,7 +59,7 @@ class AMRMagnetometerEmulator(RegisterDevice):
 
     def _counts(self) -> np.ndarray:
         gain = self.lsb_per_gauss[self.active_gain] or self.lsb_per_gauss[1]
-        scale = np.asarray(gain) * sensitivity_factor(self.gain_error, self.temperature_c, self.tempco_per_k)
+        scale = np.asarray(gain) * self.sensitivity()
         external_ga = self.rotation @ self.tap.mag() / 100.0
         bias = self.regs[0x00] & 0x03
         if bias in (1, 2):

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.emulators.base import STANDARD_GRAVITY_MS2, EmulatedBus, FaultInjector, RegisterDevice, SourceTap
+from magnet.emulators.base import STANDARD_GRAVITY_MS2, EmulatedBus, FaultInjector, SensorDevice, SourceTap
 from magnet.emulators.hmc5883l import AMRMagnetometerEmulator
 
 _MG_PER_DIGIT = {0b00: 1.0, 0b01: 2.0, 0b11: 3.9}
@@ -30,17 +30,12 @@ class LSM303DLHMagEmulator(AMRMagnetometerEmulator):
     power_on = {0x00: 0x10, 0x01: 0x20, 0x02: 0x03, 0x0A: ord("H"), 0x0B: ord("4"), 0x0C: ord("3")}
 
 
-class LSM303DLHAccEmulator(RegisterDevice):
+class LSM303DLHAccEmulator(SensorDevice):
     addresses = (0x18,)
 
-    def __init__(self, source: Any = None, *, address: int | None = None, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                 tap: SourceTap | None = None) -> None:
-        super().__init__(clock=clock, faults=faults)
-        if address is not None:
-            self.addresses = (address,)
-        self.tap = tap or SourceTap(source)
-        self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+    def __init__(self, source: Any = None, **options: Any) -> None:
+        """``options``: see ``SensorDevice``."""
+        super().__init__(source, **options)
         self.regs[0x20] = 0x07
         self.unread = False
         self.next_due: float | None = None
@@ -60,19 +55,8 @@ class LSM303DLHAccEmulator(RegisterDevice):
         self.unread = True
 
     def _update(self) -> None:
-        if not self.powered:
-            return
-        now = self.now()
-        if now is None:
-            if not self.unread:
-                self._measure()
-            return
-        period = 1.0 / _ACC_RATE_HZ[(self.regs[0x20] >> 3) & 0x03]
-        if self.next_due is None:
-            self.next_due = now + period
-        while now >= self.next_due:
-            self._measure()
-            self.next_due += period
+        if self.powered:
+            self._measure_continuously(1.0 / _ACC_RATE_HZ[(self.regs[0x20] >> 3) & 0x03])
 
     def _translate(self, register: int) -> tuple[int, bool]:
         return register & 0x7F, bool(register & 0x80)

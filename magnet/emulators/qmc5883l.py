@@ -11,32 +11,23 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from magnet.emulators.base import FaultInjector, RegisterDevice, SourceTap, sensitivity_factor, to_bytes
+from magnet.emulators.base import MagnetometerDevice, to_bytes
 
 _LSB_PER_GAUSS = {0b00: 12000.0, 0b01: 3000.0}
 _ODR_HZ = (10.0, 50.0, 100.0, 200.0)
 _POWER_ON = {0x0C: 0x01, 0x0D: 0xFF}
 
 
-class QMC5883LEmulator(RegisterDevice):
+class QMC5883LEmulator(MagnetometerDevice):
     addresses = (0x0D,)
 
-    def __init__(self, source: Any = None, *, address: int | None = None, gain_error=(0.0, 0.0, 0.0),
-                 temperature_c: float = 25.0, tempco_per_k: float = 0.0, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                 tap: SourceTap | None = None) -> None:
-        super().__init__(clock=clock, faults=faults)
-        if address is not None:
-            self.addresses = (address,)
-        self.tap = tap or SourceTap(source)
-        self.gain_error = gain_error
-        self.temperature_c = temperature_c
-        self.tempco_per_k = tempco_per_k
-        self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+    def __init__(self, source: Any = None, **options: Any) -> None:
+        """``options``: see ``MagnetometerDevice`` and ``SensorDevice``."""
+        super().__init__(source, **options)
         self._reset()
 
     def _reset(self) -> None:
@@ -53,7 +44,7 @@ class QMC5883LEmulator(RegisterDevice):
 
     def _measure(self) -> None:
         lsb = _LSB_PER_GAUSS.get((self.regs[0x09] >> 4) & 0x03, 3000.0)
-        scale = lsb * sensitivity_factor(self.gain_error, self.temperature_c, self.tempco_per_k)
+        scale = lsb * self.sensitivity()
         counts = np.round(self.rotation @ self.tap.mag() / 100.0 * scale)
         overflow = bool(np.any((counts > 32767) | (counts < -32768)))
         counts = np.clip(counts, -32768, 32767).astype(int)
@@ -68,18 +59,8 @@ class QMC5883LEmulator(RegisterDevice):
         self.measurements += 1
 
     def _update(self) -> None:
-        if not self.continuous:
-            return
-        now = self.now()
-        if now is None:
-            if not self.unread:
-                self._measure()
-            return
-        if self.next_due is None:
-            self.next_due = now + 1.0 / _ODR_HZ[(self.regs[0x09] >> 2) & 0x03]
-        while now >= self.next_due:
-            self._measure()
-            self.next_due += 1.0 / _ODR_HZ[(self.regs[0x09] >> 2) & 0x03]
+        if self.continuous:
+            self._measure_continuously(1.0 / _ODR_HZ[(self.regs[0x09] >> 2) & 0x03])
 
     def _after_read(self, registers: list[int]) -> None:
         if any(r <= 0x05 for r in registers):
