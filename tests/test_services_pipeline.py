@@ -198,3 +198,28 @@ def test_restarts_keep_calibrations_and_garbage_is_counted(procs, tmp_path):
     code, lines = magnet("watch", "heading", "sim-1", "--count", "2", *NO_SCOUT, *_connect(comp2_port))
     assert code == 0 and len(lines) == 2, "the compass keeps serving"
     assert procs.alive("calibrator2") and procs.alive("compass2") and procs.alive("edge")
+
+
+def _alive(port):
+    """Liveliness keys visible through a session connected to 127.0.0.1:port (from this test's own process)."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as session:
+        return {str(reply.ok.key_expr) for reply in session.liveliness().get("magnet/@alive/**", timeout=2.0)
+                if reply.ok is not None}
+
+
+def test_liveliness_tokens_name_every_service_and_device_and_vanish_with_a_killed_process(procs, tmp_path):
+    cal_port, comp_port, edge_port = free_ports(3)
+    start_pipeline(procs, tmp_path, "live-1", "sim", cal_port, comp_port, edge_port)
+    wanted = {"magnet/@alive/calibrator/calibrator", "magnet/@alive/compass/compass", "magnet/@alive/device/live-1"}
+    seen = wait_for(lambda: (keys := _alive(comp_port)) >= wanted and keys, 20, f"liveliness tokens {wanted}")
+    assert any(key.startswith("magnet/@alive/edge/") for key in seen), seen
+    os.kill(procs.procs["calibrator"].pid, signal.SIGKILL)
+    procs.procs["calibrator"].wait()
+    wait_for(lambda: "magnet/@alive/calibrator/calibrator" not in _alive(comp_port), 10,
+             "the killed calibrator's token to vanish")
+    assert "magnet/@alive/compass/compass" in _alive(comp_port)
