@@ -223,3 +223,24 @@ def test_liveliness_tokens_name_every_service_and_device_and_vanish_with_a_kille
     wait_for(lambda: "magnet/@alive/calibrator/calibrator" not in _alive(comp_port), 10,
              "the killed calibrator's token to vanish")
     assert "magnet/@alive/compass/compass" in _alive(comp_port)
+
+
+def test_operator_calibration_session_over_the_network(procs, tmp_path):
+    cal_port, edge_port = free_ports(2)
+    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "op.db"), "--no-auto", *_listen(cal_port))
+    procs.start("edge", "edge", "--device", "op-1", "--sensor", "lsm303dlh", "--emulate", "--rate", "500", "--batch",
+                "25", "--hard-iron", ",".join(map(str, HARD_IRON)), *_listen(edge_port), *_connect(cal_port))
+    remote = [*NO_SCOUT, *_connect(cal_port)]
+    wait_for(lambda: get_status("calibrator", cal_port), 20, "the calibrator to answer")
+    code, [idle] = magnet("calibrate", "op-1", "status", *remote)
+    assert code == 0 and idle["state"] == "idle"
+    code, [started] = magnet("calibrate", "op-1", "start", "--method", "ellipsoid+align", *remote)
+    assert code == 0 and started["ok"] and started["progress"]["method"] == "ellipsoid+align"
+    ready = wait_for(lambda: (s := magnet("calibrate", "op-1", "status", *remote)[1][0])["progress"].get("accepted")
+                     and s, 40, "the session's fit to pass the gate")
+    assert ready["state"] == "session" and get_calibration("op-1", cal_port) is None, "nothing stored before commit"
+    code, [committed] = magnet("calibrate", "op-1", "commit", *remote)
+    assert code == 0 and committed["ok"]
+    stored = get_calibration("op-1", cal_port)
+    assert stored["id"] == committed["calibration"]["id"] and stored["method"] == "ellipsoid+align"
+    assert np.abs(np.array(stored["offset"]) - HARD_IRON).max() < 1.0
