@@ -25,6 +25,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from magnet import wire
+from services import sim_options
 from services.zenoh_config import add_zenoh_arguments, open_session, stop_event
 
 log = logging.getLogger("magnet.edge")
@@ -34,22 +35,6 @@ MAX_BACKOFF_S = 2.0
 FLEET_SLOTS = 20
 MATCH_WAIT_S = 3.0   # at start, wait this long at most for a subscriber (so the first batches are not lost)
 FLUSH_S = 0.3
-
-
-def _floats(text: str, counts: tuple[int, ...], name: str) -> np.ndarray:
-    try:
-        values = [float(v) for v in text.replace(" ", "").split(",") if v]
-    except ValueError:
-        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
-    if len(values) not in counts:
-        raise ValueError(f"{name} needs {' or '.join(map(str, counts))} numbers, got {len(values)}")
-    return np.asarray(values)
-
-
-def parse_soft_iron(text: str) -> np.ndarray:
-    """3 numbers (diagonal) or 9 (row-major 3x3) -> (3, 3)."""
-    values = _floats(text, (3, 9), "--soft-iron")
-    return np.diag(values) if values.size == 3 else values.reshape(3, 3)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -63,12 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=50.0, help="samples per second per device (default 50)")
     parser.add_argument("--batch", type=int, default=10, help="samples per message (default 10)")
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
-    parser.add_argument("--hard-iron", default="0,0,0", help="emulated hard iron X,Y,Z in uT")
-    parser.add_argument("--soft-iron", default="1,1,1", help="emulated soft iron: 3 (diagonal) or 9 numbers")
-    parser.add_argument("--noise-ut", type=float, default=0.3, help="emulated noise (uT RMS)")
-    parser.add_argument("--seed", type=int, default=1, help="simulator seed")
-    parser.add_argument("--trajectory", default="tumble", help="spin, turntable, tumble or tenface")
-    parser.add_argument("--location", default="50.45,30.52", help="simulated location LAT,LON[,ALT_M]")
+    sim_options.add_simulator_arguments(parser, seed=1, noise_ut=0.3)
     parser.add_argument("--trajectory-samples", type=int, default=3000,
                         help="samples per run of the simulated trajectory (default 3000)")
     parser.add_argument("--speedup", type=float, default=1.0,
@@ -96,35 +76,8 @@ class EdgeSettings:
 # A source yields lists of RawBatch (one per device) each time it is called with the batch's wall-clock times.
 
 
-def _location(text: str) -> tuple[float, float, float]:
-    from magnet.geomag import parse_location
-
-    return parse_location(text)
-
-
-def _sensor_errors(args: argparse.Namespace):
-    from magnet.simulator import SensorErrors
-
-    fields = {f.name for f in dataclasses.fields(SensorErrors)}
-    values = {"hard_iron_ut": _floats(args.hard_iron, (3,), "--hard-iron"),
-              "soft_iron": parse_soft_iron(args.soft_iron), "noise_ut": float(args.noise_ut)}
-    return SensorErrors(**{k: v for k, v in values.items() if k in fields})
-
-
 def _sensor_stream(args: argparse.Namespace):
-    from magnet.simulator import SensorStream, SimulatorConfig, Trajectory
-
-    try:
-        trajectory = Trajectory(args.trajectory)
-    except ValueError:
-        raise ValueError(f"unknown --trajectory {args.trajectory!r}: use one of "
-                         f"{', '.join(t.value for t in Trajectory)}") from None
-    lat, lon, alt = _location(args.location)
-    config_fields = {f.name for f in dataclasses.fields(SimulatorConfig)}
-    values = {"trajectory": trajectory, "lat_deg": lat, "lon_deg": lon, "alt_m": alt,
-              "rate_hz": args.rate / _speedup(args), "count": args.trajectory_samples,
-              "errors": _sensor_errors(args), "seed": args.seed}
-    return SensorStream(SimulatorConfig(**{k: v for k, v in values.items() if k in config_fields}))
+    return sim_options.sensor_stream(args, args.trajectory_samples, args.rate / _speedup(args))
 
 
 def _speedup(args: argparse.Namespace) -> float:
@@ -148,9 +101,9 @@ class FleetSource:
     def __init__(self, args: argparse.Namespace, settings: EdgeSettings) -> None:
         from magnet.simulator import FleetSimulator
 
-        lat, lon, _alt = _location(args.location)
-        self.fleet = FleetSimulator(n_devices=args.devices, rate_hz=settings.rate_hz / _speedup(args), seed=args.seed, lat_deg=lat,
-                                    lon_deg=lon, date=None, noise_ut=args.noise_ut)
+        place = sim_options.simulator_place(args)
+        self.fleet = FleetSimulator(n_devices=args.devices, rate_hz=settings.rate_hz / _speedup(args),
+                                    seed=args.seed, noise_ut=args.noise_ut, **place)
         self.ids = [f"{settings.device}-{i:03d}" for i in range(args.devices)]
         self.settings = settings
 

@@ -15,33 +15,12 @@ import sys
 import time
 from typing import Any, Iterator
 
-import numpy as np
+from services import sim_options
 
 log = logging.getLogger("magnet.sample")
 
 SENSOR_NAMES = ("hmc5883l", "lsm303dlh", "ak09918c+bma456", "qmc5883l")
 MAX_NOT_READY_POLLS = 200
-
-
-def _floats(text: str, counts: tuple[int, ...], name: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.replace(" ", "").split(",") if v]
-    except ValueError:
-        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
-    if len(values) not in counts:
-        raise ValueError(f"{name} needs {' or '.join(map(str, counts))} numbers, got {len(values)}")
-    return values
-
-
-def add_simulator_arguments(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("simulator (with --emulate)")
-    group.add_argument("--seed", type=int, default=0, help="simulator seed (same seed, same data)")
-    group.add_argument("--trajectory", default="tumble", help="spin, turntable, tumble or tenface (default tumble)")
-    group.add_argument("--hard-iron", default="0,0,0", help="hard iron X,Y,Z in uT")
-    group.add_argument("--soft-iron", default="1,1,1", help="soft iron: 3 diagonal or 9 row-major numbers")
-    group.add_argument("--noise-ut", type=float, default=0.0, help="noise, uT RMS (default 0)")
-    group.add_argument("--location", default="50.45,30.52", help="LAT,LON[,ALT_M] (default Kyiv)")
-    group.add_argument("--date", default=None, help="YYYY-MM-DD or decimal year (default: the simulator's)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -53,28 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--emulate", action="store_true", help="read the chip's emulator fed by the simulator")
     parser.add_argument("--count", type=int, default=100, help="samples to print (default 100)")
     parser.add_argument("--rate", type=float, default=50.0, help="samples per second (default 50)")
-    add_simulator_arguments(parser)
+    sim_options.add_simulator_arguments(parser)
 
 
 def sensor_stream(args: argparse.Namespace, count: int):
-    """The simulator's ``SensorStream`` for the options above (``count`` samples of trajectory)."""
-    from magnet.geomag import parse_location
-    from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig, Trajectory
-
-    try:
-        trajectory = Trajectory(args.trajectory.strip().lower())
-    except ValueError:
-        raise ValueError(f"unknown --trajectory {args.trajectory!r}: use one of "
-                         f"{', '.join(t.value for t in Trajectory)}") from None
-    soft = _floats(args.soft_iron, (3, 9), "--soft-iron")
-    soft_matrix = np.diag(soft) if len(soft) == 3 else np.array(soft).reshape(3, 3)
-    errors = SensorErrors(hard_iron_ut=_floats(args.hard_iron, (3,), "--hard-iron"), soft_iron=soft_matrix,
-                          noise_ut=args.noise_ut)
-    lat, lon, alt = parse_location(args.location)
-    options: dict[str, Any] = {"date": args.date} if args.date else {}
-    config = SimulatorConfig(trajectory=trajectory, lat_deg=lat, lon_deg=lon, alt_m=alt, rate_hz=args.rate,
-                             count=max(count, 1), errors=errors, seed=args.seed, **options)
-    return SensorStream(config)
+    """The simulator's ``SensorStream`` for the options (``count`` samples of trajectory at --rate)."""
+    return sim_options.sensor_stream(args, count, args.rate)
 
 
 def open_bus(args: argparse.Namespace, source: Any = None, **emulator_options: Any) -> Any:

@@ -13,7 +13,7 @@ import logging
 
 import numpy as np
 
-from services.sample_cmd import _floats
+from services.sim_options import parse_floats
 
 log = logging.getLogger("magnet.selftest")
 
@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from magnet.drivers.hmc5883l import HMC5883L
 
-    gain_error = np.array(_floats(args.gain_error, (3,), "--gain-error"))
+    gain_error = np.array(parse_floats(args.gain_error, (3,), "--gain-error"))
     if args.emulate:
         from magnet.emulators.base import ConstantSource
         from magnet.emulators.hmc5883l import HMC5883LEmulator
