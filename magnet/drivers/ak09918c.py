@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, I2CDevice, Reading, RetryPolicy, Sensor, SensorError, orientation_matrix, to_signed
+from magnet.drivers.base import NOT_READY, Reading, RetryPolicy, Sensor, SensorError, to_signed
 
 DEFAULT_ADDRESS = 0x0C
 REG_WIA1, REG_ST1, REG_CNTL2, REG_CNTL3 = 0x00, 0x10, 0x31, 0x32
@@ -40,10 +40,7 @@ class AK09918C(Sensor):
     def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
                  mode: Mode = Mode.CONTINUOUS_100HZ, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] | None = None) -> None:
-        kwargs = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
-        self.device = I2CDevice(bus, address, **kwargs)
-        self.devices = (self.device,)
-        self.rotation = orientation_matrix(orientation)
+        self._attach(bus, address, orientation, retry, sleep)
         found = tuple(self.device.read_block(REG_WIA1, 2))
         if found != IDENTITY:
             raise SensorError(f"no AK09918C at {self.device.address:#04x}: WIA1/WIA2 read "

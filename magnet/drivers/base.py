@@ -230,6 +230,16 @@ class Sensor:
     rotation: np.ndarray = np.eye(3)
     devices: tuple[I2CDevice, ...] = ()
 
+    def _attach(self, bus: Any, address: int, orientation: Any, retry: "RetryPolicy | None",
+                sleep: "Callable[[float], None] | None") -> I2CDevice:
+        """Set ``self.device`` (the chip at ``address`` on ``bus``, with the retry policy), ``self.devices`` and the
+        mounting ``self.rotation``; returns the device."""
+        options = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
+        self.device = I2CDevice(bus, address, **options)
+        self.devices = (self.device,)
+        self.rotation = orientation_matrix(orientation)
+        return self.device
+
     def _read(self) -> Reading:  # pragma: no cover - abstract
         raise NotImplementedError
 

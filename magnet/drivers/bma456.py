@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, I2CDevice, Reading, RetryPolicy, Sensor, SensorError, orientation_matrix, to_signed
+from magnet.drivers.base import NOT_READY, Reading, RetryPolicy, Sensor, SensorError, to_signed
 from magnet.units import STANDARD_GRAVITY_MS2
 
 DEFAULT_ADDRESS = 0x18
@@ -35,10 +35,7 @@ class BMA456(Sensor):
                  retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
         if range_g not in RANGES:
             raise ValueError(f"BMA456 range must be one of {sorted(RANGES)} g, got {range_g}")
-        kwargs = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
-        self.device = I2CDevice(bus, address, **kwargs)
-        self.devices = (self.device,)
-        self.rotation = orientation_matrix(orientation)
+        self._attach(bus, address, orientation, retry, sleep)
         chip_id = self.device.read_byte(REG_CHIP_ID)
         if chip_id != CHIP_ID:
             raise SensorError(f"no BMA456 at {self.device.address:#04x}: CHIP_ID reads {chip_id:#04x}, expected "

@@ -19,8 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import (NOT_READY, I2CDevice, Reading, RetryPolicy, Sensor, SensorError,
-                                 orientation_matrix, to_signed)
+from magnet.drivers.base import NOT_READY, Reading, RetryPolicy, Sensor, SensorError, to_signed
 from magnet.selftest import LSB_PER_GAUSS, SelfTestResult, evaluate  # GN -> LSB per gauss (Config B)
 
 DEFAULT_ADDRESS = 0x1E
@@ -105,10 +104,7 @@ class HMC5883L(Sensor):
     def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
                  settings: HMC5883LSettings | None = None, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] | None = None, axis_scale: Any = (1.0, 1.0, 1.0)) -> None:
-        kwargs = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
-        self.device = I2CDevice(bus, address, **kwargs)
-        self.devices = (self.device,)
-        self.rotation = orientation_matrix(orientation)
+        self._attach(bus, address, orientation, retry, sleep)
         self.axis_scale = np.asarray(axis_scale, dtype=float)
         self.check_identity()
         self.configure(settings or HMC5883LSettings())

@@ -20,8 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import (NOT_READY, Combined, I2CDevice, Reading, RetryPolicy, Sensor, SensorError,
-                                 orientation_matrix, to_signed)
+from magnet.drivers.base import NOT_READY, Combined, Reading, RetryPolicy, Sensor, SensorError, to_signed
 from magnet.units import STANDARD_GRAVITY_MS2
 
 DEFAULT_ADDRESS = 0x1E
@@ -46,10 +45,7 @@ class LSM303DLHMagnetometer(Sensor):
                  retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
         if gain not in LSB_PER_GAUSS:
             raise ValueError(f"LSM303DLH magnetometer gain must be 1..7, got {gain}")
-        kwargs = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
-        self.device = I2CDevice(bus, address, **kwargs)
-        self.devices = (self.device,)
-        self.rotation = orientation_matrix(orientation)
+        self._attach(bus, address, orientation, retry, sleep)
         found = bytes(self.device.read_block(0x0A, 3))
         if found != IDENTITY:
             raise SensorError(f"no LSM303DLH magnetometer at {self.device.address:#04x}: identification reads "
@@ -82,10 +78,7 @@ class LSM303DLHAccelerometer(Sensor):
                  sleep: Callable[[float], None] | None = None) -> None:
         if scale_g not in ACC_SCALES:
             raise ValueError(f"LSM303DLH accelerometer full scale must be one of {sorted(ACC_SCALES)} g")
-        kwargs = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
-        self.device = I2CDevice(bus, address, **kwargs)
-        self.devices = (self.device,)
-        self.rotation = orientation_matrix(orientation)
+        self._attach(bus, address, orientation, retry, sleep)
         self.scale_g = scale_g
         self.device.write_byte(0x20, 0x27)
         self.device.write_byte(0x23, 0x80 | (ACC_SCALES[scale_g][0] << 4))

@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, I2CDevice, Reading, RetryPolicy, Sensor, SensorError, orientation_matrix, to_signed
+from magnet.drivers.base import NOT_READY, Reading, RetryPolicy, Sensor, SensorError, to_signed
 
 DEFAULT_ADDRESS = 0x0D
 REG_DATA, REG_STATUS, REG_CONTROL1, REG_CONTROL2, REG_PERIOD, REG_CHIP_ID = 0x00, 0x06, 0x09, 0x0A, 0x0B, 0x0D
@@ -56,10 +56,7 @@ class QMC5883L(Sensor):
     def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
                  settings: QMC5883LSettings | None = None, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] | None = None) -> None:
-        kwargs = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
-        self.device = I2CDevice(bus, address, **kwargs)
-        self.devices = (self.device,)
-        self.rotation = orientation_matrix(orientation)
+        self._attach(bus, address, orientation, retry, sleep)
         chip_id = self.device.read_byte(REG_CHIP_ID)
         if chip_id != CHIP_ID:
             raise SensorError(f"no QMC5883L at {self.device.address:#04x}: chip id register 0x0D reads "
