@@ -102,6 +102,17 @@ def device_from_key(prefix: str, key_expr: str, kind: Kind) -> str:
         raise WireError("bad-key", str(exc)) from None
 
 
+def key_mismatch(key_expr: str, device: str) -> WireError:
+    """The error for a message whose device is not the one its key names."""
+    return WireError("key-mismatch", f"key {key_expr} carries device {device}")
+
+
+def check_key(prefix: str, key_expr: str, kind: Kind, device: str) -> None:
+    """WireError unless ``key_expr`` is ``<prefix>/<device>/<kind>`` for the message's own ``device``."""
+    if device_from_key(prefix, key_expr, kind) != device:
+        raise key_mismatch(key_expr, device)
+
+
 def status_key(prefix: str, service: str) -> str:
     """Queryable key of a service's counters: ``<prefix>/@status/<service>``."""
     return f"{prefix}/@status/{service}"
@@ -176,6 +187,11 @@ class DropCounter:
         first = cause not in self.counts
         self.counts[cause] = self.counts.get(cause, 0) + 1
         return first
+
+    def drop(self, exc: WireError, what: str, logger: Any) -> None:
+        """Count a dropped ``what`` message (``<what>:<cause>``); log only the first of each cause."""
+        if self.count(f"{what}:{exc.cause}"):
+            logger.warning("dropping malformed %s message (%s): %s; further ones only counted", what, exc.cause, exc)
 
     @property
     def total(self) -> int:

@@ -216,11 +216,9 @@ class Calibrator:
     def on_raw(self, key_expr: str, payload: bytes, prefix: str) -> None:
         try:
             batch = wire.decode_raw(payload)
-            if wire.device_from_key(prefix, key_expr, wire.Kind.RAW) != batch.device:
-                raise wire.WireError("key-mismatch", f"key {key_expr} carries device {batch.device}")
+            wire.check_key(prefix, key_expr, wire.Kind.RAW, batch.device)
         except wire.WireError as exc:
-            if self.drops.count(f"raw:{exc.cause}"):
-                log.warning("dropping malformed raw message (%s): %s; further ones only counted", exc.cause, exc)
+            self.drops.drop(exc, "raw", log)
             return
         self.counters["received_batches"] += 1
         self.counters["received_samples"] += len(batch)

@@ -103,17 +103,12 @@ class Compass:
         self.calibration_updates = 0
         self._key_devices: dict[str, str] = {}
 
-    def drop(self, exc: wire.WireError, what: str) -> None:
-        if self.drops.count(f"{what}:{exc.cause}"):
-            log.warning("dropping malformed %s message (%s): %s; further ones only counted", what, exc.cause, exc)
-
     def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> None:
         try:
             message = wire.decode_calibration(payload)
-            if wire.device_from_key(prefix, key_expr, wire.Kind.CALIBRATION) != message.device:
-                raise wire.WireError("key-mismatch", f"key {key_expr} carries device {message.device}")
+            wire.check_key(prefix, key_expr, wire.Kind.CALIBRATION, message.device)
         except wire.WireError as exc:
-            self.drop(exc, "calibration")
+            self.drops.drop(exc, "calibration", log)
             return
         current = self.calibrations.get(message.device)
         if current is None or current.id != message.id:
@@ -131,13 +126,13 @@ class Compass:
         refused = set()
         for index, exc in errors:
             refused.add(index)
-            self.drop(exc, "raw")
+            self.drops.drop(exc, "raw", log)
         keys = [key for index, (key, _) in enumerate(items) if index not in refused]
         mismatch = np.array([self._key_device(key, prefix) != device for key, device in zip(keys, columns.devices)],
                             dtype=bool)
         if mismatch.any():
             for key, device in zip(np.array(keys)[mismatch], np.array(columns.devices)[mismatch]):
-                self.drop(wire.WireError("key-mismatch", f"key {key} carries device {device}"), "raw")
+                self.drops.drop(wire.key_mismatch(key, device), "raw", log)
             columns = columns.select(~mismatch)
         return columns
 
