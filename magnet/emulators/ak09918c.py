@@ -31,12 +31,9 @@ class AK09918CEmulator(MagnetometerDevice):
         self._reset()
 
     def _reset(self) -> None:
-        self.regs[:] = bytes(256)
-        self.regs[0x00], self.regs[0x01] = 0x48, 0x0C
+        self._power_on_reset({0x00: 0x48, 0x01: 0x0C})  # WIA1, WIA2
         self.protected = False
-        self.unread = False
         self.pending = False
-        self.next_due: float | None = None
         self.measurements = 0
 
     @property

@@ -276,6 +276,14 @@ class SensorDevice(RegisterDevice):
         self.unread = False                 # a measurement placed and not yet read
         self.next_due: float | None = None  # clock time of the next continuous measurement
 
+    def _power_on_reset(self, power_on: dict[int, int]) -> None:
+        """Registers to their power-on values (``power_on``: register -> value, 0 elsewhere); no data pending."""
+        self.regs[:] = bytes(256)
+        for register, value in power_on.items():
+            self.regs[register] = value
+        self.unread = False
+        self.next_due = None
+
     def _measure(self) -> None:
         """Take one measurement from the source into the data registers."""
         raise NotImplementedError

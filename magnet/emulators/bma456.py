@@ -30,11 +30,7 @@ class BMA456Emulator(SensorDevice):
         self._reset()
 
     def _reset(self) -> None:
-        self.regs[:] = bytes(256)
-        for register, value in _POWER_ON.items():
-            self.regs[register] = value
-        self.unread = False
-        self.next_due: float | None = None
+        self._power_on_reset(_POWER_ON)
 
     @property
     def enabled(self) -> bool:
