@@ -47,7 +47,7 @@ class SampleTable:
         return [v.strip() for v in self.columns[name]]
 
 
-def _floats(values: Sequence[str], name: str, path: str, first_line: int = 0) -> np.ndarray:
+def _floats(values: Sequence[str], name: str, path: str) -> np.ndarray:
     out = np.empty(len(values))
     for i, text in enumerate(values):
         try:

@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     if "t_s" in table.columns:
         header.insert(0, "t_s")
         columns.insert(0, table.numeric("t_s"))
-    formats = ["%.4f"] * 4 + ["%.4f"] * 3 + ["%.3f", "%d"]
+    formats = ["%.4f"] * 7 + ["%.3f", "%d"]  # 4 angles, 3 field components, dip, flags
     if "t_s" in table.columns:
         formats.insert(0, "%.6f")
     write_csv(sys.stdout, header, columns, fmt=formats)
