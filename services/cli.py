@@ -15,19 +15,19 @@ import sys
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "fit": ("services.fit_cmd", "fit a calibration to a CSV of raw samples"),
-    "heading": ("services.heading_cmd", "apply a calibration to a CSV and print headings"),
+    "fit": ("services.commands.fit", "fit a calibration to a CSV of raw samples"),
+    "heading": ("services.commands.heading", "apply a calibration to a CSV and print headings"),
     "bench": ("services.bench", "benchmarks that print figures (accuracy, fit, pipeline)"),
-    "sample": ("services.sample_cmd", "read a sensor (or its emulator) and print CSV"),
-    "selftest": ("services.selftest_cmd", "run the HMC5883L self-test"),
-    "edge": ("services.edge", "publish raw samples of one or many devices over Zenoh"),
-    "calibrator": ("services.calibrator", "collect, fit, gate, store and serve calibrations over Zenoh"),
-    "compass": ("services.compass", "apply calibrations and publish headings over Zenoh"),
+    "sample": ("services.commands.sample", "read a sensor (or its emulator) and print CSV"),
+    "selftest": ("services.commands.selftest", "run the HMC5883L self-test"),
+    "edge": ("services.edge.service", "publish raw samples of one or many devices over Zenoh"),
+    "calibrator": ("services.calibrator.service", "collect, fit, gate, store and serve calibrations over Zenoh"),
+    "compass": ("services.compass.service", "apply calibrations and publish headings over Zenoh"),
     "router": ("services.router", "run a Zenoh router"),
-    "get": ("services.remote", "query a device's calibration (or its history)"),
-    "watch": ("services.remote", "print headings as they are published"),
-    "calibrate": ("services.remote", "start, follow, commit or abort a calibration session"),
-    "up": ("services.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
+    "get": ("services.commands.remote", "query a device's calibration (or its history)"),
+    "watch": ("services.commands.remote", "print headings as they are published"),
+    "calibrate": ("services.commands.remote", "start, follow, commit or abort a calibration session"),
+    "up": ("services.commands.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
 }
 
 

@@ -12,7 +12,7 @@ import argparse
 import logging
 
 from magnet import wire
-from services.zenoh_config import add_zenoh_arguments, open_session, stop_event
+from services.common.zenoh_session import add_zenoh_arguments, open_session, stop_event
 
 log = logging.getLogger("magnet.router")
 

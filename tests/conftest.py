@@ -1,19 +1,17 @@
-"""Shared test fixtures: where the shared datasets live."""
+"""Shared test fixtures: where the repository's recordings live (``data/``)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("MAGNET_SHARED", REPO_ROOT.parent / "shared"))
+DATA_DIR = REPO_ROOT / "data"
 
 
 @pytest.fixture(scope="session")
 def datasets_dir() -> Path:
-    path = SHARED / "datasets"
-    if not path.is_dir():
-        pytest.fail(f"shared datasets not found at {path}: set MAGNET_SHARED to the folder that holds datasets/")
-    return path
+    if not DATA_DIR.is_dir():
+        pytest.fail(f"recordings not found at {DATA_DIR}: the repository's data/ folder is missing")
+    return DATA_DIR

@@ -6,7 +6,7 @@ import pytest
 from magnet.attitude import euler_to_matrix
 from magnet.geomag import earth_field
 from magnet.simulator import SensorErrors
-from services import bench_accuracy as bench
+from services.bench import accuracy as bench
 
 FAST = bench.AccuracySettings(trials=2, fit_samples=600, spin_samples=180, timing_samples=600, timing_repeats=1,
                                fleet_seconds=0.01)

@@ -7,9 +7,9 @@ from magnet import wire
 from magnet.heading import HeadingFlag
 from magnet.model import Calibration
 from magnet.simulator import SensorErrors, SimulatorConfig, simulate
-from services.calibrator import Calibrator, CalibratorSettings, Collection, fine_cells
-from services.compass import Compass, Earth
-from services.store import CalibrationStore
+from services.calibrator.service import Calibrator, CalibratorSettings, Collection, fine_cells
+from services.compass.service import Compass, Earth
+from services.calibrator.store import CalibrationStore
 
 HARD = np.array([30.0, -12.0, 8.0])
 SOFT = np.array([[1.1, 0.04, 0.0], [0.04, 0.9, 0.02], [0.0, 0.02, 1.0]])

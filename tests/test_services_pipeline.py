@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from magnet.heading import angle_difference_deg
-from services.zenoh_config import free_ports
+from services.common.zenoh_session import free_ports
 
 MAGNET = [sys.executable, "-m", "services.cli"]
 NO_SCOUT = ["--no-multicast-scouting"]

@@ -6,7 +6,7 @@ import subprocess
 import sys
 import time
 
-from services.zenoh_config import free_ports
+from services.common.zenoh_session import free_ports
 
 MAGNET = [sys.executable, "-m", "services.cli"]
 

@@ -25,8 +25,8 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from magnet import wire
-from services import sim_options
-from services.zenoh_config import add_zenoh_arguments, open_session, stop_event
+from services.common import sim_options
+from services.common.zenoh_session import add_zenoh_arguments, open_session, stop_event
 
 log = logging.getLogger("magnet.edge")
 

@@ -15,7 +15,7 @@ import sys
 import time
 from typing import Any, Iterator
 
-from services import sim_options
+from services.common import sim_options
 
 log = logging.getLogger("magnet.sample")
 

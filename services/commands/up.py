@@ -24,7 +24,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from magnet import wire
-from services.zenoh_config import free_ports, loopback_arguments, payload_bytes, stop_event
+from services.common.zenoh_session import free_ports, loopback_arguments, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.up")
 

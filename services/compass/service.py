@@ -21,7 +21,7 @@ import numpy as np
 from magnet import heading as hd
 from magnet import wire
 from magnet.model import Calibration
-from services.zenoh_config import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
+from services.common.zenoh_session import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.compass")
 

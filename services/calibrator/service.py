@@ -28,8 +28,8 @@ import numpy as np
 
 from magnet import wire
 from magnet.model import Calibration
-from services.store import CalibrationStore
-from services.zenoh_config import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
+from services.calibrator.store import CalibrationStore
+from services.common.zenoh_session import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.calibrator")
 

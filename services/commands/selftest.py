@@ -13,7 +13,7 @@ import logging
 
 import numpy as np
 
-from services.sim_options import parse_floats
+from services.common.sim_options import parse_floats
 
 log = logging.getLogger("magnet.selftest")
 

@@ -7,9 +7,9 @@ import importlib
 
 #: benchmark -> (module, function)
 BENCHMARKS: dict[str, tuple[str, str]] = {
-    "accuracy": ("services.bench_accuracy", "run_accuracy_benchmark"),
-    "fit": ("services.bench_fit", "run_fit_benchmark"),
-    "pipeline": ("services.bench_pipeline", "run_pipeline_benchmark"),
+    "accuracy": ("services.bench.accuracy", "run_accuracy_benchmark"),
+    "fit": ("services.bench.fit", "run_fit_benchmark"),
+    "pipeline": ("services.bench.pipeline", "run_pipeline_benchmark"),
 }
 
 

@@ -14,7 +14,7 @@ import time
 from typing import Any
 
 from magnet import wire
-from services.zenoh_config import add_zenoh_arguments, open_session, payload_bytes, stop_event
+from services.common.zenoh_session import add_zenoh_arguments, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.remote")
 

@@ -17,7 +17,7 @@ from magnet.calibration import Method, fit
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from magnet.units import FieldUnit
-from services.csvio import SampleTable, read_samples
+from services.common.csvio import SampleTable, read_samples
 
 EXIT_REJECTED = 1
 

@@ -20,7 +20,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from services.zenoh_config import free_ports, loopback_arguments
+from services.common.zenoh_session import free_ports, loopback_arguments
 
 MAX_RATE_STEPS = 6
 BISECT_STEPS = 2

@@ -17,8 +17,8 @@ import numpy as np
 from magnet import heading as hd
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
-from services.csvio import read_samples, write_csv
-from services.fit_cmd import add_field_arguments
+from services.common.csvio import read_samples, write_csv
+from services.commands.fit import add_field_arguments
 
 COLUMNS = ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg", "field_x_ut", "field_y_ut", "field_z_ut",
            "dip_deg", "flags")
