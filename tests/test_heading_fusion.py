@@ -2,20 +2,17 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from magnet.heading import HeadingFlag, angle_difference_deg
+from fusion_helpers import RATE_HZ, rotating_device
+from helpers import run_magnet as magnet
 from magnet import fusion
-from tests.test_fusion import RATE_HZ, rotating_device
+from magnet.heading import HeadingFlag, angle_difference_deg
 
-
-def magnet(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "services.cli", *args], capture_output=True, text=True, timeout=120)
+pytestmark = pytest.mark.integration
 
 
 def read_output(text: str) -> dict[str, np.ndarray]:
