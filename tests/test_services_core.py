@@ -7,8 +7,10 @@ from magnet import wire
 from magnet.heading import HeadingFlag
 from magnet.model import Calibration
 from magnet.simulator import SensorErrors, SimulatorConfig, simulate
-from services.calibrator.service import Calibrator, CalibratorSettings, Collection, fine_cells
-from services.compass.service import Compass, Earth
+from magnet.collection import Collection, fine_cells
+from magnet.compass import Earth
+from services.calibrator.service import Calibrator, CalibratorSettings
+from services.compass.service import Compass
 from services.calibrator.store import CalibrationStore
 
 HARD = np.array([30.0, -12.0, 8.0])
@@ -64,15 +66,15 @@ def test_automatic_calibration_is_stored_published_and_then_collection_stops(sto
     calibrator = _calibrator(store, published)
     _feed(calibrator, _run())
     record = store.latest("d")
-    assert record is not None and record["accepted"]
-    np.testing.assert_allclose(record["offset"], HARD, atol=1.0)
+    assert record is not None and record.calibration.accepted
+    np.testing.assert_allclose(record.calibration.offset, HARD, atol=1.0)
     assert calibrator.state("d").value == "calibrated" and "d" not in calibrator.collections
     kinds = [k for k, d, p in published]
     assert wire.Kind.CALIBRATION in kinds and wire.Kind.PROGRESS in kinds
-    assert wire.decode_calibration([p for k, d, p in published if k is wire.Kind.CALIBRATION][0]).id == record["id"]
+    assert wire.decode_calibration([p for k, d, p in published if k is wire.Kind.CALIBRATION][0]).id == record.id
     # a restarted calibrator serves what it stored
     again = _calibrator(store, [])
-    assert again.in_force["d"]["id"] == record["id"] and again.state("d").value == "calibrated"
+    assert again.in_force["d"].id == record.id and again.state("d").value == "calibrated"
 
 
 def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
@@ -85,7 +87,7 @@ def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
     progress = wire.decode_progress([p for k, d, p in published if k is wire.Kind.PROGRESS][-1])
     assert progress["state"] == "collecting" and progress["coverage"] < 0.5, progress
     assert progress["missing"] and "coverage" in progress["reason"], progress
-    assert calibrator.counters["accepted"] == 0
+    assert calibrator.counters.accepted == 0
 
 
 def test_session_commit_abort_and_status(store):
@@ -98,7 +100,7 @@ def test_session_commit_abort_and_status(store):
     _feed(calibrator, _run())
     assert store.latest("d") is None, "a session stores only on commit"
     committed = calibrator.session("d", "commit", None)
-    assert committed["ok"] and committed["calibration"]["id"] == store.latest("d")["id"]
+    assert committed["ok"] and committed["calibration"]["id"] == store.latest("d").id
     assert calibrator.session("d", "status", None)["state"] == "calibrated"
     with pytest.raises(ValueError):
         calibrator.session("d", "explode", None)
