@@ -1,5 +1,7 @@
 """SQLite calibration store: history newest first, idempotent saves, survives reopening and a killed writer."""
 
+import json
+import sqlite3
 import subprocess
 import sys
 
@@ -54,3 +56,22 @@ def test_kill_9_during_writes_leaves_complete_records(tmp_path):
         assert offsets == sorted(offsets, reverse=True) and offsets[-1] == 1
         for record in history:
             assert wire.calibration_from_record(record.to_record()).id == record.id
+
+
+def test_rows_failing_the_entry_check_are_skipped_counted_and_the_rest_served(tmp_path):
+    path = tmp_path / "c.db"
+    with CalibrationStore(path) as store:
+        assert store.save(_record("a", [1, 0, 0], 1))
+        assert store.save(_record("b", [5, 0, 0], 1))
+    reflected = {**_record("a", [2, 0, 0], 2).to_record(), "matrix": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]}
+    singular = {**_record("b", [6, 0, 0], 2).to_record(), "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 1e-9]]}
+    with sqlite3.connect(path) as db:  # rows written by something else: a forged record and an unreadable one
+        for record in (reflected, singular):
+            db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
+                       (record["device"], record["id"], 2, json.dumps(record)))
+        db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES ('a', 'x', 3, '{not json')")
+    with CalibrationStore(path) as store:  # as a calibrator on restart reads it
+        latest = store.all_latest()
+        assert {d: r.calibration.offset[0] for d, r in latest.items()} == {"a": 1, "b": 5}
+        assert store.latest("a").calibration.offset[0] == 1 and len(store.history("a")) == 1
+        assert store.skipped_rows >= 3
