@@ -57,14 +57,16 @@ class ZenohSettings:
 
     def __post_init__(self) -> None:
         validate_prefix(self.prefix)
-        if self.mode is not None and self.mode not in MODES:
-            raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        for mode in (self.mode, self.default_mode):
+            if mode is not None and mode not in MODES:
+                raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> "ZenohSettings":
         """The settings of the options ``add_zenoh_arguments`` added."""
-        return cls(args.config, args.mode, tuple(args.connect), tuple(args.listen), args.no_multicast_scouting,
-                   args.prefix, getattr(args, "_default_mode", "peer"))
+        return cls(config=args.config, mode=args.mode, connect=tuple(args.connect), listen=tuple(args.listen),
+                   no_multicast_scouting=bool(args.no_multicast_scouting), prefix=args.prefix,
+                   default_mode=getattr(args, "_default_mode", "peer"))
 
 
 Options = ZenohSettings | argparse.Namespace
