@@ -2,16 +2,19 @@
 
 import os
 import subprocess
-import sys
-from pathlib import Path
+
+import pytest
+from helpers import MAGNET, REPO_ROOT
+
+pytestmark = pytest.mark.integration
 
 
 def test_up_runs_headless_calibrates_every_device_and_stops(tmp_path):
     env = {**os.environ, "CI": "true"}
-    out = subprocess.run([sys.executable, "-m", "services.cli", "up", "--devices", "3", "--speedup", "10",
+    out = subprocess.run([*MAGNET, "up", "--devices", "3", "--speedup", "10",
                           "--duration", "14", "--interval", "2", "--db", str(tmp_path / "up.db")],
                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60, env=env,
-                         cwd=Path(__file__).resolve().parents[1])
+                         cwd=REPO_ROOT)
     assert out.returncode == 0, out.stderr
     assert "\x1b[" not in out.stdout, "no terminal codes without a terminal"
     last_view = out.stdout.strip().split("\n\n")[-1].splitlines()

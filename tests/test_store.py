@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from magnet import wire
 from magnet.model import Calibration
@@ -30,6 +31,7 @@ def test_history_newest_first_and_latest_per_device(tmp_path):
         assert mode == "wal"
 
 
+@pytest.mark.integration
 def test_kill_9_during_writes_leaves_complete_records(tmp_path):
     path = tmp_path / "c.db"
     code = (
@@ -42,10 +44,9 @@ def test_kill_9_during_writes_leaves_complete_records(tmp_path):
         "    s.save(wire.calibration_record('a', Calibration('ellipsoid', [i, 0, 0], np.eye(3)), i))\n"
         "    if i == 20: print('go', flush=True)\n"
     )
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
-    assert proc.stdout.readline().strip() == "go"
-    proc.kill()
-    proc.wait()
+    with subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True) as proc:
+        assert proc.stdout.readline().strip() == "go"
+        proc.kill()
     with CalibrationStore(path) as store:
         history = store.history("a")
         assert len(history) >= 20
