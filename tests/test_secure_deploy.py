@@ -10,19 +10,14 @@ from __future__ import annotations
 
 import json
 import re
-import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
+from helpers import MAGNET, REPO_ROOT, Processes, free_ports, wait_for
 
-from services.common.zenoh_session import free_ports
 from services.security import acl
-
-REPO = Path(__file__).resolve().parents[1]
-MAGNET = [sys.executable, "-m", "services.cli"]
 
 #: the steps of deploy/README.md, as the tests run them ($SITE: the directory; the ports are replaced by free ones)
 STEPS = {
@@ -38,41 +33,30 @@ STEPS = {
 FAST_EDGE = ["--rate", "500", "--batch", "25", "--trajectory-samples", "2000"]
 
 
-class Site:
+class Site(Processes):
     """A site directory from `magnet certs`, its ports, and the processes started for it."""
 
     def __init__(self, directory: Path) -> None:
+        super().__init__(directory)
         self.dir = directory
         self.mtls_port, self.password_port = free_ports(2)
-        self.procs: dict[str, subprocess.Popen] = {}
 
     def argv(self, step: str, *extra: str) -> list[str]:
         text = (STEPS[step].replace("$SITE", str(self.dir)).replace("7447", str(self.mtls_port))
                 .replace("7448", str(self.password_port)))
-        return [*MAGNET, *text.split()[1:], *extra]
+        return [*text.split()[1:], *extra]
 
     def run(self, step: str, *extra: str, timeout: float = 20) -> subprocess.CompletedProcess:
-        return subprocess.run(self.argv(step, *extra), capture_output=True, text=True, timeout=timeout, cwd=REPO)
+        return subprocess.run([*MAGNET, *self.argv(step, *extra)], capture_output=True, text=True, timeout=timeout,
+                              cwd=REPO_ROOT)
 
-    def start(self, step: str, *extra: str) -> None:
-        log = open(self.dir / f"{step}.log", "w")
-        self.procs[step] = subprocess.Popen(self.argv(step, *extra), stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+    def start_step(self, step: str, *extra: str) -> None:
+        self.start(step, *self.argv(step, *extra))
 
     def config(self, name: str):
         import zenoh
 
         return zenoh.Config.from_file(str(self.dir / f"{name}.json5"))
-
-    def stop(self) -> None:
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc in self.procs.values():
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
 
 
 @pytest.fixture(scope="module")
@@ -80,20 +64,12 @@ def site(tmp_path_factory):
     s = Site(tmp_path_factory.mktemp("site"))
     made = s.run("certs")
     assert made.returncode == 0, made.stderr
-    s.start("router")
-    wait_for(lambda: _opens(s.config("viewer")), 20, "the router to accept a client")
-    yield s
-    s.stop()
-
-
-def wait_for(check, timeout_s: float, what: str):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        result = check()
-        if result:
-            return result
-        time.sleep(0.2)
-    pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+    s.start_step("router")
+    try:
+        wait_for(lambda: _opens(s.config("viewer")), 20, "the router to accept a client")
+        yield s
+    finally:
+        s.stop_all()
 
 
 def _opens(config) -> bool:
@@ -106,6 +82,7 @@ def _opens(config) -> bool:
     return True
 
 
+@pytest.mark.integration
 def test_certs_are_v3_with_the_extensions_rustls_needs(site):
     from cryptography import x509
     from cryptography.x509.oid import ExtendedKeyUsageOID
@@ -129,9 +106,9 @@ def test_certs_are_v3_with_the_extensions_rustls_needs(site):
 
 @pytest.mark.integration
 def test_every_role_does_its_job_through_the_secure_router(site):
-    site.start("calibrator")
-    site.start("compass")
-    site.start("edge", *FAST_EDGE)
+    site.start_step("calibrator")
+    site.start_step("compass")
+    site.start_step("edge", *FAST_EDGE)
 
     def calibration():
         out = site.run("get", "--timeout", "2")
@@ -145,12 +122,11 @@ def test_every_role_does_its_job_through_the_secure_router(site):
     assert all(h["calibration_id"] == record["id"] for h in headings), "headings use the calibration"
     operator = site.run("calibrate")
     assert operator.returncode == 0 and json.loads(operator.stdout)["state"] == "calibrated", operator.stderr
-    viewer = subprocess.run(site.argv("calibrate")[:-2] + ["--config", str(site.dir / "viewer.json5"),
-                                                           "--timeout", "2"], capture_output=True, text=True,
-                            timeout=20)
+    viewer = subprocess.run([*MAGNET, *site.argv("calibrate")[:-2], "--config", str(site.dir / "viewer.json5"),
+                             "--timeout", "2"], capture_output=True, text=True, timeout=20)
     assert viewer.returncode == 1 and "no calibrator answered" in viewer.stderr, "a viewer cannot drive sessions"
     for name in ("calibrator", "compass", "edge"):
-        assert site.procs[name].poll() is None, (site.dir / f"{name}.log").read_text()
+        assert site.alive(name), site.log(name)
 
 
 def _payloads(channel) -> list[bytes]:
@@ -251,14 +227,14 @@ def test_unauthenticated_and_wrong_ca_clients_are_refused(site, tmp_path):
 
 
 def test_deploy_readme_steps_are_the_tested_ones():
-    readme = (REPO / "deploy" / "README.md").read_text()
+    readme = (REPO_ROOT / "deploy" / "README.md").read_text()
     for step, command in STEPS.items():
         assert command in readme, f"deploy/README.md lacks the tested step {step}: {command}"
 
 
 def test_shipped_router_config_is_what_magnet_certs_writes():
     site = acl.Site("tls/0.0.0.0:7447", "tls/0.0.0.0:7448", Path("/etc/magnet/tls"))
-    shipped = (REPO / "deploy" / "router-secure.json5").read_text()
+    shipped = (REPO_ROOT / "deploy" / "router-secure.json5").read_text()
     body = shipped[shipped.index("{"):]
     assert json.loads(body) == acl.router_config(site)
     assert re.search(r"magnet certs", shipped)
