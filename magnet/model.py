@@ -1,6 +1,7 @@
 """The calibration model shared by every method, and the record that carries a calibration.
 
-Model (DESIGN.md section 3). A raw reading u (3-vector, raw unit) relates to the true field B in the body frame by
+Model (docs/design.md, "The calibration model"). A raw reading u (3-vector, raw unit) relates to the true field B
+in the body frame by
 
     u = K B + u0
 

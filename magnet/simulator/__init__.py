@@ -7,8 +7,9 @@ device is still at every sample (quasi-static: the accelerometer reads gravity o
 
     B_body = R^T B_ned,      f_body = R^T (0, 0, -g),      R = Rz(true heading) Ry(pitch) Rx(roll)
 
-Sensor model (DESIGN.md section 5). M is the magnetometer's orientation in the body (= accelerometer) frame, from the
-small angles ``misalignment_deg`` (roll, pitch, yaw); S the soft-iron / gain / cross-axis matrix; h the hard iron:
+Sensor model (docs/design.md, "Sensors and the simulator"). M is the magnetometer's orientation in the body
+(= accelerometer) frame, from the small angles ``misalignment_deg`` (roll, pitch, yaw); S the soft-iron / gain /
+cross-axis matrix; h the hard iron:
 
     mag_measured = S @ M^T @ B_body * (1 + tempco * (T - 25 C)) + h + noise (+ occasional spikes)
     acc_measured = f_body + noise
