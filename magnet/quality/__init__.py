@@ -27,6 +27,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from magnet.model import Calibration
+from magnet.quality.motion import check_consistency
 from magnet.units import UT_PER_UNIT, FieldUnit
 
 CELL_COUNT = 100
@@ -356,13 +357,14 @@ def _check_dip(q: Mapping[str, Any], t: GateThresholds) -> str | None:
     value = _num(q, "dip_spread_deg")
     if value is None or value <= t.max_dip_spread_deg:
         return None
-    return (f"dip-angle spread {value:.1f} deg > {t.max_dip_spread_deg:g} deg: hold still while sampling (the "
-            "accelerometer must see gravity only) and keep away from iron")
+    advice = ("keep away from iron and other devices" if q.get("dip_source") == "fused gravity" else
+              "hold still while sampling (the accelerometer must see gravity only) and keep away from iron")
+    return f"dip-angle spread {value:.1f} deg > {t.max_dip_spread_deg:g} deg: {advice}"
 
 
 #: the checks in the order their reasons are reported (the most fundamental first)
 _CHECKS = (_check_scatter, _check_coverage, _check_residual, _check_holdout, _check_radius, _check_soft_iron,
-           _check_dip)
+           _check_dip, check_consistency)
 
 
 def gate(quality: Mapping[str, Any], thresholds: GateThresholds | None = None) -> tuple[bool, str]:
