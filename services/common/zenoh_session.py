@@ -9,6 +9,7 @@ tcp/127.0.0.1:PORT`` and pass ``--no-multicast-scouting`` (``loopback_arguments`
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import signal
@@ -39,9 +40,39 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = 
     parser.set_defaults(_default_mode=default_mode)
 
 
-def config_json5(args: argparse.Namespace) -> dict[str, str]:
+@dataclasses.dataclass(frozen=True)
+class ZenohSettings:
+    """The Zenoh options above, typed (what a service's settings carry instead of the argparse Namespace)."""
+
+    config: str | None = None
+    mode: str | None = None
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    no_multicast_scouting: bool = False
+    prefix: str = DEFAULT_PREFIX
+    default_mode: str = "peer"
+
+    def __post_init__(self) -> None:
+        validate_prefix(self.prefix)
+        for mode in (self.mode, self.default_mode):
+            if mode is not None and mode not in MODES:
+                raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "ZenohSettings":
+        return cls(config=args.config, mode=args.mode, connect=tuple(args.connect), listen=tuple(args.listen),
+                   no_multicast_scouting=bool(args.no_multicast_scouting), prefix=args.prefix,
+                   default_mode=getattr(args, "_default_mode", "peer"))
+
+
+def _typed(args: "ZenohSettings | argparse.Namespace") -> ZenohSettings:
+    return args if isinstance(args, ZenohSettings) else ZenohSettings.from_args(args)
+
+
+def config_json5(args: "ZenohSettings | argparse.Namespace") -> dict[str, str]:
     """Config path -> json5 value for every option given (what ``build_config`` inserts)."""
-    mode = getattr(args, "mode", None) or getattr(args, "_default_mode", "peer")
+    args = _typed(args)
+    mode = args.mode or args.default_mode
     values = {"mode": json.dumps(mode)}
     if args.connect:
         values["connect/endpoints"] = json.dumps(list(args.connect))
@@ -52,11 +83,11 @@ def config_json5(args: argparse.Namespace) -> dict[str, str]:
     return values
 
 
-def build_config(args: argparse.Namespace):
+def build_config(args: "ZenohSettings | argparse.Namespace"):
     """A ``zenoh.Config`` from the file (if any) and the options. ValueError/OSError for a bad file or option."""
     import zenoh
 
-    validate_prefix(args.prefix)
+    args = _typed(args)
     if args.config:
         path = Path(args.config)
         if not path.is_file():
@@ -77,7 +108,7 @@ def build_config(args: argparse.Namespace):
     return conf
 
 
-def open_session(args: argparse.Namespace):
+def open_session(args: "ZenohSettings | argparse.Namespace"):
     """Open a session from the options; use it as a context manager so it is closed (or the process never exits)."""
     import zenoh
 
