@@ -47,7 +47,7 @@ from typing import Callable
 
 import numpy as np
 
-from magnet.model import IDENTITY, Calibration
+from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import motion
 from magnet.quality import GateThresholds, Geometry, assess, gate, scatter_condition, ut_per_unit
 
@@ -450,11 +450,12 @@ def fit(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None = None,
                      else None, holdout=holdout)
     if acc_arr is not None and geometry is Geometry.SPHERE:
         ev = _motion_evidence(acc_arr, gyr, period_s, len(mag))
-        quality.update(motion.motion_figures(mag, calibration, ev, _holdout_mask(len(mag)),
-                                             holdout[1] if holdout else None, reference or IDENTITY,
-                                             "the calibration in force" if reference else "no calibration"))
+        figures = motion.motion_figures(mag, calibration, ev, _holdout_mask(len(mag)), holdout[1] if holdout else None,
+                                        reference or IDENTITY,
+                                        "the calibration in force" if reference else "no calibration")
+        quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
-        quality["note"] = shape.note
+        quality = quality.with_extra(note=shape.note)
     accepted, reason = _gate(quality, gate)
     if shape.note:
         reason = f"{reason}; {shape.note}"
@@ -470,7 +471,7 @@ def _motion_evidence(acc: np.ndarray, gyr: np.ndarray | None, period_s: float | 
         raise FitError(str(exc)) from None
 
 
-def _gate(quality: dict, thresholds: GateThresholds | None) -> tuple[bool, str]:
+def _gate(quality: Quality, thresholds: GateThresholds | None) -> tuple[bool, str]:
     return gate(quality, thresholds or GateThresholds())
 
 

@@ -123,12 +123,20 @@ def test_calibration_message_carries_record_id_and_time():
     assert record["method"] == "ellipsoid" and record["id"] == cal.content_id and record["v"] == 1
 
 
-def test_singular_or_malformed_calibration_is_refused():
+@pytest.mark.parametrize("changes, words", [
+    ({"matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 0]]}, "condition number"),
+    ({"matrix": np.diag([1e9, 1, 1]).tolist()}, "condition number"),
+    ({"matrix": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]}, "negative determinant"),
+    ({"offset": [1e5, 0, 0]}, "offset"),
+    ({"offset": [1, 2]}, "3 numbers"),
+    ({"accepted": 1}, "true or false"),
+])
+def test_implausible_or_malformed_calibration_is_refused_on_the_wire(changes, words):
     record = wire.calibration_record("dev", Calibration("x", [0, 0, 0], np.eye(3)), 1)
-    with pytest.raises(wire.WireError):
-        wire.calibration_from_record({**record, "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 0]]})
-    with pytest.raises(wire.WireError):
-        wire.calibration_from_record({**record, "offset": [1, 2]})
+    for decode in (wire.calibration_from_record, lambda r: wire.decode_calibration(msgpack.packb(r))):
+        with pytest.raises(wire.WireError, match=words) as info:
+            decode({**record, **changes})
+        assert info.value.cause == "bad-calibration"
 
 
 @pytest.mark.parametrize("device", ["", "a/b", "a*", "$x", "q?", "h#", " lead", 5])

@@ -32,7 +32,7 @@ import numpy as np
 
 from magnet import fusion
 from magnet.attitude import quaternion_to_matrix
-from magnet.model import Calibration
+from magnet.model import Calibration, Quality
 
 #: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
 QUASI_STATIC_TOL = 0.03
@@ -135,12 +135,12 @@ def motion_figures(raw: np.ndarray, candidate: Calibration, ev: MotionEvidence, 
     return figures
 
 
-def _number(quality: Mapping[str, Any], key: str) -> float | None:
+def _number(quality: Quality | Mapping[str, Any], key: str) -> float | None:
     value = quality.get(key)
     return None if value is None or not math.isfinite(float(value)) else float(value)
 
 
-def check_consistency(quality: Mapping[str, Any], thresholds: Any = None) -> str | None:
+def check_consistency(quality: Quality | Mapping[str, Any], thresholds: Any = None) -> str | None:
     """The gate's check: refuse a fit whose held-out field is not more constant than the reference's (None: passes
     or not measured)."""
     held, ref = _number(quality, "holdout_consistency_deg"), _number(quality, "reference_holdout_consistency_deg")

@@ -15,7 +15,8 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
   it applied to one payload). Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``.
 - ``headings``: ``HeadingBatch``, the one heading encoder ``encode_headings`` (``encode_heading`` is it for one
   batch), ``decode_heading``; optional ``quat_wxyz`` and the ``DISTURBED`` flag bits.
-- ``records``: calibration records and calibration progress.
+- ``records``: ``DeviceCalibration`` (a device's calibration as published and stored; its one entry is
+  ``calibration_from_record``) and ``Progress``.
 """
 
 from magnet.wire.codec import (MAX_BATCH_SAMPLES, MAX_PAYLOAD_BYTES, WIRE_VERSION, check_version, pack,
@@ -27,11 +28,12 @@ from magnet.wire.keys import (DEFAULT_PREFIX, Kind, check_key, device_from_key, 
                               message_device, status_key, validate_device_id, validate_prefix)
 from magnet.wire.raw import (MAX_ACC_MS2, MAX_FIELD_UT, MAX_GYR_RADS, TRUTH_FIELDS, RawBatch, RawColumns,
                              decode_messages, decode_raw, decode_raw_many, encode_raw)
-from magnet.wire.records import (CalibrationMessage, calibration_from_record, calibration_record,
-                                 decode_calibration, decode_progress, encode_calibration, encode_progress)
+from magnet.wire.records import (CalibrationMessage, Collecting, DeviceCalibration, Progress, calibration_from_record,
+                                 calibration_record, decode_calibration, decode_progress, encode_calibration,
+                                 encode_progress)
 
 __all__ = [
-    "ANGLE_FIELDS", "CalibrationMessage", "DEFAULT_PREFIX", "DISTURBED", "DropCounter", "HeadingBatch", "Kind",
+    "ANGLE_FIELDS", "CalibrationMessage", "Collecting", "DeviceCalibration", "Progress", "DEFAULT_PREFIX", "DISTURBED", "DropCounter", "HeadingBatch", "Kind",
     "MAX_ACC_MS2", "MAX_BATCH_SAMPLES", "MAX_FIELD_UT", "MAX_GYR_RADS", "MAX_PAYLOAD_BYTES", "RawBatch", "RawColumns",
     "TRUTH_FIELDS", "WIRE_VERSION", "WireError", "calibration_from_record", "calibration_record", "check_key",
     "check_version", "decode_calibration", "decode_heading", "decode_messages", "decode_progress", "decode_raw",
