@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "watch": ("services.commands.remote", "print headings as they are published"),
     "calibrate": ("services.commands.remote", "start, follow, commit or abort a calibration session"),
     "up": ("services.commands.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
+    "dashboard": ("services.dashboard.service", "serve a live web page of the fleet (and calibration control)"),
 }
 
 

@@ -42,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
     parser.add_argument("--interval", type=float, help="seconds between views (default 0.5 on a terminal, else 3)")
     parser.add_argument("--prefix", default=wire.DEFAULT_PREFIX, help="key prefix")
+    parser.add_argument("--http", metavar="HOST:PORT",
+                        help="where the dashboard serves its page (default 127.0.0.1:8080, or a free port when taken)")
+    parser.add_argument("--no-dashboard", action="store_true", help="do not start the web dashboard")
 
 
 @dataclasses.dataclass
@@ -167,8 +170,11 @@ def _start_services(args: argparse.Namespace, ports: dict[str, int], db: Path, l
                  "--batch", str(args.batch), "--speedup", str(args.speedup), "--location", args.location,
                  *loopback_arguments(ports["edge"], [ports["calibrator"], ports["compass"]])],
     }
+    if ports.get("dashboard"):
+        commands["dashboard"] = ["dashboard", "--http", args.http, "--token", args.token, "--location", args.location,
+                                 *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES])]
     procs = {}
-    for name in SERVICES:
+    for name in commands:
         log_file = open(logs / f"{name}.log", "w")
         procs[name] = subprocess.Popen([sys.executable, "-m", "services.cli", *commands[name], *common],
                                        stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
@@ -188,6 +194,36 @@ def _stop_services(procs: dict[str, Any]) -> None:
             proc.wait()
 
 
+def _dashboard_address(args: argparse.Namespace, ports: dict[str, int]) -> str | None:
+    """Choose the dashboard's HTTP address and token (in ``args``) and its Zenoh port; the page's address."""
+    http_port = ports.pop("http")
+    if args.no_dashboard:
+        ports.pop("dashboard")
+        return None
+    import secrets
+
+    from services.dashboard.service import DEFAULT_HTTP, page_address, parse_http
+
+    if args.http is None:
+        host, port = parse_http(DEFAULT_HTTP)
+        if not _port_free(host, port):
+            port = http_port
+        args.http = f"{host}:{port}"
+    args.token = secrets.token_urlsafe(12)
+    return page_address(*parse_http(args.http), args.token)
+
+
+def _port_free(host: str, port: int) -> bool:
+    import socket
+
+    with socket.socket() as sock:
+        try:
+            sock.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
@@ -196,14 +232,17 @@ def run(args: argparse.Namespace) -> int:
     wire.validate_prefix(args.prefix)
     workdir = Path(tempfile.mkdtemp(prefix="magnet-up-"))
     db = args.db or workdir / "calibrations.db"
-    port_list = free_ports(4)
-    ports = dict(zip((*SERVICES, "view"), port_list))
+    port_list = free_ports(6)
+    ports = dict(zip((*SERVICES, "view", "dashboard", "http"), port_list))
     tty = sys.stdout.isatty() and os.environ.get("CI", "").lower() not in ("1", "true")
     interval = args.interval or (0.5 if tty else 3.0)
     stop = stop_event()
+    page = _dashboard_address(args, ports)
     procs = _start_services(args, ports, db, workdir)
     print(f"magnet up: calibrator, compass and {args.devices} emulated device(s) on 127.0.0.1 ports "
           f"{ports['calibrator']}, {ports['compass']}, {ports['edge']}; store {db}; logs in {workdir}", flush=True)
+    if page:
+        print(f"magnet up: dashboard at {page}", flush=True)
     conf = zenoh.Config()
     conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{ports["view"]}"]')
     conf.insert_json5("connect/endpoints", str([f"tcp/127.0.0.1:{ports[n]}" for n in SERVICES]).replace("'", '"'))
