@@ -47,7 +47,7 @@ from typing import Callable
 
 import numpy as np
 
-from magnet.model import Calibration
+from magnet.model import Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, scatter_condition, ut_per_unit
 
 
@@ -444,14 +444,14 @@ def fit(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None = None,
                      fitted_radius_ut=shape.radius * to_ut if to_ut is not None and geometry is Geometry.SPHERE
                      else None, holdout=holdout)
     if shape.note:
-        quality["note"] = shape.note
+        quality = quality.with_extra(note=shape.note)
     accepted, reason = _gate(quality, gate)
     if shape.note:
         reason = f"{reason}; {shape.note}"
     return calibration.replace(quality=quality, accepted=accepted, reason=reason)
 
 
-def _gate(quality: dict, thresholds: GateThresholds | None) -> tuple[bool, str]:
+def _gate(quality: Quality, thresholds: GateThresholds | None) -> tuple[bool, str]:
     return gate(quality, thresholds or GateThresholds())
 
 

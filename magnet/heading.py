@@ -11,6 +11,7 @@ Every function takes arrays of shape (..., 3) (a single (3,) sample works too) a
 from __future__ import annotations
 
 import enum
+import math
 
 import numpy as np
 
@@ -26,6 +27,7 @@ class HeadingFlag(enum.IntFlag):
     NO_TILT = 2          # no usable accelerometer sample: heading assumes the device is level
     FIELD_DISTURBED = 4  # |B| is far from the expected field strength (magnet, iron or bad calibration nearby)
     DIP_DISTURBED = 8    # the angle between field and gravity is far from the expected inclination
+    FUSED = 16           # attitude from the gyroscope-aided filter (magnet.fusion); without it, accelerometer tilt
 
 
 def wrap_deg(angle_deg) -> np.ndarray:
@@ -165,3 +167,17 @@ def disturbance_flags(field: np.ndarray, acc: np.ndarray | None, expected_ut: fl
         dip_off = np.abs(dip - expected_dip_deg) > dip_tol_deg
         flags |= np.where(dip_off & ~no_tilt, int(HeadingFlag.DIP_DISTURBED), 0)
     return flags
+
+
+def offset_removed_rms_deg(estimate_deg: np.ndarray, reference_deg: np.ndarray) -> float:
+    """RMS (degrees) of estimate - reference after removing one constant offset, their circular mean difference.
+
+    Both (N,) in degrees. The offset absorbs a reference whose north is arbitrary (an optical frame) or a constant
+    declination. NaN when there are no samples.
+    """
+    diff = np.radians(angle_difference_deg(estimate_deg, reference_deg))
+    if diff.size == 0:
+        return math.nan
+    offset = np.arctan2(np.sin(diff).mean(), np.cos(diff).mean())
+    residual = np.mod(diff - offset + np.pi, 2 * np.pi) - np.pi
+    return float(np.degrees(np.sqrt(np.mean(residual ** 2))))

@@ -1,6 +1,7 @@
-"""The calibration model shared by every method, and the record that carries a calibration.
+"""The calibration model shared by every method, and the one record that carries a calibration.
 
-Model (DESIGN.md section 3). A raw reading u (3-vector, raw unit) relates to the true field B in the body frame by
+Model (docs: the calibration model). A raw reading u (3-vector, raw unit) relates to the true field B in the body
+frame by
 
     u = K B + u0
 
@@ -11,6 +12,11 @@ iron. The correction inverts it:
 
 ``offset`` is b (raw unit), ``matrix`` is A (output unit per raw unit). The output unit is uT when the raw unit is
 known or an expected field strength in uT was given; otherwise it is the raw unit (see ``output_unit``).
+
+``Calibration`` is the one record, from fit to wire to store to compass. Its constructor checks shapes and finiteness
+(a fit may produce a poor calibration, which the quality gate then refuses); ``Calibration.from_dict`` is the one
+entry of a record from outside (a JSON file, a stored row, a message) and also checks that it is physically
+plausible (``check_plausible``): condition number, determinant, offset magnitude.
 """
 
 from __future__ import annotations
@@ -23,9 +29,22 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from magnet.units import ut_per_unit
+
+#: A correction matrix whose largest / smallest singular value exceeds this is not a sensor's (the gate refuses
+#: fits beyond 5; this entry check refuses what no fit of a real sensor gives).
+MAX_CONDITION = 10.0
+#: Largest plausible |offset| component: in uT where the raw unit converts to uT (a +-50 gauss range), else in raw
+#: units (a 24-bit converter).
+MAX_OFFSET_UT = 5_000.0
+MAX_OFFSET_RAW = float(2 ** 24)
+
 
 def _as_vector3(value: Any, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 3 numbers, got {type(value).__name__}") from None
     if arr.shape != (3,):
         raise ValueError(f"{name} must be 3 numbers, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -34,12 +53,118 @@ def _as_vector3(value: Any, name: str) -> np.ndarray:
 
 
 def _as_matrix3(value: Any, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a 3x3 matrix (row-major nested lists) of numbers") from None
     if arr.shape != (3, 3):
         raise ValueError(f"{name} must be a 3x3 matrix (row-major nested lists), got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} holds non-finite values")
     return arr
+
+
+def _optional_number(value: Any, name: str) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"quality figure {name} must be a number or null, got {type(value).__name__}")
+    return float(value)
+
+
+def _optional_int(value: Any, name: str) -> int | None:
+    number = _optional_number(value, name)
+    if number is None:
+        return None
+    if not number.is_integer():
+        raise ValueError(f"quality figure {name} must be a whole number, got {value!r}")
+    return int(number)
+
+
+#: Quality's typed figures in the order they are written, and how each is read
+_FIGURES: dict[str, Any] = {
+    "geometry": None, "residual_rms": _optional_number, "residual_rms_ut": _optional_number,
+    "residual_rms_pct": _optional_number, "coverage": _optional_number, "cells_hit": _optional_int,
+    "cell_count": _optional_int, "missing_directions": None, "radius": _optional_number,
+    "expected_field_ut": _optional_number, "radius_ratio": _optional_number,
+    "soft_iron_condition": _optional_number, "scatter_condition": _optional_number,
+    "dip_spread_deg": _optional_number, "holdout_rms_ut": _optional_number, "holdout_rms_pct": _optional_number,
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Quality:
+    """Figures of merit of a calibration (see ``magnet.quality.figures``); None where a figure does not apply.
+
+    geometry: "sphere", "circle" or "turntable" (None: not assessed); residual_rms (output unit), residual_rms_ut
+    (uT), residual_rms_pct (% of the expected magnitude): RMS of |B| - expected; coverage in [0, 1] with cells_hit of
+    cell_count and missing_directions (advice phrases); radius (fitted, uT) and expected_field_ut (WMM) with their
+    radius_ratio; soft_iron_condition and scatter_condition (ratios); dip_spread_deg (deg); holdout_rms_ut and
+    holdout_rms_pct on held-out samples. extra: figures a method adds (``note``, ``vector_rms``, ``selftest``, ...),
+    JSON-able. Serialized as one flat map (``to_dict``); ``quality["key"]`` reads a figure by that map's key.
+    """
+
+    geometry: str | None = None
+    residual_rms: float | None = None
+    residual_rms_ut: float | None = None
+    residual_rms_pct: float | None = None
+    coverage: float | None = None
+    cells_hit: int | None = None
+    cell_count: int | None = None
+    missing_directions: tuple[str, ...] = ()
+    radius: float | None = None
+    expected_field_ut: float | None = None
+    radius_ratio: float | None = None
+    soft_iron_condition: float | None = None
+    scatter_condition: float | None = None
+    dip_spread_deg: float | None = None
+    holdout_rms_ut: float | None = None
+    holdout_rms_pct: float | None = None
+    extra: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __getitem__(self, key: str) -> Any:
+        if key in _FIGURES:
+            value = getattr(self, key)
+            return list(value) if key == "missing_directions" else value
+        return self.extra[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """A figure by its map key, or ``default`` when absent or None."""
+        try:
+            value = self[key]
+        except KeyError:
+            return default
+        return default if value is None else value
+
+    def with_extra(self, **figures: Any) -> "Quality":
+        """A copy with more method-specific figures."""
+        return dataclasses.replace(self, extra={**self.extra, **figures})
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able flat map: every typed figure once assessed (else those set), then ``extra``."""
+        assessed = self.geometry is not None
+        out = {key: self[key] for key in _FIGURES if assessed or getattr(self, key) not in (None, ())}
+        return _jsonable({**out, **self.extra})
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None) -> "Quality":
+        """Read the flat map ``to_dict`` writes (unknown keys go to ``extra``); ValueError when a figure has the
+        wrong type."""
+        if data is None:
+            return cls()
+        if isinstance(data, Quality):
+            return data
+        if not isinstance(data, Mapping):
+            raise ValueError(f"quality must be a map of figures, got {type(data).__name__}")
+        typed = {key: reader(data[key], key) for key, reader in _FIGURES.items() if reader and key in data}
+        geometry = data.get("geometry")
+        if geometry is not None and not isinstance(geometry, str):
+            raise ValueError("quality figure geometry must be a string")
+        missing = data.get("missing_directions") or ()
+        if not isinstance(missing, (list, tuple)) or not all(isinstance(m, str) for m in missing):
+            raise ValueError("quality figure missing_directions must be a list of strings")
+        extra = {str(k): v for k, v in data.items() if k not in _FIGURES}
+        return cls(geometry=geometry, missing_directions=tuple(missing), extra=extra, **typed)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -55,7 +180,7 @@ class Calibration:
         sample_count: number of samples the fit used.
         unit: the raw unit (``ut``, ``gauss``, ``nt``, ``counts`` or a free word such as ``gamma-codes``).
         output_unit: unit of the corrected field (``ut`` or the raw unit).
-        quality: figures of merit (see ``magnet.quality``), JSON-able.
+        quality: figures of merit (``Quality``; a map of them is read with ``Quality.from_dict``).
         accepted: whether the quality gate accepted the fit.
         reason: why it was rejected (or notes when accepted), in words a person can act on.
     """
@@ -67,13 +192,14 @@ class Calibration:
     sample_count: int = 0
     unit: str = "ut"
     output_unit: str = "ut"
-    quality: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    quality: Quality = dataclasses.field(default_factory=Quality)
     accepted: bool = True
     reason: str = ""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "offset", _as_vector3(self.offset, "offset"))
         object.__setattr__(self, "matrix", _as_matrix3(self.matrix, "matrix"))
+        object.__setattr__(self, "quality", Quality.from_dict(self.quality))
         if not math.isfinite(float(self.field_strength)) or self.field_strength < 0:
             raise ValueError(f"field_strength must be a finite number >= 0, got {self.field_strength!r}")
 
@@ -108,31 +234,79 @@ class Calibration:
             "sample_count": int(self.sample_count),
             "unit": self.unit,
             "output_unit": self.output_unit,
-            "quality": _jsonable(dict(self.quality)),
+            "quality": self.quality.to_dict(),
             "accepted": bool(self.accepted),
             "reason": self.reason,
         }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "Calibration":
-        """Read a record as ``to_dict`` writes it; ``offset`` and ``matrix`` are enough."""
+        """The one entry of a record from outside (file, store, wire): read it as ``to_dict`` writes it (``offset``
+        and ``matrix`` are enough) and check it is plausible (``check_plausible``); ValueError saying what is wrong."""
         if not isinstance(data, Mapping):
             raise ValueError("a calibration must be a JSON object with at least 'offset' and 'matrix'")
         missing = [key for key in ("offset", "matrix") if key not in data]
         if missing:
             raise ValueError(f"calibration is missing {', '.join(missing)}: a record as 'magnet fit' writes it is needed")
-        return cls(
-            method=str(data.get("method", "manual")),
+        calibration = cls(
+            method=_text(data, "method", "manual"),
             offset=data["offset"],
             matrix=data["matrix"],
-            field_strength=float(data.get("field_strength", 0.0) or 0.0),
-            sample_count=int(data.get("sample_count", 0) or 0),
-            unit=str(data.get("unit", "ut")),
-            output_unit=str(data.get("output_unit", "ut")),
-            quality=dict(data.get("quality", {}) or {}),
-            accepted=bool(data.get("accepted", True)),
-            reason=str(data.get("reason", "")),
+            field_strength=_number(data, "field_strength"),
+            sample_count=int(_number(data, "sample_count")),
+            unit=_text(data, "unit", "ut"),
+            output_unit=_text(data, "output_unit", "ut"),
+            quality=Quality.from_dict(data.get("quality")),
+            accepted=_flag(data, "accepted"),
+            reason=_text(data, "reason", ""),
         )
+        return check_plausible(calibration)
+
+
+def check_plausible(calibration: Calibration) -> Calibration:
+    """``calibration`` if a real sensor could have it, else ValueError naming what is wrong and what to do.
+
+    Checks: the matrix's condition number (largest / smallest singular value) <= MAX_CONDITION, its determinant > 0
+    (no reflection: it would mirror every heading), and each offset component within MAX_OFFSET_UT (uT, where the raw
+    unit converts to uT) or MAX_OFFSET_RAW (raw units otherwise)."""
+    singular = np.linalg.svd(calibration.matrix, compute_uv=False)
+    condition = singular[0] / singular[-1] if singular[-1] > 0 else math.inf
+    if not condition <= MAX_CONDITION:
+        raise ValueError(f"calibration matrix condition number {condition:.3g} exceeds {MAX_CONDITION:g}: it is "
+                         "singular or absurdly anisotropic; fit again from data covering all attitudes")
+    if np.linalg.det(calibration.matrix) <= 0:
+        raise ValueError("calibration matrix has a negative determinant (a reflection, which mirrors headings): "
+                         "check the axis signs and fit again")
+    to_ut = ut_per_unit(calibration.unit)
+    limit, unit = (MAX_OFFSET_UT / to_ut, calibration.unit) if to_ut else (MAX_OFFSET_RAW, calibration.unit)
+    worst = float(np.abs(calibration.offset).max())
+    if worst > limit:
+        raise ValueError(f"calibration offset {worst:.4g} {unit} exceeds {limit:.4g} {unit}: no sensor reads that; "
+                         "check the record's unit and fit again")
+    return calibration
+
+
+def _text(data: Mapping[str, Any], name: str, default: str) -> str:
+    value = data.get(name, default)
+    if value is None:
+        return default
+    if not isinstance(value, str):
+        raise ValueError(f"calibration field {name} must be a string, got {type(value).__name__}")
+    return value
+
+
+def _number(data: Mapping[str, Any], name: str) -> float:
+    value = data.get(name) or 0
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"calibration field {name} must be a finite number >= 0, got {value!r}")
+    return float(value)
+
+
+def _flag(data: Mapping[str, Any], name: str) -> bool:
+    value = data.get(name, True)
+    if not isinstance(value, bool):
+        raise ValueError(f"calibration field {name} must be true or false, got {value!r}")
+    return value
 
 
 IDENTITY = Calibration(method="identity", offset=np.zeros(3), matrix=np.eye(3), reason="no calibration")

@@ -144,6 +144,7 @@ def fit_turntable(mag: np.ndarray, mounting: np.ndarray, heading_deg: np.ndarray
                               matrix=np.linalg.inv(k), field_strength=strength, sample_count=len(mag), unit=unit,
                               output_unit=field_unit)
     quality = assess(mag, calibration, geometry=Geometry.TURNTABLE)
-    quality["vector_rms"] = float(np.sqrt(np.mean(np.sum((calibration.apply(mag) - field) ** 2, axis=1))))
+    vector_rms = float(np.sqrt(np.mean(np.sum((calibration.apply(mag) - field) ** 2, axis=1))))
+    quality = quality.with_extra(vector_rms=vector_rms)
     accepted, reason = gate(quality, gate_thresholds)
     return calibration.replace(quality=quality, accepted=accepted, reason=reason)

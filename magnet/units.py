@@ -34,3 +34,14 @@ UT_PER_UNIT: dict[FieldUnit, float | None] = {
 }
 
 STANDARD_GRAVITY_MS2 = 9.80665
+
+_UNIT_ALIASES = {"gamma": "nt", "g": "gauss", "microtesla": "ut", "µt": "ut"}
+
+
+def ut_per_unit(unit: str) -> float | None:
+    """uT per one raw unit, or None when the unit has no known scale (``counts``, free words)."""
+    name = unit.strip().lower()
+    try:
+        return UT_PER_UNIT[FieldUnit(_UNIT_ALIASES.get(name, name))]
+    except ValueError:
+        return None

@@ -9,10 +9,11 @@ calibrator's SQLite behind its queryables.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 
 from magnet import wire
-from services.common.zenoh_session import add_zenoh_arguments, open_session, stop_event
+from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments, open_session, stop_event
 
 log = logging.getLogger("magnet.router")
 
@@ -25,16 +26,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(parser, default_mode="router")
 
 
-def run(args: argparse.Namespace) -> int:
-    if not args.listen and not args.config:
-        args.listen = [DEFAULT_LISTEN]
+@dataclasses.dataclass(frozen=True)
+class RouterSettings:
+    """The router's name (liveliness token) and Zenoh options; ``loopback_default``: it listens on DEFAULT_LISTEN
+    because neither --listen nor --config was given."""
+
+    name: str = "router"
+    zenoh: ZenohSettings = ZenohSettings(listen=(DEFAULT_LISTEN,), default_mode="router")
+    loopback_default: bool = False
+
+
+def settings_from_args(args: argparse.Namespace) -> RouterSettings:
+    zenoh = ZenohSettings.from_args(args)
+    default = not zenoh.listen and not zenoh.config
+    if default:
+        zenoh = dataclasses.replace(zenoh, listen=(DEFAULT_LISTEN,))
+    return RouterSettings(args.name, zenoh, default)
+
+
+def run_router(args: argparse.Namespace) -> int:
+    """``magnet router``: the settings from the options, then ``run``."""
+    return run(settings_from_args(args))
+
+
+def run(settings: RouterSettings) -> int:
+    if settings.loopback_default:
         log.warning("router listens on %s only: give --listen tcp/<interface address>:7447 (or a config from "
                     "deploy/) to serve other hosts", DEFAULT_LISTEN)
     stop = stop_event()
-    with open_session(args) as session:
-        token = session.liveliness().declare_token(wire.liveliness_key(args.prefix, "router", args.name))
-        log.info("router %s up (zid %s), listening on %s", args.name, session.zid(), ", ".join(args.listen) or
-                 "the config's endpoints")
+    with open_session(settings.zenoh) as session:
+        token = session.liveliness().declare_token(wire.liveliness_key(settings.zenoh.prefix, "router", settings.name))
+        log.info("router %s up (zid %s), listening on %s", settings.name, session.zid(),
+                 ", ".join(settings.zenoh.listen) or "the config's endpoints")
         while not stop.wait(0.5):
             pass
         token.undeclare()

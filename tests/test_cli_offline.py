@@ -7,20 +7,22 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import MAGNET
 
 FIELD_UT = 50.0
 INCLINATION_DEG = 60.0
 HARD_IRON_UT = np.array([35.0, -20.0, 12.0])
 SOFT_IRON = np.array([[1.10, 0.05, -0.02], [0.05, 0.92, 0.03], [-0.02, 0.03, 1.04]])
 
+pytestmark = pytest.mark.integration
+
 
 def magnet(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "services.cli", *args], capture_output=True, text=True, cwd=cwd,
+    return subprocess.run([*MAGNET, *args], capture_output=True, text=True, cwd=cwd,
                           timeout=120)
 
 

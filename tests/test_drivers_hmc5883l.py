@@ -5,7 +5,7 @@ import errno
 import numpy as np
 import pytest
 
-from magnet.drivers.base import RetryPolicy, SensorError
+from magnet.drivers.base import RetryPolicy, SensorError, SensorReadError
 from magnet.drivers.hmc5883l import HMC5883L, HMC5883LSettings, Mode
 from magnet.emulators.base import ConstantSource, FaultInjector
 from magnet.emulators.hmc5883l import HMC5883LEmulator
@@ -17,7 +17,7 @@ NO_SLEEP = dict(sleep=lambda s: None)
 def read_ready(sensor, polls=5):
     for _ in range(polls):
         reading = sensor.read()
-        if reading.ready or reading.failed:
+        if reading.ready:
             return reading
     return reading
 
@@ -110,13 +110,17 @@ def test_transient_errors_are_retried_and_counted(code):
     assert delays == [0.002, 0.004]              # bounded exponential backoff, injected sleep
 
 
-def test_persistent_failure_flags_reading_and_health_then_recovers():
+def test_persistent_failure_raises_after_the_retries_flags_health_then_recovers():
     faults = FaultInjector()
     sensor = HMC5883L(HMC5883LEmulator(ConstantSource(), faults=faults), retry=RetryPolicy(attempts=3),
                       **NO_SLEEP)
-    faults.probability = 1.0
-    readings = [sensor.read() for _ in range(3)]
-    assert all(r.failed and r.mag_ut is None for r in readings)
+    faults.probability = 1.0                     # a dead bus: every transfer fails with EIO
+    for _ in range(3):
+        before = faults.injected
+        with pytest.raises(SensorReadError, match="HMC5883L read failed") as raised:
+            sensor.read()
+        assert isinstance(raised.value, OSError) and raised.value.errno == errno.EIO
+        assert faults.injected - before == 3     # the driver's 3 attempts, then the error
     assert not sensor.health.healthy and sensor.health.failed_reads == 3
     faults.probability = 0.0
     assert sensor.read().ok and sensor.health.healthy
@@ -127,7 +131,9 @@ def test_non_transient_error_is_not_retried():
     sensor.device.address = 0x1F                 # nobody there... as EREMOTEIO (retried); ENODEV is not:
     sensor.device.bus = type("Gone", (), {"read_byte_data": lambda *a: (_ for _ in ()).throw(
         OSError(errno.ENODEV, "No such device"))})()
-    assert sensor.read().failed and sensor.health.retries == 0
+    with pytest.raises(SensorReadError) as raised:
+        sensor.read()
+    assert raised.value.errno == errno.ENODEV and sensor.health.retries == 0
 
 
 def test_self_test_restores_configuration():

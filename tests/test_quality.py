@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import numpy as np
@@ -150,7 +151,7 @@ def test_assess_dip_spread_and_soft_iron_condition():
     assert assess(field, identity, acc=acc)["dip_spread_deg"] < 1e-5
     ok, reason = gate(q)
     assert not ok and "soft-iron axis ratio 4.00" not in reason  # 4 is within the default limit of 5
-    assert not gate({**q, "soft_iron_condition": 7.0})[0]
+    assert not gate(dataclasses.replace(q, soft_iron_condition=7.0))[0]
 
 
 def test_minmax2d_refuses_a_tilted_ellipse_with_fitting_advice():

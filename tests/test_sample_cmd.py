@@ -6,7 +6,11 @@ import io
 import numpy as np
 import pytest
 
+from magnet.drivers import SensorReadError, open_sensor
+from magnet.emulators.base import ConstantSource, FaultInjector
+from magnet.emulators.hmc5883l import HMC5883LEmulator
 from services.cli import main
+from services.commands.sample import GIVE_UP_AFTER, SampleSettings, read_loop
 
 
 def run_cli(capsys, *argv):
@@ -54,6 +58,29 @@ def test_sample_bad_input_is_one_line(capsys):
     assert code == 2 and "unknown --trajectory 'loop'" in err
     code, _, err = run_cli(capsys, "sample", "--sensor", "hmc5883l")
     assert code == 2 and "--bus" in err
+
+
+def test_sample_gives_up_on_a_dead_bus_with_a_clear_error_after_bounded_backoff():
+    faults = FaultInjector()
+    sensor = open_sensor("hmc5883l", HMC5883LEmulator(ConstantSource(), faults=faults), sleep=lambda s: None)
+    faults.probability = 1.0                     # the bus dies after set-up
+    slept = []
+    loop = read_loop(sensor, SampleSettings(sensor="hmc5883l", emulate=True), sleep=slept.append)
+    with pytest.raises(SensorReadError, match=f"no usable reading after {GIVE_UP_AFTER} failures in a row"):
+        loop.next()
+    assert loop.stats.errors == loop.stats.attempts == GIVE_UP_AFTER
+    assert len(slept) == GIVE_UP_AFTER - 1 and max(slept) <= 1.0 and slept == sorted(slept)
+
+
+@pytest.mark.parametrize("argv,message", [
+    (("--rate", "0"), "--rate must be > 0"),
+    (("--orientation", "sideways"), "unknown orientation 'sideways'"),
+    (("--hard-iron", "1,2"), "--hard-iron needs 3 numbers"),
+    (("--location", "999,0"), "latitude"),
+])
+def test_sample_settings_are_checked_before_anything_runs(capsys, argv, message):
+    code, out, err = run_cli(capsys, "sample", "--sensor", "hmc5883l", "--emulate", *argv)
+    assert code == 2 and message in err and out == "" and len(err.strip().splitlines()) == 1
 
 
 def test_selftest_emulated_corrects_gain_error(capsys):

@@ -5,16 +5,17 @@ from __future__ import annotations
 import json
 import re
 import subprocess
-import sys
 
 import numpy as np
 import pytest
+from helpers import MAGNET
 
 HARD_IRON_UT = np.array([25.0, -40.0, 12.0])
 SOFT_IRON = np.array([[1.08, 0.03, -0.02], [0.03, 0.95, 0.01], [-0.02, 0.01, 1.02]])
 SOFT_IRON_ARG = ",".join(f"{v:g}" for v in SOFT_IRON.ravel())
 HARD_IRON_ARG = ",".join(f"{v:g}" for v in HARD_IRON_UT)
-MAGNET = [sys.executable, "-m", "services.cli"]
+
+pytestmark = pytest.mark.integration
 
 
 def sample(*options: str) -> subprocess.CompletedProcess:

@@ -1,15 +1,21 @@
 """The services' logic without Zenoh: the calibrator's collection, gate, sessions and store; the compass's maths."""
 
+import json
+
 import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.collection import Collection, fine_cells
+from magnet.compass import Earth
 from magnet.heading import HeadingFlag
 from magnet.model import Calibration
 from magnet.simulator import SensorErrors, SimulatorConfig, simulate
-from services.calibrator.service import Calibrator, CalibratorSettings, Collection, fine_cells
-from services.compass.service import Compass, Earth
+from services.calibrator.queries import MAX_HISTORY_LIMIT, history_limit
+from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
+from services.commands.heading import load_calibration
+from services.compass.service import Compass
 
 HARD = np.array([30.0, -12.0, 8.0])
 SOFT = np.array([[1.1, 0.04, 0.0], [0.04, 0.9, 0.02], [0.0, 0.02, 1.0]])
@@ -64,15 +70,15 @@ def test_automatic_calibration_is_stored_published_and_then_collection_stops(sto
     calibrator = _calibrator(store, published)
     _feed(calibrator, _run())
     record = store.latest("d")
-    assert record is not None and record["accepted"]
-    np.testing.assert_allclose(record["offset"], HARD, atol=1.0)
+    assert record is not None and record.calibration.accepted
+    np.testing.assert_allclose(record.calibration.offset, HARD, atol=1.0)
     assert calibrator.state("d").value == "calibrated" and "d" not in calibrator.collections
     kinds = [k for k, d, p in published]
     assert wire.Kind.CALIBRATION in kinds and wire.Kind.PROGRESS in kinds
-    assert wire.decode_calibration([p for k, d, p in published if k is wire.Kind.CALIBRATION][0]).id == record["id"]
+    assert wire.decode_calibration([p for k, d, p in published if k is wire.Kind.CALIBRATION][0]).id == record.id
     # a restarted calibrator serves what it stored
     again = _calibrator(store, [])
-    assert again.in_force["d"]["id"] == record["id"] and again.state("d").value == "calibrated"
+    assert again.in_force["d"].id == record.id and again.state("d").value == "calibrated"
 
 
 def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
@@ -85,7 +91,7 @@ def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
     progress = wire.decode_progress([p for k, d, p in published if k is wire.Kind.PROGRESS][-1])
     assert progress["state"] == "collecting" and progress["coverage"] < 0.5, progress
     assert progress["missing"] and "coverage" in progress["reason"], progress
-    assert calibrator.counters["accepted"] == 0
+    assert calibrator.counters.accepted == 0
 
 
 def test_session_commit_abort_and_status(store):
@@ -98,7 +104,7 @@ def test_session_commit_abort_and_status(store):
     _feed(calibrator, _run())
     assert store.latest("d") is None, "a session stores only on commit"
     committed = calibrator.session("d", "commit", None)
-    assert committed["ok"] and committed["calibration"]["id"] == store.latest("d")["id"]
+    assert committed["ok"] and committed["calibration"]["id"] == store.latest("d").id
     assert calibrator.session("d", "status", None)["state"] == "calibrated"
     with pytest.raises(ValueError):
         calibrator.session("d", "explode", None)
@@ -142,3 +148,33 @@ def test_compass_identity_when_uncalibrated_matches_raw_field():
     np.testing.assert_allclose(out.heading_deg, [45.0, 270.0], atol=1e-9)
     np.testing.assert_allclose(out.pitch_deg, 0.0, atol=1e-9)
     assert Calibration  # the record type the compass applies
+
+
+def test_compass_refuses_an_implausible_calibration_and_keeps_the_one_in_force():
+    compass = Compass(Earth(), window=1)
+    genuine = Calibration("ellipsoid", [10.0, 0.0, 0.0], np.eye(3))
+    compass.accept_calibration(wire.encode_calibration("k", genuine, 1), "magnet/k/calibration", "magnet")
+    for matrix in ([[-1, 0, 0], [0, 1, 0], [0, 0, 1]], np.diag([1e9, 1, 1]).tolist()):
+        forged = {**wire.calibration_record("k", genuine, 2), "offset": [100.0, 0, 0], "matrix": matrix}
+        compass.accept_calibration(wire.pack(forged), "magnet/k/calibration", "magnet")
+    assert compass.calibrations["k"].id == genuine.content_id
+    assert compass.drops.counts == {"calibration:bad-calibration": 2}
+
+
+def test_heading_command_refuses_an_implausible_calibration_file(tmp_path):
+    path = tmp_path / "cal.json"
+    good = Calibration("ellipsoid", [1.0, 2.0, 3.0], np.diag([1.0, 1.1, 0.9])).to_dict()
+    path.write_text(json.dumps(good))
+    assert load_calibration(str(path)).content_id == Calibration.from_dict(good).content_id
+    for matrix, words in (([[1, 0, 0], [0, 1, 0], [0, 0, 0]], "condition number"),
+                          ([[0, 1, 0], [1, 0, 0], [0, 0, 1]], "negative determinant")):
+        path.write_text(json.dumps({**good, "matrix": matrix}))
+        with pytest.raises(ValueError, match=f"cal.json: calibration matrix .*{words}"):
+            load_calibration(str(path))
+
+
+def test_history_limit_is_clamped_and_refuses_words():
+    assert history_limit(None) == 100 and history_limit("3") == 3 and history_limit("-4") == 0
+    assert history_limit("9" * 30) == MAX_HISTORY_LIMIT
+    with pytest.raises(ValueError, match="whole number"):
+        history_limit("lots")

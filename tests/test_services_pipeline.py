@@ -14,99 +14,37 @@ import os
 import signal
 import subprocess
 import sys
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import (MAGNET, NO_SCOUT, connect_args, free_ports, liveliness_keys, listen_args, magnet_json, wait_for,
+                     wait_for_liveliness)
 
 from magnet.heading import angle_difference_deg
-from services.common.zenoh_session import free_ports
 
-MAGNET = [sys.executable, "-m", "services.cli"]
-NO_SCOUT = ["--no-multicast-scouting"]
 HARD_IRON = np.array([25.0, -15.0, 10.0])
 SOFT_IRON = "1.10,0.05,0,0.05,0.92,0.02,0,0.02,1.0"
 LOCATION = "50.45,30.52"
 
-
-def _listen(port):
-    return [*NO_SCOUT, "--listen", f"tcp/127.0.0.1:{port}"]
-
-
-def _connect(*ports):
-    return [arg for port in ports for arg in ("--connect", f"tcp/127.0.0.1:{port}")]
-
-
-class Processes:
-    """Services started for one test, logs in tmp_path, all stopped at the end."""
-
-    def __init__(self, tmp_path: Path) -> None:
-        self.tmp_path, self.procs = tmp_path, {}
-
-    def start(self, name, *args):
-        log = open(self.tmp_path / f"{name}.log", "w")
-        self.procs[name] = subprocess.Popen([*MAGNET, *args], stdout=log, stderr=subprocess.STDOUT,
-                                            cwd=Path(__file__).resolve().parents[1])
-        return self.procs[name]
-
-    def alive(self, name):
-        return self.procs[name].poll() is None
-
-    def log(self, name):
-        return (self.tmp_path / f"{name}.log").read_text()
-
-    def stop_all(self):
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for name, proc in self.procs.items():
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-
-
-@pytest.fixture
-def procs(tmp_path):
-    p = Processes(tmp_path)
-    yield p
-    p.stop_all()
-
-
-def magnet(*args, timeout=15):
-    """Run a remote tool; (exit status, JSON lines)."""
-    out = subprocess.run([*MAGNET, *args], capture_output=True, text=True, timeout=timeout)
-    return out.returncode, [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
-
-
-def wait_for(check, timeout_s, what):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        result = check()
-        if result:
-            return result
-        time.sleep(0.3)
-    pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+pytestmark = pytest.mark.integration
 
 
 def get_calibration(device, port):
-    code, lines = magnet("get", "calibration", device, *NO_SCOUT, *_connect(port), "--timeout", "2")
+    code, lines = magnet_json("get", "calibration", device, *NO_SCOUT, *connect_args(port), "--timeout", "2")
     return lines[0] if code == 0 and lines else None
 
 
 def get_status(service, port):
-    code, lines = magnet("get", "status", service, *NO_SCOUT, *_connect(port), "--timeout", "2")
+    code, lines = magnet_json("get", "status", service, *NO_SCOUT, *connect_args(port), "--timeout", "2")
     return lines[0] if code == 0 and lines else None
 
 
 def start_pipeline(procs, tmp_path, device, sensor, cal_port, comp_port, edge_port):
-    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "cal.db"), *_listen(cal_port))
-    procs.start("compass", "compass", "--location", LOCATION, *_listen(comp_port), *_connect(cal_port))
+    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "cal.db"), *listen_args(cal_port))
+    procs.start("compass", "compass", "--location", LOCATION, *listen_args(comp_port), *connect_args(cal_port))
     procs.start("edge", "edge", "--device", device, "--sensor", sensor, "--emulate", "--rate", "500", "--batch", "25",
                 "--hard-iron", ",".join(map(str, HARD_IRON)), "--soft-iron", SOFT_IRON, "--location", LOCATION,
-                "--trajectory-samples", "2000", *_listen(edge_port), *_connect(cal_port, comp_port))
+                "--trajectory-samples", "2000", *listen_args(edge_port), *connect_args(cal_port, comp_port))
 
 
 def test_emulated_lsm303dlh_is_calibrated_and_headings_match_the_truth(procs, tmp_path):
@@ -119,9 +57,9 @@ def test_emulated_lsm303dlh_is_calibrated_and_headings_match_the_truth(procs, tm
 
     # headings and raw batches (which carry the simulator's truth) of the same batches, joined by seq
     watch = [*NO_SCOUT, "--count", "60"]
-    headings = subprocess.Popen([*MAGNET, "watch", "heading", "lsm-1", *watch, *_connect(comp_port)],
+    headings = subprocess.Popen([*MAGNET, "watch", "heading", "lsm-1", *watch, *connect_args(comp_port)],
                                 stdout=subprocess.PIPE, text=True)
-    raws = subprocess.Popen([*MAGNET, "watch", "raw", "lsm-1", *watch, *_connect(edge_port)],
+    raws = subprocess.Popen([*MAGNET, "watch", "raw", "lsm-1", *watch, *connect_args(edge_port)],
                             stdout=subprocess.PIPE, text=True)
     heading_out, _ = headings.communicate(timeout=30)
     raw_out, _ = raws.communicate(timeout=30)
@@ -141,13 +79,13 @@ def test_emulated_lsm303dlh_is_calibrated_and_headings_match_the_truth(procs, tm
     print(f"true heading RMS error {rms:.3f} deg over {len(errors)} samples")
     assert rms < 2.0, f"true heading RMS error {rms:.2f} deg"
 
-    code, lines = magnet("get", "calibration", "lsm-1", "--history", *NO_SCOUT, *_connect(cal_port))
+    code, lines = magnet_json("get", "calibration", "lsm-1", "--history", *NO_SCOUT, *connect_args(cal_port))
     assert code == 0 and lines[0]["records"][0]["id"] == record["id"]
     assert lines[0]["records"][0]["matrix"] == record["matrix"]
 
 
 GARBAGE = r"""
-import sys, msgpack, zenoh
+import sys, threading, msgpack, zenoh
 conf = zenoh.Config()
 conf.insert_json5("connect/endpoints", '["tcp/127.0.0.1:%s", "tcp/127.0.0.1:%s"]' % (sys.argv[1], sys.argv[2]))
 conf.insert_json5("scouting/multicast/enabled", "false")
@@ -155,13 +93,25 @@ good = {"v": 1, "device": "g-1", "seq": 0, "sensor": "x", "t_ns": [1], "mag_ut":
 payloads = [b"\xc1not msgpack", msgpack.packb([1, 2]), msgpack.packb({**good, "v": 9}),
             msgpack.packb({**good, "mag_ut": [[float("nan"), 0.0, 0.0]]}), msgpack.packb({**good, "mag_ut": [[1e9, 0, 0]]}),
             msgpack.packb({**good, "mag_ut": [[1.0, 2.0]]}), msgpack.packb({**good, "device": "other"}), b"\x00" * 5_000_000]
+services = {"magnet/@alive/compass/compass", "magnet/@alive/calibrator/calibrator"}
+seen, reachable = set(), threading.Event()
+
+
+def on_token(sample):
+    seen.add(str(sample.key_expr))
+    if services <= seen:
+        reachable.set()
+
+
 with zenoh.open(conf) as session:
-    import time; time.sleep(0.5)
+    # connected to both services (their tokens, like their subscribers, arrive once the link is up) before putting
+    session.liveliness().declare_subscriber("magnet/@alive/**", on_token, history=True)
+    assert reachable.wait(20), f"compass and calibrator not reachable: {seen}"
     for payload in payloads:
         session.put("magnet/g-1/raw", payload)
         session.put("magnet/g-1/calibration", payload)
     session.put("magnet/g-1/calibration", msgpack.packb({"v": 1, "device": "g-1", "offset": [0, 0], "matrix": [[1]]}))
-    time.sleep(0.5)
+    replies = list(session.get("magnet/@status/*", timeout=5))  # answered after the puts on the same links
 """
 
 
@@ -172,17 +122,17 @@ def test_restarts_keep_calibrations_and_garbage_is_counted(procs, tmp_path):
 
     os.kill(procs.procs["calibrator"].pid, signal.SIGKILL)
     procs.procs["calibrator"].wait()
-    procs.start("calibrator2", "calibrator", "--db", str(tmp_path / "cal.db"), *_listen(cal2_port),
-                *_connect(comp_port, edge_port))
+    procs.start("calibrator2", "calibrator", "--db", str(tmp_path / "cal.db"), *listen_args(cal2_port),
+                *connect_args(comp_port, edge_port))
     again = wait_for(lambda: get_calibration("sim-1", cal2_port), 20, "the stored calibration after kill -9")
     assert again == first
 
     procs.procs["compass"].send_signal(signal.SIGTERM)
     assert procs.procs["compass"].wait(timeout=10) == 0, "compass stops cleanly on SIGTERM"
-    procs.start("compass2", "compass", "--location", LOCATION, *_listen(comp2_port), *_connect(cal2_port, edge_port))
+    procs.start("compass2", "compass", "--location", LOCATION, *listen_args(comp2_port), *connect_args(cal2_port, edge_port))
     wait_for(lambda: (s := get_status("compass", comp2_port)) and s["calibrations"] == 1 and s, 20,
                       "the restarted compass to hold the calibration")
-    code, lines = magnet("watch", "heading", "sim-1", "--count", "3", *NO_SCOUT, *_connect(comp2_port))
+    code, lines = magnet_json("watch", "heading", "sim-1", "--count", "3", *NO_SCOUT, *connect_args(comp2_port))
     assert code == 0 and all(m["calibration_id"] == first["id"] for m in lines)
 
     subprocess.run([sys.executable, "-c", GARBAGE, str(comp2_port), str(cal2_port)], check=True, timeout=30)
@@ -195,51 +145,39 @@ def test_restarts_keep_calibrations_and_garbage_is_counted(procs, tmp_path):
         <= set(compass_status["dropped"])
     assert compass_status["calibrations"] == 1, "garbage changed no calibration"
     assert get_calibration("sim-1", cal2_port) == first
-    code, lines = magnet("watch", "heading", "sim-1", "--count", "2", *NO_SCOUT, *_connect(comp2_port))
+    code, lines = magnet_json("watch", "heading", "sim-1", "--count", "2", *NO_SCOUT, *connect_args(comp2_port))
     assert code == 0 and len(lines) == 2, "the compass keeps serving"
     assert procs.alive("calibrator2") and procs.alive("compass2") and procs.alive("edge")
-
-
-def _alive(port):
-    """Liveliness keys visible through a session connected to 127.0.0.1:port (from this test's own process)."""
-    import zenoh
-
-    conf = zenoh.Config()
-    conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    with zenoh.open(conf) as session:
-        return {str(reply.ok.key_expr) for reply in session.liveliness().get("magnet/@alive/**", timeout=2.0)
-                if reply.ok is not None}
 
 
 def test_liveliness_tokens_name_every_service_and_device_and_vanish_with_a_killed_process(procs, tmp_path):
     cal_port, comp_port, edge_port = free_ports(3)
     start_pipeline(procs, tmp_path, "live-1", "sim", cal_port, comp_port, edge_port)
     wanted = {"magnet/@alive/calibrator/calibrator", "magnet/@alive/compass/compass", "magnet/@alive/device/live-1"}
-    seen = wait_for(lambda: (keys := _alive(comp_port)) >= wanted and keys, 20, f"liveliness tokens {wanted}")
+    seen = wait_for_liveliness(comp_port, wanted)
     assert any(key.startswith("magnet/@alive/edge/") for key in seen), seen
     os.kill(procs.procs["calibrator"].pid, signal.SIGKILL)
     procs.procs["calibrator"].wait()
-    wait_for(lambda: "magnet/@alive/calibrator/calibrator" not in _alive(comp_port), 10,
+    wait_for(lambda: "magnet/@alive/calibrator/calibrator" not in liveliness_keys(comp_port), 10,
              "the killed calibrator's token to vanish")
-    assert "magnet/@alive/compass/compass" in _alive(comp_port)
+    assert "magnet/@alive/compass/compass" in liveliness_keys(comp_port)
 
 
 def test_operator_calibration_session_over_the_network(procs, tmp_path):
     cal_port, edge_port = free_ports(2)
-    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "op.db"), "--no-auto", *_listen(cal_port))
+    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "op.db"), "--no-auto", *listen_args(cal_port))
     procs.start("edge", "edge", "--device", "op-1", "--sensor", "lsm303dlh", "--emulate", "--rate", "500", "--batch",
-                "25", "--hard-iron", ",".join(map(str, HARD_IRON)), *_listen(edge_port), *_connect(cal_port))
-    remote = [*NO_SCOUT, *_connect(cal_port)]
+                "25", "--hard-iron", ",".join(map(str, HARD_IRON)), *listen_args(edge_port), *connect_args(cal_port))
+    remote = [*NO_SCOUT, *connect_args(cal_port)]
     wait_for(lambda: get_status("calibrator", cal_port), 20, "the calibrator to answer")
-    code, [idle] = magnet("calibrate", "op-1", "status", *remote)
+    code, [idle] = magnet_json("calibrate", "op-1", "status", *remote)
     assert code == 0 and idle["state"] == "idle"
-    code, [started] = magnet("calibrate", "op-1", "start", "--method", "ellipsoid+align", *remote)
+    code, [started] = magnet_json("calibrate", "op-1", "start", "--method", "ellipsoid+align", *remote)
     assert code == 0 and started["ok"] and started["progress"]["method"] == "ellipsoid+align"
-    ready = wait_for(lambda: (s := magnet("calibrate", "op-1", "status", *remote)[1][0])["progress"].get("accepted")
+    ready = wait_for(lambda: (s := magnet_json("calibrate", "op-1", "status", *remote)[1][0])["progress"].get("accepted")
                      and s, 40, "the session's fit to pass the gate")
     assert ready["state"] == "session" and get_calibration("op-1", cal_port) is None, "nothing stored before commit"
-    code, [committed] = magnet("calibrate", "op-1", "commit", *remote)
+    code, [committed] = magnet_json("calibrate", "op-1", "commit", *remote)
     assert code == 0 and committed["ok"]
     stored = get_calibration("op-1", cal_port)
     assert stored["id"] == committed["calibration"]["id"] and stored["method"] == "ellipsoid+align"

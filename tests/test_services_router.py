@@ -3,12 +3,11 @@
 import json
 import signal
 import subprocess
-import sys
-import time
 
-from services.common.zenoh_session import free_ports
+import pytest
+from helpers import MAGNET, free_ports, run_magnet, wait_for
 
-MAGNET = [sys.executable, "-m", "services.cli"]
+pytestmark = pytest.mark.integration
 
 
 def test_clients_meet_through_the_router(tmp_path):
@@ -17,17 +16,11 @@ def test_clients_meet_through_the_router(tmp_path):
     router = subprocess.Popen([*MAGNET, "router", "--listen", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
     calibrator = subprocess.Popen([*MAGNET, "calibrator", "--db", str(tmp_path / "c.db"), *client])
     try:
-        deadline = time.monotonic() + 20
-        while True:
-            out = subprocess.run([*MAGNET, "get", "status", "calibrator", *client, "--timeout", "1"],
-                                 capture_output=True, text=True, timeout=20)
-            if out.returncode == 0 or time.monotonic() > deadline:
-                break
-            time.sleep(0.3)
-        assert out.returncode == 0, out.stderr
+        out = wait_for(lambda: (answer := run_magnet("get", "status", "calibrator", *client, "--timeout", "1",
+                                                     timeout=20)).returncode == 0 and answer,
+                       20, "the calibrator's status through the router")
         assert json.loads(out.stdout)["service"] == "calibrator"
-        missing = subprocess.run([*MAGNET, "get", "calibration", "nobody", *client, "--timeout", "1"],
-                                 capture_output=True, text=True, timeout=20)
+        missing = run_magnet("get", "calibration", "nobody", *client, "--timeout", "1", timeout=20)
         assert missing.returncode == 1 and "no calibration for nobody" in missing.stderr
     finally:
         for proc in (calibrator, router):

@@ -1,17 +1,23 @@
-"""`magnet up` without a terminal (CI): bounded by --duration, plain lines, every device calibrated, clean exit."""
+"""`magnet up` without a terminal (CI): bounded by --duration, plain lines, every device calibrated, clean exit,
+its temporary directory removed."""
 
 import os
 import subprocess
-import sys
-from pathlib import Path
+
+import pytest
+from helpers import MAGNET, REPO_ROOT
+
+pytestmark = pytest.mark.integration
 
 
 def test_up_runs_headless_calibrates_every_device_and_stops(tmp_path):
-    env = {**os.environ, "CI": "true"}
-    out = subprocess.run([sys.executable, "-m", "services.cli", "up", "--devices", "3", "--speedup", "10",
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "CI": "true", "TMPDIR": str(tmp)}
+    out = subprocess.run([*MAGNET, "up", "--devices", "3", "--speedup", "10",
                           "--duration", "14", "--interval", "2", "--db", str(tmp_path / "up.db")],
                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60, env=env,
-                         cwd=Path(__file__).resolve().parents[1])
+                         cwd=REPO_ROOT)
     assert out.returncode == 0, out.stderr
     assert "\x1b[" not in out.stdout, "no terminal codes without a terminal"
     last_view = out.stdout.strip().split("\n\n")[-1].splitlines()
@@ -21,3 +27,4 @@ def test_up_runs_headless_calibrates_every_device_and_stops(tmp_path):
     errors = [abs(float(r[-3])) for r in rows]  # heading error against the simulator's truth, degrees
     assert max(errors) < 5.0, last_view
     assert (tmp_path / "up.db").exists()
+    assert "(removed at exit)" in out.stdout and list(tmp.iterdir()) == [], "the temporary directory is removed"

@@ -69,6 +69,42 @@ def test_malformed_raw_is_refused_with_its_cause(payload, cause):
     assert info.value.cause == cause
 
 
+def test_gyro_round_trip_is_exact_and_optional():
+    batch = wire.RawBatch("d", 1, "icm20948", np.arange(3), np.ones((3, 3)), None,
+                          gyr_rads=np.array([[0.1, -0.2, 3.0], [0, 0, 0], [-99.5, 1e-9, 2.5]]))
+    back = wire.decode_raw(wire.encode_raw(batch))
+    np.testing.assert_array_equal(back.gyr_rads, batch.gyr_rads)
+    assert back.acc_ms2 is None and wire.decode_raw(wire.encode_raw(_raw())).gyr_rads is None
+
+
+@pytest.mark.parametrize("gyr, cause", [
+    ([[0.0, 0.0, 101.0]] * 5, "absurd-magnitude"),
+    ([[0.0, float("nan"), 0.0]] * 5, "non-finite"),
+    ([[0.0, 0.0]] * 5, "bad-shape"),
+    ([[0.0, 0.0, 0.0]] * 4, "bad-shape"),
+    ("fast", "bad-shape"),
+])
+def test_bad_gyro_is_refused_with_its_cause(gyr, cause):
+    with pytest.raises(wire.WireError) as info:
+        wire.decode_raw(_mutate(gyr_rads=gyr))
+    assert info.value.cause == cause
+
+
+def test_heading_quaternion_and_disturbance_flag():
+    n = 3
+    quat = np.array([[1.0, 0, 0, 0], [0.5, 0.5, 0.5, 0.5], [0, 0, 0, 1.0]])
+    flags = np.array([1, 1 | 4, 1 | 8])
+    batch = wire.HeadingBatch("dev", 2, np.arange(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
+                              np.ones((n, 3)), 0.0, "", flags, quat)
+    back = wire.decode_heading(wire.encode_heading(batch))
+    np.testing.assert_array_equal(back.quat_wxyz, quat)
+    assert back.disturbed.tolist() == [False, True, True]
+    message = msgpack.unpackb(wire.encode_heading(batch))
+    for bad in ([[2.0, 0, 0, 0]] * n, [[1.0, 0, 0]] * n, [[1.0, 0, 0, 0]] * (n - 1)):
+        with pytest.raises(wire.WireError):
+            wire.decode_heading(msgpack.packb({**message, "quat_wxyz": bad}))
+
+
 def test_heading_round_trip():
     n = 4
     batch = wire.HeadingBatch("dev", 2, np.arange(n), np.full(n, 10.0), np.full(n, 15.0), np.zeros(n), np.ones(n),
@@ -87,12 +123,20 @@ def test_calibration_message_carries_record_id_and_time():
     assert record["method"] == "ellipsoid" and record["id"] == cal.content_id and record["v"] == 1
 
 
-def test_singular_or_malformed_calibration_is_refused():
+@pytest.mark.parametrize("changes, words", [
+    ({"matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 0]]}, "condition number"),
+    ({"matrix": np.diag([1e9, 1, 1]).tolist()}, "condition number"),
+    ({"matrix": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]}, "negative determinant"),
+    ({"offset": [1e5, 0, 0]}, "offset"),
+    ({"offset": [1, 2]}, "3 numbers"),
+    ({"accepted": 1}, "true or false"),
+])
+def test_implausible_or_malformed_calibration_is_refused_on_the_wire(changes, words):
     record = wire.calibration_record("dev", Calibration("x", [0, 0, 0], np.eye(3)), 1)
-    with pytest.raises(wire.WireError):
-        wire.calibration_from_record({**record, "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 0]]})
-    with pytest.raises(wire.WireError):
-        wire.calibration_from_record({**record, "offset": [1, 2]})
+    for decode in (wire.calibration_from_record, lambda r: wire.decode_calibration(msgpack.packb(r))):
+        with pytest.raises(wire.WireError, match=words) as info:
+            decode({**record, **changes})
+        assert info.value.cause == "bad-calibration"
 
 
 @pytest.mark.parametrize("device", ["", "a/b", "a*", "$x", "q?", "h#", " lead", 5])

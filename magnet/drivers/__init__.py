@@ -9,28 +9,29 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from magnet.drivers.base import Combined, Health, Reading, RetryPolicy, Sensor, SensorError, orientation_matrix
+from magnet.drivers.base import (Combined, Health, I2CBus, Reading, RetryPolicy, Sensor, SensorError, SensorReadError,
+                                 orientation_matrix)
 
-__all__ = ["Combined", "Health", "Reading", "RetryPolicy", "Sensor", "SensorError", "SENSORS", "open_sensor",
-           "orientation_matrix"]
+__all__ = ["Combined", "Health", "I2CBus", "Reading", "RetryPolicy", "Sensor", "SensorError", "SensorReadError",
+           "SENSORS", "open_sensor", "orientation_matrix"]
 
 
-def _hmc5883l(bus: Any, address: int | None, orientation: Any, **kw: Any) -> Sensor:
+def _hmc5883l(bus: I2CBus, address: int | None, orientation: Any, **kw: Any) -> Sensor:
     from magnet.drivers.hmc5883l import DEFAULT_ADDRESS, HMC5883L
     return HMC5883L(bus, address or DEFAULT_ADDRESS, orientation, **kw)
 
 
-def _qmc5883l(bus: Any, address: int | None, orientation: Any, **kw: Any) -> Sensor:
+def _qmc5883l(bus: I2CBus, address: int | None, orientation: Any, **kw: Any) -> Sensor:
     from magnet.drivers.qmc5883l import DEFAULT_ADDRESS, QMC5883L
     return QMC5883L(bus, address or DEFAULT_ADDRESS, orientation, **kw)
 
 
-def _lsm303dlh(bus: Any, address: int | None, orientation: Any, **kw: Any) -> Sensor:
+def _lsm303dlh(bus: I2CBus, address: int | None, orientation: Any, **kw: Any) -> Sensor:
     from magnet.drivers.lsm303dlh import DEFAULT_ADDRESS, LSM303DLH
     return LSM303DLH(bus, address or DEFAULT_ADDRESS, orientation, **kw)
 
 
-def _ak09918c_bma456(bus: Any, address: int | None, orientation: Any, *, acc_address: int | None = None,
+def _ak09918c_bma456(bus: I2CBus, address: int | None, orientation: Any, *, acc_address: int | None = None,
                      **kw: Any) -> Sensor:
     from magnet.drivers import ak09918c, bma456
     return Combined(ak09918c.AK09918C(bus, address or ak09918c.DEFAULT_ADDRESS, orientation, **kw),
@@ -46,7 +47,7 @@ SENSORS: dict[str, tuple[Callable[..., Sensor], bool, str]] = {
 }
 
 
-def open_sensor(name: str, bus: Any, address: int | None = None, orientation: Any = None, **options: Any) -> Sensor:
+def open_sensor(name: str, bus: I2CBus, address: int | None = None, orientation: Any = None, **options: Any) -> Sensor:
     """The driver for sensor ``name`` on ``bus`` (address None = the chip's default; for a pair, the magnetometer's;
     ``acc_address=`` moves the accelerometer). ``options`` go to the driver (``retry``, ``sleep``, settings)."""
     try:

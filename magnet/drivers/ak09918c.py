@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, Reading, RetryPolicy, Sensor, SensorError, to_signed
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError, to_signed
 
 DEFAULT_ADDRESS = 0x0C
 REG_WIA1, REG_ST1, REG_CNTL2, REG_CNTL3 = 0x00, 0x10, 0x31, 0x32
@@ -37,7 +37,7 @@ class Mode(enum.IntEnum):
 class AK09918C(Sensor):
     """Driver: checks WIA1/WIA2, sets a continuous mode, reads ST1..ST2 (9 bytes) in one block per sample."""
 
-    def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
+    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
                  mode: Mode = Mode.CONTINUOUS_100HZ, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] | None = None) -> None:
         self._attach(bus, address, orientation, retry, sleep)

@@ -1,15 +1,17 @@
 """What every sensor driver shares: the reading, the mounting orientation, I2C access with bounded retries, health.
 
-A driver talks to its chip through an injected ``bus`` object with the smbus2 ``SMBus`` methods it uses
-(``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``, ``write_i2c_block_data``). On hardware the service
-passes ``smbus2.SMBus(1)``; in tests it passes an emulator from ``magnet.emulators``. Nothing here imports smbus2.
+A driver talks to its chip through an injected ``bus``: any object with the smbus2 ``SMBus`` methods it uses, as the
+``I2CBus`` protocol names them (``read_byte_data``, ``write_byte_data``, ``read_i2c_block_data``,
+``write_i2c_block_data``). On hardware the service passes ``smbus2.SMBus(1)``; in tests it passes an emulator from
+``magnet.emulators``. Nothing here imports smbus2.
 
 Failure policy (chosen once, for every driver):
 - An ``OSError`` whose errno is transient (EIO, EREMOTEIO, EBUSY, ETIMEDOUT, EAGAIN) is retried up to
   ``RetryPolicy.attempts`` times with exponential backoff capped at ``max_delay_s`` (the sleep is injectable).
-- ``read()`` never raises for I/O trouble: when the retries are exhausted (or the error is not transient) it returns a
-  ``Reading`` with ``failed=True`` and no field, and the ``Health`` counters say so; after ``unhealthy_after``
-  consecutive failed reads the sensor reports ``healthy == False``. The next good read makes it healthy again.
+- ``read()`` raises ``SensorReadError`` (a ``SensorError``, so an ``OSError``) when the retries are exhausted (or the
+  error is not transient), after counting it in ``Health``; after ``unhealthy_after`` consecutive failed reads the
+  sensor reports ``healthy == False``. The next good read makes it healthy again. What to do about a failing sensor
+  (wait, back off, report) is the caller's: ``magnet.readloop.ReadLoop`` is the one loop that does it.
 - Construction (identity check, configuration) raises ``SensorError`` (an ``OSError``) with a message that says what
   to check, because a sensor that cannot be set up is a configuration problem, not a glitch.
 """
@@ -22,7 +24,7 @@ import logging
 import math
 import re
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,18 +38,36 @@ class SensorError(OSError):
     """A sensor cannot be used: wrong chip at the address, no answer after the retries, bad configuration."""
 
 
+class SensorReadError(SensorError):
+    """One ``Sensor.read()`` failed after the driver's retries: the bus or the chip is not answering."""
+
+
+@runtime_checkable
+class I2CBus(Protocol):
+    """The smbus2 ``SMBus`` methods the drivers use (``smbus2.SMBus`` and every ``magnet.emulators`` bus satisfy it).
+
+    ``i2c_addr`` is the 7-bit address, ``register`` the chip's sub-address, values are bytes 0..255.
+    """
+
+    def read_byte_data(self, i2c_addr: int, register: int, force: Any = None) -> int: ...
+
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: Any = None) -> None: ...
+
+    def read_i2c_block_data(self, i2c_addr: int, register: int, length: int, force: Any = None) -> list[int]: ...
+
+    def write_i2c_block_data(self, i2c_addr: int, register: int, data: list[int], force: Any = None) -> None: ...
+
+
 @dataclasses.dataclass(frozen=True)
 class Reading:
     """One sample of a sensor, in the body frame.
 
     Attributes:
-        mag_ut: magnetic field, shape (3,), uT; None when there is no magnetometer, no new data, an overflow or a
-            failed transfer.
+        mag_ut: magnetic field, shape (3,), uT; None when there is no magnetometer, no new data or an overflow.
         acc_ms2: specific force, shape (3,), m/s^2 (a level still device reads about (0, 0, -9.81)); None when there
-            is no accelerometer or its read failed.
+            is no accelerometer.
         overflow: an axis saturated (the value is withheld, never passed on as a field).
         ready: the chip had a new sample (False: nothing new since the last read; no field is given).
-        failed: the transfer failed after the retries (see ``Health``).
         raw: the magnetometer's raw codes in the chip's own axis order x, y, z (shape (3,), int), when read.
     """
 
@@ -55,17 +75,14 @@ class Reading:
     acc_ms2: np.ndarray | None = None
     overflow: bool = False
     ready: bool = True
-    failed: bool = False
     raw: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
         """True when the reading carries a usable field or acceleration."""
-        return not self.failed and self.ready and not self.overflow and (
-            self.mag_ut is not None or self.acc_ms2 is not None)
+        return self.ready and not self.overflow and (self.mag_ut is not None or self.acc_ms2 is not None)
 
 
-FAILED = Reading(ready=False, failed=True)
 NOT_READY = Reading(ready=False)
 
 
@@ -170,7 +187,7 @@ class Health:
 class I2CDevice:
     """One chip at one I2C address, with every transfer retried per ``RetryPolicy`` and counted in ``Health``."""
 
-    def __init__(self, bus: Any, address: int, *, retry: RetryPolicy | None = None,
+    def __init__(self, bus: I2CBus, address: int, *, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] = time.sleep, health: Health | None = None) -> None:
         if not 0x03 <= int(address) <= 0x77:
             raise ValueError(f"I2C address must be in 0x03..0x77, got {address:#x}")
@@ -230,7 +247,7 @@ class Sensor:
     rotation: np.ndarray = np.eye(3)
     devices: tuple[I2CDevice, ...] = ()
 
-    def _attach(self, bus: Any, address: int, orientation: Any, retry: "RetryPolicy | None",
+    def _attach(self, bus: I2CBus, address: int, orientation: Any, retry: "RetryPolicy | None",
                 sleep: "Callable[[float], None] | None") -> I2CDevice:
         """Set ``self.device`` (the chip at ``address`` on ``bus``, with the retry policy), ``self.devices`` and the
         mounting ``self.rotation``; returns the device."""
@@ -248,7 +265,8 @@ class Sensor:
         return self.devices[0].health
 
     def read(self) -> Reading:
-        """One sample in the body frame; never raises for bus errors (see the module's failure policy)."""
+        """One sample in the body frame; ``SensorReadError`` when the bus failed after the retries (see the module's
+        failure policy: counted in ``health`` first)."""
         health = self.health
         health.reads += 1
         try:
@@ -259,7 +277,8 @@ class Sensor:
             if health.consecutive_failures == health.unhealthy_after:
                 log.warning("sensor at %#04x unhealthy after %d failed reads: %s",
                             self.devices[0].address, health.consecutive_failures, exc)
-            return FAILED
+            raise SensorReadError(exc.errno or errno.EIO,
+                                  f"{type(self).__name__} read failed: {exc.strerror or exc}") from exc
         health.consecutive_failures = 0
         return self._to_body(reading)
 
@@ -272,7 +291,8 @@ class Combined(Sensor):
     """A magnetometer and an accelerometer read together as one sensor (e.g. AK09918C + BMA456).
 
     ``read()`` reads the magnetometer, then the accelerometer, and merges them: field and flags from the
-    magnetometer, ``acc_ms2`` from the accelerometer (None if that read failed). Each part keeps its own orientation.
+    magnetometer, ``acc_ms2`` from the accelerometer. Either part failing raises its ``SensorReadError``. Each part
+    keeps its own orientation.
     """
 
     def __init__(self, magnetometer: Sensor, accelerometer: Sensor) -> None:

@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, Reading, RetryPolicy, Sensor, SensorError, to_signed
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError, to_signed
 from magnet.units import STANDARD_GRAVITY_MS2
 
 DEFAULT_ADDRESS = 0x18
@@ -31,7 +31,7 @@ RANGES: dict[int, tuple[int, float]] = {2: (0, 16384.0), 4: (1, 8192.0), 8: (2, 
 class BMA456(Sensor):
     """Driver: checks CHIP_ID, switches power save off and the accelerometer on, sets the range (default 8 g)."""
 
-    def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *, range_g: int = 8,
+    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *, range_g: int = 8,
                  retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
         if range_g not in RANGES:
             raise ValueError(f"BMA456 range must be one of {sorted(RANGES)} g, got {range_g}")

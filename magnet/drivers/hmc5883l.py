@@ -19,7 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, Reading, RetryPolicy, Sensor, SensorError, to_signed
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError, to_signed
 from magnet.selftest import LSB_PER_GAUSS, SelfTestResult, evaluate  # GN -> LSB per gauss (Config B)
 
 DEFAULT_ADDRESS = 0x1E
@@ -101,7 +101,7 @@ class HMC5883L(Sensor):
     mode it triggers the next measurement after each read. ``axis_scale`` (3,) multiplies each axis (self-test).
     """
 
-    def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
+    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
                  settings: HMC5883LSettings | None = None, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] | None = None, axis_scale: Any = (1.0, 1.0, 1.0)) -> None:
         self._attach(bus, address, orientation, retry, sleep)

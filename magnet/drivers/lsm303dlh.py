@@ -20,7 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, Combined, Reading, RetryPolicy, Sensor, SensorError, to_signed
+from magnet.drivers.base import NOT_READY, Combined, I2CBus, Reading, RetryPolicy, Sensor, SensorError, to_signed
 from magnet.units import STANDARD_GRAVITY_MS2
 
 DEFAULT_ADDRESS = 0x1E
@@ -41,7 +41,7 @@ AUTO_INCREMENT = 0x80
 class LSM303DLHMagnetometer(Sensor):
     """The magnetometer half: identity check, 75 Hz continuous at ``gain`` (1..7), one six-byte read per sample."""
 
-    def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *, gain: int = 1,
+    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *, gain: int = 1,
                  retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
         if gain not in LSB_PER_GAUSS:
             raise ValueError(f"LSM303DLH magnetometer gain must be 1..7, got {gain}")
@@ -73,7 +73,7 @@ class LSM303DLHMagnetometer(Sensor):
 class LSM303DLHAccelerometer(Sensor):
     """The accelerometer half: normal mode 50 Hz, all axes, block data update, full scale ``scale_g``."""
 
-    def __init__(self, bus: Any, address: int = DEFAULT_ACC_ADDRESS, orientation: Any = None, *,
+    def __init__(self, bus: I2CBus, address: int = DEFAULT_ACC_ADDRESS, orientation: Any = None, *,
                  scale_g: int = 2, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] | None = None) -> None:
         if scale_g not in ACC_SCALES:
@@ -98,7 +98,7 @@ class LSM303DLH(Combined):
     """Both halves as one sensor: ``read()`` gives ``mag_ut`` and ``acc_ms2``; the package's axes are shared, so
     one ``orientation`` applies to both."""
 
-    def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
+    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
                  acc_address: int = DEFAULT_ACC_ADDRESS, gain: int = 1, scale_g: int = 2,
                  retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
         super().__init__(

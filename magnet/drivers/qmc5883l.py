@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, Reading, RetryPolicy, Sensor, SensorError, to_signed
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError, to_signed
 
 DEFAULT_ADDRESS = 0x0D
 REG_DATA, REG_STATUS, REG_CONTROL1, REG_CONTROL2, REG_PERIOD, REG_CHIP_ID = 0x00, 0x06, 0x09, 0x0A, 0x0B, 0x0D
@@ -53,7 +53,7 @@ class QMC5883LSettings:
 class QMC5883L(Sensor):
     """Driver: checks the chip id, sets continuous mode, reads Status then the six data bytes when DRDY."""
 
-    def __init__(self, bus: Any, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
+    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
                  settings: QMC5883LSettings | None = None, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] | None = None) -> None:
         self._attach(bus, address, orientation, retry, sleep)

@@ -1,4 +1,4 @@
-"""``magnet bench accuracy|fit|pipeline``: benchmarks that print figures (targets live here, not in timed tests)."""
+"""``magnet bench accuracy|fit|pipeline|motion``: benchmarks that print figures (targets live here, not in timed tests)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "accuracy": ("services.bench.accuracy", "run_accuracy_benchmark"),
     "fit": ("services.bench.fit", "run_fit_benchmark"),
     "pipeline": ("services.bench.pipeline", "run_pipeline_benchmark"),
+    "motion": ("services.bench.motion", "run_motion_benchmark"),
 }
 
 

@@ -1,7 +1,9 @@
 """SQLite storage of calibrations: every accepted calibration of every device, newest last, history kept.
 
-One table, one row per stored calibration; the record is the JSON map the wire publishes (``magnet.wire
-.calibration_record``). WAL journal with ``synchronous=FULL``: a row is on disk when ``save`` returns, and a kill -9 at
+One table, one row per stored calibration; the record is the JSON map the wire publishes
+(``magnet.wire.DeviceCalibration.to_record``). Rows are read back through ``magnet.wire.calibration_from_record``, the
+one entry check of a calibration: a row that fails it is skipped, counted (``skipped_rows``) and logged once with the
+file and row, and the rest is served. WAL journal with ``synchronous=FULL``: a row is on disk when ``save`` returns, and a kill -9 at
 any moment leaves either the previous or the new calibration in force, never a torn one.
 """
 
@@ -11,7 +13,9 @@ import json
 import logging
 import sqlite3
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Iterable
+
+from magnet import wire
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +45,8 @@ class CalibrationStore:
             self._db.executescript(_SCHEMA)
         except sqlite3.DatabaseError as exc:
             raise OSError(f"cannot open calibration database {path}: {exc}") from None
+        self.skipped_rows = 0
+        self._reported: set[int] = set()
 
     def close(self) -> None:
         self._db.close()
@@ -51,40 +57,53 @@ class CalibrationStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def save(self, record: Mapping[str, Any]) -> bool:
-        """Store ``record`` (with ``device``, ``id``, ``created_ns``) as the device's calibration in force.
+    def save(self, record: wire.DeviceCalibration) -> bool:
+        """Store ``record`` as its device's calibration in force.
 
         Returns False (and stores nothing) when it is identical to the one already in force."""
-        device, content_id = str(record["device"]), str(record["id"])
-        text = json.dumps(record, sort_keys=True, allow_nan=False)
+        text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
         with self._transaction():
             row = self._db.execute("SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1",
-                                   (device,)).fetchone()
-            if row is not None and row[0] == content_id:
+                                   (record.device,)).fetchone()
+            if row is not None and row[0] == record.id:
                 return False
             self._db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
-                             (device, content_id, int(record["created_ns"]), text))
+                             (record.device, record.id, int(record.created_ns), text))
         return True
 
-    def latest(self, device: str) -> dict[str, Any] | None:
-        """The calibration in force for ``device`` (its record), or None."""
-        rows = self.history(device, limit=1)
-        return rows[0] if rows else None
+    def latest(self, device: str) -> wire.DeviceCalibration | None:
+        """The calibration in force for ``device`` (its newest valid record), or None."""
+        rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,))
+        return next(self._valid(rows), None)
 
-    def history(self, device: str, limit: int | None = None) -> list[dict[str, Any]]:
-        """Records of ``device``, newest first, at most ``limit``."""
-        sql = "SELECT record FROM calibrations WHERE device = ? ORDER BY seq DESC"
-        params: tuple[Any, ...] = (device,)
-        if limit is not None:
-            sql += " LIMIT ?"
-            params += (max(0, int(limit)),)
-        return [json.loads(text) for (text,) in self._db.execute(sql, params)]
+    def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
+        """Valid records of ``device``, newest first, at most ``limit``."""
+        rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,))
+        out = []
+        for record in self._valid(rows):
+            if limit is not None and len(out) >= max(0, limit):
+                break
+            out.append(record)
+        return out
 
-    def all_latest(self) -> dict[str, dict[str, Any]]:
-        """device -> the record in force, for every device stored."""
-        sql = ("SELECT c.device, c.record FROM calibrations c JOIN (SELECT device, MAX(seq) AS seq FROM calibrations "
-               "GROUP BY device) m ON c.device = m.device AND c.seq = m.seq ORDER BY c.device")
-        return {device: json.loads(text) for device, text in self._db.execute(sql)}
+    def all_latest(self) -> dict[str, wire.DeviceCalibration]:
+        """device -> the record in force (its newest valid one), for every device stored."""
+        rows = self._db.execute("SELECT seq, record FROM calibrations ORDER BY device, seq DESC")
+        out: dict[str, wire.DeviceCalibration] = {}
+        for record in self._valid(rows):
+            out.setdefault(record.device, record)
+        return out
+
+    def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterable[wire.DeviceCalibration]:
+        """The records of ``rows`` (seq, JSON text) that pass the entry check; the others skipped and counted."""
+        for seq, text in rows:
+            try:
+                yield wire.calibration_from_record(json.loads(text))
+            except (ValueError, RecursionError) as exc:  # WireError and JSONDecodeError are ValueErrors
+                self.skipped_rows += 1
+                if seq not in self._reported:
+                    self._reported.add(seq)
+                    log.warning("%s: skipping calibration row %d: %s", self.path, seq, exc)
 
     def _transaction(self) -> "_Transaction":
         return _Transaction(self._db)

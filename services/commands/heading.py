@@ -1,37 +1,52 @@
 """``magnet heading``: apply a calibration to a CSV of raw samples and print headings as CSV.
 
 Columns: ``t_s`` (when the input has it), ``heading_deg`` (magnetic), ``true_heading_deg``, ``pitch_deg``,
-``roll_deg``, ``field_x_ut``, ``field_y_ut``, ``field_z_ut``, ``dip_deg``, ``flags`` (magnet.heading.HeadingFlag).
-Without ``ax,ay,az`` the heading is the level heading and pitch and roll are 0 with the NO_TILT flag.
+``roll_deg``, ``field_x_ut``, ``field_y_ut``, ``field_z_ut``, ``dip_deg``, ``flags`` (magnet.heading.HeadingFlag),
+``qw,qx,qy,qz`` (body -> NED with true north, i.e. the attitude whose heading is ``true_heading_deg``).
+
+With ``gx,gy,gz`` (rad/s, body frame) and ``ax,ay,az`` the attitude comes from the gyroscope-aided filter
+(``magnet.fusion``, flag FUSED): causal as the live compass runs it, or ``--offline`` (looks ahead: the best estimate
+for a log). Its sample period comes from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is
+tilt-compensated with the accelerometer; without ``ax,ay,az`` it is the level heading and pitch and roll are 0 with
+the NO_TILT flag. Without ``--calibration`` the raw field is used as it is (a factory-calibrated sensor, or a fit
+that was refused).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from magnet import fusion
 from magnet import heading as hd
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
-from services.common.csvio import read_samples, write_csv
+from services.common.csvio import SampleTable, read_samples, write_csv
 from services.commands.fit import add_field_arguments
 
 COLUMNS = ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg", "field_x_ut", "field_y_ut", "field_z_ut",
-           "dip_deg", "flags")
+           "dip_deg", "flags", "qw", "qx", "qy", "qz")
+GYRO_COLUMNS = ("gx", "gy", "gz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", metavar="FILE.csv", help="CSV with mx,my,mz (and ax,ay,az for tilt compensation)")
-    parser.add_argument("--calibration", required=True, metavar="cal.json",
-                        help="a record as 'magnet fit' writes it ('offset' and 'matrix' are enough)")
+    parser.add_argument("file", metavar="FILE.csv",
+                        help="CSV with mx,my,mz (ax,ay,az for tilt; gx,gy,gz in rad/s and t_s for fusion)")
+    parser.add_argument("--calibration", metavar="cal.json",
+                        help="a record as 'magnet fit' writes it ('offset' and 'matrix' are enough); default: none")
     parser.add_argument("--declination", type=float, metavar="DEG", help="magnetic declination, degrees east")
     add_field_arguments(parser)
     parser.add_argument("--window", type=int, default=1, metavar="N",
                         help="circular sliding-mean smoothing over N samples (default 1: none)")
+    parser.add_argument("--rate", type=float, metavar="HZ",
+                        help="sample rate for the gyroscope fusion (default: from the t_s column)")
+    parser.add_argument("--offline", action="store_true",
+                        help="with a gyroscope: the best estimate for a log (the filter looks ahead)")
 
 
 def load_calibration(path: str) -> Calibration:
@@ -60,37 +75,86 @@ def _declination_deg(args: argparse.Namespace) -> tuple[float, float | None, flo
     return float(args.declination or 0.0), None, None
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.window < 1:
-        raise ValueError(f"--window must be at least 1, got {args.window}")
-    calibration = load_calibration(args.calibration)
-    declination_deg, expected_ut, expected_dip_deg = _declination_deg(args)
-    table = read_samples(args.file)
-    field = calibration.apply(table.mag)
+@dataclasses.dataclass(frozen=True)
+class Attitude:
+    """Per sample (N,): magnetic heading, pitch, roll, dip (degrees), body -> magnetic NED quat (N, 4), the
+    down direction in body axes as a specific force (N, 3) (for the disturbance checks; None without tilt) and
+    flags the method adds (FUSED, FIELD_DISTURBED from the filter)."""
+
+    heading: np.ndarray
+    pitch: np.ndarray
+    roll: np.ndarray
+    quat: np.ndarray
+    up_force: np.ndarray | None
+    flags: np.ndarray
+
+
+def _gyro(table: SampleTable) -> np.ndarray | None:
+    if not all(c in table.columns for c in GYRO_COLUMNS):
+        return None
+    return np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
+
+
+def _period_s(table: SampleTable, rate_hz: float | None) -> float:
+    if rate_hz is not None:
+        if not 0.5 <= rate_hz <= 10_000:
+            raise ValueError(f"--rate {rate_hz} Hz is outside 0.5 .. 10000 Hz")
+        return 1.0 / rate_hz
+    if "t_s" not in table.columns:
+        raise ValueError(f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
+                         "(seconds) or give --rate HZ")
+    return fusion.sample_period_s(table.numeric("t_s"))
+
+
+def _fused(table: SampleTable, gyr: np.ndarray, field: np.ndarray, args: argparse.Namespace) -> Attitude:
+    if table.acc is None:
+        raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
+    run = fusion.fuse_offline if args.offline else fusion.fuse_causal
+    fused = run(gyr, fusion.acc_in_ms2(table.acc), field, _period_s(table, args.rate))
+    down = fusion.down_in_body(fused.quat_wxyz)
+    flags = int(hd.HeadingFlag.FUSED) | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
+    return Attitude(fused.heading_deg, fused.pitch_deg, fused.roll_deg, fused.quat_wxyz, -down, flags)
+
+
+def _tilt(table: SampleTable, field: np.ndarray) -> Attitude:
     count = len(field)
     if table.acc is not None:
         magnetic = hd.tilt_compensated_heading_deg(field, table.acc)
         pitch, roll = hd.pitch_roll_deg(table.acc)
-        dip = hd.dip_angle_deg(field, table.acc)
     else:
         magnetic = hd.level_heading_deg(field)
         pitch = roll = np.zeros(count)
-        dip = np.full(count, np.nan)
-    magnetic = hd.smooth_heading_deg(magnetic, args.window)
-    expected = expected_ut if expected_ut is not None else (calibration.field_strength or None)
-    flags = hd.disturbance_flags(field, table.acc, expected, expected_dip_deg)
-    flags = np.asarray(flags, dtype=int) | int(hd.HeadingFlag.CALIBRATED)
-    if calibration.output_unit != "ut":
+    quat = fusion.quat_from_euler(magnetic, pitch, roll)
+    return Attitude(magnetic, pitch, roll, quat, table.acc, np.zeros(count, dtype=int))
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.window < 1:
+        raise ValueError(f"--window must be at least 1, got {args.window}")
+    calibration = load_calibration(args.calibration) if args.calibration else None
+    declination_deg, expected_ut, expected_dip_deg = _declination_deg(args)
+    table = read_samples(args.file)
+    field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)
+    gyr = _gyro(table)
+    if gyr is None and args.offline:
+        raise ValueError(f"{table.path}: --offline needs gyroscope columns gx,gy,gz (rad/s)")
+    attitude = _tilt(table, field) if gyr is None else _fused(table, gyr, field, args)
+    magnetic = hd.smooth_heading_deg(attitude.heading, args.window)
+    dip = hd.dip_angle_deg(field, attitude.up_force) if attitude.up_force is not None else np.full(len(field), np.nan)
+    expected = expected_ut if expected_ut is not None else ((calibration and calibration.field_strength) or None)
+    flags = np.asarray(hd.disturbance_flags(field, attitude.up_force, expected, expected_dip_deg), dtype=int)
+    flags |= attitude.flags | (int(hd.HeadingFlag.CALIBRATED) if calibration else 0)
+    if calibration and calibration.output_unit != "ut":
         print(f"magnet heading: note: the calibration's output unit is {calibration.output_unit!r}, not uT; "
               "field_*_ut columns are in that unit", file=sys.stderr)
+    quat = fusion.rotate_heading(attitude.quat, declination_deg)
     header = list(COLUMNS)
-    columns = [magnetic, hd.true_heading_deg(magnetic, declination_deg), pitch, roll,
-               field[:, 0], field[:, 1], field[:, 2], dip, flags]
+    columns = [magnetic, hd.true_heading_deg(magnetic, declination_deg), attitude.pitch, attitude.roll,
+               field[:, 0], field[:, 1], field[:, 2], dip, flags, *quat.T]
+    formats = ["%.4f"] * 7 + ["%.3f", "%d"] + ["%.7f"] * 4  # 4 angles, 3 field components, dip, flags, quaternion
     if "t_s" in table.columns:
         header.insert(0, "t_s")
         columns.insert(0, table.numeric("t_s"))
-    formats = ["%.4f"] * 7 + ["%.3f", "%d"]  # 4 angles, 3 field components, dip, flags
-    if "t_s" in table.columns:
         formats.insert(0, "%.6f")
     write_csv(sys.stdout, header, columns, fmt=formats)
     return 0

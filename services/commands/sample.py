@@ -2,25 +2,35 @@
 
 Columns: ``t_s,mx,my,mz`` (uT, body frame), then ``ax,ay,az`` (m/s^2) for sensors with an accelerometer; with
 ``--emulate`` also the truth ``true_heading_deg,pitch_deg,roll_deg``, and with ``--trajectory turntable`` the
-``mounting,heading_deg`` (table angle) columns that ``magnet fit --method turntable`` reads. Samples whose reading
-overflowed or failed are left out and counted on stderr. ``--emulate`` never sleeps; real hardware is paced at
-``--rate``.
+``mounting,heading_deg`` (table angle) columns that ``magnet fit --method turntable`` reads. The sensor is read
+through the bounded read loop (``magnet.readloop``): overflowed readings and failed reads are left out, counted and
+reported on stderr; after ``GIVE_UP_AFTER`` failed reads in a row the command stops with a one-line error (exit 2).
+``--emulate`` never sleeps; real hardware is paced at ``--rate``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 import time
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
+import smbus2
+
+from magnet.drivers import I2CBus, Reading, Sensor, has_accelerometer, open_sensor, orientation_matrix
+from magnet.emulators import emulator_for
+from magnet.readloop import Backoff, ReadLoop
+from magnet.simulator import SensorStream, Trajectory
 from services.common import sim_options
 
 log = logging.getLogger("magnet.sample")
 
 SENSOR_NAMES = ("hmc5883l", "lsm303dlh", "ak09918c+bma456", "qmc5883l")
 MAX_NOT_READY_POLLS = 200
+#: a one-shot command gives up after this many failed reads in a row (about 3 s of backoff)
+GIVE_UP_AFTER = 10
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,20 +45,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sim_options.add_simulator_arguments(parser)
 
 
-def sensor_stream(args: argparse.Namespace, count: int):
-    """The simulator's ``SensorStream`` for the options (``count`` samples of trajectory at --rate)."""
-    return sim_options.sensor_stream(args, count, args.rate)
+@dataclasses.dataclass(frozen=True)
+class SampleSettings:
+    """What ``magnet sample`` reads, checked in one place. count <= 0: until stopped; rate_hz paces hardware."""
+
+    sensor: str
+    bus: int | None = None
+    address: int | None = None
+    orientation: str | None = None
+    emulate: bool = False
+    count: int = 100
+    rate_hz: float = 50.0
+    simulator: sim_options.SimulatorSettings = dataclasses.field(default_factory=sim_options.SimulatorSettings)
+
+    def __post_init__(self) -> None:
+        if self.sensor not in SENSOR_NAMES:
+            raise ValueError(f"unknown --sensor {self.sensor!r}: use one of {', '.join(SENSOR_NAMES)}")
+        if not self.rate_hz > 0:
+            raise ValueError(f"--rate must be > 0, got {self.rate_hz}")
+        if not self.emulate and self.bus is None:
+            raise ValueError("a real sensor needs --bus N (1 on a Raspberry Pi), or use --emulate")
+        orientation_matrix(self.orientation)  # ValueError naming the accepted forms
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "SampleSettings":
+        return cls(sensor=args.sensor, bus=args.bus, address=args.address, orientation=args.orientation,
+                   emulate=bool(args.emulate), count=int(args.count), rate_hz=float(args.rate),
+                   simulator=sim_options.SimulatorSettings.from_args(args))
+
+    @property
+    def turntable(self) -> bool:
+        return self.emulate and self.simulator.trajectory is Trajectory.TURNTABLE
 
 
-def open_bus(args: argparse.Namespace, source: Any = None, **emulator_options: Any) -> Any:
+def open_bus(settings: SampleSettings, source: Any = None, **emulator_options: Any) -> I2CBus:
     """The emulated bus (``--emulate``) or ``smbus2.SMBus(--bus)``."""
-    if args.emulate:
-        from magnet.emulators import emulator_for
-        return emulator_for(args.sensor, source, **emulator_options)
-    if args.bus is None:
-        raise ValueError("a real sensor needs --bus N (1 on a Raspberry Pi), or use --emulate")
-    import smbus2
-    return smbus2.SMBus(args.bus)
+    if settings.emulate:
+        return emulator_for(settings.sensor, source, **emulator_options)
+    return smbus2.SMBus(settings.bus)
 
 
 def _header(has_acc: bool, emulate: bool, turntable: bool) -> list[str]:
@@ -60,29 +94,30 @@ def _header(has_acc: bool, emulate: bool, turntable: bool) -> list[str]:
     return columns
 
 
-def _readings(sensor: Any, args: argparse.Namespace, skipped: dict[str, int]) -> Iterator[tuple[float, Any]]:
+def read_loop(sensor: Sensor, settings: SampleSettings,
+              sleep: Callable[[float], None] = time.sleep) -> ReadLoop:
+    """The bounded read loop (``magnet.readloop``) for the command: never sleeps when emulated; gives up after
+    ``GIVE_UP_AFTER`` failed reads in a row with a clear error."""
+    poll_s = 0.0 if settings.emulate else min(0.1 / settings.rate_hz, 0.005)
+    backoff = Backoff(initial_s=0.01, max_s=1.0, poll_s=poll_s, max_polls=MAX_NOT_READY_POLLS,
+                      give_up_after=GIVE_UP_AFTER)
+    return ReadLoop(sensor.read, clock=time.monotonic, sleep=sleep, backoff=backoff)
+
+
+def _readings(loop: ReadLoop, settings: SampleSettings) -> Iterator[tuple[float, Reading]]:
     """(t_s, reading) for each good sample; paced at --rate on hardware, unpaced when emulated."""
-    period = 1.0 / args.rate
+    period = 1.0 / settings.rate_hz
     start = time.monotonic()
     taken = 0
-    while args.count <= 0 or taken < args.count:
-        if not args.emulate:
+    while settings.count <= 0 or taken < settings.count:
+        if not settings.emulate:
             delay = start + taken * period - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-        reading = sensor.read()
-        polls = 0
-        while not reading.ready and not reading.failed and polls < MAX_NOT_READY_POLLS:
-            polls += 1
-            if not args.emulate:
-                time.sleep(min(period / 10, 0.005))
-            reading = sensor.read()
+        reading = loop.next()
+        if reading is None:  # pragma: no cover - next() without stop returns a reading or raises
+            return
         taken += 1
-        cause = "failed" if reading.failed else "overflow" if reading.overflow else \
-            "not ready" if reading.mag_ut is None else ""
-        if cause:
-            skipped[cause] = skipped.get(cause, 0) + 1
-            continue
         yield time.monotonic() - start, reading
 
 
@@ -90,36 +125,43 @@ def _fmt(values: Any) -> list[str]:
     return [f"{v:.4f}" for v in values]
 
 
-def run(args: argparse.Namespace) -> int:
-    from magnet.drivers import has_accelerometer, open_sensor
+def _announce_turntable(stream: SensorStream) -> None:
+    earth = stream.earth
+    print(f"magnet sample: turntable field: horizontal {earth.horizontal_ut:.3f} uT, vertical (up) "
+          f"{-earth.down_ut:.3f} uT: use magnet fit --method turntable --horizontal {earth.horizontal_ut:.3f} "
+          f"--vertical {-earth.down_ut:.3f}", file=sys.stderr)
 
-    if args.rate <= 0:
-        raise ValueError(f"--rate must be > 0, got {args.rate}")
-    stream = sensor_stream(args, args.count) if args.emulate else None
-    turntable = bool(args.emulate and args.trajectory.strip().lower() == "turntable")
-    bus = open_bus(args, stream)
-    sensor = open_sensor(args.sensor, bus, args.address, args.orientation)
-    has_acc = has_accelerometer(args.sensor)
-    if turntable:
-        earth = stream.earth
-        print(f"magnet sample: turntable field: horizontal {earth.horizontal_ut:.3f} uT, vertical (up) "
-              f"{-earth.down_ut:.3f} uT: use magnet fit --method turntable --horizontal {earth.horizontal_ut:.3f} "
-              f"--vertical {-earth.down_ut:.3f}", file=sys.stderr)
+
+def sample(settings: SampleSettings) -> int:
+    """Print the CSV for the settings on stdout; returns the exit status."""
+    stream = settings.simulator.sensor_stream(settings.count, settings.rate_hz) if settings.emulate else None
+    bus = open_bus(settings, stream)
+    sensor = open_sensor(settings.sensor, bus, settings.address, settings.orientation)
+    has_acc = has_accelerometer(settings.sensor)
+    if settings.turntable and stream is not None:
+        _announce_turntable(stream)
     out = sys.stdout
-    out.write(",".join(_header(has_acc, args.emulate, turntable)) + "\n")
-    skipped: dict[str, int] = {}
-    for t_s, reading in _readings(sensor, args, skipped):
-        truth = stream.last_truth if stream is not None else {}
-        row = [f"{truth.get('t_s', t_s):.4f}"] + _fmt(reading.mag_ut)
-        if has_acc:
-            row += _fmt(reading.acc_ms2) if reading.acc_ms2 is not None else ["", "", ""]
-        if args.emulate:
-            row += _fmt([truth["heading_deg"], truth["pitch_deg"], truth["roll_deg"]])
-        if turntable:
-            row += [str(truth["mounting"]), f"{truth['table_deg']:.4f}"]
-        out.write(",".join(row) + "\n")
-    out.flush()
-    if skipped:
-        log.warning("left out %s; sensor health: %s", ", ".join(f"{n} {k}" for k, n in skipped.items()),
-                    sensor.health.as_dict())
+    out.write(",".join(_header(has_acc, settings.emulate, settings.turntable)) + "\n")
+    loop = read_loop(sensor, settings)
+    try:
+        for t_s, reading in _readings(loop, settings):
+            truth = stream.last_truth if stream is not None else {}
+            row = [f"{truth.get('t_s', t_s):.4f}"] + _fmt(reading.mag_ut)
+            if has_acc:
+                row += _fmt(reading.acc_ms2) if reading.acc_ms2 is not None else ["", "", ""]
+            if settings.emulate:
+                row += _fmt([truth["heading_deg"], truth["pitch_deg"], truth["roll_deg"]])
+            if settings.turntable:
+                row += [str(truth["mounting"]), f"{truth['table_deg']:.4f}"]
+            out.write(",".join(row) + "\n")
+    finally:
+        out.flush()
+        stats = loop.stats
+        if stats.errors or stats.overflows:
+            log.warning("left out %d failed reads (%s) and %d overflows; sensor health: %s", stats.errors,
+                        stats.errors_by_cause, stats.overflows, sensor.health.as_dict())
     return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    return sample(SampleSettings.from_args(args))

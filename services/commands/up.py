@@ -14,6 +14,7 @@ import argparse
 import dataclasses
 import logging
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -22,13 +23,19 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
+import zenoh
 
 from magnet import wire
+from magnet.geomag import parse_location
+from services.common.sim_options import SimulatorSettings
 from services.common.zenoh_session import free_ports, loopback_arguments, payload_bytes, stop_event
+from services.edge.settings import EdgeSettings
 
 log = logging.getLogger("magnet.up")
 
 SERVICES = ("calibrator", "compass", "edge")
+MAX_DEVICES = 10_000
+LOG_TAIL_LINES = 15
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +52,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--http", metavar="HOST:PORT",
                         help="where the dashboard serves its page (default 127.0.0.1:8080, or a free port when taken)")
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the web dashboard")
+
+
+@dataclasses.dataclass(frozen=True)
+class UpSettings:
+    """What ``magnet up`` runs, checked in one place before anything starts: the edge's own checks (rate, batch,
+    speedup) through the ``EdgeSettings`` it will run, the location through ``parse_location``."""
+
+    devices: int = 4
+    rate_hz: float = 50.0
+    batch: int = 10
+    speedup: float = 4.0
+    location: str = "50.45,30.52"
+    db: Path | None = None
+    duration_s: float | None = None
+    interval_s: float | None = None
+    prefix: str = wire.DEFAULT_PREFIX
+    http: str | None = None
+    dashboard: bool = True
+
+    def __post_init__(self) -> None:
+        if self.http is not None:
+            from services.dashboard.service import parse_http
+
+            parse_http(self.http)
+        if not 1 <= self.devices <= MAX_DEVICES:
+            raise ValueError(f"--devices must be 1..{MAX_DEVICES}, got {self.devices}")
+        if self.duration_s is not None and not self.duration_s >= 0:
+            raise ValueError(f"--duration must be >= 0 seconds, got {self.duration_s}")
+        if self.interval_s is not None and not self.interval_s > 0:
+            raise ValueError(f"--interval must be > 0 seconds, got {self.interval_s}")
+        wire.validate_prefix(self.prefix)
+        try:
+            place = parse_location(self.location)
+        except ValueError as exc:
+            raise ValueError(f"--location: {exc}") from None
+        EdgeSettings(device="dev", emulate=True, devices=self.devices, rate_hz=self.rate_hz, batch=self.batch,
+                     speedup=self.speedup, simulator=SimulatorSettings(location=place))
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "UpSettings":
+        return cls(devices=int(args.devices), rate_hz=float(args.rate), batch=int(args.batch),
+                   speedup=float(args.speedup), location=args.location, db=args.db, duration_s=args.duration,
+                   interval_s=args.interval, prefix=args.prefix, http=args.http, dashboard=not args.no_dashboard)
 
 
 @dataclasses.dataclass
@@ -159,26 +209,28 @@ class Viewer:
         self.out.flush()
 
 
-def _start_services(args: argparse.Namespace, ports: dict[str, int], db: Path, logs: Path) -> dict[str, Any]:
-    common = ["--prefix", args.prefix]
+def _start_services(settings: UpSettings, ports: dict[str, int], db: Path, logs: Path,
+                    dashboard: tuple[str, str] | None = None) -> dict[str, Any]:
+    common = ["--prefix", settings.prefix]
     commands = {
-        "calibrator": ["calibrator", "--db", str(db), "--location", args.location,
+        "calibrator": ["calibrator", "--db", str(db), "--location", settings.location,
                        *loopback_arguments(ports["calibrator"])],
-        "compass": ["compass", "--location", args.location,
+        "compass": ["compass", "--location", settings.location,
                     *loopback_arguments(ports["compass"], [ports["calibrator"]])],
-        "edge": ["edge", "--emulate", "--devices", str(args.devices), "--device", "dev", "--rate", str(args.rate),
-                 "--batch", str(args.batch), "--speedup", str(args.speedup), "--location", args.location,
+        "edge": ["edge", "--emulate", "--devices", str(settings.devices), "--device", "dev",
+                 "--rate", str(settings.rate_hz), "--batch", str(settings.batch), "--speedup", str(settings.speedup),
+                 "--location", settings.location,
                  *loopback_arguments(ports["edge"], [ports["calibrator"], ports["compass"]])],
     }
-    if ports.get("dashboard"):
-        commands["dashboard"] = ["dashboard", "--http", args.http, "--token", args.token, "--location", args.location,
-                                 *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES])]
+    if dashboard is not None:
+        commands["dashboard"] = ["dashboard", "--http", dashboard[0], "--token", dashboard[1], "--location",
+                                 settings.location, *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES])]
     procs = {}
     for name in commands:
-        log_file = open(logs / f"{name}.log", "w")
-        procs[name] = subprocess.Popen([sys.executable, "-m", "services.cli", *commands[name], *common],
-                                       stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
-                                       start_new_session=True)
+        with open(logs / f"{name}.log", "w") as log_file:  # the child keeps its own descriptor
+            procs[name] = subprocess.Popen([sys.executable, "-m", "services.cli", *commands[name], *common],
+                                           stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
+                                           start_new_session=True)
     return procs
 
 
@@ -194,86 +246,96 @@ def _stop_services(procs: dict[str, Any]) -> None:
             proc.wait()
 
 
-def _dashboard_address(args: argparse.Namespace, ports: dict[str, int]) -> str | None:
-    """Choose the dashboard's HTTP address and token (in ``args``) and its Zenoh port; the page's address."""
-    http_port = ports.pop("http")
-    if args.no_dashboard:
-        ports.pop("dashboard")
+def _dashboard_http(settings: UpSettings, spare_port: int) -> tuple[str, str, str] | None:
+    """(HOST:PORT, token, page address) of the dashboard: --http, else 127.0.0.1:8080, else a free port."""
+    if not settings.dashboard:
         return None
     import secrets
+    import socket
 
     from services.dashboard.service import DEFAULT_HTTP, page_address, parse_http
 
-    if args.http is None:
-        host, port = parse_http(DEFAULT_HTTP)
-        if not _port_free(host, port):
-            port = http_port
-        args.http = f"{host}:{port}"
-    args.token = secrets.token_urlsafe(12)
-    return page_address(*parse_http(args.http), args.token)
+    http = settings.http
+    if http is None:
+        http = DEFAULT_HTTP
+        with socket.socket() as sock:
+            try:
+                sock.bind(parse_http(DEFAULT_HTTP))
+            except OSError:  # 8080 taken (another pipeline, another program): any free port will do
+                http = f"127.0.0.1:{spare_port}"
+    token = secrets.token_urlsafe(12)
+    return http, token, page_address(*parse_http(http), token)
 
 
-def _port_free(host: str, port: int) -> bool:
-    import socket
-
-    with socket.socket() as sock:
-        try:
-            sock.bind((host, port))
-        except OSError:
-            return False
-    return True
+def _report_dead(dead: list[str], logs: Path) -> None:
+    """Say which service stopped and show the end of its log (the logs go with the temporary directory)."""
+    print(f"magnet up: {', '.join(dead)} stopped unexpectedly", file=sys.stderr)
+    for name in dead:
+        lines = (logs / f"{name}.log").read_text(errors="replace").splitlines()[-LOG_TAIL_LINES:]
+        print(f"--- end of the {name} log:\n" + "\n".join(lines), file=sys.stderr)
 
 
-def run(args: argparse.Namespace) -> int:
-    import zenoh
-
-    if not 1 <= args.devices <= 10_000:
-        raise ValueError(f"--devices must be 1..10000, got {args.devices}")
-    wire.validate_prefix(args.prefix)
-    workdir = Path(tempfile.mkdtemp(prefix="magnet-up-"))
-    db = args.db or workdir / "calibrations.db"
-    port_list = free_ports(6)
-    ports = dict(zip((*SERVICES, "view", "dashboard", "http"), port_list))
-    tty = sys.stdout.isatty() and os.environ.get("CI", "").lower() not in ("1", "true")
-    interval = args.interval or (0.5 if tty else 3.0)
-    stop = stop_event()
-    page = _dashboard_address(args, ports)
-    procs = _start_services(args, ports, db, workdir)
-    print(f"magnet up: calibrator, compass and {args.devices} emulated device(s) on 127.0.0.1 ports "
-          f"{ports['calibrator']}, {ports['compass']}, {ports['edge']}; store {db}; logs in {workdir}", flush=True)
-    if page:
-        print(f"magnet up: dashboard at {page}", flush=True)
+def _view_config(ports: dict[str, int]) -> zenoh.Config:
     conf = zenoh.Config()
     conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{ports["view"]}"]')
     conf.insert_json5("connect/endpoints", str([f"tcp/127.0.0.1:{ports[n]}" for n in SERVICES]).replace("'", '"'))
     conf.insert_json5("scouting/multicast/enabled", "false")
-    viewer = Viewer(args.prefix, sys.stdout, tty)
+    return conf
+
+
+def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], logs: Path) -> int:
+    """Show the view until --duration, a signal, or a service that stops (exit status 1)."""
+    tty = sys.stdout.isatty() and os.environ.get("CI", "").lower() not in ("1", "true")
+    interval = settings.interval_s or (0.5 if tty else 3.0)
+    stop = stop_event()
+    viewer = Viewer(settings.prefix, sys.stdout, tty)
     started = time.monotonic()
     status = 0
-    try:
-        with zenoh.open(conf) as session:
-            subscribers = {kind: session.declare_subscriber(wire.key(args.prefix, "*", kind),
-                                                            zenoh.handlers.RingChannel(4096))
-                           for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION)}
-            next_view = started + min(interval, 1.0)
-            while not stop.is_set():
-                now = time.monotonic()
-                if args.duration is not None and now - started >= args.duration:
-                    break
-                dead = [name for name, proc in procs.items() if proc.poll() is not None]
-                if dead:
-                    print(f"magnet up: {', '.join(dead)} stopped unexpectedly; see the logs in {workdir}",
-                          file=sys.stderr)
-                    status = 1
-                    break
-                for kind, subscriber in subscribers.items():
-                    while (sample := subscriber.try_recv()) is not None:
-                        viewer.feed(kind, payload_bytes(sample))
-                if now >= next_view:
-                    viewer.show(now - started)
-                    next_view = now + interval
-                time.sleep(0.02)
-            viewer.show(time.monotonic() - started)
-    finally:
-        _stop_services(procs)
+    with zenoh.open(_view_config(ports)) as session:
+        subscribers = {kind: session.declare_subscriber(wire.key(settings.prefix, "*", kind),
+                                                        zenoh.handlers.RingChannel(4096))
+                       for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION)}
+        next_view = started + min(interval, 1.0)
+        while not stop.is_set():
+            now = time.monotonic()
+            if settings.duration_s is not None and now - started >= settings.duration_s:
+                break
+            dead = [name for name, proc in procs.items() if proc.poll() is not None]
+            if dead:
+                _report_dead(dead, logs)
+                status = 1
+                break
+            for kind, subscriber in subscribers.items():
+                while (sample := subscriber.try_recv()) is not None:
+                    viewer.feed(kind, payload_bytes(sample))
+            if now >= next_view:
+                viewer.show(now - started)
+                next_view = now + interval
+            time.sleep(0.02)
+        viewer.show(time.monotonic() - started)
     return status
+
+
+def up(settings: UpSettings) -> int:
+    """Run the local pipeline; the temporary directory (logs, and the store unless --db) is removed at exit."""
+    workdir = Path(tempfile.mkdtemp(prefix="magnet-up-"))
+    try:
+        db = settings.db or workdir / "calibrations.db"
+        ports = dict(zip((*SERVICES, "view", "dashboard", "http"), free_ports(6)))
+        dashboard = _dashboard_http(settings, ports.pop("http"))
+        procs = _start_services(settings, ports, db, workdir, dashboard and dashboard[:2])
+        try:
+            print(f"magnet up: calibrator, compass and {settings.devices} emulated device(s) on 127.0.0.1 ports "
+                  f"{ports['calibrator']}, {ports['compass']}, {ports['edge']}; store {db}; logs in {workdir} "
+                  "(removed at exit)", flush=True)
+            if dashboard:
+                print(f"magnet up: dashboard at {dashboard[2]}", flush=True)
+            return _watch(settings, procs, ports, workdir)
+        finally:
+            _stop_services(procs)
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    return up(UpSettings.from_args(args))

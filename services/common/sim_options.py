@@ -2,14 +2,19 @@
 
 ``--seed``, ``--trajectory spin|turntable|tumble|tenface``, ``--hard-iron X,Y,Z`` (uT), ``--soft-iron`` (3 diagonal
 or 9 row-major numbers), ``--noise-ut``, ``--location LAT,LON[,ALT_M]``, ``--date`` (default: the simulator's fixed
-date, so that the same seed gives the same data on any day).
+date, so that the same seed gives the same data on any day). ``SimulatorSettings.from_args`` checks them all at once.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from typing import Any
 
 import numpy as np
+
+from magnet.geomag import parse_location
+from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig, Trajectory
 
 
 def parse_floats(text: str, counts: tuple[int, ...], name: str) -> np.ndarray:
@@ -29,6 +34,14 @@ def parse_soft_iron(text: str) -> np.ndarray:
     return np.diag(values) if values.size == 3 else values.reshape(3, 3)
 
 
+def parse_trajectory(text: str) -> Trajectory:
+    try:
+        return Trajectory(text.strip().lower())
+    except ValueError:
+        raise ValueError(f"unknown --trajectory {text!r}: use one of "
+                         f"{', '.join(t.value for t in Trajectory)}") from None
+
+
 def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, noise_ut: float = 0.0) -> None:
     group = parser.add_argument_group("simulator (with --emulate)")
     group.add_argument("--seed", type=int, default=seed, help=f"simulator seed: same seed, same data (default {seed})")
@@ -40,32 +53,43 @@ def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, n
     group.add_argument("--date", default=None, help="YYYY-MM-DD or decimal year (default: the simulator's)")
 
 
-def sensor_errors(args: argparse.Namespace):
-    """The simulator's ``SensorErrors`` from the options."""
-    from magnet.simulator import SensorErrors
+@dataclasses.dataclass(frozen=True)
+class SimulatorSettings:
+    """The simulator options, checked. hard_iron_ut (3,) uT; soft_iron 9 numbers row-major (3x3); noise_ut uT RMS;
+    location (lat_deg, lon_deg, alt_m); date as given (None: the simulator's)."""
 
-    if args.noise_ut < 0:
-        raise ValueError(f"--noise-ut must be >= 0, got {args.noise_ut}")
-    return SensorErrors(hard_iron_ut=parse_floats(args.hard_iron, (3,), "--hard-iron"),
-                        soft_iron=parse_soft_iron(args.soft_iron), noise_ut=float(args.noise_ut))
+    seed: int = 0
+    trajectory: Trajectory = Trajectory.TUMBLE
+    hard_iron_ut: tuple[float, ...] = (0.0, 0.0, 0.0)
+    soft_iron: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    noise_ut: float = 0.0
+    location: tuple[float, float, float] = (50.45, 30.52, 0.0)
+    date: str | None = None
 
+    def __post_init__(self) -> None:
+        if not self.noise_ut >= 0:
+            raise ValueError(f"--noise-ut must be >= 0, got {self.noise_ut}")
+        if len(self.hard_iron_ut) != 3 or len(self.soft_iron) != 9:
+            raise ValueError("hard iron needs 3 numbers and soft iron 9")
 
-def simulator_place(args: argparse.Namespace) -> dict:
-    """lat_deg, lon_deg, alt_m and (when given) date, as the simulator's keyword arguments."""
-    from magnet.geomag import parse_location
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "SimulatorSettings":
+        return cls(seed=int(args.seed), trajectory=parse_trajectory(args.trajectory),
+                   hard_iron_ut=tuple(parse_floats(args.hard_iron, (3,), "--hard-iron").tolist()),
+                   soft_iron=tuple(parse_soft_iron(args.soft_iron).ravel().tolist()),
+                   noise_ut=float(args.noise_ut), location=parse_location(args.location), date=args.date)
 
-    lat, lon, alt = parse_location(args.location)
-    return {"lat_deg": lat, "lon_deg": lon, "alt_m": alt, **({"date": args.date} if args.date else {})}
+    def errors(self) -> SensorErrors:
+        """The simulator's ``SensorErrors``."""
+        return SensorErrors(hard_iron_ut=np.array(self.hard_iron_ut),
+                            soft_iron=np.array(self.soft_iron).reshape(3, 3), noise_ut=self.noise_ut)
 
+    def place(self) -> dict[str, Any]:
+        """lat_deg, lon_deg, alt_m and (when given) date, as the simulator's keyword arguments."""
+        lat, lon, alt = self.location
+        return {"lat_deg": lat, "lon_deg": lon, "alt_m": alt, **({"date": self.date} if self.date else {})}
 
-def sensor_stream(args: argparse.Namespace, count: int, rate_hz: float):
-    """The simulator's ``SensorStream`` for the options: ``count`` samples of trajectory at ``rate_hz``."""
-    from magnet.simulator import SensorStream, SimulatorConfig, Trajectory
-
-    try:
-        trajectory = Trajectory(args.trajectory.strip().lower())
-    except ValueError:
-        raise ValueError(f"unknown --trajectory {args.trajectory!r}: use one of "
-                         f"{', '.join(t.value for t in Trajectory)}") from None
-    return SensorStream(SimulatorConfig(trajectory=trajectory, rate_hz=rate_hz, count=max(count, 1),
-                                        errors=sensor_errors(args), seed=args.seed, **simulator_place(args)))
+    def sensor_stream(self, count: int, rate_hz: float) -> SensorStream:
+        """The simulator's ``SensorStream``: ``count`` samples of trajectory at ``rate_hz``."""
+        return SensorStream(SimulatorConfig(trajectory=self.trajectory, rate_hz=rate_hz, count=max(count, 1),
+                                            errors=self.errors(), seed=self.seed, **self.place()))

@@ -9,6 +9,7 @@ tcp/127.0.0.1:PORT`` and pass ``--no-multicast-scouting`` (``loopback_arguments`
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import signal
@@ -17,6 +18,8 @@ import threading
 import time
 from pathlib import Path
 from typing import Any, Sequence
+
+import zenoh
 
 from magnet.wire import DEFAULT_PREFIX, validate_prefix
 
@@ -39,24 +42,56 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = 
     parser.set_defaults(_default_mode=default_mode)
 
 
-def config_json5(args: argparse.Namespace) -> dict[str, str]:
+@dataclasses.dataclass(frozen=True)
+class ZenohSettings:
+    """The Zenoh options of a service: config file, mode (None: the file's, else ``default_mode``), endpoints to
+    connect to and listen on, multicast scouting off, and the key prefix."""
+
+    config: str | None = None
+    mode: str | None = None
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    no_multicast_scouting: bool = False
+    prefix: str = DEFAULT_PREFIX
+    default_mode: str = "peer"
+
+    def __post_init__(self) -> None:
+        validate_prefix(self.prefix)
+        for mode in (self.mode, self.default_mode):
+            if mode is not None and mode not in MODES:
+                raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "ZenohSettings":
+        """The settings of the options ``add_zenoh_arguments`` added."""
+        return cls(config=args.config, mode=args.mode, connect=tuple(args.connect), listen=tuple(args.listen),
+                   no_multicast_scouting=bool(args.no_multicast_scouting), prefix=args.prefix,
+                   default_mode=getattr(args, "_default_mode", "peer"))
+
+
+Options = ZenohSettings | argparse.Namespace
+
+
+def _settings(options: Options) -> ZenohSettings:
+    return options if isinstance(options, ZenohSettings) else ZenohSettings.from_args(options)
+
+
+def config_json5(options: Options) -> dict[str, str]:
     """Config path -> json5 value for every option given (what ``build_config`` inserts)."""
-    mode = getattr(args, "mode", None) or getattr(args, "_default_mode", "peer")
-    values = {"mode": json.dumps(mode)}
-    if args.connect:
-        values["connect/endpoints"] = json.dumps(list(args.connect))
-    if args.listen:
-        values["listen/endpoints"] = json.dumps(list(args.listen))
-    if args.no_multicast_scouting:
+    settings = _settings(options)
+    values = {"mode": json.dumps(settings.mode or settings.default_mode)}
+    if settings.connect:
+        values["connect/endpoints"] = json.dumps(list(settings.connect))
+    if settings.listen:
+        values["listen/endpoints"] = json.dumps(list(settings.listen))
+    if settings.no_multicast_scouting:
         values["scouting/multicast/enabled"] = "false"
     return values
 
 
-def build_config(args: argparse.Namespace):
+def build_config(options: Options) -> zenoh.Config:
     """A ``zenoh.Config`` from the file (if any) and the options. ValueError/OSError for a bad file or option."""
-    import zenoh
-
-    validate_prefix(args.prefix)
+    args = _settings(options)
     if args.config:
         path = Path(args.config)
         if not path.is_file():
@@ -77,15 +112,14 @@ def build_config(args: argparse.Namespace):
     return conf
 
 
-def open_session(args: argparse.Namespace):
-    """Open a session from the options; use it as a context manager so it is closed (or the process never exits)."""
-    import zenoh
-
+def open_session(options: Options) -> zenoh.Session:
+    """Open a session from the options (``ZenohSettings``, or the parsed options of ``add_zenoh_arguments``); use it
+    as a context manager so it is closed (or the process never exits)."""
     zenoh.try_init_log_from_env()
     deadline = time.monotonic() + OPEN_RETRY_S
     while True:
         try:
-            return zenoh.open(build_config(args))
+            return zenoh.open(build_config(options))
         except (ValueError, OSError):
             raise
         except Exception as exc:  # e.g. a client whose router is not up yet: retry a little, then give up
@@ -141,8 +175,6 @@ def payload_bytes(sample_or_query: Any) -> bytes:
 
 def drain(handler: Any, limit: int) -> list[Any]:
     """Up to ``limit`` items a zenoh handler holds now (an empty, closed channel gives none)."""
-    import zenoh
-
     items = []
     while len(items) < limit:
         try:

@@ -4,8 +4,9 @@ the WMM declination, and publish one heading message per raw batch on ``<prefix>
 On start it queries every stored calibration (``<prefix>/*/calibration``) and then follows new ones (subscriber);
 a device with none is asked for again now and then, and meanwhile gets headings from its raw field (flag
 CALIBRATED clear). Zenoh delivers into channels; this process's own loop drains them, decodes, computes a whole
-drain of batches at once (vectorized over every sample of every device) and publishes, never inside a callback.
-Counters (received, published, dropped by cause) answer on ``<prefix>/@status/<name>``.
+drain of batches at once (``magnet.compass.compute_headings``, vectorized over every sample of every device) and
+publishes, never inside a callback. Counters (received, published, dropped by cause) answer on
+``<prefix>/@status/<name>``.
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ import time
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from magnet import heading as hd
 from magnet import wire
-from magnet.model import Calibration
-from services.common.zenoh_session import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
+from magnet.compass import Earth, Headings, compute_headings, smooth_tail
+from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
+                                           stop_event)
 
 log = logging.getLogger("magnet.compass")
 
@@ -44,48 +47,51 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 @dataclasses.dataclass(frozen=True)
-class Earth:
-    """What the compass expects at its location: declination (deg, east +), |B| (uT), dip (deg); None = unknown."""
+class CompassSettings:
+    """Everything ``magnet compass`` runs with: what it expects where it is, the smoothing window (headings), its
+    name, the devices it serves (a key expression chunk) and the Zenoh options."""
 
-    declination_deg: float = 0.0
-    total_ut: float | None = None
-    inclination_deg: float | None = None
+    earth: Earth = Earth()
+    window: int = 1
+    name: str = "compass"
+    devices: str = "*"
+    zenoh: ZenohSettings = ZenohSettings()
 
-    @classmethod
-    def from_args(cls, location: str | None, date: str | None) -> "Earth":
-        if not location:
-            return cls()
-        from magnet.geomag import earth_field, parse_location
+    def __post_init__(self) -> None:
+        if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
+            raise ValueError(f"--window must be >= 1, got {self.window}")
 
-        lat, lon, alt = parse_location(location)
-        field = earth_field(lat, lon, alt, date)
-        return cls(field.declination_deg, field.total_ut, field.inclination_deg)
+
+def settings_from_args(args: argparse.Namespace) -> CompassSettings:
+    return CompassSettings(Earth.from_args(args.location, args.date), args.window, args.name, args.devices,
+                           ZenohSettings.from_args(args))
 
 
 @dataclasses.dataclass(frozen=True)
-class DeviceCalibration:
-    id: str
-    calibration: Calibration
+class CompassStatus:
+    """The answer of ``<prefix>/@status/<name>``."""
+
+    name: str
+    received_batches: int
+    received_samples: int
+    published_batches: int
+    calibrations: int
+    calibration_updates: int
+    dropped: dict[str, int]
+
+    def to_dict(self) -> dict[str, Any]:
+        fields = dataclasses.asdict(self)
+        return {"v": wire.WIRE_VERSION, "service": "compass", **fields, "dropped_total": sum(self.dropped.values())}
 
 
-def compute_headings(mag_ut: np.ndarray, acc_ms2: np.ndarray, offsets: np.ndarray, matrices: np.ndarray,
-                     calibrated: np.ndarray, earth: Earth) -> dict[str, np.ndarray]:
-    """Headings for S samples of any devices at once.
+@dataclasses.dataclass(frozen=True, eq=False)
+class HeadingColumns:
+    """``Headings`` of the samples of a ``wire.RawColumns`` plus true_heading_deg (S,) and one calibration id (or
+    "") per batch."""
 
-    mag_ut (S, 3) raw uT; acc_ms2 (S, 3) m/s^2 with NaN rows where a sample has no accelerometer; offsets (S, 3) and
-    matrices (S, 3, 3) the calibration of each sample's device (B = A (u - b), see ``magnet.model``); calibrated (S,)
-    bool. Returns field_ut (S, 3), heading_deg (magnetic), pitch_deg, roll_deg (0 without acc), flags (S,) int.
-    """
-    field = np.einsum("sij,sj->si", matrices, mag_ut - offsets)
-    has_acc = np.isfinite(acc_ms2).all(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)
-        pitch, roll = hd.pitch_roll_deg(acc_ms2)
-    heading = np.where(has_acc & np.isfinite(tilted), tilted, hd.level_heading_deg(field))
-    flags = hd.disturbance_flags(field, acc_ms2, earth.total_ut, earth.inclination_deg)
-    flags |= np.where(calibrated, int(hd.HeadingFlag.CALIBRATED), 0)
-    return {"field_ut": field, "heading_deg": heading, "pitch_deg": np.where(has_acc, pitch, 0.0),
-            "roll_deg": np.where(has_acc, roll, 0.0), "flags": flags}
+    headings: Headings
+    true_heading_deg: np.ndarray
+    calibration_ids: list[str]
 
 
 class Compass:
@@ -96,7 +102,7 @@ class Compass:
             raise ValueError(f"--window must be >= 1, got {window}")
         self.earth = earth
         self.window = window
-        self.calibrations: dict[str, DeviceCalibration] = {}
+        self.calibrations: dict[str, wire.DeviceCalibration] = {}
         self.tails: dict[str, np.ndarray] = {}
         self.drops = wire.DropCounter()
         self.received_batches = self.received_samples = self.published_batches = 0
@@ -105,16 +111,16 @@ class Compass:
 
     def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> None:
         try:
-            message = wire.decode_calibration(payload)
-            wire.check_key(prefix, key_expr, wire.Kind.CALIBRATION, message.device)
+            record = wire.decode_calibration(payload)
+            wire.check_key(prefix, key_expr, wire.Kind.CALIBRATION, record.device)
         except wire.WireError as exc:
             self.drops.drop(exc, "calibration", log)
             return
-        current = self.calibrations.get(message.device)
-        if current is None or current.id != message.id:
-            self.calibrations[message.device] = DeviceCalibration(message.id, message.calibration)
+        current = self.calibrations.get(record.device)
+        if current is None or current.id != record.id:
+            self.calibrations[record.device] = record
             self.calibration_updates += 1
-            log.info("calibration %s (%s) in force for %s", message.id, message.calibration.method, message.device)
+            log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
 
     def decode(self, items: list[tuple[str, bytes]], prefix: str) -> list[wire.RawBatch]:
         """Raw batches from (key, payload) pairs; malformed ones dropped and counted."""
@@ -147,9 +153,9 @@ class Compass:
                 self._key_devices[key_expr] = device
         return device
 
-    def compute(self, columns: wire.RawColumns) -> dict[str, Any]:
-        """Heading columns for every sample of ``columns`` (see ``compute_headings``) plus ``true_heading_deg`` and
-        ``calibration_ids`` (one per batch); counts what it received."""
+    def compute(self, columns: wire.RawColumns) -> HeadingColumns:
+        """Headings for every sample of ``columns`` (see ``magnet.compass.compute_headings``), smoothed per device,
+        with true headings and the calibration id of each batch; counts what it received."""
         cals = [self.calibrations.get(device) for device in columns.devices]
         counts = columns.counts
         offsets = np.repeat(np.array([c.calibration.offset if c else _ZERO3 for c in cals]).reshape(-1, 3), counts,
@@ -161,20 +167,19 @@ class Compass:
         self.received_batches += len(columns.devices)
         self.received_samples += int(counts.sum())
         if self.window > 1:
-            bounds = np.concatenate([[0], np.cumsum(counts)])
-            out["heading_deg"] = np.concatenate(
-                [self._smooth(device, out["heading_deg"][bounds[i]:bounds[i + 1]])
-                 for i, device in enumerate(columns.devices)] or [np.empty(0)])
-        out["true_heading_deg"] = hd.true_heading_deg(out["heading_deg"], self.earth.declination_deg)
-        out["calibration_ids"] = [c.id if c else "" for c in cals]
-        return out
+            bounds = columns.bounds
+            out = dataclasses.replace(out, heading_deg=np.concatenate(
+                [self._smooth(device, out.heading_deg[bounds[i]:bounds[i + 1]])
+                 for i, device in enumerate(columns.devices)] or [np.empty(0)]))
+        return HeadingColumns(out, hd.true_heading_deg(out.heading_deg, self.earth.declination_deg),
+                              [c.id if c else "" for c in cals])
 
     def encode(self, columns: wire.RawColumns) -> list[bytes]:
         """One heading payload per raw batch of ``columns``, in order."""
         out = self.compute(columns)
-        return wire.encode_headings(columns, out["heading_deg"], out["true_heading_deg"], out["pitch_deg"],
-                                    out["roll_deg"], out["field_ut"], out["flags"], self.earth.declination_deg,
-                                    out["calibration_ids"])
+        h = out.headings
+        return wire.encode_headings(columns, h.heading_deg, out.true_heading_deg, h.pitch_deg, h.roll_deg, h.field_ut,
+                                    h.flags, self.earth.declination_deg, out.calibration_ids)
 
     def process(self, batches: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
         """Heading batches, one per raw batch, computed in one vectorized pass."""
@@ -182,89 +187,98 @@ class Compass:
             return []
         columns = wire.RawColumns.from_batches(batches)
         out = self.compute(columns)
-        bounds = np.concatenate([[0], np.cumsum(columns.counts)]).tolist()
-        return [wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, *(out[name][lo:hi] for name in (
-                    "heading_deg", "true_heading_deg", "pitch_deg", "roll_deg", "field_ut")),
-                    self.earth.declination_deg, cal_id, out["flags"][lo:hi])
-                for batch, cal_id, lo, hi in zip(batches, out["calibration_ids"], bounds[:-1], bounds[1:])]
+        h = out.headings
+        bounds = columns.bounds
+        return [wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, h.heading_deg[lo:hi],
+                                  out.true_heading_deg[lo:hi], h.pitch_deg[lo:hi], h.roll_deg[lo:hi],
+                                  h.field_ut[lo:hi], self.earth.declination_deg, cal_id, h.flags[lo:hi])
+                for batch, cal_id, lo, hi in zip(batches, out.calibration_ids, bounds[:-1], bounds[1:])]
 
     def _smooth(self, device: str, heading: np.ndarray) -> np.ndarray:
-        if self.window == 1:
-            return heading
-        tail = self.tails.get(device, np.empty(0))
-        joined = np.concatenate([tail, heading])
-        self.tails[device] = joined[-(self.window - 1):]
-        return hd.smooth_heading_deg(joined, self.window)[-heading.size:]
+        smoothed, self.tails[device] = smooth_tail(self.tails.get(device, np.empty(0)), heading, self.window)
+        return smoothed
 
-    def status(self, name: str) -> dict[str, Any]:
-        return {"v": wire.WIRE_VERSION, "service": "compass", "name": name,
-                "received_batches": self.received_batches, "received_samples": self.received_samples,
-                "published_batches": self.published_batches, "calibrations": len(self.calibrations),
-                "calibration_updates": self.calibration_updates, "dropped": dict(self.drops.counts),
-                "dropped_total": self.drops.total}
+    def status(self, name: str) -> CompassStatus:
+        return CompassStatus(name, self.received_batches, self.received_samples, self.published_batches,
+                             len(self.calibrations), self.calibration_updates, dict(self.drops.counts))
 
 
-def run(args: argparse.Namespace) -> int:
-    import zenoh
+# ------------------------------------------------------------------------------------------------------- shell
 
-    compass = Compass(Earth.from_args(args.location, args.date), args.window)
+
+def run_compass(args: argparse.Namespace) -> int:
+    """``magnet compass``: the settings from the options, then ``run``."""
+    return run(settings_from_args(args))
+
+
+def run(settings: CompassSettings) -> int:
+    compass = Compass(settings.earth, settings.window)
     stop = stop_event()
-    prefix = args.prefix
-    devices = args.devices
-    with open_session(args) as session:
-        token = session.liveliness().declare_token(wire.liveliness_key(prefix, "compass", args.name))
+    prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
+    with open_session(settings.zenoh) as session:
+        token = session.liveliness().declare_token(wire.liveliness_key(prefix, "compass", name))
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         cal_sub = session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
-        status_q = session.declare_queryable(wire.status_key(prefix, args.name), zenoh.handlers.FifoChannel(64))
-        heading_keys: dict[str, str] = {}
-        pending: list[tuple[float, Any]] = [(time.monotonic() + 3.0, session.get(f"{prefix}/{devices}/calibration",
-                                                                                    timeout=3.0))]
-        asked: dict[str, float] = {"*": time.monotonic()}
-        log.info("compass %s: serving %s/%s, declination %.2f deg", args.name, prefix, devices,
+        status_q = session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64))
+        log.info("compass %s: serving %s/%s, declination %.2f deg", name, prefix, devices,
                  compass.earth.declination_deg)
+        loop = _Loop(session, compass, settings)
         while not stop.is_set():
-            busy = False
-            pending = _poll_replies(pending, compass, prefix)
-            for sample in drain(cal_sub, 1000):
-                compass.accept_calibration(payload_bytes(sample), str(sample.key_expr), prefix)
+            loop.calibrations(cal_sub)
             for query in drain(status_q, 64):
-                query.reply(wire.status_key(prefix, args.name), wire.pack(compass.status(args.name)))
+                query.reply(wire.status_key(prefix, name), wire.pack(compass.status(name).to_dict()))
                 query.drop()  # finalize now: the asker waits for it
-            samples = drain(raw_sub, MAX_DRAIN)
-            if samples:
-                busy = True
-                columns = compass.decode_columns([(str(s.key_expr), s.payload.to_bytes()) for s in samples], prefix)
-                for device, payload in zip(columns.devices, compass.encode(columns)):
-                    key = heading_keys.get(device) or heading_keys.setdefault(
-                        device, wire.key(prefix, device, wire.Kind.HEADING))
-                    session.put(key, payload)  # measured: a declared publisher per device costs ~5x the CPU
-                    compass.published_batches += 1
-                pending += _ask_missing(session, compass, columns.devices, asked, prefix, devices)
-            if not busy:
+            if not loop.headings(raw_sub):
                 time.sleep(IDLE_SLEEP_S)
         token.undeclare()
-    log.info("compass stopped: %s", compass.status(args.name))
+    log.info("compass stopped: %s", compass.status(name).to_dict())
     return 0
 
 
-def _poll_replies(pending: list[tuple[float, Any]], compass: Compass, prefix: str) -> list[tuple[float, Any]]:
-    """Take the replies of calibration queries that arrived; keep the queries that may still answer."""
-    still = []
-    now = time.monotonic()
-    for deadline, handler in pending:
-        for reply in drain(handler, 10_000):
-            if reply.ok is not None:
-                compass.accept_calibration(payload_bytes(reply.ok), str(reply.ok.key_expr), prefix)
-        if now < deadline:
-            still.append((deadline, handler))
-    return still
+class _Loop:
+    """One compass loop's session work: calibration queries and their replies, headings published."""
 
+    def __init__(self, session: Any, compass: Compass, settings: CompassSettings) -> None:
+        self.session, self.compass = session, compass
+        self.prefix, self.devices = settings.zenoh.prefix, settings.devices
+        self.heading_keys: dict[str, str] = {}
+        self.asked = time.monotonic()
+        self.pending: list[tuple[float, Any]] = [(self.asked + 3.0, self._ask(3.0))]
 
-def _ask_missing(session: Any, compass: Compass, seen: list[str], asked: dict[str, float],
-                 prefix: str, devices: str) -> list[tuple[float, Any]]:
-    """One query for every calibration when a device was seen without one (at most every REQUERY_S)."""
-    now = time.monotonic()
-    if now - asked.get("*", now) < REQUERY_S or all(d in compass.calibrations for d in seen):
-        return []
-    asked["*"] = now
-    return [(now + 2.0, session.get(f"{prefix}/{devices}/calibration", timeout=2.0))]
+    def _ask(self, timeout: float) -> Any:
+        return self.session.get(f"{self.prefix}/{self.devices}/calibration", timeout=timeout)
+
+    def calibrations(self, cal_sub: Any) -> None:
+        """Take the calibrations published and the replies to queries that arrived; keep queries that may answer."""
+        still, now = [], time.monotonic()
+        for deadline, handler in self.pending:
+            for reply in drain(handler, 10_000):
+                if reply.ok is not None:
+                    self.compass.accept_calibration(payload_bytes(reply.ok), str(reply.ok.key_expr), self.prefix)
+            if now < deadline:
+                still.append((deadline, handler))
+        self.pending = still
+        for sample in drain(cal_sub, 1000):
+            self.compass.accept_calibration(payload_bytes(sample), str(sample.key_expr), self.prefix)
+
+    def headings(self, raw_sub: Any) -> bool:
+        """Compute and publish the headings of the raw batches waiting; False when there were none."""
+        samples = drain(raw_sub, MAX_DRAIN)
+        if not samples:
+            return False
+        columns = self.compass.decode_columns([(str(s.key_expr), s.payload.to_bytes()) for s in samples], self.prefix)
+        for device, payload in zip(columns.devices, self.compass.encode(columns)):
+            key = self.heading_keys.get(device) or self.heading_keys.setdefault(
+                device, wire.key(self.prefix, device, wire.Kind.HEADING))
+            self.session.put(key, payload)  # measured: a declared publisher per device costs ~5x the CPU
+            self.compass.published_batches += 1
+        self._ask_missing(columns.devices)
+        return True
+
+    def _ask_missing(self, seen: list[str]) -> None:
+        """One query for every calibration when a device was seen without one (at most every REQUERY_S)."""
+        now = time.monotonic()
+        if now - self.asked < REQUERY_S or all(d in self.compass.calibrations for d in seen):
+            return
+        self.asked = now
+        self.pending.append((now + 2.0, self._ask(2.0)))

@@ -1,0 +1,73 @@
+"""The compass's maths: headings for many samples of many devices at once, and what the compass expects where it is.
+
+Pure numpy: the compass service (``services.compass``) decodes, calls ``compute_headings`` on every sample of a whole
+drain of batches, and publishes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from magnet import heading as hd
+from magnet.geomag import earth_field, parse_location
+
+
+@dataclasses.dataclass(frozen=True)
+class Earth:
+    """What the compass expects at its location: declination (deg, east +), |B| (uT), dip (deg); None = unknown."""
+
+    declination_deg: float = 0.0
+    total_ut: float | None = None
+    inclination_deg: float | None = None
+
+    @classmethod
+    def from_args(cls, location: str | None, date: str | None) -> "Earth":
+        """From ``LAT,LON[,ALT_M]`` and a ``YYYY-MM-DD`` date (None: today) with the WMM; unknown without a location."""
+        if not location:
+            return cls()
+        lat, lon, alt = parse_location(location)
+        field = earth_field(lat, lon, alt, date)
+        return cls(field.declination_deg, field.total_ut, field.inclination_deg)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Headings:
+    """Headings of S samples: field_ut (S, 3) corrected uT, heading_deg (S,) magnetic, pitch_deg and roll_deg (S,)
+    (0 without acc), flags (S,) ``HeadingFlag`` bits."""
+
+    field_ut: np.ndarray
+    heading_deg: np.ndarray
+    pitch_deg: np.ndarray
+    roll_deg: np.ndarray
+    flags: np.ndarray
+
+
+def compute_headings(mag_ut: np.ndarray, acc_ms2: np.ndarray, offsets: np.ndarray, matrices: np.ndarray,
+                     calibrated: np.ndarray, earth: Earth) -> Headings:
+    """Headings for S samples of any devices at once.
+
+    mag_ut (S, 3) raw uT; acc_ms2 (S, 3) m/s^2 with NaN rows where a sample has no accelerometer; offsets (S, 3) and
+    matrices (S, 3, 3) the calibration of each sample's device (B = A (u - b), see ``magnet.model``); calibrated (S,)
+    bool.
+    """
+    field = np.einsum("sij,sj->si", matrices, mag_ut - offsets)
+    has_acc = np.isfinite(acc_ms2).all(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)
+        pitch, roll = hd.pitch_roll_deg(acc_ms2)
+    heading = np.where(has_acc & np.isfinite(tilted), tilted, hd.level_heading_deg(field))
+    flags = hd.disturbance_flags(field, acc_ms2, earth.total_ut, earth.inclination_deg)
+    flags |= np.where(calibrated, int(hd.HeadingFlag.CALIBRATED), 0)
+    return Headings(field, heading, np.where(has_acc, pitch, 0.0), np.where(has_acc, roll, 0.0), flags)
+
+
+def smooth_tail(tail: np.ndarray, heading_deg: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Circular sliding mean over ``window`` headings across batches: (smoothed (N,), the new tail to keep).
+
+    tail: the last ``window - 1`` headings (deg) of the previous batches of the device; heading_deg (N,) deg."""
+    if window == 1:
+        return heading_deg, tail[:0]
+    joined = np.concatenate([tail, heading_deg])
+    return hd.smooth_heading_deg(joined, window)[-heading_deg.size:], joined[-(window - 1):]

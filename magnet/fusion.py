@@ -1,0 +1,224 @@
+"""Gyroscope-aided attitude and heading: a thin wrapper around the ``vqf`` orientation filter (DESIGN.md 4b).
+
+vqf (Laidig and Seel 2023, MIT) fuses gyroscope, accelerometer and magnetometer. Its frames are not the project's, so
+they are converted here, once, at the boundary:
+
+- project body frame b: x forward, y right, z down; vqf's body frame s is the same sensor with z up, so
+  v_s = D v_b with D = diag(1, -1, -1) (a rotation by 180 deg about x);
+- vqf's earth frame is ENU (x east, y north, z up; with a magnetometer, y is magnetic north); the project's is NED:
+  v_ned = C v_enu, C swaps x and y and negates z (a rotation by 180 deg about (1, 1, 0) / sqrt 2).
+
+So the body-to-NED rotation is R = C R_vqf D, as quaternions q = q_C * q_vqf * q_D with q_C = (0, 1/sqrt2, 1/sqrt2, 0)
+and q_D = (0, 1, 0, 0) (w, x, y, z). Heading, pitch and roll follow ``magnet.attitude`` (Z-Y-X Euler angles of R):
+heading of body x clockwise from (magnetic) north in [0, 360), pitch nose up positive, roll right side down positive.
+
+Inputs: gyroscope (N, 3) rad/s, accelerometer (N, 3) m/s^2 (specific force: a level still device reads (0, 0, -g)),
+magnetometer (N, 3) calibrated field (uT; any unit works, vqf uses directions and relative norms), all in the project
+body frame and sampled together at one fixed period (seconds). ``Fusion`` is causal and keeps its state across
+batches (the live compass, one per device); ``fuse_offline`` may look ahead (``offlineVQF``, forward-backward), the
+best estimate for a log.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Mapping
+
+import numpy as np
+import vqf
+
+from magnet.attitude import matrix_to_euler, quaternion_to_matrix
+from magnet.units import STANDARD_GRAVITY_MS2
+
+_HALF_SQRT2 = math.sqrt(0.5)
+#: ENU -> NED (180 deg about (1, 1, 0)/sqrt 2) and project body -> vqf body (180 deg about x), as w, x, y, z
+_Q_ENU_TO_NED = np.array([0.0, _HALF_SQRT2, _HALF_SQRT2, 0.0])
+_Q_BODY_TO_VQF = np.array([0.0, 1.0, 0.0, 0.0])
+_BODY_TO_VQF = np.array([1.0, -1.0, -1.0])
+#: sample periods a filter accepts, seconds (10 kHz .. 0.5 Hz)
+MIN_PERIOD_S = 1e-4
+MAX_PERIOD_S = 2.0
+
+
+def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p * q of quaternions (..., 4) ordered w, x, y, z (broadcasting)."""
+    p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+    pw, px, py, pz = np.moveaxis(p, -1, 0)
+    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
+    return np.stack([pw * qw - px * qx - py * qy - pz * qz,
+                     pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx,
+                     pw * qz + px * qy - py * qx + pz * qw], axis=-1)
+
+
+def vqf_to_body_ned(quat_vqf: np.ndarray) -> np.ndarray:
+    """vqf's quaternions (..., 4) (its body -> ENU) to the project's body -> NED, w >= 0, shape (..., 4)."""
+    q = quat_multiply(quat_multiply(_Q_ENU_TO_NED, quat_vqf), _Q_BODY_TO_VQF)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def body_ned_to_enu_z_up(quat_wxyz: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`vqf_to_body_ned`: body (x fwd, y right, z down) -> NED to z-up body -> ENU, (..., 4)."""
+    conj = np.array([1.0, -1.0, -1.0, -1.0])
+    return quat_multiply(quat_multiply(_Q_ENU_TO_NED * conj, quat_wxyz), _Q_BODY_TO_VQF * conj)
+
+
+def euler_from_quat(quat_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(heading [0, 360), pitch [-90, 90], roll (-180, 180]) in degrees from body -> NED quaternions (..., 4)."""
+    return matrix_to_euler(quaternion_to_matrix(quat_wxyz))
+
+
+def down_in_body(quat_wxyz: np.ndarray) -> np.ndarray:
+    """The NED down direction in body axes (..., 3), unit, from body -> NED quaternions (..., 4): R^T (0, 0, 1)."""
+    return quaternion_to_matrix(quat_wxyz)[..., 2, :]
+
+
+def quat_from_euler(heading_deg, pitch_deg, roll_deg) -> np.ndarray:
+    """Body -> NED quaternions (..., 4), w >= 0, from Z-Y-X Euler angles in degrees (``magnet.attitude``)."""
+    half = [np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg, roll_deg)]
+    half = np.broadcast_arrays(*half)
+    zero = np.zeros_like(half[0])
+    qz = np.stack([np.cos(half[0]), zero, zero, np.sin(half[0])], axis=-1)
+    qy = np.stack([np.cos(half[1]), zero, np.sin(half[1]), zero], axis=-1)
+    qx = np.stack([np.cos(half[2]), np.sin(half[2]), zero, zero], axis=-1)
+    q = quat_multiply(quat_multiply(qz, qy), qx)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def rotate_heading(quat_wxyz: np.ndarray, angle_deg) -> np.ndarray:
+    """Quaternions (..., 4) turned by ``angle_deg`` about NED down (magnetic -> true north: the declination)."""
+    half = np.radians(np.asarray(angle_deg, dtype=float)) / 2
+    turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)
+    q = quat_multiply(turn, quat_wxyz)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def acc_in_ms2(acc: np.ndarray) -> np.ndarray:
+    """Accelerometer readings (N, 3) in m/s^2, or in g (recognised by a median magnitude of 0.5 .. 2), as m/s^2.
+
+    The filter's rest detection works in m/s^2; logs in g are common (``magnet heading`` takes either).
+    """
+    arr = np.asarray(acc, dtype=float)
+    median = float(np.median(np.linalg.norm(arr, axis=-1))) if arr.size else 0.0
+    return arr * STANDARD_GRAVITY_MS2 if 0.5 <= median <= 2.0 else arr
+
+
+def sample_period_s(t: np.ndarray, scale: float = 1.0) -> float:
+    """Fixed sample period (seconds) of time stamps ``t`` (N,) in seconds (``scale`` 1) or ns (``scale`` 1e-9).
+
+    The median step, so a few dropped or jittered samples do not matter. ValueError when the stamps do not go
+    forward or give a period outside 0.1 ms .. 2 s.
+    """
+    stamps = np.asarray(t, dtype=float)
+    if stamps.ndim != 1 or stamps.size < 2:
+        raise ValueError("need at least two time stamps to know the sample period")
+    if not np.all(np.isfinite(stamps)):
+        raise ValueError("time stamps hold NaN or infinite values")
+    steps = np.diff(stamps) * scale
+    period = float(np.median(steps))
+    if not MIN_PERIOD_S <= period <= MAX_PERIOD_S:
+        raise ValueError(f"median time step {period:.6g} s is not a usable sample period "
+                         f"({MIN_PERIOD_S:g} .. {MAX_PERIOD_S:g} s): are the times in seconds, and increasing?")
+    return period
+
+
+def _check_period(period_s: float) -> float:
+    period = float(period_s)
+    if not (math.isfinite(period) and MIN_PERIOD_S <= period <= MAX_PERIOD_S):
+        raise ValueError(f"sample period {period_s!r} s is outside {MIN_PERIOD_S:g} .. {MAX_PERIOD_S:g} s")
+    return period
+
+
+def _to_vqf(vectors: np.ndarray | None, name: str, count: int | None = None) -> np.ndarray | None:
+    """(N, 3) body vectors -> C-contiguous float64 in vqf's z-up body frame; ValueError on bad shape or values."""
+    if vectors is None:
+        return None
+    arr = np.asarray(vectors, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3 or (count is not None and len(arr) != count):
+        want = f"({count}, 3)" if count is not None else "(N, 3)"
+        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} holds NaN or infinite values: drop those samples before fusing")
+    return np.ascontiguousarray(arr * _BODY_TO_VQF)
+
+
+@dataclasses.dataclass(frozen=True)
+class Fused:
+    """Fused attitude per sample (N samples).
+
+    quat_wxyz: (N, 4) body -> NED (magnetic north), w >= 0. heading_deg (N,) magnetic heading of body x in [0, 360);
+    pitch_deg, roll_deg (N,). mag_disturbed (N,) bool: vqf's magnetic disturbance detection (|B| or dip away from its
+    reference; the field is then not used for heading). rest (N,) bool: vqf's rest detection. With no magnetometer the
+    heading is the gyroscope's, relative to where the filter started, and mag_disturbed is all False.
+    """
+
+    quat_wxyz: np.ndarray
+    heading_deg: np.ndarray
+    pitch_deg: np.ndarray
+    roll_deg: np.ndarray
+    mag_disturbed: np.ndarray
+    rest: np.ndarray
+
+    @classmethod
+    def from_vqf(cls, out: Mapping[str, Any], with_mag: bool) -> "Fused":
+        quat = vqf_to_body_ned(np.asarray(out["quat9D" if with_mag else "quat6D"], dtype=float).reshape(-1, 4))
+        heading, pitch, roll = euler_from_quat(quat)
+        count = len(quat)
+        disturbed = np.asarray(out["magDistDetected"], dtype=bool).reshape(count) if with_mag else np.zeros(count, bool)
+        rest = np.asarray(out["restDetected"], dtype=bool).reshape(count)
+        return cls(quat, heading, pitch, roll, disturbed, rest)
+
+
+def _empty() -> Fused:
+    zeros = np.zeros(0)
+    return Fused(np.zeros((0, 4)), zeros, zeros, zeros, np.zeros(0, bool), np.zeros(0, bool))
+
+
+class Fusion:
+    """Causal gyroscope + accelerometer (+ magnetometer) filter for one device; state carries across batches.
+
+    ``period_s``: the fixed sample period in seconds. ``params``: vqf parameters by name (its defaults otherwise).
+    ``update`` takes one batch of aligned samples; ``restart`` forgets everything (a gap, a device restart).
+    """
+
+    def __init__(self, period_s: float, params: Mapping[str, Any] | None = None) -> None:
+        self.period_s = _check_period(period_s)
+        self.params = dict(params or {})
+        self._filter = vqf.VQF(self.period_s, **self.params)
+        self.samples = 0
+
+    def restart(self) -> None:
+        """Back to the initial state: attitude, gyro bias and magnetic reference forgotten."""
+        self._filter.resetState()
+        self.samples = 0
+
+    def update(self, gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | None = None) -> Fused:
+        """Feed one batch: gyr (N, 3) rad/s, acc (N, 3) m/s^2, mag (N, 3) calibrated field or None; body frame."""
+        gyr = _to_vqf(gyr_rads, "gyr_rads")
+        if len(gyr) == 0:
+            return _empty()
+        acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
+        field = _to_vqf(mag, "mag", len(gyr))
+        out = self._filter.updateBatch(gyr, acc, field)
+        self.samples += len(gyr)
+        return Fused.from_vqf(out, field is not None)
+
+
+def fuse_offline(gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | None, period_s: float,
+                 params: Mapping[str, Any] | None = None) -> Fused:
+    """Best estimate for a whole log (vqf's ``offlineVQF``: looks ahead, forward and backward). Shapes as ``Fusion``."""
+    period = _check_period(period_s)
+    gyr = _to_vqf(gyr_rads, "gyr_rads")
+    if len(gyr) == 0:
+        return _empty()
+    acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
+    field = _to_vqf(mag, "mag", len(gyr))
+    out = vqf.offlineVQF(gyr, acc, field, period, dict(params) if params else None)
+    return Fused.from_vqf(out, field is not None)
+
+
+def fuse_causal(gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | None, period_s: float,
+                params: Mapping[str, Any] | None = None) -> Fused:
+    """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``."""
+    return Fusion(period_s, params).update(gyr_rads, acc_ms2, mag)

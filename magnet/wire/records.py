@@ -1,0 +1,139 @@
+"""Calibration records and calibration progress on the wire.
+
+- calibration: ``Calibration.to_dict()`` plus ``v, device, id (content id), created_ns`` (``DeviceCalibration``)
+- progress: ``{v, device, state, t_ns, calibration_id, method, session, samples, seen, coverage, cells_hit,
+  cell_count, missing: [str], residual_rms_ut, accepted, reason}`` (``Progress``; the collection keys only while
+  collecting, the calibration keys only once there is one)
+
+A calibration record enters from outside (a message, a stored row) only through ``calibration_from_record``, which
+reads the record with ``Calibration.from_dict`` (the one check of a calibration: shapes, finiteness, condition
+number, determinant, offset).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping
+
+import msgpack
+
+from magnet.model import Calibration
+from magnet.wire.codec import WIRE_VERSION, Payload, check_version, int_field, unpack
+from magnet.wire.errors import WireError
+from magnet.wire.keys import message_device, validate_device_id
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DeviceCalibration:
+    """The calibration of one device as published and stored: device id, when it was made (ns since the epoch) and
+    the record; ``id`` is the record's content id."""
+
+    device: str
+    created_ns: int
+    calibration: Calibration
+
+    def __post_init__(self) -> None:
+        validate_device_id(self.device)
+        if isinstance(self.created_ns, bool) or not isinstance(self.created_ns, int) or self.created_ns < 0:
+            raise ValueError(f"created_ns must be a whole number of ns >= 0, got {self.created_ns!r}")
+
+    @property
+    def id(self) -> str:
+        return self.calibration.content_id
+
+    def to_record(self) -> dict[str, Any]:
+        """The published map (JSON-able): ``v, device, id, created_ns`` and the calibration's fields."""
+        return {"v": WIRE_VERSION, "device": self.device, "id": self.id, "created_ns": int(self.created_ns),
+                **self.calibration.to_dict()}
+
+
+#: the name this envelope had before
+CalibrationMessage = DeviceCalibration
+
+
+def calibration_record(device: str, calibration: Calibration, created_ns: int) -> dict[str, Any]:
+    """The published map: ``Calibration.to_dict()`` plus ``v, device, id, created_ns`` (JSON-able)."""
+    return DeviceCalibration(device, int(created_ns), calibration).to_record()
+
+
+def encode_calibration(device: str, calibration: Calibration, created_ns: int) -> bytes:
+    return msgpack.packb(calibration_record(device, calibration, created_ns), use_bin_type=True)
+
+
+def calibration_from_record(record: Mapping[str, Any]) -> DeviceCalibration:
+    """The one entry of a published or stored calibration map; WireError (``bad-calibration``, or the cause of a
+    bad version, device or created_ns) with what is wrong."""
+    if not isinstance(record, Mapping):
+        raise WireError("not-a-map", "a calibration record must be a map")
+    check_version(record)
+    device = message_device(record)
+    created_ns = int_field(record, "created_ns", 0)
+    if created_ns < 0:
+        raise WireError("bad-field", f"created_ns must be >= 0, got {created_ns}")
+    try:
+        calibration = Calibration.from_dict(record)
+    except (ValueError, TypeError) as exc:
+        raise WireError("bad-calibration", f"unusable calibration: {exc}") from None
+    return DeviceCalibration(device, created_ns, calibration)
+
+
+def decode_calibration(payload: Payload) -> DeviceCalibration:
+    return calibration_from_record(unpack(payload))
+
+
+@dataclasses.dataclass(frozen=True)
+class Collecting:
+    """What a collection in progress adds to ``Progress``: session or automatic, samples seen, coverage cells."""
+
+    session: bool
+    seen: int
+    cells_hit: int
+    cell_count: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Progress:
+    """A device's calibration progress. state: collecting / session / calibrated / idle; t_ns: when (ns);
+    calibration_id: the record in force or None. method ... reason: the latest fit or the record in force (absent
+    while there is neither, ``method`` None); collecting: while samples are being collected."""
+
+    state: str
+    t_ns: int
+    calibration_id: str | None = None
+    method: str | None = None
+    samples: int | None = None
+    coverage: float | None = None
+    missing: tuple[str, ...] = ()
+    residual_rms_ut: float | None = None
+    accepted: bool | None = None
+    reason: str = ""
+    collecting: Collecting | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The message's fields (without ``v`` and ``device``)."""
+        out: dict[str, Any] = {"state": self.state, "t_ns": int(self.t_ns), "calibration_id": self.calibration_id}
+        if self.method is None:
+            return out
+        out["method"] = self.method
+        if self.collecting is not None:
+            out.update(session=self.collecting.session, samples=self.samples, seen=self.collecting.seen,
+                       coverage=self.coverage, cells_hit=self.collecting.cells_hit,
+                       cell_count=self.collecting.cell_count)
+        else:
+            out.update(samples=self.samples, coverage=self.coverage)
+        out.update(missing=list(self.missing), residual_rms_ut=self.residual_rms_ut, accepted=self.accepted,
+                   reason=self.reason)
+        return out
+
+
+def encode_progress(device: str, progress: Progress | Mapping[str, Any]) -> bytes:
+    """Progress message of a device's calibration (``Progress``, or its map)."""
+    fields = progress.to_dict() if isinstance(progress, Progress) else dict(progress)
+    return msgpack.packb({"v": WIRE_VERSION, "device": validate_device_id(device), **fields}, use_bin_type=True)
+
+
+def decode_progress(payload: Payload) -> dict[str, Any]:
+    """The progress message's map (checked: version and device)."""
+    message = unpack(payload)
+    message_device(message)
+    return message

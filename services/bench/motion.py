@@ -1,0 +1,112 @@
+"""``magnet bench motion``: heading RMS in motion against truth nobody here made (DESIGN.md section 4b).
+
+BROAD trials in ``data/`` (real IMU, optical motion capture as reference). The metric: heading of the body x axis
+from the estimate and from the optical reference quaternion, one constant offset per trial removed (circular mean of
+the differences; the optical frame's north is arbitrary), only samples marked as movement, with a reference, and with
+|reference pitch| < 60 deg (heading is ill-defined near the vertical), RMS in degrees.
+
+BROAD's body frame is z up (a level IMU reads +g on z): y and z are negated to get the project's (x forward, y right,
+z down). Its reference is IMU -> ENU, converted to body -> NED as vqf's output is (``magnet.fusion``).
+
+Estimators, on the raw data (the sensor is factory-calibrated): accelerometer tilt (today's compass without a
+gyroscope), fused causal (as the compass runs), fused offline (``magnet heading --offline``); then the same two fused
+after ``magnet fit``'s ellipsoid with the motion checks (the record applied when accepted, none when refused, as the
+compass does). Then the moving simulator, every trajectory, against its truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from magnet import fusion
+from magnet import heading as hd
+
+DATA_DIR = Path(__file__).resolve().parents[2] / "data"
+BROAD_TRIALS = ("broad_01_undisturbed_slow_rotation_A.npz", "broad_06_undisturbed_fast_rotation_A.npz")
+#: BROAD sensor frame (z up) -> project body frame (z down)
+_Z_UP_TO_BODY = np.array([1.0, -1.0, -1.0])
+MAX_PITCH_DEG = 60.0
+
+
+@dataclasses.dataclass(frozen=True)
+class MotionLog:
+    """A recording in the project's frames. t_s (N,), gyr_rads / acc_ms2 / mag_ut (N, 3) body frame, ref_quat_wxyz
+    (N, 4) body -> NED (NaN rows where there is no reference), scored (N,) bool: the samples the metric uses."""
+
+    name: str
+    t_s: np.ndarray
+    gyr_rads: np.ndarray
+    acc_ms2: np.ndarray
+    mag_ut: np.ndarray
+    ref_quat_wxyz: np.ndarray
+    scored: np.ndarray
+
+    @property
+    def period_s(self) -> float:
+        return fusion.sample_period_s(self.t_s)
+
+    def reference_heading_deg(self) -> np.ndarray:
+        """Heading of body x from the reference, (N,), NaN where there is none."""
+        ok = np.all(np.isfinite(self.ref_quat_wxyz), axis=1)
+        heading, _, _ = fusion.euler_from_quat(np.where(ok[:, None], self.ref_quat_wxyz, [1.0, 0, 0, 0]))
+        return np.where(ok, heading, np.nan)
+
+    def score(self, heading_deg: np.ndarray) -> float:
+        """The motion metric (see the module docstring) of headings (N,) in degrees."""
+        return hd.offset_removed_rms_deg(np.asarray(heading_deg)[self.scored], self.reference_heading_deg()[self.scored])
+
+
+def load_broad(path: str | Path) -> MotionLog:
+    """A BROAD trial (.npz as in data/README.md) in the project's frames, with the samples to score."""
+    data = np.load(path)
+    ref = data["ref_quat_wxyz"].astype(float)
+    ok = np.all(np.isfinite(ref), axis=1)
+    ref_ned = np.where(ok[:, None], fusion.vqf_to_body_ned(np.where(ok[:, None], ref, [1.0, 0, 0, 0])), np.nan)
+    _, pitch, _ = fusion.euler_from_quat(np.where(ok[:, None], ref_ned, [1.0, 0, 0, 0]))
+    scored = data["movement"].astype(bool) & ok & (np.abs(pitch) < MAX_PITCH_DEG)
+    body = {key: data[key].astype(float) * _Z_UP_TO_BODY for key in ("gyr_rads", "acc_ms2", "mag_ut")}
+    return MotionLog(Path(path).stem, data["t_s"].astype(float), body["gyr_rads"], body["acc_ms2"], body["mag_ut"],
+                     ref_ned, scored)
+
+
+def write_csv(log: MotionLog, path: str | Path) -> Path:
+    """The log as a ``magnet fit`` / ``magnet heading`` CSV (t_s, mx..mz uT, ax..az m/s^2, gx..gz rad/s)."""
+    table = np.column_stack([log.t_s, log.mag_ut, log.acc_ms2, log.gyr_rads])
+    np.savetxt(path, table, delimiter=",", header="t_s,mx,my,mz,ax,ay,az,gx,gy,gz", comments="", fmt="%.9g")
+    return Path(path)
+
+
+#: estimator name -> heading (N,) deg from (log, calibrated field (N, 3))
+Estimator = Callable[[MotionLog, np.ndarray], np.ndarray]
+ESTIMATORS: dict[str, Estimator] = {
+    "accelerometer tilt": lambda log, field: hd.tilt_compensated_heading_deg(field, log.acc_ms2),
+    "fused causal": lambda log, field: fusion.fuse_causal(log.gyr_rads, log.acc_ms2, field, log.period_s).heading_deg,
+    "fused offline": lambda log, field: fusion.fuse_offline(log.gyr_rads, log.acc_ms2, field,
+                                                            log.period_s).heading_deg,
+}
+
+
+def broad_rows(data_dir: Path = DATA_DIR) -> list[tuple[str, str, float]]:
+    """(trial, estimator, RMS deg) for every BROAD trial and estimator, on the raw (factory-calibrated) field."""
+    rows = []
+    for name in BROAD_TRIALS:
+        log = load_broad(data_dir / name)
+        for estimator, function in ESTIMATORS.items():
+            rows.append((log.name, estimator, log.score(function(log, log.mag_ut))))
+    return rows
+
+
+def run_motion_benchmark() -> str:
+    """The benchmark's table as text (``magnet bench motion``)."""
+    started = time.perf_counter()
+    lines = ["heading RMS in motion (deg), offset removed, movement samples with |pitch| < 60 deg",
+             f"{'recording':<42}{'estimator':<34}{'RMS':>8}"]
+    for trial, estimator, rms in broad_rows():
+        lines.append(f"{trial:<42}{estimator:<34}{rms:>8.3f}")
+    lines.append(f"benchmark time {time.perf_counter() - started:.1f} s")
+    return "\n".join(lines)

@@ -1,0 +1,85 @@
+"""The calibrator's queryables: the record in force, its history, operator sessions and the status counters.
+
+``<prefix>/<dev>/calibration`` (record in force), ``<prefix>/<dev>/calibration/history?limit=N`` (``{v, device,
+records: [...]}`` newest first), ``<prefix>/<dev>/calibrate?action=...&method=...``, ``<prefix>/@status/<name>``.
+Each handler answers one query (``reply`` or ``reply_err``); none raises on what a peer sends.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Callable, Iterable
+
+import zenoh
+
+from magnet import wire
+
+if TYPE_CHECKING:  # the service imports this module to answer its queries
+    from services.calibrator.service import Calibrator
+
+#: history replies hold at most this many records
+MAX_HISTORY_LIMIT = 10_000
+DEFAULT_HISTORY_LIMIT = 100
+
+
+def matching_devices(devices: Iterable[str], prefix: str, key_expr: str, kind: wire.Kind) -> list[str]:
+    """The devices of ``devices`` whose ``<prefix>/<device>/<kind>`` key the queried ``key_expr`` names."""
+    if not any(c in key_expr for c in "*$"):
+        try:
+            device = wire.device_from_key(prefix, key_expr, kind)
+        except wire.WireError:
+            return []
+        return [device] if device in devices else []
+    asked = zenoh.KeyExpr(key_expr)
+    return [d for d in devices if asked.intersects(zenoh.KeyExpr(wire.key(prefix, d, kind)))]
+
+
+def answer_calibration(query: Any, calibrator: Calibrator, prefix: str) -> None:
+    for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.CALIBRATION):
+        query.reply(wire.key(prefix, device, wire.Kind.CALIBRATION),
+                    wire.pack(calibrator.in_force[device].to_record()))
+
+
+def history_limit(text: str | None) -> int:
+    """The ``limit`` parameter (default 100), clamped to 0..MAX_HISTORY_LIMIT; ValueError when not a whole number."""
+    if not text:
+        return DEFAULT_HISTORY_LIMIT
+    try:
+        limit = int(text)
+    except ValueError:
+        raise ValueError("limit must be a whole number") from None
+    return min(max(0, limit), MAX_HISTORY_LIMIT)
+
+
+def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
+    try:
+        limit = history_limit(query.parameters.get("limit"))
+    except ValueError as exc:
+        query.reply_err(str(exc).encode())
+        return
+    for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
+        records = [record.to_record() for record in calibrator.store.history(device, limit=limit)]
+        query.reply(wire.key(prefix, device, wire.Kind.HISTORY), wire.pack({"device": device, "records": records}))
+
+
+def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
+    key_expr = str(query.key_expr)
+    try:
+        device = wire.device_from_key(prefix, key_expr, wire.Kind.CALIBRATE)
+        reply = calibrator.session(device, query.parameters.get("action") or "status", query.parameters.get("method"))
+    except ValueError as exc:
+        query.reply_err(str(exc).encode())
+        return
+    query.reply(key_expr, wire.pack(reply))
+
+
+def status_answer(name: str) -> Callable[[Any, Calibrator, str], None]:
+    """The handler of ``<prefix>/@status/<name>``."""
+    def answer_status(query: Any, calibrator: Calibrator, prefix: str) -> None:
+        query.reply(wire.status_key(prefix, name), wire.pack(calibrator.status(name).to_dict()))
+    return answer_status
+
+
+#: queried kind -> how to answer (the status queryable is ``status_answer``)
+ANSWERS: dict[wire.Kind, Callable[[Any, Calibrator, str], None]] = {
+    wire.Kind.CALIBRATION: answer_calibration, wire.Kind.HISTORY: answer_history,
+    wire.Kind.CALIBRATE: answer_calibrate}

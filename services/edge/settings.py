@@ -1,0 +1,95 @@
+"""``magnet edge``'s options and the typed, checked settings built from them (``EdgeSettings.from_args``)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+from magnet import wire
+from services.common import sim_options
+from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
+
+SIMULATOR_SENSOR = "sim"
+MAX_RATE_HZ = 100_000.0
+MAX_DEVICES = 100_000
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", default="dev", help="device id (one key chunk); a fleet uses <ID>-000, ...")
+    parser.add_argument("--sensor", default=SIMULATOR_SENSOR,
+                        help="chip name (hmc5883l, qmc5883l, lsm303dlh, ak09918c+bma456) or 'sim' for the simulator alone")
+    parser.add_argument("--bus", type=int, help="I2C bus number of a real chip (/dev/i2c-N)")
+    parser.add_argument("--address", type=lambda s: int(s, 0), help="I2C address of a real chip (e.g. 0x1e)")
+    parser.add_argument("--emulate", action="store_true", help="emulate the chip (or the fleet) instead of a bus")
+    parser.add_argument("--devices", type=int, default=0, help="with --emulate: this many simulated devices")
+    parser.add_argument("--rate", type=float, default=50.0, help="samples per second per device (default 50)")
+    parser.add_argument("--batch", type=int, default=10, help="samples per message (default 10)")
+    parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    sim_options.add_simulator_arguments(parser, seed=1, noise_ut=0.3)
+    parser.add_argument("--trajectory-samples", type=int, default=3000,
+                        help="samples per run of the simulated trajectory (default 3000)")
+    parser.add_argument("--speedup", type=float, default=1.0,
+                        help="simulated motion runs this many times faster than the wall clock (default 1)")
+    parser.add_argument("--emulate-faults", type=float, default=0.0, metavar="P",
+                        help="with --emulate and a chip, for tests: each I2C transfer after set-up fails with EIO "
+                             "with probability P (1: a dead bus)")
+    add_zenoh_arguments(parser)
+
+
+@dataclasses.dataclass(frozen=True)
+class EdgeSettings:
+    """What ``magnet edge`` runs, checked in one place. rate_hz per device; duration_s None: until stopped."""
+
+    device: str = "dev"
+    sensor: str = SIMULATOR_SENSOR
+    rate_hz: float = 50.0
+    batch: int = 10
+    duration_s: float | None = None
+    bus: int | None = None
+    address: int | None = None
+    emulate: bool = False
+    devices: int = 0
+    trajectory_samples: int = 3000
+    speedup: float = 1.0
+    emulate_faults: float = 0.0
+    simulator: sim_options.SimulatorSettings = dataclasses.field(default_factory=sim_options.SimulatorSettings)
+    zenoh: ZenohSettings = dataclasses.field(default_factory=ZenohSettings)
+
+    def __post_init__(self) -> None:
+        wire.validate_device_id(self.device)
+        if not 0 < self.rate_hz <= MAX_RATE_HZ:
+            raise ValueError(f"--rate must be in (0, {MAX_RATE_HZ:g}] Hz, got {self.rate_hz}")
+        if not 1 <= self.batch <= wire.MAX_BATCH_SAMPLES:
+            raise ValueError(f"--batch must be 1..{wire.MAX_BATCH_SAMPLES}, got {self.batch}")
+        if self.duration_s is not None and not self.duration_s >= 0:
+            raise ValueError(f"--duration must be >= 0 seconds, got {self.duration_s}")
+        if not 0 < self.speedup <= 1000:
+            raise ValueError(f"--speedup must be in (0, 1000], got {self.speedup}")
+        if self.trajectory_samples < 1:
+            raise ValueError(f"--trajectory-samples must be >= 1, got {self.trajectory_samples}")
+        self._check_source()
+
+    def _check_source(self) -> None:
+        if not 0 <= self.devices <= MAX_DEVICES:
+            raise ValueError(f"--devices must be 0..{MAX_DEVICES}, got {self.devices}")
+        if self.devices and not self.emulate:
+            raise ValueError("--devices needs --emulate (a simulated fleet)")
+        if not self.emulate and self.bus is None:
+            raise ValueError("a real sensor needs --bus N (or --emulate)")
+        if not 0 <= self.emulate_faults <= 1:
+            raise ValueError(f"--emulate-faults must be a probability in [0, 1], got {self.emulate_faults}")
+        if self.emulate_faults and not self.emulated_chip:
+            raise ValueError("--emulate-faults needs --emulate and a chip (--sensor NAME, not sim, no --devices)")
+
+    @property
+    def emulated_chip(self) -> bool:
+        return self.emulate and not self.devices and self.sensor != SIMULATOR_SENSOR
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> "EdgeSettings":
+        return cls(device=args.device, sensor=args.sensor, rate_hz=float(args.rate), batch=int(args.batch),
+                   duration_s=args.duration, bus=args.bus, address=args.address, emulate=bool(args.emulate),
+                   devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),
+                   speedup=float(args.speedup), emulate_faults=float(args.emulate_faults),
+                   simulator=sim_options.SimulatorSettings.from_args(args), zenoh=ZenohSettings.from_args(args))

@@ -1,0 +1,136 @@
+"""Where ``magnet edge``'s samples come from. Each source's ``batches(seq, end_ns, stop)`` returns the next
+``RawBatch`` of every device it holds (end_ns: wall-clock ns of the batch's last sample); ``stats`` (a
+``ReadStats``, or None for simulated sources that cannot fail) counts its reads.
+
+- ``FleetSource``: N simulated devices, one vectorized step per batch.
+- ``StreamSource``: one simulated device read sample by sample (no register emulation).
+- ``ChipSource``: one chip through its driver (a real bus, or the chip's emulator fed by the simulator), read through
+  the one bounded read loop (``magnet.readloop``): a failing bus backs off, is counted and marks the device unhealthy.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable
+
+import numpy as np
+import smbus2
+
+from magnet import wire
+from magnet.drivers import open_sensor
+from magnet.emulators import FaultInjector, emulator_for
+from magnet.readloop import Backoff, ReadLoop, ReadStats
+from magnet.simulator import FleetSimulator
+from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
+
+#: the edge's read loop: waits 10 ms, 20 ms, ... up to 1 s between failed reads; unhealthy after 3 in a row
+EDGE_BACKOFF = Backoff(initial_s=0.01, max_s=1.0, unhealthy_after=3, poll_s=0.0005)
+TRUTH_KEYS = ("heading_deg", "pitch_deg", "roll_deg")
+
+
+def stamp(n: int, end_ns: int, period_ns: int) -> np.ndarray:
+    """(n,) int64 ns: n sample times ``period_ns`` apart ending at ``end_ns``."""
+    return end_ns - period_ns * np.arange(n - 1, -1, -1, dtype=np.int64)
+
+
+def _truth(stream: Any) -> dict[str, float]:
+    truth = getattr(stream, "last_truth", None) or {}
+    return {k: float(truth.get(k, 0.0)) for k in TRUTH_KEYS}
+
+
+def _stream(settings: EdgeSettings) -> Any:
+    return settings.simulator.sensor_stream(settings.trajectory_samples, settings.rate_hz / settings.speedup)
+
+
+class FleetSource:
+    """N simulated devices, one vectorized step per batch."""
+
+    stats: ReadStats | None = None
+
+    def __init__(self, settings: EdgeSettings) -> None:
+        self.fleet = FleetSimulator(n_devices=settings.devices, rate_hz=settings.rate_hz / settings.speedup,
+                                    seed=settings.simulator.seed, noise_ut=settings.simulator.noise_ut,
+                                    **settings.simulator.place())
+        self.ids = [f"{settings.device}-{i:03d}" for i in range(settings.devices)]
+        self.settings = settings
+
+    def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
+        step = self.fleet.step(self.settings.batch)
+        t_ns = stamp(self.settings.batch, end_ns, int(1e9 / self.settings.rate_hz))
+        return [wire.RawBatch(device, seq, SIMULATOR_SENSOR, t_ns, step.mag_ut[d], step.acc_ms2[d],
+                              {"heading_deg": step.heading_deg[d], "pitch_deg": step.pitch_deg[d],
+                               "roll_deg": step.roll_deg[d]})
+                for d, device in enumerate(self.ids)]
+
+
+class StreamSource:
+    """One simulated device read sample by sample from a ``SensorStream`` (no register emulation)."""
+
+    stats: ReadStats | None = None
+
+    def __init__(self, settings: EdgeSettings) -> None:
+        self.stream = _stream(settings)
+        self.settings = settings
+        self.ids = [settings.device]
+
+    def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
+        n = self.settings.batch
+        mag, acc, truth = np.empty((n, 3)), np.empty((n, 3)), {k: np.empty(n) for k in TRUTH_KEYS}
+        for i in range(n):
+            mag[i], acc[i] = self.stream.measure()
+            for k, v in _truth(self.stream).items():
+                truth[k][i] = v
+        t_ns = stamp(n, end_ns, int(1e9 / self.settings.rate_hz))
+        return [wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth)]
+
+
+def _open_bus(settings: EdgeSettings, stream: Any) -> Any:
+    if settings.emulate:
+        return emulator_for(settings.sensor, stream)
+    return smbus2.SMBus(settings.bus)
+
+
+class ChipSource:
+    """One chip through its driver and the bounded read loop; ``on_health(healthy, last_error)`` hears each change."""
+
+    def __init__(self, settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> None:
+        self.settings = settings
+        self.ids = [settings.device]
+        self.stream = _stream(settings) if settings.emulate else None
+        bus = _open_bus(settings, self.stream)
+        options = {} if settings.address is None else {"address": settings.address}
+        self.driver = open_sensor(settings.sensor, bus, **options)
+        if settings.emulate_faults:  # after set-up: the chip was found, then its bus fails
+            bus.faults = FaultInjector(probability=settings.emulate_faults, seed=settings.simulator.seed)
+        self.loop = ReadLoop(self.driver.read, clock=time.monotonic, sleep=time.sleep, backoff=EDGE_BACKOFF,
+                             on_health=on_health)
+
+    @property
+    def stats(self) -> ReadStats:
+        return self.loop.stats
+
+    def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
+        """Up to ``batch`` samples (fewer only when ``stop()`` turned true while the bus was failing)."""
+        mags, accs, truths = [], [], []
+        for _ in range(self.settings.batch):
+            reading = self.loop.next(stop)
+            if reading is None:
+                break
+            mags.append(np.asarray(reading.mag_ut, dtype=float))
+            accs.append(None if reading.acc_ms2 is None else np.asarray(reading.acc_ms2, dtype=float))
+            truths.append(_truth(self.stream))
+        if not mags:
+            return []
+        acc = None if any(a is None for a in accs) else np.array(accs)
+        truth = {k: np.array([t[k] for t in truths]) for k in TRUTH_KEYS} if self.stream is not None else None
+        t_ns = stamp(len(mags), time.time_ns(), int(1e9 / self.settings.rate_hz))
+        return [wire.RawBatch(self.settings.device, seq, self.settings.sensor, t_ns, np.array(mags), acc, truth)]
+
+
+def make_source(settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> Any:
+    """The source the settings name (see the module docstring)."""
+    if settings.devices:
+        return FleetSource(settings)
+    if settings.emulate and settings.sensor == SIMULATOR_SENSOR:
+        return StreamSource(settings)
+    return ChipSource(settings, on_health)

@@ -1,0 +1,143 @@
+"""Helpers the tests share: the command line as a process, loopback options and free ports, services started and
+stopped with their logs, and waiting for a condition (an answer, a liveliness token, a line of output) with a
+timeout instead of sleeping a guessed time.
+
+Import from a test module as ``from helpers import MAGNET, wait_for`` (pytest puts ``tests/`` on ``sys.path``).
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import IO, Any, TypeVar
+
+import pytest
+
+from services.common.zenoh_session import free_ports
+
+__all__ = ["MAGNET", "NO_SCOUT", "REPO_ROOT", "Processes", "connect_args", "free_ports", "listen_args",
+           "liveliness_keys", "magnet_json", "run_magnet", "wait_for", "wait_for_liveliness"]
+
+T = TypeVar("T")
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+#: the ``magnet`` command, run by this interpreter from the source tree
+MAGNET = [sys.executable, "-m", "services.cli"]
+NO_SCOUT = ["--no-multicast-scouting"]
+POLL_S = 0.1
+
+
+def listen_args(port: int) -> list[str]:
+    """Options that make a service listen on 127.0.0.1:port only, with multicast scouting off."""
+    return [*NO_SCOUT, "--listen", f"tcp/127.0.0.1:{port}"]
+
+
+def connect_args(*ports: int) -> list[str]:
+    """``--connect tcp/127.0.0.1:PORT`` for each port."""
+    return [arg for port in ports for arg in ("--connect", f"tcp/127.0.0.1:{port}")]
+
+
+def run_magnet(*args: str, timeout: float = 120, input: str | None = None,
+               cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    """Run ``magnet ARGS...`` to its end; output captured as text."""
+    return subprocess.run([*MAGNET, *args], capture_output=True, text=True, timeout=timeout, input=input,
+                          cwd=cwd or REPO_ROOT)
+
+
+def magnet_json(*args: str, timeout: float = 15) -> tuple[int, list[Any]]:
+    """Run a remote tool that prints JSON lines: (exit status, the decoded lines)."""
+    out = run_magnet(*args, timeout=timeout)
+    return out.returncode, [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
+
+
+def wait_for(check: Callable[[], T], timeout_s: float, what: str) -> T:
+    """Call ``check`` until it returns something true and return that; fail the test after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        result = check()
+        if result:
+            return result
+        if time.monotonic() >= deadline:
+            pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(POLL_S)
+
+
+def _loopback_client_config(port: int) -> Any:
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def liveliness_keys(port: int, pattern: str = "magnet/@alive/**", timeout_s: float = 2.0) -> set[str]:
+    """The liveliness tokens matching ``pattern`` seen now through a session connected to 127.0.0.1:port."""
+    import zenoh
+
+    with zenoh.open(_loopback_client_config(port)) as session:
+        return {str(reply.ok.key_expr) for reply in session.liveliness().get(pattern, timeout=timeout_s)
+                if reply.ok is not None}
+
+
+def wait_for_liveliness(port: int, keys: Iterable[str], timeout_s: float = 20) -> set[str]:
+    """Wait until every key in ``keys`` has a liveliness token visible at 127.0.0.1:port; return the keys seen.
+
+    A liveliness subscriber (with the tokens already present) is told of each token as it appears: no polling.
+    """
+    import zenoh
+
+    wanted, seen, found = set(keys), set(), threading.Event()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            seen.add(str(sample.key_expr))
+        if wanted <= seen:
+            found.set()
+
+    with zenoh.open(_loopback_client_config(port)) as session:
+        session.liveliness().declare_subscriber("magnet/@alive/**", on_token, history=True)
+        if not found.wait(timeout_s):
+            pytest.fail(f"timed out after {timeout_s} s waiting for liveliness tokens {sorted(wanted - seen)}")
+        return set(seen)
+
+
+class Processes:
+    """``magnet`` processes started by one test, each logging to ``tmp_path/NAME.log``; ``stop_all`` ends them."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        self.tmp_path = tmp_path
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self._logs: list[IO[str]] = []
+
+    def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
+        log = open(self.tmp_path / f"{name}.log", "w")
+        self._logs.append(log)
+        self.procs[name] = subprocess.Popen([*MAGNET, *args], stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT)
+        return self.procs[name]
+
+    def alive(self, name: str) -> bool:
+        return self.procs[name].poll() is None
+
+    def log(self, name: str) -> str:
+        return (self.tmp_path / f"{name}.log").read_text()
+
+    def stop_all(self) -> None:
+        """SIGTERM to every process still running, SIGKILL to any that has not ended 5 s later; logs closed."""
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in self.procs.values():
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        for log in self._logs:
+            log.close()
