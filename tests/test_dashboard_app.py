@@ -185,7 +185,7 @@ def test_state_rows_alerts_and_traces():
     assert len(state.traces["d1"].raw) == 0  # a new session starts a new cloud
     state.on_raw(raw)
     calibration = Calibration("ellipsoid", np.zeros(3), np.eye(3), quality={"residual_rms_ut": 0.3, "coverage": 0.9})
-    state.on_calibration(wire.CalibrationMessage("d1", "id1", 5_000_000, calibration))
+    state.on_calibration(wire.DeviceCalibration("d1", 5_000_000, calibration))
     row = state.changes(-1)[1][0]
     assert row["state"] == "calibrated" and row["residual_ut"] == 0.3 and row["calibrated_ms"] == 5
     version, changed = state.changes(state.version)
@@ -193,7 +193,7 @@ def test_state_rows_alerts_and_traces():
     detail = state.detail("d1")
     assert len(detail["raw"]) == 3 and len(detail["calibrated"]) == 5 and len(detail["cells"]) == 100
     state.on_progress({"device": "d1", "state": "session", "session": True})
-    state.on_calibration(wire.CalibrationMessage("d1", "id1", 5_000_000, calibration))  # asked again: no change
+    state.on_calibration(wire.DeviceCalibration("d1", 5_000_000, calibration))  # asked again: no change
     assert state.rows["d1"].state == "session"
 
 

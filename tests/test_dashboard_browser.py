@@ -54,11 +54,11 @@ def chromium() -> Path:
 def pipeline(tmp_path):
     """``magnet up --devices 5`` with the dashboard on a free port; (page address, compass port)."""
     [http_port] = free_ports(1)
-    out = open(tmp_path / "up.out", "w")
-    proc = subprocess.Popen([*MAGNET, "up", "--devices", "5", "--speedup", "10", "--interval", "5", "--duration", "150",
-                             "--http", f"127.0.0.1:{http_port}", "--db", str(tmp_path / "up.db")],
-                            stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, cwd=REPO,
-                            env={**os.environ, "CI": "true"})
+    with open(tmp_path / "up.out", "w") as out:  # the child keeps its own descriptor
+        proc = subprocess.Popen([*MAGNET, "up", "--devices", "5", "--speedup", "10", "--interval", "5",
+                                 "--duration", "150", "--http", f"127.0.0.1:{http_port}", "--db", str(tmp_path / "up.db")],
+                                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, cwd=REPO,
+                                env={**os.environ, "CI": "true"})
     try:
         text = _wait_for(lambda: (tmp_path / "up.out").read_text(), r"dashboard at (http://\S+)", proc, 20)
         address = re.search(r"dashboard at (http://\S+)", text).group(1)
@@ -72,7 +72,6 @@ def pipeline(tmp_path):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-        out.close()
 
 
 def _wait_for(read, pattern, proc, timeout_s):
@@ -89,10 +88,10 @@ def _wait_for(read, pattern, proc, timeout_s):
 
 def _watch_headings(tmp_path, compass_port):
     """``magnet watch heading`` connected to the compass, printing into a file."""
-    out = open(tmp_path / "watch.jsonl", "w")
-    return subprocess.Popen([*MAGNET, "watch", "heading", "--duration", "60", "--no-multicast-scouting",
-                             "--connect", f"tcp/127.0.0.1:{compass_port}"], stdout=out, stderr=subprocess.STDOUT,
-                            stdin=subprocess.DEVNULL, cwd=REPO)
+    with open(tmp_path / "watch.jsonl", "w") as out:  # the child keeps its own descriptor
+        return subprocess.Popen([*MAGNET, "watch", "heading", "--duration", "60", "--no-multicast-scouting",
+                                 "--connect", f"tcp/127.0.0.1:{compass_port}"], stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, cwd=REPO)
 
 
 def _watched(tmp_path) -> dict[tuple[str, int], float]:

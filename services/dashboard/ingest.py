@@ -158,10 +158,7 @@ class Ingest:
         except wire.WireError as exc:
             self._drop(exc, "heading")
             return
-        quat = getattr(batch, "quat_wxyz", None)
-        if quat is None and b"quat_wxyz" in payload:
-            quat = wire.unpack(payload).get("quat_wxyz")
-        self.state.on_heading(batch, quat)
+        self.state.on_heading(batch)
 
     # ---------------------------------------------------------------------------------------------- upkeep
     def _follow_watched(self) -> None:

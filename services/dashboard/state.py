@@ -27,6 +27,7 @@ TRACE_HEADINGS = 600      # heading samples kept per watched device
 STALE_S = 5.0             # no heading for this long: the row says so
 WATCH_LINGER_S = 15.0     # a device stays watched this long after its last viewer left
 CELL_CENTRES = fibonacci_centres()
+FUSED_FLAG = int(HeadingFlag.FUSED)  # attitude from the gyroscope-aided filter
 
 
 def _finite(value: Any) -> float | None:
@@ -106,7 +107,7 @@ class DeviceRow:
             "dip_deg": _round(self.dip_deg, 2), "flags": self.flags,
             "quat_wxyz": None if self.quat_wxyz is None else [round(q, 5) for q in self.quat_wxyz],
             "declination_deg": _round(self.declination_deg, 2), "truth_error_deg": _round(self.truth_error_deg, 2),
-            "alerts": self.alerts(now_s, earth),
+            "fused": bool(self.flags & FUSED_FLAG), "alerts": self.alerts(now_s, earth),
         }
 
 
@@ -177,7 +178,10 @@ class FleetState:
                 self.rows[batch.device].sensor = batch.sensor
 
     def on_heading(self, batch: wire.HeadingBatch, quat_wxyz: Any = None) -> None:
-        """The last sample of a heading batch goes into the row; a watched device keeps them all."""
+        """The last sample of a heading batch goes into the row; a watched device keeps them all. The fused
+        attitude (optional ``quat_wxyz``) is the batch's unless given."""
+        if quat_wxyz is None:
+            quat_wxyz = getattr(batch, "quat_wxyz", None)
         last = len(batch) - 1
         if last < 0:
             return

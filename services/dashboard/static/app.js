@@ -96,8 +96,9 @@ function ageText(ms) {
 }
 
 function alertBadges(row) {
-  return row.alerts.map((a) => `<span class="badge alert">${esc(a)}</span>`).join("") ||
-    '<span class="badge note">ok</span>';
+  const fused = row.fused ? '<span class="badge session" title="attitude from the gyroscope-aided filter">fused</span>' : "";
+  return fused + (row.alerts.map((a) => `<span class="badge alert">${esc(a)}</span>`).join("") ||
+    '<span class="badge note">ok</span>');
 }
 
 function makeRow(device) {
