@@ -1,4 +1,4 @@
-"""Fitting a calibration B = A (u - b) to raw magnetometer samples (DESIGN.md section 3).
+"""Fitting a calibration B = A (u - b) to raw magnetometer samples (docs/design.md, "The calibration model").
 
 Every method returns the same record (``magnet.model.Calibration``): ``offset`` b in the raw unit and ``matrix`` A
 mapping raw units to the output unit. Each method first finds a *shape*: an offset b, a matrix S and a radius r (raw
