@@ -188,7 +188,7 @@ def test_state_rows_alerts_and_traces():
     state.on_calibration(wire.DeviceCalibration("d1", 5_000_000, calibration))
     row = state.changes(-1)[1][0]
     assert row["state"] == "calibrated" and row["residual_ut"] == 0.3 and row["calibrated_ms"] == 5
-    version, changed = state.changes(state.version)
+    _, changed = state.changes(state.version)
     assert changed == []
     detail = state.detail("d1")
     assert len(detail["raw"]) == 3 and len(detail["calibrated"]) == 5 and len(detail["cells"]) == 100
@@ -208,7 +208,7 @@ def test_quaternion_optional_field_is_shown_when_present():
 def test_helpers():
     assert parse_http("127.0.0.1:8080") == ("127.0.0.1", 8080) and parse_http("[::1]:80") == ("::1", 80)
     for bad in ("8080", ":80", "host:port", "h:70000"):
-        with pytest.raises(ValueError):
+        with pytest.raises(ValueError, match="--http"):
             parse_http(bad)
     assert is_loopback("127.0.0.1") and is_loopback("::1") and not is_loopback("0.0.0.0")
     assert page_address("127.0.0.1", 80, "t") == "http://127.0.0.1:80/?token=t"

@@ -56,7 +56,8 @@ def pipeline(tmp_path):
     [http_port] = free_ports(1)
     with open(tmp_path / "up.out", "w") as out:  # the child keeps its own descriptor
         proc = subprocess.Popen([*MAGNET, "up", "--devices", "5", "--speedup", "10", "--interval", "5",
-                                 "--duration", "150", "--http", f"127.0.0.1:{http_port}", "--db", str(tmp_path / "up.db")],
+                                 "--duration", "150", "--http", f"127.0.0.1:{http_port}",
+                                 "--db", str(tmp_path / "up.db")],
                                 stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, cwd=REPO,
                                 env={**os.environ, "CI": "true"})
     try:

@@ -223,8 +223,9 @@ def _start_services(settings: UpSettings, ports: dict[str, int], db: Path, logs:
                  *loopback_arguments(ports["edge"], [ports["calibrator"], ports["compass"]])],
     }
     if dashboard is not None:
-        commands["dashboard"] = ["dashboard", "--http", dashboard[0], "--token", dashboard[1], "--location",
-                                 settings.location, *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES])]
+        commands["dashboard"] = ["dashboard", "--http", dashboard[0], "--token", dashboard[1],
+                                 "--location", settings.location,
+                                 *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES])]
     procs = {}
     for name in commands:
         with open(logs / f"{name}.log", "w") as log_file:  # the child keeps its own descriptor

@@ -20,11 +20,14 @@ calibrator refused or did not answer.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
+import importlib.util
 import json
 import logging
+from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any, AsyncIterator, Protocol
+from typing import Any, Protocol
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
@@ -54,10 +57,10 @@ class Control(Protocol):
 
 
 def plotly_js_path() -> Path:
-    """plotly.min.js inside the installed ``plotly`` package (its package_data)."""
-    import plotly
-
-    path = Path(plotly.__file__).resolve().parent / "package_data" / "plotly.min.js"
+    """plotly.min.js inside the installed ``plotly`` package (its package_data), found without importing plotly."""
+    spec = importlib.util.find_spec("plotly")
+    folders = list(spec.submodule_search_locations or []) if spec is not None else []
+    path = Path(folders[0] if folders else ".") / "package_data" / "plotly.min.js"
     if not path.is_file():
         raise OSError(f"plotly.min.js not found at {path}: reinstall the plotly package")
     return path
@@ -186,10 +189,8 @@ class Dashboard:
                     next_detail = loop.time() + DETAIL_EVERY_S
                     detail = self.state.detail(device)
                     yield _event("device", detail if detail is not None else {"device": device, "unknown": True})
-                try:
+                with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self.stopping.wait(), self.interval_s)
-                except asyncio.TimeoutError:
-                    pass
         finally:
             if device:
                 self.state.watch(device, -1)

@@ -8,6 +8,7 @@ sample. Raw messages of other devices pass through a small ring, read only for t
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -73,10 +74,8 @@ class Ingest:
     def close(self) -> None:
         for subscriber in [self.alive, self.headings, self.progress, self.calibrations, self.raw_any,
                            *self.raw_watched.values()]:
-            try:
+            with contextlib.suppress(Exception):  # the session may be closing already
                 subscriber.undeclare()
-            except Exception:  # the session may be closing already
-                pass
 
     # ---------------------------------------------------------------------------------------------- messages
     def _drop(self, exc: wire.WireError, what: str) -> None:

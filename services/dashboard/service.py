@@ -1,4 +1,4 @@
-"""``magnet dashboard [--http HOST:PORT] [--token T] [--location LAT,LON] [Zenoh options]``: a live web page of the fleet.
+"""``magnet dashboard [--http HOST:PORT] [--token T] [--location LAT,LON] [Zenoh options]``: a live web page.
 
 Joins the Zenoh network like any other subscriber (liveliness of devices, headings, calibration progress and
 records), and serves the page at ``http://127.0.0.1:8080`` unless told otherwise (``--http``; it binds 127.0.0.1
@@ -123,7 +123,7 @@ class _Server:
         dashboard_ = dashboard
 
         class Server(uvicorn.Server):
-            def handle_exit(self, sig, frame):  # noqa: ANN001 (uvicorn's signature)
+            def handle_exit(self, sig, frame):
                 dashboard_.stopping.set()
                 super().handle_exit(sig, frame)
 

@@ -13,7 +13,8 @@ import dataclasses
 import threading
 import time
 from collections import deque
-from typing import Any, Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -111,7 +112,7 @@ class DeviceRow:
         }
 
 
-def acc_direction(pitch_deg: np.ndarray, roll_deg: np.ndarray) -> np.ndarray:
+def acc_direction(pitch_deg: np.ndarray | float, roll_deg: np.ndarray | float) -> np.ndarray:
     """Specific force direction (N, 3) of a still device at pitch and roll (degrees): (sin p, -sin r cos p,
     -cos r cos p), as ``magnet.heading.pitch_roll_deg`` inverts it."""
     p, r = np.radians(pitch_deg), np.radians(roll_deg)
@@ -293,7 +294,7 @@ class FleetState:
             raw = np.array(trace.raw if trace else [], dtype=float).reshape(-1, 3)
             calibrated = np.array(trace.calibrated if trace else [], dtype=float).reshape(-1, 3)
             headings = list(trace.headings)[-300:] if trace else []
-            out = {"row": row.to_json(self.clock(), self.earth), "earth": _earth_json(self.earth)}
+            out: dict[str, Any] = {"row": row.to_json(self.clock(), self.earth), "earth": _earth_json(self.earth)}
         out.update(raw=_decimate(raw, points), calibrated=_decimate(calibrated, points),
                    headings=[[t // 1_000_000, round(m, 2), round(tr, 2)] for t, m, tr in headings[::3]],
                    cells=covered_cells(raw).astype(int).tolist())
@@ -336,13 +337,3 @@ def _earth_json(earth: EarthField | None) -> dict[str, Any] | None:
     return {"total_ut": round(earth.total_ut, 3), "inclination_deg": round(earth.inclination_deg, 3),
             "declination_deg": round(earth.declination_deg, 3), "horizontal_ut": round(earth.horizontal_ut, 3)}
 
-
-def device_ids(values: Iterable[str]) -> list[str]:
-    """The valid device ids among ``values`` (others skipped)."""
-    out = []
-    for value in values:
-        try:
-            out.append(wire.validate_device_id(value))
-        except ValueError:
-            continue
-    return out
