@@ -24,7 +24,8 @@ import logging
 import math
 import re
 import time
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -252,8 +253,8 @@ class Sensor:
     rotation: np.ndarray = np.eye(3)
     devices: tuple[I2CDevice, ...] = ()
 
-    def _attach(self, bus: I2CBus, address: int, orientation: Any, retry: "RetryPolicy | None",
-                sleep: "Callable[[float], None] | None") -> I2CDevice:
+    def _attach(self, bus: I2CBus, address: int, orientation: Any, retry: RetryPolicy | None,
+                sleep: Callable[[float], None] | None) -> I2CDevice:
         """Set ``self.device`` (the chip at ``address`` on ``bus``, with the retry policy), ``self.devices`` and the
         mounting ``self.rotation``; returns the device."""
         options = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}

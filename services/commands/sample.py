@@ -16,7 +16,8 @@ import dataclasses
 import logging
 import sys
 import time
-from typing import Any, Callable, Iterator
+from typing import Any
+from collections.abc import Callable, Iterator
 
 import smbus2
 
@@ -70,7 +71,7 @@ class SampleSettings:
         orientation_matrix(self.orientation)  # ValueError naming the accepted forms
 
     @classmethod
-    def from_args(cls, args: argparse.Namespace) -> "SampleSettings":
+    def from_args(cls, args: argparse.Namespace) -> SampleSettings:
         return cls(sensor=args.sensor, bus=args.bus, address=args.address, orientation=args.orientation,
                    emulate=bool(args.emulate), count=int(args.count), rate_hz=float(args.rate),
                    simulator=sim_options.SimulatorSettings.from_args(args))
