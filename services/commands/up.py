@@ -82,7 +82,7 @@ class UpSettings:
                      speedup=self.speedup, simulator=SimulatorSettings(location=place))
 
     @classmethod
-    def from_args(cls, args: argparse.Namespace) -> "UpSettings":
+    def from_args(cls, args: argparse.Namespace) -> UpSettings:
         return cls(devices=int(args.devices), rate_hz=float(args.rate), batch=int(args.batch),
                    speedup=float(args.speedup), location=args.location, db=args.db, duration_s=args.duration,
                    interval_s=args.interval, prefix=args.prefix)
