@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from pathlib import Path
 from collections.abc import Callable, Iterable
+from pathlib import Path
 
 import numpy as np
 
@@ -62,7 +62,8 @@ class MotionLog:
 
     def score(self, heading_deg: np.ndarray) -> float:
         """The motion metric (see the module docstring) of headings (N,) in degrees."""
-        return hd.offset_removed_rms_deg(np.asarray(heading_deg)[self.scored], self.reference_heading_deg()[self.scored])
+        reference = self.reference_heading_deg()[self.scored]
+        return hd.offset_removed_rms_deg(np.asarray(heading_deg)[self.scored], reference)
 
 
 def load_broad(path: str | Path) -> MotionLog:
