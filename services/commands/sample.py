@@ -151,7 +151,7 @@ def sample(settings: SampleSettings) -> int:
     try:
         for t_s, reading in _readings(loop, settings):
             truth = stream.last_truth if stream is not None else {}
-            row = [f"{truth.get('t_s', t_s):.4f}"] + _fmt(reading.mag_ut)
+            row = [f"{truth.get('t_s', t_s):.4f}", *_fmt(reading.mag_ut)]
             if has_acc:
                 row += _fmt(reading.acc_ms2) if reading.acc_ms2 is not None else ["", "", ""]
             if has_gyr:
