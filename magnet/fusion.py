@@ -25,10 +25,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, overload
 from collections.abc import Mapping
 
 import numpy as np
+import numpy.typing as npt
 import vqf
 
 from magnet.attitude import matrix_to_euler, quaternion_to_matrix
@@ -77,10 +78,9 @@ def down_in_body(quat_wxyz: np.ndarray) -> np.ndarray:
     return quaternion_to_matrix(quat_wxyz)[..., 2, :]
 
 
-def quat_from_euler(heading_deg, pitch_deg, roll_deg) -> np.ndarray:
+def quat_from_euler(heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> np.ndarray:
     """Body -> NED quaternions (..., 4), w >= 0, from Z-Y-X Euler angles in degrees (``magnet.attitude``)."""
-    half = [np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg, roll_deg)]
-    half = np.broadcast_arrays(*half)
+    half = np.broadcast_arrays(*(np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg, roll_deg)))
     zero = np.zeros_like(half[0])
     qz = np.stack([np.cos(half[0]), zero, zero, np.sin(half[0])], axis=-1)
     qy = np.stack([np.cos(half[1]), zero, np.sin(half[1]), zero], axis=-1)
@@ -89,7 +89,7 @@ def quat_from_euler(heading_deg, pitch_deg, roll_deg) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
-def rotate_heading(quat_wxyz: np.ndarray, angle_deg) -> np.ndarray:
+def rotate_heading(quat_wxyz: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarray:
     """Quaternions (..., 4) turned by ``angle_deg`` about NED down (magnetic -> true north: the declination)."""
     half = np.radians(np.asarray(angle_deg, dtype=float)) / 2
     turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)
@@ -133,6 +133,12 @@ def _check_period(period_s: float) -> float:
     return period
 
 
+@overload
+def _to_vqf(vectors: np.ndarray, name: str, count: int | None = None) -> np.ndarray: ...
+@overload
+def _to_vqf(vectors: None, name: str, count: int | None = None) -> None: ...
+@overload
+def _to_vqf(vectors: np.ndarray | None, name: str, count: int | None = None) -> np.ndarray | None: ...
 def _to_vqf(vectors: np.ndarray | None, name: str, count: int | None = None) -> np.ndarray | None:
     """(N, 3) body vectors -> C-contiguous float64 in vqf's z-up body frame; ValueError on bad shape or values."""
     if vectors is None:
