@@ -3,8 +3,8 @@
 One table, one row per stored calibration; the record is the JSON map the wire publishes
 (``magnet.wire.DeviceCalibration.to_record``). Rows are read back through ``magnet.wire.calibration_from_record``, the
 one entry check of a calibration: a row that fails it is skipped, counted (``skipped_rows``) and logged once with the
-file and row, and the rest is served. WAL journal with ``synchronous=FULL``: a row is on disk when ``save`` returns, and a kill -9 at
-any moment leaves either the previous or the new calibration in force, never a torn one.
+file and row, and the rest is served. WAL journal with ``synchronous=FULL``: a row is on disk when ``save`` returns,
+and a kill -9 at any moment leaves either the previous or the new calibration in force, never a torn one.
 """
 
 from __future__ import annotations
