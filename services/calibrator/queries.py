@@ -58,7 +58,12 @@ def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
         query.reply_err(str(exc).encode())
         return
     for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
-        records = [calibrator.sign(record).to_record() for record in calibrator.store.history(device, limit=limit)]
+        try:
+            stored = calibrator.store.history(device, limit=limit)
+        except OSError as exc:  # a damaged page: say so, keep serving
+            query.reply_err(str(exc).encode())
+            return
+        records = [calibrator.sign(record).to_record() for record in stored]
         query.reply(wire.key(prefix, device, wire.Kind.HISTORY), wire.pack({"device": device, "records": records}))
 
 

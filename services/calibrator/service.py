@@ -211,7 +211,12 @@ class Calibrator:
             return
         result = self._fit(collection, now)
         if result is not None and not collection.session:
-            self.commit(device, result)
+            try:
+                self.commit(device, result)
+            except OSError as exc:  # the store failed: nothing changed, collection goes on and tries again
+                collection.last_reason = f"not stored: {exc}"
+                if self.drops.count("store:write-failed"):
+                    log.error("%s: %s", device, exc)
         elif result is None:
             log.info("%s: fit not accepted: %s", device, collection.last_reason)
 
@@ -309,7 +314,10 @@ def _commit(calibrator: Calibrator, device: str, method: str | None) -> tuple[bo
     result = calibrator._fit(collection, calibrator.clock())
     if result is None:
         return False, f"not committed, the calibration in force stays: {collection.last_reason}", {}
-    return True, "committed", {"calibration": calibrator.commit(device, result).to_record()}
+    try:
+        return True, "committed", {"calibration": calibrator.commit(device, result).to_record()}
+    except OSError as exc:
+        return False, f"not committed, the calibration in force stays: {exc}", {}
 
 
 def _abort(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:

@@ -9,11 +9,12 @@ and a kill -9 at any moment leaves either the previous or the new calibration in
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import sqlite3
-from pathlib import Path
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 
 from magnet import wire
 
@@ -31,22 +32,47 @@ CREATE INDEX IF NOT EXISTS calibrations_by_device ON calibrations (device, seq);
 """
 
 
+class StoreError(OSError):
+    """The database cannot be read or written (damaged, not a database, disk full): one line naming the file and
+    what to do."""
+
+
 class CalibrationStore:
-    """Calibrations per device in one SQLite file. Use from one thread (the service's own)."""
+    """Calibrations per device in one SQLite file. Use from one thread (the service's own).
+
+    A damaged file is found when opening (``PRAGMA quick_check``) or when a damaged page is read later: both raise
+    ``StoreError`` naming the file and what to do, never sqlite3's own exception."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if str(path) != ":memory:":
             self.path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            self._db = sqlite3.connect(str(path), isolation_level=None)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=FULL")
-            self._db.executescript(_SCHEMA)
-        except sqlite3.DatabaseError as exc:
-            raise OSError(f"cannot open calibration database {path}: {exc}") from None
         self.skipped_rows = 0
         self._reported: set[int] = set()
+        try:
+            self._db = sqlite3.connect(str(path), isolation_level=None)
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"cannot open calibration database {path}: {exc}") from None
+        try:
+            with self._guard():
+                self._db.execute("PRAGMA journal_mode=WAL")
+                self._db.execute("PRAGMA synchronous=FULL")
+                self._db.executescript(_SCHEMA)
+                problems = [row[0] for row in self._db.execute("PRAGMA quick_check(3)")]
+                if problems != ["ok"]:
+                    raise sqlite3.DatabaseError("; ".join(problems))
+        except StoreError:
+            self._db.close()
+            raise
+
+    @contextlib.contextmanager
+    def _guard(self) -> Iterator[None]:
+        """sqlite3 errors inside become one ``StoreError`` line naming the file and what to do."""
+        try:
+            yield
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"calibration database {self.path} is damaged or unusable ({exc}): restore it from a "
+                             "backup, or move it aside to start with an empty one") from None
 
     def close(self) -> None:
         self._db.close()
@@ -62,7 +88,7 @@ class CalibrationStore:
 
         Returns False (and stores nothing) when it is identical to the one already in force."""
         text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
-        with self._transaction():
+        with self._guard(), self._transaction():
             row = self._db.execute("SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1",
                                    (record.device,)).fetchone()
             if row is not None and row[0] == record.id:
@@ -73,25 +99,30 @@ class CalibrationStore:
 
     def latest(self, device: str) -> wire.DeviceCalibration | None:
         """The calibration in force for ``device`` (its newest valid record), or None."""
-        rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,))
-        return next(self._valid(rows), None)
+        with self._guard():
+            rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC",
+                                    (device,))
+            return next(self._valid(rows), None)
 
     def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
         """Valid records of ``device``, newest first, at most ``limit``."""
-        rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,))
         out: list[wire.DeviceCalibration] = []
-        for record in self._valid(rows):
-            if limit is not None and len(out) >= max(0, limit):
-                break
-            out.append(record)
+        with self._guard():
+            rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC",
+                                    (device,))
+            for record in self._valid(rows):
+                if limit is not None and len(out) >= max(0, limit):
+                    break
+                out.append(record)
         return out
 
     def all_latest(self) -> dict[str, wire.DeviceCalibration]:
         """device -> the record in force (its newest valid one), for every device stored."""
-        rows = self._db.execute("SELECT seq, record FROM calibrations ORDER BY device, seq DESC")
         out: dict[str, wire.DeviceCalibration] = {}
-        for record in self._valid(rows):
-            out.setdefault(record.device, record)
+        with self._guard():
+            rows = self._db.execute("SELECT seq, record FROM calibrations ORDER BY device, seq DESC")
+            for record in self._valid(rows):
+                out.setdefault(record.device, record)
         return out
 
     def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterator[wire.DeviceCalibration]:
