@@ -18,6 +18,8 @@ FINE_SECTORS = 48    # ... times sectors in longitude: 1152 fine cells, one kept
 REBIN_SHIFT_UT = 2.0  # re-sort kept samples into cells when the cloud's centre moved this far
 FIT_EVERY_NEW = 25   # fit again after this many newly kept samples
 FIT_INTERVAL_S = 0.5
+INITIAL_ROOM = 64    # samples' arrays start this small and double up to the capacity (a device that sends one
+                     # batch costs kilobytes, not the capacity's worth)
 
 
 def fine_cells(directions: np.ndarray) -> np.ndarray:
@@ -36,8 +38,8 @@ class Collection:
 
     def __init__(self, method: str, session: bool, capacity: int) -> None:
         self.method, self.session, self.capacity = method, session, capacity
-        self.mag = np.empty((capacity, 3))
-        self.acc = np.empty((capacity, 3))
+        self.mag = np.empty((min(capacity, INITIAL_ROOM), 3))
+        self.acc = np.empty((min(capacity, INITIAL_ROOM), 3))
         self.has_acc = True
         self.kept = self.seen = 0
         self.occupied = np.zeros(FINE_BANDS * FINE_SECTORS, dtype=bool)
@@ -74,11 +76,20 @@ class Collection:
         if new.size == 0:
             return 0
         self.occupied[cells[new]] = True
+        self._room_for(self.kept + new.size)
         self.mag[self.kept:self.kept + new.size] = mag[new]
         if acc is not None:
             self.acc[self.kept:self.kept + new.size] = acc[new]
         self.kept += new.size
         return int(new.size)
+
+    def _room_for(self, size: int) -> None:
+        """Grow the sample arrays (doubling, at most to the capacity) so that they hold ``size`` samples."""
+        if size <= len(self.mag):
+            return
+        rows = min(self.capacity, max(size, 2 * len(self.mag)))
+        grow = np.empty((rows - len(self.mag), 3))
+        self.mag, self.acc = np.concatenate([self.mag, grow]), np.concatenate([self.acc, grow])
 
     def _rebin(self, centre: np.ndarray) -> None:
         """Sort the kept samples into cells around the new centre, keeping the first of each cell."""

@@ -39,12 +39,37 @@ with zenoh.open(conf) as session:
     deadline = time.monotonic() + 10
     while not publisher.matching_status.matching and time.monotonic() < deadline:
         time.sleep(0.02)
-    for record in forged:
+    for record in forged + forged:  # twice: the count needs only one of each to arrive
         publisher.put(msgpack.packb(record))
     for limit in ("99999999999999999999999999", "-5", "lots", "1e400"):
         list(session.get(f"magnet/%s/calibration/history?limit={limit}", timeout=2))
     print(len(forged))
 """ % (DEVICE, DEVICE, DEVICE)  # noqa: UP031 (str.format would need every brace of the script doubled)
+
+#: 8,000 new device ids in a burst, one small raw batch each (argv: ports)
+FLOOD = r"""
+import json, sys, time, numpy as np, zenoh
+from magnet import wire
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{p}" for p in sys.argv[1:]]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+rng = np.random.default_rng(7)
+with zenoh.open(conf) as session:
+    time.sleep(0.5)
+    for i in range(8000):
+        mag = rng.normal(size=(10, 3)) * 40
+        batch = wire.RawBatch(f"flood-{i}", 0, "sim", np.arange(10, dtype=np.int64) + 1, mag, None, None)
+        session.put(f"magnet/flood-{i}/raw", wire.encode_raw(batch), congestion_control=zenoh.CongestionControl.BLOCK)
+    time.sleep(1.0)
+"""
+
+
+def _rss_mb(pid):
+    with open(f"/proc/{pid}/status") as status:
+        for line in status:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return 0.0
 
 
 def _status(service, port):
@@ -90,5 +115,25 @@ def test_forged_and_absurd_calibrations_never_replace_the_signed_one(procs, tmp_
     code, lines = magnet_json("get", "calibration", DEVICE, "--history", "--limit", "9" * 26, *NO_SCOUT,
                               *connect_args(cal_port), "--timeout", "2")
     assert code == 0 and lines[0]["records"][0]["id"] == record["id"], "the calibrator still answers"
+    for name in ("calibrator", "compass", "edge"):
+        assert procs.alive(name), procs.log(name)
+
+    # 8,000 new device ids in a burst: both stay up, memory bounded, the genuine device keeps its headings
+    before = {name: _rss_mb(procs.procs[name].pid) for name in ("calibrator", "compass")}
+    received = {name: _status(name, port)["received_batches"] for name, port in (("calibrator", cal_port),
+                                                                               ("compass", comp_port))}
+    flood = subprocess.run([sys.executable, "-c", FLOOD, str(cal_port), str(comp_port)], capture_output=True,
+                           text=True, timeout=120)
+    assert flood.returncode == 0, flood.stderr
+    for name, port in (("calibrator", cal_port), ("compass", comp_port)):
+        wait_for(lambda: (s := _status(name, port)) and s["received_batches"] >= received[name] + 8000, 60,
+                 f"the {name} to take the flood")
+    after = {name: _rss_mb(procs.procs[name].pid) for name in ("calibrator", "compass")}
+    print("RSS MB before", before, "after", after)
+    for name in before:
+        assert after[name] - before[name] < 150, f"{name} grew {after[name] - before[name]:.0f} MB"
+    code, headings = magnet_json("watch", "heading", DEVICE, "--count", "5", *NO_SCOUT, *connect_args(comp_port),
+                                 timeout=30)
+    assert code == 0 and all(h["calibration_id"] == record["id"] for h in headings)
     for name in ("calibrator", "compass", "edge"):
         assert procs.alive(name), procs.log(name)

@@ -27,6 +27,7 @@ import zenoh
 from magnet import signing, wire
 from magnet.calibration import Method
 from magnet.collection import Collection
+from magnet.bounded import Recent
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from magnet.quality import Coverage
@@ -38,6 +39,7 @@ from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, d
 log = logging.getLogger("magnet.calibrator")
 
 PROGRESS_INTERVAL_S = 0.5
+DEFAULT_MAX_DEVICES = 10_000
 CHANNEL_CAPACITY = 65536
 IDLE_SLEEP_S = 0.0005
 
@@ -60,6 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-auto", action="store_true", help="calibrate only in operator sessions")
     parser.add_argument("--name", default="calibrator", help="service name for liveliness and status")
     parser.add_argument("--devices", default="*", help="key expression of the devices served (default *)")
+    parser.add_argument("--max-devices", type=int, default=DEFAULT_MAX_DEVICES,
+                        help="devices collected at once at most; beyond, the least recently seen automatic collection "
+                             f"is dropped (sessions stay) (default {DEFAULT_MAX_DEVICES})")
     parser.add_argument("--signing-key", type=Path, metavar="FILE.key",
                         help="sign every calibration it serves with this Ed25519 private key (`magnet keys`); "
                              "compasses started with --trust FILE.pub apply only those")
@@ -76,6 +81,7 @@ class CalibratorSettings:
     min_samples: int = 150
     max_samples: int = 1500
     auto: bool = True
+    max_devices: int = DEFAULT_MAX_DEVICES
 
     def __post_init__(self) -> None:
         Method.parse(self.method)
@@ -85,6 +91,8 @@ class CalibratorSettings:
             raise ValueError(f"need 30 <= --min-samples <= --max-samples, got {self.min_samples}, {self.max_samples}")
         if self.field_ut is not None and not 1 <= self.field_ut <= 1000:
             raise ValueError(f"--field-ut must be a field strength in uT (1..1000), got {self.field_ut}")
+        if isinstance(self.max_devices, bool) or not isinstance(self.max_devices, int) or self.max_devices < 1:
+            raise ValueError(f"--max-devices must be a whole number >= 1, got {self.max_devices}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,7 +113,8 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
     if field_ut is None and args.location:
         field_ut = earth_field(*parse_location(args.location)).total_ut
     fitting = CalibratorSettings(method=args.method, field_ut=field_ut, min_coverage=args.min_coverage,
-                                 min_samples=args.min_samples, max_samples=args.max_samples, auto=not args.no_auto)
+                                 min_samples=args.min_samples, max_samples=args.max_samples, auto=not args.no_auto,
+                                 max_devices=args.max_devices)
     return ServiceSettings(fitting, args.db or default_db_path(), args.name, args.devices,
                            ZenohSettings.from_args(args), args.signing_key)
 
@@ -136,6 +145,7 @@ class Counters:
     accepted: int = 0
     rejected: int = 0
     stored: int = 0
+    evicted_devices: int = 0  # collections dropped for --max-devices
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,8 +178,8 @@ class Calibrator:
         self.clock, self.clock_ns = clock, clock_ns
         self.signer = signer
         self.in_force: dict[str, wire.DeviceCalibration] = {d: self.sign(r) for d, r in store.all_latest().items()}
-        self.collections: dict[str, Collection] = {}
-        self.last_progress: dict[str, float] = {}
+        self.collections: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
+        self.last_progress: Recent[str, float] = Recent(settings.max_devices)
         self.drops = wire.DropCounter()
         self.counters = Counters()
 
@@ -195,12 +205,24 @@ class Calibrator:
                 return
             collection = self.collections[batch.device] = Collection(self.settings.method, False,
                                                                      self.settings.max_samples)
+            self._evictions()
+        self.collections.touch(batch.device)
         collection.add(batch.mag_ut, batch.acc_ms2)
         now = self.clock()
         if collection.due(self.settings.min_samples, now):
             self._try(batch.device, collection, now)
         if now - self.last_progress.get(batch.device, -np.inf) >= PROGRESS_INTERVAL_S:
             self._progress(batch.device)
+
+    def _evictions(self) -> None:
+        """Count collections dropped for the --max-devices bound (logged the first time)."""
+        evicted = self.collections.evicted
+        if evicted > self.counters.evicted_devices:
+            if not self.counters.evicted_devices:
+                log.warning("more than %d devices collecting at once: the least recently seen are dropped (counted "
+                            "in status evicted_devices; raise --max-devices if they are genuine)",
+                            self.settings.max_devices)
+            self.counters.evicted_devices = evicted
 
     def _try(self, device: str, collection: Collection, now: float) -> None:
         cov = collection.coverage()
@@ -344,13 +366,9 @@ def run(settings: ServiceSettings) -> int:
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
     signer = load_signer(settings.signing_key)  # a bad key file ends here, before anything is opened
     with CalibrationStore(settings.db) as store, open_session(settings.zenoh) as session:
-        publishers: dict[tuple[wire.Kind, str], Any] = {}
-
         def publish(kind: wire.Kind, device: str, payload: bytes) -> None:
-            publisher = publishers.get((kind, device))
-            if publisher is None:
-                publisher = publishers[(kind, device)] = session.declare_publisher(wire.key(prefix, device, kind))
-            publisher.put(payload)
+            # no declared publisher per device: a flood of new device ids would hold one each
+            session.put(wire.key(prefix, device, kind), payload)
 
         calibrator = Calibrator(store, settings.fitting, publish, signer=signer)
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))

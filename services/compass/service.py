@@ -23,6 +23,7 @@ import zenoh
 
 from magnet import heading as hd
 from magnet import signing, wire
+from magnet.bounded import Recent
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
 from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
                                            stop_event)
@@ -33,6 +34,7 @@ MAX_DRAIN = 4000          # raw messages computed together at most
 CHANNEL_CAPACITY = 65536  # raw messages queued between zenoh and this loop
 REQUERY_S = 5.0           # how often to ask again for the calibration of a device that has none
 REQUERY_REFUSED_S = 1.0   # how often at most to ask the calibrators again after refusing a calibration
+DEFAULT_MAX_DEVICES = 10_000
 MAX_REFUSED = 1024        # devices remembered for that between two asks (a flood beyond: one query for all)
 IDLE_SLEEP_S = 0.0003
 _ZERO3, _EYE3 = np.zeros(3), np.eye(3)
@@ -46,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default="compass", help="service name for liveliness and status (default compass)")
     parser.add_argument("--devices", default="*",
                         help="key expression of the devices this instance serves (default *, all); e.g. 'line-1-*'")
+    parser.add_argument("--max-devices", type=int, default=DEFAULT_MAX_DEVICES,
+                        help="devices whose state (calibration, smoothing, keys) is kept at most; beyond, the least "
+                             f"recently seen is forgotten (default {DEFAULT_MAX_DEVICES})")
     parser.add_argument("--trust", action="append", default=[], type=Path, metavar="FILE.pub",
                         help="apply only calibrations signed by this public key (repeatable; `magnet keys` makes "
                              "them). Without it, unsigned calibrations are applied too")
@@ -63,6 +68,7 @@ class CompassSettings:
     devices: str = "*"
     zenoh: ZenohSettings = ZenohSettings()
     trust: tuple[Path, ...] = ()
+    max_devices: int = DEFAULT_MAX_DEVICES
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
@@ -71,7 +77,7 @@ class CompassSettings:
 
 def settings_from_args(args: argparse.Namespace) -> CompassSettings:
     return CompassSettings(Earth.from_args(args.location, args.date), args.window, args.name, args.devices,
-                           ZenohSettings.from_args(args), tuple(args.trust))
+                           ZenohSettings.from_args(args), tuple(args.trust), args.max_devices)
 
 
 def load_trusted_keys(paths: tuple[Path, ...] | list[Path]) -> signing.TrustedKeys:
@@ -90,6 +96,7 @@ class CompassStatus:
     calibrations: int
     calibration_updates: int
     dropped: dict[str, int]
+    evicted_devices: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -109,7 +116,8 @@ class HeadingColumns:
 class Compass:
     """State of the compass loop: calibrations in force, smoothing tails, counters. No zenoh inside."""
 
-    def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None) -> None:
+    def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None,
+                 max_devices: int = DEFAULT_MAX_DEVICES) -> None:
         if window < 1:
             raise ValueError(f"--window must be >= 1, got {window}")
         self.earth = earth
@@ -117,8 +125,10 @@ class Compass:
         self.trusted = trusted or signing.TrustedKeys()
         self.refused: set[str] = set()  # devices whose calibration was refused since the calibrators were last asked
         self.refused_overflow = False
-        self.calibrations: dict[str, wire.DeviceCalibration] = {}
-        self.tails: dict[str, np.ndarray] = {}
+        self.calibrations: Recent[str, wire.DeviceCalibration] = Recent(max_devices)
+        self.tails: Recent[str, np.ndarray] = Recent(max_devices)
+        self.max_devices = max_devices
+        self._evictions_logged = False
         self.drops = wire.DropCounter()
         self.received_batches = self.received_samples = self.published_batches = 0
         self.calibration_updates = 0
@@ -139,6 +149,7 @@ class Compass:
         if current is None or current.id != record.id:
             self.calibrations[record.device] = record
             self.calibration_updates += 1
+            self._log_evictions()
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
 
@@ -203,6 +214,9 @@ class Compass:
         """Headings for every sample of ``columns`` (see ``magnet.compass.compute_headings``), smoothed per device,
         with true headings and the calibration id of each batch; counts what it received."""
         cals = [self.calibrations.get(device) for device in columns.devices]
+        for device, cal in zip(columns.devices, cals):
+            if cal is not None:
+                self.calibrations.touch(device)
         counts = columns.counts
         offsets = np.repeat(np.array([c.calibration.offset if c else _ZERO3 for c in cals]).reshape(-1, 3), counts,
                             axis=0)
@@ -240,13 +254,21 @@ class Compass:
                                   h.field_ut[lo:hi], self.earth.declination_deg, cal_id, h.flags[lo:hi])
                 for batch, cal_id, lo, hi in zip(batches, out.calibration_ids, bounds[:-1], bounds[1:])]
 
+    def _log_evictions(self) -> None:
+        if not self._evictions_logged and self.calibrations.evicted + self.tails.evicted:
+            self._evictions_logged = True
+            log.warning("more than %d devices: the least recently seen are forgotten (counted in status "
+                        "evicted_devices; raise --max-devices if they are genuine)", self.max_devices)
+
     def _smooth(self, device: str, heading: np.ndarray) -> np.ndarray:
         smoothed, self.tails[device] = smooth_tail(self.tails.get(device, np.empty(0)), heading, self.window)
+        self._log_evictions()
         return smoothed
 
     def status(self, name: str) -> CompassStatus:
         return CompassStatus(name, self.received_batches, self.received_samples, self.published_batches,
-                             len(self.calibrations), self.calibration_updates, dict(self.drops.counts))
+                             len(self.calibrations), self.calibration_updates, dict(self.drops.counts),
+                             self.calibrations.evicted + self.tails.evicted)
 
 
 # ------------------------------------------------------------------------------------------------------- shell
@@ -258,7 +280,7 @@ def run_compass(args: argparse.Namespace) -> int:
 
 
 def run(settings: CompassSettings) -> int:
-    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust))
+    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust), settings.max_devices)
     if compass.trusted.enabled:
         log.info("compass applies only calibrations signed by key(s) %s", ", ".join(compass.trusted.key_ids))
     stop = stop_event()
@@ -289,7 +311,7 @@ class _Loop:
     def __init__(self, session: Any, compass: Compass, settings: CompassSettings) -> None:
         self.session, self.compass = session, compass
         self.prefix, self.devices = settings.zenoh.prefix, settings.devices
-        self.heading_keys: dict[str, str] = {}
+        self.heading_keys: Recent[str, str] = Recent(settings.max_devices)
         self.asked = self.asked_refused = time.monotonic()
         self.pending: list[tuple[float, Any]] = [(self.asked + 3.0, self._ask(3.0))]
 

@@ -1,0 +1,76 @@
+"""A map with a bound on its size that forgets the least recently seen key first (per-device state of services).
+
+Pure; no clock: "recently seen" is the order of ``touch`` and insertion.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
+from typing import Generic, TypeVar
+
+K = TypeVar("K")
+V = TypeVar("V")
+
+
+class Recent(Generic[K, V]):
+    """At most ``limit`` entries; inserting beyond it evicts the least recently seen one (for which ``keep(value)`` is
+    not true), counted in ``evicted``. ``touch(key)`` marks a key as just seen."""
+
+    def __init__(self, limit: int, keep: Callable[[V], bool] | None = None) -> None:
+        if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
+            raise ValueError(f"--max-devices must be a whole number >= 1, got {limit!r}")
+        self.limit, self.keep = limit, keep
+        self.evicted = 0
+        self._items: OrderedDict[K, V] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._items
+
+    def __iter__(self) -> Iterator[K]:
+        return iter(self._items)
+
+    def __getitem__(self, key: K) -> V:
+        return self._items[key]
+
+    def get(self, key: K, default: V | None = None) -> V | None:
+        return self._items.get(key, default)
+
+    def items(self):  # noqa: ANN201 - an ItemsView
+        return self._items.items()
+
+    def values(self):  # noqa: ANN201 - a ValuesView
+        return self._items.values()
+
+    def touch(self, key: K) -> None:
+        if key in self._items:
+            self._items.move_to_end(key)
+
+    def __setitem__(self, key: K, value: V) -> None:
+        self._items[key] = value
+        self._items.move_to_end(key)
+        while len(self._items) > self.limit and self._evict_one():
+            pass
+
+    def setdefault(self, key: K, value: V) -> V:
+        if key not in self._items:
+            self[key] = value
+        return self._items.get(key, value)
+
+    def pop(self, key: K, default: V | None = None) -> V | None:
+        return self._items.pop(key, default)
+
+    def __delitem__(self, key: K) -> None:
+        del self._items[key]
+
+    def _evict_one(self) -> bool:
+        """Drop the least recently seen entry that may go; False when every entry must stay."""
+        for key, value in self._items.items():
+            if self.keep is None or not self.keep(value):
+                del self._items[key]
+                self.evicted += 1
+                return True
+        return False

@@ -1,0 +1,66 @@
+"""Per-device state has a bound: --max-devices on the calibrator and the compass, least recently seen dropped first,
+counted; a collection's arrays grow with what it keeps, not with its capacity."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from magnet import wire
+from magnet.bounded import Recent
+from magnet.collection import Collection
+from magnet.compass import Earth
+from magnet.model import Calibration
+from services.calibrator.service import Calibrator, CalibratorSettings, _start
+from services.calibrator.store import CalibrationStore
+from services.compass.service import Compass
+
+
+def test_recent_forgets_the_least_recently_seen_and_keeps_what_must_stay():
+    recent = Recent(2, keep=lambda v: v == "session")
+    recent["a"], recent["b"] = "x", "x"
+    recent.touch("a")
+    recent["c"] = "x"
+    assert list(recent) == ["a", "c"] and recent.evicted == 1
+    recent["s"] = "session"
+    recent["d"] = "x"
+    assert "s" in recent and recent.evicted == 3
+    with pytest.raises(ValueError, match="--max-devices"):
+        Recent(0)
+
+
+def _batch(device, n=10, seed=0):
+    mag = np.random.default_rng(seed).normal(size=(n, 3)) * 40
+    return wire.encode_raw(wire.RawBatch(device, 0, "sim", np.arange(n, dtype=np.int64), mag, None, None))
+
+
+def test_calibrator_keeps_at_most_max_devices_collections_and_never_drops_a_session(tmp_path):
+    with CalibrationStore(tmp_path / "c.db") as store:
+        calibrator = Calibrator(store, CalibratorSettings(max_devices=3), lambda *a: None)
+        _start(calibrator, "operator-1", None)
+        for i in range(10):
+            calibrator.on_raw(f"magnet/flood-{i}/raw", _batch(f"flood-{i}"), "magnet")
+        assert len(calibrator.collections) == 3 and "operator-1" in calibrator.collections
+        assert calibrator.status("c").to_dict()["evicted_devices"] == 8
+        assert len(calibrator.last_progress) <= 3
+
+
+def test_compass_keeps_at_most_max_devices_calibrations():
+    compass = Compass(Earth(), window=3, max_devices=2)
+    for i in range(5):
+        cal = Calibration("ellipsoid", [float(i), 0, 0], np.eye(3))
+        assert compass.accept_calibration(wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration",
+                                          "magnet")
+    assert list(compass.calibrations) == ["d3", "d4"]
+    compass.encode(compass.decode_columns([(f"magnet/n{i}/raw", _batch(f"n{i}")) for i in range(5)], "magnet"))
+    assert len(compass.tails) == 2 and compass.status("c").evicted_devices == 3 + 3
+
+
+def test_a_collection_that_kept_a_few_samples_holds_small_arrays():
+    collection = Collection("ellipsoid", False, 1500)
+    collection.add(np.random.default_rng(1).normal(size=(10, 3)) * 40, None)
+    assert collection.mag.nbytes <= 64 * 3 * 8
+    for seed in range(40):
+        collection.add(np.random.default_rng(seed).normal(size=(100, 3)) * 40, None)
+    assert 64 < collection.kept <= 1500 and len(collection.mag) >= collection.kept
+    assert np.all(np.isfinite(collection.samples()[0]))
