@@ -1,6 +1,6 @@
 """Rotations between the body frame and the local north-east-down (NED) frame.
 
-Frames (DESIGN.md section 2): body x forward, y right, z down; NED x north (geographic), y east, z down.
+Frames (docs/design.md, "Conventions"): body x forward, y right, z down; NED x north (geographic), y east, z down.
 
 Attitude is given by Euler angles in the aerospace Z-Y-X order: yaw (heading, clockwise from north), then pitch
 (positive nose up), then roll (positive right side down). The body-to-NED rotation is

@@ -10,8 +10,9 @@ gravity only); moving ones add linear acceleration:
 
 and the gyroscope reads the body rate that carries the attitude from one sample to the next.
 
-Sensor model (DESIGN.md section 5). M is the magnetometer's orientation in the body (= accelerometer) frame, from the
-small angles ``misalignment_deg`` (roll, pitch, yaw); S the soft-iron / gain / cross-axis matrix; h the hard iron:
+Sensor model (docs/design.md, "Sensors and the simulator"). M is the magnetometer's orientation in the body
+(= accelerometer) frame, from the small angles ``misalignment_deg`` (roll, pitch, yaw); S the soft-iron / gain /
+cross-axis matrix; h the hard iron:
 
     mag_measured = S @ M^T @ B_body * (1 + tempco * (T - 25 C)) + h + noise (+ occasional spikes)
     acc_measured = f_body + noise
