@@ -81,7 +81,7 @@ def test_two_devices_far_apart_get_their_own_declination_and_expected_field():
     sydney = earth_field(SYDNEY.lat_deg, SYDNEY.lon_deg, SYDNEY.alt_m, DATE)
     assert abs(kyiv.declination_deg - sydney.declination_deg) > 3    # the places really differ
     places = Places(parse_fleet('{"syd": {location: "-33.86,151.21,20"}}'), date=DATE)
-    compass = Compass(Earth(), 1, FleetWatch(places))
+    compass = Compass(Earth(), 1, watch=FleetWatch(places))
     # each device measures the true field of its own place (no iron): level, turning
     batches = []
     for device, place, seed in (("kyiv", KYIV, 1), ("syd", None, 2)):
@@ -97,5 +97,5 @@ def test_two_devices_far_apart_get_their_own_declination_and_expected_field():
         assert np.allclose(hd.true_heading_deg(h.heading_deg, h.declination_deg), h.true_heading_deg)
         assert not h.disturbed.any()   # each judged against its own place's |B| and dip (they differ by > 15 %)
     # the same Sydney field judged against Kyiv's expectation is disturbed
-    kyiv_only = Compass(Earth(), 1, FleetWatch(Places(default=KYIV, date=DATE)))
+    kyiv_only = Compass(Earth(), 1, watch=FleetWatch(Places(default=KYIV, date=DATE)))
     assert kyiv_only.process([dataclasses.replace(batches[1], location=None)])[0].disturbed.all()

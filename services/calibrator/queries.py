@@ -59,9 +59,9 @@ def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
         return
     for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
         rows = calibrator.store.history_changes(device, limit=limit)
-        records, changes = [record.to_record() for record, _ in rows], [change for _, change in rows]
+        records = [calibrator.sign(record).to_record() for record, _ in rows]
         query.reply(wire.key(prefix, device, wire.Kind.HISTORY),
-                    wire.pack({"device": device, "records": records, "changes": changes}))
+                    wire.pack({"device": device, "records": records, "changes": [change for _, change in rows]}))
 
 
 def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:

@@ -23,7 +23,7 @@ from typing import Any, Callable
 import numpy as np
 import zenoh
 
-from magnet import wire
+from magnet import signing, wire
 from magnet.calibration import Method
 from magnet.collection import Collection
 from magnet.geomag import earth_field, parse_location
@@ -64,6 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default="calibrator", help="service name for liveliness and status")
     parser.add_argument("--devices", default="*", help="key expression of the devices served (default *)")
     add_fleet_argument(parser)
+    parser.add_argument("--signing-key", type=Path, metavar="FILE.key",
+                        help="sign every calibration it serves with this Ed25519 private key (`magnet keys`); "
+                             "compasses started with --trust FILE.pub apply only those")
     add_zenoh_arguments(parser)
 
 
@@ -98,6 +101,7 @@ class ServiceSettings:
     name: str = "calibrator"
     devices: str = "*"
     zenoh: ZenohSettings = ZenohSettings()
+    signing_key: Path | None = None
     places: Places | None = None  # --fleet file and --location: each device's expected field
 
 
@@ -109,7 +113,16 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
                                  min_samples=args.min_samples, max_samples=args.max_samples, auto=not args.no_auto)
     places = Places(read_fleet(args.fleet), Location.parse(args.location) if args.location else None)
     return ServiceSettings(fitting, args.db or default_db_path(), args.name, args.devices,
-                           ZenohSettings.from_args(args), places)
+                           ZenohSettings.from_args(args), args.signing_key, places)
+
+
+def load_signer(path: Path | None) -> signing.Signer | None:
+    """The signer of ``--signing-key`` (None without one); OSError/ValueError naming a file that cannot be used."""
+    if path is None:
+        return None
+    if path.stat().st_mode & 0o077:
+        log.warning("signing key %s is readable by others: chmod 600 it", path)
+    return signing.Signer(signing.load_private_key(path.read_bytes(), str(path)))
 
 
 class State(enum.Enum):
@@ -156,11 +169,13 @@ class Calibrator:
 
     def __init__(self, store: CalibrationStore, settings: CalibratorSettings,
                  publish: Callable[[wire.Kind, str, bytes], None], clock: Callable[[], float] = time.monotonic,
-                 clock_ns: Callable[[], int] = time.time_ns, fleet: FleetBook | None = None) -> None:
+                 clock_ns: Callable[[], int] = time.time_ns, signer: signing.Signer | None = None,
+                 fleet: FleetBook | None = None) -> None:
         self.store, self.settings, self.publish = store, settings, publish
         self.fleet = fleet if fleet is not None else FleetBook()
         self.clock, self.clock_ns = clock, clock_ns
-        self.in_force: dict[str, wire.DeviceCalibration] = store.all_latest()
+        self.signer = signer
+        self.in_force: dict[str, wire.DeviceCalibration] = {d: self.sign(r) for d, r in store.all_latest().items()}
         self.collections: dict[str, Collection] = {}
         self.last_progress: dict[str, float] = {}
         self.drops = wire.DropCounter()
@@ -223,18 +238,25 @@ class Calibrator:
         return result if accepted else None
 
     # ---------------------------------------------------------------------------------------------- storing
+    def sign(self, record: wire.DeviceCalibration) -> wire.DeviceCalibration:
+        """``record`` signed with this calibrator's key (unchanged without one): its own store is trusted."""
+        if self.signer is None:
+            return record
+        signed = self.signer.sign(record.to_record())
+        return dataclasses.replace(record, sig=signed["sig"], key_id=signed["key_id"])
+
     def commit(self, device: str, calibration: Calibration,
                change: dict[str, Any] | None = None) -> wire.DeviceCalibration:
         """Store ``calibration`` as the one in force for ``device``, publish it, end collection. ``change`` (action,
         by, ...; default: an automatic or session calibration) is recorded beside it with when and from which id."""
-        record = wire.DeviceCalibration(device, self.clock_ns(), calibration)
+        record = self.sign(wire.DeviceCalibration(device, self.clock_ns(), calibration))
         previous = self.in_force.get(device)
         collection = self.collections.get(device)
         change = {"action": "session" if collection is not None and collection.session else "auto", "by": "",
                   **(change or {}), "at_ns": record.created_ns, "from_id": previous.id if previous else None}
         if self.store.save(record, change):
             self.counters.stored += 1
-        self.in_force[device] = self.store.latest(device) or record
+        self.in_force[device] = self.sign(self.store.latest(device) or record)
         self.collections.pop(device, None)
         log.info("%s: calibration %s stored (%s, residual %s uT, coverage %s)", device, record.id,
                  calibration.method, calibration.quality.residual_rms_ut, calibration.quality.coverage)
@@ -329,6 +351,7 @@ def run_calibrator(args: argparse.Namespace) -> int:
 def run(settings: ServiceSettings) -> int:
     stop = stop_event()
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
+    signer = load_signer(settings.signing_key)  # a bad key file ends here, before anything is opened
     with CalibrationStore(settings.db) as store, open_session(settings.zenoh) as session:
         publishers: dict[tuple[wire.Kind, str], Any] = {}
 
@@ -338,7 +361,7 @@ def run(settings: ServiceSettings) -> int:
                 publisher = publishers[(kind, device)] = session.declare_publisher(wire.key(prefix, device, kind))
             publisher.put(payload)
 
-        calibrator = Calibrator(store, settings.fitting, publish, fleet=FleetBook(settings.places))
+        calibrator = Calibrator(store, settings.fitting, publish, signer=signer, fleet=FleetBook(settings.places))
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         answers = [(queries.ANSWERS[kind], session.declare_queryable(f"{prefix}/{devices}/{kind.value}",
