@@ -14,7 +14,9 @@ payload (plus the simulator's truth), so both give the same verdict and the same
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Mapping, Sequence
+import itertools
+from typing import Any
+from collections.abc import Mapping, Sequence
 
 import msgpack
 import numpy as np
@@ -79,7 +81,7 @@ class RawColumns:
     locations: list[Location | None] | None = None
 
     @classmethod
-    def from_batches(cls, batches: Sequence[RawBatch]) -> "RawColumns":
+    def from_batches(cls, batches: Sequence[RawBatch]) -> RawColumns:
         if not batches:
             return cls([], [], np.zeros(0, np.int64), np.empty(0, np.int64), _nan_rows(0), _nan_rows(0),
                        _nan_rows(0), [])
@@ -100,7 +102,7 @@ class RawColumns:
         """One RawBatch (views) per batch."""
         bounds = self.bounds
         out = []
-        for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])):
+        for i, (lo, hi) in enumerate(itertools.pairwise(bounds)):
             acc, gyr = self.acc_ms2[lo:hi], self.gyr_rads[lo:hi]
             out.append(RawBatch(self.devices[i], self.seqs[i], self.sensors[i], self.t_ns[lo:hi], self.mag_ut[lo:hi],
                                 None if np.isnan(acc).all() else acc, None,
@@ -108,7 +110,7 @@ class RawColumns:
                                 None if self.locations is None else self.locations[i]))
         return out
 
-    def select(self, keep: np.ndarray) -> "RawColumns":
+    def select(self, keep: np.ndarray) -> RawColumns:
         """The batches where ``keep`` (B,) bool is True."""
         keep = np.asarray(keep, dtype=bool)
         per_sample = np.repeat(keep, self.counts)

@@ -13,7 +13,8 @@ import json
 import logging
 import sqlite3
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 from magnet import wire
 
@@ -55,7 +56,7 @@ class CalibrationStore:
     def close(self) -> None:
         self._db.close()
 
-    def __enter__(self) -> "CalibrationStore":
+    def __enter__(self) -> CalibrationStore:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -133,7 +134,7 @@ class CalibrationStore:
                     self._reported.add(seq)
                     log.warning("%s: skipping calibration row %d: %s", self.path, seq, exc)
 
-    def _transaction(self) -> "_Transaction":
+    def _transaction(self) -> _Transaction:
         return _Transaction(self._db)
 
 

@@ -28,7 +28,8 @@ import dataclasses
 import json
 import logging
 import time
-from typing import Any, Callable, Iterator
+from typing import Any
+from collections.abc import Callable, Iterator
 
 import zenoh
 
