@@ -83,12 +83,17 @@ class DriftSettings:
 
     @property
     def window_ns(self) -> int:
-        return int(round(self.window_s * NS_PER_S))
+        """Window length in ns."""
+        return round(self.window_s * NS_PER_S)
 
     @property
     def detection_bound_s(self) -> float:
         """Longest device time from the start of a sustained departure to its alert (data flowing)."""
         return (self.raise_windows + 1) * self.window_s
+
+
+#: the defaults, documented in the README
+DEFAULT_DRIFT = DriftSettings()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,7 +214,7 @@ class DriftTracker:
     """The drift state of one device under one calibration (see the module docstring). ``add`` takes samples in
     time order and returns the alerts that open or clear; ``open_alerts`` the ones open now."""
 
-    def __init__(self, device: str, reference: Reference, settings: DriftSettings = DriftSettings()) -> None:
+    def __init__(self, device: str, reference: Reference, settings: DriftSettings = DEFAULT_DRIFT) -> None:
         self.device, self.reference, self.settings = device, reference, settings
         self.state = {kind: _Hysteresis() for kind in AlertKind}
         self.window: _Window | None = None
@@ -322,7 +327,7 @@ class DriftMonitor:
     """The drift trackers of many devices: one per device with a calibration in force. Bounded by the devices the
     caller feeds (the compass's calibrations)."""
 
-    def __init__(self, settings: DriftSettings = DriftSettings()) -> None:
+    def __init__(self, settings: DriftSettings = DEFAULT_DRIFT) -> None:
         self.settings = settings
         self.trackers: dict[str, DriftTracker] = {}
 

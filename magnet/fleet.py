@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import json5
 import numpy as np
@@ -140,7 +141,7 @@ class EarthColumns:
     inclination_deg: np.ndarray
 
     @classmethod
-    def of(cls, earths: list[Earth], counts: np.ndarray) -> "EarthColumns":
+    def of(cls, earths: list[Earth], counts: np.ndarray) -> EarthColumns:
         """One Earth per batch, repeated over each batch's ``counts`` samples."""
         table = np.array([[e.declination_deg, np.nan if e.total_ut is None else e.total_ut,
                            np.nan if e.inclination_deg is None else e.inclination_deg] for e in earths],

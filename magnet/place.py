@@ -39,7 +39,7 @@ class Location:
             raise ValueError(f"altitude must be within -1 km..850 km (WMM validity), got {self.alt_m} m")
 
     @classmethod
-    def parse(cls, value: Any) -> "Location":
+    def parse(cls, value: Any) -> Location:
         """From ``"LAT,LON[,ALT_M]"``, ``[lat, lon(, alt)]`` or ``{lat_deg, lon_deg(, alt_m)}``; ValueError saying the
         expected form otherwise."""
         if isinstance(value, Location):

@@ -97,7 +97,7 @@ class Site:
         self.tmp_path, self.procs, self.logs = tmp_path, procs, logs
 
     def start(self, name: str, ns: str, *args: str, stdout=None) -> subprocess.Popen:
-        log = open(self.tmp_path / f"{name}.log", "w")
+        log = open(self.tmp_path / f"{name}.log", "w")  # noqa: SIM115 - open while the process runs; closed at the end
         self.logs.append(log)
         proc = subprocess.Popen(netns_exec(ns, *MAGNET, *args), cwd=REPO_ROOT, stdout=stdout or log,
                                 stderr=log, text=True)
@@ -130,7 +130,7 @@ class Headings:
         threading.Thread(target=self._read, args=(proc,), daemon=True).start()
 
     def _read(self, proc: subprocess.Popen) -> None:
-        for line in proc.stdout:
+        for line in proc.stdout or ():
             if line.strip():
                 self.last = json.loads(line)
                 self.times.append(time.monotonic())

@@ -92,8 +92,7 @@ def _encode(devices: Sequence[str], seqs: Sequence[int], bounds: Sequence[int], 
     field = np.asarray(field_ut, dtype=float).tolist()
     flag = np.asarray(flags, dtype=np.int64).tolist()
     quat, quat_ok = _quaternions(quat_wxyz, bounds)
-    declinations = ([float(declination_deg)] * len(devices) if np.ndim(declination_deg) == 0
-                    else [float(d) for d in declination_deg])  # type: ignore[union-attr]
+    declinations = (np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),))).tolist()
     out = []
     for i, (device, seq, cal_id, declination) in enumerate(zip(devices, seqs, calibration_ids, declinations)):
         lo, hi = bounds[i], bounds[i + 1]

@@ -19,7 +19,7 @@ import os
 import time
 from pathlib import Path
 from typing import Any
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import zenoh
@@ -373,8 +373,9 @@ def run(settings: ServiceSettings) -> int:
         answers.append((queries.answer_fleet, session.declare_queryable(f"{prefix}/@fleet",
                                                                         zenoh.handlers.FifoChannel(16))))
         alert_key = f"{prefix}/{devices}/{wire.Kind.ALERT.value}"
-        feeds = [(session.declare_subscriber(alert_key, zenoh.handlers.FifoChannel(4096)), calibrator.fleet.on_alert),
-                 (session.get(alert_key, timeout=3.0), calibrator.fleet.on_alert)]  # the alerts open already
+        feeds: list[tuple[Any, Callable[[str, bytes, str], None]]] = [
+            (session.declare_subscriber(alert_key, zenoh.handlers.FifoChannel(4096)), calibrator.fleet.on_alert),
+            (session.get(alert_key, timeout=3.0), calibrator.fleet.on_alert)]  # the alerts open already
         for device, record in calibrator.in_force.items():
             publish(wire.Kind.CALIBRATION, device, wire.pack(record.to_record()))
         log.info("calibrator %s: %d calibration(s) in store %s", name, len(calibrator.in_force), store.path)
@@ -385,7 +386,7 @@ def run(settings: ServiceSettings) -> int:
 
 
 def _loop(stop: Any, calibrator: Calibrator, raw_sub: Any, answers: list[tuple[Any, Any]], prefix: str,
-          feeds: list[tuple[Any, Callable[[str, bytes, str], None]]] = ()) -> None:  # type: ignore[assignment]
+          feeds: Sequence[tuple[Any, Callable[[str, bytes, str], None]]] = ()) -> None:
     """Drain raw samples, queries and ``feeds`` (samples or replies -> handler(key, payload, prefix)) until
     ``stop`` is set."""
     while not stop.is_set():

@@ -25,7 +25,7 @@ from magnet import heading as hd
 from magnet import signing, wire
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
 from magnet.fleet import EarthColumns, Places, disturbance_flags
-from magnet.drift import DriftSettings
+from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.place import Location
 from services.common.fleet_options import add_drift_arguments, add_fleet_argument, drift_from_args, read_fleet
 from services.compass.watch import FleetWatch
@@ -71,7 +71,7 @@ class CompassSettings:
     zenoh: ZenohSettings = ZenohSettings()
     trust: tuple[Path, ...] = ()
     places: tuple[Location | None, str | None, dict[str, Any]] = (None, None, {})  # default, date, fleet file
-    drift: DriftSettings | None = DriftSettings()
+    drift: DriftSettings | None = DEFAULT_DRIFT
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:

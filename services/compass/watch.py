@@ -3,13 +3,14 @@
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
 from magnet import wire
 from magnet.compass import Earth
-from magnet.drift import Alert, DriftMonitor, DriftSettings, Reference, alert_from_message
+from magnet.drift import DEFAULT_DRIFT, Alert, DriftMonitor, DriftSettings, Reference, alert_from_message
 from magnet.fleet import Places
 from magnet.units import ut_per_unit
 
@@ -22,7 +23,7 @@ __all__ = ["FleetWatch", "alert_from_message"]
 class FleetWatch:
     """Places and drift of the devices a compass serves."""
 
-    def __init__(self, places: Places, drift: DriftSettings | None = DriftSettings()) -> None:
+    def __init__(self, places: Places, drift: DriftSettings | None = DEFAULT_DRIFT) -> None:
         self.places = places
         self.monitor = DriftMonitor(drift) if drift is not None else None
         self.pending: list[Alert] = []
