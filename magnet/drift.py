@@ -193,9 +193,11 @@ class _Window:
         self.count = 0
         self.last_ns = 0
 
-    def add(self, t_ns: np.ndarray, strength: np.ndarray, dip: np.ndarray) -> None:
-        self.last_ns = max(self.last_ns, int(t_ns[-1]))
-        strength, dip = strength[::self.stride], dip[::self.stride]
+    def add(self, strength: np.ndarray, dip: np.ndarray, last_ns: int) -> None:
+        """|B| (uT) and dip (deg) samples, the last of them at ``last_ns``."""
+        self.last_ns = max(self.last_ns, last_ns)
+        if self.stride > 1:
+            strength, dip = strength[::self.stride], dip[::self.stride]
         self.strength.append(strength)
         self.dip.append(dip)
         self.count += strength.size
@@ -247,13 +249,22 @@ class DriftTracker:
             later = np.flatnonzero(index[lo:] > self.window.index)
             hi = t_ns.size if later.size == 0 else lo + int(later[0])
             if hi > lo:
-                self.window.add(t_ns[lo:hi], strength_ut[lo:hi], dip_deg[lo:hi])
+                self.window.add(strength_ut[lo:hi], dip_deg[lo:hi], int(t_ns[hi - 1]))
             if hi == t_ns.size:
                 break
             events += self._close(self.window)
             self.window = _Window(int(index[hi]), self.settings.max_window_samples)
             lo = hi
         return events
+
+    def add_within(self, index: int, last_ns: int, strength_ut: np.ndarray, dip_deg: np.ndarray) -> bool:
+        """The fast path of ``add`` for samples that all fall in window ``index``: True when they did belong to the
+        current window and were taken, False (nothing taken) otherwise."""
+        window = self.window
+        if window is None or window.index != index:
+            return False
+        window.add(strength_ut, dip_deg, last_ns)
+        return True
 
     def _close(self, window: _Window) -> list[Alert]:
         """Judge a finished window; the alerts it opens or clears."""
@@ -344,6 +355,26 @@ class DriftMonitor:
     def add(self, device: str, t_ns: np.ndarray, strength_ut: np.ndarray, dip_deg: np.ndarray) -> list[Alert]:
         tracker = self.trackers.get(device)
         return [] if tracker is None else tracker.add(t_ns, strength_ut, dip_deg)
+
+    def add_columns(self, devices: list[str], bounds: list[int], t_ns: np.ndarray, strength_ut: np.ndarray,
+                    dip_deg: np.ndarray) -> list[Alert]:
+        """``add`` for B batches at once: devices (B,), bounds (B + 1) sample offsets, t_ns, strength_ut, dip_deg
+        (S,). The window of every sample is computed once; a batch inside its device's current window is appended
+        without further numpy work."""
+        if not devices:
+            return []
+        index = t_ns // self.settings.window_ns
+        starts, ends = np.asarray(bounds[:-1]), np.asarray(bounds[1:]) - 1
+        first, last, last_ns = index[starts].tolist(), index[ends].tolist(), t_ns[ends].tolist()
+        events: list[Alert] = []
+        for i, device in enumerate(devices):
+            tracker = self.trackers.get(device)
+            if tracker is None:
+                continue
+            lo, hi = bounds[i], bounds[i + 1]
+            if first[i] != last[i] or not tracker.add_within(first[i], last_ns[i], strength_ut[lo:hi], dip_deg[lo:hi]):
+                events += tracker.add(t_ns[lo:hi], strength_ut[lo:hi], dip_deg[lo:hi])
+        return events
 
     def open_alerts(self) -> list[Alert]:
         return [alert for tracker in self.trackers.values() for alert in tracker.open_alerts]

@@ -230,8 +230,7 @@ class Compass:
         with np.errstate(invalid="ignore", divide="ignore"):
             dip = hd.dip_angle_deg(out.field_ut, columns.acc_ms2)
         out = dataclasses.replace(out, flags=out.flags | disturbance_flags(out.field_ut, columns.acc_ms2, dip, where))
-        self.watch.observe(columns.devices, columns.bounds, [c is not None for c in cals], columns.t_ns,
-                           np.linalg.norm(out.field_ut, axis=1), dip)
+        self.watch.observe(columns.devices, columns.bounds, columns.t_ns, np.linalg.norm(out.field_ut, axis=1), dip)
         self.received_batches += len(columns.devices)
         self.received_samples += int(counts.sum())
         if self.window > 1:

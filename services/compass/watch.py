@@ -52,15 +52,13 @@ class FleetWatch:
                               earth.total_ut if in_ut else None, earth.inclination_deg, record.created_ns, record.id)
         self._queue(self.monitor.calibration(record.device, reference, now_ns))
 
-    def observe(self, devices: list[str], bounds: list[int], calibrated: list[bool], t_ns: np.ndarray,
+    def observe(self, devices: list[str], bounds: list[int], t_ns: np.ndarray,
                 strength_ut: np.ndarray, dip_deg: np.ndarray) -> None:
-        """Feed the calibrated samples of each batch (t_ns, strength_ut, dip_deg (S,)) to its device's tracker."""
+        """Feed the samples of each batch (t_ns, strength_ut, dip_deg (S,)) to its device's tracker (devices with a
+        calibration in force have one)."""
         if self.monitor is None:
             return
-        for i, device in enumerate(devices):
-            if calibrated[i]:
-                lo, hi = bounds[i], bounds[i + 1]
-                self._queue(self.monitor.add(device, t_ns[lo:hi], strength_ut[lo:hi], dip_deg[lo:hi]))
+        self._queue(self.monitor.add_columns(devices, bounds, t_ns, strength_ut, dip_deg))
 
     def _queue(self, alerts: list[Alert]) -> None:
         self.pending += alerts
