@@ -6,14 +6,14 @@ Pure; no clock: "recently seen" is the order of ``touch`` and insertion.
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable, Iterator
-from typing import Generic, TypeVar
+from collections.abc import Callable, Iterator, MutableMapping
+from typing import TypeVar
 
 K = TypeVar("K")
 V = TypeVar("V")
 
 
-class Recent(Generic[K, V]):
+class Recent(MutableMapping[K, V]):
     """At most ``limit`` entries; inserting beyond it evicts the least recently seen one (for which ``keep(value)`` is
     not true), counted in ``evicted``. ``touch(key)`` marks a key as just seen."""
 
@@ -38,12 +38,6 @@ class Recent(Generic[K, V]):
 
     def get(self, key: K, default: V | None = None) -> V | None:
         return self._items.get(key, default)
-
-    def items(self):  # noqa: ANN201 - an ItemsView
-        return self._items.items()
-
-    def values(self):  # noqa: ANN201 - a ValuesView
-        return self._items.values()
 
     def touch(self, key: K) -> None:
         if key in self._items:

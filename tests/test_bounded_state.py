@@ -64,3 +64,28 @@ def test_a_collection_that_kept_a_few_samples_holds_small_arrays():
         collection.add(np.random.default_rng(seed).normal(size=(100, 3)) * 40, None)
     assert 64 < collection.kept <= 1500 and len(collection.mag) >= collection.kept
     assert np.all(np.isfinite(collection.samples()[0]))
+
+
+def test_a_turntable_session_is_refused_with_what_to_do_instead(tmp_path):
+    with CalibrationStore(tmp_path / "c.db") as store:
+        calibrator = Calibrator(store, CalibratorSettings(), lambda *a: None)
+        reply = calibrator.session("t-1", "start", "turntable")
+        assert not reply["ok"] and "magnet fit --method turntable" in reply["message"]
+        assert "t-1" not in calibrator.collections
+
+
+def test_calibrate_with_an_unknown_method_is_one_line_and_asks_nobody(capsys):
+    from services.cli import main
+
+    assert main(["calibrate", "d-1", "start", "--method", "bogus", "--timeout", "0.1", "--no-multicast-scouting",
+                 "--listen", "tcp/127.0.0.1:0"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown calibration method 'bogus'" in err and "no calibrator answered" not in err
+
+
+def test_zenoh_errors_lose_their_rust_source_paths():
+    from services.common.zenoh_session import zenoh_message
+
+    raw = ("Unable to connect to any of [Single(tls/127.0.0.1:7447)]!  at /root/.cargo/git/checkouts/"
+           "zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/net/runtime/orchestrator.rs:447.")
+    assert zenoh_message(Exception(raw)) == "Unable to connect to any of [Single(tls/127.0.0.1:7447)]!"

@@ -339,6 +339,10 @@ class Calibrator:
 
 def _start(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
     chosen = Method.parse(method or calibrator.settings.method).value
+    if chosen == Method.TURNTABLE.value:  # it needs each sample's known heading and the field's components
+        return False, ("a turntable calibration cannot be collected from live samples (it needs the turntable's "
+                       "headings and the field's components): record the turns and run `magnet fit --method "
+                       "turntable` on the file"), {}
     calibrator.collections[device] = Collection(chosen, True, calibrator.settings.max_samples)
     return True, f"session started with {chosen}: move the device through every attitude, then commit", {}
 

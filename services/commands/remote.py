@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from magnet import signing, wire
+from magnet.calibration import Method
 from services.common.zenoh_session import add_zenoh_arguments, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.remote")
@@ -39,15 +40,18 @@ def _decode(payload: bytes) -> Any:
         return {"error": str(exc)}
 
 
-def _query(args: argparse.Namespace, selector: str) -> list[Any]:
-    """Decoded replies to ``selector``; error replies go to stderr."""
+def _query(args: argparse.Namespace, selector: str, errors: list[str] | None = None) -> list[Any]:
+    """Decoded replies to ``selector``; error replies go to stderr (and to ``errors`` when given)."""
     with open_session(args) as session:
         out = []
         for reply in session.get(selector, timeout=args.timeout):
             if reply.ok is not None:
                 out.append(_decode(payload_bytes(reply.ok)))
             else:
-                print(f"magnet: {payload_bytes(reply.err).decode(errors='replace')}", file=sys.stderr)
+                message = payload_bytes(reply.err).decode(errors="replace")
+                print(f"magnet: {message}", file=sys.stderr)
+                if errors is not None:
+                    errors.append(message)
         return out
 
 
@@ -179,14 +183,18 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_calibrate(args: argparse.Namespace) -> int:
     wire.validate_device_id(args.device)
+    if args.method:
+        Method.parse(args.method)  # a method no calibrator knows: one line here, exit 2
     params = f"action={args.action}" + (f";method={args.method}" if args.method else "")
     if args.action == "rollback":
         params += (f";to={args.to}" if args.to else "") + f";by={_who()}"
     elif args.to:
         raise ValueError("--to goes with rollback")
-    replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATE.value}?{params}")
+    errors: list[str] = []
+    replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATE.value}?{params}", errors)
     if not replies:
-        print(f"magnet calibrate: no calibrator answered for {args.device}", file=sys.stderr)
+        if not errors:
+            print(f"magnet calibrate: no calibrator answered for {args.device}", file=sys.stderr)
         return 1
     for reply in replies:
         _print(reply)

@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import re
 import signal
 import socket
 import threading
@@ -100,7 +101,7 @@ def build_config(options: Options) -> zenoh.Config:
         try:
             conf = zenoh.Config.from_file(str(path))
         except Exception as exc:  # zenoh raises ZError for any bad file
-            raise ValueError(f"zenoh config file {path} is not valid: {exc}") from None
+            raise ValueError(f"zenoh config file {path} is not valid: {zenoh_message(exc)}") from None
     else:
         conf = zenoh.Config()
     for path_key, value in config_json5(args).items():
@@ -109,8 +110,16 @@ def build_config(options: Options) -> zenoh.Config:
         try:
             conf.insert_json5(path_key, value)
         except Exception as exc:
-            raise ValueError(f"zenoh option {path_key}={value} refused: {exc}") from None
+            raise ValueError(f"zenoh option {path_key}={value} refused: {zenoh_message(exc)}") from None
     return conf
+
+
+_RUST_LOCATION = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
+
+
+def zenoh_message(exc: BaseException) -> str:
+    """A Zenoh error's message without the Rust source locations it carries (``at /root/.cargo/...rs:447.``)."""
+    return _RUST_LOCATION.sub("", str(exc)).strip()
 
 
 def open_session(options: Options) -> zenoh.Session:
@@ -125,7 +134,7 @@ def open_session(options: Options) -> zenoh.Session:
             raise
         except Exception as exc:  # e.g. a client whose router is not up yet: retry a little, then give up
             if time.monotonic() >= deadline:
-                raise OSError(f"cannot open a zenoh session: {exc}") from None
+                raise OSError(f"cannot open a zenoh session: {zenoh_message(exc)}") from None
             time.sleep(0.2)
 
 
