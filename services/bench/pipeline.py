@@ -78,8 +78,10 @@ class _Measurer:
             now = time.time_ns()
             message = msgpack.unpackb(sample.payload.to_bytes())
             t_ns = message["t_ns"]
+            if isinstance(t_ns, dict):  # v 2: <i8 bytes
+                t_ns = np.frombuffer(t_ns["data"], dtype="<i8")
             self.samples += len(t_ns)
-            self.latencies_ns.append(now - t_ns[-1])
+            self.latencies_ns.append(now - int(t_ns[-1]))
             self.last_ns = time.monotonic_ns()
 
     def stop(self) -> None:
