@@ -1,6 +1,6 @@
 """Rotations between the body frame and the local north-east-down (NED) frame.
 
-Frames (DESIGN.md section 2): body x forward, y right, z down; NED x north (geographic), y east, z down.
+Frames (docs/design.md, "Conventions"): body x forward, y right, z down; NED x north (geographic), y east, z down.
 
 Attitude is given by Euler angles in the aerospace Z-Y-X order: yaw (heading, clockwise from north), then pitch
 (positive nose up), then roll (positive right side down). The body-to-NED rotation is
@@ -100,3 +100,62 @@ def rotation_angle_deg(matrix: np.ndarray) -> np.ndarray:
     r = np.asarray(matrix, dtype=float)
     cos_angle = (np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0
     return np.degrees(np.arccos(np.clip(cos_angle, -1.0, 1.0)))
+
+
+# --------------------------------------------------------------------------------------------------- quaternions
+# Hamilton quaternions ordered w, x, y, z; a unit quaternion q of an attitude is body-to-NED: v_ned = q v_body q*,
+# the same rotation as ``quaternion_to_matrix(q)``.
+
+def quaternion_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product p q of quaternions (..., 4) wxyz (broadcast) -> (..., 4): rotate by q, then by p."""
+    pw, px, py, pz = np.moveaxis(np.asarray(p, dtype=float), -1, 0)
+    qw, qx, qy, qz = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    return np.stack([pw * qw - px * qx - py * qy - pz * qz,
+                     pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx,
+                     pw * qz + px * qy - py * qx + pz * qw], axis=-1)
+
+
+def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
+    """Conjugate (the inverse of a unit quaternion), (..., 4) wxyz."""
+    return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def euler_to_quaternion(yaw_deg, pitch_deg, roll_deg) -> np.ndarray:
+    """Body-to-NED unit quaternion (..., 4) wxyz of Rz(yaw) Ry(pitch) Rx(roll) (degrees, any values, broadcast);
+    continuous in the angles (no sign flips), so a smooth angle history gives a smooth quaternion history."""
+    yaw, pitch, roll = np.broadcast_arrays(*(np.radians(np.asarray(a, dtype=float)) / 2.0
+                                             for a in (yaw_deg, pitch_deg, roll_deg)))
+    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    return np.stack([cy * cp * cr + sy * sp * sr,
+                     cy * cp * sr - sy * sp * cr,
+                     cy * sp * cr + sy * cp * sr,
+                     sy * cp * cr - cy * sp * sr], axis=-1)
+
+
+def quaternion_to_euler(quat_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(yaw in [0, 360), pitch in [-90, 90], roll in (-180, 180]) degrees of body-to-NED quaternions (..., 4)."""
+    return matrix_to_euler(quaternion_to_matrix(quat_wxyz))
+
+
+def rotation_vector_to_quaternion(rotvec_rad: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) of rotation vectors (..., 3) (axis times angle in radians): the exponential map."""
+    v = np.asarray(rotvec_rad, dtype=float)
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    half = angle / 2.0
+    # sin(half) / angle, with its limit 1/2 - angle^2/48 near zero
+    scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle ** 2 / 48.0)
+    return np.concatenate([np.cos(half), v * scale], axis=-1)
+
+
+def quaternion_to_rotation_vector(quat_wxyz: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3), radians, angle in [0, pi], of quaternions (..., 4) (normalised here): the log map
+    of the shorter of q and -q."""
+    q = np.asarray(quat_wxyz, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., :1] < 0, -q, q)
+    w, xyz = q[..., :1], q[..., 1:]
+    sin_half = np.linalg.norm(xyz, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(sin_half, w)
+    scale = np.where(sin_half > 1e-12, angle / np.where(sin_half > 1e-12, sin_half, 1.0), 2.0 / np.maximum(w, 1e-12))
+    return xyz * scale

@@ -1,4 +1,6 @@
-"""Gyroscope-aided attitude and heading: a thin wrapper around the ``vqf`` orientation filter (DESIGN.md 4b).
+"""Gyroscope-aided attitude and heading: a thin wrapper around the ``vqf`` orientation filter.
+
+Design: docs/design.md, "Heading in motion".
 
 vqf (Laidig and Seel 2023, MIT) fuses gyroscope, accelerometer and magnetometer. Its frames are not the project's, so
 they are converted here, once, at the boundary:

@@ -1,7 +1,7 @@
 """Heading, pitch and roll from a (calibrated) magnetometer and an accelerometer, vectorized over samples.
 
-Conventions (DESIGN.md section 2): body x forward, y right, z down. ``acc`` is specific force in m/s^2 (any unit
-works where only directions matter): a level, still device reads (0, 0, -g). Pitch is positive nose up, roll
+Conventions (docs/design.md, "Conventions"): body x forward, y right, z down. ``acc`` is specific force in m/s^2
+(any unit works where only directions matter): a level, still device reads (0, 0, -g). Pitch is positive nose up, roll
 positive right side down. Heading is in degrees [0, 360), clockwise from north, of the body x axis; magnetic heading
 comes from the field, true heading = magnetic + declination (east positive, seed 001 eq. 1).
 

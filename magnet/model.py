@@ -1,7 +1,7 @@
 """The calibration model shared by every method, and the one record that carries a calibration.
 
-Model (docs: the calibration model). A raw reading u (3-vector, raw unit) relates to the true field B in the body
-frame by
+Model (docs/design.md, "The calibration model"). A raw reading u (3-vector, raw unit) relates to the true field B
+in the body frame by
 
     u = K B + u0
 

@@ -1,4 +1,4 @@
-"""Turntable calibration of all 12 parameters of u = K T + u0 against a known field (seed 000; DESIGN.md section 3).
+"""Turntable calibration of all 12 parameters of u = K T + u0 against a known field (seed 000; docs/design.md).
 
 The sensor sits on a turntable in two mountings and is read at table headings K (deg) in a field of known horizontal
 component Bh and vertical component Bv (same unit, e.g. nT). The field in the sensor frame is then (seed 000, eqs.

@@ -10,7 +10,8 @@ from magnet.turntable import closed_form, field_in_sensor, fit_turntable, least_
 
 BH, BV = 18964.0, -46962.0  # gammas (nT)
 
-# DESIGN.md Table 1: heading K (deg); Ux a, Ux b, Uy a, Uy b, Uz a, Uz b (sensor codes, averaged per angle)
+# Seed 000, Table 1 (docs/design.md, "The turntable closed form"): heading K (deg); Ux a, Ux b, Uy a, Uy b, Uz a,
+# Uz b (sensor codes, averaged per angle)
 TABLE_1 = np.array([
     [0, 240.3558, 232.6558, -258.4923, 256.7519, -282.8714, 114.7131],
     [30, 209.1716, 199.1959, -135.2888, 266.9017, -284.4551, 219.0599],
@@ -30,7 +31,7 @@ ANGLES = TABLE_1[:, 0].astype(int)
 MOUNT_A = TABLE_1[:, [1, 3, 5]]
 MOUNT_B = TABLE_1[:, [2, 4, 6]]
 
-# DESIGN.md Table 2, as printed: K row by row, then u0
+# Seed 000, Table 2, as printed: K row by row, then u0
 TABLE_2_K = np.array([[0.012, -5.9333e-5, -1.1079e-4], [-1.0709e-4, 0.0129, -0.0019], [-2.6362e-4, -3.4507e-4, 0.0088]])
 TABLE_2_U0 = np.array([8.1037, -345.3406, 134.6858])
 # half a unit of the last printed digit of each figure above

@@ -1,4 +1,4 @@
-"""Figures of merit of a calibration and the gate that accepts or refuses it (DESIGN.md section 3, "Quality").
+"""Figures of merit of a calibration and the gate that accepts or refuses it (docs/design.md, "Quality").
 
 Pure numpy. Every figure is computed on the corrected field ``calibration.apply(raw)``:
 

@@ -10,8 +10,8 @@ Each trial gives an RMS error; the table shows the median over trials (level, ti
 The fit time is the median over a few fits of 10,000 tumble samples (a spin for ``minmax2d``), quality and gate
 included, as ``magnet.calibration.fit`` runs in the calibrator.
 
-Targets (DESIGN.md section 7): median RMS <= 0.1 deg for ``ellipsoid`` (aligned sensor) and for ``ellipsoid+align``
-(also with 5 deg misalignment); an ellipsoid fit of 10,000 samples well under 50 ms.
+Targets (docs/design.md, "Targets"): median RMS <= 0.1 deg for ``ellipsoid`` (aligned sensor) and for
+``ellipsoid+align`` (also with 5 deg misalignment); an ellipsoid fit of 10,000 samples well under 50 ms.
 """
 
 from __future__ import annotations

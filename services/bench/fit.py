@@ -22,7 +22,7 @@ log = logging.getLogger(__name__)
 
 SAMPLES = 10_000
 RUNS = 9
-TARGET_MS = 50.0  # DESIGN.md section 7: an ellipsoid fit of 10,000 samples in well under 50 ms
+TARGET_MS = 50.0  # docs/design.md, "Targets": an ellipsoid fit of 10,000 samples in well under 50 ms
 
 
 def synthetic_tumble(n: int = SAMPLES, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

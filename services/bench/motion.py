@@ -1,4 +1,4 @@
-"""``magnet bench motion``: heading RMS in motion against truth nobody here made (DESIGN.md section 4b).
+"""``magnet bench motion``: heading RMS in motion against truth nobody here made (docs/design.md, "Heading in motion").
 
 BROAD trials in ``data/`` (real IMU, optical motion capture as reference). The metric: heading of the body x axis
 from the estimate and from the optical reference quaternion, one constant offset per trial removed (circular mean of

@@ -1,7 +1,8 @@
 """The simulator's command-line options, shared by ``magnet sample`` and ``magnet edge``, and what they build.
 
-``--seed``, ``--trajectory spin|turntable|tumble|tenface``, ``--hard-iron X,Y,Z`` (uT), ``--soft-iron`` (3 diagonal
-or 9 row-major numbers), ``--noise-ut``, ``--location LAT,LON[,ALT_M]``, ``--date`` (default: the simulator's fixed
+``--seed``, ``--trajectory`` (still: spin, turntable, tumble, tenface; moving, with linear acceleration and a gyroscope:
+multirotor, car, figure8, fast-tumble), ``--hard-iron X,Y,Z`` (uT), ``--soft-iron`` (3 diagonal or 9 row-major
+numbers), ``--noise-ut``, ``--gyro-bias X,Y,Z`` (rad/s), ``--gyro-noise`` (rad/s RMS per sample), ``--location LAT,LON[,ALT_M]``, ``--date`` (default: the simulator's fixed
 date, so that the same seed gives the same data on any day). ``SimulatorSettings.from_args`` checks them all at once.
 """
 
@@ -45,10 +46,14 @@ def parse_trajectory(text: str) -> Trajectory:
 def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, noise_ut: float = 0.0) -> None:
     group = parser.add_argument_group("simulator (with --emulate)")
     group.add_argument("--seed", type=int, default=seed, help=f"simulator seed: same seed, same data (default {seed})")
-    group.add_argument("--trajectory", default="tumble", help="spin, turntable, tumble or tenface (default tumble)")
+    group.add_argument("--trajectory", default="tumble",
+                       help="still: spin, turntable, tumble, tenface; moving: multirotor, car, figure8, fast-tumble "
+                            "(default tumble)")
     group.add_argument("--hard-iron", default="0,0,0", help="hard iron X,Y,Z in uT")
     group.add_argument("--soft-iron", default="1,1,1", help="soft iron: 3 diagonal or 9 row-major numbers")
     group.add_argument("--noise-ut", type=float, default=noise_ut, help=f"noise, uT RMS (default {noise_ut:g})")
+    group.add_argument("--gyro-bias", default="0,0,0", help="gyroscope bias X,Y,Z in rad/s (default none)")
+    group.add_argument("--gyro-noise", type=float, default=0.0, help="gyroscope noise, rad/s RMS (default 0)")
     group.add_argument("--location", default="50.45,30.52", help="LAT,LON[,ALT_M] (default Kyiv)")
     group.add_argument("--date", default=None, help="YYYY-MM-DD or decimal year (default: the simulator's)")
 
@@ -56,7 +61,7 @@ def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, n
 @dataclasses.dataclass(frozen=True)
 class SimulatorSettings:
     """The simulator options, checked. hard_iron_ut (3,) uT; soft_iron 9 numbers row-major (3x3); noise_ut uT RMS;
-    location (lat_deg, lon_deg, alt_m); date as given (None: the simulator's)."""
+    gyro_bias_rads (3,) rad/s; gyro_noise_rads rad/s RMS; location (lat_deg, lon_deg, alt_m); date as given (None: the simulator's)."""
 
     seed: int = 0
     trajectory: Trajectory = Trajectory.TUMBLE
@@ -65,10 +70,14 @@ class SimulatorSettings:
     noise_ut: float = 0.0
     location: tuple[float, float, float] = (50.45, 30.52, 0.0)
     date: str | None = None
+    gyro_bias_rads: tuple[float, ...] = (0.0, 0.0, 0.0)
+    gyro_noise_rads: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.noise_ut >= 0:
             raise ValueError(f"--noise-ut must be >= 0, got {self.noise_ut}")
+        if not self.gyro_noise_rads >= 0:
+            raise ValueError(f"--gyro-noise must be >= 0, got {self.gyro_noise_rads}")
         if len(self.hard_iron_ut) != 3 or len(self.soft_iron) != 9:
             raise ValueError("hard iron needs 3 numbers and soft iron 9")
 
@@ -77,12 +86,15 @@ class SimulatorSettings:
         return cls(seed=int(args.seed), trajectory=parse_trajectory(args.trajectory),
                    hard_iron_ut=tuple(parse_floats(args.hard_iron, (3,), "--hard-iron").tolist()),
                    soft_iron=tuple(parse_soft_iron(args.soft_iron).ravel().tolist()),
-                   noise_ut=float(args.noise_ut), location=parse_location(args.location), date=args.date)
+                   noise_ut=float(args.noise_ut), location=parse_location(args.location), date=args.date,
+                   gyro_bias_rads=tuple(parse_floats(args.gyro_bias, (3,), "--gyro-bias").tolist()),
+                   gyro_noise_rads=float(args.gyro_noise))
 
     def errors(self) -> SensorErrors:
         """The simulator's ``SensorErrors``."""
         return SensorErrors(hard_iron_ut=np.array(self.hard_iron_ut),
-                            soft_iron=np.array(self.soft_iron).reshape(3, 3), noise_ut=self.noise_ut)
+                            soft_iron=np.array(self.soft_iron).reshape(3, 3), noise_ut=self.noise_ut,
+                            gyro_bias_rads=np.array(self.gyro_bias_rads), gyro_noise_rads=self.gyro_noise_rads)
 
     def place(self) -> dict[str, Any]:
         """lat_deg, lon_deg, alt_m and (when given) date, as the simulator's keyword arguments."""

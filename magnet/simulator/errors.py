@@ -1,0 +1,113 @@
+"""The errors of one simulated magnetometer + accelerometer (+ gyroscope): hard and soft iron, misalignment, noise,
+spikes, temperature drift, gyroscope bias and noise (see ``magnet.simulator`` for the measurement model)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from magnet.attitude import axis_angle_matrix, euler_to_matrix, matrix_to_euler, random_rotations
+from magnet.model import Calibration
+
+REFERENCE_TEMPERATURE_C = 25.0
+
+
+def _vector(value: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.array(value, dtype=float)
+    if arr.shape != shape or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite numbers of shape {shape}, got {np.asarray(value).tolist()!r}")
+    arr.setflags(write=False)
+    return arr
+
+
+def _non_negative(value: float, name: str) -> float:
+    number = float(value)
+    if not np.isfinite(number) or number < 0:
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+    return number
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SensorErrors:
+    """The errors of one magnetometer + accelerometer + gyroscope (see ``magnet.simulator`` for the model).
+
+    hard_iron_ut (3,) uT; soft_iron (3, 3) dimensionless (identity = none); misalignment_deg (3,) roll, pitch, yaw of
+    the magnetometer frame in the accelerometer (body) frame; noise_ut per axis (1 sigma); acc_noise_ms2 per axis;
+    spike_probability per sample and spike_ut (magnitude of a spike, random direction); gain_tempco_per_k relative gain
+    change per kelvin from 25 C; temperature_c at t = 0 and temperature_ramp_k_per_s its drift; gyro_bias_rads (3,)
+    rad/s, constant, added to every gyroscope sample; gyro_noise_rads per axis per sample (1 sigma), rad/s.
+    """
+
+    hard_iron_ut: Any = (0.0, 0.0, 0.0)
+    soft_iron: Any = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    misalignment_deg: Any = (0.0, 0.0, 0.0)
+    noise_ut: float = 0.0
+    acc_noise_ms2: float = 0.0
+    spike_probability: float = 0.0
+    spike_ut: float = 0.0
+    gain_tempco_per_k: float = 0.0
+    temperature_c: float = REFERENCE_TEMPERATURE_C
+    temperature_ramp_k_per_s: float = 0.0
+    gyro_bias_rads: Any = (0.0, 0.0, 0.0)
+    gyro_noise_rads: float = 0.0
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "hard_iron_ut", _vector(self.hard_iron_ut, "hard_iron_ut", (3,)))
+        set_(self, "soft_iron", _vector(self.soft_iron, "soft_iron", (3, 3)))
+        set_(self, "misalignment_deg", _vector(self.misalignment_deg, "misalignment_deg", (3,)))
+        set_(self, "gyro_bias_rads", _vector(self.gyro_bias_rads, "gyro_bias_rads", (3,)))
+        if abs(np.linalg.det(self.soft_iron)) < 1e-9:
+            raise ValueError("soft_iron must be an invertible 3x3 matrix")
+        for name in ("noise_ut", "acc_noise_ms2", "spike_ut", "gyro_noise_rads"):
+            set_(self, name, _non_negative(getattr(self, name), name))
+        probability = _non_negative(self.spike_probability, "spike_probability")
+        if probability > 1:
+            raise ValueError(f"spike_probability must be within 0..1, got {probability}")
+        set_(self, "spike_probability", probability)
+        for name in ("gain_tempco_per_k", "temperature_c", "temperature_ramp_k_per_s"):
+            number = float(getattr(self, name))
+            if not np.isfinite(number):
+                raise ValueError(f"{name} must be a finite number, got {getattr(self, name)!r}")
+            set_(self, name, number)
+
+    @property
+    def misalignment_matrix(self) -> np.ndarray:
+        """M (3, 3): the magnetometer axes expressed in the body frame; field in magnetometer axes = M^T B_body."""
+        roll, pitch, yaw = self.misalignment_deg
+        return euler_to_matrix(yaw, pitch, roll)
+
+    @property
+    def distortion(self) -> np.ndarray:
+        """S @ M^T (3, 3): measured = distortion @ B_body * gain + hard iron."""
+        return self.soft_iron @ self.misalignment_matrix.T
+
+    def gain(self, t_s: np.ndarray) -> np.ndarray:
+        """Relative gain (same shape as t_s) from the temperature at time t_s (seconds from the start)."""
+        temperature = self.temperature_c + self.temperature_ramp_k_per_s * np.asarray(t_s, dtype=float)
+        return 1.0 + self.gain_tempco_per_k * (temperature - REFERENCE_TEMPERATURE_C)
+
+    def true_calibration(self, field_strength_ut: float = 0.0) -> Calibration:
+        """The exact correction at 25 C: B_body = M S^-1 (mag - h), as a calibration record."""
+        return Calibration(method="truth", offset=self.hard_iron_ut,
+                           matrix=self.misalignment_matrix @ np.linalg.inv(self.soft_iron),
+                           field_strength=field_strength_ut, reason="the simulator's true errors")
+
+    @classmethod
+    def random(cls, rng: np.random.Generator, field_ut: float, *, hard_iron_max_ratio: float = 3.0,
+               soft_iron_max: float = 0.2, misalignment_deg: float = 0.0, **other: Any) -> "SensorErrors":
+        """Random errors: hard iron in a random direction with magnitude uniform in 0..hard_iron_max_ratio x the field;
+        soft iron symmetric positive definite, eigenvalues uniform in 1 +- soft_iron_max, random axes; misalignment a
+        rotation of ``misalignment_deg`` about a random axis. ``other`` sets the remaining fields (noise_ut, ...)."""
+        direction = rng.standard_normal(3)
+        hard = direction / np.linalg.norm(direction) * rng.uniform(0.0, hard_iron_max_ratio) * field_ut
+        axes = random_rotations(1, rng)[0]
+        soft = axes @ np.diag(rng.uniform(1.0 - soft_iron_max, 1.0 + soft_iron_max, 3)) @ axes.T
+        misalignment = (0.0, 0.0, 0.0)
+        if misalignment_deg:
+            tilt = axis_angle_matrix(rng.standard_normal(3), misalignment_deg)
+            yaw, pitch, roll = matrix_to_euler(tilt)
+            misalignment = (float(roll), float(pitch), float((yaw + 180.0) % 360.0 - 180.0))
+        return cls(hard_iron_ut=hard, soft_iron=soft, misalignment_deg=misalignment, **other)

@@ -1,0 +1,121 @@
+"""The attitude trajectories of the simulator by name, and the still ones (functions of the phase of a run).
+
+Still trajectories (the device at rest at every sample: the accelerometer reads gravity only), each a periodic
+function of the sample index with period ``count``:
+- SPIN: level, one full clockwise turn from magnetic north.
+- TURNTABLE: seed 000's two mountings, table angle K = 0, 30, ..., 360 deg (13 steps), ``count // 26`` samples per
+  step, mounting a first. Mounting a: x at table angle K, z up (the device upside down: roll 180); mounting b: x at K,
+  y down (roll +90). The sensor-frame field is then exactly seed 000's eqs. 2 and 5 with Bv the *up* component of the
+  field (negative in the northern hemisphere): a = (Bh cos K, Bh sin K, Bv), b = (Bh cos K, -Bv, Bh sin K). Both are
+  physical attitudes (the table turns clockwise seen from above, as headings do), so no sign had to be forced.
+- TUMBLE: smooth "figure 8" over the whole sphere: over one run pitch = 85 sin(21 cycles), roll turns 13 times and
+  heading 8 times, with phases and senses drawn from the seed. The Fibonacci counts keep the path from closing on
+  itself early, so field and gravity directions cover the sphere evenly (every one of 100 equal-area cells from 1000
+  samples on). The speed follows the run's length: at 3000 samples and 50 Hz pitch swings at 0.35 Hz.
+- TENFACE: our reading of seed 003's ten-face procedure (its figure is not in the text): the device rests on each of
+  its six faces and on four 45-degree edges (pitch +-45, roll +-45) and is turned a full circle about the vertical on
+  each; it is set down on the next face between stations (no transition samples).
+
+Moving trajectories (MULTIROTOR, CAR, FIGURE8, FAST_TUMBLE) are functions of time with linear acceleration: see
+``magnet.simulator.motion``.
+"""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+TURNTABLE_STEP_DEG = 30
+TURNTABLE_ANGLES_DEG = tuple(range(0, 361, TURNTABLE_STEP_DEG))  # 0..360 inclusive, as in seed 000's table
+TURNTABLE_ROLL_DEG = {"a": 180.0, "b": 90.0}                     # a: z up; b: y down
+TENFACE_STATIONS = (  # (pitch_deg, roll_deg): six faces, then four 45-degree edges
+    (0.0, 0.0), (0.0, 180.0), (0.0, 90.0), (0.0, -90.0), (90.0, 0.0), (-90.0, 0.0),
+    (45.0, 0.0), (-45.0, 0.0), (0.0, 45.0), (0.0, -45.0),
+)
+TUMBLE_CYCLES = (21, 13, 8)    # pitch oscillations, roll turns, heading turns over one run (Fibonacci: no short
+                               # Lissajous repeats, so the run covers every field and gravity direction)
+TUMBLE_PITCH_AMPLITUDE_DEG = 85.0
+GOLDEN_RATIO_MINOR = (5 ** 0.5 - 1) / 2   # 0.618...
+
+
+class Trajectory(enum.Enum):
+    SPIN = "spin"
+    TURNTABLE = "turntable"
+    TUMBLE = "tumble"
+    TENFACE = "tenface"
+    MULTIROTOR = "multirotor"
+    CAR = "car"
+    FIGURE8 = "figure8"
+    FAST_TUMBLE = "fast-tumble"
+
+    @property
+    def moving(self) -> bool:
+        """True for the trajectories with linear acceleration (``magnet.simulator.motion``)."""
+        return self in MOVING_TRAJECTORIES
+
+
+MOVING_TRAJECTORIES = frozenset({Trajectory.MULTIROTOR, Trajectory.CAR, Trajectory.FIGURE8, Trajectory.FAST_TUMBLE})
+
+MIN_COUNT = {Trajectory.SPIN: 2, Trajectory.TURNTABLE: 2 * len(TURNTABLE_ANGLES_DEG), Trajectory.TUMBLE: 2,
+             Trajectory.TENFACE: len(TENFACE_STATIONS), **{t: 2 for t in MOVING_TRAJECTORIES}}
+
+
+# Still trajectories: functions of the phase s in [0, 1) of a run -> magnetic heading, pitch, roll (degrees),
+# mounting and table angle.
+
+def _spin(s: np.ndarray, params: dict) -> tuple:
+    zero = np.zeros_like(s)
+    return 360.0 * s, zero, zero, np.full(s.shape, ""), np.full(s.shape, np.nan)
+
+
+def _turntable(s: np.ndarray, params: dict) -> tuple:
+    steps = len(TURNTABLE_ANGLES_DEG)
+    station = np.minimum((s * 2 * steps).astype(int), 2 * steps - 1)
+    mounting = np.where(station < steps, "a", "b")
+    table = np.asarray(TURNTABLE_ANGLES_DEG, dtype=float)[station % steps]
+    roll = np.where(mounting == "a", TURNTABLE_ROLL_DEG["a"], TURNTABLE_ROLL_DEG["b"])
+    return table, np.zeros_like(s), roll, mounting, table
+
+
+def _tenface(s: np.ndarray, params: dict) -> tuple:
+    stations = np.asarray(TENFACE_STATIONS)
+    position = s * len(stations)
+    station = np.minimum(position.astype(int), len(stations) - 1)
+    yaw = 360.0 * (position - station)
+    return yaw, stations[station, 0], stations[station, 1], np.full(s.shape, ""), np.full(s.shape, np.nan)
+
+
+def _tumble(s: np.ndarray, params: dict) -> tuple:
+    phase = 2.0 * np.pi * s
+    pitch_cycles, roll_turns, yaw_turns = TUMBLE_CYCLES
+    pitch = TUMBLE_PITCH_AMPLITUDE_DEG * np.sin(pitch_cycles * phase + params["phases"][0])
+    roll = params["senses"][0] * 360.0 * roll_turns * s + np.degrees(params["phases"][1])
+    yaw = params["senses"][1] * 360.0 * yaw_turns * s + np.degrees(params["phases"][2])
+    return yaw, pitch, roll, np.full(s.shape, ""), np.full(s.shape, np.nan)
+
+
+STILL_TRAJECTORIES = {Trajectory.SPIN: _spin, Trajectory.TURNTABLE: _turntable, Trajectory.TENFACE: _tenface,
+                      Trajectory.TUMBLE: _tumble}
+
+
+def ned_to_body_euler(vector_ned: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarray,
+                      roll_deg: np.ndarray) -> np.ndarray:
+    """R^T v for R = Rz(yaw) Ry(pitch) Rx(roll), without building matrices: vector (3,) or (..., 3) in NED, angles
+    broadcastable, result (..., 3) in body axes. The fast path of the simulators (three elementary rotations)."""
+    v = np.asarray(vector_ned, dtype=float)
+    y, p, r = (np.radians(np.asarray(a, dtype=float)) for a in (yaw_deg, pitch_deg, roll_deg))
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    n, e, d = v[..., 0], v[..., 1], v[..., 2]
+    x1 = cy * n + sy * e            # Rz^T
+    y1 = -sy * n + cy * e
+    x2 = cp * x1 - sp * d           # Ry^T
+    z2 = sp * x1 + cp * d
+    y3 = cr * y1 + sr * z2          # Rx^T
+    z3 = -sr * y1 + cr * z2
+    return np.stack(np.broadcast_arrays(x2, y3, z3), axis=-1)
+
+
+def wrap_roll(roll_deg: np.ndarray) -> np.ndarray:
+    """Roll wrapped to (-180, 180]."""
+    return 180.0 - np.mod(180.0 - roll_deg, 360.0)
