@@ -100,7 +100,7 @@ def test_overflow_is_counted_and_skipped():
 def test_give_up_after_raises_a_clear_error():
     clock = FakeClock()
     loop, _ = make_loop(Script(errno.ETIMEDOUT), clock, give_up_after=5)
-    with pytest.raises(SensorReadError, match="no usable reading after 5 failures in a row over 0.15 s"):
+    with pytest.raises(SensorReadError, match=r"no usable reading after 5 failures in a row over 0.15 s"):
         loop.next()
     assert loop.stats.attempts == 5
 

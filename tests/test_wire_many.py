@@ -2,7 +2,8 @@
 
 import msgpack
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from magnet import wire
 

@@ -6,7 +6,8 @@ import json
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from magnet import wire
@@ -62,7 +63,9 @@ def test_raw_round_trips_in_both_versions(batch, version):
 @st.composite
 def heading_batches(draw):
     n = draw(st.integers(1, 40))
-    angle = lambda lo, hi: draw(hnp.arrays(np.float64, n, elements=st.floats(lo, hi, exclude_max=True)))  # noqa
+
+    def angle(lo, hi):
+        return draw(hnp.arrays(np.float64, n, elements=st.floats(lo, hi, exclude_max=True)))
     quat = None
     if draw(st.booleans()):
         raw = draw(hnp.arrays(np.float64, (n, 4), elements=st.floats(0.1, 1)))
@@ -118,8 +121,8 @@ def _v2(**changes):
 
 def _bin(dtype, shape, data=None):
     count = int(np.prod(shape))
-    return {"dtype": dtype, "shape": list(shape),
-            "data": data if data is not None else np.ones(count, dtype=dtype if dtype[1:2] in "fiu" else "<f4").tobytes()}
+    fill = np.ones(count, dtype=dtype if dtype[1:2] in "fiu" else "<f4").tobytes()
+    return {"dtype": dtype, "shape": list(shape), "data": data if data is not None else fill}
 
 
 def _f4(rows):
@@ -170,8 +173,8 @@ def test_malformed_v2_heading_is_refused():
     message = msgpack.unpackb(wire.encode_heading(batch))
     for changes, cause in [({"flags": _bin("<f4", (3,))}, "bad-dtype"),
                            ({"field_ut": _bin("<f4", (3, 3), b"\x00")}, "bad-shape"),
-                           ({"heading_deg": {"dtype": "<f4", "shape": [3], "data": np.full(3, np.nan, "<f4").tobytes()}},
-                            "non-finite"),
+                           ({"heading_deg": {"dtype": "<f4", "shape": [3],
+                                             "data": np.full(3, np.nan, "<f4").tobytes()}}, "non-finite"),
                            ({"quat_wxyz": {"dtype": "<f4", "shape": [3, 4],
                                            "data": np.full((3, 4), 0.9, "<f4").tobytes()}}, "absurd-magnitude"),
                            ({"pitch_deg": _bin("<f8", (2,))}, "bad-shape")]:

@@ -17,7 +17,8 @@ both versions (``WIRE_VERSION`` 1, also their JSON form in files and the store);
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import msgpack
 import numpy as np

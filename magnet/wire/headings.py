@@ -15,15 +15,32 @@ FIELD_DISTURBED (|B| away from the expected field) and DIP_DISTURBED (dip away f
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Sequence
+import itertools
+from collections.abc import Sequence
+from typing import Any
 
 import msgpack
 import numpy as np
 
 from magnet.heading import HeadingFlag
-from magnet.wire.codec import (BINARY_VERSION, FLAG_DTYPE, FLAG_DTYPES, FLOAT_DTYPE, TIME_DTYPE, TIME_DTYPES,
-                               VERSIONS, WIRE_VERSION, Payload, binary_message, check_lengths, float_array,
-                               int_array, int_field, number_field, unpack)
+from magnet.wire.codec import (
+    BINARY_VERSION,
+    FLAG_DTYPE,
+    FLAG_DTYPES,
+    FLOAT_DTYPE,
+    TIME_DTYPE,
+    TIME_DTYPES,
+    VERSIONS,
+    WIRE_VERSION,
+    Payload,
+    binary_message,
+    check_lengths,
+    float_array,
+    int_array,
+    int_field,
+    number_field,
+    unpack,
+)
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device
 from magnet.wire.raw import RawColumns
@@ -154,7 +171,7 @@ def _quaternions_ok(quat_wxyz: np.ndarray | None, bounds: Sequence[int]) -> list
     finite = np.isfinite(np.asarray(quat_wxyz, dtype=float)).all(axis=1)
     if finite.all():
         return [True] * (len(bounds) - 1)
-    return [bool(finite[lo:hi].all()) for lo, hi in zip(bounds[:-1], bounds[1:])]
+    return [bool(finite[lo:hi].all()) for lo, hi in itertools.pairwise(bounds)]
 
 
 def decode_heading(payload: Payload) -> HeadingBatch:

@@ -16,14 +16,33 @@ one payload (plus the simulator's truth), so both give the same verdict and the 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Mapping, NamedTuple, Sequence
+import itertools
+from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
 
 import msgpack
 import numpy as np
 
-from magnet.wire.codec import (BINARY_VERSION, FLOAT_DTYPE, FLOAT_DTYPES, MAX_BATCH_SAMPLES, TIME_DTYPE,
-                               TIME_DTYPES, VERSIONS, WIRE_VERSION, Bin, Payload, bin_array, binary_message,
-                               check_bin, check_lengths, float_array, from_bins, int_field, unpack)
+from magnet.wire.codec import (
+    BINARY_VERSION,
+    FLOAT_DTYPE,
+    FLOAT_DTYPES,
+    MAX_BATCH_SAMPLES,
+    TIME_DTYPE,
+    TIME_DTYPES,
+    VERSIONS,
+    WIRE_VERSION,
+    Bin,
+    Payload,
+    bin_array,
+    binary_message,
+    check_bin,
+    check_lengths,
+    float_array,
+    from_bins,
+    int_field,
+    unpack,
+)
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device
 
@@ -78,7 +97,7 @@ class RawColumns:
     sensors: list[str]
 
     @classmethod
-    def from_batches(cls, batches: Sequence[RawBatch]) -> "RawColumns":
+    def from_batches(cls, batches: Sequence[RawBatch]) -> RawColumns:
         if not batches:
             return cls([], [], np.zeros(0, np.int64), np.empty(0, np.int64), _nan_rows(0), _nan_rows(0),
                        _nan_rows(0), [])
@@ -99,14 +118,14 @@ class RawColumns:
         """One RawBatch (views) per batch."""
         bounds = self.bounds
         out = []
-        for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])):
+        for i, (lo, hi) in enumerate(itertools.pairwise(bounds)):
             acc, gyr = self.acc_ms2[lo:hi], self.gyr_rads[lo:hi]
             out.append(RawBatch(self.devices[i], self.seqs[i], self.sensors[i], self.t_ns[lo:hi], self.mag_ut[lo:hi],
                                 None if np.isnan(acc).all() else acc, None,
                                 None if np.isnan(gyr).all() else gyr))
         return out
 
-    def select(self, keep: np.ndarray) -> "RawColumns":
+    def select(self, keep: np.ndarray) -> RawColumns:
         """The batches where ``keep`` (B,) bool is True."""
         keep = np.asarray(keep, dtype=bool)
         per_sample = np.repeat(keep, self.counts)

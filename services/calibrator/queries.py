@@ -7,7 +7,8 @@ Each handler answers one query (``reply`` or ``reply_err``); none raises on what
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Iterable
 
 import zenoh
 
@@ -57,7 +58,7 @@ def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
         query.reply_err(str(exc).encode())
         return
     for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
-        records = [record.to_record() for record in calibrator.store.history(device, limit=limit)]
+        records = [calibrator.sign(record).to_record() for record in calibrator.store.history(device, limit=limit)]
         query.reply(wire.key(prefix, device, wire.Kind.HISTORY), wire.pack({"device": device, "records": records}))
 
 

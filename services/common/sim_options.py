@@ -82,7 +82,7 @@ class SimulatorSettings:
             raise ValueError("hard iron needs 3 numbers and soft iron 9")
 
     @classmethod
-    def from_args(cls, args: argparse.Namespace) -> "SimulatorSettings":
+    def from_args(cls, args: argparse.Namespace) -> SimulatorSettings:
         return cls(seed=int(args.seed), trajectory=parse_trajectory(args.trajectory),
                    hard_iron_ut=tuple(parse_floats(args.hard_iron, (3,), "--hard-iron").tolist()),
                    soft_iron=tuple(parse_soft_iron(args.soft_iron).ravel().tolist()),

@@ -11,7 +11,8 @@
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import smbus2
@@ -64,7 +65,8 @@ class FleetSource:
 
 
 class StreamSource:
-    """One simulated device read sample by sample from a ``SensorStream`` (no register emulation)."""
+    """One simulated device read sample by sample from a ``SensorStream`` (no register emulation); a moving
+    trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope."""
 
     stats: ReadStats | None = None
 
@@ -75,13 +77,16 @@ class StreamSource:
 
     def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
         n = self.settings.batch
-        mag, acc, truth = np.empty((n, 3)), np.empty((n, 3)), {k: np.empty(n) for k in TRUTH_KEYS}
+        mag, acc, gyr = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        truth = {k: np.empty(n) for k in TRUTH_KEYS}
         for i in range(n):
-            mag[i], acc[i] = self.stream.measure()
+            mag[i], acc[i], gyr[i] = self.stream.measure_imu()
             for k, v in _truth(self.stream).items():
                 truth[k][i] = v
         t_ns = stamp(n, end_ns, int(1e9 / self.settings.rate_hz))
-        return [wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth)]
+        moving = self.settings.simulator.trajectory.moving
+        return [wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth,
+                              gyr if moving else None)]
 
 
 def _open_bus(settings: EdgeSettings, stream: Any) -> Any:
@@ -111,20 +116,22 @@ class ChipSource:
 
     def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
         """Up to ``batch`` samples (fewer only when ``stop()`` turned true while the bus was failing)."""
-        mags, accs, truths = [], [], []
+        mags, accs, gyrs, truths = [], [], [], []
         for _ in range(self.settings.batch):
             reading = self.loop.next(stop)
             if reading is None:
                 break
             mags.append(np.asarray(reading.mag_ut, dtype=float))
             accs.append(None if reading.acc_ms2 is None else np.asarray(reading.acc_ms2, dtype=float))
+            gyrs.append(None if reading.gyr_rads is None else np.asarray(reading.gyr_rads, dtype=float))
             truths.append(_truth(self.stream))
         if not mags:
             return []
         acc = None if any(a is None for a in accs) else np.array(accs)
+        gyr = None if any(g is None for g in gyrs) else np.array(gyrs)
         truth = {k: np.array([t[k] for t in truths]) for k in TRUTH_KEYS} if self.stream is not None else None
         t_ns = stamp(len(mags), time.time_ns(), int(1e9 / self.settings.rate_hz))
-        return [wire.RawBatch(self.settings.device, seq, self.settings.sensor, t_ns, np.array(mags), acc, truth)]
+        return [wire.RawBatch(self.settings.device, seq, self.settings.sensor, t_ns, np.array(mags), acc, truth, gyr)]
 
 
 def make_source(settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> Any:
