@@ -24,6 +24,7 @@ import zenoh
 from magnet import heading as hd
 from magnet import signing, wire
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
+from magnet.shard import EVERY_DEVICE, Shard
 from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
                                            stop_event)
 
@@ -49,6 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trust", action="append", default=[], type=Path, metavar="FILE.pub",
                         help="apply only calibrations signed by this public key (repeatable; `magnet keys` makes "
                              "them). Without it, unsigned calibrations are applied too")
+    parser.add_argument("--shard", default="0/1", metavar="K/N",
+                        help="serve only the devices of shard K of N (0 <= K < N; see magnet.shard: sha256 of the "
+                             "device id, first 8 bytes, mod N); default 0/1, every device")
     add_zenoh_arguments(parser)
 
 
@@ -63,6 +67,7 @@ class CompassSettings:
     devices: str = "*"
     zenoh: ZenohSettings = ZenohSettings()
     trust: tuple[Path, ...] = ()
+    shard: Shard = EVERY_DEVICE
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
@@ -71,7 +76,7 @@ class CompassSettings:
 
 def settings_from_args(args: argparse.Namespace) -> CompassSettings:
     return CompassSettings(Earth.from_args(args.location, args.date), args.window, args.name, args.devices,
-                           ZenohSettings.from_args(args), tuple(args.trust))
+                           ZenohSettings.from_args(args), tuple(args.trust), Shard.parse(args.shard))
 
 
 def load_trusted_keys(paths: tuple[Path, ...] | list[Path]) -> signing.TrustedKeys:
@@ -90,6 +95,7 @@ class CompassStatus:
     calibrations: int
     calibration_updates: int
     dropped: dict[str, int]
+    shard: str = "0/1"
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -109,7 +115,8 @@ class HeadingColumns:
 class Compass:
     """State of the compass loop: calibrations in force, smoothing tails, counters. No zenoh inside."""
 
-    def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None) -> None:
+    def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None,
+                 shard: Shard = EVERY_DEVICE) -> None:
         if window < 1:
             raise ValueError(f"--window must be >= 1, got {window}")
         self.earth = earth
@@ -123,10 +130,28 @@ class Compass:
         self.received_batches = self.received_samples = self.published_batches = 0
         self.calibration_updates = 0
         self._key_devices: dict[str, str] = {}
+        self.shard = shard
+        self._mine: dict[str, bool] = {}
+
+    def mine(self, key_expr: str, prefix: str, kind: wire.Kind = wire.Kind.RAW) -> bool:
+        """Whether the device of ``key_expr`` belongs to this compass's shard (a malformed key: True, so that it is
+        decoded, refused and counted)."""
+        owned = self._mine.get(key_expr)
+        if owned is None:
+            try:
+                owned = self.shard.owns(wire.device_from_key(prefix, key_expr, kind))
+            except wire.WireError:
+                return True
+            if len(self._mine) < 200_000:
+                self._mine[key_expr] = owned
+        return owned
 
     def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> bool:
         """Apply a calibration message when it is usable (``applicable``); else count why, keep the one in force and
-        remember the device so that the calibrators are asked again. True when it is (or already was) in force."""
+        remember the device so that the calibrators are asked again. True when it is (or already was) in force;
+        False, silently, for another shard's device."""
+        if not self.shard.everything and not self.mine(key_expr, prefix, wire.Kind.CALIBRATION):
+            return False
         try:
             record = wire.decode_calibration(payload)
             wire.check_key(prefix, key_expr, wire.Kind.CALIBRATION, record.device)
@@ -246,7 +271,8 @@ class Compass:
 
     def status(self, name: str) -> CompassStatus:
         return CompassStatus(name, self.received_batches, self.received_samples, self.published_batches,
-                             len(self.calibrations), self.calibration_updates, dict(self.drops.counts))
+                             len(self.calibrations), self.calibration_updates, dict(self.drops.counts),
+                             str(self.shard))
 
 
 # ------------------------------------------------------------------------------------------------------- shell
@@ -258,7 +284,7 @@ def run_compass(args: argparse.Namespace) -> int:
 
 
 def run(settings: CompassSettings) -> int:
-    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust))
+    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust), settings.shard)
     if compass.trusted.enabled:
         log.info("compass applies only calibrations signed by key(s) %s", ", ".join(compass.trusted.key_ids))
     stop = stop_event()
@@ -268,8 +294,8 @@ def run(settings: CompassSettings) -> int:
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         cal_sub = session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
         status_q = session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64))
-        log.info("compass %s: serving %s/%s, declination %.2f deg", name, prefix, devices,
-                 compass.earth.declination_deg)
+        log.info("compass %s: serving %s/%s (shard %s), declination %.2f deg", name, prefix, devices,
+                 settings.shard, compass.earth.declination_deg)
         loop = _Loop(session, compass, settings)
         while not stop.is_set():
             loop.calibrations(cal_sub)
@@ -329,7 +355,11 @@ class _Loop:
         samples = drain(raw_sub, MAX_DRAIN)
         if not samples:
             return False
-        columns = self.compass.decode_columns([(str(s.key_expr), s.payload.to_bytes()) for s in samples], self.prefix)
+        keys = [str(s.key_expr) for s in samples]
+        if not self.compass.shard.everything:  # another shard's devices: dropped by key, before any decoding
+            mine = [i for i, k in enumerate(keys) if self.compass.mine(k, self.prefix)]
+            samples, keys = [samples[i] for i in mine], [keys[i] for i in mine]
+        columns = self.compass.decode_columns([(k, s.payload.to_bytes()) for s, k in zip(samples, keys)], self.prefix)
         for device, payload in zip(columns.devices, self.compass.encode(columns)):
             key = self.heading_keys.get(device) or self.heading_keys.setdefault(
                 device, wire.key(self.prefix, device, wire.Kind.HEADING))
