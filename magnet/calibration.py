@@ -48,8 +48,7 @@ from collections.abc import Callable
 import numpy as np
 
 from magnet.model import IDENTITY, Calibration, Quality
-from magnet.quality import motion
-from magnet.quality import GateThresholds, Geometry, assess, gate, scatter_condition, ut_per_unit
+from magnet.quality import GateThresholds, Geometry, assess, gate, motion, scatter_condition, ut_per_unit
 
 
 class Method(enum.Enum):
@@ -304,6 +303,8 @@ def _ellipsoid_system(mag: np.ndarray, params: np.ndarray) -> tuple[float, np.nd
 
 
 def _ellipsoid_align(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+    if acc is None:
+        raise FitError("ellipsoid+align needs accelerometer samples (ax, ay, az) beside the field")
     base = _ellipsoid(mag, acc, robust)
     gravity = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
     field = (mag - base.offset) @ base.matrix.T

@@ -15,6 +15,7 @@ import datetime as _dt
 import functools
 import math
 import threading
+from typing import Any
 
 COEFFICIENTS_FILE = "wmm/WMM_2025.COF"
 MODEL_START_YEAR = 2025.0
@@ -67,10 +68,11 @@ def decimal_year(date: DateLike = None) -> float:
         return year
     if isinstance(date, str):
         try:
-            date = _dt.date.fromisoformat(date.strip())
+            text = date.strip()
+            date = _dt.date.fromisoformat(text)
         except ValueError:
             try:
-                return decimal_year(float(date))
+                return decimal_year(float(text))
             except ValueError:
                 raise ValueError(f"date {date!r} is neither 'YYYY-MM-DD' nor a decimal year such as 2026.5") from None
     if isinstance(date, _dt.datetime):
@@ -83,7 +85,7 @@ def decimal_year(date: DateLike = None) -> float:
 
 
 @functools.lru_cache(maxsize=1)
-def _model():
+def _model() -> Any:
     from pygeomag import GeoMag  # imported lazily: pure Python, no network or bus
 
     return GeoMag(coefficients_file=COEFFICIENTS_FILE)

@@ -166,9 +166,9 @@ def accuracy_rows(fitter: Fitter = real_fitter, settings: AccuracySettings = Acc
                 err = heading_errors_deg(calibration, errors, earth, attitudes)
                 per_trial.append((_rms(err[level]), _rms(err[~level]), _rms(err)))
             table = np.array(per_trial) if per_trial else np.full((1, 3), np.nan)
-            medians = np.median(table, axis=0)
-            rows.append(AccuracyRow(method, float(misalignment), *map(float, medians), float(table[:, 2].max()),
-                                    settings.trials, failed, rejected))
+            level_rms, tilted_rms, all_rms = (float(m) for m in np.median(table, axis=0))
+            rows.append(AccuracyRow(method, float(misalignment), level_rms, tilted_rms, all_rms,
+                                    float(table[:, 2].max()), settings.trials, failed, rejected))
     return rows
 
 

@@ -13,7 +13,7 @@ import json
 import logging
 import sqlite3
 from pathlib import Path
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 
 from magnet import wire
 
@@ -79,7 +79,7 @@ class CalibrationStore:
     def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
         """Valid records of ``device``, newest first, at most ``limit``."""
         rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,))
-        out = []
+        out: list[wire.DeviceCalibration] = []
         for record in self._valid(rows):
             if limit is not None and len(out) >= max(0, limit):
                 break
@@ -94,7 +94,7 @@ class CalibrationStore:
             out.setdefault(record.device, record)
         return out
 
-    def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterable[wire.DeviceCalibration]:
+    def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterator[wire.DeviceCalibration]:
         """The records of ``rows`` (seq, JSON text) that pass the entry check; the others skipped and counted."""
         for seq, text in rows:
             try:
