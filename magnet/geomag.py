@@ -142,7 +142,7 @@ def earth_field(lat_deg: float, lon_deg: float, alt_m: float = 0.0, date: DateLi
 
 
 def parse_location(text: str) -> tuple[float, float, float]:
-    """``"LAT,LON[,ALT_M]"`` (degrees, degrees, metres) -> (lat, lon, alt_m). Raises ValueError with the expected form."""
+    """``"LAT,LON[,ALT_M]"`` (degrees, degrees, metres) -> (lat, lon, alt_m); ValueError naming the expected form."""
     parts = [p.strip() for p in str(text).split(",")]
     if len(parts) not in (2, 3) or any(p == "" for p in parts):
         raise ValueError(f"location {text!r} must be LAT,LON or LAT,LON,ALT_M (e.g. 50.45,30.52,180)")

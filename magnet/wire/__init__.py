@@ -14,111 +14,33 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
   bytes with dtype and shape, written by the services), ``VERSIONS`` (both read), size limits, ``pack``/``unpack``,
   ``plain`` (v 2 arrays as lists, for printing) and the checks of single fields.
 - ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; the one raw decoder ``decode_raw_many`` (``decode_raw`` is
-  it applied to one payload). Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``.
+  it applied to one payload). Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``, and optional
+  ``location`` [lat_deg, lon_deg, alt_m] (``magnet.place.Location``; cause ``bad-location``).
 - ``headings``: ``HeadingBatch``, the one heading encoder ``encode_headings`` (``encode_heading`` is it for one
   batch), ``decode_heading``; optional ``quat_wxyz`` and the ``DISTURBED`` flag bits.
 - ``records``: ``DeviceCalibration`` (a device's calibration as published and stored; its one entry is
   ``calibration_from_record``) and ``Progress``.
 """
 
-from magnet.wire.codec import (
-                               BINARY_VERSION,
-                               MAX_BATCH_SAMPLES,
-                               MAX_PAYLOAD_BYTES,
-                               VERSIONS,
-                               WIRE_VERSION,
-                               check_version,
-                               pack,
-                               plain,
-                               unpack,
-)
+from magnet.wire.codec import (BINARY_VERSION, MAX_BATCH_SAMPLES, MAX_PAYLOAD_BYTES, VERSIONS, WIRE_VERSION,
+                               check_version, pack, plain, unpack)
 from magnet.wire.errors import DropCounter, WireError
-from magnet.wire.headings import ANGLE_FIELDS, DISTURBED, HeadingBatch, decode_heading, encode_heading, encode_headings
-from magnet.wire.keys import (
-                               DEFAULT_PREFIX,
-                               Kind,
-                               check_key,
-                               device_from_key,
-                               key,
-                               key_mismatch,
-                               liveliness_key,
-                               message_device,
-                               status_key,
-                               validate_device_id,
-                               validate_prefix,
-)
-from magnet.wire.raw import (
-                               MAX_ACC_MS2,
-                               MAX_FIELD_UT,
-                               MAX_GYR_RADS,
-                               TRUTH_FIELDS,
-                               RawBatch,
-                               RawColumns,
-                               decode_messages,
-                               decode_raw,
-                               decode_raw_many,
-                               encode_raw,
-)
-from magnet.wire.records import (
-                               CalibrationMessage,
-                               Collecting,
-                               DeviceCalibration,
-                               Progress,
-                               calibration_from_record,
-                               calibration_record,
-                               decode_calibration,
-                               decode_progress,
-                               encode_calibration,
-                               encode_progress,
-)
+from magnet.wire.headings import (ANGLE_FIELDS, DISTURBED, HeadingBatch, decode_heading, encode_heading,
+                                  encode_headings)
+from magnet.wire.keys import (DEFAULT_PREFIX, Kind, check_key, device_from_key, key, key_mismatch, liveliness_key,
+                              message_device, status_key, validate_device_id, validate_prefix)
+from magnet.wire.raw import (MAX_ACC_MS2, MAX_FIELD_UT, MAX_GYR_RADS, TRUTH_FIELDS, RawBatch, RawColumns,
+                             decode_messages, decode_raw, decode_raw_many, encode_raw, message_location)
+from magnet.wire.records import (CalibrationMessage, Collecting, DeviceCalibration, Progress, calibration_from_record,
+                                 calibration_record, decode_calibration, decode_progress, encode_calibration,
+                                 encode_progress)
 
 __all__ = [
-                               "ANGLE_FIELDS",
-                               "BINARY_VERSION",
-                               "DEFAULT_PREFIX",
-                               "DISTURBED",
-                               "MAX_ACC_MS2",
-                               "MAX_BATCH_SAMPLES",
-                               "MAX_FIELD_UT",
-                               "MAX_GYR_RADS",
-                               "MAX_PAYLOAD_BYTES",
-                               "TRUTH_FIELDS",
-                               "VERSIONS",
-                               "WIRE_VERSION",
-                               "CalibrationMessage",
-                               "Collecting",
-                               "DeviceCalibration",
-                               "DropCounter",
-                               "HeadingBatch",
-                               "Kind",
-                               "Progress",
-                               "RawBatch",
-                               "RawColumns",
-                               "WireError",
-                               "calibration_from_record",
-                               "calibration_record",
-                               "check_key",
-                               "check_version",
-                               "decode_calibration",
-                               "decode_heading",
-                               "decode_messages",
-                               "decode_progress",
-                               "decode_raw",
-                               "decode_raw_many",
-                               "device_from_key",
-                               "encode_calibration",
-                               "encode_heading",
-                               "encode_headings",
-                               "encode_progress",
-                               "encode_raw",
-                               "key",
-                               "key_mismatch",
-                               "liveliness_key",
-                               "message_device",
-                               "pack",
-                               "plain",
-                               "status_key",
-                               "unpack",
-                               "validate_device_id",
-                               "validate_prefix",
+    "ANGLE_FIELDS", "BINARY_VERSION", "VERSIONS", "plain", "CalibrationMessage", "Collecting", "DeviceCalibration", "Progress", "DEFAULT_PREFIX", "DISTURBED", "DropCounter", "HeadingBatch", "Kind",
+    "MAX_ACC_MS2", "MAX_BATCH_SAMPLES", "MAX_FIELD_UT", "MAX_GYR_RADS", "MAX_PAYLOAD_BYTES", "RawBatch", "RawColumns",
+    "TRUTH_FIELDS", "WIRE_VERSION", "WireError", "calibration_from_record", "calibration_record", "check_key",
+    "check_version", "decode_calibration", "decode_heading", "decode_messages", "decode_progress", "decode_raw",
+    "decode_raw_many", "device_from_key", "encode_calibration", "encode_heading", "encode_headings",
+    "encode_progress", "encode_raw", "key", "message_location", "key_mismatch", "liveliness_key", "message_device", "pack",
+    "status_key", "unpack", "validate_device_id", "validate_prefix",
 ]

@@ -82,14 +82,15 @@ class HeadingBatch:
 
 def encode_headings(columns: RawColumns, heading_deg: np.ndarray, true_heading_deg: np.ndarray,
                     pitch_deg: np.ndarray, roll_deg: np.ndarray, field_ut: np.ndarray, flags: np.ndarray,
-                    declination_deg: float, calibration_ids: Sequence[str],
+                    declination_deg: float | Sequence[float], calibration_ids: Sequence[str],
                     quat_wxyz: np.ndarray | None = None, version: int = BINARY_VERSION) -> list[bytes]:
     """One heading message per batch of ``columns`` (the one heading encoder), in ``version`` 2 (binary arrays, the
     default) or 1 (lists).
 
     The arrays are aligned with ``columns``' S samples (angles (S,) deg, field_ut (S, 3) uT, flags (S,) int,
     quat_wxyz (S, 4) or None); each is converted once (to lists, or to little-endian bytes) and sliced per batch.
-    A batch whose quaternion rows are not all finite carries no ``quat_wxyz``."""
+    A batch whose quaternion rows are not all finite carries no ``quat_wxyz``. ``declination_deg``: one for all, or
+    one per batch (each device's place)."""
     return _encode(columns.devices, columns.seqs, columns.bounds, columns.t_ns,
                    (heading_deg, true_heading_deg, pitch_deg, roll_deg), field_ut, flags, declination_deg,
                    calibration_ids, quat_wxyz, version)
@@ -147,13 +148,14 @@ def _wrap(heading_deg: np.ndarray) -> np.ndarray:
 
 
 def _encode(devices: Sequence[str], seqs: Sequence[int], bounds: Sequence[int], t_ns: np.ndarray,
-            angles: tuple[np.ndarray, ...], field_ut: np.ndarray, flags: np.ndarray, declination_deg: float,
-            calibration_ids: Sequence[str], quat_wxyz: np.ndarray | None, version: int) -> list[bytes]:
+            angles: tuple[np.ndarray, ...], field_ut: np.ndarray, flags: np.ndarray,
+            declination_deg: float | Sequence[float], calibration_ids: Sequence[str], quat_wxyz: np.ndarray | None,
+            version: int) -> list[bytes]:
     quat_ok = _quaternions_ok(quat_wxyz, bounds)
     times, angle_columns, field, flag, quat = _columns(version, t_ns, angles, field_ut, flags, quat_wxyz)
-    declination = float(declination_deg)
+    declinations = np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),)).tolist()
     out = []
-    for i, (device, seq, cal_id) in enumerate(zip(devices, seqs, calibration_ids)):
+    for i, (device, seq, cal_id, declination) in enumerate(zip(devices, seqs, calibration_ids, declinations)):
         rows = slice(bounds[i], bounds[i + 1])
         message: dict[str, Any] = {"v": version, "device": device, "seq": int(seq), "t_ns": times[rows]}
         message.update((name, values[rows]) for name, values in zip(ANGLE_FIELDS, angle_columns))

@@ -2,8 +2,10 @@
 
 Message: ``{v, device, seq, sensor, t_ns: [N ints], mag_ut: [[x, y, z]] * N, acc_ms2: [[x, y, z]] * N (optional),
 gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), truth: {heading_deg: [N], pitch_deg: [N],
-roll_deg: [N]} (optional, simulator only)}``. In v 2 (written) every array is a binary array map (see
-``magnet.wire.codec``): t_ns ``<i8`` [N], mag_ut / acc_ms2 / gyr_rads ``<f4`` [N, 3], truth ``<f4`` [N].
+roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the device is,
+``magnet.place.Location``, checked: cause ``bad-location``)}``. In v 2 (written) every array of samples is a binary
+array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N], mag_ut / acc_ms2 / gyr_rads ``<f4`` [N, 3], truth ``<f4``
+[N]; ``location`` (three numbers, not samples) stays a list in both versions.
 
 There is one decoder, for both versions: ``decode_raw_many`` checks each message's structure in Python (``_header``:
 list lengths in v 1, dtype, shape and byte count in v 2), turns the numbers of all of them into arrays at once (v 1
@@ -43,6 +45,7 @@ from magnet.wire.codec import (
     int_field,
     unpack,
 )
+from magnet.place import Location
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device
 
@@ -61,7 +64,7 @@ TRUTH_FIELDS = ("heading_deg", "pitch_deg", "roll_deg")
 class RawBatch:
     """N raw samples of one device. t_ns (N,) int64 ns; mag_ut (N, 3) uT body frame; acc_ms2 (N, 3) m/s^2 or None;
     truth: {"heading_deg", "pitch_deg", "roll_deg"} -> (N,) degrees, simulator only, else None; gyr_rads (N, 3)
-    rad/s body frame or None."""
+    rad/s body frame or None; location where the device is, or None."""
 
     device: str
     seq: int
@@ -71,6 +74,7 @@ class RawBatch:
     acc_ms2: np.ndarray | None = None
     truth: Mapping[str, np.ndarray] | None = None
     gyr_rads: np.ndarray | None = None
+    location: Location | None = None
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -85,7 +89,8 @@ class RawColumns:
     """B raw batches decoded together, S samples in all, batch after batch.
 
     devices, seqs, sensors: per batch (B); counts (B,) int samples per batch; t_ns (S,) int64; mag_ut (S, 3) uT;
-    acc_ms2 (S, 3) m/s^2 and gyr_rads (S, 3) rad/s, with NaN rows for batches that carry none."""
+    acc_ms2 (S, 3) m/s^2 and gyr_rads (S, 3) rad/s, with NaN rows for batches that carry none; locations per batch
+    (a Location or None), or None when no batch carries one."""
 
     devices: list[str]
     seqs: list[int]
@@ -95,6 +100,7 @@ class RawColumns:
     acc_ms2: np.ndarray
     gyr_rads: np.ndarray
     sensors: list[str]
+    locations: list[Location | None] | None = None
 
     @classmethod
     def from_batches(cls, batches: Sequence[RawBatch]) -> RawColumns:
@@ -107,7 +113,7 @@ class RawColumns:
                    np.concatenate([b.mag_ut for b in batches]).astype(np.float64),
                    np.concatenate([_nan_rows(len(b)) if b.acc_ms2 is None else b.acc_ms2 for b in batches]),
                    np.concatenate([_nan_rows(len(b)) if b.gyr_rads is None else b.gyr_rads for b in batches]),
-                   [b.sensor for b in batches])
+                   [b.sensor for b in batches], _locations([b.location for b in batches]))
 
     @property
     def bounds(self) -> list[int]:
@@ -122,7 +128,8 @@ class RawColumns:
             acc, gyr = self.acc_ms2[lo:hi], self.gyr_rads[lo:hi]
             out.append(RawBatch(self.devices[i], self.seqs[i], self.sensors[i], self.t_ns[lo:hi], self.mag_ut[lo:hi],
                                 None if np.isnan(acc).all() else acc, None,
-                                None if np.isnan(gyr).all() else gyr))
+                                None if np.isnan(gyr).all() else gyr,
+                                None if self.locations is None else self.locations[i]))
         return out
 
     def select(self, keep: np.ndarray) -> RawColumns:
@@ -132,7 +139,26 @@ class RawColumns:
         pick = [i for i, k in enumerate(keep.tolist()) if k]
         return RawColumns([self.devices[i] for i in pick], [self.seqs[i] for i in pick], self.counts[keep],
                           self.t_ns[per_sample], self.mag_ut[per_sample], self.acc_ms2[per_sample],
-                          self.gyr_rads[per_sample], [self.sensors[i] for i in pick])
+                          self.gyr_rads[per_sample], [self.sensors[i] for i in pick],
+                          None if self.locations is None else _locations([self.locations[i] for i in pick]))
+
+
+def _locations(locations: list[Location | None]) -> list[Location | None] | None:
+    """Per-batch locations, or None when no batch carries one."""
+    return locations if any(loc is not None for loc in locations) else None
+
+
+def message_location(message: Mapping[str, Any]) -> Location | None:
+    """The optional ``location`` of a raw message; WireError ``bad-location`` when it is not a valid place."""
+    value = message.get("location")
+    if value is None:
+        return None
+    if type(value) is not list:
+        raise WireError("bad-location", "location must be a list [lat_deg, lon_deg, alt_m]")
+    try:
+        return Location.parse(value)
+    except ValueError as exc:
+        raise WireError("bad-location", str(exc)) from None
 
 
 # ------------------------------------------------------------------------------------------------------ encoding
@@ -152,6 +178,8 @@ def encode_raw(batch: RawBatch, version: int = BINARY_VERSION) -> bytes:
         message["acc_ms2"] = floats(batch.acc_ms2)
     if batch.gyr_rads is not None:
         message["gyr_rads"] = floats(batch.gyr_rads)
+    if batch.location is not None:
+        message["location"] = batch.location.to_wire()
     if batch.truth is not None:
         message["truth"] = {name: floats(batch.truth[name]) for name in TRUTH_FIELDS}
     return msgpack.packb(message, use_bin_type=True)
@@ -311,21 +339,27 @@ def decode_messages(messages: Sequence[Mapping[str, Any]]) -> tuple[RawColumns, 
     errors: list[tuple[int, WireError]] = []
     kept: list[int] = []
     headers: list[_Header] = []
+    locations: list[Location | None] = []
     for index, message in enumerate(messages):
         try:
-            headers.append(_header(message))
-            kept.append(index)
+            header, location = _header(message), message_location(message)
         except WireError as exc:
             errors.append((index, exc))
+            continue
+        headers.append(header)
+        locations.append(location)
+        kept.append(index)
     if not headers:
         return RawColumns.from_batches([]), errors
     try:
         columns, verdicts = _numbers(headers)
+        columns = dataclasses.replace(columns, locations=_locations(locations))
         columns = columns.select(np.array([v is None for v in verdicts], dtype=bool))
     except WireError:  # rare: some message's numbers are not arrays; judge each alone to name it
         alone = [_alone(h) for h in headers]
         verdicts = [verdict for _, verdict in alone]
-        columns = RawColumns.from_batches([batch for batches, _ in alone for batch in batches])
+        columns = RawColumns.from_batches([dataclasses.replace(batch, location=location)
+                                           for (batches, _), location in zip(alone, locations) for batch in batches])
     errors += [(index, v) for index, v in zip(kept, verdicts) if v is not None]
     return columns, sorted(errors, key=lambda e: e[0])
 

@@ -204,7 +204,8 @@ def format_table(rows: list[AccuracyRow], settings: AccuracySettings) -> str:
         (f"heading RMS error after calibration (deg), median of {settings.trials} random sensors: "
          f"hard iron <= {settings.hard_iron_max_ratio:g}x |B|, soft iron +-{settings.soft_iron_max:.0%}, "
          f"noise {settings.noise_ut:g} uT; fit on {settings.fit_samples} tumble samples "
-         f"({settings.spin_samples} level-spin samples for minmax2d); scored every {settings.heading_step_deg:g} deg, "
+         f"({settings.spin_samples} level-spin samples for minmax2d); "
+         f"scored every {settings.heading_step_deg:g} deg, "
          f"level and {settings.tilt_deg:g} deg tilt"),
         (f"{'method':<16}{'misalign':>9}{'level':>9}{'tilted':>9}{'all':>9}{'worst':>9}{'fail':>6}{'reject':>8}"
          f"{'fit ms':>9}  target"),

@@ -148,6 +148,7 @@ class Publisher:
         self.sample_ns = int(1e9 / settings.rate_hz)
         self.block = zenoh.CongestionControl.BLOCK  # raw samples wait for a congested link rather than vanish
         self.version = settings.wire_version
+        self.location = settings.location
 
     def put(self, batches: list[wire.RawBatch]) -> None:
         tick = time.monotonic()
@@ -160,6 +161,8 @@ class Publisher:
             for batch in batches[slot::self.slots]:
                 if slot:
                     batch = dataclasses.replace(batch, t_ns=stamp(len(batch), now_ns, self.sample_ns))
+                if self.location is not None:
+                    batch = dataclasses.replace(batch, location=self.location)
                 self.session.put(self.keys[batch.device], wire.encode_raw(batch, self.version),
                                  congestion_control=self.block)
                 self.status.published_samples += len(batch)

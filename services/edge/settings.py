@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 
 from magnet import wire
+from magnet.place import Location
 from services.common import sim_options
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
@@ -57,6 +58,8 @@ class EdgeSettings:
     wire_version: int = wire.BINARY_VERSION
     simulator: sim_options.SimulatorSettings = dataclasses.field(default_factory=sim_options.SimulatorSettings)
     zenoh: ZenohSettings = dataclasses.field(default_factory=ZenohSettings)
+    #: where the device is, sent in every raw message: --location, or the simulator's place when emulating
+    location: Location | None = None
 
     def __post_init__(self) -> None:
         wire.validate_device_id(self.device)
@@ -97,4 +100,12 @@ class EdgeSettings:
                    devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),
                    speedup=float(args.speedup), emulate_faults=float(args.emulate_faults),
                    wire_version=int(getattr(args, "wire", wire.BINARY_VERSION)),
-                   simulator=sim_options.SimulatorSettings.from_args(args), zenoh=ZenohSettings.from_args(args))
+                   simulator=sim_options.SimulatorSettings.from_args(args), zenoh=ZenohSettings.from_args(args),
+                   location=_location(args))
+
+
+def _location(args: argparse.Namespace) -> Location | None:
+    """The place the edge reports: --location when given, else the simulator's (emulated devices), else None."""
+    if args.location:
+        return Location.parse(args.location)
+    return Location.parse(sim_options.DEFAULT_LOCATION) if args.emulate else None
