@@ -92,7 +92,7 @@ def bin_array(values: Any, dtype: str) -> dict[str, Any]:
 
 def check_bin(value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...],
               rows: int | None = None) -> Bin:
-    """Check a v 2 array map of shape (N, *tail), N <= MAX_BATCH_SAMPLES (and N == ``rows`` when given), one of
+    """Check a v 2 array map of shape (N, *tail) (tail () or (k,)), N <= MAX_BATCH_SAMPLES (and N == ``rows`` when given), one of
     ``dtypes``, with exactly N * prod(tail) * itemsize bytes; WireError (``bad-shape``, ``bad-dtype``,
     ``oversized``) otherwise. Values are not looked at (see ``from_bins``). The hot path of a busy consumer: a few
     type and size comparisons, nothing per number."""
@@ -102,7 +102,7 @@ def check_bin(value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple
         n = shape[0]
         if (type(shape) is list and type(n) is int and len(shape) == 1 + len(tail) and tuple(shape[1:]) == tail
                 and 0 <= n <= MAX_BATCH_SAMPLES and (rows is None or n == rows) and type(data) is bytes
-                and len(data) == n * dtype.itemsize * math.prod(tail)):
+                and len(data) == n * dtype.itemsize * (tail[0] if tail else 1)):
             return Bin(dtype, n, data)
     except (TypeError, KeyError, IndexError):
         pass

@@ -26,6 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=50.0, help="samples per second per device (default 50)")
     parser.add_argument("--batch", type=int, default=10, help="samples per message (default 10)")
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    parser.add_argument("--gyro", action="store_true",
+                        help="with --devices: the simulated devices send a gyroscope too (gyr_rads)")
     parser.add_argument("--wire", type=int, choices=wire.VERSIONS, default=wire.BINARY_VERSION,
                         help="message version: 2 binary arrays (default), 1 lists of numbers for old subscribers")
     sim_options.add_simulator_arguments(parser, seed=1, noise_ut=0.3)
@@ -56,6 +58,7 @@ class EdgeSettings:
     speedup: float = 1.0
     emulate_faults: float = 0.0
     wire_version: int = wire.BINARY_VERSION
+    gyro: bool = False
     simulator: sim_options.SimulatorSettings = dataclasses.field(default_factory=sim_options.SimulatorSettings)
     zenoh: ZenohSettings = dataclasses.field(default_factory=ZenohSettings)
     #: where the device is, sent in every raw message: --location, or the simulator's place when emulating
@@ -100,6 +103,7 @@ class EdgeSettings:
                    devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),
                    speedup=float(args.speedup), emulate_faults=float(args.emulate_faults),
                    wire_version=int(getattr(args, "wire", wire.BINARY_VERSION)),
+                   gyro=bool(getattr(args, "gyro", False)),
                    simulator=sim_options.SimulatorSettings.from_args(args), zenoh=ZenohSettings.from_args(args),
                    location=_location(args))
 
