@@ -24,13 +24,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrator": ("services.calibrator.service", "collect, fit, gate, store and serve calibrations over Zenoh"),
     "compass": ("services.compass.service", "apply calibrations and publish headings over Zenoh"),
     "router": ("services.router", "run a Zenoh router"),
-    "get": ("services.commands.remote", "query a device's calibration (or its history)"),
+    "get": ("services.commands.remote", "query a device's calibration (or its history), a status, or the fleet"),
     "watch": ("services.commands.remote", "print headings as they are published"),
     "calibrate": ("services.commands.remote", "start, follow, commit or abort a calibration session"),
     "keys": ("services.commands.keys", "an Ed25519 key pair for signing calibrations (NAME.key, NAME.pub)"),
     "certs": ("services.commands.certs", "a site CA, certificates per role and the router/client configs (TLS, ACL)"),
     "up": ("services.commands.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
     "dashboard": ("services.dashboard.service", "serve a live web page of the fleet (and calibration control)"),
+    "report": ("services.commands.report", "draw a calibration report (HTML or PNG) from samples and a calibration"),
 }
 
 
