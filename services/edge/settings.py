@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from magnet import wire
+from magnet.replay import MAX_SPEED
 from services.common import sim_options
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
@@ -34,6 +35,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--emulate-faults", type=float, default=0.0, metavar="P",
                         help="with --emulate and a chip, for tests: each I2C transfer after set-up fails with EIO "
                              "with probability P (1: a dead bus)")
+    parser.add_argument("--replay", type=Path, metavar="FILE.csv",
+                        help="publish a recording (the columns of magnet sample, with t_s) at its own pace, then exit")
+    parser.add_argument("--speed", type=float, default=1.0,
+                        help="with --replay: play this many times faster than recorded (default 1)")
     add_zenoh_arguments(parser)
 
 
@@ -53,6 +58,8 @@ class EdgeSettings:
     trajectory_samples: int = 3000
     speedup: float = 1.0
     emulate_faults: float = 0.0
+    replay: Path | None = None
+    speed: float = 1.0
     simulator: sim_options.SimulatorSettings = dataclasses.field(default_factory=sim_options.SimulatorSettings)
     zenoh: ZenohSettings = dataclasses.field(default_factory=ZenohSettings)
 
@@ -71,6 +78,12 @@ class EdgeSettings:
         self._check_source()
 
     def _check_source(self) -> None:
+        if not 0 < self.speed <= MAX_SPEED:
+            raise ValueError(f"--speed must be in (0, {MAX_SPEED:g}], got {self.speed}")
+        if self.replay is not None:
+            if self.emulate or self.devices or self.bus is not None:
+                raise ValueError("--replay plays a recording: it takes no --emulate, --devices or --bus")
+            return
         if not 0 <= self.devices <= MAX_DEVICES:
             raise ValueError(f"--devices must be 0..{MAX_DEVICES}, got {self.devices}")
         if self.devices and not self.emulate:
@@ -91,5 +104,6 @@ class EdgeSettings:
         return cls(device=args.device, sensor=args.sensor, rate_hz=float(args.rate), batch=int(args.batch),
                    duration_s=args.duration, bus=args.bus, address=args.address, emulate=bool(args.emulate),
                    devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),
-                   speedup=float(args.speedup), emulate_faults=float(args.emulate_faults),
+                   speedup=float(args.speedup), emulate_faults=float(args.emulate_faults), replay=args.replay,
+                   speed=float(args.speed),
                    simulator=sim_options.SimulatorSettings.from_args(args), zenoh=ZenohSettings.from_args(args))
