@@ -47,7 +47,8 @@ from typing import Callable
 
 import numpy as np
 
-from magnet.model import Calibration, Quality
+from magnet.model import IDENTITY, Calibration, Quality
+from magnet.quality import motion
 from magnet.quality import GateThresholds, Geometry, assess, gate, scatter_condition, ut_per_unit
 
 
@@ -423,13 +424,17 @@ def fit_shape(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None =
 
 
 def fit(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None = None, unit: str = "ut",
-        field_ut: float | None = None, gate: GateThresholds | None = None, robust_extremes: bool = False
+        field_ut: float | None = None, gate: GateThresholds | None = None, robust_extremes: bool = False,
+        gyr: np.ndarray | None = None, period_s: float | None = None, reference: Calibration | None = None
         ) -> Calibration:
     """Fit a calibration to raw samples mag (N, 3) in ``unit``; acc (N, 3) specific force, any unit, or None.
 
     field_ut: the expected |B| in uT (WMM) or None (keep the fitted radius). Returns the record with ``quality``
     (``magnet.quality.assess``, including a held-out residual: every 5th block of 20 samples is left out of a
     second fit and scored) and ``accepted``/``reason`` from ``magnet.quality.gate`` (``gate=None``: default thresholds).
+    With acc, the dip and the consistency figures of ``magnet.quality.motion``: gyr (N, 3) rad/s sampled every
+    period_s seconds gives the fused gravity and attitude, else the quasi-static samples are used; the fit must make
+    the field more constant than ``reference`` (the calibration in force; None: no calibration) on held-out data.
     Raises FitError when no calibration can be computed.
     """
     method = Method.parse(method)
@@ -440,9 +445,15 @@ def fit(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None = None,
     holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes)
     to_ut = ut_per_unit(unit)
     geometry = _METHODS[method][1]
-    quality = assess(mag, calibration, geometry=geometry, acc=acc_arr, expected_field_ut=field_ut,
+    quality = assess(mag, calibration, geometry=geometry, acc=None, expected_field_ut=field_ut,
                      fitted_radius_ut=shape.radius * to_ut if to_ut is not None and geometry is Geometry.SPHERE
                      else None, holdout=holdout)
+    if acc_arr is not None and geometry is Geometry.SPHERE:
+        ev = _motion_evidence(acc_arr, gyr, period_s, len(mag))
+        figures = motion.motion_figures(mag, calibration, ev, _holdout_mask(len(mag)), holdout[1] if holdout else None,
+                                        reference or IDENTITY,
+                                        "the calibration in force" if reference else "no calibration")
+        quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
         quality = quality.with_extra(note=shape.note)
     accepted, reason = _gate(quality, gate)
@@ -451,14 +462,28 @@ def fit(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None = None,
     return calibration.replace(quality=quality, accepted=accepted, reason=reason)
 
 
+def _motion_evidence(acc: np.ndarray, gyr: np.ndarray | None, period_s: float | None, n: int) -> motion.MotionEvidence:
+    if gyr is not None and np.shape(gyr) != (n, 3):
+        raise FitError(f"gyr must have the shape of the magnetometer samples ({n}, 3), got {np.shape(gyr)}")
+    try:
+        return motion.evidence(acc, gyr, period_s)
+    except ValueError as exc:
+        raise FitError(str(exc)) from None
+
+
 def _gate(quality: Quality, thresholds: GateThresholds | None) -> tuple[bool, str]:
     return gate(quality, thresholds or GateThresholds())
+
+
+def _holdout_mask(count: int) -> np.ndarray:
+    """(count,) bool: every HOLDOUT_EVERY-th block of HOLDOUT_BLOCK samples, the held-out test set."""
+    return (np.arange(count) // HOLDOUT_BLOCK) % HOLDOUT_EVERY == HOLDOUT_EVERY - 1
 
 
 def _holdout(mag: np.ndarray, method: Method, acc: np.ndarray | None, unit: str, field_ut: float | None,
              robust: bool) -> tuple[np.ndarray, Calibration] | None:
     """(test samples, calibration fitted on the rest): every HOLDOUT_EVERY-th block of samples is the test set."""
-    test = (np.arange(len(mag)) // HOLDOUT_BLOCK) % HOLDOUT_EVERY == HOLDOUT_EVERY - 1
+    test = _holdout_mask(len(mag))
     try:
         train_cal, _ = fit_shape(mag[~test], method, acc=None if acc is None else acc[~test], unit=unit,
                                  field_ut=field_ut, robust_extremes=robust)

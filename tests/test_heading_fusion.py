@@ -81,3 +81,16 @@ def test_without_gyroscope_tilt_stays_and_offline_is_refused(tmp_path: Path, dev
     assert np.abs(pitch - out["pitch_deg"]).max() < 1e-3
     refused = magnet("heading", str(csv), "--offline")
     assert refused.returncode == 2 and "gx,gy,gz" in refused.stderr
+
+
+def test_fit_with_a_gyroscope_needs_times_and_beats_the_calibration_in_force(tmp_path: Path, device):
+    gyr, acc, mag, _ = device
+    raw = mag @ np.diag([1.1, 0.9, 1.0]).T + [20.0, -10.0, 5.0]
+    csv = write(tmp_path / "iron.csv", (gyr, acc, raw, None), with_time=False)
+    refused = magnet("fit", str(csv), "--method", "ellipsoid")
+    assert refused.returncode == 2 and "t_s" in refused.stderr and "--rate" in refused.stderr
+    cal = tmp_path / "cal.json"
+    accepted = magnet("fit", str(csv), "--method", "ellipsoid", "--rate", str(RATE_HZ), "--out", str(cal))
+    assert accepted.returncode == 0, accepted.stderr
+    again = magnet("fit", str(csv), "--method", "sphere", "--rate", str(RATE_HZ), "--in-force", str(cal))
+    assert again.returncode == 1 and "more constant than the calibration in force" in again.stderr

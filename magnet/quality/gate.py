@@ -7,6 +7,7 @@ from typing import Any, Mapping
 
 from magnet.model import Quality
 from magnet.quality.figures import Geometry
+from magnet.quality.motion import check_consistency
 
 #: the figures, as a ``Quality`` or its map
 QualityLike = Quality | Mapping[str, Any]
@@ -117,13 +118,14 @@ def _check_dip(q: QualityLike, t: GateThresholds) -> str | None:
     value = _num(q, "dip_spread_deg")
     if value is None or value <= t.max_dip_spread_deg:
         return None
-    return (f"dip-angle spread {value:.1f} deg > {t.max_dip_spread_deg:g} deg: hold still while sampling (the "
-            "accelerometer must see gravity only) and keep away from iron")
+    advice = ("keep away from iron and other devices" if q.get("dip_source") == "fused gravity" else
+              "hold still while sampling (the accelerometer must see gravity only) and keep away from iron")
+    return f"dip-angle spread {value:.1f} deg > {t.max_dip_spread_deg:g} deg: {advice}"
 
 
 #: the checks in the order their reasons are reported (the most fundamental first)
 _CHECKS = (_check_scatter, _check_coverage, _check_residual, _check_holdout, _check_radius, _check_soft_iron,
-           _check_dip)
+           _check_dip, check_consistency)
 
 
 def gate(quality: QualityLike, thresholds: GateThresholds | None = None) -> tuple[bool, str]:

@@ -13,6 +13,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
+from magnet import fusion
 from magnet.calibration import Method, fit
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
@@ -20,6 +23,7 @@ from magnet.units import FieldUnit
 from services.common.csvio import SampleTable, read_samples
 
 EXIT_REJECTED = 1
+GYRO_COLUMNS = ("gx", "gy", "gz")
 
 
 def add_field_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,6 +51,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "over every angle")
     parser.add_argument("--robust-extremes", action="store_true",
                         help="minmax: pull each new extreme in slowly (0.2 new, 0.8 old) to resist spikes")
+    parser.add_argument("--rate", type=float, metavar="HZ",
+                        help="sample rate for the gyroscope columns gx,gy,gz (default: from the t_s column)")
+    parser.add_argument("--in-force", metavar="cal.json",
+                        help="the calibration in force: the fit must make the field more constant than it does "
+                             "(default: than no calibration)")
     parser.add_argument("--out", metavar="cal.json", help="write the record here (default: stdout)")
 
 
@@ -75,14 +84,48 @@ def _fit_turntable(table: SampleTable, args: argparse.Namespace) -> Calibration:
                          args.vertical, args.turntable_variant, unit=args.unit, field_unit=args.field_unit)
 
 
+def gyro_columns(table: SampleTable) -> np.ndarray | None:
+    """gx,gy,gz (N, 3) rad/s when the file has all three, else None."""
+    if not all(c in table.columns for c in GYRO_COLUMNS):
+        return None
+    return np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
+
+
+def sample_period_s(table: SampleTable, rate_hz: float | None) -> float:
+    """The gyroscope's sample period: 1 / --rate, else from the t_s column; ValueError naming both when neither."""
+    if rate_hz is not None:
+        if not 0.5 <= rate_hz <= 10_000:
+            raise ValueError(f"--rate {rate_hz} Hz is outside 0.5 .. 10000 Hz")
+        return 1.0 / rate_hz
+    if "t_s" not in table.columns:
+        raise ValueError(f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
+                         "(seconds) or give --rate HZ")
+    return fusion.sample_period_s(table.numeric("t_s"))
+
+
 def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
     """Run the chosen method on the samples."""
     if args.method == Method.TURNTABLE.value:
         return _fit_turntable(table, args)
     if args.horizontal is not None or args.vertical is not None:
         raise ValueError("--horizontal/--vertical are for --method turntable only")
+    gyr = gyro_columns(table) if table.acc is not None else None
+    period = sample_period_s(table, args.rate) if gyr is not None else None
+    in_force = load_calibration(args.in_force) if args.in_force else None
     return fit(table.mag, args.method, acc=table.acc, unit=args.unit, field_ut=expected_field_ut(args),
-               robust_extremes=args.robust_extremes)
+               robust_extremes=args.robust_extremes, gyr=gyr, period_s=period, reference=in_force)
+
+
+def load_calibration(path: str) -> Calibration:
+    """A record as ``magnet fit`` writes it, from a JSON file; ValueError naming the file."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    try:
+        return Calibration.from_dict(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def write_atomically(path: Path, text: str) -> None:

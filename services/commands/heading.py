@@ -16,22 +16,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from magnet import fusion
 from magnet import heading as hd
 from magnet.geomag import earth_field, parse_location
-from magnet.model import Calibration
 from services.common.csvio import SampleTable, read_samples, write_csv
-from services.commands.fit import add_field_arguments
+from services.commands.fit import add_field_arguments, gyro_columns, load_calibration, sample_period_s
 
 COLUMNS = ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg", "field_x_ut", "field_y_ut", "field_z_ut",
            "dip_deg", "flags", "qw", "qx", "qy", "qz")
-GYRO_COLUMNS = ("gx", "gy", "gz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,17 +43,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sample rate for the gyroscope fusion (default: from the t_s column)")
     parser.add_argument("--offline", action="store_true",
                         help="with a gyroscope: the best estimate for a log (the filter looks ahead)")
-
-
-def load_calibration(path: str) -> Calibration:
-    try:
-        data = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
-    try:
-        return Calibration.from_dict(data)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
 
 
 def _declination_deg(args: argparse.Namespace) -> tuple[float, float | None, float | None]:
@@ -89,28 +74,11 @@ class Attitude:
     flags: np.ndarray
 
 
-def _gyro(table: SampleTable) -> np.ndarray | None:
-    if not all(c in table.columns for c in GYRO_COLUMNS):
-        return None
-    return np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
-
-
-def _period_s(table: SampleTable, rate_hz: float | None) -> float:
-    if rate_hz is not None:
-        if not 0.5 <= rate_hz <= 10_000:
-            raise ValueError(f"--rate {rate_hz} Hz is outside 0.5 .. 10000 Hz")
-        return 1.0 / rate_hz
-    if "t_s" not in table.columns:
-        raise ValueError(f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
-                         "(seconds) or give --rate HZ")
-    return fusion.sample_period_s(table.numeric("t_s"))
-
-
 def _fused(table: SampleTable, gyr: np.ndarray, field: np.ndarray, args: argparse.Namespace) -> Attitude:
     if table.acc is None:
         raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
     run = fusion.fuse_offline if args.offline else fusion.fuse_causal
-    fused = run(gyr, fusion.acc_in_ms2(table.acc), field, _period_s(table, args.rate))
+    fused = run(gyr, fusion.acc_in_ms2(table.acc), field, sample_period_s(table, args.rate))
     down = fusion.down_in_body(fused.quat_wxyz)
     flags = int(hd.HeadingFlag.FUSED) | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
     return Attitude(fused.heading_deg, fused.pitch_deg, fused.roll_deg, fused.quat_wxyz, -down, flags)
@@ -135,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     declination_deg, expected_ut, expected_dip_deg = _declination_deg(args)
     table = read_samples(args.file)
     field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)
-    gyr = _gyro(table)
+    gyr = gyro_columns(table)
     if gyr is None and args.offline:
         raise ValueError(f"{table.path}: --offline needs gyroscope columns gx,gy,gz (rad/s)")
     attitude = _tilt(table, field) if gyr is None else _fused(table, gyr, field, args)

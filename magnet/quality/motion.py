@@ -1,0 +1,155 @@
+"""Judging a calibration with data collected in motion (DESIGN.md section 4b, "Calibrating while moving").
+
+A moving accelerometer measures gravity plus linear acceleration, so the dip check (angle between field and gravity)
+cannot use every sample. The gravity direction comes from:
+
+- with a gyroscope: the gyroscope + accelerometer filter (``magnet.fusion``, offline, no magnetometer, so it does not
+  depend on the calibration being judged): its attitude gives gravity in every sample, in motion too;
+- without: the quasi-static samples only, whose specific force is within ``QUASI_STATIC_TOL`` of g (the median
+  magnitude, so any unit works). A linear acceleration a tilts the measured gravity by up to a / g rad; the
+  magnitude test sees its component along gravity, which for the random accelerations of a hand or a vehicle is
+  as large as the rest most of the time.
+
+A gyroscope also lets a fit check itself: the calibrated field, rotated into the earth frame by that same attitude,
+must be constant in direction (constant dip, constant horizontal direction). ``direction_spread_deg`` is the RMS angle
+between each sample's earth-frame field direction and their mean direction. The attitude's heading is the
+gyroscope's, so it drifts slowly; the drift adds the same to every calibration compared on the same samples.
+Without a gyroscope the dip spread on the quasi-static samples stands in for it.
+
+The rule (``check_consistency``): on the held-out samples (fitted without them), the candidate must make the field
+more constant than the reference (the calibration in force, or none): a calibration never makes heading worse. A
+factory-calibrated sensor in a non-uniform local field is the case it catches: an ellipsoid fit there soaks up the
+field's variation with position and bends the headings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from magnet import fusion
+from magnet.attitude import quaternion_to_matrix
+from magnet.model import Calibration, Quality
+
+#: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
+QUASI_STATIC_TOL = 0.03
+#: fewest quasi-static samples for a dip spread that means something
+MIN_QUASI_STATIC = 30
+
+
+@dataclasses.dataclass(frozen=True)
+class MotionEvidence:
+    """What the samples say about attitude, for N samples.
+
+    down: (N, 3) unit down direction in body axes (NaN rows where unknown); attitude: (N, 4) body -> earth quats from
+    the gyroscope filter, or None without a gyroscope; source: "fused gravity" or "quasi-static samples".
+    """
+
+    down: np.ndarray
+    attitude: np.ndarray | None
+    source: str
+
+    @property
+    def known(self) -> np.ndarray:
+        return np.all(np.isfinite(self.down), axis=1)
+
+
+def quasi_static(acc: np.ndarray, tol: float = QUASI_STATIC_TOL) -> np.ndarray:
+    """(N,) bool: samples whose specific force (N, 3) is within ``tol`` of g (the median magnitude)."""
+    norm = np.linalg.norm(np.asarray(acc, dtype=float), axis=1)
+    g = float(np.median(norm)) if len(norm) else 0.0
+    if g <= 0:
+        return np.zeros(len(norm), dtype=bool)
+    return np.abs(norm / g - 1.0) <= tol
+
+
+def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: float | None = None) -> MotionEvidence:
+    """Gravity (and attitude, with a gyroscope) for samples with specific force acc (N, 3) and rates gyr (N, 3)."""
+    acc = np.asarray(acc, dtype=float)
+    if gyr_rads is not None:
+        if period_s is None:
+            raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
+        fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
+        return MotionEvidence(fusion.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity")
+    down = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
+    return MotionEvidence(np.where(quasi_static(acc)[:, None], down, np.nan), None, "quasi-static samples")
+
+
+def dip_spread_deg(field: np.ndarray, down: np.ndarray) -> float | None:
+    """Standard deviation (deg) of the dip (angle of the field below the horizon) over the rows where ``down`` is
+    known; None with fewer than MIN_QUASI_STATIC of them."""
+    keep = np.all(np.isfinite(down), axis=1) & (np.linalg.norm(field, axis=1) > 0)
+    if keep.sum() < MIN_QUASI_STATIC:
+        return None
+    unit = field[keep] / np.linalg.norm(field[keep], axis=1, keepdims=True)
+    dip = np.degrees(np.arcsin(np.clip(np.einsum("ij,ij->i", unit, down[keep]), -1.0, 1.0)))
+    return float(dip.std())
+
+
+def direction_spread_deg(field: np.ndarray, attitude: np.ndarray) -> float | None:
+    """RMS angle (deg) between the earth-frame field directions (field (N, 3) body, attitude (N, 4) body -> earth)
+    and their mean direction; None without samples."""
+    if len(field) == 0:
+        return None
+    earth = np.einsum("nij,nj->ni", quaternion_to_matrix(attitude), field)
+    unit = earth / np.linalg.norm(earth, axis=1, keepdims=True)
+    mean = unit.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    angle = np.degrees(np.arccos(np.clip(unit @ mean, -1.0, 1.0)))
+    return float(np.sqrt(np.mean(angle ** 2)))
+
+
+def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
+    """How far the field is from constant in the earth frame (deg; smaller is better) over the selected rows:
+    direction spread with an attitude, else dip spread on the quasi-static rows."""
+    if ev.attitude is not None:
+        return direction_spread_deg(field[rows], ev.attitude[rows])
+    return dip_spread_deg(field[rows], ev.down[rows])
+
+
+def motion_figures(raw: np.ndarray, candidate: Calibration, ev: MotionEvidence, test: np.ndarray,
+                   train_candidate: Calibration | None, reference: Calibration, reference_name: str
+                   ) -> dict[str, Any]:
+    """Quality figures for data in motion: raw (N, 3) samples, test (N,) bool the held-out rows (train_candidate was
+    fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
+    reasons name it ("the calibration in force", "no calibration")."""
+    every = np.ones(len(raw), dtype=bool)
+    field, ref_field = candidate.apply(raw), reference.apply(raw)
+    figures: dict[str, Any] = {
+        "dip_spread_deg": dip_spread_deg(field, ev.down),
+        "dip_source": ev.source,
+        "dip_samples": int(ev.known.sum()),
+        "consistency": "direction" if ev.attitude is not None else "dip",
+        "consistency_deg": consistency_deg(field, ev, every),
+        "reference": reference_name,
+        "reference_consistency_deg": consistency_deg(ref_field, ev, every),
+        "holdout_consistency_deg": None,
+        "reference_holdout_consistency_deg": None,
+    }
+    if train_candidate is not None and test.any():
+        figures["holdout_consistency_deg"] = consistency_deg(train_candidate.apply(raw), ev, test)
+        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field, ev, test)
+    return figures
+
+
+def _number(quality: Quality | Mapping[str, Any], key: str) -> float | None:
+    value = quality.get(key)
+    return None if value is None or not math.isfinite(float(value)) else float(value)
+
+
+def check_consistency(quality: Quality | Mapping[str, Any], thresholds: Any = None) -> str | None:
+    """The gate's check: refuse a fit whose held-out field is not more constant than the reference's (None: passes
+    or not measured)."""
+    held, ref = _number(quality, "holdout_consistency_deg"), _number(quality, "reference_holdout_consistency_deg")
+    if held is None or ref is None or held < ref:
+        return None
+    what = {"direction": "direction spread in the earth frame", "dip": "dip spread"}.get(
+        str(quality.get("consistency")), "spread")
+    reference = quality.get("reference") or "no calibration"
+    return (f"the fit does not make the field more constant than {reference} ({what} on held-out data "
+            f"{held:.2f} deg vs {ref:.2f} deg), and a calibration never makes heading worse: the sensor may be "
+            "calibrated well enough already, or the fit soaked up a non-uniform local field (calibrate away from "
+            "iron and other devices)")
