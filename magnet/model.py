@@ -38,6 +38,11 @@ MAX_CONDITION = 10.0
 #: units (a 24-bit converter).
 MAX_OFFSET_UT = 5_000.0
 MAX_OFFSET_RAW = float(2 ** 24)
+#: Largest plausible gain of the correction either way (its singular values, in output units per raw unit, over the
+#: units' ratio): a real correction rescales the field by a few per cent to a factor of a few (the gate refuses axis
+#: ratios beyond 5), never by 10. Where a unit's scale is unknown (counts), only UNKNOWN_SCALE_GAIN bounds it.
+MAX_GAIN = 10.0
+UNKNOWN_SCALE_GAIN = 1e6
 
 
 def _as_vector3(value: Any, name: str) -> np.ndarray:
@@ -267,8 +272,9 @@ def check_plausible(calibration: Calibration) -> Calibration:
     """``calibration`` if a real sensor could have it, else ValueError naming what is wrong and what to do.
 
     Checks: the matrix's condition number (largest / smallest singular value) <= MAX_CONDITION, its determinant > 0
-    (no reflection: it would mirror every heading), and each offset component within MAX_OFFSET_UT (uT, where the raw
-    unit converts to uT) or MAX_OFFSET_RAW (raw units otherwise)."""
+    (no reflection: it would mirror every heading), its gain within MAX_GAIN either way (``_check_gain``), and each
+    offset component within MAX_OFFSET_UT (uT, where the raw unit converts to uT) or MAX_OFFSET_RAW (raw units
+    otherwise)."""
     singular = np.linalg.svd(calibration.matrix, compute_uv=False)
     condition = singular[0] / singular[-1] if singular[-1] > 0 else math.inf
     if not condition <= MAX_CONDITION:
@@ -277,6 +283,7 @@ def check_plausible(calibration: Calibration) -> Calibration:
     if np.linalg.det(calibration.matrix) <= 0:
         raise ValueError("calibration matrix has a negative determinant (a reflection, which mirrors headings): "
                          "check the axis signs and fit again")
+    _check_gain(singular, calibration)
     to_ut = ut_per_unit(calibration.unit)
     limit, unit = (MAX_OFFSET_UT / to_ut, calibration.unit) if to_ut else (MAX_OFFSET_RAW, calibration.unit)
     worst = float(np.abs(calibration.offset).max())
@@ -284,6 +291,19 @@ def check_plausible(calibration: Calibration) -> Calibration:
         raise ValueError(f"calibration offset {worst:.4g} {unit} exceeds {limit:.4g} {unit}: no sensor reads that; "
                          "check the record's unit and fit again")
     return calibration
+
+
+def _check_gain(singular: np.ndarray, calibration: Calibration) -> None:
+    """ValueError when the correction's gain (singular values, descending) is beyond what a sensor needs."""
+    raw_ut, out_ut = ut_per_unit(calibration.unit), ut_per_unit(calibration.output_unit)
+    if raw_ut and out_ut:
+        gain, limit = singular / (raw_ut / out_ut), MAX_GAIN
+    else:
+        gain, limit = singular, UNKNOWN_SCALE_GAIN
+    if not (gain[0] <= limit and gain[-1] >= 1 / limit):
+        raise ValueError(f"calibration matrix scales the field by {gain[-1]:.3g} to {gain[0]:.3g} "
+                         f"({calibration.unit} to {calibration.output_unit}), beyond 1/{limit:g} to {limit:g}: no "
+                         "sensor needs that; check the record's units and fit again")
 
 
 def _text(data: Mapping[str, Any], name: str, default: str) -> str:

@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "get": ("services.commands.remote", "query a device's calibration (or its history)"),
     "watch": ("services.commands.remote", "print headings as they are published"),
     "calibrate": ("services.commands.remote", "start, follow, commit or abort a calibration session"),
+    "keys": ("services.commands.keys", "an Ed25519 key pair for signing calibrations (NAME.key, NAME.pub)"),
     "certs": ("services.commands.certs", "a site CA, certificates per role and the router/client configs (TLS, ACL)"),
     "up": ("services.commands.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
 }

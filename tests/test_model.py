@@ -74,7 +74,11 @@ _PLAIN = {"offset": [1.0, 2.0, 3.0], "matrix": np.eye(3).tolist()}
     ({"matrix": np.diag([-1.0, 1.0, 1.0]).tolist()}, "negative determinant"),
     ({"matrix": (-np.eye(3)).tolist()}, "negative determinant"),
     ({"offset": [1e4, 0, 0]}, "offset 1e\\+04 ut exceeds 5000"),
-    ({"offset": [60, 0, 0], "unit": "gauss"}, "exceeds 50 gauss"),
+    ({"offset": [60, 0, 0], "unit": "gauss", "output_unit": "gauss"}, "exceeds 50 gauss"),
+    ({"matrix": (1e9 * np.eye(3)).tolist()}, "scales the field by 1e\\+09"),
+    ({"matrix": (1e-3 * np.eye(3)).tolist()}, "scales the field by 0.001"),
+    ({"unit": "gauss"}, "scales the field by 0.01"),  # gauss read as uT: 100 times too small
+    ({"matrix": (1e9 * np.eye(3)).tolist(), "unit": "counts"}, "beyond 1/1e\\+06"),
     ({"offset": [1e8, 0, 0], "unit": "counts"}, "exceeds"),
     ({"accepted": "yes"}, "true or false"),
     ({"method": 5}, "must be a string"),
@@ -88,7 +92,8 @@ def test_from_dict_refuses_implausible_records(changes, words):
 
 
 def test_nanotesla_offsets_are_judged_in_microtesla():
-    cal = Calibration.from_dict({**_PLAIN, "offset": [40_000.0, 0, 0], "unit": "nt"})  # 40 uT of hard iron
+    cal = Calibration.from_dict({**_PLAIN, "matrix": (1e-3 * np.eye(3)).tolist(), "offset": [40_000.0, 0, 0],
+                                 "unit": "nt"})  # 40 uT of hard iron
     assert cal.offset[0] == 40_000.0
     assert check_plausible(cal) is cal
     assert MAX_CONDITION >= 5  # every fit the gate accepts (axis ratio <= 5) passes the entry check

@@ -22,11 +22,13 @@ from services.security import acl
 #: the steps of deploy/README.md, as the tests run them ($SITE: the directory; the ports are replaced by free ones)
 STEPS = {
     "certs": "magnet certs --out $SITE --listen tls/127.0.0.1:7447 --password-listen tls/127.0.0.1:7448",
+    "keys": "magnet keys --out $SITE/signing --name calibrator",
     "router": "magnet router --config $SITE/router.json5",
-    "calibrator": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db",
-    "compass": "magnet compass --config $SITE/compass.json5",
+    "calibrator": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db "
+                  "--signing-key $SITE/signing/calibrator.key",
+    "compass": "magnet compass --config $SITE/compass.json5 --trust $SITE/signing/calibrator.pub",
     "edge": "magnet edge --config $SITE/edge-password.json5 --device imu-1 --sensor sim --emulate",
-    "get": "magnet get calibration imu-1 --config $SITE/viewer.json5",
+    "get": "magnet get calibration imu-1 --config $SITE/viewer.json5 --trust $SITE/signing/calibrator.pub",
     "watch": "magnet watch heading imu-1 --count 3 --config $SITE/viewer-password.json5",
     "calibrate": "magnet calibrate imu-1 status --config $SITE/operator.json5",
 }
@@ -62,8 +64,9 @@ class Site(Processes):
 @pytest.fixture(scope="module")
 def site(tmp_path_factory):
     s = Site(tmp_path_factory.mktemp("site"))
-    made = s.run("certs")
-    assert made.returncode == 0, made.stderr
+    for step in ("certs", "keys"):
+        made = s.run(step)
+        assert made.returncode == 0, made.stderr
     s.start_step("router")
     try:
         wait_for(lambda: _opens(s.config("viewer")), 20, "the router to accept a client")
@@ -115,7 +118,7 @@ def test_every_role_does_its_job_through_the_secure_router(site):
         return out.returncode == 0 and json.loads(out.stdout.splitlines()[0])
 
     record = wait_for(calibration, 60, "the calibrator (certificate) to store a calibration of the edge (password)")
-    assert record["accepted"] and record["device"] == "imu-1"
+    assert record["accepted"] and record["device"] == "imu-1" and record["sig"], "a signed calibration"
     watched = site.run("watch", timeout=30)
     headings = [json.loads(line) for line in watched.stdout.splitlines()]
     assert watched.returncode == 0 and len(headings) == 3, watched.stderr

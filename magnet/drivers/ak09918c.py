@@ -37,14 +37,18 @@ class Mode(enum.IntEnum):
 class AK09918C(Sensor):
     """Driver: checks WIA1/WIA2, sets a continuous mode, reads ST1..ST2 (9 bytes) in one block per sample."""
 
+    NAME = "AK09918C"
+    IDENTITY = IDENTITY
+
     def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
                  mode: Mode = Mode.CONTINUOUS_100HZ, retry: RetryPolicy | None = None,
                  sleep: Callable[[float], None] | None = None) -> None:
         self._attach(bus, address, orientation, retry, sleep)
         found = tuple(self.device.read_block(REG_WIA1, 2))
-        if found != IDENTITY:
-            raise SensorError(f"no AK09918C at {self.device.address:#04x}: WIA1/WIA2 read "
-                              f"{found[0]:#04x}/{found[1]:#04x}, expected 0x48/0x0c")
+        if found != self.IDENTITY:
+            raise SensorError(f"no {self.NAME} at {self.device.address:#04x}: WIA1/WIA2 read "
+                              f"{found[0]:#04x}/{found[1]:#04x}, expected "
+                              f"{self.IDENTITY[0]:#04x}/{self.IDENTITY[1]:#04x}")
         self.mode = Mode(mode)
         self.device.write_byte(REG_CNTL2, int(Mode.POWER_DOWN))   # the datasheet: pass through power-down
         self.device.write_byte(REG_CNTL2, int(self.mode))

@@ -66,6 +66,8 @@ class Reading:
         mag_ut: magnetic field, shape (3,), uT; None when there is no magnetometer, no new data or an overflow.
         acc_ms2: specific force, shape (3,), m/s^2 (a level still device reads about (0, 0, -9.81)); None when there
             is no accelerometer.
+        gyr_rads: angular rate, shape (3,), rad/s, body frame (right-handed about x, y, z: a clockwise turn seen from
+            above is +z); None when there is no gyroscope.
         overflow: an axis saturated (the value is withheld, never passed on as a field).
         ready: the chip had a new sample (False: nothing new since the last read; no field is given).
         raw: the magnetometer's raw codes in the chip's own axis order x, y, z (shape (3,), int), when read.
@@ -76,11 +78,13 @@ class Reading:
     overflow: bool = False
     ready: bool = True
     raw: np.ndarray | None = None
+    gyr_rads: np.ndarray | None = None
 
     @property
     def ok(self) -> bool:
-        """True when the reading carries a usable field or acceleration."""
-        return self.ready and not self.overflow and (self.mag_ut is not None or self.acc_ms2 is not None)
+        """True when the reading carries a usable field, acceleration or angular rate."""
+        return self.ready and not self.overflow and (
+            self.mag_ut is not None or self.acc_ms2 is not None or self.gyr_rads is not None)
 
 
 NOT_READY = Reading(ready=False)
@@ -241,7 +245,8 @@ class Sensor:
     """Base of every driver: ``read()`` wraps the chip-specific ``_read()`` in the failure policy above.
 
     Subclasses set ``self.device`` (an ``I2CDevice``) or ``self.devices``, and implement ``_read() -> Reading``
-    in the chip's axes; the base rotates ``mag_ut`` and ``acc_ms2`` into the body frame with ``self.rotation``.
+    in the chip's axes; the base rotates ``mag_ut``, ``acc_ms2`` and ``gyr_rads`` into the body frame with
+    ``self.rotation``.
     """
 
     rotation: np.ndarray = np.eye(3)
@@ -284,15 +289,16 @@ class Sensor:
 
     def _to_body(self, reading: Reading) -> Reading:
         rotate = (lambda v: None if v is None else self.rotation @ v)
-        return dataclasses.replace(reading, mag_ut=rotate(reading.mag_ut), acc_ms2=rotate(reading.acc_ms2))
+        return dataclasses.replace(reading, mag_ut=rotate(reading.mag_ut), acc_ms2=rotate(reading.acc_ms2),
+                                   gyr_rads=rotate(reading.gyr_rads))
 
 
 class Combined(Sensor):
     """A magnetometer and an accelerometer read together as one sensor (e.g. AK09918C + BMA456).
 
     ``read()`` reads the magnetometer, then the accelerometer, and merges them: field and flags from the
-    magnetometer, ``acc_ms2`` from the accelerometer. Either part failing raises its ``SensorReadError``. Each part
-    keeps its own orientation.
+    magnetometer, ``acc_ms2`` (and ``gyr_rads``) from the accelerometer. Either part failing raises its
+    ``SensorReadError``. Each part keeps its own orientation.
     """
 
     def __init__(self, magnetometer: Sensor, accelerometer: Sensor) -> None:
@@ -307,4 +313,4 @@ class Combined(Sensor):
     def read(self) -> Reading:
         mag = self.magnetometer.read()
         acc = self.accelerometer.read()
-        return dataclasses.replace(mag, acc_ms2=acc.acc_ms2)
+        return dataclasses.replace(mag, acc_ms2=acc.acc_ms2, gyr_rads=acc.gyr_rads)

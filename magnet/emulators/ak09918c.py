@@ -24,6 +24,7 @@ _SELF_TEST_COUNTS = np.array([30, -40, -400])
 
 class AK09918CEmulator(MagnetometerDevice):
     addresses = (0x0C,)
+    power_on = {0x00: 0x48, 0x01: 0x0C}   # WIA1, WIA2
 
     def __init__(self, source: Any = None, **options: Any) -> None:
         """``options``: see ``MagnetometerDevice`` and ``SensorDevice``."""
@@ -31,7 +32,7 @@ class AK09918CEmulator(MagnetometerDevice):
         self._reset()
 
     def _reset(self) -> None:
-        self._power_on_reset({0x00: 0x48, 0x01: 0x0C})  # WIA1, WIA2
+        self._power_on_reset(self.power_on)
         self.protected = False
         self.pending = False
         self.measurements = 0

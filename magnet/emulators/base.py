@@ -29,33 +29,44 @@ STANDARD_GRAVITY_MS2 = 9.80665
 
 
 class ConstantSource:
-    """A still, level device in a constant field: ``measure()`` always returns the same (mag_ut, acc_ms2)."""
+    """A device in a constant field, specific force and angular rate (default: still and level): ``measure()``
+    always returns the same (mag_ut, acc_ms2), ``measure_imu()`` the same (mag_ut, acc_ms2, gyr_rads)."""
 
-    def __init__(self, mag_ut=(20.0, 0.0, 45.0), acc_ms2=(0.0, 0.0, -STANDARD_GRAVITY_MS2)) -> None:
+    def __init__(self, mag_ut=(20.0, 0.0, 45.0), acc_ms2=(0.0, 0.0, -STANDARD_GRAVITY_MS2),
+                 gyr_rads=(0.0, 0.0, 0.0)) -> None:
         self.mag_ut = np.asarray(mag_ut, dtype=float)
         self.acc_ms2 = np.asarray(acc_ms2, dtype=float)
+        self.gyr_rads = np.asarray(gyr_rads, dtype=float)
         self.count = 0
 
     def measure(self) -> tuple[np.ndarray, np.ndarray]:
         self.count += 1
         return self.mag_ut.copy(), self.acc_ms2.copy()
 
+    def measure_imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        mag, acc = self.measure()
+        return mag, acc, self.gyr_rads.copy()
+
 
 class SourceTap:
     """Shares one source between the chips of a package (magnetometer + accelerometer) so both see one sample.
 
-    ``mag()`` draws a new sample from the source; ``acc()`` returns the accelerometer part of the latest sample
-    (drawing one if there is none yet). The magnetometer is the pace-setter, as in ``magnet sample``.
+    ``mag()`` draws a new sample from the source; ``acc()`` and ``gyr()`` return the accelerometer and gyroscope
+    parts of the latest sample (drawing one if there is none yet). The magnetometer is the pace-setter, as in
+    ``magnet sample``. A source with ``measure_imu() -> (mag, acc, gyr)`` gives the angular rate; one with only
+    ``measure()`` is still (zero rate).
     """
 
     def __init__(self, source: Any) -> None:
         self.source = source if source is not None else ConstantSource()
-        self._latest: tuple[np.ndarray, np.ndarray] | None = None
+        self._latest: tuple[np.ndarray, ...] | None = None
 
         self._unused_by_mag = False   # the accelerometer drew the latest sample first: the magnetometer gets it too
 
     def _draw(self) -> None:
-        self._latest = tuple(np.asarray(v, dtype=float) for v in self.source.measure())
+        imu = getattr(self.source, "measure_imu", None)
+        sample = imu() if imu is not None else (*self.source.measure(), np.zeros(3))
+        self._latest = tuple(np.asarray(v, dtype=float) for v in sample)
 
     def mag(self) -> np.ndarray:
         if not self._unused_by_mag:
@@ -64,10 +75,16 @@ class SourceTap:
         return self._latest[0]
 
     def acc(self) -> np.ndarray:
+        return self._part(1)
+
+    def gyr(self) -> np.ndarray:
+        return self._part(2)
+
+    def _part(self, index: int) -> np.ndarray:
         if self._latest is None:
             self._draw()
             self._unused_by_mag = True
-        return self._latest[1]
+        return self._latest[index]
 
 
 class FaultInjector:

@@ -32,7 +32,8 @@ class FleetSimulator:
     """D devices tumbling smoothly at one place, each with its own random hard and soft iron (``errors[d]``) and its
     own trajectory: pitch = 85 sin(2 pi f_p t + phase), roll and heading turning at f_r and f_y turns/s, random per
     device: f_p 0.15-0.25 Hz, f_r about 0.618 f_p and f_y about 0.382 f_p (golden ratios, +-2 %, random senses: the
-    path never closes early, so each device covers the sphere in about two minutes). ``step(n)`` advances every device by n samples."""
+    path never closes early, so each device covers the sphere in about two minutes). ``step(n)`` advances every
+    device by n samples."""
 
     def __init__(self, n_devices: int, rate_hz: float = 100.0, seed: int = 0, lat_deg: float = DEFAULT_LAT_DEG,
                  lon_deg: float = DEFAULT_LON_DEG, date: Any = DEFAULT_DATE, noise_ut: float = 0.3, *,

@@ -1,6 +1,7 @@
 """Calibration records and calibration progress on the wire.
 
-- calibration: ``Calibration.to_dict()`` plus ``v, device, id (content id), created_ns`` (``DeviceCalibration``)
+- calibration: ``Calibration.to_dict()`` plus ``v, device, id (content id), created_ns`` (``DeviceCalibration``), and
+  when signed ``sig`` and ``key_id`` (``magnet.signing``)
 - progress: ``{v, device, state, t_ns, calibration_id, method, session, samples, seen, coverage, cells_hit,
   cell_count, missing: [str], residual_rms_ut, accepted, reason}`` (``Progress``; the collection keys only while
   collecting, the calibration keys only once there is one)
@@ -23,6 +24,9 @@ from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device, validate_device_id
 
 
+MAX_SIG_LEN, MAX_KEY_ID_LEN = 128, 64
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class DeviceCalibration:
     """The calibration of one device as published and stored: device id, when it was made (ns since the epoch) and
@@ -31,11 +35,17 @@ class DeviceCalibration:
     device: str
     created_ns: int
     calibration: Calibration
+    sig: str = ""     # Ed25519 signature (base64) of the record's other fields (``magnet.signing``); "" unsigned
+    key_id: str = ""  # which key signed it
 
     def __post_init__(self) -> None:
         validate_device_id(self.device)
         if isinstance(self.created_ns, bool) or not isinstance(self.created_ns, int) or self.created_ns < 0:
             raise ValueError(f"created_ns must be a whole number of ns >= 0, got {self.created_ns!r}")
+        for name, limit in (("sig", MAX_SIG_LEN), ("key_id", MAX_KEY_ID_LEN)):
+            value = getattr(self, name)
+            if not isinstance(value, str) or len(value) > limit:
+                raise ValueError(f"{name} must be a string of at most {limit} characters")
 
     @property
     def id(self) -> str:
@@ -43,8 +53,11 @@ class DeviceCalibration:
 
     def to_record(self) -> dict[str, Any]:
         """The published map (JSON-able): ``v, device, id, created_ns`` and the calibration's fields."""
-        return {"v": WIRE_VERSION, "device": self.device, "id": self.id, "created_ns": int(self.created_ns),
-                **self.calibration.to_dict()}
+        out = {"v": WIRE_VERSION, "device": self.device, "id": self.id, "created_ns": int(self.created_ns),
+               **self.calibration.to_dict()}
+        if self.sig or self.key_id:
+            out.update(sig=self.sig, key_id=self.key_id)
+        return out
 
 
 #: the name this envelope had before
@@ -74,7 +87,10 @@ def calibration_from_record(record: Mapping[str, Any]) -> DeviceCalibration:
         calibration = Calibration.from_dict(record)
     except (ValueError, TypeError) as exc:
         raise WireError("bad-calibration", f"unusable calibration: {exc}") from None
-    return DeviceCalibration(device, created_ns, calibration)
+    try:
+        return DeviceCalibration(device, created_ns, calibration, record.get("sig") or "", record.get("key_id") or "")
+    except ValueError as exc:
+        raise WireError("bad-field", str(exc)) from None
 
 
 def decode_calibration(payload: Payload) -> DeviceCalibration:

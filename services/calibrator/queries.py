@@ -57,7 +57,7 @@ def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
         query.reply_err(str(exc).encode())
         return
     for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
-        records = [record.to_record() for record in calibrator.store.history(device, limit=limit)]
+        records = [calibrator.sign(record).to_record() for record in calibrator.store.history(device, limit=limit)]
         query.reply(wire.key(prefix, device, wire.Kind.HISTORY), wire.pack({"device": device, "records": records}))
 
 

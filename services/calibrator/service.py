@@ -23,7 +23,7 @@ from typing import Any, Callable
 import numpy as np
 import zenoh
 
-from magnet import wire
+from magnet import signing, wire
 from magnet.calibration import Method
 from magnet.collection import Collection
 from magnet.geomag import earth_field, parse_location
@@ -59,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-auto", action="store_true", help="calibrate only in operator sessions")
     parser.add_argument("--name", default="calibrator", help="service name for liveliness and status")
     parser.add_argument("--devices", default="*", help="key expression of the devices served (default *)")
+    parser.add_argument("--signing-key", type=Path, metavar="FILE.key",
+                        help="sign every calibration it serves with this Ed25519 private key (`magnet keys`); "
+                             "compasses started with --trust FILE.pub apply only those")
     add_zenoh_arguments(parser)
 
 
@@ -93,6 +96,7 @@ class ServiceSettings:
     name: str = "calibrator"
     devices: str = "*"
     zenoh: ZenohSettings = ZenohSettings()
+    signing_key: Path | None = None
 
 
 def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
@@ -102,7 +106,16 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
     fitting = CalibratorSettings(method=args.method, field_ut=field_ut, min_coverage=args.min_coverage,
                                  min_samples=args.min_samples, max_samples=args.max_samples, auto=not args.no_auto)
     return ServiceSettings(fitting, args.db or default_db_path(), args.name, args.devices,
-                           ZenohSettings.from_args(args))
+                           ZenohSettings.from_args(args), args.signing_key)
+
+
+def load_signer(path: Path | None) -> signing.Signer | None:
+    """The signer of ``--signing-key`` (None without one); OSError/ValueError naming a file that cannot be used."""
+    if path is None:
+        return None
+    if path.stat().st_mode & 0o077:
+        log.warning("signing key %s is readable by others: chmod 600 it", path)
+    return signing.Signer(signing.load_private_key(path.read_bytes(), str(path)))
 
 
 class State(enum.Enum):
@@ -149,10 +162,11 @@ class Calibrator:
 
     def __init__(self, store: CalibrationStore, settings: CalibratorSettings,
                  publish: Callable[[wire.Kind, str, bytes], None], clock: Callable[[], float] = time.monotonic,
-                 clock_ns: Callable[[], int] = time.time_ns) -> None:
+                 clock_ns: Callable[[], int] = time.time_ns, signer: signing.Signer | None = None) -> None:
         self.store, self.settings, self.publish = store, settings, publish
         self.clock, self.clock_ns = clock, clock_ns
-        self.in_force: dict[str, wire.DeviceCalibration] = store.all_latest()
+        self.signer = signer
+        self.in_force: dict[str, wire.DeviceCalibration] = {d: self.sign(r) for d, r in store.all_latest().items()}
         self.collections: dict[str, Collection] = {}
         self.last_progress: dict[str, float] = {}
         self.drops = wire.DropCounter()
@@ -212,12 +226,19 @@ class Calibrator:
         return result if accepted else None
 
     # ---------------------------------------------------------------------------------------------- storing
+    def sign(self, record: wire.DeviceCalibration) -> wire.DeviceCalibration:
+        """``record`` signed with this calibrator's key (unchanged without one): its own store is trusted."""
+        if self.signer is None:
+            return record
+        signed = self.signer.sign(record.to_record())
+        return dataclasses.replace(record, sig=signed["sig"], key_id=signed["key_id"])
+
     def commit(self, device: str, calibration: Calibration) -> wire.DeviceCalibration:
         """Store ``calibration`` as the one in force for ``device``, publish it, end collection."""
-        record = wire.DeviceCalibration(device, self.clock_ns(), calibration)
+        record = self.sign(wire.DeviceCalibration(device, self.clock_ns(), calibration))
         if self.store.save(record):
             self.counters.stored += 1
-        self.in_force[device] = self.store.latest(device) or record
+        self.in_force[device] = self.sign(self.store.latest(device) or record)
         self.collections.pop(device, None)
         log.info("%s: calibration %s stored (%s, residual %s uT, coverage %s)", device, record.id,
                  calibration.method, calibration.quality.residual_rms_ut, calibration.quality.coverage)
@@ -312,6 +333,7 @@ def run_calibrator(args: argparse.Namespace) -> int:
 def run(settings: ServiceSettings) -> int:
     stop = stop_event()
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
+    signer = load_signer(settings.signing_key)  # a bad key file ends here, before anything is opened
     with CalibrationStore(settings.db) as store, open_session(settings.zenoh) as session:
         publishers: dict[tuple[wire.Kind, str], Any] = {}
 
@@ -321,7 +343,7 @@ def run(settings: ServiceSettings) -> int:
                 publisher = publishers[(kind, device)] = session.declare_publisher(wire.key(prefix, device, kind))
             publisher.put(payload)
 
-        calibrator = Calibrator(store, settings.fitting, publish)
+        calibrator = Calibrator(store, settings.fitting, publish, signer=signer)
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         answers = [(queries.ANSWERS[kind], session.declare_queryable(f"{prefix}/{devices}/{kind.value}",

@@ -11,9 +11,10 @@ import json
 import logging
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
-from magnet import wire
+from magnet import signing, wire
 from services.common.zenoh_session import add_zenoh_arguments, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.remote")
@@ -57,7 +58,39 @@ def add_get_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--history", action="store_true", help="earlier calibrations too, newest first")
     parser.add_argument("--limit", type=int, default=20, help="with --history: at most this many (default 20)")
     parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers (default 3)")
+    parser.add_argument("--trust", action="append", default=[], type=Path, metavar="FILE.pub",
+                        help="print only calibrations signed by this public key (repeatable); others are named on "
+                             "stderr")
     add_zenoh_arguments(parser)
+
+
+def _trusted_record(record: Any, trusted: signing.TrustedKeys) -> str | None:
+    """None when ``record`` is a calibration signed by a trusted key, else why not."""
+    try:
+        trusted.verify(wire.calibration_from_record(record).to_record())
+    except (wire.WireError, signing.SignatureError) as exc:
+        return str(exc)
+    return None
+
+
+def _only_trusted(replies: list[Any], trusted: signing.TrustedKeys, device: str) -> list[Any]:
+    """The replies (records, or history maps of records) with every untrusted record left out and named."""
+    out = []
+    for reply in replies:
+        records = reply.get("records") if isinstance(reply, dict) and "records" in reply else [reply]
+        kept = []
+        for record in records if isinstance(records, list) else []:
+            reason = _trusted_record(record, trusted)
+            if reason is None:
+                kept.append(record)
+            else:
+                name = record.get("device", device) if isinstance(record, dict) else device
+                print(f"magnet get: refusing a calibration of {name}: {reason}", file=sys.stderr)
+        if isinstance(reply, dict) and "records" in reply:
+            out.append({**reply, "records": kept})
+        else:
+            out += kept
+    return out
 
 
 def run_get(args: argparse.Namespace) -> int:
@@ -70,10 +103,13 @@ def run_get(args: argparse.Namespace) -> int:
         return 0 if replies else 1
     kind = wire.Kind.HISTORY if args.history else wire.Kind.CALIBRATION
     selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if args.history else "")
+    trusted = signing.TrustedKeys([signing.load_public_key(path.read_bytes(), str(path)) for path in args.trust])
     replies = _query(args, selector)
+    if trusted.enabled:
+        replies = _only_trusted(replies, trusted, args.device)
     if not replies:
-        print(f"magnet get: no calibration for {args.device} (is a calibrator running and reachable?)",
-              file=sys.stderr)
+        print(f"magnet get: no {'trusted ' if trusted.enabled else ''}calibration for {args.device} (is a "
+              "calibrator running and reachable?)", file=sys.stderr)
         return 1
     for reply in replies:
         _print(reply)

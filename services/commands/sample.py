@@ -1,6 +1,7 @@
 """``magnet sample``: read a sensor (or its emulator fed by the simulator) and print CSV.
 
-Columns: ``t_s,mx,my,mz`` (uT, body frame), then ``ax,ay,az`` (m/s^2) for sensors with an accelerometer; with
+Columns: ``t_s,mx,my,mz`` (uT, body frame), then ``ax,ay,az`` (m/s^2) for sensors with an accelerometer and
+``gx,gy,gz`` (rad/s, body frame) for sensors with a gyroscope; with
 ``--emulate`` also the truth ``true_heading_deg,pitch_deg,roll_deg``, and with ``--trajectory turntable`` the
 ``mounting,heading_deg`` (table angle) columns that ``magnet fit --method turntable`` reads. The sensor is read
 through the bounded read loop (``magnet.readloop``): overflowed readings and failed reads are left out, counted and
@@ -19,7 +20,7 @@ from typing import Any, Callable, Iterator
 
 import smbus2
 
-from magnet.drivers import I2CBus, Reading, Sensor, has_accelerometer, open_sensor, orientation_matrix
+from magnet.drivers import I2CBus, Reading, Sensor, has_accelerometer, has_gyroscope, open_sensor, orientation_matrix
 from magnet.emulators import emulator_for
 from magnet.readloop import Backoff, ReadLoop
 from magnet.simulator import SensorStream, Trajectory
@@ -27,7 +28,8 @@ from services.common import sim_options
 
 log = logging.getLogger("magnet.sample")
 
-SENSOR_NAMES = ("hmc5883l", "lsm303dlh", "ak09918c+bma456", "qmc5883l")
+SENSOR_NAMES = ("hmc5883l", "lsm303dlh", "ak09918c+bma456", "qmc5883l", "icm20948", "lsm9ds1", "mpu6050+hmc5883l",
+                "mpu6050+qmc5883l")
 MAX_NOT_READY_POLLS = 200
 #: a one-shot command gives up after this many failed reads in a row (about 3 s of backoff)
 GIVE_UP_AFTER = 10
@@ -85,8 +87,9 @@ def open_bus(settings: SampleSettings, source: Any = None, **emulator_options: A
     return smbus2.SMBus(settings.bus)
 
 
-def _header(has_acc: bool, emulate: bool, turntable: bool) -> list[str]:
+def _header(has_acc: bool, emulate: bool, turntable: bool, has_gyr: bool = False) -> list[str]:
     columns = ["t_s", "mx", "my", "mz"] + (["ax", "ay", "az"] if has_acc else [])
+    columns += ["gx", "gy", "gz"] if has_gyr else []
     if emulate:
         columns += ["true_heading_deg", "pitch_deg", "roll_deg"]
     if turntable:
@@ -138,10 +141,11 @@ def sample(settings: SampleSettings) -> int:
     bus = open_bus(settings, stream)
     sensor = open_sensor(settings.sensor, bus, settings.address, settings.orientation)
     has_acc = has_accelerometer(settings.sensor)
+    has_gyr = has_gyroscope(settings.sensor)
     if settings.turntable and stream is not None:
         _announce_turntable(stream)
     out = sys.stdout
-    out.write(",".join(_header(has_acc, settings.emulate, settings.turntable)) + "\n")
+    out.write(",".join(_header(has_acc, settings.emulate, settings.turntable, has_gyr)) + "\n")
     loop = read_loop(sensor, settings)
     try:
         for t_s, reading in _readings(loop, settings):
@@ -149,6 +153,8 @@ def sample(settings: SampleSettings) -> int:
             row = [f"{truth.get('t_s', t_s):.4f}"] + _fmt(reading.mag_ut)
             if has_acc:
                 row += _fmt(reading.acc_ms2) if reading.acc_ms2 is not None else ["", "", ""]
+            if has_gyr:
+                row += [f"{v:.6f}" for v in reading.gyr_rads] if reading.gyr_rads is not None else ["", "", ""]
             if settings.emulate:
                 row += _fmt([truth["heading_deg"], truth["pitch_deg"], truth["roll_deg"]])
             if settings.turntable:

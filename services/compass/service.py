@@ -15,13 +15,14 @@ import argparse
 import dataclasses
 import logging
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zenoh
 
 from magnet import heading as hd
-from magnet import wire
+from magnet import signing, wire
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
 from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
                                            stop_event)
@@ -31,6 +32,8 @@ log = logging.getLogger("magnet.compass")
 MAX_DRAIN = 4000          # raw messages computed together at most
 CHANNEL_CAPACITY = 65536  # raw messages queued between zenoh and this loop
 REQUERY_S = 5.0           # how often to ask again for the calibration of a device that has none
+REQUERY_REFUSED_S = 1.0   # how often at most to ask the calibrators again after refusing a calibration
+MAX_REFUSED = 1024        # devices remembered for that between two asks (a flood beyond: one query for all)
 IDLE_SLEEP_S = 0.0003
 _ZERO3, _EYE3 = np.zeros(3), np.eye(3)
 
@@ -43,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default="compass", help="service name for liveliness and status (default compass)")
     parser.add_argument("--devices", default="*",
                         help="key expression of the devices this instance serves (default *, all); e.g. 'line-1-*'")
+    parser.add_argument("--trust", action="append", default=[], type=Path, metavar="FILE.pub",
+                        help="apply only calibrations signed by this public key (repeatable; `magnet keys` makes "
+                             "them). Without it, unsigned calibrations are applied too")
     add_zenoh_arguments(parser)
 
 
@@ -56,6 +62,7 @@ class CompassSettings:
     name: str = "compass"
     devices: str = "*"
     zenoh: ZenohSettings = ZenohSettings()
+    trust: tuple[Path, ...] = ()
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
@@ -64,7 +71,12 @@ class CompassSettings:
 
 def settings_from_args(args: argparse.Namespace) -> CompassSettings:
     return CompassSettings(Earth.from_args(args.location, args.date), args.window, args.name, args.devices,
-                           ZenohSettings.from_args(args))
+                           ZenohSettings.from_args(args), tuple(args.trust))
+
+
+def load_trusted_keys(paths: tuple[Path, ...] | list[Path]) -> signing.TrustedKeys:
+    """The public keys of ``--trust`` files; OSError/ValueError naming a file that cannot be used."""
+    return signing.TrustedKeys([signing.load_public_key(path.read_bytes(), str(path)) for path in paths])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,11 +109,14 @@ class HeadingColumns:
 class Compass:
     """State of the compass loop: calibrations in force, smoothing tails, counters. No zenoh inside."""
 
-    def __init__(self, earth: Earth, window: int) -> None:
+    def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None) -> None:
         if window < 1:
             raise ValueError(f"--window must be >= 1, got {window}")
         self.earth = earth
         self.window = window
+        self.trusted = trusted or signing.TrustedKeys()
+        self.refused: set[str] = set()  # devices whose calibration was refused since the calibrators were last asked
+        self.refused_overflow = False
         self.calibrations: dict[str, wire.DeviceCalibration] = {}
         self.tails: dict[str, np.ndarray] = {}
         self.drops = wire.DropCounter()
@@ -109,18 +124,49 @@ class Compass:
         self.calibration_updates = 0
         self._key_devices: dict[str, str] = {}
 
-    def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> None:
+    def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> bool:
+        """Apply a calibration message when it is usable (``applicable``); else count why, keep the one in force and
+        remember the device so that the calibrators are asked again. True when it is (or already was) in force."""
         try:
             record = wire.decode_calibration(payload)
             wire.check_key(prefix, key_expr, wire.Kind.CALIBRATION, record.device)
+            self.applicable(record)
         except wire.WireError as exc:
             self.drops.drop(exc, "calibration", log)
-            return
+            self._remember_refused(key_expr, prefix)
+            return False
         current = self.calibrations.get(record.device)
         if current is None or current.id != record.id:
             self.calibrations[record.device] = record
             self.calibration_updates += 1
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
+        return True
+
+    def applicable(self, record: wire.DeviceCalibration) -> None:
+        """WireError unless ``record`` may be applied: accepted by the quality gate (its plausibility was checked
+        when it was read), signed by a trusted key where keys are trusted, and not older than the one in force."""
+        if not record.calibration.accepted:
+            raise wire.WireError("not-accepted", f"calibration {record.id} of {record.device} is marked accepted: "
+                                                 "false (the quality gate refused it)")
+        if self.trusted.enabled:
+            try:
+                self.trusted.verify(record.to_record())
+            except signing.SignatureError as exc:
+                raise wire.WireError(exc.cause, f"calibration {record.id} of {record.device}: {exc}") from None
+        current = self.calibrations.get(record.device)
+        if current is not None and current.id != record.id and record.created_ns < current.created_ns:
+            raise wire.WireError("stale", f"calibration {record.id} of {record.device} is older than the one in "
+                                          f"force ({current.id})")
+
+    def _remember_refused(self, key_expr: str, prefix: str) -> None:
+        try:
+            device = wire.device_from_key(prefix, key_expr, wire.Kind.CALIBRATION)
+        except wire.WireError:
+            return
+        if len(self.refused) < MAX_REFUSED:
+            self.refused.add(device)
+        else:
+            self.refused_overflow = True
 
     def decode(self, items: list[tuple[str, bytes]], prefix: str) -> list[wire.RawBatch]:
         """Raw batches from (key, payload) pairs; malformed ones dropped and counted."""
@@ -212,7 +258,9 @@ def run_compass(args: argparse.Namespace) -> int:
 
 
 def run(settings: CompassSettings) -> int:
-    compass = Compass(settings.earth, settings.window)
+    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust))
+    if compass.trusted.enabled:
+        log.info("compass applies only calibrations signed by key(s) %s", ", ".join(compass.trusted.key_ids))
     stop = stop_event()
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
     with open_session(settings.zenoh) as session:
@@ -242,11 +290,25 @@ class _Loop:
         self.session, self.compass = session, compass
         self.prefix, self.devices = settings.zenoh.prefix, settings.devices
         self.heading_keys: dict[str, str] = {}
-        self.asked = time.monotonic()
+        self.asked = self.asked_refused = time.monotonic()
         self.pending: list[tuple[float, Any]] = [(self.asked + 3.0, self._ask(3.0))]
 
-    def _ask(self, timeout: float) -> Any:
-        return self.session.get(f"{self.prefix}/{self.devices}/calibration", timeout=timeout)
+    def _ask(self, timeout: float, devices: str | None = None) -> Any:
+        return self.session.get(f"{self.prefix}/{devices or self.devices}/calibration", timeout=timeout)
+
+    def _ask_refused(self) -> None:
+        """Ask the calibrators again for the calibrations of devices whose calibration was just refused (a forged or
+        stale one may have hidden a genuine update), at most every REQUERY_REFUSED_S."""
+        now = time.monotonic()
+        if not (self.compass.refused or self.compass.refused_overflow) or now - self.asked_refused < REQUERY_REFUSED_S:
+            return
+        self.asked_refused = now
+        refused = sorted(self.compass.refused)
+        if self.compass.refused_overflow or len(refused) > 8:
+            refused = [self.devices]
+        self.compass.refused.clear()
+        self.compass.refused_overflow = False
+        self.pending += [(now + 2.0, self._ask(2.0, device)) for device in refused]
 
     def calibrations(self, cal_sub: Any) -> None:
         """Take the calibrations published and the replies to queries that arrived; keep queries that may answer."""
@@ -260,6 +322,7 @@ class _Loop:
         self.pending = still
         for sample in drain(cal_sub, 1000):
             self.compass.accept_calibration(payload_bytes(sample), str(sample.key_expr), self.prefix)
+        self._ask_refused()
 
     def headings(self, raw_sub: Any) -> bool:
         """Compute and publish the headings of the raw batches waiting; False when there were none."""
