@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from magnet import wire
+from magnet.drivers import SENSORS
 from magnet.replay import MAX_SPEED
 from services.common import sim_options
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
@@ -19,7 +20,7 @@ MAX_DEVICES = 100_000
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="dev", help="device id (one key chunk); a fleet uses <ID>-000, ...")
     parser.add_argument("--sensor", default=SIMULATOR_SENSOR,
-                        help="chip name (hmc5883l, qmc5883l, lsm303dlh, ak09918c+bma456) or 'sim' for the simulator alone")
+                        help=f"chip name ({', '.join(SENSORS)}) or 'sim' for the simulator alone")
     parser.add_argument("--bus", type=int, help="I2C bus number of a real chip (/dev/i2c-N)")
     parser.add_argument("--address", type=lambda s: int(s, 0), help="I2C address of a real chip (e.g. 0x1e)")
     parser.add_argument("--emulate", action="store_true", help="emulate the chip (or the fleet) instead of a bus")

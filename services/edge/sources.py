@@ -97,6 +97,11 @@ def _open_bus(settings: EdgeSettings, stream: Any) -> Any:
     return smbus2.SMBus(settings.bus)
 
 
+def _rows(vectors: list[Any]) -> np.ndarray | None:
+    """(N, 3) from N vectors of 3, or None when any is missing (the wire field is all or nothing per batch)."""
+    return None if any(v is None for v in vectors) else np.array(vectors, dtype=float)
+
+
 class ChipSource:
     """One chip through its driver and the bounded read loop; ``on_health(healthy, last_error)`` hears each change."""
 
@@ -118,20 +123,21 @@ class ChipSource:
 
     def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
         """Up to ``batch`` samples (fewer only when ``stop()`` turned true while the bus was failing)."""
-        mags, accs, truths = [], [], []
+        mags, accs, gyrs, truths = [], [], [], []
         for _ in range(self.settings.batch):
             reading = self.loop.next(stop)
             if reading is None:
                 break
             mags.append(np.asarray(reading.mag_ut, dtype=float))
-            accs.append(None if reading.acc_ms2 is None else np.asarray(reading.acc_ms2, dtype=float))
+            accs.append(reading.acc_ms2)
+            gyrs.append(reading.gyr_rads)
             truths.append(_truth(self.stream))
         if not mags:
             return []
-        acc = None if any(a is None for a in accs) else np.array(accs)
         truth = {k: np.array([t[k] for t in truths]) for k in TRUTH_KEYS} if self.stream is not None else None
         t_ns = stamp(len(mags), time.time_ns(), int(1e9 / self.settings.rate_hz))
-        return [wire.RawBatch(self.settings.device, seq, self.settings.sensor, t_ns, np.array(mags), acc, truth)]
+        return [wire.RawBatch(self.settings.device, seq, self.settings.sensor, t_ns, np.array(mags), _rows(accs),
+                              truth, gyr_rads=_rows(gyrs))]
 
 
 def read_recording(path: Path) -> Recording:
