@@ -43,7 +43,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -61,7 +61,7 @@ class Method(enum.Enum):
     TURNTABLE = "turntable"
 
     @classmethod
-    def parse(cls, value: "Method | str") -> "Method":
+    def parse(cls, value: Method | str) -> Method:
         if isinstance(value, cls):
             return value
         try:

@@ -23,7 +23,7 @@ class Earth:
     inclination_deg: float | None = None
 
     @classmethod
-    def from_args(cls, location: str | None, date: str | None) -> "Earth":
+    def from_args(cls, location: str | None, date: str | None) -> Earth:
         """From ``LAT,LON[,ALT_M]`` and a ``YYYY-MM-DD`` date (None: today) with the WMM; unknown without a location."""
         if not location:
             return cls()

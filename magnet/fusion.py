@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 import vqf
@@ -163,7 +164,7 @@ class Fused:
     rest: np.ndarray
 
     @classmethod
-    def from_vqf(cls, out: Mapping[str, Any], with_mag: bool) -> "Fused":
+    def from_vqf(cls, out: Mapping[str, Any], with_mag: bool) -> Fused:
         quat = vqf_to_body_ned(np.asarray(out["quat9D" if with_mag else "quat6D"], dtype=float).reshape(-1, 4))
         heading, pitch, roll = euler_from_quat(quat)
         count = len(quat)

@@ -25,7 +25,8 @@ import dataclasses
 import hashlib
 import json
 import math
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -141,7 +142,7 @@ class Quality:
             return default
         return default if value is None else value
 
-    def with_extra(self, **figures: Any) -> "Quality":
+    def with_extra(self, **figures: Any) -> Quality:
         """A copy with more method-specific figures."""
         return dataclasses.replace(self, extra={**self.extra, **figures})
 
@@ -152,7 +153,7 @@ class Quality:
         return _jsonable({**out, **self.extra})
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> "Quality":
+    def from_dict(cls, data: Mapping[str, Any] | None) -> Quality:
         """Read the flat map ``to_dict`` writes (unknown keys go to ``extra``); ValueError when a figure has the
         wrong type."""
         if data is None:
@@ -213,7 +214,7 @@ class Calibration:
         raw = np.asarray(raw, dtype=float)
         return (raw - self.offset) @ self.matrix.T
 
-    def replace(self, **changes: Any) -> "Calibration":
+    def replace(self, **changes: Any) -> Calibration:
         return dataclasses.replace(self, **changes)
 
     @property
@@ -245,7 +246,7 @@ class Calibration:
         }
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "Calibration":
+    def from_dict(cls, data: Mapping[str, Any]) -> Calibration:
         """The one entry of a record from outside (file, store, wire): read it as ``to_dict`` writes it (``offset``
         and ``matrix`` are enough) and check it is plausible (``check_plausible``); ValueError saying what is wrong."""
         if not isinstance(data, Mapping):

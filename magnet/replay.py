@@ -10,7 +10,7 @@ from an anchor such as the wall clock at the start. Clock and sleep are injected
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 

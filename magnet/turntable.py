@@ -22,7 +22,7 @@ The calibration record has matrix = K^-1 and offset = u0, so that T = K^-1 (u - 
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 

@@ -17,7 +17,7 @@ class FieldUnit(enum.Enum):
     COUNTS = "counts"
 
     @classmethod
-    def parse(cls, name: str) -> "FieldUnit":
+    def parse(cls, name: str) -> FieldUnit:
         try:
             return cls(name.strip().lower())
         except ValueError:

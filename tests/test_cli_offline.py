@@ -57,7 +57,7 @@ def write_csv(path: Path, header: str, rows: np.ndarray) -> Path:
     return path
 
 
-@pytest.fixture()
+@pytest.fixture
 def sphere_csv(tmp_path: Path) -> Path:
     rng = np.random.default_rng(7)
     n = 1500

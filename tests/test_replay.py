@@ -37,9 +37,8 @@ def recording(n: int = 25, rate_hz: float = 10.0, gyro: bool = True) -> Recordin
 
 def test_batches_are_released_at_the_recording_pace_scaled_by_speed():
     clock = FakeClock()
-    released = []
-    for part in paced_slices(recording(), 10, speed=2.0, clock=clock, sleep=clock.sleep):
-        released.append((part.start, part.stop, clock.t - 100.0))
+    released = [(part.start, part.stop, clock.t - 100.0)
+                for part in paced_slices(recording(), 10, speed=2.0, clock=clock, sleep=clock.sleep)]
     assert [(lo, hi) for lo, hi, _ in released] == [(0, 10), (10, 20), (20, 25)]
     # the last sample of each batch is due at t_s / speed: 0.9 / 2, 1.9 / 2, 2.4 / 2 seconds
     assert [t for _, _, t in released] == pytest.approx([0.45, 0.95, 1.2])

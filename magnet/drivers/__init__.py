@@ -7,7 +7,8 @@ service opens ``smbus2.SMBus(n)`` and passes it in, or passes an emulator from `
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from magnet.drivers.base import (Combined, Health, I2CBus, Reading, RetryPolicy, Sensor, SensorError, SensorReadError,
                                  orientation_matrix)

@@ -11,7 +11,8 @@ field_ut = counts * 0.15.
 from __future__ import annotations
 
 import enum
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -24,7 +24,8 @@ import logging
 import math
 import re
 import time
-from typing import Any, Callable, Protocol, runtime_checkable
+from collections.abc import Callable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -252,8 +253,8 @@ class Sensor:
     rotation: np.ndarray = np.eye(3)
     devices: tuple[I2CDevice, ...] = ()
 
-    def _attach(self, bus: I2CBus, address: int, orientation: Any, retry: "RetryPolicy | None",
-                sleep: "Callable[[float], None] | None") -> I2CDevice:
+    def _attach(self, bus: I2CBus, address: int, orientation: Any, retry: RetryPolicy | None,
+                sleep: Callable[[float], None] | None) -> I2CDevice:
         """Set ``self.device`` (the chip at ``address`` on ``bus``, with the retry policy), ``self.devices`` and the
         mounting ``self.rotation``; returns the device."""
         options = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
@@ -288,7 +289,9 @@ class Sensor:
         return self._to_body(reading)
 
     def _to_body(self, reading: Reading) -> Reading:
-        rotate = (lambda v: None if v is None else self.rotation @ v)
+        def rotate(v: np.ndarray | None) -> np.ndarray | None:
+            return None if v is None else self.rotation @ v
+
         return dataclasses.replace(reading, mag_ut=rotate(reading.mag_ut), acc_ms2=rotate(reading.acc_ms2),
                                    gyr_rads=rotate(reading.gyr_rads))
 

@@ -9,7 +9,8 @@ acc_ms2 = counts / LSB_PER_G[range] * 9.80665, LSB per g 16384, 8192, 4096 (8 g,
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -14,7 +14,8 @@ row per sample.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Iterable
+from typing import Any
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -64,7 +65,7 @@ class HMC1043:
 
     @classmethod
     def from_csv(cls, lines: Iterable[str], *, columns: tuple[str, str, str] | None = None,
-                 settings: BridgeSettings | None = None, orientation: Any = None) -> "HMC1043":
+                 settings: BridgeSettings | None = None, orientation: Any = None) -> HMC1043:
         """Parse CSV text lines: a header, then numbers. Volts or counts are told by the column names."""
         rows = [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
         if not rows:

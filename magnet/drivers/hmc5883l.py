@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
@@ -76,7 +77,7 @@ class HMC5883LSettings:
         return self.gain << 5
 
     @classmethod
-    def from_registers(cls, config_a: int, config_b: int, mode: int) -> "HMC5883LSettings":
+    def from_registers(cls, config_a: int, config_b: int, mode: int) -> HMC5883LSettings:
         rate_bits = (config_a >> 2) & 0x7
         bias_bits = config_a & 0x3
         return cls(averaging=AVERAGING[(config_a >> 5) & 0x3],

@@ -16,7 +16,8 @@ BDU, bits 5:4 full scale 2/4/8 g), STATUS_REG_A 0x27 (bit 3 ZYXDA), OUT_X_L_A 0x
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

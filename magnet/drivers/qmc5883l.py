@@ -12,7 +12,8 @@ field_ut = counts / LSB_PER_GAUSS[range] * 100, LSB per gauss 12000 (2 G) or 300
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import errno
 import os
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
+from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -226,7 +227,7 @@ class RegisterDevice:
     def close(self) -> None:
         self.closed = True
 
-    def __enter__(self) -> "RegisterDevice":
+    def __enter__(self) -> RegisterDevice:
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -11,7 +11,8 @@ auto-increments only when its bit 7 is set; otherwise a multi-byte read repeats 
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -97,7 +97,7 @@ class SensorErrors:
 
     @classmethod
     def random(cls, rng: np.random.Generator, field_ut: float, *, hard_iron_max_ratio: float = 3.0,
-               soft_iron_max: float = 0.2, misalignment_deg: float = 0.0, **other: Any) -> "SensorErrors":
+               soft_iron_max: float = 0.2, misalignment_deg: float = 0.0, **other: Any) -> SensorErrors:
         """Random errors: hard iron in a random direction with magnitude uniform in 0..hard_iron_max_ratio x the field;
         soft iron symmetric positive definite, eigenvalues uniform in 1 +- soft_iron_max, random axes; misalignment a
         rotation of ``misalignment_deg`` about a random axis. ``other`` sets the remaining fields (noise_ut, ...)."""

@@ -31,7 +31,8 @@ Models (``MODELS``), all deterministic from the generator they are given:
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -58,7 +58,7 @@ class Trajectory(enum.Enum):
 MOVING_TRAJECTORIES = frozenset({Trajectory.MULTIROTOR, Trajectory.CAR, Trajectory.FIGURE8, Trajectory.FAST_TUMBLE})
 
 MIN_COUNT = {Trajectory.SPIN: 2, Trajectory.TURNTABLE: 2 * len(TURNTABLE_ANGLES_DEG), Trajectory.TUMBLE: 2,
-             Trajectory.TENFACE: len(TENFACE_STATIONS), **{t: 2 for t in MOVING_TRAJECTORIES}}
+             Trajectory.TENFACE: len(TENFACE_STATIONS), **dict.fromkeys(MOVING_TRAJECTORIES, 2)}
 
 
 # Still trajectories: functions of the phase s in [0, 1) of a run -> magnetic heading, pitch, roll (degrees),

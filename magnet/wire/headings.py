@@ -12,7 +12,8 @@ FIELD_DISTURBED (|B| away from the expected field) and DIP_DISTURBED (dip away f
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import msgpack
 import numpy as np

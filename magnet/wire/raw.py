@@ -13,7 +13,8 @@ payload (plus the simulator's truth), so both give the same verdict and the same
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Mapping, Sequence
+from typing import Any
+from collections.abc import Mapping, Sequence
 
 import msgpack
 import numpy as np
@@ -74,7 +75,7 @@ class RawColumns:
     sensors: list[str]
 
     @classmethod
-    def from_batches(cls, batches: Sequence[RawBatch]) -> "RawColumns":
+    def from_batches(cls, batches: Sequence[RawBatch]) -> RawColumns:
         if not batches:
             return cls([], [], np.zeros(0, np.int64), np.empty(0, np.int64), _nan_rows(0), _nan_rows(0),
                        _nan_rows(0), [])
@@ -102,7 +103,7 @@ class RawColumns:
                                 None if np.isnan(gyr).all() else gyr))
         return out
 
-    def select(self, keep: np.ndarray) -> "RawColumns":
+    def select(self, keep: np.ndarray) -> RawColumns:
         """The batches where ``keep`` (B,) bool is True."""
         keep = np.asarray(keep, dtype=bool)
         per_sample = np.repeat(keep, self.counts)

@@ -20,7 +20,7 @@ import dataclasses
 import logging
 import statistics
 import time
-from typing import Callable, Iterable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 

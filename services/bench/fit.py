@@ -12,7 +12,7 @@ import logging
 import math
 import statistics
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -7,7 +7,8 @@ Each handler answers one query (``reply`` or ``reply_err``); none raises on what
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Iterable
 
 import zenoh
 

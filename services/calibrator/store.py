@@ -13,7 +13,7 @@ import json
 import logging
 import sqlite3
 from pathlib import Path
-from typing import Iterable
+from collections.abc import Iterable
 
 from magnet import wire
 
@@ -51,7 +51,7 @@ class CalibrationStore:
     def close(self) -> None:
         self._db.close()
 
-    def __enter__(self) -> "CalibrationStore":
+    def __enter__(self) -> CalibrationStore:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -105,7 +105,7 @@ class CalibrationStore:
                     self._reported.add(seq)
                     log.warning("%s: skipping calibration row %d: %s", self.path, seq, exc)
 
-    def _transaction(self) -> "_Transaction":
+    def _transaction(self) -> _Transaction:
         return _Transaction(self._db)
 
 

@@ -16,7 +16,8 @@ import dataclasses
 import logging
 import sys
 import time
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import smbus2
 
@@ -70,7 +71,7 @@ class SampleSettings:
         orientation_matrix(self.orientation)  # ValueError naming the accepted forms
 
     @classmethod
-    def from_args(cls, args: argparse.Namespace) -> "SampleSettings":
+    def from_args(cls, args: argparse.Namespace) -> SampleSettings:
         return cls(sensor=args.sensor, bus=args.bus, address=args.address, orientation=args.orientation,
                    emulate=bool(args.emulate), count=int(args.count), rate_hz=float(args.rate),
                    simulator=sim_options.SimulatorSettings.from_args(args))
@@ -150,7 +151,7 @@ def sample(settings: SampleSettings) -> int:
     try:
         for t_s, reading in _readings(loop, settings):
             truth = stream.last_truth if stream is not None else {}
-            row = [f"{truth.get('t_s', t_s):.4f}"] + _fmt(reading.mag_ut)
+            row = [f"{truth.get('t_s', t_s):.4f}", *_fmt(reading.mag_ut)]
             if has_acc:
                 row += _fmt(reading.acc_ms2) if reading.acc_ms2 is not None else ["", "", ""]
             if has_gyr:

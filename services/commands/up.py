@@ -82,7 +82,7 @@ class UpSettings:
                      speedup=self.speedup, simulator=SimulatorSettings(location=place))
 
     @classmethod
-    def from_args(cls, args: argparse.Namespace) -> "UpSettings":
+    def from_args(cls, args: argparse.Namespace) -> UpSettings:
         return cls(devices=int(args.devices), rate_hz=float(args.rate), batch=int(args.batch),
                    speedup=float(args.speedup), location=args.location, db=args.db, duration_s=args.duration,
                    interval_s=args.interval, prefix=args.prefix)
@@ -139,7 +139,7 @@ class DeviceView:
 def _bar(fraction: float | None, width: int = 20) -> str:
     if fraction is None:
         return "[" + "?" * width + "]"
-    filled = int(round(max(0.0, min(1.0, fraction)) * width))
+    filled = round(max(0.0, min(1.0, fraction)) * width)
     return "[" + "#" * filled + "." * (width - filled) + f"] {fraction:4.0%}"
 
 
@@ -151,8 +151,8 @@ def render_lines(views: dict[str, DeviceView], elapsed_s: float) -> list[str]:
     """The view as lines of text (no terminal codes)."""
     calibrated = sum(v.state == "calibrated" for v in views.values())
     lines = [f"magnet up: {len(views)} device(s), {calibrated} calibrated, {elapsed_s:5.1f} s   (Ctrl-C stops)",
-             f"{'device':<12} {'state':<11} {'coverage':<31} {'heading':>8} {'pitch':>6} {'roll':>7} "
-             f"{'resid uT':>8} {'err deg':>7}  note"]
+             (f"{'device':<12} {'state':<11} {'coverage':<31} {'heading':>8} {'pitch':>6} {'roll':>7} "
+              f"{'resid uT':>8} {'err deg':>7}  note")]
     for device in sorted(views):
         v = views[device]
         note = ", ".join(v.missing) if v.state != "calibrated" else f"calibration {v.calibration_id}"

@@ -13,7 +13,8 @@ import dataclasses
 import io
 import math
 from pathlib import Path
-from typing import Iterable, Sequence, TextIO
+from typing import TextIO
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 

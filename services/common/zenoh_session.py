@@ -17,7 +17,8 @@ import socket
 import threading
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import zenoh
 
@@ -62,7 +63,7 @@ class ZenohSettings:
                 raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
 
     @classmethod
-    def from_args(cls, args: argparse.Namespace) -> "ZenohSettings":
+    def from_args(cls, args: argparse.Namespace) -> ZenohSettings:
         """The settings of the options ``add_zenoh_arguments`` added."""
         return cls(config=args.config, mode=args.mode, connect=tuple(args.connect), listen=tuple(args.listen),
                    no_multicast_scouting=bool(args.no_multicast_scouting), prefix=args.prefix,

@@ -31,7 +31,8 @@ import dataclasses
 import json
 import logging
 import time
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import zenoh
 

@@ -101,7 +101,7 @@ class EdgeSettings:
         return self.emulate and not self.devices and self.sensor != SIMULATOR_SENSOR
 
     @classmethod
-    def from_args(cls, args: argparse.Namespace) -> "EdgeSettings":
+    def from_args(cls, args: argparse.Namespace) -> EdgeSettings:
         return cls(device=args.device, sensor=args.sensor, rate_hz=float(args.rate), batch=int(args.batch),
                    duration_s=args.duration, bus=args.bus, address=args.address, emulate=bool(args.emulate),
                    devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),

@@ -13,8 +13,9 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 import smbus2
@@ -145,8 +146,8 @@ def read_recording(path: Path) -> Recording:
     (rad/s); ValueError naming the file and what is wrong."""
     table = read_samples(path)
     if "t_s" not in table.columns:
-        raise ValueError(f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as magnet sample "
-                         "writes it")
+        raise ValueError(f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as "
+                         "magnet sample writes it")
     gyr = None
     if all(c in table.columns for c in GYRO_COLUMNS):
         gyr = np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])

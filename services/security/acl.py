@@ -17,7 +17,8 @@ import dataclasses
 import enum
 import json
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 
 class Can(enum.Enum):

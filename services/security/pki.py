@@ -14,7 +14,7 @@ import datetime
 import ipaddress
 import os
 from pathlib import Path
-from typing import Sequence
+from collections.abc import Sequence
 
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
@@ -68,7 +68,7 @@ def _builder(subject: str, issuer: x509.Name, public_key, days: int, now: dateti
 def make_ca(days: int = 3650, name: str = CA_NAME) -> Issued:
     """A self-signed v3 CA certificate (basicConstraints CA:TRUE, pathlen 0; keyCertSign, cRLSign)."""
     key = _new_key()
-    now = datetime.datetime.now(datetime.timezone.utc)
+    now = datetime.datetime.now(datetime.UTC)
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)])
     cert = (_builder(name, subject, key.public_key(), days, now)
             .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
@@ -87,7 +87,7 @@ def issue(ca: Issued, common_name: str, *, server: bool, dns: Sequence[str] = ("
     ca_key = serialization.load_pem_private_key(ca.key_pem, password=None)
     key = _new_key()
     usages = [ExtendedKeyUsageOID.CLIENT_AUTH] + ([ExtendedKeyUsageOID.SERVER_AUTH] if server else [])
-    now = datetime.datetime.now(datetime.timezone.utc)
+    now = datetime.datetime.now(datetime.UTC)
     cert = (_builder(common_name, ca_cert.subject, key.public_key(), days, now)
             .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
             .add_extension(x509.KeyUsage(digital_signature=True, content_commitment=False, key_encipherment=False,
