@@ -15,14 +15,13 @@ import datetime as _dt
 import functools
 import math
 import threading
-from typing import Union
 
 COEFFICIENTS_FILE = "wmm/WMM_2025.COF"
 MODEL_START_YEAR = 2025.0
 MODEL_END_YEAR = 2030.0
 UT_PER_NT = 0.001
 
-DateLike = Union[_dt.date, str, float, int, None]
+DateLike = _dt.date | str | float | int | None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,6 +7,7 @@ Import from a test module as ``from helpers import MAGNET, wait_for`` (pytest pu
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -15,7 +16,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import IO, Any, TypeVar
+from typing import Any, TypeVar
 
 import pytest
 
@@ -114,11 +115,11 @@ class Processes:
     def __init__(self, tmp_path: Path) -> None:
         self.tmp_path = tmp_path
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
-        self._logs: list[IO[str]] = []
+        self._logs = contextlib.ExitStack()
 
     def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
-        log = open(self.tmp_path / f"{name}.log", "w")
-        self._logs.append(log)
+        # the log stays open while the process runs; stop_all closes it
+        log = self._logs.enter_context(open(self.tmp_path / f"{name}.log", "w"))  # noqa: SIM115
         self.procs[name] = subprocess.Popen([*MAGNET, *args], stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT)
         return self.procs[name]
 
@@ -139,5 +140,4 @@ class Processes:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-        for log in self._logs:
-            log.close()
+        self._logs.close()

@@ -165,7 +165,7 @@ def test_rejected_fit_leaves_an_existing_out_file_untouched(sphere_csv: Path, tm
 
 def test_fit_reads_a_loggers_preamble_and_extra_columns(tmp_path: Path, sphere_csv: Path):
     lines = sphere_csv.read_text().splitlines()
-    text = "Fs,50.00\nInitialization time,60\n" + lines[0] + ",note\n" + "\n".join(l + ",x" for l in lines[1:])
+    text = "Fs,50.00\nInitialization time,60\n" + lines[0] + ",note\n" + "\n".join(line + ",x" for line in lines[1:])
     path = tmp_path / "preamble.csv"
     path.write_text(text)
     result = magnet("fit", str(path), "--method", "ellipsoid")

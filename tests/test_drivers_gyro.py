@@ -46,25 +46,25 @@ def test_icm20948_identity_refused():
 def test_icm20948_magnetometer_identity_refused():
     bus = ICM20948Emulator(source())
     bus.mag.regs[0x01] = 0x0C                       # an AK09918 where the AK09916 should be
-    with pytest.raises(SensorError, match="no AK09916 at 0x0c.*expected 0x48/0x09"):
+    with pytest.raises(SensorError, match=r"no AK09916 at 0x0c.*expected 0x48/0x09"):
         ICM20948(bus, **NO_SLEEP)
 
 
 def test_lsm9ds1_identities_refused():
     bus = LSM9DS1Emulator(source())
     bus.ag.regs[0x0F] = 0x69                        # an LSM6DS3
-    with pytest.raises(SensorError, match="no LSM9DS1 accelerometer/gyroscope at 0x6b.*expected 0x68"):
+    with pytest.raises(SensorError, match=r"no LSM9DS1 accelerometer/gyroscope at 0x6b.*expected 0x68"):
         LSM9DS1(bus, **NO_SLEEP)
     bus = LSM9DS1Emulator(source())
     bus.mag.regs[0x0F] = 0x3C
-    with pytest.raises(SensorError, match="no LSM9DS1 magnetometer at 0x1e.*expected 0x3d"):
+    with pytest.raises(SensorError, match=r"no LSM9DS1 magnetometer at 0x1e.*expected 0x3d"):
         LSM9DS1(bus, **NO_SLEEP)
 
 
 def test_mpu6050_identity_refused():
     emu = MPU6050Emulator(source())
     emu.regs[0x75] = 0x70                           # an MPU-6500
-    with pytest.raises(SensorError, match="no MPU-6050 at 0x68.*reads 0x70, expected 0x68"):
+    with pytest.raises(SensorError, match=r"no MPU-6050 at 0x68.*reads 0x70, expected 0x68"):
         MPU6050(emu, **NO_SLEEP)
 
 

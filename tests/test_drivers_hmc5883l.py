@@ -93,7 +93,7 @@ def test_continuous_mode_paced_by_the_output_rate():
 def test_identity_mismatch_refused_clearly(identity):
     emu = HMC5883LEmulator()
     emu.regs[0x0A:0x0D] = identity
-    with pytest.raises(SensorError, match="no HMC5883L at 0x1e.*expected b'H43'"):
+    with pytest.raises(SensorError, match=r"no HMC5883L at 0x1e.*expected b'H43'"):
         HMC5883L(emu, **NO_SLEEP)
 
 

@@ -43,7 +43,7 @@ def test_qmc5883l_overflow_and_identity():
     assert reading.overflow and reading.mag_ut is None
     emu = QMC5883LEmulator()
     emu.regs[0x0D] = 0x00
-    with pytest.raises(SensorError, match="no QMC5883L at 0x0d.*expected 0xff"):
+    with pytest.raises(SensorError, match=r"no QMC5883L at 0x0d.*expected 0xff"):
         QMC5883L(emu, **NO_SLEEP)
 
 
@@ -92,7 +92,7 @@ def test_ak09918c_overflow_and_identity():
     assert sensor.read().overflow
     emu = AK09918CEmulator()
     emu.regs[0x01] = 0x09                          # an AK09916 answers 0x09
-    with pytest.raises(SensorError, match="no AK09918C.*0x48/0x0c"):
+    with pytest.raises(SensorError, match=r"no AK09918C.*0x48/0x0c"):
         AK09918C(emu, **NO_SLEEP)
 
 
@@ -118,7 +118,7 @@ def test_bma456_ranges(range_g, lsb):
 def test_bma456_identity():
     emu = BMA456Emulator()
     emu.regs[0x00] = 0x11                          # a BMA423-like id
-    with pytest.raises(SensorError, match="no BMA456.*0x16"):
+    with pytest.raises(SensorError, match=r"no BMA456.*0x16"):
         BMA456(emu, **NO_SLEEP)
 
 
@@ -173,7 +173,7 @@ def test_orientation_refuses_bad_input(bad):
 
 
 def test_open_sensor_unknown_name():
-    with pytest.raises(ValueError, match="unknown sensor 'hmc5983'.*hmc5883l"):
+    with pytest.raises(ValueError, match=r"unknown sensor 'hmc5983'.*hmc5883l"):
         open_sensor("hmc5983", None)
 
 

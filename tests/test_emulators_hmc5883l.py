@@ -45,7 +45,10 @@ def test_partial_read_locks_until_all_six_are_read():
 
 def test_gain_scales_and_takes_effect_one_measurement_late():
     emu = started()
-    counts = lambda: int.from_bytes(bytes(emu.read_i2c_block_data(A, 0x03, 6)[:2]), "big", signed=True)
+
+    def counts() -> int:
+        return int.from_bytes(bytes(emu.read_i2c_block_data(A, 0x03, 6)[:2]), "big", signed=True)
+
     assert counts() == round(0.2 * 1090)
     emu.write_byte_data(A, 0x01, 7 << 5)
     assert counts() == round(0.2 * 1090)           # still the old gain

@@ -87,7 +87,7 @@ def test_parse_location():
     assert parse_location("50.45, 30.52") == (50.45, 30.52, 0.0)
     assert parse_location("-33.9,151.2,120") == (-33.9, 151.2, 120.0)
     for bad in ["50.45", "a,b", "1,2,3,4", "95,0", "", "50,"]:
-        with pytest.raises(ValueError, match="LAT|latitude|location"):
+        with pytest.raises(ValueError, match=r"LAT|latitude|location"):
             parse_location(bad)
 
 

@@ -103,7 +103,8 @@ def test_slightly_tilted_turn_gets_a_coplanar_refusal_from_the_gate():
     try:
         cal = fit(raw, "ellipsoid")
     except FitError as exc:
-        assert "coplanar" in str(exc) or "ellipsoid" in str(exc)
+        error = str(exc)
+        assert "coplanar" in error or "ellipsoid" in error
     else:
         assert not cal.accepted and "coplanar" in cal.reason
 

@@ -24,7 +24,7 @@ def test_failures_are_reported_per_axis():
     assert not overflow.passed and "higher GN" in overflow.message
     with pytest.raises(ValueError, match="failed self-test"):
         to_calibration(result)
-    with pytest.raises(ValueError, match="GN must be 0..7"):
+    with pytest.raises(ValueError, match=r"GN must be 0..7"):
         evaluate([1, 1, 1], [1, 1, 1], 8)
 
 

@@ -77,7 +77,7 @@ def test_keys_command_writes_a_private_key_0600_and_a_public_key_0644(tmp_path, 
     assert main(["keys", "--out", str(tmp_path / "k"), "--name", "calibrator"]) == 2, "nothing is overwritten"
     assert "already exist" in capsys.readouterr().err
     assert main(["keys", "--out", str(tmp_path / "k"), "--name", "../evil"]) == 2
-    with pytest.raises(ValueError, match="not an Ed25519 public key|not a PEM public key"):
+    with pytest.raises(ValueError, match=r"not an Ed25519 public key|not a PEM public key"):
         signing.load_public_key(private.read_bytes(), "x.pub")
 
 

@@ -144,3 +144,16 @@ def test_figure8_moves_the_hand_and_turns_around():
     assert np.abs(r.pitch_deg).max() > 35.0 and np.abs(r.roll_deg).max() > 50.0
     lin = np.linalg.norm(r.lin_acc_ned_ms2, axis=1)
     assert 1.0 < lin.max() < 10.0
+
+
+def test_fleet_gyroscope_integrates_to_each_devices_attitude():
+    from magnet.attitude import euler_to_quaternion
+
+    fleet = sim.FleetSimulator(4, rate_hz=100.0, seed=1, date=DATE, gyro=True)
+    first, second = fleet.step(60), fleet.step(60)
+    gyr = np.concatenate([first.gyr_rads, second.gyr_rads], axis=1)
+    quat = euler_to_quaternion(*(np.concatenate([getattr(first, k), getattr(second, k)], axis=1)
+                                 for k in ("heading_deg", "pitch_deg", "roll_deg")))
+    for d in range(4):
+        assert angle_between_deg(integrate(quat[d, 0], gyr[d], 100.0), quat[d]).max() < 1e-3
+    assert sim.FleetSimulator(4, rate_hz=100.0, seed=1, date=DATE).step(5).gyr_rads is None

@@ -289,8 +289,8 @@ class Sensor:
         return self._to_body(reading)
 
     def _to_body(self, reading: Reading) -> Reading:
-        def rotate(v: np.ndarray | None) -> np.ndarray | None:
-            return None if v is None else self.rotation @ v
+        def rotate(vector: np.ndarray | None) -> np.ndarray | None:
+            return None if vector is None else self.rotation @ vector
 
         return dataclasses.replace(reading, mag_ut=rotate(reading.mag_ut), acc_ms2=rotate(reading.acc_ms2),
                                    gyr_rads=rotate(reading.gyr_rads))

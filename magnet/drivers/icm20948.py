@@ -22,7 +22,8 @@ lies flat, top up, x forward.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -22,7 +22,8 @@ is (-x, -y, -z) of the magnetometer's codes.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -16,7 +16,8 @@ along the MPU-6050's x (both mapped to the body frame the same way); ``orientati
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError
 from magnet.drivers.inertial import RAD_PER_DEG, Z_UP_TO_BODY, NineAxis, choose, mounting, saturated, words

@@ -11,7 +11,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 from collections.abc import Callable
 
 import numpy as np
@@ -25,7 +25,7 @@ _SELF_TEST_COUNTS = np.array([30, -40, -400])
 
 class AK09918CEmulator(MagnetometerDevice):
     addresses = (0x0C,)
-    power_on = {0x00: 0x48, 0x01: 0x0C}   # WIA1, WIA2
+    power_on: ClassVar[dict[int, int]] = {0x00: 0x48, 0x01: 0x0C}   # WIA1, WIA2
 
     def __init__(self, source: Any = None, **options: Any) -> None:
         """``options``: see ``MagnetometerDevice`` and ``SensorDevice``."""
@@ -95,6 +95,5 @@ def ak09918c_bma456_bus(source: Any = None, *, acc_address: int = 0x18, rotation
     from magnet.emulators.base import EmulatedBus
     from magnet.emulators.bma456 import BMA456Emulator
     tap = SourceTap(source)
-    bus = EmulatedBus(AK09918CEmulator(tap=tap, rotation=rotation, clock=clock, **mag_options),
-                      BMA456Emulator(tap=tap, address=acc_address, rotation=rotation, clock=clock), faults=faults)
-    return bus
+    return EmulatedBus(AK09918CEmulator(tap=tap, rotation=rotation, clock=clock, **mag_options),
+                       BMA456Emulator(tap=tap, address=acc_address, rotation=rotation, clock=clock), faults=faults)

@@ -14,7 +14,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -34,7 +34,7 @@ class AMRMagnetometerEmulator(MagnetometerDevice):
     bias_field_ga = np.array([1.16, 1.16, 1.08])
     adc_limits = (-2048, 2047)
     overflow_code = -4096
-    power_on = {0x00: 0x10, 0x01: 0x20, 0x02: 0x01, 0x0A: ord("H"), 0x0B: ord("4"), 0x0C: ord("3")}
+    power_on: ClassVar[dict[int, int]] = {0x00: 0x10, 0x01: 0x20, 0x02: 0x01, 0x0A: ord("H"), 0x0B: ord("4"), 0x0C: ord("3")}
     writable = frozenset({0x00, 0x01, 0x02})
     data_registers = frozenset(range(0x03, 0x09))
 

@@ -17,7 +17,8 @@ Axes: the ICM is z up (``magnet.emulators.inertial``); the AK09916's x, y, z are
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, ClassVar
+from collections.abc import Callable
 
 import numpy as np
 
@@ -95,7 +96,7 @@ class ICM20948Chip(InertialDevice):
 
 
 class AK09916Emulator(AK09918CEmulator):
-    power_on = {0x00: 0x48, 0x01: 0x09}   # WIA1, WIA2
+    power_on: ClassVar[dict[int, int]] = {0x00: 0x48, 0x01: 0x09}   # WIA1, WIA2
 
 
 class ICM20948Emulator(EmulatedBus):

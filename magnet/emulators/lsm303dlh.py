@@ -11,7 +11,7 @@ auto-increments only when its bit 7 is set; otherwise a multi-byte read repeats 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 from collections.abc import Callable
 
 import numpy as np
@@ -28,7 +28,7 @@ class LSM303DLHMagEmulator(AMRMagnetometerEmulator):
     data_axes = (0, 1, 2)
     lsb_per_gauss = (None, (1055.0, 1055.0, 950.0), (795.0, 795.0, 710.0), (635.0, 635.0, 570.0),
                      (430.0, 430.0, 385.0), (375.0, 375.0, 335.0), (320.0, 320.0, 285.0), (230.0, 230.0, 205.0))
-    power_on = {0x00: 0x10, 0x01: 0x20, 0x02: 0x03, 0x0A: ord("H"), 0x0B: ord("4"), 0x0C: ord("3")}
+    power_on: ClassVar[dict[int, int]] = {0x00: 0x10, 0x01: 0x20, 0x02: 0x03, 0x0A: ord("H"), 0x0B: ord("4"), 0x0C: ord("3")}
 
 
 class LSM303DLHAccEmulator(SensorDevice):

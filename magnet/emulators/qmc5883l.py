@@ -47,7 +47,7 @@ class QMC5883LEmulator(MagnetometerDevice):
         for axis in range(3):
             high, low = to_bytes(counts[axis])
             self.regs[2 * axis], self.regs[2 * axis + 1] = low, high
-        high, low = to_bytes(int(round((self.temperature_c - 25.0) * 100)))
+        high, low = to_bytes(round((self.temperature_c - 25.0) * 100))
         self.regs[0x07], self.regs[0x08] = low, high
         status = 0x01 | (0x02 if overflow else 0) | (0x04 if self.unread else 0)
         self.regs[0x06] = status

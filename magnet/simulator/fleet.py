@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from magnet.attitude import (euler_to_quaternion, quaternion_conjugate, quaternion_multiply,
+                             quaternion_to_rotation_vector)
 from magnet.geomag import earth_field
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.run import DEFAULT_DATE, DEFAULT_LAT_DEG, DEFAULT_LON_DEG
@@ -18,7 +20,8 @@ from magnet.units import STANDARD_GRAVITY_MS2
 @dataclasses.dataclass(frozen=True, eq=False)
 class FleetBatch:
     """One step of the fleet: t_ns (n,) from the fleet's start; mag_ut, acc_ms2 (D, n, 3) measured; heading_deg
-    (D, n) true heading; pitch_deg, roll_deg (D, n)."""
+    (D, n) true heading; pitch_deg, roll_deg (D, n); gyr_rads (D, n, 3) body rate (rad/s, the rate that carries each
+    sample's attitude from the one before, plus noise) when the fleet was made with ``gyro=True``, else None."""
 
     t_ns: np.ndarray
     mag_ut: np.ndarray
@@ -26,6 +29,7 @@ class FleetBatch:
     heading_deg: np.ndarray
     pitch_deg: np.ndarray
     roll_deg: np.ndarray
+    gyr_rads: np.ndarray | None = None
 
 
 class FleetSimulator:
@@ -33,12 +37,13 @@ class FleetSimulator:
     own trajectory: pitch = 85 sin(2 pi f_p t + phase), roll and heading turning at f_r and f_y turns/s, random per
     device: f_p 0.15-0.25 Hz, f_r about 0.618 f_p and f_y about 0.382 f_p (golden ratios, +-2 %, random senses: the
     path never closes early, so each device covers the sphere in about two minutes). ``step(n)`` advances every
-    device by n samples."""
+    device by n samples. ``gyro=True`` adds a gyroscope (noise ``gyro_noise_rads`` per axis, rad/s)."""
 
     def __init__(self, n_devices: int, rate_hz: float = 100.0, seed: int = 0, lat_deg: float = DEFAULT_LAT_DEG,
                  lon_deg: float = DEFAULT_LON_DEG, date: Any = DEFAULT_DATE, noise_ut: float = 0.3, *,
                  alt_m: float = 0.0, acc_noise_ms2: float = 0.02, hard_iron_max_ratio: float = 2.0,
-                 soft_iron_max: float = 0.15, misalignment_deg: float = 0.0) -> None:
+                 soft_iron_max: float = 0.15, misalignment_deg: float = 0.0, gyro: bool = False,
+                 gyro_noise_rads: float = 0.0) -> None:
         if isinstance(n_devices, bool) or not isinstance(n_devices, (int, np.integer)) or n_devices < 1:
             raise ValueError(f"n_devices must be a whole number >= 1, got {n_devices!r}")
         if not np.isfinite(rate_hz) or rate_hz <= 0:
@@ -66,6 +71,8 @@ class FleetSimulator:
         self._rng = np.random.default_rng(seeds[1])
         self._b_ned = np.array(self.earth.ned_ut)
         self._next = 0
+        self._gyro, self._gyro_noise = bool(gyro), float(gyro_noise_rads)
+        self._gyro_rng = np.random.default_rng(seeds[2])
 
     def step(self, n: int) -> FleetBatch:
         """The next n samples of every device."""
@@ -73,11 +80,7 @@ class FleetSimulator:
             raise ValueError(f"step needs a whole number of samples >= 1, got {n!r}")
         index = self._next + np.arange(n)
         self._next += n
-        t_s = index / self.rate_hz
-        turns = 2.0 * np.pi * self._frequency_hz[:, None, :] * t_s[None, :, None] + self._phase[:, None, :]
-        pitch = TUMBLE_PITCH_AMPLITUDE_DEG * np.sin(turns[..., 0])
-        roll = np.degrees(turns[..., 1])
-        heading = np.degrees(turns[..., 2])
+        heading, pitch, roll = self._attitude(index)
         field = ned_to_body_euler(self._b_ned, heading, pitch, roll)                              # (D, n, 3)
         acc = ned_to_body_euler(np.array([0.0, 0.0, -STANDARD_GRAVITY_MS2]), heading, pitch, roll)
         mag = np.einsum("dij,dnj->dni", self._distortion, field) + self._hard_iron[:, None, :]
@@ -88,4 +91,20 @@ class FleetSimulator:
             acc += self._acc_noise * rng.standard_normal(acc.shape)
         t_ns = np.round(index * (1e9 / self.rate_hz)).astype(np.int64)
         return FleetBatch(t_ns=t_ns, mag_ut=mag, acc_ms2=acc, heading_deg=np.mod(heading, 360.0),
-                          pitch_deg=pitch, roll_deg=wrap_roll(roll))
+                          pitch_deg=pitch, roll_deg=wrap_roll(roll),
+                          gyr_rads=self._rates(index, heading, pitch, roll) if self._gyro else None)
+
+    def _attitude(self, index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(heading, pitch, roll) degrees (D, n) at sample indices (n,)."""
+        t_s = index / self.rate_hz
+        turns = 2.0 * np.pi * self._frequency_hz[:, None, :] * t_s[None, :, None] + self._phase[:, None, :]
+        return np.degrees(turns[..., 2]), TUMBLE_PITCH_AMPLITUDE_DEG * np.sin(turns[..., 0]), np.degrees(turns[..., 1])
+
+    def _rates(self, index: np.ndarray, heading: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
+        """Body rates (D, n, 3) rad/s from the attitude one sample earlier to each sample's, plus noise."""
+        before = euler_to_quaternion(*self._attitude(index - 1))
+        step = quaternion_multiply(quaternion_conjugate(before), euler_to_quaternion(heading, pitch, roll))
+        rates = quaternion_to_rotation_vector(step) * self.rate_hz
+        if self._gyro_noise:
+            rates += self._gyro_noise * self._gyro_rng.standard_normal(rates.shape)
+        return rates

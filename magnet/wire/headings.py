@@ -12,6 +12,7 @@ FIELD_DISTURBED (|B| away from the expected field) and DIP_DISTURBED (dip away f
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from typing import Any
 from collections.abc import Sequence
 
@@ -108,7 +109,7 @@ def _quaternions(quat_wxyz: np.ndarray | None, bounds: Sequence[int]) -> tuple[l
         return [], [False] * (len(bounds) - 1)
     quat = np.asarray(quat_wxyz, dtype=float)
     finite = np.isfinite(quat).all(axis=1)
-    ok = [bool(finite[lo:hi].all()) for lo, hi in zip(bounds[:-1], bounds[1:])]
+    ok = [bool(finite[lo:hi].all()) for lo, hi in itertools.pairwise(bounds)]
     return quat.tolist(), ok
 
 

@@ -13,6 +13,7 @@ payload (plus the simulator's truth), so both give the same verdict and the same
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from typing import Any
 from collections.abc import Mapping, Sequence
 
@@ -96,7 +97,7 @@ class RawColumns:
         """One RawBatch (views) per batch."""
         bounds = self.bounds
         out = []
-        for i, (lo, hi) in enumerate(zip(bounds[:-1], bounds[1:])):
+        for i, (lo, hi) in enumerate(itertools.pairwise(bounds)):
             acc, gyr = self.acc_ms2[lo:hi], self.gyr_rads[lo:hi]
             out.append(RawBatch(self.devices[i], self.seqs[i], self.sensors[i], self.t_ns[lo:hi], self.mag_ut[lo:hi],
                                 None if np.isnan(acc).all() else acc, None,

@@ -129,7 +129,7 @@ def _fit_data(method: str, errors: SensorErrors, settings: AccuracySettings, see
 
 
 def _trial_errors(settings: AccuracySettings, earth: EarthField, misalignment_deg: float) -> list[SensorErrors]:
-    rng = np.random.default_rng([settings.seed, int(round(misalignment_deg * 1000))])
+    rng = np.random.default_rng([settings.seed, round(misalignment_deg * 1000)])
     return [SensorErrors.random(rng, earth.total_ut, hard_iron_max_ratio=settings.hard_iron_max_ratio,
                                 soft_iron_max=settings.soft_iron_max, misalignment_deg=misalignment_deg,
                                 noise_ut=settings.noise_ut, acc_noise_ms2=settings.acc_noise_ms2)
@@ -194,13 +194,13 @@ def fleet_samples_per_s(devices: int = 1000, batch: int = 100, seconds: float = 
 def format_table(rows: list[AccuracyRow], settings: AccuracySettings) -> str:
     """The table as text, with the target verdicts."""
     lines = [
-        f"heading RMS error after calibration (deg), median of {settings.trials} random sensors: "
-        f"hard iron <= {settings.hard_iron_max_ratio:g}x |B|, soft iron +-{settings.soft_iron_max:.0%}, "
-        f"noise {settings.noise_ut:g} uT; fit on {settings.fit_samples} tumble samples "
-        f"({settings.spin_samples} level-spin samples for minmax2d); scored every {settings.heading_step_deg:g} deg, "
-        f"level and {settings.tilt_deg:g} deg tilt",
-        f"{'method':<16}{'misalign':>9}{'level':>9}{'tilted':>9}{'all':>9}{'worst':>9}{'fail':>6}{'reject':>8}"
-        f"{'fit ms':>9}  target",
+        (f"heading RMS error after calibration (deg), median of {settings.trials} random sensors: "
+         f"hard iron <= {settings.hard_iron_max_ratio:g}x |B|, soft iron +-{settings.soft_iron_max:.0%}, "
+         f"noise {settings.noise_ut:g} uT; fit on {settings.fit_samples} tumble samples "
+         f"({settings.spin_samples} level-spin samples for minmax2d); scored every {settings.heading_step_deg:g} deg, "
+         f"level and {settings.tilt_deg:g} deg tilt"),
+        (f"{'method':<16}{'misalign':>9}{'level':>9}{'tilted':>9}{'all':>9}{'worst':>9}{'fail':>6}{'reject':>8}"
+         f"{'fit ms':>9}  target"),
     ]
     for row in rows:
         target = TARGET_RMS_DEG.get((row.method, row.misalignment_deg))

@@ -8,6 +8,7 @@ Synthetic full-sphere data: 50 uT field, hard iron (60, -120, 35) uT, symmetric 
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import statistics
@@ -57,8 +58,8 @@ def run_fit_benchmark() -> str:
     lines = [f"fit of {SAMPLES:,} samples, median of {RUNS} runs (ms); target: ellipsoid well under {TARGET_MS:g} ms",
              f"{'method':<18}{'coefficients':>14}{'fit+quality+gate':>18}"]
     for method in (m for m in Method if m is not Method.TURNTABLE):
-        coefficients = median_ms(lambda: fit_shape(raw, method, acc=acc))
-        whole = median_ms(lambda: fit(raw, method, acc=acc))
+        coefficients = median_ms(functools.partial(fit_shape, raw, method, acc=acc))
+        whole = median_ms(functools.partial(fit, raw, method, acc=acc))
         log.info("%s: %.2f ms coefficients, %.2f ms with quality", method.value, coefficients, whole)
         lines.append(f"{method.value:<18}{coefficients:>14.2f}{whole:>18.2f}")
     robust = median_ms(lambda: fit_shape(raw, Method.MINMAX, robust_extremes=True), runs=3)

@@ -72,7 +72,8 @@ class FleetSource:
 
 
 class StreamSource:
-    """One simulated device read sample by sample from a ``SensorStream`` (no register emulation)."""
+    """One simulated device read sample by sample from a ``SensorStream`` (no register emulation); a moving
+    trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope."""
 
     stats: ReadStats | None = None
 
@@ -83,13 +84,16 @@ class StreamSource:
 
     def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
         n = self.settings.batch
-        mag, acc, truth = np.empty((n, 3)), np.empty((n, 3)), {k: np.empty(n) for k in TRUTH_KEYS}
+        mag, acc, gyr = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        truth = {k: np.empty(n) for k in TRUTH_KEYS}
         for i in range(n):
-            mag[i], acc[i] = self.stream.measure()
+            mag[i], acc[i], gyr[i] = self.stream.measure_imu()
             for k, v in _truth(self.stream).items():
                 truth[k][i] = v
         t_ns = stamp(n, end_ns, int(1e9 / self.settings.rate_hz))
-        return [wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth)]
+        moving = self.settings.simulator.trajectory.moving
+        return [wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth,
+                              gyr if moving else None)]
 
 
 def _open_bus(settings: EdgeSettings, stream: Any) -> Any:
