@@ -48,8 +48,7 @@ from collections.abc import Callable
 import numpy as np
 
 from magnet.model import IDENTITY, Calibration, Quality
-from magnet.quality import motion
-from magnet.quality import GateThresholds, Geometry, assess, gate, scatter_condition, ut_per_unit
+from magnet.quality import GateThresholds, Geometry, assess, gate, motion, scatter_condition, ut_per_unit
 
 
 class Method(enum.Enum):

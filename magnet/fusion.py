@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import vqf
@@ -79,8 +79,8 @@ def down_in_body(quat_wxyz: np.ndarray) -> np.ndarray:
 
 def quat_from_euler(heading_deg, pitch_deg, roll_deg) -> np.ndarray:
     """Body -> NED quaternions (..., 4), w >= 0, from Z-Y-X Euler angles in degrees (``magnet.attitude``)."""
-    half = [np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg, roll_deg)]
-    half = np.broadcast_arrays(*half)
+    half = np.broadcast_arrays(*(np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg,
+                                                                                        roll_deg)))
     zero = np.zeros_like(half[0])
     qz = np.stack([np.cos(half[0]), zero, zero, np.sin(half[0])], axis=-1)
     qy = np.stack([np.cos(half[1]), zero, np.sin(half[1]), zero], axis=-1)
@@ -133,10 +133,8 @@ def _check_period(period_s: float) -> float:
     return period
 
 
-def _to_vqf(vectors: np.ndarray | None, name: str, count: int | None = None) -> np.ndarray | None:
+def _to_vqf(vectors: np.ndarray, name: str, count: int | None = None) -> np.ndarray:
     """(N, 3) body vectors -> C-contiguous float64 in vqf's z-up body frame; ValueError on bad shape or values."""
-    if vectors is None:
-        return None
     arr = np.asarray(vectors, dtype=float)
     if arr.ndim != 2 or arr.shape[1] != 3 or (count is not None and len(arr) != count):
         want = f"({count}, 3)" if count is not None else "(N, 3)"
@@ -202,7 +200,7 @@ class Fusion:
         if len(gyr) == 0:
             return _empty()
         acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
-        field = _to_vqf(mag, "mag", len(gyr))
+        field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
         out = self._filter.updateBatch(gyr, acc, field)
         self.samples += len(gyr)
         return Fused.from_vqf(out, field is not None)
@@ -216,7 +214,7 @@ def fuse_offline(gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | No
     if len(gyr) == 0:
         return _empty()
     acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
-    field = _to_vqf(mag, "mag", len(gyr))
+    field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
     out = vqf.offlineVQF(gyr, acc, field, period, dict(params) if params else None)
     return Fused.from_vqf(out, field is not None)
 

@@ -30,3 +30,12 @@ def test_fusion_beats_accelerometer_tilt_on_every_trial(datasets_dir):
         assert rows[(trial, "accelerometer tilt")] > 5.0
         assert rows[(trial, "fused causal")] < 1.2
         assert rows[(trial, "fused offline")] < rows[(trial, "fused causal")]
+
+
+def test_simulator_rows_score_against_the_truth():
+    settings = motion.SimulatorSettings(seconds=40.0)
+    rows = {estimator: (trial, rms) for trial, estimator, rms
+            in motion.simulator_rows(settings, [motion.Trajectory.FAST_TUMBLE])}
+    assert rows["fused causal"][0] == "fast-tumble (cal: own data)"  # a tumble covers the sphere: own data accepted
+    assert rows["accelerometer tilt"][1] > 10.0
+    assert rows["fused offline"][1] < rows["fused causal"][1] < 0.5

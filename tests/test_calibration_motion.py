@@ -113,7 +113,7 @@ def test_gyroscope_input_errors_are_fit_errors(device):
 
 
 def test_direction_spread_is_zero_for_a_constant_earth_field(device):
-    _, _, mag, truth = device
+    truth = device[3]
     clean = np.einsum("nji,j->ni", quaternion_to_matrix(truth), [20.0, 0.0, 45.0])
     assert motion.direction_spread_deg(clean, truth) < 1e-6
-    assert motion.direction_spread_deg(clean + [5.0, 0.0, 0.0], truth) > 3.0
+    assert motion.direction_spread_deg(clean + np.array([5.0, 0.0, 0.0]), truth) > 3.0

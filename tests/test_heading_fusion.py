@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from fusion_helpers import RATE_HZ, rotating_device
 from helpers import run_magnet as magnet
+
 from magnet import fusion
 from magnet.heading import HeadingFlag, angle_difference_deg
 
@@ -76,7 +76,7 @@ def test_without_gyroscope_tilt_stays_and_offline_is_refused(tmp_path: Path, dev
     out = read_output(result.stdout)
     assert not np.any(out["flags"].astype(int) & HeadingFlag.FUSED)
     quat = np.column_stack([out[k] for k in ("qw", "qx", "qy", "qz")])
-    heading, pitch, roll = fusion.euler_from_quat(quat)
+    heading, pitch, _ = fusion.euler_from_quat(quat)
     assert np.abs(angle_difference_deg(heading, out["heading_deg"])).max() < 1e-3
     assert np.abs(pitch - out["pitch_deg"]).max() < 1e-3
     refused = magnet("heading", str(csv), "--offline")

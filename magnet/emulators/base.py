@@ -64,16 +64,16 @@ class SourceTap:
 
         self._unused_by_mag = False   # the accelerometer drew the latest sample first: the magnetometer gets it too
 
-    def _draw(self) -> None:
+    def _draw(self) -> tuple[np.ndarray, ...]:
         imu = getattr(self.source, "measure_imu", None)
         sample = imu() if imu is not None else (*self.source.measure(), np.zeros(3))
-        self._latest = tuple(np.asarray(v, dtype=float) for v in sample)
+        self._latest = latest = tuple(np.asarray(v, dtype=float) for v in sample)
+        return latest
 
     def mag(self) -> np.ndarray:
-        if not self._unused_by_mag:
-            self._draw()
+        latest = self._latest if self._unused_by_mag and self._latest is not None else self._draw()
         self._unused_by_mag = False
-        return self._latest[0]
+        return latest[0]
 
     def acc(self) -> np.ndarray:
         return self._part(1)
@@ -82,10 +82,11 @@ class SourceTap:
         return self._part(2)
 
     def _part(self, index: int) -> np.ndarray:
-        if self._latest is None:
-            self._draw()
+        latest = self._latest
+        if latest is None:
+            latest = self._draw()
             self._unused_by_mag = True
-        return self._latest[index]
+        return latest[index]
 
 
 class FaultInjector:

@@ -31,8 +31,8 @@ Models (``MODELS``), all deterministic from the generator they are given:
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

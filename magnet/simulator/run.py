@@ -21,8 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import (euler_to_quaternion, quaternion_conjugate, quaternion_multiply,
-                             quaternion_to_matrix, quaternion_to_rotation_vector)
+from magnet.attitude import (
+    euler_to_quaternion,
+    quaternion_conjugate,
+    quaternion_multiply,
+    quaternion_to_matrix,
+    quaternion_to_rotation_vector,
+)
 from magnet.geomag import EarthField, earth_field
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.motion import G_NED, MODELS

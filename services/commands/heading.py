@@ -23,8 +23,8 @@ import numpy as np
 from magnet import fusion
 from magnet import heading as hd
 from magnet.geomag import earth_field, parse_location
-from services.common.csvio import SampleTable, read_samples, write_csv
 from services.commands.fit import add_field_arguments, gyro_columns, load_calibration, sample_period_s
+from services.common.csvio import SampleTable, read_samples, write_csv
 
 COLUMNS = ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg", "field_x_ut", "field_y_ut", "field_z_ut",
            "dip_deg", "flags", "qw", "qx", "qy", "qz")
