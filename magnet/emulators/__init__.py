@@ -13,7 +13,7 @@ from magnet.emulators.base import ConstantSource, EmulatedBus, FaultInjector, So
 __all__ = ["ConstantSource", "EmulatedBus", "FaultInjector", "SourceTap"]
 
 
-def emulator_for(name: str, source=None, **options):
+def emulator_for(name: str, source: Any = None, **options: Any) -> Any:
     """The emulated bus for sensor ``name`` (as in ``magnet.drivers.SENSORS``), fed by ``source``.
 
     For the packages and pairs (``ak09918c+bma456``, ``lsm303dlh``, ``icm20948``, ``lsm9ds1``, ``mpu6050+...``) the

@@ -25,6 +25,7 @@ from typing import Any
 from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
+import numpy.typing as npt
 
 STANDARD_GRAVITY_MS2 = 9.80665
 
@@ -33,8 +34,9 @@ class ConstantSource:
     """A device in a constant field, specific force and angular rate (default: still and level): ``measure()``
     always returns the same (mag_ut, acc_ms2), ``measure_imu()`` the same (mag_ut, acc_ms2, gyr_rads)."""
 
-    def __init__(self, mag_ut=(20.0, 0.0, 45.0), acc_ms2=(0.0, 0.0, -STANDARD_GRAVITY_MS2),
-                 gyr_rads=(0.0, 0.0, 0.0)) -> None:
+    def __init__(self, mag_ut: npt.ArrayLike = (20.0, 0.0, 45.0),
+                 acc_ms2: npt.ArrayLike = (0.0, 0.0, -STANDARD_GRAVITY_MS2),
+                 gyr_rads: npt.ArrayLike = (0.0, 0.0, 0.0)) -> None:
         self.mag_ut = np.asarray(mag_ut, dtype=float)
         self.acc_ms2 = np.asarray(acc_ms2, dtype=float)
         self.gyr_rads = np.asarray(gyr_rads, dtype=float)
