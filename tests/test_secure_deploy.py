@@ -139,6 +139,10 @@ def test_every_role_does_its_job_through_the_secure_router(site):
     viewer = subprocess.run([*MAGNET, *site.argv("calibrate")[:-2], "--config", str(site.dir / "viewer.json5"),
                              "--timeout", "2"], capture_output=True, text=True, timeout=20)
     assert viewer.returncode == 1 and "no calibrator answered" in viewer.stderr, "a viewer cannot drive sessions"
+    fleet = subprocess.run([*MAGNET, "get", "fleet", "--config", str(site.dir / "viewer.json5"), "--timeout", "3"],
+                           capture_output=True, text=True, timeout=20)
+    assert fleet.returncode == 0, fleet.stderr
+    assert [d["calibration_id"] for d in json.loads(fleet.stdout)["devices"]] == [record["id"]], "a viewer sees the fleet"
     for name in ("calibrator", "compass", "edge"):
         assert site.alive(name), site.log(name)
 
