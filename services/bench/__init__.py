@@ -13,6 +13,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "pipeline": ("services.bench.pipeline", "run_pipeline_benchmark"),
     "motion": ("services.bench.motion", "run_motion_benchmark"),
     "fleet": ("services.bench.fleet", "run_fleet_benchmark"),
+    "dashboard": ("services.bench.dashboard", "run_dashboard_benchmark"),
 }
 
 
@@ -31,6 +32,10 @@ def run(args: argparse.Namespace) -> int:
         if args.devices < 1 or args.rate <= 0 or args.batch < 1 or args.seconds <= 0:
             raise ValueError("--devices, --rate, --batch and --seconds must be positive")
         result = function(devices=args.devices, rate=args.rate, batch=args.batch, seconds=args.seconds)
+    elif args.benchmark == "dashboard":
+        if args.devices < 1 or args.seconds <= 0:
+            raise ValueError("--devices and --seconds must be positive")
+        result = function(devices=args.devices, seconds=args.seconds)
     elif args.benchmark == "fleet":
         if args.devices < 1:
             raise ValueError("--devices must be positive")
