@@ -1,5 +1,5 @@
-"""``magnet bench accuracy|fit|pipeline|motion|fleet|dashboard``: benchmarks that print figures (targets live here, not in
-timed tests)."""
+"""``magnet bench accuracy|fit|pipeline|motion|fleet|dashboard``: benchmarks that print figures (targets live here,
+not in timed tests)."""
 
 from __future__ import annotations
 
