@@ -178,8 +178,8 @@ def _fleet(http_port: int) -> dict[str, Any]:
 def _summary(devices: int, cpu: float, page: dict[str, Any], fleet: dict[str, Any], received: float) -> str:
     age = page.get("age_ms_p50_p99")
     lines = [
-        f"dashboard bench: {devices} devices x {RATE_HZ:g} Hz headings ({BATCH} samples each); the dashboard received "
-        f"{received:,.0f} messages/s (target {devices * RATE_HZ:,.0f})",
+        (f"dashboard bench: {devices} devices x {RATE_HZ:g} Hz headings ({BATCH} samples each); the dashboard received "
+        f"{received:,.0f} messages/s (target {devices * RATE_HZ:,.0f})"),
         (f"  dashboard process CPU: {100 * cpu:.0f} % of one core; fleet rows: {len(fleet['rows'])}, "
         f"alive {fleet['summary']['alive']}"),
         f"  page ({page['client']}): {page['events_per_s']:.1f} events/s, {page['rows_per_s']:,.0f} rows/s"
