@@ -24,8 +24,16 @@ import zenoh
 from magnet import heading as hd
 from magnet import signing, wire
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
-from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
-                                           stop_event)
+from magnet.fleet_fusion import FleetFusion, merge
+from magnet.fusion import rotate_heading
+from services.common.zenoh_session import (
+    ZenohSettings,
+    add_zenoh_arguments,
+    drain,
+    open_session,
+    payload_bytes,
+    stop_event,
+)
 
 log = logging.getLogger("magnet.compass")
 
@@ -104,6 +112,7 @@ class HeadingColumns:
     headings: Headings
     true_heading_deg: np.ndarray
     calibration_ids: list[str]
+    quat_wxyz: np.ndarray | None = None  # (S, 4) body -> NED (true north); NaN rows where there is no attitude
 
 
 class Compass:
@@ -119,6 +128,7 @@ class Compass:
         self.refused_overflow = False
         self.calibrations: dict[str, wire.DeviceCalibration] = {}
         self.tails: dict[str, np.ndarray] = {}
+        self.fusion = FleetFusion()  # one gyroscope-aided filter per device that sends a gyroscope
         self.drops = wire.DropCounter()
         self.received_batches = self.received_samples = self.published_batches = 0
         self.calibration_updates = 0
@@ -210,6 +220,7 @@ class Compass:
                              counts, axis=0)
         calibrated = np.repeat(np.array([c is not None for c in cals], dtype=bool), counts)
         out = compute_headings(columns.mag_ut, columns.acc_ms2, offsets, matrices, calibrated, self.earth)
+        out, quat = self._fuse(columns, out)
         self.received_batches += len(columns.devices)
         self.received_samples += int(counts.sum())
         if self.window > 1:
@@ -218,14 +229,28 @@ class Compass:
                 [self._smooth(device, out.heading_deg[bounds[i]:bounds[i + 1]])
                  for i, device in enumerate(columns.devices)] or [np.empty(0)]))
         return HeadingColumns(out, hd.true_heading_deg(out.heading_deg, self.earth.declination_deg),
-                              [c.id if c else "" for c in cals])
+                              [c.id if c else "" for c in cals],
+                              None if quat is None else rotate_heading(quat, self.earth.declination_deg))
+
+    def _fuse(self, columns: wire.RawColumns, out: Headings) -> tuple[Headings, np.ndarray | None]:
+        """The fused attitude in place of the tilt one for the batches that carry a gyroscope (``magnet.fleet_fusion``;
+        bad gyroscope samples counted as dropped), and the fused quaternions (S, 4) body -> magnetic NED or None."""
+        fused = self.fusion.update(columns.devices, columns.seqs, columns.bounds, columns.t_ns, columns.gyr_rads,
+                                   columns.acc_ms2, out.field_ut)
+        for cause, count in fused.dropped.items():
+            if self.drops.count(f"raw:{cause}"):
+                log.warning("dropping gyroscope samples (%s); further ones only counted", cause)
+            self.drops.counts[f"raw:{cause}"] += count - 1
+        heading, pitch, roll, flags, quat = merge(out.heading_deg, out.pitch_deg, out.roll_deg, out.flags,
+                                                  out.field_ut, fused, self.earth.total_ut, self.earth.inclination_deg)
+        return Headings(out.field_ut, heading, pitch, roll, flags), quat
 
     def encode(self, columns: wire.RawColumns) -> list[bytes]:
         """One heading payload per raw batch of ``columns``, in order."""
         out = self.compute(columns)
         h = out.headings
         return wire.encode_headings(columns, h.heading_deg, out.true_heading_deg, h.pitch_deg, h.roll_deg, h.field_ut,
-                                    h.flags, self.earth.declination_deg, out.calibration_ids)
+                                    h.flags, self.earth.declination_deg, out.calibration_ids, out.quat_wxyz)
 
     def process(self, batches: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
         """Heading batches, one per raw batch, computed in one vectorized pass."""
@@ -235,9 +260,11 @@ class Compass:
         out = self.compute(columns)
         h = out.headings
         bounds = columns.bounds
+        quat = out.quat_wxyz
         return [wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, h.heading_deg[lo:hi],
                                   out.true_heading_deg[lo:hi], h.pitch_deg[lo:hi], h.roll_deg[lo:hi],
-                                  h.field_ut[lo:hi], self.earth.declination_deg, cal_id, h.flags[lo:hi])
+                                  h.field_ut[lo:hi], self.earth.declination_deg, cal_id, h.flags[lo:hi],
+                                  quat[lo:hi] if quat is not None and np.isfinite(quat[lo:hi]).all() else None)
                 for batch, cal_id, lo, hi in zip(batches, out.calibration_ids, bounds[:-1], bounds[1:])]
 
     def _smooth(self, device: str, heading: np.ndarray) -> np.ndarray:
