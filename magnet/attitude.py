@@ -15,6 +15,7 @@ frame is R.T @ v_ned. All angles in degrees; every function broadcasts over lead
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 
 def _axis_rotation(angle_deg: np.ndarray, axis: int) -> np.ndarray:
@@ -31,7 +32,7 @@ def _axis_rotation(angle_deg: np.ndarray, axis: int) -> np.ndarray:
     return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
-def euler_to_matrix(yaw_deg, pitch_deg, roll_deg) -> np.ndarray:
+def euler_to_matrix(yaw_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> np.ndarray:
     """Body-to-NED rotation R = Rz(yaw) Ry(pitch) Rx(roll), shape broadcast(angles) + (3, 3)."""
     yaw, pitch, roll = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (yaw_deg, pitch_deg, roll_deg)))
     return _axis_rotation(yaw, 2) @ _axis_rotation(pitch, 1) @ _axis_rotation(roll, 0)
@@ -60,7 +61,7 @@ def body_to_ned(matrix: np.ndarray, vector_body: np.ndarray) -> np.ndarray:
     return np.einsum("...ij,...j->...i", np.asarray(matrix, dtype=float), np.asarray(vector_body, dtype=float))
 
 
-def axis_angle_matrix(axis: np.ndarray, angle_deg) -> np.ndarray:
+def axis_angle_matrix(axis: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarray:
     """Rotation by ``angle_deg`` about unit-normalised ``axis`` (..., 3) (Rodrigues' formula) -> (..., 3, 3)."""
     k = np.asarray(axis, dtype=float)
     norm = np.linalg.norm(k, axis=-1, keepdims=True)
@@ -121,7 +122,8 @@ def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
     return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def euler_to_quaternion(yaw_deg, pitch_deg, roll_deg) -> np.ndarray:
+def euler_to_quaternion(yaw_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike
+                        ) -> np.ndarray:
     """Body-to-NED unit quaternion (..., 4) wxyz of Rz(yaw) Ry(pitch) Rx(roll) (degrees, any values, broadcast);
     continuous in the angles (no sign flips), so a smooth angle history gives a smooth quaternion history."""
     yaw, pitch, roll = np.broadcast_arrays(*(np.radians(np.asarray(a, dtype=float)) / 2.0

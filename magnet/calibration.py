@@ -303,6 +303,8 @@ def _ellipsoid_system(mag: np.ndarray, params: np.ndarray) -> tuple[float, np.nd
 
 
 def _ellipsoid_align(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+    if acc is None:
+        raise FitError("ellipsoid+align needs accelerometer samples (ax, ay, az) beside the field")
     base = _ellipsoid(mag, acc, robust)
     gravity = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
     field = (mag - base.offset) @ base.matrix.T

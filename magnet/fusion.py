@@ -29,6 +29,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import vqf
 
 from magnet.attitude import matrix_to_euler, quaternion_to_matrix
@@ -77,7 +78,7 @@ def down_in_body(quat_wxyz: np.ndarray) -> np.ndarray:
     return quaternion_to_matrix(quat_wxyz)[..., 2, :]
 
 
-def quat_from_euler(heading_deg, pitch_deg, roll_deg) -> np.ndarray:
+def quat_from_euler(heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> np.ndarray:
     """Body -> NED quaternions (..., 4), w >= 0, from Z-Y-X Euler angles in degrees (``magnet.attitude``)."""
     half = np.broadcast_arrays(*(np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg,
                                                                                         roll_deg)))
@@ -89,7 +90,7 @@ def quat_from_euler(heading_deg, pitch_deg, roll_deg) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
-def rotate_heading(quat_wxyz: np.ndarray, angle_deg) -> np.ndarray:
+def rotate_heading(quat_wxyz: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarray:
     """Quaternions (..., 4) turned by ``angle_deg`` about NED down (magnetic -> true north: the declination)."""
     half = np.radians(np.asarray(angle_deg, dtype=float)) / 2
     turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)

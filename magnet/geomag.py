@@ -15,6 +15,7 @@ import datetime as _dt
 import functools
 import math
 import threading
+from typing import Any
 
 COEFFICIENTS_FILE = "wmm/WMM_2025.COF"
 MODEL_START_YEAR = 2025.0
@@ -67,10 +68,11 @@ def decimal_year(date: DateLike = None) -> float:
         return year
     if isinstance(date, str):
         try:
-            date = _dt.date.fromisoformat(date.strip())
+            text = date.strip()
+            date = _dt.date.fromisoformat(text)
         except ValueError:
             try:
-                return decimal_year(float(date))
+                return decimal_year(float(text))
             except ValueError:
                 raise ValueError(f"date {date!r} is neither 'YYYY-MM-DD' nor a decimal year such as 2026.5") from None
     if isinstance(date, _dt.datetime):
@@ -83,7 +85,7 @@ def decimal_year(date: DateLike = None) -> float:
 
 
 @functools.lru_cache(maxsize=1)
-def _model():
+def _model() -> Any:
     from pygeomag import GeoMag  # imported lazily: pure Python, no network or bus
 
     return GeoMag(coefficients_file=COEFFICIENTS_FILE)
@@ -140,7 +142,7 @@ def earth_field(lat_deg: float, lon_deg: float, alt_m: float = 0.0, date: DateLi
 
 
 def parse_location(text: str) -> tuple[float, float, float]:
-    """``"LAT,LON[,ALT_M]"`` (degrees, degrees, metres) -> (lat, lon, alt_m). Raises ValueError with the expected form."""
+    """``"LAT,LON[,ALT_M]"`` (degrees, degrees, metres) -> (lat, lon, alt_m); ValueError naming the expected form."""
     parts = [p.strip() for p in str(text).split(",")]
     if len(parts) not in (2, 3) or any(p == "" for p in parts):
         raise ValueError(f"location {text!r} must be LAT,LON or LAT,LON,ALT_M (e.g. 50.45,30.52,180)")

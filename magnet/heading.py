@@ -14,6 +14,7 @@ import enum
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 #: below this fraction of the norm a vector is treated as missing (no tilt, no horizontal field)
 _TINY = 1e-12
@@ -30,13 +31,13 @@ class HeadingFlag(enum.IntFlag):
     FUSED = 16           # attitude from the gyroscope-aided filter (magnet.fusion); without it, accelerometer tilt
 
 
-def wrap_deg(angle_deg) -> np.ndarray:
+def wrap_deg(angle_deg: npt.ArrayLike) -> np.ndarray:
     """Angles wrapped to [0, 360)."""
     wrapped = np.mod(np.asarray(angle_deg, dtype=float), 360.0)
     return np.where(wrapped >= 360.0, 0.0, wrapped)  # mod of a tiny negative number can round up to 360
 
 
-def angle_difference_deg(a_deg, b_deg) -> np.ndarray:
+def angle_difference_deg(a_deg: npt.ArrayLike, b_deg: npt.ArrayLike) -> np.ndarray:
     """Signed difference a - b wrapped to [-180, 180): the right way to compare two headings."""
     return np.mod(np.asarray(a_deg, dtype=float) - np.asarray(b_deg, dtype=float) + 180.0, 360.0) - 180.0
 
@@ -105,7 +106,7 @@ def heading_uncertainty_deg(field: np.ndarray, acc: np.ndarray, field_error_ut: 
     return np.where(horizontal > _TINY, sigma, 180.0)
 
 
-def true_heading_deg(magnetic_deg, declination_deg) -> np.ndarray:
+def true_heading_deg(magnetic_deg: npt.ArrayLike, declination_deg: npt.ArrayLike) -> np.ndarray:
     """True heading = magnetic heading + declination (east positive), wrapped to [0, 360)."""
     return wrap_deg(np.asarray(magnetic_deg, dtype=float) + np.asarray(declination_deg, dtype=float))
 

@@ -153,7 +153,7 @@ class Quality:
         return _jsonable({**out, **self.extra})
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> Quality:
+    def from_dict(cls, data: Mapping[str, Any] | Quality | None) -> Quality:
         """Read the flat map ``to_dict`` writes (unknown keys go to ``extra``); ValueError when a figure has the
         wrong type."""
         if data is None:

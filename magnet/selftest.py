@@ -16,10 +16,12 @@ gives the same with the opposite sign. With the gain GN in use (LSB per gauss fr
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
-from magnet.model import Calibration
+from magnet.model import Calibration, Quality
 
 #: the straps' bias field per axis x, y, z, in gauss
 BIAS_FIELD_GA = np.array([1.16, 1.16, 1.08])
@@ -69,13 +71,13 @@ class SelfTestResult:
     scale: np.ndarray
     message: str
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"gain": self.gain, "passed": self.passed, "message": self.message, "limits": list(self.limits),
                 **{k: getattr(self, k).tolist() for k in
                    ("positive", "negative", "expected", "measured", "axis_passed", "scale")}}
 
 
-def evaluate(positive_counts, negative_counts, gain: int) -> SelfTestResult:
+def evaluate(positive_counts: npt.ArrayLike, negative_counts: npt.ArrayLike, gain: int) -> SelfTestResult:
     """Judge positive and negative bias readings (counts (3,), x, y, z) taken at gain GN."""
     positive = np.asarray(positive_counts, dtype=float)
     negative = np.asarray(negative_counts, dtype=float)
@@ -98,7 +100,7 @@ def evaluate(positive_counts, negative_counts, gain: int) -> SelfTestResult:
                           bool(axis_passed.all()), scale, message)
 
 
-def temperature_factor(reference_measured, current_measured) -> np.ndarray:
+def temperature_factor(reference_measured: npt.ArrayLike, current_measured: npt.ArrayLike) -> np.ndarray:
     """Sensitivity compensation factor per axis (3,): reference self-test output / current output.
 
     Multiply readings taken now by it to restore the sensitivity the axis had at the reference temperature.
@@ -118,6 +120,6 @@ def to_calibration(result: SelfTestResult) -> Calibration:
         raise ValueError(f"no calibration from a failed self-test: {result.message}")
     ut_per_count = 100.0 / LSB_PER_GAUSS[result.gain]
     return Calibration(method="selftest", offset=np.zeros(3), matrix=np.diag(result.scale),
-                       unit="ut", output_unit="ut", quality={"selftest": result.to_dict(),
-                                                             "ut_per_count_at_gain": ut_per_count},
+                       unit="ut", output_unit="ut",
+                       quality=Quality.from_dict({"selftest": result.to_dict(), "ut_per_count_at_gain": ut_per_count}),
                        accepted=True, reason=result.message)

@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+import numpy.typing as npt
 
 from magnet.calibration import FitError
 from magnet.model import Calibration
@@ -97,7 +98,8 @@ def average_by_angle(mag: np.ndarray, heading_deg: np.ndarray) -> dict[int, np.n
     return means
 
 
-def _check_inputs(mag, mounting, heading_deg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _check_inputs(mag: npt.ArrayLike, mounting: npt.ArrayLike, heading_deg: npt.ArrayLike
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     mag = np.asarray(mag, dtype=float)
     mounting = np.asarray(mounting).astype(str)
     heading = np.asarray(heading_deg, dtype=float)
@@ -114,7 +116,7 @@ def _check_inputs(mag, mounting, heading_deg) -> tuple[np.ndarray, np.ndarray, n
     return mag, mounting, heading
 
 
-def fit_turntable(mag: np.ndarray, mounting: np.ndarray, heading_deg: np.ndarray, horizontal: float,
+def fit_turntable(mag: npt.ArrayLike, mounting: npt.ArrayLike, heading_deg: npt.ArrayLike, horizontal: float,
                   vertical: float, variant: str = "closed", *, unit: str = "counts", field_unit: str = "ut",
                   gate_thresholds: GateThresholds | None = None) -> Calibration:
     """Calibration from turntable samples: mag (N,3) raw, mounting (N,) "a"/"b", heading_deg (N,) table angle.

@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "keys": ("services.commands.keys", "an Ed25519 key pair for signing calibrations (NAME.key, NAME.pub)"),
     "certs": ("services.commands.certs", "a site CA, certificates per role and the router/client configs (TLS, ACL)"),
     "up": ("services.commands.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
+    "dashboard": ("services.dashboard.service", "serve a live web page of the fleet (and calibration control)"),
 }
 
 

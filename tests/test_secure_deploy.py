@@ -224,9 +224,11 @@ def test_unauthenticated_and_wrong_ca_clients_are_refused(site, tmp_path):
         pass  # the right password on the password listener is let in
     for name, config in (("wrong CA", wrong_ca), ("no certificate", no_cert), ("bad password", bad_password),
                          ("plain TCP", plain)):
-        with pytest.raises(zenoh.ZError):
+        try:
             zenoh.open(config).close()
-            pytest.fail(f"{name}: the router let it in")
+        except zenoh.ZError:
+            continue  # refused, as it must be
+        pytest.fail(f"{name}: the router let it in")
 
 
 def test_deploy_readme_steps_are_the_tested_ones():

@@ -75,7 +75,7 @@ def test_automatic_calibration_is_stored_published_and_then_collection_stops(sto
     assert calibrator.state("d").value == "calibrated" and "d" not in calibrator.collections
     kinds = [k for k, d, p in published]
     assert wire.Kind.CALIBRATION in kinds and wire.Kind.PROGRESS in kinds
-    assert wire.decode_calibration([p for k, d, p in published if k is wire.Kind.CALIBRATION][0]).id == record.id
+    assert wire.decode_calibration(next(p for k, d, p in published if k is wire.Kind.CALIBRATION)).id == record.id
     # a restarted calibrator serves what it stored
     again = _calibrator(store, [])
     assert again.in_force["d"].id == record.id and again.state("d").value == "calibrated"

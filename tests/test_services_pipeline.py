@@ -91,8 +91,9 @@ conf.insert_json5("connect/endpoints", '["tcp/127.0.0.1:%s", "tcp/127.0.0.1:%s"]
 conf.insert_json5("scouting/multicast/enabled", "false")
 good = {"v": 1, "device": "g-1", "seq": 0, "sensor": "x", "t_ns": [1], "mag_ut": [[1.0, 2.0, 3.0]]}
 payloads = [b"\xc1not msgpack", msgpack.packb([1, 2]), msgpack.packb({**good, "v": 9}),
-            msgpack.packb({**good, "mag_ut": [[float("nan"), 0.0, 0.0]]}), msgpack.packb({**good, "mag_ut": [[1e9, 0, 0]]}),
-            msgpack.packb({**good, "mag_ut": [[1.0, 2.0]]}), msgpack.packb({**good, "device": "other"}), b"\x00" * 5_000_000]
+            msgpack.packb({**good, "mag_ut": [[float("nan"), 0.0, 0.0]]}),
+            msgpack.packb({**good, "mag_ut": [[1e9, 0, 0]]}), msgpack.packb({**good, "mag_ut": [[1.0, 2.0]]}),
+            msgpack.packb({**good, "device": "other"}), b"\x00" * 5_000_000]
 services = {"magnet/@alive/compass/compass", "magnet/@alive/calibrator/calibrator"}
 seen, reachable = set(), threading.Event()
 

@@ -5,8 +5,14 @@ import numpy as np
 import pytest
 
 from magnet import simulator as sim
-from magnet.attitude import (ned_to_body, quaternion_multiply, quaternion_to_euler, quaternion_to_matrix,
-                             rotation_angle_deg, rotation_vector_to_quaternion)
+from magnet.attitude import (
+    ned_to_body,
+    quaternion_multiply,
+    quaternion_to_euler,
+    quaternion_to_matrix,
+    rotation_angle_deg,
+    rotation_vector_to_quaternion,
+)
 from magnet.heading import angle_difference_deg, pitch_roll_deg
 
 DATE = "2026-03-01"

@@ -38,7 +38,8 @@ def test_kill_9_during_writes_leaves_complete_records(tmp_path):
     path = tmp_path / "c.db"
     code = (
         "import sys, numpy as np\n"
-        "from magnet import wire\nfrom magnet.model import Calibration\nfrom services.calibrator.store import CalibrationStore\n"
+        "from magnet import wire\nfrom magnet.model import Calibration\n"
+        "from services.calibrator.store import CalibrationStore\n"
         f"s = CalibrationStore({str(path)!r})\n"
         "i = 0\n"
         "while True:\n"

@@ -22,8 +22,8 @@ lies flat, top up, x forward.
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

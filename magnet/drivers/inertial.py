@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 

@@ -22,8 +22,8 @@ is (-x, -y, -z) of the magnetometer's codes.
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

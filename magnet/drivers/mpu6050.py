@@ -16,8 +16,8 @@ along the MPU-6050's x (both mapped to the body frame the same way); ``orientati
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError
 from magnet.drivers.inertial import RAD_PER_DEG, Z_UP_TO_BODY, NineAxis, choose, mounting, saturated, words
@@ -78,7 +78,7 @@ class MPU6050(Sensor):
                        gyr_rads=gyro / self.lsb_per_dps * RAD_PER_DEG)
 
 
-def with_magnetometer(magnetometer_class: type[Sensor], bus: I2CBus, address: int, orientation: Any, *,
+def with_magnetometer(magnetometer_class: Callable[..., Sensor], bus: I2CBus, address: int, orientation: Any, *,
                       acc_address: int = DEFAULT_ADDRESS, accel_range_g: int = 4, gyro_range_dps: int = 2000,
                       rate_hz: int = 100, retry: RetryPolicy | None = None,
                       sleep: Callable[[float], None] | None = None, **magnetometer_options: Any) -> NineAxis:

@@ -5,12 +5,15 @@ map that behaves as the chip's datasheet says; ``source.measure() -> (mag_ut (3,
 field and specific force in the body frame, and ``source.measure_imu()`` (when there) adds the angular rate gyr_rads.
 """
 
+from collections.abc import Callable
+from typing import Any
+
 from magnet.emulators.base import ConstantSource, EmulatedBus, FaultInjector, SourceTap
 
 __all__ = ["ConstantSource", "EmulatedBus", "FaultInjector", "SourceTap"]
 
 
-def emulator_for(name: str, source=None, **options):
+def emulator_for(name: str, source: Any = None, **options: Any) -> Any:
     """The emulated bus for sensor ``name`` (as in ``magnet.drivers.SENSORS``), fed by ``source``.
 
     For the packages and pairs (``ak09918c+bma456``, ``lsm303dlh``, ``icm20948``, ``lsm9ds1``, ``mpu6050+...``) the
@@ -20,7 +23,7 @@ def emulator_for(name: str, source=None, **options):
     """
     from magnet.emulators import ak09918c, hmc5883l, icm20948, lsm9ds1, lsm303dlh, mpu6050, qmc5883l
 
-    table = {
+    table: dict[str, Callable[..., Any]] = {
         "hmc5883l": hmc5883l.HMC5883LEmulator,
         "qmc5883l": qmc5883l.QMC5883LEmulator,
         "lsm303dlh": lsm303dlh.LSM303DLHEmulator,

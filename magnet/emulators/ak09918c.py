@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from magnet.emulators.base import FaultInjector, MagnetometerDevice, SourceTap
+from magnet.emulators.base import EmulatedBus, FaultInjector, MagnetometerDevice, SourceTap
 
 UT_PER_LSB = 0.15
 _CONTINUOUS_HZ = {0x02: 10.0, 0x04: 20.0, 0x06: 50.0, 0x08: 100.0}
@@ -90,9 +90,8 @@ class AK09918CEmulator(MagnetometerDevice):
 
 def ak09918c_bma456_bus(source: Any = None, *, acc_address: int = 0x18, rotation: Any = None,
                         clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                        **mag_options: Any):
+                        **mag_options: Any) -> EmulatedBus:
     """An AK09918C and a BMA456 on one bus, fed by one source (as on the seed 004 board)."""
-    from magnet.emulators.base import EmulatedBus
     from magnet.emulators.bma456 import BMA456Emulator
     tap = SourceTap(source)
     return EmulatedBus(AK09918CEmulator(tap=tap, rotation=rotation, clock=clock, **mag_options),

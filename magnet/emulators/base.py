@@ -25,6 +25,7 @@ from typing import Any
 from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
+import numpy.typing as npt
 
 STANDARD_GRAVITY_MS2 = 9.80665
 
@@ -33,8 +34,9 @@ class ConstantSource:
     """A device in a constant field, specific force and angular rate (default: still and level): ``measure()``
     always returns the same (mag_ut, acc_ms2), ``measure_imu()`` the same (mag_ut, acc_ms2, gyr_rads)."""
 
-    def __init__(self, mag_ut=(20.0, 0.0, 45.0), acc_ms2=(0.0, 0.0, -STANDARD_GRAVITY_MS2),
-                 gyr_rads=(0.0, 0.0, 0.0)) -> None:
+    def __init__(self, mag_ut: npt.ArrayLike = (20.0, 0.0, 45.0),
+                 acc_ms2: npt.ArrayLike = (0.0, 0.0, -STANDARD_GRAVITY_MS2),
+                 gyr_rads: npt.ArrayLike = (0.0, 0.0, 0.0)) -> None:
         self.mag_ut = np.asarray(mag_ut, dtype=float)
         self.acc_ms2 = np.asarray(acc_ms2, dtype=float)
         self.gyr_rads = np.asarray(gyr_rads, dtype=float)
@@ -64,16 +66,16 @@ class SourceTap:
 
         self._unused_by_mag = False   # the accelerometer drew the latest sample first: the magnetometer gets it too
 
-    def _draw(self) -> None:
+    def _draw(self) -> tuple[np.ndarray, ...]:
         imu = getattr(self.source, "measure_imu", None)
         sample = imu() if imu is not None else (*self.source.measure(), np.zeros(3))
-        self._latest = tuple(np.asarray(v, dtype=float) for v in sample)
+        self._latest = latest = tuple(np.asarray(v, dtype=float) for v in sample)
+        return latest
 
     def mag(self) -> np.ndarray:
-        if not self._unused_by_mag:
-            self._draw()
+        latest = self._latest if self._unused_by_mag and self._latest is not None else self._draw()
         self._unused_by_mag = False
-        return self._latest[0]
+        return latest[0]
 
     def acc(self) -> np.ndarray:
         return self._part(1)
@@ -82,10 +84,11 @@ class SourceTap:
         return self._part(2)
 
     def _part(self, index: int) -> np.ndarray:
-        if self._latest is None:
-            self._draw()
+        latest = self._latest
+        if latest is None:
+            latest = self._draw()
             self._unused_by_mag = True
-        return self._latest[index]
+        return latest[index]
 
 
 class FaultInjector:

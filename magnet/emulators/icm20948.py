@@ -17,8 +17,8 @@ Axes: the ICM is z up (``magnet.emulators.inertial``); the AK09916's x, y, z are
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
 from collections.abc import Callable
+from typing import Any, ClassVar
 
 import numpy as np
 

@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 from collections.abc import Callable
 
 import numpy as np
+import numpy.typing as npt
 
 from magnet.emulators.base import STANDARD_GRAVITY_MS2, EmulatedBus, FaultInjector, SensorDevice, SourceTap
 from magnet.emulators.hmc5883l import AMRMagnetometerEmulator
@@ -77,7 +78,7 @@ class LSM303DLHAccEmulator(SensorDevice):
 class LSM303DLHEmulator(EmulatedBus):
     """Both halves on one bus with one source; ``.mag`` and ``.acc`` are the two chips."""
 
-    def __init__(self, source: Any = None, *, acc_address: int = 0x18, gain_error=(0.0, 0.0, 0.0),
+    def __init__(self, source: Any = None, *, acc_address: int = 0x18, gain_error: npt.ArrayLike = (0.0, 0.0, 0.0),
                  temperature_c: float = 25.0, tempco_per_k: float = 0.0, rotation: Any = None,
                  clock: Callable[[], float] | None = None, faults: FaultInjector | None = None) -> None:
         tap = SourceTap(source)

@@ -22,8 +22,8 @@ Axes: accelerometer and gyroscope z up (``magnet.emulators.inertial``); the magn
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

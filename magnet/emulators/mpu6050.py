@@ -13,8 +13,8 @@ HMC5883L or QMC5883L on one bus.
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

@@ -32,18 +32,55 @@ Everything is deterministic from ``seed``.
 
 from magnet.simulator.errors import REFERENCE_TEMPERATURE_C, SensorErrors
 from magnet.simulator.fleet import FleetBatch, FleetSimulator
-from magnet.simulator.motion import (MODELS, CarModel, FastTumbleModel, Figure8Model, MotionModel,
-                                     MultirotorModel)
-from magnet.simulator.run import (DEFAULT_DATE, DEFAULT_LAT_DEG, DEFAULT_LON_DEG, SensorStream, SimulatedRun,
-                                  SimulatorConfig, simulate)
-from magnet.simulator.trajectories import (GOLDEN_RATIO_MINOR, MOVING_TRAJECTORIES, TENFACE_STATIONS,
-                                           TUMBLE_CYCLES, TUMBLE_PITCH_AMPLITUDE_DEG, TURNTABLE_ANGLES_DEG,
-                                           TURNTABLE_ROLL_DEG, TURNTABLE_STEP_DEG, Trajectory, ned_to_body_euler)
+from magnet.simulator.motion import MODELS, CarModel, FastTumbleModel, Figure8Model, MotionModel, MultirotorModel
+from magnet.simulator.run import (
+                                     DEFAULT_DATE,
+                                     DEFAULT_LAT_DEG,
+                                     DEFAULT_LON_DEG,
+                                     SensorStream,
+                                     SimulatedRun,
+                                     SimulatorConfig,
+                                     simulate,
+)
+from magnet.simulator.trajectories import (
+                                     GOLDEN_RATIO_MINOR,
+                                     MOVING_TRAJECTORIES,
+                                     TENFACE_STATIONS,
+                                     TUMBLE_CYCLES,
+                                     TUMBLE_PITCH_AMPLITUDE_DEG,
+                                     TURNTABLE_ANGLES_DEG,
+                                     TURNTABLE_ROLL_DEG,
+                                     TURNTABLE_STEP_DEG,
+                                     Trajectory,
+                                     ned_to_body_euler,
+)
 
 __all__ = [
-    "CarModel", "DEFAULT_DATE", "DEFAULT_LAT_DEG", "DEFAULT_LON_DEG", "FastTumbleModel", "Figure8Model", "FleetBatch",
-    "FleetSimulator", "GOLDEN_RATIO_MINOR", "MODELS", "MOVING_TRAJECTORIES", "MotionModel", "MultirotorModel",
-    "REFERENCE_TEMPERATURE_C", "SensorErrors", "SensorStream", "SimulatedRun", "SimulatorConfig", "TENFACE_STATIONS",
-    "TUMBLE_CYCLES", "TUMBLE_PITCH_AMPLITUDE_DEG", "TURNTABLE_ANGLES_DEG", "TURNTABLE_ROLL_DEG", "TURNTABLE_STEP_DEG",
-    "Trajectory", "ned_to_body_euler", "simulate",
+                                     "DEFAULT_DATE",
+                                     "DEFAULT_LAT_DEG",
+                                     "DEFAULT_LON_DEG",
+                                     "GOLDEN_RATIO_MINOR",
+                                     "MODELS",
+                                     "MOVING_TRAJECTORIES",
+                                     "REFERENCE_TEMPERATURE_C",
+                                     "TENFACE_STATIONS",
+                                     "TUMBLE_CYCLES",
+                                     "TUMBLE_PITCH_AMPLITUDE_DEG",
+                                     "TURNTABLE_ANGLES_DEG",
+                                     "TURNTABLE_ROLL_DEG",
+                                     "TURNTABLE_STEP_DEG",
+                                     "CarModel",
+                                     "FastTumbleModel",
+                                     "Figure8Model",
+                                     "FleetBatch",
+                                     "FleetSimulator",
+                                     "MotionModel",
+                                     "MultirotorModel",
+                                     "SensorErrors",
+                                     "SensorStream",
+                                     "SimulatedRun",
+                                     "SimulatorConfig",
+                                     "Trajectory",
+                                     "ned_to_body_euler",
+                                     "simulate",
 ]

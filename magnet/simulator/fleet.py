@@ -7,13 +7,16 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import (euler_to_quaternion, quaternion_conjugate, quaternion_multiply,
-                             quaternion_to_rotation_vector)
+from magnet.attitude import (
+    euler_to_quaternion,
+    quaternion_conjugate,
+    quaternion_multiply,
+    quaternion_to_rotation_vector,
+)
 from magnet.geomag import earth_field
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.run import DEFAULT_DATE, DEFAULT_LAT_DEG, DEFAULT_LON_DEG
-from magnet.simulator.trajectories import (GOLDEN_RATIO_MINOR, TUMBLE_PITCH_AMPLITUDE_DEG, ned_to_body_euler,
-                                           wrap_roll)
+from magnet.simulator.trajectories import GOLDEN_RATIO_MINOR, TUMBLE_PITCH_AMPLITUDE_DEG, ned_to_body_euler, wrap_roll
 from magnet.units import STANDARD_GRAVITY_MS2
 
 

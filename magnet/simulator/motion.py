@@ -31,8 +31,8 @@ Models (``MODELS``), all deterministic from the generator they are given:
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -81,11 +81,11 @@ class Segments:
     is a dict of numbers and ``state`` the previous row (None first). Extended lazily as later times are asked for,
     so the plan is the same whether it is evaluated at once or block by block."""
 
-    def __init__(self, rng: np.random.Generator, draw: Callable[[np.random.Generator, dict | None], tuple]) -> None:
+    def __init__(self, rng: np.random.Generator, draw: Callable[[np.random.Generator, dict[str, Any] | None], tuple[float, dict[str, Any]]]) -> None:
         self.rng, self.draw = rng, draw
         self.starts: list[float] = [0.0]
         self.durations: list[float] = []
-        self.rows: list[dict] = []
+        self.rows: list[dict[str, Any]] = []
 
     def locate(self, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
         """For times t (N,) (negative times are the start): (each row field at its segment (N,), u in [0, 1] within
@@ -98,10 +98,10 @@ class Segments:
             self.rows.append(row)
             self.starts.append(self.starts[-1] + float(duration))
         k = np.searchsorted(np.asarray(self.starts), t, side="right") - 1
-        duration = np.asarray(self.durations)[k]
-        u = (t - np.asarray(self.starts)[k]) / duration
+        durations = np.asarray(self.durations)[k]
+        u = (t - np.asarray(self.starts)[k]) / durations
         fields = {name: np.array([row[name] for row in self.rows])[k] for name in self.rows[0]}
-        return fields, u, duration
+        return fields, u, durations
 
 
 def _sign(rng: np.random.Generator) -> float:
@@ -146,7 +146,7 @@ class MultirotorModel(MotionModel):
         self.climb_hz, self.climb_phase = rng.uniform(0.05, 0.1), rng.uniform(0.0, 2.0 * np.pi)
         self.yaw0_deg = rng.uniform(0.0, 360.0)
 
-    def _draw(self, rng: np.random.Generator, last: dict | None) -> tuple[float, dict]:
+    def _draw(self, rng: np.random.Generator, last: dict[str, Any] | None) -> tuple[float, dict[str, Any]]:
         yaw0 = self.yaw0_deg if last is None else last["yaw0"] + last["dyaw"]
         kind = "hover" if last is None else self.KINDS[int(rng.choice(4, p=[0.2, 0.3, 0.3, 0.2]))]
         row = {"yaw0": yaw0, "dyaw": 0.0, "roll": 0.0, "pitch": 0.0}
@@ -196,7 +196,7 @@ class CarModel(MotionModel):
         self.bumps_ms2 = Tones(rng, 1, 3, (8.0, 15.0), 0.3)
         self.yaw0_deg = rng.uniform(0.0, 360.0)
 
-    def _draw(self, rng: np.random.Generator, last: dict | None) -> tuple[float, dict]:
+    def _draw(self, rng: np.random.Generator, last: dict[str, Any] | None) -> tuple[float, dict[str, Any]]:
         yaw0 = self.yaw0_deg if last is None else last["yaw0"] + last["dyaw"]
         speed0 = 0.0 if last is None else last["v0"] + last["dv"]
         if last is None or last["dyaw"] or rng.random() < 0.4:

@@ -21,8 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import (euler_to_quaternion, quaternion_conjugate, quaternion_multiply,
-                             quaternion_to_matrix, quaternion_to_rotation_vector)
+from magnet.attitude import (
+    euler_to_quaternion,
+    quaternion_conjugate,
+    quaternion_multiply,
+    quaternion_to_matrix,
+    quaternion_to_rotation_vector,
+)
 from magnet.geomag import EarthField, earth_field
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.motion import G_NED, MODELS
@@ -112,7 +117,7 @@ class _Generator:
             self.model = MODELS[config.trajectory.value](np.random.default_rng(seeds[6]), self.earth.declination_deg)
         self.b_ned = np.array(self.earth.ned_ut)
 
-    def _attitude(self, index: np.ndarray) -> tuple:
+    def _attitude(self, index: np.ndarray) -> tuple[np.ndarray, ...]:
         """(magnetic heading, pitch, roll, mounting, table) at sample indices (may be -1)."""
         config = self.config
         if self.model is None:
@@ -121,7 +126,8 @@ class _Generator:
         yaw, pitch, roll = self.model.attitude(index / config.rate_hz)
         return yaw, pitch, roll, np.full(index.shape, ""), np.full(index.shape, np.nan)
 
-    def _motion(self, index: np.ndarray, heading, pitch, roll) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _motion(self, index: np.ndarray, heading: np.ndarray, pitch: np.ndarray, roll: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(quat_wxyz (n, 4), body rate (n, 3) rad/s, linear acceleration NED (n, 3)) at the samples."""
         quat = euler_to_quaternion(heading, pitch, roll)
         before = self._attitude(index - 1)

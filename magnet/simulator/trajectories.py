@@ -23,6 +23,7 @@ Moving trajectories (MULTIROTOR, CAR, FIGURE8, FAST_TUMBLE) are functions of tim
 from __future__ import annotations
 
 import enum
+from typing import Any
 
 import numpy as np
 
@@ -64,12 +65,12 @@ MIN_COUNT = {Trajectory.SPIN: 2, Trajectory.TURNTABLE: 2 * len(TURNTABLE_ANGLES_
 # Still trajectories: functions of the phase s in [0, 1) of a run -> magnetic heading, pitch, roll (degrees),
 # mounting and table angle.
 
-def _spin(s: np.ndarray, params: dict) -> tuple:
+def _spin(s: np.ndarray, params: dict[str, Any]) -> tuple[np.ndarray, ...]:
     zero = np.zeros_like(s)
     return 360.0 * s, zero, zero, np.full(s.shape, ""), np.full(s.shape, np.nan)
 
 
-def _turntable(s: np.ndarray, params: dict) -> tuple:
+def _turntable(s: np.ndarray, params: dict[str, Any]) -> tuple[np.ndarray, ...]:
     steps = len(TURNTABLE_ANGLES_DEG)
     station = np.minimum((s * 2 * steps).astype(int), 2 * steps - 1)
     mounting = np.where(station < steps, "a", "b")
@@ -78,7 +79,7 @@ def _turntable(s: np.ndarray, params: dict) -> tuple:
     return table, np.zeros_like(s), roll, mounting, table
 
 
-def _tenface(s: np.ndarray, params: dict) -> tuple:
+def _tenface(s: np.ndarray, params: dict[str, Any]) -> tuple[np.ndarray, ...]:
     stations = np.asarray(TENFACE_STATIONS)
     position = s * len(stations)
     station = np.minimum(position.astype(int), len(stations) - 1)
@@ -86,7 +87,7 @@ def _tenface(s: np.ndarray, params: dict) -> tuple:
     return yaw, stations[station, 0], stations[station, 1], np.full(s.shape, ""), np.full(s.shape, np.nan)
 
 
-def _tumble(s: np.ndarray, params: dict) -> tuple:
+def _tumble(s: np.ndarray, params: dict[str, Any]) -> tuple[np.ndarray, ...]:
     phase = 2.0 * np.pi * s
     pitch_cycles, roll_turns, yaw_turns = TUMBLE_CYCLES
     pitch = TUMBLE_PITCH_AMPLITUDE_DEG * np.sin(pitch_cycles * phase + params["phases"][0])

@@ -247,8 +247,9 @@ def _numbers(messages: Sequence[Mapping[str, Any]], headers: Sequence[_Header]
         if bad.any():
             for i in np.flatnonzero(np.logical_or.reduceat(bad, starts)).tolist():
                 verdicts[i] = verdicts[i] or WireError(cause, text)
-    columns = RawColumns([h.device for h in headers], [h.seq for h in headers], counts, t_ns, *vectors,
-                         [h.sensor for h in headers])
+    mag_ut, acc_ms2, gyr_rads = vectors
+    columns = RawColumns([h.device for h in headers], [h.seq for h in headers], counts, t_ns, mag_ut, acc_ms2,
+                         gyr_rads, [h.sensor for h in headers])
     return columns, verdicts
 
 

@@ -1,4 +1,5 @@
-"""``magnet bench accuracy|fit|pipeline|motion``: benchmarks that print figures (targets live here, not in timed tests)."""
+"""``magnet bench accuracy|fit|pipeline|motion``: benchmarks that print figures (targets live here, not in timed
+tests)."""
 
 from __future__ import annotations
 

@@ -159,9 +159,9 @@ def accuracy_rows(fitter: Fitter = real_fitter, settings: AccuracySettings = Acc
                 err = heading_errors_deg(calibration, errors, earth, attitudes)
                 per_trial.append((_rms(err[level]), _rms(err[~level]), _rms(err)))
             table = np.array(per_trial) if per_trial else np.full((1, 3), np.nan)
-            medians = np.median(table, axis=0)
-            rows.append(AccuracyRow(method, float(misalignment), *map(float, medians), float(table[:, 2].max()),
-                                    settings.trials, failed, rejected))
+            level_rms, tilted_rms, all_rms = (float(m) for m in np.median(table, axis=0))
+            rows.append(AccuracyRow(method, float(misalignment), level_rms, tilted_rms, all_rms,
+                                    float(table[:, 2].max()), settings.trials, failed, rejected))
     return rows
 
 
@@ -197,7 +197,8 @@ def format_table(rows: list[AccuracyRow], settings: AccuracySettings) -> str:
         (f"heading RMS error after calibration (deg), median of {settings.trials} random sensors: "
          f"hard iron <= {settings.hard_iron_max_ratio:g}x |B|, soft iron +-{settings.soft_iron_max:.0%}, "
          f"noise {settings.noise_ut:g} uT; fit on {settings.fit_samples} tumble samples "
-         f"({settings.spin_samples} level-spin samples for minmax2d); scored every {settings.heading_step_deg:g} deg, "
+         f"({settings.spin_samples} level-spin samples for minmax2d); "
+         f"scored every {settings.heading_step_deg:g} deg, "
          f"level and {settings.tilt_deg:g} deg tilt"),
         (f"{'method':<16}{'misalign':>9}{'level':>9}{'tilted':>9}{'all':>9}{'worst':>9}{'fail':>6}{'reject':>8}"
          f"{'fit ms':>9}  target"),

@@ -63,7 +63,8 @@ class _Measurer:
     """Counts heading samples and their latency from a channel drained in its own thread."""
 
     def __init__(self, subscriber: Any) -> None:
-        self.subscriber, self.samples, self.latencies_ns = subscriber, 0, []
+        self.subscriber, self.samples = subscriber, 0
+        self.latencies_ns: list[int] = []
         self.last_ns = time.monotonic_ns()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
@@ -155,18 +156,25 @@ def run_pipeline_benchmark(devices: int, rate: float, batch: int, seconds: float
                   f"generator, not the compass", flush=True)
             break
         current *= 2
-    for _ in range(BISECT_STEPS if best is not None and lossy is not None else 0):
+    if best is not None and lossy is not None:
+        best = _bisect(best, lossy, devices, batch, seconds)
+    if best is None:
+        print("loss already at the first rate: no rate without loss found", flush=True)
+    else:
+        print(f"highest rate without loss: {best.generated_rate:,.0f} samples/s ({best.devices} devices x "
+              f"{best.rate_hz:g} Hz, batch {best.batch}), p99 latency {best.latency_p99_ms:.2f} ms", flush=True)
+
+
+def _bisect(best: PipelineRun, lossy: float, devices: int, batch: int, seconds: float) -> PipelineRun:
+    """BISECT_STEPS halvings of the gap between the best run without loss and the lowest rate with loss."""
+    for _ in range(BISECT_STEPS):
         middle = (best.rate_hz + lossy) / 2
         result = _report(run_once(devices, middle, batch, seconds))
         if result.lost:
             lossy = middle
         else:
             best = result
-    if best is None:
-        print("loss already at the first rate: no rate without loss found", flush=True)
-    else:
-        print(f"highest rate without loss: {best.generated_rate:,.0f} samples/s ({best.devices} devices x "
-              f"{best.rate_hz:g} Hz, batch {best.batch}), p99 latency {best.latency_p99_ms:.2f} ms", flush=True)
+    return best
 
 
 def _report(result: PipelineRun) -> PipelineRun:

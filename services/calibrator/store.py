@@ -3,8 +3,8 @@
 One table, one row per stored calibration; the record is the JSON map the wire publishes
 (``magnet.wire.DeviceCalibration.to_record``). Rows are read back through ``magnet.wire.calibration_from_record``, the
 one entry check of a calibration: a row that fails it is skipped, counted (``skipped_rows``) and logged once with the
-file and row, and the rest is served. WAL journal with ``synchronous=FULL``: a row is on disk when ``save`` returns, and a kill -9 at
-any moment leaves either the previous or the new calibration in force, never a torn one.
+file and row, and the rest is served. WAL journal with ``synchronous=FULL``: a row is on disk when ``save`` returns,
+and a kill -9 at any moment leaves either the previous or the new calibration in force, never a torn one.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import json
 import logging
 import sqlite3
 from pathlib import Path
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 
 from magnet import wire
 
@@ -79,7 +79,7 @@ class CalibrationStore:
     def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
         """Valid records of ``device``, newest first, at most ``limit``."""
         rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,))
-        out = []
+        out: list[wire.DeviceCalibration] = []
         for record in self._valid(rows):
             if limit is not None and len(out) >= max(0, limit):
                 break
@@ -94,7 +94,7 @@ class CalibrationStore:
             out.setdefault(record.device, record)
         return out
 
-    def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterable[wire.DeviceCalibration]:
+    def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterator[wire.DeviceCalibration]:
         """The records of ``rows`` (seq, JSON text) that pass the entry check; the others skipped and counted."""
         for seq, text in rows:
             try:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import Any
 import logging
 
 import numpy as np
@@ -38,8 +39,8 @@ def run(args: argparse.Namespace) -> int:
         from magnet.emulators.base import ConstantSource
         from magnet.emulators.hmc5883l import HMC5883LEmulator
         source = ConstantSource()
-        bus = HMC5883LEmulator(source, address=args.address, gain_error=gain_error,
-                               temperature_c=args.temperature_c, tempco_per_k=-0.003)
+        bus: Any = HMC5883LEmulator(source, address=args.address, gain_error=gain_error,
+                                    temperature_c=args.temperature_c, tempco_per_k=-0.003)
     else:
         if args.bus is None:
             raise ValueError("a real sensor needs --bus N (1 on a Raspberry Pi), or use --emulate")

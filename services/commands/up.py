@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
     parser.add_argument("--interval", type=float, help="seconds between views (default 0.5 on a terminal, else 3)")
     parser.add_argument("--prefix", default=wire.DEFAULT_PREFIX, help="key prefix")
+    parser.add_argument("--http", metavar="HOST:PORT",
+                        help="where the dashboard serves its page (default 127.0.0.1:8080, or a free port when taken)")
+    parser.add_argument("--no-dashboard", action="store_true", help="do not start the web dashboard")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,8 +68,14 @@ class UpSettings:
     duration_s: float | None = None
     interval_s: float | None = None
     prefix: str = wire.DEFAULT_PREFIX
+    http: str | None = None
+    dashboard: bool = True
 
     def __post_init__(self) -> None:
+        if self.http is not None:
+            from services.dashboard.service import parse_http
+
+            parse_http(self.http)
         if not 1 <= self.devices <= MAX_DEVICES:
             raise ValueError(f"--devices must be 1..{MAX_DEVICES}, got {self.devices}")
         if self.duration_s is not None and not self.duration_s >= 0:
@@ -85,7 +94,7 @@ class UpSettings:
     def from_args(cls, args: argparse.Namespace) -> UpSettings:
         return cls(devices=int(args.devices), rate_hz=float(args.rate), batch=int(args.batch),
                    speedup=float(args.speedup), location=args.location, db=args.db, duration_s=args.duration,
-                   interval_s=args.interval, prefix=args.prefix)
+                   interval_s=args.interval, prefix=args.prefix, http=args.http, dashboard=not args.no_dashboard)
 
 
 @dataclasses.dataclass
@@ -200,7 +209,8 @@ class Viewer:
         self.out.flush()
 
 
-def _start_services(settings: UpSettings, ports: dict[str, int], db: Path, logs: Path) -> dict[str, Any]:
+def _start_services(settings: UpSettings, ports: dict[str, int], db: Path, logs: Path,
+                    dashboard: tuple[str, str] | None = None) -> dict[str, Any]:
     common = ["--prefix", settings.prefix]
     commands = {
         "calibrator": ["calibrator", "--db", str(db), "--location", settings.location,
@@ -212,8 +222,12 @@ def _start_services(settings: UpSettings, ports: dict[str, int], db: Path, logs:
                  "--location", settings.location,
                  *loopback_arguments(ports["edge"], [ports["calibrator"], ports["compass"]])],
     }
+    if dashboard is not None:
+        commands["dashboard"] = ["dashboard", "--http", dashboard[0], "--token", dashboard[1],
+                                 "--location", settings.location,
+                                 *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES])]
     procs = {}
-    for name in SERVICES:
+    for name in commands:
         with open(logs / f"{name}.log", "w") as log_file:  # the child keeps its own descriptor
             procs[name] = subprocess.Popen([sys.executable, "-m", "services.cli", *commands[name], *common],
                                            stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
@@ -231,6 +245,27 @@ def _stop_services(procs: dict[str, Any]) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def _dashboard_http(settings: UpSettings, spare_port: int) -> tuple[str, str, str] | None:
+    """(HOST:PORT, token, page address) of the dashboard: --http, else 127.0.0.1:8080, else a free port."""
+    if not settings.dashboard:
+        return None
+    import secrets
+    import socket
+
+    from services.dashboard.service import DEFAULT_HTTP, page_address, parse_http
+
+    http = settings.http
+    if http is None:
+        http = DEFAULT_HTTP
+        with socket.socket() as sock:
+            try:
+                sock.bind(parse_http(DEFAULT_HTTP))
+            except OSError:  # 8080 taken (another pipeline, another program): any free port will do
+                http = f"127.0.0.1:{spare_port}"
+    token = secrets.token_urlsafe(12)
+    return http, token, page_address(*parse_http(http), token)
 
 
 def _report_dead(dead: list[str], logs: Path) -> None:
@@ -287,12 +322,15 @@ def up(settings: UpSettings) -> int:
     workdir = Path(tempfile.mkdtemp(prefix="magnet-up-"))
     try:
         db = settings.db or workdir / "calibrations.db"
-        ports = dict(zip((*SERVICES, "view"), free_ports(4)))
-        procs = _start_services(settings, ports, db, workdir)
+        ports = dict(zip((*SERVICES, "view", "dashboard", "http"), free_ports(6)))
+        dashboard = _dashboard_http(settings, ports.pop("http"))
+        procs = _start_services(settings, ports, db, workdir, dashboard and dashboard[:2])
         try:
             print(f"magnet up: calibrator, compass and {settings.devices} emulated device(s) on 127.0.0.1 ports "
                   f"{ports['calibrator']}, {ports['compass']}, {ports['edge']}; store {db}; logs in {workdir} "
                   "(removed at exit)", flush=True)
+            if dashboard:
+                print(f"magnet up: dashboard at {dashboard[2]}", flush=True)
             return _watch(settings, procs, ports, workdir)
         finally:
             _stop_services(procs)

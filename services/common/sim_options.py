@@ -2,8 +2,9 @@
 
 ``--seed``, ``--trajectory`` (still: spin, turntable, tumble, tenface; moving, with linear acceleration and a gyroscope:
 multirotor, car, figure8, fast-tumble), ``--hard-iron X,Y,Z`` (uT), ``--soft-iron`` (3 diagonal or 9 row-major
-numbers), ``--noise-ut``, ``--gyro-bias X,Y,Z`` (rad/s), ``--gyro-noise`` (rad/s RMS per sample), ``--location LAT,LON[,ALT_M]``, ``--date`` (default: the simulator's fixed
-date, so that the same seed gives the same data on any day). ``SimulatorSettings.from_args`` checks them all at once.
+numbers), ``--noise-ut``, ``--gyro-bias X,Y,Z`` (rad/s), ``--gyro-noise`` (rad/s RMS per sample), ``--location
+LAT,LON[,ALT_M]``, ``--date`` (default: the simulator's fixed date, so that the same seed gives the same data on any
+day). ``SimulatorSettings.from_args`` checks them all at once.
 """
 
 from __future__ import annotations
@@ -61,7 +62,8 @@ def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, n
 @dataclasses.dataclass(frozen=True)
 class SimulatorSettings:
     """The simulator options, checked. hard_iron_ut (3,) uT; soft_iron 9 numbers row-major (3x3); noise_ut uT RMS;
-    gyro_bias_rads (3,) rad/s; gyro_noise_rads rad/s RMS; location (lat_deg, lon_deg, alt_m); date as given (None: the simulator's)."""
+    gyro_bias_rads (3,) rad/s; gyro_noise_rads rad/s RMS; location (lat_deg, lon_deg, alt_m); date as given (None:
+    the simulator's)."""
 
     seed: int = 0
     trajectory: Trajectory = Trajectory.TUMBLE

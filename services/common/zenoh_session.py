@@ -176,7 +176,7 @@ def payload_bytes(sample_or_query: Any) -> bytes:
 
 def drain(handler: Any, limit: int) -> list[Any]:
     """Up to ``limit`` items a zenoh handler holds now (an empty, closed channel gives none)."""
-    items = []
+    items: list[Any] = []
     while len(items) < limit:
         try:
             item = handler.try_recv()

@@ -72,11 +72,11 @@ def rules(prefix: str) -> list[dict[str, Any]]:
                     if f"{prefix}/{key}" not in grants.setdefault(flow_message, []):
                         grants[flow_message].append(f"{prefix}/{key}")
         merged: dict[tuple[str, tuple[str, ...]], list[str]] = {}  # messages of one flow on the same keys: one rule
-        for (flow, message), keys in grants.items():
-            merged.setdefault((flow, tuple(keys)), []).append(message)
-        for (flow, keys), messages in merged.items():
+        for (flow, message), granted in grants.items():
+            merged.setdefault((flow, tuple(granted)), []).append(message)
+        for (flow, rule_keys), messages in merged.items():
             out.append({"id": f"{role}-{flow}-{'+'.join(messages)}", "permission": "allow", "flows": [flow],
-                        "messages": messages, "key_exprs": list(keys)})
+                        "messages": messages, "key_exprs": list(rule_keys)})
     return out
 
 

@@ -85,6 +85,9 @@ def issue(ca: Issued, common_name: str, *, server: bool, dns: Sequence[str] = ("
     ``server`` (the router, which other routers may also dial); subjectAltName from ``dns`` and ``ips``."""
     ca_cert = x509.load_pem_x509_certificate(ca.certificate_pem)
     ca_key = serialization.load_pem_private_key(ca.key_pem, password=None)
+    ca_public = ca_cert.public_key()
+    if not isinstance(ca_key, ec.EllipticCurvePrivateKey) or not isinstance(ca_public, ec.EllipticCurvePublicKey):
+        raise ValueError("the CA's key is not an elliptic-curve key: make the CA with magnet's certificate command")
     key = _new_key()
     usages = [ExtendedKeyUsageOID.CLIENT_AUTH] + ([ExtendedKeyUsageOID.SERVER_AUTH] if server else [])
     now = datetime.datetime.now(datetime.UTC)
@@ -95,7 +98,7 @@ def issue(ca: Issued, common_name: str, *, server: bool, dns: Sequence[str] = ("
                                          crl_sign=False, encipher_only=False, decipher_only=False), critical=True)
             .add_extension(x509.ExtendedKeyUsage(usages), critical=False)
             .add_extension(_names(dns, ips), critical=False)
-            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_cert.public_key()), critical=False)
+            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_public), critical=False)
             .sign(ca_key, hashes.SHA256()))
     return Issued(cert.public_bytes(serialization.Encoding.PEM), _key_pem(key))
 

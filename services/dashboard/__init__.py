@@ -1,0 +1,1 @@
+"""``magnet dashboard``: a live web page of the fleet, with calibration control."""

@@ -1,0 +1,242 @@
+"""The dashboard's web side (starlette): the page, its static files, plotly.js from the installed wheel, a JSON API
+and a server-sent event stream.
+
+Routes:
+
+- ``GET /``: the page; ``GET /static/...``: its files; ``GET /plotly.min.js``: plotly's own bundle (no CDN).
+- ``GET /api/fleet``: every row; ``GET /api/devices/{device}``: one device in detail;
+  ``GET /api/devices/{device}/history?limit=N``: its stored calibrations (asks the calibrator).
+- ``GET /api/stream[?device=ID]``: server-sent events: ``fleet`` (rows changed since the last event) every
+  ``interval_s``, and ``device`` (the detail of ``device``) every second.
+- ``POST /api/devices/{device}/calibrate`` with JSON ``{"action": "start|status|commit|abort", "method": M}``: the
+  calibrator's session queryable. Needs the control token (``Authorization: Bearer TOKEN`` or ``X-Magnet-Token``).
+
+Viewing needs no token when the server listens on a loopback address; on any other address every ``/api`` route
+needs it too (``?token=`` for the stream, which a browser cannot give headers). Bad input gets a 4xx with a JSON
+``{"error": ...}`` and changes nothing: 400 malformed, 401 no or wrong token, 404 unknown device, 502/504 when the
+calibrator refused or did not answer.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hmac
+import importlib.util
+import json
+import logging
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any, Protocol
+
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from magnet import wire
+from services.dashboard.state import FleetState
+
+log = logging.getLogger("magnet.dashboard")
+
+STATIC_DIR = Path(__file__).resolve().parent / "static"
+ACTIONS = ("start", "status", "commit", "abort")
+MAX_BODY_BYTES = 4096
+MAX_HISTORY = 100
+DETAIL_EVERY_S = 1.0
+
+
+class Control(Protocol):
+    """What the page's buttons ask (``services.dashboard.ingest.Control`` over zenoh; a fake in tests)."""
+
+    def calibrate(self, device: str, action: str, method: str | None) -> tuple[list[dict], list[str]]: ...
+
+    def history(self, device: str, limit: int) -> tuple[list[dict], list[str]]: ...
+
+
+def plotly_js_path() -> Path:
+    """plotly.min.js inside the installed ``plotly`` package (its package_data), found without importing plotly."""
+    spec = importlib.util.find_spec("plotly")
+    folders = list(spec.submodule_search_locations or []) if spec is not None else []
+    path = Path(folders[0] if folders else ".") / "package_data" / "plotly.min.js"
+    if not path.is_file():
+        raise OSError(f"plotly.min.js not found at {path}: reinstall the plotly package")
+    return path
+
+
+def error(status: int, message: str) -> JSONResponse:
+    return JSONResponse({"error": message}, status_code=status)
+
+
+class Dashboard:
+    """Handlers bound to one FleetState, one Control and one token."""
+
+    def __init__(self, state: FleetState, control: Control, token: str, view_needs_token: bool,
+                 interval_s: float = 0.25) -> None:
+        self.state, self.control, self.token = state, control, token
+        self.view_needs_token, self.interval_s = view_needs_token, interval_s
+        self.stopping = asyncio.Event()
+
+    # ---------------------------------------------------------------------------------------------- checks
+    def _token_ok(self, request: Request) -> bool:
+        given = request.headers.get("x-magnet-token") or request.query_params.get("token") or ""
+        auth = request.headers.get("authorization", "")
+        if auth.lower().startswith("bearer "):
+            given = auth[7:].strip()
+        return bool(given) and hmac.compare_digest(given.encode(), self.token.encode())
+
+    def _view_refused(self, request: Request) -> Response | None:
+        if self.view_needs_token and not self._token_ok(request):
+            return error(401, "this dashboard listens beyond loopback: give the token (?token=... or a header)")
+        return None
+
+    def _device(self, request: Request) -> str | Response:
+        """The path's device id if it is valid and known, else the error response."""
+        device = request.path_params["device"]
+        try:
+            wire.validate_device_id(device)
+        except ValueError as exc:
+            return error(400, str(exc))
+        if not self.state.knows(device):
+            return error(404, f"unknown device {device!r}: no message or liveliness token seen for it")
+        return device
+
+    # ---------------------------------------------------------------------------------------------- views
+    async def index(self, request: Request) -> Response:
+        return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
+
+    async def plotly(self, request: Request) -> Response:
+        return FileResponse(plotly_js_path(), media_type="text/javascript",
+                            headers={"Cache-Control": "public, max-age=86400"})
+
+    async def fleet(self, request: Request) -> Response:
+        refused = self._view_refused(request)
+        if refused:
+            return refused
+        version, rows = self.state.changes(-1)
+        return JSONResponse({"version": version, "rows": rows, "summary": self.state.summary()})
+
+    async def device(self, request: Request) -> Response:
+        refused = self._view_refused(request)
+        device = refused or self._device(request)
+        if isinstance(device, Response):
+            return device
+        return JSONResponse(self.state.detail(device))
+
+    async def history(self, request: Request) -> Response:
+        refused = self._view_refused(request)
+        device = refused or self._device(request)
+        if isinstance(device, Response):
+            return device
+        try:
+            limit = int(request.query_params.get("limit", "20"))
+        except ValueError:
+            return error(400, "limit must be a whole number")
+        if not 1 <= limit <= MAX_HISTORY:
+            return error(400, f"limit must be 1..{MAX_HISTORY}")
+        answers, errors = await run_in_threadpool(self.control.history, device, limit)
+        records = [r for a in answers for r in (a.get("records") or []) if isinstance(r, dict)]
+        if not answers:
+            return error(504, "; ".join(errors) or "no calibrator answered for this device's history")
+        return JSONResponse({"device": device, "records": records[:limit]})
+
+    # ---------------------------------------------------------------------------------------------- control
+    async def calibrate(self, request: Request) -> Response:
+        if not self._token_ok(request):
+            return error(401, "calibration control needs the dashboard's token (printed at its start)")
+        device = self._device(request)
+        if isinstance(device, Response):
+            return device
+        body = await request.body()
+        if len(body) > MAX_BODY_BYTES:
+            return error(413, f"request body larger than {MAX_BODY_BYTES} bytes")
+        parsed = _parse_action(body)
+        if isinstance(parsed, Response):
+            return parsed
+        action, method = parsed
+        answers, errors = await run_in_threadpool(self.control.calibrate, device, action, method)
+        if not answers:
+            return error(502 if errors else 504, "; ".join(errors) or "no calibrator answered for this device")
+        reply = answers[0]
+        return JSONResponse(reply, status_code=200 if reply.get("ok") else 409)
+
+    # ---------------------------------------------------------------------------------------------- stream
+    async def stream(self, request: Request) -> Response:
+        refused = self._view_refused(request)
+        if refused:
+            return refused
+        device = request.query_params.get("device") or None
+        if device is not None:
+            try:
+                wire.validate_device_id(device)
+            except ValueError as exc:
+                return error(400, str(exc))
+        return StreamingResponse(self._events(device), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+    async def _events(self, device: str | None) -> AsyncIterator[str]:
+        version, next_detail = -1, 0.0
+        loop = asyncio.get_running_loop()
+        if device:
+            self.state.watch(device, +1)
+        try:
+            while not self.stopping.is_set():
+                version, rows = self.state.changes(version)
+                yield _event("fleet", {"version": version, "rows": rows, "summary": self.state.summary()})
+                if device and loop.time() >= next_detail:
+                    next_detail = loop.time() + DETAIL_EVERY_S
+                    detail = self.state.detail(device)
+                    yield _event("device", detail if detail is not None else {"device": device, "unknown": True})
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self.stopping.wait(), self.interval_s)
+        finally:
+            if device:
+                self.state.watch(device, -1)
+
+
+def _event(name: str, data: Any) -> str:
+    return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'), allow_nan=False)}\n\n"
+
+
+def _parse_action(body: bytes) -> tuple[str, str | None] | Response:
+    """(action, method) from a JSON body, or the 400 response saying what is wrong."""
+    from magnet.calibration import Method
+
+    try:
+        data = json.loads(body or b"null")
+    except (ValueError, UnicodeDecodeError):
+        return error(400, "the body must be JSON: {\"action\": \"start|status|commit|abort\", \"method\": ...}")
+    if not isinstance(data, dict):
+        return error(400, "the body must be a JSON object with an \"action\"")
+    action, method = data.get("action"), data.get("method")
+    if action not in ACTIONS:
+        return error(400, f"action must be one of {', '.join(ACTIONS)}, got {action!r}")
+    if method is not None:
+        if not isinstance(method, str):
+            return error(400, "method must be a string")
+        try:
+            method = Method.parse(method).value
+        except ValueError as exc:
+            return error(400, str(exc))
+    return action, method
+
+
+def create_app(state: FleetState, control: Control, token: str, view_needs_token: bool = False,
+               interval_s: float = 0.25) -> Starlette:
+    """The ASGI app (``app.state.dashboard`` holds the handlers; set ``dashboard.stopping`` to end streams)."""
+    dashboard = Dashboard(state, control, token, view_needs_token, interval_s)
+    routes = [
+        Route("/", dashboard.index),
+        Route("/plotly.min.js", dashboard.plotly),
+        Route("/api/fleet", dashboard.fleet),
+        Route("/api/stream", dashboard.stream),
+        Route("/api/devices/{device}", dashboard.device),
+        Route("/api/devices/{device}/history", dashboard.history),
+        Route("/api/devices/{device}/calibrate", dashboard.calibrate, methods=["POST"]),
+        Mount("/static", StaticFiles(directory=STATIC_DIR), name="static"),
+    ]
+    app = Starlette(routes=routes)
+    app.state.dashboard = dashboard
+    return app

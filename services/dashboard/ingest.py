@@ -1,0 +1,217 @@
+"""The dashboard's Zenoh side: subscribers draining into ``FleetState``, and the queries the page asks for.
+
+One thread (``Ingest.run``) drains every channel each ``tick_s``: liveliness of devices, progress, calibrations, and
+headings, of which only the newest message of each device is decoded (1,000 devices at 10 Hz cost 4,000 decodes a
+second at a 0.25 s tick, not 10,000). Devices someone is looking at get their own raw subscriber and every heading
+sample. Raw messages of other devices pass through a small ring, read only for the sensor name of a new device.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from typing import Any
+
+from magnet import wire
+from services.common.zenoh_session import drain, payload_bytes
+from services.dashboard.state import FleetState
+
+log = logging.getLogger("magnet.dashboard")
+
+CHANNEL_CAPACITY = 65536
+MAX_DRAIN = 100_000
+QUERY_TIMEOUT_S = 5.0
+REQUERY_S = 10.0
+
+
+class Ingest:
+    """Feeds a FleetState from a zenoh session (``session`` already open; the caller closes it)."""
+
+    def __init__(self, session: Any, prefix: str, state: FleetState, tick_s: float = 0.25) -> None:
+        import zenoh
+
+        self.session, self.prefix, self.state, self.tick_s = session, prefix, state, tick_s
+        self.stop = threading.Event()
+        fifo = zenoh.handlers.FifoChannel
+        self.alive = session.liveliness().declare_subscriber(wire.liveliness_key(prefix, "device", "*"),
+                                                             fifo(CHANNEL_CAPACITY), history=True)
+        self.headings = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.HEADING), fifo(CHANNEL_CAPACITY))
+        self.progress = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.PROGRESS), fifo(CHANNEL_CAPACITY))
+        self.calibrations = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.CALIBRATION), fifo(4096))
+        self.raw_any = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.RAW), zenoh.handlers.RingChannel(64))
+        self.raw_watched: dict[str, Any] = {}
+        self.pending: list[tuple[float, Any]] = []
+        self.asked_s = -REQUERY_S
+
+    def run(self) -> None:
+        """Drain until ``stop`` is set."""
+        while not self.stop.is_set():
+            started = time.monotonic()
+            try:
+                self.step()
+            except Exception:  # nothing from the network ends the service
+                log.exception("dashboard ingest step failed; continuing")
+            self.stop.wait(max(0.0, self.tick_s - (time.monotonic() - started)))
+        self.close()
+
+    def step(self) -> None:
+        self._follow_watched()
+        self._ask_calibrations()
+        for sample in drain(self.alive, MAX_DRAIN):
+            self._on_alive(sample)
+        for sample in drain(self.calibrations, MAX_DRAIN):
+            self._on_calibration(str(sample.key_expr), payload_bytes(sample))
+        self._take_replies()
+        for sample in drain(self.progress, MAX_DRAIN):
+            self._on_progress(sample)
+        self._on_raws(drain(self.raw_any, MAX_DRAIN), only_new=True)
+        for subscriber in list(self.raw_watched.values()):
+            self._on_raws(drain(subscriber, MAX_DRAIN), only_new=False)
+        self._on_headings(drain(self.headings, MAX_DRAIN))
+
+    def close(self) -> None:
+        for subscriber in [self.alive, self.headings, self.progress, self.calibrations, self.raw_any,
+                           *self.raw_watched.values()]:
+            with contextlib.suppress(Exception):  # the session may be closing already
+                subscriber.undeclare()
+
+    # ---------------------------------------------------------------------------------------------- messages
+    def _drop(self, exc: wire.WireError, what: str) -> None:
+        self.state.dropped.drop(exc, what, log)
+
+    def _device(self, key_expr: str, kind: wire.Kind) -> str | None:
+        try:
+            return wire.device_from_key(self.prefix, key_expr, kind)
+        except wire.WireError as exc:
+            self._drop(exc, kind.value)
+            return None
+
+    def _on_alive(self, sample: Any) -> None:
+        import zenoh
+
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        try:
+            wire.validate_device_id(name)
+        except ValueError:
+            return
+        self.state.on_alive(name, sample.kind == zenoh.SampleKind.PUT)
+
+    def _on_calibration(self, key_expr: str, payload: bytes) -> None:
+        try:
+            message = wire.decode_calibration(payload)
+            wire.check_key(self.prefix, key_expr, wire.Kind.CALIBRATION, message.device)
+        except wire.WireError as exc:
+            self._drop(exc, "calibration")
+            return
+        self.state.on_calibration(message)
+
+    def _on_progress(self, sample: Any) -> None:
+        try:
+            message = wire.decode_progress(payload_bytes(sample))
+            wire.check_key(self.prefix, str(sample.key_expr), wire.Kind.PROGRESS, message["device"])
+        except wire.WireError as exc:
+            self._drop(exc, "progress")
+            return
+        self.state.on_progress(message)
+
+    def _on_raws(self, samples: list[Any], only_new: bool) -> None:
+        for sample in samples:
+            key_expr = str(sample.key_expr)
+            device = self._device(key_expr, wire.Kind.RAW)
+            if device is None or (only_new and (device in self.raw_watched or self._has_sensor(device))):
+                continue
+            try:
+                batch = wire.decode_raw(payload_bytes(sample))
+                wire.check_key(self.prefix, key_expr, wire.Kind.RAW, batch.device)
+            except wire.WireError as exc:
+                self._drop(exc, "raw")
+                continue
+            self.state.on_sensor(batch.device, batch.sensor)
+            if not only_new:
+                self.state.on_raw(batch)
+
+    def _has_sensor(self, device: str) -> bool:
+        row = self.state.rows.get(device)
+        return row is not None and bool(row.sensor)
+
+    def _on_headings(self, samples: list[Any]) -> None:
+        """Decode the newest message of each device, and every message of a watched device, in arrival order."""
+        latest: dict[str, Any] = {}
+        chosen: list[Any] = []
+        for sample in samples:
+            key_expr = str(sample.key_expr)
+            if key_expr.rsplit("/", 2)[-2] in self.raw_watched:
+                chosen.append(sample)
+            else:
+                latest[key_expr] = sample
+        self.state.messages += len(samples)
+        for sample in chosen + list(latest.values()):
+            self._on_heading(str(sample.key_expr), payload_bytes(sample))
+
+    def _on_heading(self, key_expr: str, payload: bytes) -> None:
+        try:
+            batch = wire.decode_heading(payload)
+            wire.check_key(self.prefix, key_expr, wire.Kind.HEADING, batch.device)
+        except wire.WireError as exc:
+            self._drop(exc, "heading")
+            return
+        self.state.on_heading(batch)
+
+    # ---------------------------------------------------------------------------------------------- upkeep
+    def _follow_watched(self) -> None:
+        import zenoh
+
+        watched = self.state.watched()
+        for device in set(self.raw_watched) - watched:
+            self.raw_watched.pop(device).undeclare()
+        for device in watched - set(self.raw_watched):
+            self.raw_watched[device] = self.session.declare_subscriber(
+                wire.key(self.prefix, device, wire.Kind.RAW), zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+
+    def _ask_calibrations(self) -> None:
+        """Ask for every calibration in force at start, and again now and then (a calibrator that came later)."""
+        now = time.monotonic()
+        if now - self.asked_s < REQUERY_S:
+            return
+        self.asked_s = now
+        self.pending.append((now + 3.0, self.session.get(wire.key(self.prefix, "*", wire.Kind.CALIBRATION),
+                                                         timeout=3.0)))
+
+    def _take_replies(self) -> None:
+        still = []
+        for deadline, handler in self.pending:
+            for reply in drain(handler, 100_000):
+                if reply.ok is not None:
+                    self._on_calibration(str(reply.ok.key_expr), payload_bytes(reply.ok))
+            if time.monotonic() < deadline:
+                still.append((deadline, handler))
+        self.pending = still
+
+
+class Control:
+    """The queries behind the page's buttons and history: the same queryables ``magnet calibrate`` and
+    ``magnet get calibration --history`` use. Blocking (call from a worker thread)."""
+
+    def __init__(self, session: Any, prefix: str) -> None:
+        self.session, self.prefix = session, prefix
+
+    def _ask(self, selector: str) -> tuple[list[dict[str, Any]], list[str]]:
+        answers, errors = [], []
+        for reply in self.session.get(selector, timeout=QUERY_TIMEOUT_S):
+            if reply.ok is not None:
+                try:
+                    answers.append(wire.unpack(payload_bytes(reply.ok)))
+                except wire.WireError as exc:
+                    errors.append(str(exc))
+            else:
+                errors.append(payload_bytes(reply.err).decode(errors="replace"))
+        return answers, errors
+
+    def calibrate(self, device: str, action: str, method: str | None) -> tuple[list[dict[str, Any]], list[str]]:
+        params = f"action={action}" + (f";method={method}" if method else "")
+        return self._ask(f"{wire.key(self.prefix, device, wire.Kind.CALIBRATE)}?{params}")
+
+    def history(self, device: str, limit: int) -> tuple[list[dict[str, Any]], list[str]]:
+        return self._ask(f"{wire.key(self.prefix, device, wire.Kind.HISTORY)}?limit={limit}")

@@ -1,0 +1,339 @@
+"""What the dashboard knows of the fleet: one row per device, and a trace of the devices someone is looking at.
+
+No zenoh, no HTTP: the ingest loop feeds decoded messages in (``on_*``), the web handlers take JSON-able snapshots
+out. Every change of a row stamps it with a new ``version`` so a stream sends only the rows changed since its last
+snapshot. One lock guards everything (the ingest thread writes, the web loop reads).
+
+Units: angles in degrees, fields in uT, times ``*_ns`` (wall clock, ns) or ``*_s`` (monotonic seconds).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from magnet import wire
+from magnet.geomag import EarthField
+from magnet.heading import HeadingFlag, dip_angle_deg
+from magnet.quality import fibonacci_centres
+
+TRACE_POINTS = 1500       # raw and calibrated field points kept per watched device
+TRACE_HEADINGS = 600      # heading samples kept per watched device
+STALE_S = 5.0             # no heading for this long: the row says so
+WATCH_LINGER_S = 15.0     # a device stays watched this long after its last viewer left
+CELL_CENTRES = fibonacci_centres()
+FUSED_FLAG = int(HeadingFlag.FUSED)  # attitude from the gyroscope-aided filter
+
+
+def _finite(value: Any) -> float | None:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if np.isfinite(number) else None
+
+
+def _round(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(value, digits)
+
+
+@dataclasses.dataclass
+class DeviceRow:
+    """One device as the fleet table shows it."""
+
+    device: str
+    version: int = 0
+    alive: bool | None = None
+    sensor: str = ""
+    state: str = "waiting"
+    method: str | None = None
+    session: bool = False
+    samples: int | None = None
+    coverage: float | None = None
+    missing: tuple[str, ...] = ()
+    reason: str = ""
+    accepted: bool | None = None
+    residual_ut: float | None = None
+    calibration_id: str = ""
+    calibrated_ns: int | None = None
+    seq: int | None = None
+    heading_deg: float | None = None
+    true_heading_deg: float | None = None
+    pitch_deg: float | None = None
+    roll_deg: float | None = None
+    field_ut: float | None = None
+    dip_deg: float | None = None
+    flags: int = 0
+    quat_wxyz: tuple[float, ...] | None = None
+    declination_deg: float | None = None
+    truth_error_deg: float | None = None
+    heading_s: float | None = None
+
+    def alerts(self, now_s: float, earth: EarthField | None) -> list[str]:
+        """Short phrases for what needs a person's attention."""
+        out = []
+        if self.alive is False:
+            out.append("offline")
+        if self.heading_s is not None and now_s - self.heading_s > STALE_S:
+            out.append("no headings")
+        if self.state in ("collecting", "idle", "waiting") and self.heading_s is not None:
+            out.append("not calibrated")
+        if self.accepted is False and self.state in ("collecting", "session"):
+            out.append("fit rejected")
+        for flag, text in ((HeadingFlag.FIELD_DISTURBED, "field disturbed"),
+                           (HeadingFlag.DIP_DISTURBED, "dip disturbed"), (HeadingFlag.NO_TILT, "no tilt")):
+            if self.flags & flag:
+                out.append(text)
+        if earth is not None and (earth.blackout or earth.caution):
+            out.append("weak horizontal field")
+        return out
+
+    def to_json(self, now_s: float, earth: EarthField | None) -> dict[str, Any]:
+        return {
+            "device": self.device, "alive": self.alive, "sensor": self.sensor, "state": self.state,
+            "method": self.method, "session": self.session, "samples": self.samples,
+            "coverage": _round(self.coverage, 3), "missing": list(self.missing), "reason": self.reason,
+            "accepted": self.accepted, "residual_ut": _round(self.residual_ut, 3),
+            "calibration_id": self.calibration_id,
+            "calibrated_ms": None if self.calibrated_ns is None else self.calibrated_ns // 1_000_000,
+            "seq": self.seq, "heading_deg": _round(self.heading_deg, 2),
+            "true_heading_deg": _round(self.true_heading_deg, 2), "pitch_deg": _round(self.pitch_deg, 2),
+            "roll_deg": _round(self.roll_deg, 2), "field_ut": _round(self.field_ut, 2),
+            "dip_deg": _round(self.dip_deg, 2), "flags": self.flags,
+            "quat_wxyz": None if self.quat_wxyz is None else [round(q, 5) for q in self.quat_wxyz],
+            "declination_deg": _round(self.declination_deg, 2), "truth_error_deg": _round(self.truth_error_deg, 2),
+            "fused": bool(self.flags & FUSED_FLAG), "alerts": self.alerts(now_s, earth),
+        }
+
+
+def acc_direction(pitch_deg: np.ndarray | float, roll_deg: np.ndarray | float) -> np.ndarray:
+    """Specific force direction (N, 3) of a still device at pitch and roll (degrees): (sin p, -sin r cos p,
+    -cos r cos p), as ``magnet.heading.pitch_roll_deg`` inverts it."""
+    p, r = np.radians(pitch_deg), np.radians(roll_deg)
+    return np.stack([np.sin(p), -np.sin(r) * np.cos(p), -np.cos(r) * np.cos(p)], axis=-1)
+
+
+class Trace:
+    """Recent samples of one watched device: raw and calibrated field (uT), headings with their time."""
+
+    def __init__(self) -> None:
+        self.raw: deque = deque(maxlen=TRACE_POINTS)
+        self.calibrated: deque = deque(maxlen=TRACE_POINTS)
+        self.headings: deque = deque(maxlen=TRACE_HEADINGS)   # (t_ns, magnetic, true)
+        self.truth: dict[int, float] = {}                    # raw seq -> true heading of its last sample
+        self.viewers = 0
+        self.left_s = time.monotonic()
+
+    def reset_raw(self) -> None:
+        self.raw.clear()
+
+
+class FleetState:
+    """Rows of every device seen, traces of watched devices, the expected field; thread-safe."""
+
+    def __init__(self, earth: EarthField | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        self.earth, self.clock = earth, clock
+        self.lock = threading.Lock()
+        self.rows: dict[str, DeviceRow] = {}
+        self.traces: dict[str, Trace] = {}
+        self.version = 0
+        self.dropped = wire.DropCounter()
+        self.messages = 0
+
+    # ---------------------------------------------------------------------------------------------- writing
+    def _row(self, device: str) -> DeviceRow:
+        row = self.rows.get(device)
+        if row is None:
+            row = self.rows[device] = DeviceRow(device)
+        self.version += 1
+        row.version = self.version
+        return row
+
+    def on_alive(self, device: str, alive: bool) -> None:
+        with self.lock:
+            self._row(device).alive = alive
+
+    def on_sensor(self, device: str, sensor: str) -> None:
+        with self.lock:
+            if self.rows.get(device) is None or self.rows[device].sensor != sensor:
+                self._row(device).sensor = sensor
+
+    def on_raw(self, batch: wire.RawBatch) -> None:
+        """A raw batch of a watched device: its points for the cloud, its truth for the heading error."""
+        with self.lock:
+            trace = self.traces.get(batch.device)
+            if trace is None:
+                return
+            trace.raw.extend(np.asarray(batch.mag_ut, dtype=float).tolist())
+            if batch.truth is not None:
+                trace.truth[batch.seq] = float(batch.truth["heading_deg"][-1])
+                while len(trace.truth) > 64:
+                    trace.truth.pop(next(iter(trace.truth)))
+            if batch.sensor and self.rows.get(batch.device) is not None:
+                self.rows[batch.device].sensor = batch.sensor
+
+    def on_heading(self, batch: wire.HeadingBatch, quat_wxyz: Any = None) -> None:
+        """The last sample of a heading batch goes into the row; a watched device keeps them all. The fused
+        attitude (optional ``quat_wxyz``) is the batch's unless given."""
+        if quat_wxyz is None:
+            quat_wxyz = getattr(batch, "quat_wxyz", None)
+        last = len(batch) - 1
+        if last < 0:
+            return
+        pitch, roll = float(batch.pitch_deg[last]), float(batch.roll_deg[last])
+        field = np.asarray(batch.field_ut[last], dtype=float)
+        dip = float(dip_angle_deg(field, acc_direction(pitch, roll)))
+        with self.lock:
+            row = self._row(batch.device)
+            row.seq, row.heading_s = batch.seq, self.clock()
+            row.heading_deg, row.true_heading_deg = float(batch.heading_deg[last]), float(batch.true_heading_deg[last])
+            row.pitch_deg, row.roll_deg, row.flags = pitch, roll, int(batch.flags[last])
+            row.field_ut, row.dip_deg = float(np.linalg.norm(field)), _finite(dip)
+            row.declination_deg = batch.declination_deg
+            row.quat_wxyz = _quat(quat_wxyz, last)
+            if batch.calibration_id and not row.calibration_id:
+                row.calibration_id = batch.calibration_id
+            trace = self.traces.get(batch.device)
+            if trace is not None:
+                self._trace_heading(trace, row, batch)
+
+    def _trace_heading(self, trace: Trace, row: DeviceRow, batch: wire.HeadingBatch) -> None:
+        trace.calibrated.extend(np.asarray(batch.field_ut, dtype=float).tolist())
+        trace.headings.extend(zip(batch.t_ns.tolist(), batch.heading_deg.tolist(), batch.true_heading_deg.tolist()))
+        truth = trace.truth.get(batch.seq)
+        if truth is not None and row.true_heading_deg is not None:
+            row.truth_error_deg = float((row.true_heading_deg - truth + 180.0) % 360.0 - 180.0)
+
+    def on_progress(self, message: Mapping[str, Any]) -> None:
+        device = message["device"]
+        with self.lock:
+            row = self._row(device)
+            state = str(message.get("state") or row.state)
+            trace = self.traces.get(device)
+            if state == "session" and row.state != "session" and trace is not None:
+                trace.reset_raw()
+            row.state, row.session = state, bool(message.get("session", False))
+            row.method = message.get("method") or row.method
+            row.samples = message.get("samples") if isinstance(message.get("samples"), int) else row.samples
+            row.coverage = _finite(message.get("coverage"))
+            row.missing = tuple(str(m) for m in (message.get("missing") or ()) if isinstance(m, str))[:6]
+            row.reason = str(message.get("reason") or "")[:300]
+            row.accepted = message.get("accepted") if isinstance(message.get("accepted"), bool) else None
+            row.residual_ut = _finite(message.get("residual_rms_ut"))
+            if isinstance(message.get("calibration_id"), str):
+                row.calibration_id = message["calibration_id"]
+
+    def on_calibration(self, message: wire.CalibrationMessage) -> None:
+        """A calibration put or answered: a new one ends any collection; the one already shown changes nothing."""
+        quality = message.calibration.quality
+        with self.lock:
+            known = self.rows.get(message.device)
+            if known is not None and known.calibration_id == message.id and known.calibrated_ns == message.created_ns:
+                return
+            row = self._row(message.device)
+            row.state, row.session, row.method = "calibrated", False, message.calibration.method
+            row.calibration_id, row.calibrated_ns = message.id, message.created_ns
+            row.residual_ut = _finite(quality.get("residual_rms_ut"))
+            row.coverage = _finite(quality.get("coverage"))
+            row.accepted, row.reason, row.missing = True, message.calibration.reason, ()
+            row.samples = message.calibration.sample_count
+
+    # ---------------------------------------------------------------------------------------------- watching
+    def watch(self, device: str, delta: int) -> None:
+        """A viewer starts (+1) or stops (-1) looking at ``device``."""
+        with self.lock:
+            trace = self.traces.get(device)
+            if trace is None:
+                if delta <= 0:
+                    return
+                trace = self.traces[device] = Trace()
+            trace.viewers = max(0, trace.viewers + delta)
+            if trace.viewers == 0:
+                trace.left_s = self.clock()
+
+    def watched(self) -> set[str]:
+        """Devices watched now (forgetting those nobody looked at for ``WATCH_LINGER_S``)."""
+        with self.lock:
+            now = self.clock()
+            for device in [d for d, t in self.traces.items() if not t.viewers and now - t.left_s > WATCH_LINGER_S]:
+                del self.traces[device]
+            return set(self.traces)
+
+    # ---------------------------------------------------------------------------------------------- reading
+    def knows(self, device: str) -> bool:
+        with self.lock:
+            return device in self.rows
+
+    def changes(self, since: int) -> tuple[int, list[dict[str, Any]]]:
+        """(current version, rows changed after ``since``, as JSON maps, sorted by device)."""
+        with self.lock:
+            now = self.clock()
+            rows = [row.to_json(now, self.earth) for _, row in sorted(self.rows.items()) if row.version > since]
+            return self.version, rows
+
+    def summary(self) -> dict[str, Any]:
+        with self.lock:
+            rows = list(self.rows.values())
+            return {"devices": len(rows), "alive": sum(r.alive is True for r in rows),
+                    "calibrated": sum(r.state == "calibrated" for r in rows), "messages": self.messages,
+                    "earth": _earth_json(self.earth)}
+
+    def detail(self, device: str, points: int = 600) -> dict[str, Any] | None:
+        """The device's row, its recent clouds (at most ``points`` each), headings and covered cells."""
+        with self.lock:
+            row = self.rows.get(device)
+            if row is None:
+                return None
+            trace = self.traces.get(device)
+            raw = np.array(trace.raw if trace else [], dtype=float).reshape(-1, 3)
+            calibrated = np.array(trace.calibrated if trace else [], dtype=float).reshape(-1, 3)
+            headings = list(trace.headings)[-300:] if trace else []
+            out: dict[str, Any] = {"row": row.to_json(self.clock(), self.earth), "earth": _earth_json(self.earth)}
+        out.update(raw=_decimate(raw, points), calibrated=_decimate(calibrated, points),
+                   headings=[[t // 1_000_000, round(m, 2), round(tr, 2)] for t, m, tr in headings[::3]],
+                   cells=covered_cells(raw).astype(int).tolist())
+        return out
+
+
+def covered_cells(raw_ut: np.ndarray) -> np.ndarray:
+    """Which of the 100 equal-area cells (``magnet.quality``) the raw field directions around the cloud's centre
+    ((max + min) / 2 per axis) fall in: bool (100,)."""
+    hit = np.zeros(len(CELL_CENTRES), dtype=bool)
+    if len(raw_ut) < 2:
+        return hit
+    centred = raw_ut - (raw_ut.max(axis=0) + raw_ut.min(axis=0)) / 2
+    norms = np.linalg.norm(centred, axis=1)
+    unit = centred[norms > 0] / norms[norms > 0, None]
+    hit[np.unique(np.argmax(unit @ CELL_CENTRES.T, axis=1))] = True
+    return hit
+
+
+def _decimate(points: np.ndarray, limit: int) -> list[list[float]]:
+    step = max(1, int(np.ceil(len(points) / max(limit, 1))))
+    return np.round(points[::step], 2).tolist()
+
+
+def _quat(value: Any, index: int) -> tuple[float, ...] | None:
+    """The fused attitude quaternion of one sample, when the message carries a usable one (optional field)."""
+    if value is None:
+        return None
+    try:
+        quats = np.asarray(value, dtype=float)
+        quat = quats[index] if quats.ndim == 2 else quats
+    except (TypeError, ValueError, IndexError):
+        return None
+    return tuple(float(q) for q in quat) if quat.shape == (4,) and np.isfinite(quat).all() else None
+
+
+def _earth_json(earth: EarthField | None) -> dict[str, Any] | None:
+    if earth is None:
+        return None
+    return {"total_ut": round(earth.total_ut, 3), "inclination_deg": round(earth.inclination_deg, 3),
+            "declination_deg": round(earth.declination_deg, 3), "horizontal_ut": round(earth.horizontal_ut, 3)}
+

@@ -1,0 +1,192 @@
+"""The dashboard in a real browser (Debian's chromium, headless, driven by playwright): ``magnet up --devices 5``
+with the dashboard on a free loopback port; five rows appear, headings move and match what ``magnet watch heading``
+prints for the same message, and a calibration session started from the page shows progress and commits.
+
+Screenshots of each view go to ``$MAGNET_ARTEFACT_DIR/dashboard`` (default: the system's temp folder, under
+``magnet-artefacts``): look at them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from services.common.zenoh_session import free_ports
+
+pytestmark = pytest.mark.integration
+
+REPO = Path(__file__).resolve().parents[1]
+MAGNET = [sys.executable, "-m", "services.cli"]
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--no-first-run"]
+ARTEFACTS = Path(os.environ.get("MAGNET_ARTEFACT_DIR", Path(tempfile.gettempdir()) / "magnet-artefacts")) / "dashboard"
+
+
+@pytest.fixture(scope="session")
+def chromium() -> Path:
+    """Debian's chromium, installed with apt-get when missing (as root); skipped only when that fails."""
+    if not CHROMIUM.exists():
+        if os.geteuid() != 0 or shutil.which("apt-get") is None:
+            pytest.skip("no /usr/bin/chromium and not root with apt-get to install it")
+        for command in (["apt-get", "install", "-y", "chromium"], ["apt-get", "update"],
+                        ["apt-get", "install", "-y", "chromium"]):
+            done = subprocess.run(command, capture_output=True, text=True, timeout=900,
+                                  env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
+            if done.returncode == 0 and CHROMIUM.exists():
+                break
+        if not CHROMIUM.exists():
+            pytest.skip(f"apt-get install -y chromium failed: {done.stderr.strip()[-300:]}")
+    return CHROMIUM
+
+
+@pytest.fixture
+def pipeline(tmp_path):
+    """``magnet up --devices 5`` with the dashboard on a free port; (page address, compass port)."""
+    [http_port] = free_ports(1)
+    with open(tmp_path / "up.out", "w") as out:  # the child keeps its own descriptor
+        proc = subprocess.Popen([*MAGNET, "up", "--devices", "5", "--speedup", "10", "--interval", "5",
+                                 "--duration", "150", "--http", f"127.0.0.1:{http_port}",
+                                 "--db", str(tmp_path / "up.db")],
+                                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, cwd=REPO,
+                                env={**os.environ, "CI": "true"})
+    try:
+        text = _wait_for(lambda: (tmp_path / "up.out").read_text(), r"dashboard at (http://\S+)", proc, 20)
+        address = re.search(r"dashboard at (http://\S+)", text).group(1)
+        ports = re.search(r"ports (\d+), (\d+), (\d+);", text)
+        assert address.startswith(f"http://127.0.0.1:{http_port}/?token=")
+        yield address, int(ports.group(2))
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _wait_for(read, pattern, proc, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        text = read()
+        if re.search(pattern, text):
+            return text
+        if proc.poll() is not None:
+            pytest.fail(f"process ended early: {text[-2000:]}")
+        time.sleep(0.1)
+    pytest.fail(f"{pattern!r} not seen within {timeout_s} s: {read()[-2000:]}")
+
+
+def _watch_headings(tmp_path, compass_port):
+    """``magnet watch heading`` connected to the compass, printing into a file."""
+    with open(tmp_path / "watch.jsonl", "w") as out:  # the child keeps its own descriptor
+        return subprocess.Popen([*MAGNET, "watch", "heading", "--duration", "60", "--no-multicast-scouting",
+                                 "--connect", f"tcp/127.0.0.1:{compass_port}"], stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, cwd=REPO)
+
+
+def _watched(tmp_path) -> dict[tuple[str, int], float]:
+    """(device, seq) -> true heading of the message's last sample, from what `magnet watch heading` printed."""
+    out = {}
+    for line in (tmp_path / "watch.jsonl").read_text().splitlines():
+        try:
+            message = json.loads(line)
+        except ValueError:
+            continue
+        if "true_heading_deg" in message:
+            out[(message["device"], message["seq"])] = message["true_heading_deg"][-1]
+    return out
+
+
+def _page_headings(page) -> dict[str, tuple[int, float]]:
+    cells = page.eval_on_selector_all(
+        '#fleet-body td[data-key="true_heading_deg"]',
+        "tds => tds.map(td => [td.parentElement.dataset.device, td.dataset.seq, td.dataset.heading])")
+    return {device: (int(seq), float(heading)) for device, seq, heading in cells if seq and heading}
+
+
+def _shot(page, name):
+    ARTEFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(ARTEFACTS / f"{name}.png"), full_page=True)
+
+
+def test_dashboard_in_a_browser(chromium, pipeline, tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api", reason="pip package playwright is a test dependency")
+    address, compass_port = pipeline
+    watch = _watch_headings(tmp_path, compass_port)
+    try:
+        with sync_api.sync_playwright() as playwright:
+            browser = playwright.chromium.launch(executable_path=str(chromium), args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1500, "height": 950})
+                errors = []
+                page.on("pageerror", lambda exc: errors.append(str(exc)))
+                page.set_default_timeout(60_000)  # generous: CI machines are shared; nothing waits when it is fast
+                page.goto(address, wait_until="commit")
+                _check_fleet(page, tmp_path)
+                _check_session(page)
+                assert errors == [], errors
+            finally:
+                browser.close()
+    finally:
+        watch.terminate()
+        watch.wait(timeout=10)
+
+
+def _check_fleet(page, tmp_path):
+    page.wait_for_function("document.querySelectorAll('#fleet-body tr').length === 5", timeout=60_000)
+    assert "token" not in page.url  # the page keeps the token and takes it out of the address bar
+    devices = page.eval_on_selector_all("#fleet-body tr", "trs => trs.map(tr => tr.dataset.device)")
+    assert devices == [f"dev-{i:03d}" for i in range(5)]
+    page.wait_for_function("document.querySelectorAll('#fleet-body td[data-heading]:not([data-heading=\"\"])')"
+                           ".length === 5", timeout=20_000)
+    first = _page_headings(page)
+    time.sleep(1.5)
+    second = _page_headings(page)
+    assert all(second[d][0] > first[d][0] for d in first), (first, second)  # newer messages shown
+    assert sum(abs(second[d][1] - first[d][1]) > 0.5 for d in first) >= 4, (first, second)  # headings move
+    _shot(page, "fleet")
+    time.sleep(0.5)  # let `magnet watch heading` print the messages the page shows
+    watched = _watched(tmp_path)
+    matched = 0
+    for device, (seq, heading) in second.items():
+        if (device, seq) in watched:
+            matched += 1
+            assert abs((heading - watched[(device, seq)] + 180) % 360 - 180) < 1.0, (device, seq)
+    assert matched >= 4, f"the watcher saw {len(watched)} messages but few of the page's: {second}"
+
+
+def _check_session(page):
+    page.click('#fleet-body tr[data-device="dev-001"]', no_wait_after=True)
+    page.wait_for_selector("#device-view:not(.hidden)")
+    page.wait_for_function("document.querySelector('#cloud .main-svg') !== null", timeout=30_000)
+    page.select_option("#c-method-select", "ellipsoid")
+    page.click("#b-start")
+    page.wait_for_function("document.querySelector('#c-message').textContent.includes('session started')",
+                           timeout=10_000)
+    page.wait_for_function("document.querySelector('#c-state').textContent === 'session'", timeout=10_000)
+    page.wait_for_function("parseFloat(document.querySelector('#c-bar').style.width) > 20", timeout=20_000)
+    assert page.inner_text("#c-next").strip() != ""  # what to do next is said
+    _shot(page, "device-session")
+    page.wait_for_function("document.querySelector('#b-commit').classList.contains('ready')", timeout=45_000)
+    page.click("#b-commit")
+    page.wait_for_function("document.querySelector('#c-message').textContent === 'committed'", timeout=10_000)
+    page.wait_for_function("document.querySelector('#c-state').textContent === 'calibrated'", timeout=10_000)
+    page.wait_for_function("document.querySelectorAll('#history-body code').length >= 1", timeout=10_000)
+    time.sleep(1.2)  # one more detail event for the plots
+    page.wait_for_function("document.querySelectorAll('#cloud .scatterlayer .trace .point').length > 100")
+    _shot(page, "device-committed")
+    page.click('.tab[data-cloud="3d"]')
+    page.wait_for_function("document.querySelector('#cloud .gl-container') !== null", timeout=30_000)
+    time.sleep(1.0)
+    _shot(page, "device-3d")
