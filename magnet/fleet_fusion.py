@@ -183,7 +183,8 @@ class FleetFusion:
         finite = np.isfinite(gyr_rads).all(axis=1)
         saturated = finite & (np.abs(gyr_rads) >= GYRO_LIMIT_RADS).any(axis=1)
         usable = finite & ~saturated & np.isfinite(acc_ms2).all(axis=1) & np.isfinite(field_ut).all(axis=1)
-        inputs = tuple(fusion.to_vqf_frame(np.where(usable[:, None], x, 0.0)) for x in (gyr_rads, acc_ms2, field_ut))
+        gyr, acc, field = (fusion.to_vqf_frame(np.where(usable[:, None], x, 0.0)) for x in (gyr_rads, acc_ms2,
+                                                                                             field_ut))
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)
         restarts = 0
@@ -193,7 +194,7 @@ class FleetFusion:
                 continue
             state = self._device(device)
             before = state.restarts
-            state.update(int(seqs[b]), t_ns[lo:hi], tuple(x[lo:hi] for x in inputs), usable[lo:hi],
+            state.update(int(seqs[b]), t_ns[lo:hi], (gyr[lo:hi], acc[lo:hi], field[lo:hi]), usable[lo:hi],
                          saturated[lo:hi], raw[lo:hi], disturbed[lo:hi])
             restarts += state.restarts - before
         dropped = {cause: int(n) for cause, n in (("gyro-non-finite", (gyro_rows & ~finite).sum()),
