@@ -16,7 +16,8 @@ place of the tilt one. Per device:
   the filter after them, since the rotation while saturated is unknown. Samples without a finite accelerometer or
   field reading are not fused either. Samples not fused keep the tilt heading (flag FUSED clear): never NaN.
 - magnetic disturbance: vqf's detection (|B| or dip away from its reference) sets FIELD_DISTURBED, and vqf then
-  leaves the field out of the heading, so a disturbance does not drag it.
+  leaves the field out of the heading, so a disturbance does not drag it; the compass judges the dip of fused
+  samples against the fused gravity (``FusedColumns.gravity``), not the accelerometer.
 
 State is bounded: at most ``MAX_DEVICES`` filters, the least recently used forgotten first.
 """
@@ -33,6 +34,7 @@ import numpy as np
 from magnet import fusion
 from magnet import heading as hd
 from magnet.attitude import matrix_to_euler, quaternion_to_matrix
+from magnet.compass import Headings
 
 #: 2000 deg/s, the widest full scale of common MEMS gyroscopes (ICM-20948, LSM9DS1, MPU-6050): a reading at or beyond
 #: it is saturated, and the rotation while it lasts is unknown
@@ -65,6 +67,10 @@ class FusedColumns:
         nan = np.full(count, np.nan)
         return cls(np.zeros(count, bool), np.full((count, 4), np.nan), nan, nan.copy(), nan.copy(),
                    np.full((count, 3), np.nan), np.zeros(count, bool), {}, 0)
+
+    def gravity(self, acc_ms2: np.ndarray) -> np.ndarray:
+        """Specific force (S, 3) as a still device would read it: -down (unit) where fused, else ``acc_ms2``."""
+        return np.where(self.fused[:, None], -self.down, acc_ms2)
 
     @classmethod
     def from_vqf(cls, raw: np.ndarray, disturbed: np.ndarray, dropped: Mapping[str, int], restarts: int
@@ -202,23 +208,16 @@ class FleetFusion:
         return FusedColumns.from_vqf(raw, disturbed, dropped, restarts)
 
 
-def merge(heading_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray, flags: np.ndarray,
-          field_ut: np.ndarray, fused: FusedColumns, expected_ut: float | None, expected_dip_deg: float | None
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """The compass's (S,) heading, pitch, roll and flags with the fused attitude where there is one, and the fused
-    attitude (S, 4) body -> magnetic NED (NaN rows where not fused; None when no sample was fused: accelerometer
-    tilt gives no quaternion, which keeps the messages of devices without a gyroscope as they were).
-
-    Fused samples: flags FUSED, disturbance flags recomputed against the fused gravity (not the accelerometer, which
-    reads linear acceleration too), FIELD_DISTURBED also where vqf detects a disturbance; CALIBRATED kept."""
+def merge(headings: Headings, fused: FusedColumns) -> tuple[Headings, np.ndarray | None]:
+    """The compass's headings (``magnet.compass.Headings``, S samples) with the fused attitude where there is one
+    (flag FUSED; FIELD_DISTURBED also where vqf detects a disturbance; the other flags kept), and the fused attitude
+    (S, 4) body -> magnetic NED, NaN rows where not fused, or None when no sample was fused (accelerometer tilt
+    gives no quaternion, which keeps the messages of devices without a gyroscope as they were)."""
     f = fused.fused
     if not f.any():
-        return heading_deg, pitch_deg, roll_deg, flags, None
-    calibrated = np.asarray(flags) & int(hd.HeadingFlag.CALIBRATED)
-    with np.errstate(invalid="ignore"):
-        fused_flags = hd.disturbance_flags(field_ut, np.where(f[:, None], -fused.down, 0.0), expected_ut,
-                                           expected_dip_deg)
-    fused_flags = (fused_flags | calibrated | int(hd.HeadingFlag.FUSED)
-                   | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0))
-    return (np.where(f, fused.heading_deg, heading_deg), np.where(f, fused.pitch_deg, pitch_deg),
-            np.where(f, fused.roll_deg, roll_deg), np.where(f, fused_flags, flags), fused.quat_wxyz)
+        return headings, None
+    flags = np.where(f, np.asarray(headings.flags) | int(hd.HeadingFlag.FUSED)
+                     | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0), headings.flags)
+    return dataclasses.replace(headings, heading_deg=np.where(f, fused.heading_deg, headings.heading_deg),
+                               pitch_deg=np.where(f, fused.pitch_deg, headings.pitch_deg),
+                               roll_deg=np.where(f, fused.roll_deg, headings.roll_deg), flags=flags), fused.quat_wxyz

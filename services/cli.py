@@ -24,7 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrator": ("services.calibrator.service", "collect, fit, gate, store and serve calibrations over Zenoh"),
     "compass": ("services.compass.service", "apply calibrations and publish headings over Zenoh"),
     "router": ("services.router", "run a Zenoh router"),
-    "get": ("services.commands.remote", "query a device's calibration (or its history)"),
+    "get": ("services.commands.remote", "query a device's calibration (or its history), a status, or the fleet"),
     "watch": ("services.commands.remote", "print headings as they are published"),
     "calibrate": ("services.commands.remote", "start, follow, commit or abort a calibration session"),
     "keys": ("services.commands.keys", "an Ed25519 key pair for signing calibrations (NAME.key, NAME.pub)"),

@@ -1,6 +1,6 @@
 """The figures issue 8 asks for on the BROAD trials, through the command line as a user runs it: `magnet fit` on the
 recording, then `magnet heading` with the fit's record when it was accepted and without one when it was refused (as
-the compass does), causal and --offline, scored against the optical reference (DESIGN.md 4b)."""
+the compass does), causal and --offline, scored against the optical reference (docs/design.md, "Heading in motion")."""
 
 from __future__ import annotations
 

@@ -60,6 +60,8 @@ def test_forged_and_absurd_calibrations_never_replace_the_signed_one(procs, tmp_
     procs.start("calibrator", "calibrator", "--db", str(tmp_path / "c.db"), "--signing-key",
                 str(tmp_path / "keys/calibrator.key"), *listen_args(cal_port))
     procs.start("compass", "compass", *trust, *listen_args(comp_port), *connect_args(cal_port))
+    # the edge dials services that already listen (a peer dialled before it listens may never be reached)
+    wait_for(lambda: _status("calibrator", cal_port) and _status("compass", comp_port), 30, "the services to answer")
     procs.start("edge", "edge", "--device", DEVICE, "--sensor", "sim", "--emulate", "--rate", "500", "--batch", "25",
                 "--trajectory-samples", "2000", *listen_args(edge_port), *connect_args(cal_port, comp_port))
 

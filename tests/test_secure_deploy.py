@@ -111,13 +111,24 @@ def test_certs_are_v3_with_the_extensions_rustls_needs(site):
 def test_every_role_does_its_job_through_the_secure_router(site):
     site.start_step("calibrator")
     site.start_step("compass")
+    for service in ("calibrator", "compass"):
+        wait_for(lambda: subprocess.run([*MAGNET, "get", "status", service, "--timeout", "1", "--config",
+                                         str(site.dir / "viewer.json5")], capture_output=True, timeout=20).returncode
+                 == 0, 30, f"the {service} to answer")
     site.start_step("edge", *FAST_EDGE)
+
+    last = []
 
     def calibration():
         out = site.run("get", "--timeout", "2")
+        last[:] = [out.stderr]
         return out.returncode == 0 and json.loads(out.stdout.splitlines()[0])
 
-    record = wait_for(calibration, 60, "the calibrator (certificate) to store a calibration of the edge (password)")
+    try:
+        record = wait_for(calibration, 60, "the calibrator (certificate) to store a calibration of the edge (password)")
+    except BaseException:
+        print("last get:", last, "\n".join(f"{name}: {site.log(name)[-2000:]}" for name in site.procs))
+        raise
     assert record["accepted"] and record["device"] == "imu-1" and record["sig"], "a signed calibration"
     watched = site.run("watch", timeout=30)
     headings = [json.loads(line) for line in watched.stdout.splitlines()]
@@ -128,6 +139,10 @@ def test_every_role_does_its_job_through_the_secure_router(site):
     viewer = subprocess.run([*MAGNET, *site.argv("calibrate")[:-2], "--config", str(site.dir / "viewer.json5"),
                              "--timeout", "2"], capture_output=True, text=True, timeout=20)
     assert viewer.returncode == 1 and "no calibrator answered" in viewer.stderr, "a viewer cannot drive sessions"
+    fleet = subprocess.run([*MAGNET, "get", "fleet", "--config", str(site.dir / "viewer.json5"), "--timeout", "3"],
+                           capture_output=True, text=True, timeout=20)
+    assert fleet.returncode == 0, fleet.stderr
+    assert [d["calibration_id"] for d in json.loads(fleet.stdout)["devices"]] == [record["id"]], "a viewer sees the fleet"
     for name in ("calibrator", "compass", "edge"):
         assert site.alive(name), site.log(name)
 

@@ -1,4 +1,4 @@
-"""Judging a calibration with data collected in motion (DESIGN.md section 4b, "Calibrating while moving").
+"""Judging a calibration with data collected in motion (docs/design.md, "Heading in motion").
 
 A moving accelerometer measures gravity plus linear acceleration, so the dip check (angle between field and gravity)
 cannot use every sample. The gravity direction comes from:

@@ -77,6 +77,15 @@ class FleetSimulator:
         self._gyro, self._gyro_noise = bool(gyro), float(gyro_noise_rads)
         self._gyro_rng = np.random.default_rng(seeds[2])
 
+    def change_iron(self, device: int, hard_iron_ut: Any = None, soft_iron: Any = None) -> None:
+        """New iron near device ``device`` from the next sample on (a drift): hard_iron_ut (3,) uT and/or
+        soft_iron (3, 3) replace its own (``errors[device]`` keeps what it was calibrated with)."""
+        if hard_iron_ut is not None:
+            self._hard_iron[device] = np.asarray(hard_iron_ut, dtype=float).reshape(3)
+        if soft_iron is not None:
+            errors = dataclasses.replace(self.errors[device], soft_iron=np.asarray(soft_iron, dtype=float))
+            self._distortion[device] = errors.distortion
+
     def step(self, n: int) -> FleetBatch:
         """The next n samples of every device."""
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:

@@ -15,12 +15,15 @@ and a level device at rest reads (0, 0, -9.81).
 Models (``MODELS``), all deterministic from the generator they are given:
 - MultirotorModel: a flight plan of segments (hover, yaw turns of 90-180 deg, 30 deg banks in roll, pitch or both,
   banked turns at 30 deg roll), each eased in and out (quintic smoothstep: continuous angular rate and angular
-  acceleration). Thrust along body -z holds altitude (plus a slow climb/descent), so in a bank the horizontal
-  acceleration is g tan(bank) and the accelerometer still reads (almost) only along z: accelerometer tilt sees a
-  level device. Vibration: small angular jitter (0.15 deg at 4-12 Hz) and body-frame acceleration tones (8-24 Hz).
-- CarModel: straights (speed easing to 8-25 m/s, at most 3 m/s^2) and turns of 45-120 deg at 15-30 deg/s (at
-  5-10 m/s); the linear acceleration is the longitudinal dv/dt plus the centripetal v * yaw rate (to the right in a
-  right turn), the body rolls outward 0.5 deg per m/s^2 of lateral acceleration and pitches 0.3 deg per m/s^2 of
+  acceleration). Thrust along body -z holds altitude (plus a slow climb/descent) and drag (0.4/s times the velocity)
+  opposes the motion: a bank first accelerates the craft at g tan(bank) while the accelerometer still reads only
+  along z (accelerometer tilt sees a level device), then the speed settles (about 14 m/s at 30 deg) and the
+  accelerometer sees the tilt again, through the drag. Vibration: small angular jitter (0.15 deg at 4-12 Hz) and
+  body-frame acceleration tones (8-24 Hz).
+- CarModel: straights at constant speed, speed changes (to 5-25 m/s or a stop, at most 3 m/s^2) and turns of
+  45-120 deg at 5-12 m/s (peak yaw rate 15-30 deg/s, centripetal acceleration at most 3 m/s^2); the linear
+  acceleration is the longitudinal dv/dt plus the centripetal v * yaw rate (to the right in a right turn), the body
+  rolls outward 0.5 deg per m/s^2 of lateral acceleration and pitches 0.3 deg per m/s^2 of
   longitudinal; road vibration grows with speed (none at rest: a parked car is level and still).
 - Figure8Model: a handheld device waved in a figure 8 (position +-0.3 m at 0.35-0.5 Hz, heading +-45 deg, pitch
   +-40 deg, roll +-60 deg) while the person slowly turns around (one turn in 30-50 s); hand tremor.
@@ -41,6 +44,8 @@ from magnet.units import STANDARD_GRAVITY_MS2
 
 G_NED = np.array([0.0, 0.0, STANDARD_GRAVITY_MS2])   # gravity (acceleration of free fall) in NED, m/s^2
 BANK_DEG = 30.0
+DRAG_PER_S = 0.4          # multirotor: rotor and body drag per second (30 deg bank -> about 14 m/s in about 2.5 s)
+DRAG_STEP_S = 0.01
 DERIVATIVE_STEP_S = 5e-4
 
 
@@ -145,6 +150,7 @@ class MultirotorModel(MotionModel):
         self.vibration_ms2 = Tones(rng, 3, 3, (8.0, 24.0), (0.3, 0.3, 0.5))
         self.climb_hz, self.climb_phase = rng.uniform(0.05, 0.1), rng.uniform(0.0, 2.0 * np.pi)
         self.yaw0_deg = rng.uniform(0.0, 360.0)
+        self._grid_index, self._grid_velocity = 0, np.zeros(3)
 
     def _draw(self, rng: np.random.Generator, last: dict[str, Any] | None) -> tuple[float, dict[str, Any]]:
         yaw0 = self.yaw0_deg if last is None else last["yaw0"] + last["dyaw"]
@@ -174,12 +180,39 @@ class MultirotorModel(MotionModel):
         yaw = row["yaw0"] + row["dyaw"] * smoother(u) + jitter[:, 0]
         return yaw, row["pitch"] * bank + jitter[:, 1], row["roll"] * bank + jitter[:, 2]
 
-    def linear_acceleration(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    def _thrust(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        """Thrust + gravity (N, 3) m/s^2 NED: thrust along body -z, its vertical part holding altitude (plus a slow
+        climb and descent): g - thrust R22 = climb."""
         climb = 0.5 * np.sin(2.0 * np.pi * self.climb_hz * np.asarray(t, dtype=float) + self.climb_phase)
-        thrust = (STANDARD_GRAVITY_MS2 - climb) / rotation[:, 2, 2]      # vertical: g - thrust R22 = climb
-        force = self.vibration_ms2(t)
-        force[:, 2] -= thrust
-        return np.einsum("nij,nj->ni", rotation, force) + G_NED
+        thrust = (STANDARD_GRAVITY_MS2 - climb) / rotation[:, 2, 2]
+        return G_NED - thrust[:, None] * rotation[:, :, 2]
+
+    def _velocity(self, t: np.ndarray) -> np.ndarray:
+        """Velocity (N, 3) m/s NED at increasing times t, from rest at t = 0: v' = thrust + gravity - drag v, stepped
+        exactly for the drag on a fixed grid (the forcing at each step's middle), so any split of the times into
+        blocks gives the same velocities. The latest grid point is kept, so block after block costs no more."""
+        h, k = DRAG_STEP_S, DRAG_PER_S
+        t = np.maximum(np.asarray(t, dtype=float), 0.0)
+        cell = np.floor(t / h).astype(int)
+        if cell.min() < self._grid_index:                  # asked for the past: start again from rest
+            self._grid_index, self._grid_velocity = 0, np.zeros(3)
+        start = self._grid_index
+        middles = (start + np.arange(cell.max() - start) + 0.5) * h
+        forcing = self._thrust(middles, self.rotation(middles)) if middles.size else np.zeros((0, 3))
+        decay, gain = np.exp(-k * h), -np.expm1(-k * h) / k
+        grid = np.empty((middles.size + 1, 3))
+        grid[0] = self._grid_velocity
+        for j, u in enumerate(forcing):
+            grid[j + 1] = decay * grid[j] + gain * u
+        self._grid_index, self._grid_velocity = int(cell.max()), grid[-1].copy()
+        rest = t - cell * h                                 # from each sample's grid point to the sample
+        halfway = cell * h + rest / 2.0
+        u = self._thrust(halfway, self.rotation(halfway))
+        return np.exp(-k * rest)[:, None] * grid[cell - start] - (np.expm1(-k * rest) / k)[:, None] * u
+
+    def linear_acceleration(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        vibration = np.einsum("nij,nj->ni", rotation, self.vibration_ms2(t))
+        return self._thrust(t, rotation) - DRAG_PER_S * self._velocity(t) + vibration
 
 
 class CarModel(MotionModel):
@@ -188,6 +221,8 @@ class CarModel(MotionModel):
     ROLL_DEG_PER_MS2 = 0.5
     PITCH_DEG_PER_MS2 = 0.3
     MAX_ALONG_MS2 = 3.0      # peak longitudinal acceleration of a speed change on a straight
+    MAX_LATERAL_MS2 = 3.0    # peak centripetal acceleration in a turn
+    TURN_SPEED_MS = (5.0, 12.0)
 
     def __init__(self, rng: np.random.Generator, declination_deg: float = 0.0) -> None:
         super().__init__(rng, declination_deg)
@@ -199,12 +234,21 @@ class CarModel(MotionModel):
     def _draw(self, rng: np.random.Generator, last: dict[str, Any] | None) -> tuple[float, dict[str, Any]]:
         yaw0 = self.yaw0_deg if last is None else last["yaw0"] + last["dyaw"]
         speed0 = 0.0 if last is None else last["v0"] + last["dv"]
-        if last is None or last["dyaw"] or rng.random() < 0.4:
-            row = {"yaw0": yaw0, "dyaw": 0.0, "v0": speed0, "dv": rng.uniform(8.0, 25.0) - speed0}
-            return max(rng.uniform(4.0, 8.0), 1.875 * abs(row["dv"]) / self.MAX_ALONG_MS2), row
-        row = {"yaw0": yaw0, "dyaw": _sign(rng) * rng.uniform(45.0, 120.0), "v0": speed0,
-               "dv": rng.uniform(5.0, 10.0) - speed0}
-        return 1.875 * abs(row["dyaw"]) / rng.uniform(15.0, 30.0), row   # peak yaw rate 15-30 deg/s
+        row = {"yaw0": yaw0, "dyaw": 0.0, "v0": speed0, "dv": 0.0}
+        choice = rng.random()
+        if last is not None and (last["dyaw"] or choice < 0.35):          # cruise (or stand) on a straight
+            return rng.uniform(3.0, 10.0), row
+        if last is None or choice < 0.65 or speed0 > self.TURN_SPEED_MS[1]:   # change speed (slow down to turn)
+            top = self.TURN_SPEED_MS[1] if speed0 > self.TURN_SPEED_MS[1] and choice >= 0.65 else 25.0
+            target = 0.0 if last is not None and rng.random() < 0.15 else rng.uniform(self.TURN_SPEED_MS[0], top)
+            row["dv"] = target - speed0
+            return max(2.0, 1.875 * abs(row["dv"]) / rng.uniform(1.5, self.MAX_ALONG_MS2)), row
+        if speed0 < self.TURN_SPEED_MS[0]:                                  # too slow to turn: move off first
+            row["dv"] = rng.uniform(*self.TURN_SPEED_MS) - speed0
+            return max(2.0, 1.875 * abs(row["dv"]) / self.MAX_ALONG_MS2), row
+        row["dyaw"] = _sign(rng) * rng.uniform(45.0, 120.0)
+        rate_deg = min(rng.uniform(15.0, 30.0), np.degrees(self.MAX_LATERAL_MS2 / speed0))
+        return 1.875 * abs(row["dyaw"]) / rate_deg, row                     # peak yaw rate, peak lateral bounded
 
     def _motion(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
         """(magnetic heading deg, speed m/s, longitudinal and lateral acceleration m/s^2), each (N,)."""

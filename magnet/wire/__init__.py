@@ -12,7 +12,8 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
 - ``errors``: ``WireError``, ``DropCounter``.
 - ``codec``: ``WIRE_VERSION``, size limits, ``pack``/``unpack`` and the checks of single fields.
 - ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; the one raw decoder ``decode_raw_many`` (``decode_raw`` is
-  it applied to one payload). Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``.
+  it applied to one payload). Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``, and optional
+  ``location`` [lat_deg, lon_deg, alt_m] (``magnet.place.Location``; cause ``bad-location``).
 - ``headings``: ``HeadingBatch``, the one heading encoder ``encode_headings`` (``encode_heading`` is it for one
   batch), ``decode_heading``; optional ``quat_wxyz`` and the ``DISTURBED`` flag bits.
 - ``records``: ``DeviceCalibration`` (a device's calibration as published and stored; its one entry is
@@ -27,7 +28,7 @@ from magnet.wire.headings import (ANGLE_FIELDS, DISTURBED, HeadingBatch, decode_
 from magnet.wire.keys import (DEFAULT_PREFIX, Kind, check_key, device_from_key, key, key_mismatch, liveliness_key,
                               message_device, status_key, validate_device_id, validate_prefix)
 from magnet.wire.raw import (MAX_ACC_MS2, MAX_FIELD_UT, MAX_GYR_RADS, TRUTH_FIELDS, RawBatch, RawColumns,
-                             decode_messages, decode_raw, decode_raw_many, encode_raw)
+                             decode_messages, decode_raw, decode_raw_many, encode_raw, message_location)
 from magnet.wire.records import (CalibrationMessage, Collecting, DeviceCalibration, Progress, calibration_from_record,
                                  calibration_record, decode_calibration, decode_progress, encode_calibration,
                                  encode_progress)
@@ -38,6 +39,6 @@ __all__ = [
     "TRUTH_FIELDS", "WIRE_VERSION", "WireError", "calibration_from_record", "calibration_record", "check_key",
     "check_version", "decode_calibration", "decode_heading", "decode_messages", "decode_progress", "decode_raw",
     "decode_raw_many", "device_from_key", "encode_calibration", "encode_heading", "encode_headings",
-    "encode_progress", "encode_raw", "key", "key_mismatch", "liveliness_key", "message_device", "pack",
+    "encode_progress", "encode_raw", "key", "message_location", "key_mismatch", "liveliness_key", "message_device", "pack",
     "status_key", "unpack", "validate_device_id", "validate_prefix",
 ]

@@ -63,13 +63,14 @@ class HeadingBatch:
 
 def encode_headings(columns: RawColumns, heading_deg: np.ndarray, true_heading_deg: np.ndarray,
                     pitch_deg: np.ndarray, roll_deg: np.ndarray, field_ut: np.ndarray, flags: np.ndarray,
-                    declination_deg: float, calibration_ids: Sequence[str],
+                    declination_deg: float | Sequence[float], calibration_ids: Sequence[str],
                     quat_wxyz: np.ndarray | None = None) -> list[bytes]:
     """One heading message per batch of ``columns`` (the one heading encoder).
 
     The arrays are aligned with ``columns``' S samples (angles (S,) deg, field_ut (S, 3) uT, flags (S,) int,
     quat_wxyz (S, 4) or None); each is turned into Python lists once and sliced per batch. A batch whose quaternion
-    rows are not all finite carries no ``quat_wxyz``."""
+    rows are not all finite carries no ``quat_wxyz``. ``declination_deg``: one for all, or one per batch (each
+    device's place)."""
     return _encode(columns.devices, columns.seqs, columns.bounds, columns.t_ns,
                    (heading_deg, true_heading_deg, pitch_deg, roll_deg), field_ut, flags, declination_deg,
                    calibration_ids, quat_wxyz)
@@ -83,16 +84,17 @@ def encode_heading(batch: HeadingBatch) -> bytes:
 
 
 def _encode(devices: Sequence[str], seqs: Sequence[int], bounds: Sequence[int], t_ns: np.ndarray,
-            angles: tuple[np.ndarray, ...], field_ut: np.ndarray, flags: np.ndarray, declination_deg: float,
+            angles: tuple[np.ndarray, ...], field_ut: np.ndarray, flags: np.ndarray,
+            declination_deg: float | Sequence[float],
             calibration_ids: Sequence[str], quat_wxyz: np.ndarray | None) -> list[bytes]:
     times = np.asarray(t_ns, dtype=np.int64).tolist()
     angle_lists = [np.asarray(a, dtype=float).tolist() for a in angles]
     field = np.asarray(field_ut, dtype=float).tolist()
     flag = np.asarray(flags, dtype=np.int64).tolist()
     quat, quat_ok = _quaternions(quat_wxyz, bounds)
-    declination = float(declination_deg)
+    declinations = (np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),))).tolist()
     out = []
-    for i, (device, seq, cal_id) in enumerate(zip(devices, seqs, calibration_ids)):
+    for i, (device, seq, cal_id, declination) in enumerate(zip(devices, seqs, calibration_ids, declinations)):
         lo, hi = bounds[i], bounds[i + 1]
         message: dict[str, Any] = {"v": WIRE_VERSION, "device": device, "seq": int(seq), "t_ns": times[lo:hi]}
         message.update((name, values[lo:hi]) for name, values in zip(ANGLE_FIELDS, angle_lists))

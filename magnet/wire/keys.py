@@ -29,6 +29,7 @@ class Kind(enum.Enum):
     PROGRESS = "calibration/progress"
     CALIBRATE = "calibrate"
     HEADING = "heading"
+    ALERT = "alert"
 
 
 def validate_device_id(device: Any) -> str:

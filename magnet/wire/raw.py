@@ -2,7 +2,8 @@
 
 Message: ``{v, device, seq, sensor, t_ns: [N ints], mag_ut: [[x, y, z]] * N, acc_ms2: [[x, y, z]] * N (optional),
 gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), truth: {heading_deg: [N], pitch_deg: [N],
-roll_deg: [N]} (optional, simulator only)}``.
+roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the device is,
+``magnet.place.Location``, checked: cause ``bad-location``)}``.
 
 There is one decoder: ``decode_raw_many`` checks each message's structure in Python (``_header``) and the numbers of
 all of them in one numpy pass (``_numbers``); when the numbers of a group do not even form arrays, each message of
@@ -23,6 +24,7 @@ import numpy as np
 from magnet.wire.codec import (MAX_BATCH_SAMPLES, WIRE_VERSION, Payload, check_lengths, float_array, int_field,
                                unpack)
 from magnet.wire.errors import WireError
+from magnet.place import Location
 from magnet.wire.keys import message_device
 
 #: Magnitudes beyond these are not a magnetometer, an accelerometer or a gyroscope on Earth (a +-8 gauss chip reads
@@ -40,7 +42,7 @@ TRUTH_FIELDS = ("heading_deg", "pitch_deg", "roll_deg")
 class RawBatch:
     """N raw samples of one device. t_ns (N,) int64 ns; mag_ut (N, 3) uT body frame; acc_ms2 (N, 3) m/s^2 or None;
     truth: {"heading_deg", "pitch_deg", "roll_deg"} -> (N,) degrees, simulator only, else None; gyr_rads (N, 3)
-    rad/s body frame or None."""
+    rad/s body frame or None; location where the device is, or None."""
 
     device: str
     seq: int
@@ -50,6 +52,7 @@ class RawBatch:
     acc_ms2: np.ndarray | None = None
     truth: Mapping[str, np.ndarray] | None = None
     gyr_rads: np.ndarray | None = None
+    location: Location | None = None
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -64,7 +67,8 @@ class RawColumns:
     """B raw batches decoded together, S samples in all, batch after batch.
 
     devices, seqs, sensors: per batch (B); counts (B,) int samples per batch; t_ns (S,) int64; mag_ut (S, 3) uT;
-    acc_ms2 (S, 3) m/s^2 and gyr_rads (S, 3) rad/s, with NaN rows for batches that carry none."""
+    acc_ms2 (S, 3) m/s^2 and gyr_rads (S, 3) rad/s, with NaN rows for batches that carry none; locations per batch
+    (a Location or None), or None when no batch carries one."""
 
     devices: list[str]
     seqs: list[int]
@@ -74,6 +78,7 @@ class RawColumns:
     acc_ms2: np.ndarray
     gyr_rads: np.ndarray
     sensors: list[str]
+    locations: list[Location | None] | None = None
 
     @classmethod
     def from_batches(cls, batches: Sequence[RawBatch]) -> RawColumns:
@@ -86,7 +91,7 @@ class RawColumns:
                    np.concatenate([b.mag_ut for b in batches]).astype(np.float64),
                    np.concatenate([_nan_rows(len(b)) if b.acc_ms2 is None else b.acc_ms2 for b in batches]),
                    np.concatenate([_nan_rows(len(b)) if b.gyr_rads is None else b.gyr_rads for b in batches]),
-                   [b.sensor for b in batches])
+                   [b.sensor for b in batches], _locations([b.location for b in batches]))
 
     @property
     def bounds(self) -> list[int]:
@@ -101,7 +106,8 @@ class RawColumns:
             acc, gyr = self.acc_ms2[lo:hi], self.gyr_rads[lo:hi]
             out.append(RawBatch(self.devices[i], self.seqs[i], self.sensors[i], self.t_ns[lo:hi], self.mag_ut[lo:hi],
                                 None if np.isnan(acc).all() else acc, None,
-                                None if np.isnan(gyr).all() else gyr))
+                                None if np.isnan(gyr).all() else gyr,
+                                None if self.locations is None else self.locations[i]))
         return out
 
     def select(self, keep: np.ndarray) -> RawColumns:
@@ -111,7 +117,26 @@ class RawColumns:
         pick = [i for i, k in enumerate(keep.tolist()) if k]
         return RawColumns([self.devices[i] for i in pick], [self.seqs[i] for i in pick], self.counts[keep],
                           self.t_ns[per_sample], self.mag_ut[per_sample], self.acc_ms2[per_sample],
-                          self.gyr_rads[per_sample], [self.sensors[i] for i in pick])
+                          self.gyr_rads[per_sample], [self.sensors[i] for i in pick],
+                          None if self.locations is None else _locations([self.locations[i] for i in pick]))
+
+
+def _locations(locations: list[Location | None]) -> list[Location | None] | None:
+    """Per-batch locations, or None when no batch carries one."""
+    return locations if any(loc is not None for loc in locations) else None
+
+
+def message_location(message: Mapping[str, Any]) -> Location | None:
+    """The optional ``location`` of a raw message; WireError ``bad-location`` when it is not a valid place."""
+    value = message.get("location")
+    if value is None:
+        return None
+    if type(value) is not list:
+        raise WireError("bad-location", "location must be a list [lat_deg, lon_deg, alt_m]")
+    try:
+        return Location.parse(value)
+    except ValueError as exc:
+        raise WireError("bad-location", str(exc)) from None
 
 
 # ------------------------------------------------------------------------------------------------------ encoding
@@ -130,6 +155,8 @@ def encode_raw(batch: RawBatch) -> bytes:
         message["acc_ms2"] = np.asarray(batch.acc_ms2, dtype=float).tolist()
     if batch.gyr_rads is not None:
         message["gyr_rads"] = np.asarray(batch.gyr_rads, dtype=float).tolist()
+    if batch.location is not None:
+        message["location"] = batch.location.to_wire()
     if batch.truth is not None:
         message["truth"] = {name: np.asarray(batch.truth[name], dtype=float).tolist() for name in TRUTH_FIELDS}
     return msgpack.packb(message, use_bin_type=True)
@@ -268,21 +295,27 @@ def decode_messages(messages: Sequence[Mapping[str, Any]]) -> tuple[RawColumns, 
     errors: list[tuple[int, WireError]] = []
     kept: list[int] = []
     headers: list[_Header] = []
+    locations: list[Location | None] = []
     for index, message in enumerate(messages):
         try:
-            headers.append(_header(message))
-            kept.append(index)
+            header, location = _header(message), message_location(message)
         except WireError as exc:
             errors.append((index, exc))
+            continue
+        headers.append(header)
+        locations.append(location)
+        kept.append(index)
     if not headers:
         return RawColumns.from_batches([]), errors
     try:
         columns, verdicts = _numbers([messages[i] for i in kept], headers)
+        columns = dataclasses.replace(columns, locations=_locations(locations))
         columns = columns.select(np.array([v is None for v in verdicts], dtype=bool))
     except WireError:  # rare: some message's numbers are not arrays; judge each alone to name it
         alone = [_alone(messages[i], h) for i, h in zip(kept, headers)]
         verdicts = [verdict for _, verdict in alone]
-        columns = RawColumns.from_batches([batch for batches, _ in alone for batch in batches])
+        columns = RawColumns.from_batches([dataclasses.replace(batch, location=location)
+                                           for (batches, _), location in zip(alone, locations) for batch in batches])
     errors += [(index, v) for index, v in zip(kept, verdicts) if v is not None]
     return columns, sorted(errors, key=lambda e: e[0])
 

@@ -1,5 +1,5 @@
-"""``magnet bench accuracy|fit|pipeline|motion``: benchmarks that print figures (targets live here, not in timed
-tests)."""
+"""``magnet bench accuracy|fit|pipeline|motion|fleet``: benchmarks that print figures (targets live here, not in
+timed tests)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "fit": ("services.bench.fit", "run_fit_benchmark"),
     "pipeline": ("services.bench.pipeline", "run_pipeline_benchmark"),
     "motion": ("services.bench.motion", "run_motion_benchmark"),
+    "fleet": ("services.bench.fleet", "run_fleet_benchmark"),
 }
 
 
@@ -30,6 +31,10 @@ def run(args: argparse.Namespace) -> int:
         if args.devices < 1 or args.rate <= 0 or args.batch < 1 or args.seconds <= 0:
             raise ValueError("--devices, --rate, --batch and --seconds must be positive")
         result = function(devices=args.devices, rate=args.rate, batch=args.batch, seconds=args.seconds)
+    elif args.benchmark == "fleet":
+        if args.devices < 1:
+            raise ValueError("--devices must be positive")
+        result = function(devices=args.devices)
     else:
         result = function()
     if isinstance(result, str):

@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterable
 import zenoh
 
 from magnet import wire
+from services.calibrator.fleet import fleet_reply, rollback
 
 if TYPE_CHECKING:  # the service imports this module to answer its queries
     from services.calibrator.service import Calibrator
@@ -58,19 +59,30 @@ def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
         query.reply_err(str(exc).encode())
         return
     for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
-        records = [calibrator.sign(record).to_record() for record in calibrator.store.history(device, limit=limit)]
-        query.reply(wire.key(prefix, device, wire.Kind.HISTORY), wire.pack({"device": device, "records": records}))
+        rows = calibrator.store.history_changes(device, limit=limit)
+        records = [calibrator.sign(record).to_record() for record, _ in rows]
+        query.reply(wire.key(prefix, device, wire.Kind.HISTORY),
+                    wire.pack({"device": device, "records": records, "changes": [change for _, change in rows]}))
 
 
 def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
     key_expr = str(query.key_expr)
     try:
         device = wire.device_from_key(prefix, key_expr, wire.Kind.CALIBRATE)
-        reply = calibrator.session(device, query.parameters.get("action") or "status", query.parameters.get("method"))
+        action = query.parameters.get("action") or "status"
+        if action == "rollback":
+            reply = rollback(calibrator, device, query.parameters.get("to"), query.parameters.get("by"))
+        else:
+            reply = calibrator.session(device, action, query.parameters.get("method"))
     except ValueError as exc:
         query.reply_err(str(exc).encode())
         return
     query.reply(key_expr, wire.pack(reply))
+
+
+def answer_fleet(query: Any, calibrator: Calibrator, prefix: str) -> None:
+    """``<prefix>/@fleet``: every device in one reply (``services.calibrator.fleet``)."""
+    query.reply(f"{prefix}/@fleet", wire.pack(fleet_reply(calibrator, calibrator.clock_ns())))
 
 
 def status_answer(name: str) -> Callable[[Any, Calibrator, str], None]:

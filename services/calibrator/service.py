@@ -19,7 +19,7 @@ import os
 import time
 from pathlib import Path
 from typing import Any
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import zenoh
@@ -30,8 +30,12 @@ from magnet.collection import Collection
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from magnet.quality import Coverage
+from magnet.fleet import Places
+from magnet.place import Location
 from services.calibrator import queries
+from services.calibrator.fleet import FleetBook
 from services.calibrator.store import CalibrationStore
+from services.common.fleet_options import add_fleet_argument, read_fleet
 from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
                                            stop_event)
 
@@ -60,6 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-auto", action="store_true", help="calibrate only in operator sessions")
     parser.add_argument("--name", default="calibrator", help="service name for liveliness and status")
     parser.add_argument("--devices", default="*", help="key expression of the devices served (default *)")
+    add_fleet_argument(parser)
     parser.add_argument("--signing-key", type=Path, metavar="FILE.key",
                         help="sign every calibration it serves with this Ed25519 private key (`magnet keys`); "
                              "compasses started with --trust FILE.pub apply only those")
@@ -98,6 +103,7 @@ class ServiceSettings:
     devices: str = "*"
     zenoh: ZenohSettings = ZenohSettings()
     signing_key: Path | None = None
+    places: Places | None = None  # --fleet file and --location: each device's expected field
 
 
 def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
@@ -106,8 +112,9 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
         field_ut = earth_field(*parse_location(args.location)).total_ut
     fitting = CalibratorSettings(method=args.method, field_ut=field_ut, min_coverage=args.min_coverage,
                                  min_samples=args.min_samples, max_samples=args.max_samples, auto=not args.no_auto)
+    places = Places(read_fleet(args.fleet), Location.parse(args.location) if args.location else None)
     return ServiceSettings(fitting, args.db or default_db_path(), args.name, args.devices,
-                           ZenohSettings.from_args(args), args.signing_key)
+                           ZenohSettings.from_args(args), args.signing_key, places)
 
 
 def load_signer(path: Path | None) -> signing.Signer | None:
@@ -163,8 +170,10 @@ class Calibrator:
 
     def __init__(self, store: CalibrationStore, settings: CalibratorSettings,
                  publish: Callable[[wire.Kind, str, bytes], None], clock: Callable[[], float] = time.monotonic,
-                 clock_ns: Callable[[], int] = time.time_ns, signer: signing.Signer | None = None) -> None:
+                 clock_ns: Callable[[], int] = time.time_ns, signer: signing.Signer | None = None,
+                 fleet: FleetBook | None = None) -> None:
         self.store, self.settings, self.publish = store, settings, publish
+        self.fleet = fleet if fleet is not None else FleetBook()
         self.clock, self.clock_ns = clock, clock_ns
         self.signer = signer
         self.in_force: dict[str, wire.DeviceCalibration] = {d: self.sign(r) for d, r in store.all_latest().items()}
@@ -189,6 +198,7 @@ class Calibrator:
             return
         self.counters.received_batches += 1
         self.counters.received_samples += len(batch)
+        self.fleet.seen(batch.device, batch.location, self.clock_ns())
         collection = self.collections.get(batch.device)
         if collection is None:
             if batch.device in self.in_force or not self.settings.auto:
@@ -209,15 +219,17 @@ class Calibrator:
                                       f"{', '.join(cov.missing) or 'move through more attitudes'}")
             collection.last_fit_kept, collection.last_fit_s = collection.kept, now
             return
-        result = self._fit(collection, now)
+        result = self._fit(collection, now, device)
         if result is not None and not collection.session:
             self.commit(device, result)
         elif result is None:
             log.info("%s: fit not accepted: %s", device, collection.last_reason)
 
-    def _fit(self, collection: Collection, now: float) -> Calibration | None:
-        """Fit the collection and count it; the calibration when the gate accepts it, else None."""
-        result = collection.fit(self.settings.field_ut, now)
+    def _fit(self, collection: Collection, now: float, device: str | None = None) -> Calibration | None:
+        """Fit the collection (scaled to the WMM |B| at the device's place when known) and count it; the
+        calibration when the gate accepts it, else None."""
+        field_ut = (self.fleet.field_ut(device) if device else None) or self.settings.field_ut
+        result = collection.fit(field_ut, now)
         self.counters.fits += 1
         accepted = result is not None and result.accepted
         if accepted:
@@ -234,10 +246,16 @@ class Calibrator:
         signed = self.signer.sign(record.to_record())
         return dataclasses.replace(record, sig=signed["sig"], key_id=signed["key_id"])
 
-    def commit(self, device: str, calibration: Calibration) -> wire.DeviceCalibration:
-        """Store ``calibration`` as the one in force for ``device``, publish it, end collection."""
+    def commit(self, device: str, calibration: Calibration,
+               change: dict[str, Any] | None = None) -> wire.DeviceCalibration:
+        """Store ``calibration`` as the one in force for ``device``, publish it, end collection. ``change`` (action,
+        by, ...; default: an automatic or session calibration) is recorded beside it with when and from which id."""
         record = self.sign(wire.DeviceCalibration(device, self.clock_ns(), calibration))
-        if self.store.save(record):
+        previous = self.in_force.get(device)
+        collection = self.collections.get(device)
+        change = {"action": "session" if collection is not None and collection.session else "auto", "by": "",
+                  **(change or {}), "at_ns": record.created_ns, "from_id": previous.id if previous else None}
+        if self.store.save(record, change):
             self.counters.stored += 1
         self.in_force[device] = self.sign(self.store.latest(device) or record)
         self.collections.pop(device, None)
@@ -306,7 +324,7 @@ def _commit(calibrator: Calibrator, device: str, method: str | None) -> tuple[bo
     collection = calibrator.collections.get(device)
     if collection is None or not collection.session:
         return False, "no session to commit: start one first", {}
-    result = calibrator._fit(collection, calibrator.clock())
+    result = calibrator._fit(collection, calibrator.clock(), device)
     if result is None:
         return False, f"not committed, the calibration in force stays: {collection.last_reason}", {}
     return True, "committed", {"calibration": calibrator.commit(device, result).to_record()}
@@ -344,7 +362,7 @@ def run(settings: ServiceSettings) -> int:
                 publisher = publishers[(kind, device)] = session.declare_publisher(wire.key(prefix, device, kind))
             publisher.put(payload)
 
-        calibrator = Calibrator(store, settings.fitting, publish, signer=signer)
+        calibrator = Calibrator(store, settings.fitting, publish, signer=signer, fleet=FleetBook(settings.places))
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         answers = [(queries.ANSWERS[kind], session.declare_queryable(f"{prefix}/{devices}/{kind.value}",
@@ -352,18 +370,31 @@ def run(settings: ServiceSettings) -> int:
                    for kind in queries.ANSWERS]
         answers.append((queries.status_answer(name), session.declare_queryable(wire.status_key(prefix, name),
                                                                                zenoh.handlers.FifoChannel(64))))
+        answers.append((queries.answer_fleet, session.declare_queryable(f"{prefix}/@fleet",
+                                                                        zenoh.handlers.FifoChannel(16))))
+        alert_key = f"{prefix}/{devices}/{wire.Kind.ALERT.value}"
+        feeds: list[tuple[Any, Callable[[str, bytes, str], None]]] = [
+            (session.declare_subscriber(alert_key, zenoh.handlers.FifoChannel(4096)), calibrator.fleet.on_alert),
+            (session.get(alert_key, timeout=3.0), calibrator.fleet.on_alert)]  # the alerts open already
         for device, record in calibrator.in_force.items():
             publish(wire.Kind.CALIBRATION, device, wire.pack(record.to_record()))
         log.info("calibrator %s: %d calibration(s) in store %s", name, len(calibrator.in_force), store.path)
-        _loop(stop, calibrator, raw_sub, answers, prefix)
+        _loop(stop, calibrator, raw_sub, answers, prefix, feeds)
         token.undeclare()
     log.info("calibrator stopped: %s", calibrator.status(name).to_dict())
     return 0
 
 
-def _loop(stop: Any, calibrator: Calibrator, raw_sub: Any, answers: list[tuple[Any, Any]], prefix: str) -> None:
-    """Drain raw samples and queries until ``stop`` is set."""
+def _loop(stop: Any, calibrator: Calibrator, raw_sub: Any, answers: list[tuple[Any, Any]], prefix: str,
+          feeds: Sequence[tuple[Any, Callable[[str, bytes, str], None]]] = ()) -> None:
+    """Drain raw samples, queries and ``feeds`` (samples or replies -> handler(key, payload, prefix)) until
+    ``stop`` is set."""
     while not stop.is_set():
+        for handler, take in feeds:
+            for item in drain(handler, 1000):
+                sample = getattr(item, "ok", item)
+                if sample is not None and hasattr(sample, "key_expr"):
+                    take(str(sample.key_expr), payload_bytes(sample), prefix)
         samples = drain(raw_sub, 2000)
         for sample in samples:
             calibrator.on_raw(str(sample.key_expr), payload_bytes(sample), prefix)

@@ -13,7 +13,8 @@ import json
 import logging
 import sqlite3
 from pathlib import Path
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
+from typing import Any
 
 from magnet import wire
 
@@ -28,6 +29,10 @@ CREATE TABLE IF NOT EXISTS calibrations (
     record     TEXT    NOT NULL
 );
 CREATE INDEX IF NOT EXISTS calibrations_by_device ON calibrations (device, seq);
+CREATE TABLE IF NOT EXISTS changes (
+    seq        INTEGER PRIMARY KEY,
+    change     TEXT    NOT NULL
+);
 """
 
 
@@ -57,8 +62,9 @@ class CalibrationStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def save(self, record: wire.DeviceCalibration) -> bool:
-        """Store ``record`` as its device's calibration in force.
+    def save(self, record: wire.DeviceCalibration, change: Mapping[str, Any] | None = None) -> bool:
+        """Store ``record`` as its device's calibration in force, with ``change`` (who, when, from which id: a
+        JSON-able map kept beside it in the ``changes`` table, shown by ``history_changes``).
 
         Returns False (and stores nothing) when it is identical to the one already in force."""
         text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
@@ -67,8 +73,11 @@ class CalibrationStore:
                                    (record.device,)).fetchone()
             if row is not None and row[0] == record.id:
                 return False
-            self._db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
-                             (record.device, record.id, int(record.created_ns), text))
+            cursor = self._db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
+                                      (record.device, record.id, int(record.created_ns), text))
+            if change is not None:
+                self._db.execute("INSERT INTO changes (seq, change) VALUES (?, ?)",
+                                 (cursor.lastrowid, json.dumps(dict(change), sort_keys=True, allow_nan=False)))
         return True
 
     def latest(self, device: str) -> wire.DeviceCalibration | None:
@@ -85,6 +94,26 @@ class CalibrationStore:
                 break
             out.append(record)
         return out
+
+    def history_changes(self, device: str, limit: int | None = None
+                        ) -> list[tuple[wire.DeviceCalibration, dict[str, Any] | None]]:
+        """``history`` with each record's change (None where none was recorded), newest first."""
+        rows = self._db.execute("SELECT c.seq, c.record, h.change FROM calibrations c LEFT JOIN changes h "
+                                "ON h.seq = c.seq WHERE c.device = ? ORDER BY c.seq DESC", (device,)).fetchall()
+        changes = {seq: change for seq, _, change in rows}
+        out: list[tuple[wire.DeviceCalibration, dict[str, Any] | None]] = []
+        for seq, record in self._valid_seq((seq, text) for seq, text, _ in rows):
+            if limit is not None and len(out) >= max(0, limit):
+                break
+            text = changes.get(seq)
+            out.append((record, None if text is None else json.loads(text)))
+        return out
+
+    def _valid_seq(self, rows: Iterable[tuple[int, str]]) -> Iterable[tuple[int, wire.DeviceCalibration]]:
+        """(seq, record) of the rows that pass the entry check (``_valid``)."""
+        for seq, text in rows:
+            for record in self._valid([(seq, text)]):
+                yield seq, record
 
     def all_latest(self) -> dict[str, wire.DeviceCalibration]:
         """device -> the record in force (its newest valid one), for every device stored."""

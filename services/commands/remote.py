@@ -1,5 +1,6 @@
-"""Remote tools printing JSON: ``magnet get calibration DEVICE [--history]``, ``magnet watch heading [DEVICE]``,
-``magnet calibrate DEVICE start|status|commit|abort [--method M]``.
+"""Remote tools printing JSON: ``magnet get calibration DEVICE [--history]``, ``magnet get fleet``, ``magnet watch
+heading [DEVICE]``, ``magnet calibrate DEVICE start|status|commit|abort [--method M]``, ``magnet calibrate DEVICE
+rollback [--to ID]``.
 
 Exit status: 0 with an answer, 1 when nobody answered (no calibrator reachable, or no calibration for the device).
 """
@@ -7,8 +8,10 @@ Exit status: 0 with an answer, 1 when nobody answered (no calibrator reachable, 
 from __future__ import annotations
 
 import argparse
+import getpass
 import json
 import logging
+import socket
 import sys
 import time
 from pathlib import Path
@@ -21,8 +24,8 @@ log = logging.getLogger("magnet.remote")
 
 #: what `watch` can follow -> key kind
 WATCHABLE = {"heading": wire.Kind.HEADING, "progress": wire.Kind.PROGRESS, "calibration": wire.Kind.CALIBRATION,
-             "raw": wire.Kind.RAW}
-ACTIONS = ("start", "status", "commit", "abort")
+             "raw": wire.Kind.RAW, "alert": wire.Kind.ALERT}
+ACTIONS = ("start", "status", "commit", "abort", "rollback")
 
 
 def _print(value: Any) -> None:
@@ -52,9 +55,10 @@ def _query(args: argparse.Namespace, selector: str) -> list[Any]:
 
 
 def add_get_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("what", choices=["calibration", "status"],
-                        help="a device's calibration, or a service's status counters")
-    parser.add_argument("device", help="device id (or '*'); for status: the service name (calibrator, compass, '*')")
+    parser.add_argument("what", choices=["calibration", "status", "fleet"],
+                        help="a device's calibration, a service's status counters, or every device in one reply")
+    parser.add_argument("device", nargs="?",
+                        help="device id (or '*'); for status: the service name (calibrator, compass, '*')")
     parser.add_argument("--history", action="store_true", help="earlier calibrations too, newest first")
     parser.add_argument("--limit", type=int, default=20, help="with --history: at most this many (default 20)")
     parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers (default 3)")
@@ -94,6 +98,15 @@ def _only_trusted(replies: list[Any], trusted: signing.TrustedKeys, device: str)
 
 
 def run_get(args: argparse.Namespace) -> int:
+    if args.what == "fleet":
+        replies = _query(args, f"{args.prefix}/@fleet")
+        for reply in replies[:1]:
+            _print(reply)
+        if not replies:
+            print("magnet get: no calibrator answered for the fleet", file=sys.stderr)
+        return 0 if replies else 1
+    if args.device is None:
+        raise ValueError(f"magnet get {args.what} needs a device id (or '*')")
     if args.device != "*":
         wire.validate_device_id(args.device)
     if args.what == "status":
@@ -158,6 +171,8 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("device", help="device id")
     parser.add_argument("action", choices=ACTIONS, help="what to do with the device's calibration session")
     parser.add_argument("--method", help="fit method for 'start' (default: the calibrator's)")
+    parser.add_argument("--to", metavar="ID", help="for 'rollback': the calibration id to put back in force "
+                                                   "(default: the one before the calibration in force)")
     parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the answer (default 5)")
     add_zenoh_arguments(parser)
 
@@ -165,6 +180,10 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
 def run_calibrate(args: argparse.Namespace) -> int:
     wire.validate_device_id(args.device)
     params = f"action={args.action}" + (f";method={args.method}" if args.method else "")
+    if args.action == "rollback":
+        params += (f";to={args.to}" if args.to else "") + f";by={_who()}"
+    elif args.to:
+        raise ValueError("--to goes with rollback")
     replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATE.value}?{params}")
     if not replies:
         print(f"magnet calibrate: no calibrator answered for {args.device}", file=sys.stderr)
@@ -172,6 +191,16 @@ def run_calibrate(args: argparse.Namespace) -> int:
     for reply in replies:
         _print(reply)
     return 0 if all(isinstance(r, dict) and r.get("ok", False) for r in replies) else 1
+
+
+def _who() -> str:
+    """user@host of the person asking (recorded with a rollback); characters that a selector cannot carry dropped."""
+    try:
+        user = getpass.getuser()
+    except (KeyError, OSError):
+        user = "unknown"
+    text = f"{user}@{socket.gethostname()}"
+    return "".join(c for c in text if c.isalnum() or c in "@.-_")[:128]
 
 
 # services.cli looks up ``add_arguments``/``run`` as a fallback even where ``add_<name>_arguments`` exists

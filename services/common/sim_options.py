@@ -44,6 +44,10 @@ def parse_trajectory(text: str) -> Trajectory:
                          f"{', '.join(t.value for t in Trajectory)}") from None
 
 
+#: the simulator's place when no --location is given (Kyiv)
+DEFAULT_LOCATION = "50.45,30.52"
+
+
 def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, noise_ut: float = 0.0) -> None:
     group = parser.add_argument_group("simulator (with --emulate)")
     group.add_argument("--seed", type=int, default=seed, help=f"simulator seed: same seed, same data (default {seed})")
@@ -55,7 +59,9 @@ def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, n
     group.add_argument("--noise-ut", type=float, default=noise_ut, help=f"noise, uT RMS (default {noise_ut:g})")
     group.add_argument("--gyro-bias", default="0,0,0", help="gyroscope bias X,Y,Z in rad/s (default none)")
     group.add_argument("--gyro-noise", type=float, default=0.0, help="gyroscope noise, rad/s RMS (default 0)")
-    group.add_argument("--location", default="50.45,30.52", help="LAT,LON[,ALT_M] (default Kyiv)")
+    group.add_argument("--location", default=None,
+                       help=f"LAT,LON[,ALT_M] (default Kyiv, {DEFAULT_LOCATION}); magnet edge also sends it in its "
+                            "raw messages")
     group.add_argument("--date", default=None, help="YYYY-MM-DD or decimal year (default: the simulator's)")
 
 
@@ -88,7 +94,8 @@ class SimulatorSettings:
         return cls(seed=int(args.seed), trajectory=parse_trajectory(args.trajectory),
                    hard_iron_ut=tuple(parse_floats(args.hard_iron, (3,), "--hard-iron").tolist()),
                    soft_iron=tuple(parse_soft_iron(args.soft_iron).ravel().tolist()),
-                   noise_ut=float(args.noise_ut), location=parse_location(args.location), date=args.date,
+                   noise_ut=float(args.noise_ut), location=parse_location(args.location or DEFAULT_LOCATION),
+                   date=args.date,
                    gyro_bias_rads=tuple(parse_floats(args.gyro_bias, (3,), "--gyro-bias").tolist()),
                    gyro_noise_rads=float(args.gyro_noise))
 

@@ -24,16 +24,15 @@ import zenoh
 from magnet import heading as hd
 from magnet import signing, wire
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
-from magnet.fleet_fusion import FleetFusion, merge
+from magnet.fleet_fusion import FleetFusion, FusedColumns, merge
 from magnet.fusion import rotate_heading
-from services.common.zenoh_session import (
-    ZenohSettings,
-    add_zenoh_arguments,
-    drain,
-    open_session,
-    payload_bytes,
-    stop_event,
-)
+from magnet.fleet import EarthColumns, Places, disturbance_flags
+from magnet.drift import DEFAULT_DRIFT, DriftSettings
+from magnet.place import Location
+from services.common.fleet_options import add_drift_arguments, add_fleet_argument, drift_from_args, read_fleet
+from services.compass.watch import FleetWatch
+from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
+                                           stop_event)
 
 log = logging.getLogger("magnet.compass")
 
@@ -57,6 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trust", action="append", default=[], type=Path, metavar="FILE.pub",
                         help="apply only calibrations signed by this public key (repeatable; `magnet keys` makes "
                              "them). Without it, unsigned calibrations are applied too")
+    add_fleet_argument(parser)
+    add_drift_arguments(parser)
     add_zenoh_arguments(parser)
 
 
@@ -71,6 +72,8 @@ class CompassSettings:
     devices: str = "*"
     zenoh: ZenohSettings = ZenohSettings()
     trust: tuple[Path, ...] = ()
+    places: tuple[Location | None, str | None, dict[str, Any]] = (None, None, {})  # default, date, fleet file
+    drift: DriftSettings | None = DEFAULT_DRIFT
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
@@ -78,8 +81,10 @@ class CompassSettings:
 
 
 def settings_from_args(args: argparse.Namespace) -> CompassSettings:
+    default = Location.parse(args.location) if args.location else None
     return CompassSettings(Earth.from_args(args.location, args.date), args.window, args.name, args.devices,
-                           ZenohSettings.from_args(args), tuple(args.trust))
+                           ZenohSettings.from_args(args), tuple(args.trust),
+                           (default, args.date, read_fleet(args.fleet)), drift_from_args(args))
 
 
 def load_trusted_keys(paths: tuple[Path, ...] | list[Path]) -> signing.TrustedKeys:
@@ -106,19 +111,21 @@ class CompassStatus:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class HeadingColumns:
-    """``Headings`` of the samples of a ``wire.RawColumns`` plus true_heading_deg (S,) and one calibration id (or
-    "") per batch."""
+    """``Headings`` of the samples of a ``wire.RawColumns`` plus true_heading_deg (S,), one calibration id (or
+    "") and one declination (deg, of the device's place) per batch."""
 
     headings: Headings
     true_heading_deg: np.ndarray
     calibration_ids: list[str]
-    quat_wxyz: np.ndarray | None = None  # (S, 4) body -> NED (true north); NaN rows where there is no attitude
+    declinations: list[float]
+    quat_wxyz: np.ndarray | None = None  # (S, 4) body -> NED (true north) where fused, NaN rows elsewhere; or None
 
 
 class Compass:
     """State of the compass loop: calibrations in force, smoothing tails, counters. No zenoh inside."""
 
-    def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None) -> None:
+    def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None,
+                 watch: FleetWatch | None = None) -> None:
         if window < 1:
             raise ValueError(f"--window must be >= 1, got {window}")
         self.earth = earth
@@ -133,6 +140,7 @@ class Compass:
         self.received_batches = self.received_samples = self.published_batches = 0
         self.calibration_updates = 0
         self._key_devices: dict[str, str] = {}
+        self.watch = watch if watch is not None else FleetWatch(Places(default_earth=earth))
 
     def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> bool:
         """Apply a calibration message when it is usable (``applicable``); else count why, keep the one in force and
@@ -149,6 +157,7 @@ class Compass:
         if current is None or current.id != record.id:
             self.calibrations[record.device] = record
             self.calibration_updates += 1
+            self.watch.calibration(record, record.created_ns)
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
 
@@ -219,8 +228,16 @@ class Compass:
         matrices = np.repeat(np.array([c.calibration.matrix if c else _EYE3 for c in cals]).reshape(-1, 3, 3),
                              counts, axis=0)
         calibrated = np.repeat(np.array([c is not None for c in cals], dtype=bool), counts)
-        out = compute_headings(columns.mag_ut, columns.acc_ms2, offsets, matrices, calibrated, self.earth)
-        out, quat = self._fuse(columns, out)
+        earths = self.watch.earths(columns.devices, columns.locations)
+        where = EarthColumns.of(earths, counts)
+        out = compute_headings(columns.mag_ut, columns.acc_ms2, offsets, matrices, calibrated, Earth())
+        fused = self._fuse(columns, out)
+        gravity = fused.gravity(columns.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dip = hd.dip_angle_deg(out.field_ut, gravity)
+        out = dataclasses.replace(out, flags=out.flags | disturbance_flags(out.field_ut, gravity, dip, where))
+        out, quat = merge(out, fused)
+        self.watch.observe(columns.devices, columns.bounds, columns.t_ns, np.linalg.norm(out.field_ut, axis=1), dip)
         self.received_batches += len(columns.devices)
         self.received_samples += int(counts.sum())
         if self.window > 1:
@@ -228,29 +245,27 @@ class Compass:
             out = dataclasses.replace(out, heading_deg=np.concatenate(
                 [self._smooth(device, out.heading_deg[bounds[i]:bounds[i + 1]])
                  for i, device in enumerate(columns.devices)] or [np.empty(0)]))
-        return HeadingColumns(out, hd.true_heading_deg(out.heading_deg, self.earth.declination_deg),
-                              [c.id if c else "" for c in cals],
-                              None if quat is None else rotate_heading(quat, self.earth.declination_deg))
+        return HeadingColumns(out, hd.true_heading_deg(out.heading_deg, where.declination_deg),
+                              [c.id if c else "" for c in cals], [e.declination_deg for e in earths],
+                              None if quat is None else rotate_heading(quat, where.declination_deg))
 
-    def _fuse(self, columns: wire.RawColumns, out: Headings) -> tuple[Headings, np.ndarray | None]:
-        """The fused attitude in place of the tilt one for the batches that carry a gyroscope (``magnet.fleet_fusion``;
-        bad gyroscope samples counted as dropped), and the fused quaternions (S, 4) body -> magnetic NED or None."""
+    def _fuse(self, columns: wire.RawColumns, out: Headings) -> FusedColumns:
+        """The per-device filters run on the batches that carry a gyroscope (``magnet.fleet_fusion``); bad gyroscope
+        samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``)."""
         fused = self.fusion.update(columns.devices, columns.seqs, columns.bounds, columns.t_ns, columns.gyr_rads,
                                    columns.acc_ms2, out.field_ut)
         for cause, count in fused.dropped.items():
             if self.drops.count(f"raw:{cause}"):
                 log.warning("dropping gyroscope samples (%s); further ones only counted", cause)
             self.drops.counts[f"raw:{cause}"] += count - 1
-        heading, pitch, roll, flags, quat = merge(out.heading_deg, out.pitch_deg, out.roll_deg, out.flags,
-                                                  out.field_ut, fused, self.earth.total_ut, self.earth.inclination_deg)
-        return Headings(out.field_ut, heading, pitch, roll, flags), quat
+        return fused
 
     def encode(self, columns: wire.RawColumns) -> list[bytes]:
         """One heading payload per raw batch of ``columns``, in order."""
         out = self.compute(columns)
         h = out.headings
         return wire.encode_headings(columns, h.heading_deg, out.true_heading_deg, h.pitch_deg, h.roll_deg, h.field_ut,
-                                    h.flags, self.earth.declination_deg, out.calibration_ids, out.quat_wxyz)
+                                    h.flags, out.declinations, out.calibration_ids, out.quat_wxyz)
 
     def process(self, batches: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
         """Heading batches, one per raw batch, computed in one vectorized pass."""
@@ -263,9 +278,10 @@ class Compass:
         quat = out.quat_wxyz
         return [wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, h.heading_deg[lo:hi],
                                   out.true_heading_deg[lo:hi], h.pitch_deg[lo:hi], h.roll_deg[lo:hi],
-                                  h.field_ut[lo:hi], self.earth.declination_deg, cal_id, h.flags[lo:hi],
+                                  h.field_ut[lo:hi], declination, cal_id, h.flags[lo:hi],
                                   quat[lo:hi] if quat is not None and np.isfinite(quat[lo:hi]).all() else None)
-                for batch, cal_id, lo, hi in zip(batches, out.calibration_ids, bounds[:-1], bounds[1:])]
+                for batch, cal_id, declination, lo, hi in zip(batches, out.calibration_ids, out.declinations,
+                                                               bounds[:-1], bounds[1:])]
 
     def _smooth(self, device: str, heading: np.ndarray) -> np.ndarray:
         smoothed, self.tails[device] = smooth_tail(self.tails.get(device, np.empty(0)), heading, self.window)
@@ -285,7 +301,9 @@ def run_compass(args: argparse.Namespace) -> int:
 
 
 def run(settings: CompassSettings) -> int:
-    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust))
+    default, date, fleet = settings.places
+    watch = FleetWatch(Places(fleet, default, date, settings.earth), settings.drift)
+    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust), watch)
     if compass.trusted.enabled:
         log.info("compass applies only calibrations signed by key(s) %s", ", ".join(compass.trusted.key_ids))
     stop = stop_event()
@@ -295,6 +313,8 @@ def run(settings: CompassSettings) -> int:
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         cal_sub = session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
         status_q = session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64))
+        alert_q = session.declare_queryable(f"{prefix}/{devices}/{wire.Kind.ALERT.value}",
+                                            zenoh.handlers.FifoChannel(64))
         log.info("compass %s: serving %s/%s, declination %.2f deg", name, prefix, devices,
                  compass.earth.declination_deg)
         loop = _Loop(session, compass, settings)
@@ -303,6 +323,7 @@ def run(settings: CompassSettings) -> int:
             for query in drain(status_q, 64):
                 query.reply(wire.status_key(prefix, name), wire.pack(compass.status(name).to_dict()))
                 query.drop()  # finalize now: the asker waits for it
+            loop.alerts(alert_q)
             if not loop.headings(raw_sub):
                 time.sleep(IDLE_SLEEP_S)
         token.undeclare()
@@ -364,6 +385,18 @@ class _Loop:
             self.compass.published_batches += 1
         self._ask_missing(columns.devices)
         return True
+
+    def alerts(self, alert_q: Any) -> None:
+        """Publish the alerts raised or cleared; answer queries for the open ones."""
+        for alert in self.compass.watch.take():
+            self.session.put(wire.key(self.prefix, alert.device, wire.Kind.ALERT), wire.pack(alert.to_message()))
+        for query in drain(alert_q, 16):
+            asked = zenoh.KeyExpr(str(query.key_expr))
+            for alert in self.compass.watch.open_alerts():
+                key = wire.key(self.prefix, alert.device, wire.Kind.ALERT)
+                if asked.intersects(zenoh.KeyExpr(key)):
+                    query.reply(key, wire.pack(alert.to_message()))
+            query.drop()
 
     def _ask_missing(self, seen: list[str]) -> None:
         """One query for every calibration when a device was seen without one (at most every REQUERY_S)."""

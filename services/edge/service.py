@@ -147,6 +147,7 @@ class Publisher:
         self.slots = min(len(status.ids), FLEET_SLOTS) if settings.devices else 1
         self.sample_ns = int(1e9 / settings.rate_hz)
         self.block = zenoh.CongestionControl.BLOCK  # raw samples wait for a congested link rather than vanish
+        self.location = settings.location
 
     def put(self, batches: list[wire.RawBatch]) -> None:
         tick = time.monotonic()
@@ -159,6 +160,8 @@ class Publisher:
             for batch in batches[slot::self.slots]:
                 if slot:
                     batch = dataclasses.replace(batch, t_ns=stamp(len(batch), now_ns, self.sample_ns))
+                if self.location is not None:
+                    batch = dataclasses.replace(batch, location=self.location)
                 self.session.put(self.keys[batch.device], wire.encode_raw(batch), congestion_control=self.block)
                 self.status.published_samples += len(batch)
                 self.status.published_batches += 1

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 
 from magnet import wire
+from magnet.place import Location
 from services.common import sim_options
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
@@ -54,6 +55,8 @@ class EdgeSettings:
     emulate_faults: float = 0.0
     simulator: sim_options.SimulatorSettings = dataclasses.field(default_factory=sim_options.SimulatorSettings)
     zenoh: ZenohSettings = dataclasses.field(default_factory=ZenohSettings)
+    #: where the device is, sent in every raw message: --location, or the simulator's place when emulating
+    location: Location | None = None
 
     def __post_init__(self) -> None:
         wire.validate_device_id(self.device)
@@ -91,4 +94,12 @@ class EdgeSettings:
                    duration_s=args.duration, bus=args.bus, address=args.address, emulate=bool(args.emulate),
                    devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),
                    speedup=float(args.speedup), emulate_faults=float(args.emulate_faults),
-                   simulator=sim_options.SimulatorSettings.from_args(args), zenoh=ZenohSettings.from_args(args))
+                   simulator=sim_options.SimulatorSettings.from_args(args), zenoh=ZenohSettings.from_args(args),
+                   location=_location(args))
+
+
+def _location(args: argparse.Namespace) -> Location | None:
+    """The place the edge reports: --location when given, else the simulator's (emulated devices), else None."""
+    if args.location:
+        return Location.parse(args.location)
+    return Location.parse(sim_options.DEFAULT_LOCATION) if args.emulate else None

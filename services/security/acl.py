@@ -37,23 +37,24 @@ class Can(enum.Enum):
 RAW, CAL, HISTORY, PROGRESS, CALIBRATE, HEADING = ("*/raw", "*/calibration", "*/calibration/history",
                                                    "*/calibration/progress", "*/calibrate", "*/heading")
 STATUS, ALIVE, LEASE = "@status/*", "@alive/**", "@lease/**"
+ALERT, FLEET = "*/alert", "@fleet"  # drift alerts (compass), the fleet query (calibrator)
 
 _VIEW: dict[Can, tuple[str, ...]] = {
-    Can.SUBSCRIBE: (HEADING, CAL, PROGRESS, RAW),
-    Can.ASK: (CAL, HISTORY, STATUS),
+    Can.SUBSCRIBE: (HEADING, CAL, PROGRESS, RAW, ALERT),
+    Can.ASK: (CAL, HISTORY, STATUS, FLEET, ALERT),
     Can.WATCH: (ALIVE,),
 }
 
 #: role -> capability -> key expressions (below the prefix). The role is the certificate's common name.
 ROLES: dict[str, dict[Can, tuple[str, ...]]] = {
     "edge": {Can.PUBLISH: (RAW,), Can.TOKEN: ("@alive/edge/*", "@alive/device/*")},
-    "calibrator": {Can.SUBSCRIBE: (RAW,), Can.PUBLISH: (CAL, PROGRESS),
-                   Can.SERVE: (CAL, HISTORY, CALIBRATE, STATUS),
+    "calibrator": {Can.SUBSCRIBE: (RAW, ALERT), Can.PUBLISH: (CAL, PROGRESS), Can.ASK: (ALERT,),
+                   Can.SERVE: (CAL, HISTORY, CALIBRATE, STATUS, FLEET),
                    Can.TOKEN: ("@alive/calibrator/*", LEASE), Can.WATCH: (LEASE,)},
-    "compass": {Can.SUBSCRIBE: (RAW, CAL), Can.PUBLISH: (HEADING,), Can.ASK: (CAL,), Can.SERVE: (STATUS,),
+    "compass": {Can.SUBSCRIBE: (RAW, CAL), Can.PUBLISH: (HEADING, ALERT), Can.ASK: (CAL,), Can.SERVE: (STATUS, ALERT),
                 Can.TOKEN: ("@alive/compass/*",)},
     "viewer": _VIEW,
-    "operator": {**_VIEW, Can.ASK: (CAL, HISTORY, STATUS, CALIBRATE)},
+    "operator": {**_VIEW, Can.ASK: (CAL, HISTORY, STATUS, CALIBRATE, FLEET, ALERT)},
 }
 
 #: roles that may authenticate with a user name and password instead of a certificate (devices that cannot hold one,

@@ -1,0 +1,164 @@
+"""A fleet's places: each device's location and what the World Magnetic Model expects there.
+
+Where a device is comes from, first to last: the ``location`` its own raw messages carry (the edge's ``--location``,
+or its simulator's place), the fleet file (``--fleet FILE.json5``), the service's own ``--location``. From the place
+come the device's declination, expected |B| and dip (``Earth``), looked up once per place rounded to about 1 km
+(``Location.rounded``) and date.
+
+Fleet file (JSON5: comments and trailing commas allowed; plain JSON is JSON5)::
+
+    {
+      // device id: where it is and anything worth knowing
+      "mast-1": {location: "50.45,30.52,180", notes: "roof mast, Kyiv"},
+      "buoy-7": {location: [-33.86, 151.21], notes: "Sydney harbour"},
+    }
+
+Pure: parses text; the services read the file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Mapping
+from typing import Any
+
+import json5
+import numpy as np
+
+from magnet import heading as hd
+from magnet.compass import Earth
+from magnet.geomag import earth_field
+from magnet.place import Location
+from magnet.wire.keys import validate_device_id
+
+#: a fleet file larger than this is refused before it is parsed (bytes); at most this many devices
+MAX_FLEET_FILE_BYTES = 16 * 1024 * 1024
+MAX_FLEET_DEVICES = 100_000
+MAX_NOTES_CHARS = 1_000
+#: devices whose reported place is remembered at most (the oldest forgotten beyond)
+MAX_REPORTED = 100_000
+
+
+@dataclasses.dataclass(frozen=True)
+class FleetEntry:
+    """One device of the fleet file: its location (or None) and free notes."""
+
+    device: str
+    location: Location | None = None
+    notes: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"location": None if self.location is None else self.location.to_wire(), "notes": self.notes}
+
+
+def parse_fleet(text: str, source: str = "fleet file") -> dict[str, FleetEntry]:
+    """device -> FleetEntry from the text of a fleet file; ValueError naming the device and what is wrong."""
+    if len(text.encode()) > MAX_FLEET_FILE_BYTES:
+        raise ValueError(f"{source} is larger than {MAX_FLEET_FILE_BYTES} bytes")
+    try:
+        data = json5.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise ValueError(f"{source} is not JSON5: {exc}") from None
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{source} must be a map of device id -> {{location, notes}}")
+    if len(data) > MAX_FLEET_DEVICES:
+        raise ValueError(f"{source} lists {len(data)} devices, more than {MAX_FLEET_DEVICES}")
+    return {entry.device: entry for entry in (_entry(device, value, source) for device, value in data.items())}
+
+
+def _entry(device: Any, value: Any, source: str) -> FleetEntry:
+    try:
+        validate_device_id(device)
+        if isinstance(value, (str, list)):
+            value = {"location": value}
+        if not isinstance(value, Mapping):
+            raise ValueError("must be {location: \"LAT,LON[,ALT_M]\", notes: \"...\"}")
+        unknown = sorted(set(value) - {"location", "notes"})
+        if unknown:
+            raise ValueError(f"unknown key(s) {', '.join(map(str, unknown))}: use location and notes")
+        notes = value.get("notes", "")
+        if not isinstance(notes, str) or len(notes) > MAX_NOTES_CHARS:
+            raise ValueError(f"notes must be text of at most {MAX_NOTES_CHARS} characters")
+        location = None if value.get("location") is None else Location.parse(value["location"])
+    except ValueError as exc:
+        raise ValueError(f"{source}: device {device!r}: {exc}") from None
+    return FleetEntry(device, location, notes)
+
+
+@functools.lru_cache(maxsize=4096)
+def _earth(rounded: tuple[float, float, float], date: str | None) -> Earth:
+    field = earth_field(*rounded, date)
+    return Earth(field.declination_deg, field.total_ut, field.inclination_deg)
+
+
+def earth_at(location: Location | None, date: str | None = None) -> Earth:
+    """What the WMM expects at ``location`` (rounded to about 1 km) on ``date`` (None: today); Earth() when None."""
+    return Earth() if location is None else _earth(location.rounded(), date)
+
+
+class Places:
+    """Each device's place and Earth: reported (raw messages) over fleet file over the service's default."""
+
+    def __init__(self, fleet: Mapping[str, FleetEntry] | None = None, default: Location | None = None,
+                 date: str | None = None, default_earth: Earth | None = None) -> None:
+        self.fleet = dict(fleet or {})
+        self.default, self.date = default, date
+        self.default_earth = default_earth if default_earth is not None else earth_at(default, date)
+        self.reported: dict[str, Location] = {}
+
+    def report(self, device: str, location: Location | None) -> bool:
+        """A device said where it is; True when that changes its place."""
+        if location is None or self.reported.get(device) == location:
+            return False
+        if device not in self.reported and len(self.reported) >= MAX_REPORTED:
+            self.reported.pop(next(iter(self.reported)))
+        self.reported[device] = location
+        return True
+
+    def location(self, device: str) -> Location | None:
+        reported = self.reported.get(device)
+        if reported is not None:
+            return reported
+        entry = self.fleet.get(device)
+        return entry.location if entry is not None and entry.location is not None else self.default
+
+    def earth(self, device: str) -> Earth:
+        location = self.location(device)
+        return self.default_earth if location is None or location == self.default else earth_at(location, self.date)
+
+    def notes(self, device: str) -> str:
+        entry = self.fleet.get(device)
+        return entry.notes if entry is not None else ""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class EarthColumns:
+    """Per-sample expectations: declination_deg, total_ut and inclination_deg (S,), NaN where unknown."""
+
+    declination_deg: np.ndarray
+    total_ut: np.ndarray
+    inclination_deg: np.ndarray
+
+    @classmethod
+    def of(cls, earths: list[Earth], counts: np.ndarray) -> EarthColumns:
+        """One Earth per batch, repeated over each batch's ``counts`` samples."""
+        table = np.array([[e.declination_deg, np.nan if e.total_ut is None else e.total_ut,
+                           np.nan if e.inclination_deg is None else e.inclination_deg] for e in earths],
+                         dtype=float).reshape(-1, 3)
+        per_sample = np.repeat(table, counts, axis=0)
+        return cls(per_sample[:, 0], per_sample[:, 1], per_sample[:, 2])
+
+
+def disturbance_flags(field_ut: np.ndarray, acc_ms2: np.ndarray, dip_deg: np.ndarray, earth: EarthColumns,
+                      field_tol_pct: float = 15.0, dip_tol_deg: float = 5.0) -> np.ndarray:
+    """FIELD_DISTURBED and DIP_DISTURBED bits (S,) int as ``magnet.heading.disturbance_flags`` sets them, against
+    each sample's own expectation (no bit where it is NaN). field_ut (S, 3) uT; acc_ms2 (S, 3) with NaN rows where
+    absent; dip_deg (S,) (NaN without acc)."""
+    magnitude = np.linalg.norm(field_ut, axis=1)
+    with np.errstate(invalid="ignore"):
+        field_off = np.abs(magnitude - earth.total_ut) > earth.total_ut * field_tol_pct / 100.0
+        dip_off = np.abs(dip_deg - earth.inclination_deg) > dip_tol_deg
+    has_acc = np.isfinite(acc_ms2).all(axis=1) & (np.linalg.norm(np.nan_to_num(acc_ms2), axis=1) > 1e-9)
+    return (np.where(field_off, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
+            | np.where(dip_off & has_acc, int(hd.HeadingFlag.DIP_DISTURBED), 0)).astype(np.int64)

@@ -1,0 +1,130 @@
+"""The calibrator's view of its fleet: where each device is and when it was last seen, the open drift alerts (from the
+compass, ``<prefix>/<device>/alert``), rollback of a device's calibration, and the one answer for the whole fleet on
+``<prefix>/@fleet``. No zenoh sessions inside: the service feeds it and sends its answers.
+
+``<prefix>/@fleet`` replies once: ``{v, t_ns, count, devices: [{device, state, calibration_id, method, quality:
+{residual_rms_ut, residual_rms_pct, coverage, holdout_rms_ut}, created_ns, age_s, last_seen_ns, location:
+[lat, lon, alt_m] | null, location_source: reported|fleet|default|null, notes, alerts: [alert map, ...]}, ...]}``,
+devices sorted by id.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Any
+
+from magnet import wire
+from magnet.drift import Alert, AlertKind, alert_from_message
+from magnet.fleet import Places
+
+if TYPE_CHECKING:  # the service imports this module
+    from services.calibrator.service import Calibrator
+
+log = logging.getLogger("magnet.calibrator")
+
+#: devices remembered as seen at most (beyond: the oldest forgotten)
+MAX_SEEN = 100_000
+#: a rollback without --to looks this far back in the history for the previous calibration
+ROLLBACK_DEPTH = 1_000
+QUALITY_FIGURES = ("residual_rms_ut", "residual_rms_pct", "coverage", "holdout_rms_ut")
+
+
+class FleetBook:
+    """Last seen (ns, wall clock of the calibrator), places and open alerts per device."""
+
+    def __init__(self, places: Places | None = None) -> None:
+        self.places = places if places is not None else Places()
+        self.last_seen_ns: dict[str, int] = {}
+        self.alerts: dict[str, dict[AlertKind, Alert]] = {}
+        self.drops = wire.DropCounter()
+
+    def seen(self, device: str, location: Any, now_ns: int) -> None:
+        if device not in self.last_seen_ns and len(self.last_seen_ns) >= MAX_SEEN:
+            self.last_seen_ns.pop(next(iter(self.last_seen_ns)))
+        self.last_seen_ns[device] = now_ns
+        self.places.report(device, location)
+
+    def field_ut(self, device: str) -> float | None:
+        """The WMM |B| (uT) at the device's reported or configured place; None when neither is known."""
+        if device not in self.places.reported and self.places.fleet.get(device) is None:
+            return None
+        return self.places.earth(device).total_ut
+
+    def on_alert(self, key_expr: str, payload: bytes, prefix: str) -> None:
+        """An alert raised or cleared by a compass; malformed ones dropped and counted."""
+        try:
+            message = wire.unpack(payload)
+            device = wire.message_device(message)
+            wire.check_key(prefix, key_expr, wire.Kind.ALERT, device)
+            alert = alert_from_message(message)
+        except wire.WireError as exc:
+            self.drops.drop(exc, "alert", log)
+            return
+        except ValueError as exc:
+            self.drops.drop(wire.WireError("bad-alert", str(exc)), "alert", log)
+            return
+        open_alerts = self.alerts.setdefault(device, {})
+        if alert.cleared:
+            open_alerts.pop(alert.kind, None)
+        elif device in self.alerts or len(self.alerts) < MAX_SEEN:
+            open_alerts[alert.kind] = alert
+
+    def location_source(self, device: str) -> str | None:
+        if device in self.places.reported:
+            return "reported"
+        entry = self.places.fleet.get(device)
+        if entry is not None and entry.location is not None:
+            return "fleet"
+        return "default" if self.places.default is not None else None
+
+
+def fleet_reply(calibrator: Calibrator, now_ns: int) -> dict[str, Any]:
+    """The ``<prefix>/@fleet`` answer (see the module docstring)."""
+    book: FleetBook = calibrator.fleet
+    devices = sorted(set(calibrator.in_force) | set(calibrator.collections) | set(book.last_seen_ns)
+                     | set(book.places.fleet) | {d for d, a in book.alerts.items() if a})
+    return {"v": wire.WIRE_VERSION, "t_ns": now_ns, "count": len(devices),
+            "devices": [_device_entry(calibrator, book, device, now_ns) for device in devices]}
+
+
+def _device_entry(calibrator: Calibrator, book: FleetBook, device: str, now_ns: int) -> dict[str, Any]:
+    record = calibrator.in_force.get(device)
+    location = book.places.location(device)
+    entry: dict[str, Any] = {"device": device, "state": calibrator.state(device).value,
+                             "calibration_id": None, "method": None, "quality": None, "created_ns": None,
+                             "age_s": None}
+    if record is not None:
+        quality = record.calibration.quality
+        entry.update(calibration_id=record.id, method=record.calibration.method,
+                     quality={name: quality.get(name) for name in QUALITY_FIGURES}, created_ns=record.created_ns,
+                     age_s=round((now_ns - record.created_ns) / 1e9, 3))
+    entry.update(last_seen_ns=book.last_seen_ns.get(device),
+                 location=None if location is None else location.to_wire(),
+                 location_source=book.location_source(device) if location is not None else None,
+                 notes=book.places.notes(device),
+                 alerts=[alert.to_message() for alert in book.alerts.get(device, {}).values()])
+    return entry
+
+
+def rollback(calibrator: Calibrator, device: str, to_id: str | None, by: str | None) -> dict[str, Any]:
+    """Put an earlier calibration of ``device`` back in force (``to_id``, else the one before the current), recorded
+    in the history as a change (action rollback, by, at_ns, from_id). The reply map of the calibrate queryable."""
+    current = calibrator.in_force.get(device)
+    history = calibrator.store.history(device, limit=ROLLBACK_DEPTH)
+    if to_id:
+        target = next((r for r in history if r.id == to_id), None)
+        missing = f"no calibration {to_id} in the history of {device} (magnet get calibration {device} --history)"
+    else:
+        target = next((r for r in history if current is None or r.id != current.id), None)
+        missing = f"no earlier calibration of {device} to roll back to"
+    ok, message, extra = False, missing, {}
+    if target is not None and current is not None and target.id == current.id:
+        message = f"calibration {target.id} is already in force for {device}"
+    elif target is not None:
+        record = calibrator.commit(device, target.calibration,
+                                   change={"action": "rollback", "by": by or "", "to_id": target.id})
+        ok, extra = True, {"calibration": record.to_record()}
+        message = (f"calibration {target.id} (made at {target.created_ns} ns) back in force for {device}, "
+                   f"replacing {current.id if current else 'none'}")
+    return {"ok": ok, "action": "rollback", "device": device, "state": calibrator.state(device).value,
+            "message": message, "progress": calibrator.progress(device).to_dict(), **extra}

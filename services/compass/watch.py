@@ -1,0 +1,78 @@
+"""The compass's watch over its fleet: each device's place and Earth (``magnet.fleet.Places``) and its drift
+(``magnet.drift.DriftMonitor``); the alerts to publish on ``<prefix>/<device>/alert``. No zenoh inside."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from magnet import wire
+from magnet.compass import Earth
+from magnet.drift import DEFAULT_DRIFT, Alert, DriftMonitor, DriftSettings, Reference, alert_from_message
+from magnet.fleet import Places
+from magnet.units import ut_per_unit
+
+#: alert events waiting to be published at most (the oldest dropped beyond: the open ones are also queryable)
+MAX_PENDING_ALERTS = 10_000
+
+__all__ = ["FleetWatch", "alert_from_message"]
+
+
+class FleetWatch:
+    """Places and drift of the devices a compass serves."""
+
+    def __init__(self, places: Places, drift: DriftSettings | None = DEFAULT_DRIFT) -> None:
+        self.places = places
+        self.monitor = DriftMonitor(drift) if drift is not None else None
+        self.pending: list[Alert] = []
+
+    def earths(self, devices: list[str], locations: list[Any] | None) -> list[Earth]:
+        """The Earth of each batch's device, taking the locations the batches report."""
+        if locations is not None:
+            for device, location in zip(devices, locations):
+                if self.places.report(device, location):
+                    self._moved(device)
+        return [self.places.earth(device) for device in devices]
+
+    def _moved(self, device: str) -> None:
+        tracker = None if self.monitor is None else self.monitor.trackers.get(device)
+        if tracker is not None:
+            earth = self.places.earth(device)
+            tracker.set_model(earth.total_ut, earth.inclination_deg)
+
+    def calibration(self, record: wire.DeviceCalibration, now_ns: int) -> None:
+        """A calibration came into force: drift is judged against it from now on (open alerts clear)."""
+        if self.monitor is None:
+            return
+        cal, earth = record.calibration, self.places.earth(record.device)
+        in_ut = ut_per_unit(cal.output_unit) == 1.0
+        reference = Reference(cal.field_strength or None, float(cal.quality.residual_rms_ut or 0.0),
+                              earth.total_ut if in_ut else None, earth.inclination_deg, record.created_ns, record.id)
+        self._queue(self.monitor.calibration(record.device, reference, now_ns))
+
+    def observe(self, devices: list[str], bounds: list[int], t_ns: np.ndarray,
+                strength_ut: np.ndarray, dip_deg: np.ndarray) -> None:
+        """Feed the samples of each batch (t_ns, strength_ut, dip_deg (S,)) to its device's tracker (devices with a
+        calibration in force have one)."""
+        if self.monitor is None:
+            return
+        self._queue(self.monitor.add_columns(devices, bounds, t_ns, strength_ut, dip_deg))
+
+    def _queue(self, alerts: list[Alert]) -> None:
+        self.pending += alerts
+        if len(self.pending) > MAX_PENDING_ALERTS:
+            del self.pending[:-MAX_PENDING_ALERTS]
+
+    def take(self) -> list[Alert]:
+        """The alert events to publish, oldest first (and forget them)."""
+        out, self.pending = self.pending, []
+        return out
+
+    def open_alerts(self) -> list[Alert]:
+        return [] if self.monitor is None else self.monitor.open_alerts()
+
+    def describe(self) -> Mapping[str, Any]:
+        return {"places_reported": len(self.places.reported), "fleet_devices": len(self.places.fleet),
+                "open_alerts": len(self.open_alerts())}
