@@ -22,8 +22,8 @@ from __future__ import annotations
 import dataclasses
 import errno
 import logging
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 from magnet.drivers.base import Reading, SensorReadError
 

@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "certs": ("services.commands.certs", "a site CA, certificates per role and the router/client configs (TLS, ACL)"),
     "up": ("services.commands.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
     "dashboard": ("services.dashboard.service", "serve a live web page of the fleet (and calibration control)"),
+    "report": ("services.commands.report", "draw a calibration report (HTML or PNG) from samples and a calibration"),
 }
 
 

@@ -100,7 +100,7 @@ def test_overflow_is_counted_and_skipped():
 def test_give_up_after_raises_a_clear_error():
     clock = FakeClock()
     loop, _ = make_loop(Script(errno.ETIMEDOUT), clock, give_up_after=5)
-    with pytest.raises(SensorReadError, match=r"no usable reading after 5 failures in a row over 0.15 s"):
+    with pytest.raises(SensorReadError, match=r"no usable reading after 5 failures in a row over 0\.15 s"):
         loop.next()
     assert loop.stats.attempts == 5
 
@@ -111,10 +111,12 @@ def test_stop_is_checked_before_every_attempt():
     assert loop.next(stop=lambda: True) is None and read.calls == 0
 
 
-@pytest.mark.parametrize("bad", [dict(initial_s=2.0, max_s=1.0), dict(factor=0.5), dict(unhealthy_after=0),
-                                 dict(give_up_after=0), dict(poll_s=-1)])
-def test_bad_backoff_is_refused(bad):
-    with pytest.raises(ValueError):
+@pytest.mark.parametrize("bad,message", [
+    (dict(initial_s=2.0, max_s=1.0), "initial_s <= max_s"), (dict(factor=0.5), "factor must be >= 1"),
+    (dict(unhealthy_after=0), "unhealthy_after"), (dict(give_up_after=0), "give_up_after"),
+    (dict(poll_s=-1), "poll_s >= 0")])
+def test_bad_backoff_is_refused(bad, message):
+    with pytest.raises(ValueError, match=message):
         Backoff(**bad)
 
 

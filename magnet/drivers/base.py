@@ -24,8 +24,8 @@ import logging
 import math
 import re
 import time
-from typing import Any, Protocol, runtime_checkable
 from collections.abc import Callable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 

@@ -57,6 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the calibration in force: the fit must make the field more constant than it does "
                              "(default: than no calibration)")
     parser.add_argument("--out", metavar="cal.json", help="write the record here (default: stdout)")
+    parser.add_argument("--report", metavar="FILE", help="also draw a report of this fit (.html or .png; "
+                                                         "see 'magnet report'), accepted or not")
 
 
 def expected_field_ut(args: argparse.Namespace) -> float | None:
@@ -146,6 +148,10 @@ def write_atomically(path: Path, text: str) -> None:
 def run(args: argparse.Namespace) -> int:
     table = read_samples(args.file)
     calibration = fit_table(table, args)
+    if args.report:
+        from services.commands.report import place, write_report
+
+        write_report(args.report, args.file, calibration, args.unit, *place(args))
     text = json.dumps(calibration.to_dict(), indent=2) + "\n"
     if not calibration.accepted:
         print(f"magnet fit: rejected: {calibration.reason}", file=sys.stderr)

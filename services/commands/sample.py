@@ -16,8 +16,8 @@ import dataclasses
 import logging
 import sys
 import time
-from typing import Any
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import smbus2
 

@@ -10,6 +10,9 @@ Sources (``services.edge.sources``):
 - ``--sensor sim --emulate``: the ``SensorStream`` directly, no register emulation.
 - ``--emulate --devices N``: N simulated devices (``FleetSimulator``, each its own hard and soft iron) named
   ``<ID>-000`` ... from one process.
+- ``--replay FILE.csv [--speed X]``: a recording with the columns of ``magnet sample`` (``t_s``, ``mx,my,mz``, optional
+  ``ax,ay,az`` and ``gx,gy,gz`` in rad/s) published at its own pace, X times faster, in batches of ``--batch``; the
+  edge exits 0 at its end. Wire times keep the recording's intervals, starting from the wall clock at the start.
 
 Health: liveliness tokens ``<prefix>/@alive/edge/<ID>`` and ``<prefix>/@alive/device/<device>`` while running, and
 ``<prefix>/@alive/device/<ID>/unhealthy`` while the sensor is unhealthy (3 failed reads in a row; withdrawn at the
@@ -28,8 +31,8 @@ import dataclasses
 import json
 import logging
 import time
-from typing import Any
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import zenoh
 
@@ -37,7 +40,7 @@ from magnet import wire
 from magnet.readloop import ReadStats
 from services.common.zenoh_session import open_session, stop_event
 from services.edge.settings import EdgeSettings, add_arguments
-from services.edge.sources import ChipSource, FleetSource, make_source, stamp
+from services.edge.sources import ChipSource, FleetSource, ReplaySource, make_source, stamp
 
 __all__ = ["EdgeSettings", "add_arguments", "run", "serve"]
 
@@ -167,6 +170,21 @@ class Publisher:
                 self.status.published_batches += 1
 
 
+def _period_s(source: Any, settings: EdgeSettings) -> float:
+    """Seconds between batches: 0 for a real chip (its reads pace it), else batch / rate."""
+    paced_by_reads = isinstance(source, ChipSource) and not settings.emulate
+    return 0.0 if paced_by_reads else settings.batch / settings.rate_hz
+
+
+def _batches(source: Any, period_s: float, done: Callable[[], bool]) -> Iterator[list[wire.RawBatch]]:
+    """The source's batches as they are due, until ``done()`` (or the end of a replay)."""
+    if isinstance(source, ReplaySource):
+        yield from source.paced(done)
+        return
+    for seq, end_ns in enumerate(_ticks(period_s, done)):
+        yield source.batches(seq, end_ns, done)
+
+
 def serve(settings: EdgeSettings) -> int:
     """Run the edge until ``settings.duration_s`` or a signal; prints the summary line; returns the exit status."""
     status = EdgeStatus(settings)
@@ -187,12 +205,10 @@ def serve(settings: EdgeSettings) -> int:
         def done() -> bool:
             return stop.is_set() or (deadline is not None and time.monotonic() >= deadline)
 
-        # a real chip paces itself through its reads; simulated and emulated sources are paced by the clock
-        paced_by_reads = isinstance(source, ChipSource) and not settings.emulate
-        period = 0.0 if paced_by_reads else settings.batch / settings.rate_hz
+        period = _period_s(source, settings)
         publisher = Publisher(session, settings, status, period if isinstance(source, FleetSource) else 0.0)
-        for seq, end_ns in enumerate(_ticks(period, done)):
-            publisher.put(source.batches(seq, end_ns, done))
+        for batches in _batches(source, period, done):
+            publisher.put(batches)
         seconds = time.monotonic() - started
         time.sleep(FLUSH_S)  # let the last batches leave before the session closes
         for item in [*declared, status.unhealthy_token]:

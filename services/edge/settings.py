@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from pathlib import Path
 
 from magnet import wire
+from magnet.drivers import SENSORS
 from magnet.place import Location
+from magnet.replay import MAX_SPEED
 from services.common import sim_options
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
@@ -18,7 +21,7 @@ MAX_DEVICES = 100_000
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="dev", help="device id (one key chunk); a fleet uses <ID>-000, ...")
     parser.add_argument("--sensor", default=SIMULATOR_SENSOR,
-                        help="chip name (hmc5883l, qmc5883l, lsm303dlh, ak09918c+bma456) or 'sim' for the simulator alone")
+                        help=f"chip name ({', '.join(SENSORS)}) or 'sim' for the simulator alone")
     parser.add_argument("--bus", type=int, help="I2C bus number of a real chip (/dev/i2c-N)")
     parser.add_argument("--address", type=lambda s: int(s, 0), help="I2C address of a real chip (e.g. 0x1e)")
     parser.add_argument("--emulate", action="store_true", help="emulate the chip (or the fleet) instead of a bus")
@@ -34,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--emulate-faults", type=float, default=0.0, metavar="P",
                         help="with --emulate and a chip, for tests: each I2C transfer after set-up fails with EIO "
                              "with probability P (1: a dead bus)")
+    parser.add_argument("--replay", type=Path, metavar="FILE.csv",
+                        help="publish a recording (the columns of magnet sample, with t_s) at its own pace, then exit")
+    parser.add_argument("--speed", type=float, default=1.0,
+                        help="with --replay: play this many times faster than recorded (default 1)")
     add_zenoh_arguments(parser)
 
 
@@ -53,6 +60,8 @@ class EdgeSettings:
     trajectory_samples: int = 3000
     speedup: float = 1.0
     emulate_faults: float = 0.0
+    replay: Path | None = None
+    speed: float = 1.0
     simulator: sim_options.SimulatorSettings = dataclasses.field(default_factory=sim_options.SimulatorSettings)
     zenoh: ZenohSettings = dataclasses.field(default_factory=ZenohSettings)
     #: where the device is, sent in every raw message: --location, or the simulator's place when emulating
@@ -73,6 +82,12 @@ class EdgeSettings:
         self._check_source()
 
     def _check_source(self) -> None:
+        if not 0 < self.speed <= MAX_SPEED:
+            raise ValueError(f"--speed must be in (0, {MAX_SPEED:g}], got {self.speed}")
+        if self.replay is not None:
+            if self.emulate or self.devices or self.bus is not None:
+                raise ValueError("--replay plays a recording: it takes no --emulate, --devices or --bus")
+            return
         if not 0 <= self.devices <= MAX_DEVICES:
             raise ValueError(f"--devices must be 0..{MAX_DEVICES}, got {self.devices}")
         if self.devices and not self.emulate:
@@ -93,9 +108,9 @@ class EdgeSettings:
         return cls(device=args.device, sensor=args.sensor, rate_hz=float(args.rate), batch=int(args.batch),
                    duration_s=args.duration, bus=args.bus, address=args.address, emulate=bool(args.emulate),
                    devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),
-                   speedup=float(args.speedup), emulate_faults=float(args.emulate_faults),
-                   simulator=sim_options.SimulatorSettings.from_args(args), zenoh=ZenohSettings.from_args(args),
-                   location=_location(args))
+                   speedup=float(args.speedup), emulate_faults=float(args.emulate_faults), replay=args.replay,
+                   speed=float(args.speed), simulator=sim_options.SimulatorSettings.from_args(args),
+                   zenoh=ZenohSettings.from_args(args), location=_location(args))
 
 
 def _location(args: argparse.Namespace) -> Location | None:

@@ -6,13 +6,16 @@
 - ``StreamSource``: one simulated device read sample by sample (no register emulation).
 - ``ChipSource``: one chip through its driver (a real bus, or the chip's emulator fed by the simulator), read through
   the one bounded read loop (``magnet.readloop``): a failing bus backs off, is counted and marks the device unhealthy.
+- ``ReplaySource``: a recording (``--replay FILE.csv``) at its own pace (``magnet.replay``); it paces itself, so it
+  offers ``paced(stop)`` instead of ``batches``.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
-from collections.abc import Callable
 
 import numpy as np
 import smbus2
@@ -21,12 +24,16 @@ from magnet import wire
 from magnet.drivers import open_sensor
 from magnet.emulators import FaultInjector, emulator_for
 from magnet.readloop import Backoff, ReadLoop, ReadStats
+from magnet.replay import Recording, paced_slices
 from magnet.simulator import FleetSimulator
+from services.common.csvio import read_samples
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
 
 #: the edge's read loop: waits 10 ms, 20 ms, ... up to 1 s between failed reads; unhealthy after 3 in a row
 EDGE_BACKOFF = Backoff(initial_s=0.01, max_s=1.0, unhealthy_after=3, poll_s=0.0005)
 TRUTH_KEYS = ("heading_deg", "pitch_deg", "roll_deg")
+GYRO_COLUMNS = ("gx", "gy", "gz")
+REPLAY_SENSOR = "replay"
 
 
 def stamp(n: int, end_ns: int, period_ns: int) -> np.ndarray:
@@ -95,6 +102,11 @@ def _open_bus(settings: EdgeSettings, stream: Any) -> Any:
     return smbus2.SMBus(settings.bus)
 
 
+def _rows(vectors: list[Any]) -> np.ndarray | None:
+    """(N, 3) from N vectors of 3, or None when any is missing (the wire field is all or nothing per batch)."""
+    return None if any(v is None for v in vectors) else np.array(vectors, dtype=float)
+
+
 class ChipSource:
     """One chip through its driver and the bounded read loop; ``on_health(healthy, last_error)`` hears each change."""
 
@@ -122,20 +134,61 @@ class ChipSource:
             if reading is None:
                 break
             mags.append(np.asarray(reading.mag_ut, dtype=float))
-            accs.append(None if reading.acc_ms2 is None else np.asarray(reading.acc_ms2, dtype=float))
-            gyrs.append(None if reading.gyr_rads is None else np.asarray(reading.gyr_rads, dtype=float))
+            accs.append(reading.acc_ms2)
+            gyrs.append(reading.gyr_rads)
             truths.append(_truth(self.stream))
         if not mags:
             return []
-        acc = None if any(a is None for a in accs) else np.array(accs)
-        gyr = None if any(g is None for g in gyrs) else np.array(gyrs)
         truth = {k: np.array([t[k] for t in truths]) for k in TRUTH_KEYS} if self.stream is not None else None
         t_ns = stamp(len(mags), time.time_ns(), int(1e9 / self.settings.rate_hz))
-        return [wire.RawBatch(self.settings.device, seq, self.settings.sensor, t_ns, np.array(mags), acc, truth, gyr)]
+        return [wire.RawBatch(self.settings.device, seq, self.settings.sensor, t_ns, np.array(mags), _rows(accs),
+                              truth, gyr_rads=_rows(gyrs))]
+
+
+def read_recording(path: Path) -> Recording:
+    """The recording in a ``magnet sample`` CSV: t_s (s), mx,my,mz (uT), optional ax,ay,az (m/s^2) and gx,gy,gz
+    (rad/s); ValueError naming the file and what is wrong."""
+    table = read_samples(path)
+    if "t_s" not in table.columns:
+        raise ValueError(f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as "
+                         "magnet sample writes it")
+    gyr = None
+    if all(c in table.columns for c in GYRO_COLUMNS):
+        gyr = np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
+    try:
+        return Recording(table.numeric("t_s"), table.mag, table.acc, gyr)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+class ReplaySource:
+    """A recording published at its own pace (scaled by ``--speed``), in batches of ``--batch``; then it ends."""
+
+    stats: ReadStats | None = None
+
+    def __init__(self, settings: EdgeSettings) -> None:
+        if settings.replay is None:
+            raise ValueError("a replay needs --replay FILE.csv")
+        self.recording = read_recording(settings.replay)
+        self.settings = settings
+        self.ids = [settings.device]
+
+    def paced(self, stop: Callable[[], bool]) -> Iterator[list[wire.RawBatch]]:
+        """One list of one batch each time a batch is due; wire times keep the recording's intervals from now."""
+        rec, device = self.recording, self.settings.device
+        t_ns = rec.stamps_ns(time.time_ns())
+        parts = paced_slices(rec, self.settings.batch, speed=self.settings.speed, clock=time.monotonic,
+                             sleep=time.sleep, stop=stop)
+        for seq, part in enumerate(parts):
+            yield [wire.RawBatch(device, seq, REPLAY_SENSOR, t_ns[part], rec.mag_ut[part],
+                                 None if rec.acc_ms2 is None else rec.acc_ms2[part],
+                                 gyr_rads=None if rec.gyr_rads is None else rec.gyr_rads[part])]
 
 
 def make_source(settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> Any:
     """The source the settings name (see the module docstring)."""
+    if settings.replay is not None:
+        return ReplaySource(settings)
     if settings.devices:
         return FleetSource(settings)
     if settings.emulate and settings.sensor == SIMULATOR_SENSOR:
