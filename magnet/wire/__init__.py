@@ -10,7 +10,9 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
 - ``keys``: ``Kind``, ``key``, ``device_from_key``, ``check_key`` (the one key check), ``validate_device_id``
   (the one id check), ``validate_prefix``, status and liveliness keys.
 - ``errors``: ``WireError``, ``DropCounter``.
-- ``codec``: ``WIRE_VERSION``, size limits, ``pack``/``unpack`` and the checks of single fields.
+- ``codec``: ``WIRE_VERSION`` (1: lists; the records), ``BINARY_VERSION`` (2: sample arrays as little-endian
+  bytes with dtype and shape, written by the services), ``VERSIONS`` (both read), size limits, ``pack``/``unpack``,
+  ``plain`` (v 2 arrays as lists, for printing) and the checks of single fields.
 - ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; the one raw decoder ``decode_raw_many`` (``decode_raw`` is
   it applied to one payload). Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``, and optional
   ``location`` [lat_deg, lon_deg, alt_m] (``magnet.place.Location``; cause ``bad-location``).
@@ -20,8 +22,8 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
   ``calibration_from_record``) and ``Progress``.
 """
 
-from magnet.wire.codec import (MAX_BATCH_SAMPLES, MAX_PAYLOAD_BYTES, WIRE_VERSION, check_version, pack,
-                               unpack)
+from magnet.wire.codec import (BINARY_VERSION, MAX_BATCH_SAMPLES, MAX_PAYLOAD_BYTES, VERSIONS, WIRE_VERSION,
+                               check_version, pack, plain, unpack)
 from magnet.wire.errors import DropCounter, WireError
 from magnet.wire.headings import (ANGLE_FIELDS, DISTURBED, HeadingBatch, decode_heading, encode_heading,
                                   encode_headings)
@@ -34,7 +36,7 @@ from magnet.wire.records import (CalibrationMessage, Collecting, DeviceCalibrati
                                  encode_progress)
 
 __all__ = [
-    "ANGLE_FIELDS", "CalibrationMessage", "Collecting", "DeviceCalibration", "Progress", "DEFAULT_PREFIX", "DISTURBED", "DropCounter", "HeadingBatch", "Kind",
+    "ANGLE_FIELDS", "BINARY_VERSION", "VERSIONS", "plain", "CalibrationMessage", "Collecting", "DeviceCalibration", "Progress", "DEFAULT_PREFIX", "DISTURBED", "DropCounter", "HeadingBatch", "Kind",
     "MAX_ACC_MS2", "MAX_BATCH_SAMPLES", "MAX_FIELD_UT", "MAX_GYR_RADS", "MAX_PAYLOAD_BYTES", "RawBatch", "RawColumns",
     "TRUTH_FIELDS", "WIRE_VERSION", "WireError", "calibration_from_record", "calibration_record", "check_key",
     "check_version", "decode_calibration", "decode_heading", "decode_messages", "decode_progress", "decode_raw",

@@ -1,10 +1,24 @@
-"""msgpack framing shared by every message: version, size limits, and the checks of single fields."""
+"""msgpack framing shared by every message: versions, size limits, binary arrays (v 2), and the checks of single
+fields.
+
+Two versions of the sample messages (raw, heading) are read; v 2 is written:
+
+- v 1: every array is msgpack lists of numbers (``"mag_ut": [[21.3, -4.1, 44.0], ...]``);
+- v 2: every array is one map ``{"dtype": "<f4", "shape": [N, 3], "data": <bin: N*3*4 bytes, little-endian,
+  row-major>}`` (``Bin``), turned into numpy with ``np.frombuffer``, no per-number work. ``dtype`` is a numpy
+  little-endian type string: times ``<i8`` only; measured and computed values ``<f4`` (written) or ``<f8``; flags
+  ``<u1 <u2 <u4 <i4 <i8`` (``<u2`` written). Anything else (another dtype, a shape that is not [N] or [N, k] as the
+  field needs, a byte count that is not N*k*itemsize) is refused with a ``WireError`` like any malformed v 1 array.
+
+The records (calibration, history, progress, status, calibrate replies) carry no sample arrays and are the same in
+both versions (``WIRE_VERSION`` 1, also their JSON form in files and the store); readers accept either number.
+"""
 
 from __future__ import annotations
 
 import math
-from typing import Any
 from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import msgpack
 import numpy as np
@@ -12,6 +26,9 @@ import numpy as np
 from magnet.wire.errors import WireError
 
 WIRE_VERSION = 1
+#: sample messages with binary arrays (written by the services; ``WIRE_VERSION`` still read)
+BINARY_VERSION = 2
+VERSIONS = (WIRE_VERSION, BINARY_VERSION)
 #: Larger payloads are refused before they are unpacked.
 MAX_PAYLOAD_BYTES = 4 * 1024 * 1024
 #: Most samples in one raw or heading batch.
@@ -41,10 +58,111 @@ def unpack(payload: Payload) -> dict[str, Any]:
     return message
 
 
-def check_version(message: Mapping[str, Any]) -> None:
-    """WireError ``wrong-version`` unless ``message['v']`` is ``WIRE_VERSION``."""
-    if message.get("v") != WIRE_VERSION:
-        raise WireError("wrong-version", f"schema version {message.get('v')!r}, expected {WIRE_VERSION}")
+def check_version(message: Mapping[str, Any]) -> int:
+    """The message's version: WireError ``wrong-version`` unless ``message['v']`` is one of ``VERSIONS``."""
+    version = message.get("v")
+    if type(version) is not int or version not in VERSIONS:
+        raise WireError("wrong-version", f"schema version {version!r}, expected one of {VERSIONS}")
+    return version
+
+
+# ------------------------------------------------------------------------------------------- binary arrays (v 2)
+
+#: the dtypes a v 2 array may carry, by kind of field (numpy little-endian type strings)
+TIME_DTYPES = {"<i8": np.dtype("<i8")}
+FLOAT_DTYPES = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
+FLAG_DTYPES = {name: np.dtype(name) for name in ("<u1", "<u2", "<u4", "<i4", "<i8")}
+#: what v 2 writes, by kind of field
+TIME_DTYPE, FLOAT_DTYPE, FLAG_DTYPE = "<i8", "<f4", "<u2"
+
+
+class Bin(NamedTuple):
+    """A checked v 2 array: its dtype, its number of rows (shape[0]) and its bytes."""
+
+    dtype: np.dtype
+    rows: int
+    data: bytes
+
+
+def bin_array(values: Any, dtype: str) -> dict[str, Any]:
+    """The v 2 map of an array: ``{"dtype", "shape", "data"}`` with the values cast to ``dtype``."""
+    arr = np.ascontiguousarray(values, dtype=dtype)
+    return {"dtype": dtype, "shape": list(arr.shape), "data": arr.tobytes()}
+
+
+def check_bin(value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...],
+              rows: int | None = None) -> Bin:
+    """Check a v 2 array map of shape (N, *tail) (tail () or (k,)), N <= MAX_BATCH_SAMPLES (and N == ``rows`` when given), one of
+    ``dtypes``, with exactly N * prod(tail) * itemsize bytes; WireError (``bad-shape``, ``bad-dtype``,
+    ``oversized``) otherwise. Values are not looked at (see ``from_bins``). The hot path of a busy consumer: a few
+    type and size comparisons, nothing per number."""
+    try:
+        dtype = dtypes[value["dtype"]]
+        shape, data = value["shape"], value["data"]
+        n = shape[0]
+        if (type(shape) is list and type(n) is int and len(shape) == 1 + len(tail) and tuple(shape[1:]) == tail
+                and 0 <= n <= MAX_BATCH_SAMPLES and (rows is None or n == rows) and type(data) is bytes
+                and len(data) == n * dtype.itemsize * (tail[0] if tail else 1)):
+            return Bin(dtype, n, data)
+    except (TypeError, KeyError, IndexError):
+        pass
+    raise _bin_error(value, name, dtypes, tail, rows)
+
+
+def _bin_error(value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...],
+               rows: int | None) -> WireError:
+    """Why ``check_bin`` refused ``value``."""
+    if type(value) is not dict:
+        return WireError("bad-shape", f"{name} must be a map {{dtype, shape, data}} in v {BINARY_VERSION}")
+    dtype_name, shape, data = value.get("dtype"), value.get("shape"), value.get("data")
+    dtype = dtypes.get(dtype_name) if type(dtype_name) is str else None
+    if dtype is None:
+        return WireError("bad-dtype", f"{name} has dtype {dtype_name!r}, expected one of {', '.join(dtypes)}")
+    if (type(shape) is not list or len(shape) != 1 + len(tail) or any(type(s) is not int for s in shape)
+            or tuple(shape[1:]) != tail or shape[0] < 0):
+        return WireError("bad-shape", f"{name} has shape {shape!r}, expected [N{''.join(f', {t}' for t in tail)}]")
+    if shape[0] > MAX_BATCH_SAMPLES:
+        return WireError("oversized", f"{name} holds {shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
+    if rows is not None and shape[0] != rows:
+        return WireError("bad-shape", f"{name} holds {shape[0]} samples but t_ns holds {rows}")
+    size = len(data) if type(data) is bytes else type(data).__name__
+    expected = shape[0] * math.prod(tail) * dtype.itemsize
+    return WireError("bad-shape", f"{name} data holds {size} bytes; dtype and shape say {expected}")
+
+
+def from_bins(bins: list[Bin], tail: tuple[int, ...], out: str) -> np.ndarray:
+    """The rows of checked ``bins`` one after the other as one ``out`` array (S, *tail): their bytes joined and read
+    with ``np.frombuffer`` (one join per run of the same dtype)."""
+    parts, start = [], 0
+    for i in range(1, len(bins) + 1):
+        if i == len(bins) or bins[i].dtype != bins[start].dtype:
+            joined = b"".join(b.data for b in bins[start:i]) if i - start > 1 else bins[start].data
+            parts.append(np.frombuffer(joined, dtype=bins[start].dtype))
+            start = i
+    flat = parts[0] if len(parts) == 1 else np.concatenate(parts) if parts else np.empty(0)
+    return flat.astype(out).reshape(-1, *tail)
+
+
+def binary_message(message: Mapping[str, Any]) -> bool:
+    """Whether an unpacked (version-checked) message is v 2."""
+    return message["v"] == BINARY_VERSION
+
+
+def plain(value: Any) -> Any:
+    """``value`` with every v 2 array map replaced by its values as lists (for JSON printing); unusable array maps
+    are left as they are."""
+    if isinstance(value, dict):
+        if set(value) == {"dtype", "shape", "data"}:
+            try:
+                shape = value["shape"]
+                arr = np.frombuffer(value["data"], dtype=np.dtype(value["dtype"])).reshape(shape)
+                return arr.tolist()
+            except (TypeError, ValueError):
+                return value
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [plain(v) for v in value]
+    return value
 
 
 def int_field(message: Mapping[str, Any], name: str, default: int | None = None) -> int:
@@ -63,8 +181,13 @@ def number_field(message: Mapping[str, Any], name: str, default: float) -> float
     return float(value)
 
 
-def float_array(value: Any, name: str, shape_tail: tuple[int, ...], limit: float | None) -> np.ndarray:
-    """float64 array of shape (N, *shape_tail), N <= MAX_BATCH_SAMPLES, finite, |x| <= limit; else WireError."""
+def float_array(value: Any, name: str, shape_tail: tuple[int, ...], limit: float | None,
+                binary: bool = False) -> np.ndarray:
+    """float64 array of shape (N, *shape_tail), N <= MAX_BATCH_SAMPLES, finite, |x| <= limit; else WireError.
+    ``value``: lists (v 1) or, ``binary``, a v 2 array map."""
+    if binary:
+        return check_floats(from_bins([check_bin(value, name, FLOAT_DTYPES, shape_tail)], shape_tail, "f8"),
+                            name, limit)
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -73,6 +196,11 @@ def float_array(value: Any, name: str, shape_tail: tuple[int, ...], limit: float
         raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected (N, {', '.join(map(str, shape_tail))})")
     if arr.shape[0] > MAX_BATCH_SAMPLES:
         raise WireError("oversized", f"{name} holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
+    return check_floats(arr, name, limit)
+
+
+def check_floats(arr: np.ndarray, name: str, limit: float | None) -> np.ndarray:
+    """``arr`` if finite and |x| <= limit; WireError ``non-finite`` or ``absurd-magnitude`` otherwise."""
     if not np.isfinite(arr).all():
         raise WireError("non-finite", f"{name} holds non-finite values")
     if limit is not None and arr.size and np.abs(arr).max() > limit:
@@ -80,8 +208,12 @@ def float_array(value: Any, name: str, shape_tail: tuple[int, ...], limit: float
     return arr
 
 
-def int_array(value: Any, name: str) -> np.ndarray:
-    """int64 array (N,) from a list of integers, N <= MAX_BATCH_SAMPLES; else WireError."""
+def int_array(value: Any, name: str, binary: bool = False,
+              dtypes: Mapping[str, np.dtype] = TIME_DTYPES) -> np.ndarray:
+    """int64 array (N,) from a list of integers (v 1) or, ``binary``, a v 2 array map of one of ``dtypes``,
+    N <= MAX_BATCH_SAMPLES; else WireError."""
+    if binary:
+        return from_bins([check_bin(value, name, dtypes, ())], (), "i8")
     try:
         arr = np.asarray(value)
     except (TypeError, ValueError, OverflowError):

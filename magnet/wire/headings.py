@@ -2,7 +2,10 @@
 
 Message: ``{v, device, seq, t_ns: [N], heading_deg: [N] (magnetic), true_heading_deg: [N], pitch_deg: [N],
 roll_deg: [N], field_ut: [[x, y, z]] * N, declination_deg, calibration_id, flags: [N ints],
-quat_wxyz: [[w, x, y, z]] * N (optional: attitude, body to NED, unit quaternion)}``.
+quat_wxyz: [[w, x, y, z]] * N (optional: attitude, body to NED, unit quaternion)}``. In v 2 (written) every array
+is a binary array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N], the angles ``<f4`` [N] (heading_deg and
+true_heading_deg kept in [0, 360) after rounding to ``<f4``), field_ut ``<f4`` [N, 3], flags ``<u2`` [N], quat_wxyz
+``<f4`` [N, 4].
 
 ``flags`` holds ``magnet.heading.HeadingFlag`` bits; the per-sample magnetic disturbance flag is its
 FIELD_DISTURBED (|B| away from the expected field) and DIP_DISTURBED (dip away from the expected inclination) bits,
@@ -13,15 +16,31 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from typing import Any
 from collections.abc import Sequence
+from typing import Any
 
 import msgpack
 import numpy as np
 
 from magnet.heading import HeadingFlag
-from magnet.wire.codec import Payload, WIRE_VERSION, check_lengths, float_array, int_array, int_field, number_field
-from magnet.wire.codec import unpack
+from magnet.wire.codec import (
+    BINARY_VERSION,
+    FLAG_DTYPE,
+    FLAG_DTYPES,
+    FLOAT_DTYPE,
+    TIME_DTYPE,
+    TIME_DTYPES,
+    VERSIONS,
+    WIRE_VERSION,
+    Payload,
+    binary_message,
+    check_lengths,
+    float_array,
+    int_array,
+    int_field,
+    number_field,
+    unpack,
+)
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device
 from magnet.wire.raw import RawColumns
@@ -64,66 +83,109 @@ class HeadingBatch:
 def encode_headings(columns: RawColumns, heading_deg: np.ndarray, true_heading_deg: np.ndarray,
                     pitch_deg: np.ndarray, roll_deg: np.ndarray, field_ut: np.ndarray, flags: np.ndarray,
                     declination_deg: float | Sequence[float], calibration_ids: Sequence[str],
-                    quat_wxyz: np.ndarray | None = None) -> list[bytes]:
-    """One heading message per batch of ``columns`` (the one heading encoder).
+                    quat_wxyz: np.ndarray | None = None, version: int = BINARY_VERSION) -> list[bytes]:
+    """One heading message per batch of ``columns`` (the one heading encoder), in ``version`` 2 (binary arrays, the
+    default) or 1 (lists).
 
     The arrays are aligned with ``columns``' S samples (angles (S,) deg, field_ut (S, 3) uT, flags (S,) int,
-    quat_wxyz (S, 4) or None); each is turned into Python lists once and sliced per batch. A batch whose quaternion
-    rows are not all finite carries no ``quat_wxyz``. ``declination_deg``: one for all, or one per batch (each
-    device's place)."""
+    quat_wxyz (S, 4) or None); each is converted once (to lists, or to little-endian bytes) and sliced per batch.
+    A batch whose quaternion rows are not all finite carries no ``quat_wxyz``. ``declination_deg``: one for all, or
+    one per batch (each device's place)."""
     return _encode(columns.devices, columns.seqs, columns.bounds, columns.t_ns,
                    (heading_deg, true_heading_deg, pitch_deg, roll_deg), field_ut, flags, declination_deg,
-                   calibration_ids, quat_wxyz)
+                   calibration_ids, quat_wxyz, version)
 
 
-def encode_heading(batch: HeadingBatch) -> bytes:
+def encode_heading(batch: HeadingBatch, version: int = BINARY_VERSION) -> bytes:
     """The message of one batch: ``encode_headings`` of B = 1."""
     angles = tuple(getattr(batch, name) for name in ANGLE_FIELDS)
     return _encode([batch.device], [batch.seq], [0, len(batch)], batch.t_ns, angles, batch.field_ut, batch.flags,
-                   batch.declination_deg, [batch.calibration_id], batch.quat_wxyz)[0]
+                   batch.declination_deg, [batch.calibration_id], batch.quat_wxyz, version)[0]
+
+
+class _Lists:
+    """v 1: a whole column as Python lists, sliced per batch."""
+
+    def __init__(self, values: np.ndarray, dtype: Any, tail: tuple[int, ...]) -> None:
+        self.values = np.asarray(values, dtype=dtype).tolist()
+
+    def __getitem__(self, bounds: slice) -> Any:
+        return self.values[bounds]
+
+
+class _Bytes:
+    """v 2: a whole column as little-endian bytes, sliced per batch into a binary array map."""
+
+    def __init__(self, values: np.ndarray, dtype: str, tail: tuple[int, ...]) -> None:
+        self.dtype, self.tail = dtype, list(tail)
+        self.data = np.ascontiguousarray(values, dtype=dtype).tobytes()
+        self.row = int(np.dtype(dtype).itemsize * np.prod(tail, dtype=int))
+
+    def __getitem__(self, bounds: slice) -> Any:
+        return {"dtype": self.dtype, "shape": [bounds.stop - bounds.start, *self.tail],
+                "data": self.data[bounds.start * self.row:bounds.stop * self.row]}
+
+
+def _columns(version: int, t_ns: np.ndarray, angles: tuple[np.ndarray, ...], field_ut: np.ndarray,
+             flags: np.ndarray, quat: np.ndarray | None) -> tuple[Any, list[Any], Any, Any, Any]:
+    """t_ns, angles, field, flags and quaternion columns ready to slice, in the form of ``version``."""
+    if version not in VERSIONS:
+        raise ValueError(f"wire version must be one of {VERSIONS}, got {version}")
+    if version == WIRE_VERSION:
+        column, types = _Lists, (np.int64, float, np.int64)
+    else:
+        column, types = _Bytes, (TIME_DTYPE, FLOAT_DTYPE, FLAG_DTYPE)
+        angles = tuple(_wrap(a) if name in ("heading_deg", "true_heading_deg") else a
+                       for name, a in zip(ANGLE_FIELDS, angles))
+    return (column(t_ns, types[0], ()), [column(a, types[1], ()) for a in angles], column(field_ut, types[1], (3,)),
+            column(flags, types[2], ()), None if quat is None else column(quat, types[1], (4,)))
+
+
+def _wrap(heading_deg: np.ndarray) -> np.ndarray:
+    """Headings as ``<f4`` in [0, 360): 359.99999 rounds to 360.0 in single precision, which is 0."""
+    single = np.asarray(heading_deg, dtype=np.float32)
+    return np.where(single >= np.float32(360.0), np.float32(0.0), single)
 
 
 def _encode(devices: Sequence[str], seqs: Sequence[int], bounds: Sequence[int], t_ns: np.ndarray,
             angles: tuple[np.ndarray, ...], field_ut: np.ndarray, flags: np.ndarray,
-            declination_deg: float | Sequence[float],
-            calibration_ids: Sequence[str], quat_wxyz: np.ndarray | None) -> list[bytes]:
-    times = np.asarray(t_ns, dtype=np.int64).tolist()
-    angle_lists = [np.asarray(a, dtype=float).tolist() for a in angles]
-    field = np.asarray(field_ut, dtype=float).tolist()
-    flag = np.asarray(flags, dtype=np.int64).tolist()
-    quat, quat_ok = _quaternions(quat_wxyz, bounds)
-    declinations = (np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),))).tolist()
+            declination_deg: float | Sequence[float], calibration_ids: Sequence[str], quat_wxyz: np.ndarray | None,
+            version: int) -> list[bytes]:
+    quat_ok = _quaternions_ok(quat_wxyz, bounds)
+    times, angle_columns, field, flag, quat = _columns(version, t_ns, angles, field_ut, flags, quat_wxyz)
+    declinations = np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),)).tolist()
     out = []
     for i, (device, seq, cal_id, declination) in enumerate(zip(devices, seqs, calibration_ids, declinations)):
-        lo, hi = bounds[i], bounds[i + 1]
-        message: dict[str, Any] = {"v": WIRE_VERSION, "device": device, "seq": int(seq), "t_ns": times[lo:hi]}
-        message.update((name, values[lo:hi]) for name, values in zip(ANGLE_FIELDS, angle_lists))
-        message.update(field_ut=field[lo:hi], declination_deg=declination, calibration_id=cal_id, flags=flag[lo:hi])
+        rows = slice(bounds[i], bounds[i + 1])
+        message: dict[str, Any] = {"v": version, "device": device, "seq": int(seq), "t_ns": times[rows]}
+        message.update((name, values[rows]) for name, values in zip(ANGLE_FIELDS, angle_columns))
+        message.update(field_ut=field[rows], declination_deg=declination, calibration_id=cal_id, flags=flag[rows])
         if quat_ok[i]:
-            message["quat_wxyz"] = quat[lo:hi]
+            message["quat_wxyz"] = quat[rows]
         out.append(msgpack.packb(message, use_bin_type=True))
     return out
 
 
-def _quaternions(quat_wxyz: np.ndarray | None, bounds: Sequence[int]) -> tuple[list[Any], list[bool]]:
-    """Quaternion rows as lists and, per batch, whether all its rows are finite."""
+def _quaternions_ok(quat_wxyz: np.ndarray | None, bounds: Sequence[int]) -> list[bool]:
+    """Per batch, whether all its quaternion rows are finite (False for all without quaternions)."""
     if quat_wxyz is None:
-        return [], [False] * (len(bounds) - 1)
-    quat = np.asarray(quat_wxyz, dtype=float)
-    finite = np.isfinite(quat).all(axis=1)
-    ok = [bool(finite[lo:hi].all()) for lo, hi in itertools.pairwise(bounds)]
-    return quat.tolist(), ok
+        return [False] * (len(bounds) - 1)
+    finite = np.isfinite(np.asarray(quat_wxyz, dtype=float)).all(axis=1)
+    if finite.all():
+        return [True] * (len(bounds) - 1)
+    return [bool(finite[lo:hi].all()) for lo, hi in itertools.pairwise(bounds)]
 
 
 def decode_heading(payload: Payload) -> HeadingBatch:
     """HeadingBatch from a payload; WireError (with ``cause``) for anything malformed."""
     message = unpack(payload)
     device = message_device(message)
-    t_ns = int_array(message.get("t_ns"), "t_ns")
-    angles = {name: float_array(message.get(name), name, (), 1e4) for name in ANGLE_FIELDS}
-    field = float_array(message.get("field_ut"), "field_ut", (3,), None)
-    flags = int_array(message.get("flags"), "flags")
-    quat = _decode_quaternions(message.get("quat_wxyz"))
+    binary = binary_message(message)
+    t_ns = int_array(message.get("t_ns"), "t_ns", binary, TIME_DTYPES)
+    angles = {name: float_array(message.get(name), name, (), 1e4, binary) for name in ANGLE_FIELDS}
+    field = float_array(message.get("field_ut"), "field_ut", (3,), None, binary)
+    flags = int_array(message.get("flags"), "flags", binary, FLAG_DTYPES)
+    quat = _decode_quaternions(message.get("quat_wxyz"), binary)
     check_lengths(t_ns.shape[0], {**angles, "field_ut": field, "flags": flags,
                                   **({} if quat is None else {"quat_wxyz": quat})})
     return HeadingBatch(device, int_field(message, "seq", 0), t_ns, field_ut=field, flags=flags,
@@ -131,10 +193,10 @@ def decode_heading(payload: Payload) -> HeadingBatch:
                         calibration_id=str(message.get("calibration_id", "")), quat_wxyz=quat, **angles)
 
 
-def _decode_quaternions(value: Any) -> np.ndarray | None:
+def _decode_quaternions(value: Any, binary: bool) -> np.ndarray | None:
     if value is None:
         return None
-    quat = float_array(value, "quat_wxyz", (4,), 1.0 + QUAT_NORM_TOLERANCE)
+    quat = float_array(value, "quat_wxyz", (4,), 1.0 + QUAT_NORM_TOLERANCE, binary)
     if quat.size and (np.abs(np.linalg.norm(quat, axis=1) - 1.0) > QUAT_NORM_TOLERANCE).any():
         raise WireError("absurd-magnitude", "quat_wxyz holds quaternions that are not of unit norm")
     return quat

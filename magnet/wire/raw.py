@@ -3,28 +3,50 @@
 Message: ``{v, device, seq, sensor, t_ns: [N ints], mag_ut: [[x, y, z]] * N, acc_ms2: [[x, y, z]] * N (optional),
 gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), truth: {heading_deg: [N], pitch_deg: [N],
 roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the device is,
-``magnet.place.Location``, checked: cause ``bad-location``)}``.
+``magnet.place.Location``, checked: cause ``bad-location``)}``. In v 2 (written) every array of samples is a binary
+array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N], mag_ut / acc_ms2 / gyr_rads ``<f4`` [N, 3], truth ``<f4``
+[N]; ``location`` (three numbers, not samples) stays a list in both versions.
 
-There is one decoder: ``decode_raw_many`` checks each message's structure in Python (``_header``) and the numbers of
-all of them in one numpy pass (``_numbers``); when the numbers of a group do not even form arrays, each message of
-the group is converted alone by the same code, which names the culprit. ``decode_raw`` is ``decode_raw_many`` of one
-payload (plus the simulator's truth), so both give the same verdict and the same cause for every payload.
+There is one decoder, for both versions: ``decode_raw_many`` checks each message's structure in Python (``_header``:
+list lengths in v 1, dtype, shape and byte count in v 2), turns the numbers of all of them into arrays at once (v 1
+lists in one ``np.array``, v 2 bytes joined and read with ``np.frombuffer``) and checks them all in one numpy pass
+(``_numbers``: finite, within physical limits); when the numbers of a group do not even form arrays, each message
+of the group is converted alone by the same code, which names the culprit. ``decode_raw`` is ``decode_raw_many`` of
+one payload (plus the simulator's truth), so both give the same verdict and the same cause for every payload.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
-from typing import Any
 from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
 
 import msgpack
 import numpy as np
 
-from magnet.wire.codec import (MAX_BATCH_SAMPLES, WIRE_VERSION, Payload, check_lengths, float_array, int_field,
-                               unpack)
-from magnet.wire.errors import WireError
+from magnet.wire.codec import (
+    BINARY_VERSION,
+    FLOAT_DTYPE,
+    FLOAT_DTYPES,
+    MAX_BATCH_SAMPLES,
+    TIME_DTYPE,
+    TIME_DTYPES,
+    VERSIONS,
+    WIRE_VERSION,
+    Bin,
+    Payload,
+    bin_array,
+    binary_message,
+    check_bin,
+    check_lengths,
+    float_array,
+    from_bins,
+    int_field,
+    unpack,
+)
 from magnet.place import Location
+from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device
 
 #: Magnitudes beyond these are not a magnetometer, an accelerometer or a gyroscope on Earth (a +-8 gauss chip reads
@@ -142,64 +164,75 @@ def message_location(message: Mapping[str, Any]) -> Location | None:
 # ------------------------------------------------------------------------------------------------------ encoding
 
 
-def encode_raw(batch: RawBatch) -> bytes:
-    message: dict[str, Any] = {
-        "v": WIRE_VERSION,
-        "device": batch.device,
-        "seq": int(batch.seq),
-        "sensor": batch.sensor,
-        "t_ns": np.asarray(batch.t_ns, dtype=np.int64).tolist(),
-        "mag_ut": np.asarray(batch.mag_ut, dtype=float).tolist(),
-    }
+def encode_raw(batch: RawBatch, version: int = BINARY_VERSION) -> bytes:
+    """The message of one batch, in ``version`` 2 (binary arrays, the default) or 1 (lists, for old readers)."""
+    if version not in VERSIONS:
+        raise ValueError(f"wire version must be one of {VERSIONS}, got {version}")
+    if version == WIRE_VERSION:
+        floats, times = (lambda a: np.asarray(a, dtype=float).tolist()), (lambda a: np.asarray(a, np.int64).tolist())
+    else:
+        floats, times = (lambda a: bin_array(a, FLOAT_DTYPE)), (lambda a: bin_array(a, TIME_DTYPE))
+    message: dict[str, Any] = {"v": version, "device": batch.device, "seq": int(batch.seq), "sensor": batch.sensor,
+                               "t_ns": times(batch.t_ns), "mag_ut": floats(batch.mag_ut)}
     if batch.acc_ms2 is not None:
-        message["acc_ms2"] = np.asarray(batch.acc_ms2, dtype=float).tolist()
+        message["acc_ms2"] = floats(batch.acc_ms2)
     if batch.gyr_rads is not None:
-        message["gyr_rads"] = np.asarray(batch.gyr_rads, dtype=float).tolist()
+        message["gyr_rads"] = floats(batch.gyr_rads)
     if batch.location is not None:
         message["location"] = batch.location.to_wire()
     if batch.truth is not None:
-        message["truth"] = {name: np.asarray(batch.truth[name], dtype=float).tolist() for name in TRUTH_FIELDS}
+        message["truth"] = {name: floats(batch.truth[name]) for name in TRUTH_FIELDS}
     return msgpack.packb(message, use_bin_type=True)
 
 
 # ------------------------------------------------------------------------------------------------------ decoding
 
 
-@dataclasses.dataclass(frozen=True)
-class _Header:
-    """The structure of one raw message, checked: its device, seq, sensor, sample count and optional fields."""
+class _Header(NamedTuple):
+    """The structure of one raw message, checked: its device, seq, sensor, sample count, optional fields present,
+    and its arrays: lists (v 1) or checked ``Bin`` (v 2), t_ns first then one per VECTOR_FIELDS entry (None where
+    absent)."""
 
     device: str
     seq: int
     sensor: str
     n: int
     present: tuple[bool, ...]  # per VECTOR_FIELDS entry
+    arrays: tuple[Any, ...]
 
 
 def _header(message: Mapping[str, Any]) -> _Header:
-    """Check the structure of one unpacked raw message; WireError with the cause otherwise."""
+    """Check the structure of one unpacked raw message (either version); WireError with the cause otherwise."""
     device = message_device(message)
+    binary = binary_message(message)
     t_ns = message.get("t_ns")
-    if type(t_ns) is not list:
+    if binary:
+        t_ns = check_bin(t_ns, "t_ns", TIME_DTYPES, ())
+        n = t_ns.rows
+    elif type(t_ns) is not list:
         raise WireError("bad-shape", "t_ns must be a list of integers")
-    n = len(t_ns)
+    else:
+        n = len(t_ns)
     if n > MAX_BATCH_SAMPLES:
         raise WireError("oversized", f"t_ns holds {n} samples, more than {MAX_BATCH_SAMPLES}")
     if n == 0:
         raise WireError("empty", "a raw batch holds no samples")
-    present = []
+    arrays: list[Any] = [t_ns]
     for name, _, required in VECTOR_FIELDS:
         value = message.get(name)
         if value is None and not required:
-            present.append(False)
-            continue
-        if type(value) is not list or len(value) != n:
+            arrays.append(None)
+        elif binary:
+            arrays.append(check_bin(value, name, FLOAT_DTYPES, (3,), n))
+        elif type(value) is not list or len(value) != n:
             raise WireError("bad-shape", f"{name} must be a list of N = len(t_ns) = {n} [x, y, z] rows")
-        present.append(True)
+        else:
+            arrays.append(value)
     sensor = message.get("sensor", "")
     if type(sensor) is not str:
         raise WireError("bad-field", "sensor must be a string")
-    return _Header(device, int_field(message, "seq", 0), sensor, n, tuple(present))
+    return _Header(device, int_field(message, "seq", 0), sensor, n, tuple(a is not None for a in arrays[1:]),
+                   tuple(arrays))
 
 
 def _stack(parts: list[Any], name: str, rows: int) -> np.ndarray:
@@ -223,30 +256,42 @@ def _stack_times(parts: list[Any]) -> np.ndarray:
     return arr.astype(np.int64)
 
 
-def _arrays(messages: Sequence[Mapping[str, Any]], headers: Sequence[_Header]) -> tuple[np.ndarray, list[np.ndarray]]:
+def _gather(values: list[Any], name: str, times: bool) -> np.ndarray:
+    """The rows of ``values`` (per message, in order: a list of rows (v 1) or a ``Bin`` (v 2)) as one array: t_ns
+    (S,) int64 or (S, 3) float64. Lists in one ``np.array`` per run of v 1 messages, bytes in one ``np.frombuffer``
+    per run of v 2 messages. WireError when the lists do not form such an array."""
+    parts: list[np.ndarray] = []
+    start = 0
+    for i in range(1, len(values) + 1):
+        if i < len(values) and type(values[i]) is type(values[start]):
+            continue
+        run = values[start:i]
+        if type(run[0]) is Bin:
+            parts.append(from_bins(run, () if times else (3,), "i8" if times else "f8"))
+        else:
+            rows = [row for value in run for row in value]
+            parts.append(_stack_times(rows) if times else _stack(rows, name, len(rows)))
+        start = i
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _arrays(headers: Sequence[_Header]) -> tuple[np.ndarray, list[np.ndarray]]:
     """t_ns (S,) and one (S, 3) array per VECTOR_FIELDS entry (NaN rows where absent); WireError when the numbers
     of these messages do not form such arrays."""
     counts = [h.n for h in headers]
     total = sum(counts)
-    t_parts: list[Any] = []
-    for m in messages:
-        t_parts += m["t_ns"]
     vectors = []
     for k, (name, _, _) in enumerate(VECTOR_FIELDS):
-        parts: list[Any] = []
-        mask = []
-        for m, h in zip(messages, headers):
-            if h.present[k]:
-                parts += m[name]
-            mask.append(h.present[k])
+        mask = [h.present[k] for h in headers]
+        values = [h.arrays[k + 1] for h in headers if h.present[k]]
         if all(mask):
-            vectors.append(_stack(parts, name, total))
+            vectors.append(_gather(values, name, False))
             continue
         arr = _nan_rows(total)
-        if parts:
-            arr[np.repeat(mask, counts)] = _stack(parts, name, len(parts))
+        if values:
+            arr[np.repeat(mask, counts)] = _gather(values, name, False)
         vectors.append(arr)
-    return _stack_times(t_parts), vectors
+    return _gather([h.arrays[0] for h in headers], "t_ns", True), vectors
 
 
 def _sample_faults(vectors: list[np.ndarray]) -> list[tuple[np.ndarray, str, str]]:
@@ -262,11 +307,10 @@ def _sample_faults(vectors: list[np.ndarray]) -> list[tuple[np.ndarray, str, str
     return faults
 
 
-def _numbers(messages: Sequence[Mapping[str, Any]], headers: Sequence[_Header]
-             ) -> tuple[RawColumns, list[WireError | None]]:
+def _numbers(headers: Sequence[_Header]) -> tuple[RawColumns, list[WireError | None]]:
     """All messages as columns and, per message, the WireError its numbers earn (None when good); WireError when
-    the numbers of these messages do not even form arrays."""
-    t_ns, vectors = _arrays(messages, headers)
+    the numbers of these messages do not even form arrays. The same checks for both versions."""
+    t_ns, vectors = _arrays(headers)
     counts = np.array([h.n for h in headers], dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     verdicts: list[WireError | None] = [None] * len(headers)
@@ -280,10 +324,10 @@ def _numbers(messages: Sequence[Mapping[str, Any]], headers: Sequence[_Header]
     return columns, verdicts
 
 
-def _alone(message: Mapping[str, Any], header: _Header) -> tuple[list[RawBatch], WireError | None]:
+def _alone(header: _Header) -> tuple[list[RawBatch], WireError | None]:
     """``_numbers`` of one message: its batch (or none) and its verdict."""
     try:
-        columns, (verdict,) = _numbers([message], [header])
+        columns, (verdict,) = _numbers([header])
     except WireError as exc:
         return [], exc
     return ([] if verdict else columns.batches()), verdict
@@ -308,11 +352,11 @@ def decode_messages(messages: Sequence[Mapping[str, Any]]) -> tuple[RawColumns, 
     if not headers:
         return RawColumns.from_batches([]), errors
     try:
-        columns, verdicts = _numbers([messages[i] for i in kept], headers)
+        columns, verdicts = _numbers(headers)
         columns = dataclasses.replace(columns, locations=_locations(locations))
         columns = columns.select(np.array([v is None for v in verdicts], dtype=bool))
     except WireError:  # rare: some message's numbers are not arrays; judge each alone to name it
-        alone = [_alone(messages[i], h) for i, h in zip(kept, headers)]
+        alone = [_alone(h) for h in headers]
         verdicts = [verdict for _, verdict in alone]
         columns = RawColumns.from_batches([dataclasses.replace(batch, location=location)
                                            for (batches, _), location in zip(alone, locations) for batch in batches])
@@ -351,12 +395,12 @@ def decode_raw(payload: Payload, *, with_truth: bool = True) -> RawBatch:
     batch = columns.batches()[0]
     if not with_truth or message.get("truth") is None:
         return batch
-    return dataclasses.replace(batch, truth=_truth(message["truth"], len(batch)))
+    return dataclasses.replace(batch, truth=_truth(message["truth"], len(batch), binary_message(message)))
 
 
-def _truth(raw_truth: Any, n: int) -> dict[str, np.ndarray]:
+def _truth(raw_truth: Any, n: int, binary: bool) -> dict[str, np.ndarray]:
     if not isinstance(raw_truth, dict):
         raise WireError("bad-field", "truth must be a map")
-    truth = {name: float_array(raw_truth.get(name), f"truth.{name}", (), 1e4) for name in TRUTH_FIELDS}
+    truth = {name: float_array(raw_truth.get(name), f"truth.{name}", (), 1e4, binary) for name in TRUTH_FIELDS}
     check_lengths(n, truth)
     return truth

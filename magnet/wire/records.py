@@ -14,8 +14,8 @@ number, determinant, offset).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 from collections.abc import Mapping
+from typing import Any
 
 import msgpack
 
@@ -23,7 +23,6 @@ from magnet.model import Calibration
 from magnet.wire.codec import WIRE_VERSION, Payload, check_version, int_field, unpack
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device, validate_device_id
-
 
 MAX_SIG_LEN, MAX_KEY_ID_LEN = 128, 64
 

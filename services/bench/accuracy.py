@@ -27,8 +27,15 @@ import numpy as np
 from magnet.geomag import EarthField, earth_field
 from magnet.heading import angle_difference_deg, tilt_compensated_heading_deg
 from magnet.model import Calibration
-from magnet.simulator import (DEFAULT_LAT_DEG, DEFAULT_LON_DEG, SensorErrors, SimulatorConfig, Trajectory,
-                              ned_to_body_euler, simulate)
+from magnet.simulator import (
+    DEFAULT_LAT_DEG,
+    DEFAULT_LON_DEG,
+    SensorErrors,
+    SimulatorConfig,
+    Trajectory,
+    ned_to_body_euler,
+    simulate,
+)
 from magnet.units import STANDARD_GRAVITY_MS2
 
 log = logging.getLogger(__name__)

@@ -1,25 +1,32 @@
-"""``magnet bench pipeline``: edge fleet process -> compass process -> a measuring subscriber (this process).
+"""``magnet bench pipeline``: edge fleet process -> compass process(es) -> a measuring subscriber (this process).
 
-The compass runs with identity calibrations (no calibrator: the per-sample correction is computed all the same).
-Each run publishes for ``seconds``; it reports samples/s in (published by the edge) and out (headings received),
-loss, and the edge-to-heading latency (receive time minus the stamp of the batch's last sample) p50/p99. Then the
-per-device rate is doubled until samples are lost or the edge cannot generate the rate, to find the highest rate
-without loss. Everything on 127.0.0.1, explicit ports, no multicast scouting.
+First Zenoh's own rate on the same payloads (``services.bench.ceiling``: a publisher process putting the edge's
+messages as fast as it can, a subscriber here that only counts). Then the pipeline: the edge's simulated devices send
+gyroscopes (fusion on in the compass; ``gyro=False`` for tilt only), the compass runs with identity calibrations (no
+calibrator: the per-sample correction is computed all the same). Each run publishes for ``seconds``; it reports
+samples/s in (published by the edge) and out (headings received), loss, the rate out as a fraction of the Zenoh
+ceiling, and the edge-to-heading latency (receive time minus the stamp of the batch's last sample) p50/p99. The
+per-device rate is doubled until samples are lost or the edge cannot generate the rate, then bisected, to find the
+highest rate without loss. Last, the first rate with loss (or the highest tried) again with ``shards`` compass
+processes (``--shard K/N``) against 1. Everything on 127.0.0.1, explicit ports, no multicast scouting.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import msgpack
 import numpy as np
 
+from services.bench import ceiling
 from services.common.zenoh_session import free_ports, loopback_arguments
 
 MAX_RATE_STEPS = 6
@@ -40,6 +47,8 @@ class PipelineRun:
     out_rate: float         # heading samples/s received
     latency_p50_ms: float
     latency_p99_ms: float
+    shards: int = 1
+    ceiling_rate: float | None = None  # Zenoh's samples/s on the same payloads
 
     @property
     def lost(self) -> int:
@@ -54,9 +63,12 @@ class PipelineRun:
         return self.devices * self.rate_hz
 
     def line(self) -> str:
-        return (f"{self.devices} devices x {self.rate_hz:g} Hz, batch {self.batch}: target {self.target_rate:,.0f} "
-                f"samples/s; in {self.generated_rate:,.0f}/s, out {self.out_rate:,.0f}/s, lost {self.lost} "
-                f"({self.loss_fraction:.3%}), latency p50 {self.latency_p50_ms:.2f} ms, p99 {self.latency_p99_ms:.2f} ms")
+        fraction = f" ({self.out_rate / self.ceiling_rate:.0%} of the Zenoh ceiling)" if self.ceiling_rate else ""
+        compasses = "1 compass" if self.shards == 1 else f"{self.shards} compass shards"
+        return (f"{self.devices} devices x {self.rate_hz:g} Hz, batch {self.batch}, {compasses}: target "
+                f"{self.target_rate:,.0f} samples/s; in {self.generated_rate:,.0f}/s, out {self.out_rate:,.0f}/s"
+                f"{fraction}, lost {self.lost} ({self.loss_fraction:.3%}), latency p50 {self.latency_p50_ms:.2f} ms, "
+                f"p99 {self.latency_p99_ms:.2f} ms")
 
 
 class _Measurer:
@@ -79,8 +91,10 @@ class _Measurer:
             now = time.time_ns()
             message = msgpack.unpackb(sample.payload.to_bytes())
             t_ns = message["t_ns"]
+            if isinstance(t_ns, dict):  # v 2: <i8 bytes
+                t_ns = np.frombuffer(t_ns["data"], dtype="<i8")
             self.samples += len(t_ns)
-            self.latencies_ns.append(now - t_ns[-1])
+            self.latencies_ns.append(now - int(t_ns[-1]))
             self.last_ns = time.monotonic_ns()
 
     def stop(self) -> None:
@@ -97,25 +111,36 @@ def _wait_ready(session: Any, key: str) -> None:
     raise OSError("the compass did not come up for the benchmark")
 
 
-def run_once(devices: int, rate: float, batch: int, seconds: float) -> PipelineRun:
+def _session_config(listen_port: int, connect_ports: list[int]) -> Any:
     import zenoh
 
-    compass_port, edge_port, measure_port = free_ports(3)
-    compass = subprocess.Popen([sys.executable, "-m", "services.cli", "compass", "--name", "bench-compass",
-                                *loopback_arguments(compass_port)], stdin=subprocess.DEVNULL)
-    edge = None
     conf = zenoh.Config()
-    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{measure_port}"]')
-    conf.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{compass_port}"]')
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{listen_port}"]))
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{p}" for p in connect_ports]))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def run_once(devices: int, rate: float, batch: int, seconds: float, shards: int = 1, gyro: bool = True,
+             ceiling_rate: float | None = None) -> PipelineRun:
+    """One run: ``shards`` compass processes (``--shard K/N``), the edge connected to each, the measurer too."""
+    import zenoh
+
+    *compass_ports, edge_port, measure_port = free_ports(shards + 2)
+    compasses = [subprocess.Popen([sys.executable, "-m", "services.cli", "compass", "--name", f"bench-compass-{k}",
+                                   "--shard", f"{k}/{shards}", *loopback_arguments(port)], stdin=subprocess.DEVNULL)
+                 for k, port in enumerate(compass_ports)]
+    edge = None
     try:
-        with zenoh.open(conf) as session:
-            _wait_ready(session, "magnet/@status/bench-compass")
+        with zenoh.open(_session_config(measure_port, compass_ports)) as session:
+            for k in range(shards):
+                _wait_ready(session, f"magnet/@status/bench-compass-{k}")
             measurer = _Measurer(session.declare_subscriber("magnet/*/heading",
                                                             zenoh.handlers.FifoChannel(1 << 20)))
             edge = subprocess.Popen([sys.executable, "-m", "services.cli", "edge", "--emulate", "--devices",
                                      str(devices), "--device", "b", "--rate", str(rate), "--batch", str(batch),
-                                     "--duration", str(seconds), *loopback_arguments(edge_port, [compass_port])],
+                                     "--duration", str(seconds), *(["--gyro"] if gyro else []),
+                                     *loopback_arguments(edge_port, compass_ports)],
                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True)
             out, _ = edge.communicate(timeout=seconds + 60)
             summary = json.loads(out.strip().splitlines()[-1])
@@ -123,53 +148,78 @@ def run_once(devices: int, rate: float, batch: int, seconds: float) -> PipelineR
                 time.sleep(0.1)
             measurer.stop()
     finally:
-        for proc in (edge, compass):
+        for proc in (edge, *compasses):
             if proc is not None and proc.poll() is None:
                 proc.terminate()
                 proc.wait(timeout=10)
     latencies = np.array(measurer.latencies_ns or [0]) / 1e6
     return PipelineRun(devices, rate, batch, seconds, summary["published_samples"], measurer.samples,
                        summary["published_samples"] / summary["seconds"], measurer.samples / summary["seconds"],
-                       float(np.percentile(latencies, 50)), float(np.percentile(latencies, 99)))
+                       float(np.percentile(latencies, 50)), float(np.percentile(latencies, 99)), shards,
+                       ceiling_rate)
 
 
-def run_pipeline_benchmark(devices: int, rate: float, batch: int, seconds: float) -> None:
-    """Print one line per run: the given rate, then doubled rates until loss, then BISECT_STEPS halvings of the gap
-    between the best rate without loss and the first with loss; last, the highest rate without loss."""
-    if devices < 1 or rate <= 0 or batch < 1 or seconds <= 0:
-        raise ValueError("devices, rate, batch and seconds must all be positive")
+def run_pipeline_benchmark(devices: int, rate: float, batch: int, seconds: float, shards: int = 2,
+                           gyro: bool = True) -> None:
+    """Print the Zenoh ceiling on the same payloads, then one line per run: the given rate, then doubled rates until
+    loss, then BISECT_STEPS halvings of the gap between the best rate without loss and the first with loss; the
+    highest rate without loss; last, the first rate with loss (or the highest tried) with ``shards`` compasses."""
+    if devices < 1 or rate <= 0 or batch < 1 or seconds <= 0 or shards < 1:
+        raise ValueError("devices, rate, batch, seconds and shards must all be positive")
+    top = ceiling.measure(devices, batch, seconds, gyro)
+    print(top.line(), flush=True)
+    run = functools.partial(run_once, devices, batch=batch, seconds=seconds, gyro=gyro, ceiling_rate=top.sample_rate)
     best: PipelineRun | None = None
     lossy: float | None = None
-    current = float(rate)
+    current, last = float(rate), float(rate)
     for _ in range(MAX_RATE_STEPS):
-        result = _report(run_once(devices, current, batch, seconds))
+        result = _report(run(current))
+        last = current
         if result.lost:
             lossy = current
             break
         best = result
-        if result.generated_rate < 0.9 * result.target_rate and seconds < 10 * batch / current:
-            print(f"each device sends one batch every {batch / current:g} s: give --seconds of at least "
-                  f"{10 * batch / current:g} for a fair rate", flush=True)
-            break
-        if result.generated_rate < 0.9 * result.target_rate:
-            print(f"the edge process generates at most {result.generated_rate:,.0f} samples/s here: the limit is the "
-                  f"generator, not the compass", flush=True)
+        if _generator_limited(result, seconds, batch, current):
             break
         current *= 2
     if best is not None and lossy is not None:
-        best = _bisect(best, lossy, devices, batch, seconds)
+        best = _bisect(best, lossy, run)
     if best is None:
         print("loss already at the first rate: no rate without loss found", flush=True)
     else:
         print(f"highest rate without loss: {best.generated_rate:,.0f} samples/s ({best.devices} devices x "
-              f"{best.rate_hz:g} Hz, batch {best.batch}), p99 latency {best.latency_p99_ms:.2f} ms", flush=True)
+              f"{best.rate_hz:g} Hz, batch {best.batch}), {best.generated_rate / top.sample_rate:.0%} of the Zenoh "
+              f"ceiling, p99 latency {best.latency_p99_ms:.2f} ms", flush=True)
+    if shards > 1:
+        _compare_shards(run, lossy or last, shards)
 
 
-def _bisect(best: PipelineRun, lossy: float, devices: int, batch: int, seconds: float) -> PipelineRun:
+def _generator_limited(result: PipelineRun, seconds: float, batch: int, current: float) -> bool:
+    """Whether the edge could not generate the rate (said why); the search then stops."""
+    if result.generated_rate >= 0.9 * result.target_rate:
+        return False
+    if seconds < 10 * batch / current:
+        print(f"each device sends one batch every {batch / current:g} s: give --seconds of at least "
+              f"{10 * batch / current:g} for a fair rate", flush=True)
+    else:
+        print(f"the edge process generates at most {result.generated_rate:,.0f} samples/s here: the limit is the "
+              f"generator, not the compass", flush=True)
+    return True
+
+
+def _compare_shards(run: Callable[..., PipelineRun], rate: float, shards: int) -> None:
+    one = _report(run(rate))
+    many = _report(run(rate, shards=shards))
+    print(f"{shards} compass shards against 1 at {one.target_rate:,.0f} samples/s: out {many.out_rate:,.0f}/s "
+          f"against {one.out_rate:,.0f}/s (x{many.out_rate / max(one.out_rate, 1):.2f}), lost {many.loss_fraction:.1%} "
+          f"against {one.loss_fraction:.1%}", flush=True)
+
+
+def _bisect(best: PipelineRun, lossy: float, run: Callable[..., PipelineRun]) -> PipelineRun:
     """BISECT_STEPS halvings of the gap between the best run without loss and the lowest rate with loss."""
     for _ in range(BISECT_STEPS):
         middle = (best.rate_hz + lossy) / 2
-        result = _report(run_once(devices, middle, batch, seconds))
+        result = _report(run(middle))
         if result.lost:
             lossy = middle
         else:

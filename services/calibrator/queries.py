@@ -1,4 +1,5 @@
 """The calibrator's queryables: the record in force, its history, operator sessions and the status counters.
+A calibrator started with ``--shard K/N`` answers only for its own devices (the others' shards answer for theirs).
 
 ``<prefix>/<dev>/calibration`` (record in force), ``<prefix>/<dev>/calibration/history?limit=N`` (``{v, device,
 records: [...]}`` newest first), ``<prefix>/<dev>/calibrate?action=...&method=...``, ``<prefix>/@status/<name>``.
@@ -69,6 +70,8 @@ def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
     key_expr = str(query.key_expr)
     try:
         device = wire.device_from_key(prefix, key_expr, wire.Kind.CALIBRATE)
+        if not calibrator.shard.owns(device):
+            return  # another shard's device: that shard answers
         action = query.parameters.get("action") or "status"
         if action == "rollback":
             reply = rollback(calibrator, device, query.parameters.get("to"), query.parameters.get("by"))

@@ -32,6 +32,7 @@ from magnet.model import Calibration
 from magnet.quality import Coverage
 from magnet.fleet import Places
 from magnet.place import Location
+from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator import queries
 from services.calibrator.fleet import FleetBook
 from services.calibrator.store import CalibrationStore
@@ -68,6 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--signing-key", type=Path, metavar="FILE.key",
                         help="sign every calibration it serves with this Ed25519 private key (`magnet keys`); "
                              "compasses started with --trust FILE.pub apply only those")
+    parser.add_argument("--shard", default="0/1", metavar="K/N",
+                        help="collect, fit, store and answer only for the devices of shard K of N (0 <= K < N; see "
+                             "magnet.shard); default 0/1, every device")
     add_zenoh_arguments(parser)
 
 
@@ -104,6 +108,7 @@ class ServiceSettings:
     zenoh: ZenohSettings = ZenohSettings()
     signing_key: Path | None = None
     places: Places | None = None  # --fleet file and --location: each device's expected field
+    shard: Shard = EVERY_DEVICE
 
 
 def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
@@ -114,7 +119,8 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
                                  min_samples=args.min_samples, max_samples=args.max_samples, auto=not args.no_auto)
     places = Places(read_fleet(args.fleet), Location.parse(args.location) if args.location else None)
     return ServiceSettings(fitting, args.db or default_db_path(), args.name, args.devices,
-                           ZenohSettings.from_args(args), args.signing_key, places)
+                           ZenohSettings.from_args(args), args.signing_key, places,
+                           Shard.parse(args.shard))
 
 
 def load_signer(path: Path | None) -> signing.Signer | None:
@@ -153,11 +159,12 @@ class CalibratorStatus:
     counters: Counters
     devices: dict[str, int]
     dropped: dict[str, int]
+    shard: str = "0/1"
 
     def to_dict(self) -> dict[str, Any]:
         return {"v": wire.WIRE_VERSION, "service": "calibrator", "name": self.name,
                 **dataclasses.asdict(self.counters), "devices": dict(self.devices), "dropped": dict(self.dropped),
-                "dropped_total": sum(self.dropped.values())}
+                "dropped_total": sum(self.dropped.values()), "shard": self.shard}
 
 
 #: a session action: (calibrator, device, method) -> (ok, message, extra reply fields)
@@ -171,12 +178,15 @@ class Calibrator:
     def __init__(self, store: CalibrationStore, settings: CalibratorSettings,
                  publish: Callable[[wire.Kind, str, bytes], None], clock: Callable[[], float] = time.monotonic,
                  clock_ns: Callable[[], int] = time.time_ns, signer: signing.Signer | None = None,
-                 fleet: FleetBook | None = None) -> None:
+                 fleet: FleetBook | None = None, shard: Shard = EVERY_DEVICE) -> None:
         self.store, self.settings, self.publish = store, settings, publish
         self.fleet = fleet if fleet is not None else FleetBook()
         self.clock, self.clock_ns = clock, clock_ns
         self.signer = signer
-        self.in_force: dict[str, wire.DeviceCalibration] = {d: self.sign(r) for d, r in store.all_latest().items()}
+        self.shard = shard  # only this shard's devices: collected, fitted, stored, answered
+        self._mine: dict[str, bool] = {}
+        self.in_force: dict[str, wire.DeviceCalibration] = {d: self.sign(r) for d, r in store.all_latest().items()
+                                                            if shard.owns(d)}
         self.collections: dict[str, Collection] = {}
         self.last_progress: dict[str, float] = {}
         self.drops = wire.DropCounter()
@@ -189,7 +199,21 @@ class Calibrator:
             return State.SESSION if collection.session else State.COLLECTING
         return State.CALIBRATED if device in self.in_force else State.IDLE
 
+    def mine(self, key_expr: str, prefix: str) -> bool:
+        """Whether the device of a raw key belongs to this shard (a malformed key: True, to be refused and counted)."""
+        owned = self._mine.get(key_expr)
+        if owned is None:
+            try:
+                owned = self.shard.owns(wire.device_from_key(prefix, key_expr, wire.Kind.RAW))
+            except wire.WireError:
+                return True
+            if len(self._mine) < 200_000:
+                self._mine[key_expr] = owned
+        return owned
+
     def on_raw(self, key_expr: str, payload: bytes, prefix: str) -> None:
+        if not self.shard.everything and not self.mine(key_expr, prefix):
+            return  # another shard's device
         try:
             batch = wire.decode_raw(payload, with_truth=False)
             wire.check_key(prefix, key_expr, wire.Kind.RAW, batch.device)
@@ -307,7 +331,8 @@ class Calibrator:
     def status(self, name: str) -> CalibratorStatus:
         states = [self.state(d).value for d in set(self.collections) | set(self.in_force)]
         return CalibratorStatus(name, dataclasses.replace(self.counters),
-                                {s.value: states.count(s.value) for s in State}, dict(self.drops.counts))
+                                {s.value: states.count(s.value) for s in State}, dict(self.drops.counts),
+                                str(self.shard))
 
 
 def _start(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
@@ -362,7 +387,8 @@ def run(settings: ServiceSettings) -> int:
                 publisher = publishers[(kind, device)] = session.declare_publisher(wire.key(prefix, device, kind))
             publisher.put(payload)
 
-        calibrator = Calibrator(store, settings.fitting, publish, signer=signer, fleet=FleetBook(settings.places))
+        calibrator = Calibrator(store, settings.fitting, publish, signer=signer, fleet=FleetBook(settings.places),
+                                shard=settings.shard)
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         answers = [(queries.ANSWERS[kind], session.declare_queryable(f"{prefix}/{devices}/{kind.value}",
@@ -378,7 +404,8 @@ def run(settings: ServiceSettings) -> int:
             (session.get(alert_key, timeout=3.0), calibrator.fleet.on_alert)]  # the alerts open already
         for device, record in calibrator.in_force.items():
             publish(wire.Kind.CALIBRATION, device, wire.pack(record.to_record()))
-        log.info("calibrator %s: %d calibration(s) in store %s", name, len(calibrator.in_force), store.path)
+        log.info("calibrator %s (shard %s): %d calibration(s) in store %s", name, settings.shard,
+                 len(calibrator.in_force), store.path)
         _loop(stop, calibrator, raw_sub, answers, prefix, feeds)
         token.undeclare()
     log.info("calibrator stopped: %s", calibrator.status(name).to_dict())

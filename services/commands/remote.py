@@ -33,8 +33,9 @@ def _print(value: Any) -> None:
 
 
 def _decode(payload: bytes) -> Any:
+    """The message as printable JSON (v 2 binary arrays as lists)."""
     try:
-        return wire.unpack(payload)
+        return wire.plain(wire.unpack(payload))
     except wire.WireError as exc:
         return {"error": str(exc)}
 

@@ -29,6 +29,7 @@ from magnet.fusion import rotate_heading
 from magnet.fleet import EarthColumns, Places, disturbance_flags
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.place import Location
+from magnet.shard import EVERY_DEVICE, Shard
 from services.common.fleet_options import add_drift_arguments, add_fleet_argument, drift_from_args, read_fleet
 from services.compass.watch import FleetWatch
 from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
@@ -56,6 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trust", action="append", default=[], type=Path, metavar="FILE.pub",
                         help="apply only calibrations signed by this public key (repeatable; `magnet keys` makes "
                              "them). Without it, unsigned calibrations are applied too")
+    parser.add_argument("--shard", default="0/1", metavar="K/N",
+                        help="serve only the devices of shard K of N (0 <= K < N; see magnet.shard: sha256 of the "
+                             "device id, first 8 bytes, mod N); default 0/1, every device")
     add_fleet_argument(parser)
     add_drift_arguments(parser)
     add_zenoh_arguments(parser)
@@ -74,6 +78,7 @@ class CompassSettings:
     trust: tuple[Path, ...] = ()
     places: tuple[Location | None, str | None, dict[str, Any]] = (None, None, {})  # default, date, fleet file
     drift: DriftSettings | None = DEFAULT_DRIFT
+    shard: Shard = EVERY_DEVICE
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
@@ -84,7 +89,7 @@ def settings_from_args(args: argparse.Namespace) -> CompassSettings:
     default = Location.parse(args.location) if args.location else None
     return CompassSettings(Earth.from_args(args.location, args.date), args.window, args.name, args.devices,
                            ZenohSettings.from_args(args), tuple(args.trust),
-                           (default, args.date, read_fleet(args.fleet)), drift_from_args(args))
+                           (default, args.date, read_fleet(args.fleet)), drift_from_args(args), Shard.parse(args.shard))
 
 
 def load_trusted_keys(paths: tuple[Path, ...] | list[Path]) -> signing.TrustedKeys:
@@ -103,6 +108,7 @@ class CompassStatus:
     calibrations: int
     calibration_updates: int
     dropped: dict[str, int]
+    shard: str = "0/1"
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -125,7 +131,7 @@ class Compass:
     """State of the compass loop: calibrations in force, smoothing tails, counters. No zenoh inside."""
 
     def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None,
-                 watch: FleetWatch | None = None) -> None:
+                 watch: FleetWatch | None = None, shard: Shard = EVERY_DEVICE) -> None:
         if window < 1:
             raise ValueError(f"--window must be >= 1, got {window}")
         self.earth = earth
@@ -141,10 +147,28 @@ class Compass:
         self.calibration_updates = 0
         self._key_devices: dict[str, str] = {}
         self.watch = watch if watch is not None else FleetWatch(Places(default_earth=earth))
+        self.shard = shard
+        self._mine: dict[str, bool] = {}
+
+    def mine(self, key_expr: str, prefix: str, kind: wire.Kind = wire.Kind.RAW) -> bool:
+        """Whether the device of ``key_expr`` belongs to this compass's shard (a malformed key: True, so that it is
+        decoded, refused and counted)."""
+        owned = self._mine.get(key_expr)
+        if owned is None:
+            try:
+                owned = self.shard.owns(wire.device_from_key(prefix, key_expr, kind))
+            except wire.WireError:
+                return True
+            if len(self._mine) < 200_000:
+                self._mine[key_expr] = owned
+        return owned
 
     def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> bool:
         """Apply a calibration message when it is usable (``applicable``); else count why, keep the one in force and
-        remember the device so that the calibrators are asked again. True when it is (or already was) in force."""
+        remember the device so that the calibrators are asked again. True when it is (or already was) in force;
+        False, silently, for another shard's device."""
+        if not self.shard.everything and not self.mine(key_expr, prefix, wire.Kind.CALIBRATION):
+            return False
         try:
             record = wire.decode_calibration(payload)
             wire.check_key(prefix, key_expr, wire.Kind.CALIBRATION, record.device)
@@ -289,7 +313,8 @@ class Compass:
 
     def status(self, name: str) -> CompassStatus:
         return CompassStatus(name, self.received_batches, self.received_samples, self.published_batches,
-                             len(self.calibrations), self.calibration_updates, dict(self.drops.counts))
+                             len(self.calibrations), self.calibration_updates, dict(self.drops.counts),
+                             str(self.shard))
 
 
 # ------------------------------------------------------------------------------------------------------- shell
@@ -303,7 +328,7 @@ def run_compass(args: argparse.Namespace) -> int:
 def run(settings: CompassSettings) -> int:
     default, date, fleet = settings.places
     watch = FleetWatch(Places(fleet, default, date, settings.earth), settings.drift)
-    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust), watch)
+    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust), watch, settings.shard)
     if compass.trusted.enabled:
         log.info("compass applies only calibrations signed by key(s) %s", ", ".join(compass.trusted.key_ids))
     stop = stop_event()
@@ -315,8 +340,8 @@ def run(settings: CompassSettings) -> int:
         status_q = session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64))
         alert_q = session.declare_queryable(f"{prefix}/{devices}/{wire.Kind.ALERT.value}",
                                             zenoh.handlers.FifoChannel(64))
-        log.info("compass %s: serving %s/%s, declination %.2f deg", name, prefix, devices,
-                 compass.earth.declination_deg)
+        log.info("compass %s: serving %s/%s (shard %s), declination %.2f deg", name, prefix, devices,
+                 settings.shard, compass.earth.declination_deg)
         loop = _Loop(session, compass, settings)
         while not stop.is_set():
             loop.calibrations(cal_sub)
@@ -377,7 +402,11 @@ class _Loop:
         samples = drain(raw_sub, MAX_DRAIN)
         if not samples:
             return False
-        columns = self.compass.decode_columns([(str(s.key_expr), s.payload.to_bytes()) for s in samples], self.prefix)
+        keys = [str(s.key_expr) for s in samples]
+        if not self.compass.shard.everything:  # another shard's devices: dropped by key, before any decoding
+            mine = [i for i, k in enumerate(keys) if self.compass.mine(k, self.prefix)]
+            samples, keys = [samples[i] for i in mine], [keys[i] for i in mine]
+        columns = self.compass.decode_columns([(k, s.payload.to_bytes()) for s, k in zip(samples, keys)], self.prefix)
         for device, payload in zip(columns.devices, self.compass.encode(columns)):
             key = self.heading_keys.get(device) or self.heading_keys.setdefault(
                 device, wire.key(self.prefix, device, wire.Kind.HEADING))

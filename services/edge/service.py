@@ -150,6 +150,7 @@ class Publisher:
         self.slots = min(len(status.ids), FLEET_SLOTS) if settings.devices else 1
         self.sample_ns = int(1e9 / settings.rate_hz)
         self.block = zenoh.CongestionControl.BLOCK  # raw samples wait for a congested link rather than vanish
+        self.version = settings.wire_version
         self.location = settings.location
 
     def put(self, batches: list[wire.RawBatch]) -> None:
@@ -165,7 +166,8 @@ class Publisher:
                     batch = dataclasses.replace(batch, t_ns=stamp(len(batch), now_ns, self.sample_ns))
                 if self.location is not None:
                     batch = dataclasses.replace(batch, location=self.location)
-                self.session.put(self.keys[batch.device], wire.encode_raw(batch), congestion_control=self.block)
+                self.session.put(self.keys[batch.device], wire.encode_raw(batch, self.version),
+                                 congestion_control=self.block)
                 self.status.published_samples += len(batch)
                 self.status.published_batches += 1
 

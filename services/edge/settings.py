@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=50.0, help="samples per second per device (default 50)")
     parser.add_argument("--batch", type=int, default=10, help="samples per message (default 10)")
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    parser.add_argument("--gyro", action="store_true",
+                        help="with --devices: the simulated devices send a gyroscope too (gyr_rads)")
+    parser.add_argument("--wire", type=int, choices=wire.VERSIONS, default=wire.BINARY_VERSION,
+                        help="message version: 2 binary arrays (default), 1 lists of numbers for old subscribers")
     sim_options.add_simulator_arguments(parser, seed=1, noise_ut=0.3)
     parser.add_argument("--trajectory-samples", type=int, default=3000,
                         help="samples per run of the simulated trajectory (default 3000)")
@@ -60,6 +64,8 @@ class EdgeSettings:
     trajectory_samples: int = 3000
     speedup: float = 1.0
     emulate_faults: float = 0.0
+    wire_version: int = wire.BINARY_VERSION
+    gyro: bool = False
     replay: Path | None = None
     speed: float = 1.0
     simulator: sim_options.SimulatorSettings = dataclasses.field(default_factory=sim_options.SimulatorSettings)
@@ -79,6 +85,8 @@ class EdgeSettings:
             raise ValueError(f"--speedup must be in (0, 1000], got {self.speedup}")
         if self.trajectory_samples < 1:
             raise ValueError(f"--trajectory-samples must be >= 1, got {self.trajectory_samples}")
+        if self.wire_version not in wire.VERSIONS:
+            raise ValueError(f"--wire must be one of {', '.join(map(str, wire.VERSIONS))}, got {self.wire_version}")
         self._check_source()
 
     def _check_source(self) -> None:
@@ -109,7 +117,8 @@ class EdgeSettings:
                    duration_s=args.duration, bus=args.bus, address=args.address, emulate=bool(args.emulate),
                    devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),
                    speedup=float(args.speedup), emulate_faults=float(args.emulate_faults), replay=args.replay,
-                   speed=float(args.speed), simulator=sim_options.SimulatorSettings.from_args(args),
+                   speed=float(args.speed), wire_version=int(getattr(args, "wire", wire.BINARY_VERSION)),
+                   gyro=bool(getattr(args, "gyro", False)), simulator=sim_options.SimulatorSettings.from_args(args),
                    zenoh=ZenohSettings.from_args(args), location=_location(args))
 
 

@@ -58,7 +58,7 @@ class FleetSource:
     def __init__(self, settings: EdgeSettings) -> None:
         self.fleet = FleetSimulator(n_devices=settings.devices, rate_hz=settings.rate_hz / settings.speedup,
                                     seed=settings.simulator.seed, noise_ut=settings.simulator.noise_ut,
-                                    **settings.simulator.place())
+                                    gyro=settings.gyro, **settings.simulator.place())
         self.ids = [f"{settings.device}-{i:03d}" for i in range(settings.devices)]
         self.settings = settings
 
@@ -67,7 +67,7 @@ class FleetSource:
         t_ns = stamp(self.settings.batch, end_ns, int(1e9 / self.settings.rate_hz))
         return [wire.RawBatch(device, seq, SIMULATOR_SENSOR, t_ns, step.mag_ut[d], step.acc_ms2[d],
                               {"heading_deg": step.heading_deg[d], "pitch_deg": step.pitch_deg[d],
-                               "roll_deg": step.roll_deg[d]})
+                               "roll_deg": step.roll_deg[d]}, None if step.gyr_rads is None else step.gyr_rads[d])
                 for d, device in enumerate(self.ids)]
 
 
