@@ -134,6 +134,11 @@ def _check_period(period_s: float) -> float:
     return period
 
 
+def to_vqf_frame(vectors: np.ndarray) -> np.ndarray:
+    """Body vectors (..., 3) (x forward, y right, z down) in vqf's z-up body frame, C-contiguous float64."""
+    return np.ascontiguousarray(np.asarray(vectors, dtype=float) * _BODY_TO_VQF)
+
+
 def _to_vqf(vectors: np.ndarray, name: str, count: int | None = None) -> np.ndarray:
     """(N, 3) body vectors -> C-contiguous float64 in vqf's z-up body frame; ValueError on bad shape or values."""
     arr = np.asarray(vectors, dtype=float)
@@ -205,6 +210,14 @@ class Fusion:
         out = self._filter.updateBatch(gyr, acc, field)
         self.samples += len(gyr)
         return Fused.from_vqf(out, field is not None)
+
+    def update_vqf_frame(self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The fast path for many small batches: inputs (N, 3) already in vqf's frame (``to_vqf_frame``), finite,
+        C-contiguous float64; returns vqf's own quaternions (N, 4) (``vqf_to_body_ned`` converts them) and its
+        magnetic disturbance flags (N,)."""
+        out = self._filter.updateBatch(gyr, acc, field)
+        self.samples += len(gyr)
+        return out["quat9D"], out["magDistDetected"]
 
 
 def fuse_offline(gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | None, period_s: float,

@@ -11,10 +11,11 @@ import pytest
 from magnet import wire
 from magnet.attitude import euler_to_matrix, ned_to_body
 from magnet.geomag import earth_field
+from magnet.heading import dip_angle_deg
 from magnet.model import Calibration
 from services.dashboard.app import create_app
 from services.dashboard.service import is_loopback, page_address, parse_http
-from services.dashboard.state import FleetState, acc_direction, covered_cells
+from services.dashboard.state import FleetState, acc_direction, covered_cells, dip_deg
 
 with warnings.catch_warnings():  # starlette >= 1 asks for httpx2, which the package index does not have
     warnings.filterwarnings("ignore", message=".*httpx.*")
@@ -214,6 +215,10 @@ def test_helpers():
     assert page_address("127.0.0.1", 80, "t") == "http://127.0.0.1:80/?token=t"
     down = acc_direction(np.array([0.0]), np.array([0.0]))
     assert np.allclose(down, [[0, 0, -1]])
+    rng = np.random.default_rng(1)
+    for field, pitch, roll in zip(rng.normal(size=(20, 3)) * 40, rng.uniform(-89, 89, 20), rng.uniform(-180, 180, 20)):
+        expected = dip_angle_deg(field, acc_direction(pitch, roll))
+        assert dip_deg(*field, pitch, roll) == pytest.approx(float(expected), abs=1e-9)
     rng = np.random.default_rng(0)
     sphere = rng.normal(size=(5000, 3))
     assert covered_cells(sphere * 50 + 20).all() and covered_cells(np.zeros((0, 3))).sum() == 0

@@ -1,5 +1,5 @@
-"""``magnet bench accuracy|fit|pipeline|motion|fleet``: benchmarks that print figures (targets live here, not in
-timed tests)."""
+"""``magnet bench accuracy|fit|pipeline|motion|fleet|dashboard``: benchmarks that print figures (targets live here,
+not in timed tests)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "pipeline": ("services.bench.pipeline", "run_pipeline_benchmark"),
     "motion": ("services.bench.motion", "run_motion_benchmark"),
     "fleet": ("services.bench.fleet", "run_fleet_benchmark"),
+    "dashboard": ("services.bench.dashboard", "run_dashboard_benchmark"),
 }
 
 
@@ -36,6 +37,10 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--devices, --rate, --batch, --seconds and --shards must be positive")
         result = function(devices=args.devices, rate=args.rate, batch=args.batch, seconds=args.seconds,
                           shards=args.shards, gyro=not args.no_gyro)
+    elif args.benchmark == "dashboard":
+        if args.devices < 1 or args.seconds <= 0:
+            raise ValueError("--devices and --seconds must be positive")
+        result = function(devices=args.devices, seconds=args.seconds)
     elif args.benchmark == "fleet":
         if args.devices < 1:
             raise ValueError("--devices must be positive")

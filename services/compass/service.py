@@ -24,6 +24,8 @@ import zenoh
 from magnet import heading as hd
 from magnet import signing, wire
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
+from magnet.fleet_fusion import FleetFusion, FusedColumns, merge
+from magnet.fusion import rotate_heading
 from magnet.fleet import EarthColumns, Places, disturbance_flags
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.place import Location
@@ -122,6 +124,7 @@ class HeadingColumns:
     true_heading_deg: np.ndarray
     calibration_ids: list[str]
     declinations: list[float]
+    quat_wxyz: np.ndarray | None = None  # (S, 4) body -> NED (true north) where fused, NaN rows elsewhere; or None
 
 
 class Compass:
@@ -138,6 +141,7 @@ class Compass:
         self.refused_overflow = False
         self.calibrations: dict[str, wire.DeviceCalibration] = {}
         self.tails: dict[str, np.ndarray] = {}
+        self.fusion = FleetFusion()  # one gyroscope-aided filter per device that sends a gyroscope
         self.drops = wire.DropCounter()
         self.received_batches = self.received_samples = self.published_batches = 0
         self.calibration_updates = 0
@@ -251,9 +255,12 @@ class Compass:
         earths = self.watch.earths(columns.devices, columns.locations)
         where = EarthColumns.of(earths, counts)
         out = compute_headings(columns.mag_ut, columns.acc_ms2, offsets, matrices, calibrated, Earth())
+        fused = self._fuse(columns, out)
+        gravity = fused.gravity(columns.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
-            dip = hd.dip_angle_deg(out.field_ut, columns.acc_ms2)
-        out = dataclasses.replace(out, flags=out.flags | disturbance_flags(out.field_ut, columns.acc_ms2, dip, where))
+            dip = hd.dip_angle_deg(out.field_ut, gravity)
+        out = dataclasses.replace(out, flags=out.flags | disturbance_flags(out.field_ut, gravity, dip, where))
+        out, quat = merge(out, fused)
         self.watch.observe(columns.devices, columns.bounds, columns.t_ns, np.linalg.norm(out.field_ut, axis=1), dip)
         self.received_batches += len(columns.devices)
         self.received_samples += int(counts.sum())
@@ -263,14 +270,26 @@ class Compass:
                 [self._smooth(device, out.heading_deg[bounds[i]:bounds[i + 1]])
                  for i, device in enumerate(columns.devices)] or [np.empty(0)]))
         return HeadingColumns(out, hd.true_heading_deg(out.heading_deg, where.declination_deg),
-                              [c.id if c else "" for c in cals], [e.declination_deg for e in earths])
+                              [c.id if c else "" for c in cals], [e.declination_deg for e in earths],
+                              None if quat is None else rotate_heading(quat, where.declination_deg))
+
+    def _fuse(self, columns: wire.RawColumns, out: Headings) -> FusedColumns:
+        """The per-device filters run on the batches that carry a gyroscope (``magnet.fleet_fusion``); bad gyroscope
+        samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``)."""
+        fused = self.fusion.update(columns.devices, columns.seqs, columns.bounds, columns.t_ns, columns.gyr_rads,
+                                   columns.acc_ms2, out.field_ut)
+        for cause, count in fused.dropped.items():
+            if self.drops.count(f"raw:{cause}"):
+                log.warning("dropping gyroscope samples (%s); further ones only counted", cause)
+            self.drops.counts[f"raw:{cause}"] += count - 1
+        return fused
 
     def encode(self, columns: wire.RawColumns) -> list[bytes]:
         """One heading payload per raw batch of ``columns``, in order."""
         out = self.compute(columns)
         h = out.headings
         return wire.encode_headings(columns, h.heading_deg, out.true_heading_deg, h.pitch_deg, h.roll_deg, h.field_ut,
-                                    h.flags, out.declinations, out.calibration_ids)
+                                    h.flags, out.declinations, out.calibration_ids, out.quat_wxyz)
 
     def process(self, batches: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
         """Heading batches, one per raw batch, computed in one vectorized pass."""
@@ -280,9 +299,11 @@ class Compass:
         out = self.compute(columns)
         h = out.headings
         bounds = columns.bounds
+        quat = out.quat_wxyz
         return [wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, h.heading_deg[lo:hi],
                                   out.true_heading_deg[lo:hi], h.pitch_deg[lo:hi], h.roll_deg[lo:hi],
-                                  h.field_ut[lo:hi], declination, cal_id, h.flags[lo:hi])
+                                  h.field_ut[lo:hi], declination, cal_id, h.flags[lo:hi],
+                                  quat[lo:hi] if quat is not None and np.isfinite(quat[lo:hi]).all() else None)
                 for batch, cal_id, declination, lo, hi in zip(batches, out.calibration_ids, out.declinations,
                                                                bounds[:-1], bounds[1:])]
 

@@ -10,6 +10,7 @@ Units: angles in degrees, fields in uT, times ``*_ns`` (wall clock, ns) or ``*_s
 from __future__ import annotations
 
 import dataclasses
+import math
 import threading
 import time
 from collections import deque
@@ -20,7 +21,7 @@ import numpy as np
 
 from magnet import wire
 from magnet.geomag import EarthField
-from magnet.heading import HeadingFlag, dip_angle_deg
+from magnet.heading import HeadingFlag
 from magnet.quality import fibonacci_centres
 
 TRACE_POINTS = 1500       # raw and calibrated field points kept per watched device
@@ -74,6 +75,7 @@ class DeviceRow:
     declination_deg: float | None = None
     truth_error_deg: float | None = None
     heading_s: float | None = None
+    t_ns: int | None = None
 
     def alerts(self, now_s: float, earth: EarthField | None) -> list[str]:
         """Short phrases for what needs a person's attention."""
@@ -102,7 +104,8 @@ class DeviceRow:
             "accepted": self.accepted, "residual_ut": _round(self.residual_ut, 3),
             "calibration_id": self.calibration_id,
             "calibrated_ms": None if self.calibrated_ns is None else self.calibrated_ns // 1_000_000,
-            "seq": self.seq, "heading_deg": _round(self.heading_deg, 2),
+            "seq": self.seq, "t_ms": None if self.t_ns is None else self.t_ns // 1_000_000,
+            "heading_deg": _round(self.heading_deg, 2),
             "true_heading_deg": _round(self.true_heading_deg, 2), "pitch_deg": _round(self.pitch_deg, 2),
             "roll_deg": _round(self.roll_deg, 2), "field_ut": _round(self.field_ut, 2),
             "dip_deg": _round(self.dip_deg, 2), "flags": self.flags,
@@ -117,6 +120,18 @@ def acc_direction(pitch_deg: np.ndarray | float, roll_deg: np.ndarray | float) -
     -cos r cos p), as ``magnet.heading.pitch_roll_deg`` inverts it."""
     p, r = np.radians(pitch_deg), np.radians(roll_deg)
     return np.stack([np.sin(p), -np.sin(r) * np.cos(p), -np.cos(r) * np.cos(p)], axis=-1)
+
+
+def dip_deg(bx: float, by: float, bz: float, pitch_deg: float, roll_deg: float) -> float | None:
+    """Dip of the field (uT, body frame) below the horizon, degrees, for a device at pitch and roll: asin(B . d / |B|)
+    with d the down direction, -``acc_direction`` (``magnet.heading.dip_angle_deg`` for one sample, without numpy's
+    per-call cost: the ingest runs it for every device several times a second). None for a zero field."""
+    p, r = math.radians(pitch_deg), math.radians(roll_deg)
+    down = (-math.sin(p), math.sin(r) * math.cos(p), math.cos(r) * math.cos(p))
+    norm = math.sqrt(bx * bx + by * by + bz * bz)
+    if norm == 0:
+        return None
+    return math.degrees(math.asin(max(-1.0, min(1.0, (bx * down[0] + by * down[1] + bz * down[2]) / norm))))
 
 
 class Trace:
@@ -187,14 +202,14 @@ class FleetState:
         if last < 0:
             return
         pitch, roll = float(batch.pitch_deg[last]), float(batch.roll_deg[last])
-        field = np.asarray(batch.field_ut[last], dtype=float)
-        dip = float(dip_angle_deg(field, acc_direction(pitch, roll)))
+        bx, by, bz = (float(v) for v in batch.field_ut[last])
+        magnitude, dip = math.sqrt(bx * bx + by * by + bz * bz), dip_deg(bx, by, bz, pitch, roll)
         with self.lock:
             row = self._row(batch.device)
-            row.seq, row.heading_s = batch.seq, self.clock()
+            row.seq, row.heading_s, row.t_ns = batch.seq, self.clock(), int(batch.t_ns[last])
             row.heading_deg, row.true_heading_deg = float(batch.heading_deg[last]), float(batch.true_heading_deg[last])
             row.pitch_deg, row.roll_deg, row.flags = pitch, roll, int(batch.flags[last])
-            row.field_ut, row.dip_deg = float(np.linalg.norm(field)), _finite(dip)
+            row.field_ut, row.dip_deg = magnitude, _finite(dip)
             row.declination_deg = batch.declination_deg
             row.quat_wxyz = _quat(quat_wxyz, last)
             if batch.calibration_id and not row.calibration_id:

@@ -12,6 +12,7 @@ const S = {
           renderMs: 0, window: []},
 };
 window.magnetStats = S.stats;
+window.magnetRows = S.rows;
 
 const $ = (id) => document.getElementById(id);
 const fmt = (v, d = 1) => (v == null || !isFinite(v) ? "\u2013" : Number(v).toFixed(d));
@@ -185,7 +186,7 @@ function renderFleet() {
       const frag = document.createDocumentFragment();
       for (const device of order) {
         let entry = S.trs.get(device);
-        if (!entry) { entry = makeRow(device); S.trs.set(device, entry); }
+        if (!entry) { entry = makeRow(device); S.trs.set(device, entry); fillRow(entry, S.rows.get(device)); }
         frag.appendChild(entry.tr);
       }
       body.replaceChildren(frag);
@@ -193,14 +194,29 @@ function renderFleet() {
     }
     S.orderAt = t0;
   }
-  for (const device of S.order) fillRow(S.trs.get(device), S.rows.get(device));
+  const [first, last] = visibleRange(body);  // only rows on screen are redrawn: 1,000 devices stay smooth
+  for (let i = first; i < last; i++) fillRow(S.trs.get(S.order[i]), S.rows.get(S.order[i]));
   $("shown").textContent = `${S.order.length} of ${S.rows.size} shown`;
   $("fleet-empty").classList.toggle("hidden", S.rows.size > 0);
   S.stats.renders += 1;
   S.stats.renderMs = performance.now() - t0;
 }
 
+function visibleRange(body) {
+  const n = S.order.length;
+  if (!n) return [0, 0];
+  const firstRow = body.rows[0];
+  const height = firstRow ? Math.max(firstRow.offsetHeight, 1) : 30;
+  const top = body.getBoundingClientRect().top;
+  const from = Math.floor(Math.max(0, -top) / height) - 5;
+  const to = Math.ceil((Math.max(0, -top) + window.innerHeight) / height) + 5;
+  return [Math.max(0, from), Math.min(n, to)];
+}
+
 function setupTable() {
+  window.addEventListener("scroll", () => {
+    if (!S.dirty) { S.dirty = true; requestAnimationFrame(renderFleet); }
+  }, {passive: true});
   for (const th of document.querySelectorAll("#fleet th")) {
     th.addEventListener("click", () => {
       const key = th.dataset.key;
