@@ -127,8 +127,11 @@ def test_replay_arrives_complete_and_in_order_at_a_subscriber(tmp_path):
     assert {b.sensor for b in batches} == {"replay"}
     t_ns = np.concatenate([b.t_ns for b in batches])
     assert np.array_equal(np.diff(t_ns), np.full(46, 10_000_000))      # the recorded 100 Hz, not scaled by speed
-    assert np.array_equal(np.vstack([b.mag_ut for b in batches]), expected.mag_ut)
-    assert np.array_equal(np.vstack([b.acc_ms2 for b in batches]), expected.acc_ms2)
-    assert np.array_equal(np.vstack([b.gyr_rads for b in batches]), expected.gyr_rads)
+    def sent(values):  # wire v 2 carries measurements as <f4
+        return np.asarray(values, dtype=np.float32).astype(float)
+
+    assert np.array_equal(np.vstack([b.mag_ut for b in batches]), sent(expected.mag_ut))
+    assert np.array_equal(np.vstack([b.acc_ms2 for b in batches]), sent(expected.acc_ms2))
+    assert np.array_equal(np.vstack([b.gyr_rads for b in batches]), sent(expected.gyr_rads))
     summary = json.loads(out.stdout.strip().splitlines()[-1])
     assert summary["published_samples"] == 47 and summary["published_batches"] == 5

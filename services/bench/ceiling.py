@@ -3,6 +3,11 @@ payloads (the edge's messages: same devices, batch, gyroscope and truth, wire v 
 in the measuring process that only counts them. No decoding, no processing: the ceiling the pipeline is held to.
 
 The publisher runs as ``python -m services.bench.ceiling PORT DEVICES BATCH SECONDS GYRO`` and prints one JSON line.
+
+``generate`` (``python -m services.bench.ceiling generate PORTS DEVICES RATE BATCH SECONDS GYRO``) is the pipeline
+benchmark's load: the edge's messages for a simulated fleet, simulated once ahead (``FleetSimulator`` costs about
+1.3 us per sample with gyroscopes, as much as the whole compass) and then, paced at the rate, each stamped afresh
+(``t_ns`` ending now, ``seq``) and encoded per message like the edge's. It prints the edge's summary line.
 """
 
 from __future__ import annotations
@@ -14,6 +19,8 @@ import sys
 import threading
 import time
 from typing import Any
+
+import numpy as np
 
 from magnet import wire
 from magnet.simulator import FleetSimulator
@@ -113,6 +120,45 @@ def measure(devices: int, batch: int, seconds: float, gyro: bool) -> Ceiling:
     return Ceiling(batch, result["payload_bytes"], result["published"], counted[0], result["seconds"])
 
 
+def _fleet_batches(devices: int, batch: int, gyro: bool, steps: int) -> list[list[wire.RawBatch]]:
+    fleet = FleetSimulator(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
+    out = []
+    for _ in range(steps):
+        step = fleet.step(batch)
+        out.append([wire.RawBatch(f"b-{d:03d}", 0, "sim", step.t_ns, step.mag_ut[d], step.acc_ms2[d],
+                                  {"heading_deg": step.heading_deg[d], "pitch_deg": step.pitch_deg[d],
+                                   "roll_deg": step.roll_deg[d]}, None if step.gyr_rads is None else step.gyr_rads[d])
+                    for d in range(devices)])
+    return out
+
+
+def generate(ports: list[int], devices: int, rate: float, batch: int, seconds: float, gyro: bool) -> dict[str, Any]:
+    """Put every device's batch each ``batch / rate`` s, spread over the period, stamped when it goes out."""
+    import zenoh
+
+    steps = _fleet_batches(devices, batch, gyro, 4)
+    conf = zenoh.Config()
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{p}" for p in ports]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    sample_ns, gap = int(1e9 / rate), batch / rate / devices
+    keys = [wire.key("magnet", b.device, wire.Kind.RAW) for b in steps[0]]
+    with zenoh.open(conf) as session:
+        block, put, sent = zenoh.CongestionControl.BLOCK, session.put, 0
+        start = time.monotonic()
+        while (now := time.monotonic()) < start + seconds:
+            k, d = divmod(sent, devices)
+            delay = start + sent * gap - now
+            if delay > 0.001:
+                time.sleep(delay)
+            stamp = time.time_ns() - sample_ns * np.arange(batch - 1, -1, -1, dtype=np.int64)
+            raw = dataclasses.replace(steps[k % len(steps)][d], seq=k, t_ns=stamp)
+            put(keys[d], wire.encode_raw(raw), congestion_control=block)
+            sent += 1
+        elapsed = time.monotonic() - start
+        time.sleep(0.3)
+    return {"devices": devices, "published_samples": sent * batch, "published_batches": sent, "seconds": elapsed}
+
+
 def _open_when_listening(conf: Any) -> Any:
     import zenoh
 
@@ -127,5 +173,10 @@ def _open_when_listening(conf: Any) -> Any:
 
 
 if __name__ == "__main__":
-    _port, _devices, _batch, _seconds, _gyro = sys.argv[1:6]
-    print(json.dumps(publish(int(_port), int(_devices), int(_batch), float(_seconds), _gyro == "1")), flush=True)
+    if sys.argv[1] == "generate":
+        _ports, _devices, _rate, _batch, _seconds, _gyro = sys.argv[2:8]
+        print(json.dumps(generate([int(p) for p in _ports.split(",")], int(_devices), float(_rate), int(_batch),
+                                  float(_seconds), _gyro == "1")), flush=True)
+    else:
+        _port, _devices, _batch, _seconds, _gyro = sys.argv[1:6]
+        print(json.dumps(publish(int(_port), int(_devices), int(_batch), float(_seconds), _gyro == "1")), flush=True)

@@ -1,4 +1,7 @@
-"""``magnet bench pipeline``: edge fleet process -> compass process(es) -> a measuring subscriber (this process).
+"""``magnet bench pipeline``: load process -> compass process(es) -> a measuring subscriber (this process).
+
+The load is the edge's messages for a simulated fleet, simulated ahead and stamped and encoded per message as they
+go out (``services.bench.ceiling.generate``): the fleet simulator itself costs as much CPU as the compass.
 
 First Zenoh's own rate on the same payloads (``services.bench.ceiling``: a publisher process putting the edge's
 messages as fast as it can, a subscriber here that only counts). Then the pipeline: the edge's simulated devices send
@@ -126,7 +129,7 @@ def run_once(devices: int, rate: float, batch: int, seconds: float, shards: int 
     """One run: ``shards`` compass processes (``--shard K/N``), the edge connected to each, the measurer too."""
     import zenoh
 
-    *compass_ports, edge_port, measure_port = free_ports(shards + 2)
+    *compass_ports, measure_port = free_ports(shards + 1)
     compasses = [subprocess.Popen([sys.executable, "-m", "services.cli", "compass", "--name", f"bench-compass-{k}",
                                    "--shard", f"{k}/{shards}", *loopback_arguments(port)], stdin=subprocess.DEVNULL)
                  for k, port in enumerate(compass_ports)]
@@ -137,10 +140,9 @@ def run_once(devices: int, rate: float, batch: int, seconds: float, shards: int 
                 _wait_ready(session, f"magnet/@status/bench-compass-{k}")
             measurer = _Measurer(session.declare_subscriber("magnet/*/heading",
                                                             zenoh.handlers.FifoChannel(1 << 20)))
-            edge = subprocess.Popen([sys.executable, "-m", "services.cli", "edge", "--emulate", "--devices",
-                                     str(devices), "--device", "b", "--rate", str(rate), "--batch", str(batch),
-                                     "--duration", str(seconds), *(["--gyro"] if gyro else []),
-                                     *loopback_arguments(edge_port, compass_ports)],
+            edge = subprocess.Popen([sys.executable, "-m", "services.bench.ceiling", "generate",
+                                     ",".join(map(str, compass_ports)), str(devices), str(rate), str(batch),
+                                     str(seconds), str(int(gyro))],
                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True)
             out, _ = edge.communicate(timeout=seconds + 60)
             summary = json.loads(out.strip().splitlines()[-1])
