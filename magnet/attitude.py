@@ -70,11 +70,14 @@ def axis_angle_matrix(axis: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarray:
     k = k / norm
     a = np.radians(np.asarray(angle_deg, dtype=float))[..., None, None]
     zero = np.zeros(k.shape[:-1])
-    cross = np.stack([
-        np.stack([zero, -k[..., 2], k[..., 1]], axis=-1),
-        np.stack([k[..., 2], zero, -k[..., 0]], axis=-1),
-        np.stack([-k[..., 1], k[..., 0], zero], axis=-1),
-    ], axis=-2)
+    cross = np.stack(
+        [
+            np.stack([zero, -k[..., 2], k[..., 1]], axis=-1),
+            np.stack([k[..., 2], zero, -k[..., 0]], axis=-1),
+            np.stack([-k[..., 1], k[..., 0], zero], axis=-1),
+        ],
+        axis=-2,
+    )
     eye = np.eye(3)
     return eye + np.sin(a) * cross + (1.0 - np.cos(a)) * (cross @ cross)
 
@@ -84,11 +87,14 @@ def quaternion_to_matrix(quat_wxyz: np.ndarray) -> np.ndarray:
     q = np.asarray(quat_wxyz, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-    ], axis=-2)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+        ],
+        axis=-2,
+    )
 
 
 def random_rotations(count: int, rng: np.random.Generator) -> np.ndarray:
@@ -107,14 +113,20 @@ def rotation_angle_deg(matrix: np.ndarray) -> np.ndarray:
 # Hamilton quaternions ordered w, x, y, z; a unit quaternion q of an attitude is body-to-NED: v_ned = q v_body q*,
 # the same rotation as ``quaternion_to_matrix(q)``.
 
+
 def quaternion_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Hamilton product p q of quaternions (..., 4) wxyz (broadcast) -> (..., 4): rotate by q, then by p."""
     pw, px, py, pz = np.moveaxis(np.asarray(p, dtype=float), -1, 0)
     qw, qx, qy, qz = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
-    return np.stack([pw * qw - px * qx - py * qy - pz * qz,
-                     pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx,
-                     pw * qz + px * qy - py * qx + pz * qw], axis=-1)
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
 
 
 def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
@@ -122,17 +134,22 @@ def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
     return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def euler_to_quaternion(yaw_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike
-                        ) -> np.ndarray:
+def euler_to_quaternion(yaw_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> np.ndarray:
     """Body-to-NED unit quaternion (..., 4) wxyz of Rz(yaw) Ry(pitch) Rx(roll) (degrees, any values, broadcast);
     continuous in the angles (no sign flips), so a smooth angle history gives a smooth quaternion history."""
-    yaw, pitch, roll = np.broadcast_arrays(*(np.radians(np.asarray(a, dtype=float)) / 2.0
-                                             for a in (yaw_deg, pitch_deg, roll_deg)))
+    yaw, pitch, roll = np.broadcast_arrays(
+        *(np.radians(np.asarray(a, dtype=float)) / 2.0 for a in (yaw_deg, pitch_deg, roll_deg))
+    )
     cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
-    return np.stack([cy * cp * cr + sy * sp * sr,
-                     cy * cp * sr - sy * sp * cr,
-                     cy * sp * cr + sy * cp * sr,
-                     sy * cp * cr - cy * sp * sr], axis=-1)
+    return np.stack(
+        [
+            cy * cp * cr + sy * sp * sr,
+            cy * cp * sr - sy * sp * cr,
+            cy * sp * cr + sy * cp * sr,
+            sy * cp * cr - cy * sp * sr,
+        ],
+        axis=-1,
+    )
 
 
 def quaternion_to_euler(quat_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -146,7 +163,7 @@ def rotation_vector_to_quaternion(rotvec_rad: np.ndarray) -> np.ndarray:
     angle = np.linalg.norm(v, axis=-1, keepdims=True)
     half = angle / 2.0
     # sin(half) / angle, with its limit 1/2 - angle^2/48 near zero
-    scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle ** 2 / 48.0)
+    scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
     return np.concatenate([np.cos(half), v * scale], axis=-1)
 
 

@@ -36,9 +36,6 @@ class Recent(MutableMapping[K, V]):
     def __getitem__(self, key: K) -> V:
         return self._items[key]
 
-    def get(self, key: K, default: V | None = None) -> V | None:
-        return self._items.get(key, default)
-
     def touch(self, key: K) -> None:
         if key in self._items:
             self._items.move_to_end(key)
@@ -53,9 +50,6 @@ class Recent(MutableMapping[K, V]):
         if key not in self._items:
             self[key] = value
         return self._items.get(key, value)
-
-    def pop(self, key: K, default: V | None = None) -> V | None:
-        return self._items.pop(key, default)
 
     def __delitem__(self, key: K) -> None:
         del self._items[key]

@@ -119,20 +119,25 @@ def _check_samples(mag: np.ndarray, method: Method) -> np.ndarray:
         raise FitError(f"samples must be an (N, 3) array of x, y, z readings, got shape {arr.shape}")
     bad = ~np.all(np.isfinite(arr), axis=1)
     if bad.any():
-        raise FitError(f"{int(bad.sum())} sample(s) hold NaN or infinite values (first at row {int(np.argmax(bad))}):"
-                       " drop them (sensor overflow?) before fitting")
+        raise FitError(
+            f"{int(bad.sum())} sample(s) hold NaN or infinite values (first at row {int(np.argmax(bad))}):"
+            " drop them (sensor overflow?) before fitting"
+        )
     need = MIN_SAMPLES.get(method, 12)
     if len(arr) < need:
-        raise FitError(f"only {len(arr)} samples: {method.value} needs at least {need}; keep sampling while you "
-                       "move the device")
+        raise FitError(
+            f"only {len(arr)} samples: {method.value} needs at least {need}; keep sampling while you move the device"
+        )
     return arr
 
 
 def _check_spread_3d(mag: np.ndarray, method: Method) -> None:
     condition = scatter_condition(mag)
     if condition > MAX_SCATTER_FOR_3D:
-        raise FitError(f"samples are coplanar or degenerate (scatter condition {condition:.3g}): {method.value} "
-                       "needs samples from all attitudes; tumble the device, or use minmax2d for a level turn")
+        raise FitError(
+            f"samples are coplanar or degenerate (scatter condition {condition:.3g}): {method.value} "
+            "needs samples from all attitudes; tumble the device, or use minmax2d for a level turn"
+        )
 
 
 def _check_acc(acc: np.ndarray | None, n: int, required: bool) -> np.ndarray | None:
@@ -243,8 +248,10 @@ def _algebraic_ellipsoid(mag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     quad = np.array([[p[0], p[5], p[4]], [p[5], p[1], p[3]], [p[4], p[3], p[2]]])
     eig = np.linalg.eigvalsh(quad)
     if eig[0] <= 0:
-        raise FitError("the samples do not lie on an ellipsoid (the fitted quadric is a hyperboloid or paraboloid): "
-                       "check for a moving magnet or saturated readings, and tumble the device through all attitudes")
+        raise FitError(
+            "the samples do not lie on an ellipsoid (the fitted quadric is a hyperboloid or paraboloid): "
+            "check for a moving magnet or saturated readings, and tumble the device through all attitudes"
+        )
     centre = -np.linalg.solve(quad, p[6:])
     level = 1.0 + centre @ quad @ centre
     if level <= 0:
@@ -259,8 +266,9 @@ def _sym_from(params: np.ndarray) -> np.ndarray:
     return np.array([[a, d, e], [d, b, f], [e, f, c]])
 
 
-def _refine_ellipsoid(mag: np.ndarray, offset: np.ndarray, shape: np.ndarray, iterations: int = 30
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def _refine_ellipsoid(
+    mag: np.ndarray, offset: np.ndarray, shape: np.ndarray, iterations: int = 30
+) -> tuple[np.ndarray, np.ndarray]:
     """Levenberg-Marquardt on e_i = |M (u_i - b)| - 1 over b and symmetric M (see the module docstring)."""
     params = np.concatenate([offset, shape[[0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]]])
     cost, jac, res = _ellipsoid_system(mag, params)
@@ -311,12 +319,15 @@ def _ellipsoid_align(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> S
     field /= np.linalg.norm(field, axis=1, keepdims=True)
     rotation, why_not = align_rotation(field, gravity)
     if rotation is None:
-        return dataclasses.replace(base, note=_join(base.note, f"alignment not observable: {why_not}; kept the "
-                                                               "plain ellipsoid"))
+        return dataclasses.replace(
+            base, note=_join(base.note, f"alignment not observable: {why_not}; kept the plain ellipsoid")
+        )
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rotation) - 1) / 2))))
-    return dataclasses.replace(base, matrix=rotation @ base.matrix,
-                               note=_join(base.note, f"magnetometer-accelerometer misalignment {angle:.2f} deg "
-                                                     "corrected"))
+    return dataclasses.replace(
+        base,
+        matrix=rotation @ base.matrix,
+        note=_join(base.note, f"magnetometer-accelerometer misalignment {angle:.2f} deg corrected"),
+    )
 
 
 def _join(*notes: str) -> str:
@@ -327,16 +338,19 @@ def _gravity_spread(gravity: np.ndarray) -> float:
     return float(np.linalg.eigvalsh(gravity.T @ gravity / len(gravity))[0])
 
 
-def align_rotation(field_dir: np.ndarray, gravity_dir: np.ndarray, iterations: int = 20
-                   ) -> tuple[np.ndarray | None, str]:
+def align_rotation(
+    field_dir: np.ndarray, gravity_dir: np.ndarray, iterations: int = 20
+) -> tuple[np.ndarray | None, str]:
     """Rotation R (3,3) so that gravity_dir_i . (R field_dir_i) is the same for all i (both (N,3), unit rows).
 
     Returns (R, "") or (None, why it is not observable).
     """
     spread = _gravity_spread(gravity_dir)
     if spread < MIN_GRAVITY_SPREAD:
-        return None, (f"gravity directions do not span the sphere (smallest spread {spread:.3f} < "
-                      f"{MIN_GRAVITY_SPREAD}); tilt and roll the device through all attitudes")
+        return None, (
+            f"gravity directions do not span the sphere (smallest spread {spread:.3f} < "
+            f"{MIN_GRAVITY_SPREAD}); tilt and roll the device through all attitudes"
+        )
     rotation = _initial_rotation(field_dir, gravity_dir)
     k = float(np.mean(np.einsum("ij,ij->i", gravity_dir, field_dir @ rotation.T)))
     for _ in range(iterations):
@@ -378,8 +392,9 @@ def _exp_so3(w: np.ndarray) -> np.ndarray:
 
 
 def _turntable(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
-    raise FitError("the turntable method needs the mounting and table angle of every sample: use "
-                   "magnet.turntable.fit_turntable")
+    raise FitError(
+        "the turntable method needs the mounting and table angle of every sample: use magnet.turntable.fit_turntable"
+    )
 
 
 #: Method -> (shape function (mag, acc, robust) -> Shape, geometry the samples are judged by)
@@ -407,12 +422,26 @@ def _finish(shape: Shape, method: Method, unit: str, field_ut: float | None, cou
         factor, output_unit, strength = 1.0, unit, shape.radius
     if method is Method.MINMAX2D:
         strength = 0.0  # the horizontal radius is not |B|: the total field is unknown from a level turn
-    return Calibration(method=method.value, offset=shape.offset, matrix=shape.matrix * factor,
-                       field_strength=float(strength), sample_count=count, unit=unit, output_unit=output_unit)
+    return Calibration(
+        method=method.value,
+        offset=shape.offset,
+        matrix=shape.matrix * factor,
+        field_strength=float(strength),
+        sample_count=count,
+        unit=unit,
+        output_unit=output_unit,
+    )
 
 
-def fit_shape(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None = None, unit: str = "ut",
-              field_ut: float | None = None, robust_extremes: bool = False) -> tuple[Calibration, Shape]:
+def fit_shape(
+    mag: np.ndarray,
+    method: Method | str,
+    *,
+    acc: np.ndarray | None = None,
+    unit: str = "ut",
+    field_ut: float | None = None,
+    robust_extremes: bool = False,
+) -> tuple[Calibration, Shape]:
     """The fit alone, without quality or gate: (record with empty quality, the shape found). Raises FitError."""
     method = Method.parse(method)
     mag = _check_samples(mag, method)
@@ -424,10 +453,19 @@ def fit_shape(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None =
     return _finish(shape, method, unit, field_ut, len(mag)), shape
 
 
-def fit(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None = None, unit: str = "ut",
-        field_ut: float | None = None, gate: GateThresholds | None = None, robust_extremes: bool = False,
-        gyr: np.ndarray | None = None, period_s: float | None = None, reference: Calibration | None = None
-        ) -> Calibration:
+def fit(
+    mag: np.ndarray,
+    method: Method | str,
+    *,
+    acc: np.ndarray | None = None,
+    unit: str = "ut",
+    field_ut: float | None = None,
+    gate: GateThresholds | None = None,
+    robust_extremes: bool = False,
+    gyr: np.ndarray | None = None,
+    period_s: float | None = None,
+    reference: Calibration | None = None,
+) -> Calibration:
     """Fit a calibration to raw samples mag (N, 3) in ``unit``; acc (N, 3) specific force, any unit, or None.
 
     field_ut: the expected |B| in uT (WMM) or None (keep the fitted radius). Returns the record with ``quality``
@@ -439,21 +477,32 @@ def fit(mag: np.ndarray, method: Method | str, *, acc: np.ndarray | None = None,
     Raises FitError when no calibration can be computed.
     """
     method = Method.parse(method)
-    calibration, shape = fit_shape(mag, method, acc=acc, unit=unit, field_ut=field_ut,
-                                   robust_extremes=robust_extremes)
+    calibration, shape = fit_shape(mag, method, acc=acc, unit=unit, field_ut=field_ut, robust_extremes=robust_extremes)
     mag = np.asarray(mag, dtype=float)
     acc_arr = None if acc is None else np.asarray(acc, dtype=float)
     holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes)
     to_ut = ut_per_unit(unit)
     geometry = _METHODS[method][1]
-    quality = assess(mag, calibration, geometry=geometry, acc=None, expected_field_ut=field_ut,
-                     fitted_radius_ut=shape.radius * to_ut if to_ut is not None and geometry is Geometry.SPHERE
-                     else None, holdout=holdout)
+    quality = assess(
+        mag,
+        calibration,
+        geometry=geometry,
+        acc=None,
+        expected_field_ut=field_ut,
+        fitted_radius_ut=shape.radius * to_ut if to_ut is not None and geometry is Geometry.SPHERE else None,
+        holdout=holdout,
+    )
     if acc_arr is not None and geometry is Geometry.SPHERE:
         ev = _motion_evidence(acc_arr, gyr, period_s, len(mag))
-        figures = motion.motion_figures(mag, calibration, ev, _holdout_mask(len(mag)), holdout[1] if holdout else None,
-                                        reference or IDENTITY,
-                                        "the calibration in force" if reference else "no calibration")
+        figures = motion.motion_figures(
+            mag,
+            calibration,
+            ev,
+            _holdout_mask(len(mag)),
+            holdout[1] if holdout else None,
+            reference or IDENTITY,
+            "the calibration in force" if reference else "no calibration",
+        )
         quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
         quality = quality.with_extra(note=shape.note)
@@ -481,13 +530,20 @@ def _holdout_mask(count: int) -> np.ndarray:
     return (np.arange(count) // HOLDOUT_BLOCK) % HOLDOUT_EVERY == HOLDOUT_EVERY - 1
 
 
-def _holdout(mag: np.ndarray, method: Method, acc: np.ndarray | None, unit: str, field_ut: float | None,
-             robust: bool) -> tuple[np.ndarray, Calibration] | None:
+def _holdout(
+    mag: np.ndarray, method: Method, acc: np.ndarray | None, unit: str, field_ut: float | None, robust: bool
+) -> tuple[np.ndarray, Calibration] | None:
     """(test samples, calibration fitted on the rest): every HOLDOUT_EVERY-th block of samples is the test set."""
     test = _holdout_mask(len(mag))
     try:
-        train_cal, _ = fit_shape(mag[~test], method, acc=None if acc is None else acc[~test], unit=unit,
-                                 field_ut=field_ut, robust_extremes=robust)
+        train_cal, _ = fit_shape(
+            mag[~test],
+            method,
+            acc=None if acc is None else acc[~test],
+            unit=unit,
+            field_ut=field_ut,
+            robust_extremes=robust,
+        )
     except FitError:
         return None
     return mag[test], train_cal

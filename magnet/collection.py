@@ -13,21 +13,22 @@ from magnet.calibration import FitError, fit
 from magnet.model import Calibration
 from magnet.quality import Coverage, coverage
 
-FINE_BANDS = 24      # equal-area bands in z (uniform in z = equal area on the sphere) ...
-FINE_SECTORS = 48    # ... times sectors in longitude: 1152 fine cells, one kept sample each
+FINE_BANDS = 24  # equal-area bands in z (uniform in z = equal area on the sphere) ...
+FINE_SECTORS = 48  # ... times sectors in longitude: 1152 fine cells, one kept sample each
 REBIN_SHIFT_UT = 2.0  # re-sort kept samples into cells when the cloud's centre moved this far
-FIT_EVERY_NEW = 25   # fit again after this many newly kept samples
+FIT_EVERY_NEW = 25  # fit again after this many newly kept samples
 FIT_INTERVAL_S = 0.5
-INITIAL_ROOM = 64    # samples' arrays start this small and double up to the capacity (a device that sends one
-                     # batch costs kilobytes, not the capacity's worth)
+INITIAL_ROOM = 64  # samples' arrays start this small and double up to the capacity (a device that sends one
+# batch costs kilobytes, not the capacity's worth)
 
 
 def fine_cells(directions: np.ndarray) -> np.ndarray:
     """Fine equal-area cell index (N,) of directions (N, 3) (any length > 0)."""
     unit = directions / np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-300)
     band = np.minimum(((unit[:, 2] + 1.0) * 0.5 * FINE_BANDS).astype(int), FINE_BANDS - 1)
-    sector = np.minimum(((np.arctan2(unit[:, 1], unit[:, 0]) + np.pi) / (2 * np.pi) * FINE_SECTORS).astype(int),
-                        FINE_SECTORS - 1)
+    sector = np.minimum(
+        ((np.arctan2(unit[:, 1], unit[:, 0]) + np.pi) / (2 * np.pi) * FINE_SECTORS).astype(int), FINE_SECTORS - 1
+    )
     return band * FINE_SECTORS + sector
 
 
@@ -77,9 +78,9 @@ class Collection:
             return 0
         self.occupied[cells[new]] = True
         self._room_for(self.kept + new.size)
-        self.mag[self.kept:self.kept + new.size] = mag[new]
+        self.mag[self.kept : self.kept + new.size] = mag[new]
         if acc is not None:
-            self.acc[self.kept:self.kept + new.size] = acc[new]
+            self.acc[self.kept : self.kept + new.size] = acc[new]
         self.kept += new.size
         return int(new.size)
 
@@ -97,20 +98,20 @@ class Collection:
         self.occupied[:] = False
         if not self.kept:
             return
-        cells = fine_cells(self.mag[:self.kept] - centre)
+        cells = fine_cells(self.mag[: self.kept] - centre)
         unique, first = np.unique(cells, return_index=True)
         first = np.sort(first)
-        self.mag[:first.size] = self.mag[first]
-        self.acc[:first.size] = self.acc[first]
+        self.mag[: first.size] = self.mag[first]
+        self.acc[: first.size] = self.acc[first]
         self.kept = int(first.size)
         self.occupied[unique] = True
 
     def samples(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The kept samples: mag (K, 3) uT and acc (K, 3) m/s^2, or None when a batch came without acc."""
-        return self.mag[:self.kept], (self.acc[:self.kept] if self.has_acc else None)
+        return self.mag[: self.kept], (self.acc[: self.kept] if self.has_acc else None)
 
     def coverage(self) -> Coverage:
-        return coverage(self.mag[:self.kept] - self.centre)
+        return coverage(self.mag[: self.kept] - self.centre)
 
     def fit(self, field_ut: float | None, now_s: float) -> Calibration | None:
         """Fit the kept samples (records the result or the reason); None when no calibration can be computed.
@@ -128,5 +129,8 @@ class Collection:
 
     def due(self, min_samples: int, now_s: float) -> bool:
         """Whether to fit again: enough samples, enough new ones since the last fit, and not too soon."""
-        return (self.kept >= min_samples and self.kept - self.last_fit_kept >= FIT_EVERY_NEW
-                and now_s - self.last_fit_s >= FIT_INTERVAL_S)
+        return (
+            self.kept >= min_samples
+            and self.kept - self.last_fit_kept >= FIT_EVERY_NEW
+            and now_s - self.last_fit_s >= FIT_INTERVAL_S
+        )

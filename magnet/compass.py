@@ -44,8 +44,14 @@ class Headings:
     flags: np.ndarray
 
 
-def compute_headings(mag_ut: np.ndarray, acc_ms2: np.ndarray, offsets: np.ndarray, matrices: np.ndarray,
-                     calibrated: np.ndarray, earth: Earth) -> Headings:
+def compute_headings(
+    mag_ut: np.ndarray,
+    acc_ms2: np.ndarray,
+    offsets: np.ndarray,
+    matrices: np.ndarray,
+    calibrated: np.ndarray,
+    earth: Earth,
+) -> Headings:
     """Headings for S samples of any devices at once.
 
     mag_ut (S, 3) raw uT; acc_ms2 (S, 3) m/s^2 with NaN rows where a sample has no accelerometer; offsets (S, 3) and
@@ -70,4 +76,4 @@ def smooth_tail(tail: np.ndarray, heading_deg: np.ndarray, window: int) -> tuple
     if window == 1:
         return heading_deg, tail[:0]
     joined = np.concatenate([tail, heading_deg])
-    return hd.smooth_heading_deg(joined, window)[-heading_deg.size:], joined[-(window - 1):]
+    return hd.smooth_heading_deg(joined, window)[-heading_deg.size :], joined[-(window - 1) :]

@@ -44,10 +44,14 @@ class AlertKind(enum.Enum):
 
 
 ADVICE = {
-    AlertKind.FIELD_STRENGTH: ("the calibrated field strength departs from {ref}: look for new iron or a motor near "
-                               "the sensor, a bent mount or a swapped part, then recalibrate"),
-    AlertKind.DIP: ("the calibrated dip angle departs from {ref}: look for new iron near the sensor or a moved "
-                    "mount (magnetometer turned against the accelerometer), then recalibrate"),
+    AlertKind.FIELD_STRENGTH: (
+        "the calibrated field strength departs from {ref}: look for new iron or a motor near "
+        "the sensor, a bent mount or a swapped part, then recalibrate"
+    ),
+    AlertKind.DIP: (
+        "the calibrated dip angle departs from {ref}: look for new iron near the sensor or a moved "
+        "mount (magnetometer turned against the accelerometer), then recalibrate"
+    ),
     AlertKind.CALIBRATION_AGE: "the calibration is older than {ref}: recalibrate (magnet calibrate DEVICE start)",
 }
 
@@ -72,8 +76,7 @@ class DriftSettings:
     def __post_init__(self) -> None:
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                    or value <= 0:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"drift setting {field.name} must be a positive number, got {value!r}")
         for name in ("raise_windows", "clear_windows", "min_window_samples", "max_window_samples"):
             if not isinstance(getattr(self, name), int):
@@ -125,9 +128,15 @@ class Alert:
 
     def to_message(self) -> dict[str, Any]:
         """The ``<prefix>/<device>/alert`` map: v, device, kind, since_ns, measured, expected, advice (+ cleared)."""
-        out: dict[str, Any] = {"v": 1, "device": self.device, "kind": self.kind.value, "since_ns": int(self.since_ns),
-                               "measured": round(float(self.measured), 4), "expected": round(float(self.expected), 4),
-                               "advice": self.advice}
+        out: dict[str, Any] = {
+            "v": 1,
+            "device": self.device,
+            "kind": self.kind.value,
+            "since_ns": int(self.since_ns),
+            "measured": round(float(self.measured), 4),
+            "expected": round(float(self.expected), 4),
+            "advice": self.advice,
+        }
         if self.cleared:
             out["cleared"] = True
         return out
@@ -163,8 +172,9 @@ class _Hysteresis:
         return self.streak >= (settings.raise_windows if self.open is None else settings.clear_windows)
 
 
-def robust_verdict(values: np.ndarray, reference: float, tolerance: float, model: float | None,
-                   model_tolerance: float) -> Verdict | None:
+def robust_verdict(
+    values: np.ndarray, reference: float, tolerance: float, model: float | None, model_tolerance: float
+) -> Verdict | None:
     """Judge one window of one quantity (values (N,), finite) against its reference (own tolerance) and the model.
 
     Own: median |value - reference| / tolerance, reported as reference +- that departure (the side the median lies
@@ -197,7 +207,7 @@ class _Window:
         """|B| (uT) and dip (deg) samples, the last of them at ``last_ns``."""
         self.last_ns = max(self.last_ns, last_ns)
         if self.stride > 1:
-            strength, dip = strength[::self.stride], dip[::self.stride]
+            strength, dip = strength[:: self.stride], dip[:: self.stride]
         self.strength.append(strength)
         self.dip.append(dip)
         self.count += strength.size
@@ -231,8 +241,7 @@ class DriftTracker:
 
     def set_model(self, model_total_ut: float | None, model_dip_deg: float | None) -> None:
         """The device's place changed: judge against the model there from now on."""
-        self.reference = dataclasses.replace(self.reference, model_total_ut=model_total_ut,
-                                             model_dip_deg=model_dip_deg)
+        self.reference = dataclasses.replace(self.reference, model_total_ut=model_total_ut, model_dip_deg=model_dip_deg)
 
     def add(self, t_ns: np.ndarray, strength_ut: np.ndarray, dip_deg: np.ndarray) -> list[Alert]:
         """Samples t_ns (N,) int ns, strength_ut (N,) calibrated |B| in uT, dip_deg (N,) deg (NaN without acc), in
@@ -272,8 +281,10 @@ class DriftTracker:
         start_ns = window.index * s.window_ns
         events = self._age(window.last_ns)
         strength, dip = window.values()
-        verdicts = {AlertKind.FIELD_STRENGTH: self._judge(AlertKind.FIELD_STRENGTH, strength),
-                    AlertKind.DIP: self._judge(AlertKind.DIP, dip)}
+        verdicts = {
+            AlertKind.FIELD_STRENGTH: self._judge(AlertKind.FIELD_STRENGTH, strength),
+            AlertKind.DIP: self._judge(AlertKind.DIP, dip),
+        }
         self.windows_judged += 1
         for kind, verdict in verdicts.items():
             if verdict is not None:
@@ -308,8 +319,15 @@ class DriftTracker:
             return []
         unit = "uT" if kind is AlertKind.FIELD_STRENGTH else "deg"
         advice = ADVICE[kind].format(ref=f"{verdict.expected:.1f} {unit}")
-        alert = Alert(self.device, kind, state.streak_start_ns, verdict.measured, verdict.expected, advice,
-                      cleared=state.open is not None)
+        alert = Alert(
+            self.device,
+            kind,
+            state.streak_start_ns,
+            verdict.measured,
+            verdict.expected,
+            advice,
+            cleared=state.open is not None,
+        )
         state.open = None if alert.cleared else alert
         state.streak = 0
         return [alert]
@@ -321,14 +339,21 @@ class DriftTracker:
             return []
         days = (now_ns - self.reference.created_ns) / NS_PER_DAY
         advice = ADVICE[AlertKind.CALIBRATION_AGE].format(ref=f"{self.settings.max_age_days:g} days")
-        state.open = Alert(self.device, AlertKind.CALIBRATION_AGE, self.reference.created_ns + max_ns, days,
-                           self.settings.max_age_days, advice)
+        state.open = Alert(
+            self.device,
+            AlertKind.CALIBRATION_AGE,
+            self.reference.created_ns + max_ns,
+            days,
+            self.settings.max_age_days,
+            advice,
+        )
         return [state.open]
 
     def clear_all(self, now_ns: int, why: str) -> list[Alert]:
         """Clear every open alert (a new calibration came into force): the cleared events."""
-        events = [dataclasses.replace(alert, since_ns=int(now_ns), cleared=True, advice=why)
-                  for alert in self.open_alerts]
+        events = [
+            dataclasses.replace(alert, since_ns=int(now_ns), cleared=True, advice=why) for alert in self.open_alerts
+        ]
         for state in self.state.values():
             state.open, state.streak = None, 0
         return events
@@ -356,8 +381,9 @@ class DriftMonitor:
         tracker = self.trackers.get(device)
         return [] if tracker is None else tracker.add(t_ns, strength_ut, dip_deg)
 
-    def add_columns(self, devices: list[str], bounds: list[int], t_ns: np.ndarray, strength_ut: np.ndarray,
-                    dip_deg: np.ndarray) -> list[Alert]:
+    def add_columns(
+        self, devices: list[str], bounds: list[int], t_ns: np.ndarray, strength_ut: np.ndarray, dip_deg: np.ndarray
+    ) -> list[Alert]:
         """``add`` for B batches at once: devices (B,), bounds (B + 1) sample offsets, t_ns, strength_ut, dip_deg
         (S,). The window of every sample is computed once; a batch inside its device's current window is appended
         without further numpy work."""
@@ -397,7 +423,7 @@ def alert_from_message(message: Any) -> Alert:
     since = message.get("since_ns")
     if isinstance(since, bool) or not isinstance(since, int) or since < 0:
         raise ValueError("alert since_ns must be a whole number of ns >= 0")
-    numbers = [message.get("measured"), message.get("expected")]
+    numbers: list[Any] = [message.get("measured"), message.get("expected")]
     if any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in numbers):
         raise ValueError("alert measured and expected must be finite numbers")
     advice, cleared = message.get("advice"), message.get("cleared", False)

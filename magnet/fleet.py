@@ -73,7 +73,7 @@ def _entry(device: Any, value: Any, source: str) -> FleetEntry:
         if isinstance(value, (str, list)):
             value = {"location": value}
         if not isinstance(value, Mapping):
-            raise ValueError("must be {location: \"LAT,LON[,ALT_M]\", notes: \"...\"}")
+            raise ValueError('must be {location: "LAT,LON[,ALT_M]", notes: "..."}')
         unknown = sorted(set(value) - {"location", "notes"})
         if unknown:
             raise ValueError(f"unknown key(s) {', '.join(map(str, unknown))}: use location and notes")
@@ -100,8 +100,13 @@ def earth_at(location: Location | None, date: str | None = None) -> Earth:
 class Places:
     """Each device's place and Earth: reported (raw messages) over fleet file over the service's default."""
 
-    def __init__(self, fleet: Mapping[str, FleetEntry] | None = None, default: Location | None = None,
-                 date: str | None = None, default_earth: Earth | None = None) -> None:
+    def __init__(
+        self,
+        fleet: Mapping[str, FleetEntry] | None = None,
+        default: Location | None = None,
+        date: str | None = None,
+        default_earth: Earth | None = None,
+    ) -> None:
         self.fleet = dict(fleet or {})
         self.default, self.date = default, date
         self.default_earth = default_earth if default_earth is not None else earth_at(default, date)
@@ -143,15 +148,29 @@ class EarthColumns:
     @classmethod
     def of(cls, earths: list[Earth], counts: np.ndarray) -> EarthColumns:
         """One Earth per batch, repeated over each batch's ``counts`` samples."""
-        table = np.array([[e.declination_deg, np.nan if e.total_ut is None else e.total_ut,
-                           np.nan if e.inclination_deg is None else e.inclination_deg] for e in earths],
-                         dtype=float).reshape(-1, 3)
+        table = np.array(
+            [
+                [
+                    e.declination_deg,
+                    np.nan if e.total_ut is None else e.total_ut,
+                    np.nan if e.inclination_deg is None else e.inclination_deg,
+                ]
+                for e in earths
+            ],
+            dtype=float,
+        ).reshape(-1, 3)
         per_sample = np.repeat(table, counts, axis=0)
         return cls(per_sample[:, 0], per_sample[:, 1], per_sample[:, 2])
 
 
-def disturbance_flags(field_ut: np.ndarray, acc_ms2: np.ndarray, dip_deg: np.ndarray, earth: EarthColumns,
-                      field_tol_pct: float = 15.0, dip_tol_deg: float = 5.0) -> np.ndarray:
+def disturbance_flags(
+    field_ut: np.ndarray,
+    acc_ms2: np.ndarray,
+    dip_deg: np.ndarray,
+    earth: EarthColumns,
+    field_tol_pct: float = 15.0,
+    dip_tol_deg: float = 5.0,
+) -> np.ndarray:
     """FIELD_DISTURBED and DIP_DISTURBED bits (S,) int as ``magnet.heading.disturbance_flags`` sets them, against
     each sample's own expectation (no bit where it is NaN). field_ut (S, 3) uT; acc_ms2 (S, 3) with NaN rows where
     absent; dip_deg (S,) (NaN without acc)."""
@@ -160,5 +179,7 @@ def disturbance_flags(field_ut: np.ndarray, acc_ms2: np.ndarray, dip_deg: np.nda
         field_off = np.abs(magnitude - earth.total_ut) > earth.total_ut * field_tol_pct / 100.0
         dip_off = np.abs(dip_deg - earth.inclination_deg) > dip_tol_deg
     has_acc = np.isfinite(acc_ms2).all(axis=1) & (np.linalg.norm(np.nan_to_num(acc_ms2), axis=1) > 1e-9)
-    return (np.where(field_off, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
-            | np.where(dip_off & has_acc, int(hd.HeadingFlag.DIP_DISTURBED), 0)).astype(np.int64)
+    return (
+        np.where(field_off, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
+        | np.where(dip_off & has_acc, int(hd.HeadingFlag.DIP_DISTURBED), 0)
+    ).astype(np.int64)

@@ -65,16 +65,26 @@ class FusedColumns:
     @classmethod
     def empty(cls, count: int) -> FusedColumns:
         nan = np.full(count, np.nan)
-        return cls(np.zeros(count, bool), np.full((count, 4), np.nan), nan, nan.copy(), nan.copy(),
-                   np.full((count, 3), np.nan), np.zeros(count, bool), {}, 0)
+        return cls(
+            np.zeros(count, bool),
+            np.full((count, 4), np.nan),
+            nan,
+            nan.copy(),
+            nan.copy(),
+            np.full((count, 3), np.nan),
+            np.zeros(count, bool),
+            {},
+            0,
+        )
 
     def gravity(self, acc_ms2: np.ndarray) -> np.ndarray:
         """Specific force (S, 3) as a still device would read it: -down (unit) where fused, else ``acc_ms2``."""
         return np.where(self.fused[:, None], -self.down, acc_ms2)
 
     @classmethod
-    def from_vqf(cls, raw: np.ndarray, disturbed: np.ndarray, dropped: Mapping[str, int], restarts: int
-                 ) -> FusedColumns:
+    def from_vqf(
+        cls, raw: np.ndarray, disturbed: np.ndarray, dropped: Mapping[str, int], restarts: int
+    ) -> FusedColumns:
         """From vqf's quaternions (S, 4) (NaN rows where not fused), converted to the project's frames at once."""
         out = cls.empty(len(raw))
         fused = np.isfinite(raw).all(axis=1)
@@ -84,8 +94,9 @@ class FusedColumns:
             heading, pitch, roll = matrix_to_euler(matrix)
             out.quat_wxyz[fused], out.down[fused] = quat, matrix[:, 2, :]
             out.heading_deg[fused], out.pitch_deg[fused], out.roll_deg[fused] = heading, pitch, roll
-        return dataclasses.replace(out, fused=fused, mag_disturbed=disturbed & fused, dropped=dict(dropped),
-                                   restarts=restarts)
+        return dataclasses.replace(
+            out, fused=fused, mag_disturbed=disturbed & fused, dropped=dict(dropped), restarts=restarts
+        )
 
 
 class DeviceFusion:
@@ -116,8 +127,16 @@ class DeviceFusion:
         same_rate = abs(self.filter.period_s - period_s) <= PERIOD_TOLERANCE * period_s
         return seq > self.last_seq and 0 < step_s <= self.max_gap_s + period_s and same_rate
 
-    def update(self, seq: int, t_ns: np.ndarray, vqf_inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
-               usable: np.ndarray, saturated: np.ndarray, out: np.ndarray, disturbed: np.ndarray) -> None:
+    def update(
+        self,
+        seq: int,
+        t_ns: np.ndarray,
+        vqf_inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
+        usable: np.ndarray,
+        saturated: np.ndarray,
+        out: np.ndarray,
+        disturbed: np.ndarray,
+    ) -> None:
         """Fuse one batch of N samples: t_ns (N,) int ns; vqf_inputs gyroscope, accelerometer and field (N, 3) each,
         already in vqf's frame (``fusion.to_vqf_frame``); usable and saturated (N,) bool. Writes vqf's quaternions
         into ``out`` (N, 4) and its disturbance flags into ``disturbed`` (N,) for the samples it fused."""
@@ -145,8 +164,9 @@ class DeviceFusion:
             self.filter = fusion.Fusion(period_s, self.params)
         self.restarts += 1
 
-    def _run(self, vqf_inputs: tuple[np.ndarray, np.ndarray, np.ndarray], rows: Any, out: np.ndarray,
-             disturbed: np.ndarray) -> None:
+    def _run(
+        self, vqf_inputs: tuple[np.ndarray, np.ndarray, np.ndarray], rows: Any, out: np.ndarray, disturbed: np.ndarray
+    ) -> None:
         if self.filter is None or (isinstance(rows, np.ndarray) and rows.size == 0):
             return
         gyr, acc, field = (np.ascontiguousarray(x[rows]) for x in vqf_inputs)
@@ -156,8 +176,9 @@ class DeviceFusion:
 class FleetFusion:
     """One ``DeviceFusion`` per device, at most ``max_devices`` (least recently used forgotten first)."""
 
-    def __init__(self, params: Mapping[str, Any] | None = None, max_gap_s: float = MAX_GAP_S,
-                 max_devices: int = MAX_DEVICES) -> None:
+    def __init__(
+        self, params: Mapping[str, Any] | None = None, max_gap_s: float = MAX_GAP_S, max_devices: int = MAX_DEVICES
+    ) -> None:
         self.params, self.max_gap_s, self.max_devices = dict(params or {}), max_gap_s, max_devices
         self.devices: OrderedDict[str, DeviceFusion] = OrderedDict()
 
@@ -171,8 +192,16 @@ class FleetFusion:
             self.devices.move_to_end(name)
         return state
 
-    def update(self, devices: Sequence[str], seqs: Sequence[int], bounds: Sequence[int], t_ns: np.ndarray,
-               gyr_rads: np.ndarray, acc_ms2: np.ndarray, field_ut: np.ndarray) -> FusedColumns:
+    def update(
+        self,
+        devices: Sequence[str],
+        seqs: Sequence[int],
+        bounds: Sequence[int],
+        t_ns: np.ndarray,
+        gyr_rads: np.ndarray,
+        acc_ms2: np.ndarray,
+        field_ut: np.ndarray,
+    ) -> FusedColumns:
         """Fuse every batch b (samples bounds[b] .. bounds[b+1]) that carries a gyroscope (not all-NaN rows), in
         order; S = bounds[-1] samples, arrays (S, 3). Checks and frame conversions are done once for all samples,
         the filters run batch by batch."""
@@ -189,8 +218,9 @@ class FleetFusion:
         finite = np.isfinite(gyr_rads).all(axis=1)
         saturated = finite & (np.abs(gyr_rads) >= GYRO_LIMIT_RADS).any(axis=1)
         usable = finite & ~saturated & np.isfinite(acc_ms2).all(axis=1) & np.isfinite(field_ut).all(axis=1)
-        gyr, acc, field = (fusion.to_vqf_frame(np.where(usable[:, None], x, 0.0)) for x in (gyr_rads, acc_ms2,
-                                                                                             field_ut))
+        gyr, acc, field = (
+            fusion.to_vqf_frame(np.where(usable[:, None], x, 0.0)) for x in (gyr_rads, acc_ms2, field_ut)
+        )
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)
         restarts = 0
@@ -200,11 +230,21 @@ class FleetFusion:
                 continue
             state = self._device(device)
             before = state.restarts
-            state.update(int(seqs[b]), t_ns[lo:hi], (gyr[lo:hi], acc[lo:hi], field[lo:hi]), usable[lo:hi],
-                         saturated[lo:hi], raw[lo:hi], disturbed[lo:hi])
+            state.update(
+                int(seqs[b]),
+                t_ns[lo:hi],
+                (gyr[lo:hi], acc[lo:hi], field[lo:hi]),
+                usable[lo:hi],
+                saturated[lo:hi],
+                raw[lo:hi],
+                disturbed[lo:hi],
+            )
             restarts += state.restarts - before
-        dropped = {cause: int(n) for cause, n in (("gyro-non-finite", (gyro_rows & ~finite).sum()),
-                                                  ("gyro-saturated", saturated.sum())) if n}
+        dropped = {
+            cause: int(n)
+            for cause, n in (("gyro-non-finite", (gyro_rows & ~finite).sum()), ("gyro-saturated", saturated.sum()))
+            if n
+        }
         return FusedColumns.from_vqf(raw, disturbed, dropped, restarts)
 
 
@@ -216,8 +256,17 @@ def merge(headings: Headings, fused: FusedColumns) -> tuple[Headings, np.ndarray
     f = fused.fused
     if not f.any():
         return headings, None
-    flags = np.where(f, np.asarray(headings.flags) | int(hd.HeadingFlag.FUSED)
-                     | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0), headings.flags)
-    return dataclasses.replace(headings, heading_deg=np.where(f, fused.heading_deg, headings.heading_deg),
-                               pitch_deg=np.where(f, fused.pitch_deg, headings.pitch_deg),
-                               roll_deg=np.where(f, fused.roll_deg, headings.roll_deg), flags=flags), fused.quat_wxyz
+    flags = np.where(
+        f,
+        np.asarray(headings.flags)
+        | int(hd.HeadingFlag.FUSED)
+        | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0),
+        headings.flags,
+    )
+    return dataclasses.replace(
+        headings,
+        heading_deg=np.where(f, fused.heading_deg, headings.heading_deg),
+        pitch_deg=np.where(f, fused.pitch_deg, headings.pitch_deg),
+        roll_deg=np.where(f, fused.roll_deg, headings.roll_deg),
+        flags=flags,
+    ), fused.quat_wxyz

@@ -50,10 +50,15 @@ def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
     pw, px, py, pz = np.moveaxis(p, -1, 0)
     qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack([pw * qw - px * qx - py * qy - pz * qz,
-                     pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx,
-                     pw * qz + px * qy - py * qx + pz * qw], axis=-1)
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
 
 
 def vqf_to_body_ned(quat_vqf: np.ndarray) -> np.ndarray:
@@ -80,8 +85,9 @@ def down_in_body(quat_wxyz: np.ndarray) -> np.ndarray:
 
 def quat_from_euler(heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> np.ndarray:
     """Body -> NED quaternions (..., 4), w >= 0, from Z-Y-X Euler angles in degrees (``magnet.attitude``)."""
-    half = np.broadcast_arrays(*(np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg,
-                                                                                        roll_deg)))
+    half = np.broadcast_arrays(
+        *(np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg, roll_deg))
+    )
     zero = np.zeros_like(half[0])
     qz = np.stack([np.cos(half[0]), zero, zero, np.sin(half[0])], axis=-1)
     qy = np.stack([np.cos(half[1]), zero, np.sin(half[1]), zero], axis=-1)
@@ -122,8 +128,10 @@ def sample_period_s(t: np.ndarray, scale: float = 1.0) -> float:
     steps = np.diff(stamps) * scale
     period = float(np.median(steps))
     if not MIN_PERIOD_S <= period <= MAX_PERIOD_S:
-        raise ValueError(f"median time step {period:.6g} s is not a usable sample period "
-                         f"({MIN_PERIOD_S:g} .. {MAX_PERIOD_S:g} s): are the times in seconds, and increasing?")
+        raise ValueError(
+            f"median time step {period:.6g} s is not a usable sample period "
+            f"({MIN_PERIOD_S:g} .. {MAX_PERIOD_S:g} s): are the times in seconds, and increasing?"
+        )
     return period
 
 
@@ -220,8 +228,13 @@ class Fusion:
         return out["quat9D"], out["magDistDetected"]
 
 
-def fuse_offline(gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | None, period_s: float,
-                 params: Mapping[str, Any] | None = None) -> Fused:
+def fuse_offline(
+    gyr_rads: np.ndarray,
+    acc_ms2: np.ndarray,
+    mag: np.ndarray | None,
+    period_s: float,
+    params: Mapping[str, Any] | None = None,
+) -> Fused:
     """Best estimate for a whole log (vqf's ``offlineVQF``: looks ahead, forward and backward). Shapes as ``Fusion``."""
     period = _check_period(period_s)
     gyr = _to_vqf(gyr_rads, "gyr_rads")
@@ -233,7 +246,12 @@ def fuse_offline(gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | No
     return Fused.from_vqf(out, field is not None)
 
 
-def fuse_causal(gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | None, period_s: float,
-                params: Mapping[str, Any] | None = None) -> Fused:
+def fuse_causal(
+    gyr_rads: np.ndarray,
+    acc_ms2: np.ndarray,
+    mag: np.ndarray | None,
+    period_s: float,
+    params: Mapping[str, Any] | None = None,
+) -> Fused:
     """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``."""
     return Fusion(period_s, params).update(gyr_rads, acc_ms2, mag)

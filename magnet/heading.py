@@ -24,11 +24,11 @@ class HeadingFlag(enum.IntFlag):
     """Flags carried by each heading (bit values are part of the wire format)."""
 
     NONE = 0
-    CALIBRATED = 1       # a calibration was applied
-    NO_TILT = 2          # no usable accelerometer sample: heading assumes the device is level
+    CALIBRATED = 1  # a calibration was applied
+    NO_TILT = 2  # no usable accelerometer sample: heading assumes the device is level
     FIELD_DISTURBED = 4  # |B| is far from the expected field strength (magnet, iron or bad calibration nearby)
-    DIP_DISTURBED = 8    # the angle between field and gravity is far from the expected inclination
-    FUSED = 16           # attitude from the gyroscope-aided filter (magnet.fusion); without it, accelerometer tilt
+    DIP_DISTURBED = 8  # the angle between field and gravity is far from the expected inclination
+    FUSED = 16  # attitude from the gyroscope-aided filter (magnet.fusion); without it, accelerometer tilt
 
 
 def wrap_deg(angle_deg: npt.ArrayLike) -> np.ndarray:
@@ -142,9 +142,14 @@ def dip_angle_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
     return np.degrees(np.arcsin(np.clip(sine, -1.0, 1.0)))
 
 
-def disturbance_flags(field: np.ndarray, acc: np.ndarray | None, expected_ut: float | None,
-                      expected_dip_deg: float | None, field_tol_pct: float = 15.0,
-                      dip_tol_deg: float = 5.0) -> np.ndarray:
+def disturbance_flags(
+    field: np.ndarray,
+    acc: np.ndarray | None,
+    expected_ut: float | None,
+    expected_dip_deg: float | None,
+    field_tol_pct: float = 15.0,
+    dip_tol_deg: float = 5.0,
+) -> np.ndarray:
     """HeadingFlag bits (int, shape (...)) for corrected fields (..., 3) in uT and specific force (..., 3) or None.
 
     FIELD_DISTURBED: | |B| - expected_ut | > field_tol_pct % of expected_ut (skipped when expected_ut is None or 0).
@@ -181,4 +186,4 @@ def offset_removed_rms_deg(estimate_deg: np.ndarray, reference_deg: np.ndarray) 
         return math.nan
     offset = np.arctan2(np.sin(diff).mean(), np.cos(diff).mean())
     residual = np.mod(diff - offset + np.pi, 2 * np.pi) - np.pi
-    return float(np.degrees(np.sqrt(np.mean(residual ** 2))))
+    return float(np.degrees(np.sqrt(np.mean(residual**2))))

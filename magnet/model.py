@@ -25,8 +25,8 @@ import dataclasses
 import hashlib
 import json
 import math
-from typing import Any
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +38,7 @@ MAX_CONDITION = 10.0
 #: Largest plausible |offset| component: in uT where the raw unit converts to uT (a +-50 gauss range), else in raw
 #: units (a 24-bit converter).
 MAX_OFFSET_UT = 5_000.0
-MAX_OFFSET_RAW = float(2 ** 24)
+MAX_OFFSET_RAW = float(2**24)
 #: Largest plausible gain of the correction either way (its singular values, in output units per raw unit, over the
 #: units' ratio): a real correction rescales the field by a few per cent to a factor of a few (the gate refuses axis
 #: ratios beyond 5), never by 10. Where a unit's scale is unknown (counts), only UNKNOWN_SCALE_GAIN bounds it.
@@ -89,12 +89,22 @@ def _optional_int(value: Any, name: str) -> int | None:
 
 #: Quality's typed figures in the order they are written, and how each is read
 _FIGURES: dict[str, Any] = {
-    "geometry": None, "residual_rms": _optional_number, "residual_rms_ut": _optional_number,
-    "residual_rms_pct": _optional_number, "coverage": _optional_number, "cells_hit": _optional_int,
-    "cell_count": _optional_int, "missing_directions": None, "radius": _optional_number,
-    "expected_field_ut": _optional_number, "radius_ratio": _optional_number,
-    "soft_iron_condition": _optional_number, "scatter_condition": _optional_number,
-    "dip_spread_deg": _optional_number, "holdout_rms_ut": _optional_number, "holdout_rms_pct": _optional_number,
+    "geometry": None,
+    "residual_rms": _optional_number,
+    "residual_rms_ut": _optional_number,
+    "residual_rms_pct": _optional_number,
+    "coverage": _optional_number,
+    "cells_hit": _optional_int,
+    "cell_count": _optional_int,
+    "missing_directions": None,
+    "radius": _optional_number,
+    "expected_field_ut": _optional_number,
+    "radius_ratio": _optional_number,
+    "soft_iron_condition": _optional_number,
+    "scatter_condition": _optional_number,
+    "dip_spread_deg": _optional_number,
+    "holdout_rms_ut": _optional_number,
+    "holdout_rms_pct": _optional_number,
 }
 
 
@@ -253,7 +263,9 @@ class Calibration:
             raise ValueError("a calibration must be a JSON object with at least 'offset' and 'matrix'")
         missing = [key for key in ("offset", "matrix") if key not in data]
         if missing:
-            raise ValueError(f"calibration is missing {', '.join(missing)}: a record as 'magnet fit' writes it is needed")
+            raise ValueError(
+                f"calibration is missing {', '.join(missing)}: a record as 'magnet fit' writes it is needed"
+            )
         calibration = cls(
             method=_text(data, "method", "manual"),
             offset=data["offset"],
@@ -279,18 +291,24 @@ def check_plausible(calibration: Calibration) -> Calibration:
     singular = np.linalg.svd(calibration.matrix, compute_uv=False)
     condition = singular[0] / singular[-1] if singular[-1] > 0 else math.inf
     if not condition <= MAX_CONDITION:
-        raise ValueError(f"calibration matrix condition number {condition:.3g} exceeds {MAX_CONDITION:g}: it is "
-                         "singular or absurdly anisotropic; fit again from data covering all attitudes")
+        raise ValueError(
+            f"calibration matrix condition number {condition:.3g} exceeds {MAX_CONDITION:g}: it is "
+            "singular or absurdly anisotropic; fit again from data covering all attitudes"
+        )
     if np.linalg.det(calibration.matrix) <= 0:
-        raise ValueError("calibration matrix has a negative determinant (a reflection, which mirrors headings): "
-                         "check the axis signs and fit again")
+        raise ValueError(
+            "calibration matrix has a negative determinant (a reflection, which mirrors headings): "
+            "check the axis signs and fit again"
+        )
     _check_gain(singular, calibration)
     to_ut = ut_per_unit(calibration.unit)
     limit, unit = (MAX_OFFSET_UT / to_ut, calibration.unit) if to_ut else (MAX_OFFSET_RAW, calibration.unit)
     worst = float(np.abs(calibration.offset).max())
     if worst > limit:
-        raise ValueError(f"calibration offset {worst:.4g} {unit} exceeds {limit:.4g} {unit}: no sensor reads that; "
-                         "check the record's unit and fit again")
+        raise ValueError(
+            f"calibration offset {worst:.4g} {unit} exceeds {limit:.4g} {unit}: no sensor reads that; "
+            "check the record's unit and fit again"
+        )
     return calibration
 
 
@@ -302,9 +320,11 @@ def _check_gain(singular: np.ndarray, calibration: Calibration) -> None:
     else:
         gain, limit = singular, UNKNOWN_SCALE_GAIN
     if not (gain[0] <= limit and gain[-1] >= 1 / limit):
-        raise ValueError(f"calibration matrix scales the field by {gain[-1]:.3g} to {gain[0]:.3g} "
-                         f"({calibration.unit} to {calibration.output_unit}), beyond 1/{limit:g} to {limit:g}: no "
-                         "sensor needs that; check the record's units and fit again")
+        raise ValueError(
+            f"calibration matrix scales the field by {gain[-1]:.3g} to {gain[0]:.3g} "
+            f"({calibration.unit} to {calibration.output_unit}), beyond 1/{limit:g} to {limit:g}: no "
+            "sensor needs that; check the record's units and fit again"
+        )
 
 
 def _text(data: Mapping[str, Any], name: str, default: str) -> str:

@@ -66,8 +66,11 @@ class Location:
 
     def rounded(self) -> tuple[float, float, float]:
         """The model lookup key: lat and lon to ROUND_DIGITS decimals, alt to ROUND_ALT_M."""
-        return (round(self.lat_deg, ROUND_DIGITS), round(self.lon_deg, ROUND_DIGITS),
-                float(round(self.alt_m / ROUND_ALT_M) * ROUND_ALT_M))
+        return (
+            round(self.lat_deg, ROUND_DIGITS),
+            round(self.lon_deg, ROUND_DIGITS),
+            float(round(self.alt_m / ROUND_ALT_M) * ROUND_ALT_M),
+        )
 
     def __str__(self) -> str:
         return f"{self.lat_deg:g},{self.lon_deg:g},{self.alt_m:g}"

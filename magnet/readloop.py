@@ -57,7 +57,7 @@ class Backoff:
     def delay_s(self, consecutive_failures: int) -> float:
         """Wait after the ``consecutive_failures``-th failure in a row (1-based): initial * factor^(n-1), capped."""
         exponent = min(max(consecutive_failures - 1, 0), 64)
-        return float(min(self.max_s, self.initial_s * self.factor ** exponent))
+        return float(min(self.max_s, self.initial_s * self.factor**exponent))
 
 
 @dataclasses.dataclass
@@ -97,9 +97,15 @@ class ReadLoop:
     A usable sample is ready, not overflowed and has ``mag_ut``.
     """
 
-    def __init__(self, read: Callable[[], Reading], *, clock: Callable[[], float], sleep: Callable[[float], None],
-                 backoff: Backoff | None = None,
-                 on_health: Callable[[bool, str], None] | None = None) -> None:
+    def __init__(
+        self,
+        read: Callable[[], Reading],
+        *,
+        clock: Callable[[], float],
+        sleep: Callable[[float], None],
+        backoff: Backoff | None = None,
+        on_health: Callable[[bool, str], None] | None = None,
+    ) -> None:
         self.read = read
         self.clock = clock
         self.sleep = sleep
@@ -151,8 +157,11 @@ class ReadLoop:
             self._set_health(False)
         limit = self.backoff.give_up_after
         if limit is not None and stats.consecutive_failures >= limit:
-            raise SensorReadError(errno.EIO, f"no usable reading after {stats.consecutive_failures} failures in a row "
-                                             f"over {now - self._failing_since:.2f} s; last: {message}")
+            raise SensorReadError(
+                errno.EIO,
+                f"no usable reading after {stats.consecutive_failures} failures in a row "
+                f"over {now - self._failing_since:.2f} s; last: {message}",
+            )
         if not stop():
             delay = self.backoff.delay_s(stats.consecutive_failures)
             self.sleep(delay)
@@ -170,7 +179,10 @@ class ReadLoop:
         if healthy:
             log.info("sensor healthy again after %d errors in all", self.stats.errors)
         else:
-            log.warning("sensor unhealthy after %d failures in a row: %s", self.stats.consecutive_failures,
-                        self.stats.last_error)
+            log.warning(
+                "sensor unhealthy after %d failures in a row: %s",
+                self.stats.consecutive_failures,
+                self.stats.last_error,
+            )
         if self.on_health is not None:
             self.on_health(healthy, "" if healthy else self.stats.last_error)

@@ -50,8 +50,9 @@ class Recording:
         steps = np.diff(self.t_s)
         if (steps < 0).any():
             row = int(np.argmax(steps < 0)) + 2
-            raise ValueError(f"the sample times t_s go backwards at row {row}: {self.t_s[row - 2]} then "
-                             f"{self.t_s[row - 1]}")
+            raise ValueError(
+                f"the sample times t_s go backwards at row {row}: {self.t_s[row - 2]} then {self.t_s[row - 1]}"
+            )
         n = self.t_s.size
         _check_vectors("mag_ut", self.mag_ut, n, MAX_FIELD_UT)
         _check_vectors("acc_ms2", self.acc_ms2, n, MAX_ACC_MS2)
@@ -65,8 +66,9 @@ class Recording:
         return anchor_ns + np.round((self.t_s - self.t_s[0]) * 1e9).astype(np.int64)
 
 
-def _sleep_until(target: float, clock: Callable[[], float], sleep: Callable[[float], None],
-                 stop: Callable[[], bool]) -> bool:
+def _sleep_until(
+    target: float, clock: Callable[[], float], sleep: Callable[[float], None], stop: Callable[[], bool]
+) -> bool:
     """Sleep until ``clock() >= target`` in steps of at most MAX_SLEEP_S; False if ``stop()`` turned true first."""
     while not stop():
         delay = target - clock()
@@ -76,8 +78,15 @@ def _sleep_until(target: float, clock: Callable[[], float], sleep: Callable[[flo
     return False
 
 
-def paced_slices(recording: Recording, batch: int, *, speed: float, clock: Callable[[], float],
-                 sleep: Callable[[float], None], stop: Callable[[], bool] = lambda: False) -> Iterator[slice]:
+def paced_slices(
+    recording: Recording,
+    batch: int,
+    *,
+    speed: float,
+    clock: Callable[[], float],
+    sleep: Callable[[float], None],
+    stop: Callable[[], bool] = lambda: False,
+) -> Iterator[slice]:
     """Slices of at most ``batch`` samples, each yielded once its last sample is due: at ``start + (t_s[last] -
     t_s[0]) / speed`` on ``clock`` (seconds), ``start`` being the clock at the first call. Ends early on ``stop()``."""
     if batch < 1:

@@ -72,9 +72,16 @@ class SelfTestResult:
     message: str
 
     def to_dict(self) -> dict[str, Any]:
-        return {"gain": self.gain, "passed": self.passed, "message": self.message, "limits": list(self.limits),
-                **{k: getattr(self, k).tolist() for k in
-                   ("positive", "negative", "expected", "measured", "axis_passed", "scale")}}
+        return {
+            "gain": self.gain,
+            "passed": self.passed,
+            "message": self.message,
+            "limits": list(self.limits),
+            **{
+                k: getattr(self, k).tolist()
+                for k in ("positive", "negative", "expected", "measured", "axis_passed", "scale")
+            },
+        }
 
 
 def evaluate(positive_counts: npt.ArrayLike, negative_counts: npt.ArrayLike, gain: int) -> SelfTestResult:
@@ -85,7 +92,7 @@ def evaluate(positive_counts: npt.ArrayLike, negative_counts: npt.ArrayLike, gai
         raise ValueError("self-test readings must be 3 counts each (x, y, z)")
     low, high = limits_counts(gain)
     overflow = (positive == OVERFLOW_COUNTS) | (negative == OVERFLOW_COUNTS)
-    axis_passed = ((positive >= low) & (positive <= high) & (-negative >= low) & (-negative <= high) & ~overflow)
+    axis_passed = (positive >= low) & (positive <= high) & (-negative >= low) & (-negative <= high) & ~overflow
     expected = expected_counts(gain)
     measured = (positive - negative) / 2.0
     scale = np.where(axis_passed, expected / np.where(measured == 0, np.nan, measured), np.nan)
@@ -94,10 +101,13 @@ def evaluate(positive_counts: npt.ArrayLike, negative_counts: npt.ArrayLike, gai
         message = f"self-test passed at GN={gain}: scale factors " + ", ".join(f"{s:.4f}" for s in scale)
     else:
         hint = " (overflow: try a higher GN)" if overflow.any() else ""
-        message = (f"self-test FAILED at GN={gain} on axis {', '.join(names)}: bias readings must lie within "
-                   f"{low:.0f}..{high:.0f} counts{hint}")
-    return SelfTestResult(gain, positive, negative, expected, measured, (low, high), axis_passed,
-                          bool(axis_passed.all()), scale, message)
+        message = (
+            f"self-test FAILED at GN={gain} on axis {', '.join(names)}: bias readings must lie within "
+            f"{low:.0f}..{high:.0f} counts{hint}"
+        )
+    return SelfTestResult(
+        gain, positive, negative, expected, measured, (low, high), axis_passed, bool(axis_passed.all()), scale, message
+    )
 
 
 def temperature_factor(reference_measured: npt.ArrayLike, current_measured: npt.ArrayLike) -> np.ndarray:
@@ -119,7 +129,13 @@ def to_calibration(result: SelfTestResult) -> Calibration:
     if not result.passed:
         raise ValueError(f"no calibration from a failed self-test: {result.message}")
     ut_per_count = 100.0 / LSB_PER_GAUSS[result.gain]
-    return Calibration(method="selftest", offset=np.zeros(3), matrix=np.diag(result.scale),
-                       unit="ut", output_unit="ut",
-                       quality=Quality.from_dict({"selftest": result.to_dict(), "ut_per_count_at_gain": ut_per_count}),
-                       accepted=True, reason=result.message)
+    return Calibration(
+        method="selftest",
+        offset=np.zeros(3),
+        matrix=np.diag(result.scale),
+        unit="ut",
+        output_unit="ut",
+        quality=Quality.from_dict({"selftest": result.to_dict(), "ut_per_count_at_gain": ut_per_count}),
+        accepted=True,
+        reason=result.message,
+    )

@@ -17,8 +17,8 @@ import dataclasses
 import hashlib
 import json
 import math
-from typing import Any
 from collections.abc import Iterable, Mapping
+from typing import Any
 
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import serialization
@@ -45,15 +45,16 @@ def _canonical(value: Any) -> Any:
     if isinstance(value, float):
         if not math.isfinite(value):
             raise ValueError("a signed record holds only finite numbers")
-        return int(value) if value.is_integer() and abs(value) < 2 ** 63 else value
+        return int(value) if value.is_integer() and abs(value) < 2**63 else value
     return value
 
 
 def canonical_bytes(record: Mapping[str, Any]) -> bytes:
     """The bytes signed for ``record``: without ``sig``/``key_id``, canonical JSON (see the module docstring)."""
     content = {k: v for k, v in record.items() if k not in SIGNATURE_FIELDS}
-    return json.dumps(_canonical(content), sort_keys=True, separators=(",", ":"), ensure_ascii=False,
-                      allow_nan=False).encode()
+    return json.dumps(
+        _canonical(content), sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
+    ).encode()
 
 
 def key_id(public_key: Ed25519PublicKey) -> str:
@@ -64,10 +65,12 @@ def key_id(public_key: Ed25519PublicKey) -> str:
 def new_key_pair() -> tuple[bytes, bytes]:
     """A new key pair as PEM: (private PKCS#8, public SubjectPublicKeyInfo)."""
     private = Ed25519PrivateKey.generate()
-    private_pem = private.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                        serialization.NoEncryption())
-    public_pem = private.public_key().public_bytes(serialization.Encoding.PEM,
-                                                   serialization.PublicFormat.SubjectPublicKeyInfo)
+    private_pem = private.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )
+    public_pem = private.public_key().public_bytes(
+        serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo
+    )
     return private_pem, public_pem
 
 

@@ -50,16 +50,19 @@ def field_in_sensor(mounting: str, heading_deg: np.ndarray, horizontal: float, v
 def _reading(readings: Mapping[int, np.ndarray], mounting: str, angle: int) -> np.ndarray:
     if angle not in readings:
         have = ", ".join(str(a) for a in sorted(readings)) or "none"
-        raise FitError(f"the closed form needs mounting {mounting} at {angle} deg (have: {have}); record that "
-                       "angle or use the lsq variant")
+        raise FitError(
+            f"the closed form needs mounting {mounting} at {angle} deg (have: {have}); record that "
+            "angle or use the lsq variant"
+        )
     value = np.asarray(readings[angle], dtype=float)
     if value.shape != (3,) or not np.all(np.isfinite(value)):
         raise FitError(f"mounting {mounting} at {angle} deg must be 3 finite numbers, got {value!r}")
     return value
 
 
-def closed_form(readings_a: Mapping[int, np.ndarray], readings_b: Mapping[int, np.ndarray], horizontal: float,
-                vertical: float) -> tuple[np.ndarray, np.ndarray]:
+def closed_form(
+    readings_a: Mapping[int, np.ndarray], readings_b: Mapping[int, np.ndarray], horizontal: float, vertical: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(K (3,3), u0 (3,)) from averaged readings per table heading (deg -> (3,) raw) of mountings a and b.
 
     horizontal, vertical: Bh and Bv, the unit K maps from (K is raw units per field unit).
@@ -98,16 +101,18 @@ def average_by_angle(mag: np.ndarray, heading_deg: np.ndarray) -> dict[int, np.n
     return means
 
 
-def _check_inputs(mag: npt.ArrayLike, mounting: npt.ArrayLike, heading_deg: npt.ArrayLike
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _check_inputs(
+    mag: npt.ArrayLike, mounting: npt.ArrayLike, heading_deg: npt.ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     mag = np.asarray(mag, dtype=float)
     mounting = np.asarray(mounting).astype(str)
     heading = np.asarray(heading_deg, dtype=float)
     if mag.ndim != 2 or mag.shape[1] != 3:
         raise FitError(f"samples must be an (N, 3) array of x, y, z readings, got shape {mag.shape}")
     if mounting.shape != (len(mag),) or heading.shape != (len(mag),):
-        raise FitError(f"mounting and heading_deg need one entry per sample ({len(mag)}), got {mounting.shape} "
-                       f"and {heading.shape}")
+        raise FitError(
+            f"mounting and heading_deg need one entry per sample ({len(mag)}), got {mounting.shape} and {heading.shape}"
+        )
     if not (np.all(np.isfinite(mag)) and np.all(np.isfinite(heading))):
         raise FitError("samples or headings hold NaN or infinite values: drop those rows before fitting")
     unknown = sorted(set(mounting.tolist()) - {"a", "b"})
@@ -116,9 +121,18 @@ def _check_inputs(mag: npt.ArrayLike, mounting: npt.ArrayLike, heading_deg: npt.
     return mag, mounting, heading
 
 
-def fit_turntable(mag: npt.ArrayLike, mounting: npt.ArrayLike, heading_deg: npt.ArrayLike, horizontal: float,
-                  vertical: float, variant: str = "closed", *, unit: str = "counts", field_unit: str = "ut",
-                  gate_thresholds: GateThresholds | None = None) -> Calibration:
+def fit_turntable(
+    mag: npt.ArrayLike,
+    mounting: npt.ArrayLike,
+    heading_deg: npt.ArrayLike,
+    horizontal: float,
+    vertical: float,
+    variant: str = "closed",
+    *,
+    unit: str = "counts",
+    field_unit: str = "ut",
+    gate_thresholds: GateThresholds | None = None,
+) -> Calibration:
     """Calibration from turntable samples: mag (N,3) raw, mounting (N,) "a"/"b", heading_deg (N,) table angle.
 
     horizontal, vertical: Bh and Bv in ``field_unit`` (the output unit of the record; uT by default, "nt" for the
@@ -135,16 +149,26 @@ def fit_turntable(mag: npt.ArrayLike, mounting: npt.ArrayLike, heading_deg: npt.
         rows = mounting == name
         field[rows] = field_in_sensor(name, heading[rows], horizontal, vertical)
     if variant == "closed":
-        k, u0 = closed_form(average_by_angle(mag[mounting == "a"], heading[mounting == "a"]),
-                            average_by_angle(mag[mounting == "b"], heading[mounting == "b"]), horizontal, vertical)
+        k, u0 = closed_form(
+            average_by_angle(mag[mounting == "a"], heading[mounting == "a"]),
+            average_by_angle(mag[mounting == "b"], heading[mounting == "b"]),
+            horizontal,
+            vertical,
+        )
     else:
         k, u0 = least_squares(mag, field)
     if np.linalg.cond(k) > 1e8:
         raise FitError("the fitted K is singular: check the field components and the mountings")
     strength = float(np.hypot(horizontal, vertical))
-    calibration = Calibration(method="turntable" if variant == "closed" else "turntable-lsq", offset=u0,
-                              matrix=np.linalg.inv(k), field_strength=strength, sample_count=len(mag), unit=unit,
-                              output_unit=field_unit)
+    calibration = Calibration(
+        method="turntable" if variant == "closed" else "turntable-lsq",
+        offset=u0,
+        matrix=np.linalg.inv(k),
+        field_strength=strength,
+        sample_count=len(mag),
+        unit=unit,
+        output_unit=field_unit,
+    )
     quality = assess(mag, calibration, geometry=Geometry.TURNTABLE)
     vector_rms = float(np.sqrt(np.mean(np.sum((calibration.apply(mag) - field) ** 2, axis=1))))
     quality = quality.with_extra(vector_rms=vector_rms)

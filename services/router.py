@@ -51,13 +51,20 @@ def run_router(args: argparse.Namespace) -> int:
 
 def run(settings: RouterSettings) -> int:
     if settings.loopback_default:
-        log.warning("router listens on %s only: give --listen tcp/<interface address>:7447 (or a config from "
-                    "deploy/) to serve other hosts", DEFAULT_LISTEN)
+        log.warning(
+            "router listens on %s only: give --listen tcp/<interface address>:7447 (or a config from "
+            "deploy/) to serve other hosts",
+            DEFAULT_LISTEN,
+        )
     stop = stop_event()
     with open_session(settings.zenoh) as session:
         token = session.liveliness().declare_token(wire.liveliness_key(settings.zenoh.prefix, "router", settings.name))
-        log.info("router %s up (zid %s), listening on %s", settings.name, session.zid(),
-                 ", ".join(settings.zenoh.listen) or "the config's endpoints")
+        log.info(
+            "router %s up (zid %s), listening on %s",
+            settings.name,
+            session.zid(),
+            ", ".join(settings.zenoh.listen) or "the config's endpoints",
+        )
         while not stop.wait(0.5):
             pass
         token.undeclare()

@@ -30,5 +30,9 @@ def rotating_device(seconds: float = 60.0, seed: int = 0):
     acc = np.einsum("nji,j->ni", rot, [0.0, 0.0, -9.80665])
     mag = np.einsum("nji,j->ni", rot, FIELD_NED_UT)
     noise = np.random.default_rng(seed)
-    return (gyr + noise.normal(0, 0.002, gyr.shape), acc + noise.normal(0, 0.02, acc.shape),
-            mag + noise.normal(0, 0.1, mag.shape), quats)
+    return (
+        gyr + noise.normal(0, 0.002, gyr.shape),
+        acc + noise.normal(0, 0.02, acc.shape),
+        mag + noise.normal(0, 0.1, mag.shape),
+        quats,
+    )

@@ -22,8 +22,20 @@ import pytest
 
 from services.common.zenoh_session import free_ports
 
-__all__ = ["MAGNET", "NO_SCOUT", "REPO_ROOT", "Processes", "connect_args", "free_ports", "listen_args",
-           "liveliness_keys", "magnet_json", "run_magnet", "wait_for", "wait_for_liveliness"]
+__all__ = [
+    "MAGNET",
+    "NO_SCOUT",
+    "REPO_ROOT",
+    "Processes",
+    "connect_args",
+    "free_ports",
+    "listen_args",
+    "liveliness_keys",
+    "magnet_json",
+    "run_magnet",
+    "wait_for",
+    "wait_for_liveliness",
+]
 
 T = TypeVar("T")
 
@@ -44,11 +56,13 @@ def connect_args(*ports: int) -> list[str]:
     return [arg for port in ports for arg in ("--connect", f"tcp/127.0.0.1:{port}")]
 
 
-def run_magnet(*args: str, timeout: float = 120, input: str | None = None,
-               cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+def run_magnet(
+    *args: str, timeout: float = 120, input: str | None = None, cwd: Path | None = None
+) -> subprocess.CompletedProcess[str]:
     """Run ``magnet ARGS...`` to its end; output captured as text."""
-    return subprocess.run([*MAGNET, *args], capture_output=True, text=True, timeout=timeout, input=input,
-                          cwd=cwd or REPO_ROOT)
+    return subprocess.run(
+        [*MAGNET, *args], capture_output=True, text=True, timeout=timeout, input=input, cwd=cwd or REPO_ROOT
+    )
 
 
 def magnet_json(*args: str, timeout: float = 15) -> tuple[int, list[Any]]:
@@ -83,8 +97,11 @@ def liveliness_keys(port: int, pattern: str = "magnet/@alive/**", timeout_s: flo
     import zenoh
 
     with zenoh.open(_loopback_client_config(port)) as session:
-        return {str(reply.ok.key_expr) for reply in session.liveliness().get(pattern, timeout=timeout_s)
-                if reply.ok is not None}
+        return {
+            str(reply.ok.key_expr)
+            for reply in session.liveliness().get(pattern, timeout=timeout_s)
+            if reply.ok is not None
+        }
 
 
 def wait_for_liveliness(port: int, keys: Iterable[str], timeout_s: float = 20) -> set[str]:

@@ -1,7 +1,8 @@
 """Rotations: Euler Z-Y-X <-> matrix, axis conventions, random rotations."""
 
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from magnet import attitude
 
@@ -49,8 +50,9 @@ def test_broadcasting_and_ned_to_body_is_the_transpose():
 def test_axis_angle_and_rotation_angle_agree():
     r = attitude.axis_angle_matrix(np.array([1.0, 2.0, -0.5]), 37.0)
     assert np.isclose(attitude.rotation_angle_deg(r), 37.0)
-    np.testing.assert_allclose(attitude.axis_angle_matrix(np.array([0, 0, 1.0]), 90.0),
-                               attitude.euler_to_matrix(90.0, 0, 0), atol=1e-12)
+    np.testing.assert_allclose(
+        attitude.axis_angle_matrix(np.array([0, 0, 1.0]), 90.0), attitude.euler_to_matrix(90.0, 0, 0), atol=1e-12
+    )
 
 
 def test_random_rotations_are_uniform_enough():

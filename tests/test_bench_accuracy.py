@@ -8,8 +8,9 @@ from magnet.geomag import earth_field
 from magnet.simulator import SensorErrors
 from services.bench import accuracy as bench
 
-FAST = bench.AccuracySettings(trials=2, fit_samples=600, spin_samples=180, timing_samples=600, timing_repeats=1,
-                               fleet_seconds=0.01)
+FAST = bench.AccuracySettings(
+    trials=2, fit_samples=600, spin_samples=180, timing_samples=600, timing_repeats=1, fleet_seconds=0.01
+)
 EARTH = earth_field(FAST.lat_deg, FAST.lon_deg, 0.0, FAST.date)
 
 
@@ -39,7 +40,7 @@ def test_scoring_sees_a_rotation_and_an_uncorrected_sensor():
     from magnet.model import IDENTITY
 
     raw = bench.heading_errors_deg(IDENTITY, sensor(), EARTH, att)
-    assert np.sqrt(np.mean(raw ** 2)) > 10
+    assert np.sqrt(np.mean(raw**2)) > 10
 
 
 def test_rows_with_the_stand_in_are_exact_and_complete():
@@ -58,11 +59,13 @@ def test_failures_are_counted_not_fatal():
 
 
 def test_real_ellipsoid_fits_meet_the_target_on_a_small_run():
-    rows = {(r.method, r.misalignment_deg): r
-            for r in bench.accuracy_rows(bench.real_fitter, FAST, methods=["ellipsoid", "ellipsoid+align"])}
+    rows = {
+        (r.method, r.misalignment_deg): r
+        for r in bench.accuracy_rows(bench.real_fitter, FAST, methods=["ellipsoid", "ellipsoid+align"])
+    }
     assert rows[("ellipsoid", 0.0)].all_rms_deg < 0.2
     assert rows[("ellipsoid+align", 5.0)].all_rms_deg < 0.2
-    assert rows[("ellipsoid", 5.0)].all_rms_deg > 2.0   # plain ellipsoid cannot see the misalignment
+    assert rows[("ellipsoid", 5.0)].all_rms_deg > 2.0  # plain ellipsoid cannot see the misalignment
 
 
 def test_benchmark_prints_a_table(capsys):

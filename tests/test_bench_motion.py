@@ -34,8 +34,10 @@ def test_fusion_beats_accelerometer_tilt_on_every_trial(datasets_dir):
 
 def test_simulator_rows_score_against_the_truth():
     settings = motion.SimulatorSettings(seconds=40.0)
-    rows = {estimator: (trial, rms) for trial, estimator, rms
-            in motion.simulator_rows(settings, [motion.Trajectory.FAST_TUMBLE])}
+    rows = {
+        estimator: (trial, rms)
+        for trial, estimator, rms in motion.simulator_rows(settings, [motion.Trajectory.FAST_TUMBLE])
+    }
     assert rows["fused causal"][0] == "fast-tumble (cal: own data)"  # a tumble covers the sphere: own data accepted
     assert rows["accelerometer tilt"][1] > 10.0
     assert rows["fused offline"][1] < rows["fused causal"][1] < 0.5

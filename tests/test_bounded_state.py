@@ -49,8 +49,9 @@ def test_compass_keeps_at_most_max_devices_calibrations():
     compass = Compass(Earth(), window=3, max_devices=2)
     for i in range(5):
         cal = Calibration("ellipsoid", [float(i), 0, 0], np.eye(3))
-        assert compass.accept_calibration(wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration",
-                                          "magnet")
+        assert compass.accept_calibration(
+            wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration", "magnet"
+        )
     assert list(compass.calibrations) == ["d3", "d4"]
     compass.encode(compass.decode_columns([(f"magnet/n{i}/raw", _batch(f"n{i}")) for i in range(5)], "magnet"))
     assert len(compass.tails) == 2 and compass.status("c").evicted_devices == 3 + 3
@@ -77,8 +78,23 @@ def test_a_turntable_session_is_refused_with_what_to_do_instead(tmp_path):
 def test_calibrate_with_an_unknown_method_is_one_line_and_asks_nobody(capsys):
     from services.cli import main
 
-    assert main(["calibrate", "d-1", "start", "--method", "bogus", "--timeout", "0.1", "--no-multicast-scouting",
-                 "--listen", "tcp/127.0.0.1:0"]) == 2
+    assert (
+        main(
+            [
+                "calibrate",
+                "d-1",
+                "start",
+                "--method",
+                "bogus",
+                "--timeout",
+                "0.1",
+                "--no-multicast-scouting",
+                "--listen",
+                "tcp/127.0.0.1:0",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "unknown calibration method 'bogus'" in err and "no calibrator answered" not in err
 
@@ -86,6 +102,8 @@ def test_calibrate_with_an_unknown_method_is_one_line_and_asks_nobody(capsys):
 def test_zenoh_errors_lose_their_rust_source_paths():
     from services.common.zenoh_session import zenoh_message
 
-    raw = ("Unable to connect to any of [Single(tls/127.0.0.1:7447)]!  at /root/.cargo/git/checkouts/"
-           "zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/net/runtime/orchestrator.rs:447.")
+    raw = (
+        "Unable to connect to any of [Single(tls/127.0.0.1:7447)]!  at /root/.cargo/git/checkouts/"
+        "zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/net/runtime/orchestrator.rs:447."
+    )
     assert zenoh_message(Exception(raw)) == "Unable to connect to any of [Single(tls/127.0.0.1:7447)]!"

@@ -15,8 +15,10 @@ from services.bench import motion
 pytestmark = pytest.mark.integration
 
 #: trial -> (causal, offline) largest heading RMS in degrees (issue 8, "What it must show")
-REQUIRED_DEG = {"broad_01_undisturbed_slow_rotation_A": (1.1, 0.85),
-                "broad_06_undisturbed_fast_rotation_A": (0.85, 0.55)}
+REQUIRED_DEG = {
+    "broad_01_undisturbed_slow_rotation_A": (1.1, 0.85),
+    "broad_06_undisturbed_fast_rotation_A": (0.85, 0.55),
+}
 
 
 def headings(csv: Path, *options: str) -> np.ndarray:
@@ -38,8 +40,10 @@ def test_fit_then_heading_meets_the_figures(datasets_dir: Path, tmp_path: Path, 
     options = ["--calibration", str(cal)] if fitted.returncode == 0 else []
     assert cal.exists() == (fitted.returncode == 0)
     causal, offline = log.score(headings(csv, *options)), log.score(headings(csv, *options, "--offline"))
-    print(f"{log.name}: fit {'accepted' if options else 'refused'}; heading RMS causal {causal:.3f} deg, "
-          f"offline {offline:.3f} deg")
+    print(
+        f"{log.name}: fit {'accepted' if options else 'refused'}; heading RMS causal {causal:.3f} deg, "
+        f"offline {offline:.3f} deg"
+    )
     required = REQUIRED_DEG[log.name]
     assert causal <= required[0]
     assert offline <= required[1]

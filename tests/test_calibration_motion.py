@@ -48,8 +48,9 @@ def test_dip_check_uses_quasi_static_samples_so_a_shaken_device_can_be_calibrate
     _, acc, mag, _ = device
     raw = with_iron(mag)
     shaken_acc = shaken(acc)
-    every_sample = motion.dip_spread_deg(fit(raw, "ellipsoid", acc=acc).apply(raw),
-                                         -shaken_acc / np.linalg.norm(shaken_acc, axis=1, keepdims=True))
+    every_sample = motion.dip_spread_deg(
+        fit(raw, "ellipsoid", acc=acc).apply(raw), -shaken_acc / np.linalg.norm(shaken_acc, axis=1, keepdims=True)
+    )
     calibration = fit(raw, "ellipsoid", acc=shaken_acc)
     assert every_sample > 5.0  # what the old check saw: "hold still"
     assert calibration.accepted, calibration.reason
@@ -99,8 +100,9 @@ def test_a_fit_must_beat_the_calibration_in_force(device):
     poor = fit(raw, "sphere", acc=acc, gyr=gyr, period_s=1 / RATE_HZ, reference=good)
     assert poor.quality["reference"] == "the calibration in force"
     assert not poor.accepted and "more constant than the calibration in force" in poor.reason
-    better = fit(raw, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ,
-                 reference=IDENTITY.replace(offset=HARD_IRON_UT))
+    better = fit(
+        raw, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ, reference=IDENTITY.replace(offset=HARD_IRON_UT)
+    )
     assert better.accepted, better.reason
 
 

@@ -24,8 +24,10 @@ def test_every_command_has_help(command, capsys):
 
 
 def test_offline_commands_do_not_load_zenoh():
-    code = ("import sys\nfrom services.cli import main\n"
-            "try:\n    main(['fit', '--help'])\nexcept SystemExit:\n    pass\n"
-            "print('zenoh' in sys.modules)")
+    code = (
+        "import sys\nfrom services.cli import main\n"
+        "try:\n    main(['fit', '--help'])\nexcept SystemExit:\n    pass\n"
+        "print('zenoh' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "False"

@@ -22,8 +22,7 @@ pytestmark = pytest.mark.integration
 
 
 def magnet(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([*MAGNET, *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=120)
+    return subprocess.run([*MAGNET, *args], capture_output=True, text=True, cwd=cwd, timeout=120)
 
 
 def earth_ned_ut() -> np.ndarray:
@@ -35,11 +34,14 @@ def body_from_ned(yaw_deg, pitch_deg, roll_deg) -> np.ndarray:
     """Rotation matrices (N,3,3) taking NED vectors into the body frame (ZYX yaw-pitch-roll)."""
     y, p, r = (np.radians(np.asarray(a, dtype=float)) for a in (yaw_deg, pitch_deg, roll_deg))
     cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
-    ned_from_body = np.stack([
-        np.stack([cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy], -1),
-        np.stack([cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy], -1),
-        np.stack([-sp, sr * cp, cr * cp], -1),
-    ], -2)
+    ned_from_body = np.stack(
+        [
+            np.stack([cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy], -1),
+            np.stack([cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy], -1),
+            np.stack([-sp, sr * cp, cr * cp], -1),
+        ],
+        -2,
+    )
     return np.swapaxes(ned_from_body, -1, -2)
 
 
@@ -61,8 +63,9 @@ def write_csv(path: Path, header: str, rows: np.ndarray) -> Path:
 def sphere_csv(tmp_path: Path) -> Path:
     rng = np.random.default_rng(7)
     n = 1500
-    raw, acc = raw_samples(rng.uniform(0, 360, n), np.degrees(np.arcsin(rng.uniform(-1, 1, n))),
-                           rng.uniform(-180, 180, n), rng)
+    raw, acc = raw_samples(
+        rng.uniform(0, 360, n), np.degrees(np.arcsin(rng.uniform(-1, 1, n))), rng.uniform(-180, 180, n), rng
+    )
     return write_csv(tmp_path / "sphere.csv", "mx,my,mz,ax,ay,az", np.column_stack([raw, acc]))
 
 
@@ -90,8 +93,15 @@ def test_heading_after_fit_matches_the_true_heading_at_level_and_tilt(sphere_csv
     assert result.returncode == 0, result.stderr
     lines = result.stdout.strip().splitlines()
     header = lines[0].split(",")
-    for column in ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg", "field_x_ut", "field_y_ut",
-                   "field_z_ut"):
+    for column in (
+        "heading_deg",
+        "true_heading_deg",
+        "pitch_deg",
+        "roll_deg",
+        "field_x_ut",
+        "field_y_ut",
+        "field_z_ut",
+    ):
         assert column in header
     table = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
     heading = table[:, header.index("heading_deg")]
@@ -155,9 +165,11 @@ def test_rejected_fit_leaves_an_existing_out_file_untouched(sphere_csv: Path, tm
     out = tmp_path / "cal.json"
     assert magnet("fit", str(sphere_csv), "--method", "ellipsoid", "--out", str(out)).returncode == 0
     before = out.read_text()
-    level = write_csv(tmp_path / "level.csv", "mx,my,mz",
-                      raw_samples(np.linspace(0, 360, 400), np.zeros(400), np.zeros(400),
-                                  np.random.default_rng(0))[0])
+    level = write_csv(
+        tmp_path / "level.csv",
+        "mx,my,mz",
+        raw_samples(np.linspace(0, 360, 400), np.zeros(400), np.zeros(400), np.random.default_rng(0))[0],
+    )
     result = magnet("fit", str(level), "--method", "ellipsoid", "--out", str(out))
     assert result.returncode != 0
     assert out.read_text() == before
@@ -174,8 +186,12 @@ def test_fit_reads_a_loggers_preamble_and_extra_columns(tmp_path: Path, sphere_c
 
 def test_heading_refuses_a_bad_calibration_file(sphere_csv: Path, tmp_path: Path):
     bad = tmp_path / "cal.json"
-    for text in ("{not json", json.dumps({"offset": [1, 2]}), json.dumps({"offset": [0, 0, 0]}),
-                 json.dumps({"offset": [0, 0, 0], "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, "x"]]})):
+    for text in (
+        "{not json",
+        json.dumps({"offset": [1, 2]}),
+        json.dumps({"offset": [0, 0, 0]}),
+        json.dumps({"offset": [0, 0, 0], "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, "x"]]}),
+    ):
         bad.write_text(text)
         result = magnet("heading", str(sphere_csv), "--calibration", str(bad))
         assert result.returncode == 2, text
@@ -185,8 +201,9 @@ def test_heading_refuses_a_bad_calibration_file(sphere_csv: Path, tmp_path: Path
 def test_heading_with_location_uses_wmm_declination(sphere_csv: Path, tmp_path: Path):
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"offset": HARD_IRON_UT.tolist(), "matrix": np.linalg.inv(SOFT_IRON).tolist()}))
-    result = magnet("heading", str(sphere_csv), "--calibration", str(cal), "--location", "50.45,30.52",
-                    "--date", "2026-06-01")
+    result = magnet(
+        "heading", str(sphere_csv), "--calibration", str(cal), "--location", "50.45,30.52", "--date", "2026-06-01"
+    )
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     header = lines[0].split(",")
@@ -200,8 +217,9 @@ SEED_TABLE_1 = """0 240.3558 232.6558 -258.4923 256.7519 -282.8714 114.7131
 180 -213.7425 -222.0211 -254.4305 262.3875 -272.8729 122.2481
 270 13.9952 10.4205 -499.7591 238.7882 -270.5577 -90.3142
 360 240.1131 233.0065 -257.2397 256.5758 -281.6103 114.9137"""
-SEED_TABLE_2_K = np.array([[0.012, -5.9333e-5, -1.1079e-4], [-1.0709e-4, 0.0129, -0.0019],
-                           [-2.6362e-4, -3.4507e-4, 0.0088]])
+SEED_TABLE_2_K = np.array(
+    [[0.012, -5.9333e-5, -1.1079e-4], [-1.0709e-4, 0.0129, -0.0019], [-2.6362e-4, -3.4507e-4, 0.0088]]
+)
 SEED_TABLE_2_U0 = np.array([8.1037, -345.3406, 134.6858])
 
 
@@ -212,8 +230,20 @@ def test_fit_turntable_on_the_seed_table_gives_table_2_and_is_honestly_rejected(
         lines += [f"a,{k},{xa},{ya},{za}", f"b,{k},{xb},{yb},{zb}"]
     path = tmp_path / "seed.csv"
     path.write_text("\n".join(lines) + "\n")
-    result = magnet("fit", str(path), "--method", "turntable", "--unit", "counts", "--horizontal", "18964",
-                    "--vertical", "-46962", "--field-unit", "nt")
+    result = magnet(
+        "fit",
+        str(path),
+        "--method",
+        "turntable",
+        "--unit",
+        "counts",
+        "--horizontal",
+        "18964",
+        "--vertical",
+        "-46962",
+        "--field-unit",
+        "nt",
+    )
     record = json.loads(result.stdout)
     k = np.linalg.inv(np.array(record["matrix"]))
     # the printed digits, within the rounding of Table 1 (see tests/test_turntable.py for the exact bound)

@@ -25,15 +25,25 @@ def device():
 def batches(device, name="imu-1", seq0=0, t0_ns=1_000_000_000_000, gyro=True):
     gyr, acc, mag, _ = device
     t_ns = t0_ns + np.arange(len(gyr), dtype=np.int64) * PERIOD_NS
-    return [wire.RawBatch(name, seq0 + k, "sim", t_ns[lo:lo + BATCH], mag[lo:lo + BATCH], acc[lo:lo + BATCH],
-                          None, gyr[lo:lo + BATCH] if gyro else None)
-            for k, lo in enumerate(range(0, len(gyr), BATCH))]
+    return [
+        wire.RawBatch(
+            name,
+            seq0 + k,
+            "sim",
+            t_ns[lo : lo + BATCH],
+            mag[lo : lo + BATCH],
+            acc[lo : lo + BATCH],
+            None,
+            gyr[lo : lo + BATCH] if gyro else None,
+        )
+        for k, lo in enumerate(range(0, len(gyr), BATCH))
+    ]
 
 
 def run_compass(compass: Compass, raw: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
     out = []
     for start in range(0, len(raw), 7):  # drains of a few batches, as the loop sees them
-        out += compass.process(raw[start:start + 7])
+        out += compass.process(raw[start : start + 7])
     return out
 
 
@@ -52,7 +62,7 @@ def test_compass_fuses_across_batches_as_one_causal_filter(device):
     true_heading, pitch, _ = fusion.euler_from_quat(truth)
     settled = (np.arange(len(gyr)) > 20 * RATE_HZ) & (np.abs(pitch) < 60)
     error = angle_difference_deg(joined(out, "heading_deg"), true_heading)[settled]
-    assert np.sqrt(np.mean(error ** 2)) < 1.0
+    assert np.sqrt(np.mean(error**2)) < 1.0
     quat = joined(out, "quat_wxyz")
     heading_from_quat, _, _ = fusion.euler_from_quat(quat)
     assert np.abs(angle_difference_deg(heading_from_quat, joined(out, "true_heading_deg"))).max() < 1e-6
@@ -71,13 +81,22 @@ def test_a_gap_in_time_or_a_device_restart_restarts_the_filter(device):
 
     def feed(items):
         columns = wire.RawColumns.from_batches(items)
-        return fleet.update(columns.devices, columns.seqs, columns.bounds, columns.t_ns, columns.gyr_rads,
-                            columns.acc_ms2, columns.mag_ut)
+        return fleet.update(
+            columns.devices,
+            columns.seqs,
+            columns.bounds,
+            columns.t_ns,
+            columns.gyr_rads,
+            columns.acc_ms2,
+            columns.mag_ut,
+        )
 
     assert feed(raw[:10]).restarts == 1  # the first batch starts the filter
     assert feed(raw[11:20]).restarts == 0  # one lost batch (0.25 s) is within the limit: it goes on
-    late = [wire.RawBatch(b.device, b.seq, b.sensor, b.t_ns + 2_000_000_000, b.mag_ut, b.acc_ms2, None, b.gyr_rads)
-            for b in raw[20:30]]
+    late = [
+        wire.RawBatch(b.device, b.seq, b.sensor, b.t_ns + 2_000_000_000, b.mag_ut, b.acc_ms2, None, b.gyr_rads)
+        for b in raw[20:30]
+    ]
     assert feed(late).restarts == 1  # two seconds missing
     rebooted = batches(device, seq0=0, t0_ns=5_000_000_000_000)
     assert feed(rebooted[:5]).restarts == 1  # seq back to 0: the device restarted
@@ -91,10 +110,19 @@ def test_bad_gyroscope_samples_are_dropped_counted_and_never_published_as_nan(de
     nan_gyr[3:6] = np.nan
     sat_gyr = saturated_batch.gyr_rads.copy()
     sat_gyr[7, 2] = GYRO_LIMIT_RADS * 1.0005
-    raw[10] = wire.RawBatch(nan_batch.device, nan_batch.seq, "sim", nan_batch.t_ns, nan_batch.mag_ut,
-                            nan_batch.acc_ms2, None, nan_gyr)
-    raw[20] = wire.RawBatch(saturated_batch.device, saturated_batch.seq, "sim", saturated_batch.t_ns,
-                            saturated_batch.mag_ut, saturated_batch.acc_ms2, None, sat_gyr)
+    raw[10] = wire.RawBatch(
+        nan_batch.device, nan_batch.seq, "sim", nan_batch.t_ns, nan_batch.mag_ut, nan_batch.acc_ms2, None, nan_gyr
+    )
+    raw[20] = wire.RawBatch(
+        saturated_batch.device,
+        saturated_batch.seq,
+        "sim",
+        saturated_batch.t_ns,
+        saturated_batch.mag_ut,
+        saturated_batch.acc_ms2,
+        None,
+        sat_gyr,
+    )
     compass = Compass(Earth(), window=1)
     out = run_compass(compass, raw)
     for name in ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg"):
@@ -120,9 +148,15 @@ def test_a_magnetic_disturbance_is_flagged_and_does_not_drag_the_heading(device)
     heading = joined(out, "heading_deg")
     level = np.abs(pitch) < 60
     error = np.abs(angle_difference_deg(heading, true_heading))[window][level[window]]
-    raw_tilt = np.abs(angle_difference_deg(joined(
-        run_compass(Compass(Earth(), window=1), batches((gyr, acc, disturbed, truth), gyro=False)), "heading_deg"),
-        true_heading))[window][level[window]]
+    raw_tilt = np.abs(
+        angle_difference_deg(
+            joined(
+                run_compass(Compass(Earth(), window=1), batches((gyr, acc, disturbed, truth), gyro=False)),
+                "heading_deg",
+            ),
+            true_heading,
+        )
+    )[window][level[window]]
     assert error.max() < 3.0 < 20.0 < raw_tilt.max()
 
 
@@ -139,8 +173,16 @@ def test_fleet_state_is_bounded(device):
     fleet = FleetFusion(max_devices=3)
     first = batches(device)[0]
     for k in range(5):
-        columns = wire.RawColumns.from_batches([wire.RawBatch(f"d{k}", 0, "sim", first.t_ns, first.mag_ut,
-                                                              first.acc_ms2, None, first.gyr_rads)])
-        fleet.update(columns.devices, columns.seqs, columns.bounds, columns.t_ns, columns.gyr_rads, columns.acc_ms2,
-                     columns.mag_ut)
+        columns = wire.RawColumns.from_batches(
+            [wire.RawBatch(f"d{k}", 0, "sim", first.t_ns, first.mag_ut, first.acc_ms2, None, first.gyr_rads)]
+        )
+        fleet.update(
+            columns.devices,
+            columns.seqs,
+            columns.bounds,
+            columns.t_ns,
+            columns.gyr_rads,
+            columns.acc_ms2,
+            columns.mag_ut,
+        )
     assert list(fleet.devices) == ["d2", "d3", "d4"]

@@ -45,8 +45,19 @@ class FakeControl:
 def heading_batch(device="imu-1", seq=7, heading=30.0, pitch=10.0, roll=-5.0, n=5):
     earth = earth_field(50.45, 30.52, 0.0, "2025-06-01")
     field = np.tile(ned_to_body(euler_to_matrix(heading, pitch, roll), earth.ned_ut), (n, 1))
-    return wire.HeadingBatch(device, seq, np.arange(n, dtype=np.int64), np.full(n, heading), np.full(n, heading + 8.5),
-                             np.full(n, pitch), np.full(n, roll), field, 8.5, "cafe", np.ones(n, dtype=np.int64))
+    return wire.HeadingBatch(
+        device,
+        seq,
+        np.arange(n, dtype=np.int64),
+        np.full(n, heading),
+        np.full(n, heading + 8.5),
+        np.full(n, pitch),
+        np.full(n, roll),
+        field,
+        8.5,
+        "cafe",
+        np.ones(n, dtype=np.int64),
+    )
 
 
 @pytest.fixture
@@ -89,25 +100,35 @@ def test_fleet_and_device_json(state):
 
 def test_control_with_the_token_reaches_the_calibrator(state):
     control = FakeControl()
-    response = client_for(state, control).post("/api/devices/imu-1/calibrate", headers=GOOD,
-                                               json={"action": "start", "method": "Ellipsoid"})
+    response = client_for(state, control).post(
+        "/api/devices/imu-1/calibrate", headers=GOOD, json={"action": "start", "method": "Ellipsoid"}
+    )
     assert response.status_code == 200 and response.json()["ok"] is True
     assert control.calls == [("calibrate", "imu-1", "start", "ellipsoid")]
 
 
-@pytest.mark.parametrize("headers, path, body, status, words", [
-    ({}, "/api/devices/imu-1/calibrate", {"action": "start"}, 401, "token"),
-    ({"Authorization": "Bearer wrong"}, "/api/devices/imu-1/calibrate", {"action": "start"}, 401, "token"),
-    ({"X-Magnet-Token": "wrong"}, "/api/devices/imu-1/calibrate", {"action": "commit"}, 401, "token"),
-    (GOOD, "/api/devices/ghost/calibrate", {"action": "start"}, 404, "unknown device"),
-    (GOOD, "/api/devices/a$b/calibrate", {"action": "start"}, 400, "may not contain"),
-    (GOOD, "/api/devices/imu-1/calibrate", {"action": "erase"}, 400, "action must be one of"),
-    (GOOD, "/api/devices/imu-1/calibrate", {"action": "start", "method": "magic"}, 400, "unknown calibration method"),
-    (GOOD, "/api/devices/imu-1/calibrate", {"action": "start", "method": 3}, 400, "method must be a string"),
-    (GOOD, "/api/devices/imu-1/calibrate", ["start"], 400, "JSON object"),
-    (GOOD, "/api/devices/imu-1/calibrate", "{not json", 400, "must be JSON"),
-    (GOOD, "/api/devices/imu-1/calibrate", "x" * 5000, 413, "larger than"),
-])
+@pytest.mark.parametrize(
+    "headers, path, body, status, words",
+    [
+        ({}, "/api/devices/imu-1/calibrate", {"action": "start"}, 401, "token"),
+        ({"Authorization": "Bearer wrong"}, "/api/devices/imu-1/calibrate", {"action": "start"}, 401, "token"),
+        ({"X-Magnet-Token": "wrong"}, "/api/devices/imu-1/calibrate", {"action": "commit"}, 401, "token"),
+        (GOOD, "/api/devices/ghost/calibrate", {"action": "start"}, 404, "unknown device"),
+        (GOOD, "/api/devices/a$b/calibrate", {"action": "start"}, 400, "may not contain"),
+        (GOOD, "/api/devices/imu-1/calibrate", {"action": "erase"}, 400, "action must be one of"),
+        (
+            GOOD,
+            "/api/devices/imu-1/calibrate",
+            {"action": "start", "method": "magic"},
+            400,
+            "unknown calibration method",
+        ),
+        (GOOD, "/api/devices/imu-1/calibrate", {"action": "start", "method": 3}, 400, "method must be a string"),
+        (GOOD, "/api/devices/imu-1/calibrate", ["start"], 400, "JSON object"),
+        (GOOD, "/api/devices/imu-1/calibrate", "{not json", 400, "must be JSON"),
+        (GOOD, "/api/devices/imu-1/calibrate", "x" * 5000, 413, "larger than"),
+    ],
+)
 def test_bad_control_requests_get_a_clear_4xx_and_change_nothing(state, headers, path, body, status, words):
     control = FakeControl()
     kwargs = {"content": body} if isinstance(body, str) else {"json": body}
@@ -122,8 +143,9 @@ def test_refusals_of_the_calibrator_and_silence_are_named(state):
     refused = FakeControl(answers=[{"v": 1, "ok": False, "message": "no session to commit: start one first"}])
     response = client_for(state, refused).post("/api/devices/imu-1/calibrate", headers=GOOD, json={"action": "commit"})
     assert response.status_code == 409 and "no session" in response.json()["message"]
-    silent = client_for(state, FakeControl(answers=[])).post("/api/devices/imu-1/calibrate", headers=GOOD,
-                                                             json={"action": "status"})
+    silent = client_for(state, FakeControl(answers=[])).post(
+        "/api/devices/imu-1/calibrate", headers=GOOD, json={"action": "status"}
+    )
     assert silent.status_code == 504 and "no calibrator answered" in silent.json()["error"]
 
 
@@ -172,15 +194,33 @@ def test_stream_sends_the_fleet_then_only_changed_rows(state):
 def test_state_rows_alerts_and_traces():
     state = FleetState(None)
     state.watch("d1", +1)
-    raw = wire.RawBatch("d1", 1, "lsm303dlh", np.arange(3), np.eye(3) * 40, None,
-                        {"heading_deg": np.full(3, 100.0), "pitch_deg": np.zeros(3), "roll_deg": np.zeros(3)})
+    raw = wire.RawBatch(
+        "d1",
+        1,
+        "lsm303dlh",
+        np.arange(3),
+        np.eye(3) * 40,
+        None,
+        {"heading_deg": np.full(3, 100.0), "pitch_deg": np.zeros(3), "roll_deg": np.zeros(3)},
+    )
     state.on_raw(raw)
     batch = heading_batch("d1", seq=1, heading=92.0)
     state.on_heading(batch)
     row = state.rows["d1"]
     assert row.truth_error_deg == pytest.approx(0.5)  # true heading 100.5 against truth 100
-    state.on_progress({"device": "d1", "state": "session", "session": True, "method": "ellipsoid", "samples": 120,
-                       "coverage": 0.42, "missing": ["turn it upside down"], "accepted": False, "reason": "more"})
+    state.on_progress(
+        {
+            "device": "d1",
+            "state": "session",
+            "session": True,
+            "method": "ellipsoid",
+            "samples": 120,
+            "coverage": 0.42,
+            "missing": ["turn it upside down"],
+            "accepted": False,
+            "reason": "more",
+        }
+    )
     alerts = state.rows["d1"].alerts(0.0, None)
     assert "fit rejected" in alerts
     assert len(state.traces["d1"].raw) == 0  # a new session starts a new cloud

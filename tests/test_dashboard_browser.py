@@ -28,8 +28,14 @@ pytestmark = pytest.mark.integration
 REPO = Path(__file__).resolve().parents[1]
 MAGNET = [sys.executable, "-m", "services.cli"]
 CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--no-first-run"]
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+]
 ARTEFACTS = Path(os.environ.get("MAGNET_ARTEFACT_DIR", Path(tempfile.gettempdir()) / "magnet-artefacts")) / "dashboard"
 
 
@@ -39,10 +45,18 @@ def chromium() -> Path:
     if not CHROMIUM.exists():
         if os.geteuid() != 0 or shutil.which("apt-get") is None:
             pytest.skip("no /usr/bin/chromium and not root with apt-get to install it")
-        for command in (["apt-get", "install", "-y", "chromium"], ["apt-get", "update"],
-                        ["apt-get", "install", "-y", "chromium"]):
-            done = subprocess.run(command, capture_output=True, text=True, timeout=900,
-                                  env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
+        for command in (
+            ["apt-get", "install", "-y", "chromium"],
+            ["apt-get", "update"],
+            ["apt-get", "install", "-y", "chromium"],
+        ):
+            done = subprocess.run(
+                command,
+                capture_output=True,
+                text=True,
+                timeout=900,
+                env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"},
+            )
             if done.returncode == 0 and CHROMIUM.exists():
                 break
         if not CHROMIUM.exists():
@@ -55,11 +69,29 @@ def pipeline(tmp_path):
     """``magnet up --devices 5`` with the dashboard on a free port; (page address, compass port)."""
     [http_port] = free_ports(1)
     with open(tmp_path / "up.out", "w") as out:  # the child keeps its own descriptor
-        proc = subprocess.Popen([*MAGNET, "up", "--devices", "5", "--speedup", "10", "--interval", "5",
-                                 "--duration", "150", "--http", f"127.0.0.1:{http_port}",
-                                 "--db", str(tmp_path / "up.db")],
-                                stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, cwd=REPO,
-                                env={**os.environ, "CI": "true"})
+        proc = subprocess.Popen(
+            [
+                *MAGNET,
+                "up",
+                "--devices",
+                "5",
+                "--speedup",
+                "10",
+                "--interval",
+                "5",
+                "--duration",
+                "150",
+                "--http",
+                f"127.0.0.1:{http_port}",
+                "--db",
+                str(tmp_path / "up.db"),
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            cwd=REPO,
+            env={**os.environ, "CI": "true"},
+        )
     try:
         text = _wait_for(lambda: (tmp_path / "up.out").read_text(), r"dashboard at (http://\S+)", proc, 20)
         address = re.search(r"dashboard at (http://\S+)", text).group(1)
@@ -90,9 +122,22 @@ def _wait_for(read, pattern, proc, timeout_s):
 def _watch_headings(tmp_path, compass_port):
     """``magnet watch heading`` connected to the compass, printing into a file."""
     with open(tmp_path / "watch.jsonl", "w") as out:  # the child keeps its own descriptor
-        return subprocess.Popen([*MAGNET, "watch", "heading", "--duration", "60", "--no-multicast-scouting",
-                                 "--connect", f"tcp/127.0.0.1:{compass_port}"], stdout=out, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, cwd=REPO)
+        return subprocess.Popen(
+            [
+                *MAGNET,
+                "watch",
+                "heading",
+                "--duration",
+                "60",
+                "--no-multicast-scouting",
+                "--connect",
+                f"tcp/127.0.0.1:{compass_port}",
+            ],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            cwd=REPO,
+        )
 
 
 def _watched(tmp_path) -> dict[tuple[str, int], float]:
@@ -111,7 +156,8 @@ def _watched(tmp_path) -> dict[tuple[str, int], float]:
 def _page_headings(page) -> dict[str, tuple[int, float]]:
     cells = page.eval_on_selector_all(
         '#fleet-body td[data-key="true_heading_deg"]',
-        "tds => tds.map(td => [td.parentElement.dataset.device, td.dataset.seq, td.dataset.heading])")
+        "tds => tds.map(td => [td.parentElement.dataset.device, td.dataset.seq, td.dataset.heading])",
+    )
     return {device: (int(seq), float(heading)) for device, seq, heading in cells if seq and heading}
 
 
@@ -148,8 +194,10 @@ def _check_fleet(page, tmp_path):
     assert "token" not in page.url  # the page keeps the token and takes it out of the address bar
     devices = page.eval_on_selector_all("#fleet-body tr", "trs => trs.map(tr => tr.dataset.device)")
     assert devices == [f"dev-{i:03d}" for i in range(5)]
-    page.wait_for_function("document.querySelectorAll('#fleet-body td[data-heading]:not([data-heading=\"\"])')"
-                           ".length === 5", timeout=20_000)
+    page.wait_for_function(
+        "document.querySelectorAll('#fleet-body td[data-heading]:not([data-heading=\"\"])').length === 5",
+        timeout=20_000,
+    )
     first = _page_headings(page)
     time.sleep(1.5)
     second = _page_headings(page)
@@ -172,8 +220,9 @@ def _check_session(page):
     page.wait_for_function("document.querySelector('#cloud .main-svg') !== null", timeout=30_000)
     page.select_option("#c-method-select", "ellipsoid")
     page.click("#b-start")
-    page.wait_for_function("document.querySelector('#c-message').textContent.includes('session started')",
-                           timeout=10_000)
+    page.wait_for_function(
+        "document.querySelector('#c-message').textContent.includes('session started')", timeout=10_000
+    )
     page.wait_for_function("document.querySelector('#c-state').textContent === 'session'", timeout=10_000)
     page.wait_for_function("parseFloat(document.querySelector('#c-bar').style.width) > 20", timeout=20_000)
     assert page.inner_text("#c-next").strip() != ""  # what to do next is said

@@ -36,8 +36,10 @@ def test_ck_explorer_ellipsoid(ck_explorer):
     acc, mag = ck_explorer
     cal = fit(mag, "ellipsoid", acc=acc, unit="gauss")
     spread = spread_pct(cal.apply(mag))
-    print(f"\nCK-Explorer: raw {spread_pct(mag):.2f} %, ellipsoid {spread:.3f} %, "
-          f"dip spread {cal.quality['dip_spread_deg']:.2f} deg, coverage {100 * cal.quality['coverage']:.0f} %")
+    print(
+        f"\nCK-Explorer: raw {spread_pct(mag):.2f} %, ellipsoid {spread:.3f} %, "
+        f"dip spread {cal.quality['dip_spread_deg']:.2f} deg, coverage {100 * cal.quality['coverage']:.0f} %"
+    )
     assert spread <= 1.35
     assert cal.accepted, cal.reason
     assert cal.output_unit == "ut" and 28 < cal.field_strength < 34  # ~0.31 G
@@ -57,8 +59,10 @@ def test_ck_explorer_alignment_keeps_the_fit_and_steadies_the_dip(ck_explorer):
     acc, mag = ck_explorer
     plain = fit(mag, "ellipsoid", acc=acc, unit="gauss")
     aligned = fit(mag, "ellipsoid+align", acc=acc, unit="gauss")
-    print(f"\nCK-Explorer: ellipsoid+align dip spread {aligned.quality['dip_spread_deg']:.3f} deg "
-          f"(plain {plain.quality['dip_spread_deg']:.3f}); {aligned.reason}")
+    print(
+        f"\nCK-Explorer: ellipsoid+align dip spread {aligned.quality['dip_spread_deg']:.3f} deg "
+        f"(plain {plain.quality['dip_spread_deg']:.3f}); {aligned.reason}"
+    )
     assert spread_pct(aligned.apply(mag)) == pytest.approx(spread_pct(plain.apply(mag)), rel=1e-6)
     assert aligned.quality["dip_spread_deg"] <= plain.quality["dip_spread_deg"]
     assert aligned.accepted, aligned.reason
@@ -68,8 +72,10 @@ def test_qmc5883l_ellipsoid(qmc5883l):
     cal = fit(qmc5883l, "ellipsoid", unit="counts")
     spread = spread_pct(cal.apply(qmc5883l))
     minmax = spread_pct(fit(qmc5883l, "minmax", unit="counts").apply(qmc5883l))
-    print(f"\nQMC5883L: raw {spread_pct(qmc5883l):.2f} %, minmax {minmax:.2f} %, ellipsoid {spread:.3f} %, "
-          f"soft-iron ratio {cal.quality['soft_iron_condition']:.2f}")
+    print(
+        f"\nQMC5883L: raw {spread_pct(qmc5883l):.2f} %, minmax {minmax:.2f} %, ellipsoid {spread:.3f} %, "
+        f"soft-iron ratio {cal.quality['soft_iron_condition']:.2f}"
+    )
     assert spread <= 2.9
     assert minmax <= 5.0
     assert cal.accepted, cal.reason

@@ -45,7 +45,7 @@ def test_axis_order_and_signs_x_z_y_registers():
     emu = HMC5883LEmulator(ConstantSource((10.0, -20.0, 30.0)))
     sensor = HMC5883L(emu, **NO_SLEEP)
     reading = sensor.read()
-    x, z, y = (int.from_bytes(emu.regs[r:r + 2], "big", signed=True) for r in (0x03, 0x05, 0x07))
+    x, z, y = (int.from_bytes(emu.regs[r : r + 2], "big", signed=True) for r in (0x03, 0x05, 0x07))
     assert (x, y, z) == (109, -218, 327)
     assert np.allclose(reading.mag_ut, [10.0, -20.0, 30.0], atol=0.05)
 
@@ -56,13 +56,13 @@ def test_orientation_maps_the_mounting():
 
 
 def test_overflow_is_flagged_never_a_field():
-    emu = HMC5883LEmulator(ConstantSource((200.0, 0.0, 0.0)))   # 2 Ga beyond +-1.3 Ga at GN=1
+    emu = HMC5883LEmulator(ConstantSource((200.0, 0.0, 0.0)))  # 2 Ga beyond +-1.3 Ga at GN=1
     sensor = HMC5883L(emu, **NO_SLEEP)
     reading = sensor.read()
     assert reading.overflow and reading.mag_ut is None and not reading.ok
     assert reading.raw[0] == -4096
     sensor.configure(HMC5883LSettings(gain=7))
-    assert not sensor.read().ready               # the driver drops the first measurement, still at the old gain
+    assert not sensor.read().ready  # the driver drops the first measurement, still at the old gain
     assert sensor.read().ok
 
 
@@ -70,10 +70,10 @@ def test_single_mode_and_data_ready():
     now = [0.0]
     emu = HMC5883LEmulator(ConstantSource(), clock=lambda: now[0])
     sensor = HMC5883L(emu, settings=HMC5883LSettings(mode=Mode.SINGLE), **NO_SLEEP)
-    assert not sensor.read().ready               # measurement takes ~6 ms
+    assert not sensor.read().ready  # measurement takes ~6 ms
     now[0] += 0.01
     assert sensor.read().ok
-    assert not sensor.read().ready               # the read triggered the next one; not done yet
+    assert not sensor.read().ready  # the read triggered the next one; not done yet
     now[0] += 0.01
     assert sensor.read().ok
     assert emu.measurements == 2
@@ -107,20 +107,19 @@ def test_transient_errors_are_retried_and_counted(code):
     reading = sensor.read()
     assert reading.ok
     assert sensor.health.retries == 2 and sensor.health.errors_by_errno == {code: 2}
-    assert delays == [0.002, 0.004]              # bounded exponential backoff, injected sleep
+    assert delays == [0.002, 0.004]  # bounded exponential backoff, injected sleep
 
 
 def test_persistent_failure_raises_after_the_retries_flags_health_then_recovers():
     faults = FaultInjector()
-    sensor = HMC5883L(HMC5883LEmulator(ConstantSource(), faults=faults), retry=RetryPolicy(attempts=3),
-                      **NO_SLEEP)
-    faults.probability = 1.0                     # a dead bus: every transfer fails with EIO
+    sensor = HMC5883L(HMC5883LEmulator(ConstantSource(), faults=faults), retry=RetryPolicy(attempts=3), **NO_SLEEP)
+    faults.probability = 1.0  # a dead bus: every transfer fails with EIO
     for _ in range(3):
         before = faults.injected
         with pytest.raises(SensorReadError, match="HMC5883L read failed") as raised:
             sensor.read()
         assert isinstance(raised.value, OSError) and raised.value.errno == errno.EIO
-        assert faults.injected - before == 3     # the driver's 3 attempts, then the error
+        assert faults.injected - before == 3  # the driver's 3 attempts, then the error
     assert not sensor.health.healthy and sensor.health.failed_reads == 3
     faults.probability = 0.0
     assert sensor.read().ok and sensor.health.healthy
@@ -128,9 +127,10 @@ def test_persistent_failure_raises_after_the_retries_flags_health_then_recovers(
 
 def test_non_transient_error_is_not_retried():
     sensor = HMC5883L(HMC5883LEmulator(ConstantSource()), **NO_SLEEP)
-    sensor.device.address = 0x1F                 # nobody there... as EREMOTEIO (retried); ENODEV is not:
-    sensor.device.bus = type("Gone", (), {"read_byte_data": lambda *a: (_ for _ in ()).throw(
-        OSError(errno.ENODEV, "No such device"))})()
+    sensor.device.address = 0x1F  # nobody there... as EREMOTEIO (retried); ENODEV is not:
+    sensor.device.bus = type(
+        "Gone", (), {"read_byte_data": lambda *a: (_ for _ in ()).throw(OSError(errno.ENODEV, "No such device"))}
+    )()
     with pytest.raises(SensorReadError) as raised:
         sensor.read()
     assert raised.value.errno == errno.ENODEV and sensor.health.retries == 0

@@ -27,8 +27,7 @@ NO_SLEEP = dict(sleep=lambda s: None)
 @pytest.mark.parametrize("range_gauss,lsb", [(2, 12000), (8, 3000)])
 def test_qmc5883l_scaling_registers_and_order(range_gauss, lsb):
     emu = QMC5883LEmulator(ConstantSource(FIELD))
-    sensor = QMC5883L(emu, settings=QMC5883LSettings(range_gauss=range_gauss, rate_hz=50, oversampling=256),
-                      **NO_SLEEP)
+    sensor = QMC5883L(emu, settings=QMC5883LSettings(range_gauss=range_gauss, rate_hz=50, oversampling=256), **NO_SLEEP)
     assert emu.regs[0x09] == (0b01 << 6) | ((0 if range_gauss == 2 else 1) << 4) | (0b01 << 2) | 0b01
     reading = sensor.read()
     assert np.array_equal(reading.raw, np.round(FIELD / 100 * lsb))
@@ -37,8 +36,9 @@ def test_qmc5883l_scaling_registers_and_order(range_gauss, lsb):
 
 
 def test_qmc5883l_overflow_and_identity():
-    sensor = QMC5883L(QMC5883LEmulator(ConstantSource((350.0, 0, 0))), settings=QMC5883LSettings(range_gauss=2),
-                      **NO_SLEEP)
+    sensor = QMC5883L(
+        QMC5883LEmulator(ConstantSource((350.0, 0, 0))), settings=QMC5883LSettings(range_gauss=2), **NO_SLEEP
+    )
     reading = sensor.read()
     assert reading.overflow and reading.mag_ut is None
     emu = QMC5883LEmulator()
@@ -52,7 +52,7 @@ def test_qmc5883l_data_ready_and_overrun_with_a_clock():
     emu = QMC5883LEmulator(ConstantSource(FIELD), clock=lambda: now[0])
     sensor = QMC5883L(emu, settings=QMC5883LSettings(rate_hz=10), **NO_SLEEP)
     assert not sensor.read().ready
-    now[0] = 0.25                                   # two samples arrived, the first unread: overrun
+    now[0] = 0.25  # two samples arrived, the first unread: overrun
     assert emu.read_byte_data(0x0D, 0x06) & 0x05 == 0x05
     assert sensor.read().ok
     assert emu.regs[0x06] & 0x05 == 0
@@ -63,9 +63,9 @@ def test_lsm303dlh_both_halves(gain, lsb):
     bus = emulator_for("lsm303dlh", ConstantSource(FIELD, ACC))
     sensor = LSM303DLH(bus, gain=gain, **NO_SLEEP)
     first = sensor.read()
-    assert first.ready == (gain == 1)               # after a gain change the first measurement is dropped
+    assert first.ready == (gain == 1)  # after a gain change the first measurement is dropped
     reading = sensor.read()
-    assert np.array_equal(reading.raw, np.round(FIELD / 100 * np.array(lsb)))   # X, Y, Z order, z own gain
+    assert np.array_equal(reading.raw, np.round(FIELD / 100 * np.array(lsb)))  # X, Y, Z order, z own gain
     assert np.allclose(reading.mag_ut, FIELD, atol=100 / 205)
     assert np.allclose(reading.acc_ms2, ACC, atol=0.01)
 
@@ -75,12 +75,11 @@ def test_lsm303dlh_accelerometer_needs_the_auto_increment_bit():
     LSM303DLH(bus, **NO_SLEEP)
     bus.read_byte_data(0x18, 0x27)
     repeated = bus.read_i2c_block_data(0x18, 0x28, 6)
-    assert repeated == [repeated[0]] * 6            # without bit 7 the chip repeats one register
+    assert repeated == [repeated[0]] * 6  # without bit 7 the chip repeats one register
 
 
 def test_ak09918c_bma456_pair():
-    sensor = open_sensor("ak09918c+bma456", emulator_for("ak09918c+bma456", ConstantSource(FIELD, ACC)),
-                         **NO_SLEEP)
+    sensor = open_sensor("ak09918c+bma456", emulator_for("ak09918c+bma456", ConstantSource(FIELD, ACC)), **NO_SLEEP)
     reading = sensor.read()
     assert np.array_equal(reading.raw, np.round(FIELD / 0.15))
     assert np.allclose(reading.mag_ut, FIELD, atol=0.075)
@@ -91,7 +90,7 @@ def test_ak09918c_overflow_and_identity():
     sensor = AK09918C(AK09918CEmulator(ConstantSource((3000.0, 2000.0, 0.0))), **NO_SLEEP)
     assert sensor.read().overflow
     emu = AK09918CEmulator()
-    emu.regs[0x01] = 0x09                          # an AK09916 answers 0x09
+    emu.regs[0x01] = 0x09  # an AK09916 answers 0x09
     with pytest.raises(SensorError, match=r"no AK09918C.*0x48/0x0c"):
         AK09918C(emu, **NO_SLEEP)
 
@@ -99,12 +98,12 @@ def test_ak09918c_overflow_and_identity():
 def test_ak09918c_data_protection_and_overrun():
     now = [0.0]
     emu = AK09918CEmulator(ConstantSource(FIELD), clock=lambda: now[0])
-    sensor = AK09918C(emu, **NO_SLEEP)               # 100 Hz
+    sensor = AK09918C(emu, **NO_SLEEP)  # 100 Hz
     assert not sensor.read().ready
-    now[0] = 0.025                                  # two samples: the first skipped
-    assert emu.read_byte_data(0x0C, 0x10) == 0x03   # DRDY | DOR
+    now[0] = 0.025  # two samples: the first skipped
+    assert emu.read_byte_data(0x0C, 0x10) == 0x03  # DRDY | DOR
     assert sensor.read().ok
-    assert emu.regs[0x10] == 0                      # ST2 read ended it
+    assert emu.regs[0x10] == 0  # ST2 read ended it
 
 
 @pytest.mark.parametrize("range_g,lsb", [(2, 16384), (4, 8192), (8, 4096), (16, 2048)])
@@ -117,7 +116,7 @@ def test_bma456_ranges(range_g, lsb):
 
 def test_bma456_identity():
     emu = BMA456Emulator()
-    emu.regs[0x00] = 0x11                          # a BMA423-like id
+    emu.regs[0x00] = 0x11  # a BMA423-like id
     with pytest.raises(SensorError, match=r"no BMA456.*0x16"):
         BMA456(emu, **NO_SLEEP)
 
@@ -129,7 +128,7 @@ def test_every_emulated_bus_is_an_i2c_bus(name):
 
 
 def test_smbus2_is_an_i2c_bus():
-    assert isinstance(smbus2.SMBus(), I2CBus)    # not opened: no /dev/i2c-N needed
+    assert isinstance(smbus2.SMBus(), I2CBus)  # not opened: no /dev/i2c-N needed
 
 
 def test_missing_chip_is_a_clear_error_after_retries():
@@ -151,17 +150,20 @@ def test_bus_level_faults_are_retried_for_a_pair():
     assert faults.injected > 10
     assert sum(r.ok for r in readings) >= 45
     healths = (sensor.magnetometer.health, sensor.accelerometer.health)
-    assert sum(h.errors for h in healths) == faults.injected      # every injected fault seen and counted
+    assert sum(h.errors for h in healths) == faults.injected  # every injected fault seen and counted
     assert sum(h.retries for h in healths) >= faults.injected - 2 * failed * 4
 
 
-@pytest.mark.parametrize("name,expected", [
-    ("none", np.eye(3)),
-    ("yaw90", [[0, -1, 0], [1, 0, 0], [0, 0, 1]]),
-    ("ROTATION_ROLL_180_YAW_90", [[0, 1, 0], [1, 0, 0], [0, 0, -1]]),  # ArduPilot: x=y, y=x, z=-z
-    ("pitch90", [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]),                   # ArduPilot: x=z, z=-x
-    ("0,1,0,1,0,0,0,0,-1", [[0, 1, 0], [1, 0, 0], [0, 0, -1]]),
-])
+@pytest.mark.parametrize(
+    "name,expected",
+    [
+        ("none", np.eye(3)),
+        ("yaw90", [[0, -1, 0], [1, 0, 0], [0, 0, 1]]),
+        ("ROTATION_ROLL_180_YAW_90", [[0, 1, 0], [1, 0, 0], [0, 0, -1]]),  # ArduPilot: x=y, y=x, z=-z
+        ("pitch90", [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]),  # ArduPilot: x=z, z=-x
+        ("0,1,0,1,0,0,0,0,-1", [[0, 1, 0], [1, 0, 0], [0, 0, -1]]),
+    ],
+)
 def test_orientation_names(name, expected):
     assert np.allclose(orientation_matrix(name), expected)
 
@@ -178,11 +180,17 @@ def test_open_sensor_unknown_name():
 
 
 def test_hmc1043_replay_volts_and_counts():
-    settings = BridgeSettings(supply_v=3.0, sensitivity_mv_per_v_per_gauss=1.0, amplifier_gain=100.0,
-                              adc_bits=16, vref_v=3.3, zero_counts=32768)
+    settings = BridgeSettings(
+        supply_v=3.0,
+        sensitivity_mv_per_v_per_gauss=1.0,
+        amplifier_gain=100.0,
+        adc_bits=16,
+        vref_v=3.3,
+        zero_counts=32768,
+    )
     volts = HMC1043.from_csv(["vx,vy,vz", "0.06,-0.03,0.15"], settings=settings)
-    assert np.allclose(volts.read().mag_ut, [20.0, -10.0, 50.0])      # 0.3 V per gauss after the amplifier
-    assert not volts.read().ready                                       # exhausted
+    assert np.allclose(volts.read().mag_ut, [20.0, -10.0, 50.0])  # 0.3 V per gauss after the amplifier
+    assert not volts.read().ready  # exhausted
     counts = HMC1043.from_csv(["cx,cy,cz", f"{32768 + 0.06 / 3.3 * 65536},32768,32768"], settings=settings)
     assert np.allclose(counts.read().mag_ut, [20.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="vx,vy,vz"):

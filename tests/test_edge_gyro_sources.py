@@ -10,8 +10,15 @@ from services.edge.sources import make_source
 
 
 def _batch(sensor, trajectory, **kw):
-    settings = EdgeSettings(device="g1", sensor=sensor, emulate=True, rate_hz=100.0, batch=20,
-                            simulator=SimulatorSettings(seed=3, trajectory=sim.Trajectory(trajectory)), **kw)
+    settings = EdgeSettings(
+        device="g1",
+        sensor=sensor,
+        emulate=True,
+        rate_hz=100.0,
+        batch=20,
+        simulator=SimulatorSettings(seed=3, trajectory=sim.Trajectory(trajectory)),
+        **kw,
+    )
     (batch,) = make_source(settings).batches(0, 10**9, lambda: False)
     return batch
 
@@ -20,7 +27,7 @@ def test_a_moving_simulated_device_sends_its_gyroscope():
     batch = _batch("sim", "multirotor")
     truth = sim.simulate(sim.SimulatorConfig(trajectory="multirotor", count=20, rate_hz=100.0, seed=3))
     np.testing.assert_allclose(batch.gyr_rads, truth.gyr_rads)
-    assert _batch("sim", "tumble").gyr_rads is None                 # still trajectories keep today's messages
+    assert _batch("sim", "tumble").gyr_rads is None  # still trajectories keep today's messages
 
 
 @pytest.mark.parametrize("sensor", ["icm20948", "mpu6050+qmc5883l"])

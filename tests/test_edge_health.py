@@ -32,9 +32,30 @@ def _status(session: zenoh.Session) -> dict | None:
 def test_edge_on_a_dead_bus_backs_off_counts_errors_and_reports_unhealthy(tmp_path):
     (port,) = free_ports(1)
     with open(tmp_path / "edge.log", "w") as log:
-        edge = subprocess.Popen([*MAGNET, "edge", "--device", DEVICE, "--sensor", "hmc5883l", "--emulate",
-                                 "--emulate-faults", "1", "--rate", "200", "--batch", "10", "--duration", "5",
-                                 *listen_args(port)], stdout=subprocess.PIPE, stderr=log, text=True, cwd=REPO_ROOT)
+        edge = subprocess.Popen(
+            [
+                *MAGNET,
+                "edge",
+                "--device",
+                DEVICE,
+                "--sensor",
+                "hmc5883l",
+                "--emulate",
+                "--emulate-faults",
+                "1",
+                "--rate",
+                "200",
+                "--batch",
+                "10",
+                "--duration",
+                "5",
+                *listen_args(port),
+            ],
+            stdout=subprocess.PIPE,
+            stderr=log,
+            text=True,
+            cwd=REPO_ROOT,
+        )
         try:
             with _session(port) as session:
                 raw = session.declare_subscriber(f"magnet/{DEVICE}/raw", zenoh.handlers.FifoChannel(64))
@@ -55,4 +76,4 @@ def test_edge_on_a_dead_bus_backs_off_counts_errors_and_reports_unhealthy(tmp_pa
     assert summary["read_errors"] == summary["read_attempts"] >= 3
     rate = summary["read_attempts"] / summary["seconds"]
     print(f"dead bus: {summary['read_attempts']} read attempts in {summary['seconds']} s ({rate:.1f}/s)")
-    assert rate < 10, summary            # bounded by the backoff (was about 1,700 reads/s with read_errors 0)
+    assert rate < 10, summary  # bounded by the backoff (was about 1,700 reads/s with read_errors 0)

@@ -7,8 +7,15 @@ from services.edge.settings import EdgeSettings
 from services.edge.sources import ChipSource, make_source
 
 
-@pytest.mark.parametrize("sensor,acc,gyr", [("hmc5883l", False, False), ("lsm303dlh", True, False),
-                                            ("icm20948", True, True), ("mpu6050+qmc5883l", True, True)])
+@pytest.mark.parametrize(
+    "sensor,acc,gyr",
+    [
+        ("hmc5883l", False, False),
+        ("lsm303dlh", True, False),
+        ("icm20948", True, True),
+        ("mpu6050+qmc5883l", True, True),
+    ],
+)
 def test_an_emulated_chip_batch_carries_what_the_chip_measures(sensor, acc, gyr):
     source = make_source(EdgeSettings(device="c-1", sensor=sensor, emulate=True, rate_hz=100.0, batch=5))
     assert isinstance(source, ChipSource)

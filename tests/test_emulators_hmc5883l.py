@@ -12,7 +12,7 @@ A = 0x1E
 
 def started(field=(20.0, -5.0, 40.0), **kw):
     emu = HMC5883LEmulator(ConstantSource(field), **kw)
-    emu.write_byte_data(A, 0x02, 0x00)             # continuous
+    emu.write_byte_data(A, 0x02, 0x00)  # continuous
     return emu
 
 
@@ -34,10 +34,10 @@ def test_partial_read_locks_until_all_six_are_read():
     now = [0.0]
     emu = started(clock=lambda: now[0])
     now[0] = 0.1
-    emu.read_i2c_block_data(A, 0x03, 2)            # X only
-    assert emu.read_byte_data(A, 0x09) & 0x02      # LOCK
+    emu.read_i2c_block_data(A, 0x03, 2)  # X only
+    assert emu.read_byte_data(A, 0x09) & 0x02  # LOCK
     emu.tap.source.mag_ut[:] = (60.0, 60.0, 60.0)
-    now[0] = 0.2                                   # a new measurement while locked is not placed
+    now[0] = 0.2  # a new measurement while locked is not placed
     rest = emu.read_i2c_block_data(A, 0x05, 4)
     assert int.from_bytes(bytes(rest[2:4]), "big", signed=True) == round(-0.05 * 1090)
     assert not emu.read_byte_data(A, 0x09) & 0x02
@@ -51,14 +51,14 @@ def test_gain_scales_and_takes_effect_one_measurement_late():
 
     assert counts() == round(0.2 * 1090)
     emu.write_byte_data(A, 0x01, 7 << 5)
-    assert counts() == round(0.2 * 1090)           # still the old gain
+    assert counts() == round(0.2 * 1090)  # still the old gain
     assert counts() == round(0.2 * 230)
 
 
 def test_overflow_saturates_to_minus_4096():
-    emu = started(field=(200.0, 0.0, -200.0))   # 2 Ga: beyond 2047 counts at 1090 LSB/Ga
+    emu = started(field=(200.0, 0.0, -200.0))  # 2 Ga: beyond 2047 counts at 1090 LSB/Ga
     data = emu.read_i2c_block_data(A, 0x03, 6)
-    x, z, y = (int.from_bytes(bytes(data[i:i + 2]), "big", signed=True) for i in (0, 2, 4))
+    x, z, y = (int.from_bytes(bytes(data[i : i + 2]), "big", signed=True) for i in (0, 2, 4))
     assert (x, y, z) == (-4096, 0, -4096)
 
 
@@ -69,7 +69,7 @@ def test_bias_adds_its_field(bias, sign):
     emu.read_i2c_block_data(A, 0x03, 6)
     emu.write_byte_data(A, 0x00, 0x70 | bias)
     data = emu.read_i2c_block_data(A, 0x03, 6)
-    x, z, y = (int.from_bytes(bytes(data[i:i + 2]), "big", signed=True) for i in (0, 2, 4))
+    x, z, y = (int.from_bytes(bytes(data[i : i + 2]), "big", signed=True) for i in (0, 2, 4))
     assert (x, y, z) == (sign * round(1.16 * 390 * 1.1), sign * round(1.16 * 390), sign * round(1.08 * 390))
 
 

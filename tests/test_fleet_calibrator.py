@@ -28,16 +28,26 @@ class Clock:
 
 def calibration(offset, scale=1.0) -> Calibration:
     matrix = np.diag([scale, 1.0 / scale, 1.0]) + np.array([[0, 0.0123456789, 0], [0.0123456789, 0, 0], [0, 0, 0]])
-    return Calibration("ellipsoid", np.array(offset, dtype=float) + 1e-9 / 3, matrix, field_strength=50.123456789,
-                       quality=Quality(residual_rms_ut=0.31, coverage=0.93), accepted=True, reason="accepted")
+    return Calibration(
+        "ellipsoid",
+        np.array(offset, dtype=float) + 1e-9 / 3,
+        matrix,
+        field_strength=50.123456789,
+        quality=Quality(residual_rms_ut=0.31, coverage=0.93),
+        accepted=True,
+        reason="accepted",
+    )
 
 
 @pytest.fixture
 def calibrator(tmp_path):
     with CalibrationStore(tmp_path / "c.db") as store:
         published: list = []
-        fleet = FleetBook(Places(parse_fleet('{"far": {location: "-33.86,151.21,20", notes: "Sydney"}}'),
-                                 default=Location(50.45, 30.52)))
+        fleet = FleetBook(
+            Places(
+                parse_fleet('{"far": {location: "-33.86,151.21,20", notes: "Sydney"}}'), default=Location(50.45, 30.52)
+            )
+        )
         yield Calibrator(store, CalibratorSettings(), lambda *a: published.append(a), clock_ns=Clock(), fleet=fleet)
 
 
@@ -51,7 +61,7 @@ def test_rollback_restores_the_earlier_coefficients_exactly_and_the_history_show
     assert restored.id == first.id
     assert np.array_equal(restored.calibration.offset, first.calibration.offset)
     assert np.array_equal(restored.calibration.matrix, first.calibration.matrix)
-    again = calibrator.store.latest("d")       # as a restarted calibrator reads it
+    again = calibrator.store.latest("d")  # as a restarted calibrator reads it
     assert np.array_equal(again.calibration.offset, first.calibration.offset)
     assert np.array_equal(again.calibration.matrix, first.calibration.matrix)
     rows = calibrator.store.history_changes("d")
@@ -77,16 +87,23 @@ def test_the_fleet_answer_holds_every_device_its_state_place_and_open_alerts(cal
     calibrator.fleet.seen("walker", None, 6)
     alert = Alert("a", AlertKind.FIELD_STRENGTH, 7, 58.0, 50.1, "look for new iron")
     calibrator.fleet.on_alert("magnet/a/alert", wire.pack(alert.to_message()), "magnet")
-    calibrator.fleet.on_alert("magnet/a/alert", wire.pack(Alert("a", AlertKind.DIP, 8, 60, 67, "x").to_message()),
-                              "magnet")
-    calibrator.fleet.on_alert("magnet/a/alert", wire.pack({**Alert("a", AlertKind.DIP, 9, 67, 67, "ok")
-                                                           .to_message(), "cleared": True}), "magnet")
-    for bad in [b"junk", wire.pack({**alert.to_message(), "kind": "vibes"}),
-                wire.pack({**alert.to_message(), "measured": float("inf")})]:
+    calibrator.fleet.on_alert(
+        "magnet/a/alert", wire.pack(Alert("a", AlertKind.DIP, 8, 60, 67, "x").to_message()), "magnet"
+    )
+    calibrator.fleet.on_alert(
+        "magnet/a/alert",
+        wire.pack({**Alert("a", AlertKind.DIP, 9, 67, 67, "ok").to_message(), "cleared": True}),
+        "magnet",
+    )
+    for bad in [
+        b"junk",
+        wire.pack({**alert.to_message(), "kind": "vibes"}),
+        wire.pack({**alert.to_message(), "measured": float("inf")}),
+    ]:
         calibrator.fleet.on_alert("magnet/a/alert", bad, "magnet")
-    calibrator.fleet.on_alert("magnet/b/alert", wire.pack(alert.to_message()), "magnet")   # key of another device
+    calibrator.fleet.on_alert("magnet/b/alert", wire.pack(alert.to_message()), "magnet")  # key of another device
     assert sum(calibrator.fleet.drops.counts.values()) == 4
-    reply = fleet_reply(calibrator, 10 ** 13)
+    reply = fleet_reply(calibrator, 10**13)
     by = {d["device"]: d for d in reply["devices"]}
     assert reply["count"] == 3 and sorted(by) == ["a", "far", "walker"]
     a = by["a"]

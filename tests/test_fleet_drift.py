@@ -28,7 +28,7 @@ def feed(tracker: DriftTracker, t_ns, strength, dip, chunk: int = 500):
     """Everything in batches of ``chunk`` samples (as raw batches arrive); the alert events."""
     events = []
     for lo in range(0, t_ns.size, chunk):
-        events += tracker.add(t_ns[lo:lo + chunk], strength[lo:lo + chunk], dip[lo:lo + chunk])
+        events += tracker.add(t_ns[lo : lo + chunk], strength[lo : lo + chunk], dip[lo : lo + chunk])
     return events
 
 
@@ -36,12 +36,13 @@ def test_a_still_device_raises_nothing_over_a_day_of_noise_trucks_and_motor_burs
     rng = np.random.default_rng(7)
     t_ns, strength, dip = still_run(24 * 3600, rng)
     t_s = t_ns / NS_PER_S
-    truck = (t_s % 900.0) < 20.0          # a truck parks by for 20 s every quarter of an hour: +12 uT, +8 deg
-    burst = (t_s % 120.0) < 3.0           # a motor burst of 3 s every 2 minutes: +30 uT, -15 deg
+    truck = (t_s % 900.0) < 20.0  # a truck parks by for 20 s every quarter of an hour: +12 uT, +8 deg
+    burst = (t_s % 120.0) < 3.0  # a motor burst of 3 s every 2 minutes: +30 uT, -15 deg
     strength = strength + 12.0 * truck + 30.0 * burst
     dip = dip + 8.0 * truck - 15.0 * burst
-    tracker = DriftTracker("still", Reference(REF_UT, residual_ut=0.5, model_total_ut=REF_UT + 1.0,
-                                              model_dip_deg=DIP_DEG - 0.5))
+    tracker = DriftTracker(
+        "still", Reference(REF_UT, residual_ut=0.5, model_total_ut=REF_UT + 1.0, model_dip_deg=DIP_DEG - 0.5)
+    )
     events = feed(tracker, t_ns, strength, dip, chunk=5000)
     assert events == []
     assert tracker.windows_judged >= 24 * 3600 / 30 - 2
@@ -60,7 +61,7 @@ def test_a_sustained_departure_alerts_within_the_bound_and_clears_when_it_recove
     events = []
     raised_at = cleared_at = None
     for lo in range(0, t_ns.size, 50):
-        new = tracker.add(t_ns[lo:lo + 50], strength[lo:lo + 50], dip[lo:lo + 50])
+        new = tracker.add(t_ns[lo : lo + 50], strength[lo : lo + 50], dip[lo : lo + 50])
         for event in new:
             if event.cleared:
                 cleared_at = cleared_at or t_s[lo + 49]
@@ -102,8 +103,16 @@ def test_an_old_calibration_raises_calibration_age_once():
     assert events[0].since_ns == created + 365 * NS_PER_DAY
 
 
-@pytest.mark.parametrize("bad", [{"window_s": 0}, {"raise_windows": 1.5}, {"clear_fraction": 1.2},
-                                 {"strength_tol_pct": float("nan")}, {"max_age_days": -1}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"window_s": 0},
+        {"raise_windows": 1.5},
+        {"clear_fraction": 1.2},
+        {"strength_tol_pct": float("nan")},
+        {"max_age_days": -1},
+    ],
+)
 def test_drift_settings_refuse_nonsense(bad):
     with pytest.raises(ValueError):
         DriftSettings(**bad)
@@ -126,11 +135,17 @@ def test_a_simulated_iron_change_on_a_tumbling_device_alerts_in_time_and_a_recal
     cal = fit(mag0, "ellipsoid", acc=acc0, field_ut=sim.earth.total_ut)
     assert cal.accepted, cal.reason
     monitor = DriftMonitor(settings)
-    reference = Reference(cal.field_strength, cal.quality.residual_rms_ut or 0.0, sim.earth.total_ut,
-                          sim.earth.inclination_deg, int(t0[0]), cal.content_id)
+    reference = Reference(
+        cal.field_strength,
+        cal.quality.residual_rms_ut or 0.0,
+        sim.earth.total_ut,
+        sim.earth.inclination_deg,
+        int(t0[0]),
+        cal.content_id,
+    )
     monitor.calibration("car-1", reference, int(t0[0]))
     t1, mag1, acc1 = run(900)
-    assert monitor.add("car-1", t1, *calibrated(cal, mag1, acc1)) == []            # 15 min unchanged: nothing
+    assert monitor.add("car-1", t1, *calibrated(cal, mag1, acc1)) == []  # 15 min unchanged: nothing
     change_ns = int(t1[-1]) + int(NS_PER_S / RATE_HZ)
     sim.change_iron(0, hard_iron_ut=sim.errors[0].hard_iron_ut + np.array([9.0, -6.0, 4.0]))
     events, alert_ns = [], None
@@ -142,12 +157,21 @@ def test_a_simulated_iron_change_on_a_tumbling_device_alerts_in_time_and_a_recal
         events += new
     assert events and not any(e.cleared for e in events), events
     assert alert_ns - change_ns <= settings.detection_bound_s * NS_PER_S
-    t2, mag2, acc2 = run(180)                                                     # recalibrate with the new iron
+    t2, mag2, acc2 = run(180)  # recalibrate with the new iron
     recal = fit(mag2, "ellipsoid", acc=acc2, field_ut=sim.earth.total_ut)
     assert recal.accepted, recal.reason
-    cleared = monitor.calibration("car-1", Reference(recal.field_strength, recal.quality.residual_rms_ut or 0.0,
-                                                     sim.earth.total_ut, sim.earth.inclination_deg, int(t2[-1]),
-                                                     recal.content_id), int(t2[-1]))
+    cleared = monitor.calibration(
+        "car-1",
+        Reference(
+            recal.field_strength,
+            recal.quality.residual_rms_ut or 0.0,
+            sim.earth.total_ut,
+            sim.earth.inclination_deg,
+            int(t2[-1]),
+            recal.content_id,
+        ),
+        int(t2[-1]),
+    )
     assert {e.kind for e in cleared} == {e.kind for e in events} and all(e.cleared for e in cleared)
     t3, mag3, acc3 = run(900)
     assert monitor.add("car-1", t3, *calibrated(recal, mag3, acc3)) == []

@@ -23,16 +23,37 @@ KYIV, SYDNEY = Location(50.45, 30.52, 180.0), Location(-33.86, 151.21, 20.0)
 DATE = "2026-06-01"
 
 
-@pytest.mark.parametrize("bad", [[91, 0], [0, 181], [0, -180.5], [0, 0, 1e7], [float("nan"), 0], [True, 0],
-                                 [1], [1, 2, 3, 4], "north", "50,east", {"lat_deg": 1}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        [91, 0],
+        [0, 181],
+        [0, -180.5],
+        [0, 0, 1e7],
+        [float("nan"), 0],
+        [True, 0],
+        [1],
+        [1, 2, 3, 4],
+        "north",
+        "50,east",
+        {"lat_deg": 1},
+    ],
+)
 def test_a_location_outside_the_earth_or_the_model_is_refused(bad):
     with pytest.raises(ValueError):
         Location.parse(bad)
 
 
 def raw_batch(device: str, location: Location | None, n: int = 5) -> wire.RawBatch:
-    return wire.RawBatch(device, 1, "sim", np.arange(n, dtype=np.int64), np.tile([20.0, 0.0, 45.0], (n, 1)),
-                         np.tile([0.0, 0.0, -9.81], (n, 1)), location=location)
+    return wire.RawBatch(
+        device,
+        1,
+        "sim",
+        np.arange(n, dtype=np.int64),
+        np.tile([20.0, 0.0, 45.0], (n, 1)),
+        np.tile([0.0, 0.0, -9.81], (n, 1)),
+        location=location,
+    )
 
 
 def test_the_location_travels_in_raw_messages_and_a_bad_one_is_dropped_with_its_cause():
@@ -59,15 +80,23 @@ def test_a_fleet_file_is_json5_and_a_bad_entry_names_the_device():
     }""")
     assert fleet["mast-1"].location == KYIV and fleet["mast-1"].notes == "roof mast"
     assert fleet["buoy-7"].location == Location(-33.86, 151.21) and fleet["spare"].location is None
-    for text, named in [('{"a/b": {location: "1,2"}}', "a/b"), ('{"x": {location: "99,2"}}', "'x'"),
-                        ('{"y": {place: "1,2"}}', "place"), ("[1, 2]", "map"), ("{oops", "JSON5")]:
+    for text, named in [
+        ('{"a/b": {location: "1,2"}}', "a/b"),
+        ('{"x": {location: "99,2"}}', "'x'"),
+        ('{"y": {place: "1,2"}}', "place"),
+        ("[1, 2]", "map"),
+        ("{oops", "JSON5"),
+    ]:
         with pytest.raises(ValueError, match=named):
             parse_fleet(text)
 
 
 def test_a_devices_own_report_wins_over_the_fleet_file_which_wins_over_the_default():
-    places = Places(parse_fleet('{"a": {location: "-33.86,151.21,20"}, "b": {location: "-33.86,151.21,20"}}'),
-                    default=KYIV, date=DATE)
+    places = Places(
+        parse_fleet('{"a": {location: "-33.86,151.21,20"}, "b": {location: "-33.86,151.21,20"}}'),
+        default=KYIV,
+        date=DATE,
+    )
     assert places.location("a") == SYDNEY and places.location("z") == KYIV
     assert places.report("b", KYIV) and not places.report("b", KYIV)
     assert places.location("b") == KYIV
@@ -79,15 +108,25 @@ def test_a_devices_own_report_wins_over_the_fleet_file_which_wins_over_the_defau
 def test_two_devices_far_apart_get_their_own_declination_and_expected_field():
     kyiv = earth_field(KYIV.lat_deg, KYIV.lon_deg, KYIV.alt_m, DATE)
     sydney = earth_field(SYDNEY.lat_deg, SYDNEY.lon_deg, SYDNEY.alt_m, DATE)
-    assert abs(kyiv.declination_deg - sydney.declination_deg) > 3    # the places really differ
+    assert abs(kyiv.declination_deg - sydney.declination_deg) > 3  # the places really differ
     places = Places(parse_fleet('{"syd": {location: "-33.86,151.21,20"}}'), date=DATE)
     compass = Compass(Earth(), 1, watch=FleetWatch(places))
     # each device measures the true field of its own place (no iron): level, turning
     batches = []
     for device, place, seed in (("kyiv", KYIV, 1), ("syd", None, 2)):
         where = KYIV if place else SYDNEY
-        sim = FleetSimulator(1, rate_hz=10, seed=seed, noise_ut=0.0, lat_deg=where.lat_deg, lon_deg=where.lon_deg,
-                             alt_m=where.alt_m, date=DATE, hard_iron_max_ratio=0.0, soft_iron_max=0.0)
+        sim = FleetSimulator(
+            1,
+            rate_hz=10,
+            seed=seed,
+            noise_ut=0.0,
+            lat_deg=where.lat_deg,
+            lon_deg=where.lon_deg,
+            alt_m=where.alt_m,
+            date=DATE,
+            hard_iron_max_ratio=0.0,
+            soft_iron_max=0.0,
+        )
         step = sim.step(20)
         batches.append(wire.RawBatch(device, 1, "sim", step.t_ns, step.mag_ut[0], step.acc_ms2[0], location=place))
     out = {h.device: h for h in compass.process(batches)}
@@ -95,7 +134,7 @@ def test_two_devices_far_apart_get_their_own_declination_and_expected_field():
     assert out["syd"].declination_deg == pytest.approx(sydney.declination_deg, abs=0.01)
     for h in out.values():
         assert np.allclose(hd.true_heading_deg(h.heading_deg, h.declination_deg), h.true_heading_deg)
-        assert not h.disturbed.any()   # each judged against its own place's |B| and dip (they differ by > 15 %)
+        assert not h.disturbed.any()  # each judged against its own place's |B| and dip (they differ by > 15 %)
     # the same Sydney field judged against Kyiv's expectation is disturbed
     kyiv_only = Compass(Earth(), 1, watch=FleetWatch(Places(default=KYIV, date=DATE)))
     assert kyiv_only.process([dataclasses.replace(batches[1], location=None)])[0].disturbed.all()

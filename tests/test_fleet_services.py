@@ -29,8 +29,15 @@ LOCATION = "50.45,30.52"
 def test_get_fleet_over_a_thousand_devices_answers_in_one_quick_reply(procs, tmp_path):
     names = fill_store(tmp_path / "fleet.db", 1000)
     port = free_ports(1)[0]
-    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "fleet.db"), "--fleet",
-                str(fleet_file(tmp_path / "fleet.json5", names)), *listen_args(port))
+    procs.start(
+        "calibrator",
+        "calibrator",
+        "--db",
+        str(tmp_path / "fleet.db"),
+        "--fleet",
+        str(fleet_file(tmp_path / "fleet.json5", names)),
+        *listen_args(port),
+    )
     with zenoh.open(session_config(port)) as session:
         wait_for_fleet(session, 1000)
         times, replies = zip(*(ask_fleet(session) for _ in range(3)))
@@ -50,8 +57,9 @@ def store_two_calibrations(path, device):
     """The calibration that fits HARD_IRON, then one that does not (in force): (right id, wrong id)."""
     quality = Quality(residual_rms_ut=0.3, coverage=0.95)
     right = Calibration("ellipsoid", HARD_IRON, np.eye(3), field_strength=51.0, quality=quality, accepted=True)
-    wrong = Calibration("ellipsoid", HARD_IRON + [18.0, 0.0, -9.0], np.eye(3), field_strength=51.0,
-                        quality=quality, accepted=True)
+    wrong = Calibration(
+        "ellipsoid", HARD_IRON + [18.0, 0.0, -9.0], np.eye(3), field_strength=51.0, quality=quality, accepted=True
+    )
     now = time.time_ns()
     with CalibrationStore(path) as store:
         for n, cal in enumerate((right, wrong)):
@@ -70,14 +78,41 @@ def test_a_drifted_device_raises_an_alert_the_fleet_shows_and_a_rollback_clears_
     right_id, wrong_id = store_two_calibrations(tmp_path / "cal.db", "drifty")
     cal_port, comp_port, edge_port = free_ports(3)
     procs.start("calibrator", "calibrator", "--db", str(tmp_path / "cal.db"), *listen_args(cal_port))
-    procs.start("compass", "compass", "--location", LOCATION, "--drift-window", "1", "--drift-windows", "2",
-                *listen_args(comp_port), *connect_args(cal_port))
-    procs.start("edge", "edge", "--device", "drifty", "--emulate", "--rate", "100", "--batch", "10",
-                "--hard-iron", ",".join(map(str, HARD_IRON)), "--location", LOCATION,
-                *listen_args(edge_port), *connect_args(cal_port, comp_port))
+    procs.start(
+        "compass",
+        "compass",
+        "--location",
+        LOCATION,
+        "--drift-window",
+        "1",
+        "--drift-windows",
+        "2",
+        *listen_args(comp_port),
+        *connect_args(cal_port),
+    )
+    procs.start(
+        "edge",
+        "edge",
+        "--device",
+        "drifty",
+        "--emulate",
+        "--rate",
+        "100",
+        "--batch",
+        "10",
+        "--hard-iron",
+        ",".join(map(str, HARD_IRON)),
+        "--location",
+        LOCATION,
+        *listen_args(edge_port),
+        *connect_args(cal_port, comp_port),
+    )
     remote = [*NO_SCOUT, *connect_args(cal_port)]
-    raised = wait_for(lambda: (e := fleet_entry(cal_port, "drifty")) and e["alerts"] and e, 60,
-                      "the drift alert to reach the calibrator's fleet answer")
+    raised = wait_for(
+        lambda: (e := fleet_entry(cal_port, "drifty")) and e["alerts"] and e,
+        60,
+        "the drift alert to reach the calibrator's fleet answer",
+    )
     kinds = {a["kind"] for a in raised["alerts"]}
     assert "field_strength" in kinds and raised["calibration_id"] == wrong_id, raised
     alert = next(a for a in raised["alerts"] if a["kind"] == "field_strength")
@@ -86,8 +121,11 @@ def test_a_drifted_device_raises_an_alert_the_fleet_shows_and_a_rollback_clears_
     assert raised["location"] == [50.45, 30.52, 0.0] and raised["location_source"] == "reported"
     code, [rolled] = magnet_json("calibrate", "drifty", "rollback", *remote)
     assert code == 0 and rolled["ok"] and rolled["calibration"]["id"] == right_id, rolled
-    cleared = wait_for(lambda: (e := fleet_entry(cal_port, "drifty")) and not e["alerts"] and e, 30,
-                       "the alert to clear once the right calibration is back in force")
+    cleared = wait_for(
+        lambda: (e := fleet_entry(cal_port, "drifty")) and not e["alerts"] and e,
+        30,
+        "the alert to clear once the right calibration is back in force",
+    )
     assert cleared["calibration_id"] == right_id
     code, [history] = magnet_json("get", "calibration", "drifty", "--history", *remote)
     assert [r["id"] for r in history["records"]] == [right_id, wrong_id, right_id]

@@ -40,9 +40,10 @@ def test_fused_attitude_follows_a_moving_device_in_the_project_frames():
     heading, pitch, _ = fusion.euler_from_quat(truth)
     settled = np.arange(len(truth)) >= 20 * RATE_HZ
     error = angle_difference_deg(fused.heading_deg, heading)[settled & (np.abs(pitch) < 60)]
-    assert np.sqrt(np.mean(error ** 2)) < 1.0
-    attitude_error = rotation_angle_deg(np.swapaxes(quaternion_to_matrix(fused.quat_wxyz), -1, -2)
-                                        @ quaternion_to_matrix(truth))
+    assert np.sqrt(np.mean(error**2)) < 1.0
+    attitude_error = rotation_angle_deg(
+        np.swapaxes(quaternion_to_matrix(fused.quat_wxyz), -1, -2) @ quaternion_to_matrix(truth)
+    )
     assert attitude_error[settled].max() < 2.0
     assert np.abs(fused.pitch_deg - pitch)[settled].max() < 2.0
     offline = fusion.fuse_offline(gyr, acc, mag, 1.0 / RATE_HZ)

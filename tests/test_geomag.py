@@ -25,7 +25,9 @@ def test_declination_matches_the_official_test_values(year, height_km, lat, lon,
 
 def test_london_matches_noaa_calculator_and_boulder_is_about_8_east():
     # NOAA online calculator, WMM2025, London 2026-07-04: 1.16280 deg E
-    assert earth_field(51.5074, -0.1278, 0.0, datetime.date(2026, 7, 4)).declination_deg == pytest.approx(1.1628, abs=0.005)
+    assert earth_field(51.5074, -0.1278, 0.0, datetime.date(2026, 7, 4)).declination_deg == pytest.approx(
+        1.1628, abs=0.005
+    )
     boulder = earth_field(40.015, -105.2705, 1655.0, 2025.0)
     assert 7.5 < boulder.declination_deg < 8.1  # east; the model itself gives 7.81
     assert boulder.inclination_deg == pytest.approx(66.1, abs=0.2)
@@ -36,8 +38,9 @@ def test_components_in_microtesla_agree_with_pygeomag_directly():
 
     raw = GeoMag(coefficients_file="wmm/WMM_2025.COF").calculate(50.45, 30.52, 0.18, 2026.25)
     field = earth_field(50.45, 30.52, 180.0, 2026.25)
-    np.testing.assert_allclose([field.north_ut, field.east_ut, field.down_ut],
-                               np.array([raw.x, raw.y, raw.z]) / 1000.0, rtol=1e-12)
+    np.testing.assert_allclose(
+        [field.north_ut, field.east_ut, field.down_ut], np.array([raw.x, raw.y, raw.z]) / 1000.0, rtol=1e-12
+    )
     assert field.total_ut == pytest.approx(raw.f / 1000.0)
     assert field.horizontal_ut == pytest.approx(np.hypot(field.north_ut, field.east_ut))
     assert field.declination_deg == pytest.approx(np.degrees(np.arctan2(field.east_ut, field.north_ut)))
@@ -71,8 +74,9 @@ def test_bad_dates_are_refused(date):
         earth_field(0.0, 0.0, 0.0, date)
 
 
-@pytest.mark.parametrize("lat, lon, alt", [(91.0, 0.0, 0.0), (0.0, 400.0, 0.0), (float("nan"), 0.0, 0.0),
-                                           (0.0, 0.0, 1e7)])
+@pytest.mark.parametrize(
+    "lat, lon, alt", [(91.0, 0.0, 0.0), (0.0, 400.0, 0.0), (float("nan"), 0.0, 0.0), (0.0, 0.0, 1e7)]
+)
 def test_bad_places_are_refused(lat, lon, alt):
     with pytest.raises(ValueError):
         earth_field(lat, lon, alt, 2026.0)

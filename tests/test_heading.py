@@ -2,13 +2,14 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from magnet import heading as hd
 from magnet.attitude import euler_to_matrix, ned_to_body
 
 G = 9.80665
-B_NED = np.array([19.2, 2.9, 47.2])          # Kyiv-like field, uT (north, east, down)
+B_NED = np.array([19.2, 2.9, 47.2])  # Kyiv-like field, uT (north, east, down)
 MAG_NORTH_DEG = np.degrees(np.arctan2(B_NED[1], B_NED[0]))
 
 
@@ -25,7 +26,8 @@ def test_level_heading_at_cardinal_points(magnetic, expected):
     field = body(magnetic + MAG_NORTH_DEG, 0, 0)
     assert hd.level_heading_deg(field) == pytest.approx(expected, abs=1e-9)
     assert hd.tilt_compensated_heading_deg(field, acc_body(magnetic + MAG_NORTH_DEG, 0, 0)) == pytest.approx(
-        expected, abs=1e-9)
+        expected, abs=1e-9
+    )
 
 
 def test_level_heading_axes_by_hand():
@@ -104,7 +106,7 @@ def test_smoothing_is_a_trailing_circular_mean():
     window = 5
     smoothed = hd.smooth_heading_deg(headings, window)
     for i in (0, 3, 4, 20, 49):
-        part = np.radians(headings[max(0, i - window + 1): i + 1])
+        part = np.radians(headings[max(0, i - window + 1) : i + 1])
         expected = np.degrees(np.arctan2(np.sin(part).sum(), np.cos(part).sum())) % 360
         assert abs(hd.angle_difference_deg(smoothed[i], expected)) < 1e-9
     np.testing.assert_allclose(hd.smooth_heading_deg(headings, 1), headings, atol=1e-9)

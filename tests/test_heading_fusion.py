@@ -48,7 +48,7 @@ def test_fused_heading_and_quaternion_follow_the_truth(tmp_path: Path, device, o
     heading, pitch, _ = fusion.euler_from_quat(device[3])
     settled = (np.arange(len(heading)) >= 20 * RATE_HZ) & (np.abs(pitch) < 60)
     error = angle_difference_deg(out["heading_deg"], heading)[settled]
-    assert np.sqrt(np.mean(error ** 2)) < 1.0
+    assert np.sqrt(np.mean(error**2)) < 1.0
     assert np.all(out["flags"].astype(int) & HeadingFlag.FUSED)
     assert not np.any(out["flags"].astype(int) & HeadingFlag.CALIBRATED)
     quat = np.column_stack([out[k] for k in ("qw", "qx", "qy", "qz")])
@@ -65,8 +65,9 @@ def test_rate_option_replaces_a_missing_time_column(tmp_path: Path, device):
     accepted = magnet("heading", str(csv), "--rate", str(RATE_HZ))
     assert accepted.returncode == 0, accepted.stderr
     with_time = magnet("heading", str(write(tmp_path / "timed.csv", device)))
-    np.testing.assert_allclose(read_output(accepted.stdout)["heading_deg"],
-                               read_output(with_time.stdout)["heading_deg"], atol=0.05)
+    np.testing.assert_allclose(
+        read_output(accepted.stdout)["heading_deg"], read_output(with_time.stdout)["heading_deg"], atol=0.05
+    )
 
 
 def test_without_gyroscope_tilt_stays_and_offline_is_refused(tmp_path: Path, device):

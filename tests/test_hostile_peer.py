@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from helpers import MAGNET, NO_SCOUT, connect_args, free_ports, listen_args, magnet_json, run_magnet, wait_for
+from helpers import NO_SCOUT, connect_args, free_ports, listen_args, magnet_json, run_magnet, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -82,58 +82,118 @@ def test_forged_and_absurd_calibrations_never_replace_the_signed_one(procs, tmp_
         assert run_magnet("keys", "--out", str(tmp_path / "keys"), "--name", name).returncode == 0
     cal_port, comp_port, edge_port = free_ports(3)
     trust = ["--trust", str(tmp_path / "keys/calibrator.pub")]
-    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "c.db"), "--signing-key",
-                str(tmp_path / "keys/calibrator.key"), *listen_args(cal_port))
+    procs.start(
+        "calibrator",
+        "calibrator",
+        "--db",
+        str(tmp_path / "c.db"),
+        "--signing-key",
+        str(tmp_path / "keys/calibrator.key"),
+        *listen_args(cal_port),
+    )
     procs.start("compass", "compass", *trust, *listen_args(comp_port), *connect_args(cal_port))
     # the edge dials services that already listen (a peer dialled before it listens may never be reached)
     wait_for(lambda: _status("calibrator", cal_port) and _status("compass", comp_port), 30, "the services to answer")
-    procs.start("edge", "edge", "--device", DEVICE, "--sensor", "sim", "--emulate", "--rate", "500", "--batch", "25",
-                "--trajectory-samples", "2000", *listen_args(edge_port), *connect_args(cal_port, comp_port))
+    procs.start(
+        "edge",
+        "edge",
+        "--device",
+        DEVICE,
+        "--sensor",
+        "sim",
+        "--emulate",
+        "--rate",
+        "500",
+        "--batch",
+        "25",
+        "--trajectory-samples",
+        "2000",
+        *listen_args(edge_port),
+        *connect_args(cal_port, comp_port),
+    )
 
     def genuine():
-        code, lines = magnet_json("get", "calibration", DEVICE, *trust, *NO_SCOUT, *connect_args(cal_port),
-                                  "--timeout", "2")
+        code, lines = magnet_json(
+            "get", "calibration", DEVICE, *trust, *NO_SCOUT, *connect_args(cal_port), "--timeout", "2"
+        )
         return code == 0 and lines[0]
 
     record = wait_for(genuine, 60, "a signed calibration")
     wait_for(lambda: (s := _status("compass", comp_port)) and s["calibrations"] == 1, 20, "the compass to apply it")
 
-    forger = subprocess.run([sys.executable, "-c", FORGER, str(comp_port), __import__("json").dumps(record),
-                             str(tmp_path / "keys/forger.key")], capture_output=True, text=True, timeout=60)
+    forger = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            FORGER,
+            str(comp_port),
+            __import__("json").dumps(record),
+            str(tmp_path / "keys/forger.key"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert forger.returncode == 0, forger.stderr
     forged = int(forger.stdout.split()[-1])
-    status = wait_for(lambda: (s := _status("compass", comp_port)) and s["dropped_total"] >= forged and s, 20,
-                      "the compass to refuse every forged calibration")
+    status = wait_for(
+        lambda: (s := _status("compass", comp_port)) and s["dropped_total"] >= forged and s,
+        20,
+        "the compass to refuse every forged calibration",
+    )
     print("compass refusals", status["dropped"])
-    assert {"calibration:unknown-key", "calibration:unsigned", "calibration:bad-signature",
-            "calibration:bad-calibration"} <= set(status["dropped"])
-    code, headings = magnet_json("watch", "heading", DEVICE, "--count", "5", *NO_SCOUT, *connect_args(comp_port),
-                                 timeout=30)
+    assert {
+        "calibration:unknown-key",
+        "calibration:unsigned",
+        "calibration:bad-signature",
+        "calibration:bad-calibration",
+    } <= set(status["dropped"])
+    code, headings = magnet_json(
+        "watch", "heading", DEVICE, "--count", "5", *NO_SCOUT, *connect_args(comp_port), timeout=30
+    )
     assert code == 0 and len(headings) == 5
-    assert all(h["calibration_id"] == record["id"] and h["flags"][0] & 1 for h in headings), \
+    assert all(h["calibration_id"] == record["id"] and h["flags"][0] & 1 for h in headings), (
         "the genuine calibration stays in force"
-    code, lines = magnet_json("get", "calibration", DEVICE, "--history", "--limit", "9" * 26, *NO_SCOUT,
-                              *connect_args(cal_port), "--timeout", "2")
+    )
+    code, lines = magnet_json(
+        "get",
+        "calibration",
+        DEVICE,
+        "--history",
+        "--limit",
+        "9" * 26,
+        *NO_SCOUT,
+        *connect_args(cal_port),
+        "--timeout",
+        "2",
+    )
     assert code == 0 and lines[0]["records"][0]["id"] == record["id"], "the calibrator still answers"
     for name in ("calibrator", "compass", "edge"):
         assert procs.alive(name), procs.log(name)
 
     # 8,000 new device ids in a burst: both stay up, memory bounded, the genuine device keeps its headings
     before = {name: _rss_mb(procs.procs[name].pid) for name in ("calibrator", "compass")}
-    received = {name: _status(name, port)["received_batches"] for name, port in (("calibrator", cal_port),
-                                                                               ("compass", comp_port))}
-    flood = subprocess.run([sys.executable, "-c", FLOOD, str(cal_port), str(comp_port)], capture_output=True,
-                           text=True, timeout=120)
+    received = {
+        name: _status(name, port)["received_batches"]
+        for name, port in (("calibrator", cal_port), ("compass", comp_port))
+    }
+    flood = subprocess.run(
+        [sys.executable, "-c", FLOOD, str(cal_port), str(comp_port)], capture_output=True, text=True, timeout=120
+    )
     assert flood.returncode == 0, flood.stderr
     for name, port in (("calibrator", cal_port), ("compass", comp_port)):
-        wait_for(lambda: (s := _status(name, port)) and s["received_batches"] >= received[name] + 8000, 60,
-                 f"the {name} to take the flood")
+        wait_for(
+            lambda name=name, port=port: (s := _status(name, port)) and s["received_batches"] >= received[name] + 8000,
+            60,
+            f"the {name} to take the flood",
+        )
     after = {name: _rss_mb(procs.procs[name].pid) for name in ("calibrator", "compass")}
     print("RSS MB before", before, "after", after)
     for name in before:
         assert after[name] - before[name] < 150, f"{name} grew {after[name] - before[name]:.0f} MB"
-    code, headings = magnet_json("watch", "heading", DEVICE, "--count", "5", *NO_SCOUT, *connect_args(comp_port),
-                                 timeout=30)
+    code, headings = magnet_json(
+        "watch", "heading", DEVICE, "--count", "5", *NO_SCOUT, *connect_args(comp_port), timeout=30
+    )
     assert code == 0 and all(h["calibration_id"] == record["id"] for h in headings)
     for name in ("calibrator", "compass", "edge"):
         assert procs.alive(name), procs.log(name)

@@ -12,8 +12,18 @@ from pathlib import Path
 MAGNET_DIR = Path(__file__).resolve().parents[1] / "magnet"
 FORBIDDEN = ("zenoh", "smbus2", "sqlite3", "_sqlite3")
 #: modules the shell owns: processes, sockets, threads, signals
-FORBIDDEN_SOURCE_IMPORTS = {"zenoh", "smbus2", "sqlite3", "socket", "subprocess", "signal", "asyncio",
-                            "multiprocessing", "http", "urllib"}
+FORBIDDEN_SOURCE_IMPORTS = {
+    "zenoh",
+    "smbus2",
+    "sqlite3",
+    "socket",
+    "subprocess",
+    "signal",
+    "asyncio",
+    "multiprocessing",
+    "http",
+    "urllib",
+}
 #: ``time.X(...)`` calls that read a clock or sleep; a module takes them as parameters instead
 CLOCK_CALLS = {"sleep", "time", "time_ns", "monotonic", "monotonic_ns", "perf_counter", "perf_counter_ns"}
 
@@ -33,11 +43,13 @@ def _sources() -> list[Path]:
 
 
 def test_no_module_of_magnet_loads_zenoh_smbus2_or_sqlite3():
-    out = subprocess.run([sys.executable, "-c", IMPORT_ALL % (FORBIDDEN,)], capture_output=True, text=True,
-                         check=True, timeout=120).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", IMPORT_ALL % (FORBIDDEN,)], capture_output=True, text=True, check=True, timeout=120
+    ).stdout
     result = json.loads(out.strip().splitlines()[-1])
-    expected = {".".join(p.relative_to(MAGNET_DIR.parent).with_suffix("").parts).removesuffix(".__init__")
-                for p in _sources()}
+    expected = {
+        ".".join(p.relative_to(MAGNET_DIR.parent).with_suffix("").parts).removesuffix(".__init__") for p in _sources()
+    }
     assert expected <= set(result["modules"]), f"not imported: {sorted(expected - set(result['modules']))}"
     assert result["loaded"] == [], f"importing magnet/ loaded {result['loaded']}"
 
@@ -53,10 +65,15 @@ def _top_level_imports(tree: ast.AST) -> set[str]:
 
 
 def _clock_calls(tree: ast.AST) -> list[str]:
-    return [f"line {node.lineno}: time.{node.func.attr}()" for node in ast.walk(tree)
-            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
-            and isinstance(node.func.value, ast.Name) and node.func.value.id == "time"
-            and node.func.attr in CLOCK_CALLS]
+    return [
+        f"line {node.lineno}: time.{node.func.attr}()"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Attribute)
+        and isinstance(node.func.value, ast.Name)
+        and node.func.value.id == "time"
+        and node.func.attr in CLOCK_CALLS
+    ]
 
 
 def test_magnet_imports_no_shell_module_and_neither_reads_the_clock_nor_sleeps():

@@ -29,11 +29,10 @@ pytestmark = pytest.mark.integration
 TAG = f"mg{os.getpid() % 100000}"
 ROUTER, EDGE, SERVICES = f"{TAG}-r", f"{TAG}-e", f"{TAG}-s"
 #: (namespace, its veth, its address; the router's veth, the router's address) per link, /30 each
-LINKS = {EDGE: ("ve0", "169.254.77.2", "vr0", "169.254.77.1"),
-         SERVICES: ("vs0", "169.254.78.2", "vr1", "169.254.78.1")}
+LINKS = {EDGE: ("ve0", "169.254.77.2", "vr0", "169.254.77.1"), SERVICES: ("vs0", "169.254.78.2", "vr1", "169.254.78.1")}
 PORT = 7447
 DEVICE = "p-1"
-CUT_S = 14.0          # longer than Zenoh's default lease (10 s): the sessions must really re-form
+CUT_S = 14.0  # longer than Zenoh's default lease (10 s): the sessions must really re-form
 RESUME_BOUND_S = 60.0
 
 
@@ -57,8 +56,10 @@ def site(tmp_path):
         pytest.skip("no `ip` command (iproute2): cannot make network namespaces")
     probe = subprocess.run(["ip", "netns", "add", ROUTER], capture_output=True, text=True)
     if probe.returncode != 0:
-        pytest.skip(f"cannot make network namespaces here (`ip netns add` failed: {probe.stderr.strip()}); "
-                    "the partition test needs root and a kernel with network namespaces")
+        pytest.skip(
+            f"cannot make network namespaces here (`ip netns add` failed: {probe.stderr.strip()}); "
+            "the partition test needs root and a kernel with network namespaces"
+        )
     procs: list[subprocess.Popen] = []
     logs: list = []
     try:
@@ -67,8 +68,21 @@ def site(tmp_path):
         for ns in (ROUTER, EDGE, SERVICES):
             sh("ip", "-n", ns, "link", "set", "lo", "up")
         for ns, (veth, address, router_veth, router_address) in LINKS.items():
-            sh("ip", "link", "add", f"{TAG}{veth}", "netns", ns, "type", "veth", "peer", "name", f"{TAG}{router_veth}",
-               "netns", ROUTER)
+            sh(
+                "ip",
+                "link",
+                "add",
+                f"{TAG}{veth}",
+                "netns",
+                ns,
+                "type",
+                "veth",
+                "peer",
+                "name",
+                f"{TAG}{router_veth}",
+                "netns",
+                ROUTER,
+            )
             sh("ip", "-n", ns, "addr", "add", f"{address}/30", "dev", f"{TAG}{veth}")
             sh("ip", "-n", ROUTER, "addr", "add", f"{router_address}/30", "dev", f"{TAG}{router_veth}")
             sh("ip", "-n", ns, "link", "set", f"{TAG}{veth}", "up")
@@ -99,14 +113,20 @@ class Site:
     def start(self, name: str, ns: str, *args: str, stdout=None) -> subprocess.Popen:
         log = open(self.tmp_path / f"{name}.log", "w")  # noqa: SIM115 - open while the process runs; closed at the end
         self.logs.append(log)
-        proc = subprocess.Popen(netns_exec(ns, *MAGNET, *args), cwd=REPO_ROOT, stdout=stdout or log,
-                                stderr=log, text=True)
+        proc = subprocess.Popen(
+            netns_exec(ns, *MAGNET, *args), cwd=REPO_ROOT, stdout=stdout or log, stderr=log, text=True
+        )
         self.procs.append(proc)
         return proc
 
     def magnet_json(self, ns: str, *args: str) -> tuple[int, list]:
-        out = subprocess.run(netns_exec(ns, *MAGNET, *args, *client(ns), "--timeout", "2"), cwd=REPO_ROOT,
-                             capture_output=True, text=True, timeout=30)
+        out = subprocess.run(
+            netns_exec(ns, *MAGNET, *args, *client(ns), "--timeout", "2"),
+            cwd=REPO_ROOT,
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
         return out.returncode, [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
 
     def link(self, ns: str, up: bool) -> None:
@@ -114,8 +134,14 @@ class Site:
 
 
 def stored_calibration(path: Path) -> str:
-    cal = Calibration("ellipsoid", np.array([20.0, -10.0, 5.0]), np.eye(3), field_strength=51.0,
-                      quality=Quality(residual_rms_ut=0.3, coverage=0.95), accepted=True)
+    cal = Calibration(
+        "ellipsoid",
+        np.array([20.0, -10.0, 5.0]),
+        np.eye(3),
+        field_strength=51.0,
+        quality=Quality(residual_rms_ut=0.3, coverage=0.95),
+        accepted=True,
+    )
     with CalibrationStore(path) as store:
         store.save(wire.DeviceCalibration(DEVICE, time.time_ns(), cal))
     return cal.content_id
@@ -146,12 +172,29 @@ def test_a_cut_link_heals_headings_resume_and_nothing_stored_is_lost(site):
     site.start("router", ROUTER, "router", "--no-multicast-scouting", *router_listen)
     site.start("calibrator", SERVICES, "calibrator", "--db", str(db), *client(SERVICES))
     site.start("compass", SERVICES, "compass", "--location", "50.45,30.52", *client(SERVICES))
-    watcher = Headings(site.start("watch", SERVICES, "watch", "heading", DEVICE, *client(SERVICES),
-                                  stdout=subprocess.PIPE))
-    site.start("edge", EDGE, "edge", "--device", DEVICE, "--emulate", "--rate", "50", "--batch", "5",
-               "--hard-iron", "20,-10,5", *client(EDGE))
-    wait_for(lambda: len(watcher.times) >= 20 and watcher.last.get("calibration_id") == cal_id, 60,
-             "calibrated headings to flow from the edge host to the services host")
+    watcher = Headings(
+        site.start("watch", SERVICES, "watch", "heading", DEVICE, *client(SERVICES), stdout=subprocess.PIPE)
+    )
+    site.start(
+        "edge",
+        EDGE,
+        "edge",
+        "--device",
+        DEVICE,
+        "--emulate",
+        "--rate",
+        "50",
+        "--batch",
+        "5",
+        "--hard-iron",
+        "20,-10,5",
+        *client(EDGE),
+    )
+    wait_for(
+        lambda: len(watcher.times) >= 20 and watcher.last.get("calibration_id") == cal_id,
+        60,
+        "calibrated headings to flow from the edge host to the services host",
+    )
     code, [before] = site.magnet_json(SERVICES, "get", "status", "calibrator")
     assert code == 0 and before["received_batches"] > 0
 
@@ -166,17 +209,28 @@ def test_a_cut_link_heals_headings_resume_and_nothing_stored_is_lost(site):
 
     first = wait_for(lambda: watcher.since(healed_at), RESUME_BOUND_S, "headings to resume after the link healed")[0]
     resumed_s = first - healed_at
-    print(f"partition of {CUT_S:.0f} s: headings resumed {resumed_s:.2f} s after the link came back "
-          f"({during} heading messages arrived during the cut)")
+    print(
+        f"partition of {CUT_S:.0f} s: headings resumed {resumed_s:.2f} s after the link came back "
+        f"({during} heading messages arrived during the cut)"
+    )
     assert during == 0, "headings arrived while the link was cut"
     wait_for(lambda: len(watcher.since(healed_at)) >= 20, 30, "headings to keep flowing")
     assert watcher.last["calibration_id"] == cal_id
-    after = wait_for(lambda: (s := site.magnet_json(SERVICES, "get", "status", "calibrator")[1]) and
-                     s[0]["received_batches"] > before["received_batches"] + 10 and s[0], 30,
-                     "the calibrator to receive raw batches again")
+    after = wait_for(
+        lambda: (
+            (s := site.magnet_json(SERVICES, "get", "status", "calibrator")[1])
+            and s[0]["received_batches"] > before["received_batches"] + 10
+            and s[0]
+        ),
+        30,
+        "the calibrator to receive raw batches again",
+    )
     assert after["received_batches"] > before["received_batches"]
-    code, [served] = wait_for(lambda: (r := site.magnet_json(EDGE, "get", "calibration", DEVICE))[0] == 0 and r, 30,
-                              "magnet get to answer from the edge host again")
+    code, [served] = wait_for(
+        lambda: (r := site.magnet_json(EDGE, "get", "calibration", DEVICE))[0] == 0 and r,
+        30,
+        "magnet get to answer from the edge host again",
+    )
     assert served["id"] == cal_id
     with CalibrationStore(db) as store:
         assert [r.id for r in store.history(DEVICE)] == [cal_id]

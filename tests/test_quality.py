@@ -12,8 +12,16 @@ from hypothesis import strategies as st
 
 from magnet.calibration import FitError, fit
 from magnet.model import Calibration
-from magnet.quality import (CELL_COUNT, GateThresholds, assess, coverage, fibonacci_centres, gate, heading_coverage,
-                            scatter_condition)
+from magnet.quality import (
+    CELL_COUNT,
+    GateThresholds,
+    assess,
+    coverage,
+    fibonacci_centres,
+    gate,
+    heading_coverage,
+    scatter_condition,
+)
 
 
 def unit_vectors(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -34,13 +42,16 @@ def test_full_sphere_is_covered():
     assert cov.fraction == 1.0 and cov.cells_hit == cov.cell_count and cov.missing == ()
 
 
-@pytest.mark.parametrize("axis, sign, advice", [
-    (0, -1, "point the nose (x) down"),  # no field along +x: the nose never pointed down
-    (0, 1, "point the nose (x) up"),
-    (1, -1, "roll right side (y) down"),
-    (1, 1, "roll left side down"),
-    (2, 1, "turn it upside down"),  # only field along +z (down): never upside down
-])
+@pytest.mark.parametrize(
+    "axis, sign, advice",
+    [
+        (0, -1, "point the nose (x) down"),  # no field along +x: the nose never pointed down
+        (0, 1, "point the nose (x) up"),
+        (1, -1, "roll right side (y) down"),
+        (1, 1, "roll left side down"),
+        (2, 1, "turn it upside down"),  # only field along +z (down): never upside down
+    ],
+)
 def test_a_missing_hemisphere_is_named(axis, sign, advice):
     v = unit_vectors(np.random.default_rng(2), 5000)
     v[:, axis] = sign * np.abs(v[:, axis])

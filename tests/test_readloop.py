@@ -45,8 +45,13 @@ class Script:
 
 def make_loop(read, clock, **backoff):
     changes = []
-    loop = ReadLoop(read, clock=clock, sleep=clock.sleep, backoff=Backoff(**backoff),
-                    on_health=lambda healthy, error: changes.append((healthy, error)))
+    loop = ReadLoop(
+        read,
+        clock=clock,
+        sleep=clock.sleep,
+        backoff=Backoff(**backoff),
+        on_health=lambda healthy, error: changes.append((healthy, error)),
+    )
     return loop, changes
 
 
@@ -57,7 +62,7 @@ def test_dead_sensor_backs_off_exponentially_capped_and_counts_every_error():
     assert clock.sleeps[:4] == pytest.approx([0.01, 0.02, 0.04, 0.08])
     assert max(clock.sleeps) == 1.0 and clock.sleeps[-5:] == [1.0] * 5
     stats = loop.stats
-    assert stats.attempts <= 70                                   # about one attempt per max_s once backed off
+    assert stats.attempts <= 70  # about one attempt per max_s once backed off
     assert stats.errors == stats.attempts and stats.errors_by_cause == {"EIO": stats.errors}
     assert not stats.healthy and changes == [(False, "[Errno 5] read failed")]
     assert stats.waited_s == pytest.approx(clock.t)
@@ -71,7 +76,7 @@ def test_recovery_makes_it_healthy_again_and_restarts_the_backoff():
     assert [healthy for healthy, _ in changes] == [False, True]
     clock.sleeps.clear()
     assert loop.next() is GOOD
-    assert clock.sleeps == [0.01]                                 # one failure: the first step of the backoff
+    assert clock.sleeps == [0.01]  # one failure: the first step of the backoff
     assert loop.stats.errors_by_cause == {"EIO": 5, "EBUSY": 1} and len(changes) == 2
 
 
@@ -111,10 +116,16 @@ def test_stop_is_checked_before_every_attempt():
     assert loop.next(stop=lambda: True) is None and read.calls == 0
 
 
-@pytest.mark.parametrize("bad,message", [
-    (dict(initial_s=2.0, max_s=1.0), "initial_s <= max_s"), (dict(factor=0.5), "factor must be >= 1"),
-    (dict(unhealthy_after=0), "unhealthy_after"), (dict(give_up_after=0), "give_up_after"),
-    (dict(poll_s=-1), "poll_s >= 0")])
+@pytest.mark.parametrize(
+    "bad,message",
+    [
+        (dict(initial_s=2.0, max_s=1.0), "initial_s <= max_s"),
+        (dict(factor=0.5), "factor must be >= 1"),
+        (dict(unhealthy_after=0), "unhealthy_after"),
+        (dict(give_up_after=0), "give_up_after"),
+        (dict(poll_s=-1), "poll_s >= 0"),
+    ],
+)
 def test_bad_backoff_is_refused(bad, message):
     with pytest.raises(ValueError, match=message):
         Backoff(**bad)
@@ -123,13 +134,13 @@ def test_bad_backoff_is_refused(bad, message):
 def test_a_driver_on_a_dead_emulated_bus_through_the_loop():
     faults = FaultInjector()
     sensor = HMC5883L(HMC5883LEmulator(ConstantSource(), faults=faults), sleep=lambda s: None)
-    faults.probability = 1.0                                      # the bus dies after set-up
+    faults.probability = 1.0  # the bus dies after set-up
     clock = FakeClock()
     loop, changes = make_loop(sensor.read, clock, max_s=0.5)
     assert loop.next(stop=lambda: clock.t >= 10.0) is None
     assert loop.stats.attempts <= 30 and loop.stats.errors == loop.stats.attempts
     assert sensor.health.failed_reads == loop.stats.errors and not sensor.health.healthy
-    faults.probability = 0.0                                      # the bus comes back
+    faults.probability = 0.0  # the bus comes back
     reading = loop.next()
     assert reading is not None and np.allclose(reading.mag_ut, [20.0, 0.0, 45.0], atol=0.5)
     assert [healthy for healthy, _ in changes] == [False, True] and sensor.health.healthy

@@ -31,14 +31,20 @@ class FakeClock:
 
 def recording(n: int = 25, rate_hz: float = 10.0, gyro: bool = True) -> Recording:
     rng = np.random.default_rng(0)
-    return Recording(np.arange(n) / rate_hz, rng.normal(0, 30, (n, 3)), rng.normal(0, 3, (n, 3)),
-                     rng.normal(0, 1, (n, 3)) if gyro else None)
+    return Recording(
+        np.arange(n) / rate_hz,
+        rng.normal(0, 30, (n, 3)),
+        rng.normal(0, 3, (n, 3)),
+        rng.normal(0, 1, (n, 3)) if gyro else None,
+    )
 
 
 def test_batches_are_released_at_the_recording_pace_scaled_by_speed():
     clock = FakeClock()
-    released = [(part.start, part.stop, clock.t - 100.0)
-                for part in paced_slices(recording(), 10, speed=2.0, clock=clock, sleep=clock.sleep)]
+    released = [
+        (part.start, part.stop, clock.t - 100.0)
+        for part in paced_slices(recording(), 10, speed=2.0, clock=clock, sleep=clock.sleep)
+    ]
     assert [(lo, hi) for lo, hi, _ in released] == [(0, 10), (10, 20), (20, 25)]
     # the last sample of each batch is due at t_s / speed: 0.9 / 2, 1.9 / 2, 2.4 / 2 seconds
     assert [t for _, _, t in released] == pytest.approx([0.45, 0.95, 1.2])
@@ -58,13 +64,16 @@ def test_stamps_keep_the_recorded_intervals():
     assert rec.stamps_ns(1_000).tolist() == [1_000, 10_001_000, 20_001_000, 30_001_000, 40_001_000]
 
 
-@pytest.mark.parametrize("change,message", [
-    (dict(t_s=np.array([0.0, 0.2, 0.1])), "go backwards at row 3"),
-    (dict(t_s=np.array([0.0, np.nan, 0.2])), "must be finite"),
-    (dict(mag_ut=np.array([[1.0, 2, 3], [np.inf, 0, 0], [1, 2, 3]])), "mag_ut row 2 is not finite"),
-    (dict(gyr_rads=np.full((3, 3), 1e4)), "gyr_rads row 1"),
-    (dict(acc_ms2=np.zeros((2, 3))), "acc_ms2 must have shape (3, 3)"),
-])
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (dict(t_s=np.array([0.0, 0.2, 0.1])), "go backwards at row 3"),
+        (dict(t_s=np.array([0.0, np.nan, 0.2])), "must be finite"),
+        (dict(mag_ut=np.array([[1.0, 2, 3], [np.inf, 0, 0], [1, 2, 3]])), "mag_ut row 2 is not finite"),
+        (dict(gyr_rads=np.full((3, 3), 1e4)), "gyr_rads row 1"),
+        (dict(acc_ms2=np.zeros((2, 3))), "acc_ms2 must have shape (3, 3)"),
+    ],
+)
 def test_a_bad_recording_is_refused_with_the_row(change, message):
     fields = dict(t_s=np.array([0.0, 0.1, 0.2]), mag_ut=np.ones((3, 3)), acc_ms2=None, gyr_rads=None) | change
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
@@ -87,10 +96,10 @@ def test_read_recording_takes_the_columns_of_magnet_sample(tmp_path):
     assert read_recording(tmp_path / "nogyro.csv").gyr_rads is None
 
 
-@pytest.mark.parametrize("text,message", [
-    ("mx,my,mz\n1,2,3\n", "needs a t_s column"),
-    ("t_s,mx,my,mz\n0.2,1,2,3\n0.1,1,2,3\n", "go backwards at row 2"),
-])
+@pytest.mark.parametrize(
+    "text,message",
+    [("mx,my,mz\n1,2,3\n", "needs a t_s column"), ("t_s,mx,my,mz\n0.2,1,2,3\n0.1,1,2,3\n", "go backwards at row 2")],
+)
 def test_edge_replay_refuses_a_bad_file_in_one_line(capsys, tmp_path, text, message):
     path = tmp_path / "bad.csv"
     path.write_text(text)
@@ -115,10 +124,27 @@ def test_replay_arrives_complete_and_in_order_at_a_subscriber(tmp_path):
         conf.insert_json5(key, value)
     with zenoh.open(conf) as session:
         subscriber = session.declare_subscriber("magnet/rep-1/raw", zenoh.handlers.FifoChannel(1024))
-        out = subprocess.run([*MAGNET, "edge", "--replay", str(tmp_path / "flight.csv"), "--device", "rep-1",
-                              "--speed", "2", "--batch", "10", *listen_args(free_ports(1)[0]),
-                              "--connect", f"tcp/127.0.0.1:{port}"],
-                             capture_output=True, text=True, timeout=60, cwd=REPO_ROOT)
+        out = subprocess.run(
+            [
+                *MAGNET,
+                "edge",
+                "--replay",
+                str(tmp_path / "flight.csv"),
+                "--device",
+                "rep-1",
+                "--speed",
+                "2",
+                "--batch",
+                "10",
+                *listen_args(free_ports(1)[0]),
+                "--connect",
+                f"tcp/127.0.0.1:{port}",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO_ROOT,
+        )
         assert out.returncode == 0, out.stderr
         batches = []
         while (sample := subscriber.try_recv()) is not None:
@@ -126,7 +152,8 @@ def test_replay_arrives_complete_and_in_order_at_a_subscriber(tmp_path):
     assert [b.seq for b in batches] == [0, 1, 2, 3, 4] and [len(b) for b in batches] == [10, 10, 10, 10, 7]
     assert {b.sensor for b in batches} == {"replay"}
     t_ns = np.concatenate([b.t_ns for b in batches])
-    assert np.array_equal(np.diff(t_ns), np.full(46, 10_000_000))      # the recorded 100 Hz, not scaled by speed
+    assert np.array_equal(np.diff(t_ns), np.full(46, 10_000_000))  # the recorded 100 Hz, not scaled by speed
+
     def sent(values):  # wire v 2 carries measurements as <f4
         return np.asarray(values, dtype=np.float32).astype(float)
 

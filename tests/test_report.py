@@ -32,9 +32,29 @@ def tumble(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tumble")
     csv, cal = folder / "tumble.csv", folder / "tumble.json"
     with open(csv, "w") as out, contextlib.redirect_stdout(out):
-        assert main(["sample", "--sensor", "lsm303dlh", "--emulate", "--trajectory", "tumble", "--count", "3000",
-                     "--hard-iron", "25,-40,12", "--soft-iron", "1.1,0.05,0,0.05,0.9,0.02,0,0.02,1.05",
-                     "--noise-ut", "0.3", "--date", "2026-01-01"]) == 0
+        assert (
+            main(
+                [
+                    "sample",
+                    "--sensor",
+                    "lsm303dlh",
+                    "--emulate",
+                    "--trajectory",
+                    "tumble",
+                    "--count",
+                    "3000",
+                    "--hard-iron",
+                    "25,-40,12",
+                    "--soft-iron",
+                    "1.1,0.05,0,0.05,0.9,0.02,0,0.02,1.05",
+                    "--noise-ut",
+                    "0.3",
+                    "--date",
+                    "2026-01-01",
+                ]
+            )
+            == 0
+        )
     assert main(["fit", str(csv), "--method", "ellipsoid", "--location", LOCATION, "--out", str(cal)]) == 0
     return csv, cal
 
@@ -44,8 +64,23 @@ def test_report_of_an_emulated_tumble_shows_the_ellipse_become_a_circle(tumble):
     csv, cal = tumble
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
     out = ARTEFACTS / "tumble.png"
-    assert main(["report", str(csv), "--calibration", str(cal), "--location", LOCATION, "--date", "2026-01-01",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "report",
+                str(csv),
+                "--calibration",
+                str(cal),
+                "--location",
+                LOCATION,
+                "--date",
+                "2026-01-01",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert out.read_bytes()[:8] == PNG_MAGIC and out.stat().st_size > 50_000
     from services.commands.fit import load_calibration
 
@@ -60,8 +95,23 @@ def test_report_of_an_emulated_tumble_shows_the_ellipse_become_a_circle(tumble):
 def test_fit_report_writes_the_same_report_for_the_fit_it_made(tumble, tmp_path):
     csv, _ = tumble
     page = tmp_path / "fit.html"
-    assert main(["fit", str(csv), "--method", "ellipsoid", "--location", LOCATION, "--report", str(page),
-                 "--out", str(tmp_path / "cal.json")]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                str(csv),
+                "--method",
+                "ellipsoid",
+                "--location",
+                LOCATION,
+                "--report",
+                str(page),
+                "--out",
+                str(tmp_path / "cal.json"),
+            ]
+        )
+        == 0
+    )
     text = page.read_text()
     record = json.loads((tmp_path / "cal.json").read_text())
     assert "data:image/png;base64," in text and "ellipsoid calibration" in text
@@ -87,8 +137,9 @@ def test_bad_report_requests_say_what_is_wrong(tumble, tmp_path, capsys):
     csv, cal = tumble
     assert main(["report", str(csv), "--calibration", str(cal), "--out", str(tmp_path / "r.pdf")]) == 2
     assert "must end in .png or .html" in capsys.readouterr().err
-    assert main(["report", str(csv), "--calibration", str(cal), "--unit", "gauss", "--out",
-                 str(tmp_path / "r.png")]) == 2
+    assert (
+        main(["report", str(csv), "--calibration", str(cal), "--unit", "gauss", "--out", str(tmp_path / "r.png")]) == 2
+    )
     assert "give --unit ut" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
 
@@ -106,8 +157,7 @@ RECORDINGS = {  # file -> (unit, method, fit every n-th sample)
 def test_report_of_each_real_recording(datasets_dir, name):
     unit, method, step = RECORDINGS[name]
     samples = load_samples(datasets_dir / name, unit)
-    calibration = fit(samples.raw[::step], method, acc=None if samples.acc is None else samples.acc[::step],
-                      unit=unit)
+    calibration = fit(samples.raw[::step], method, acc=None if samples.acc is None else samples.acc[::step], unit=unit)
     data = build_report(samples, calibration)
     assert data.spread_after_pct < data.spread_before_pct
     assert 0.3 < data.quality["coverage"] <= 1.0  # the gate figures are in the report

@@ -25,7 +25,7 @@ STEPS = {
     "keys": "magnet keys --out $SITE/signing --name calibrator",
     "router": "magnet router --config $SITE/router.json5",
     "calibrator": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db "
-                  "--signing-key $SITE/signing/calibrator.key",
+    "--signing-key $SITE/signing/calibrator.key",
     "compass": "magnet compass --config $SITE/compass.json5 --trust $SITE/signing/calibrator.pub",
     "edge": "magnet edge --config $SITE/edge-password.json5 --device imu-1 --sensor sim --emulate",
     "get": "magnet get calibration imu-1 --config $SITE/viewer.json5 --trust $SITE/signing/calibrator.pub",
@@ -44,13 +44,18 @@ class Site(Processes):
         self.mtls_port, self.password_port = free_ports(2)
 
     def argv(self, step: str, *extra: str) -> list[str]:
-        text = (STEPS[step].replace("$SITE", str(self.dir)).replace("7447", str(self.mtls_port))
-                .replace("7448", str(self.password_port)))
+        text = (
+            STEPS[step]
+            .replace("$SITE", str(self.dir))
+            .replace("7447", str(self.mtls_port))
+            .replace("7448", str(self.password_port))
+        )
         return [*text.split()[1:], *extra]
 
     def run(self, step: str, *extra: str, timeout: float = 20) -> subprocess.CompletedProcess:
-        return subprocess.run([*MAGNET, *self.argv(step, *extra)], capture_output=True, text=True, timeout=timeout,
-                              cwd=REPO_ROOT)
+        return subprocess.run(
+            [*MAGNET, *self.argv(step, *extra)], capture_output=True, text=True, timeout=timeout, cwd=REPO_ROOT
+        )
 
     def start_step(self, step: str, *extra: str) -> None:
         self.start(step, *self.argv(step, *extra))
@@ -112,9 +117,18 @@ def test_every_role_does_its_job_through_the_secure_router(site):
     site.start_step("calibrator")
     site.start_step("compass")
     for service in ("calibrator", "compass"):
-        wait_for(lambda: subprocess.run([*MAGNET, "get", "status", service, "--timeout", "1", "--config",
-                                         str(site.dir / "viewer.json5")], capture_output=True, timeout=20).returncode
-                 == 0, 30, f"the {service} to answer")
+        wait_for(
+            lambda service=service: (
+                subprocess.run(
+                    [*MAGNET, "get", "status", service, "--timeout", "1", "--config", str(site.dir / "viewer.json5")],
+                    capture_output=True,
+                    timeout=20,
+                ).returncode
+                == 0
+            ),
+            30,
+            f"the {service} to answer",
+        )
     site.start_step("edge", *FAST_EDGE)
 
     last = []
@@ -136,13 +150,23 @@ def test_every_role_does_its_job_through_the_secure_router(site):
     assert all(h["calibration_id"] == record["id"] for h in headings), "headings use the calibration"
     operator = site.run("calibrate")
     assert operator.returncode == 0 and json.loads(operator.stdout)["state"] == "calibrated", operator.stderr
-    viewer = subprocess.run([*MAGNET, *site.argv("calibrate")[:-2], "--config", str(site.dir / "viewer.json5"),
-                             "--timeout", "2"], capture_output=True, text=True, timeout=20)
+    viewer = subprocess.run(
+        [*MAGNET, *site.argv("calibrate")[:-2], "--config", str(site.dir / "viewer.json5"), "--timeout", "2"],
+        capture_output=True,
+        text=True,
+        timeout=20,
+    )
     assert viewer.returncode == 1 and "no calibrator answered" in viewer.stderr, "a viewer cannot drive sessions"
-    fleet = subprocess.run([*MAGNET, "get", "fleet", "--config", str(site.dir / "viewer.json5"), "--timeout", "3"],
-                           capture_output=True, text=True, timeout=20)
+    fleet = subprocess.run(
+        [*MAGNET, "get", "fleet", "--config", str(site.dir / "viewer.json5"), "--timeout", "3"],
+        capture_output=True,
+        text=True,
+        timeout=20,
+    )
     assert fleet.returncode == 0, fleet.stderr
-    assert [d["calibration_id"] for d in json.loads(fleet.stdout)["devices"]] == [record["id"]], "a viewer sees the fleet"
+    assert [d["calibration_id"] for d in json.loads(fleet.stdout)["devices"]] == [record["id"]], (
+        "a viewer sees the fleet"
+    )
     for name in ("calibrator", "compass", "edge"):
         assert site.alive(name), site.log(name)
 
@@ -174,8 +198,12 @@ def _marker_check(channel_refused, channel_marker, send_refused, send_marker, ti
 def test_what_a_role_may_not_do_is_refused(site):
     import zenoh
 
-    with zenoh.open(site.config("viewer")) as viewer, zenoh.open(site.config("compass")) as compass, \
-            zenoh.open(site.config("edge")) as edge, zenoh.open(site.config("calibrator")) as calibrator:
+    with (
+        zenoh.open(site.config("viewer")) as viewer,
+        zenoh.open(site.config("compass")) as compass,
+        zenoh.open(site.config("edge")) as edge,
+        zenoh.open(site.config("calibrator")) as calibrator,
+    ):
         cal_sub = viewer.declare_subscriber("magnet/probe-1/calibration")
         heading_sub = viewer.declare_subscriber("magnet/probe-1/heading")
         raw_view = viewer.declare_subscriber("magnet/probe-1/raw")
@@ -184,21 +212,34 @@ def test_what_a_role_may_not_do_is_refused(site):
         # the allowed put arrives (and so the subscriptions are in place)
         _marker_check(heading_sub, cal_sub, lambda: None, lambda: calibrator.put("magnet/probe-1/calibration", b"ok"))
         # a compass cannot put a calibration: its heading arrives, the calibration does not
-        assert b"forged" not in _marker_check(cal_sub, heading_sub,
-                                              lambda: compass.put("magnet/probe-1/calibration", b"forged"),
-                                              lambda: compass.put("magnet/probe-1/heading", b"h"))
+        assert b"forged" not in _marker_check(
+            cal_sub,
+            heading_sub,
+            lambda: compass.put("magnet/probe-1/calibration", b"forged"),
+            lambda: compass.put("magnet/probe-1/heading", b"h"),
+        )
         # nor can an edge
-        assert b"forged" not in _marker_check(cal_sub, raw_view,
-                                              lambda: edge.put("magnet/probe-1/calibration", b"forged"),
-                                              lambda: edge.put("magnet/probe-1/raw", b"r"))
+        assert b"forged" not in _marker_check(
+            cal_sub,
+            raw_view,
+            lambda: edge.put("magnet/probe-1/calibration", b"forged"),
+            lambda: edge.put("magnet/probe-1/raw", b"r"),
+        )
         # a viewer cannot put raw samples: its query reaches the calibrator's status queryable after its put
-        assert b"forged" not in _marker_check(raw_sub, status_q, lambda: viewer.put("magnet/probe-1/raw", b"forged"),
-                                              lambda: viewer.get("magnet/@status/probe", timeout=0.2))
+        assert b"forged" not in _marker_check(
+            raw_sub,
+            status_q,
+            lambda: viewer.put("magnet/probe-1/raw", b"forged"),
+            lambda: viewer.get("magnet/@status/probe", timeout=0.2),
+        )
         # a compass cannot serve calibrations: its refused queryable is never asked
         fake = compass.declare_queryable("magnet/probe-2/calibration")
         compass_status = compass.declare_queryable("magnet/@status/probe-compass")
-        wait_for(lambda: _answered(viewer, compass_status, "magnet/@status/probe-compass"), 10,
-                 "the compass's allowed queryable to answer")
+        wait_for(
+            lambda: _answered(viewer, compass_status, "magnet/@status/probe-compass"),
+            10,
+            "the compass's allowed queryable to answer",
+        )
         replies = list(viewer.get("magnet/probe-2/calibration", timeout=1.0))
         assert fake.try_recv() is None and replies == [], "a compass's calibration queryable is never asked"
 
@@ -220,8 +261,9 @@ def _answered(session, queryable, key):
 def test_unauthenticated_and_wrong_ca_clients_are_refused(site, tmp_path):
     import zenoh
 
-    other = subprocess.run([*MAGNET, "certs", "--out", str(tmp_path / "other")], capture_output=True, text=True,
-                           timeout=30)
+    other = subprocess.run(
+        [*MAGNET, "certs", "--out", str(tmp_path / "other")], capture_output=True, text=True, timeout=30
+    )
     assert other.returncode == 0, other.stderr
     # a certificate from another CA (the client trusts the right CA, so only the router's check can refuse it)
     wrong_ca = site.config("calibrator")
@@ -232,13 +274,20 @@ def test_unauthenticated_and_wrong_ca_clients_are_refused(site, tmp_path):
     bad_password = site.config("edge-password")
     bad_password.insert_json5("transport/auth/usrpwd/password", '"guessed"')
     plain = zenoh.Config()
-    for key, value in (("mode", '"client"'), ("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{site.mtls_port}"])),
-                       ("scouting/multicast/enabled", "false")):
+    for key, value in (
+        ("mode", '"client"'),
+        ("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{site.mtls_port}"])),
+        ("scouting/multicast/enabled", "false"),
+    ):
         plain.insert_json5(key, value)
     with zenoh.open(site.config("edge-password")):
         pass  # the right password on the password listener is let in
-    for name, config in (("wrong CA", wrong_ca), ("no certificate", no_cert), ("bad password", bad_password),
-                         ("plain TCP", plain)):
+    for name, config in (
+        ("wrong CA", wrong_ca),
+        ("no certificate", no_cert),
+        ("bad password", bad_password),
+        ("plain TCP", plain),
+    ):
         try:
             zenoh.open(config).close()
         except zenoh.ZError:
@@ -255,6 +304,6 @@ def test_deploy_readme_steps_are_the_tested_ones():
 def test_shipped_router_config_is_what_magnet_certs_writes():
     site = acl.Site("tls/0.0.0.0:7447", "tls/0.0.0.0:7448", Path("/etc/magnet/tls"))
     shipped = (REPO_ROOT / "deploy" / "router-secure.json5").read_text()
-    body = shipped[shipped.index("{"):]
+    body = shipped[shipped.index("{") :]
     assert json.loads(body) == acl.router_config(site)
     assert re.search(r"magnet certs", shipped)

@@ -9,8 +9,8 @@ from magnet.selftest import evaluate, expected_counts, limits_counts, temperatur
 
 
 def test_seed_figures():
-    assert np.allclose(expected_counts(3), [765.6, 765.6, 712.8])      # seed: about 766 and 713 at GN=3
-    assert limits_counts(5) == (243.0, 575.0)                          # datasheet limits at GN=5
+    assert np.allclose(expected_counts(3), [765.6, 765.6, 712.8])  # seed: about 766 and 713 at GN=3
+    assert limits_counts(5) == (243.0, 575.0)  # datasheet limits at GN=5
     result = evaluate([750, 766, 713], [-750, -766, -713], 3)
     assert result.passed and result.scale[0] == pytest.approx(765.6 / 750)
     assert temperature_factor([750, 750, 700], [700, 750, 700]) == pytest.approx([750 / 700, 1, 1])
@@ -29,12 +29,15 @@ def test_failures_are_reported_per_axis():
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.integers(0, 7), st.lists(st.floats(-0.25, 0.25), min_size=3, max_size=3),
-       st.lists(st.floats(-30, 30), min_size=3, max_size=3))
+@given(
+    st.integers(0, 7),
+    st.lists(st.floats(-0.25, 0.25), min_size=3, max_size=3),
+    st.lists(st.floats(-30, 30), min_size=3, max_size=3),
+)
 def test_scale_undoes_gain_error_whatever_the_offset(gain, error, offset):
     error = np.array(error)
     true_bias = expected_counts(gain)
-    positive = true_bias * (1 + error) + offset                       # a residual offset cancels in (p - n) / 2
+    positive = true_bias * (1 + error) + offset  # a residual offset cancels in (p - n) / 2
     negative = -true_bias * (1 + error) + offset
     result = evaluate(positive, negative, gain)
     low, high = limits_counts(gain)

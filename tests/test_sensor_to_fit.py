@@ -19,14 +19,32 @@ pytestmark = pytest.mark.integration
 
 
 def sample(*options: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*MAGNET, "sample", "--emulate", "--seed", "5", "--hard-iron", HARD_IRON_ARG,
-                           "--soft-iron", SOFT_IRON_ARG, "--noise-ut", "0.3", *options],
-                          capture_output=True, text=True, check=True, timeout=120)
+    return subprocess.run(
+        [
+            *MAGNET,
+            "sample",
+            "--emulate",
+            "--seed",
+            "5",
+            "--hard-iron",
+            HARD_IRON_ARG,
+            "--soft-iron",
+            SOFT_IRON_ARG,
+            "--noise-ut",
+            "0.3",
+            *options,
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    )
 
 
 def fit(csv_text: str, *options: str) -> dict:
-    result = subprocess.run([*MAGNET, "fit", "/dev/stdin", *options], input=csv_text, capture_output=True,
-                            text=True, timeout=120)
+    result = subprocess.run(
+        [*MAGNET, "fit", "/dev/stdin", *options], input=csv_text, capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stderr
     return json.loads(result.stdout)
 
@@ -36,7 +54,7 @@ def test_emulated_tumble_fitted_with_ellipsoid_recovers_hard_and_soft_iron(senso
     raw = sample("--sensor", sensor, "--trajectory", "tumble", "--count", "2000").stdout
     record = fit(raw, "--method", "ellipsoid")
     assert np.abs(np.array(record["offset"]) - HARD_IRON_UT).max() < 0.5
-    product = np.array(record["matrix"]) @ SOFT_IRON            # identity up to the overall scale
+    product = np.array(record["matrix"]) @ SOFT_IRON  # identity up to the overall scale
     assert np.allclose(product / np.cbrt(np.linalg.det(product)), np.eye(3), atol=0.01)
 
 

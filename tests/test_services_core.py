@@ -22,15 +22,17 @@ SOFT = np.array([[1.1, 0.04, 0.0], [0.04, 0.9, 0.02], [0.0, 0.02, 1.0]])
 
 
 def _run(count=3000, seed=0):
-    return simulate(SimulatorConfig(count=count, seed=seed, errors=SensorErrors(hard_iron_ut=HARD, soft_iron=SOFT,
-                                                                                noise_ut=0.3)))
+    return simulate(
+        SimulatorConfig(count=count, seed=seed, errors=SensorErrors(hard_iron_ut=HARD, soft_iron=SOFT, noise_ut=0.3))
+    )
 
 
 def _feed(calibrator, run, device="d", batch=25):
     for seq, start in enumerate(range(0, len(run.t_s), batch)):
         part = slice(start, start + batch)
-        raw = wire.RawBatch(device, seq, "sim", np.arange(start, start + len(run.t_s[part])), run.mag_ut[part],
-                            run.acc_ms2[part])
+        raw = wire.RawBatch(
+            device, seq, "sim", np.arange(start, start + len(run.t_s[part])), run.mag_ut[part], run.acc_ms2[part]
+        )
         calibrator.on_raw(f"magnet/{device}/raw", wire.encode_raw(raw), "magnet")
 
 
@@ -50,15 +52,20 @@ def store(tmp_path):
 
 
 def _calibrator(store, published, **settings):
-    return Calibrator(store, CalibratorSettings(**settings), lambda k, d, p: published.append((k, d, p)),
-                      clock=FakeClock(), clock_ns=lambda: 42)
+    return Calibrator(
+        store,
+        CalibratorSettings(**settings),
+        lambda k, d, p: published.append((k, d, p)),
+        clock=FakeClock(),
+        clock_ns=lambda: 42,
+    )
 
 
 def test_collection_keeps_one_sample_per_fine_cell_and_stays_bounded():
     collection = Collection("ellipsoid", False, capacity=300)
     run = _run()
     for start in range(0, 3000, 50):
-        collection.add(run.mag_ut[start:start + 50], run.acc_ms2[start:start + 50])
+        collection.add(run.mag_ut[start : start + 50], run.acc_ms2[start : start + 50])
     assert collection.seen == 3000 and collection.kept == 300
     mag, acc = collection.samples()
     assert len(np.unique(fine_cells(mag - collection.centre))) >= 260  # evenly spread (the centre moves a little)
@@ -84,8 +91,9 @@ def test_automatic_calibration_is_stored_published_and_then_collection_stops(sto
 def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
     published = []
     calibrator = _calibrator(store, published, min_coverage=0.0)
-    spin = simulate(SimulatorConfig(trajectory="spin", count=2000, errors=SensorErrors(hard_iron_ut=HARD,
-                                                                                       noise_ut=0.3)))
+    spin = simulate(
+        SimulatorConfig(trajectory="spin", count=2000, errors=SensorErrors(hard_iron_ut=HARD, noise_ut=0.3))
+    )
     _feed(calibrator, spin)
     assert store.latest("d") is None
     progress = wire.decode_progress([p for k, d, p in published if k is wire.Kind.PROGRESS][-1])
@@ -141,8 +149,14 @@ def test_compass_without_acc_or_calibration_flags_it_and_counts_garbage():
 
 def test_compass_identity_when_uncalibrated_matches_raw_field():
     compass = Compass(Earth(), window=1)
-    raw = wire.RawBatch("x", 0, "sim", np.arange(2), np.array([[10.0, -10.0, 40.0], [0.0, 10.0, 40.0]]),
-                        np.tile([0.0, 0.0, -9.8], (2, 1)))
+    raw = wire.RawBatch(
+        "x",
+        0,
+        "sim",
+        np.arange(2),
+        np.array([[10.0, -10.0, 40.0], [0.0, 10.0, 40.0]]),
+        np.tile([0.0, 0.0, -9.8], (2, 1)),
+    )
     [out] = compass.process([raw])
     np.testing.assert_allclose(out.field_ut, raw.mag_ut)
     np.testing.assert_allclose(out.heading_deg, [45.0, 270.0], atol=1e-9)
@@ -166,8 +180,10 @@ def test_heading_command_refuses_an_implausible_calibration_file(tmp_path):
     good = Calibration("ellipsoid", [1.0, 2.0, 3.0], np.diag([1.0, 1.1, 0.9])).to_dict()
     path.write_text(json.dumps(good))
     assert load_calibration(str(path)).content_id == Calibration.from_dict(good).content_id
-    for matrix, words in (([[1, 0, 0], [0, 1, 0], [0, 0, 0]], "condition number"),
-                          ([[0, 1, 0], [1, 0, 0], [0, 0, 1]], "negative determinant")):
+    for matrix, words in (
+        ([[1, 0, 0], [0, 1, 0], [0, 0, 0]], "condition number"),
+        ([[0, 1, 0], [1, 0, 0], [0, 0, 1]], "negative determinant"),
+    ):
         path.write_text(json.dumps({**good, "matrix": matrix}))
         with pytest.raises(ValueError, match=f"cal.json: calibration matrix .*{words}"):
             load_calibration(str(path))

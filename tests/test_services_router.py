@@ -16,9 +16,15 @@ def test_clients_meet_through_the_router(tmp_path):
     router = subprocess.Popen([*MAGNET, "router", "--listen", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
     calibrator = subprocess.Popen([*MAGNET, "calibrator", "--db", str(tmp_path / "c.db"), *client])
     try:
-        out = wait_for(lambda: (answer := run_magnet("get", "status", "calibrator", *client, "--timeout", "1",
-                                                     timeout=20)).returncode == 0 and answer,
-                       20, "the calibrator's status through the router")
+        out = wait_for(
+            lambda: (
+                (answer := run_magnet("get", "status", "calibrator", *client, "--timeout", "1", timeout=20)).returncode
+                == 0
+                and answer
+            ),
+            20,
+            "the calibrator's status through the router",
+        )
         assert json.loads(out.stdout)["service"] == "calibrator"
         missing = run_magnet("get", "calibration", "nobody", *client, "--timeout", "1", timeout=20)
         assert missing.returncode == 1 and "no calibration for nobody" in missing.stderr

@@ -14,10 +14,28 @@ def test_up_runs_headless_calibrates_every_device_and_stops(tmp_path):
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     env = {**os.environ, "CI": "true", "TMPDIR": str(tmp)}
-    out = subprocess.run([*MAGNET, "up", "--devices", "3", "--speedup", "10",
-                          "--duration", "14", "--interval", "2", "--db", str(tmp_path / "up.db")],
-                         stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60, env=env,
-                         cwd=REPO_ROOT)
+    out = subprocess.run(
+        [
+            *MAGNET,
+            "up",
+            "--devices",
+            "3",
+            "--speedup",
+            "10",
+            "--duration",
+            "14",
+            "--interval",
+            "2",
+            "--db",
+            str(tmp_path / "up.db"),
+        ],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+        cwd=REPO_ROOT,
+    )
     assert out.returncode == 0, out.stderr
     assert "\x1b[" not in out.stdout, "no terminal codes without a terminal"
     last_view = out.stdout.strip().split("\n\n")[-1].splitlines()

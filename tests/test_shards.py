@@ -42,28 +42,65 @@ def _heading_subscriber(ports):
 
     subscriber = session.declare_subscriber("magnet/*/heading", keep)
     # a compass that answers after the subscriber was declared on the same link has taken the declaration in
-    wait_for(lambda: all(any(r.ok is not None for r in session.liveliness().get(f"magnet/@alive/compass/cmp{k}",
-                                                                                timeout=1.0)) for k in range(2)),
-             20, "the compasses to see the heading subscriber")
+    wait_for(
+        lambda: all(
+            any(r.ok is not None for r in session.liveliness().get(f"magnet/@alive/compass/cmp{k}", timeout=1.0))
+            for k in range(2)
+        ),
+        20,
+        "the compasses to see the heading subscriber",
+    )
     return session, subscriber, got
 
 
 def test_two_shards_serve_a_fleet_of_1000_devices_exactly_once(procs, tmp_path):
     cal_ports, cmp_ports, edge_port = free_ports(2), free_ports(2), free_ports(1)[0]
     for k in range(2):
-        procs.start(f"cal{k}", "calibrator", "--shard", f"{k}/2", "--name", f"cal{k}", "--no-auto",
-                    "--db", str(tmp_path / f"cal{k}.db"), *listen_args(cal_ports[k]))
+        procs.start(
+            f"cal{k}",
+            "calibrator",
+            "--shard",
+            f"{k}/2",
+            "--name",
+            f"cal{k}",
+            "--no-auto",
+            "--db",
+            str(tmp_path / f"cal{k}.db"),
+            *listen_args(cal_ports[k]),
+        )
     for k in range(2):
-        procs.start(f"cmp{k}", "compass", "--shard", f"{k}/2", "--name", f"cmp{k}", *listen_args(cmp_ports[k]),
-                    *connect_args(*cal_ports))
+        procs.start(
+            f"cmp{k}",
+            "compass",
+            "--shard",
+            f"{k}/2",
+            "--name",
+            f"cmp{k}",
+            *listen_args(cmp_ports[k]),
+            *connect_args(*cal_ports),
+        )
     for k in range(2):  # peers do not forward for each other: each asked at its own port
         wait_for_liveliness(cal_ports[k], {f"magnet/@alive/calibrator/cal{k}"})
         wait_for_liveliness(cmp_ports[k], {f"magnet/@alive/compass/cmp{k}"})
     session, subscriber, got = _heading_subscriber(cmp_ports)
     try:
-        edge = procs.start("edge", "edge", "--emulate", "--devices", str(DEVICES), "--device", "f", "--rate", "10",
-                           "--batch", "10", "--duration", str(SECONDS), *listen_args(edge_port),
-                           *connect_args(*cmp_ports, *cal_ports))
+        edge = procs.start(
+            "edge",
+            "edge",
+            "--emulate",
+            "--devices",
+            str(DEVICES),
+            "--device",
+            "f",
+            "--rate",
+            "10",
+            "--batch",
+            "10",
+            "--duration",
+            str(SECONDS),
+            *listen_args(edge_port),
+            *connect_args(*cmp_ports, *cal_ports),
+        )
         edge.wait(timeout=60)
         published = json.loads(procs.log("edge").strip().splitlines()[-1])["published_batches"]
 
@@ -94,7 +131,8 @@ def test_two_shards_serve_a_fleet_of_1000_devices_exactly_once(procs, tmp_path):
     assert 0.9 * published <= received <= published  # each batch collected by one shard at most
     assert min(s["received_batches"] for s in calibrators) > 0.4 * published
     for device in ("f-000", "f-001", "f-002", "f-003"):
-        code, replies = magnet_json("calibrate", device, "status", *NO_SCOUT, *connect_args(*cal_ports),
-                                    "--timeout", "2", timeout=60)
+        code, replies = magnet_json(
+            "calibrate", device, "status", *NO_SCOUT, *connect_args(*cal_ports), "--timeout", "2", timeout=60
+        )
         assert code == 0 and len(replies) == 1 and replies[0]["device"] == device
     np.testing.assert_array_equal(sorted(by_shard), [0, 1])

@@ -16,8 +16,13 @@ from services.calibrator.store import CalibrationStore
 from services.cli import main
 from services.compass.service import Compass
 
-GENUINE = Calibration("ellipsoid", [10.0, -5.0, 2.0], np.diag([1.05, 0.95, 1.0]), field_strength=50,
-                      quality={"coverage": 0.9, "expected_field_ut": 50})
+GENUINE = Calibration(
+    "ellipsoid",
+    [10.0, -5.0, 2.0],
+    np.diag([1.05, 0.95, 1.0]),
+    field_strength=50,
+    quality={"coverage": 0.9, "expected_field_ut": 50},
+)
 KEY = "magnet/k/calibration"
 
 
@@ -53,13 +58,16 @@ def test_a_signed_record_verifies_after_the_wire_and_the_store(keys, tmp_path):
     assert refused.value.cause == "unknown-key"
 
 
-@pytest.mark.parametrize("change, cause", [
-    ({"offset": [100.0, 0.0, 0.0]}, "bad-signature"),
-    ({"device": "j"}, "bad-signature"),
-    ({"sig": None, "key_id": None}, "unsigned"),
-    ({"sig": "A" * 88}, "bad-signature"),
-    ({"sig": "not base64!"}, "bad-signature"),
-])
+@pytest.mark.parametrize(
+    "change, cause",
+    [
+        ({"offset": [100.0, 0.0, 0.0]}, "bad-signature"),
+        ({"device": "j"}, "bad-signature"),
+        ({"sig": None, "key_id": None}, "unsigned"),
+        ({"sig": "A" * 88}, "bad-signature"),
+        ({"sig": "not base64!"}, "bad-signature"),
+    ],
+)
 def test_a_changed_or_unsigned_record_is_refused(keys, change, cause):
     (signer, public), _ = keys
     with pytest.raises(signing.SignatureError) as refused:
@@ -88,8 +96,9 @@ def test_the_calibrator_signs_what_it_stores_serves_and_reloads(keys, tmp_path):
     with CalibrationStore(tmp_path / "c.db") as store:
         unsigned_before = wire.DeviceCalibration("old", 1, GENUINE)
         store.save(unsigned_before)  # stored before the calibrator had a key
-        calibrator = Calibrator(store, CalibratorSettings(), lambda kind, dev, payload: published.append(payload),
-                                signer=signer)
+        calibrator = Calibrator(
+            store, CalibratorSettings(), lambda kind, dev, payload: published.append(payload), signer=signer
+        )
         assert trusted.verify(calibrator.in_force["old"].to_record())
         record = calibrator.commit("k", GENUINE)
         assert trusted.verify(record.to_record()) and trusted.verify(wire.unpack(published[0]))
@@ -119,9 +128,14 @@ def test_compass_with_trusted_keys_applies_only_genuine_calibrations(keys):
     for name, record in hostile.items():
         assert not compass.accept_calibration(msgpack.packb(record), KEY, "magnet"), name
         assert compass.calibrations["k"].id == genuine_id, f"{name}: the genuine calibration stays in force"
-    assert compass.drops.counts == {"calibration:unknown-key": 1, "calibration:unsigned": 1,
-                                    "calibration:bad-signature": 1, "calibration:not-accepted": 1,
-                                    "calibration:bad-calibration": 2, "calibration:stale": 1}
+    assert compass.drops.counts == {
+        "calibration:unknown-key": 1,
+        "calibration:unsigned": 1,
+        "calibration:bad-signature": 1,
+        "calibration:not-accepted": 1,
+        "calibration:bad-calibration": 2,
+        "calibration:stale": 1,
+    }
     assert compass.refused == {"k"}, "the calibrators are asked again for k"
     newer = _signed(signer, moved, 30)
     assert compass.accept_calibration(msgpack.packb(newer), KEY, "magnet") and compass.calibrations["k"].sig
@@ -136,8 +150,13 @@ def test_compass_without_trusted_keys_applies_unsigned_but_never_a_rejected_fit(
 
 
 def test_the_issue_s_forged_record_is_refused_even_without_keys():
-    forged = {"v": 1, "device": "k-003", "offset": [100, 0, 0], "matrix": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]],
-              "accepted": False}
+    forged = {
+        "v": 1,
+        "device": "k-003",
+        "offset": [100, 0, 0],
+        "matrix": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]],
+        "accepted": False,
+    }
     compass = _compass([])
     assert not compass.accept_calibration(msgpack.packb(forged), "magnet/k-003/calibration", "magnet")
     assert "k-003" not in compass.calibrations and compass.refused == {"k-003"}

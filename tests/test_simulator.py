@@ -54,8 +54,9 @@ def test_truth_is_consistent_with_the_measurements(trajectory):
 def test_raw_field_is_distorted_as_the_model_says():
     e = errors(misalignment_deg=5.0)
     r = run(errors=e)
-    np.testing.assert_allclose(r.mag_ut, r.true_field_ut @ (e.soft_iron @ e.misalignment_matrix.T).T + e.hard_iron_ut,
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        r.mag_ut, r.true_field_ut @ (e.soft_iron @ e.misalignment_matrix.T).T + e.hard_iron_ut, atol=1e-9
+    )
     # misalignment only rotates: undoing soft and hard iron leaves the field rotated by exactly 5 deg
     in_mag_frame = (r.mag_ut - e.hard_iron_ut) @ np.linalg.inv(e.soft_iron).T
     cos = np.sum(in_mag_frame * r.true_field_ut, axis=1) / np.linalg.norm(r.true_field_ut, axis=1) ** 2
@@ -76,15 +77,17 @@ def test_random_errors_respect_their_bounds():
 def test_turntable_reproduces_seed_000_equations_exactly():
     per_step = 5
     r = run("turntable", count=26 * per_step)
-    h, v_up = r.earth.horizontal_ut, -r.earth.down_ut   # Bv is the UP component: negative in the north
+    h, v_up = r.earth.horizontal_ut, -r.earth.down_ut  # Bv is the UP component: negative in the north
     assert v_up < 0
     k = np.radians(r.table_deg)
     a, b = r.mounting == "a", r.mounting == "b"
     assert a.sum() == b.sum() == 13 * per_step and np.all(a[: 13 * per_step])
-    np.testing.assert_allclose(r.true_field_ut[a], np.column_stack([h * np.cos(k[a]), h * np.sin(k[a]),
-                                                                    np.full(a.sum(), v_up)]), atol=1e-12)
-    np.testing.assert_allclose(r.true_field_ut[b], np.column_stack([h * np.cos(k[b]), np.full(b.sum(), -v_up),
-                                                                    h * np.sin(k[b])]), atol=1e-12)
+    np.testing.assert_allclose(
+        r.true_field_ut[a], np.column_stack([h * np.cos(k[a]), h * np.sin(k[a]), np.full(a.sum(), v_up)]), atol=1e-12
+    )
+    np.testing.assert_allclose(
+        r.true_field_ut[b], np.column_stack([h * np.cos(k[b]), np.full(b.sum(), -v_up), h * np.sin(k[b])]), atol=1e-12
+    )
     assert sorted(set(r.table_deg.tolist())) == list(range(0, 361, 30))
     assert np.all(np.bincount((r.table_deg[a] // 30).astype(int)) == per_step)
     # a: z up (upside down), b: y down (right side down); magnetic heading = table angle
@@ -97,8 +100,9 @@ def test_turntable_closed_form_recovers_the_simulated_errors():
 
     e = errors()
     r = run("turntable", count=26 * 3, errors=e)
-    cal = fit_turntable(r.mag_ut, r.mounting, r.table_deg, r.earth.horizontal_ut, -r.earth.down_ut,
-                        unit="ut", field_unit="ut")
+    cal = fit_turntable(
+        r.mag_ut, r.mounting, r.table_deg, r.earth.horizontal_ut, -r.earth.down_ut, unit="ut", field_unit="ut"
+    )
     np.testing.assert_allclose(cal.offset, e.hard_iron_ut, atol=1e-9)
     np.testing.assert_allclose(np.linalg.inv(cal.matrix), e.soft_iron, atol=1e-9)
 
@@ -125,7 +129,7 @@ def test_tenface_visits_ten_stations_each_with_a_full_turn():
 def _sphere_cells_hit(directions, cells=100):
     i = np.arange(cells) + 0.5
     z = 1 - 2 * i / cells
-    phi = np.pi * (1 + 5 ** 0.5) * i
+    phi = np.pi * (1 + 5**0.5) * i
     centres = np.column_stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z])
     unit = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     nearest = np.argmax(unit @ centres.T, axis=1)
@@ -135,23 +139,31 @@ def _sphere_cells_hit(directions, cells=100):
 def test_tumble_is_smooth_and_covers_the_sphere():
     r = run("tumble", count=3000)
     assert _sphere_cells_hit(r.true_field_ut) == 1.0
-    assert _sphere_cells_hit(r.acc_ms2) >= 0.98     # gravity: all but the caps within 5 deg of the x axis
+    assert _sphere_cells_hit(r.acc_ms2) >= 0.98  # gravity: all but the caps within 5 deg of the x axis
     rotation = euler_to_matrix(r.heading_deg, r.pitch_deg, r.roll_deg)
     step = rotation_angle_deg(np.einsum("nji,njk->nik", rotation[:-1], rotation[1:]))
-    assert step.max() < 5.0                          # degrees per sample at 50 Hz: smooth, no jumps
+    assert step.max() < 5.0  # degrees per sample at 50 Hz: smooth, no jumps
 
 
 def test_noise_spikes_and_temperature_drift():
-    e = sim.SensorErrors(noise_ut=0.3, acc_noise_ms2=0.05, spike_probability=0.02, spike_ut=40.0,
-                         gain_tempco_per_k=-0.001, temperature_c=25.0, temperature_ramp_k_per_s=0.5)
+    e = sim.SensorErrors(
+        noise_ut=0.3,
+        acc_noise_ms2=0.05,
+        spike_probability=0.02,
+        spike_ut=40.0,
+        gain_tempco_per_k=-0.001,
+        temperature_c=25.0,
+        temperature_ramp_k_per_s=0.5,
+    )
     r = run("spin", count=5000, errors=e, rate_hz=100.0)
     error = r.mag_ut - r.true_field_ut * e.gain(r.t_s)[:, None]
     spike = np.linalg.norm(error, axis=1) > 20
     assert 0.01 < spike.mean() < 0.03
     assert np.linalg.norm(error[spike], axis=1) == pytest.approx(40.0, abs=3.0)
     assert np.std(error[~spike]) == pytest.approx(0.3, rel=0.05)
-    assert np.std(r.acc_ms2 - ned_to_body(euler_to_matrix(r.heading_deg, 0, 0), np.array([0, 0, -9.80665]))) \
-        == pytest.approx(0.05, rel=0.05)
+    assert np.std(
+        r.acc_ms2 - ned_to_body(euler_to_matrix(r.heading_deg, 0, 0), np.array([0, 0, -9.80665]))
+    ) == pytest.approx(0.05, rel=0.05)
     # the last second is 24.5 K warmer: gain 2.45 % lower
     assert r.temperature_c[-1] == pytest.approx(25.0 + 0.5 * 49.99)
     ratio = np.linalg.norm(r.mag_ut[-100:][~spike[-100:]], axis=1).mean() / r.earth.total_ut
@@ -170,19 +182,35 @@ def test_sensor_stream_matches_simulate_and_keeps_going():
     np.testing.assert_allclose(acc[:300], whole.acc_ms2, atol=1e-12)
     assert stream.last_truth["heading_deg"] == pytest.approx(whole.heading_deg[699 % 300])
     assert stream.last_truth["t_s"] == pytest.approx(699 / config.rate_hz)
-    assert not np.allclose(mag[300:600], whole.mag_ut)           # fresh noise on the next lap
+    assert not np.allclose(mag[300:600], whole.mag_ut)  # fresh noise on the next lap
     np.testing.assert_allclose(mag[300:600], whole.mag_ut, atol=15.0)
 
 
-@pytest.mark.parametrize("bad", [dict(trajectory="loop"), dict(rate_hz=0), dict(count=0),
-                                 dict(trajectory="turntable", count=20), dict(errors="none")])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(trajectory="loop"),
+        dict(rate_hz=0),
+        dict(count=0),
+        dict(trajectory="turntable", count=20),
+        dict(errors="none"),
+    ],
+)
 def test_bad_config_is_refused(bad):
     with pytest.raises(ValueError):
         sim.SimulatorConfig(**{"date": DATE, **bad})
 
 
-@pytest.mark.parametrize("bad", [dict(hard_iron_ut=(1, 2)), dict(soft_iron=np.zeros((3, 3))), dict(noise_ut=-1),
-                                 dict(spike_probability=2), dict(misalignment_deg=(0, np.nan, 0))])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(hard_iron_ut=(1, 2)),
+        dict(soft_iron=np.zeros((3, 3))),
+        dict(noise_ut=-1),
+        dict(spike_probability=2),
+        dict(misalignment_deg=(0, np.nan, 0)),
+    ],
+)
 def test_bad_errors_are_refused(bad):
     with pytest.raises(ValueError):
         sim.SensorErrors(**bad)

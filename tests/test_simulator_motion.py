@@ -40,8 +40,16 @@ def angle_between_deg(qa, qb):
 
 
 def test_names_are_the_cli_names_and_still_ones_are_kept():
-    assert {t.value for t in sim.Trajectory} >= {"spin", "turntable", "tumble", "tenface", "multirotor", "car",
-                                                 "figure8", "fast-tumble"}
+    assert {t.value for t in sim.Trajectory} >= {
+        "spin",
+        "turntable",
+        "tumble",
+        "tenface",
+        "multirotor",
+        "car",
+        "figure8",
+        "fast-tumble",
+    }
     assert {t.value for t in MOVING} == set(sim.MODELS)
     assert not sim.Trajectory.TUMBLE.moving and sim.Trajectory.CAR.moving
 
@@ -64,8 +72,9 @@ def test_gyroscope_integrates_to_the_attitude(trajectory):
 
 @pytest.mark.parametrize("trajectory", MOVING)
 def test_measurements_follow_the_truth_and_the_errors(trajectory):
-    e = sim.SensorErrors.random(np.random.default_rng(4), 50.0, misalignment_deg=3.0,
-                                gyro_bias_rads=(0.01, -0.02, 0.005))
+    e = sim.SensorErrors.random(
+        np.random.default_rng(4), 50.0, misalignment_deg=3.0, gyro_bias_rads=(0.01, -0.02, 0.005)
+    )
     r = run(trajectory, errors=e, seed=5)
     rotation = quaternion_to_matrix(r.quat_wxyz)
     np.testing.assert_allclose(r.true_field_ut, ned_to_body(rotation, np.array(r.earth.ned_ut)), atol=1e-9)
@@ -90,8 +99,14 @@ def test_gyroscope_noise_and_determinism():
 
 @pytest.mark.parametrize("trajectory", ["multirotor", "fast-tumble"])
 def test_stream_gives_the_run_sample_by_sample_across_blocks(trajectory):
-    config = sim.SimulatorConfig(trajectory=trajectory, count=1500, rate_hz=100.0, date=DATE, seed=2,
-                                 errors=sim.SensorErrors(noise_ut=0.2, gyro_noise_rads=0.01))
+    config = sim.SimulatorConfig(
+        trajectory=trajectory,
+        count=1500,
+        rate_hz=100.0,
+        date=DATE,
+        seed=2,
+        errors=sim.SensorErrors(noise_ut=0.2, gyro_noise_rads=0.01),
+    )
     whole = sim.simulate(config)
     stream = sim.SensorStream(config)
     samples = [stream.measure_imu() for _ in range(1500)]
@@ -105,12 +120,12 @@ def test_stream_gives_the_run_sample_by_sample_across_blocks(trajectory):
 
 
 def test_multirotor_banks_30_degrees_and_the_accelerometer_sees_it_late():
-    r = run("multirotor", count=12000, seed=1)       # two minutes
+    r = run("multirotor", count=12000, seed=1)  # two minutes
     rotation = quaternion_to_matrix(r.quat_wxyz)
     tilt = np.degrees(np.arccos(np.clip(rotation[:, 2, 2], -1.0, 1.0)))
     assert 29.0 < tilt.max() < 31.5
     heading = np.unwrap(np.radians(r.heading_deg))
-    assert np.ptp(heading) > np.radians(90.0)                      # yaw turns
+    assert np.ptp(heading) > np.radians(90.0)  # yaw turns
     # thrust along body z: entering a bank the accelerometer still reads level; once drag has settled the speed it
     # sees the tilt (the drag is a force it feels)
     pitch, roll = pitch_roll_deg(r.true_acc_ms2)
@@ -119,14 +134,14 @@ def test_multirotor_banks_30_degrees_and_the_accelerometer_sees_it_late():
     assert banked.sum() > 200
     assert np.min(seen[banked] / tilt[banked]) < 0.5 and np.max(seen[banked] / tilt[banked]) > 0.8
     speed = np.linalg.norm(np.cumsum(r.lin_acc_ned_ms2[:, :2], axis=0) / 100.0, axis=1)
-    assert 5.0 < speed.max() < 16.0                                # drag bounds the speed (about 14 m/s at 30 deg)
+    assert 5.0 < speed.max() < 16.0  # drag bounds the speed (about 14 m/s at 30 deg)
     # the first samples hover level: about (0, 0, -g) give or take the vibration
     assert np.abs(r.acc_ms2[:100].mean(axis=0) - [0.0, 0.0, -G]).max() < 0.6
 
 
 def test_car_turns_with_centripetal_acceleration_to_the_inside():
     r = run("car", count=12000, seed=3)
-    np.testing.assert_allclose(r.acc_ms2[0], [0.0, 0.0, -G], atol=1e-9)       # parked: level and still
+    np.testing.assert_allclose(r.acc_ms2[0], [0.0, 0.0, -G], atol=1e-9)  # parked: level and still
     yaw_rate = r.true_gyr_rads[:, 2]
     right, left = yaw_rate > 0.15, yaw_rate < -0.15
     assert right.sum() > 50 and left.sum() > 50
@@ -135,7 +150,7 @@ def test_car_turns_with_centripetal_acceleration_to_the_inside():
     speed = np.cumsum(np.einsum("nji,nj->ni", quaternion_to_matrix(r.quat_wxyz), r.lin_acc_ned_ms2)[:, 0]) / 100.0
     lateral = np.einsum("nji,nj->ni", quaternion_to_matrix(r.quat_wxyz), r.lin_acc_ned_ms2)[:, 1]
     turning = right | left
-    smooth_rate = np.convolve(yaw_rate, np.ones(25) / 25, mode="same")    # the road's jitter averaged out
+    smooth_rate = np.convolve(yaw_rate, np.ones(25) / 25, mode="same")  # the road's jitter averaged out
     np.testing.assert_allclose(lateral[turning], (speed * smooth_rate)[turning], rtol=0.05, atol=0.3)
     assert np.abs(r.pitch_deg).max() < 5.0 and np.abs(r.roll_deg).max() < 6.0
 
@@ -162,8 +177,12 @@ def test_fleet_gyroscope_integrates_to_each_devices_attitude():
     fleet = sim.FleetSimulator(4, rate_hz=100.0, seed=1, date=DATE, gyro=True)
     first, second = fleet.step(60), fleet.step(60)
     gyr = np.concatenate([first.gyr_rads, second.gyr_rads], axis=1)
-    quat = euler_to_quaternion(*(np.concatenate([getattr(first, k), getattr(second, k)], axis=1)
-                                 for k in ("heading_deg", "pitch_deg", "roll_deg")))
+    quat = euler_to_quaternion(
+        *(
+            np.concatenate([getattr(first, k), getattr(second, k)], axis=1)
+            for k in ("heading_deg", "pitch_deg", "roll_deg")
+        )
+    )
     for d in range(4):
         assert angle_between_deg(integrate(quat[d, 0], gyr[d], 100.0), quat[d]).max() < 1e-3
     assert sim.FleetSimulator(4, rate_hz=100.0, seed=1, date=DATE).step(5).gyr_rads is None

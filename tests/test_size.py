@@ -1,5 +1,8 @@
-"""Each function does one step: no function of ``magnet/`` or ``services/`` over about 40 lines (counted from its
-``def`` to its last line, docstring included)."""
+"""Each function does one step: no function of ``magnet/`` or ``services/`` over about 40 lines of code.
+
+A function's length is the number of lines on which one of its statements starts, its docstring left out: ``ruff
+format`` lays a long call out one argument per line, and that layout should not count as more steps.
+"""
 
 from __future__ import annotations
 
@@ -19,16 +22,29 @@ def _functions(tree: ast.AST) -> list[ast.FunctionDef | ast.AsyncFunctionDef]:
     return [node for node in ast.walk(tree) if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)]
 
 
+def _code_lines(function: ast.FunctionDef | ast.AsyncFunctionDef) -> int:
+    body = function.body
+    if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+        body = body[1:]  # the docstring
+    return len({node.lineno for statement in body for node in ast.walk(statement) if isinstance(node, ast.stmt)})
+
+
 def test_the_sources_are_found():
     names = {path.relative_to(ROOT).as_posix() for path in _sources()}
     assert {"magnet/model.py", "services/cli.py"} <= names
 
 
+def test_a_long_function_is_found():
+    source = "def f():\n    '''doc'''\n" + "".join(f"    x{i} = (\n        {i}\n    )\n" for i in range(41))
+    (function,) = _functions(ast.parse(source))
+    assert _code_lines(function) == 41
+
+
 def test_no_function_is_over_40_lines():
-    long = []
-    for path in _sources():
-        for node in _functions(ast.parse(path.read_text(), filename=str(path))):
-            length = (node.end_lineno or node.lineno) - node.lineno + 1
-            if length > MAX_FUNCTION_LINES:
-                long.append(f"{path.relative_to(ROOT).as_posix()}:{node.lineno} {node.name} ({length} lines)")
+    long = [
+        f"{path.relative_to(ROOT).as_posix()}:{node.lineno} {node.name} ({length} lines)"
+        for path in _sources()
+        for node in _functions(ast.parse(path.read_text(), filename=str(path)))
+        if (length := _code_lines(node)) > MAX_FUNCTION_LINES
+    ]
     assert long == [], f"functions over {MAX_FUNCTION_LINES} lines (split them by step):\n" + "\n".join(long)

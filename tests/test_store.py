@@ -68,8 +68,10 @@ def test_rows_failing_the_entry_check_are_skipped_counted_and_the_rest_served(tm
     singular = {**_record("b", [6, 0, 0], 2).to_record(), "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 1e-9]]}
     with sqlite3.connect(path) as db:  # rows written by something else: a forged record and an unreadable one
         for record in (reflected, singular):
-            db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
-                       (record["device"], record["id"], 2, json.dumps(record)))
+            db.execute(
+                "INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
+                (record["device"], record["id"], 2, json.dumps(record)),
+            )
         db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES ('a', 'x', 3, '{not json')")
     with CalibrationStore(path) as store:  # as a calibrator on restart reads it
         latest = store.all_latest()

@@ -19,8 +19,11 @@ from services.calibrator.store import CalibrationStore, StoreError
 def _fill(path, devices=60):
     with CalibrationStore(path) as store:
         for i in range(devices):
-            store.save(wire.DeviceCalibration(f"d-{i}", i, Calibration("ellipsoid", [i, 0.0, 0.0], np.eye(3),
-                                                                        reason="x" * 500)))
+            store.save(
+                wire.DeviceCalibration(
+                    f"d-{i}", i, Calibration("ellipsoid", [i, 0.0, 0.0], np.eye(3), reason="x" * 500)
+                )
+            )
     with sqlite3.connect(path) as db:  # everything in the main file, no WAL left over
         db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
 

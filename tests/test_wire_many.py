@@ -10,8 +10,15 @@ from magnet import wire
 
 def _raw(device: str, n: int = 3, acc: bool = True, seq: int = 1, gyr: bool = False) -> wire.RawBatch:
     rng = np.random.default_rng(len(device) + n)
-    return wire.RawBatch(device, seq, "sim", np.arange(n, dtype=np.int64) + 10**18, rng.normal(0, 30, (n, 3)),
-                         rng.normal(0, 5, (n, 3)) if acc else None, gyr_rads=rng.normal(0, 1, (n, 3)) if gyr else None)
+    return wire.RawBatch(
+        device,
+        seq,
+        "sim",
+        np.arange(n, dtype=np.int64) + 10**18,
+        rng.normal(0, 30, (n, 3)),
+        rng.normal(0, 5, (n, 3)) if acc else None,
+        gyr_rads=rng.normal(0, 1, (n, 3)) if gyr else None,
+    )
 
 
 GARBAGE = [
@@ -47,14 +54,25 @@ def _one_by_one(payloads):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.lists(st.one_of(st.sampled_from(GARBAGE), st.tuples(st.sampled_from("abcd"), st.integers(1, 5),
-                                                              st.booleans(), st.booleans(), st.sampled_from([1, 2]))),
-                max_size=12))
+@given(
+    st.lists(
+        st.one_of(
+            st.sampled_from(GARBAGE),
+            st.tuples(
+                st.sampled_from("abcd"), st.integers(1, 5), st.booleans(), st.booleans(), st.sampled_from([1, 2])
+            ),
+        ),
+        max_size=12,
+    )
+)
 def test_decode_raw_many_gives_the_verdicts_and_order_of_decode_raw(items):
     """v 1 and v 2 messages and garbage mixed in one drain: the same verdicts, order and numbers as one by one."""
-    payloads = [item if isinstance(item, bytes)
-                else wire.encode_raw(_raw(item[0], item[1], item[2], gyr=item[3]), version=item[4])
-                for item in items]
+    payloads = [
+        item
+        if isinstance(item, bytes)
+        else wire.encode_raw(_raw(item[0], item[1], item[2], gyr=item[3]), version=item[4])
+        for item in items
+    ]
     columns, errors = wire.decode_raw_many(payloads)
     good, bad = _one_by_one(payloads)
     assert [(i, e.cause) for i, e in errors] == bad
@@ -82,16 +100,30 @@ def test_encode_headings_matches_encode_heading_byte_for_byte():
     batches = [_raw("a", 3), _raw("b", 1, acc=False), _raw("c", 4)]
     columns = wire.RawColumns.from_batches(batches)
     s = int(columns.counts.sum())
-    arrays = [np.linspace(0, 359, s), np.linspace(5, 4, s), np.zeros(s), np.ones(s), np.arange(3.0 * s).reshape(s, 3),
-              np.arange(s)]
+    arrays = [
+        np.linspace(0, 359, s),
+        np.linspace(5, 4, s),
+        np.zeros(s),
+        np.ones(s),
+        np.arange(3.0 * s).reshape(s, 3),
+        np.arange(s),
+    ]
     quat = np.tile([1.0, 0, 0, 0], (s, 1))
     quat[3] = np.nan  # batch "b" has no attitude
     payloads = wire.encode_headings(columns, *arrays, 7.5, ["id-a", "", "id-c"], quat_wxyz=quat)
     bounds = np.concatenate([[0], np.cumsum(columns.counts)])
     for i, batch in enumerate(batches):
         lo, hi = bounds[i], bounds[i + 1]
-        one = wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, *(a[lo:hi] for a in arrays[:5]), 7.5,
-                                ["id-a", "", "id-c"][i], arrays[5][lo:hi], None if i == 1 else quat[lo:hi])
+        one = wire.HeadingBatch(
+            batch.device,
+            batch.seq,
+            batch.t_ns,
+            *(a[lo:hi] for a in arrays[:5]),
+            7.5,
+            ["id-a", "", "id-c"][i],
+            arrays[5][lo:hi],
+            None if i == 1 else quat[lo:hi],
+        )
         assert payloads[i] == wire.encode_heading(one)
     assert wire.decode_heading(payloads[1]).quat_wxyz is None
     np.testing.assert_array_equal(wire.decode_heading(payloads[2]).quat_wxyz, quat[4:8])

@@ -7,56 +7,94 @@ service opens ``smbus2.SMBus(n)`` and passes it in, or passes an emulator from `
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
-from magnet.drivers.base import (Combined, Health, I2CBus, Reading, RetryPolicy, Sensor, SensorError, SensorReadError,
-                                 orientation_matrix)
+from magnet.drivers.base import (
+    Combined,
+    Health,
+    I2CBus,
+    Reading,
+    RetryPolicy,
+    Sensor,
+    SensorError,
+    SensorReadError,
+    orientation_matrix,
+)
 
-__all__ = ["Combined", "Health", "I2CBus", "Reading", "RetryPolicy", "Sensor", "SensorError", "SensorReadError",
-           "SENSORS", "GYROSCOPES", "open_sensor", "orientation_matrix", "has_accelerometer", "has_gyroscope"]
+__all__ = [
+    "GYROSCOPES",
+    "SENSORS",
+    "Combined",
+    "Health",
+    "I2CBus",
+    "Reading",
+    "RetryPolicy",
+    "Sensor",
+    "SensorError",
+    "SensorReadError",
+    "has_accelerometer",
+    "has_gyroscope",
+    "open_sensor",
+    "orientation_matrix",
+]
 
 
 def _hmc5883l(bus: I2CBus, address: int | None, orientation: Any, **kw: Any) -> Sensor:
     from magnet.drivers.hmc5883l import DEFAULT_ADDRESS, HMC5883L
+
     return HMC5883L(bus, address or DEFAULT_ADDRESS, orientation, **kw)
 
 
 def _qmc5883l(bus: I2CBus, address: int | None, orientation: Any, **kw: Any) -> Sensor:
     from magnet.drivers.qmc5883l import DEFAULT_ADDRESS, QMC5883L
+
     return QMC5883L(bus, address or DEFAULT_ADDRESS, orientation, **kw)
 
 
 def _lsm303dlh(bus: I2CBus, address: int | None, orientation: Any, **kw: Any) -> Sensor:
     from magnet.drivers.lsm303dlh import DEFAULT_ADDRESS, LSM303DLH
+
     return LSM303DLH(bus, address or DEFAULT_ADDRESS, orientation, **kw)
 
 
-def _ak09918c_bma456(bus: I2CBus, address: int | None, orientation: Any, *, acc_address: int | None = None,
-                     **kw: Any) -> Sensor:
+def _ak09918c_bma456(
+    bus: I2CBus, address: int | None, orientation: Any, *, acc_address: int | None = None, **kw: Any
+) -> Sensor:
     from magnet.drivers import ak09918c, bma456
-    return Combined(ak09918c.AK09918C(bus, address or ak09918c.DEFAULT_ADDRESS, orientation, **kw),
-                    bma456.BMA456(bus, acc_address or bma456.DEFAULT_ADDRESS, orientation, **kw))
+
+    return Combined(
+        ak09918c.AK09918C(bus, address or ak09918c.DEFAULT_ADDRESS, orientation, **kw),
+        bma456.BMA456(bus, acc_address or bma456.DEFAULT_ADDRESS, orientation, **kw),
+    )
 
 
 def _icm20948(bus: I2CBus, address: int | None, orientation: Any, **kw: Any) -> Sensor:
     from magnet.drivers.icm20948 import ICM20948, MAG_ADDRESS
+
     return ICM20948(bus, address or MAG_ADDRESS, orientation, **kw)
 
 
 def _lsm9ds1(bus: I2CBus, address: int | None, orientation: Any, **kw: Any) -> Sensor:
     from magnet.drivers.lsm9ds1 import DEFAULT_ADDRESS, LSM9DS1
+
     return LSM9DS1(bus, address or DEFAULT_ADDRESS, orientation, **kw)
 
 
 def _mpu6050_with(magnetometer: str) -> Callable[..., Sensor]:
-    def factory(bus: I2CBus, address: int | None, orientation: Any, *, acc_address: int | None = None,
-                **kw: Any) -> Sensor:
+    def factory(
+        bus: I2CBus, address: int | None, orientation: Any, *, acc_address: int | None = None, **kw: Any
+    ) -> Sensor:
         from magnet.drivers import hmc5883l, mpu6050, qmc5883l
-        chip = {"hmc5883l": (hmc5883l.HMC5883L, hmc5883l.DEFAULT_ADDRESS),
-                "qmc5883l": (qmc5883l.QMC5883L, qmc5883l.DEFAULT_ADDRESS)}[magnetometer]
-        return mpu6050.with_magnetometer(chip[0], bus, address or chip[1], orientation,
-                                         acc_address=acc_address or mpu6050.DEFAULT_ADDRESS, **kw)
+
+        chip = {
+            "hmc5883l": (hmc5883l.HMC5883L, hmc5883l.DEFAULT_ADDRESS),
+            "qmc5883l": (qmc5883l.QMC5883L, qmc5883l.DEFAULT_ADDRESS),
+        }[magnetometer]
+        return mpu6050.with_magnetometer(
+            chip[0], bus, address or chip[1], orientation, acc_address=acc_address or mpu6050.DEFAULT_ADDRESS, **kw
+        )
+
     return factory
 
 
@@ -66,13 +104,22 @@ SENSORS: dict[str, tuple[Callable[..., Sensor], bool, str]] = {
     "qmc5883l": (_qmc5883l, False, "QST QMC5883L magnetometer at 0x0D"),
     "lsm303dlh": (_lsm303dlh, True, "ST LSM303DLH magnetometer 0x1E + accelerometer 0x18"),
     "ak09918c+bma456": (_ak09918c_bma456, True, "AKM AK09918C magnetometer 0x0C + Bosch BMA456 accelerometer 0x18"),
-    "icm20948": (_icm20948, True,
-                 "TDK InvenSense ICM-20948 accelerometer + gyroscope 0x68 + AK09916 magnetometer 0x0C"),
+    "icm20948": (
+        _icm20948,
+        True,
+        "TDK InvenSense ICM-20948 accelerometer + gyroscope 0x68 + AK09916 magnetometer 0x0C",
+    ),
     "lsm9ds1": (_lsm9ds1, True, "ST LSM9DS1 accelerometer + gyroscope 0x6B + magnetometer 0x1E"),
-    "mpu6050+hmc5883l": (_mpu6050_with("hmc5883l"), True,
-                         "InvenSense MPU-6050 accelerometer + gyroscope 0x68 + Honeywell HMC5883L magnetometer 0x1E"),
-    "mpu6050+qmc5883l": (_mpu6050_with("qmc5883l"), True,
-                         "InvenSense MPU-6050 accelerometer + gyroscope 0x68 + QST QMC5883L magnetometer 0x0D"),
+    "mpu6050+hmc5883l": (
+        _mpu6050_with("hmc5883l"),
+        True,
+        "InvenSense MPU-6050 accelerometer + gyroscope 0x68 + Honeywell HMC5883L magnetometer 0x1E",
+    ),
+    "mpu6050+qmc5883l": (
+        _mpu6050_with("qmc5883l"),
+        True,
+        "InvenSense MPU-6050 accelerometer + gyroscope 0x68 + QST QMC5883L magnetometer 0x0D",
+    ),
 }
 #: the sensors with a gyroscope (``Reading.gyr_rads``)
 GYROSCOPES = frozenset({"icm20948", "lsm9ds1", "mpu6050+hmc5883l", "mpu6050+qmc5883l"})

@@ -11,8 +11,8 @@ field_ut = counts * 0.15.
 from __future__ import annotations
 
 import enum
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -41,21 +41,30 @@ class AK09918C(Sensor):
     NAME = "AK09918C"
     IDENTITY = IDENTITY
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
-                 mode: Mode = Mode.CONTINUOUS_100HZ, retry: RetryPolicy | None = None,
-                 sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        mode: Mode = Mode.CONTINUOUS_100HZ,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         self._attach(bus, address, orientation, retry, sleep)
         found = tuple(self.device.read_block(REG_WIA1, 2))
         if found != self.IDENTITY:
-            raise SensorError(f"no {self.NAME} at {self.device.address:#04x}: WIA1/WIA2 read "
-                              f"{found[0]:#04x}/{found[1]:#04x}, expected "
-                              f"{self.IDENTITY[0]:#04x}/{self.IDENTITY[1]:#04x}")
+            raise SensorError(
+                f"no {self.NAME} at {self.device.address:#04x}: WIA1/WIA2 read "
+                f"{found[0]:#04x}/{found[1]:#04x}, expected "
+                f"{self.IDENTITY[0]:#04x}/{self.IDENTITY[1]:#04x}"
+            )
         self.mode = Mode(mode)
-        self.device.write_byte(REG_CNTL2, int(Mode.POWER_DOWN))   # the datasheet: pass through power-down
+        self.device.write_byte(REG_CNTL2, int(Mode.POWER_DOWN))  # the datasheet: pass through power-down
         self.device.write_byte(REG_CNTL2, int(self.mode))
 
     def _read(self) -> Reading:
-        block = self.device.read_block(REG_ST1, 9)   # ST1, HXL..HZH, TMPS, ST2: ends the read, releases the data
+        block = self.device.read_block(REG_ST1, 9)  # ST1, HXL..HZH, TMPS, ST2: ends the read, releases the data
         status1, status2 = block[0], block[8]
         if not status1 & ST1_DRDY:
             return NOT_READY

@@ -84,8 +84,11 @@ class Reading:
     @property
     def ok(self) -> bool:
         """True when the reading carries a usable field, acceleration or angular rate."""
-        return self.ready and not self.overflow and (
-            self.mag_ut is not None or self.acc_ms2 is not None or self.gyr_rads is not None)
+        return (
+            self.ready
+            and not self.overflow
+            and (self.mag_ut is not None or self.acc_ms2 is not None or self.gyr_rads is not None)
+        )
 
 
 NOT_READY = Reading(ready=False)
@@ -109,8 +112,10 @@ def _rotation_from_name(name: str) -> np.ndarray:
     matrix = np.eye(3)
     rest = _TOKEN.sub("", text).strip("_+ ,")
     if rest.replace("_", "").replace("+", "").replace(" ", "").replace(",", ""):
-        raise ValueError(f"unknown orientation {name!r}: use names such as 'none', 'yaw90', 'roll180', "
-                         "'roll180_yaw90', 'pitch270' (ArduPilot ROTATION_* names) or 9 numbers of a 3x3 matrix")
+        raise ValueError(
+            f"unknown orientation {name!r}: use names such as 'none', 'yaw90', 'roll180', "
+            "'roll180_yaw90', 'pitch270' (ArduPilot ROTATION_* names) or 9 numbers of a 3x3 matrix"
+        )
     for axis, degrees in _TOKEN.findall(text):
         if int(degrees) % 45:
             raise ValueError(f"orientation {name!r}: angles must be multiples of 45 degrees, got {degrees}")
@@ -137,12 +142,14 @@ def orientation_matrix(orientation: Any) -> np.ndarray:
         raise ValueError(f"an orientation matrix needs 9 numbers (3x3 row-major), got {matrix.size}")
     matrix = matrix.reshape(3, 3)
     if not np.allclose(matrix @ matrix.T, np.eye(3), atol=1e-6) or np.linalg.det(matrix) < 0:
-        raise ValueError("an orientation matrix must be a rotation (orthonormal rows, determinant +1); "
-                         f"got {matrix.tolist()}")
+        raise ValueError(
+            f"an orientation matrix must be a rotation (orthonormal rows, determinant +1); got {matrix.tolist()}"
+        )
     return matrix
 
 
 # --------------------------------------------------------------------------------------------------- retry, health
+
 
 @dataclasses.dataclass(frozen=True)
 class RetryPolicy:
@@ -162,7 +169,7 @@ class RetryPolicy:
 
     def delay_s(self, retry_index: int) -> float:
         """Delay before retry number ``retry_index`` (0-based), in seconds."""
-        return min(self.max_delay_s, self.base_delay_s * self.factor ** retry_index)
+        return min(self.max_delay_s, self.base_delay_s * self.factor**retry_index)
 
 
 @dataclasses.dataclass
@@ -192,8 +199,15 @@ class Health:
 class I2CDevice:
     """One chip at one I2C address, with every transfer retried per ``RetryPolicy`` and counted in ``Health``."""
 
-    def __init__(self, bus: I2CBus, address: int, *, retry: RetryPolicy | None = None,
-                 sleep: Callable[[float], None] = time.sleep, health: Health | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int,
+        *,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+        health: Health | None = None,
+    ) -> None:
         if not 0x03 <= int(address) <= 0x77:
             raise ValueError(f"I2C address must be in 0x03..0x77, got {address:#x}")
         self.bus = bus
@@ -214,8 +228,11 @@ class I2CDevice:
                 self.health.errors_by_errno[code] = self.health.errors_by_errno.get(code, 0) + 1
                 self.health.last_error = f"{method} at {self.address:#04x}: {exc}"
                 if code not in TRANSIENT_ERRNOS or attempt + 1 == self.retry.attempts:
-                    raise SensorError(code, f"I2C {method} at address {self.address:#04x} failed after "
-                                            f"{attempt + 1} attempt(s): {exc.strerror or exc}") from exc
+                    raise SensorError(
+                        code,
+                        f"I2C {method} at address {self.address:#04x} failed after "
+                        f"{attempt + 1} attempt(s): {exc.strerror or exc}",
+                    ) from exc
                 self.health.retries += 1
                 self.sleep(self.retry.delay_s(attempt))
         raise AssertionError("unreachable")  # pragma: no cover
@@ -253,8 +270,14 @@ class Sensor:
     rotation: np.ndarray = np.eye(3)
     devices: tuple[I2CDevice, ...] = ()
 
-    def _attach(self, bus: I2CBus, address: int, orientation: Any, retry: RetryPolicy | None,
-                sleep: Callable[[float], None] | None) -> I2CDevice:
+    def _attach(
+        self,
+        bus: I2CBus,
+        address: int,
+        orientation: Any,
+        retry: RetryPolicy | None,
+        sleep: Callable[[float], None] | None,
+    ) -> I2CDevice:
         """Set ``self.device`` (the chip at ``address`` on ``bus``, with the retry policy), ``self.devices`` and the
         mounting ``self.rotation``; returns the device."""
         options = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
@@ -281,10 +304,15 @@ class Sensor:
             health.failed_reads += 1
             health.consecutive_failures += 1
             if health.consecutive_failures == health.unhealthy_after:
-                log.warning("sensor at %#04x unhealthy after %d failed reads: %s",
-                            self.devices[0].address, health.consecutive_failures, exc)
-            raise SensorReadError(exc.errno or errno.EIO,
-                                  f"{type(self).__name__} read failed: {exc.strerror or exc}") from exc
+                log.warning(
+                    "sensor at %#04x unhealthy after %d failed reads: %s",
+                    self.devices[0].address,
+                    health.consecutive_failures,
+                    exc,
+                )
+            raise SensorReadError(
+                exc.errno or errno.EIO, f"{type(self).__name__} read failed: {exc.strerror or exc}"
+            ) from exc
         health.consecutive_failures = 0
         return self._to_body(reading)
 
@@ -292,8 +320,9 @@ class Sensor:
         def rotate(vector: np.ndarray | None) -> np.ndarray | None:
             return None if vector is None else self.rotation @ vector
 
-        return dataclasses.replace(reading, mag_ut=rotate(reading.mag_ut), acc_ms2=rotate(reading.acc_ms2),
-                                   gyr_rads=rotate(reading.gyr_rads))
+        return dataclasses.replace(
+            reading, mag_ut=rotate(reading.mag_ut), acc_ms2=rotate(reading.acc_ms2), gyr_rads=rotate(reading.gyr_rads)
+        )
 
 
 class Combined(Sensor):

@@ -9,8 +9,8 @@ acc_ms2 = counts / LSB_PER_G[range] * 9.80665, LSB per g 16384, 8192, 4096 (8 g,
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -32,15 +32,25 @@ RANGES: dict[int, tuple[int, float]] = {2: (0, 16384.0), 4: (1, 8192.0), 8: (2, 
 class BMA456(Sensor):
     """Driver: checks CHIP_ID, switches power save off and the accelerometer on, sets the range (default 8 g)."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *, range_g: int = 8,
-                 retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        range_g: int = 8,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         if range_g not in RANGES:
             raise ValueError(f"BMA456 range must be one of {sorted(RANGES)} g, got {range_g}")
         self._attach(bus, address, orientation, retry, sleep)
         chip_id = self.device.read_byte(REG_CHIP_ID)
         if chip_id != CHIP_ID:
-            raise SensorError(f"no BMA456 at {self.device.address:#04x}: CHIP_ID reads {chip_id:#04x}, expected "
-                              "0x16 (try address 0x19 if SDO is tied high)")
+            raise SensorError(
+                f"no BMA456 at {self.device.address:#04x}: CHIP_ID reads {chip_id:#04x}, expected "
+                "0x16 (try address 0x19 if SDO is tied high)"
+            )
         self.range_g = range_g
         self.device.write_byte(REG_PWR_CONF, 0x00)
         self.device.write_byte(REG_ACC_CONF, ACC_CONF_100HZ_AVG4_PERF)

@@ -14,8 +14,8 @@ row per sample.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 
@@ -45,14 +45,15 @@ class BridgeSettings:
         return self.amplifier_gain * self.supply_v * self.sensitivity_mv_per_v_per_gauss / 1000.0 / 100.0
 
     def counts_to_volts(self, counts: np.ndarray) -> np.ndarray:
-        return (counts - self.zero_counts) * self.vref_v / 2 ** self.adc_bits
+        return (counts - self.zero_counts) * self.vref_v / 2**self.adc_bits
 
 
 class HMC1043:
     """Replay source: ``read()`` returns the next sample as a ``Reading`` (``ready=False`` once exhausted)."""
 
-    def __init__(self, samples: Any, *, unit: str = "volts", settings: BridgeSettings | None = None,
-                 orientation: Any = None) -> None:
+    def __init__(
+        self, samples: Any, *, unit: str = "volts", settings: BridgeSettings | None = None, orientation: Any = None
+    ) -> None:
         if unit not in ("volts", "counts"):
             raise ValueError(f"HMC1043 replay unit must be 'volts' or 'counts', got {unit!r}")
         values = np.asarray(samples, dtype=float)
@@ -64,8 +65,14 @@ class HMC1043:
         self.index = 0
 
     @classmethod
-    def from_csv(cls, lines: Iterable[str], *, columns: tuple[str, str, str] | None = None,
-                 settings: BridgeSettings | None = None, orientation: Any = None) -> HMC1043:
+    def from_csv(
+        cls,
+        lines: Iterable[str],
+        *,
+        columns: tuple[str, str, str] | None = None,
+        settings: BridgeSettings | None = None,
+        orientation: Any = None,
+    ) -> HMC1043:
         """Parse CSV text lines: a header, then numbers. Volts or counts are told by the column names."""
         rows = [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
         if not rows:
@@ -74,8 +81,9 @@ class HMC1043:
         wanted = columns or (VOLT_COLUMNS if set(VOLT_COLUMNS) <= set(header) else COUNT_COLUMNS)
         missing = [name for name in wanted if name not in header]
         if missing:
-            raise ValueError(f"HMC1043 replay: the CSV header lacks {missing}; give vx,vy,vz (volts) or "
-                             "cx,cy,cz (ADC counts)")
+            raise ValueError(
+                f"HMC1043 replay: the CSV header lacks {missing}; give vx,vy,vz (volts) or cx,cy,cz (ADC counts)"
+            )
         index = [header.index(name) for name in wanted]
         try:
             data = [[float(row.split(",")[i]) for i in index] for row in rows[1:]]

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -80,11 +80,13 @@ class HMC5883LSettings:
     def from_registers(cls, config_a: int, config_b: int, mode: int) -> HMC5883LSettings:
         rate_bits = (config_a >> 2) & 0x7
         bias_bits = config_a & 0x3
-        return cls(averaging=AVERAGING[(config_a >> 5) & 0x3],
-                   rate_hz=OUTPUT_RATE_HZ[min(rate_bits, 6)],
-                   bias=Bias(bias_bits if bias_bits < 3 else 0),
-                   gain=(config_b >> 5) & 0x7,
-                   mode=Mode(min(mode & 0x3, 2)))
+        return cls(
+            averaging=AVERAGING[(config_a >> 5) & 0x3],
+            rate_hz=OUTPUT_RATE_HZ[min(rate_bits, 6)],
+            bias=Bias(bias_bits if bias_bits < 3 else 0),
+            gain=(config_b >> 5) & 0x7,
+            mode=Mode(min(mode & 0x3, 2)),
+        )
 
 
 def decode_data(block: list[int]) -> np.ndarray:
@@ -102,9 +104,17 @@ class HMC5883L(Sensor):
     mode it triggers the next measurement after each read. ``axis_scale`` (3,) multiplies each axis (self-test).
     """
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
-                 settings: HMC5883LSettings | None = None, retry: RetryPolicy | None = None,
-                 sleep: Callable[[float], None] | None = None, axis_scale: Any = (1.0, 1.0, 1.0)) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        settings: HMC5883LSettings | None = None,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+        axis_scale: Any = (1.0, 1.0, 1.0),
+    ) -> None:
         self._attach(bus, address, orientation, retry, sleep)
         self.axis_scale = np.asarray(axis_scale, dtype=float)
         self.check_identity()
@@ -113,9 +123,11 @@ class HMC5883L(Sensor):
     def check_identity(self) -> None:
         found = bytes(self.device.read_block(REG_ID, 3))
         if found != IDENTITY:
-            raise SensorError(f"no HMC5883L at {self.device.address:#04x}: identification registers read "
-                              f"{found!r}, expected {IDENTITY!r} (check the address with i2cdetect; QMC5883L "
-                              "modules sold as HMC5883L sit at 0x0D and need --sensor qmc5883l)")
+            raise SensorError(
+                f"no HMC5883L at {self.device.address:#04x}: identification registers read "
+                f"{found!r}, expected {IDENTITY!r} (check the address with i2cdetect; QMC5883L "
+                "modules sold as HMC5883L sit at 0x0D and need --sensor qmc5883l)"
+            )
 
     def configure(self, settings: HMC5883LSettings) -> None:
         """Write Config A, Config B and Mode (Mode last: it starts the measurement)."""
@@ -154,8 +166,9 @@ class HMC5883L(Sensor):
             return Reading(overflow=True, raw=counts)
         return Reading(mag_ut=counts * self.ut_per_count * self.axis_scale, raw=counts)
 
-    def self_test(self, gain: int = 5, *, discard: int = 0, average: int = 1, max_polls: int = 50,
-                  poll_s: float = 0.07) -> SelfTestResult:
+    def self_test(
+        self, gain: int = 5, *, discard: int = 0, average: int = 1, max_polls: int = 50, poll_s: float = 0.07
+    ) -> SelfTestResult:
         """Datasheet self-test: positive then negative bias at ``gain``, each the mean of ``average`` readings
         after discarding ``discard`` more (the one after a gain change is always dropped); the configuration in force
         before the test is restored afterwards, whatever happens."""
@@ -163,8 +176,7 @@ class HMC5883L(Sensor):
         try:
             readings = {}
             for bias in (Bias.POSITIVE, Bias.NEGATIVE):
-                self.configure(HMC5883LSettings(averaging=8, rate_hz=15.0, bias=bias, gain=gain,
-                                                mode=Mode.CONTINUOUS))
+                self.configure(HMC5883LSettings(averaging=8, rate_hz=15.0, bias=bias, gain=gain, mode=Mode.CONTINUOUS))
                 readings[bias] = self._mean_counts(discard, average, max_polls, poll_s)
         finally:
             self.configure(saved)

@@ -36,14 +36,22 @@ DEFAULT_ADDRESS = 0x68
 MAG_ADDRESS = 0x0C
 REG_BANK_SEL = 0x7F
 WHO_AM_I, USER_CTRL, PWR_MGMT_1, PWR_MGMT_2, INT_PIN_CFG, INT_ENABLE_1, INT_STATUS_1, ACCEL_XOUT_H = (
-    0x00, 0x03, 0x06, 0x07, 0x0F, 0x11, 0x1A, 0x2D)
+    0x00,
+    0x03,
+    0x06,
+    0x07,
+    0x0F,
+    0x11,
+    0x1A,
+    0x2D,
+)
 GYRO_SMPLRT_DIV, GYRO_CONFIG_1, ACCEL_SMPLRT_DIV_1, ACCEL_SMPLRT_DIV_2, ACCEL_CONFIG = 0x00, 0x01, 0x10, 0x11, 0x14
 CHIP_ID = 0xEA
 PWR_CLOCK_AUTO = 0x01
 BYPASS_EN = 0x02
 RAW_DATA_RDY = 0x01
-DLPF_ON = 0x01                # FCHOICE
-DLPF_CFG = 3 << 3             # about 50 Hz bandwidth for both
+DLPF_ON = 0x01  # FCHOICE
+DLPF_CFG = 3 << 3  # about 50 Hz bandwidth for both
 
 #: full scale deg/s -> (GYRO_FS_SEL, LSB per deg/s)
 GYRO_RANGES: dict[int, tuple[int, float]] = {250: (0, 131.0), 500: (1, 65.5), 1000: (2, 32.8), 2000: (3, 16.4)}
@@ -52,8 +60,12 @@ ACCEL_RANGES: dict[int, tuple[int, float]] = {2: (0, 16384.0), 4: (1, 8192.0), 8
 #: output rate Hz -> sample-rate divider (gyroscope 1100 / (1 + div); the accelerometer's 1125 / (1 + div))
 OUTPUT_RATES_HZ: dict[int, int] = {10: 109, 50: 21, 100: 10, 220: 4, 550: 1, 1100: 0}
 #: AK09916 continuous-mode rate Hz -> mode
-MAG_RATES_HZ: dict[int, Mode] = {10: Mode.CONTINUOUS_10HZ, 20: Mode.CONTINUOUS_20HZ, 50: Mode.CONTINUOUS_50HZ,
-                                 100: Mode.CONTINUOUS_100HZ}
+MAG_RATES_HZ: dict[int, Mode] = {
+    10: Mode.CONTINUOUS_10HZ,
+    20: Mode.CONTINUOUS_20HZ,
+    50: Mode.CONTINUOUS_50HZ,
+    100: Mode.CONTINUOUS_100HZ,
+}
 #: AK09916 axes -> ICM-20948 axes (x same, y and z reversed)
 MAG_TO_ICM = np.diag([1.0, -1.0, -1.0])
 
@@ -62,9 +74,18 @@ class ICM20948AccelGyro(Sensor):
     """The accelerometer + gyroscope: checks WHO_AM_I, wakes the chip, turns the bypass on (so the AK09916 answers
     at 0x0C), sets full scales and rate; ``read()`` gives ``acc_ms2`` and ``gyr_rads`` when RAW_DATA_0_RDY is set."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
-                 accel_range_g: int = 4, gyro_range_dps: int = 2000, rate_hz: int = 100,
-                 retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        accel_range_g: int = 4,
+        gyro_range_dps: int = 2000,
+        rate_hz: int = 100,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         self.accel_fs, self.lsb_per_g = choose(accel_range_g, ACCEL_RANGES, "accelerometer range (g)", "ICM-20948")
         self.gyro_fs, self.lsb_per_dps = choose(gyro_range_dps, GYRO_RANGES, "gyroscope range (deg/s)", "ICM-20948")
         self.divider = choose(rate_hz, OUTPUT_RATES_HZ, "output rate (Hz)", "ICM-20948")
@@ -74,11 +95,13 @@ class ICM20948AccelGyro(Sensor):
         device.write_byte(REG_BANK_SEL, 0 << 4)
         found = device.read_byte(WHO_AM_I)
         if found != CHIP_ID:
-            raise SensorError(f"no ICM-20948 at {device.address:#04x}: WHO_AM_I reads {found:#04x}, expected 0xea "
-                              "(0x68 or 0x69 depending on AD0; an MPU-6050 reads 0x68 at register 0x75)")
-        device.write_byte(PWR_MGMT_1, PWR_CLOCK_AUTO)     # out of sleep
-        device.write_byte(PWR_MGMT_2, 0x00)               # every axis on
-        device.write_byte(USER_CTRL, 0x00)                # I2C master off, so that the bypass can work
+            raise SensorError(
+                f"no ICM-20948 at {device.address:#04x}: WHO_AM_I reads {found:#04x}, expected 0xea "
+                "(0x68 or 0x69 depending on AD0; an MPU-6050 reads 0x68 at register 0x75)"
+            )
+        device.write_byte(PWR_MGMT_1, PWR_CLOCK_AUTO)  # out of sleep
+        device.write_byte(PWR_MGMT_2, 0x00)  # every axis on
+        device.write_byte(USER_CTRL, 0x00)  # I2C master off, so that the bypass can work
         device.write_byte(INT_PIN_CFG, BYPASS_EN)
         device.write_byte(INT_ENABLE_1, RAW_DATA_RDY)
         device.write_byte(REG_BANK_SEL, 2 << 4)
@@ -95,8 +118,10 @@ class ICM20948AccelGyro(Sensor):
         counts = words(self.device.read_block(ACCEL_XOUT_H, 12), big_endian=True)
         if saturated(counts):
             return Reading(overflow=True)
-        return Reading(acc_ms2=counts[:3] / self.lsb_per_g * STANDARD_GRAVITY_MS2,
-                       gyr_rads=counts[3:] / self.lsb_per_dps * RAD_PER_DEG)
+        return Reading(
+            acc_ms2=counts[:3] / self.lsb_per_g * STANDARD_GRAVITY_MS2,
+            gyr_rads=counts[3:] / self.lsb_per_dps * RAD_PER_DEG,
+        )
 
 
 class AK09916(AK09918C):
@@ -116,12 +141,30 @@ class ICM20948(NineAxis):
     the AK09916 reachable), then the AK09916 at 0x0C; one ``orientation`` for the package (see the module docstring
     for the axes). ``read()`` gives ``mag_ut``, ``acc_ms2`` and ``gyr_rads`` in the body frame."""
 
-    def __init__(self, bus: I2CBus, address: int = MAG_ADDRESS, orientation: Any = None, *,
-                 acc_address: int = DEFAULT_ADDRESS, accel_range_g: int = 4, gyro_range_dps: int = 2000,
-                 rate_hz: int = 100, mag_rate_hz: int = 100, retry: RetryPolicy | None = None,
-                 sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = MAG_ADDRESS,
+        orientation: Any = None,
+        *,
+        acc_address: int = DEFAULT_ADDRESS,
+        accel_range_g: int = 4,
+        gyro_range_dps: int = 2000,
+        rate_hz: int = 100,
+        mag_rate_hz: int = 100,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         mode = choose(mag_rate_hz, MAG_RATES_HZ, "magnetometer rate (Hz)", "AK09916")
-        inertial = ICM20948AccelGyro(bus, acc_address, orientation, accel_range_g=accel_range_g,
-                                     gyro_range_dps=gyro_range_dps, rate_hz=rate_hz, retry=retry, sleep=sleep)
+        inertial = ICM20948AccelGyro(
+            bus,
+            acc_address,
+            orientation,
+            accel_range_g=accel_range_g,
+            gyro_range_dps=gyro_range_dps,
+            rate_hz=rate_hz,
+            retry=retry,
+            sleep=sleep,
+        )
         magnetometer = AK09916(bus, address, orientation, mode=mode, retry=retry, sleep=sleep)
         super().__init__(magnetometer, inertial)

@@ -36,8 +36,9 @@ def choose(value: Any, table: Mapping[Any, Any], what: str, chip: str) -> Any:
     try:
         return table[value]
     except (KeyError, TypeError):
-        raise ValueError(f"{chip} {what} must be one of {', '.join(f'{k:g}' for k in sorted(table))}, "
-                         f"got {value!r}") from None
+        raise ValueError(
+            f"{chip} {what} must be one of {', '.join(f'{k:g}' for k in sorted(table))}, got {value!r}"
+        ) from None
 
 
 def words(block: list[int], big_endian: bool) -> np.ndarray:

@@ -16,8 +16,8 @@ BDU, bits 5:4 full scale 2/4/8 g), STATUS_REG_A 0x27 (bit 3 ZYXDA), OUT_X_L_A 0x
 
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -31,8 +31,14 @@ OVERFLOW = -4096
 
 #: gain code -> LSB per gauss (x, y, z); code 0 is not valid
 LSB_PER_GAUSS: dict[int, tuple[float, float, float]] = {
-    1: (1055.0, 1055.0, 950.0), 2: (795.0, 795.0, 710.0), 3: (635.0, 635.0, 570.0), 4: (430.0, 430.0, 385.0),
-    5: (375.0, 375.0, 335.0), 6: (320.0, 320.0, 285.0), 7: (230.0, 230.0, 205.0)}
+    1: (1055.0, 1055.0, 950.0),
+    2: (795.0, 795.0, 710.0),
+    3: (635.0, 635.0, 570.0),
+    4: (430.0, 430.0, 385.0),
+    5: (375.0, 375.0, 335.0),
+    6: (320.0, 320.0, 285.0),
+    7: (230.0, 230.0, 205.0),
+}
 #: full scale in g -> (FS bits, mg per digit of the 12-bit value)
 ACC_SCALES: dict[int, tuple[int, float]] = {2: (0b00, 1.0), 4: (0b01, 2.0), 8: (0b11, 3.9)}
 RATE_75HZ = 0x06 << 2
@@ -42,15 +48,25 @@ AUTO_INCREMENT = 0x80
 class LSM303DLHMagnetometer(Sensor):
     """The magnetometer half: identity check, 75 Hz continuous at ``gain`` (1..7), one six-byte read per sample."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *, gain: int = 1,
-                 retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        gain: int = 1,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         if gain not in LSB_PER_GAUSS:
             raise ValueError(f"LSM303DLH magnetometer gain must be 1..7, got {gain}")
         self._attach(bus, address, orientation, retry, sleep)
         found = bytes(self.device.read_block(0x0A, 3))
         if found != IDENTITY:
-            raise SensorError(f"no LSM303DLH magnetometer at {self.device.address:#04x}: identification reads "
-                              f"{found!r}, expected {IDENTITY!r}")
+            raise SensorError(
+                f"no LSM303DLH magnetometer at {self.device.address:#04x}: identification reads "
+                f"{found!r}, expected {IDENTITY!r}"
+            )
         self.gain = gain
         # as on the HMC5883L, the first measurement after a gain change is at the old gain: drop it
         self._discard = int(self.device.read_byte(0x01) >> 5 != gain)
@@ -74,9 +90,16 @@ class LSM303DLHMagnetometer(Sensor):
 class LSM303DLHAccelerometer(Sensor):
     """The accelerometer half: normal mode 50 Hz, all axes, block data update, full scale ``scale_g``."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ACC_ADDRESS, orientation: Any = None, *,
-                 scale_g: int = 2, retry: RetryPolicy | None = None,
-                 sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ACC_ADDRESS,
+        orientation: Any = None,
+        *,
+        scale_g: int = 2,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         if scale_g not in ACC_SCALES:
             raise ValueError(f"LSM303DLH accelerometer full scale must be one of {sorted(ACC_SCALES)} g")
         self._attach(bus, address, orientation, retry, sleep)
@@ -84,8 +107,10 @@ class LSM303DLHAccelerometer(Sensor):
         self.device.write_byte(0x20, 0x27)
         self.device.write_byte(0x23, 0x80 | (ACC_SCALES[scale_g][0] << 4))
         if self.device.read_byte(0x20) != 0x27:
-            raise SensorError(f"no LSM303DLH accelerometer at {self.device.address:#04x}: CTRL_REG1_A did not "
-                              "keep its value (try the other address, 0x18 or 0x19)")
+            raise SensorError(
+                f"no LSM303DLH accelerometer at {self.device.address:#04x}: CTRL_REG1_A did not "
+                "keep its value (try the other address, 0x18 or 0x19)"
+            )
 
     def _read(self) -> Reading:
         if not self.device.read_byte(0x27) & 0x08:
@@ -99,9 +124,19 @@ class LSM303DLH(Combined):
     """Both halves as one sensor: ``read()`` gives ``mag_ut`` and ``acc_ms2``; the package's axes are shared, so
     one ``orientation`` applies to both."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
-                 acc_address: int = DEFAULT_ACC_ADDRESS, gain: int = 1, scale_g: int = 2,
-                 retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        acc_address: int = DEFAULT_ACC_ADDRESS,
+        gain: int = 1,
+        scale_g: int = 2,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         super().__init__(
             LSM303DLHMagnetometer(bus, address, orientation, gain=gain, retry=retry, sleep=sleep),
-            LSM303DLHAccelerometer(bus, acc_address, orientation, scale_g=scale_g, retry=retry, sleep=sleep))
+            LSM303DLHAccelerometer(bus, acc_address, orientation, scale_g=scale_g, retry=retry, sleep=sleep),
+        )

@@ -31,14 +31,29 @@ from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor,
 from magnet.drivers.inertial import RAD_PER_DEG, Z_UP_TO_BODY, NineAxis, choose, mounting, saturated, words
 from magnet.units import STANDARD_GRAVITY_MS2
 
-DEFAULT_ADDRESS = 0x1E            # magnetometer
-DEFAULT_AG_ADDRESS = 0x6B         # accelerometer + gyroscope
+DEFAULT_ADDRESS = 0x1E  # magnetometer
+DEFAULT_AG_ADDRESS = 0x6B  # accelerometer + gyroscope
 WHO_AM_I = 0x0F
 AG_ID, MAG_ID = 0x68, 0x3D
 CTRL_REG1_G, STATUS_REG, OUT_X_L_G, CTRL_REG4, CTRL_REG5_XL, CTRL_REG6_XL, CTRL_REG8, OUT_X_L_XL = (
-    0x10, 0x17, 0x18, 0x1E, 0x1F, 0x20, 0x22, 0x28)
+    0x10,
+    0x17,
+    0x18,
+    0x1E,
+    0x1F,
+    0x20,
+    0x22,
+    0x28,
+)
 CTRL_REG1_M, CTRL_REG2_M, CTRL_REG3_M, CTRL_REG4_M, CTRL_REG5_M, STATUS_REG_M, OUT_X_L_M = (
-    0x20, 0x21, 0x22, 0x23, 0x24, 0x27, 0x28)
+    0x20,
+    0x21,
+    0x22,
+    0x23,
+    0x24,
+    0x27,
+    0x28,
+)
 XLDA, GDA = 0x01, 0x02
 ZYXDA = 0x08
 AXES_ON = 0x38
@@ -49,8 +64,7 @@ TEMP_COMP, XY_ULTRA_HIGH, Z_ULTRA_HIGH = 0x80, 0x60, 0x0C
 #: full scale deg/s -> (FS_G, mdps per LSB)
 GYRO_RANGES: dict[int, tuple[int, float]] = {245: (0b00, 8.75), 500: (0b01, 17.5), 2000: (0b11, 70.0)}
 #: full scale g -> (FS_XL, mg per LSB)
-ACCEL_RANGES: dict[int, tuple[int, float]] = {2: (0b00, 0.061), 4: (0b10, 0.122), 8: (0b11, 0.244),
-                                              16: (0b01, 0.732)}
+ACCEL_RANGES: dict[int, tuple[int, float]] = {2: (0b00, 0.061), 4: (0b10, 0.122), 8: (0b11, 0.244), 16: (0b01, 0.732)}
 #: output rate Hz (gyroscope, and so the accelerometer) -> ODR_G
 OUTPUT_RATES_HZ: dict[float, int] = {14.9: 1, 59.5: 2, 119: 3, 238: 4, 476: 5, 952: 6}
 #: magnetometer full scale gauss -> (FS, mgauss per LSB)
@@ -66,9 +80,18 @@ class LSM9DS1AccelGyro(Sensor):
     """The accelerometer + gyroscope: checks WHO_AM_I, sets block update, auto-increment, axes, full scales and the
     rate; ``read()`` gives ``acc_ms2`` and ``gyr_rads`` once both have new data (XLDA and GDA)."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_AG_ADDRESS, orientation: Any = None, *,
-                 accel_range_g: int = 4, gyro_range_dps: int = 2000, rate_hz: float = 119,
-                 retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_AG_ADDRESS,
+        orientation: Any = None,
+        *,
+        accel_range_g: int = 4,
+        gyro_range_dps: int = 2000,
+        rate_hz: float = 119,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         self.accel_fs, self.mg_per_lsb = choose(accel_range_g, ACCEL_RANGES, "accelerometer range (g)", "LSM9DS1")
         self.gyro_fs, self.mdps_per_lsb = choose(gyro_range_dps, GYRO_RANGES, "gyroscope range (deg/s)", "LSM9DS1")
         self.odr = choose(rate_hz, OUTPUT_RATES_HZ, "output rate (Hz)", "LSM9DS1")
@@ -76,8 +99,10 @@ class LSM9DS1AccelGyro(Sensor):
         self.rotation = mounting(orientation, Z_UP_TO_BODY)
         found = self.device.read_byte(WHO_AM_I)
         if found != AG_ID:
-            raise SensorError(f"no LSM9DS1 accelerometer/gyroscope at {self.device.address:#04x}: WHO_AM_I reads "
-                              f"{found:#04x}, expected 0x68 (0x6b or 0x6a depending on SDO_AG)")
+            raise SensorError(
+                f"no LSM9DS1 accelerometer/gyroscope at {self.device.address:#04x}: WHO_AM_I reads "
+                f"{found:#04x}, expected 0x68 (0x6b or 0x6a depending on SDO_AG)"
+            )
         self.device.write_byte(CTRL_REG8, BDU | IF_ADD_INC)
         self.device.write_byte(CTRL_REG4, AXES_ON)
         self.device.write_byte(CTRL_REG5_XL, AXES_ON)
@@ -91,8 +116,10 @@ class LSM9DS1AccelGyro(Sensor):
         accel = words(self.device.read_block(OUT_X_L_XL, 6), big_endian=False)
         if saturated(gyro) or saturated(accel):
             return Reading(overflow=True)
-        return Reading(acc_ms2=accel * self.mg_per_lsb / 1000.0 * STANDARD_GRAVITY_MS2,
-                       gyr_rads=gyro * self.mdps_per_lsb / 1000.0 * RAD_PER_DEG)
+        return Reading(
+            acc_ms2=accel * self.mg_per_lsb / 1000.0 * STANDARD_GRAVITY_MS2,
+            gyr_rads=gyro * self.mdps_per_lsb / 1000.0 * RAD_PER_DEG,
+        )
 
 
 class LSM9DS1Magnetometer(Sensor):
@@ -100,22 +127,32 @@ class LSM9DS1Magnetometer(Sensor):
     ``rate_hz`` and ``range_gauss``; ``read()`` gives ``mag_ut`` when ZYXDA is set (overflow when a channel is at
     the end of its range). Its axes are mapped to the body frame of the package (module docstring)."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
-                 range_gauss: int = 4, rate_hz: float = 80, retry: RetryPolicy | None = None,
-                 sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        range_gauss: int = 4,
+        rate_hz: float = 80,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         self.fs, self.mgauss_per_lsb = choose(range_gauss, MAG_RANGES, "magnetometer range (gauss)", "LSM9DS1")
         self.odr = choose(rate_hz, MAG_RATES_HZ, "magnetometer rate (Hz)", "LSM9DS1")
         self._attach(bus, address, orientation, retry, sleep)
         self.rotation = mounting(orientation, Z_UP_TO_BODY @ MAG_TO_AG)
         found = self.device.read_byte(WHO_AM_I)
         if found != MAG_ID:
-            raise SensorError(f"no LSM9DS1 magnetometer at {self.device.address:#04x}: WHO_AM_I_M reads "
-                              f"{found:#04x}, expected 0x3d (0x1e or 0x1c depending on SDO_M)")
+            raise SensorError(
+                f"no LSM9DS1 magnetometer at {self.device.address:#04x}: WHO_AM_I_M reads "
+                f"{found:#04x}, expected 0x3d (0x1e or 0x1c depending on SDO_M)"
+            )
         self.device.write_byte(CTRL_REG1_M, TEMP_COMP | XY_ULTRA_HIGH | (self.odr << 2))
         self.device.write_byte(CTRL_REG2_M, self.fs << 5)
         self.device.write_byte(CTRL_REG4_M, Z_ULTRA_HIGH)
         self.device.write_byte(CTRL_REG5_M, BDU)
-        self.device.write_byte(CTRL_REG3_M, 0x00)         # continuous
+        self.device.write_byte(CTRL_REG3_M, 0x00)  # continuous
 
     def _read(self) -> Reading:
         if not self.device.read_byte(STATUS_REG_M) & ZYXDA:
@@ -123,19 +160,39 @@ class LSM9DS1Magnetometer(Sensor):
         counts = words(self.device.read_block(OUT_X_L_M | AUTO_INCREMENT_M, 6), big_endian=False)
         if saturated(counts):
             return Reading(overflow=True, raw=counts)
-        return Reading(mag_ut=counts * self.mgauss_per_lsb / 10.0, raw=counts)   # 1 mgauss = 0.1 uT
+        return Reading(mag_ut=counts * self.mgauss_per_lsb / 10.0, raw=counts)  # 1 mgauss = 0.1 uT
 
 
 class LSM9DS1(NineAxis):
     """The whole package: magnetometer at ``address`` (0x1E/0x1C) and accelerometer + gyroscope at ``acc_address``
     (0x6B/0x6A), one ``orientation`` for the package (see the module docstring for the axes)."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
-                 acc_address: int = DEFAULT_AG_ADDRESS, accel_range_g: int = 4, gyro_range_dps: int = 2000,
-                 rate_hz: float = 119, range_gauss: int = 4, mag_rate_hz: float = 80,
-                 retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
-        inertial = LSM9DS1AccelGyro(bus, acc_address, orientation, accel_range_g=accel_range_g,
-                                    gyro_range_dps=gyro_range_dps, rate_hz=rate_hz, retry=retry, sleep=sleep)
-        magnetometer = LSM9DS1Magnetometer(bus, address, orientation, range_gauss=range_gauss, rate_hz=mag_rate_hz,
-                                           retry=retry, sleep=sleep)
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        acc_address: int = DEFAULT_AG_ADDRESS,
+        accel_range_g: int = 4,
+        gyro_range_dps: int = 2000,
+        rate_hz: float = 119,
+        range_gauss: int = 4,
+        mag_rate_hz: float = 80,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
+        inertial = LSM9DS1AccelGyro(
+            bus,
+            acc_address,
+            orientation,
+            accel_range_g=accel_range_g,
+            gyro_range_dps=gyro_range_dps,
+            rate_hz=rate_hz,
+            retry=retry,
+            sleep=sleep,
+        )
+        magnetometer = LSM9DS1Magnetometer(
+            bus, address, orientation, range_gauss=range_gauss, rate_hz=mag_rate_hz, retry=retry, sleep=sleep
+        )
         super().__init__(magnetometer, inertial)

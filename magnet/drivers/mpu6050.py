@@ -25,7 +25,15 @@ from magnet.units import STANDARD_GRAVITY_MS2
 
 DEFAULT_ADDRESS = 0x68
 SMPLRT_DIV, CONFIG, GYRO_CONFIG, ACCEL_CONFIG, INT_PIN_CFG, INT_ENABLE, INT_STATUS, ACCEL_XOUT_H = (
-    0x19, 0x1A, 0x1B, 0x1C, 0x37, 0x38, 0x3A, 0x3B)
+    0x19,
+    0x1A,
+    0x1B,
+    0x1C,
+    0x37,
+    0x38,
+    0x3A,
+    0x3B,
+)
 PWR_MGMT_1, WHO_AM_I = 0x6B, 0x75
 CHIP_ID = 0x68
 CLOCK_PLL_GYRO_X = 0x01
@@ -46,9 +54,18 @@ class MPU6050(Sensor):
     scales, turns the auxiliary-bus bypass on and the data-ready flag; ``read()`` gives ``acc_ms2`` and ``gyr_rads``
     when DATA_RDY_INT is set."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
-                 accel_range_g: int = 4, gyro_range_dps: int = 2000, rate_hz: int = 100,
-                 retry: RetryPolicy | None = None, sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        accel_range_g: int = 4,
+        gyro_range_dps: int = 2000,
+        rate_hz: int = 100,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         self.accel_fs, self.lsb_per_g = choose(accel_range_g, ACCEL_RANGES, "accelerometer range (g)", "MPU-6050")
         self.gyro_fs, self.lsb_per_dps = choose(gyro_range_dps, GYRO_RANGES, "gyroscope range (deg/s)", "MPU-6050")
         self.divider = choose(rate_hz, OUTPUT_RATES_HZ, "output rate (Hz)", "MPU-6050")
@@ -56,10 +73,12 @@ class MPU6050(Sensor):
         self.rotation = mounting(orientation, Z_UP_TO_BODY)
         found = self.device.read_byte(WHO_AM_I)
         if found != CHIP_ID:
-            raise SensorError(f"no MPU-6050 at {self.device.address:#04x}: WHO_AM_I (0x75) reads {found:#04x}, "
-                              "expected 0x68 (an MPU-6500 reads 0x70, an MPU-9250 0x71; an ICM-20948 answers 0xea "
-                              "at register 0x00)")
-        self.device.write_byte(PWR_MGMT_1, CLOCK_PLL_GYRO_X)     # out of sleep
+            raise SensorError(
+                f"no MPU-6050 at {self.device.address:#04x}: WHO_AM_I (0x75) reads {found:#04x}, "
+                "expected 0x68 (an MPU-6500 reads 0x70, an MPU-9250 0x71; an ICM-20948 answers 0xea "
+                "at register 0x00)"
+            )
+        self.device.write_byte(PWR_MGMT_1, CLOCK_PLL_GYRO_X)  # out of sleep
         self.device.write_byte(CONFIG, DLPF_44HZ)
         self.device.write_byte(SMPLRT_DIV, self.divider)
         self.device.write_byte(GYRO_CONFIG, self.gyro_fs << 3)
@@ -70,22 +89,42 @@ class MPU6050(Sensor):
     def _read(self) -> Reading:
         if not self.device.read_byte(INT_STATUS) & DATA_RDY:
             return NOT_READY
-        counts = words(self.device.read_block(ACCEL_XOUT_H, 14), big_endian=True)   # accel, temperature, gyro
+        counts = words(self.device.read_block(ACCEL_XOUT_H, 14), big_endian=True)  # accel, temperature, gyro
         accel, gyro = counts[:3], counts[4:]
         if saturated(accel) or saturated(gyro):
             return Reading(overflow=True)
-        return Reading(acc_ms2=accel / self.lsb_per_g * STANDARD_GRAVITY_MS2,
-                       gyr_rads=gyro / self.lsb_per_dps * RAD_PER_DEG)
+        return Reading(
+            acc_ms2=accel / self.lsb_per_g * STANDARD_GRAVITY_MS2, gyr_rads=gyro / self.lsb_per_dps * RAD_PER_DEG
+        )
 
 
-def with_magnetometer(magnetometer_class: Callable[..., Sensor], bus: I2CBus, address: int, orientation: Any, *,
-                      acc_address: int = DEFAULT_ADDRESS, accel_range_g: int = 4, gyro_range_dps: int = 2000,
-                      rate_hz: int = 100, retry: RetryPolicy | None = None,
-                      sleep: Callable[[float], None] | None = None, **magnetometer_options: Any) -> NineAxis:
+def with_magnetometer(
+    magnetometer_class: Callable[..., Sensor],
+    bus: I2CBus,
+    address: int,
+    orientation: Any,
+    *,
+    acc_address: int = DEFAULT_ADDRESS,
+    accel_range_g: int = 4,
+    gyro_range_dps: int = 2000,
+    rate_hz: int = 100,
+    retry: RetryPolicy | None = None,
+    sleep: Callable[[float], None] | None = None,
+    **magnetometer_options: Any,
+) -> NineAxis:
     """An MPU-6050 (set up first: its bypass lets a magnetometer on its auxiliary bus answer) and a magnetometer of
     ``magnetometer_class`` at ``address``, both mapped from a flat, top-up board (module docstring)."""
-    inertial = MPU6050(bus, acc_address, orientation, accel_range_g=accel_range_g, gyro_range_dps=gyro_range_dps,
-                       rate_hz=rate_hz, retry=retry, sleep=sleep)
-    magnetometer = magnetometer_class(bus, address, mounting(orientation, Z_UP_TO_BODY), retry=retry, sleep=sleep,
-                                      **magnetometer_options)
+    inertial = MPU6050(
+        bus,
+        acc_address,
+        orientation,
+        accel_range_g=accel_range_g,
+        gyro_range_dps=gyro_range_dps,
+        rate_hz=rate_hz,
+        retry=retry,
+        sleep=sleep,
+    )
+    magnetometer = magnetometer_class(
+        bus, address, mounting(orientation, Z_UP_TO_BODY), retry=retry, sleep=sleep, **magnetometer_options
+    )
     return NineAxis(magnetometer, inertial)

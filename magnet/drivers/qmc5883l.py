@@ -12,8 +12,8 @@ field_ut = counts / LSB_PER_GAUSS[range] * 100, LSB per gauss 12000 (2 G) or 300
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -40,31 +40,47 @@ class QMC5883LSettings:
     oversampling: int = 512
 
     def __post_init__(self) -> None:
-        for value, table, what in ((self.range_gauss, RANGES, "range (gauss)"), (self.rate_hz, OUTPUT_RATE_HZ,
-                                   "output rate (Hz)"), (self.oversampling, OVERSAMPLING, "oversampling")):
+        for value, table, what in (
+            (self.range_gauss, RANGES, "range (gauss)"),
+            (self.rate_hz, OUTPUT_RATE_HZ, "output rate (Hz)"),
+            (self.oversampling, OVERSAMPLING, "oversampling"),
+        ):
             if value not in table:
                 raise ValueError(f"QMC5883L {what} must be one of {sorted(table)}, got {value}")
 
     @property
     def control1(self) -> int:
-        return ((OVERSAMPLING[self.oversampling] << 6) | (RANGES[self.range_gauss][0] << 4)
-                | (OUTPUT_RATE_HZ[self.rate_hz] << 2) | MODE_CONTINUOUS)
+        return (
+            (OVERSAMPLING[self.oversampling] << 6)
+            | (RANGES[self.range_gauss][0] << 4)
+            | (OUTPUT_RATE_HZ[self.rate_hz] << 2)
+            | MODE_CONTINUOUS
+        )
 
 
 class QMC5883L(Sensor):
     """Driver: checks the chip id, sets continuous mode, reads Status then the six data bytes when DRDY."""
 
-    def __init__(self, bus: I2CBus, address: int = DEFAULT_ADDRESS, orientation: Any = None, *,
-                 settings: QMC5883LSettings | None = None, retry: RetryPolicy | None = None,
-                 sleep: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        bus: I2CBus,
+        address: int = DEFAULT_ADDRESS,
+        orientation: Any = None,
+        *,
+        settings: QMC5883LSettings | None = None,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
         self._attach(bus, address, orientation, retry, sleep)
         chip_id = self.device.read_byte(REG_CHIP_ID)
         if chip_id != CHIP_ID:
-            raise SensorError(f"no QMC5883L at {self.device.address:#04x}: chip id register 0x0D reads "
-                              f"{chip_id:#04x}, expected 0xff (check the address with i2cdetect)")
+            raise SensorError(
+                f"no QMC5883L at {self.device.address:#04x}: chip id register 0x0D reads "
+                f"{chip_id:#04x}, expected 0xff (check the address with i2cdetect)"
+            )
         self.settings = settings or QMC5883LSettings()
-        self.device.write_byte(REG_CONTROL2, 0x40)   # pointer roll-over on, interrupt pin enabled
-        self.device.write_byte(REG_PERIOD, 0x01)     # SET/RESET period, as the datasheet recommends
+        self.device.write_byte(REG_CONTROL2, 0x40)  # pointer roll-over on, interrupt pin enabled
+        self.device.write_byte(REG_PERIOD, 0x01)  # SET/RESET period, as the datasheet recommends
         self.device.write_byte(REG_CONTROL1, self.settings.control1)
 
     @property

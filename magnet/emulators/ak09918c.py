@@ -11,8 +11,8 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
 from collections.abc import Callable
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -25,7 +25,7 @@ _SELF_TEST_COUNTS = np.array([30, -40, -400])
 
 class AK09918CEmulator(MagnetometerDevice):
     addresses = (0x0C,)
-    power_on: ClassVar[dict[int, int]] = {0x00: 0x48, 0x01: 0x0C}   # WIA1, WIA2
+    power_on: ClassVar[dict[int, int]] = {0x00: 0x48, 0x01: 0x0C}  # WIA1, WIA2
 
     def __init__(self, source: Any = None, **options: Any) -> None:
         """``options``: see ``MagnetometerDevice`` and ``SensorDevice``."""
@@ -51,7 +51,7 @@ class AK09918CEmulator(MagnetometerDevice):
             counts = np.clip(np.round(field * sens / UT_PER_LSB), -32752, 32752).astype(int)
         self.measurements += 1
         if self.protected:
-            self.regs[0x10] |= 0x02            # skipped: data overrun
+            self.regs[0x10] |= 0x02  # skipped: data overrun
             return
         overflow = np.sum(np.abs(counts)) * UT_PER_LSB >= 4912.0
         for axis in range(3):
@@ -88,11 +88,21 @@ class AK09918CEmulator(MagnetometerDevice):
             self.regs[0x30] = value
 
 
-def ak09918c_bma456_bus(source: Any = None, *, acc_address: int = 0x18, rotation: Any = None,
-                        clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                        **mag_options: Any) -> EmulatedBus:
+def ak09918c_bma456_bus(
+    source: Any = None,
+    *,
+    acc_address: int = 0x18,
+    rotation: Any = None,
+    clock: Callable[[], float] | None = None,
+    faults: FaultInjector | None = None,
+    **mag_options: Any,
+) -> EmulatedBus:
     """An AK09918C and a BMA456 on one bus, fed by one source (as on the seed 004 board)."""
     from magnet.emulators.bma456 import BMA456Emulator
+
     tap = SourceTap(source)
-    return EmulatedBus(AK09918CEmulator(tap=tap, rotation=rotation, clock=clock, **mag_options),
-                       BMA456Emulator(tap=tap, address=acc_address, rotation=rotation, clock=clock), faults=faults)
+    return EmulatedBus(
+        AK09918CEmulator(tap=tap, rotation=rotation, clock=clock, **mag_options),
+        BMA456Emulator(tap=tap, address=acc_address, rotation=rotation, clock=clock),
+        faults=faults,
+    )

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import errno
 import os
-from typing import Any
 from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -34,9 +34,12 @@ class ConstantSource:
     """A device in a constant field, specific force and angular rate (default: still and level): ``measure()``
     always returns the same (mag_ut, acc_ms2), ``measure_imu()`` the same (mag_ut, acc_ms2, gyr_rads)."""
 
-    def __init__(self, mag_ut: npt.ArrayLike = (20.0, 0.0, 45.0),
-                 acc_ms2: npt.ArrayLike = (0.0, 0.0, -STANDARD_GRAVITY_MS2),
-                 gyr_rads: npt.ArrayLike = (0.0, 0.0, 0.0)) -> None:
+    def __init__(
+        self,
+        mag_ut: npt.ArrayLike = (20.0, 0.0, 45.0),
+        acc_ms2: npt.ArrayLike = (0.0, 0.0, -STANDARD_GRAVITY_MS2),
+        gyr_rads: npt.ArrayLike = (0.0, 0.0, 0.0),
+    ) -> None:
         self.mag_ut = np.asarray(mag_ut, dtype=float)
         self.acc_ms2 = np.asarray(acc_ms2, dtype=float)
         self.gyr_rads = np.asarray(gyr_rads, dtype=float)
@@ -64,7 +67,7 @@ class SourceTap:
         self.source = source if source is not None else ConstantSource()
         self._latest: tuple[np.ndarray, ...] | None = None
 
-        self._unused_by_mag = False   # the accelerometer drew the latest sample first: the magnetometer gets it too
+        self._unused_by_mag = False  # the accelerometer drew the latest sample first: the magnetometer gets it too
 
     def _draw(self) -> tuple[np.ndarray, ...]:
         imu = getattr(self.source, "measure_imu", None)
@@ -99,8 +102,13 @@ class FaultInjector:
     drawing the errno from ``errnos`` with a seeded generator. ``injected`` counts the failures raised.
     """
 
-    def __init__(self, schedule: Mapping[int, int] | Iterable[int | None] = (), probability: float = 0.0,
-                 errnos: Iterable[int] = (errno.EIO,), seed: int = 0) -> None:
+    def __init__(
+        self,
+        schedule: Mapping[int, int] | Iterable[int | None] = (),
+        probability: float = 0.0,
+        errnos: Iterable[int] = (errno.EIO,),
+        seed: int = 0,
+    ) -> None:
         if not 0.0 <= probability <= 1.0:
             raise ValueError(f"fault probability must be within 0..1, got {probability}")
         self.schedule = dict(schedule) if isinstance(schedule, Mapping) else dict(enumerate(schedule))
@@ -271,12 +279,23 @@ class EmulatedBus:
             device.close()
 
 
-_SMBUS_METHODS = frozenset({"read_byte_data", "write_byte_data", "read_i2c_block_data", "write_i2c_block_data",
-                            "read_byte", "write_byte", "read_word_data", "write_word_data"})
+_SMBUS_METHODS = frozenset(
+    {
+        "read_byte_data",
+        "write_byte_data",
+        "read_i2c_block_data",
+        "write_i2c_block_data",
+        "read_byte",
+        "write_byte",
+        "read_word_data",
+        "write_word_data",
+    }
+)
 
 
-def sensitivity_factor(gain_error: Any, temperature_c: float, tempco_per_k: float,
-                       reference_c: float = 25.0) -> np.ndarray:
+def sensitivity_factor(
+    gain_error: Any, temperature_c: float, tempco_per_k: float, reference_c: float = 25.0
+) -> np.ndarray:
     """Per-axis sensitivity multiplier (3,): (1 + gain_error) * (1 + tempco_per_k * (temperature_c - reference_c))."""
     error = np.broadcast_to(np.asarray(gain_error, dtype=float), (3,))
     return (1.0 + error) * (1.0 + tempco_per_k * (temperature_c - reference_c))
@@ -286,15 +305,22 @@ class SensorDevice(RegisterDevice):
     """A chip that senses the source: ``address`` overrides the chip's own, ``tap`` shares one source sample between
     the chips of one package, ``rotation`` (3x3) maps body to chip axes (identity: the marked axes are the body's)."""
 
-    def __init__(self, source: Any = None, *, address: int | None = None, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                 tap: SourceTap | None = None) -> None:
+    def __init__(
+        self,
+        source: Any = None,
+        *,
+        address: int | None = None,
+        rotation: Any = None,
+        clock: Callable[[], float] | None = None,
+        faults: FaultInjector | None = None,
+        tap: SourceTap | None = None,
+    ) -> None:
         super().__init__(clock=clock, faults=faults)
         if address is not None:
             self.addresses = (address,)
         self.tap = tap or SourceTap(source)
         self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
-        self.unread = False                 # a measurement placed and not yet read
+        self.unread = False  # a measurement placed and not yet read
         self.next_due: float | None = None  # clock time of the next continuous measurement
 
     def _power_on_reset(self, power_on: dict[int, int]) -> None:
@@ -329,8 +355,15 @@ class MagnetometerDevice(SensorDevice):
     """A magnetometer chip: adds a per-axis ``gain_error`` and a gain drift of ``tempco_per_k`` per kelvin away from
     25 deg C at ``temperature_c`` (``sensitivity()``, see ``sensitivity_factor``)."""
 
-    def __init__(self, source: Any = None, *, gain_error: Any = (0.0, 0.0, 0.0), temperature_c: float = 25.0,
-                 tempco_per_k: float = 0.0, **common: Any) -> None:
+    def __init__(
+        self,
+        source: Any = None,
+        *,
+        gain_error: Any = (0.0, 0.0, 0.0),
+        temperature_c: float = 25.0,
+        tempco_per_k: float = 0.0,
+        **common: Any,
+    ) -> None:
         super().__init__(source, **common)
         self.gain_error = np.asarray(gain_error, dtype=float)
         self.temperature_c = temperature_c

@@ -34,7 +34,14 @@ class AMRMagnetometerEmulator(MagnetometerDevice):
     bias_field_ga = np.array([1.16, 1.16, 1.08])
     adc_limits = (-2048, 2047)
     overflow_code = -4096
-    power_on: ClassVar[dict[int, int]] = {0x00: 0x10, 0x01: 0x20, 0x02: 0x01, 0x0A: ord("H"), 0x0B: ord("4"), 0x0C: ord("3")}
+    power_on: ClassVar[dict[int, int]] = {
+        0x00: 0x10,
+        0x01: 0x20,
+        0x02: 0x01,
+        0x0A: ord("H"),
+        0x0B: ord("4"),
+        0x0C: ord("3"),
+    }
     writable = frozenset({0x00, 0x01, 0x02})
     data_registers = frozenset(range(0x03, 0x09))
 
@@ -44,7 +51,7 @@ class AMRMagnetometerEmulator(MagnetometerDevice):
         for register, value in self.power_on.items():
             self.regs[register] = value
         self.active_gain = self.regs[0x01] >> 5
-        self.unread = False          # data placed and not yet fully read
+        self.unread = False  # data placed and not yet fully read
         self.read_so_far: set[int] = set()
         self.locked = False
         self.ready = False
@@ -76,7 +83,7 @@ class AMRMagnetometerEmulator(MagnetometerDevice):
 
     def _measure(self) -> None:
         counts = self._counts()
-        self.active_gain = self.regs[0x01] >> 5   # the new gain takes effect from the next measurement on
+        self.active_gain = self.regs[0x01] >> 5  # the new gain takes effect from the next measurement on
         self.measurements += 1
         if self.locked:
             return
@@ -104,7 +111,7 @@ class AMRMagnetometerEmulator(MagnetometerDevice):
         elif self.single_due is not None and (now is None or now >= self.single_due):
             self.single_due = None
             self._measure()
-            self.regs[0x02] = (self.regs[0x02] & ~0x03) | 0x03   # back to idle
+            self.regs[0x02] = (self.regs[0x02] & ~0x03) | 0x03  # back to idle
 
     # ---- register side effects
     def _on_read(self, register: int) -> int:
@@ -136,7 +143,7 @@ class AMRMagnetometerEmulator(MagnetometerDevice):
             self.read_so_far.clear()
             self._set_status()
         if register == 0x00 or register == 0x01:
-            self.unread = False   # continuous mode: the next measurement follows the new configuration
+            self.unread = False  # continuous mode: the next measurement follows the new configuration
         if register == 0x02:
             self._start_mode()
 

@@ -96,16 +96,23 @@ class ICM20948Chip(InertialDevice):
 
 
 class AK09916Emulator(AK09918CEmulator):
-    power_on: ClassVar[dict[int, int]] = {0x00: 0x48, 0x01: 0x09}   # WIA1, WIA2
+    power_on: ClassVar[dict[int, int]] = {0x00: 0x48, 0x01: 0x09}  # WIA1, WIA2
 
 
 class ICM20948Emulator(EmulatedBus):
     """The package on one bus with one source; ``.imu`` and ``.mag`` are the two chips. ``address`` moves the ICM
     (0x68 or 0x69); ``mag_options`` go to the AK09916 (``gain_error``, ``temperature_c``, ``tempco_per_k``)."""
 
-    def __init__(self, source: Any = None, *, address: int = 0x68, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                 **mag_options: Any) -> None:
+    def __init__(
+        self,
+        source: Any = None,
+        *,
+        address: int = 0x68,
+        rotation: Any = None,
+        clock: Callable[[], float] | None = None,
+        faults: FaultInjector | None = None,
+        **mag_options: Any,
+    ) -> None:
         tap = SourceTap(source)
         board = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
         self.imu = ICM20948Chip(tap=tap, address=address, rotation=board, clock=clock)

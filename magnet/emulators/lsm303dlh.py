@@ -11,8 +11,8 @@ auto-increments only when its bit 7 is set; otherwise a multi-byte read repeats 
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
 from collections.abc import Callable
+from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
@@ -27,9 +27,24 @@ _ACC_RATE_HZ = (50.0, 100.0, 400.0, 1000.0)
 class LSM303DLHMagEmulator(AMRMagnetometerEmulator):
     addresses = (0x1E,)
     data_axes = (0, 1, 2)
-    lsb_per_gauss = (None, (1055.0, 1055.0, 950.0), (795.0, 795.0, 710.0), (635.0, 635.0, 570.0),
-                     (430.0, 430.0, 385.0), (375.0, 375.0, 335.0), (320.0, 320.0, 285.0), (230.0, 230.0, 205.0))
-    power_on: ClassVar[dict[int, int]] = {0x00: 0x10, 0x01: 0x20, 0x02: 0x03, 0x0A: ord("H"), 0x0B: ord("4"), 0x0C: ord("3")}
+    lsb_per_gauss = (
+        None,
+        (1055.0, 1055.0, 950.0),
+        (795.0, 795.0, 710.0),
+        (635.0, 635.0, 570.0),
+        (430.0, 430.0, 385.0),
+        (375.0, 375.0, 335.0),
+        (320.0, 320.0, 285.0),
+        (230.0, 230.0, 205.0),
+    )
+    power_on: ClassVar[dict[int, int]] = {
+        0x00: 0x10,
+        0x01: 0x20,
+        0x02: 0x03,
+        0x0A: ord("H"),
+        0x0B: ord("4"),
+        0x0C: ord("3"),
+    }
 
 
 class LSM303DLHAccEmulator(SensorDevice):
@@ -48,8 +63,9 @@ class LSM303DLHAccEmulator(SensorDevice):
 
     def _measure(self) -> None:
         mg_per_digit = _MG_PER_DIGIT.get((self.regs[0x23] >> 4) & 0x03, 1.0)
-        digits = np.clip(np.round(self.rotation @ self.tap.acc() / STANDARD_GRAVITY_MS2 * 1000.0 / mg_per_digit),
-                         -2048, 2047).astype(int)
+        digits = np.clip(
+            np.round(self.rotation @ self.tap.acc() / STANDARD_GRAVITY_MS2 * 1000.0 / mg_per_digit), -2048, 2047
+        ).astype(int)
         for axis in range(3):
             raw = (int(digits[axis]) << 4) & 0xFFFF
             self.regs[0x28 + 2 * axis], self.regs[0x29 + 2 * axis] = raw & 0xFF, raw >> 8
@@ -78,11 +94,26 @@ class LSM303DLHAccEmulator(SensorDevice):
 class LSM303DLHEmulator(EmulatedBus):
     """Both halves on one bus with one source; ``.mag`` and ``.acc`` are the two chips."""
 
-    def __init__(self, source: Any = None, *, acc_address: int = 0x18, gain_error: npt.ArrayLike = (0.0, 0.0, 0.0),
-                 temperature_c: float = 25.0, tempco_per_k: float = 0.0, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None) -> None:
+    def __init__(
+        self,
+        source: Any = None,
+        *,
+        acc_address: int = 0x18,
+        gain_error: npt.ArrayLike = (0.0, 0.0, 0.0),
+        temperature_c: float = 25.0,
+        tempco_per_k: float = 0.0,
+        rotation: Any = None,
+        clock: Callable[[], float] | None = None,
+        faults: FaultInjector | None = None,
+    ) -> None:
         tap = SourceTap(source)
-        self.mag = LSM303DLHMagEmulator(tap=tap, gain_error=gain_error, temperature_c=temperature_c,
-                                        tempco_per_k=tempco_per_k, rotation=rotation, clock=clock)
+        self.mag = LSM303DLHMagEmulator(
+            tap=tap,
+            gain_error=gain_error,
+            temperature_c=temperature_c,
+            tempco_per_k=tempco_per_k,
+            rotation=rotation,
+            clock=clock,
+        )
         self.acc = LSM303DLHAccEmulator(tap=tap, address=acc_address, rotation=rotation, clock=clock)
         super().__init__(self.mag, self.acc, faults=faults)

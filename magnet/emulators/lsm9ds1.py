@@ -32,7 +32,7 @@ from magnet.emulators.inertial import Z_UP, InertialDevice, int16, put_words
 
 _GYRO_ODR_HZ = (0.0, 14.9, 59.5, 119.0, 238.0, 476.0, 952.0, 0.0)
 _ACCEL_ODR_HZ = (0.0, 10.0, 50.0, 119.0, 238.0, 476.0, 952.0, 0.0)
-_MDPS_PER_LSB = (8.75, 17.5, 8.75, 70.0)          # code 2 is not available; the chip keeps 245 deg/s
+_MDPS_PER_LSB = (8.75, 17.5, 8.75, 70.0)  # code 2 is not available; the chip keeps 245 deg/s
 _MG_PER_LSB = (0.061, 0.732, 0.122, 0.244)
 _AG_WRITABLE = frozenset({*range(0x10, 0x14), *range(0x1E, 0x25), 0x2E, *range(0x30, 0x38)})
 _MAG_ODR_HZ = (0.625, 1.25, 2.5, 5.0, 10.0, 20.0, 40.0, 80.0)
@@ -67,12 +67,15 @@ class LSM9DS1AccelGyroEmulator(InertialDevice):
         acc_g, gyr_dps = self.sample()
         status = self.regs[0x17]
         if _GYRO_ODR_HZ[self.regs[0x10] >> 5]:
-            put_words(self.regs, 0x18, int16(gyr_dps * 1000.0 / _MDPS_PER_LSB[(self.regs[0x10] >> 3) & 0x03]),
-                      big_endian=False)
+            put_words(
+                self.regs,
+                0x18,
+                int16(gyr_dps * 1000.0 / _MDPS_PER_LSB[(self.regs[0x10] >> 3) & 0x03]),
+                big_endian=False,
+            )
             status |= 0x02
             self.unread_gyro = True
-        put_words(self.regs, 0x28, int16(acc_g * 1000.0 / _MG_PER_LSB[(self.regs[0x20] >> 3) & 0x03]),
-                  big_endian=False)
+        put_words(self.regs, 0x28, int16(acc_g * 1000.0 / _MG_PER_LSB[(self.regs[0x20] >> 3) & 0x03]), big_endian=False)
         self.regs[0x17] = self.regs[0x27] = status | 0x01
         self.unread_accel = True
         self.unread = True
@@ -120,7 +123,7 @@ class LSM9DS1MagEmulator(MagnetometerDevice):
 
     def _measure(self) -> None:
         field = self.rotation @ self.tap.mag() * self.sensitivity()
-        counts = int16(field * 10.0 / _MGAUSS_PER_LSB[(self.regs[0x21] >> 5) & 0x03])   # 1 uT = 10 mgauss
+        counts = int16(field * 10.0 / _MGAUSS_PER_LSB[(self.regs[0x21] >> 5) & 0x03])  # 1 uT = 10 mgauss
         put_words(self.regs, 0x28, counts, big_endian=False)
         self.regs[0x27] = 0x0F | (0xF0 if self.unread else 0x00)
         self.unread = True
@@ -131,7 +134,7 @@ class LSM9DS1MagEmulator(MagnetometerDevice):
             self._measure_continuously(1.0 / _MAG_ODR_HZ[(self.regs[0x20] >> 2) & 0x07])
         elif self.mode == 0x01:
             self._measure()
-            self.regs[0x22] |= 0x03        # single conversion done: power-down
+            self.regs[0x22] |= 0x03  # single conversion done: power-down
 
     def _translate(self, register: int) -> tuple[int, bool]:
         return register & 0x7F, bool(register & 0x80)
@@ -153,12 +156,21 @@ class LSM9DS1Emulator(EmulatedBus):
     """Both parts on one bus with one source; ``.ag`` and ``.mag`` are the two chips. ``acc_address`` and
     ``address`` move them (0x6A, 0x1C); ``mag_options`` go to the magnetometer."""
 
-    def __init__(self, source: Any = None, *, address: int = 0x1E, acc_address: int = 0x6B, rotation: Any = None,
-                 clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-                 **mag_options: Any) -> None:
+    def __init__(
+        self,
+        source: Any = None,
+        *,
+        address: int = 0x1E,
+        acc_address: int = 0x6B,
+        rotation: Any = None,
+        clock: Callable[[], float] | None = None,
+        faults: FaultInjector | None = None,
+        **mag_options: Any,
+    ) -> None:
         tap = SourceTap(source)
         board = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
         self.ag = LSM9DS1AccelGyroEmulator(tap=tap, address=acc_address, rotation=board, clock=clock)
-        self.mag = LSM9DS1MagEmulator(tap=tap, address=address, rotation=MAG_FROM_AG @ Z_UP @ board, clock=clock,
-                                      **mag_options)
+        self.mag = LSM9DS1MagEmulator(
+            tap=tap, address=address, rotation=MAG_FROM_AG @ Z_UP @ board, clock=clock, **mag_options
+        )
         super().__init__(self.ag, self.mag, faults=faults)

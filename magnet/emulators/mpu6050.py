@@ -74,9 +74,15 @@ def mpu6050_with(magnetometer_class: type) -> Callable[..., EmulatedBus]:
     """A bus factory: an MPU-6050 and a ``magnetometer_class`` emulator side by side, both flat and top up on one
     board (the magnetometer's z-up axes are ``Z_UP @ rotation @ body``), fed by one source."""
 
-    def bus(source: Any = None, *, acc_address: int = 0x68, rotation: Any = None,
-            clock: Callable[[], float] | None = None, faults: FaultInjector | None = None,
-            **mag_options: Any) -> EmulatedBus:
+    def bus(
+        source: Any = None,
+        *,
+        acc_address: int = 0x68,
+        rotation: Any = None,
+        clock: Callable[[], float] | None = None,
+        faults: FaultInjector | None = None,
+        **mag_options: Any,
+    ) -> EmulatedBus:
         tap = SourceTap(source)
         board = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
         magnetometer = magnetometer_class(tap=tap, rotation=Z_UP @ board, clock=clock, **mag_options)

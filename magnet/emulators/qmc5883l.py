@@ -60,7 +60,7 @@ class QMC5883LEmulator(MagnetometerDevice):
 
     def _after_read(self, registers: list[int]) -> None:
         if any(r <= 0x05 for r in registers):
-            self.regs[0x06] &= ~0x05 & 0xFF   # DRDY and DOR clear on a data read
+            self.regs[0x06] &= ~0x05 & 0xFF  # DRDY and DOR clear on a data read
             self.unread = False
 
     def _on_write(self, register: int, value: int) -> None:

@@ -16,12 +16,33 @@ Pure numpy. Every figure is computed on the corrected field ``calibration.apply(
 - held-out residual: the same residual for samples the fit did not see (the caller fits on one part, scores here).
 """
 
-from magnet.quality.coverage import (CELL_COUNT, HEADING_SECTORS, MAX_ADVICE, Coverage, coverage, fibonacci_centres,
-                                    heading_coverage)
-from magnet.quality.figures import (Geometry, assess, dip_spread_deg, matrix_condition, scatter_condition)
+from magnet.quality.coverage import (
+    CELL_COUNT,
+    HEADING_SECTORS,
+    MAX_ADVICE,
+    Coverage,
+    coverage,
+    fibonacci_centres,
+    heading_coverage,
+)
+from magnet.quality.figures import Geometry, assess, dip_spread_deg, matrix_condition, scatter_condition
 from magnet.quality.gate import GateThresholds, gate
 from magnet.units import ut_per_unit
 
-__all__ = ["CELL_COUNT", "HEADING_SECTORS", "MAX_ADVICE", "Coverage", "GateThresholds", "Geometry", "assess",
-           "coverage", "dip_spread_deg", "fibonacci_centres", "gate", "heading_coverage", "matrix_condition",
-           "scatter_condition", "ut_per_unit"]
+__all__ = [
+    "CELL_COUNT",
+    "HEADING_SECTORS",
+    "MAX_ADVICE",
+    "Coverage",
+    "GateThresholds",
+    "Geometry",
+    "assess",
+    "coverage",
+    "dip_spread_deg",
+    "fibonacci_centres",
+    "gate",
+    "heading_coverage",
+    "matrix_condition",
+    "scatter_condition",
+    "ut_per_unit",
+]

@@ -86,26 +86,43 @@ def assess(
     corrected = calibration.apply(raw)
     to_ut = ut_per_unit(calibration.output_unit)
     res = _residuals(corrected, _reference(corrected, calibration, geometry), geometry, to_ut)
-    cov = heading_coverage(corrected) if geometry is Geometry.CIRCLE else coverage(
-        corrected, field_points_down=field_points_down)
+    cov = (
+        heading_coverage(corrected)
+        if geometry is Geometry.CIRCLE
+        else coverage(corrected, field_points_down=field_points_down)
+    )
     matrix = calibration.matrix[:2, :2] if geometry is Geometry.CIRCLE else calibration.matrix
     scatter = raw[:, :2] if geometry is Geometry.CIRCLE else raw
     held = _holdout_residuals(holdout, geometry, to_ut)
     return Quality(
-        geometry=geometry.value, residual_rms=res["rms"], residual_rms_ut=res["rms_ut"],
-        residual_rms_pct=res["rms_pct"], coverage=cov.fraction, cells_hit=cov.cells_hit, cell_count=cov.cell_count,
-        missing_directions=tuple(cov.missing), radius=fitted_radius_ut, expected_field_ut=expected_field_ut,
-        radius_ratio=(fitted_radius_ut / expected_field_ut
-                      if fitted_radius_ut is not None and expected_field_ut else None),
+        geometry=geometry.value,
+        residual_rms=res["rms"],
+        residual_rms_ut=res["rms_ut"],
+        residual_rms_pct=res["rms_pct"],
+        coverage=cov.fraction,
+        cells_hit=cov.cells_hit,
+        cell_count=cov.cell_count,
+        missing_directions=tuple(cov.missing),
+        radius=fitted_radius_ut,
+        expected_field_ut=expected_field_ut,
+        radius_ratio=(
+            fitted_radius_ut / expected_field_ut if fitted_radius_ut is not None and expected_field_ut else None
+        ),
         soft_iron_condition=matrix_condition(matrix),
         scatter_condition=scatter_condition(scatter) if len(raw) > scatter.shape[1] else math.inf,
-        dip_spread_deg=(dip_spread_deg(corrected, np.asarray(acc, dtype=float))
-                        if acc is not None and geometry is not Geometry.CIRCLE else None),
-        holdout_rms_ut=held["rms_ut"], holdout_rms_pct=held["rms_pct"])
+        dip_spread_deg=(
+            dip_spread_deg(corrected, np.asarray(acc, dtype=float))
+            if acc is not None and geometry is not Geometry.CIRCLE
+            else None
+        ),
+        holdout_rms_ut=held["rms_ut"],
+        holdout_rms_pct=held["rms_pct"],
+    )
 
 
-def _holdout_residuals(holdout: tuple[np.ndarray, Calibration] | None, geometry: Geometry,
-                       to_ut: float | None) -> dict[str, Any]:
+def _holdout_residuals(
+    holdout: tuple[np.ndarray, Calibration] | None, geometry: Geometry, to_ut: float | None
+) -> dict[str, Any]:
     """Residuals of the held-out samples under the calibration fitted without them (None when there are none)."""
     if holdout is None or not len(holdout[0]):
         return {"rms_ut": None, "rms_pct": None}

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 from collections.abc import Mapping
+from typing import Any
 
 from magnet.model import Quality
 from magnet.quality.figures import Geometry
@@ -55,8 +55,10 @@ def _check_scatter(q: QualityLike, t: GateThresholds) -> str | None:
         return None
     if q.get("geometry") == Geometry.CIRCLE.value:
         return f"samples lie on a line (scatter condition {value:.3g}): turn the device through a full circle"
-    return (f"samples are coplanar (scatter condition {value:.3g} > {t.max_scatter_condition:g}): a level turn cannot "
-            "give a 3D fit; tumble the device through all attitudes, or use minmax2d for level use")
+    return (
+        f"samples are coplanar (scatter condition {value:.3g} > {t.max_scatter_condition:g}): a level turn cannot "
+        "give a 3D fit; tumble the device through all attitudes, or use minmax2d for level use"
+    )
 
 
 def _check_coverage(q: QualityLike, t: GateThresholds) -> str | None:
@@ -80,10 +82,13 @@ def _check_holdout(q: QualityLike, t: GateThresholds) -> str | None:
 #: what to do about a large residual, by geometry
 _RESIDUAL_ADVICE: dict[str, str] = {
     Geometry.SPHERE.value: "keep magnets and metal away, move slowly, and check the sensor is not saturating",
-    Geometry.CIRCLE.value: ("the turn is not a circle after min/max scaling (a tilted ellipse from cross-axis soft "
-                            "iron, or the device tilted while turning): keep it level, or tumble it and use ellipsoid"),
-    Geometry.TURNTABLE.value: ("the readings do not fit one linear model: check the mountings, the table angles and "
-                               "the field components"),
+    Geometry.CIRCLE.value: (
+        "the turn is not a circle after min/max scaling (a tilted ellipse from cross-axis soft "
+        "iron, or the device tilted while turning): keep it level, or tumble it and use ellipsoid"
+    ),
+    Geometry.TURNTABLE.value: (
+        "the readings do not fit one linear model: check the mountings, the table angles and the field components"
+    ),
 }
 
 
@@ -102,31 +107,46 @@ def _check_radius(q: QualityLike, t: GateThresholds) -> str | None:
     ratio = _num(q, "radius_ratio")
     if ratio is None or abs(ratio - 1.0) * 100.0 <= t.radius_tolerance_pct:
         return None
-    return (f"fitted radius {q.get('radius', 0):.1f} uT is {100 * (ratio - 1):+.0f} % off the expected "
-            f"{q.get('expected_field_ut', 0):.1f} uT (limit +-{t.radius_tolerance_pct:g} %): check the location, "
-            "the unit of the data, and for nearby iron")
+    return (
+        f"fitted radius {q.get('radius', 0):.1f} uT is {100 * (ratio - 1):+.0f} % off the expected "
+        f"{q.get('expected_field_ut', 0):.1f} uT (limit +-{t.radius_tolerance_pct:g} %): check the location, "
+        "the unit of the data, and for nearby iron"
+    )
 
 
 def _check_soft_iron(q: QualityLike, t: GateThresholds) -> str | None:
     value = _num(q, "soft_iron_condition")
     if value is None or value <= t.max_soft_iron_condition:
         return None
-    return (f"soft-iron axis ratio {value:.2f} > {t.max_soft_iron_condition:g}: the sensor sits too close to "
-            "iron or a magnet, or the samples cover too little; move it and calibrate again")
+    return (
+        f"soft-iron axis ratio {value:.2f} > {t.max_soft_iron_condition:g}: the sensor sits too close to "
+        "iron or a magnet, or the samples cover too little; move it and calibrate again"
+    )
 
 
 def _check_dip(q: QualityLike, t: GateThresholds) -> str | None:
     value = _num(q, "dip_spread_deg")
     if value is None or value <= t.max_dip_spread_deg:
         return None
-    advice = ("keep away from iron and other devices" if q.get("dip_source") == "fused gravity" else
-              "hold still while sampling (the accelerometer must see gravity only) and keep away from iron")
+    advice = (
+        "keep away from iron and other devices"
+        if q.get("dip_source") == "fused gravity"
+        else "hold still while sampling (the accelerometer must see gravity only) and keep away from iron"
+    )
     return f"dip-angle spread {value:.1f} deg > {t.max_dip_spread_deg:g} deg: {advice}"
 
 
 #: the checks in the order their reasons are reported (the most fundamental first)
-_CHECKS = (_check_scatter, _check_coverage, _check_residual, _check_holdout, _check_radius, _check_soft_iron,
-           _check_dip, check_consistency)
+_CHECKS = (
+    _check_scatter,
+    _check_coverage,
+    _check_residual,
+    _check_holdout,
+    _check_radius,
+    _check_soft_iron,
+    _check_dip,
+    check_consistency,
+)
 
 
 def gate(quality: QualityLike, thresholds: GateThresholds | None = None) -> tuple[bool, str]:

@@ -100,7 +100,7 @@ def direction_spread_deg(field: np.ndarray, attitude: np.ndarray) -> float | Non
     mean = unit.mean(axis=0)
     mean /= np.linalg.norm(mean)
     angle = np.degrees(np.arccos(np.clip(unit @ mean, -1.0, 1.0)))
-    return float(np.sqrt(np.mean(angle ** 2)))
+    return float(np.sqrt(np.mean(angle**2)))
 
 
 def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
@@ -111,9 +111,15 @@ def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> 
     return dip_spread_deg(field[rows], ev.down[rows])
 
 
-def motion_figures(raw: np.ndarray, candidate: Calibration, ev: MotionEvidence, test: np.ndarray,
-                   train_candidate: Calibration | None, reference: Calibration, reference_name: str
-                   ) -> dict[str, Any]:
+def motion_figures(
+    raw: np.ndarray,
+    candidate: Calibration,
+    ev: MotionEvidence,
+    test: np.ndarray,
+    train_candidate: Calibration | None,
+    reference: Calibration,
+    reference_name: str,
+) -> dict[str, Any]:
     """Quality figures for data in motion: raw (N, 3) samples, test (N,) bool the held-out rows (train_candidate was
     fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
     reasons name it ("the calibration in force", "no calibration")."""
@@ -148,9 +154,12 @@ def check_consistency(quality: Quality | Mapping[str, Any], thresholds: Any = No
     if held is None or ref is None or held < ref:
         return None
     what = {"direction": "direction spread in the earth frame", "dip": "dip spread"}.get(
-        str(quality.get("consistency")), "spread")
+        str(quality.get("consistency")), "spread"
+    )
     reference = quality.get("reference") or "no calibration"
-    return (f"the fit does not make the field more constant than {reference} ({what} on held-out data "
-            f"{held:.2f} deg vs {ref:.2f} deg), and a calibration never makes heading worse: the sensor may be "
-            "calibrated well enough already, or the fit soaked up a non-uniform local field (calibrate away from "
-            "iron and other devices)")
+    return (
+        f"the fit does not make the field more constant than {reference} ({what} on held-out data "
+        f"{held:.2f} deg vs {ref:.2f} deg), and a calibration never makes heading worse: the sensor may be "
+        "calibrated well enough already, or the fit soaked up a non-uniform local field (calibrate away from "
+        "iron and other devices)"
+    )

@@ -91,13 +91,25 @@ class SensorErrors:
 
     def true_calibration(self, field_strength_ut: float = 0.0) -> Calibration:
         """The exact correction at 25 C: B_body = M S^-1 (mag - h), as a calibration record."""
-        return Calibration(method="truth", offset=self.hard_iron_ut,
-                           matrix=self.misalignment_matrix @ np.linalg.inv(self.soft_iron),
-                           field_strength=field_strength_ut, reason="the simulator's true errors")
+        return Calibration(
+            method="truth",
+            offset=self.hard_iron_ut,
+            matrix=self.misalignment_matrix @ np.linalg.inv(self.soft_iron),
+            field_strength=field_strength_ut,
+            reason="the simulator's true errors",
+        )
 
     @classmethod
-    def random(cls, rng: np.random.Generator, field_ut: float, *, hard_iron_max_ratio: float = 3.0,
-               soft_iron_max: float = 0.2, misalignment_deg: float = 0.0, **other: Any) -> SensorErrors:
+    def random(
+        cls,
+        rng: np.random.Generator,
+        field_ut: float,
+        *,
+        hard_iron_max_ratio: float = 3.0,
+        soft_iron_max: float = 0.2,
+        misalignment_deg: float = 0.0,
+        **other: Any,
+    ) -> SensorErrors:
         """Random errors: hard iron in a random direction with magnitude uniform in 0..hard_iron_max_ratio x the field;
         soft iron symmetric positive definite, eigenvalues uniform in 1 +- soft_iron_max, random axes; misalignment a
         rotation of ``misalignment_deg`` about a random axis. ``other`` sets the remaining fields (noise_ut, ...)."""

@@ -42,11 +42,24 @@ class FleetSimulator:
     path never closes early, so each device covers the sphere in about two minutes). ``step(n)`` advances every
     device by n samples. ``gyro=True`` adds a gyroscope (noise ``gyro_noise_rads`` per axis, rad/s)."""
 
-    def __init__(self, n_devices: int, rate_hz: float = 100.0, seed: int = 0, lat_deg: float = DEFAULT_LAT_DEG,
-                 lon_deg: float = DEFAULT_LON_DEG, date: Any = DEFAULT_DATE, noise_ut: float = 0.3, *,
-                 alt_m: float = 0.0, acc_noise_ms2: float = 0.02, hard_iron_max_ratio: float = 2.0,
-                 soft_iron_max: float = 0.15, misalignment_deg: float = 0.0, gyro: bool = False,
-                 gyro_noise_rads: float = 0.0) -> None:
+    def __init__(
+        self,
+        n_devices: int,
+        rate_hz: float = 100.0,
+        seed: int = 0,
+        lat_deg: float = DEFAULT_LAT_DEG,
+        lon_deg: float = DEFAULT_LON_DEG,
+        date: Any = DEFAULT_DATE,
+        noise_ut: float = 0.3,
+        *,
+        alt_m: float = 0.0,
+        acc_noise_ms2: float = 0.02,
+        hard_iron_max_ratio: float = 2.0,
+        soft_iron_max: float = 0.15,
+        misalignment_deg: float = 0.0,
+        gyro: bool = False,
+        gyro_noise_rads: float = 0.0,
+    ) -> None:
         if isinstance(n_devices, bool) or not isinstance(n_devices, (int, np.integer)) or n_devices < 1:
             raise ValueError(f"n_devices must be a whole number >= 1, got {n_devices!r}")
         if not np.isfinite(rate_hz) or rate_hz <= 0:
@@ -56,20 +69,30 @@ class FleetSimulator:
         seeds = np.random.SeedSequence(seed).spawn(3)
         setup = np.random.default_rng(seeds[0])
         self.errors = tuple(
-            SensorErrors.random(setup, self.earth.total_ut, hard_iron_max_ratio=hard_iron_max_ratio,
-                                soft_iron_max=soft_iron_max, misalignment_deg=misalignment_deg,
-                                noise_ut=noise_ut, acc_noise_ms2=acc_noise_ms2)
-            for _ in range(self.n_devices))
+            SensorErrors.random(
+                setup,
+                self.earth.total_ut,
+                hard_iron_max_ratio=hard_iron_max_ratio,
+                soft_iron_max=soft_iron_max,
+                misalignment_deg=misalignment_deg,
+                noise_ut=noise_ut,
+                acc_noise_ms2=acc_noise_ms2,
+            )
+            for _ in range(self.n_devices)
+        )
         d = self.n_devices
         pitch_hz = setup.uniform(0.15, 0.25, d)
-        self._frequency_hz = np.stack([
-            pitch_hz,
-            pitch_hz * GOLDEN_RATIO_MINOR * setup.uniform(0.98, 1.02, d) * setup.choice([-1.0, 1.0], d),
-            pitch_hz * GOLDEN_RATIO_MINOR ** 2 * setup.uniform(0.98, 1.02, d) * setup.choice([-1.0, 1.0], d),
-        ], axis=1)
+        self._frequency_hz = np.stack(
+            [
+                pitch_hz,
+                pitch_hz * GOLDEN_RATIO_MINOR * setup.uniform(0.98, 1.02, d) * setup.choice([-1.0, 1.0], d),
+                pitch_hz * GOLDEN_RATIO_MINOR**2 * setup.uniform(0.98, 1.02, d) * setup.choice([-1.0, 1.0], d),
+            ],
+            axis=1,
+        )
         self._phase = setup.uniform(0.0, 2.0 * np.pi, (d, 3))
-        self._distortion = np.stack([e.distortion for e in self.errors])      # (D, 3, 3)
-        self._hard_iron = np.stack([e.hard_iron_ut for e in self.errors])     # (D, 3)
+        self._distortion = np.stack([e.distortion for e in self.errors])  # (D, 3, 3)
+        self._hard_iron = np.stack([e.hard_iron_ut for e in self.errors])  # (D, 3)
         self._noise_ut, self._acc_noise = float(noise_ut), float(acc_noise_ms2)
         self._rng = np.random.default_rng(seeds[1])
         self._b_ned = np.array(self.earth.ned_ut)
@@ -93,7 +116,7 @@ class FleetSimulator:
         index = self._next + np.arange(n)
         self._next += n
         heading, pitch, roll = self._attitude(index)
-        field = ned_to_body_euler(self._b_ned, heading, pitch, roll)                              # (D, n, 3)
+        field = ned_to_body_euler(self._b_ned, heading, pitch, roll)  # (D, n, 3)
         acc = ned_to_body_euler(np.array([0.0, 0.0, -STANDARD_GRAVITY_MS2]), heading, pitch, roll)
         mag = np.einsum("dij,dnj->dni", self._distortion, field) + self._hard_iron[:, None, :]
         rng = self._rng
@@ -102,9 +125,15 @@ class FleetSimulator:
         if self._acc_noise:
             acc += self._acc_noise * rng.standard_normal(acc.shape)
         t_ns = np.round(index * (1e9 / self.rate_hz)).astype(np.int64)
-        return FleetBatch(t_ns=t_ns, mag_ut=mag, acc_ms2=acc, heading_deg=np.mod(heading, 360.0),
-                          pitch_deg=pitch, roll_deg=wrap_roll(roll),
-                          gyr_rads=self._rates(index, heading, pitch, roll) if self._gyro else None)
+        return FleetBatch(
+            t_ns=t_ns,
+            mag_ut=mag,
+            acc_ms2=acc,
+            heading_deg=np.mod(heading, 360.0),
+            pitch_deg=pitch,
+            roll_deg=wrap_roll(roll),
+            gyr_rads=self._rates(index, heading, pitch, roll) if self._gyro else None,
+        )
 
     def _attitude(self, index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(heading, pitch, roll) degrees (D, n) at sample indices (n,)."""

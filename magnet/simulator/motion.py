@@ -42,9 +42,9 @@ import numpy as np
 from magnet.attitude import euler_to_matrix
 from magnet.units import STANDARD_GRAVITY_MS2
 
-G_NED = np.array([0.0, 0.0, STANDARD_GRAVITY_MS2])   # gravity (acceleration of free fall) in NED, m/s^2
+G_NED = np.array([0.0, 0.0, STANDARD_GRAVITY_MS2])  # gravity (acceleration of free fall) in NED, m/s^2
 BANK_DEG = 30.0
-DRAG_PER_S = 0.4          # multirotor: rotor and body drag per second (30 deg bank -> about 14 m/s in about 2.5 s)
+DRAG_PER_S = 0.4  # multirotor: rotor and body drag per second (30 deg bank -> about 14 m/s in about 2.5 s)
 DRAG_STEP_S = 0.01
 DERIVATIVE_STEP_S = 5e-4
 
@@ -52,13 +52,13 @@ DERIVATIVE_STEP_S = 5e-4
 def smoother(u: np.ndarray) -> np.ndarray:
     """Quintic smoothstep of u clipped to [0, 1]: 0 -> 1 with zero first and second derivatives at both ends."""
     u = np.clip(u, 0.0, 1.0)
-    return u ** 3 * (10.0 + u * (-15.0 + 6.0 * u))
+    return u**3 * (10.0 + u * (-15.0 + 6.0 * u))
 
 
 def smoother_rate(u: np.ndarray) -> np.ndarray:
     """d smoother / du (zero outside [0, 1])."""
     inside = (u > 0.0) & (u < 1.0)
-    return np.where(inside, 30.0 * u ** 2 * (1.0 - u) ** 2, 0.0)
+    return np.where(inside, 30.0 * u**2 * (1.0 - u) ** 2, 0.0)
 
 
 def plateau(u: np.ndarray, edge: float = 0.25) -> np.ndarray:
@@ -70,8 +70,9 @@ class Tones:
     """A sum of sinusoids per axis: ``axes`` x ``count`` tones, frequencies uniform in ``hz``, random phases,
     ``amplitude`` (per axis or one number) per tone. ``__call__(t)`` -> (N, axes)."""
 
-    def __init__(self, rng: np.random.Generator, axes: int, count: int, hz: tuple[float, float],
-                 amplitude: Any) -> None:
+    def __init__(
+        self, rng: np.random.Generator, axes: int, count: int, hz: tuple[float, float], amplitude: Any
+    ) -> None:
         self.hz = rng.uniform(hz[0], hz[1], (axes, count))
         self.phase = rng.uniform(0.0, 2.0 * np.pi, (axes, count))
         self.amplitude = np.broadcast_to(np.asarray(amplitude, dtype=float), (axes,))[:, None]
@@ -86,7 +87,11 @@ class Segments:
     is a dict of numbers and ``state`` the previous row (None first). Extended lazily as later times are asked for,
     so the plan is the same whether it is evaluated at once or block by block."""
 
-    def __init__(self, rng: np.random.Generator, draw: Callable[[np.random.Generator, dict[str, Any] | None], tuple[float, dict[str, Any]]]) -> None:
+    def __init__(
+        self,
+        rng: np.random.Generator,
+        draw: Callable[[np.random.Generator, dict[str, Any] | None], tuple[float, dict[str, Any]]],
+    ) -> None:
         self.rng, self.draw = rng, draw
         self.starts: list[float] = [0.0]
         self.durations: list[float] = []
@@ -162,7 +167,7 @@ class MultirotorModel(MotionModel):
             row["dyaw"] = _sign(rng) * rng.uniform(90.0, 180.0)
             return abs(row["dyaw"]) / rng.uniform(45.0, 90.0) + 0.5, row
         if kind == "bank":
-            axis = int(rng.integers(3))    # roll, pitch, or both (30 deg off level along a diagonal)
+            axis = int(rng.integers(3))  # roll, pitch, or both (30 deg off level along a diagonal)
             scale = BANK_DEG if axis < 2 else np.degrees(np.arctan(np.tan(np.radians(BANK_DEG)) / np.sqrt(2.0)))
             if axis in (0, 2):
                 row["roll"] = _sign(rng) * scale
@@ -170,7 +175,7 @@ class MultirotorModel(MotionModel):
                 row["pitch"] = _sign(rng) * scale
             return rng.uniform(3.0, 6.0), row
         row["roll"] = _sign(rng) * BANK_DEG
-        row["dyaw"] = np.sign(row["roll"]) * rng.uniform(90.0, 270.0)   # turn towards the low wing
+        row["dyaw"] = np.sign(row["roll"]) * rng.uniform(90.0, 270.0)  # turn towards the low wing
         return abs(row["dyaw"]) / rng.uniform(30.0, 60.0) + 2.0, row
 
     def attitude(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -194,7 +199,7 @@ class MultirotorModel(MotionModel):
         h, k = DRAG_STEP_S, DRAG_PER_S
         t = np.maximum(np.asarray(t, dtype=float), 0.0)
         cell = np.floor(t / h).astype(int)
-        if cell.min() < self._grid_index:                  # asked for the past: start again from rest
+        if cell.min() < self._grid_index:  # asked for the past: start again from rest
             self._grid_index, self._grid_velocity = 0, np.zeros(3)
         start = self._grid_index
         middles = (start + np.arange(cell.max() - start) + 0.5) * h
@@ -205,7 +210,7 @@ class MultirotorModel(MotionModel):
         for j, u in enumerate(forcing):
             grid[j + 1] = decay * grid[j] + gain * u
         self._grid_index, self._grid_velocity = int(cell.max()), grid[-1].copy()
-        rest = t - cell * h                                 # from each sample's grid point to the sample
+        rest = t - cell * h  # from each sample's grid point to the sample
         halfway = cell * h + rest / 2.0
         u = self._thrust(halfway, self.rotation(halfway))
         return np.exp(-k * rest)[:, None] * grid[cell - start] - (np.expm1(-k * rest) / k)[:, None] * u
@@ -220,8 +225,8 @@ class CarModel(MotionModel):
 
     ROLL_DEG_PER_MS2 = 0.5
     PITCH_DEG_PER_MS2 = 0.3
-    MAX_ALONG_MS2 = 3.0      # peak longitudinal acceleration of a speed change on a straight
-    MAX_LATERAL_MS2 = 3.0    # peak centripetal acceleration in a turn
+    MAX_ALONG_MS2 = 3.0  # peak longitudinal acceleration of a speed change on a straight
+    MAX_LATERAL_MS2 = 3.0  # peak centripetal acceleration in a turn
     TURN_SPEED_MS = (5.0, 12.0)
 
     def __init__(self, rng: np.random.Generator, declination_deg: float = 0.0) -> None:
@@ -236,19 +241,19 @@ class CarModel(MotionModel):
         speed0 = 0.0 if last is None else last["v0"] + last["dv"]
         row = {"yaw0": yaw0, "dyaw": 0.0, "v0": speed0, "dv": 0.0}
         choice = rng.random()
-        if last is not None and (last["dyaw"] or choice < 0.35):          # cruise (or stand) on a straight
+        if last is not None and (last["dyaw"] or choice < 0.35):  # cruise (or stand) on a straight
             return rng.uniform(3.0, 10.0), row
-        if last is None or choice < 0.65 or speed0 > self.TURN_SPEED_MS[1]:   # change speed (slow down to turn)
+        if last is None or choice < 0.65 or speed0 > self.TURN_SPEED_MS[1]:  # change speed (slow down to turn)
             top = self.TURN_SPEED_MS[1] if speed0 > self.TURN_SPEED_MS[1] and choice >= 0.65 else 25.0
             target = 0.0 if last is not None and rng.random() < 0.15 else rng.uniform(self.TURN_SPEED_MS[0], top)
             row["dv"] = target - speed0
             return max(2.0, 1.875 * abs(row["dv"]) / rng.uniform(1.5, self.MAX_ALONG_MS2)), row
-        if speed0 < self.TURN_SPEED_MS[0]:                                  # too slow to turn: move off first
+        if speed0 < self.TURN_SPEED_MS[0]:  # too slow to turn: move off first
             row["dv"] = rng.uniform(*self.TURN_SPEED_MS) - speed0
             return max(2.0, 1.875 * abs(row["dv"]) / self.MAX_ALONG_MS2), row
         row["dyaw"] = _sign(rng) * rng.uniform(45.0, 120.0)
         rate_deg = min(rng.uniform(15.0, 30.0), np.degrees(self.MAX_LATERAL_MS2 / speed0))
-        return 1.875 * abs(row["dyaw"]) / rate_deg, row                     # peak yaw rate, peak lateral bounded
+        return 1.875 * abs(row["dyaw"]) / rate_deg, row  # peak yaw rate, peak lateral bounded
 
     def _motion(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
         """(magnetic heading deg, speed m/s, longitudinal and lateral acceleration m/s^2), each (N,)."""
@@ -267,8 +272,11 @@ class CarModel(MotionModel):
     def attitude(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         yaw, speed, along, lateral = self._motion(t)
         jitter = self.jitter_deg(t) * self._road(speed)
-        return (yaw + jitter[:, 0], self.PITCH_DEG_PER_MS2 * along + jitter[:, 1],
-                -self.ROLL_DEG_PER_MS2 * lateral + jitter[:, 2])
+        return (
+            yaw + jitter[:, 0],
+            self.PITCH_DEG_PER_MS2 * along + jitter[:, 1],
+            -self.ROLL_DEG_PER_MS2 * lateral + jitter[:, 2],
+        )
 
     def linear_acceleration(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         yaw, speed, along, lateral = self._motion(t)
@@ -298,14 +306,17 @@ class Figure8Model(MotionModel):
         t = np.asarray(t, dtype=float)
         w, p = self.omega, self.phase
         tremor = self.tremor_deg(t)
-        return (self._facing_deg(t) + 45.0 * np.sin(w * t + p[0]) + tremor[:, 0],
-                40.0 * np.sin(2.0 * w * t + p[1]) + tremor[:, 1],
-                60.0 * np.sin(w * t + p[2]) + tremor[:, 2])
+        return (
+            self._facing_deg(t) + 45.0 * np.sin(w * t + p[0]) + tremor[:, 0],
+            40.0 * np.sin(2.0 * w * t + p[1]) + tremor[:, 1],
+            60.0 * np.sin(w * t + p[2]) + tremor[:, 2],
+        )
 
     def _position(self, t: np.ndarray) -> np.ndarray:
         w, p = self.omega, self.phase
-        local = np.stack([0.15 * np.sin(2.0 * w * t + p[3]), 0.3 * np.sin(w * t), 0.08 * np.sin(2.0 * w * t + p[4])],
-                         axis=-1)
+        local = np.stack(
+            [0.15 * np.sin(2.0 * w * t + p[3]), 0.3 * np.sin(w * t), 0.08 * np.sin(2.0 * w * t + p[4])], axis=-1
+        )
         facing = np.radians(self._facing_deg(t) + self.declination_deg)
         c, s = np.cos(facing), np.sin(facing)
         return np.stack([c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1], local[:, 2]], axis=-1)
@@ -340,5 +351,9 @@ class FastTumbleModel(MotionModel):
 
 
 #: trajectory name -> model class
-MODELS: dict[str, type[MotionModel]] = {"multirotor": MultirotorModel, "car": CarModel, "figure8": Figure8Model,
-                                        "fast-tumble": FastTumbleModel}
+MODELS: dict[str, type[MotionModel]] = {
+    "multirotor": MultirotorModel,
+    "car": CarModel,
+    "figure8": Figure8Model,
+    "fast-tumble": FastTumbleModel,
+}

@@ -33,7 +33,7 @@ from magnet.simulator.errors import SensorErrors
 from magnet.simulator.motion import G_NED, MODELS
 from magnet.simulator.trajectories import MIN_COUNT, STILL_TRAJECTORIES, Trajectory, ned_to_body_euler, wrap_roll
 
-DEFAULT_LAT_DEG = 50.45   # Kyiv, where seed 000's turntable field (Bh 18964 nT, Bv -46962 nT) is typical
+DEFAULT_LAT_DEG = 50.45  # Kyiv, where seed 000's turntable field (Bh 18964 nT, Bv -46962 nT) is typical
 DEFAULT_LON_DEG = 30.52
 DEFAULT_DATE = "2026-01-01"
 
@@ -63,8 +63,10 @@ class SimulatorConfig:
             raise ValueError(f"rate_hz must be a positive number, got {self.rate_hz!r}")
         minimum = MIN_COUNT[self.trajectory]
         if isinstance(self.count, bool) or not isinstance(self.count, (int, np.integer)) or self.count < minimum:
-            raise ValueError(f"count must be a whole number >= {minimum} for the {self.trajectory.value} trajectory, "
-                             f"got {self.count!r}")
+            raise ValueError(
+                f"count must be a whole number >= {minimum} for the {self.trajectory.value} trajectory, "
+                f"got {self.count!r}"
+            )
         if not isinstance(self.errors, SensorErrors):
             raise ValueError("errors must be a SensorErrors")
 
@@ -108,10 +110,10 @@ class _Generator:
         self.earth = earth_field(config.lat_deg, config.lon_deg, config.alt_m, config.date)
         seeds = np.random.SeedSequence(config.seed).spawn(7)
         params_rng = np.random.default_rng(seeds[0])
-        self.params = {"phases": params_rng.uniform(0.0, 2.0 * np.pi, 3),
-                       "senses": params_rng.choice([-1.0, 1.0], 2)}
+        self.params = {"phases": params_rng.uniform(0.0, 2.0 * np.pi, 3), "senses": params_rng.choice([-1.0, 1.0], 2)}
         self.mag_noise, self.acc_noise, self.spike_mask, self.spike_vector, self.gyr_noise = (
-            np.random.default_rng(s) for s in seeds[1:6])
+            np.random.default_rng(s) for s in seeds[1:6]
+        )
         self.model = None
         if config.trajectory.moving:
             self.model = MODELS[config.trajectory.value](np.random.default_rng(seeds[6]), self.earth.declination_deg)
@@ -126,8 +128,9 @@ class _Generator:
         yaw, pitch, roll = self.model.attitude(index / config.rate_hz)
         return yaw, pitch, roll, np.full(index.shape, ""), np.full(index.shape, np.nan)
 
-    def _motion(self, index: np.ndarray, heading: np.ndarray, pitch: np.ndarray, roll: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _motion(
+        self, index: np.ndarray, heading: np.ndarray, pitch: np.ndarray, roll: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(quat_wxyz (n, 4), body rate (n, 3) rad/s, linear acceleration NED (n, 3)) at the samples."""
         quat = euler_to_quaternion(heading, pitch, roll)
         before = self._attitude(index - 1)
@@ -158,11 +161,24 @@ class _Generator:
         gyr = rate + errors.gyro_bias_rads + errors.gyro_noise_rads * self.gyr_noise.standard_normal((n, 3))
         temperature = errors.temperature_c + errors.temperature_ramp_k_per_s * t_s
         return SimulatedRun(
-            t_s=t_s, mag_ut=mag, acc_ms2=acc_measured, true_field_ut=field,
-            heading_deg=np.mod(heading, 360.0), pitch_deg=pitch + 0.0, roll_deg=wrap_roll(roll),
-            mounting=mounting, table_deg=table, magnetic_heading_deg=np.mod(magnetic, 360.0),
-            temperature_c=temperature, earth=self.earth, errors=errors, gyr_rads=gyr, true_gyr_rads=rate,
-            true_acc_ms2=acc, lin_acc_ned_ms2=lin_acc, quat_wxyz=quat,
+            t_s=t_s,
+            mag_ut=mag,
+            acc_ms2=acc_measured,
+            true_field_ut=field,
+            heading_deg=np.mod(heading, 360.0),
+            pitch_deg=pitch + 0.0,
+            roll_deg=wrap_roll(roll),
+            mounting=mounting,
+            table_deg=table,
+            magnetic_heading_deg=np.mod(magnetic, 360.0),
+            temperature_c=temperature,
+            earth=self.earth,
+            errors=errors,
+            gyr_rads=gyr,
+            true_gyr_rads=rate,
+            true_acc_ms2=acc,
+            lin_acc_ned_ms2=lin_acc,
+            quat_wxyz=quat,
         )
 
 
@@ -182,7 +198,7 @@ class SensorStream:
         self.config = config
         self._generator = _Generator(config)
         self._block: SimulatedRun | None = None
-        self._index = 0           # next sample
+        self._index = 0  # next sample
         self._block_start = 0
         self.last_truth: dict[str, Any] = {}
 
@@ -207,10 +223,14 @@ class SensorStream:
         run, i = self._block, offset
         self._index += 1
         self.last_truth = {
-            "t_s": float(run.t_s[i]), "heading_deg": float(run.heading_deg[i]),
-            "magnetic_heading_deg": float(run.magnetic_heading_deg[i]), "pitch_deg": float(run.pitch_deg[i]),
-            "roll_deg": float(run.roll_deg[i]), "temperature_c": float(run.temperature_c[i]),
-            "mounting": str(run.mounting[i]), "table_deg": float(run.table_deg[i]),
+            "t_s": float(run.t_s[i]),
+            "heading_deg": float(run.heading_deg[i]),
+            "magnetic_heading_deg": float(run.magnetic_heading_deg[i]),
+            "pitch_deg": float(run.pitch_deg[i]),
+            "roll_deg": float(run.roll_deg[i]),
+            "temperature_c": float(run.temperature_c[i]),
+            "mounting": str(run.mounting[i]),
+            "table_deg": float(run.table_deg[i]),
             "quat_wxyz": tuple(float(v) for v in run.quat_wxyz[i]),
         }
         return run.mag_ut[i].copy(), run.acc_ms2[i].copy(), run.gyr_rads[i].copy()

@@ -29,15 +29,23 @@ import numpy as np
 
 TURNTABLE_STEP_DEG = 30
 TURNTABLE_ANGLES_DEG = tuple(range(0, 361, TURNTABLE_STEP_DEG))  # 0..360 inclusive, as in seed 000's table
-TURNTABLE_ROLL_DEG = {"a": 180.0, "b": 90.0}                     # a: z up; b: y down
+TURNTABLE_ROLL_DEG = {"a": 180.0, "b": 90.0}  # a: z up; b: y down
 TENFACE_STATIONS = (  # (pitch_deg, roll_deg): six faces, then four 45-degree edges
-    (0.0, 0.0), (0.0, 180.0), (0.0, 90.0), (0.0, -90.0), (90.0, 0.0), (-90.0, 0.0),
-    (45.0, 0.0), (-45.0, 0.0), (0.0, 45.0), (0.0, -45.0),
+    (0.0, 0.0),
+    (0.0, 180.0),
+    (0.0, 90.0),
+    (0.0, -90.0),
+    (90.0, 0.0),
+    (-90.0, 0.0),
+    (45.0, 0.0),
+    (-45.0, 0.0),
+    (0.0, 45.0),
+    (0.0, -45.0),
 )
-TUMBLE_CYCLES = (21, 13, 8)    # pitch oscillations, roll turns, heading turns over one run (Fibonacci: no short
-                               # Lissajous repeats, so the run covers every field and gravity direction)
+TUMBLE_CYCLES = (21, 13, 8)  # pitch oscillations, roll turns, heading turns over one run (Fibonacci: no short
+# Lissajous repeats, so the run covers every field and gravity direction)
 TUMBLE_PITCH_AMPLITUDE_DEG = 85.0
-GOLDEN_RATIO_MINOR = (5 ** 0.5 - 1) / 2   # 0.618...
+GOLDEN_RATIO_MINOR = (5**0.5 - 1) / 2  # 0.618...
 
 
 class Trajectory(enum.Enum):
@@ -58,12 +66,18 @@ class Trajectory(enum.Enum):
 
 MOVING_TRAJECTORIES = frozenset({Trajectory.MULTIROTOR, Trajectory.CAR, Trajectory.FIGURE8, Trajectory.FAST_TUMBLE})
 
-MIN_COUNT = {Trajectory.SPIN: 2, Trajectory.TURNTABLE: 2 * len(TURNTABLE_ANGLES_DEG), Trajectory.TUMBLE: 2,
-             Trajectory.TENFACE: len(TENFACE_STATIONS), **dict.fromkeys(MOVING_TRAJECTORIES, 2)}
+MIN_COUNT = {
+    Trajectory.SPIN: 2,
+    Trajectory.TURNTABLE: 2 * len(TURNTABLE_ANGLES_DEG),
+    Trajectory.TUMBLE: 2,
+    Trajectory.TENFACE: len(TENFACE_STATIONS),
+    **dict.fromkeys(MOVING_TRAJECTORIES, 2),
+}
 
 
 # Still trajectories: functions of the phase s in [0, 1) of a run -> magnetic heading, pitch, roll (degrees),
 # mounting and table angle.
+
 
 def _spin(s: np.ndarray, params: dict[str, Any]) -> tuple[np.ndarray, ...]:
     zero = np.zeros_like(s)
@@ -96,23 +110,28 @@ def _tumble(s: np.ndarray, params: dict[str, Any]) -> tuple[np.ndarray, ...]:
     return yaw, pitch, roll, np.full(s.shape, ""), np.full(s.shape, np.nan)
 
 
-STILL_TRAJECTORIES = {Trajectory.SPIN: _spin, Trajectory.TURNTABLE: _turntable, Trajectory.TENFACE: _tenface,
-                      Trajectory.TUMBLE: _tumble}
+STILL_TRAJECTORIES = {
+    Trajectory.SPIN: _spin,
+    Trajectory.TURNTABLE: _turntable,
+    Trajectory.TENFACE: _tenface,
+    Trajectory.TUMBLE: _tumble,
+}
 
 
-def ned_to_body_euler(vector_ned: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarray,
-                      roll_deg: np.ndarray) -> np.ndarray:
+def ned_to_body_euler(
+    vector_ned: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray
+) -> np.ndarray:
     """R^T v for R = Rz(yaw) Ry(pitch) Rx(roll), without building matrices: vector (3,) or (..., 3) in NED, angles
     broadcastable, result (..., 3) in body axes. The fast path of the simulators (three elementary rotations)."""
     v = np.asarray(vector_ned, dtype=float)
     y, p, r = (np.radians(np.asarray(a, dtype=float)) for a in (yaw_deg, pitch_deg, roll_deg))
     cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
     n, e, d = v[..., 0], v[..., 1], v[..., 2]
-    x1 = cy * n + sy * e            # Rz^T
+    x1 = cy * n + sy * e  # Rz^T
     y1 = -sy * n + cy * e
-    x2 = cp * x1 - sp * d           # Ry^T
+    x2 = cp * x1 - sp * d  # Ry^T
     z2 = sp * x1 + cp * d
-    y3 = cr * y1 + sr * z2          # Rx^T
+    y3 = cr * y1 + sr * z2  # Rx^T
     z3 = -sr * y1 + cr * z2
     return np.stack(np.broadcast_arrays(x2, y3, z3), axis=-1)
 

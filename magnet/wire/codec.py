@@ -69,9 +69,9 @@ def check_version(message: Mapping[str, Any]) -> int:
 # ------------------------------------------------------------------------------------------- binary arrays (v 2)
 
 #: the dtypes a v 2 array may carry, by kind of field (numpy little-endian type strings)
-TIME_DTYPES = {"<i8": np.dtype("<i8")}
-FLOAT_DTYPES = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
-FLAG_DTYPES = {name: np.dtype(name) for name in ("<u1", "<u2", "<u4", "<i4", "<i8")}
+TIME_DTYPES: dict[str, np.dtype[Any]] = {"<i8": np.dtype("<i8")}
+FLOAT_DTYPES: dict[str, np.dtype[Any]] = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
+FLAG_DTYPES: dict[str, np.dtype[Any]] = {name: np.dtype(name) for name in ("<u1", "<u2", "<u4", "<i4", "<i8")}
 #: what v 2 writes, by kind of field
 TIME_DTYPE, FLOAT_DTYPE, FLAG_DTYPE = "<i8", "<f4", "<u2"
 
@@ -90,27 +90,36 @@ def bin_array(values: Any, dtype: str) -> dict[str, Any]:
     return {"dtype": dtype, "shape": list(arr.shape), "data": arr.tobytes()}
 
 
-def check_bin(value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...],
-              rows: int | None = None) -> Bin:
-    """Check a v 2 array map of shape (N, *tail) (tail () or (k,)), N <= MAX_BATCH_SAMPLES (and N == ``rows`` when given), one of
-    ``dtypes``, with exactly N * prod(tail) * itemsize bytes; WireError (``bad-shape``, ``bad-dtype``,
+def check_bin(
+    value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...], rows: int | None = None
+) -> Bin:
+    """Check a v 2 array map of shape (N, *tail) (tail () or (k,)), N <= MAX_BATCH_SAMPLES (and N == ``rows`` when
+    given), one of ``dtypes``, with exactly N * prod(tail) * itemsize bytes; WireError (``bad-shape``, ``bad-dtype``,
     ``oversized``) otherwise. Values are not looked at (see ``from_bins``). The hot path of a busy consumer: a few
     type and size comparisons, nothing per number."""
     try:
         dtype = dtypes[value["dtype"]]
         shape, data = value["shape"], value["data"]
         n = shape[0]
-        if (type(shape) is list and type(n) is int and len(shape) == 1 + len(tail) and tuple(shape[1:]) == tail
-                and 0 <= n <= MAX_BATCH_SAMPLES and (rows is None or n == rows) and type(data) is bytes
-                and len(data) == n * dtype.itemsize * (tail[0] if tail else 1)):
+        if (
+            type(shape) is list
+            and type(n) is int
+            and len(shape) == 1 + len(tail)
+            and tuple(shape[1:]) == tail
+            and 0 <= n <= MAX_BATCH_SAMPLES
+            and (rows is None or n == rows)
+            and type(data) is bytes
+            and len(data) == n * dtype.itemsize * (tail[0] if tail else 1)
+        ):
             return Bin(dtype, n, data)
     except (TypeError, KeyError, IndexError):
         pass
     raise _bin_error(value, name, dtypes, tail, rows)
 
 
-def _bin_error(value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...],
-               rows: int | None) -> WireError:
+def _bin_error(
+    value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...], rows: int | None
+) -> WireError:
     """Why ``check_bin`` refused ``value``."""
     if type(value) is not dict:
         return WireError("bad-shape", f"{name} must be a map {{dtype, shape, data}} in v {BINARY_VERSION}")
@@ -118,8 +127,13 @@ def _bin_error(value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tupl
     dtype = dtypes.get(dtype_name) if type(dtype_name) is str else None
     if dtype is None:
         return WireError("bad-dtype", f"{name} has dtype {dtype_name!r}, expected one of {', '.join(dtypes)}")
-    if (type(shape) is not list or len(shape) != 1 + len(tail) or any(type(s) is not int for s in shape)
-            or tuple(shape[1:]) != tail or shape[0] < 0):
+    if (
+        type(shape) is not list
+        or len(shape) != 1 + len(tail)
+        or any(type(s) is not int for s in shape)
+        or tuple(shape[1:]) != tail
+        or shape[0] < 0
+    ):
         return WireError("bad-shape", f"{name} has shape {shape!r}, expected [N{''.join(f', {t}' for t in tail)}]")
     if shape[0] > MAX_BATCH_SAMPLES:
         return WireError("oversized", f"{name} holds {shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
@@ -181,13 +195,15 @@ def number_field(message: Mapping[str, Any], name: str, default: float) -> float
     return float(value)
 
 
-def float_array(value: Any, name: str, shape_tail: tuple[int, ...], limit: float | None,
-                binary: bool = False) -> np.ndarray:
+def float_array(
+    value: Any, name: str, shape_tail: tuple[int, ...], limit: float | None, binary: bool = False
+) -> np.ndarray:
     """float64 array of shape (N, *shape_tail), N <= MAX_BATCH_SAMPLES, finite, |x| <= limit; else WireError.
     ``value``: lists (v 1) or, ``binary``, a v 2 array map."""
     if binary:
-        return check_floats(from_bins([check_bin(value, name, FLOAT_DTYPES, shape_tail)], shape_tail, "f8"),
-                            name, limit)
+        return check_floats(
+            from_bins([check_bin(value, name, FLOAT_DTYPES, shape_tail)], shape_tail, "f8"), name, limit
+        )
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -208,8 +224,7 @@ def check_floats(arr: np.ndarray, name: str, limit: float | None) -> np.ndarray:
     return arr
 
 
-def int_array(value: Any, name: str, binary: bool = False,
-              dtypes: Mapping[str, np.dtype] = TIME_DTYPES) -> np.ndarray:
+def int_array(value: Any, name: str, binary: bool = False, dtypes: Mapping[str, np.dtype] = TIME_DTYPES) -> np.ndarray:
     """int64 array (N,) from a list of integers (v 1) or, ``binary``, a v 2 array map of one of ``dtypes``,
     N <= MAX_BATCH_SAMPLES; else WireError."""
     if binary:

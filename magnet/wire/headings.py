@@ -80,10 +80,19 @@ class HeadingBatch:
         return (np.asarray(self.flags, dtype=np.int64) & DISTURBED) != 0
 
 
-def encode_headings(columns: RawColumns, heading_deg: np.ndarray, true_heading_deg: np.ndarray,
-                    pitch_deg: np.ndarray, roll_deg: np.ndarray, field_ut: np.ndarray, flags: np.ndarray,
-                    declination_deg: float | Sequence[float], calibration_ids: Sequence[str],
-                    quat_wxyz: np.ndarray | None = None, version: int = BINARY_VERSION) -> list[bytes]:
+def encode_headings(
+    columns: RawColumns,
+    heading_deg: np.ndarray,
+    true_heading_deg: np.ndarray,
+    pitch_deg: np.ndarray,
+    roll_deg: np.ndarray,
+    field_ut: np.ndarray,
+    flags: np.ndarray,
+    declination_deg: float | Sequence[float],
+    calibration_ids: Sequence[str],
+    quat_wxyz: np.ndarray | None = None,
+    version: int = BINARY_VERSION,
+) -> list[bytes]:
     """One heading message per batch of ``columns`` (the one heading encoder), in ``version`` 2 (binary arrays, the
     default) or 1 (lists).
 
@@ -91,16 +100,37 @@ def encode_headings(columns: RawColumns, heading_deg: np.ndarray, true_heading_d
     quat_wxyz (S, 4) or None); each is converted once (to lists, or to little-endian bytes) and sliced per batch.
     A batch whose quaternion rows are not all finite carries no ``quat_wxyz``. ``declination_deg``: one for all, or
     one per batch (each device's place)."""
-    return _encode(columns.devices, columns.seqs, columns.bounds, columns.t_ns,
-                   (heading_deg, true_heading_deg, pitch_deg, roll_deg), field_ut, flags, declination_deg,
-                   calibration_ids, quat_wxyz, version)
+    return _encode(
+        columns.devices,
+        columns.seqs,
+        columns.bounds,
+        columns.t_ns,
+        (heading_deg, true_heading_deg, pitch_deg, roll_deg),
+        field_ut,
+        flags,
+        declination_deg,
+        calibration_ids,
+        quat_wxyz,
+        version,
+    )
 
 
 def encode_heading(batch: HeadingBatch, version: int = BINARY_VERSION) -> bytes:
     """The message of one batch: ``encode_headings`` of B = 1."""
     angles = tuple(getattr(batch, name) for name in ANGLE_FIELDS)
-    return _encode([batch.device], [batch.seq], [0, len(batch)], batch.t_ns, angles, batch.field_ut, batch.flags,
-                   batch.declination_deg, [batch.calibration_id], batch.quat_wxyz, version)[0]
+    return _encode(
+        [batch.device],
+        [batch.seq],
+        [0, len(batch)],
+        batch.t_ns,
+        angles,
+        batch.field_ut,
+        batch.flags,
+        batch.declination_deg,
+        [batch.calibration_id],
+        batch.quat_wxyz,
+        version,
+    )[0]
 
 
 class _Lists:
@@ -116,29 +146,46 @@ class _Lists:
 class _Bytes:
     """v 2: a whole column as little-endian bytes, sliced per batch into a binary array map."""
 
-    def __init__(self, values: np.ndarray, dtype: str, tail: tuple[int, ...]) -> None:
+    def __init__(self, values: np.ndarray, dtype: Any, tail: tuple[int, ...]) -> None:
         self.dtype, self.tail = dtype, list(tail)
         self.data = np.ascontiguousarray(values, dtype=dtype).tobytes()
         self.row = int(np.dtype(dtype).itemsize * np.prod(tail, dtype=int))
 
     def __getitem__(self, bounds: slice) -> Any:
-        return {"dtype": self.dtype, "shape": [bounds.stop - bounds.start, *self.tail],
-                "data": self.data[bounds.start * self.row:bounds.stop * self.row]}
+        return {
+            "dtype": self.dtype,
+            "shape": [bounds.stop - bounds.start, *self.tail],
+            "data": self.data[bounds.start * self.row : bounds.stop * self.row],
+        }
 
 
-def _columns(version: int, t_ns: np.ndarray, angles: tuple[np.ndarray, ...], field_ut: np.ndarray,
-             flags: np.ndarray, quat: np.ndarray | None) -> tuple[Any, list[Any], Any, Any, Any]:
+def _columns(
+    version: int,
+    t_ns: np.ndarray,
+    angles: tuple[np.ndarray, ...],
+    field_ut: np.ndarray,
+    flags: np.ndarray,
+    quat: np.ndarray | None,
+) -> tuple[Any, list[Any], Any, Any, Any]:
     """t_ns, angles, field, flags and quaternion columns ready to slice, in the form of ``version``."""
     if version not in VERSIONS:
         raise ValueError(f"wire version must be one of {VERSIONS}, got {version}")
+    column: type[_Lists] | type[_Bytes]
+    types: tuple[Any, Any, Any]
     if version == WIRE_VERSION:
         column, types = _Lists, (np.int64, float, np.int64)
     else:
         column, types = _Bytes, (TIME_DTYPE, FLOAT_DTYPE, FLAG_DTYPE)
-        angles = tuple(_wrap(a) if name in ("heading_deg", "true_heading_deg") else a
-                       for name, a in zip(ANGLE_FIELDS, angles))
-    return (column(t_ns, types[0], ()), [column(a, types[1], ()) for a in angles], column(field_ut, types[1], (3,)),
-            column(flags, types[2], ()), None if quat is None else column(quat, types[1], (4,)))
+        angles = tuple(
+            _wrap(a) if name in ("heading_deg", "true_heading_deg") else a for name, a in zip(ANGLE_FIELDS, angles)
+        )
+    return (
+        column(t_ns, types[0], ()),
+        [column(a, types[1], ()) for a in angles],
+        column(field_ut, types[1], (3,)),
+        column(flags, types[2], ()),
+        None if quat is None else column(quat, types[1], (4,)),
+    )
 
 
 def _wrap(heading_deg: np.ndarray) -> np.ndarray:
@@ -147,10 +194,19 @@ def _wrap(heading_deg: np.ndarray) -> np.ndarray:
     return np.where(single >= np.float32(360.0), np.float32(0.0), single)
 
 
-def _encode(devices: Sequence[str], seqs: Sequence[int], bounds: Sequence[int], t_ns: np.ndarray,
-            angles: tuple[np.ndarray, ...], field_ut: np.ndarray, flags: np.ndarray,
-            declination_deg: float | Sequence[float], calibration_ids: Sequence[str], quat_wxyz: np.ndarray | None,
-            version: int) -> list[bytes]:
+def _encode(
+    devices: Sequence[str],
+    seqs: Sequence[int],
+    bounds: Sequence[int],
+    t_ns: np.ndarray,
+    angles: tuple[np.ndarray, ...],
+    field_ut: np.ndarray,
+    flags: np.ndarray,
+    declination_deg: float | Sequence[float],
+    calibration_ids: Sequence[str],
+    quat_wxyz: np.ndarray | None,
+    version: int,
+) -> list[bytes]:
     quat_ok = _quaternions_ok(quat_wxyz, bounds)
     times, angle_columns, field, flag, quat = _columns(version, t_ns, angles, field_ut, flags, quat_wxyz)
     declinations = np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),)).tolist()
@@ -186,11 +242,20 @@ def decode_heading(payload: Payload) -> HeadingBatch:
     field = float_array(message.get("field_ut"), "field_ut", (3,), None, binary)
     flags = int_array(message.get("flags"), "flags", binary, FLAG_DTYPES)
     quat = _decode_quaternions(message.get("quat_wxyz"), binary)
-    check_lengths(t_ns.shape[0], {**angles, "field_ut": field, "flags": flags,
-                                  **({} if quat is None else {"quat_wxyz": quat})})
-    return HeadingBatch(device, int_field(message, "seq", 0), t_ns, field_ut=field, flags=flags,
-                        declination_deg=number_field(message, "declination_deg", 0.0),
-                        calibration_id=str(message.get("calibration_id", "")), quat_wxyz=quat, **angles)
+    check_lengths(
+        t_ns.shape[0], {**angles, "field_ut": field, "flags": flags, **({} if quat is None else {"quat_wxyz": quat})}
+    )
+    return HeadingBatch(
+        device,
+        int_field(message, "seq", 0),
+        t_ns,
+        field_ut=field,
+        flags=flags,
+        declination_deg=number_field(message, "declination_deg", 0.0),
+        calibration_id=str(message.get("calibration_id", "")),
+        quat_wxyz=quat,
+        **angles,
+    )
 
 
 def _decode_quaternions(value: Any, binary: bool) -> np.ndarray | None:

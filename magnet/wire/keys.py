@@ -42,8 +42,9 @@ def validate_device_id(device: Any) -> str:
     if bad:
         raise ValueError(f"device id {device!r} contains {' '.join(bad)}: ids may not contain / * $ ? #")
     if len(device) > MAX_DEVICE_ID_CHARS or not device.isprintable() or device.strip() != device:
-        raise ValueError(f"device id {device!r} must be printable, without surrounding spaces, "
-                         f"at most {MAX_DEVICE_ID_CHARS} chars")
+        raise ValueError(
+            f"device id {device!r} must be printable, without surrounding spaces, at most {MAX_DEVICE_ID_CHARS} chars"
+        )
     if len(_VALID_IDS) < _VALID_IDS_CAP:
         _VALID_IDS.add(device)
     return device
@@ -79,7 +80,7 @@ def device_from_key(prefix: str, key_expr: str, kind: Kind) -> str:
     head, tail = f"{prefix}/", f"/{kind.value}"
     if not (key_expr.startswith(head) and key_expr.endswith(tail)):
         raise WireError("bad-key", f"key {key_expr!r} is not {head}<device>{tail}")
-    device = key_expr[len(head):-len(tail)]
+    device = key_expr[len(head) : -len(tail)]
     try:
         return validate_device_id(device)
     except ValueError as exc:

@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import msgpack
 import numpy as np
 
+from magnet.place import Location
 from magnet.wire.codec import (
     BINARY_VERSION,
     FLOAT_DTYPE,
@@ -45,7 +46,6 @@ from magnet.wire.codec import (
     int_field,
     unpack,
 )
-from magnet.place import Location
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device
 
@@ -56,7 +56,10 @@ MAX_ACC_MS2 = 2_000.0
 MAX_GYR_RADS = 100.0
 #: the (N, 3) vector fields of a raw message, their limit, and whether a message must carry them
 VECTOR_FIELDS: tuple[tuple[str, float, bool], ...] = (
-    ("mag_ut", MAX_FIELD_UT, True), ("acc_ms2", MAX_ACC_MS2, False), ("gyr_rads", MAX_GYR_RADS, False))
+    ("mag_ut", MAX_FIELD_UT, True),
+    ("acc_ms2", MAX_ACC_MS2, False),
+    ("gyr_rads", MAX_GYR_RADS, False),
+)
 TRUTH_FIELDS = ("heading_deg", "pitch_deg", "roll_deg")
 
 
@@ -105,15 +108,20 @@ class RawColumns:
     @classmethod
     def from_batches(cls, batches: Sequence[RawBatch]) -> RawColumns:
         if not batches:
-            return cls([], [], np.zeros(0, np.int64), np.empty(0, np.int64), _nan_rows(0), _nan_rows(0),
-                       _nan_rows(0), [])
-        return cls([b.device for b in batches], [b.seq for b in batches],
-                   np.array([len(b) for b in batches], dtype=np.int64),
-                   np.concatenate([b.t_ns for b in batches]).astype(np.int64),
-                   np.concatenate([b.mag_ut for b in batches]).astype(np.float64),
-                   np.concatenate([_nan_rows(len(b)) if b.acc_ms2 is None else b.acc_ms2 for b in batches]),
-                   np.concatenate([_nan_rows(len(b)) if b.gyr_rads is None else b.gyr_rads for b in batches]),
-                   [b.sensor for b in batches], _locations([b.location for b in batches]))
+            return cls(
+                [], [], np.zeros(0, np.int64), np.empty(0, np.int64), _nan_rows(0), _nan_rows(0), _nan_rows(0), []
+            )
+        return cls(
+            [b.device for b in batches],
+            [b.seq for b in batches],
+            np.array([len(b) for b in batches], dtype=np.int64),
+            np.concatenate([b.t_ns for b in batches]).astype(np.int64),
+            np.concatenate([b.mag_ut for b in batches]).astype(np.float64),
+            np.concatenate([_nan_rows(len(b)) if b.acc_ms2 is None else b.acc_ms2 for b in batches]),
+            np.concatenate([_nan_rows(len(b)) if b.gyr_rads is None else b.gyr_rads for b in batches]),
+            [b.sensor for b in batches],
+            _locations([b.location for b in batches]),
+        )
 
     @property
     def bounds(self) -> list[int]:
@@ -126,10 +134,19 @@ class RawColumns:
         out = []
         for i, (lo, hi) in enumerate(itertools.pairwise(bounds)):
             acc, gyr = self.acc_ms2[lo:hi], self.gyr_rads[lo:hi]
-            out.append(RawBatch(self.devices[i], self.seqs[i], self.sensors[i], self.t_ns[lo:hi], self.mag_ut[lo:hi],
-                                None if np.isnan(acc).all() else acc, None,
-                                None if np.isnan(gyr).all() else gyr,
-                                None if self.locations is None else self.locations[i]))
+            out.append(
+                RawBatch(
+                    self.devices[i],
+                    self.seqs[i],
+                    self.sensors[i],
+                    self.t_ns[lo:hi],
+                    self.mag_ut[lo:hi],
+                    None if np.isnan(acc).all() else acc,
+                    None,
+                    None if np.isnan(gyr).all() else gyr,
+                    None if self.locations is None else self.locations[i],
+                )
+            )
         return out
 
     def select(self, keep: np.ndarray) -> RawColumns:
@@ -137,10 +154,17 @@ class RawColumns:
         keep = np.asarray(keep, dtype=bool)
         per_sample = np.repeat(keep, self.counts)
         pick = [i for i, k in enumerate(keep.tolist()) if k]
-        return RawColumns([self.devices[i] for i in pick], [self.seqs[i] for i in pick], self.counts[keep],
-                          self.t_ns[per_sample], self.mag_ut[per_sample], self.acc_ms2[per_sample],
-                          self.gyr_rads[per_sample], [self.sensors[i] for i in pick],
-                          None if self.locations is None else _locations([self.locations[i] for i in pick]))
+        return RawColumns(
+            [self.devices[i] for i in pick],
+            [self.seqs[i] for i in pick],
+            self.counts[keep],
+            self.t_ns[per_sample],
+            self.mag_ut[per_sample],
+            self.acc_ms2[per_sample],
+            self.gyr_rads[per_sample],
+            [self.sensors[i] for i in pick],
+            None if self.locations is None else _locations([self.locations[i] for i in pick]),
+        )
 
 
 def _locations(locations: list[Location | None]) -> list[Location | None] | None:
@@ -168,12 +192,20 @@ def encode_raw(batch: RawBatch, version: int = BINARY_VERSION) -> bytes:
     """The message of one batch, in ``version`` 2 (binary arrays, the default) or 1 (lists, for old readers)."""
     if version not in VERSIONS:
         raise ValueError(f"wire version must be one of {VERSIONS}, got {version}")
+    floats: Callable[[Any], Any]
+    times: Callable[[Any], Any]
     if version == WIRE_VERSION:
         floats, times = (lambda a: np.asarray(a, dtype=float).tolist()), (lambda a: np.asarray(a, np.int64).tolist())
     else:
         floats, times = (lambda a: bin_array(a, FLOAT_DTYPE)), (lambda a: bin_array(a, TIME_DTYPE))
-    message: dict[str, Any] = {"v": version, "device": batch.device, "seq": int(batch.seq), "sensor": batch.sensor,
-                               "t_ns": times(batch.t_ns), "mag_ut": floats(batch.mag_ut)}
+    message: dict[str, Any] = {
+        "v": version,
+        "device": batch.device,
+        "seq": int(batch.seq),
+        "sensor": batch.sensor,
+        "t_ns": times(batch.t_ns),
+        "mag_ut": floats(batch.mag_ut),
+    }
     if batch.acc_ms2 is not None:
         message["acc_ms2"] = floats(batch.acc_ms2)
     if batch.gyr_rads is not None:
@@ -231,8 +263,9 @@ def _header(message: Mapping[str, Any]) -> _Header:
     sensor = message.get("sensor", "")
     if type(sensor) is not str:
         raise WireError("bad-field", "sensor must be a string")
-    return _Header(device, int_field(message, "seq", 0), sensor, n, tuple(a is not None for a in arrays[1:]),
-                   tuple(arrays))
+    return _Header(
+        device, int_field(message, "seq", 0), sensor, n, tuple(a is not None for a in arrays[1:]), tuple(arrays)
+    )
 
 
 def _stack(parts: list[Any], name: str, rows: int) -> np.ndarray:
@@ -302,8 +335,9 @@ def _sample_faults(vectors: list[np.ndarray]) -> list[tuple[np.ndarray, str, str
         faults.append((~absent & ~np.isfinite(arr).all(axis=1), "non-finite", f"{name} holds non-finite values"))
     for arr, (name, limit, _) in zip(vectors, VECTOR_FIELDS):
         with np.errstate(invalid="ignore"):
-            faults.append(((np.abs(arr) > limit).any(axis=1), "absurd-magnitude",
-                           f"{name} holds values beyond +-{limit:g}"))
+            faults.append(
+                ((np.abs(arr) > limit).any(axis=1), "absurd-magnitude", f"{name} holds values beyond +-{limit:g}")
+            )
     return faults
 
 
@@ -319,8 +353,16 @@ def _numbers(headers: Sequence[_Header]) -> tuple[RawColumns, list[WireError | N
             for i in np.flatnonzero(np.logical_or.reduceat(bad, starts)).tolist():
                 verdicts[i] = verdicts[i] or WireError(cause, text)
     mag_ut, acc_ms2, gyr_rads = vectors
-    columns = RawColumns([h.device for h in headers], [h.seq for h in headers], counts, t_ns, mag_ut, acc_ms2,
-                         gyr_rads, [h.sensor for h in headers])
+    columns = RawColumns(
+        [h.device for h in headers],
+        [h.seq for h in headers],
+        counts,
+        t_ns,
+        mag_ut,
+        acc_ms2,
+        gyr_rads,
+        [h.sensor for h in headers],
+    )
     return columns, verdicts
 
 
@@ -358,8 +400,13 @@ def decode_messages(messages: Sequence[Mapping[str, Any]]) -> tuple[RawColumns, 
     except WireError:  # rare: some message's numbers are not arrays; judge each alone to name it
         alone = [_alone(h) for h in headers]
         verdicts = [verdict for _, verdict in alone]
-        columns = RawColumns.from_batches([dataclasses.replace(batch, location=location)
-                                           for (batches, _), location in zip(alone, locations) for batch in batches])
+        columns = RawColumns.from_batches(
+            [
+                dataclasses.replace(batch, location=location)
+                for (batches, _), location in zip(alone, locations)
+                for batch in batches
+            ]
+        )
     errors += [(index, v) for index, v in zip(kept, verdicts) if v is not None]
     return columns, sorted(errors, key=lambda e: e[0])
 

@@ -35,7 +35,7 @@ class DeviceCalibration:
     device: str
     created_ns: int
     calibration: Calibration
-    sig: str = ""     # Ed25519 signature (base64) of the record's other fields (``magnet.signing``); "" unsigned
+    sig: str = ""  # Ed25519 signature (base64) of the record's other fields (``magnet.signing``); "" unsigned
     key_id: str = ""  # which key signed it
 
     def __post_init__(self) -> None:
@@ -53,8 +53,13 @@ class DeviceCalibration:
 
     def to_record(self) -> dict[str, Any]:
         """The published map (JSON-able): ``v, device, id, created_ns`` and the calibration's fields."""
-        out = {"v": WIRE_VERSION, "device": self.device, "id": self.id, "created_ns": int(self.created_ns),
-               **self.calibration.to_dict()}
+        out = {
+            "v": WIRE_VERSION,
+            "device": self.device,
+            "id": self.id,
+            "created_ns": int(self.created_ns),
+            **self.calibration.to_dict(),
+        }
         if self.sig or self.key_id:
             out.update(sig=self.sig, key_id=self.key_id)
         return out
@@ -132,13 +137,19 @@ class Progress:
             return out
         out["method"] = self.method
         if self.collecting is not None:
-            out.update(session=self.collecting.session, samples=self.samples, seen=self.collecting.seen,
-                       coverage=self.coverage, cells_hit=self.collecting.cells_hit,
-                       cell_count=self.collecting.cell_count)
+            out.update(
+                session=self.collecting.session,
+                samples=self.samples,
+                seen=self.collecting.seen,
+                coverage=self.coverage,
+                cells_hit=self.collecting.cells_hit,
+                cell_count=self.collecting.cell_count,
+            )
         else:
             out.update(samples=self.samples, coverage=self.coverage)
-        out.update(missing=list(self.missing), residual_rms_ut=self.residual_rms_ut, accepted=self.accepted,
-                   reason=self.reason)
+        out.update(
+            missing=list(self.missing), residual_rms_ut=self.residual_rms_ut, accepted=self.accepted, reason=self.reason
+        )
         return out
 
 

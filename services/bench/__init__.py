@@ -23,10 +23,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=100.0, help="pipeline: samples/s per device (default 100)")
     parser.add_argument("--batch", type=int, default=10, help="pipeline: samples per message (default 10)")
     parser.add_argument("--seconds", type=float, default=10.0, help="pipeline: measuring time per rate (default 10)")
-    parser.add_argument("--shards", type=int, default=2,
-                        help="pipeline: compass shards compared against 1 at the end (default 2; 1: no comparison)")
-    parser.add_argument("--no-gyro", action="store_true",
-                        help="pipeline: devices without gyroscopes (accelerometer tilt, no fusion)")
+    parser.add_argument(
+        "--shards",
+        type=int,
+        default=2,
+        help="pipeline: compass shards compared against 1 at the end (default 2; 1: no comparison)",
+    )
+    parser.add_argument(
+        "--no-gyro", action="store_true", help="pipeline: devices without gyroscopes (accelerometer tilt, no fusion)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,8 +40,14 @@ def run(args: argparse.Namespace) -> int:
     if args.benchmark == "pipeline":
         if args.devices < 1 or args.rate <= 0 or args.batch < 1 or args.seconds <= 0 or args.shards < 1:
             raise ValueError("--devices, --rate, --batch, --seconds and --shards must be positive")
-        result = function(devices=args.devices, rate=args.rate, batch=args.batch, seconds=args.seconds,
-                          shards=args.shards, gyro=not args.no_gyro)
+        result = function(
+            devices=args.devices,
+            rate=args.rate,
+            batch=args.batch,
+            seconds=args.seconds,
+            shards=args.shards,
+            gyro=not args.no_gyro,
+        )
     elif args.benchmark == "dashboard":
         if args.devices < 1 or args.seconds <= 0:
             raise ValueError("--devices and --seconds must be positive")

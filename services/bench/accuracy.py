@@ -95,12 +95,17 @@ def scoring_attitudes(heading_step_deg: float = 5.0, tilt_deg: float = 30.0) -> 
     tilts = [(0.0, 0.0), (tilt_deg, 0.0), (-tilt_deg, 0.0), (0.0, tilt_deg), (0.0, -tilt_deg)]
     pitch = np.concatenate([np.full(headings.size, p) for p, _ in tilts])
     roll = np.concatenate([np.full(headings.size, r) for _, r in tilts])
-    return {"magnetic_heading_deg": np.tile(headings, len(tilts)), "pitch_deg": pitch, "roll_deg": roll,
-            "level": (pitch == 0.0) & (roll == 0.0)}
+    return {
+        "magnetic_heading_deg": np.tile(headings, len(tilts)),
+        "pitch_deg": pitch,
+        "roll_deg": roll,
+        "level": (pitch == 0.0) & (roll == 0.0),
+    }
 
 
-def heading_errors_deg(calibration: Calibration, errors: SensorErrors, earth: EarthField,
-                       attitudes: dict[str, np.ndarray]) -> np.ndarray:
+def heading_errors_deg(
+    calibration: Calibration, errors: SensorErrors, earth: EarthField, attitudes: dict[str, np.ndarray]
+) -> np.ndarray:
     """Heading error (M,) in degrees the calibration leaves at the attitudes: the sensor's noise-free reading at
     25 C, corrected, tilt-compensated with the true accelerometer, minus the true magnetic heading."""
     heading = attitudes["magnetic_heading_deg"] + earth.declination_deg
@@ -131,20 +136,38 @@ def truth_fitter(mag: np.ndarray, method: str, acc: np.ndarray, field_ut: float,
 def _fit_data(method: str, errors: SensorErrors, settings: AccuracySettings, seed: int, samples: int | None = None):
     trajectory = FIT_TRAJECTORY.get(method, Trajectory.TUMBLE)
     count = samples or (settings.spin_samples if trajectory is Trajectory.SPIN else settings.fit_samples)
-    return simulate(SimulatorConfig(trajectory=trajectory, lat_deg=settings.lat_deg, lon_deg=settings.lon_deg,
-                                    date=settings.date, count=count, errors=errors, seed=seed))
+    return simulate(
+        SimulatorConfig(
+            trajectory=trajectory,
+            lat_deg=settings.lat_deg,
+            lon_deg=settings.lon_deg,
+            date=settings.date,
+            count=count,
+            errors=errors,
+            seed=seed,
+        )
+    )
 
 
 def _trial_errors(settings: AccuracySettings, earth: EarthField, misalignment_deg: float) -> list[SensorErrors]:
     rng = np.random.default_rng([settings.seed, round(misalignment_deg * 1000)])
-    return [SensorErrors.random(rng, earth.total_ut, hard_iron_max_ratio=settings.hard_iron_max_ratio,
-                                soft_iron_max=settings.soft_iron_max, misalignment_deg=misalignment_deg,
-                                noise_ut=settings.noise_ut, acc_noise_ms2=settings.acc_noise_ms2)
-            for _ in range(settings.trials)]
+    return [
+        SensorErrors.random(
+            rng,
+            earth.total_ut,
+            hard_iron_max_ratio=settings.hard_iron_max_ratio,
+            soft_iron_max=settings.soft_iron_max,
+            misalignment_deg=misalignment_deg,
+            noise_ut=settings.noise_ut,
+            acc_noise_ms2=settings.acc_noise_ms2,
+        )
+        for _ in range(settings.trials)
+    ]
 
 
-def accuracy_rows(fitter: Fitter = real_fitter, settings: AccuracySettings = AccuracySettings(),
-                  methods: Iterable[str] = METHODS) -> list[AccuracyRow]:
+def accuracy_rows(
+    fitter: Fitter = real_fitter, settings: AccuracySettings = AccuracySettings(), methods: Iterable[str] = METHODS
+) -> list[AccuracyRow]:
     """The accuracy table (without fit times): one row per (method, misalignment)."""
     earth = earth_field(settings.lat_deg, settings.lon_deg, 0.0, settings.date)
     attitudes = scoring_attitudes(settings.heading_step_deg, settings.tilt_deg)
@@ -167,8 +190,19 @@ def accuracy_rows(fitter: Fitter = real_fitter, settings: AccuracySettings = Acc
                 per_trial.append((_rms(err[level]), _rms(err[~level]), _rms(err)))
             table = np.array(per_trial) if per_trial else np.full((1, 3), np.nan)
             level_rms, tilted_rms, all_rms = (float(m) for m in np.median(table, axis=0))
-            rows.append(AccuracyRow(method, float(misalignment), level_rms, tilted_rms, all_rms,
-                                    float(table[:, 2].max()), settings.trials, failed, rejected))
+            rows.append(
+                AccuracyRow(
+                    method,
+                    float(misalignment),
+                    level_rms,
+                    tilted_rms,
+                    all_rms,
+                    float(table[:, 2].max()),
+                    settings.trials,
+                    failed,
+                    rejected,
+                )
+            )
     return rows
 
 
@@ -201,24 +235,32 @@ def fleet_samples_per_s(devices: int = 1000, batch: int = 100, seconds: float = 
 def format_table(rows: list[AccuracyRow], settings: AccuracySettings) -> str:
     """The table as text, with the target verdicts."""
     lines = [
-        (f"heading RMS error after calibration (deg), median of {settings.trials} random sensors: "
-         f"hard iron <= {settings.hard_iron_max_ratio:g}x |B|, soft iron +-{settings.soft_iron_max:.0%}, "
-         f"noise {settings.noise_ut:g} uT; fit on {settings.fit_samples} tumble samples "
-         f"({settings.spin_samples} level-spin samples for minmax2d); "
-         f"scored every {settings.heading_step_deg:g} deg, "
-         f"level and {settings.tilt_deg:g} deg tilt"),
-        (f"{'method':<16}{'misalign':>9}{'level':>9}{'tilted':>9}{'all':>9}{'worst':>9}{'fail':>6}{'reject':>8}"
-         f"{'fit ms':>9}  target"),
+        (
+            f"heading RMS error after calibration (deg), median of {settings.trials} random sensors: "
+            f"hard iron <= {settings.hard_iron_max_ratio:g}x |B|, soft iron +-{settings.soft_iron_max:.0%}, "
+            f"noise {settings.noise_ut:g} uT; fit on {settings.fit_samples} tumble samples "
+            f"({settings.spin_samples} level-spin samples for minmax2d); "
+            f"scored every {settings.heading_step_deg:g} deg, "
+            f"level and {settings.tilt_deg:g} deg tilt"
+        ),
+        (
+            f"{'method':<16}{'misalign':>9}{'level':>9}{'tilted':>9}{'all':>9}{'worst':>9}{'fail':>6}{'reject':>8}"
+            f"{'fit ms':>9}  target"
+        ),
     ]
     for row in rows:
         target = TARGET_RMS_DEG.get((row.method, row.misalignment_deg))
         verdict = "" if target is None else (f"<= {target:g}: " + ("met" if row.all_rms_deg <= target else "MISSED"))
         fit_ms = "" if row.fit_ms is None else f"{row.fit_ms:.1f}"
-        lines.append(f"{row.method:<16}{row.misalignment_deg:>8g}d{row.level_rms_deg:>9.3f}{row.tilt_rms_deg:>9.3f}"
-                     f"{row.all_rms_deg:>9.3f}{row.worst_rms_deg:>9.3f}{row.failed:>6d}{row.rejected:>8d}"
-                     f"{fit_ms:>9}  {verdict}")
-    lines.append(f"fit ms: median of {settings.timing_repeats} fits of {settings.timing_samples} samples "
-                 "(quality figures and gate included); the ellipsoid target is well under 50 ms")
+        lines.append(
+            f"{row.method:<16}{row.misalignment_deg:>8g}d{row.level_rms_deg:>9.3f}{row.tilt_rms_deg:>9.3f}"
+            f"{row.all_rms_deg:>9.3f}{row.worst_rms_deg:>9.3f}{row.failed:>6d}{row.rejected:>8d}"
+            f"{fit_ms:>9}  {verdict}"
+        )
+    lines.append(
+        f"fit ms: median of {settings.timing_repeats} fits of {settings.timing_samples} samples "
+        "(quality figures and gate included); the ellipsoid target is well under 50 ms"
+    )
     return "\n".join(lines)
 
 
@@ -232,6 +274,8 @@ def run_accuracy_benchmark(fitter: Fitter | None = None, settings: AccuracySetti
     rows = [dataclasses.replace(row, fit_ms=times.get(row.method)) for row in rows]
     print(format_table(rows, settings))
     rate = fleet_samples_per_s(seconds=settings.fleet_seconds)
-    print(f"simulator: FleetSimulator makes {rate / 1e6:.2f} million samples/s of CPU time (1000 devices x 100); "
-          f"100,000 samples/s costs {1e7 / rate:.1f} % of a core")
+    print(
+        f"simulator: FleetSimulator makes {rate / 1e6:.2f} million samples/s of CPU time (1000 devices x 100); "
+        f"100,000 samples/s costs {1e7 / rate:.1f} % of a core"
+    )
     print(f"benchmark time {time.perf_counter() - started:.1f} s")

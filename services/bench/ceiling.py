@@ -48,9 +48,11 @@ class Ceiling:
         return self.message_rate * self.batch
 
     def line(self) -> str:
-        return (f"zenoh ceiling, batch {self.batch} ({self.payload_bytes:,} B messages, no processing): "
-                f"{self.message_rate:,.0f} messages/s = {self.sample_rate:,.0f} samples/s received "
-                f"({self.published / self.seconds:,.0f} messages/s put)")
+        return (
+            f"zenoh ceiling, batch {self.batch} ({self.payload_bytes:,} B messages, no processing): "
+            f"{self.message_rate:,.0f} messages/s = {self.sample_rate:,.0f} samples/s received "
+            f"({self.published / self.seconds:,.0f} messages/s put)"
+        )
 
 
 def payloads(devices: int, batch: int, gyro: bool) -> list[tuple[str, bytes]]:
@@ -61,8 +63,16 @@ def payloads(devices: int, batch: int, gyro: bool) -> list[tuple[str, bytes]]:
         step = fleet.step(batch)
         for d in range(devices):
             truth = {"heading_deg": step.heading_deg[d], "pitch_deg": step.pitch_deg[d], "roll_deg": step.roll_deg[d]}
-            batch_d = wire.RawBatch(f"c-{d:03d}", seq, "sim", step.t_ns, step.mag_ut[d], step.acc_ms2[d], truth,
-                                    None if step.gyr_rads is None else step.gyr_rads[d])
+            batch_d = wire.RawBatch(
+                f"c-{d:03d}",
+                seq,
+                "sim",
+                step.t_ns,
+                step.mag_ut[d],
+                step.acc_ms2[d],
+                truth,
+                None if step.gyr_rads is None else step.gyr_rads[d],
+            )
             out.append((wire.key("magnet", batch_d.device, wire.Kind.RAW), wire.encode_raw(batch_d)))
     return out
 
@@ -78,7 +88,8 @@ def publish(port: int, devices: int, batch: int, seconds: float, gyro: bool) -> 
     with zenoh.open(conf) as session:
         first = session.declare_publisher(items[0][0])
         deadline = time.monotonic() + 10
-        while not first.matching_status.matching and time.monotonic() < deadline:
+        # zenoh 1.10's stub says matching_status is a bool; it is a MatchingStatus with .matching
+        while not first.matching_status.matching and time.monotonic() < deadline:  # type: ignore[attr-defined]
             time.sleep(0.02)
         block, put, count = zenoh.CongestionControl.BLOCK, session.put, 0
         start = time.monotonic()
@@ -106,9 +117,21 @@ def measure(devices: int, batch: int, seconds: float, gyro: bool) -> Ceiling:
         with lock:
             counted[0] += 1
 
-    publisher = subprocess.Popen([sys.executable, "-m", "services.bench.ceiling", str(port), str(devices), str(batch),
-                                  str(seconds), str(int(gyro))], stdout=subprocess.PIPE, text=True,
-                                 stdin=subprocess.DEVNULL)
+    publisher = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services.bench.ceiling",
+            str(port),
+            str(devices),
+            str(batch),
+            str(seconds),
+            str(int(gyro)),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        stdin=subprocess.DEVNULL,
+    )
     try:
         with _open_when_listening(conf) as session:
             session.declare_subscriber("magnet/*/raw", count)
@@ -125,10 +148,21 @@ def _fleet_batches(devices: int, batch: int, gyro: bool, steps: int) -> list[lis
     out = []
     for _ in range(steps):
         step = fleet.step(batch)
-        out.append([wire.RawBatch(f"b-{d:03d}", 0, "sim", step.t_ns, step.mag_ut[d], step.acc_ms2[d],
-                                  {"heading_deg": step.heading_deg[d], "pitch_deg": step.pitch_deg[d],
-                                   "roll_deg": step.roll_deg[d]}, None if step.gyr_rads is None else step.gyr_rads[d])
-                    for d in range(devices)])
+        out.append(
+            [
+                wire.RawBatch(
+                    f"b-{d:03d}",
+                    0,
+                    "sim",
+                    step.t_ns,
+                    step.mag_ut[d],
+                    step.acc_ms2[d],
+                    {"heading_deg": step.heading_deg[d], "pitch_deg": step.pitch_deg[d], "roll_deg": step.roll_deg[d]},
+                    None if step.gyr_rads is None else step.gyr_rads[d],
+                )
+                for d in range(devices)
+            ]
+        )
     return out
 
 
@@ -175,8 +209,19 @@ def _open_when_listening(conf: Any) -> Any:
 if __name__ == "__main__":
     if sys.argv[1] == "generate":
         _ports, _devices, _rate, _batch, _seconds, _gyro = sys.argv[2:8]
-        print(json.dumps(generate([int(p) for p in _ports.split(",")], int(_devices), float(_rate), int(_batch),
-                                  float(_seconds), _gyro == "1")), flush=True)
+        print(
+            json.dumps(
+                generate(
+                    [int(p) for p in _ports.split(",")],
+                    int(_devices),
+                    float(_rate),
+                    int(_batch),
+                    float(_seconds),
+                    _gyro == "1",
+                )
+            ),
+            flush=True,
+        )
     else:
         _port, _devices, _batch, _seconds, _gyro = sys.argv[1:6]
         print(json.dumps(publish(int(_port), int(_devices), int(_batch), float(_seconds), _gyro == "1")), flush=True)

@@ -27,8 +27,14 @@ BATCH = 5
 WARMUP_S = 5.0
 STARTUP_TIMEOUT_S = 30.0
 CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--no-first-run"]
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+]
 
 
 def publish(port: int, devices: int, seconds: float) -> None:
@@ -53,11 +59,13 @@ def publish(port: int, devices: int, seconds: float) -> None:
         started, sent, tick = time.monotonic(), 0, 0
         while time.monotonic() - started < seconds:
             t_ns = np.tile(time.time_ns() - np.arange(BATCH)[::-1] * int(1e9 / RATE_HZ / BATCH), devices)
-            columns = wire.RawColumns(names, [tick] * devices, np.full(devices, BATCH), t_ns, field, nan3, nan3,
-                                      [""] * devices)
+            columns = wire.RawColumns(
+                names, [tick] * devices, np.full(devices, BATCH), t_ns, field, nan3, nan3, [""] * devices
+            )
             heading = (base + tick * 3.0) % 360.0
-            payloads = wire.encode_headings(columns, heading, (heading + 8.0) % 360.0, zeros, zeros, field, ones,
-                                            8.0, ["bench"] * devices)
+            payloads = wire.encode_headings(
+                columns, heading, (heading + 8.0) % 360.0, zeros, zeros, field, ones, 8.0, ["bench"] * devices
+            )
             for key, payload in zip(keys, payloads):
                 session.put(key, payload)
             sent += devices
@@ -95,8 +103,7 @@ def _browser_figures(url: str, devices: int, seconds: float) -> dict[str, Any]:
         try:
             page = browser.new_page(viewport={"width": 1500, "height": 950})
             page.goto(url, wait_until="commit", timeout=60_000)
-            page.wait_for_function(f"document.querySelectorAll('#fleet-body tr').length >= {devices}",
-                                   timeout=60_000)
+            page.wait_for_function(f"document.querySelectorAll('#fleet-body tr').length >= {devices}", timeout=60_000)
             start = page.evaluate("({...window.magnetStats, window: undefined})")
             time.sleep(seconds)
             end = page.evaluate("({...window.magnetStats, window: undefined})")
@@ -108,10 +115,15 @@ def _browser_figures(url: str, devices: int, seconds: float) -> dict[str, Any]:
         finally:
             browser.close()
     span = seconds
-    return {"client": "chromium", "events_per_s": (end["events"] - start["events"]) / span,
-            "rows_per_s": (end["rowsApplied"] - start["rowsApplied"]) / span,
-            "renders_per_s": (end["renders"] - start["renders"]) / span, "render_ms": end["renderMs"],
-            "rows_shown": shown, "age_ms_p50_p99": lag}
+    return {
+        "client": "chromium",
+        "events_per_s": (end["events"] - start["events"]) / span,
+        "rows_per_s": (end["rowsApplied"] - start["rowsApplied"]) / span,
+        "renders_per_s": (end["renders"] - start["renders"]) / span,
+        "render_ms": end["renderMs"],
+        "rows_shown": shown,
+        "age_ms_p50_p99": lag,
+    }
 
 
 def _stream_figures(url: str, seconds: float) -> dict[str, Any]:
@@ -130,8 +142,12 @@ def _stream_figures(url: str, seconds: float) -> dict[str, Any]:
                 now_ms = time.time() * 1000
                 ages += [now_ms - r["t_ms"] for r in message.get("rows", []) if r.get("t_ms")]
     ages.sort()
-    return {"client": "event stream (no browser)", "events_per_s": events / seconds, "rows_per_s": rows / seconds,
-            "age_ms_p50_p99": [ages[len(ages) // 2], ages[int(len(ages) * 0.99)]] if ages else None}
+    return {
+        "client": "event stream (no browser)",
+        "events_per_s": events / seconds,
+        "rows_per_s": rows / seconds,
+        "age_ms_p50_p99": [ages[len(ages) // 2], ages[int(len(ages) * 0.99)]] if ages else None,
+    }
 
 
 def run_dashboard_benchmark(devices: int = 1000, seconds: float = 10.0) -> str:
@@ -139,21 +155,43 @@ def run_dashboard_benchmark(devices: int = 1000, seconds: float = 10.0) -> str:
     magnet = [sys.executable, "-m", "services.cli"]
     log_path = Path(tempfile.gettempdir()) / "magnet-bench-dashboard.log"
     with open(log_path, "w") as log:  # the child keeps its own descriptor
-        dashboard = subprocess.Popen([*magnet, "dashboard", "--http", f"127.0.0.1:{http_port}", "--token", "bench",
-                                      "--no-multicast-scouting", "--listen", f"tcp/127.0.0.1:{zenoh_port}"],
-                                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log)
+        dashboard = subprocess.Popen(
+            [
+                *magnet,
+                "dashboard",
+                "--http",
+                f"127.0.0.1:{http_port}",
+                "--token",
+                "bench",
+                "--no-multicast-scouting",
+                "--listen",
+                f"tcp/127.0.0.1:{zenoh_port}",
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=log,
+        )
     publisher = None
     try:
         _wait_http(f"http://127.0.0.1:{http_port}/api/fleet", dashboard)
-        publisher = subprocess.Popen([sys.executable, "-c", ("import sys; from services.bench.dashboard import "
-                                      f"publish; publish({zenoh_port}, {devices}, 3600)")],
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        publisher = subprocess.Popen(
+            [
+                sys.executable,
+                "-c",
+                (f"import sys; from services.bench.dashboard import publish; publish({zenoh_port}, {devices}, 3600)"),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         time.sleep(WARMUP_S)
         cpu0, t0, received0 = _cpu_s(dashboard.pid), time.monotonic(), _fleet(http_port)["summary"]["messages"]
         use_browser = CHROMIUM.exists()
         try:
-            page = (_browser_figures(f"http://127.0.0.1:{http_port}/", devices, seconds) if use_browser
-                    else _stream_figures(f"http://127.0.0.1:{http_port}/api/stream", seconds))
+            page = (
+                _browser_figures(f"http://127.0.0.1:{http_port}/", devices, seconds)
+                if use_browser
+                else _stream_figures(f"http://127.0.0.1:{http_port}/api/stream", seconds)
+            )
         except ImportError:
             page = _stream_figures(f"http://127.0.0.1:{http_port}/api/stream", seconds)
         fleet = _fleet(http_port)
@@ -178,13 +216,20 @@ def _fleet(http_port: int) -> dict[str, Any]:
 def _summary(devices: int, cpu: float, page: dict[str, Any], fleet: dict[str, Any], received: float) -> str:
     age = page.get("age_ms_p50_p99")
     lines = [
-        (f"dashboard bench: {devices} devices x {RATE_HZ:g} Hz headings ({BATCH} samples each); the dashboard received "
-        f"{received:,.0f} messages/s (target {devices * RATE_HZ:,.0f})"),
-        (f"  dashboard process CPU: {100 * cpu:.0f} % of one core; fleet rows: {len(fleet['rows'])}, "
-        f"alive {fleet['summary']['alive']}"),
+        (
+            f"dashboard bench: {devices} devices x {RATE_HZ:g} Hz headings ({BATCH} samples each); "
+            f"the dashboard received {received:,.0f} messages/s (target {devices * RATE_HZ:,.0f})"
+        ),
+        (
+            f"  dashboard process CPU: {100 * cpu:.0f} % of one core; fleet rows: {len(fleet['rows'])}, "
+            f"alive {fleet['summary']['alive']}"
+        ),
         f"  page ({page['client']}): {page['events_per_s']:.1f} events/s, {page['rows_per_s']:,.0f} rows/s"
-        + (f", {page['renders_per_s']:.1f} renders/s, last render {page['render_ms']:.0f} ms"
-           if "renders_per_s" in page else "")
+        + (
+            f", {page['renders_per_s']:.1f} renders/s, last render {page['render_ms']:.0f} ms"
+            if "renders_per_s" in page
+            else ""
+        )
         + (f"; age of the headings shown p50 {age[0]:.0f} ms, p99 {age[1]:.0f} ms" if age else "")
         + (f"; {page['rows_shown']} rows in the table" if "rows_shown" in page else ""),
     ]

@@ -55,8 +55,10 @@ def median_ms(function: Callable[[], object], runs: int = RUNS) -> float:
 def run_fit_benchmark() -> str:
     """Time every sample-based method on 10,000 samples; returns the table as text."""
     raw, acc = synthetic_tumble()
-    lines = [f"fit of {SAMPLES:,} samples, median of {RUNS} runs (ms); target: ellipsoid well under {TARGET_MS:g} ms",
-             f"{'method':<18}{'coefficients':>14}{'fit+quality+gate':>18}"]
+    lines = [
+        f"fit of {SAMPLES:,} samples, median of {RUNS} runs (ms); target: ellipsoid well under {TARGET_MS:g} ms",
+        f"{'method':<18}{'coefficients':>14}{'fit+quality+gate':>18}",
+    ]
     for method in (m for m in Method if m is not Method.TURNTABLE):
         coefficients = median_ms(functools.partial(fit_shape, raw, method, acc=acc))
         whole = median_ms(functools.partial(fit, raw, method, acc=acc))

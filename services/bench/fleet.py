@@ -36,21 +36,31 @@ def fill_store(path: Path, devices: int, created_ns: int | None = None) -> list[
         store._db.execute("BEGIN")  # one transaction: the bench measures queries, not a thousand fsyncs
         for name in names:
             matrix = np.eye(3) + rng.uniform(-0.05, 0.05, (3, 3))
-            cal = Calibration("ellipsoid", rng.uniform(-40, 40, 3), (matrix + matrix.T) / 2, field_strength=51.0,
-                              sample_count=1500, quality=Quality(residual_rms_ut=0.3, residual_rms_pct=0.6,
-                                                                 coverage=0.95, holdout_rms_ut=0.35),
-                              accepted=True, reason="accepted")
+            cal = Calibration(
+                "ellipsoid",
+                rng.uniform(-40, 40, 3),
+                (matrix + matrix.T) / 2,
+                field_strength=51.0,
+                sample_count=1500,
+                quality=Quality(residual_rms_ut=0.3, residual_rms_pct=0.6, coverage=0.95, holdout_rms_ut=0.35),
+                accepted=True,
+                reason="accepted",
+            )
             record = wire.DeviceCalibration(name, created, cal)
-            store._db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
-                              (name, record.id, created, json.dumps(record.to_record(), sort_keys=True)))
+            store._db.execute(
+                "INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
+                (name, record.id, created, json.dumps(record.to_record(), sort_keys=True)),
+            )
         store._db.execute("COMMIT")
     return names
 
 
 def fleet_file(path: Path, names: list[str]) -> Path:
     """A fleet file placing every device somewhere on a grid of the world."""
-    entries = {name: {"location": f"{-60 + (i * 7) % 120},{-180 + (i * 13) % 360},{i % 500}", "notes": f"unit {i}"}
-               for i, name in enumerate(names)}
+    entries = {
+        name: {"location": f"{-60 + (i * 7) % 120},{-180 + (i * 13) % 360},{i % 500}", "notes": f"unit {i}"}
+        for i, name in enumerate(names)
+    }
     path.write_text(json.dumps(entries))
     return path
 
@@ -87,9 +97,19 @@ def run_fleet_benchmark(devices: int = 1000, repeats: int = 10) -> str:
         db = Path(tmp) / "fleet.db"
         names = fill_store(db, devices)
         port = free_ports(1)[0]
-        command = [sys.executable, "-m", "services.cli", "calibrator", "--db", str(db), "--fleet",
-                   str(fleet_file(Path(tmp) / "fleet.json5", names)), "--no-multicast-scouting", "--listen",
-                   f"tcp/127.0.0.1:{port}"]
+        command = [
+            sys.executable,
+            "-m",
+            "services.cli",
+            "calibrator",
+            "--db",
+            str(db),
+            "--fleet",
+            str(fleet_file(Path(tmp) / "fleet.json5", names)),
+            "--no-multicast-scouting",
+            "--listen",
+            f"tcp/127.0.0.1:{port}",
+        ]
         with open(Path(tmp) / "calibrator.log", "w") as log:
             proc = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
             try:
@@ -102,5 +122,7 @@ def run_fleet_benchmark(devices: int = 1000, repeats: int = 10) -> str:
                 proc.wait(timeout=10)
     fastest, median = min(times), statistics.median(times)
     verdict = "meets" if median < TARGET_S else "MISSES"
-    return (f"fleet query over {devices} devices: reply {size / 1024:.0f} KiB, fastest {fastest * 1000:.0f} ms, "
-            f"median {median * 1000:.0f} ms of {repeats} ({verdict} the {TARGET_S:g} s target)")
+    return (
+        f"fleet query over {devices} devices: reply {size / 1024:.0f} KiB, fastest {fastest * 1000:.0f} ms, "
+        f"median {median * 1000:.0f} ms of {repeats} ({verdict} the {TARGET_S:g} s target)"
+    )

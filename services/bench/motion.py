@@ -75,8 +75,9 @@ def load_broad(path: str | Path) -> MotionLog:
     _, pitch, _ = fusion.euler_from_quat(np.where(ok[:, None], ref_ned, [1.0, 0, 0, 0]))
     scored = data["movement"].astype(bool) & ok & (np.abs(pitch) < MAX_PITCH_DEG)
     body = {key: data[key].astype(float) * _Z_UP_TO_BODY for key in ("gyr_rads", "acc_ms2", "mag_ut")}
-    return MotionLog(Path(path).stem, data["t_s"].astype(float), body["gyr_rads"], body["acc_ms2"], body["mag_ut"],
-                     ref_ned, scored)
+    return MotionLog(
+        Path(path).stem, data["t_s"].astype(float), body["gyr_rads"], body["acc_ms2"], body["mag_ut"], ref_ned, scored
+    )
 
 
 def write_csv(log: MotionLog, path: str | Path) -> Path:
@@ -91,8 +92,7 @@ Estimator = Callable[[MotionLog, np.ndarray], np.ndarray]
 ESTIMATORS: dict[str, Estimator] = {
     "accelerometer tilt": lambda log, field: hd.tilt_compensated_heading_deg(field, log.acc_ms2),
     "fused causal": lambda log, field: fusion.fuse_causal(log.gyr_rads, log.acc_ms2, field, log.period_s).heading_deg,
-    "fused offline": lambda log, field: fusion.fuse_offline(log.gyr_rads, log.acc_ms2, field,
-                                                            log.period_s).heading_deg,
+    "fused offline": lambda log, field: fusion.fuse_offline(log.gyr_rads, log.acc_ms2, field, log.period_s).heading_deg,
 }
 
 
@@ -121,8 +121,16 @@ class SimulatorSettings:
 
 def _simulated_sensor(settings: SimulatorSettings, field_ut: float) -> SensorErrors:
     rng = np.random.default_rng(settings.seed)
-    return SensorErrors.random(rng, field_ut, hard_iron_max_ratio=1.0, soft_iron_max=0.1, noise_ut=0.3,
-                               acc_noise_ms2=0.02, gyro_bias_rads=rng.uniform(-0.01, 0.01, 3), gyro_noise_rads=0.002)
+    return SensorErrors.random(
+        rng,
+        field_ut,
+        hard_iron_max_ratio=1.0,
+        soft_iron_max=0.1,
+        noise_ut=0.3,
+        acc_noise_ms2=0.02,
+        gyro_bias_rads=rng.uniform(-0.01, 0.01, 3),
+        gyro_noise_rads=0.002,
+    )
 
 
 def _simulator_calibration(run, errors: SensorErrors, settings: SimulatorSettings) -> tuple[Calibration, str]:
@@ -134,41 +142,59 @@ def _simulator_calibration(run, errors: SensorErrors, settings: SimulatorSetting
             return own, "own data"
     except ValueError:
         pass
-    tumble = simulate(SimulatorConfig(trajectory=Trajectory.TUMBLE, rate_hz=settings.rate_hz,
-                                      count=settings.tumble_samples, errors=errors, seed=settings.seed + 1))
+    tumble = simulate(
+        SimulatorConfig(
+            trajectory=Trajectory.TUMBLE,
+            rate_hz=settings.rate_hz,
+            count=settings.tumble_samples,
+            errors=errors,
+            seed=settings.seed + 1,
+        )
+    )
     return fit(tumble.mag_ut, "ellipsoid", acc=tumble.acc_ms2), "tumble"
 
 
-def simulator_rows(settings: SimulatorSettings = SimulatorSettings(),
-                   trajectories: Iterable[Trajectory] = MOVING_TRAJECTORIES) -> list[tuple[str, str, float]]:
+def simulator_rows(
+    settings: SimulatorSettings = SimulatorSettings(), trajectories: Iterable[Trajectory] = MOVING_TRAJECTORIES
+) -> list[tuple[str, str, float]]:
     """(trajectory (calibrated on what), estimator, heading RMS deg against the true magnetic heading, no offset
     removed) for the moving trajectories, after the settling time, samples with |pitch| < 60 deg."""
     errors = _simulated_sensor(settings, 50.0)
     rows = []
     for trajectory in sorted(trajectories, key=lambda t: t.value):
-        run = simulate(SimulatorConfig(trajectory=trajectory, rate_hz=settings.rate_hz,
-                                       count=int(settings.seconds * settings.rate_hz), errors=errors,
-                                       seed=settings.seed))
+        run = simulate(
+            SimulatorConfig(
+                trajectory=trajectory,
+                rate_hz=settings.rate_hz,
+                count=int(settings.seconds * settings.rate_hz),
+                errors=errors,
+                seed=settings.seed,
+            )
+        )
         calibration, source = _simulator_calibration(run, errors, settings)
         field = calibration.apply(run.mag_ut)
         scored = (run.t_s >= settings.settle_s) & (np.abs(run.pitch_deg) < MAX_PITCH_DEG)
         log = MotionLog(trajectory.value, run.t_s, run.gyr_rads, run.acc_ms2, run.mag_ut, run.quat_wxyz, scored)
         for estimator, function in ESTIMATORS.items():
             error = hd.angle_difference_deg(function(log, field), run.magnetic_heading_deg)[scored]
-            rows.append((f"{trajectory.value} (cal: {source})", estimator, float(np.sqrt(np.mean(error ** 2)))))
+            rows.append((f"{trajectory.value} (cal: {source})", estimator, float(np.sqrt(np.mean(error**2)))))
     return rows
 
 
 def run_motion_benchmark() -> str:
     """The benchmark's table as text (``magnet bench motion``)."""
     started = time.perf_counter()
-    lines = ["heading RMS in motion (deg); BROAD: offset removed, movement samples with |pitch| < 60 deg",
-             f"{'recording':<42}{'estimator':<34}{'RMS':>8}"]
+    lines = [
+        "heading RMS in motion (deg); BROAD: offset removed, movement samples with |pitch| < 60 deg",
+        f"{'recording':<42}{'estimator':<34}{'RMS':>8}",
+    ]
     for trial, estimator, rms in broad_rows():
         lines.append(f"{trial:<42}{estimator:<34}{rms:>8.3f}")
     settings = SimulatorSettings()
-    lines.append(f"moving simulator, {settings.seconds:g} s at {settings.rate_hz:g} Hz, against the true magnetic "
-                 f"heading (no offset removed), after {settings.settle_s:g} s, |pitch| < 60 deg")
+    lines.append(
+        f"moving simulator, {settings.seconds:g} s at {settings.rate_hz:g} Hz, against the true magnetic "
+        f"heading (no offset removed), after {settings.settle_s:g} s, |pitch| < 60 deg"
+    )
     for trial, estimator, rms in simulator_rows(settings):
         lines.append(f"{trial:<42}{estimator:<34}{rms:>8.3f}")
     lines.append(f"benchmark time {time.perf_counter() - started:.1f} s")

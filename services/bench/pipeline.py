@@ -34,7 +34,7 @@ from services.common.zenoh_session import free_ports, loopback_arguments
 
 MAX_RATE_STEPS = 6
 BISECT_STEPS = 2
-DRAIN_S = 1.5          # after the edge stops, wait this long without new headings
+DRAIN_S = 1.5  # after the edge stops, wait this long without new headings
 STARTUP_TIMEOUT_S = 15
 
 
@@ -46,8 +46,8 @@ class PipelineRun:
     seconds: float
     samples_in: int
     samples_out: int
-    generated_rate: float   # samples/s the edge achieved
-    out_rate: float         # heading samples/s received
+    generated_rate: float  # samples/s the edge achieved
+    out_rate: float  # heading samples/s received
     latency_p50_ms: float
     latency_p99_ms: float
     shards: int = 1
@@ -68,10 +68,12 @@ class PipelineRun:
     def line(self) -> str:
         fraction = f" ({self.out_rate / self.ceiling_rate:.0%} of the Zenoh ceiling)" if self.ceiling_rate else ""
         compasses = "1 compass" if self.shards == 1 else f"{self.shards} compass shards"
-        return (f"{self.devices} devices x {self.rate_hz:g} Hz, batch {self.batch}, {compasses}: target "
-                f"{self.target_rate:,.0f} samples/s; in {self.generated_rate:,.0f}/s, out {self.out_rate:,.0f}/s"
-                f"{fraction}, lost {self.lost} ({self.loss_fraction:.3%}), latency p50 {self.latency_p50_ms:.2f} ms, "
-                f"p99 {self.latency_p99_ms:.2f} ms")
+        return (
+            f"{self.devices} devices x {self.rate_hz:g} Hz, batch {self.batch}, {compasses}: target "
+            f"{self.target_rate:,.0f} samples/s; in {self.generated_rate:,.0f}/s, out {self.out_rate:,.0f}/s"
+            f"{fraction}, lost {self.lost} ({self.loss_fraction:.3%}), latency p50 {self.latency_p50_ms:.2f} ms, "
+            f"p99 {self.latency_p99_ms:.2f} ms"
+        )
 
 
 class _Measurer:
@@ -124,45 +126,90 @@ def _session_config(listen_port: int, connect_ports: list[int]) -> Any:
     return conf
 
 
-def run_once(devices: int, rate: float, batch: int, seconds: float, shards: int = 1, gyro: bool = True,
-             ceiling_rate: float | None = None) -> PipelineRun:
+def run_once(
+    devices: int,
+    rate: float,
+    batch: int,
+    seconds: float,
+    shards: int = 1,
+    gyro: bool = True,
+    ceiling_rate: float | None = None,
+) -> PipelineRun:
     """One run: ``shards`` compass processes (``--shard K/N``), the edge connected to each, the measurer too."""
     import zenoh
 
     *compass_ports, measure_port = free_ports(shards + 1)
-    compasses = [subprocess.Popen([sys.executable, "-m", "services.cli", "compass", "--name", f"bench-compass-{k}",
-                                   "--shard", f"{k}/{shards}", *loopback_arguments(port)], stdin=subprocess.DEVNULL)
-                 for k, port in enumerate(compass_ports)]
-    edge = None
+    compasses = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "services.cli",
+                "compass",
+                "--name",
+                f"bench-compass-{k}",
+                "--shard",
+                f"{k}/{shards}",
+                *loopback_arguments(port),
+            ],
+            stdin=subprocess.DEVNULL,
+        )
+        for k, port in enumerate(compass_ports)
+    ]
+    edge: subprocess.Popen[Any] | None = None
     try:
         with zenoh.open(_session_config(measure_port, compass_ports)) as session:
             for k in range(shards):
                 _wait_ready(session, f"magnet/@status/bench-compass-{k}")
-            measurer = _Measurer(session.declare_subscriber("magnet/*/heading",
-                                                            zenoh.handlers.FifoChannel(1 << 20)))
-            edge = subprocess.Popen([sys.executable, "-m", "services.bench.ceiling", "generate",
-                                     ",".join(map(str, compass_ports)), str(devices), str(rate), str(batch),
-                                     str(seconds), str(int(gyro))],
-                                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True)
+            measurer = _Measurer(session.declare_subscriber("magnet/*/heading", zenoh.handlers.FifoChannel(1 << 20)))
+            edge = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "services.bench.ceiling",
+                    "generate",
+                    ",".join(map(str, compass_ports)),
+                    str(devices),
+                    str(rate),
+                    str(batch),
+                    str(seconds),
+                    str(int(gyro)),
+                ],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.PIPE,
+                text=True,
+            )
             out, _ = edge.communicate(timeout=seconds + 60)
             summary = json.loads(out.strip().splitlines()[-1])
             while (time.monotonic_ns() - measurer.last_ns) / 1e9 < DRAIN_S:
                 time.sleep(0.1)
             measurer.stop()
     finally:
-        for proc in (edge, *compasses):
+        procs: list[subprocess.Popen[Any] | None] = [edge, *compasses]
+        for proc in procs:
             if proc is not None and proc.poll() is None:
                 proc.terminate()
                 proc.wait(timeout=10)
     latencies = np.array(measurer.latencies_ns or [0]) / 1e6
-    return PipelineRun(devices, rate, batch, seconds, summary["published_samples"], measurer.samples,
-                       summary["published_samples"] / summary["seconds"], measurer.samples / summary["seconds"],
-                       float(np.percentile(latencies, 50)), float(np.percentile(latencies, 99)), shards,
-                       ceiling_rate)
+    return PipelineRun(
+        devices,
+        rate,
+        batch,
+        seconds,
+        summary["published_samples"],
+        measurer.samples,
+        summary["published_samples"] / summary["seconds"],
+        measurer.samples / summary["seconds"],
+        float(np.percentile(latencies, 50)),
+        float(np.percentile(latencies, 99)),
+        shards,
+        ceiling_rate,
+    )
 
 
-def run_pipeline_benchmark(devices: int, rate: float, batch: int, seconds: float, shards: int = 2,
-                           gyro: bool = True) -> None:
+def run_pipeline_benchmark(
+    devices: int, rate: float, batch: int, seconds: float, shards: int = 2, gyro: bool = True
+) -> None:
     """Print the Zenoh ceiling on the same payloads, then one line per run: the given rate, then doubled rates until
     loss, then BISECT_STEPS halvings of the gap between the best rate without loss and the first with loss; the
     highest rate without loss; last, the first rate with loss (or the highest tried) with ``shards`` compasses."""
@@ -189,9 +236,12 @@ def run_pipeline_benchmark(devices: int, rate: float, batch: int, seconds: float
     if best is None:
         print("loss already at the first rate: no rate without loss found", flush=True)
     else:
-        print(f"highest rate without loss: {best.generated_rate:,.0f} samples/s ({best.devices} devices x "
-              f"{best.rate_hz:g} Hz, batch {best.batch}), {best.generated_rate / top.sample_rate:.0%} of the Zenoh "
-              f"ceiling, p99 latency {best.latency_p99_ms:.2f} ms", flush=True)
+        print(
+            f"highest rate without loss: {best.generated_rate:,.0f} samples/s ({best.devices} devices x "
+            f"{best.rate_hz:g} Hz, batch {best.batch}), {best.generated_rate / top.sample_rate:.0%} of the Zenoh "
+            f"ceiling, p99 latency {best.latency_p99_ms:.2f} ms",
+            flush=True,
+        )
     if shards > 1:
         _compare_shards(run, lossy or last, shards)
 
@@ -201,20 +251,29 @@ def _generator_limited(result: PipelineRun, seconds: float, batch: int, current:
     if result.generated_rate >= 0.9 * result.target_rate:
         return False
     if seconds < 10 * batch / current:
-        print(f"each device sends one batch every {batch / current:g} s: give --seconds of at least "
-              f"{10 * batch / current:g} for a fair rate", flush=True)
+        print(
+            f"each device sends one batch every {batch / current:g} s: give --seconds of at least "
+            f"{10 * batch / current:g} for a fair rate",
+            flush=True,
+        )
     else:
-        print(f"the edge process generates at most {result.generated_rate:,.0f} samples/s here: the limit is the "
-              f"generator, not the compass", flush=True)
+        print(
+            f"the edge process generates at most {result.generated_rate:,.0f} samples/s here: the limit is the "
+            f"generator, not the compass",
+            flush=True,
+        )
     return True
 
 
 def _compare_shards(run: Callable[..., PipelineRun], rate: float, shards: int) -> None:
     one = _report(run(rate))
     many = _report(run(rate, shards=shards))
-    print(f"{shards} compass shards against 1 at {one.target_rate:,.0f} samples/s: out {many.out_rate:,.0f}/s "
-          f"against {one.out_rate:,.0f}/s (x{many.out_rate / max(one.out_rate, 1):.2f}), lost {many.loss_fraction:.1%} "
-          f"against {one.loss_fraction:.1%}", flush=True)
+    print(
+        f"{shards} compass shards against 1 at {one.target_rate:,.0f} samples/s: out {many.out_rate:,.0f}/s "
+        f"against {one.out_rate:,.0f}/s (x{many.out_rate / max(one.out_rate, 1):.2f}), lost {many.loss_fraction:.1%} "
+        f"against {one.loss_fraction:.1%}",
+        flush=True,
+    )
 
 
 def _bisect(best: PipelineRun, lossy: float, run: Callable[..., PipelineRun]) -> PipelineRun:

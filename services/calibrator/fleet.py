@@ -81,28 +81,49 @@ class FleetBook:
 def fleet_reply(calibrator: Calibrator, now_ns: int) -> dict[str, Any]:
     """The ``<prefix>/@fleet`` answer (see the module docstring)."""
     book: FleetBook = calibrator.fleet
-    devices = sorted(set(calibrator.in_force) | set(calibrator.collections) | set(book.last_seen_ns)
-                     | set(book.places.fleet) | {d for d, a in book.alerts.items() if a})
-    return {"v": wire.WIRE_VERSION, "t_ns": now_ns, "count": len(devices),
-            "devices": [_device_entry(calibrator, book, device, now_ns) for device in devices]}
+    devices = sorted(
+        set(calibrator.in_force)
+        | set(calibrator.collections)
+        | set(book.last_seen_ns)
+        | set(book.places.fleet)
+        | {d for d, a in book.alerts.items() if a}
+    )
+    return {
+        "v": wire.WIRE_VERSION,
+        "t_ns": now_ns,
+        "count": len(devices),
+        "devices": [_device_entry(calibrator, book, device, now_ns) for device in devices],
+    }
 
 
 def _device_entry(calibrator: Calibrator, book: FleetBook, device: str, now_ns: int) -> dict[str, Any]:
     record = calibrator.in_force.get(device)
     location = book.places.location(device)
-    entry: dict[str, Any] = {"device": device, "state": calibrator.state(device).value,
-                             "calibration_id": None, "method": None, "quality": None, "created_ns": None,
-                             "age_s": None}
+    entry: dict[str, Any] = {
+        "device": device,
+        "state": calibrator.state(device).value,
+        "calibration_id": None,
+        "method": None,
+        "quality": None,
+        "created_ns": None,
+        "age_s": None,
+    }
     if record is not None:
         quality = record.calibration.quality
-        entry.update(calibration_id=record.id, method=record.calibration.method,
-                     quality={name: quality.get(name) for name in QUALITY_FIGURES}, created_ns=record.created_ns,
-                     age_s=round((now_ns - record.created_ns) / 1e9, 3))
-    entry.update(last_seen_ns=book.last_seen_ns.get(device),
-                 location=None if location is None else location.to_wire(),
-                 location_source=book.location_source(device) if location is not None else None,
-                 notes=book.places.notes(device),
-                 alerts=[alert.to_message() for alert in book.alerts.get(device, {}).values()])
+        entry.update(
+            calibration_id=record.id,
+            method=record.calibration.method,
+            quality={name: quality.get(name) for name in QUALITY_FIGURES},
+            created_ns=record.created_ns,
+            age_s=round((now_ns - record.created_ns) / 1e9, 3),
+        )
+    entry.update(
+        last_seen_ns=book.last_seen_ns.get(device),
+        location=None if location is None else location.to_wire(),
+        location_source=book.location_source(device) if location is not None else None,
+        notes=book.places.notes(device),
+        alerts=[alert.to_message() for alert in book.alerts.get(device, {}).values()],
+    )
     return entry
 
 
@@ -121,10 +142,20 @@ def rollback(calibrator: Calibrator, device: str, to_id: str | None, by: str | N
     if target is not None and current is not None and target.id == current.id:
         message = f"calibration {target.id} is already in force for {device}"
     elif target is not None:
-        record = calibrator.commit(device, target.calibration,
-                                   change={"action": "rollback", "by": by or "", "to_id": target.id})
+        record = calibrator.commit(
+            device, target.calibration, change={"action": "rollback", "by": by or "", "to_id": target.id}
+        )
         ok, extra = True, {"calibration": record.to_record()}
-        message = (f"calibration {target.id} (made at {target.created_ns} ns) back in force for {device}, "
-                   f"replacing {current.id if current else 'none'}")
-    return {"ok": ok, "action": "rollback", "device": device, "state": calibrator.state(device).value,
-            "message": message, "progress": calibrator.progress(device).to_dict(), **extra}
+        message = (
+            f"calibration {target.id} (made at {target.created_ns} ns) back in force for {device}, "
+            f"replacing {current.id if current else 'none'}"
+        )
+    return {
+        "ok": ok,
+        "action": "rollback",
+        "device": device,
+        "state": calibrator.state(device).value,
+        "message": message,
+        "progress": calibrator.progress(device).to_dict(),
+        **extra,
+    }

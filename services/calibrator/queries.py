@@ -8,8 +8,8 @@ Each handler answers one query (``reply`` or ``reply_err``); none raises on what
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
@@ -38,8 +38,7 @@ def matching_devices(devices: Iterable[str], prefix: str, key_expr: str, kind: w
 
 def answer_calibration(query: Any, calibrator: Calibrator, prefix: str) -> None:
     for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.CALIBRATION):
-        query.reply(wire.key(prefix, device, wire.Kind.CALIBRATION),
-                    wire.pack(calibrator.in_force[device].to_record()))
+        query.reply(wire.key(prefix, device, wire.Kind.CALIBRATION), wire.pack(calibrator.in_force[device].to_record()))
 
 
 def history_limit(text: str | None) -> int:
@@ -66,8 +65,10 @@ def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
             query.reply_err(str(exc).encode())
             return
         records = [calibrator.sign(record).to_record() for record, _ in rows]
-        query.reply(wire.key(prefix, device, wire.Kind.HISTORY),
-                    wire.pack({"device": device, "records": records, "changes": [change for _, change in rows]}))
+        query.reply(
+            wire.key(prefix, device, wire.Kind.HISTORY),
+            wire.pack({"device": device, "records": records, "changes": [change for _, change in rows]}),
+        )
 
 
 def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
@@ -94,12 +95,16 @@ def answer_fleet(query: Any, calibrator: Calibrator, prefix: str) -> None:
 
 def status_answer(name: str) -> Callable[[Any, Calibrator, str], None]:
     """The handler of ``<prefix>/@status/<name>``."""
+
     def answer_status(query: Any, calibrator: Calibrator, prefix: str) -> None:
         query.reply(wire.status_key(prefix, name), wire.pack(calibrator.status(name).to_dict()))
+
     return answer_status
 
 
 #: queried kind -> how to answer (the status queryable is ``status_answer``)
 ANSWERS: dict[wire.Kind, Callable[[Any, Calibrator, str], None]] = {
-    wire.Kind.CALIBRATION: answer_calibration, wire.Kind.HISTORY: answer_history,
-    wire.Kind.CALIBRATE: answer_calibrate}
+    wire.Kind.CALIBRATION: answer_calibration,
+    wire.Kind.HISTORY: answer_history,
+    wire.Kind.CALIBRATE: answer_calibrate,
+}

@@ -76,8 +76,10 @@ class CalibrationStore:
         try:
             yield
         except sqlite3.DatabaseError as exc:
-            raise StoreError(f"calibration database {self.path} is damaged or unusable ({exc}): restore it from a "
-                             "backup, or move it aside to start with an empty one") from None
+            raise StoreError(
+                f"calibration database {self.path} is damaged or unusable ({exc}): restore it from a "
+                "backup, or move it aside to start with an empty one"
+            ) from None
 
     def close(self) -> None:
         self._db.close()
@@ -95,42 +97,53 @@ class CalibrationStore:
         Returns False (and stores nothing) when it is identical to the one already in force."""
         text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
         with self._guard(), self._transaction():
-            row = self._db.execute("SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1",
-                                   (record.device,)).fetchone()
+            row = self._db.execute(
+                "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (record.device,)
+            ).fetchone()
             if row is not None and row[0] == record.id:
                 return False
-            cursor = self._db.execute("INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
-                                      (record.device, record.id, int(record.created_ns), text))
+            cursor = self._db.execute(
+                "INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
+                (record.device, record.id, int(record.created_ns), text),
+            )
             if change is not None:
-                self._db.execute("INSERT INTO changes (seq, change) VALUES (?, ?)",
-                                 (cursor.lastrowid, json.dumps(dict(change), sort_keys=True, allow_nan=False)))
+                self._db.execute(
+                    "INSERT INTO changes (seq, change) VALUES (?, ?)",
+                    (cursor.lastrowid, json.dumps(dict(change), sort_keys=True, allow_nan=False)),
+                )
         return True
 
     def latest(self, device: str) -> wire.DeviceCalibration | None:
         """The calibration in force for ``device`` (its newest valid record), or None."""
         with self._guard():
-            rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC",
-                                    (device,))
+            rows = self._db.execute(
+                "SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,)
+            )
             return next(self._valid(rows), None)
 
     def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
         """Valid records of ``device``, newest first, at most ``limit``."""
         out: list[wire.DeviceCalibration] = []
         with self._guard():
-            rows = self._db.execute("SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC",
-                                    (device,))
+            rows = self._db.execute(
+                "SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,)
+            )
             for record in self._valid(rows):
                 if limit is not None and len(out) >= max(0, limit):
                     break
                 out.append(record)
         return out
 
-    def history_changes(self, device: str, limit: int | None = None
-                        ) -> list[tuple[wire.DeviceCalibration, dict[str, Any] | None]]:
+    def history_changes(
+        self, device: str, limit: int | None = None
+    ) -> list[tuple[wire.DeviceCalibration, dict[str, Any] | None]]:
         """``history`` with each record's change (None where none was recorded), newest first."""
         with self._guard():
-            rows = self._db.execute("SELECT c.seq, c.record, h.change FROM calibrations c LEFT JOIN changes h "
-                                    "ON h.seq = c.seq WHERE c.device = ? ORDER BY c.seq DESC", (device,)).fetchall()
+            rows = self._db.execute(
+                "SELECT c.seq, c.record, h.change FROM calibrations c LEFT JOIN changes h "
+                "ON h.seq = c.seq WHERE c.device = ? ORDER BY c.seq DESC",
+                (device,),
+            ).fetchall()
         changes = {seq: change for seq, _, change in rows}
         out: list[tuple[wire.DeviceCalibration, dict[str, Any] | None]] = []
         for seq, record in self._valid_seq((seq, text) for seq, text, _ in rows):

@@ -35,30 +35,58 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", metavar="FILE.csv", help="CSV with a header row: mx,my,mz required, ax,ay,az optional")
     parser.add_argument("--method", required=True, choices=[m.value for m in Method])
-    parser.add_argument("--unit", default="ut", choices=[u.value for u in FieldUnit],
-                        help="unit of the mx,my,mz columns (default ut)")
+    parser.add_argument(
+        "--unit", default="ut", choices=[u.value for u in FieldUnit], help="unit of the mx,my,mz columns (default ut)"
+    )
     parser.add_argument("--field-ut", type=float, metavar="F", help="expected field strength in uT")
     add_field_arguments(parser)
-    parser.add_argument("--horizontal", type=float, metavar="H",
-                        help="turntable: known horizontal field component (its unit is the output unit)")
-    parser.add_argument("--vertical", type=float, metavar="V",
-                        help="turntable: known vertical component along the upward axis (negative in the north)")
-    parser.add_argument("--field-unit", default="ut", choices=[u.value for u in FieldUnit if u is not FieldUnit.COUNTS],
-                        help="turntable: unit of --horizontal/--vertical and of the corrected field (default ut; "
-                             "nt for gammas)")
-    parser.add_argument("--turntable-variant", default="closed", choices=("closed", "lsq"),
-                        help="turntable: closed form from the 0/90/180/270 readings (seed 000) or least squares "
-                             "over every angle")
-    parser.add_argument("--robust-extremes", action="store_true",
-                        help="minmax: pull each new extreme in slowly (0.2 new, 0.8 old) to resist spikes")
-    parser.add_argument("--rate", type=float, metavar="HZ",
-                        help="sample rate for the gyroscope columns gx,gy,gz (default: from the t_s column)")
-    parser.add_argument("--in-force", metavar="cal.json",
-                        help="the calibration in force: the fit must make the field more constant than it does "
-                             "(default: than no calibration)")
+    parser.add_argument(
+        "--horizontal",
+        type=float,
+        metavar="H",
+        help="turntable: known horizontal field component (its unit is the output unit)",
+    )
+    parser.add_argument(
+        "--vertical",
+        type=float,
+        metavar="V",
+        help="turntable: known vertical component along the upward axis (negative in the north)",
+    )
+    parser.add_argument(
+        "--field-unit",
+        default="ut",
+        choices=[u.value for u in FieldUnit if u is not FieldUnit.COUNTS],
+        help="turntable: unit of --horizontal/--vertical and of the corrected field (default ut; nt for gammas)",
+    )
+    parser.add_argument(
+        "--turntable-variant",
+        default="closed",
+        choices=("closed", "lsq"),
+        help="turntable: closed form from the 0/90/180/270 readings (seed 000) or least squares over every angle",
+    )
+    parser.add_argument(
+        "--robust-extremes",
+        action="store_true",
+        help="minmax: pull each new extreme in slowly (0.2 new, 0.8 old) to resist spikes",
+    )
+    parser.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help="sample rate for the gyroscope columns gx,gy,gz (default: from the t_s column)",
+    )
+    parser.add_argument(
+        "--in-force",
+        metavar="cal.json",
+        help="the calibration in force: the fit must make the field more constant than it does "
+        "(default: than no calibration)",
+    )
     parser.add_argument("--out", metavar="cal.json", help="write the record here (default: stdout)")
-    parser.add_argument("--report", metavar="FILE", help="also draw a report of this fit (.html or .png; "
-                                                         "see 'magnet report'), accepted or not")
+    parser.add_argument(
+        "--report",
+        metavar="FILE",
+        help="also draw a report of this fit (.html or .png; see 'magnet report'), accepted or not",
+    )
 
 
 def expected_field_ut(args: argparse.Namespace) -> float | None:
@@ -82,8 +110,16 @@ def _fit_turntable(table: SampleTable, args: argparse.Namespace) -> Calibration:
 
     if args.horizontal is None or args.vertical is None:
         raise ValueError("the turntable method needs --horizontal and --vertical (the known field components)")
-    return fit_turntable(table.mag, table.text("mounting"), table.numeric("heading_deg"), args.horizontal,
-                         args.vertical, args.turntable_variant, unit=args.unit, field_unit=args.field_unit)
+    return fit_turntable(
+        table.mag,
+        table.text("mounting"),
+        table.numeric("heading_deg"),
+        args.horizontal,
+        args.vertical,
+        args.turntable_variant,
+        unit=args.unit,
+        field_unit=args.field_unit,
+    )
 
 
 def gyro_columns(table: SampleTable) -> np.ndarray | None:
@@ -100,8 +136,10 @@ def sample_period_s(table: SampleTable, rate_hz: float | None) -> float:
             raise ValueError(f"--rate {rate_hz} Hz is outside 0.5 .. 10000 Hz")
         return 1.0 / rate_hz
     if "t_s" not in table.columns:
-        raise ValueError(f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
-                         "(seconds) or give --rate HZ")
+        raise ValueError(
+            f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
+            "(seconds) or give --rate HZ"
+        )
     return fusion.sample_period_s(table.numeric("t_s"))
 
 
@@ -114,8 +152,17 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
     gyr = gyro_columns(table) if table.acc is not None else None
     period = sample_period_s(table, args.rate) if gyr is not None else None
     in_force = load_calibration(args.in_force) if args.in_force else None
-    return fit(table.mag, args.method, acc=table.acc, unit=args.unit, field_ut=expected_field_ut(args),
-               robust_extremes=args.robust_extremes, gyr=gyr, period_s=period, reference=in_force)
+    return fit(
+        table.mag,
+        args.method,
+        acc=table.acc,
+        unit=args.unit,
+        field_ut=expected_field_ut(args),
+        robust_extremes=args.robust_extremes,
+        gyr=gyr,
+        period_s=period,
+        reference=in_force,
+    )
 
 
 def load_calibration(path: str) -> Calibration:

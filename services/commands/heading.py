@@ -26,23 +26,47 @@ from magnet.geomag import earth_field, parse_location
 from services.commands.fit import add_field_arguments, gyro_columns, load_calibration, sample_period_s
 from services.common.csvio import SampleTable, read_samples, write_csv
 
-COLUMNS = ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg", "field_x_ut", "field_y_ut", "field_z_ut",
-           "dip_deg", "flags", "qw", "qx", "qy", "qz")
+COLUMNS = (
+    "heading_deg",
+    "true_heading_deg",
+    "pitch_deg",
+    "roll_deg",
+    "field_x_ut",
+    "field_y_ut",
+    "field_z_ut",
+    "dip_deg",
+    "flags",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", metavar="FILE.csv",
-                        help="CSV with mx,my,mz (ax,ay,az for tilt; gx,gy,gz in rad/s and t_s for fusion)")
-    parser.add_argument("--calibration", metavar="cal.json",
-                        help="a record as 'magnet fit' writes it ('offset' and 'matrix' are enough); default: none")
+    parser.add_argument(
+        "file", metavar="FILE.csv", help="CSV with mx,my,mz (ax,ay,az for tilt; gx,gy,gz in rad/s and t_s for fusion)"
+    )
+    parser.add_argument(
+        "--calibration",
+        metavar="cal.json",
+        help="a record as 'magnet fit' writes it ('offset' and 'matrix' are enough); default: none",
+    )
     parser.add_argument("--declination", type=float, metavar="DEG", help="magnetic declination, degrees east")
     add_field_arguments(parser)
-    parser.add_argument("--window", type=int, default=1, metavar="N",
-                        help="circular sliding-mean smoothing over N samples (default 1: none)")
-    parser.add_argument("--rate", type=float, metavar="HZ",
-                        help="sample rate for the gyroscope fusion (default: from the t_s column)")
-    parser.add_argument("--offline", action="store_true",
-                        help="with a gyroscope: the best estimate for a log (the filter looks ahead)")
+    parser.add_argument(
+        "--window",
+        type=int,
+        default=1,
+        metavar="N",
+        help="circular sliding-mean smoothing over N samples (default 1: none)",
+    )
+    parser.add_argument(
+        "--rate", type=float, metavar="HZ", help="sample rate for the gyroscope fusion (default: from the t_s column)"
+    )
+    parser.add_argument(
+        "--offline", action="store_true", help="with a gyroscope: the best estimate for a log (the filter looks ahead)"
+    )
 
 
 def _declination_deg(args: argparse.Namespace) -> tuple[float, float | None, float | None]:
@@ -113,12 +137,25 @@ def run(args: argparse.Namespace) -> int:
     flags = np.asarray(hd.disturbance_flags(field, attitude.up_force, expected, expected_dip_deg), dtype=int)
     flags |= attitude.flags | (int(hd.HeadingFlag.CALIBRATED) if calibration else 0)
     if calibration and calibration.output_unit != "ut":
-        print(f"magnet heading: note: the calibration's output unit is {calibration.output_unit!r}, not uT; "
-              "field_*_ut columns are in that unit", file=sys.stderr)
+        print(
+            f"magnet heading: note: the calibration's output unit is {calibration.output_unit!r}, not uT; "
+            "field_*_ut columns are in that unit",
+            file=sys.stderr,
+        )
     quat = fusion.rotate_heading(attitude.quat, declination_deg)
     header = list(COLUMNS)
-    columns = [magnetic, hd.true_heading_deg(magnetic, declination_deg), attitude.pitch, attitude.roll,
-               field[:, 0], field[:, 1], field[:, 2], dip, flags, *quat.T]
+    columns = [
+        magnetic,
+        hd.true_heading_deg(magnetic, declination_deg),
+        attitude.pitch,
+        attitude.roll,
+        field[:, 0],
+        field[:, 1],
+        field[:, 2],
+        dip,
+        flags,
+        *quat.T,
+    ]
     formats = ["%.4f"] * 7 + ["%.3f", "%d"] + ["%.7f"] * 4  # 4 angles, 3 field components, dip, flags, quaternion
     if "t_s" in table.columns:
         header.insert(0, "t_s")

@@ -34,6 +34,8 @@ def run(args: argparse.Namespace) -> int:
     pki.write_file(private_path, private_pem, pki.PRIVATE_MODE)
     pki.write_file(public_path, public_pem, pki.PUBLIC_MODE)
     key_id = signing.key_id(signing.load_public_key(public_pem))
-    print(f"magnet keys: {private_path} (private, for --signing-key) and {public_path} (public, for --trust), "
-          f"key id {key_id}")
+    print(
+        f"magnet keys: {private_path} (private, for --signing-key) and {public_path} (public, for --trust), "
+        f"key id {key_id}"
+    )
     return 0

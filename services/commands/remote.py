@@ -24,8 +24,13 @@ from services.common.zenoh_session import add_zenoh_arguments, open_session, pay
 log = logging.getLogger("magnet.remote")
 
 #: what `watch` can follow -> key kind
-WATCHABLE = {"heading": wire.Kind.HEADING, "progress": wire.Kind.PROGRESS, "calibration": wire.Kind.CALIBRATION,
-             "raw": wire.Kind.RAW, "alert": wire.Kind.ALERT}
+WATCHABLE = {
+    "heading": wire.Kind.HEADING,
+    "progress": wire.Kind.PROGRESS,
+    "calibration": wire.Kind.CALIBRATION,
+    "raw": wire.Kind.RAW,
+    "alert": wire.Kind.ALERT,
+}
 ACTIONS = ("start", "status", "commit", "abort", "rollback")
 
 
@@ -60,16 +65,25 @@ def _query(args: argparse.Namespace, selector: str, errors: list[str] | None = N
 
 
 def add_get_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("what", choices=["calibration", "status", "fleet"],
-                        help="a device's calibration, a service's status counters, or every device in one reply")
-    parser.add_argument("device", nargs="?",
-                        help="device id (or '*'); for status: the service name (calibrator, compass, '*')")
+    parser.add_argument(
+        "what",
+        choices=["calibration", "status", "fleet"],
+        help="a device's calibration, a service's status counters, or every device in one reply",
+    )
+    parser.add_argument(
+        "device", nargs="?", help="device id (or '*'); for status: the service name (calibrator, compass, '*')"
+    )
     parser.add_argument("--history", action="store_true", help="earlier calibrations too, newest first")
     parser.add_argument("--limit", type=int, default=20, help="with --history: at most this many (default 20)")
     parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers (default 3)")
-    parser.add_argument("--trust", action="append", default=[], type=Path, metavar="FILE.pub",
-                        help="print only calibrations signed by this public key (repeatable); others are named on "
-                             "stderr")
+    parser.add_argument(
+        "--trust",
+        action="append",
+        default=[],
+        type=Path,
+        metavar="FILE.pub",
+        help="print only calibrations signed by this public key (repeatable); others are named on stderr",
+    )
     add_zenoh_arguments(parser)
 
 
@@ -126,8 +140,11 @@ def run_get(args: argparse.Namespace) -> int:
     if trusted.enabled:
         replies = _only_trusted(replies, trusted, args.device)
     if not replies:
-        print(f"magnet get: no {'trusted ' if trusted.enabled else ''}calibration for {args.device} (is a "
-              "calibrator running and reachable?)", file=sys.stderr)
+        print(
+            f"magnet get: no {'trusted ' if trusted.enabled else ''}calibration for {args.device} (is a "
+            "calibrator running and reachable?)",
+            file=sys.stderr,
+        )
         return 1
     for reply in replies:
         _print(reply)
@@ -176,8 +193,12 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("device", help="device id")
     parser.add_argument("action", choices=ACTIONS, help="what to do with the device's calibration session")
     parser.add_argument("--method", help="fit method for 'start' (default: the calibrator's)")
-    parser.add_argument("--to", metavar="ID", help="for 'rollback': the calibration id to put back in force "
-                                                   "(default: the one before the calibration in force)")
+    parser.add_argument(
+        "--to",
+        metavar="ID",
+        help="for 'rollback': the calibration id to put back in force "
+        "(default: the one before the calibration in force)",
+    )
     parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the answer (default 5)")
     add_zenoh_arguments(parser)
 

@@ -21,8 +21,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", required=True, metavar="cal.json", help="a record as 'magnet fit' writes it")
     parser.add_argument("--out", required=True, metavar="report.html", help="where to write it (.html or .png)")
     parser.add_argument("--unit", help="unit of the samples (default: the calibration's)")
-    parser.add_argument("--declination", type=float, metavar="DEG",
-                        help="declination for the heading error (default: from --location, else from the data)")
+    parser.add_argument(
+        "--declination",
+        type=float,
+        metavar="DEG",
+        help="declination for the heading error (default: from --location, else from the data)",
+    )
     add_field_arguments(parser)
 
 
@@ -38,8 +42,14 @@ def place(args: argparse.Namespace) -> tuple[float | None, float | None]:
     return getattr(args, "declination", None), None
 
 
-def write_report(out: str | Path, samples_path: str | Path, calibration: Calibration, unit: str | None,
-                 declination_deg: float | None, expected_field_ut: float | None) -> Path:
+def write_report(
+    out: str | Path,
+    samples_path: str | Path,
+    calibration: Calibration,
+    unit: str | None,
+    declination_deg: float | None,
+    expected_field_ut: float | None,
+) -> Path:
     """Build and write the report of ``calibration`` on the samples in ``samples_path``; returns the file."""
     from services.report.data import build_report, load_samples
     from services.report.render import FORMATS, write

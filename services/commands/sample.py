@@ -29,8 +29,16 @@ from services.common import sim_options
 
 log = logging.getLogger("magnet.sample")
 
-SENSOR_NAMES = ("hmc5883l", "lsm303dlh", "ak09918c+bma456", "qmc5883l", "icm20948", "lsm9ds1", "mpu6050+hmc5883l",
-                "mpu6050+qmc5883l")
+SENSOR_NAMES = (
+    "hmc5883l",
+    "lsm303dlh",
+    "ak09918c+bma456",
+    "qmc5883l",
+    "icm20948",
+    "lsm9ds1",
+    "mpu6050+hmc5883l",
+    "mpu6050+qmc5883l",
+)
 MAX_NOT_READY_POLLS = 200
 #: a one-shot command gives up after this many failed reads in a row (about 3 s of backoff)
 GIVE_UP_AFTER = 10
@@ -40,8 +48,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensor", required=True, choices=SENSOR_NAMES, help="which chip")
     parser.add_argument("--bus", type=int, help="I2C bus number of a real sensor (/dev/i2c-N; 1 on a Raspberry Pi)")
     parser.add_argument("--address", type=lambda s: int(s, 0), help="I2C address (default: the chip's, e.g. 0x1e)")
-    parser.add_argument("--orientation", default=None,
-                        help="mounting: none, yaw90, roll180, roll180_yaw90, ... or 9 numbers of a 3x3 matrix")
+    parser.add_argument(
+        "--orientation",
+        default=None,
+        help="mounting: none, yaw90, roll180, roll180_yaw90, ... or 9 numbers of a 3x3 matrix",
+    )
     parser.add_argument("--emulate", action="store_true", help="read the chip's emulator fed by the simulator")
     parser.add_argument("--count", type=int, default=100, help="samples to print (default 100)")
     parser.add_argument("--rate", type=float, default=50.0, help="samples per second (default 50)")
@@ -72,9 +83,16 @@ class SampleSettings:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> SampleSettings:
-        return cls(sensor=args.sensor, bus=args.bus, address=args.address, orientation=args.orientation,
-                   emulate=bool(args.emulate), count=int(args.count), rate_hz=float(args.rate),
-                   simulator=sim_options.SimulatorSettings.from_args(args))
+        return cls(
+            sensor=args.sensor,
+            bus=args.bus,
+            address=args.address,
+            orientation=args.orientation,
+            emulate=bool(args.emulate),
+            count=int(args.count),
+            rate_hz=float(args.rate),
+            simulator=sim_options.SimulatorSettings.from_args(args),
+        )
 
     @property
     def turntable(self) -> bool:
@@ -98,13 +116,13 @@ def _header(has_acc: bool, emulate: bool, turntable: bool, has_gyr: bool = False
     return columns
 
 
-def read_loop(sensor: Sensor, settings: SampleSettings,
-              sleep: Callable[[float], None] = time.sleep) -> ReadLoop:
+def read_loop(sensor: Sensor, settings: SampleSettings, sleep: Callable[[float], None] = time.sleep) -> ReadLoop:
     """The bounded read loop (``magnet.readloop``) for the command: never sleeps when emulated; gives up after
     ``GIVE_UP_AFTER`` failed reads in a row with a clear error."""
     poll_s = 0.0 if settings.emulate else min(0.1 / settings.rate_hz, 0.005)
-    backoff = Backoff(initial_s=0.01, max_s=1.0, poll_s=poll_s, max_polls=MAX_NOT_READY_POLLS,
-                      give_up_after=GIVE_UP_AFTER)
+    backoff = Backoff(
+        initial_s=0.01, max_s=1.0, poll_s=poll_s, max_polls=MAX_NOT_READY_POLLS, give_up_after=GIVE_UP_AFTER
+    )
     return ReadLoop(sensor.read, clock=time.monotonic, sleep=sleep, backoff=backoff)
 
 
@@ -131,9 +149,12 @@ def _fmt(values: Any) -> list[str]:
 
 def _announce_turntable(stream: SensorStream) -> None:
     earth = stream.earth
-    print(f"magnet sample: turntable field: horizontal {earth.horizontal_ut:.3f} uT, vertical (up) "
-          f"{-earth.down_ut:.3f} uT: use magnet fit --method turntable --horizontal {earth.horizontal_ut:.3f} "
-          f"--vertical {-earth.down_ut:.3f}", file=sys.stderr)
+    print(
+        f"magnet sample: turntable field: horizontal {earth.horizontal_ut:.3f} uT, vertical (up) "
+        f"{-earth.down_ut:.3f} uT: use magnet fit --method turntable --horizontal {earth.horizontal_ut:.3f} "
+        f"--vertical {-earth.down_ut:.3f}",
+        file=sys.stderr,
+    )
 
 
 def sample(settings: SampleSettings) -> int:
@@ -165,8 +186,13 @@ def sample(settings: SampleSettings) -> int:
         out.flush()
         stats = loop.stats
         if stats.errors or stats.overflows:
-            log.warning("left out %d failed reads (%s) and %d overflows; sensor health: %s", stats.errors,
-                        stats.errors_by_cause, stats.overflows, sensor.health.as_dict())
+            log.warning(
+                "left out %d failed reads (%s) and %d overflows; sensor health: %s",
+                stats.errors,
+                stats.errors_by_cause,
+                stats.overflows,
+                sensor.health.as_dict(),
+            )
     return 0
 
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import argparse
 import json
-from typing import Any
 import logging
+from typing import Any
 
 import numpy as np
 
@@ -25,8 +25,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--address", type=lambda s: int(s, 0), default=0x1E, help="I2C address (default 0x1e)")
     parser.add_argument("--emulate", action="store_true", help="test the emulated chip")
     parser.add_argument("--gain", type=int, default=5, help="gain GN for the test (default 5: datasheet limits)")
-    parser.add_argument("--gain-error", default="0,0,0",
-                        help="with --emulate: per-axis sensitivity error of the emulated chip, e.g. 0.05,-0.03,0.02")
+    parser.add_argument(
+        "--gain-error",
+        default="0,0,0",
+        help="with --emulate: per-axis sensitivity error of the emulated chip, e.g. 0.05,-0.03,0.02",
+    )
     parser.add_argument("--temperature-c", type=float, default=25.0, help="with --emulate: chip temperature")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
@@ -38,13 +41,16 @@ def run(args: argparse.Namespace) -> int:
     if args.emulate:
         from magnet.emulators.base import ConstantSource
         from magnet.emulators.hmc5883l import HMC5883LEmulator
+
         source = ConstantSource()
-        bus: Any = HMC5883LEmulator(source, address=args.address, gain_error=gain_error,
-                                    temperature_c=args.temperature_c, tempco_per_k=-0.003)
+        bus: Any = HMC5883LEmulator(
+            source, address=args.address, gain_error=gain_error, temperature_c=args.temperature_c, tempco_per_k=-0.003
+        )
     else:
         if args.bus is None:
             raise ValueError("a real sensor needs --bus N (1 on a Raspberry Pi), or use --emulate")
         import smbus2
+
         bus = smbus2.SMBus(args.bus)
     sensor = HMC5883L(bus, args.address)
     result = sensor.self_test(gain=args.gain)
@@ -53,15 +59,19 @@ def run(args: argparse.Namespace) -> int:
         return 0 if result.passed else 1
     print(result.message)
     for i, axis in enumerate("xyz"):
-        print(f"  {axis}: +bias {result.positive[i]:7.1f}  -bias {result.negative[i]:7.1f}  expected "
-              f"{result.expected[i]:6.1f}  limits {result.limits[0]:.0f}..{result.limits[1]:.0f}  "
-              f"{'pass' if result.axis_passed[i] else 'FAIL'}  scale {result.scale[i]:.4f}")
+        print(
+            f"  {axis}: +bias {result.positive[i]:7.1f}  -bias {result.negative[i]:7.1f}  expected "
+            f"{result.expected[i]:6.1f}  limits {result.limits[0]:.0f}..{result.limits[1]:.0f}  "
+            f"{'pass' if result.axis_passed[i] else 'FAIL'}  scale {result.scale[i]:.4f}"
+        )
     if args.emulate and result.passed:
         raw = _mean_field(sensor)
         sensor.axis_scale = result.scale
         corrected = _mean_field(sensor)
-        print(f"  emulated true field {np.round(source.mag_ut, 3).tolist()} uT; read {np.round(raw, 3).tolist()} "
-              f"uT; with the scale factors {np.round(corrected, 3).tolist()} uT")
+        print(
+            f"  emulated true field {np.round(source.mag_ut, 3).tolist()} uT; read {np.round(raw, 3).tolist()} "
+            f"uT; with the scale factors {np.round(corrected, 3).tolist()} uT"
+        )
     return 0 if result.passed else 1
 
 

@@ -42,15 +42,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--devices", type=int, default=4, help="emulated devices (default 4)")
     parser.add_argument("--rate", type=float, default=50.0, help="samples per second per device (default 50)")
     parser.add_argument("--batch", type=int, default=10, help="samples per message (default 10)")
-    parser.add_argument("--speedup", type=float, default=4.0,
-                        help="the emulated devices tumble this many times faster than real time (default 4)")
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=4.0,
+        help="the emulated devices tumble this many times faster than real time (default 4)",
+    )
     parser.add_argument("--location", default="50.45,30.52", help="LAT,LON[,ALT_M] of the devices (default Kyiv)")
     parser.add_argument("--db", type=Path, help="calibration database (default: a temporary directory)")
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
     parser.add_argument("--interval", type=float, help="seconds between views (default 0.5 on a terminal, else 3)")
     parser.add_argument("--prefix", default=wire.DEFAULT_PREFIX, help="key prefix")
-    parser.add_argument("--http", metavar="HOST:PORT",
-                        help="where the dashboard serves its page (default 127.0.0.1:8080, or a free port when taken)")
+    parser.add_argument(
+        "--http",
+        metavar="HOST:PORT",
+        help="where the dashboard serves its page (default 127.0.0.1:8080, or a free port when taken)",
+    )
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the web dashboard")
 
 
@@ -87,14 +94,31 @@ class UpSettings:
             place = parse_location(self.location)
         except ValueError as exc:
             raise ValueError(f"--location: {exc}") from None
-        EdgeSettings(device="dev", emulate=True, devices=self.devices, rate_hz=self.rate_hz, batch=self.batch,
-                     speedup=self.speedup, simulator=SimulatorSettings(location=place))
+        EdgeSettings(
+            device="dev",
+            emulate=True,
+            devices=self.devices,
+            rate_hz=self.rate_hz,
+            batch=self.batch,
+            speedup=self.speedup,
+            simulator=SimulatorSettings(location=place),
+        )
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> UpSettings:
-        return cls(devices=int(args.devices), rate_hz=float(args.rate), batch=int(args.batch),
-                   speedup=float(args.speedup), location=args.location, db=args.db, duration_s=args.duration,
-                   interval_s=args.interval, prefix=args.prefix, http=args.http, dashboard=not args.no_dashboard)
+        return cls(
+            devices=int(args.devices),
+            rate_hz=float(args.rate),
+            batch=int(args.batch),
+            speedup=float(args.speedup),
+            location=args.location,
+            db=args.db,
+            duration_s=args.duration,
+            interval_s=args.interval,
+            prefix=args.prefix,
+            http=args.http,
+            dashboard=not args.no_dashboard,
+        )
 
 
 @dataclasses.dataclass
@@ -159,17 +183,23 @@ def _fmt(value: float | None, spec: str) -> str:
 def render_lines(views: dict[str, DeviceView], elapsed_s: float) -> list[str]:
     """The view as lines of text (no terminal codes)."""
     calibrated = sum(v.state == "calibrated" for v in views.values())
-    lines = [f"magnet up: {len(views)} device(s), {calibrated} calibrated, {elapsed_s:5.1f} s   (Ctrl-C stops)",
-             (f"{'device':<12} {'state':<11} {'coverage':<31} {'heading':>8} {'pitch':>6} {'roll':>7} "
-              f"{'resid uT':>8} {'err deg':>7}  note")]
+    lines = [
+        f"magnet up: {len(views)} device(s), {calibrated} calibrated, {elapsed_s:5.1f} s   (Ctrl-C stops)",
+        (
+            f"{'device':<12} {'state':<11} {'coverage':<31} {'heading':>8} {'pitch':>6} {'roll':>7} "
+            f"{'resid uT':>8} {'err deg':>7}  note"
+        ),
+    ]
     for device in sorted(views):
         v = views[device]
         note = ", ".join(v.missing) if v.state != "calibrated" else f"calibration {v.calibration_id}"
         if v.state != "calibrated" and v.reason and not v.missing:
             note = v.reason
-        lines.append(f"{device:<12} {v.state:<11} {_bar(v.coverage):<31} {_fmt(v.true_heading_deg, '8.1f')} "
-                     f"{_fmt(v.pitch_deg, '6.1f')} {_fmt(v.roll_deg, '7.1f')} {_fmt(v.residual_ut, '8.2f')} "
-                     f"{_fmt(v.error_deg, '7.2f')}  {note[:60]}")
+        lines.append(
+            f"{device:<12} {v.state:<11} {_bar(v.coverage):<31} {_fmt(v.true_heading_deg, '8.1f')} "
+            f"{_fmt(v.pitch_deg, '6.1f')} {_fmt(v.roll_deg, '7.1f')} {_fmt(v.residual_ut, '8.2f')} "
+            f"{_fmt(v.error_deg, '7.2f')}  {note[:60]}"
+        )
     return lines
 
 
@@ -209,29 +239,64 @@ class Viewer:
         self.out.flush()
 
 
-def _start_services(settings: UpSettings, ports: dict[str, int], db: Path, logs: Path,
-                    dashboard: tuple[str, str] | None = None) -> dict[str, Any]:
+def _start_services(
+    settings: UpSettings, ports: dict[str, int], db: Path, logs: Path, dashboard: tuple[str, str] | None = None
+) -> dict[str, Any]:
     common = ["--prefix", settings.prefix]
     commands = {
-        "calibrator": ["calibrator", "--db", str(db), "--location", settings.location,
-                       *loopback_arguments(ports["calibrator"])],
-        "compass": ["compass", "--location", settings.location,
-                    *loopback_arguments(ports["compass"], [ports["calibrator"]])],
-        "edge": ["edge", "--emulate", "--devices", str(settings.devices), "--device", "dev",
-                 "--rate", str(settings.rate_hz), "--batch", str(settings.batch), "--speedup", str(settings.speedup),
-                 "--location", settings.location,
-                 *loopback_arguments(ports["edge"], [ports["calibrator"], ports["compass"]])],
+        "calibrator": [
+            "calibrator",
+            "--db",
+            str(db),
+            "--location",
+            settings.location,
+            *loopback_arguments(ports["calibrator"]),
+        ],
+        "compass": [
+            "compass",
+            "--location",
+            settings.location,
+            *loopback_arguments(ports["compass"], [ports["calibrator"]]),
+        ],
+        "edge": [
+            "edge",
+            "--emulate",
+            "--devices",
+            str(settings.devices),
+            "--device",
+            "dev",
+            "--rate",
+            str(settings.rate_hz),
+            "--batch",
+            str(settings.batch),
+            "--speedup",
+            str(settings.speedup),
+            "--location",
+            settings.location,
+            *loopback_arguments(ports["edge"], [ports["calibrator"], ports["compass"]]),
+        ],
     }
     if dashboard is not None:
-        commands["dashboard"] = ["dashboard", "--http", dashboard[0], "--token", dashboard[1],
-                                 "--location", settings.location,
-                                 *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES])]
+        commands["dashboard"] = [
+            "dashboard",
+            "--http",
+            dashboard[0],
+            "--token",
+            dashboard[1],
+            "--location",
+            settings.location,
+            *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES]),
+        ]
     procs = {}
     for name in commands:
         with open(logs / f"{name}.log", "w") as log_file:  # the child keeps its own descriptor
-            procs[name] = subprocess.Popen([sys.executable, "-m", "services.cli", *commands[name], *common],
-                                           stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
-                                           start_new_session=True)
+            procs[name] = subprocess.Popen(
+                [sys.executable, "-m", "services.cli", *commands[name], *common],
+                stdin=subprocess.DEVNULL,
+                stdout=log_file,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
     return procs
 
 
@@ -293,9 +358,10 @@ def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], l
     started = time.monotonic()
     status = 0
     with zenoh.open(_view_config(ports)) as session:
-        subscribers = {kind: session.declare_subscriber(wire.key(settings.prefix, "*", kind),
-                                                        zenoh.handlers.RingChannel(4096))
-                       for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION)}
+        subscribers = {
+            kind: session.declare_subscriber(wire.key(settings.prefix, "*", kind), zenoh.handlers.RingChannel(4096))
+            for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION)
+        }
         next_view = started + min(interval, 1.0)
         while not stop.is_set():
             now = time.monotonic()
@@ -326,9 +392,12 @@ def up(settings: UpSettings) -> int:
         dashboard = _dashboard_http(settings, ports.pop("http"))
         procs = _start_services(settings, ports, db, workdir, dashboard and dashboard[:2])
         try:
-            print(f"magnet up: calibrator, compass and {settings.devices} emulated device(s) on 127.0.0.1 ports "
-                  f"{ports['calibrator']}, {ports['compass']}, {ports['edge']}; store {db}; logs in {workdir} "
-                  "(removed at exit)", flush=True)
+            print(
+                f"magnet up: calibrator, compass and {settings.devices} emulated device(s) on 127.0.0.1 ports "
+                f"{ports['calibrator']}, {ports['compass']}, {ports['edge']}; store {db}; logs in {workdir} "
+                "(removed at exit)",
+                flush=True,
+            )
             if dashboard:
                 print(f"magnet up: dashboard at {dashboard[2]}", flush=True)
             return _watch(settings, procs, ports, workdir)

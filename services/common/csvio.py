@@ -12,9 +12,9 @@ import csv
 import dataclasses
 import io
 import math
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TextIO
-from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -67,8 +67,10 @@ def _find_header(lines: list[str], path: str) -> int:
             return index
     if not any(line.strip() for line in lines):
         raise ValueError(f"{path}: the file is empty: it needs a header row with mx,my,mz and samples below it")
-    raise ValueError(f"{path}: no header row naming mx,my,mz in its first {MAX_PREAMBLE_LINES} lines "
-                     "(columns mx,my,mz are required; ax,ay,az optional)")
+    raise ValueError(
+        f"{path}: no header row naming mx,my,mz in its first {MAX_PREAMBLE_LINES} lines "
+        "(columns mx,my,mz are required; ax,ay,az optional)"
+    )
 
 
 def parse_samples(text: str, path: str = "<input>") -> SampleTable:
@@ -101,8 +103,9 @@ def read_samples(path: str | Path) -> SampleTable:
     return parse_samples(text, str(path))
 
 
-def write_csv(stream: TextIO, header: Sequence[str], columns: Iterable[np.ndarray],
-              fmt: str | Sequence[str] = "%.6f") -> None:
+def write_csv(
+    stream: TextIO, header: Sequence[str], columns: Iterable[np.ndarray], fmt: str | Sequence[str] = "%.6f"
+) -> None:
     """Write equal-length columns under ``header`` as CSV rows (``fmt``: one printf format, or one per column)."""
     matrix = np.column_stack([np.asarray(c, dtype=float) for c in columns])
     stream.write(",".join(header) + "\n")

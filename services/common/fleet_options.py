@@ -11,9 +11,13 @@ from magnet.fleet import MAX_FLEET_FILE_BYTES, FleetEntry, parse_fleet
 
 
 def add_fleet_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--fleet", type=Path, metavar="FILE.json5",
-                        help="fleet file: device id -> {location: \"LAT,LON[,ALT_M]\", notes}; a device's own "
-                             "reported location wins, --location is the default for the others")
+    parser.add_argument(
+        "--fleet",
+        type=Path,
+        metavar="FILE.json5",
+        help='fleet file: device id -> {location: "LAT,LON[,ALT_M]", notes}; a device\'s own '
+        "reported location wins, --location is the default for the others",
+    )
 
 
 def read_fleet(path: Path | None) -> dict[str, FleetEntry]:
@@ -33,17 +37,40 @@ def add_drift_arguments(parser: argparse.ArgumentParser) -> None:
     d = DriftSettings()
     group = parser.add_argument_group("drift alerts (see README: Fleet operations)")
     group.add_argument("--no-drift", action="store_true", help="publish no drift alerts")
-    group.add_argument("--drift-window", type=float, default=d.window_s, metavar="S",
-                       help=f"seconds per judged window (default {d.window_s:g})")
-    group.add_argument("--drift-windows", type=int, default=d.raise_windows, metavar="N",
-                       help=f"departed windows in a row before an alert, and recovered ones before it clears "
-                            f"(default {d.raise_windows})")
-    group.add_argument("--strength-tol-pct", type=float, default=d.strength_tol_pct,
-                       help=f"|B| departure from the calibration's own, %% (default {d.strength_tol_pct:g})")
-    group.add_argument("--dip-tol", type=float, default=d.dip_tol_deg, metavar="DEG",
-                       help=f"dip departure from the calibration's own, degrees (default {d.dip_tol_deg:g})")
-    group.add_argument("--max-age-days", type=float, default=d.max_age_days,
-                       help=f"calibration age that raises an alert (default {d.max_age_days:g})")
+    group.add_argument(
+        "--drift-window",
+        type=float,
+        default=d.window_s,
+        metavar="S",
+        help=f"seconds per judged window (default {d.window_s:g})",
+    )
+    group.add_argument(
+        "--drift-windows",
+        type=int,
+        default=d.raise_windows,
+        metavar="N",
+        help=f"departed windows in a row before an alert, and recovered ones before it clears "
+        f"(default {d.raise_windows})",
+    )
+    group.add_argument(
+        "--strength-tol-pct",
+        type=float,
+        default=d.strength_tol_pct,
+        help=f"|B| departure from the calibration's own, %% (default {d.strength_tol_pct:g})",
+    )
+    group.add_argument(
+        "--dip-tol",
+        type=float,
+        default=d.dip_tol_deg,
+        metavar="DEG",
+        help=f"dip departure from the calibration's own, degrees (default {d.dip_tol_deg:g})",
+    )
+    group.add_argument(
+        "--max-age-days",
+        type=float,
+        default=d.max_age_days,
+        help=f"calibration age that raises an alert (default {d.max_age_days:g})",
+    )
 
 
 def drift_from_args(args: argparse.Namespace) -> DriftSettings | None:
@@ -51,8 +78,13 @@ def drift_from_args(args: argparse.Namespace) -> DriftSettings | None:
     if args.no_drift:
         return None
     try:
-        return DriftSettings(window_s=args.drift_window, raise_windows=args.drift_windows,
-                             clear_windows=args.drift_windows, strength_tol_pct=args.strength_tol_pct,
-                             dip_tol_deg=args.dip_tol, max_age_days=args.max_age_days)
+        return DriftSettings(
+            window_s=args.drift_window,
+            raise_windows=args.drift_windows,
+            clear_windows=args.drift_windows,
+            strength_tol_pct=args.strength_tol_pct,
+            dip_tol_deg=args.dip_tol,
+            max_age_days=args.max_age_days,
+        )
     except ValueError as exc:
         raise ValueError(f"drift options: {exc}") from None

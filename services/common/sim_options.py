@@ -40,8 +40,9 @@ def parse_trajectory(text: str) -> Trajectory:
     try:
         return Trajectory(text.strip().lower())
     except ValueError:
-        raise ValueError(f"unknown --trajectory {text!r}: use one of "
-                         f"{', '.join(t.value for t in Trajectory)}") from None
+        raise ValueError(
+            f"unknown --trajectory {text!r}: use one of {', '.join(t.value for t in Trajectory)}"
+        ) from None
 
 
 #: the simulator's place when no --location is given (Kyiv)
@@ -51,17 +52,21 @@ DEFAULT_LOCATION = "50.45,30.52"
 def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, noise_ut: float = 0.0) -> None:
     group = parser.add_argument_group("simulator (with --emulate)")
     group.add_argument("--seed", type=int, default=seed, help=f"simulator seed: same seed, same data (default {seed})")
-    group.add_argument("--trajectory", default="tumble",
-                       help="still: spin, turntable, tumble, tenface; moving: multirotor, car, figure8, fast-tumble "
-                            "(default tumble)")
+    group.add_argument(
+        "--trajectory",
+        default="tumble",
+        help="still: spin, turntable, tumble, tenface; moving: multirotor, car, figure8, fast-tumble (default tumble)",
+    )
     group.add_argument("--hard-iron", default="0,0,0", help="hard iron X,Y,Z in uT")
     group.add_argument("--soft-iron", default="1,1,1", help="soft iron: 3 diagonal or 9 row-major numbers")
     group.add_argument("--noise-ut", type=float, default=noise_ut, help=f"noise, uT RMS (default {noise_ut:g})")
     group.add_argument("--gyro-bias", default="0,0,0", help="gyroscope bias X,Y,Z in rad/s (default none)")
     group.add_argument("--gyro-noise", type=float, default=0.0, help="gyroscope noise, rad/s RMS (default 0)")
-    group.add_argument("--location", default=None,
-                       help=f"LAT,LON[,ALT_M] (default Kyiv, {DEFAULT_LOCATION}); magnet edge also sends it in its "
-                            "raw messages")
+    group.add_argument(
+        "--location",
+        default=None,
+        help=f"LAT,LON[,ALT_M] (default Kyiv, {DEFAULT_LOCATION}); magnet edge also sends it in its raw messages",
+    )
     group.add_argument("--date", default=None, help="YYYY-MM-DD or decimal year (default: the simulator's)")
 
 
@@ -91,19 +96,27 @@ class SimulatorSettings:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> SimulatorSettings:
-        return cls(seed=int(args.seed), trajectory=parse_trajectory(args.trajectory),
-                   hard_iron_ut=tuple(parse_floats(args.hard_iron, (3,), "--hard-iron").tolist()),
-                   soft_iron=tuple(parse_soft_iron(args.soft_iron).ravel().tolist()),
-                   noise_ut=float(args.noise_ut), location=parse_location(args.location or DEFAULT_LOCATION),
-                   date=args.date,
-                   gyro_bias_rads=tuple(parse_floats(args.gyro_bias, (3,), "--gyro-bias").tolist()),
-                   gyro_noise_rads=float(args.gyro_noise))
+        return cls(
+            seed=int(args.seed),
+            trajectory=parse_trajectory(args.trajectory),
+            hard_iron_ut=tuple(parse_floats(args.hard_iron, (3,), "--hard-iron").tolist()),
+            soft_iron=tuple(parse_soft_iron(args.soft_iron).ravel().tolist()),
+            noise_ut=float(args.noise_ut),
+            location=parse_location(args.location or DEFAULT_LOCATION),
+            date=args.date,
+            gyro_bias_rads=tuple(parse_floats(args.gyro_bias, (3,), "--gyro-bias").tolist()),
+            gyro_noise_rads=float(args.gyro_noise),
+        )
 
     def errors(self) -> SensorErrors:
         """The simulator's ``SensorErrors``."""
-        return SensorErrors(hard_iron_ut=np.array(self.hard_iron_ut),
-                            soft_iron=np.array(self.soft_iron).reshape(3, 3), noise_ut=self.noise_ut,
-                            gyro_bias_rads=np.array(self.gyro_bias_rads), gyro_noise_rads=self.gyro_noise_rads)
+        return SensorErrors(
+            hard_iron_ut=np.array(self.hard_iron_ut),
+            soft_iron=np.array(self.soft_iron).reshape(3, 3),
+            noise_ut=self.noise_ut,
+            gyro_bias_rads=np.array(self.gyro_bias_rads),
+            gyro_noise_rads=self.gyro_noise_rads,
+        )
 
     def place(self) -> dict[str, Any]:
         """lat_deg, lon_deg, alt_m and (when given) date, as the simulator's keyword arguments."""
@@ -112,5 +125,13 @@ class SimulatorSettings:
 
     def sensor_stream(self, count: int, rate_hz: float) -> SensorStream:
         """The simulator's ``SensorStream``: ``count`` samples of trajectory at ``rate_hz``."""
-        return SensorStream(SimulatorConfig(trajectory=self.trajectory, rate_hz=rate_hz, count=max(count, 1),
-                                            errors=self.errors(), seed=self.seed, **self.place()))
+        return SensorStream(
+            SimulatorConfig(
+                trajectory=self.trajectory,
+                rate_hz=rate_hz,
+                count=max(count, 1),
+                errors=self.errors(),
+                seed=self.seed,
+                **self.place(),
+            )
+        )

@@ -17,9 +17,9 @@ import signal
 import socket
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
-from collections.abc import Sequence
 
 import zenoh
 
@@ -35,10 +35,20 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = 
     group = parser.add_argument_group("zenoh")
     group.add_argument("--config", metavar="FILE.json5", help="a Zenoh configuration file (json5)")
     group.add_argument("--mode", choices=MODES, default=None, help=f"session mode (default {default_mode})")
-    group.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                       help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    group.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                       help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    group.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    group.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
     group.add_argument("--no-multicast-scouting", action="store_true", help="do not scout for peers by multicast")
     group.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key prefix (default {DEFAULT_PREFIX})")
     parser.set_defaults(_default_mode=default_mode)
@@ -66,9 +76,15 @@ class ZenohSettings:
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ZenohSettings:
         """The settings of the options ``add_zenoh_arguments`` added."""
-        return cls(config=args.config, mode=args.mode, connect=tuple(args.connect), listen=tuple(args.listen),
-                   no_multicast_scouting=bool(args.no_multicast_scouting), prefix=args.prefix,
-                   default_mode=getattr(args, "_default_mode", "peer"))
+        return cls(
+            config=args.config,
+            mode=args.mode,
+            connect=tuple(args.connect),
+            listen=tuple(args.listen),
+            no_multicast_scouting=bool(args.no_multicast_scouting),
+            prefix=args.prefix,
+            default_mode=getattr(args, "_default_mode", "peer"),
+        )
 
 
 Options = ZenohSettings | argparse.Namespace

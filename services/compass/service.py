@@ -25,46 +25,72 @@ from magnet import heading as hd
 from magnet import signing, wire
 from magnet.bounded import Recent
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
+from magnet.drift import DEFAULT_DRIFT, DriftSettings
+from magnet.fleet import EarthColumns, Places, disturbance_flags
 from magnet.fleet_fusion import FleetFusion, FusedColumns, merge
 from magnet.fusion import rotate_heading
-from magnet.fleet import EarthColumns, Places, disturbance_flags
-from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.place import Location
 from magnet.shard import EVERY_DEVICE, Shard
 from services.common.fleet_options import add_drift_arguments, add_fleet_argument, drift_from_args, read_fleet
+from services.common.zenoh_session import (
+    ZenohSettings,
+    add_zenoh_arguments,
+    drain,
+    open_session,
+    payload_bytes,
+    stop_event,
+)
 from services.compass.watch import FleetWatch
-from services.common.zenoh_session import (ZenohSettings, add_zenoh_arguments, drain, open_session, payload_bytes,
-                                           stop_event)
 
 log = logging.getLogger("magnet.compass")
 
-MAX_DRAIN = 4000          # raw messages computed together at most
+MAX_DRAIN = 4000  # raw messages computed together at most
 CHANNEL_CAPACITY = 65536  # raw messages queued between zenoh and this loop
-REQUERY_S = 5.0           # how often to ask again for the calibration of a device that has none
-REQUERY_REFUSED_S = 1.0   # how often at most to ask the calibrators again after refusing a calibration
+REQUERY_S = 5.0  # how often to ask again for the calibration of a device that has none
+REQUERY_REFUSED_S = 1.0  # how often at most to ask the calibrators again after refusing a calibration
 DEFAULT_MAX_DEVICES = 10_000
-MAX_REFUSED = 1024        # devices remembered for that between two asks (a flood beyond: one query for all)
+MAX_REFUSED = 1024  # devices remembered for that between two asks (a flood beyond: one query for all)
 IDLE_SLEEP_S = 0.0003
 _ZERO3, _EYE3 = np.zeros(3), np.eye(3)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--location", help="LAT,LON[,ALT_M] for the WMM declination and expected field "
-                                           "(without it: declination 0, no field/dip disturbance check)")
+    parser.add_argument(
+        "--location",
+        help="LAT,LON[,ALT_M] for the WMM declination and expected field "
+        "(without it: declination 0, no field/dip disturbance check)",
+    )
     parser.add_argument("--date", help="date for the WMM (YYYY-MM-DD; default today)")
     parser.add_argument("--window", type=int, default=1, help="circular sliding mean over N headings (default 1)")
     parser.add_argument("--name", default="compass", help="service name for liveliness and status (default compass)")
-    parser.add_argument("--devices", default="*",
-                        help="key expression of the devices this instance serves (default *, all); e.g. 'line-1-*'")
-    parser.add_argument("--max-devices", type=int, default=DEFAULT_MAX_DEVICES,
-                        help="devices whose state (calibration, smoothing, keys) is kept at most; beyond, the least "
-                             f"recently seen is forgotten (default {DEFAULT_MAX_DEVICES})")
-    parser.add_argument("--trust", action="append", default=[], type=Path, metavar="FILE.pub",
-                        help="apply only calibrations signed by this public key (repeatable; `magnet keys` makes "
-                             "them). Without it, unsigned calibrations are applied too")
-    parser.add_argument("--shard", default="0/1", metavar="K/N",
-                        help="serve only the devices of shard K of N (0 <= K < N; see magnet.shard: sha256 of the "
-                             "device id, first 8 bytes, mod N); default 0/1, every device")
+    parser.add_argument(
+        "--devices",
+        default="*",
+        help="key expression of the devices this instance serves (default *, all); e.g. 'line-1-*'",
+    )
+    parser.add_argument(
+        "--max-devices",
+        type=int,
+        default=DEFAULT_MAX_DEVICES,
+        help="devices whose state (calibration, smoothing, keys) is kept at most; beyond, the least "
+        f"recently seen is forgotten (default {DEFAULT_MAX_DEVICES})",
+    )
+    parser.add_argument(
+        "--trust",
+        action="append",
+        default=[],
+        type=Path,
+        metavar="FILE.pub",
+        help="apply only calibrations signed by this public key (repeatable; `magnet keys` makes "
+        "them). Without it, unsigned calibrations are applied too",
+    )
+    parser.add_argument(
+        "--shard",
+        default="0/1",
+        metavar="K/N",
+        help="serve only the devices of shard K of N (0 <= K < N; see magnet.shard: sha256 of the "
+        "device id, first 8 bytes, mod N); default 0/1, every device",
+    )
     add_fleet_argument(parser)
     add_drift_arguments(parser)
     add_zenoh_arguments(parser)
@@ -93,10 +119,18 @@ class CompassSettings:
 
 def settings_from_args(args: argparse.Namespace) -> CompassSettings:
     default = Location.parse(args.location) if args.location else None
-    return CompassSettings(Earth.from_args(args.location, args.date), args.window, args.name, args.devices,
-                           ZenohSettings.from_args(args), tuple(args.trust), max_devices=args.max_devices,
-                           places=(default, args.date, read_fleet(args.fleet)), drift=drift_from_args(args),
-                           shard=Shard.parse(args.shard))
+    return CompassSettings(
+        Earth.from_args(args.location, args.date),
+        args.window,
+        args.name,
+        args.devices,
+        ZenohSettings.from_args(args),
+        tuple(args.trust),
+        max_devices=args.max_devices,
+        places=(default, args.date, read_fleet(args.fleet)),
+        drift=drift_from_args(args),
+        shard=Shard.parse(args.shard),
+    )
 
 
 def load_trusted_keys(paths: tuple[Path, ...] | list[Path]) -> signing.TrustedKeys:
@@ -138,9 +172,15 @@ class HeadingColumns:
 class Compass:
     """State of the compass loop: calibrations in force, smoothing tails, counters. No zenoh inside."""
 
-    def __init__(self, earth: Earth, window: int, trusted: signing.TrustedKeys | None = None,
-                 watch: FleetWatch | None = None, shard: Shard = EVERY_DEVICE,
-                 max_devices: int = DEFAULT_MAX_DEVICES) -> None:
+    def __init__(
+        self,
+        earth: Earth,
+        window: int,
+        trusted: signing.TrustedKeys | None = None,
+        watch: FleetWatch | None = None,
+        shard: Shard = EVERY_DEVICE,
+        max_devices: int = DEFAULT_MAX_DEVICES,
+    ) -> None:
         if window < 1:
             raise ValueError(f"--window must be >= 1, got {window}")
         self.earth = earth
@@ -201,8 +241,10 @@ class Compass:
         """WireError unless ``record`` may be applied: accepted by the quality gate (its plausibility was checked
         when it was read), signed by a trusted key where keys are trusted, and not older than the one in force."""
         if not record.calibration.accepted:
-            raise wire.WireError("not-accepted", f"calibration {record.id} of {record.device} is marked accepted: "
-                                                 "false (the quality gate refused it)")
+            raise wire.WireError(
+                "not-accepted",
+                f"calibration {record.id} of {record.device} is marked accepted: false (the quality gate refused it)",
+            )
         if self.trusted.enabled:
             try:
                 self.trusted.verify(record.to_record())
@@ -210,8 +252,9 @@ class Compass:
                 raise wire.WireError(exc.cause, f"calibration {record.id} of {record.device}: {exc}") from None
         current = self.calibrations.get(record.device)
         if current is not None and current.id != record.id and record.created_ns < current.created_ns:
-            raise wire.WireError("stale", f"calibration {record.id} of {record.device} is older than the one in "
-                                          f"force ({current.id})")
+            raise wire.WireError(
+                "stale", f"calibration {record.id} of {record.device} is older than the one in force ({current.id})"
+            )
 
     def _remember_refused(self, key_expr: str, prefix: str) -> None:
         try:
@@ -235,8 +278,9 @@ class Compass:
             refused.add(index)
             self.drops.drop(exc, "raw", log)
         keys = [key for index, (key, _) in enumerate(items) if index not in refused]
-        mismatch = np.array([self._key_device(key, prefix) != device for key, device in zip(keys, columns.devices)],
-                            dtype=bool)
+        mismatch = np.array(
+            [self._key_device(key, prefix) != device for key, device in zip(keys, columns.devices)], dtype=bool
+        )
         if mismatch.any():
             for key, device in zip(np.array(keys)[mismatch], np.array(columns.devices)[mismatch]):
                 self.drops.drop(wire.key_mismatch(key, device), "raw", log)
@@ -262,10 +306,12 @@ class Compass:
             if cal is not None:
                 self.calibrations.touch(device)
         counts = columns.counts
-        offsets = np.repeat(np.array([c.calibration.offset if c else _ZERO3 for c in cals]).reshape(-1, 3), counts,
-                            axis=0)
-        matrices = np.repeat(np.array([c.calibration.matrix if c else _EYE3 for c in cals]).reshape(-1, 3, 3),
-                             counts, axis=0)
+        offsets = np.repeat(
+            np.array([c.calibration.offset if c else _ZERO3 for c in cals]).reshape(-1, 3), counts, axis=0
+        )
+        matrices = np.repeat(
+            np.array([c.calibration.matrix if c else _EYE3 for c in cals]).reshape(-1, 3, 3), counts, axis=0
+        )
         calibrated = np.repeat(np.array([c is not None for c in cals], dtype=bool), counts)
         earths = self.watch.earths(columns.devices, columns.locations)
         where = EarthColumns.of(earths, counts)
@@ -281,18 +327,30 @@ class Compass:
         self.received_samples += int(counts.sum())
         if self.window > 1:
             bounds = columns.bounds
-            out = dataclasses.replace(out, heading_deg=np.concatenate(
-                [self._smooth(device, out.heading_deg[bounds[i]:bounds[i + 1]])
-                 for i, device in enumerate(columns.devices)] or [np.empty(0)]))
-        return HeadingColumns(out, hd.true_heading_deg(out.heading_deg, where.declination_deg),
-                              [c.id if c else "" for c in cals], [e.declination_deg for e in earths],
-                              None if quat is None else rotate_heading(quat, where.declination_deg))
+            out = dataclasses.replace(
+                out,
+                heading_deg=np.concatenate(
+                    [
+                        self._smooth(device, out.heading_deg[bounds[i] : bounds[i + 1]])
+                        for i, device in enumerate(columns.devices)
+                    ]
+                    or [np.empty(0)]
+                ),
+            )
+        return HeadingColumns(
+            out,
+            hd.true_heading_deg(out.heading_deg, where.declination_deg),
+            [c.id if c else "" for c in cals],
+            [e.declination_deg for e in earths],
+            None if quat is None else rotate_heading(quat, where.declination_deg),
+        )
 
     def _fuse(self, columns: wire.RawColumns, out: Headings) -> FusedColumns:
         """The per-device filters run on the batches that carry a gyroscope (``magnet.fleet_fusion``); bad gyroscope
         samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``)."""
-        fused = self.fusion.update(columns.devices, columns.seqs, columns.bounds, columns.t_ns, columns.gyr_rads,
-                                   columns.acc_ms2, out.field_ut)
+        fused = self.fusion.update(
+            columns.devices, columns.seqs, columns.bounds, columns.t_ns, columns.gyr_rads, columns.acc_ms2, out.field_ut
+        )
         for cause, count in fused.dropped.items():
             if self.drops.count(f"raw:{cause}"):
                 log.warning("dropping gyroscope samples (%s); further ones only counted", cause)
@@ -303,8 +361,18 @@ class Compass:
         """One heading payload per raw batch of ``columns``, in order."""
         out = self.compute(columns)
         h = out.headings
-        return wire.encode_headings(columns, h.heading_deg, out.true_heading_deg, h.pitch_deg, h.roll_deg, h.field_ut,
-                                    h.flags, out.declinations, out.calibration_ids, out.quat_wxyz)
+        return wire.encode_headings(
+            columns,
+            h.heading_deg,
+            out.true_heading_deg,
+            h.pitch_deg,
+            h.roll_deg,
+            h.field_ut,
+            h.flags,
+            out.declinations,
+            out.calibration_ids,
+            out.quat_wxyz,
+        )
 
     def process(self, batches: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
         """Heading batches, one per raw batch, computed in one vectorized pass."""
@@ -315,18 +383,34 @@ class Compass:
         h = out.headings
         bounds = columns.bounds
         quat = out.quat_wxyz
-        return [wire.HeadingBatch(batch.device, batch.seq, batch.t_ns, h.heading_deg[lo:hi],
-                                  out.true_heading_deg[lo:hi], h.pitch_deg[lo:hi], h.roll_deg[lo:hi],
-                                  h.field_ut[lo:hi], declination, cal_id, h.flags[lo:hi],
-                                  quat[lo:hi] if quat is not None and np.isfinite(quat[lo:hi]).all() else None)
-                for batch, cal_id, declination, lo, hi in zip(batches, out.calibration_ids, out.declinations,
-                                                               bounds[:-1], bounds[1:])]
+        return [
+            wire.HeadingBatch(
+                batch.device,
+                batch.seq,
+                batch.t_ns,
+                h.heading_deg[lo:hi],
+                out.true_heading_deg[lo:hi],
+                h.pitch_deg[lo:hi],
+                h.roll_deg[lo:hi],
+                h.field_ut[lo:hi],
+                declination,
+                cal_id,
+                h.flags[lo:hi],
+                quat[lo:hi] if quat is not None and np.isfinite(quat[lo:hi]).all() else None,
+            )
+            for batch, cal_id, declination, lo, hi in zip(
+                batches, out.calibration_ids, out.declinations, bounds[:-1], bounds[1:]
+            )
+        ]
 
     def _log_evictions(self) -> None:
         if not self._evictions_logged and self.calibrations.evicted + self.tails.evicted:
             self._evictions_logged = True
-            log.warning("more than %d devices: the least recently seen are forgotten (counted in status "
-                        "evicted_devices; raise --max-devices if they are genuine)", self.max_devices)
+            log.warning(
+                "more than %d devices: the least recently seen are forgotten (counted in status "
+                "evicted_devices; raise --max-devices if they are genuine)",
+                self.max_devices,
+            )
 
     def _smooth(self, device: str, heading: np.ndarray) -> np.ndarray:
         smoothed, self.tails[device] = smooth_tail(self.tails.get(device, np.empty(0)), heading, self.window)
@@ -334,9 +418,17 @@ class Compass:
         return smoothed
 
     def status(self, name: str) -> CompassStatus:
-        return CompassStatus(name, self.received_batches, self.received_samples, self.published_batches,
-                             len(self.calibrations), self.calibration_updates, dict(self.drops.counts),
-                             self.calibrations.evicted + self.tails.evicted, str(self.shard))
+        return CompassStatus(
+            name,
+            self.received_batches,
+            self.received_samples,
+            self.published_batches,
+            len(self.calibrations),
+            self.calibration_updates,
+            dict(self.drops.counts),
+            self.calibrations.evicted + self.tails.evicted,
+            str(self.shard),
+        )
 
 
 # ------------------------------------------------------------------------------------------------------- shell
@@ -350,8 +442,9 @@ def run_compass(args: argparse.Namespace) -> int:
 def run(settings: CompassSettings) -> int:
     default, date, fleet = settings.places
     watch = FleetWatch(Places(fleet, default, date, settings.earth), settings.drift)
-    compass = Compass(settings.earth, settings.window, load_trusted_keys(settings.trust), watch, settings.shard,
-                      settings.max_devices)
+    compass = Compass(
+        settings.earth, settings.window, load_trusted_keys(settings.trust), watch, settings.shard, settings.max_devices
+    )
     if compass.trusted.enabled:
         log.info("compass applies only calibrations signed by key(s) %s", ", ".join(compass.trusted.key_ids))
     stop = stop_event()
@@ -361,10 +454,17 @@ def run(settings: CompassSettings) -> int:
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         cal_sub = session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
         status_q = session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64))
-        alert_q = session.declare_queryable(f"{prefix}/{devices}/{wire.Kind.ALERT.value}",
-                                            zenoh.handlers.FifoChannel(64))
-        log.info("compass %s: serving %s/%s (shard %s), declination %.2f deg", name, prefix, devices,
-                 settings.shard, compass.earth.declination_deg)
+        alert_q = session.declare_queryable(
+            f"{prefix}/{devices}/{wire.Kind.ALERT.value}", zenoh.handlers.FifoChannel(64)
+        )
+        log.info(
+            "compass %s: serving %s/%s (shard %s), declination %.2f deg",
+            name,
+            prefix,
+            devices,
+            settings.shard,
+            compass.earth.declination_deg,
+        )
         loop = _Loop(session, compass, settings)
         while not stop.is_set():
             loop.calibrations(cal_sub)
@@ -432,7 +532,8 @@ class _Loop:
         columns = self.compass.decode_columns([(k, s.payload.to_bytes()) for s, k in zip(samples, keys)], self.prefix)
         for device, payload in zip(columns.devices, self.compass.encode(columns)):
             key = self.heading_keys.get(device) or self.heading_keys.setdefault(
-                device, wire.key(self.prefix, device, wire.Kind.HEADING))
+                device, wire.key(self.prefix, device, wire.Kind.HEADING)
+            )
             self.session.put(key, payload)  # measured: a declared publisher per device costs ~5x the CPU
             self.compass.published_batches += 1
         self._ask_missing(columns.devices)

@@ -48,12 +48,19 @@ class FleetWatch:
             return
         cal, earth = record.calibration, self.places.earth(record.device)
         in_ut = ut_per_unit(cal.output_unit) == 1.0
-        reference = Reference(cal.field_strength or None, float(cal.quality.residual_rms_ut or 0.0),
-                              earth.total_ut if in_ut else None, earth.inclination_deg, record.created_ns, record.id)
+        reference = Reference(
+            cal.field_strength or None,
+            float(cal.quality.residual_rms_ut or 0.0),
+            earth.total_ut if in_ut else None,
+            earth.inclination_deg,
+            record.created_ns,
+            record.id,
+        )
         self._queue(self.monitor.calibration(record.device, reference, now_ns))
 
-    def observe(self, devices: list[str], bounds: list[int], t_ns: np.ndarray,
-                strength_ut: np.ndarray, dip_deg: np.ndarray) -> None:
+    def observe(
+        self, devices: list[str], bounds: list[int], t_ns: np.ndarray, strength_ut: np.ndarray, dip_deg: np.ndarray
+    ) -> None:
         """Feed the samples of each batch (t_ns, strength_ut, dip_deg (S,)) to its device's tracker (devices with a
         calibration in force have one)."""
         if self.monitor is None:
@@ -74,5 +81,8 @@ class FleetWatch:
         return [] if self.monitor is None else self.monitor.open_alerts()
 
     def describe(self) -> Mapping[str, Any]:
-        return {"places_reported": len(self.places.reported), "fleet_devices": len(self.places.fleet),
-                "open_alerts": len(self.open_alerts())}
+        return {
+            "places_reported": len(self.places.reported),
+            "fleet_devices": len(self.places.fleet),
+            "open_alerts": len(self.open_alerts()),
+        }

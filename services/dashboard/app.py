@@ -73,8 +73,9 @@ def error(status: int, message: str) -> JSONResponse:
 class Dashboard:
     """Handlers bound to one FleetState, one Control and one token."""
 
-    def __init__(self, state: FleetState, control: Control, token: str, view_needs_token: bool,
-                 interval_s: float = 0.25) -> None:
+    def __init__(
+        self, state: FleetState, control: Control, token: str, view_needs_token: bool, interval_s: float = 0.25
+    ) -> None:
         self.state, self.control, self.token = state, control, token
         self.view_needs_token, self.interval_s = view_needs_token, interval_s
         self.stopping = asyncio.Event()
@@ -108,8 +109,9 @@ class Dashboard:
         return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
 
     async def plotly(self, request: Request) -> Response:
-        return FileResponse(plotly_js_path(), media_type="text/javascript",
-                            headers={"Cache-Control": "public, max-age=86400"})
+        return FileResponse(
+            plotly_js_path(), media_type="text/javascript", headers={"Cache-Control": "public, max-age=86400"}
+        )
 
     async def fleet(self, request: Request) -> Response:
         refused = self._view_refused(request)
@@ -173,8 +175,11 @@ class Dashboard:
                 wire.validate_device_id(device)
             except ValueError as exc:
                 return error(400, str(exc))
-        return StreamingResponse(self._events(device), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+        return StreamingResponse(
+            self._events(device),
+            media_type="text/event-stream",
+            headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+        )
 
     async def _events(self, device: str | None) -> AsyncIterator[str]:
         version, next_detail = -1, 0.0
@@ -207,9 +212,9 @@ def _parse_action(body: bytes) -> tuple[str, str | None] | Response:
     try:
         data = json.loads(body or b"null")
     except (ValueError, UnicodeDecodeError):
-        return error(400, "the body must be JSON: {\"action\": \"start|status|commit|abort\", \"method\": ...}")
+        return error(400, 'the body must be JSON: {"action": "start|status|commit|abort", "method": ...}')
     if not isinstance(data, dict):
-        return error(400, "the body must be a JSON object with an \"action\"")
+        return error(400, 'the body must be a JSON object with an "action"')
     action, method = data.get("action"), data.get("method")
     if action not in ACTIONS:
         return error(400, f"action must be one of {', '.join(ACTIONS)}, got {action!r}")
@@ -223,8 +228,9 @@ def _parse_action(body: bytes) -> tuple[str, str | None] | Response:
     return action, method
 
 
-def create_app(state: FleetState, control: Control, token: str, view_needs_token: bool = False,
-               interval_s: float = 0.25) -> Starlette:
+def create_app(
+    state: FleetState, control: Control, token: str, view_needs_token: bool = False, interval_s: float = 0.25
+) -> Starlette:
     """The ASGI app (``app.state.dashboard`` holds the handlers; set ``dashboard.stopping`` to end streams)."""
     dashboard = Dashboard(state, control, token, view_needs_token, interval_s)
     routes = [

@@ -35,8 +35,9 @@ class Ingest:
         self.session, self.prefix, self.state, self.tick_s = session, prefix, state, tick_s
         self.stop = threading.Event()
         fifo = zenoh.handlers.FifoChannel
-        self.alive = session.liveliness().declare_subscriber(wire.liveliness_key(prefix, "device", "*"),
-                                                             fifo(CHANNEL_CAPACITY), history=True)
+        self.alive = session.liveliness().declare_subscriber(
+            wire.liveliness_key(prefix, "device", "*"), fifo(CHANNEL_CAPACITY), history=True
+        )
         self.headings = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.HEADING), fifo(CHANNEL_CAPACITY))
         self.progress = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.PROGRESS), fifo(CHANNEL_CAPACITY))
         self.calibrations = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.CALIBRATION), fifo(4096))
@@ -72,8 +73,14 @@ class Ingest:
         self._on_headings(drain(self.headings, MAX_DRAIN))
 
     def close(self) -> None:
-        for subscriber in [self.alive, self.headings, self.progress, self.calibrations, self.raw_any,
-                           *self.raw_watched.values()]:
+        for subscriber in [
+            self.alive,
+            self.headings,
+            self.progress,
+            self.calibrations,
+            self.raw_any,
+            *self.raw_watched.values(),
+        ]:
             with contextlib.suppress(Exception):  # the session may be closing already
                 subscriber.undeclare()
 
@@ -168,7 +175,8 @@ class Ingest:
             self.raw_watched.pop(device).undeclare()
         for device in watched - set(self.raw_watched):
             self.raw_watched[device] = self.session.declare_subscriber(
-                wire.key(self.prefix, device, wire.Kind.RAW), zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+                wire.key(self.prefix, device, wire.Kind.RAW), zenoh.handlers.FifoChannel(CHANNEL_CAPACITY)
+            )
 
     def _ask_calibrations(self) -> None:
         """Ask for every calibration in force at start, and again now and then (a calibrator that came later)."""
@@ -176,8 +184,9 @@ class Ingest:
         if now - self.asked_s < REQUERY_S:
             return
         self.asked_s = now
-        self.pending.append((now + 3.0, self.session.get(wire.key(self.prefix, "*", wire.Kind.CALIBRATION),
-                                                         timeout=3.0)))
+        self.pending.append(
+            (now + 3.0, self.session.get(wire.key(self.prefix, "*", wire.Kind.CALIBRATION), timeout=3.0))
+        )
 
     def _take_replies(self) -> None:
         still = []

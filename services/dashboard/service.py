@@ -25,14 +25,22 @@ TOKEN_ENV = "MAGNET_DASHBOARD_TOKEN"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--http", default=DEFAULT_HTTP, metavar="HOST:PORT",
-                        help=f"where the page is served (default {DEFAULT_HTTP}; loopback unless told otherwise)")
+    parser.add_argument(
+        "--http",
+        default=DEFAULT_HTTP,
+        metavar="HOST:PORT",
+        help=f"where the page is served (default {DEFAULT_HTTP}; loopback unless told otherwise)",
+    )
     parser.add_argument("--token", help=f"control token (default ${TOKEN_ENV}, else a random one printed at start)")
-    parser.add_argument("--location", metavar="LAT,LON[,ALT_M]",
-                        help="where the devices are: |B| and dip are shown against the World Magnetic Model there")
+    parser.add_argument(
+        "--location",
+        metavar="LAT,LON[,ALT_M]",
+        help="where the devices are: |B| and dip are shown against the World Magnetic Model there",
+    )
     parser.add_argument("--date", metavar="YYYY-MM-DD", help="date for the World Magnetic Model (default today)")
-    parser.add_argument("--refresh", type=float, default=0.25,
-                        help="seconds between updates of the page (default 0.25: 4 per second)")
+    parser.add_argument(
+        "--refresh", type=float, default=0.25, help="seconds between updates of the page (default 0.25: 4 per second)"
+    )
     add_zenoh_arguments(parser)
 
 
@@ -94,10 +102,18 @@ def run(args: argparse.Namespace) -> int:
         ingest = Ingest(session, args.prefix, state, tick_s=args.refresh)
         thread = threading.Thread(target=ingest.run, name="dashboard-ingest", daemon=True)
         thread.start()
-        app = create_app(state, Control(session, args.prefix), token, view_needs_token=not is_loopback(host),
-                         interval_s=args.refresh)
-        config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
-                                timeout_graceful_shutdown=1, lifespan="off")
+        app = create_app(
+            state, Control(session, args.prefix), token, view_needs_token=not is_loopback(host), interval_s=args.refresh
+        )
+        config = uvicorn.Config(
+            app,
+            host=host,
+            port=port,
+            log_level="warning",
+            access_log=False,
+            timeout_graceful_shutdown=1,
+            lifespan="off",
+        )
         server = _Server(config, app.state.dashboard)
         print(f"magnet dashboard: {page_address(host, port, token)}  (control token: {token})", flush=True)
         try:

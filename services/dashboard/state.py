@@ -24,10 +24,10 @@ from magnet.geomag import EarthField
 from magnet.heading import HeadingFlag
 from magnet.quality import fibonacci_centres
 
-TRACE_POINTS = 1500       # raw and calibrated field points kept per watched device
-TRACE_HEADINGS = 600      # heading samples kept per watched device
-STALE_S = 5.0             # no heading for this long: the row says so
-WATCH_LINGER_S = 15.0     # a device stays watched this long after its last viewer left
+TRACE_POINTS = 1500  # raw and calibrated field points kept per watched device
+TRACE_HEADINGS = 600  # heading samples kept per watched device
+STALE_S = 5.0  # no heading for this long: the row says so
+WATCH_LINGER_S = 15.0  # a device stays watched this long after its last viewer left
 CELL_CENTRES = fibonacci_centres()
 FUSED_FLAG = int(HeadingFlag.FUSED)  # attitude from the gyroscope-aided filter
 
@@ -88,8 +88,11 @@ class DeviceRow:
             out.append("not calibrated")
         if self.accepted is False and self.state in ("collecting", "session"):
             out.append("fit rejected")
-        for flag, text in ((HeadingFlag.FIELD_DISTURBED, "field disturbed"),
-                           (HeadingFlag.DIP_DISTURBED, "dip disturbed"), (HeadingFlag.NO_TILT, "no tilt")):
+        for flag, text in (
+            (HeadingFlag.FIELD_DISTURBED, "field disturbed"),
+            (HeadingFlag.DIP_DISTURBED, "dip disturbed"),
+            (HeadingFlag.NO_TILT, "no tilt"),
+        ):
             if self.flags & flag:
                 out.append(text)
         if earth is not None and (earth.blackout or earth.caution):
@@ -98,20 +101,34 @@ class DeviceRow:
 
     def to_json(self, now_s: float, earth: EarthField | None) -> dict[str, Any]:
         return {
-            "device": self.device, "alive": self.alive, "sensor": self.sensor, "state": self.state,
-            "method": self.method, "session": self.session, "samples": self.samples,
-            "coverage": _round(self.coverage, 3), "missing": list(self.missing), "reason": self.reason,
-            "accepted": self.accepted, "residual_ut": _round(self.residual_ut, 3),
+            "device": self.device,
+            "alive": self.alive,
+            "sensor": self.sensor,
+            "state": self.state,
+            "method": self.method,
+            "session": self.session,
+            "samples": self.samples,
+            "coverage": _round(self.coverage, 3),
+            "missing": list(self.missing),
+            "reason": self.reason,
+            "accepted": self.accepted,
+            "residual_ut": _round(self.residual_ut, 3),
             "calibration_id": self.calibration_id,
             "calibrated_ms": None if self.calibrated_ns is None else self.calibrated_ns // 1_000_000,
-            "seq": self.seq, "t_ms": None if self.t_ns is None else self.t_ns // 1_000_000,
+            "seq": self.seq,
+            "t_ms": None if self.t_ns is None else self.t_ns // 1_000_000,
             "heading_deg": _round(self.heading_deg, 2),
-            "true_heading_deg": _round(self.true_heading_deg, 2), "pitch_deg": _round(self.pitch_deg, 2),
-            "roll_deg": _round(self.roll_deg, 2), "field_ut": _round(self.field_ut, 2),
-            "dip_deg": _round(self.dip_deg, 2), "flags": self.flags,
+            "true_heading_deg": _round(self.true_heading_deg, 2),
+            "pitch_deg": _round(self.pitch_deg, 2),
+            "roll_deg": _round(self.roll_deg, 2),
+            "field_ut": _round(self.field_ut, 2),
+            "dip_deg": _round(self.dip_deg, 2),
+            "flags": self.flags,
             "quat_wxyz": None if self.quat_wxyz is None else [round(q, 5) for q in self.quat_wxyz],
-            "declination_deg": _round(self.declination_deg, 2), "truth_error_deg": _round(self.truth_error_deg, 2),
-            "fused": bool(self.flags & FUSED_FLAG), "alerts": self.alerts(now_s, earth),
+            "declination_deg": _round(self.declination_deg, 2),
+            "truth_error_deg": _round(self.truth_error_deg, 2),
+            "fused": bool(self.flags & FUSED_FLAG),
+            "alerts": self.alerts(now_s, earth),
         }
 
 
@@ -140,8 +157,8 @@ class Trace:
     def __init__(self) -> None:
         self.raw: deque = deque(maxlen=TRACE_POINTS)
         self.calibrated: deque = deque(maxlen=TRACE_POINTS)
-        self.headings: deque = deque(maxlen=TRACE_HEADINGS)   # (t_ns, magnetic, true)
-        self.truth: dict[int, float] = {}                    # raw seq -> true heading of its last sample
+        self.headings: deque = deque(maxlen=TRACE_HEADINGS)  # (t_ns, magnetic, true)
+        self.truth: dict[int, float] = {}  # raw seq -> true heading of its last sample
         self.viewers = 0
         self.left_s = time.monotonic()
 
@@ -295,9 +312,13 @@ class FleetState:
     def summary(self) -> dict[str, Any]:
         with self.lock:
             rows = list(self.rows.values())
-            return {"devices": len(rows), "alive": sum(r.alive is True for r in rows),
-                    "calibrated": sum(r.state == "calibrated" for r in rows), "messages": self.messages,
-                    "earth": _earth_json(self.earth)}
+            return {
+                "devices": len(rows),
+                "alive": sum(r.alive is True for r in rows),
+                "calibrated": sum(r.state == "calibrated" for r in rows),
+                "messages": self.messages,
+                "earth": _earth_json(self.earth),
+            }
 
     def detail(self, device: str, points: int = 600) -> dict[str, Any] | None:
         """The device's row, its recent clouds (at most ``points`` each), headings and covered cells."""
@@ -310,9 +331,12 @@ class FleetState:
             calibrated = np.array(trace.calibrated if trace else [], dtype=float).reshape(-1, 3)
             headings = list(trace.headings)[-300:] if trace else []
             out: dict[str, Any] = {"row": row.to_json(self.clock(), self.earth), "earth": _earth_json(self.earth)}
-        out.update(raw=_decimate(raw, points), calibrated=_decimate(calibrated, points),
-                   headings=[[t // 1_000_000, round(m, 2), round(tr, 2)] for t, m, tr in headings[::3]],
-                   cells=covered_cells(raw).astype(int).tolist())
+        out.update(
+            raw=_decimate(raw, points),
+            calibrated=_decimate(calibrated, points),
+            headings=[[t // 1_000_000, round(m, 2), round(tr, 2)] for t, m, tr in headings[::3]],
+            cells=covered_cells(raw).astype(int).tolist(),
+        )
         return out
 
 
@@ -349,6 +373,9 @@ def _quat(value: Any, index: int) -> tuple[float, ...] | None:
 def _earth_json(earth: EarthField | None) -> dict[str, Any] | None:
     if earth is None:
         return None
-    return {"total_ut": round(earth.total_ut, 3), "inclination_deg": round(earth.inclination_deg, 3),
-            "declination_deg": round(earth.declination_deg, 3), "horizontal_ut": round(earth.horizontal_ut, 3)}
-
+    return {
+        "total_ut": round(earth.total_ut, 3),
+        "inclination_deg": round(earth.inclination_deg, 3),
+        "declination_deg": round(earth.declination_deg, 3),
+        "horizontal_ut": round(earth.horizontal_ut, 3),
+    }

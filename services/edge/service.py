@@ -47,7 +47,7 @@ __all__ = ["EdgeSettings", "add_arguments", "run", "serve"]
 log = logging.getLogger("magnet.edge")
 
 FLEET_SLOTS = 20
-MATCH_WAIT_S = 3.0   # at start, wait this long at most for a subscriber (so the first batches are not lost)
+MATCH_WAIT_S = 3.0  # at start, wait this long at most for a subscriber (so the first batches are not lost)
 FLUSH_S = 0.3
 
 
@@ -81,25 +81,39 @@ class EdgeStatus:
             self.unhealthy_token = None
         elif not healthy and self.unhealthy_token is None:
             self.unhealthy_token = self.session.liveliness().declare_token(
-                unhealthy_key(self.settings.zenoh.prefix, self.settings.device))
+                unhealthy_key(self.settings.zenoh.prefix, self.settings.device)
+            )
 
     def as_dict(self) -> dict[str, Any]:
         reads = None if self.stats is None else self.stats.as_dict()
-        return {"v": wire.WIRE_VERSION, "service": "edge", "name": status_name(self.settings.device),
-                "device": self.settings.device, "devices": len(self.ids), "sensor": self.settings.sensor,
-                "healthy": True if reads is None else reads["healthy"],
-                "published_samples": self.published_samples, "published_batches": self.published_batches,
-                "read_attempts": 0 if reads is None else reads["attempts"],
-                "read_errors": 0 if reads is None else reads["errors"],
-                "last_error": "" if reads is None else reads["last_error"], "reads": reads}
+        return {
+            "v": wire.WIRE_VERSION,
+            "service": "edge",
+            "name": status_name(self.settings.device),
+            "device": self.settings.device,
+            "devices": len(self.ids),
+            "sensor": self.settings.sensor,
+            "healthy": True if reads is None else reads["healthy"],
+            "published_samples": self.published_samples,
+            "published_batches": self.published_batches,
+            "read_attempts": 0 if reads is None else reads["attempts"],
+            "read_errors": 0 if reads is None else reads["errors"],
+            "last_error": "" if reads is None else reads["last_error"],
+            "reads": reads,
+        }
 
     def summary(self, seconds: float) -> dict[str, Any]:
         """The JSON line printed at exit."""
         status = self.as_dict()
-        return {"devices": len(self.ids), "published_samples": self.published_samples,
-                "published_batches": self.published_batches, "seconds": round(seconds, 3),
-                "read_errors": status["read_errors"], "read_attempts": status["read_attempts"],
-                "healthy": status["healthy"]}
+        return {
+            "devices": len(self.ids),
+            "published_samples": self.published_samples,
+            "published_batches": self.published_batches,
+            "seconds": round(seconds, 3),
+            "read_errors": status["read_errors"],
+            "read_attempts": status["read_attempts"],
+            "healthy": status["healthy"],
+        }
 
 
 def _ticks(period_s: float, stop: Callable[[], bool]) -> Iterator[int]:
@@ -161,13 +175,14 @@ class Publisher:
                 if delay > 0:
                     time.sleep(delay)
                 now_ns = time.time_ns()
-            for batch in batches[slot::self.slots]:
+            for batch in batches[slot :: self.slots]:
                 if slot:
                     batch = dataclasses.replace(batch, t_ns=stamp(len(batch), now_ns, self.sample_ns))
                 if self.location is not None:
                     batch = dataclasses.replace(batch, location=self.location)
-                self.session.put(self.keys[batch.device], wire.encode_raw(batch, self.version),
-                                 congestion_control=self.block)
+                self.session.put(
+                    self.keys[batch.device], wire.encode_raw(batch, self.version), congestion_control=self.block
+                )
                 self.status.published_samples += len(batch)
                 self.status.published_batches += 1
 
@@ -198,8 +213,13 @@ def serve(settings: EdgeSettings) -> int:
         # one declared publisher, only to wait for a subscriber; data goes by session.put (measured: a declared
         # publisher per device costs several times the CPU at 10,000 messages/s)
         first = session.declare_publisher(wire.key(settings.zenoh.prefix, status.ids[0], wire.Kind.RAW))
-        log.info("edge: %d device(s), %s at %.1f Hz, batches of %d", len(status.ids), settings.sensor,
-                 settings.rate_hz, settings.batch)
+        log.info(
+            "edge: %d device(s), %s at %.1f Hz, batches of %d",
+            len(status.ids),
+            settings.sensor,
+            settings.rate_hz,
+            settings.batch,
+        )
         _wait_for_subscribers(first, MATCH_WAIT_S)
         started = time.monotonic()
         deadline = None if settings.duration_s is None else started + settings.duration_s

@@ -20,8 +20,9 @@ MAX_DEVICES = 100_000
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="dev", help="device id (one key chunk); a fleet uses <ID>-000, ...")
-    parser.add_argument("--sensor", default=SIMULATOR_SENSOR,
-                        help=f"chip name ({', '.join(SENSORS)}) or 'sim' for the simulator alone")
+    parser.add_argument(
+        "--sensor", default=SIMULATOR_SENSOR, help=f"chip name ({', '.join(SENSORS)}) or 'sim' for the simulator alone"
+    )
     parser.add_argument("--bus", type=int, help="I2C bus number of a real chip (/dev/i2c-N)")
     parser.add_argument("--address", type=lambda s: int(s, 0), help="I2C address of a real chip (e.g. 0x1e)")
     parser.add_argument("--emulate", action="store_true", help="emulate the chip (or the fleet) instead of a bus")
@@ -29,22 +30,46 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=50.0, help="samples per second per device (default 50)")
     parser.add_argument("--batch", type=int, default=10, help="samples per message (default 10)")
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
-    parser.add_argument("--gyro", action="store_true",
-                        help="with --devices: the simulated devices send a gyroscope too (gyr_rads)")
-    parser.add_argument("--wire", type=int, choices=wire.VERSIONS, default=wire.BINARY_VERSION,
-                        help="message version: 2 binary arrays (default), 1 lists of numbers for old subscribers")
+    parser.add_argument(
+        "--gyro", action="store_true", help="with --devices: the simulated devices send a gyroscope too (gyr_rads)"
+    )
+    parser.add_argument(
+        "--wire",
+        type=int,
+        choices=wire.VERSIONS,
+        default=wire.BINARY_VERSION,
+        help="message version: 2 binary arrays (default), 1 lists of numbers for old subscribers",
+    )
     sim_options.add_simulator_arguments(parser, seed=1, noise_ut=0.3)
-    parser.add_argument("--trajectory-samples", type=int, default=3000,
-                        help="samples per run of the simulated trajectory (default 3000)")
-    parser.add_argument("--speedup", type=float, default=1.0,
-                        help="simulated motion runs this many times faster than the wall clock (default 1)")
-    parser.add_argument("--emulate-faults", type=float, default=0.0, metavar="P",
-                        help="with --emulate and a chip, for tests: each I2C transfer after set-up fails with EIO "
-                             "with probability P (1: a dead bus)")
-    parser.add_argument("--replay", type=Path, metavar="FILE.csv",
-                        help="publish a recording (the columns of magnet sample, with t_s) at its own pace, then exit")
-    parser.add_argument("--speed", type=float, default=1.0,
-                        help="with --replay: play this many times faster than recorded (default 1)")
+    parser.add_argument(
+        "--trajectory-samples",
+        type=int,
+        default=3000,
+        help="samples per run of the simulated trajectory (default 3000)",
+    )
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=1.0,
+        help="simulated motion runs this many times faster than the wall clock (default 1)",
+    )
+    parser.add_argument(
+        "--emulate-faults",
+        type=float,
+        default=0.0,
+        metavar="P",
+        help="with --emulate and a chip, for tests: each I2C transfer after set-up fails with EIO "
+        "with probability P (1: a dead bus)",
+    )
+    parser.add_argument(
+        "--replay",
+        type=Path,
+        metavar="FILE.csv",
+        help="publish a recording (the columns of magnet sample, with t_s) at its own pace, then exit",
+    )
+    parser.add_argument(
+        "--speed", type=float, default=1.0, help="with --replay: play this many times faster than recorded (default 1)"
+    )
     add_zenoh_arguments(parser)
 
 
@@ -113,13 +138,27 @@ class EdgeSettings:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> EdgeSettings:
-        return cls(device=args.device, sensor=args.sensor, rate_hz=float(args.rate), batch=int(args.batch),
-                   duration_s=args.duration, bus=args.bus, address=args.address, emulate=bool(args.emulate),
-                   devices=int(args.devices), trajectory_samples=int(args.trajectory_samples),
-                   speedup=float(args.speedup), emulate_faults=float(args.emulate_faults), replay=args.replay,
-                   speed=float(args.speed), wire_version=int(getattr(args, "wire", wire.BINARY_VERSION)),
-                   gyro=bool(getattr(args, "gyro", False)), simulator=sim_options.SimulatorSettings.from_args(args),
-                   zenoh=ZenohSettings.from_args(args), location=_location(args))
+        return cls(
+            device=args.device,
+            sensor=args.sensor,
+            rate_hz=float(args.rate),
+            batch=int(args.batch),
+            duration_s=args.duration,
+            bus=args.bus,
+            address=args.address,
+            emulate=bool(args.emulate),
+            devices=int(args.devices),
+            trajectory_samples=int(args.trajectory_samples),
+            speedup=float(args.speedup),
+            emulate_faults=float(args.emulate_faults),
+            replay=args.replay,
+            speed=float(args.speed),
+            wire_version=int(getattr(args, "wire", wire.BINARY_VERSION)),
+            gyro=bool(getattr(args, "gyro", False)),
+            simulator=sim_options.SimulatorSettings.from_args(args),
+            zenoh=ZenohSettings.from_args(args),
+            location=_location(args),
+        )
 
 
 def _location(args: argparse.Namespace) -> Location | None:

@@ -56,19 +56,33 @@ class FleetSource:
     stats: ReadStats | None = None
 
     def __init__(self, settings: EdgeSettings) -> None:
-        self.fleet = FleetSimulator(n_devices=settings.devices, rate_hz=settings.rate_hz / settings.speedup,
-                                    seed=settings.simulator.seed, noise_ut=settings.simulator.noise_ut,
-                                    gyro=settings.gyro, **settings.simulator.place())
+        self.fleet = FleetSimulator(
+            n_devices=settings.devices,
+            rate_hz=settings.rate_hz / settings.speedup,
+            seed=settings.simulator.seed,
+            noise_ut=settings.simulator.noise_ut,
+            gyro=settings.gyro,
+            **settings.simulator.place(),
+        )
         self.ids = [f"{settings.device}-{i:03d}" for i in range(settings.devices)]
         self.settings = settings
 
     def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
         step = self.fleet.step(self.settings.batch)
         t_ns = stamp(self.settings.batch, end_ns, int(1e9 / self.settings.rate_hz))
-        return [wire.RawBatch(device, seq, SIMULATOR_SENSOR, t_ns, step.mag_ut[d], step.acc_ms2[d],
-                              {"heading_deg": step.heading_deg[d], "pitch_deg": step.pitch_deg[d],
-                               "roll_deg": step.roll_deg[d]}, None if step.gyr_rads is None else step.gyr_rads[d])
-                for d, device in enumerate(self.ids)]
+        return [
+            wire.RawBatch(
+                device,
+                seq,
+                SIMULATOR_SENSOR,
+                t_ns,
+                step.mag_ut[d],
+                step.acc_ms2[d],
+                {"heading_deg": step.heading_deg[d], "pitch_deg": step.pitch_deg[d], "roll_deg": step.roll_deg[d]},
+                None if step.gyr_rads is None else step.gyr_rads[d],
+            )
+            for d, device in enumerate(self.ids)
+        ]
 
 
 class StreamSource:
@@ -92,8 +106,9 @@ class StreamSource:
                 truth[k][i] = v
         t_ns = stamp(n, end_ns, int(1e9 / self.settings.rate_hz))
         moving = self.settings.simulator.trajectory.moving
-        return [wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth,
-                              gyr if moving else None)]
+        return [
+            wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth, gyr if moving else None)
+        ]
 
 
 def _open_bus(settings: EdgeSettings, stream: Any) -> Any:
@@ -119,8 +134,9 @@ class ChipSource:
         self.driver = open_sensor(settings.sensor, bus, **options)
         if settings.emulate_faults:  # after set-up: the chip was found, then its bus fails
             bus.faults = FaultInjector(probability=settings.emulate_faults, seed=settings.simulator.seed)
-        self.loop = ReadLoop(self.driver.read, clock=time.monotonic, sleep=time.sleep, backoff=EDGE_BACKOFF,
-                             on_health=on_health)
+        self.loop = ReadLoop(
+            self.driver.read, clock=time.monotonic, sleep=time.sleep, backoff=EDGE_BACKOFF, on_health=on_health
+        )
 
     @property
     def stats(self) -> ReadStats:
@@ -141,8 +157,18 @@ class ChipSource:
             return []
         truth = {k: np.array([t[k] for t in truths]) for k in TRUTH_KEYS} if self.stream is not None else None
         t_ns = stamp(len(mags), time.time_ns(), int(1e9 / self.settings.rate_hz))
-        return [wire.RawBatch(self.settings.device, seq, self.settings.sensor, t_ns, np.array(mags), _rows(accs),
-                              truth, gyr_rads=_rows(gyrs))]
+        return [
+            wire.RawBatch(
+                self.settings.device,
+                seq,
+                self.settings.sensor,
+                t_ns,
+                np.array(mags),
+                _rows(accs),
+                truth,
+                gyr_rads=_rows(gyrs),
+            )
+        ]
 
 
 def read_recording(path: Path) -> Recording:
@@ -150,8 +176,9 @@ def read_recording(path: Path) -> Recording:
     (rad/s); ValueError naming the file and what is wrong."""
     table = read_samples(path)
     if "t_s" not in table.columns:
-        raise ValueError(f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as "
-                         "magnet sample writes it")
+        raise ValueError(
+            f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as magnet sample writes it"
+        )
     gyr = None
     if all(c in table.columns for c in GYRO_COLUMNS):
         gyr = np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
@@ -177,12 +204,21 @@ class ReplaySource:
         """One list of one batch each time a batch is due; wire times keep the recording's intervals from now."""
         rec, device = self.recording, self.settings.device
         t_ns = rec.stamps_ns(time.time_ns())
-        parts = paced_slices(rec, self.settings.batch, speed=self.settings.speed, clock=time.monotonic,
-                             sleep=time.sleep, stop=stop)
+        parts = paced_slices(
+            rec, self.settings.batch, speed=self.settings.speed, clock=time.monotonic, sleep=time.sleep, stop=stop
+        )
         for seq, part in enumerate(parts):
-            yield [wire.RawBatch(device, seq, REPLAY_SENSOR, t_ns[part], rec.mag_ut[part],
-                                 None if rec.acc_ms2 is None else rec.acc_ms2[part],
-                                 gyr_rads=None if rec.gyr_rads is None else rec.gyr_rads[part])]
+            yield [
+                wire.RawBatch(
+                    device,
+                    seq,
+                    REPLAY_SENSOR,
+                    t_ns[part],
+                    rec.mag_ut[part],
+                    None if rec.acc_ms2 is None else rec.acc_ms2[part],
+                    gyr_rads=None if rec.gyr_rads is None else rec.gyr_rads[part],
+                )
+            ]
 
 
 def make_source(settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> Any:

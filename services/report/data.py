@@ -17,9 +17,9 @@ from magnet.model import Calibration
 from magnet.quality import Geometry, assess, gate
 from services.common.csvio import SampleTable, read_samples
 
-TRUTH_COLUMN = "true_heading_deg"   # what ``magnet sample --emulate`` writes
+TRUTH_COLUMN = "true_heading_deg"  # what ``magnet sample --emulate`` writes
 PITCH_COLUMN = "pitch_deg"
-MAX_SCORED_PITCH_DEG = 70.0         # beyond this the heading of the x axis is poorly defined
+MAX_SCORED_PITCH_DEG = 70.0  # beyond this the heading of the x axis is poorly defined
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,11 +46,11 @@ class HeadingErrors:
 
     @property
     def rms_deg(self) -> float:
-        return float(np.sqrt(np.mean(self.error_deg ** 2)))
+        return float(np.sqrt(np.mean(self.error_deg**2)))
 
     @property
     def raw_rms_deg(self) -> float:
-        return float(np.sqrt(np.mean(self.raw_error_deg ** 2)))
+        return float(np.sqrt(np.mean(self.raw_error_deg**2)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,8 +84,9 @@ def load_samples(path: str | Path, unit: str | None) -> Samples:
         keep = np.isfinite(mag).all(axis=1) & (np.isfinite(acc).all(axis=1) if acc is not None else True)
         return Samples(str(path), mag[keep], unit or "ut", None if acc is None else acc[keep])
     table = read_samples(path)
-    return Samples(str(path), table.mag, unit or "ut", table.acc, _column(table, TRUTH_COLUMN),
-                   _column(table, PITCH_COLUMN))
+    return Samples(
+        str(path), table.mag, unit or "ut", table.acc, _column(table, TRUTH_COLUMN), _column(table, PITCH_COLUMN)
+    )
 
 
 def _column(table: SampleTable, name: str) -> np.ndarray | None:
@@ -99,25 +100,40 @@ def spread_pct(vectors: np.ndarray, geometry: Geometry = Geometry.SPHERE) -> flo
     return float(100.0 * norms.std() / norms.mean()) if norms.size and norms.mean() > 0 else float("nan")
 
 
-def build_report(samples: Samples, calibration: Calibration, declination_deg: float | None = None,
-                 expected_field_ut: float | None = None) -> ReportData:
+def build_report(
+    samples: Samples,
+    calibration: Calibration,
+    declination_deg: float | None = None,
+    expected_field_ut: float | None = None,
+) -> ReportData:
     """The report's figures. The gate's figures are the record's own when it carries them (what the gate judged);
     otherwise they are computed on these samples and gated here."""
     if samples.unit != calibration.unit:
-        raise ValueError(f"{samples.source} is in {samples.unit!r} but the calibration expects {calibration.unit!r}: "
-                         f"give --unit {calibration.unit}")
+        raise ValueError(
+            f"{samples.source} is in {samples.unit!r} but the calibration expects {calibration.unit!r}: "
+            f"give --unit {calibration.unit}"
+        )
     calibrated = calibration.apply(samples.raw)
     geometry = Geometry.CIRCLE if calibration.method == "minmax2d" else Geometry.SPHERE
     quality = calibration.quality.to_dict()
     accepted, reason = calibration.accepted, calibration.reason
     if not quality.get("residual_rms_pct"):
-        assessed = assess(samples.raw, calibration, geometry=geometry, acc=samples.acc,
-                          expected_field_ut=expected_field_ut)
+        assessed = assess(
+            samples.raw, calibration, geometry=geometry, acc=samples.acc, expected_field_ut=expected_field_ut
+        )
         accepted, reason = gate(assessed)
         quality = assessed.to_dict()
-    return ReportData(samples, calibration, calibrated, quality, accepted, reason,
-                      spread_pct(samples.raw, geometry), spread_pct(calibrated, geometry),
-                      heading_errors(samples, calibrated, declination_deg))
+    return ReportData(
+        samples,
+        calibration,
+        calibrated,
+        quality,
+        accepted,
+        reason,
+        spread_pct(samples.raw, geometry),
+        spread_pct(calibrated, geometry),
+        heading_errors(samples, calibrated, declination_deg),
+    )
 
 
 def heading_errors(samples: Samples, calibrated: np.ndarray, declination_deg: float | None) -> HeadingErrors | None:
@@ -145,5 +161,9 @@ def heading_errors(samples: Samples, calibrated: np.ndarray, declination_deg: fl
     else:
         note = f"declination {declination_deg:.2f} deg"
     good = np.isfinite(magnetic) & np.isfinite(raw_magnetic)
-    return HeadingErrors(truth[good], hd.angle_difference_deg(magnetic[good] + declination_deg, truth[good]),
-                         hd.angle_difference_deg(raw_magnetic[good] + declination_deg, truth[good]), note)
+    return HeadingErrors(
+        truth[good],
+        hd.angle_difference_deg(magnetic[good] + declination_deg, truth[good]),
+        hd.angle_difference_deg(raw_magnetic[good] + declination_deg, truth[good]),
+        note,
+    )

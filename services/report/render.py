@@ -31,8 +31,9 @@ def _thin(points: np.ndarray) -> np.ndarray:
     return points[:: max(1, math.ceil(len(points) / MAX_POINTS))]
 
 
-def _projections(fig: Figure, grid: Any, row: int, points: np.ndarray, colour: str, unit: str,
-                 radius: float | None, label: str) -> None:
+def _projections(
+    fig: Figure, grid: Any, row: int, points: np.ndarray, colour: str, unit: str, radius: float | None, label: str
+) -> None:
     pts = _thin(points)
     for col, (i, j, a, b) in enumerate(PAIRS):
         ax = fig.add_subplot(grid[row, col])
@@ -56,10 +57,24 @@ def _magnitudes(fig: Figure, cell: Any, data: ReportData) -> None:
     after = np.linalg.norm(data.calibrated, axis=1)
     index = np.arange(len(before))
     step = max(1, math.ceil(len(before) / MAX_POINTS))
-    ax.plot(index[::step], 100 * before[::step] / before.mean(), ".", ms=1.5, color=RAW_COLOUR,
-            label=f"raw: spread {data.spread_before_pct:.2f} %", rasterized=True)
-    ax.plot(index[::step], 100 * after[::step] / after.mean(), ".", ms=1.5, color=CAL_COLOUR,
-            label=f"calibrated: spread {data.spread_after_pct:.2f} %", rasterized=True)
+    ax.plot(
+        index[::step],
+        100 * before[::step] / before.mean(),
+        ".",
+        ms=1.5,
+        color=RAW_COLOUR,
+        label=f"raw: spread {data.spread_before_pct:.2f} %",
+        rasterized=True,
+    )
+    ax.plot(
+        index[::step],
+        100 * after[::step] / after.mean(),
+        ".",
+        ms=1.5,
+        color=CAL_COLOUR,
+        label=f"calibrated: spread {data.spread_after_pct:.2f} %",
+        rasterized=True,
+    )
     ax.axhline(100, color="#333333", lw=0.8)
     ax.set_xlabel("sample")
     ax.set_ylabel("|B| in % of its mean")
@@ -79,8 +94,15 @@ def _coverage(fig: Figure, cell: Any, data: ReportData) -> None:
     pts = _thin(unit)
     azimuth = lambda v: np.degrees(np.arctan2(v[:, 1], v[:, 0])) % 360  # noqa: E731
     ax.scatter(azimuth(pts), pts[:, 2], s=1, c=CAL_COLOUR, alpha=0.25, linewidths=0, rasterized=True)
-    ax.scatter(azimuth(centres[hit]), centres[hit, 2], s=60, facecolors="none", edgecolors="#2ca02c", lw=1.4,
-               label=f"covered ({hit.sum()})")
+    ax.scatter(
+        azimuth(centres[hit]),
+        centres[hit, 2],
+        s=60,
+        facecolors="none",
+        edgecolors="#2ca02c",
+        lw=1.4,
+        label=f"covered ({hit.sum()})",
+    )
     ax.scatter(azimuth(centres[~hit]), centres[~hit, 2], s=60, c=RAW_COLOUR, label=f"missing ({(~hit).sum()})")
     ax.set_xticks([0, 90, 180, 270, 360], ["+x", "+y", "-x", "-y", "+x"])
     ax.set_yticks([-1, 0, 1], ["-z (up)", "0", "+z (down)"])
@@ -95,15 +117,36 @@ def _headings(fig: Figure, cell: Any, data: ReportData) -> None:
     ax = fig.add_subplot(cell)
     errors = data.headings
     if errors is None:
-        ax.text(0.5, 0.5, "no truth column (true_heading_deg) in the samples:\nno heading error to show",
-                ha="center", va="center", transform=ax.transAxes, color="#666666")
+        ax.text(
+            0.5,
+            0.5,
+            "no truth column (true_heading_deg) in the samples:\nno heading error to show",
+            ha="center",
+            va="center",
+            transform=ax.transAxes,
+            color="#666666",
+        )
         ax.set_axis_off()
         return
     step = max(1, math.ceil(len(errors.truth_deg) / MAX_POINTS))
-    ax.plot(errors.truth_deg[::step], errors.raw_error_deg[::step], ".", ms=2, color=RAW_COLOUR,
-            label=f"raw field: RMS {errors.raw_rms_deg:.2f} deg", rasterized=True)
-    ax.plot(errors.truth_deg[::step], errors.error_deg[::step], ".", ms=2, color=CAL_COLOUR,
-            label=f"calibrated: RMS {errors.rms_deg:.2f} deg", rasterized=True)
+    ax.plot(
+        errors.truth_deg[::step],
+        errors.raw_error_deg[::step],
+        ".",
+        ms=2,
+        color=RAW_COLOUR,
+        label=f"raw field: RMS {errors.raw_rms_deg:.2f} deg",
+        rasterized=True,
+    )
+    ax.plot(
+        errors.truth_deg[::step],
+        errors.error_deg[::step],
+        ".",
+        ms=2,
+        color=CAL_COLOUR,
+        label=f"calibrated: RMS {errors.rms_deg:.2f} deg",
+        rasterized=True,
+    )
     ax.axhline(0, color="#333333", lw=0.8)
     ax.set_xlim(0, 360)
     ax.set_xticks(range(0, 361, 45))
@@ -146,8 +189,16 @@ def _gate_panel(fig: Figure, cell: Any, data: ReportData) -> None:
     for k, (name, value) in enumerate(gate_lines(data)):
         y = 0.9 - k * 0.062
         ax.text(0, y, name, fontsize=9, va="top", transform=ax.transAxes)
-        ax.text(0.55, y, value, fontsize=9, va="top", transform=ax.transAxes,
-                color=colour if name == "verdict" else "black", weight="bold" if name == "verdict" else "normal")
+        ax.text(
+            0.55,
+            y,
+            value,
+            fontsize=9,
+            va="top",
+            transform=ax.transAxes,
+            color=colour if name == "verdict" else "black",
+            weight="bold" if name == "verdict" else "normal",
+        )
     wrapped = _wrap(data.reason, 48)
     ax.text(0, 0.9 - 12 * 0.062 - 0.02, wrapped, fontsize=8, va="top", transform=ax.transAxes, color="#444444")
 
@@ -168,8 +219,11 @@ def figure(data: ReportData) -> Figure:
     fig = Figure(figsize=(16, 19), dpi=90, layout="constrained")
     grid = fig.add_gridspec(4, 3)
     cal = data.calibration
-    fig.suptitle(f"{Path(data.samples.source).name}: {cal.method} calibration, "
-                 f"{'accepted' if data.accepted else 'rejected'}", fontsize=14, weight="bold")
+    fig.suptitle(
+        f"{Path(data.samples.source).name}: {cal.method} calibration, {'accepted' if data.accepted else 'rejected'}",
+        fontsize=14,
+        weight="bold",
+    )
     _projections(fig, grid, 0, data.samples.raw, RAW_COLOUR, data.samples.unit, None, "raw")
     radius = cal.field_strength or float(np.linalg.norm(data.calibrated, axis=1).mean())
     _projections(fig, grid, 1, data.calibrated, CAL_COLOUR, cal.output_unit, radius, "calibrated")

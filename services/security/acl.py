@@ -16,9 +16,9 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
-from collections.abc import Sequence
 
 
 class Can(enum.Enum):
@@ -29,13 +29,22 @@ class Can(enum.Enum):
     SERVE = (("ingress", "declare_queryable"), ("egress", "query"), ("ingress", "reply"))
     ASK = (("ingress", "query"), ("egress", "reply"), ("egress", "declare_queryable"))
     TOKEN = (("ingress", "liveliness_token"),)
-    WATCH = (("ingress", "declare_liveliness_subscriber"), ("ingress", "liveliness_query"),
-             ("egress", "liveliness_token"))
+    WATCH = (
+        ("ingress", "declare_liveliness_subscriber"),
+        ("ingress", "liveliness_query"),
+        ("egress", "liveliness_token"),
+    )
 
 
 #: key expressions below the prefix
-RAW, CAL, HISTORY, PROGRESS, CALIBRATE, HEADING = ("*/raw", "*/calibration", "*/calibration/history",
-                                                   "*/calibration/progress", "*/calibrate", "*/heading")
+RAW, CAL, HISTORY, PROGRESS, CALIBRATE, HEADING = (
+    "*/raw",
+    "*/calibration",
+    "*/calibration/history",
+    "*/calibration/progress",
+    "*/calibrate",
+    "*/heading",
+)
 STATUS, ALIVE, LEASE = "@status/*", "@alive/**", "@lease/**"
 ALERT, FLEET = "*/alert", "@fleet"  # drift alerts (compass), the fleet query (calibrator)
 
@@ -48,11 +57,21 @@ _VIEW: dict[Can, tuple[str, ...]] = {
 #: role -> capability -> key expressions (below the prefix). The role is the certificate's common name.
 ROLES: dict[str, dict[Can, tuple[str, ...]]] = {
     "edge": {Can.PUBLISH: (RAW,), Can.TOKEN: ("@alive/edge/*", "@alive/device/*")},
-    "calibrator": {Can.SUBSCRIBE: (RAW, ALERT), Can.PUBLISH: (CAL, PROGRESS), Can.ASK: (ALERT,),
-                   Can.SERVE: (CAL, HISTORY, CALIBRATE, STATUS, FLEET),
-                   Can.TOKEN: ("@alive/calibrator/*", LEASE), Can.WATCH: (LEASE,)},
-    "compass": {Can.SUBSCRIBE: (RAW, CAL), Can.PUBLISH: (HEADING, ALERT), Can.ASK: (CAL,), Can.SERVE: (STATUS, ALERT),
-                Can.TOKEN: ("@alive/compass/*",)},
+    "calibrator": {
+        Can.SUBSCRIBE: (RAW, ALERT),
+        Can.PUBLISH: (CAL, PROGRESS),
+        Can.ASK: (ALERT,),
+        Can.SERVE: (CAL, HISTORY, CALIBRATE, STATUS, FLEET),
+        Can.TOKEN: ("@alive/calibrator/*", LEASE),
+        Can.WATCH: (LEASE,),
+    },
+    "compass": {
+        Can.SUBSCRIBE: (RAW, CAL),
+        Can.PUBLISH: (HEADING, ALERT),
+        Can.ASK: (CAL,),
+        Can.SERVE: (STATUS, ALERT),
+        Can.TOKEN: ("@alive/compass/*",),
+    },
     "viewer": _VIEW,
     "operator": {**_VIEW, Can.ASK: (CAL, HISTORY, STATUS, CALIBRATE, FLEET, ALERT)},
 }
@@ -76,8 +95,15 @@ def rules(prefix: str) -> list[dict[str, Any]]:
         for (flow, message), granted in grants.items():
             merged.setdefault((flow, tuple(granted)), []).append(message)
         for (flow, rule_keys), messages in merged.items():
-            out.append({"id": f"{role}-{flow}-{'+'.join(messages)}", "permission": "allow", "flows": [flow],
-                        "messages": messages, "key_exprs": list(rule_keys)})
+            out.append(
+                {
+                    "id": f"{role}-{flow}-{'+'.join(messages)}",
+                    "permission": "allow",
+                    "flows": [flow],
+                    "messages": messages,
+                    "key_exprs": list(rule_keys),
+                }
+            )
     return out
 
 
@@ -88,14 +114,24 @@ def subjects(password_roles: Sequence[str]) -> list[dict[str, Any]]:
 
 def policies(prefix: str, password_roles: Sequence[str]) -> list[dict[str, Any]]:
     rule_ids = [rule["id"] for rule in rules(prefix)]
-    return [{"id": role, "rules": [r for r in rule_ids if r.startswith(f"{role}-")],
-             "subjects": [f"{role}-certificate"] + ([f"{role}-password"] if role in password_roles else [])}
-            for role in ROLES]
+    return [
+        {
+            "id": role,
+            "rules": [r for r in rule_ids if r.startswith(f"{role}-")],
+            "subjects": [f"{role}-certificate"] + ([f"{role}-password"] if role in password_roles else []),
+        }
+        for role in ROLES
+    ]
 
 
 def access_control(prefix: str, password_roles: Sequence[str] = ()) -> dict[str, Any]:
-    return {"enabled": True, "default_permission": "deny", "rules": rules(prefix),
-            "subjects": subjects(password_roles), "policies": policies(prefix, password_roles)}
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules(prefix),
+        "subjects": subjects(password_roles),
+        "policies": policies(prefix, password_roles),
+    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,17 +156,25 @@ class Site:
 def router_config(site: Site) -> dict[str, Any]:
     """The router's config: mTLS listener (+ password listener), access control, no scouting."""
     endpoints = [site.listen] + ([f"{site.password_listen}#enable_mtls=false"] if site.password_listen else [])
-    transport: dict[str, Any] = {"link": {"tls": {
-        "root_ca_certificate": str(site.files / "ca.crt"),
-        "listen_certificate": str(site.files / "router.crt"),
-        "listen_private_key": str(site.files / "router.key"),
-        "enable_mtls": True}}}
+    transport: dict[str, Any] = {
+        "link": {
+            "tls": {
+                "root_ca_certificate": str(site.files / "ca.crt"),
+                "listen_certificate": str(site.files / "router.crt"),
+                "listen_private_key": str(site.files / "router.key"),
+                "enable_mtls": True,
+            }
+        }
+    }
     if site.password_listen:
         transport["auth"] = {"usrpwd": {"dictionary_file": str(site.files / "users.txt")}}
-    return {"mode": "router", "listen": {"endpoints": endpoints},
-            "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-            "transport": transport,
-            "access_control": access_control(site.prefix, PASSWORD_ROLES if site.password_listen else ())}
+    return {
+        "mode": "router",
+        "listen": {"endpoints": endpoints},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+        "transport": transport,
+        "access_control": access_control(site.prefix, PASSWORD_ROLES if site.password_listen else ()),
+    }
 
 
 def client_config(site: Site, role: str, password: str | None, certificate: bool = True) -> dict[str, Any]:
@@ -138,11 +182,18 @@ def client_config(site: Site, role: str, password: str | None, certificate: bool
     only the CA and its password on the password listener. ``password`` is required when the site has passwords."""
     tls: dict[str, Any] = {"root_ca_certificate": str(site.files / "ca.crt")}
     if certificate:
-        tls.update(connect_certificate=str(site.files / f"{role}.crt"),
-                   connect_private_key=str(site.files / f"{role}.key"), enable_mtls=True)
+        tls.update(
+            connect_certificate=str(site.files / f"{role}.crt"),
+            connect_private_key=str(site.files / f"{role}.key"),
+            enable_mtls=True,
+        )
     endpoint = site.listen if certificate else site.password_listen
-    config: dict[str, Any] = {"mode": "client", "connect": {"endpoints": [endpoint]},
-                              "scouting": {"multicast": {"enabled": False}}, "transport": {"link": {"tls": tls}}}
+    config: dict[str, Any] = {
+        "mode": "client",
+        "connect": {"endpoints": [endpoint]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": tls}},
+    }
     if password is not None:
         config["transport"]["auth"] = {"usrpwd": {"user": role, "password": password}}
     return config
@@ -158,8 +209,10 @@ def _compact(value: Any, depth: int, width: int = 118) -> str:
     """JSON of ``value``: on one line when it fits in ``width`` columns or is an object of plain values (a rule, a
     subject), else one member per line."""
     flat = json.dumps(value)
-    leaf = isinstance(value, dict) and not any(isinstance(v, dict) or (isinstance(v, list) and any(
-        isinstance(item, (dict, list)) for item in v)) for v in value.values())
+    leaf = isinstance(value, dict) and not any(
+        isinstance(v, dict) or (isinstance(v, list) and any(isinstance(item, (dict, list)) for item in v))
+        for v in value.values()
+    )
     if len(flat) + 2 * depth <= width or leaf or not isinstance(value, (dict, list)) or not value:
         return flat
     pad, inner = "  " * depth, "  " * (depth + 1)
