@@ -11,7 +11,8 @@ from magnet.bounded import Recent
 from magnet.collection import Collection
 from magnet.compass import Earth
 from magnet.model import Calibration
-from services.calibrator.service import Calibrator, CalibratorSettings, _start
+from services.calibrator.service import Calibrator, CalibratorSettings
+from services.calibrator.sessions import _start
 from services.calibrator.store import CalibrationStore
 from services.compass.service import Compass
 

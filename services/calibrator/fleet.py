@@ -18,7 +18,7 @@ from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.fleet import Places
 
 if TYPE_CHECKING:  # the service imports this module
-    from services.calibrator.service import Calibrator
+    from services.calibrator.core import Calibrator
 
 log = logging.getLogger("magnet.calibrator")
 

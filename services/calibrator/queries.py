@@ -17,7 +17,7 @@ from magnet import wire
 from services.calibrator.fleet import fleet_reply, rollback
 
 if TYPE_CHECKING:  # the service imports this module to answer its queries
-    from services.calibrator.service import Calibrator
+    from services.calibrator.core import Calibrator
 
 #: history replies hold at most this many records
 MAX_HISTORY_LIMIT = 10_000

@@ -1,0 +1,63 @@
+"""Operator sessions of the calibrator (the ``calibrate`` queryable): start / status / commit / abort.
+
+Each action takes (calibrator, device, method) and returns (ok, message, extra reply fields); ``Calibrator.session``
+wraps that into the reply map.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from magnet.calibration import Method
+from magnet.collection import Collection
+
+if TYPE_CHECKING:  # the core imports this module to run the actions
+    from services.calibrator.core import Calibrator
+
+#: a session action: (calibrator, device, method) -> (ok, message, extra reply fields)
+Action = Callable[["Calibrator", str, "str | None"], "tuple[bool, str, dict[str, Any]]"]
+
+
+def _start(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
+    chosen = Method.parse(method or calibrator.settings.method).value
+    if chosen == Method.TURNTABLE.value:  # it needs each sample's known heading and the field's components
+        return (
+            False,
+            (
+                "a turntable calibration cannot be collected from live samples (it needs the turntable's "
+                "headings and the field's components): record the turns and run `magnet fit --method "
+                "turntable` on the file"
+            ),
+            {},
+        )
+    calibrator.collections[device] = Collection(chosen, True, calibrator.settings.max_samples)
+    return True, f"session started with {chosen}: move the device through every attitude, then commit", {}
+
+
+def _status(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
+    return True, calibrator.state(device).value, {}
+
+
+def _commit(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
+    collection = calibrator.collections.get(device)
+    if collection is None or not collection.session:
+        return False, "no session to commit: start one first", {}
+    result = calibrator._fit(collection, calibrator.clock(), device)
+    if result is None:
+        return False, f"not committed, the calibration in force stays: {collection.last_reason}", {}
+    try:
+        return True, "committed", {"calibration": calibrator.commit(device, result).to_record()}
+    except OSError as exc:
+        return False, f"not committed, the calibration in force stays: {exc}", {}
+
+
+def _abort(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
+    collection = calibrator.collections.get(device)
+    if collection is None or not collection.session:
+        return False, "no session to abort", {}
+    del calibrator.collections[device]
+    return True, "session aborted; the calibration in force stays", {}
+
+
+ACTIONS: dict[str, Action] = {"start": _start, "status": _status, "commit": _commit, "abort": _abort}
