@@ -34,7 +34,6 @@ import numpy as np
 
 from magnet import fusion
 from magnet import heading as hd
-from magnet.attitude import matrix_to_euler, quaternion_to_matrix
 from magnet.compass import Headings
 
 #: 2000 deg/s, the widest full scale of common MEMS gyroscopes (ICM-20948, LSM9DS1, MPU-6050): a reading at or beyond
@@ -88,16 +87,31 @@ class FusedColumns:
     ) -> FusedColumns:
         """From vqf's quaternions (S, 4) (NaN rows where not fused), converted to the project's frames at once."""
         out = cls.empty(len(raw))
-        fused = np.isfinite(raw).all(axis=1)
-        if fused.any():
+        fused = hd.rows_finite(raw)
+        if fused.all():
+            out = dataclasses.replace(out, quat_wxyz=fusion.vqf_to_body_ned(raw))
+            out.down[:], (out.heading_deg[:], out.pitch_deg[:], out.roll_deg[:]) = _down_and_euler(out.quat_wxyz)
+        elif fused.any():
             quat = fusion.vqf_to_body_ned(raw[fused])
-            matrix = quaternion_to_matrix(quat)
-            heading, pitch, roll = matrix_to_euler(matrix)
-            out.quat_wxyz[fused], out.down[fused] = quat, matrix[:, 2, :]
+            down, (heading, pitch, roll) = _down_and_euler(quat)
+            out.quat_wxyz[fused], out.down[fused] = quat, down
             out.heading_deg[fused], out.pitch_deg[fused], out.roll_deg[fused] = heading, pitch, roll
         return dataclasses.replace(
             out, fused=fused, mag_disturbed=disturbed & fused, dropped=dict(dropped), restarts=restarts
         )
+
+
+def _down_and_euler(quat_wxyz: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """NED down in body axes (S, 3) and (heading [0, 360), pitch, roll) in degrees from body -> NED quaternions
+    (S, 4): the entries of ``quaternion_to_matrix`` that ``matrix_to_euler`` and the down direction use, alone."""
+    w, x, y, z = (quat_wxyz[:, k] for k in range(4))
+    scale = 2.0 / (w * w + x * x + y * y + z * z)  # normalises, as quaternion_to_matrix does
+    r20, r21, r22 = scale * (x * z - w * y), scale * (y * z + w * x), 1.0 - scale * (x * x + y * y)
+    r00, r10 = 1.0 - scale * (y * y + z * z), scale * (x * y + w * z)
+    pitch = np.degrees(np.arcsin(np.clip(-r20, -1.0, 1.0)))
+    heading = np.mod(np.degrees(np.arctan2(r10, r00)), 360.0)
+    roll = np.degrees(np.arctan2(r21, r22))
+    return np.stack([r20, r21, r22], axis=-1), (heading, pitch, roll)
 
 
 class _Drain(NamedTuple):
@@ -249,7 +263,8 @@ class FleetFusion:
         count = int(bounds[-1])
         edges = np.asarray(bounds, dtype=np.int64)
         sizes = np.diff(edges)
-        present = ~np.isnan(gyr_rads).all(axis=1)
+        isnan = np.isnan(gyr_rads)
+        present = ~(isnan[:, 0] & isnan[:, 1] & isnan[:, 2])
         if not present.any():
             return FusedColumns.empty(count)
         with_gyro = np.zeros(len(sizes), dtype=bool)
@@ -258,9 +273,10 @@ class FleetFusion:
         groups: dict[str, list[int]] = {}
         for b in np.flatnonzero(with_gyro).tolist():
             groups.setdefault(devices[b], []).append(b)
-        finite = np.isfinite(gyr_rads).all(axis=1)
-        saturated = finite & (np.abs(gyr_rads) >= GYRO_LIMIT_RADS).any(axis=1)
-        usable = finite & ~saturated & np.isfinite(acc_ms2).all(axis=1) & np.isfinite(field_ut).all(axis=1)
+        finite = hd.rows_finite(gyr_rads)
+        beyond = np.abs(gyr_rads) >= GYRO_LIMIT_RADS
+        saturated = finite & (beyond[:, 0] | beyond[:, 1] | beyond[:, 2])
+        usable = finite & ~saturated & hd.rows_finite(acc_ms2) & hd.rows_finite(field_ut)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
         raw = np.full((count, 4), np.nan)
