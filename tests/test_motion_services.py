@@ -57,16 +57,13 @@ def test_broad_trial_replayed_through_the_services_gives_the_offline_headings(pr
     # the calibrator judges the same data as `magnet fit`: what one refuses, the other does not put in force
     assert [r["accepted"] for r in published if r.get("accepted")] == ([True] if fitted.returncode == 0 else [])
     options = ["--calibration", str(tmp_path / "cal.json")] if fitted.returncode == 0 else []
-    expected = offline_headings(csv, int(rows[0]), options)
+    expected = offline_headings(csv, int(rows[0]), options)[rows - rows[0]]
     live = joined(headings, "broad-1", "heading_deg")
-    assert len(live) == len(expected) == len(rows)
     difference = angle_difference_deg(live, expected)
     rms = float(np.sqrt(np.mean(difference**2)))
-    scored = log.score(np.concatenate([np.full(rows[0], np.nan), live])) if rows[0] == 0 else float("nan")
     print(
-        f"{log.name} through edge -> calibrator -> compass from row {rows[0]}: {len(live)} headings, RMS "
-        f"{rms:.4f} deg (max {np.abs(difference).max():.4f}) from magnet heading; against the optical reference "
-        f"{scored:.3f} deg"
+        f"{log.name} through edge -> calibrator -> compass: {len(live)} of {len(log.t_s)} headings received (from row "
+        f"{rows[0]}), RMS {rms:.4f} deg (max {np.abs(difference).max():.4f}) from magnet heading"
     )
     assert rms <= REPLAY_AGREEMENT_DEG
 
