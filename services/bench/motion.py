@@ -28,7 +28,7 @@ from magnet import fusion
 from magnet import heading as hd
 from magnet.calibration import fit
 from magnet.model import Calibration
-from magnet.simulator import MOVING_TRAJECTORIES, SensorErrors, SimulatorConfig, Trajectory, simulate
+from magnet.simulator import MOVING_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
 
 DATA_DIR = Path(__file__).resolve().parents[2] / "data"
 BROAD_TRIALS = ("broad_01_undisturbed_slow_rotation_A.npz", "broad_06_undisturbed_fast_rotation_A.npz")
@@ -119,7 +119,8 @@ class SimulatorSettings:
     seed: int = 2026
 
 
-def _simulated_sensor(settings: SimulatorSettings, field_ut: float) -> SensorErrors:
+def simulated_sensor(settings: SimulatorSettings, field_ut: float = 50.0) -> SensorErrors:
+    """The one sensor every run of the benchmark uses (``SimulatorSettings``), drawn from its seed."""
     rng = np.random.default_rng(settings.seed)
     return SensorErrors.random(
         rng,
@@ -133,16 +134,9 @@ def _simulated_sensor(settings: SimulatorSettings, field_ut: float) -> SensorErr
     )
 
 
-def _simulator_calibration(run, errors: SensorErrors, settings: SimulatorSettings) -> tuple[Calibration, str]:
-    """The fit of the run's own samples (with its gyroscope) when the gate accepts it, else of a still tumble of
-    the same sensor (what an operator does before a flight or a drive)."""
-    try:
-        own = fit(run.mag_ut, "ellipsoid", acc=run.acc_ms2, gyr=run.gyr_rads, period_s=1.0 / settings.rate_hz)
-        if own.accepted:
-            return own, "own data"
-    except ValueError:
-        pass
-    tumble = simulate(
+def tumble_run(errors: SensorErrors, settings: SimulatorSettings) -> SimulatedRun:
+    """A still tumble of the sensor (what an operator does before a flight or a drive), no gyroscope."""
+    return simulate(
         SimulatorConfig(
             trajectory=Trajectory.TUMBLE,
             rate_hz=settings.rate_hz,
@@ -151,6 +145,33 @@ def _simulator_calibration(run, errors: SensorErrors, settings: SimulatorSetting
             seed=settings.seed + 1,
         )
     )
+
+
+def moving_run(trajectory: Trajectory, errors: SensorErrors, settings: SimulatorSettings) -> SimulatedRun:
+    """``settings.seconds`` of a moving trajectory with the sensor, with its truth."""
+    return simulate(
+        SimulatorConfig(
+            trajectory=trajectory,
+            rate_hz=settings.rate_hz,
+            count=int(settings.seconds * settings.rate_hz),
+            errors=errors,
+            seed=settings.seed,
+        )
+    )
+
+
+def _simulator_calibration(
+    run: SimulatedRun, errors: SensorErrors, settings: SimulatorSettings
+) -> tuple[Calibration, str]:
+    """The fit of the run's own samples (with its gyroscope) when the gate accepts it, else of a still tumble of
+    the same sensor."""
+    try:
+        own = fit(run.mag_ut, "ellipsoid", acc=run.acc_ms2, gyr=run.gyr_rads, period_s=1.0 / settings.rate_hz)
+        if own.accepted:
+            return own, "own data"
+    except ValueError:
+        pass
+    tumble = tumble_run(errors, settings)
     return fit(tumble.mag_ut, "ellipsoid", acc=tumble.acc_ms2), "tumble"
 
 
@@ -159,18 +180,10 @@ def simulator_rows(
 ) -> list[tuple[str, str, float]]:
     """(trajectory (calibrated on what), estimator, heading RMS deg against the true magnetic heading, no offset
     removed) for the moving trajectories, after the settling time, samples with |pitch| < 60 deg."""
-    errors = _simulated_sensor(settings, 50.0)
+    errors = simulated_sensor(settings)
     rows = []
     for trajectory in sorted(trajectories, key=lambda t: t.value):
-        run = simulate(
-            SimulatorConfig(
-                trajectory=trajectory,
-                rate_hz=settings.rate_hz,
-                count=int(settings.seconds * settings.rate_hz),
-                errors=errors,
-                seed=settings.seed,
-            )
-        )
+        run = moving_run(trajectory, errors, settings)
         calibration, source = _simulator_calibration(run, errors, settings)
         field = calibration.apply(run.mag_ut)
         scored = (run.t_s >= settings.settle_s) & (np.abs(run.pitch_deg) < MAX_PITCH_DEG)

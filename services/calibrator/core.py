@@ -11,7 +11,6 @@ rejected fit changes nothing: its reason goes out on ``calibration/progress``.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import logging
 import time
 from collections.abc import Callable
@@ -28,54 +27,12 @@ from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.fleet import FleetBook
 from services.calibrator.sessions import ACTIONS
 from services.calibrator.settings import CalibratorSettings
+from services.calibrator.status import CalibratorStatus, Counters, State
 from services.calibrator.store import CalibrationStore
 
 log = logging.getLogger("magnet.calibrator")
 
 PROGRESS_INTERVAL_S = 0.5
-
-
-class State(enum.Enum):
-    COLLECTING = "collecting"  # automatic collection (device has no calibration)
-    SESSION = "session"  # an operator's calibration session
-    CALIBRATED = "calibrated"  # a calibration is in force, nothing collected
-    IDLE = "idle"  # no calibration, automatic calibration off
-
-
-@dataclasses.dataclass
-class Counters:
-    """What the calibrator did since it started."""
-
-    received_batches: int = 0
-    received_samples: int = 0
-    fits: int = 0
-    accepted: int = 0
-    rejected: int = 0
-    stored: int = 0
-    evicted_devices: int = 0  # collections dropped for --max-devices
-
-
-@dataclasses.dataclass(frozen=True)
-class CalibratorStatus:
-    """The answer of ``<prefix>/@status/<name>``: counters, devices per state, drops by cause."""
-
-    name: str
-    counters: Counters
-    devices: dict[str, int]
-    dropped: dict[str, int]
-    shard: str = "0/1"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "v": wire.WIRE_VERSION,
-            "service": "calibrator",
-            "name": self.name,
-            **dataclasses.asdict(self.counters),
-            "devices": dict(self.devices),
-            "dropped": dict(self.dropped),
-            "dropped_total": sum(self.dropped.values()),
-            "shard": self.shard,
-        }
 
 
 class Calibrator:
@@ -99,13 +56,41 @@ class Calibrator:
         self.signer = signer
         self.shard = shard  # only this shard's devices: collected, fitted, stored, answered
         self._mine: dict[str, bool] = {}
-        self.in_force: dict[str, wire.DeviceCalibration] = {
-            d: self.sign(r) for d, r in store.all_latest().items() if shard.owns(d)
-        }
+        self.active = True  # False while another calibrator of the shard holds the lease: nothing collected, stored
+        self.in_force = self._read_in_force()
         self.collections: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
         self.last_progress: Recent[str, float] = Recent(settings.max_devices)
         self.drops = wire.DropCounter()
         self.counters = Counters()
+
+    def _read_in_force(self) -> dict[str, wire.DeviceCalibration]:
+        """The records in force of this shard's devices, as the store holds them now (signed)."""
+        return {d: self.sign(r) for d, r in self.store.all_latest().items() if self.shard.owns(d)}
+
+    # ------------------------------------------------------------------------------------------------- lease
+    def publish_in_force(self) -> None:
+        """Publish every record in force (when it starts or takes over: compasses may have missed them)."""
+        for device, record in self.in_force.items():
+            self.publish(wire.Kind.CALIBRATION, device, wire.pack(record.to_record()))
+
+    def take_over(self) -> None:
+        """Become the active calibrator of the shard: the records in force read back from the shared store (the
+        calibrator that held the lease stored since), published, and collection starts."""
+        try:
+            self.in_force = self._read_in_force()
+        except OSError as exc:  # a damaged store: serve what was read last, say so
+            log.error("taking over: %s", exc)
+        self.active = True
+        self.counters.takeovers += 1
+        self.publish_in_force()
+
+    def stand_by(self) -> None:
+        """Another calibrator holds the lease: stop collecting (sessions in progress are dropped, logged)."""
+        sessions = [d for d, c in self.collections.items() if c.session]
+        if sessions:
+            log.warning("standing by: sessions of %s dropped (start them again)", ", ".join(sorted(sessions)))
+        self.active = False
+        self.collections.clear()
 
     # ------------------------------------------------------------------------------------------------ raw data
     def state(self, device: str) -> State:
@@ -127,6 +112,8 @@ class Calibrator:
         return owned
 
     def on_raw(self, key_expr: str, payload: bytes, prefix: str) -> None:
+        if not self.active:
+            return  # standing by: the active calibrator of the shard collects
         if not self.shard.everything and not self.mine(key_expr, prefix):
             return  # another shard's device
         try:
@@ -312,4 +299,5 @@ class Calibrator:
             {s.value: states.count(s.value) for s in State},
             dict(self.drops.counts),
             str(self.shard),
+            "active" if self.active else "standby",
         )

@@ -3,7 +3,8 @@ A calibrator started with ``--shard K/N`` answers only for its own devices (the 
 
 ``<prefix>/<dev>/calibration`` (record in force), ``<prefix>/<dev>/calibration/history?limit=N`` (``{v, device,
 records: [...]}`` newest first), ``<prefix>/<dev>/calibrate?action=...&method=...``, ``<prefix>/@status/<name>``.
-Each handler answers one query (``reply`` or ``reply_err``); none raises on what a peer sends.
+Each handler answers one query (``reply`` or ``reply_err``); none raises on what a peer sends. A calibrator standing
+by (another of its shard holds the lease, ``services.calibrator.lease``) answers only its status.
 """
 
 from __future__ import annotations
@@ -34,6 +35,19 @@ def matching_devices(devices: Iterable[str], prefix: str, key_expr: str, kind: w
         return [device] if device in devices else []
     asked = zenoh.KeyExpr(key_expr)
     return [d for d in devices if asked.intersects(zenoh.KeyExpr(wire.key(prefix, d, kind)))]
+
+
+Answer = Callable[[Any, "Calibrator", str], None]
+
+
+def active_only(answer: Answer) -> Answer:
+    """``answer``, given only while the calibrator holds the lease of its shard (else the query goes unanswered)."""
+
+    def when_active(query: Any, calibrator: Calibrator, prefix: str) -> None:
+        if calibrator.active:
+            answer(query, calibrator, prefix)
+
+    return when_active
 
 
 def answer_calibration(query: Any, calibrator: Calibrator, prefix: str) -> None:
@@ -93,7 +107,7 @@ def answer_fleet(query: Any, calibrator: Calibrator, prefix: str) -> None:
     query.reply(f"{prefix}/@fleet", wire.pack(fleet_reply(calibrator, calibrator.clock_ns())))
 
 
-def status_answer(name: str) -> Callable[[Any, Calibrator, str], None]:
+def status_answer(name: str) -> Answer:
     """The handler of ``<prefix>/@status/<name>``."""
 
     def answer_status(query: Any, calibrator: Calibrator, prefix: str) -> None:
@@ -103,8 +117,10 @@ def status_answer(name: str) -> Callable[[Any, Calibrator, str], None]:
 
 
 #: queried kind -> how to answer (the status queryable is ``status_answer``)
-ANSWERS: dict[wire.Kind, Callable[[Any, Calibrator, str], None]] = {
-    wire.Kind.CALIBRATION: answer_calibration,
-    wire.Kind.HISTORY: answer_history,
-    wire.Kind.CALIBRATE: answer_calibrate,
+ANSWERS: dict[wire.Kind, Answer] = {
+    wire.Kind.CALIBRATION: active_only(answer_calibration),
+    wire.Kind.HISTORY: active_only(answer_history),
+    wire.Kind.CALIBRATE: active_only(answer_calibrate),
 }
+#: the ``<prefix>/@fleet`` handler of the service
+FLEET_ANSWER = active_only(answer_fleet)

@@ -6,6 +6,9 @@ Without a session, a device that has no calibration is fitted whenever enough ne
 operator's session (``calibrate`` queryable: start / status / commit / abort) collects afresh with its method and
 stores only on commit. A rejected fit changes nothing: its reason goes out on ``calibration/progress``.
 
+Several calibrators may serve one shard: the oldest running holds the lease and alone collects, stores and answers;
+the others stand by and take over when its liveliness token goes away (``services.calibrator.lease``).
+
 Queryables: see ``services.calibrator.queries``. One thread: zenoh delivers into channels, this loop drains them.
 The options and settings are in ``services.calibrator.settings``, the core (no zenoh) in ``services.calibrator.core``
 and the operator sessions in ``services.calibrator.sessions``.
@@ -23,8 +26,9 @@ import zenoh
 
 from magnet import wire
 from services.calibrator import queries
-from services.calibrator.core import Calibrator, CalibratorStatus, Counters, State
+from services.calibrator.core import Calibrator
 from services.calibrator.fleet import FleetBook
+from services.calibrator.lease import Lease, Member
 from services.calibrator.sessions import ACTIONS
 from services.calibrator.settings import (
     DEFAULT_MAX_DEVICES,
@@ -35,6 +39,7 @@ from services.calibrator.settings import (
     load_signer,
     settings_from_args,
 )
+from services.calibrator.status import CalibratorStatus, Counters, State
 from services.calibrator.store import CalibrationStore
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 
@@ -58,6 +63,7 @@ log = logging.getLogger("magnet.calibrator")
 
 CHANNEL_CAPACITY = 65536
 IDLE_SLEEP_S = 0.0005
+LEASE_QUERY_S = 2.0  # how long it waits at start for the lease tokens of its shard
 
 # ------------------------------------------------------------------------------------------------------- shell
 
@@ -71,6 +77,7 @@ def run(settings: ServiceSettings) -> int:
     stop = stop_event()
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
     signer = load_signer(settings.signing_key)  # a bad key file ends here, before anything is opened
+    lease = Lease(prefix, settings.shard, Member(time.time_ns(), name))
     with CalibrationStore(settings.db) as store, open_session(settings.zenoh) as session:
 
         def publish(kind: wire.Kind, device: str, payload: bytes) -> None:
@@ -81,41 +88,73 @@ def run(settings: ServiceSettings) -> int:
             store, settings.fitting, publish, signer=signer, fleet=FleetBook(settings.places), shard=settings.shard
         )
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
+        lease_token, lease_sub = _join_lease(session, lease)
+        calibrator.active = lease.active
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
-        answers = [
-            (
-                queries.ANSWERS[kind],
-                session.declare_queryable(f"{prefix}/{devices}/{kind.value}", zenoh.handlers.FifoChannel(256)),
-            )
-            for kind in queries.ANSWERS
-        ]
-        answers.append(
-            (
-                queries.status_answer(name),
-                session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64)),
-            )
-        )
-        answers.append(
-            (queries.answer_fleet, session.declare_queryable(f"{prefix}/@fleet", zenoh.handlers.FifoChannel(16)))
-        )
+        answers = _declare_answers(session, prefix, devices, name)
         alert_key = f"{prefix}/{devices}/{wire.Kind.ALERT.value}"
         feeds: list[tuple[Any, Callable[[str, bytes, str], None]]] = [
             (session.declare_subscriber(alert_key, zenoh.handlers.FifoChannel(4096)), calibrator.fleet.on_alert),
             (session.get(alert_key, timeout=3.0), calibrator.fleet.on_alert),
         ]  # the alerts open already
-        for device, record in calibrator.in_force.items():
-            publish(wire.Kind.CALIBRATION, device, wire.pack(record.to_record()))
+        if calibrator.active:
+            calibrator.publish_in_force()
         log.info(
-            "calibrator %s (shard %s): %d calibration(s) in store %s",
+            "calibrator %s (shard %s, %s; %s holds the lease): %d calibration(s) in store %s",
             name,
             settings.shard,
+            lease.state(),
+            lease.holder,
             len(calibrator.in_force),
             store.path,
         )
-        _loop(stop, calibrator, raw_sub, answers, prefix, feeds)
+        _loop(stop, calibrator, raw_sub, answers, prefix, feeds, (lease_sub, lease))
+        lease_token.undeclare()
         token.undeclare()
     log.info("calibrator stopped: %s", calibrator.status(name).to_dict())
     return 0
+
+
+def _join_lease(session: Any, lease: Lease) -> tuple[Any, Any]:
+    """Declare this calibrator's lease token and watch the others of its shard; the ones already there are read
+    before it serves anything, so a calibrator that starts beside a running one stands by from the start."""
+    token = session.liveliness().declare_token(lease.key)
+    subscriber = session.liveliness().declare_subscriber(lease.watch_key, zenoh.handlers.FifoChannel(256), history=True)
+    for reply in session.liveliness().get(lease.watch_key, timeout=LEASE_QUERY_S):
+        if reply.ok is not None:
+            lease.on_token(str(reply.ok.key_expr), True)
+    return token, subscriber
+
+
+def _follow_lease(subscriber: Any, lease: Lease, calibrator: Calibrator) -> None:
+    """Tokens of the shard that appeared or went away: take over or stand by when the lease moved."""
+    for sample in drain(subscriber, 256):
+        active = lease.on_token(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+        if active is True:
+            calibrator.take_over()
+        elif active is False:
+            calibrator.stand_by()
+
+
+def _declare_answers(session: Any, prefix: str, devices: str, name: str) -> list[tuple[Any, Any]]:
+    """(handler, queryable) for every queryable: the device kinds, its status and the fleet."""
+    answers = [
+        (
+            queries.ANSWERS[kind],
+            session.declare_queryable(f"{prefix}/{devices}/{kind.value}", zenoh.handlers.FifoChannel(256)),
+        )
+        for kind in queries.ANSWERS
+    ]
+    answers.append(
+        (
+            queries.status_answer(name),
+            session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64)),
+        )
+    )
+    answers.append(
+        (queries.FLEET_ANSWER, session.declare_queryable(f"{prefix}/@fleet", zenoh.handlers.FifoChannel(16)))
+    )
+    return answers
 
 
 def _loop(
@@ -125,10 +164,13 @@ def _loop(
     answers: list[tuple[Any, Any]],
     prefix: str,
     feeds: Sequence[tuple[Any, Callable[[str, bytes, str], None]]] = (),
+    lease_watch: tuple[Any, Lease] | None = None,
 ) -> None:
-    """Drain raw samples, queries and ``feeds`` (samples or replies -> handler(key, payload, prefix)) until
-    ``stop`` is set."""
+    """Drain the lease tokens, raw samples, queries and ``feeds`` (samples or replies -> handler(key, payload,
+    prefix)) until ``stop`` is set."""
     while not stop.is_set():
+        if lease_watch is not None:
+            _follow_lease(*lease_watch, calibrator)
         for handler, take in feeds:
             for item in drain(handler, 1000):
                 sample = getattr(item, "ok", item)
