@@ -28,7 +28,7 @@ from magnet.wire.raw import (
     message_location,
     nan_rows,
 )
-from magnet.wire.raw_header import Header, check_header
+from magnet.wire.raw_header import INT64_MAX, Header, check_header
 
 
 def _stack(parts: list[Any], name: str, rows: int) -> np.ndarray:
@@ -47,9 +47,11 @@ def _stack_times(parts: list[Any]) -> np.ndarray:
         arr = np.array(parts)
     except (TypeError, ValueError, OverflowError):
         raise WireError("bad-shape", "t_ns is not an array of integers") from None
-    if arr.ndim != 1 or arr.dtype.kind not in "iu":
-        raise WireError("bad-shape", f"t_ns must be a list of integers, got dtype {arr.dtype}")
-    return arr.astype(np.int64)
+    if arr.ndim == 1 and arr.dtype.kind in "iu" and (arr.dtype.kind == "i" or arr.max() <= INT64_MAX):
+        return arr.astype(np.int64)
+    if arr.ndim == 1 and all(type(x) is int for x in parts):  # integers beyond int64: they would wrap
+        raise WireError("out-of-range", f"t_ns holds values beyond {INT64_MAX}")
+    raise WireError("bad-shape", f"t_ns must be a list of integers, got dtype {arr.dtype}")
 
 
 def _gather(values: list[Any], name: str, times: bool) -> np.ndarray:
@@ -90,9 +92,18 @@ def _arrays(headers: Sequence[Header]) -> tuple[np.ndarray, list[np.ndarray]]:
     return _gather([h.arrays[0] for h in headers], "t_ns", True), vectors
 
 
-def _sample_faults(vectors: list[np.ndarray]) -> list[tuple[np.ndarray, str, str]]:
-    """Per-sample faults (S,) bool, most fundamental first, with their cause and message."""
-    faults = []
+def _sample_faults(
+    t_ns: np.ndarray, vectors: list[np.ndarray], starts: np.ndarray
+) -> list[tuple[np.ndarray, str, str]]:
+    """Per-sample faults (S,) bool, most fundamental first, with their cause and message. ``starts`` (B,): where
+    each message's samples begin (time is judged within a message only)."""
+    backwards = np.zeros(t_ns.shape, dtype=bool)
+    backwards[1:] = t_ns[1:] < t_ns[:-1]
+    backwards[starts] = False
+    faults = [
+        (t_ns < 0, "out-of-range", "t_ns holds negative times"),
+        (backwards, "time-backwards", "t_ns decreases within the batch"),
+    ]
     for arr, (name, _, _) in zip(vectors, VECTOR_FIELDS):
         absent = np.isnan(arr).all(axis=1)
         faults.append((~absent & ~np.isfinite(arr).all(axis=1), "non-finite", f"{name} holds non-finite values"))
@@ -111,7 +122,7 @@ def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | No
     counts = np.array([h.n for h in headers], dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     verdicts: list[WireError | None] = [None] * len(headers)
-    for bad, cause, text in _sample_faults(vectors):
+    for bad, cause, text in _sample_faults(t_ns, vectors, starts):
         if bad.any():
             for i in np.flatnonzero(np.logical_or.reduceat(bad, starts)).tolist():
                 verdicts[i] = verdicts[i] or WireError(cause, text)
@@ -138,16 +149,19 @@ def _alone(header: Header) -> tuple[list[RawBatch], WireError | None]:
     return ([] if verdict else columns.batches()), verdict
 
 
-def decode_messages(messages: Sequence[Mapping[str, Any]]) -> tuple[RawColumns, list[tuple[int, WireError]]]:
-    """The raw decoder: unpacked messages -> (good batches as columns, in order; (index, WireError) per refusal,
-    sorted by index)."""
+def decode_messages(
+    messages: Sequence[Mapping[str, Any]], sizes: Sequence[int] | None = None
+) -> tuple[RawColumns, list[tuple[int, WireError]]]:
+    """The raw decoder: unpacked messages (and their payloads' sizes in bytes, when known) -> (good batches as
+    columns, in order; (index, WireError) per refusal, sorted by index)."""
     errors: list[tuple[int, WireError]] = []
     kept: list[int] = []
     headers: list[Header] = []
     locations: list[Location | None] = []
     for index, message in enumerate(messages):
         try:
-            header, location = check_header(message), message_location(message)
+            header = check_header(message, None if sizes is None else sizes[index])
+            location = message_location(message)
         except WireError as exc:
             errors.append((index, exc))
             continue
@@ -180,15 +194,17 @@ def decode_raw_many(payloads: Sequence[Payload]) -> tuple[RawColumns, list[tuple
     Returns the good batches as columns, in input order, and (index, WireError) for each payload refused, sorted by
     index. ``truth`` is not decoded."""
     messages: list[Mapping[str, Any]] = []
+    sizes: list[int] = []
     where: list[int] = []
     errors: list[tuple[int, WireError]] = []
     for index, payload in enumerate(payloads):
         try:
             messages.append(unpack(payload))
+            sizes.append(len(payload))
             where.append(index)
         except WireError as exc:
             errors.append((index, exc))
-    columns, refused = decode_messages(messages)
+    columns, refused = decode_messages(messages, sizes)
     errors += [(where[i], exc) for i, exc in refused]
     return columns, sorted(errors, key=lambda e: e[0])
 
@@ -199,7 +215,7 @@ def decode_raw(payload: Payload, *, with_truth: bool = True) -> RawBatch:
     The verdict is ``decode_raw_many``'s; ``with_truth=False`` skips the simulator's truth (faster, for consumers
     that do not use it)."""
     message = unpack(payload)
-    columns, errors = decode_messages([message])
+    columns, errors = decode_messages([message], [len(payload)])
     if errors:
         raise errors[0][1]
     batch = columns.batches()[0]
