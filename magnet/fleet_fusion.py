@@ -123,6 +123,8 @@ class _Drain(NamedTuple):
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray]
     usable: np.ndarray
     saturated: np.ndarray
+    unusable_before: np.ndarray  # (S + 1,) int: how many samples before each (permuted) index are not usable
+    batch_saturated: list[bool]
     seqs: list[int]
     first_ns: list[int]
     last_ns: list[int]
@@ -182,7 +184,7 @@ class DeviceFusion:
                 self._run(drain, lo, hi, out, disturbed)
                 self._restart(period)
                 lo = hi = start
-            if drain.saturated[start : start + count].any():
+            if drain.batch_saturated[b]:
                 lo = hi = self._saturated(drain, lo, hi, start, count, period, out, disturbed)
             else:
                 if start != hi:  # not contiguous with the pending run (cannot happen within a device; kept safe)
@@ -216,12 +218,11 @@ class DeviceFusion:
         """Feed samples lo .. hi of the drain (the usable ones) to the filter."""
         if self.filter is None or hi <= lo:
             return
-        usable = drain.usable[lo:hi]
-        if usable.all():
+        if drain.unusable_before[hi] == drain.unusable_before[lo]:
             rows: Any = slice(lo, hi)
             gyr, acc, field = (x[lo:hi] for x in drain.inputs)
         else:
-            rows = np.flatnonzero(usable) + lo
+            rows = np.flatnonzero(drain.usable[lo:hi]) + lo
             if rows.size == 0:
                 return
             gyr, acc, field = (np.ascontiguousarray(x[rows]) for x in drain.inputs)
@@ -324,6 +325,8 @@ def _drain(
     steps_bad = np.concatenate([[0], np.cumsum(np.diff(t_ns) <= 0)])
     increasing = steps_bad[last] - steps_bad[first] == 0
     starts = edges[:-1]
+    saturated_before = np.concatenate([[0], np.cumsum(saturated)])
+    batch_saturated = saturated_before[edges[1:]] > saturated_before[edges[:-1]]
     if order is not None:
         inverse = np.empty(count, dtype=np.int64)
         inverse[order] = np.arange(count)
@@ -335,6 +338,8 @@ def _drain(
         (inputs[0], inputs[1], inputs[2]),
         usable,
         saturated,
+        np.concatenate([[0], np.cumsum(~usable)]),
+        batch_saturated.tolist(),
         [int(s) for s in seqs],
         t_ns[first].tolist(),
         t_ns[last].tolist(),
