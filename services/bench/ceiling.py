@@ -145,6 +145,11 @@ def measure(devices: int, batch: int, seconds: float, gyro: bool) -> Ceiling:
     return Ceiling(batch, result["payload_bytes"], result["published"], counted[0], result["seconds"])
 
 
+def device_name(d: int) -> str:
+    """The id of the load's device number ``d``."""
+    return f"b-{d:03d}"
+
+
 def _fleet_batches(devices: int, batch: int, gyro: bool, steps: int) -> list[list[wire.RawBatch]]:
     fleet = FleetSimulator(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
     out = []
@@ -153,7 +158,7 @@ def _fleet_batches(devices: int, batch: int, gyro: bool, steps: int) -> list[lis
         out.append(
             [
                 wire.RawBatch(
-                    f"b-{d:03d}",
+                    device_name(d),
                     0,
                     "sim",
                     step.t_ns,
@@ -197,7 +202,7 @@ def generate(ports: list[int], devices: int, rate: float, batch: int, seconds: f
     conf.insert_json5("scouting/multicast/enabled", "false")
     sample_ns, gap = int(1e9 / rate), batch / rate / devices
     offsets = sample_ns * np.arange(batch - 1, -1, -1, dtype=np.int64)
-    keys = [wire.key("magnet", f"b-{d:03d}", wire.Kind.RAW) for d in range(devices)]
+    keys = [wire.key("magnet", device_name(d), wire.Kind.RAW) for d in range(devices)]
     with zenoh.open(conf) as session:
         block, put, sent = zenoh.CongestionControl.BLOCK, session.put, 0
         start = time.monotonic()

@@ -5,8 +5,8 @@ go out (``services.bench.ceiling.generate``): the fleet simulator itself costs a
 
 First Zenoh's own rate on the same payloads (``services.bench.ceiling``: a publisher process putting the edge's
 messages as fast as it can, a subscriber here that only counts). Then the pipeline: the edge's simulated devices send
-gyroscopes (fusion on in the compass; ``gyro=False`` for tilt only), the compass runs with identity calibrations (no
-calibrator: the per-sample correction is computed all the same). Each run publishes for ``seconds``; it reports
+gyroscopes (fusion on in the compass; ``gyro=False`` for tilt only), the compass applies a calibration per device
+(published by the benchmark before the load starts; no calibrator). Each run publishes for ``seconds``; it reports
 samples/s in (published by the edge) and out (headings received), loss, the rate out as a fraction of the Zenoh
 ceiling, and the edge-to-heading latency (receive time minus the stamp of the batch's last sample) p50/p99. The
 per-device rate is doubled until the compass falls behind (samples lost, or p99 latency over ``MAX_P99_MS``: a queue
@@ -33,6 +33,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from magnet import wire
 from services.bench import ceiling
 from services.common.zenoh_session import free_ports, loopback_arguments
 
@@ -135,6 +136,35 @@ def _wait_ready(session: Any, key: str) -> None:
     raise OSError("the compass did not come up for the benchmark")
 
 
+def _calibrate(session: Any, devices: int, shards: int) -> None:
+    """Publish one accepted calibration per device (hard and soft iron, as a calibrator would) and wait until the
+    compasses hold them all: the benchmark's compasses apply real calibrations, as in service."""
+    from magnet.model import Calibration
+
+    calibration = Calibration(
+        "ellipsoid",
+        np.array([5.0, -3.0, 2.0]),
+        np.array([[1.02, 0.01, 0.0], [0.01, 0.98, 0.005], [0.0, 0.005, 1.0]]),
+        field_strength=50.0,
+        accepted=True,
+        reason="benchmark",
+    )
+    for d in range(devices):
+        device = ceiling.device_name(d)
+        session.put(wire.key("magnet", device, wire.Kind.CALIBRATION), wire.encode_calibration(device, calibration, 1))
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    while time.monotonic() < deadline:
+        held = 0
+        for k in range(shards):
+            for reply in session.get(f"magnet/@status/bench-compass-{k}", timeout=1.0):
+                if reply.ok is not None:
+                    held += int(msgpack.unpackb(reply.ok.payload.to_bytes())["calibrations"])
+        if held >= devices:
+            return
+        time.sleep(0.2)
+    raise OSError("the compasses did not take the benchmark's calibrations")
+
+
 def _session_config(listen_port: int, connect_ports: list[int]) -> Any:
     import zenoh
 
@@ -180,6 +210,7 @@ def run_once(
         with zenoh.open(_session_config(measure_port, compass_ports)) as session:
             for k in range(shards):
                 _wait_ready(session, f"magnet/@status/bench-compass-{k}")
+            _calibrate(session, devices, shards)
             measurer = _Measurer(session.declare_subscriber("magnet/*/heading", zenoh.handlers.FifoChannel(1 << 20)))
             edge = subprocess.Popen(
                 [

@@ -17,7 +17,7 @@ import signal
 import socket
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -107,8 +107,9 @@ def config_json5(options: Options) -> dict[str, str]:
     return values
 
 
-def build_config(options: Options) -> zenoh.Config:
-    """A ``zenoh.Config`` from the file (if any) and the options. ValueError/OSError for a bad file or option."""
+def build_config(options: Options, defaults: Mapping[str, str] | None = None) -> zenoh.Config:
+    """A ``zenoh.Config`` from the file (if any) and the options. ValueError/OSError for a bad file or option.
+    ``defaults``: config path -> json5 value that a service sets where no config file is given."""
     args = _settings(options)
     if args.config:
         path = Path(args.config)
@@ -120,6 +121,8 @@ def build_config(options: Options) -> zenoh.Config:
             raise ValueError(f"zenoh config file {path} is not valid: {zenoh_message(exc)}") from None
     else:
         conf = zenoh.Config()
+        for path_key, value in (defaults or {}).items():
+            conf.insert_json5(path_key, value)
     for path_key, value in config_json5(args).items():
         if path_key == "mode" and args.config and not args.mode:
             continue  # the file's mode stands unless --mode is given
@@ -138,14 +141,15 @@ def zenoh_message(exc: BaseException) -> str:
     return _RUST_LOCATION.sub("", str(exc)).strip()
 
 
-def open_session(options: Options) -> zenoh.Session:
-    """Open a session from the options (``ZenohSettings``, or the parsed options of ``add_zenoh_arguments``); use it
-    as a context manager so it is closed (or the process never exits)."""
+def open_session(options: Options, defaults: Mapping[str, str] | None = None) -> zenoh.Session:
+    """Open a session from the options (``ZenohSettings``, or the parsed options of ``add_zenoh_arguments``) and the
+    service's ``defaults`` (see ``build_config``); use it as a context manager so it is closed (or the process never
+    exits)."""
     zenoh.try_init_log_from_env()
     deadline = time.monotonic() + OPEN_RETRY_S
     while True:
         try:
-            return zenoh.open(build_config(options))
+            return zenoh.open(build_config(options, defaults))
         except (ValueError, OSError):
             raise
         except Exception as exc:  # e.g. a client whose router is not up yet: retry a little, then give up

@@ -51,6 +51,14 @@ CHANNEL_CAPACITY = 65536  # raw messages queued between zenoh and this loop
 REQUERY_S = 5.0  # how often to ask again for the calibration of a device that has none
 REQUERY_REFUSED_S = 1.0  # how often at most to ask the calibrators again after refusing a calibration
 IDLE_SLEEP_S = 0.0003
+#: the compass puts a drain's headings at once (thousands of messages): room for them in each link's queue (16
+#: batches of 64 kB, Zenoh's most; its default is 2), and up to 20 ms for a busy machine's sending thread to make room
+#: before a heading is dropped (default 1 ms). A subscriber that stays slow still loses headings, never the compass's
+#: time for long. A --config file replaces these.
+ZENOH_DEFAULTS = {
+    "transport/link/tx/queue/size/data": "16",
+    "transport/link/tx/queue/congestion_control/drop/wait_before_drop": "20000",
+}
 
 
 def run_compass(args: argparse.Namespace) -> int:
@@ -68,7 +76,7 @@ def run(settings: CompassSettings) -> int:
         log.info("compass applies only calibrations signed by key(s) %s", ", ".join(compass.trusted.key_ids))
     stop = stop_event()
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
-    with open_session(settings.zenoh) as session:
+    with open_session(settings.zenoh, ZENOH_DEFAULTS) as session:
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "compass", name))
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         cal_sub = session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
