@@ -38,7 +38,8 @@ def _batch(device, n=10, seed=0):
 def test_calibrator_keeps_at_most_max_devices_collections_and_never_drops_a_session(tmp_path):
     with CalibrationStore(tmp_path / "c.db") as store:
         calibrator = Calibrator(store, CalibratorSettings(max_devices=3), lambda *a: None)
-        _start(calibrator, "operator-1", None)
+        calibrator.on_raw("magnet/operator-1/raw", _batch("operator-1"), "magnet")  # seen, so a session may start
+        assert _start(calibrator, "operator-1", None)[0]
         for i in range(10):
             calibrator.on_raw(f"magnet/flood-{i}/raw", _batch(f"flood-{i}"), "magnet")
         assert len(calibrator.collections) == 3 and "operator-1" in calibrator.collections
@@ -108,3 +109,13 @@ def test_zenoh_errors_lose_their_rust_source_paths():
         "zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/net/runtime/orchestrator.rs:447."
     )
     assert zenoh_message(Exception(raw)) == "Unable to connect to any of [Single(tls/127.0.0.1:7447)]!"
+
+
+def test_a_session_for_a_device_never_seen_is_refused_with_what_to_check(tmp_path):
+    with CalibrationStore(tmp_path / "c.db") as store:
+        calibrator = Calibrator(store, CalibratorSettings(auto=False), lambda *a: None)
+        reply = calibrator.session("ghost-1", "start", None)
+        assert not reply["ok"] and "ghost-1 is unknown to this calibrator" in reply["message"]
+        assert "ghost-1" not in calibrator.collections and reply["state"] == "idle"
+        calibrator.on_raw("magnet/ghost-1/raw", _batch("ghost-1"), "magnet")
+        assert calibrator.session("ghost-1", "start", None)["ok"]
