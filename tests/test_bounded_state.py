@@ -10,7 +10,10 @@ from magnet import wire
 from magnet.bounded import Recent
 from magnet.collection import Collection
 from magnet.compass import Earth
+from magnet.drift import Alert, AlertKind
 from magnet.model import Calibration
+from magnet.place import Location
+from services.calibrator.fleet import FleetBook
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.sessions import _start
 from services.calibrator.store import CalibrationStore
@@ -28,6 +31,12 @@ def test_recent_forgets_the_least_recently_seen_and_keeps_what_must_stay():
     assert "s" in recent and recent.evicted == 3
     with pytest.raises(ValueError, match="--max-devices"):
         Recent(0)
+
+
+def _located_batch(device, lat):
+    mag = np.random.default_rng(0).normal(size=(10, 3)) * 40
+    raw = wire.RawBatch(device, 0, "sim", np.arange(10, dtype=np.int64), mag, None, None, location=Location(lat, 5.0))
+    return wire.encode_raw(raw)
 
 
 def _batch(device, n=10, seed=0):
@@ -119,3 +128,22 @@ def test_a_session_for_a_device_never_seen_is_refused_with_what_to_check(tmp_pat
         assert "ghost-1" not in calibrator.collections and reply["state"] == "idle"
         calibrator.on_raw("magnet/ghost-1/raw", _batch("ghost-1"), "magnet")
         assert calibrator.session("ghost-1", "start", None)["ok"]
+
+
+def test_the_calibrators_fleet_book_keeps_at_most_max_devices_and_counts_the_rest(tmp_path, caplog):
+    with CalibrationStore(tmp_path / "c.db") as store:
+        calibrator = Calibrator(
+            store, CalibratorSettings(max_devices=3), lambda *a: None, fleet=FleetBook(max_devices=3)
+        )
+        book = calibrator.fleet
+        for i in range(10):
+            calibrator.on_raw(f"magnet/flood-{i}/raw", _located_batch(f"flood-{i}", 10.0 + i), "magnet")
+            alert = Alert(f"flood-{i}", AlertKind.DIP, i, 60.0, 67.0, "x")
+            book.on_alert(f"magnet/flood-{i}/alert", wire.pack(alert.to_message()), "magnet")
+            book.seen("known", Location(1.0, 2.0), i)  # a genuine device keeps reporting: it stays
+        assert set(book.last_seen_ns) == {"known", "flood-8", "flood-9"}
+        assert len(book.places.reported) == 3 and "known" in book.places.reported
+        assert set(book.alerts) == {"flood-7", "flood-8", "flood-9"}
+        forgotten = calibrator.status("c").to_dict()["forgotten_devices"]
+        assert forgotten == book.forgotten == 8 + 8 + 7
+        assert len([r for r in caplog.records if "fleet book" in r.getMessage()]) == 1

@@ -304,7 +304,7 @@ class Calibrator:
         states = [self.state(d).value for d in set(self.collections) | set(self.in_force)]
         return CalibratorStatus(
             name,
-            dataclasses.replace(self.counters),
+            dataclasses.replace(self.counters, forgotten_devices=self.fleet.forgotten),
             {s.value: states.count(s.value) for s in State},
             dict(self.drops.counts),
             str(self.shard),
