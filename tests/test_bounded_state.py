@@ -65,7 +65,8 @@ def test_compass_keeps_at_most_max_devices_calibrations():
         )
     assert list(compass.calibrations) == ["d3", "d4"]
     compass.encode(compass.decode_columns([(f"magnet/n{i}/raw", _batch(f"n{i}")) for i in range(5)], "magnet"))
-    assert len(compass.tails) == 2 and compass.status("c").evicted_devices == 3 + 3
+    # calibrations 3, tails 3, drift trackers 3
+    assert len(compass.tails) == 2 and compass.status("c").evicted_devices == 3 + 3 + 3
 
 
 def test_a_collection_that_kept_a_few_samples_holds_small_arrays():
@@ -147,3 +148,34 @@ def test_the_calibrators_fleet_book_keeps_at_most_max_devices_and_counts_the_res
         forgotten = calibrator.status("c").to_dict()["forgotten_devices"]
         assert forgotten == book.forgotten == 8 + 8 + 7
         assert len([r for r in caplog.records if "fleet book" in r.getMessage()]) == 1
+
+
+def _moving_batch(device, lat):
+    rng = np.random.default_rng(1)
+    n = 10
+    raw = wire.RawBatch(
+        device,
+        0,
+        "sim",
+        np.arange(n, dtype=np.int64) * 10_000_000 + 1,
+        rng.normal(size=(n, 3)) * 40,
+        np.tile([0.0, 0.0, -9.81], (n, 1)),
+        None,
+        np.zeros((n, 3)),
+        Location(lat, 5.0),
+    )
+    return wire.encode_raw(raw)
+
+
+def test_the_compass_keeps_places_drift_trackers_and_filters_for_at_most_max_devices(caplog):
+    compass = Compass(Earth(), window=1, max_devices=3)
+    for i in range(10):
+        cal = Calibration("ellipsoid", [float(i), 0, 0], np.eye(3), field_strength=50.0)
+        compass.accept_calibration(wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration", "magnet")
+        compass.encode(compass.decode_columns([(f"magnet/d{i}/raw", _moving_batch(f"d{i}", 10.0 + i))], "magnet"))
+    assert compass.watch.monitor is not None and list(compass.watch.monitor.trackers) == ["d7", "d8", "d9"]
+    assert list(compass.watch.places.reported) == ["d7", "d8", "d9"]
+    assert list(compass.fusion.devices) == ["d7", "d8", "d9"]
+    # calibrations 7, tails 0 (window 1), places 7, trackers 7, filters 7
+    assert compass.status("c").evicted_devices == 7 + 7 + 7 + 7
+    assert len([r for r in caplog.records if "the least recently seen are forgotten" in r.getMessage()]) == 1
