@@ -10,13 +10,14 @@ from __future__ import annotations
 import json
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import zenoh
-from helpers import MAGNET, REPO_ROOT, Processes, connect_args, free_ports, listen_args, wait_for, wait_for_liveliness
+from helpers import MAGNET, REPO_ROOT, Processes, connect_args, free_ports, listen_args, wait_for_liveliness
 
 from magnet import wire
 
@@ -51,6 +52,34 @@ class Headings:
             return sorted(self.by_device.get(device, []), key=lambda b: b.seq)
 
 
+class Calibrations:
+    """Calibration records of every device as the calibrator publishes them, and the one in force on request."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self.lock = threading.Lock()
+        self.by_device: dict[str, list[dict]] = {}
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        record = wire.unpack(sample.payload.to_bytes())
+        with self.lock:
+            self.by_device.setdefault(str(record["device"]), []).append(record)
+
+    def published(self, device: str) -> list[dict]:
+        with self.lock:
+            return list(self.by_device.get(device, []))
+
+    def in_force(self, device: str) -> dict | None:
+        """The last accepted record published for ``device``, else the calibrator's answer to a query, else None."""
+        accepted = [r for r in self.published(device) if r.get("accepted")]
+        if accepted:
+            return accepted[-1]
+        for reply in self.session.get(wire.key(PREFIX, device, wire.Kind.CALIBRATION), timeout=2.0):
+            if reply.ok is not None:
+                return dict(wire.unpack(reply.ok.payload.to_bytes()))
+        return None
+
+
 class Pipeline:
     """A calibrator (SQLite in ``tmp_path``) and a compass, each in its own process on 127.0.0.1 with multicast
     scouting off; ``compass_args`` go to the compass (``--location``, ``--date``)."""
@@ -75,18 +104,26 @@ class Pipeline:
             yield collected
 
     @contextmanager
-    def calibrations(self) -> Iterator[dict[str, list[dict]]]:
-        """The calibration records the calibrator publishes while the block runs, per device (as the compass gets
-        them)."""
-        records: dict[str, list[dict]] = {}
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            record = wire.unpack(sample.payload.to_bytes())
-            records.setdefault(str(record["device"]), []).append(record)
-
+    def calibrations(self) -> Iterator[Calibrations]:
+        """The calibration records the calibrator publishes while the block runs (as the compass gets them), and
+        its answers to queries."""
         with zenoh.open(_client_config(self.cal_port)) as session:
-            session.declare_subscriber(wire.key(PREFIX, "*", wire.Kind.CALIBRATION), on_sample)
+            records = Calibrations(session)
+            session.declare_subscriber(wire.key(PREFIX, "*", wire.Kind.CALIBRATION), records.on_sample)
             yield records
+
+    def calibrate(self, calibrations: Calibrations, csv: Path, device: str, speed: float, batch: int) -> dict:
+        """Replay ``csv`` (a tumble) for ``device`` until the calibrator puts a calibration in force, as an operator
+        tumbles a device again when it was not enough (at most three times); the record."""
+        for _ in range(3):
+            self.replay(csv, device, speed, batch)
+            deadline = time.monotonic() + 20.0
+            while time.monotonic() < deadline:
+                record = calibrations.in_force(device)
+                if record is not None:
+                    return record
+                time.sleep(0.2)
+        raise AssertionError(f"no calibration in force for {device}; calibrator log:\n{self.procs.log('calibrator')}")
 
     def _replay_args(self, csv: Path, device: str, speed: float, batch: int) -> list[str]:
         return [
@@ -117,21 +154,35 @@ class Pipeline:
         return self.procs.start(f"edge-{device}", *self._replay_args(csv, device, speed, batch)[len(MAGNET) :])
 
 
+#: the compass puts headings without blocking (a slow subscriber loses messages rather than slowing the compass):
+#: on a loaded machine a few may not reach the test; at least this share must, and each one that does is checked
+MIN_RECEIVED_SHARE = 0.8
+#: no new heading for this long after the replay: the rest is not coming
+QUIET_S = 3.0
+
+
 def received(headings: Headings, device: str, published: int, batch: int, timeout_s: float) -> np.ndarray:
-    """Wait for the compass's headings of ``published`` samples (batches of ``batch``) of ``device``, and return the
-    row of the CSV each heading belongs to (N,) (seq * batch + index): the compass may have missed the first batches
-    if it joined late, but from its first batch on it must have every one, in order, once."""
+    """Wait for the compass's headings of ``published`` samples (batches of ``batch``) of ``device`` (the last
+    batch's, or quiet for ``QUIET_S``), and return the row of the CSV of each heading received, in seq order (N,)
+    (seq * batch + index). The compass may have missed the first batches if it joined late; from its first one on,
+    at least ``MIN_RECEIVED_SHARE`` of the messages must arrive, each once."""
     last_seq = (published - 1) // batch
-
-    def arrived() -> bool:
+    deadline, count, changed = time.monotonic() + timeout_s, -1, time.monotonic()
+    while True:
         batches = headings.batches(device)
-        return bool(batches) and batches[-1].seq == last_seq
-
-    wait_for(arrived, timeout_s, f"the compass's heading of {device}'s last batch (seq {last_seq})")
-    seqs = [b.seq for b in headings.batches(device)]
-    missing = sorted(set(range(seqs[0], last_seq + 1)) - set(seqs))
-    assert not missing and len(seqs) == len(set(seqs)), f"{device}: from seq {seqs[0]} on, missing {missing[:10]}"
-    return np.arange(seqs[0] * batch, published)
+        if batches and batches[-1].seq == last_seq:
+            break
+        if len(batches) != count:
+            count, changed = len(batches), time.monotonic()
+        elif count > 0 and time.monotonic() - changed > QUIET_S:
+            break
+        assert time.monotonic() < deadline, f"{device}: after {timeout_s} s, {count} heading messages"
+        time.sleep(0.1)
+    seqs = [b.seq for b in batches]
+    assert len(seqs) == len(set(seqs)), f"{device}: heading messages repeated"
+    expected = last_seq + 1 - seqs[0]
+    assert len(seqs) >= MIN_RECEIVED_SHARE * expected, f"{device}: {len(seqs)} of {expected} heading messages"
+    return np.concatenate([b.seq * batch + np.arange(len(b)) for b in batches])
 
 
 def joined(headings: Headings, device: str, name: str) -> np.ndarray:

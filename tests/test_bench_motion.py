@@ -41,3 +41,21 @@ def test_simulator_rows_score_against_the_truth():
     assert rows["fused causal"][0] == "fast-tumble (cal: own data)"  # a tumble covers the sphere: own data accepted
     assert rows["accelerometer tilt"][1] > 10.0
     assert rows["fused offline"][1] < rows["fused causal"][1] < 0.5
+
+
+def test_linear_acceleration_is_what_the_car_loses():
+    """Fed the accelerometer without the run's linear acceleration (what velocity aiding could give at best), the
+    causal filter's car heading is several times better: the acceleration, not the filter's set-up, is the limit."""
+    rows = {
+        estimator: rms
+        for _, estimator, rms in motion.simulator_rows(motion.SimulatorSettings(seconds=60.0), [motion.Trajectory.CAR])
+    }
+    assert rows[motion.BOUND_ESTIMATOR] < 2.0 < 3 * rows[motion.BOUND_ESTIMATOR] < rows["fused causal"]
+
+
+def test_without_linear_acceleration_leaves_gravity_and_noise():
+    settings = motion.SimulatorSettings(seconds=20.0)
+    run = motion.moving_run(motion.Trajectory.CAR, motion.simulated_sensor(settings), settings)
+    gravity = np.linalg.norm(motion.without_linear_acceleration(run), axis=1)
+    assert np.abs(gravity - 9.80665).max() < 0.15  # the accelerometer's noise (0.02 m/s^2 per axis) only
+    assert np.abs(np.linalg.norm(run.acc_ms2, axis=1) - 9.80665).max() > 0.3  # the car does accelerate

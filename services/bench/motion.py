@@ -26,6 +26,7 @@ import numpy as np
 
 from magnet import fusion
 from magnet import heading as hd
+from magnet.attitude import quaternion_to_matrix
 from magnet.calibration import fit
 from magnet.model import Calibration
 from magnet.simulator import MOVING_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
@@ -188,10 +189,24 @@ def simulator_rows(
         field = calibration.apply(run.mag_ut)
         scored = (run.t_s >= settings.settle_s) & (np.abs(run.pitch_deg) < MAX_PITCH_DEG)
         log = MotionLog(trajectory.value, run.t_s, run.gyr_rads, run.acc_ms2, run.mag_ut, run.quat_wxyz, scored)
-        for estimator, function in ESTIMATORS.items():
-            error = hd.angle_difference_deg(function(log, field), run.magnetic_heading_deg)[scored]
+        bound = dataclasses.replace(log, acc_ms2=without_linear_acceleration(run))
+        estimates = [*((name, function(log, field)) for name, function in ESTIMATORS.items())]
+        estimates.append((BOUND_ESTIMATOR, ESTIMATORS["fused causal"](bound, field)))
+        for estimator, heading in estimates:
+            error = hd.angle_difference_deg(heading, run.magnetic_heading_deg)[scored]
             rows.append((f"{trajectory.value} (cal: {source})", estimator, float(np.sqrt(np.mean(error**2)))))
     return rows
+
+
+#: the causal filter fed the accelerometer without the run's linear acceleration (gravity and noise only): what
+#: velocity aiding (GNSS, odometry) could give at best; the gap to "fused causal" is what linear acceleration costs
+BOUND_ESTIMATOR = "fused causal, lin. acc. removed"
+
+
+def without_linear_acceleration(run: SimulatedRun) -> np.ndarray:
+    """The run's accelerometer readings (N, 3) m/s^2 with its true linear acceleration taken out, in body axes."""
+    rotation = quaternion_to_matrix(np.asarray(run.quat_wxyz, dtype=float))
+    return run.acc_ms2 - np.einsum("nji,nj->ni", rotation, run.lin_acc_ned_ms2)
 
 
 def run_motion_benchmark() -> str:
