@@ -58,8 +58,9 @@ def compute_headings(
     matrices (S, 3, 3) the calibration of each sample's device (B = A (u - b), see ``magnet.model``); calibrated (S,)
     bool.
     """
-    field = np.einsum("sij,sj->si", matrices, mag_ut - offsets)
-    has_acc = np.isfinite(acc_ms2).all(axis=1)
+    # no calibration anywhere: identity, the same numbers without the per-sample matrix product
+    field = np.einsum("sij,sj->si", matrices, mag_ut - offsets) if calibrated.any() else np.array(mag_ut, dtype=float)
+    has_acc = hd.rows_finite(acc_ms2)
     with np.errstate(invalid="ignore", divide="ignore"):
         tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)
         pitch, roll = hd.pitch_roll_deg(acc_ms2)

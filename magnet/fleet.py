@@ -178,11 +178,11 @@ def disturbance_flags(
     """FIELD_DISTURBED and DIP_DISTURBED bits (S,) int as ``magnet.heading.disturbance_flags`` sets them, against
     each sample's own expectation (no bit where it is NaN). field_ut (S, 3) uT; acc_ms2 (S, 3) with NaN rows where
     absent; dip_deg (S,) (NaN without acc)."""
-    magnitude = np.linalg.norm(field_ut, axis=1)
+    magnitude = hd.row_norm(field_ut)
     with np.errstate(invalid="ignore"):
         field_off = np.abs(magnitude - earth.total_ut) > earth.total_ut * field_tol_pct / 100.0
         dip_off = np.abs(dip_deg - earth.inclination_deg) > dip_tol_deg
-    has_acc = np.isfinite(acc_ms2).all(axis=1) & (np.linalg.norm(np.nan_to_num(acc_ms2), axis=1) > 1e-9)
+    has_acc = hd.rows_finite(acc_ms2) & (hd.row_norm(np.nan_to_num(acc_ms2)) > 1e-9)
     return (
         np.where(field_off, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
         | np.where(dip_off & has_acc, int(hd.HeadingFlag.DIP_DISTURBED), 0)

@@ -61,9 +61,13 @@ def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     )
 
 
+#: q_C * q * q_D is linear in q: row k is the image of the k-th unit quaternion, so that it is q @ this (4, 4)
+_VQF_TO_NED = np.stack([quat_multiply(quat_multiply(_Q_ENU_TO_NED, e), _Q_BODY_TO_VQF) for e in np.eye(4)])
+
+
 def vqf_to_body_ned(quat_vqf: np.ndarray) -> np.ndarray:
     """vqf's quaternions (..., 4) (its body -> ENU) to the project's body -> NED, w >= 0, shape (..., 4)."""
-    q = quat_multiply(quat_multiply(_Q_ENU_TO_NED, quat_vqf), _Q_BODY_TO_VQF)
+    q = np.asarray(quat_vqf, dtype=float) @ _VQF_TO_NED
     return np.where(q[..., :1] < 0, -q, q)
 
 

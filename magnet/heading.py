@@ -66,16 +66,38 @@ def level_heading_deg(field: np.ndarray) -> np.ndarray:
     return wrap_deg(np.degrees(np.arctan2(-b[..., 1], b[..., 0])))
 
 
+def row_norm(v: np.ndarray) -> np.ndarray:
+    """|v| of vectors (..., 3), component by component (several times faster than ``np.linalg.norm(axis=-1)`` on
+    (S, 3) arrays)."""
+    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
+
+
+def rows_finite(v: np.ndarray) -> np.ndarray:
+    """(...,) bool: every component of the vectors (..., k) is finite (faster than ``.all(axis=-1)`` for small k)."""
+    finite = np.isfinite(v)
+    out = finite[..., 0].copy()
+    for k in range(1, v.shape[-1]):
+        out &= finite[..., k]
+    return out
+
+
+def _down(acc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The unit down direction -acc / |acc| as three component arrays (...,), NaN where |acc| is tiny."""
+    f = np.asarray(acc, dtype=float)
+    norm = row_norm(f)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(norm > _TINY, -1.0 / norm, np.nan)
+    return f[..., 0] * scale, f[..., 1] * scale, f[..., 2] * scale
+
+
 def _horizontal_frame(field: np.ndarray, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """down (unit), east and north (both of length |B_horizontal|) in body coordinates, each (..., 3)."""
-    f = np.asarray(acc, dtype=float)
     b = np.asarray(field, dtype=float)
-    norm = np.linalg.norm(f, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        down = np.where(norm > _TINY, -f / norm, np.nan)
-    east = np.cross(down, b)
-    north = np.cross(east, down)
-    return down, east, north
+    dx, dy, dz = _down(acc)
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    ex, ey, ez = dy * bz - dz * by, dz * bx - dx * bz, dx * by - dy * bx  # east = down x B
+    north = np.stack([ey * dz - ez * dy, ez * dx - ex * dz, ex * dy - ey * dx], axis=-1)  # east x down
+    return np.stack([dx, dy, dz], axis=-1), np.stack([ex, ey, ez], axis=-1), north
 
 
 def tilt_compensated_heading_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
@@ -91,8 +113,11 @@ def tilt_compensated_heading_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarr
     since the body x axis has components (cos h cos p) on north and (sin h cos p) on east. Samples with a zero
     accelerometer reading give NaN.
     """
-    _, east, north = _horizontal_frame(field, acc)
-    return wrap_deg(np.degrees(np.arctan2(east[..., 0], north[..., 0])))
+    b = np.asarray(field, dtype=float)
+    dx, dy, dz = _down(acc)
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    ex, ey, ez = dy * bz - dz * by, dz * bx - dx * bz, dx * by - dy * bx  # east = down x B
+    return wrap_deg(np.degrees(np.arctan2(ex, ey * dz - ez * dy)))  # north_x = (east x down)_x
 
 
 def heading_uncertainty_deg(field: np.ndarray, acc: np.ndarray, field_error_ut: float) -> np.ndarray:
@@ -135,10 +160,10 @@ def dip_angle_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
 
     It equals the local inclination whatever the attitude, so it checks both calibration and disturbance.
     """
-    down, _, _ = _horizontal_frame(field, acc)
+    dx, dy, dz = _down(acc)
     b = np.asarray(field, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        sine = np.sum(b * down, axis=-1) / np.linalg.norm(b, axis=-1)
+        sine = (b[..., 0] * dx + b[..., 1] * dy + b[..., 2] * dz) / row_norm(b)
     return np.degrees(np.arcsin(np.clip(sine, -1.0, 1.0)))
 
 
@@ -159,13 +184,13 @@ def disturbance_flags(
     b = np.asarray(field, dtype=float)
     flags = np.zeros(b.shape[:-1], dtype=np.int64)
     if expected_ut:
-        magnitude = np.linalg.norm(b, axis=-1)
+        magnitude = row_norm(b)
         disturbed = ~(np.abs(magnitude - expected_ut) <= expected_ut * field_tol_pct / 100.0)
         flags |= np.where(disturbed, int(HeadingFlag.FIELD_DISTURBED), 0)
     if acc is None:
         return flags | int(HeadingFlag.NO_TILT)
     f = np.broadcast_to(np.asarray(acc, dtype=float), b.shape)
-    norm = np.linalg.norm(f, axis=-1)
+    norm = row_norm(f)
     no_tilt = ~(np.isfinite(norm) & (norm > _TINY))
     flags |= np.where(no_tilt, int(HeadingFlag.NO_TILT), 0)
     if expected_dip_deg is not None:

@@ -186,3 +186,16 @@ def test_fleet_state_is_bounded(device):
             columns.mag_ut,
         )
     assert list(fleet.devices) == ["d2", "d3", "d4"]
+
+
+def test_devices_interleaved_in_one_drain_fuse_as_each_alone(device):
+    """A drain holds several batches of each device, interleaved: each device's filter sees its own batches in
+    order (joined into one vqf call per run), exactly as when each device is fed alone."""
+    one, two = batches(device, "imu-1")[:12], batches(device, "imu-2", t0_ns=2_000_000_000_000)[:12]
+    mixed = [b for pair in zip(one, two) for b in pair]
+    together = Compass(Earth(), window=1).process(mixed)
+    alone = Compass(Earth(), window=1).process(one) + Compass(Earth(), window=1).process(two)
+    by_device = {name: joined([h for h in together if h.device == name], "heading_deg") for name in ("imu-1", "imu-2")}
+    np.testing.assert_array_equal(by_device["imu-1"], joined(alone[:12], "heading_deg"))
+    np.testing.assert_array_equal(by_device["imu-2"], joined(alone[12:], "heading_deg"))
+    assert np.all(joined(together, "flags") & HeadingFlag.FUSED)

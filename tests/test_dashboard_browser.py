@@ -108,15 +108,41 @@ def pipeline(tmp_path):
 
 
 def _wait_for(read, pattern, proc, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+    """The text ``read()`` returns once ``pattern`` is in it; fails when ``proc`` ends first or after ``timeout_s``."""
+
+    def seen():
         text = read()
         if re.search(pattern, text):
             return text
         if proc.poll() is not None:
             pytest.fail(f"process ended early: {text[-2000:]}")
+        return None
+
+    return _until(seen, timeout_s)
+
+
+#: true in the page once every device in ``first`` ({device: [seq, heading]}) shows a newer message and at least
+#: four of their headings moved by more than 0.5 deg
+NEWER_AND_MOVED = """first => {
+    const cells = [...document.querySelectorAll('#fleet-body td[data-key="true_heading_deg"]')];
+    const now = Object.fromEntries(cells.map(td => [td.parentElement.dataset.device, td.dataset]));
+    const devices = Object.keys(first);
+    const newer = devices.every(d => now[d] && Number(now[d].seq) > first[d][0]);
+    const moved = devices.filter(d => now[d] && Math.abs(Number(now[d].heading) - first[d][1]) > 0.5).length;
+    return newer && moved >= 4;
+}"""
+#: resolves after the browser has drawn two more frames
+TWO_FRAMES = "() => new Promise(done => requestAnimationFrame(() => requestAnimationFrame(done)))"
+
+
+def _until(value, timeout_s):
+    """``value()`` once it is not None, checked every 0.1 s; fails after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while (result := value()) is None:
+        if time.monotonic() > deadline:
+            pytest.fail(f"{getattr(value, '__name__', 'condition')} not met within {timeout_s} s")
         time.sleep(0.1)
-    pytest.fail(f"{pattern!r} not seen within {timeout_s} s: {read()[-2000:]}")
+    return result
 
 
 def _watch_headings(tmp_path, compass_port):
@@ -151,6 +177,12 @@ def _watched(tmp_path) -> dict[tuple[str, int], float]:
         if "true_heading_deg" in message:
             out[(message["device"], message["seq"])] = message["true_heading_deg"][-1]
     return out
+
+
+def _watched_once(tmp_path, wanted, count):
+    """``_watched`` once it holds at least ``count`` of the (device, seq) ``wanted``, else None."""
+    watched = _watched(tmp_path)
+    return watched if len(wanted & watched.keys()) >= count else None
 
 
 def _page_headings(page) -> dict[str, tuple[int, float]]:
@@ -199,13 +231,13 @@ def _check_fleet(page, tmp_path):
         timeout=20_000,
     )
     first = _page_headings(page)
-    time.sleep(1.5)
+    page.wait_for_function(NEWER_AND_MOVED, arg={d: [seq, heading] for d, (seq, heading) in first.items()})
     second = _page_headings(page)
     assert all(second[d][0] > first[d][0] for d in first), (first, second)  # newer messages shown
     assert sum(abs(second[d][1] - first[d][1]) > 0.5 for d in first) >= 4, (first, second)  # headings move
     _shot(page, "fleet")
-    time.sleep(0.5)  # let `magnet watch heading` print the messages the page shows
-    watched = _watched(tmp_path)
+    wanted = {(device, seq) for device, (seq, _) in second.items()}
+    watched = _until(lambda: _watched_once(tmp_path, wanted, 4), 20)  # `magnet watch heading` printed them
     matched = 0
     for device, (seq, heading) in second.items():
         if (device, seq) in watched:
@@ -232,10 +264,9 @@ def _check_session(page):
     page.wait_for_function("document.querySelector('#c-message').textContent === 'committed'", timeout=10_000)
     page.wait_for_function("document.querySelector('#c-state').textContent === 'calibrated'", timeout=10_000)
     page.wait_for_function("document.querySelectorAll('#history-body code').length >= 1", timeout=10_000)
-    time.sleep(1.2)  # one more detail event for the plots
     page.wait_for_function("document.querySelectorAll('#cloud .scatterlayer .trace .point').length > 100")
     _shot(page, "device-committed")
     page.click('.tab[data-cloud="3d"]')
     page.wait_for_function("document.querySelector('#cloud .gl-container') !== null", timeout=30_000)
-    time.sleep(1.0)
+    page.evaluate(TWO_FRAMES)  # the 3D scene drawn before the screenshot
     _shot(page, "device-3d")

@@ -1,4 +1,5 @@
-"""Each function does one step: no function of ``magnet/`` or ``services/`` over about 40 lines of code.
+"""Each function does one step and each module holds one idea: no function of ``magnet/`` or ``services/`` over
+about 40 lines of code, no module over 400 lines.
 
 A function's length is the number of lines on which one of its statements starts, its docstring left out: ``ruff
 format`` lays a long call out one argument per line, and that layout should not count as more steps.
@@ -48,3 +49,16 @@ def test_no_function_is_over_40_lines():
         if (length := _code_lines(node)) > MAX_FUNCTION_LINES
     ]
     assert long == [], f"functions over {MAX_FUNCTION_LINES} lines (split them by step):\n" + "\n".join(long)
+
+
+MAX_MODULE_LINES = 400
+
+
+def test_no_module_is_over_400_lines():
+    """Each module holds one idea: none of ``magnet/`` or ``services/`` over 400 lines (split it by idea)."""
+    long = [
+        f"{path.relative_to(ROOT).as_posix()} ({length} lines)"
+        for path in _sources()
+        if (length := len(path.read_text().splitlines())) > MAX_MODULE_LINES
+    ]
+    assert long == [], f"modules over {MAX_MODULE_LINES} lines (split them by idea):\n" + "\n".join(long)

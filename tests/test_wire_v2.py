@@ -30,7 +30,7 @@ def _vectors(limit):
 def raw_batches(draw):
     n = draw(st.integers(1, 40))
     optional = lambda strategy: draw(st.one_of(st.none(), strategy))  # noqa: E731
-    t_ns = np.asarray(draw(hnp.arrays(np.int64, n, elements=st.integers(0, 2**62))))
+    t_ns = np.sort(draw(hnp.arrays(np.int64, n, elements=st.integers(0, 2**62))))  # time never runs backwards
     truth = optional(st.just({k: np.linspace(0, 359, n) for k in wire.TRUTH_FIELDS}))
     return wire.RawBatch(
         draw(st.sampled_from(["d", "imu-1", "ü-7"])),

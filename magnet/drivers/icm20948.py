@@ -28,9 +28,8 @@ from typing import Any
 import numpy as np
 
 from magnet.drivers.ak09918c import AK09918C, Mode
-from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError
-from magnet.drivers.inertial import RAD_PER_DEG, Z_UP_TO_BODY, NineAxis, choose, mounting, saturated, words
-from magnet.units import STANDARD_GRAVITY_MS2
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, SensorError
+from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, choose, mounting, words
 
 DEFAULT_ADDRESS = 0x68
 MAG_ADDRESS = 0x0C
@@ -70,9 +69,14 @@ MAG_RATES_HZ: dict[int, Mode] = {
 MAG_TO_ICM = np.diag([1.0, -1.0, -1.0])
 
 
-class ICM20948AccelGyro(Sensor):
+class ICM20948AccelGyro(AccelGyro):
     """The accelerometer + gyroscope: checks WHO_AM_I, wakes the chip, turns the bypass on (so the AK09916 answers
     at 0x0C), sets full scales and rate; ``read()`` gives ``acc_ms2`` and ``gyr_rads`` when RAW_DATA_0_RDY is set."""
+
+    CHIP = "ICM-20948"
+    ACCEL_RANGES = ACCEL_RANGES
+    GYRO_RANGES = GYRO_RANGES
+    OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
 
     def __init__(
         self,
@@ -86,11 +90,7 @@ class ICM20948AccelGyro(Sensor):
         retry: RetryPolicy | None = None,
         sleep: Callable[[float], None] | None = None,
     ) -> None:
-        self.accel_fs, self.lsb_per_g = choose(accel_range_g, ACCEL_RANGES, "accelerometer range (g)", "ICM-20948")
-        self.gyro_fs, self.lsb_per_dps = choose(gyro_range_dps, GYRO_RANGES, "gyroscope range (deg/s)", "ICM-20948")
-        self.divider = choose(rate_hz, OUTPUT_RATES_HZ, "output rate (Hz)", "ICM-20948")
-        self._attach(bus, address, orientation, retry, sleep)
-        self.rotation = mounting(orientation, Z_UP_TO_BODY)
+        self.divider = self._setup(bus, address, orientation, retry, sleep, (accel_range_g, gyro_range_dps, rate_hz))
         device = self.device
         device.write_byte(REG_BANK_SEL, 0 << 4)
         found = device.read_byte(WHO_AM_I)
@@ -116,12 +116,7 @@ class ICM20948AccelGyro(Sensor):
         if not self.device.read_byte(INT_STATUS_1) & RAW_DATA_RDY:
             return NOT_READY
         counts = words(self.device.read_block(ACCEL_XOUT_H, 12), big_endian=True)
-        if saturated(counts):
-            return Reading(overflow=True)
-        return Reading(
-            acc_ms2=counts[:3] / self.lsb_per_g * STANDARD_GRAVITY_MS2,
-            gyr_rads=counts[3:] / self.lsb_per_dps * RAD_PER_DEG,
-        )
+        return self._scaled(counts[:3], counts[3:])
 
 
 class AK09916(AK09918C):

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
-from magnet.drivers.base import Combined, Reading, Sensor, orientation_matrix, to_signed
+from magnet.drivers.base import Combined, I2CBus, Reading, RetryPolicy, Sensor, orientation_matrix, to_signed
+from magnet.units import STANDARD_GRAVITY_MS2
 
 #: chip axes with z up out of the package -> body axes of a package lying flat, top up, x forward
 Z_UP_TO_BODY = np.diag([1.0, -1.0, -1.0])
@@ -50,6 +51,54 @@ def words(block: list[int], big_endian: bool) -> np.ndarray:
 def saturated(counts: np.ndarray) -> bool:
     """A 16-bit channel at either end of its range: the quantity is beyond the full scale."""
     return bool(np.any((counts <= INT16_LIMITS[0]) | (counts >= INT16_LIMITS[1])))
+
+
+class AccelGyro(Sensor):
+    """Base of the accelerometer + gyroscope drivers: the settings chosen from the chip's tables, the z-up package
+    frame, and counts scaled to m/s^2 and rad/s.
+
+    A chip sets ``CHIP`` (its name in messages), ``ACCEL_RANGES`` (full scale g -> (register code, scale)),
+    ``GYRO_RANGES`` (full scale deg/s -> (register code, scale)) and ``OUTPUT_RATES_HZ`` (Hz -> register value); the
+    scales are LSB per g and per deg/s, or with ``MILLI_PER_LSB`` mg and mdps per LSB (as ST's datasheets give them).
+    """
+
+    CHIP: ClassVar[str]
+    ACCEL_RANGES: ClassVar[Mapping[int, tuple[int, float]]]
+    GYRO_RANGES: ClassVar[Mapping[int, tuple[int, float]]]
+    OUTPUT_RATES_HZ: ClassVar[Mapping[Any, int]]
+    MILLI_PER_LSB: ClassVar[bool] = False
+
+    def _setup(
+        self,
+        bus: I2CBus,
+        address: int,
+        orientation: Any,
+        retry: RetryPolicy | None,
+        sleep: Callable[[float], None] | None,
+        settings: tuple[Any, Any, Any],
+    ) -> int:
+        """Choose (accelerometer range g, gyroscope range deg/s, output rate Hz) from the tables (ValueError naming
+        the chip and the values allowed), then attach the chip in the package frame; the rate's register value."""
+        accel_range_g, gyro_range_dps, rate_hz = settings
+        self.accel_fs, accel_scale = choose(accel_range_g, self.ACCEL_RANGES, "accelerometer range (g)", self.CHIP)
+        self.gyro_fs, gyro_scale = choose(gyro_range_dps, self.GYRO_RANGES, "gyroscope range (deg/s)", self.CHIP)
+        rate: int = choose(rate_hz, self.OUTPUT_RATES_HZ, "output rate (Hz)", self.CHIP)
+        if self.MILLI_PER_LSB:
+            g_per_lsb, dps_per_lsb = accel_scale / 1000.0, gyro_scale / 1000.0
+        else:
+            g_per_lsb, dps_per_lsb = 1.0 / accel_scale, 1.0 / gyro_scale
+        self.acc_ms2_per_lsb = g_per_lsb * STANDARD_GRAVITY_MS2
+        self.gyr_rads_per_lsb = dps_per_lsb * RAD_PER_DEG
+        self._attach(bus, address, orientation, retry, sleep)
+        self.rotation = mounting(orientation, Z_UP_TO_BODY)
+        return rate
+
+    def _scaled(self, accel: np.ndarray, gyro: np.ndarray) -> Reading:
+        """The reading of accelerometer and gyroscope counts (3,) each in the chip's axes; overflow when either is at
+        the end of its range."""
+        if saturated(accel) or saturated(gyro):
+            return Reading(overflow=True)
+        return Reading(acc_ms2=accel * self.acc_ms2_per_lsb, gyr_rads=gyro * self.gyr_rads_per_lsb)
 
 
 class NineAxis(Combined):

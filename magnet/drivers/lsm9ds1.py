@@ -28,8 +28,7 @@ from typing import Any
 import numpy as np
 
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError
-from magnet.drivers.inertial import RAD_PER_DEG, Z_UP_TO_BODY, NineAxis, choose, mounting, saturated, words
-from magnet.units import STANDARD_GRAVITY_MS2
+from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, choose, mounting, saturated, words
 
 DEFAULT_ADDRESS = 0x1E  # magnetometer
 DEFAULT_AG_ADDRESS = 0x6B  # accelerometer + gyroscope
@@ -76,9 +75,15 @@ MAG_RATES_HZ: dict[float, int] = {0.625: 0, 1.25: 1, 2.5: 2, 5: 3, 10: 4, 20: 5,
 MAG_TO_AG = np.diag([-1.0, 1.0, 1.0])
 
 
-class LSM9DS1AccelGyro(Sensor):
+class LSM9DS1AccelGyro(AccelGyro):
     """The accelerometer + gyroscope: checks WHO_AM_I, sets block update, auto-increment, axes, full scales and the
     rate; ``read()`` gives ``acc_ms2`` and ``gyr_rads`` once both have new data (XLDA and GDA)."""
+
+    CHIP = "LSM9DS1"
+    ACCEL_RANGES = ACCEL_RANGES
+    GYRO_RANGES = GYRO_RANGES
+    OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
+    MILLI_PER_LSB = True
 
     def __init__(
         self,
@@ -92,11 +97,7 @@ class LSM9DS1AccelGyro(Sensor):
         retry: RetryPolicy | None = None,
         sleep: Callable[[float], None] | None = None,
     ) -> None:
-        self.accel_fs, self.mg_per_lsb = choose(accel_range_g, ACCEL_RANGES, "accelerometer range (g)", "LSM9DS1")
-        self.gyro_fs, self.mdps_per_lsb = choose(gyro_range_dps, GYRO_RANGES, "gyroscope range (deg/s)", "LSM9DS1")
-        self.odr = choose(rate_hz, OUTPUT_RATES_HZ, "output rate (Hz)", "LSM9DS1")
-        self._attach(bus, address, orientation, retry, sleep)
-        self.rotation = mounting(orientation, Z_UP_TO_BODY)
+        self.odr = self._setup(bus, address, orientation, retry, sleep, (accel_range_g, gyro_range_dps, rate_hz))
         found = self.device.read_byte(WHO_AM_I)
         if found != AG_ID:
             raise SensorError(
@@ -114,12 +115,7 @@ class LSM9DS1AccelGyro(Sensor):
             return NOT_READY
         gyro = words(self.device.read_block(OUT_X_L_G, 6), big_endian=False)
         accel = words(self.device.read_block(OUT_X_L_XL, 6), big_endian=False)
-        if saturated(gyro) or saturated(accel):
-            return Reading(overflow=True)
-        return Reading(
-            acc_ms2=accel * self.mg_per_lsb / 1000.0 * STANDARD_GRAVITY_MS2,
-            gyr_rads=gyro * self.mdps_per_lsb / 1000.0 * RAD_PER_DEG,
-        )
+        return self._scaled(accel, gyro)
 
 
 class LSM9DS1Magnetometer(Sensor):

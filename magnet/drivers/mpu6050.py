@@ -20,8 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError
-from magnet.drivers.inertial import RAD_PER_DEG, Z_UP_TO_BODY, NineAxis, choose, mounting, saturated, words
-from magnet.units import STANDARD_GRAVITY_MS2
+from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, mounting, words
 
 DEFAULT_ADDRESS = 0x68
 SMPLRT_DIV, CONFIG, GYRO_CONFIG, ACCEL_CONFIG, INT_PIN_CFG, INT_ENABLE, INT_STATUS, ACCEL_XOUT_H = (
@@ -49,10 +48,15 @@ ACCEL_RANGES: dict[int, tuple[int, float]] = {2: (0, 16384.0), 4: (1, 8192.0), 8
 OUTPUT_RATES_HZ: dict[int, int] = {10: 99, 50: 19, 100: 9, 200: 4, 500: 1, 1000: 0}
 
 
-class MPU6050(Sensor):
+class MPU6050(AccelGyro):
     """Driver: checks WHO_AM_I, wakes the chip on the gyroscope clock, sets the low-pass filter, rate and full
     scales, turns the auxiliary-bus bypass on and the data-ready flag; ``read()`` gives ``acc_ms2`` and ``gyr_rads``
     when DATA_RDY_INT is set."""
+
+    CHIP = "MPU-6050"
+    ACCEL_RANGES = ACCEL_RANGES
+    GYRO_RANGES = GYRO_RANGES
+    OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
 
     def __init__(
         self,
@@ -66,11 +70,7 @@ class MPU6050(Sensor):
         retry: RetryPolicy | None = None,
         sleep: Callable[[float], None] | None = None,
     ) -> None:
-        self.accel_fs, self.lsb_per_g = choose(accel_range_g, ACCEL_RANGES, "accelerometer range (g)", "MPU-6050")
-        self.gyro_fs, self.lsb_per_dps = choose(gyro_range_dps, GYRO_RANGES, "gyroscope range (deg/s)", "MPU-6050")
-        self.divider = choose(rate_hz, OUTPUT_RATES_HZ, "output rate (Hz)", "MPU-6050")
-        self._attach(bus, address, orientation, retry, sleep)
-        self.rotation = mounting(orientation, Z_UP_TO_BODY)
+        self.divider = self._setup(bus, address, orientation, retry, sleep, (accel_range_g, gyro_range_dps, rate_hz))
         found = self.device.read_byte(WHO_AM_I)
         if found != CHIP_ID:
             raise SensorError(
@@ -90,12 +90,7 @@ class MPU6050(Sensor):
         if not self.device.read_byte(INT_STATUS) & DATA_RDY:
             return NOT_READY
         counts = words(self.device.read_block(ACCEL_XOUT_H, 14), big_endian=True)  # accel, temperature, gyro
-        accel, gyro = counts[:3], counts[4:]
-        if saturated(accel) or saturated(gyro):
-            return Reading(overflow=True)
-        return Reading(
-            acc_ms2=accel / self.lsb_per_g * STANDARD_GRAVITY_MS2, gyr_rads=gyro / self.lsb_per_dps * RAD_PER_DEG
-        )
+        return self._scaled(counts[:3], counts[4:])
 
 
 def with_magnetometer(

@@ -24,10 +24,8 @@ import numpy as np
 
 from magnet.emulators.ak09918c import AK09918CEmulator
 from magnet.emulators.base import EmulatedBus, FaultInjector, RegisterDevice, SourceTap, _nack
-from magnet.emulators.inertial import Z_UP, InertialDevice, int16, put_words
+from magnet.emulators.inertial import INVENSENSE_ACCEL_LSB, INVENSENSE_GYRO_LSB, Z_UP, InertialDevice, board, put_words
 
-_GYRO_LSB = (131.0, 65.5, 32.8, 16.4)
-_ACCEL_LSB = (16384.0, 8192.0, 4096.0, 2048.0)
 _POWER_ON = {0: {0x00: 0xEA, 0x06: 0x41}, 2: {0x01: 0x01, 0x14: 0x01}}
 _READ_ONLY_BANK0 = frozenset({0x00, 0x1A, *range(0x2D, 0x3B)})
 #: ICM axes -> AK09916 axes
@@ -38,11 +36,6 @@ class ICM20948Chip(InertialDevice):
     """The accelerometer + gyroscope part, with its register banks."""
 
     addresses = (0x68,)
-
-    def __init__(self, source: Any = None, **options: Any) -> None:
-        """``options``: see ``InertialDevice``."""
-        super().__init__(source, **options)
-        self._reset()
 
     def _reset(self) -> None:
         self._power_on_reset({})
@@ -59,10 +52,10 @@ class ICM20948Chip(InertialDevice):
         return bool(bank0[0x0F] & 0x02) and not bank0[0x03] & 0x20
 
     def _measure(self) -> None:
-        acc_g, gyr_dps = self.sample()
         bank0, bank2 = self.banks[0], self.banks[2]
-        accel = int16(acc_g * _ACCEL_LSB[(bank2[0x14] >> 1) & 0x03])
-        gyro = int16(gyr_dps * _GYRO_LSB[(bank2[0x01] >> 1) & 0x03])
+        accel, gyro = self.codes(
+            INVENSENSE_ACCEL_LSB[(bank2[0x14] >> 1) & 0x03], INVENSENSE_GYRO_LSB[(bank2[0x01] >> 1) & 0x03]
+        )
         put_words(bank0, 0x2D, np.concatenate([accel, gyro]), big_endian=True)
         if bank0[0x11] & 0x01:
             bank0[0x1A] |= 0x01
@@ -113,10 +106,9 @@ class ICM20948Emulator(EmulatedBus):
         faults: FaultInjector | None = None,
         **mag_options: Any,
     ) -> None:
-        tap = SourceTap(source)
-        board = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
-        self.imu = ICM20948Chip(tap=tap, address=address, rotation=board, clock=clock)
-        self.mag = AK09916Emulator(tap=tap, rotation=MAG_FROM_ICM @ Z_UP @ board, clock=clock, **mag_options)
+        tap, package = SourceTap(source), board(rotation)
+        self.imu = ICM20948Chip(tap=tap, address=address, rotation=package, clock=clock)
+        self.mag = AK09916Emulator(tap=tap, rotation=MAG_FROM_ICM @ Z_UP @ package, clock=clock, **mag_options)
         super().__init__(self.imu, self.mag, faults=faults)
 
     def _device(self, address: int) -> RegisterDevice:

@@ -17,6 +17,14 @@ from magnet.emulators.base import STANDARD_GRAVITY_MS2, SensorDevice
 
 #: body (or package) axes -> the axes of a z-up chip lying flat, top up, x forward
 Z_UP = np.diag([1.0, -1.0, -1.0])
+#: the InvenSense chips' (MPU-6050, ICM-20948) codes per g and per deg/s, by full-scale setting (bits FS_SEL)
+INVENSENSE_ACCEL_LSB = (16384.0, 8192.0, 4096.0, 2048.0)
+INVENSENSE_GYRO_LSB = (131.0, 65.5, 32.8, 16.4)
+
+
+def board(rotation: Any) -> np.ndarray:
+    """The board's rotation (3, 3) from the body: ``rotation`` as floats, identity when None."""
+    return np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
 
 
 def int16(values: np.ndarray) -> np.ndarray:
@@ -39,6 +47,11 @@ class InertialDevice(SensorDevice):
         """``options``: see ``SensorDevice``; ``rotation`` maps the body to the package (module docstring)."""
         super().__init__(source, **options)
         self.chip_from_body = Z_UP @ self.rotation
+        self._reset()
+
+    def _reset(self) -> None:  # pragma: no cover - abstract
+        """Power-on state of the chip's registers."""
+        raise NotImplementedError
 
     def _restart(self) -> None:
         """A configuration write restarts sampling: the next sample comes at the new settings (and, with no clock,
@@ -51,3 +64,8 @@ class InertialDevice(SensorDevice):
         acc_g = self.chip_from_body @ self.tap.acc() / STANDARD_GRAVITY_MS2
         gyr_dps = self.chip_from_body @ self.tap.gyr() * (180.0 / math.pi)
         return acc_g, gyr_dps
+
+    def codes(self, lsb_per_g: float, lsb_per_dps: float) -> tuple[np.ndarray, np.ndarray]:
+        """(accelerometer, gyroscope) 16-bit codes (3,) each of the latest source sample at these sensitivities."""
+        acc_g, gyr_dps = self.sample()
+        return int16(acc_g * lsb_per_g), int16(gyr_dps * lsb_per_dps)

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from magnet.emulators.base import EmulatedBus, FaultInjector, MagnetometerDevice, SourceTap
-from magnet.emulators.inertial import Z_UP, InertialDevice, int16, put_words
+from magnet.emulators.inertial import Z_UP, InertialDevice, board, int16, put_words
 
 _GYRO_ODR_HZ = (0.0, 14.9, 59.5, 119.0, 238.0, 476.0, 952.0, 0.0)
 _ACCEL_ODR_HZ = (0.0, 10.0, 50.0, 119.0, 238.0, 476.0, 952.0, 0.0)
@@ -44,11 +44,6 @@ MAG_FROM_AG = np.diag([-1.0, 1.0, 1.0])
 
 class LSM9DS1AccelGyroEmulator(InertialDevice):
     addresses = (0x6B,)
-
-    def __init__(self, source: Any = None, **options: Any) -> None:
-        """``options``: see ``InertialDevice``."""
-        super().__init__(source, **options)
-        self._reset()
 
     def _reset(self) -> None:
         self._power_on_reset({0x0F: 0x68, 0x1E: 0x38, 0x1F: 0x38, 0x22: 0x04})
@@ -167,10 +162,9 @@ class LSM9DS1Emulator(EmulatedBus):
         faults: FaultInjector | None = None,
         **mag_options: Any,
     ) -> None:
-        tap = SourceTap(source)
-        board = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
-        self.ag = LSM9DS1AccelGyroEmulator(tap=tap, address=acc_address, rotation=board, clock=clock)
+        tap, package = SourceTap(source), board(rotation)
+        self.ag = LSM9DS1AccelGyroEmulator(tap=tap, address=acc_address, rotation=package, clock=clock)
         self.mag = LSM9DS1MagEmulator(
-            tap=tap, address=address, rotation=MAG_FROM_AG @ Z_UP @ board, clock=clock, **mag_options
+            tap=tap, address=address, rotation=MAG_FROM_AG @ Z_UP @ package, clock=clock, **mag_options
         )
         super().__init__(self.ag, self.mag, faults=faults)

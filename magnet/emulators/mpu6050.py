@@ -19,21 +19,14 @@ from typing import Any
 import numpy as np
 
 from magnet.emulators.base import EmulatedBus, FaultInjector, SourceTap
-from magnet.emulators.inertial import Z_UP, InertialDevice, int16, put_words
+from magnet.emulators.inertial import INVENSENSE_ACCEL_LSB, INVENSENSE_GYRO_LSB, Z_UP, InertialDevice, board, put_words
 
-_GYRO_LSB = (131.0, 65.5, 32.8, 16.4)
-_ACCEL_LSB = (16384.0, 8192.0, 4096.0, 2048.0)
 _WRITABLE = frozenset({0x19, 0x1A, 0x1B, 0x1C, 0x37, 0x38, 0x6A, 0x6B, 0x6C})
 _TEMPERATURE_CODE = round((25.0 - 36.53) * 340.0)
 
 
 class MPU6050Emulator(InertialDevice):
     addresses = (0x68,)
-
-    def __init__(self, source: Any = None, **options: Any) -> None:
-        """``options``: see ``InertialDevice``."""
-        super().__init__(source, **options)
-        self._reset()
 
     def _reset(self) -> None:
         self._power_on_reset({0x75: 0x68, 0x6B: 0x40})
@@ -44,9 +37,9 @@ class MPU6050Emulator(InertialDevice):
         return (1 + self.regs[0x19]) / base_hz
 
     def _measure(self) -> None:
-        acc_g, gyr_dps = self.sample()
-        accel = int16(acc_g * _ACCEL_LSB[(self.regs[0x1C] >> 3) & 0x03])
-        gyro = int16(gyr_dps * _GYRO_LSB[(self.regs[0x1B] >> 3) & 0x03])
+        accel, gyro = self.codes(
+            INVENSENSE_ACCEL_LSB[(self.regs[0x1C] >> 3) & 0x03], INVENSENSE_GYRO_LSB[(self.regs[0x1B] >> 3) & 0x03]
+        )
         put_words(self.regs, 0x3B, np.concatenate([accel, [_TEMPERATURE_CODE], gyro]), big_endian=True)
         if self.regs[0x38] & 0x01:
             self.regs[0x3A] |= 0x01
@@ -83,10 +76,9 @@ def mpu6050_with(magnetometer_class: type) -> Callable[..., EmulatedBus]:
         faults: FaultInjector | None = None,
         **mag_options: Any,
     ) -> EmulatedBus:
-        tap = SourceTap(source)
-        board = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
-        magnetometer = magnetometer_class(tap=tap, rotation=Z_UP @ board, clock=clock, **mag_options)
-        inertial = MPU6050Emulator(tap=tap, address=acc_address, rotation=board, clock=clock)
+        tap, package = SourceTap(source), board(rotation)
+        magnetometer = magnetometer_class(tap=tap, rotation=Z_UP @ package, clock=clock, **mag_options)
+        inertial = MPU6050Emulator(tap=tap, address=acc_address, rotation=package, clock=clock)
         return EmulatedBus(magnetometer, inertial, faults=faults)
 
     return bus

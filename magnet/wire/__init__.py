@@ -13,9 +13,10 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
 - ``codec``: ``WIRE_VERSION`` (1: lists; the records), ``BINARY_VERSION`` (2: sample arrays as little-endian
   bytes with dtype and shape, written by the services), ``VERSIONS`` (both read), size limits, ``pack``/``unpack``,
   ``plain`` (v 2 arrays as lists, for printing) and the checks of single fields.
-- ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; the one raw decoder ``decode_raw_many`` (``decode_raw`` is
-  it applied to one payload). Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``, and optional
-  ``location`` [lat_deg, lon_deg, alt_m] (``magnet.place.Location``; cause ``bad-location``).
+- ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; ``raw_decode``: the one raw decoder ``decode_raw_many``
+  (``decode_raw`` is it applied to one payload), with the structure checks of one message in ``raw_header``.
+  Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``, and optional ``location`` [lat_deg, lon_deg,
+  alt_m] (``magnet.place.Location``; cause ``bad-location``).
 - ``headings``: ``HeadingBatch``, the one heading encoder ``encode_headings`` (``encode_heading`` is it for one
   batch), ``decode_heading``; optional ``quat_wxyz`` and the ``DISTURBED`` flag bits.
 - ``records``: ``DeviceCalibration`` (a device's calibration as published and stored; its one entry is
@@ -55,12 +56,10 @@ from magnet.wire.raw import (
     TRUTH_FIELDS,
     RawBatch,
     RawColumns,
-    decode_messages,
-    decode_raw,
-    decode_raw_many,
     encode_raw,
     message_location,
 )
+from magnet.wire.raw_decode import decode_messages, decode_raw, decode_raw_many
 from magnet.wire.records import (
     CalibrationMessage,
     Collecting,

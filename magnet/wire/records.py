@@ -14,6 +14,7 @@ number, determinant, offset).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 from typing import Any
 
@@ -47,8 +48,9 @@ class DeviceCalibration:
             if not isinstance(value, str) or len(value) > limit:
                 raise ValueError(f"{name} must be a string of at most {limit} characters")
 
-    @property
+    @functools.cached_property
     def id(self) -> str:
+        """The calibration's content id, hashed once per record (the compass stamps it on every heading message)."""
         return self.calibration.content_id
 
     def to_record(self) -> dict[str, Any]:

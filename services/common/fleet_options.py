@@ -33,44 +33,41 @@ def read_fleet(path: Path | None) -> dict[str, FleetEntry]:
     return parse_fleet(text, f"--fleet {path}")
 
 
+#: the drift options: (flag, DriftSettings field it sets, type, metavar, help with {default})
+DRIFT_OPTIONS: tuple[tuple[str, str, type, str | None, str], ...] = (
+    ("--drift-window", "window_s", float, "S", "seconds per judged window (default {default:g})"),
+    (
+        "--drift-windows",
+        "raise_windows",
+        int,
+        "N",
+        "departed windows in a row before an alert, and recovered ones before it clears (default {default})",
+    ),
+    (
+        "--strength-tol-pct",
+        "strength_tol_pct",
+        float,
+        None,
+        "|B| departure from the calibration's own, %% (default {default:g})",
+    ),
+    (
+        "--dip-tol",
+        "dip_tol_deg",
+        float,
+        "DEG",
+        "dip departure from the calibration's own, degrees (default {default:g})",
+    ),
+    ("--max-age-days", "max_age_days", float, None, "calibration age that raises an alert (default {default:g})"),
+)
+
+
 def add_drift_arguments(parser: argparse.ArgumentParser) -> None:
-    d = DriftSettings()
+    defaults = DriftSettings()
     group = parser.add_argument_group("drift alerts (see README: Fleet operations)")
     group.add_argument("--no-drift", action="store_true", help="publish no drift alerts")
-    group.add_argument(
-        "--drift-window",
-        type=float,
-        default=d.window_s,
-        metavar="S",
-        help=f"seconds per judged window (default {d.window_s:g})",
-    )
-    group.add_argument(
-        "--drift-windows",
-        type=int,
-        default=d.raise_windows,
-        metavar="N",
-        help=f"departed windows in a row before an alert, and recovered ones before it clears "
-        f"(default {d.raise_windows})",
-    )
-    group.add_argument(
-        "--strength-tol-pct",
-        type=float,
-        default=d.strength_tol_pct,
-        help=f"|B| departure from the calibration's own, %% (default {d.strength_tol_pct:g})",
-    )
-    group.add_argument(
-        "--dip-tol",
-        type=float,
-        default=d.dip_tol_deg,
-        metavar="DEG",
-        help=f"dip departure from the calibration's own, degrees (default {d.dip_tol_deg:g})",
-    )
-    group.add_argument(
-        "--max-age-days",
-        type=float,
-        default=d.max_age_days,
-        help=f"calibration age that raises an alert (default {d.max_age_days:g})",
-    )
+    for flag, field, kind, metavar, text in DRIFT_OPTIONS:
+        default = getattr(defaults, field)
+        group.add_argument(flag, type=kind, default=default, metavar=metavar, help=text.format(default=default))
 
 
 def drift_from_args(args: argparse.Namespace) -> DriftSettings | None:

@@ -56,6 +56,20 @@ class HeadingColumns:
     quat_wxyz: np.ndarray | None = None  # (S, 4) body -> NED (true north) where fused, NaN rows elsewhere; or None
 
 
+def _calibration_rows(
+    cals: list[wire.DeviceCalibration | None], counts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per sample: the offset (S, 3), matrix (S, 3, 3) and whether calibrated (S,) of its batch's calibration
+    (identity where none; broadcast views, no copies, when no batch has one)."""
+    total = int(counts.sum())
+    if all(c is None for c in cals):
+        return np.broadcast_to(_ZERO3, (total, 3)), np.broadcast_to(_EYE3, (total, 3, 3)), np.zeros(total, bool)
+    offsets = np.array([c.calibration.offset if c else _ZERO3 for c in cals]).reshape(-1, 3)
+    matrices = np.array([c.calibration.matrix if c else _EYE3 for c in cals]).reshape(-1, 3, 3)
+    calibrated = np.array([c is not None for c in cals], dtype=bool)
+    return np.repeat(offsets, counts, axis=0), np.repeat(matrices, counts, axis=0), np.repeat(calibrated, counts)
+
+
 class Compass(CalibrationsInForce):
     """State of the compass loop: calibrations in force, smoothing tails, filters, counters. No zenoh inside."""
 
@@ -125,13 +139,7 @@ class Compass(CalibrationsInForce):
             if cal is not None:
                 self.calibrations.touch(device)
         counts = columns.counts
-        offsets = np.repeat(
-            np.array([c.calibration.offset if c else _ZERO3 for c in cals]).reshape(-1, 3), counts, axis=0
-        )
-        matrices = np.repeat(
-            np.array([c.calibration.matrix if c else _EYE3 for c in cals]).reshape(-1, 3, 3), counts, axis=0
-        )
-        calibrated = np.repeat(np.array([c is not None for c in cals], dtype=bool), counts)
+        offsets, matrices, calibrated = _calibration_rows(cals, counts)
         earths = self.watch.earths(columns.devices, columns.locations)
         where = EarthColumns.of(earths, counts)
         out = compute_headings(columns.mag_ut, columns.acc_ms2, offsets, matrices, calibrated, Earth())
@@ -141,7 +149,7 @@ class Compass(CalibrationsInForce):
             dip = hd.dip_angle_deg(out.field_ut, gravity)
         out = dataclasses.replace(out, flags=out.flags | disturbance_flags(out.field_ut, gravity, dip, where))
         out, quat = merge(out, fused)
-        self.watch.observe(columns.devices, columns.bounds, columns.t_ns, np.linalg.norm(out.field_ut, axis=1), dip)
+        self.watch.observe(columns.devices, columns.bounds, columns.t_ns, hd.row_norm(out.field_ut), dip)
         self._log_evictions()
         self.received_batches += len(columns.devices)
         self.received_samples += int(counts.sum())

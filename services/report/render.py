@@ -51,30 +51,18 @@ def _projections(
         ax.grid(alpha=0.25)
 
 
+def _series(ax: Any, x: np.ndarray, y: np.ndarray, colour: str, label: str, size: float) -> None:
+    """One series of dots (x, y of shape (N,)), thinned to at most about MAX_POINTS."""
+    ax.plot(_thin(x), _thin(y), ".", ms=size, color=colour, label=label, rasterized=True)
+
+
 def _magnitudes(fig: Figure, cell: Any, data: ReportData) -> None:
     ax = fig.add_subplot(cell)
     before = np.linalg.norm(data.samples.raw, axis=1)
     after = np.linalg.norm(data.calibrated, axis=1)
     index = np.arange(len(before))
-    step = max(1, math.ceil(len(before) / MAX_POINTS))
-    ax.plot(
-        index[::step],
-        100 * before[::step] / before.mean(),
-        ".",
-        ms=1.5,
-        color=RAW_COLOUR,
-        label=f"raw: spread {data.spread_before_pct:.2f} %",
-        rasterized=True,
-    )
-    ax.plot(
-        index[::step],
-        100 * after[::step] / after.mean(),
-        ".",
-        ms=1.5,
-        color=CAL_COLOUR,
-        label=f"calibrated: spread {data.spread_after_pct:.2f} %",
-        rasterized=True,
-    )
+    _series(ax, index, 100 * before / before.mean(), RAW_COLOUR, f"raw: spread {data.spread_before_pct:.2f} %", 1.5)
+    _series(ax, index, 100 * after / after.mean(), CAL_COLOUR, f"calibrated: spread {data.spread_after_pct:.2f} %", 1.5)
     ax.axhline(100, color="#333333", lw=0.8)
     ax.set_xlabel("sample")
     ax.set_ylabel("|B| in % of its mean")
@@ -128,25 +116,8 @@ def _headings(fig: Figure, cell: Any, data: ReportData) -> None:
         )
         ax.set_axis_off()
         return
-    step = max(1, math.ceil(len(errors.truth_deg) / MAX_POINTS))
-    ax.plot(
-        errors.truth_deg[::step],
-        errors.raw_error_deg[::step],
-        ".",
-        ms=2,
-        color=RAW_COLOUR,
-        label=f"raw field: RMS {errors.raw_rms_deg:.2f} deg",
-        rasterized=True,
-    )
-    ax.plot(
-        errors.truth_deg[::step],
-        errors.error_deg[::step],
-        ".",
-        ms=2,
-        color=CAL_COLOUR,
-        label=f"calibrated: RMS {errors.rms_deg:.2f} deg",
-        rasterized=True,
-    )
+    _series(ax, errors.truth_deg, errors.raw_error_deg, RAW_COLOUR, f"raw field: RMS {errors.raw_rms_deg:.2f} deg", 2)
+    _series(ax, errors.truth_deg, errors.error_deg, CAL_COLOUR, f"calibrated: RMS {errors.rms_deg:.2f} deg", 2)
     ax.axhline(0, color="#333333", lw=0.8)
     ax.set_xlim(0, 360)
     ax.set_xticks(range(0, 361, 45))

@@ -1,145 +1,14 @@
-"""Drift alerts: does a device's calibrated field still look like the one its calibration was made in?
-
-The compass feeds every calibrated sample of a device (its |B| in uT and, with an accelerometer, its dip in degrees)
-to that device's ``DriftTracker``. Samples are grouped in windows of ``window_s`` seconds of the device's own clock;
-each window is judged on robust statistics (medians), so a passing truck or a motor burst that spoils less than half
-of a window moves nothing, and a window that does depart counts only as one of ``raise_windows`` in a row:
-
-- field strength: the median absolute departure of |B| from the calibration's own reference (its
-  ``field_strength``), against ``max(strength_tol_pct % of it, strength_residual_factor x the fit's residual)``; and
-  the median |B| against the World Magnetic Model's |B| at the device's place (``model_strength_tol_ut``, PX4's
-  0.2 G). A hard-iron change on a turning device shows as |B| wandering around the reference (the median absolute
-  departure), on a still one as a shifted level; both count.
-- dip: the median absolute departure of the dip from the calibration's own reference (the median dip of its first
-  ``raise_windows`` judged windows) against ``dip_tol_deg``; and the median dip against the model's inclination
-  (``model_dip_tol_deg``, PX4's 20 deg).
-- calibration age: older than ``max_age_days``.
-
-Hysteresis: an alert opens after ``raise_windows`` departed windows in a row (departure ratio > 1) and clears after
-``clear_windows`` windows in a row below ``clear_fraction`` of the thresholds; a new calibration clears everything
-and starts afresh. A sustained change is therefore reported within ``DriftSettings.detection_bound_s`` =
-(raise_windows + 1) x window_s of device time (the window it starts in may not count). Pure numpy, no clock: time
-is the samples' ``t_ns``.
-"""
+"""The drift state of one device under one calibration: windows of samples, robust verdicts, hysteresis."""
 
 from __future__ import annotations
 
 import dataclasses
-import enum
 import math
-from typing import Any
 
 import numpy as np
 
-NS_PER_S = 1_000_000_000
-NS_PER_DAY = 86_400 * NS_PER_S
-
-
-class AlertKind(enum.Enum):
-    """What drifted (the alert message's ``kind``)."""
-
-    FIELD_STRENGTH = "field_strength"
-    DIP = "dip"
-    CALIBRATION_AGE = "calibration_age"
-
-
-ADVICE = {
-    AlertKind.FIELD_STRENGTH: (
-        "the calibrated field strength departs from {ref}: look for new iron or a motor near "
-        "the sensor, a bent mount or a swapped part, then recalibrate"
-    ),
-    AlertKind.DIP: (
-        "the calibrated dip angle departs from {ref}: look for new iron near the sensor or a moved "
-        "mount (magnetometer turned against the accelerometer), then recalibrate"
-    ),
-    AlertKind.CALIBRATION_AGE: "the calibration is older than {ref}: recalibrate (magnet calibrate DEVICE start)",
-}
-
-
-@dataclasses.dataclass(frozen=True)
-class DriftSettings:
-    """Thresholds of the drift alerts (see the module docstring); every field a positive number."""
-
-    window_s: float = 30.0
-    raise_windows: int = 4
-    clear_windows: int = 4
-    clear_fraction: float = 0.5
-    strength_tol_pct: float = 6.0
-    strength_residual_factor: float = 3.0
-    model_strength_tol_ut: float = 20.0
-    dip_tol_deg: float = 4.0
-    model_dip_tol_deg: float = 20.0
-    max_age_days: float = 365.0
-    min_window_samples: int = 20
-    max_window_samples: int = 4096
-
-    def __post_init__(self) -> None:
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"drift setting {field.name} must be a positive number, got {value!r}")
-        for name in ("raise_windows", "clear_windows", "min_window_samples", "max_window_samples"):
-            if not isinstance(getattr(self, name), int):
-                raise ValueError(f"drift setting {name} must be a whole number")
-        if self.clear_fraction >= 1:
-            raise ValueError(f"clear_fraction must be below 1 (hysteresis), got {self.clear_fraction}")
-
-    @property
-    def window_ns(self) -> int:
-        """Window length in ns."""
-        return round(self.window_s * NS_PER_S)
-
-    @property
-    def detection_bound_s(self) -> float:
-        """Longest device time from the start of a sustained departure to its alert (data flowing)."""
-        return (self.raise_windows + 1) * self.window_s
-
-
-#: the defaults, documented in the README
-DEFAULT_DRIFT = DriftSettings()
-
-
-@dataclasses.dataclass(frozen=True)
-class Reference:
-    """What a device's field should look like: the calibration's |B| (uT; None or 0: learn it like the dip), its
-    fit residual (uT), the model's |B| (uT) and inclination (deg) at the device's place (None: unknown), and the
-    calibration's id and ``created_ns``."""
-
-    strength_ut: float | None
-    residual_ut: float = 0.0
-    model_total_ut: float | None = None
-    model_dip_deg: float | None = None
-    created_ns: int = 0
-    calibration_id: str = ""
-
-
-@dataclasses.dataclass(frozen=True)
-class Alert:
-    """One alert event. ``since_ns``: when the departure (or, cleared, the recovery) began; measured and expected in
-    uT (field_strength), degrees (dip) or days (calibration_age)."""
-
-    device: str
-    kind: AlertKind
-    since_ns: int
-    measured: float
-    expected: float
-    advice: str
-    cleared: bool = False
-
-    def to_message(self) -> dict[str, Any]:
-        """The ``<prefix>/<device>/alert`` map: v, device, kind, since_ns, measured, expected, advice (+ cleared)."""
-        out: dict[str, Any] = {
-            "v": 1,
-            "device": self.device,
-            "kind": self.kind.value,
-            "since_ns": int(self.since_ns),
-            "measured": round(float(self.measured), 4),
-            "expected": round(float(self.expected), 4),
-            "advice": self.advice,
-        }
-        if self.cleared:
-            out["cleared"] = True
-        return out
+from magnet.drift.alerts import ADVICE, Alert, AlertKind
+from magnet.drift.settings import DEFAULT_DRIFT, NS_PER_DAY, DriftSettings, Reference
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,7 +92,7 @@ class _Window:
 
 
 class DriftTracker:
-    """The drift state of one device under one calibration (see the module docstring). ``add`` takes samples in
+    """The drift state of one device under one calibration (see ``magnet.drift``). ``add`` takes samples in
     time order and returns the alerts that open or clear; ``open_alerts`` the ones open now."""
 
     def __init__(self, device: str, reference: Reference, settings: DriftSettings = DEFAULT_DRIFT) -> None:
@@ -357,78 +226,3 @@ class DriftTracker:
         for state in self.state.values():
             state.open, state.streak = None, 0
         return events
-
-
-class DriftMonitor:
-    """The drift trackers of many devices: one per device with a calibration in force. Bounded by the devices the
-    caller feeds (the compass's calibrations)."""
-
-    def __init__(self, settings: DriftSettings = DEFAULT_DRIFT) -> None:
-        self.settings = settings
-        self.trackers: dict[str, DriftTracker] = {}
-
-    def calibration(self, device: str, reference: Reference, now_ns: int) -> list[Alert]:
-        """A calibration came into force for ``device``: clear its open alerts and start afresh."""
-        old = self.trackers.get(device)
-        if old is not None and old.reference.calibration_id == reference.calibration_id:
-            old.set_model(reference.model_total_ut, reference.model_dip_deg)
-            return []
-        events = [] if old is None else old.clear_all(now_ns, f"calibration {reference.calibration_id} in force")
-        self.trackers[device] = DriftTracker(device, reference, self.settings)
-        return events
-
-    def add(self, device: str, t_ns: np.ndarray, strength_ut: np.ndarray, dip_deg: np.ndarray) -> list[Alert]:
-        tracker = self.trackers.get(device)
-        return [] if tracker is None else tracker.add(t_ns, strength_ut, dip_deg)
-
-    def add_columns(
-        self, devices: list[str], bounds: list[int], t_ns: np.ndarray, strength_ut: np.ndarray, dip_deg: np.ndarray
-    ) -> list[Alert]:
-        """``add`` for B batches at once: devices (B,), bounds (B + 1) sample offsets, t_ns, strength_ut, dip_deg
-        (S,). The window of every sample is computed once; a batch inside its device's current window is appended
-        without further numpy work."""
-        if not devices:
-            return []
-        index = t_ns // self.settings.window_ns
-        starts, ends = np.asarray(bounds[:-1]), np.asarray(bounds[1:]) - 1
-        first, last, last_ns = index[starts].tolist(), index[ends].tolist(), t_ns[ends].tolist()
-        events: list[Alert] = []
-        for i, device in enumerate(devices):
-            tracker = self.trackers.get(device)
-            if tracker is None:
-                continue
-            lo, hi = bounds[i], bounds[i + 1]
-            if first[i] != last[i] or not tracker.add_within(first[i], last_ns[i], strength_ut[lo:hi], dip_deg[lo:hi]):
-                events += tracker.add(t_ns[lo:hi], strength_ut[lo:hi], dip_deg[lo:hi])
-        return events
-
-    def open_alerts(self) -> list[Alert]:
-        return [alert for tracker in self.trackers.values() for alert in tracker.open_alerts]
-
-
-MAX_ADVICE_CHARS = 1_000
-
-
-def alert_from_message(message: Any) -> Alert:
-    """The one entry of an alert map from outside (``<prefix>/<device>/alert``): ValueError naming what is wrong.
-    The device id is the caller's to check (``magnet.wire.message_device``)."""
-    if not isinstance(message, dict):
-        raise ValueError("an alert must be a map")
-    if message.get("v") != 1:
-        raise ValueError(f"alert schema version {message.get('v')!r}, expected 1")
-    try:
-        kind = AlertKind(message.get("kind"))
-    except ValueError:
-        raise ValueError(f"alert kind must be one of {', '.join(k.value for k in AlertKind)}") from None
-    since = message.get("since_ns")
-    if isinstance(since, bool) or not isinstance(since, int) or since < 0:
-        raise ValueError("alert since_ns must be a whole number of ns >= 0")
-    numbers: list[Any] = [message.get("measured"), message.get("expected")]
-    if any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in numbers):
-        raise ValueError("alert measured and expected must be finite numbers")
-    advice, cleared = message.get("advice"), message.get("cleared", False)
-    if not isinstance(advice, str) or len(advice) > MAX_ADVICE_CHARS:
-        raise ValueError(f"alert advice must be text of at most {MAX_ADVICE_CHARS} characters")
-    if not isinstance(cleared, bool):
-        raise ValueError("alert cleared must be true or false")
-    return Alert(str(message.get("device")), kind, since, float(numbers[0]), float(numbers[1]), advice, cleared)

@@ -1,0 +1,46 @@
+"""Fitting a calibration B = A (u - b) to raw magnetometer samples (docs/design.md, "The calibration model").
+
+Every method returns the same record (``magnet.model.Calibration``): ``offset`` b in the raw unit and ``matrix`` A
+mapping raw units to the output unit. Each method first finds a *shape*: an offset b, a matrix S and a radius r (raw
+unit) such that |S (u - b)| ~ r for the whole sphere (or the level circle); ``fitting._finish`` then scales S to the
+output unit:
+
+- ``field_ut`` given (3D methods): A = S * field_ut / r, output uT, |B| = field_ut;
+- else the raw unit converts to uT (ut, gauss, nt): A = S * (uT per unit), output uT, |B| = r in uT;
+- else (counts): A = S, output in the raw unit, |B| = r.
+
+Methods (``Method``), each in its module:
+
+- ``minmax2d``, ``minmax``, ``sphere``: closed-form fits (``closed_form.py``);
+- ``ellipsoid``: algebraic fit refined by Levenberg-Marquardt, spikes left out (``ellipsoid.py``);
+- ``ellipsoid+align``: the ellipsoid, then the magnetometer-accelerometer rotation (``alignment.py``);
+- ``turntable``: see ``magnet.turntable`` (needs the mounting and table angle of every sample).
+
+``base.py`` holds the method names, the error and the input checks; ``fitting.py`` the method table and the entry
+points ``fit_shape`` and ``fit`` (quality figures, held-out residual and gate).
+"""
+
+from __future__ import annotations
+
+from magnet.calibration.alignment import MAX_ALIGN_CONDITION, MIN_GRAVITY_SPREAD, align_rotation
+from magnet.calibration.base import MAX_SCATTER_FOR_3D, MIN_SAMPLES, FitError, Method, Shape
+from magnet.calibration.ellipsoid import GROSS_OUTLIER_FACTOR, MAX_OUTLIER_FRACTION, OUTLIER_SIGMAS
+from magnet.calibration.fitting import HOLDOUT_BLOCK, HOLDOUT_EVERY, fit, fit_shape
+
+__all__ = [
+    "GROSS_OUTLIER_FACTOR",
+    "HOLDOUT_BLOCK",
+    "HOLDOUT_EVERY",
+    "MAX_ALIGN_CONDITION",
+    "MAX_OUTLIER_FRACTION",
+    "MAX_SCATTER_FOR_3D",
+    "MIN_GRAVITY_SPREAD",
+    "MIN_SAMPLES",
+    "OUTLIER_SIGMAS",
+    "FitError",
+    "Method",
+    "Shape",
+    "align_rotation",
+    "fit",
+    "fit_shape",
+]

@@ -1,0 +1,106 @@
+"""The ``ellipsoid+align`` method: the ellipsoid, then the rotation between magnetometer and accelerometer.
+
+- ``ellipsoid+align``: the ellipsoid, then the rotation R between the magnetometer and accelerometer frames so that
+  the dip is constant: with g_i the gravity directions (-acc normalised) and m_i the corrected field directions,
+  g_i . (R m_i) = sin(dip) for every i. Start: linear least squares for N with g_i^T N m_i = 1, R0 = nearest
+  rotation (SVD) to +-N; then Gauss-Newton on (rotation vector w, constant k): R <- R exp([w]x), residual
+  g_i . (R m_i) - k, Jacobian row (m_i x R^T g_i, -1). A becomes R S. When the gravity directions do not span the
+  sphere (smallest eigenvalue of their scatter < ``MIN_GRAVITY_SPREAD``) or the Jacobian is ill-conditioned, R = I
+  and the note says alignment was not observable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from magnet.calibration.base import FitError, Shape
+from magnet.calibration.ellipsoid import ellipsoid
+
+#: smallest eigenvalue of the scatter of gravity directions (1/3 for the whole sphere) below which R is unobservable
+MIN_GRAVITY_SPREAD = 0.02
+#: largest condition number of the alignment Gauss-Newton normal matrix
+MAX_ALIGN_CONDITION = 1e6
+
+
+def ellipsoid_align(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+    if acc is None:
+        raise FitError("ellipsoid+align needs accelerometer samples (ax, ay, az) beside the field")
+    base = ellipsoid(mag, acc, robust)
+    gravity = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
+    field = (mag - base.offset) @ base.matrix.T
+    field /= np.linalg.norm(field, axis=1, keepdims=True)
+    rotation, why_not = align_rotation(field, gravity)
+    if rotation is None:
+        return dataclasses.replace(
+            base, note=_join(base.note, f"alignment not observable: {why_not}; kept the plain ellipsoid")
+        )
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rotation) - 1) / 2))))
+    return dataclasses.replace(
+        base,
+        matrix=rotation @ base.matrix,
+        note=_join(base.note, f"magnetometer-accelerometer misalignment {angle:.2f} deg corrected"),
+    )
+
+
+def _join(*notes: str) -> str:
+    return "; ".join(note for note in notes if note)
+
+
+def _gravity_spread(gravity: np.ndarray) -> float:
+    return float(np.linalg.eigvalsh(gravity.T @ gravity / len(gravity))[0])
+
+
+def align_rotation(
+    field_dir: np.ndarray, gravity_dir: np.ndarray, iterations: int = 20
+) -> tuple[np.ndarray | None, str]:
+    """Rotation R (3,3) so that gravity_dir_i . (R field_dir_i) is the same for all i (both (N,3), unit rows).
+
+    Returns (R, "") or (None, why it is not observable).
+    """
+    spread = _gravity_spread(gravity_dir)
+    if spread < MIN_GRAVITY_SPREAD:
+        return None, (
+            f"gravity directions do not span the sphere (smallest spread {spread:.3f} < "
+            f"{MIN_GRAVITY_SPREAD}); tilt and roll the device through all attitudes"
+        )
+    rotation = _initial_rotation(field_dir, gravity_dir)
+    k = float(np.mean(np.einsum("ij,ij->i", gravity_dir, field_dir @ rotation.T)))
+    for _ in range(iterations):
+        rotated = field_dir @ rotation.T
+        res = np.einsum("ij,ij->i", gravity_dir, rotated) - k
+        jac = np.column_stack([np.cross(field_dir, gravity_dir @ rotation), -np.ones(len(res))])
+        normal = jac.T @ jac
+        if np.linalg.cond(normal) > MAX_ALIGN_CONDITION:
+            return None, "the rotation is ill-conditioned for these attitudes; tumble the device more widely"
+        step = np.linalg.solve(normal, -jac.T @ res)
+        rotation = rotation @ _exp_so3(step[:3])
+        k += step[3]
+        if np.linalg.norm(step[:3]) < 1e-10:
+            break
+    return rotation, ""
+
+
+def _initial_rotation(field_dir: np.ndarray, gravity_dir: np.ndarray) -> np.ndarray:
+    """Nearest rotation to N (or -N, the southern hemisphere) from the least squares g_i^T N m_i = 1."""
+    design = np.einsum("ij,ik->ijk", gravity_dir, field_dir).reshape(len(field_dir), 9)
+    n_vec, *_ = np.linalg.lstsq(design, np.ones(len(field_dir)), rcond=None)
+    n_mat = n_vec.reshape(3, 3)
+    if np.linalg.det(n_mat) < 0:
+        n_mat = -n_mat
+    u, _, vt = np.linalg.svd(n_mat)
+    rotation = u @ vt
+    if np.linalg.det(rotation) < 0:  # the dip is near zero and N is noise: start from no rotation
+        return np.eye(3)
+    return rotation
+
+
+def _exp_so3(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix exp([w]x) for a rotation vector w (rad), Rodrigues' formula."""
+    theta = float(np.linalg.norm(w))
+    skew = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+    if theta < 1e-12:
+        return np.eye(3) + skew
+    return np.eye(3) + math.sin(theta) / theta * skew + (1 - math.cos(theta)) / theta**2 * skew @ skew

@@ -1,0 +1,95 @@
+"""Calibration methods by name, the fit error, the shape a method finds and the checks of its input."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+
+import numpy as np
+
+from magnet.quality import scatter_condition
+
+
+class Method(enum.Enum):
+    MINMAX2D = "minmax2d"
+    MINMAX = "minmax"
+    SPHERE = "sphere"
+    ELLIPSOID = "ellipsoid"
+    ELLIPSOID_ALIGN = "ellipsoid+align"
+    TURNTABLE = "turntable"
+
+    @classmethod
+    def parse(cls, value: Method | str) -> Method:
+        if isinstance(value, cls):
+            return value
+        try:
+            return cls(str(value).strip().lower())
+        except ValueError:
+            choices = ", ".join(m.value for m in cls)
+            raise ValueError(f"unknown calibration method {value!r}: use one of {choices}") from None
+
+
+class FitError(ValueError):
+    """No calibration can be computed from these samples; the message says why and what to do."""
+
+
+#: fewest samples each method accepts (several times its parameter count, so that noise averages out)
+MIN_SAMPLES: dict[Method, int] = {
+    Method.MINMAX2D: 8,
+    Method.MINMAX: 12,
+    Method.SPHERE: 12,
+    Method.ELLIPSOID: 30,
+    Method.ELLIPSOID_ALIGN: 50,
+}
+#: beyond this scatter condition (widest / thinnest spread of the raw cloud) a 3D fit is refused outright
+MAX_SCATTER_FOR_3D = 50.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Shape:
+    """What a method found, before scaling to the output unit: |matrix @ (u - offset)| ~ radius (raw unit)."""
+
+    offset: np.ndarray
+    matrix: np.ndarray
+    radius: float
+    note: str = ""
+
+
+def check_samples(mag: np.ndarray, method: Method) -> np.ndarray:
+    arr = np.asarray(mag, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise FitError(f"samples must be an (N, 3) array of x, y, z readings, got shape {arr.shape}")
+    bad = ~np.all(np.isfinite(arr), axis=1)
+    if bad.any():
+        raise FitError(
+            f"{int(bad.sum())} sample(s) hold NaN or infinite values (first at row {int(np.argmax(bad))}):"
+            " drop them (sensor overflow?) before fitting"
+        )
+    need = MIN_SAMPLES.get(method, 12)
+    if len(arr) < need:
+        raise FitError(
+            f"only {len(arr)} samples: {method.value} needs at least {need}; keep sampling while you move the device"
+        )
+    return arr
+
+
+def check_spread_3d(mag: np.ndarray, method: Method) -> None:
+    condition = scatter_condition(mag)
+    if condition > MAX_SCATTER_FOR_3D:
+        raise FitError(
+            f"samples are coplanar or degenerate (scatter condition {condition:.3g}): {method.value} "
+            "needs samples from all attitudes; tumble the device, or use minmax2d for a level turn"
+        )
+
+
+def check_acc(acc: np.ndarray | None, n: int, required: bool) -> np.ndarray | None:
+    if acc is None:
+        if required:
+            raise FitError("ellipsoid+align needs accelerometer samples (acc) beside the magnetometer samples")
+        return None
+    arr = np.asarray(acc, dtype=float)
+    if arr.shape != (n, 3):
+        raise FitError(f"acc must have the shape of the magnetometer samples ({n}, 3), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise FitError("acc holds NaN or infinite values: drop those rows from both arrays before fitting")
+    return arr

@@ -1,0 +1,176 @@
+"""The method table and the entry points: ``fit_shape`` (the fit alone) and ``fit`` (with quality and gate)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from magnet.calibration.alignment import ellipsoid_align
+from magnet.calibration.base import FitError, Method, Shape, check_acc, check_samples
+from magnet.calibration.closed_form import minmax, minmax2d, sphere
+from magnet.calibration.ellipsoid import ellipsoid
+from magnet.model import IDENTITY, Calibration, Quality
+from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
+
+#: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
+#: it did not see (blocks, not single samples: neighbours in time are nearly the same reading)
+HOLDOUT_BLOCK = 20
+HOLDOUT_EVERY = 5
+
+
+def _turntable(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+    raise FitError(
+        "the turntable method needs the mounting and table angle of every sample: use magnet.turntable.fit_turntable"
+    )
+
+
+#: Method -> (shape function (mag, acc, robust) -> Shape, geometry the samples are judged by)
+_METHODS: dict[Method, tuple[Callable[[np.ndarray, np.ndarray | None, bool], Shape], Geometry]] = {
+    Method.MINMAX2D: (minmax2d, Geometry.CIRCLE),
+    Method.MINMAX: (minmax, Geometry.SPHERE),
+    Method.SPHERE: (sphere, Geometry.SPHERE),
+    Method.ELLIPSOID: (ellipsoid, Geometry.SPHERE),
+    Method.ELLIPSOID_ALIGN: (ellipsoid_align, Geometry.SPHERE),
+    Method.TURNTABLE: (_turntable, Geometry.TURNTABLE),
+}
+
+
+def _finish(shape: Shape, method: Method, unit: str, field_ut: float | None, count: int) -> Calibration:
+    """Scale the shape to the output unit (see the module docstring) and make the record."""
+    to_ut = ut_per_unit(unit)
+    if field_ut is not None and method is not Method.MINMAX2D:
+        factor, output_unit, strength = field_ut / shape.radius, "ut", field_ut
+    elif to_ut is not None:
+        factor, output_unit, strength = to_ut, "ut", shape.radius * to_ut
+    else:
+        factor, output_unit, strength = 1.0, unit, shape.radius
+    if method is Method.MINMAX2D:
+        strength = 0.0  # the horizontal radius is not |B|: the total field is unknown from a level turn
+    return Calibration(
+        method=method.value,
+        offset=shape.offset,
+        matrix=shape.matrix * factor,
+        field_strength=float(strength),
+        sample_count=count,
+        unit=unit,
+        output_unit=output_unit,
+    )
+
+
+def fit_shape(
+    mag: np.ndarray,
+    method: Method | str,
+    *,
+    acc: np.ndarray | None = None,
+    unit: str = "ut",
+    field_ut: float | None = None,
+    robust_extremes: bool = False,
+) -> tuple[Calibration, Shape]:
+    """The fit alone, without quality or gate: (record with empty quality, the shape found). Raises FitError."""
+    method = Method.parse(method)
+    mag = check_samples(mag, method)
+    acc = check_acc(acc, len(mag), method is Method.ELLIPSOID_ALIGN)
+    if field_ut is not None and not (math.isfinite(field_ut) and field_ut > 0):
+        raise FitError(f"expected field strength must be a positive number of uT, got {field_ut!r}")
+    function, _ = _METHODS[method]
+    shape = function(mag, acc, robust_extremes)
+    return _finish(shape, method, unit, field_ut, len(mag)), shape
+
+
+def fit(
+    mag: np.ndarray,
+    method: Method | str,
+    *,
+    acc: np.ndarray | None = None,
+    unit: str = "ut",
+    field_ut: float | None = None,
+    gate: GateThresholds | None = None,
+    robust_extremes: bool = False,
+    gyr: np.ndarray | None = None,
+    period_s: float | None = None,
+    reference: Calibration | None = None,
+) -> Calibration:
+    """Fit a calibration to raw samples mag (N, 3) in ``unit``; acc (N, 3) specific force, any unit, or None.
+
+    field_ut: the expected |B| in uT (WMM) or None (keep the fitted radius). Returns the record with ``quality``
+    (``magnet.quality.assess``, including a held-out residual: every 5th block of 20 samples is left out of a
+    second fit and scored) and ``accepted``/``reason`` from ``magnet.quality.gate`` (``gate=None``: default thresholds).
+    With acc, the dip and the consistency figures of ``magnet.quality.motion``: gyr (N, 3) rad/s sampled every
+    period_s seconds gives the fused gravity and attitude, else the quasi-static samples are used; the fit must make
+    the field more constant than ``reference`` (the calibration in force; None: no calibration) on held-out data.
+    Raises FitError when no calibration can be computed.
+    """
+    method = Method.parse(method)
+    calibration, shape = fit_shape(mag, method, acc=acc, unit=unit, field_ut=field_ut, robust_extremes=robust_extremes)
+    mag = np.asarray(mag, dtype=float)
+    acc_arr = None if acc is None else np.asarray(acc, dtype=float)
+    holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes)
+    to_ut = ut_per_unit(unit)
+    geometry = _METHODS[method][1]
+    quality = assess(
+        mag,
+        calibration,
+        geometry=geometry,
+        acc=None,
+        expected_field_ut=field_ut,
+        fitted_radius_ut=shape.radius * to_ut if to_ut is not None and geometry is Geometry.SPHERE else None,
+        holdout=holdout,
+    )
+    if acc_arr is not None and geometry is Geometry.SPHERE:
+        ev = _motion_evidence(acc_arr, gyr, period_s, len(mag))
+        figures = motion.motion_figures(
+            mag,
+            calibration,
+            ev,
+            _holdout_mask(len(mag)),
+            holdout[1] if holdout else None,
+            reference or IDENTITY,
+            "the calibration in force" if reference else "no calibration",
+        )
+        quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
+    if shape.note:
+        quality = quality.with_extra(note=shape.note)
+    accepted, reason = _gate(quality, gate)
+    if shape.note:
+        reason = f"{reason}; {shape.note}"
+    return calibration.replace(quality=quality, accepted=accepted, reason=reason)
+
+
+def _motion_evidence(acc: np.ndarray, gyr: np.ndarray | None, period_s: float | None, n: int) -> motion.MotionEvidence:
+    if gyr is not None and np.shape(gyr) != (n, 3):
+        raise FitError(f"gyr must have the shape of the magnetometer samples ({n}, 3), got {np.shape(gyr)}")
+    try:
+        return motion.evidence(acc, gyr, period_s)
+    except ValueError as exc:
+        raise FitError(str(exc)) from None
+
+
+def _gate(quality: Quality, thresholds: GateThresholds | None) -> tuple[bool, str]:
+    return gate(quality, thresholds or GateThresholds())
+
+
+def _holdout_mask(count: int) -> np.ndarray:
+    """(count,) bool: every HOLDOUT_EVERY-th block of HOLDOUT_BLOCK samples, the held-out test set."""
+    return (np.arange(count) // HOLDOUT_BLOCK) % HOLDOUT_EVERY == HOLDOUT_EVERY - 1
+
+
+def _holdout(
+    mag: np.ndarray, method: Method, acc: np.ndarray | None, unit: str, field_ut: float | None, robust: bool
+) -> tuple[np.ndarray, Calibration] | None:
+    """(test samples, calibration fitted on the rest): every HOLDOUT_EVERY-th block of samples is the test set."""
+    test = _holdout_mask(len(mag))
+    try:
+        train_cal, _ = fit_shape(
+            mag[~test],
+            method,
+            acc=None if acc is None else acc[~test],
+            unit=unit,
+            field_ut=field_ut,
+            robust_extremes=robust,
+        )
+    except FitError:
+        return None
+    return mag[test], train_cal

@@ -1,0 +1,232 @@
+"""The one raw decoder, for both versions.
+
+``decode_raw_many`` checks each message's structure in Python (``raw_header.check_header``: list lengths in v 1,
+dtype, shape and byte count in v 2), turns the numbers of all of them into arrays at once (v 1 lists in one
+``np.array``, v 2 bytes joined and read with ``np.frombuffer``) and checks them all in one numpy pass (``_numbers``:
+finite, within physical limits); when the numbers of a group do not even form arrays, each message of the group is
+converted alone by the same code, which names the culprit. ``decode_raw`` is ``decode_raw_many`` of one payload
+(plus the simulator's truth), so both give the same verdict and the same cause for every payload.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from magnet.place import Location
+from magnet.wire.codec import Bin, Payload, binary_message, check_lengths, float_array, from_bins, unpack
+from magnet.wire.errors import WireError
+from magnet.wire.raw import (
+    TRUTH_FIELDS,
+    VECTOR_FIELDS,
+    RawBatch,
+    RawColumns,
+    batch_locations,
+    message_location,
+    nan_rows,
+)
+from magnet.wire.raw_header import INT64_MAX, Header, check_header
+
+
+def _stack(parts: list[Any], name: str, rows: int) -> np.ndarray:
+    """float64 (rows, 3) from concatenated [x, y, z] rows; WireError ``bad-shape`` when they are not that."""
+    try:
+        arr = np.array(parts, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise WireError("bad-shape", f"{name} is not an array of numbers of shape (N, 3)") from None
+    if arr.shape != (rows, 3):
+        raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected (N, 3)")
+    return arr
+
+
+def _stack_times(parts: list[Any]) -> np.ndarray:
+    try:
+        arr = np.array(parts)
+    except (TypeError, ValueError, OverflowError):
+        raise WireError("bad-shape", "t_ns is not an array of integers") from None
+    if arr.ndim == 1 and arr.dtype.kind in "iu" and (arr.dtype.kind == "i" or arr.max() <= INT64_MAX):
+        return arr.astype(np.int64)
+    if arr.ndim == 1 and all(type(x) is int for x in parts):  # integers beyond int64: they would wrap
+        raise WireError("out-of-range", f"t_ns holds values beyond {INT64_MAX}")
+    raise WireError("bad-shape", f"t_ns must be a list of integers, got dtype {arr.dtype}")
+
+
+def _gather(values: list[Any], name: str, times: bool) -> np.ndarray:
+    """The rows of ``values`` (per message, in order: a list of rows (v 1) or a ``Bin`` (v 2)) as one array: t_ns
+    (S,) int64 or (S, 3) float64. Lists in one ``np.array`` per run of v 1 messages, bytes in one ``np.frombuffer``
+    per run of v 2 messages. WireError when the lists do not form such an array."""
+    parts: list[np.ndarray] = []
+    start = 0
+    for i in range(1, len(values) + 1):
+        if i < len(values) and type(values[i]) is type(values[start]):
+            continue
+        run = values[start:i]
+        if type(run[0]) is Bin:
+            parts.append(from_bins(run, () if times else (3,), "i8" if times else "f8"))
+        else:
+            rows = [row for value in run for row in value]
+            parts.append(_stack_times(rows) if times else _stack(rows, name, len(rows)))
+        start = i
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _arrays(headers: Sequence[Header]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """t_ns (S,) and one (S, 3) array per VECTOR_FIELDS entry (NaN rows where absent); WireError when the numbers
+    of these messages do not form such arrays."""
+    counts = [h.n for h in headers]
+    total = sum(counts)
+    vectors = []
+    for k, (name, _, _) in enumerate(VECTOR_FIELDS):
+        mask = [h.present[k] for h in headers]
+        values = [h.arrays[k + 1] for h in headers if h.present[k]]
+        if all(mask):
+            vectors.append(_gather(values, name, False))
+            continue
+        arr = nan_rows(total)
+        if values:
+            arr[np.repeat(mask, counts)] = _gather(values, name, False)
+        vectors.append(arr)
+    return _gather([h.arrays[0] for h in headers], "t_ns", True), vectors
+
+
+def _sample_faults(
+    t_ns: np.ndarray, vectors: list[np.ndarray], starts: np.ndarray
+) -> list[tuple[np.ndarray, str, str]]:
+    """Per-sample faults (S,) bool, most fundamental first, with their cause and message. ``starts`` (B,): where
+    each message's samples begin (time is judged within a message only)."""
+    backwards = np.zeros(t_ns.shape, dtype=bool)
+    backwards[1:] = t_ns[1:] < t_ns[:-1]
+    backwards[starts] = False
+    faults = [
+        (t_ns < 0, "out-of-range", "t_ns holds negative times"),
+        (backwards, "time-backwards", "t_ns decreases within the batch"),
+    ]
+    for arr, (name, _, _) in zip(vectors, VECTOR_FIELDS):
+        absent = np.isnan(arr).all(axis=1)
+        faults.append((~absent & ~np.isfinite(arr).all(axis=1), "non-finite", f"{name} holds non-finite values"))
+    for arr, (name, limit, _) in zip(vectors, VECTOR_FIELDS):
+        with np.errstate(invalid="ignore"):
+            faults.append(
+                ((np.abs(arr) > limit).any(axis=1), "absurd-magnitude", f"{name} holds values beyond +-{limit:g}")
+            )
+    return faults
+
+
+def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | None]]:
+    """All messages as columns and, per message, the WireError its numbers earn (None when good); WireError when
+    the numbers of these messages do not even form arrays. The same checks for both versions."""
+    t_ns, vectors = _arrays(headers)
+    counts = np.array([h.n for h in headers], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    verdicts: list[WireError | None] = [None] * len(headers)
+    for bad, cause, text in _sample_faults(t_ns, vectors, starts):
+        if bad.any():
+            for i in np.flatnonzero(np.logical_or.reduceat(bad, starts)).tolist():
+                verdicts[i] = verdicts[i] or WireError(cause, text)
+    mag_ut, acc_ms2, gyr_rads = vectors
+    columns = RawColumns(
+        [h.device for h in headers],
+        [h.seq for h in headers],
+        counts,
+        t_ns,
+        mag_ut,
+        acc_ms2,
+        gyr_rads,
+        [h.sensor for h in headers],
+    )
+    return columns, verdicts
+
+
+def _alone(header: Header) -> tuple[list[RawBatch], WireError | None]:
+    """``_numbers`` of one message: its batch (or none) and its verdict."""
+    try:
+        columns, (verdict,) = _numbers([header])
+    except WireError as exc:
+        return [], exc
+    return ([] if verdict else columns.batches()), verdict
+
+
+def decode_messages(
+    messages: Sequence[Mapping[str, Any]], sizes: Sequence[int] | None = None
+) -> tuple[RawColumns, list[tuple[int, WireError]]]:
+    """The raw decoder: unpacked messages (and their payloads' sizes in bytes, when known) -> (good batches as
+    columns, in order; (index, WireError) per refusal, sorted by index)."""
+    errors: list[tuple[int, WireError]] = []
+    kept: list[int] = []
+    headers: list[Header] = []
+    locations: list[Location | None] = []
+    for index, message in enumerate(messages):
+        try:
+            header = check_header(message, None if sizes is None else sizes[index])
+            location = message_location(message)
+        except WireError as exc:
+            errors.append((index, exc))
+            continue
+        headers.append(header)
+        locations.append(location)
+        kept.append(index)
+    if not headers:
+        return RawColumns.from_batches([]), errors
+    try:
+        columns, verdicts = _numbers(headers)
+        columns = dataclasses.replace(columns, locations=batch_locations(locations))
+        columns = columns.select(np.array([v is None for v in verdicts], dtype=bool))
+    except WireError:  # rare: some message's numbers are not arrays; judge each alone to name it
+        alone = [_alone(h) for h in headers]
+        verdicts = [verdict for _, verdict in alone]
+        columns = RawColumns.from_batches(
+            [
+                dataclasses.replace(batch, location=location)
+                for (batches, _), location in zip(alone, locations)
+                for batch in batches
+            ]
+        )
+    errors += [(index, v) for index, v in zip(kept, verdicts) if v is not None]
+    return columns, sorted(errors, key=lambda e: e[0])
+
+
+def decode_raw_many(payloads: Sequence[Payload]) -> tuple[RawColumns, list[tuple[int, WireError]]]:
+    """Decode many raw payloads at once (the hot path of a busy consumer).
+
+    Returns the good batches as columns, in input order, and (index, WireError) for each payload refused, sorted by
+    index. ``truth`` is not decoded."""
+    messages: list[Mapping[str, Any]] = []
+    sizes: list[int] = []
+    where: list[int] = []
+    errors: list[tuple[int, WireError]] = []
+    for index, payload in enumerate(payloads):
+        try:
+            messages.append(unpack(payload))
+            sizes.append(len(payload))
+            where.append(index)
+        except WireError as exc:
+            errors.append((index, exc))
+    columns, refused = decode_messages(messages, sizes)
+    errors += [(where[i], exc) for i, exc in refused]
+    return columns, sorted(errors, key=lambda e: e[0])
+
+
+def decode_raw(payload: Payload, *, with_truth: bool = True) -> RawBatch:
+    """RawBatch from a payload; WireError (with ``cause``) for anything malformed or physically impossible.
+
+    The verdict is ``decode_raw_many``'s; ``with_truth=False`` skips the simulator's truth (faster, for consumers
+    that do not use it)."""
+    message = unpack(payload)
+    columns, errors = decode_messages([message], [len(payload)])
+    if errors:
+        raise errors[0][1]
+    batch = columns.batches()[0]
+    if not with_truth or message.get("truth") is None:
+        return batch
+    return dataclasses.replace(batch, truth=_truth(message["truth"], len(batch), binary_message(message)))
+
+
+def _truth(raw_truth: Any, n: int, binary: bool) -> dict[str, np.ndarray]:
+    if not isinstance(raw_truth, dict):
+        raise WireError("bad-field", "truth must be a map")
+    truth = {name: float_array(raw_truth.get(name), f"truth.{name}", (), 1e4, binary) for name in TRUTH_FIELDS}
+    check_lengths(n, truth)
+    return truth

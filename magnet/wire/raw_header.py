@@ -1,0 +1,90 @@
+"""The structure checks of one unpacked raw message (either version), before any number is looked at.
+
+Besides the shapes: ``seq`` within 0..2**63 - 1 (cause ``out-of-range``), ``sensor`` text of at most
+``MAX_SENSOR_CHARS`` (``bad-field``), at most ``MAX_EXTRA_FIELDS`` fields beyond ``RAW_FIELDS`` (room for later
+fields, no flood: ``too-many-fields``), and a payload no larger than its samples can need (``oversized``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+from magnet.wire.codec import FLOAT_DTYPES, MAX_BATCH_SAMPLES, TIME_DTYPES, binary_message, check_bin, int_field
+from magnet.wire.errors import WireError
+from magnet.wire.keys import message_device
+from magnet.wire.raw import VECTOR_FIELDS
+
+#: the fields a raw message may carry; others are ignored, up to MAX_EXTRA_FIELDS of them
+RAW_FIELDS = frozenset({"v", "device", "seq", "sensor", "t_ns", "mag_ut", "acc_ms2", "gyr_rads", "truth", "location"})
+MAX_EXTRA_FIELDS = 32
+MAX_SENSOR_CHARS = 64
+#: a raw payload of N samples holds at most MAX_HEADER_BYTES + N * MAX_BYTES_PER_SAMPLE bytes: the widest honest
+#: encoding (v 1, float64 everywhere, with the simulator's truth) needs about 125 bytes a sample
+MAX_BYTES_PER_SAMPLE = 256
+MAX_HEADER_BYTES = 16 * 1024
+#: the largest ``seq`` and ``t_ns`` (int64)
+INT64_MAX = 2**63 - 1
+
+
+class Header(NamedTuple):
+    """The structure of one raw message, checked: its device, seq, sensor, sample count, optional fields present,
+    and its arrays: lists (v 1) or checked ``Bin`` (v 2), t_ns first then one per VECTOR_FIELDS entry (None where
+    absent)."""
+
+    device: str
+    seq: int
+    sensor: str
+    n: int
+    present: tuple[bool, ...]  # per VECTOR_FIELDS entry
+    arrays: tuple[Any, ...]
+
+
+def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
+    """Check the structure of one unpacked raw message (either version) of ``size`` bytes (None: unknown); WireError
+    with the cause otherwise."""
+    device = message_device(message)
+    if len(message) > MAX_EXTRA_FIELDS:
+        extra = sum(name not in RAW_FIELDS for name in message)
+        if extra > MAX_EXTRA_FIELDS:
+            raise WireError("too-many-fields", f"{extra} unknown fields, more than {MAX_EXTRA_FIELDS}")
+    sensor = message.get("sensor", "")
+    if type(sensor) is not str or len(sensor) > MAX_SENSOR_CHARS:
+        raise WireError("bad-field", f"sensor must be a string of at most {MAX_SENSOR_CHARS} characters")
+    seq = int_field(message, "seq", 0)
+    if not 0 <= seq <= INT64_MAX:
+        raise WireError("out-of-range", f"seq must be within 0..{INT64_MAX}, got {seq}")
+    n, arrays = _arrays(message)
+    if size is not None and size > MAX_HEADER_BYTES + n * MAX_BYTES_PER_SAMPLE:
+        raise WireError("oversized", f"payload of {size} bytes is more than {n} samples can need")
+    return Header(device, seq, sensor, n, tuple(a is not None for a in arrays[1:]), tuple(arrays))
+
+
+def _arrays(message: Mapping[str, Any]) -> tuple[int, list[Any]]:
+    """The sample count N and the arrays of one message (t_ns, then one per VECTOR_FIELDS entry, None where
+    absent), their shapes checked; WireError otherwise."""
+    binary = binary_message(message)
+    t_ns = message.get("t_ns")
+    if binary:
+        t_ns = check_bin(t_ns, "t_ns", TIME_DTYPES, ())
+        n = t_ns.rows
+    elif type(t_ns) is not list:
+        raise WireError("bad-shape", "t_ns must be a list of integers")
+    else:
+        n = len(t_ns)
+    if n > MAX_BATCH_SAMPLES:
+        raise WireError("oversized", f"t_ns holds {n} samples, more than {MAX_BATCH_SAMPLES}")
+    if n == 0:
+        raise WireError("empty", "a raw batch holds no samples")
+    arrays: list[Any] = [t_ns]
+    for name, _, required in VECTOR_FIELDS:
+        value = message.get(name)
+        if value is None and not required:
+            arrays.append(None)
+        elif binary:
+            arrays.append(check_bin(value, name, FLOAT_DTYPES, (3,), n))
+        elif type(value) is not list or len(value) != n:
+            raise WireError("bad-shape", f"{name} must be a list of N = len(t_ns) = {n} [x, y, z] rows")
+        else:
+            arrays.append(value)
+    return n, arrays
