@@ -67,8 +67,13 @@ _VQF_TO_NED = np.stack([quat_multiply(quat_multiply(_Q_ENU_TO_NED, e), _Q_BODY_T
 
 def vqf_to_body_ned(quat_vqf: np.ndarray) -> np.ndarray:
     """vqf's quaternions (..., 4) (its body -> ENU) to the project's body -> NED, w >= 0, shape (..., 4)."""
-    q = np.asarray(quat_vqf, dtype=float) @ _VQF_TO_NED
-    return np.where(q[..., :1] < 0, -q, q)
+    return _w_positive(np.asarray(quat_vqf, dtype=float) @ _VQF_TO_NED)
+
+
+def _w_positive(q: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) negated where w < 0 (the same rotation); a product with the sign, several times faster
+    than ``np.where`` broadcasting the condition over the four components."""
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
 def body_ned_to_enu_z_up(quat_wxyz: np.ndarray) -> np.ndarray:
@@ -104,8 +109,7 @@ def rotate_heading(quat_wxyz: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarra
     """Quaternions (..., 4) turned by ``angle_deg`` about NED down (magnetic -> true north: the declination)."""
     half = np.radians(np.asarray(angle_deg, dtype=float)) / 2
     turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)
-    q = quat_multiply(turn, quat_wxyz)
-    return np.where(q[..., :1] < 0, -q, q)
+    return _w_positive(quat_multiply(turn, quat_wxyz))
 
 
 def acc_in_ms2(acc: np.ndarray) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 import msgpack
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -127,3 +128,20 @@ def test_encode_headings_matches_encode_heading_byte_for_byte():
         assert payloads[i] == wire.encode_heading(one)
     assert wire.decode_heading(payloads[1]).quat_wxyz is None
     np.testing.assert_array_equal(wire.decode_heading(payloads[2]).quat_wxyz, quat[4:8])
+
+
+@pytest.mark.parametrize("rows", [1, 3, 40, 3000])  # bin 8, bin 16 and bin 32 headers
+def test_v2_heading_bytes_are_msgpacks_own(rows):
+    """The v 2 encoder joins its messages from pieces: they must be exactly what msgpack makes of the same map."""
+    batches = [_raw("a", rows), _raw("b", rows, acc=False)]
+    columns = wire.RawColumns.from_batches(batches)
+    s = int(columns.counts.sum())
+    angles = [np.linspace(0, 359.99999, s), np.linspace(5, 4, s), np.zeros(s), np.ones(s)]
+    quat = np.tile([1.0, 0, 0, 0], (s, 1))
+    quat[rows] = np.nan  # batch "b" has no attitude
+    payloads = wire.encode_headings(
+        columns, *angles, np.arange(3.0 * s).reshape(s, 3), np.arange(s) % 32, [7.5, -2.25], ["id-a", ""], quat
+    )
+    for payload in payloads:
+        assert msgpack.packb(msgpack.unpackb(payload), use_bin_type=True) == payload
+    assert wire.decode_heading(payloads[0]).quat_wxyz is not None and wire.decode_heading(payloads[1]).quat_wxyz is None

@@ -77,20 +77,10 @@ class ICM20948AccelGyro(AccelGyro):
     ACCEL_RANGES = ACCEL_RANGES
     GYRO_RANGES = GYRO_RANGES
     OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
+    DEFAULT_ADDRESS = DEFAULT_ADDRESS
+    DEFAULT_RATE_HZ = 100
 
-    def __init__(
-        self,
-        bus: I2CBus,
-        address: int = DEFAULT_ADDRESS,
-        orientation: Any = None,
-        *,
-        accel_range_g: int = 4,
-        gyro_range_dps: int = 2000,
-        rate_hz: int = 100,
-        retry: RetryPolicy | None = None,
-        sleep: Callable[[float], None] | None = None,
-    ) -> None:
-        self.divider = self._setup(bus, address, orientation, retry, sleep, (accel_range_g, gyro_range_dps, rate_hz))
+    def _configure(self) -> None:
         device = self.device
         device.write_byte(REG_BANK_SEL, 0 << 4)
         found = device.read_byte(WHO_AM_I)
@@ -105,10 +95,10 @@ class ICM20948AccelGyro(AccelGyro):
         device.write_byte(INT_PIN_CFG, BYPASS_EN)
         device.write_byte(INT_ENABLE_1, RAW_DATA_RDY)
         device.write_byte(REG_BANK_SEL, 2 << 4)
-        device.write_byte(GYRO_SMPLRT_DIV, self.divider)
+        device.write_byte(GYRO_SMPLRT_DIV, self.rate_code)
         device.write_byte(GYRO_CONFIG_1, DLPF_CFG | (self.gyro_fs << 1) | DLPF_ON)
-        device.write_byte(ACCEL_SMPLRT_DIV_1, self.divider >> 8)
-        device.write_byte(ACCEL_SMPLRT_DIV_2, self.divider & 0xFF)
+        device.write_byte(ACCEL_SMPLRT_DIV_1, self.rate_code >> 8)
+        device.write_byte(ACCEL_SMPLRT_DIV_2, self.rate_code & 0xFF)
         device.write_byte(ACCEL_CONFIG, DLPF_CFG | (self.accel_fs << 1) | DLPF_ON)
         device.write_byte(REG_BANK_SEL, 0 << 4)
 

@@ -57,41 +57,52 @@ class AccelGyro(Sensor):
     """Base of the accelerometer + gyroscope drivers: the settings chosen from the chip's tables, the z-up package
     frame, and counts scaled to m/s^2 and rad/s.
 
-    A chip sets ``CHIP`` (its name in messages), ``ACCEL_RANGES`` (full scale g -> (register code, scale)),
-    ``GYRO_RANGES`` (full scale deg/s -> (register code, scale)) and ``OUTPUT_RATES_HZ`` (Hz -> register value); the
-    scales are LSB per g and per deg/s, or with ``MILLI_PER_LSB`` mg and mdps per LSB (as ST's datasheets give them).
+    A chip sets ``CHIP`` (its name in messages), ``DEFAULT_ADDRESS``, ``DEFAULT_RATE_HZ``, ``ACCEL_RANGES`` (full
+    scale g -> (register code, scale)), ``GYRO_RANGES`` (full scale deg/s -> (register code, scale)) and
+    ``OUTPUT_RATES_HZ`` (Hz -> register value), and implements ``_configure``; the scales are LSB per g and per
+    deg/s, or with ``MILLI_PER_LSB`` mg and mdps per LSB (as ST's datasheets give them).
     """
 
     CHIP: ClassVar[str]
+    DEFAULT_ADDRESS: ClassVar[int]
+    DEFAULT_RATE_HZ: ClassVar[float]
     ACCEL_RANGES: ClassVar[Mapping[int, tuple[int, float]]]
     GYRO_RANGES: ClassVar[Mapping[int, tuple[int, float]]]
     OUTPUT_RATES_HZ: ClassVar[Mapping[Any, int]]
     MILLI_PER_LSB: ClassVar[bool] = False
 
-    def _setup(
+    def __init__(
         self,
         bus: I2CBus,
-        address: int,
-        orientation: Any,
-        retry: RetryPolicy | None,
-        sleep: Callable[[float], None] | None,
-        settings: tuple[Any, Any, Any],
-    ) -> int:
-        """Choose (accelerometer range g, gyroscope range deg/s, output rate Hz) from the tables (ValueError naming
-        the chip and the values allowed), then attach the chip in the package frame; the rate's register value."""
-        accel_range_g, gyro_range_dps, rate_hz = settings
+        address: int | None = None,
+        orientation: Any = None,
+        *,
+        accel_range_g: int = 4,
+        gyro_range_dps: int = 2000,
+        rate_hz: float | None = None,
+        retry: RetryPolicy | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
+        """Choose the full scales and the output rate from the chip's tables (ValueError naming the chip and the
+        values allowed; ``rate_hz`` None: ``DEFAULT_RATE_HZ``), attach the chip at ``address`` (None:
+        ``DEFAULT_ADDRESS``) in the package frame, then ``_configure`` it (``rate_code``: the rate's register value)."""
         self.accel_fs, accel_scale = choose(accel_range_g, self.ACCEL_RANGES, "accelerometer range (g)", self.CHIP)
         self.gyro_fs, gyro_scale = choose(gyro_range_dps, self.GYRO_RANGES, "gyroscope range (deg/s)", self.CHIP)
-        rate: int = choose(rate_hz, self.OUTPUT_RATES_HZ, "output rate (Hz)", self.CHIP)
+        rate = self.DEFAULT_RATE_HZ if rate_hz is None else rate_hz
+        self.rate_code: int = choose(rate, self.OUTPUT_RATES_HZ, "output rate (Hz)", self.CHIP)
         if self.MILLI_PER_LSB:
             g_per_lsb, dps_per_lsb = accel_scale / 1000.0, gyro_scale / 1000.0
         else:
             g_per_lsb, dps_per_lsb = 1.0 / accel_scale, 1.0 / gyro_scale
         self.acc_ms2_per_lsb = g_per_lsb * STANDARD_GRAVITY_MS2
         self.gyr_rads_per_lsb = dps_per_lsb * RAD_PER_DEG
-        self._attach(bus, address, orientation, retry, sleep)
+        self._attach(bus, self.DEFAULT_ADDRESS if address is None else address, orientation, retry, sleep)
         self.rotation = mounting(orientation, Z_UP_TO_BODY)
-        return rate
+        self._configure()
+
+    def _configure(self) -> None:  # pragma: no cover - abstract
+        """Check the chip's identity (SensorError naming what answered) and write its settings."""
+        raise NotImplementedError
 
     def _scaled(self, accel: np.ndarray, gyro: np.ndarray) -> Reading:
         """The reading of accelerometer and gyroscope counts (3,) each in the chip's axes; overflow when either is at

@@ -83,21 +83,11 @@ class LSM9DS1AccelGyro(AccelGyro):
     ACCEL_RANGES = ACCEL_RANGES
     GYRO_RANGES = GYRO_RANGES
     OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
+    DEFAULT_ADDRESS = DEFAULT_AG_ADDRESS
+    DEFAULT_RATE_HZ = 119
     MILLI_PER_LSB = True
 
-    def __init__(
-        self,
-        bus: I2CBus,
-        address: int = DEFAULT_AG_ADDRESS,
-        orientation: Any = None,
-        *,
-        accel_range_g: int = 4,
-        gyro_range_dps: int = 2000,
-        rate_hz: float = 119,
-        retry: RetryPolicy | None = None,
-        sleep: Callable[[float], None] | None = None,
-    ) -> None:
-        self.odr = self._setup(bus, address, orientation, retry, sleep, (accel_range_g, gyro_range_dps, rate_hz))
+    def _configure(self) -> None:
         found = self.device.read_byte(WHO_AM_I)
         if found != AG_ID:
             raise SensorError(
@@ -107,8 +97,8 @@ class LSM9DS1AccelGyro(AccelGyro):
         self.device.write_byte(CTRL_REG8, BDU | IF_ADD_INC)
         self.device.write_byte(CTRL_REG4, AXES_ON)
         self.device.write_byte(CTRL_REG5_XL, AXES_ON)
-        self.device.write_byte(CTRL_REG6_XL, (self.odr << 5) | (self.accel_fs << 3))
-        self.device.write_byte(CTRL_REG1_G, (self.odr << 5) | (self.gyro_fs << 3))
+        self.device.write_byte(CTRL_REG6_XL, (self.rate_code << 5) | (self.accel_fs << 3))
+        self.device.write_byte(CTRL_REG1_G, (self.rate_code << 5) | (self.gyro_fs << 3))
 
     def _read(self) -> Reading:
         if self.device.read_byte(STATUS_REG) & (XLDA | GDA) != XLDA | GDA:

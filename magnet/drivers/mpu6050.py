@@ -57,20 +57,10 @@ class MPU6050(AccelGyro):
     ACCEL_RANGES = ACCEL_RANGES
     GYRO_RANGES = GYRO_RANGES
     OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
+    DEFAULT_ADDRESS = DEFAULT_ADDRESS
+    DEFAULT_RATE_HZ = 100
 
-    def __init__(
-        self,
-        bus: I2CBus,
-        address: int = DEFAULT_ADDRESS,
-        orientation: Any = None,
-        *,
-        accel_range_g: int = 4,
-        gyro_range_dps: int = 2000,
-        rate_hz: int = 100,
-        retry: RetryPolicy | None = None,
-        sleep: Callable[[float], None] | None = None,
-    ) -> None:
-        self.divider = self._setup(bus, address, orientation, retry, sleep, (accel_range_g, gyro_range_dps, rate_hz))
+    def _configure(self) -> None:
         found = self.device.read_byte(WHO_AM_I)
         if found != CHIP_ID:
             raise SensorError(
@@ -80,7 +70,7 @@ class MPU6050(AccelGyro):
             )
         self.device.write_byte(PWR_MGMT_1, CLOCK_PLL_GYRO_X)  # out of sleep
         self.device.write_byte(CONFIG, DLPF_44HZ)
-        self.device.write_byte(SMPLRT_DIV, self.divider)
+        self.device.write_byte(SMPLRT_DIV, self.rate_code)
         self.device.write_byte(GYRO_CONFIG, self.gyro_fs << 3)
         self.device.write_byte(ACCEL_CONFIG, self.accel_fs << 3)
         self.device.write_byte(INT_PIN_CFG, BYPASS_EN)

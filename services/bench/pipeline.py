@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -52,6 +53,7 @@ class PipelineRun:
     latency_p99_ms: float
     shards: int = 1
     ceiling_rate: float | None = None  # Zenoh's samples/s on the same payloads
+    load: float = 0.0  # the machine's 1-minute load average at the end of the run (other work competes for the CPU)
 
     @property
     def lost(self) -> int:
@@ -72,7 +74,7 @@ class PipelineRun:
             f"{self.devices} devices x {self.rate_hz:g} Hz, batch {self.batch}, {compasses}: target "
             f"{self.target_rate:,.0f} samples/s; in {self.generated_rate:,.0f}/s, out {self.out_rate:,.0f}/s"
             f"{fraction}, lost {self.lost} ({self.loss_fraction:.3%}), latency p50 {self.latency_p50_ms:.2f} ms, "
-            f"p99 {self.latency_p99_ms:.2f} ms"
+            f"p99 {self.latency_p99_ms:.2f} ms; load average {self.load:.1f}"
         )
 
 
@@ -204,6 +206,7 @@ def run_once(
         float(np.percentile(latencies, 99)),
         shards,
         ceiling_rate,
+        os.getloadavg()[0],
     )
 
 
