@@ -35,3 +35,30 @@ def test_a_gyroscope_chip_sends_its_rates(sensor):
     batch = _batch(sensor, "car")
     assert batch.gyr_rads.shape == (20, 3) and np.all(np.isfinite(batch.gyr_rads))
     assert _batch("hmc5883l", "car").gyr_rads is None
+
+
+@pytest.mark.parametrize(
+    "sensor,trajectory,extra",
+    [("sim", "car", {}), ("icm20948", "tumble", {}), ("sim", "tumble", {"devices": 3, "gyro": True})],
+)
+def test_speedup_is_refused_where_a_gyroscope_is_simulated(sensor, trajectory, extra):
+    """The wire times keep --rate: sped-up motion would rotate more per sample than its rates say."""
+
+    def settings(speedup):
+        return EdgeSettings(
+            device="g1",
+            sensor=sensor,
+            emulate=True,
+            speedup=speedup,
+            simulator=SimulatorSettings(trajectory=sim.Trajectory(trajectory)),
+            **extra,
+        )
+
+    with pytest.raises(ValueError, match="--speedup needs a simulation without a gyroscope"):
+        settings(4.0)
+    assert settings(1.0).simulated_gyroscope  # at the simulated pace it runs
+
+
+def test_speedup_stays_for_still_simulations_without_a_gyroscope():
+    assert _batch("sim", "tumble", speedup=4.0).gyr_rads is None
+    assert _batch("lsm303dlh", "tumble", speedup=4.0).gyr_rads is None

@@ -12,7 +12,9 @@ Estimators, on the raw data (the sensor is factory-calibrated): accelerometer ti
 gyroscope), fused causal (as the compass runs), fused offline (``magnet heading --offline``); then the same two fused
 after ``magnet fit``'s ellipsoid with the motion checks (the record applied when accepted, none when refused, as the
 compass does). Then the moving simulator, every trajectory, against its truth: calibrated on its own moving data
-when the gate accepts that, else on a still tumble; no offset removed (the simulator's north is north).
+when the gate accepts that, else on a still tumble; no offset removed (the simulator's north is north); with one more
+row, the causal filter fed the accelerometer without the run's linear acceleration (what velocity aiding could give at
+best: the gap to "fused causal" is what linear acceleration costs).
 """
 
 from __future__ import annotations

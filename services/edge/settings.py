@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from magnet import wire
-from magnet.drivers import SENSORS
+from magnet.drivers import SENSORS, has_gyroscope
 from magnet.place import Location
 from magnet.replay import MAX_SPEED
 from services.common import sim_options
@@ -51,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--speedup",
         type=float,
         default=1.0,
-        help="simulated motion runs this many times faster than the wall clock (default 1)",
+        help="simulated motion runs this many times faster than the wall clock (default 1; not where a gyroscope is "
+        "simulated: replay a recording with --speed instead)",
     )
     parser.add_argument(
         "--emulate-faults",
@@ -131,10 +132,28 @@ class EdgeSettings:
             raise ValueError(f"--emulate-faults must be a probability in [0, 1], got {self.emulate_faults}")
         if self.emulate_faults and not self.emulated_chip:
             raise ValueError("--emulate-faults needs --emulate and a chip (--sensor NAME, not sim, no --devices)")
+        if self.speedup != 1.0 and self.simulated_gyroscope:
+            raise ValueError(
+                "--speedup needs a simulation without a gyroscope: the wire times keep --rate, so sped-up rates would "
+                "not integrate to the attitude; record the run with magnet sample and play it with magnet edge "
+                "--replay FILE.csv --speed X (the recorded times are kept)"
+            )
 
     @property
     def emulated_chip(self) -> bool:
         return self.emulate and not self.devices and self.sensor != SIMULATOR_SENSOR
+
+    @property
+    def simulated_gyroscope(self) -> bool:
+        """The simulation sends a gyroscope: a fleet with --gyro, the simulator on a moving trajectory, or an emulated
+        chip that has one."""
+        if not self.emulate:
+            return False
+        if self.devices:
+            return self.gyro
+        if self.sensor == SIMULATOR_SENSOR:
+            return self.simulator.trajectory.moving
+        return has_gyroscope(self.sensor)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> EdgeSettings:
