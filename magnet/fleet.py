@@ -27,6 +27,7 @@ import json5
 import numpy as np
 
 from magnet import heading as hd
+from magnet.bounded import Recent
 from magnet.compass import Earth
 from magnet.geomag import earth_field
 from magnet.place import Location
@@ -36,7 +37,7 @@ from magnet.wire.keys import validate_device_id
 MAX_FLEET_FILE_BYTES = 16 * 1024 * 1024
 MAX_FLEET_DEVICES = 100_000
 MAX_NOTES_CHARS = 1_000
-#: devices whose reported place is remembered at most (the oldest forgotten beyond)
+#: devices whose reported place is remembered at most by default (the least recently reporting forgotten beyond)
 MAX_REPORTED = 100_000
 
 
@@ -106,18 +107,21 @@ class Places:
         default: Location | None = None,
         date: str | None = None,
         default_earth: Earth | None = None,
+        max_reported: int = MAX_REPORTED,
     ) -> None:
         self.fleet = dict(fleet or {})
         self.default, self.date = default, date
         self.default_earth = default_earth if default_earth is not None else earth_at(default, date)
-        self.reported: dict[str, Location] = {}
+        #: places the devices reported, for at most ``max_reported`` devices (the least recently reporting forgotten)
+        self.reported: Recent[str, Location] = Recent(max_reported)
 
     def report(self, device: str, location: Location | None) -> bool:
         """A device said where it is; True when that changes its place."""
-        if location is None or self.reported.get(device) == location:
+        if location is None:
             return False
-        if device not in self.reported and len(self.reported) >= MAX_REPORTED:
-            self.reported.pop(next(iter(self.reported)))
+        if self.reported.get(device) == location:
+            self.reported.touch(device)
+            return False
         self.reported[device] = location
         return True
 

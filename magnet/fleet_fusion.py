@@ -237,6 +237,7 @@ class FleetFusion:
     ) -> None:
         self.params, self.max_gap_s, self.max_devices = dict(params or {}), max_gap_s, max_devices
         self.devices: OrderedDict[str, DeviceFusion] = OrderedDict()
+        self.evicted = 0  # filters forgotten for the max_devices bound
 
     def _device(self, name: str) -> DeviceFusion:
         state = self.devices.get(name)
@@ -244,6 +245,7 @@ class FleetFusion:
             state = self.devices[name] = DeviceFusion(self.params, self.max_gap_s)
             while len(self.devices) > self.max_devices:
                 self.devices.popitem(last=False)
+                self.evicted += 1
         else:
             self.devices.move_to_end(name)
         return state

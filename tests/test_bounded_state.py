@@ -10,7 +10,10 @@ from magnet import wire
 from magnet.bounded import Recent
 from magnet.collection import Collection
 from magnet.compass import Earth
+from magnet.drift import Alert, AlertKind
 from magnet.model import Calibration
+from magnet.place import Location
+from services.calibrator.fleet import FleetBook
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.sessions import _start
 from services.calibrator.store import CalibrationStore
@@ -30,6 +33,12 @@ def test_recent_forgets_the_least_recently_seen_and_keeps_what_must_stay():
         Recent(0)
 
 
+def _located_batch(device, lat):
+    mag = np.random.default_rng(0).normal(size=(10, 3)) * 40
+    raw = wire.RawBatch(device, 0, "sim", np.arange(10, dtype=np.int64), mag, None, None, location=Location(lat, 5.0))
+    return wire.encode_raw(raw)
+
+
 def _batch(device, n=10, seed=0):
     mag = np.random.default_rng(seed).normal(size=(n, 3)) * 40
     return wire.encode_raw(wire.RawBatch(device, 0, "sim", np.arange(n, dtype=np.int64), mag, None, None))
@@ -38,7 +47,8 @@ def _batch(device, n=10, seed=0):
 def test_calibrator_keeps_at_most_max_devices_collections_and_never_drops_a_session(tmp_path):
     with CalibrationStore(tmp_path / "c.db") as store:
         calibrator = Calibrator(store, CalibratorSettings(max_devices=3), lambda *a: None)
-        _start(calibrator, "operator-1", None)
+        calibrator.on_raw("magnet/operator-1/raw", _batch("operator-1"), "magnet")  # seen, so a session may start
+        assert _start(calibrator, "operator-1", None)[0]
         for i in range(10):
             calibrator.on_raw(f"magnet/flood-{i}/raw", _batch(f"flood-{i}"), "magnet")
         assert len(calibrator.collections) == 3 and "operator-1" in calibrator.collections
@@ -55,7 +65,8 @@ def test_compass_keeps_at_most_max_devices_calibrations():
         )
     assert list(compass.calibrations) == ["d3", "d4"]
     compass.encode(compass.decode_columns([(f"magnet/n{i}/raw", _batch(f"n{i}")) for i in range(5)], "magnet"))
-    assert len(compass.tails) == 2 and compass.status("c").evicted_devices == 3 + 3
+    # calibrations 3, tails 3, drift trackers 3
+    assert len(compass.tails) == 2 and compass.status("c").evicted_devices == 3 + 3 + 3
 
 
 def test_a_collection_that_kept_a_few_samples_holds_small_arrays():
@@ -108,3 +119,63 @@ def test_zenoh_errors_lose_their_rust_source_paths():
         "zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/net/runtime/orchestrator.rs:447."
     )
     assert zenoh_message(Exception(raw)) == "Unable to connect to any of [Single(tls/127.0.0.1:7447)]!"
+
+
+def test_a_session_for_a_device_never_seen_is_refused_with_what_to_check(tmp_path):
+    with CalibrationStore(tmp_path / "c.db") as store:
+        calibrator = Calibrator(store, CalibratorSettings(auto=False), lambda *a: None)
+        reply = calibrator.session("ghost-1", "start", None)
+        assert not reply["ok"] and "ghost-1 is unknown to this calibrator" in reply["message"]
+        assert "ghost-1" not in calibrator.collections and reply["state"] == "idle"
+        calibrator.on_raw("magnet/ghost-1/raw", _batch("ghost-1"), "magnet")
+        assert calibrator.session("ghost-1", "start", None)["ok"]
+
+
+def test_the_calibrators_fleet_book_keeps_at_most_max_devices_and_counts_the_rest(tmp_path, caplog):
+    with CalibrationStore(tmp_path / "c.db") as store:
+        calibrator = Calibrator(
+            store, CalibratorSettings(max_devices=3), lambda *a: None, fleet=FleetBook(max_devices=3)
+        )
+        book = calibrator.fleet
+        for i in range(10):
+            calibrator.on_raw(f"magnet/flood-{i}/raw", _located_batch(f"flood-{i}", 10.0 + i), "magnet")
+            alert = Alert(f"flood-{i}", AlertKind.DIP, i, 60.0, 67.0, "x")
+            book.on_alert(f"magnet/flood-{i}/alert", wire.pack(alert.to_message()), "magnet")
+            book.seen("known", Location(1.0, 2.0), i)  # a genuine device keeps reporting: it stays
+        assert set(book.last_seen_ns) == {"known", "flood-8", "flood-9"}
+        assert len(book.places.reported) == 3 and "known" in book.places.reported
+        assert set(book.alerts) == {"flood-7", "flood-8", "flood-9"}
+        forgotten = calibrator.status("c").to_dict()["forgotten_devices"]
+        assert forgotten == book.forgotten == 8 + 8 + 7
+        assert len([r for r in caplog.records if "fleet book" in r.getMessage()]) == 1
+
+
+def _moving_batch(device, lat):
+    rng = np.random.default_rng(1)
+    n = 10
+    raw = wire.RawBatch(
+        device,
+        0,
+        "sim",
+        np.arange(n, dtype=np.int64) * 10_000_000 + 1,
+        rng.normal(size=(n, 3)) * 40,
+        np.tile([0.0, 0.0, -9.81], (n, 1)),
+        None,
+        np.zeros((n, 3)),
+        Location(lat, 5.0),
+    )
+    return wire.encode_raw(raw)
+
+
+def test_the_compass_keeps_places_drift_trackers_and_filters_for_at_most_max_devices(caplog):
+    compass = Compass(Earth(), window=1, max_devices=3)
+    for i in range(10):
+        cal = Calibration("ellipsoid", [float(i), 0, 0], np.eye(3), field_strength=50.0)
+        compass.accept_calibration(wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration", "magnet")
+        compass.encode(compass.decode_columns([(f"magnet/d{i}/raw", _moving_batch(f"d{i}", 10.0 + i))], "magnet"))
+    assert compass.watch.monitor is not None and list(compass.watch.monitor.trackers) == ["d7", "d8", "d9"]
+    assert list(compass.watch.places.reported) == ["d7", "d8", "d9"]
+    assert list(compass.fusion.devices) == ["d7", "d8", "d9"]
+    # calibrations 7, tails 0 (window 1), places 7, trackers 7, filters 7
+    assert compass.status("c").evicted_devices == 7 + 7 + 7 + 7
+    assert len([r for r in caplog.records if "the least recently seen are forgotten" in r.getMessage()]) == 1

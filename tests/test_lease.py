@@ -110,7 +110,9 @@ def test_a_standby_calibrator_collects_and_answers_nothing_then_takes_over_from_
 
 def test_standing_by_ends_the_sessions_in_progress(tmp_path):
     with CalibrationStore(tmp_path / "c.db") as store:
-        calibrator = Calibrator(store, CalibratorSettings(), lambda k, d, p: None)
+        calibrator = Calibrator(store, CalibratorSettings(auto=False), lambda k, d, p: None)
+        raw = wire.RawBatch("d", 0, "sim", np.arange(3), np.ones((3, 3)), None)
+        calibrator.on_raw("magnet/d/raw", wire.encode_raw(raw), PREFIX)
         assert calibrator.session("d", "start", None)["ok"]
         calibrator.stand_by()
         assert calibrator.state("d").value == "idle" and not calibrator.collections

@@ -26,6 +26,8 @@ STEPS = {
     "router": "magnet router --config $SITE/router.json5",
     "calibrator": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db "
     "--signing-key $SITE/signing/calibrator.key",
+    "standby": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db "
+    "--signing-key $SITE/signing/calibrator.key --name calibrator-2",
     "compass": "magnet compass --config $SITE/compass.json5 --trust $SITE/signing/calibrator.pub",
     "edge": "magnet edge --config $SITE/edge-password.json5 --device imu-1 --sensor sim --emulate",
     "get": "magnet get calibration imu-1 --config $SITE/viewer.json5 --trust $SITE/signing/calibrator.pub",
@@ -169,6 +171,32 @@ def test_every_role_does_its_job_through_the_secure_router(site):
     )
     for name in ("calibrator", "compass", "edge"):
         assert site.alive(name), site.log(name)
+
+
+def _lease(site, name):
+    out = subprocess.run(
+        [*MAGNET, "get", "status", name, "--timeout", "1", "--config", str(site.dir / "viewer.json5")],
+        capture_output=True,
+        text=True,
+        timeout=20,
+    )
+    return json.loads(out.stdout.splitlines()[0]) if out.returncode == 0 and out.stdout.strip() else None
+
+
+def test_a_second_calibrator_stands_by_and_takes_over_through_the_secure_router(site):
+    if "calibrator" not in site.procs or not site.alive("calibrator"):
+        site.start_step("calibrator")
+    wait_for(lambda: _lease(site, "calibrator"), 30, "the calibrator to answer")
+    site.start_step("standby")
+    status = wait_for(lambda: _lease(site, "calibrator-2"), 30, "the second calibrator to answer")
+    assert status["lease"] == "standby", "the access rules let calibrators see each other's lease tokens"
+    assert _lease(site, "calibrator")["lease"] == "active"
+    site.procs["calibrator"].kill()
+    site.procs["calibrator"].wait()
+    taken = wait_for(
+        lambda: (s := _lease(site, "calibrator-2")) and s["lease"] == "active" and s, 20, "the standby to take over"
+    )
+    assert taken["takeovers"] == 1 and site.alive("standby")
 
 
 def _payloads(channel) -> list[bytes]:

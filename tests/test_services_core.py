@@ -105,6 +105,7 @@ def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
 def test_session_commit_abort_and_status(store):
     calibrator = _calibrator(store, [], auto=False)
     assert not calibrator.session("d", "commit", None)["ok"]
+    _feed(calibrator, _run(count=25))  # the device is seen: a session may start
     started = calibrator.session("d", "start", "sphere")
     assert started["ok"] and started["state"] == "session" and started["progress"]["method"] == "sphere"
     assert calibrator.session("d", "abort", None)["ok"] and calibrator.state("d").value == "idle"

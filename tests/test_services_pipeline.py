@@ -239,7 +239,11 @@ def test_operator_calibration_session_over_the_network(procs, tmp_path):
         *connect_args(cal_port),
     )
     remote = [*NO_SCOUT, *connect_args(cal_port)]
-    wait_for(lambda: get_status("calibrator", cal_port), 20, "the calibrator to answer")
+    wait_for(
+        lambda: (s := get_status("calibrator", cal_port)) and s["received_batches"] > 0,
+        20,
+        "the calibrator to receive the device's samples",
+    )
     code, [idle] = magnet_json("calibrate", "op-1", "status", *remote)
     assert code == 0 and idle["state"] == "idle"
     code, [started] = magnet_json("calibrate", "op-1", "start", "--method", "ellipsoid+align", *remote)

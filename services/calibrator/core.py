@@ -99,6 +99,15 @@ class Calibrator:
             return State.SESSION if collection.session else State.COLLECTING
         return State.CALIBRATED if device in self.in_force else State.IDLE
 
+    def known(self, device: str) -> bool:
+        """Whether ``device`` sent raw samples, has a calibration stored or is in the fleet file."""
+        return (
+            device in self.in_force
+            or device in self.collections
+            or device in self.fleet.last_seen_ns
+            or device in self.fleet.places.fleet
+        )
+
     def mine(self, key_expr: str, prefix: str) -> bool:
         """Whether the device of a raw key belongs to this shard (a malformed key: True, to be refused and counted)."""
         owned = self._mine.get(key_expr)
@@ -295,7 +304,7 @@ class Calibrator:
         states = [self.state(d).value for d in set(self.collections) | set(self.in_force)]
         return CalibratorStatus(
             name,
-            dataclasses.replace(self.counters),
+            dataclasses.replace(self.counters, forgotten_devices=self.fleet.forgotten),
             {s.value: states.count(s.value) for s in State},
             dict(self.drops.counts),
             str(self.shard),

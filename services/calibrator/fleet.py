@@ -14,6 +14,7 @@ import logging
 from typing import TYPE_CHECKING, Any
 
 from magnet import wire
+from magnet.bounded import Recent
 from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.fleet import Places
 
@@ -22,27 +23,43 @@ if TYPE_CHECKING:  # the service imports this module
 
 log = logging.getLogger("magnet.calibrator")
 
-#: devices remembered as seen at most (beyond: the oldest forgotten)
-MAX_SEEN = 100_000
+#: devices remembered at most without --max-devices (beyond: the least recently seen forgotten)
+MAX_SEEN = 10_000
 #: a rollback without --to looks this far back in the history for the previous calibration
 ROLLBACK_DEPTH = 1_000
 QUALITY_FIGURES = ("residual_rms_ut", "residual_rms_pct", "coverage", "holdout_rms_ut")
 
 
 class FleetBook:
-    """Last seen (ns, wall clock of the calibrator), places and open alerts per device."""
+    """Last seen (ns, wall clock of the calibrator), places and open alerts per device, for at most ``max_devices``
+    devices each (``--max-devices``): beyond, the least recently seen are forgotten, counted in ``forgotten`` and
+    logged the first time."""
 
-    def __init__(self, places: Places | None = None) -> None:
-        self.places = places if places is not None else Places()
-        self.last_seen_ns: dict[str, int] = {}
-        self.alerts: dict[str, dict[AlertKind, Alert]] = {}
+    def __init__(self, places: Places | None = None, max_devices: int = MAX_SEEN) -> None:
+        self.places = places if places is not None else Places(max_reported=max_devices)
+        self.last_seen_ns: Recent[str, int] = Recent(max_devices)
+        self.alerts: Recent[str, dict[AlertKind, Alert]] = Recent(max_devices)
+        self.max_devices = max_devices
         self.drops = wire.DropCounter()
 
+    @property
+    def forgotten(self) -> int:
+        """Entries (last seen, reported place, open alerts) forgotten for the ``max_devices`` bound."""
+        return self.last_seen_ns.evicted + self.alerts.evicted + self.places.reported.evicted
+
+    def _check_bound(self, before: int) -> None:
+        if before == 0 and self.forgotten:
+            log.warning(
+                "more than %d devices in the fleet book: the least recently seen are forgotten (counted in status "
+                "forgotten_devices; raise --max-devices if they are genuine)",
+                self.max_devices,
+            )
+
     def seen(self, device: str, location: Any, now_ns: int) -> None:
-        if device not in self.last_seen_ns and len(self.last_seen_ns) >= MAX_SEEN:
-            self.last_seen_ns.pop(next(iter(self.last_seen_ns)))
+        before = self.forgotten
         self.last_seen_ns[device] = now_ns
         self.places.report(device, location)
+        self._check_bound(before)
 
     def field_ut(self, device: str) -> float | None:
         """The WMM |B| (uT) at the device's reported or configured place; None when neither is known."""
@@ -63,11 +80,17 @@ class FleetBook:
         except ValueError as exc:
             self.drops.drop(wire.WireError("bad-alert", str(exc)), "alert", log)
             return
-        open_alerts = self.alerts.setdefault(device, {})
+        open_alerts = self.alerts.get(device)
         if alert.cleared:
-            open_alerts.pop(alert.kind, None)
-        elif device in self.alerts or len(self.alerts) < MAX_SEEN:
-            open_alerts[alert.kind] = alert
+            if open_alerts is not None:
+                open_alerts.pop(alert.kind, None)
+            return
+        before = self.forgotten
+        if open_alerts is None:
+            open_alerts = self.alerts[device] = {}
+        self.alerts.touch(device)
+        open_alerts[alert.kind] = alert
+        self._check_bound(before)
 
     def location_source(self, device: str) -> str | None:
         if device in self.places.reported:

@@ -85,7 +85,12 @@ def run(settings: ServiceSettings) -> int:
             session.put(wire.key(prefix, device, kind), payload)
 
         calibrator = Calibrator(
-            store, settings.fitting, publish, signer=signer, fleet=FleetBook(settings.places), shard=settings.shard
+            store,
+            settings.fitting,
+            publish,
+            signer=signer,
+            fleet=FleetBook(settings.places, settings.fitting.max_devices),
+            shard=settings.shard,
         )
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
         lease_token, lease_sub = _join_lease(session, lease)

@@ -31,6 +31,16 @@ def _start(calibrator: Calibrator, device: str, method: str | None) -> tuple[boo
             ),
             {},
         )
+    if not calibrator.known(device):
+        return (
+            False,
+            (
+                f"{device} is unknown to this calibrator: no raw samples seen from it, no calibration stored and "
+                "not in its fleet file; check the id (magnet get fleet) and that its edge is publishing, then start "
+                "again"
+            ),
+            {},
+        )
     calibrator.collections[device] = Collection(chosen, True, calibrator.settings.max_samples)
     return True, f"session started with {chosen}: move the device through every attitude, then commit", {}
 

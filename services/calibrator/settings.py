@@ -50,8 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-devices",
         type=int,
         default=DEFAULT_MAX_DEVICES,
-        help="devices collected at once at most; beyond, the least recently seen automatic collection "
-        f"is dropped (sessions stay) (default {DEFAULT_MAX_DEVICES})",
+        help="devices collected at once and kept in the fleet book at most; beyond, the least recently seen are "
+        f"dropped (sessions stay) (default {DEFAULT_MAX_DEVICES})",
     )
     add_fleet_argument(parser)
     parser.add_argument(
@@ -123,7 +123,8 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
         auto=not args.no_auto,
         max_devices=args.max_devices,
     )
-    places = Places(read_fleet(args.fleet), Location.parse(args.location) if args.location else None)
+    location = Location.parse(args.location) if args.location else None
+    places = Places(read_fleet(args.fleet), location, max_reported=fitting.max_devices)
     return ServiceSettings(
         fitting,
         args.db or default_db_path(),

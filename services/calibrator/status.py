@@ -27,6 +27,7 @@ class Counters:
     rejected: int = 0
     stored: int = 0
     evicted_devices: int = 0  # collections dropped for --max-devices
+    forgotten_devices: int = 0  # fleet-book entries (last seen, reported place, open alerts) dropped for --max-devices
     takeovers: int = 0  # times it became the active calibrator of its shard after standing by
 
 

@@ -177,11 +177,19 @@ def load_calibration(path: str) -> Calibration:
         raise ValueError(f"{path}: {exc}") from None
 
 
+def _umask() -> int:
+    """The process's file creation mask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_atomically(path: Path, text: str) -> None:
     """Replace ``path`` with ``text`` so that a crash leaves either the old file or the new one, never half."""
     directory = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=directory)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())  # as an ordinary new file (0644 under umask 022), not mkstemp's 0600
         with os.fdopen(fd, "w") as handle:
             handle.write(text)
             handle.flush()

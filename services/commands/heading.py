@@ -23,6 +23,7 @@ import numpy as np
 from magnet import fusion
 from magnet import heading as hd
 from magnet.geomag import earth_field, parse_location
+from magnet.model import Calibration
 from services.commands.fit import add_field_arguments, gyro_columns, load_calibration, sample_period_s
 from services.common.csvio import SampleTable, read_samples, write_csv
 
@@ -120,10 +121,22 @@ def _tilt(table: SampleTable, field: np.ndarray) -> Attitude:
     return Attitude(magnetic, pitch, roll, quat, table.acc, np.zeros(count, dtype=int))
 
 
+def _accepted_calibration(path: str) -> Calibration:
+    """The record of ``path`` (checked as plausible by ``load_calibration``); ValueError when it is marked not
+    accepted: the gate refused it, and applying it could make every heading worse."""
+    calibration = load_calibration(path)
+    if not calibration.accepted:
+        raise ValueError(
+            f"{path}: this calibration was not accepted ({calibration.reason or 'no reason given'}): fit again "
+            "with better coverage, or leave out --calibration to use the raw field"
+        )
+    return calibration
+
+
 def run(args: argparse.Namespace) -> int:
     if args.window < 1:
         raise ValueError(f"--window must be at least 1, got {args.window}")
-    calibration = load_calibration(args.calibration) if args.calibration else None
+    calibration = _accepted_calibration(args.calibration) if args.calibration else None
     declination_deg, expected_ut, expected_dip_deg = _declination_deg(args)
     table = read_samples(args.file)
     field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)

@@ -220,6 +220,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         return 1
     for reply in replies:
         _print(reply)
+        if isinstance(reply, dict) and not reply.get("ok", False):
+            print(f"magnet calibrate: refused: {reply.get('message', '')}", file=sys.stderr)
     return 0 if all(isinstance(r, dict) and r.get("ok", False) for r in replies) else 1
 
 

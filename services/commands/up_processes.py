@@ -23,14 +23,12 @@ def start_services(
             "calibrator",
             "--db",
             str(db),
-            "--location",
-            settings.location,
+            f"--location={settings.location}",
             *loopback_arguments(ports["calibrator"]),
         ],
         "compass": [
             "compass",
-            "--location",
-            settings.location,
+            f"--location={settings.location}",
             *loopback_arguments(ports["compass"], [ports["calibrator"]]),
         ],
         "edge": [
@@ -46,8 +44,7 @@ def start_services(
             str(settings.batch),
             "--speedup",
             str(settings.speedup),
-            "--location",
-            settings.location,
+            f"--location={settings.location}",
             *loopback_arguments(ports["edge"], [ports["calibrator"], ports["compass"]]),
         ],
     }
@@ -56,10 +53,8 @@ def start_services(
             "dashboard",
             "--http",
             dashboard[0],
-            "--token",
-            dashboard[1],
-            "--location",
-            settings.location,
+            f"--token={dashboard[1]}",
+            f"--location={settings.location}",
             *loopback_arguments(ports["dashboard"], [ports[n] for n in SERVICES]),
         ]
     procs = {}

@@ -2,8 +2,11 @@
 
 A sample CSV has a header row naming its columns; any lines before the header (a logger's preamble such as
 ``Fs,50.00``) are skipped: the header is the first line that names ``mx``, ``my`` and ``mz``. Columns are matched by
-name, case-insensitively; unknown columns are ignored. Every problem is a ``ValueError`` that names the file, the
-line and what to do.
+name, case-insensitively; unknown columns are ignored, a column the commands read may not be named twice. Cells may
+be quoted (``"mx","my","mz"``); values are separated by commas: a file separated otherwise (semicolons, tabs) is
+refused with the separator named. A field over 128 KiB is refused, and so is a sensor reading (``mx..mz``,
+``ax..az``, ``gx..gz``) beyond +-1e9 in any unit. Every problem is a ``ValueError`` that names the file, the line
+and what to do.
 """
 
 from __future__ import annotations
@@ -20,7 +23,14 @@ import numpy as np
 
 MAG_COLUMNS = ("mx", "my", "mz")
 ACC_COLUMNS = ("ax", "ay", "az")
+GYRO_COLUMNS = ("gx", "gy", "gz")
 MAX_PREAMBLE_LINES = 50
+#: no sensor reads beyond this in any unit (nT, counts, m/s^2, rad/s): such a value is a wrong column or a broken file
+MAX_READING = 1e9
+#: the csv module's own limit on one field (128 KiB)
+MAX_FIELD_CHARS = csv.field_size_limit()
+#: other separators named when the header is found with one of them
+OTHER_SEPARATORS = {";": "semicolons", "\t": "tabs", "|": "'|'", " ": "spaces"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,20 +45,27 @@ class SampleTable:
     mag: np.ndarray
     acc: np.ndarray | None
     columns: dict[str, list[str]]
+    duplicated: frozenset[str] = frozenset()  # names the header gives more than once: refused when read
+
+    def _column(self, name: str) -> list[str]:
+        if name in self.duplicated:
+            raise ValueError(f"{self.path}: the header names column {name!r} more than once: keep one of them")
+        if name not in self.columns:
+            raise ValueError(f"{self.path}: column {name!r} is missing (the header must name it)")
+        return self.columns[name]
 
     def numeric(self, name: str) -> np.ndarray:
         """Column ``name`` as floats, shape (N,); ValueError naming the first bad row."""
-        if name not in self.columns:
-            raise ValueError(f"{self.path}: column {name!r} is missing (the header must name it)")
-        return _floats(self.columns[name], name, self.path)
+        return _floats(self._column(name), name, self.path)
 
     def text(self, name: str) -> list[str]:
-        if name not in self.columns:
-            raise ValueError(f"{self.path}: column {name!r} is missing (the header must name it)")
-        return [v.strip() for v in self.columns[name]]
+        return [v.strip() for v in self._column(name)]
 
 
 def _floats(values: Sequence[str], name: str, path: str) -> np.ndarray:
+    """Floats of one column (N,); ValueError naming the row of a value that is not a finite number, or of a sensor
+    reading beyond +-MAX_READING."""
+    limit = MAX_READING if name in (*MAG_COLUMNS, *ACC_COLUMNS, *GYRO_COLUMNS) else math.inf
     out = np.empty(len(values))
     for i, text in enumerate(values):
         try:
@@ -57,16 +74,41 @@ def _floats(values: Sequence[str], name: str, path: str) -> np.ndarray:
             raise ValueError(f"{path}: row {i + 1}: {name}={text!r} is not a number") from None
         if not math.isfinite(out[i]):
             raise ValueError(f"{path}: row {i + 1}: {name}={text!r} is not finite")
+        if abs(out[i]) > limit:
+            raise ValueError(
+                f"{path}: row {i + 1}: {name}={text!r} is beyond +-{limit:.0e}: no sensor reads that in any "
+                "unit (a wrong column, or a damaged file)"
+            )
     return out
+
+
+def _cells(line: str, path: str, number: int, delimiter: str = ",") -> list[str]:
+    """The cells of one line (quotes removed), lower case; ValueError for a field over 128 KiB."""
+    try:
+        return [cell.strip().lower() for cell in next(csv.reader([line], delimiter=delimiter), [])]
+    except csv.Error as exc:
+        raise ValueError(f"{path}: line {number}: {_csv_problem(exc)}") from None
+
+
+def _csv_problem(exc: csv.Error) -> str:
+    if "field larger" in str(exc):
+        return f"a field longer than {MAX_FIELD_CHARS // 1024} KiB: not a sample CSV"
+    return f"not CSV ({exc})"
 
 
 def _find_header(lines: list[str], path: str) -> int:
     for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
-        names = {cell.strip().lower() for cell in line.split(",")}
-        if set(MAG_COLUMNS) <= names:
+        if set(MAG_COLUMNS) <= set(_cells(line, path, index + 1)):
             return index
     if not any(line.strip() for line in lines):
         raise ValueError(f"{path}: the file is empty: it needs a header row with mx,my,mz and samples below it")
+    for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
+        for separator, words in OTHER_SEPARATORS.items():
+            if set(MAG_COLUMNS) <= set(_cells(line, path, index + 1, separator)):
+                raise ValueError(
+                    f"{path}: line {index + 1} names mx,my,mz separated by {words}, not commas: save the file as "
+                    "comma-separated values (with decimal points)"
+                )
     raise ValueError(
         f"{path}: no header row naming mx,my,mz in its first {MAX_PREAMBLE_LINES} lines "
         "(columns mx,my,mz are required; ax,ay,az optional)"
@@ -77,20 +119,32 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
     """Parse CSV ``text`` into a SampleTable (see the module docstring for the format)."""
     lines = text.splitlines()
     header_index = _find_header(lines, path)
-    reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
-    header = [name.strip().lower() for name in next(reader)]
-    rows = [row for row in reader if any(cell.strip() for cell in row)]
+    header, rows = _read_rows(lines, header_index, path)
     if not rows:
         raise ValueError(f"{path}: the header is there but no samples follow it")
     for number, row in enumerate(rows, start=1):
         if len(row) < len(header):
             raise ValueError(f"{path}: row {number} has {len(row)} values but the header names {len(header)} columns")
     columns = {name: [row[i] for row in rows] for i, name in enumerate(header) if name}
-    mag = np.column_stack([_floats(columns[c], c, path) for c in MAG_COLUMNS])
+    duplicated = frozenset(name for name in columns if header.count(name) > 1)
+    table = SampleTable(path, np.empty((0, 3)), None, columns, duplicated)
+    mag = np.column_stack([table.numeric(c) for c in MAG_COLUMNS])
     acc = None
     if all(c in columns for c in ACC_COLUMNS):
-        acc = np.column_stack([_floats(columns[c], c, path) for c in ACC_COLUMNS])
-    return SampleTable(path=path, mag=mag, acc=acc, columns=columns)
+        acc = np.column_stack([table.numeric(c) for c in ACC_COLUMNS])
+    return dataclasses.replace(table, mag=mag, acc=acc)
+
+
+def _read_rows(lines: list[str], header_index: int, path: str) -> tuple[list[str], list[list[str]]]:
+    """(header names in lower case, the non-blank rows below it); ValueError naming the line of a field over 128
+    KiB or of a line that is not CSV."""
+    reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
+    try:
+        header = [name.strip().lower() for name in next(reader)]
+        rows = [row for row in reader if any(cell.strip() for cell in row)]
+    except csv.Error as exc:
+        raise ValueError(f"{path}: line {header_index + reader.line_num}: {_csv_problem(exc)}") from None
+    return header, rows
 
 
 def read_samples(path: str | Path) -> SampleTable:

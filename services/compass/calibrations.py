@@ -102,8 +102,12 @@ class CalibrationsInForce:
         else:
             self.refused_overflow = True
 
+    def evicted_count(self) -> int:
+        """Per-device entries forgotten for --max-devices: calibrations, tails, reported places, drift trackers."""
+        return self.calibrations.evicted + self.tails.evicted + self.watch.evicted
+
     def _log_evictions(self) -> None:
-        if not self._evictions_logged and self.calibrations.evicted + self.tails.evicted:
+        if not self._evictions_logged and self.evicted_count():
             self._evictions_logged = True
             log.warning(
                 "more than %d devices: the least recently seen are forgotten (counted in status "

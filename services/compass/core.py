@@ -85,11 +85,17 @@ class Compass(CalibrationsInForce):
         if window < 1:
             raise ValueError(f"--window must be >= 1, got {window}")
         super().__init__(
-            trusted, watch if watch is not None else FleetWatch(Places(default_earth=earth)), shard, max_devices
+            trusted,
+            watch
+            if watch is not None
+            else FleetWatch(Places(default_earth=earth, max_reported=max_devices), max_devices=max_devices),
+            shard,
+            max_devices,
         )
         self.earth = earth
         self.window = window
-        self.fusion = FleetFusion()  # one gyroscope-aided filter per device that sends a gyroscope
+        # one gyroscope-aided filter per device that sends a gyroscope, at most max_devices
+        self.fusion = FleetFusion(max_devices=max_devices)
         self.received_batches = self.received_samples = self.published_batches = 0
         self._key_devices: dict[str, str] = {}
 
@@ -144,6 +150,7 @@ class Compass(CalibrationsInForce):
         out = dataclasses.replace(out, flags=out.flags | disturbance_flags(out.field_ut, gravity, dip, where))
         out, quat = merge(out, fused)
         self.watch.observe(columns.devices, columns.bounds, columns.t_ns, hd.row_norm(out.field_ut), dip)
+        self._log_evictions()
         self.received_batches += len(columns.devices)
         self.received_samples += int(counts.sum())
         if self.window > 1:
@@ -165,6 +172,10 @@ class Compass(CalibrationsInForce):
             [e.declination_deg for e in earths],
             None if quat is None else rotate_heading(quat, where.declination_deg),
         )
+
+    def evicted_count(self) -> int:
+        """Per-device entries forgotten for --max-devices: calibrations, tails, places, drift trackers, filters."""
+        return super().evicted_count() + self.fusion.evicted
 
     def _fuse(self, columns: wire.RawColumns, out: Headings) -> FusedColumns:
         """The per-device filters run on the batches that carry a gyroscope (``magnet.fleet_fusion``); bad gyroscope
@@ -238,6 +249,6 @@ class Compass(CalibrationsInForce):
             len(self.calibrations),
             self.calibration_updates,
             dict(self.drops.counts),
-            self.calibrations.evicted + self.tails.evicted,
+            self.evicted_count(),
             str(self.shard),
         )

@@ -68,7 +68,8 @@ def run_compass(args: argparse.Namespace) -> int:
 
 def run(settings: CompassSettings) -> int:
     default, date, fleet = settings.places
-    watch = FleetWatch(Places(fleet, default, date, settings.earth), settings.drift)
+    places = Places(fleet, default, date, settings.earth, max_reported=settings.max_devices)
+    watch = FleetWatch(places, settings.drift, settings.max_devices)
     compass = Compass(
         settings.earth, settings.window, load_trusted_keys(settings.trust), watch, settings.shard, settings.max_devices
     )

@@ -16,17 +16,30 @@ from magnet.units import ut_per_unit
 
 #: alert events waiting to be published at most (the oldest dropped beyond: the open ones are also queryable)
 MAX_PENDING_ALERTS = 10_000
+#: devices with a drift tracker at most, by default
+MAX_TRACKED = 10_000
 
 __all__ = ["FleetWatch", "alert_from_message"]
 
 
 class FleetWatch:
-    """Places and drift of the devices a compass serves."""
+    """Places and drift of the devices a compass serves: reported places (bounded by the ``Places``) and drift
+    trackers for at most ``max_devices`` devices (the least recently calibrated forgotten first, counted in
+    ``evicted``)."""
 
-    def __init__(self, places: Places, drift: DriftSettings | None = DEFAULT_DRIFT) -> None:
+    def __init__(
+        self, places: Places, drift: DriftSettings | None = DEFAULT_DRIFT, max_devices: int = MAX_TRACKED
+    ) -> None:
         self.places = places
         self.monitor = DriftMonitor(drift) if drift is not None else None
         self.pending: list[Alert] = []
+        self.max_devices = max_devices
+        self.forgotten_trackers = 0
+
+    @property
+    def evicted(self) -> int:
+        """Reported places and drift trackers forgotten for the bounds."""
+        return self.places.reported.evicted + self.forgotten_trackers
 
     def earths(self, devices: list[str], locations: list[Any] | None) -> list[Earth]:
         """The Earth of each batch's device, taking the locations the batches report."""
@@ -46,6 +59,9 @@ class FleetWatch:
         """A calibration came into force: drift is judged against it from now on (open alerts clear)."""
         if self.monitor is None:
             return
+        trackers = self.monitor.trackers
+        if record.device in trackers:  # the most recently calibrated last
+            trackers[record.device] = trackers.pop(record.device)
         cal, earth = record.calibration, self.places.earth(record.device)
         in_ut = ut_per_unit(cal.output_unit) == 1.0
         reference = Reference(
@@ -57,6 +73,9 @@ class FleetWatch:
             record.id,
         )
         self._queue(self.monitor.calibration(record.device, reference, now_ns))
+        while len(trackers) > self.max_devices:
+            del trackers[next(iter(trackers))]
+            self.forgotten_trackers += 1
 
     def observe(
         self, devices: list[str], bounds: list[int], t_ns: np.ndarray, strength_ut: np.ndarray, dip_deg: np.ndarray
