@@ -55,12 +55,15 @@ conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{p}" for p in
 conf.insert_json5("scouting/multicast/enabled", "false")
 rng = np.random.default_rng(7)
 with zenoh.open(conf) as session:
-    time.sleep(0.5)
+    probe = session.declare_publisher("magnet/flood-0/raw")
+    deadline = time.monotonic() + 10
+    while not probe.matching_status.matching and time.monotonic() < deadline:  # the services subscribe magnet/*/raw
+        time.sleep(0.02)
     for i in range(8000):
         mag = rng.normal(size=(10, 3)) * 40
         batch = wire.RawBatch(f"flood-{i}", 0, "sim", np.arange(10, dtype=np.int64) + 1, mag, None, None)
         session.put(f"magnet/flood-{i}/raw", wire.encode_raw(batch), congestion_control=zenoh.CongestionControl.BLOCK)
-    time.sleep(1.0)
+    time.sleep(1.0)  # the last puts leave the send queue before the session closes
 """
 
 
