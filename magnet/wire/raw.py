@@ -1,11 +1,12 @@
 """Raw samples: ``RawBatch`` (one message), ``RawColumns`` (many, sample after sample) and the raw encoder.
 
 Message: ``{v, device, seq, sensor, t_ns: [N ints], mag_ut: [[x, y, z]] * N, acc_ms2: [[x, y, z]] * N (optional),
-gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), truth: {heading_deg: [N], pitch_deg: [N],
-roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the device is,
-``magnet.place.Location``, checked: cause ``bad-location``)}``. In v 2 (written) every array of samples is a binary
-array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N], mag_ut / acc_ms2 / gyr_rads ``<f4`` [N, 3], truth ``<f4``
-[N]; ``location`` (three numbers, not samples) stays a list in both versions.
+gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), vel_ned_ms: [[n, e, d]] * N (optional, the
+velocity over the ground in m/s, north-east-down, NaN rows where no fix is known), truth: {heading_deg: [N],
+pitch_deg: [N], roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the
+device is, ``magnet.place.Location``, checked: cause ``bad-location``)}``. In v 2 (written) every array of samples is
+a binary array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N], mag_ut / acc_ms2 / gyr_rads / vel_ned_ms ``<f4``
+[N, 3], truth ``<f4`` [N]; ``location`` (three numbers, not samples) stays a list in both versions.
 
 The one raw decoder is ``magnet.wire.raw_decode``; the structure checks of one message are ``magnet.wire.raw_header``.
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import typing
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -29,11 +31,14 @@ from magnet.wire.errors import WireError
 MAX_FIELD_UT = 5_000.0
 MAX_ACC_MS2 = 2_000.0
 MAX_GYR_RADS = 100.0
+#: faster than any vehicle that navigates by compass (Mach 3)
+MAX_VEL_MS = 1_000.0
 #: the (N, 3) vector fields of a raw message, their limit, and whether a message must carry them
 VECTOR_FIELDS: tuple[tuple[str, float, bool], ...] = (
     ("mag_ut", MAX_FIELD_UT, True),
     ("acc_ms2", MAX_ACC_MS2, False),
     ("gyr_rads", MAX_GYR_RADS, False),
+    ("vel_ned_ms", MAX_VEL_MS, False),
 )
 TRUTH_FIELDS = ("heading_deg", "pitch_deg", "roll_deg")
 
@@ -42,7 +47,8 @@ TRUTH_FIELDS = ("heading_deg", "pitch_deg", "roll_deg")
 class RawBatch:
     """N raw samples of one device. t_ns (N,) int64 ns; mag_ut (N, 3) uT body frame; acc_ms2 (N, 3) m/s^2 or None;
     truth: {"heading_deg", "pitch_deg", "roll_deg"} -> (N,) degrees, simulator only, else None; gyr_rads (N, 3)
-    rad/s body frame or None; location where the device is, or None."""
+    rad/s body frame or None; location where the device is, or None; vel_ned_ms (N, 3) m/s north-east-down, or
+    None (rows may be NaN where no velocity is known)."""
 
     device: str
     seq: int
@@ -53,6 +59,7 @@ class RawBatch:
     truth: Mapping[str, np.ndarray] | None = None
     gyr_rads: np.ndarray | None = None
     location: Location | None = None
+    vel_ned_ms: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -68,7 +75,7 @@ class RawColumns:
 
     devices, seqs, sensors: per batch (B); counts (B,) int samples per batch; t_ns (S,) int64; mag_ut (S, 3) uT;
     acc_ms2 (S, 3) m/s^2 and gyr_rads (S, 3) rad/s, with NaN rows for batches that carry none; locations per batch
-    (a Location or None), or None when no batch carries one."""
+    (a Location or None), or None when no batch carries one; vel_ned_ms (S, 3) m/s NED, NaN rows where unknown."""
 
     devices: list[str]
     seqs: list[int]
@@ -79,6 +86,16 @@ class RawColumns:
     gyr_rads: np.ndarray
     sensors: list[str]
     locations: list[Location | None] | None = None
+    vel_ned_ms: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.vel_ned_ms is None:  # frozen: set once, here
+            object.__setattr__(self, "vel_ned_ms", nan_rows(int(self.t_ns.shape[0])))
+
+    @property
+    def vel(self) -> np.ndarray:
+        """vel_ned_ms (S, 3), never None (NaN rows where unknown)."""
+        return typing.cast(np.ndarray, self.vel_ned_ms)
 
     @classmethod
     def from_batches(cls, batches: Sequence[RawBatch]) -> RawColumns:
@@ -94,6 +111,7 @@ class RawColumns:
             np.concatenate([nan_rows(len(b)) if b.gyr_rads is None else b.gyr_rads for b in batches]),
             [b.sensor for b in batches],
             batch_locations([b.location for b in batches]),
+            np.concatenate([nan_rows(len(b)) if b.vel_ned_ms is None else b.vel_ned_ms for b in batches]),
         )
 
     @property
@@ -106,7 +124,7 @@ class RawColumns:
         bounds = self.bounds
         out = []
         for i, (lo, hi) in enumerate(itertools.pairwise(bounds)):
-            acc, gyr = self.acc_ms2[lo:hi], self.gyr_rads[lo:hi]
+            acc, gyr, vel = self.acc_ms2[lo:hi], self.gyr_rads[lo:hi], self.vel[lo:hi]
             out.append(
                 RawBatch(
                     self.devices[i],
@@ -118,6 +136,7 @@ class RawColumns:
                     None,
                     None if np.isnan(gyr).all() else gyr,
                     None if self.locations is None else self.locations[i],
+                    None if np.isnan(vel).all() else vel,
                 )
             )
         return out
@@ -137,6 +156,7 @@ class RawColumns:
             self.gyr_rads[per_sample],
             [self.sensors[i] for i in pick],
             None if self.locations is None else batch_locations([self.locations[i] for i in pick]),
+            self.vel[per_sample],
         )
 
 
@@ -180,6 +200,8 @@ def encode_raw(batch: RawBatch, version: int = BINARY_VERSION) -> bytes:
         message["acc_ms2"] = floats(batch.acc_ms2)
     if batch.gyr_rads is not None:
         message["gyr_rads"] = floats(batch.gyr_rads)
+    if batch.vel_ned_ms is not None:
+        message["vel_ned_ms"] = floats(batch.vel_ned_ms)
     if batch.location is not None:
         message["location"] = batch.location.to_wire()
     if batch.truth is not None:

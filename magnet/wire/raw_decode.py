@@ -126,7 +126,7 @@ def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | No
         if bad.any():
             for i in np.flatnonzero(np.logical_or.reduceat(bad, starts)).tolist():
                 verdicts[i] = verdicts[i] or WireError(cause, text)
-    mag_ut, acc_ms2, gyr_rads = vectors
+    mag_ut, acc_ms2, gyr_rads, vel_ned_ms = vectors
     columns = RawColumns(
         [h.device for h in headers],
         [h.seq for h in headers],
@@ -136,6 +136,8 @@ def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | No
         acc_ms2,
         gyr_rads,
         [h.sensor for h in headers],
+        None,
+        vel_ned_ms,
     )
     return columns, verdicts
 

@@ -16,7 +16,9 @@ from magnet.wire.keys import message_device
 from magnet.wire.raw import VECTOR_FIELDS
 
 #: the fields a raw message may carry; others are ignored, up to MAX_EXTRA_FIELDS of them
-RAW_FIELDS = frozenset({"v", "device", "seq", "sensor", "t_ns", "mag_ut", "acc_ms2", "gyr_rads", "truth", "location"})
+RAW_FIELDS = frozenset(
+    {"v", "device", "seq", "sensor", "t_ns", "mag_ut", "acc_ms2", "gyr_rads", "vel_ned_ms", "truth", "location"}
+)
 MAX_EXTRA_FIELDS = 32
 MAX_SENSOR_CHARS = 64
 #: a raw payload of N samples holds at most MAX_HEADER_BYTES + N * MAX_BYTES_PER_SAMPLE bytes: the widest honest
