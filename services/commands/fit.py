@@ -20,7 +20,8 @@ from magnet.calibration import Method, fit
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from magnet.units import FieldUnit
-from services.common.csvio import SampleTable, read_samples
+from services.common.csvio import SampleTable
+from services.common.inputs import InputOptions, add_input_arguments, read_input
 
 EXIT_REJECTED = 1
 GYRO_COLUMNS = ("gx", "gy", "gz")
@@ -39,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--unit", default="ut", choices=[u.value for u in FieldUnit], help="unit of the mx,my,mz columns (default ut)"
     )
     parser.add_argument("--field-ut", type=float, metavar="F", help="expected field strength in uT")
+    add_input_arguments(parser)
     add_field_arguments(parser)
     parser.add_argument(
         "--horizontal",
@@ -201,7 +203,7 @@ def write_atomically(path: Path, text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    table = read_samples(args.file)
+    table = read_input(args.file, InputOptions.from_args(args))
     calibration = fit_table(table, args)
     if args.report:
         from services.commands.report import place, write_report

@@ -25,7 +25,8 @@ from magnet import heading as hd
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from services.commands.fit import add_field_arguments, gyro_columns, load_calibration, sample_period_s
-from services.common.csvio import SampleTable, read_samples, write_csv
+from services.common.csvio import SampleTable, write_csv
+from services.common.inputs import InputOptions, add_input_arguments, read_input
 
 COLUMNS = (
     "heading_deg",
@@ -55,6 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--declination", type=float, metavar="DEG", help="magnetic declination, degrees east")
     add_field_arguments(parser)
+    add_input_arguments(parser)
     parser.add_argument(
         "--window",
         type=int,
@@ -138,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--window must be at least 1, got {args.window}")
     calibration = _accepted_calibration(args.calibration) if args.calibration else None
     declination_deg, expected_ut, expected_dip_deg = _declination_deg(args)
-    table = read_samples(args.file)
+    table = read_input(args.file, InputOptions.from_args(args))
     field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)
     gyr = gyro_columns(table)
     if gyr is None and args.offline:

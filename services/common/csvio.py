@@ -38,16 +38,18 @@ class SampleTable:
     """Samples read from a CSV.
 
     mag: (N, 3) raw magnetometer readings in the file's unit. acc: (N, 3) accelerometer readings (any unit; only
-    directions are used) or None when the file has no ``ax,ay,az``. columns: every other column by name, as strings.
-    """
+    directions are used) or None when the file has no ``ax,ay,az``. columns: every other column by name, as strings
+    (from a CSV) or as float arrays (N,) (from a recording that holds numbers, see ``services.common.inputs``).
+    note: what a reader wants the user told about where the samples came from ("" for a CSV)."""
 
     path: str
     mag: np.ndarray
     acc: np.ndarray | None
-    columns: dict[str, list[str]]
+    columns: dict[str, list[str] | np.ndarray]
     duplicated: frozenset[str] = frozenset()  # names the header gives more than once: refused when read
+    note: str = ""
 
-    def _column(self, name: str) -> list[str]:
+    def _column(self, name: str) -> list[str] | np.ndarray:
         if name in self.duplicated:
             raise ValueError(f"{self.path}: the header names column {name!r} more than once: keep one of them")
         if name not in self.columns:
@@ -56,10 +58,13 @@ class SampleTable:
 
     def numeric(self, name: str) -> np.ndarray:
         """Column ``name`` as floats, shape (N,); ValueError naming the first bad row."""
-        return _floats(self._column(name), name, self.path)
+        column = self._column(name)
+        if isinstance(column, np.ndarray):
+            return column.astype(np.float64)
+        return _floats(column, name, self.path)
 
     def text(self, name: str) -> list[str]:
-        return [v.strip() for v in self._column(name)]
+        return [str(v).strip() for v in self._column(name)]
 
 
 def _floats(values: Sequence[str], name: str, path: str) -> np.ndarray:
@@ -125,7 +130,9 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
     for number, row in enumerate(rows, start=1):
         if len(row) < len(header):
             raise ValueError(f"{path}: row {number} has {len(row)} values but the header names {len(header)} columns")
-    columns = {name: [row[i] for row in rows] for i, name in enumerate(header) if name}
+    columns: dict[str, list[str] | np.ndarray] = {
+        name: [row[i] for row in rows] for i, name in enumerate(header) if name
+    }
     duplicated = frozenset(name for name in columns if header.count(name) > 1)
     table = SampleTable(path, np.empty((0, 3)), None, columns, duplicated)
     mag = np.column_stack([table.numeric(c) for c in MAG_COLUMNS])

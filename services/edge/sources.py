@@ -26,7 +26,7 @@ from magnet.emulators import FaultInjector, emulator_for
 from magnet.readloop import Backoff, ReadLoop, ReadStats
 from magnet.replay import Recording, paced_slices
 from magnet.simulator import FleetSimulator
-from services.common.csvio import read_samples
+from services.common.inputs import read_input
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
 
 #: the edge's read loop: waits 10 ms, 20 ms, ... up to 1 s between failed reads; unhealthy after 3 in a row
@@ -174,7 +174,7 @@ class ChipSource:
 def read_recording(path: Path) -> Recording:
     """The recording in a ``magnet sample`` CSV: t_s (s), mx,my,mz (uT), optional ax,ay,az (m/s^2) and gx,gy,gz
     (rad/s); ValueError naming the file and what is wrong."""
-    table = read_samples(path)
+    table = read_input(path)
     if "t_s" not in table.columns:
         raise ValueError(
             f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as magnet sample writes it"

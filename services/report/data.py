@@ -15,7 +15,8 @@ import numpy as np
 from magnet import heading as hd
 from magnet.model import Calibration
 from magnet.quality import Geometry, assess, gate
-from services.common.csvio import SampleTable, read_samples
+from services.common.csvio import SampleTable
+from services.common.inputs import read_input
 
 TRUTH_COLUMN = "true_heading_deg"  # what ``magnet sample --emulate`` writes
 PITCH_COLUMN = "pitch_deg"
@@ -83,7 +84,7 @@ def load_samples(path: str | Path, unit: str | None) -> Samples:
             acc = np.asarray(data["acc_ms2"], dtype=float) if "acc_ms2" in data.files else None
         keep = np.isfinite(mag).all(axis=1) & (np.isfinite(acc).all(axis=1) if acc is not None else True)
         return Samples(str(path), mag[keep], unit or "ut", None if acc is None else acc[keep])
-    table = read_samples(path)
+    table = read_input(path)
     return Samples(
         str(path), table.mag, unit or "ut", table.acc, _column(table, TRUTH_COLUMN), _column(table, PITCH_COLUMN)
     )

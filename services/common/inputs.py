@@ -1,0 +1,58 @@
+"""Recorded inputs of the offline commands: one reader per kind of file, chosen by the file's suffix.
+
+``magnet fit``, ``magnet heading``, ``magnet report`` and ``magnet edge --replay`` read their samples with
+``read_input``; each reader returns the same ``SampleTable`` as a CSV gives (``mx,my,mz`` in the file's magnetometer
+unit, optional ``ax,ay,az`` m/s^2, ``gx,gy,gz`` rad/s, ``t_s`` s, ``vn,ve,vd`` m/s NED and other named columns).
+To read a new kind of recording, write a function ``(path, InputOptions) -> SampleTable`` and add its suffixes to
+``READERS``. Every reader raises ``ValueError`` naming the file and what to do for a file it cannot use.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+
+from services.common.csvio import SampleTable, read_samples
+
+
+@dataclasses.dataclass(frozen=True)
+class InputOptions:
+    """What to take from a recording that holds more than one stream.
+
+    mag: the magnetometer instance (0 = the first) of a flight log, None for the reader's default; topic: the topic
+    of a ROS 2 recording, None for the reader's choice (the one magnetometer topic it holds)."""
+
+    mag: int | None = None
+    topic: str | None = None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> InputOptions:
+        return cls(getattr(args, "mag", None), getattr(args, "topic", None))
+
+
+Reader = Callable[[Path, InputOptions], SampleTable]
+
+
+def _csv(path: Path, options: InputOptions) -> SampleTable:
+    return read_samples(path)
+
+
+#: file suffix (lower case, with the dot) -> its reader
+READERS: dict[str, Reader] = {".csv": _csv, ".txt": _csv}
+
+
+def add_input_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--mag N`` and ``--topic TOPIC``: which stream of a recording to read."""
+    parser.add_argument(
+        "--mag", type=int, metavar="N", help="flight logs: the magnetometer instance to read (default 0)"
+    )
+    parser.add_argument("--topic", metavar="TOPIC", help="ROS 2 recordings: the MagneticField topic to read")
+
+
+def read_input(path: str | Path, options: InputOptions = InputOptions()) -> SampleTable:
+    """The samples of the recording at ``path``, by its suffix (CSV when unknown); ValueError otherwise."""
+    path = Path(path)
+    reader = READERS.get(path.suffix.lower(), _csv)
+    return reader(path, options)
