@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("services.commands.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
     "dashboard": ("services.dashboard.service", "serve a live web page of the fleet (and calibration control)"),
     "report": ("services.commands.report", "draw a calibration report (HTML or PNG) from samples and a calibration"),
+    "export": ("services.commands.export", "write a calibration as ArduPilot or PX4 parameters (a parameter file)"),
 }
 
 

@@ -21,7 +21,7 @@ from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from magnet.units import FieldUnit
 from services.common.csvio import SampleTable
-from services.common.inputs import InputOptions, add_input_arguments, read_input
+from services.common.inputs import InputOptions, add_input_arguments, read_input_told
 
 EXIT_REJECTED = 1
 GYRO_COLUMNS = ("gx", "gy", "gz")
@@ -203,12 +203,13 @@ def write_atomically(path: Path, text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    table = read_input(args.file, InputOptions.from_args(args))
+    options = InputOptions.from_args(args)
+    table = read_input_told(args.file, options, "fit")
     calibration = fit_table(table, args)
     if args.report:
         from services.commands.report import place, write_report
 
-        write_report(args.report, args.file, calibration, args.unit, *place(args))
+        write_report(args.report, args.file, calibration, args.unit, *place(args), options)
     text = json.dumps(calibration.to_dict(), indent=2) + "\n"
     if not calibration.accepted:
         print(f"magnet fit: rejected: {calibration.reason}", file=sys.stderr)

@@ -22,11 +22,12 @@ import numpy as np
 
 from magnet import fusion
 from magnet import heading as hd
+from magnet.autopilot import compare_headings
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from services.commands.fit import add_field_arguments, gyro_columns, load_calibration, sample_period_s
 from services.common.csvio import SampleTable, write_csv
-from services.common.inputs import InputOptions, add_input_arguments, read_input
+from services.common.inputs import InputOptions, add_input_arguments, read_input_told, reference_yaw
 
 COLUMNS = (
     "heading_deg",
@@ -69,6 +70,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--offline", action="store_true", help="with a gyroscope: the best estimate for a log (the filter looks ahead)"
+    )
+    parser.add_argument(
+        "--compare",
+        action="store_true",
+        help="flight logs: print (stderr) the RMS difference to the autopilot's own logged yaw, after the constant "
+        "offset",
     )
 
 
@@ -135,12 +142,36 @@ def _accepted_calibration(path: str) -> Calibration:
     return calibration
 
 
+def _declination_words(args: argparse.Namespace, declination_deg: float) -> str:
+    if args.location:
+        return f"{declination_deg:.2f} deg (WMM2025 at --location)"
+    if args.declination is not None:
+        return f"{declination_deg:.2f} deg (--declination)"
+    return "none (0 deg; give --declination or --location)"
+
+
+def _compare(args: argparse.Namespace, table: SampleTable, true_deg: np.ndarray, declination_deg: float) -> None:
+    """Print (stderr) how far magnet's headings are from the autopilot's own logged yaw: RMS after the constant
+    offset, and the declination each used."""
+    if "t_s" not in table.columns:
+        raise ValueError(f"{table.path}: --compare needs the samples' times (t_s)")
+    reference = reference_yaw(args.file)
+    figures = compare_headings(table.numeric("t_s"), true_deg, reference.t_s, reference.yaw_deg)
+    print(
+        f"magnet heading: compare: {figures.rms_deg:.2f} deg RMS from the autopilot's {reference.source} yaw over "
+        f"{figures.count} samples after removing a constant offset of {figures.offset_deg:+.2f} deg (max "
+        f"{figures.max_deg:.2f} deg); declination: magnet {_declination_words(args, declination_deg)}, autopilot "
+        f"{reference.declination}",
+        file=sys.stderr,
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     if args.window < 1:
         raise ValueError(f"--window must be at least 1, got {args.window}")
     calibration = _accepted_calibration(args.calibration) if args.calibration else None
     declination_deg, expected_ut, expected_dip_deg = _declination_deg(args)
-    table = read_input(args.file, InputOptions.from_args(args))
+    table = read_input_told(args.file, InputOptions.from_args(args), "heading")
     field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)
     gyr = gyro_columns(table)
     if gyr is None and args.offline:
@@ -158,6 +189,8 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     quat = fusion.rotate_heading(attitude.quat, declination_deg)
+    if args.compare:
+        _compare(args, table, hd.true_heading_deg(magnetic, declination_deg), declination_deg)
     header = list(COLUMNS)
     columns = [
         magnetic,

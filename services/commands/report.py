@@ -14,6 +14,7 @@ from pathlib import Path
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from services.commands.fit import add_field_arguments, load_calibration
+from services.common.inputs import InputOptions, add_input_arguments
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="declination for the heading error (default: from --location, else from the data)",
     )
     add_field_arguments(parser)
+    add_input_arguments(parser)
 
 
 def place(args: argparse.Namespace) -> tuple[float | None, float | None]:
@@ -49,15 +51,18 @@ def write_report(
     unit: str | None,
     declination_deg: float | None,
     expected_field_ut: float | None,
+    options: InputOptions | None = None,
+    command: str | None = None,
 ) -> Path:
-    """Build and write the report of ``calibration`` on the samples in ``samples_path``; returns the file."""
+    """Build and write the report of ``calibration`` on the samples in ``samples_path`` (``options``: which stream
+    of a recording; ``command``: tell the user which, under that name); returns the file."""
     from services.report.data import build_report, load_samples
     from services.report.render import FORMATS, write
 
     out = Path(out)
     if out.suffix.lower() not in FORMATS:  # refuse before any work
         raise ValueError(f"report {out}: the file must end in {' or '.join(FORMATS)}")
-    samples = load_samples(samples_path, unit or calibration.unit)
+    samples = load_samples(samples_path, unit or calibration.unit, options, command)
     write(out, build_report(samples, calibration, declination_deg, expected_field_ut))
     return out
 
@@ -65,6 +70,8 @@ def write_report(
 def run(args: argparse.Namespace) -> int:
     declination, field = place(args)
     calibration = load_calibration(args.calibration)
-    path = write_report(args.out, args.file, calibration, args.unit, declination, field)
+    path = write_report(
+        args.out, args.file, calibration, args.unit, declination, field, InputOptions.from_args(args), "report"
+    )
     print(f"magnet report: {path}")
     return 0

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
 from services.common.csvio import SampleTable, read_samples
+from services.common.flightlogs import ReferenceYaw
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,8 +41,32 @@ def _csv(path: Path, options: InputOptions) -> SampleTable:
     return read_samples(path)
 
 
+def _ulog(path: Path, options: InputOptions) -> SampleTable:
+    from services.common.ulog import read_ulog  # pyulog is loaded only for a ULog
+
+    return read_ulog(path, options)
+
+
+def _dataflash(path: Path, options: InputOptions) -> SampleTable:
+    from services.common.dataflash import read_dataflash  # pymavlink is loaded only for a log that needs it
+
+    return read_dataflash(path, options)
+
+
+def _tlog(path: Path, options: InputOptions) -> SampleTable:
+    from services.common.tlog import read_tlog
+
+    return read_tlog(path, options)
+
+
 #: file suffix (lower case, with the dot) -> its reader
-READERS: dict[str, Reader] = {".csv": _csv, ".txt": _csv}
+READERS: dict[str, Reader] = {
+    ".csv": _csv,
+    ".txt": _csv,
+    ".ulg": _ulog,
+    ".bin": _dataflash,
+    ".tlog": _tlog,
+}
 
 
 def add_input_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,3 +82,30 @@ def read_input(path: str | Path, options: InputOptions = InputOptions()) -> Samp
     path = Path(path)
     reader = READERS.get(path.suffix.lower(), _csv)
     return reader(path, options)
+
+
+def read_input_told(path: str | Path, options: InputOptions, command: str) -> SampleTable:
+    """``read_input``, and the reader's note (which stream of the recording was used) on stderr for the user."""
+    table = read_input(path, options)
+    if table.note:
+        print(f"magnet {command}: {table.note}", file=sys.stderr)
+    return table
+
+
+def reference_yaw(path: str | Path) -> ReferenceYaw:
+    """The autopilot's own heading estimate in the flight log at ``path``; ValueError for a file that has none."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".ulg":
+        from services.common.ulog import ulog_reference_yaw
+
+        return ulog_reference_yaw(path)
+    if suffix == ".bin":
+        from services.common.dataflash import dataflash_reference_yaw
+
+        return dataflash_reference_yaw(path)
+    if suffix == ".tlog":
+        from services.common.tlog import tlog_reference_yaw
+
+        return tlog_reference_yaw(path)
+    raise ValueError(f"{path}: --compare needs a flight log (.ulg, .bin or .tlog) holding the autopilot's attitude")

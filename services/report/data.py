@@ -16,7 +16,7 @@ from magnet import heading as hd
 from magnet.model import Calibration
 from magnet.quality import Geometry, assess, gate
 from services.common.csvio import SampleTable
-from services.common.inputs import read_input
+from services.common.inputs import InputOptions, read_input, read_input_told
 
 TRUTH_COLUMN = "true_heading_deg"  # what ``magnet sample --emulate`` writes
 PITCH_COLUMN = "pitch_deg"
@@ -73,8 +73,11 @@ class ReportData:
         return Geometry.CIRCLE if self.calibration.method == "minmax2d" else Geometry.SPHERE
 
 
-def load_samples(path: str | Path, unit: str | None) -> Samples:
-    """A CSV (``magnet fit``'s format, truth columns if present) or a BROAD-style .npz (``mag_ut``, ``acc_ms2``)."""
+def load_samples(
+    path: str | Path, unit: str | None, options: InputOptions | None = None, command: str | None = None
+) -> Samples:
+    """A CSV (``magnet fit``'s format, truth columns if present), a flight log (``options`` says which magnetometer;
+    with ``command`` its note goes to stderr under that name) or a BROAD-style .npz (``mag_ut``, ``acc_ms2``)."""
     path = Path(path)
     if path.suffix.lower() == ".npz":
         with np.load(path) as data:
@@ -84,7 +87,8 @@ def load_samples(path: str | Path, unit: str | None) -> Samples:
             acc = np.asarray(data["acc_ms2"], dtype=float) if "acc_ms2" in data.files else None
         keep = np.isfinite(mag).all(axis=1) & (np.isfinite(acc).all(axis=1) if acc is not None else True)
         return Samples(str(path), mag[keep], unit or "ut", None if acc is None else acc[keep])
-    table = read_input(path)
+    options = options or InputOptions()
+    table = read_input_told(path, options, command) if command else read_input(path, options)
     return Samples(
         str(path), table.mag, unit or "ut", table.acc, _column(table, TRUTH_COLUMN), _column(table, PITCH_COLUMN)
     )

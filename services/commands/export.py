@@ -1,0 +1,108 @@
+"""``magnet export (--calibration FILE | --device ID) --format ardupilot|px4 [--instance N] [--out FILE]``.
+
+Writes the parameters that make the autopilot apply a calibration (the maths in ``magnet.autopilot_params``):
+
+- ``ardupilot``: ``NAME,VALUE`` lines, as Mission Planner saves a .param file and MAVProxy's ``param load`` reads it
+  (``#`` lines are comments);
+- ``px4``: QGroundControl's .params layout, one tab-separated ``vehicle-id component-id name value type`` line per
+  parameter (type 9 a 32-bit float, 6 a 32-bit integer), after ``#`` comment lines.
+
+``--device ID`` asks the calibrator for the device's calibration in force (as ``magnet get calibration ID`` does).
+Exit status 0 with the file written; 1 when no calibrator answered; 2 for bad input or a calibration the autopilot
+cannot represent (the reason on stderr; an existing ``--out`` file is left untouched).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from magnet.autopilot import ROTATIONS
+from magnet.autopilot_params import Autopilot, Export, export_parameters
+from magnet.model import Calibration
+from services.commands.fit import load_calibration, write_atomically
+from services.common.zenoh_session import add_zenoh_arguments
+
+#: MAVLink's MAV_PARAM_TYPE of a 32-bit float and of a 32-bit integer, as QGroundControl writes them
+PX4_REAL32 = 9
+PX4_INT32 = 6
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--calibration", metavar="cal.json", help="a record as 'magnet fit' writes it")
+    source.add_argument("--device", metavar="ID", help="ask the calibrator for this device's calibration in force")
+    parser.add_argument("--format", required=True, choices=[a.value for a in Autopilot], help="the autopilot")
+    parser.add_argument(
+        "--instance", type=int, default=0, metavar="N", help="compass instance / calibration slot (default 0)"
+    )
+    parser.add_argument(
+        "--rotation-in-force",
+        type=int,
+        default=0,
+        metavar="R",
+        help="the orientation parameter (COMPASS_ORIENTn / CAL_MAGn_ROT or SENS_BOARD_ROT) in force when the "
+        "samples were recorded (default 0: none)",
+    )
+    parser.add_argument("--vehicle-id", type=int, default=1, help="px4: the vehicle (system) id column (default 1)")
+    parser.add_argument("--out", metavar="FILE", help="write here (default: stdout)")
+    parser.add_argument("--timeout", type=float, default=3.0, help="--device: seconds to wait for the calibrator")
+    add_zenoh_arguments(parser)
+
+
+def _from_device(args: argparse.Namespace) -> Calibration | None:
+    """The device's calibration in force, from the calibrator; None when nobody answered."""
+    from magnet import wire
+    from services.commands.remote import _query
+
+    wire.validate_device_id(args.device)
+    replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATION.value}")
+    if not replies:
+        return None
+    try:
+        return wire.calibration_from_record(replies[0]).calibration
+    except wire.WireError as exc:
+        raise ValueError(f"the calibrator's answer for {args.device} is unusable: {exc}") from None
+
+
+def _value(value: float, integer: bool) -> str:
+    return str(round(value)) if integer else f"{value:.9g}"
+
+
+def render(export: Export, source: str, vehicle_id: int = 1) -> str:
+    """The parameter file's text for ``export`` (see the module docstring); ``source`` names the record."""
+    comments = [f"# magnet export: {source}", *(f"# note: {note}" for note in export.notes)]
+    if export.autopilot is Autopilot.ARDUPILOT:
+        lines = [f"{p.name},{_value(p.value, p.integer)}" for p in export.parameters]
+        return "\n".join([*comments, *lines]) + "\n"
+    header = [f"# Onboard parameters for Vehicle {vehicle_id}", "#", "# Vehicle-Id Component-Id Name Value Type"]
+    lines = [
+        f"{vehicle_id}\t1\t{p.name}\t{_value(p.value, p.integer)}\t{PX4_INT32 if p.integer else PX4_REAL32}"
+        for p in export.parameters
+    ]
+    return "\n".join([*header, *comments, *lines]) + "\n"
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.rotation_in_force not in ROTATIONS:
+        raise ValueError(f"--rotation-in-force {args.rotation_in_force} is not a named orientation magnet knows")
+    if args.calibration:
+        calibration, source = load_calibration(args.calibration), args.calibration
+    else:
+        found = _from_device(args)
+        if found is None:
+            print(f"magnet export: no calibration for {args.device} (is a calibrator reachable?)", file=sys.stderr)
+            return 1
+        calibration, source = found, f"device {args.device}"
+    if not calibration.accepted:
+        raise ValueError(f"{source}: this calibration was not accepted ({calibration.reason}): export a good one")
+    export = export_parameters(calibration, args.format, args.instance, args.rotation_in_force)
+    text = render(export, f"{source} (method {calibration.method}, id {calibration.content_id})", args.vehicle_id)
+    for note in export.notes:
+        print(f"magnet export: note: {note}", file=sys.stderr)
+    if args.out:
+        write_atomically(Path(args.out), text)
+    else:
+        sys.stdout.write(text)
+    return 0

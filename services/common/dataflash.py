@@ -1,0 +1,174 @@
+"""ArduPilot DataFlash logs (``.bin``) as recorded inputs, read with ``pymavlink`` (see ``docs/autopilots.md``).
+
+Magnetometer: the ``MAG`` records of instance ``--mag N`` (field ``I`` in current logs; ``MAG``, ``MAG2``, ``MAG3``
+in old ones). ArduPilot logs the field after its own correction (MagX..Z, milligauss, body frame) together with the
+offsets it added (OfsX..Z) and the motor offsets (MOfsX..Z); the reader undoes the correction
+(``magnet.autopilot.ardupilot_raw_field``) with the soft-iron matrix and scale factor of the log's ``PARM`` records
+(``COMPASS_DIA*``, ``COMPASS_ODI*``, ``COMPASS_SCALE*``; their first logged values), giving the uncorrected field in
+the body frame. Accelerometer and gyroscope: ``IMU`` instance 0 (m/s^2, rad/s, body frame). Battery current:
+``BAT`` instance 0 (``Curr``, A; ``CURR`` in very old logs, centiamps). Throttle: ``RCOU`` channels 1-4 (PWM, 1000..2000
+us mapped to 0..1). Times: ``TimeUS``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from magnet.autopilot import UT_PER_MGAUSS, ardupilot_raw_field, ardupilot_scale, ardupilot_soft_iron
+from services.common.csvio import SampleTable
+from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
+from services.common.inputs import InputOptions
+
+TYPES = ["MAG", "MAG2", "MAG3", "IMU", "IMU2", "PARM", "BAT", "CURR", "RCOU", "ATT"]
+#: every DataFlash log starts with a FMT record: the two header bytes, then FMT's own type number (128)
+HEADER = bytes([0xA3, 0x95, 0x80])
+MAG_FIELDS = ("MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ", "MOfsX", "MOfsY", "MOfsZ")
+
+
+def _records(path: Path, types: list[str]) -> tuple[dict[str, list[Any]], dict[str, float]]:
+    """(records of ``types`` by name, PARM name -> first logged value); ValueError naming the file when it is not a
+    DataFlash log pymavlink can read."""
+    from pymavlink import mavutil
+
+    with open(path, "rb") as handle:
+        start = handle.read(3)
+    if not start:
+        raise ValueError(f"{path}: the file is empty")
+    if start != HEADER:  # checked here: pymavlink's fast indexer prints every bad byte of a foreign file
+        raise ValueError(f"{path}: not an ArduPilot DataFlash log (it does not start with a DataFlash FMT record)")
+    found: dict[str, list[Any]] = defaultdict(list)
+    params: dict[str, float] = {}
+    quiet = io.StringIO()  # pymavlink prints each bad header it skips
+    try:
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            log = mavutil.mavlink_connection(str(path))
+            try:
+                while (record := log.recv_match(type=types)) is not None:
+                    kind = record.get_type()
+                    if kind == "PARM":
+                        params.setdefault(str(record.Name), float(record.Value))
+                    else:
+                        found[kind].append(record)
+            finally:
+                log.close()
+    except Exception as exc:  # pymavlink raises whatever its parser meets in a damaged file
+        raise ValueError(f"{path}: not a readable ArduPilot DataFlash log ({type(exc).__name__}: {exc})") from None
+    if not found and not params:
+        raise ValueError(f"{path}: no DataFlash records found: not an ArduPilot .bin log, or damaged from its start")
+    return found, params
+
+
+def _instance_records(found: dict[str, list[Any]], base: str, instance: int) -> list[Any]:
+    """The records of ``base`` (MAG, IMU) for one instance: field ``I`` when logged, else MAG, MAG2, MAG3 by name."""
+    records = found.get(base, [])
+    if records and "I" in records[0].get_fieldnames():
+        return [r for r in records if int(r.I) == instance]
+    return found.get(base if instance == 0 else f"{base}{instance + 1}", [])
+
+
+def _instances(found: dict[str, list[Any]], base: str) -> list[int]:
+    records = found.get(base, [])
+    if records and "I" in records[0].get_fieldnames():
+        return sorted({int(r.I) for r in records})
+    return [k for k, name in enumerate((base, f"{base}2", f"{base}3")) if found.get(name)]
+
+
+def _columns(records: list[Any], names: tuple[str, ...]) -> np.ndarray:
+    return np.array([[float(getattr(r, n)) for n in names] for r in records], dtype=float).reshape(-1, len(names))
+
+
+def _times_us(records: list[Any]) -> np.ndarray:
+    return np.array([float(r.TimeUS) for r in records], dtype=float)
+
+
+def _suffix(instance: int) -> str:
+    """ArduPilot's parameter suffix of compass ``instance``: '' for the first, '2', '3' after."""
+    return "" if instance == 0 else str(instance + 1)
+
+
+def _mag(path: Path, found: dict[str, list[Any]], params: dict[str, float], instance: int) -> tuple[Stream, str]:
+    records = _instance_records(found, "MAG", instance)
+    if not records:
+        instances = _instances(found, "MAG")
+        if not instances:
+            raise ValueError(f"{path}: this log holds no magnetometer (no MAG records; LOG_BITMASK may leave them out)")
+        raise ValueError(f"{path}: no MAG records of instance {instance} (instances: {instances}): pick one with --mag")
+    values = _columns(records, MAG_FIELDS)
+    n = _suffix(instance)
+    diagonals = [params.get(f"COMPASS_DIA{n}_{a}", 1.0) for a in "XYZ"]
+    offdiagonals = [params.get(f"COMPASS_ODI{n}_{a}", 0.0) for a in "XYZ"]
+    scale = params.get(f"COMPASS_SCALE{n}", 0.0)
+    raw_mg = ardupilot_raw_field(
+        values[:, 0:3], values[:, 3:6], values[:, 6:9], ardupilot_soft_iron(diagonals, offdiagonals), scale
+    )
+    note = (
+        f"MAG instance {instance} with ArduPilot's correction removed (offsets and motor offsets as logged, "
+        f"COMPASS_DIA{n}_*={_rounded(diagonals)}, COMPASS_ODI{n}_*={_rounded(offdiagonals)}, "
+        f"scale {ardupilot_scale(scale):g}; milligauss, body frame)"
+    )
+    return Stream(_times_us(records), raw_mg * UT_PER_MGAUSS), note
+
+
+def _rounded(values: list[float]) -> list[float]:
+    return [round(float(v), 4) for v in values]
+
+
+def _extra(found: dict[str, list[Any]]) -> tuple[dict[str, Stream], list[str]]:
+    extra: dict[str, Stream] = {}
+    words: list[str] = []
+    battery = found.get("BAT", [])
+    if battery and "I" in battery[0].get_fieldnames():
+        battery = [r for r in battery if int(r.I) == 0]
+    if battery:
+        extra["current_a"] = Stream(_times_us(battery), _columns(battery, ("Curr",))[:, 0])
+        words.append("BAT current")
+    elif found.get("CURR"):
+        extra["current_a"] = Stream(_times_us(found["CURR"]), _columns(found["CURR"], ("Curr",))[:, 0] / 100.0)
+        words.append("CURR current")
+    if found.get("RCOU"):
+        pwm = _columns(found["RCOU"], ("C1", "C2", "C3", "C4")).mean(axis=1)
+        extra["throttle"] = Stream(_times_us(found["RCOU"]), np.clip((pwm - 1000.0) / 1000.0, 0.0, 1.0))
+        words.append("RCOU throttle (PWM)")
+    return extra, words
+
+
+def read_dataflash(path: Path, options: InputOptions) -> SampleTable:
+    """The samples of an ArduPilot DataFlash log (see the module docstring); ValueError naming the file otherwise."""
+    found, params = _records(path, TYPES)
+    mag, note = _mag(path, found, params, options.mag or 0)
+    imu = _instance_records(found, "IMU", 0)
+    acc = gyr = None
+    others = []
+    if imu:
+        acc = Stream(_times_us(imu), _columns(imu, ("AccX", "AccY", "AccZ")))
+        gyr = Stream(_times_us(imu), _columns(imu, ("GyrX", "GyrY", "GyrZ")))
+        others.append("IMU 0 accelerometer and gyroscope")
+    extra, words = _extra(found)
+    others += words
+    if others:
+        note += "; with " + described(others)
+    count = len(mag.t_us)
+    if count < 50:
+        note += f"; only {count} magnetometer samples (a fit needs hundreds over many attitudes)"
+    return to_table(path, LogStreams(mag, acc, gyr, extra, f"ArduPilot DataFlash: {note}"))
+
+
+def dataflash_reference_yaw(path: Path) -> ReferenceYaw:
+    """ArduPilot's own attitude estimate in the log (``ATT.Yaw``, degrees); ValueError when it is not logged."""
+    found, params = _records(path, ["ATT", "PARM"])
+    records = found.get("ATT", [])
+    if len(records) < 2:
+        raise ValueError(f"{path}: fewer than 2 ATT records: the log holds no attitude estimate to compare with")
+    declination = "COMPASS_DEC not in the log's parameters"
+    if "COMPASS_DEC" in params:
+        declination = f"COMPASS_DEC={np.degrees(params['COMPASS_DEC']):.2f} deg"
+        if params.get("COMPASS_AUTODEC"):
+            declination += " (COMPASS_AUTODEC=1: set from the position)"
+    yaw = _columns(records, ("Yaw",))[:, 0]
+    return ReferenceYaw(_times_us(records) / 1e6, np.mod(yaw, 360.0), "ATT", declination)

@@ -1,0 +1,196 @@
+"""PX4 ULog (``.ulg``) files as recorded inputs, read with ``pyulog`` (see ``docs/autopilots.md``).
+
+Magnetometer, best first: ``sensor_mag`` (the driver's raw reading in gauss, before PX4's calibration, in the
+sensor board's axes), turned into the body frame with the rotation PX4 itself would apply after its calibration
+(``CAL_MAGn_ROT`` for an external magnetometer, the board rotation ``SENS_BOARD_ROT`` with ``SENS_BOARD_{X,Y,Z}_OFF``
+for an internal one; ``n`` is the calibration slot whose ``CAL_MAGn_ID`` is the instance's ``device_id``); then
+``vehicle_magnetometer`` and the ``magnetometer_ga`` of old ``sensor_combined`` records, both already calibrated by
+PX4 in the body frame. ``--mag N`` is the topic's instance (multi id). Accelerometer and gyroscope from
+``sensor_combined`` (body frame, m/s^2 and rad/s); battery current from ``battery_status.current_a``; throttle from
+``actuator_motors`` (0..1, mean of the motors) or else ``actuator_outputs`` (PWM, 1000..2000 us mapped to 0..1).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from magnet.attitude import euler_to_matrix, quaternion_to_euler
+from magnet.autopilot import UT_PER_GAUSS, rotation_matrix
+from services.common.csvio import SampleTable
+from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
+from services.common.inputs import InputOptions
+
+TOPICS = [
+    "sensor_mag",
+    "vehicle_magnetometer",
+    "sensor_combined",
+    "battery_status",
+    "actuator_motors",
+    "actuator_outputs",
+    "vehicle_attitude",
+]
+#: sensor_combined's marker of a relative timestamp that is not valid
+RELATIVE_INVALID = 2**31 - 1
+
+
+def _open(path: Path, topics: list[str]) -> Any:
+    """The parsed log (only ``topics``); ValueError naming the file when pyulog cannot read it."""
+    from pyulog import ULog
+
+    quiet = io.StringIO()  # pyulog prints its complaints; they become this function's one error
+    with open(path, "rb") as handle:
+        try:
+            with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+                ulog = ULog(handle, message_name_filter_list=topics)
+        except Exception as exc:  # pyulog raises whatever its parser meets in a damaged file
+            raise ValueError(f"{path}: not a readable PX4 ULog file ({type(exc).__name__}: {exc})") from None
+    if not ulog.data_list and (ulog.file_corruption or not ulog.message_formats):
+        damage = " (pyulog found it damaged)" if ulog.file_corruption else ""
+        raise ValueError(f"{path}: the ULog holds no logged data{damage}: it was cut short or is not a flight log")
+    return ulog
+
+
+def _datasets(ulog: Any, name: str) -> dict[int, dict[str, np.ndarray]]:
+    """multi id -> fields of topic ``name`` (empty when not logged)."""
+    return {d.multi_id: d.data for d in ulog.data_list if d.name == name and len(d.data.get("timestamp", ())) > 0}
+
+
+def _vector(data: dict[str, np.ndarray], name: str) -> np.ndarray:
+    return np.column_stack([np.asarray(data[f"{name}[{k}]"], dtype=float) for k in range(3)])
+
+
+def _board_rotation(params: dict[str, Any], device_id: int) -> tuple[np.ndarray, str]:
+    """(sensor -> body rotation PX4 applies after calibrating ``device_id``, in words)."""
+    slot = next((n for n in range(4) if int(params.get(f"CAL_MAG{n}_ID", 0)) == device_id and device_id), None)
+    rot = int(params.get(f"CAL_MAG{slot}_ROT", -1)) if slot is not None else -1
+    if rot >= 0:
+        return rotation_matrix(rot), f"CAL_MAG{slot}_ROT={rot}"
+    board = int(params.get("SENS_BOARD_ROT", 0))
+    offsets = [float(params.get(f"SENS_BOARD_{axis}_OFF", 0.0)) for axis in "XYZ"]
+    offset = euler_to_matrix(offsets[2], offsets[1], offsets[0])
+    words = f"SENS_BOARD_ROT={board}" + (f" with offsets {offsets} deg" if any(offsets) else "")
+    return offset @ rotation_matrix(board), words
+
+
+def _mag(ulog: Any, path: Path, instance: int) -> tuple[Stream, str]:
+    """(the magnetometer instance's stream in uT body frame, what it is); ValueError when there is none."""
+    params = ulog.initial_parameters
+    raw = _datasets(ulog, "sensor_mag")
+    calibrated = _datasets(ulog, "vehicle_magnetometer")
+    if instance in raw:
+        data = raw[instance]
+        field = np.column_stack([np.asarray(data[a], dtype=float) for a in "xyz"]) * UT_PER_GAUSS
+        rotation, words = _board_rotation(params, int(data.get("device_id", [0])[0]))
+        t = data.get("timestamp_sample", data["timestamp"])
+        note = f"sensor_mag instance {instance} (raw, uncalibrated; gauss; into the body frame by {words})"
+        return Stream(np.asarray(t, dtype=float), field @ rotation.T), note
+    if instance in calibrated:
+        data = calibrated[instance]
+        t = data.get("timestamp_sample", data["timestamp"])
+        field = _vector(data, "magnetometer_ga") * UT_PER_GAUSS
+        note = f"vehicle_magnetometer instance {instance} (already calibrated by PX4, body frame; no raw sensor_mag)"
+        return Stream(np.asarray(t, dtype=float), field), note
+    combined = _datasets(ulog, "sensor_combined").get(0)
+    if instance == 0 and combined is not None and "magnetometer_ga[0]" in combined:
+        t = _relative(combined, "magnetometer_timestamp_relative")
+        note = "sensor_combined.magnetometer_ga (already calibrated by PX4, body frame; this log has no sensor_mag)"
+        return Stream(t, _vector(combined, "magnetometer_ga") * UT_PER_GAUSS), note
+    counts = [len(raw), len(calibrated)]
+    if not any(counts) and not (combined is not None and "magnetometer_ga[0]" in combined):
+        if any(name in ulog.message_formats for name in ("sensor_mag", "vehicle_magnetometer", "sensor_combined")):
+            raise ValueError(f"{path}: this log defines magnetometer topics but holds no samples of them (cut short?)")
+        raise ValueError(
+            f"{path}: this log holds no magnetometer (no sensor_mag, vehicle_magnetometer or "
+            "sensor_combined.magnetometer_ga records)"
+        )
+    found = sorted(set(raw) | set(calibrated) | ({0} if combined is not None else set()))
+    raise ValueError(
+        f"{path}: no magnetometer instance {instance} in this log (instances: {found}): pick one with --mag"
+    )
+
+
+def _relative(data: dict[str, np.ndarray], field: str) -> np.ndarray:
+    """Absolute times (us) of a sensor_combined field logged relative to the record's timestamp."""
+    t = np.asarray(data["timestamp"], dtype=float)
+    relative = np.asarray(data[field], dtype=float)
+    return np.where(relative == RELATIVE_INVALID, np.nan, t + relative)
+
+
+def _inertial(ulog: Any) -> tuple[Stream | None, Stream | None, str]:
+    combined = _datasets(ulog, "sensor_combined").get(0)
+    if combined is None:
+        return None, None, ""
+    t = np.asarray(combined["timestamp"], dtype=float)
+    acc_t = _relative(combined, "accelerometer_timestamp_relative")
+    acc = Stream(acc_t, _vector(combined, "accelerometer_m_s2"))
+    return acc, Stream(t, _vector(combined, "gyro_rad")), "sensor_combined accelerometer and gyroscope"
+
+
+def _throttle(ulog: Any) -> tuple[Stream | None, str]:
+    motors = _datasets(ulog, "actuator_motors").get(0)
+    if motors is not None:
+        controls = np.column_stack([v for k, v in motors.items() if k.startswith("control[")]).astype(float)
+        with np.errstate(invalid="ignore"):
+            mean = np.nanmean(np.where(np.isfinite(controls), controls, np.nan), axis=1)
+        return Stream(np.asarray(motors["timestamp"], dtype=float), np.clip(mean, 0, 1)), "actuator_motors throttle"
+    outputs = _datasets(ulog, "actuator_outputs").get(0)
+    if outputs is None or "noutputs" not in outputs:
+        return None, ""
+    used = max(1, min(4, int(np.max(outputs["noutputs"]))))
+    pwm = np.column_stack([np.asarray(outputs[f"output[{k}]"], dtype=float) for k in range(used)]).mean(axis=1)
+    throttle = np.clip((pwm - 1000.0) / 1000.0, 0.0, 1.0)
+    return Stream(np.asarray(outputs["timestamp"], dtype=float), throttle), "actuator_outputs throttle (PWM)"
+
+
+def _current(ulog: Any) -> tuple[Stream | None, str]:
+    battery = _datasets(ulog, "battery_status").get(0)
+    if battery is None or "current_a" not in battery:
+        return None, ""
+    current = np.asarray(battery["current_a"], dtype=float)
+    current = np.where(current < 0, np.nan, current)  # -1: not measured
+    return Stream(np.asarray(battery["timestamp"], dtype=float), current), "battery_status current"
+
+
+def read_ulog(path: Path, options: InputOptions) -> SampleTable:
+    """The samples of a PX4 ULog file (see the module docstring); ValueError naming the file otherwise."""
+    ulog = _open(path, TOPICS)
+    mag, note = _mag(ulog, path, options.mag or 0)
+    acc, gyr, inertial = _inertial(ulog)
+    extra: dict[str, Stream] = {}
+    others = [inertial] if inertial else []
+    for name, (stream, words) in (("current_a", _current(ulog)), ("throttle", _throttle(ulog))):
+        if stream is not None:
+            extra[name] = stream
+            others.append(words)
+    if others:
+        note += "; with " + described(others)
+    return to_table(path, LogStreams(mag, acc, gyr, extra, f"PX4 ULog: {note}"))
+
+
+def _declination(params: dict[str, Any]) -> str:
+    if "EKF2_MAG_DECL" in params:
+        auto = int(params.get("EKF2_DECL_TYPE", 0)) & 1
+        text = f"EKF2_MAG_DECL={float(params['EKF2_MAG_DECL']):.2f} deg"
+        return text + (" (EKF2_DECL_TYPE: looked up from the position)" if auto else "")
+    if "ATT_MAG_DECL" in params:
+        text = f"ATT_MAG_DECL={float(params['ATT_MAG_DECL']):.2f} deg"
+        return text + (" (ATT_MAG_DECL_A=1: looked up from the position)" if params.get("ATT_MAG_DECL_A") else "")
+    return "not in the log's parameters"
+
+
+def ulog_reference_yaw(path: Path) -> ReferenceYaw:
+    """PX4's own attitude estimate in the log (``vehicle_attitude``, instance 0); ValueError when it is not logged."""
+    ulog = _open(path, ["vehicle_attitude"])
+    data = _datasets(ulog, "vehicle_attitude").get(0)
+    if data is None:
+        raise ValueError(f"{path}: no vehicle_attitude records: the log holds no attitude estimate to compare with")
+    quat = np.column_stack([np.asarray(data[f"q[{k}]"], dtype=float) for k in range(4)])
+    yaw, _, _ = quaternion_to_euler(quat)
+    finite = np.isfinite(yaw) & np.all(np.isfinite(quat), axis=1)
+    t = np.asarray(data["timestamp"], dtype=float)[finite] / 1e6
+    return ReferenceYaw(t, yaw[finite], "vehicle_attitude", _declination(ulog.initial_parameters))
