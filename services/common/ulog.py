@@ -38,18 +38,24 @@ TOPICS = [
 RELATIVE_INVALID = 2**31 - 1
 
 
-def _open(path: Path, topics: list[str]) -> Any:
-    """The parsed log (only ``topics``); ValueError naming the file when pyulog cannot read it."""
+def _parse(path: Path, topics: list[str] | None) -> Any:
+    """pyulog's parse of ``path`` (only ``topics`` when given); ValueError naming the file when it cannot."""
     from pyulog import ULog
 
     quiet = io.StringIO()  # pyulog prints its complaints; they become this function's one error
     with open(path, "rb") as handle:
         try:
             with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-                ulog = ULog(handle, message_name_filter_list=topics)
+                return ULog(handle, message_name_filter_list=topics)
         except Exception as exc:  # pyulog raises whatever its parser meets in a damaged file
             raise ValueError(f"{path}: not a readable PX4 ULog file ({type(exc).__name__}: {exc})") from None
-    if not ulog.data_list and (ulog.file_corruption or not ulog.message_formats):
+
+
+def _open(path: Path, topics: list[str]) -> Any:
+    """The parsed log (only ``topics``); ValueError naming the file when pyulog cannot read it, or when it holds no
+    logged data at all (cut short before its data, or no flight log)."""
+    ulog = _parse(path, topics)
+    if not ulog.data_list and not _parse(path, None).data_list:  # the second parse only on the way to an error
         damage = " (pyulog found it damaged)" if ulog.file_corruption else ""
         raise ValueError(f"{path}: the ULog holds no logged data{damage}: it was cut short or is not a flight log")
     return ulog

@@ -1,0 +1,178 @@
+"""Flight logs as recorded inputs: a real PX4 ULog (pyulog's sample), a real ArduPilot DataFlash log (pymavlink's
+test log) and a MAVLink telemetry log written by pymavlink, read through ``read_input`` and the commands."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from logfixtures import ARDUPILOT_LOG, PX4_LOG, simulated_run, write_tlog
+
+from services.cli import main
+from services.common.inputs import InputOptions, read_input, reference_yaw
+from services.edge.sources import read_recording
+
+COMPARE = re.compile(r"compare: ([0-9.]+) deg RMS")
+
+
+@pytest.fixture(scope="module")
+def tlog(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
+    run = simulated_run()
+    path = tmp_path_factory.mktemp("tlog") / "flight.tlog"
+    write_tlog(path, run)
+    return path, run
+
+
+# ------------------------------------------------------------------------------------------------------------- PX4
+
+
+def test_px4_ulog_gives_the_magnetometer_with_imu_in_the_body_frame() -> None:
+    table = read_input(PX4_LOG)
+    assert "sensor_combined.magnetometer_ga" in table.note and "already calibrated" in table.note
+    assert len(table.mag) > 6000  # about 100 Hz over 69 s, one row per new magnetometer sample
+    field = np.linalg.norm(table.mag, axis=1)
+    assert 40 < np.median(field) < 60  # uT, the Earth's field after PX4's calibration
+    gravity = np.linalg.norm(table.acc, axis=1)
+    assert np.median(gravity) == pytest.approx(9.81, abs=0.3)
+    assert np.median(table.acc[:, 2]) < -8  # FRD: a level vehicle's accelerometer reads -g on z
+    t = table.numeric("t_s")
+    assert np.all(np.diff(t) > 0) and t[-1] - t[0] == pytest.approx(68.9, abs=0.5)
+    assert {"gx", "gy", "gz", "throttle"} <= set(table.columns)
+    assert 0 <= table.numeric("throttle").min() <= table.numeric("throttle").max() <= 1
+
+
+def test_heading_compare_agrees_with_px4s_own_yaw(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["heading", str(PX4_LOG), "--compare"]) == 0
+    err = capsys.readouterr().err
+    rms = float(COMPARE.search(err).group(1))  # type: ignore[union-attr]
+    assert rms < 1.0  # the issue's target; vqf on the same data: 0.27 deg
+    assert "vehicle_attitude" in err and "ATT_MAG_DECL" in err and "declination: magnet none" in err
+    assert "magnet heading: PX4 ULog: sensor_combined" in err  # which stream was used
+
+
+def test_px4_unknown_instance_and_missing_attitude_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"no magnetometer instance 2 .*instances: \[0\]"):
+        read_input(PX4_LOG, InputOptions(mag=2))
+    with pytest.raises(ValueError, match="needs a flight log"):
+        reference_yaw("samples.csv")
+
+
+def test_replay_reads_a_flight_log() -> None:
+    recording = read_recording(PX4_LOG)
+    assert len(recording) > 6000 and recording.gyr_rads is not None and recording.acc_ms2 is not None
+
+
+# ------------------------------------------------------------------------------------------------------- ArduPilot
+
+
+def _ardupilot_correction(raw_mg: np.ndarray, params: dict[str, float], ofs: np.ndarray) -> np.ndarray:
+    """ArduPilot's correction as AP_Compass_Backend::correct_field applies it (written from its source): add the
+    offsets, then the soft-iron matrix [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]]."""
+    d = [params[f"COMPASS_DIA_{a}"] for a in "XYZ"]
+    o = [params[f"COMPASS_ODI_{a}"] for a in "XYZ"]
+    matrix = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
+    return (raw_mg + ofs) @ matrix.T
+
+
+def test_ardupilot_log_mag_imu_and_parm_are_found_and_the_correction_removed() -> None:
+    from pymavlink import mavutil
+
+    table = read_input(ARDUPILOT_LOG)
+    assert "MAG instance 0" in table.note and "COMPASS_DIA_*=[1.0177" in table.note
+    assert "IMU 0" in table.note and "only 8 magnetometer samples" in table.note
+    assert len(table.mag) == 8 and table.acc is not None
+    assert np.median(table.acc[:, 2]) == pytest.approx(-9.8, abs=0.3)
+    assert {"current_a", "throttle"} <= set(table.columns)
+    log = mavutil.mavlink_connection(str(ARDUPILOT_LOG))
+    params, mags = {}, []
+    try:
+        while (record := log.recv_match(type=["PARM", "MAG"])) is not None:
+            if record.get_type() == "PARM":
+                params.setdefault(record.Name, record.Value)
+            else:
+                mags.append(record)
+    finally:
+        log.close()
+    logged = np.array([[m.MagX, m.MagY, m.MagZ] for m in mags], dtype=float)
+    offsets = np.array([[m.OfsX, m.OfsY, m.OfsZ] for m in mags], dtype=float)
+    assert np.abs(_ardupilot_correction(table.mag * 10, params, offsets) - logged).max() < 1e-6
+
+
+def test_ardupilot_instances_by_message_name_and_a_log_too_short_to_fit(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    second = read_input(ARDUPILOT_LOG, InputOptions(mag=1))
+    assert "MAG instance 1" in second.note and not np.allclose(second.mag, read_input(ARDUPILOT_LOG).mag)
+    with pytest.raises(ValueError, match=r"no MAG records of instance 3 \(instances: \[0, 1, 2\]\)"):
+        read_input(ARDUPILOT_LOG, InputOptions(mag=3))
+    out = tmp_path / "cal.json"
+    assert main(["fit", str(ARDUPILOT_LOG), "--method", "ellipsoid", "--out", str(out)]) == 2
+    assert "only 8 samples" in capsys.readouterr().err and not out.exists()
+
+
+def test_ardupilot_compare_names_compass_dec(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["heading", str(ARDUPILOT_LOG), "--compare"]) == 0
+    err = capsys.readouterr().err
+    assert "ATT yaw over 8 samples" in err and "COMPASS_DEC=11.81 deg" in err
+
+
+# ----------------------------------------------------------------------------------------------------------- tlog
+
+
+def test_tlog_written_by_pymavlink_is_read_back(tlog: tuple[Path, object]) -> None:
+    path, run = tlog
+    for instance, message in ((0, "RAW_IMU"), (1, "SCALED_IMU2")):
+        table = read_input(path, InputOptions(mag=instance))
+        assert message in table.note and "system 7" in table.note
+        assert np.abs(table.mag - run.mag_ut).max() <= 0.05 + 1e-9  # milligauss rounding
+        assert np.abs(table.acc - run.acc_ms2).max() < 0.01
+        assert np.abs(np.column_stack([table.numeric(c) for c in ("gx", "gy", "gz")]) - run.gyr_rads).max() < 1e-3
+        assert table.numeric("current_a") == pytest.approx(12.5)
+        assert table.numeric("throttle") == pytest.approx(0.4)
+    with pytest.raises(ValueError, match=r"no magnetometer instance 2 in this log \(instances: \[0, 1\]\)"):
+        read_input(path, InputOptions(mag=2))
+
+
+def test_tlog_fit_heading_compare_and_replay(tlog: tuple[Path, object], tmp_path: Path, capsys) -> None:
+    path, run = tlog
+    cal = tmp_path / "cal.json"
+    assert main(["fit", str(path), "--method", "ellipsoid", "--field-ut", "50", "--out", str(cal)]) == 0
+    assert main(["heading", str(path), "--calibration", str(cal), "--compare"]) == 0
+    err = capsys.readouterr().err
+    assert float(COMPARE.search(err).group(1)) < 0.5  # type: ignore[union-attr]
+    assert len(read_recording(path)) == len(run.t_s)
+
+
+# ------------------------------------------------------------------------------------------------------ bad input
+
+
+def _refused(capsys: pytest.CaptureFixture[str], *args: str) -> str:
+    assert main(list(args)) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    return err
+
+
+def test_bad_logs_are_one_clear_line_and_nothing_is_written(tmp_path: Path, capsys) -> None:
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(PX4_LOG.read_bytes()[:500])
+    garbage = tmp_path / "garbage.bin"
+    garbage.write_bytes(np.random.default_rng(0).bytes(4000))
+    empty = tmp_path / "empty.tlog"
+    empty.write_bytes(b"")
+    silent = tmp_path / "no_imu.tlog"
+    write_tlog(silent, simulated_run(), with_imu=False, count=50)
+    out = tmp_path / "cal.json"
+    cases = {
+        cut: "no logged data",
+        garbage: "not an ArduPilot DataFlash log",
+        empty: "the file is empty",
+        silent: "holds no magnetometer",
+    }
+    for path, words in cases.items():
+        err = _refused(capsys, "fit", str(path), "--method", "ellipsoid", "--out", str(out))
+        assert words in err and str(path) in err
+    assert "no magnetometer instance 5" in _refused(capsys, "heading", str(PX4_LOG), "--mag", "5")
+    assert not out.exists()

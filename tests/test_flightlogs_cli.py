@@ -1,0 +1,56 @@
+"""Flight logs through the command line as processes: a telemetry log written by pymavlink replays through ``magnet
+edge --replay`` to a Zenoh subscriber; a damaged log is one line on stderr and exit status 2."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from helpers import MAGNET, REPO_ROOT, free_ports, listen_args, run_magnet
+from logfixtures import PX4_LOG, simulated_run, write_tlog
+
+from magnet import wire
+
+pytestmark = pytest.mark.integration
+
+
+def test_a_tlog_replays_through_the_edge(tmp_path: Path) -> None:
+    run = simulated_run()
+    path = tmp_path / "flight.tlog"
+    write_tlog(path, run, count=120)
+    (port,) = free_ports(1)
+    conf = zenoh.Config()
+    for key, value in (("listen/endpoints", f'["tcp/127.0.0.1:{port}"]'), ("scouting/multicast/enabled", "false")):
+        conf.insert_json5(key, value)
+    with zenoh.open(conf) as session:
+        subscriber = session.declare_subscriber("magnet/drone-1/raw", zenoh.handlers.FifoChannel(1024))
+        args = ["edge", "--replay", str(path), "--device", "drone-1", "--speed", "10", "--batch", "50"]
+        out = subprocess.run(
+            [*MAGNET, *args, *listen_args(free_ports(1)[0]), "--connect", f"tcp/127.0.0.1:{port}"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO_ROOT,
+        )
+        assert out.returncode == 0, out.stderr
+        batches = []
+        while (sample := subscriber.try_recv()) is not None:
+            batches.append(wire.decode_raw(sample.payload.to_bytes()))
+    assert [len(b) for b in batches] == [50, 50, 20]
+    mag = np.vstack([b.mag_ut for b in batches])
+    assert np.abs(mag - run.mag_ut[:120]).max() < 0.06  # milligauss in the log, float32 on the wire
+    assert all(b.gyr_rads is not None and b.acc_ms2 is not None for b in batches)
+    t_ns = np.concatenate([b.t_ns for b in batches])
+    assert np.array_equal(np.diff(t_ns), np.full(119, 20_000_000))  # the log's 50 Hz
+
+
+def test_a_damaged_log_is_one_line(tmp_path: Path) -> None:
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(PX4_LOG.read_bytes()[:400])
+    out = run_magnet("fit", str(cut), "--method", "ellipsoid", "--out", str(tmp_path / "cal.json"))
+    assert out.returncode == 2
+    assert out.stderr.strip().count("\n") == 0 and "no logged data" in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "cal.json").exists()
