@@ -176,3 +176,13 @@ def test_bad_logs_are_one_clear_line_and_nothing_is_written(tmp_path: Path, caps
         assert words in err and str(path) in err
     assert "no magnetometer instance 5" in _refused(capsys, "heading", str(PX4_LOG), "--mag", "5")
     assert not out.exists()
+
+
+def test_px4_versions_before_1_12_log_sensor_mag_calibrated() -> None:
+    """ver_sw_release is 0xAABBCCTT; pyulog's small sample (v1.11.2) logs sensor_mag equal to vehicle_magnetometer
+    (checked by hand), so only v1.12 and later are read as raw."""
+    from services.common.ulog import RAW_SENSOR_MAG_SINCE, px4_version
+
+    assert px4_version(0x010B0200) == (1, 11) < RAW_SENSOR_MAG_SINCE
+    assert px4_version(0x010F0000) == (1, 15) >= RAW_SENSOR_MAG_SINCE
+    assert px4_version(0) is None

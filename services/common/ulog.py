@@ -34,6 +34,8 @@ TOPICS = [
     "actuator_outputs",
     "vehicle_attitude",
 ]
+#: the first PX4 release whose sensor_mag is the raw reading (calibration moved out of the drivers into sensors)
+RAW_SENSOR_MAG_SINCE = (1, 12)
 #: sensor_combined's marker of a relative timestamp that is not valid
 RELATIVE_INVALID = 2**31 - 1
 
@@ -61,6 +63,12 @@ def _open(path: Path, topics: list[str]) -> Any:
     return ulog
 
 
+def px4_version(release: int) -> tuple[int, int] | None:
+    """(major, minor) of ULog's ``ver_sw_release`` (0xAABBCCTT: major, minor, patch, type), None when not set."""
+    release = int(release)
+    return None if release <= 0 else ((release >> 24) & 0xFF, (release >> 16) & 0xFF)
+
+
 def _datasets(ulog: Any, name: str) -> dict[int, dict[str, np.ndarray]]:
     """multi id -> fields of topic ``name`` (empty when not logged)."""
     return {d.multi_id: d.data for d in ulog.data_list if d.name == name and len(d.data.get("timestamp", ())) > 0}
@@ -79,7 +87,8 @@ def _board_rotation(params: dict[str, Any], device_id: int) -> tuple[np.ndarray,
     board = int(params.get("SENS_BOARD_ROT", 0))
     offsets = [float(params.get(f"SENS_BOARD_{axis}_OFF", 0.0)) for axis in "XYZ"]
     offset = euler_to_matrix(offsets[2], offsets[1], offsets[0])
-    words = f"SENS_BOARD_ROT={board}" + (f" with offsets {offsets} deg" if any(offsets) else "")
+    tilted = any(abs(o) > 1e-3 for o in offsets)
+    words = f"SENS_BOARD_ROT={board}" + (f" with offsets {[round(o, 2) for o in offsets]} deg" if tilted else "")
     return offset @ rotation_matrix(board), words
 
 
@@ -91,10 +100,16 @@ def _mag(ulog: Any, path: Path, instance: int) -> tuple[Stream, str]:
     if instance in raw:
         data = raw[instance]
         field = np.column_stack([np.asarray(data[a], dtype=float) for a in "xyz"]) * UT_PER_GAUSS
+        t = np.asarray(data.get("timestamp_sample", data["timestamp"]), dtype=float)
+        version = px4_version(ulog.msg_info_dict.get("ver_sw_release", 0))
+        if version is not None and version < RAW_SENSOR_MAG_SINCE:
+            note = (
+                f"sensor_mag instance {instance} (PX4 {version[0]}.{version[1]} logs it after the driver's calibration)"
+            )
+            return Stream(t, field), note
         rotation, words = _board_rotation(params, int(data.get("device_id", [0])[0]))
-        t = data.get("timestamp_sample", data["timestamp"])
         note = f"sensor_mag instance {instance} (raw, uncalibrated; gauss; into the body frame by {words})"
-        return Stream(np.asarray(t, dtype=float), field @ rotation.T), note
+        return Stream(t, field @ rotation.T), note
     if instance in calibrated:
         data = calibrated[instance]
         t = data.get("timestamp_sample", data["timestamp"])
