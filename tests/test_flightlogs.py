@@ -19,7 +19,7 @@ COMPARE = re.compile(r"compare: ([0-9.]+) deg RMS")
 
 @pytest.fixture(scope="module")
 def tlog(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
-    run = simulated_run()
+    run = simulated_run(count=700)
     path = tmp_path_factory.mktemp("tlog") / "flight.tlog"
     write_tlog(path, run)
     return path, run
@@ -142,7 +142,13 @@ def test_tlog_fit_heading_compare_and_replay(tlog: tuple[Path, object], tmp_path
     assert main(["heading", str(path), "--calibration", str(cal), "--compare"]) == 0
     err = capsys.readouterr().err
     assert float(COMPARE.search(err).group(1)) < 0.5  # type: ignore[union-attr]
+    assert "magnet fit: MAVLink telemetry: RAW_IMU" in err and "magnet heading: MAVLink telemetry: RAW_IMU" in err
     assert len(read_recording(path)) == len(run.t_s)
+    from services.report.data import load_samples
+
+    samples = load_samples(path, None, InputOptions(mag=1), "report")  # what magnet report draws, without drawing
+    assert len(samples.raw) == len(run.t_s)
+    assert "magnet report: MAVLink telemetry: SCALED_IMU2" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------------------ bad input

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from helpers import MAGNET, REPO_ROOT, free_ports, listen_args, run_magnet
+from helpers import MAGNET, REPO_ROOT, free_ports, listen_args, run_magnet, wait_for
 from logfixtures import PX4_LOG, simulated_run, write_tlog
 
 from magnet import wire
@@ -54,3 +54,35 @@ def test_a_damaged_log_is_one_line(tmp_path: Path) -> None:
     assert out.returncode == 2
     assert out.stderr.strip().count("\n") == 0 and "no logged data" in out.stderr and "Traceback" not in out.stderr
     assert not (tmp_path / "cal.json").exists()
+
+
+def test_export_asks_the_calibrator_for_the_device(tmp_path: Path) -> None:
+    from magnet.calibration import fit
+    from services.calibrator.store import CalibrationStore
+
+    run = simulated_run(count=800)
+    calibration = fit(run.mag_ut, "ellipsoid", acc=run.acc_ms2, field_ut=50.0)
+    with CalibrationStore(tmp_path / "c.db") as store:
+        store.save(wire.DeviceCalibration("drone-7", 1_700_000_000_000_000_000, calibration))
+    port, other = free_ports(2)
+    calibrator = subprocess.Popen(
+        [*MAGNET, "calibrator", "--db", str(tmp_path / "c.db"), *listen_args(port)], cwd=REPO_ROOT
+    )
+    try:
+        out_file = tmp_path / "drone-7.params"
+        args = ["export", "--device", "drone-7", "--format", "px4", "--out", str(out_file), "--timeout", "2"]
+        connect = [*listen_args(other), "--connect", f"tcp/127.0.0.1:{port}"]
+        out = wait_for(
+            lambda: (answer := run_magnet(*args, *connect, timeout=30)).returncode == 0 and answer,
+            30,
+            "the exported calibration of drone-7",
+        )
+        assert "CAL_MAG0_ID must already name" in out.stderr
+        lines = [line.split("\t") for line in out_file.read_text().splitlines() if not line.startswith("#")]
+        values = {name: float(value) for _, _, name, value, _ in lines}
+        assert values["CAL_MAG0_XOFF"] == pytest.approx(calibration.offset[0] / 100, abs=1e-6)
+        missing = run_magnet("export", "--device", "nobody", "--format", "px4", "--timeout", "1", *connect)
+        assert missing.returncode == 1 and "no calibration for nobody" in missing.stderr
+    finally:
+        calibrator.terminate()
+        calibrator.wait(timeout=20)
