@@ -192,3 +192,70 @@ def test_px4_versions_before_1_12_log_sensor_mag_calibrated() -> None:
     assert px4_version(0x010B0200) == (1, 11) < RAW_SENSOR_MAG_SINCE
     assert px4_version(0x010F0000) == (1, 15) >= RAW_SENSOR_MAG_SINCE
     assert px4_version(0) is None
+
+
+class _Dataset:
+    def __init__(self, name: str, multi_id: int, data: dict[str, np.ndarray]) -> None:
+        self.name, self.multi_id, self.data = name, multi_id, data
+
+
+class _ULog:
+    """What the ULog reader uses of pyulog's parse: a PX4 1.14 log with two raw magnetometers."""
+
+    def __init__(self, params: dict[str, float], raw: np.ndarray) -> None:
+        t = np.arange(len(raw), dtype=np.uint64) * 10_000
+        fields = {"timestamp": t, "x": raw[:, 0], "y": raw[:, 1], "z": raw[:, 2]}
+        self.data_list = [
+            _Dataset("sensor_mag", 0, {**fields, "device_id": np.full(len(raw), 1111)}),
+            _Dataset("sensor_mag", 1, {**fields, "device_id": np.full(len(raw), 2222)}),
+        ]
+        self.initial_parameters = params
+        self.msg_info_dict = {"ver_sw_release": 0x010E00FF}
+        self.message_formats: dict[str, object] = {}
+
+
+def test_px4_raw_sensor_mag_is_turned_into_the_body_frame_as_px4_rotates_it() -> None:
+    """PX4 (calibration::Magnetometer) rotates a corrected reading by CAL_MAGn_ROT for an external magnetometer and
+    by the board rotation (SENS_BOARD_ROT) for an internal one (CAL_MAGn_ROT = -1); yaw 90 takes x to y."""
+    from services.common.ulog import _mag
+
+    raw = np.array([[0.3, 0.0, 0.4], [0.0, 0.2, 0.5]])  # gauss, the board's axes
+    params = {"CAL_MAG0_ID": 2222, "CAL_MAG0_ROT": 2, "CAL_MAG1_ID": 1111, "CAL_MAG1_ROT": -1, "SENS_BOARD_ROT": 4}
+    external, note = _mag(_ULog(params, raw), Path("x.ulg"), 1)
+    assert "raw, uncalibrated" in note and "CAL_MAG0_ROT=2" in note
+    assert external.values == pytest.approx(np.array([[0.0, 30.0, 40.0], [-20.0, 0.0, 50.0]]))  # yaw 90, in uT
+    internal, note = _mag(_ULog(params, raw), Path("x.ulg"), 0)
+    assert "SENS_BOARD_ROT=4" in note
+    assert internal.values == pytest.approx(np.array([[-30.0, 0.0, 40.0], [0.0, -20.0, 50.0]]))  # yaw 180
+
+
+class _Record:
+    """A DataFlash record as pymavlink gives it: attributes and get_fieldnames()."""
+
+    def __init__(self, **fields: float) -> None:
+        self.__dict__.update(fields)
+        self._names = list(fields)
+
+    def get_fieldnames(self) -> list[str]:
+        return self._names
+
+
+def test_current_dataflash_instances_use_the_i_field_and_their_own_parameters() -> None:
+    """Instance 1 is corrected with COMPASS_DIA2_*, COMPASS_ODI2_* and COMPASS_SCALE2 (applied: within 0.85..1.4)."""
+    from services.common.dataflash import _mag
+
+    raw = np.array([100.0, -200.0, 300.0])  # mGauss
+    ofs, mot = np.array([-20.0, 10.0, 5.0]), np.array([1.0, 2.0, 3.0])
+    params = {"COMPASS_DIA2_X": 1.1, "COMPASS_DIA2_Y": 0.9, "COMPASS_DIA2_Z": 1.0, "COMPASS_ODI2_X": 0.05}
+    params.update({"COMPASS_ODI2_Y": 0.0, "COMPASS_ODI2_Z": -0.02, "COMPASS_SCALE2": 1.2, "COMPASS_SCALE": 3.0})
+    matrix = np.array([[1.1, 0.05, 0.0], [0.05, 0.9, -0.02], [0.0, -0.02, 1.0]])
+    logged = matrix @ (1.2 * (raw + ofs)) + mot
+    fields = dict(
+        zip(("MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ", "MOfsX", "MOfsY", "MOfsZ"), [*logged, *ofs, *mot])
+    )
+    records = [_Record(TimeUS=t, I=i, **fields) for t in (1e6, 2e6) for i in (0, 1)]
+    stream, note = _mag(Path("x.bin"), {"MAG": records}, params, 1)
+    assert stream.values == pytest.approx(np.tile(raw / 10, (2, 1)))  # uT
+    assert "COMPASS_DIA2_*=[1.1, 0.9, 1.0]" in note and "scale 1.2" in note
+    with pytest.raises(ValueError, match=r"instances: \[0, 1\]"):
+        _mag(Path("x.bin"), {"MAG": records}, params, 2)
