@@ -23,6 +23,13 @@ def test_current_and_throttle_round_trip(version: int) -> None:
     np.testing.assert_allclose(batch.throttle, throttle)
 
 
+def test_nan_means_unknown_at_that_sample() -> None:
+    current = np.array([np.nan, 2.0, np.nan, 4.0])
+    batch = wire.decode_raw(wire.encode_raw(_batch(current_a=current)))
+    assert batch.current_a is not None
+    np.testing.assert_array_equal(batch.current_a, current)
+
+
 def test_columns_hold_nan_where_a_batch_carries_none() -> None:
     payloads = [wire.encode_raw(_batch(2, current_a=np.array([1.0, 2.0]))), wire.encode_raw(_batch(3))]
     columns, errors = wire.decode_raw_many(payloads)
@@ -48,7 +55,7 @@ def _message(version: int, **fields: object) -> bytes:
         ({"current_a": [True, False, True, True]}, "bad-shape"),  # booleans are not amps
         ({"current_a": [1.0, "x", 3.0, 4.0]}, "bad-shape"),
         ({"current_a": 3.0}, "bad-shape"),
-        ({"current_a": [1.0, float("nan"), 3.0, 4.0]}, "non-finite"),
+        ({"current_a": [1.0, float("inf"), 3.0, 4.0]}, "non-finite"),
         ({"current_a": [1.0, 1e6, 3.0, 4.0]}, "absurd-magnitude"),
         ({"throttle": [0.0, 0.5, 1.5, 0.0]}, "absurd-magnitude"),
         ({"throttle": [0.0, -0.1, 0.5, 0.0]}, "absurd-magnitude"),

@@ -5,10 +5,10 @@ gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), vel_ned_
 velocity over the ground in m/s, north-east-down, NaN rows where no fix is known), truth: {heading_deg: [N],
 pitch_deg: [N], roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the
 device is, ``magnet.place.Location``, checked: cause ``bad-location``), current_a: [N] (optional, the battery
-current in A at each sample, for the motors' field), throttle: [N] (optional, 0..1)}``. In v 2 (written) every
-array of samples is a binary array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N], mag_ut / acc_ms2 / gyr_rads /
-vel_ned_ms ``<f4`` [N, 3], truth, current_a and throttle ``<f4`` [N]; ``location`` (three numbers, not samples)
-stays a list in both versions.
+current in A at each sample, for the motors' field), throttle: [N] (optional, 0..1; both NaN where unknown)}``.
+In v 2 (written) every array of samples is a binary array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N],
+mag_ut / acc_ms2 / gyr_rads / vel_ned_ms ``<f4`` [N, 3], truth, current_a and throttle ``<f4`` [N]; ``location``
+(three numbers, not samples) stays a list in both versions.
 
 The one raw decoder is ``magnet.wire.raw_decode``; the structure checks of one message are ``magnet.wire.raw_header``.
 """

@@ -5,8 +5,8 @@ Besides the shapes: ``seq`` within 0..2**63 - 1 (cause ``out-of-range``), ``sens
 fields, no flood: ``too-many-fields``), and a payload no larger than its samples can need (``oversized``).
 
 The optional per-sample scalars (``SCALAR_FIELDS``: ``current_a``, ``throttle``) are few and small, so they are checked
-here in full, message by message: N numbers (no booleans), finite (``non-finite``) and within their range
-(``absurd-magnitude``).
+here in full, message by message: N numbers (no booleans), NaN where not known at that sample, never infinite
+(``non-finite``), within their range (``absurd-magnitude``).
 """
 
 from __future__ import annotations
@@ -90,9 +90,10 @@ def _scalar(message: Mapping[str, Any], name: str, low: float, high: float, n: i
         raise WireError("bad-shape", f"{name} must be a list of N = len(t_ns) = {n} numbers")
     else:
         arr = np.array(value, dtype=np.float64)
-    if not np.isfinite(arr).all():
-        raise WireError("non-finite", f"{name} holds non-finite values")
-    if arr.min() < low or arr.max() > high:
+    if np.isinf(arr).any():  # NaN: not known at that sample (as vel_ned_ms's NaN rows)
+        raise WireError("non-finite", f"{name} holds infinite values")
+    known = arr[~np.isnan(arr)]
+    if known.size and (known.min() < low or known.max() > high):
         raise WireError("absurd-magnitude", f"{name} holds values outside [{low:g}, {high:g}]")
     return arr
 

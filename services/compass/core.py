@@ -188,6 +188,11 @@ class Compass(CalibrationsInForce):
             None if quat is None else rotate_heading(quat, where.declination_deg),
         )
 
+    def calibration_changed(self, device: str) -> None:
+        """Start the device's filter again: its magnetometer state was built on the old correction, and the field
+        jumping to the new one would look to vqf like a magnetic disturbance it takes tens of seconds to trust."""
+        self.fusion.devices.pop(device, None)
+
     def evicted_count(self) -> int:
         """Per-device entries forgotten for --max-devices: calibrations, tails, places, drift trackers, filters."""
         return super().evicted_count() + self.fusion.evicted
