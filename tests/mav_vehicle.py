@@ -56,10 +56,9 @@ class Vehicle:
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
         self.conn = mavutil.mavlink_connection(args.url, source_system=args.sysid, source_component=1)
+        rate, count = max(args.rate, 1.0), args.samples
         self.streams = {
-            i: SensorStream(
-                SimulatorConfig(trajectory="tumble", rate_hz=args.rate, count=args.samples, errors=_noise(e), seed=i)
-            )
+            i: SensorStream(SimulatorConfig(trajectory="tumble", rate_hz=rate, count=count, errors=_noise(e), seed=i))
             for i, e in COMPASSES.items()
         }
         self.params = dict(PARAMETERS)
