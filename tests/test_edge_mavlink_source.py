@@ -4,12 +4,15 @@ is dropped and counted with one log line and nothing ends, and the options are c
 from __future__ import annotations
 
 import logging
+import os
+import pty
 import socket
 import time
 
 import pytest
 from helpers import free_ports
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mav
 
 from services.edge.mavlink_source import MavlinkSource
 from services.edge.settings import EdgeSettings
@@ -61,3 +64,30 @@ def test_messages_become_batches_and_garbage_is_counted_once_in_the_log(caplog: 
     assert source.ids == ["uav42-mag2"]
     garbage_lines = [r for r in caplog.records if "bad-data" in r.getMessage()]
     assert len(garbage_lines) == 1
+
+
+def test_a_serial_device_is_read_at_its_baud_rate() -> None:
+    """A pseudo-terminal stands in for a flight controller on USB: pymavlink opens it through pyserial."""
+    master, slave = pty.openpty()
+    try:
+        source = make_source(EdgeSettings(mavlink=os.ttyname(slave), baud=115200, batch=2))
+        sender = mav.MAVLink(None, srcSystem=3, srcComponent=1)
+        for k in range(2):
+            os.write(master, sender.scaled_imu_encode(20 * k, 0, 0, -1000, 0, 0, 0, 200, 0, 400).pack(sender))
+        batches: list = []
+        deadline = time.monotonic() + 5
+        while not batches and time.monotonic() < deadline:
+            batches += source.batches(0, 0, lambda: False)
+        source.close()
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert [(b.device, len(b)) for b in batches] == [("mav3-mag0", 2)]
+
+
+def test_a_link_that_cannot_be_opened_is_one_clear_error() -> None:
+    with pytest.raises(ValueError, match="cannot open it"):
+        make_source(EdgeSettings(mavlink="/dev/no-such-flight-controller"))
+    for url in ("udpin:127.0.0.1:99999", "tcp:127.0.0.1", "udpout::14550"):
+        with pytest.raises(ValueError, match="HOST:PORT"):
+            EdgeSettings(mavlink=url)

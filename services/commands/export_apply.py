@@ -86,7 +86,7 @@ class _Link:
     def __init__(self, url: str, baud: int, sysid: int | None) -> None:
         try:
             self.conn = mavutil.mavlink_connection(url, baud=baud, source_system=255, source_component=190)
-        except (OSError, ValueError) as exc:
+        except Exception as exc:  # pymavlink raises what its transport raises (OSError, OverflowError, ...)
             raise ApplyError(f"{url}: cannot open it: {exc}") from None
         self.want = sysid
         self.sysid = self.compid = 0

@@ -55,7 +55,8 @@ class MavlinkSource:
     paced_by_reads = True
 
     def __init__(self, settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> None:
-        assert settings.mavlink is not None  # make_source's choice
+        if not settings.mavlink:
+            raise ValueError("a MAVLink source needs --mavlink URL")
         self.settings = settings
         self.stream = MavlinkStream(settings.device_prefix, settings.batch)
         self.stats = MavlinkStats(self.stream)
@@ -67,7 +68,7 @@ class MavlinkSource:
             self.connection = mavutil.mavlink_connection(
                 settings.mavlink, baud=settings.baud, source_system=255, robust_parsing=True, dialect="common"
             )
-        except (OSError, ValueError) as exc:
+        except Exception as exc:  # pymavlink raises what its transport raises (OSError, OverflowError, ...)
             raise ValueError(f"--mavlink {settings.mavlink}: cannot open it: {exc}") from None
 
     def attach(self, status: Any) -> None:

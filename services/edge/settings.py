@@ -171,6 +171,7 @@ class EdgeSettings:
             raise ValueError("--mavlink reads vehicles: it takes no --emulate, --devices, --bus or --replay")
         if not self.mavlink:
             raise ValueError("--mavlink needs a URL: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a device")
+        _check_network_url(self.mavlink)
         wire.validate_device_id(f"{self.device_prefix}1-mag0")
         if not 0 < self.vehicle_timeout_s <= 3600:
             raise ValueError(f"--vehicle-timeout must be in (0, 3600] seconds, got {self.vehicle_timeout_s}")
@@ -220,6 +221,20 @@ class EdgeSettings:
             device_prefix=getattr(args, "device_prefix", "mav"),
             vehicle_timeout_s=float(getattr(args, "vehicle_timeout", 3.0)),
         )
+
+
+#: pymavlink's network links: KIND:HOST:PORT (anything else is a serial device path)
+NETWORK_LINKS = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin")
+
+
+def _check_network_url(url: str) -> None:
+    """ValueError when a network MAVLink URL has no HOST:PORT with a port in 1..65535."""
+    kind, _, rest = url.partition(":")
+    if kind not in NETWORK_LINKS:
+        return
+    host, _, port = rest.rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"--mavlink {url}: expected {kind}:HOST:PORT with a port in 1..65535")
 
 
 def _location(args: argparse.Namespace) -> Location | None:
