@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import run_magnet
 
 from magnet import wire
 from magnet.calibration import FitError, fit
@@ -21,6 +20,7 @@ from magnet.motor import MotorModel, interference_pct
 from magnet.simulator import Motors, SensorErrors, SimulatorConfig, simulate
 from magnet.simulator.motion import G_NED
 from magnet.simulator.trajectories import ned_to_body_euler
+from services.cli import main
 from services.compass.core import Compass
 
 ERRORS = SensorErrors(
@@ -138,20 +138,22 @@ def test_motor_model_on_the_record_round_trips_and_is_checked() -> None:
     assert interference_pct(throttle, 50.0) == pytest.approx(10.0)
 
 
-def test_magnet_fit_motor_writes_the_motor_model_and_refuses_a_log_without_current(tmp_path: Path) -> None:
+def test_magnet_fit_motor_writes_the_motor_model_and_refuses_a_log_without_current(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     run = simulate(SimulatorConfig(trajectory="tumble", count=4000, errors=ERRORS, seed=2, motors=MOTORS))
     table = np.column_stack([run.t_s, run.mag_ut, run.acc_ms2, run.current_a])
     path = tmp_path / "motors.csv"
     np.savetxt(path, table, delimiter=",", header="t_s,mx,my,mz,ax,ay,az,current_a", comments="", fmt="%.9g")
     strength = f"{run.earth.total_ut:.4f}"
-    result = run_magnet("fit", str(path), "--method", "ellipsoid", "--field-ut", strength, "--motor", "current")
-    assert result.returncode == 0, result.stderr
-    record = json.loads(result.stdout)
+    assert main(["fit", str(path), "--method", "ellipsoid", "--field-ut", strength, "--motor", "current"]) == 0
+    record = json.loads(capsys.readouterr().out)
     fitted = np.asarray(record["motor_ut_per_a"])
     assert np.abs(fitted / np.asarray(MOTORS.ut_per_a) - 1.0).max() < 0.05
     assert record["quality"]["motor_interference_pct"] == pytest.approx(1000.0 / run.earth.total_ut, rel=0.05)
     bare = tmp_path / "bare.csv"
     np.savetxt(bare, table[:, :7], delimiter=",", header="t_s,mx,my,mz,ax,ay,az", comments="", fmt="%.9g")
-    refused = run_magnet("fit", str(bare), "--method", "ellipsoid", "--motor", "throttle")
-    assert refused.returncode == 2 and "needs a throttle column" in refused.stderr
-    assert len(refused.stderr.strip().splitlines()) == 1 and not refused.stdout
+    assert main(["fit", str(bare), "--method", "ellipsoid", "--motor", "throttle"]) == 2
+    refused = capsys.readouterr()
+    assert "needs a throttle column" in refused.err
+    assert len(refused.err.strip().splitlines()) == 1 and not refused.out
