@@ -48,7 +48,8 @@ def flight():  # type: ignore[no-untyped-def]
 def test_the_simulated_motors_add_their_field_at_full_current() -> None:
     run = flight()
     assert run.throttle is not None and run.current_a is not None
-    assert run.throttle.min() == pytest.approx(MOTORS.hover_throttle, abs=0.01) and run.throttle.max() > 0.99
+    # the profile from hover to full, times the thrust the flight needs (about 1 g, more in banks, less in descents)
+    assert 0.8 * MOTORS.hover_throttle < run.throttle.min() < MOTORS.hover_throttle and run.throttle.max() == 1.0
     np.testing.assert_allclose(np.linalg.norm(np.asarray(MOTORS.ut_per_a)) * 40.0, 10.0)
     clean = simulate(SimulatorConfig(trajectory="multirotor", count=6000, errors=ERRORS, seed=3))
     added = np.linalg.solve(np.asarray(ERRORS.soft_iron), (run.mag_ut - clean.mag_ut).T).T

@@ -1,7 +1,8 @@
 """The motors of a simulated vehicle: a throttle profile, the battery current it draws and the field it adds.
 
 Throttle goes from hover up to full and back, again and again (a triangle wave of period ``period_s`` between
-``hover_throttle`` and 1); the current is proportional to it (``full_current_a`` at full throttle); the motors add
+``hover_throttle`` and 1); on a multirotor trajectory it also follows the thrust the flight needs (more in banks and
+climbs, less in descents: the specific force in g, capped at full throttle); the current is proportional to it (``full_current_a`` at full throttle); the motors add
 ``ut_per_a * current`` (uT, body frame) to the field at the sensor, before the sensor's own errors (the motors' field
 reaches the chip through the same soft iron as the Earth's). So the exact correction of the sensor gives
 B_earth + ut_per_a * I, the model of ``magnet.motor``.
@@ -38,11 +39,13 @@ class Motors:
         per_a = unit * field_ut / full
         return cls(ut_per_a=(float(per_a[0]), float(per_a[1]), float(per_a[2])), **options)
 
-    def throttle(self, t_s: np.ndarray) -> np.ndarray:
-        """(N,) 0..1 at times t_s (s)."""
+    def throttle(self, t_s: np.ndarray, thrust_g: np.ndarray | None = None) -> np.ndarray:
+        """(N,) 0..1 at times t_s (s): the commanded profile, times the thrust the trajectory needs in g (N,) where
+        given (a multirotor: its specific force, 1 in a hover, more in a bank or a climb), capped at 1."""
         phase = np.mod(np.asarray(t_s, dtype=float) / self.period_s, 1.0)
         triangle = 1.0 - np.abs(2.0 * phase - 1.0)  # 0 at the cycle's start and end, 1 in its middle
-        return self.hover_throttle + (1.0 - self.hover_throttle) * triangle
+        command = self.hover_throttle + (1.0 - self.hover_throttle) * triangle
+        return command if thrust_g is None else np.clip(command * thrust_g, 0.0, 1.0)
 
     def current_a(self, throttle: np.ndarray) -> np.ndarray:
         """(N,) A drawn at ``throttle`` (N,)."""

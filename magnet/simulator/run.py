@@ -160,7 +160,8 @@ class _Generator:
         throttle = current = None
         at_sensor = field
         if motors is not None:
-            throttle = motors.throttle(t_s)
+            thrust = np.linalg.norm(acc, axis=1) / G_NED[2] if config.trajectory is Trajectory.MULTIROTOR else None
+            throttle = motors.throttle(t_s, thrust)
             current = motors.current_a(throttle)
             at_sensor = field + motors.field_ut(current)
         mag = (at_sensor @ errors.distortion.T) * gain[:, None] + errors.hard_iron_ut
