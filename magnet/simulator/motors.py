@@ -1,11 +1,11 @@
 """The motors of a simulated vehicle: a throttle profile, the battery current it draws and the field it adds.
 
-Throttle goes from hover up to full and back, again and again (a triangle wave of period ``period_s`` between
-``hover_throttle`` and 1); on a multirotor trajectory it also follows the thrust the flight needs (more in banks and
-climbs, less in descents: the specific force in g, capped at full throttle); the current is proportional to it (``full_current_a`` at full throttle); the motors add
-``ut_per_a * current`` (uT, body frame) to the field at the sensor, before the sensor's own errors (the motors' field
-reaches the chip through the same soft iron as the Earth's). So the exact correction of the sensor gives
-B_earth + ut_per_a * I, the model of ``magnet.motor``.
+Throttle is commanded from hover up to full and back, again and again (a triangle wave of period ``period_s``
+between ``hover_throttle`` and 1); on a multirotor trajectory it also follows the thrust the flight needs (more in
+banks and climbs, less in descents: the specific force in g, capped at full throttle). The current is proportional
+to the throttle (``full_current_a`` at full throttle); the motors add ``ut_per_a * current`` (uT, body frame) to the
+field at the sensor, before the sensor's own errors (the motors' field reaches the chip through the same soft iron
+as the Earth's). So the exact correction of the sensor gives B_earth + ut_per_a * I, the model of ``magnet.motor``.
 """
 
 from __future__ import annotations
