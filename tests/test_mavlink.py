@@ -137,3 +137,29 @@ def test_garbage_and_unusable_messages_are_dropped_and_counted_and_vehicles_go_q
     stream.feed(good, NOW)
     assert stream.health(NOW + 1_000_000_000, 3_000_000_000) == {"mav2-mag0": True}
     assert stream.health(NOW + 4_000_000_000, 3_000_000_000) == {"mav2-mag0": False}
+
+
+def test_battery_current_from_a_vehicle_reaches_the_compass_which_takes_the_motors_field_out() -> None:
+    """SYS_STATUS current and SCALED_IMU2 field through the stream, the wire and the compass with a motor model."""
+    from magnet.compass import Earth
+    from magnet.model import IDENTITY
+    from magnet.motor import MotorModel
+    from services.compass.core import Compass
+
+    earth, per_amp, amps = np.array([18.0, 3.0, 47.0]), np.array([0.1, -0.05, 0.2]), 25.0
+    measured_mgauss = np.round((earth + per_amp * amps) * 10).astype(int)
+    s = sender()
+    stream = MavlinkStream(batch=3)
+    for m in parsed(4, s.sys_status_encode(0, 0, 0, 500, 16000, int(amps * 100), 80, 0, 0, 0, 0, 0, 0)):
+        stream.feed(m, NOW)
+    for k in range(3):
+        for m in parsed(4, s.scaled_imu2_encode(20 * k, 0, 0, -1000, 0, 0, 0, *measured_mgauss)):
+            stream.feed(m, NOW + k)
+    [batch] = stream.take(NOW + 3)
+    batch = wire.decode_raw(wire.encode_raw(batch))
+    assert batch.current_a is not None and np.allclose(batch.current_a, amps)
+    compass = Compass(Earth(), window=1)
+    record = wire.encode_calibration("mav4-mag1", IDENTITY.replace(motor=MotorModel("current", per_amp)), 1)
+    assert compass.accept_calibration(record, "magnet/mav4-mag1/calibration", "magnet")
+    [out] = compass.process([batch])
+    np.testing.assert_allclose(out.field_ut, np.tile(earth, (3, 1)), atol=0.06)  # 0.1 uT steps of milligauss
