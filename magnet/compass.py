@@ -51,15 +51,18 @@ def compute_headings(
     matrices: np.ndarray,
     calibrated: np.ndarray,
     earth: Earth,
+    motor_ut: np.ndarray | None = None,
 ) -> Headings:
     """Headings for S samples of any devices at once.
 
     mag_ut (S, 3) raw uT; acc_ms2 (S, 3) m/s^2 with NaN rows where a sample has no accelerometer; offsets (S, 3) and
     matrices (S, 3, 3) the calibration of each sample's device (B = A (u - b), see ``magnet.model``); calibrated (S,)
-    bool.
+    bool; motor_ut (S, 3) the motors' field to subtract after the correction (``magnet.motor``), or None.
     """
     # no calibration anywhere: identity, the same numbers without the per-sample matrix product
     field = np.einsum("sij,sj->si", matrices, mag_ut - offsets) if calibrated.any() else np.array(mag_ut, dtype=float)
+    if motor_ut is not None:
+        field = field - motor_ut
     has_acc = hd.rows_finite(acc_ms2)
     with np.errstate(invalid="ignore", divide="ignore"):
         tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)

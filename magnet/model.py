@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from magnet.motor import MotorModel, motor_from_dict
 from magnet.units import ut_per_unit
 
 #: A correction matrix whose largest / smallest singular value exceeds this is not a sensor's (the gate refuses
@@ -199,6 +200,8 @@ class Calibration:
         quality: figures of merit (``Quality``; a map of them is read with ``Quality.from_dict``).
         accepted: whether the quality gate accepted the fit.
         reason: why it was rejected (or notes when accepted), in words a person can act on.
+        motor: the motors' field (``magnet.motor.MotorModel``: uT per amp or at full throttle, subtracted after the
+            correction), or None; written as ``motor_ut_per_a`` or ``motor_ut_per_throttle``.
     """
 
     method: str
@@ -211,6 +214,7 @@ class Calibration:
     quality: Quality = dataclasses.field(default_factory=Quality)
     accepted: bool = True
     reason: str = ""
+    motor: MotorModel | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "offset", _as_vector3(self.offset, "offset"))
@@ -230,19 +234,21 @@ class Calibration:
     @property
     def content_id(self) -> str:
         """A stable id for the coefficients: identical method, offset, matrix and units give the same id."""
-        content = {
+        content: dict[str, object] = {
             "method": self.method,
             "offset": [round(float(x), 12) for x in self.offset],
             "matrix": [[round(float(x), 12) for x in row] for row in self.matrix],
             "unit": self.unit,
             "output_unit": self.output_unit,
         }
+        if self.motor is not None:  # only then: the ids of records without one stay as they were
+            content["motor"] = {self.motor.key: [round(float(x), 12) for x in self.motor.coefficients]}
         digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
         return digest[:16]
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able mapping: the record ``magnet fit`` writes."""
-        return {
+        out = {
             "method": self.method,
             "offset": [float(x) for x in self.offset],
             "matrix": [[float(x) for x in row] for row in self.matrix],
@@ -254,6 +260,7 @@ class Calibration:
             "accepted": bool(self.accepted),
             "reason": self.reason,
         }
+        return out if self.motor is None else {**out, **self.motor.to_dict()}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Calibration:
@@ -277,6 +284,7 @@ class Calibration:
             quality=Quality.from_dict(data.get("quality")),
             accepted=_flag(data, "accepted"),
             reason=_text(data, "reason", ""),
+            motor=motor_from_dict(data),
         )
         return check_plausible(calibration)
 

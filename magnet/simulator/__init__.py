@@ -26,6 +26,7 @@ Modules, by idea:
 - ``motion``: the moving trajectories (multirotor, car, figure8, fast-tumble) with linear acceleration.
 - ``run``: ``SimulatorConfig``, ``SimulatedRun``, ``simulate``, ``SensorStream`` (one device, any trajectory).
 - ``fleet``: ``FleetSimulator``, many tumbling devices at once.
+- ``motors``: ``Motors``, a vehicle's throttle, battery current and the field they add (``SimulatorConfig.motors``).
 
 Everything is deterministic from ``seed``.
 """
@@ -33,6 +34,7 @@ Everything is deterministic from ``seed``.
 from magnet.simulator.errors import REFERENCE_TEMPERATURE_C, SensorErrors
 from magnet.simulator.fleet import FleetBatch, FleetSimulator
 from magnet.simulator.motion import MODELS, CarModel, FastTumbleModel, Figure8Model, MotionModel, MultirotorModel
+from magnet.simulator.motors import Motors
 from magnet.simulator.run import (
     DEFAULT_DATE,
     DEFAULT_LAT_DEG,
@@ -75,6 +77,7 @@ __all__ = [
     "FleetBatch",
     "FleetSimulator",
     "MotionModel",
+    "Motors",
     "MultirotorModel",
     "SensorErrors",
     "SensorStream",

@@ -31,6 +31,7 @@ from magnet.attitude import (
 from magnet.geomag import EarthField, earth_field
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.motion import G_NED, MODELS
+from magnet.simulator.motors import Motors
 from magnet.simulator.trajectories import MIN_COUNT, STILL_TRAJECTORIES, Trajectory, ned_to_body_euler, wrap_roll
 
 DEFAULT_LAT_DEG = 50.45  # Kyiv, where seed 000's turntable field (Bh 18964 nT, Bv -46962 nT) is typical
@@ -52,6 +53,7 @@ class SimulatorConfig:
     count: int = 3000
     errors: SensorErrors = dataclasses.field(default_factory=SensorErrors)
     seed: int = 0
+    motors: Motors | None = None  # the vehicle's motors (``magnet.simulator.motors``): their field, current, throttle
 
     def __post_init__(self) -> None:
         try:
@@ -79,7 +81,8 @@ class SimulatedRun:
     lin_acc_ned_ms2 (N, 3) linear acceleration in NED; quat_wxyz (N, 4) attitude body -> NED (continuous in time,
     not sign-normalised); heading_deg (N,) true heading (from geographic north), magnetic_heading_deg (N,) from
     magnetic north; pitch_deg, roll_deg (N,); mounting (N,) "a"/"b" on the turntable else ""; table_deg (N,) the
-    turntable angle (NaN elsewhere); temperature_c (N,); earth the field used; errors the sensor's errors."""
+    turntable angle (NaN elsewhere); temperature_c (N,); earth the field used; errors the sensor's errors;
+    current_a (N,) A and throttle (N,) 0..1 of the motors (None without motors)."""
 
     t_s: np.ndarray
     mag_ut: np.ndarray
@@ -99,6 +102,8 @@ class SimulatedRun:
     true_acc_ms2: np.ndarray
     lin_acc_ned_ms2: np.ndarray
     quat_wxyz: np.ndarray
+    current_a: np.ndarray | None = None
+    throttle: np.ndarray | None = None
 
 
 class _Generator:
@@ -151,7 +156,15 @@ class _Generator:
         field = ned_to_body_euler(self.b_ned, heading, pitch, roll)
         acc = ned_to_body_euler(lin_acc - G_NED, heading, pitch, roll)
         gain = errors.gain(t_s)
-        mag = (field @ errors.distortion.T) * gain[:, None] + errors.hard_iron_ut
+        motors = self.config.motors
+        throttle = current = None
+        at_sensor = field
+        if motors is not None:
+            thrust = np.linalg.norm(acc, axis=1) / G_NED[2] if config.trajectory is Trajectory.MULTIROTOR else None
+            throttle = motors.throttle(t_s, thrust)
+            current = motors.current_a(throttle)
+            at_sensor = field + motors.field_ut(current)
+        mag = (at_sensor @ errors.distortion.T) * gain[:, None] + errors.hard_iron_ut
         mag = mag + errors.noise_ut * self.mag_noise.standard_normal((n, 3))
         acc_measured = acc + errors.acc_noise_ms2 * self.acc_noise.standard_normal((n, 3))
         spikes = self.spike_mask.random(n) < errors.spike_probability
@@ -179,6 +192,8 @@ class _Generator:
             true_acc_ms2=acc,
             lin_acc_ned_ms2=lin_acc,
             quat_wxyz=quat,
+            current_a=current,
+            throttle=throttle,
         )
 
 
@@ -214,7 +229,7 @@ class SensorStream:
     def measure_imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The next sample with the gyroscope: (mag_ut (3,), acc_ms2 (3,), gyr_rads (3,)); truth in ``last_truth``:
         t_s, heading_deg, magnetic_heading_deg, pitch_deg, roll_deg, temperature_c, mounting, table_deg, and
-        quat_wxyz (a tuple of 4 floats)."""
+        quat_wxyz (a tuple of 4 floats); with motors also current_a (A) and throttle (0..1)."""
         offset = self._index - self._block_start
         if self._block is None or offset >= self._block.t_s.size:
             self._block_start = self._index
@@ -233,4 +248,6 @@ class SensorStream:
             "table_deg": float(run.table_deg[i]),
             "quat_wxyz": tuple(float(v) for v in run.quat_wxyz[i]),
         }
+        if run.current_a is not None and run.throttle is not None:
+            self.last_truth.update(current_a=float(run.current_a[i]), throttle=float(run.throttle[i]))
         return run.mag_ut[i].copy(), run.acc_ms2[i].copy(), run.gyr_rads[i].copy()

@@ -16,7 +16,8 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
 - ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; ``raw_decode``: the one raw decoder ``decode_raw_many``
   (``decode_raw`` is it applied to one payload), with the structure checks of one message in ``raw_header``.
   Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``, and optional ``location`` [lat_deg, lon_deg,
-  alt_m] (``magnet.place.Location``; cause ``bad-location``).
+  alt_m] (``magnet.place.Location``; cause ``bad-location``); optional per-sample ``current_a`` (N,) A and
+  ``throttle`` (N,) 0..1 (``SCALAR_FIELDS``) for the motors' field.
 - ``headings``: ``HeadingBatch``, the one heading encoder ``encode_headings`` (``encode_heading`` is it for one
   batch), ``decode_heading``; optional ``quat_wxyz`` and the ``DISTURBED`` flag bits.
 - ``records``: ``DeviceCalibration`` (a device's calibration as published and stored; its one entry is
@@ -51,8 +52,10 @@ from magnet.wire.keys import (
 )
 from magnet.wire.raw import (
     MAX_ACC_MS2,
+    MAX_CURRENT_A,
     MAX_FIELD_UT,
     MAX_GYR_RADS,
+    SCALAR_FIELDS,
     TRUTH_FIELDS,
     RawBatch,
     RawColumns,
@@ -80,9 +83,11 @@ __all__ = [
     "DISTURBED",
     "MAX_ACC_MS2",
     "MAX_BATCH_SAMPLES",
+    "MAX_CURRENT_A",
     "MAX_FIELD_UT",
     "MAX_GYR_RADS",
     "MAX_PAYLOAD_BYTES",
+    "SCALAR_FIELDS",
     "TRUTH_FIELDS",
     "VERSIONS",
     "WIRE_VERSION",

@@ -4,9 +4,11 @@ Message: ``{v, device, seq, sensor, t_ns: [N ints], mag_ut: [[x, y, z]] * N, acc
 gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), vel_ned_ms: [[n, e, d]] * N (optional, the
 velocity over the ground in m/s, north-east-down, NaN rows where no fix is known), truth: {heading_deg: [N],
 pitch_deg: [N], roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the
-device is, ``magnet.place.Location``, checked: cause ``bad-location``)}``. In v 2 (written) every array of samples is
-a binary array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N], mag_ut / acc_ms2 / gyr_rads / vel_ned_ms ``<f4``
-[N, 3], truth ``<f4`` [N]; ``location`` (three numbers, not samples) stays a list in both versions.
+device is, ``magnet.place.Location``, checked: cause ``bad-location``), current_a: [N] (optional, the battery
+current in A at each sample, for the motors' field), throttle: [N] (optional, 0..1; both NaN where unknown)}``.
+In v 2 (written) every array of samples is a binary array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N],
+mag_ut / acc_ms2 / gyr_rads / vel_ned_ms ``<f4`` [N, 3], truth, current_a and throttle ``<f4`` [N]; ``location``
+(three numbers, not samples) stays a list in both versions.
 
 The one raw decoder is ``magnet.wire.raw_decode``; the structure checks of one message are ``magnet.wire.raw_header``.
 """
@@ -41,6 +43,13 @@ VECTOR_FIELDS: tuple[tuple[str, float, bool], ...] = (
     ("vel_ned_ms", MAX_VEL_MS, False),
 )
 TRUTH_FIELDS = ("heading_deg", "pitch_deg", "roll_deg")
+#: a large multirotor draws a few hundred amps; a regenerating drive may return current (negative)
+MAX_CURRENT_A = 2_000.0
+#: the (N,) per-sample scalars of a raw message (all optional): name, lowest and highest value allowed
+SCALAR_FIELDS: tuple[tuple[str, float, float], ...] = (
+    ("current_a", -MAX_CURRENT_A, MAX_CURRENT_A),
+    ("throttle", 0.0, 1.0),
+)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -48,7 +57,8 @@ class RawBatch:
     """N raw samples of one device. t_ns (N,) int64 ns; mag_ut (N, 3) uT body frame; acc_ms2 (N, 3) m/s^2 or None;
     truth: {"heading_deg", "pitch_deg", "roll_deg"} -> (N,) degrees, simulator only, else None; gyr_rads (N, 3)
     rad/s body frame or None; location where the device is, or None; vel_ned_ms (N, 3) m/s north-east-down, or
-    None (rows may be NaN where no velocity is known)."""
+    None (rows may be NaN where no velocity is known); current_a (N,) A battery current and throttle (N,) 0..1 at
+    each sample, or None."""
 
     device: str
     seq: int
@@ -60,6 +70,8 @@ class RawBatch:
     gyr_rads: np.ndarray | None = None
     location: Location | None = None
     vel_ned_ms: np.ndarray | None = None
+    current_a: np.ndarray | None = None
+    throttle: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -69,13 +81,28 @@ def nan_rows(n: int) -> np.ndarray:
     return np.full((n, 3), np.nan)
 
 
+def nan_values(n: int) -> np.ndarray:
+    return np.full(n, np.nan)
+
+
+def _scalars(batches: Sequence[RawBatch], name: str) -> np.ndarray:
+    """(S,) one scalar field of every batch, NaN where a batch carries none."""
+    parts = [getattr(b, name) for b in batches]
+    return np.concatenate([nan_values(len(b)) if p is None else np.asarray(p, float) for b, p in zip(batches, parts)])
+
+
+def _present(values: np.ndarray) -> np.ndarray | None:
+    return None if np.isnan(values).all() else values
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class RawColumns:
     """B raw batches decoded together, S samples in all, batch after batch.
 
     devices, seqs, sensors: per batch (B); counts (B,) int samples per batch; t_ns (S,) int64; mag_ut (S, 3) uT;
     acc_ms2 (S, 3) m/s^2 and gyr_rads (S, 3) rad/s, with NaN rows for batches that carry none; locations per batch
-    (a Location or None), or None when no batch carries one; vel_ned_ms (S, 3) m/s NED, NaN rows where unknown."""
+    (a Location or None), or None when no batch carries one; vel_ned_ms (S, 3) m/s NED, NaN rows where unknown;
+    current_a (S,) A and throttle (S,) 0..1, NaN where unknown."""
 
     devices: list[str]
     seqs: list[int]
@@ -87,10 +114,26 @@ class RawColumns:
     sensors: list[str]
     locations: list[Location | None] | None = None
     vel_ned_ms: np.ndarray | None = None
+    current_a: np.ndarray | None = None
+    throttle: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        n = int(self.t_ns.shape[0])
         if self.vel_ned_ms is None:  # frozen: set once, here
-            object.__setattr__(self, "vel_ned_ms", nan_rows(int(self.t_ns.shape[0])))
+            object.__setattr__(self, "vel_ned_ms", nan_rows(n))
+        for name, _, _ in SCALAR_FIELDS:
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, nan_values(n))
+
+    @property
+    def current(self) -> np.ndarray:
+        """current_a (S,) A, never None (NaN where unknown)."""
+        return typing.cast(np.ndarray, self.current_a)
+
+    @property
+    def thr(self) -> np.ndarray:
+        """throttle (S,) 0..1, never None (NaN where unknown)."""
+        return typing.cast(np.ndarray, self.throttle)
 
     @property
     def vel(self) -> np.ndarray:
@@ -112,6 +155,8 @@ class RawColumns:
             [b.sensor for b in batches],
             batch_locations([b.location for b in batches]),
             np.concatenate([nan_rows(len(b)) if b.vel_ned_ms is None else b.vel_ned_ms for b in batches]),
+            _scalars(batches, "current_a"),
+            _scalars(batches, "throttle"),
         )
 
     @property
@@ -137,6 +182,8 @@ class RawColumns:
                     None if np.isnan(gyr).all() else gyr,
                     None if self.locations is None else self.locations[i],
                     None if np.isnan(vel).all() else vel,
+                    _present(self.current[lo:hi]),
+                    _present(self.thr[lo:hi]),
                 )
             )
         return out
@@ -157,6 +204,8 @@ class RawColumns:
             [self.sensors[i] for i in pick],
             None if self.locations is None else batch_locations([self.locations[i] for i in pick]),
             self.vel[per_sample],
+            self.current[per_sample],
+            self.thr[per_sample],
         )
 
 
@@ -202,6 +251,9 @@ def encode_raw(batch: RawBatch, version: int = BINARY_VERSION) -> bytes:
         message["gyr_rads"] = floats(batch.gyr_rads)
     if batch.vel_ned_ms is not None:
         message["vel_ned_ms"] = floats(batch.vel_ned_ms)
+    for name, _, _ in SCALAR_FIELDS:
+        if getattr(batch, name) is not None:
+            message[name] = floats(getattr(batch, name))
     if batch.location is not None:
         message["location"] = batch.location.to_wire()
     if batch.truth is not None:

@@ -27,6 +27,7 @@ from magnet.wire.raw import (
     batch_locations,
     message_location,
     nan_rows,
+    nan_values,
 )
 from magnet.wire.raw_header import INT64_MAX, Header, check_header
 
@@ -127,6 +128,7 @@ def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | No
             for i in np.flatnonzero(np.logical_or.reduceat(bad, starts)).tolist():
                 verdicts[i] = verdicts[i] or WireError(cause, text)
     mag_ut, acc_ms2, gyr_rads, vel_ned_ms = vectors
+    current_a, throttle = (_scalar_column(headers, k) for k in range(2))
     columns = RawColumns(
         [h.device for h in headers],
         [h.seq for h in headers],
@@ -138,8 +140,18 @@ def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | No
         [h.sensor for h in headers],
         None,
         vel_ned_ms,
+        current_a,
+        throttle,
     )
     return columns, verdicts
+
+
+def _scalar_column(headers: Sequence[Header], k: int) -> np.ndarray | None:
+    """(S,) the k-th SCALAR_FIELDS entry of every message (checked in the header), NaN where absent; None when no
+    message carries it."""
+    if all(h.scalars[k] is None for h in headers):
+        return None
+    return np.concatenate([nan_values(h.n) if h.scalars[k] is None else h.scalars[k] for h in headers])
 
 
 def _alone(header: Header) -> tuple[list[RawBatch], WireError | None]:

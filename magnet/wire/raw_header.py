@@ -3,6 +3,10 @@
 Besides the shapes: ``seq`` within 0..2**63 - 1 (cause ``out-of-range``), ``sensor`` text of at most
 ``MAX_SENSOR_CHARS`` (``bad-field``), at most ``MAX_EXTRA_FIELDS`` fields beyond ``RAW_FIELDS`` (room for later
 fields, no flood: ``too-many-fields``), and a payload no larger than its samples can need (``oversized``).
+
+The optional per-sample scalars (``SCALAR_FIELDS``: ``current_a``, ``throttle``) are few and small, so they are checked
+here in full, message by message: N numbers (no booleans), NaN where not known at that sample, never infinite
+(``non-finite``), within their range (``absurd-magnitude``).
 """
 
 from __future__ import annotations
@@ -10,14 +14,25 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
-from magnet.wire.codec import FLOAT_DTYPES, MAX_BATCH_SAMPLES, TIME_DTYPES, binary_message, check_bin, int_field
+import numpy as np
+
+from magnet.wire.codec import (
+    FLOAT_DTYPES,
+    MAX_BATCH_SAMPLES,
+    TIME_DTYPES,
+    binary_message,
+    check_bin,
+    from_bins,
+    int_field,
+)
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device
-from magnet.wire.raw import VECTOR_FIELDS
+from magnet.wire.raw import SCALAR_FIELDS, VECTOR_FIELDS
 
 #: the fields a raw message may carry; others are ignored, up to MAX_EXTRA_FIELDS of them
 RAW_FIELDS = frozenset(
     {"v", "device", "seq", "sensor", "t_ns", "mag_ut", "acc_ms2", "gyr_rads", "vel_ned_ms", "truth", "location"}
+    | {name for name, _, _ in SCALAR_FIELDS}
 )
 MAX_EXTRA_FIELDS = 32
 MAX_SENSOR_CHARS = 64
@@ -32,7 +47,7 @@ INT64_MAX = 2**63 - 1
 class Header(NamedTuple):
     """The structure of one raw message, checked: its device, seq, sensor, sample count, optional fields present,
     and its arrays: lists (v 1) or checked ``Bin`` (v 2), t_ns first then one per VECTOR_FIELDS entry (None where
-    absent)."""
+    absent); scalars: one checked float64 (N,) array per SCALAR_FIELDS entry, or None where absent."""
 
     device: str
     seq: int
@@ -40,6 +55,7 @@ class Header(NamedTuple):
     n: int
     present: tuple[bool, ...]  # per VECTOR_FIELDS entry
     arrays: tuple[Any, ...]
+    scalars: tuple[np.ndarray | None, ...] = ()
 
 
 def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
@@ -59,7 +75,27 @@ def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
     n, arrays = _arrays(message)
     if size is not None and size > MAX_HEADER_BYTES + n * MAX_BYTES_PER_SAMPLE:
         raise WireError("oversized", f"payload of {size} bytes is more than {n} samples can need")
-    return Header(device, seq, sensor, n, tuple(a is not None for a in arrays[1:]), tuple(arrays))
+    scalars = tuple(_scalar(message, name, low, high, n) for name, low, high in SCALAR_FIELDS)
+    return Header(device, seq, sensor, n, tuple(a is not None for a in arrays[1:]), tuple(arrays), scalars)
+
+
+def _scalar(message: Mapping[str, Any], name: str, low: float, high: float, n: int) -> np.ndarray | None:
+    """The optional (N,) scalar ``name`` of a message as float64, checked; None when absent; WireError otherwise."""
+    value = message.get(name)
+    if value is None:
+        return None
+    if binary_message(message):
+        arr = from_bins([check_bin(value, name, FLOAT_DTYPES, (), n)], (), "f8")
+    elif type(value) is not list or len(value) != n or not all(type(x) in (int, float) for x in value):
+        raise WireError("bad-shape", f"{name} must be a list of N = len(t_ns) = {n} numbers")
+    else:
+        arr = np.array(value, dtype=np.float64)
+    if np.isinf(arr).any():  # NaN: not known at that sample (as vel_ned_ms's NaN rows)
+        raise WireError("non-finite", f"{name} holds infinite values")
+    known = arr[~np.isnan(arr)]
+    if known.size and (known.min() < low or known.max() > high):
+        raise WireError("absurd-magnitude", f"{name} holds values outside [{low:g}, {high:g}]")
+    return arr
 
 
 def _arrays(message: Mapping[str, Any]) -> tuple[int, list[Any]]:

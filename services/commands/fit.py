@@ -20,6 +20,7 @@ from magnet.calibration import Method, fit
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from magnet.units import FieldUnit
+from services.commands.fit_motor import add_motor_arguments, fit_with_motors
 from services.common.csvio import SampleTable
 from services.common.inputs import InputOptions, add_input_arguments, read_input_told
 
@@ -83,6 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the calibration in force: the fit must make the field more constant than it does "
         "(default: than no calibration)",
     )
+    add_motor_arguments(parser)
     parser.add_argument("--out", metavar="cal.json", help="write the record here (default: stdout)")
     parser.add_argument(
         "--report",
@@ -154,17 +156,24 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
     gyr = gyro_columns(table) if table.acc is not None else None
     period = sample_period_s(table, args.rate) if gyr is not None else None
     in_force = load_calibration(args.in_force) if args.in_force else None
-    return fit(
-        table.mag,
-        args.method,
-        acc=table.acc,
-        unit=args.unit,
-        field_ut=expected_field_ut(args),
-        robust_extremes=args.robust_extremes,
-        gyr=gyr,
-        period_s=period,
-        reference=in_force,
-    )
+    field_ut = expected_field_ut(args)
+
+    def fit_mag(mag: np.ndarray) -> Calibration:
+        return fit(
+            mag,
+            args.method,
+            acc=table.acc,
+            unit=args.unit,
+            field_ut=field_ut,
+            robust_extremes=args.robust_extremes,
+            gyr=gyr,
+            period_s=period,
+            reference=in_force,
+        )
+
+    if getattr(args, "motor", None):
+        return fit_with_motors(table, args.motor, fit_mag, field_ut)
+    return fit_mag(table.mag)
 
 
 def load_calibration(path: str) -> Calibration:

@@ -70,8 +70,12 @@ class CalibrationsInForce:
             self.calibration_updates += 1
             self._log_evictions()
             self.watch.calibration(record, record.created_ns)
+            self.calibration_changed(record.device)
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
+
+    def calibration_changed(self, device: str) -> None:
+        """A new calibration is in force for ``device`` (what depends on the old one starts again)."""
 
     def applicable(self, record: wire.DeviceCalibration) -> None:
         """WireError unless ``record`` may be applied: accepted by the quality gate (its plausibility was checked

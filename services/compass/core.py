@@ -70,6 +70,20 @@ def _calibration_rows(
     return np.repeat(offsets, counts, axis=0), np.repeat(matrices, counts, axis=0), np.repeat(calibrated, counts)
 
 
+def _motor_rows(cals: list[wire.DeviceCalibration | None], columns: wire.RawColumns) -> np.ndarray | None:
+    """(S, 3) uT the motors add at each sample (``magnet.motor``: the calibration's motor model times the batch's
+    current or throttle; zero where either is unknown), or None when no batch's calibration has a motor model."""
+    if all(c is None or c.calibration.motor is None for c in cals):
+        return None
+    out = np.zeros((int(columns.counts.sum()), 3))
+    bounds = columns.bounds
+    for i, cal in enumerate(cals):
+        if cal is not None and cal.calibration.motor is not None:
+            lo, hi = bounds[i], bounds[i + 1]
+            out[lo:hi] = cal.calibration.motor.offset_ut(columns.current[lo:hi], columns.thr[lo:hi])
+    return out
+
+
 class Compass(CalibrationsInForce):
     """State of the compass loop: calibrations in force, smoothing tails, filters, counters. No zenoh inside."""
 
@@ -142,7 +156,8 @@ class Compass(CalibrationsInForce):
         offsets, matrices, calibrated = _calibration_rows(cals, counts)
         earths = self.watch.earths(columns.devices, columns.locations)
         where = EarthColumns.of(earths, counts)
-        out = compute_headings(columns.mag_ut, columns.acc_ms2, offsets, matrices, calibrated, Earth())
+        motor = _motor_rows(cals, columns)
+        out = compute_headings(columns.mag_ut, columns.acc_ms2, offsets, matrices, calibrated, Earth(), motor)
         fused = self._fuse(columns, out)
         gravity = fused.gravity(columns.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -172,6 +187,11 @@ class Compass(CalibrationsInForce):
             [e.declination_deg for e in earths],
             None if quat is None else rotate_heading(quat, where.declination_deg),
         )
+
+    def calibration_changed(self, device: str) -> None:
+        """Start the device's filter again: its magnetometer state was built on the old correction, and the field
+        jumping to the new one would look to vqf like a magnetic disturbance it takes tens of seconds to trust."""
+        self.fusion.devices.pop(device, None)
 
     def evicted_count(self) -> int:
         """Per-device entries forgotten for --max-devices: calibrations, tails, places, drift trackers, filters."""

@@ -71,6 +71,7 @@ class EdgeStatus:
         self.published_samples = self.published_batches = 0
         self.session: Any = None
         self.unhealthy_token: Any = None
+        self.device_tokens: dict[str, Any] = {}  # devices that appear while running (MAVLink): alive, unhealthy
 
     def on_health(self, healthy: bool, error: str) -> None:
         """Declare ``unhealthy_key`` when the sensor turns unhealthy, undeclare it when it recovers."""
@@ -84,6 +85,25 @@ class EdgeStatus:
                 unhealthy_key(self.settings.zenoh.prefix, self.settings.device)
             )
 
+    def device_seen(self, device: str) -> None:
+        """A device that appeared while running: declare its liveliness token."""
+        if device not in self.ids:
+            self.ids.append(device)
+        if self.session is not None and device not in self.device_tokens:
+            key = wire.liveliness_key(self.settings.zenoh.prefix, "device", device)
+            self.device_tokens[device] = self.session.liveliness().declare_token(key)
+
+    def device_health(self, device: str, healthy: bool) -> None:
+        """Declare ``unhealthy_key`` of one device while it is unhealthy (a device of a source with many)."""
+        name = f"{device}/unhealthy"
+        if self.session is None:
+            return
+        if healthy and name in self.device_tokens:
+            self.device_tokens.pop(name).undeclare()
+        elif not healthy and name not in self.device_tokens:
+            key = unhealthy_key(self.settings.zenoh.prefix, device)
+            self.device_tokens[name] = self.session.liveliness().declare_token(key)
+
     def as_dict(self) -> dict[str, Any]:
         reads = None if self.stats is None else self.stats.as_dict()
         return {
@@ -92,7 +112,7 @@ class EdgeStatus:
             "name": status_name(self.settings.device),
             "device": self.settings.device,
             "devices": len(self.ids),
-            "sensor": self.settings.sensor,
+            "sensor": "mavlink" if self.settings.mavlink else self.settings.sensor,
             "healthy": True if reads is None else reads["healthy"],
             "published_samples": self.published_samples,
             "published_batches": self.published_batches,
@@ -160,7 +180,8 @@ class Publisher:
 
     def __init__(self, session: Any, settings: EdgeSettings, status: EdgeStatus, period_s: float) -> None:
         self.session, self.status, self.period_s = session, status, period_s
-        self.keys = {d: wire.key(settings.zenoh.prefix, d, wire.Kind.RAW) for d in status.ids}
+        self.prefix = settings.zenoh.prefix
+        self.keys = {d: wire.key(self.prefix, d, wire.Kind.RAW) for d in status.ids}
         self.slots = min(len(status.ids), FLEET_SLOTS) if settings.devices else 1
         self.sample_ns = int(1e9 / settings.rate_hz)
         self.block = zenoh.CongestionControl.BLOCK  # raw samples wait for a congested link rather than vanish
@@ -178,18 +199,21 @@ class Publisher:
             for batch in batches[slot :: self.slots]:
                 if slot:
                     batch = dataclasses.replace(batch, t_ns=stamp(len(batch), now_ns, self.sample_ns))
-                if self.location is not None:
+                if self.location is not None and batch.location is None:
                     batch = dataclasses.replace(batch, location=self.location)
-                self.session.put(
-                    self.keys[batch.device], wire.encode_raw(batch, self.version), congestion_control=self.block
+                key = self.keys.get(batch.device) or self.keys.setdefault(
+                    batch.device, wire.key(self.prefix, batch.device, wire.Kind.RAW)
                 )
+                self.session.put(key, wire.encode_raw(batch, self.version), congestion_control=self.block)
                 self.status.published_samples += len(batch)
                 self.status.published_batches += 1
 
 
 def _period_s(source: Any, settings: EdgeSettings) -> float:
     """Seconds between batches: 0 for a real chip (its reads pace it), else batch / rate."""
-    paced_by_reads = isinstance(source, ChipSource) and not settings.emulate
+    paced_by_reads = (isinstance(source, ChipSource) and not settings.emulate) or getattr(
+        source, "paced_by_reads", False
+    )
     return 0.0 if paced_by_reads else settings.batch / settings.rate_hz
 
 
@@ -207,12 +231,15 @@ def serve(settings: EdgeSettings) -> int:
     status = EdgeStatus(settings)
     source = make_source(settings, status.on_health)
     status.ids, status.stats = list(source.ids), source.stats
+    if hasattr(source, "attach"):  # devices that appear while running (MAVLink)
+        source.attach(status)
     stop = stop_event()
     with open_session(settings.zenoh) as session:
         declared = _declare(session, settings, status)
         # one declared publisher, only to wait for a subscriber; data goes by session.put (measured: a declared
         # publisher per device costs several times the CPU at 10,000 messages/s)
-        first = session.declare_publisher(wire.key(settings.zenoh.prefix, status.ids[0], wire.Kind.RAW))
+        first_device = status.ids[0] if status.ids else settings.device
+        first = session.declare_publisher(wire.key(settings.zenoh.prefix, first_device, wire.Kind.RAW))
         log.info(
             "edge: %d device(s), %s at %.1f Hz, batches of %d",
             len(status.ids),
@@ -220,7 +247,7 @@ def serve(settings: EdgeSettings) -> int:
             settings.rate_hz,
             settings.batch,
         )
-        _wait_for_subscribers(first, MATCH_WAIT_S)
+        _wait_for_subscribers(first, MATCH_WAIT_S)  # devices that appear later: their subscribers match --device's
         started = time.monotonic()
         deadline = None if settings.duration_s is None else started + settings.duration_s
 
@@ -233,10 +260,12 @@ def serve(settings: EdgeSettings) -> int:
             publisher.put(batches)
         seconds = time.monotonic() - started
         time.sleep(FLUSH_S)  # let the last batches leave before the session closes
-        for item in [*declared, status.unhealthy_token]:
+        for item in [*declared, status.unhealthy_token, *status.device_tokens.values()]:
             if item is not None:
                 item.undeclare()
         status.session = None
+        if hasattr(source, "close"):
+            source.close()
     print(json.dumps(status.summary(seconds)), flush=True)
     return 0
 

@@ -71,7 +71,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed", type=float, default=1.0, help="with --replay: play this many times faster than recorded (default 1)"
     )
+    add_mavlink_arguments(parser)
     add_zenoh_arguments(parser)
+
+
+def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of a MAVLink source (``services.edge.mavlink_source``)."""
+    parser.add_argument(
+        "--mavlink",
+        metavar="URL",
+        help="read MAVLink vehicles' magnetometers: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
+        "device (with --baud); one device per vehicle and compass, <prefix><SYSID>-mag<N>",
+    )
+    parser.add_argument("--baud", type=int, default=57600, help="with --mavlink and a serial device (default 57600)")
+    parser.add_argument("--device-prefix", default="mav", help="with --mavlink: device ids start with this (mav)")
+    parser.add_argument(
+        "--vehicle-timeout",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="with --mavlink: a vehicle silent this long makes its devices unhealthy (default 3 s)",
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,6 +118,10 @@ class EdgeSettings:
     zenoh: ZenohSettings = dataclasses.field(default_factory=ZenohSettings)
     #: where the device is, sent in every raw message: --location, or the simulator's place when emulating
     location: Location | None = None
+    mavlink: str | None = None
+    baud: int = 57600
+    device_prefix: str = "mav"
+    vehicle_timeout_s: float = 3.0
 
     def __post_init__(self) -> None:
         wire.validate_device_id(self.device)
@@ -118,6 +142,9 @@ class EdgeSettings:
     def _check_source(self) -> None:
         if not 0 < self.speed <= MAX_SPEED:
             raise ValueError(f"--speed must be in (0, {MAX_SPEED:g}], got {self.speed}")
+        if self.mavlink is not None:
+            self._check_mavlink()
+            return
         if self.replay is not None:
             if self.emulate or self.devices or self.bus is not None:
                 raise ValueError("--replay plays a recording: it takes no --emulate, --devices or --bus")
@@ -138,6 +165,18 @@ class EdgeSettings:
                 "not integrate to the attitude; record the run with magnet sample and play it with magnet edge "
                 "--replay FILE.csv --speed X (the recorded times are kept)"
             )
+
+    def _check_mavlink(self) -> None:
+        if self.emulate or self.devices or self.bus is not None or self.replay is not None:
+            raise ValueError("--mavlink reads vehicles: it takes no --emulate, --devices, --bus or --replay")
+        if not self.mavlink:
+            raise ValueError("--mavlink needs a URL: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a device")
+        _check_network_url(self.mavlink)
+        wire.validate_device_id(f"{self.device_prefix}1-mag0")
+        if not 0 < self.vehicle_timeout_s <= 3600:
+            raise ValueError(f"--vehicle-timeout must be in (0, 3600] seconds, got {self.vehicle_timeout_s}")
+        if not 50 <= self.baud <= 10_000_000:
+            raise ValueError(f"--baud must be 50..10000000, got {self.baud}")
 
     @property
     def emulated_chip(self) -> bool:
@@ -177,7 +216,25 @@ class EdgeSettings:
             simulator=sim_options.SimulatorSettings.from_args(args),
             zenoh=ZenohSettings.from_args(args),
             location=_location(args),
+            mavlink=getattr(args, "mavlink", None),
+            baud=int(getattr(args, "baud", 57600)),
+            device_prefix=getattr(args, "device_prefix", "mav"),
+            vehicle_timeout_s=float(getattr(args, "vehicle_timeout", 3.0)),
         )
+
+
+#: pymavlink's network links: KIND:HOST:PORT (anything else is a serial device path)
+NETWORK_LINKS = ("udpin", "udpout", "udp", "udpbcast", "tcp", "tcpin")
+
+
+def _check_network_url(url: str) -> None:
+    """ValueError when a network MAVLink URL has no HOST:PORT with a port in 1..65535."""
+    kind, _, rest = url.partition(":")
+    if kind not in NETWORK_LINKS:
+        return
+    host, _, port = rest.rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"--mavlink {url}: expected {kind}:HOST:PORT with a port in 1..65535")
 
 
 def _location(args: argparse.Namespace) -> Location | None:

@@ -8,6 +8,7 @@
   the one bounded read loop (``magnet.readloop``): a failing bus backs off, is counted and marks the device unhealthy.
 - ``ReplaySource``: a recording (``--replay FILE.csv``) at its own pace (``magnet.replay``); it paces itself, so it
   offers ``paced(stop)`` instead of ``batches``.
+- ``MavlinkSource`` (``services.edge.mavlink_source``): MAVLink vehicles (``--mavlink URL``), devices as they appear.
 """
 
 from __future__ import annotations
@@ -223,6 +224,10 @@ class ReplaySource:
 
 def make_source(settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> Any:
     """The source the settings name (see the module docstring)."""
+    if settings.mavlink is not None:
+        from services.edge.mavlink_source import MavlinkSource
+
+        return MavlinkSource(settings, on_health)
     if settings.replay is not None:
         return ReplaySource(settings)
     if settings.devices:

@@ -1,0 +1,121 @@
+"""``magnet edge --mavlink URL``: the magnetometers of MAVLink vehicles (pymavlink connection; the conversion is
+``magnet.mavlink_stream``). One device per vehicle and compass instance, ``<prefix><SYSID>-mag<N>``, appearing as
+their vehicles send; a vehicle silent for ``--vehicle-timeout`` seconds turns its devices unhealthy (the edge's
+unhealthy token per device, as for a dead bus) until it sends again. Bytes that are not MAVLink and messages
+magnet cannot use are dropped and counted (status ``reads.dropped``), with one log line per cause."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+from pymavlink import mavutil
+
+from magnet import mavlink, wire
+from magnet.mavlink_stream import MavlinkStream
+from services.edge.settings import EdgeSettings
+
+log = logging.getLogger("magnet.edge")
+
+#: how long one call waits for messages before it returns what is due (so the edge checks for stop often)
+POLL_S = 0.05
+#: messages read at most per call
+MAX_MESSAGES = 2000
+
+
+class MavlinkStats:
+    """The status's ``reads``: messages, samples, drops by cause, resyncs, vehicles and their health."""
+
+    def __init__(self, stream: MavlinkStream) -> None:
+        self.stream = stream
+        self.healthy = True
+
+    def as_dict(self) -> dict[str, Any]:
+        counts = self.stream.counts
+        dropped = {k.split(":", 1)[1]: v for k, v in counts.items() if k.startswith("dropped:")}
+        return {
+            "healthy": self.healthy,
+            "attempts": counts["messages"],
+            "errors": sum(dropped.values()),
+            "last_error": self.stream.last_error,
+            "samples": counts["samples"],
+            "ignored": counts["ignored"],
+            "resyncs": counts["resyncs"],
+            "dropped": dropped,
+            "vehicles": sorted(self.stream.vehicles),
+        }
+
+
+class MavlinkSource:
+    """The vehicles on one MAVLink connection; ``attach(status)`` gives it the edge's status, through which each
+    new device's liveliness token and each health change is declared."""
+
+    paced_by_reads = True
+
+    def __init__(self, settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> None:
+        if not settings.mavlink:
+            raise ValueError("a MAVLink source needs --mavlink URL")
+        self.settings = settings
+        self.stream = MavlinkStream(settings.device_prefix, settings.batch)
+        self.stats = MavlinkStats(self.stream)
+        self.ids: list[str] = []
+        self.status: Any = None
+        self.healthy: dict[str, bool] = {}
+        self.logged: set[str] = set()
+        try:
+            self.connection = mavutil.mavlink_connection(
+                settings.mavlink, baud=settings.baud, source_system=255, robust_parsing=True, dialect="common"
+            )
+        except Exception as exc:  # pymavlink raises what its transport raises (OSError, OverflowError, ...)
+            raise ValueError(f"--mavlink {settings.mavlink}: cannot open it: {exc}") from None
+
+    def attach(self, status: Any) -> None:
+        self.status = status
+
+    def close(self) -> None:
+        self.connection.close()
+
+    def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
+        """The batches due after reading what arrived within ``POLL_S``."""
+        deadline = time.monotonic() + POLL_S
+        for _ in range(MAX_MESSAGES):
+            if stop():
+                break
+            message = self.connection.recv_match(blocking=True, timeout=max(deadline - time.monotonic(), 0.0))
+            if message is None:
+                break
+            self._feed(message)
+            if time.monotonic() >= deadline:
+                break
+        now = time.time_ns()
+        out = self.stream.take(now, flush=stop())
+        self._devices_and_health(now)
+        return out
+
+    def _feed(self, message: Any) -> None:
+        try:
+            fields = mavlink.message_dict(message)
+        except Exception as exc:  # a message pymavlink could not unpack: counted like garbage
+            fields = {"mavpackettype": "BAD_DATA", "sysid": 0, "error": str(exc)}
+        cause = self.stream.feed(fields, time.time_ns())
+        if cause is not None and cause not in self.logged:
+            self.logged.add(cause)
+            log.warning("dropping MAVLink input (%s): %s; further ones only counted", cause, self.stream.last_error)
+
+    def _devices_and_health(self, now_ns: int) -> None:
+        timeout_ns = int(self.settings.vehicle_timeout_s * 1e9)
+        for device, healthy in self.stream.health(now_ns, timeout_ns).items():
+            if device not in self.healthy:
+                self.ids.append(device)
+                log.info("MAVLink device %s appeared", device)
+                if self.status is not None:
+                    self.status.device_seen(device)
+            if self.healthy.get(device) != healthy:
+                self.healthy[device] = healthy
+                if not healthy:
+                    log.warning("MAVLink device %s: its vehicle stopped sending", device)
+                if self.status is not None:
+                    self.status.device_health(device, healthy)
+        self.stats.healthy = all(self.healthy.values())

@@ -1,0 +1,158 @@
+"""A MAVLink vehicle stand-in for tests, run as its own process: ``python tests/mav_vehicle.py --url udpout:HOST:PORT``.
+
+It sends, with pymavlink, what an ArduPilot vehicle sends about its compasses, from the simulator's truth
+(``magnet.simulator``; a tumble, each compass with its own hard and soft iron): HEARTBEAT (1 Hz, the armed flag from
+``--armed``), RAW_IMU (compass 0) and SCALED_IMU2 (compass 1) at ``--rate``, ATTITUDE (10 Hz), GLOBAL_POSITION_INT
+(5 Hz, the simulator's place), SYS_STATUS (2 Hz). It answers PARAM_SET, PARAM_REQUEST_READ and PARAM_REQUEST_LIST
+with PARAM_VALUE from its parameter table (a few ArduPilot compass parameters). At the end (``--duration`` or
+SIGTERM) it writes ``--truth FILE.npz``: per IMU message sent, the compass instance, the field sent (milligauss) and
+the true heading and pitch, so a test can join what the compass published to the truth by the field.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import time
+from typing import Any
+
+import numpy as np
+from pymavlink import mavutil
+
+from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig
+
+SOFT_0 = ((1.08, 0.03, 0.0), (0.03, 0.95, 0.02), (0.0, 0.02, 1.0))
+SOFT_1 = ((0.96, -0.02, 0.01), (-0.02, 1.05, 0.0), (0.01, 0.0, 1.1))
+COMPASSES = {  # instance -> its errors (hard iron uT, soft iron)
+    0: SensorErrors(hard_iron_ut=(25.0, -12.0, 9.0), soft_iron=SOFT_0),
+    1: SensorErrors(hard_iron_ut=(-8.0, 30.0, -14.0), soft_iron=SOFT_1),
+}
+PARAMETERS = {
+    "COMPASS_OFS_X": 0.0,
+    "COMPASS_OFS_Y": 0.0,
+    "COMPASS_OFS_Z": 0.0,
+    "COMPASS_DIA_X": 1.0,
+    "COMPASS_DIA_Y": 1.0,
+    "COMPASS_DIA_Z": 1.0,
+    "COMPASS_ODI_X": 0.0,
+    "COMPASS_ODI_Y": 0.0,
+    "COMPASS_ODI_Z": 0.0,
+    "COMPASS_MOTCT": 0.0,
+    "COMPASS_MOT_X": 0.0,
+    "COMPASS_MOT_Y": 0.0,
+    "COMPASS_MOT_Z": 0.0,
+}
+REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
+
+
+def _noise(errors: SensorErrors) -> SensorErrors:
+    import dataclasses
+
+    return dataclasses.replace(errors, noise_ut=0.3, acc_noise_ms2=0.02, gyro_noise_rads=0.002)
+
+
+class Vehicle:
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.conn = mavutil.mavlink_connection(args.url, source_system=args.sysid, source_component=1)
+        rate, count = max(args.rate, 1.0), args.samples
+        self.streams = {
+            i: SensorStream(SimulatorConfig(trajectory="tumble", rate_hz=rate, count=count, errors=_noise(e), seed=i))
+            for i, e in COMPASSES.items()
+        }
+        self.params = dict(PARAMETERS)
+        self.truth: list[tuple[int, int, int, int, float, float]] = []
+        self.boot = time.monotonic()
+
+    def boot_ms(self) -> int:
+        return int((time.monotonic() - self.boot) * 1000)
+
+    def send_imu(self, k: int) -> None:
+        mav = self.conn.mav
+        boot_ms = int(k * 1000 / self.args.rate)
+        for instance, stream in self.streams.items():
+            mag, acc, gyr = stream.measure_imu()
+            m = np.round(mag * 10).astype(int)  # uT -> milligauss
+            a = np.round(acc / 9.80665 * 1000).astype(int)  # m/s^2 -> milli-g
+            g = np.round(gyr * 1000).astype(int)  # rad/s -> mrad/s
+            if instance == 0:
+                mav.raw_imu_send(boot_ms * 1000, *a, *g, *m)
+            else:
+                mav.scaled_imu2_send(boot_ms, *a, *g, *m)
+            truth = stream.last_truth
+            self.truth.append((instance, *m.tolist(), truth["heading_deg"], truth["pitch_deg"]))
+        if k % max(1, int(self.args.rate / 10)) == 0:
+            t = self.streams[0].last_truth
+            roll, pitch, yaw = (math.radians(t[name]) for name in ("roll_deg", "pitch_deg", "heading_deg"))
+            mav.attitude_send(boot_ms, roll, pitch, yaw, 0, 0, 0)
+
+    def send_slow(self, tick: int) -> None:
+        """Every 100 ms: position at 5 Hz, status at 2 Hz, heartbeat at 1 Hz."""
+        mav = self.conn.mav
+        if tick % 2 == 0:
+            mav.global_position_int_send(self.boot_ms(), 504500000, 305200000, 180000, 0, 0, 0, 0, 0)
+        if tick % 5 == 0:
+            mav.sys_status_send(0, 0, 0, 500, 16000, 1200, 80, 0, 0, 0, 0, 0, 0)
+        if tick % 10 == 0:
+            armed = mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.args.armed else 0
+            mav.heartbeat_send(
+                mavutil.mavlink.MAV_TYPE_QUADROTOR,
+                mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                armed | mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                0,
+                mavutil.mavlink.MAV_STATE_ACTIVE if self.args.armed else mavutil.mavlink.MAV_STATE_STANDBY,
+            )
+
+    def send_param(self, name: str) -> None:
+        names = list(self.params)
+        self.conn.mav.param_value_send(name.encode(), self.params[name], REAL32, len(names), names.index(name))
+
+    def answer(self) -> None:
+        while (message := self.conn.recv_match(blocking=False)) is not None:
+            kind = message.get_type()
+            if kind == "PARAM_SET" and message.param_id in self.params:
+                self.params[message.param_id] = float(message.param_value)
+                self.send_param(message.param_id)
+            elif kind == "PARAM_REQUEST_READ":
+                names = list(self.params)
+                name = message.param_id if message.param_index < 0 else names[message.param_index]
+                if name in self.params:
+                    self.send_param(name)
+            elif kind == "PARAM_REQUEST_LIST":
+                for name in self.params:
+                    self.send_param(name)
+
+    def run(self) -> None:
+        stop: list[bool] = []
+        signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
+        start, k, tick = time.monotonic(), 0, 0
+        while not stop and time.monotonic() - start < self.args.duration:
+            now = time.monotonic() - start
+            while k < now * self.args.rate and self.args.rate > 0:
+                self.send_imu(k)
+                k += 1
+            while tick < now * 10:
+                self.send_slow(tick)
+                tick += 1
+            self.answer()
+            time.sleep(0.002)
+        if self.args.truth:
+            table: Any = np.array(self.truth) if self.truth else np.empty((0, 6))
+            np.savez(self.args.truth, table=table, params=np.array([self.params[n] for n in PARAMETERS]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--url", required=True)
+    parser.add_argument("--sysid", type=int, default=1)
+    parser.add_argument("--rate", type=float, default=50.0, help="IMU messages per second per compass (0: none)")
+    parser.add_argument("--samples", type=int, default=3000, help="samples per run of the simulated tumble")
+    parser.add_argument("--duration", type=float, default=60.0)
+    parser.add_argument("--armed", action="store_true")
+    parser.add_argument("--truth")
+    Vehicle(parser.parse_args()).run()
+
+
+if __name__ == "__main__":
+    main()
