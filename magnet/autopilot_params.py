@@ -17,7 +17,8 @@ Neither autopilot applies a general matrix: the rotation part of A R_f must be t
 ROTATION_TOLERANCE_DEG) or one of the named orientations (``magnet.autopilot.ROTATIONS``), which is then exported as
 the orientation parameter; otherwise the export is refused with the angle. ArduPilot's own calibrator refuses
 diagonals outside (0.2, 5), off-diagonals beyond +-1 and offsets beyond ``COMPASS_OFFS_MAX`` (default 1800
-mGauss); so does this. A motor-interference model has no parameters yet (``motor_parameters``).
+mGauss); so does this. A motor-interference model becomes ``COMPASS_MOT*``/``COMPASS_MOTCT`` or
+``CAL_MAGn_xCOMP``/``CAL_MAG_COMP_TYP`` (``motor_parameters``).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np
 from magnet.attitude import rotation_angle_deg
 from magnet.autopilot import UT_PER_GAUSS, UT_PER_MGAUSS, nearest_rotation, rotation_matrix
 from magnet.model import Calibration
+from magnet.motor import CURRENT, THROTTLE
 from magnet.units import ut_per_unit
 
 #: the largest rotation the symmetric matrix may leave out: 0.05 deg changes the field by under 0.09 %
@@ -162,16 +164,40 @@ def px4_parameters(calibration: Calibration, instance: int = 0, rotation_in_forc
         parameters.append(Parameter(f"{prefix}ROT", number, integer=True))
         notes.append(f"{prefix}ROT applies to an external magnetometer; an internal one follows SENS_BOARD_ROT")
     notes.append(f"{prefix}ID must already name the magnetometer (it does after any PX4 calibration of it)")
-    parameters += motor_parameters(calibration, Autopilot.PX4, instance)
+    parameters += motor_parameters(calibration, Autopilot.PX4, instance, r_f)
     return Export(Autopilot.PX4, tuple(parameters), tuple(notes))
 
 
-def motor_parameters(calibration: Calibration, autopilot: Autopilot, instance: int) -> list[Parameter]:
-    """The motor-interference parameters of ``calibration`` (ArduPilot COMPASS_MOT*/COMPASS_MOTCT, PX4
-    CAL_MAGn_*COMP): none while the record carries no motor model. The hook for the motor model: when the record
-    gains one, return its parameters here (ArduPilot adds MOT x current or throttle after the matrix, in mGauss per
-    A or at full throttle)."""
-    return []
+#: the motor-compensation type parameters' values: ArduPilot COMPASS_MOTCT and PX4 CAL_MAG_COMP_TYP
+ARDUPILOT_MOTCT = {THROTTLE: 1, CURRENT: 2}
+PX4_COMP_TYP = {THROTTLE: 1, CURRENT: 2}
+#: PX4 scales current-based compensation per kA (it feeds the battery current / 1000 as the power)
+PX4_AMPS_PER_POWER = {THROTTLE: 1.0, CURRENT: 1000.0}
+
+
+def motor_parameters(
+    calibration: Calibration, autopilot: Autopilot, instance: int, r_f: np.ndarray | None = None
+) -> list[Parameter]:
+    """The motor-interference parameters of ``calibration``: none without a motor model.
+
+    magnet subtracts m x (uT, x the current in A or the throttle 0..1) after its correction. ArduPilot adds
+    ``COMPASS_MOT`` x after its soft-iron matrix, in milligauss: MOT = -m (mGauss), with ``COMPASS_MOTCT`` 1
+    (throttle) or 2 (current). PX4 adds ``CAL_MAGn_xCOMP`` x power to the sensor's reading before its offset and
+    matrix (power = throttle, or current in kA; ``CAL_MAG_COMP_TYP`` 1 or 2): it must cancel m in the raw axes,
+    COMP = -(R S)^-1 m = -R_f^T A^-1 m (gauss per unit power; r_f (3, 3) the rotation in force, default none)."""
+    motor = calibration.motor
+    if motor is None:
+        return []
+    if autopilot is Autopilot.ARDUPILOT:
+        n = "" if instance == 0 else str(instance + 1)
+        mot_mg = -motor.coefficients / UT_PER_MGAUSS
+        out = [Parameter(f"COMPASS_MOT{n}_{a}", float(v)) for a, v in zip("XYZ", mot_mg, strict=True)]
+        return [*out, Parameter("COMPASS_MOTCT", ARDUPILOT_MOTCT[motor.kind], integer=True)]
+    _, matrix = in_microtesla(calibration)
+    raw_ut = (np.eye(3) if r_f is None else r_f).T @ np.linalg.solve(matrix, motor.coefficients)
+    comp = -raw_ut / UT_PER_GAUSS * PX4_AMPS_PER_POWER[motor.kind]
+    out = [Parameter(f"CAL_MAG{instance}_{a}COMP", float(v)) for a, v in zip("XYZ", comp, strict=True)]
+    return [*out, Parameter("CAL_MAG_COMP_TYP", PX4_COMP_TYP[motor.kind], integer=True)]
 
 
 def export_parameters(

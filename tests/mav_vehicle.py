@@ -38,6 +38,7 @@ PARAMETERS = {
     "COMPASS_ODI_X": 0.0,
     "COMPASS_ODI_Y": 0.0,
     "COMPASS_ODI_Z": 0.0,
+    "COMPASS_SCALE": 0.0,
     "COMPASS_MOTCT": 0.0,
     "COMPASS_MOT_X": 0.0,
     "COMPASS_MOT_Y": 0.0,

@@ -187,3 +187,37 @@ def test_ardupilot_log_inversion_undoes_the_correction() -> None:
     logged = 1.2 * (raw + ofs) @ soft.T + mot  # ArduPilot's order: offsets, scale, matrix, then motor offsets
     assert ardupilot_raw_field(logged, ofs, mot, soft, 1.2) == pytest.approx(raw)
     assert ardupilot_raw_field(logged / 1.2, ofs, mot / 1.2, soft, 2.0) == pytest.approx(raw)  # 2.0: not applied
+
+
+# ------------------------------------------------------------------------------------- motor interference
+
+
+@pytest.mark.parametrize("kind", ["current", "throttle"])
+def test_motor_model_round_trip_per_autopilot(fitted, kind: str) -> None:
+    """With a motor model, each autopilot's own formula (ArduPilot: COMPASS_MOT x added after its matrix, in mGauss;
+    PX4: CAL_MAGn_xCOMP x power added to the reading before offset and matrix, power = throttle or current in kA)
+    gives magnet's compensated field: calibration applied, then the motors' field m x taken away."""
+    import dataclasses
+
+    from magnet.motor import MotorModel
+
+    calibration, raw_ut = fitted
+    motor = MotorModel(kind, np.array([4.0, -2.5, 7.0]) / (20.0 if kind == "current" else 1.0))
+    calibration = dataclasses.replace(calibration, motor=motor)
+    x = np.linspace(0.0, 20.0 if kind == "current" else 1.0, len(raw_ut))
+    measured = raw_ut + np.linalg.solve(calibration.matrix, (x[:, None] * motor.coefficients).T).T
+    want = calibration.apply(measured) - x[:, None] * motor.coefficients
+    assert _relative_error(calibration.apply(raw_ut), want) < 1e-9  # the motors' field is exactly what was added
+
+    ap = {p.name: p.value for p in ardupilot_parameters(calibration, 0).parameters}
+    assert ap["COMPASS_MOTCT"] == (2 if kind == "current" else 1)
+    mot = np.array([ap[f"COMPASS_MOT_{a}"] for a in "XYZ"])
+    got_ap = (ardupilot_corrected(measured * 10, ap) + x[:, None] * mot) / 10
+    assert _relative_error(got_ap, want) < 1e-3
+
+    px4 = {p.name: p.value for p in px4_parameters(calibration, 1).parameters}
+    assert px4["CAL_MAG_COMP_TYP"] == (2 if kind == "current" else 1)
+    power = x / 1000.0 if kind == "current" else x
+    comp = np.array([px4[f"CAL_MAG1_{a}COMP"] for a in "XYZ"])
+    got_px4 = px4_corrected(measured / 100 + power[:, None] * comp, px4, 1, np.eye(3)) * 100
+    assert _relative_error(got_px4, want) < 1e-3

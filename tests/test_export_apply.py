@@ -87,3 +87,25 @@ def test_apply_names_what_is_wrong(tmp_path: Path) -> None:
             apply_params(f"udpin:127.0.0.1:{port}", {"NO_SUCH_PARAM": 1.0})
     finally:
         final_params(proc, tmp_path)
+
+
+def test_export_apply_from_the_command_line(tmp_path: Path) -> None:
+    """``magnet export --calibration cal.json --format ardupilot --apply URL``: the vehicle ends up holding the
+    exported parameters, and the command says what changed."""
+    import json
+
+    from helpers import run_magnet
+
+    cal = {"method": "ellipsoid", "offset": [12.0, -3.5, 7.25], "matrix": [[1.02, 0.01, 0], [0.01, 0.97, 0], [0, 0, 1]]}
+    (tmp_path / "cal.json").write_text(json.dumps(cal))
+    [port] = free_ports(1)
+    proc = stand_in(tmp_path, port)
+    try:
+        args = ["export", "--calibration", str(tmp_path / "cal.json"), "--format", "ardupilot"]
+        result = run_magnet(*args, "--apply", f"udpin:127.0.0.1:{port}", timeout=30)
+    finally:
+        held = final_params(proc, tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "vehicle 1" in result.stdout and "COMPASS_OFS_X: 0 -> -120" in result.stdout
+    assert np.float32(held["COMPASS_OFS_X"]) == np.float32(-120.0)
+    assert np.float32(held["COMPASS_DIA_Y"]) != np.float32(1.0)

@@ -7,6 +7,9 @@ Writes the parameters that make the autopilot apply a calibration (the maths in 
 - ``px4``: QGroundControl's .params layout, one tab-separated ``vehicle-id component-id name value type`` line per
   parameter (type 9 a 32-bit float, 6 a 32-bit integer), after ``#`` comment lines.
 
+``--apply URL`` also sets them on a vehicle over MAVLink (``services.commands.export_apply``): each is read back,
+and a vehicle that is armed is refused; what changed is printed (old -> new).
+
 ``--device ID`` asks the calibrator for the device's calibration in force (as ``magnet get calibration ID`` does).
 Exit status 0 with the file written; 1 when no calibrator answered; 2 for bad input or a calibration the autopilot
 cannot represent (the reason on stderr; an existing ``--out`` file is left untouched).
@@ -48,6 +51,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicle-id", type=int, default=1, help="px4: the vehicle (system) id column (default 1)")
     parser.add_argument("--out", metavar="FILE", help="write here (default: stdout)")
     parser.add_argument("--timeout", type=float, default=3.0, help="--device: seconds to wait for the calibrator")
+    parser.add_argument(
+        "--apply",
+        metavar="URL",
+        help="also set the parameters on a vehicle over MAVLink (pymavlink URL: udpin:HOST:PORT, udpout:..., tcp:..., "
+        "or a serial device), reading each back; refused while the vehicle is armed",
+    )
+    parser.add_argument("--baud", type=int, default=57600, help="--apply over a serial device: its baud rate")
     add_zenoh_arguments(parser)
 
 
@@ -103,6 +113,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"magnet export: note: {note}", file=sys.stderr)
     if args.out:
         write_atomically(Path(args.out), text)
-    else:
+    elif not args.apply:
         sys.stdout.write(text)
+    if args.apply:
+        _apply(args, export)
     return 0
+
+
+def _apply(args: argparse.Namespace, export: Export) -> None:
+    """Set the exported parameters on the vehicle at ``--apply`` and print what changed (stdout)."""
+    from services.commands.export_apply import apply_params
+
+    report = apply_params(args.apply, {p.name: p.value for p in export.parameters}, baud=args.baud)
+    print(f"magnet export: vehicle {report.sysid} (component {report.compid}):")
+    for line in report.lines():
+        print(f"  {line}")
