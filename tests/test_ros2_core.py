@@ -14,6 +14,7 @@ from rosbags.typesys import Stores, get_typestore
 from magnet.attitude import euler_to_quaternion
 from magnet.ros2 import compass as rc
 from magnet.ros2 import frames, messages, names
+from magnet.ros2.pairing import SamplePairer
 
 TYPES = (messages.MAGNETIC_FIELD, messages.IMU, messages.DIAGNOSTIC_ARRAY)
 #: published by projects that took them from a ROS 2 Jazzy build (found with the search tool)
@@ -143,3 +144,32 @@ def test_diagnostics_levels_follow_calibration_alerts_and_disturbance():
         messages.diagnostic_array_cdr(5, [status]), messages.DIAGNOSTIC_ARRAY
     )
     assert array.status[0].hardware_id == "d" and {v.key: v.value for v in array.status[0].values}["alerts"] == "dip"
+
+
+def _mag(t_ns: int) -> messages.MagSample:
+    return messages.MagSample(t_ns, "d", np.array([20e-6, 1e-6, -45e-6]))
+
+
+def _imu(t_ns: int, gyro: bool = True) -> messages.ImuSample:
+    return messages.ImuSample(t_ns, "d", np.array([0.0, 0.0, 9.81]), np.array([0.1, 0.0, 0.0]) if gyro else None)
+
+
+def test_field_and_imu_are_joined_by_time_into_magnets_frame():
+    pairer = SamplePairer(with_imu=True, batch=3)
+    for k in range(3):
+        pairer.add_mag(_mag(1_000 + k * 10_000_000), now_s=0.0)
+    assert pairer.batches(now_s=0.01) == []  # waiting for the Imu of their time
+    for k in range(3):
+        pairer.add_imu(_imu(1_000 + k * 10_000_000 + 2_000_000))
+    (joined,) = pairer.batches(now_s=0.02)
+    np.testing.assert_allclose(joined.mag_ut, [[20.0, -1.0, 45.0]] * 3)  # FLU tesla -> FRD uT
+    np.testing.assert_allclose(joined.acc_ms2, [[0, 0, -9.81]] * 3)
+    np.testing.assert_allclose(joined.gyr_rads, [[0.1, 0, 0]] * 3)
+
+
+def test_without_an_imu_in_time_the_field_goes_alone_after_the_wait():
+    pairer = SamplePairer(with_imu=True, batch=10, wait_s=0.2, flush_s=0.25)
+    pairer.add_mag(_mag(5), now_s=0.0)
+    pairer.add_imu(_imu(5 + 10**9))  # a second later: too far to pair
+    (joined,) = pairer.batches(now_s=0.3)
+    assert joined.acc_ms2 is None and joined.gyr_rads is None and len(joined.t_ns) == 1

@@ -11,6 +11,7 @@ from magnet.drivers import SENSORS, has_gyroscope
 from magnet.place import Location
 from magnet.replay import MAX_SPEED
 from services.common import sim_options
+from services.common.ros2_options import Ros2Settings, add_ros2_arguments
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 SIMULATOR_SENSOR = "sim"
@@ -71,6 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed", type=float, default=1.0, help="with --replay: play this many times faster than recorded (default 1)"
     )
+    add_ros2_arguments(parser, "read a ROS 2 robot's MagneticField (and Imu) topics over rmw_zenoh (--mag-topic)")
+    parser.add_argument("--mag-topic", help="with --ros2: the sensor_msgs/msg/MagneticField topic")
+    parser.add_argument("--imu-topic", help="with --ros2: the sensor_msgs/msg/Imu topic (acceleration, rates)")
     add_zenoh_arguments(parser)
 
 
@@ -98,6 +102,9 @@ class EdgeSettings:
     zenoh: ZenohSettings = dataclasses.field(default_factory=ZenohSettings)
     #: where the device is, sent in every raw message: --location, or the simulator's place when emulating
     location: Location | None = None
+    ros2: Ros2Settings = Ros2Settings()
+    mag_topic: str | None = None
+    imu_topic: str | None = None
 
     def __post_init__(self) -> None:
         wire.validate_device_id(self.device)
@@ -118,6 +125,10 @@ class EdgeSettings:
     def _check_source(self) -> None:
         if not 0 < self.speed <= MAX_SPEED:
             raise ValueError(f"--speed must be in (0, {MAX_SPEED:g}], got {self.speed}")
+        if self.ros2.enabled or self.mag_topic or self.imu_topic:
+            if not (self.ros2.enabled and self.mag_topic) or self.emulate or self.replay or self.bus is not None:
+                raise ValueError("a ROS 2 source needs --ros2 and --mag-topic, and no --emulate, --replay or --bus")
+            return
         if self.replay is not None:
             if self.emulate or self.devices or self.bus is not None:
                 raise ValueError("--replay plays a recording: it takes no --emulate, --devices or --bus")
@@ -177,6 +188,9 @@ class EdgeSettings:
             simulator=sim_options.SimulatorSettings.from_args(args),
             zenoh=ZenohSettings.from_args(args),
             location=_location(args),
+            ros2=Ros2Settings.from_args(args),
+            mag_topic=args.mag_topic,
+            imu_topic=args.imu_topic,
         )
 
 

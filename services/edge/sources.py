@@ -225,6 +225,10 @@ def make_source(settings: EdgeSettings, on_health: Callable[[bool, str], None] |
     """The source the settings name (see the module docstring)."""
     if settings.replay is not None:
         return ReplaySource(settings)
+    if settings.ros2.enabled:
+        from services.edge.ros2_source import Ros2Source
+
+        return Ros2Source(settings)
     if settings.devices:
         return FleetSource(settings)
     if settings.emulate and settings.sensor == SIMULATOR_SENSOR:
