@@ -32,6 +32,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("services.commands.up", "the local pipeline: emulated devices, calibrator and compass, with a live view"),
     "dashboard": ("services.dashboard.service", "serve a live web page of the fleet (and calibration control)"),
     "report": ("services.commands.report", "draw a calibration report (HTML or PNG) from samples and a calibration"),
+    "record": (
+        "services.commands.record",
+        "record raw, headings, calibrations and alerts as a ROS 2 bag (MCAP)",
+    ),
 }
 
 

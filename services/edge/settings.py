@@ -73,7 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--speed", type=float, default=1.0, help="with --replay: play this many times faster than recorded (default 1)"
     )
     add_ros2_arguments(parser, "read a ROS 2 robot's MagneticField (and Imu) topics over rmw_zenoh (--mag-topic)")
-    parser.add_argument("--mag-topic", help="with --ros2: the sensor_msgs/msg/MagneticField topic")
+    parser.add_argument(
+        "--mag-topic", help="with --ros2, or --replay of a ROS 2 recording: the sensor_msgs/msg/MagneticField topic"
+    )
     parser.add_argument("--imu-topic", help="with --ros2: the sensor_msgs/msg/Imu topic (acceleration, rates)")
     add_zenoh_arguments(parser)
 
@@ -125,10 +127,12 @@ class EdgeSettings:
     def _check_source(self) -> None:
         if not 0 < self.speed <= MAX_SPEED:
             raise ValueError(f"--speed must be in (0, {MAX_SPEED:g}], got {self.speed}")
-        if self.ros2.enabled or self.mag_topic or self.imu_topic:
-            if not (self.ros2.enabled and self.mag_topic) or self.emulate or self.replay or self.bus is not None:
+        if self.ros2.enabled:
+            if not self.mag_topic or self.emulate or self.replay or self.bus is not None:
                 raise ValueError("a ROS 2 source needs --ros2 and --mag-topic, and no --emulate, --replay or --bus")
             return
+        if self.imu_topic or (self.mag_topic and self.replay is None):
+            raise ValueError("--mag-topic and --imu-topic need --ros2 (or --mag-topic: the topic of a --replay bag)")
         if self.replay is not None:
             if self.emulate or self.devices or self.bus is not None:
                 raise ValueError("--replay plays a recording: it takes no --emulate, --devices or --bus")

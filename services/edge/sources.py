@@ -26,7 +26,7 @@ from magnet.emulators import FaultInjector, emulator_for
 from magnet.readloop import Backoff, ReadLoop, ReadStats
 from magnet.replay import Recording, paced_slices
 from magnet.simulator import FleetSimulator
-from services.common.inputs import read_input
+from services.common.inputs import InputOptions, read_input
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
 
 #: the edge's read loop: waits 10 ms, 20 ms, ... up to 1 s between failed reads; unhealthy after 3 in a row
@@ -171,10 +171,10 @@ class ChipSource:
         ]
 
 
-def read_recording(path: Path) -> Recording:
+def read_recording(path: Path, topic: str | None = None) -> Recording:
     """The recording in a ``magnet sample`` CSV: t_s (s), mx,my,mz (uT), optional ax,ay,az (m/s^2) and gx,gy,gz
     (rad/s); ValueError naming the file and what is wrong."""
-    table = read_input(path)
+    table = read_input(path, InputOptions(topic=topic))
     if "t_s" not in table.columns:
         raise ValueError(
             f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as magnet sample writes it"
@@ -196,7 +196,7 @@ class ReplaySource:
     def __init__(self, settings: EdgeSettings) -> None:
         if settings.replay is None:
             raise ValueError("a replay needs --replay FILE.csv")
-        self.recording = read_recording(settings.replay)
+        self.recording = read_recording(settings.replay, settings.mag_topic)
         self.settings = settings
         self.ids = [settings.device]
 
