@@ -173,3 +173,26 @@ def test_without_an_imu_in_time_the_field_goes_alone_after_the_wait():
     pairer.add_imu(_imu(5 + 10**9))  # a second later: too far to pair
     (joined,) = pairer.batches(now_s=0.3)
     assert joined.acc_ms2 is None and joined.gyr_rads is None and len(joined.t_ns) == 1
+
+
+def test_foxglove_views_of_a_heading_use_the_same_frames():
+    from magnet import wire
+    from services.dashboard.foxglove import heading_views
+
+    batch = wire.HeadingBatch(
+        "imu-1",
+        0,
+        np.array([5, 1_000_000_007]),
+        np.array([10.0, 0.0]),
+        np.array([12.0, 0.0]),
+        np.zeros(2),
+        np.zeros(2),
+        np.array([[20.0, 1.0, 45.0]] * 2),
+        0.0,
+        "c1",
+        np.array([0, 1]),
+    )
+    heading, field, rotation = heading_views(batch)
+    assert heading["t_ns"] == 1_000_000_007 and heading["ros_yaw_deg"] == pytest.approx(90.0)
+    assert field["y_ut"] == pytest.approx(-1.0) and field["z_ut"] == pytest.approx(-45.0)
+    np.testing.assert_allclose(rotation, [0, 0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-12)  # level, facing north
