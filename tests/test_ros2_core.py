@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from ros2_sdk_client import dependencies, msg_text
 from rosbags.typesys import Stores, get_typestore
@@ -70,6 +70,7 @@ def test_the_attachment_reads_back_with_the_third_party_client():
         names.Attachment.from_bytes(names.Attachment(7, 1, gid).to_bytes()[:-1])
 
 
+@settings(max_examples=40)
 @given(st.text(min_size=1, max_size=40).filter(lambda s: s.isprintable() and s.strip() == s))
 def test_every_device_id_maps_to_a_ros_name_and_back(device):
     name = names.ros_name_of_device(device)
