@@ -197,3 +197,27 @@ def test_foxglove_views_of_a_heading_use_the_same_frames():
     assert heading["t_ns"] == 1_000_000_007 and heading["ros_yaw_deg"] == pytest.approx(90.0)
     assert field["y_ut"] == pytest.approx(-1.0) and field["z_ut"] == pytest.approx(-45.0)
     np.testing.assert_allclose(rotation, [0, 0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-12)  # level, facing north
+
+
+@pytest.mark.parametrize("frame_id", ["", "d", "ab", "abc", "ximu_2d1", "a_somewhat_longer_frame"])
+def test_the_batch_cdr_is_byte_for_byte_rosbags_serialisation(frame_id):
+    store = get_typestore(Stores.ROS2_JAZZY)
+    t = store.types
+    rng = np.random.default_rng(3)
+    t_ns = np.array([1_700_000_000_123_456_789, 5, 2_000_000_000_999_999_999])
+    field, quat, vec = rng.normal(size=(3, 3)) * 1e-5, rng.normal(size=(3, 4)), rng.normal(size=(3, 3))
+    quat[1] = np.nan  # no orientation in the second sample
+    mags = messages.magnetic_field_cdr(t_ns, frame_id, field, 4e-14)
+    imus = messages.imu_cdr(t_ns, frame_id, quat, None, vec)
+    unknown, none = np.zeros(9), np.array([-1.0] + [0.0] * 8)
+    for k, stamp in enumerate(t_ns.tolist()):
+        header = t["std_msgs/msg/Header"](t["builtin_interfaces/msg/Time"](*divmod(stamp, 10**9)), frame_id)
+        vector = t["geometry_msgs/msg/Vector3"]
+        mag = t["sensor_msgs/msg/MagneticField"](header, vector(*field[k]), np.eye(3).ravel() * 4e-14)
+        assert mags[k] == bytes(store.serialize_cdr(mag, messages.MAGNETIC_FIELD))
+        has_q = k != 1
+        q = t["geometry_msgs/msg/Quaternion"](*(quat[k] if has_q else (0.0, 0.0, 0.0, 1.0)))
+        imu = t["sensor_msgs/msg/Imu"](
+            header, q, unknown if has_q else none, vector(0.0, 0.0, 0.0), none, vector(*vec[k]), unknown
+        )
+        assert imus[k] == bytes(store.serialize_cdr(imu, messages.IMU))

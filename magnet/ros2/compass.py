@@ -4,16 +4,24 @@ diagnostic status. The frames are converted here, once, by ``magnet.ros2.frames.
 from __future__ import annotations
 
 import dataclasses
-import typing
+from collections.abc import Sequence
 
 import numpy as np
 
 from magnet.attitude import euler_to_quaternion
 from magnet.ros2 import messages
+from magnet.ros2.cdr import stamped_doubles_cdr
 from magnet.ros2.frames import TESLA_PER_UT, to_ros
 from magnet.ros2.names import ros_name_of_device
 
-__all__ = ["DeviceState", "attitude_wxyz", "device_diagnostic", "field_variance_t2", "sample_messages"]
+__all__ = [
+    "DeviceState",
+    "attitude_wxyz",
+    "device_diagnostic",
+    "drain_messages",
+    "field_variance_t2",
+    "sample_messages",
+]
 
 
 def attitude_wxyz(
@@ -45,14 +53,38 @@ def sample_messages(
     quat_wxyz: np.ndarray,
     variance_t2: float,
 ) -> tuple[list[bytes], list[bytes]]:
-    """(MagneticField CDR, Imu CDR) per sample of one device. t_ns (S,), field_ut (S, 3) calibrated uT FRD,
-    acc_ms2 and gyr_rads (S, 3) FRD with NaN rows where the device has none, quat_wxyz (S, 4) body FRD -> NED (NaN
-    rows: unknown). frame_id: the device's ROS name."""
+    """(MagneticField CDR, Imu CDR) per sample of one device: ``drain_messages`` of one batch."""
+    return drain_messages([device], [0, len(t_ns)], t_ns, field_ut, acc_ms2, gyr_rads, quat_wxyz, [variance_t2])[0]
+
+
+def drain_messages(
+    devices: Sequence[str],
+    bounds: Sequence[int],
+    t_ns: np.ndarray,
+    field_ut: np.ndarray,
+    acc_ms2: np.ndarray,
+    gyr_rads: np.ndarray,
+    quat_wxyz: np.ndarray,
+    variances_t2: Sequence[float],
+) -> list[tuple[list[bytes], list[bytes]]]:
+    """Per batch (device ``devices[i]``, rows ``bounds[i]:bounds[i+1]``): (MagneticField CDR, Imu CDR) per sample.
+    t_ns (S,), field_ut (S, 3) calibrated uT FRD, acc_ms2 and gyr_rads (S, 3) FRD with NaN rows where the device
+    has none, quat_wxyz (S, 4) body FRD -> NED (NaN rows: unknown), one field variance (T^2) per batch. frame_id:
+    the device's ROS name. The frames are converted once for the whole drain."""
     ros = to_ros(field_ut, acc_ms2, gyr_rads, quat_wxyz)
-    frame = ros_name_of_device(device)
-    mag = messages.magnetic_field_cdr(t_ns, frame, ros.field_t, variance_t2)
-    imu = messages.imu_cdr(t_ns, frame, ros.quat_xyzw, typing.cast(np.ndarray, ros.gyr_rads), ros.acc_ms2)
-    return mag, imu
+    counts = np.diff(np.asarray(bounds, dtype=np.int64)).astype(np.int64)
+    mag = messages.magnetic_field_values(ros.field_t, np.repeat(np.asarray(variances_t2, dtype=float), counts))
+    imu = messages.imu_values(ros.quat_xyzw, ros.gyr_rads, ros.acc_ms2, len(t_ns))
+    out = []
+    for i, device in enumerate(devices):
+        lo, hi, frame = bounds[i], bounds[i + 1], ros_name_of_device(device)
+        out.append(
+            (
+                stamped_doubles_cdr(t_ns[lo:hi], frame, mag[lo:hi]),
+                stamped_doubles_cdr(t_ns[lo:hi], frame, imu[lo:hi]),
+            )
+        )
+    return out
 
 
 @dataclasses.dataclass(frozen=True)

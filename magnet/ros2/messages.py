@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
+from magnet.ros2.cdr import stamped_doubles_cdr
+
 __all__ = [
     "DIAGNOSTIC_ARRAY",
     "IMU",
@@ -40,8 +42,8 @@ DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 _T = STORE.types
 _ZERO9 = np.zeros(9)
 _NOT_GIVEN = np.array([-1.0, 0, 0, 0, 0, 0, 0, 0, 0])
-_IDENTITY = _T["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0)
-_NO_VECTOR = _T["geometry_msgs/msg/Vector3"](0.0, 0.0, 0.0)
+_IDENTITY_XYZW = np.array([0.0, 0.0, 0.0, 1.0])
+_ZERO3 = np.zeros(3)
 MAX_FIELD_T = 1e-2  # 10 mT: no magnetometer in the Earth's field reads more
 MAX_ACC_MS2 = 2000.0
 MAX_GYR_RADS = 200.0
@@ -58,19 +60,33 @@ def _header(t_ns: int, frame_id: str) -> Any:
     return _T["std_msgs/msg/Header"](_T["builtin_interfaces/msg/Time"](sec, nanosec), frame_id)
 
 
-def _vector(v: Sequence[float]) -> Any:
-    return _T["geometry_msgs/msg/Vector3"](float(v[0]), float(v[1]), float(v[2]))
+def magnetic_field_values(field_t: np.ndarray, variance_t2: float | np.ndarray) -> np.ndarray:
+    """(S, 12) the doubles of MagneticField: field_t (S, 3) tesla, then the covariance with ``variance_t2`` (T^2,
+    one for all or (S,)) on its diagonal (0: unknown, all zeros)."""
+    field_t = np.asarray(field_t, dtype=float).reshape(-1, 3)
+    variance = np.broadcast_to(np.asarray(variance_t2, dtype=float), (len(field_t),))
+    cov = np.clip(variance, 0.0, None)[:, None] * np.eye(3).ravel()
+    return np.concatenate([field_t, cov], axis=1)
+
+
+def imu_values(
+    quat_xyzw: np.ndarray | None, gyr_rads: np.ndarray | None, acc_ms2: np.ndarray | None, count: int
+) -> np.ndarray:
+    """(S, 37) the doubles of Imu: orientation, its covariance, angular velocity, its covariance, linear
+    acceleration, its covariance. A row with a NaN (or None for all) is not given: -1 in element 0 of its
+    covariance, zeros (the identity for the orientation) as values; a given one has an unknown (zero) covariance."""
+    parts = []
+    for values, width, missing in ((quat_xyzw, 4, _IDENTITY_XYZW), (gyr_rads, 3, _ZERO3), (acc_ms2, 3, _ZERO3)):
+        rows = np.full((count, width), np.nan) if values is None else np.asarray(values, dtype=float)
+        given = np.isfinite(rows).all(axis=1)[:, None]
+        parts += [np.where(given, rows, missing), np.where(given, _ZERO9, _NOT_GIVEN)]
+    return np.concatenate(parts, axis=1)
 
 
 def magnetic_field_cdr(t_ns: np.ndarray, frame_id: str, field_t: np.ndarray, variance_t2: float) -> list[bytes]:
     """One ``sensor_msgs/msg/MagneticField`` per sample: t_ns (S,) ns since the epoch, field_t (S, 3) tesla;
     ``variance_t2`` (T^2) on the covariance's diagonal, 0 for unknown (all zeros)."""
-    cov = np.eye(3).ravel() * variance_t2 if variance_t2 > 0 else _ZERO9
-    make, serialize = _T[MAGNETIC_FIELD], STORE.serialize_cdr
-    return [
-        bytes(serialize(make(_header(t, frame_id), _vector(f), cov), MAGNETIC_FIELD))
-        for t, f in zip(t_ns.tolist(), field_t.tolist())
-    ]
+    return stamped_doubles_cdr(t_ns, frame_id, magnetic_field_values(field_t, variance_t2))
 
 
 def imu_cdr(
@@ -81,37 +97,8 @@ def imu_cdr(
     acc_ms2: np.ndarray | None,
 ) -> list[bytes]:
     """One ``sensor_msgs/msg/Imu`` per sample: t_ns (S,), quat_xyzw (S, 4) body FLU -> ENU, gyr_rads and acc_ms2
-    (S, 3) FLU or None; a row with a NaN (or None) is not given. Covariances: unknown (zeros) for what is given, -1
-    in element 0 for what is not."""
-    make, serialize = _T[IMU], STORE.serialize_cdr
-    count = len(t_ns)
-    quats = _given(quat_xyzw, count, 4)
-    gyrs, accs = _given(gyr_rads, count, 3), _given(acc_ms2, count, 3)
-    return [
-        bytes(
-            serialize(
-                make(
-                    _header(t, frame_id),
-                    _T["geometry_msgs/msg/Quaternion"](*q) if q else _IDENTITY,
-                    _ZERO9 if q else _NOT_GIVEN,
-                    _vector(w) if w else _NO_VECTOR,
-                    _ZERO9 if w else _NOT_GIVEN,
-                    _vector(a) if a else _NO_VECTOR,
-                    _ZERO9 if a else _NOT_GIVEN,
-                ),
-                IMU,
-            )
-        )
-        for t, q, w, a in zip(t_ns.tolist(), quats, gyrs, accs)
-    ]
-
-
-def _given(values: np.ndarray | None, count: int, width: int) -> list[list[float] | None]:
-    """Rows of ``values`` (count, width) as lists, None for rows with a NaN (all None for no array)."""
-    if values is None:
-        return [None] * count
-    finite = np.isfinite(values).all(axis=1).tolist()
-    return [row if ok else None for row, ok in zip(np.asarray(values, dtype=float).tolist(), finite)]
+    (S, 3) FLU or None (see ``imu_values``)."""
+    return stamped_doubles_cdr(t_ns, frame_id, imu_values(quat_xyzw, gyr_rads, acc_ms2, len(t_ns)))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,6 +15,7 @@ __all__ = [
     "DEFAULT_QOS",
     "Attachment",
     "Endpoint",
+    "attachment_bytes",
     "dds_type_name",
     "device_from_ros_name",
     "endpoint_token",
@@ -147,6 +148,14 @@ def gid_of(token: str) -> bytes:
     return hashlib.sha256(token.encode()).digest()[:16]
 
 
+_ATTACHMENT_HEAD = struct.Struct("<QqB")
+
+
+def attachment_bytes(seq: int, t_ns: int, gid: bytes) -> bytes:
+    """The attachment of one sample (see ``Attachment``), without making the record: for the publishing loop."""
+    return _ATTACHMENT_HEAD.pack(seq, t_ns, len(gid)) + gid
+
+
 @dataclasses.dataclass(frozen=True)
 class Attachment:
     """What rmw_zenoh attaches to every sample: the publisher's sequence number, the source time (ns since the
@@ -157,7 +166,7 @@ class Attachment:
     gid: bytes
 
     def to_bytes(self) -> bytes:
-        return struct.pack("<QqB", self.seq, self.t_ns, len(self.gid)) + self.gid
+        return attachment_bytes(self.seq, self.t_ns, self.gid)
 
     @classmethod
     def from_bytes(cls, data: bytes) -> Attachment:

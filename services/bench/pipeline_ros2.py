@@ -47,3 +47,80 @@ def compare_ros2(run: Callable[..., PipelineRun]) -> None:
         f"ROS 2 messages received by a subscriber: {counter.count:,}; load average {ros.load:.1f}",
         flush=True,
     )
+    build_us, total_us = publish_cost()
+    print(
+        f"the ROS 2 side alone (this process, drains of 50 devices x 10 samples, a subscriber in the process): "
+        f"{total_us:.1f} us CPU per message, of which {build_us:.1f} us building the CDR",
+        flush=True,
+    )
+
+
+def _drain(devices: int = 50, samples: int = 10, rate_hz: float = 50.0) -> tuple[Any, Any, Any]:
+    """A compass's drain: one batch of ``samples`` per device (simulated, with gyroscopes), computed; (columns,
+    headings, calibrations in force)."""
+    import numpy as np
+
+    from magnet import wire
+    from magnet.compass import Earth
+    from magnet.simulator import FleetSimulator
+    from services.compass.core import Compass
+
+    step = FleetSimulator(devices, rate_hz=rate_hz, seed=1, gyro=True).step(samples)
+    gyr = np.asarray(step.gyr_rads)
+    t_ns = 1_700_000_000_000_000_000 + np.arange(samples, dtype=np.int64) * int(1e9 / rate_hz)
+    batches = [
+        wire.RawBatch(f"dev-{d:03d}", 0, "sim", t_ns, step.mag_ut[d], step.acc_ms2[d], gyr_rads=gyr[d])
+        for d in range(devices)
+    ]
+    columns = wire.RawColumns.from_batches(batches)
+    compass = Compass(Earth(), 1)
+    compass.encode(columns)
+    return columns, compass.last, compass.calibrations
+
+
+def publish_cost(repeats: int = 20) -> tuple[float, float]:
+    """CPU us per ROS 2 message of the compass's ROS 2 side alone, in this process: (building the CDR, building
+    and putting), for drains of 50 devices x 10 samples, on a loopback session with a subscriber."""
+    import time
+
+    import zenoh
+
+    from magnet.ros2 import compass as ros_compass
+    from services.common.ros2_options import Ros2Settings
+    from services.common.zenoh_session import build_config, free_ports, loopback_arguments
+    from services.compass.ros2 import Ros2Compass
+
+    columns, out, calibrations = _drain()
+    messages = 2 * len(columns.t_ns) * repeats
+    started = time.process_time()
+    for _ in range(repeats):
+        h = out.headings
+        quat = ros_compass.attitude_wxyz(out.quat_wxyz, out.true_heading_deg, h.pitch_deg, h.roll_deg)
+        variances = [0.0] * len(columns.devices)
+        ros_compass.drain_messages(
+            columns.devices,
+            columns.bounds,
+            columns.t_ns,
+            h.field_ut,
+            columns.acc_ms2,
+            columns.gyr_rads,
+            quat,
+            variances,
+        )
+    build = time.process_time() - started
+    parser = __import__("argparse").ArgumentParser()
+    from services.common.zenoh_session import add_zenoh_arguments
+
+    add_zenoh_arguments(parser)
+    args = parser.parse_args(loopback_arguments(free_ports(1)[0]))
+    with zenoh.open(build_config(args)) as session:
+        counter = _Counter()
+        counter.attach(session)
+        ros = Ros2Compass(session, Ros2Settings(True), "bench", 1000)
+        ros.publish(columns, out, calibrations)  # the publishers declared
+        started = time.process_time()
+        for _ in range(repeats):
+            ros.publish(columns, out, calibrations)
+        total = time.process_time() - started
+        ros.close()
+    return 1e6 * build / messages, 1e6 * total / messages

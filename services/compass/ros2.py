@@ -41,12 +41,17 @@ class _Topic:
         self.key = names.topic_key(owner.domain, topic, ros_type, endpoint.type_hash)
         self.gid = names.gid_of(token)
         self.token = owner.session.liveliness().declare_token(token)
+        # a declared publisher: about half the CPU of session.put per message (measured), as rmw_zenoh does
+        self.publisher = owner.session.declare_publisher(self.key, encoding=CDR)
         self.seq = 0
 
-    def put(self, session: Any, payload: bytes, t_ns: int) -> None:
+    def put(self, payload: bytes, t_ns: int) -> None:
         self.seq += 1
-        attachment = names.Attachment(self.seq, t_ns, self.gid).to_bytes()
-        session.put(self.key, payload, encoding=CDR, attachment=attachment)
+        self.publisher.put(payload, attachment=names.attachment_bytes(self.seq, t_ns, self.gid))
+
+    def undeclare(self) -> None:
+        self.publisher.undeclare()
+        self.token.undeclare()
 
 
 class Ros2Compass:
@@ -79,7 +84,7 @@ class Ros2Compass:
             self.devices[device] = topics
             if len(self.devices) > self.max_devices:  # the least recently seen device leaves the graph
                 for topic in self.devices.popitem(last=False)[1]:
-                    topic.token.undeclare()
+                    topic.undeclare()
         else:
             self.devices.move_to_end(device)
         return topics
@@ -89,26 +94,30 @@ class Ros2Compass:
         them; ``calibrations``: the calibrations in force, for the field's covariance)."""
         h = out.headings
         quat = ros_compass.attitude_wxyz(out.quat_wxyz, out.true_heading_deg, h.pitch_deg, h.roll_deg)
+        cals = [calibrations.get(device) for device in columns.devices]
+        variances = [
+            ros_compass.field_variance_t2(c.calibration.quality.residual_rms_ut if c is not None else None)
+            for c in cals
+        ]
+        built = ros_compass.drain_messages(
+            columns.devices,
+            columns.bounds,
+            columns.t_ns,
+            h.field_ut,
+            columns.acc_ms2,
+            columns.gyr_rads,
+            quat,
+            variances,
+        )
+        times = columns.t_ns.tolist()
         bounds = columns.bounds
-        for i, device in enumerate(columns.devices):
-            rows = slice(bounds[i], bounds[i + 1])
-            cal = calibrations.get(device)
-            residual = cal.calibration.quality.residual_rms_ut if cal is not None else None
-            mag, imu = ros_compass.sample_messages(
-                device,
-                columns.t_ns[rows],
-                h.field_ut[rows],
-                columns.acc_ms2[rows],
-                columns.gyr_rads[rows],
-                quat[rows],
-                ros_compass.field_variance_t2(residual),
-            )
+        for i, (device, (mag, imu)) in enumerate(zip(columns.devices, built)):
             mag_topic, imu_topic = self._topics(device)
-            for t, m, u in zip(columns.t_ns[rows].tolist(), mag, imu):
-                mag_topic.put(self.session, m, t)
-                imu_topic.put(self.session, u, t)
+            for t, m, u in zip(times[bounds[i] : bounds[i + 1]], mag, imu):
+                mag_topic.put(m, t)
+                imu_topic.put(u, t)
             self.published += 2 * len(mag)
-            flags = np.asarray(h.flags[rows], dtype=np.int64)
+            flags = np.asarray(h.flags[bounds[i] : bounds[i + 1]], dtype=np.int64)
             self.disturbed[device] = float(np.mean((flags & _DISTURBED) != 0)) if len(flags) else 0.0
 
     def tick(self, calibrations: Any, open_alerts: list[Any]) -> None:
@@ -135,11 +144,11 @@ class Ros2Compass:
             )
             statuses.append(ros_compass.device_diagnostic(state))
         t_ns = time.time_ns()
-        self.diagnostics.put(self.session, messages.diagnostic_array_cdr(t_ns, statuses), t_ns)
+        self.diagnostics.put(messages.diagnostic_array_cdr(t_ns, statuses), t_ns)
 
     def close(self) -> None:
         for mag, imu in self.devices.values():
-            mag.token.undeclare()
-            imu.token.undeclare()
-        self.diagnostics.token.undeclare()
+            mag.undeclare()
+            imu.undeclare()
+        self.diagnostics.undeclare()
         self.node_token.undeclare()
