@@ -96,3 +96,12 @@ def test_edge_replay_reads_a_bag_at_its_recorded_pace(ck, tmp_path):
     recording = read_recording(tmp_path / "r" / "r.mcap", "/ck/mag")
     np.testing.assert_allclose(np.diff(recording.t_s), 0.01, atol=1e-6)  # the stamps' 100 Hz
     np.testing.assert_allclose(recording.mag_ut, mag_gauss[:20] * 100, rtol=1e-12)
+
+
+def test_record_refuses_messages_that_do_not_decode():
+    from magnet import wire
+    from services.commands.record import _rows
+
+    for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.CALIBRATION, wire.Kind.ALERT):
+        with pytest.raises(ValueError):
+            _rows(kind, b"\x93garbage", "/magnet")
