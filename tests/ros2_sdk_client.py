@@ -71,7 +71,10 @@ def _session(port: int) -> Any:
     from zenoh_ros2_sdk import ZenohSession
 
     session = ZenohSession.get_instance("127.0.0.1", port)
-    for name, text in dependencies("sensor_msgs/msg/Imu").items():  # the nested types, before the message types
+    nested: dict[str, str] = {}
+    for ros_type in ("sensor_msgs/msg/Imu", "sensor_msgs/msg/MagneticField", "diagnostic_msgs/msg/DiagnosticArray"):
+        nested.update(dependencies(ros_type))
+    for name, text in nested.items():  # the nested types, before the message types
         session.store.register(get_types_from_msg(text, name))
     return session
 

@@ -85,6 +85,7 @@ def test_a_ros2_peer_decodes_magnets_field_and_attitude_and_sees_its_topics(proc
         mags = sdk(comp_port, "subscribe", f"/magnet/{name}/mag", "sensor_msgs/msg/MagneticField", "20", "20")
         imus = sdk(comp_port, "subscribe", f"/magnet/{name}/imu", "sensor_msgs/msg/Imu", "20", "20")
         graph = dict(sdk(comp_port, "topics")[0])
+        diagnostics = sdk(comp_port, "subscribe", "/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "1", "15")
         wait_for(lambda: all(stamp_ns(m) in headings for m in mags + imus), 10, "the headings of those samples")
     finally:
         stop.set()
@@ -112,4 +113,7 @@ def test_a_ros2_peer_decodes_magnets_field_and_attitude_and_sees_its_topics(proc
     assert graph[f"/magnet/{name}/mag"] == ["sensor_msgs/msg/MagneticField"]
     assert graph[f"/magnet/{name}/imu"] == ["sensor_msgs/msg/Imu"]
     assert graph["/diagnostics"] == ["diagnostic_msgs/msg/DiagnosticArray"]
+    (status,) = diagnostics[0]["status"]  # one device, not calibrated (no calibrator here): WARN
+    assert status["hardware_id"] == DEVICE and status["level"] == 1 and "not calibrated" in status["message"]
+    assert {v["key"]: v["value"] for v in status["values"]}["calibrated"] == "false"
     assert procs.alive("compass"), procs.log("compass")[-2000:]
