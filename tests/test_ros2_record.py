@@ -1,6 +1,7 @@
 """``magnet record``: a recording of a running pipeline (raw samples, headings, calibrations) reads back with rosbags
-message by message, every message of the type its connection names, and the counts are the ones it reports; the
-raw field reads back through ``magnet fit``'s input as the samples the edge sent."""
+message by message, every message of the type its connection names, and the counts are the ones it reports;
+Foxglove's MCAP library decodes every message from the file's own schemas; the raw field reads back through
+``magnet fit``'s input."""
 
 from __future__ import annotations
 
@@ -59,6 +60,15 @@ def test_a_recording_reads_back_message_by_message(procs, tmp_path):
         assert topics[f"/magnet/{device}/raw/imu"] == "sensor_msgs/msg/Imu"
         assert topics[f"/magnet/{device}/mag"] == "sensor_msgs/msg/MagneticField"
         assert topics[f"/magnet/{device}/imu"] == "sensor_msgs/msg/Imu"
+    # Foxglove's own MCAP library decodes every message from the schemas in the file (ros2msg), without rosbags
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with out.open("rb") as f:
+        decoded = list(make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    assert len(decoded) == sum(counts.values())
+    assert {schema.encoding for schema, _, _, _ in decoded} == {"ros2msg"}
+    assert {channel.message_encoding for _, channel, _, _ in decoded} == {"cdr"}
     table = read_input(out, InputOptions(topic="/magnet/xrec_2d000/raw/mag"))
     assert table.acc is not None and "gx" in table.columns
     norms = np.linalg.norm(table.mag, axis=1)
