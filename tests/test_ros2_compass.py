@@ -51,12 +51,13 @@ def start_compass_and_fleet(procs, comp_port: int, edge_port: int) -> None:
     )
 
 
-def collect_headings(port: int, stop: threading.Event, into: dict[int, tuple]) -> None:
+def collect_headings(port: int, stop: threading.Event, into: dict[int, tuple], device: str = DEVICE) -> None:
+    """magnet's own heading messages of ``device``, by sample time: (field_ut, true heading, pitch, roll, quat)."""
     conf = zenoh.Config()
     conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     with zenoh.open(conf) as session:
-        sub = session.declare_subscriber(f"magnet/{DEVICE}/heading", zenoh.handlers.FifoChannel(4096))
+        sub = session.declare_subscriber(f"magnet/{device}/heading", zenoh.handlers.FifoChannel(4096))
         while not stop.is_set():
             sample = sub.try_recv()
             if sample is None:
