@@ -96,5 +96,5 @@ def test_a_ros2_robots_field_and_imu_become_calibrated_headings(procs, tmp_path)
     edge = wait_for(lambda: status(edge_port), 10, "the edge's status")
     causes = edge["reads"]["errors_by_cause"]
     assert causes.get("malformed-MagneticField", 0) == 5, causes
-    assert edge["reads"]["samples"] > 200
+    assert edge["reads"]["samples"] > 200 and edge["sensor"] == "ros2"
     assert procs.alive("edge") and procs.alive("compass") and procs.alive("calibrator")

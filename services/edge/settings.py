@@ -174,7 +174,7 @@ class EdgeSettings:
     def from_args(cls, args: argparse.Namespace) -> EdgeSettings:
         return cls(
             device=args.device,
-            sensor=args.sensor,
+            sensor="ros2" if getattr(args, "ros2", False) else args.sensor,
             rate_hz=float(args.rate),
             batch=int(args.batch),
             duration_s=args.duration,
