@@ -32,6 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-gyro", action="store_true", help="pipeline: devices without gyroscopes (accelerometer tilt, no fusion)"
     )
+    parser.add_argument(
+        "--ros2", action="store_true", help="pipeline: the compass's cost of also publishing ROS 2 messages, at --rate"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
             seconds=args.seconds,
             shards=args.shards,
             gyro=not args.no_gyro,
+            ros2=args.ros2,
         )
     elif args.benchmark == "dashboard":
         if args.devices < 1 or args.seconds <= 0:

@@ -28,6 +28,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import msgpack
@@ -60,6 +61,7 @@ class PipelineRun:
     shards: int = 1
     ceiling_rate: float | None = None  # Zenoh's samples/s on the same payloads
     load: float = 0.0  # the machine's 1-minute load average at the end of the run (other work competes for the CPU)
+    compass_cpu_s: float = 0.0  # CPU seconds (user + system) the compass process(es) used from the load's start
 
     @property
     def lost(self) -> int:
@@ -183,8 +185,11 @@ def run_once(
     shards: int = 1,
     gyro: bool = True,
     ceiling_rate: float | None = None,
+    compass_args: tuple[str, ...] = (),
+    on_session: Callable[[Any], None] | None = None,
 ) -> PipelineRun:
-    """One run: ``shards`` compass processes (``--shard K/N``), the edge connected to each, the measurer too."""
+    """One run: ``shards`` compass processes (``--shard K/N``, plus ``compass_args``), the edge connected to each,
+    the measurer too (``on_session`` is given its session before the load starts)."""
     import zenoh
 
     *compass_ports, measure_port = free_ports(shards + 1)
@@ -200,6 +205,7 @@ def run_once(
                 "--shard",
                 f"{k}/{shards}",
                 *loopback_arguments(port),
+                *compass_args,
             ],
             stdin=subprocess.DEVNULL,
         )
@@ -212,6 +218,9 @@ def run_once(
                 _wait_ready(session, f"magnet/@status/bench-compass-{k}")
             _calibrate(session, devices, shards)
             measurer = _Measurer(session.declare_subscriber("magnet/*/heading", zenoh.handlers.FifoChannel(1 << 20)))
+            if on_session is not None:
+                on_session(session)
+            cpu_before_s = sum(_cpu_s(c.pid) for c in compasses)
             edge = subprocess.Popen(
                 [
                     sys.executable,
@@ -234,6 +243,7 @@ def run_once(
             while (time.monotonic_ns() - measurer.last_ns) / 1e9 < DRAIN_S:
                 time.sleep(0.1)
             measurer.stop()
+            cpu_s = sum(_cpu_s(c.pid) for c in compasses) - cpu_before_s
     finally:
         procs: list[subprocess.Popen[Any] | None] = [edge, *compasses]
         for proc in procs:
@@ -255,11 +265,21 @@ def run_once(
         shards,
         ceiling_rate,
         os.getloadavg()[0],
+        cpu_s,
     )
 
 
+def _cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) a running process has used (Linux /proc; 0 elsewhere)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def run_pipeline_benchmark(
-    devices: int, rate: float, batch: int, seconds: float, shards: int = 2, gyro: bool = True
+    devices: int, rate: float, batch: int, seconds: float, shards: int = 2, gyro: bool = True, ros2: bool = False
 ) -> None:
     """Print the Zenoh ceiling on the same payloads, then one line per run: the given rate, then doubled rates until
     the compass falls behind, then BISECT_STEPS halvings of the gap between the best rate kept up with and the first
@@ -267,6 +287,11 @@ def run_pipeline_benchmark(
     with ``shards`` compasses."""
     if devices < 1 or rate <= 0 or batch < 1 or seconds <= 0 or shards < 1:
         raise ValueError("devices, rate, batch, seconds and shards must all be positive")
+    if ros2:  # only the cost of the ROS 2 side, at this rate (services.bench.pipeline_ros2)
+        from services.bench.pipeline_ros2 import compare_ros2
+
+        compare_ros2(functools.partial(run_once, devices, rate, batch, seconds, gyro=gyro))
+        return
     top = ceiling.measure(devices, batch, seconds, gyro)
     print(top.line(), flush=True)
     run = functools.partial(run_once, devices, batch=batch, seconds=seconds, gyro=gyro, ceiling_rate=top.sample_rate)

@@ -59,13 +59,22 @@ def _tlog(path: Path, options: InputOptions) -> SampleTable:
     return read_tlog(path, options)
 
 
-#: file suffix (lower case, with the dot) -> its reader
+def _rosbag(path: Path, options: InputOptions) -> SampleTable:
+    from services.common.rosbag_input import read_rosbag
+
+    return read_rosbag(path, options.topic)
+
+
+#: file suffix (lower case, with the dot) -> its reader; "/" for a directory (a rosbag2 bag)
 READERS: dict[str, Reader] = {
     ".csv": _csv,
     ".txt": _csv,
     ".ulg": _ulog,
     ".bin": _dataflash,
     ".tlog": _tlog,
+    ".mcap": _rosbag,
+    ".db3": _rosbag,
+    "/": _rosbag,
 }
 
 
@@ -80,7 +89,7 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
 def read_input(path: str | Path, options: InputOptions = InputOptions()) -> SampleTable:
     """The samples of the recording at ``path``, by its suffix (CSV when unknown); ValueError otherwise."""
     path = Path(path)
-    reader = READERS.get(path.suffix.lower(), _csv)
+    reader = READERS.get("/" if path.is_dir() else path.suffix.lower(), _csv)
     return reader(path, options)
 
 

@@ -112,6 +112,7 @@ class Compass(CalibrationsInForce):
         self.fusion = FleetFusion(max_devices=max_devices)
         self.received_batches = self.received_samples = self.published_batches = 0
         self._key_devices: dict[str, str] = {}
+        self.last: HeadingColumns | None = None  # the last drain's headings (for the ROS 2 side)
 
     def decode(self, items: list[tuple[str, bytes]], prefix: str) -> list[wire.RawBatch]:
         """Raw batches from (key, payload) pairs; malformed ones dropped and counted."""
@@ -211,7 +212,7 @@ class Compass(CalibrationsInForce):
 
     def encode(self, columns: wire.RawColumns) -> list[bytes]:
         """One heading payload per raw batch of ``columns``, in order."""
-        out = self.compute(columns)
+        out = self.last = self.compute(columns)
         h = out.headings
         return wire.encode_headings(
             columns,

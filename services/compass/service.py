@@ -28,6 +28,7 @@ from magnet.bounded import Recent
 from magnet.fleet import Places
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.compass.core import Compass, CompassStatus, HeadingColumns
+from services.compass.ros2 import Ros2Compass
 from services.compass.settings import (
     CompassSettings,
     add_arguments,
@@ -94,6 +95,8 @@ def run(settings: CompassSettings) -> int:
             compass.earth.declination_deg,
         )
         loop = _Loop(session, compass, settings)
+        if settings.ros2.enabled:
+            loop.ros2 = Ros2Compass(session, settings.ros2, name, settings.max_devices)
         gc.collect()
         gc.freeze()  # what exists now (modules, settings, places) lives as long as the process: never scanned again
         gc.set_threshold(GC_THRESHOLD, 20, 20)
@@ -105,6 +108,8 @@ def run(settings: CompassSettings) -> int:
             loop.alerts(alert_q)
             if not loop.headings(raw_sub):
                 time.sleep(IDLE_SLEEP_S)
+        if loop.ros2 is not None:
+            loop.ros2.close()
         token.undeclare()
     log.info("compass stopped: %s", compass.status(name).to_dict())
     return 0
@@ -120,6 +125,7 @@ class _Loop:
         self.asked = self.asked_refused = time.monotonic()
         self.pending: list[tuple[float, Any]] = [(self.asked + 3.0, self._ask(3.0))]
         self.drain_limit = MAX_DRAIN
+        self.ros2: Ros2Compass | None = None
 
     def _ask(self, timeout: float, devices: str | None = None) -> Any:
         return self.session.get(f"{self.prefix}/{devices or self.devices}/calibration", timeout=timeout)
@@ -168,6 +174,9 @@ class _Loop:
             )
             self.session.put(key, payload)  # measured: a declared publisher per device costs ~5x the CPU
             self.compass.published_batches += 1
+        if self.ros2 is not None and self.compass.last is not None:
+            self.ros2.publish(columns, self.compass.last, self.compass.calibrations)
+            self.ros2.tick(self.compass.calibrations, self.compass.watch.open_alerts())
         self._ask_missing(columns.devices)
         if columns.devices:
             batch = len(columns.t_ns) / len(columns.devices)

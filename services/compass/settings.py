@@ -13,6 +13,7 @@ from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.place import Location
 from magnet.shard import EVERY_DEVICE, Shard
 from services.common.fleet_options import add_drift_arguments, add_fleet_argument, drift_from_args, read_fleet
+from services.common.ros2_options import Ros2Settings, add_ros2_arguments
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 DEFAULT_MAX_DEVICES = 10_000
@@ -57,6 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_fleet_argument(parser)
     add_drift_arguments(parser)
+    add_ros2_arguments(parser, "also publish each device's field, attitude and diagnostics as ROS 2 topics (rmw_zenoh)")
     add_zenoh_arguments(parser)
 
 
@@ -75,6 +77,7 @@ class CompassSettings:
     places: tuple[Location | None, str | None, dict[str, Any]] = (None, None, {})  # default, date, fleet file
     drift: DriftSettings | None = DEFAULT_DRIFT
     shard: Shard = EVERY_DEVICE
+    ros2: Ros2Settings = Ros2Settings()
 
     def __post_init__(self) -> None:
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
@@ -94,6 +97,7 @@ def settings_from_args(args: argparse.Namespace) -> CompassSettings:
         places=(default, args.date, read_fleet(args.fleet)),
         drift=drift_from_args(args),
         shard=Shard.parse(args.shard),
+        ros2=Ros2Settings.from_args(args),
     )
 
 

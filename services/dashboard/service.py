@@ -41,6 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--refresh", type=float, default=0.25, help="seconds between updates of the page (default 0.25: 4 per second)"
     )
+    parser.add_argument(
+        "--foxglove",
+        metavar="HOST:PORT",
+        help="also serve the fleet to the Foxglove app over its WebSocket protocol here (e.g. 127.0.0.1:8765)",
+    )
     add_zenoh_arguments(parser)
 
 
@@ -102,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         ingest = Ingest(session, args.prefix, state, tick_s=args.refresh)
         thread = threading.Thread(target=ingest.run, name="dashboard-ingest", daemon=True)
         thread.start()
+        foxglove = _start_foxglove(session, args)
         app = create_app(
             state, Control(session, args.prefix), token, view_needs_token=not is_loopback(host), interval_s=args.refresh
         )
@@ -123,11 +129,26 @@ def run(args: argparse.Namespace) -> int:
         finally:
             ingest.stop.set()
             thread.join(timeout=5)
+            if foxglove is not None:
+                foxglove.stop.set()
             token_alive.undeclare()
     if not server.started:
         print(f"magnet dashboard: could not serve on {host}:{port} (is the port in use?)", file=sys.stderr)
         return 2
     return 0
+
+
+def _start_foxglove(session, args: argparse.Namespace):
+    """The Foxglove bridge in its own thread when ``--foxglove`` is given (``services.dashboard.foxglove``)."""
+    if not args.foxglove:
+        return None
+    from services.dashboard.foxglove import FoxgloveBridge
+
+    host, port = parse_http(args.foxglove)
+    bridge = FoxgloveBridge(session, args.prefix, host, port)
+    threading.Thread(target=bridge.run, name="dashboard-foxglove", daemon=True).start()
+    print(f"magnet dashboard: Foxglove WebSocket at ws://{host}:{bridge.port}", flush=True)
+    return bridge
 
 
 class _Server:

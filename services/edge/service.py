@@ -40,7 +40,7 @@ from magnet import wire
 from magnet.readloop import ReadStats
 from services.common.zenoh_session import open_session, stop_event
 from services.edge.settings import EdgeSettings, add_arguments
-from services.edge.sources import ChipSource, FleetSource, ReplaySource, make_source, stamp
+from services.edge.sources import ChipSource, FleetSource, make_source, stamp
 
 __all__ = ["EdgeSettings", "add_arguments", "run", "serve"]
 
@@ -219,7 +219,7 @@ def _period_s(source: Any, settings: EdgeSettings) -> float:
 
 def _batches(source: Any, period_s: float, done: Callable[[], bool]) -> Iterator[list[wire.RawBatch]]:
     """The source's batches as they are due, until ``done()`` (or the end of a replay)."""
-    if isinstance(source, ReplaySource):
+    if hasattr(source, "paced"):  # a replay or a ROS 2 source paces itself
         yield from source.paced(done)
         return
     for seq, end_ns in enumerate(_ticks(period_s, done)):
@@ -236,6 +236,8 @@ def serve(settings: EdgeSettings) -> int:
     stop = stop_event()
     with open_session(settings.zenoh) as session:
         declared = _declare(session, settings, status)
+        if hasattr(source, "attach"):  # a ROS 2 source subscribes on this session
+            source.attach(session)
         # one declared publisher, only to wait for a subscriber; data goes by session.put (measured: a declared
         # publisher per device costs several times the CPU at 10,000 messages/s)
         first_device = status.ids[0] if status.ids else settings.device

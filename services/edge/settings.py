@@ -11,6 +11,7 @@ from magnet.drivers import SENSORS, has_gyroscope
 from magnet.place import Location
 from magnet.replay import MAX_SPEED
 from services.common import sim_options
+from services.common.ros2_options import Ros2Settings, add_ros2_arguments
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 SIMULATOR_SENSOR = "sim"
@@ -72,6 +73,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--speed", type=float, default=1.0, help="with --replay: play this many times faster than recorded (default 1)"
     )
     add_mavlink_arguments(parser)
+    add_ros2_arguments(parser, "read a ROS 2 robot's MagneticField (and Imu) topics over rmw_zenoh (--mag-topic)")
+    parser.add_argument(
+        "--mag-topic", help="with --ros2, or --replay of a ROS 2 recording: the sensor_msgs/msg/MagneticField topic"
+    )
+    parser.add_argument(
+        "--mag",
+        type=int,
+        metavar="N",
+        dest="mag_instance",
+        help="with --replay of a flight log: the magnetometer instance",
+    )
+    parser.add_argument("--imu-topic", help="with --ros2: the sensor_msgs/msg/Imu topic (acceleration, rates)")
     add_zenoh_arguments(parser)
 
 
@@ -122,6 +135,10 @@ class EdgeSettings:
     baud: int = 57600
     device_prefix: str = "mav"
     vehicle_timeout_s: float = 3.0
+    ros2: Ros2Settings = Ros2Settings()
+    mag_topic: str | None = None
+    imu_topic: str | None = None
+    mag_instance: int | None = None
 
     def __post_init__(self) -> None:
         wire.validate_device_id(self.device)
@@ -145,6 +162,12 @@ class EdgeSettings:
         if self.mavlink is not None:
             self._check_mavlink()
             return
+        if self.ros2.enabled:
+            if not self.mag_topic or self.emulate or self.replay or self.bus is not None:
+                raise ValueError("a ROS 2 source needs --ros2 and --mag-topic, and no --emulate, --replay or --bus")
+            return
+        if self.imu_topic or (self.mag_topic and self.replay is None):
+            raise ValueError("--mag-topic and --imu-topic need --ros2 (or --mag-topic: the topic of a --replay bag)")
         if self.replay is not None:
             if self.emulate or self.devices or self.bus is not None:
                 raise ValueError("--replay plays a recording: it takes no --emulate, --devices or --bus")
@@ -198,7 +221,7 @@ class EdgeSettings:
     def from_args(cls, args: argparse.Namespace) -> EdgeSettings:
         return cls(
             device=args.device,
-            sensor=args.sensor,
+            sensor="ros2" if getattr(args, "ros2", False) else args.sensor,
             rate_hz=float(args.rate),
             batch=int(args.batch),
             duration_s=args.duration,
@@ -220,6 +243,10 @@ class EdgeSettings:
             baud=int(getattr(args, "baud", 57600)),
             device_prefix=getattr(args, "device_prefix", "mav"),
             vehicle_timeout_s=float(getattr(args, "vehicle_timeout", 3.0)),
+            ros2=Ros2Settings.from_args(args),
+            mag_topic=args.mag_topic,
+            imu_topic=args.imu_topic,
+            mag_instance=args.mag_instance,
         )
 
 

@@ -27,7 +27,7 @@ from magnet.emulators import FaultInjector, emulator_for
 from magnet.readloop import Backoff, ReadLoop, ReadStats
 from magnet.replay import Recording, paced_slices
 from magnet.simulator import FleetSimulator
-from services.common.inputs import read_input
+from services.common.inputs import InputOptions, read_input
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
 
 #: the edge's read loop: waits 10 ms, 20 ms, ... up to 1 s between failed reads; unhealthy after 3 in a row
@@ -172,10 +172,11 @@ class ChipSource:
         ]
 
 
-def read_recording(path: Path) -> Recording:
+def read_recording(path: Path, topic: str | None = None, mag: int | None = None) -> Recording:
     """The recording in a ``magnet sample`` CSV: t_s (s), mx,my,mz (uT), optional ax,ay,az (m/s^2) and gx,gy,gz
-    (rad/s); ValueError naming the file and what is wrong."""
-    table = read_input(path)
+    (rad/s), or a flight log or ROS 2 recording (``services.common.inputs``: ``mag`` the magnetometer instance of a
+    flight log, ``topic`` the MagneticField topic of a bag); ValueError naming the file and what is wrong."""
+    table = read_input(path, InputOptions(mag=mag, topic=topic))
     if "t_s" not in table.columns:
         raise ValueError(
             f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as magnet sample writes it"
@@ -197,7 +198,7 @@ class ReplaySource:
     def __init__(self, settings: EdgeSettings) -> None:
         if settings.replay is None:
             raise ValueError("a replay needs --replay FILE.csv")
-        self.recording = read_recording(settings.replay)
+        self.recording = read_recording(settings.replay, settings.mag_topic, settings.mag_instance)
         self.settings = settings
         self.ids = [settings.device]
 
@@ -230,6 +231,10 @@ def make_source(settings: EdgeSettings, on_health: Callable[[bool, str], None] |
         return MavlinkSource(settings, on_health)
     if settings.replay is not None:
         return ReplaySource(settings)
+    if settings.ros2.enabled:
+        from services.edge.ros2_source import Ros2Source
+
+        return Ros2Source(settings)
     if settings.devices:
         return FleetSource(settings)
     if settings.emulate and settings.sensor == SIMULATOR_SENSOR:

@@ -1,0 +1,127 @@
+"""What the compass says on ROS 2, from its own arrays (pure): per sample a MagneticField and an Imu, per device a
+diagnostic status. The frames are converted here, once, by ``magnet.ros2.frames.to_ros``."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from magnet.attitude import euler_to_quaternion
+from magnet.ros2 import messages
+from magnet.ros2.cdr import stamped_doubles_cdr
+from magnet.ros2.frames import TESLA_PER_UT, to_ros
+from magnet.ros2.names import ros_name_of_device
+
+__all__ = [
+    "DeviceState",
+    "attitude_wxyz",
+    "device_diagnostic",
+    "drain_messages",
+    "field_variance_t2",
+    "sample_messages",
+]
+
+
+def attitude_wxyz(
+    quat_wxyz: np.ndarray | None, true_heading_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray
+) -> np.ndarray:
+    """(S, 4) body FRD -> NED (true north): the fused quaternion where there is one, else the one of (true heading,
+    pitch, roll); NaN rows where neither is known."""
+    euler = euler_to_quaternion(true_heading_deg, pitch_deg, roll_deg)
+    if quat_wxyz is None:
+        return euler
+    fused = np.isfinite(quat_wxyz).all(axis=1)
+    return np.where(fused[:, None], quat_wxyz, euler)
+
+
+def field_variance_t2(residual_rms_ut: float | None) -> float:
+    """The per-axis variance (T^2) of the calibrated field: the calibration's residual RMS (uT) squared; 0 (unknown)
+    without a calibration or a residual."""
+    if residual_rms_ut is None or not np.isfinite(residual_rms_ut) or residual_rms_ut <= 0:
+        return 0.0
+    return float((residual_rms_ut * TESLA_PER_UT) ** 2)
+
+
+def sample_messages(
+    device: str,
+    t_ns: np.ndarray,
+    field_ut: np.ndarray,
+    acc_ms2: np.ndarray,
+    gyr_rads: np.ndarray,
+    quat_wxyz: np.ndarray,
+    variance_t2: float,
+) -> tuple[list[bytes], list[bytes]]:
+    """(MagneticField CDR, Imu CDR) per sample of one device: ``drain_messages`` of one batch."""
+    return drain_messages([device], [0, len(t_ns)], t_ns, field_ut, acc_ms2, gyr_rads, quat_wxyz, [variance_t2])[0]
+
+
+def drain_messages(
+    devices: Sequence[str],
+    bounds: Sequence[int],
+    t_ns: np.ndarray,
+    field_ut: np.ndarray,
+    acc_ms2: np.ndarray,
+    gyr_rads: np.ndarray,
+    quat_wxyz: np.ndarray,
+    variances_t2: Sequence[float],
+) -> list[tuple[list[bytes], list[bytes]]]:
+    """Per batch (device ``devices[i]``, rows ``bounds[i]:bounds[i+1]``): (MagneticField CDR, Imu CDR) per sample.
+    t_ns (S,), field_ut (S, 3) calibrated uT FRD, acc_ms2 and gyr_rads (S, 3) FRD with NaN rows where the device
+    has none, quat_wxyz (S, 4) body FRD -> NED (NaN rows: unknown), one field variance (T^2) per batch. frame_id:
+    the device's ROS name. The frames are converted once for the whole drain."""
+    ros = to_ros(field_ut, acc_ms2, gyr_rads, quat_wxyz)
+    counts = np.diff(np.asarray(bounds, dtype=np.int64)).astype(np.int64)
+    mag = messages.magnetic_field_values(ros.field_t, np.repeat(np.asarray(variances_t2, dtype=float), counts))
+    imu = messages.imu_values(ros.quat_xyzw, ros.gyr_rads, ros.acc_ms2, len(t_ns))
+    out = []
+    for i, device in enumerate(devices):
+        lo, hi, frame = bounds[i], bounds[i + 1], ros_name_of_device(device)
+        out.append(
+            (
+                stamped_doubles_cdr(t_ns[lo:hi], frame, mag[lo:hi]),
+                stamped_doubles_cdr(t_ns[lo:hi], frame, imu[lo:hi]),
+            )
+        )
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceState:
+    """What ``/diagnostics`` says of one device: its calibration (id, method, residual in uT, accepted) or none, the
+    kinds of its open drift alerts, and the share of its last samples flagged disturbed."""
+
+    device: str
+    calibration_id: str = ""
+    method: str = ""
+    residual_rms_ut: float | None = None
+    coverage: float | None = None
+    alerts: tuple[str, ...] = ()
+    disturbed_share: float = 0.0
+
+
+def device_diagnostic(state: DeviceState) -> messages.DeviceDiagnostic:
+    """OK: calibrated, no alert, field undisturbed; WARN: not calibrated, or over half the last samples disturbed;
+    ERROR: a drift alert is open."""
+    problems, level = [], 0
+    if not state.calibration_id:
+        problems.append("not calibrated")
+        level = 1
+    if state.disturbed_share > 0.5:
+        problems.append(f"field disturbed in {state.disturbed_share:.0%} of samples")
+        level = 1
+    if state.alerts:
+        problems.append("drift: " + ", ".join(state.alerts))
+        level = 2
+    values = [
+        ("calibrated", str(bool(state.calibration_id)).lower()),
+        ("calibration_id", state.calibration_id),
+        ("method", state.method),
+        ("residual_rms_ut", "" if state.residual_rms_ut is None else f"{state.residual_rms_ut:.4g}"),
+        ("coverage", "" if state.coverage is None else f"{state.coverage:.3g}"),
+        ("alerts", ",".join(state.alerts)),
+        ("disturbed_share", f"{state.disturbed_share:.3g}"),
+    ]
+    message = "; ".join(problems) if problems else "calibrated, no alerts"
+    return messages.DeviceDiagnostic(state.device, level, message, tuple(values))

@@ -1,0 +1,122 @@
+"""``magnet record --out FILE.mcap [--devices KEYEXPR] [--seconds N]``: record the fleet's raw samples, headings,
+calibrations and alerts as ROS 2 messages with their schemas, in a rosbag2 (rosbags' writer, MCAP storage), so
+Foxglove and ``ros2 bag`` open it and ``magnet fit/heading/report/edge --replay --topic`` read it back.
+
+``--out NAME.mcap`` leaves one MCAP file; any other name leaves a rosbag2 directory (``metadata.yaml`` and the
+``.mcap``). The topics are listed in ``magnet.ros2.recording``. The calibrations in force when it starts are asked
+for and recorded first. Messages that do not decode are skipped and counted; the summary line says how many of each
+were written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import shutil
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from magnet import wire
+from magnet.ros2 import messages, recording
+from magnet.ros2.names import DEFAULT_NAMESPACE, validate_namespace
+from services.common.zenoh_session import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
+
+log = logging.getLogger("magnet.record")
+
+KINDS = (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.CALIBRATION, wire.Kind.ALERT)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, type=Path, help="FILE.mcap (one file) or DIR (a rosbag2 directory)")
+    parser.add_argument("--devices", default="*", help="key expression of the devices to record (default *, all)")
+    parser.add_argument("--seconds", type=float, help="stop after this many seconds (default: at Ctrl-C)")
+    parser.add_argument("--ros-namespace", default=DEFAULT_NAMESPACE, help="namespace of the topics (default /magnet)")
+    add_zenoh_arguments(parser)
+
+
+class _Bag:
+    """A rosbag2 being written: one connection per topic, made when the topic first appears."""
+
+    def __init__(self, path: Path) -> None:
+        self.writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.writer.open()
+        self.connections: dict[str, Any] = {}
+        self.written: Counter[str] = Counter()
+
+    def write(self, rows: list[recording.Row]) -> None:
+        for topic, ros_type, t_ns, data in rows:
+            conn = self.connections.get(topic)
+            if conn is None:
+                conn = self.connections[topic] = self.writer.add_connection(topic, ros_type, typestore=messages.STORE)
+            self.writer.write(conn, t_ns, data)
+            self.written[ros_type] += 1
+
+
+def _rows(kind: wire.Kind, payload: bytes, namespace: str) -> list[recording.Row]:
+    """The recording rows of one message; ValueError (WireError) for one that does not decode."""
+    if kind is wire.Kind.RAW:
+        return recording.raw_rows(wire.decode_raw(payload, with_truth=False), namespace)
+    if kind is wire.Kind.HEADING:
+        return recording.heading_rows(wire.decode_heading(payload), namespace)
+    now = time.time_ns()
+    if kind is wire.Kind.CALIBRATION:
+        return recording.calibration_rows(wire.decode_calibration(payload).to_record(), now, namespace)
+    message = wire.unpack(payload)
+    if not isinstance(message, dict) or not isinstance(message.get("device"), str):
+        raise ValueError("an alert message must be a map with a device")
+    return recording.alert_rows(message, now, namespace)
+
+
+def _record(args: argparse.Namespace, bag: _Bag, stop: Any) -> Counter[str]:
+    dropped: Counter[str] = Counter()
+    deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    with open_session(args) as session:
+        subs = {k: session.declare_subscriber(f"{args.prefix}/{args.devices}/{k.value}") for k in KINDS}
+        asked = session.get(f"{args.prefix}/{args.devices}/calibration", timeout=3.0)
+        pending = [(wire.Kind.CALIBRATION, payload_bytes(r.ok)) for r in drain(asked, 10_000) if r.ok is not None]
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            for kind, sub in subs.items():
+                pending += [(kind, payload_bytes(s)) for s in drain(sub, 10_000)]
+            for kind, payload in pending:
+                try:
+                    bag.write(_rows(kind, payload, args.ros_namespace))
+                except ValueError as exc:
+                    if not dropped[kind.value]:
+                        log.warning(
+                            "skipping %s messages that do not decode (%s); further ones only counted", kind, exc
+                        )
+                    dropped[kind.value] += 1
+            if not pending:
+                time.sleep(0.005)
+            pending = []
+    return dropped
+
+
+def run(args: argparse.Namespace) -> int:
+    out: Path = args.out
+    try:
+        validate_namespace(args.ros_namespace)
+        if args.seconds is not None and not args.seconds > 0:
+            raise ValueError(f"--seconds must be > 0, got {args.seconds}")
+        if out.exists():
+            raise ValueError(f"{out} exists: give a new name")
+    except ValueError as exc:
+        print(f"magnet record: error: {exc}")
+        return 2
+    single = out.suffix.lower() == ".mcap"
+    directory = out.with_name(out.name + ".bag") if single else out
+    bag = _Bag(directory)
+    try:
+        dropped = _record(args, bag, stop_event())
+    finally:
+        bag.writer.close()
+    if single:
+        (directory / f"{directory.name}.mcap").rename(out)
+        shutil.rmtree(directory)
+    print(json.dumps({"out": str(out), "written": dict(bag.written), "dropped": dict(dropped)}), flush=True)
+    return 0

@@ -1,0 +1,154 @@
+"""``magnet compass --ros2``: the compass as a ROS 2 node on rmw_zenoh's own keys, beside its magnet messages.
+
+Per device: ``sensor_msgs/msg/MagneticField`` on ``<NS>/<device>/mag`` and ``sensor_msgs/msg/Imu`` on
+``<NS>/<device>/imu``, one message per sample; every second a ``diagnostic_msgs/msg/DiagnosticArray`` on
+``/diagnostics``. A node token and one publisher token per topic make them appear in the ROS 2 graph. The messages
+are built in ``magnet.ros2`` (frames, names, CDR); this module puts them. See ``docs/ros2.md``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from magnet import wire
+from magnet.bounded import Recent
+from magnet.heading import HeadingFlag
+from magnet.ros2 import compass as ros_compass
+from magnet.ros2 import messages, names
+from services.common.ros2_options import Ros2Settings
+
+log = logging.getLogger("magnet.compass.ros2")
+
+DIAGNOSTICS_PERIOD_S = 1.0
+DIAGNOSTICS_TOPIC = "/diagnostics"
+CDR = zenoh.Encoding("application/cdr")
+_DISTURBED = int(HeadingFlag.FIELD_DISTURBED | HeadingFlag.DIP_DISTURBED)
+
+
+class _Topic:
+    """One ROS 2 publisher: its key, liveliness token, GID and sequence number."""
+
+    def __init__(self, owner: Ros2Compass, topic: str, ros_type: str) -> None:
+        owner.entities += 1
+        endpoint = names.Endpoint("MP", topic, ros_type, messages.type_hash(ros_type), owner.entities)
+        token = names.endpoint_token(owner.domain, owner.zid, 0, owner.namespace, owner.node, endpoint)
+        self.key = names.topic_key(owner.domain, topic, ros_type, endpoint.type_hash)
+        self.gid = names.gid_of(token)
+        self.token = owner.session.liveliness().declare_token(token)
+        # a declared publisher: about half the CPU of session.put per message (measured), as rmw_zenoh does
+        self.publisher = owner.session.declare_publisher(self.key, encoding=CDR)
+        self.seq = 0
+
+    def put(self, payload: bytes, t_ns: int) -> None:
+        self.seq += 1
+        self.publisher.put(payload, attachment=names.attachment_bytes(self.seq, t_ns, self.gid))
+
+    def undeclare(self) -> None:
+        self.publisher.undeclare()
+        self.token.undeclare()
+
+
+class Ros2Compass:
+    """The ROS 2 side of one compass: a node ``<name>`` in ``--ros-namespace``, its publishers made per device as
+    devices appear (at most ``max_devices``), the diagnostics every second."""
+
+    def __init__(self, session: Any, settings: Ros2Settings, name: str, max_devices: int) -> None:
+        self.session, self.domain, self.namespace = session, settings.domain, settings.namespace
+        self.node = names.ros_name_of_device(name)
+        self.zid = str(session.info.zid())
+        self.entities = 0
+        self.node_token = session.liveliness().declare_token(
+            names.node_token(self.domain, self.zid, 0, self.namespace, self.node)
+        )
+        self.max_devices = max_devices
+        self.devices: OrderedDict[str, tuple[_Topic, _Topic]] = OrderedDict()
+        self.disturbed: Recent[str, float] = Recent(max_devices)
+        self.diagnostics = _Topic(self, DIAGNOSTICS_TOPIC, messages.DIAGNOSTIC_ARRAY)
+        self.next_diagnostics = time.monotonic() + DIAGNOSTICS_PERIOD_S
+        self.published = 0
+        log.info("ROS 2: node %s/%s in domain %d (rmw_zenoh keys)", self.namespace, self.node, self.domain)
+
+    def _topics(self, device: str) -> tuple[_Topic, _Topic]:
+        topics = self.devices.get(device)
+        if topics is None:
+            topics = (
+                _Topic(self, names.topic_name(self.namespace, device, "mag"), messages.MAGNETIC_FIELD),
+                _Topic(self, names.topic_name(self.namespace, device, "imu"), messages.IMU),
+            )
+            self.devices[device] = topics
+            if len(self.devices) > self.max_devices:  # the least recently seen device leaves the graph
+                for topic in self.devices.popitem(last=False)[1]:
+                    topic.undeclare()
+        else:
+            self.devices.move_to_end(device)
+        return topics
+
+    def publish(self, columns: wire.RawColumns, out: Any, calibrations: Any) -> None:
+        """Put a MagneticField and an Imu per sample of ``columns`` (``out``: the compass's ``HeadingColumns`` of
+        them; ``calibrations``: the calibrations in force, for the field's covariance)."""
+        h = out.headings
+        quat = ros_compass.attitude_wxyz(out.quat_wxyz, out.true_heading_deg, h.pitch_deg, h.roll_deg)
+        cals = [calibrations.get(device) for device in columns.devices]
+        variances = [
+            ros_compass.field_variance_t2(c.calibration.quality.residual_rms_ut if c is not None else None)
+            for c in cals
+        ]
+        built = ros_compass.drain_messages(
+            columns.devices,
+            columns.bounds,
+            columns.t_ns,
+            h.field_ut,
+            columns.acc_ms2,
+            columns.gyr_rads,
+            quat,
+            variances,
+        )
+        times = columns.t_ns.tolist()
+        bounds = columns.bounds
+        for i, (device, (mag, imu)) in enumerate(zip(columns.devices, built)):
+            mag_topic, imu_topic = self._topics(device)
+            for t, m, u in zip(times[bounds[i] : bounds[i + 1]], mag, imu):
+                mag_topic.put(m, t)
+                imu_topic.put(u, t)
+            self.published += 2 * len(mag)
+            flags = np.asarray(h.flags[bounds[i] : bounds[i + 1]], dtype=np.int64)
+            self.disturbed[device] = float(np.mean((flags & _DISTURBED) != 0)) if len(flags) else 0.0
+
+    def tick(self, calibrations: Any, open_alerts: list[Any]) -> None:
+        """Publish the diagnostics when their period has passed."""
+        now = time.monotonic()
+        if now < self.next_diagnostics or not len(self.disturbed):
+            return
+        self.next_diagnostics = now + DIAGNOSTICS_PERIOD_S
+        alerts: dict[str, list[str]] = {}
+        for alert in open_alerts:
+            alerts.setdefault(alert.device, []).append(alert.kind.value)
+        statuses = []
+        for device in list(self.disturbed):
+            cal = calibrations.get(device)
+            quality = cal.calibration.quality if cal is not None else None
+            state = ros_compass.DeviceState(
+                device,
+                cal.id if cal is not None else "",
+                cal.calibration.method if cal is not None else "",
+                quality.residual_rms_ut if quality is not None else None,
+                quality.coverage if quality is not None else None,
+                tuple(alerts.get(device, ())),
+                self.disturbed.get(device) or 0.0,
+            )
+            statuses.append(ros_compass.device_diagnostic(state))
+        t_ns = time.time_ns()
+        self.diagnostics.put(messages.diagnostic_array_cdr(t_ns, statuses), t_ns)
+
+    def close(self) -> None:
+        for mag, imu in self.devices.values():
+            mag.undeclare()
+            imu.undeclare()
+        self.diagnostics.undeclare()
+        self.node_token.undeclare()
