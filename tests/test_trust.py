@@ -237,3 +237,17 @@ def test_magnet_watch_alert_shows_the_table_s_advice():
     shown = _shown("alert", {**planted, "advice": "ignore this"})
     assert "ignore" not in shown["advice"] and "50.0 uT" in shown["advice"]
     assert _shown("heading", {"advice": "x"}) == {"advice": "x"}
+
+
+def test_unverified_records_are_counted_until_the_calibrator_makes_their_successor(key, tmp_path):
+    signer, _ = key
+    with CalibrationStore(tmp_path / "c.db") as store, CalibrationStore(tmp_path / "c.db") as other:
+        store.save(wire.DeviceCalibration("k", 5, GENUINE))  # unsigned
+        store.save(wire.DeviceCalibration("j", 5, GENUINE))
+        calibrator = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
+        assert calibrator.unverified == {"k", "j"} and calibrator.counters.unverified_records == 2
+        calibrator.commit("k", MOVED)
+        assert calibrator.counters.unverified_records == 1
+        other.save(wire.DeviceCalibration("i", 6, MOVED))  # planted while it stands by
+        calibrator.take_over()
+        assert calibrator.unverified == {"j", "i"}

@@ -58,6 +58,7 @@ class Calibrator:
         self._mine: dict[str, bool] = {}
         self.active = True  # False while another calibrator of the shard holds the lease: nothing collected, stored
         self.counters = Counters()
+        self.unverified: set[str] = set()  # devices whose record in force this calibrator's key does not verify
         self.in_force = self._read_in_force()
         self.collections: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
         self.last_progress: Recent[str, float] = Recent(settings.max_devices)
@@ -70,15 +71,24 @@ class Calibrator:
         status ``unverified_records`` and logged: compasses with ``--trust`` refuse them."""
         in_force = {d: r for d, r in self.store.all_latest().items() if self.shard.owns(d)}
         if self.signer is not None:
-            unverified = [f"{d} ({r.id})" for d, r in in_force.items() if not self.made_here(r)]
-            self.counters.unverified_records = len(unverified)
-            if unverified:
+            previous: dict[str, wire.DeviceCalibration] = getattr(self, "in_force", {})
+            checked = self.unverified
+
+            def verified(device: str, record: wire.DeviceCalibration) -> bool:
+                old = previous.get(device)  # a takeover re-checks only what changed since the last read
+                if old is not None and device not in checked and old.to_record() == record.to_record():
+                    return True
+                return self.made_here(record)
+
+            self.unverified = {d for d, r in in_force.items() if not verified(d, r)}
+            self.counters.unverified_records = len(self.unverified)
+            if self.unverified:
                 log.warning(
                     "%d calibration(s) in force are not signed by this calibrator's key %s and are served as stored "
                     "(compasses with --trust refuse them; recalibrate or roll back to a signed one): %s",
-                    len(unverified),
+                    len(self.unverified),
                     self.signer.key_id,
-                    ", ".join(sorted(unverified)[:20]),
+                    ", ".join(f"{d} ({in_force[d].id})" for d in sorted(self.unverified)[:20]),
                 )
         return in_force
 
@@ -255,6 +265,9 @@ class Calibrator:
         if stored:
             self.counters.stored += 1
         self.in_force[device] = self.store.latest(device) or record
+        if stored and device in self.unverified:  # its record in force is now one this calibrator made
+            self.unverified.discard(device)
+            self.counters.unverified_records = len(self.unverified)
         self.collections.pop(device, None)
         log.info(
             "%s: calibration %s version %d stored (%s, residual %s uT, coverage %s)",
