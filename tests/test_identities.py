@@ -72,7 +72,11 @@ def test_add_needs_the_site_and_keeps_what_is_there(tmp_path: Path, capsys):
     ca, cert = (site / "ca.crt").read_bytes(), (site / "edge-a.crt").read_bytes()
     assert main(["certs", "--out", str(site), "--add", "--edge", "a=d1,d2", "--edge", "b=d3"]) == 0
     assert (site / "ca.crt").read_bytes() == ca and (site / "edge-a.crt").read_bytes() == cert
-    assert json.loads((site / "site.json").read_text()) == {"edges": {"a": ["d1", "d2"], "b": ["d3"]}, "shards": 2}
+    saved = json.loads((site / "site.json").read_text())
+    assert saved["edges"] == {"a": ["d1", "d2"], "b": ["d3"]} and saved["shards"] == 2
     router = (site / "router.json5").read_text()
     assert "magnet/d2/raw" in router and "edge-b-certificate" in router and "calibrator-1-2" in router
     assert main(["certs", "--out", str(site), "--edge", "c=d4"]) == 2, "without --add nothing is overwritten"
+    moved = ["certs", "--out", str(site), "--add", "--listen", "tls/10.0.0.5:7447", "--edge", "c=d4"]
+    assert main(moved) == 2
+    assert "made with --listen tls/127.0.0.1:7447" in capsys.readouterr().err, "the same listeners, or nothing"

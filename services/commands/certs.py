@@ -18,12 +18,14 @@ shard's lease. ``--add`` works on an existing DIR: the CA there signs what is mi
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import os
 import secrets
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from services.security import acl, identities, pki
 
@@ -97,24 +99,40 @@ def _targets(out: Path, roles: Sequence[str], password: bool) -> list[Path]:
 
 
 def _site(args: argparse.Namespace, out: Path) -> acl.Site:
-    """The site from the options; with ``--add``, the edges and shards of ``site.json`` joined by those given."""
+    """The site from the options; with ``--add``, the edges and shards of ``site.json`` joined by those given (and
+    the listeners and prefix it was made with, which must be given again the same)."""
     if not 1 <= args.days <= 10_000:
         raise ValueError(f"--days must be 1..10000, got {args.days}")
     given = [identities.parse_edge(text) for text in args.edge or ()]
-    known: list[identities.EdgeIdentity] = []
-    shards = args.shards or 0
-    if args.add:
-        missing = [name for name in ("ca.crt", "ca.key") if not (out / name).exists()]
-        if missing:
-            raise ValueError(f"--add needs the site made before in {out}: {', '.join(missing)} not found")
-        if (out / SITE).exists():
-            saved = json.loads((out / SITE).read_text())
-            if not isinstance(saved, dict):
-                raise ValueError(f"{out / SITE} is not a map: move it aside")
-            known = identities.edges_from_json(saved.get("edges", {}))
-            shards = args.shards if args.shards is not None else int(saved.get("shards", 0))
-    edges = tuple(identities.merge_edges(known, given))
-    return acl.Site(args.listen, args.password_listen, (args.files or out).absolute(), args.prefix, edges, shards)
+    site = acl.Site(
+        args.listen, args.password_listen, (args.files or out).absolute(), args.prefix, (), args.shards or 0
+    )
+    saved = _saved(out) if args.add else {}
+    for name, value in _listeners(site).items():
+        if name in saved and saved[name] != value:
+            raise ValueError(
+                f"--add: the site in {out} was made with {name} {saved[name]}, not {value}: give the same options"
+            )
+    known = identities.edges_from_json(saved.get("edges", {}))
+    shards = site.shards if args.shards is not None else int(saved.get("shards", 0))
+    return dataclasses.replace(site, edges=tuple(identities.merge_edges(known, given)), shards=shards)
+
+
+def _saved(out: Path) -> dict[str, Any]:
+    """What ``site.json`` in ``out`` says of the site (empty for a site made before it); ValueError without a CA."""
+    missing = [name for name in ("ca.crt", "ca.key") if not (out / name).exists()]
+    if missing:
+        raise ValueError(f"--add needs the site made before in {out}: {', '.join(missing)} not found")
+    if not (out / SITE).exists():
+        return {}
+    saved = json.loads((out / SITE).read_text())
+    if not isinstance(saved, dict):
+        raise ValueError(f"{out / SITE} is not a map: move it aside")
+    return saved
+
+
+def _listeners(site: acl.Site) -> dict[str, Any]:
+    return {"--listen": site.listen, "--password-listen": site.password_listen, "--prefix": site.prefix}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -139,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
             pki.write_issued(out, role, issued)
             made.append(role)
     passwords = _passwords(out, roles) if args.password_listen else {}
-    saved = {"edges": identities.edges_to_json(site.edges), "shards": site.shards}
+    saved = {"edges": identities.edges_to_json(site.edges), "shards": site.shards, **_listeners(site)}
     _replace(out / SITE, json.dumps(saved, indent=2) + "\n", pki.PUBLIC_MODE)
     _write_configs(out, site, roles, passwords)
     print(
