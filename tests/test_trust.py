@@ -251,3 +251,15 @@ def test_unverified_records_are_counted_until_the_calibrator_makes_their_success
         other.save(wire.DeviceCalibration("i", 6, MOVED))  # planted while it stands by
         calibrator.take_over()
         assert calibrator.unverified == {"j", "i"}
+
+
+def test_the_count_goes_on_above_the_record_in_force_whatever_the_version_column_says(key, tmp_path):
+    signer, _ = key
+    with CalibrationStore(tmp_path / "c.db") as store:
+        planted = wire.DeviceCalibration("k", 5, GENUINE, version=40).to_record()
+        store._db.execute(  # a row whose version column disagrees with its record
+            "INSERT INTO calibrations (device, id, created_ns, record, version) VALUES ('k', ?, 5, ?, 0)",
+            (planted["id"], json.dumps(planted)),
+        )
+        calibrator = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
+        assert calibrator.commit("k", MOVED).version == 41

@@ -260,7 +260,10 @@ class Calibrator:
             "from_id": previous.id if previous else None,
         }
         record, stored = self.store.append(
-            device, lambda version: self._new_record(device, created_ns, calibration, version), change
+            device,
+            lambda version: self._new_record(device, created_ns, calibration, version),
+            change,
+            floor=previous.version if previous else 0,
         )
         if stored:
             self.counters.stored += 1

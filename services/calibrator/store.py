@@ -151,10 +151,12 @@ class CalibrationStore:
         device: str,
         make: Callable[[int], wire.DeviceCalibration],
         change: Mapping[str, Any] | None = None,
+        floor: int = 0,
     ) -> tuple[wire.DeviceCalibration, bool]:
         """Store the record ``make(version)`` builds (and signs) for ``device``, ``version`` being one more than the
-        highest stored for it, read in the same write transaction (two calibrators on one file never number two
-        records alike). Returns (record, stored): not stored when identical to the one already in force."""
+        highest stored for it (or than ``floor``, the version of the record in force as its JSON says), read in the
+        same write transaction (two calibrators on one file never number two records alike). Returns (record,
+        stored): not stored when identical to the one already in force."""
         with self._guard(), self._transaction():
             latest = self._db.execute(
                 "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (device,)
@@ -162,7 +164,7 @@ class CalibrationStore:
             (highest,) = self._db.execute(
                 "SELECT COALESCE(MAX(version), 0) FROM calibrations WHERE device = ?", (device,)
             ).fetchone()
-            record = make(min(int(highest), wire.MAX_VERSION - 1) + 1)
+            record = make(min(max(int(highest), floor), wire.MAX_VERSION - 1) + 1)
             if record.device != device:
                 raise ValueError(f"a record of {record.device} cannot be stored as one of {device}")
             if latest is not None and latest[0] == record.id:
