@@ -80,3 +80,22 @@ def test_add_needs_the_site_and_keeps_what_is_there(tmp_path: Path, capsys):
     moved = ["certs", "--out", str(site), "--add", "--listen", "tls/10.0.0.5:7447", "--edge", "c=d4"]
     assert main(moved) == 2
     assert "made with --listen tls/127.0.0.1:7447" in capsys.readouterr().err, "the same listeners, or nothing"
+
+
+def test_a_calibrator_refuses_a_shard_its_certificate_may_not_hold(tmp_path, capsys):
+    site = tmp_path / "s"
+    assert main(["certs", "--out", str(site), "--shards", "2"]) == 0
+    assert identities.certificate_identity(site / "calibrator-1-2.json5") == "calibrator-1-2"
+    assert identities.certificate_identity(None) is None
+    assert identities.certificate_identity(tmp_path / "missing.json5") is None
+    identities.check_calibrator_identity("calibrator-1-2", 1, 2)
+    identities.check_calibrator_identity("calibrator", 0, 1)
+    identities.check_calibrator_identity("compass", 1, 2)  # not a calibrator identity: not this check's business
+    with pytest.raises(ValueError, match="give the config of calibrator-1-2"):
+        identities.check_calibrator_identity("calibrator", 1, 2)
+    with pytest.raises(ValueError, match="give the config of calibrator"):
+        identities.check_calibrator_identity("calibrator-0-2", 0, 1)
+    config = str(site / "calibrator.json5")
+    assert main(["calibrator", "--config", config, "--shard", "1/2", "--db", str(tmp_path / "c.db")]) == 2
+    err = capsys.readouterr().err
+    assert "calibrator-1-2" in err and len(err.strip().splitlines()) == 1

@@ -13,9 +13,14 @@ table in the router's access-control rules (``services.security.acl``).
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING
+
+from cryptography import x509
+from cryptography.x509.oid import NameOID
 
 from magnet.wire import validate_device_id
 
@@ -104,3 +109,33 @@ def shard_identities(count: int) -> list[tuple[str, str]]:
     if not 0 <= count <= MAX_SHARDS:
         raise ValueError(f"--shards must be 0..{MAX_SHARDS}, got {count}")
     return [(shard_identity(k, count), f"@lease/calibrator/{k}-{count}/**") for k in range(count if count > 1 else 0)]
+
+
+def certificate_identity(config_path: str | Path | None) -> str | None:
+    """The common name of the client certificate a Zenoh config file names (``transport/link/tls/
+    connect_certificate``); None without a file or a certificate, or for a config this cannot read (json5 beyond
+    the ``//`` comment lines and JSON that ``magnet certs`` writes)."""
+    if not config_path:
+        return None
+    try:
+        lines = Path(config_path).read_text().splitlines()
+        config = json.loads("\n".join(line for line in lines if not line.lstrip().startswith("//")))
+        certificate = Path(config["transport"]["link"]["tls"]["connect_certificate"]).read_bytes()
+        names = x509.load_pem_x509_certificate(certificate).subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return str(names[0].value) if names else None
+
+
+def check_calibrator_identity(identity: str | None, index: int, count: int) -> None:
+    """ValueError when ``identity`` is a calibrator identity the router will not let hold the lease of shard
+    ``index/count``: its token would be dropped, its standby would not see it, and both would act as active."""
+    if identity is None or not (identity == "calibrator" or identity.startswith("calibrator-")):
+        return
+    expected = "calibrator" if count == 1 else shard_identity(index, count)
+    if identity != expected:
+        raise ValueError(
+            f"--shard {index}/{count} with the certificate of {identity}, which may not hold that shard's lease (the "
+            f"router would drop its lease token): give the config of {expected} (`magnet certs --shards {count}` "
+            "makes one per shard)"
+        )
