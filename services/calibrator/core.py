@@ -24,6 +24,7 @@ from magnet.collection import Collection
 from magnet.model import Calibration
 from magnet.quality import Coverage
 from magnet.shard import EVERY_DEVICE, Shard
+from services.calibrator import signatures
 from services.calibrator.fleet import FleetBook
 from services.calibrator.sessions import ACTIONS
 from services.calibrator.settings import CalibratorSettings
@@ -67,29 +68,13 @@ class Calibrator:
     def _read_in_force(self) -> dict[str, wire.DeviceCalibration]:
         """The records in force of this shard's devices, exactly as the store holds them now: served with the
         signature they were given when they were made, never signed here. With a signing key, the ones its key does
-        not verify (unsigned rows from before the key, rows written into the file by someone else) are counted in
-        status ``unverified_records`` and logged: compasses with ``--trust`` refuse them."""
+        not verify are counted in status ``unverified_records`` and logged (``signatures.unverified``): compasses
+        with ``--trust`` refuse them."""
         in_force = {d: r for d, r in self.store.all_latest().items() if self.shard.owns(d)}
         if self.signer is not None:
-            previous: dict[str, wire.DeviceCalibration] = getattr(self, "in_force", {})
-            checked = self.unverified
-
-            def verified(device: str, record: wire.DeviceCalibration) -> bool:
-                old = previous.get(device)  # a takeover re-checks only what changed since the last read
-                if old is not None and device not in checked and old.to_record() == record.to_record():
-                    return True
-                return self.made_here(record)
-
-            self.unverified = {d for d, r in in_force.items() if not verified(d, r)}
+            previous = getattr(self, "in_force", {})
+            self.unverified = signatures.unverified(self.signer, in_force, previous, self.unverified)
             self.counters.unverified_records = len(self.unverified)
-            if self.unverified:
-                log.warning(
-                    "%d calibration(s) in force are not signed by this calibrator's key %s and are served as stored "
-                    "(compasses with --trust refuse them; recalibrate or roll back to a signed one): %s",
-                    len(self.unverified),
-                    self.signer.key_id,
-                    ", ".join(f"{d} ({in_force[d].id})" for d in sorted(self.unverified)[:20]),
-                )
         return in_force
 
     # ------------------------------------------------------------------------------------------------- lease
@@ -224,24 +209,7 @@ class Calibrator:
     def made_here(self, record: wire.DeviceCalibration) -> bool:
         """Whether ``record`` verifies under this calibrator's own key (always True without a key): what a rollback
         may put back in force, so that a rollback never gives a signature to a row it did not make."""
-        if self.signer is None:
-            return True
-        try:
-            signing.TrustedKeys([self.signer.private_key.public_key()]).verify(record.to_record())
-        except signing.SignatureError:
-            return False
-        return True
-
-    def _new_record(
-        self, device: str, created_ns: int, calibration: Calibration, version: int
-    ) -> wire.DeviceCalibration:
-        """A new record, signed with this calibrator's key (unsigned without one). The only place a record is
-        signed: when it is made (fit, session commit, rollback), never when it is read back."""
-        record = wire.DeviceCalibration(device, created_ns, calibration, version=version)
-        if self.signer is None:
-            return record
-        signed = self.signer.sign(record.to_record())
-        return dataclasses.replace(record, sig=signed["sig"], key_id=signed["key_id"])
+        return signatures.made_by(self.signer, record)
 
     def commit(
         self, device: str, calibration: Calibration, change: dict[str, Any] | None = None
@@ -261,7 +229,7 @@ class Calibrator:
         }
         record, stored = self.store.append(
             device,
-            lambda version: self._new_record(device, created_ns, calibration, version),
+            lambda version: signatures.new_record(self.signer, device, created_ns, calibration, version),
             change,
             floor=previous.version if previous else 0,
         )
