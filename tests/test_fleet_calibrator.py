@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from magnet import wire
-from magnet.drift import Alert, AlertKind
+from magnet.drift import Alert, AlertKind, advice_for
 from magnet.fleet import Places, parse_fleet
 from magnet.model import Calibration, Quality
 from magnet.place import Location
@@ -110,7 +110,8 @@ def test_the_fleet_answer_holds_every_device_its_state_place_and_open_alerts(cal
     assert a["state"] == "calibrated" and a["method"] == "ellipsoid" and a["calibration_id"]
     assert a["quality"]["residual_rms_ut"] == 0.31 and a["age_s"] > 0
     assert a["location"] == [10.0, 20.0, 30.0] and a["location_source"] == "reported" and a["last_seen_ns"] == 5
-    assert a["alerts"] == [alert.to_message()]
+    # the advice shown is magnet's own for the cause, not the sender's words (docs/trust.md)
+    assert a["alerts"] == [{**alert.to_message(), "advice": advice_for(AlertKind.FIELD_STRENGTH, 50.1)}]
     assert by["far"]["location_source"] == "fleet" and by["far"]["notes"] == "Sydney"
     assert by["far"]["state"] == "idle" and by["far"]["last_seen_ns"] is None
     assert by["walker"]["location_source"] == "default" and by["walker"]["location"] == [50.45, 30.52, 0.0]

@@ -21,7 +21,8 @@ from services.security import acl
 
 #: the steps of deploy/README.md, as the tests run them ($SITE: the directory; the ports are replaced by free ones)
 STEPS = {
-    "certs": "magnet certs --out $SITE --listen tls/127.0.0.1:7447 --password-listen tls/127.0.0.1:7448",
+    "certs": "magnet certs --out $SITE --listen tls/127.0.0.1:7447 --password-listen tls/127.0.0.1:7448 "
+    "--edge imu-host=imu-1",
     "keys": "magnet keys --out $SITE/signing --name calibrator",
     "router": "magnet router --config $SITE/router.json5",
     "calibrator": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db "
@@ -29,12 +30,16 @@ STEPS = {
     "standby": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db "
     "--signing-key $SITE/signing/calibrator.key --name calibrator-2",
     "compass": "magnet compass --config $SITE/compass.json5 --trust $SITE/signing/calibrator.pub",
-    "edge": "magnet edge --config $SITE/edge-password.json5 --device imu-1 --sensor sim --emulate",
+    "edge": "magnet edge --config $SITE/edge-imu-host-password.json5 --device imu-1 --sensor sim --emulate",
+    "add-edge": "magnet certs --out $SITE --listen tls/127.0.0.1:7447 --password-listen tls/127.0.0.1:7448 "
+    "--add --edge shed=imu-2,imu-3",
     "get": "magnet get calibration imu-1 --config $SITE/viewer.json5 --trust $SITE/signing/calibrator.pub",
     "watch": "magnet watch heading imu-1 --count 3 --config $SITE/viewer-password.json5",
     "calibrate": "magnet calibrate imu-1 status --config $SITE/operator.json5",
 }
 FAST_EDGE = ["--rate", "500", "--batch", "25", "--trajectory-samples", "2000"]
+#: the identities the certs step makes (the edge role gives way to one identity per edge host)
+IDENTITIES = [role for role in acl.ROLES if role != "edge"] + ["edge-imu-host"]
 
 
 class Site(Processes):
@@ -97,7 +102,7 @@ def test_certs_are_v3_with_the_extensions_rustls_needs(site):
     from cryptography import x509
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
-    for role in ["router", *acl.ROLES]:
+    for role in ["router", *IDENTITIES]:
         cert = x509.load_pem_x509_certificate((site.dir / f"{role}.crt").read_bytes())
         assert cert.version == x509.Version.v3
         assert cert.subject.rfc4514_string() == f"CN={role}"
@@ -229,12 +234,12 @@ def test_what_a_role_may_not_do_is_refused(site):
     with (
         zenoh.open(site.config("viewer")) as viewer,
         zenoh.open(site.config("compass")) as compass,
-        zenoh.open(site.config("edge")) as edge,
+        zenoh.open(site.config("edge-imu-host")) as edge,
         zenoh.open(site.config("calibrator")) as calibrator,
     ):
         cal_sub = viewer.declare_subscriber("magnet/probe-1/calibration")
         heading_sub = viewer.declare_subscriber("magnet/probe-1/heading")
-        raw_view = viewer.declare_subscriber("magnet/probe-1/raw")
+        own_raw = _Only(viewer.declare_subscriber("magnet/imu-1/raw"), b"r")
         raw_sub = calibrator.declare_subscriber("magnet/probe-1/raw")
         status_q = calibrator.declare_queryable("magnet/@status/probe")
         # the allowed put arrives (and so the subscriptions are in place)
@@ -246,12 +251,12 @@ def test_what_a_role_may_not_do_is_refused(site):
             lambda: compass.put("magnet/probe-1/calibration", b"forged"),
             lambda: compass.put("magnet/probe-1/heading", b"h"),
         )
-        # nor can an edge
+        # nor can an edge (its marker: raw samples of its own device)
         assert b"forged" not in _marker_check(
             cal_sub,
-            raw_view,
+            own_raw,
             lambda: edge.put("magnet/probe-1/calibration", b"forged"),
-            lambda: edge.put("magnet/probe-1/raw", b"r"),
+            lambda: edge.put("magnet/imu-1/raw", b"r"),
         )
         # a viewer cannot put raw samples: its query reaches the calibrator's status queryable after its put
         assert b"forged" not in _marker_check(
@@ -270,6 +275,19 @@ def test_what_a_role_may_not_do_is_refused(site):
         )
         replies = list(viewer.get("magnet/probe-2/calibration", timeout=1.0))
         assert fake.try_recv() is None and replies == [], "a compass's calibration queryable is never asked"
+
+
+class _Only:
+    """The samples of a subscriber that carry ``payload`` (a marker among other traffic on the same key)."""
+
+    def __init__(self, channel, payload):
+        self.channel, self.payload = channel, payload
+
+    def try_recv(self):
+        while (item := self.channel.try_recv()) is not None:
+            if item.payload.to_bytes() == self.payload:
+                return item
+        return None
 
 
 def _answered(session, queryable, key):
@@ -299,7 +317,7 @@ def test_unauthenticated_and_wrong_ca_clients_are_refused(site, tmp_path):
     wrong_ca.insert_json5("transport/link/tls/connect_private_key", json.dumps(str(tmp_path / "other/calibrator.key")))
     no_cert = site.config("viewer-password")  # TLS without a client certificate, on the mTLS listener
     no_cert.insert_json5("connect/endpoints", json.dumps([f"tls/127.0.0.1:{site.mtls_port}"]))
-    bad_password = site.config("edge-password")
+    bad_password = site.config("edge-imu-host-password")
     bad_password.insert_json5("transport/auth/usrpwd/password", '"guessed"')
     plain = zenoh.Config()
     for key, value in (
@@ -308,7 +326,7 @@ def test_unauthenticated_and_wrong_ca_clients_are_refused(site, tmp_path):
         ("scouting/multicast/enabled", "false"),
     ):
         plain.insert_json5(key, value)
-    with zenoh.open(site.config("edge-password")):
+    with zenoh.open(site.config("edge-imu-host-password")):
         pass  # the right password on the password listener is let in
     for name, config in (
         ("wrong CA", wrong_ca),

@@ -89,20 +89,48 @@ def test_keys_command_writes_a_private_key_0600_and_a_public_key_0644(tmp_path, 
         signing.load_public_key(private.read_bytes(), "x.pub")
 
 
-def test_the_calibrator_signs_what_it_stores_serves_and_reloads(keys, tmp_path):
+def test_the_calibrator_signs_a_record_when_it_makes_it_and_never_when_it_reads_it(keys, tmp_path):
     (signer, public), _ = keys
     trusted = signing.TrustedKeys([public])
     published = []
     with CalibrationStore(tmp_path / "c.db") as store:
         unsigned_before = wire.DeviceCalibration("old", 1, GENUINE)
-        store.save(unsigned_before)  # stored before the calibrator had a key
+        store.save(unsigned_before)  # stored before the calibrator had a key (or written by someone else)
         calibrator = Calibrator(
             store, CalibratorSettings(), lambda kind, dev, payload: published.append(payload), signer=signer
         )
-        assert trusted.verify(calibrator.in_force["old"].to_record())
+        assert calibrator.in_force["old"].sig == "", "served as stored: not signed on the way out"
+        assert calibrator.counters.unverified_records == 1
+        with pytest.raises(signing.SignatureError):
+            trusted.verify(calibrator.in_force["old"].to_record())
         record = calibrator.commit("k", GENUINE)
         assert trusted.verify(record.to_record()) and trusted.verify(wire.unpack(published[0]))
         assert store.latest("k").sig == record.sig, "stored with its signature"
+        assert record.version == 1 and wire.unpack(published[0])["version"] == 1
+        again = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
+        assert again.in_force["k"].sig == record.sig and trusted.verify(again.in_force["k"].to_record())
+        assert again.counters.unverified_records == 1, "only the old unsigned row"
+
+
+def test_a_row_written_into_the_store_by_hand_is_served_unsigned_and_refused_by_trusting_compasses(keys, tmp_path):
+    (signer, public), _ = keys
+    with CalibrationStore(tmp_path / "c.db") as store:
+        calibrator = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
+        genuine = calibrator.commit("k", GENUINE)
+        moved = GENUINE.replace(offset=np.array([100.0, 0.0, 0.0]))
+        planted = wire.DeviceCalibration("k", 20, moved, version=genuine.version + 1).to_record()
+        store._db.execute(
+            "INSERT INTO calibrations (device, id, created_ns, record, version) VALUES (?, ?, ?, ?, ?)",
+            ("k", planted["id"], 20, json.dumps(planted), planted["version"]),
+        )
+        restarted = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
+        served = restarted.in_force["k"]
+    assert served.id == planted["id"] and served.sig == "", "served as stored, not signed by the calibrator"
+    assert restarted.counters.unverified_records == 1
+    compass = _compass([public])
+    assert compass.accept_calibration(msgpack.packb(genuine.to_record()), KEY, "magnet")
+    assert not compass.accept_calibration(msgpack.packb(served.to_record()), KEY, "magnet")
+    assert compass.calibrations["k"].id == genuine.id and compass.drops.counts == {"calibration:unsigned": 1}
 
 
 def _compass(trusted):

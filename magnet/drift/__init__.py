@@ -27,13 +27,22 @@ Modules: ``settings`` (``DriftSettings``, ``Reference``), ``alerts`` (``Alert`` 
 
 from __future__ import annotations
 
-from magnet.drift.alerts import ADVICE, MAX_ADVICE_CHARS, Alert, AlertKind, alert_from_message
+from magnet.drift.alerts import (
+    ADVICE,
+    CLEARED_ADVICE,
+    MAX_ADVICE_CHARS,
+    Alert,
+    AlertKind,
+    advice_for,
+    alert_from_message,
+)
 from magnet.drift.monitor import DriftMonitor
 from magnet.drift.settings import DEFAULT_DRIFT, NS_PER_DAY, NS_PER_S, DriftSettings, Reference
 from magnet.drift.tracker import DriftTracker, Verdict, robust_verdict
 
 __all__ = [
     "ADVICE",
+    "CLEARED_ADVICE",
     "DEFAULT_DRIFT",
     "MAX_ADVICE_CHARS",
     "NS_PER_DAY",
@@ -45,6 +54,7 @@ __all__ = [
     "DriftTracker",
     "Reference",
     "Verdict",
+    "advice_for",
     "alert_from_message",
     "robust_verdict",
 ]

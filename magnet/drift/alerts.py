@@ -29,6 +29,22 @@ ADVICE = {
 }
 
 
+#: the advice of a cleared alert (received ones; the compass that clears one says why in its own log)
+CLEARED_ADVICE = "cleared: the departure ended, or a new calibration came into force"
+
+
+def advice_for(kind: AlertKind, expected: float, cleared: bool = False) -> str:
+    """The advice of an alert, from the fixed table ``ADVICE`` keyed by what drifted, with its expected value
+    (uT, degrees or days): never taken from a message, so that a peer allowed to raise alerts cannot make an operator
+    read its words."""
+    if cleared:
+        return CLEARED_ADVICE
+    if kind is AlertKind.CALIBRATION_AGE:
+        return ADVICE[kind].format(ref=f"{expected:g} days")
+    unit = "uT" if kind is AlertKind.FIELD_STRENGTH else "deg"
+    return ADVICE[kind].format(ref=f"{expected:.1f} {unit}")
+
+
 @dataclasses.dataclass(frozen=True)
 class Alert:
     """One alert event. ``since_ns``: when the departure (or, cleared, the recovery) began; measured and expected in
@@ -63,7 +79,8 @@ MAX_ADVICE_CHARS = 1_000
 
 def alert_from_message(message: Any) -> Alert:
     """The one entry of an alert map from outside (``<prefix>/<device>/alert``): ValueError naming what is wrong.
-    The device id is the caller's to check (``magnet.wire.message_device``)."""
+    The device id is the caller's to check (``magnet.wire.message_device``). The message's ``advice`` is checked and
+    then replaced by the table's (``advice_for``): the text shown is never the sender's."""
     if not isinstance(message, dict):
         raise ValueError("an alert must be a map")
     if message.get("v") != 1:
@@ -83,4 +100,7 @@ def alert_from_message(message: Any) -> Alert:
         raise ValueError(f"alert advice must be text of at most {MAX_ADVICE_CHARS} characters")
     if not isinstance(cleared, bool):
         raise ValueError("alert cleared must be true or false")
-    return Alert(str(message.get("device")), kind, since, float(numbers[0]), float(numbers[1]), advice, cleared)
+    measured, expected = float(numbers[0]), float(numbers[1])
+    return Alert(
+        str(message.get("device")), kind, since, measured, expected, advice_for(kind, expected, cleared), cleared
+    )

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from magnet.drift.alerts import ADVICE, Alert, AlertKind
+from magnet.drift.alerts import Alert, AlertKind, advice_for
 from magnet.drift.settings import DEFAULT_DRIFT, NS_PER_DAY, DriftSettings, Reference
 
 
@@ -186,8 +186,7 @@ class DriftTracker:
         state = self.state[kind]
         if not state.step(verdict.ratio, start_ns, self.settings):
             return []
-        unit = "uT" if kind is AlertKind.FIELD_STRENGTH else "deg"
-        advice = ADVICE[kind].format(ref=f"{verdict.expected:.1f} {unit}")
+        advice = advice_for(kind, verdict.expected)
         alert = Alert(
             self.device,
             kind,
@@ -207,7 +206,7 @@ class DriftTracker:
         if state.open is not None or not self.reference.created_ns or now_ns - self.reference.created_ns <= max_ns:
             return []
         days = (now_ns - self.reference.created_ns) / NS_PER_DAY
-        advice = ADVICE[AlertKind.CALIBRATION_AGE].format(ref=f"{self.settings.max_age_days:g} days")
+        advice = advice_for(AlertKind.CALIBRATION_AGE, self.settings.max_age_days)
         state.open = Alert(
             self.device,
             AlertKind.CALIBRATION_AGE,

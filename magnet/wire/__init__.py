@@ -64,6 +64,7 @@ from magnet.wire.raw import (
 )
 from magnet.wire.raw_decode import decode_messages, decode_raw, decode_raw_many
 from magnet.wire.records import (
+    MAX_VERSION,
     CalibrationMessage,
     Collecting,
     DeviceCalibration,
@@ -87,6 +88,7 @@ __all__ = [
     "MAX_FIELD_UT",
     "MAX_GYR_RADS",
     "MAX_PAYLOAD_BYTES",
+    "MAX_VERSION",
     "SCALAR_FIELDS",
     "TRUTH_FIELDS",
     "VERSIONS",

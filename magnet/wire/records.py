@@ -1,7 +1,8 @@
 """Calibration records and calibration progress on the wire.
 
-- calibration: ``Calibration.to_dict()`` plus ``v, device, id (content id), created_ns`` (``DeviceCalibration``), and
-  when signed ``sig`` and ``key_id`` (``magnet.signing``)
+- calibration: ``Calibration.to_dict()`` plus ``v, device, id (content id), created_ns`` (``DeviceCalibration``), from
+  calibrators that number them ``version`` (the device's record count, 1, 2, ...; absent in older records, read as 0),
+  and when signed ``sig`` and ``key_id`` (``magnet.signing``, the signature covers ``version``)
 - progress: ``{v, device, state, t_ns, calibration_id, method, session, samples, seen, coverage, cells_hit,
   cell_count, missing: [str], residual_rms_ut, accepted, reason}`` (``Progress``; the collection keys only while
   collecting, the calibration keys only once there is one)
@@ -26,23 +27,29 @@ from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device, validate_device_id
 
 MAX_SIG_LEN, MAX_KEY_ID_LEN = 128, 64
+MAX_VERSION = 2**63 - 1
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class DeviceCalibration:
     """The calibration of one device as published and stored: device id, when it was made (ns since the epoch) and
-    the record; ``id`` is the record's content id."""
+    the record; ``id`` is the record's content id. ``version``: the device's record number, given by the active
+    calibrator (1, 2, ...; 0 for records made before versions), the order in which records supersede each other
+    (``newer_than``); ``created_ns`` is a wall-clock time, shown, never used to order."""
 
     device: str
     created_ns: int
     calibration: Calibration
     sig: str = ""  # Ed25519 signature (base64) of the record's other fields (``magnet.signing``); "" unsigned
     key_id: str = ""  # which key signed it
+    version: int = 0  # the device's record number (0: a record from before versions)
 
     def __post_init__(self) -> None:
         validate_device_id(self.device)
-        if isinstance(self.created_ns, bool) or not isinstance(self.created_ns, int) or self.created_ns < 0:
-            raise ValueError(f"created_ns must be a whole number of ns >= 0, got {self.created_ns!r}")
+        for name in ("created_ns", "version"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_VERSION:
+                raise ValueError(f"{name} must be a whole number 0..2**63-1, got {value!r}")
         for name, limit in (("sig", MAX_SIG_LEN), ("key_id", MAX_KEY_ID_LEN)):
             value = getattr(self, name)
             if not isinstance(value, str) or len(value) > limit:
@@ -53,6 +60,11 @@ class DeviceCalibration:
         """The calibration's content id, hashed once per record (the compass stamps it on every heading message)."""
         return self.calibration.content_id
 
+    def newer_than(self, other: DeviceCalibration) -> bool:
+        """Whether this record supersedes ``other`` (same device): the higher ``version``; between equal versions (two
+        records from before versions, or two calibrators that both wrote while split) the later ``created_ns``."""
+        return (self.version, self.created_ns) > (other.version, other.created_ns)
+
     def to_record(self) -> dict[str, Any]:
         """The published map (JSON-able): ``v, device, id, created_ns`` and the calibration's fields."""
         out = {
@@ -62,6 +74,8 @@ class DeviceCalibration:
             "created_ns": int(self.created_ns),
             **self.calibration.to_dict(),
         }
+        if self.version:  # absent when 0: a record from before versions keeps its signed bytes
+            out["version"] = int(self.version)
         if self.sig or self.key_id:
             out.update(sig=self.sig, key_id=self.key_id)
         return out
@@ -87,15 +101,17 @@ def calibration_from_record(record: Mapping[str, Any]) -> DeviceCalibration:
         raise WireError("not-a-map", "a calibration record must be a map")
     check_version(record)
     device = message_device(record)
-    created_ns = int_field(record, "created_ns", 0)
-    if created_ns < 0:
-        raise WireError("bad-field", f"created_ns must be >= 0, got {created_ns}")
+    created_ns, version = int_field(record, "created_ns", 0), int_field(record, "version", 0)
+    for name, value in (("created_ns", created_ns), ("version", version)):
+        if not 0 <= value <= MAX_VERSION:
+            raise WireError("bad-field", f"{name} must be 0..2**63-1, got {value}")
     try:
         calibration = Calibration.from_dict(record)
     except (ValueError, TypeError) as exc:
         raise WireError("bad-calibration", f"unusable calibration: {exc}") from None
     try:
-        return DeviceCalibration(device, created_ns, calibration, record.get("sig") or "", record.get("key_id") or "")
+        sig, key_id = record.get("sig") or "", record.get("key_id") or ""
+        return DeviceCalibration(device, created_ns, calibration, sig, key_id, version)
     except ValueError as exc:
         raise WireError("bad-field", str(exc)) from None
 

@@ -24,6 +24,7 @@ from magnet.collection import Collection
 from magnet.model import Calibration
 from magnet.quality import Coverage
 from magnet.shard import EVERY_DEVICE, Shard
+from services.calibrator import signatures
 from services.calibrator.fleet import FleetBook
 from services.calibrator.sessions import ACTIONS
 from services.calibrator.settings import CalibratorSettings
@@ -57,15 +58,24 @@ class Calibrator:
         self.shard = shard  # only this shard's devices: collected, fitted, stored, answered
         self._mine: dict[str, bool] = {}
         self.active = True  # False while another calibrator of the shard holds the lease: nothing collected, stored
+        self.counters = Counters()
+        self.unverified: set[str] = set()  # devices whose record in force this calibrator's key does not verify
         self.in_force = self._read_in_force()
         self.collections: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
         self.last_progress: Recent[str, float] = Recent(settings.max_devices)
         self.drops = wire.DropCounter()
-        self.counters = Counters()
 
     def _read_in_force(self) -> dict[str, wire.DeviceCalibration]:
-        """The records in force of this shard's devices, as the store holds them now (signed)."""
-        return {d: self.sign(r) for d, r in self.store.all_latest().items() if self.shard.owns(d)}
+        """The records in force of this shard's devices, exactly as the store holds them now: served with the
+        signature they were given when they were made, never signed here. With a signing key, the ones its key does
+        not verify are counted in status ``unverified_records`` and logged (``signatures.unverified``): compasses
+        with ``--trust`` refuse them."""
+        in_force = {d: r for d, r in self.store.all_latest().items() if self.shard.owns(d)}
+        if self.signer is not None:
+            previous = getattr(self, "in_force", {})
+            self.unverified = signatures.unverified(self.signer, in_force, previous, self.unverified)
+            self.counters.unverified_records = len(self.unverified)
+        return in_force
 
     # ------------------------------------------------------------------------------------------------- lease
     def publish_in_force(self) -> None:
@@ -196,36 +206,45 @@ class Calibrator:
         return result if accepted else None
 
     # ---------------------------------------------------------------------------------------------- storing
-    def sign(self, record: wire.DeviceCalibration) -> wire.DeviceCalibration:
-        """``record`` signed with this calibrator's key (unchanged without one): its own store is trusted."""
-        if self.signer is None:
-            return record
-        signed = self.signer.sign(record.to_record())
-        return dataclasses.replace(record, sig=signed["sig"], key_id=signed["key_id"])
+    def made_here(self, record: wire.DeviceCalibration) -> bool:
+        """Whether ``record`` verifies under this calibrator's own key (always True without a key): what a rollback
+        may put back in force, so that a rollback never gives a signature to a row it did not make."""
+        return signatures.made_by(self.signer, record)
 
     def commit(
         self, device: str, calibration: Calibration, change: dict[str, Any] | None = None
     ) -> wire.DeviceCalibration:
-        """Store ``calibration`` as the one in force for ``device``, publish it, end collection. ``change`` (action,
-        by, ...; default: an automatic or session calibration) is recorded beside it with when and from which id."""
-        record = self.sign(wire.DeviceCalibration(device, self.clock_ns(), calibration))
+        """Store ``calibration`` as the one in force for ``device`` (numbered one more than the highest version the
+        store holds for it, signed), publish it, end collection. ``change`` (action, by, ...; default: an automatic
+        or session calibration) is recorded beside it with when and from which id."""
+        created_ns = self.clock_ns()
         previous = self.in_force.get(device)
         collection = self.collections.get(device)
         change = {
             "action": "session" if collection is not None and collection.session else "auto",
             "by": "",
             **(change or {}),
-            "at_ns": record.created_ns,
+            "at_ns": created_ns,
             "from_id": previous.id if previous else None,
         }
-        if self.store.save(record, change):
+        record, stored = self.store.append(
+            device,
+            lambda version: signatures.new_record(self.signer, device, created_ns, calibration, version),
+            change,
+            floor=previous.version if previous else 0,
+        )
+        if stored:
             self.counters.stored += 1
-        self.in_force[device] = self.sign(self.store.latest(device) or record)
+        self.in_force[device] = self.store.latest(device) or record
+        if stored and device in self.unverified:  # its record in force is now one this calibrator made
+            self.unverified.discard(device)
+            self.counters.unverified_records = len(self.unverified)
         self.collections.pop(device, None)
         log.info(
-            "%s: calibration %s stored (%s, residual %s uT, coverage %s)",
+            "%s: calibration %s version %d stored (%s, residual %s uT, coverage %s)",
             device,
             record.id,
+            record.version,
             calibration.method,
             calibration.quality.residual_rms_ut,
             calibration.quality.coverage,

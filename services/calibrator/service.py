@@ -42,6 +42,7 @@ from services.calibrator.settings import (
 from services.calibrator.status import CalibratorStatus, Counters, State
 from services.calibrator.store import CalibrationStore
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
+from services.security.identities import certificate_identity, check_calibrator_identity
 
 __all__ = [
     "ACTIONS",
@@ -77,6 +78,8 @@ def run(settings: ServiceSettings) -> int:
     stop = stop_event()
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
     signer = load_signer(settings.signing_key)  # a bad key file ends here, before anything is opened
+    identity = certificate_identity(settings.zenoh.config)  # a calibrator identity of another shard ends here too
+    check_calibrator_identity(identity, settings.shard.index, settings.shard.count)
     lease = Lease(prefix, settings.shard, Member(time.time_ns(), name))
     with CalibrationStore(settings.db) as store, open_session(settings.zenoh) as session:
 

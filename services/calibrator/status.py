@@ -29,6 +29,7 @@ class Counters:
     evicted_devices: int = 0  # collections dropped for --max-devices
     forgotten_devices: int = 0  # fleet-book entries (last seen, reported place, open alerts) dropped for --max-devices
     takeovers: int = 0  # times it became the active calibrator of its shard after standing by
+    unverified_records: int = 0  # records in force its signing key does not verify (served as stored, unsigned)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,19 +1,25 @@
 """SQLite storage of calibrations: every accepted calibration of every device, newest last, history kept.
 
 One table, one row per stored calibration; the record is the JSON map the wire publishes
-(``magnet.wire.DeviceCalibration.to_record``). Rows are read back through ``magnet.wire.calibration_from_record``, the
-one entry check of a calibration: a row that fails it is skipped, counted (``skipped_rows``) and logged once with the
-file and row, and the rest is served. WAL journal with ``synchronous=FULL``: a row is on disk when ``save`` returns,
-and a kill -9 at any moment leaves either the previous or the new calibration in force, never a torn one.
+(``magnet.wire.DeviceCalibration.to_record``), with the signature it was given when it was made: the store never
+signs, and a record read back is served exactly as stored. The ``version`` column repeats the record's version (the
+device's record number; 0 for rows from before versions, which a database of an older magnet gets when it is opened:
+``_migrate``), so that the next one is counted on from the store (``append``).
+
+Rows are read back through ``magnet.wire.calibration_from_record``, the one entry check of a calibration: a row that
+fails it is skipped, counted (``skipped_rows``) and logged once with the file and row, and the rest is served. WAL
+journal with ``synchronous=FULL``: a row is on disk when ``save`` returns, and a kill -9 at any moment leaves either
+the previous or the new calibration in force, never a torn one.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import sqlite3
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +33,8 @@ CREATE TABLE IF NOT EXISTS calibrations (
     device     TEXT    NOT NULL,
     id         TEXT    NOT NULL,
     created_ns INTEGER NOT NULL,
-    record     TEXT    NOT NULL
+    record     TEXT    NOT NULL,
+    version    INTEGER NOT NULL DEFAULT 0
 );
 CREATE INDEX IF NOT EXISTS calibrations_by_device ON calibrations (device, seq);
 CREATE TABLE IF NOT EXISTS changes (
@@ -40,6 +47,39 @@ CREATE TABLE IF NOT EXISTS changes (
 class StoreError(OSError):
     """The database cannot be read or written (damaged, not a database, disk full): one line naming the file and
     what to do."""
+
+
+#: sqlite3 error names (``sqlite_errorname``) of a full disk, of a file it may not write, and of a damaged file
+_FULL = ("SQLITE_FULL",)
+_READ_ONLY = ("SQLITE_READONLY", "SQLITE_CANTOPEN", "SQLITE_PERM", "SQLITE_AUTH")
+_BUSY = ("SQLITE_BUSY", "SQLITE_LOCKED")
+_DAMAGED = ("SQLITE_CORRUPT", "SQLITE_NOTADB")
+
+
+def describe_failure(path: Path, exc: BaseException) -> str:
+    """One line for a failure of the database ``path``: a full disk as a full disk (nothing written, free space), a
+    file it may not write, a lock, a damaged file (restore it or move it aside), or else the error itself."""
+    name = str(getattr(exc, "sqlite_errorname", "") or "")
+    text = str(exc)
+    errno_ = getattr(exc, "errno", None)
+    if name.startswith(_FULL) or errno_ in (errno.ENOSPC, errno.EDQUOT) or "disk is full" in text:
+        return (
+            f"calibration database {path}: the disk is full ({text}): nothing was written and the calibration in "
+            "force stays; free space on its filesystem (or raise the quota), then try again"
+        )
+    if name.startswith(_READ_ONLY) or errno_ in (errno.EACCES, errno.EPERM, errno.EROFS) or "readonly" in text:
+        return (
+            f"calibration database {path} cannot be written ({text}): check the permissions of the file and of its "
+            "directory, and that the filesystem is not read-only"
+        )
+    if name.startswith(_BUSY):
+        return f"calibration database {path} is locked by another process ({text}): try again"
+    if name.startswith(_DAMAGED) or (isinstance(exc, sqlite3.DatabaseError) and not name):
+        return (
+            f"calibration database {path} is damaged or unusable ({text}): restore it from a backup, or move it "
+            "aside to start with an empty one"
+        )
+    return f"calibration database {path} could not be used ({text}): check the disk and the file, then try again"
 
 
 class CalibrationStore:
@@ -63,6 +103,7 @@ class CalibrationStore:
                 self._db.execute("PRAGMA journal_mode=WAL")
                 self._db.execute("PRAGMA synchronous=FULL")
                 self._db.executescript(_SCHEMA)
+                self._migrate()
                 problems = [row[0] for row in self._db.execute("PRAGMA quick_check(3)")]
                 if problems != ["ok"]:
                     raise sqlite3.DatabaseError("; ".join(problems))
@@ -72,14 +113,14 @@ class CalibrationStore:
 
     @contextlib.contextmanager
     def _guard(self) -> Iterator[None]:
-        """sqlite3 errors inside become one ``StoreError`` line naming the file and what to do."""
+        """sqlite3 errors (and OSErrors) inside become one ``StoreError`` line naming the file, what went wrong
+        and what to do (``describe_failure``)."""
         try:
             yield
-        except sqlite3.DatabaseError as exc:
-            raise StoreError(
-                f"calibration database {self.path} is damaged or unusable ({exc}): restore it from a "
-                "backup, or move it aside to start with an empty one"
-            ) from None
+        except StoreError:
+            raise
+        except (sqlite3.DatabaseError, OSError) as exc:
+            raise StoreError(describe_failure(self.path, exc)) from None
 
     def close(self) -> None:
         self._db.close()
@@ -90,28 +131,55 @@ class CalibrationStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _migrate(self) -> None:
+        """A database written before versions gets the ``version`` column, 0 on every old row (their records carry
+        no version, and their signatures, if any, stay as they were made)."""
+        columns = {row[1] for row in self._db.execute("PRAGMA table_info(calibrations)")}
+        if "version" not in columns:
+            self._db.execute("ALTER TABLE calibrations ADD COLUMN version INTEGER NOT NULL DEFAULT 0")
+            log.info("%s: calibrations table given a version column (old rows: version 0)", self.path)
+
     def save(self, record: wire.DeviceCalibration, change: Mapping[str, Any] | None = None) -> bool:
         """Store ``record`` as its device's calibration in force, with ``change`` (who, when, from which id: a
         JSON-able map kept beside it in the ``changes`` table, shown by ``history_changes``).
 
         Returns False (and stores nothing) when it is identical to the one already in force."""
-        text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
+        return self.append(record.device, lambda version: record, change)[1]
+
+    def append(
+        self,
+        device: str,
+        make: Callable[[int], wire.DeviceCalibration],
+        change: Mapping[str, Any] | None = None,
+        floor: int = 0,
+    ) -> tuple[wire.DeviceCalibration, bool]:
+        """Store the record ``make(version)`` builds (and signs) for ``device``, ``version`` being one more than the
+        highest stored for it (or than ``floor``, the version of the record in force as its JSON says), read in the
+        same write transaction (two calibrators on one file never number two records alike). Returns (record,
+        stored): not stored when identical to the one already in force."""
         with self._guard(), self._transaction():
-            row = self._db.execute(
-                "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (record.device,)
+            latest = self._db.execute(
+                "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (device,)
             ).fetchone()
-            if row is not None and row[0] == record.id:
-                return False
+            (highest,) = self._db.execute(
+                "SELECT COALESCE(MAX(version), 0) FROM calibrations WHERE device = ?", (device,)
+            ).fetchone()
+            record = make(min(max(int(highest), floor), wire.MAX_VERSION - 1) + 1)
+            if record.device != device:
+                raise ValueError(f"a record of {record.device} cannot be stored as one of {device}")
+            if latest is not None and latest[0] == record.id:
+                return record, False
+            text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
             cursor = self._db.execute(
-                "INSERT INTO calibrations (device, id, created_ns, record) VALUES (?, ?, ?, ?)",
-                (record.device, record.id, int(record.created_ns), text),
+                "INSERT INTO calibrations (device, id, created_ns, record, version) VALUES (?, ?, ?, ?, ?)",
+                (device, record.id, int(record.created_ns), text, int(record.version)),
             )
             if change is not None:
                 self._db.execute(
                     "INSERT INTO changes (seq, change) VALUES (?, ?)",
                     (cursor.lastrowid, json.dumps(dict(change), sort_keys=True, allow_nan=False)),
                 )
-        return True
+        return record, True
 
     def latest(self, device: str) -> wire.DeviceCalibration | None:
         """The calibration in force for ``device`` (its newest valid record), or None."""
@@ -188,7 +256,8 @@ class CalibrationStore:
 
 
 class _Transaction:
-    """BEGIN IMMEDIATE ... COMMIT, rolled back on any exception."""
+    """BEGIN IMMEDIATE ... COMMIT, rolled back on any exception. SQLite ends a transaction itself on some errors
+    (a full disk among them): then there is nothing to roll back, and the error that ended it is the one raised."""
 
     def __init__(self, db: sqlite3.Connection) -> None:
         self._db = db
@@ -197,4 +266,8 @@ class _Transaction:
         self._db.execute("BEGIN IMMEDIATE")
 
     def __exit__(self, exc_type: object, *rest: object) -> None:
-        self._db.execute("ROLLBACK" if exc_type else "COMMIT")
+        if not exc_type:
+            self._db.execute("COMMIT")
+        elif getattr(self._db, "in_transaction", True):
+            with contextlib.suppress(sqlite3.Error):  # the first error is the one to report
+                self._db.execute("ROLLBACK")

@@ -175,7 +175,7 @@ def run_watch(args: argparse.Namespace) -> int:
             if sample is None:
                 time.sleep(0.002)
                 continue
-            _print({"key": str(sample.key_expr), **_as_map(_decode(payload_bytes(sample)))})
+            _print({"key": str(sample.key_expr), **_shown(args.what, _as_map(_decode(payload_bytes(sample))))})
             printed += 1
             if args.count is not None and printed >= args.count:
                 break
@@ -184,6 +184,19 @@ def run_watch(args: argparse.Namespace) -> int:
 
 def _as_map(value: Any) -> dict[str, Any]:
     return value if isinstance(value, dict) else {"value": value}
+
+
+def _shown(what: str, message: dict[str, Any]) -> dict[str, Any]:
+    """``message`` as printed: an alert with the advice of the fixed table (``magnet.drift.advice_for``), never
+    the sender's words; a malformed alert as it came."""
+    if what != "alert":
+        return message
+    from magnet.drift import alert_from_message
+
+    try:
+        return {**message, "advice": alert_from_message(message).advice}
+    except ValueError:
+        return message
 
 
 # ----------------------------------------------------------------------------------------------------- calibrate

@@ -65,7 +65,9 @@ class CalibrationsInForce:
             self._remember_refused(key_expr, prefix)
             return False
         current = self.calibrations.get(record.device)
-        if current is None or current.id != record.id:
+        if current is not None and current.id == record.id and record.newer_than(current):
+            self.calibrations[record.device] = record  # the same calibration again, renumbered (a rollback to it)
+        elif current is None or current.id != record.id:
             self.calibrations[record.device] = record
             self.calibration_updates += 1
             self._log_evictions()
@@ -79,7 +81,9 @@ class CalibrationsInForce:
 
     def applicable(self, record: wire.DeviceCalibration) -> None:
         """WireError unless ``record`` may be applied: accepted by the quality gate (its plausibility was checked
-        when it was read), signed by a trusted key where keys are trusted, and not older than the one in force."""
+        when it was read), signed by a trusted key where keys are trusted, and newer than the one in force: a
+        higher version, which the signature covers (``created_ns`` only between equal versions,
+        ``DeviceCalibration.newer_than``)."""
         if not record.calibration.accepted:
             raise wire.WireError(
                 "not-accepted",
@@ -91,9 +95,11 @@ class CalibrationsInForce:
             except signing.SignatureError as exc:
                 raise wire.WireError(exc.cause, f"calibration {record.id} of {record.device}: {exc}") from None
         current = self.calibrations.get(record.device)
-        if current is not None and current.id != record.id and record.created_ns < current.created_ns:
+        if current is not None and current.id != record.id and not record.newer_than(current):
             raise wire.WireError(
-                "stale", f"calibration {record.id} of {record.device} is older than the one in force ({current.id})"
+                "stale",
+                f"calibration {record.id} (version {record.version}) of {record.device} is not newer than the one in "
+                f"force ({current.id}, version {current.version})",
             )
 
     def _remember_refused(self, key_expr: str, prefix: str) -> None:

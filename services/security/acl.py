@@ -16,9 +16,11 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+from services.security.identities import EdgeIdentity, shard_identities
 
 
 class Can(enum.Enum):
@@ -34,6 +36,8 @@ class Can(enum.Enum):
         ("ingress", "liveliness_query"),
         ("egress", "liveliness_token"),
     )
+    PUT = (("ingress", "put"),)  # PUBLISH in two halves, when the keys differ
+    SEE_SUBSCRIBERS = (("egress", "declare_subscriber"),)
 
 
 #: key expressions below the prefix
@@ -46,6 +50,7 @@ RAW, CAL, HISTORY, PROGRESS, CALIBRATE, HEADING = (
     "*/heading",
 )
 STATUS, ALIVE, LEASE = "@status/*", "@alive/**", "@lease/**"
+WHOLE_FLEET_LEASE = "@lease/calibrator/0-1/**"  # the plain calibrator identity: shard 0/1 only
 ALERT, FLEET = "*/alert", "@fleet"  # drift alerts (compass), the fleet query (calibrator)
 
 _VIEW: dict[Can, tuple[str, ...]] = {
@@ -56,14 +61,19 @@ _VIEW: dict[Can, tuple[str, ...]] = {
 
 #: role -> capability -> key expressions (below the prefix). The role is the certificate's common name.
 ROLES: dict[str, dict[Can, tuple[str, ...]]] = {
-    "edge": {Can.PUBLISH: (RAW,), Can.TOKEN: ("@alive/edge/*", "@alive/device/*")},
+    # any device (a trial site): `magnet certs --edge NAME=IDS` issues per-host identities instead (identities.py)
+    "edge": {
+        Can.PUBLISH: (RAW,),
+        Can.TOKEN: ("@alive/edge/*", "@alive/device/*", "@alive/device/*/unhealthy"),
+        Can.SERVE: ("@status/edge-$*",),
+    },
     "calibrator": {
         Can.SUBSCRIBE: (RAW, ALERT),
         Can.PUBLISH: (CAL, PROGRESS),
         Can.ASK: (ALERT,),
         Can.SERVE: (CAL, HISTORY, CALIBRATE, STATUS, FLEET),
-        Can.TOKEN: ("@alive/calibrator/*", LEASE),
-        Can.WATCH: (LEASE,),
+        Can.TOKEN: ("@alive/calibrator/*", WHOLE_FLEET_LEASE),
+        Can.WATCH: (WHOLE_FLEET_LEASE,),
     },
     "compass": {
         Can.SUBSCRIBE: (RAW, CAL),
@@ -81,57 +91,83 @@ ROLES: dict[str, dict[Can, tuple[str, ...]]] = {
 PASSWORD_ROLES = ("edge", "viewer")
 
 
-def rules(prefix: str) -> list[dict[str, Any]]:
-    """One allow rule per role, flow and message kind, on the role's key expressions under ``prefix``."""
-    out = []
-    for role, capabilities in ROLES.items():
-        grants: dict[tuple[str, str], list[str]] = {}
-        for can, keys in capabilities.items():
-            for flow_message in can.value:
-                for key in keys:
-                    if f"{prefix}/{key}" not in grants.setdefault(flow_message, []):
-                        grants[flow_message].append(f"{prefix}/{key}")
-        merged: dict[tuple[str, tuple[str, ...]], list[str]] = {}  # messages of one flow on the same keys: one rule
-        for (flow, message), granted in grants.items():
-            merged.setdefault((flow, tuple(granted)), []).append(message)
-        for (flow, rule_keys), messages in merged.items():
-            out.append(
-                {
-                    "id": f"{role}-{flow}-{'+'.join(messages)}",
-                    "permission": "allow",
-                    "flows": [flow],
-                    "messages": messages,
-                    "key_exprs": list(rule_keys),
-                }
-            )
-    return out
+Roles = Mapping[str, Mapping[Can, Sequence[str]]]
 
 
-def subjects(password_roles: Sequence[str]) -> list[dict[str, Any]]:
-    out = [{"id": f"{role}-certificate", "cert_common_names": [role]} for role in ROLES]
-    return out + [{"id": f"{role}-password", "usernames": [role]} for role in password_roles]
+def site_roles(edges: Sequence[EdgeIdentity] = (), shards: int = 0) -> dict[str, Mapping[Can, Sequence[str]]]:
+    """Every identity of a site and what it may do: the roles of ``ROLES``; with ``edges``, one identity per edge
+    host instead of the ``edge`` role that speaks for any device; with ``shards`` > 1, one calibrator identity per
+    shard that may hold only its shard's lease."""
+    roles: dict[str, Mapping[Can, Sequence[str]]] = dict(ROLES)
+    if edges:
+        del roles["edge"]
+        roles.update({edge.identity: edge.capabilities() for edge in edges})
+    for identity, lease in shard_identities(shards):
+        roles[identity] = {
+            **ROLES["calibrator"],
+            Can.TOKEN: ("@alive/calibrator/*", lease),
+            Can.WATCH: (lease,),
+        }
+    return roles
 
 
-def policies(prefix: str, password_roles: Sequence[str]) -> list[dict[str, Any]]:
-    rule_ids = [rule["id"] for rule in rules(prefix)]
+def role_rules(prefix: str, role: str, capabilities: Mapping[Can, Sequence[str]]) -> list[dict[str, Any]]:
+    """The allow rules of one identity: per flow, its messages on its key expressions under ``prefix``."""
+    grants: dict[tuple[str, str], list[str]] = {}
+    for can, keys in capabilities.items():
+        for flow_message in can.value:
+            for key in keys:
+                if f"{prefix}/{key}" not in grants.setdefault(flow_message, []):
+                    grants[flow_message].append(f"{prefix}/{key}")
+    merged: dict[tuple[str, tuple[str, ...]], list[str]] = {}  # messages of one flow on the same keys: one rule
+    for (flow, message), granted in grants.items():
+        merged.setdefault((flow, tuple(granted)), []).append(message)
     return [
         {
-            "id": role,
-            "rules": [r for r in rule_ids if r.startswith(f"{role}-")],
-            "subjects": [f"{role}-certificate"] + ([f"{role}-password"] if role in password_roles else []),
+            "id": f"{role}-{flow}-{'+'.join(messages)}",
+            "permission": "allow",
+            "flows": [flow],
+            "messages": messages,
+            "key_exprs": list(rule_keys),
         }
-        for role in ROLES
+        for (flow, rule_keys), messages in merged.items()
     ]
 
 
-def access_control(prefix: str, password_roles: Sequence[str] = ()) -> dict[str, Any]:
+def rules(prefix: str, roles: Roles = ROLES) -> list[dict[str, Any]]:
+    """One allow rule per identity, flow and message kind, on the identity's key expressions under ``prefix``."""
+    return [rule for role, capabilities in roles.items() for rule in role_rules(prefix, role, capabilities)]
+
+
+def subjects(password_roles: Sequence[str], roles: Roles = ROLES) -> list[dict[str, Any]]:
+    out = [{"id": f"{role}-certificate", "cert_common_names": [role]} for role in roles]
+    return out + [{"id": f"{role}-password", "usernames": [role]} for role in password_roles if role in roles]
+
+
+def policies(prefix: str, password_roles: Sequence[str], roles: Roles = ROLES) -> list[dict[str, Any]]:
+    return [
+        {
+            "id": role,
+            "rules": [rule["id"] for rule in role_rules(prefix, role, capabilities)],
+            "subjects": [f"{role}-certificate"] + ([f"{role}-password"] if role in password_roles else []),
+        }
+        for role, capabilities in roles.items()
+    ]
+
+
+def access_control(prefix: str, password_roles: Sequence[str] = (), roles: Roles = ROLES) -> dict[str, Any]:
     return {
         "enabled": True,
         "default_permission": "deny",
-        "rules": rules(prefix),
-        "subjects": subjects(password_roles),
-        "policies": policies(prefix, password_roles),
+        "rules": rules(prefix, roles),
+        "subjects": subjects(password_roles, roles),
+        "policies": policies(prefix, password_roles, roles),
     }
+
+
+def password_roles(roles: Iterable[str]) -> list[str]:
+    """The identities that may log in with a password: ``PASSWORD_ROLES`` and every edge host."""
+    return [role for role in roles if role in PASSWORD_ROLES or role.startswith("edge-")]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,6 +182,12 @@ class Site:
     password_listen: str | None
     files: Path
     prefix: str = "magnet"
+    edges: tuple[EdgeIdentity, ...] = ()  # one identity per edge host (none: the edge role, any device)
+    shards: int = 0  # > 1: one calibrator identity per shard
+
+    @property
+    def roles(self) -> dict[str, Mapping[Can, Sequence[str]]]:
+        return site_roles(self.edges, self.shards)
 
     def __post_init__(self) -> None:
         for endpoint in (self.listen, self.password_listen):
@@ -173,7 +215,9 @@ def router_config(site: Site) -> dict[str, Any]:
         "listen": {"endpoints": endpoints},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": transport,
-        "access_control": access_control(site.prefix, PASSWORD_ROLES if site.password_listen else ()),
+        "access_control": access_control(
+            site.prefix, password_roles(site.roles) if site.password_listen else (), site.roles
+        ),
     }
 
 
