@@ -2,6 +2,7 @@
 clear 4xx that changes nothing (starlette's TestClient, a fake calibrator behind the control)."""
 
 import asyncio
+import dataclasses
 import json
 import warnings
 
@@ -10,12 +11,14 @@ import pytest
 
 from magnet import wire
 from magnet.attitude import euler_to_matrix, ned_to_body
+from magnet.drift import Alert, AlertKind
 from magnet.geomag import earth_field
 from magnet.heading import dip_angle_deg
 from magnet.model import Calibration
 from services.dashboard.app import create_app
+from services.dashboard.figures import acc_direction, covered_cells, dip_deg
 from services.dashboard.service import is_loopback, page_address, parse_http
-from services.dashboard.state import FleetState, acc_direction, covered_cells, dip_deg
+from services.dashboard.state import FleetState
 
 with warnings.catch_warnings():  # starlette >= 1 asks for httpx2, which the package index does not have
     warnings.filterwarnings("ignore", message=".*httpx.*")
@@ -236,6 +239,37 @@ def test_state_rows_alerts_and_traces():
     state.on_progress({"device": "d1", "state": "session", "session": True})
     state.on_calibration(wire.DeviceCalibration("d1", 5_000_000, calibration))  # asked again: no change
     assert state.rows["d1"].state == "session"
+
+
+def test_a_drift_alert_shows_with_its_advice_is_counted_and_a_calibrated_device_in_alert_is_not_plain():
+    state = FleetState(None)
+    calibration = Calibration("ellipsoid", np.zeros(3), np.eye(3), quality={"residual_rms_ut": 0.3, "coverage": 0.9})
+    state.on_calibration(wire.DeviceCalibration("d1", 5_000_000, calibration))
+    assert state.changes(-1)[1][0]["status"] == "calibrated" and state.summary()["alerts"] == 0
+    raised = Alert("d1", AlertKind.FIELD_STRENGTH, 7_000_000_000, 58.2, 50.1, "look for new iron, then recalibrate")
+    state.on_alert(raised)
+    version = state.version
+    state.on_alert(raised)  # asked again: nothing changes
+    assert state.version == version
+    state.on_alert(dataclasses.replace(raised, kind=AlertKind.CALIBRATION_AGE, measured=400.0, expected=365.0))
+    row = state.changes(-1)[1][0]
+    assert row["state"] == "calibrated" and row["status"] == "drifted"
+    assert row["alerts"][:2] == ["drift: calibration age", "drift: field strength"]
+    strength = next(a for a in row["drift"] if a["kind"] == "field_strength")
+    assert strength == {
+        "kind": "field_strength",
+        "since_ms": 7000,
+        "measured": 58.2,
+        "expected": 50.1,
+        "unit": "uT",
+        "advice": "look for new iron, then recalibrate",
+    }
+    assert state.summary()["alerts"] == 2 and state.summary()["in_alert"] == 1
+    for kind in (AlertKind.FIELD_STRENGTH, AlertKind.CALIBRATION_AGE):
+        state.on_alert(dataclasses.replace(raised, kind=kind, cleared=True))
+    assert state.changes(-1)[1][0]["status"] == "calibrated" and state.summary()["alerts"] == 0
+    state.on_alert(dataclasses.replace(raised, device="unknown", cleared=True))  # a clear for nobody adds no row
+    assert "unknown" not in state.rows
 
 
 def test_quaternion_optional_field_is_shown_when_present():

@@ -1,6 +1,12 @@
 """The dashboard in a real browser (Debian's chromium, headless, driven by playwright): ``magnet up --devices 5``
 with the dashboard on a free loopback port; five rows appear, headings move and match what ``magnet watch heading``
-prints for the same message, and a calibration session started from the page shows progress and commits.
+prints for the same message, a device whose hard iron moved after its calibration shows its drift alert and advice
+in the fleet table, the header count and the device view within the alert's own delay, and a calibration session
+started from the page shows progress and commits.
+
+The moved hard iron: ``dev-004``'s store holds the calibration that exactly undoes its emulated iron (the same
+simulator, seed and place as the edge's), but with the hard iron 20 uT away from where the emulator now puts it:
+to the compass that is a device whose iron moved after it was calibrated.
 
 Screenshots of each view go to ``$MAGNET_ARTEFACT_DIR/dashboard`` (default: the system's temp folder, under
 ``magnet-artefacts``): look at them.
@@ -19,8 +25,14 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from magnet import wire
+from magnet.drift import DriftSettings
+from magnet.model import Calibration, Quality
+from magnet.simulator import FleetSimulator
+from services.calibrator.store import CalibrationStore
 from services.common.zenoh_session import free_ports
 
 pytestmark = pytest.mark.integration
@@ -36,6 +48,9 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--no-first-run",
 ]
+DRIFT = DriftSettings(window_s=2.0, raise_windows=3, clear_windows=3)
+DRIFTED, IRON_MOVE_UT = "dev-004", np.array([14.0, -10.0, 10.0])
+LOCATION = (50.45, 30.52)
 ARTEFACTS = Path(os.environ.get("MAGNET_ARTEFACT_DIR", Path(tempfile.gettempdir()) / "magnet-artefacts")) / "dashboard"
 
 
@@ -64,10 +79,29 @@ def chromium() -> Path:
     return CHROMIUM
 
 
+def store_moved_iron(path: Path) -> str:
+    """The calibration of DRIFTED's emulated iron with the hard iron moved by IRON_MOVE_UT, stored; its id."""
+    sim = FleetSimulator(5, seed=1, noise_ut=0.3, lat_deg=LOCATION[0], lon_deg=LOCATION[1])  # the edge's defaults
+    errors = sim.errors[int(DRIFTED[-3:])]
+    calibration = Calibration(
+        "ellipsoid",
+        errors.hard_iron_ut + IRON_MOVE_UT,
+        np.linalg.inv(errors.distortion),
+        field_strength=sim.earth.total_ut,
+        quality=Quality(residual_rms_ut=0.3, coverage=0.95),
+        accepted=True,
+    )
+    with CalibrationStore(path) as store:
+        store.save(wire.DeviceCalibration(DRIFTED, time.time_ns(), calibration))
+    return calibration.content_id
+
+
 @pytest.fixture
 def pipeline(tmp_path):
-    """``magnet up --devices 5`` with the dashboard on a free port; (page address, compass port)."""
+    """``magnet up --devices 5`` with the dashboard on a free port and DRIFTED's moved iron in its store; (page
+    address, compass port)."""
     [http_port] = free_ports(1)
+    store_moved_iron(tmp_path / "up.db")
     with open(tmp_path / "up.out", "w") as out:  # the child keeps its own descriptor
         proc = subprocess.Popen(
             [
@@ -85,19 +119,25 @@ def pipeline(tmp_path):
                 f"127.0.0.1:{http_port}",
                 "--db",
                 str(tmp_path / "up.db"),
+                "--location",
+                ",".join(map(str, LOCATION)),
+                "--drift-window",
+                f"{DRIFT.window_s:g}",
+                "--drift-windows",
+                str(DRIFT.raise_windows),
             ],
             stdin=subprocess.DEVNULL,
             stdout=out,
             stderr=subprocess.STDOUT,
             cwd=REPO,
-            env={**os.environ, "CI": "true"},
+            env={**os.environ, "CI": "true", "XDG_RUNTIME_DIR": str(tmp_path)},
         )
     try:
         text = _wait_for(lambda: (tmp_path / "up.out").read_text(), r"dashboard at (http://\S+)", proc, 20)
         address = re.search(r"dashboard at (http://\S+)", text).group(1)
-        ports = re.search(r"ports (\d+), (\d+), (\d+);", text)
+        ports = re.search(r"compass 127\.0\.0\.1:(\d+)", text)
         assert address.startswith(f"http://127.0.0.1:{http_port}/?token=")
-        yield address, int(ports.group(2))
+        yield address, int(ports.group(1))
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -210,8 +250,10 @@ def test_dashboard_in_a_browser(chromium, pipeline, tmp_path):
                 errors = []
                 page.on("pageerror", lambda exc: errors.append(str(exc)))
                 page.set_default_timeout(60_000)  # generous: CI machines are shared; nothing waits when it is fast
-                page.goto(address, wait_until="commit")
+                page.goto(address, wait_until="domcontentloaded")
+                page.evaluate(SEE_DRIFT, DRIFTED)
                 _check_fleet(page, tmp_path)
+                _check_drift(page)
                 _check_session(page)
                 assert errors == [], errors
             finally:
@@ -244,6 +286,47 @@ def _check_fleet(page, tmp_path):
             matched += 1
             assert abs((heading - watched[(device, seq)] + 180) % 360 - 180) < 1.0, (device, seq)
     assert matched >= 4, f"the watcher saw {len(watched)} messages but few of the page's: {second}"
+
+
+#: records in the page when DRIFTED's drift alert first shows in the fleet table: (Date.now(), its data-since)
+SEE_DRIFT = """device => {
+    window.driftSeen = null;
+    const timer = setInterval(() => {
+        const cell = document.querySelector(`#fleet-body tr[data-device="${device}"] .drift`);
+        if (cell) { window.driftSeen = [Date.now(), Number(cell.dataset.since)]; clearInterval(timer); }
+    }, 50);
+}"""
+
+
+def _check_drift(page):
+    """DRIFTED's alert in the fleet table with its advice, in the header count and in the device view."""
+    row = f'#fleet-body tr[data-device="{DRIFTED}"]'
+    page.wait_for_function("window.driftSeen !== null", timeout=60_000)
+    seen_ms, since_ms = page.evaluate("window.driftSeen")
+    delay_s = (seen_ms - since_ms) / 1000
+    assert 0 < delay_s <= DRIFT.detection_bound_s + 5.0, f"alert shown {delay_s:.1f} s after its departure began"
+    advice = page.inner_text(f'{row} .drift[data-kind="field_strength"] .advice')
+    assert "recalibrate" in advice and "iron" in advice, advice
+    assert page.get_attribute(f'{row} td[data-key="state"] .badge', "data-status") == "drifted"
+    assert "calibrated \u00b7 drift alert" in page.inner_text(f'{row} td[data-key="state"]')
+    page.wait_for_function("Number(document.querySelector('#alert-count').dataset.count) >= 1", timeout=10_000)
+    assert re.search(r"\b[1-9]\d* alerts?\b", page.inner_text("#summary")), page.inner_text("#summary")
+    for device in ("dev-000", "dev-002", "dev-003"):  # a device whose iron did not move raises nothing
+        assert page.query_selector(f'#fleet-body tr[data-device="{device}"] .drift') is None, device
+    _shot(page, "fleet-drift")
+    page.click(row, no_wait_after=True)
+    page.wait_for_selector("#dev-drift:not(.hidden)")
+    item = page.inner_text('#dev-drift-list li[data-kind="field_strength"]')
+    assert "field strength" in item and "\u00b5T against" in item and advice in item, item
+    measured, expected = (float(x) for x in re.findall(r"([\d.]+) \u00b5T", item)[:2])
+    assert 3.0 < abs(measured - expected) <= np.linalg.norm(IRON_MOVE_UT) + 1.0, item  # the move shows, no more
+    when = page.inner_text('#dev-drift-list li[data-kind="field_strength"] .when')
+    assert re.search(r"\d{1,2}:\d{2}", when), when  # a time of day
+    assert page.get_attribute("#dev-badges .badge", "data-status") == "drifted"
+    page.evaluate(TWO_FRAMES)
+    _shot(page, "device-drift")
+    page.evaluate("location.hash = '#/'")
+    page.wait_for_selector("#fleet-view:not(.hidden)")
 
 
 def _check_session(page):

@@ -2,7 +2,9 @@
 heading [DEVICE]``, ``magnet calibrate DEVICE start|status|commit|abort [--method M]``, ``magnet calibrate DEVICE
 rollback [--to ID]``.
 
-Exit status: 0 with an answer, 1 when nobody answered (no calibrator reachable, or no calibration for the device).
+Given no ``--connect``, ``--listen`` or ``--config``, they reach the ``magnet up`` running for this user, if any
+(``services.common.endpoint``). Exit status: 0 with an answer, 1 when nobody answered (no calibrator reachable, or
+no calibration for the device).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Any
 
 from magnet import signing, wire
 from magnet.calibration import Method
+from services.common.endpoint import use_local_pipeline
 from services.common.zenoh_session import add_zenoh_arguments, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.remote")
@@ -117,6 +120,7 @@ def _only_trusted(replies: list[Any], trusted: signing.TrustedKeys, device: str)
 
 
 def run_get(args: argparse.Namespace) -> int:
+    use_local_pipeline(args)
     if args.what == "fleet":
         replies = _query(args, f"{args.prefix}/@fleet")
         for reply in replies[:1]:
@@ -163,6 +167,7 @@ def add_watch_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_watch(args: argparse.Namespace) -> int:
+    use_local_pipeline(args)
     if args.device != "*":
         wire.validate_device_id(args.device)
     stop = stop_event()
@@ -204,6 +209,7 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
+    use_local_pipeline(args)
     wire.validate_device_id(args.device)
     if args.method:
         Method.parse(args.method)  # a method no calibrator knows: one line here, exit 2

@@ -80,7 +80,9 @@ function showSummary(sum) {
   if (!sum) return;
   const rate = S.stats.rowsPerSec;
   $("summary").innerHTML = `<b>${sum.devices}</b> devices &middot; <b>${sum.alive}</b> alive &middot; ` +
-    `<b>${sum.calibrated}</b> calibrated &middot; ${rate.toFixed(0)} row updates/s`;
+    `<b>${sum.calibrated}</b> calibrated &middot; <span id="alert-count" class="${sum.alerts ? "alerting" : ""}" ` +
+    `data-count="${sum.alerts || 0}"><b>${sum.alerts || 0}</b> alert${sum.alerts === 1 ? "" : "s"}</span> ` +
+    `&middot; ${rate.toFixed(0)} row updates/s`;
 }
 
 // ------------------------------------------------------------------------------------------------ fleet table
@@ -96,10 +98,27 @@ function ageText(ms) {
   return `${(s / 86400).toFixed(0)} d`;
 }
 
-function alertBadges(row) {
+const DRIFT_CAUSE = {field_strength: "field strength", dip: "dip angle", calibration_age: "calibration age"};
+
+function driftCause(a) {
+  const unit = a.unit === "uT" ? "\u00b5T" : a.unit;
+  return `${DRIFT_CAUSE[a.kind] || a.kind}: ${fmt(a.measured, 1)} ${unit} against ${fmt(a.expected, 1)} ${unit}`;
+}
+
+function alertBadges(row, withAdvice) {
   const fused = row.fused ? '<span class="badge session" title="attitude from the gyroscope-aided filter">fused</span>' : "";
-  return fused + (row.alerts.map((a) => `<span class="badge alert">${esc(a)}</span>`).join("") ||
-    '<span class="badge note">ok</span>');
+  const drift = (row.drift || []).map((a) => `<div class="drift" data-kind="${esc(a.kind)}" data-since="${a.since_ms}"><span class="badge alert" ` +
+    `title="${esc(driftCause(a))}">drift: ${esc(DRIFT_CAUSE[a.kind] || a.kind)}</span>` +
+    (withAdvice ? `<span class="advice">${esc(a.advice)}</span>` : "") + "</div>").join("");
+  const others = row.alerts.filter((a) => !a.startsWith("drift: "));
+  return drift + fused + (others.map((a) => `<span class="badge alert">${esc(a)}</span>`).join("") ||
+    (drift ? "" : '<span class="badge note">ok</span>'));
+}
+
+function stateBadge(row) {
+  const status = row.status || (row.session ? "session" : row.state);
+  const text = status === "drifted" ? "calibrated \u00b7 drift alert" : status;
+  return `<span class="badge ${esc(status === "drifted" ? "alert" : status)}" data-status="${esc(status)}">${esc(text)}</span>`;
 }
 
 function makeRow(device) {
@@ -130,7 +149,7 @@ function fillRow(entry, row) {
     "token gone" : "no token seen"}"></span>`);
   setCell(c.device, esc(row.device));
   setCell(c.sensor, esc(row.sensor) || "\u2013");
-  setCell(c.state, `<span class="badge ${esc(row.state)}">${row.session ? "session" : esc(row.state)}</span>`);
+  setCell(c.state, stateBadge(row));
   setCell(c.method, esc(row.method) || "\u2013");
   setCell(c.residual_ut, fmt(row.residual_ut, 2));
   const cov = row.coverage == null ? 0 : row.coverage;
@@ -146,7 +165,7 @@ function fillRow(entry, row) {
   setCell(c.pitch_deg, deg(row.pitch_deg));
   setCell(c.roll_deg, deg(row.roll_deg));
   setCell(c.field_ut, fmt(row.field_ut, 1));
-  setCell(c.alerts, alertBadges(row));
+  setCell(c.alerts, alertBadges(row, true));
 }
 
 function sortValue(row, key) {
@@ -159,7 +178,7 @@ function computeOrder() {
   const list = [];
   for (const row of S.rows.values()) {
     if (f) {
-      const hay = `${row.device} ${row.sensor} ${row.state} ${row.method || ""} ${row.alerts.join(" ")}`.toLowerCase();
+      const hay = `${row.device} ${row.sensor} ${row.status || row.state} ${row.method || ""} ${row.alerts.join(" ")}`.toLowerCase();
       if (!hay.includes(f)) continue;
     }
     list.push(row);
@@ -275,14 +294,23 @@ function showLive(row) {
   if (row.quat_wxyz) $("v-quat").textContent = row.quat_wxyz.map((q) => q.toFixed(3)).join(", ");
   $("v-field").textContent = row.field_ut == null ? "\u2013" : `${fmt(row.field_ut, 1)} \u00b5T`;
   $("v-dip").textContent = deg(row.dip_deg);
-  $("v-alerts").innerHTML = alertBadges(row);
+  $("v-alerts").innerHTML = alertBadges(row, false);
+  showDrift(row);
   $("v-truth").textContent = row.truth_error_deg == null ? "" :
     `error against the simulator's truth: ${fmt(row.truth_error_deg, 2)}\u00b0`;
-  $("dev-badges").innerHTML = `<span class="badge ${esc(row.state)}">${row.session ? "session" : esc(row.state)}</span>` +
+  $("dev-badges").innerHTML = stateBadge(row) +
     `<span class="badge note">${esc(row.sensor) || "sensor ?"}</span>` +
     `<span class="badge note">${row.alive === false ? "offline" : row.alive ? "alive" : "no token"}</span>`;
   showGauges(row, S.detail && S.detail.earth);
   showControl(row);
+}
+
+function showDrift(row) {
+  const list = row.drift || [];
+  $("dev-drift").classList.toggle("hidden", !list.length);
+  const html = list.map((a) => `<li data-kind="${esc(a.kind)}" data-since="${a.since_ms}"><span class="when">${esc(new Date(a.since_ms).toLocaleString())}` +
+    `</span> <b class="cause">${esc(driftCause(a))}</b><div class="advice">${esc(a.advice)}</div></li>`).join("");
+  if ($("dev-drift-list").dataset.html !== html) { $("dev-drift-list").innerHTML = html; $("dev-drift-list").dataset.html = html; }
 }
 
 function showGauges(row, earth) {
