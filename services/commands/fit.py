@@ -87,7 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--report",
         metavar="FILE",
-        help="also draw a report of this fit (.html or .png; see 'magnet report'), accepted or not",
+        help="also draw a report of this fit (.html, .png or .pdf; see 'magnet report'), accepted or not",
     )
 
 
@@ -203,8 +203,13 @@ def write_atomically(path: Path, text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    table = read_input(args.file, InputOptions.from_args(args))
-    calibration = fit_table(table, args)
+    from services.common.progress import steps
+
+    with steps(["fit: reading samples", "fit: fitting and gating"], enabled=None if args.report else False) as step:
+        step("fit: reading samples")
+        table = read_input(args.file, InputOptions.from_args(args))
+        step("fit: fitting and gating")
+        calibration = fit_table(table, args)
     if args.report:
         from services.commands.report import place, write_report
 
