@@ -17,6 +17,7 @@ from typing import Any
 
 from magnet import wire
 from magnet.drift import alert_from_message
+from services.common import metrics
 from services.common.zenoh_session import drain, payload_bytes
 from services.dashboard.state import FleetState
 
@@ -184,6 +185,8 @@ class Ingest:
         except wire.WireError as exc:
             self._drop(exc, "heading")
             return
+        if len(batch):
+            metrics.observe_latency((time.time_ns() - int(batch.t_ns[-1])) / 1e9)
         self.state.on_heading(batch)
 
     # ---------------------------------------------------------------------------------------------- upkeep

@@ -16,6 +16,7 @@ import secrets
 import sys
 import threading
 
+from services.common import metrics
 from services.common.zenoh_session import add_zenoh_arguments, open_session
 
 log = logging.getLogger("magnet.dashboard")
@@ -41,6 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--refresh", type=float, default=0.25, help="seconds between updates of the page (default 0.25: 4 per second)"
     )
+    metrics.add_metrics_argument(parser)
     add_zenoh_arguments(parser)
 
 
@@ -97,7 +99,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--refresh must be 0.05..10 seconds, got {args.refresh}")
     token = args.token or os.environ.get(TOKEN_ENV) or secrets.token_urlsafe(12)
     state = FleetState(_earth(args))
+    if args.metrics:
+        metrics.parse_address(args.metrics)
     with open_session(args) as session:
+        metrics.start(args.metrics, "dashboard", state.metrics_status)
         token_alive = session.liveliness().declare_token(wire.liveliness_key(args.prefix, "dashboard", "dashboard"))
         ingest = Ingest(session, args.prefix, state, tick_s=args.refresh)
         thread = threading.Thread(target=ingest.run, name="dashboard-ingest", daemon=True)

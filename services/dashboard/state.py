@@ -347,6 +347,24 @@ class FleetState:
                 "earth": earth_json(self.earth),
             }
 
+    def metrics_status(self) -> dict[str, Any]:
+        """The counters ``services.common.metrics`` exposes: messages, drops by cause, devices by state, alerts."""
+        with self.lock:
+            rows = list(self.rows.values())
+            states: dict[str, int] = {}
+            alerts: dict[str, int] = {}
+            for row in rows:
+                states[row.status()] = states.get(row.status(), 0) + 1
+                for kind in row.drift:
+                    alerts[kind] = alerts.get(kind, 0) + 1
+            return {
+                "service": "dashboard",
+                "messages": self.messages,
+                "dropped": dict(self.dropped.counts),
+                "devices": states,
+                "alerts_open": alerts,
+            }
+
     def detail(self, device: str, points: int = 600) -> dict[str, Any] | None:
         """The device's row, its recent clouds (at most ``points`` each), headings and covered cells."""
         with self.lock:
