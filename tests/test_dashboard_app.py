@@ -36,8 +36,9 @@ class FakeControl:
         self.answers = answers if answers is not None else [{"v": 1, "ok": True, "message": "session started"}]
         self.errors = list(errors)
 
-    def calibrate(self, device, action, method):
+    def calibrate(self, device, action, method, to=None, by=None):
         self.calls.append(("calibrate", device, action, method))
+        self.extra = (to, by)
         return self.answers, self.errors
 
     def history(self, device, limit):
@@ -72,7 +73,7 @@ def state():
 
 
 def client_for(state, control, view_needs_token=False):
-    return TestClient(create_app(state, control, TOKEN, view_needs_token=view_needs_token))
+    return TestClient(create_app(state, control, TOKEN, view_needs_token=view_needs_token, operator="ann@lab"))
 
 
 def test_page_static_files_and_plotly_from_the_wheel(state):
@@ -107,7 +108,18 @@ def test_control_with_the_token_reaches_the_calibrator(state):
         "/api/devices/imu-1/calibrate", headers=GOOD, json={"action": "start", "method": "Ellipsoid"}
     )
     assert response.status_code == 200 and response.json()["ok"] is True
-    assert control.calls == [("calibrate", "imu-1", "start", "ellipsoid")]
+    assert control.calls == [("calibrate", "imu-1", "start", "ellipsoid")] and control.extra == (None, "ann@lab")
+    rolled = client_for(state, control).post(
+        "/api/devices/imu-1/calibrate", headers=GOOD, json={"action": "rollback", "to": "0123abcd0123abcd"}
+    )
+    assert rolled.status_code == 200 and control.calls[-1][2] == "rollback"
+    assert control.extra == ("0123abcd0123abcd", "ann@lab")  # the target and who rolled back
+    for body in ({"action": "rollback", "to": "x; action=start"}, {"action": "commit", "to": "0123abcd0123abcd"}):
+        refused = client_for(state, control).post("/api/devices/imu-1/calibrate", headers=GOOD, json=body)
+        assert refused.status_code == 400 and "calibration id" in refused.json()["error"]
+    assert len(control.calls) == 2
+    anonymous = client_for(state, control).post("/api/devices/imu-1/calibrate", json={"action": "rollback"})
+    assert anonymous.status_code == 401  # rollback needs the token
 
 
 @pytest.mark.parametrize(

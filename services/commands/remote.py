@@ -245,6 +245,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         params += (f";to={args.to}" if args.to else "") + f";by={_who()}"
     elif args.to:
         raise ValueError("--to goes with rollback")
+    elif args.action in ("start", "commit"):
+        params += f";by={_who()}"  # recorded with the commit
     errors: list[str] = []
     replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATE.value}?{params}", errors)
     if not replies:
@@ -259,7 +261,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
 
 def _who() -> str:
-    """user@host of the person asking (recorded with a rollback); characters that a selector cannot carry dropped."""
+    """user@host of the person asking (recorded with a commit or a rollback); characters that a selector cannot
+    carry dropped."""
     try:
         user = getpass.getuser()
     except (KeyError, OSError):

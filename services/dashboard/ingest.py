@@ -246,8 +246,11 @@ class Control:
                 errors.append(payload_bytes(reply.err).decode(errors="replace"))
         return answers, errors
 
-    def calibrate(self, device: str, action: str, method: str | None) -> tuple[list[dict[str, Any]], list[str]]:
+    def calibrate(
+        self, device: str, action: str, method: str | None, to: str | None = None, by: str | None = None
+    ) -> tuple[list[dict[str, Any]], list[str]]:
         params = f"action={action}" + (f";method={method}" if method else "")
+        params += (f";to={to}" if to else "") + (f";by={by}" if by else "")
         return self._ask(f"{wire.key(self.prefix, device, wire.Kind.CALIBRATE)}?{params}")
 
     def history(self, device: str, limit: int) -> tuple[list[dict[str, Any]], list[str]]:

@@ -42,6 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--refresh", type=float, default=0.25, help="seconds between updates of the page (default 0.25: 4 per second)"
     )
+    parser.add_argument(
+        "--operator",
+        metavar="NAME",
+        help="name recorded (as 'by') with the commits and rollbacks made from the page (default: user@host)",
+    )
     metrics.add_metrics_argument(parser)
     add_zenoh_arguments(parser)
 
@@ -86,6 +91,20 @@ def page_address(host: str, port: int, token: str) -> str:
     return f"http://{shown}:{port}/?token={token}"
 
 
+def operator_name(given: str | None) -> str:
+    """Who the page's commits and rollbacks are recorded as made by: ``--operator``, else the OS user of the
+    dashboard (user@host); only the characters a selector parameter carries."""
+    if not given:
+        import getpass
+        import socket
+
+        try:
+            given = f"{getpass.getuser()}@{socket.gethostname()}"
+        except (KeyError, OSError):
+            given = "dashboard"
+    return "".join(c for c in given if c.isalnum() or c in "@.-_")[:128] or "dashboard"
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -108,7 +127,12 @@ def run(args: argparse.Namespace) -> int:
         thread = threading.Thread(target=ingest.run, name="dashboard-ingest", daemon=True)
         thread.start()
         app = create_app(
-            state, Control(session, args.prefix), token, view_needs_token=not is_loopback(host), interval_s=args.refresh
+            state,
+            Control(session, args.prefix),
+            token,
+            view_needs_token=not is_loopback(host),
+            interval_s=args.refresh,
+            operator=operator_name(args.operator),
         )
         config = uvicorn.Config(
             app,
