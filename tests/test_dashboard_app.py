@@ -308,3 +308,14 @@ def test_helpers():
     rng = np.random.default_rng(0)
     sphere = rng.normal(size=(5000, 3))
     assert covered_cells(sphere * 50 + 20).all() and covered_cells(np.zeros((0, 3))).sum() == 0
+
+
+def test_the_heading_plot_gets_the_last_sixty_seconds_thinned():
+    from services.dashboard.figures import HEADING_POINTS, recent_headings
+
+    samples = [(i * 20_000_000, float(i % 360), float((i + 8) % 360)) for i in range(5000)]  # 100 s at 50 Hz
+    shown = recent_headings(samples)
+    assert shown[-1] == samples[-1] and len(shown) <= HEADING_POINTS
+    span_s = (shown[-1][0] - shown[0][0]) / 1e9
+    assert 59.0 <= span_s <= 60.0, span_s
+    assert recent_headings([]) == [] and recent_headings(samples[:3]) == samples[:3]

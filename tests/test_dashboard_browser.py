@@ -235,6 +235,7 @@ def _page_headings(page) -> dict[str, tuple[int, float]]:
 
 def _shot(page, name):
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
+    page.evaluate("window.scrollTo(0, 0)")  # the sticky header at the top of a full-page shot
     page.screenshot(path=str(ARTEFACTS / f"{name}.png"), full_page=True)
 
 
@@ -288,9 +289,11 @@ def _check_fleet(page, tmp_path):
     assert matched >= 4, f"the watcher saw {len(watched)} messages but few of the page's: {second}"
 
 
-#: records in the page when DRIFTED's drift alert first shows in the fleet table: (Date.now(), its data-since)
+#: records in the page when DRIFTED's drift alert first shows in the fleet table: (Date.now(), its data-since), and
+#: since when the page looks (``driftWatchFrom``)
 SEE_DRIFT = """device => {
     window.driftSeen = null;
+    window.driftWatchFrom = Date.now();
     const timer = setInterval(() => {
         const cell = document.querySelector(`#fleet-body tr[data-device="${device}"] .drift`);
         if (cell) { window.driftSeen = [Date.now(), Number(cell.dataset.since)]; clearInterval(timer); }
@@ -303,8 +306,12 @@ def _check_drift(page):
     row = f'#fleet-body tr[data-device="{DRIFTED}"]'
     page.wait_for_function("window.driftSeen !== null", timeout=60_000)
     seen_ms, since_ms = page.evaluate("window.driftSeen")
-    delay_s = (seen_ms - since_ms) / 1000
-    assert 0 < delay_s <= DRIFT.detection_bound_s + 5.0, f"alert shown {delay_s:.1f} s after its departure began"
+    watching_ms = page.evaluate("window.driftWatchFrom")
+    bound_ms = DRIFT.detection_bound_s * 1000
+    if watching_ms <= since_ms + bound_ms:  # the page looked before the alert was due: it shows within the bound
+        assert 0 < seen_ms - since_ms <= bound_ms + 5000, f"alert shown {seen_ms - since_ms} ms after the departure"
+    else:  # the page came late (a busy machine): the alert raised already shows at once
+        assert seen_ms - watching_ms <= 5000, f"alert shown {seen_ms - watching_ms} ms after the page looked"
     advice = page.inner_text(f'{row} .drift[data-kind="field_strength"] .advice')
     assert "recalibrate" in advice and "iron" in advice, advice
     assert page.get_attribute(f'{row} td[data-key="state"] .badge', "data-status") == "drifted"
@@ -333,23 +340,112 @@ def _check_session(page):
     page.click('#fleet-body tr[data-device="dev-001"]', no_wait_after=True)
     page.wait_for_selector("#device-view:not(.hidden)")
     page.wait_for_function("document.querySelector('#cloud .main-svg') !== null", timeout=30_000)
+    page.wait_for_function("document.querySelectorAll('#history-body tr[data-id]').length >= 1", timeout=20_000)
+    before = page.get_attribute("#history-body tr:has(.badge.calibrated:text('in force'))", "data-id")
     page.select_option("#c-method-select", "ellipsoid")
     page.click("#b-start")
     page.wait_for_function(
         "document.querySelector('#c-message').textContent.includes('session started')", timeout=10_000
     )
     page.wait_for_function("document.querySelector('#c-state').textContent === 'session'", timeout=10_000)
+    assert page.is_disabled("#b-commit"), "Commit waits for the gate"
     page.wait_for_function("parseFloat(document.querySelector('#c-bar').style.width) > 20", timeout=20_000)
     assert page.inner_text("#c-next").strip() != ""  # what to do next is said
+    _check_one_coverage_figure(page)
     _shot(page, "device-session")
     page.wait_for_function("document.querySelector('#b-commit').classList.contains('ready')", timeout=45_000)
+    assert not page.is_disabled("#b-commit")
     page.click("#b-commit")
     page.wait_for_function("document.querySelector('#c-message').textContent === 'committed'", timeout=10_000)
     page.wait_for_function("document.querySelector('#c-state').textContent === 'calibrated'", timeout=10_000)
-    page.wait_for_function("document.querySelectorAll('#history-body code').length >= 1", timeout=10_000)
+    page.wait_for_function("document.querySelectorAll('#history-body tr[data-id]').length >= 2", timeout=10_000)
     page.wait_for_function("document.querySelectorAll('#cloud .scatterlayer .trace .point').length > 100")
+    page.wait_for_function(IN_FORCE_FIRST, timeout=10_000)
+    committed = page.inner_text("#history-body tr:first-child")
+    assert "in force" in committed and re.search(r"session by \S+@\S+", committed), committed  # who committed
+    _check_in_force(page)
+    _check_one_coverage_figure(page)
+    _check_plots(page)
     _shot(page, "device-committed")
+    _check_rollback(page, before)
     page.click('.tab[data-cloud="3d"]')
     page.wait_for_function("document.querySelector('#cloud .gl-container') !== null", timeout=30_000)
     page.evaluate(TWO_FRAMES)  # the 3D scene drawn before the screenshot
     _shot(page, "device-3d")
+
+
+#: the newest calibration in the history table is marked as the one in force
+IN_FORCE_FIRST = (
+    "(document.querySelector('#history-body tr:first-child') || {textContent: ''}).textContent.includes('in force')"
+)
+
+
+#: the progress bar's coverage and the sphere note's are the same number
+SAME_COVERAGE = """() => {
+    const bar = /(\\d+) %/.exec(document.querySelector('#c-pct').textContent);
+    const note = /Coverage (\\d+) %/.exec(document.querySelector('#sphere-note').textContent);
+    return !!(bar && note && bar[1] === note[1]);
+}"""
+
+
+def _check_one_coverage_figure(page):
+    """The progress bar and the sphere's note give one figure, the calibrator's coverage, and nothing else."""
+    page.wait_for_function(SAME_COVERAGE, timeout=10_000)
+    note = page.inner_text("#sphere-note")
+    assert "of 100" not in note and len(re.findall(r"\d+ %", note)) == 1, note
+
+
+def _check_in_force(page):
+    """Offset and matrix of the calibration in force, and its export as a JSON file."""
+    page.wait_for_function("document.querySelectorAll('#f-matrix td').length === 9", timeout=10_000)
+    offset = [float(x) for x in re.findall(r"-?\d+\.\d+", page.inner_text("#f-offset"))]
+    assert len(offset) == 3 and "\u00b5T" in page.inner_text("#f-offset"), offset
+    with page.expect_download() as download:
+        page.click("#b-export")
+    record = json.loads(Path(download.value.path()).read_text())
+    in_force = page.get_attribute("#history-body tr:first-child", "data-id")
+    assert record["id"] == in_force == page.inner_text("#f-id") and record["device"] == "dev-001"
+    assert [round(x, 2) for x in record["offset"]] == offset and len(record["matrix"]) == 3
+
+
+def _check_plots(page):
+    """The heading plot draws two lines, true solid and magnetic dashed, over up to 60 s; no legend under a toolbar."""
+    page.wait_for_function("document.querySelectorAll('#heading-plot .scatterlayer .trace path.js-line').length >= 2")
+    dashes = page.eval_on_selector_all(
+        "#heading-plot .scatterlayer .trace",
+        "ts => ts.map(t => getComputedStyle(t.querySelector('path.js-line')).strokeDasharray)",
+    )
+    assert dashes[0] in ("", "none") and dashes[1] not in ("", "none"), dashes
+    span = page.evaluate("(() => { const a = document.querySelector('#heading-plot')._fullLayout.xaxis.range;"
+                         " return a[1] - a[0]; })()")  # fmt: skip
+    assert span == 60, span
+    for plot in ("#cloud", "#sphere", "#heading-plot"):
+        page.hover(plot)
+        boxes = page.evaluate(OVERLAP, plot)
+        assert boxes["overlap"] is False, (plot, boxes)
+
+
+#: the bounding boxes of a plot's legend and toolbar (if shown) and whether they overlap
+OVERLAP = """plot => {
+    const box = sel => { const e = document.querySelector(`${plot} ${sel}`);
+        if (!e) return null; const r = e.getBoundingClientRect();
+        return r.width && r.height ? [r.left, r.top, r.right, r.bottom] : null; };
+    const legend = box('.legend'), bar = box('.modebar');
+    const overlap = !!(legend && bar && legend[0] < bar[2] && bar[0] < legend[2] && legend[1] < bar[3]
+        && bar[1] < legend[3]);
+    return {legend, bar, overlap};
+}"""
+
+
+def _check_rollback(page, before):
+    """Rollback from the history table puts the earlier calibration back in force (the token is in the page)."""
+    if before is None:
+        return
+    page.click(f'#history-body tr[data-id="{before}"] button.rollback')
+    page.wait_for_function("document.querySelector('#c-message').textContent.includes('back in force')", timeout=10_000)
+    page.wait_for_function(
+        f"document.querySelector('#f-id').textContent === '{before}'", timeout=15_000
+    )  # the calibration in force is the one rolled back to
+    page.wait_for_function(IN_FORCE_FIRST, timeout=10_000)
+    first = page.inner_text("#history-body tr:first-child")
+    assert "rollback by" in first and "in force" in first, first

@@ -15,6 +15,8 @@ from magnet.geomag import EarthField
 from magnet.quality import fibonacci_centres
 
 CELL_CENTRES = fibonacci_centres()
+HEADING_WINDOW_NS = 60_000_000_000  # the heading plot covers the last 60 s
+HEADING_POINTS = 600  # at most this many heading samples go to the page
 
 
 def acc_direction(pitch_deg: np.ndarray | float, roll_deg: np.ndarray | float) -> np.ndarray:
@@ -75,3 +77,14 @@ def earth_json(earth: EarthField | None) -> dict[str, Any] | None:
         "declination_deg": round(earth.declination_deg, 3),
         "horizontal_ut": round(earth.horizontal_ut, 3),
     }
+
+
+def recent_headings(headings: list[tuple[int, float, float]]) -> list[tuple[int, float, float]]:
+    """The (t_ns, magnetic, true) samples of the last ``HEADING_WINDOW_NS`` before the newest, thinned evenly to at
+    most ``HEADING_POINTS`` (the newest always kept)."""
+    if not headings:
+        return []
+    since = headings[-1][0] - HEADING_WINDOW_NS
+    window = [h for h in headings if h[0] >= since]
+    step = max(1, math.ceil(len(window) / HEADING_POINTS))
+    return window[::-1][::step][::-1]

@@ -29,10 +29,11 @@ from services.dashboard.figures import (
     dip_deg,
     earth_json,
     quat_of,
+    recent_headings,
 )
 
 TRACE_POINTS = 1500  # raw and calibrated field points kept per watched device
-TRACE_HEADINGS = 600  # heading samples kept per watched device
+TRACE_HEADINGS = 6000  # heading samples kept per watched device (60 s at 100 Hz)
 STALE_S = 5.0  # no heading for this long: the row says so
 WATCH_LINGER_S = 15.0  # a device stays watched this long after its last viewer left
 FUSED_FLAG = int(HeadingFlag.FUSED)  # attitude from the gyroscope-aided filter
@@ -374,12 +375,12 @@ class FleetState:
             trace = self.traces.get(device)
             raw = np.array(trace.raw if trace else [], dtype=float).reshape(-1, 3)
             calibrated = np.array(trace.calibrated if trace else [], dtype=float).reshape(-1, 3)
-            headings = list(trace.headings)[-300:] if trace else []
+            headings = recent_headings(list(trace.headings)) if trace else []
             out: dict[str, Any] = {"row": row.to_json(self.clock(), self.earth), "earth": earth_json(self.earth)}
         out.update(
             raw=decimate(raw, points),
             calibrated=decimate(calibrated, points),
-            headings=[[t // 1_000_000, round(m, 2), round(tr, 2)] for t, m, tr in headings[::3]],
+            headings=[[t // 1_000_000, round(m, 2), round(tr, 2)] for t, m, tr in headings],
             cells=covered_cells(raw).astype(int).tolist(),
         )
         return out
