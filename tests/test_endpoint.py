@@ -4,8 +4,6 @@ its writer is gone, malformed or when the command was given its own Zenoh option
 import argparse
 import json
 import os
-import subprocess
-import sys
 
 from magnet.wire import DEFAULT_PREFIX
 from services.common.endpoint import (
@@ -51,8 +49,8 @@ def test_a_file_left_by_a_dead_pipeline_or_malformed_is_ignored_and_not_removed_
     path = runtime_file()
     assert path == tmp_path / ".cache" / "magnet" / "up.json"
     path.parent.mkdir(parents=True)
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    record = {"v": 1, "pid": int(dead.stdout), "prefix": "magnet", "connect": ENDPOINTS, "ports": {}}
+    no_such_pid = 2**22 + 1  # above Linux's largest pid_max: no process has it
+    record = {"v": 1, "pid": no_such_pid, "prefix": "magnet", "connect": ENDPOINTS, "ports": {}}
     path.write_text(json.dumps(record))
     assert read_runtime_file() is None and read_runtime_file(check_alive=False) is not None
     remove_runtime_file()
