@@ -205,7 +205,7 @@ def write_atomically(path: Path, text: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from services.common.progress import steps
 
-    with steps(["fit: reading samples", "fit: fitting and gating"], enabled=None if args.report else False) as step:
+    with steps(["fit: reading samples", "fit: fitting and gating"]) as step:  # a bar only on a terminal
         step("fit: reading samples")
         table = read_input(args.file, InputOptions.from_args(args))
         step("fit: fitting and gating")

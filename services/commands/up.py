@@ -29,7 +29,7 @@ from services.commands.up_settings import MAX_DEVICES, UpSettings
 from services.commands.up_view import DeviceView, Viewer, render_lines
 from services.common.endpoint import connect_endpoints, connect_line, remove_runtime_file, write_runtime_file
 from services.common.fleet_options import add_drift_arguments
-from services.common.zenoh_session import free_ports, payload_bytes, stop_event
+from services.common.zenoh_session import drain, free_ports, payload_bytes, stop_event
 
 __all__ = ["MAX_DEVICES", "DeviceView", "UpSettings", "Viewer", "add_arguments", "render_lines", "run", "up"]
 
@@ -79,6 +79,7 @@ def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], l
             kind: session.declare_subscriber(wire.key(settings.prefix, "*", kind), zenoh.handlers.RingChannel(4096))
             for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION, wire.Kind.ALERT)
         }
+        in_force = session.get(wire.key(settings.prefix, "*", wire.Kind.CALIBRATION), timeout=3.0)  # stored ones
         next_view = started + min(interval, 1.0)
         while not stop.is_set():
             now = time.monotonic()
@@ -92,6 +93,9 @@ def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], l
             for kind, subscriber in subscribers.items():
                 while (sample := subscriber.try_recv()) is not None:
                     viewer.feed(kind, payload_bytes(sample))
+            for reply in drain(in_force, 1000):
+                if reply.ok is not None:
+                    viewer.feed(wire.Kind.CALIBRATION, payload_bytes(reply.ok))
             if now >= next_view:
                 viewer.show(now - started)
                 next_view = now + interval

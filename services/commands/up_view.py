@@ -72,6 +72,8 @@ class DeviceView:
                 self.truth.pop(next(iter(self.truth)))
 
     def on_heading(self, batch: wire.HeadingBatch) -> None:
+        if batch.calibration_id and self.state == "waiting":  # the compass applies a calibration: one is in force
+            self.state, self.calibration_id = "calibrated", batch.calibration_id
         self.true_heading_deg = float(batch.true_heading_deg[-1])
         self.pitch_deg, self.roll_deg = float(batch.pitch_deg[-1]), float(batch.roll_deg[-1])
         self.flags = int(batch.flags[-1])
@@ -80,9 +82,9 @@ class DeviceView:
             self.error_deg = float((self.true_heading_deg - truth + 180.0) % 360.0 - 180.0)
 
 
-def _bar(fraction: float | None, width: int = 20) -> str:
+def _bar(fraction: float | None, width: int = 20, state: str = "waiting") -> str:
     if fraction is None:
-        return "waiting for samples"
+        return "waiting for samples" if state == "waiting" else "-"
     filled = round(max(0.0, min(1.0, fraction)) * width)
     return "[" + "#" * filled + "." * (width - filled) + f"] {fraction:4.0%}"
 
@@ -123,7 +125,7 @@ def render_lines(views: dict[str, DeviceView], elapsed_s: float, width: int = 10
     for device in sorted(views):
         v = views[device]
         lines.append(
-            f"{device:<12} {v.status:<11} {_bar(v.coverage):<31} {_fmt(v.true_heading_deg, '8.1f')} "
+            f"{device:<12} {v.status:<11} {_bar(v.coverage, state=v.state):<31} {_fmt(v.true_heading_deg, '8.1f')} "
             f"{_fmt(v.pitch_deg, '6.1f')} {_fmt(v.roll_deg, '7.1f')} {_fmt(v.residual_ut, '8.2f')} "
             f"{_fmt(v.error_deg, '7.2f')}  {_note(v)}"
         )

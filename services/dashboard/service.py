@@ -17,6 +17,7 @@ import sys
 import threading
 
 from services.common import metrics
+from services.common.endpoint import use_local_pipeline
 from services.common.zenoh_session import add_zenoh_arguments, open_session
 
 log = logging.getLogger("magnet.dashboard")
@@ -117,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0.05 <= args.refresh <= 10:
         raise ValueError(f"--refresh must be 0.05..10 seconds, got {args.refresh}")
     token = args.token or os.environ.get(TOKEN_ENV) or secrets.token_urlsafe(12)
+    use_local_pipeline(args)  # no Zenoh option given: the magnet up of this user, if one runs
     state = FleetState(_earth(args))
     if args.metrics:
         metrics.parse_address(args.metrics)
