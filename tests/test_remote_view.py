@@ -83,7 +83,8 @@ def test_a_calibration_shows_offset_and_matrix_and_the_history_its_changes():
         "quality": {"residual_rms_ut": 0.3, "coverage": 0.9},
     }
     out = text(calibration_table(record))
-    assert "12.35  -7.00  0.50 uT" in out and "1.0123  0.0000  0.0000" in out and "51.04 uT" in out and "90 %" in out
+    assert "   12.35    -7.00     0.50 uT" in out and "  1.0123   0.0000   0.0000" in out
+    assert "51.04 uT" in out and "90 %" in out
     history = {"device": "d", "records": [record], "changes": [{"action": "rollback", "from_id": "x", "by": "ann"}]}
     out = text(history_table(history))
     assert "abc123" in out and "accepted" in out and "rollback from x by ann" in out

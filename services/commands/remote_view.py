@@ -46,6 +46,11 @@ def num(value: Any, digits: int, unit: str = "") -> str:
     return f"{value:.{digits}f}" + (f" {unit}" if unit else "")
 
 
+def unit_name(unit: Any) -> str:
+    """A record's unit as people write it (uT for ``ut``)."""
+    return {"ut": "uT", None: "uT", "nt": "nT", "mgauss": "mG"}.get(unit, str(unit))
+
+
 def pct(value: Any) -> str:
     return "\u2013" if not isinstance(value, (int, float)) or isinstance(value, bool) else f"{value * 100:.0f} %"
 
@@ -126,9 +131,9 @@ def calibration_table(record: Mapping[str, Any]) -> RenderableType:
         ("created", when(record.get("created_ns"))),
         ("method", str(record.get("method"))),
         ("accepted", f"{record.get('accepted')} {record.get('reason') or ''}".strip()),
-        ("offset", "  ".join(num(x, 2) for x in offset) + f" {record.get('raw_unit', 'uT')}"),
-        ("matrix", "\n".join("  ".join(num(x, 4) for x in row) for row in matrix)),
-        ("field strength", num(record.get("field_strength"), 2, "uT")),
+        ("offset", " ".join(f"{num(x, 2):>8}" for x in offset) + f" {unit_name(record.get('unit'))}"),
+        ("matrix", "\n".join(" ".join(f"{num(x, 4):>8}" for x in row) for row in matrix)),
+        ("field strength", num(record.get("field_strength"), 2, unit_name(record.get("output_unit")))),
         ("residual", num(quality.get("residual_rms_ut"), 2, "uT")),
         ("held-out residual", num(quality.get("holdout_rms_ut"), 2, "uT")),
         ("coverage", pct(quality.get("coverage"))),
