@@ -81,27 +81,31 @@ def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], l
         }
         in_force = session.get(wire.key(settings.prefix, "*", wire.Kind.CALIBRATION), timeout=3.0)  # stored ones
         next_view = started + min(interval, 1.0)
-        while not stop.is_set():
-            now = time.monotonic()
-            if settings.duration_s is not None and now - started >= settings.duration_s:
-                break
-            dead = [name for name, proc in procs.items() if proc.poll() is not None]
-            if dead:
-                report_dead(dead, logs)
-                status = 1
-                break
-            for kind, subscriber in subscribers.items():
-                while (sample := subscriber.try_recv()) is not None:
-                    viewer.feed(kind, payload_bytes(sample))
-            for reply in drain(in_force, 1000):
-                if reply.ok is not None:
-                    viewer.feed(wire.Kind.CALIBRATION, payload_bytes(reply.ok))
-            if now >= next_view:
-                viewer.show(now - started)
-                next_view = now + interval
-            time.sleep(0.02)
-        viewer.show(time.monotonic() - started)
-        viewer.close()
+        try:
+            while not stop.is_set():
+                now = time.monotonic()
+                if settings.duration_s is not None and now - started >= settings.duration_s:
+                    break
+                dead = [name for name, proc in procs.items() if proc.poll() is not None]
+                if dead:
+                    viewer.close()  # the live view ends before the report of what stopped
+                    report_dead(dead, logs)
+                    status = 1
+                    break
+                for kind, subscriber in subscribers.items():
+                    while (sample := subscriber.try_recv()) is not None:
+                        viewer.feed(kind, payload_bytes(sample))
+                for reply in drain(in_force, 1000):
+                    if reply.ok is not None:
+                        viewer.feed(wire.Kind.CALIBRATION, payload_bytes(reply.ok))
+                if now >= next_view:
+                    viewer.show(now - started)
+                    next_view = now + interval
+                time.sleep(0.02)
+            if status == 0:
+                viewer.show(time.monotonic() - started)
+        finally:
+            viewer.close()  # the terminal gets its cursor back whatever happened
     return status
 
 
