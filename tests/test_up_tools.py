@@ -28,6 +28,40 @@ def magnet(env, *args, timeout=30):
     )
 
 
+def on_a_terminal(env, *args, timeout=30):
+    """What ``magnet ARGS`` prints when its stdout is a terminal (a pseudo-terminal, 200 columns)."""
+    import pty
+
+    main, child = pty.openpty()
+    try:
+        done = subprocess.run(
+            [*MAGNET, *args],
+            stdout=child,
+            stderr=subprocess.PIPE,
+            stdin=subprocess.DEVNULL,
+            timeout=timeout,
+            env={**env, "COLUMNS": "200", "TERM": "xterm"},
+            cwd=REPO_ROOT,
+        )
+        os.close(child)
+        child = -1
+        chunks = []
+        while True:
+            try:
+                chunk = os.read(main, 65536)
+            except OSError:  # the terminal's other side is closed: everything was read
+                break
+            if not chunk:
+                break
+            chunks.append(chunk)
+    finally:
+        os.close(main)
+        if child >= 0:
+            os.close(child)
+    assert done.returncode == 0, done.stderr
+    return re.sub(r"\x1b\[[0-9;?]*[a-zA-Z]", "", b"".join(chunks).decode(errors="replace"))
+
+
 def test_get_fleet_and_watch_heading_beside_magnet_up_need_no_options(tmp_path):
     runtime = tmp_path / "run"
     runtime.mkdir(mode=0o700)
@@ -64,6 +98,10 @@ def test_get_fleet_and_watch_heading_beside_magnet_up_need_no_options(tmp_path):
         assert {m["device"] for m in messages} == {"dev-001"} and all(
             m["key"] == "magnet/dev-001/heading" for m in messages
         )
+        table = on_a_terminal(env, "get", "fleet")
+        assert "\u2503" in table and "dev-001" in table and "residual uT" in table, table  # a drawn table
+        as_json = on_a_terminal(env, "get", "fleet", "--json")
+        assert json.loads(as_json.strip().splitlines()[0])["count"] >= 2, as_json  # --json: JSON even on a terminal
         elsewhere = magnet({**env, "XDG_RUNTIME_DIR": str(tmp_path / "nowhere")}, "get", "fleet", *line)
         assert elsewhere.returncode == 0 and json.loads(elsewhere.stdout.splitlines()[0])["devices"]
     finally:
