@@ -1,6 +1,7 @@
 """Units of magnetic field and their conversion to microtesla (uT), the library's unit.
 
-1 gauss = 100 uT; 1 nT (= 1 gamma) = 0.001 uT. ``counts`` are raw sensor codes with no known scale.
+1 gauss = 100 uT; 1 milligauss = 0.1 uT; 1 nT (= 1 gamma) = 0.001 uT. ``counts`` are raw sensor codes with no known
+scale.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ class FieldUnit(enum.Enum):
 
     UT = "ut"
     GAUSS = "gauss"
+    MGAUSS = "mgauss"
     NT = "nt"
     COUNTS = "counts"
 
@@ -29,13 +31,14 @@ class FieldUnit(enum.Enum):
 UT_PER_UNIT: dict[FieldUnit, float | None] = {
     FieldUnit.UT: 1.0,
     FieldUnit.GAUSS: 100.0,
+    FieldUnit.MGAUSS: 0.1,
     FieldUnit.NT: 0.001,
     FieldUnit.COUNTS: None,
 }
 
 STANDARD_GRAVITY_MS2 = 9.80665
 
-_UNIT_ALIASES = {"gamma": "nt", "g": "gauss", "microtesla": "ut", "µt": "ut"}
+_UNIT_ALIASES = {"gamma": "nt", "g": "gauss", "microtesla": "ut", "µt": "ut", "mg": "mgauss", "milligauss": "mgauss"}
 
 
 def ut_per_unit(unit: str) -> float | None:

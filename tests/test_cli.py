@@ -23,6 +23,7 @@ def test_every_command_has_help(command, capsys):
     assert f"magnet {command}" in capsys.readouterr().out
 
 
+@pytest.mark.integration  # a fresh interpreter (a process), so that nothing is imported already
 def test_offline_commands_do_not_load_zenoh():
     code = (
         "import sys\nfrom services.cli import main\n"

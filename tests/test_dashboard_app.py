@@ -2,6 +2,7 @@
 clear 4xx that changes nothing (starlette's TestClient, a fake calibrator behind the control)."""
 
 import asyncio
+import dataclasses
 import json
 import warnings
 
@@ -10,12 +11,14 @@ import pytest
 
 from magnet import wire
 from magnet.attitude import euler_to_matrix, ned_to_body
+from magnet.drift import Alert, AlertKind
 from magnet.geomag import earth_field
 from magnet.heading import dip_angle_deg
 from magnet.model import Calibration
 from services.dashboard.app import create_app
+from services.dashboard.figures import acc_direction, covered_cells, dip_deg
 from services.dashboard.service import is_loopback, page_address, parse_http
-from services.dashboard.state import FleetState, acc_direction, covered_cells, dip_deg
+from services.dashboard.state import FleetState
 
 with warnings.catch_warnings():  # starlette >= 1 asks for httpx2, which the package index does not have
     warnings.filterwarnings("ignore", message=".*httpx.*")
@@ -33,8 +36,9 @@ class FakeControl:
         self.answers = answers if answers is not None else [{"v": 1, "ok": True, "message": "session started"}]
         self.errors = list(errors)
 
-    def calibrate(self, device, action, method):
+    def calibrate(self, device, action, method, to=None, by=None):
         self.calls.append(("calibrate", device, action, method))
+        self.extra = (to, by)
         return self.answers, self.errors
 
     def history(self, device, limit):
@@ -69,7 +73,7 @@ def state():
 
 
 def client_for(state, control, view_needs_token=False):
-    return TestClient(create_app(state, control, TOKEN, view_needs_token=view_needs_token))
+    return TestClient(create_app(state, control, TOKEN, view_needs_token=view_needs_token, operator="ann@lab"))
 
 
 def test_page_static_files_and_plotly_from_the_wheel(state):
@@ -104,7 +108,18 @@ def test_control_with_the_token_reaches_the_calibrator(state):
         "/api/devices/imu-1/calibrate", headers=GOOD, json={"action": "start", "method": "Ellipsoid"}
     )
     assert response.status_code == 200 and response.json()["ok"] is True
-    assert control.calls == [("calibrate", "imu-1", "start", "ellipsoid")]
+    assert control.calls == [("calibrate", "imu-1", "start", "ellipsoid")] and control.extra == (None, "ann@lab")
+    rolled = client_for(state, control).post(
+        "/api/devices/imu-1/calibrate", headers=GOOD, json={"action": "rollback", "to": "0123abcd0123abcd"}
+    )
+    assert rolled.status_code == 200 and control.calls[-1][2] == "rollback"
+    assert control.extra == ("0123abcd0123abcd", "ann@lab")  # the target and who rolled back
+    for body in ({"action": "rollback", "to": "x; action=start"}, {"action": "commit", "to": "0123abcd0123abcd"}):
+        refused = client_for(state, control).post("/api/devices/imu-1/calibrate", headers=GOOD, json=body)
+        assert refused.status_code == 400 and "calibration id" in refused.json()["error"]
+    assert len(control.calls) == 2
+    anonymous = client_for(state, control).post("/api/devices/imu-1/calibrate", json={"action": "rollback"})
+    assert anonymous.status_code == 401  # rollback needs the token
 
 
 @pytest.mark.parametrize(
@@ -238,6 +253,37 @@ def test_state_rows_alerts_and_traces():
     assert state.rows["d1"].state == "session"
 
 
+def test_a_drift_alert_shows_with_its_advice_is_counted_and_a_calibrated_device_in_alert_is_not_plain():
+    state = FleetState(None)
+    calibration = Calibration("ellipsoid", np.zeros(3), np.eye(3), quality={"residual_rms_ut": 0.3, "coverage": 0.9})
+    state.on_calibration(wire.DeviceCalibration("d1", 5_000_000, calibration))
+    assert state.changes(-1)[1][0]["status"] == "calibrated" and state.summary()["alerts"] == 0
+    raised = Alert("d1", AlertKind.FIELD_STRENGTH, 7_000_000_000, 58.2, 50.1, "look for new iron, then recalibrate")
+    state.on_alert(raised)
+    version = state.version
+    state.on_alert(raised)  # asked again: nothing changes
+    assert state.version == version
+    state.on_alert(dataclasses.replace(raised, kind=AlertKind.CALIBRATION_AGE, measured=400.0, expected=365.0))
+    row = state.changes(-1)[1][0]
+    assert row["state"] == "calibrated" and row["status"] == "drifted"
+    assert row["alerts"][:2] == ["drift: calibration age", "drift: field strength"]
+    strength = next(a for a in row["drift"] if a["kind"] == "field_strength")
+    assert strength == {
+        "kind": "field_strength",
+        "since_ms": 7000,
+        "measured": 58.2,
+        "expected": 50.1,
+        "unit": "uT",
+        "advice": "look for new iron, then recalibrate",
+    }
+    assert state.summary()["alerts"] == 2 and state.summary()["in_alert"] == 1
+    for kind in (AlertKind.FIELD_STRENGTH, AlertKind.CALIBRATION_AGE):
+        state.on_alert(dataclasses.replace(raised, kind=kind, cleared=True))
+    assert state.changes(-1)[1][0]["status"] == "calibrated" and state.summary()["alerts"] == 0
+    state.on_alert(dataclasses.replace(raised, device="unknown", cleared=True))  # a clear for nobody adds no row
+    assert "unknown" not in state.rows
+
+
 def test_quaternion_optional_field_is_shown_when_present():
     state = FleetState(None)
     state.on_heading(heading_batch("q"), quat_wxyz=[[1, 0, 0, 0]] * 5)
@@ -262,3 +308,14 @@ def test_helpers():
     rng = np.random.default_rng(0)
     sphere = rng.normal(size=(5000, 3))
     assert covered_cells(sphere * 50 + 20).all() and covered_cells(np.zeros((0, 3))).sum() == 0
+
+
+def test_the_heading_plot_gets_the_last_sixty_seconds_thinned():
+    from services.dashboard.figures import HEADING_POINTS, recent_headings
+
+    samples = [(i * 20_000_000, float(i % 360), float((i + 8) % 360)) for i in range(5000)]  # 100 s at 50 Hz
+    shown = recent_headings(samples)
+    assert shown[-1] == samples[-1] and len(shown) <= HEADING_POINTS
+    span_s = (shown[-1][0] - shown[0][0]) / 1e9
+    assert 59.0 <= span_s <= 60.0, span_s
+    assert recent_headings([]) == [] and recent_headings(samples[:3]) == samples[:3]

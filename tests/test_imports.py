@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 MAGNET_DIR = Path(__file__).resolve().parents[1] / "magnet"
 FORBIDDEN = ("zenoh", "smbus2", "sqlite3", "_sqlite3")
 #: modules the shell owns: processes, sockets, threads, signals
@@ -42,6 +44,7 @@ def _sources() -> list[Path]:
     return sorted(MAGNET_DIR.rglob("*.py"))
 
 
+@pytest.mark.integration  # a fresh interpreter (a process), so that nothing is imported already
 def test_no_module_of_magnet_loads_zenoh_smbus2_or_sqlite3():
     out = subprocess.run(
         [sys.executable, "-c", IMPORT_ALL % (FORBIDDEN,)], capture_output=True, text=True, check=True, timeout=120

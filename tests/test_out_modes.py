@@ -33,14 +33,25 @@ def test_write_atomically_makes_an_ordinary_file(tmp_path, umask):
     assert _mode(path) == 0o666 & ~umask and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
-def test_fit_report_and_keys_write_their_files_with_the_modes_they_need(tmp_path, umask, capsys):
+def test_fit_and_keys_write_their_files_with_the_modes_they_need(tmp_path, umask, capsys):
+    from helpers import REPO_ROOT
+
+    cal = tmp_path / "cal.json"
+    data = str(REPO_ROOT / RECORDING)
+    assert main(["fit", data, "--method", "minmax", "--unit", "gauss", "--out", str(cal)]) == 0
+    assert main(["keys", "--out", str(tmp_path / "keys"), "--name", "site"]) == 0
+    capsys.readouterr()
+    assert _mode(cal) == 0o666 & ~umask
+    assert _mode(tmp_path / "keys" / "site.key") == 0o600
+    assert _mode(tmp_path / "keys" / "site.pub") == 0o644
+
+
+@pytest.mark.integration  # draws a figure: seconds
+def test_fit_report_writes_its_report_with_the_mode_of_an_ordinary_file(tmp_path, umask, capsys):
     from helpers import REPO_ROOT
 
     cal, report = tmp_path / "cal.json", tmp_path / "report.html"
     data = str(REPO_ROOT / RECORDING)
     assert main(["fit", data, "--method", "minmax", "--unit", "gauss", "--out", str(cal), "--report", str(report)]) == 0
-    assert main(["keys", "--out", str(tmp_path / "keys"), "--name", "site"]) == 0
     capsys.readouterr()
     assert _mode(cal) == 0o666 & ~umask == _mode(report)
-    assert _mode(tmp_path / "keys" / "site.key") == 0o600
-    assert _mode(tmp_path / "keys" / "site.pub") == 0o644

@@ -119,6 +119,18 @@ def test_fit_report_writes_the_same_report_for_the_fit_it_made(tumble, tmp_path)
 
 
 @pytest.mark.integration  # draws a figure: seconds
+def test_a_pdf_report_is_one_page_with_its_text_and_the_gate_in_its_metadata(tumble, capsys):
+    csv, cal = tumble
+    ARTEFACTS.mkdir(parents=True, exist_ok=True)
+    out = ARTEFACTS / "tumble.pdf"
+    assert main(["report", str(csv), "--calibration", str(cal), "--location", LOCATION, "--out", str(out)]) == 0
+    assert capsys.readouterr().err == ""  # no progress bar without a terminal
+    pdf = out.read_bytes()
+    assert pdf.startswith(b"%PDF-") and pdf.rstrip().endswith(b"%%EOF") and b"/Count 1" in pdf
+    assert b"/Title (magnet report: tumble.csv)" in pdf and b"/Subject (verdict: accepted; method: ellipsoid" in pdf
+
+
+@pytest.mark.integration  # draws a figure: seconds
 def test_a_rejected_fit_still_gets_its_report_and_the_reason(tmp_path, capsys):
     rng = np.random.default_rng(3)
     directions = rng.normal(size=(4000, 3))
@@ -135,8 +147,8 @@ def test_a_rejected_fit_still_gets_its_report_and_the_reason(tmp_path, capsys):
 
 def test_bad_report_requests_say_what_is_wrong(tumble, tmp_path, capsys):
     csv, cal = tumble
-    assert main(["report", str(csv), "--calibration", str(cal), "--out", str(tmp_path / "r.pdf")]) == 2
-    assert "must end in .png or .html" in capsys.readouterr().err
+    assert main(["report", str(csv), "--calibration", str(cal), "--out", str(tmp_path / "r.svg")]) == 2
+    assert "must end in .png, .html, .pdf" in capsys.readouterr().err
     assert (
         main(["report", str(csv), "--calibration", str(cal), "--unit", "gauss", "--out", str(tmp_path / "r.png")]) == 2
     )

@@ -188,6 +188,7 @@ def _lease(site, name):
     return json.loads(out.stdout.splitlines()[0]) if out.returncode == 0 and out.stdout.strip() else None
 
 
+@pytest.mark.integration  # starts a router and two calibrators
 def test_a_second_calibrator_stands_by_and_takes_over_through_the_secure_router(site):
     if "calibrator" not in site.procs or not site.alive("calibrator"):
         site.start_step("calibrator")

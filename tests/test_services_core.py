@@ -109,11 +109,14 @@ def test_session_commit_abort_and_status(store):
     started = calibrator.session("d", "start", "sphere")
     assert started["ok"] and started["state"] == "session" and started["progress"]["method"] == "sphere"
     assert calibrator.session("d", "abort", None)["ok"] and calibrator.state("d").value == "idle"
-    calibrator.session("d", "start", "ellipsoid")
+    calibrator.session("d", "start", "ellipsoid", by="ann@lab")
     _feed(calibrator, _run())
     assert store.latest("d") is None, "a session stores only on commit"
-    committed = calibrator.session("d", "commit", None)
+    committed = calibrator.session("d", "commit", None, by="bob@lab")
     assert committed["ok"] and committed["calibration"]["id"] == store.latest("d").id
+    [(_, change)] = store.history_changes("d", 1)
+    assert change["action"] == "session" and change["by"] == "bob@lab"  # who committed it
+    assert calibrator.session_by == {}  # nothing kept once the session is over
     assert calibrator.session("d", "status", None)["state"] == "calibrated"
     with pytest.raises(ValueError):
         calibrator.session("d", "explode", None)

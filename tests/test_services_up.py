@@ -13,7 +13,7 @@ pytestmark = pytest.mark.integration
 def test_up_runs_headless_calibrates_every_device_and_stops(tmp_path):
     tmp = tmp_path / "tmp"
     tmp.mkdir()
-    env = {**os.environ, "CI": "true", "TMPDIR": str(tmp)}
+    env = {**os.environ, "CI": "true", "TMPDIR": str(tmp), "XDG_RUNTIME_DIR": str(tmp_path)}
     out = subprocess.run(
         [
             *MAGNET,

@@ -14,6 +14,7 @@ from magnet.calibration.closed_form import minmax, minmax2d, sphere
 from magnet.calibration.ellipsoid import ellipsoid
 from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
+from magnet.quality.units_hint import unit_hint
 
 #: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
 #: it did not see (blocks, not single samples: neighbours in time are nearly the same reading)
@@ -134,6 +135,9 @@ def fit(
     if shape.note:
         quality = quality.with_extra(note=shape.note)
     accepted, reason = _gate(quality, gate)
+    hint = None if accepted or geometry is not Geometry.SPHERE else unit_hint(shape.radius, to_ut, field_ut)
+    if hint:
+        reason = f"{hint}; {reason}"
     if shape.note:
         reason = f"{reason}; {shape.note}"
     return calibration.replace(quality=quality, accepted=accepted, reason=reason)

@@ -62,6 +62,7 @@ class Calibrator:
         self.unverified: set[str] = set()  # devices whose record in force this calibrator's key does not verify
         self.in_force = self._read_in_force()
         self.collections: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
+        self.session_by: dict[str, str] = {}  # device -> who asked for its session's last action (``by``)
         self.last_progress: Recent[str, float] = Recent(settings.max_devices)
         self.drops = wire.DropCounter()
 
@@ -222,7 +223,7 @@ class Calibrator:
         collection = self.collections.get(device)
         change = {
             "action": "session" if collection is not None and collection.session else "auto",
-            "by": "",
+            "by": self.session_by.get(device, "") if collection is not None and collection.session else "",
             **(change or {}),
             "at_ns": created_ns,
             "from_id": previous.id if previous else None,
@@ -303,12 +304,18 @@ class Calibrator:
         self.publish(wire.Kind.PROGRESS, device, wire.encode_progress(device, self.progress(device)))
 
     # ---------------------------------------------------------------------------------------------- sessions
-    def session(self, device: str, action: str, method: str | None) -> dict[str, Any]:
-        """Run a session action; returns the reply map ``{ok, action, state, message, progress, calibration?}``."""
+    def session(self, device: str, action: str, method: str | None, by: str | None = None) -> dict[str, Any]:
+        """Run a session action; returns the reply map ``{ok, action, state, message, progress, calibration?}``.
+        ``by``: who asks (user@host, or the dashboard's operator), recorded with a commit."""
         handler = ACTIONS.get(action)
         if handler is None:
             raise ValueError(f"unknown action {action!r}: use one of {', '.join(ACTIONS)}")
+        if by:
+            self.session_by[device] = str(by)[:128]
         ok, message, extra = handler(self, device, method)
+        collection = self.collections.get(device)
+        if collection is None or not collection.session:  # no session open: nothing to remember (bounded)
+            self.session_by.pop(device, None)
         return {
             "ok": ok,
             "action": action,

@@ -95,7 +95,7 @@ def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
         if action == "rollback":
             reply = rollback(calibrator, device, query.parameters.get("to"), query.parameters.get("by"))
         else:
-            reply = calibrator.session(device, action, query.parameters.get("method"))
+            reply = calibrator.session(device, action, query.parameters.get("method"), query.parameters.get("by"))
     except ValueError as exc:
         query.reply_err(str(exc).encode())
         return

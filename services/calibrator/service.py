@@ -41,6 +41,7 @@ from services.calibrator.settings import (
 )
 from services.calibrator.status import CalibratorStatus, Counters, State
 from services.calibrator.store import CalibrationStore
+from services.common import metrics
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 
@@ -69,12 +70,27 @@ LEASE_QUERY_S = 2.0  # how long it waits at start for the lease tokens of its sh
 # ------------------------------------------------------------------------------------------------------- shell
 
 
+def add_calibrator_arguments(parser: argparse.ArgumentParser) -> None:
+    add_arguments(parser)
+    metrics.add_metrics_argument(parser)
+
+
 def run_calibrator(args: argparse.Namespace) -> int:
     """``magnet calibrator``: the settings from the options, then ``run``."""
-    return run(settings_from_args(args))
+    if getattr(args, "metrics", None):
+        metrics.parse_address(args.metrics)  # a bad address ends here, before anything is opened
+    return run(settings_from_args(args), getattr(args, "metrics", None))
 
 
-def run(settings: ServiceSettings) -> int:
+def _metrics_status(calibrator: Calibrator, name: str) -> dict[str, Any]:
+    alerts: dict[str, int] = {}
+    for open_alerts in list(calibrator.fleet.alerts.values()):
+        for kind in list(open_alerts):
+            alerts[kind.value] = alerts.get(kind.value, 0) + 1
+    return {**calibrator.status(name).to_dict(), "alerts_open": alerts}
+
+
+def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
     stop = stop_event()
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
     signer = load_signer(settings.signing_key)  # a bad key file ends here, before anything is opened
@@ -95,6 +111,7 @@ def run(settings: ServiceSettings) -> int:
             fleet=FleetBook(settings.places, settings.fitting.max_devices),
             shard=settings.shard,
         )
+        metrics.start(metrics_address, "calibrator", lambda: _metrics_status(calibrator, name))
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
         lease_token, lease_sub = _join_lease(session, lease)
         calibrator.active = lease.active

@@ -89,7 +89,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--report",
         metavar="FILE",
-        help="also draw a report of this fit (.html or .png; see 'magnet report'), accepted or not",
+        help="also draw a report of this fit (.html, .png or .pdf; see 'magnet report'), accepted or not",
     )
 
 
@@ -212,9 +212,14 @@ def write_atomically(path: Path, text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from services.common.progress import steps
+
     options = InputOptions.from_args(args)
-    table = read_input_told(args.file, options, "fit")
-    calibration = fit_table(table, args)
+    with steps(["fit: reading samples", "fit: fitting and gating"]) as step:  # a bar only on a terminal
+        step("fit: reading samples")
+        table = read_input_told(args.file, options, "fit")
+        step("fit: fitting and gating")
+        calibration = fit_table(table, args)
     if args.report:
         from services.commands.report import place, write_report
 

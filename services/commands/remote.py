@@ -1,15 +1,16 @@
-"""Remote tools printing JSON: ``magnet get calibration DEVICE [--history]``, ``magnet get fleet``, ``magnet watch
-heading [DEVICE]``, ``magnet calibrate DEVICE start|status|commit|abort [--method M]``, ``magnet calibrate DEVICE
-rollback [--to ID]``.
+"""Remote tools: ``magnet get calibration DEVICE [--history]``, ``magnet get fleet``, ``magnet watch heading
+[DEVICE]``, ``magnet calibrate DEVICE start|status|commit|abort [--method M]``, ``magnet calibrate DEVICE rollback
+[--to ID]``. Tables on a terminal; JSON with ``--json`` or into a pipe (``remote_view``).
 
-Exit status: 0 with an answer, 1 when nobody answered (no calibrator reachable, or no calibration for the device).
+Given no ``--connect``, ``--listen`` or ``--config``, they reach the ``magnet up`` running for this user, if any
+(``services.common.endpoint``). Exit status: 0 with an answer, 1 when nobody answered (no calibrator reachable, or
+no calibration for the device).
 """
 
 from __future__ import annotations
 
 import argparse
 import getpass
-import json
 import logging
 import socket
 import sys
@@ -17,8 +18,21 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rich.console import Console
+
 from magnet import signing, wire
 from magnet.calibration import Method
+from services.commands.remote_view import (
+    calibrate_table,
+    calibration_table,
+    fleet_table,
+    print_json,
+    show,
+    status_table,
+    wants_json,
+    watch_line,
+)
+from services.common.endpoint import use_local_pipeline
 from services.common.zenoh_session import add_zenoh_arguments, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.remote")
@@ -35,7 +49,15 @@ ACTIONS = ("start", "status", "commit", "abort", "rollback")
 
 
 def _print(value: Any) -> None:
-    print(json.dumps(value, sort_keys=True), flush=True)
+    print_json(value)
+
+
+def _add_json(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print JSON, one object per line (the default when the output is not a terminal)",
+    )
 
 
 def _decode(payload: bytes) -> Any:
@@ -84,6 +106,7 @@ def add_get_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE.pub",
         help="print only calibrations signed by this public key (repeatable); others are named on stderr",
     )
+    _add_json(parser)
     add_zenoh_arguments(parser)
 
 
@@ -117,10 +140,11 @@ def _only_trusted(replies: list[Any], trusted: signing.TrustedKeys, device: str)
 
 
 def run_get(args: argparse.Namespace) -> int:
+    use_local_pipeline(args)
     if args.what == "fleet":
         replies = _query(args, f"{args.prefix}/@fleet")
         for reply in replies[:1]:
-            _print(reply)
+            show(args, reply, fleet_table)
         if not replies:
             print("magnet get: no calibrator answered for the fleet", file=sys.stderr)
         return 0 if replies else 1
@@ -131,7 +155,7 @@ def run_get(args: argparse.Namespace) -> int:
     if args.what == "status":
         replies = _query(args, wire.status_key(args.prefix, args.device))
         for reply in replies:
-            _print(reply)
+            show(args, reply, status_table)
         return 0 if replies else 1
     kind = wire.Kind.HISTORY if args.history else wire.Kind.CALIBRATION
     selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if args.history else "")
@@ -147,7 +171,7 @@ def run_get(args: argparse.Namespace) -> int:
         )
         return 1
     for reply in replies:
-        _print(reply)
+        show(args, reply, calibration_table)
     return 0
 
 
@@ -159,15 +183,18 @@ def add_watch_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("device", nargs="?", default="*", help="device id (default: every device)")
     parser.add_argument("--count", type=int, help="stop after this many messages")
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    _add_json(parser)
     add_zenoh_arguments(parser)
 
 
 def run_watch(args: argparse.Namespace) -> int:
+    use_local_pipeline(args)
     if args.device != "*":
         wire.validate_device_id(args.device)
     stop = stop_event()
     deadline = None if args.duration is None else time.monotonic() + args.duration
     printed = 0
+    console = None if wants_json(args) else Console()
     with open_session(args) as session:
         subscriber = session.declare_subscriber(f"{args.prefix}/{args.device}/{WATCHABLE[args.what].value}")
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
@@ -175,7 +202,11 @@ def run_watch(args: argparse.Namespace) -> int:
             if sample is None:
                 time.sleep(0.002)
                 continue
-            _print({"key": str(sample.key_expr), **_shown(args.what, _as_map(_decode(payload_bytes(sample))))})
+            message = {"key": str(sample.key_expr), **_shown(args.what, _as_map(_decode(payload_bytes(sample))))}
+            if console is None:
+                _print(message)
+            else:
+                console.print(watch_line(message))
             printed += 1
             if args.count is not None and printed >= args.count:
                 break
@@ -213,10 +244,12 @@ def add_calibrate_arguments(parser: argparse.ArgumentParser) -> None:
         "(default: the one before the calibration in force)",
     )
     parser.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the answer (default 5)")
+    _add_json(parser)
     add_zenoh_arguments(parser)
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
+    use_local_pipeline(args)
     wire.validate_device_id(args.device)
     if args.method:
         Method.parse(args.method)  # a method no calibrator knows: one line here, exit 2
@@ -225,6 +258,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         params += (f";to={args.to}" if args.to else "") + f";by={_who()}"
     elif args.to:
         raise ValueError("--to goes with rollback")
+    elif args.action in ("start", "commit"):
+        params += f";by={_who()}"  # recorded with the commit
     errors: list[str] = []
     replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATE.value}?{params}", errors)
     if not replies:
@@ -232,14 +267,15 @@ def run_calibrate(args: argparse.Namespace) -> int:
             print(f"magnet calibrate: no calibrator answered for {args.device}", file=sys.stderr)
         return 1
     for reply in replies:
-        _print(reply)
+        show(args, reply, calibrate_table)
         if isinstance(reply, dict) and not reply.get("ok", False):
             print(f"magnet calibrate: refused: {reply.get('message', '')}", file=sys.stderr)
     return 0 if all(isinstance(r, dict) and r.get("ok", False) for r in replies) else 1
 
 
 def _who() -> str:
-    """user@host of the person asking (recorded with a rollback); characters that a selector cannot carry dropped."""
+    """user@host of the person asking (recorded with a commit or a rollback); characters that a selector cannot
+    carry dropped."""
     try:
         user = getpass.getuser()
     except (KeyError, OSError):

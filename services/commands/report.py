@@ -1,4 +1,5 @@
-"""``magnet report FILE.csv --calibration cal.json --out report.html|report.png``: a calibration report.
+"""``magnet report FILE.csv --calibration cal.json --out report.html|.png|.pdf``: a calibration report (a progress
+bar on a terminal).
 
 Shows the raw and calibrated field's projections (xy, xz, yz), |B| before and after, the sphere of directions with
 the missing cells, the gate's figures and reason, and the heading error against the true heading when the samples
@@ -20,7 +21,7 @@ from services.common.inputs import InputOptions, add_input_arguments
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", metavar="FILE.csv", help="the samples (CSV as for 'magnet fit', or an .npz recording)")
     parser.add_argument("--calibration", required=True, metavar="cal.json", help="a record as 'magnet fit' writes it")
-    parser.add_argument("--out", required=True, metavar="report.html", help="where to write it (.html or .png)")
+    parser.add_argument("--out", required=True, metavar="report.html", help="where to write it (.html, .png or .pdf)")
     parser.add_argument("--unit", help="unit of the samples (default: the calibration's)")
     parser.add_argument(
         "--declination",
@@ -56,14 +57,20 @@ def write_report(
 ) -> Path:
     """Build and write the report of ``calibration`` on the samples in ``samples_path`` (``options``: which stream
     of a recording; ``command``: tell the user which, under that name); returns the file."""
+    from services.common.progress import steps
     from services.report.data import build_report, load_samples
     from services.report.render import FORMATS, write
 
     out = Path(out)
     if out.suffix.lower() not in FORMATS:  # refuse before any work
-        raise ValueError(f"report {out}: the file must end in {' or '.join(FORMATS)}")
-    samples = load_samples(samples_path, unit or calibration.unit, options, command)
-    write(out, build_report(samples, calibration, declination_deg, expected_field_ut))
+        raise ValueError(f"report {out}: the file must end in {', '.join(FORMATS)}")
+    with steps(["report: reading samples", "report: assessing the fit", "report: drawing"]) as step:
+        step("report: reading samples")
+        samples = load_samples(samples_path, unit or calibration.unit, options, command)
+        step("report: assessing the fit")
+        data = build_report(samples, calibration, declination_deg, expected_field_ut)
+        step("report: drawing")
+        write(out, data)
     return out
 
 

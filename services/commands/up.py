@@ -27,7 +27,9 @@ from magnet import wire
 from services.commands.up_processes import SERVICES, dashboard_http, report_dead, start_services, stop_services
 from services.commands.up_settings import MAX_DEVICES, UpSettings
 from services.commands.up_view import DeviceView, Viewer, render_lines
-from services.common.zenoh_session import free_ports, payload_bytes, stop_event
+from services.common.endpoint import connect_endpoints, connect_line, remove_runtime_file, write_runtime_file
+from services.common.fleet_options import add_drift_arguments
+from services.common.zenoh_session import drain, free_ports, payload_bytes, stop_event
 
 __all__ = ["MAX_DEVICES", "DeviceView", "UpSettings", "Viewer", "add_arguments", "render_lines", "run", "up"]
 
@@ -53,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where the dashboard serves its page (default 127.0.0.1:8080, or a free port when taken)",
     )
     parser.add_argument("--no-dashboard", action="store_true", help="do not start the web dashboard")
+    add_drift_arguments(parser)
 
 
 def _view_config(ports: dict[str, int]) -> zenoh.Config:
@@ -74,27 +77,48 @@ def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], l
     with zenoh.open(_view_config(ports)) as session:
         subscribers = {
             kind: session.declare_subscriber(wire.key(settings.prefix, "*", kind), zenoh.handlers.RingChannel(4096))
-            for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION)
+            for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION, wire.Kind.ALERT)
         }
+        in_force = session.get(wire.key(settings.prefix, "*", wire.Kind.CALIBRATION), timeout=3.0)  # stored ones
         next_view = started + min(interval, 1.0)
-        while not stop.is_set():
-            now = time.monotonic()
-            if settings.duration_s is not None and now - started >= settings.duration_s:
-                break
-            dead = [name for name, proc in procs.items() if proc.poll() is not None]
-            if dead:
-                report_dead(dead, logs)
-                status = 1
-                break
-            for kind, subscriber in subscribers.items():
-                while (sample := subscriber.try_recv()) is not None:
-                    viewer.feed(kind, payload_bytes(sample))
-            if now >= next_view:
-                viewer.show(now - started)
-                next_view = now + interval
-            time.sleep(0.02)
-        viewer.show(time.monotonic() - started)
+        try:
+            while not stop.is_set():
+                now = time.monotonic()
+                if settings.duration_s is not None and now - started >= settings.duration_s:
+                    break
+                dead = [name for name, proc in procs.items() if proc.poll() is not None]
+                if dead:
+                    viewer.close()  # the live view ends before the report of what stopped
+                    report_dead(dead, logs)
+                    status = 1
+                    break
+                for kind, subscriber in subscribers.items():
+                    while (sample := subscriber.try_recv()) is not None:
+                        viewer.feed(kind, payload_bytes(sample))
+                for reply in drain(in_force, 1000):
+                    if reply.ok is not None:
+                        viewer.feed(wire.Kind.CALIBRATION, payload_bytes(reply.ok))
+                if now >= next_view:
+                    viewer.show(now - started)
+                    next_view = now + interval
+                time.sleep(0.02)
+            if status == 0:
+                viewer.show(time.monotonic() - started)
+        finally:
+            viewer.close()  # the terminal gets its cursor back whatever happened
     return status
+
+
+def _write_runtime(
+    settings: UpSettings, endpoints: list[str], ports: dict[str, int], dashboard: tuple[str, str, str] | None
+) -> Path | None:
+    """The runtime file the client commands read (``services.common.endpoint``); None when it cannot be written."""
+    page = dashboard[2].split("?", 1)[0] if dashboard else None
+    try:
+        return write_runtime_file(settings.prefix, endpoints, {n: ports[n] for n in SERVICES}, page)
+    except OSError as exc:
+        print(f"magnet up: cannot write the runtime file: {exc}", file=sys.stderr)
+        return None
 
 
 def up(settings: UpSettings) -> int:
@@ -105,17 +129,26 @@ def up(settings: UpSettings) -> int:
         ports = dict(zip((*SERVICES, "view", "dashboard", "http"), free_ports(6)))
         dashboard = dashboard_http(settings, ports.pop("http"))
         procs = start_services(settings, ports, db, workdir, dashboard and dashboard[:2])
+        endpoints = connect_endpoints(ports, SERVICES)
         try:
+            labelled = ", ".join(f"{name} 127.0.0.1:{ports[name]}" for name in SERVICES)
             print(
-                f"magnet up: calibrator, compass and {settings.devices} emulated device(s) on 127.0.0.1 ports "
-                f"{ports['calibrator']}, {ports['compass']}, {ports['edge']}; store {db}; logs in {workdir} "
-                "(removed at exit)",
+                f"magnet up: {settings.devices} emulated device(s); Zenoh (TCP) ports: {labelled}; store {db}; "
+                f"logs in {workdir} (removed at exit)",
+                flush=True,
+            )
+            runtime = _write_runtime(settings, endpoints, ports, dashboard)
+            print(
+                "magnet up: other magnet commands of this user find this pipeline by themselves"
+                + (f" ({runtime})" if runtime else "")
+                + f"; from elsewhere on this machine give them: {connect_line(endpoints)}",
                 flush=True,
             )
             if dashboard:
                 print(f"magnet up: dashboard at {dashboard[2]}", flush=True)
             return _watch(settings, procs, ports, workdir)
         finally:
+            remove_runtime_file()
             stop_services(procs)
     finally:
         shutil.rmtree(workdir, ignore_errors=True)

@@ -29,6 +29,7 @@ def start_services(
         "compass": [
             "compass",
             f"--location={settings.location}",
+            *settings.drift_arguments(),
             *loopback_arguments(ports["compass"], [ports["calibrator"]]),
         ],
         "edge": [

@@ -7,7 +7,9 @@ import dataclasses
 from pathlib import Path
 
 from magnet import wire
+from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.geomag import parse_location
+from services.common.fleet_options import drift_from_args
 from services.common.sim_options import SimulatorSettings
 from services.edge.settings import EdgeSettings
 
@@ -30,6 +32,7 @@ class UpSettings:
     prefix: str = wire.DEFAULT_PREFIX
     http: str | None = None
     dashboard: bool = True
+    drift: DriftSettings | None = DEFAULT_DRIFT  # the compass's drift alerts (None: --no-drift)
 
     def __post_init__(self) -> None:
         if self.http is not None:
@@ -71,4 +74,18 @@ class UpSettings:
             prefix=args.prefix,
             http=args.http,
             dashboard=not args.no_dashboard,
+            drift=drift_from_args(args),
         )
+
+    def drift_arguments(self) -> list[str]:
+        """The compass's drift options for these settings."""
+        if self.drift is None:
+            return ["--no-drift"]
+        d = self.drift
+        return [
+            f"--drift-window={d.window_s:g}",
+            f"--drift-windows={d.raise_windows}",
+            f"--strength-tol-pct={d.strength_tol_pct:g}",
+            f"--dip-tol={d.dip_tol_deg:g}",
+            f"--max-age-days={d.max_age_days:g}",
+        ]

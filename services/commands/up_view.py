@@ -1,13 +1,23 @@
-"""The live view of ``magnet up``: what is known of each device, fed from the messages, printed as text."""
+"""The live view of ``magnet up``: what is known of each device, fed from the messages, printed as text.
+
+On a terminal the view is redrawn in place with ``rich``'s ``Live`` (no clearing of the screen, so no flicker);
+elsewhere (CI, pipes) it prints plain blocks of lines. Open drift alerts are counted in the first line, mark the
+device's state and are listed under the table with their cause and advice, wrapped at word boundaries.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import textwrap
 from typing import Any, TextIO
 
 import numpy as np
 
 from magnet import wire
+from magnet.drift import Alert, alert_from_message
+
+NOTE_CHARS = 60
+DRIFT_UNITS = {"field_strength": "uT", "dip": "deg", "calibration_age": "days"}
 
 
 @dataclasses.dataclass
@@ -27,6 +37,18 @@ class DeviceView:
     flags: int = 0
     truth: dict[int, float] = dataclasses.field(default_factory=dict)  # seq -> true heading of the last sample
     error_deg: float | None = None
+    alerts: dict[str, Alert] = dataclasses.field(default_factory=dict)  # open drift alerts by kind
+
+    @property
+    def status(self) -> str:
+        """The state column: a calibrated device with an open drift alert reads "drifted"."""
+        return "drifted" if self.alerts and self.state == "calibrated" else self.state
+
+    def on_alert(self, alert: Alert) -> None:
+        if alert.cleared:
+            self.alerts.pop(alert.kind.value, None)
+        else:
+            self.alerts[alert.kind.value] = alert
 
     def on_progress(self, message: dict[str, Any]) -> None:
         self.state = str(message.get("state", self.state))
@@ -50,6 +72,8 @@ class DeviceView:
                 self.truth.pop(next(iter(self.truth)))
 
     def on_heading(self, batch: wire.HeadingBatch) -> None:
+        if batch.calibration_id and self.state == "waiting":  # the compass applies a calibration: one is in force
+            self.state, self.calibration_id = "calibrated", batch.calibration_id
         self.true_heading_deg = float(batch.true_heading_deg[-1])
         self.pitch_deg, self.roll_deg = float(batch.pitch_deg[-1]), float(batch.roll_deg[-1])
         self.flags = int(batch.flags[-1])
@@ -58,9 +82,9 @@ class DeviceView:
             self.error_deg = float((self.true_heading_deg - truth + 180.0) % 360.0 - 180.0)
 
 
-def _bar(fraction: float | None, width: int = 20) -> str:
+def _bar(fraction: float | None, width: int = 20, state: str = "waiting") -> str:
     if fraction is None:
-        return "[" + "?" * width + "]"
+        return "waiting for samples" if state == "waiting" else "-"
     filled = round(max(0.0, min(1.0, fraction)) * width)
     return "[" + "#" * filled + "." * (width - filled) + f"] {fraction:4.0%}"
 
@@ -69,11 +93,30 @@ def _fmt(value: float | None, spec: str) -> str:
     return "-" if value is None or not np.isfinite(value) else format(value, spec)
 
 
-def render_lines(views: dict[str, DeviceView], elapsed_s: float) -> list[str]:
-    """The view as lines of text (no terminal codes)."""
+def alert_cause(alert: Alert) -> str:
+    """What departed, with the measured and expected figures and their unit."""
+    unit = DRIFT_UNITS.get(alert.kind.value, "")
+    return f"{alert.kind.value.replace('_', ' ')} {alert.measured:.1f} {unit} (expected {alert.expected:.1f} {unit})"
+
+
+def _note(v: DeviceView) -> str:
+    if v.alerts:
+        note = "ALERT " + "; ".join(alert_cause(a) for _, a in sorted(v.alerts.items()))
+    elif v.state == "calibrated":
+        note = f"calibration {v.calibration_id}"
+    else:
+        note = ", ".join(v.missing) or v.reason
+    return textwrap.shorten(note, NOTE_CHARS, placeholder=" ...") if note else ""
+
+
+def render_lines(views: dict[str, DeviceView], elapsed_s: float, width: int = 100) -> list[str]:
+    """The view as lines of text (no terminal codes): a header, one line per device, then each open alert's advice
+    wrapped to ``width`` at word boundaries."""
     calibrated = sum(v.state == "calibrated" for v in views.values())
+    alerts = sum(len(v.alerts) for v in views.values())
+    head = f"magnet up: {len(views)} device(s), {calibrated} calibrated, {alerts} alert(s), {elapsed_s:5.1f} s"
     lines = [
-        f"magnet up: {len(views)} device(s), {calibrated} calibrated, {elapsed_s:5.1f} s   (Ctrl-C stops)",
+        head + "   (Ctrl-C stops)",
         (
             f"{'device':<12} {'state':<11} {'coverage':<31} {'heading':>8} {'pitch':>6} {'roll':>7} "
             f"{'resid uT':>8} {'err deg':>7}  note"
@@ -81,14 +124,15 @@ def render_lines(views: dict[str, DeviceView], elapsed_s: float) -> list[str]:
     ]
     for device in sorted(views):
         v = views[device]
-        note = ", ".join(v.missing) if v.state != "calibrated" else f"calibration {v.calibration_id}"
-        if v.state != "calibrated" and v.reason and not v.missing:
-            note = v.reason
         lines.append(
-            f"{device:<12} {v.state:<11} {_bar(v.coverage):<31} {_fmt(v.true_heading_deg, '8.1f')} "
+            f"{device:<12} {v.status:<11} {_bar(v.coverage, state=v.state):<31} {_fmt(v.true_heading_deg, '8.1f')} "
             f"{_fmt(v.pitch_deg, '6.1f')} {_fmt(v.roll_deg, '7.1f')} {_fmt(v.residual_ut, '8.2f')} "
-            f"{_fmt(v.error_deg, '7.2f')}  {note[:60]}"
+            f"{_fmt(v.error_deg, '7.2f')}  {_note(v)}"
         )
+    for device in sorted(d for d in views if views[d].alerts):
+        for _, alert in sorted(views[device].alerts.items()):
+            text = f"ALERT {device}: {alert_cause(alert)}: {alert.advice}"
+            lines += textwrap.wrap(text, width, subsequent_indent="    ")
     return lines
 
 
@@ -98,6 +142,7 @@ class Viewer:
     def __init__(self, prefix: str, out: TextIO, tty: bool) -> None:
         self.prefix, self.out, self.tty = prefix, out, tty
         self.views: dict[str, DeviceView] = {}
+        self.live: Any = None
 
     def view(self, device: str) -> DeviceView:
         return self.views.setdefault(device, DeviceView())
@@ -110,6 +155,10 @@ class Viewer:
             elif kind is wire.Kind.HEADING:
                 heading = wire.decode_heading(payload)
                 self.view(heading.device).on_heading(heading)
+            elif kind is wire.Kind.ALERT:
+                message = wire.unpack(payload)
+                alert = alert_from_message(message)
+                self.view(wire.message_device(message)).on_alert(alert)
             elif kind is wire.Kind.PROGRESS:
                 message = wire.decode_progress(payload)
                 self.view(message["device"]).on_progress(message)
@@ -120,9 +169,28 @@ class Viewer:
             pass  # the services count malformed input; the view just skips it
 
     def show(self, elapsed_s: float) -> None:
-        lines = render_lines(self.views, elapsed_s)
-        if self.tty:
-            self.out.write("\x1b[H\x1b[2J" + "\n".join(lines) + "\n")
-        else:
-            self.out.write("\n".join(lines) + "\n\n")
-        self.out.flush()
+        if not self.tty:
+            self.out.write("\n".join(render_lines(self.views, elapsed_s)) + "\n\n")
+            self.out.flush()
+            return
+        from rich.console import Console
+        from rich.live import Live
+        from rich.text import Text
+
+        if self.live is None:
+            console = Console(file=self.out)
+            self.live = Live(console=console, auto_refresh=False, vertical_overflow="visible")
+            self.live.start()
+        width = max(60, self.live.console.width - 1)
+        text = Text()
+        for line in render_lines(self.views, elapsed_s, width):
+            style = "bold red" if line.startswith("ALERT") or " drifted " in line else None
+            text.append(line, style=style)
+            text.append("\n")
+        self.live.update(text, refresh=True)
+
+    def close(self) -> None:
+        """Leave the last view on the terminal."""
+        if self.live is not None:
+            self.live.stop()
+            self.live = None

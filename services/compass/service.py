@@ -26,6 +26,7 @@ import zenoh
 from magnet import wire
 from magnet.bounded import Recent
 from magnet.fleet import Places
+from services.common import metrics
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.compass.core import Compass, CompassStatus, HeadingColumns
 from services.compass.ros2 import Ros2Compass
@@ -62,12 +63,27 @@ ZENOH_DEFAULTS = {
 }
 
 
+def add_compass_arguments(parser: argparse.ArgumentParser) -> None:
+    add_arguments(parser)
+    metrics.add_metrics_argument(parser)
+
+
+def _metrics_status(compass: Compass, name: str) -> dict[str, Any]:
+    alerts: dict[str, int] = {}
+    for alert in compass.watch.open_alerts():
+        alerts[alert.kind.value] = alerts.get(alert.kind.value, 0) + 1
+    status = compass.status(name).to_dict()
+    return {**status, "devices": {"calibrated": status["calibrations"]}, "alerts_open": alerts}
+
+
 def run_compass(args: argparse.Namespace) -> int:
     """``magnet compass``: the settings from the options, then ``run``."""
-    return run(settings_from_args(args))
+    if getattr(args, "metrics", None):
+        metrics.parse_address(args.metrics)  # a bad address ends here, before anything is opened
+    return run(settings_from_args(args), getattr(args, "metrics", None))
 
 
-def run(settings: CompassSettings) -> int:
+def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
     default, date, fleet = settings.places
     places = Places(fleet, default, date, settings.earth, max_reported=settings.max_devices)
     watch = FleetWatch(places, settings.drift, settings.max_devices)
@@ -97,6 +113,7 @@ def run(settings: CompassSettings) -> int:
         loop = _Loop(session, compass, settings)
         if settings.ros2.enabled:
             loop.ros2 = Ros2Compass(session, settings.ros2, name, settings.max_devices)
+        metrics.start(metrics_address, "compass", lambda: _metrics_status(compass, name))
         gc.collect()
         gc.freeze()  # what exists now (modules, settings, places) lives as long as the process: never scanned again
         gc.set_threshold(GC_THRESHOLD, 20, 20)
@@ -177,6 +194,8 @@ class _Loop:
         if self.ros2 is not None and self.compass.last is not None:
             self.ros2.publish(columns, self.compass.last, self.compass.calibrations)
             self.ros2.tick(self.compass.calibrations, self.compass.watch.open_alerts())
+        if len(columns.t_ns):
+            metrics.observe_latency((time.time_ns() - int(columns.t_ns.max())) / 1e9)
         self._ask_missing(columns.devices)
         if columns.devices:
             batch = len(columns.t_ns) / len(columns.devices)

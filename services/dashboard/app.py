@@ -8,8 +8,10 @@ Routes:
   ``GET /api/devices/{device}/history?limit=N``: its stored calibrations (asks the calibrator).
 - ``GET /api/stream[?device=ID]``: server-sent events: ``fleet`` (rows changed since the last event) every
   ``interval_s``, and ``device`` (the detail of ``device``) every second.
-- ``POST /api/devices/{device}/calibrate`` with JSON ``{"action": "start|status|commit|abort", "method": M}``: the
-  calibrator's session queryable. Needs the control token (``Authorization: Bearer TOKEN`` or ``X-Magnet-Token``).
+- ``POST /api/devices/{device}/calibrate`` with JSON ``{"action": "start|status|commit|abort", "method": M}`` or
+  ``{"action": "rollback", "to": ID}``: the calibrator's session queryable (start, commit and rollback recorded as
+  made ``by`` the dashboard's operator). Needs the control token (``Authorization: Bearer TOKEN`` or
+  ``X-Magnet-Token``).
 
 Viewing needs no token when the server listens on a loopback address; on any other address every ``/api`` route
 needs it too (``?token=`` for the stream, which a browser cannot give headers). Bad input gets a 4xx with a JSON
@@ -25,6 +27,7 @@ import hmac
 import importlib.util
 import json
 import logging
+import re
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any, Protocol
@@ -42,7 +45,8 @@ from services.dashboard.state import FleetState
 log = logging.getLogger("magnet.dashboard")
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-ACTIONS = ("start", "status", "commit", "abort")
+ACTIONS = ("start", "status", "commit", "abort", "rollback")
+CALIBRATION_ID = re.compile(r"[0-9a-f]{8,64}")
 MAX_BODY_BYTES = 4096
 MAX_HISTORY = 100
 DETAIL_EVERY_S = 1.0
@@ -51,7 +55,9 @@ DETAIL_EVERY_S = 1.0
 class Control(Protocol):
     """What the page's buttons ask (``services.dashboard.ingest.Control`` over zenoh; a fake in tests)."""
 
-    def calibrate(self, device: str, action: str, method: str | None) -> tuple[list[dict], list[str]]: ...
+    def calibrate(
+        self, device: str, action: str, method: str | None, to: str | None = None, by: str | None = None
+    ) -> tuple[list[dict], list[str]]: ...
 
     def history(self, device: str, limit: int) -> tuple[list[dict], list[str]]: ...
 
@@ -74,9 +80,15 @@ class Dashboard:
     """Handlers bound to one FleetState, one Control and one token."""
 
     def __init__(
-        self, state: FleetState, control: Control, token: str, view_needs_token: bool, interval_s: float = 0.25
+        self,
+        state: FleetState,
+        control: Control,
+        token: str,
+        view_needs_token: bool,
+        interval_s: float = 0.25,
+        operator: str = "",
     ) -> None:
-        self.state, self.control, self.token = state, control, token
+        self.state, self.control, self.token, self.operator = state, control, token, operator
         self.view_needs_token, self.interval_s = view_needs_token, interval_s
         self.stopping = asyncio.Event()
 
@@ -142,7 +154,8 @@ class Dashboard:
         records = [r for a in answers for r in (a.get("records") or []) if isinstance(r, dict)]
         if not answers:
             return error(504, "; ".join(errors) or "no calibrator answered for this device's history")
-        return JSONResponse({"device": device, "records": records[:limit]})
+        changes = [c for a in answers for c in (a.get("changes") or [])]
+        return JSONResponse({"device": device, "records": records[:limit], "changes": changes[:limit]})
 
     # ---------------------------------------------------------------------------------------------- control
     async def calibrate(self, request: Request) -> Response:
@@ -157,8 +170,9 @@ class Dashboard:
         parsed = _parse_action(body)
         if isinstance(parsed, Response):
             return parsed
-        action, method = parsed
-        answers, errors = await run_in_threadpool(self.control.calibrate, device, action, method)
+        action, method, to = parsed
+        by = self.operator if action in ("start", "commit", "rollback") else None
+        answers, errors = await run_in_threadpool(self.control.calibrate, device, action, method, to, by)
         if not answers:
             return error(502 if errors else 504, "; ".join(errors) or "no calibrator answered for this device")
         reply = answers[0]
@@ -205,14 +219,14 @@ def _event(name: str, data: Any) -> str:
     return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'), allow_nan=False)}\n\n"
 
 
-def _parse_action(body: bytes) -> tuple[str, str | None] | Response:
-    """(action, method) from a JSON body, or the 400 response saying what is wrong."""
+def _parse_action(body: bytes) -> tuple[str, str | None, str | None] | Response:
+    """(action, method, rollback target id) from a JSON body, or the 400 response saying what is wrong."""
     from magnet.calibration import Method
 
     try:
         data = json.loads(body or b"null")
     except (ValueError, UnicodeDecodeError):
-        return error(400, 'the body must be JSON: {"action": "start|status|commit|abort", "method": ...}')
+        return error(400, 'the body must be JSON: {"action": "start|status|commit|abort|rollback", "method": ...}')
     if not isinstance(data, dict):
         return error(400, 'the body must be a JSON object with an "action"')
     action, method = data.get("action"), data.get("method")
@@ -225,14 +239,23 @@ def _parse_action(body: bytes) -> tuple[str, str | None] | Response:
             method = Method.parse(method).value
         except ValueError as exc:
             return error(400, str(exc))
-    return action, method
+    to = data.get("to")
+    if to is not None and (action != "rollback" or not isinstance(to, str) or not CALIBRATION_ID.fullmatch(to)):
+        return error(400, '"to" goes with rollback and must be a calibration id (8 to 64 hex digits)')
+    return action, method, to
 
 
 def create_app(
-    state: FleetState, control: Control, token: str, view_needs_token: bool = False, interval_s: float = 0.25
+    state: FleetState,
+    control: Control,
+    token: str,
+    view_needs_token: bool = False,
+    interval_s: float = 0.25,
+    operator: str = "",
 ) -> Starlette:
-    """The ASGI app (``app.state.dashboard`` holds the handlers; set ``dashboard.stopping`` to end streams)."""
-    dashboard = Dashboard(state, control, token, view_needs_token, interval_s)
+    """The ASGI app (``app.state.dashboard`` holds the handlers; set ``dashboard.stopping`` to end streams).
+    ``operator``: who the page's commits and rollbacks are recorded as made by (``by``)."""
+    dashboard = Dashboard(state, control, token, view_needs_token, interval_s, operator)
     routes = [
         Route("/", dashboard.index),
         Route("/plotly.min.js", dashboard.plotly),

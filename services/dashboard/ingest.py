@@ -1,6 +1,7 @@
 """The dashboard's Zenoh side: subscribers draining into ``FleetState``, and the queries the page asks for.
 
-One thread (``Ingest.run``) drains every channel each ``tick_s``: liveliness of devices, progress, calibrations, and
+One thread (``Ingest.run``) drains every channel each ``tick_s``: liveliness of devices, progress, calibrations, drift
+alerts (``<prefix>/<device>/alert``, and the compasses' open ones asked for now and then), and
 headings, of which only the newest message of each device is decoded (1,000 devices at 10 Hz cost 4,000 decodes a
 second at a 0.25 s tick, not 10,000). Devices someone is looking at get their own raw subscriber and every heading
 sample. Raw messages of other devices pass through a small ring, read only for the sensor name of a new device.
@@ -15,6 +16,8 @@ import time
 from typing import Any
 
 from magnet import wire
+from magnet.drift import alert_from_message
+from services.common import metrics
 from services.common.zenoh_session import drain, payload_bytes
 from services.dashboard.state import FleetState
 
@@ -41,6 +44,7 @@ class Ingest:
         self.headings = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.HEADING), fifo(CHANNEL_CAPACITY))
         self.progress = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.PROGRESS), fifo(CHANNEL_CAPACITY))
         self.calibrations = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.CALIBRATION), fifo(4096))
+        self.alerts = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.ALERT), fifo(4096))
         self.raw_any = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.RAW), zenoh.handlers.RingChannel(64))
         self.raw_watched: dict[str, Any] = {}
         self.pending: list[tuple[float, Any]] = []
@@ -65,6 +69,8 @@ class Ingest:
         for sample in drain(self.calibrations, MAX_DRAIN):
             self._on_calibration(str(sample.key_expr), payload_bytes(sample))
         self._take_replies()
+        for sample in drain(self.alerts, MAX_DRAIN):
+            self._on_alert(str(sample.key_expr), payload_bytes(sample))
         for sample in drain(self.progress, MAX_DRAIN):
             self._on_progress(sample)
         self._on_raws(drain(self.raw_any, MAX_DRAIN), only_new=True)
@@ -78,6 +84,7 @@ class Ingest:
             self.headings,
             self.progress,
             self.calibrations,
+            self.alerts,
             self.raw_any,
             *self.raw_watched.values(),
         ]:
@@ -113,6 +120,20 @@ class Ingest:
             self._drop(exc, "calibration")
             return
         self.state.on_calibration(message)
+
+    def _on_alert(self, key_expr: str, payload: bytes) -> None:
+        """A drift alert raised or cleared by a compass (or an open one it answered); malformed ones dropped."""
+        try:
+            message = wire.unpack(payload)
+            wire.check_key(self.prefix, key_expr, wire.Kind.ALERT, wire.message_device(message))
+            alert = alert_from_message(message)
+        except wire.WireError as exc:
+            self._drop(exc, "alert")
+            return
+        except ValueError as exc:
+            self._drop(wire.WireError("bad-alert", str(exc)), "alert")
+            return
+        self.state.on_alert(alert)
 
     def _on_progress(self, sample: Any) -> None:
         try:
@@ -164,6 +185,8 @@ class Ingest:
         except wire.WireError as exc:
             self._drop(exc, "heading")
             return
+        if len(batch):
+            metrics.observe_latency((time.time_ns() - int(batch.t_ns[-1])) / 1e9)
         self.state.on_heading(batch)
 
     # ---------------------------------------------------------------------------------------------- upkeep
@@ -179,21 +202,26 @@ class Ingest:
             )
 
     def _ask_calibrations(self) -> None:
-        """Ask for every calibration in force at start, and again now and then (a calibrator that came later)."""
+        """Ask for every calibration in force and every open drift alert at start, and again now and then (a
+        calibrator or compass that came later)."""
         now = time.monotonic()
         if now - self.asked_s < REQUERY_S:
             return
         self.asked_s = now
-        self.pending.append(
-            (now + 3.0, self.session.get(wire.key(self.prefix, "*", wire.Kind.CALIBRATION), timeout=3.0))
-        )
+        for kind in (wire.Kind.CALIBRATION, wire.Kind.ALERT):
+            self.pending.append((now + 3.0, self.session.get(wire.key(self.prefix, "*", kind), timeout=3.0)))
 
     def _take_replies(self) -> None:
         still = []
         for deadline, handler in self.pending:
             for reply in drain(handler, 100_000):
-                if reply.ok is not None:
-                    self._on_calibration(str(reply.ok.key_expr), payload_bytes(reply.ok))
+                if reply.ok is None:
+                    continue
+                key_expr = str(reply.ok.key_expr)
+                if key_expr.endswith("/" + wire.Kind.ALERT.value):
+                    self._on_alert(key_expr, payload_bytes(reply.ok))
+                else:
+                    self._on_calibration(key_expr, payload_bytes(reply.ok))
             if time.monotonic() < deadline:
                 still.append((deadline, handler))
         self.pending = still
@@ -218,8 +246,11 @@ class Control:
                 errors.append(payload_bytes(reply.err).decode(errors="replace"))
         return answers, errors
 
-    def calibrate(self, device: str, action: str, method: str | None) -> tuple[list[dict[str, Any]], list[str]]:
+    def calibrate(
+        self, device: str, action: str, method: str | None, to: str | None = None, by: str | None = None
+    ) -> tuple[list[dict[str, Any]], list[str]]:
         params = f"action={action}" + (f";method={method}" if method else "")
+        params += (f";to={to}" if to else "") + (f";by={by}" if by else "")
         return self._ask(f"{wire.key(self.prefix, device, wire.Kind.CALIBRATE)}?{params}")
 
     def history(self, device: str, limit: int) -> tuple[list[dict[str, Any]], list[str]]:

@@ -16,6 +16,8 @@ import secrets
 import sys
 import threading
 
+from services.common import metrics
+from services.common.endpoint import use_local_pipeline
 from services.common.zenoh_session import add_zenoh_arguments, open_session
 
 log = logging.getLogger("magnet.dashboard")
@@ -46,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="HOST:PORT",
         help="also serve the fleet to the Foxglove app over its WebSocket protocol here (e.g. 127.0.0.1:8765)",
     )
+    parser.add_argument(
+        "--operator",
+        metavar="NAME",
+        help="name recorded (as 'by') with the commits and rollbacks made from the page (default: user@host)",
+    )
+    metrics.add_metrics_argument(parser)
     add_zenoh_arguments(parser)
 
 
@@ -89,6 +97,20 @@ def page_address(host: str, port: int, token: str) -> str:
     return f"http://{shown}:{port}/?token={token}"
 
 
+def operator_name(given: str | None) -> str:
+    """Who the page's commits and rollbacks are recorded as made by: ``--operator``, else the OS user of the
+    dashboard (user@host); only the characters a selector parameter carries."""
+    if not given:
+        import getpass
+        import socket
+
+        try:
+            given = f"{getpass.getuser()}@{socket.gethostname()}"
+        except (KeyError, OSError):
+            given = "dashboard"
+    return "".join(c for c in given if c.isalnum() or c in "@.-_")[:128] or "dashboard"
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -101,15 +123,24 @@ def run(args: argparse.Namespace) -> int:
     if not 0.05 <= args.refresh <= 10:
         raise ValueError(f"--refresh must be 0.05..10 seconds, got {args.refresh}")
     token = args.token or os.environ.get(TOKEN_ENV) or secrets.token_urlsafe(12)
+    use_local_pipeline(args)  # no Zenoh option given: the magnet up of this user, if one runs
     state = FleetState(_earth(args))
+    if args.metrics:
+        metrics.parse_address(args.metrics)
     with open_session(args) as session:
+        metrics.start(args.metrics, "dashboard", state.metrics_status)
         token_alive = session.liveliness().declare_token(wire.liveliness_key(args.prefix, "dashboard", "dashboard"))
         ingest = Ingest(session, args.prefix, state, tick_s=args.refresh)
         thread = threading.Thread(target=ingest.run, name="dashboard-ingest", daemon=True)
         thread.start()
         foxglove = _start_foxglove(session, args)
         app = create_app(
-            state, Control(session, args.prefix), token, view_needs_token=not is_loopback(host), interval_s=args.refresh
+            state,
+            Control(session, args.prefix),
+            token,
+            view_needs_token=not is_loopback(host),
+            interval_s=args.refresh,
+            operator=operator_name(args.operator),
         )
         config = uvicorn.Config(
             app,

@@ -20,15 +20,22 @@ from typing import Any
 import numpy as np
 
 from magnet import wire
+from magnet.drift import Alert
 from magnet.geomag import EarthField
 from magnet.heading import HeadingFlag
-from magnet.quality import fibonacci_centres
+from services.dashboard.figures import (
+    covered_cells,
+    decimate,
+    dip_deg,
+    earth_json,
+    quat_of,
+    recent_headings,
+)
 
 TRACE_POINTS = 1500  # raw and calibrated field points kept per watched device
-TRACE_HEADINGS = 600  # heading samples kept per watched device
+TRACE_HEADINGS = 6000  # heading samples kept per watched device (60 s at 100 Hz)
 STALE_S = 5.0  # no heading for this long: the row says so
 WATCH_LINGER_S = 15.0  # a device stays watched this long after its last viewer left
-CELL_CENTRES = fibonacci_centres()
 FUSED_FLAG = int(HeadingFlag.FUSED)  # attitude from the gyroscope-aided filter
 
 
@@ -76,10 +83,19 @@ class DeviceRow:
     truth_error_deg: float | None = None
     heading_s: float | None = None
     t_ns: int | None = None
+    drift: dict[str, Alert] = dataclasses.field(default_factory=dict)  # open drift alerts by kind
+
+    def status(self) -> str:
+        """What the state badge says: a calibrated device with an open drift alert is never plainly calibrated."""
+        if self.session:
+            return "session"
+        if self.drift and self.state == "calibrated":
+            return "drifted"
+        return self.state
 
     def alerts(self, now_s: float, earth: EarthField | None) -> list[str]:
         """Short phrases for what needs a person's attention."""
-        out = []
+        out = [f"drift: {kind.replace('_', ' ')}" for kind in sorted(self.drift)]
         if self.alive is False:
             out.append("offline")
         if self.heading_s is not None and now_s - self.heading_s > STALE_S:
@@ -129,26 +145,24 @@ class DeviceRow:
             "truth_error_deg": _round(self.truth_error_deg, 2),
             "fused": bool(self.flags & FUSED_FLAG),
             "alerts": self.alerts(now_s, earth),
+            "status": self.status(),
+            "drift": [drift_json(alert) for _, alert in sorted(self.drift.items())],
         }
 
 
-def acc_direction(pitch_deg: np.ndarray | float, roll_deg: np.ndarray | float) -> np.ndarray:
-    """Specific force direction (N, 3) of a still device at pitch and roll (degrees): (sin p, -sin r cos p,
-    -cos r cos p), as ``magnet.heading.pitch_roll_deg`` inverts it."""
-    p, r = np.radians(pitch_deg), np.radians(roll_deg)
-    return np.stack([np.sin(p), -np.sin(r) * np.cos(p), -np.cos(r) * np.cos(p)], axis=-1)
+DRIFT_UNITS = {"field_strength": "uT", "dip": "deg", "calibration_age": "days"}
 
 
-def dip_deg(bx: float, by: float, bz: float, pitch_deg: float, roll_deg: float) -> float | None:
-    """Dip of the field (uT, body frame) below the horizon, degrees, for a device at pitch and roll: asin(B . d / |B|)
-    with d the down direction, -``acc_direction`` (``magnet.heading.dip_angle_deg`` for one sample, without numpy's
-    per-call cost: the ingest runs it for every device several times a second). None for a zero field."""
-    p, r = math.radians(pitch_deg), math.radians(roll_deg)
-    down = (-math.sin(p), math.sin(r) * math.cos(p), math.cos(r) * math.cos(p))
-    norm = math.sqrt(bx * bx + by * by + bz * bz)
-    if norm == 0:
-        return None
-    return math.degrees(math.asin(max(-1.0, min(1.0, (bx * down[0] + by * down[1] + bz * down[2]) / norm))))
+def drift_json(alert: Alert) -> dict[str, Any]:
+    """One open drift alert for the page: kind, since (ms, wall clock), measured and expected in ``unit``, advice."""
+    return {
+        "kind": alert.kind.value,
+        "since_ms": alert.since_ns // 1_000_000,
+        "measured": round(alert.measured, 2),
+        "expected": round(alert.expected, 2),
+        "unit": DRIFT_UNITS.get(alert.kind.value, ""),
+        "advice": alert.advice,
+    }
 
 
 class Trace:
@@ -228,7 +242,7 @@ class FleetState:
             row.pitch_deg, row.roll_deg, row.flags = pitch, roll, int(batch.flags[last])
             row.field_ut, row.dip_deg = magnitude, _finite(dip)
             row.declination_deg = batch.declination_deg
-            row.quat_wxyz = _quat(quat_wxyz, last)
+            row.quat_wxyz = quat_of(quat_wxyz, last)
             if batch.calibration_id and not row.calibration_id:
                 row.calibration_id = batch.calibration_id
             trace = self.traces.get(batch.device)
@@ -276,6 +290,18 @@ class FleetState:
             row.accepted, row.reason, row.missing = True, message.calibration.reason, ()
             row.samples = message.calibration.sample_count
 
+    def on_alert(self, alert: Alert) -> None:
+        """A drift alert raised (kept, by kind) or cleared (forgotten) by a compass."""
+        with self.lock:
+            known = self.rows.get(alert.device)
+            if alert.cleared:
+                if known is not None and alert.kind.value in known.drift:
+                    del self._row(alert.device).drift[alert.kind.value]
+                return
+            if known is not None and known.drift.get(alert.kind.value) == alert:
+                return
+            self._row(alert.device).drift[alert.kind.value] = alert
+
     # ---------------------------------------------------------------------------------------------- watching
     def watch(self, device: str, delta: int) -> None:
         """A viewer starts (+1) or stops (-1) looking at ``device``."""
@@ -316,8 +342,28 @@ class FleetState:
                 "devices": len(rows),
                 "alive": sum(r.alive is True for r in rows),
                 "calibrated": sum(r.state == "calibrated" for r in rows),
+                "alerts": sum(len(r.drift) for r in rows),
+                "in_alert": sum(bool(r.drift) for r in rows),
                 "messages": self.messages,
-                "earth": _earth_json(self.earth),
+                "earth": earth_json(self.earth),
+            }
+
+    def metrics_status(self) -> dict[str, Any]:
+        """The counters ``services.common.metrics`` exposes: messages, drops by cause, devices by state, alerts."""
+        with self.lock:
+            rows = list(self.rows.values())
+            states: dict[str, int] = {}
+            alerts: dict[str, int] = {}
+            for row in rows:
+                states[row.status()] = states.get(row.status(), 0) + 1
+                for kind in row.drift:
+                    alerts[kind] = alerts.get(kind, 0) + 1
+            return {
+                "service": "dashboard",
+                "messages": self.messages,
+                "dropped": dict(self.dropped.counts),
+                "devices": states,
+                "alerts_open": alerts,
             }
 
     def detail(self, device: str, points: int = 600) -> dict[str, Any] | None:
@@ -329,53 +375,12 @@ class FleetState:
             trace = self.traces.get(device)
             raw = np.array(trace.raw if trace else [], dtype=float).reshape(-1, 3)
             calibrated = np.array(trace.calibrated if trace else [], dtype=float).reshape(-1, 3)
-            headings = list(trace.headings)[-300:] if trace else []
-            out: dict[str, Any] = {"row": row.to_json(self.clock(), self.earth), "earth": _earth_json(self.earth)}
+            headings = recent_headings(list(trace.headings)) if trace else []
+            out: dict[str, Any] = {"row": row.to_json(self.clock(), self.earth), "earth": earth_json(self.earth)}
         out.update(
-            raw=_decimate(raw, points),
-            calibrated=_decimate(calibrated, points),
-            headings=[[t // 1_000_000, round(m, 2), round(tr, 2)] for t, m, tr in headings[::3]],
+            raw=decimate(raw, points),
+            calibrated=decimate(calibrated, points),
+            headings=[[t // 1_000_000, round(m, 2), round(tr, 2)] for t, m, tr in headings],
             cells=covered_cells(raw).astype(int).tolist(),
         )
         return out
-
-
-def covered_cells(raw_ut: np.ndarray) -> np.ndarray:
-    """Which of the 100 equal-area cells (``magnet.quality``) the raw field directions around the cloud's centre
-    ((max + min) / 2 per axis) fall in: bool (100,)."""
-    hit = np.zeros(len(CELL_CENTRES), dtype=bool)
-    if len(raw_ut) < 2:
-        return hit
-    centred = raw_ut - (raw_ut.max(axis=0) + raw_ut.min(axis=0)) / 2
-    norms = np.linalg.norm(centred, axis=1)
-    unit = centred[norms > 0] / norms[norms > 0, None]
-    hit[np.unique(np.argmax(unit @ CELL_CENTRES.T, axis=1))] = True
-    return hit
-
-
-def _decimate(points: np.ndarray, limit: int) -> list[list[float]]:
-    step = max(1, int(np.ceil(len(points) / max(limit, 1))))
-    return np.round(points[::step], 2).tolist()
-
-
-def _quat(value: Any, index: int) -> tuple[float, ...] | None:
-    """The fused attitude quaternion of one sample, when the message carries a usable one (optional field)."""
-    if value is None:
-        return None
-    try:
-        quats = np.asarray(value, dtype=float)
-        quat = quats[index] if quats.ndim == 2 else quats
-    except (TypeError, ValueError, IndexError):
-        return None
-    return tuple(float(q) for q in quat) if quat.shape == (4,) and np.isfinite(quat).all() else None
-
-
-def _earth_json(earth: EarthField | None) -> dict[str, Any] | None:
-    if earth is None:
-        return None
-    return {
-        "total_ut": round(earth.total_ut, 3),
-        "inclination_deg": round(earth.inclination_deg, 3),
-        "declination_deg": round(earth.declination_deg, 3),
-        "horizontal_ut": round(earth.horizontal_ut, 3),
-    }

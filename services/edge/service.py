@@ -38,6 +38,7 @@ import zenoh
 
 from magnet import wire
 from magnet.readloop import ReadStats
+from services.common import metrics
 from services.common.zenoh_session import open_session, stop_event
 from services.edge.settings import EdgeSettings, add_arguments
 from services.edge.sources import ChipSource, FleetSource, make_source, stamp
@@ -226,13 +227,14 @@ def _batches(source: Any, period_s: float, done: Callable[[], bool]) -> Iterator
         yield source.batches(seq, end_ns, done)
 
 
-def serve(settings: EdgeSettings) -> int:
+def serve(settings: EdgeSettings, metrics_address: str | None = None) -> int:
     """Run the edge until ``settings.duration_s`` or a signal; prints the summary line; returns the exit status."""
     status = EdgeStatus(settings)
     source = make_source(settings, status.on_health)
     status.ids, status.stats = list(source.ids), source.stats
     if hasattr(source, "attach"):  # devices that appear while running (MAVLink)
         source.attach(status)
+    metrics.start(metrics_address, "edge", lambda: {**status.as_dict(), "devices": len(status.ids)})
     stop = stop_event()
     with open_session(settings.zenoh) as session:
         declared = _declare(session, settings, status)
@@ -272,5 +274,12 @@ def serve(settings: EdgeSettings) -> int:
     return 0
 
 
+def add_edge_arguments(parser: argparse.ArgumentParser) -> None:
+    add_arguments(parser)
+    metrics.add_metrics_argument(parser)
+
+
 def run(args: argparse.Namespace) -> int:
-    return serve(EdgeSettings.from_args(args))
+    if getattr(args, "metrics", None):
+        metrics.parse_address(args.metrics)  # a bad address ends here, before anything is opened
+    return serve(EdgeSettings.from_args(args), getattr(args, "metrics", None))

@@ -1,4 +1,5 @@
-"""Drawing a calibration report with matplotlib (Agg, no display): one figure, saved as PNG or inside an HTML page.
+"""Drawing a calibration report with matplotlib (no display): one figure, saved as PNG, as PDF (matplotlib's PDF
+backend) or inside an HTML page.
 
 Panels: the raw field's projections (xy, xz, yz), the calibrated field's (with the expected radius), |B| before and
 after, the sphere of directions (equal-area map: the 100 cells of ``magnet.quality``, covered or missing), the
@@ -24,7 +25,7 @@ from services.report.data import ReportData
 MAX_POINTS = 6000
 PAIRS = ((0, 1, "x", "y"), (0, 2, "x", "z"), (1, 2, "y", "z"))
 RAW_COLOUR, CAL_COLOUR, BAD_COLOUR = "#e4572e", "#1f77b4", "#bbbbbb"
-FORMATS = (".png", ".html")
+FORMATS = (".png", ".html", ".pdf")
 
 
 def _thin(points: np.ndarray) -> np.ndarray:
@@ -211,6 +212,17 @@ def png_bytes(data: ReportData) -> bytes:
     return buffer.getvalue()
 
 
+def pdf_bytes(data: ReportData) -> bytes:
+    """The figure as one PDF page (matplotlib's PDF backend: vector drawing, text kept as text), with the gate's
+    figures and the reason in the document's metadata."""
+    buffer = io.BytesIO()
+    subject = "; ".join(f"{k}: {v}" for k, v in gate_lines(data))
+    figure(data).savefig(
+        buffer, format="pdf", metadata={"Title": f"magnet report: {Path(data.samples.source).name}", "Subject": subject}
+    )
+    return buffer.getvalue()
+
+
 def html_page(data: ReportData) -> str:
     """A self-contained page: the figure (embedded PNG), the gate's figures and the calibration record."""
     image = base64.b64encode(png_bytes(data)).decode()
@@ -235,11 +247,16 @@ pre{{background:#f5f5f5;padding:10px;overflow:auto}}</style></head>
 
 
 def write(path: Path, data: ReportData) -> None:
-    """Write the report as ``.png`` or ``.html`` (by the file's suffix)."""
+    """Write the report as ``.png``, ``.html`` or ``.pdf`` (by the file's suffix)."""
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
-        raise ValueError(f"report {path}: the file must end in {' or '.join(FORMATS)}")
-    content = png_bytes(data) if suffix == ".png" else html_page(data).encode()
+        raise ValueError(f"report {path}: the file must end in {', '.join(FORMATS)}")
+    if suffix == ".png":
+        content = png_bytes(data)
+    elif suffix == ".pdf":
+        content = pdf_bytes(data)
+    else:
+        content = html_page(data).encode()
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_bytes(content)
     tmp.replace(path)

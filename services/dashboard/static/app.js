@@ -80,7 +80,9 @@ function showSummary(sum) {
   if (!sum) return;
   const rate = S.stats.rowsPerSec;
   $("summary").innerHTML = `<b>${sum.devices}</b> devices &middot; <b>${sum.alive}</b> alive &middot; ` +
-    `<b>${sum.calibrated}</b> calibrated &middot; ${rate.toFixed(0)} row updates/s`;
+    `<b>${sum.calibrated}</b> calibrated &middot; <span id="alert-count" class="${sum.alerts ? "alerting" : ""}" ` +
+    `data-count="${sum.alerts || 0}"><b>${sum.alerts || 0}</b> alert${sum.alerts === 1 ? "" : "s"}</span> ` +
+    `&middot; ${rate.toFixed(0)} row updates/s`;
 }
 
 // ------------------------------------------------------------------------------------------------ fleet table
@@ -96,10 +98,27 @@ function ageText(ms) {
   return `${(s / 86400).toFixed(0)} d`;
 }
 
-function alertBadges(row) {
+const DRIFT_CAUSE = {field_strength: "field strength", dip: "dip angle", calibration_age: "calibration age"};
+
+function driftCause(a) {
+  const unit = a.unit === "uT" ? "\u00b5T" : a.unit;
+  return `${DRIFT_CAUSE[a.kind] || a.kind}: ${fmt(a.measured, 1)} ${unit} against ${fmt(a.expected, 1)} ${unit}`;
+}
+
+function alertBadges(row, withAdvice) {
   const fused = row.fused ? '<span class="badge session" title="attitude from the gyroscope-aided filter">fused</span>' : "";
-  return fused + (row.alerts.map((a) => `<span class="badge alert">${esc(a)}</span>`).join("") ||
-    '<span class="badge note">ok</span>');
+  const drift = (row.drift || []).map((a) => `<div class="drift" data-kind="${esc(a.kind)}" data-since="${a.since_ms}"><span class="badge alert" ` +
+    `title="${esc(driftCause(a))}">drift: ${esc(DRIFT_CAUSE[a.kind] || a.kind)}</span>` +
+    (withAdvice ? `<span class="advice">${esc(a.advice)}</span>` : "") + "</div>").join("");
+  const others = row.alerts.filter((a) => !a.startsWith("drift: "));
+  return drift + fused + (others.map((a) => `<span class="badge alert">${esc(a)}</span>`).join("") ||
+    (drift ? "" : '<span class="badge note">ok</span>'));
+}
+
+function stateBadge(row) {
+  const status = row.status || (row.session ? "session" : row.state);
+  const text = status === "drifted" ? "calibrated \u00b7 drift alert" : status;
+  return `<span class="badge ${esc(status === "drifted" ? "alert" : status)}" data-status="${esc(status)}">${esc(text)}</span>`;
 }
 
 function makeRow(device) {
@@ -130,7 +149,7 @@ function fillRow(entry, row) {
     "token gone" : "no token seen"}"></span>`);
   setCell(c.device, esc(row.device));
   setCell(c.sensor, esc(row.sensor) || "\u2013");
-  setCell(c.state, `<span class="badge ${esc(row.state)}">${row.session ? "session" : esc(row.state)}</span>`);
+  setCell(c.state, stateBadge(row));
   setCell(c.method, esc(row.method) || "\u2013");
   setCell(c.residual_ut, fmt(row.residual_ut, 2));
   const cov = row.coverage == null ? 0 : row.coverage;
@@ -146,7 +165,7 @@ function fillRow(entry, row) {
   setCell(c.pitch_deg, deg(row.pitch_deg));
   setCell(c.roll_deg, deg(row.roll_deg));
   setCell(c.field_ut, fmt(row.field_ut, 1));
-  setCell(c.alerts, alertBadges(row));
+  setCell(c.alerts, alertBadges(row, true));
 }
 
 function sortValue(row, key) {
@@ -159,7 +178,7 @@ function computeOrder() {
   const list = [];
   for (const row of S.rows.values()) {
     if (f) {
-      const hay = `${row.device} ${row.sensor} ${row.state} ${row.method || ""} ${row.alerts.join(" ")}`.toLowerCase();
+      const hay = `${row.device} ${row.sensor} ${row.status || row.state} ${row.method || ""} ${row.alerts.join(" ")}`.toLowerCase();
       if (!hay.includes(f)) continue;
     }
     list.push(row);
@@ -258,6 +277,8 @@ function enterDevice(device) {
   $("dev-name").textContent = device;
   $("c-message").textContent = "";
   for (const id of ["cloud", "sphere", "heading-plot"]) if (window.Plotly) Plotly.purge($(id));
+  S.history = null; showInForce(null, -1, []);
+  S.rowCalibration = S.rows.has(device) ? S.rows.get(device).calibration_id : null;
   loadHistory(device);
   if (S.rows.has(device)) showLive(S.rows.get(device));
 }
@@ -275,14 +296,28 @@ function showLive(row) {
   if (row.quat_wxyz) $("v-quat").textContent = row.quat_wxyz.map((q) => q.toFixed(3)).join(", ");
   $("v-field").textContent = row.field_ut == null ? "\u2013" : `${fmt(row.field_ut, 1)} \u00b5T`;
   $("v-dip").textContent = deg(row.dip_deg);
-  $("v-alerts").innerHTML = alertBadges(row);
+  $("v-alerts").innerHTML = alertBadges(row, false);
+  showDrift(row);
   $("v-truth").textContent = row.truth_error_deg == null ? "" :
     `error against the simulator's truth: ${fmt(row.truth_error_deg, 2)}\u00b0`;
-  $("dev-badges").innerHTML = `<span class="badge ${esc(row.state)}">${row.session ? "session" : esc(row.state)}</span>` +
+  $("dev-badges").innerHTML = stateBadge(row) +
     `<span class="badge note">${esc(row.sensor) || "sensor ?"}</span>` +
     `<span class="badge note">${row.alive === false ? "offline" : row.alive ? "alive" : "no token"}</span>`;
   showGauges(row, S.detail && S.detail.earth);
   showControl(row);
+  sphereNote(row);
+  if (row.calibration_id !== S.rowCalibration) {  // another calibration came into force: its history again
+    S.rowCalibration = row.calibration_id;
+    if (row.calibration_id && row.calibration_id !== S.historyFor) loadHistory(S.device, row.calibration_id);
+  }
+}
+
+function showDrift(row) {
+  const list = row.drift || [];
+  $("dev-drift").classList.toggle("hidden", !list.length);
+  const html = list.map((a) => `<li data-kind="${esc(a.kind)}" data-since="${a.since_ms}"><span class="when">${esc(new Date(a.since_ms).toLocaleString())}` +
+    `</span> <b class="cause">${esc(driftCause(a))}</b><div class="advice">${esc(a.advice)}</div></li>`).join("");
+  if ($("dev-drift-list").dataset.html !== html) { $("dev-drift-list").innerHTML = html; $("dev-drift-list").dataset.html = html; }
 }
 
 function showGauges(row, earth) {
@@ -307,7 +342,7 @@ function showControl(row) {
   $("c-state").className = `badge ${row.state}`;
   $("c-state").textContent = row.session ? "session" : row.state;
   $("c-method").textContent = row.method || "";
-  $("c-samples").textContent = row.samples == null ? "" : `${row.samples} samples`;
+  $("c-samples").textContent = row.samples ? `${row.samples} samples` : "";
   $("c-bar").style.width = `${((cov || 0) * 100).toFixed(0)}%`;
   $("c-pct").textContent = cov == null ? "\u2013" : `coverage ${(cov * 100).toFixed(0)} %`;
   $("c-bar").parentElement.classList.toggle("ready", ready || row.state === "calibrated");
@@ -320,7 +355,8 @@ function showControl(row) {
   $("c-next").textContent = next;
   $("c-next").classList.toggle("ready", ready);
   $("c-reason").textContent = row.reason || "";
-  $("b-commit").disabled = !row.session;
+  $("b-commit").disabled = !ready;
+  $("b-commit").title = ready ? "store this calibration and put it in force" : "enabled once the fit passes the gate";
   $("b-abort").disabled = !row.session;
   $("b-commit").classList.toggle("ready", ready);
 }
@@ -342,9 +378,12 @@ function onDetail(detail) {
   S.stats.details = (S.stats.details || 0) + 1;
 }
 
+// legends sit at the top left, the toolbar (cloud only, on hover) at the top right: they never overlap
 const PLOT_LAYOUT = {paper_bgcolor: "rgba(0,0,0,0)", plot_bgcolor: "rgba(0,0,0,0)", font: {color: "#dbe3ea", size: 11},
-  margin: {l: 40, r: 10, t: 10, b: 35}, showlegend: true, legend: {orientation: "h", y: 1.08, itemsizing: "constant"}};
-const PLOT_CONFIG = {displaylogo: false, responsive: true, modeBarButtonsToRemove: ["toImage"]};
+  margin: {l: 40, r: 10, t: 30, b: 35}, showlegend: true,
+  legend: {orientation: "h", x: 0, xanchor: "left", y: 1.0, yanchor: "bottom", itemsizing: "constant"}};
+const PLOT_CONFIG = {displaylogo: false, responsive: true, displayModeBar: "hover", modeBarButtonsToRemove: ["toImage"]};
+const STILL_CONFIG = {displaylogo: false, responsive: true, displayModeBar: false};
 const col = (pts, i) => pts.map((p) => p[i]);
 
 function drawCloud(d) {
@@ -389,6 +428,14 @@ function cellCentres(n) {
 }
 const CELLS = cellCentres(100);
 
+// The one coverage figure (the calibrator's), wherever it shows: fleet row, progress bar, this note.
+function sphereNote(row) {
+  const missing = row.missing && row.missing.length ? ` Missing: ${row.missing.join("; ")}.` : "";
+  const text = (row.coverage != null ? `Coverage ${(row.coverage * 100).toFixed(0)} % ` +
+    "(the calibrator's figure). " : "") + "Green: directions this page saw in the last raw samples." + missing;
+  if ($("sphere-note").textContent !== text) $("sphere-note").textContent = text;
+}
+
 // The sphere of directions as an equal-area map: azimuth around the body z axis against z (Lambert cylindrical).
 function drawSphere(d) {
   const hit = d.cells, row = d.row;
@@ -402,11 +449,19 @@ function drawSphere(d) {
       xaxis: {range: [-10, 370], tickvals: [0, 90, 180, 270, 360], ticktext: ["+x", "+y", "\u2212x", "\u2212y", "+x"],
         gridcolor: "#2a3542", zeroline: false, title: {text: "direction around z"}},
       yaxis: {range: [-1.1, 1.1], tickvals: [-1, 0, 1], ticktext: ["\u2212z (up)", "0", "+z (down)"],
-        gridcolor: "#2a3542", zeroline: false}}, PLOT_CONFIG);
-  const n = hit.filter(Boolean).length;
-  const missing = row.missing && row.missing.length ? ` Missing: ${row.missing.join("; ")}.` : "";
-  $("sphere-note").textContent = `${n} of 100 equal-area cells hold a recent raw field direction.` +
-    (row.coverage != null ? ` Calibrator: ${(row.coverage * 100).toFixed(0)} %.` : "") + missing;
+        gridcolor: "#2a3542", zeroline: false}}, STILL_CONFIG);
+  sphereNote(row);
+}
+
+// 60 s of headings as lines: true solid, magnetic dashed; a wrap through north breaks the line instead of
+// drawing a vertical stroke across the plot.
+function headingLine(x, y) {
+  const xs = [], ys = [];
+  for (let i = 0; i < y.length; i++) {
+    if (i && Math.abs(y[i] - y[i - 1]) > 180) { xs.push(null); ys.push(null); }
+    xs.push(x[i]); ys.push(y[i]);
+  }
+  return [xs, ys];
 }
 
 function drawHeadings(d) {
@@ -414,16 +469,20 @@ function drawHeadings(d) {
   if (!h.length) return;
   const t0 = h[h.length - 1][0];
   const x = h.map((p) => (p[0] - t0) / 1000);
+  const [xt, yt] = headingLine(x, h.map((p) => p[2]));
+  const [xm, ym] = headingLine(x, h.map((p) => p[1]));
   Plotly.react($("heading-plot"), [
-    {type: "scatter", mode: "markers", name: "true", x, y: h.map((p) => p[2]), marker: {size: 3, color: "#4fa3ff"}},
-    {type: "scatter", mode: "markers", name: "magnetic", x, y: h.map((p) => p[1]),
-      marker: {size: 3, color: "#ff7a59"}},
-  ], {...PLOT_LAYOUT, uirevision: "headings", xaxis: {title: {text: "seconds"}, gridcolor: "#2a3542"},
-    yaxis: {range: [0, 360], dtick: 90, gridcolor: "#2a3542", title: {text: "deg"}}}, PLOT_CONFIG);
+    {type: "scatter", mode: "lines", name: "true", x: xt, y: yt, line: {width: 2, color: "#4fa3ff"},
+      connectgaps: false},
+    {type: "scatter", mode: "lines", name: "magnetic", x: xm, y: ym, line: {width: 1.5, color: "#ff7a59", dash: "dash"},
+      connectgaps: false},
+  ], {...PLOT_LAYOUT, uirevision: "headings", xaxis: {title: {text: "seconds before now"}, range: [-60, 0],
+    gridcolor: "#2a3542"}, yaxis: {range: [0, 360], dtick: 90, gridcolor: "#2a3542", title: {text: "deg"}}},
+    STILL_CONFIG);
 }
 
 // ------------------------------------------------------------------------------------------------ control
-async function control(action) {
+async function control(action, extra) {
   const device = S.device;
   const msg = $("c-message");
   if (!S.token) {
@@ -433,7 +492,7 @@ async function control(action) {
     return;
   }
   msg.className = "message small"; msg.textContent = `${action}\u2026`;
-  const body = {action};
+  const body = {action, ...(extra || {})};
   if (action === "start") body.method = $("c-method-select").value;
   try {
     const res = await fetch(`/api/devices/${encodeURIComponent(device)}/calibrate`, {method: "POST",
@@ -444,7 +503,9 @@ async function control(action) {
     msg.textContent = data.message || data.error || `HTTP ${res.status}`;
     if (res.status === 401) $("token-row").classList.remove("hidden");
     if (ok && data.progress) showControl({...S.rows.get(device), ...progressRow(data)});
-    if (ok && action === "commit") loadHistory(device);
+    if (ok && (action === "commit" || action === "rollback")) {
+      loadHistory(device, data.calibration && data.calibration.id);
+    }
   } catch (err) {
     msg.className = "message small err"; msg.textContent = String(err);
   }
@@ -456,23 +517,38 @@ function progressRow(reply) {
     coverage: p.coverage, missing: p.missing || [], reason: p.reason || "", accepted: p.accepted};
 }
 
-async function loadHistory(device) {
+async function loadHistory(device, inForceId) {
   const body = $("history-body");
-  body.innerHTML = '<tr><td colspan="8" class="muted">asking the calibrator\u2026</td></tr>';
+  body.innerHTML = '<tr><td colspan="10" class="muted">asking the calibrator\u2026</td></tr>';
   const q = S.token ? `&token=${encodeURIComponent(S.token)}` : "";
+  const row = S.rows.get(device);
+  S.historyLoading = true;
+  S.historyFor = inForceId || (row ? row.calibration_id : null);
   try {
     const res = await fetch(`/api/devices/${encodeURIComponent(device)}/history?limit=10${q}`);
     const data = await res.json();
     if (device !== S.device) return;
-    if (!res.ok) { body.innerHTML = `<tr><td colspan="8" class="muted">${esc(data.error)}</td></tr>`; return; }
-    body.innerHTML = data.records.map(historyRow).join("") ||
-      '<tr><td colspan="8" class="muted">no stored calibration yet</td></tr>';
+    if (!res.ok) { body.innerHTML = `<tr><td colspan="10" class="muted">${esc(data.error)}</td></tr>`; return; }
+    const current = S.historyFor;
+    const inForce = data.records.find((r) => r.id === current) || data.records.find((r) => r.accepted) || null;
+    S.history = {...data, inForce};
+    showInForce(inForce, data.records.indexOf(inForce), data.changes || []);
+    body.innerHTML = data.records.map((r, i) => historyRow(r, (data.changes || [])[i], r === inForce,
+      !!inForce && r.id === inForce.id)).join("") ||
+      '<tr><td colspan="10" class="muted">no stored calibration yet</td></tr>';
   } catch (err) {
-    body.innerHTML = `<tr><td colspan="8" class="muted">${esc(err)}</td></tr>`;
+    body.innerHTML = `<tr><td colspan="10" class="muted">${esc(err)}</td></tr>`;
+  } finally {
+    S.historyLoading = false;
   }
 }
 
-function historyRow(r) {
+function changeText(change) {
+  if (!change) return "\u2013";
+  return `${esc(change.action || "")}${change.by ? ` by ${esc(change.by)}` : ""}`;
+}
+
+function historyRow(r, change, inForce, sameAsInForce) {
   const q = r.quality || {};
   const when = r.created_ns ? new Date(r.created_ns / 1e6).toLocaleString() : "\u2013";
   const res = q.residual_rms_ut != null ? `${fmt(q.residual_rms_ut, 2)} \u00b5T (${fmt(q.residual_rms_pct, 2)} %)` : "\u2013";
@@ -481,8 +557,43 @@ function historyRow(r) {
   const ratio = q.radius_ratio != null ? fmt(q.radius_ratio, 3) : "\u2013";
   const gate = `<span class="badge ${r.accepted ? "calibrated" : "alert"}">${r.accepted ? "accepted" : "rejected"}</span>` +
     `<span class="muted small">${esc(r.reason)}</span>`;
-  return `<tr><td>${when}</td><td><code>${esc(r.id)}</code></td><td>${esc(r.method)}</td><td class="num">${res}</td>` +
-    `<td class="num">${held}</td><td class="num">${cov}</td><td class="num">${ratio}</td><td>${gate}</td></tr>`;
+  const act = inForce ? '<span class="badge calibrated">in force</span>' : r.accepted && !sameAsInForce ?
+    `<button class="rollback" data-id="${esc(r.id)}" title="put this calibration back in force (needs the token)">` +
+    "Roll back to this</button>" : "";
+  return `<tr data-id="${esc(r.id)}"><td>${when}</td><td><code>${esc(r.id)}</code></td><td>${esc(r.method)}</td>` +
+    `<td class="num">${res}</td><td class="num">${held}</td><td class="num">${cov}</td><td class="num">${ratio}</td>` +
+    `<td>${gate}</td><td class="small">${changeText(change)}</td><td>${act}</td></tr>`;
+}
+
+function showInForce(record, index, changes) {
+  $("b-export").disabled = !record;
+  if (!record) {
+    $("f-id").textContent = "none"; $("f-offset").textContent = "\u2013"; $("f-matrix").innerHTML = "";
+    $("f-strength").textContent = "\u2013"; $("f-made").textContent = "\u2013";
+    return;
+  }
+  const unit = (u) => (u === "ut" ? "\u00b5T" : u || "");
+  $("f-id").textContent = record.id;
+  $("f-offset").textContent = `[${(record.offset || []).map((v) => fmt(v, 2)).join(", ")}] ${unit(record.unit)}`;
+  $("f-matrix").innerHTML = (record.matrix || []).map((r) =>
+    `<tr>${r.map((v) => `<td>${fmt(v, 4)}</td>`).join("")}</tr>`).join("");
+  $("f-strength").textContent = record.field_strength ? `${fmt(record.field_strength, 2)} ${unit(record.output_unit)}` : "\u2013";
+  const change = changes[index];
+  $("f-made").innerHTML = `${record.created_ns ? esc(new Date(record.created_ns / 1e6).toLocaleString()) : "\u2013"}` +
+    ` &middot; ${esc(record.method)} &middot; ${changeText(change)}`;
+}
+
+function exportCalibration() {
+  const record = S.history && S.history.inForce;
+  if (!record) return;
+  const blob = new Blob([JSON.stringify(record, null, 2) + "\n"], {type: "application/json"});
+  const link = document.createElement("a");
+  link.href = URL.createObjectURL(blob);
+  link.download = `${S.device}-${record.id}.json`;
+  document.body.appendChild(link);
+  link.click();
+  link.remove();
+  setTimeout(() => URL.revokeObjectURL(link.href), 1000);
 }
 
 // ------------------------------------------------------------------------------------------------ start
@@ -492,6 +603,11 @@ function start() {
   for (const [id, action] of [["b-start", "start"], ["b-commit", "commit"], ["b-abort", "abort"]]) {
     $(id).addEventListener("click", () => control(action));
   }
+  $("b-export").addEventListener("click", exportCalibration);
+  $("history-body").addEventListener("click", (e) => {
+    const button = e.target.closest("button.rollback");
+    if (button) control("rollback", {to: button.dataset.id});
+  });
   for (const tab of document.querySelectorAll(".tab")) {
     tab.addEventListener("click", () => {
       S.cloudMode = tab.dataset.cloud;
