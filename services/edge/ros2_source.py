@@ -36,7 +36,7 @@ def _qualified(namespace: str, topic: str) -> str:
 
 
 class Ros2Source:
-    """Subscribes (once given the session, ``attach``) and yields batches as they fill (``paced``)."""
+    """Subscribes (once given the session, ``attach_session``) and yields batches as they fill (``paced``)."""
 
     def __init__(self, settings: EdgeSettings) -> None:
         if settings.mag_topic is None:
@@ -48,7 +48,7 @@ class Ros2Source:
         self.declared: list[Any] = []
         self.subs: dict[str, Any] = {}
 
-    def attach(self, session: Any) -> None:
+    def attach_session(self, session: Any) -> None:
         """Declare the subscriptions (data keys of the exact type hash) and the node's liveliness tokens."""
         ros = self.settings.ros2
         zid, node = str(session.info.zid()), "magnet_edge_" + names.ros_name_of_device(self.settings.device)

@@ -238,8 +238,8 @@ def serve(settings: EdgeSettings, metrics_address: str | None = None) -> int:
     stop = stop_event()
     with open_session(settings.zenoh) as session:
         declared = _declare(session, settings, status)
-        if hasattr(source, "attach"):  # a ROS 2 source subscribes on this session
-            source.attach(session)
+        if hasattr(source, "attach_session"):  # a ROS 2 source subscribes on this session
+            source.attach_session(session)
         # one declared publisher, only to wait for a subscriber; data goes by session.put (measured: a declared
         # publisher per device costs several times the CPU at 10,000 messages/s)
         first_device = status.ids[0] if status.ids else settings.device
