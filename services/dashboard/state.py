@@ -86,10 +86,12 @@ class DeviceRow:
     drift: dict[str, Alert] = dataclasses.field(default_factory=dict)  # open drift alerts by kind
 
     def status(self) -> str:
-        """What the state badge says: a calibrated device with an open drift alert is never plainly calibrated."""
+        """What the state badge says: a calibrated device with an open drift alert is never plainly calibrated. A
+        drift alert is only raised against a calibration in force, so one that arrives before the page has heard of
+        that calibration (a dashboard started late, a busy machine) marks the device drifted too."""
         if self.session:
             return "session"
-        if self.drift and self.state == "calibrated":
+        if self.drift and self.state in ("calibrated", "waiting"):
             return "drifted"
         return self.state
 
