@@ -62,14 +62,14 @@ def _refusal(decode, payload):
 def test_a_4mb_array_bomb_is_refused_before_it_is_built(decode):
     exc, seconds, peak = _refusal(decode, _flat_bomb())
     assert exc.cause == "oversized", str(exc)
-    assert seconds < 0.05 and peak < 1_000_000
+    assert seconds < 0.2 and peak < 1_000_000
 
 
 def test_the_array_bomb_is_refused_by_the_array_limit_when_the_size_would_pass():
     roomy = wire.RAW_LIMITS._replace(payload_bytes=2 * FOUR_MB)
     exc, seconds, peak = _refusal(lambda p: wire.unpack(p, roomy), _flat_bomb())
     assert exc.cause == "oversized" and "max_array_len" in str(exc)
-    assert seconds < 0.05 and peak < 1_000_000
+    assert seconds < 0.2 and peak < 1_000_000
 
 
 @pytest.mark.parametrize("limits", [wire.RAW_LIMITS])
@@ -78,7 +78,7 @@ def test_a_bomb_of_empty_arrays_is_stopped_by_the_count_of_entries(limits):
     exc, seconds, peak = _refusal(lambda p: wire.unpack(p, limits), payload)
     assert exc.cause == "oversized" and "entries" in str(exc)
     # what was built before the count stopped it: about ``items`` empty lists (~70 bytes each), not 2.5 million
-    assert peak < limits.items * 100 and seconds < 0.2
+    assert peak < limits.items * 100 and seconds < 1.0  # unbounded: 180 MB and seconds
 
 
 def test_honest_messages_of_the_largest_size_pass_the_limits():

@@ -1,0 +1,64 @@
+"""Reading JSON from files and requests within a size and a nesting depth (docs/front-door.md, "Decoding limits").
+
+Every JSON the commands and services read from outside (a calibration record, a request body) goes through
+``read_json`` or ``loads_bounded``: a file larger than its limit, a text that is not UTF-8, nesting deeper than the
+limit (checked before parsing, so the parser never recurses a thousand levels into a RecursionError) and a text
+that is not JSON are each one ``ValueError`` naming the file (or request) and what is wrong.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: a calibration record is about 1 KiB; a request body a few dozen bytes
+MAX_JSON_BYTES = 1024 * 1024
+#: a record nests 3 deep (record -> matrix -> row, record -> quality -> figure list); room for a few more
+MAX_JSON_DEPTH = 16
+
+_STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
+_OPENERS = np.frombuffer(b"[{", dtype=np.uint8)
+_CLOSERS = np.frombuffer(b"]}", dtype=np.uint8)
+
+
+def nesting_depth(text: str) -> int:
+    """How deep the arrays and objects of a JSON text nest (strings skipped), without parsing it: one numpy pass."""
+    codes = np.frombuffer(_STRINGS.sub("", text).encode("utf-8", "replace"), dtype=np.uint8)
+    steps = np.isin(codes, _OPENERS).astype(np.int64) - np.isin(codes, _CLOSERS)
+    return int(np.cumsum(steps).max()) if steps.size else 0
+
+
+def loads_bounded(text: str | bytes, where: str, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """The value of a JSON text; ValueError ``"<where>: ..."`` when it is not UTF-8, nests deeper than
+    ``max_depth`` or is not JSON."""
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{where}: not a text file (not UTF-8 at byte {exc.start})") from None
+    depth = nesting_depth(text)
+    if depth > max_depth:
+        raise ValueError(f"{where}: JSON nested {depth} levels deep, more than {max_depth}")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{where}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    except RecursionError:  # not reached after the depth check; kept so no input can give a traceback
+        raise ValueError(f"{where}: JSON nested too deeply") from None
+
+
+def read_json(path: str | Path, max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """The JSON value in the file at ``path``; ValueError naming the file when it cannot be read, is larger than
+    ``max_bytes``, is not UTF-8 text, nests deeper than ``max_depth`` or is not JSON."""
+    try:
+        with open(path, "rb") as handle:
+            data = handle.read(max_bytes + 1)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read it: {exc.strerror or exc}") from None
+    if len(data) > max_bytes:
+        raise ValueError(f"{path}: larger than {max_bytes} bytes, too large for a JSON record")
+    return loads_bounded(data, str(path), max_depth)
