@@ -143,3 +143,18 @@ def test_heading_v1_booleans_are_not_numbers(field):
     with pytest.raises(wire.WireError) as info:
         wire.decode_heading(msgpack.packb(message))
     assert info.value.cause == "bad-shape"
+
+
+def test_real_records_fit_well_within_the_calibration_limits():
+    from magnet.calibration import fit
+    from magnet.simulator import SensorErrors, SimulatorConfig, simulate
+
+    run = simulate(SimulatorConfig(count=600, seed=1, errors=SensorErrors(hard_iron_ut=np.array([20.0, -5.0, 3.0]))))
+    for method in ("ellipsoid", "ellipsoid+align", "minmax2d"):
+        calibration = fit(run.mag_ut, method, acc=run.acc_ms2, field_ut=50.0)
+        calibration = calibration.replace(reason="a reason in words " * 50)
+        payload = wire.encode_calibration("d" * 128, calibration, 2**62)
+        assert len(payload) * 8 < wire.CALIBRATION_LIMITS.payload_bytes
+        record = msgpack.unpackb(payload)
+        assert len(record) * 4 < wire.CALIBRATION_LIMITS.map
+        assert wire.decode_calibration(payload).calibration.method == method
