@@ -6,6 +6,7 @@ booleans where numbers belong."""
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -42,7 +43,8 @@ def _record(**changes):
 @pytest.mark.parametrize(
     "content, words",
     [
-        (b"[" * 100_000 + b"]" * 100_000, "nested 100000 levels deep"),
+        (b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
+        (b"[" * 500 + b"]" * 500, "nested 500 levels deep"),
         (_record(quality={"note": [[[[[[[[[[[[[[[[[[["deep"]]]]]]]]]]]]]]]]]]]}), "nested 21 levels deep"),
         (b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe", "not a text file"),
         (b" " * (jsonio.MAX_JSON_BYTES + 1), "larger than"),
@@ -74,9 +76,18 @@ def test_every_fit_method_is_a_method_a_record_may_name():
     assert {m.value for m in Method} <= KNOWN_METHODS
 
 
-def test_the_depth_check_skips_brackets_inside_strings():
-    assert jsonio.nesting_depth('{"a": "[[[[[[[[[[[[[[[[[[[[[[[[\\"]]]", "b": [1, [2]]}') == 3
+def test_the_depth_counts_containers_not_brackets_in_strings():
+    assert jsonio.nesting_depth(json.loads('{"a": "[[[[[[[[[[[[[[[[[[[[[[[[\\"]]]", "b": [1, [2, {}]]}')) == 4
+    assert jsonio.nesting_depth(5) == 0
     assert jsonio.loads_bounded('["[[[[[[[[[[[[[[[[[[[[[[[[[["]', "x") == ["[[[[[[[[[[[[[[[[[[[[[[[[[["]
+
+
+@pytest.mark.parametrize("text", ['"' + "a" * 500_000, '"\\' * 200_000, '["' * 200_000, "[" * 500_000, "{" * 500_000])
+def test_pathological_json_is_refused_in_linear_time(text):
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=r"^x: "):
+        jsonio.loads_bounded(text, "x")
+    assert time.perf_counter() - start < 1.0
 
 
 def test_the_csv_reader_names_a_binary_or_oversized_file(tmp_path, monkeypatch):

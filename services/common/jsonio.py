@@ -2,34 +2,32 @@
 
 Every JSON the commands and services read from outside (a calibration record, a request body) goes through
 ``read_json`` or ``loads_bounded``: a file larger than its limit, a text that is not UTF-8, nesting deeper than the
-limit (checked before parsing, so the parser never recurses a thousand levels into a RecursionError) and a text
-that is not JSON are each one ``ValueError`` naming the file (or request) and what is wrong.
+limit (the parser's own ``RecursionError``, a thousand levels down, is caught too) and a text that is not JSON are
+each one ``ValueError`` naming the file (or request) and what is wrong. Everything here is linear in the size.
 """
 
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 #: a calibration record is about 1 KiB; a request body a few dozen bytes
 MAX_JSON_BYTES = 1024 * 1024
 #: a record nests 3 deep (record -> matrix -> row, record -> quality -> figure list); room for a few more
 MAX_JSON_DEPTH = 16
 
-_STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
-_OPENERS = np.frombuffer(b"[{", dtype=np.uint8)
-_CLOSERS = np.frombuffer(b"]}", dtype=np.uint8)
 
-
-def nesting_depth(text: str) -> int:
-    """How deep the arrays and objects of a JSON text nest (strings skipped), without parsing it: one numpy pass."""
-    codes = np.frombuffer(_STRINGS.sub("", text).encode("utf-8", "replace"), dtype=np.uint8)
-    steps = np.isin(codes, _OPENERS).astype(np.int64) - np.isin(codes, _CLOSERS)
-    return int(np.cumsum(steps).max()) if steps.size else 0
+def nesting_depth(value: Any) -> int:
+    """How deep the lists and dicts of a parsed JSON value nest (a scalar: 0), walked without recursion."""
+    deepest, stack = 0, [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        children = item.values() if isinstance(item, dict) else item if isinstance(item, list) else None
+        if children is not None:
+            deepest = max(deepest, depth)
+            stack.extend((child, depth + 1) for child in children)
+    return deepest
 
 
 def loads_bounded(text: str | bytes, where: str, max_depth: int = MAX_JSON_DEPTH) -> Any:
@@ -40,15 +38,16 @@ def loads_bounded(text: str | bytes, where: str, max_depth: int = MAX_JSON_DEPTH
             text = text.decode("utf-8-sig")
         except UnicodeDecodeError as exc:
             raise ValueError(f"{where}: not a text file (not UTF-8 at byte {exc.start})") from None
-    depth = nesting_depth(text)
-    if depth > max_depth:
-        raise ValueError(f"{where}: JSON nested {depth} levels deep, more than {max_depth}")
     try:
-        return json.loads(text)
+        value = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{where}: not JSON ({exc.msg} at line {exc.lineno})") from None
-    except RecursionError:  # not reached after the depth check; kept so no input can give a traceback
-        raise ValueError(f"{where}: JSON nested too deeply") from None
+    except RecursionError:  # the parser's own guard, hundreds of levels down
+        raise ValueError(f"{where}: JSON nested too deeply (more than {max_depth} levels)") from None
+    depth = nesting_depth(value)
+    if depth > max_depth:
+        raise ValueError(f"{where}: JSON nested {depth} levels deep, more than {max_depth}")
+    return value
 
 
 def read_json(path: str | Path, max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH) -> Any:
