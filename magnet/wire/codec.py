@@ -47,9 +47,10 @@ def pack(message: Mapping[str, Any]) -> bytes:
 
 class Limits(NamedTuple):
     """What one message of a kind may hold, enforced while msgpack builds it (see docs/front-door.md, "Decoding
-    limits"): the payload's bytes, the entries of one array or map, the bytes of one string or bin, and the entries
-    of all arrays and maps together (``items``). A payload beyond any of them is refused (cause ``oversized``)
-    before more than about ``items`` objects exist, whatever its bytes hold."""
+    limits"): the payload's bytes, the entries of one array or map, the bytes of one string or bin, the entries of
+    all arrays and maps together (``items``) and the number of arrays and maps (``containers``; None: as ``items``).
+    A payload beyond any of them is refused (cause ``oversized``) before more than about ``items`` entries and
+    ``containers`` containers exist, whatever its bytes hold."""
 
     payload_bytes: int
     array: int
@@ -57,6 +58,7 @@ class Limits(NamedTuple):
     text: int
     binary: int
     items: int
+    containers: int | None = None
 
 
 #: the bounds of a message of no particular kind (replies to the command line and the dashboard: a history of
@@ -68,14 +70,16 @@ class _TooManyItemsError(Exception):
     """Raised inside msgpack's hooks when the entries of a message's arrays and maps exceed ``Limits.items``."""
 
 
-def _counter(items: int) -> Any:
-    """A msgpack ``list_hook`` / ``object_hook`` that counts every array and map built and its entries (an empty one
-    counts one) and stops the unpacking (``_TooManyItemsError``) past ``items``."""
-    left = [items]
+def _counter(limits: Limits) -> Any:
+    """A msgpack ``list_hook`` / ``object_hook`` that counts every array and map built and their entries, and stops
+    the unpacking (``_TooManyItemsError``) past ``limits.items`` entries or ``limits.containers`` containers (an
+    empty container is the cheapest bomb: one byte, some 70 once built)."""
+    left = [limits.items, limits.items if limits.containers is None else limits.containers]
 
     def hook(value: Any) -> Any:
-        left[0] -= len(value) or 1
-        if left[0] < 0:
+        left[0] -= len(value)
+        left[1] -= 1
+        if left[0] < 0 or left[1] < 0:
             raise _TooManyItemsError
         return value
 
@@ -84,10 +88,11 @@ def _counter(items: int) -> Any:
 
 def _unpackb(payload: Payload, limits: Limits) -> tuple[Any, tuple[str, str] | None]:
     """(object, None) or (None, (cause, text)): the refusal is returned, not raised, so that no exception of
-    msgpack's (and no frame holding the payload) is chained to the caller's WireError. Entries are counted only in
-    payloads of more than ``limits.items`` bytes: a smaller one cannot hold more (each entry takes a byte at least),
+    msgpack's (and no frame holding the payload) is chained to the caller's WireError. Entries and containers are
+    counted only in payloads larger than their limits: a smaller one cannot hold more (each takes a byte at least),
     and the common small message pays nothing for the count."""
-    hooks = {} if len(payload) <= limits.items else dict.fromkeys(("list_hook", "object_hook"), _counter(limits.items))
+    small = len(payload) <= min(limits.items, limits.containers or limits.items)
+    hooks = {} if small else dict.fromkeys(("list_hook", "object_hook"), _counter(limits))
     try:
         value = msgpack.unpackb(
             payload,
@@ -101,7 +106,8 @@ def _unpackb(payload: Payload, limits: Limits) -> tuple[Any, tuple[str, str] | N
             **hooks,
         )
     except _TooManyItemsError:
-        return None, ("oversized", f"payload holds more than {limits.items} arrays, maps and entries of them")
+        most = f"{limits.items} entries or {limits.containers or limits.items} arrays and maps"
+        return None, ("oversized", f"payload holds more than {most}")
     except ValueError as exc:
         text = str(exc)
         if " exceeds max_" in text:  # msgpack's own limits: "N exceeds max_array_len(M)"

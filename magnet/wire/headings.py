@@ -55,7 +55,8 @@ QUAT_NORM_TOLERANCE = 0.01
 #: what msgpack may build of one heading payload (``codec.Limits``), from the message's own maxima: at most 256
 #: bytes a sample (v 1 with float64 everywhere needs about 115) plus a header; arrays of MAX_BATCH_SAMPLES entries;
 #: 64 fields; strings of a device id; a v 2 array of N quaternions in float64; in all, the entries of a v 1 message
-#: (1 time, 4 angles, 4 per field row, 1 flag, 5 per quaternion row: 15 a sample) plus room for the header
+#: (1 time, 4 angles, 4 per field row, 1 flag, 5 per quaternion row: 15 a sample) plus room for the header; and
+#: its arrays and maps (a field row and a quaternion row a sample, and the few of the header)
 HEADING_LIMITS = Limits(
     payload_bytes=16 * 1024 + MAX_BATCH_SAMPLES * 256,
     array=MAX_BATCH_SAMPLES,
@@ -63,6 +64,7 @@ HEADING_LIMITS = Limits(
     text=4 * MAX_DEVICE_ID_CHARS,
     binary=MAX_BATCH_SAMPLES * 4 * 8,
     items=MAX_BATCH_SAMPLES * 16 + 1024,
+    containers=MAX_BATCH_SAMPLES * 2 + 64,
 )
 
 
