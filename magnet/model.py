@@ -320,7 +320,8 @@ def _known(data: Mapping[str, Any], name: str, default: str, known: frozenset[st
 
 
 def _number(data: Mapping[str, Any], name: str) -> float:
-    value = data.get(name) or 0
+    value = data.get(name)
+    value = 0 if value is None else value  # not ``or 0``: false would pass as 0
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
         raise ValueError(f"calibration field {name} must be a finite number >= 0, got {value!r}")
     return float(value)

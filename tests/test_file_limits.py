@@ -58,6 +58,7 @@ def _record(**changes):
         (_record(matrix=[[1.0, 0, 0], [0, True, 0], [0, 0, 1.0]]), "true/false"),
         (_record(offset=[True, 0.0, 0.0]), "true/false"),
         (_record(sample_count=True), "sample_count"),
+        (_record(field_strength=False), "field_strength"),
     ],
 )
 def test_heading_refuses_an_unusable_calibration_file_with_one_line(tmp_path, capsys, content, words):
