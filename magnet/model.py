@@ -16,7 +16,8 @@ known or an expected field strength in uT was given; otherwise it is the raw uni
 ``Calibration`` is the one record, from fit to wire to store to compass. Its constructor checks shapes and finiteness
 (a fit may produce a poor calibration, which the quality gate then refuses); ``Calibration.from_dict`` is the one
 entry of a record from outside (a JSON file, a stored row, a message) and also checks that it is physically
-plausible (``check_plausible``): condition number, determinant, offset magnitude.
+plausible (``check_plausible``, in ``magnet.plausible``): matrix entries, condition number, gain, determinant, offset
+magnitude; and that its method and units are ones a record can name (``KNOWN_METHODS``, ``KNOWN_UNITS``).
 """
 
 from __future__ import annotations
@@ -31,29 +32,46 @@ from typing import Any
 import numpy as np
 
 from magnet.motor import MotorModel, motor_from_dict
-from magnet.units import ut_per_unit
+from magnet.plausible import (
+    MAX_CONDITION,
+    MAX_GAIN,
+    MAX_MATRIX_ENTRY,
+    MAX_OFFSET_RAW,
+    MAX_OFFSET_UT,
+    UNKNOWN_SCALE_GAIN,
+    check_plausible,
+)
+from magnet.units import FieldUnit
 
-#: A correction matrix whose largest / smallest singular value exceeds this is not a sensor's (the gate refuses
-#: fits beyond 5; this entry check refuses what no fit of a real sensor gives).
-MAX_CONDITION = 10.0
-#: Largest plausible |offset| component: in uT where the raw unit converts to uT (a +-50 gauss range), else in raw
-#: units (a 24-bit converter).
-MAX_OFFSET_UT = 5_000.0
-MAX_OFFSET_RAW = float(2**24)
-#: Largest plausible gain of the correction either way (its singular values, in output units per raw unit, over the
-#: units' ratio): a real correction rescales the field by a few per cent to a factor of a few (the gate refuses axis
-#: ratios beyond 5), never by 10. Where a unit's scale is unknown (counts), only UNKNOWN_SCALE_GAIN bounds it.
-MAX_GAIN = 10.0
-UNKNOWN_SCALE_GAIN = 1e6
+#: the methods that make records (``magnet.calibration.Method`` values, the turntable's least-squares variant, the
+#: self-test, a hand-written record, the identity and the simulator's truth); a record naming another is refused
+KNOWN_METHODS = frozenset(
+    {"minmax2d", "minmax", "sphere", "ellipsoid", "ellipsoid+align", "turntable", "turntable-lsq"}
+    | {"selftest", "manual", "identity", "truth"}
+)
+#: the units a record may name (``magnet.units.FieldUnit``)
+KNOWN_UNITS = frozenset(u.value for u in FieldUnit)
+
+
+def _holds_bool(value: Any) -> bool:
+    """Whether an array-like of at most two levels (checked to be of shape (3,) or (3, 3)) holds a boolean: numpy
+    would read true as 1 and false as 0."""
+    if isinstance(value, np.ndarray):
+        return value.dtype == bool or (value.dtype == object and any(_holds_bool(v) for v in value.tolist()))
+    if isinstance(value, (list, tuple)):
+        return any(_holds_bool(v) for v in value)
+    return isinstance(value, (bool, np.bool_))
 
 
 def _as_vector3(value: Any, name: str) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} must be 3 numbers, got {type(value).__name__}") from None
     if arr.shape != (3,):
         raise ValueError(f"{name} must be 3 numbers, got shape {arr.shape}")
+    if _holds_bool(value):
+        raise ValueError(f"{name} holds true/false where numbers belong")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} holds non-finite values: {arr.tolist()}")
     return arr
@@ -62,10 +80,12 @@ def _as_vector3(value: Any, name: str) -> np.ndarray:
 def _as_matrix3(value: Any, name: str) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} must be a 3x3 matrix (row-major nested lists) of numbers") from None
     if arr.shape != (3, 3):
         raise ValueError(f"{name} must be a 3x3 matrix (row-major nested lists), got shape {arr.shape}")
+    if _holds_bool(value):
+        raise ValueError(f"{name} holds true/false where numbers belong")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} holds non-finite values")
     return arr
@@ -274,65 +294,19 @@ class Calibration:
                 f"calibration is missing {', '.join(missing)}: a record as 'magnet fit' writes it is needed"
             )
         calibration = cls(
-            method=_text(data, "method", "manual"),
+            method=_known(data, "method", "manual", KNOWN_METHODS),
             offset=data["offset"],
             matrix=data["matrix"],
             field_strength=_number(data, "field_strength"),
             sample_count=int(_number(data, "sample_count")),
-            unit=_text(data, "unit", "ut"),
-            output_unit=_text(data, "output_unit", "ut"),
+            unit=_known(data, "unit", "ut", KNOWN_UNITS),
+            output_unit=_known(data, "output_unit", "ut", KNOWN_UNITS),
             quality=Quality.from_dict(data.get("quality")),
             accepted=_flag(data, "accepted"),
             reason=_text(data, "reason", ""),
             motor=motor_from_dict(data),
         )
         return check_plausible(calibration)
-
-
-def check_plausible(calibration: Calibration) -> Calibration:
-    """``calibration`` if a real sensor could have it, else ValueError naming what is wrong and what to do.
-
-    Checks: the matrix's condition number (largest / smallest singular value) <= MAX_CONDITION, its determinant > 0
-    (no reflection: it would mirror every heading), its gain within MAX_GAIN either way (``_check_gain``), and each
-    offset component within MAX_OFFSET_UT (uT, where the raw unit converts to uT) or MAX_OFFSET_RAW (raw units
-    otherwise)."""
-    singular = np.linalg.svd(calibration.matrix, compute_uv=False)
-    condition = singular[0] / singular[-1] if singular[-1] > 0 else math.inf
-    if not condition <= MAX_CONDITION:
-        raise ValueError(
-            f"calibration matrix condition number {condition:.3g} exceeds {MAX_CONDITION:g}: it is "
-            "singular or absurdly anisotropic; fit again from data covering all attitudes"
-        )
-    if np.linalg.det(calibration.matrix) <= 0:
-        raise ValueError(
-            "calibration matrix has a negative determinant (a reflection, which mirrors headings): "
-            "check the axis signs and fit again"
-        )
-    _check_gain(singular, calibration)
-    to_ut = ut_per_unit(calibration.unit)
-    limit, unit = (MAX_OFFSET_UT / to_ut, calibration.unit) if to_ut else (MAX_OFFSET_RAW, calibration.unit)
-    worst = float(np.abs(calibration.offset).max())
-    if worst > limit:
-        raise ValueError(
-            f"calibration offset {worst:.4g} {unit} exceeds {limit:.4g} {unit}: no sensor reads that; "
-            "check the record's unit and fit again"
-        )
-    return calibration
-
-
-def _check_gain(singular: np.ndarray, calibration: Calibration) -> None:
-    """ValueError when the correction's gain (singular values, descending) is beyond what a sensor needs."""
-    raw_ut, out_ut = ut_per_unit(calibration.unit), ut_per_unit(calibration.output_unit)
-    if raw_ut and out_ut:
-        gain, limit = singular / (raw_ut / out_ut), MAX_GAIN
-    else:
-        gain, limit = singular, UNKNOWN_SCALE_GAIN
-    if not (gain[0] <= limit and gain[-1] >= 1 / limit):
-        raise ValueError(
-            f"calibration matrix scales the field by {gain[-1]:.3g} to {gain[0]:.3g} "
-            f"({calibration.unit} to {calibration.output_unit}), beyond 1/{limit:g} to {limit:g}: no "
-            "sensor needs that; check the record's units and fit again"
-        )
 
 
 def _text(data: Mapping[str, Any], name: str, default: str) -> str:
@@ -344,8 +318,18 @@ def _text(data: Mapping[str, Any], name: str, default: str) -> str:
     return value
 
 
+def _known(data: Mapping[str, Any], name: str, default: str, known: frozenset[str]) -> str:
+    """A text field that must be one of ``known``; ValueError naming them otherwise."""
+    value = _text(data, name, default)
+    if value not in known:
+        shown = value if len(value) <= 40 else value[:40] + "..."
+        raise ValueError(f"calibration field {name} {shown!r} is not one of {', '.join(sorted(known))}")
+    return value
+
+
 def _number(data: Mapping[str, Any], name: str) -> float:
-    value = data.get(name) or 0
+    value = data.get(name)
+    value = 0 if value is None else value  # not ``or 0``: false would pass as 0
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
         raise ValueError(f"calibration field {name} must be a finite number >= 0, got {value!r}")
     return float(value)
@@ -357,6 +341,21 @@ def _flag(data: Mapping[str, Any], name: str) -> bool:
         raise ValueError(f"calibration field {name} must be true or false, got {value!r}")
     return value
 
+
+__all__ = [
+    "IDENTITY",
+    "KNOWN_METHODS",
+    "KNOWN_UNITS",
+    "MAX_CONDITION",
+    "MAX_GAIN",
+    "MAX_MATRIX_ENTRY",
+    "MAX_OFFSET_RAW",
+    "MAX_OFFSET_UT",
+    "UNKNOWN_SCALE_GAIN",
+    "Calibration",
+    "Quality",
+    "check_plausible",
+]
 
 IDENTITY = Calibration(method="identity", offset=np.zeros(3), matrix=np.eye(3), reason="no calibration")
 

@@ -179,7 +179,7 @@ def test_calibration_message_carries_record_id_and_time():
     ],
 )
 def test_implausible_or_malformed_calibration_is_refused_on_the_wire(changes, words):
-    record = wire.calibration_record("dev", Calibration("x", [0, 0, 0], np.eye(3)), 1)
+    record = wire.calibration_record("dev", Calibration("manual", [0, 0, 0], np.eye(3)), 1)
     for decode in (wire.calibration_from_record, lambda r: wire.decode_calibration(msgpack.packb(r))):
         with pytest.raises(wire.WireError, match=words) as info:
             decode({**record, **changes})

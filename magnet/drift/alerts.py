@@ -7,6 +7,8 @@ import enum
 import math
 from typing import Any
 
+from magnet.wire.codec import Limits
+
 
 class AlertKind(enum.Enum):
     """What drifted (the alert message's ``kind``)."""
@@ -75,6 +77,8 @@ class Alert:
 
 
 MAX_ADVICE_CHARS = 1_000
+#: what msgpack may build of one alert message (``magnet.wire.Limits``): a handful of fields, the advice text
+ALERT_LIMITS = Limits(payload_bytes=16 * 1024, array=16, map=32, text=4 * MAX_ADVICE_CHARS, binary=0, items=256)
 
 
 def alert_from_message(message: Any) -> Alert:

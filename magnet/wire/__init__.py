@@ -11,7 +11,8 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
   (the one id check), ``validate_prefix``, status and liveliness keys.
 - ``errors``: ``WireError``, ``DropCounter``.
 - ``codec``: ``WIRE_VERSION`` (1: lists; the records), ``BINARY_VERSION`` (2: sample arrays as little-endian
-  bytes with dtype and shape, written by the services), ``VERSIONS`` (both read), size limits, ``pack``/``unpack``,
+  bytes with dtype and shape, written by the services), ``VERSIONS`` (both read), size limits, ``pack``/``unpack``
+  (bounded: ``Limits`` per kind of message, ``RAW_LIMITS``, ``HEADING_LIMITS``, ``CALIBRATION_LIMITS``, ...),
   ``plain`` (v 2 arrays as lists, for printing) and the checks of single fields.
 - ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; ``raw_decode``: the one raw decoder ``decode_raw_many``
   (``decode_raw`` is it applied to one payload), with the structure checks of one message in ``raw_header``.
@@ -25,18 +26,29 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
 """
 
 from magnet.wire.codec import (
+    ANY_LIMITS,
     BINARY_VERSION,
     MAX_BATCH_SAMPLES,
     MAX_PAYLOAD_BYTES,
     VERSIONS,
     WIRE_VERSION,
+    Limits,
     check_version,
+    detached,
     pack,
     plain,
     unpack,
 )
 from magnet.wire.errors import DropCounter, WireError
-from magnet.wire.headings import ANGLE_FIELDS, DISTURBED, HeadingBatch, decode_heading, encode_heading, encode_headings
+from magnet.wire.headings import (
+    ANGLE_FIELDS,
+    DISTURBED,
+    HEADING_LIMITS,
+    HeadingBatch,
+    decode_heading,
+    encode_heading,
+    encode_headings,
+)
 from magnet.wire.keys import (
     DEFAULT_PREFIX,
     Kind,
@@ -63,8 +75,11 @@ from magnet.wire.raw import (
     message_location,
 )
 from magnet.wire.raw_decode import decode_messages, decode_raw, decode_raw_many
+from magnet.wire.raw_header import RAW_LIMITS
 from magnet.wire.records import (
+    CALIBRATION_LIMITS,
     MAX_VERSION,
+    PROGRESS_LIMITS,
     CalibrationMessage,
     Collecting,
     DeviceCalibration,
@@ -79,9 +94,12 @@ from magnet.wire.records import (
 
 __all__ = [
     "ANGLE_FIELDS",
+    "ANY_LIMITS",
     "BINARY_VERSION",
+    "CALIBRATION_LIMITS",
     "DEFAULT_PREFIX",
     "DISTURBED",
+    "HEADING_LIMITS",
     "MAX_ACC_MS2",
     "MAX_BATCH_SAMPLES",
     "MAX_CURRENT_A",
@@ -89,6 +107,8 @@ __all__ = [
     "MAX_GYR_RADS",
     "MAX_PAYLOAD_BYTES",
     "MAX_VERSION",
+    "PROGRESS_LIMITS",
+    "RAW_LIMITS",
     "SCALAR_FIELDS",
     "TRUTH_FIELDS",
     "VERSIONS",
@@ -99,6 +119,7 @@ __all__ = [
     "DropCounter",
     "HeadingBatch",
     "Kind",
+    "Limits",
     "Progress",
     "RawBatch",
     "RawColumns",
@@ -113,6 +134,7 @@ __all__ = [
     "decode_progress",
     "decode_raw",
     "decode_raw_many",
+    "detached",
     "device_from_key",
     "encode_calibration",
     "encode_heading",

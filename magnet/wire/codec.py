@@ -16,6 +16,7 @@ both versions (``WIRE_VERSION`` 1, also their JSON form in files and the store);
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
 from typing import Any, NamedTuple
@@ -44,18 +45,102 @@ def pack(message: Mapping[str, Any]) -> bytes:
     return msgpack.packb(message, use_bin_type=True)
 
 
-def unpack(payload: Payload) -> dict[str, Any]:
-    """The map inside ``payload``; WireError when oversized, not msgpack, not a map or of another version."""
-    if len(payload) > MAX_PAYLOAD_BYTES:
-        raise WireError("oversized", f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+class Limits(NamedTuple):
+    """What one message of a kind may hold, enforced while msgpack builds it (see docs/front-door.md, "Decoding
+    limits"): the payload's bytes, the entries of one array or map, the bytes of one string or bin, the entries of
+    all arrays and maps together (``items``) and the number of arrays and maps (``containers``; None: as ``items``).
+    A payload beyond any of them is refused (cause ``oversized``) before more than about ``items`` entries and
+    ``containers`` containers exist, whatever its bytes hold."""
+
+    payload_bytes: int
+    array: int
+    map: int
+    text: int
+    binary: int
+    items: int
+    containers: int | None = None
+
+
+#: the bounds of a message of no particular kind (replies to the command line and the dashboard: a history of
+#: MAX_HISTORY records, a fleet of 100,000 devices)
+ANY_LIMITS = Limits(MAX_PAYLOAD_BYTES, 200_000, 200_000, 64 * 1024, MAX_PAYLOAD_BYTES, 2_000_000)
+
+
+class _TooManyItemsError(Exception):
+    """Raised inside msgpack's hooks when the entries of a message's arrays and maps exceed ``Limits.items``."""
+
+
+def _counter(limits: Limits) -> Any:
+    """A msgpack ``list_hook`` / ``object_hook`` that counts every array and map built and their entries, and stops
+    the unpacking (``_TooManyItemsError``) past ``limits.items`` entries or ``limits.containers`` containers (an
+    empty container is the cheapest bomb: one byte, some 70 once built)."""
+    left = [limits.items, limits.items if limits.containers is None else limits.containers]
+
+    def hook(value: Any) -> Any:
+        left[0] -= len(value)
+        left[1] -= 1
+        if left[0] < 0 or left[1] < 0:
+            raise _TooManyItemsError
+        return value
+
+    return hook
+
+
+def _unpackb(payload: Payload, limits: Limits) -> tuple[Any, tuple[str, str] | None]:
+    """(object, None) or (None, (cause, text)): the refusal is returned, not raised, so that no exception of
+    msgpack's (and no frame holding the payload) is chained to the caller's WireError. Entries and containers are
+    counted only in payloads larger than their limits: a smaller one cannot hold more (each takes a byte at least),
+    and the common small message pays nothing for the count."""
+    small = len(payload) <= min(limits.items, limits.containers or limits.items)
+    hooks = {} if small else dict.fromkeys(("list_hook", "object_hook"), _counter(limits))
     try:
-        message = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+        value = msgpack.unpackb(
+            payload,
+            raw=False,
+            strict_map_key=True,
+            max_str_len=limits.text,
+            max_bin_len=limits.binary,
+            max_array_len=limits.array,
+            max_map_len=limits.map,
+            max_ext_len=0,
+            **hooks,
+        )
+    except _TooManyItemsError:
+        most = f"{limits.items} entries or {limits.containers or limits.items} arrays and maps"
+        return None, ("oversized", f"payload holds more than {most}")
+    except ValueError as exc:
+        text = str(exc)
+        if " exceeds max_" in text:  # msgpack's own limits: "N exceeds max_array_len(M)"
+            return None, ("oversized", f"payload holds a string, bin, array or map too long for its kind: {text}")
+        return None, ("not-msgpack", f"payload is not msgpack: {type(exc).__name__}")
     except Exception as exc:  # msgpack raises several unrelated types for garbage
-        raise WireError("not-msgpack", f"payload is not msgpack: {type(exc).__name__}") from None
-    if not isinstance(message, dict):
-        raise WireError("not-a-map", f"payload is a msgpack {type(message).__name__}, not a map")
+        return None, ("not-msgpack", f"payload is not msgpack: {type(exc).__name__}")
+    return value, None
+
+
+def unpack(payload: Payload, limits: Limits = ANY_LIMITS) -> dict[str, Any]:
+    """The map inside ``payload``, unpacked within ``limits`` (the kind's, ``ANY_LIMITS`` when unsaid); WireError
+    when oversized, not msgpack, not a map or of another version. The error holds no reference to the payload or
+    to what was unpacked (no traceback, no chained exception): a refused bomb is freed at once."""
+    size = len(payload)
+    if size > limits.payload_bytes:
+        raise WireError("oversized", f"payload of {size} bytes exceeds {limits.payload_bytes}")
+    message, problem = _unpackb(payload, limits)
+    if problem is not None:
+        raise WireError(*problem)
+    if type(message) is not dict:
+        kind = type(message).__name__
+        del message
+        raise WireError("not-a-map", f"payload is a msgpack {kind}, not a map")
     check_version(message)
     return message
+
+
+def detached(exc: WireError) -> WireError:
+    """``exc`` without traceback or chained exception: safe to keep (in a list of refusals, a counter) without
+    keeping the frames, payloads and unpacked objects of the decoding alive (nor a reference cycle through them)."""
+    exc.__context__ = exc.__cause__ = None
+    return exc.with_traceback(None)
 
 
 def check_version(message: Mapping[str, Any]) -> int:
@@ -212,7 +297,17 @@ def float_array(
         raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected (N, {', '.join(map(str, shape_tail))})")
     if arr.shape[0] > MAX_BATCH_SAMPLES:
         raise WireError("oversized", f"{name} holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
+    no_booleans(value, name, rows=bool(shape_tail))
     return check_floats(arr, name, limit)
+
+
+def no_booleans(values: Any, name: str, rows: bool) -> None:
+    """WireError ``bad-shape`` when v 1 ``values`` (numbers, or rows of numbers when ``rows``) hold a boolean: numpy
+    would read true as 1 and false as 0. One pass in C (``map(type, ...)``), no per-number Python. Call it once the
+    values are known to form an array."""
+    flat = itertools.chain.from_iterable(values) if rows else values
+    if bool in set(map(type, flat)):
+        raise WireError("bad-shape", f"{name} holds true/false where numbers belong")
 
 
 def check_floats(arr: np.ndarray, name: str, limit: float | None) -> np.ndarray:
@@ -237,6 +332,7 @@ def int_array(value: Any, name: str, binary: bool = False, dtypes: Mapping[str, 
         raise WireError("bad-shape", f"{name} must be a list of integers, got shape {arr.shape} dtype {arr.dtype}")
     if arr.shape[0] > MAX_BATCH_SAMPLES:
         raise WireError("oversized", f"{name} holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
+    no_booleans(value, name, rows=False)
     return arr.astype(np.int64)
 
 

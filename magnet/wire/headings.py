@@ -28,10 +28,12 @@ from magnet.wire.codec import (
     FLAG_DTYPE,
     FLAG_DTYPES,
     FLOAT_DTYPE,
+    MAX_BATCH_SAMPLES,
     TIME_DTYPE,
     TIME_DTYPES,
     VERSIONS,
     WIRE_VERSION,
+    Limits,
     Payload,
     binary_message,
     check_lengths,
@@ -42,7 +44,7 @@ from magnet.wire.codec import (
     unpack,
 )
 from magnet.wire.errors import WireError
-from magnet.wire.keys import message_device
+from magnet.wire.keys import MAX_DEVICE_ID_CHARS, message_device
 from magnet.wire.raw import RawColumns
 
 ANGLE_FIELDS = ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg")
@@ -50,6 +52,20 @@ ANGLE_FIELDS = ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg")
 DISTURBED = int(HeadingFlag.FIELD_DISTURBED | HeadingFlag.DIP_DISTURBED)
 #: a quaternion on the wire must have a norm within this of 1
 QUAT_NORM_TOLERANCE = 0.01
+#: what msgpack may build of one heading payload (``codec.Limits``), from the message's own maxima: at most 256
+#: bytes a sample (v 1 with float64 everywhere needs about 115) plus a header; arrays of MAX_BATCH_SAMPLES entries;
+#: 64 fields; strings of a device id; a v 2 array of N quaternions in float64; in all, the entries of a v 1 message
+#: (1 time, 4 angles, 4 per field row, 1 flag, 5 per quaternion row: 15 a sample) plus room for the header; and
+#: its arrays and maps (a field row and a quaternion row a sample, and the few of the header)
+HEADING_LIMITS = Limits(
+    payload_bytes=16 * 1024 + MAX_BATCH_SAMPLES * 256,
+    array=MAX_BATCH_SAMPLES,
+    map=64,
+    text=4 * MAX_DEVICE_ID_CHARS,
+    binary=MAX_BATCH_SAMPLES * 4 * 8,
+    items=MAX_BATCH_SAMPLES * 16 + 1024,
+    containers=MAX_BATCH_SAMPLES * 2 + 64,
+)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -289,7 +305,7 @@ def _quaternions_ok(quat_wxyz: np.ndarray | None, bounds: Sequence[int]) -> list
 
 def decode_heading(payload: Payload) -> HeadingBatch:
     """HeadingBatch from a payload; WireError (with ``cause``) for anything malformed."""
-    message = unpack(payload)
+    message = unpack(payload, HEADING_LIMITS)
     device = message_device(message)
     binary = binary_message(message)
     t_ns = int_array(message.get("t_ns"), "t_ns", binary, TIME_DTYPES)

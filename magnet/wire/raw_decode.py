@@ -17,7 +17,17 @@ from typing import Any
 import numpy as np
 
 from magnet.place import Location
-from magnet.wire.codec import Bin, Payload, binary_message, check_lengths, float_array, from_bins, unpack
+from magnet.wire.codec import (
+    Bin,
+    Payload,
+    binary_message,
+    check_lengths,
+    detached,
+    float_array,
+    from_bins,
+    no_booleans,
+    unpack,
+)
 from magnet.wire.errors import WireError
 from magnet.wire.raw import (
     TRUTH_FIELDS,
@@ -29,7 +39,7 @@ from magnet.wire.raw import (
     nan_rows,
     nan_values,
 )
-from magnet.wire.raw_header import INT64_MAX, Header, check_header
+from magnet.wire.raw_header import INT64_MAX, RAW_LIMITS, Header, check_header
 
 
 def _stack(parts: list[Any], name: str, rows: int) -> np.ndarray:
@@ -40,6 +50,7 @@ def _stack(parts: list[Any], name: str, rows: int) -> np.ndarray:
         raise WireError("bad-shape", f"{name} is not an array of numbers of shape (N, 3)") from None
     if arr.shape != (rows, 3):
         raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected (N, 3)")
+    no_booleans(parts, name, rows=True)
     return arr
 
 
@@ -49,6 +60,7 @@ def _stack_times(parts: list[Any]) -> np.ndarray:
     except (TypeError, ValueError, OverflowError):
         raise WireError("bad-shape", "t_ns is not an array of integers") from None
     if arr.ndim == 1 and arr.dtype.kind in "iu" and (arr.dtype.kind == "i" or arr.max() <= INT64_MAX):
+        no_booleans(parts, "t_ns", rows=False)
         return arr.astype(np.int64)
     if arr.ndim == 1 and all(type(x) is int for x in parts):  # integers beyond int64: they would wrap
         raise WireError("out-of-range", f"t_ns holds values beyond {INT64_MAX}")
@@ -159,7 +171,7 @@ def _alone(header: Header) -> tuple[list[RawBatch], WireError | None]:
     try:
         columns, (verdict,) = _numbers([header])
     except WireError as exc:
-        return [], exc
+        return [], detached(exc)
     return ([] if verdict else columns.batches()), verdict
 
 
@@ -177,7 +189,7 @@ def decode_messages(
             header = check_header(message, None if sizes is None else sizes[index])
             location = message_location(message)
         except WireError as exc:
-            errors.append((index, exc))
+            errors.append((index, detached(exc)))
             continue
         headers.append(header)
         locations.append(location)
@@ -213,11 +225,11 @@ def decode_raw_many(payloads: Sequence[Payload]) -> tuple[RawColumns, list[tuple
     errors: list[tuple[int, WireError]] = []
     for index, payload in enumerate(payloads):
         try:
-            messages.append(unpack(payload))
+            messages.append(unpack(payload, RAW_LIMITS))
             sizes.append(len(payload))
             where.append(index)
         except WireError as exc:
-            errors.append((index, exc))
+            errors.append((index, detached(exc)))
     columns, refused = decode_messages(messages, sizes)
     errors += [(where[i], exc) for i, exc in refused]
     return columns, sorted(errors, key=lambda e: e[0])
@@ -228,10 +240,15 @@ def decode_raw(payload: Payload, *, with_truth: bool = True) -> RawBatch:
 
     The verdict is ``decode_raw_many``'s; ``with_truth=False`` skips the simulator's truth (faster, for consumers
     that do not use it)."""
-    message = unpack(payload)
+    message = unpack(payload, RAW_LIMITS)
     columns, errors = decode_messages([message], [len(payload)])
     if errors:
-        raise errors[0][1]
+        exc = errors[0][1]
+        del message, columns, errors
+        try:
+            raise exc
+        finally:  # no reference cycle exc -> traceback -> this frame -> exc
+            del exc
     batch = columns.batches()[0]
     if not with_truth or message.get("truth") is None:
         return batch

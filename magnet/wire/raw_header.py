@@ -20,14 +20,15 @@ from magnet.wire.codec import (
     FLOAT_DTYPES,
     MAX_BATCH_SAMPLES,
     TIME_DTYPES,
+    Limits,
     binary_message,
     check_bin,
     from_bins,
     int_field,
 )
 from magnet.wire.errors import WireError
-from magnet.wire.keys import message_device
-from magnet.wire.raw import SCALAR_FIELDS, VECTOR_FIELDS
+from magnet.wire.keys import MAX_DEVICE_ID_CHARS, message_device
+from magnet.wire.raw import SCALAR_FIELDS, TRUTH_FIELDS, VECTOR_FIELDS
 
 #: the fields a raw message may carry; others are ignored, up to MAX_EXTRA_FIELDS of them
 RAW_FIELDS = frozenset(
@@ -40,6 +41,22 @@ MAX_SENSOR_CHARS = 64
 #: encoding (v 1, float64 everywhere, with the simulator's truth) needs about 125 bytes a sample
 MAX_BYTES_PER_SAMPLE = 256
 MAX_HEADER_BYTES = 16 * 1024
+#: what msgpack may build of one raw payload (``codec.Limits``), from the message's own maxima: the payload its
+#: samples can need; arrays of at most MAX_BATCH_SAMPLES entries (t_ns, rows); maps of the raw fields and the extra
+#: ones; strings of a device id or sensor (4 bytes a character at most in UTF-8); a v 2 array of N rows of 3 float64;
+#: in all the entries of a v 1 message of N samples: N times, 4 per row of each vector field, 1 per truth figure
+#: (about 20 a sample), plus room for the header; and its arrays and maps: a row of each vector field a sample, plus
+#: the few of the header and the v 2 array maps
+MAX_ITEMS_PER_SAMPLE = 1 + 4 * len(VECTOR_FIELDS) + len(TRUTH_FIELDS)
+RAW_LIMITS = Limits(
+    payload_bytes=MAX_HEADER_BYTES + MAX_BATCH_SAMPLES * MAX_BYTES_PER_SAMPLE,
+    array=MAX_BATCH_SAMPLES,
+    map=len(RAW_FIELDS) + MAX_EXTRA_FIELDS,
+    text=4 * max(MAX_DEVICE_ID_CHARS, MAX_SENSOR_CHARS),
+    binary=MAX_BATCH_SAMPLES * 3 * 8,
+    items=MAX_BATCH_SAMPLES * MAX_ITEMS_PER_SAMPLE + 1024,
+    containers=MAX_BATCH_SAMPLES * len(VECTOR_FIELDS) + 64,
+)
 #: the largest ``seq`` and ``t_ns`` (int64)
 INT64_MAX = 2**63 - 1
 

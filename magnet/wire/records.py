@@ -22,12 +22,18 @@ from typing import Any
 import msgpack
 
 from magnet.model import Calibration
-from magnet.wire.codec import WIRE_VERSION, Payload, check_version, int_field, unpack
+from magnet.wire.codec import WIRE_VERSION, Limits, Payload, check_version, int_field, unpack
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device, validate_device_id
 
 MAX_SIG_LEN, MAX_KEY_ID_LEN = 128, 64
 MAX_VERSION = 2**63 - 1
+#: what msgpack may build of one calibration record (``codec.Limits``): a record is a few dozen fields (3 offsets,
+#: a 3x3 matrix, units, a map of quality figures, a reason in words, a signature); 64 KiB, lists of 256, maps of
+#: 128, strings of 16 KiB and 4096 entries in all are many times the largest a fit writes. No bin.
+CALIBRATION_LIMITS = Limits(payload_bytes=64 * 1024, array=256, map=128, text=16 * 1024, binary=0, items=4096)
+#: a progress message: the same kind of small record (a list of missing directions, a reason)
+PROGRESS_LIMITS = CALIBRATION_LIMITS
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -117,7 +123,9 @@ def calibration_from_record(record: Mapping[str, Any]) -> DeviceCalibration:
 
 
 def decode_calibration(payload: Payload) -> DeviceCalibration:
-    return calibration_from_record(unpack(payload))
+    """The record of a calibration message (unpacked within ``CALIBRATION_LIMITS``); WireError as
+    ``calibration_from_record``."""
+    return calibration_from_record(unpack(payload, CALIBRATION_LIMITS))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,6 +187,6 @@ def encode_progress(device: str, progress: Progress | Mapping[str, Any]) -> byte
 
 def decode_progress(payload: Payload) -> dict[str, Any]:
     """The progress message's map (checked: version and device)."""
-    message = unpack(payload)
+    message = unpack(payload, PROGRESS_LIMITS)
     message_device(message)
     return message

@@ -31,7 +31,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import msgpack
 import numpy as np
 
 from magnet import wire
@@ -109,7 +108,7 @@ class _Measurer:
                 time.sleep(0.0002)
                 continue
             now = time.time_ns()
-            message = msgpack.unpackb(sample.payload.to_bytes())
+            message = wire.unpack(sample.payload.to_bytes(), wire.HEADING_LIMITS)
             t_ns = message["t_ns"]
             if isinstance(t_ns, dict):  # v 2: <i8 bytes
                 t_ns = np.frombuffer(t_ns["data"], dtype="<i8")
@@ -160,7 +159,7 @@ def _calibrate(session: Any, devices: int, shards: int) -> None:
         for k in range(shards):
             for reply in session.get(f"magnet/@status/bench-compass-{k}", timeout=1.0):
                 if reply.ok is not None:
-                    held += int(msgpack.unpackb(reply.ok.payload.to_bytes())["calibrations"])
+                    held += int(wire.unpack(reply.ok.payload.to_bytes())["calibrations"])
         if held >= devices:
             return
         time.sleep(0.2)

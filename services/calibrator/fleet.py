@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from magnet import wire
 from magnet.bounded import Recent
 from magnet.drift import Alert, AlertKind, alert_from_message
+from magnet.drift.alerts import ALERT_LIMITS
 from magnet.fleet import Places
 
 if TYPE_CHECKING:  # the service imports this module
@@ -70,7 +71,7 @@ class FleetBook:
     def on_alert(self, key_expr: str, payload: bytes, prefix: str) -> None:
         """An alert raised or cleared by a compass; malformed ones dropped and counted."""
         try:
-            message = wire.unpack(payload)
+            message = wire.unpack(payload, ALERT_LIMITS)
             device = wire.message_device(message)
             wire.check_key(prefix, key_expr, wire.Kind.ALERT, device)
             alert = alert_from_message(message)

@@ -23,6 +23,7 @@ from magnet.units import FieldUnit
 from services.commands.fit_motor import add_motor_arguments, fit_with_motors
 from services.common.csvio import SampleTable
 from services.common.inputs import InputOptions, add_input_arguments, read_input_told
+from services.common.jsonio import read_json
 
 EXIT_REJECTED = 1
 GYRO_COLUMNS = ("gx", "gy", "gz")
@@ -177,11 +178,9 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
 
 
 def load_calibration(path: str) -> Calibration:
-    """A record as ``magnet fit`` writes it, from a JSON file; ValueError naming the file."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    """A record as ``magnet fit`` writes it, from a JSON file (read within ``jsonio``'s size and depth limits);
+    ValueError naming the file."""
+    data = read_json(path)
     try:
         return Calibration.from_dict(data)
     except ValueError as exc:

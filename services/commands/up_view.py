@@ -163,7 +163,7 @@ class Viewer:
                 message = wire.decode_progress(payload)
                 self.view(message["device"]).on_progress(message)
             else:
-                message = wire.unpack(payload)
+                message = wire.unpack(payload, wire.CALIBRATION_LIMITS)
                 self.view(str(message.get("device"))).on_calibration(message)
         except (wire.WireError, KeyError, TypeError, ValueError):
             pass  # the services count malformed input; the view just skips it

@@ -4,9 +4,9 @@ A sample CSV has a header row naming its columns; any lines before the header (a
 ``Fs,50.00``) are skipped: the header is the first line that names ``mx``, ``my`` and ``mz``. Columns are matched by
 name, case-insensitively; unknown columns are ignored, a column the commands read may not be named twice. Cells may
 be quoted (``"mx","my","mz"``); values are separated by commas: a file separated otherwise (semicolons, tabs) is
-refused with the separator named. A field over 128 KiB is refused, and so is a sensor reading (``mx..mz``,
-``ax..az``, ``gx..gz``) beyond +-1e9 in any unit. Every problem is a ``ValueError`` that names the file, the line
-and what to do.
+refused with the separator named. A file over ``MAX_CSV_BYTES`` or not UTF-8 is refused, a field over 128 KiB too,
+and so is a sensor reading (``mx..mz``, ``ax..az``, ``gx..gz``) beyond +-1e9 in any unit. Every problem is a
+``ValueError`` that names the file, the line and what to do.
 """
 
 from __future__ import annotations
@@ -27,6 +27,9 @@ GYRO_COLUMNS = ("gx", "gy", "gz")
 MAX_PREAMBLE_LINES = 50
 #: no sensor reads beyond this in any unit (nT, counts, m/s^2, rad/s): such a value is a wrong column or a broken file
 MAX_READING = 1e9
+#: the largest sample file read (the file is held in memory as text and rows): an hour at 1 kHz of a dozen columns
+#: is about 200 MB
+MAX_CSV_BYTES = 512 * 1024 * 1024
 #: the csv module's own limit on one field (128 KiB)
 MAX_FIELD_CHARS = csv.field_size_limit()
 #: other separators named when the header is found with one of them
@@ -157,10 +160,15 @@ def _read_rows(lines: list[str], header_index: int, path: str) -> tuple[list[str
 def read_samples(path: str | Path) -> SampleTable:
     """Read a sample CSV file; ValueError for a file that is not one (OSError when it cannot be opened)."""
     path = Path(path)
+    with open(path, "rb") as handle:
+        data = handle.read(MAX_CSV_BYTES + 1)
+    if len(data) > MAX_CSV_BYTES:
+        raise ValueError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MiB: split the recording and fit a part")
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not a text CSV file") from None
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a text CSV file (not UTF-8 at byte {exc.start})") from None
+    del data
     return parse_samples(text, str(path))
 
 

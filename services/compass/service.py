@@ -175,6 +175,21 @@ class _Loop:
             self.compass.accept_calibration(payload_bytes(sample), str(sample.key_expr), self.prefix)
         self._ask_refused()
 
+    def _payloads(self, samples: list[Any], keys: list[str]) -> list[tuple[str, bytes]]:
+        """(key, payload bytes) of each sample; one larger than any raw message may be is dropped and counted
+        without being copied out of zenoh (a drain of msgpack bombs would otherwise be copied all at once)."""
+        limit = wire.RAW_LIMITS.payload_bytes
+        items = []
+        for sample, key in zip(samples, keys):
+            payload = sample.payload
+            if len(payload) > limit:
+                self.compass.drops.drop(
+                    wire.WireError("oversized", f"payload of {len(payload)} bytes exceeds {limit}"), "raw", log
+                )
+            else:
+                items.append((key, payload.to_bytes()))
+        return items
+
     def headings(self, raw_sub: Any) -> bool:
         """Compute and publish the headings of the raw batches waiting; False when there were none."""
         samples = drain(raw_sub, self.drain_limit)
@@ -184,7 +199,7 @@ class _Loop:
         if not self.compass.shard.everything:  # another shard's devices: dropped by key, before any decoding
             mine = [i for i, k in enumerate(keys) if self.compass.mine(k, self.prefix)]
             samples, keys = [samples[i] for i in mine], [keys[i] for i in mine]
-        columns = self.compass.decode_columns([(k, s.payload.to_bytes()) for s, k in zip(samples, keys)], self.prefix)
+        columns = self.compass.decode_columns(self._payloads(samples, keys), self.prefix)
         for device, payload in zip(columns.devices, self.compass.encode(columns)):
             key = self.heading_keys.get(device) or self.heading_keys.setdefault(
                 device, wire.key(self.prefix, device, wire.Kind.HEADING)

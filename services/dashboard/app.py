@@ -40,6 +40,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from magnet import wire
+from services.common.jsonio import loads_bounded
 from services.dashboard.state import FleetState
 
 log = logging.getLogger("magnet.dashboard")
@@ -224,8 +225,8 @@ def _parse_action(body: bytes) -> tuple[str, str | None, str | None] | Response:
     from magnet.calibration import Method
 
     try:
-        data = json.loads(body or b"null")
-    except (ValueError, UnicodeDecodeError):
+        data = loads_bounded(body or b"null", "body")
+    except ValueError:
         return error(400, 'the body must be JSON: {"action": "start|status|commit|abort|rollback", "method": ...}')
     if not isinstance(data, dict):
         return error(400, 'the body must be a JSON object with an "action"')
