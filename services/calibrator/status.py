@@ -29,6 +29,10 @@ class Counters:
     evicted_devices: int = 0  # collections dropped for --max-devices
     forgotten_devices: int = 0  # fleet-book entries (last seen, reported place, open alerts) dropped for --max-devices
     takeovers: int = 0  # times it became the active calibrator of its shard after standing by
+    raw_messages: int = 0  # raw messages that arrived (= received_batches + raw:* drops once the queue is empty)
+    queued: int = 0  # raw messages waiting now (services.calibrator.intake)
+    queue_high_water: int = 0  # most raw messages ever waiting at once
+    enrolled: int = 0  # new device ids taken on (at most --enrol-rate a second)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -42,6 +42,30 @@ class StoreError(OSError):
     what to do."""
 
 
+#: sqlite result codes (``sqlite3.Error.sqlite_errorcode``, low byte) that are not a damaged file
+_SQLITE_FULL, _SQLITE_IOERR, _SQLITE_READONLY, _SQLITE_CANTOPEN, _SQLITE_BUSY = 13, 10, 8, 14, 5
+
+
+def store_error(path: Path, doing: str, exc: sqlite3.DatabaseError) -> StoreError:
+    """The one line for a failed ``doing`` ("read", "write") of the database at ``path``: a full disk, a read-only
+    or failing disk and a damaged file each say what to do."""
+    code = (getattr(exc, "sqlite_errorcode", None) or 0) & 0xFF
+    if code == _SQLITE_FULL:
+        return StoreError(
+            f"the calibrator could not write its database {path}: disk full ({exc}); nothing was changed: free "
+            "space on that filesystem and ask again"
+        )
+    if code in (_SQLITE_IOERR, _SQLITE_READONLY, _SQLITE_CANTOPEN, _SQLITE_BUSY):
+        return StoreError(
+            f"the calibrator could not {doing} its database {path} ({exc}); nothing was changed: check the disk "
+            "and the file's permissions, then ask again"
+        )
+    return StoreError(
+        f"calibration database {path} is damaged or unusable ({exc}): restore it from a "
+        "backup, or move it aside to start with an empty one"
+    )
+
+
 class CalibrationStore:
     """Calibrations per device in one SQLite file. Use from one thread (the service's own).
 
@@ -71,15 +95,13 @@ class CalibrationStore:
             raise
 
     @contextlib.contextmanager
-    def _guard(self) -> Iterator[None]:
-        """sqlite3 errors inside become one ``StoreError`` line naming the file and what to do."""
+    def _guard(self, doing: str = "read") -> Iterator[None]:
+        """sqlite3 errors inside become one ``StoreError`` line naming the file, what failed and what to do
+        (``store_error``); ``doing``: "read" or "write"."""
         try:
             yield
         except sqlite3.DatabaseError as exc:
-            raise StoreError(
-                f"calibration database {self.path} is damaged or unusable ({exc}): restore it from a "
-                "backup, or move it aside to start with an empty one"
-            ) from None
+            raise store_error(self.path, doing, exc) from None
 
     def close(self) -> None:
         self._db.close()
@@ -96,7 +118,7 @@ class CalibrationStore:
 
         Returns False (and stores nothing) when it is identical to the one already in force."""
         text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
-        with self._guard(), self._transaction():
+        with self._guard("write"), self._transaction():
             row = self._db.execute(
                 "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (record.device,)
             ).fetchone()
@@ -188,7 +210,7 @@ class CalibrationStore:
 
 
 class _Transaction:
-    """BEGIN IMMEDIATE ... COMMIT, rolled back on any exception."""
+    """BEGIN IMMEDIATE ... COMMIT, rolled back on any exception (the exception raised is the first one)."""
 
     def __init__(self, db: sqlite3.Connection) -> None:
         self._db = db
@@ -197,4 +219,8 @@ class _Transaction:
         self._db.execute("BEGIN IMMEDIATE")
 
     def __exit__(self, exc_type: object, *rest: object) -> None:
-        self._db.execute("ROLLBACK" if exc_type else "COMMIT")
+        if not exc_type:
+            self._db.execute("COMMIT")
+        elif self._db.in_transaction:  # sqlite rolls back itself on some errors (a full disk): keep their message
+            with contextlib.suppress(sqlite3.Error):
+                self._db.execute("ROLLBACK")
