@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from magnet.calibration.base import FitError, Shape
-from magnet.calibration.ellipsoid import ellipsoid
+from magnet.calibration.ellipsoid import TOLERANCE, ellipsoid
 
 #: smallest eigenvalue of the scatter of gravity directions (1/3 for the whole sphere) below which R is unobservable
 MIN_GRAVITY_SPREAD = 0.02
@@ -25,10 +25,17 @@ MIN_GRAVITY_SPREAD = 0.02
 MAX_ALIGN_CONDITION = 1e6
 
 
-def ellipsoid_align(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+def ellipsoid_align(
+    mag: np.ndarray,
+    acc: np.ndarray | None,
+    robust: bool,
+    start: Shape | None = None,
+    tolerance: float = TOLERANCE,
+) -> Shape:
+    """The ellipsoid (``start``, ``tolerance``: see ``ellipsoid``), then the rotation of the module docstring."""
     if acc is None:
         raise FitError("ellipsoid+align needs accelerometer samples (ax, ay, az) beside the field")
-    base = ellipsoid(mag, acc, robust)
+    base = ellipsoid(mag, acc, robust, start, tolerance)
     gravity = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
     field = (mag - base.offset) @ base.matrix.T
     field /= np.linalg.norm(field, axis=1, keepdims=True)

@@ -82,11 +82,12 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
 def dip_spread_deg(field: np.ndarray, down: np.ndarray) -> float | None:
     """Standard deviation (deg) of the dip (angle of the field below the horizon) over the rows where ``down`` is
     known; None with fewer than MIN_QUASI_STATIC of them."""
-    keep = np.all(np.isfinite(down), axis=1) & (np.linalg.norm(field, axis=1) > 0)
-    if keep.sum() < MIN_QUASI_STATIC:
+    norm = np.sqrt(np.einsum("ij,ij->i", field, field))
+    along = np.einsum("ij,ij->i", field, down)  # NaN where down is unknown
+    keep = np.isfinite(along) & (norm > 0)
+    if np.count_nonzero(keep) < MIN_QUASI_STATIC:
         return None
-    unit = field[keep] / np.linalg.norm(field[keep], axis=1, keepdims=True)
-    dip = np.degrees(np.arcsin(np.clip(np.einsum("ij,ij->i", unit, down[keep]), -1.0, 1.0)))
+    dip = np.degrees(np.arcsin(np.clip(along[keep] / norm[keep], -1.0, 1.0)))
     return float(dip.std())
 
 
@@ -111,6 +112,15 @@ def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> 
     return dip_spread_deg(field[rows], ev.down[rows])
 
 
+class _Rows:
+    """The evidence of the selected rows only (``ev`` restricted to ``rows``), with an all-true selector."""
+
+    def __init__(self, ev: MotionEvidence, rows: np.ndarray) -> None:
+        attitude = None if ev.attitude is None else ev.attitude[rows]
+        self.ev = MotionEvidence(ev.down[rows], attitude, ev.source)
+        self.every = np.ones(int(np.count_nonzero(rows)), dtype=bool)
+
+
 def motion_figures(
     raw: np.ndarray,
     candidate: Calibration,
@@ -125,20 +135,23 @@ def motion_figures(
     reasons name it ("the calibration in force", "no calibration")."""
     every = np.ones(len(raw), dtype=bool)
     field, ref_field = candidate.apply(raw), reference.apply(raw)
+    dip_spread = dip_spread_deg(field, ev.down)
     figures: dict[str, Any] = {
-        "dip_spread_deg": dip_spread_deg(field, ev.down),
+        "dip_spread_deg": dip_spread,
         "dip_source": ev.source,
         "dip_samples": int(ev.known.sum()),
         "consistency": "direction" if ev.attitude is not None else "dip",
-        "consistency_deg": consistency_deg(field, ev, every),
+        # without an attitude the consistency over every row is that same dip spread
+        "consistency_deg": consistency_deg(field, ev, every) if ev.attitude is not None else dip_spread,
         "reference": reference_name,
         "reference_consistency_deg": consistency_deg(ref_field, ev, every),
         "holdout_consistency_deg": None,
         "reference_holdout_consistency_deg": None,
     }
     if train_candidate is not None and test.any():
-        figures["holdout_consistency_deg"] = consistency_deg(train_candidate.apply(raw), ev, test)
-        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field, ev, test)
+        held = _Rows(ev, test)  # the held-out rows only: the training fit is applied to those alone
+        figures["holdout_consistency_deg"] = consistency_deg(train_candidate.apply(raw[test]), held.ev, held.every)
+        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field[test], held.ev, held.every)
     return figures
 
 
