@@ -15,6 +15,8 @@ import numpy as np
 
 CELL_COUNT = 100
 HEADING_SECTORS = 36
+#: samples placed in their cells at a time (the rest are not looked at once every cell is hit)
+COVERAGE_CHUNK = 1000
 
 
 def fibonacci_centres(count: int = CELL_COUNT) -> np.ndarray:
@@ -66,8 +68,10 @@ def coverage(directions: np.ndarray, *, field_points_down: bool = True) -> Cover
     # row changes: no need to normalise
     vectors = vectors[np.einsum("ij,ij->i", vectors, vectors) > 0]
     hit = np.zeros(len(_CENTRES), dtype=bool)
-    if len(vectors):
-        hit[np.argmax(vectors @ _CENTRES.T, axis=1)] = True
+    for start in range(0, len(vectors), COVERAGE_CHUNK):  # a chunk at a time: done once every cell is hit
+        hit[np.argmax(vectors[start : start + COVERAGE_CHUNK] @ _CENTRES.T, axis=1)] = True
+        if hit.all():
+            break
     empty = _CENTRES[~hit] * (1.0 if field_points_down else -1.0)
     axes = np.argmax(np.abs(empty), axis=1)
     signs = np.sign(empty[np.arange(len(empty)), axes]).astype(int)

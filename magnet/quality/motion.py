@@ -104,21 +104,19 @@ def direction_spread_deg(field: np.ndarray, attitude: np.ndarray) -> float | Non
     return float(np.sqrt(np.mean(angle**2)))
 
 
-def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
-    """How far the field is from constant in the earth frame (deg; smaller is better) over the selected rows:
-    direction spread with an attitude, else dip spread on the quasi-static rows."""
+def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None = None) -> float | None:
+    """How far the field is from constant in the earth frame (deg; smaller is better) over the selected rows (None:
+    every row): direction spread with an attitude, else dip spread on the quasi-static rows."""
+    if rows is not None:
+        field, ev = field[rows], _select(ev, rows)
     if ev.attitude is not None:
-        return direction_spread_deg(field[rows], ev.attitude[rows])
-    return dip_spread_deg(field[rows], ev.down[rows])
+        return direction_spread_deg(field, ev.attitude)
+    return dip_spread_deg(field, ev.down)
 
 
-class _Rows:
-    """The evidence of the selected rows only (``ev`` restricted to ``rows``), with an all-true selector."""
-
-    def __init__(self, ev: MotionEvidence, rows: np.ndarray) -> None:
-        attitude = None if ev.attitude is None else ev.attitude[rows]
-        self.ev = MotionEvidence(ev.down[rows], attitude, ev.source)
-        self.every = np.ones(int(np.count_nonzero(rows)), dtype=bool)
+def _select(ev: MotionEvidence, rows: np.ndarray) -> MotionEvidence:
+    """The evidence of the selected rows only."""
+    return MotionEvidence(ev.down[rows], None if ev.attitude is None else ev.attitude[rows], ev.source)
 
 
 def motion_figures(
@@ -133,7 +131,6 @@ def motion_figures(
     """Quality figures for data in motion: raw (N, 3) samples, test (N,) bool the held-out rows (train_candidate was
     fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
     reasons name it ("the calibration in force", "no calibration")."""
-    every = np.ones(len(raw), dtype=bool)
     field, ref_field = candidate.apply(raw), reference.apply(raw)
     dip_spread = dip_spread_deg(field, ev.down)
     figures: dict[str, Any] = {
@@ -142,16 +139,16 @@ def motion_figures(
         "dip_samples": int(ev.known.sum()),
         "consistency": "direction" if ev.attitude is not None else "dip",
         # without an attitude the consistency over every row is that same dip spread
-        "consistency_deg": consistency_deg(field, ev, every) if ev.attitude is not None else dip_spread,
+        "consistency_deg": consistency_deg(field, ev) if ev.attitude is not None else dip_spread,
         "reference": reference_name,
-        "reference_consistency_deg": consistency_deg(ref_field, ev, every),
+        "reference_consistency_deg": consistency_deg(ref_field, ev),
         "holdout_consistency_deg": None,
         "reference_holdout_consistency_deg": None,
     }
     if train_candidate is not None and test.any():
-        held = _Rows(ev, test)  # the held-out rows only: the training fit is applied to those alone
-        figures["holdout_consistency_deg"] = consistency_deg(train_candidate.apply(raw[test]), held.ev, held.every)
-        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field[test], held.ev, held.every)
+        held = _select(ev, test)  # the held-out rows only: the training fit is applied to those alone
+        figures["holdout_consistency_deg"] = consistency_deg(train_candidate.apply(raw[test]), held)
+        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field[test], held)
     return figures
 
 
