@@ -36,9 +36,9 @@ def ellipsoid_align(
     if acc is None:
         raise FitError("ellipsoid+align needs accelerometer samples (ax, ay, az) beside the field")
     base = ellipsoid(mag, acc, robust, start, tolerance)
-    gravity = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
+    gravity = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
     field = (mag - base.offset) @ base.matrix.T
-    field /= np.linalg.norm(field, axis=1, keepdims=True)
+    field /= np.sqrt(np.einsum("ij,ij->i", field, field))[:, None]
     rotation, why_not = align_rotation(field, gravity)
     if rotation is None:
         return dataclasses.replace(

@@ -60,7 +60,8 @@ class MotionEvidence:
 
 def quasi_static(acc: np.ndarray, tol: float = QUASI_STATIC_TOL) -> np.ndarray:
     """(N,) bool: samples whose specific force (N, 3) is within ``tol`` of g (the median magnitude)."""
-    norm = np.linalg.norm(np.asarray(acc, dtype=float), axis=1)
+    acc = np.asarray(acc, dtype=float)
+    norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))
     g = float(np.median(norm)) if len(norm) else 0.0
     if g <= 0:
         return np.zeros(len(norm), dtype=bool)
@@ -75,7 +76,7 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
         return MotionEvidence(fusion.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity")
-    down = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
+    down = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
     return MotionEvidence(np.where(quasi_static(acc)[:, None], down, np.nan), None, "quasi-static samples")
 
 
