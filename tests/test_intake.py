@@ -31,3 +31,39 @@ def test_new_device_reads_the_key_and_leaves_malformed_keys_to_the_decoder():
     assert new_device("magnet/b/raw", "magnet", known)
     assert not new_device("magnet/a/raw", "magnet", known)
     assert not new_device("magnet/a/b/raw", "magnet", known)  # malformed: decoded, refused and counted there
+
+
+class ClosedError(Exception):
+    pass
+
+
+class FakeChannel:
+    """recv gives the next sample or raises Closed at the end; try_recv gives None when nothing waits."""
+
+    def __init__(self, samples):
+        self.samples = list(samples)
+
+    def recv(self):
+        if not self.samples:
+            raise ClosedError
+        return self.samples.pop(0)
+
+    def try_recv(self):
+        return self.samples.pop(0) if self.samples and self.samples[0] is not None else self._gap()
+
+    def _gap(self):
+        if self.samples and self.samples[0] is None:
+            self.samples.pop(0)  # a pause: the batch ends here
+
+
+class Sample:
+    def __init__(self, i):
+        self.key_expr, self.payload = f"magnet/d{i}/raw", bytes([i])
+
+
+def test_the_pump_moves_batches_into_the_bounded_queue_until_the_channel_closes():
+    intake = RawIntake(max_queue=4)
+    channel = FakeChannel([Sample(0), Sample(1), None, Sample(2), Sample(3), Sample(4), Sample(5)])
+    intake.pump(channel, lambda s: s.payload, ClosedError, batch=3)
+    assert intake.raw_messages == 6 and intake.queue_full == 2 and len(intake) == 4
+    assert [key for key, _ in intake.take(10)] == [f"magnet/d{i}/raw" for i in range(4)]

@@ -102,9 +102,10 @@ def _json_line(proc: subprocess.Popen[str]) -> dict:
 @pytest.mark.integration
 def test_a_flood_of_new_ids_is_bounded_counted_and_status_answers_within_a_second(tmp_path):
     """80,000 messages of new device ids at up to 10,000/s from one process while another asks the calibrator's
-    status every 0.2 s: every answer in under 1 s, every message counted (processed or dropped by cause), memory
-    bounded by --max-devices."""
+    status, @fleet and a calibration in turn every 0.2 s: every answer in under 1 s, every message counted
+    (processed or dropped by cause), memory bounded by --max-devices."""
     (port,) = free_ports(1)
+    _fill(tmp_path / "c.db")  # d1 has a calibration to ask for
     procs = Processes(tmp_path)
     flood = [sys.executable, "-m", "services.bench.flood"]
     try:
@@ -116,7 +117,8 @@ def test_a_flood_of_new_ids_is_bounded_counted_and_status_answers_within_a_secon
         wait_for(lambda: magnet_json("get", "status", "cal", *remote)[0] == 0, 30, "the calibrator's status")
         rss_before = rss_mb(calibrator.pid)
         prober = subprocess.Popen(
-            [*flood, "probe", "--port", str(port), "--name", "cal", "--period", "0.2", "--seconds", "14"],
+            [*flood, "probe", "--port", str(port), "--name", "cal", "--key", "magnet/@fleet",
+             "--key", "magnet/d1/calibration", "--period", "0.2", "--seconds", "14"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT,
         )  # fmt: skip
         sender = subprocess.Popen(
@@ -135,15 +137,15 @@ def test_a_flood_of_new_ids_is_bounded_counted_and_status_answers_within_a_secon
     finally:
         procs.stop_all()
     raw_drops = {cause: n for cause, n in status["dropped"].items() if cause.startswith("raw:")}
-    print(f"flood {sent}; status answers {probed['answered']}/{probed['asked']}, worst {probed['worst_s']} s;")
+    print(f"flood {sent}; answers {probed['answered']}/{probed['asked']}, worst {probed['worst_s']} s;")
     print(f"counted {status['raw_messages']} = {status['received_batches']} processed + {raw_drops};")
     print(f"enrolled {status['enrolled']}, queue high water {status['queue_high_water']};", end=" ")
     print(f"RSS {rss_before:.0f} -> {rss_after:.0f} MB")
     assert probed["asked"] >= 40 and probed["answered"] == probed["asked"], probed
-    assert probed["worst_s"] < 1.0, probed
+    assert all(worst < 1.0 for worst in probed["worst_s"].values()), probed  # status, @fleet, a calibration
     assert status["raw_messages"] == sent["sent"] == 80_000
     assert status["raw_messages"] == status["received_batches"] + sum(raw_drops.values())
     assert raw_drops.get("raw:enrol-rate", 0) > 0  # the flood was limited, and said so
     assert status["enrolled"] <= 2000 + 200 * (sent["seconds"] + 30)  # the burst, then the rate
     assert status["devices"]["collecting"] <= 2000  # --max-devices
-    assert rss_after - rss_before < 150
+    assert rss_after - rss_before < 200  # 80,000 ids: 2,000 devices and the queue (at most --max-queue messages)

@@ -6,8 +6,9 @@
   the subscriber, which must count it. Prints ``{"sent", "seconds", "rate"}``.
 - ``bombs``: ``--count`` msgpack bombs of ``--size`` bytes (a 4-million-element array, as a peer could craft) on
   ``<prefix>/<device>/raw``. Prints ``{"sent", "bytes"}``.
-- ``probe``: asks ``<prefix>/@status/<name>`` every ``--period`` s for ``--seconds`` s and prints ``{"asked",
-  "answered", "latencies_s": [...], "worst_s", "last": last status}`` (a missing answer is a latency of None).
+- ``probe``: asks ``<prefix>/@status/<name>`` and every ``--key`` in turn, one every ``--period`` s, for
+  ``--seconds`` s and prints ``{"asked", "answered", "worst_s": {key: s}, "latencies_s": {key: [...]}, "last": last
+  status}`` (a missing answer is a latency of None).
 
 Loopback only: every session connects to ``tcp/127.0.0.1:<port>`` with multicast scouting off.
 """
@@ -86,28 +87,31 @@ def send_bombs(port: int, count: int, size: int, device: str, prefix: str = wire
     return {"sent": count, "bytes": len(payload)}
 
 
-def probe(port: int, name: str, period_s: float, seconds: float, prefix: str = wire.DEFAULT_PREFIX) -> dict[str, Any]:
-    """Ask the status of ``name`` every ``period_s`` for ``seconds``; latencies (s, None when unanswered)."""
-    latencies: list[float | None] = []
+def probe(port: int, keys: list[str], period_s: float, seconds: float) -> dict[str, Any]:
+    """Ask each of ``keys`` in turn, one every ``period_s``, for ``seconds``; per key the latencies (s, None when
+    unanswered), and the last answer to the first key."""
+    latencies: dict[str, list[float | None]] = {key: [] for key in keys}
     last: Any = None
-    key = wire.status_key(prefix, name)
     with _session(port) as session:
-        end = time.monotonic() + seconds
+        end, turn = time.monotonic() + seconds, 0
         while time.monotonic() < end:
+            key = keys[turn % len(keys)]
+            turn += 1
             asked = time.monotonic()
             answer = None
             for reply in session.get(key, timeout=max(2.0, period_s)):
                 if reply.ok is not None and answer is None:
                     answer = time.monotonic() - asked
-                    last = wire.unpack(payload_bytes(reply.ok))
-            latencies.append(answer)
+                    if key == keys[0]:
+                        last = wire.unpack(payload_bytes(reply.ok))
+            latencies[key].append(answer)
             time.sleep(max(0.0, period_s - (time.monotonic() - asked)))
-    answered = [x for x in latencies if x is not None]
+    answered = {key: [x for x in values if x is not None] for key, values in latencies.items()}
     return {
-        "asked": len(latencies),
-        "answered": len(answered),
-        "latencies_s": [None if x is None else round(x, 4) for x in latencies],
-        "worst_s": round(max(answered), 4) if answered else None,
+        "asked": sum(len(values) for values in latencies.values()),
+        "answered": sum(len(values) for values in answered.values()),
+        "worst_s": {key: round(max(values), 4) if values else None for key, values in answered.items()},
+        "latencies_s": {key: [None if x is None else round(x, 4) for x in values] for key, values in latencies.items()},
         "last": last,
     }
 
@@ -133,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--start", type=int, default=0)
     parser.add_argument("--size", type=int, default=4_000_000)
     parser.add_argument("--device", default="bomb-1")
-    parser.add_argument("--name", default="calibrator")
+    parser.add_argument("--name", default="calibrator", help="probe: the status of this service")
+    parser.add_argument("--key", action="append", default=[], help="probe: another key to ask in turn (repeatable)")
     parser.add_argument("--period", type=float, default=0.2)
     parser.add_argument("--seconds", type=float, default=10.0)
     args = parser.parse_args(argv)
@@ -142,7 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     elif args.kind == "bombs":
         result = send_bombs(args.port, args.count, args.size, args.device)
     else:
-        result = probe(args.port, args.name, args.period, args.seconds)
+        result = probe(
+            args.port, [wire.status_key(wire.DEFAULT_PREFIX, args.name), *args.key], args.period, args.seconds
+        )
     print(json.dumps(result), flush=True)
     return 0
 

@@ -1,10 +1,11 @@
 """The calibrator's sample path, bounded: raw messages queue between Zenoh and the service loop, new device ids are
 admitted at a bounded rate, and every message that goes no further is counted by cause.
 
-- ``RawIntake``: Zenoh's callback (its own thread) only counts the message and appends (key, payload) to a queue of
-  at most ``max_queue`` messages; beyond, the message is dropped and counted (``raw:queue-full``). Nothing blocks
-  Zenoh, so nothing is lost unseen in the transport, and the service loop takes the queue a slice at a time, between
-  which it answers queries (status, ``@fleet``, calibrations): a flood delays samples, never answers.
+- ``RawIntake``: a thread of its own (``pump``) moves raw messages from Zenoh's channel to a queue of at most
+  ``max_queue`` messages, counting each; beyond, a message is dropped and counted (``raw:queue-full``). The thread
+  keeps Zenoh's channel near empty, so Zenoh is not held up (nothing is lost unseen in the transport, queries are
+  not stuck behind samples), and the service loop takes the queue a slice at a time, between which it answers
+  queries (status, ``@fleet``, calibrations): a flood delays samples, never answers.
 - ``Enrolment``: a token bucket (``rate_per_s``, ``burst``) for device ids the calibrator does not know yet; a
   message of a new id beyond it is dropped before decoding and counted (``raw:enrol-rate``). Known devices always
   pass. With ``--max-devices`` this bounds both the work and the memory a flood of ids can take.
@@ -28,6 +29,8 @@ DEFAULT_MAX_QUEUE = 100_000
 #: new device ids admitted per second, and at once after a quiet spell (a fleet starting together)
 DEFAULT_ENROL_RATE = 200.0
 DEFAULT_ENROL_BURST = 2_000
+#: samples moved from Zenoh's channel to the queue at a time
+PUMP_BATCH = 4096
 
 
 class RawIntake:
@@ -54,13 +57,34 @@ class RawIntake:
             self.high_water = max(self.high_water, len(self.queue))
             return True
 
-    def callback(self, payload_of: Callable[[Any], bytes]) -> Callable[[Any], None]:
-        """The Zenoh subscriber callback: the sample's key and payload (``payload_of(sample)``) offered."""
+    def offer_many(self, items: list[tuple[str, bytes]]) -> None:
+        """Queue messages (``offer`` each, under one lock)."""
+        with self._lock:
+            room = max(0, self.max_queue - len(self.queue))
+            self.raw_messages += len(items)
+            self.queue_full += max(0, len(items) - room)
+            self.queue.extend(items[:room])
+            self.high_water = max(self.high_water, len(self.queue))
 
-        def on_sample(sample: Any) -> None:
-            self.offer(str(sample.key_expr), payload_of(sample))
-
-        return on_sample
+    def pump(
+        self,
+        channel: Any,
+        payload_of: Callable[[Any], bytes],
+        closed: type[BaseException],
+        batch: int = PUMP_BATCH,
+    ) -> None:
+        """Move samples from a Zenoh channel into the queue until the channel closes (``closed`` raised: the
+        subscriber was undeclared). Run on its own thread: ``channel.recv()`` waits without holding the GIL and
+        ``try_recv`` takes what else waits, so Zenoh's threads never wait for Python (queries keep flowing during a
+        flood) and the GIL changes hands once per batch, not per message."""
+        while True:
+            try:
+                samples = [channel.recv()]
+                while len(samples) < batch and (more := channel.try_recv()) is not None:
+                    samples.append(more)
+            except closed:
+                return
+            self.offer_many([(str(sample.key_expr), payload_of(sample)) for sample in samples])
 
     def take(self, limit: int) -> list[tuple[str, bytes]]:
         """Up to ``limit`` queued messages, oldest first."""

@@ -9,9 +9,10 @@ stores only on commit. A rejected fit changes nothing: its reason goes out on ``
 Several calibrators may serve one shard: the oldest running holds the lease and alone collects, stores and answers;
 the others stand by and take over when its liveliness token goes away (``services.calibrator.lease``).
 
-Queryables: see ``services.calibrator.queries``. One thread does the work: Zenoh's callback only queues raw
-messages (bounded, drops counted: ``services.calibrator.intake``), and this loop answers queries between slices of
-samples; every handler runs through ``services.common.guard``, so no message, query or failing store ends it.
+Queryables: see ``services.calibrator.queries``. One thread does the work: a pump thread only moves raw messages
+from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
+between slices of samples; every handler runs through ``services.common.guard``, so no message, query or failing
+store ends it.
 The options and settings are in ``services.calibrator.settings``, the core (no zenoh) in ``services.calibrator.core``
 and the operator sessions in ``services.calibrator.sessions``.
 """
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -66,8 +68,9 @@ __all__ = [
 log = logging.getLogger("magnet.calibrator")
 
 IDLE_SLEEP_S = 0.0005
+CHANNEL_CAPACITY = 65536  # raw messages between Zenoh and the intake's pump (kept near empty by it)
 SLICE_S = 0.05  # raw samples taken for at most this long before the queries are answered again
-SLICE_MESSAGES = 200  # raw messages taken from the intake at a time
+SLICE_MESSAGES = 50  # raw messages taken from the intake at a time (the slice's end is checked between them)
 ENROL_BURST_S = 10.0  # new device ids admitted at once after a quiet spell: this many seconds of --enrol-rate
 LEASE_QUERY_S = 2.0  # how long it waits at start for the lease tokens of its shard
 
@@ -102,7 +105,11 @@ def run(settings: ServiceSettings) -> int:
         lease_token, lease_sub = _join_lease(session, lease)
         calibrator.active = lease.active
         intake = RawIntake(settings.max_queue)
-        raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", intake.callback(payload_bytes))
+        raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+        pump = threading.Thread(
+            target=intake.pump, args=(raw_sub.handler, payload_bytes, zenoh.ZError), name="raw-intake", daemon=True
+        )
+        pump.start()
         answers = _declare_answers(session, prefix, devices, name)
         alert_key = f"{prefix}/{devices}/{wire.Kind.ALERT.value}"
         feeds: list[tuple[Any, Callable[[str, bytes, str], None]]] = [
@@ -122,7 +129,8 @@ def run(settings: ServiceSettings) -> int:
         )
         enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
         _loop(stop, ServiceLoop(calibrator, intake, answers, prefix, feeds, (lease_sub, lease), enrolment))
-        raw_sub.undeclare()
+        raw_sub.undeclare()  # ends the pump
+        pump.join(timeout=2.0)
         lease_token.undeclare()
         token.undeclare()
     log.info("calibrator stopped: %s", calibrator.status(name).to_dict())
@@ -179,9 +187,9 @@ def _declare_answers(session: Any, prefix: str, devices: str, name: str) -> list
 
 class ServiceLoop:
     """One round at a time (``step``): the lease tokens, the ``feeds`` (samples or replies -> handler(key, payload,
-    prefix)), the queries, then raw samples from the intake for at most ``SLICE_S``; every handler run through the
-    guard (``services.common.guard``), so none ends the service. Queries are answered between slices, so a flood of
-    samples delays samples, not answers."""
+    prefix)), the queries, then raw samples from the intake for at most ``SLICE_S``, SLICE_MESSAGES at a time with
+    the queries answered after each; every handler run through the guard (``services.common.guard``), so none ends
+    the service. A flood of samples delays samples, not answers."""
 
     def __init__(
         self,
@@ -229,6 +237,7 @@ class ServiceLoop:
             for key_expr, payload in items:
                 if self.admit(key_expr):
                     self.guard.run("raw", self.calibrator.on_raw, key_expr, payload, self.prefix)
+            self.answer_queries()  # a query waits for one chunk of samples at most
         return took
 
     def admit(self, key_expr: str) -> bool:
