@@ -149,3 +149,35 @@ def test_a_flood_of_new_ids_is_bounded_counted_and_status_answers_within_a_secon
     assert status["enrolled"] <= 2000 + 200 * (sent["seconds"] + 30)  # the burst, then the rate
     assert status["devices"]["collecting"] <= 2000  # --max-devices
     assert rss_after - rss_before < 200  # 80,000 ids: 2,000 devices and the queue (at most --max-queue messages)
+
+
+@pytest.mark.integration
+def test_rollback_with_the_database_on_a_full_filesystem_is_refused_and_the_calibrator_keeps_answering(tmp_path):
+    """The same on a real full filesystem: a small tmpfs under the database, filled to its last block (needs root
+    and tmpfs, else skipped)."""
+    from services.bench.soak import FullDisk
+
+    disk = FullDisk(tmp_path / "db")
+    if not disk.mounted:
+        pytest.skip(f"no tmpfs: {disk.why_not}")
+    (port,) = free_ports(1)
+    procs = Processes(tmp_path)
+    remote = [*NO_SCOUT, *connect_args(port), "--timeout", "3"]
+    try:
+        db = disk.directory / "c.db"
+        _fill(db)
+        procs.start("calibrator", "calibrator", "--db", str(db), "--name", "cal", *listen_args(port))
+        wait_for(lambda: magnet_json("get", "status", "cal", *remote)[0] == 0, 30, "the calibrator's status")
+        disk.fill()
+        out = run_magnet("calibrate", "d1", "rollback", *remote, timeout=30)
+        assert out.returncode == 1 and "Traceback" not in out.stderr
+        assert "could not write its database" in out.stderr and "disk full" in out.stderr, out.stderr
+        code, (status,) = magnet_json("get", "status", "cal", *remote)
+        assert code == 0 and status["dropped"] == {"query:calibrate:handler-StoreError": 1}
+        disk.free()
+        out = run_magnet("calibrate", "d1", "rollback", *remote, timeout=30)
+        assert out.returncode == 0, out.stderr  # space again: the same request goes through
+        assert procs.alive("calibrator")
+    finally:
+        procs.stop_all()
+        disk.unmount()

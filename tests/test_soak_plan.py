@@ -44,6 +44,9 @@ def test_gaps_are_between_consecutive_headings_of_one_device():
     gaps.on_heading("a", 2.2, "kill compass")  # a 2 s gap after a kill
     gaps.on_heading("c", 50.0, "flood")  # a new device: its first heading is no gap
     assert gaps.longest_s == pytest.approx(2.0) and (gaps.device, gaps.after) == ("a", "kill compass")
+    gaps.on_heading("b", 1.2, "kill compass")
+    gaps.on_heading("b", 1.5, "router")
+    assert gaps.by_fault == {"kill compass": pytest.approx(2.0), "router": pytest.approx(0.3)}
 
 
 def test_drops_add_up_over_the_runs_of_a_service_and_calibrations_lost_are_the_ones_not_served():

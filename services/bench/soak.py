@@ -240,9 +240,9 @@ class Soak:
         release: float | None = None
         while (now := time.monotonic()) < end:
             elapsed = now - self.started
-            if now >= next_memory:  # before any fault of this round: "after warm-up" is before the first fault
+            if now >= next_memory:  # before any fault of this round: "after warm-up" is the second before the first
                 next_memory = now + 0.5
-                self._sample_memory(elapsed >= (self.faults[0].at_s if self.faults else 0.0))
+                self._sample_memory(elapsed >= (self.faults[0].at_s - 1.0 if self.faults else 0.0))
             if pending and elapsed >= pending[0].at_s:
                 fault = pending.pop(0)
                 observer.fault = fault.label

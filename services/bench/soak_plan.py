@@ -75,13 +75,19 @@ class HeadingGaps:
         self.device = ""
         self.after = ""
         self.headings = 0
+        self.by_fault: dict[str, float] = {}  # the longest gap that ended while each fault was the latest
 
     def on_heading(self, device: str, now_s: float, fault: str = "") -> None:
         self.headings += 1
         previous = self.last.get(device)
         self.last[device] = now_s
-        if previous is not None and now_s - previous > self.longest_s:
-            self.longest_s, self.device, self.after = now_s - previous, device, fault
+        if previous is None:
+            return
+        gap = now_s - previous
+        if fault:
+            self.by_fault[fault] = max(self.by_fault.get(fault, 0.0), gap)
+        if gap > self.longest_s:
+            self.longest_s, self.device, self.after = gap, device, fault
 
 
 @dataclasses.dataclass
@@ -149,6 +155,7 @@ def report(
         f"soak of {minutes:g} min: {len(faults)} faults ({', '.join(faults) or 'none'})",
         f"calibrations lost: {len(lost)} of {len(published)} published{which}",
         f"longest heading gap: {gap}; {gaps.headings} heading messages",
+        "  after each fault: " + (", ".join(f"{f} {s:.2f} s" for f, s in sorted(gaps.by_fault.items())) or "-"),
         "memory (RSS MB)     highest  after warm-up   at the end",
     ]
     for service, m in sorted(memory.services.items()):
