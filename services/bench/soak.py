@@ -109,7 +109,7 @@ class FullDisk:
     """A small tmpfs under the calibrator's database when this process may mount one; ``fill`` and ``free``."""
 
     def __init__(self, directory: Path) -> None:
-        self.directory = directory
+        self.directory, self.filler = directory, directory / "filler"
         self.mounted, self.why_not = False, ""
         directory.mkdir(parents=True, exist_ok=True)
         if os.geteuid() != 0:
@@ -122,7 +122,6 @@ class FullDisk:
         )
         self.mounted = done.returncode == 0
         self.why_not = "" if self.mounted else f"mount failed: {done.stderr.strip()}"
-        self.filler = directory / "filler"
 
     def fill(self) -> int:
         """Write until the filesystem is full; the bytes written."""
