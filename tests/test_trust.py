@@ -191,7 +191,7 @@ class _FailingWrites:
     [
         (OSError(28, "No space left on device"), "disk is full"),
         (sqlite3.OperationalError("database or disk is full"), "disk is full"),
-        (sqlite3.OperationalError("attempt to write a readonly database"), "cannot be written"),
+        (sqlite3.OperationalError("attempt to write a readonly database"), "could not write its database"),
         (sqlite3.DatabaseError("database disk image is malformed"), "restore it from a backup"),
     ],
 )

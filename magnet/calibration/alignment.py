@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from magnet.calibration.base import FitError, Shape
-from magnet.calibration.ellipsoid import ellipsoid
+from magnet.calibration.ellipsoid import TOLERANCE, ellipsoid
 
 #: smallest eigenvalue of the scatter of gravity directions (1/3 for the whole sphere) below which R is unobservable
 MIN_GRAVITY_SPREAD = 0.02
@@ -25,13 +25,20 @@ MIN_GRAVITY_SPREAD = 0.02
 MAX_ALIGN_CONDITION = 1e6
 
 
-def ellipsoid_align(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+def ellipsoid_align(
+    mag: np.ndarray,
+    acc: np.ndarray | None,
+    robust: bool,
+    start: Shape | None = None,
+    tolerance: float = TOLERANCE,
+) -> Shape:
+    """The ellipsoid (``start``, ``tolerance``: see ``ellipsoid``), then the rotation of the module docstring."""
     if acc is None:
         raise FitError("ellipsoid+align needs accelerometer samples (ax, ay, az) beside the field")
-    base = ellipsoid(mag, acc, robust)
-    gravity = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
+    base = ellipsoid(mag, acc, robust, start, tolerance)
+    gravity = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
     field = (mag - base.offset) @ base.matrix.T
-    field /= np.linalg.norm(field, axis=1, keepdims=True)
+    field /= np.sqrt(np.einsum("ij,ij->i", field, field))[:, None]
     rotation, why_not = align_rotation(field, gravity)
     if rotation is None:
         return dataclasses.replace(
@@ -71,16 +78,31 @@ def align_rotation(
     for _ in range(iterations):
         rotated = field_dir @ rotation.T
         res = np.einsum("ij,ij->i", gravity_dir, rotated) - k
-        jac = np.column_stack([np.cross(field_dir, gravity_dir @ rotation), -np.ones(len(res))])
-        normal = jac.T @ jac
+        normal, gradient = _normal_equations(field_dir, gravity_dir @ rotation, res)
         if np.linalg.cond(normal) > MAX_ALIGN_CONDITION:
             return None, "the rotation is ill-conditioned for these attitudes; tumble the device more widely"
-        step = np.linalg.solve(normal, -jac.T @ res)
+        step = np.linalg.solve(normal, -gradient)
         rotation = rotation @ _exp_so3(step[:3])
         k += step[3]
         if np.linalg.norm(step[:3]) < 1e-10:
             break
     return rotation, ""
+
+
+def _normal_equations(field_dir: np.ndarray, turned: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(J^T J (4, 4), J^T res (4,)) of the Jacobian J = [m_i x (R^T g_i), -1] (N, 4), from its blocks: the cross
+    products C (N, 3) give C^T C and C^T res, the constant column the sums (no (N, 4) array is built)."""
+    m, t = field_dir, turned
+    cross = np.empty((len(m), 3))
+    cross[:, 0] = m[:, 1] * t[:, 2] - m[:, 2] * t[:, 1]
+    cross[:, 1] = m[:, 2] * t[:, 0] - m[:, 0] * t[:, 2]
+    cross[:, 2] = m[:, 0] * t[:, 1] - m[:, 1] * t[:, 0]
+    total = cross.sum(axis=0)
+    normal = np.empty((4, 4))
+    normal[:3, :3] = cross.T @ cross
+    normal[:3, 3] = normal[3, :3] = -total
+    normal[3, 3] = len(res)
+    return normal, np.append(cross.T @ res, -res.sum())
 
 
 def _initial_rotation(field_dir: np.ndarray, gravity_dir: np.ndarray) -> np.ndarray:

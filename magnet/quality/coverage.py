@@ -15,6 +15,8 @@ import numpy as np
 
 CELL_COUNT = 100
 HEADING_SECTORS = 36
+#: samples placed in their cells at a time (the rest are not looked at once every cell is hit)
+COVERAGE_CHUNK = 1000
 
 
 def fibonacci_centres(count: int = CELL_COUNT) -> np.ndarray:
@@ -55,22 +57,21 @@ class Coverage:
     missing: tuple[str, ...]
 
 
-def _unit_rows(vectors: np.ndarray) -> np.ndarray:
-    norms = np.linalg.norm(vectors, axis=1)
-    keep = norms > 0
-    return vectors[keep] / norms[keep, None]
-
-
 def coverage(directions: np.ndarray, *, field_points_down: bool = True) -> Coverage:
     """Coverage of the sphere by field directions (N, 3) (any length; zero rows ignored), body frame.
 
     Missing cells are named by the dominant body axis of their centre, mapped to an attitude (see ``_ADVICE``),
     grouped and ordered by how many cells each phrase would fill.
     """
-    unit = _unit_rows(np.asarray(directions, dtype=float).reshape(-1, 3))
+    vectors = np.asarray(directions, dtype=float).reshape(-1, 3)
+    # zero and non-finite rows ignored; the nearest centre is the largest dot product, which no positive scale of a
+    # row changes: no need to normalise
+    vectors = vectors[np.einsum("ij,ij->i", vectors, vectors) > 0]
     hit = np.zeros(len(_CENTRES), dtype=bool)
-    if len(unit):
-        hit[np.unique(np.argmax(unit @ _CENTRES.T, axis=1))] = True
+    for start in range(0, len(vectors), COVERAGE_CHUNK):  # a chunk at a time: done once every cell is hit
+        hit[np.argmax(vectors[start : start + COVERAGE_CHUNK] @ _CENTRES.T, axis=1)] = True
+        if hit.all():
+            break
     empty = _CENTRES[~hit] * (1.0 if field_points_down else -1.0)
     axes = np.argmax(np.abs(empty), axis=1)
     signs = np.sign(empty[np.arange(len(empty)), axes]).astype(int)

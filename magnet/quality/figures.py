@@ -41,7 +41,7 @@ def matrix_condition(matrix: np.ndarray) -> float:
 
 def _magnitudes(corrected: np.ndarray, geometry: Geometry) -> np.ndarray:
     part = corrected[:, :2] if geometry is Geometry.CIRCLE else corrected
-    return np.linalg.norm(part, axis=1)
+    return np.sqrt(np.einsum("ij,ij->i", part, part))
 
 
 def _residuals(corrected: np.ndarray, reference: float, geometry: Geometry, to_ut: float | None) -> dict[str, Any]:

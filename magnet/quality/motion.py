@@ -60,7 +60,8 @@ class MotionEvidence:
 
 def quasi_static(acc: np.ndarray, tol: float = QUASI_STATIC_TOL) -> np.ndarray:
     """(N,) bool: samples whose specific force (N, 3) is within ``tol`` of g (the median magnitude)."""
-    norm = np.linalg.norm(np.asarray(acc, dtype=float), axis=1)
+    acc = np.asarray(acc, dtype=float)
+    norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))
     g = float(np.median(norm)) if len(norm) else 0.0
     if g <= 0:
         return np.zeros(len(norm), dtype=bool)
@@ -75,18 +76,19 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
         return MotionEvidence(fusion.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity")
-    down = -acc / np.linalg.norm(acc, axis=1, keepdims=True)
+    down = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
     return MotionEvidence(np.where(quasi_static(acc)[:, None], down, np.nan), None, "quasi-static samples")
 
 
 def dip_spread_deg(field: np.ndarray, down: np.ndarray) -> float | None:
     """Standard deviation (deg) of the dip (angle of the field below the horizon) over the rows where ``down`` is
     known; None with fewer than MIN_QUASI_STATIC of them."""
-    keep = np.all(np.isfinite(down), axis=1) & (np.linalg.norm(field, axis=1) > 0)
-    if keep.sum() < MIN_QUASI_STATIC:
+    norm = np.sqrt(np.einsum("ij,ij->i", field, field))
+    along = np.einsum("ij,ij->i", field, down)  # NaN where down is unknown
+    keep = np.isfinite(along) & (norm > 0)
+    if np.count_nonzero(keep) < MIN_QUASI_STATIC:
         return None
-    unit = field[keep] / np.linalg.norm(field[keep], axis=1, keepdims=True)
-    dip = np.degrees(np.arcsin(np.clip(np.einsum("ij,ij->i", unit, down[keep]), -1.0, 1.0)))
+    dip = np.degrees(np.arcsin(np.clip(along[keep] / norm[keep], -1.0, 1.0)))
     return float(dip.std())
 
 
@@ -103,12 +105,19 @@ def direction_spread_deg(field: np.ndarray, attitude: np.ndarray) -> float | Non
     return float(np.sqrt(np.mean(angle**2)))
 
 
-def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
-    """How far the field is from constant in the earth frame (deg; smaller is better) over the selected rows:
-    direction spread with an attitude, else dip spread on the quasi-static rows."""
+def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None = None) -> float | None:
+    """How far the field is from constant in the earth frame (deg; smaller is better) over the selected rows (None:
+    every row): direction spread with an attitude, else dip spread on the quasi-static rows."""
+    if rows is not None:
+        field, ev = field[rows], _select(ev, rows)
     if ev.attitude is not None:
-        return direction_spread_deg(field[rows], ev.attitude[rows])
-    return dip_spread_deg(field[rows], ev.down[rows])
+        return direction_spread_deg(field, ev.attitude)
+    return dip_spread_deg(field, ev.down)
+
+
+def _select(ev: MotionEvidence, rows: np.ndarray) -> MotionEvidence:
+    """The evidence of the selected rows only."""
+    return MotionEvidence(ev.down[rows], None if ev.attitude is None else ev.attitude[rows], ev.source)
 
 
 def motion_figures(
@@ -123,22 +132,24 @@ def motion_figures(
     """Quality figures for data in motion: raw (N, 3) samples, test (N,) bool the held-out rows (train_candidate was
     fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
     reasons name it ("the calibration in force", "no calibration")."""
-    every = np.ones(len(raw), dtype=bool)
     field, ref_field = candidate.apply(raw), reference.apply(raw)
+    dip_spread = dip_spread_deg(field, ev.down)
     figures: dict[str, Any] = {
-        "dip_spread_deg": dip_spread_deg(field, ev.down),
+        "dip_spread_deg": dip_spread,
         "dip_source": ev.source,
         "dip_samples": int(ev.known.sum()),
         "consistency": "direction" if ev.attitude is not None else "dip",
-        "consistency_deg": consistency_deg(field, ev, every),
+        # without an attitude the consistency over every row is that same dip spread
+        "consistency_deg": consistency_deg(field, ev) if ev.attitude is not None else dip_spread,
         "reference": reference_name,
-        "reference_consistency_deg": consistency_deg(ref_field, ev, every),
+        "reference_consistency_deg": consistency_deg(ref_field, ev),
         "holdout_consistency_deg": None,
         "reference_holdout_consistency_deg": None,
     }
     if train_candidate is not None and test.any():
-        figures["holdout_consistency_deg"] = consistency_deg(train_candidate.apply(raw), ev, test)
-        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field, ev, test)
+        held = _select(ev, test)  # the held-out rows only: the training fit is applied to those alone
+        figures["holdout_consistency_deg"] = consistency_deg(train_candidate.apply(raw[test]), held)
+        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field[test], held)
     return figures
 
 

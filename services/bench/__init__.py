@@ -1,4 +1,4 @@
-"""``magnet bench accuracy|fit|pipeline|motion|fleet|dashboard``: benchmarks that print figures (targets live here,
+"""``magnet bench accuracy|fit|pipeline|motion|fleet|dashboard|soak``: benchmarks that print figures (targets live here,
 not in timed tests)."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "motion": ("services.bench.motion", "run_motion_benchmark"),
     "fleet": ("services.bench.fleet", "run_fleet_benchmark"),
     "dashboard": ("services.bench.dashboard", "run_dashboard_benchmark"),
+    "soak": ("services.bench.soak", "run_soak_benchmark"),
 }
 
 
@@ -28,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=2,
         help="pipeline: compass shards compared against 1 at the end (default 2; 1: no comparison)",
+    )
+    parser.add_argument(
+        "--minutes", type=float, default=10.0, help="soak: minutes under the schedule of faults (default 10)"
     )
     parser.add_argument(
         "--no-gyro", action="store_true", help="pipeline: devices without gyroscopes (accelerometer tilt, no fusion)"
@@ -56,6 +60,10 @@ def run(args: argparse.Namespace) -> int:
         if args.devices < 1 or args.seconds <= 0:
             raise ValueError("--devices and --seconds must be positive")
         result = function(devices=args.devices, seconds=args.seconds)
+    elif args.benchmark == "soak":
+        if not args.minutes > 0:
+            raise ValueError("--minutes must be positive")
+        result = function(minutes=args.minutes)
     elif args.benchmark == "fleet":
         if args.devices < 1:
             raise ValueError("--devices must be positive")

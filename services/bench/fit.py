@@ -1,7 +1,8 @@
 """``magnet bench fit``: time to fit 10,000 samples per method (median of several runs, milliseconds).
 
 Two figures per method: the fit alone (``fit_shape``: the coefficients) and the whole ``fit`` a calibrator runs
-(coefficients, quality figures, a second fit on 80 % of the samples for the held-out residual, and the gate).
+(coefficients, quality figures, a second fit on 80 % of the samples for the held-out residual, and the gate), the
+latter also as the least CPU time of its runs (the figure that a busy machine disturbs least).
 Synthetic full-sphere data: 50 uT field, hard iron (60, -120, 35) uT, symmetric soft iron within +-20 %, 0.3 uT noise,
 5 deg magnetometer-accelerometer misalignment.
 """
@@ -23,7 +24,7 @@ log = logging.getLogger(__name__)
 
 SAMPLES = 10_000
 RUNS = 9
-TARGET_MS = 50.0  # docs/design.md, "Targets": an ellipsoid fit of 10,000 samples in well under 50 ms
+TARGET_MS = 20.0  # docs/front-door.md, "Fit speed": the ellipsoid fit of 10,000 samples with its gate under 20 ms
 
 
 def synthetic_tumble(n: int = SAMPLES, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -43,27 +44,37 @@ def synthetic_tumble(n: int = SAMPLES, seed: int = 0) -> tuple[np.ndarray, np.nd
 
 
 def median_ms(function: Callable[[], object], runs: int = RUNS) -> float:
+    return timed_ms(function, runs)[0]
+
+
+def timed_ms(function: Callable[[], object], runs: int = RUNS) -> tuple[float, float]:
+    """(median wall-clock ms, least CPU ms of this thread) of ``runs`` calls after one to warm up. On a shared machine
+    the CPU time is the figure to compare: waiting for a core counts in the wall clock, not in it."""
     function()  # warm up
-    times = []
+    times, cpu = [], []
     for _ in range(runs):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         function()
+        cpu.append(time.thread_time() - start_cpu)
         times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
+    return 1e3 * statistics.median(times), 1e3 * min(cpu)
 
 
 def run_fit_benchmark() -> str:
     """Time every sample-based method on 10,000 samples; returns the table as text."""
     raw, acc = synthetic_tumble()
     lines = [
-        f"fit of {SAMPLES:,} samples, median of {RUNS} runs (ms); target: ellipsoid well under {TARGET_MS:g} ms",
-        f"{'method':<18}{'coefficients':>14}{'fit+quality+gate':>18}",
+        (
+            f"fit of {SAMPLES:,} samples, median of {RUNS} runs (ms; cpu: the least CPU time of the runs); target: "
+            f"ellipsoid with quality and gate under {TARGET_MS:g} ms"
+        ),
+        f"{'method':<18}{'coefficients':>14}{'fit+quality+gate':>18}{'cpu':>8}",
     ]
     for method in (m for m in Method if m is not Method.TURNTABLE):
         coefficients = median_ms(functools.partial(fit_shape, raw, method, acc=acc))
-        whole = median_ms(functools.partial(fit, raw, method, acc=acc))
+        whole, cpu = timed_ms(functools.partial(fit, raw, method, acc=acc))
         log.info("%s: %.2f ms coefficients, %.2f ms with quality", method.value, coefficients, whole)
-        lines.append(f"{method.value:<18}{coefficients:>14.2f}{whole:>18.2f}")
+        lines.append(f"{method.value:<18}{coefficients:>14.2f}{whole:>18.2f}{cpu:>8.2f}")
     robust = median_ms(lambda: fit_shape(raw, Method.MINMAX, robust_extremes=True), runs=3)
     lines.append(f"{'minmax (robust)':<18}{robust:>14.2f}{'':>18}")
     return "\n".join(lines)

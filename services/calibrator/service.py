@@ -9,7 +9,10 @@ stores only on commit. A rejected fit changes nothing: its reason goes out on ``
 Several calibrators may serve one shard: the oldest running holds the lease and alone collects, stores and answers;
 the others stand by and take over when its liveliness token goes away (``services.calibrator.lease``).
 
-Queryables: see ``services.calibrator.queries``. One thread: zenoh delivers into channels, this loop drains them.
+Queryables: see ``services.calibrator.queries``. One thread does the work: a pump thread only moves raw messages
+from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
+between slices of samples; every handler runs through ``services.common.guard``, so no message, query or failing
+store ends it.
 The options and settings are in ``services.calibrator.settings``, the core (no zenoh) in ``services.calibrator.core``
 and the operator sessions in ``services.calibrator.sessions``.
 """
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -28,6 +32,7 @@ from magnet import wire
 from services.calibrator import queries
 from services.calibrator.core import Calibrator
 from services.calibrator.fleet import FleetBook
+from services.calibrator.intake import Enrolment, RawIntake, new_device
 from services.calibrator.lease import Lease, Member
 from services.calibrator.sessions import ACTIONS
 from services.calibrator.settings import (
@@ -42,6 +47,7 @@ from services.calibrator.settings import (
 from services.calibrator.status import CalibratorStatus, Counters, State
 from services.calibrator.store import CalibrationStore
 from services.common import metrics
+from services.common.guard import Guard
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 
@@ -63,8 +69,11 @@ __all__ = [
 
 log = logging.getLogger("magnet.calibrator")
 
-CHANNEL_CAPACITY = 65536
 IDLE_SLEEP_S = 0.0005
+CHANNEL_CAPACITY = 65536  # raw messages between Zenoh and the intake's pump (kept near empty by it)
+SLICE_S = 0.05  # raw samples taken for at most this long before the queries are answered again
+SLICE_MESSAGES = 50  # raw messages taken from the intake at a time (the slice's end is checked between them)
+ENROL_BURST_S = 10.0  # new device ids admitted at once after a quiet spell: this many seconds of --enrol-rate
 LEASE_QUERY_S = 2.0  # how long it waits at start for the lease tokens of its shard
 
 # ------------------------------------------------------------------------------------------------------- shell
@@ -115,7 +124,12 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
         token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
         lease_token, lease_sub = _join_lease(session, lease)
         calibrator.active = lease.active
+        intake = RawIntake(settings.max_queue)
         raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+        pump = threading.Thread(
+            target=intake.pump, args=(raw_sub.handler, payload_bytes, zenoh.ZError), name="raw-intake", daemon=True
+        )
+        pump.start()
         answers = _declare_answers(session, prefix, devices, name)
         alert_key = f"{prefix}/{devices}/{wire.Kind.ALERT.value}"
         feeds: list[tuple[Any, Callable[[str, bytes, str], None]]] = [
@@ -133,7 +147,10 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
             len(calibrator.in_force),
             store.path,
         )
-        _loop(stop, calibrator, raw_sub, answers, prefix, feeds, (lease_sub, lease))
+        enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
+        _loop(stop, ServiceLoop(calibrator, intake, answers, prefix, feeds, (lease_sub, lease), enrolment))
+        raw_sub.undeclare()  # ends the pump
+        pump.join(timeout=2.0)
         lease_token.undeclare()
         token.undeclare()
     log.info("calibrator stopped: %s", calibrator.status(name).to_dict())
@@ -161,10 +178,11 @@ def _follow_lease(subscriber: Any, lease: Lease, calibrator: Calibrator) -> None
             calibrator.stand_by()
 
 
-def _declare_answers(session: Any, prefix: str, devices: str, name: str) -> list[tuple[Any, Any]]:
-    """(handler, queryable) for every queryable: the device kinds, its status and the fleet."""
+def _declare_answers(session: Any, prefix: str, devices: str, name: str) -> list[tuple[str, Any, Any]]:
+    """(what, handler, queryable) for every queryable: the device kinds, its status and the fleet."""
     answers = [
         (
+            f"query:{kind.value}",
             queries.ANSWERS[kind],
             session.declare_queryable(f"{prefix}/{devices}/{kind.value}", zenoh.handlers.FifoChannel(256)),
         )
@@ -172,41 +190,106 @@ def _declare_answers(session: Any, prefix: str, devices: str, name: str) -> list
     ]
     answers.append(
         (
+            "query:status",
             queries.status_answer(name),
             session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64)),
         )
     )
     answers.append(
-        (queries.FLEET_ANSWER, session.declare_queryable(f"{prefix}/@fleet", zenoh.handlers.FifoChannel(16)))
+        (
+            "query:fleet",
+            queries.FLEET_ANSWER,
+            session.declare_queryable(f"{prefix}/@fleet", zenoh.handlers.FifoChannel(16)),
+        )
     )
     return answers
 
 
-def _loop(
-    stop: Any,
-    calibrator: Calibrator,
-    raw_sub: Any,
-    answers: list[tuple[Any, Any]],
-    prefix: str,
-    feeds: Sequence[tuple[Any, Callable[[str, bytes, str], None]]] = (),
-    lease_watch: tuple[Any, Lease] | None = None,
-) -> None:
-    """Drain the lease tokens, raw samples, queries and ``feeds`` (samples or replies -> handler(key, payload,
-    prefix)) until ``stop`` is set."""
-    while not stop.is_set():
-        if lease_watch is not None:
-            _follow_lease(*lease_watch, calibrator)
-        for handler, take in feeds:
+class ServiceLoop:
+    """One round at a time (``step``): the lease tokens, the ``feeds`` (samples or replies -> handler(key, payload,
+    prefix)), the queries, then raw samples from the intake for at most ``SLICE_S``, SLICE_MESSAGES at a time with
+    the queries answered after each; every handler run through the guard (``services.common.guard``), so none ends
+    the service. A flood of samples delays samples, not answers."""
+
+    def __init__(
+        self,
+        calibrator: Calibrator,
+        intake: RawIntake,
+        answers: Sequence[tuple[str, Callable[[Any, Calibrator, str], None], Any]],
+        prefix: str,
+        feeds: Sequence[tuple[Any, Callable[[str, bytes, str], None]]] = (),
+        lease_watch: tuple[Any, Lease] | None = None,
+        enrolment: Enrolment | None = None,
+    ) -> None:
+        self.calibrator, self.intake, self.answers, self.prefix = calibrator, intake, answers, prefix
+        self.feeds, self.lease_watch = feeds, lease_watch
+        self.enrolment = enrolment if enrolment is not None else Enrolment()
+        self.guard = Guard("calibrator", log, calibrator.drops)
+
+    def step(self) -> bool:
+        """One round; True when raw samples were taken."""
+        if self.lease_watch is not None:
+            self.guard.run("lease", _follow_lease, *self.lease_watch, self.calibrator)
+        for handler, take in self.feeds:
             for item in drain(handler, 1000):
                 sample = getattr(item, "ok", item)
                 if sample is not None and hasattr(sample, "key_expr"):
-                    take(str(sample.key_expr), payload_bytes(sample), prefix)
-        samples = drain(raw_sub, 2000)
-        for sample in samples:
-            calibrator.on_raw(str(sample.key_expr), payload_bytes(sample), prefix)
-        for answer, queryable in answers:
+                    self.guard.run("alert", take, str(sample.key_expr), payload_bytes(sample), self.prefix)
+        self.answer_queries()
+        return self.samples()
+
+    def answer_queries(self) -> None:
+        self._counters()
+        for what, answer, queryable in self.answers:
             for query in drain(queryable, 64):
-                answer(query, calibrator, prefix)
+                self.guard.answer(what, query, answer, self.calibrator, self.prefix)
                 query.drop()  # finalize now: the asker waits for it
-        if not samples:
+
+    def samples(self) -> bool:
+        """Raw samples from the intake for at most SLICE_S; True when there were any."""
+        deadline = time.monotonic() + SLICE_S
+        took = False
+        while time.monotonic() < deadline:
+            items = self.intake.take(SLICE_MESSAGES)
+            if not items:
+                break
+            took = True
+            for key_expr, payload in items:
+                if self.admit(key_expr):
+                    self.guard.run("raw", self.calibrator.on_raw, key_expr, payload, self.prefix)
+            self.answer_queries()  # a query waits for one chunk of samples at most
+        return took
+
+    def admit(self, key_expr: str) -> bool:
+        """False (counted ``raw:enrol-rate``) for a new device id beyond the enrolment rate."""
+        calibrator = self.calibrator
+        if (
+            not calibrator.active
+            or not calibrator.settings.auto
+            or not new_device(key_expr, self.prefix, calibrator.known)
+        ):
+            return True
+        if self.enrolment.admit():
+            return True
+        if calibrator.drops.count("raw:enrol-rate"):
+            log.warning(
+                "more than %g new device ids a second: the excess dropped (counted in status dropped[raw:enrol-rate];"
+                " raise --enrol-rate if they are genuine)",
+                self.enrolment.rate_per_s,
+            )
+        return False
+
+    def _counters(self) -> None:
+        """The intake's figures into the calibrator's status."""
+        counters = self.calibrator.counters
+        counters.raw_messages, counters.queued = self.intake.raw_messages, len(self.intake)
+        counters.queue_high_water, counters.enrolled = self.intake.high_water, self.enrolment.admitted
+        if self.intake.queue_full:
+            self.calibrator.drops.counts["raw:queue-full"] = self.intake.queue_full
+
+
+def _loop(stop: Any, loop: ServiceLoop) -> None:
+    """``loop.step()`` until ``stop`` is set, resting briefly when no samples came."""
+    while not stop.is_set():
+        if not loop.step():
             time.sleep(IDLE_SLEEP_S)

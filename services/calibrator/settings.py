@@ -16,6 +16,7 @@ from magnet.fleet import Places
 from magnet.geomag import earth_field, parse_location
 from magnet.place import Location
 from magnet.shard import EVERY_DEVICE, Shard
+from services.calibrator.intake import DEFAULT_ENROL_RATE, DEFAULT_MAX_QUEUE
 from services.common.fleet_options import add_fleet_argument, read_fleet
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
@@ -68,6 +69,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="collect, fit, store and answer only for the devices of shard K of N (0 <= K < N; see "
         "magnet.shard); default 0/1, every device",
     )
+    parser.add_argument(
+        "--enrol-rate",
+        type=float,
+        default=DEFAULT_ENROL_RATE,
+        help="new device ids taken on per second at most (10 s of them at once); beyond, their samples are dropped "
+        f"and counted in status dropped[raw:enrol-rate] (default {DEFAULT_ENROL_RATE:g})",
+    )
+    parser.add_argument(
+        "--max-queue",
+        type=int,
+        default=DEFAULT_MAX_QUEUE,
+        help="raw messages waiting to be processed at most; beyond, dropped and counted in status "
+        f"dropped[raw:queue-full] (default {DEFAULT_MAX_QUEUE})",
+    )
     add_zenoh_arguments(parser)
 
 
@@ -108,6 +123,14 @@ class ServiceSettings:
     signing_key: Path | None = None
     places: Places | None = None  # --fleet file and --location: each device's expected field
     shard: Shard = EVERY_DEVICE
+    enrol_rate: float = DEFAULT_ENROL_RATE  # new device ids per second (services.calibrator.intake)
+    max_queue: int = DEFAULT_MAX_QUEUE  # raw messages waiting at most
+
+    def __post_init__(self) -> None:
+        if not (self.enrol_rate > 0 and self.enrol_rate < float("inf")):
+            raise ValueError(f"--enrol-rate must be a positive number of new devices per second, got {self.enrol_rate}")
+        if isinstance(self.max_queue, bool) or not isinstance(self.max_queue, int) or self.max_queue < 1:
+            raise ValueError(f"--max-queue must be a whole number >= 1, got {self.max_queue}")
 
 
 def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
@@ -134,6 +157,8 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
         args.signing_key,
         places,
         Shard.parse(args.shard),
+        args.enrol_rate,
+        args.max_queue,
     )
 
 

@@ -30,6 +30,10 @@ class Counters:
     forgotten_devices: int = 0  # fleet-book entries (last seen, reported place, open alerts) dropped for --max-devices
     takeovers: int = 0  # times it became the active calibrator of its shard after standing by
     unverified_records: int = 0  # records in force its signing key does not verify (served as stored, unsigned)
+    raw_messages: int = 0  # raw messages that arrived (= received_batches + raw:* drops once the queue is empty)
+    queued: int = 0  # raw messages waiting now (services.calibrator.intake)
+    queue_high_water: int = 0  # most raw messages ever waiting at once
+    enrolled: int = 0  # new device ids taken on (at most --enrol-rate a second)
 
 
 @dataclasses.dataclass(frozen=True)

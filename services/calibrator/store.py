@@ -49,37 +49,44 @@ class StoreError(OSError):
     what to do."""
 
 
-#: sqlite3 error names (``sqlite_errorname``) of a full disk, of a file it may not write, and of a damaged file
-_FULL = ("SQLITE_FULL",)
-_READ_ONLY = ("SQLITE_READONLY", "SQLITE_CANTOPEN", "SQLITE_PERM", "SQLITE_AUTH")
-_BUSY = ("SQLITE_BUSY", "SQLITE_LOCKED")
-_DAMAGED = ("SQLITE_CORRUPT", "SQLITE_NOTADB")
+#: sqlite result codes (``sqlite_errorcode``, low byte) of a full disk, of a file it may not write or a failing disk,
+#: of a lock, and of a damaged file
+_FULL = {13}
+_CANNOT = {3, 8, 10, 14, 23}  # PERM, READONLY, IOERR, CANTOPEN, AUTH
+_BUSY = {5, 6}
+_DAMAGED = {11, 26}  # CORRUPT, NOTADB
 
 
-def describe_failure(path: Path, exc: BaseException) -> str:
-    """One line for a failure of the database ``path``: a full disk as a full disk (nothing written, free space), a
-    file it may not write, a lock, a damaged file (restore it or move it aside), or else the error itself."""
-    name = str(getattr(exc, "sqlite_errorname", "") or "")
-    text = str(exc)
-    errno_ = getattr(exc, "errno", None)
-    if name.startswith(_FULL) or errno_ in (errno.ENOSPC, errno.EDQUOT) or "disk is full" in text:
+def describe_failure(path: Path, exc: BaseException, doing: str = "use") -> str:
+    """One line for a failure to ``doing`` ("read", "write") the database ``path``: a full disk as a full disk
+    (nothing written, free space), a file it may not write or a failing disk, a lock, a damaged file (restore it or
+    move it aside), or else the error itself."""
+    code = (getattr(exc, "sqlite_errorcode", None) or 0) & 0xFF
+    text, errno_ = str(exc), getattr(exc, "errno", None)
+    if code in _FULL or errno_ in (errno.ENOSPC, errno.EDQUOT) or "disk is full" in text:
         return (
-            f"calibration database {path}: the disk is full ({text}): nothing was written and the calibration in "
-            "force stays; free space on its filesystem (or raise the quota), then try again"
+            f"the calibrator could not write its database {path}: disk full (the disk is full: {text}); nothing was "
+            "written and the calibration in force stays: free space on its filesystem (or raise the quota), then try "
+            "again"
         )
-    if name.startswith(_READ_ONLY) or errno_ in (errno.EACCES, errno.EPERM, errno.EROFS) or "readonly" in text:
+    if code in _CANNOT or errno_ in (errno.EACCES, errno.EPERM, errno.EROFS, errno.EIO) or "readonly" in text:
         return (
-            f"calibration database {path} cannot be written ({text}): check the permissions of the file and of its "
-            "directory, and that the filesystem is not read-only"
+            f"the calibrator could not {doing} its database {path} ({text}); nothing was changed: check the disk, the "
+            "permissions of the file and of its directory, and that the filesystem is not read-only"
         )
-    if name.startswith(_BUSY):
+    if code in _BUSY:
         return f"calibration database {path} is locked by another process ({text}): try again"
-    if name.startswith(_DAMAGED) or (isinstance(exc, sqlite3.DatabaseError) and not name):
+    if code in _DAMAGED or (isinstance(exc, sqlite3.DatabaseError) and not code):
         return (
             f"calibration database {path} is damaged or unusable ({text}): restore it from a backup, or move it "
             "aside to start with an empty one"
         )
     return f"calibration database {path} could not be used ({text}): check the disk and the file, then try again"
+
+
+def store_error(path: Path, doing: str, exc: BaseException) -> StoreError:
+    """``describe_failure`` as the ``StoreError`` the store raises."""
+    return StoreError(describe_failure(path, exc, doing))
 
 
 class CalibrationStore:
@@ -112,15 +119,15 @@ class CalibrationStore:
             raise
 
     @contextlib.contextmanager
-    def _guard(self) -> Iterator[None]:
+    def _guard(self, doing: str = "use") -> Iterator[None]:
         """sqlite3 errors (and OSErrors) inside become one ``StoreError`` line naming the file, what went wrong
-        and what to do (``describe_failure``)."""
+        and what to do (``describe_failure``); ``doing``: what was being done ("read", "write"), for the line."""
         try:
             yield
         except StoreError:
             raise
         except (sqlite3.DatabaseError, OSError) as exc:
-            raise StoreError(describe_failure(self.path, exc)) from None
+            raise store_error(self.path, doing, exc) from None
 
     def close(self) -> None:
         self._db.close()
@@ -157,7 +164,7 @@ class CalibrationStore:
         highest stored for it (or than ``floor``, the version of the record in force as its JSON says), read in the
         same write transaction (two calibrators on one file never number two records alike). Returns (record,
         stored): not stored when identical to the one already in force."""
-        with self._guard(), self._transaction():
+        with self._guard("write"), self._transaction():
             latest = self._db.execute(
                 "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (device,)
             ).fetchone()
@@ -183,7 +190,7 @@ class CalibrationStore:
 
     def latest(self, device: str) -> wire.DeviceCalibration | None:
         """The calibration in force for ``device`` (its newest valid record), or None."""
-        with self._guard():
+        with self._guard("read"):
             rows = self._db.execute(
                 "SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,)
             )
@@ -192,7 +199,7 @@ class CalibrationStore:
     def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
         """Valid records of ``device``, newest first, at most ``limit``."""
         out: list[wire.DeviceCalibration] = []
-        with self._guard():
+        with self._guard("read"):
             rows = self._db.execute(
                 "SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,)
             )
@@ -206,7 +213,7 @@ class CalibrationStore:
         self, device: str, limit: int | None = None
     ) -> list[tuple[wire.DeviceCalibration, dict[str, Any] | None]]:
         """``history`` with each record's change (None where none was recorded), newest first."""
-        with self._guard():
+        with self._guard("read"):
             rows = self._db.execute(
                 "SELECT c.seq, c.record, h.change FROM calibrations c LEFT JOIN changes h "
                 "ON h.seq = c.seq WHERE c.device = ? ORDER BY c.seq DESC",
@@ -234,7 +241,7 @@ class CalibrationStore:
     def all_latest(self) -> dict[str, wire.DeviceCalibration]:
         """device -> the record in force (its newest valid one), for every device stored."""
         out: dict[str, wire.DeviceCalibration] = {}
-        with self._guard():
+        with self._guard("read"):
             rows = self._db.execute("SELECT seq, record FROM calibrations ORDER BY device, seq DESC")
             for record in self._valid(rows):
                 out.setdefault(record.device, record)

@@ -5,8 +5,9 @@ On start it queries every stored calibration (``<prefix>/*/calibration``) and th
 a device with none is asked for again now and then, and meanwhile gets headings from its raw field (flag
 CALIBRATED clear). Zenoh delivers into channels; this process's own loop drains them, decodes, computes a whole
 drain of batches at once (``magnet.compass.compute_headings``, vectorized over every sample of every device) and
-publishes, never inside a callback. Counters (received, published, dropped by cause) answer on
-``<prefix>/@status/<name>``.
+publishes, never inside a callback; every handler runs through ``services.common.guard`` (a failure drops and
+counts the messages it held, or answers the query with an error; the loop goes on). Counters (received, published,
+dropped by cause) answer on ``<prefix>/@status/<name>``.
 
 The options and settings are in ``services.compass.settings``, the calibrations in force (trust, staleness, shard)
 in ``services.compass.calibrations``, the computation (no zenoh) in ``services.compass.core``; this module is the
@@ -27,6 +28,7 @@ from magnet import wire
 from magnet.bounded import Recent
 from magnet.fleet import Places
 from services.common import metrics
+from services.common.guard import Guard
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.compass.core import Compass, CompassStatus, HeadingColumns
 from services.compass.ros2 import Ros2Compass
@@ -118,12 +120,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
         gc.freeze()  # what exists now (modules, settings, places) lives as long as the process: never scanned again
         gc.set_threshold(GC_THRESHOLD, 20, 20)
         while not stop.is_set():
-            loop.calibrations(cal_sub)
-            for query in drain(status_q, 64):
-                query.reply(wire.status_key(prefix, name), wire.pack(compass.status(name).to_dict()))
-                query.drop()  # finalize now: the asker waits for it
-            loop.alerts(alert_q)
-            if not loop.headings(raw_sub):
+            if not loop.step(cal_sub, status_q, alert_q, raw_sub, name):
                 time.sleep(IDLE_SLEEP_S)
         if loop.ros2 is not None:
             loop.ros2.close()
@@ -143,6 +140,23 @@ class _Loop:
         self.pending: list[tuple[float, Any]] = [(self.asked + 3.0, self._ask(3.0))]
         self.drain_limit = MAX_DRAIN
         self.ros2: Ros2Compass | None = None
+        self.guard = Guard("compass", log, compass.drops)
+
+    def step(self, cal_sub: Any, status_q: Any, alert_q: Any, raw_sub: Any, name: str) -> bool:
+        """One round of the loop, every handler through the guard (none ends the compass); False when no raw
+        batches were waiting."""
+        self.guard.run("calibration", self.calibrations, cal_sub)
+        for query in drain(status_q, 64):
+            self.guard.answer("query:status", query, self.answer_status, name)
+            query.drop()  # finalize now: the asker waits for it
+        self.guard.run("alert", self.alerts, alert_q)
+        samples = drain(raw_sub, self.drain_limit)
+        if samples:
+            self.guard.run("raw", self.headings_of, samples, count=len(samples))
+        return bool(samples)
+
+    def answer_status(self, query: Any, name: str) -> None:
+        query.reply(wire.status_key(self.prefix, name), wire.pack(self.compass.status(name).to_dict()))
 
     def _ask(self, timeout: float, devices: str | None = None) -> Any:
         return self.session.get(f"{self.prefix}/{devices or self.devices}/calibration", timeout=timeout)
@@ -167,12 +181,20 @@ class _Loop:
         for deadline, handler in self.pending:
             for reply in drain(handler, 10_000):
                 if reply.ok is not None:
-                    self.compass.accept_calibration(payload_bytes(reply.ok), str(reply.ok.key_expr), self.prefix)
+                    self.guard.run(
+                        "calibration",
+                        self.compass.accept_calibration,
+                        payload_bytes(reply.ok),
+                        str(reply.ok.key_expr),
+                        self.prefix,
+                    )
             if now < deadline:
                 still.append((deadline, handler))
         self.pending = still
         for sample in drain(cal_sub, 1000):
-            self.compass.accept_calibration(payload_bytes(sample), str(sample.key_expr), self.prefix)
+            self.guard.run(
+                "calibration", self.compass.accept_calibration, payload_bytes(sample), str(sample.key_expr), self.prefix
+            )
         self._ask_refused()
 
     def _payloads(self, samples: list[Any], keys: list[str]) -> list[tuple[str, bytes]]:
@@ -193,8 +215,12 @@ class _Loop:
     def headings(self, raw_sub: Any) -> bool:
         """Compute and publish the headings of the raw batches waiting; False when there were none."""
         samples = drain(raw_sub, self.drain_limit)
-        if not samples:
-            return False
+        if samples:
+            self.headings_of(samples)
+        return bool(samples)
+
+    def headings_of(self, samples: list[Any]) -> None:
+        """Compute and publish the headings of these raw samples (a drain)."""
         keys = [str(s.key_expr) for s in samples]
         if not self.compass.shard.everything:  # another shard's devices: dropped by key, before any decoding
             mine = [i for i, k in enumerate(keys) if self.compass.mine(k, self.prefix)]
@@ -215,19 +241,21 @@ class _Loop:
         if columns.devices:
             batch = len(columns.t_ns) / len(columns.devices)
             self.drain_limit = int(min(MAX_DRAIN, max(100, DRAIN_SAMPLES / batch)))
-        return True
 
     def alerts(self, alert_q: Any) -> None:
         """Publish the alerts raised or cleared; answer queries for the open ones."""
         for alert in self.compass.watch.take():
             self.session.put(wire.key(self.prefix, alert.device, wire.Kind.ALERT), wire.pack(alert.to_message()))
         for query in drain(alert_q, 16):
-            asked = zenoh.KeyExpr(str(query.key_expr))
-            for alert in self.compass.watch.open_alerts():
-                key = wire.key(self.prefix, alert.device, wire.Kind.ALERT)
-                if asked.intersects(zenoh.KeyExpr(key)):
-                    query.reply(key, wire.pack(alert.to_message()))
+            self.guard.answer("query:alert", query, self.answer_alerts)
             query.drop()
+
+    def answer_alerts(self, query: Any) -> None:
+        asked = zenoh.KeyExpr(str(query.key_expr))
+        for alert in self.compass.watch.open_alerts():
+            key = wire.key(self.prefix, alert.device, wire.Kind.ALERT)
+            if asked.intersects(zenoh.KeyExpr(key)):
+                query.reply(key, wire.pack(alert.to_message()))
 
     def _ask_missing(self, seen: list[str]) -> None:
         """One query for every calibration when a device was seen without one (at most every REQUERY_S)."""

@@ -28,7 +28,7 @@ import importlib.util
 import json
 import logging
 import re
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -40,6 +40,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from magnet import wire
+from services.common.guard import Guard, refusal
 from services.common.jsonio import loads_bounded
 from services.dashboard.state import FleetState
 
@@ -51,6 +52,7 @@ CALIBRATION_ID = re.compile(r"[0-9a-f]{8,64}")
 MAX_BODY_BYTES = 4096
 MAX_HISTORY = 100
 DETAIL_EVERY_S = 1.0
+Endpoint = Callable[[Request], Awaitable[Response]]
 
 
 class Control(Protocol):
@@ -92,6 +94,19 @@ class Dashboard:
         self.state, self.control, self.token, self.operator = state, control, token, operator
         self.view_needs_token, self.interval_s = view_needs_token, interval_s
         self.stopping = asyncio.Event()
+        self.guard = Guard("dashboard", log, state.dropped)  # no failing request ends the server or a stream
+
+    def guarded(self, what: str, endpoint: Endpoint) -> Endpoint:
+        """``endpoint``, answering 500 with a JSON ``{"error": ...}`` (one log line, counted) when it raises."""
+
+        async def run(request: Request) -> Response:
+            try:
+                return await endpoint(request)
+            except Exception as exc:  # the request fails, the server does not
+                self.guard.failed(what, exc)
+                return error(500, refusal(exc, "dashboard"))
+
+        return run
 
     # ---------------------------------------------------------------------------------------------- checks
     def _token_ok(self, request: Request) -> bool:
@@ -203,11 +218,15 @@ class Dashboard:
             self.state.watch(device, +1)
         try:
             while not self.stopping.is_set():
-                version, rows = self.state.changes(version)
+                try:
+                    version, rows = self.state.changes(version)
+                except Exception as exc:  # this stream ends (the page reconnects); the server goes on
+                    self.guard.failed("http:stream", exc)
+                    return
                 yield _event("fleet", {"version": version, "rows": rows, "summary": self.state.summary()})
                 if device and loop.time() >= next_detail:
                     next_detail = loop.time() + DETAIL_EVERY_S
-                    detail = self.state.detail(device)
+                    detail = self.guard.run("http:stream", self.state.detail, device)
                     yield _event("device", detail if detail is not None else {"device": device, "unknown": True})
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self.stopping.wait(), self.interval_s)
@@ -257,14 +276,15 @@ def create_app(
     """The ASGI app (``app.state.dashboard`` holds the handlers; set ``dashboard.stopping`` to end streams).
     ``operator``: who the page's commits and rollbacks are recorded as made by (``by``)."""
     dashboard = Dashboard(state, control, token, view_needs_token, interval_s, operator)
+    guard = dashboard.guarded
     routes = [
-        Route("/", dashboard.index),
-        Route("/plotly.min.js", dashboard.plotly),
-        Route("/api/fleet", dashboard.fleet),
-        Route("/api/stream", dashboard.stream),
-        Route("/api/devices/{device}", dashboard.device),
-        Route("/api/devices/{device}/history", dashboard.history),
-        Route("/api/devices/{device}/calibrate", dashboard.calibrate, methods=["POST"]),
+        Route("/", guard("http:index", dashboard.index)),
+        Route("/plotly.min.js", guard("http:plotly", dashboard.plotly)),
+        Route("/api/fleet", guard("http:fleet", dashboard.fleet)),
+        Route("/api/stream", guard("http:stream", dashboard.stream)),
+        Route("/api/devices/{device}", guard("http:device", dashboard.device)),
+        Route("/api/devices/{device}/history", guard("http:history", dashboard.history)),
+        Route("/api/devices/{device}/calibrate", guard("http:calibrate", dashboard.calibrate), methods=["POST"]),
         Mount("/static", StaticFiles(directory=STATIC_DIR), name="static"),
     ]
     app = Starlette(routes=routes)

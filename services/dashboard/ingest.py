@@ -18,6 +18,7 @@ from typing import Any
 from magnet import wire
 from magnet.drift import alert_from_message
 from services.common import metrics
+from services.common.guard import Guard
 from services.common.zenoh_session import drain, payload_bytes
 from services.dashboard.state import FleetState
 
@@ -49,34 +50,36 @@ class Ingest:
         self.raw_watched: dict[str, Any] = {}
         self.pending: list[tuple[float, Any]] = []
         self.asked_s = -REQUERY_S
+        self.guard = Guard("dashboard", log, state.dropped)
 
     def run(self) -> None:
         """Drain until ``stop`` is set."""
         while not self.stop.is_set():
             started = time.monotonic()
-            try:
-                self.step()
-            except Exception:  # nothing from the network ends the service
-                log.exception("dashboard ingest step failed; continuing")
+            self.guard.run("ingest", self.step)  # nothing from the network ends the service
             self.stop.wait(max(0.0, self.tick_s - (time.monotonic() - started)))
         self.close()
 
     def step(self) -> None:
         self._follow_watched()
         self._ask_calibrations()
+        run = self.guard.run  # each message through the guard: one that makes a handler fail is dropped, counted
         for sample in drain(self.alive, MAX_DRAIN):
-            self._on_alive(sample)
+            run("alive", self._on_alive, sample)
         for sample in drain(self.calibrations, MAX_DRAIN):
-            self._on_calibration(str(sample.key_expr), payload_bytes(sample))
+            run("calibration", self._on_calibration, str(sample.key_expr), payload_bytes(sample))
         self._take_replies()
         for sample in drain(self.alerts, MAX_DRAIN):
-            self._on_alert(str(sample.key_expr), payload_bytes(sample))
+            run("alert", self._on_alert, str(sample.key_expr), payload_bytes(sample))
         for sample in drain(self.progress, MAX_DRAIN):
-            self._on_progress(sample)
-        self._on_raws(drain(self.raw_any, MAX_DRAIN), only_new=True)
+            run("progress", self._on_progress, sample)
+        raws = drain(self.raw_any, MAX_DRAIN)
+        run("raw", self._on_raws, raws, True, count=len(raws))
         for subscriber in list(self.raw_watched.values()):
-            self._on_raws(drain(subscriber, MAX_DRAIN), only_new=False)
-        self._on_headings(drain(self.headings, MAX_DRAIN))
+            raws = drain(subscriber, MAX_DRAIN)
+            run("raw", self._on_raws, raws, False, count=len(raws))
+        headings = drain(self.headings, MAX_DRAIN)
+        run("heading", self._on_headings, headings, count=len(headings))
 
     def close(self) -> None:
         for subscriber in [
@@ -219,9 +222,9 @@ class Ingest:
                     continue
                 key_expr = str(reply.ok.key_expr)
                 if key_expr.endswith("/" + wire.Kind.ALERT.value):
-                    self._on_alert(key_expr, payload_bytes(reply.ok))
+                    self.guard.run("alert", self._on_alert, key_expr, payload_bytes(reply.ok))
                 else:
-                    self._on_calibration(key_expr, payload_bytes(reply.ok))
+                    self.guard.run("calibration", self._on_calibration, key_expr, payload_bytes(reply.ok))
             if time.monotonic() < deadline:
                 still.append((deadline, handler))
         self.pending = still

@@ -39,6 +39,7 @@ import zenoh
 from magnet import wire
 from magnet.readloop import ReadStats
 from services.common import metrics
+from services.common.guard import Guard
 from services.common.zenoh_session import open_session, stop_event
 from services.edge.settings import EdgeSettings, add_arguments
 from services.edge.sources import ChipSource, FleetSource, make_source, stamp
@@ -73,6 +74,13 @@ class EdgeStatus:
         self.session: Any = None
         self.unhealthy_token: Any = None
         self.device_tokens: dict[str, Any] = {}  # devices that appear while running (MAVLink): alive, unhealthy
+        self.guard = Guard("edge", log)  # no failing status query ends the edge (services.common.guard)
+
+    def answer_status(self, query: Any) -> None:
+        """Answer one status query (from Zenoh's thread): the counters, or an error reply if that fails."""
+        key = wire.status_key(self.settings.zenoh.prefix, status_name(self.settings.device))
+        self.guard.answer("query:status", query, lambda q: q.reply(key, wire.pack(self.as_dict())))
+        query.drop()
 
     def on_health(self, healthy: bool, error: str) -> None:
         """Declare ``unhealthy_key`` when the sensor turns unhealthy, undeclare it when it recovers."""
@@ -121,6 +129,7 @@ class EdgeStatus:
             "read_errors": 0 if reads is None else reads["errors"],
             "last_error": "" if reads is None else reads["last_error"],
             "reads": reads,
+            "dropped": dict(self.guard.drops.counts),
         }
 
     def summary(self, seconds: float) -> dict[str, Any]:
@@ -166,12 +175,7 @@ def _declare(session: Any, settings: EdgeSettings, status: EdgeStatus) -> list[A
     declared = [session.liveliness().declare_token(wire.liveliness_key(prefix, "edge", settings.device))]
     declared += [session.liveliness().declare_token(wire.liveliness_key(prefix, "device", d)) for d in status.ids]
     key = wire.status_key(prefix, status_name(settings.device))
-
-    def answer(query: Any) -> None:
-        query.reply(key, wire.pack(status.as_dict()))
-        query.drop()
-
-    declared.append(session.declare_queryable(key, answer))
+    declared.append(session.declare_queryable(key, status.answer_status))
     return declared
 
 

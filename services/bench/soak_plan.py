@@ -1,0 +1,168 @@
+"""The schedule and the figures of ``magnet bench soak`` (no processes here: ``services.bench.soak`` runs them).
+
+Schedule: after ``WARMUP_S`` (devices collect and calibrate), one fault every ``SPACING_S`` in the order of
+``CYCLE``, round and round, until ``SETTLE_S`` before the end (the pipeline heals before the figures are read).
+
+Figures:
+- calibrations lost: devices whose calibration was seen published (its ``created_ns``) and which the calibrator does
+  not serve at the end, or serves an older one;
+- longest heading gap: the longest time between two consecutive headings of one device (a device that stops for
+  good, as an edge's devices do when it is restarted with new ids, makes no gap), with the fault it followed;
+- memory: resident set (MB) per service, across its restarts: the highest, the first after warm-up and the last;
+- drops: every service's status ``dropped`` counters, summed over its restarts (the last answer of each run).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any
+
+WARMUP_S = 25.0
+SPACING_S = 10.0
+SETTLE_S = 20.0
+FULL_DISK_HOLD_S = 6.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Fault:
+    """``kind``: kill (``target`` a service, kill -9 then start again), router (restart), bombs, flood, full-disk
+    (its filesystem filled for ``hold_s``); ``at_s`` seconds after the start."""
+
+    kind: str
+    target: str = ""
+    at_s: float = 0.0
+    hold_s: float = 0.0
+
+    @property
+    def label(self) -> str:
+        return f"{self.kind} {self.target}".strip()
+
+
+CYCLE = (
+    Fault("kill", "calibrator"),
+    Fault("bombs"),
+    Fault("kill", "compass"),
+    Fault("flood"),
+    Fault("router"),
+    Fault("kill", "edge"),
+    Fault("full-disk", hold_s=FULL_DISK_HOLD_S),
+)
+
+
+def schedule(
+    minutes: float, warmup_s: float = WARMUP_S, spacing_s: float = SPACING_S, settle_s: float = SETTLE_S
+) -> list[Fault]:
+    """The faults of a soak of ``minutes``, in time order (none when it is shorter than warm-up and settling)."""
+    if not (math.isfinite(minutes) and minutes > 0):
+        raise ValueError(f"--minutes must be a positive number, got {minutes}")
+    end = minutes * 60.0 - settle_s
+    out: list[Fault] = []
+    at = warmup_s
+    while at + CYCLE[len(out) % len(CYCLE)].hold_s <= end:
+        out.append(dataclasses.replace(CYCLE[len(out) % len(CYCLE)], at_s=at))
+        at += spacing_s
+    return out
+
+
+class HeadingGaps:
+    """The longest time between consecutive headings of one device, and the fault in progress when it ended."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, float] = {}
+        self.longest_s = 0.0
+        self.device = ""
+        self.after = ""
+        self.headings = 0
+        self.by_fault: dict[str, float] = {}  # the longest gap that ended while each fault was the latest
+
+    def on_heading(self, device: str, now_s: float, fault: str = "") -> None:
+        self.headings += 1
+        previous = self.last.get(device)
+        self.last[device] = now_s
+        if previous is None:
+            return
+        gap = now_s - previous
+        if fault:
+            self.by_fault[fault] = max(self.by_fault.get(fault, 0.0), gap)
+        if gap > self.longest_s:
+            self.longest_s, self.device, self.after = gap, device, fault
+
+
+@dataclasses.dataclass
+class Memory:
+    high_mb: float = 0.0
+    after_warmup_mb: float | None = None
+    last_mb: float = 0.0
+
+
+class MemoryWatch:
+    """RSS samples per service (MB): the highest, the first after warm-up, the last."""
+
+    def __init__(self) -> None:
+        self.services: dict[str, Memory] = {}
+
+    def sample(self, service: str, rss_mb: float | None, warm: bool) -> None:
+        if rss_mb is None:
+            return
+        memory = self.services.setdefault(service, Memory())
+        memory.high_mb = max(memory.high_mb, rss_mb)
+        memory.last_mb = rss_mb
+        if warm and memory.after_warmup_mb is None:
+            memory.after_warmup_mb = rss_mb
+
+
+class DropTotals:
+    """Drop counters per service, summed over its runs: ``update(service, run, dropped)`` keeps the last answer of
+    each run (a restarted service counts from zero)."""
+
+    def __init__(self) -> None:
+        self.runs: dict[tuple[str, int], dict[str, int]] = {}
+
+    def update(self, service: str, run: int, dropped: Mapping[str, Any]) -> None:
+        self.runs[(service, run)] = {str(k): int(v) for k, v in dropped.items()}
+
+    def totals(self) -> dict[str, dict[str, int]]:
+        out: dict[str, dict[str, int]] = {}
+        for (service, _), counts in sorted(self.runs.items()):
+            mine = out.setdefault(service, {})
+            for cause, count in counts.items():
+                mine[cause] = mine.get(cause, 0) + count
+        return out
+
+
+def calibrations_lost(published: Mapping[str, int], served: Mapping[str, int]) -> list[str]:
+    """Devices whose published calibration (device -> created_ns) the calibrator no longer serves (device ->
+    created_ns of the one it serves): none served, or an older one."""
+    return sorted(d for d, created in published.items() if served.get(d, -1) < created)
+
+
+def report(
+    minutes: float,
+    faults: list[str],
+    published: Mapping[str, int],
+    served: Mapping[str, int],
+    gaps: HeadingGaps,
+    memory: MemoryWatch,
+    drops: DropTotals,
+) -> str:
+    """The figures as text."""
+    lost = calibrations_lost(published, served)
+    which = f": {', '.join(lost[:10])}" if lost else ""
+    gap = f"{gaps.longest_s:.2f} s ({gaps.device or '-'}, after {gaps.after or 'no fault'})"
+    lines = [
+        f"soak of {minutes:g} min: {len(faults)} faults ({', '.join(faults) or 'none'})",
+        f"calibrations lost: {len(lost)} of {len(published)} published{which}",
+        f"longest heading gap: {gap}; {gaps.headings} heading messages",
+        "  after each fault: " + (", ".join(f"{f} {s:.2f} s" for f, s in sorted(gaps.by_fault.items())) or "-"),
+        "memory (RSS MB)     highest  after warm-up   at the end",
+    ]
+    for service, m in sorted(memory.services.items()):
+        warm = "-" if m.after_warmup_mb is None else f"{m.after_warmup_mb:.0f}"
+        lines.append(f"  {service:<16}{m.high_mb:>9.0f}{warm:>15}{m.last_mb:>13.0f}")
+    lines.append("messages dropped by cause:")
+    for service, counts in drops.totals().items():
+        text = ", ".join(f"{cause} {count}" for cause, count in sorted(counts.items())) or "none"
+        lines.append(f"  {service}: {text}")
+    return "\n".join(lines)

@@ -1,0 +1,136 @@
+"""The calibrator's sample path, bounded: raw messages queue between Zenoh and the service loop, new device ids are
+admitted at a bounded rate, and every message that goes no further is counted by cause.
+
+- ``RawIntake``: a thread of its own (``pump``) moves raw messages from Zenoh's channel to a queue of at most
+  ``max_queue`` messages, counting each; beyond, a message is dropped and counted (``raw:queue-full``). The thread
+  keeps Zenoh's channel near empty, so Zenoh is not held up (nothing is lost unseen in the transport, queries are
+  not stuck behind samples), and the service loop takes the queue a slice at a time, between which it answers
+  queries (status, ``@fleet``, calibrations): a flood delays samples, never answers.
+- ``Enrolment``: a token bucket (``rate_per_s``, ``burst``) for device ids the calibrator does not know yet; a
+  message of a new id beyond it is dropped before decoding and counted (``raw:enrol-rate``). Known devices always
+  pass. With ``--max-devices`` this bounds both the work and the memory a flood of ids can take.
+
+Every raw message that reaches the callback is in ``raw_messages``; once the queue is empty, ``raw_messages`` =
+decoded batches (``received_batches``) + the drops of cause ``raw:*`` (status ``dropped``).
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from magnet import wire
+
+#: raw messages waiting for the service loop at most (about 10 s of a 1,000-device fleet at 10 batches/s)
+DEFAULT_MAX_QUEUE = 100_000
+#: new device ids admitted per second, and at once after a quiet spell (a fleet starting together)
+DEFAULT_ENROL_RATE = 200.0
+DEFAULT_ENROL_BURST = 2_000
+#: samples moved from Zenoh's channel to the queue at a time
+PUMP_BATCH = 4096
+
+
+class RawIntake:
+    """A bounded queue of (key, payload) fed by Zenoh's callback thread and drained by the service loop."""
+
+    def __init__(self, max_queue: int = DEFAULT_MAX_QUEUE) -> None:
+        if max_queue < 1:
+            raise ValueError(f"--max-queue must be >= 1, got {max_queue}")
+        self.max_queue = max_queue
+        self.queue: collections.deque[tuple[str, bytes]] = collections.deque()
+        self.raw_messages = 0  # every raw message that arrived
+        self.queue_full = 0  # of which dropped because the queue was full
+        self.high_water = 0  # longest the queue has been
+        self._lock = threading.Lock()
+
+    def offer(self, key_expr: str, payload: bytes) -> bool:
+        """Queue one message (from Zenoh's thread); False (counted) when the queue is full."""
+        with self._lock:
+            self.raw_messages += 1
+            if len(self.queue) >= self.max_queue:
+                self.queue_full += 1
+                return False
+            self.queue.append((key_expr, payload))
+            self.high_water = max(self.high_water, len(self.queue))
+            return True
+
+    def offer_many(self, items: list[tuple[str, bytes]]) -> None:
+        """Queue messages (``offer`` each, under one lock)."""
+        with self._lock:
+            room = max(0, self.max_queue - len(self.queue))
+            self.raw_messages += len(items)
+            self.queue_full += max(0, len(items) - room)
+            self.queue.extend(items[:room])
+            self.high_water = max(self.high_water, len(self.queue))
+
+    def pump(
+        self,
+        channel: Any,
+        payload_of: Callable[[Any], bytes],
+        closed: type[BaseException],
+        batch: int = PUMP_BATCH,
+    ) -> None:
+        """Move samples from a Zenoh channel into the queue until the channel closes (``closed`` raised: the
+        subscriber was undeclared). Run on its own thread: ``channel.recv()`` waits without holding the GIL and
+        ``try_recv`` takes what else waits, so Zenoh's threads never wait for Python (queries keep flowing during a
+        flood) and the GIL changes hands once per batch, not per message."""
+        while True:
+            try:
+                samples = [channel.recv()]
+                while len(samples) < batch and (more := channel.try_recv()) is not None:
+                    samples.append(more)
+            except closed:
+                return
+            self.offer_many([(str(sample.key_expr), payload_of(sample)) for sample in samples])
+
+    def take(self, limit: int) -> list[tuple[str, bytes]]:
+        """Up to ``limit`` queued messages, oldest first."""
+        out: list[tuple[str, bytes]] = []
+        queue = self.queue
+        while queue and len(out) < limit:
+            out.append(queue.popleft())
+        return out
+
+    def __len__(self) -> int:
+        return len(self.queue)
+
+
+class Enrolment:
+    """A token bucket for new device ids: ``rate_per_s`` a second, at most ``burst`` at once. ``clock`` (s)."""
+
+    def __init__(
+        self,
+        rate_per_s: float = DEFAULT_ENROL_RATE,
+        burst: int = DEFAULT_ENROL_BURST,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not rate_per_s > 0 or burst < 1:
+            raise ValueError(f"--enrol-rate must be > 0 new devices/s (burst >= 1), got {rate_per_s}, {burst}")
+        self.rate_per_s, self.burst, self.clock = float(rate_per_s), burst, clock
+        self.tokens = float(burst)
+        self.last = clock()
+        self.admitted = self.refused = 0
+
+    def admit(self) -> bool:
+        """Whether one more new device may be enrolled now (counted either way)."""
+        now = self.clock()
+        self.tokens = min(float(self.burst), self.tokens + (now - self.last) * self.rate_per_s)
+        self.last = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            self.admitted += 1
+            return True
+        self.refused += 1
+        return False
+
+
+def new_device(key_expr: str, prefix: str, known: Callable[[str], bool]) -> bool:
+    """Whether the raw key names a device ``known`` does not know (a malformed key: False, the decoder refuses it)."""
+    try:
+        device = wire.device_from_key(prefix, key_expr, wire.Kind.RAW)
+    except wire.WireError:
+        return False
+    return not known(device)

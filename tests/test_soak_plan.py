@@ -1,0 +1,74 @@
+"""``magnet bench soak`` without processes: its schedule of faults and how its figures are counted."""
+
+from __future__ import annotations
+
+import pytest
+
+from services.bench.soak_plan import (
+    CYCLE,
+    SETTLE_S,
+    WARMUP_S,
+    DropTotals,
+    HeadingGaps,
+    MemoryWatch,
+    calibrations_lost,
+    report,
+    schedule,
+)
+
+
+def test_a_two_minute_soak_meets_every_kind_of_fault_and_ends_quiet():
+    faults = schedule(2)
+    assert {f.label for f in faults} == {f.label for f in CYCLE}  # kills of each service, router, bombs, flood, disk
+    assert {f.target for f in faults if f.kind == "kill"} == {"calibrator", "compass", "edge"}
+    times = [f.at_s for f in faults]
+    assert times == sorted(times) and times[0] == WARMUP_S
+    assert all(f.at_s + f.hold_s <= 120 - SETTLE_S for f in faults)
+
+
+def test_a_longer_soak_goes_round_the_cycle_again_and_a_bad_length_is_refused():
+    faults = schedule(10)
+    assert len(faults) > 5 * len(CYCLE)
+    assert [f.label for f in faults[: len(CYCLE)]] == [f.label for f in faults[len(CYCLE) : 2 * len(CYCLE)]]
+    assert schedule(0.5) == []  # shorter than warm-up and settling: no fault
+    for bad in (0, -1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="--minutes"):
+            schedule(bad)
+
+
+def test_gaps_are_between_consecutive_headings_of_one_device():
+    gaps = HeadingGaps()
+    for t in (0.0, 0.1, 0.2):
+        gaps.on_heading("a", t)
+        gaps.on_heading("b", t)
+    gaps.on_heading("a", 2.2, "kill compass")  # a 2 s gap after a kill
+    gaps.on_heading("c", 50.0, "flood")  # a new device: its first heading is no gap
+    assert gaps.longest_s == pytest.approx(2.0) and (gaps.device, gaps.after) == ("a", "kill compass")
+    gaps.on_heading("b", 1.2, "kill compass")
+    gaps.on_heading("b", 1.5, "router")
+    assert gaps.by_fault == {"kill compass": pytest.approx(2.0), "router": pytest.approx(0.3)}
+
+
+def test_drops_add_up_over_the_runs_of_a_service_and_calibrations_lost_are_the_ones_not_served():
+    drops = DropTotals()
+    drops.update("compass", 1, {"raw:not-a-map": 3})
+    drops.update("compass", 1, {"raw:not-a-map": 5})  # the same run answered again: its latest counts
+    drops.update("compass", 2, {"raw:not-a-map": 2, "raw:too-large": 1})  # restarted: counts from zero
+    assert drops.totals() == {"compass": {"raw:not-a-map": 7, "raw:too-large": 1}}
+    published = {"a": 10, "b": 20, "c": 30}
+    assert calibrations_lost(published, {"a": 10, "b": 25}) == ["c"]  # b has a newer one: not lost
+    assert calibrations_lost(published, {"a": 9, "b": 20, "c": 30}) == ["a"]  # an older one served: lost
+
+
+def test_memory_and_the_report():
+    memory = MemoryWatch()
+    memory.sample("compass", 100.0, warm=False)
+    memory.sample("compass", 150.0, warm=True)
+    memory.sample("compass", 400.0, warm=True)
+    memory.sample("compass", None, warm=True)  # not running at that moment
+    memory.sample("compass", 160.0, warm=True)
+    m = memory.services["compass"]
+    assert (m.high_mb, m.after_warmup_mb, m.last_mb) == (400.0, 150.0, 160.0)
+    gaps = HeadingGaps()
+    text = report(2, ["kill compass"], {"a": 1}, {}, gaps, memory, DropTotals())
+    assert "calibrations lost: 1 of 1 published: a" in text and "compass" in text and "400" in text
