@@ -20,6 +20,8 @@ import vqf
 
 from magnet.aiding import VelocityFixes
 
+#: a batch is taken this many seconds at a time (a whole log in one call is answered as if it came in pieces)
+CHUNK_S = 0.05
 #: the longest a sample waits for its acceleration before it is fed as it is (s)
 MAX_LAG_S = 1.0
 
@@ -46,7 +48,7 @@ def _in_body(quat_vqf: np.ndarray, a_ned: np.ndarray) -> np.ndarray:
 def body_acceleration(quat_vqf: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray) -> np.ndarray:
     """The linear acceleration (N, 3) of a whole log in vqf's body frame: the velocity's (magnetic NED, held rows,
     NaN where unknown) with every fix known, turned by the attitudes ``quat_vqf`` (N, 4)."""
-    fixes = VelocityFixes()
+    fixes = VelocityFixes(max_fixes=max(len(t_s), 2))
     fixes.observe(np.asarray(t_s, dtype=float), vel_ned_ms)
     return _in_body(np.asarray(quat_vqf, dtype=float), fixes.acceleration(np.asarray(t_s, dtype=float)))
 
@@ -86,7 +88,21 @@ class AidedFilter:
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """One batch (N samples, vqf frame, C-contiguous float64): (vqf quaternions (N, 4) body -> ENU, magnetic
-        disturbance flags (N,)) for its samples."""
+        disturbance flags (N,)) for its samples. Taken ``CHUNK_S`` at a time, as if they had come so."""
+        step = max(1, round(CHUNK_S / self.period_s))
+        parts = [
+            self._chunk(
+                gyr[i : i + step], acc[i : i + step], field[i : i + step], t_s[i : i + step], vel_ned_ms[i : i + step]
+            )
+            for i in range(0, len(gyr), step)
+        ]
+        if not parts:
+            return np.zeros((0, 4)), np.zeros(0, dtype=bool)
+        return np.vstack([q for q, _ in parts]), np.concatenate([d for _, d in parts])
+
+    def _chunk(
+        self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         self.fixes.observe(t_s, vel_ned_ms)
         self._feed(float(t_s[-1]))
         rows = np.column_stack([t_s, gyr, acc, field, np.full((len(t_s), 4), np.nan)])

@@ -46,7 +46,7 @@ def to_magnetic_ned(vel_ned_ms: np.ndarray, declination_deg: float | np.ndarray)
 
 @dataclasses.dataclass
 class VelocityFixes:
-    """The velocity fixes seen so far (at most ``MAX_FIXES``, the newest): measured times (F,) s and values (F, 3)
+    """The velocity fixes seen so far (at most ``max_fixes``, the newest): measured times (F,) s and values (F, 3)
     m/s. ``observe`` takes held velocity rows as they come; ``acceleration`` gives dv/dt where it is known."""
 
     delay_s: float = DELAY_S
@@ -54,6 +54,7 @@ class VelocityFixes:
     times_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
     held: np.ndarray | None = None
+    max_fixes: int = MAX_FIXES
 
     def observe(self, t_s: np.ndarray, vel_ned_ms: np.ndarray) -> None:
         """Samples' times (N,) s, increasing, and their held velocity (N, 3) (NaN rows where none is known)."""
@@ -66,8 +67,9 @@ class VelocityFixes:
         if not new.any():
             self.held = vel[-1] if finite[-1] else self.held
             return
-        self.times_s = np.concatenate([self.times_s, np.asarray(t_s, dtype=float)[new] - self.delay_s])[-MAX_FIXES:]
-        self.values = np.vstack([self.values, vel[new]])[-MAX_FIXES:]
+        measured = np.asarray(t_s, dtype=float)[new] - self.delay_s
+        self.times_s = np.concatenate([self.times_s, measured])[-self.max_fixes :]
+        self.values = np.vstack([self.values, vel[new]])[-self.max_fixes :]
         self.held = vel[-1] if finite[-1] else self.held
 
     @property

@@ -33,6 +33,7 @@ from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
 EDGE_BACKOFF = Backoff(initial_s=0.01, max_s=1.0, unhealthy_after=3, poll_s=0.0005)
 TRUTH_KEYS = ("heading_deg", "pitch_deg", "roll_deg")
 GYRO_COLUMNS = ("gx", "gy", "gz")
+VELOCITY_COLUMNS = ("vn", "ve", "vd")
 REPLAY_SENSOR = "replay"
 
 
@@ -87,7 +88,7 @@ class FleetSource:
 
 class StreamSource:
     """One simulated device read sample by sample from a ``SensorStream`` (no register emulation); a moving
-    trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope."""
+    trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope and its GNSS-like velocity."""
 
     stats: ReadStats | None = None
 
@@ -98,16 +99,29 @@ class StreamSource:
 
     def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
         n = self.settings.batch
-        mag, acc, gyr = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        mag, acc, gyr, vel = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.full((n, 3), np.nan)
         truth = {k: np.empty(n) for k in TRUTH_KEYS}
         for i in range(n):
             mag[i], acc[i], gyr[i] = self.stream.measure_imu()
             for k, v in _truth(self.stream).items():
                 truth[k][i] = v
+            held = self.stream.last_truth.get("vel_ned_ms")
+            if held is not None:
+                vel[i] = held
         t_ns = stamp(n, end_ns, int(1e9 / self.settings.rate_hz))
         moving = self.settings.simulator.trajectory.moving
         return [
-            wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth, gyr if moving else None)
+            wire.RawBatch(
+                self.settings.device,
+                seq,
+                SIMULATOR_SENSOR,
+                t_ns,
+                mag,
+                acc,
+                truth,
+                gyr if moving else None,
+                vel_ned_ms=vel if moving and np.isfinite(vel).any() else None,
+            )
         ]
 
 
@@ -172,18 +186,20 @@ class ChipSource:
 
 
 def read_recording(path: Path) -> Recording:
-    """The recording in a ``magnet sample`` CSV: t_s (s), mx,my,mz (uT), optional ax,ay,az (m/s^2) and gx,gy,gz
-    (rad/s); ValueError naming the file and what is wrong."""
+    """The recording in a ``magnet sample`` CSV: t_s (s), mx,my,mz (uT), optional ax,ay,az (m/s^2), gx,gy,gz
+    (rad/s) and vn,ve,vd (m/s NED, empty or NaN where unknown); ValueError naming the file and what is wrong."""
     table = read_input(path)
     if "t_s" not in table.columns:
         raise ValueError(
             f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as magnet sample writes it"
         )
-    gyr = None
+    gyr = vel = None
     if all(c in table.columns for c in GYRO_COLUMNS):
         gyr = np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
+    if all(c in table.columns for c in VELOCITY_COLUMNS):
+        vel = np.column_stack([table.numeric(c) for c in VELOCITY_COLUMNS])
     try:
-        return Recording(table.numeric("t_s"), table.mag, table.acc, gyr)
+        return Recording(table.numeric("t_s"), table.mag, table.acc, gyr, vel)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
 
@@ -217,6 +233,7 @@ class ReplaySource:
                     rec.mag_ut[part],
                     None if rec.acc_ms2 is None else rec.acc_ms2[part],
                     gyr_rads=None if rec.gyr_rads is None else rec.gyr_rads[part],
+                    vel_ned_ms=None if rec.vel_ned_ms is None else rec.vel_ned_ms[part],
                 )
             ]
 
