@@ -69,20 +69,48 @@ def carry_forward(start: np.ndarray, gyr: np.ndarray, bias: np.ndarray, period_s
     return out
 
 
+def _multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton products p * q of quaternions (..., 4) w, x, y, z (broadcasting)."""
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
+
+
+_T, _GYR, _ACC, _FIELD, _GIVEN, _TURN = (
+    slice(0, 1),
+    slice(1, 4),
+    slice(4, 7),
+    slice(7, 10),
+    slice(10, 14),
+    slice(14, 18),
+)
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
 class AidedFilter:
     """vqf with velocity aiding for one device (see the module docstring). Inputs in vqf's frames; velocities in
-    magnetic NED m/s; times in seconds."""
+    magnetic NED m/s; times in seconds. ``pending`` (n, 18): the samples not yet fed, each with its time, gyroscope,
+    accelerometer, field, the attitude last given to it and its turn since the filter's state (the gyroscope's
+    product from the first pending sample to it)."""
 
     def __init__(self, period_s: float, params: dict[str, Any], max_lag_s: float = MAX_LAG_S) -> None:
         self.period_s, self.params, self.max_lag_s = period_s, params, max_lag_s
         self.filter = vqf.VQF(period_s, **params)
         self.fixes = VelocityFixes()
-        self.pending: list[np.ndarray] = []  # rows t, gyr (3), acc (3), field (3), quat given (4): (n, 14)
+        self.pending = np.zeros((0, 18))
         self.disturbed = False
 
     def restart(self) -> None:
         self.filter.resetState()
-        self.fixes, self.pending, self.disturbed = VelocityFixes(), [], False
+        self.fixes, self.pending, self.disturbed = VelocityFixes(), np.zeros((0, 18)), False
 
     def update(
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray
@@ -90,43 +118,42 @@ class AidedFilter:
         """One batch (N samples, vqf frame, C-contiguous float64): (vqf quaternions (N, 4) body -> ENU, magnetic
         disturbance flags (N,)) for its samples. Taken ``CHUNK_S`` at a time, as if they had come so."""
         step = max(1, round(CHUNK_S / self.period_s))
-        parts = [
-            self._chunk(
-                gyr[i : i + step], acc[i : i + step], field[i : i + step], t_s[i : i + step], vel_ned_ms[i : i + step]
-            )
-            for i in range(0, len(gyr), step)
-        ]
+        rows = np.column_stack([t_s, gyr, acc, field, np.zeros((len(t_s), 8))])
+        parts = [self._chunk(rows[i : i + step], vel_ned_ms[i : i + step]) for i in range(0, len(rows), step)]
         if not parts:
             return np.zeros((0, 4)), np.zeros(0, dtype=bool)
         return np.vstack([q for q, _ in parts]), np.concatenate([d for _, d in parts])
 
-    def _chunk(
-        self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        self.fixes.observe(t_s, vel_ned_ms)
-        self._feed(float(t_s[-1]))
-        rows = np.column_stack([t_s, gyr, acc, field, np.full((len(t_s), 4), np.nan)])
-        table = np.vstack([*self.pending, rows])
-        start = np.asarray(self.filter.getQuat9D(), dtype=float)
+    def _chunk(self, rows: np.ndarray, vel_ned_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One piece of a batch: rows (n, 18) with time, gyroscope, accelerometer and field filled in."""
+        self.fixes.observe(rows[:, 0], vel_ned_ms)
         bias = np.asarray(self.filter.getBiasEstimate()[0], dtype=float)
-        quats = carry_forward(start, table[:, 1:4], bias, self.period_s)
-        table[:, 10:] = quats
-        self.pending = [table]
-        self._feed(float(t_s[-1]))
-        return quats[-len(t_s) :], np.full(len(t_s), self.disturbed)
+        before = self.pending[-1, _TURN] if len(self.pending) else _IDENTITY
+        rows[:, _TURN] = carry_forward(before, rows[:, _GYR], bias, self.period_s)
+        self.pending = np.vstack([self.pending, rows])
+        self._give()
+        self._feed(float(rows[-1, 0]))
+        self._give()
+        return self.pending[len(self.pending) - len(rows) :, _GIVEN].copy(), np.full(len(rows), self.disturbed)
+
+    def _give(self) -> None:
+        """The attitude of every pending sample: the filter's, turned by the sample's turn."""
+        start = np.asarray(self.filter.getQuat9D(), dtype=float)
+        self.pending[:, _GIVEN] = _multiply(start, self.pending[:, _TURN])
 
     def _feed(self, now_s: float) -> None:
-        """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``), in order."""
-        if not self.pending:
-            return
-        table = np.vstack(self.pending)
+        """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``), in order, then count
+        the turns of the others from the new filter state."""
+        table = self.pending
         ready = (table[:, 0] <= self.fixes.known_until_s) | (table[:, 0] < now_s - self.max_lag_s)
-        ready &= np.all(np.isfinite(table[:, 10:]), axis=1)
         count = int(np.argmin(ready)) if not ready.all() else len(table)
         if count == 0:
             return
-        fed, self.pending = table[:count], [table[count:]] if count < len(table) else []
-        acc = fed[:, 4:7] - _in_body(fed[:, 10:], self.fixes.acceleration(fed[:, 0]))
-        gyr, field = np.ascontiguousarray(fed[:, 1:4]), np.ascontiguousarray(fed[:, 7:10])
+        fed, self.pending = table[:count], table[count:].copy()
+        acc = fed[:, _ACC] - _in_body(fed[:, _GIVEN], self.fixes.acceleration(fed[:, 0]))
+        gyr, field = np.ascontiguousarray(fed[:, _GYR]), np.ascontiguousarray(fed[:, _FIELD])
         out = self.filter.updateBatch(gyr, np.ascontiguousarray(acc), field)
         self.disturbed = bool(np.asarray(out["magDistDetected"]).reshape(-1)[-1])
+        inverse = fed[-1, _TURN] * np.array([1.0, -1.0, -1.0, -1.0])
+        turn = _multiply(inverse, self.pending[:, _TURN])
+        self.pending[:, _TURN] = turn / np.linalg.norm(turn, axis=1, keepdims=True)  # rounding would compound
