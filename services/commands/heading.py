@@ -31,7 +31,6 @@ from services.commands.fit import add_field_arguments, gyro_columns, load_calibr
 from services.common.csvio import SampleTable, write_csv
 from services.common.inputs import InputOptions, add_input_arguments, read_input
 
-VELOCITY_COLUMNS = ("vn", "ve", "vd")
 COLUMNS = (
     "heading_deg",
     "true_heading_deg",
@@ -110,9 +109,9 @@ def velocity_aiding(
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """(times (N,) s, velocities (N, 3) m/s in magnetic NED) from the vn,ve,vd columns (geographic NED, empty or NaN
     where unknown) and t_s (else the sample period), or (None, None) when the file has no velocity."""
-    if not all(c in table.columns for c in VELOCITY_COLUMNS):
+    vel = table.vel_ned_ms()
+    if vel is None:
         return None, None
-    vel = np.column_stack([table.numeric(c) for c in VELOCITY_COLUMNS])
     t_s = table.numeric("t_s") if "t_s" in table.columns else np.arange(len(vel)) * period_s
     return t_s, to_magnetic_ned(vel, declination_deg)
 

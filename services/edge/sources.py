@@ -33,7 +33,6 @@ from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
 EDGE_BACKOFF = Backoff(initial_s=0.01, max_s=1.0, unhealthy_after=3, poll_s=0.0005)
 TRUTH_KEYS = ("heading_deg", "pitch_deg", "roll_deg")
 GYRO_COLUMNS = ("gx", "gy", "gz")
-VELOCITY_COLUMNS = ("vn", "ve", "vd")
 REPLAY_SENSOR = "replay"
 
 
@@ -193,13 +192,11 @@ def read_recording(path: Path) -> Recording:
         raise ValueError(
             f"{path}: --replay needs a t_s column (seconds) to keep the recording's pace, as magnet sample writes it"
         )
-    gyr = vel = None
+    gyr = None
     if all(c in table.columns for c in GYRO_COLUMNS):
         gyr = np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
-    if all(c in table.columns for c in VELOCITY_COLUMNS):
-        vel = np.column_stack([table.numeric(c) for c in VELOCITY_COLUMNS])
     try:
-        return Recording(table.numeric("t_s"), table.mag, table.acc, gyr, vel)
+        return Recording(table.numeric("t_s"), table.mag, table.acc, gyr, table.vel_ned_ms())
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
 
