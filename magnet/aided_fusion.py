@@ -132,21 +132,21 @@ class AidedFilter:
         rows[:, _TURN] = carry_forward(before, rows[:, _GYR], bias, self.period_s)
         self.pending = np.vstack([self.pending, rows])
         self._give()
-        self._feed(float(rows[-1, 0]))
+        self._feed(float(rows[-1, 0]), keep=len(rows))
         self._give()
-        return self.pending[len(self.pending) - len(rows) :, _GIVEN].copy(), np.full(len(rows), self.disturbed)
+        return self.pending[-len(rows) :, _GIVEN].copy(), np.full(len(rows), self.disturbed)
 
     def _give(self) -> None:
         """The attitude of every pending sample: the filter's, turned by the sample's turn."""
         start = np.asarray(self.filter.getQuat9D(), dtype=float)
         self.pending[:, _GIVEN] = _multiply(start, self.pending[:, _TURN])
 
-    def _feed(self, now_s: float) -> None:
-        """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``), in order, then count
-        the turns of the others from the new filter state."""
+    def _feed(self, now_s: float, keep: int) -> None:
+        """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``), in order, but not
+        the last ``keep`` (the ones being answered); then count the turns of the others from the new filter state."""
         table = self.pending
         ready = (table[:, 0] <= self.fixes.known_until_s) | (table[:, 0] < now_s - self.max_lag_s)
-        count = int(np.argmin(ready)) if not ready.all() else len(table)
+        count = min(int(np.argmin(ready)) if not ready.all() else len(table), len(table) - keep)
         if count == 0:
             return
         fed, self.pending = table[:count], table[count:].copy()
