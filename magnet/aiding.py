@@ -11,8 +11,11 @@ measures). So:
 - a fix is a change of the held value (or its first finite row); it was measured ``delay_s`` before the sample where
   it appears;
 - the acceleration at time t is the centred difference (v(t + h) - v(t - h)) / 2h of the fixes joined by straight
-  lines, h = ``half_window_s``: no lag, averaging the fixes' noise (0.1 m/s per fix gives about 0.3 m/s^2 here, which
-  the filter's own 3 s averaging brings under 0.05) and the fast swings a receiver's rate cannot follow;
+  lines, h = ``half_window_s``: no lag, averaging the fixes' noise and the fast swings a receiver's rate cannot
+  follow. h is set by the noise: a fix's 0.1 m/s becomes sqrt(2) 0.1 / 2h m/s^2 of acceleration noise, which must stay
+  well under what the filter takes for a device at rest (vqf: the accelerometer within 0.5 m/s^2 of its mean), or
+  the filter never finds rest and never learns the gyroscope's bias about the vertical; h = 0.5 s gives 0.14 m/s^2
+  (h = 0.25 s gave 0.28 and a car whose heading drifted by 7 deg);
 - it is known only once a fix at or after t + h has arrived: ``known_until_s``. The filter therefore runs that far
   behind the newest sample (``magnet.aided_fusion``), and the attitude of the newest samples is carried forward from
   it with the gyroscope.
@@ -30,7 +33,7 @@ import numpy as np
 #: a receiver's latency: a fix appears this long after the instant it measured (s)
 DELAY_S = 0.1
 #: half the span of the centred difference (s)
-HALF_WINDOW_S = 0.25
+HALF_WINDOW_S = 0.5
 #: fixes kept (a few seconds of them at any common rate)
 MAX_FIXES = 256
 

