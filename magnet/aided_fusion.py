@@ -12,6 +12,7 @@ integration, so the newest sample is answered at once (causal, no delay on the o
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -20,8 +21,8 @@ import vqf
 
 from magnet.aiding import VelocityFixes
 
-#: a batch is taken this many seconds at a time (a whole log in one call is answered as if it came in pieces)
-CHUNK_S = 0.05
+#: the longest piece of samples answered from one filter state when no fix comes (s)
+CHUNK_S = 0.1
 #: the longest a sample waits for its acceleration before it is fed as it is (s)
 MAX_LAG_S = 1.0
 
@@ -101,9 +102,12 @@ class AidedFilter:
     accelerometer, field, the attitude last given to it and its turn since the filter's state (the gyroscope's
     product from the first pending sample to it)."""
 
-    def __init__(self, period_s: float, params: dict[str, Any], max_lag_s: float = MAX_LAG_S) -> None:
+    def __init__(
+        self, period_s: float, params: dict[str, Any], start: Any = None, max_lag_s: float = MAX_LAG_S
+    ) -> None:
+        """``start``: a vqf filter to carry on from (the device's filter before its first velocity), else a new one."""
         self.period_s, self.params, self.max_lag_s = period_s, params, max_lag_s
-        self.filter = vqf.VQF(period_s, **params)
+        self.filter = start if start is not None else vqf.VQF(period_s, **params)
         self.fixes = VelocityFixes()
         self.pending = np.zeros((0, 18))
         self.disturbed = False
@@ -116,10 +120,13 @@ class AidedFilter:
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """One batch (N samples, vqf frame, C-contiguous float64): (vqf quaternions (N, 4) body -> ENU, magnetic
-        disturbance flags (N,)) for its samples. Taken ``CHUNK_S`` at a time, as if they had come so."""
-        step = max(1, round(CHUNK_S / self.period_s))
+        disturbance flags (N,)) for its samples. Taken in pieces that start where a fix arrives or a ``CHUNK_S`` tick
+        of time begins, so that the answers do not depend on how the samples were cut into batches."""
         rows = np.column_stack([t_s, gyr, acc, field, np.zeros((len(t_s), 8))])
-        parts = [self._chunk(rows[i : i + step], vel_ned_ms[i : i + step]) for i in range(0, len(rows), step)]
+        tick = np.floor(np.asarray(t_s, dtype=float) / CHUNK_S)
+        cuts = np.flatnonzero(self.fixes.arrivals(vel_ned_ms)[1:] | (tick[1:] != tick[:-1])) + 1
+        bounds = [0, *cuts.tolist(), len(rows)]
+        parts = [self._chunk(rows[a:b], vel_ned_ms[a:b]) for a, b in itertools.pairwise(bounds) if b > a]
         if not parts:
             return np.zeros((0, 4)), np.zeros(0, dtype=bool)
         return np.vstack([q for q, _ in parts]), np.concatenate([d for _, d in parts])
@@ -132,7 +139,7 @@ class AidedFilter:
         rows[:, _TURN] = carry_forward(before, rows[:, _GYR], bias, self.period_s)
         self.pending = np.vstack([self.pending, rows])
         self._give()
-        self._feed(float(rows[-1, 0]), keep=len(rows))
+        self._feed(float(rows[0, 0]), keep=len(rows))
         self._give()
         return self.pending[-len(rows) :, _GIVEN].copy(), np.full(len(rows), self.disturbed)
 

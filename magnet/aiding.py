@@ -59,14 +59,21 @@ class VelocityFixes:
     held: np.ndarray | None = None
     max_fixes: int = MAX_FIXES
 
+    def arrivals(self, vel_ned_ms: np.ndarray) -> np.ndarray:
+        """(N,) bool: the rows of held velocities (N, 3) where a new fix appears, after those seen so far."""
+        vel = np.asarray(vel_ned_ms, dtype=float)
+        if len(vel) == 0:
+            return np.zeros(0, dtype=bool)
+        before = np.vstack([np.full((1, 3), np.nan) if self.held is None else self.held[None], vel[:-1]])
+        return np.all(np.isfinite(vel), axis=1) & np.any(vel != before, axis=1)
+
     def observe(self, t_s: np.ndarray, vel_ned_ms: np.ndarray) -> None:
         """Samples' times (N,) s, increasing, and their held velocity (N, 3) (NaN rows where none is known)."""
         vel = np.asarray(vel_ned_ms, dtype=float)
         if len(vel) == 0:
             return
         finite = np.all(np.isfinite(vel), axis=1)
-        before = np.vstack([np.full((1, 3), np.nan) if self.held is None else self.held[None], vel[:-1]])
-        new = finite & np.any(vel != before, axis=1)
+        new = self.arrivals(vel)
         if not new.any():
             self.held = vel[-1] if finite[-1] else self.held
             return
