@@ -121,6 +121,7 @@ class _Drain(NamedTuple):
     whether its times strictly increase, and where its samples start in the permuted arrays."""
 
     inputs: tuple[np.ndarray, np.ndarray, np.ndarray]
+    aiding: tuple[np.ndarray, np.ndarray] | None  # times (S,) s and velocities (S, 3) magnetic NED, or None
     usable: np.ndarray
     saturated: np.ndarray
     unusable_before: np.ndarray  # (S + 1,) int: how many samples before each (permuted) index are not usable
@@ -226,7 +227,11 @@ class DeviceFusion:
             if rows.size == 0:
                 return
             gyr, acc, field = (np.ascontiguousarray(x[rows]) for x in drain.inputs)
-        out[rows], disturbed[rows] = self.filter.update_vqf_frame(gyr, acc, field)
+        if drain.aiding is None:
+            out[rows], disturbed[rows] = self.filter.update_vqf_frame(gyr, acc, field)
+        else:
+            t_s, vel = drain.aiding[0][rows], drain.aiding[1][rows]
+            out[rows], disturbed[rows] = self.filter.update_vqf_frame(gyr, acc, field, t_s, vel)
 
 
 class FleetFusion:
@@ -259,10 +264,13 @@ class FleetFusion:
         gyr_rads: np.ndarray,
         acc_ms2: np.ndarray,
         field_ut: np.ndarray,
+        vel_ned_ms: np.ndarray | None = None,
     ) -> FusedColumns:
-        """Fuse every batch b (samples bounds[b] .. bounds[b+1]) that carries a gyroscope (not all-NaN rows), in
-        order; S = bounds[-1] samples, arrays (S, 3). Checks and frame conversions are done once for all samples;
-        each device's batches are grouped, and its filter runs once per run of batches that continue one another."""
+        """Fuse every batch b (samples bounds[b] .. bounds[b+1]) that carries a gyroscope (not all-NaN rows), in order;
+        S = bounds[-1] samples, arrays (S, 3); ``vel_ned_ms`` (S, 3) m/s magnetic NED (NaN rows where unknown) aids
+        the filters of the devices that send one (``magnet.aided_fusion``). Checks and frame conversions are done
+        once for all samples; each device's batches are grouped, and its filter runs once per run of batches that
+        continue one another."""
         count = int(bounds[-1])
         edges = np.asarray(bounds, dtype=np.int64)
         sizes = np.diff(edges)
@@ -282,6 +290,8 @@ class FleetFusion:
         usable = finite & ~saturated & hd.rows_finite(acc_ms2) & hd.rows_finite(field_ut)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
+        if vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+            drain = drain._replace(aiding=_aiding(order, t_ns, vel_ned_ms))
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)
         restarts = 0
@@ -308,6 +318,13 @@ def _device_order(groups: Mapping[str, list[int]], sizes: np.ndarray) -> np.ndar
     for g, batches in enumerate(groups.values()):
         rank[batches] = g
     return np.argsort(np.repeat(rank, sizes), kind="stable")
+
+
+def _aiding(order: np.ndarray | None, t_ns: np.ndarray, vel_ned_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Times (S,) s (float64 keeps wall-clock seconds to a microsecond) and velocities (S, 3), permuted as the
+    drain."""
+    t_s = t_ns.astype(float) * 1e-9
+    return (t_s, vel_ned_ms) if order is None else (t_s[order], vel_ned_ms[order])
 
 
 def _drain(
@@ -338,6 +355,7 @@ def _drain(
     inputs = tuple(fusion.to_vqf_frame(np.where(usable[:, None], x, 0.0)) for x in vectors)
     return _Drain(
         (inputs[0], inputs[1], inputs[2]),
+        None,
         usable,
         saturated,
         np.concatenate([[0], np.cumsum(~usable)]),

@@ -32,6 +32,7 @@ import numpy as np
 import numpy.typing as npt
 import vqf
 
+from magnet.aided_fusion import AidedFilter, body_acceleration
 from magnet.attitude import matrix_to_euler, quaternion_to_matrix
 from magnet.units import STANDARD_GRAVITY_MS2
 
@@ -209,30 +210,57 @@ class Fusion:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
         self._filter = vqf.VQF(self.period_s, **self.params)
+        self._aided: AidedFilter | None = None  # from the first batch with a velocity on (``magnet.aided_fusion``)
         self.samples = 0
 
     def restart(self) -> None:
         """Back to the initial state: attitude, gyro bias and magnetic reference forgotten."""
         self._filter.resetState()
+        self._aided = None
         self.samples = 0
 
-    def update(self, gyr_rads: np.ndarray, acc_ms2: np.ndarray, mag: np.ndarray | None = None) -> Fused:
-        """Feed one batch: gyr (N, 3) rad/s, acc (N, 3) m/s^2, mag (N, 3) calibrated field or None; body frame."""
+    def update(
+        self,
+        gyr_rads: np.ndarray,
+        acc_ms2: np.ndarray,
+        mag: np.ndarray | None = None,
+        t_s: np.ndarray | None = None,
+        vel_ned_ms: np.ndarray | None = None,
+    ) -> Fused:
+        """Feed one batch: gyr (N, 3) rad/s, acc (N, 3) m/s^2, mag (N, 3) calibrated field or None; body frame.
+        With the field, ``t_s`` (N,) s and ``vel_ned_ms`` (N, 3) m/s in magnetic NED (NaN rows where unknown):
+        velocity aiding (``magnet.aiding``)."""
         gyr = _to_vqf(gyr_rads, "gyr_rads")
         if len(gyr) == 0:
             return _empty()
         acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
         field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
+        if field is not None and t_s is not None and vel_ned_ms is not None:
+            quat, disturbed = self.update_vqf_frame(gyr, acc, field, np.asarray(t_s, float), vel_ned_ms)
+            return Fused.from_vqf({"quat9D": quat, "magDistDetected": disturbed, "restDetected": disturbed * 0}, True)
         out = self._filter.updateBatch(gyr, acc, field)
         self.samples += len(gyr)
         return Fused.from_vqf(out, field is not None)
 
-    def update_vqf_frame(self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def update_vqf_frame(
+        self,
+        gyr: np.ndarray,
+        acc: np.ndarray,
+        field: np.ndarray,
+        t_s: np.ndarray | None = None,
+        vel_ned_ms: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The fast path for many small batches: inputs (N, 3) already in vqf's frame (``to_vqf_frame``), finite,
         C-contiguous float64; returns vqf's own quaternions (N, 4) (``vqf_to_body_ned`` converts them) and its
-        magnetic disturbance flags (N,)."""
-        out = self._filter.updateBatch(gyr, acc, field)
+        magnetic disturbance flags (N,). With times (N,) s and velocities (N, 3) m/s magnetic NED of which one is
+        known (or after such a batch, until ``restart``): the velocity-aided filter."""
         self.samples += len(gyr)
+        if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+            self._aided = AidedFilter(self.period_s, self.params, self._filter)  # carries on from its state
+        if self._aided is not None and t_s is not None:
+            vel = np.full((len(gyr), 3), np.nan) if vel_ned_ms is None else vel_ned_ms
+            return self._aided.update(gyr, acc, field, t_s, vel)
+        out = self._filter.updateBatch(gyr, acc, field)
         return out["quat9D"], out["magDistDetected"]
 
 
@@ -242,14 +270,22 @@ def fuse_offline(
     mag: np.ndarray | None,
     period_s: float,
     params: Mapping[str, Any] | None = None,
+    t_s: np.ndarray | None = None,
+    vel_ned_ms: np.ndarray | None = None,
 ) -> Fused:
-    """Best estimate for a whole log (vqf's ``offlineVQF``: looks ahead, forward and backward). Shapes as ``Fusion``."""
+    """Best estimate for a whole log (vqf's ``offlineVQF``: looks ahead, forward and backward). Shapes as ``Fusion``.
+    With ``t_s`` and ``vel_ned_ms`` (magnetic NED) the accelerometer is first freed of the linear acceleration the
+    velocity implies (every fix known at once), turned into the body frame by the causal aided attitude."""
     period = _check_period(period_s)
     gyr = _to_vqf(gyr_rads, "gyr_rads")
     if len(gyr) == 0:
         return _empty()
     acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
     field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
+    if field is not None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+        causal = Fusion(period, params)
+        quat, _ = causal.update_vqf_frame(gyr, acc, field, np.asarray(t_s, dtype=float), vel_ned_ms)
+        acc = np.ascontiguousarray(acc - body_acceleration(quat, t_s, vel_ned_ms))
     out = vqf.offlineVQF(gyr, acc, field, period, dict(params) if params else None)
     return Fused.from_vqf(out, field is not None)
 
@@ -260,6 +296,8 @@ def fuse_causal(
     mag: np.ndarray | None,
     period_s: float,
     params: Mapping[str, Any] | None = None,
+    t_s: np.ndarray | None = None,
+    vel_ned_ms: np.ndarray | None = None,
 ) -> Fused:
     """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``."""
-    return Fusion(period_s, params).update(gyr_rads, acc_ms2, mag)
+    return Fusion(period_s, params).update(gyr_rads, acc_ms2, mag, t_s, vel_ned_ms)

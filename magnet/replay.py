@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from magnet.wire import MAX_ACC_MS2, MAX_FIELD_UT, MAX_GYR_RADS
+from magnet.wire.raw import MAX_VEL_MS
 
 MAX_SPEED = 1000.0
 #: the longest single sleep, so that a stop request is seen within this many seconds even across a gap
@@ -35,12 +36,14 @@ def _check_vectors(name: str, values: np.ndarray | None, n: int, limit: float) -
 @dataclasses.dataclass(frozen=True, eq=False)
 class Recording:
     """N recorded samples. t_s (N,) seconds, finite, never decreasing; mag_ut (N, 3) uT body frame; acc_ms2 (N, 3)
-    m/s^2 or None; gyr_rads (N, 3) rad/s body frame or None. Values within the wire's limits."""
+    m/s^2 or None; gyr_rads (N, 3) rad/s body frame or None; vel_ned_ms (N, 3) m/s NED or None (NaN rows where
+    unknown). Values within the wire's limits."""
 
     t_s: np.ndarray
     mag_ut: np.ndarray
     acc_ms2: np.ndarray | None = None
     gyr_rads: np.ndarray | None = None
+    vel_ned_ms: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.t_s.ndim != 1 or self.t_s.size == 0:
@@ -57,6 +60,9 @@ class Recording:
         _check_vectors("mag_ut", self.mag_ut, n, MAX_FIELD_UT)
         _check_vectors("acc_ms2", self.acc_ms2, n, MAX_ACC_MS2)
         _check_vectors("gyr_rads", self.gyr_rads, n, MAX_GYR_RADS)
+        if self.vel_ned_ms is not None:  # NaN rows allowed: no fix yet
+            known = self.vel_ned_ms[np.isfinite(self.vel_ned_ms).all(axis=1)] if self.vel_ned_ms.ndim == 2 else None
+            _check_vectors("vel_ned_ms", known, len(known) if known is not None else n, MAX_VEL_MS)
 
     def __len__(self) -> int:
         return int(self.t_s.size)

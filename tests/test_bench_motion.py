@@ -51,6 +51,7 @@ def test_linear_acceleration_is_what_the_car_loses():
         for _, estimator, rms in motion.simulator_rows(motion.SimulatorSettings(seconds=60.0), [motion.Trajectory.CAR])
     }
     assert rows[motion.BOUND_ESTIMATOR] < 2.0 < 3 * rows[motion.BOUND_ESTIMATOR] < rows["fused causal"]
+    assert rows["fused causal, velocity aided"] < rows["fused causal"] / 3  # the GNSS-like velocity gives it back
 
 
 def test_without_linear_acceleration_leaves_gravity_and_noise():

@@ -119,3 +119,31 @@ def test_direction_spread_is_zero_for_a_constant_earth_field(device):
     clean = np.einsum("nji,j->ni", quaternion_to_matrix(truth), [20.0, 0.0, 45.0])
     assert motion.direction_spread_deg(clean, truth) < 1e-6
     assert motion.direction_spread_deg(clean + np.array([5.0, 0.0, 0.0]), truth) > 3.0
+
+
+def test_a_fit_of_a_sensor_calibrated_already_is_refused_as_no_better_than_chance(device):
+    """A factory-calibrated sensor: the fit can only fit its noise, so its held-out gain over no calibration is
+    within its own uncertainty (the margin), and it is refused; a calibration in force that is worse than none
+    does not let it through either: a fit must also beat no calibration."""
+    gyr, acc, mag, _ = device
+    noisy = mag + np.random.default_rng(7).normal(0.0, 0.3, mag.shape)
+    calibration = fit(noisy, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ)
+    q = calibration.quality
+    assert not calibration.accepted and "by more than chance" in calibration.reason
+    assert q["holdout_margin_deg"] > 0.0
+    assert q["holdout_consistency_deg"] > q["reference_holdout_consistency_deg"] - q["holdout_margin_deg"]
+    wrong = IDENTITY.replace(offset=np.array([8.0, 0.0, 0.0]))
+    against_wrong = fit(noisy, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ, reference=wrong)
+    assert against_wrong.quality["reference_holdout_consistency_deg"] > 3.0  # it beats the wrong one by far ...
+    assert not against_wrong.accepted and "than no calibration" in against_wrong.reason  # ... but not none
+
+
+def test_margin_is_small_for_a_clear_gain_and_none_for_too_few_samples(device):
+    _, _, mag, truth = device
+    ev = motion.MotionEvidence(np.full((len(mag), 3), np.nan), truth, "fused gravity")
+    rows = np.ones(len(mag), dtype=bool)
+    clean = np.einsum("nji,j->ni", quaternion_to_matrix(truth), [20.0, 0.0, 45.0])
+    off = clean + np.array([5.0, 0.0, 0.0])
+    margin = motion.margin_deg(clean, off, ev, rows)
+    assert margin is not None and margin < 0.5 * motion.consistency_deg(off, ev, rows)
+    assert motion.margin_deg(clean, off, ev, np.arange(len(mag)) < 10) is None

@@ -8,9 +8,11 @@ import pytest
 from fusion_helpers import RATE_HZ, rotating_device
 
 from magnet import fusion, wire
+from magnet.aiding import to_magnetic_ned
 from magnet.compass import Earth
 from magnet.fleet_fusion import GYRO_LIMIT_RADS, FleetFusion
 from magnet.heading import HeadingFlag, angle_difference_deg
+from magnet.simulator import SimulatorConfig, Trajectory, simulate
 from services.compass.service import Compass
 
 BATCH = 25
@@ -199,3 +201,34 @@ def test_devices_interleaved_in_one_drain_fuse_as_each_alone(device):
     np.testing.assert_array_equal(by_device["imu-1"], joined(alone[:12], "heading_deg"))
     np.testing.assert_array_equal(by_device["imu-2"], joined(alone[12:], "heading_deg"))
     assert np.all(joined(together, "flags") & HeadingFlag.FUSED)
+
+
+def test_compass_aids_with_the_velocity_its_batches_carry_as_magnet_heading_does():
+    """One place for velocity aiding: the compass's per-device filter gives what ``fuse_causal`` gives with the
+    same velocity turned to magnetic north by the compass's declination, and the car's heading comes back."""
+    run = simulate(SimulatorConfig(trajectory=Trajectory.CAR, rate_hz=RATE_HZ, count=int(40 * RATE_HZ), seed=3))
+    declination = run.earth.declination_deg
+    t_ns = 1_000_000_000_000 + np.arange(len(run.t_s), dtype=np.int64) * PERIOD_NS
+    raw = [
+        wire.RawBatch(
+            "car-1",
+            k,
+            "sim",
+            t_ns[lo : lo + BATCH],
+            run.mag_ut[lo : lo + BATCH],
+            run.acc_ms2[lo : lo + BATCH],
+            None,
+            run.gyr_rads[lo : lo + BATCH],
+            vel_ned_ms=run.vel_ned_ms[lo : lo + BATCH],
+        )
+        for k, lo in enumerate(range(0, len(run.t_s), BATCH))
+    ]
+    out = run_compass(Compass(Earth(declination_deg=declination), window=1), raw)
+    vel = to_magnetic_ned(run.vel_ned_ms, declination)
+    reference = fusion.fuse_causal(run.gyr_rads, run.acc_ms2, run.mag_ut, 1.0 / RATE_HZ, None, t_ns * 1e-9, vel)
+    np.testing.assert_allclose(joined(out, "heading_deg"), reference.heading_deg, atol=1e-6)
+    plain = fusion.fuse_causal(run.gyr_rads, run.acc_ms2, run.mag_ut, 1.0 / RATE_HZ)
+    scored = run.t_s > 10.0
+    aided_error = angle_difference_deg(joined(out, "heading_deg"), run.magnetic_heading_deg)[scored]
+    plain_error = angle_difference_deg(plain.heading_deg, run.magnetic_heading_deg)[scored]
+    assert np.sqrt(np.mean(aided_error**2)) < np.sqrt(np.mean(plain_error**2)) / 2

@@ -6,7 +6,8 @@ published headings compared with what nobody in the pipeline made.
   the record ``magnet fit`` gives it applied when accepted and none when refused (as the compass does): the live
   filter sees the same samples at the same times as the offline one.
 - The moving simulator, every trajectory: a device is first tumbled (the calibrator fits and publishes its
-  calibration), then it moves; the fused heading is scored against the simulator's truth.
+  calibration), then it moves with its GNSS-like velocity on the wire (velocity aiding); the fused heading is scored
+  against the simulator's truth.
 """
 
 from __future__ import annotations
@@ -72,9 +73,9 @@ def test_broad_trial_replayed_through_the_services_gives_the_offline_headings(pr
 SIM_BATCH, SIM_SPEED = 25, 50.0
 LOCATION, DATE = "50.45,30.52", "2026-01-01"  # the simulator's place and date
 #: trajectory -> largest fused true-heading RMS (deg) against the truth, after the settling time, |pitch| < 60 deg.
-#: fast-tumble meets issue 8's 0.3 deg; the others are bounded by linear acceleration the filter cannot tell from
-#: gravity without velocity aiding (docs/design.md, "Heading in motion": what limits the moving simulator)
-SIM_REQUIRED_DEG = {"fast-tumble": 0.3, "figure8": 1.3, "car": 10.0, "multirotor": 8.0}
+#: fast-tumble meets issue 8's 0.3 deg; car and multirotor issue 20's 1.0 deg with the GNSS-like velocity the runs
+#: carry (velocity aiding, docs/design.md "Heading in motion"); figure8 no worse than without it
+SIM_REQUIRED_DEG = {"fast-tumble": 0.3, "figure8": 1.3, "car": 1.0, "multirotor": 1.0}
 
 
 def simulator_csvs(tmp_path: Path) -> tuple[Path, dict[str, tuple[Path, SimulatedRun]]]:
@@ -92,8 +93,9 @@ def simulator_csvs(tmp_path: Path) -> tuple[Path, dict[str, tuple[Path, Simulate
 
 
 def write_sim_csv(run: SimulatedRun, path: Path, gyro: bool) -> Path:
-    columns = [run.t_s[:, None], run.mag_ut, run.acc_ms2] + ([run.gyr_rads] if gyro else [])
-    header = "t_s,mx,my,mz,ax,ay,az" + (",gx,gy,gz" if gyro else "")
+    """The run as a CSV; with ``gyro`` the gyroscope and the GNSS-like velocity (vn,ve,vd; nan before the first fix)."""
+    columns = [run.t_s[:, None], run.mag_ut, run.acc_ms2] + ([run.gyr_rads, run.vel_ned_ms] if gyro else [])
+    header = "t_s,mx,my,mz,ax,ay,az" + (",gx,gy,gz,vn,ve,vd" if gyro else "")
     np.savetxt(path, np.hstack(columns), delimiter=",", header=header, comments="", fmt="%.9g")
     return path
 

@@ -39,6 +39,8 @@ from magnet.model import Calibration, Quality
 QUASI_STATIC_TOL = 0.03
 #: fewest quasi-static samples for a dip spread that means something
 MIN_QUASI_STATIC = 30
+#: runs of consecutive held-out samples whose spread gives the uncertainty of a comparison
+MARGIN_CHUNKS = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,32 +94,56 @@ def dip_spread_deg(field: np.ndarray, down: np.ndarray) -> float | None:
     return float(dip.std())
 
 
+def _direction_errors_deg(field: np.ndarray, attitude: np.ndarray) -> np.ndarray:
+    """Angle (N,) deg between each earth-frame field direction and their mean direction."""
+    earth = np.einsum("nij,nj->ni", quaternion_to_matrix(attitude), field)
+    unit = earth / np.linalg.norm(earth, axis=1, keepdims=True)
+    mean = unit.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    return np.degrees(np.arccos(np.clip(unit @ mean, -1.0, 1.0)))
+
+
 def direction_spread_deg(field: np.ndarray, attitude: np.ndarray) -> float | None:
     """RMS angle (deg) between the earth-frame field directions (field (N, 3) body, attitude (N, 4) body -> earth)
     and their mean direction; None without samples."""
     if len(field) == 0:
         return None
-    earth = np.einsum("nij,nj->ni", quaternion_to_matrix(attitude), field)
-    unit = earth / np.linalg.norm(earth, axis=1, keepdims=True)
-    mean = unit.mean(axis=0)
-    mean /= np.linalg.norm(mean)
-    angle = np.degrees(np.arccos(np.clip(unit @ mean, -1.0, 1.0)))
-    return float(np.sqrt(np.mean(angle**2)))
+    return float(np.sqrt(np.mean(_direction_errors_deg(field, attitude) ** 2)))
+
+
+def _errors_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> np.ndarray | None:
+    """Per-sample departures (deg) from a field constant in the earth frame over the selected rows: the angle to the
+    mean direction with an attitude, else the dip's departure from its mean on the rows where down is known."""
+    if ev.attitude is not None:
+        return _direction_errors_deg(field[rows], ev.attitude[rows]) if rows.any() else None
+    down = ev.down[rows]
+    keep = np.all(np.isfinite(down), axis=1) & (np.linalg.norm(field[rows], axis=1) > 0)
+    if keep.sum() < MIN_QUASI_STATIC:
+        return None
+    unit = field[rows][keep] / np.linalg.norm(field[rows][keep], axis=1, keepdims=True)
+    dip = np.degrees(np.arcsin(np.clip(np.einsum("ij,ij->i", unit, down[keep]), -1.0, 1.0)))
+    return dip - dip.mean()
 
 
 def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None = None) -> float | None:
     """How far the field is from constant in the earth frame (deg; smaller is better) over the selected rows (None:
     every row): direction spread with an attitude, else dip spread on the quasi-static rows."""
-    if rows is not None:
-        field, ev = field[rows], _select(ev, rows)
-    if ev.attitude is not None:
-        return direction_spread_deg(field, ev.attitude)
-    return dip_spread_deg(field, ev.down)
+    errors = _errors_deg(field, ev, np.ones(len(field), dtype=bool) if rows is None else rows)
+    return None if errors is None else float(np.sqrt(np.mean(errors**2)))
 
 
-def _select(ev: MotionEvidence, rows: np.ndarray) -> MotionEvidence:
-    """The evidence of the selected rows only."""
-    return MotionEvidence(ev.down[rows], None if ev.attitude is None else ev.attitude[rows], ev.source)
+def margin_deg(field: np.ndarray, other: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
+    """How much better than ``other`` (deg of consistency) ``field`` must be on the rows for the difference to be
+    more than chance: the per-sample differences of squared departures, averaged over ``MARGIN_CHUNKS`` runs of
+    consecutive rows (neighbouring samples are not independent), give the uncertainty of their mean (two standard
+    errors), turned into degrees below ``other``'s consistency. None when there are too few rows."""
+    mine, theirs = _errors_deg(field, ev, rows), _errors_deg(other, ev, rows)
+    if mine is None or theirs is None or len(mine) < 4 * MARGIN_CHUNKS:
+        return None
+    chunks = np.array([c.mean() for c in np.array_split(theirs**2 - mine**2, MARGIN_CHUNKS)])
+    uncertainty = 2.0 * float(chunks.std(ddof=1)) / math.sqrt(MARGIN_CHUNKS)
+    reference = float(np.mean(theirs**2))
+    return math.sqrt(reference) - math.sqrt(max(reference - uncertainty, 0.0))
 
 
 def motion_figures(
@@ -131,7 +157,8 @@ def motion_figures(
 ) -> dict[str, Any]:
     """Quality figures for data in motion: raw (N, 3) samples, test (N,) bool the held-out rows (train_candidate was
     fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
-    reasons name it ("the calibration in force", "no calibration")."""
+    reasons name it ("the calibration in force", "no calibration"). With a calibration in force the fit must also
+    beat no calibration (``none_*`` figures); each comparison with its margin (``margin_deg``)."""
     field, ref_field = candidate.apply(raw), reference.apply(raw)
     dip_spread = dip_spread_deg(field, ev.down)
     figures: dict[str, Any] = {
@@ -147,9 +174,13 @@ def motion_figures(
         "reference_holdout_consistency_deg": None,
     }
     if train_candidate is not None and test.any():
-        held = _select(ev, test)  # the held-out rows only: the training fit is applied to those alone
-        figures["holdout_consistency_deg"] = consistency_deg(train_candidate.apply(raw[test]), held)
-        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field[test], held)
+        held = train_candidate.apply(raw)
+        figures["holdout_consistency_deg"] = consistency_deg(held, ev, test)
+        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field, ev, test)
+        figures["holdout_margin_deg"] = margin_deg(held, ref_field, ev, test)
+        if reference_name != "no calibration":
+            figures["none_holdout_consistency_deg"] = consistency_deg(raw, ev, test)
+            figures["none_holdout_margin_deg"] = margin_deg(held, np.asarray(raw, dtype=float), ev, test)
     return figures
 
 
@@ -158,19 +189,26 @@ def _number(quality: Quality | Mapping[str, Any], key: str) -> float | None:
     return None if value is None or not math.isfinite(float(value)) else float(value)
 
 
-def check_consistency(quality: Quality | Mapping[str, Any], thresholds: Any = None) -> str | None:
-    """The gate's check: refuse a fit whose held-out field is not more constant than the reference's (None: passes
-    or not measured)."""
-    held, ref = _number(quality, "holdout_consistency_deg"), _number(quality, "reference_holdout_consistency_deg")
-    if held is None or ref is None or held < ref:
+def _refusal(quality: Quality | Mapping[str, Any], prefix: str, reference: str) -> str | None:
+    """The refusal when the held-out consistency is not better than ``prefix``'s by more than its margin."""
+    held, ref = _number(quality, "holdout_consistency_deg"), _number(quality, f"{prefix}holdout_consistency_deg")
+    margin = _number(quality, f"{prefix.replace('reference_', '')}holdout_margin_deg") or 0.0
+    if held is None or ref is None or held < ref - margin:
         return None
     what = {"direction": "direction spread in the earth frame", "dip": "dip spread"}.get(
         str(quality.get("consistency")), "spread"
     )
-    reference = quality.get("reference") or "no calibration"
     return (
-        f"the fit does not make the field more constant than {reference} ({what} on held-out data "
-        f"{held:.2f} deg vs {ref:.2f} deg), and a calibration never makes heading worse: the sensor may be "
-        "calibrated well enough already, or the fit soaked up a non-uniform local field (calibrate away from "
-        "iron and other devices)"
+        f"the fit does not make the field more constant than {reference} by more than chance ({what} on held-out "
+        f"data {held:.2f} deg vs {ref:.2f} deg, margin {margin:.2f} deg), and a calibration never makes heading "
+        "worse: the sensor may be calibrated well enough already, or the fit soaked up a non-uniform local field "
+        "(calibrate away from iron and other devices)"
     )
+
+
+def check_consistency(quality: Quality | Mapping[str, Any], thresholds: Any = None) -> str | None:
+    """The gate's check: refuse a fit whose held-out field is not more constant than the reference's (and than no
+    calibration's, when a calibration is in force) by more than the comparison's margin (None: passes or not
+    measured)."""
+    reference = str(quality.get("reference") or "no calibration")
+    return _refusal(quality, "reference_", reference) or _refusal(quality, "none_", "no calibration")

@@ -47,6 +47,7 @@ BANK_DEG = 30.0
 DRAG_PER_S = 0.4  # multirotor: rotor and body drag per second (30 deg bank -> about 14 m/s in about 2.5 s)
 DRAG_STEP_S = 0.01
 DERIVATIVE_STEP_S = 5e-4
+GRID_KEPT = 512  # multirotor: drag grid points kept (5 s), so times a little in the past cost nothing
 
 
 def smoother(u: np.ndarray) -> np.ndarray:
@@ -132,10 +133,19 @@ class MotionModel:
     def linear_acceleration(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError
 
+    def velocity(self, t: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        """Velocity (N, 3) m/s NED of the point a GNSS receiver on the vehicle follows, at increasing times t."""
+        raise NotImplementedError
+
     def rotation(self, t: np.ndarray) -> np.ndarray:
         """Body-to-NED matrices (N, 3, 3) at t."""
         yaw, pitch, roll = self.attitude(t)
         return euler_to_matrix(yaw + self.declination_deg, pitch, roll)
+
+    def _first_derivative(self, position: Callable[[np.ndarray], np.ndarray], t: np.ndarray) -> np.ndarray:
+        """d position / dt (N, 3) by central differences."""
+        h = DERIVATIVE_STEP_S
+        return (position(t + h) - position(t - h)) / (2.0 * h)
 
     def _second_derivative(self, position: Callable[[np.ndarray], np.ndarray], t: np.ndarray) -> np.ndarray:
         """d^2 position / dt^2 (N, 3) by central differences (the positions here are smooth and small)."""
@@ -155,7 +165,7 @@ class MultirotorModel(MotionModel):
         self.vibration_ms2 = Tones(rng, 3, 3, (8.0, 24.0), (0.3, 0.3, 0.5))
         self.climb_hz, self.climb_phase = rng.uniform(0.05, 0.1), rng.uniform(0.0, 2.0 * np.pi)
         self.yaw0_deg = rng.uniform(0.0, 360.0)
-        self._grid_index, self._grid_velocity = 0, np.zeros(3)
+        self._grid_first, self._grid = 0, np.zeros((1, 3))  # velocity at grid points _grid_first, ...
 
     def _draw(self, rng: np.random.Generator, last: dict[str, Any] | None) -> tuple[float, dict[str, Any]]:
         yaw0 = self.yaw0_deg if last is None else last["yaw0"] + last["dyaw"]
@@ -193,31 +203,37 @@ class MultirotorModel(MotionModel):
         return G_NED - thrust[:, None] * rotation[:, :, 2]
 
     def _velocity(self, t: np.ndarray) -> np.ndarray:
-        """Velocity (N, 3) m/s NED at increasing times t, from rest at t = 0: v' = thrust + gravity - drag v, stepped
-        exactly for the drag on a fixed grid (the forcing at each step's middle), so any split of the times into
-        blocks gives the same velocities. The latest grid point is kept, so block after block costs no more."""
+        """Velocity (N, 3) m/s NED at times t, from rest at t = 0: v' = thrust + gravity - drag v, stepped exactly for
+        the drag on a fixed grid (the forcing at each step's middle), so any split of the times into blocks gives the
+        same velocities. The last ``GRID_KEPT`` grid points are kept, so block after block (and times a little in the
+        past, as a GNSS fix's) costs no more."""
         h, k = DRAG_STEP_S, DRAG_PER_S
         t = np.maximum(np.asarray(t, dtype=float), 0.0)
         cell = np.floor(t / h).astype(int)
-        if cell.min() < self._grid_index:  # asked for the past: start again from rest
-            self._grid_index, self._grid_velocity = 0, np.zeros(3)
-        start = self._grid_index
-        middles = (start + np.arange(cell.max() - start) + 0.5) * h
+        if cell.min() < self._grid_first:  # asked for the forgotten past: start again from rest
+            self._grid_first, self._grid = 0, np.zeros((1, 3))
+        last = self._grid_first + len(self._grid) - 1
+        middles = (last + np.arange(max(int(cell.max()) - last, 0)) + 0.5) * h
         forcing = self._thrust(middles, self.rotation(middles)) if middles.size else np.zeros((0, 3))
         decay, gain = np.exp(-k * h), -np.expm1(-k * h) / k
-        grid = np.empty((middles.size + 1, 3))
-        grid[0] = self._grid_velocity
-        for j, u in enumerate(forcing):
+        grid = np.concatenate([self._grid, np.empty((middles.size, 3))])
+        for j, u in enumerate(forcing, start=len(self._grid) - 1):
             grid[j + 1] = decay * grid[j] + gain * u
-        self._grid_index, self._grid_velocity = int(cell.max()), grid[-1].copy()
+        first = self._grid_first
+        self._grid_first = max(first, first + len(grid) - GRID_KEPT)
+        self._grid = grid[self._grid_first - first :].copy()
         rest = t - cell * h  # from each sample's grid point to the sample
         halfway = cell * h + rest / 2.0
         u = self._thrust(halfway, self.rotation(halfway))
-        return np.exp(-k * rest)[:, None] * grid[cell - start] - (np.expm1(-k * rest) / k)[:, None] * u
+        return np.exp(-k * rest)[:, None] * grid[cell - first] - (np.expm1(-k * rest) / k)[:, None] * u
 
     def linear_acceleration(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         vibration = np.einsum("nij,nj->ni", rotation, self.vibration_ms2(t))
-        return self._thrust(t, rotation) - DRAG_PER_S * self._velocity(t) + vibration
+        return self._thrust(t, rotation) - DRAG_PER_S * self.velocity(t) + vibration
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """The craft's velocity (vibration left out: it moves the sensor by micrometres)."""
+        return self._velocity(t)
 
 
 class CarModel(MotionModel):
@@ -278,6 +294,12 @@ class CarModel(MotionModel):
             -self.ROLL_DEG_PER_MS2 * lateral + jitter[:, 2],
         )
 
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """Speed along the heading (road bumps left out: millimetres per second)."""
+        yaw, speed, _, _ = self._motion(t)
+        heading = np.radians(yaw + self.declination_deg)
+        return np.stack([speed * np.cos(heading), speed * np.sin(heading), np.zeros_like(heading)], axis=-1)
+
     def linear_acceleration(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         yaw, speed, along, lateral = self._motion(t)
         heading = np.radians(yaw + self.declination_deg)
@@ -324,6 +346,10 @@ class Figure8Model(MotionModel):
     def linear_acceleration(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         return self._second_derivative(self._position, np.asarray(t, dtype=float))
 
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """The hand's velocity (a phone's receiver moves with it)."""
+        return self._first_derivative(self._position, np.asarray(t, dtype=float))
+
 
 class FastTumbleModel(MotionModel):
     """Fast tumbling about every axis, the sensor off the centre of rotation (see the module docstring)."""
@@ -345,6 +371,10 @@ class FastTumbleModel(MotionModel):
 
     def _position(self, t: np.ndarray) -> np.ndarray:
         return np.einsum("nij,j->ni", self.rotation(t), self.offset_m)
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """Zero: the tumble turns in place, and a receiver on its rig sits at the centre of rotation."""
+        return np.zeros((np.asarray(t).size, 3))
 
     def linear_acceleration(self, t: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         return self._second_derivative(self._position, np.asarray(t, dtype=float))

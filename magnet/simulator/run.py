@@ -30,6 +30,7 @@ from magnet.attitude import (
 )
 from magnet.geomag import EarthField, earth_field
 from magnet.simulator.errors import SensorErrors
+from magnet.simulator.gnss import GnssSettings, gnss_velocity
 from magnet.simulator.motion import G_NED, MODELS
 from magnet.simulator.motors import Motors
 from magnet.simulator.trajectories import MIN_COUNT, STILL_TRAJECTORIES, Trajectory, ned_to_body_euler, wrap_roll
@@ -54,6 +55,7 @@ class SimulatorConfig:
     errors: SensorErrors = dataclasses.field(default_factory=SensorErrors)
     seed: int = 0
     motors: Motors | None = None  # the vehicle's motors (``magnet.simulator.motors``): their field, current, throttle
+    gnss: GnssSettings = dataclasses.field(default_factory=GnssSettings)
 
     def __post_init__(self) -> None:
         try:
@@ -76,13 +78,15 @@ class SimulatorConfig:
 @dataclasses.dataclass(frozen=True, eq=False)
 class SimulatedRun:
     """Samples (N) with their truth. Measured: mag_ut (N, 3); acc_ms2 (N, 3) specific force; gyr_rads (N, 3) body
-    angular rate with bias and noise. Truth: true_field_ut (N, 3) the Earth's field in the body frame; true_acc_ms2
-    (N, 3) specific force without noise; true_gyr_rads (N, 3) body rate over the sample period ending at the sample;
-    lin_acc_ned_ms2 (N, 3) linear acceleration in NED; quat_wxyz (N, 4) attitude body -> NED (continuous in time,
-    not sign-normalised); heading_deg (N,) true heading (from geographic north), magnetic_heading_deg (N,) from
-    magnetic north; pitch_deg, roll_deg (N,); mounting (N,) "a"/"b" on the turntable else ""; table_deg (N,) the
-    turntable angle (NaN elsewhere); temperature_c (N,); earth the field used; errors the sensor's errors;
-    current_a (N,) A and throttle (N,) 0..1 of the motors (None without motors)."""
+    angular rate with bias and noise. Truth: true_field_ut (N, 3) the Earth's field in the body frame;
+    true_acc_ms2 (N, 3) specific force without noise; true_gyr_rads (N, 3) body rate over the sample period ending
+    at the sample; lin_acc_ned_ms2 (N, 3) linear acceleration in NED; quat_wxyz (N, 4) attitude body -> NED
+    (continuous in time, not sign-normalised); vel_ned_ms (N, 3) the GNSS-like velocity of a moving run
+    (``magnet.simulator.gnss``: 10 Hz, 0.1 m/s noise, 0.1 s late, held, NaN before the first fix; None for still
+    runs); heading_deg (N,) true heading (from geographic north), magnetic_heading_deg (N,) from magnetic north;
+    pitch_deg, roll_deg (N,); mounting (N,) "a"/"b" on the turntable else ""; table_deg (N,) the turntable angle
+    (NaN elsewhere); temperature_c (N,); earth the field used; errors the sensor's errors; current_a (N,) A and
+    throttle (N,) 0..1 of the motors (None without motors)."""
 
     t_s: np.ndarray
     mag_ut: np.ndarray
@@ -104,6 +108,7 @@ class SimulatedRun:
     quat_wxyz: np.ndarray
     current_a: np.ndarray | None = None
     throttle: np.ndarray | None = None
+    vel_ned_ms: np.ndarray | None = None
 
 
 class _Generator:
@@ -194,6 +199,7 @@ class _Generator:
             quat_wxyz=quat,
             current_a=current,
             throttle=throttle,
+            vel_ned_ms=None if self.model is None else gnss_velocity(self.model, t_s, config.seed, config.gnss),
         )
 
 
@@ -229,7 +235,8 @@ class SensorStream:
     def measure_imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The next sample with the gyroscope: (mag_ut (3,), acc_ms2 (3,), gyr_rads (3,)); truth in ``last_truth``:
         t_s, heading_deg, magnetic_heading_deg, pitch_deg, roll_deg, temperature_c, mounting, table_deg, and
-        quat_wxyz (a tuple of 4 floats); with motors also current_a (A) and throttle (0..1)."""
+        quat_wxyz (a tuple of 4 floats), vel_ned_ms (the GNSS-like velocity, 3 floats, NaN before the first fix;
+        None for a still run); with motors also current_a (A) and throttle (0..1)."""
         offset = self._index - self._block_start
         if self._block is None or offset >= self._block.t_s.size:
             self._block_start = self._index
@@ -247,6 +254,7 @@ class SensorStream:
             "mounting": str(run.mounting[i]),
             "table_deg": float(run.table_deg[i]),
             "quat_wxyz": tuple(float(v) for v in run.quat_wxyz[i]),
+            "vel_ned_ms": None if run.vel_ned_ms is None else tuple(float(v) for v in run.vel_ned_ms[i]),
         }
         if run.current_a is not None and run.throttle is not None:
             self.last_truth.update(current_a=float(run.current_a[i]), throttle=float(run.throttle[i]))

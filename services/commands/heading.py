@@ -5,11 +5,13 @@ Columns: ``t_s`` (when the input has it), ``heading_deg`` (magnetic), ``true_hea
 ``qw,qx,qy,qz`` (body -> NED with true north, i.e. the attitude whose heading is ``true_heading_deg``).
 
 With ``gx,gy,gz`` (rad/s, body frame) and ``ax,ay,az`` the attitude comes from the gyroscope-aided filter
-(``magnet.fusion``, flag FUSED): causal as the live compass runs it, or ``--offline`` (looks ahead: the best estimate
-for a log). Its sample period comes from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is
-tilt-compensated with the accelerometer; without ``ax,ay,az`` it is the level heading and pitch and roll are 0 with
-the NO_TILT flag. Without ``--calibration`` the raw field is used as it is (a factory-calibrated sensor, or a fit
-that was refused).
+(``magnet.fusion``, flag FUSED): causal as the live compass runs it, or ``--offline`` (looks ahead: the best
+estimate for a log). With ``vn,ve,vd`` (velocity over the ground, m/s, geographic NED; empty or NaN where unknown)
+the filter removes the linear acceleration the velocity implies (``magnet.aiding``), as the live compass does. Its
+sample period comes from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is tilt-
+compensated with the accelerometer; without ``ax,ay,az`` it is the level heading and pitch and roll are 0 with the
+NO_TILT flag. Without ``--calibration`` the raw field is used as it is (a factory-calibrated sensor, or a fit that
+was refused).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 
 from magnet import fusion
 from magnet import heading as hd
+from magnet.aiding import to_magnetic_ned
 from magnet.autopilot import compare_headings
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
@@ -108,11 +111,27 @@ class Attitude:
     flags: np.ndarray
 
 
-def _fused(table: SampleTable, gyr: np.ndarray, field: np.ndarray, args: argparse.Namespace) -> Attitude:
+def velocity_aiding(
+    table: SampleTable, period_s: float, declination_deg: float
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(times (N,) s, velocities (N, 3) m/s in magnetic NED) from the vn,ve,vd columns (geographic NED, empty or NaN
+    where unknown) and t_s (else the sample period), or (None, None) when the file has no velocity."""
+    vel = table.vel_ned_ms()
+    if vel is None:
+        return None, None
+    t_s = table.numeric("t_s") if "t_s" in table.columns else np.arange(len(vel)) * period_s
+    return t_s, to_magnetic_ned(vel, declination_deg)
+
+
+def _fused(
+    table: SampleTable, gyr: np.ndarray, field: np.ndarray, args: argparse.Namespace, declination_deg: float
+) -> Attitude:
     if table.acc is None:
         raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
     run = fusion.fuse_offline if args.offline else fusion.fuse_causal
-    fused = run(gyr, fusion.acc_in_ms2(table.acc), field, sample_period_s(table, args.rate))
+    period_s = sample_period_s(table, args.rate)
+    t_s, vel = velocity_aiding(table, period_s, declination_deg)
+    fused = run(gyr, fusion.acc_in_ms2(table.acc), field, period_s, None, t_s, vel)
     down = fusion.down_in_body(fused.quat_wxyz)
     flags = int(hd.HeadingFlag.FUSED) | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
     return Attitude(fused.heading_deg, fused.pitch_deg, fused.roll_deg, fused.quat_wxyz, -down, flags)
@@ -176,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
     gyr = gyro_columns(table)
     if gyr is None and args.offline:
         raise ValueError(f"{table.path}: --offline needs gyroscope columns gx,gy,gz (rad/s)")
-    attitude = _tilt(table, field) if gyr is None else _fused(table, gyr, field, args)
+    attitude = _tilt(table, field) if gyr is None else _fused(table, gyr, field, args, declination_deg)
     magnetic = hd.smooth_heading_deg(attitude.heading, args.window)
     dip = hd.dip_angle_deg(field, attitude.up_force) if attitude.up_force is not None else np.full(len(field), np.nan)
     expected = expected_ut if expected_ut is not None else ((calibration and calibration.field_strength) or None)

@@ -59,15 +59,36 @@ class SampleTable:
             raise ValueError(f"{self.path}: column {name!r} is missing (the header must name it)")
         return self.columns[name]
 
-    def numeric(self, name: str) -> np.ndarray:
-        """Column ``name`` as floats, shape (N,); ValueError naming the first bad row."""
+    def numeric(self, name: str, missing_ok: bool = False) -> np.ndarray:
+        """Column ``name`` as floats, shape (N,); ValueError naming the first bad row. ``missing_ok``: empty and
+        ``nan`` cells are NaN (a value not known at that sample)."""
         column = self._column(name)
         if isinstance(column, np.ndarray):
             return column.astype(np.float64)
+        if missing_ok:
+            column = ["nan" if str(v).strip() in ("", "nan") else v for v in column]
+            known = [i for i, v in enumerate(column) if v != "nan"]
+            out = np.full(len(column), np.nan)
+            out[known] = _floats([column[i] for i in known], name, self.path)
+            return out
         return _floats(column, name, self.path)
+
+    def vel_ned_ms(self) -> np.ndarray | None:
+        """The velocity columns ``vn,ve,vd`` (N, 3) m/s NED, NaN rows where empty or ``nan`` (no fix yet), or None
+        when the file has none of them; ValueError when it has only some."""
+        present = [c for c in VELOCITY_COLUMNS if c in self.columns]
+        if not present:
+            return None
+        if len(present) < 3:
+            raise ValueError(f"{self.path}: velocity needs all of vn,ve,vd (m/s north, east, down), found {present}")
+        return np.column_stack([self.numeric(c, missing_ok=True) for c in VELOCITY_COLUMNS])
 
     def text(self, name: str) -> list[str]:
         return [str(v).strip() for v in self._column(name)]
+
+
+#: velocity over the ground, m/s north, east, down
+VELOCITY_COLUMNS = ("vn", "ve", "vd")
 
 
 def _floats(values: Sequence[str], name: str, path: str) -> np.ndarray:

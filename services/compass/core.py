@@ -11,6 +11,7 @@ import numpy as np
 
 from magnet import heading as hd
 from magnet import signing, wire
+from magnet.aiding import to_magnetic_ned
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
 from magnet.fleet import EarthColumns, Places, disturbance_flags
 from magnet.fleet_fusion import FleetFusion, FusedColumns, merge
@@ -159,7 +160,7 @@ class Compass(CalibrationsInForce):
         where = EarthColumns.of(earths, counts)
         motor = _motor_rows(cals, columns)
         out = compute_headings(columns.mag_ut, columns.acc_ms2, offsets, matrices, calibrated, Earth(), motor)
-        fused = self._fuse(columns, out)
+        fused = self._fuse(columns, out, where.declination_deg)
         gravity = fused.gravity(columns.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
             dip = hd.dip_angle_deg(out.field_ut, gravity)
@@ -198,11 +199,21 @@ class Compass(CalibrationsInForce):
         """Per-device entries forgotten for --max-devices: calibrations, tails, places, drift trackers, filters."""
         return super().evicted_count() + self.fusion.evicted
 
-    def _fuse(self, columns: wire.RawColumns, out: Headings) -> FusedColumns:
-        """The per-device filters run on the batches that carry a gyroscope (``magnet.fleet_fusion``); bad gyroscope
-        samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``)."""
+    def _fuse(self, columns: wire.RawColumns, out: Headings, declination_deg: np.ndarray) -> FusedColumns:
+        """The per-device filters run on the batches that carry a gyroscope (``magnet.fleet_fusion``), aided by the
+        velocity where a batch carries one (turned to magnetic north by the declination of the device's place); bad
+        gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``)."""
+        vel = columns.vel
+        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
         fused = self.fusion.update(
-            columns.devices, columns.seqs, columns.bounds, columns.t_ns, columns.gyr_rads, columns.acc_ms2, out.field_ut
+            columns.devices,
+            columns.seqs,
+            columns.bounds,
+            columns.t_ns,
+            columns.gyr_rads,
+            columns.acc_ms2,
+            out.field_ut,
+            aiding,
         )
         for cause, count in fused.dropped.items():
             if self.drops.count(f"raw:{cause}"):

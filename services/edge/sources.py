@@ -88,7 +88,7 @@ class FleetSource:
 
 class StreamSource:
     """One simulated device read sample by sample from a ``SensorStream`` (no register emulation); a moving
-    trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope."""
+    trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope and its GNSS-like velocity."""
 
     stats: ReadStats | None = None
 
@@ -99,16 +99,29 @@ class StreamSource:
 
     def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
         n = self.settings.batch
-        mag, acc, gyr = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        mag, acc, gyr, vel = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.full((n, 3), np.nan)
         truth = {k: np.empty(n) for k in TRUTH_KEYS}
         for i in range(n):
             mag[i], acc[i], gyr[i] = self.stream.measure_imu()
             for k, v in _truth(self.stream).items():
                 truth[k][i] = v
+            held = self.stream.last_truth.get("vel_ned_ms")
+            if held is not None:
+                vel[i] = held
         t_ns = stamp(n, end_ns, int(1e9 / self.settings.rate_hz))
         moving = self.settings.simulator.trajectory.moving
         return [
-            wire.RawBatch(self.settings.device, seq, SIMULATOR_SENSOR, t_ns, mag, acc, truth, gyr if moving else None)
+            wire.RawBatch(
+                self.settings.device,
+                seq,
+                SIMULATOR_SENSOR,
+                t_ns,
+                mag,
+                acc,
+                truth,
+                gyr if moving else None,
+                vel_ned_ms=vel if moving and np.isfinite(vel).any() else None,
+            )
         ]
 
 
@@ -173,9 +186,10 @@ class ChipSource:
 
 
 def read_recording(path: Path, topic: str | None = None, mag: int | None = None) -> Recording:
-    """The recording in a ``magnet sample`` CSV: t_s (s), mx,my,mz (uT), optional ax,ay,az (m/s^2) and gx,gy,gz
-    (rad/s), or a flight log or ROS 2 recording (``services.common.inputs``: ``mag`` the magnetometer instance of a
-    flight log, ``topic`` the MagneticField topic of a bag); ValueError naming the file and what is wrong."""
+    """The recording in a ``magnet sample`` CSV: t_s (s), mx,my,mz (uT), optional ax,ay,az (m/s^2), gx,gy,gz
+    (rad/s) and vn,ve,vd (m/s NED, empty or NaN where unknown), or a flight log or ROS 2 recording
+    (``services.common.inputs``: ``mag`` the magnetometer instance of a flight log, ``topic`` the MagneticField topic
+    of a bag); ValueError naming the file and what is wrong."""
     table = read_input(path, InputOptions(mag=mag, topic=topic))
     if "t_s" not in table.columns:
         raise ValueError(
@@ -185,7 +199,7 @@ def read_recording(path: Path, topic: str | None = None, mag: int | None = None)
     if all(c in table.columns for c in GYRO_COLUMNS):
         gyr = np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
     try:
-        return Recording(table.numeric("t_s"), table.mag, table.acc, gyr)
+        return Recording(table.numeric("t_s"), table.mag, table.acc, gyr, table.vel_ned_ms())
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
 
@@ -219,6 +233,7 @@ class ReplaySource:
                     rec.mag_ut[part],
                     None if rec.acc_ms2 is None else rec.acc_ms2[part],
                     gyr_rads=None if rec.gyr_rads is None else rec.gyr_rads[part],
+                    vel_ned_ms=None if rec.vel_ned_ms is None else rec.vel_ned_ms[part],
                 )
             ]
 

@@ -1,0 +1,100 @@
+"""Velocity aiding: the linear acceleration a vehicle's velocity (GNSS, an autopilot) implies, known causally.
+
+Design: docs/design.md, "Heading in motion" (velocity aiding).
+
+An accelerometer reads gravity plus the vehicle's own acceleration; the velocity over the ground tells the second
+part, a_ned = dv/dt, so the filter can be fed acc - R^T a_ned (R body -> NED) and keeps its tilt in a sustained turn
+or speed change. Velocity comes slower than the inertial samples (a GNSS fix at 5-20 Hz, held between fixes on the
+wire: ``vel_ned_ms`` NaN rows before the first) and late (a receiver reports a fix about 0.1 s after the instant it
+measures). So:
+
+- a fix is a change of the held value (or its first finite row); it was measured ``delay_s`` before the sample where
+  it appears;
+- the acceleration at time t is the centred difference (v(t + h) - v(t - h)) / 2h of the fixes joined by straight
+  lines, h = ``half_window_s``: no lag, averaging the fixes' noise and the fast swings a receiver's rate cannot
+  follow. h is set by the noise: a fix's 0.1 m/s becomes sqrt(2) 0.1 / 2h m/s^2 of acceleration noise, which must stay
+  well under what the filter takes for a device at rest (vqf: the accelerometer within 0.5 m/s^2 of its mean), or
+  the filter never finds rest and never learns the gyroscope's bias about the vertical; h = 0.5 s gives 0.14 m/s^2
+  (h = 0.25 s gave 0.28 and a car whose heading drifted by 7 deg);
+- it is known only once a fix at or after t + h has arrived: ``known_until_s``. The filter therefore runs that far
+  behind the newest sample (``magnet.aided_fusion``), and the attitude of the newest samples is carried forward from
+  it with the gyroscope.
+
+Velocities are in magnetic NED (north is the field's, as the filter's): rotate geographic ones with
+``to_magnetic_ned`` first. Pure numpy; times in seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+#: a receiver's latency: a fix appears this long after the instant it measured (s)
+DELAY_S = 0.1
+#: half the span of the centred difference (s)
+HALF_WINDOW_S = 0.5
+#: fixes kept (a few seconds of them at any common rate)
+MAX_FIXES = 256
+
+
+def to_magnetic_ned(vel_ned_ms: np.ndarray, declination_deg: float | np.ndarray) -> np.ndarray:
+    """Velocities (N, 3) m/s in geographic NED turned into magnetic NED (north along the field's horizontal part):
+    rotated by -declination about down. ``declination_deg`` one number or (N,); NaN rows stay NaN."""
+    angle = np.radians(np.asarray(declination_deg, dtype=float))
+    c, s = np.cos(angle), np.sin(angle)
+    v = np.asarray(vel_ned_ms, dtype=float)
+    return np.stack([c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], v[:, 2]], axis=-1)
+
+
+@dataclasses.dataclass
+class VelocityFixes:
+    """The velocity fixes seen so far (at most ``max_fixes``, the newest): measured times (F,) s and values (F, 3)
+    m/s. ``observe`` takes held velocity rows as they come; ``acceleration`` gives dv/dt where it is known."""
+
+    delay_s: float = DELAY_S
+    half_window_s: float = HALF_WINDOW_S
+    times_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    held: np.ndarray | None = None
+    max_fixes: int = MAX_FIXES
+
+    def arrivals(self, vel_ned_ms: np.ndarray) -> np.ndarray:
+        """(N,) bool: the rows of held velocities (N, 3) where a new fix appears, after those seen so far."""
+        vel = np.asarray(vel_ned_ms, dtype=float)
+        if len(vel) == 0:
+            return np.zeros(0, dtype=bool)
+        before = np.vstack([np.full((1, 3), np.nan) if self.held is None else self.held[None], vel[:-1]])
+        return np.all(np.isfinite(vel), axis=1) & np.any(vel != before, axis=1)
+
+    def observe(self, t_s: np.ndarray, vel_ned_ms: np.ndarray) -> None:
+        """Samples' times (N,) s, increasing, and their held velocity (N, 3) (NaN rows where none is known)."""
+        vel = np.asarray(vel_ned_ms, dtype=float)
+        if len(vel) == 0:
+            return
+        finite = np.all(np.isfinite(vel), axis=1)
+        new = self.arrivals(vel)
+        if not new.any():
+            self.held = vel[-1] if finite[-1] else self.held
+            return
+        measured = np.asarray(t_s, dtype=float)[new] - self.delay_s
+        self.times_s = np.concatenate([self.times_s, measured])[-self.max_fixes :]
+        self.values = np.vstack([self.values, vel[new]])[-self.max_fixes :]
+        self.held = vel[-1] if finite[-1] else self.held
+
+    @property
+    def known_until_s(self) -> float:
+        """The latest time whose acceleration is known (the newest fix's time minus h); -inf before two fixes."""
+        return float(self.times_s[-1] - self.half_window_s) if len(self.times_s) >= 2 else -np.inf
+
+    def acceleration(self, t_s: np.ndarray) -> np.ndarray:
+        """dv/dt (N, 3) m/s^2 at times t_s (N,): the centred difference over the fixes; zero where the window is
+        not covered by fixes (before the first, or not yet known)."""
+        t = np.asarray(t_s, dtype=float)
+        if len(self.times_s) < 2:
+            return np.zeros((len(t), 3))
+        h = self.half_window_s
+        ahead = np.column_stack([np.interp(t + h, self.times_s, self.values[:, k]) for k in range(3)])
+        behind = np.column_stack([np.interp(t - h, self.times_s, self.values[:, k]) for k in range(3)])
+        covered = (t - h >= self.times_s[0]) & (t + h <= self.times_s[-1] + 1e-9)
+        return np.where(covered[:, None], (ahead - behind) / (2.0 * h), 0.0)
