@@ -105,6 +105,8 @@ def test_forged_and_absurd_calibrations_never_replace_the_signed_one(procs, tmp_
         "--sensor",
         "sim",
         "--emulate",
+        "--hard-iron",  # a sensor that needs calibrating: the gate accepts only a fit that beats none by more than chance
+        "12,-7,4",
         "--rate",
         "500",
         "--batch",

@@ -30,7 +30,7 @@ STEPS = {
     "standby": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db "
     "--signing-key $SITE/signing/calibrator.key --name calibrator-2",
     "compass": "magnet compass --config $SITE/compass.json5 --trust $SITE/signing/calibrator.pub",
-    "edge": "magnet edge --config $SITE/edge-imu-host-password.json5 --device imu-1 --sensor sim --emulate",
+    "edge": "magnet edge --config $SITE/edge-imu-host-password.json5 --device imu-1 --sensor sim --emulate --hard-iron 12,-7,4",
     "add-edge": "magnet certs --out $SITE --listen tls/127.0.0.1:7447 --password-listen tls/127.0.0.1:7448 "
     "--add --edge shed=imu-2,imu-3",
     "get": "magnet get calibration imu-1 --config $SITE/viewer.json5 --trust $SITE/signing/calibrator.pub",

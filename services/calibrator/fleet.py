@@ -159,6 +159,7 @@ def rollback(calibrator: Calibrator, device: str, to_id: str | None, by: str | N
         ok, message, extra = _roll_back(calibrator, device, to_id, by)
     except OSError as exc:
         ok, message, extra = False, f"not rolled back, the calibration in force stays: {exc}", {}
+        log.warning("rollback of %s refused: %s", device, exc)
     return {
         "ok": ok,
         "action": "rollback",
