@@ -9,7 +9,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from services.bench.pipeline import PipelineRun
+from services.bench.pipeline_run import PipelineRun
 
 
 class _Counter:
