@@ -85,28 +85,15 @@ def publish_cost(repeats: int = 20) -> tuple[float, float]:
 
     import zenoh
 
-    from magnet.ros2 import compass as ros_compass
     from services.common.ros2_options import Ros2Settings
     from services.common.zenoh_session import build_config, free_ports, loopback_arguments
-    from services.compass.ros2 import Ros2Compass
+    from services.compass.ros2 import Ros2Compass, build_drain
 
     columns, out, calibrations = _drain()
     messages = 2 * len(columns.t_ns) * repeats
     started = time.process_time()
     for _ in range(repeats):
-        h = out.headings
-        quat = ros_compass.attitude_wxyz(out.quat_wxyz, out.true_heading_deg, h.pitch_deg, h.roll_deg)
-        variances = [0.0] * len(columns.devices)
-        ros_compass.drain_messages(
-            columns.devices,
-            columns.bounds,
-            columns.t_ns,
-            h.field_ut,
-            columns.acc_ms2,
-            columns.gyr_rads,
-            quat,
-            variances,
-        )
+        build_drain(columns, out, [0.0] * len(columns.devices))
     build = time.process_time() - started
     parser = __import__("argparse").ArgumentParser()
     from services.common.zenoh_session import add_zenoh_arguments
