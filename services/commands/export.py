@@ -24,7 +24,7 @@ from pathlib import Path
 from magnet.autopilot import ROTATIONS
 from magnet.autopilot_params import Autopilot, Export, export_parameters
 from magnet.model import Calibration
-from services.commands.fit import load_calibration, write_atomically
+from services.common.records import load_calibration, write_atomically
 from services.common.zenoh_session import add_zenoh_arguments
 
 #: MAVLink's MAV_PARAM_TYPE of a 32-bit float and of a 32-bit integer, as QGroundControl writes them
