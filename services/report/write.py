@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from magnet.model import Calibration
-from services.common.inputs import InputOptions
+from services.common.input_options import InputOptions
 
 
 def write_report(
