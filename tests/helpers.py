@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import signal
 import subprocess
 import sys
 import threading
@@ -20,6 +19,7 @@ from typing import Any, TypeVar
 
 import pytest
 
+from services.common.processes import stop_processes
 from services.common.zenoh_session import free_ports
 
 __all__ = [
@@ -148,13 +148,5 @@ class Processes:
 
     def stop_all(self) -> None:
         """SIGTERM to every process still running, SIGKILL to any that has not ended 5 s later; logs closed."""
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc in self.procs.values():
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_processes(self.procs.values())
         self._logs.close()
