@@ -32,6 +32,7 @@ __all__ = [
     "listen_args",
     "liveliness_keys",
     "magnet_json",
+    "replay_raw",
     "run_magnet",
     "wait_for",
     "wait_for_liveliness",
@@ -150,3 +151,32 @@ class Processes:
         """SIGTERM to every process still running, SIGKILL to any that has not ended 5 s later; logs closed."""
         stop_processes(self.procs.values())
         self._logs.close()
+
+
+def replay_raw(path: Path, device: str, *args: str) -> tuple[list[Any], subprocess.CompletedProcess[str]]:
+    """(the raw batches (``magnet.wire.RawBatch``) a ``magnet edge --replay path --device device *args`` process
+    sends to a listening session on 127.0.0.1, in arrival order; the finished process, which must exit 0 within
+    60 s)."""
+    import zenoh
+
+    from magnet import wire
+
+    (port,) = free_ports(1)
+    conf = zenoh.Config()
+    for key, value in (("listen/endpoints", f'["tcp/127.0.0.1:{port}"]'), ("scouting/multicast/enabled", "false")):
+        conf.insert_json5(key, value)
+    with zenoh.open(conf) as session:
+        subscriber = session.declare_subscriber(f"magnet/{device}/raw", zenoh.handlers.FifoChannel(1024))
+        edge = ["edge", "--replay", str(path), "--device", device, *args]
+        out = subprocess.run(
+            [*MAGNET, *edge, *listen_args(free_ports(1)[0]), "--connect", f"tcp/127.0.0.1:{port}"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO_ROOT,
+        )
+        assert out.returncode == 0, out.stderr
+        batches = []
+        while (sample := subscriber.try_recv()) is not None:
+            batches.append(wire.decode_raw(sample.payload.to_bytes()))
+    return batches, out
