@@ -28,6 +28,7 @@ __all__ = [
     "REPO_ROOT",
     "Processes",
     "connect_args",
+    "emulated_edge",
     "free_ports",
     "listen_args",
     "liveliness_keys",
@@ -93,6 +94,12 @@ def _loopback_client_config(port: int) -> Any:
     return conf
 
 
+def emulated_edge(device: str, rate_hz: int = 500, batch: int = 25) -> list[str]:
+    """``magnet edge`` arguments of one emulated simulated sensor ``device`` at ``rate_hz``, ``batch`` samples a
+    message (the listen and connect arguments to add)."""
+    return ["edge", "--device", device, "--sensor", "sim", "--emulate", "--rate", str(rate_hz), "--batch", str(batch)]
+
+
 def liveliness_keys(port: int, pattern: str = "magnet/@alive/**", timeout_s: float = 2.0) -> set[str]:
     """The liveliness tokens matching ``pattern`` seen now through a session connected to 127.0.0.1:port."""
     import zenoh
@@ -140,6 +147,14 @@ class Processes:
         log = self._logs.enter_context(open(self.tmp_path / f"{name}.log", "w"))  # noqa: SIM115
         self.procs[name] = subprocess.Popen([*MAGNET, *args], stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT)
         return self.procs[name]
+
+    def start_services(self) -> tuple[int, int, int]:
+        """A calibrator (its store ``cal.db`` in tmp_path) and a compass connected to it, each listening on a free
+        port of 127.0.0.1; (calibrator port, compass port, a free port for the edge)."""
+        cal_port, comp_port, edge_port = free_ports(3)
+        self.start("calibrator", "calibrator", "--db", str(self.tmp_path / "cal.db"), *listen_args(cal_port))
+        self.start("compass", "compass", *listen_args(comp_port), *connect_args(cal_port))
+        return cal_port, comp_port, edge_port
 
     def alive(self, name: str) -> bool:
         return self.procs[name].poll() is None

@@ -8,10 +8,12 @@ before it (one link, one priority, in order).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import subprocess
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -79,12 +81,19 @@ def site(tmp_path_factory):
     for step in ("certs", "keys"):
         made = s.run(step)
         assert made.returncode == 0, made.stderr
-    s.start_step("router")
-    try:
-        wait_for(lambda: _opens(s.config("viewer")), 20, "the router to accept a client")
+    with routed(s):
         yield s
+
+
+@contextlib.contextmanager
+def routed(site: Site) -> Iterator[Site]:
+    """``site`` with its router started and accepting clients; every process of the site stopped after."""
+    site.start_step("router")
+    try:
+        wait_for(lambda: _opens(site.config("viewer")), 20, "the router to accept a client")
+        yield site
     finally:
-        s.stop_all()
+        site.stop_all()
 
 
 def _opens(config) -> bool:
