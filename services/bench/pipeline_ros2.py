@@ -5,6 +5,7 @@ a ROS 2 subscriber counting in the measuring process; printed: both runs' lines,
 
 from __future__ import annotations
 
+import argparse
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -86,7 +87,7 @@ def publish_cost(repeats: int = 20) -> tuple[float, float]:
     import zenoh
 
     from services.common.ros2_options import Ros2Settings
-    from services.common.zenoh_session import build_config, free_ports, loopback_arguments
+    from services.common.zenoh_session import add_zenoh_arguments, build_config, free_ports, loopback_arguments
     from services.compass.ros2 import Ros2Compass, build_drain
 
     columns, out, calibrations = _drain()
@@ -95,9 +96,7 @@ def publish_cost(repeats: int = 20) -> tuple[float, float]:
     for _ in range(repeats):
         build_drain(columns, out, [0.0] * len(columns.devices))
     build = time.process_time() - started
-    parser = __import__("argparse").ArgumentParser()
-    from services.common.zenoh_session import add_zenoh_arguments
-
+    parser = argparse.ArgumentParser()
     add_zenoh_arguments(parser)
     args = parser.parse_args(loopback_arguments(free_ports(1)[0]))
     with zenoh.open(build_config(args)) as session:
