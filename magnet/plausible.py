@@ -1,17 +1,37 @@
 """Whether a calibration record is one a real sensor could have (``check_plausible``): the entry check of every
-record from outside, called by ``magnet.model.Calibration.from_dict`` (and re-exported there)."""
+record from outside, called by ``magnet.model.Calibration.from_dict`` (and re-exported there).
+
+It reads only arrays and units (``Correction``: any record with ``matrix``, ``offset``, ``unit`` and
+``output_unit``), so it depends on no record module and ``magnet.model`` can import it without a circle."""
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol, TypeVar
 
 import numpy as np
 
 from magnet.units import ut_per_unit
 
-if TYPE_CHECKING:
-    from magnet.model import Calibration
+
+class Correction(Protocol):
+    """What the check reads of a calibration: ``matrix`` (3,3) output units per raw unit, ``offset`` (3,) raw
+    units, the raw ``unit`` and the ``output_unit``."""
+
+    @property
+    def matrix(self) -> np.ndarray: ...
+
+    @property
+    def offset(self) -> np.ndarray: ...
+
+    @property
+    def unit(self) -> str: ...
+
+    @property
+    def output_unit(self) -> str: ...
+
+
+C = TypeVar("C", bound=Correction)
 
 #: A correction matrix whose largest / smallest singular value exceeds this is not a sensor's (the gate refuses
 #: fits beyond 5; this entry check refuses what no fit of a real sensor gives).
@@ -30,7 +50,7 @@ UNKNOWN_SCALE_GAIN = 1e6
 MAX_MATRIX_ENTRY = 1e9
 
 
-def check_plausible(calibration: Calibration) -> Calibration:
+def check_plausible(calibration: C) -> C:
     """``calibration`` if a real sensor could have it, else ValueError naming what is wrong and what to do.
 
     Checks, each before the arithmetic that needs the one before: every matrix entry within MAX_MATRIX_ENTRY (no
@@ -69,7 +89,7 @@ def check_plausible(calibration: Calibration) -> Calibration:
     return calibration
 
 
-def _check_gain(singular: np.ndarray, calibration: Calibration) -> None:
+def _check_gain(singular: np.ndarray, calibration: Correction) -> None:
     """ValueError when the correction's gain (singular values, descending) is beyond what a sensor needs."""
     raw_ut, out_ut = ut_per_unit(calibration.unit), ut_per_unit(calibration.output_unit)
     if raw_ut and out_ut:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import signal
 import subprocess
 import sys
 import threading
@@ -20,6 +19,7 @@ from typing import Any, TypeVar
 
 import pytest
 
+from services.common.processes import stop_processes
 from services.common.zenoh_session import free_ports
 
 __all__ = [
@@ -28,10 +28,12 @@ __all__ = [
     "REPO_ROOT",
     "Processes",
     "connect_args",
+    "emulated_edge",
     "free_ports",
     "listen_args",
     "liveliness_keys",
     "magnet_json",
+    "replay_raw",
     "run_magnet",
     "wait_for",
     "wait_for_liveliness",
@@ -92,6 +94,16 @@ def _loopback_client_config(port: int) -> Any:
     return conf
 
 
+def emulated_edge(device: str, rate_hz: int = 500, batch: int = 25, hard_iron: str = "12,-7,4") -> list[str]:
+    """``magnet edge`` arguments of one emulated simulated sensor ``device`` at ``rate_hz``, ``batch`` samples a
+    message (the listen and connect arguments to add), with ``hard_iron`` (uT X,Y,Z): a sensor that needs
+    calibrating, since the gate accepts only a fit that beats no calibration by more than chance."""
+    return [
+        *("edge", "--device", device, "--sensor", "sim", "--emulate", "--hard-iron", hard_iron),
+        *("--rate", str(rate_hz), "--batch", str(batch)),
+    ]
+
+
 def liveliness_keys(port: int, pattern: str = "magnet/@alive/**", timeout_s: float = 2.0) -> set[str]:
     """The liveliness tokens matching ``pattern`` seen now through a session connected to 127.0.0.1:port."""
     import zenoh
@@ -140,6 +152,14 @@ class Processes:
         self.procs[name] = subprocess.Popen([*MAGNET, *args], stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT)
         return self.procs[name]
 
+    def start_services(self) -> tuple[int, int, int]:
+        """A calibrator (its store ``cal.db`` in tmp_path) and a compass connected to it, each listening on a free
+        port of 127.0.0.1; (calibrator port, compass port, a free port for the edge)."""
+        cal_port, comp_port, edge_port = free_ports(3)
+        self.start("calibrator", "calibrator", "--db", str(self.tmp_path / "cal.db"), *listen_args(cal_port))
+        self.start("compass", "compass", *listen_args(comp_port), *connect_args(cal_port))
+        return cal_port, comp_port, edge_port
+
     def alive(self, name: str) -> bool:
         return self.procs[name].poll() is None
 
@@ -148,13 +168,34 @@ class Processes:
 
     def stop_all(self) -> None:
         """SIGTERM to every process still running, SIGKILL to any that has not ended 5 s later; logs closed."""
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc in self.procs.values():
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_processes(self.procs.values())
         self._logs.close()
+
+
+def replay_raw(path: Path, device: str, *args: str) -> tuple[list[Any], subprocess.CompletedProcess[str]]:
+    """(the raw batches (``magnet.wire.RawBatch``) a ``magnet edge --replay path --device device *args`` process
+    sends to a listening session on 127.0.0.1, in arrival order; the finished process, which must exit 0 within
+    60 s)."""
+    import zenoh
+
+    from magnet import wire
+
+    (port,) = free_ports(1)
+    conf = zenoh.Config()
+    for key, value in (("listen/endpoints", f'["tcp/127.0.0.1:{port}"]'), ("scouting/multicast/enabled", "false")):
+        conf.insert_json5(key, value)
+    with zenoh.open(conf) as session:
+        subscriber = session.declare_subscriber(f"magnet/{device}/raw", zenoh.handlers.FifoChannel(1024))
+        edge = ["edge", "--replay", str(path), "--device", device, *args]
+        out = subprocess.run(
+            [*MAGNET, *edge, *listen_args(free_ports(1)[0]), "--connect", f"tcp/127.0.0.1:{port}"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO_ROOT,
+        )
+        assert out.returncode == 0, out.stderr
+        batches = []
+        while (sample := subscriber.try_recv()) is not None:
+            batches.append(wire.decode_raw(sample.payload.to_bytes()))
+    return batches, out

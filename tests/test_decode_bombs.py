@@ -10,7 +10,7 @@ import subprocess
 import sys
 
 import pytest
-from helpers import NO_SCOUT, connect_args, free_ports, listen_args, magnet_json, wait_for
+from helpers import NO_SCOUT, connect_args, emulated_edge, listen_args, magnet_json, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -74,22 +74,11 @@ def _status(service, port):
 #: decoding itself ~4 MB (in process); the rest is the allocator and Zenoh's buffers keeping freed memory
 @pytest.mark.parametrize("kind", ["array"])
 def test_msgpack_bombs_are_refused_without_memory_and_headings_keep_flowing(procs, tmp_path, kind):
-    cal_port, comp_port, edge_port = free_ports(3)
-    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "c.db"), *listen_args(cal_port))
-    procs.start("compass", "compass", *listen_args(comp_port), *connect_args(cal_port))
+    cal_port, comp_port, edge_port = procs.start_services()
     wait_for(lambda: _status("calibrator", cal_port) and _status("compass", comp_port), 30, "the services to answer")
     procs.start(
         "edge",
-        "edge",
-        "--device",
-        DEVICE,
-        "--sensor",
-        "sim",
-        "--emulate",
-        "--rate",
-        "500",
-        "--batch",
-        "25",
+        *emulated_edge(DEVICE),
         *listen_args(edge_port),
         *connect_args(cal_port, comp_port),
     )

@@ -12,7 +12,9 @@ from magnet.drift import Alert, AlertKind, advice_for
 from magnet.fleet import Places, parse_fleet
 from magnet.model import Calibration, Quality
 from magnet.place import Location
-from services.calibrator.fleet import FleetBook, fleet_reply, rollback
+from services.calibrator.fleet import FleetBook
+from services.calibrator.fleet_reply import fleet_reply
+from services.calibrator.rollback import rollback
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
 

@@ -8,8 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import zenoh
-from helpers import MAGNET, REPO_ROOT, free_ports, listen_args, run_magnet, wait_for
+from helpers import MAGNET, REPO_ROOT, free_ports, listen_args, replay_raw, run_magnet, wait_for
 from logfixtures import PX4_LOG, simulated_run, write_tlog
 
 from magnet import wire
@@ -21,24 +20,7 @@ def test_a_tlog_replays_through_the_edge(tmp_path: Path) -> None:
     run = simulated_run()
     path = tmp_path / "flight.tlog"
     write_tlog(path, run, count=120)
-    (port,) = free_ports(1)
-    conf = zenoh.Config()
-    for key, value in (("listen/endpoints", f'["tcp/127.0.0.1:{port}"]'), ("scouting/multicast/enabled", "false")):
-        conf.insert_json5(key, value)
-    with zenoh.open(conf) as session:
-        subscriber = session.declare_subscriber("magnet/drone-1/raw", zenoh.handlers.FifoChannel(1024))
-        args = ["edge", "--replay", str(path), "--device", "drone-1", "--speed", "10", "--batch", "50"]
-        out = subprocess.run(
-            [*MAGNET, *args, *listen_args(free_ports(1)[0]), "--connect", f"tcp/127.0.0.1:{port}"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            cwd=REPO_ROOT,
-        )
-        assert out.returncode == 0, out.stderr
-        batches = []
-        while (sample := subscriber.try_recv()) is not None:
-            batches.append(wire.decode_raw(sample.payload.to_bytes()))
+    batches, _ = replay_raw(path, "drone-1", "--speed", "10", "--batch", "50")
     assert [len(b) for b in batches] == [50, 50, 20]
     mag = np.vstack([b.mag_ut for b in batches])
     assert np.abs(mag - run.mag_ut[:120]).max() < 0.06  # milligauss in the log, float32 on the wire

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from helpers import NO_SCOUT, connect_args, free_ports, listen_args, magnet_json, run_magnet, wait_for
+from helpers import NO_SCOUT, connect_args, emulated_edge, free_ports, listen_args, magnet_json, run_magnet, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -99,18 +99,7 @@ def test_forged_and_absurd_calibrations_never_replace_the_signed_one(procs, tmp_
     wait_for(lambda: _status("calibrator", cal_port) and _status("compass", comp_port), 30, "the services to answer")
     procs.start(
         "edge",
-        "edge",
-        "--device",
-        DEVICE,
-        "--sensor",
-        "sim",
-        "--emulate",
-        "--hard-iron",  # a sensor that needs calibrating: the gate accepts only a fit that beats none by more than chance
-        "12,-7,4",
-        "--rate",
-        "500",
-        "--batch",
-        "25",
+        *emulated_edge(DEVICE),
         "--trajectory-samples",
         "2000",
         *listen_args(edge_port),

@@ -9,7 +9,7 @@ import stat
 import pytest
 
 from services.cli import main
-from services.commands.fit import write_atomically
+from services.common.records import write_atomically
 
 RECORDING = "data/ck_explorer_acc_mag_log.csv"
 

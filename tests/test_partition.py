@@ -23,6 +23,7 @@ from helpers import MAGNET, REPO_ROOT, wait_for
 from magnet import wire
 from magnet.model import Calibration, Quality
 from services.calibrator.store import CalibrationStore
+from services.common.processes import stop_processes
 
 pytestmark = pytest.mark.integration
 
@@ -89,15 +90,8 @@ def site(tmp_path):
             sh("ip", "-n", ROUTER, "link", "set", f"{TAG}{router_veth}", "up")
         yield Site(tmp_path, procs, logs)
     finally:
+        stop_processes(procs)
         for proc in procs:
-            if proc.poll() is None:
-                proc.terminate()
-        for proc in procs:
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
             if proc.stdout is not None:
                 proc.stdout.close()
         for log in logs:

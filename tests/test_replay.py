@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
 
 import numpy as np
 import pytest
-import zenoh
-from helpers import MAGNET, REPO_ROOT, free_ports, listen_args
+from helpers import replay_raw
 
-from magnet import wire
 from magnet.replay import MAX_SLEEP_S, Recording, paced_slices
 from services.cli import main
 from services.edge.sources import read_recording
@@ -118,37 +115,7 @@ def test_replay_arrives_complete_and_in_order_at_a_subscriber(tmp_path):
     rec = recording(47, rate_hz=100.0)
     write_csv(tmp_path / "flight.csv", rec)
     expected = read_recording(tmp_path / "flight.csv")
-    (port,) = free_ports(1)
-    conf = zenoh.Config()
-    for key, value in (("listen/endpoints", f'["tcp/127.0.0.1:{port}"]'), ("scouting/multicast/enabled", "false")):
-        conf.insert_json5(key, value)
-    with zenoh.open(conf) as session:
-        subscriber = session.declare_subscriber("magnet/rep-1/raw", zenoh.handlers.FifoChannel(1024))
-        out = subprocess.run(
-            [
-                *MAGNET,
-                "edge",
-                "--replay",
-                str(tmp_path / "flight.csv"),
-                "--device",
-                "rep-1",
-                "--speed",
-                "2",
-                "--batch",
-                "10",
-                *listen_args(free_ports(1)[0]),
-                "--connect",
-                f"tcp/127.0.0.1:{port}",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            cwd=REPO_ROOT,
-        )
-        assert out.returncode == 0, out.stderr
-        batches = []
-        while (sample := subscriber.try_recv()) is not None:
-            batches.append(wire.decode_raw(sample.payload.to_bytes()))
+    batches, out = replay_raw(tmp_path / "flight.csv", "rep-1", "--speed", "2", "--batch", "10")
     assert [b.seq for b in batches] == [0, 1, 2, 3, 4] and [len(b) for b in batches] == [10, 10, 10, 10, 7]
     assert {b.sensor for b in batches} == {"replay"}
     t_ns = np.concatenate([b.t_ns for b in batches])

@@ -82,7 +82,7 @@ def test_report_of_an_emulated_tumble_shows_the_ellipse_become_a_circle(tumble):
         == 0
     )
     assert out.read_bytes()[:8] == PNG_MAGIC and out.stat().st_size > 50_000
-    from services.commands.fit import load_calibration
+    from services.common.records import load_calibration
 
     data = build_report(load_samples(csv, None), load_calibration(str(cal)), declination_deg=None)
     assert data.spread_before_pct > 15 and data.spread_after_pct < 1.0  # offset ellipsoid -> centred sphere

@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers import NO_SCOUT, connect_args, free_ports, listen_args, run_magnet
+from helpers import NO_SCOUT, connect_args, listen_args, run_magnet
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
@@ -19,9 +19,7 @@ pytestmark = pytest.mark.integration
 
 
 def test_a_recording_reads_back_message_by_message(procs, tmp_path):
-    cal_port, comp_port, edge_port = free_ports(3)
-    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "cal.db"), *listen_args(cal_port))
-    procs.start("compass", "compass", *listen_args(comp_port), *connect_args(cal_port))
+    cal_port, comp_port, edge_port = procs.start_services()
     procs.start(
         "edge",
         "edge",

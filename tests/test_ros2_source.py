@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 import zenoh
-from helpers import NO_SCOUT, REPO_ROOT, connect_args, free_ports, listen_args, magnet_json, wait_for
+from helpers import NO_SCOUT, REPO_ROOT, connect_args, listen_args, magnet_json, wait_for
 
 from magnet.ros2 import messages, names
 
@@ -53,9 +53,7 @@ def hostile(port: int) -> None:
 
 
 def test_a_ros2_robots_field_and_imu_become_calibrated_headings(procs, tmp_path):
-    cal_port, comp_port, edge_port = free_ports(3)
-    procs.start("calibrator", "calibrator", "--db", str(tmp_path / "cal.db"), *listen_args(cal_port))
-    procs.start("compass", "compass", *listen_args(comp_port), *connect_args(cal_port))
+    cal_port, comp_port, edge_port = procs.start_services()
     procs.start(
         "edge",
         "edge",

@@ -8,10 +8,12 @@ before it (one link, one priority, in order).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import subprocess
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -30,7 +32,8 @@ STEPS = {
     "standby": "magnet calibrator --config $SITE/calibrator.json5 --db $SITE/calibrations.db "
     "--signing-key $SITE/signing/calibrator.key --name calibrator-2",
     "compass": "magnet compass --config $SITE/compass.json5 --trust $SITE/signing/calibrator.pub",
-    "edge": "magnet edge --config $SITE/edge-imu-host-password.json5 --device imu-1 --sensor sim --emulate --hard-iron 12,-7,4",
+    "edge": "magnet edge --config $SITE/edge-imu-host-password.json5 --device imu-1 --sensor sim --emulate "
+    "--hard-iron 12,-7,4",
     "add-edge": "magnet certs --out $SITE --listen tls/127.0.0.1:7447 --password-listen tls/127.0.0.1:7448 "
     "--add --edge shed=imu-2,imu-3",
     "get": "magnet get calibration imu-1 --config $SITE/viewer.json5 --trust $SITE/signing/calibrator.pub",
@@ -79,12 +82,19 @@ def site(tmp_path_factory):
     for step in ("certs", "keys"):
         made = s.run(step)
         assert made.returncode == 0, made.stderr
-    s.start_step("router")
-    try:
-        wait_for(lambda: _opens(s.config("viewer")), 20, "the router to accept a client")
+    with routed(s):
         yield s
+
+
+@contextlib.contextmanager
+def routed(site: Site) -> Iterator[Site]:
+    """``site`` with its router started and accepting clients; every process of the site stopped after."""
+    site.start_step("router")
+    try:
+        wait_for(lambda: _opens(site.config("viewer")), 20, "the router to accept a client")
+        yield site
     finally:
-        s.stop_all()
+        site.stop_all()
 
 
 def _opens(config) -> bool:

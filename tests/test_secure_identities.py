@@ -13,7 +13,7 @@ import time
 
 import pytest
 from helpers import MAGNET, wait_for
-from test_secure_deploy import FAST_EDGE, Site, _lease, _marker_check, _Only, _opens, _payloads
+from test_secure_deploy import FAST_EDGE, Site, _lease, _marker_check, _Only, _opens, _payloads, routed
 
 pytestmark = pytest.mark.integration
 
@@ -23,12 +23,8 @@ def site(tmp_path_factory):
     s = Site(tmp_path_factory.mktemp("idsite"))
     for made in (s.run("certs", "--shards", "2"), s.run("keys")):
         assert made.returncode == 0, made.stderr
-    s.start_step("router")
-    try:
-        wait_for(lambda: _opens(s.config("viewer")), 20, "the router to accept a client")
+    with routed(s):
         yield s
-    finally:
-        s.stop_all()
 
 
 @pytest.fixture(scope="module")
@@ -39,12 +35,8 @@ def trial_site(tmp_path_factory):
         [*MAGNET, *s.argv("certs")[:-2]], capture_output=True, text=True, timeout=30
     )  # the same command without --edge
     assert made.returncode == 0, made.stderr
-    s.start_step("router")
-    try:
-        wait_for(lambda: _opens(s.config("viewer")), 20, "the router to accept a client")
+    with routed(s):
         yield s
-    finally:
-        s.stop_all()
 
 
 def _get(site, *args, config="viewer"):

@@ -129,7 +129,7 @@ def test_a_calibrator_taking_over_counts_on_from_the_store(key, tmp_path):
 
 
 def test_a_rollback_never_signs_a_row_the_calibrator_did_not_make(key, tmp_path):
-    from services.calibrator.fleet import rollback
+    from services.calibrator.rollback import rollback
 
     signer, public = key
     with CalibrationStore(tmp_path / "c.db") as store:
@@ -153,7 +153,7 @@ def _full(store):
 
 
 def test_a_full_disk_is_reported_as_a_full_disk_and_nothing_changes(key, tmp_path):
-    from services.calibrator.fleet import rollback
+    from services.calibrator.rollback import rollback
     from services.calibrator.store import StoreError
 
     signer, _ = key

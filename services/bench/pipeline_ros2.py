@@ -5,11 +5,12 @@ a ROS 2 subscriber counting in the measuring process; printed: both runs' lines,
 
 from __future__ import annotations
 
+import argparse
 import threading
 from collections.abc import Callable
 from typing import Any
 
-from services.bench.pipeline import PipelineRun
+from services.bench.pipeline_run import PipelineRun
 
 
 class _Counter:
@@ -85,32 +86,17 @@ def publish_cost(repeats: int = 20) -> tuple[float, float]:
 
     import zenoh
 
-    from magnet.ros2 import compass as ros_compass
     from services.common.ros2_options import Ros2Settings
-    from services.common.zenoh_session import build_config, free_ports, loopback_arguments
-    from services.compass.ros2 import Ros2Compass
+    from services.common.zenoh_session import add_zenoh_arguments, build_config, free_ports, loopback_arguments
+    from services.compass.ros2 import Ros2Compass, build_drain
 
     columns, out, calibrations = _drain()
     messages = 2 * len(columns.t_ns) * repeats
     started = time.process_time()
     for _ in range(repeats):
-        h = out.headings
-        quat = ros_compass.attitude_wxyz(out.quat_wxyz, out.true_heading_deg, h.pitch_deg, h.roll_deg)
-        variances = [0.0] * len(columns.devices)
-        ros_compass.drain_messages(
-            columns.devices,
-            columns.bounds,
-            columns.t_ns,
-            h.field_ut,
-            columns.acc_ms2,
-            columns.gyr_rads,
-            quat,
-            variances,
-        )
+        build_drain(columns, out, [0.0] * len(columns.devices))
     build = time.process_time() - started
-    parser = __import__("argparse").ArgumentParser()
-    from services.common.zenoh_session import add_zenoh_arguments
-
+    parser = argparse.ArgumentParser()
     add_zenoh_arguments(parser)
     args = parser.parse_args(loopback_arguments(free_ports(1)[0]))
     with zenoh.open(build_config(args)) as session:

@@ -27,6 +27,7 @@ from typing import Any
 from magnet import wire
 from services.bench.flood import rss_mb
 from services.bench.soak_plan import DropTotals, Fault, HeadingGaps, MemoryWatch, report, schedule
+from services.common.processes import stop_processes
 from services.common.zenoh_session import ZenohSettings, free_ports, open_session, payload_bytes
 
 log = logging.getLogger("magnet.bench.soak")
@@ -93,16 +94,7 @@ class Pipeline:
         )
 
     def stop_all(self) -> None:
-        procs = [*self.helpers, *self.procs.values()]
-        for proc in procs:
-            if proc.poll() is None:
-                proc.terminate()
-        for proc in procs:
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_processes([*self.helpers, *self.procs.values()])
 
 
 class FullDisk:

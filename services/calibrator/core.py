@@ -182,7 +182,7 @@ class Calibrator:
             )
             collection.last_fit_kept, collection.last_fit_s = collection.kept, now
             return
-        result = self._fit(collection, now, device)
+        result = self.fit_collection(collection, now, device)
         if result is not None and not collection.session:
             try:
                 self.commit(device, result)
@@ -193,7 +193,7 @@ class Calibrator:
         elif result is None:
             log.info("%s: fit not accepted: %s", device, collection.last_reason)
 
-    def _fit(self, collection: Collection, now: float, device: str | None = None) -> Calibration | None:
+    def fit_collection(self, collection: Collection, now: float, device: str | None = None) -> Calibration | None:
         """Fit the collection (scaled to the WMM |B| at the device's place when known) and count it; the
         calibration when the gate accepts it, else None."""
         field_ut = (self.fleet.field_ut(device) if device else None) or self.settings.field_ut

@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from magnet import wire
-from services.calibrator.fleet import fleet_reply, rollback
+from services.calibrator.fleet_reply import fleet_reply
+from services.calibrator.rollback import rollback
 
 if TYPE_CHECKING:  # the service imports this module to answer its queries
     from services.calibrator.core import Calibrator
@@ -103,7 +104,7 @@ def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
 
 
 def answer_fleet(query: Any, calibrator: Calibrator, prefix: str) -> None:
-    """``<prefix>/@fleet``: every device in one reply (``services.calibrator.fleet``)."""
+    """``<prefix>/@fleet``: every device in one reply (``services.calibrator.fleet_reply``)."""
     query.reply(f"{prefix}/@fleet", wire.pack(fleet_reply(calibrator, calibrator.clock_ns())))
 
 

@@ -1,25 +1,47 @@
 """Operator sessions of the calibrator (the ``calibrate`` queryable): start / status / commit / abort.
 
 Each action takes (calibrator, device, method) and returns (ok, message, extra reply fields); ``Calibrator.session``
-wraps that into the reply map.
+wraps that into the reply map. The actions see the calibrator only through ``SessionHost`` (what they read and call
+of it), so this module does not import the core that runs them.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
+from magnet import wire
+from magnet.bounded import Recent
 from magnet.calibration import Method
 from magnet.collection import Collection
+from magnet.model import Calibration
+from services.calibrator.settings import CalibratorSettings
+from services.calibrator.status import State
 
-if TYPE_CHECKING:  # the core imports this module to run the actions
-    from services.calibrator.core import Calibrator
+
+class SessionHost(Protocol):
+    """What a session action reads and calls of the calibrator (``services.calibrator.core.Calibrator``)."""
+
+    settings: CalibratorSettings
+    collections: Recent[str, Collection]
+    clock: Callable[[], float]
+
+    def known(self, device: str) -> bool: ...
+
+    def state(self, device: str) -> State: ...
+
+    def fit_collection(self, collection: Collection, now: float, device: str | None = None) -> Calibration | None: ...
+
+    def commit(
+        self, device: str, calibration: Calibration, change: dict[str, Any] | None = None
+    ) -> wire.DeviceCalibration: ...
+
 
 #: a session action: (calibrator, device, method) -> (ok, message, extra reply fields)
-Action = Callable[["Calibrator", str, "str | None"], "tuple[bool, str, dict[str, Any]]"]
+Action = Callable[[SessionHost, str, "str | None"], "tuple[bool, str, dict[str, Any]]"]
 
 
-def _start(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
+def _start(calibrator: SessionHost, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
     chosen = Method.parse(method or calibrator.settings.method).value
     if chosen == Method.TURNTABLE.value:  # it needs each sample's known heading and the field's components
         return (
@@ -45,15 +67,15 @@ def _start(calibrator: Calibrator, device: str, method: str | None) -> tuple[boo
     return True, f"session started with {chosen}: move the device through every attitude, then commit", {}
 
 
-def _status(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
+def _status(calibrator: SessionHost, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
     return True, calibrator.state(device).value, {}
 
 
-def _commit(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
+def _commit(calibrator: SessionHost, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
     collection = calibrator.collections.get(device)
     if collection is None or not collection.session:
         return False, "no session to commit: start one first", {}
-    result = calibrator._fit(collection, calibrator.clock(), device)
+    result = calibrator.fit_collection(collection, calibrator.clock(), device)
     if result is None:
         return False, f"not committed, the calibration in force stays: {collection.last_reason}", {}
     try:
@@ -62,7 +84,7 @@ def _commit(calibrator: Calibrator, device: str, method: str | None) -> tuple[bo
         return False, f"not committed, the calibration in force stays: {exc}", {}
 
 
-def _abort(calibrator: Calibrator, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
+def _abort(calibrator: SessionHost, device: str, method: str | None) -> tuple[bool, str, dict[str, Any]]:
     collection = calibrator.collections.get(device)
     if collection is None or not collection.session:
         return False, "no session to abort", {}

@@ -24,7 +24,8 @@ from pathlib import Path
 from magnet.autopilot import ROTATIONS
 from magnet.autopilot_params import Autopilot, Export, export_parameters
 from magnet.model import Calibration
-from services.commands.fit import load_calibration, write_atomically
+from services.common.mavlink_options import add_mavlink_url_arguments
+from services.common.records import load_calibration, write_atomically
 from services.common.zenoh_session import add_zenoh_arguments
 
 #: MAVLink's MAV_PARAM_TYPE of a 32-bit float and of a 32-bit integer, as QGroundControl writes them
@@ -51,13 +52,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicle-id", type=int, default=1, help="px4: the vehicle (system) id column (default 1)")
     parser.add_argument("--out", metavar="FILE", help="write here (default: stdout)")
     parser.add_argument("--timeout", type=float, default=3.0, help="--device: seconds to wait for the calibrator")
-    parser.add_argument(
+    add_mavlink_url_arguments(
+        parser,
         "--apply",
-        metavar="URL",
-        help="also set the parameters on a vehicle over MAVLink (pymavlink URL: udpin:HOST:PORT, udpout:..., tcp:..., "
+        "also set the parameters on a vehicle over MAVLink (pymavlink URL: udpin:HOST:PORT, udpout:..., tcp:..., "
         "or a serial device), reading each back; refused while the vehicle is armed",
+        "--apply over a serial device: its baud rate",
     )
-    parser.add_argument("--baud", type=int, default=57600, help="--apply over a serial device: its baud rate")
     add_zenoh_arguments(parser)
 
 

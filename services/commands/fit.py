@@ -8,31 +8,24 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from magnet import fusion
 from magnet.calibration import Method, fit
-from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from magnet.units import FieldUnit
 from services.commands.fit_motor import add_motor_arguments, fit_with_motors
 from services.common.csvio import SampleTable
-from services.common.inputs import InputOptions, add_input_arguments, read_input_told
-from services.common.jsonio import read_json
+from services.common.input_options import InputOptions
+from services.common.inputs import add_input_arguments, read_input_told
+from services.common.place import add_field_arguments, expected_field_ut
+from services.common.records import load_calibration, write_atomically
 
 EXIT_REJECTED = 1
 GYRO_COLUMNS = ("gx", "gy", "gz")
-
-
-def add_field_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options that say where the device is: shared by ``fit`` and ``heading``."""
-    parser.add_argument("--location", metavar="LAT,LON[,ALT_M]", help="place, for the World Magnetic Model (WMM2025)")
-    parser.add_argument("--date", metavar="YYYY-MM-DD", help="date for the World Magnetic Model (default: today)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -92,22 +85,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="also draw a report of this fit (.html, .png or .pdf; see 'magnet report'), accepted or not",
     )
-
-
-def expected_field_ut(args: argparse.Namespace) -> float | None:
-    """The field strength to scale to, in uT: --field-ut, or the WMM at --location, or None."""
-    if args.field_ut is not None and args.location:
-        raise ValueError("give either --field-ut or --location, not both")
-    if args.field_ut is not None:
-        if not (0 < args.field_ut < 1000):
-            raise ValueError(f"--field-ut {args.field_ut} is not a plausible field strength in uT (Earth: 22-67)")
-        return float(args.field_ut)
-    if args.location:
-        lat, lon, alt_m = parse_location(args.location)
-        return earth_field(lat, lon, alt_m, args.date).total_ut
-    if args.date:
-        raise ValueError("--date needs --location")
-    return None
 
 
 def _fit_turntable(table: SampleTable, args: argparse.Namespace) -> Calibration:
@@ -177,39 +154,6 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
     return fit_mag(table.mag)
 
 
-def load_calibration(path: str) -> Calibration:
-    """A record as ``magnet fit`` writes it, from a JSON file (read within ``jsonio``'s size and depth limits);
-    ValueError naming the file."""
-    data = read_json(path)
-    try:
-        return Calibration.from_dict(data)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-
-
-def _umask() -> int:
-    """The process's file creation mask (read by setting it and putting it back)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """Replace ``path`` with ``text`` so that a crash leaves either the old file or the new one, never half."""
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=directory)
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())  # as an ordinary new file (0644 under umask 022), not mkstemp's 0600
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def run(args: argparse.Namespace) -> int:
     from services.common.progress import steps
 
@@ -220,7 +164,8 @@ def run(args: argparse.Namespace) -> int:
         step("fit: fitting and gating")
         calibration = fit_table(table, args)
     if args.report:
-        from services.commands.report import place, write_report
+        from services.common.place import place
+        from services.report.write import write_report
 
         write_report(args.report, args.file, calibration, args.unit, *place(args), options)
     text = json.dumps(calibration.to_dict(), indent=2) + "\n"

@@ -28,9 +28,12 @@ from magnet.aiding import to_magnetic_ned
 from magnet.autopilot import compare_headings
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
-from services.commands.fit import add_field_arguments, gyro_columns, load_calibration, sample_period_s
+from services.commands.fit import gyro_columns, sample_period_s
 from services.common.csvio import SampleTable, write_csv
-from services.common.inputs import InputOptions, add_input_arguments, read_input_told, reference_yaw
+from services.common.input_options import InputOptions
+from services.common.inputs import add_input_arguments, read_input_told, reference_yaw
+from services.common.place import add_field_arguments
+from services.common.records import load_calibration
 
 COLUMNS = (
     "heading_deg",

@@ -10,12 +10,12 @@ with ``mag_ut`` (and ``acc_ms2``) arrays.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from magnet.geomag import earth_field, parse_location
-from magnet.model import Calibration
-from services.commands.fit import add_field_arguments, load_calibration
-from services.common.inputs import InputOptions, add_input_arguments
+from services.common.input_options import InputOptions
+from services.common.inputs import add_input_arguments
+from services.common.place import add_field_arguments, place
+from services.common.records import load_calibration
+from services.report.write import write_report
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,47 +31,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_field_arguments(parser)
     add_input_arguments(parser)
-
-
-def place(args: argparse.Namespace) -> tuple[float | None, float | None]:
-    """(declination deg, expected field uT) from --declination or --location/--date, each None when not given."""
-    if getattr(args, "declination", None) is not None and args.location:
-        raise ValueError("give either --declination or --location, not both")
-    if args.location:
-        field = earth_field(*parse_location(args.location), args.date)
-        return field.declination_deg, field.total_ut
-    if args.date:
-        raise ValueError("--date needs --location")
-    return getattr(args, "declination", None), None
-
-
-def write_report(
-    out: str | Path,
-    samples_path: str | Path,
-    calibration: Calibration,
-    unit: str | None,
-    declination_deg: float | None,
-    expected_field_ut: float | None,
-    options: InputOptions | None = None,
-    command: str | None = None,
-) -> Path:
-    """Build and write the report of ``calibration`` on the samples in ``samples_path`` (``options``: which stream
-    of a recording; ``command``: tell the user which, under that name); returns the file."""
-    from services.common.progress import steps
-    from services.report.data import build_report, load_samples
-    from services.report.render import FORMATS, write
-
-    out = Path(out)
-    if out.suffix.lower() not in FORMATS:  # refuse before any work
-        raise ValueError(f"report {out}: the file must end in {', '.join(FORMATS)}")
-    with steps(["report: reading samples", "report: assessing the fit", "report: drawing"]) as step:
-        step("report: reading samples")
-        samples = load_samples(samples_path, unit or calibration.unit, options, command)
-        step("report: assessing the fit")
-        data = build_report(samples, calibration, declination_deg, expected_field_ut)
-        step("report: drawing")
-        write(out, data)
-    return out
 
 
 def run(args: argparse.Namespace) -> int:

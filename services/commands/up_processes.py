@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from services.commands.up_settings import UpSettings
+from services.common.processes import stop_processes
 from services.common.zenoh_session import loopback_arguments
 
 SERVICES = ("calibrator", "compass", "edge")
@@ -72,15 +73,7 @@ def start_services(
 
 
 def stop_services(procs: dict[str, Any]) -> None:
-    for proc in procs.values():
-        if proc.poll() is None:
-            proc.terminate()
-    for proc in procs.values():
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+    stop_processes(procs.values())
 
 
 def dashboard_http(settings: UpSettings, spare_port: int) -> tuple[str, str, str] | None:

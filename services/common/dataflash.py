@@ -23,7 +23,7 @@ import numpy as np
 from magnet.autopilot import UT_PER_MGAUSS, ardupilot_raw_field, ardupilot_scale, ardupilot_soft_iron
 from services.common.csvio import SampleTable
 from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
-from services.common.inputs import InputOptions
+from services.common.input_options import InputOptions
 
 TYPES = ["MAG", "MAG2", "MAG3", "IMU", "IMU2", "PARM", "BAT", "CURR", "RCOU", "ATT"]
 #: every DataFlash log starts with a FMT record: the two header bytes, then FMT's own type number (128)

@@ -3,38 +3,24 @@
 ``magnet fit``, ``magnet heading``, ``magnet report`` and ``magnet edge --replay`` read their samples with
 ``read_input``; each reader returns the same ``SampleTable`` as a CSV gives (``mx,my,mz`` in the file's magnetometer
 unit, optional ``ax,ay,az`` m/s^2, ``gx,gy,gz`` rad/s, ``t_s`` s, ``vn,ve,vd`` m/s NED and other named columns).
-To read a new kind of recording, write a function ``(path, InputOptions) -> SampleTable`` and add its suffixes to
-``READERS``. Every reader raises ``ValueError`` naming the file and what to do for a file it cannot use.
+To read a new kind of recording, write a function ``(path, InputOptions) -> SampleTable`` (``Reader``; both in
+``services.common.input_options``, which the readers import) and add its suffixes to ``READERS``. Every reader
+raises ``ValueError`` naming the file and what to do for a file it cannot use.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 from services.common.csvio import SampleTable, read_samples
 from services.common.flightlogs import ReferenceYaw
+from services.common.input_options import InputOptions as InputOptions  # re-exported for the tests
+from services.common.input_options import Reader
 
-
-@dataclasses.dataclass(frozen=True)
-class InputOptions:
-    """What to take from a recording that holds more than one stream.
-
-    mag: the magnetometer instance (0 = the first) of a flight log, None for the reader's default; topic: the topic
-    of a ROS 2 recording, None for the reader's choice (the one magnetometer topic it holds)."""
-
-    mag: int | None = None
-    topic: str | None = None
-
-    @classmethod
-    def from_args(cls, args: argparse.Namespace) -> InputOptions:
-        return cls(getattr(args, "mag", None), getattr(args, "topic", None))
-
-
-Reader = Callable[[Path, InputOptions], SampleTable]
+#: the default: each reader's own choice of stream
+NO_OPTIONS = InputOptions()
 
 
 def _csv(path: Path, options: InputOptions) -> SampleTable:
@@ -86,7 +72,7 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--topic", metavar="TOPIC", help="ROS 2 recordings: the MagneticField topic to read")
 
 
-def read_input(path: str | Path, options: InputOptions = InputOptions()) -> SampleTable:
+def read_input(path: str | Path, options: InputOptions = NO_OPTIONS) -> SampleTable:
     """The samples of the recording at ``path``, by its suffix (CSV when unknown); ValueError otherwise."""
     path = Path(path)
     reader = READERS.get("/" if path.is_dir() else path.suffix.lower(), _csv)

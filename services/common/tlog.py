@@ -25,7 +25,7 @@ from magnet.autopilot import UT_PER_GAUSS, UT_PER_MGAUSS
 from magnet.units import STANDARD_GRAVITY_MS2
 from services.common.csvio import SampleTable
 from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
-from services.common.inputs import InputOptions
+from services.common.input_options import InputOptions
 
 IMU_TYPES = {0: ("SCALED_IMU", "RAW_IMU", "HIGHRES_IMU"), 1: ("SCALED_IMU2",), 2: ("SCALED_IMU3",)}
 TYPES = ["SCALED_IMU", "RAW_IMU", "HIGHRES_IMU", "SCALED_IMU2", "SCALED_IMU3", "SYS_STATUS", "VFR_HUD", "ATTITUDE"]

@@ -23,7 +23,7 @@ from magnet.attitude import euler_to_matrix, quaternion_to_euler
 from magnet.autopilot import UT_PER_GAUSS, rotation_matrix
 from services.common.csvio import SampleTable
 from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
-from services.common.inputs import InputOptions
+from services.common.input_options import InputOptions
 
 TOPICS = [
     "sensor_mag",

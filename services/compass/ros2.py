@@ -54,6 +54,23 @@ class _Topic:
         self.token.undeclare()
 
 
+def build_drain(columns: wire.RawColumns, out: Any, variances: list[float]) -> Any:
+    """The CDR of a drain: per device of ``columns``, (MagneticField messages, Imu messages), one per sample
+    (``out``: the compass's ``HeadingColumns`` of them; ``variances``: per device, the field's variance in T^2)."""
+    h = out.headings
+    quat = ros_compass.attitude_wxyz(out.quat_wxyz, out.true_heading_deg, h.pitch_deg, h.roll_deg)
+    return ros_compass.drain_messages(
+        columns.devices,
+        columns.bounds,
+        columns.t_ns,
+        h.field_ut,
+        columns.acc_ms2,
+        columns.gyr_rads,
+        quat,
+        variances,
+    )
+
+
 class Ros2Compass:
     """The ROS 2 side of one compass: a node ``<name>`` in ``--ros-namespace``, its publishers made per device as
     devices appear (at most ``max_devices``), the diagnostics every second."""
@@ -93,22 +110,12 @@ class Ros2Compass:
         """Put a MagneticField and an Imu per sample of ``columns`` (``out``: the compass's ``HeadingColumns`` of
         them; ``calibrations``: the calibrations in force, for the field's covariance)."""
         h = out.headings
-        quat = ros_compass.attitude_wxyz(out.quat_wxyz, out.true_heading_deg, h.pitch_deg, h.roll_deg)
         cals = [calibrations.get(device) for device in columns.devices]
         variances = [
             ros_compass.field_variance_t2(c.calibration.quality.residual_rms_ut if c is not None else None)
             for c in cals
         ]
-        built = ros_compass.drain_messages(
-            columns.devices,
-            columns.bounds,
-            columns.t_ns,
-            h.field_ut,
-            columns.acc_ms2,
-            columns.gyr_rads,
-            quat,
-            variances,
-        )
+        built = build_drain(columns, out, variances)
         times = columns.t_ns.tolist()
         bounds = columns.bounds
         for i, (device, (mag, imu)) in enumerate(zip(columns.devices, built)):

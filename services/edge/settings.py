@@ -11,6 +11,7 @@ from magnet.drivers import SENSORS, has_gyroscope
 from magnet.place import Location
 from magnet.replay import MAX_SPEED
 from services.common import sim_options
+from services.common.mavlink_options import add_mavlink_url_arguments
 from services.common.ros2_options import Ros2Settings, add_ros2_arguments
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
@@ -90,13 +91,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_mavlink_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of a MAVLink source (``services.edge.mavlink_source``)."""
-    parser.add_argument(
+    add_mavlink_url_arguments(
+        parser,
         "--mavlink",
-        metavar="URL",
-        help="read MAVLink vehicles' magnetometers: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
+        "read MAVLink vehicles' magnetometers: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
         "device (with --baud); one device per vehicle and compass, <prefix><SYSID>-mag<N>",
+        "with --mavlink and a serial device (default 57600)",
     )
-    parser.add_argument("--baud", type=int, default=57600, help="with --mavlink and a serial device (default 57600)")
     parser.add_argument("--device-prefix", default="mav", help="with --mavlink: device ids start with this (mav)")
     parser.add_argument(
         "--vehicle-timeout",

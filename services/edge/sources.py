@@ -27,7 +27,8 @@ from magnet.emulators import FaultInjector, emulator_for
 from magnet.readloop import Backoff, ReadLoop, ReadStats
 from magnet.replay import Recording, paced_slices
 from magnet.simulator import FleetSimulator
-from services.common.inputs import InputOptions, read_input
+from services.common.input_options import InputOptions
+from services.common.inputs import read_input
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
 
 #: the edge's read loop: waits 10 ms, 20 ms, ... up to 1 s between failed reads; unhealthy after 3 in a row

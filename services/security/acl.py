@@ -14,31 +14,13 @@ those roles (the password listener, TLS without client certificates).
 from __future__ import annotations
 
 import dataclasses
-import enum
 import json
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from services.security.capabilities import Can
 from services.security.identities import EdgeIdentity, shard_identities
-
-
-class Can(enum.Enum):
-    """A capability, and the (flow, message) pairs it needs on the router."""
-
-    PUBLISH = (("ingress", "put"), ("egress", "declare_subscriber"))
-    SUBSCRIBE = (("ingress", "declare_subscriber"), ("egress", "put"))
-    SERVE = (("ingress", "declare_queryable"), ("egress", "query"), ("ingress", "reply"))
-    ASK = (("ingress", "query"), ("egress", "reply"), ("egress", "declare_queryable"))
-    TOKEN = (("ingress", "liveliness_token"),)
-    WATCH = (
-        ("ingress", "declare_liveliness_subscriber"),
-        ("ingress", "liveliness_query"),
-        ("egress", "liveliness_token"),
-    )
-    PUT = (("ingress", "put"),)  # PUBLISH in two halves, when the keys differ
-    SEE_SUBSCRIBERS = (("egress", "declare_subscriber"),)
-
 
 #: key expressions below the prefix
 RAW, CAL, HISTORY, PROGRESS, CALIBRATE, HEADING = (

@@ -17,15 +17,12 @@ import json
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
 from magnet.wire import validate_device_id
-
-if TYPE_CHECKING:
-    from services.security.acl import Can
+from services.security.capabilities import Can
 
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,62}")
 MAX_SHARDS = 64
@@ -56,8 +53,6 @@ class EdgeIdentity:
 
     def capabilities(self) -> dict[Can, tuple[str, ...]]:
         """What it may do, as key expressions below the prefix."""
-        from services.security.acl import Can
-
         tokens = []
         for device in self.devices:
             tokens += [f"@alive/edge/{device}", f"@alive/device/{device}", f"@alive/device/{device}/unhealthy"]

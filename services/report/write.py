@@ -1,0 +1,38 @@
+"""``write_report``: a calibration report from samples and a record, written as HTML, PNG or PDF; shared by
+``magnet report`` and ``magnet fit --report``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from magnet.model import Calibration
+from services.common.input_options import InputOptions
+
+
+def write_report(
+    out: str | Path,
+    samples_path: str | Path,
+    calibration: Calibration,
+    unit: str | None,
+    declination_deg: float | None,
+    expected_field_ut: float | None,
+    options: InputOptions | None = None,
+    command: str | None = None,
+) -> Path:
+    """Build and write the report of ``calibration`` on the samples in ``samples_path`` (``options``: which stream
+    of a recording; ``command``: tell the user which, under that name); returns the file."""
+    from services.common.progress import steps
+    from services.report.data import build_report, load_samples
+    from services.report.render import FORMATS, write
+
+    out = Path(out)
+    if out.suffix.lower() not in FORMATS:  # refuse before any work
+        raise ValueError(f"report {out}: the file must end in {', '.join(FORMATS)}")
+    with steps(["report: reading samples", "report: assessing the fit", "report: drawing"]) as step:
+        step("report: reading samples")
+        samples = load_samples(samples_path, unit or calibration.unit, options, command)
+        step("report: assessing the fit")
+        data = build_report(samples, calibration, declination_deg, expected_field_ut)
+        step("report: drawing")
+        write(out, data)
+    return out
