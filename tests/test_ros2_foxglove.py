@@ -15,6 +15,16 @@ from test_ros2_compass import collect_headings
 pytestmark = pytest.mark.integration
 
 
+def wait_until(seconds: float):
+    """Yield every 0.05 s until ``seconds`` have passed (a caller stops early with ``any``/``break``)."""
+    import time
+
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        yield
+        time.sleep(0.05)
+
+
 def test_a_foxglove_client_subscribes_to_a_devices_heading_and_decodes_it(procs):
     comp_port, edge_port, dash_port, http_port, fox_port = free_ports(5)
     procs.start("compass", "compass", *listen_args(comp_port))
@@ -42,9 +52,13 @@ def test_a_foxglove_client_subscribes_to_a_devices_heading_and_decodes_it(procs)
         if "/tf" not in channels:
             channels.update(client.wait_for_channel("/tf", 10)[1])
         assert channels["/tf"]["schemaName"] == "foxglove.FrameTransform"
+        wait_for(lambda: ours, 30, "magnet's own headings")  # the watcher is live before the client subscribes
         client.send_json({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": heading_channel["id"]}]})
-        received_ns, payload = client.message_data(7, 20)
-        heading = json.loads(payload)
+        for _ in range(50):  # the first may be one the watcher missed (before it was live, or dropped on a busy host)
+            received_ns, payload = client.message_data(7, 20)
+            heading = json.loads(payload)
+            if any(heading["t_ns"] in ours for _ in wait_until(2.0)):
+                break
         wait_for(lambda: heading["t_ns"] in ours, 10, "magnet's own heading of that sample")
     finally:
         client.close()
