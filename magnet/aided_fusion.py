@@ -20,6 +20,7 @@ import numpy as np
 import vqf
 
 from magnet.aiding import VelocityFixes
+from magnet.attitude import quaternion_multiply
 
 #: the longest piece of samples answered from one filter state when no fix comes (s)
 CHUNK_S = 0.1
@@ -68,21 +69,6 @@ def carry_forward(start: np.ndarray, gyr: np.ndarray, bias: np.ndarray, period_s
                       w * d + x * b - y * a + z * c)  # fmt: skip
         out[i] = (w, x, y, z)
     return out
-
-
-def _multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton products p * q of quaternions (..., 4) w, x, y, z (broadcasting)."""
-    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
 
 
 _T, _GYR, _ACC, _FIELD, _GIVEN, _TURN = (
@@ -146,7 +132,7 @@ class AidedFilter:
     def _give(self) -> None:
         """The attitude of every pending sample: the filter's, turned by the sample's turn."""
         start = np.asarray(self.filter.getQuat9D(), dtype=float)
-        self.pending[:, _GIVEN] = _multiply(start, self.pending[:, _TURN])
+        self.pending[:, _GIVEN] = quaternion_multiply(start, self.pending[:, _TURN])
 
     def _feed(self, now_s: float, keep: int) -> None:
         """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``), in order, but not
@@ -162,5 +148,5 @@ class AidedFilter:
         out = self.filter.updateBatch(gyr, np.ascontiguousarray(acc), field)
         self.disturbed = bool(np.asarray(out["magDistDetected"]).reshape(-1)[-1])
         inverse = fed[-1, _TURN] * np.array([1.0, -1.0, -1.0, -1.0])
-        turn = _multiply(inverse, self.pending[:, _TURN])
+        turn = quaternion_multiply(inverse, self.pending[:, _TURN])
         self.pending[:, _TURN] = turn / np.linalg.norm(turn, axis=1, keepdims=True)  # rounding would compound

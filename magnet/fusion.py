@@ -33,7 +33,7 @@ import numpy.typing as npt
 import vqf
 
 from magnet.aided_fusion import AidedFilter, body_acceleration
-from magnet.attitude import matrix_to_euler, quaternion_to_matrix
+from magnet.attitude import matrix_to_euler, quaternion_multiply, quaternion_to_matrix
 from magnet.units import STANDARD_GRAVITY_MS2
 
 _HALF_SQRT2 = math.sqrt(0.5)
@@ -46,24 +46,8 @@ MIN_PERIOD_S = 1e-4
 MAX_PERIOD_S = 2.0
 
 
-def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product p * q of quaternions (..., 4) ordered w, x, y, z (broadcasting)."""
-    p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
-
-
 #: q_C * q * q_D is linear in q: row k is the image of the k-th unit quaternion, so that it is q @ this (4, 4)
-_VQF_TO_NED = np.stack([quat_multiply(quat_multiply(_Q_ENU_TO_NED, e), _Q_BODY_TO_VQF) for e in np.eye(4)])
+_VQF_TO_NED = np.stack([quaternion_multiply(quaternion_multiply(_Q_ENU_TO_NED, e), _Q_BODY_TO_VQF) for e in np.eye(4)])
 
 
 def vqf_to_body_ned(quat_vqf: np.ndarray) -> np.ndarray:
@@ -80,7 +64,7 @@ def _w_positive(q: np.ndarray) -> np.ndarray:
 def body_ned_to_enu_z_up(quat_wxyz: np.ndarray) -> np.ndarray:
     """Inverse of :func:`vqf_to_body_ned`: body (x fwd, y right, z down) -> NED to z-up body -> ENU, (..., 4)."""
     conj = np.array([1.0, -1.0, -1.0, -1.0])
-    return quat_multiply(quat_multiply(_Q_ENU_TO_NED * conj, quat_wxyz), _Q_BODY_TO_VQF * conj)
+    return quaternion_multiply(quaternion_multiply(_Q_ENU_TO_NED * conj, quat_wxyz), _Q_BODY_TO_VQF * conj)
 
 
 def euler_from_quat(quat_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -102,7 +86,7 @@ def quat_from_euler(heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_d
     qz = np.stack([np.cos(half[0]), zero, zero, np.sin(half[0])], axis=-1)
     qy = np.stack([np.cos(half[1]), zero, np.sin(half[1]), zero], axis=-1)
     qx = np.stack([np.cos(half[2]), np.sin(half[2]), zero, zero], axis=-1)
-    q = quat_multiply(quat_multiply(qz, qy), qx)
+    q = quaternion_multiply(quaternion_multiply(qz, qy), qx)
     return np.where(q[..., :1] < 0, -q, q)
 
 
@@ -110,7 +94,7 @@ def rotate_heading(quat_wxyz: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarra
     """Quaternions (..., 4) turned by ``angle_deg`` about NED down (magnetic -> true north: the declination)."""
     half = np.radians(np.asarray(angle_deg, dtype=float)) / 2
     turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)
-    return _w_positive(quat_multiply(turn, quat_wxyz))
+    return _w_positive(quaternion_multiply(turn, quat_wxyz))
 
 
 def acc_in_ms2(acc: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from magnet import fusion
-from magnet.attitude import quaternion_to_matrix
+from magnet.attitude import quaternion_multiply, quaternion_to_matrix
 
 RATE_HZ = 100.0
 FIELD_NED_UT = 50.0 * np.array([np.cos(np.radians(65.0)), 0.0, np.sin(np.radians(65.0))])
@@ -25,7 +25,7 @@ def rotating_device(seconds: float = 60.0, seed: int = 0):
         quats[k] = q
         angle = np.linalg.norm(w) * dt
         axis = w / np.linalg.norm(w) if angle > 0 else np.zeros(3)
-        q = fusion.quat_multiply(q, np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis]))
+        q = quaternion_multiply(q, np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis]))
     rot = quaternion_to_matrix(quats)
     acc = np.einsum("nji,j->ni", rot, [0.0, 0.0, -9.80665])
     mag = np.einsum("nji,j->ni", rot, FIELD_NED_UT)
