@@ -212,13 +212,6 @@ class _Loop:
                 items.append((key, payload.to_bytes()))
         return items
 
-    def headings(self, raw_sub: Any) -> bool:
-        """Compute and publish the headings of the raw batches waiting; False when there were none."""
-        samples = drain(raw_sub, self.drain_limit)
-        if samples:
-            self.headings_of(samples)
-        return bool(samples)
-
     def headings_of(self, samples: list[Any]) -> None:
         """Compute and publish the headings of these raw samples (a drain)."""
         keys = [str(s.key_expr) for s in samples]
