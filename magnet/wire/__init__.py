@@ -1,18 +1,20 @@
 """The wire format: key expressions and msgpack messages between edge, calibrator, compass and their clients.
 
-Every payload is a msgpack map with ``v`` (schema version, ``WIRE_VERSION``) and ``device``. Field names carry their
-unit. Keys are ``<prefix>/<device>/<kind>`` with the device id as one key chunk (see ``Kind``). Decoders turn lists
-into numpy arrays and reject anything malformed with ``WireError``, whose ``cause`` is a short token a service counts
-drops by (``DropCounter``). Pure: no sockets, no clocks, no zenoh.
+Every payload is a msgpack map with ``v`` (schema version: ``RECORD_VERSION`` for records, ``BINARY_ARRAYS_VERSION``
+or ``LISTS_VERSION`` for samples) and ``device``. Field names carry their unit. Keys are ``<prefix>/<device>/<kind>``
+with the device id as one key chunk (see ``Kind``). Decoders turn lists into numpy arrays and reject anything
+malformed with ``WireError``, whose ``cause`` is a short token a service counts drops by (``DropCounter``).
+Pure: no sockets, no clocks, no zenoh.
 
 Modules, one idea each (every name is re-exported here, so ``from magnet import wire; wire.X`` works):
 
 - ``keys``: ``Kind``, ``key``, ``device_from_key``, ``check_key`` (the one key check), ``validate_device_id``
   (the one id check), ``validate_prefix``, status and liveliness keys.
 - ``errors``: ``WireError``, ``DropCounter``.
-- ``codec``: ``WIRE_VERSION`` (1: lists; the records), ``BINARY_VERSION`` (2: sample arrays as little-endian
-  bytes with dtype and shape, written by the services), ``VERSIONS`` (both read), size limits, ``pack``/``unpack``
-  (bounded: ``Limits`` per kind of message, ``RAW_LIMITS``, ``HEADING_LIMITS``, ``CALIBRATION_LIMITS``, ...),
+- ``codec``: ``LISTS_VERSION`` (1: arrays as lists), ``RECORD_VERSION`` (1: the records), ``BINARY_ARRAYS_VERSION``
+  (2: sample arrays as little-endian bytes with dtype and shape, written by the services), ``VERSIONS`` (both read),
+  size limits, ``pack``/``unpack`` (bounded: ``Limits`` per kind of message, ``RAW_LIMITS``, ``HEADING_LIMITS``,
+  ``CALIBRATION_LIMITS``, ...),
   ``plain`` (v 2 arrays as lists, for printing) and the checks of single fields.
 - ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; ``raw_decode``: the one raw decoder ``decode_raw_many``
   (``decode_raw`` is it applied to one payload), with the structure checks of one message in ``raw_header``.
@@ -27,11 +29,12 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
 
 from magnet.wire.codec import (
     ANY_LIMITS,
-    BINARY_VERSION,
+    BINARY_ARRAYS_VERSION,
+    LISTS_VERSION,
     MAX_BATCH_SAMPLES,
     MAX_PAYLOAD_BYTES,
+    RECORD_VERSION,
     VERSIONS,
-    WIRE_VERSION,
     Limits,
     check_version,
     detached,
@@ -95,11 +98,12 @@ from magnet.wire.records import (
 __all__ = [
     "ANGLE_FIELDS",
     "ANY_LIMITS",
-    "BINARY_VERSION",
+    "BINARY_ARRAYS_VERSION",
     "CALIBRATION_LIMITS",
     "DEFAULT_PREFIX",
     "DISTURBED",
     "HEADING_LIMITS",
+    "LISTS_VERSION",
     "MAX_ACC_MS2",
     "MAX_BATCH_SAMPLES",
     "MAX_CURRENT_A",
@@ -109,10 +113,10 @@ __all__ = [
     "MAX_VERSION",
     "PROGRESS_LIMITS",
     "RAW_LIMITS",
+    "RECORD_VERSION",
     "SCALAR_FIELDS",
     "TRUTH_FIELDS",
     "VERSIONS",
-    "WIRE_VERSION",
     "CalibrationMessage",
     "Collecting",
     "DeviceCalibration",

@@ -11,7 +11,7 @@ Two versions of the sample messages (raw, heading) are read; v 2 is written:
   field needs, a byte count that is not N*k*itemsize) is refused with a ``WireError`` like any malformed v 1 array.
 
 The records (calibration, history, progress, status, calibrate replies) carry no sample arrays and are the same in
-both versions (``WIRE_VERSION`` 1, also their JSON form in files and the store); readers accept either number.
+both versions (``RECORD_VERSION`` 1, also their JSON form in files and the store); readers accept either number.
 """
 
 from __future__ import annotations
@@ -26,10 +26,13 @@ import numpy as np
 
 from magnet.wire.errors import WireError
 
-WIRE_VERSION = 1
-#: sample messages with binary arrays (written by the services; ``WIRE_VERSION`` still read)
-BINARY_VERSION = 2
-VERSIONS = (WIRE_VERSION, BINARY_VERSION)
+#: sample messages (raw, heading) whose arrays are msgpack lists of numbers (still read; written by ``edge --wire 1``)
+LISTS_VERSION = 1
+#: sample messages whose arrays are binary (``Bin``): what the services write
+BINARY_ARRAYS_VERSION = 2
+#: the records (calibration, history, progress, status, replies): no sample arrays, one version
+RECORD_VERSION = 1
+VERSIONS = (LISTS_VERSION, BINARY_ARRAYS_VERSION)
 #: Larger payloads are refused before they are unpacked.
 MAX_PAYLOAD_BYTES = 4 * 1024 * 1024
 #: Most samples in one raw or heading batch.
@@ -41,7 +44,7 @@ Payload = bytes | bytearray | memoryview
 def pack(message: Mapping[str, Any]) -> bytes:
     """msgpack bytes of a map (with ``v`` added when missing)."""
     if "v" not in message:
-        message = {"v": WIRE_VERSION, **message}
+        message = {"v": RECORD_VERSION, **message}
     return msgpack.packb(message, use_bin_type=True)
 
 
@@ -207,7 +210,7 @@ def _bin_error(
 ) -> WireError:
     """Why ``check_bin`` refused ``value``."""
     if type(value) is not dict:
-        return WireError("bad-shape", f"{name} must be a map {{dtype, shape, data}} in v {BINARY_VERSION}")
+        return WireError("bad-shape", f"{name} must be a map {{dtype, shape, data}} in v {BINARY_ARRAYS_VERSION}")
     dtype_name, shape, data = value.get("dtype"), value.get("shape"), value.get("data")
     dtype = dtypes.get(dtype_name) if type(dtype_name) is str else None
     if dtype is None:
@@ -244,7 +247,7 @@ def from_bins(bins: list[Bin], tail: tuple[int, ...], out: str) -> np.ndarray:
 
 def binary_message(message: Mapping[str, Any]) -> bool:
     """Whether an unpacked (version-checked) message is v 2."""
-    return message["v"] == BINARY_VERSION
+    return message["v"] == BINARY_ARRAYS_VERSION
 
 
 def plain(value: Any) -> Any:

@@ -24,15 +24,15 @@ import numpy as np
 
 from magnet.heading import HeadingFlag
 from magnet.wire.codec import (
-    BINARY_VERSION,
+    BINARY_ARRAYS_VERSION,
     FLAG_DTYPE,
     FLAG_DTYPES,
     FLOAT_DTYPE,
+    LISTS_VERSION,
     MAX_BATCH_SAMPLES,
     TIME_DTYPE,
     TIME_DTYPES,
     VERSIONS,
-    WIRE_VERSION,
     Limits,
     Payload,
     binary_message,
@@ -107,7 +107,7 @@ def encode_headings(
     declination_deg: float | Sequence[float],
     calibration_ids: Sequence[str],
     quat_wxyz: np.ndarray | None = None,
-    version: int = BINARY_VERSION,
+    version: int = BINARY_ARRAYS_VERSION,
 ) -> list[bytes]:
     """One heading message per batch of ``columns`` (the one heading encoder), in ``version`` 2 (binary arrays, the
     default) or 1 (lists).
@@ -131,7 +131,7 @@ def encode_headings(
     )
 
 
-def encode_heading(batch: HeadingBatch, version: int = BINARY_VERSION) -> bytes:
+def encode_heading(batch: HeadingBatch, version: int = BINARY_ARRAYS_VERSION) -> bytes:
     """The message of one batch: ``encode_headings`` of B = 1."""
     angles = tuple(getattr(batch, name) for name in ANGLE_FIELDS)
     return _encode(
@@ -208,7 +208,7 @@ def _columns(
         raise ValueError(f"wire version must be one of {VERSIONS}, got {version}")
     column: type[_Lists] | type[_Bytes]
     types: tuple[Any, Any, Any]
-    if version == WIRE_VERSION:
+    if version == LISTS_VERSION:
         column, types = _Lists, (np.int64, float, np.int64)
     else:
         column, types = _Bytes, (TIME_DTYPE, FLOAT_DTYPE, FLAG_DTYPE)
@@ -246,7 +246,7 @@ def _encode(
     quat_ok = _quaternions_ok(quat_wxyz, bounds)
     times, angle_columns, field, flag, quat = _columns(version, t_ns, angles, field_ut, flags, quat_wxyz)
     declinations = np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),)).tolist()
-    if version == BINARY_VERSION:
+    if version == BINARY_ARRAYS_VERSION:
         columns = [times, *angle_columns, field]
         return _encode_binary(devices, seqs, bounds, columns, flag, quat, declinations, calibration_ids, quat_ok)
     out = []
@@ -278,7 +278,7 @@ def _encode_binary(
     """The v 2 messages of ``_encode``, their msgpack bytes joined from pieces (the same bytes ``msgpack.packb``
     gives for the message map: keys in the same order, the same smallest encodings), a few us per message."""
     pack, keys = msgpack.packb, _PACKED_KEYS
-    version = keys["v"] + pack(BINARY_VERSION) + keys["device"]
+    version = keys["v"] + pack(BINARY_ARRAYS_VERSION) + keys["device"]
     out = []
     for i, (device, seq, cal_id, declination) in enumerate(zip(devices, seqs, calibration_ids, declinations)):
         lo, hi = bounds[i], bounds[i + 1]

@@ -25,7 +25,7 @@ import msgpack
 import numpy as np
 
 from magnet.place import Location
-from magnet.wire.codec import BINARY_VERSION, FLOAT_DTYPE, TIME_DTYPE, VERSIONS, WIRE_VERSION, bin_array
+from magnet.wire.codec import BINARY_ARRAYS_VERSION, FLOAT_DTYPE, LISTS_VERSION, TIME_DTYPE, VERSIONS, bin_array
 from magnet.wire.errors import WireError
 
 #: Magnitudes beyond these are not a magnetometer, an accelerometer or a gyroscope on Earth (a +-8 gauss chip reads
@@ -227,13 +227,13 @@ def message_location(message: Mapping[str, Any]) -> Location | None:
         raise WireError("bad-location", str(exc)) from None
 
 
-def encode_raw(batch: RawBatch, version: int = BINARY_VERSION) -> bytes:
+def encode_raw(batch: RawBatch, version: int = BINARY_ARRAYS_VERSION) -> bytes:
     """The message of one batch, in ``version`` 2 (binary arrays, the default) or 1 (lists, for old readers)."""
     if version not in VERSIONS:
         raise ValueError(f"wire version must be one of {VERSIONS}, got {version}")
     floats: Callable[[Any], Any]
     times: Callable[[Any], Any]
-    if version == WIRE_VERSION:
+    if version == LISTS_VERSION:
         floats, times = (lambda a: np.asarray(a, dtype=float).tolist()), (lambda a: np.asarray(a, np.int64).tolist())
     else:
         floats, times = (lambda a: bin_array(a, FLOAT_DTYPE)), (lambda a: bin_array(a, TIME_DTYPE))

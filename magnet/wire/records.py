@@ -22,7 +22,7 @@ from typing import Any
 import msgpack
 
 from magnet.model import Calibration
-from magnet.wire.codec import WIRE_VERSION, Limits, Payload, check_version, int_field, unpack
+from magnet.wire.codec import RECORD_VERSION, Limits, Payload, check_version, int_field, unpack
 from magnet.wire.errors import WireError
 from magnet.wire.keys import message_device, validate_device_id
 
@@ -74,7 +74,7 @@ class DeviceCalibration:
     def to_record(self) -> dict[str, Any]:
         """The published map (JSON-able): ``v, device, id, created_ns`` and the calibration's fields."""
         out = {
-            "v": WIRE_VERSION,
+            "v": RECORD_VERSION,
             "device": self.device,
             "id": self.id,
             "created_ns": int(self.created_ns),
@@ -182,7 +182,7 @@ class Progress:
 def encode_progress(device: str, progress: Progress | Mapping[str, Any]) -> bytes:
     """Progress message of a device's calibration (``Progress``, or its map)."""
     fields = progress.to_dict() if isinstance(progress, Progress) else dict(progress)
-    return msgpack.packb({"v": WIRE_VERSION, "device": validate_device_id(device), **fields}, use_bin_type=True)
+    return msgpack.packb({"v": RECORD_VERSION, "device": validate_device_id(device), **fields}, use_bin_type=True)
 
 
 def decode_progress(payload: Payload) -> dict[str, Any]:

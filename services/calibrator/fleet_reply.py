@@ -29,7 +29,7 @@ def fleet_reply(calibrator: Calibrator, now_ns: int) -> dict[str, Any]:
         | {d for d, a in book.alerts.items() if a}
     )
     return {
-        "v": wire.WIRE_VERSION,
+        "v": wire.RECORD_VERSION,
         "t_ns": now_ns,
         "count": len(devices),
         "devices": [_device_entry(calibrator, book, device, now_ns) for device in devices],

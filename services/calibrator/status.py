@@ -49,7 +49,7 @@ class CalibratorStatus:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "v": wire.WIRE_VERSION,
+            "v": wire.RECORD_VERSION,
             "service": "calibrator",
             "name": self.name,
             **dataclasses.asdict(self.counters),

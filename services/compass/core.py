@@ -42,7 +42,7 @@ class CompassStatus:
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
-        return {"v": wire.WIRE_VERSION, "service": "compass", **fields, "dropped_total": sum(self.dropped.values())}
+        return {"v": wire.RECORD_VERSION, "service": "compass", **fields, "dropped_total": sum(self.dropped.values())}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

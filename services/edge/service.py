@@ -116,7 +116,7 @@ class EdgeStatus:
     def as_dict(self) -> dict[str, Any]:
         reads = None if self.stats is None else self.stats.as_dict()
         return {
-            "v": wire.WIRE_VERSION,
+            "v": wire.RECORD_VERSION,
             "service": "edge",
             "name": status_name(self.settings.device),
             "device": self.settings.device,

@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--wire",
         type=int,
         choices=wire.VERSIONS,
-        default=wire.BINARY_VERSION,
+        default=wire.BINARY_ARRAYS_VERSION,
         help="message version: 2 binary arrays (default), 1 lists of numbers for old subscribers",
     )
     sim_options.add_simulator_arguments(parser, seed=1, noise_ut=0.3)
@@ -124,7 +124,7 @@ class EdgeSettings:
     trajectory_samples: int = 3000
     speedup: float = 1.0
     emulate_faults: float = 0.0
-    wire_version: int = wire.BINARY_VERSION
+    wire_version: int = wire.BINARY_ARRAYS_VERSION
     gyro: bool = False
     replay: Path | None = None
     speed: float = 1.0
@@ -235,7 +235,7 @@ class EdgeSettings:
             emulate_faults=float(args.emulate_faults),
             replay=args.replay,
             speed=float(args.speed),
-            wire_version=int(getattr(args, "wire", wire.BINARY_VERSION)),
+            wire_version=int(getattr(args, "wire", wire.BINARY_ARRAYS_VERSION)),
             gyro=bool(getattr(args, "gyro", False)),
             simulator=sim_options.SimulatorSettings.from_args(args),
             zenoh=ZenohSettings.from_args(args),
