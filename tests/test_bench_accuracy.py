@@ -73,4 +73,4 @@ def test_benchmark_prints_a_table(capsys):
     out = capsys.readouterr().out
     for method in bench.METHODS:
         assert method in out
-    assert "met" in out and "MISSED" not in out and "fit ms" in out and "FleetSimulator" in out
+    assert "met" in out and "MISSED" not in out and "fit ms" in out and "SimulatedDevices" in out

@@ -15,7 +15,7 @@ from magnet.compass import Earth
 from magnet.fleet import Places, earth_at, parse_fleet
 from magnet.geomag import earth_field
 from magnet.place import Location
-from magnet.simulator import FleetSimulator
+from magnet.simulator import SimulatedDevices
 from services.compass.service import Compass
 from services.compass.watch import FleetWatch
 
@@ -115,7 +115,7 @@ def test_two_devices_far_apart_get_their_own_declination_and_expected_field():
     batches = []
     for device, place, seed in (("kyiv", KYIV, 1), ("syd", None, 2)):
         where = KYIV if place else SYDNEY
-        sim = FleetSimulator(
+        sim = SimulatedDevices(
             1,
             rate_hz=10,
             seed=seed,

@@ -25,14 +25,14 @@ Modules, by idea:
 - ``trajectories``: ``Trajectory`` (every name) and the still trajectories (spin, turntable, tumble, tenface).
 - ``motion``: the moving trajectories (multirotor, car, figure8, fast-tumble) with linear acceleration.
 - ``run``: ``SimulatorConfig``, ``SimulatedRun``, ``simulate``, ``SensorStream`` (one device, any trajectory).
-- ``fleet``: ``FleetSimulator``, many tumbling devices at once.
+- ``devices``: ``SimulatedDevices``, many tumbling devices at once.
 - ``motors``: ``Motors``, a vehicle's throttle, battery current and the field they add (``SimulatorConfig.motors``).
 
 Everything is deterministic from ``seed``.
 """
 
+from magnet.simulator.devices import DevicesBatch, SimulatedDevices
 from magnet.simulator.errors import REFERENCE_TEMPERATURE_C, SensorErrors
-from magnet.simulator.fleet import FleetBatch, FleetSimulator
 from magnet.simulator.motion import MODELS, CarModel, FastTumbleModel, Figure8Model, MotionModel, MultirotorModel
 from magnet.simulator.motors import Motors
 from magnet.simulator.run import (
@@ -72,15 +72,15 @@ __all__ = [
     "TURNTABLE_ROLL_DEG",
     "TURNTABLE_STEP_DEG",
     "CarModel",
+    "DevicesBatch",
     "FastTumbleModel",
     "Figure8Model",
-    "FleetBatch",
-    "FleetSimulator",
     "MotionModel",
     "Motors",
     "MultirotorModel",
     "SensorErrors",
     "SensorStream",
+    "SimulatedDevices",
     "SimulatedRun",
     "SimulatorConfig",
     "Trajectory",

@@ -5,7 +5,7 @@ in the measuring process that only counts them. No decoding, no processing: the 
 The publisher runs as ``python -m services.bench.ceiling PORT DEVICES BATCH SECONDS GYRO`` and prints one JSON line.
 
 ``generate`` (``python -m services.bench.ceiling generate PORTS DEVICES RATE BATCH SECONDS GYRO``) is the pipeline
-benchmark's load: the edge's messages for a simulated fleet, simulated once ahead (``FleetSimulator`` costs about
+benchmark's load: the edge's messages for a simulated fleet, simulated once ahead (``SimulatedDevices`` costs about
 1.3 us per sample with gyroscopes, as much as the whole compass) and then, paced at the rate, each stamped afresh
 (``t_ns`` ending now, ``seq``) and encoded per message like the edge's. It prints the edge's summary line.
 """
@@ -25,7 +25,7 @@ import msgpack
 import numpy as np
 
 from magnet import wire
-from magnet.simulator import FleetSimulator
+from magnet.simulator import SimulatedDevices
 from services.common.zenoh_session import free_ports
 
 DISTINCT_PAYLOADS = 2000  # at least this many different messages cycled through
@@ -59,7 +59,7 @@ class Ceiling:
 
 def payloads(devices: int, batch: int, gyro: bool) -> list[tuple[str, bytes]]:
     """(key, payload) of the edge's raw messages for ``devices`` simulated devices, a few batches each."""
-    fleet = FleetSimulator(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
+    fleet = SimulatedDevices(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
     out = []
     for seq in range(max(1, -(-DISTINCT_PAYLOADS // devices))):
         step = fleet.step(batch)
@@ -151,7 +151,7 @@ def device_name(d: int) -> str:
 
 
 def _fleet_batches(devices: int, batch: int, gyro: bool, steps: int) -> list[list[wire.RawBatch]]:
-    fleet = FleetSimulator(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
+    fleet = SimulatedDevices(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
     out = []
     for _ in range(steps):
         step = fleet.step(batch)

@@ -63,10 +63,10 @@ def _drain(devices: int = 50, samples: int = 10, rate_hz: float = 50.0) -> tuple
 
     from magnet import wire
     from magnet.compass import Earth
-    from magnet.simulator import FleetSimulator
+    from magnet.simulator import SimulatedDevices
     from services.compass.core import Compass
 
-    step = FleetSimulator(devices, rate_hz=rate_hz, seed=1, gyro=True).step(samples)
+    step = SimulatedDevices(devices, rate_hz=rate_hz, seed=1, gyro=True).step(samples)
     gyr = np.asarray(step.gyr_rads)
     t_ns = 1_700_000_000_000_000_000 + np.arange(samples, dtype=np.int64) * int(1e9 / rate_hz)
     batches = [
