@@ -32,7 +32,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from magnet import fusion
+from magnet import frames, fusion
 from magnet import heading as hd
 from magnet.compass import Headings
 
@@ -89,10 +89,10 @@ class FusedColumns:
         out = cls.empty(len(raw))
         fused = hd.rows_finite(raw)
         if fused.all():
-            out = dataclasses.replace(out, quat_wxyz=fusion.vqf_to_body_ned(raw))
+            out = dataclasses.replace(out, quat_wxyz=frames.ned_enu_attitude(raw))
             out.down[:], (out.heading_deg[:], out.pitch_deg[:], out.roll_deg[:]) = _down_and_euler(out.quat_wxyz)
         elif fused.any():
-            quat = fusion.vqf_to_body_ned(raw[fused])
+            quat = frames.ned_enu_attitude(raw[fused])
             down, (heading, pitch, roll) = _down_and_euler(quat)
             out.quat_wxyz[fused], out.down[fused] = quat, down
             out.heading_deg[fused], out.pitch_deg[fused], out.roll_deg[fused] = heading, pitch, roll

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from magnet.attitude import euler_to_matrix
+from magnet.frames import euler_to_matrix
 from magnet.geomag import earth_field
 from magnet.simulator import SensorErrors
 from services.bench import accuracy as bench

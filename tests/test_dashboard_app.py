@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from magnet import wire
-from magnet.attitude import euler_to_matrix, ned_to_body
 from magnet.drift import Alert, AlertKind
+from magnet.frames import euler_to_matrix, ned_to_body
 from magnet.geomag import earth_field
 from magnet.heading import dip_angle_deg
 from magnet.model import Calibration

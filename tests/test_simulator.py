@@ -5,7 +5,7 @@ import pytest
 
 from magnet import heading as hd
 from magnet import simulator as sim
-from magnet.attitude import euler_to_matrix, ned_to_body, rotation_angle_deg
+from magnet.frames import euler_to_matrix, ned_to_body, rotation_angle_deg
 
 DATE = "2026-03-01"
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from magnet import simulator as sim
-from magnet.attitude import (
+from magnet.frames import (
     ned_to_body,
     quaternion_multiply,
     quaternion_to_euler,
@@ -172,7 +172,7 @@ def test_figure8_moves_the_hand_and_turns_around():
 
 
 def test_fleet_gyroscope_integrates_to_each_devices_attitude():
-    from magnet.attitude import euler_to_quaternion
+    from magnet.frames import euler_to_quaternion
 
     fleet = sim.SimulatedDevices(4, rate_hz=100.0, seed=1, date=DATE, gyro=True)
     first, second = fleet.step(60), fleet.step(60)

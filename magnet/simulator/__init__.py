@@ -2,7 +2,7 @@
 
 Truth. The Earth's field comes from WMM2025 (``magnet.geomag``) at a place and date, as a north-east-down (NED) vector
 B_ned in uT. An attitude trajectory gives, per sample, the magnetic heading K of the body x axis (clockwise from
-magnetic north), pitch and roll (Z-Y-X Euler angles, ``magnet.attitude``) and the body-to-NED quaternion; the true
+magnetic north), pitch and roll (Z-Y-X Euler angles, ``magnet.frames``) and the body-to-NED quaternion; the true
 heading is K + declination. Still trajectories keep the device at rest at every sample (the accelerometer reads
 gravity only); moving ones add linear acceleration:
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import (
+from magnet.frames import (
     euler_to_quaternion,
     quaternion_conjugate,
     quaternion_multiply,

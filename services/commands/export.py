@@ -21,8 +21,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from magnet.autopilot import ROTATIONS
 from magnet.autopilot_params import Autopilot, Export, export_parameters
+from magnet.frames import ROTATIONS
 from magnet.model import Calibration
 from services.common.mavlink_options import add_mavlink_url_arguments
 from services.common.records import load_calibration, write_atomically

@@ -22,10 +22,10 @@ import sys
 
 import numpy as np
 
-from magnet import fusion
+from magnet import frames, fusion
 from magnet import heading as hd
-from magnet.aiding import to_magnetic_ned
 from magnet.autopilot import compare_headings
+from magnet.frames import to_magnetic_ned
 from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
 from services.commands.fit import gyro_columns, sample_period_s
@@ -135,7 +135,7 @@ def _fused(
     period_s = sample_period_s(table, args.rate)
     t_s, vel = velocity_aiding(table, period_s, declination_deg)
     fused = run(gyr, fusion.acc_in_ms2(table.acc), field, period_s, None, t_s, vel)
-    down = fusion.down_in_body(fused.quat_wxyz)
+    down = frames.down_in_body(fused.quat_wxyz)
     flags = int(hd.HeadingFlag.FUSED) | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
     return Attitude(fused.heading_deg, fused.pitch_deg, fused.roll_deg, fused.quat_wxyz, -down, flags)
 
@@ -148,7 +148,7 @@ def _tilt(table: SampleTable, field: np.ndarray) -> Attitude:
     else:
         magnetic = hd.level_heading_deg(field)
         pitch = roll = np.zeros(count)
-    quat = fusion.quat_from_euler(magnetic, pitch, roll)
+    quat = frames.w_positive(frames.euler_to_quaternion(magnetic, pitch, roll))
     return Attitude(magnetic, pitch, roll, quat, table.acc, np.zeros(count, dtype=int))
 
 
@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
             "field_*_ut columns are in that unit",
             file=sys.stderr,
         )
-    quat = fusion.rotate_heading(attitude.quat, declination_deg)
+    quat = frames.rotate_heading(attitude.quat, declination_deg)
     if args.compare:
         _compare(args, table, hd.true_heading_deg(magnetic, declination_deg), declination_deg)
     header = list(COLUMNS)

@@ -11,11 +11,10 @@ import numpy as np
 
 from magnet import heading as hd
 from magnet import signing, wire
-from magnet.aiding import to_magnetic_ned
 from magnet.compass import Earth, Headings, compute_headings, smooth_tail
 from magnet.fleet import EarthColumns, Places, disturbance_flags
 from magnet.fleet_fusion import FleetFusion, FusedColumns, merge
-from magnet.fusion import rotate_heading
+from magnet.frames import rotate_heading, to_magnetic_ned
 from magnet.shard import EVERY_DEVICE, Shard
 from services.compass.calibrations import CalibrationsInForce
 from services.compass.settings import DEFAULT_MAX_DEVICES
