@@ -74,6 +74,24 @@ def body_to_ned(matrix: np.ndarray, vector_body: np.ndarray) -> np.ndarray:
     return np.einsum("...ij,...j->...i", np.asarray(matrix, dtype=float), np.asarray(vector_body, dtype=float))
 
 
+def ned_to_body_euler(
+    vector_ned: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray
+) -> np.ndarray:
+    """R^T v for R = Rz(yaw) Ry(pitch) Rx(roll), without building matrices: vector (3,) or (..., 3) in NED, angles
+    broadcastable, result (..., 3) in body axes. The fast path of the simulators (three elementary rotations)."""
+    v = np.asarray(vector_ned, dtype=float)
+    y, p, r = (np.radians(np.asarray(a, dtype=float)) for a in (yaw_deg, pitch_deg, roll_deg))
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    n, e, d = v[..., 0], v[..., 1], v[..., 2]
+    x1 = cy * n + sy * e  # Rz^T
+    y1 = -sy * n + cy * e
+    x2 = cp * x1 - sp * d  # Ry^T
+    z2 = sp * x1 + cp * d
+    y3 = cr * y1 + sr * z2  # Rx^T
+    z3 = -sr * y1 + cr * z2
+    return np.stack(np.broadcast_arrays(x2, y3, z3), axis=-1)
+
+
 def _rodrigues(unit_axis: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
     """I + sin(a) K + (1 - cos(a)) K^2, K the cross-product matrix of unit axes (..., 3); angles (...): (..., 3, 3)."""
     k = unit_axis
@@ -110,16 +128,19 @@ def rotation_vector_to_matrix(rotvec_rad: np.ndarray) -> np.ndarray:
 def quaternion_to_matrix(quat_wxyz: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) from quaternions (..., 4) ordered w, x, y, z (normalised here)."""
     q = np.asarray(quat_wxyz, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-        ],
-        axis=-2,
-    )
+    q = q / np.sqrt(np.add.reduce(q * q, axis=-1, keepdims=True))  # np.linalg.norm's sum, without its overhead
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty((*q.shape[:-1], 3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - w * z)
+    out[..., 0, 2] = 2 * (x * z + w * y)
+    out[..., 1, 0] = 2 * (x * y + w * z)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - w * x)
+    out[..., 2, 0] = 2 * (x * z - w * y)
+    out[..., 2, 1] = 2 * (y * z + w * x)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
 
 
 def random_rotations(count: int, rng: np.random.Generator) -> np.ndarray:

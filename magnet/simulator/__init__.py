@@ -54,7 +54,6 @@ from magnet.simulator.trajectories import (
     TURNTABLE_ROLL_DEG,
     TURNTABLE_STEP_DEG,
     Trajectory,
-    ned_to_body_euler,
 )
 
 __all__ = [
@@ -84,6 +83,5 @@ __all__ = [
     "SimulatedRun",
     "SimulatorConfig",
     "Trajectory",
-    "ned_to_body_euler",
     "simulate",
 ]

@@ -9,6 +9,7 @@ import numpy as np
 
 from magnet.frames import (
     euler_to_quaternion,
+    ned_to_body_euler,
     quaternion_conjugate,
     quaternion_multiply,
     quaternion_to_rotation_vector,
@@ -16,7 +17,7 @@ from magnet.frames import (
 from magnet.geomag import earth_field
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.run import DEFAULT_DATE, DEFAULT_LAT_DEG, DEFAULT_LON_DEG
-from magnet.simulator.trajectories import GOLDEN_RATIO_MINOR, TUMBLE_PITCH_AMPLITUDE_DEG, ned_to_body_euler, wrap_roll
+from magnet.simulator.trajectories import GOLDEN_RATIO_MINOR, TUMBLE_PITCH_AMPLITUDE_DEG, wrap_roll
 from magnet.units import STANDARD_GRAVITY_MS2
 
 

@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from magnet.frames import ned_to_body_euler
 from magnet.geomag import EarthField, earth_field
 from magnet.heading import angle_difference_deg, tilt_compensated_heading_deg
 from magnet.model import Calibration
@@ -33,7 +34,6 @@ from magnet.simulator import (
     SensorErrors,
     SimulatorConfig,
     Trajectory,
-    ned_to_body_euler,
     simulate,
 )
 from magnet.units import STANDARD_GRAVITY_MS2
