@@ -88,6 +88,7 @@ def test_help_shows_each_default_once() -> None:
     text = parser.format_help()
     assert "(default 1)" in text and "(default 2.5)" in text and "(default 0.8)" in text
     assert "--no-auto" in text and "--other" not in text
+    assert "--min-coverage MIN_COVERAGE" in text and "--shard K/N" in text, "named by the flag, as argparse does"
 
 
 @dataclasses.dataclass(frozen=True)

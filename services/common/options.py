@@ -122,7 +122,8 @@ def _add(parser: Any, field: dataclasses.Field[Any], spec: Option, shown: str | 
         help_text = f"{help_text} (default {_default_text(default)})".replace("%", "%%")
     else:
         help_text = help_text.replace("%", "%%")
-    kwargs: dict[str, Any] = {"dest": field.name, "help": help_text, "metavar": spec.metavar}
+    metavar = spec.metavar or spec.flags[0].lstrip("-").replace("-", "_").upper()  # as argparse names it by flag
+    kwargs: dict[str, Any] = {"dest": field.name, "help": help_text, "metavar": metavar}
     if spec.choices is not None:
         kwargs["choices"] = spec.choices
     if spec.repeat:
