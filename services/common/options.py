@@ -122,7 +122,9 @@ def _add(parser: Any, field: dataclasses.Field[Any], spec: Option, shown: str | 
         help_text = f"{help_text} (default {_default_text(default)})".replace("%", "%%")
     else:
         help_text = help_text.replace("%", "%%")
-    metavar = spec.metavar or spec.flags[0].lstrip("-").replace("-", "_").upper()  # as argparse names it by flag
+    metavar = spec.metavar
+    if metavar is None and spec.choices is None:  # as argparse names it: by its flag, or its choices
+        metavar = spec.flags[0].lstrip("-").replace("-", "_").upper()
     kwargs: dict[str, Any] = {"dest": field.name, "help": help_text, "metavar": metavar}
     if spec.choices is not None:
         kwargs["choices"] = spec.choices
