@@ -75,7 +75,7 @@ def _query(args: argparse.Namespace, selector: str, errors: list[str] | None = N
         for reply in session.get(selector, timeout=args.timeout):
             if reply.ok is not None:
                 out.append(_decode(payload_bytes(reply.ok)))
-            else:
+            elif reply.err is not None:
                 message = payload_bytes(reply.err).decode(errors="replace")
                 print(f"magnet: {message}", file=sys.stderr)
                 if errors is not None:

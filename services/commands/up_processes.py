@@ -83,7 +83,8 @@ def dashboard_http(settings: UpSettings, spare_port: int) -> tuple[str, str, str
     import secrets
     import socket
 
-    from services.dashboard.service import DEFAULT_HTTP, page_address, parse_http
+    from services.dashboard.service import page_address
+    from services.dashboard.settings import DEFAULT_HTTP, parse_http
 
     http = settings.http
     if http is None:

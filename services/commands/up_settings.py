@@ -65,7 +65,7 @@ class UpSettings:
 
     def __post_init__(self) -> None:
         if self.http is not None:
-            from services.dashboard.service import parse_http
+            from services.dashboard.settings import parse_http
 
             parse_http(self.http)
         check_options(self)

@@ -19,7 +19,7 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import zenoh
 
@@ -27,6 +27,9 @@ from magnet.wire import DEFAULT_PREFIX, validate_prefix
 from services.common.options import add_options, check_options, from_args, one_of, option, optional
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+T_co = TypeVar("T_co", covariant=True)
 
 MODES = ("peer", "client", "router")
 OPEN_RETRY_S = 5.0
@@ -195,15 +198,21 @@ def stop_event() -> threading.Event:
     return event
 
 
-def payload_bytes(sample_or_query: Any) -> bytes:
-    """The payload of a zenoh Sample (or Query; b"" when it has none) as bytes."""
+def payload_bytes(sample_or_query: zenoh.Sample | zenoh.Query | zenoh.ReplyError) -> bytes:
+    """The payload of a zenoh Sample, Query (b"" when it has none) or error reply as bytes."""
     payload = sample_or_query.payload
     return b"" if payload is None else payload.to_bytes()
 
 
-def drain(handler: Any, limit: int) -> list[Any]:
+class Receiver(Protocol[T_co]):
+    """What a zenoh channel gives without blocking: a ``Subscriber``, ``Queryable`` or ``Handler`` (of a ``get``)."""
+
+    def try_recv(self) -> T_co | None: ...
+
+
+def drain(handler: Receiver[T], limit: int) -> list[T]:
     """Up to ``limit`` items a zenoh handler holds now (an empty, closed channel gives none)."""
-    items: list[Any] = []
+    items: list[T] = []
     while len(items) < limit:
         try:
             item = handler.try_recv()
