@@ -195,8 +195,8 @@ def run_watch(args: argparse.Namespace) -> int:
     deadline = None if args.duration is None else time.monotonic() + args.duration
     printed = 0
     console = None if wants_json(args) else Console()
-    with open_session(args) as session:
-        subscriber = session.declare_subscriber(f"{args.prefix}/{args.device}/{WATCHABLE[args.what].value}")
+    key = f"{args.prefix}/{args.device}/{WATCHABLE[args.what].value}"
+    with open_session(args) as session, session.declare_subscriber(key) as subscriber:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             sample = subscriber.try_recv()
             if sample is None:

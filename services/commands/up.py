@@ -13,13 +13,14 @@ Modules: ``up_settings`` (the options, checked), ``up_processes`` (the child ser
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 import zenoh
 
@@ -45,7 +46,7 @@ def _view_config(ports: dict[str, int]) -> zenoh.Config:
     return conf
 
 
-def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], logs: Path) -> int:
+def _watch(settings: UpSettings, procs: dict[str, subprocess.Popen[bytes]], ports: dict[str, int], logs: Path) -> int:
     """Show the view until --duration, a signal, or a service that stops (exit status 1)."""
     tty = sys.stdout.isatty() and os.environ.get("CI", "").lower() not in ("1", "true")
     interval = settings.interval_s or (0.5 if tty else 3.0)
@@ -53,9 +54,12 @@ def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], l
     viewer = Viewer(settings.prefix, sys.stdout, tty)
     started = time.monotonic()
     status = 0
-    with zenoh.open(_view_config(ports)) as session:
+    with contextlib.ExitStack() as declared:
+        session = declared.enter_context(zenoh.open(_view_config(ports)))
         subscribers = {
-            kind: session.declare_subscriber(wire.key(settings.prefix, "*", kind), zenoh.handlers.RingChannel(4096))
+            kind: declared.enter_context(
+                session.declare_subscriber(wire.key(settings.prefix, "*", kind), zenoh.handlers.RingChannel(4096))
+            )
             for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION, wire.Kind.ALERT)
         }
         in_force = session.get(wire.key(settings.prefix, "*", wire.Kind.CALIBRATION), timeout=3.0)  # stored ones

@@ -204,6 +204,12 @@ def payload_bytes(sample_or_query: zenoh.Sample | zenoh.Query | zenoh.ReplyError
     return b"" if payload is None else payload.to_bytes()
 
 
+def matching(publisher: zenoh.Publisher) -> bool:
+    """Whether a subscriber matches ``publisher`` now (zenoh 1.10's stub says ``matching_status`` is a bool; it is a
+    ``MatchingStatus`` with ``.matching``)."""
+    return bool(publisher.matching_status.matching)  # type: ignore[attr-defined]
+
+
 class Receiver(Protocol[T_co]):
     """What a zenoh channel gives without blocking: a ``Subscriber``, ``Queryable`` or ``Handler`` (of a ``get``)."""
 
