@@ -105,7 +105,7 @@ class FoxgloveBridge:
         self.headings = self.declared.enter_context(session.declare_subscriber(f"{prefix}/*/heading", fifo(8192)))
         self.alerts = self.declared.enter_context(session.declare_subscriber(f"{prefix}/*/alert", fifo(256)))
         self.tf = FrameTransformChannel("/tf")
-        self.channels: dict[str, tuple[Any, Any, Any]] = {}
+        self.channels: dict[str, tuple[foxglove.Channel, foxglove.Channel, foxglove.Channel]] = {}
         self.open_alerts: dict[str, set[str]] = {}
         self.next_diagnostics: dict[str, float] = {}
         self.dropped = 0
@@ -118,7 +118,7 @@ class FoxgloveBridge:
         """Undeclare the subscribers (after ``stop`` and the end of ``run``)."""
         self.declared.close()
 
-    def _channels(self, device: str) -> tuple[Any, Any, Any] | None:
+    def _channels(self, device: str) -> tuple[foxglove.Channel, foxglove.Channel, foxglove.Channel] | None:
         found = self.channels.get(device)
         if found is None and len(self.channels) < MAX_DEVICES:
             base = f"/magnet/{ros_name_of_device(device)}"
