@@ -13,6 +13,7 @@ refused too.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -97,6 +98,12 @@ def _files() -> list[Path]:
     return sorted(SERVICES.rglob("*.py"))
 
 
+@functools.cache
+def _trees() -> tuple[tuple[Path, ast.Module], ...]:
+    """Every file of services/ not in NOT_YET, parsed once for both checks."""
+    return tuple((path, ast.parse(path.read_text(), str(path))) for path in _files() if not _not_yet(path))
+
+
 def _not_yet(path: Path) -> bool:
     name = path.relative_to(ROOT).as_posix()
     return any(name.startswith(prefix) for prefix in NOT_YET)
@@ -105,10 +112,7 @@ def _not_yet(path: Path) -> bool:
 @pytest.mark.parametrize("check", [untyped_zenoh, undeclared_by_hand], ids=["Any", "undeclare"])
 def test_no_zenoh_object_untyped_or_undeclared_by_hand(check):
     problems = []
-    for path in _files():
-        if _not_yet(path):
-            continue
-        tree = ast.parse(path.read_text(), str(path))
+    for path, tree in _trees():
         problems += [f"{path.relative_to(ROOT)}:{line}: {what}" for line, what in check(tree)]
     assert not problems, "use zenoh's own types and a with block or an ExitStack:\n" + "\n".join(problems)
 
