@@ -18,7 +18,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from magnet.drivers.base import Combined, I2CBus, Reading, RetryPolicy, Sensor, orientation_matrix, to_signed
+from magnet.drivers.base import Combined, I2CBus, Reading, Sensor, orientation_matrix, to_signed
+from magnet.retry import RetryPolicy
 from magnet.units import STANDARD_GRAVITY_MS2
 
 #: chip axes with z up out of the package -> body axes of a package lying flat, top up, x forward

@@ -17,7 +17,7 @@ from typing import Any
 import zenoh
 
 from magnet import wire
-from magnet.readloop import ReadStats
+from magnet.retry import Health
 from magnet.ros2 import messages, names
 from magnet.ros2.pairing import SamplePairer
 from services.common.zenoh_session import drain
@@ -43,7 +43,7 @@ class Ros2Source:
             raise ValueError("--ros2 needs --mag-topic TOPIC (a sensor_msgs/msg/MagneticField topic)")
         self.settings = settings
         self.ids = [settings.device]
-        self.stats = ReadStats()
+        self.stats = Health()
         self.pairer = SamplePairer(settings.imu_topic is not None, settings.batch)
         self.declared: list[Any] = []
         self.subs: dict[str, Any] = {}

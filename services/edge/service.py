@@ -37,7 +37,7 @@ from typing import Any
 import zenoh
 
 from magnet import wire
-from magnet.readloop import ReadStats
+from magnet.retry import Health
 from services.common import metrics
 from services.common.guard import Guard
 from services.common.zenoh_session import open_session, stop_event
@@ -69,7 +69,7 @@ class EdgeStatus:
     def __init__(self, settings: EdgeSettings) -> None:
         self.settings = settings
         self.ids = [settings.device]
-        self.stats: ReadStats | None = None
+        self.stats: Health | None = None
         self.published_samples = self.published_batches = 0
         self.session: Any = None
         self.unhealthy_token: Any = None

@@ -1,6 +1,6 @@
 """Where ``magnet edge``'s samples come from. Each source's ``batches(seq, end_ns, stop)`` returns the next
 ``RawBatch`` of every device it holds (end_ns: wall-clock ns of the batch's last sample); ``stats`` (a
-``ReadStats``, or None for simulated sources that cannot fail) counts its reads.
+``Health``, or None for simulated sources that cannot fail) counts its reads.
 
 - ``FleetSource``: N simulated devices, one vectorized step per batch.
 - ``StreamSource``: one simulated device read sample by sample (no register emulation).
@@ -24,15 +24,15 @@ import smbus2
 from magnet import wire
 from magnet.drivers import open_sensor
 from magnet.emulators import FaultInjector, emulator_for
-from magnet.readloop import Backoff, ReadLoop, ReadStats
+from magnet.readloop import ReadLoop
 from magnet.replay import Recording, paced_slices
+from magnet.retry import READ_BACKOFF, Health
 from magnet.simulator import FleetSimulator
 from services.common.input_options import InputOptions
 from services.common.inputs import read_input
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
 
 #: the edge's read loop: waits 10 ms, 20 ms, ... up to 1 s between failed reads; unhealthy after 3 in a row
-EDGE_BACKOFF = Backoff(initial_s=0.01, max_s=1.0, unhealthy_after=3, poll_s=0.0005)
 TRUTH_KEYS = ("heading_deg", "pitch_deg", "roll_deg")
 GYRO_COLUMNS = ("gx", "gy", "gz")
 REPLAY_SENSOR = "replay"
@@ -55,7 +55,7 @@ def _stream(settings: EdgeSettings) -> Any:
 class FleetSource:
     """N simulated devices, one vectorized step per batch."""
 
-    stats: ReadStats | None = None
+    stats: Health | None = None
 
     def __init__(self, settings: EdgeSettings) -> None:
         self.fleet = FleetSimulator(
@@ -91,7 +91,7 @@ class StreamSource:
     """One simulated device read sample by sample from a ``SensorStream`` (no register emulation); a moving
     trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope and its GNSS-like velocity."""
 
-    stats: ReadStats | None = None
+    stats: Health | None = None
 
     def __init__(self, settings: EdgeSettings) -> None:
         self.stream = _stream(settings)
@@ -150,12 +150,12 @@ class ChipSource:
         if settings.emulate_faults:  # after set-up: the chip was found, then its bus fails
             bus.faults = FaultInjector(probability=settings.emulate_faults, seed=settings.simulator.seed)
         self.loop = ReadLoop(
-            self.driver.read, clock=time.monotonic, sleep=time.sleep, backoff=EDGE_BACKOFF, on_health=on_health
+            self.driver.read, clock=time.monotonic, sleep=time.sleep, policy=READ_BACKOFF, on_health=on_health
         )
 
     @property
-    def stats(self) -> ReadStats:
-        return self.loop.stats
+    def stats(self) -> Health:
+        return self.loop.health
 
     def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
         """Up to ``batch`` samples (fewer only when ``stop()`` turned true while the bus was failing)."""
@@ -208,7 +208,7 @@ def read_recording(path: Path, topic: str | None = None, mag: int | None = None)
 class ReplaySource:
     """A recording published at its own pace (scaled by ``--speed``), in batches of ``--batch``; then it ends."""
 
-    stats: ReadStats | None = None
+    stats: Health | None = None
 
     def __init__(self, settings: EdgeSettings) -> None:
         if settings.replay is None:
