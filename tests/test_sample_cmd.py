@@ -103,7 +103,7 @@ def test_sample_gives_up_on_a_dead_bus_with_a_clear_error_after_bounded_backoff(
     [
         (("--rate", "0"), "--rate must be > 0"),
         (("--orientation", "sideways"), "unknown orientation 'sideways'"),
-        (("--hard-iron", "1,2"), "--hard-iron needs 3 numbers"),
+        (("--hard-iron", "1,2"), "--hard-iron: needs 3 numbers"),
         (("--location", "999,0"), "latitude"),
     ],
 )
