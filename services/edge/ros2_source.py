@@ -80,7 +80,7 @@ class Ros2Source:
 
     def _take(self, ros_type: str, now_s: float) -> int:
         handler = self.subs.get(ros_type)
-        samples = [] if handler is None else drain(handler, 10_000)
+        samples: list[zenoh.Sample] = [] if handler is None else drain(handler, 10_000)
         for sample in samples:
             self.health.attempts += 1
             try:

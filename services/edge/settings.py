@@ -17,7 +17,7 @@ from magnet.drivers import SENSORS, has_gyroscope
 from magnet.place import Location
 from magnet.replay import MAX_SPEED
 from services.common.mavlink_options import baud_option, url_option
-from services.common.options import add_options, at_least, check_options, from_args, one_of, option, within
+from services.common.options import Check, add_options, at_least, check_options, from_args, one_of, option, within
 from services.common.ros2_options import Ros2Settings, add_ros2_arguments
 from services.common.sim_options import (
     DEFAULT_PLACE,
@@ -45,7 +45,7 @@ class SourceKind(enum.StrEnum):
     CHIP = "chip"  # --sensor NAME (--bus N or --emulate): one chip through its driver
 
 
-def _in_range(low: float, high: float, unit: str = "") -> Callable[[Any], str | None]:
+def _in_range(low: float, high: float, unit: str = "") -> Check:
     """A number in (low, high]."""
 
     def check(value: Any) -> str | None:
@@ -55,7 +55,7 @@ def _in_range(low: float, high: float, unit: str = "") -> Callable[[Any], str | 
     return check
 
 
-def _whole(low: int, high: int) -> Callable[[Any], str | None]:
+def _whole(low: int, high: int) -> Check:
     def check(value: Any) -> str | None:
         good = isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
         return None if good else f"must be {low}..{high}"

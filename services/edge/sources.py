@@ -144,7 +144,7 @@ class StreamSource(Unattached):
         ]
 
 
-def _rows(vectors: list[Any]) -> np.ndarray | None:
+def _rows(vectors: list[np.ndarray | None]) -> np.ndarray | None:
     """(N, 3) from N vectors of 3, or None when any is missing (the wire field is all or nothing per batch)."""
     return None if any(v is None for v in vectors) else np.array(vectors, dtype=float)
 
