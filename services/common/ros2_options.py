@@ -33,9 +33,16 @@ class Ros2Settings:
     """Whether to speak ROS 2, in which domain and namespace."""
 
     enabled: bool = option(False, "--ros2", help="speak ROS 2 (rmw_zenoh): see the group's description", group=GROUP)
-    domain: int = option(0, "--ros-domain", help="ROS_DOMAIN_ID of the ROS 2 graph", check=_domain, group=GROUP)
+    domain: int = option(
+        0, "--ros-domain", metavar="ID", help="ROS_DOMAIN_ID of the ROS 2 graph", check=_domain, group=GROUP
+    )
     namespace: str = option(
-        DEFAULT_NAMESPACE, "--ros-namespace", help="ROS namespace of the topics", check=_namespace, group=GROUP
+        DEFAULT_NAMESPACE,
+        "--ros-namespace",
+        metavar="NAMESPACE",
+        help="ROS namespace of the topics",
+        check=_namespace,
+        group=GROUP,
     )
 
     def __post_init__(self) -> None:

@@ -85,7 +85,7 @@ def seed_option(default: int) -> Any:
 
 def noise_option(default: float) -> Any:
     """``--noise-ut``, with the command's own default (``magnet sample`` 0, ``magnet edge`` 0.3)."""
-    return option(default, "--noise-ut", help="noise, uT RMS", check=_not_negative, group=GROUP)
+    return option(default, "--noise-ut", metavar="UT", help="noise, uT RMS", check=_not_negative, group=GROUP)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,6 +106,7 @@ class SimulatorSettings:
     hard_iron_ut: tuple[float, ...] = option(
         (0.0, 0.0, 0.0),
         "--hard-iron",
+        metavar="X,Y,Z",
         parse=_hard_iron,
         show_default=False,
         check=_count(3),
@@ -115,6 +116,7 @@ class SimulatorSettings:
     soft_iron: tuple[float, ...] = option(
         (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
         "--soft-iron",
+        metavar="NUMBERS",
         parse=_soft_iron,
         show_default=False,
         check=_count(9),
@@ -125,6 +127,7 @@ class SimulatorSettings:
     gyro_bias_rads: tuple[float, ...] = option(
         (0.0, 0.0, 0.0),
         "--gyro-bias",
+        metavar="X,Y,Z",
         parse=_gyro_bias,
         show_default=False,
         check=_count(3),
@@ -132,14 +135,15 @@ class SimulatorSettings:
         group=GROUP,
     )
     gyro_noise_rads: float = option(
-        0.0, "--gyro-noise", check=_not_negative, help="gyroscope noise, rad/s RMS", group=GROUP
+        0.0, "--gyro-noise", metavar="RADS", check=_not_negative, help="gyroscope noise, rad/s RMS", group=GROUP
     )
     location: Location | None = option(
         None,
         "--location",
         parse=Location.parse,
         metavar="LAT,LON[,ALT_M]",
-        help=f"where (default Kyiv, {DEFAULT_LOCATION}); magnet edge also sends it in its raw messages",
+        help=f"the simulated device's place (default Kyiv, {DEFAULT_LOCATION}); magnet edge also sends it in its "
+        "raw messages",
         group=GROUP,
     )
     date: str | None = option(None, "--date", help="YYYY-MM-DD or decimal year (default: the simulator's)", group=GROUP)

@@ -111,16 +111,17 @@ class EdgeSettings:
         0, "--devices", help="with --emulate: this many simulated devices", check=_whole(0, MAX_DEVICES)
     )
     rate_hz: float = option(
-        50.0, "--rate", help="samples per second per device", check=_in_range(0, MAX_RATE_HZ, " Hz")
+        50.0, "--rate", metavar="RATE", help="samples per second per device", check=_in_range(0, MAX_RATE_HZ, " Hz")
     )
     batch: int = option(10, "--batch", help="samples per message", check=_whole(1, wire.MAX_BATCH_SAMPLES))
     duration_s: float | None = option(
-        None, "--duration", parse=float, help="stop after this many seconds", check=_seconds
+        None, "--duration", parse=float, metavar="SECONDS", help="stop after this many seconds", check=_seconds
     )
     gyro: bool = option(False, "--gyro", help="with --devices: the simulated devices send a gyroscope too (gyr_rads)")
     wire_version: int = option(
         wire.BINARY_ARRAYS_VERSION,
         "--wire",
+        metavar="VERSION",
         help="message version: 2 binary arrays, 1 lists of numbers for old subscribers",
         check=lambda v: None if v in wire.VERSIONS else f"must be one of {', '.join(map(str, wire.VERSIONS))}",
     )
