@@ -147,3 +147,23 @@ def test_a_driver_on_a_dead_emulated_bus_through_the_loop():
     reading = loop.next()
     assert reading is not None and np.allclose(reading.mag_ut, [20.0, 0.0, 45.0], atol=0.5)
     assert [healthy for healthy, _ in changes] == [False, True] and sensor.health.healthy
+
+
+def test_one_policy_and_one_health_record_serve_the_transfer_and_the_read_loop():
+    """The driver's I2C transfers and the read loop share RetryPolicy and Health (magnet.retry); a transfer's policy
+    must give up, or a dead bus would hang a read."""
+    from magnet.drivers.base import I2CDevice
+    from magnet.retry import TRANSFER_RETRY, Health
+
+    assert [TRANSFER_RETRY.delay_s(n) for n in (1, 2, 3)] == [0.002, 0.004, 0.008]
+    assert [READ_BACKOFF.delay_s(n) for n in (1, 2, 8, 20)] == [0.01, 0.02, 1.0, 1.0]
+    assert TRANSFER_RETRY.gives_up(4) and not READ_BACKOFF.gives_up(10**6)
+    with pytest.raises(ValueError, match="must give up"):
+        I2CDevice(HMC5883LEmulator(ConstantSource()), 0x1E, retry=READ_BACKOFF)
+    health = Health()
+    policy = RetryPolicy(unhealthy_after=2)
+    assert [health.failed("EIO", "x", policy), health.failed("EIO", "y", policy)] == [False, True]
+    assert not health.failed("EBUSY", "z", policy) and health.errors_by_cause == {"EIO": 2, "EBUSY": 1}
+    assert health.succeeded() and not health.succeeded() and health.healthy and health.consecutive_failures == 0
+    sensor = HMC5883L(HMC5883LEmulator(ConstantSource()), sleep=lambda s: None)
+    assert isinstance(sensor.health, Health) and isinstance(make_loop(sensor.read, FakeClock())[0].health, Health)
