@@ -51,7 +51,7 @@ def test_every_kind_of_source_has_the_one_shape(kind: SourceKind, tmp_path: Path
         assert all(isinstance(device, str) for device in source.ids)
         status = source.status()
         assert status is None or {"healthy", "attempts", "errors", "last_error"} <= set(status)
-        deadline = time.monotonic() + 0.5  # a ROS 2 source without a session never fills a batch
+        deadline = time.monotonic() + 0.2  # a ROS 2 source without a session never fills a batch
         steps = list(itertools.islice(source.batches(lambda: time.monotonic() > deadline), 2))
         for step in steps:
             assert all(isinstance(batch, wire.RawBatch) for batch in step)

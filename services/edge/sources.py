@@ -165,8 +165,10 @@ class ChipSource:
             if settings.emulate_faults:  # after set-up: the chip was found, then its bus fails
                 emulator.faults = FaultInjector(probability=settings.emulate_faults, seed=settings.simulator.seed)
         else:
-            bus = self.opened.enter_context(smbus2.SMBus(settings.bus))
-            self.driver = open_sensor(settings.sensor, bus, **options)
+            with contextlib.ExitStack() as opening:  # the bus closes again when no chip answers on it
+                bus = opening.enter_context(smbus2.SMBus(settings.bus))
+                self.driver = open_sensor(settings.sensor, bus, **options)
+                self.opened = opening.pop_all()
         self.loop = ReadLoop(self.driver.read, clock=time.monotonic, sleep=time.sleep, policy=READ_BACKOFF)
 
     def attach(self, session: zenoh.Session, events: DeviceEvents) -> None:
