@@ -266,11 +266,10 @@ def test_compass_survives_a_failing_calibration_handler_and_a_failing_drain(monk
 
 # ------------------------------------------------------------------------------------------------- edge
 def test_edge_status_query_that_fails_gets_an_error_and_the_next_is_answered(monkeypatch):
-    from services.common.zenoh_session import ZenohSettings
     from services.edge.service import EdgeStatus
+    from services.edge.settings import EdgeSettings
 
-    settings = type("S", (), {"device": "e1", "sensor": "sim", "zenoh": ZenohSettings(), "mavlink": None})()
-    status = EdgeStatus(settings)  # type: ignore[arg-type]
+    status = EdgeStatus(EdgeSettings(device="e1", emulate=True))
     as_dict = status.as_dict
     monkeypatch.setattr(status, "as_dict", lambda: {"bad": object()})  # not packable: a bug
     first = FakeQuery("magnet/@status/edge-e1")

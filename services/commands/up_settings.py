@@ -8,7 +8,7 @@ from pathlib import Path
 
 from magnet import wire
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
-from magnet.geomag import parse_location
+from magnet.place import Location
 from services.common.fleet_options import add_drift_arguments, drift_from_args
 from services.common.options import add_options, check_options, from_args, option
 from services.common.sim_options import SimulatorSettings
@@ -32,7 +32,7 @@ def _interval(value: float | None) -> str | None:
 @dataclasses.dataclass(frozen=True)
 class UpSettings:
     """What ``magnet up`` runs, checked in one place before anything starts: each option's own check, the edge's
-    (rate, batch, speedup) through the ``EdgeSettings`` it will run, the location through ``parse_location``, the
+    (rate, batch, speedup) through the ``EdgeSettings`` it will run, the location through ``Location.parse``, the
     dashboard's address through ``parse_http``."""
 
     devices: int = option(4, "--devices", help="emulated devices", check=_devices)
@@ -71,7 +71,7 @@ class UpSettings:
         check_options(self)
         wire.validate_prefix(self.prefix)
         try:
-            place = parse_location(self.location)
+            place = Location.parse(self.location)
         except ValueError as exc:
             raise ValueError(f"--location: {exc}") from None
         EdgeSettings(
