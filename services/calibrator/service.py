@@ -13,8 +13,8 @@ Queryables: see ``services.calibrator.queries``. One thread does the work: a pum
 from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
 between slices of samples; every handler runs through ``services.common.guard``, so no message, query or failing
 store ends it.
-The options and settings are in ``services.calibrator.settings``, the core (no zenoh) in ``services.calibrator.core``
-and the operator sessions in ``services.calibrator.sessions``.
+The options and settings are in ``services.calibrator.settings``; the calibrator without zenoh, its parts wired, in
+``services.calibrator.core`` (docs/calibrator.md).
 """
 
 from __future__ import annotations
@@ -31,10 +31,9 @@ import zenoh
 from magnet import wire
 from services.calibrator import queries
 from services.calibrator.core import Calibrator
-from services.calibrator.fleet import FleetBook
 from services.calibrator.intake import Enrolment, RawIntake, new_device
 from services.calibrator.lease import Lease, Member
-from services.calibrator.sessions import ACTIONS
+from services.calibrator.roster import Roster
 from services.calibrator.settings import (
     DEFAULT_MAX_DEVICES,
     CalibratorSettings,
@@ -44,7 +43,7 @@ from services.calibrator.settings import (
     load_signer,
     settings_from_args,
 )
-from services.calibrator.status import CalibratorStatus, Counters, State
+from services.calibrator.status import CalibratorStatus, Counters, IntakeFigures, State
 from services.calibrator.store import CalibrationStore
 from services.common import metrics
 from services.common.guard import Guard
@@ -52,7 +51,6 @@ from services.common.zenoh_session import drain, open_session, payload_bytes, st
 from services.security.identities import certificate_identity, check_calibrator_identity
 
 __all__ = [
-    "ACTIONS",
     "DEFAULT_MAX_DEVICES",
     "Calibrator",
     "CalibratorSettings",
@@ -93,7 +91,7 @@ def run_calibrator(args: argparse.Namespace) -> int:
 
 def _metrics_status(calibrator: Calibrator, name: str) -> dict[str, Any]:
     alerts: dict[str, int] = {}
-    for open_alerts in list(calibrator.fleet.alerts.values()):
+    for open_alerts in list(calibrator.roster.alerts.values()):
         for kind in list(open_alerts):
             alerts[kind.value] = alerts.get(kind.value, 0) + 1
     return {**calibrator.status(name).to_dict(), "alerts_open": alerts}
@@ -117,7 +115,7 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
             settings.fitting,
             publish,
             signer=signer,
-            fleet=FleetBook(settings.places, settings.fitting.max_devices),
+            roster=Roster(settings.places, settings.fitting.max_devices),
             shard=settings.shard,
         )
         metrics.start(metrics_address, "calibrator", lambda: _metrics_status(calibrator, name))
@@ -133,8 +131,8 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
         answers = _declare_answers(session, prefix, devices, name)
         alert_key = f"{prefix}/{devices}/{wire.Kind.ALERT.value}"
         feeds: list[tuple[Any, Callable[[str, bytes, str], None]]] = [
-            (session.declare_subscriber(alert_key, zenoh.handlers.FifoChannel(4096)), calibrator.fleet.on_alert),
-            (session.get(alert_key, timeout=3.0), calibrator.fleet.on_alert),
+            (session.declare_subscriber(alert_key, zenoh.handlers.FifoChannel(4096)), calibrator.roster.on_alert),
+            (session.get(alert_key, timeout=3.0), calibrator.roster.on_alert),
         ]  # the alerts open already
         if calibrator.active:
             calibrator.publish_in_force()
@@ -144,7 +142,7 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
             settings.shard,
             lease.state(),
             lease.holder,
-            len(calibrator.in_force),
+            len(calibrator.records.in_force),
             store.path,
         )
         enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
@@ -281,9 +279,10 @@ class ServiceLoop:
 
     def _counters(self) -> None:
         """The intake's figures into the calibrator's status."""
-        counters = self.calibrator.counters
-        counters.raw_messages, counters.queued = self.intake.raw_messages, len(self.intake)
-        counters.queue_high_water, counters.enrolled = self.intake.high_water, self.enrolment.admitted
+        intake = self.intake
+        self.calibrator.intake = IntakeFigures(
+            intake.raw_messages, len(intake), intake.high_water, self.enrolment.admitted
+        )
         if self.intake.queue_full:
             self.calibrator.drops.counts["raw:queue-full"] = self.intake.queue_full
 
