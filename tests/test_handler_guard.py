@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import sqlite3
 import warnings
+from contextlib import ExitStack
 from typing import Any
 
 import numpy as np
@@ -58,6 +59,12 @@ class FakeChannel:
     def try_recv(self) -> Any:
         return self.items.pop(0) if self.items else None
 
+    def __enter__(self) -> FakeChannel:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.items.clear()
+
 
 class FakeSession:
     def declare_queryable(self, key: str, handler: Any) -> FakeChannel:
@@ -78,7 +85,7 @@ def calibrator(tmp_path):
 
 
 def _service(calibrator: Calibrator) -> tuple[ServiceLoop, dict[str, FakeChannel]]:
-    answers = _declare_answers(FakeSession(), PREFIX, "*", "cal")
+    answers = _declare_answers(ExitStack(), FakeSession(), PREFIX, "*", "cal")
     loop = ServiceLoop(calibrator, RawIntake(100), answers, PREFIX, enrolment=Enrolment(1000, 10))
     return loop, {what: queryable for what, _, queryable in answers}
 

@@ -13,7 +13,7 @@ from services.calibrator.settings import CalibratorSettings
 
 class Fitter:
     """Fits collections; ``field_at(device)``: the model |B| (uT) at the device's place, None when unknown (then
-    ``--field-ut`` / ``--location``'s, else the fit's own)."""
+    the settings' ``expected_field_ut``, else the fit's own)."""
 
     def __init__(self, settings: CalibratorSettings, field_at: Callable[[str], float | None]) -> None:
         self.settings, self.field_at = settings, field_at
@@ -21,7 +21,7 @@ class Fitter:
 
     def field_ut(self, device: str | None) -> float | None:
         """The field strength (uT) a fit for ``device`` is scaled to."""
-        return (self.field_at(device) if device else None) or self.settings.field_ut
+        return (self.field_at(device) if device else None) or self.settings.expected_field_ut
 
     def fit(self, collection: Collection, now: float, device: str | None = None) -> Calibration | None:
         """Fit ``collection`` and count it; the calibration when the gate accepts it, else None (the reason is on

@@ -20,7 +20,9 @@ import collections
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+
+import zenoh
+from zenoh.handlers import Handler
 
 from magnet import wire
 
@@ -68,8 +70,8 @@ class RawIntake:
 
     def pump(
         self,
-        channel: Any,
-        payload_of: Callable[[Any], bytes],
+        channel: Handler[zenoh.Sample],
+        payload_of: Callable[[zenoh.Sample], bytes],
         closed: type[BaseException],
         batch: int = PUMP_BATCH,
     ) -> None:

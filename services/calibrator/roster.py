@@ -12,13 +12,10 @@ from magnet import wire
 from magnet.bounded import Recent
 from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.drift.alerts import ALERT_LIMITS
-from magnet.fleet import Places
 from magnet.place import Location
+from services.calibrator.settings import DEFAULT_MAX_DEVICES, Places, make_places
 
 log = logging.getLogger("magnet.calibrator")
-
-#: devices remembered at most without --max-devices (beyond: the least recently seen forgotten)
-MAX_SEEN = 10_000
 
 
 class Roster:
@@ -26,8 +23,8 @@ class Roster:
     devices each (``--max-devices``): beyond, the least recently seen are forgotten, counted in ``forgotten`` and
     logged the first time."""
 
-    def __init__(self, places: Places | None = None, max_devices: int = MAX_SEEN) -> None:
-        self.places = places if places is not None else Places(max_reported=max_devices)
+    def __init__(self, places: Places | None = None, max_devices: int = DEFAULT_MAX_DEVICES) -> None:
+        self.places = places if places is not None else make_places(max_devices=max_devices)
         self.last_seen_ns: Recent[str, int] = Recent(max_devices)
         self.alerts: Recent[str, dict[AlertKind, Alert]] = Recent(max_devices)
         self.max_devices = max_devices
