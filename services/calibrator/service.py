@@ -50,7 +50,7 @@ from services.calibrator.status import CalibratorStatus, IntakeFigures, State
 from services.calibrator.store import CalibrationStore
 from services.common import metrics
 from services.common.guard import Guard
-from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
+from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 
 __all__ = [
@@ -80,7 +80,7 @@ ALERT_QUERY_S = 3.0  # how long it waits at start for the alerts open already
 #: a queryable of the service: (what, for the drop counts; how to answer; the queryable)
 Answering = tuple[str, queries.Answer, "zenoh.Queryable[Handler[zenoh.Query]]"]
 #: samples (a subscriber's) or replies (a query's) and what takes each: handler(key, payload, prefix)
-Feed = tuple["Handler[zenoh.Sample] | Handler[zenoh.Reply]", Callable[[str, bytes, str], None]]
+Feed = tuple["Receiver[zenoh.Sample | zenoh.Reply]", Callable[[str, bytes, str], None]]
 #: the lease tokens of the shard, as they come and go, and the lease they move
 LeaseWatch = tuple["zenoh.Subscriber[Handler[zenoh.Sample]]", Lease]
 
@@ -248,7 +248,6 @@ class ServiceLoop:
         if self.lease_watch is not None:
             self.guard.run("lease", _follow_lease, *self.lease_watch, self.calibrator)
         for handler, take in self.feeds:
-            item: zenoh.Sample | zenoh.Reply
             for item in drain(handler, 1000):
                 sample = item.ok if isinstance(item, zenoh.Reply) else item
                 if sample is not None and hasattr(sample, "key_expr"):
