@@ -125,7 +125,7 @@ def broad_rows(data_dir: Path = DATA_DIR, calibrated: bool = False) -> list[tupl
         log = load_broad(data_dir / name)
         for estimator, function in ESTIMATORS.items():
             rows.append((log.name, estimator, log.score(function(log, log.mag_ut))))
-        for method, label in (("ellipsoid", "fit"), ("gyro-ellipsoid", "gyro-ellipsoid")) if calibrated else ():
+        for method, label in (("ellipsoid", "fit"), ("gyro-ellipsoid", "gyro fit")) if calibrated else ():
             field, verdict = product_field(log, method)
             rows.extend(
                 (log.name, f"{estimator}, {label} {verdict}", log.score(ESTIMATORS[estimator](log, field)))
@@ -252,7 +252,10 @@ def run_motion_benchmark() -> str:
     started = time.perf_counter()
     lines = [
         "heading RMS in motion (deg); BROAD: offset removed, movement samples with |pitch| < 60 deg",
-        "(BROAD: 'fused' on the raw field is vqf with its defaults; 'fit accepted/refused': after the product's fit)",
+        (
+            "(BROAD: 'fused' on the raw field is vqf with its defaults; 'fit accepted/refused': after the product's "
+            "ellipsoid, 'gyro fit': after its gyro-ellipsoid)"
+        ),
         f"{'recording':<42}{'estimator':<34}{'RMS':>8}",
     ]
     for trial, estimator, rms in broad_rows(calibrated=True):
