@@ -14,7 +14,7 @@ from magnet.heading import angle_difference_deg
 from magnet.simulator import Trajectory
 from services.bench.motion import SimulatorSettings, moving_run, simulated_sensor
 
-SECONDS = 80.0
+SECONDS = 60.0
 SEED = 4
 
 
@@ -56,5 +56,5 @@ def test_a_multirotor_with_a_vertical_gyroscope_bias_converges_sooner(monkeypatc
     without, _ = _heading_errors(run, field)
     scored = (run.t_s >= 10.0) & (np.abs(run.pitch_deg) < 60)
     rms_with, rms_without = (float(np.sqrt(np.mean(e[scored] ** 2))) for e in (with_loop, without))
-    assert rms_with < 0.85 * rms_without, (rms_with, rms_without)  # measured 1.78 vs 2.30 deg
+    assert rms_with < 0.85 * rms_without, (rms_with, rms_without)  # measured 2.07 vs 2.68 deg
     assert abs(bias[2] - errors.gyro_bias_rads[2]) < 0.001  # rad/s, the vertical (z) axis learnt
