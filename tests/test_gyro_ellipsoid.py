@@ -128,3 +128,12 @@ def test_in_a_figure8_it_is_accepted_without_full_coverage_and_nearer_the_truth_
     assert gyro.quality.coverage < 0.6 and not plain.accepted and "coverage" in plain.reason
     gyro_error, plain_error = (np.abs(c.offset - truth.offset).max() for c in (gyro, plain))
     assert gyro_error < 0.2 and gyro_error < plain_error / 2
+
+
+def test_a_magnetometer_that_lags_the_gyroscope_is_found_out_and_calibrated_all_the_same(tumbled):
+    run, truth = tumbled
+    late = np.vstack([np.repeat(run.mag_ut[:1], 2, axis=0), run.mag_ut[:-2]])  # each reading 2 samples (20 ms) late
+    cal, shape = fit_shape(late, "gyro-ellipsoid", gyr=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut)
+    assert shape.note == "magnetometer +20 ms behind the gyroscope"
+    np.testing.assert_allclose(cal.offset, truth.offset, atol=0.05)
+    assert np.abs(cal.matrix - truth.matrix).max() < 0.002 * np.abs(truth.matrix).max()

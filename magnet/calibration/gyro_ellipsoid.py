@@ -34,6 +34,9 @@ MAX_WINDOW_S = 1.0
 MIN_WINDOW_ANGLE_DEG = 10.0
 #: at most this many windows (starts spread evenly); more add time, not information
 MAX_WINDOWS = 20_000
+#: the magnetometer's readings may come this much later (or earlier) than the gyroscope's: a chip's output filter
+#: and sampling, or two chips read at different moments, delay one by a few to tens of ms (s)
+MAX_LAG_S = 0.03
 #: the least eigenvalue must be this far below the next one: the solution is one direction, not a plane
 NULL_RATIO = 0.05
 
@@ -62,25 +65,25 @@ def _attitudes(turns: np.ndarray) -> np.ndarray:
     return out
 
 
-def windows(gyr_rads: np.ndarray, period_s: float, keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def windows(gyr_rads: np.ndarray, period_s: float) -> tuple[np.ndarray, np.ndarray]:
     """(starts (M,), ends (M,)) sample indices: each window ends where the gyroscope has turned WINDOW_ANGLE_DEG
-    (summed rate) or MAX_WINDOW_S after its start; kept only when it turned at least MIN_WINDOW_ANGLE_DEG and both
-    its ends are in ``keep`` (the magnetometer samples it compares; None: all)."""
+    (summed rate) or MAX_WINDOW_S after its start; kept only when it turned at least MIN_WINDOW_ANGLE_DEG."""
     turned = np.concatenate([[0.0], np.cumsum(np.linalg.norm(gyr_rads[1:], axis=1) * period_s)])
     count = len(turned)
     starts = np.arange(0, count - 1, max(1, count // MAX_WINDOWS))
     ends = np.searchsorted(turned, turned[starts] + np.radians(WINDOW_ANGLE_DEG))
     ends = np.minimum(np.minimum(ends, starts + max(1, round(MAX_WINDOW_S / period_s))), count - 1)
     good = (ends > starts) & (turned[ends] - turned[starts] >= np.radians(MIN_WINDOW_ANGLE_DEG))
-    if keep is not None:
-        good &= keep[starts] & keep[ends]
     return starts[good], ends[good]
 
 
-def constraint_rows(mag: np.ndarray, attitudes: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+def constraint_rows(
+    mag: np.ndarray, attitudes: np.ndarray, starts: np.ndarray, ends: np.ndarray, lag: int = 0
+) -> np.ndarray:
     """The linear constraints (3 M, 12) on x = (A row by row, c), one block of 3 per window s .. e:
-    A m(e) - c = P^T (A m(s) - c), P = Q_s^T Q_e the turn the gyroscope measured over it (``_attitudes``), so that
-    b(e) = P^T b(s) exactly for a constant earth field."""
+    A m(e + lag) - c = P^T (A m(s + lag) - c), P = Q_s^T Q_e the turn the gyroscope measured over it
+    (``_attitudes``), so that b(e) = P^T b(s) exactly for a constant earth field; ``lag`` samples: how far the
+    magnetometer's readings come behind the gyroscope's."""
     count = len(starts)
     if count < 12:
         raise FitError(
@@ -88,16 +91,22 @@ def constraint_rows(mag: np.ndarray, attitudes: np.ndarray, starts: np.ndarray, 
             f"{WINDOW_ANGLE_DEG:g} deg within {MAX_WINDOW_S:g} s: turn the device about every axis while recording"
         )
     back = np.transpose(attitudes[ends], (0, 2, 1)) @ attitudes[starts]  # P^T
-    ahead = np.einsum("il,nj->nilj", np.eye(3), mag[ends]).reshape(count, 3, 9)
-    behind = np.einsum("nil,nj->nilj", back, mag[starts]).reshape(count, 3, 9)
+    ahead = np.einsum("il,nj->nilj", np.eye(3), mag[ends + lag]).reshape(count, 3, 9)
+    behind = np.einsum("nil,nj->nilj", back, mag[starts + lag]).reshape(count, 3, 9)
     return np.concatenate([ahead - behind, back - np.eye(3)], axis=2).reshape(3 * count, 12)
 
 
-def _solve(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(A (3, 3), c (3,)) minimising |rows x| with |A| = 1: noise enters the A columns only (the magnetometer's;
-    the gyroscope's is small beside it), so c is eliminated and A is the least eigenvector of the Schur complement,
-    which the noise shifts by the same amount in every direction (no bias towards a small c, as a plain total least
-    squares over all twelve would have). FitError when the rotation leaves it undetermined."""
+#: windows' (starts, ends); a solution (A, c, least eigenvalue ratio)
+_Spans = tuple[np.ndarray, np.ndarray]
+_Solution = tuple[np.ndarray, np.ndarray, float]
+
+
+def _solve(rows: np.ndarray) -> _Solution:
+    """(A (3, 3), c (3,), the least eigenvalue over the next) minimising |rows x| with |A| = 1: noise enters the A
+    columns only (the magnetometer's; the gyroscope's is small beside it), so c is eliminated and A is the least
+    eigenvector of the Schur complement, which the noise shifts by the same amount in every direction (no bias
+    towards a small c, as a plain total least squares over all twelve would have). FitError for turns about one
+    axis."""
     normal = rows.T @ rows
     maa, mac, mcc = normal[:9, :9], normal[:9, 9:], normal[9:, 9:]
     values_c = np.linalg.eigvalsh(mcc)
@@ -105,32 +114,58 @@ def _solve(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise FitError("gyro-ellipsoid: the device turned about one axis only (turn the device about every axis)")
     eliminate = np.linalg.solve(mcc, mac.T)  # c = -eliminate a
     values, vectors = np.linalg.eigh(maa - mac @ eliminate)
-    if values[1] <= 0 or values[0] > NULL_RATIO * values[1]:
-        raise FitError(
-            "gyro-ellipsoid: the rotation does not determine the calibration (turn the device about every axis)"
-        )
     a = vectors[:, 0]
-    return a.reshape(3, 3), -eliminate @ a
+    return a.reshape(3, 3), -eliminate @ a, float(values[0] / values[1]) if values[1] > 0 else np.inf
+
+
+def _fit_at(scaled: np.ndarray, attitudes: np.ndarray, spans: _Spans, used: np.ndarray, lag: int) -> _Solution:
+    """``_solve`` for the windows whose lagged magnetometer samples exist and are used."""
+    starts, ends = spans
+    ok = (starts + lag >= 0) & (ends + lag < len(scaled))
+    ok[ok] &= used[starts[ok] + lag] & used[ends[ok] + lag]
+    return _solve(constraint_rows(scaled, attitudes, starts[ok], ends[ok], lag))
+
+
+def _best_lag(
+    scaled: np.ndarray, attitudes: np.ndarray, spans: _Spans, used: np.ndarray, most: int
+) -> tuple[int, _Solution]:
+    """(lag, its ``_solve``): from no lag, step by one sample while the misfit (least eigenvalue ratio) falls."""
+    best = (0, _fit_at(scaled, attitudes, spans, used, 0))
+    for direction in (1, -1):
+        lag = direction
+        while abs(lag) <= most:
+            trial = _fit_at(scaled, attitudes, spans, used, lag)
+            if trial[2] >= best[1][2]:
+                break
+            best, lag = (lag, trial), lag + direction
+        if best[0] != 0:
+            break
+    return best
 
 
 def gyro_ellipsoid(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, keep: np.ndarray | None = None) -> Shape:
     """The shape (offset (3,), matrix S (3, 3) with det S = 1, radius: the median |S (m - offset)|, raw unit) from
     raw field mag (N, 3) and body rates gyr (N, 3) rad/s sampled every ``period_s`` seconds (the rate of a sample is
     over the period ending at it), consecutive samples; ``keep`` (N,) bool: compare only kept magnetometer samples
-    (None: all). S includes the rotation of the magnetometer's axes into the gyroscope's. FitError when the rotation
-    cannot determine it."""
+    (None: all). S includes the rotation of the magnetometer's axes into the gyroscope's. The magnetometer's delay
+    behind the gyroscope (within MAX_LAG_S, whole samples) is the one that fits best; the note names it. FitError
+    when the rotation cannot determine the calibration."""
     mag, gyr = np.asarray(mag, dtype=float), np.asarray(gyr_rads, dtype=float)
     if mag.shape != gyr.shape or mag.ndim != 2 or mag.shape[1] != 3:
         raise FitError(f"gyro-ellipsoid needs mag and gyr of the same shape (N, 3), got {mag.shape} and {gyr.shape}")
     used = np.ones(len(mag), dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
     centre = np.median(mag[used], axis=0)
     spread = float(np.median(np.linalg.norm(mag[used] - centre, axis=1))) or 1.0
-    starts, ends = windows(gyr, period_s, used)
-    rows = constraint_rows((mag - centre) / spread, _attitudes(_turns(gyr, period_s)), starts, ends)
-    matrix, c = _solve(rows)
+    attitudes, spans = _attitudes(_turns(gyr, period_s)), windows(gyr, period_s)
+    lag, (matrix, c, ratio) = _best_lag((mag - centre) / spread, attitudes, spans, used, round(MAX_LAG_S / period_s))
+    if ratio > NULL_RATIO:
+        raise FitError(
+            "gyro-ellipsoid: the rotation does not determine the calibration (turn the device about every axis)"
+        )
     if np.linalg.det(matrix) < 0:
         matrix, c = -matrix, -c
     offset = centre + spread * np.linalg.solve(matrix, c)
     unit = matrix / np.cbrt(np.linalg.det(matrix))
     radius = float(np.median(np.linalg.norm((mag[used] - offset) @ unit.T, axis=1)))
-    return Shape(offset, unit, radius)
+    note = f"magnetometer {1e3 * lag * period_s:+.0f} ms behind the gyroscope" if lag else ""
+    return Shape(offset, unit, radius, note)
