@@ -108,8 +108,7 @@ def _direction_errors_deg(field: np.ndarray, attitude: np.ndarray, stretch: np.n
     earth = np.einsum("nij,nj->ni", quaternion_to_matrix(attitude), field)
     unit = earth / np.linalg.norm(earth, axis=1, keepdims=True)
     labels = np.zeros(len(unit), dtype=int) if stretch is None else np.unique(stretch, return_inverse=True)[1]
-    sums = np.zeros((int(labels.max(initial=0)) + 1, 3))
-    np.add.at(sums, labels, unit)
+    sums = np.column_stack([np.bincount(labels, weights=unit[:, k]) for k in range(3)])
     mean = sums[labels] / np.linalg.norm(sums[labels], axis=1, keepdims=True)
     return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", unit, mean), -1.0, 1.0)))
 
