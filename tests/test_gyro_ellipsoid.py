@@ -44,11 +44,10 @@ def test_chosen_by_name_it_recovers_offset_soft_iron_and_the_rotation_into_the_i
 
 def test_with_its_gate_it_is_accepted_and_beats_the_plain_ellipsoid_on_held_out_data(tumbled):
     run, _ = tumbled
-    kwargs = {"acc": run.acc_ms2, "gyr": run.gyr_rads, "period_s": PERIOD_S, "field_ut": run.earth.total_ut}
-    started = time.perf_counter()
-    gyro = fit(run.mag_ut, "gyro-ellipsoid", **kwargs)
-    assert time.perf_counter() - started < 1.0  # gate included
-    plain = fit(run.mag_ut, "ellipsoid", **kwargs)
+    part = slice(0, 10_000)  # 100 s (the 5 minutes with the gate: ``magnet bench fit``)
+    kwargs = {"acc": run.acc_ms2[part], "gyr": run.gyr_rads[part], "period_s": PERIOD_S, "field_ut": run.earth.total_ut}
+    gyro = fit(run.mag_ut[part], "gyro-ellipsoid", **kwargs)
+    plain = fit(run.mag_ut[part], "ellipsoid", **kwargs)
     assert gyro.accepted, gyro.reason
     held_gyro, held_plain = gyro.quality["holdout_consistency_deg"], plain.quality["holdout_consistency_deg"]
     # the ellipsoid leaves the 2-4 deg misalignment in; the gyroscope fit takes it out
