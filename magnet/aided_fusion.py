@@ -7,7 +7,8 @@ its acceleration is known, or when it is ``max_lag_s`` old (a receiver that went
 is fed as acc - R^T a_enu, R the latest attitude this filter gave that sample (carried forward, below). The attitude
 of a sample not yet fed is the filter's latest attitude carried forward by the gyroscope (less the filter's bias
 estimate) over the samples in between: q_i = q_filter * prod_j exp((w_j - b) dt / 2), a fraction of a second of
-integration, so the newest sample is answered at once (causal, no delay on the output).
+integration, so the newest sample is answered at once (causal, no delay on the output). ``VerticalBias`` adds an
+integral term to vqf's heading correction: the gyroscope's bias about the vertical (docs/gyro-calibration.md).
 """
 
 from __future__ import annotations
@@ -26,6 +27,10 @@ from magnet.frames import ned_enu, ned_to_body, quaternion_conjugate, quaternion
 CHUNK_S = 0.1
 #: the longest a sample waits for its acceleration before it is fed as it is (s)
 MAX_LAG_S = 1.0
+#: the vertical bias loop's integral time, in units of vqf's magnetic time constant tauMag (``VerticalBias``)
+BIAS_INTEGRAL_TAUS = 2.0
+#: the loop starts once this many tauMag of samples were fed (vqf's first magnetic convergence is not a drift)
+BIAS_SETTLE_TAUS = 1.0
 
 
 def _in_body(quat_vqf: np.ndarray, a_ned: np.ndarray) -> np.ndarray:
@@ -57,6 +62,33 @@ def carry_forward(start: np.ndarray, gyr: np.ndarray, bias: np.ndarray, period_s
     return out
 
 
+class VerticalBias:
+    """The integral term for vqf's heading: the gyroscope's bias about the vertical is learnt by vqf only slowly in
+    motion (its accelerometer cannot see it, tilts reveal it over a minute or so) while vqf's 6D attitude drifts in
+    heading at its rate; vqf's magnetic correction delta (the heading turn from 6D to 9D) follows that drift,
+    lagging by rate x tauMag (0.4 deg/s of bias: 3.7 deg). That is a proportional loop; this adds the integral:
+    every change of delta (rad), divided by T_i = ``BIAS_INTEGRAL_TAUS`` tauMag, goes into vqf's own bias estimate
+    along the body's up axis, where the drift comes from (one estimate, which vqf's own learning carries on). The
+    loop's damping is then sqrt(T_i / tauMag) / 2 = 0.71. Changes while vqf reports a magnetic disturbance, or
+    before ``BIAS_SETTLE_TAUS`` tauMag of samples, are not used."""
+
+    def __init__(self, params: dict[str, Any], period_s: float) -> None:
+        tau = float(params.get("tauMag", vqf.VQF(period_s).params["tauMag"]))
+        self.integral_s, self.settle_s = BIAS_INTEGRAL_TAUS * tau, BIAS_SETTLE_TAUS * tau
+        self.fed_s = 0.0
+        self.delta: float | None = None
+
+    def correction(self, delta: float, up_body: np.ndarray, seconds: float, disturbed: bool) -> np.ndarray:
+        """The change (3,) rad/s to vqf's bias estimate after ``seconds`` more of samples fed: vqf's delta (rad)
+        then, the earth's up axis in body axes (3,) (vqf frames), and whether the field was disturbed."""
+        self.fed_s += seconds
+        step = 0.0
+        if self.delta is not None and not disturbed and self.fed_s >= self.settle_s:
+            step = math.remainder(delta - self.delta, math.tau)
+        self.delta = delta
+        return -step / self.integral_s * np.asarray(up_body, dtype=float)
+
+
 _T, _GYR, _ACC, _FIELD, _GIVEN, _TURN = (
     slice(0, 1),
     slice(1, 4),
@@ -83,10 +115,12 @@ class AidedFilter:
         self.fixes = VelocityFixes()
         self.pending = np.zeros((0, 18))
         self.disturbed = False
+        self.vertical = VerticalBias(params, period_s)
 
     def restart(self) -> None:
         self.filter.resetState()
         self.fixes, self.pending, self.disturbed = VelocityFixes(), np.zeros((0, 18)), False
+        self.vertical = VerticalBias(self.params, self.period_s)
 
     def update(
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray
@@ -133,5 +167,9 @@ class AidedFilter:
         gyr, field = np.ascontiguousarray(fed[:, _GYR]), np.ascontiguousarray(fed[:, _FIELD])
         out = self.filter.updateBatch(gyr, np.ascontiguousarray(acc), field)
         self.disturbed = bool(np.asarray(out["magDistDetected"]).reshape(-1)[-1])
+        up = quaternion_to_matrix(np.asarray(self.filter.getQuat6D(), dtype=float)[None])[0, 2]
+        disturbed = bool(np.any(out["magDistDetected"]))
+        more = self.vertical.correction(float(self.filter.getDelta()), up, count * self.period_s, disturbed)
+        self.filter.setBiasEstimate(np.asarray(self.filter.getBiasEstimate()[0], dtype=float) + more)
         turn = quaternion_multiply(quaternion_conjugate(fed[-1, _TURN]), self.pending[:, _TURN])
         self.pending[:, _TURN] = turn / np.linalg.norm(turn, axis=1, keepdims=True)  # rounding would compound

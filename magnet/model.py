@@ -46,7 +46,7 @@ from magnet.units import FieldUnit
 #: the methods that make records (``magnet.calibration.Method`` values, the turntable's least-squares variant, the
 #: self-test, a hand-written record, the identity and the simulator's truth); a record naming another is refused
 KNOWN_METHODS = frozenset(
-    {"minmax2d", "minmax", "sphere", "ellipsoid", "ellipsoid+align", "turntable", "turntable-lsq"}
+    {"minmax2d", "minmax", "sphere", "ellipsoid", "ellipsoid+align", "turntable", "turntable-lsq", "gyro-ellipsoid"}
     | {"selftest", "manual", "identity", "truth"}
 )
 #: the units a record may name (``magnet.units.FieldUnit``)

@@ -51,7 +51,7 @@ def test_rows_with_the_stand_in_are_exact_and_complete():
 
 
 def test_failures_are_counted_not_fatal():
-    def failing(mag, method, acc, field_ut, truth):
+    def failing(run, method, field_ut, truth):
         raise ValueError("not an ellipsoid")
 
     rows = bench.accuracy_rows(failing, FAST, methods=["ellipsoid"])
@@ -61,10 +61,13 @@ def test_failures_are_counted_not_fatal():
 def test_real_ellipsoid_fits_meet_the_target_on_a_small_run():
     rows = {
         (r.method, r.misalignment_deg): r
-        for r in bench.accuracy_rows(bench.real_fitter, FAST, methods=["ellipsoid", "ellipsoid+align"])
+        for r in bench.accuracy_rows(
+            bench.real_fitter, FAST, methods=["ellipsoid", "ellipsoid+align", "gyro-ellipsoid"]
+        )
     }
     assert rows[("ellipsoid", 0.0)].all_rms_deg < 0.2
     assert rows[("ellipsoid+align", 5.0)].all_rms_deg < 0.2
+    assert rows[("gyro-ellipsoid", 5.0)].all_rms_deg < 0.2 and rows[("gyro-ellipsoid", 5.0)].failed == 0
     assert rows[("ellipsoid", 5.0)].all_rms_deg > 2.0  # plain ellipsoid cannot see the misalignment
 
 

@@ -17,6 +17,7 @@ class Method(enum.Enum):
     ELLIPSOID = "ellipsoid"
     ELLIPSOID_ALIGN = "ellipsoid+align"
     TURNTABLE = "turntable"
+    GYRO_ELLIPSOID = "gyro-ellipsoid"
 
     @classmethod
     def parse(cls, value: Method | str) -> Method:
@@ -40,6 +41,7 @@ MIN_SAMPLES: dict[Method, int] = {
     Method.SPHERE: 12,
     Method.ELLIPSOID: 30,
     Method.ELLIPSOID_ALIGN: 50,
+    Method.GYRO_ELLIPSOID: 100,
 }
 #: beyond this scatter condition (widest / thinnest spread of the raw cloud) a 3D fit is refused outright
 MAX_SCATTER_FOR_3D = 50.0
@@ -92,4 +94,27 @@ def check_acc(acc: np.ndarray | None, n: int, required: bool) -> np.ndarray | No
         raise FitError(f"acc must have the shape of the magnetometer samples ({n}, 3), got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise FitError("acc holds NaN or infinite values: drop those rows from both arrays before fitting")
+    return arr
+
+
+#: why gyro-ellipsoid refuses samples without a gyroscope
+GYROSCOPE_NEEDED = (
+    "gyro-ellipsoid needs gyroscope samples (gx, gy, gz in rad/s) and their sample period (a t_s column or a rate) "
+    "beside the magnetometer samples: use ellipsoid for a magnetometer alone"
+)
+
+
+def check_gyr(gyr: np.ndarray | None, period_s: float | None, n: int, required: bool) -> np.ndarray | None:
+    """The body rates (n, 3) rad/s as floats, or None; FitError when gyro-ellipsoid has none or they do not fit."""
+    if gyr is None or period_s is None:
+        if required:
+            raise FitError(GYROSCOPE_NEEDED)
+        return None
+    arr = np.asarray(gyr, dtype=float)
+    if arr.shape != (n, 3):
+        raise FitError(f"gyr must have the shape of the magnetometer samples ({n}, 3), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise FitError("gyr holds NaN or infinite values: drop those rows from every array before fitting")
+    if not (np.isfinite(period_s) and period_s > 0):
+        raise FitError(f"the gyroscope's sample period must be a positive number of seconds, got {period_s!r}")
     return arr

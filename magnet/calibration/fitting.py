@@ -9,9 +9,10 @@ from collections.abc import Callable
 import numpy as np
 
 from magnet.calibration.alignment import ellipsoid_align
-from magnet.calibration.base import FitError, Method, Shape, check_acc, check_samples
+from magnet.calibration.base import GYROSCOPE_NEEDED, FitError, Method, Shape, check_acc, check_gyr, check_samples
 from magnet.calibration.closed_form import minmax, minmax2d, sphere
 from magnet.calibration.ellipsoid import ellipsoid
+from magnet.calibration.gyro_ellipsoid import gyro_ellipsoid
 from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.units_hint import unit_hint
@@ -32,6 +33,10 @@ def _turntable(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
     )
 
 
+def _no_gyroscope(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+    raise FitError(GYROSCOPE_NEEDED)
+
+
 #: Method -> (shape function (mag, acc, robust) -> Shape, geometry the samples are judged by)
 _METHODS: dict[Method, tuple[Callable[[np.ndarray, np.ndarray | None, bool], Shape], Geometry]] = {
     Method.MINMAX2D: (minmax2d, Geometry.CIRCLE),
@@ -40,6 +45,7 @@ _METHODS: dict[Method, tuple[Callable[[np.ndarray, np.ndarray | None, bool], Sha
     Method.ELLIPSOID: (ellipsoid, Geometry.SPHERE),
     Method.ELLIPSOID_ALIGN: (ellipsoid_align, Geometry.SPHERE),
     Method.TURNTABLE: (_turntable, Geometry.TURNTABLE),
+    Method.GYRO_ELLIPSOID: (_no_gyroscope, Geometry.SPHERE),  # with a gyroscope: ``gyro_ellipsoid``
 }
 
 
@@ -73,15 +79,22 @@ def fit_shape(
     unit: str = "ut",
     field_ut: float | None = None,
     robust_extremes: bool = False,
+    gyr: np.ndarray | None = None,
+    period_s: float | None = None,
 ) -> tuple[Calibration, Shape]:
-    """The fit alone, without quality or gate: (record with empty quality, the shape found). Raises FitError."""
+    """The fit alone, without quality or gate: (record with empty quality, the shape found). Raises FitError.
+
+    gyr (N, 3) rad/s, consecutive samples every period_s seconds: used by ``gyro-ellipsoid`` (which needs them)."""
     method = Method.parse(method)
     mag = check_samples(mag, method)
     acc = check_acc(acc, len(mag), method is Method.ELLIPSOID_ALIGN)
+    rates = check_gyr(gyr, period_s, len(mag), method is Method.GYRO_ELLIPSOID)
     if field_ut is not None and not (math.isfinite(field_ut) and field_ut > 0):
         raise FitError(f"expected field strength must be a positive number of uT, got {field_ut!r}")
-    function, _ = _METHODS[method]
-    shape = function(mag, acc, robust_extremes)
+    if method is Method.GYRO_ELLIPSOID and rates is not None and period_s is not None:
+        shape = gyro_ellipsoid(mag, rates, period_s)
+    else:
+        shape = _METHODS[method][0](mag, acc, robust_extremes)
     return _finish(shape, method, unit, field_ut, len(mag)), shape
 
 
@@ -109,10 +122,15 @@ def fit(
     Raises FitError when no calibration can be computed.
     """
     method = Method.parse(method)
-    calibration, shape = fit_shape(mag, method, acc=acc, unit=unit, field_ut=field_ut, robust_extremes=robust_extremes)
+    calibration, shape = fit_shape(
+        mag, method, acc=acc, unit=unit, field_ut=field_ut, robust_extremes=robust_extremes, gyr=gyr, period_s=period_s
+    )
     mag = np.asarray(mag, dtype=float)
     acc_arr = None if acc is None else np.asarray(acc, dtype=float)
-    holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes, shape)
+    if method is Method.GYRO_ELLIPSOID and gyr is not None and period_s is not None:
+        holdout = _gyro_holdout(mag, np.asarray(gyr, dtype=float), period_s, unit, field_ut)
+    else:
+        holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes, shape)
     to_ut = ut_per_unit(unit)
     geometry = _METHODS[method][1]
     quality = assess(
@@ -138,7 +156,7 @@ def fit(
         quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
         quality = quality.with_extra(note=shape.note)
-    accepted, reason = _gate(quality, gate)
+    accepted, reason = _gate(quality, gate, method)
     hint = None if accepted or geometry is not Geometry.SPHERE else unit_hint(shape.radius, to_ut, field_ut)
     if hint:
         reason = f"{hint}; {reason}"
@@ -156,8 +174,13 @@ def _motion_evidence(acc: np.ndarray, gyr: np.ndarray | None, period_s: float | 
         raise FitError(str(exc)) from None
 
 
-def _gate(quality: Quality, thresholds: GateThresholds | None) -> tuple[bool, str]:
-    return gate(quality, thresholds or GateThresholds())
+def _gate(quality: Quality, thresholds: GateThresholds | None, method: Method) -> tuple[bool, str]:
+    """The gate; gyro-ellipsoid is not asked for coverage: the gyroscope's turns determine it, not the shape of the
+    cloud (a vehicle's figure-8 covers 40 %), and the fit refuses turns that leave it undetermined."""
+    chosen = thresholds or GateThresholds()
+    if method is Method.GYRO_ELLIPSOID:
+        chosen = dataclasses.replace(chosen, min_coverage=0.0)
+    return gate(quality, chosen)
 
 
 def _holdout_mask(count: int) -> np.ndarray:
@@ -193,6 +216,18 @@ def _holdout(
     except FitError:
         return None
     return mag[test], train_cal
+
+
+def _gyro_holdout(
+    mag: np.ndarray, gyr: np.ndarray, period_s: float, unit: str, field_ut: float | None
+) -> tuple[np.ndarray, Calibration] | None:
+    """``_holdout`` for gyro-ellipsoid: its windows of consecutive samples are taken inside the kept blocks only."""
+    test = _holdout_mask(len(mag))
+    try:
+        shape = gyro_ellipsoid(mag, gyr, period_s, keep=~test)
+    except FitError:
+        return None
+    return mag[test], _finish(shape, Method.GYRO_ELLIPSOID, unit, field_ut, int((~test).sum()))
 
 
 #: methods whose held-out fit starts from the fit of every sample: (mag, acc, robust, start, tolerance) -> Shape

@@ -23,55 +23,141 @@ from __future__ import annotations
 
 import numpy as np
 
-from magnet.calibration.base import FitError
+from magnet.calibration.base import FitError, Shape
 from magnet.frames import rotation_vector_to_matrix
 
-#: samples per window of the integrated constraint
-WINDOW = 10
-#: the least singular value must be this far below the next one: the solution is one direction, not a plane
+#: a window ends once the gyroscope has turned this far since its start (the field's change then stands well above
+#: the magnetometer's noise) ...
+WINDOW_ANGLE_DEG = 45.0
+#: ... or after this long, the longest a gyroscope bias is integrated over (s)
+MAX_WINDOW_S = 1.0
+#: windows that turned less than this are left out (they carry mostly noise)
+MIN_WINDOW_ANGLE_DEG = 10.0
+#: at most this many windows (starts spread evenly); more add time, not information
+MAX_WINDOWS = 20_000
+#: the magnetometer's readings may come this much later (or earlier) than the gyroscope's: a chip's output filter
+#: and sampling, or two chips read at different moments, delay one by a few to tens of ms (s)
+MAX_LAG_S = 0.03
+#: the least eigenvalue must be this far below the next one: the solution is one direction, not a plane
 NULL_RATIO = 0.05
 
 
-def constraint_rows(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, window: int = WINDOW) -> np.ndarray:
-    """The linear constraints (3 W, 12) on x = (A row by row, c), one block of 3 per window of ``window`` samples:
-    A m(s + W) - c = P^T (A m(s) - c), P the product of the window's turns (the rate of sample k + 1 carries the
-    attitude from sample k to k + 1), so b(s + W) = P^T b(s) exactly for a constant earth field."""
-    count = (len(mag) - 1) // window
-    if count < 4:
-        raise FitError(f"gyro-ellipsoid needs at least {4 * window + 1} samples with the gyroscope, got {len(mag)}")
-    turns = rotation_vector_to_matrix(np.asarray(gyr_rads, dtype=float) * period_s)  # exp([w_k dt]x)
-    starts = np.arange(count) * window
-    product = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()
-    for step in range(window):
-        product = product @ turns[starts + step + 1]
-    back = np.transpose(product, (0, 2, 1))  # P^T
-    ahead = np.einsum("il,nj->nilj", np.eye(3), mag[starts + window]).reshape(count, 3, 9)
-    behind = np.einsum("nil,nj->nilj", back, mag[starts]).reshape(count, 3, 9)
+def _attitudes(turns: np.ndarray) -> np.ndarray:
+    """Rotations (N, 3, 3) Q_k = turns_1 turns_2 ... turns_k (Q_0 = I): sample k's axes in sample 0's, by a
+    prefix product taken in log2(N) batched steps."""
+    out = turns.copy()
+    out[0] = np.eye(3)
+    shift = 1
+    while shift < len(out):
+        out[shift:] = out[:-shift] @ out[shift:]
+        shift *= 2
+    return out
+
+
+def windows(gyr_rads: np.ndarray, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(starts (M,), ends (M,)) sample indices: each window ends where the gyroscope has turned WINDOW_ANGLE_DEG
+    (summed rate) or MAX_WINDOW_S after its start; kept only when it turned at least MIN_WINDOW_ANGLE_DEG."""
+    turned = np.concatenate([[0.0], np.cumsum(np.linalg.norm(gyr_rads[1:], axis=1) * period_s)])
+    count = len(turned)
+    starts = np.arange(0, count - 1, max(1, count // MAX_WINDOWS))
+    ends = np.searchsorted(turned, turned[starts] + np.radians(WINDOW_ANGLE_DEG))
+    ends = np.minimum(np.minimum(ends, starts + max(1, round(MAX_WINDOW_S / period_s))), count - 1)
+    good = (ends > starts) & (turned[ends] - turned[starts] >= np.radians(MIN_WINDOW_ANGLE_DEG))
+    return starts[good], ends[good]
+
+
+def constraint_rows(
+    mag: np.ndarray, attitudes: np.ndarray, starts: np.ndarray, ends: np.ndarray, lag: int = 0
+) -> np.ndarray:
+    """The linear constraints (3 M, 12) on x = (A row by row, c), one block of 3 per window s .. e:
+    A m(e + lag) - c = P^T (A m(s + lag) - c), P = Q_s^T Q_e the turn the gyroscope measured over it
+    (``_attitudes``), so that b(e) = P^T b(s) exactly for a constant earth field; ``lag`` samples: how far the
+    magnetometer's readings come behind the gyroscope's."""
+    count = len(starts)
+    if count < 12:
+        raise FitError(
+            f"gyro-ellipsoid found {count} stretches where the device turned {MIN_WINDOW_ANGLE_DEG:g}-"
+            f"{WINDOW_ANGLE_DEG:g} deg within {MAX_WINDOW_S:g} s: turn the device about every axis while recording"
+        )
+    back = np.transpose(attitudes[ends], (0, 2, 1)) @ attitudes[starts]  # P^T
+    ahead = np.einsum("il,nj->nilj", np.eye(3), mag[ends + lag]).reshape(count, 3, 9)
+    behind = np.einsum("nil,nj->nilj", back, mag[starts + lag]).reshape(count, 3, 9)
     return np.concatenate([ahead - behind, back - np.eye(3)], axis=2).reshape(3 * count, 12)
 
 
-def fit_gyro_ellipsoid(
-    mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, field_ut: float | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """(offset (3,), matrix A (3, 3)) with b = A (m - offset) from raw field mag (N, 3) and body rates gyr (N, 3)
-    rad/s sampled every ``period_s`` seconds (the rate of a sample is over the period ending at it). ``field_ut``
-    the field strength to scale to (None: the raw median |m|). FitError when the rotation cannot determine it."""
+#: windows' (starts, ends); a solution (A, c, least eigenvalue ratio)
+_Spans = tuple[np.ndarray, np.ndarray]
+_Solution = tuple[np.ndarray, np.ndarray, float]
+
+
+def _solve(rows: np.ndarray) -> _Solution:
+    """(A (3, 3), c (3,), the least eigenvalue over the next) minimising |rows x| with |A| = 1: noise enters the A
+    columns only (the magnetometer's; the gyroscope's is small beside it), so c is eliminated and A is the least
+    eigenvector of the Schur complement, which the noise shifts by the same amount in every direction (no bias
+    towards a small c, as a plain total least squares over all twelve would have). FitError for turns about one
+    axis."""
+    normal = rows.T @ rows
+    maa, mac, mcc = normal[:9, :9], normal[:9, 9:], normal[9:, 9:]
+    values_c = np.linalg.eigvalsh(mcc)
+    if values_c[0] < 1e-9 * values_c[-1]:
+        raise FitError("gyro-ellipsoid: the device turned about one axis only (turn the device about every axis)")
+    eliminate = np.linalg.solve(mcc, mac.T)  # c = -eliminate a
+    values, vectors = np.linalg.eigh(maa - mac @ eliminate)
+    a = vectors[:, 0]
+    return a.reshape(3, 3), -eliminate @ a, float(values[0] / values[1]) if values[1] > 0 else np.inf
+
+
+def _fit_at(scaled: np.ndarray, attitudes: np.ndarray, spans: _Spans, used: np.ndarray, lag: int) -> _Solution:
+    """``_solve`` for the windows whose lagged magnetometer samples exist and are used."""
+    starts, ends = spans
+    ok = (starts + lag >= 0) & (ends + lag < len(scaled))
+    ok[ok] &= used[starts[ok] + lag] & used[ends[ok] + lag]
+    return _solve(constraint_rows(scaled, attitudes, starts[ok], ends[ok], lag))
+
+
+def _best_lag(
+    scaled: np.ndarray, attitudes: np.ndarray, spans: _Spans, used: np.ndarray, most: int
+) -> tuple[int, _Solution]:
+    """(lag, its ``_solve``): from no lag, step by one sample while the misfit (least eigenvalue ratio) falls."""
+    best = (0, _fit_at(scaled, attitudes, spans, used, 0))
+    for direction in (1, -1):
+        lag = direction
+        while abs(lag) <= most:
+            trial = _fit_at(scaled, attitudes, spans, used, lag)
+            if trial[2] >= best[1][2]:
+                break
+            best, lag = (lag, trial), lag + direction
+        if best[0] != 0:
+            break
+    return best
+
+
+def gyro_ellipsoid(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, keep: np.ndarray | None = None) -> Shape:
+    """The shape (offset (3,), matrix S (3, 3) with det S = 1, radius: the median |S (m - offset)|, raw unit) from
+    raw field mag (N, 3) and body rates gyr (N, 3) rad/s sampled every ``period_s`` seconds (the rate of a sample is
+    over the period ending at it), consecutive samples; ``keep`` (N,) bool: compare only kept magnetometer samples
+    (None: all). S includes the rotation of the magnetometer's axes into the gyroscope's. The magnetometer's delay
+    behind the gyroscope (within MAX_LAG_S, whole samples) is the one that fits best; the note names it. FitError
+    when the rotation cannot determine the calibration."""
     mag, gyr = np.asarray(mag, dtype=float), np.asarray(gyr_rads, dtype=float)
     if mag.shape != gyr.shape or mag.ndim != 2 or mag.shape[1] != 3:
         raise FitError(f"gyro-ellipsoid needs mag and gyr of the same shape (N, 3), got {mag.shape} and {gyr.shape}")
-    centre = np.median(mag, axis=0)
-    spread = float(np.median(np.linalg.norm(mag - centre, axis=1))) or 1.0
-    rows = constraint_rows((mag - centre) / spread, gyr, period_s)
-    _, singular, vt = np.linalg.svd(rows.T @ rows)
-    if singular[-2] < 1e-9 * singular[0] or singular[-1] > NULL_RATIO * singular[-2]:
+    used = np.ones(len(mag), dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+    centre = np.median(mag[used], axis=0)
+    spread = float(np.median(np.linalg.norm(mag[used] - centre, axis=1))) or 1.0
+    attitudes, spans = (
+        _attitudes(rotation_vector_to_matrix(np.asarray(gyr, dtype=float) * period_s)),
+        windows(gyr, period_s),
+    )
+    lag, (matrix, c, ratio) = _best_lag((mag - centre) / spread, attitudes, spans, used, round(MAX_LAG_S / period_s))
+    if ratio > NULL_RATIO:
         raise FitError(
             "gyro-ellipsoid: the rotation does not determine the calibration (turn the device about every axis)"
         )
-    matrix, c = vt[-1][:9].reshape(3, 3), vt[-1][9:]
     if np.linalg.det(matrix) < 0:
         matrix, c = -matrix, -c
-    offset_scaled = np.linalg.solve(matrix, c)
-    field = ((mag - centre) / spread - offset_scaled) @ matrix.T
-    target = float(field_ut) if field_ut else float(np.median(np.linalg.norm(mag, axis=1)))
-    scale = target / float(np.median(np.linalg.norm(field, axis=1)))
-    return centre + spread * offset_scaled, matrix * scale / spread
+    offset = centre + spread * np.linalg.solve(matrix, c)
+    unit = matrix / np.cbrt(np.linalg.det(matrix))
+    radius = float(np.median(np.linalg.norm((mag[used] - offset) @ unit.T, axis=1)))
+    note = f"magnetometer {1e3 * lag * period_s:+.0f} ms behind the gyroscope" if lag else ""
+    return Shape(offset, unit, radius, note)

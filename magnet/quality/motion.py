@@ -13,7 +13,9 @@ cannot use every sample. The gravity direction comes from:
 A gyroscope also lets a fit check itself: the calibrated field, rotated into the earth frame by that same attitude,
 must be constant in direction (constant dip, constant horizontal direction). ``direction_spread_deg`` is the RMS angle
 between each sample's earth-frame field direction and their mean direction. The attitude's heading is the
-gyroscope's, so it drifts slowly; the drift adds the same to every calibration compared on the same samples.
+gyroscope's, so it drifts slowly; the drift is the same for every calibration compared on the same samples, but it
+adds noise to their difference, so the comparisons of the gate take the mean direction over stretches of
+``STRETCH_S`` seconds (12 deg of drift over 2 minutes leaves 0.12 deg instead of 1.4).
 Without a gyroscope the dip spread on the quasi-static samples stands in for it.
 
 The rule (``check_consistency``): on the held-out samples (fitted without them), the candidate must make the field
@@ -41,6 +43,10 @@ QUASI_STATIC_TOL = 0.03
 MIN_QUASI_STATIC = 30
 #: runs of consecutive held-out samples whose spread gives the uncertainty of a comparison
 MARGIN_CHUNKS = 10
+#: the field's earth-frame direction is compared with its mean over stretches of this many seconds, not over the
+#: whole recording: the gyroscope filter's heading drifts slowly (its bias about the vertical is unknown), and that
+#: drift, the same for every calibration compared, would otherwise swamp their difference
+STRETCH_S = 10.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,12 +54,14 @@ class MotionEvidence:
     """What the samples say about attitude, for N samples.
 
     down: (N, 3) unit down direction in body axes (NaN rows where unknown); attitude: (N, 4) body -> earth quats from
-    the gyroscope filter, or None without a gyroscope; source: "fused gravity" or "quasi-static samples".
+    the gyroscope filter, or None without a gyroscope; source: "fused gravity" or "quasi-static samples";
+    period_s: the sample period with a gyroscope (None: the direction is judged over every row at once).
     """
 
     down: np.ndarray
     attitude: np.ndarray | None
     source: str
+    period_s: float | None = None
 
     @property
     def known(self) -> np.ndarray:
@@ -77,7 +85,7 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
         if period_s is None:
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
-        return MotionEvidence(frames.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity")
+        return MotionEvidence(frames.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity", period_s)
     down = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
     return MotionEvidence(np.where(quasi_static(acc)[:, None], down, np.nan), None, "quasi-static samples")
 
@@ -94,13 +102,15 @@ def dip_spread_deg(field: np.ndarray, down: np.ndarray) -> float | None:
     return float(dip.std())
 
 
-def _direction_errors_deg(field: np.ndarray, attitude: np.ndarray) -> np.ndarray:
-    """Angle (N,) deg between each earth-frame field direction and their mean direction."""
+def _direction_errors_deg(field: np.ndarray, attitude: np.ndarray, stretch: np.ndarray | None = None) -> np.ndarray:
+    """Angle (N,) deg between each earth-frame field direction and the mean direction of its stretch (``stretch``
+    (N,) int labels; None: one stretch)."""
     earth = np.einsum("nij,nj->ni", quaternion_to_matrix(attitude), field)
     unit = earth / np.linalg.norm(earth, axis=1, keepdims=True)
-    mean = unit.mean(axis=0)
-    mean /= np.linalg.norm(mean)
-    return np.degrees(np.arccos(np.clip(unit @ mean, -1.0, 1.0)))
+    labels = np.zeros(len(unit), dtype=int) if stretch is None else np.unique(stretch, return_inverse=True)[1]
+    sums = np.column_stack([np.bincount(labels, weights=unit[:, k]) for k in range(3)])
+    mean = sums[labels] / np.linalg.norm(sums[labels], axis=1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", unit, mean), -1.0, 1.0)))
 
 
 def direction_spread_deg(field: np.ndarray, attitude: np.ndarray) -> float | None:
@@ -115,7 +125,11 @@ def _errors_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> np.n
     """Per-sample departures (deg) from a field constant in the earth frame over the selected rows: the angle to the
     mean direction with an attitude, else the dip's departure from its mean on the rows where down is known."""
     if ev.attitude is not None:
-        return _direction_errors_deg(field[rows], ev.attitude[rows]) if rows.any() else None
+        if not rows.any():
+            return None
+        index = np.flatnonzero(rows)
+        stretch = None if ev.period_s is None else (index * ev.period_s // STRETCH_S).astype(int)
+        return _direction_errors_deg(field[rows], ev.attitude[rows], stretch)
     down = ev.down[rows]
     keep = np.all(np.isfinite(down), axis=1) & (np.linalg.norm(field[rows], axis=1) > 0)
     if keep.sum() < MIN_QUASI_STATIC:

@@ -3,7 +3,8 @@
 For every method of ``magnet.calibration`` and for misalignment 0 and 5 deg between magnetometer and accelerometer:
 ``trials`` random sensors (hard iron up to 3x the Earth field in a random direction, symmetric positive definite soft
 iron with eigenvalues within +-20 %, 0.3 uT noise; ``magnet.simulator.SensorErrors.random``) are each fitted on a
-full-sphere tumble (a level spin for ``minmax2d``) with the simulator's accelerometer, then scored on noise-free test
+full-sphere tumble (a level spin for ``minmax2d``, a fast tumble with the gyroscope for ``gyro-ellipsoid``) with the
+simulator's accelerometer, then scored on noise-free test
 attitudes: every 5 deg of heading, level and tilted 30 deg (nose up, nose down, right side down, left side down),
 heading from the tilt-compensated formula with the true accelerometer, error against the true magnetic heading.
 Each trial gives an RMS error; the table shows the median over trials (level, tilted, all) and the worst trial.
@@ -11,7 +12,8 @@ The fit time is the median over a few fits of 10,000 tumble samples (a spin for 
 included, as ``magnet.calibration.fit`` runs in the calibrator.
 
 Targets (docs/design.md, "Targets"): median RMS <= 0.1 deg for ``ellipsoid`` (aligned sensor) and for
-``ellipsoid+align`` (also with 5 deg misalignment); an ellipsoid fit of 10,000 samples well under 50 ms.
+``ellipsoid+align`` and ``gyro-ellipsoid`` (also with 5 deg misalignment); an ellipsoid fit of 10,000 samples well
+under 50 ms.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from magnet.simulator import (
     DEFAULT_LAT_DEG,
     DEFAULT_LON_DEG,
     SensorErrors,
+    SimulatedRun,
     SimulatorConfig,
     Trajectory,
     simulate,
@@ -40,13 +43,19 @@ from magnet.units import STANDARD_GRAVITY_MS2
 
 log = logging.getLogger(__name__)
 
-METHODS = ("minmax2d", "minmax", "sphere", "ellipsoid", "ellipsoid+align")
+METHODS = ("minmax2d", "minmax", "sphere", "ellipsoid", "ellipsoid+align", "gyro-ellipsoid")
 #: method -> trajectory it is fitted on
-FIT_TRAJECTORY = {"minmax2d": Trajectory.SPIN}
-TARGET_RMS_DEG = {("ellipsoid", 0.0): 0.1, ("ellipsoid+align", 0.0): 0.1, ("ellipsoid+align", 5.0): 0.1}
+FIT_TRAJECTORY = {"minmax2d": Trajectory.SPIN, "gyro-ellipsoid": Trajectory.FAST_TUMBLE}
+TARGET_RMS_DEG = {
+    ("ellipsoid", 0.0): 0.1,
+    ("ellipsoid+align", 0.0): 0.1,
+    ("ellipsoid+align", 5.0): 0.1,
+    ("gyro-ellipsoid", 0.0): 0.1,
+    ("gyro-ellipsoid", 5.0): 0.1,
+}
 
-#: fit(mag (N,3) uT, method, acc (N,3) m/s^2, field_ut, truth) -> Calibration; truth is for stand-ins only
-Fitter = Callable[[np.ndarray, str, np.ndarray, float, SensorErrors], Calibration]
+#: fit(run (its mag_ut, acc_ms2, gyr_rads, t_s), method, field_ut, truth) -> Calibration; truth for stand-ins only
+Fitter = Callable[[SimulatedRun, str, float, SensorErrors], Calibration]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,14 +130,17 @@ def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(values))))
 
 
-def real_fitter(mag: np.ndarray, method: str, acc: np.ndarray, field_ut: float, truth: SensorErrors) -> Calibration:
-    """``magnet.calibration.fit`` (truth unused)."""
+def real_fitter(run: SimulatedRun, method: str, field_ut: float, truth: SensorErrors) -> Calibration:
+    """``magnet.calibration.fit`` (truth unused), with the gyroscope for the method that needs it."""
     from magnet.calibration import fit
 
-    return fit(mag, method, acc=acc, field_ut=field_ut)
+    if method == "gyro-ellipsoid":
+        period = float(run.t_s[1] - run.t_s[0])
+        return fit(run.mag_ut, method, acc=run.acc_ms2, field_ut=field_ut, gyr=run.gyr_rads, period_s=period)
+    return fit(run.mag_ut, method, acc=run.acc_ms2, field_ut=field_ut)
 
 
-def truth_fitter(mag: np.ndarray, method: str, acc: np.ndarray, field_ut: float, truth: SensorErrors) -> Calibration:
+def truth_fitter(run: SimulatedRun, method: str, field_ut: float, truth: SensorErrors) -> Calibration:
     """Stand-in that 'fits' the exact inverse of the true errors: scores must come out ~0."""
     return truth.true_calibration(field_ut)
 
@@ -180,7 +192,7 @@ def accuracy_rows(
             for trial, errors in enumerate(sensors):
                 run = _fit_data(method, errors, settings, seed=settings.seed + trial)
                 try:
-                    calibration = fitter(run.mag_ut, method, run.acc_ms2, earth.total_ut, errors)
+                    calibration = fitter(run, method, earth.total_ut, errors)
                 except ValueError as exc:  # FitError is a ValueError
                     log.info("%s trial %d failed: %s", method, trial, exc)
                     failed += 1
@@ -214,7 +226,7 @@ def fit_time_ms(method: str, fitter: Fitter = real_fitter, settings: AccuracySet
     times = []
     for _ in range(settings.timing_repeats):
         start = time.perf_counter()
-        fitter(run.mag_ut, method, run.acc_ms2, earth.total_ut, errors)
+        fitter(run, method, earth.total_ut, errors)
         times.append((time.perf_counter() - start) * 1000.0)
     return statistics.median(times)
 

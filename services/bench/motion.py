@@ -10,12 +10,13 @@ right, z down). Its reference is IMU -> ENU, converted to body -> NED as vqf's o
 
 Estimators, on the raw data (the sensor is factory-calibrated): accelerometer tilt (today's compass without a
 gyroscope), fused causal (as the compass runs), fused offline (``magnet heading --offline``); then the same two
-fused after ``magnet fit``'s ellipsoid with the motion checks (the record applied when accepted, none when refused,
-as the compass does). Then the moving simulator, every trajectory, against its truth: calibrated on its own moving
-data when the gate accepts that, else on a still tumble; no offset removed (the simulator's north is north); with
-the causal and offline filters aided by the run's GNSS-like velocity (10 Hz, 0.1 m/s noise, 0.1 s late:
-``magnet.aiding``) and one more row, the causal filter fed the accelerometer without the run's linear acceleration
-(what velocity aiding could give at best: the gap to "fused causal" is what linear acceleration costs).
+fused after ``magnet fit``'s ellipsoid, and after its gyro-ellipsoid, with the motion checks (the record applied when
+accepted, none when refused, as the compass does). Then the moving simulator, every trajectory, against its truth:
+calibrated on its own moving data (ellipsoid) when the gate accepts that, else on a still tumble; no offset removed
+(the simulator's north is north); with the causal and offline filters aided by the run's GNSS-like velocity (10 Hz,
+0.1 m/s noise, 0.1 s late: ``magnet.aiding``) and one more row, the causal filter fed the accelerometer without
+the run's linear acceleration (what velocity aiding could give at best: the gap to "fused causal" is what linear
+acceleration costs).
 """
 
 from __future__ import annotations
@@ -121,20 +122,20 @@ def broad_rows(data_dir: Path = DATA_DIR, calibrated: bool = False) -> list[tupl
         log = load_broad(data_dir / name)
         for estimator, function in ESTIMATORS.items():
             rows.append((log.name, estimator, log.score(function(log, log.mag_ut))))
-        if calibrated:
-            field, verdict = product_field(log)
+        for method, label in (("ellipsoid", "fit"), ("gyro-ellipsoid", "gyro fit")) if calibrated else ():
+            field, verdict = product_field(log, method)
             rows.extend(
-                (log.name, f"{estimator}, fit {verdict}", log.score(ESTIMATORS[estimator](log, field)))
+                (log.name, f"{estimator}, {label} {verdict}", log.score(ESTIMATORS[estimator](log, field)))
                 for estimator in ("fused causal", "fused offline")
             )
     return rows
 
 
-def product_field(log: MotionLog) -> tuple[np.ndarray, str]:
-    """The field (N, 3) as the compass would use it after ``magnet fit``'s ellipsoid with the motion checks on the
-    log itself: calibrated when the gate accepts the fit, raw when it refuses it; and "accepted" or "refused"."""
+def product_field(log: MotionLog, method: str = "ellipsoid") -> tuple[np.ndarray, str]:
+    """The field (N, 3) as the compass would use it after ``magnet fit --method METHOD`` with the motion checks on
+    the log itself: calibrated when the gate accepts the fit, raw when it refuses it; and "accepted" or "refused"."""
     try:
-        calibration = fit(log.mag_ut, "ellipsoid", acc=log.acc_ms2, gyr=log.gyr_rads, period_s=log.period_s)
+        calibration = fit(log.mag_ut, method, acc=log.acc_ms2, gyr=log.gyr_rads, period_s=log.period_s)
     except ValueError:
         return log.mag_ut, "refused"
     return (calibration.apply(log.mag_ut), "accepted") if calibration.accepted else (log.mag_ut, "refused")
@@ -248,7 +249,10 @@ def run_motion_benchmark() -> str:
     started = time.perf_counter()
     lines = [
         "heading RMS in motion (deg); BROAD: offset removed, movement samples with |pitch| < 60 deg",
-        "(BROAD: 'fused' on the raw field is vqf with its defaults; 'fit accepted/refused': after the product's fit)",
+        (
+            "(BROAD: 'fused' on the raw field is vqf with its defaults; 'fit accepted/refused': after the product's "
+            "ellipsoid, 'gyro fit': after its gyro-ellipsoid)"
+        ),
         f"{'recording':<42}{'estimator':<34}{'RMS':>8}",
     ]
     for trial, estimator, rms in broad_rows(calibrated=True):

@@ -29,8 +29,17 @@ GYRO_COLUMNS = ("gx", "gy", "gz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", metavar="FILE.csv", help="CSV with a header row: mx,my,mz required, ax,ay,az optional")
-    parser.add_argument("--method", required=True, choices=[m.value for m in Method])
+    parser.add_argument(
+        "file",
+        metavar="FILE.csv",
+        help="CSV with a header row: mx,my,mz required; ax,ay,az, gx,gy,gz (rad/s) and t_s optional",
+    )
+    parser.add_argument(
+        "--method",
+        required=True,
+        choices=[m.value for m in Method],
+        help="gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate)",
+    )
     parser.add_argument(
         "--unit", default="ut", choices=[u.value for u in FieldUnit], help="unit of the mx,my,mz columns (default ut)"
     )
@@ -131,7 +140,9 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
         return _fit_turntable(table, args)
     if args.horizontal is not None or args.vertical is not None:
         raise ValueError("--horizontal/--vertical are for --method turntable only")
-    gyr = gyro_columns(table) if table.acc is not None else None
+    gyr = gyro_columns(table) if table.acc is not None or args.method == Method.GYRO_ELLIPSOID.value else None
+    if gyr is None and args.method == Method.GYRO_ELLIPSOID.value:
+        raise ValueError(f"{table.path}: --method gyro-ellipsoid needs the gyroscope columns gx,gy,gz (rad/s)")
     period = sample_period_s(table, args.rate) if gyr is not None else None
     in_force = load_calibration(args.in_force) if args.in_force else None
     field_ut = expected_field_ut(args)
