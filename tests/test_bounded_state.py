@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from compass_steps import NOW_NS, compass_core
 
 from magnet import wire
 from magnet.bounded import Recent
@@ -17,7 +18,6 @@ from services.calibrator.fleet import FleetBook
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.sessions import _start
 from services.calibrator.store import CalibrationStore
-from services.compass.service import Compass
 
 
 def test_recent_forgets_the_least_recently_seen_and_keeps_what_must_stay():
@@ -57,16 +57,16 @@ def test_calibrator_keeps_at_most_max_devices_collections_and_never_drops_a_sess
 
 
 def test_compass_keeps_at_most_max_devices_calibrations():
-    compass = Compass(Earth(), window=3, max_devices=2)
+    compass = compass_core(Earth(), window=3, max_devices=2)
     for i in range(5):
         cal = Calibration("ellipsoid", [float(i), 0, 0], np.eye(3))
         assert compass.accept_calibration(
             wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration", "magnet"
         )
-    assert list(compass.calibrations) == ["d3", "d4"]
-    compass.encode(compass.decode_columns([(f"magnet/n{i}/raw", _batch(f"n{i}")) for i in range(5)], "magnet"))
+    assert list(compass.calibrations.in_force) == ["d3", "d4"]
+    compass.step(compass.decode([(f"magnet/n{i}/raw", _batch(f"n{i}")) for i in range(5)], "magnet"), NOW_NS)
     # calibrations 3, tails 3, drift trackers 3
-    assert len(compass.tails) == 2 and compass.status("c").evicted_devices == 3 + 3 + 3
+    assert len(compass.smoothing.tails) == 2 and compass.status("c").evicted_devices == 3 + 3 + 3
 
 
 def test_a_collection_that_kept_a_few_samples_holds_small_arrays():
@@ -168,14 +168,14 @@ def _moving_batch(device, lat):
 
 
 def test_the_compass_keeps_places_drift_trackers_and_filters_for_at_most_max_devices(caplog):
-    compass = Compass(Earth(), window=1, max_devices=3)
+    compass = compass_core(Earth(), window=1, max_devices=3)
     for i in range(10):
         cal = Calibration("ellipsoid", [float(i), 0, 0], np.eye(3), field_strength=50.0)
         compass.accept_calibration(wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration", "magnet")
-        compass.encode(compass.decode_columns([(f"magnet/d{i}/raw", _moving_batch(f"d{i}", 10.0 + i))], "magnet"))
+        compass.step(compass.decode([(f"magnet/d{i}/raw", _moving_batch(f"d{i}", 10.0 + i))], "magnet"), NOW_NS)
     assert compass.watch.monitor is not None and list(compass.watch.monitor.trackers) == ["d7", "d8", "d9"]
     assert list(compass.watch.places.reported) == ["d7", "d8", "d9"]
-    assert list(compass.fusion.devices) == ["d7", "d8", "d9"]
+    assert list(compass.filters.devices) == ["d7", "d8", "d9"]
     # calibrations 7, tails 0 (window 1), places 7, trackers 7, filters 7
     assert compass.status("c").evicted_devices == 7 + 7 + 7 + 7
     assert len([r for r in caplog.records if "the least recently seen are forgotten" in r.getMessage()]) == 1

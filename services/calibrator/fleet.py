@@ -10,9 +10,9 @@ from typing import Any
 
 from magnet import wire
 from magnet.bounded import Recent
+from magnet.compass.places import Places
 from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.drift.alerts import ALERT_LIMITS
-from magnet.fleet import Places
 
 log = logging.getLogger("magnet.calibrator")
 

@@ -12,12 +12,12 @@ from pathlib import Path
 
 from magnet import signing
 from magnet.calibration import Method
-from magnet.fleet import Places
+from magnet.compass.places import Places
 from magnet.geomag import earth_field, parse_location
 from magnet.place import Location
 from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.intake import DEFAULT_ENROL_RATE, DEFAULT_MAX_QUEUE
-from services.common.fleet_options import add_fleet_argument, read_fleet
+from services.common.places_options import add_fleet_argument, read_fleet
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 log = logging.getLogger("magnet.calibrator")

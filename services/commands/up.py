@@ -28,7 +28,7 @@ from services.commands.up_processes import SERVICES, dashboard_http, report_dead
 from services.commands.up_settings import MAX_DEVICES, UpSettings
 from services.commands.up_view import DeviceView, Viewer, render_lines
 from services.common.endpoint import connect_endpoints, connect_line, remove_runtime_file, write_runtime_file
-from services.common.fleet_options import add_drift_arguments
+from services.common.places_options import add_drift_arguments
 from services.common.zenoh_session import drain, free_ports, payload_bytes, stop_event
 
 __all__ = ["MAX_DEVICES", "DeviceView", "UpSettings", "Viewer", "add_arguments", "render_lines", "run", "up"]

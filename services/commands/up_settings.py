@@ -9,7 +9,7 @@ from pathlib import Path
 from magnet import wire
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.geomag import parse_location
-from services.common.fleet_options import drift_from_args
+from services.common.places_options import drift_from_args
 from services.common.sim_options import SimulatorSettings
 from services.edge.settings import EdgeSettings
 
