@@ -13,7 +13,7 @@ from pathlib import Path
 from magnet import signing
 from magnet.calibration import Method
 from magnet.compass.places import Places
-from magnet.geomag import earth_field, parse_location
+from magnet.geomag import earth_field
 from magnet.place import Location
 from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.intake import DEFAULT_ENROL_RATE, DEFAULT_MAX_QUEUE
@@ -136,7 +136,7 @@ class ServiceSettings:
 def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
     field_ut = args.field_ut
     if field_ut is None and args.location:
-        field_ut = earth_field(*parse_location(args.location)).total_ut
+        field_ut = earth_field(*Location.parse(args.location).as_tuple()).total_ut
     fitting = CalibratorSettings(
         method=args.method,
         field_ut=field_ut,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from magnet import wire
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
-from magnet.geomag import parse_location
+from magnet.place import Location
 from services.common.places_options import drift_from_args
 from services.common.sim_options import SimulatorSettings
 from services.edge.settings import EdgeSettings
@@ -19,7 +19,7 @@ MAX_DEVICES = 10_000
 @dataclasses.dataclass(frozen=True)
 class UpSettings:
     """What ``magnet up`` runs, checked in one place before anything starts: the edge's own checks (rate, batch,
-    speedup) through the ``EdgeSettings`` it will run, the location through ``parse_location``."""
+    speedup) through the ``EdgeSettings`` it will run, the location through ``Location.parse``."""
 
     devices: int = 4
     rate_hz: float = 50.0
@@ -47,7 +47,7 @@ class UpSettings:
             raise ValueError(f"--interval must be > 0 seconds, got {self.interval_s}")
         wire.validate_prefix(self.prefix)
         try:
-            place = parse_location(self.location)
+            place = Location.parse(self.location).as_tuple()
         except ValueError as exc:
             raise ValueError(f"--location: {exc}") from None
         EdgeSettings(

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.geomag import parse_location
+from magnet.place import Location
 from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig, Trajectory
 
 
@@ -102,7 +102,7 @@ class SimulatorSettings:
             hard_iron_ut=tuple(parse_floats(args.hard_iron, (3,), "--hard-iron").tolist()),
             soft_iron=tuple(parse_soft_iron(args.soft_iron).ravel().tolist()),
             noise_ut=float(args.noise_ut),
-            location=parse_location(args.location or DEFAULT_LOCATION),
+            location=Location.parse(args.location or DEFAULT_LOCATION).as_tuple(),
             date=args.date,
             gyro_bias_rads=tuple(parse_floats(args.gyro_bias, (3,), "--gyro-bias").tolist()),
             gyro_noise_rads=float(args.gyro_noise),

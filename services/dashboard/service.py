@@ -86,9 +86,10 @@ def _earth(args: argparse.Namespace):
         if args.date:
             raise ValueError("--date needs --location")
         return None
-    from magnet.geomag import earth_field, parse_location
+    from magnet.geomag import earth_field
+    from magnet.place import Location
 
-    return earth_field(*parse_location(args.location), args.date)
+    return earth_field(*Location.parse(args.location).as_tuple(), args.date)
 
 
 def page_address(host: str, port: int, token: str) -> str:
