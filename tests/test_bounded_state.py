@@ -179,3 +179,14 @@ def test_the_compass_keeps_places_drift_trackers_and_filters_for_at_most_max_dev
     # calibrations 7, tails 0 (window 1), places 7, trackers 7, filters 7
     assert compass.status("c").evicted_devices == 7 + 7 + 7 + 7
     assert len([r for r in caplog.records if "the least recently seen are forgotten" in r.getMessage()]) == 1
+
+
+def test_recent_hands_what_it_evicts_to_on_evict_and_get_does_not_touch():
+    released: list[tuple[str, int]] = []
+    recent: Recent[str, int] = Recent(2, on_evict=lambda key, value: released.append((key, value)))
+    recent["a"], recent["b"] = 1, 2
+    assert recent.get("a") == 1 and recent.get("zz") is None and recent.get("zz", 0) == 0
+    recent["c"] = 3  # "a" was only read, not touched: it is the least recently seen
+    assert released == [("a", 1)] and list(recent) == ["b", "c"] and recent.evicted == 1
+    recent.clear()
+    assert not recent and recent.evicted == 1 and released == [("a", 1)]
