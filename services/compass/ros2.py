@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping
-from typing import Any, Self
+from typing import Self
 
 import numpy as np
 import zenoh
@@ -56,7 +56,9 @@ class _Topic:
         self.token.undeclare()
 
 
-def build_drain(columns: wire.RawColumns, out: HeadingColumns, variances: list[float]) -> Any:
+def build_drain(
+    columns: wire.RawColumns, out: HeadingColumns, variances: list[float]
+) -> list[tuple[list[bytes], list[bytes]]]:
     """The CDR of a drain: per device of ``columns``, (MagneticField messages, Imu messages), one per sample
     (``out``: the compass's ``HeadingColumns`` of them; ``variances``: per device, the field's variance in T^2)."""
     h = out.headings
