@@ -52,7 +52,7 @@ class PlaceEntry:
 
 
 def parse_places(text: str, source: str = "places file") -> dict[str, PlaceEntry]:
-    """device -> PlaceEntry from the text of a fleet file; ValueError naming the device and what is wrong."""
+    """device -> PlaceEntry from the text of a places file; ValueError naming the device and what is wrong."""
     if len(text.encode()) > MAX_PLACES_FILE_BYTES:
         raise ValueError(f"{source} is larger than {MAX_PLACES_FILE_BYTES} bytes")
     try:
