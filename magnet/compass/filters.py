@@ -1,13 +1,14 @@
 """One gyroscope-aided filter per device for the compass (DESIGN.md 4b): state kept across batches.
 
 The compass computes accelerometer-tilt headings for every sample of a step (``magnet.compass.tilt``) and then hands
-the batches that carry a gyroscope to ``DeviceFilters.update``,
-which runs each device's ``magnet.fusion.Fusion`` on them, batch after batch, and ``merge`` puts the fused attitude in
-place of the tilt one. The samples of a drain are grouped by device, so that a device's batches that continue one
+the batches that carry a gyroscope to ``DeviceFilters.update``, which runs each device's ``magnet.fusion.Fusion`` on
+them, batch after batch, and ``merge`` puts the fused attitude in place of the tilt one. The samples of a drain are grouped by device, so that a device's batches that continue one
 another go through vqf in one call (its cost is about 4 us per call plus 0.5 us per sample). Per device:
 
-- the filter runs at the device's sample period (median step of the batch's ``t_ns``); a period that changes by more
-  than ``PERIOD_TOLERANCE`` gets a new filter;
+- the filter runs at the device's sample period (the mean step of its first batch's ``t_ns``, worked out from whole
+  nanoseconds so that evenly stamped samples give the same period however they are batched: a file as one batch
+  and the same samples as many give the same filter); a period that changes by more than ``PERIOD_TOLERANCE`` gets
+  a new filter;
 - continuity: a batch whose ``seq`` does not follow the last one (lower or equal: the device restarted, or replays)
   or whose first sample comes more than ``MAX_GAP_S`` after the last one (lost batches, a pause) restarts the filter:
   the rotation over a gap is unknown, and a restarted filter takes its tilt from gravity at once and its heading from
