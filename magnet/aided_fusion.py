@@ -20,7 +20,7 @@ import numpy as np
 import vqf
 
 from magnet.aiding import VelocityFixes
-from magnet.attitude import quaternion_multiply
+from magnet.frames import ned_enu, ned_to_body, quaternion_conjugate, quaternion_multiply, quaternion_to_matrix
 
 #: the longest piece of samples answered from one filter state when no fix comes (s)
 CHUNK_S = 0.1
@@ -28,23 +28,9 @@ CHUNK_S = 0.1
 MAX_LAG_S = 1.0
 
 
-def _rotation_vqf(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (N, 3, 3) of quaternions (N, 4) w, x, y, z (unit)."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-        ],
-        axis=-2,
-    )
-
-
 def _in_body(quat_vqf: np.ndarray, a_ned: np.ndarray) -> np.ndarray:
     """Accelerations (N, 3) magnetic NED in vqf's body frame (N, 3), by vqf quaternions (N, 4) body -> ENU."""
-    a_enu = np.column_stack([a_ned[:, 1], a_ned[:, 0], -a_ned[:, 2]])
-    return np.einsum("nji,nj->ni", _rotation_vqf(quat_vqf), a_enu)
+    return ned_to_body(quaternion_to_matrix(quat_vqf), ned_enu(a_ned))
 
 
 def body_acceleration(quat_vqf: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray) -> np.ndarray:
@@ -147,6 +133,5 @@ class AidedFilter:
         gyr, field = np.ascontiguousarray(fed[:, _GYR]), np.ascontiguousarray(fed[:, _FIELD])
         out = self.filter.updateBatch(gyr, np.ascontiguousarray(acc), field)
         self.disturbed = bool(np.asarray(out["magDistDetected"]).reshape(-1)[-1])
-        inverse = fed[-1, _TURN] * np.array([1.0, -1.0, -1.0, -1.0])
-        turn = quaternion_multiply(inverse, self.pending[:, _TURN])
+        turn = quaternion_multiply(quaternion_conjugate(fed[-1, _TURN]), self.pending[:, _TURN])
         self.pending[:, _TURN] = turn / np.linalg.norm(turn, axis=1, keepdims=True)  # rounding would compound

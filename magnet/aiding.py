@@ -21,7 +21,7 @@ measures). So:
   it with the gyroscope.
 
 Velocities are in magnetic NED (north is the field's, as the filter's): rotate geographic ones with
-``to_magnetic_ned`` first. Pure numpy; times in seconds.
+``magnet.frames.to_magnetic_ned`` first. Pure numpy; times in seconds.
 """
 
 from __future__ import annotations
@@ -36,15 +36,6 @@ DELAY_S = 0.1
 HALF_WINDOW_S = 0.5
 #: fixes kept (a few seconds of them at any common rate)
 MAX_FIXES = 256
-
-
-def to_magnetic_ned(vel_ned_ms: np.ndarray, declination_deg: float | np.ndarray) -> np.ndarray:
-    """Velocities (N, 3) m/s in geographic NED turned into magnetic NED (north along the field's horizontal part):
-    rotated by -declination about down. ``declination_deg`` one number or (N,); NaN rows stay NaN."""
-    angle = np.radians(np.asarray(declination_deg, dtype=float))
-    c, s = np.cos(angle), np.sin(angle)
-    v = np.asarray(vel_ned_ms, dtype=float)
-    return np.stack([c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], v[:, 2]], axis=-1)
 
 
 @dataclasses.dataclass

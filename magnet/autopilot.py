@@ -3,10 +3,8 @@
 Both PX4 and ArduPilot express the field in the vehicle's body frame x forward, y right, z down (FRD), as magnet
 does. ArduPilot keeps the field in milligauss, PX4 in gauss; magnet in uT (1 mGauss = 0.1 uT, 1 gauss = 100 uT).
 
-Named rotations (``ROTATIONS``): the autopilots' sensor orientation parameters (ArduPilot ``COMPASS_ORIENTn``, PX4
-``CAL_MAGn_ROT`` and ``SENS_BOARD_ROT``) pick one rotation from a numbered table of roll, pitch and yaw angles; the
-matrix is Rz(yaw) Ry(pitch) Rx(roll) and turns a vector from the sensor's axes into the body's axes. The numbers 0 to
-37, 39 and 40 mean the same rotation in both autopilots; 38 and those above 40 differ between them and are left out.
+The autopilots' sensor orientation parameters (ArduPilot ``COMPASS_ORIENTn``, PX4 ``CAL_MAGn_ROT`` and
+``SENS_BOARD_ROT``) pick one rotation from a numbered table: ``magnet.frames.ROTATIONS``.
 
 ``ardupilot_raw_field`` undoes ArduPilot's correction of a logged ``MAG`` record, and ``align`` resamples another
 sensor's stream at the magnetometer's sample times.
@@ -19,72 +17,12 @@ import dataclasses
 import numpy as np
 import numpy.typing as npt
 
-from magnet.attitude import euler_to_matrix, rotation_angle_deg
 from magnet.heading import angle_difference_deg
-
-#: orientation number -> (roll, pitch, yaw) degrees, as both PX4 and ArduPilot number them
-ROTATIONS: dict[int, tuple[float, float, float]] = {
-    0: (0, 0, 0),
-    1: (0, 0, 45),
-    2: (0, 0, 90),
-    3: (0, 0, 135),
-    4: (0, 0, 180),
-    5: (0, 0, 225),
-    6: (0, 0, 270),
-    7: (0, 0, 315),
-    8: (180, 0, 0),
-    9: (180, 0, 45),
-    10: (180, 0, 90),
-    11: (180, 0, 135),
-    12: (0, 180, 0),
-    13: (180, 0, 225),
-    14: (180, 0, 270),
-    15: (180, 0, 315),
-    16: (90, 0, 0),
-    17: (90, 0, 45),
-    18: (90, 0, 90),
-    19: (90, 0, 135),
-    20: (270, 0, 0),
-    21: (270, 0, 45),
-    22: (270, 0, 90),
-    23: (270, 0, 135),
-    24: (0, 90, 0),
-    25: (0, 270, 0),
-    26: (0, 180, 90),
-    27: (0, 180, 270),
-    28: (90, 90, 0),
-    29: (180, 90, 0),
-    30: (270, 90, 0),
-    31: (90, 180, 0),
-    32: (270, 180, 0),
-    33: (90, 270, 0),
-    34: (180, 270, 0),
-    35: (270, 270, 0),
-    36: (90, 180, 90),
-    37: (90, 0, 270),
-    39: (0, 315, 0),
-    40: (90, 315, 0),
-}
 
 UT_PER_MGAUSS = 0.1
 UT_PER_GAUSS = 100.0
 #: ArduPilot applies COMPASS_SCALE only inside this range (outside it, no scaling at all)
 ARDUPILOT_SCALE_RANGE = (0.85, 1.4)
-
-
-def rotation_matrix(number: int) -> np.ndarray:
-    """(3, 3) sensor -> body rotation of orientation ``number``; ValueError for a number not in ``ROTATIONS``."""
-    if number not in ROTATIONS:
-        known = ", ".join(str(n) for n in ROTATIONS)
-        raise ValueError(f"orientation {number} is not one magnet knows (known: {known})")
-    roll, pitch, yaw = ROTATIONS[number]
-    return euler_to_matrix(yaw, pitch, roll)
-
-
-def nearest_rotation(matrix: np.ndarray) -> tuple[int, float]:
-    """(orientation number, angle in degrees between it and ``matrix`` (3, 3), a rotation)."""
-    best = min(ROTATIONS, key=lambda n: float(rotation_angle_deg(rotation_matrix(n).T @ matrix)))
-    return best, float(rotation_angle_deg(rotation_matrix(best).T @ matrix))
 
 
 def ardupilot_soft_iron(diagonals: npt.ArrayLike, offdiagonals: npt.ArrayLike) -> np.ndarray:

@@ -14,7 +14,7 @@ raw frame is the body frame as the autopilot's orientation parameter *in force w
   decomposition) and o = R_f^T b.
 
 Neither autopilot applies a general matrix: the rotation part of A R_f must be the rotation in force (within
-ROTATION_TOLERANCE_DEG) or one of the named orientations (``magnet.autopilot.ROTATIONS``), which is then exported as
+ROTATION_TOLERANCE_DEG) or one of the named orientations (``magnet.frames.ROTATIONS``), which is then exported as
 the orientation parameter; otherwise the export is refused with the angle. ArduPilot's own calibrator refuses
 diagonals outside (0.2, 5), off-diagonals beyond +-1 and offsets beyond ``COMPASS_OFFS_MAX`` (default 1800
 mGauss); so does this. A motor-interference model becomes ``COMPASS_MOT*``/``COMPASS_MOTCT`` or
@@ -28,8 +28,8 @@ import enum
 
 import numpy as np
 
-from magnet.attitude import rotation_angle_deg
-from magnet.autopilot import UT_PER_GAUSS, UT_PER_MGAUSS, nearest_rotation, rotation_matrix
+from magnet.autopilot import UT_PER_GAUSS, UT_PER_MGAUSS
+from magnet.frames import nearest_rotation, rotation_angle_deg, rotation_matrix
 from magnet.model import Calibration
 from magnet.motor import CURRENT, THROTTLE
 from magnet.units import ut_per_unit

@@ -2,17 +2,11 @@
 
 Design: docs/design.md, "Heading in motion".
 
-vqf (Laidig and Seel 2023, MIT) fuses gyroscope, accelerometer and magnetometer. Its frames are not the project's, so
-they are converted here, once, at the boundary:
-
-- project body frame b: x forward, y right, z down; vqf's body frame s is the same sensor with z up, so
-  v_s = D v_b with D = diag(1, -1, -1) (a rotation by 180 deg about x);
-- vqf's earth frame is ENU (x east, y north, z up; with a magnetometer, y is magnetic north); the project's is NED:
-  v_ned = C v_enu, C swaps x and y and negates z (a rotation by 180 deg about (1, 1, 0) / sqrt 2).
-
-So the body-to-NED rotation is R = C R_vqf D, as quaternions q = q_C * q_vqf * q_D with q_C = (0, 1/sqrt2, 1/sqrt2, 0)
-and q_D = (0, 1, 0, 0) (w, x, y, z). Heading, pitch and roll follow ``magnet.attitude`` (Z-Y-X Euler angles of R):
-heading of body x clockwise from (magnetic) north in [0, 360), pitch nose up positive, roll right side down positive.
+vqf (Laidig and Seel 2023, MIT) fuses gyroscope, accelerometer and magnetometer. Its frames are ROS's, not the
+project's: body FLU (x forward, y left, z up) and earth ENU with y along magnetic north. The inputs are turned into
+FLU here (``magnet.frames.frd_flu``) and its quaternions back into body FRD -> NED (magnetic)
+(``magnet.frames.ned_enu_attitude``), once, at the boundary; the frames and the Euler angles are those of
+``magnet.frames`` (docs/frames.md).
 
 Inputs: gyroscope (N, 3) rad/s, accelerometer (N, 3) m/s^2 (specific force: a level still device reads (0, 0, -g)),
 magnetometer (N, 3) calibrated field (uT; any unit works, vqf uses directions and relative norms), all in the project
@@ -29,72 +23,15 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 import vqf
 
 from magnet.aided_fusion import AidedFilter, body_acceleration
-from magnet.attitude import matrix_to_euler, quaternion_multiply, quaternion_to_matrix
+from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
 
-_HALF_SQRT2 = math.sqrt(0.5)
-#: ENU -> NED (180 deg about (1, 1, 0)/sqrt 2) and project body -> vqf body (180 deg about x), as w, x, y, z
-_Q_ENU_TO_NED = np.array([0.0, _HALF_SQRT2, _HALF_SQRT2, 0.0])
-_Q_BODY_TO_VQF = np.array([0.0, 1.0, 0.0, 0.0])
-_BODY_TO_VQF = np.array([1.0, -1.0, -1.0])
 #: sample periods a filter accepts, seconds (10 kHz .. 0.5 Hz)
 MIN_PERIOD_S = 1e-4
 MAX_PERIOD_S = 2.0
-
-
-#: q_C * q * q_D is linear in q: row k is the image of the k-th unit quaternion, so that it is q @ this (4, 4)
-_VQF_TO_NED = np.stack([quaternion_multiply(quaternion_multiply(_Q_ENU_TO_NED, e), _Q_BODY_TO_VQF) for e in np.eye(4)])
-
-
-def vqf_to_body_ned(quat_vqf: np.ndarray) -> np.ndarray:
-    """vqf's quaternions (..., 4) (its body -> ENU) to the project's body -> NED, w >= 0, shape (..., 4)."""
-    return _w_positive(np.asarray(quat_vqf, dtype=float) @ _VQF_TO_NED)
-
-
-def _w_positive(q: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) negated where w < 0 (the same rotation); a product with the sign, several times faster
-    than ``np.where`` broadcasting the condition over the four components."""
-    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
-
-
-def body_ned_to_enu_z_up(quat_wxyz: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`vqf_to_body_ned`: body (x fwd, y right, z down) -> NED to z-up body -> ENU, (..., 4)."""
-    conj = np.array([1.0, -1.0, -1.0, -1.0])
-    return quaternion_multiply(quaternion_multiply(_Q_ENU_TO_NED * conj, quat_wxyz), _Q_BODY_TO_VQF * conj)
-
-
-def euler_from_quat(quat_wxyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(heading [0, 360), pitch [-90, 90], roll (-180, 180]) in degrees from body -> NED quaternions (..., 4)."""
-    return matrix_to_euler(quaternion_to_matrix(quat_wxyz))
-
-
-def down_in_body(quat_wxyz: np.ndarray) -> np.ndarray:
-    """The NED down direction in body axes (..., 3), unit, from body -> NED quaternions (..., 4): R^T (0, 0, 1)."""
-    return quaternion_to_matrix(quat_wxyz)[..., 2, :]
-
-
-def quat_from_euler(heading_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> np.ndarray:
-    """Body -> NED quaternions (..., 4), w >= 0, from Z-Y-X Euler angles in degrees (``magnet.attitude``)."""
-    half = np.broadcast_arrays(
-        *(np.radians(np.asarray(a, dtype=float)) / 2 for a in (heading_deg, pitch_deg, roll_deg))
-    )
-    zero = np.zeros_like(half[0])
-    qz = np.stack([np.cos(half[0]), zero, zero, np.sin(half[0])], axis=-1)
-    qy = np.stack([np.cos(half[1]), zero, np.sin(half[1]), zero], axis=-1)
-    qx = np.stack([np.cos(half[2]), np.sin(half[2]), zero, zero], axis=-1)
-    q = quaternion_multiply(quaternion_multiply(qz, qy), qx)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-def rotate_heading(quat_wxyz: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarray:
-    """Quaternions (..., 4) turned by ``angle_deg`` about NED down (magnetic -> true north: the declination)."""
-    half = np.radians(np.asarray(angle_deg, dtype=float)) / 2
-    turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)
-    return _w_positive(quaternion_multiply(turn, quat_wxyz))
 
 
 def acc_in_ms2(acc: np.ndarray) -> np.ndarray:
@@ -137,7 +74,7 @@ def _check_period(period_s: float) -> float:
 
 def to_vqf_frame(vectors: np.ndarray) -> np.ndarray:
     """Body vectors (..., 3) (x forward, y right, z down) in vqf's z-up body frame, C-contiguous float64."""
-    return np.ascontiguousarray(np.asarray(vectors, dtype=float) * _BODY_TO_VQF)
+    return np.ascontiguousarray(frd_flu(vectors))
 
 
 def _to_vqf(vectors: np.ndarray, name: str, count: int | None = None) -> np.ndarray:
@@ -148,7 +85,7 @@ def _to_vqf(vectors: np.ndarray, name: str, count: int | None = None) -> np.ndar
         raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} holds NaN or infinite values: drop those samples before fusing")
-    return np.ascontiguousarray(arr * _BODY_TO_VQF)
+    return np.ascontiguousarray(frd_flu(arr))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,8 +107,8 @@ class Fused:
 
     @classmethod
     def from_vqf(cls, out: Mapping[str, Any], with_mag: bool) -> Fused:
-        quat = vqf_to_body_ned(np.asarray(out["quat9D" if with_mag else "quat6D"], dtype=float).reshape(-1, 4))
-        heading, pitch, roll = euler_from_quat(quat)
+        quat = ned_enu_attitude(np.asarray(out["quat9D" if with_mag else "quat6D"], dtype=float).reshape(-1, 4))
+        heading, pitch, roll = quaternion_to_euler(quat)
         count = len(quat)
         disturbed = np.asarray(out["magDistDetected"], dtype=bool).reshape(count) if with_mag else np.zeros(count, bool)
         rest = np.asarray(out["restDetected"], dtype=bool).reshape(count)
@@ -235,8 +172,8 @@ class Fusion:
         vel_ned_ms: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """The fast path for many small batches: inputs (N, 3) already in vqf's frame (``to_vqf_frame``), finite,
-        C-contiguous float64; returns vqf's own quaternions (N, 4) (``vqf_to_body_ned`` converts them) and its
-        magnetic disturbance flags (N,). With times (N,) s and velocities (N, 3) m/s magnetic NED of which one is
+        C-contiguous float64; returns vqf's own quaternions (N, 4) (``frames.ned_enu_attitude`` converts them) and
+        its magnetic disturbance flags (N,). With times (N,) s and velocities (N, 3) m/s magnetic NED of which one is
         known (or after such a batch, until ``restart``): the velocity-aided filter."""
         self.samples += len(gyr)
         if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():

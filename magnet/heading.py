@@ -45,7 +45,7 @@ def angle_difference_deg(a_deg: npt.ArrayLike, b_deg: npt.ArrayLike) -> np.ndarr
 def pitch_roll_deg(acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pitch and roll (degrees) from specific force ``acc`` (..., 3), the device assumed still.
 
-    With f = acc, the Z-Y-X attitude (see ``magnet.attitude``) gives f = g (sin p, -sin r cos p, -cos r cos p), so
+    With f = acc, the Z-Y-X attitude (see ``magnet.frames``) gives f = g (sin p, -sin r cos p, -cos r cos p), so
 
         pitch = atan2(f_x, sqrt(f_y^2 + f_z^2))   in [-90, 90]
         roll  = atan2(-f_y, -f_z)                 in (-180, 180]

@@ -13,6 +13,7 @@ import dataclasses
 import logging
 
 from magnet import wire
+from services.common.options import add_options, check_options, from_args, option
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments, open_session, stop_event
 
 log = logging.getLogger("magnet.router")
@@ -21,19 +22,22 @@ log = logging.getLogger("magnet.router")
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--name", default="router", help="name for its liveliness token")
-    add_zenoh_arguments(parser, default_mode="router")
-
-
 @dataclasses.dataclass(frozen=True)
 class RouterSettings:
     """The router's name (liveliness token) and Zenoh options; ``loopback_default``: it listens on DEFAULT_LISTEN
     because neither --listen nor --config was given."""
 
-    name: str = "router"
+    name: str = option("router", "--name", help="name for its liveliness token")
     zenoh: ZenohSettings = ZenohSettings(listen=(DEFAULT_LISTEN,), default_mode="router")
     loopback_default: bool = False
+
+    def __post_init__(self) -> None:
+        check_options(self)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_options(parser, RouterSettings)
+    add_zenoh_arguments(parser, default_mode="router")
 
 
 def settings_from_args(args: argparse.Namespace) -> RouterSettings:
@@ -41,7 +45,7 @@ def settings_from_args(args: argparse.Namespace) -> RouterSettings:
     default = not zenoh.listen and not zenoh.config
     if default:
         zenoh = dataclasses.replace(zenoh, listen=(DEFAULT_LISTEN,))
-    return RouterSettings(args.name, zenoh, default)
+    return from_args(RouterSettings, args, zenoh=zenoh, loopback_default=default)
 
 
 def run_router(args: argparse.Namespace) -> int:
@@ -57,8 +61,8 @@ def run(settings: RouterSettings) -> int:
             DEFAULT_LISTEN,
         )
     stop = stop_event()
-    with open_session(settings.zenoh) as session:
-        token = session.liveliness().declare_token(wire.liveliness_key(settings.zenoh.prefix, "router", settings.name))
+    token_key = wire.liveliness_key(settings.zenoh.prefix, "router", settings.name)
+    with open_session(settings.zenoh) as session, session.liveliness().declare_token(token_key):
         log.info(
             "router %s up (zid %s), listening on %s",
             settings.name,
@@ -67,5 +71,4 @@ def run(settings: RouterSettings) -> int:
         )
         while not stop.wait(0.5):
             pass
-        token.undeclare()
     return 0

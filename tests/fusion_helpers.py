@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from magnet import fusion
-from magnet.attitude import quaternion_multiply, quaternion_to_matrix
+from magnet import frames
+from magnet.frames import quaternion_multiply, quaternion_to_matrix
 
 RATE_HZ = 100.0
 FIELD_NED_UT = 50.0 * np.array([np.cos(np.radians(65.0)), 0.0, np.sin(np.radians(65.0))])
@@ -20,7 +20,7 @@ def rotating_device(seconds: float = 60.0, seed: int = 0):
     gyr = np.column_stack([0.6 * np.sin(0.7 * t), 0.5 * np.cos(0.45 * t + 1.0), 0.4 + 0.3 * np.sin(0.2 * t)])
     gyr[: int(2 * RATE_HZ)] = 0.0  # still at first, as a device switched on
     quats = np.empty((len(t), 4))
-    q = fusion.quat_from_euler(30.0, 5.0, -10.0)
+    q = frames.w_positive(frames.euler_to_quaternion(30.0, 5.0, -10.0))
     for k, w in enumerate(gyr):
         quats[k] = q
         angle = np.linalg.norm(w) * dt

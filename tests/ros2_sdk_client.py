@@ -123,7 +123,7 @@ def publish(port: int, device: str, seconds: float, rate_hz: float) -> None:
     import numpy as np
     from zenoh_ros2_sdk import ROS2Publisher
 
-    from magnet.simulator import FleetSimulator  # the project's simulator; its samples converted here to ROS 2's
+    from magnet.simulator import SimulatedDevices  # the project's simulator; its samples converted here to ROS 2's
 
     _session(port)
     mag_pub = ROS2Publisher(
@@ -140,7 +140,7 @@ def publish(port: int, device: str, seconds: float, rate_hz: float) -> None:
         router_port=port,
         type_hash=sdk_hash("sensor_msgs/msg/Imu"),
     )
-    step = FleetSimulator(1, rate_hz=rate_hz, seed=7, gyro=True).step(int(seconds * rate_hz))
+    step = SimulatedDevices(1, rate_hz=rate_hz, seed=7, gyro=True).step(int(seconds * rate_hz))
     types = JAZZY.types
     flip = np.array([1.0, -1.0, -1.0])  # body FRD -> FLU
     start = time.time_ns()

@@ -8,7 +8,8 @@ import pytest
 from magnet import fusion
 from magnet import heading as hd
 from magnet.aided_fusion import carry_forward
-from magnet.aiding import VelocityFixes, to_magnetic_ned
+from magnet.aiding import VelocityFixes
+from magnet.frames import to_magnetic_ned
 from magnet.simulator import SensorStream, SimulatorConfig, Trajectory, simulate
 from magnet.simulator.gnss import GnssSettings
 from services.bench import motion

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from magnet.attitude import euler_to_matrix
+from magnet.frames import euler_to_matrix
 from magnet.geomag import earth_field
 from magnet.simulator import SensorErrors
 from services.bench import accuracy as bench
@@ -73,4 +73,4 @@ def test_benchmark_prints_a_table(capsys):
     out = capsys.readouterr().out
     for method in bench.METHODS:
         assert method in out
-    assert "met" in out and "MISSED" not in out and "fit ms" in out and "FleetSimulator" in out
+    assert "met" in out and "MISSED" not in out and "fit ms" in out and "SimulatedDevices" in out

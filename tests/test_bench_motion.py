@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from magnet import fusion
+from magnet import frames
 from services.bench import motion
 
 
@@ -19,7 +19,7 @@ def test_reference_scores_zero_and_a_turned_reference_too(datasets_dir):
 def test_project_frame_gravity_points_down_and_matches_the_reference(datasets_dir):
     log = motion.load_broad(datasets_dir / motion.BROAD_TRIALS[0])
     still = ~log.scored & np.all(np.isfinite(log.ref_quat_wxyz), axis=1)
-    down = fusion.down_in_body(log.ref_quat_wxyz[still])
+    down = frames.down_in_body(log.ref_quat_wxyz[still])
     measured = -log.acc_ms2[still] / np.linalg.norm(log.acc_ms2[still], axis=1, keepdims=True)
     assert np.median(np.einsum("ij,ij->i", down, measured)) > np.cos(np.radians(3.0))
 

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from magnet.calibration import FitError, Method, fit, fit_shape
+from magnet.frames import axis_angle_matrix, random_rotations, rotation_angle_deg
 from magnet.quality import GateThresholds, gate
 
 FIELD_UT = 50.0
@@ -22,27 +23,6 @@ DIP_DEG = 65.0
 def unit_vectors(rng: np.random.Generator, n: int) -> np.ndarray:
     v = rng.normal(size=(n, 3))
     return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
-def random_rotations(rng: np.random.Generator, n: int) -> np.ndarray:
-    """n uniformly random rotation matrices (n, 3, 3), from unit quaternions."""
-    q = rng.normal(size=(n, 4))
-    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1),
-        ],
-        axis=1,
-    )
-
-
-def rotation_about(axis: np.ndarray, angle_deg: float) -> np.ndarray:
-    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    a = math.radians(angle_deg)
-    return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * k @ k
 
 
 def symmetric_soft_iron(rng: np.random.Generator, amplitude: float) -> np.ndarray:
@@ -61,15 +41,11 @@ def polar_rotation(matrix: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
-def rotation_angle_deg(r: np.ndarray) -> float:
-    return math.degrees(math.acos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
-
-
 def tumble(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
     """(field (n,3) uT, specific force (n,3) m/s^2) in the body frame for random attitudes."""
     dip = math.radians(DIP_DEG)
     field_ned = FIELD_UT * np.array([math.cos(dip), 0.0, math.sin(dip)])
-    world_to_body = random_rotations(rng, n)
+    world_to_body = random_rotations(n, rng)
     field = world_to_body @ field_ned
     acc = world_to_body @ np.array([0.0, 0.0, -9.81])
     return field, acc
@@ -197,7 +173,7 @@ def test_units_scale_the_output():
 def test_ellipsoid_align_recovers_a_5_degree_misalignment():
     rng = np.random.default_rng(7)
     field, acc = tumble(rng, 4000)
-    misalignment = rotation_about([1.0, -2.0, 0.5], 5.0)
+    misalignment = axis_angle_matrix([1.0, -2.0, 0.5], 5.0)
     soft = symmetric_soft_iron(rng, 0.15)
     raw = distort(field, misalignment @ soft, [40.0, -90.0, 25.0]) + rng.normal(scale=0.3, size=field.shape)
     acc_noisy = acc + rng.normal(scale=0.02, size=acc.shape)
@@ -214,7 +190,7 @@ def test_ellipsoid_align_recovers_a_5_degree_misalignment():
 def test_ellipsoid_align_says_not_observable_for_level_gravity():
     rng = np.random.default_rng(8)
     field, _ = tumble(rng, 2000)
-    raw = distort(field, rotation_about([0, 0, 1], 5.0), [10.0, 0.0, 0.0])
+    raw = distort(field, axis_angle_matrix([0, 0, 1], 5.0), [10.0, 0.0, 0.0])
     level = np.tile([0.0, 0.0, -9.81], (len(raw), 1))
     cal = fit(raw, "ellipsoid+align", acc=level)
     assert "not observable" in cal.reason and "gravity directions do not span" in cal.reason

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from fusion_helpers import RATE_HZ, rotating_device
 
-from magnet.attitude import quaternion_to_matrix
 from magnet.calibration import FitError, fit
+from magnet.frames import quaternion_to_matrix
 from magnet.model import IDENTITY
 from magnet.quality import motion
 

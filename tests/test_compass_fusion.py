@@ -8,10 +8,10 @@ import pytest
 from compass_steps import NOW_NS, compass_core, heading_batches
 from fusion_helpers import RATE_HZ, rotating_device
 
-from magnet import fusion, wire
-from magnet.aiding import to_magnetic_ned
+from magnet import frames, fusion, wire
 from magnet.compass import CompassCore, Earth
 from magnet.compass.filters import GYRO_LIMIT_RADS, DeviceFilters
+from magnet.frames import to_magnetic_ned
 from magnet.heading import HeadingFlag, angle_difference_deg
 from magnet.simulator import SimulatorConfig, Trajectory, simulate
 
@@ -61,12 +61,12 @@ def test_compass_fuses_across_batches_as_one_causal_filter(device):
     np.testing.assert_allclose(joined(out, "heading_deg"), reference.heading_deg, atol=1e-6)
     flags = joined(out, "flags")
     assert np.all(flags & HeadingFlag.FUSED)
-    true_heading, pitch, _ = fusion.euler_from_quat(truth)
+    true_heading, pitch, _ = frames.quaternion_to_euler(truth)
     settled = (np.arange(len(gyr)) > 20 * RATE_HZ) & (np.abs(pitch) < 60)
     error = angle_difference_deg(joined(out, "heading_deg"), true_heading)[settled]
     assert np.sqrt(np.mean(error**2)) < 1.0
     quat = joined(out, "quat_wxyz")
-    heading_from_quat, _, _ = fusion.euler_from_quat(quat)
+    heading_from_quat, _, _ = frames.quaternion_to_euler(quat)
     assert np.abs(angle_difference_deg(heading_from_quat, joined(out, "true_heading_deg"))).max() < 1e-6
 
 
@@ -146,7 +146,7 @@ def test_a_magnetic_disturbance_is_flagged_and_does_not_drag_the_heading(device)
     out = run_compass(compass_core(Earth(), window=1), batches((gyr, acc, disturbed, truth)))
     flags = joined(out, "flags")
     assert np.mean(flags[window] & HeadingFlag.FIELD_DISTURBED > 0) > 0.9
-    true_heading, pitch, _ = fusion.euler_from_quat(truth)
+    true_heading, pitch, _ = frames.quaternion_to_euler(truth)
     heading = joined(out, "heading_deg")
     level = np.abs(pitch) < 60
     error = np.abs(angle_difference_deg(heading, true_heading))[window][level[window]]

@@ -10,14 +10,15 @@ import numpy as np
 import pytest
 
 from magnet import wire
-from magnet.attitude import euler_to_matrix, ned_to_body
 from magnet.drift import Alert, AlertKind
+from magnet.frames import euler_to_matrix, ned_to_body
 from magnet.geomag import earth_field
 from magnet.heading import dip_angle_deg
 from magnet.model import Calibration
 from services.dashboard.app import create_app
 from services.dashboard.figures import acc_direction, covered_cells, dip_deg
-from services.dashboard.service import is_loopback, page_address, parse_http
+from services.dashboard.service import page_address
+from services.dashboard.settings import is_loopback, parse_http
 from services.dashboard.state import FleetState
 
 with warnings.catch_warnings():  # starlette >= 1 asks for httpx2, which the package index does not have

@@ -31,7 +31,7 @@ import pytest
 from magnet import wire
 from magnet.drift import DriftSettings
 from magnet.model import Calibration, Quality
-from magnet.simulator import FleetSimulator
+from magnet.simulator import SimulatedDevices
 from services.calibrator.store import CalibrationStore
 from services.common.zenoh_session import free_ports
 
@@ -81,7 +81,7 @@ def chromium() -> Path:
 
 def store_moved_iron(path: Path) -> str:
     """The calibration of DRIFTED's emulated iron with the hard iron moved by IRON_MOVE_UT, stored; its id."""
-    sim = FleetSimulator(5, seed=1, noise_ut=0.3, lat_deg=LOCATION[0], lon_deg=LOCATION[1])  # the edge's defaults
+    sim = SimulatedDevices(5, seed=1, noise_ut=0.3, lat_deg=LOCATION[0], lon_deg=LOCATION[1])  # the edge's defaults
     errors = sim.errors[int(DRIFTED[-3:])]
     calibration = Calibration(
         "ellipsoid",

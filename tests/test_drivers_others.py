@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import smbus2
 
-from magnet.drivers import open_sensor, orientation_matrix
+from magnet.drivers import open_sensor
 from magnet.drivers.ak09918c import AK09918C
 from magnet.drivers.base import I2CBus, SensorError, SensorReadError
 from magnet.drivers.bma456 import BMA456
@@ -152,26 +152,6 @@ def test_bus_level_faults_are_retried_for_a_pair():
     healths = (sensor.magnetometer.health, sensor.accelerometer.health)
     assert sum(h.errors for h in healths) == faults.injected  # every injected fault seen and counted
     assert sum(h.retries for h in healths) >= faults.injected - 2 * failed * 4
-
-
-@pytest.mark.parametrize(
-    "name,expected",
-    [
-        ("none", np.eye(3)),
-        ("yaw90", [[0, -1, 0], [1, 0, 0], [0, 0, 1]]),
-        ("ROTATION_ROLL_180_YAW_90", [[0, 1, 0], [1, 0, 0], [0, 0, -1]]),  # ArduPilot: x=y, y=x, z=-z
-        ("pitch90", [[0, 0, 1], [0, 1, 0], [-1, 0, 0]]),  # ArduPilot: x=z, z=-x
-        ("0,1,0,1,0,0,0,0,-1", [[0, 1, 0], [1, 0, 0], [0, 0, -1]]),
-    ],
-)
-def test_orientation_names(name, expected):
-    assert np.allclose(orientation_matrix(name), expected)
-
-
-@pytest.mark.parametrize("bad", ["roll33", "upside", [1, 0, 0, 0, 1, 0, 0, 0, -1], [1, 2, 3]])
-def test_orientation_refuses_bad_input(bad):
-    with pytest.raises(ValueError):
-        orientation_matrix(bad)
 
 
 def test_open_sensor_unknown_name():

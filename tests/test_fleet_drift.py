@@ -10,7 +10,7 @@ import pytest
 from magnet import heading as hd
 from magnet.calibration import fit
 from magnet.drift import NS_PER_DAY, NS_PER_S, AlertKind, DriftMonitor, DriftSettings, DriftTracker, Reference
-from magnet.simulator import FleetSimulator
+from magnet.simulator import SimulatedDevices
 
 RATE_HZ = 10.0
 REF_UT, DIP_DEG = 50.0, 67.0
@@ -125,7 +125,7 @@ def calibrated(cal, mag, acc):
 
 def test_a_simulated_iron_change_on_a_tumbling_device_alerts_in_time_and_a_recalibration_clears_it():
     settings = DriftSettings()
-    sim = FleetSimulator(1, rate_hz=RATE_HZ, seed=11, noise_ut=0.3)
+    sim = SimulatedDevices(1, rate_hz=RATE_HZ, seed=11, noise_ut=0.3)
 
     def run(seconds):
         batch = sim.step(int(seconds * RATE_HZ))

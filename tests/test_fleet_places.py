@@ -17,7 +17,7 @@ from magnet.compass.earth import utc_date
 from magnet.compass.places import parse_places
 from magnet.geomag import earth_field
 from magnet.place import Location
-from magnet.simulator import FleetSimulator
+from magnet.simulator import SimulatedDevices
 
 KYIV, SYDNEY = Location(50.45, 30.52, 180.0), Location(-33.86, 151.21, 20.0)
 DATE = "2026-06-01"
@@ -115,7 +115,7 @@ def test_two_devices_far_apart_get_their_own_declination_and_expected_field():
     batches = []
     for device, place, seed in (("kyiv", KYIV, 1), ("syd", None, 2)):
         where = KYIV if place else SYDNEY
-        sim = FleetSimulator(
+        sim = SimulatedDevices(
             1,
             rate_hz=10,
             seed=seed,

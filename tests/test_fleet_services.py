@@ -17,7 +17,7 @@ from helpers import NO_SCOUT, connect_args, free_ports, listen_args, magnet_json
 
 from magnet import wire
 from magnet.model import Calibration, Quality
-from services.bench.fleet import ask_fleet, fill_store, fleet_file, session_config, wait_for_fleet
+from services.bench.fleet_query import ask_fleet, fill_store, fleet_file, session_config, wait_for_fleet
 from services.calibrator.store import CalibrationStore
 
 pytestmark = pytest.mark.integration

@@ -1,4 +1,4 @@
-"""magnet.fusion: frames at the vqf boundary, causal filter across batches, offline, and the motion metric."""
+"""magnet.fusion: causal filter across batches, offline, and the motion metric."""
 
 from __future__ import annotations
 
@@ -6,38 +6,15 @@ import numpy as np
 import pytest
 from fusion_helpers import RATE_HZ, rotating_device
 
-from magnet import fusion
-from magnet.attitude import euler_to_matrix, quaternion_to_matrix, rotation_angle_deg
+from magnet import frames, fusion
+from magnet.frames import quaternion_to_matrix, rotation_angle_deg
 from magnet.heading import angle_difference_deg, offset_removed_rms_deg
-
-
-def test_vqf_identity_is_body_x_east_level():
-    heading, pitch, roll = fusion.euler_from_quat(fusion.vqf_to_body_ned(np.array([1.0, 0, 0, 0])))
-    assert heading == pytest.approx(90.0) and pitch == pytest.approx(0.0, abs=1e-9)
-    assert roll == pytest.approx(0.0, abs=1e-9)
-
-
-@pytest.mark.parametrize("angles", [(0.0, 0.0, 0.0), (123.0, 20.0, -35.0), (300.0, -50.0, 170.0)])
-def test_quaternion_euler_and_frame_conversions_round_trip(angles):
-    q = fusion.quat_from_euler(*angles)
-    np.testing.assert_allclose(quaternion_to_matrix(q), euler_to_matrix(*angles), atol=1e-12)
-    heading, pitch, roll = fusion.euler_from_quat(q)
-    assert angle_difference_deg(heading, angles[0]) == pytest.approx(0.0, abs=1e-9)
-    assert (pitch, roll) == pytest.approx(angles[1:])
-    np.testing.assert_allclose(fusion.vqf_to_body_ned(fusion.body_ned_to_enu_z_up(q)), q, atol=1e-12)
-    np.testing.assert_allclose(fusion.down_in_body(q), euler_to_matrix(*angles).T @ [0, 0, 1], atol=1e-12)
-
-
-def test_rotate_heading_adds_declination():
-    q = fusion.rotate_heading(fusion.quat_from_euler(350.0, 10.0, 5.0), 15.0)
-    heading, pitch, roll = fusion.euler_from_quat(q)
-    assert heading == pytest.approx(5.0) and (pitch, roll) == pytest.approx((10.0, 5.0))
 
 
 def test_fused_attitude_follows_a_moving_device_in_the_project_frames():
     gyr, acc, mag, truth = rotating_device()
     fused = fusion.fuse_causal(gyr, acc, mag, 1.0 / RATE_HZ)
-    heading, pitch, _ = fusion.euler_from_quat(truth)
+    heading, pitch, _ = frames.quaternion_to_euler(truth)
     settled = np.arange(len(truth)) >= 20 * RATE_HZ
     error = angle_difference_deg(fused.heading_deg, heading)[settled & (np.abs(pitch) < 60)]
     assert np.sqrt(np.mean(error**2)) < 1.0
@@ -56,7 +33,7 @@ def test_a_gyroscope_with_the_wrong_sign_convention_would_be_seen():
     gyr, acc, mag, truth = rotating_device()
     flipped = gyr * [1.0, 1.0, -1.0]
     fused = fusion.fuse_causal(flipped, acc, mag * 0 + mag[0], 1.0 / RATE_HZ)
-    heading, _, _ = fusion.euler_from_quat(truth)
+    heading, _, _ = frames.quaternion_to_euler(truth)
     assert np.sqrt(np.mean(angle_difference_deg(fused.heading_deg, heading) ** 2)) > 10.0
 
 

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from magnet import heading as hd
-from magnet.attitude import euler_to_matrix, ned_to_body
+from magnet.frames import euler_to_matrix, ned_to_body
 
 G = 9.80665
 B_NED = np.array([19.2, 2.9, 47.2])  # Kyiv-like field, uT (north, east, down)

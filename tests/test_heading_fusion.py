@@ -9,7 +9,7 @@ import pytest
 from fusion_helpers import RATE_HZ, rotating_device
 from helpers import run_magnet as magnet
 
-from magnet import fusion
+from magnet import frames
 from magnet.heading import HeadingFlag, angle_difference_deg
 
 pytestmark = pytest.mark.integration
@@ -45,14 +45,14 @@ def test_fused_heading_and_quaternion_follow_the_truth(tmp_path: Path, device, o
     result = magnet("heading", str(csv), "--declination", "4", *(["--offline"] if offline else []))
     assert result.returncode == 0, result.stderr
     out = read_output(result.stdout)
-    heading, pitch, _ = fusion.euler_from_quat(device[3])
+    heading, pitch, _ = frames.quaternion_to_euler(device[3])
     settled = (np.arange(len(heading)) >= 20 * RATE_HZ) & (np.abs(pitch) < 60)
     error = angle_difference_deg(out["heading_deg"], heading)[settled]
     assert np.sqrt(np.mean(error**2)) < 1.0
     assert np.all(out["flags"].astype(int) & HeadingFlag.FUSED)
     assert not np.any(out["flags"].astype(int) & HeadingFlag.CALIBRATED)
     quat = np.column_stack([out[k] for k in ("qw", "qx", "qy", "qz")])
-    true_heading, _, _ = fusion.euler_from_quat(quat)
+    true_heading, _, _ = frames.quaternion_to_euler(quat)
     assert np.abs(angle_difference_deg(true_heading, out["true_heading_deg"])).max() < 1e-3
     assert np.abs(angle_difference_deg(out["true_heading_deg"], out["heading_deg"] + 4)).max() < 1e-3
 
@@ -77,7 +77,7 @@ def test_without_gyroscope_tilt_stays_and_offline_is_refused(tmp_path: Path, dev
     out = read_output(result.stdout)
     assert not np.any(out["flags"].astype(int) & HeadingFlag.FUSED)
     quat = np.column_stack([out[k] for k in ("qw", "qx", "qy", "qz")])
-    heading, pitch, _ = fusion.euler_from_quat(quat)
+    heading, pitch, _ = frames.quaternion_to_euler(quat)
     assert np.abs(angle_difference_deg(heading, out["heading_deg"])).max() < 1e-3
     assert np.abs(pitch - out["pitch_deg"]).max() < 1e-3
     refused = magnet("heading", str(csv), "--offline")

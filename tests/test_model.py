@@ -8,20 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from magnet.frames import quaternion_to_matrix
 from magnet.model import MAX_CONDITION, Calibration, Quality, check_plausible
 
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
-
-
-def _rotation(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 @settings(max_examples=50, deadline=None)
@@ -43,7 +33,7 @@ def test_apply_is_matrix_times_raw_minus_offset(offset, matrix, raw):
     q=arrays(float, 4, elements=st.floats(0.1, 1.0)),
 )
 def test_plausible_records_survive_json(offset, scales, q):
-    cal = Calibration(method="ellipsoid", offset=offset, matrix=_rotation(q) @ np.diag(scales))
+    cal = Calibration(method="ellipsoid", offset=offset, matrix=quaternion_to_matrix(q) @ np.diag(scales))
     again = Calibration.from_dict(json.loads(json.dumps(cal.to_dict())))
     assert np.array_equal(again.offset, cal.offset) and np.array_equal(again.matrix, cal.matrix)
     assert again.content_id == cal.content_id

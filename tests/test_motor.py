@@ -15,12 +15,12 @@ from magnet import wire
 from magnet.calibration import FitError, fit
 from magnet.calibration.motor_fit import fit_motor, fit_with_motor
 from magnet.compass import Earth
+from magnet.frames import ned_to_body_euler
 from magnet.heading import angle_difference_deg
 from magnet.model import Calibration
 from magnet.motor import MotorModel, interference_pct
 from magnet.simulator import Motors, SensorErrors, SimulatorConfig, simulate
 from magnet.simulator.motion import G_NED
-from magnet.simulator.trajectories import ned_to_body_euler
 from services.cli import main
 
 ERRORS = SensorErrors(

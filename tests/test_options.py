@@ -7,7 +7,17 @@ import dataclasses
 
 import pytest
 
-from services.common.options import add_options, at_least, check_options, from_args, option, positive, within
+from services.common.options import (
+    add_options,
+    at_least,
+    check_options,
+    from_args,
+    one_of,
+    option,
+    optional,
+    positive,
+    within,
+)
 
 
 def _shard(text: str) -> tuple[int, int]:
@@ -78,3 +88,30 @@ def test_help_shows_each_default_once() -> None:
     text = parser.format_help()
     assert "(default 1)" in text and "(default 2.5)" in text and "(default 0.8)" in text
     assert "--no-auto" in text and "--other" not in text
+    assert "--min-coverage MIN_COVERAGE" in text and "--shard K/N" in text, "named by the flag, as argparse does"
+
+
+@dataclasses.dataclass(frozen=True)
+class Session:
+    mode: str | None = option(
+        None, "--mode", choices=("peer", "router"), help="mode", check=optional(one_of(("peer", "router"))), group="net"
+    )
+    listen: tuple[str, ...] = option((), "--listen", repeat=True, help="endpoints", group="net")
+
+    def __post_init__(self) -> None:
+        check_options(self)
+
+
+def test_a_service_default_is_shown_while_the_field_keeps_none() -> None:
+    parser = argparse.ArgumentParser()
+    add_options(parser, Session, shown={"mode": "router"})
+    assert "mode (default router)" in parser.format_help()
+    assert [g.title for g in parser._action_groups if g.title == "net"] == ["net"]
+    assert from_args(Session, parser.parse_args([])) == Session(None, ())
+    assert from_args(Session, parser.parse_args(["--mode", "peer", "--listen", "a"])) == Session("peer", ("a",))
+
+
+def test_optional_lets_none_through_and_checks_the_rest() -> None:
+    assert Session().mode is None
+    with pytest.raises(ValueError, match="--mode must be one of peer, router, got 'client'"):
+        Session(mode="client")

@@ -16,7 +16,7 @@ import zenoh
 from helpers import REPO_ROOT, connect_args, free_ports, listen_args, wait_for
 
 from magnet import wire
-from magnet.attitude import euler_to_quaternion, quaternion_to_matrix
+from magnet.frames import euler_to_quaternion, quaternion_to_matrix
 from magnet.ros2.names import ros_name_of_device
 
 pytestmark = pytest.mark.integration

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from ros2_sdk_client import dependencies, msg_text
 from rosbags.typesys import Stores, get_typestore
 
-from magnet.attitude import euler_to_quaternion
+from magnet.frames import euler_to_quaternion
 from magnet.ros2 import compass as rc
 from magnet.ros2 import frames, messages, names
 from magnet.ros2.pairing import SamplePairer

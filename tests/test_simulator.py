@@ -5,7 +5,7 @@ import pytest
 
 from magnet import heading as hd
 from magnet import simulator as sim
-from magnet.attitude import euler_to_matrix, ned_to_body, rotation_angle_deg
+from magnet.frames import euler_to_matrix, ned_to_body, rotation_angle_deg
 
 DATE = "2026-03-01"
 
@@ -222,7 +222,7 @@ def test_bad_place_or_date_is_refused_when_simulating():
 
 
 def test_fleet_shapes_truth_and_determinism():
-    fleet = sim.FleetSimulator(20, rate_hz=100.0, seed=1, date=DATE, noise_ut=0.0, acc_noise_ms2=0.0)
+    fleet = sim.SimulatedDevices(20, rate_hz=100.0, seed=1, date=DATE, noise_ut=0.0, acc_noise_ms2=0.0)
     first, second = fleet.step(30), fleet.step(30)
     assert first.mag_ut.shape == first.acc_ms2.shape == (20, 30, 3)
     assert first.heading_deg.shape == first.pitch_deg.shape == first.roll_deg.shape == (20, 30)
@@ -238,21 +238,21 @@ def test_fleet_shapes_truth_and_determinism():
         pitch, _ = hd.pitch_roll_deg(second.acc_ms2[d])
         np.testing.assert_allclose(pitch, second.pitch_deg[d], atol=1e-7)
     # the same seed gives the same fleet, stepping in other chunk sizes gives the same truth
-    again = sim.FleetSimulator(20, rate_hz=100.0, seed=1, date=DATE, noise_ut=0.0, acc_noise_ms2=0.0).step(60)
+    again = sim.SimulatedDevices(20, rate_hz=100.0, seed=1, date=DATE, noise_ut=0.0, acc_noise_ms2=0.0).step(60)
     np.testing.assert_allclose(again.mag_ut, np.concatenate([first.mag_ut, second.mag_ut], axis=1), atol=1e-12)
 
 
 def test_fleet_devices_tumble_over_the_sphere_and_noise_is_as_asked():
-    fleet = sim.FleetSimulator(10, rate_hz=50.0, seed=2, date=DATE, noise_ut=0.3)
+    fleet = sim.SimulatedDevices(10, rate_hz=50.0, seed=2, date=DATE, noise_ut=0.3)
     batch = fleet.step(6000)  # two minutes
     hit = [_sphere_cells_hit(fleet.errors[d].true_calibration().apply(batch.mag_ut[d])) for d in range(10)]
     assert np.mean(hit) >= 0.97 and np.min(hit) >= 0.9
-    clean = sim.FleetSimulator(10, rate_hz=50.0, seed=2, date=DATE, noise_ut=0.0, acc_noise_ms2=0.0).step(6000)
+    clean = sim.SimulatedDevices(10, rate_hz=50.0, seed=2, date=DATE, noise_ut=0.0, acc_noise_ms2=0.0).step(6000)
     assert np.std(batch.mag_ut - clean.mag_ut) == pytest.approx(0.3, rel=0.05)
 
 
 def test_fleet_bad_arguments():
     with pytest.raises(ValueError):
-        sim.FleetSimulator(0, date=DATE)
+        sim.SimulatedDevices(0, date=DATE)
     with pytest.raises(ValueError):
-        sim.FleetSimulator(2, date=DATE).step(0)
+        sim.SimulatedDevices(2, date=DATE).step(0)

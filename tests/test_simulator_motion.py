@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from magnet import simulator as sim
-from magnet.attitude import (
+from magnet.frames import (
     ned_to_body,
     quaternion_multiply,
     quaternion_to_euler,
@@ -172,9 +172,9 @@ def test_figure8_moves_the_hand_and_turns_around():
 
 
 def test_fleet_gyroscope_integrates_to_each_devices_attitude():
-    from magnet.attitude import euler_to_quaternion
+    from magnet.frames import euler_to_quaternion
 
-    fleet = sim.FleetSimulator(4, rate_hz=100.0, seed=1, date=DATE, gyro=True)
+    fleet = sim.SimulatedDevices(4, rate_hz=100.0, seed=1, date=DATE, gyro=True)
     first, second = fleet.step(60), fleet.step(60)
     gyr = np.concatenate([first.gyr_rads, second.gyr_rads], axis=1)
     quat = euler_to_quaternion(
@@ -185,4 +185,4 @@ def test_fleet_gyroscope_integrates_to_each_devices_attitude():
     )
     for d in range(4):
         assert angle_between_deg(integrate(quat[d, 0], gyr[d], 100.0), quat[d]).max() < 1e-3
-    assert sim.FleetSimulator(4, rate_hz=100.0, seed=1, date=DATE).step(5).gyr_rads is None
+    assert sim.SimulatedDevices(4, rate_hz=100.0, seed=1, date=DATE).step(5).gyr_rads is None

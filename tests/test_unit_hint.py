@@ -6,7 +6,7 @@ import pytest
 
 from magnet.calibration import fit
 from magnet.quality.units_hint import chip_count_scales, unit_hint
-from magnet.simulator import FleetSimulator
+from magnet.simulator import SimulatedDevices
 from magnet.units import ut_per_unit
 from services.cli import main
 
@@ -14,7 +14,7 @@ from services.cli import main
 @pytest.fixture(scope="module")
 def tumble():
     """A tumbling device's field (uT) and specific force (m/s^2), 2,000 samples."""
-    batch = FleetSimulator(1, rate_hz=5, seed=2, noise_ut=0.3).step(2000)
+    batch = SimulatedDevices(1, rate_hz=5, seed=2, noise_ut=0.3).step(2000)
     return batch.mag_ut[0], batch.acc_ms2[0]
 
 

@@ -12,12 +12,12 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
 from magnet.calibration.base import FitError, Shape
 from magnet.calibration.ellipsoid import TOLERANCE, ellipsoid
+from magnet.frames import rotation_angle_deg, rotation_vector_to_matrix
 
 #: smallest eigenvalue of the scatter of gravity directions (1/3 for the whole sphere) below which R is unobservable
 MIN_GRAVITY_SPREAD = 0.02
@@ -44,7 +44,7 @@ def ellipsoid_align(
         return dataclasses.replace(
             base, note=_join(base.note, f"alignment not observable: {why_not}; kept the plain ellipsoid")
         )
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rotation) - 1) / 2))))
+    angle = float(rotation_angle_deg(rotation))
     return dataclasses.replace(
         base,
         matrix=rotation @ base.matrix,
@@ -82,7 +82,7 @@ def align_rotation(
         if np.linalg.cond(normal) > MAX_ALIGN_CONDITION:
             return None, "the rotation is ill-conditioned for these attitudes; tumble the device more widely"
         step = np.linalg.solve(normal, -gradient)
-        rotation = rotation @ _exp_so3(step[:3])
+        rotation = rotation @ rotation_vector_to_matrix(step[:3])
         k += step[3]
         if np.linalg.norm(step[:3]) < 1e-10:
             break
@@ -117,12 +117,3 @@ def _initial_rotation(field_dir: np.ndarray, gravity_dir: np.ndarray) -> np.ndar
     if np.linalg.det(rotation) < 0:  # the dip is near zero and N is noise: start from no rotation
         return np.eye(3)
     return rotation
-
-
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix exp([w]x) for a rotation vector w (rad), Rodrigues' formula."""
-    theta = float(np.linalg.norm(w))
-    skew = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    if theta < 1e-12:
-        return np.eye(3) + skew
-    return np.eye(3) + math.sin(theta) / theta * skew + (1 - math.cos(theta)) / theta**2 * skew @ skew

@@ -24,23 +24,12 @@ from __future__ import annotations
 import numpy as np
 
 from magnet.calibration.base import FitError
+from magnet.frames import rotation_vector_to_matrix
 
 #: samples per window of the integrated constraint
 WINDOW = 10
 #: the least singular value must be this far below the next one: the solution is one direction, not a plane
 NULL_RATIO = 0.05
-
-
-def _turns(gyr_rads: np.ndarray, period_s: float) -> np.ndarray:
-    """Rotation matrices (N, 3, 3) exp([w_k dt]x) of each sample's rate over its period (Rodrigues)."""
-    angle_vec = np.asarray(gyr_rads, dtype=float) * period_s
-    angle = np.linalg.norm(angle_vec, axis=1)
-    axis = angle_vec / np.where(angle > 0, angle, 1.0)[:, None]
-    x, y, z = axis[:, 0], axis[:, 1], axis[:, 2]
-    zero = np.zeros(len(x))
-    skew = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-    sin, cos = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.eye(3) + sin * skew + (1.0 - cos) * (skew @ skew)
 
 
 def constraint_rows(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, window: int = WINDOW) -> np.ndarray:
@@ -50,7 +39,7 @@ def constraint_rows(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, wind
     count = (len(mag) - 1) // window
     if count < 4:
         raise FitError(f"gyro-ellipsoid needs at least {4 * window + 1} samples with the gyroscope, got {len(mag)}")
-    turns = _turns(gyr_rads, period_s)
+    turns = rotation_vector_to_matrix(np.asarray(gyr_rads, dtype=float) * period_s)  # exp([w_k dt]x)
     starts = np.arange(count) * window
     product = np.broadcast_to(np.eye(3), (count, 3, 3)).copy()
     for step in range(window):

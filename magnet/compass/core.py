@@ -21,7 +21,6 @@ import numpy as np
 
 from magnet import heading as hd
 from magnet import signing, wire
-from magnet.aiding import to_magnetic_ned
 from magnet.bounded import Recent
 from magnet.compass.calibrations import CalibrationsInForce, calibration_rows, motor_rows
 from magnet.compass.earth import utc_date
@@ -31,7 +30,7 @@ from magnet.compass.places import EarthColumns, Places
 from magnet.compass.tilt import Headings, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
-from magnet.fusion import rotate_heading
+from magnet.frames import rotate_heading, to_magnetic_ned
 from magnet.shard import EVERY_DEVICE, Shard
 
 log = logging.getLogger("magnet.compass")

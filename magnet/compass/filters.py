@@ -2,8 +2,9 @@
 
 The compass computes accelerometer-tilt headings for every sample of a step (``magnet.compass.tilt``) and then hands
 the batches that carry a gyroscope to ``DeviceFilters.update``, which runs each device's ``magnet.fusion.Fusion`` on
-them, batch after batch, and ``merge`` puts the fused attitude in place of the tilt one. The samples of a drain are grouped by device, so that a device's batches that continue one
-another go through vqf in one call (its cost is about 4 us per call plus 0.5 us per sample). Per device:
+them, batch after batch, and ``merge`` puts the fused attitude in place of the tilt one. The samples of a step are
+grouped by device, so that a device's batches that continue one another go through vqf in one call (its cost is
+about 4 us per call plus 0.5 us per sample). Per device:
 
 - the filter runs at the device's sample period (the mean step of its first batch's ``t_ns``, worked out from whole
   nanoseconds so that evenly stamped samples give the same period however they are batched: a file as one batch
@@ -32,9 +33,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from magnet import fusion
+from magnet import frames, fusion
 from magnet import heading as hd
-from magnet.attitude import matrix_to_euler, quaternion_to_matrix
 from magnet.bounded import Recent
 from magnet.compass.tilt import Headings
 
@@ -91,10 +91,10 @@ class FusedColumns:
         out = cls.empty(len(raw))
         fused = hd.rows_finite(raw)
         if fused.all():
-            out = dataclasses.replace(out, quat_wxyz=fusion.vqf_to_body_ned(raw))
+            out = dataclasses.replace(out, quat_wxyz=frames.ned_enu_attitude(raw))
             out.down[:], (out.heading_deg[:], out.pitch_deg[:], out.roll_deg[:]) = _down_and_euler(out.quat_wxyz)
         elif fused.any():
-            quat = fusion.vqf_to_body_ned(raw[fused])
+            quat = frames.ned_enu_attitude(raw[fused])
             down, (heading, pitch, roll) = _down_and_euler(quat)
             out.quat_wxyz[fused], out.down[fused] = quat, down
             out.heading_deg[fused], out.pitch_deg[fused], out.roll_deg[fused] = heading, pitch, roll
@@ -106,8 +106,8 @@ class FusedColumns:
 def _down_and_euler(quat_wxyz: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """NED down in body axes (S, 3) and (heading [0, 360), pitch, roll) in degrees from body -> NED quaternions
     (S, 4)."""
-    matrix = quaternion_to_matrix(quat_wxyz)
-    return matrix[:, 2, :], matrix_to_euler(matrix)
+    matrix = frames.quaternion_to_matrix(quat_wxyz)
+    return matrix[:, 2, :], frames.matrix_to_euler(matrix)
 
 
 class _Drain(NamedTuple):

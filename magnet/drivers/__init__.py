@@ -1,8 +1,9 @@
 """Sensor drivers over an injected smbus2-style bus, and ``open_sensor`` by name.
 
 ``magnet.drivers.<chip>.<CHIP>(bus, address=DEFAULT, orientation=None)`` with ``.read() -> Reading`` (see
-``magnet.drivers.base`` for the reading, orientation names, retries and health). Nothing here imports smbus2: the
-service opens ``smbus2.SMBus(n)`` and passes it in, or passes an emulator from ``magnet.emulators``.
+``magnet.drivers.base`` for the reading, retries and health, ``magnet.frames`` for orientation names). Nothing
+here imports smbus2: the service opens ``smbus2.SMBus(n)`` and passes it in, or passes an emulator from
+``magnet.emulators``.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from magnet.drivers.base import (
     Sensor,
     SensorError,
     SensorReadError,
-    orientation_matrix,
 )
 
 __all__ = [
@@ -36,7 +36,6 @@ __all__ = [
     "has_accelerometer",
     "has_gyroscope",
     "open_sensor",
-    "orientation_matrix",
 ]
 
 

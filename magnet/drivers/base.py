@@ -21,13 +21,13 @@ from __future__ import annotations
 import dataclasses
 import errno
 import logging
-import math
-import re
 import time
 from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
+
+from magnet.frames import orientation_matrix
 
 log = logging.getLogger(__name__)
 
@@ -92,60 +92,6 @@ class Reading:
 
 
 NOT_READY = Reading(ready=False)
-
-
-# --------------------------------------------------------------------------------------------------- orientation
-
-_AXIS_ROTATIONS: dict[str, Callable[[float], np.ndarray]] = {
-    "roll": lambda a: np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]]),
-    "pitch": lambda a: np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]]),
-    "yaw": lambda a: np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]]),
-}
-_TOKEN = re.compile(r"(roll|pitch|yaw)_?(\d+)")
-
-
-def _rotation_from_name(name: str) -> np.ndarray:
-    text = name.strip().lower()
-    text = text.removeprefix("rotation_")
-    if text in ("", "none", "identity"):
-        return np.eye(3)
-    matrix = np.eye(3)
-    rest = _TOKEN.sub("", text).strip("_+ ,")
-    if rest.replace("_", "").replace("+", "").replace(" ", "").replace(",", ""):
-        raise ValueError(
-            f"unknown orientation {name!r}: use names such as 'none', 'yaw90', 'roll180', "
-            "'roll180_yaw90', 'pitch270' (ArduPilot ROTATION_* names) or 9 numbers of a 3x3 matrix"
-        )
-    for axis, degrees in _TOKEN.findall(text):
-        if int(degrees) % 45:
-            raise ValueError(f"orientation {name!r}: angles must be multiples of 45 degrees, got {degrees}")
-        matrix = _AXIS_ROTATIONS[axis](math.radians(int(degrees))) @ matrix
-    return np.round(matrix, 12)
-
-
-def orientation_matrix(orientation: Any) -> np.ndarray:
-    """The 3x3 matrix R that maps a vector in the chip's marked axes to the body frame: v_body = R @ v_chip.
-
-    ``orientation`` is None (chip axes are the body axes), a name in ArduPilot's ROTATION_* style (``"yaw90"``,
-    ``"roll180"``, ``"ROTATION_ROLL_180_YAW_90"``, ``"pitch270"``; rotations are applied in the order written, so
-    ``roll180_yaw90`` = Rz(90) @ Rx(180), as ArduPilot does), a 3x3 matrix, or 9 numbers (row-major, or a string
-    of them separated by commas). The matrix must be a proper rotation (orthonormal, determinant +1).
-    """
-    if orientation is None:
-        return np.eye(3)
-    if isinstance(orientation, str) and not re.search(r"[a-z]", orientation.lower()):
-        orientation = [float(v) for v in orientation.replace(";", ",").split(",") if v.strip()]
-    if isinstance(orientation, str):
-        return _rotation_from_name(orientation)
-    matrix = np.asarray(orientation, dtype=float)
-    if matrix.size != 9:
-        raise ValueError(f"an orientation matrix needs 9 numbers (3x3 row-major), got {matrix.size}")
-    matrix = matrix.reshape(3, 3)
-    if not np.allclose(matrix @ matrix.T, np.eye(3), atol=1e-6) or np.linalg.det(matrix) < 0:
-        raise ValueError(
-            f"an orientation matrix must be a rotation (orthonormal rows, determinant +1); got {matrix.tolist()}"
-        )
-    return matrix
 
 
 # --------------------------------------------------------------------------------------------------- retry, health

@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet.drivers.base import Reading, orientation_matrix
+from magnet.drivers.base import Reading
+from magnet.frames import orientation_matrix
 
 VOLT_COLUMNS = ("vx", "vy", "vz")
 COUNT_COLUMNS = ("cx", "cy", "cz")

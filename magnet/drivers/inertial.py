@@ -6,7 +6,7 @@ lying flat, top up, reads +1 g on z). The drivers map that to the body frame (x 
 package lying flat, top up, with its x mark forward: body = (x, -y, -z), ``Z_UP_TO_BODY``. A magnetometer in the same
 package has its own axes (see each chip); the driver maps it to the same body frame, so a package read with the
 default orientation gives field, specific force and rate in one frame. ``orientation`` (as for every driver, see
-``magnet.drivers.base.orientation_matrix``) then turns the package in the body: body = orientation @ package frame.
+``magnet.frames.orientation_matrix``) then turns the package in the body: body = orientation @ package frame.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from magnet.drivers.base import Combined, I2CBus, Reading, RetryPolicy, Sensor, orientation_matrix, to_signed
+from magnet.drivers.base import Combined, I2CBus, Reading, RetryPolicy, Sensor, to_signed
+from magnet.frames import orientation_matrix
 from magnet.units import STANDARD_GRAVITY_MS2
 
 #: chip axes with z up out of the package -> body axes of a package lying flat, top up, x forward

@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet import fusion
-from magnet.attitude import quaternion_to_matrix
+from magnet import frames, fusion
+from magnet.frames import quaternion_to_matrix
 from magnet.model import Calibration, Quality
 
 #: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
@@ -77,7 +77,7 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
         if period_s is None:
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
-        return MotionEvidence(fusion.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity")
+        return MotionEvidence(frames.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity")
     down = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
     return MotionEvidence(np.where(quasi_static(acc)[:, None], down, np.nan), None, "quasi-static samples")
 

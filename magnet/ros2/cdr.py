@@ -19,7 +19,7 @@ __all__ = ["stamped_doubles_cdr"]
 _ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little-endian
 
 
-@functools.cache
+@functools.lru_cache(maxsize=1024)  # one entry per frame id (a device) and width: bounded, least recent forgotten
 def _layout(name: bytes, width: int) -> tuple[np.dtype[Any], bytes]:
     """The record layout of one message with frame id ``name`` (NUL included) and ``width`` doubles, and the bytes
     of the frame id field (the name and the padding)."""

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from magnet.attitude import euler_to_quaternion
+from magnet.frames import euler_to_quaternion
 from magnet.ros2 import messages
 from magnet.ros2.cdr import stamped_doubles_cdr
 from magnet.ros2.frames import TESLA_PER_UT, to_ros

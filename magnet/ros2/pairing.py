@@ -20,7 +20,12 @@ from magnet.ros2.messages import ImuSample, MagSample
 
 __all__ = ["Joined", "SamplePairer"]
 
-MAX_PENDING = 100_000  # samples held at most (a stalled Imu topic cannot grow memory without bound)
+#: samples held at most in each of the two buffers (a stalled Imu topic cannot grow memory without bound). Not
+#: ``magnet.bounded.Recent``: that is a map keyed by device, ordered by when a key was last seen, that forgets its
+#: least recent key. These buffers have no keys: the field samples are a queue in arrival order taken from the front,
+#: the Imu samples a list kept sorted by stamp (they may come out of order) and searched by bisection for the nearest
+#: one; each is cut from its front as samples are used, and a sample beyond the bound is refused and counted.
+MAX_PENDING = 100_000
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

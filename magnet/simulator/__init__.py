@@ -2,7 +2,7 @@
 
 Truth. The Earth's field comes from WMM2025 (``magnet.geomag``) at a place and date, as a north-east-down (NED) vector
 B_ned in uT. An attitude trajectory gives, per sample, the magnetic heading K of the body x axis (clockwise from
-magnetic north), pitch and roll (Z-Y-X Euler angles, ``magnet.attitude``) and the body-to-NED quaternion; the true
+magnetic north), pitch and roll (Z-Y-X Euler angles, ``magnet.frames``) and the body-to-NED quaternion; the true
 heading is K + declination. Still trajectories keep the device at rest at every sample (the accelerometer reads
 gravity only); moving ones add linear acceleration:
 
@@ -25,14 +25,14 @@ Modules, by idea:
 - ``trajectories``: ``Trajectory`` (every name) and the still trajectories (spin, turntable, tumble, tenface).
 - ``motion``: the moving trajectories (multirotor, car, figure8, fast-tumble) with linear acceleration.
 - ``run``: ``SimulatorConfig``, ``SimulatedRun``, ``simulate``, ``SensorStream`` (one device, any trajectory).
-- ``fleet``: ``FleetSimulator``, many tumbling devices at once.
+- ``devices``: ``SimulatedDevices``, many tumbling devices at once.
 - ``motors``: ``Motors``, a vehicle's throttle, battery current and the field they add (``SimulatorConfig.motors``).
 
 Everything is deterministic from ``seed``.
 """
 
+from magnet.simulator.devices import DevicesBatch, SimulatedDevices
 from magnet.simulator.errors import REFERENCE_TEMPERATURE_C, SensorErrors
-from magnet.simulator.fleet import FleetBatch, FleetSimulator
 from magnet.simulator.motion import MODELS, CarModel, FastTumbleModel, Figure8Model, MotionModel, MultirotorModel
 from magnet.simulator.motors import Motors
 from magnet.simulator.run import (
@@ -54,7 +54,6 @@ from magnet.simulator.trajectories import (
     TURNTABLE_ROLL_DEG,
     TURNTABLE_STEP_DEG,
     Trajectory,
-    ned_to_body_euler,
 )
 
 __all__ = [
@@ -72,18 +71,17 @@ __all__ = [
     "TURNTABLE_ROLL_DEG",
     "TURNTABLE_STEP_DEG",
     "CarModel",
+    "DevicesBatch",
     "FastTumbleModel",
     "Figure8Model",
-    "FleetBatch",
-    "FleetSimulator",
     "MotionModel",
     "Motors",
     "MultirotorModel",
     "SensorErrors",
     "SensorStream",
+    "SimulatedDevices",
     "SimulatedRun",
     "SimulatorConfig",
     "Trajectory",
-    "ned_to_body_euler",
     "simulate",
 ]

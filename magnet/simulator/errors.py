@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import axis_angle_matrix, euler_to_matrix, matrix_to_euler, random_rotations
+from magnet.frames import axis_angle_matrix, euler_to_matrix, matrix_to_euler, random_rotations
 from magnet.model import Calibration
 
 REFERENCE_TEMPERATURE_C = 25.0

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import euler_to_matrix
+from magnet.frames import euler_to_matrix
 from magnet.units import STANDARD_GRAVITY_MS2
 
 G_NED = np.array([0.0, 0.0, STANDARD_GRAVITY_MS2])  # gravity (acceleration of free fall) in NED, m/s^2

@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import (
+from magnet.frames import (
     euler_to_quaternion,
+    ned_to_body_euler,
     quaternion_conjugate,
     quaternion_multiply,
     quaternion_to_matrix,
@@ -33,7 +34,7 @@ from magnet.simulator.errors import SensorErrors
 from magnet.simulator.gnss import GnssSettings, gnss_velocity
 from magnet.simulator.motion import G_NED, MODELS
 from magnet.simulator.motors import Motors
-from magnet.simulator.trajectories import MIN_COUNT, STILL_TRAJECTORIES, Trajectory, ned_to_body_euler, wrap_roll
+from magnet.simulator.trajectories import MIN_COUNT, STILL_TRAJECTORIES, Trajectory, wrap_roll
 
 DEFAULT_LAT_DEG = 50.45  # Kyiv, where seed 000's turntable field (Bh 18964 nT, Bv -46962 nT) is typical
 DEFAULT_LON_DEG = 30.52

@@ -118,24 +118,6 @@ STILL_TRAJECTORIES = {
 }
 
 
-def ned_to_body_euler(
-    vector_ned: np.ndarray, yaw_deg: np.ndarray, pitch_deg: np.ndarray, roll_deg: np.ndarray
-) -> np.ndarray:
-    """R^T v for R = Rz(yaw) Ry(pitch) Rx(roll), without building matrices: vector (3,) or (..., 3) in NED, angles
-    broadcastable, result (..., 3) in body axes. The fast path of the simulators (three elementary rotations)."""
-    v = np.asarray(vector_ned, dtype=float)
-    y, p, r = (np.radians(np.asarray(a, dtype=float)) for a in (yaw_deg, pitch_deg, roll_deg))
-    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
-    n, e, d = v[..., 0], v[..., 1], v[..., 2]
-    x1 = cy * n + sy * e  # Rz^T
-    y1 = -sy * n + cy * e
-    x2 = cp * x1 - sp * d  # Ry^T
-    z2 = sp * x1 + cp * d
-    y3 = cr * y1 + sr * z2  # Rx^T
-    z3 = -sr * y1 + cr * z2
-    return np.stack(np.broadcast_arrays(x2, y3, z3), axis=-1)
-
-
 def wrap_roll(roll_deg: np.ndarray) -> np.ndarray:
     """Roll wrapped to (-180, 180]."""
     return 180.0 - np.mod(180.0 - roll_deg, 360.0)

@@ -12,7 +12,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "fit": ("services.bench.fit", "run_fit_benchmark"),
     "pipeline": ("services.bench.pipeline", "run_pipeline_benchmark"),
     "motion": ("services.bench.motion", "run_motion_benchmark"),
-    "fleet": ("services.bench.fleet", "run_fleet_benchmark"),
+    "fleet": ("services.bench.fleet_query", "run_fleet_benchmark"),
     "dashboard": ("services.bench.dashboard", "run_dashboard_benchmark"),
     "soak": ("services.bench.soak", "run_soak_benchmark"),
 }

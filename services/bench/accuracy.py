@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from magnet.frames import ned_to_body_euler
 from magnet.geomag import EarthField, earth_field
 from magnet.heading import angle_difference_deg, tilt_compensated_heading_deg
 from magnet.model import Calibration
@@ -33,7 +34,6 @@ from magnet.simulator import (
     SensorErrors,
     SimulatorConfig,
     Trajectory,
-    ned_to_body_euler,
     simulate,
 )
 from magnet.units import STANDARD_GRAVITY_MS2
@@ -220,10 +220,10 @@ def fit_time_ms(method: str, fitter: Fitter = real_fitter, settings: AccuracySet
 
 
 def fleet_samples_per_s(devices: int = 1000, batch: int = 100, seconds: float = 0.5) -> float:
-    """CPU-time rate (samples/s) at which ``FleetSimulator`` generates samples for ``devices`` x ``batch`` steps."""
-    from magnet.simulator import FleetSimulator
+    """CPU-time rate (samples/s) at which ``SimulatedDevices`` generates samples for ``devices`` x ``batch`` steps."""
+    from magnet.simulator import SimulatedDevices
 
-    fleet = FleetSimulator(devices, rate_hz=100.0, seed=1, date=AccuracySettings.date)
+    fleet = SimulatedDevices(devices, rate_hz=100.0, seed=1, date=AccuracySettings.date)
     fleet.step(batch)
     steps, start = 0, time.process_time()
     while time.process_time() - start < seconds:
@@ -275,7 +275,7 @@ def run_accuracy_benchmark(fitter: Fitter | None = None, settings: AccuracySetti
     print(format_table(rows, settings))
     rate = fleet_samples_per_s(seconds=settings.fleet_seconds)
     print(
-        f"simulator: FleetSimulator makes {rate / 1e6:.2f} million samples/s of CPU time (1000 devices x 100); "
+        f"simulator: SimulatedDevices makes {rate / 1e6:.2f} million samples/s of CPU time (1000 devices x 100); "
         f"100,000 samples/s costs {1e7 / rate:.1f} % of a core"
     )
     print(f"benchmark time {time.perf_counter() - started:.1f} s")

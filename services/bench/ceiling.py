@@ -5,7 +5,7 @@ in the measuring process that only counts them. No decoding, no processing: the 
 The publisher runs as ``python -m services.bench.ceiling PORT DEVICES BATCH SECONDS GYRO`` and prints one JSON line.
 
 ``generate`` (``python -m services.bench.ceiling generate PORTS DEVICES RATE BATCH SECONDS GYRO``) is the pipeline
-benchmark's load: the edge's messages for a simulated fleet, simulated once ahead (``FleetSimulator`` costs about
+benchmark's load: the edge's messages for a simulated fleet, simulated once ahead (``SimulatedDevices`` costs about
 1.3 us per sample with gyroscopes, as much as the whole compass) and then, paced at the rate, each stamped afresh
 (``t_ns`` ending now, ``seq``) and encoded per message like the edge's. It prints the edge's summary line.
 """
@@ -19,14 +19,17 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import numpy as np
 
 from magnet import wire
-from magnet.simulator import FleetSimulator
-from services.common.zenoh_session import free_ports
+from magnet.simulator import SimulatedDevices
+from services.common.zenoh_session import free_ports, matching
+
+if TYPE_CHECKING:
+    import zenoh
 
 DISTINCT_PAYLOADS = 2000  # at least this many different messages cycled through
 
@@ -59,7 +62,7 @@ class Ceiling:
 
 def payloads(devices: int, batch: int, gyro: bool) -> list[tuple[str, bytes]]:
     """(key, payload) of the edge's raw messages for ``devices`` simulated devices, a few batches each."""
-    fleet = FleetSimulator(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
+    fleet = SimulatedDevices(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
     out = []
     for seq in range(max(1, -(-DISTINCT_PAYLOADS // devices))):
         step = fleet.step(batch)
@@ -87,11 +90,9 @@ def publish(port: int, devices: int, batch: int, seconds: float, gyro: bool) -> 
     conf = zenoh.Config()
     for key, value in {"listen/endpoints": [f"tcp/127.0.0.1:{port}"], "scouting/multicast/enabled": False}.items():
         conf.insert_json5(key, json.dumps(value))
-    with zenoh.open(conf) as session:
-        first = session.declare_publisher(items[0][0])
+    with zenoh.open(conf) as session, session.declare_publisher(items[0][0]) as first:
         deadline = time.monotonic() + 10
-        # zenoh 1.10's stub says matching_status is a bool; it is a MatchingStatus with .matching
-        while not first.matching_status.matching and time.monotonic() < deadline:  # type: ignore[attr-defined]
+        while not matching(first) and time.monotonic() < deadline:
             time.sleep(0.02)
         block, put, count = zenoh.CongestionControl.BLOCK, session.put, 0
         start = time.monotonic()
@@ -115,7 +116,7 @@ def measure(devices: int, batch: int, seconds: float, gyro: bool) -> Ceiling:
     conf.insert_json5("scouting/multicast/enabled", "false")
     counted, lock = [0], threading.Lock()
 
-    def count(_sample: Any) -> None:
+    def count(_sample: zenoh.Sample) -> None:
         with lock:
             counted[0] += 1
 
@@ -135,8 +136,7 @@ def measure(devices: int, batch: int, seconds: float, gyro: bool) -> Ceiling:
         stdin=subprocess.DEVNULL,
     )
     try:
-        with _open_when_listening(conf) as session:
-            session.declare_subscriber("magnet/*/raw", count)
+        with _open_when_listening(conf) as session, session.declare_subscriber("magnet/*/raw", count):
             out, _ = publisher.communicate(timeout=seconds + 120)
     finally:
         if publisher.poll() is None:
@@ -151,7 +151,7 @@ def device_name(d: int) -> str:
 
 
 def _fleet_batches(devices: int, batch: int, gyro: bool, steps: int) -> list[list[wire.RawBatch]]:
-    fleet = FleetSimulator(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
+    fleet = SimulatedDevices(n_devices=devices, rate_hz=100.0, seed=1, gyro=gyro)
     out = []
     for _ in range(steps):
         step = fleet.step(batch)
@@ -218,7 +218,7 @@ def generate(ports: list[int], devices: int, rate: float, batch: int, seconds: f
     return {"devices": devices, "published_samples": sent * batch, "published_batches": sent, "seconds": elapsed}
 
 
-def _open_when_listening(conf: Any) -> Any:
+def _open_when_listening(conf: zenoh.Config) -> zenoh.Session:
     import zenoh
 
     deadline = time.monotonic() + 20

@@ -10,6 +10,7 @@ shows are; otherwise a plain event-stream client reports the same without render
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -53,8 +54,10 @@ def publish(port: int, devices: int, seconds: float) -> None:
     field = np.tile([19.0, 0.0, 47.0], (samples, 1))
     zeros, ones = np.zeros(samples), np.ones(samples, dtype=np.int64)
     base = np.repeat(np.arange(devices) * 7.0, BATCH)
-    with zenoh.open(conf) as session:
-        tokens = [session.liveliness().declare_token(wire.liveliness_key("magnet", "device", n)) for n in names]
+    with contextlib.ExitStack() as declared:
+        session = declared.enter_context(zenoh.open(conf))
+        for n in names:
+            declared.enter_context(session.liveliness().declare_token(wire.liveliness_key("magnet", "device", n)))
         keys = [wire.key("magnet", n, wire.Kind.HEADING) for n in names]
         started, sent, tick = time.monotonic(), 0, 0
         while time.monotonic() - started < seconds:
@@ -72,8 +75,6 @@ def publish(port: int, devices: int, seconds: float) -> None:
             tick += 1
             time.sleep(max(0.0, started + tick / RATE_HZ - time.monotonic()))
         print(json.dumps({"sent": sent, "seconds": time.monotonic() - started}), flush=True)
-        for token in tokens:
-            token.undeclare()
 
 
 def _cpu_s(pid: int) -> float:

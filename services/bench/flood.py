@@ -19,16 +19,19 @@ import argparse
 import json
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import numpy as np
 
 from magnet import wire
-from services.common.zenoh_session import ZenohSettings, open_session, payload_bytes
+from services.common.zenoh_session import ZenohSettings, matching, open_session, payload_bytes
+
+if TYPE_CHECKING:
+    import zenoh
 
 
-def _session(port: int) -> Any:
+def _session(port: int) -> zenoh.Session:
     return open_session(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",), no_multicast_scouting=True))
 
 
@@ -51,10 +54,9 @@ def flood_ids(port: int, count: int, rate: float, start: int = 0, prefix: str = 
 
     messages = flood_messages(count, start, prefix)
     block = zenoh.CongestionControl.BLOCK
-    with _session(port) as session:
-        publisher = session.declare_publisher(messages[0][0])
+    with _session(port) as session, session.declare_publisher(messages[0][0]) as publisher:
         deadline = time.monotonic() + 5.0
-        while not publisher.matching_status.matching and time.monotonic() < deadline:
+        while not matching(publisher) and time.monotonic() < deadline:
             time.sleep(0.02)
         started = time.monotonic()
         for sent, (key, payload) in enumerate(messages):
@@ -64,7 +66,6 @@ def flood_ids(port: int, count: int, rate: float, start: int = 0, prefix: str = 
             session.put(key, payload, congestion_control=block)
         seconds = time.monotonic() - started
         time.sleep(0.5)  # let the last ones leave
-        publisher.undeclare()
     return {"sent": count, "seconds": round(seconds, 3), "rate": round(count / max(seconds, 1e-9))}
 
 

@@ -27,18 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet import fusion
+from magnet import frames, fusion
 from magnet import heading as hd
-from magnet.aiding import to_magnetic_ned
-from magnet.attitude import quaternion_to_matrix
 from magnet.calibration import fit
+from magnet.frames import quaternion_to_matrix, to_magnetic_ned
 from magnet.model import Calibration
 from magnet.simulator import MOVING_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
 
 DATA_DIR = Path(__file__).resolve().parents[2] / "data"
 BROAD_TRIALS = ("broad_01_undisturbed_slow_rotation_A.npz", "broad_06_undisturbed_fast_rotation_A.npz")
-#: BROAD sensor frame (z up) -> project body frame (z down)
-_Z_UP_TO_BODY = np.array([1.0, -1.0, -1.0])
 MAX_PITCH_DEG = 60.0
 
 
@@ -62,7 +59,7 @@ class MotionLog:
     def reference_heading_deg(self) -> np.ndarray:
         """Heading of body x from the reference, (N,), NaN where there is none."""
         ok = np.all(np.isfinite(self.ref_quat_wxyz), axis=1)
-        heading, _, _ = fusion.euler_from_quat(np.where(ok[:, None], self.ref_quat_wxyz, [1.0, 0, 0, 0]))
+        heading, _, _ = frames.quaternion_to_euler(np.where(ok[:, None], self.ref_quat_wxyz, [1.0, 0, 0, 0]))
         return np.where(ok, heading, np.nan)
 
     def score(self, heading_deg: np.ndarray) -> float:
@@ -76,10 +73,10 @@ def load_broad(path: str | Path) -> MotionLog:
     data = np.load(path)
     ref = data["ref_quat_wxyz"].astype(float)
     ok = np.all(np.isfinite(ref), axis=1)
-    ref_ned = np.where(ok[:, None], fusion.vqf_to_body_ned(np.where(ok[:, None], ref, [1.0, 0, 0, 0])), np.nan)
-    _, pitch, _ = fusion.euler_from_quat(np.where(ok[:, None], ref_ned, [1.0, 0, 0, 0]))
+    ref_ned = np.where(ok[:, None], frames.ned_enu_attitude(np.where(ok[:, None], ref, [1.0, 0, 0, 0])), np.nan)
+    _, pitch, _ = frames.quaternion_to_euler(np.where(ok[:, None], ref_ned, [1.0, 0, 0, 0]))
     scored = data["movement"].astype(bool) & ok & (np.abs(pitch) < MAX_PITCH_DEG)
-    body = {key: data[key].astype(float) * _Z_UP_TO_BODY for key in ("gyr_rads", "acc_ms2", "mag_ut")}
+    body = {key: frames.frd_flu(data[key].astype(float)) for key in ("gyr_rads", "acc_ms2", "mag_ut")}
     return MotionLog(
         Path(path).stem, data["t_s"].astype(float), body["gyr_rads"], body["acc_ms2"], body["mag_ut"], ref_ned, scored
     )

@@ -19,6 +19,7 @@ processes (``--shard K/N``) against 1. Everything on 127.0.0.1, explicit ports, 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
@@ -28,7 +29,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +37,9 @@ from magnet import wire
 from services.bench import ceiling
 from services.bench.pipeline_run import MAX_P99_MS, PipelineRun
 from services.common.zenoh_session import free_ports, loopback_arguments
+
+if TYPE_CHECKING:
+    import zenoh
 
 MAX_RATE_STEPS = 6
 BISECT_STEPS = 2
@@ -46,7 +50,7 @@ STARTUP_TIMEOUT_S = 15
 class _Measurer:
     """Counts heading samples and their latency from a channel drained in its own thread."""
 
-    def __init__(self, subscriber: Any) -> None:
+    def __init__(self, subscriber: zenoh.Subscriber[zenoh.Handler[zenoh.Sample]]) -> None:
         self.subscriber, self.samples = subscriber, 0
         self.latencies_ns: list[int] = []
         self.first_ns: int | None = None
@@ -82,7 +86,7 @@ class _Measurer:
         self._thread.join()
 
 
-def _wait_ready(session: Any, key: str) -> None:
+def _wait_ready(session: zenoh.Session, key: str) -> None:
     deadline = time.monotonic() + STARTUP_TIMEOUT_S
     while time.monotonic() < deadline:
         if any(reply.ok is not None for reply in session.get(key, timeout=1.0)):
@@ -91,7 +95,7 @@ def _wait_ready(session: Any, key: str) -> None:
     raise OSError("the compass did not come up for the benchmark")
 
 
-def _calibrate(session: Any, devices: int, shards: int) -> None:
+def _calibrate(session: zenoh.Session, devices: int, shards: int) -> None:
     """Publish one accepted calibration per device (hard and soft iron, as a calibrator would) and wait until the
     compasses hold them all: the benchmark's compasses apply real calibrations, as in service."""
     from magnet.model import Calibration
@@ -120,7 +124,7 @@ def _calibrate(session: Any, devices: int, shards: int) -> None:
     raise OSError("the compasses did not take the benchmark's calibrations")
 
 
-def _session_config(listen_port: int, connect_ports: list[int]) -> Any:
+def _session_config(listen_port: int, connect_ports: list[int]) -> zenoh.Config:
     import zenoh
 
     conf = zenoh.Config()
@@ -139,10 +143,11 @@ def run_once(
     gyro: bool = True,
     ceiling_rate: float | None = None,
     compass_args: tuple[str, ...] = (),
-    on_session: Callable[[Any], None] | None = None,
+    on_session: Callable[[zenoh.Session], contextlib.AbstractContextManager[object]] | None = None,
 ) -> PipelineRun:
     """One run: ``shards`` compass processes (``--shard K/N``, plus ``compass_args``), the edge connected to each,
-    the measurer too (``on_session`` is given its session before the load starts)."""
+    the measurer too (``on_session`` is given its session before the load starts: what it declares, in a context
+    manager, stays declared until the session closes)."""
     import zenoh
 
     *compass_ports, measure_port = free_ports(shards + 1)
@@ -166,13 +171,15 @@ def run_once(
     ]
     edge: subprocess.Popen[Any] | None = None
     try:
-        with zenoh.open(_session_config(measure_port, compass_ports)) as session:
+        with contextlib.ExitStack() as declared:
+            session = declared.enter_context(zenoh.open(_session_config(measure_port, compass_ports)))
             for k in range(shards):
                 _wait_ready(session, f"magnet/@status/bench-compass-{k}")
             _calibrate(session, devices, shards)
-            measurer = _Measurer(session.declare_subscriber("magnet/*/heading", zenoh.handlers.FifoChannel(1 << 20)))
+            headings = session.declare_subscriber("magnet/*/heading", zenoh.handlers.FifoChannel(1 << 20))
+            measurer = _Measurer(declared.enter_context(headings))
             if on_session is not None:
-                on_session(session)
+                declared.enter_context(on_session(session))
             cpu_before_s = sum(_cpu_s(c.pid) for c in compasses)
             edge = subprocess.Popen(
                 [

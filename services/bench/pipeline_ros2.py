@@ -8,21 +8,25 @@ from __future__ import annotations
 import argparse
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from services.bench.pipeline_run import PipelineRun
+
+if TYPE_CHECKING:
+    import zenoh
 
 
 class _Counter:
     """Counts the ROS 2 messages of domain 0 (called from Zenoh's threads)."""
 
     def __init__(self) -> None:
-        self.count, self.lock, self.subscriber = 0, threading.Lock(), None
+        self.count, self.lock = 0, threading.Lock()
 
-    def attach(self, session: Any) -> None:
-        self.subscriber = session.declare_subscriber("0/**", self._on)
+    def attach(self, session: zenoh.Session) -> zenoh.Subscriber[None]:
+        """The counting subscriber on ``session``; the caller declares it in a ``with`` block."""
+        return session.declare_subscriber("0/**", self._on)
 
-    def _on(self, sample: Any) -> None:
+    def _on(self, sample: zenoh.Sample) -> None:
         with self.lock:
             self.count += 1
 
@@ -63,9 +67,9 @@ def _drain(devices: int = 50, samples: int = 10, rate_hz: float = 50.0) -> tuple
 
     from magnet import wire
     from magnet.compass import CompassCore
-    from magnet.simulator import FleetSimulator
+    from magnet.simulator import SimulatedDevices
 
-    step = FleetSimulator(devices, rate_hz=rate_hz, seed=1, gyro=True).step(samples)
+    step = SimulatedDevices(devices, rate_hz=rate_hz, seed=1, gyro=True).step(samples)
     gyr = np.asarray(step.gyr_rads)
     t_ns = 1_700_000_000_000_000_000 + np.arange(samples, dtype=np.int64) * int(1e9 / rate_hz)
     batches = [
@@ -97,9 +101,8 @@ def publish_cost(repeats: int = 20) -> tuple[float, float]:
     parser = argparse.ArgumentParser()
     add_zenoh_arguments(parser)
     args = parser.parse_args(loopback_arguments(free_ports(1)[0]))
-    with zenoh.open(build_config(args)) as session:
-        counter = _Counter()
-        counter.attach(session)
+    counter = _Counter()
+    with zenoh.open(build_config(args)) as session, counter.attach(session):
         ros = Ros2Compass(session, Ros2Settings(True), "bench", 1000)
         ros.publish(columns, out, calibrations)  # the publishers declared
         started = time.process_time()

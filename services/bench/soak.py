@@ -24,6 +24,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from magnet import wire
 from services.bench.flood import rss_mb
 from services.bench.soak_plan import DropTotals, Fault, HeadingGaps, MemoryWatch, report, schedule
@@ -143,23 +145,28 @@ class FullDisk:
 class Observer:
     """A client of the router: headings (gaps), calibrations published, status answers (drops)."""
 
-    def __init__(self, session: Any) -> None:
+    def __init__(self, session: zenoh.Session) -> None:
         self.session = session
         self.gaps = HeadingGaps()
         self.published: dict[str, int] = {}
         self.fault = ""
         self.lock = threading.Lock()
-        self.subscribers = [
-            session.declare_subscriber(wire.key(PREFIX, "*", wire.Kind.HEADING), self._on_heading),
-            session.declare_subscriber(wire.key(PREFIX, "*", wire.Kind.CALIBRATION), self._on_calibration),
-        ]
+        self.declared = contextlib.ExitStack()
+        for kind, handler in ((wire.Kind.HEADING, self._on_heading), (wire.Kind.CALIBRATION, self._on_calibration)):
+            self.declared.enter_context(session.declare_subscriber(wire.key(PREFIX, "*", kind), handler))
 
-    def _on_heading(self, sample: Any) -> None:
+    def __enter__(self) -> Observer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.declared.close()
+
+    def _on_heading(self, sample: zenoh.Sample) -> None:
         device = str(sample.key_expr).rsplit("/", 2)[-2]
         with self.lock:
             self.gaps.on_heading(device, time.monotonic(), self.fault)
 
-    def _on_calibration(self, sample: Any) -> None:
+    def _on_calibration(self, sample: zenoh.Sample) -> None:
         try:
             record = wire.decode_calibration(payload_bytes(sample))
         except wire.WireError:
@@ -187,11 +194,6 @@ class Observer:
                     out[record.device] = int(record.created_ns)
         return out
 
-    def close(self) -> None:
-        for subscriber in self.subscribers:
-            with contextlib.suppress(Exception):
-                subscriber.undeclare()
-
 
 class Soak:
     """One soak: the pipeline, the schedule, the watches; ``run`` returns the report."""
@@ -212,13 +214,9 @@ class Soak:
         time.sleep(1.0)
         client = ZenohSettings(mode="client", connect=(f"tcp/127.0.0.1:{self.port}",), no_multicast_scouting=True)
         try:
-            with open_session(client) as session:
-                observer = Observer(session)
-                try:
-                    self._loop(observer)
-                    served = observer.served()
-                finally:
-                    observer.close()
+            with open_session(client) as session, Observer(session) as observer:
+                self._loop(observer)
+                served = observer.served()
         finally:
             self.pipeline.stop_all()
             self.disk.unmount()

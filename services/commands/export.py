@@ -21,8 +21,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from magnet.autopilot import ROTATIONS
 from magnet.autopilot_params import Autopilot, Export, export_parameters
+from magnet.frames import ROTATIONS
 from magnet.model import Calibration
 from services.common.mavlink_options import add_mavlink_url_arguments
 from services.common.records import load_calibration, write_atomically
@@ -65,10 +65,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _from_device(args: argparse.Namespace) -> Calibration | None:
     """The device's calibration in force, from the calibrator; None when nobody answered."""
     from magnet import wire
-    from services.commands.remote import _query
+    from services.commands.remote import ask
 
     wire.validate_device_id(args.device)
-    replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATION.value}")
+    replies = ask(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATION.value}")
     if not replies:
         return None
     try:

@@ -25,13 +25,13 @@ import time
 
 import numpy as np
 
-from magnet import fusion, wire
+from magnet import frames, fusion, wire
 from magnet import heading as hd
-from magnet.aiding import to_magnetic_ned
 from magnet.autopilot import compare_headings
 from magnet.compass import CompassCore, CoreSettings, Earth, HeadingColumns, Places, earth_at
 from magnet.compass.filters import MAX_GAP_S
 from magnet.compass.tilt import Headings
+from magnet.frames import to_magnetic_ned
 from magnet.model import Calibration
 from magnet.place import Location
 from services.commands.fit import gyro_columns, sample_period_s
@@ -177,14 +177,14 @@ def offline_headings(
         t_s = table.numeric("t_s") if "t_s" in table.columns else np.arange(len(vel)) * period_s
         vel = to_magnetic_ned(vel, earth.declination_deg)
     fused = fusion.fuse_offline(gyr, fusion.acc_in_ms2(table.acc), field, period_s, None, t_s, vel)
-    down = fusion.down_in_body(fused.quat_wxyz)
+    down = frames.down_in_body(fused.quat_wxyz)
     dip = hd.dip_angle_deg(field, -down)
     flags = hd.disturbance_flags(field, -down, earth.total_ut, earth.inclination_deg, dip_deg=dip)
     flags |= int(hd.HeadingFlag.FUSED) | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
     flags |= int(hd.HeadingFlag.CALIBRATED) if calibrated else 0
     magnetic = hd.smooth_heading_deg(fused.heading_deg, args.window)
     headings = Headings(field, magnetic, fused.pitch_deg, fused.roll_deg, flags)
-    quat = fusion.rotate_heading(fused.quat_wxyz, earth.declination_deg)
+    quat = frames.rotate_heading(fused.quat_wxyz, earth.declination_deg)
     true = hd.true_heading_deg(magnetic, earth.declination_deg)
     return HeadingColumns(headings, true, dip, [], [earth.declination_deg], quat)
 
@@ -228,7 +228,7 @@ def _compare(args: argparse.Namespace, table: SampleTable, true_deg: np.ndarray,
 def _attitude_wxyz(out: HeadingColumns) -> np.ndarray:
     """(N, 4) body -> NED (true north): the filter's where it fused, else the one of the heading, pitch and roll."""
     h = out.headings
-    quat = fusion.quat_from_euler(out.true_heading_deg, h.pitch_deg, h.roll_deg)
+    quat = frames.w_positive(frames.euler_to_quaternion(out.true_heading_deg, h.pitch_deg, h.roll_deg))
     if out.quat_wxyz is None:
         return quat
     return np.where(hd.rows_finite(out.quat_wxyz)[:, None], out.quat_wxyz, quat)

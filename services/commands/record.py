@@ -11,9 +11,11 @@ were written.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import shutil
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -72,11 +74,15 @@ def _rows(kind: wire.Kind, payload: bytes, namespace: str) -> list[recording.Row
     return recording.alert_rows(message, now, namespace)
 
 
-def _record(args: argparse.Namespace, bag: _Bag, stop: Any) -> Counter[str]:
+def _record(args: argparse.Namespace, bag: _Bag, stop: threading.Event) -> Counter[str]:
     dropped: Counter[str] = Counter()
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
-    with open_session(args) as session:
-        subs = {k: session.declare_subscriber(f"{args.prefix}/{args.devices}/{k.value}") for k in KINDS}
+    with contextlib.ExitStack() as declared:
+        session = declared.enter_context(open_session(args))
+        subs = {
+            k: declared.enter_context(session.declare_subscriber(f"{args.prefix}/{args.devices}/{k.value}"))
+            for k in KINDS
+        }
         asked = session.get(f"{args.prefix}/{args.devices}/calibration", timeout=3.0)
         pending = [(wire.Kind.CALIBRATION, payload_bytes(r.ok)) for r in drain(asked, 10_000) if r.ok is not None]
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):

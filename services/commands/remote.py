@@ -68,14 +68,14 @@ def _decode(payload: bytes) -> Any:
         return {"error": str(exc)}
 
 
-def _query(args: argparse.Namespace, selector: str, errors: list[str] | None = None) -> list[Any]:
-    """Decoded replies to ``selector``; error replies go to stderr (and to ``errors`` when given)."""
+def ask(args: argparse.Namespace, selector: str, errors: list[str] | None = None) -> list[Any]:
+    """Decoded answers (the ok replies) to ``selector``; error replies go to stderr (and to ``errors`` when given)."""
     with open_session(args) as session:
         out = []
         for reply in session.get(selector, timeout=args.timeout):
             if reply.ok is not None:
                 out.append(_decode(payload_bytes(reply.ok)))
-            else:
+            elif reply.err is not None:
                 message = payload_bytes(reply.err).decode(errors="replace")
                 print(f"magnet: {message}", file=sys.stderr)
                 if errors is not None:
@@ -119,11 +119,11 @@ def _trusted_record(record: Any, trusted: signing.TrustedKeys) -> str | None:
     return None
 
 
-def _only_trusted(replies: list[Any], trusted: signing.TrustedKeys, device: str) -> list[Any]:
-    """The replies (records, or history maps of records) with every untrusted record left out and named."""
+def _only_trusted(answers: list[Any], trusted: signing.TrustedKeys, device: str) -> list[Any]:
+    """The answers (records, or history maps of records) with every untrusted record left out and named."""
     out = []
-    for reply in replies:
-        records = reply.get("records") if isinstance(reply, dict) and "records" in reply else [reply]
+    for answer in answers:
+        records = answer.get("records") if isinstance(answer, dict) and "records" in answer else [answer]
         kept = []
         for record in records if isinstance(records, list) else []:
             reason = _trusted_record(record, trusted)
@@ -132,8 +132,8 @@ def _only_trusted(replies: list[Any], trusted: signing.TrustedKeys, device: str)
             else:
                 name = record.get("device", device) if isinstance(record, dict) else device
                 print(f"magnet get: refusing a calibration of {name}: {reason}", file=sys.stderr)
-        if isinstance(reply, dict) and "records" in reply:
-            out.append({**reply, "records": kept})
+        if isinstance(answer, dict) and "records" in answer:
+            out.append({**answer, "records": kept})
         else:
             out += kept
     return out
@@ -142,7 +142,7 @@ def _only_trusted(replies: list[Any], trusted: signing.TrustedKeys, device: str)
 def run_get(args: argparse.Namespace) -> int:
     use_local_pipeline(args)
     if args.what == "fleet":
-        replies = _query(args, f"{args.prefix}/@fleet")
+        replies = ask(args, f"{args.prefix}/@fleet")
         for reply in replies[:1]:
             show(args, reply, fleet_table)
         if not replies:
@@ -153,14 +153,14 @@ def run_get(args: argparse.Namespace) -> int:
     if args.device != "*":
         wire.validate_device_id(args.device)
     if args.what == "status":
-        replies = _query(args, wire.status_key(args.prefix, args.device))
+        replies = ask(args, wire.status_key(args.prefix, args.device))
         for reply in replies:
             show(args, reply, status_table)
         return 0 if replies else 1
     kind = wire.Kind.HISTORY if args.history else wire.Kind.CALIBRATION
     selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if args.history else "")
     trusted = signing.TrustedKeys([signing.load_public_key(path.read_bytes(), str(path)) for path in args.trust])
-    replies = _query(args, selector)
+    replies = ask(args, selector)
     if trusted.enabled:
         replies = _only_trusted(replies, trusted, args.device)
     if not replies:
@@ -195,8 +195,8 @@ def run_watch(args: argparse.Namespace) -> int:
     deadline = None if args.duration is None else time.monotonic() + args.duration
     printed = 0
     console = None if wants_json(args) else Console()
-    with open_session(args) as session:
-        subscriber = session.declare_subscriber(f"{args.prefix}/{args.device}/{WATCHABLE[args.what].value}")
+    key = f"{args.prefix}/{args.device}/{WATCHABLE[args.what].value}"
+    with open_session(args) as session, session.declare_subscriber(key) as subscriber:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             sample = subscriber.try_recv()
             if sample is None:
@@ -261,7 +261,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     elif args.action in ("start", "commit"):
         params += f";by={_who()}"  # recorded with the commit
     errors: list[str] = []
-    replies = _query(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATE.value}?{params}", errors)
+    replies = ask(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATE.value}?{params}", errors)
     if not replies:
         if not errors:
             print(f"magnet calibrate: no calibrator answered for {args.device}", file=sys.stderr)

@@ -80,10 +80,10 @@ def alert_text(alert: Mapping[str, Any]) -> str:
 
 
 # -------------------------------------------------------------------------------------------------------- tables
-def fleet_table(reply: Mapping[str, Any]) -> RenderableType:
+def fleet_table(answer: Mapping[str, Any]) -> RenderableType:
     """``magnet get fleet``: one row per device, its open alerts with their advice under the table."""
-    devices = reply.get("devices") or []
-    table = Table(title=f"{reply.get('count', len(devices))} device(s)", title_justify="left")
+    devices = answer.get("devices") or []
+    table = Table(title=f"{answer.get('count', len(devices))} device(s)", title_justify="left")
     for name, justify in (
         ("device", "left"),
         ("state", "left"),
@@ -144,12 +144,12 @@ def calibration_table(record: Mapping[str, Any]) -> RenderableType:
     return table
 
 
-def history_table(reply: Mapping[str, Any]) -> RenderableType:
+def history_table(answer: Mapping[str, Any]) -> RenderableType:
     """``magnet get calibration DEVICE --history``: newest first, and the changes (rollbacks) with who made them."""
-    table = Table(title=f"history of {reply.get('device')}", title_justify="left")
+    table = Table(title=f"history of {answer.get('device')}", title_justify="left")
     for name in ("created", "id", "method", "residual uT", "coverage", "gate"):
         table.add_column(name, justify="right" if name in ("residual uT", "coverage") else "left")
-    for record in reply.get("records") or []:
+    for record in answer.get("records") or []:
         quality = record.get("quality") or {}
         table.add_row(
             when(record.get("created_ns")),
@@ -161,26 +161,26 @@ def history_table(reply: Mapping[str, Any]) -> RenderableType:
         )
     changes = [
         Text(f"{when(c.get('at_ns'))} {c.get('action')} from {c.get('from_id')} by {c.get('by') or '?'}")
-        for c in reply.get("changes") or []
+        for c in answer.get("changes") or []
     ]
     return Group(table, *changes)
 
 
-def status_table(reply: Mapping[str, Any]) -> RenderableType:
+def status_table(answer: Mapping[str, Any]) -> RenderableType:
     """``magnet get status``: a service's counters, one per line."""
-    table = Table(show_header=False, title=str(reply.get("name", "status")), title_justify="left")
+    table = Table(show_header=False, title=str(answer.get("name", "status")), title_justify="left")
     table.add_column(style="bold")
     table.add_column(justify="right")
-    for key, value in sorted(reply.items()):
+    for key, value in sorted(answer.items()):
         table.add_row(key, num(value, 3) if isinstance(value, float) else json.dumps(value, sort_keys=True))
     return table
 
 
-def calibrate_table(reply: Mapping[str, Any]) -> RenderableType:
+def calibrate_table(answer: Mapping[str, Any]) -> RenderableType:
     """``magnet calibrate``: the answer, the session's progress and any calibration it put in force."""
-    ok = bool(reply.get("ok"))
-    lines: list[RenderableType] = [Text(str(reply.get("message", "")), style="green" if ok else "red")]
-    progress = reply.get("progress") or {}
+    ok = bool(answer.get("ok"))
+    lines: list[RenderableType] = [Text(str(answer.get("message", "")), style="green" if ok else "red")]
+    progress = answer.get("progress") or {}
     if progress:
         table = Table(show_header=False, title="session", title_justify="left")
         table.add_column(style="bold")
@@ -196,8 +196,8 @@ def calibrate_table(reply: Mapping[str, Any]) -> RenderableType:
         ):
             table.add_row(name, "\u2013" if value is None else str(value))
         lines.append(table)
-    if isinstance(reply.get("calibration"), Mapping):
-        lines.append(calibration_table(reply["calibration"]))
+    if isinstance(answer.get("calibration"), Mapping):
+        lines.append(calibration_table(answer["calibration"]))
     return Group(*lines)
 
 

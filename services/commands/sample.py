@@ -21,8 +21,9 @@ from typing import Any
 
 import smbus2
 
-from magnet.drivers import I2CBus, Reading, Sensor, has_accelerometer, has_gyroscope, open_sensor, orientation_matrix
+from magnet.drivers import I2CBus, Reading, Sensor, has_accelerometer, has_gyroscope, open_sensor
 from magnet.emulators import emulator_for
+from magnet.frames import orientation_matrix
 from magnet.readloop import Backoff, ReadLoop
 from magnet.simulator import SensorStream, Trajectory
 from services.common import sim_options

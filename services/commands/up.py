@@ -13,13 +13,14 @@ Modules: ``up_settings`` (the options, checked), ``up_processes`` (the child ser
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 import zenoh
 
@@ -28,34 +29,13 @@ from services.commands.up_processes import SERVICES, dashboard_http, report_dead
 from services.commands.up_settings import MAX_DEVICES, UpSettings
 from services.commands.up_view import DeviceView, Viewer, render_lines
 from services.common.endpoint import connect_endpoints, connect_line, remove_runtime_file, write_runtime_file
-from services.common.places_options import add_drift_arguments
 from services.common.zenoh_session import drain, free_ports, payload_bytes, stop_event
 
 __all__ = ["MAX_DEVICES", "DeviceView", "UpSettings", "Viewer", "add_arguments", "render_lines", "run", "up"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--devices", type=int, default=4, help="emulated devices (default 4)")
-    parser.add_argument("--rate", type=float, default=50.0, help="samples per second per device (default 50)")
-    parser.add_argument("--batch", type=int, default=10, help="samples per message (default 10)")
-    parser.add_argument(
-        "--speedup",
-        type=float,
-        default=4.0,
-        help="the emulated devices tumble this many times faster than real time (default 4)",
-    )
-    parser.add_argument("--location", default="50.45,30.52", help="LAT,LON[,ALT_M] of the devices (default Kyiv)")
-    parser.add_argument("--db", type=Path, help="calibration database (default: a temporary directory)")
-    parser.add_argument("--duration", type=float, help="stop after this many seconds")
-    parser.add_argument("--interval", type=float, help="seconds between views (default 0.5 on a terminal, else 3)")
-    parser.add_argument("--prefix", default=wire.DEFAULT_PREFIX, help="key prefix")
-    parser.add_argument(
-        "--http",
-        metavar="HOST:PORT",
-        help="where the dashboard serves its page (default 127.0.0.1:8080, or a free port when taken)",
-    )
-    parser.add_argument("--no-dashboard", action="store_true", help="do not start the web dashboard")
-    add_drift_arguments(parser)
+    UpSettings.add_arguments(parser)
 
 
 def _view_config(ports: dict[str, int]) -> zenoh.Config:
@@ -66,7 +46,7 @@ def _view_config(ports: dict[str, int]) -> zenoh.Config:
     return conf
 
 
-def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], logs: Path) -> int:
+def _watch(settings: UpSettings, procs: dict[str, subprocess.Popen[bytes]], ports: dict[str, int], logs: Path) -> int:
     """Show the view until --duration, a signal, or a service that stops (exit status 1)."""
     tty = sys.stdout.isatty() and os.environ.get("CI", "").lower() not in ("1", "true")
     interval = settings.interval_s or (0.5 if tty else 3.0)
@@ -74,9 +54,12 @@ def _watch(settings: UpSettings, procs: dict[str, Any], ports: dict[str, int], l
     viewer = Viewer(settings.prefix, sys.stdout, tty)
     started = time.monotonic()
     status = 0
-    with zenoh.open(_view_config(ports)) as session:
+    with contextlib.ExitStack() as declared:
+        session = declared.enter_context(zenoh.open(_view_config(ports)))
         subscribers = {
-            kind: session.declare_subscriber(wire.key(settings.prefix, "*", kind), zenoh.handlers.RingChannel(4096))
+            kind: declared.enter_context(
+                session.declare_subscriber(wire.key(settings.prefix, "*", kind), zenoh.handlers.RingChannel(4096))
+            )
             for kind in (wire.Kind.RAW, wire.Kind.HEADING, wire.Kind.PROGRESS, wire.Kind.CALIBRATION, wire.Kind.ALERT)
         }
         in_force = session.get(wire.key(settings.prefix, "*", wire.Kind.CALIBRATION), timeout=3.0)  # stored ones

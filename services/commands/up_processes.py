@@ -5,7 +5,6 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
 
 from services.commands.up_settings import UpSettings
 from services.common.processes import stop_processes
@@ -17,7 +16,7 @@ LOG_TAIL_LINES = 15
 
 def start_services(
     settings: UpSettings, ports: dict[str, int], db: Path, logs: Path, dashboard: tuple[str, str] | None = None
-) -> dict[str, Any]:
+) -> dict[str, subprocess.Popen[bytes]]:
     common = ["--prefix", settings.prefix]
     commands = {
         "calibrator": [
@@ -72,7 +71,7 @@ def start_services(
     return procs
 
 
-def stop_services(procs: dict[str, Any]) -> None:
+def stop_services(procs: dict[str, subprocess.Popen[bytes]]) -> None:
     stop_processes(procs.values())
 
 
@@ -83,7 +82,8 @@ def dashboard_http(settings: UpSettings, spare_port: int) -> tuple[str, str, str
     import secrets
     import socket
 
-    from services.dashboard.service import DEFAULT_HTTP, page_address, parse_http
+    from services.dashboard.service import page_address
+    from services.dashboard.settings import DEFAULT_HTTP, parse_http
 
     http = settings.http
     if http is None:

@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import textwrap
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
 from magnet import wire
 from magnet.drift import Alert, alert_from_message
+
+if TYPE_CHECKING:
+    from rich.live import Live
 
 NOTE_CHARS = 60
 DRIFT_UNITS = {"field_strength": "uT", "dip": "deg", "calibration_age": "days"}
@@ -142,7 +145,7 @@ class Viewer:
     def __init__(self, prefix: str, out: TextIO, tty: bool) -> None:
         self.prefix, self.out, self.tty = prefix, out, tty
         self.views: dict[str, DeviceView] = {}
-        self.live: Any = None
+        self.live: Live | None = None
 
     def view(self, device: str) -> DeviceView:
         return self.views.setdefault(device, DeviceView())

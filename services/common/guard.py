@@ -15,6 +15,8 @@ import logging
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+import zenoh
+
 from magnet import wire
 
 T = TypeVar("T")
@@ -69,7 +71,7 @@ class Guard:
             self.failed(what, exc, count)
             return None
 
-    def answer(self, what: str, query: Any, handler: Callable[..., object], *args: Any) -> bool:
+    def answer(self, what: str, query: zenoh.Query, handler: Callable[..., object], *args: Any) -> bool:
         """``handler(query, *args)`` for one query; on any exception the query gets ``reply_err`` with the
         ``refusal`` (counted and logged). False when it failed."""
         try:

@@ -20,7 +20,10 @@ The argparse value of an option with ``parse`` is the text the user typed (``par
 in ``from_args``, so a ``ValueError`` keeps its own message); a field whose default is ``False`` is a switch
 (``store_true``); ``negate="--no-auto"`` makes a ``True`` default a switch that turns it off; ``repeat=True`` collects
 a repeatable option into a tuple. Checks return None when the value is good, else what is wrong (the flag and the
-value are added to the message).
+value are added to the message); ``optional(check)`` lets None (the option not given) through.
+
+A default that depends on the service rather than on the field (``--mode``: None, the config file's, else the
+service's own, peer or router) is shown in the help with ``add_options(parser, Cls, shown={"mode": "router"})``.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -86,9 +89,16 @@ def _default_text(value: Any) -> str:
     return str(value)
 
 
-def add_options(parser: argparse.ArgumentParser | Any, cls: type, *, groups: dict[str, Any] | None = None) -> None:
+def add_options(
+    parser: argparse.ArgumentParser | Any,
+    cls: type,
+    *,
+    groups: dict[str, Any] | None = None,
+    shown: Mapping[str, str] | None = None,
+) -> None:
     """Add every option field of ``cls`` to ``parser`` (an ``ArgumentParser`` or an argument group); options with a
-    ``group`` go to ``groups[group]``, made on first use."""
+    ``group`` go to ``groups[group]``, made on first use. ``shown``: field name -> the default to say in its help
+    where the service, not the field, sets it (the field's own default, usually None, stays the parsed value)."""
     groups = {} if groups is None else groups
     for field, spec in options_of(cls):
         target = parser
@@ -96,12 +106,12 @@ def add_options(parser: argparse.ArgumentParser | Any, cls: type, *, groups: dic
             if spec.group not in groups:
                 groups[spec.group] = parser.add_argument_group(spec.group)
             target = groups[spec.group]
-        _add(target, field, spec)
+        _add(target, field, spec, (shown or {}).get(field.name))
 
 
-def _add(parser: Any, field: dataclasses.Field[Any], spec: Option) -> None:
+def _add(parser: Any, field: dataclasses.Field[Any], spec: Option, shown: str | None = None) -> None:
     default = field.default
-    help_text = spec.help
+    help_text = spec.help if shown is None else f"{spec.help} (default {shown})"
     if spec.negate is not None:
         parser.add_argument(spec.negate, dest=field.name, action="store_false", default=True, help=help_text)
         return
@@ -112,7 +122,10 @@ def _add(parser: Any, field: dataclasses.Field[Any], spec: Option) -> None:
         help_text = f"{help_text} (default {_default_text(default)})".replace("%", "%%")
     else:
         help_text = help_text.replace("%", "%%")
-    kwargs: dict[str, Any] = {"dest": field.name, "help": help_text, "metavar": spec.metavar}
+    metavar = spec.metavar
+    if metavar is None and spec.choices is None:  # as argparse names it: by its flag, or its choices
+        metavar = spec.flags[0].lstrip("-").replace("-", "_").upper()
+    kwargs: dict[str, Any] = {"dest": field.name, "help": help_text, "metavar": metavar}
     if spec.choices is not None:
         kwargs["choices"] = spec.choices
     if spec.repeat:
@@ -201,3 +214,12 @@ def one_of(choices: Sequence[str]) -> Check:
         return None if value in choices else f"must be one of {', '.join(choices)}"
 
     return check
+
+
+def optional(check: Check) -> Check:
+    """``check``, with None (the option not given) allowed."""
+
+    def checked(value: Any) -> str | None:
+        return None if value is None else check(value)
+
+    return checked

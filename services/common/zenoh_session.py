@@ -19,72 +19,73 @@ import threading
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import zenoh
 
 from magnet.wire import DEFAULT_PREFIX, validate_prefix
+from services.common.options import add_options, check_options, from_args, one_of, option, optional
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+T_co = TypeVar("T_co", covariant=True)
 
 MODES = ("peer", "client", "router")
 OPEN_RETRY_S = 5.0
 
 
-def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = "peer") -> None:
-    group = parser.add_argument_group("zenoh")
-    group.add_argument("--config", metavar="FILE.json5", help="a Zenoh configuration file (json5)")
-    group.add_argument("--mode", choices=MODES, default=None, help=f"session mode (default {default_mode})")
-    group.add_argument(
-        "--connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
-    )
-    group.add_argument(
-        "--listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
-    )
-    group.add_argument("--no-multicast-scouting", action="store_true", help="do not scout for peers by multicast")
-    group.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key prefix (default {DEFAULT_PREFIX})")
-    parser.set_defaults(_default_mode=default_mode)
-
-
 @dataclasses.dataclass(frozen=True)
 class ZenohSettings:
     """The Zenoh options of a service: config file, mode (None: the file's, else ``default_mode``), endpoints to
-    connect to and listen on, multicast scouting off, and the key prefix."""
+    connect to and listen on, multicast scouting off, and the key prefix. ``default_mode`` is the service's own
+    (peer, or router for ``magnet router``), not an option."""
 
-    config: str | None = None
-    mode: str | None = None
-    connect: tuple[str, ...] = ()
-    listen: tuple[str, ...] = ()
-    no_multicast_scouting: bool = False
-    prefix: str = DEFAULT_PREFIX
+    config: str | None = option(
+        None, "--config", metavar="FILE.json5", help="a Zenoh configuration file (json5)", group="zenoh"
+    )
+    mode: str | None = option(
+        None, "--mode", choices=MODES, check=optional(one_of(MODES)), help="session mode", group="zenoh"
+    )
+    connect: tuple[str, ...] = option(
+        (),
+        "--connect",
+        repeat=True,
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+        group="zenoh",
+    )
+    listen: tuple[str, ...] = option(
+        (),
+        "--listen",
+        repeat=True,
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)",
+        group="zenoh",
+    )
+    no_multicast_scouting: bool = option(
+        False, "--no-multicast-scouting", help="do not scout for peers by multicast", group="zenoh"
+    )
+    prefix: str = option(DEFAULT_PREFIX, "--prefix", help="key prefix", group="zenoh")
     default_mode: str = "peer"
 
     def __post_init__(self) -> None:
+        check_options(self)
         validate_prefix(self.prefix)
-        for mode in (self.mode, self.default_mode):
-            if mode is not None and mode not in MODES:
-                raise ValueError(f"--mode must be one of {', '.join(MODES)}, got {mode!r}")
+        if self.default_mode not in MODES:
+            raise ValueError(f"the default mode must be one of {', '.join(MODES)}, got {self.default_mode!r}")
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ZenohSettings:
         """The settings of the options ``add_zenoh_arguments`` added."""
-        return cls(
-            config=args.config,
-            mode=args.mode,
-            connect=tuple(args.connect),
-            listen=tuple(args.listen),
-            no_multicast_scouting=bool(args.no_multicast_scouting),
-            prefix=args.prefix,
-            default_mode=getattr(args, "_default_mode", "peer"),
-        )
+        return from_args(cls, args, default_mode=getattr(args, "_default_mode", "peer"))
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = "peer") -> None:
+    """The options of ``ZenohSettings`` in their "zenoh" group; ``default_mode``: the service's mode when neither
+    ``--mode`` nor the config file says (shown in the help, read back by ``ZenohSettings.from_args``)."""
+    add_options(parser, ZenohSettings, shown={"mode": default_mode})
+    parser.set_defaults(_default_mode=default_mode)
 
 
 Options = ZenohSettings | argparse.Namespace
@@ -197,15 +198,27 @@ def stop_event() -> threading.Event:
     return event
 
 
-def payload_bytes(sample_or_query: Any) -> bytes:
-    """The payload of a zenoh Sample (or Query; b"" when it has none) as bytes."""
+def payload_bytes(sample_or_query: zenoh.Sample | zenoh.Query | zenoh.ReplyError) -> bytes:
+    """The payload of a zenoh Sample, Query (b"" when it has none) or error reply as bytes."""
     payload = sample_or_query.payload
     return b"" if payload is None else payload.to_bytes()
 
 
-def drain(handler: Any, limit: int) -> list[Any]:
+def matching(publisher: zenoh.Publisher) -> bool:
+    """Whether a subscriber matches ``publisher`` now (zenoh 1.10's stub says ``matching_status`` is a bool; it is a
+    ``MatchingStatus`` with ``.matching``)."""
+    return bool(publisher.matching_status.matching)  # type: ignore[attr-defined]
+
+
+class Receiver(Protocol[T_co]):
+    """What a zenoh channel gives without blocking: a ``Subscriber``, ``Queryable`` or ``Handler`` (of a ``get``)."""
+
+    def try_recv(self) -> T_co | None: ...
+
+
+def drain(handler: Receiver[T], limit: int) -> list[T]:
     """Up to ``limit`` items a zenoh handler holds now (an empty, closed channel gives none)."""
-    items: list[Any] = []
+    items: list[T] = []
     while len(items) < limit:
         try:
             item = handler.try_recv()

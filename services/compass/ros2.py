@@ -8,6 +8,7 @@ are built in ``magnet.ros2`` (frames, names, CDR); this module puts them. See ``
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from collections.abc import Mapping
@@ -34,7 +35,7 @@ _DISTURBED = int(HeadingFlag.FIELD_DISTURBED | HeadingFlag.DIP_DISTURBED)
 
 
 class _Topic:
-    """One ROS 2 publisher: its key, liveliness token, GID and sequence number."""
+    """One ROS 2 publisher: its key, liveliness token, GID and sequence number; ``close`` undeclares it."""
 
     def __init__(self, owner: Ros2Compass, topic: str, ros_type: str) -> None:
         owner.entities += 1
@@ -42,18 +43,20 @@ class _Topic:
         token = names.endpoint_token(owner.domain, owner.zid, 0, owner.namespace, owner.node, endpoint)
         self.key = names.topic_key(owner.domain, topic, ros_type, endpoint.type_hash)
         self.gid = names.gid_of(token)
-        self.token: zenoh.LivelinessToken = owner.session.liveliness().declare_token(token)
+        self._declared = contextlib.ExitStack()
+        self._declared.enter_context(owner.session.liveliness().declare_token(token))
         # a declared publisher: about half the CPU of session.put per message (measured), as rmw_zenoh does
-        self.publisher: zenoh.Publisher = owner.session.declare_publisher(self.key, encoding=CDR)
+        self.publisher: zenoh.Publisher = self._declared.enter_context(
+            owner.session.declare_publisher(self.key, encoding=CDR)
+        )
         self.seq = 0
 
     def put(self, payload: bytes, t_ns: int) -> None:
         self.seq += 1
         self.publisher.put(payload, attachment=names.attachment_bytes(self.seq, t_ns, self.gid))
 
-    def undeclare(self) -> None:
-        self.publisher.undeclare()
-        self.token.undeclare()
+    def close(self) -> None:
+        self._declared.close()
 
 
 def build_drain(
@@ -85,12 +88,14 @@ class Ros2Compass:
         self.node = names.ros_name_of_device(name)
         self.zid = str(session.info.zid())
         self.entities = 0
-        self.node_token: zenoh.LivelinessToken = session.liveliness().declare_token(
-            names.node_token(self.domain, self.zid, 0, self.namespace, self.node)
+        self._declared = contextlib.ExitStack()
+        self._declared.enter_context(
+            session.liveliness().declare_token(names.node_token(self.domain, self.zid, 0, self.namespace, self.node))
         )
-        self.devices: Recent[str, tuple[_Topic, _Topic]] = Recent(max_devices, on_evict=_undeclare_topics)
+        self.devices: Recent[str, tuple[_Topic, _Topic]] = Recent(max_devices, on_evict=_close_topics)
         self.disturbed: Recent[str, float] = Recent(max_devices)
         self.diagnostics = _Topic(self, DIAGNOSTICS_TOPIC, messages.DIAGNOSTIC_ARRAY)
+        self._declared.callback(self.diagnostics.close)
         self.next_diagnostics = time.monotonic() + DIAGNOSTICS_PERIOD_S
         self.published = 0
         log.info("ROS 2: node %s/%s in domain %d (rmw_zenoh keys)", self.namespace, self.node, self.domain)
@@ -167,12 +172,11 @@ class Ros2Compass:
 
     def close(self) -> None:
         for topics in self.devices.values():
-            _undeclare_topics("", topics)
+            _close_topics("", topics)
         self.devices.clear()
-        self.diagnostics.undeclare()
-        self.node_token.undeclare()
+        self._declared.close()
 
 
-def _undeclare_topics(_device: str, topics: tuple[_Topic, _Topic]) -> None:
+def _close_topics(_device: str, topics: tuple[_Topic, _Topic]) -> None:
     for topic in topics:
-        topic.undeclare()
+        topic.close()

@@ -15,6 +15,7 @@ Frames are converted by ``magnet.ros2.frames`` (the same conversion as the ROS 2
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -96,19 +97,28 @@ def heading_views(batch: wire.HeadingBatch) -> tuple[dict[str, Any], dict[str, A
 class FoxgloveBridge:
     """Follows the fleet's headings and alerts on a Zenoh session and logs them to a Foxglove WebSocket server."""
 
-    def __init__(self, session: Any, prefix: str, host: str, port: int) -> None:
+    def __init__(self, session: zenoh.Session, prefix: str, host: str, port: int) -> None:
         self.server = foxglove.start_server(name="magnet", host=host, port=port)
         self.port = self.server.port
-        self.headings = session.declare_subscriber(f"{prefix}/*/heading", zenoh.handlers.FifoChannel(8192))
-        self.alerts = session.declare_subscriber(f"{prefix}/*/alert", zenoh.handlers.FifoChannel(256))
+        self.declared = contextlib.ExitStack()
+        fifo = zenoh.handlers.FifoChannel
+        self.headings = self.declared.enter_context(session.declare_subscriber(f"{prefix}/*/heading", fifo(8192)))
+        self.alerts = self.declared.enter_context(session.declare_subscriber(f"{prefix}/*/alert", fifo(256)))
         self.tf = FrameTransformChannel("/tf")
-        self.channels: dict[str, tuple[Any, Any, Any]] = {}
+        self.channels: dict[str, tuple[foxglove.Channel, foxglove.Channel, foxglove.Channel]] = {}
         self.open_alerts: dict[str, set[str]] = {}
         self.next_diagnostics: dict[str, float] = {}
         self.dropped = 0
         self.stop = threading.Event()
 
-    def _channels(self, device: str) -> tuple[Any, Any, Any] | None:
+    def __enter__(self) -> FoxgloveBridge:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Undeclare the subscribers (after ``stop`` and the end of ``run``)."""
+        self.declared.close()
+
+    def _channels(self, device: str) -> tuple[foxglove.Channel, foxglove.Channel, foxglove.Channel] | None:
         found = self.channels.get(device)
         if found is None and len(self.channels) < MAX_DEVICES:
             base = f"/magnet/{ros_name_of_device(device)}"

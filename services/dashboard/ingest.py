@@ -15,6 +15,8 @@ import threading
 import time
 from typing import Any
 
+import zenoh
+
 from magnet import wire
 from magnet.drift import alert_from_message
 from services.common import metrics
@@ -30,27 +32,51 @@ QUERY_TIMEOUT_S = 5.0
 REQUERY_S = 10.0
 
 
+Subscriber = zenoh.Subscriber[zenoh.Handler[zenoh.Sample]]
+
+
 class Ingest:
-    """Feeds a FleetState from a zenoh session (``session`` already open; the caller closes it)."""
+    """Feeds a FleetState from a zenoh session (``session`` already open; the caller closes it). A context manager:
+    its subscribers are undeclared when the ``with`` block ends (after ``stop`` and the end of ``run``)."""
 
-    def __init__(self, session: Any, prefix: str, state: FleetState, tick_s: float = 0.25) -> None:
-        import zenoh
-
+    def __init__(self, session: zenoh.Session, prefix: str, state: FleetState, tick_s: float = 0.25) -> None:
         self.session, self.prefix, self.state, self.tick_s = session, prefix, state, tick_s
         self.stop = threading.Event()
+        self.declared = contextlib.ExitStack()
         fifo = zenoh.handlers.FifoChannel
-        self.alive = session.liveliness().declare_subscriber(
-            wire.liveliness_key(prefix, "device", "*"), fifo(CHANNEL_CAPACITY), history=True
+        self.alive = self._declare(
+            session.liveliness().declare_subscriber(
+                wire.liveliness_key(prefix, "device", "*"), fifo(CHANNEL_CAPACITY), history=True
+            )
         )
-        self.headings = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.HEADING), fifo(CHANNEL_CAPACITY))
-        self.progress = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.PROGRESS), fifo(CHANNEL_CAPACITY))
-        self.calibrations = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.CALIBRATION), fifo(4096))
-        self.alerts = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.ALERT), fifo(4096))
-        self.raw_any = session.declare_subscriber(wire.key(prefix, "*", wire.Kind.RAW), zenoh.handlers.RingChannel(64))
-        self.raw_watched: dict[str, Any] = {}
-        self.pending: list[tuple[float, Any]] = []
+        self.headings = self._subscribe(wire.Kind.HEADING, fifo(CHANNEL_CAPACITY))
+        self.progress = self._subscribe(wire.Kind.PROGRESS, fifo(CHANNEL_CAPACITY))
+        self.calibrations = self._subscribe(wire.Kind.CALIBRATION, fifo(4096))
+        self.alerts = self._subscribe(wire.Kind.ALERT, fifo(4096))
+        self.raw_any = self._subscribe(wire.Kind.RAW, zenoh.handlers.RingChannel(64))
+        self.raw_watched: dict[str, tuple[Subscriber, contextlib.ExitStack]] = {}
+        self.pending: list[tuple[float, zenoh.Handler[zenoh.Reply]]] = []
         self.asked_s = -REQUERY_S
         self.guard = Guard("dashboard", log, state.dropped)
+
+    def _declare(self, subscriber: Subscriber) -> Subscriber:
+        return self.declared.enter_context(subscriber)
+
+    def _subscribe(
+        self,
+        kind: wire.Kind,
+        channel: zenoh.handlers.FifoChannel[zenoh.Sample] | zenoh.handlers.RingChannel[zenoh.Sample],
+    ) -> Subscriber:
+        return self._declare(self.session.declare_subscriber(wire.key(self.prefix, "*", kind), channel))
+
+    def __enter__(self) -> Ingest:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for _, watch in self.raw_watched.values():
+            watch.close()
+        self.raw_watched.clear()
+        self.declared.close()
 
     def run(self) -> None:
         """Drain until ``stop`` is set."""
@@ -58,7 +84,6 @@ class Ingest:
             started = time.monotonic()
             self.guard.run("ingest", self.step)  # nothing from the network ends the service
             self.stop.wait(max(0.0, self.tick_s - (time.monotonic() - started)))
-        self.close()
 
     def step(self) -> None:
         self._follow_watched()
@@ -75,24 +100,11 @@ class Ingest:
             run("progress", self._on_progress, sample)
         raws = drain(self.raw_any, MAX_DRAIN)
         run("raw", self._on_raws, raws, True, count=len(raws))
-        for subscriber in list(self.raw_watched.values()):
+        for subscriber, _ in list(self.raw_watched.values()):
             raws = drain(subscriber, MAX_DRAIN)
             run("raw", self._on_raws, raws, False, count=len(raws))
         headings = drain(self.headings, MAX_DRAIN)
         run("heading", self._on_headings, headings, count=len(headings))
-
-    def close(self) -> None:
-        for subscriber in [
-            self.alive,
-            self.headings,
-            self.progress,
-            self.calibrations,
-            self.alerts,
-            self.raw_any,
-            *self.raw_watched.values(),
-        ]:
-            with contextlib.suppress(Exception):  # the session may be closing already
-                subscriber.undeclare()
 
     # ---------------------------------------------------------------------------------------------- messages
     def _drop(self, exc: wire.WireError, what: str) -> None:
@@ -105,9 +117,7 @@ class Ingest:
             self._drop(exc, kind.value)
             return None
 
-    def _on_alive(self, sample: Any) -> None:
-        import zenoh
-
+    def _on_alive(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
         try:
             wire.validate_device_id(name)
@@ -138,7 +148,7 @@ class Ingest:
             return
         self.state.on_alert(alert)
 
-    def _on_progress(self, sample: Any) -> None:
+    def _on_progress(self, sample: zenoh.Sample) -> None:
         try:
             message = wire.decode_progress(payload_bytes(sample))
             wire.check_key(self.prefix, str(sample.key_expr), wire.Kind.PROGRESS, message["device"])
@@ -147,7 +157,7 @@ class Ingest:
             return
         self.state.on_progress(message)
 
-    def _on_raws(self, samples: list[Any], only_new: bool) -> None:
+    def _on_raws(self, samples: list[zenoh.Sample], only_new: bool) -> None:
         for sample in samples:
             key_expr = str(sample.key_expr)
             device = self._device(key_expr, wire.Kind.RAW)
@@ -167,10 +177,10 @@ class Ingest:
         row = self.state.rows.get(device)
         return row is not None and bool(row.sensor)
 
-    def _on_headings(self, samples: list[Any]) -> None:
+    def _on_headings(self, samples: list[zenoh.Sample]) -> None:
         """Decode the newest message of each device, and every message of a watched device, in arrival order."""
-        latest: dict[str, Any] = {}
-        chosen: list[Any] = []
+        latest: dict[str, zenoh.Sample] = {}
+        chosen: list[zenoh.Sample] = []
         for sample in samples:
             key_expr = str(sample.key_expr)
             if key_expr.rsplit("/", 2)[-2] in self.raw_watched:
@@ -194,15 +204,19 @@ class Ingest:
 
     # ---------------------------------------------------------------------------------------------- upkeep
     def _follow_watched(self) -> None:
-        import zenoh
-
+        """A raw subscriber of its own for each device someone looks at (each in its own ExitStack, closed when
+        nobody looks any more)."""
         watched = self.state.watched()
         for device in set(self.raw_watched) - watched:
-            self.raw_watched.pop(device).undeclare()
+            self.raw_watched.pop(device)[1].close()
         for device in watched - set(self.raw_watched):
-            self.raw_watched[device] = self.session.declare_subscriber(
-                wire.key(self.prefix, device, wire.Kind.RAW), zenoh.handlers.FifoChannel(CHANNEL_CAPACITY)
-            )
+            with contextlib.ExitStack() as watch:
+                subscriber = watch.enter_context(
+                    self.session.declare_subscriber(
+                        wire.key(self.prefix, device, wire.Kind.RAW), zenoh.handlers.FifoChannel(CHANNEL_CAPACITY)
+                    )
+                )
+                self.raw_watched[device] = (subscriber, watch.pop_all())
 
     def _ask_calibrations(self) -> None:
         """Ask for every calibration in force and every open drift alert at start, and again now and then (a
@@ -234,7 +248,7 @@ class Control:
     """The queries behind the page's buttons and history: the same queryables ``magnet calibrate`` and
     ``magnet get calibration --history`` use. Blocking (call from a worker thread)."""
 
-    def __init__(self, session: Any, prefix: str) -> None:
+    def __init__(self, session: zenoh.Session, prefix: str) -> None:
         self.session, self.prefix = session, prefix
 
     def _ask(self, selector: str) -> tuple[list[dict[str, Any]], list[str]]:
@@ -245,7 +259,7 @@ class Control:
                     answers.append(wire.unpack(payload_bytes(reply.ok)))
                 except wire.WireError as exc:
                     errors.append(str(exc))
-            else:
+            elif reply.err is not None:
                 errors.append(payload_bytes(reply.err).decode(errors="replace"))
         return answers, errors
 

@@ -8,7 +8,7 @@ Sources (``services.edge.sources``):
   its true field from a ``SensorStream`` (simulator) with the given hard iron, soft iron, noise and trajectory;
   ``--emulate-faults P`` (for tests) makes each transfer after set-up fail with probability P.
 - ``--sensor sim --emulate``: the ``SensorStream`` directly, no register emulation.
-- ``--emulate --devices N``: N simulated devices (``FleetSimulator``, each its own hard and soft iron) named
+- ``--emulate --devices N``: N simulated devices (``SimulatedDevices``, each its own hard and soft iron) named
   ``<ID>-000`` ... from one process.
 - ``--replay FILE.csv [--speed X]``: a recording with the columns of ``magnet sample`` (``t_s``, ``mx,my,mz``, optional
   ``ax,ay,az`` and ``gx,gy,gz`` in rad/s) published at its own pace, X times faster, in batches of ``--batch``; the

@@ -26,7 +26,7 @@ from magnet.drivers import open_sensor
 from magnet.emulators import FaultInjector, emulator_for
 from magnet.readloop import Backoff, ReadLoop, ReadStats
 from magnet.replay import Recording, paced_slices
-from magnet.simulator import FleetSimulator
+from magnet.simulator import SimulatedDevices
 from services.common.input_options import InputOptions
 from services.common.inputs import read_input
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
@@ -58,7 +58,7 @@ class FleetSource:
     stats: ReadStats | None = None
 
     def __init__(self, settings: EdgeSettings) -> None:
-        self.fleet = FleetSimulator(
+        self.fleet = SimulatedDevices(
             n_devices=settings.devices,
             rate_hz=settings.rate_hz / settings.speedup,
             seed=settings.simulator.seed,

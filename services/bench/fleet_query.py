@@ -72,7 +72,9 @@ def session_config(port: int) -> zenoh.Config:
     return conf
 
 
-def ask_fleet(session: Any, prefix: str = "magnet", timeout_s: float = 10.0) -> tuple[float, dict[str, Any] | None]:
+def ask_fleet(
+    session: zenoh.Session, prefix: str = "magnet", timeout_s: float = 10.0
+) -> tuple[float, dict[str, Any] | None]:
     """(seconds, the decoded reply or None) of one fleet query."""
     start = time.perf_counter()
     for reply in session.get(f"{prefix}/@fleet", timeout=timeout_s):
@@ -81,7 +83,7 @@ def ask_fleet(session: Any, prefix: str = "magnet", timeout_s: float = 10.0) -> 
     return time.perf_counter() - start, None
 
 
-def wait_for_fleet(session: Any, devices: int, timeout_s: float = 60.0) -> dict[str, Any]:
+def wait_for_fleet(session: zenoh.Session, devices: int, timeout_s: float = 60.0) -> dict[str, Any]:
     """The first fleet reply that lists ``devices`` devices (the calibrator is up); RuntimeError after timeout_s."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:

@@ -1,4 +1,4 @@
-"""Many simulated devices at once, vectorized over devices and samples (``FleetSimulator``)."""
+"""Many simulated devices at once, vectorized over devices and samples (``SimulatedDevices``)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import (
+from magnet.frames import (
     euler_to_quaternion,
+    ned_to_body_euler,
     quaternion_conjugate,
     quaternion_multiply,
     quaternion_to_rotation_vector,
@@ -16,15 +17,15 @@ from magnet.attitude import (
 from magnet.geomag import earth_field
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.run import DEFAULT_DATE, DEFAULT_LAT_DEG, DEFAULT_LON_DEG
-from magnet.simulator.trajectories import GOLDEN_RATIO_MINOR, TUMBLE_PITCH_AMPLITUDE_DEG, ned_to_body_euler, wrap_roll
+from magnet.simulator.trajectories import GOLDEN_RATIO_MINOR, TUMBLE_PITCH_AMPLITUDE_DEG, wrap_roll
 from magnet.units import STANDARD_GRAVITY_MS2
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class FleetBatch:
-    """One step of the fleet: t_ns (n,) from the fleet's start; mag_ut, acc_ms2 (D, n, 3) measured; heading_deg
+class DevicesBatch:
+    """One step of the devices: t_ns (n,) from their start; mag_ut, acc_ms2 (D, n, 3) measured; heading_deg
     (D, n) true heading; pitch_deg, roll_deg (D, n); gyr_rads (D, n, 3) body rate (rad/s, the rate that carries each
-    sample's attitude from the one before, plus noise) when the fleet was made with ``gyro=True``, else None."""
+    sample's attitude from the one before, plus noise) when the devices were made with ``gyro=True``, else None."""
 
     t_ns: np.ndarray
     mag_ut: np.ndarray
@@ -35,7 +36,7 @@ class FleetBatch:
     gyr_rads: np.ndarray | None = None
 
 
-class FleetSimulator:
+class SimulatedDevices:
     """D devices tumbling smoothly at one place, each with its own random hard and soft iron (``errors[d]``) and its
     own trajectory: pitch = 85 sin(2 pi f_p t + phase), roll and heading turning at f_r and f_y turns/s, random per
     device: f_p 0.15-0.25 Hz, f_r about 0.618 f_p and f_y about 0.382 f_p (golden ratios, +-2 %, random senses: the
@@ -109,7 +110,7 @@ class FleetSimulator:
             errors = dataclasses.replace(self.errors[device], soft_iron=np.asarray(soft_iron, dtype=float))
             self._distortion[device] = errors.distortion
 
-    def step(self, n: int) -> FleetBatch:
+    def step(self, n: int) -> DevicesBatch:
         """The next n samples of every device."""
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"step needs a whole number of samples >= 1, got {n!r}")
@@ -125,7 +126,7 @@ class FleetSimulator:
         if self._acc_noise:
             acc += self._acc_noise * rng.standard_normal(acc.shape)
         t_ns = np.round(index * (1e9 / self.rate_hz)).astype(np.int64)
-        return FleetBatch(
+        return DevicesBatch(
             t_ns=t_ns,
             mag_ut=mag,
             acc_ms2=acc,

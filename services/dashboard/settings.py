@@ -1,0 +1,116 @@
+"""The settings of ``magnet dashboard``, declared once (``services.common.options``): where the page is served, the
+control token, where the devices are (for the World Magnetic Model), the page's refresh, the Foxglove bridge, the
+operator's name, and the Zenoh options."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import ipaddress
+
+from services.common import metrics
+from services.common.options import add_options, check_options, from_args, option
+from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
+
+DEFAULT_HTTP = "127.0.0.1:8080"
+TOKEN_ENV = "MAGNET_DASHBOARD_TOKEN"
+
+
+def parse_http(text: str) -> tuple[str, int]:
+    """(host, port) from ``HOST:PORT`` (``[v6]:PORT`` too); ValueError saying what is wrong."""
+    host, sep, port = text.rpartition(":")
+    host = host.strip("[]")
+    if not sep or not host:
+        raise ValueError(f"--http {text!r} must be HOST:PORT, e.g. {DEFAULT_HTTP}")
+    try:
+        number = int(port)
+    except ValueError:
+        raise ValueError(f"--http {text!r}: the port must be a number") from None
+    if not 0 <= number <= 65535:
+        raise ValueError(f"--http {text!r}: the port must be 0..65535")
+    return host, number
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _refresh(value: float) -> str | None:
+    return None if 0.05 <= value <= 10 else "must be 0.05..10 seconds"
+
+
+@dataclasses.dataclass(frozen=True)
+class DashboardSettings:
+    """Everything ``magnet dashboard`` runs with; ``metrics`` (``--metrics``, shared with the other services) and
+    ``zenoh`` are set from their own options."""
+
+    http: str = option(
+        DEFAULT_HTTP,
+        "--http",
+        metavar="HOST:PORT",
+        help=f"where the page is served (default {DEFAULT_HTTP}; loopback unless told otherwise)",
+        show_default=False,
+    )
+    token: str | None = option(
+        None, "--token", help=f"control token (default ${TOKEN_ENV}, else a random one printed at start)"
+    )
+    location: str | None = option(
+        None,
+        "--location",
+        metavar="LAT,LON[,ALT_M]",
+        help="where the devices are: |B| and dip are shown against the World Magnetic Model there",
+    )
+    date: str | None = option(
+        None, "--date", metavar="YYYY-MM-DD", help="date for the World Magnetic Model (default today)"
+    )
+    refresh_s: float = option(
+        0.25,
+        "--refresh",
+        check=_refresh,
+        help="seconds between updates of the page (default 0.25: 4 per second)",
+        show_default=False,
+    )
+    foxglove: str | None = option(
+        None,
+        "--foxglove",
+        metavar="HOST:PORT",
+        help="also serve the fleet to the Foxglove app over its WebSocket protocol here (e.g. 127.0.0.1:8765)",
+    )
+    operator: str | None = option(
+        None,
+        "--operator",
+        metavar="NAME",
+        help="name recorded (as 'by') with the commits and rollbacks made from the page (default: user@host)",
+    )
+    metrics: str | None = None
+    zenoh: ZenohSettings = ZenohSettings()
+
+    def __post_init__(self) -> None:
+        check_options(self)
+        parse_http(self.http)
+        if self.foxglove is not None:
+            parse_http(self.foxglove)
+        if self.date and not self.location:
+            raise ValueError("--date needs --location")
+        if self.metrics:
+            metrics.parse_address(self.metrics)
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """(host, port) where the page is served."""
+        return parse_http(self.http)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_options(parser, DashboardSettings)
+    metrics.add_metrics_argument(parser)
+    add_zenoh_arguments(parser)
+
+
+def settings_from_args(args: argparse.Namespace) -> DashboardSettings:
+    return from_args(DashboardSettings, args, metrics=args.metrics, zenoh=ZenohSettings.from_args(args))
