@@ -230,7 +230,7 @@ class CompassCore:
         return HeadingColumns(
             out,
             hd.true_heading_deg(out.heading_deg, where.declination_deg),
-            np.where(hd.rows_finite(gravity), dip, np.nan),
+            dip,
             [c.id if c else "" for c in cals],
             [e.declination_deg for e in earths],
             None if quat is None else rotate_heading(quat, where.declination_deg),
