@@ -84,7 +84,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--rate", type=float, metavar="HZ", help="sample rate for the gyroscope fusion (default: from the t_s column)"
     )
     parser.add_argument(
-        "--offline", action="store_true", help="with a gyroscope: the best estimate for a log (the filter looks ahead)"
+        "--offline",
+        action="store_true",
+        help="with a gyroscope: the best estimate for a log, from its own estimator (the filter looks ahead, which "
+        "the live compass cannot; without it the headings are the live compass's)",
     )
     parser.add_argument(
         "--compare",
