@@ -150,3 +150,13 @@ def test_the_live_compass_publishes_what_the_compass_step_gives(procs, tmp_path)
                 )
         assert batch.declination_deg == expected[seq].declination_deg
     assert np.all(np.concatenate([b.flags for b in live.values()]) & HeadingFlag.FUSED)
+
+
+def test_a_file_is_one_devices_batches_cut_where_its_time_stops_going_forward():
+    from services.commands.heading import sample_runs
+
+    ms = 1_000_000
+    # 10 ms steps, one stamp repeated (the time stops going forward), then a pause of about 2 s (beyond the gap)
+    t_ns = np.array([0, 10, 20, 20, 30, 40, 2000, 2010], dtype=np.int64) * ms
+    assert sample_runs(t_ns).tolist() == [3, 3, 2]
+    assert sample_runs(np.arange(5, dtype=np.int64) * 10_000_000).tolist() == [5]
