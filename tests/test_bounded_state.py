@@ -14,9 +14,8 @@ from magnet.compass import Earth
 from magnet.drift import Alert, AlertKind
 from magnet.model import Calibration
 from magnet.place import Location
-from services.calibrator.fleet import FleetBook
+from services.calibrator.roster import Roster
 from services.calibrator.service import Calibrator, CalibratorSettings
-from services.calibrator.sessions import _start
 from services.calibrator.store import CalibrationStore
 
 
@@ -48,12 +47,12 @@ def test_calibrator_keeps_at_most_max_devices_collections_and_never_drops_a_sess
     with CalibrationStore(tmp_path / "c.db") as store:
         calibrator = Calibrator(store, CalibratorSettings(max_devices=3), lambda *a: None)
         calibrator.on_raw("magnet/operator-1/raw", _batch("operator-1"), "magnet")  # seen, so a session may start
-        assert _start(calibrator, "operator-1", None)[0]
+        assert calibrator.session("operator-1", "start", None)["ok"]
         for i in range(10):
             calibrator.on_raw(f"magnet/flood-{i}/raw", _batch(f"flood-{i}"), "magnet")
         assert len(calibrator.collections) == 3 and "operator-1" in calibrator.collections
         assert calibrator.status("c").to_dict()["evicted_devices"] == 8
-        assert len(calibrator.last_progress) <= 3
+        assert len(calibrator.progress_times.last) <= 3
 
 
 def test_compass_keeps_at_most_max_devices_calibrations():
@@ -133,10 +132,8 @@ def test_a_session_for_a_device_never_seen_is_refused_with_what_to_check(tmp_pat
 
 def test_the_calibrators_fleet_book_keeps_at_most_max_devices_and_counts_the_rest(tmp_path, caplog):
     with CalibrationStore(tmp_path / "c.db") as store:
-        calibrator = Calibrator(
-            store, CalibratorSettings(max_devices=3), lambda *a: None, fleet=FleetBook(max_devices=3)
-        )
-        book = calibrator.fleet
+        calibrator = Calibrator(store, CalibratorSettings(max_devices=3), lambda *a: None, roster=Roster(max_devices=3))
+        book = calibrator.roster
         for i in range(10):
             calibrator.on_raw(f"magnet/flood-{i}/raw", _located_batch(f"flood-{i}", 10.0 + i), "magnet")
             alert = Alert(f"flood-{i}", AlertKind.DIP, i, 60.0, 67.0, "x")
@@ -147,7 +144,7 @@ def test_the_calibrators_fleet_book_keeps_at_most_max_devices_and_counts_the_res
         assert set(book.alerts) == {"flood-7", "flood-8", "flood-9"}
         forgotten = calibrator.status("c").to_dict()["forgotten_devices"]
         assert forgotten == book.forgotten == 8 + 8 + 7
-        assert len([r for r in caplog.records if "fleet book" in r.getMessage()]) == 1
+        assert len([r for r in caplog.records if "in the roster" in r.getMessage()]) == 1
 
 
 def _moving_batch(device, lat):

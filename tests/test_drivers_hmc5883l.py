@@ -5,10 +5,11 @@ import errno
 import numpy as np
 import pytest
 
-from magnet.drivers.base import RetryPolicy, SensorError, SensorReadError
+from magnet.drivers.base import SensorError, SensorReadError
 from magnet.drivers.hmc5883l import HMC5883L, HMC5883LSettings, Mode
 from magnet.emulators.base import ConstantSource, FaultInjector
 from magnet.emulators.hmc5883l import HMC5883LEmulator
+from magnet.retry import RetryPolicy
 
 LSB = (1370, 1090, 820, 660, 440, 390, 330, 230)
 NO_SLEEP = dict(sleep=lambda s: None)
@@ -106,13 +107,13 @@ def test_transient_errors_are_retried_and_counted(code):
     faults.schedule = {faults.transactions: code, faults.transactions + 1: code}
     reading = sensor.read()
     assert reading.ok
-    assert sensor.health.retries == 2 and sensor.health.errors_by_errno == {code: 2}
+    assert sensor.health.retries == 2 and sensor.health.errors_by_cause == {errno.errorcode[code]: 2}
     assert delays == [0.002, 0.004]  # bounded exponential backoff, injected sleep
 
 
 def test_persistent_failure_raises_after_the_retries_flags_health_then_recovers():
     faults = FaultInjector()
-    sensor = HMC5883L(HMC5883LEmulator(ConstantSource(), faults=faults), retry=RetryPolicy(attempts=3), **NO_SLEEP)
+    sensor = HMC5883L(HMC5883LEmulator(ConstantSource(), faults=faults), retry=RetryPolicy(give_up_after=3), **NO_SLEEP)
     faults.probability = 1.0  # a dead bus: every transfer fails with EIO
     for _ in range(3):
         before = faults.injected
@@ -120,7 +121,7 @@ def test_persistent_failure_raises_after_the_retries_flags_health_then_recovers(
             sensor.read()
         assert isinstance(raised.value, OSError) and raised.value.errno == errno.EIO
         assert faults.injected - before == 3  # the driver's 3 attempts, then the error
-    assert not sensor.health.healthy and sensor.health.failed_reads == 3
+    assert not sensor.health.healthy and sensor.health.errors == 9 and sensor.health.retries == 6
     faults.probability = 0.0
     assert sensor.read().ok and sensor.health.healthy
 

@@ -19,7 +19,7 @@ def _batch(sensor, trajectory, **kw):
         simulator=SimulatorSettings(seed=3, trajectory=sim.Trajectory(trajectory)),
         **kw,
     )
-    (batch,) = make_source(settings).batches(0, 10**9, lambda: False)
+    (batch,) = make_source(settings).take(0, 10**9, lambda: False)
     return batch
 
 
@@ -39,7 +39,7 @@ def test_a_moving_simulated_device_sends_its_gnss_velocity():
         batch=30,
         simulator=SimulatorSettings(seed=3, trajectory=sim.Trajectory("car")),
     )
-    (batch,) = make_source(settings).batches(0, 10**9, lambda: False)
+    (batch,) = make_source(settings).take(0, 10**9, lambda: False)
     truth = sim.simulate(sim.SimulatorConfig(trajectory="car", count=30, rate_hz=100.0, seed=3))
     np.testing.assert_array_equal(batch.vel_ned_ms, truth.vel_ned_ms)  # NaN before the first fix, then held
     assert np.isnan(batch.vel_ned_ms[:10]).all() and np.isfinite(batch.vel_ned_ms[10:]).all()

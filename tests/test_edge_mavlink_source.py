@@ -47,10 +47,10 @@ def test_messages_become_batches_and_garbage_is_counted_once_in_the_log(caplog: 
                 time.sleep(0.002)
             deadline = time.monotonic() + 5
             while source.stream.counts["samples"] < 20 and time.monotonic() < deadline:
-                batches += source.batches(0, 0, lambda: False)
-                if batches and source.stream.counts["messages"] >= 20 and not source.batches(0, 0, lambda: False):
+                batches += source.take(0, 0, lambda: False)
+                if batches and source.stream.counts["messages"] >= 20 and not source.take(0, 0, lambda: False):
                     break
-            batches += source.batches(0, 0, lambda: True)  # stopping: what waits goes out
+            batches += source.take(0, 0, lambda: True)  # stopping: what waits goes out
     finally:
         junk.close()
         sender.close()
@@ -59,7 +59,7 @@ def test_messages_become_batches_and_garbage_is_counted_once_in_the_log(caplog: 
     got = sum(len(b) for b in batches)
     assert 15 <= got <= 20 and {b.device for b in batches} == {"uav42-mag2"}
     assert [b.seq for b in batches] == list(range(len(batches)))
-    reads = source.stats.as_dict()
+    reads = source.status()
     assert reads["dropped"]["bad-data"] > 0 and reads["samples"] == got and reads["vehicles"] == [42]
     assert source.ids == ["uav42-mag2"]
     garbage_lines = [r for r in caplog.records if "bad-data" in r.getMessage()]
@@ -77,7 +77,7 @@ def test_a_serial_device_is_read_at_its_baud_rate() -> None:
         batches: list = []
         deadline = time.monotonic() + 5
         while not batches and time.monotonic() < deadline:
-            batches += source.batches(0, 0, lambda: False)
+            batches += source.take(0, 0, lambda: False)
         source.close()
     finally:
         os.close(master)

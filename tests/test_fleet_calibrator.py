@@ -12,9 +12,8 @@ from magnet.compass.places import Places, parse_places
 from magnet.drift import Alert, AlertKind, advice_for
 from magnet.model import Calibration, Quality
 from magnet.place import Location
-from services.calibrator.fleet import FleetBook
-from services.calibrator.fleet_reply import fleet_reply
-from services.calibrator.rollback import rollback
+from services.calibrator.roster import Roster
+from services.calibrator.roster_reply import roster_reply
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
 
@@ -45,28 +44,28 @@ def calibration(offset, scale=1.0) -> Calibration:
 def calibrator(tmp_path):
     with CalibrationStore(tmp_path / "c.db") as store:
         published: list = []
-        fleet = FleetBook(
+        roster = Roster(
             Places(
                 parse_places('{"far": {location: "-33.86,151.21,20", notes: "Sydney"}}'), default=Location(50.45, 30.52)
             )
         )
-        yield Calibrator(store, CalibratorSettings(), lambda *a: published.append(a), clock_ns=Clock(), fleet=fleet)
+        yield Calibrator(store, CalibratorSettings(), lambda *a: published.append(a), clock_ns=Clock(), roster=roster)
 
 
 def test_rollback_restores_the_earlier_coefficients_exactly_and_the_history_shows_it(calibrator):
     first = calibrator.commit("d", calibration([10.0, -20.0, 5.0], 1.1))
     second = calibrator.commit("d", calibration([12.5, -18.0, 4.0], 0.95))
-    assert calibrator.in_force["d"].id == second.id != first.id
-    reply = rollback(calibrator, "d", None, "ann@desk")
+    assert calibrator.records.in_force["d"].id == second.id != first.id
+    reply = calibrator.rollback("d", None, "ann@desk")
     assert reply["ok"], reply
-    restored = calibrator.in_force["d"]
+    restored = calibrator.records.in_force["d"]
     assert restored.id == first.id
     assert np.array_equal(restored.calibration.offset, first.calibration.offset)
     assert np.array_equal(restored.calibration.matrix, first.calibration.matrix)
-    again = calibrator.store.latest("d")  # as a restarted calibrator reads it
+    again = calibrator.records.store.latest("d")  # as a restarted calibrator reads it
     assert np.array_equal(again.calibration.offset, first.calibration.offset)
     assert np.array_equal(again.calibration.matrix, first.calibration.matrix)
-    rows = calibrator.store.history_changes("d")
+    rows = calibrator.records.store.history_changes("d")
     assert [r.id for r, _ in rows] == [first.id, second.id, first.id]
     change = rows[0][1]
     assert change["action"] == "rollback" and change["by"] == "ann@desk" and change["from_id"] == second.id
@@ -74,25 +73,25 @@ def test_rollback_restores_the_earlier_coefficients_exactly_and_the_history_show
     assert rows[1][1]["action"] == "auto" and rows[1][1]["from_id"] == first.id
     assert rows[2][1]["from_id"] is None
     # to a named id, and refusals that change nothing
-    assert rollback(calibrator, "d", second.id, "bob")["ok"]
-    assert calibrator.in_force["d"].id == second.id
+    assert calibrator.rollback("d", second.id, "bob")["ok"]
+    assert calibrator.records.in_force["d"].id == second.id
     for to, words in [(second.id, "already in force"), ("0123456789abcdef", "no calibration 0123456789abcdef")]:
-        reply = rollback(calibrator, "d", to, "bob")
+        reply = calibrator.rollback("d", to, "bob")
         assert not reply["ok"] and words in reply["message"]
-    assert not rollback(calibrator, "new", None, "bob")["ok"]
-    assert len(calibrator.store.history("d")) == 4
+    assert not calibrator.rollback("new", None, "bob")["ok"]
+    assert len(calibrator.records.store.history("d")) == 4
 
 
 def test_the_fleet_answer_holds_every_device_its_state_place_and_open_alerts(calibrator):
     calibrator.commit("a", calibration([1.0, 2.0, 3.0]))
-    calibrator.fleet.seen("a", Location(10.0, 20.0, 30.0), 5)
-    calibrator.fleet.seen("walker", None, 6)
+    calibrator.roster.seen("a", Location(10.0, 20.0, 30.0), 5)
+    calibrator.roster.seen("walker", None, 6)
     alert = Alert("a", AlertKind.FIELD_STRENGTH, 7, 58.0, 50.1, "look for new iron")
-    calibrator.fleet.on_alert("magnet/a/alert", wire.pack(alert.to_message()), "magnet")
-    calibrator.fleet.on_alert(
+    calibrator.roster.on_alert("magnet/a/alert", wire.pack(alert.to_message()), "magnet")
+    calibrator.roster.on_alert(
         "magnet/a/alert", wire.pack(Alert("a", AlertKind.DIP, 8, 60, 67, "x").to_message()), "magnet"
     )
-    calibrator.fleet.on_alert(
+    calibrator.roster.on_alert(
         "magnet/a/alert",
         wire.pack({**Alert("a", AlertKind.DIP, 9, 67, 67, "ok").to_message(), "cleared": True}),
         "magnet",
@@ -102,10 +101,12 @@ def test_the_fleet_answer_holds_every_device_its_state_place_and_open_alerts(cal
         wire.pack({**alert.to_message(), "kind": "vibes"}),
         wire.pack({**alert.to_message(), "measured": float("inf")}),
     ]:
-        calibrator.fleet.on_alert("magnet/a/alert", bad, "magnet")
-    calibrator.fleet.on_alert("magnet/b/alert", wire.pack(alert.to_message()), "magnet")  # key of another device
-    assert sum(calibrator.fleet.drops.counts.values()) == 4
-    reply = fleet_reply(calibrator, 10**13)
+        calibrator.roster.on_alert("magnet/a/alert", bad, "magnet")
+    calibrator.roster.on_alert("magnet/b/alert", wire.pack(alert.to_message()), "magnet")  # key of another device
+    assert sum(calibrator.roster.drops.counts.values()) == 4
+    reply = roster_reply(
+        calibrator.records.in_force, calibrator.collections, calibrator.roster, calibrator.state, 10**13
+    )
     by = {d["device"]: d for d in reply["devices"]}
     assert reply["count"] == 3 and sorted(by) == ["a", "far", "walker"]
     a = by["a"]
@@ -120,7 +121,7 @@ def test_the_fleet_answer_holds_every_device_its_state_place_and_open_alerts(cal
 
 
 def test_a_device_with_a_place_is_fitted_to_the_model_field_there(calibrator):
-    calibrator.fleet.seen("a", Location(-33.86, 151.21, 20.0), 1)
-    sydney = calibrator.fleet.field_ut("a")
+    calibrator.roster.seen("a", Location(-33.86, 151.21, 20.0), 1)
+    sydney = calibrator.roster.field_ut("a")
     assert sydney == pytest.approx(57.0, abs=1.0)
-    assert calibrator.fleet.field_ut("unknown") is None
+    assert calibrator.roster.field_ut("unknown") is None

@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import sqlite3
 import warnings
+from contextlib import ExitStack
 from typing import Any
 
 import numpy as np
@@ -58,6 +59,12 @@ class FakeChannel:
     def try_recv(self) -> Any:
         return self.items.pop(0) if self.items else None
 
+    def __enter__(self) -> FakeChannel:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.items.clear()
+
 
 class FakeSession:
     def declare_queryable(self, key: str, handler: Any) -> FakeChannel:
@@ -78,7 +85,7 @@ def calibrator(tmp_path):
 
 
 def _service(calibrator: Calibrator) -> tuple[ServiceLoop, dict[str, FakeChannel]]:
-    answers = _declare_answers(FakeSession(), PREFIX, "*", "cal")
+    answers = _declare_answers(ExitStack(), FakeSession(), PREFIX, "*", "cal")
     loop = ServiceLoop(calibrator, RawIntake(100), answers, PREFIX, enrolment=Enrolment(1000, 10))
     return loop, {what: queryable for what, _, queryable in answers}
 
@@ -110,18 +117,18 @@ def _fill_disk(store: CalibrationStore) -> None:
 
 def test_rollback_on_a_full_disk_is_refused_clearly_and_the_calibrator_keeps_answering(calibrator):
     loop, channels = _service(calibrator)
-    before = calibrator.in_force["d1"].id
-    _fill_disk(calibrator.store)
+    before = calibrator.records.in_force["d1"].id
+    _fill_disk(calibrator.records.store)
     query = _ask(loop, channels, "query:calibrate", FakeQuery(f"{PREFIX}/d1/calibrate", action="rollback"))
     (said,) = _refusals(query)
     assert "the calibrator could not write its database" in said and "disk full" in said
     assert "restore it from a backup" not in said  # not called damaged
-    assert calibrator.in_force["d1"].id == before  # nothing changed
+    assert calibrator.records.in_force["d1"].id == before  # nothing changed
     assert _status(loop, channels)["received_batches"] == 0  # and it keeps answering
-    calibrator.store._db.execute("PRAGMA max_page_count = 1000000")  # space again: the same request now works
+    calibrator.records.store._db.execute("PRAGMA max_page_count = 1000000")  # space again: the same request now works
     query = _ask(loop, channels, "query:calibrate", FakeQuery(f"{PREFIX}/d1/calibrate", action="rollback"))
     assert query.replies and query.replies[0][1]["ok"], query.errors
-    assert calibrator.in_force["d1"].calibration.offset[0] == 1.0
+    assert calibrator.records.in_force["d1"].calibration.offset[0] == 1.0
 
 
 def test_rollback_whose_history_read_fails_is_refused_and_the_calibrator_keeps_answering(calibrator, monkeypatch):
@@ -130,10 +137,10 @@ def test_rollback_whose_history_read_fails_is_refused_and_the_calibrator_keeps_a
     def unreadable(*args: Any, **kwargs: Any) -> None:
         exc = sqlite3.OperationalError("disk I/O error")
         exc.sqlite_errorcode = 10  # SQLITE_IOERR, as sqlite3 sets it
-        with calibrator.store._guard("read"):
+        with calibrator.records.store._guard("read"):
             raise exc
 
-    monkeypatch.setattr(calibrator.store, "history", unreadable)
+    monkeypatch.setattr(calibrator.records.store, "history", unreadable)
     query = _ask(loop, channels, "query:calibrate", FakeQuery(f"{PREFIX}/d1/calibrate", action="rollback"))
     (said,) = _refusals(query)
     assert "could not read its database" in said
@@ -145,7 +152,7 @@ def test_rollback_whose_history_read_fails_is_refused_and_the_calibrator_keeps_a
 
 def test_a_bug_in_a_query_handler_is_an_error_reply_and_the_next_query_is_answered(calibrator, monkeypatch):
     loop, channels = _service(calibrator)
-    monkeypatch.setattr("services.calibrator.queries.fleet_reply", lambda *a: 1 / 0)
+    monkeypatch.setattr("services.calibrator.queries.roster_reply", lambda *a: 1 / 0)
     query = _ask(loop, channels, "query:fleet", FakeQuery(f"{PREFIX}/@fleet"))
     assert len(query.errors) == 1 and "ZeroDivisionError" in query.errors[0] and "keeps serving" in query.errors[0]
     monkeypatch.undo()
@@ -269,11 +276,10 @@ def test_compass_survives_a_failing_calibration_handler_and_a_failing_drain(monk
 
 # ------------------------------------------------------------------------------------------------- edge
 def test_edge_status_query_that_fails_gets_an_error_and_the_next_is_answered(monkeypatch):
-    from services.common.zenoh_session import ZenohSettings
     from services.edge.service import EdgeStatus
+    from services.edge.settings import EdgeSettings
 
-    settings = type("S", (), {"device": "e1", "sensor": "sim", "zenoh": ZenohSettings(), "mavlink": None})()
-    status = EdgeStatus(settings)  # type: ignore[arg-type]
+    status = EdgeStatus(EdgeSettings(device="e1", emulate=True))
     as_dict = status.as_dict
     monkeypatch.setattr(status, "as_dict", lambda: {"bad": object()})  # not packable: a bug
     first = FakeQuery("magnet/@status/edge-e1")

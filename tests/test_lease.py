@@ -90,7 +90,7 @@ def test_a_standby_calibrator_collects_and_answers_nothing_then_takes_over_from_
         calibrator.stand_by()
         raw = wire.RawBatch("d", 0, "sim", np.arange(3), np.ones((3, 3)), None)
         calibrator.on_raw("magnet/d/raw", wire.encode_raw(raw), PREFIX)
-        assert calibrator.counters.received_batches == 0 and not calibrator.collections
+        assert calibrator.status("c").counters.received_batches == 0 and not calibrator.collections
         assert calibrator.status("c").to_dict()["lease"] == "standby"
 
         other.save(_record("d", 10, [1.0, 2.0, 3.0]))  # the active calibrator stores meanwhile
@@ -99,11 +99,11 @@ def test_a_standby_calibrator_collects_and_answers_nothing_then_takes_over_from_
         assert query.replies == []  # standing by: no answer
 
         calibrator.take_over()
-        assert calibrator.in_force["d"].id == other.latest("d").id
+        assert calibrator.records.in_force["d"].id == other.latest("d").id
         assert published == [(wire.Kind.CALIBRATION, "d")]
         queries.ANSWERS[wire.Kind.CALIBRATION](query, calibrator, PREFIX)
         (answer,) = query.replies
-        assert wire.decode_calibration(answer[1]).id == calibrator.in_force["d"].id
+        assert wire.decode_calibration(answer[1]).id == calibrator.records.in_force["d"].id
         status = calibrator.status("c").to_dict()
         assert status["lease"] == "active" and status["takeovers"] == 1
 

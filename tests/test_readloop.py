@@ -1,5 +1,6 @@
 """The bounded read loop (magnet.readloop) with a fake clock: backoff bounded, errors counted, health and recovery."""
 
+import dataclasses
 import errno
 
 import numpy as np
@@ -9,7 +10,8 @@ from magnet.drivers.base import NOT_READY, Reading, SensorReadError
 from magnet.drivers.hmc5883l import HMC5883L
 from magnet.emulators.base import ConstantSource, FaultInjector
 from magnet.emulators.hmc5883l import HMC5883LEmulator
-from magnet.readloop import STALLED, Backoff, ReadLoop
+from magnet.readloop import STALLED, ReadLoop
+from magnet.retry import READ_BACKOFF, RetryPolicy
 
 GOOD = Reading(mag_ut=np.array([20.0, 0.0, 45.0]))
 
@@ -49,7 +51,7 @@ def make_loop(read, clock, **backoff):
         read,
         clock=clock,
         sleep=clock.sleep,
-        backoff=Backoff(**backoff),
+        policy=dataclasses.replace(READ_BACKOFF, **backoff),
         on_health=lambda healthy, error: changes.append((healthy, error)),
     )
     return loop, changes
@@ -61,45 +63,45 @@ def test_dead_sensor_backs_off_exponentially_capped_and_counts_every_error():
     assert loop.next(stop=lambda: clock.t >= 60.0) is None
     assert clock.sleeps[:4] == pytest.approx([0.01, 0.02, 0.04, 0.08])
     assert max(clock.sleeps) == 1.0 and clock.sleeps[-5:] == [1.0] * 5
-    stats = loop.stats
-    assert stats.attempts <= 70  # about one attempt per max_s once backed off
-    assert stats.errors == stats.attempts and stats.errors_by_cause == {"EIO": stats.errors}
-    assert not stats.healthy and changes == [(False, "[Errno 5] read failed")]
-    assert stats.waited_s == pytest.approx(clock.t)
+    health = loop.health
+    assert health.attempts <= 70  # about one attempt per max_s once backed off
+    assert health.errors == health.attempts and health.errors_by_cause == {"EIO": health.errors}
+    assert not health.healthy and changes == [(False, "[Errno 5] read failed")]
+    assert health.waited_s == pytest.approx(clock.t)
 
 
 def test_recovery_makes_it_healthy_again_and_restarts_the_backoff():
     clock = FakeClock()
     loop, changes = make_loop(Script(*[errno.EIO] * 5, GOOD, errno.EBUSY, GOOD), clock, unhealthy_after=3)
     assert loop.next() is GOOD
-    assert loop.stats.errors == 5 and loop.stats.samples == 1 and loop.stats.healthy
+    assert loop.health.errors == 5 and loop.health.samples == 1 and loop.health.healthy
     assert [healthy for healthy, _ in changes] == [False, True]
     clock.sleeps.clear()
     assert loop.next() is GOOD
     assert clock.sleeps == [0.01]  # one failure: the first step of the backoff
-    assert loop.stats.errors_by_cause == {"EIO": 5, "EBUSY": 1} and len(changes) == 2
+    assert loop.health.errors_by_cause == {"EIO": 5, "EBUSY": 1} and len(changes) == 2
 
 
 def test_fewer_failures_than_the_threshold_stay_healthy():
     clock = FakeClock()
     loop, changes = make_loop(Script(errno.EIO, errno.EIO, GOOD), clock, unhealthy_after=3)
-    assert loop.next() is GOOD and loop.stats.healthy and changes == []
+    assert loop.next() is GOOD and loop.health.healthy and changes == []
 
 
 def test_not_ready_is_polled_and_a_stalled_chip_counts_as_a_failure():
     clock = FakeClock()
     loop, _ = make_loop(Script(NOT_READY, NOT_READY, GOOD), clock, poll_s=0.001)
-    assert loop.next() is GOOD and loop.stats.not_ready == 2 and loop.stats.errors == 0
+    assert loop.next() is GOOD and loop.health.not_ready == 2 and loop.health.errors == 0
     assert clock.sleeps == [0.001, 0.001]
     stalled, _ = make_loop(Script(*[NOT_READY] * 10, GOOD), clock, poll_s=0.0, max_polls=4)
     assert stalled.next() is GOOD
-    assert stalled.stats.errors_by_cause == {STALLED: 2} and stalled.stats.not_ready == 10
+    assert stalled.health.errors_by_cause == {STALLED: 2} and stalled.health.not_ready == 10
 
 
 def test_overflow_is_counted_and_skipped():
     clock = FakeClock()
     loop, _ = make_loop(Script(Reading(overflow=True), GOOD), clock)
-    assert loop.next() is GOOD and loop.stats.overflows == 1 and loop.stats.attempts == 2
+    assert loop.next() is GOOD and loop.health.overflows == 1 and loop.health.attempts == 2
 
 
 def test_give_up_after_raises_a_clear_error():
@@ -107,7 +109,7 @@ def test_give_up_after_raises_a_clear_error():
     loop, _ = make_loop(Script(errno.ETIMEDOUT), clock, give_up_after=5)
     with pytest.raises(SensorReadError, match=r"no usable reading after 5 failures in a row over 0\.15 s"):
         loop.next()
-    assert loop.stats.attempts == 5
+    assert loop.health.attempts == 5
 
 
 def test_stop_is_checked_before_every_attempt():
@@ -128,7 +130,7 @@ def test_stop_is_checked_before_every_attempt():
 )
 def test_bad_backoff_is_refused(bad, message):
     with pytest.raises(ValueError, match=message):
-        Backoff(**bad)
+        RetryPolicy(**bad)
 
 
 def test_a_driver_on_a_dead_emulated_bus_through_the_loop():
@@ -138,9 +140,30 @@ def test_a_driver_on_a_dead_emulated_bus_through_the_loop():
     clock = FakeClock()
     loop, changes = make_loop(sensor.read, clock, max_s=0.5)
     assert loop.next(stop=lambda: clock.t >= 10.0) is None
-    assert loop.stats.attempts <= 30 and loop.stats.errors == loop.stats.attempts
-    assert sensor.health.failed_reads == loop.stats.errors and not sensor.health.healthy
+    assert loop.health.attempts <= 30 and loop.health.errors == loop.health.attempts
+    # each failed read is one transfer that failed its every try
+    assert sensor.health.errors - sensor.health.retries == loop.health.errors and not sensor.health.healthy
     faults.probability = 0.0  # the bus comes back
     reading = loop.next()
     assert reading is not None and np.allclose(reading.mag_ut, [20.0, 0.0, 45.0], atol=0.5)
     assert [healthy for healthy, _ in changes] == [False, True] and sensor.health.healthy
+
+
+def test_one_policy_and_one_health_record_serve_the_transfer_and_the_read_loop():
+    """The driver's I2C transfers and the read loop share RetryPolicy and Health (magnet.retry); a transfer's policy
+    must give up, or a dead bus would hang a read."""
+    from magnet.drivers.base import I2CDevice
+    from magnet.retry import TRANSFER_RETRY, Health
+
+    assert [TRANSFER_RETRY.delay_s(n) for n in (1, 2, 3)] == [0.002, 0.004, 0.008]
+    assert [READ_BACKOFF.delay_s(n) for n in (1, 2, 8, 20)] == [0.01, 0.02, 1.0, 1.0]
+    assert TRANSFER_RETRY.gives_up(4) and not READ_BACKOFF.gives_up(10**6)
+    with pytest.raises(ValueError, match="must give up"):
+        I2CDevice(HMC5883LEmulator(ConstantSource()), 0x1E, retry=READ_BACKOFF)
+    health = Health()
+    policy = RetryPolicy(unhealthy_after=2)
+    assert [health.failed("EIO", "x", policy), health.failed("EIO", "y", policy)] == [False, True]
+    assert not health.failed("EBUSY", "z", policy) and health.errors_by_cause == {"EIO": 2, "EBUSY": 1}
+    assert health.succeeded() and not health.succeeded() and health.healthy and health.consecutive_failures == 0
+    sensor = HMC5883L(HMC5883LEmulator(ConstantSource()), sleep=lambda s: None)
+    assert isinstance(sensor.health, Health) and isinstance(make_loop(sensor.read, FakeClock())[0].health, Health)

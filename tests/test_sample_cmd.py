@@ -94,7 +94,7 @@ def test_sample_gives_up_on_a_dead_bus_with_a_clear_error_after_bounded_backoff(
     loop = read_loop(sensor, SampleSettings(sensor="hmc5883l", emulate=True), sleep=slept.append)
     with pytest.raises(SensorReadError, match=f"no usable reading after {GIVE_UP_AFTER} failures in a row"):
         loop.next()
-    assert loop.stats.errors == loop.stats.attempts == GIVE_UP_AFTER
+    assert loop.health.errors == loop.health.attempts == GIVE_UP_AFTER
     assert len(slept) == GIVE_UP_AFTER - 1 and max(slept) <= 1.0 and slept == sorted(slept)
 
 
@@ -103,7 +103,7 @@ def test_sample_gives_up_on_a_dead_bus_with_a_clear_error_after_bounded_backoff(
     [
         (("--rate", "0"), "--rate must be > 0"),
         (("--orientation", "sideways"), "unknown orientation 'sideways'"),
-        (("--hard-iron", "1,2"), "--hard-iron needs 3 numbers"),
+        (("--hard-iron", "1,2"), "--hard-iron: needs 3 numbers"),
         (("--location", "999,0"), "latitude"),
     ],
 )

@@ -85,7 +85,7 @@ def test_automatic_calibration_is_stored_published_and_then_collection_stops(sto
     assert wire.decode_calibration(next(p for k, d, p in published if k is wire.Kind.CALIBRATION)).id == record.id
     # a restarted calibrator serves what it stored
     again = _calibrator(store, [])
-    assert again.in_force["d"].id == record.id and again.state("d").value == "calibrated"
+    assert again.records.in_force["d"].id == record.id and again.state("d").value == "calibrated"
 
 
 def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
@@ -99,7 +99,7 @@ def test_level_spin_is_rejected_with_advice_and_changes_nothing(store):
     progress = wire.decode_progress([p for k, d, p in published if k is wire.Kind.PROGRESS][-1])
     assert progress["state"] == "collecting" and progress["coverage"] < 0.5, progress
     assert progress["missing"] and "coverage" in progress["reason"], progress
-    assert calibrator.counters.accepted == 0
+    assert calibrator.status("c").counters.accepted == 0
 
 
 def test_session_commit_abort_and_status(store):
@@ -116,7 +116,7 @@ def test_session_commit_abort_and_status(store):
     assert committed["ok"] and committed["calibration"]["id"] == store.latest("d").id
     [(_, change)] = store.history_changes("d", 1)
     assert change["action"] == "session" and change["by"] == "bob@lab"  # who committed it
-    assert calibrator.session_by == {}  # nothing kept once the session is over
+    assert calibrator.sessions.by == {}  # nothing kept once the session is over
     assert calibrator.session("d", "status", None)["state"] == "calibrated"
     with pytest.raises(ValueError):
         calibrator.session("d", "explode", None)

@@ -99,17 +99,17 @@ def test_the_calibrator_signs_a_record_when_it_makes_it_and_never_when_it_reads_
         calibrator = Calibrator(
             store, CalibratorSettings(), lambda kind, dev, payload: published.append(payload), signer=signer
         )
-        assert calibrator.in_force["old"].sig == "", "served as stored: not signed on the way out"
-        assert calibrator.counters.unverified_records == 1
+        assert calibrator.records.in_force["old"].sig == "", "served as stored: not signed on the way out"
+        assert calibrator.status("c").counters.unverified_records == 1
         with pytest.raises(signing.SignatureError):
-            trusted.verify(calibrator.in_force["old"].to_record())
+            trusted.verify(calibrator.records.in_force["old"].to_record())
         record = calibrator.commit("k", GENUINE)
         assert trusted.verify(record.to_record()) and trusted.verify(wire.unpack(published[0]))
         assert store.latest("k").sig == record.sig, "stored with its signature"
         assert record.version == 1 and wire.unpack(published[0])["version"] == 1
         again = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
-        assert again.in_force["k"].sig == record.sig and trusted.verify(again.in_force["k"].to_record())
-        assert again.counters.unverified_records == 1, "only the old unsigned row"
+        assert again.records.in_force["k"].sig == record.sig and trusted.verify(again.records.in_force["k"].to_record())
+        assert again.status("c").counters.unverified_records == 1, "only the old unsigned row"
 
 
 def test_a_row_written_into_the_store_by_hand_is_served_unsigned_and_refused_by_trusting_compasses(keys, tmp_path):
@@ -124,9 +124,9 @@ def test_a_row_written_into_the_store_by_hand_is_served_unsigned_and_refused_by_
             ("k", planted["id"], 20, json.dumps(planted), planted["version"]),
         )
         restarted = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
-        served = restarted.in_force["k"]
+        served = restarted.records.in_force["k"]
     assert served.id == planted["id"] and served.sig == "", "served as stored, not signed by the calibrator"
-    assert restarted.counters.unverified_records == 1
+    assert restarted.status("c").counters.unverified_records == 1
     compass = _compass([public])
     assert compass.accept_calibration(msgpack.packb(genuine.to_record()), KEY, "magnet")
     assert not compass.accept_calibration(msgpack.packb(served.to_record()), KEY, "magnet")

@@ -110,7 +110,7 @@ def test_an_old_database_is_migrated_its_rows_kept_as_they_were_and_the_count_go
         assert kept.version == 0 and kept.sig == old_signed["sig"]
         signing.TrustedKeys([public]).verify(kept.to_record())  # its signature still verifies
         calibrator = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
-        assert calibrator.counters.unverified_records == 0
+        assert calibrator.status("c").counters.unverified_records == 0
         assert calibrator.commit("k", MOVED).version == 1
     columns = [row[1] for row in sqlite3.connect(tmp_path / "c.db").execute("PRAGMA table_info(calibrations)")]
     assert "version" in columns
@@ -123,7 +123,7 @@ def test_a_calibrator_taking_over_counts_on_from_the_store(key, tmp_path):
         second = Calibrator(second_store, CalibratorSettings(), lambda *a: None, signer=signer)
         assert [first.commit("k", c).version for c in (GENUINE, MOVED)] == [1, 2]
         second.take_over()
-        assert second.in_force["k"].version == 2
+        assert second.records.in_force["k"].version == 2
         third = GENUINE.replace(offset=np.array([9.0, -5.0, 2.0]))
         assert second.commit("k", third).version == 3, "the count goes on from the store, not from memory"
         assert first.commit("k", GENUINE).version == 4
@@ -131,18 +131,17 @@ def test_a_calibrator_taking_over_counts_on_from_the_store(key, tmp_path):
 
 
 def test_a_rollback_never_signs_a_row_the_calibrator_did_not_make(key, tmp_path):
-    from services.calibrator.rollback import rollback
 
     signer, public = key
     with CalibrationStore(tmp_path / "c.db") as store:
         store.save(wire.DeviceCalibration("k", 5, MOVED))  # unsigned: written by someone else, or before the key
         calibrator = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
         genuine = calibrator.commit("k", GENUINE)
-        refused = rollback(calibrator, "k", MOVED.content_id, "op")
+        refused = calibrator.rollback("k", MOVED.content_id, "op")
         assert not refused["ok"] and "not signed by this calibrator's key" in refused["message"]
-        assert calibrator.in_force["k"].id == genuine.id
+        assert calibrator.records.in_force["k"].id == genuine.id
         calibrator.commit("k", MOVED.replace(offset=np.array([11.0, -5.0, 2.0])))
-        back = rollback(calibrator, "k", genuine.id, "op")
+        back = calibrator.rollback("k", genuine.id, "op")
         assert back["ok"] and back["calibration"]["version"] == 3
         signing.TrustedKeys([public]).verify(back["calibration"])
 
@@ -155,7 +154,6 @@ def _full(store):
 
 
 def test_a_full_disk_is_reported_as_a_full_disk_and_nothing_changes(key, tmp_path):
-    from services.calibrator.rollback import rollback
     from services.calibrator.store import StoreError
 
     signer, _ = key
@@ -164,7 +162,7 @@ def test_a_full_disk_is_reported_as_a_full_disk_and_nothing_changes(key, tmp_pat
         calibrator.commit("k", GENUINE.replace(reason="x" * 20_000))  # a long record: putting it back needs pages
         in_force = calibrator.commit("k", MOVED)
         _full(store)
-        reply = rollback(calibrator, "k", GENUINE.content_id, "op")
+        reply = calibrator.rollback("k", GENUINE.content_id, "op")
         assert not reply["ok"] and "disk is full" in reply["message"] and "damaged" not in reply["message"], reply[
             "message"
         ]
@@ -173,7 +171,7 @@ def test_a_full_disk_is_reported_as_a_full_disk_and_nothing_changes(key, tmp_pat
         assert (
             "disk is full" in str(full.value) and "backup" not in str(full.value) and str(store.path) in str(full.value)
         )
-        assert calibrator.in_force["k"].id == in_force.id and store.latest("k").id == in_force.id
+        assert calibrator.records.in_force["k"].id == in_force.id and store.latest("k").id == in_force.id
 
 
 class _FailingWrites:
@@ -212,7 +210,7 @@ def test_each_store_failure_says_what_it_is(tmp_path, error, said):
 
 def test_a_received_alert_s_advice_comes_from_the_table_never_from_the_message():
     from magnet.drift import CLEARED_ADVICE, AlertKind, advice_for, alert_from_message
-    from services.calibrator.fleet import FleetBook
+    from services.calibrator.roster import Roster
 
     planted = {
         "v": 1,
@@ -226,7 +224,7 @@ def test_a_received_alert_s_advice_comes_from_the_table_never_from_the_message()
     assert alert_from_message(planted).advice == advice_for(AlertKind.DIP, 66.0)
     assert "66.0 deg" in advice_for(AlertKind.DIP, 66.0)
     assert alert_from_message({**planted, "cleared": True}).advice == CLEARED_ADVICE
-    book = FleetBook()
+    book = Roster()
     book.on_alert("magnet/k/alert", msgpack.packb(planted), "magnet")
     shown = json.dumps([alert.to_message() for alert in book.alerts["k"].values()])
     assert "evil" not in shown and "departs from 66.0 deg" in shown
@@ -247,12 +245,12 @@ def test_unverified_records_are_counted_until_the_calibrator_makes_their_success
         store.save(wire.DeviceCalibration("k", 5, GENUINE))  # unsigned
         store.save(wire.DeviceCalibration("j", 5, GENUINE))
         calibrator = Calibrator(store, CalibratorSettings(), lambda *a: None, signer=signer)
-        assert calibrator.unverified == {"k", "j"} and calibrator.counters.unverified_records == 2
+        assert calibrator.records.unverified == {"k", "j"} and calibrator.status("c").counters.unverified_records == 2
         calibrator.commit("k", MOVED)
-        assert calibrator.counters.unverified_records == 1
+        assert calibrator.status("c").counters.unverified_records == 1
         other.save(wire.DeviceCalibration("i", 6, MOVED))  # planted while it stands by
         calibrator.take_over()
-        assert calibrator.unverified == {"j", "i"}
+        assert calibrator.records.unverified == {"j", "i"}
 
 
 def test_the_count_goes_on_above_the_record_in_force_whatever_the_version_column_says(key, tmp_path):

@@ -11,16 +11,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from magnet.drivers.base import (
-    Combined,
-    Health,
-    I2CBus,
-    Reading,
-    RetryPolicy,
-    Sensor,
-    SensorError,
-    SensorReadError,
-)
+from magnet.drivers.base import Combined, I2CBus, Reading, Sensor, SensorError, SensorReadError
+from magnet.retry import Health, RetryPolicy
 
 __all__ = [
     "GYROSCOPES",

@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError, to_signed
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, Sensor, SensorError, to_signed
+from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x0C
 REG_WIA1, REG_ST1, REG_CNTL2, REG_CNTL3 = 0x00, 0x10, 0x31, 0x32

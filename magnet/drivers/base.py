@@ -6,12 +6,13 @@ A driver talks to its chip through an injected ``bus``: any object with the smbu
 ``magnet.emulators``. Nothing here imports smbus2.
 
 Failure policy (chosen once, for every driver):
-- An ``OSError`` whose errno is transient (EIO, EREMOTEIO, EBUSY, ETIMEDOUT, EAGAIN) is retried up to
-  ``RetryPolicy.attempts`` times with exponential backoff capped at ``max_delay_s`` (the sleep is injectable).
+- An ``OSError`` whose errno is transient (EIO, EREMOTEIO, EBUSY, ETIMEDOUT, EAGAIN) is retried per the device's
+  ``magnet.retry.RetryPolicy`` (``TRANSFER_RETRY``: 4 tries, waits of 2, 4, 8 ms; the sleep is injectable), every
+  try counted in the device's ``Health`` (``sensor.health``: the first device's); after ``unhealthy_after`` failed
+  transfers in a row it reports ``healthy == False``, and the next good transfer makes it healthy again.
 - ``read()`` raises ``SensorReadError`` (a ``SensorError``, so an ``OSError``) when the retries are exhausted (or the
-  error is not transient), after counting it in ``Health``; after ``unhealthy_after`` consecutive failed reads the
-  sensor reports ``healthy == False``. The next good read makes it healthy again. What to do about a failing sensor
-  (wait, back off, report) is the caller's: ``magnet.readloop.ReadLoop`` is the one loop that does it.
+  error is not transient). What to do about a failing sensor (wait, back off, report) is the caller's:
+  ``magnet.readloop.ReadLoop`` is the one loop that does it, with the same policy type and health record.
 - Construction (identity check, configuration) raises ``SensorError`` (an ``OSError``) with a message that says what
   to check, because a sensor that cannot be set up is a configuration problem, not a glitch.
 """
@@ -28,6 +29,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from magnet.frames import orientation_matrix
+from magnet.retry import TRANSFER_RETRY, Health, RetryPolicy, cause_of
 
 log = logging.getLogger(__name__)
 
@@ -97,91 +99,56 @@ NOT_READY = Reading(ready=False)
 # --------------------------------------------------------------------------------------------------- retry, health
 
 
-@dataclasses.dataclass(frozen=True)
-class RetryPolicy:
-    """Bounded exponential backoff for transient I2C errors: delays base, base*factor, ... capped at max_delay_s."""
-
-    attempts: int = 4
-    base_delay_s: float = 0.002
-    factor: float = 2.0
-    max_delay_s: float = 0.05
-    unhealthy_after: int = 3
-
-    def __post_init__(self) -> None:
-        if self.attempts < 1:
-            raise ValueError(f"retry attempts must be >= 1, got {self.attempts}")
-        if self.base_delay_s < 0 or self.max_delay_s < 0:
-            raise ValueError("retry delays must be >= 0")
-
-    def delay_s(self, retry_index: int) -> float:
-        """Delay before retry number ``retry_index`` (0-based), in seconds."""
-        return min(self.max_delay_s, self.base_delay_s * self.factor**retry_index)
-
-
-@dataclasses.dataclass
-class Health:
-    """Counters of one sensor's bus traffic (mutable: the driver updates them as it goes)."""
-
-    transfers: int = 0
-    errors: int = 0
-    retries: int = 0
-    reads: int = 0
-    failed_reads: int = 0
-    consecutive_failures: int = 0
-    errors_by_errno: dict[int, int] = dataclasses.field(default_factory=dict)
-    last_error: str = ""
-    unhealthy_after: int = 3
-
-    @property
-    def healthy(self) -> bool:
-        return self.consecutive_failures < self.unhealthy_after
-
-    def as_dict(self) -> dict[str, Any]:
-        out = dataclasses.asdict(self)
-        out["healthy"] = self.healthy
-        return out
-
-
 class I2CDevice:
-    """One chip at one I2C address, with every transfer retried per ``RetryPolicy`` and counted in ``Health``."""
+    """One chip at one I2C address, with every transfer retried per ``retry`` (a ``RetryPolicy`` that gives up) and
+    counted in ``health`` (a ``Health``: tries, errors by errno name, retries, healthy)."""
 
     def __init__(
         self,
         bus: I2CBus,
         address: int,
         *,
-        retry: RetryPolicy | None = None,
+        retry: RetryPolicy = TRANSFER_RETRY,
         sleep: Callable[[float], None] = time.sleep,
-        health: Health | None = None,
     ) -> None:
         if not 0x03 <= int(address) <= 0x77:
             raise ValueError(f"I2C address must be in 0x03..0x77, got {address:#x}")
+        if retry.give_up_after is None:
+            raise ValueError("an I2C transfer's retry policy must give up (give_up_after)")
         self.bus = bus
         self.address = int(address)
-        self.retry = retry or RetryPolicy()
+        self.retry = retry
         self.sleep = sleep
-        self.health = health or Health(unhealthy_after=self.retry.unhealthy_after)
+        self.health = Health()
 
     def _transfer(self, method: str, *args: Any) -> Any:
         call = getattr(self.bus, method)
-        for attempt in range(self.retry.attempts):
-            self.health.transfers += 1
+        tries = 0
+        while True:
+            tries += 1
+            self.health.attempts += 1
             try:
-                return call(self.address, *args)
+                result = call(self.address, *args)
             except OSError as exc:
-                self.health.errors += 1
-                code = exc.errno or 0
-                self.health.errors_by_errno[code] = self.health.errors_by_errno.get(code, 0) + 1
-                self.health.last_error = f"{method} at {self.address:#04x}: {exc}"
-                if code not in TRANSIENT_ERRNOS or attempt + 1 == self.retry.attempts:
-                    raise SensorError(
-                        code,
-                        f"I2C {method} at address {self.address:#04x} failed after "
-                        f"{attempt + 1} attempt(s): {exc.strerror or exc}",
-                    ) from exc
-                self.health.retries += 1
-                self.sleep(self.retry.delay_s(attempt))
-        raise AssertionError("unreachable")  # pragma: no cover
+                self._failed(method, exc, tries)
+                continue
+            self.health.succeeded()
+            return result
+
+    def _failed(self, method: str, exc: OSError, tries: int) -> None:
+        """Count a failed try; raise ``SensorError`` when it is not worth another, else wait before the next."""
+        code = exc.errno or 0
+        if self.health.failed(cause_of(exc), f"{method} at {self.address:#04x}: {exc}", self.retry):
+            log.warning("I2C device at %#04x unhealthy after %d failed transfers: %s", self.address, tries, exc)
+        if code not in TRANSIENT_ERRNOS or self.retry.gives_up(tries):
+            raise SensorError(
+                code,
+                f"I2C {method} at address {self.address:#04x} failed after {tries} attempt(s): {exc.strerror or exc}",
+            ) from exc
+        self.health.retries += 1
+        delay = self.retry.delay_s(tries)
+        self.sleep(delay)
+        self.health.waited_s += delay
 
     def read_byte(self, register: int) -> int:
         return int(self._transfer("read_byte_data", register))
@@ -226,8 +193,9 @@ class Sensor:
     ) -> I2CDevice:
         """Set ``self.device`` (the chip at ``address`` on ``bus``, with the retry policy), ``self.devices`` and the
         mounting ``self.rotation``; returns the device."""
-        options = {"retry": retry} if sleep is None else {"retry": retry, "sleep": sleep}
-        self.device = I2CDevice(bus, address, **options)
+        self.device = I2CDevice(
+            bus, address, retry=TRANSFER_RETRY if retry is None else retry, sleep=time.sleep if sleep is None else sleep
+        )
         self.devices = (self.device,)
         self.rotation = orientation_matrix(orientation)
         return self.device
@@ -240,26 +208,14 @@ class Sensor:
         return self.devices[0].health
 
     def read(self) -> Reading:
-        """One sample in the body frame; ``SensorReadError`` when the bus failed after the retries (see the module's
-        failure policy: counted in ``health`` first)."""
-        health = self.health
-        health.reads += 1
+        """One sample in the body frame; ``SensorReadError`` when the bus failed after the retries (counted in each
+        device's ``health``; what to do next is the read loop's, ``magnet.readloop``)."""
         try:
             reading = self._read()
         except SensorError as exc:
-            health.failed_reads += 1
-            health.consecutive_failures += 1
-            if health.consecutive_failures == health.unhealthy_after:
-                log.warning(
-                    "sensor at %#04x unhealthy after %d failed reads: %s",
-                    self.devices[0].address,
-                    health.consecutive_failures,
-                    exc,
-                )
             raise SensorReadError(
                 exc.errno or errno.EIO, f"{type(self).__name__} read failed: {exc.strerror or exc}"
             ) from exc
-        health.consecutive_failures = 0
         return self._to_body(reading)
 
     def _to_body(self, reading: Reading) -> Reading:

@@ -28,8 +28,9 @@ from typing import Any
 import numpy as np
 
 from magnet.drivers.ak09918c import AK09918C, Mode
-from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, SensorError
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, SensorError
 from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, choose, mounting, words
+from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x68
 MAG_ADDRESS = 0x0C

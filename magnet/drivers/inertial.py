@@ -18,8 +18,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from magnet.drivers.base import Combined, I2CBus, Reading, RetryPolicy, Sensor, to_signed
+from magnet.drivers.base import Combined, I2CBus, Reading, Sensor, to_signed
 from magnet.frames import orientation_matrix
+from magnet.retry import RetryPolicy
 from magnet.units import STANDARD_GRAVITY_MS2
 
 #: chip axes with z up out of the package -> body axes of a package lying flat, top up, x forward

@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, Combined, I2CBus, Reading, RetryPolicy, Sensor, SensorError, to_signed
+from magnet.drivers.base import NOT_READY, Combined, I2CBus, Reading, Sensor, SensorError, to_signed
+from magnet.retry import RetryPolicy
 from magnet.units import STANDARD_GRAVITY_MS2
 
 DEFAULT_ADDRESS = 0x1E

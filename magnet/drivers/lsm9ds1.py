@@ -27,8 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, Sensor, SensorError
 from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, choose, mounting, saturated, words
+from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x1E  # magnetometer
 DEFAULT_AG_ADDRESS = 0x6B  # accelerometer + gyroscope

@@ -19,8 +19,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, Sensor, SensorError
 from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, mounting, words
+from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x68
 SMPLRT_DIV, CONFIG, GYRO_CONFIG, ACCEL_CONFIG, INT_PIN_CFG, INT_ENABLE, INT_STATUS, ACCEL_XOUT_H = (

@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet.drivers.base import NOT_READY, I2CBus, Reading, RetryPolicy, Sensor, SensorError, to_signed
+from magnet.drivers.base import NOT_READY, I2CBus, Reading, Sensor, SensorError, to_signed
+from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x0D
 REG_DATA, REG_STATUS, REG_CONTROL1, REG_CONTROL2, REG_PERIOD, REG_CHIP_ID = 0x00, 0x06, 0x09, 0x0A, 0x0B, 0x0D

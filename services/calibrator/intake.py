@@ -20,7 +20,9 @@ import collections
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+
+import zenoh
+from zenoh.handlers import Handler
 
 from magnet import wire
 
@@ -34,11 +36,10 @@ PUMP_BATCH = 4096
 
 
 class RawIntake:
-    """A bounded queue of (key, payload) fed by Zenoh's callback thread and drained by the service loop."""
+    """A bounded queue of (key, payload) fed by Zenoh's callback thread and drained by the service loop;
+    ``max_queue`` >= 1 (``--max-queue``, checked with the settings)."""
 
     def __init__(self, max_queue: int = DEFAULT_MAX_QUEUE) -> None:
-        if max_queue < 1:
-            raise ValueError(f"--max-queue must be >= 1, got {max_queue}")
         self.max_queue = max_queue
         self.queue: collections.deque[tuple[str, bytes]] = collections.deque()
         self.raw_messages = 0  # every raw message that arrived
@@ -68,8 +69,8 @@ class RawIntake:
 
     def pump(
         self,
-        channel: Any,
-        payload_of: Callable[[Any], bytes],
+        channel: Handler[zenoh.Sample],
+        payload_of: Callable[[zenoh.Sample], bytes],
         closed: type[BaseException],
         batch: int = PUMP_BATCH,
     ) -> None:
@@ -99,7 +100,8 @@ class RawIntake:
 
 
 class Enrolment:
-    """A token bucket for new device ids: ``rate_per_s`` a second, at most ``burst`` at once. ``clock`` (s)."""
+    """A token bucket for new device ids: ``rate_per_s`` a second (> 0: ``--enrol-rate``, checked with the settings),
+    at most ``burst`` (>= 1) at once. ``clock`` (s)."""
 
     def __init__(
         self,
@@ -107,8 +109,6 @@ class Enrolment:
         burst: int = DEFAULT_ENROL_BURST,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        if not rate_per_s > 0 or burst < 1:
-            raise ValueError(f"--enrol-rate must be > 0 new devices/s (burst >= 1), got {rate_per_s}, {burst}")
         self.rate_per_s, self.burst, self.clock = float(rate_per_s), burst, clock
         self.tokens = float(burst)
         self.last = clock()

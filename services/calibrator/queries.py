@@ -10,16 +10,12 @@ by (another of its shard holds the lease, ``services.calibrator.lease``) answers
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import TYPE_CHECKING, Any
 
 import zenoh
 
 from magnet import wire
-from services.calibrator.fleet_reply import fleet_reply
-from services.calibrator.rollback import rollback
-
-if TYPE_CHECKING:  # the service imports this module to answer its queries
-    from services.calibrator.core import Calibrator
+from services.calibrator.core import Calibrator
+from services.calibrator.roster_reply import roster_reply
 
 #: history replies hold at most this many records
 MAX_HISTORY_LIMIT = 10_000
@@ -38,22 +34,24 @@ def matching_devices(devices: Iterable[str], prefix: str, key_expr: str, kind: w
     return [d for d in devices if asked.intersects(zenoh.KeyExpr(wire.key(prefix, d, kind)))]
 
 
-Answer = Callable[[Any, "Calibrator", str], None]
+#: how a query is answered: (query, calibrator, prefix)
+Answer = Callable[[zenoh.Query, Calibrator, str], None]
 
 
 def active_only(answer: Answer) -> Answer:
     """``answer``, given only while the calibrator holds the lease of its shard (else the query goes unanswered)."""
 
-    def when_active(query: Any, calibrator: Calibrator, prefix: str) -> None:
+    def when_active(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
         if calibrator.active:
             answer(query, calibrator, prefix)
 
     return when_active
 
 
-def answer_calibration(query: Any, calibrator: Calibrator, prefix: str) -> None:
-    for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.CALIBRATION):
-        query.reply(wire.key(prefix, device, wire.Kind.CALIBRATION), wire.pack(calibrator.in_force[device].to_record()))
+def answer_calibration(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
+    in_force = calibrator.records.in_force
+    for device in matching_devices(in_force, prefix, str(query.key_expr), wire.Kind.CALIBRATION):
+        query.reply(wire.key(prefix, device, wire.Kind.CALIBRATION), wire.pack(in_force[device].to_record()))
 
 
 def history_limit(text: str | None) -> int:
@@ -67,15 +65,15 @@ def history_limit(text: str | None) -> int:
     return min(max(0, limit), MAX_HISTORY_LIMIT)
 
 
-def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
+def answer_history(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
     try:
         limit = history_limit(query.parameters.get("limit"))
     except ValueError as exc:
         query.reply_err(str(exc).encode())
         return
-    for device in matching_devices(calibrator.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
+    for device in matching_devices(calibrator.records.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
         try:
-            rows = calibrator.store.history_changes(device, limit=limit)
+            rows = calibrator.records.store.history_changes(device, limit=limit)
         except OSError as exc:  # a damaged page: say so, keep serving
             query.reply_err(str(exc).encode())
             return
@@ -86,7 +84,7 @@ def answer_history(query: Any, calibrator: Calibrator, prefix: str) -> None:
         )
 
 
-def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
+def answer_calibrate(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
     key_expr = str(query.key_expr)
     try:
         device = wire.device_from_key(prefix, key_expr, wire.Kind.CALIBRATE)
@@ -94,7 +92,7 @@ def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
             return  # another shard's device: that shard answers
         action = query.parameters.get("action") or "status"
         if action == "rollback":
-            reply = rollback(calibrator, device, query.parameters.get("to"), query.parameters.get("by"))
+            reply = calibrator.rollback(device, query.parameters.get("to"), query.parameters.get("by"))
         else:
             reply = calibrator.session(device, action, query.parameters.get("method"), query.parameters.get("by"))
     except ValueError as exc:
@@ -103,15 +101,18 @@ def answer_calibrate(query: Any, calibrator: Calibrator, prefix: str) -> None:
     query.reply(key_expr, wire.pack(reply))
 
 
-def answer_fleet(query: Any, calibrator: Calibrator, prefix: str) -> None:
-    """``<prefix>/@fleet``: every device in one reply (``services.calibrator.fleet_reply``)."""
-    query.reply(f"{prefix}/@fleet", wire.pack(fleet_reply(calibrator, calibrator.clock_ns())))
+def answer_fleet(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
+    """``<prefix>/@fleet``: every device in one reply (``services.calibrator.roster_reply``)."""
+    reply = roster_reply(
+        calibrator.records.in_force, calibrator.collections, calibrator.roster, calibrator.state, calibrator.clock_ns()
+    )
+    query.reply(f"{prefix}/@fleet", wire.pack(reply))
 
 
 def status_answer(name: str) -> Answer:
     """The handler of ``<prefix>/@status/<name>``."""
 
-    def answer_status(query: Any, calibrator: Calibrator, prefix: str) -> None:
+    def answer_status(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
         query.reply(wire.status_key(prefix, name), wire.pack(calibrator.status(name).to_dict()))
 
     return answer_status

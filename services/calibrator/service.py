@@ -13,8 +13,8 @@ Queryables: see ``services.calibrator.queries``. One thread does the work: a pum
 from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
 between slices of samples; every handler runs through ``services.common.guard``, so no message, query or failing
 store ends it.
-The options and settings are in ``services.calibrator.settings``, the core (no zenoh) in ``services.calibrator.core``
-and the operator sessions in ``services.calibrator.sessions``.
+The options and settings are in ``services.calibrator.settings``; the calibrator without zenoh, its parts wired, in
+``services.calibrator.core`` (docs/calibrator.md).
 """
 
 from __future__ import annotations
@@ -24,17 +24,18 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from typing import Any
 
 import zenoh
+from zenoh.handlers import FifoChannel, Handler
 
 from magnet import wire
 from services.calibrator import queries
-from services.calibrator.core import Calibrator
-from services.calibrator.fleet import FleetBook
+from services.calibrator.core import Calibrator, Publish
 from services.calibrator.intake import Enrolment, RawIntake, new_device
 from services.calibrator.lease import Lease, Member
-from services.calibrator.sessions import ACTIONS
+from services.calibrator.roster import Roster
 from services.calibrator.settings import (
     DEFAULT_MAX_DEVICES,
     CalibratorSettings,
@@ -42,22 +43,21 @@ from services.calibrator.settings import (
     add_arguments,
     default_db_path,
     load_signer,
+    make_places,
     settings_from_args,
 )
-from services.calibrator.status import CalibratorStatus, Counters, State
+from services.calibrator.status import CalibratorStatus, IntakeFigures, State
 from services.calibrator.store import CalibrationStore
 from services.common import metrics
 from services.common.guard import Guard
-from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
+from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 
 __all__ = [
-    "ACTIONS",
     "DEFAULT_MAX_DEVICES",
     "Calibrator",
     "CalibratorSettings",
     "CalibratorStatus",
-    "Counters",
     "ServiceSettings",
     "State",
     "add_arguments",
@@ -75,6 +75,14 @@ SLICE_S = 0.05  # raw samples taken for at most this long before the queries are
 SLICE_MESSAGES = 50  # raw messages taken from the intake at a time (the slice's end is checked between them)
 ENROL_BURST_S = 10.0  # new device ids admitted at once after a quiet spell: this many seconds of --enrol-rate
 LEASE_QUERY_S = 2.0  # how long it waits at start for the lease tokens of its shard
+ALERT_QUERY_S = 3.0  # how long it waits at start for the alerts open already
+
+#: a queryable of the service: (what, for the drop counts; how to answer; the queryable)
+Answering = tuple[str, queries.Answer, "zenoh.Queryable[Handler[zenoh.Query]]"]
+#: samples (a subscriber's) or replies (a query's) and what takes each: handler(key, payload, prefix)
+Feed = tuple["Receiver[zenoh.Sample | zenoh.Reply]", Callable[[str, bytes, str], None]]
+#: the lease tokens of the shard, as they come and go, and the lease they move
+LeaseWatch = tuple["zenoh.Subscriber[Handler[zenoh.Sample]]", Lease]
 
 # ------------------------------------------------------------------------------------------------------- shell
 
@@ -93,83 +101,103 @@ def run_calibrator(args: argparse.Namespace) -> int:
 
 def _metrics_status(calibrator: Calibrator, name: str) -> dict[str, Any]:
     alerts: dict[str, int] = {}
-    for open_alerts in list(calibrator.fleet.alerts.values()):
+    for open_alerts in list(calibrator.roster.alerts.values()):
         for kind in list(open_alerts):
             alerts[kind.value] = alerts.get(kind.value, 0) + 1
     return {**calibrator.status(name).to_dict(), "alerts_open": alerts}
 
 
+def _publisher(session: zenoh.Session, prefix: str) -> Publish:
+    def publish(kind: wire.Kind, device: str, payload: bytes) -> None:
+        # no declared publisher per device: a flood of new device ids would hold one each
+        session.put(wire.key(prefix, device, kind), payload)
+
+    return publish
+
+
 def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
     stop = stop_event()
-    prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
     signer = load_signer(settings.signing_key)  # a bad key file ends here, before anything is opened
     identity = certificate_identity(settings.zenoh.config)  # a calibrator identity of another shard ends here too
     check_calibrator_identity(identity, settings.shard.index, settings.shard.count)
-    lease = Lease(prefix, settings.shard, Member(time.time_ns(), name))
-    with CalibrationStore(settings.db) as store, open_session(settings.zenoh) as session:
-
-        def publish(kind: wire.Kind, device: str, payload: bytes) -> None:
-            # no declared publisher per device: a flood of new device ids would hold one each
-            session.put(wire.key(prefix, device, kind), payload)
-
+    lease = Lease(settings.zenoh.prefix, settings.shard, Member(time.time_ns(), settings.name))
+    fitting = settings.fitting
+    places = make_places(settings.fleet, fitting.location, fitting.max_devices)
+    with (
+        CalibrationStore(settings.db_path) as store,
+        open_session(settings.zenoh) as session,
+        ExitStack() as declared,  # every declaration, undeclared in reverse order before the session closes
+    ):
         calibrator = Calibrator(
             store,
-            settings.fitting,
-            publish,
+            fitting,
+            _publisher(session, settings.zenoh.prefix),
             signer=signer,
-            fleet=FleetBook(settings.places, settings.fitting.max_devices),
+            roster=Roster(places, fitting.max_devices),
             shard=settings.shard,
         )
-        metrics.start(metrics_address, "calibrator", lambda: _metrics_status(calibrator, name))
-        token = session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name))
-        lease_token, lease_sub = _join_lease(session, lease)
-        calibrator.active = lease.active
-        intake = RawIntake(settings.max_queue)
-        raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
-        pump = threading.Thread(
-            target=intake.pump, args=(raw_sub.handler, payload_bytes, zenoh.ZError), name="raw-intake", daemon=True
-        )
-        pump.start()
-        answers = _declare_answers(session, prefix, devices, name)
-        alert_key = f"{prefix}/{devices}/{wire.Kind.ALERT.value}"
-        feeds: list[tuple[Any, Callable[[str, bytes, str], None]]] = [
-            (session.declare_subscriber(alert_key, zenoh.handlers.FifoChannel(4096)), calibrator.fleet.on_alert),
-            (session.get(alert_key, timeout=3.0), calibrator.fleet.on_alert),
-        ]  # the alerts open already
+        metrics.start(metrics_address, "calibrator", lambda: _metrics_status(calibrator, settings.name))
+        loop = _declare(declared, session, settings, calibrator, lease)
         if calibrator.active:
             calibrator.publish_in_force()
         log.info(
             "calibrator %s (shard %s, %s; %s holds the lease): %d calibration(s) in store %s",
-            name,
+            settings.name,
             settings.shard,
             lease.state(),
             lease.holder,
-            len(calibrator.in_force),
+            len(calibrator.records.in_force),
             store.path,
         )
-        enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
-        _loop(stop, ServiceLoop(calibrator, intake, answers, prefix, feeds, (lease_sub, lease), enrolment))
-        raw_sub.undeclare()  # ends the pump
-        pump.join(timeout=2.0)
-        lease_token.undeclare()
-        token.undeclare()
-    log.info("calibrator stopped: %s", calibrator.status(name).to_dict())
+        _loop(stop, loop)
+    log.info("calibrator stopped: %s", calibrator.status(settings.name).to_dict())
     return 0
 
 
-def _join_lease(session: Any, lease: Lease) -> tuple[Any, Any]:
+def _declare(
+    declared: ExitStack, session: zenoh.Session, settings: ServiceSettings, calibrator: Calibrator, lease: Lease
+) -> ServiceLoop:
+    """Declare everything the calibrator needs on ``session`` into ``declared``: its liveliness and lease tokens,
+    the raw subscriber and the pump thread that empties it, the queryables, the alerts; the loop that serves them."""
+    prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
+    declared.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name)))
+    lease_sub = _join_lease(declared, session, lease)
+    calibrator.active = lease.active
+    intake = RawIntake(settings.max_queue)
+    raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", FifoChannel(CHANNEL_CAPACITY))
+    pump = threading.Thread(
+        target=intake.pump, args=(raw_sub.handler, payload_bytes, zenoh.ZError), name="raw-intake", daemon=True
+    )
+    declared.callback(pump.join, 2.0)
+    declared.enter_context(raw_sub)  # undeclared before the join above: that ends the pump
+    pump.start()
+    answers = _declare_answers(declared, session, prefix, devices, name)
+    alert_key = f"{prefix}/{devices}/{wire.Kind.ALERT.value}"
+    alert_sub = declared.enter_context(session.declare_subscriber(alert_key, FifoChannel(4096)))
+    feeds: list[Feed] = [
+        (alert_sub.handler, calibrator.roster.on_alert),
+        (session.get(alert_key, timeout=ALERT_QUERY_S), calibrator.roster.on_alert),  # the alerts open already
+    ]
+    enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
+    return ServiceLoop(calibrator, intake, answers, prefix, feeds, (lease_sub, lease), enrolment)
+
+
+def _join_lease(declared: ExitStack, session: zenoh.Session, lease: Lease) -> zenoh.Subscriber[Handler[zenoh.Sample]]:
     """Declare this calibrator's lease token and watch the others of its shard; the ones already there are read
     before it serves anything, so a calibrator that starts beside a running one stands by from the start."""
-    token = session.liveliness().declare_token(lease.key)
-    subscriber = session.liveliness().declare_subscriber(lease.watch_key, zenoh.handlers.FifoChannel(256), history=True)
+    declared.enter_context(session.liveliness().declare_token(lease.key))
+    subscriber = declared.enter_context(
+        session.liveliness().declare_subscriber(lease.watch_key, FifoChannel(256), history=True)
+    )
     for reply in session.liveliness().get(lease.watch_key, timeout=LEASE_QUERY_S):
         if reply.ok is not None:
             lease.on_token(str(reply.ok.key_expr), True)
-    return token, subscriber
+    return subscriber
 
 
-def _follow_lease(subscriber: Any, lease: Lease, calibrator: Calibrator) -> None:
+def _follow_lease(subscriber: zenoh.Subscriber[Handler[zenoh.Sample]], lease: Lease, calibrator: Calibrator) -> None:
     """Tokens of the shard that appeared or went away: take over or stand by when the lease moved."""
+    sample: zenoh.Sample
     for sample in drain(subscriber, 256):
         active = lease.on_token(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
         if active is True:
@@ -178,31 +206,20 @@ def _follow_lease(subscriber: Any, lease: Lease, calibrator: Calibrator) -> None
             calibrator.stand_by()
 
 
-def _declare_answers(session: Any, prefix: str, devices: str, name: str) -> list[tuple[str, Any, Any]]:
+def _declare_answers(
+    declared: ExitStack, session: zenoh.Session, prefix: str, devices: str, name: str
+) -> list[Answering]:
     """(what, handler, queryable) for every queryable: the device kinds, its status and the fleet."""
-    answers = [
-        (
-            f"query:{kind.value}",
-            queries.ANSWERS[kind],
-            session.declare_queryable(f"{prefix}/{devices}/{kind.value}", zenoh.handlers.FifoChannel(256)),
-        )
+    asked = [
+        (f"query:{kind.value}", queries.ANSWERS[kind], f"{prefix}/{devices}/{kind.value}", 256)
         for kind in queries.ANSWERS
     ]
-    answers.append(
-        (
-            "query:status",
-            queries.status_answer(name),
-            session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64)),
-        )
-    )
-    answers.append(
-        (
-            "query:fleet",
-            queries.FLEET_ANSWER,
-            session.declare_queryable(f"{prefix}/@fleet", zenoh.handlers.FifoChannel(16)),
-        )
-    )
-    return answers
+    asked.append(("query:status", queries.status_answer(name), wire.status_key(prefix, name), 64))
+    asked.append(("query:fleet", queries.FLEET_ANSWER, f"{prefix}/@fleet", 16))
+    return [
+        (what, answer, declared.enter_context(session.declare_queryable(key, FifoChannel(capacity))))
+        for what, answer, key, capacity in asked
+    ]
 
 
 class ServiceLoop:
@@ -215,10 +232,10 @@ class ServiceLoop:
         self,
         calibrator: Calibrator,
         intake: RawIntake,
-        answers: Sequence[tuple[str, Callable[[Any, Calibrator, str], None], Any]],
+        answers: Sequence[Answering],
         prefix: str,
-        feeds: Sequence[tuple[Any, Callable[[str, bytes, str], None]]] = (),
-        lease_watch: tuple[Any, Lease] | None = None,
+        feeds: Sequence[Feed] = (),
+        lease_watch: LeaseWatch | None = None,
         enrolment: Enrolment | None = None,
     ) -> None:
         self.calibrator, self.intake, self.answers, self.prefix = calibrator, intake, answers, prefix
@@ -232,7 +249,7 @@ class ServiceLoop:
             self.guard.run("lease", _follow_lease, *self.lease_watch, self.calibrator)
         for handler, take in self.feeds:
             for item in drain(handler, 1000):
-                sample = getattr(item, "ok", item)
+                sample = item.ok if isinstance(item, zenoh.Reply) else item
                 if sample is not None and hasattr(sample, "key_expr"):
                     self.guard.run("alert", take, str(sample.key_expr), payload_bytes(sample), self.prefix)
         self.answer_queries()
@@ -241,6 +258,7 @@ class ServiceLoop:
     def answer_queries(self) -> None:
         self._counters()
         for what, answer, queryable in self.answers:
+            query: zenoh.Query
             for query in drain(queryable, 64):
                 self.guard.answer(what, query, answer, self.calibrator, self.prefix)
                 query.drop()  # finalize now: the asker waits for it
@@ -281,14 +299,15 @@ class ServiceLoop:
 
     def _counters(self) -> None:
         """The intake's figures into the calibrator's status."""
-        counters = self.calibrator.counters
-        counters.raw_messages, counters.queued = self.intake.raw_messages, len(self.intake)
-        counters.queue_high_water, counters.enrolled = self.intake.high_water, self.enrolment.admitted
+        intake = self.intake
+        self.calibrator.intake = IntakeFigures(
+            intake.raw_messages, len(intake), intake.high_water, self.enrolment.admitted
+        )
         if self.intake.queue_full:
             self.calibrator.drops.counts["raw:queue-full"] = self.intake.queue_full
 
 
-def _loop(stop: Any, loop: ServiceLoop) -> None:
+def _loop(stop: threading.Event, loop: ServiceLoop) -> None:
     """``loop.step()`` until ``stop`` is set, resting briefly when no samples came."""
     while not stop.is_set():
         if not loop.step():

@@ -1,5 +1,10 @@
-"""``magnet calibrator`` options and settings: what it fits with, where it stores, which devices it serves, its
-signing key.
+"""``magnet calibrator`` settings, declared once (``services.common.options``): how it fits (``CalibratorSettings``)
+and how it runs (``ServiceSettings``: where it stores, which devices it serves, its signing key, its bounds). Every
+field that is an option carries its flag, default, help and check; ``add_arguments`` builds the options from them
+and ``settings_from_args`` reads them back, checked.
+
+This module is the calibrator's one user of the places modules (the fleet file, the model field at a place): the
+settings hold the fleet file's entries, immutable, and ``make_places`` builds the mutable ``Places`` a service keeps.
 """
 
 from __future__ import annotations
@@ -9,20 +14,25 @@ import dataclasses
 import logging
 import os
 from pathlib import Path
+from typing import Any
 
 from magnet import signing
 from magnet.calibration import Method
-from magnet.compass.places import Places
+from magnet.compass.places import PlaceEntry
+from magnet.compass.places import Places as Places  # the roster's type, named here with the rest of the places modules
 from magnet.geomag import earth_field
 from magnet.place import Location
 from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.intake import DEFAULT_ENROL_RATE, DEFAULT_MAX_QUEUE
+from services.common.options import add_options, at_least, check_options, from_args, option, positive, within
 from services.common.places_options import add_fleet_argument, read_fleet
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 log = logging.getLogger("magnet.calibrator")
 
 DEFAULT_MAX_DEVICES = 10_000
+#: fewest samples kept before a fit (and the least --max-samples may be)
+MIN_SAMPLES = 30
 
 
 def default_db_path() -> Path:
@@ -30,136 +40,149 @@ def default_db_path() -> Path:
     return base / "magnet" / "calibrations.db"
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--db", type=Path, default=None, help=f"SQLite file (default {default_db_path()})")
-    parser.add_argument(
-        "--method",
-        default="ellipsoid",
-        help="fit method for automatic calibration (default ellipsoid; sessions may choose another)",
-    )
-    parser.add_argument("--location", help="LAT,LON[,ALT_M]: scale fits to the WMM field strength there")
-    parser.add_argument("--field-ut", type=float, help="expected field strength in uT (instead of --location)")
-    parser.add_argument(
-        "--min-coverage", type=float, default=0.8, help="sphere coverage before an automatic fit is tried (default 0.8)"
-    )
-    parser.add_argument("--min-samples", type=int, default=150, help="kept samples before a fit (default 150)")
-    parser.add_argument("--max-samples", type=int, default=1500, help="kept samples per device at most")
-    parser.add_argument("--no-auto", action="store_true", help="calibrate only in operator sessions")
-    parser.add_argument("--name", default="calibrator", help="service name for liveliness and status")
-    parser.add_argument("--devices", default="*", help="key expression of the devices served (default *)")
-    parser.add_argument(
-        "--max-devices",
-        type=int,
-        default=DEFAULT_MAX_DEVICES,
-        help="devices collected at once and kept in the fleet book at most; beyond, the least recently seen are "
-        f"dropped (sessions stay) (default {DEFAULT_MAX_DEVICES})",
-    )
-    add_fleet_argument(parser)
-    parser.add_argument(
-        "--signing-key",
-        type=Path,
-        metavar="FILE.key",
-        help="sign every calibration it serves with this Ed25519 private key (`magnet keys`); "
-        "compasses started with --trust FILE.pub apply only those",
-    )
-    parser.add_argument(
-        "--shard",
-        default="0/1",
-        metavar="K/N",
-        help="collect, fit, store and answer only for the devices of shard K of N (0 <= K < N; see "
-        "magnet.shard); default 0/1, every device",
-    )
-    parser.add_argument(
-        "--enrol-rate",
-        type=float,
-        default=DEFAULT_ENROL_RATE,
-        help="new device ids taken on per second at most (10 s of them at once); beyond, their samples are dropped "
-        f"and counted in status dropped[raw:enrol-rate] (default {DEFAULT_ENROL_RATE:g})",
-    )
-    parser.add_argument(
-        "--max-queue",
-        type=int,
-        default=DEFAULT_MAX_QUEUE,
-        help="raw messages waiting to be processed at most; beyond, dropped and counted in status "
-        f"dropped[raw:queue-full] (default {DEFAULT_MAX_QUEUE})",
-    )
-    add_zenoh_arguments(parser)
+def _method(value: Any) -> str | None:
+    try:
+        Method.parse(value)
+    except ValueError:
+        return f"must be one of {', '.join(m.value for m in Method)}"
+    return None
 
 
 @dataclasses.dataclass(frozen=True)
 class CalibratorSettings:
-    """How the calibrator fits: method, expected |B| (uT or None), coverage and sample counts, automatic or not."""
+    """How the calibrator fits: method, expected |B| (``--field-ut``, else the model's at ``--location``, else None:
+    the fit's own), coverage and sample counts, automatic or not, devices collected at once."""
 
-    method: str = "ellipsoid"
-    field_ut: float | None = None
-    min_coverage: float = 0.8
-    min_samples: int = 150
-    max_samples: int = 1500
-    auto: bool = True
-    max_devices: int = DEFAULT_MAX_DEVICES
+    method: str = option(
+        "ellipsoid",
+        "--method",
+        check=_method,
+        help="fit method for automatic calibration (sessions may choose another)",
+    )
+    location: Location | None = option(
+        None,
+        "--location",
+        parse=Location.parse,
+        metavar="LAT,LON[,ALT_M]",
+        help="scale fits to the WMM field strength there (and the place of devices that say nothing of theirs)",
+    )
+    field_ut: float | None = option(
+        None,
+        "--field-ut",
+        parse=float,
+        check=within(1, 1000, "a field strength in uT"),
+        help="expected field strength in uT (instead of --location)",
+    )
+    min_coverage: float = option(
+        0.8,
+        "--min-coverage",
+        check=within(0, 1, "a fraction"),
+        help="sphere coverage before an automatic fit is tried",
+    )
+    min_samples: int = option(150, "--min-samples", check=at_least(MIN_SAMPLES), help="kept samples before a fit")
+    max_samples: int = option(
+        1500, "--max-samples", check=at_least(MIN_SAMPLES), help="kept samples per device at most"
+    )
+    auto: bool = option(True, "--auto", negate="--no-auto", help="calibrate only in operator sessions")
+    max_devices: int = option(
+        DEFAULT_MAX_DEVICES,
+        "--max-devices",
+        check=at_least(1),
+        help="devices collected at once and kept in the roster at most; beyond, the least recently seen are dropped "
+        "(sessions stay)",
+    )
+    expected_field_ut: float | None = dataclasses.field(init=False, default=None)  # --field-ut, or at --location
 
     def __post_init__(self) -> None:
-        Method.parse(self.method)
-        if not 0 <= self.min_coverage <= 1:
-            raise ValueError(f"--min-coverage must be a fraction in [0, 1], got {self.min_coverage}")
-        if not 30 <= self.min_samples <= self.max_samples:
-            raise ValueError(f"need 30 <= --min-samples <= --max-samples, got {self.min_samples}, {self.max_samples}")
-        if self.field_ut is not None and not 1 <= self.field_ut <= 1000:
-            raise ValueError(f"--field-ut must be a field strength in uT (1..1000), got {self.field_ut}")
-        if isinstance(self.max_devices, bool) or not isinstance(self.max_devices, int) or self.max_devices < 1:
-            raise ValueError(f"--max-devices must be a whole number >= 1, got {self.max_devices}")
+        check_options(self)
+        if self.min_samples > self.max_samples:
+            raise ValueError(
+                f"need {MIN_SAMPLES} <= --min-samples <= --max-samples, got {self.min_samples}, {self.max_samples}"
+            )
+        expected = self.field_ut
+        if expected is None and self.location is not None:
+            location = self.location
+            expected = earth_field(location.lat_deg, location.lon_deg, location.alt_m).total_ut
+        object.__setattr__(self, "expected_field_ut", expected)
 
 
 @dataclasses.dataclass(frozen=True)
 class ServiceSettings:
     """Everything ``magnet calibrator`` runs with: the fit settings, the database, its name, the devices it serves
-    (a key expression chunk) and the Zenoh options."""
+    (a key expression chunk), the fleet file's entries and the Zenoh options."""
 
-    fitting: CalibratorSettings
-    db: Path
-    name: str = "calibrator"
-    devices: str = "*"
+    fitting: CalibratorSettings = CalibratorSettings()
+    db: Path | None = option(
+        None, "--db", parse=Path, show_default=False, help=f"SQLite file (default {default_db_path()})"
+    )
+    name: str = option("calibrator", "--name", help="service name for liveliness and status")
+    devices: str = option("*", "--devices", help="key expression of the devices served")
+    signing_key: Path | None = option(
+        None,
+        "--signing-key",
+        parse=Path,
+        metavar="FILE.key",
+        help="sign every calibration it serves with this Ed25519 private key (`magnet keys`); compasses started "
+        "with --trust FILE.pub apply only those",
+    )
+    shard: Shard = option(
+        EVERY_DEVICE,
+        "--shard",
+        parse=Shard.parse,
+        metavar="K/N",
+        help="collect, fit, store and answer only for the devices of shard K of N (0 <= K < N; see magnet.shard); "
+        "0/1 is every device",
+    )
+    enrol_rate: float = option(
+        DEFAULT_ENROL_RATE,
+        "--enrol-rate",
+        check=positive,
+        help="new device ids taken on per second at most (10 s of them at once); beyond, their samples are dropped "
+        "and counted in status dropped[raw:enrol-rate]",
+    )
+    max_queue: int = option(
+        DEFAULT_MAX_QUEUE,
+        "--max-queue",
+        check=at_least(1),
+        help="raw messages waiting to be processed at most; beyond, dropped and counted in status "
+        "dropped[raw:queue-full]",
+    )
+    fleet: tuple[PlaceEntry, ...] = ()  # --fleet FILE.json5: each device's place and notes
     zenoh: ZenohSettings = ZenohSettings()
-    signing_key: Path | None = None
-    places: Places | None = None  # --fleet file and --location: each device's expected field
-    shard: Shard = EVERY_DEVICE
-    enrol_rate: float = DEFAULT_ENROL_RATE  # new device ids per second (services.calibrator.intake)
-    max_queue: int = DEFAULT_MAX_QUEUE  # raw messages waiting at most
 
     def __post_init__(self) -> None:
-        if not (self.enrol_rate > 0 and self.enrol_rate < float("inf")):
-            raise ValueError(f"--enrol-rate must be a positive number of new devices per second, got {self.enrol_rate}")
-        if isinstance(self.max_queue, bool) or not isinstance(self.max_queue, int) or self.max_queue < 1:
-            raise ValueError(f"--max-queue must be a whole number >= 1, got {self.max_queue}")
+        check_options(self)
+
+    @property
+    def db_path(self) -> Path:
+        """--db, else the default in the user's data directory."""
+        return self.db if self.db is not None else default_db_path()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_options(parser, CalibratorSettings)
+    add_options(parser, ServiceSettings)
+    add_fleet_argument(parser)
+    add_zenoh_arguments(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
-    field_ut = args.field_ut
-    if field_ut is None and args.location:
-        field_ut = earth_field(*Location.parse(args.location).as_tuple()).total_ut
-    fitting = CalibratorSettings(
-        method=args.method,
-        field_ut=field_ut,
-        min_coverage=args.min_coverage,
-        min_samples=args.min_samples,
-        max_samples=args.max_samples,
-        auto=not args.no_auto,
-        max_devices=args.max_devices,
+    """The checked settings of the parsed options; ValueError naming the option that is wrong."""
+    return from_args(
+        ServiceSettings,
+        args,
+        fitting=from_args(CalibratorSettings, args),
+        fleet=tuple(read_fleet(args.fleet).values()),
+        zenoh=ZenohSettings.from_args(args),
     )
-    location = Location.parse(args.location) if args.location else None
-    places = Places(read_fleet(args.fleet), location, max_reported=fitting.max_devices)
-    return ServiceSettings(
-        fitting,
-        args.db or default_db_path(),
-        args.name,
-        args.devices,
-        ZenohSettings.from_args(args),
-        args.signing_key,
-        places,
-        Shard.parse(args.shard),
-        args.enrol_rate,
-        args.max_queue,
-    )
+
+
+def make_places(
+    fleet: tuple[PlaceEntry, ...] = (), default: Location | None = None, max_devices: int = DEFAULT_MAX_DEVICES
+) -> Places:
+    """Each device's place and expected field: reported, else its fleet-file entry's, else ``default``; reported
+    places remembered for at most ``max_devices`` devices."""
+    return Places({entry.device: entry for entry in fleet}, default, max_reported=max_devices)
 
 
 def load_signer(path: Path | None) -> signing.Signer | None:

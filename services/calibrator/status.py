@@ -1,4 +1,5 @@
-"""What the calibrator reports: the state of a device, its counters and the answer of ``<prefix>/@status/<name>``."""
+"""The status part of the calibrator: the state of a device, the counters gathered from the other parts and the
+answer of ``<prefix>/@status/<name>``. Imports none of the other parts: they hand it plain figures."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import enum
 from typing import Any
 
 from magnet import wire
+from magnet.collection import Collection
 
 
 class State(enum.Enum):
@@ -16,24 +18,41 @@ class State(enum.Enum):
     IDLE = "idle"  # no calibration, automatic calibration off
 
 
-@dataclasses.dataclass
-class Counters:
-    """What the calibrator did since it started."""
+def state_of(collection: Collection | None, calibrated: bool) -> State:
+    """A device's state from its collection (None: nothing collects for it) and whether a record is in force."""
+    if collection is not None:
+        return State.SESSION if collection.session else State.COLLECTING
+    return State.CALIBRATED if calibrated else State.IDLE
 
-    received_batches: int = 0
-    received_samples: int = 0
-    fits: int = 0
-    accepted: int = 0
-    rejected: int = 0
-    stored: int = 0
-    evicted_devices: int = 0  # collections dropped for --max-devices
-    forgotten_devices: int = 0  # fleet-book entries (last seen, reported place, open alerts) dropped for --max-devices
-    takeovers: int = 0  # times it became the active calibrator of its shard after standing by
-    unverified_records: int = 0  # records in force its signing key does not verify (served as stored, unsigned)
+
+@dataclasses.dataclass(frozen=True)
+class IntakeFigures:
+    """What the raw intake in front of the calibrator saw (``services.calibrator.intake``), set by the service loop."""
+
     raw_messages: int = 0  # raw messages that arrived (= received_batches + raw:* drops once the queue is empty)
-    queued: int = 0  # raw messages waiting now (services.calibrator.intake)
+    queued: int = 0  # raw messages waiting now
     queue_high_water: int = 0  # most raw messages ever waiting at once
     enrolled: int = 0  # new device ids taken on (at most --enrol-rate a second)
+
+
+@dataclasses.dataclass(frozen=True)
+class Counters:
+    """What the calibrator did since it started, each figure from the part that counts it."""
+
+    received_batches: int = 0  # collection
+    received_samples: int = 0  # collection
+    fits: int = 0  # fitting
+    accepted: int = 0  # fitting
+    rejected: int = 0  # fitting
+    stored: int = 0  # records
+    evicted_devices: int = 0  # collections dropped for --max-devices
+    forgotten_devices: int = 0  # roster entries (last seen, reported place, open alerts) dropped for --max-devices
+    takeovers: int = 0  # times it became the active calibrator of its shard after standing by
+    unverified_records: int = 0  # records in force its signing key does not verify (served as stored, unsigned)
+    raw_messages: int = 0  # the intake's figures (IntakeFigures)
+    queued: int = 0
+    queue_high_water: int = 0
+    enrolled: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,3 +78,8 @@ class CalibratorStatus:
             "shard": self.shard,
             "lease": self.lease,
         }
+
+
+def devices_by_state(states: list[State]) -> dict[str, int]:
+    """How many devices are in each state (every state named, 0 included)."""
+    return {s.value: states.count(s) for s in State}

@@ -24,7 +24,8 @@ import smbus2
 from magnet.drivers import I2CBus, Reading, Sensor, has_accelerometer, has_gyroscope, open_sensor
 from magnet.emulators import emulator_for
 from magnet.frames import orientation_matrix
-from magnet.readloop import Backoff, ReadLoop
+from magnet.readloop import ReadLoop
+from magnet.retry import RetryPolicy
 from magnet.simulator import SensorStream, Trajectory
 from services.common import sim_options
 
@@ -121,10 +122,10 @@ def read_loop(sensor: Sensor, settings: SampleSettings, sleep: Callable[[float],
     """The bounded read loop (``magnet.readloop``) for the command: never sleeps when emulated; gives up after
     ``GIVE_UP_AFTER`` failed reads in a row with a clear error."""
     poll_s = 0.0 if settings.emulate else min(0.1 / settings.rate_hz, 0.005)
-    backoff = Backoff(
+    policy = RetryPolicy(
         initial_s=0.01, max_s=1.0, poll_s=poll_s, max_polls=MAX_NOT_READY_POLLS, give_up_after=GIVE_UP_AFTER
     )
-    return ReadLoop(sensor.read, clock=time.monotonic, sleep=sleep, backoff=backoff)
+    return ReadLoop(sensor.read, clock=time.monotonic, sleep=sleep, policy=policy)
 
 
 def _readings(loop: ReadLoop, settings: SampleSettings) -> Iterator[tuple[float, Reading]]:
@@ -185,7 +186,7 @@ def sample(settings: SampleSettings) -> int:
             out.write(",".join(row) + "\n")
     finally:
         out.flush()
-        stats = loop.stats
+        stats = loop.health
         if stats.errors or stats.overflows:
             log.warning(
                 "left out %d failed reads (%s) and %d overflows; sensor health: %s",

@@ -71,7 +71,7 @@ class UpSettings:
         check_options(self)
         wire.validate_prefix(self.prefix)
         try:
-            place = Location.parse(self.location).as_tuple()
+            place = Location.parse(self.location)
         except ValueError as exc:
             raise ValueError(f"--location: {exc}") from None
         EdgeSettings(

@@ -18,6 +18,7 @@ from services.common.csvio import SampleTable, read_samples
 from services.common.flightlogs import ReferenceYaw
 from services.common.input_options import InputOptions as InputOptions  # re-exported for the tests
 from services.common.input_options import Reader
+from services.common.options import add_options
 
 #: the default: each reader's own choice of stream
 NO_OPTIONS = InputOptions()
@@ -65,11 +66,8 @@ READERS: dict[str, Reader] = {
 
 
 def add_input_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--mag N`` and ``--topic TOPIC``: which stream of a recording to read."""
-    parser.add_argument(
-        "--mag", type=int, metavar="N", help="flight logs: the magnetometer instance to read (default 0)"
-    )
-    parser.add_argument("--topic", metavar="TOPIC", help="ROS 2 recordings: the MagneticField topic to read")
+    """``--mag N`` and ``--topic TOPIC`` (``InputOptions``' fields): which stream of a recording to read."""
+    add_options(parser, InputOptions)
 
 
 def read_input(path: str | Path, options: InputOptions = NO_OPTIONS) -> SampleTable:

@@ -4,7 +4,8 @@
 multirotor, car, figure8, fast-tumble), ``--hard-iron X,Y,Z`` (uT), ``--soft-iron`` (3 diagonal or 9 row-major
 numbers), ``--noise-ut``, ``--gyro-bias X,Y,Z`` (rad/s), ``--gyro-noise`` (rad/s RMS per sample), ``--location
 LAT,LON[,ALT_M]``, ``--date`` (default: the simulator's fixed date, so that the same seed gives the same data on any
-day). ``SimulatorSettings.from_args`` checks them all at once.
+day). Declared once as the fields of ``SimulatorSettings`` (``services.common.options``); a command with other
+defaults subclasses it and redeclares ``seed_option(N)`` / ``noise_option(X)`` (``magnet edge``).
 """
 
 from __future__ import annotations
@@ -17,22 +18,24 @@ import numpy as np
 
 from magnet.place import Location
 from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig, Trajectory
+from services.common.options import Check, add_options, check_options, from_args, option
 
 
 def parse_floats(text: str, counts: tuple[int, ...], name: str) -> np.ndarray:
-    """Comma-separated numbers, as many as one of ``counts``; ValueError naming the option otherwise."""
+    """Comma-separated numbers, as many as one of ``counts``; ValueError naming the option (``name``, "" for an
+    option declared with ``services.common.options``, which names it) otherwise."""
     try:
         values = [float(v) for v in text.replace(" ", "").split(",") if v]
     except ValueError:
-        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
+        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}".lstrip()) from None
     if len(values) not in counts:
-        raise ValueError(f"{name} needs {' or '.join(map(str, counts))} numbers, got {len(values)}")
+        raise ValueError(f"{name} needs {' or '.join(map(str, counts))} numbers, got {len(values)}".lstrip())
     return np.asarray(values)
 
 
 def parse_soft_iron(text: str) -> np.ndarray:
     """3 numbers (diagonal) or 9 (row-major 3x3) -> (3, 3)."""
-    values = parse_floats(text, (3, 9), "--soft-iron")
+    values = parse_floats(text, (3, 9), "")
     return np.diag(values) if values.size == 3 else values.reshape(3, 3)
 
 
@@ -47,66 +50,116 @@ def parse_trajectory(text: str) -> Trajectory:
 
 #: the simulator's place when no --location is given (Kyiv)
 DEFAULT_LOCATION = "50.45,30.52"
+DEFAULT_PLACE = Location.parse(DEFAULT_LOCATION)
+GROUP = "simulator (with --emulate)"
 
 
-def add_simulator_arguments(parser: argparse.ArgumentParser, *, seed: int = 0, noise_ut: float = 0.0) -> None:
-    group = parser.add_argument_group("simulator (with --emulate)")
-    group.add_argument("--seed", type=int, default=seed, help=f"simulator seed: same seed, same data (default {seed})")
-    group.add_argument(
-        "--trajectory",
-        default="tumble",
-        help="still: spin, turntable, tumble, tenface; moving: multirotor, car, figure8, fast-tumble (default tumble)",
-    )
-    group.add_argument("--hard-iron", default="0,0,0", help="hard iron X,Y,Z in uT")
-    group.add_argument("--soft-iron", default="1,1,1", help="soft iron: 3 diagonal or 9 row-major numbers")
-    group.add_argument("--noise-ut", type=float, default=noise_ut, help=f"noise, uT RMS (default {noise_ut:g})")
-    group.add_argument("--gyro-bias", default="0,0,0", help="gyroscope bias X,Y,Z in rad/s (default none)")
-    group.add_argument("--gyro-noise", type=float, default=0.0, help="gyroscope noise, rad/s RMS (default 0)")
-    group.add_argument(
-        "--location",
-        default=None,
-        help=f"LAT,LON[,ALT_M] (default Kyiv, {DEFAULT_LOCATION}); magnet edge also sends it in its raw messages",
-    )
-    group.add_argument("--date", default=None, help="YYYY-MM-DD or decimal year (default: the simulator's)")
+def _hard_iron(text: str) -> tuple[float, ...]:
+    return tuple(parse_floats(text, (3,), "").tolist())
+
+
+def _soft_iron(text: str) -> tuple[float, ...]:
+    return tuple(parse_soft_iron(text).ravel().tolist())
+
+
+def _gyro_bias(text: str) -> tuple[float, ...]:
+    return tuple(parse_floats(text, (3,), "").tolist())
+
+
+def _not_negative(value: Any) -> str | None:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0
+    return None if ok else "must be >= 0"
+
+
+def _count(n: int) -> Check:
+    def check(value: Any) -> str | None:
+        return None if len(value) == n else f"needs {n} numbers"
+
+    return check
+
+
+def seed_option(default: int) -> Any:
+    """``--seed``, with the command's own default (``magnet sample`` 0, ``magnet edge`` 1)."""
+    return option(default, "--seed", help="simulator seed: same seed, same data", group=GROUP)
+
+
+def noise_option(default: float) -> Any:
+    """``--noise-ut``, with the command's own default (``magnet sample`` 0, ``magnet edge`` 0.3)."""
+    return option(default, "--noise-ut", metavar="UT", help="noise, uT RMS", check=_not_negative, group=GROUP)
 
 
 @dataclasses.dataclass(frozen=True)
 class SimulatorSettings:
-    """The simulator options, checked. hard_iron_ut (3,) uT; soft_iron 9 numbers row-major (3x3); noise_ut uT RMS;
-    gyro_bias_rads (3,) rad/s; gyro_noise_rads rad/s RMS; location (lat_deg, lon_deg, alt_m); date as given (None:
-    the simulator's)."""
+    """The simulator options, declared once (``services.common.options``). hard_iron_ut (3,) uT; soft_iron 9 numbers
+    row-major (3x3); noise_ut uT RMS; gyro_bias_rads (3,) rad/s; gyro_noise_rads rad/s RMS; location None: Kyiv
+    (``DEFAULT_PLACE``, see ``place_location``); date as given (None: the simulator's)."""
 
-    seed: int = 0
-    trajectory: Trajectory = Trajectory.TUMBLE
-    hard_iron_ut: tuple[float, ...] = (0.0, 0.0, 0.0)
-    soft_iron: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-    noise_ut: float = 0.0
-    location: tuple[float, float, float] = (50.45, 30.52, 0.0)
-    date: str | None = None
-    gyro_bias_rads: tuple[float, ...] = (0.0, 0.0, 0.0)
-    gyro_noise_rads: float = 0.0
+    seed: int = seed_option(0)
+    trajectory: Trajectory = option(
+        Trajectory.TUMBLE,
+        "--trajectory",
+        parse=parse_trajectory,
+        show_default=False,
+        help="still: spin, turntable, tumble, tenface; moving: multirotor, car, figure8, fast-tumble (default tumble)",
+        group=GROUP,
+    )
+    hard_iron_ut: tuple[float, ...] = option(
+        (0.0, 0.0, 0.0),
+        "--hard-iron",
+        metavar="X,Y,Z",
+        parse=_hard_iron,
+        show_default=False,
+        check=_count(3),
+        help="hard iron X,Y,Z in uT",
+        group=GROUP,
+    )
+    soft_iron: tuple[float, ...] = option(
+        (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+        "--soft-iron",
+        metavar="NUMBERS",
+        parse=_soft_iron,
+        show_default=False,
+        check=_count(9),
+        help="soft iron: 3 diagonal or 9 row-major numbers",
+        group=GROUP,
+    )
+    noise_ut: float = noise_option(0.0)
+    gyro_bias_rads: tuple[float, ...] = option(
+        (0.0, 0.0, 0.0),
+        "--gyro-bias",
+        metavar="X,Y,Z",
+        parse=_gyro_bias,
+        show_default=False,
+        check=_count(3),
+        help="gyroscope bias X,Y,Z in rad/s (default none)",
+        group=GROUP,
+    )
+    gyro_noise_rads: float = option(
+        0.0, "--gyro-noise", metavar="RADS", check=_not_negative, help="gyroscope noise, rad/s RMS", group=GROUP
+    )
+    location: Location | None = option(
+        None,
+        "--location",
+        parse=Location.parse,
+        metavar="LAT,LON[,ALT_M]",
+        help=f"the simulated device's place (default Kyiv, {DEFAULT_LOCATION}); magnet edge also sends it in its "
+        "raw messages",
+        group=GROUP,
+    )
+    date: str | None = option(None, "--date", help="YYYY-MM-DD or decimal year (default: the simulator's)", group=GROUP)
 
     def __post_init__(self) -> None:
-        if not self.noise_ut >= 0:
-            raise ValueError(f"--noise-ut must be >= 0, got {self.noise_ut}")
-        if not self.gyro_noise_rads >= 0:
-            raise ValueError(f"--gyro-noise must be >= 0, got {self.gyro_noise_rads}")
-        if len(self.hard_iron_ut) != 3 or len(self.soft_iron) != 9:
-            raise ValueError("hard iron needs 3 numbers and soft iron 9")
+        check_options(self)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> SimulatorSettings:
-        return cls(
-            seed=int(args.seed),
-            trajectory=parse_trajectory(args.trajectory),
-            hard_iron_ut=tuple(parse_floats(args.hard_iron, (3,), "--hard-iron").tolist()),
-            soft_iron=tuple(parse_soft_iron(args.soft_iron).ravel().tolist()),
-            noise_ut=float(args.noise_ut),
-            location=Location.parse(args.location or DEFAULT_LOCATION).as_tuple(),
-            date=args.date,
-            gyro_bias_rads=tuple(parse_floats(args.gyro_bias, (3,), "--gyro-bias").tolist()),
-            gyro_noise_rads=float(args.gyro_noise),
-        )
+        """The settings of the options ``add_simulator_arguments`` added, checked."""
+        return from_args(cls, args)
+
+    @property
+    def place_location(self) -> Location:
+        """Where the simulated device is: --location, else ``DEFAULT_PLACE``."""
+        return DEFAULT_PLACE if self.location is None else self.location
 
     def errors(self) -> SensorErrors:
         """The simulator's ``SensorErrors``."""
@@ -120,8 +173,13 @@ class SimulatorSettings:
 
     def place(self) -> dict[str, Any]:
         """lat_deg, lon_deg, alt_m and (when given) date, as the simulator's keyword arguments."""
-        lat, lon, alt = self.location
-        return {"lat_deg": lat, "lon_deg": lon, "alt_m": alt, **({"date": self.date} if self.date else {})}
+        where = self.place_location
+        return {
+            "lat_deg": where.lat_deg,
+            "lon_deg": where.lon_deg,
+            "alt_m": where.alt_m,
+            **({"date": self.date} if self.date else {}),
+        }
 
     def sensor_stream(self, count: int, rate_hz: float) -> SensorStream:
         """The simulator's ``SensorStream``: ``count`` samples of trajectory at ``rate_hz``."""
@@ -135,3 +193,11 @@ class SimulatorSettings:
                 **self.place(),
             )
         )
+
+
+def add_simulator_arguments(
+    parser: argparse.ArgumentParser, settings: type[SimulatorSettings] = SimulatorSettings
+) -> None:
+    """The simulator options of ``settings`` (``SimulatorSettings`` or a subclass with other defaults), in their
+    own group of the help."""
+    add_options(parser, settings)

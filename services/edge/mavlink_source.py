@@ -8,14 +8,16 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Iterator
 from typing import Any
 
+import zenoh
 from pymavlink import mavutil
 
 from magnet import mavlink, wire
 from magnet.mavlink_stream import MavlinkStream
 from services.edge.settings import EdgeSettings
+from services.edge.source import DeviceEvents, Stop, ticked
 
 log = logging.getLogger("magnet.edge")
 
@@ -49,19 +51,18 @@ class MavlinkStats:
 
 
 class MavlinkSource:
-    """The vehicles on one MAVLink connection; ``attach(status)`` gives it the edge's status, through which each
-    new device's liveliness token and each health change is declared."""
+    """The vehicles on one MAVLink connection (a ``services.edge.source.Source``); ``attach`` gives it the edge's
+    events, through which each new device's liveliness token and each health change is declared. It paces itself:
+    each step waits up to ``POLL_S`` for messages."""
 
-    paced_by_reads = True
-
-    def __init__(self, settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> None:
+    def __init__(self, settings: EdgeSettings) -> None:
         if not settings.mavlink:
             raise ValueError("a MAVLink source needs --mavlink URL")
         self.settings = settings
         self.stream = MavlinkStream(settings.device_prefix, settings.batch)
         self.stats = MavlinkStats(self.stream)
         self.ids: list[str] = []
-        self.status: Any = None
+        self.events: DeviceEvents | None = None
         self.healthy: dict[str, bool] = {}
         self.logged: set[str] = set()
         try:
@@ -71,14 +72,20 @@ class MavlinkSource:
         except Exception as exc:  # pymavlink raises what its transport raises (OSError, OverflowError, ...)
             raise ValueError(f"--mavlink {settings.mavlink}: cannot open it: {exc}") from None
 
-    def attach(self, status: Any) -> None:
-        self.status = status
+    def attach(self, session: zenoh.Session, events: DeviceEvents) -> None:
+        self.events = events
+
+    def status(self) -> dict[str, Any]:
+        return self.stats.as_dict()
 
     def close(self) -> None:
         self.connection.close()
 
-    def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
-        """The batches due after reading what arrived within ``POLL_S``."""
+    def batches(self, stop: Stop) -> Iterator[list[wire.RawBatch]]:
+        return ticked(self.take, 0.0, stop)
+
+    def take(self, seq: int, end_ns: int, stop: Stop) -> list[wire.RawBatch]:
+        """The batches due after reading what arrived within ``POLL_S`` (numbered by their device's stream)."""
         deadline = time.monotonic() + POLL_S
         for _ in range(MAX_MESSAGES):
             if stop():
@@ -110,12 +117,12 @@ class MavlinkSource:
             if device not in self.healthy:
                 self.ids.append(device)
                 log.info("MAVLink device %s appeared", device)
-                if self.status is not None:
-                    self.status.device_seen(device)
+                if self.events is not None:
+                    self.events.device_seen(device)
             if self.healthy.get(device) != healthy:
                 self.healthy[device] = healthy
                 if not healthy:
                     log.warning("MAVLink device %s: its vehicle stopped sending", device)
-                if self.status is not None:
-                    self.status.device_health(device, healthy)
+                if self.events is not None:
+                    self.events.device_health(device, healthy)
         self.stats.healthy = all(self.healthy.values())

@@ -9,19 +9,21 @@ another type on the key and absurd values are dropped and counted by cause in th
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import zenoh
 
 from magnet import wire
-from magnet.readloop import ReadStats
+from magnet.retry import Health
 from magnet.ros2 import messages, names
 from magnet.ros2.pairing import SamplePairer
 from services.common.zenoh_session import drain
 from services.edge.settings import EdgeSettings
+from services.edge.source import DeviceEvents, Stop
 
 log = logging.getLogger("magnet.edge.ros2")
 
@@ -36,23 +38,24 @@ def _qualified(namespace: str, topic: str) -> str:
 
 
 class Ros2Source:
-    """Subscribes (once given the session, ``attach_session``) and yields batches as they fill (``paced``)."""
+    """A ``services.edge.source.Source``: subscribes once given the session (``attach``), yields batches as they
+    fill (``batches``), undeclares at ``close``."""
 
     def __init__(self, settings: EdgeSettings) -> None:
         if settings.mag_topic is None:
             raise ValueError("--ros2 needs --mag-topic TOPIC (a sensor_msgs/msg/MagneticField topic)")
         self.settings = settings
         self.ids = [settings.device]
-        self.stats = ReadStats()
+        self.health = Health()
         self.pairer = SamplePairer(settings.imu_topic is not None, settings.batch)
-        self.declared: list[Any] = []
-        self.subs: dict[str, Any] = {}
+        self.declared = contextlib.ExitStack()
+        self.subs: dict[str, zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]]] = {}
 
-    def attach_session(self, session: Any) -> None:
+    def attach(self, session: zenoh.Session, events: DeviceEvents) -> None:
         """Declare the subscriptions (data keys of the exact type hash) and the node's liveliness tokens."""
         ros = self.settings.ros2
         zid, node = str(session.info.zid()), "magnet_edge_" + names.ros_name_of_device(self.settings.device)
-        self.declared.append(
+        self.declared.enter_context(
             session.liveliness().declare_token(names.node_token(ros.domain, zid, 0, ros.namespace, node))
         )
         topics = {messages.MAGNETIC_FIELD: self.settings.mag_topic, messages.IMU: self.settings.imu_topic}
@@ -62,42 +65,51 @@ class Ros2Source:
             topic = _qualified(ros.namespace, topic)
             endpoint = names.Endpoint("MS", topic, ros_type, messages.type_hash(ros_type), entity)
             token = names.endpoint_token(ros.domain, zid, 0, ros.namespace, node, endpoint)
-            self.declared.append(session.liveliness().declare_token(token))
+            self.declared.enter_context(session.liveliness().declare_token(token))
             key = names.topic_key(ros.domain, topic, ros_type, endpoint.type_hash)
-            self.subs[ros_type] = session.declare_subscriber(key, zenoh.handlers.FifoChannel(CHANNEL))
+            self.subs[ros_type] = self.declared.enter_context(
+                session.declare_subscriber(key, zenoh.handlers.FifoChannel(CHANNEL))
+            )
             log.info("ROS 2: subscribed to %s (%s) on %s", topic, ros_type, key)
+
+    def status(self) -> dict[str, Any]:
+        return self.health.as_dict()
+
+    def close(self) -> None:
+        self.declared.close()
 
     def _take(self, ros_type: str, now_s: float) -> int:
         handler = self.subs.get(ros_type)
-        samples = [] if handler is None else drain(handler, 10_000)
+        samples: list[zenoh.Sample] = [] if handler is None else drain(handler, 10_000)
         for sample in samples:
-            self.stats.attempts += 1
+            self.health.attempts += 1
             try:
                 data = sample.payload.to_bytes()
                 if ros_type == messages.IMU:
                     self.pairer.add_imu(messages.decode_imu(data))
                 else:
                     self.pairer.add_mag(messages.decode_magnetic_field(data), now_s)
-                    self.stats.samples += 1
+                    self.health.samples += 1
             except ValueError as exc:
                 self._count(f"{ros_type.rsplit('/', 1)[-1]}: {exc}", "malformed-" + ros_type.rsplit("/", 1)[-1])
         return len(samples)
 
     def _count(self, error: str, cause: str) -> None:
-        self.stats.errors += 1
-        self.stats.last_error = error
-        self.stats.errors_by_cause[cause] = self.stats.errors_by_cause.get(cause, 0) + 1
-        if self.stats.errors_by_cause[cause] == 1:
+        health = self.health
+        health.errors += 1
+        health.last_error = error
+        health.errors_by_cause[cause] = health.errors_by_cause.get(cause, 0) + 1
+        if health.errors_by_cause[cause] == 1:
             log.warning("dropping ROS 2 messages (%s); further ones only counted", error)
 
-    def paced(self, stop: Callable[[], bool]) -> Iterator[list[wire.RawBatch]]:
+    def batches(self, stop: Stop) -> Iterator[list[wire.RawBatch]]:
         """One list of one batch each time a batch fills, until ``stop()``."""
         seq = 0
         while not stop():
             now = time.monotonic()
             got = self._take(messages.IMU, now) + self._take(messages.MAGNETIC_FIELD, now)
             for cause, count in self.pairer.dropped.items():
-                self.stats.errors_by_cause[cause] = count
+                self.health.errors_by_cause[cause] = count
             for joined in self.pairer.batches(now):
                 yield [
                     wire.RawBatch(
@@ -114,5 +126,3 @@ class Ros2Source:
                 seq += 1
             if not got:
                 time.sleep(POLL_S)
-        for item in self.declared:
-            item.undeclare()

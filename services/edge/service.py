@@ -1,7 +1,7 @@
 """``magnet edge``: read one device (real I2C chip, emulated chip, or simulator) or a simulated fleet, and publish
 batches of raw samples on ``<prefix>/<device>/raw`` (see ``magnet.wire``).
 
-Sources (``services.edge.sources``):
+Sources (``services.edge.sources``; each a ``services.edge.source.Source``, see docs/edge.md):
 - ``--sensor NAME --bus N [--address A]``: a real chip through smbus2, read through the bounded read loop
   (``magnet.readloop``): a failing bus is retried with a backoff capped at 1 s, every error counted.
 - ``--sensor NAME --emulate``: the chip's register-level emulator (``magnet.emulators``) read through the same driver,
@@ -27,22 +27,23 @@ a signal) it prints one JSON line: ``{"devices", "published_samples", "published
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import logging
 import time
-from collections.abc import Callable, Iterator
-from typing import Any
+from collections.abc import Callable
+from typing import Any, cast
 
 import zenoh
 
 from magnet import wire
-from magnet.readloop import ReadStats
 from services.common import metrics
 from services.common.guard import Guard
 from services.common.zenoh_session import open_session, stop_event
 from services.edge.settings import EdgeSettings, add_arguments
-from services.edge.sources import ChipSource, FleetSource, make_source, stamp
+from services.edge.source import Source, stamp
+from services.edge.sources import make_source
 
 __all__ = ["EdgeSettings", "add_arguments", "run", "serve"]
 
@@ -64,64 +65,68 @@ def unhealthy_key(prefix: str, device: str) -> str:
 
 
 class EdgeStatus:
-    """The edge's counters and health: answers status queries (from Zenoh's thread), holds the unhealthy token."""
+    """The edge's counters and health: answers status queries (from Zenoh's thread), holds the tokens of unhealthy
+    devices and of devices that appear while running (the ``DeviceEvents`` a source tells)."""
 
-    def __init__(self, settings: EdgeSettings) -> None:
+    def __init__(self, settings: EdgeSettings, source: Source | None = None) -> None:
         self.settings = settings
-        self.ids = [settings.device]
-        self.stats: ReadStats | None = None
+        self.ids = [settings.device] if source is None else list(source.ids)
+        self.reads: Callable[[], dict[str, Any] | None] = (lambda: None) if source is None else source.status
         self.published_samples = self.published_batches = 0
-        self.session: Any = None
-        self.unhealthy_token: Any = None
-        self.device_tokens: dict[str, Any] = {}  # devices that appear while running (MAVLink): alive, unhealthy
+        self.session: zenoh.Session | None = None
+        #: devices that appear while running (MAVLink): alive; and ``<device>/unhealthy`` while one is
+        self.tokens: dict[str, zenoh.LivelinessToken] = {}
         self.guard = Guard("edge", log)  # no failing status query ends the edge (services.common.guard)
 
-    def answer_status(self, query: Any) -> None:
+    def open(self, session: zenoh.Session) -> None:
+        """Declare from now on, on ``session``."""
+        self.session = session
+
+    def close(self) -> None:
+        """Undeclare every token still declared; declare nothing more."""
+        self.session = None
+        for token in self.tokens.values():
+            token.undeclare()  # lifetime: a device's tokens follow what it reports, not a block
+        self.tokens.clear()
+
+    def answer_status(self, query: zenoh.Query) -> None:
         """Answer one status query (from Zenoh's thread): the counters, or an error reply if that fails."""
         key = wire.status_key(self.settings.zenoh.prefix, status_name(self.settings.device))
         self.guard.answer("query:status", query, lambda q: q.reply(key, wire.pack(self.as_dict())))
         query.drop()
 
-    def on_health(self, healthy: bool, error: str) -> None:
-        """Declare ``unhealthy_key`` when the sensor turns unhealthy, undeclare it when it recovers."""
+    def _token(self, name: str, key: str, declared: bool) -> None:
+        """Declare the liveliness token ``key`` under ``name`` (once), or undeclare it."""
         if self.session is None:
             return
-        if healthy and self.unhealthy_token is not None:
-            self.unhealthy_token.undeclare()
-            self.unhealthy_token = None
-        elif not healthy and self.unhealthy_token is None:
-            self.unhealthy_token = self.session.liveliness().declare_token(
-                unhealthy_key(self.settings.zenoh.prefix, self.settings.device)
-            )
+        if not declared and name in self.tokens:
+            self.tokens.pop(name).undeclare()  # lifetime: declared while the device is unhealthy
+        elif declared and name not in self.tokens:
+            self.tokens[name] = self.session.liveliness().declare_token(key)
+
+    def on_health(self, healthy: bool, error: str) -> None:
+        """Declare ``unhealthy_key`` when the sensor turns unhealthy, undeclare it when it recovers."""
+        self.device_health(self.settings.device, healthy)
 
     def device_seen(self, device: str) -> None:
         """A device that appeared while running: declare its liveliness token."""
         if device not in self.ids:
             self.ids.append(device)
-        if self.session is not None and device not in self.device_tokens:
-            key = wire.liveliness_key(self.settings.zenoh.prefix, "device", device)
-            self.device_tokens[device] = self.session.liveliness().declare_token(key)
+        self._token(device, wire.liveliness_key(self.settings.zenoh.prefix, "device", device), True)
 
     def device_health(self, device: str, healthy: bool) -> None:
-        """Declare ``unhealthy_key`` of one device while it is unhealthy (a device of a source with many)."""
-        name = f"{device}/unhealthy"
-        if self.session is None:
-            return
-        if healthy and name in self.device_tokens:
-            self.device_tokens.pop(name).undeclare()
-        elif not healthy and name not in self.device_tokens:
-            key = unhealthy_key(self.settings.zenoh.prefix, device)
-            self.device_tokens[name] = self.session.liveliness().declare_token(key)
+        """Declare ``unhealthy_key`` of one device while it is unhealthy."""
+        self._token(f"{device}/unhealthy", unhealthy_key(self.settings.zenoh.prefix, device), not healthy)
 
     def as_dict(self) -> dict[str, Any]:
-        reads = None if self.stats is None else self.stats.as_dict()
+        reads = self.reads()
         return {
             "v": wire.RECORD_VERSION,
             "service": "edge",
             "name": status_name(self.settings.device),
             "device": self.settings.device,
             "devices": len(self.ids),
-            "sensor": "mavlink" if self.settings.mavlink else self.settings.sensor,
+            "sensor": self.settings.sensor_name,
             "healthy": True if reads is None else reads["healthy"],
             "published_samples": self.published_samples,
             "published_batches": self.published_batches,
@@ -146,45 +151,35 @@ class EdgeStatus:
         }
 
 
-def _ticks(period_s: float, stop: Callable[[], bool]) -> Iterator[int]:
-    """Yields the wall-clock ns of each batch's end, paced at ``period_s``; never sleeps when behind."""
-    start = time.monotonic()
-    wall0 = time.time_ns()
-    k = 0
-    while not stop():
-        k += 1
-        target = start + k * period_s
-        delay = target - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        elif delay < -1.0:  # far behind (overload): resynchronize instead of bursting
-            start = time.monotonic() - k * period_s
-        yield wall0 + int((time.monotonic() - start) * 1e9)
-
-
-def _wait_for_subscribers(publisher: Any, timeout_s: float) -> None:
+def _wait_for_subscribers(publisher: zenoh.Publisher, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
-    while not publisher.matching_status.matching and time.monotonic() < deadline:
+    while not _matching(publisher) and time.monotonic() < deadline:
         time.sleep(0.02)
 
 
-def _declare(session: Any, settings: EdgeSettings, status: EdgeStatus) -> list[Any]:
-    """Liveliness tokens and the status queryable (answered from Zenoh's thread); what to undeclare at the end."""
+def _matching(publisher: zenoh.Publisher) -> bool:
+    """Whether a subscriber matches (zenoh 1.10's stub says ``matching_status`` is a bool: it is a MatchingStatus)."""
+    return cast(zenoh.MatchingStatus, publisher.matching_status).matching
+
+
+def _declare(session: zenoh.Session, settings: EdgeSettings, status: EdgeStatus, stack: contextlib.ExitStack) -> None:
+    """Liveliness tokens and the status queryable (answered from Zenoh's thread), undeclared when ``stack`` ends."""
     prefix = settings.zenoh.prefix
-    status.session = status.session or session
-    declared = [session.liveliness().declare_token(wire.liveliness_key(prefix, "edge", settings.device))]
-    declared += [session.liveliness().declare_token(wire.liveliness_key(prefix, "device", d)) for d in status.ids]
+    liveliness = session.liveliness()
+    stack.enter_context(liveliness.declare_token(wire.liveliness_key(prefix, "edge", settings.device)))
+    for device in status.ids:
+        stack.enter_context(liveliness.declare_token(wire.liveliness_key(prefix, "device", device)))
     key = wire.status_key(prefix, status_name(settings.device))
-    declared.append(session.declare_queryable(key, status.answer_status))
-    return declared
+    stack.enter_context(session.declare_queryable(key, status.answer_status))
 
 
 class Publisher:
-    """Puts each batch on its device's raw key; a fleet's devices spread evenly over the period, each slot
-    stamped when it goes out (real devices do not tick together)."""
+    """Puts each batch on its device's raw key; a fleet's devices spread evenly over the period (batch / rate), each
+    slot stamped when it goes out (real devices do not tick together)."""
 
-    def __init__(self, session: Any, settings: EdgeSettings, status: EdgeStatus, period_s: float) -> None:
-        self.session, self.status, self.period_s = session, status, period_s
+    def __init__(self, session: zenoh.Session, settings: EdgeSettings, status: EdgeStatus) -> None:
+        self.session, self.status = session, status
+        self.period_s = settings.batch / settings.rate_hz
         self.prefix = settings.zenoh.prefix
         self.keys = {d: wire.key(self.prefix, d, wire.Kind.RAW) for d in status.ids}
         self.slots = min(len(status.ids), FLEET_SLOTS) if settings.devices else 1
@@ -214,44 +209,29 @@ class Publisher:
                 self.status.published_batches += 1
 
 
-def _period_s(source: Any, settings: EdgeSettings) -> float:
-    """Seconds between batches: 0 for a real chip (its reads pace it), else batch / rate."""
-    paced_by_reads = (isinstance(source, ChipSource) and not settings.emulate) or getattr(
-        source, "paced_by_reads", False
-    )
-    return 0.0 if paced_by_reads else settings.batch / settings.rate_hz
-
-
-def _batches(source: Any, period_s: float, done: Callable[[], bool]) -> Iterator[list[wire.RawBatch]]:
-    """The source's batches as they are due, until ``done()`` (or the end of a replay)."""
-    if hasattr(source, "paced"):  # a replay or a ROS 2 source paces itself
-        yield from source.paced(done)
-        return
-    for seq, end_ns in enumerate(_ticks(period_s, done)):
-        yield source.batches(seq, end_ns, done)
-
-
 def serve(settings: EdgeSettings, metrics_address: str | None = None) -> int:
-    """Run the edge until ``settings.duration_s`` or a signal; prints the summary line; returns the exit status."""
-    status = EdgeStatus(settings)
-    source = make_source(settings, status.on_health)
-    status.ids, status.stats = list(source.ids), source.stats
-    if hasattr(source, "attach"):  # devices that appear while running (MAVLink)
-        source.attach(status)
+    """Run the edge until ``settings.duration_s``, a signal or the source's end; prints the summary line; returns the
+    exit status."""
+    source = make_source(settings)
+    status = EdgeStatus(settings, source)
     metrics.start(metrics_address, "edge", lambda: {**status.as_dict(), "devices": len(status.ids)})
     stop = stop_event()
-    with open_session(settings.zenoh) as session:
-        declared = _declare(session, settings, status)
-        if hasattr(source, "attach_session"):  # a ROS 2 source subscribes on this session
-            source.attach_session(session)
+    with open_session(settings.zenoh) as session, contextlib.ExitStack() as stack:
+        stack.callback(source.close)  # last: after the edge's own declarations, before the session closes
+        status.open(session)
+        stack.callback(status.close)
+        _declare(session, settings, status, stack)
+        source.attach(session, status)
         # one declared publisher, only to wait for a subscriber; data goes by session.put (measured: a declared
         # publisher per device costs several times the CPU at 10,000 messages/s)
         first_device = status.ids[0] if status.ids else settings.device
-        first = session.declare_publisher(wire.key(settings.zenoh.prefix, first_device, wire.Kind.RAW))
+        first = stack.enter_context(
+            session.declare_publisher(wire.key(settings.zenoh.prefix, first_device, wire.Kind.RAW))
+        )
         log.info(
             "edge: %d device(s), %s at %.1f Hz, batches of %d",
             len(status.ids),
-            settings.sensor,
+            settings.sensor_name,
             settings.rate_hz,
             settings.batch,
         )
@@ -262,18 +242,11 @@ def serve(settings: EdgeSettings, metrics_address: str | None = None) -> int:
         def done() -> bool:
             return stop.is_set() or (deadline is not None and time.monotonic() >= deadline)
 
-        period = _period_s(source, settings)
-        publisher = Publisher(session, settings, status, period if isinstance(source, FleetSource) else 0.0)
-        for batches in _batches(source, period, done):
+        publisher = Publisher(session, settings, status)
+        for batches in source.batches(done):
             publisher.put(batches)
         seconds = time.monotonic() - started
-        time.sleep(FLUSH_S)  # let the last batches leave before the session closes
-        for item in [*declared, status.unhealthy_token, *status.device_tokens.values()]:
-            if item is not None:
-                item.undeclare()
-        status.session = None
-        if hasattr(source, "close"):
-            source.close()
+        time.sleep(FLUSH_S)  # let the last batches leave before the declarations and the session end
     print(json.dumps(status.summary(seconds)), flush=True)
     return 0
 

@@ -1,18 +1,20 @@
-"""Where ``magnet edge``'s samples come from. Each source's ``batches(seq, end_ns, stop)`` returns the next
-``RawBatch`` of every device it holds (end_ns: wall-clock ns of the batch's last sample); ``stats`` (a
-``ReadStats``, or None for simulated sources that cannot fail) counts its reads.
+"""Where ``magnet edge``'s samples come from: each source has the one shape of ``services.edge.source.Source``, and
+``make_source`` opens the one the settings name through one table, ``SOURCES`` (the settings' ``SourceKind`` ->
+constructor). To add a source: write its class (the ``Source`` methods) and add its row here (and, for a new
+option, its kind to ``services.edge.settings``).
 
 - ``FleetSource``: N simulated devices, one vectorized step per batch.
 - ``StreamSource``: one simulated device read sample by sample (no register emulation).
 - ``ChipSource``: one chip through its driver (a real bus, or the chip's emulator fed by the simulator), read through
   the one bounded read loop (``magnet.readloop``): a failing bus backs off, is counted and marks the device unhealthy.
-- ``ReplaySource``: a recording (``--replay FILE.csv``) at its own pace (``magnet.replay``); it paces itself, so it
-  offers ``paced(stop)`` instead of ``batches``.
+- ``ReplaySource``: a recording (``--replay FILE.csv``) at its own pace (``magnet.replay``).
 - ``MavlinkSource`` (``services.edge.mavlink_source``): MAVLink vehicles (``--mavlink URL``), devices as they appear.
+- ``Ros2Source`` (``services.edge.ros2_source``): a ROS 2 robot's topics over rmw_zenoh (``--ros2``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -20,42 +22,52 @@ from typing import Any
 
 import numpy as np
 import smbus2
+import zenoh
 
 from magnet import wire
 from magnet.drivers import open_sensor
 from magnet.emulators import FaultInjector, emulator_for
-from magnet.readloop import Backoff, ReadLoop, ReadStats
+from magnet.readloop import ReadLoop
 from magnet.replay import Recording, paced_slices
-from magnet.simulator import SimulatedDevices
+from magnet.retry import READ_BACKOFF
+from magnet.simulator import SensorStream, SimulatedDevices
 from services.common.input_options import InputOptions
 from services.common.inputs import read_input
-from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings
+from services.edge.mavlink_source import MavlinkSource
+from services.edge.ros2_source import Ros2Source
+from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings, SourceKind
+from services.edge.source import DeviceEvents, Source, Stop, stamp, ticked
 
-#: the edge's read loop: waits 10 ms, 20 ms, ... up to 1 s between failed reads; unhealthy after 3 in a row
-EDGE_BACKOFF = Backoff(initial_s=0.01, max_s=1.0, unhealthy_after=3, poll_s=0.0005)
 TRUTH_KEYS = ("heading_deg", "pitch_deg", "roll_deg")
 GYRO_COLUMNS = ("gx", "gy", "gz")
 REPLAY_SENSOR = "replay"
 
 
-def stamp(n: int, end_ns: int, period_ns: int) -> np.ndarray:
-    """(n,) int64 ns: n sample times ``period_ns`` apart ending at ``end_ns``."""
-    return end_ns - period_ns * np.arange(n - 1, -1, -1, dtype=np.int64)
-
-
-def _truth(stream: Any) -> dict[str, float]:
+def _truth(stream: SensorStream | None) -> dict[str, float]:
     truth = getattr(stream, "last_truth", None) or {}
     return {k: float(truth.get(k, 0.0)) for k in TRUTH_KEYS}
 
 
-def _stream(settings: EdgeSettings) -> Any:
+def _stream(settings: EdgeSettings) -> SensorStream:
     return settings.simulator.sensor_stream(settings.trajectory_samples, settings.rate_hz / settings.speedup)
 
 
-class FleetSource:
-    """N simulated devices, one vectorized step per batch."""
+class Unattached:
+    """What the sources that need no session, cannot fail and hold nothing open share: ``attach``, ``status`` and
+    ``close`` that do nothing."""
 
-    stats: ReadStats | None = None
+    def attach(self, session: zenoh.Session, events: DeviceEvents) -> None:
+        """Nothing to declare, nothing to tell."""
+
+    def status(self) -> dict[str, Any] | None:
+        return None
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class FleetSource(Unattached):
+    """N simulated devices, one vectorized step per batch, every ``batch / rate`` seconds."""
 
     def __init__(self, settings: EdgeSettings) -> None:
         self.fleet = SimulatedDevices(
@@ -69,7 +81,11 @@ class FleetSource:
         self.ids = [f"{settings.device}-{i:03d}" for i in range(settings.devices)]
         self.settings = settings
 
-    def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
+    def batches(self, stop: Stop) -> Iterator[list[wire.RawBatch]]:
+        return ticked(self.take, self.settings.batch / self.settings.rate_hz, stop)
+
+    def take(self, seq: int, end_ns: int, stop: Stop) -> list[wire.RawBatch]:
+        """One batch of every device, the last sample at ``end_ns``."""
         step = self.fleet.step(self.settings.batch)
         t_ns = stamp(self.settings.batch, end_ns, int(1e9 / self.settings.rate_hz))
         return [
@@ -87,18 +103,20 @@ class FleetSource:
         ]
 
 
-class StreamSource:
+class StreamSource(Unattached):
     """One simulated device read sample by sample from a ``SensorStream`` (no register emulation); a moving
     trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope and its GNSS-like velocity."""
-
-    stats: ReadStats | None = None
 
     def __init__(self, settings: EdgeSettings) -> None:
         self.stream = _stream(settings)
         self.settings = settings
         self.ids = [settings.device]
 
-    def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
+    def batches(self, stop: Stop) -> Iterator[list[wire.RawBatch]]:
+        return ticked(self.take, self.settings.batch / self.settings.rate_hz, stop)
+
+    def take(self, seq: int, end_ns: int, stop: Stop) -> list[wire.RawBatch]:
+        """One batch, the last sample at ``end_ns``."""
         n = self.settings.batch
         mag, acc, gyr, vel = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.full((n, 3), np.nan)
         truth = {k: np.empty(n) for k in TRUTH_KEYS}
@@ -126,39 +144,49 @@ class StreamSource:
         ]
 
 
-def _open_bus(settings: EdgeSettings, stream: Any) -> Any:
-    if settings.emulate:
-        return emulator_for(settings.sensor, stream)
-    return smbus2.SMBus(settings.bus)
-
-
-def _rows(vectors: list[Any]) -> np.ndarray | None:
+def _rows(vectors: list[np.ndarray | None]) -> np.ndarray | None:
     """(N, 3) from N vectors of 3, or None when any is missing (the wire field is all or nothing per batch)."""
     return None if any(v is None for v in vectors) else np.array(vectors, dtype=float)
 
 
 class ChipSource:
-    """One chip through its driver and the bounded read loop; ``on_health(healthy, last_error)`` hears each change."""
+    """One chip through its driver and the bounded read loop; the edge's status hears each change of its health. A
+    real chip paces itself (its reads wait for data), an emulated one is read every ``batch / rate`` seconds."""
 
-    def __init__(self, settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> None:
+    def __init__(self, settings: EdgeSettings) -> None:
         self.settings = settings
         self.ids = [settings.device]
         self.stream = _stream(settings) if settings.emulate else None
-        bus = _open_bus(settings, self.stream)
+        self.opened = contextlib.ExitStack()
         options = {} if settings.address is None else {"address": settings.address}
-        self.driver = open_sensor(settings.sensor, bus, **options)
-        if settings.emulate_faults:  # after set-up: the chip was found, then its bus fails
-            bus.faults = FaultInjector(probability=settings.emulate_faults, seed=settings.simulator.seed)
-        self.loop = ReadLoop(
-            self.driver.read, clock=time.monotonic, sleep=time.sleep, backoff=EDGE_BACKOFF, on_health=on_health
-        )
+        if settings.emulate:
+            emulator = emulator_for(settings.sensor, self.stream)
+            self.driver = open_sensor(settings.sensor, emulator, **options)
+            if settings.emulate_faults:  # after set-up: the chip was found, then its bus fails
+                emulator.faults = FaultInjector(probability=settings.emulate_faults, seed=settings.simulator.seed)
+        else:
+            with contextlib.ExitStack() as opening:  # the bus closes again when no chip answers on it
+                bus = opening.enter_context(smbus2.SMBus(settings.bus))
+                self.driver = open_sensor(settings.sensor, bus, **options)
+                self.opened = opening.pop_all()
+        self.loop = ReadLoop(self.driver.read, clock=time.monotonic, sleep=time.sleep, policy=READ_BACKOFF)
 
-    @property
-    def stats(self) -> ReadStats:
-        return self.loop.stats
+    def attach(self, session: zenoh.Session, events: DeviceEvents) -> None:
+        self.loop.on_health = events.on_health
 
-    def batches(self, seq: int, end_ns: int, stop: Callable[[], bool]) -> list[wire.RawBatch]:
-        """Up to ``batch`` samples (fewer only when ``stop()`` turned true while the bus was failing)."""
+    def status(self) -> dict[str, Any]:
+        return self.loop.health.as_dict()
+
+    def close(self) -> None:
+        self.opened.close()
+
+    def batches(self, stop: Stop) -> Iterator[list[wire.RawBatch]]:
+        period_s = self.settings.batch / self.settings.rate_hz if self.settings.emulate else 0.0
+        return ticked(self.take, period_s, stop)
+
+    def take(self, seq: int, end_ns: int, stop: Stop) -> list[wire.RawBatch]:
+        """Up to ``batch`` samples (fewer only when ``stop()`` turned true while the bus was failing), stamped from
+        the wall clock when read."""
         mags, accs, gyrs, truths = [], [], [], []
         for _ in range(self.settings.batch):
             reading = self.loop.next(stop)
@@ -205,10 +233,8 @@ def read_recording(path: Path, topic: str | None = None, mag: int | None = None)
         raise ValueError(f"{path}: {exc}") from None
 
 
-class ReplaySource:
+class ReplaySource(Unattached):
     """A recording published at its own pace (scaled by ``--speed``), in batches of ``--batch``; then it ends."""
-
-    stats: ReadStats | None = None
 
     def __init__(self, settings: EdgeSettings) -> None:
         if settings.replay is None:
@@ -217,7 +243,7 @@ class ReplaySource:
         self.settings = settings
         self.ids = [settings.device]
 
-    def paced(self, stop: Callable[[], bool]) -> Iterator[list[wire.RawBatch]]:
+    def batches(self, stop: Stop) -> Iterator[list[wire.RawBatch]]:
         """One list of one batch each time a batch is due; wire times keep the recording's intervals from now."""
         rec, device = self.recording, self.settings.device
         t_ns = rec.stamps_ns(time.time_ns())
@@ -239,20 +265,17 @@ class ReplaySource:
             ]
 
 
-def make_source(settings: EdgeSettings, on_health: Callable[[bool, str], None] | None = None) -> Any:
-    """The source the settings name (see the module docstring)."""
-    if settings.mavlink is not None:
-        from services.edge.mavlink_source import MavlinkSource
+#: the one dispatch table: the source each kind of settings names, by its constructor
+SOURCES: dict[SourceKind, Callable[[EdgeSettings], Source]] = {
+    SourceKind.MAVLINK: MavlinkSource,
+    SourceKind.ROS2: Ros2Source,
+    SourceKind.REPLAY: ReplaySource,
+    SourceKind.FLEET: FleetSource,
+    SourceKind.SIMULATOR: StreamSource,
+    SourceKind.CHIP: ChipSource,
+}
 
-        return MavlinkSource(settings, on_health)
-    if settings.replay is not None:
-        return ReplaySource(settings)
-    if settings.ros2.enabled:
-        from services.edge.ros2_source import Ros2Source
 
-        return Ros2Source(settings)
-    if settings.devices:
-        return FleetSource(settings)
-    if settings.emulate and settings.sensor == SIMULATOR_SENSOR:
-        return StreamSource(settings)
-    return ChipSource(settings, on_health)
+def make_source(settings: EdgeSettings) -> Source:
+    """The source the settings name (``settings.source_kind``), opened; ValueError or OSError when it cannot be."""
+    return SOURCES[settings.source_kind](settings)

@@ -1,32 +1,30 @@
-"""The calibrator's view of its fleet (``FleetBook``): where each device is and when it was last seen, and the open
-drift alerts (from the compass, ``<prefix>/<device>/alert``). No zenoh sessions inside: the service feeds it. The
-answer for the whole fleet is ``services.calibrator.fleet_reply``, rollback ``services.calibrator.rollback``.
+"""The roster of the devices a calibrator serves (``Roster``): where each device is (reported, from the fleet file, or
+the default place) and when it was last seen, and the open drift alerts (from the compass,
+``<prefix>/<device>/alert``). No zenoh sessions inside: the service feeds it. The answer for every device
+(``<prefix>/@fleet``) is ``services.calibrator.roster_reply``.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Any
 
 from magnet import wire
 from magnet.bounded import Recent
-from magnet.compass.places import Places
 from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.drift.alerts import ALERT_LIMITS
+from magnet.place import Location
+from services.calibrator.settings import DEFAULT_MAX_DEVICES, Places, make_places
 
 log = logging.getLogger("magnet.calibrator")
 
-#: devices remembered at most without --max-devices (beyond: the least recently seen forgotten)
-MAX_SEEN = 10_000
 
-
-class FleetBook:
+class Roster:
     """Last seen (ns, wall clock of the calibrator), places and open alerts per device, for at most ``max_devices``
     devices each (``--max-devices``): beyond, the least recently seen are forgotten, counted in ``forgotten`` and
     logged the first time."""
 
-    def __init__(self, places: Places | None = None, max_devices: int = MAX_SEEN) -> None:
-        self.places = places if places is not None else Places(max_reported=max_devices)
+    def __init__(self, places: Places | None = None, max_devices: int = DEFAULT_MAX_DEVICES) -> None:
+        self.places = places if places is not None else make_places(max_devices=max_devices)
         self.last_seen_ns: Recent[str, int] = Recent(max_devices)
         self.alerts: Recent[str, dict[AlertKind, Alert]] = Recent(max_devices)
         self.max_devices = max_devices
@@ -40,12 +38,20 @@ class FleetBook:
     def _check_bound(self, before: int) -> None:
         if before == 0 and self.forgotten:
             log.warning(
-                "more than %d devices in the fleet book: the least recently seen are forgotten (counted in status "
+                "more than %d devices in the roster: the least recently seen are forgotten (counted in status "
                 "forgotten_devices; raise --max-devices if they are genuine)",
                 self.max_devices,
             )
 
-    def seen(self, device: str, location: Any, now_ns: int) -> None:
+    def knows(self, device: str) -> bool:
+        """Whether ``device`` was seen (and not forgotten since) or is in the fleet file."""
+        return device in self.last_seen_ns or device in self.places.fleet
+
+    def devices(self) -> set[str]:
+        """Every device it knows of: seen, in the fleet file, or with open alerts."""
+        return set(self.last_seen_ns) | set(self.places.fleet) | {d for d, a in self.alerts.items() if a}
+
+    def seen(self, device: str, location: Location | None, now_ns: int) -> None:
         before = self.forgotten
         self.last_seen_ns[device] = now_ns
         self.places.report(device, location)

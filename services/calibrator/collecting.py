@@ -1,0 +1,107 @@
+"""The collection part of the calibrator: one sample buffer per device (``magnet.collection.Collection``, samples kept
+evenly spread over the sphere, at most ``--max-samples``), for at most ``--max-devices`` devices at once.
+
+A device with no calibration in force gets an automatic collection when automatic calibration is on; an operator's
+session opens one of its own (``services.calibrator.sessions``), which the ``--max-devices`` bound never drops. A due
+automatic collection is fitted only once its coverage reached ``--min-coverage`` (``ready``); until then the reason
+is kept on the collection and goes out with its progress. The bounded queue and the enrolment rate in front of it
+are ``services.calibrator.intake``. No zenoh, no store inside.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+
+from magnet import wire
+from magnet.bounded import Recent
+from magnet.collection import Collection
+from services.calibrator.settings import CalibratorSettings
+
+log = logging.getLogger("magnet.calibrator")
+
+
+class Collections:
+    """The collections in progress, by device; counts the raw batches and samples received for them."""
+
+    def __init__(self, settings: CalibratorSettings) -> None:
+        self.settings = settings
+        self.by_device: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
+        self.received_batches = 0
+        self.received_samples = 0
+        self._warned = False
+
+    def __contains__(self, device: object) -> bool:
+        return device in self.by_device
+
+    def __len__(self) -> int:
+        return len(self.by_device)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.by_device)
+
+    def get(self, device: str) -> Collection | None:
+        return self.by_device.get(device)
+
+    @property
+    def evicted(self) -> int:
+        """Collections dropped for the --max-devices bound."""
+        return self.by_device.evicted
+
+    def in_session(self, device: str) -> bool:
+        collection = self.by_device.get(device)
+        return collection is not None and collection.session
+
+    def receive(self, batch: wire.RawBatch, calibrated: bool) -> Collection | None:
+        """Count ``batch`` and add its samples to its device's collection: one is opened when the device has no
+        calibration in force (``calibrated`` False) and automatic calibration is on. The collection, or None when
+        nothing collects for the device."""
+        self.received_batches += 1
+        self.received_samples += len(batch)
+        device = batch.device
+        collection = self.by_device.get(device)
+        if collection is None:
+            if calibrated or not self.settings.auto:
+                return None
+            collection = self.by_device[device] = Collection(self.settings.method, False, self.settings.max_samples)
+            self._say_evicted()
+        self.by_device.touch(device)
+        collection.add(batch.mag_ut, batch.acc_ms2)
+        return collection
+
+    def ready(self, collection: Collection, now: float) -> bool:
+        """Whether a fit may be tried on a due collection: a session's always; an automatic one once its coverage
+        reached --min-coverage (else the reason is kept on it, and it waits for more cells)."""
+        cov = collection.coverage()
+        if collection.session or cov.fraction >= self.settings.min_coverage:
+            return True
+        collection.last_reason = (
+            f"coverage {cov.fraction:.0%} below {self.settings.min_coverage:.0%}: "
+            f"{', '.join(cov.missing) or 'move through more attitudes'}"
+        )
+        collection.last_fit_kept, collection.last_fit_s = collection.kept, now
+        return False
+
+    def open_session(self, device: str, method: str) -> None:
+        """A fresh collection for an operator's session with ``method`` (a checked method name)."""
+        self.by_device[device] = Collection(method, True, self.settings.max_samples)
+        self._say_evicted()
+
+    def end(self, device: str) -> None:
+        """Collection for ``device`` is over (stored, or its session aborted)."""
+        self.by_device.pop(device, None)
+
+    def clear(self) -> list[str]:
+        """Drop every collection; the devices whose session was dropped with it, sorted."""
+        sessions = sorted(d for d, c in self.by_device.items() if c.session)
+        self.by_device.clear()
+        return sessions
+
+    def _say_evicted(self) -> None:
+        if self.by_device.evicted and not self._warned:
+            self._warned = True
+            log.warning(
+                "more than %d devices collecting at once: the least recently seen are dropped (counted in status "
+                "evicted_devices; raise --max-devices if they are genuine)",
+                self.settings.max_devices,
+            )
