@@ -7,20 +7,27 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, MutableMapping
-from typing import TypeVar
+from typing import TypeVar, overload
 
 K = TypeVar("K")
 V = TypeVar("V")
+T = TypeVar("T")
 
 
 class Recent(MutableMapping[K, V]):
     """At most ``limit`` entries; inserting beyond it evicts the least recently seen one (for which ``keep(value)`` is
-    not true), counted in ``evicted``. ``touch(key)`` marks a key as just seen."""
+    not true), counted in ``evicted`` and handed to ``on_evict(key, value)`` (to release what it holds).
+    ``touch(key)`` marks a key as just seen; ``get`` does not."""
 
-    def __init__(self, limit: int, keep: Callable[[V], bool] | None = None) -> None:
+    def __init__(
+        self,
+        limit: int,
+        keep: Callable[[V], bool] | None = None,
+        on_evict: Callable[[K, V], None] | None = None,
+    ) -> None:
         if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
             raise ValueError(f"--max-devices must be a whole number >= 1, got {limit!r}")
-        self.limit, self.keep = limit, keep
+        self.limit, self.keep, self.on_evict = limit, keep, on_evict
         self.evicted = 0
         self._items: OrderedDict[K, V] = OrderedDict()
 
@@ -35,6 +42,18 @@ class Recent(MutableMapping[K, V]):
 
     def __getitem__(self, key: K) -> V:
         return self._items[key]
+
+    @overload
+    def get(self, key: K, /) -> V | None: ...
+    @overload
+    def get(self, key: K, default: V | T, /) -> V | T: ...
+    def get(self, key: K, default: object = None, /) -> object:
+        """The value of ``key`` (not marked as seen), else ``default``: a plain dict lookup, no exception raised."""
+        return self._items.get(key, default)
+
+    def clear(self) -> None:
+        """Forget every entry (not counted as evicted)."""
+        self._items.clear()
 
     def touch(self, key: K) -> None:
         if key in self._items:
@@ -60,5 +79,7 @@ class Recent(MutableMapping[K, V]):
             if self.keep is None or not self.keep(value):
                 del self._items[key]
                 self.evicted += 1
+                if self.on_evict is not None:
+                    self.on_evict(key, value)
                 return True
         return False

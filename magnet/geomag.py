@@ -139,18 +139,3 @@ def earth_field(lat_deg: float, lon_deg: float, alt_m: float = 0.0, date: DateLi
             "give a date in that span"
         )
     return _earth_field_cached(lat, lon, alt, year)
-
-
-def parse_location(text: str) -> tuple[float, float, float]:
-    """``"LAT,LON[,ALT_M]"`` (degrees, degrees, metres) -> (lat, lon, alt_m); ValueError naming the expected form."""
-    parts = [p.strip() for p in str(text).split(",")]
-    if len(parts) not in (2, 3) or any(p == "" for p in parts):
-        raise ValueError(f"location {text!r} must be LAT,LON or LAT,LON,ALT_M (e.g. 50.45,30.52,180)")
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        raise ValueError(f"location {text!r} must hold numbers: LAT,LON[,ALT_M] (e.g. 50.45,30.52,180)") from None
-    lat, lon = values[0], values[1]
-    alt = values[2] if len(values) == 3 else 0.0
-    _check_location(lat, lon, alt)
-    return lat, lon, alt

@@ -170,22 +170,27 @@ def dip_angle_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
 def disturbance_flags(
     field: np.ndarray,
     acc: np.ndarray | None,
-    expected_ut: float | None,
-    expected_dip_deg: float | None,
+    expected_ut: npt.ArrayLike | None,
+    expected_dip_deg: npt.ArrayLike | None,
     field_tol_pct: float = 15.0,
     dip_tol_deg: float = 5.0,
+    dip_deg: np.ndarray | None = None,
 ) -> np.ndarray:
-    """HeadingFlag bits (int, shape (...)) for corrected fields (..., 3) in uT and specific force (..., 3) or None.
+    """HeadingFlag bits (int64, shape (...)) for corrected fields (..., 3) in uT and specific force (..., 3) or None
+    (the one disturbance check: the live compass, ``magnet heading`` and the tests all call it).
 
-    FIELD_DISTURBED: | |B| - expected_ut | > field_tol_pct % of expected_ut (skipped when expected_ut is None or 0).
-    DIP_DISTURBED: |dip - expected_dip_deg| > dip_tol_deg (skipped without acc or expected dip).
+    ``expected_ut`` and ``expected_dip_deg``: one value or one per sample (...); None, NaN or (for the field) 0 where
+    nothing is expected, which sets no bit. ``dip_deg`` (...): the dip already computed from field and acc, if so.
+    FIELD_DISTURBED: | |B| - expected_ut | > field_tol_pct % of expected_ut.
+    DIP_DISTURBED: |dip - expected_dip_deg| > dip_tol_deg, where there is a tilt.
     NO_TILT: acc is None, or a sample's acc is zero or not finite. CALIBRATED is the caller's to add.
     """
     b = np.asarray(field, dtype=float)
     flags = np.zeros(b.shape[:-1], dtype=np.int64)
-    if expected_ut:
-        magnitude = row_norm(b)
-        disturbed = ~(np.abs(magnitude - expected_ut) <= expected_ut * field_tol_pct / 100.0)
+    if expected_ut is not None:
+        expected = np.asarray(expected_ut, dtype=float)
+        with np.errstate(invalid="ignore"):
+            disturbed = (np.abs(row_norm(b) - expected) > expected * field_tol_pct / 100.0) & (expected > 0)
         flags |= np.where(disturbed, int(HeadingFlag.FIELD_DISTURBED), 0)
     if acc is None:
         return flags | int(HeadingFlag.NO_TILT)
@@ -194,8 +199,9 @@ def disturbance_flags(
     no_tilt = ~(np.isfinite(norm) & (norm > _TINY))
     flags |= np.where(no_tilt, int(HeadingFlag.NO_TILT), 0)
     if expected_dip_deg is not None:
-        dip = dip_angle_deg(b, f)
-        dip_off = np.abs(dip - expected_dip_deg) > dip_tol_deg
+        dip = dip_angle_deg(b, f) if dip_deg is None else dip_deg
+        with np.errstate(invalid="ignore"):
+            dip_off = np.abs(dip - np.asarray(expected_dip_deg, dtype=float)) > dip_tol_deg
         flags |= np.where(dip_off & ~no_tilt, int(HeadingFlag.DIP_DISTURBED), 0)
     return flags
 

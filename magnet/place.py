@@ -1,7 +1,8 @@
 """Where a device is: ``Location`` (latitude, longitude in degrees, altitude in metres), checked in one place.
 
-On the wire a raw message may carry ``location: [lat_deg, lon_deg, alt_m]`` (optional); in a fleet file or on the
-command line it is ``"LAT,LON[,ALT_M]"`` or ``[lat, lon(, alt)]``. Pure: no wire, no files.
+On the wire a raw message may carry ``location: [lat_deg, lon_deg, alt_m]`` (optional); in a places file or on the
+command line it is ``"LAT,LON[,ALT_M]"`` or ``[lat, lon(, alt)]``. The one location type and parser of the project
+(every ``--location`` goes through ``Location.parse``, once per service). Pure: no wire, no files.
 """
 
 from __future__ import annotations
@@ -59,6 +60,10 @@ class Location:
         if len(numbers) not in (2, 3):
             raise ValueError(f"location {value!r} must hold 2 or 3 numbers: LAT,LON[,ALT_M]")
         return cls(*numbers)
+
+    def as_tuple(self) -> tuple[float, float, float]:
+        """``(lat_deg, lon_deg, alt_m)``, as ``magnet.geomag.earth_field`` takes them."""
+        return (self.lat_deg, self.lon_deg, self.alt_m)
 
     def to_wire(self) -> list[float]:
         """``[lat_deg, lon_deg, alt_m]``."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from compass_steps import NOW_NS, compass_core
 
 from magnet import wire
 from magnet.bounded import Recent
@@ -16,7 +17,6 @@ from magnet.place import Location
 from services.calibrator.roster import Roster
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
-from services.compass.service import Compass
 
 
 def test_recent_forgets_the_least_recently_seen_and_keeps_what_must_stay():
@@ -56,16 +56,16 @@ def test_calibrator_keeps_at_most_max_devices_collections_and_never_drops_a_sess
 
 
 def test_compass_keeps_at_most_max_devices_calibrations():
-    compass = Compass(Earth(), window=3, max_devices=2)
+    compass = compass_core(Earth(), window=3, max_devices=2)
     for i in range(5):
         cal = Calibration("ellipsoid", [float(i), 0, 0], np.eye(3))
         assert compass.accept_calibration(
             wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration", "magnet"
         )
-    assert list(compass.calibrations) == ["d3", "d4"]
-    compass.encode(compass.decode_columns([(f"magnet/n{i}/raw", _batch(f"n{i}")) for i in range(5)], "magnet"))
+    assert list(compass.calibrations.in_force) == ["d3", "d4"]
+    compass.step(compass.decode([(f"magnet/n{i}/raw", _batch(f"n{i}")) for i in range(5)], "magnet"), NOW_NS)
     # calibrations 3, tails 3, drift trackers 3
-    assert len(compass.tails) == 2 and compass.status("c").evicted_devices == 3 + 3 + 3
+    assert len(compass.smoothing.tails) == 2 and compass.status("c").evicted_devices == 3 + 3 + 3
 
 
 def test_a_collection_that_kept_a_few_samples_holds_small_arrays():
@@ -165,14 +165,25 @@ def _moving_batch(device, lat):
 
 
 def test_the_compass_keeps_places_drift_trackers_and_filters_for_at_most_max_devices(caplog):
-    compass = Compass(Earth(), window=1, max_devices=3)
+    compass = compass_core(Earth(), window=1, max_devices=3)
     for i in range(10):
         cal = Calibration("ellipsoid", [float(i), 0, 0], np.eye(3), field_strength=50.0)
         compass.accept_calibration(wire.encode_calibration(f"d{i}", cal, 1), f"magnet/d{i}/calibration", "magnet")
-        compass.encode(compass.decode_columns([(f"magnet/d{i}/raw", _moving_batch(f"d{i}", 10.0 + i))], "magnet"))
+        compass.step(compass.decode([(f"magnet/d{i}/raw", _moving_batch(f"d{i}", 10.0 + i))], "magnet"), NOW_NS)
     assert compass.watch.monitor is not None and list(compass.watch.monitor.trackers) == ["d7", "d8", "d9"]
     assert list(compass.watch.places.reported) == ["d7", "d8", "d9"]
-    assert list(compass.fusion.devices) == ["d7", "d8", "d9"]
+    assert list(compass.filters.devices) == ["d7", "d8", "d9"]
     # calibrations 7, tails 0 (window 1), places 7, trackers 7, filters 7
     assert compass.status("c").evicted_devices == 7 + 7 + 7 + 7
     assert len([r for r in caplog.records if "the least recently seen are forgotten" in r.getMessage()]) == 1
+
+
+def test_recent_hands_what_it_evicts_to_on_evict_and_get_does_not_touch():
+    released: list[tuple[str, int]] = []
+    recent: Recent[str, int] = Recent(2, on_evict=lambda key, value: released.append((key, value)))
+    recent["a"], recent["b"] = 1, 2
+    assert recent.get("a") == 1 and recent.get("zz") is None and recent.get("zz", 0) == 0
+    recent["c"] = 3  # "a" was only read, not touched: it is the least recently seen
+    assert released == [("a", 1)] and list(recent) == ["b", "c"] and recent.evicted == 1
+    recent.clear()
+    assert not recent and recent.evicted == 1 and released == [("a", 1)]

@@ -5,15 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from compass_steps import NOW_NS, compass_core, heading_batches
 from fusion_helpers import RATE_HZ, rotating_device
 
 from magnet import frames, fusion, wire
-from magnet.compass import Earth
-from magnet.fleet_fusion import GYRO_LIMIT_RADS, FleetFusion
+from magnet.compass import CompassCore, Earth
+from magnet.compass.filters import GYRO_LIMIT_RADS, DeviceFilters
 from magnet.frames import to_magnetic_ned
 from magnet.heading import HeadingFlag, angle_difference_deg
 from magnet.simulator import SimulatorConfig, Trajectory, simulate
-from services.compass.service import Compass
 
 BATCH = 25
 PERIOD_NS = int(1e9 / RATE_HZ)
@@ -42,10 +42,10 @@ def batches(device, name="imu-1", seq0=0, t0_ns=1_000_000_000_000, gyro=True):
     ]
 
 
-def run_compass(compass: Compass, raw: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
+def run_compass(compass: CompassCore, raw: list[wire.RawBatch]) -> list[wire.HeadingBatch]:
     out = []
     for start in range(0, len(raw), 7):  # drains of a few batches, as the loop sees them
-        out += compass.process(raw[start : start + 7])
+        out += heading_batches(compass, raw[start : start + 7])
     return out
 
 
@@ -55,7 +55,7 @@ def joined(headings: list[wire.HeadingBatch], name: str) -> np.ndarray:
 
 def test_compass_fuses_across_batches_as_one_causal_filter(device):
     gyr, acc, mag, truth = device
-    compass = Compass(Earth(declination_deg=5.0), window=1)
+    compass = compass_core(Earth(declination_deg=5.0), window=1)
     out = run_compass(compass, batches(device))
     reference = fusion.fuse_causal(gyr, acc, mag, 1.0 / RATE_HZ)
     np.testing.assert_allclose(joined(out, "heading_deg"), reference.heading_deg, atol=1e-6)
@@ -72,13 +72,13 @@ def test_compass_fuses_across_batches_as_one_causal_filter(device):
 
 def test_without_gyroscope_the_tilt_heading_stays():
     device = rotating_device(seconds=5.0)
-    out = run_compass(Compass(Earth(), window=1), batches(device, gyro=False))
+    out = run_compass(compass_core(Earth(), window=1), batches(device, gyro=False))
     assert not np.any(joined(out, "flags") & HeadingFlag.FUSED)
     assert all(h.quat_wxyz is None for h in out)  # messages of devices without a gyroscope stay as they were
 
 
 def test_a_gap_in_time_or_a_device_restart_restarts_the_filter(device):
-    fleet = FleetFusion()
+    fleet = DeviceFilters()
     raw = batches(device)
 
     def feed(items):
@@ -125,7 +125,7 @@ def test_bad_gyroscope_samples_are_dropped_counted_and_never_published_as_nan(de
         None,
         sat_gyr,
     )
-    compass = Compass(Earth(), window=1)
+    compass = compass_core(Earth(), window=1)
     out = run_compass(compass, raw)
     for name in ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg"):
         assert np.all(np.isfinite(joined(out, name))), name
@@ -133,7 +133,7 @@ def test_bad_gyroscope_samples_are_dropped_counted_and_never_published_as_nan(de
     assert dropped["raw:gyro-non-finite"] == 3 and dropped["raw:gyro-saturated"] == 1
     flags = out[10].flags
     assert not np.any(flags[3:6] & HeadingFlag.FUSED) and np.all(flags[6:] & HeadingFlag.FUSED)
-    assert compass.fusion.devices["imu-1"].restarts == 2  # the start, and after the saturated sample
+    assert compass.filters.devices["imu-1"].restarts == 2  # the start, and after the saturated sample
 
 
 def test_a_magnetic_disturbance_is_flagged_and_does_not_drag_the_heading(device):
@@ -143,7 +143,7 @@ def test_a_magnetic_disturbance_is_flagged_and_does_not_drag_the_heading(device)
     # a magnet under the device for ten seconds: |B| and dip change beyond vqf's thresholds (10 %, 10 deg). One that
     # kept both and only turned the field would be undetectable by any check of |B| and dip.
     disturbed[window] += np.array([0.0, 0.0, 30.0])
-    out = run_compass(Compass(Earth(), window=1), batches((gyr, acc, disturbed, truth)))
+    out = run_compass(compass_core(Earth(), window=1), batches((gyr, acc, disturbed, truth)))
     flags = joined(out, "flags")
     assert np.mean(flags[window] & HeadingFlag.FIELD_DISTURBED > 0) > 0.9
     true_heading, pitch, _ = frames.quaternion_to_euler(truth)
@@ -153,7 +153,7 @@ def test_a_magnetic_disturbance_is_flagged_and_does_not_drag_the_heading(device)
     raw_tilt = np.abs(
         angle_difference_deg(
             joined(
-                run_compass(Compass(Earth(), window=1), batches((gyr, acc, disturbed, truth), gyro=False)),
+                run_compass(compass_core(Earth(), window=1), batches((gyr, acc, disturbed, truth), gyro=False)),
                 "heading_deg",
             ),
             true_heading,
@@ -163,16 +163,17 @@ def test_a_magnetic_disturbance_is_flagged_and_does_not_drag_the_heading(device)
 
 
 def test_compass_encodes_the_fused_quaternion_on_the_wire(device):
-    compass = Compass(Earth(), window=1)
+    compass = compass_core(Earth(), window=1)
     raw = batches(device)[:8]
-    payloads = compass.encode(wire.RawColumns.from_batches(raw))
+    columns = wire.RawColumns.from_batches(raw)
+    payloads = compass.encode(columns, compass.step(columns, NOW_NS))
     decoded = [wire.decode_heading(p) for p in payloads]
     assert all(h.quat_wxyz is not None and h.quat_wxyz.shape == (BATCH, 4) for h in decoded)
     assert np.all(joined(decoded, "flags") & HeadingFlag.FUSED)
 
 
 def test_fleet_state_is_bounded(device):
-    fleet = FleetFusion(max_devices=3)
+    fleet = DeviceFilters(max_devices=3)
     first = batches(device)[0]
     for k in range(5):
         columns = wire.RawColumns.from_batches(
@@ -195,8 +196,8 @@ def test_devices_interleaved_in_one_drain_fuse_as_each_alone(device):
     order (joined into one vqf call per run), exactly as when each device is fed alone."""
     one, two = batches(device, "imu-1")[:12], batches(device, "imu-2", t0_ns=2_000_000_000_000)[:12]
     mixed = [b for pair in zip(one, two) for b in pair]
-    together = Compass(Earth(), window=1).process(mixed)
-    alone = Compass(Earth(), window=1).process(one) + Compass(Earth(), window=1).process(two)
+    together = heading_batches(compass_core(Earth(), window=1), mixed)
+    alone = heading_batches(compass_core(), one) + heading_batches(compass_core(), two)
     by_device = {name: joined([h for h in together if h.device == name], "heading_deg") for name in ("imu-1", "imu-2")}
     np.testing.assert_array_equal(by_device["imu-1"], joined(alone[:12], "heading_deg"))
     np.testing.assert_array_equal(by_device["imu-2"], joined(alone[12:], "heading_deg"))
@@ -223,7 +224,7 @@ def test_compass_aids_with_the_velocity_its_batches_carry_as_magnet_heading_does
         )
         for k, lo in enumerate(range(0, len(run.t_s), BATCH))
     ]
-    out = run_compass(Compass(Earth(declination_deg=declination), window=1), raw)
+    out = run_compass(compass_core(Earth(declination_deg=declination), window=1), raw)
     vel = to_magnetic_ned(run.vel_ned_ms, declination)
     reference = fusion.fuse_causal(run.gyr_rads, run.acc_ms2, run.mag_ut, 1.0 / RATE_HZ, None, t_ns * 1e-9, vel)
     np.testing.assert_allclose(joined(out, "heading_deg"), reference.heading_deg, atol=1e-6)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.compass.places import Places, parse_places
 from magnet.drift import Alert, AlertKind, advice_for
-from magnet.fleet import Places, parse_fleet
 from magnet.model import Calibration, Quality
 from magnet.place import Location
 from services.calibrator.roster import Roster
@@ -46,7 +46,7 @@ def calibrator(tmp_path):
         published: list = []
         roster = Roster(
             Places(
-                parse_fleet('{"far": {location: "-33.86,151.21,20", notes: "Sydney"}}'), default=Location(50.45, 30.52)
+                parse_places('{"far": {location: "-33.86,151.21,20", notes: "Sydney"}}'), default=Location(50.45, 30.52)
             )
         )
         yield Calibrator(store, CalibratorSettings(), lambda *a: published.append(a), clock_ns=Clock(), roster=roster)

@@ -8,7 +8,7 @@ import shlex
 import pytest
 from helpers import REPO_ROOT
 
-from magnet.fleet import parse_fleet
+from magnet.compass.places import parse_places
 from services.cli import build_parser
 
 SITE = REPO_ROOT / "deploy" / "site"
@@ -33,5 +33,5 @@ def test_each_units_command_is_one_magnet_accepts(unit):
 
 
 def test_the_example_fleet_file_parses():
-    fleet = parse_fleet((SITE / "services" / "fleet.json5").read_text())
+    fleet = parse_places((SITE / "services" / "fleet.json5").read_text())
     assert fleet["buoy-7"].location.lat_deg == -33.86 and fleet["spare-3"].location is None

@@ -8,16 +8,16 @@ import dataclasses
 import msgpack
 import numpy as np
 import pytest
+from compass_steps import compass_core, heading_batches
 
 from magnet import heading as hd
 from magnet import wire
-from magnet.compass import Earth
-from magnet.fleet import Places, earth_at, parse_fleet
+from magnet.compass import Earth, Places, earth_at
+from magnet.compass.earth import utc_date
+from magnet.compass.places import parse_places
 from magnet.geomag import earth_field
 from magnet.place import Location
 from magnet.simulator import SimulatedDevices
-from services.compass.service import Compass
-from services.compass.watch import FleetWatch
 
 KYIV, SYDNEY = Location(50.45, 30.52, 180.0), Location(-33.86, 151.21, 20.0)
 DATE = "2026-06-01"
@@ -71,8 +71,8 @@ def test_the_location_travels_in_raw_messages_and_a_bad_one_is_dropped_with_its_
     assert [b.location for b in columns.batches()] == [KYIV, None]
 
 
-def test_a_fleet_file_is_json5_and_a_bad_entry_names_the_device():
-    fleet = parse_fleet("""{
+def test_a_places_file_is_json5_and_a_bad_entry_names_the_device():
+    fleet = parse_places("""{
         // the roof
         "mast-1": {location: "50.45,30.52,180", notes: "roof mast",},
         "buoy-7": {location: [-33.86, 151.21]},
@@ -88,12 +88,12 @@ def test_a_fleet_file_is_json5_and_a_bad_entry_names_the_device():
         ("{oops", "JSON5"),
     ]:
         with pytest.raises(ValueError, match=named):
-            parse_fleet(text)
+            parse_places(text)
 
 
-def test_a_devices_own_report_wins_over_the_fleet_file_which_wins_over_the_default():
+def test_a_devices_own_report_wins_over_the_places_file_which_wins_over_the_default():
     places = Places(
-        parse_fleet('{"a": {location: "-33.86,151.21,20"}, "b": {location: "-33.86,151.21,20"}}'),
+        parse_places('{"a": {location: "-33.86,151.21,20"}, "b": {location: "-33.86,151.21,20"}}'),
         default=KYIV,
         date=DATE,
     )
@@ -102,15 +102,15 @@ def test_a_devices_own_report_wins_over_the_fleet_file_which_wins_over_the_defau
     assert places.location("b") == KYIV
     sydney = earth_field(-33.86, 151.21, 20.0, DATE)
     assert places.earth("a").declination_deg == pytest.approx(sydney.declination_deg, abs=0.01)
-    assert earth_at(None) == Earth()
+    assert earth_at(None, DATE) == Earth()
 
 
 def test_two_devices_far_apart_get_their_own_declination_and_expected_field():
     kyiv = earth_field(KYIV.lat_deg, KYIV.lon_deg, KYIV.alt_m, DATE)
     sydney = earth_field(SYDNEY.lat_deg, SYDNEY.lon_deg, SYDNEY.alt_m, DATE)
     assert abs(kyiv.declination_deg - sydney.declination_deg) > 3  # the places really differ
-    places = Places(parse_fleet('{"syd": {location: "-33.86,151.21,20"}}'), date=DATE)
-    compass = Compass(Earth(), 1, watch=FleetWatch(places))
+    places = Places(parse_places('{"syd": {location: "-33.86,151.21,20"}}'), date=DATE)
+    compass = compass_core(places=places)
     # each device measures the true field of its own place (no iron): level, turning
     batches = []
     for device, place, seed in (("kyiv", KYIV, 1), ("syd", None, 2)):
@@ -129,12 +129,27 @@ def test_two_devices_far_apart_get_their_own_declination_and_expected_field():
         )
         step = sim.step(20)
         batches.append(wire.RawBatch(device, 1, "sim", step.t_ns, step.mag_ut[0], step.acc_ms2[0], location=place))
-    out = {h.device: h for h in compass.process(batches)}
+    out = {h.device: h for h in heading_batches(compass, batches)}
     assert out["kyiv"].declination_deg == pytest.approx(kyiv.declination_deg, abs=0.01)
     assert out["syd"].declination_deg == pytest.approx(sydney.declination_deg, abs=0.01)
     for h in out.values():
         assert np.allclose(hd.true_heading_deg(h.heading_deg, h.declination_deg), h.true_heading_deg)
         assert not h.disturbed.any()  # each judged against its own place's |B| and dip (they differ by > 15 %)
     # the same Sydney field judged against Kyiv's expectation is disturbed
-    kyiv_only = Compass(Earth(), 1, watch=FleetWatch(Places(default=KYIV, date=DATE)))
-    assert kyiv_only.process([dataclasses.replace(batches[1], location=None)])[0].disturbed.all()
+    kyiv_only = compass_core(places=Places(default=KYIV, date=DATE))
+    assert heading_batches(kyiv_only, [dataclasses.replace(batches[1], location=None)])[0].disturbed.all()
+
+
+def test_without_a_fixed_date_the_model_is_dated_by_the_step_clock_not_frozen():
+    """No --date: each step's own day (from the clock the step is given) dates the model; a day later, a later
+    declination (the secular variation), with no cache holding the first day."""
+    compass = compass_core(places=Places(default=KYIV))
+    batch = wire.RawBatch("k", 0, "sim", np.arange(2), np.tile([20.0, 0.0, 40.0], (2, 1)), None)
+    early, late = 1_767_225_600 * 10**9, 1_893_369_600 * 10**9  # 2026-01-01, 2029-12-31 (UTC)
+    assert str(utc_date(early)) == "2026-01-01" and str(utc_date(late)) == "2029-12-31"
+    [first] = heading_batches(compass, [batch], early)
+    [second] = heading_batches(compass, [dataclasses.replace(batch, seq=1)], late)
+    for h, day in ((first, "2026-01-01"), (second, "2029-12-31")):
+        expected = earth_field(KYIV.lat_deg, KYIV.lon_deg, KYIV.alt_m, day).declination_deg
+        assert h.declination_deg == pytest.approx(expected, abs=0.01)
+    assert abs(first.declination_deg - second.declination_deg) > 0.1

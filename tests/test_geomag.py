@@ -5,7 +5,8 @@ import datetime
 import numpy as np
 import pytest
 
-from magnet.geomag import decimal_year, earth_field, parse_location
+from magnet.geomag import decimal_year, earth_field
+from magnet.place import Location
 
 # NOAA/BGS WMM2025 test values (WMM2025_TestValues.txt): (decimal year, height km, lat, lon, declination deg)
 OFFICIAL = [
@@ -87,12 +88,12 @@ def test_near_the_magnetic_pole_the_compass_is_flagged():
     assert not earth_field(50.0, 30.0, 0.0, 2026.0).caution
 
 
-def test_parse_location():
-    assert parse_location("50.45, 30.52") == (50.45, 30.52, 0.0)
-    assert parse_location("-33.9,151.2,120") == (-33.9, 151.2, 120.0)
+def test_a_location_is_parsed_in_one_place():
+    assert Location.parse("50.45, 30.52").as_tuple() == (50.45, 30.52, 0.0)
+    assert Location.parse("-33.9,151.2,120").as_tuple() == (-33.9, 151.2, 120.0)
     for bad in ["50.45", "a,b", "1,2,3,4", "95,0", "", "50,"]:
         with pytest.raises(ValueError, match=r"LAT|latitude|location"):
-            parse_location(bad)
+            Location.parse(bad)
 
 
 def test_kyiv_field_is_close_to_the_one_seed_000_used():

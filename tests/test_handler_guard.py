@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from compass_steps import compass_core
 
 from magnet import wire
 from magnet.compass import Earth
@@ -22,7 +23,6 @@ from services.calibrator.intake import Enrolment, RawIntake
 from services.calibrator.service import Calibrator, CalibratorSettings, ServiceLoop, _declare_answers
 from services.calibrator.store import CalibrationStore, StoreError
 from services.common.guard import Guard, refusal
-from services.compass.core import Compass
 from services.dashboard.app import create_app
 from services.dashboard.state import FleetState
 
@@ -239,7 +239,7 @@ def _compass_loop(monkeypatch):
             self.puts.append(key)
 
     settings = compass_service.CompassSettings(max_devices=100)
-    compass = Compass(Earth(5.0), 1)
+    compass = compass_core(Earth(5.0), 1)
     session = Session()
     return compass_service._Loop(session, compass, settings), compass, session
 
@@ -254,18 +254,21 @@ class FakeSample:
 
 
 def test_compass_survives_a_failing_calibration_handler_and_a_failing_drain(monkeypatch):
+    from services.compass import service as compass_service
+
     loop, compass, session = _compass_loop(monkeypatch)
     cal, status_q, alert_q, raw = FakeChannel(), FakeChannel(), FakeChannel(), FakeChannel()
     monkeypatch.setattr(compass, "accept_calibration", lambda *a: (_ for _ in ()).throw(RuntimeError("bug")))
     cal.items.append(FakeSample(f"{PREFIX}/d1/calibration", b"x"))
     monkeypatch.setattr(compass, "encode", lambda *a: (_ for _ in ()).throw(MemoryError("too big")))
     raw.items += [FakeSample(f"{PREFIX}/d1/raw", _raw("d1", i)) for i in range(3)]
-    loop.step(cal, status_q, alert_q, raw, "c")
+    ends = compass_service._Ends(raw, cal, status_q, alert_q)  # type: ignore[arg-type]
+    loop.step(ends, "c")
     monkeypatch.undo()
     raw.items.append(FakeSample(f"{PREFIX}/d1/raw", _raw("d1", 9)))
     query = FakeQuery(f"{PREFIX}/@status/c")
     status_q.items.append(query)
-    loop.step(cal, status_q, alert_q, raw, "c")
+    loop.step(ends, "c")
     status = query.replies[0][1]
     assert status["dropped"] == {"calibration:handler-RuntimeError": 1, "raw:handler-MemoryError": 3}
     assert session.puts == [f"{PREFIX}/d1/heading"]  # the next drain got its heading

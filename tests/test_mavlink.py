@@ -141,10 +141,11 @@ def test_garbage_and_unusable_messages_are_dropped_and_counted_and_vehicles_go_q
 
 def test_battery_current_from_a_vehicle_reaches_the_compass_which_takes_the_motors_field_out() -> None:
     """SYS_STATUS current and SCALED_IMU2 field through the stream, the wire and the compass with a motor model."""
+    from compass_steps import compass_core, heading_batches
+
     from magnet.compass import Earth
     from magnet.model import IDENTITY
     from magnet.motor import MotorModel
-    from services.compass.core import Compass
 
     earth, per_amp, amps = np.array([18.0, 3.0, 47.0]), np.array([0.1, -0.05, 0.2]), 25.0
     measured_mgauss = np.round((earth + per_amp * amps) * 10).astype(int)
@@ -158,8 +159,8 @@ def test_battery_current_from_a_vehicle_reaches_the_compass_which_takes_the_moto
     [batch] = stream.take(NOW + 3)
     batch = wire.decode_raw(wire.encode_raw(batch))
     assert batch.current_a is not None and np.allclose(batch.current_a, amps)
-    compass = Compass(Earth(), window=1)
+    compass = compass_core(Earth(), window=1)
     record = wire.encode_calibration("mav4-mag1", IDENTITY.replace(motor=MotorModel("current", per_amp)), 1)
     assert compass.accept_calibration(record, "magnet/mav4-mag1/calibration", "magnet")
-    [out] = compass.process([batch])
+    [out] = heading_batches(compass, [batch])
     np.testing.assert_allclose(out.field_ut, np.tile(earth, (3, 1)), atol=0.06)  # 0.1 uT steps of milligauss

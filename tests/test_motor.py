@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from compass_steps import compass_core, heading_batches
 
 from magnet import wire
 from magnet.calibration import FitError, fit
@@ -21,7 +22,6 @@ from magnet.motor import MotorModel, interference_pct
 from magnet.simulator import Motors, SensorErrors, SimulatorConfig, simulate
 from magnet.simulator.motion import G_NED
 from services.cli import main
-from services.compass.core import Compass
 
 ERRORS = SensorErrors(
     hard_iron_ut=(20.0, -15.0, 8.0),
@@ -94,10 +94,10 @@ def _full_throttle_heading_error(calibration: Calibration) -> float:
     accelerometer of a vehicle at rest in that attitude), so the error is the magnetometer's."""
     run = flight()
     acc = ned_to_body_euler(-G_NED, run.heading_deg, run.pitch_deg, run.roll_deg)
-    compass = Compass(Earth(), window=1)
+    compass = compass_core(Earth(), window=1)
     assert compass.accept_calibration(wire.encode_calibration("q", calibration, 1), "magnet/q/calibration", "magnet")
     batch = wire.RawBatch("q", 0, "mav", np.arange(len(run.t_s)), run.mag_ut, acc, current_a=run.current_a)
-    [out] = compass.process([batch])
+    [out] = heading_batches(compass, [batch])
     top = (run.throttle > 0.95) & (np.abs(run.pitch_deg) < 60)
     error = angle_difference_deg(out.heading_deg[top], run.magnetic_heading_deg[top])
     return float(np.sqrt(np.mean(error**2)))

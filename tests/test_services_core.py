@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from compass_steps import compass_core, heading_batches
 
 from magnet import wire
 from magnet.collection import Collection, fine_cells
@@ -15,7 +16,6 @@ from services.calibrator.queries import MAX_HISTORY_LIMIT, history_limit
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
 from services.commands.heading import load_calibration
-from services.compass.service import Compass
 
 HARD = np.array([30.0, -12.0, 8.0])
 SOFT = np.array([[1.1, 0.04, 0.0], [0.04, 0.9, 0.02], [0.0, 0.02, 1.0]])
@@ -127,10 +127,10 @@ def test_session_commit_abort_and_status(store):
 def test_compass_applies_calibration_tilt_and_declination():
     run = simulate(SimulatorConfig(count=600, errors=SensorErrors(hard_iron_ut=HARD, soft_iron=SOFT)))  # no noise
     truth = SensorErrors(hard_iron_ut=HARD, soft_iron=SOFT).true_calibration()
-    compass = Compass(Earth(declination_deg=7.0), window=1)
+    compass = compass_core(Earth(declination_deg=7.0), window=1)
     compass.accept_calibration(wire.encode_calibration("d", truth, 1), "magnet/d/calibration", "magnet")
     raw = wire.RawBatch("d", 3, "sim", np.arange(600), run.mag_ut, run.acc_ms2)
-    [out] = compass.process([raw])
+    [out] = heading_batches(compass, [raw])
     usable = np.abs(run.pitch_deg) < 85
     error = (out.heading_deg - run.magnetic_heading_deg + 180) % 360 - 180
     assert np.abs(error[usable]).max() < 1e-6
@@ -140,19 +140,19 @@ def test_compass_applies_calibration_tilt_and_declination():
 
 
 def test_compass_without_acc_or_calibration_flags_it_and_counts_garbage():
-    compass = Compass(Earth(), window=3)
+    compass = compass_core(Earth(), window=3)
     raw = wire.RawBatch("x", 0, "sim", np.arange(4), np.tile([20.0, 0.0, 40.0], (4, 1)), None)
-    [out] = compass.process([raw])
+    [out] = heading_batches(compass, [raw])
     assert np.all(out.flags & HeadingFlag.NO_TILT) and not np.any(out.flags & HeadingFlag.CALIBRATED)
     np.testing.assert_allclose(out.heading_deg, 0.0, atol=1e-9)
-    assert compass.decode([("magnet/x/raw", b"junk"), ("magnet/y/raw", wire.encode_raw(raw))], "magnet") == []
+    assert compass.decode([("magnet/x/raw", b"junk"), ("magnet/y/raw", wire.encode_raw(raw))], "magnet").devices == []
     compass.accept_calibration(b"\x93\x01\x02\x03", "magnet/x/calibration", "magnet")
     assert compass.drops.counts == {"raw:not-msgpack": 1, "raw:key-mismatch": 1, "calibration:not-a-map": 1}
-    assert compass.calibrations == {}
+    assert compass.calibrations.in_force == {}
 
 
 def test_compass_identity_when_uncalibrated_matches_raw_field():
-    compass = Compass(Earth(), window=1)
+    compass = compass_core(Earth(), window=1)
     raw = wire.RawBatch(
         "x",
         0,
@@ -161,7 +161,7 @@ def test_compass_identity_when_uncalibrated_matches_raw_field():
         np.array([[10.0, -10.0, 40.0], [0.0, 10.0, 40.0]]),
         np.tile([0.0, 0.0, -9.8], (2, 1)),
     )
-    [out] = compass.process([raw])
+    [out] = heading_batches(compass, [raw])
     np.testing.assert_allclose(out.field_ut, raw.mag_ut)
     np.testing.assert_allclose(out.heading_deg, [45.0, 270.0], atol=1e-9)
     np.testing.assert_allclose(out.pitch_deg, 0.0, atol=1e-9)
@@ -169,13 +169,13 @@ def test_compass_identity_when_uncalibrated_matches_raw_field():
 
 
 def test_compass_refuses_an_implausible_calibration_and_keeps_the_one_in_force():
-    compass = Compass(Earth(), window=1)
+    compass = compass_core(Earth(), window=1)
     genuine = Calibration("ellipsoid", [10.0, 0.0, 0.0], np.eye(3))
     compass.accept_calibration(wire.encode_calibration("k", genuine, 1), "magnet/k/calibration", "magnet")
     for matrix in ([[-1, 0, 0], [0, 1, 0], [0, 0, 1]], np.diag([1e9, 1, 1]).tolist()):
         forged = {**wire.calibration_record("k", genuine, 2), "offset": [100.0, 0, 0], "matrix": matrix}
         compass.accept_calibration(wire.pack(forged), "magnet/k/calibration", "magnet")
-    assert compass.calibrations["k"].id == genuine.content_id
+    assert compass.calibrations.in_force["k"].id == genuine.content_id
     assert compass.drops.counts == {"calibration:bad-calibration": 2}
 
 

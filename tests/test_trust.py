@@ -9,13 +9,13 @@ import sqlite3
 import msgpack
 import numpy as np
 import pytest
+from compass_steps import compass_core
 
 from magnet import signing, wire
 from magnet.compass import Earth
 from magnet.model import Calibration
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
-from services.compass.service import Compass
 
 GENUINE = Calibration(
     "ellipsoid", [10.0, -5.0, 2.0], np.diag([1.05, 0.95, 1.0]), field_strength=50, quality={"coverage": 0.9}
@@ -57,24 +57,26 @@ def test_the_signature_covers_the_version(key):
 
 def test_compass_orders_by_version_not_by_the_wall_clock(key):
     signer, public = key
-    compass = Compass(Earth(), window=1, trusted=signing.TrustedKeys([public]))
+    compass = compass_core(Earth(), window=1, trusted=signing.TrustedKeys([public]))
     future = _signed(signer, GENUINE, FAR_FUTURE_NS, 1)  # made by a calibrator whose clock ran 70 years ahead
     assert compass.accept_calibration(msgpack.packb(future), KEY, "magnet")
     newer = _signed(signer, MOVED, 1_000, 2)  # the next record, made by a calibrator with a sane clock
     assert compass.accept_calibration(msgpack.packb(newer), KEY, "magnet"), compass.drops.counts
-    assert compass.calibrations["k"].id == MOVED.content_id
+    assert compass.calibrations.in_force["k"].id == MOVED.content_id
     assert not compass.accept_calibration(msgpack.packb(future), KEY, "magnet"), "a replayed older version"
-    assert compass.calibrations["k"].id == MOVED.content_id and compass.drops.counts == {"calibration:stale": 1}
+    assert compass.calibrations.in_force["k"].id == MOVED.content_id and compass.drops.counts == {
+        "calibration:stale": 1
+    }
     # a rollback to the first calibration is a new record (version 3) with the old content: it is applied, and
     # version 2 replayed afterwards is stale, although its id differs
     rollback = _signed(signer, GENUINE, 2_000, 3)
     assert compass.accept_calibration(msgpack.packb(rollback), KEY, "magnet")
     assert not compass.accept_calibration(msgpack.packb(newer), KEY, "magnet")
-    assert compass.calibrations["k"].version == 3
+    assert compass.calibrations.in_force["k"].version == 3
 
 
 def test_records_from_before_versions_are_ordered_as_before_and_yield_to_numbered_ones():
-    compass = Compass(Earth(), window=1)
+    compass = compass_core(Earth(), window=1)
     old_future = wire.DeviceCalibration("k", FAR_FUTURE_NS, GENUINE).to_record()
     old_earlier = wire.DeviceCalibration("k", 10, MOVED).to_record()
     assert compass.accept_calibration(msgpack.packb(old_future), KEY, "magnet")

@@ -66,9 +66,8 @@ def _drain(devices: int = 50, samples: int = 10, rate_hz: float = 50.0) -> tuple
     import numpy as np
 
     from magnet import wire
-    from magnet.compass import Earth
+    from magnet.compass import CompassCore
     from magnet.simulator import SimulatedDevices
-    from services.compass.core import Compass
 
     step = SimulatedDevices(devices, rate_hz=rate_hz, seed=1, gyro=True).step(samples)
     gyr = np.asarray(step.gyr_rads)
@@ -78,9 +77,8 @@ def _drain(devices: int = 50, samples: int = 10, rate_hz: float = 50.0) -> tuple
         for d in range(devices)
     ]
     columns = wire.RawColumns.from_batches(batches)
-    compass = Compass(Earth(), 1)
-    compass.encode(columns)
-    return columns, compass.last, compass.calibrations
+    core = CompassCore()
+    return columns, core.step(columns, int(t_ns[-1])), core.calibrations.in_force
 
 
 def publish_cost(repeats: int = 20) -> tuple[float, float]:

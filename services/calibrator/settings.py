@@ -18,14 +18,14 @@ from typing import Any
 
 from magnet import signing
 from magnet.calibration import Method
-from magnet.fleet import FleetEntry
-from magnet.fleet import Places as Places  # the roster's type, named here with the rest of the places modules
+from magnet.compass.places import PlaceEntry
+from magnet.compass.places import Places as Places  # the roster's type, named here with the rest of the places modules
 from magnet.geomag import earth_field
 from magnet.place import Location
 from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.intake import DEFAULT_ENROL_RATE, DEFAULT_MAX_QUEUE
-from services.common.fleet_options import add_fleet_argument, read_fleet
 from services.common.options import add_options, at_least, check_options, from_args, option, positive, within
+from services.common.places_options import add_fleet_argument, read_fleet
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 log = logging.getLogger("magnet.calibrator")
@@ -147,7 +147,7 @@ class ServiceSettings:
         help="raw messages waiting to be processed at most; beyond, dropped and counted in status "
         "dropped[raw:queue-full]",
     )
-    fleet: tuple[FleetEntry, ...] = ()  # --fleet FILE.json5: each device's place and notes
+    fleet: tuple[PlaceEntry, ...] = ()  # --fleet FILE.json5: each device's place and notes
     zenoh: ZenohSettings = ZenohSettings()
 
     def __post_init__(self) -> None:
@@ -178,7 +178,7 @@ def settings_from_args(args: argparse.Namespace) -> ServiceSettings:
 
 
 def make_places(
-    fleet: tuple[FleetEntry, ...] = (), default: Location | None = None, max_devices: int = DEFAULT_MAX_DEVICES
+    fleet: tuple[PlaceEntry, ...] = (), default: Location | None = None, max_devices: int = DEFAULT_MAX_DEVICES
 ) -> Places:
     """Each device's place and expected field: reported, else its fleet-file entry's, else ``default``; reported
     places remembered for at most ``max_devices`` devices."""

@@ -4,36 +4,45 @@ Columns: ``t_s`` (when the input has it), ``heading_deg`` (magnetic), ``true_hea
 ``roll_deg``, ``field_x_ut``, ``field_y_ut``, ``field_z_ut``, ``dip_deg``, ``flags`` (magnet.heading.HeadingFlag),
 ``qw,qx,qy,qz`` (body -> NED with true north, i.e. the attitude whose heading is ``true_heading_deg``).
 
-With ``gx,gy,gz`` (rad/s, body frame) and ``ax,ay,az`` the attitude comes from the gyroscope-aided filter
-(``magnet.fusion``, flag FUSED): causal as the live compass runs it, or ``--offline`` (looks ahead: the best
-estimate for a log). With ``vn,ve,vd`` (velocity over the ground, m/s, geographic NED; empty or NaN where unknown)
-the filter removes the linear acceleration the velocity implies (``magnet.aiding``), as the live compass does. Its
-sample period comes from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is tilt-
-compensated with the accelerometer; without ``ax,ay,az`` it is the level heading and pitch and roll are 0 with the
-NO_TILT flag. Without ``--calibration`` the raw field is used as it is (a factory-calibrated sensor, or a fit that
-was refused).
+The headings come from the live compass's own step (``magnet.compass.CompassCore.step``): the file is one device's
+raw batches (its runs of samples, cut where the time goes backwards or pauses for more than the filter's gap), so
+``magnet heading`` prints what ``magnet compass`` publishes for the same samples. With ``gx,gy,gz`` (rad/s, body
+frame) and ``ax,ay,az`` the attitude comes from the gyroscope-aided filter (``magnet.fusion``, flag FUSED), causal as
+the live compass runs it; ``--offline`` is a different estimator (it looks ahead: the best estimate for a log, not
+what the compass gives). With ``vn,ve,vd`` (velocity over the ground, m/s, geographic NED; empty or NaN where
+unknown) the filter removes the linear acceleration the velocity implies (``magnet.aiding``). The samples' times
+come from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is tilt-compensated with the
+accelerometer; without ``ax,ay,az`` it is the level heading and pitch and roll are 0 with the NO_TILT flag. Without
+``--calibration`` the raw field is used as it is (a factory-calibrated sensor, or a fit that was refused).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import datetime
 import sys
+import time
 
 import numpy as np
 
-from magnet import frames, fusion
+from magnet import frames, fusion, wire
 from magnet import heading as hd
 from magnet.autopilot import compare_headings
+from magnet.compass import CompassCore, CoreSettings, Earth, HeadingColumns, Places, earth_at
+from magnet.compass.filters import MAX_GAP_S
+from magnet.compass.tilt import Headings
 from magnet.frames import to_magnetic_ned
-from magnet.geomag import earth_field, parse_location
 from magnet.model import Calibration
+from magnet.place import Location
 from services.commands.fit import gyro_columns, sample_period_s
 from services.common.csvio import SampleTable, write_csv
 from services.common.input_options import InputOptions
 from services.common.inputs import add_input_arguments, read_input_told, reference_yaw
 from services.common.place import add_field_arguments
 from services.common.records import load_calibration
+
+#: the device the file's samples are, for the compass's core
+FILE_DEVICE = "file"
 
 COLUMNS = (
     "heading_deg",
@@ -75,7 +84,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--rate", type=float, metavar="HZ", help="sample rate for the gyroscope fusion (default: from the t_s column)"
     )
     parser.add_argument(
-        "--offline", action="store_true", help="with a gyroscope: the best estimate for a log (the filter looks ahead)"
+        "--offline",
+        action="store_true",
+        help="with a gyroscope: the best estimate for a log, from its own estimator (the filter looks ahead, which "
+        "the live compass cannot; without it the headings are the live compass's)",
     )
     parser.add_argument(
         "--compare",
@@ -85,71 +97,99 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _declination_deg(args: argparse.Namespace) -> tuple[float, float | None, float | None]:
-    """(declination, expected field uT or None, expected dip deg or None) from the options."""
+def _earth(args: argparse.Namespace, calibration: Calibration | None) -> Earth:
+    """What to expect: the WMM at --location on --date (default today), or --declination; the field strength is the
+    calibration's own where the model gives none."""
     if args.declination is not None and args.location:
         raise ValueError("give either --declination or --location, not both")
     if args.location:
-        lat, lon, alt_m = parse_location(args.location)
-        field = earth_field(lat, lon, alt_m, args.date)
-        return field.declination_deg, field.total_ut, field.inclination_deg
+        return earth_at(Location.parse(args.location), args.date or datetime.date.today())
     if args.date:
         raise ValueError("--date needs --location")
     if args.declination is not None and not -180 <= args.declination <= 180:
         raise ValueError(f"--declination {args.declination} is outside -180..180 degrees")
-    return float(args.declination or 0.0), None, None
+    strength = (calibration.field_strength or None) if calibration is not None else None
+    return Earth(float(args.declination or 0.0), strength, None)
 
 
-@dataclasses.dataclass(frozen=True)
-class Attitude:
-    """Per sample (N,): magnetic heading, pitch, roll, dip (degrees), body -> magnetic NED quat (N, 4), the
-    down direction in body axes as a specific force (N, 3) (for the disturbance checks; None without tilt) and
-    flags the method adds (FUSED, FIELD_DISTURBED from the filter)."""
+def file_times_ns(table: SampleTable, rate_hz: float | None, gyro: bool) -> np.ndarray:
+    """The samples' times (N,) int64 ns: the ``t_s`` column's, or every 1 / --rate from the first (0 without
+    ``t_s``); kept as the recording's intervals from the first sample, as ``magnet edge --replay`` stamps them."""
+    count = len(table.mag)
+    t_s = table.numeric("t_s") if "t_s" in table.columns else None
+    first_ns = int(np.round(t_s[0] * 1e9)) if t_s is not None and count else 0
+    if gyro or rate_hz is not None:
+        period_s = sample_period_s(table, rate_hz)
+        if rate_hz is not None or t_s is None:
+            return first_ns + np.round(np.arange(count) * period_s * 1e9).astype(np.int64)
+    if t_s is None:
+        return np.arange(count, dtype=np.int64) * 10_000_000
+    return first_ns + np.round((t_s - t_s[0]) * 1e9).astype(np.int64)
 
-    heading: np.ndarray
-    pitch: np.ndarray
-    roll: np.ndarray
-    quat: np.ndarray
-    up_force: np.ndarray | None
-    flags: np.ndarray
+
+def sample_runs(t_ns: np.ndarray) -> np.ndarray:
+    """Samples per run (R,): the file cut where the time does not go forward or pauses longer than the filter's
+    gap, as a device's batches would be (a batch's times go forward; a gap restarts its filter)."""
+    cuts = np.flatnonzero((np.diff(t_ns) <= 0) | (np.diff(t_ns) > MAX_GAP_S * 1e9)) + 1
+    return np.diff(np.concatenate([[0], cuts, [len(t_ns)]])).astype(np.int64)
 
 
-def velocity_aiding(
-    table: SampleTable, period_s: float, declination_deg: float
-) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """(times (N,) s, velocities (N, 3) m/s in magnetic NED) from the vn,ve,vd columns (geographic NED, empty or NaN
-    where unknown) and t_s (else the sample period), or (None, None) when the file has no velocity."""
+def file_columns(table: SampleTable, gyr: np.ndarray | None, rate_hz: float | None) -> wire.RawColumns:
+    """The file as one device's raw batches (its sample runs), float64, acc in m/s^2 (``fusion.acc_in_ms2``)."""
+    if gyr is not None and table.acc is None:
+        raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
+    count = len(table.mag)
+    t_ns = file_times_ns(table, rate_hz, gyr is not None)
+    counts = sample_runs(t_ns) if count else np.zeros(0, dtype=np.int64)
+    nan_rows = np.full((count, 3), np.nan)
     vel = table.vel_ned_ms()
-    if vel is None:
-        return None, None
-    t_s = table.numeric("t_s") if "t_s" in table.columns else np.arange(len(vel)) * period_s
-    return t_s, to_magnetic_ned(vel, declination_deg)
+    return wire.RawColumns(
+        [FILE_DEVICE] * len(counts),
+        list(range(len(counts))),
+        counts,
+        t_ns,
+        np.asarray(table.mag, dtype=np.float64),
+        nan_rows if table.acc is None else fusion.acc_in_ms2(table.acc),
+        nan_rows if gyr is None else np.asarray(gyr, dtype=np.float64),
+        ["file"] * len(counts),
+        None,
+        nan_rows if vel is None else vel,
+    )
 
 
-def _fused(
-    table: SampleTable, gyr: np.ndarray, field: np.ndarray, args: argparse.Namespace, declination_deg: float
-) -> Attitude:
+def causal_headings(
+    raw: wire.RawColumns, calibration: Calibration | None, earth: Earth, window: int, now_ns: int
+) -> HeadingColumns:
+    """The live compass's step on the file's columns, with the calibration in force and ``earth`` expected."""
+    core = CompassCore(CoreSettings(window, drift=None), Places(default_earth=earth))
+    if calibration is not None:
+        core.calibrations.put(wire.DeviceCalibration(FILE_DEVICE, now_ns, calibration))
+    return core.step(raw, now_ns)
+
+
+def offline_headings(
+    table: SampleTable, gyr: np.ndarray, field: np.ndarray, args: argparse.Namespace, earth: Earth, calibrated: bool
+) -> HeadingColumns:
+    """``--offline``: its own estimator, not the compass's (vqf's offline filter looks ahead over the whole log)."""
     if table.acc is None:
         raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
-    run = fusion.fuse_offline if args.offline else fusion.fuse_causal
     period_s = sample_period_s(table, args.rate)
-    t_s, vel = velocity_aiding(table, period_s, declination_deg)
-    fused = run(gyr, fusion.acc_in_ms2(table.acc), field, period_s, None, t_s, vel)
+    vel = table.vel_ned_ms()
+    t_s = None
+    if vel is not None:
+        t_s = table.numeric("t_s") if "t_s" in table.columns else np.arange(len(vel)) * period_s
+        vel = to_magnetic_ned(vel, earth.declination_deg)
+    fused = fusion.fuse_offline(gyr, fusion.acc_in_ms2(table.acc), field, period_s, None, t_s, vel)
     down = frames.down_in_body(fused.quat_wxyz)
-    flags = int(hd.HeadingFlag.FUSED) | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
-    return Attitude(fused.heading_deg, fused.pitch_deg, fused.roll_deg, fused.quat_wxyz, -down, flags)
-
-
-def _tilt(table: SampleTable, field: np.ndarray) -> Attitude:
-    count = len(field)
-    if table.acc is not None:
-        magnetic = hd.tilt_compensated_heading_deg(field, table.acc)
-        pitch, roll = hd.pitch_roll_deg(table.acc)
-    else:
-        magnetic = hd.level_heading_deg(field)
-        pitch = roll = np.zeros(count)
-    quat = frames.w_positive(frames.euler_to_quaternion(magnetic, pitch, roll))
-    return Attitude(magnetic, pitch, roll, quat, table.acc, np.zeros(count, dtype=int))
+    dip = hd.dip_angle_deg(field, -down)
+    flags = hd.disturbance_flags(field, -down, earth.total_ut, earth.inclination_deg, dip_deg=dip)
+    flags |= int(hd.HeadingFlag.FUSED) | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
+    flags |= int(hd.HeadingFlag.CALIBRATED) if calibrated else 0
+    magnetic = hd.smooth_heading_deg(fused.heading_deg, args.window)
+    headings = Headings(field, magnetic, fused.pitch_deg, fused.roll_deg, flags)
+    quat = frames.rotate_heading(fused.quat_wxyz, earth.declination_deg)
+    true = hd.true_heading_deg(magnetic, earth.declination_deg)
+    return HeadingColumns(headings, true, dip, [], [earth.declination_deg], quat)
 
 
 def _accepted_calibration(path: str) -> Calibration:
@@ -188,43 +228,55 @@ def _compare(args: argparse.Namespace, table: SampleTable, true_deg: np.ndarray,
     )
 
 
+def _attitude_wxyz(out: HeadingColumns) -> np.ndarray:
+    """(N, 4) body -> NED (true north): the filter's where it fused, else the one of the heading, pitch and roll."""
+    h = out.headings
+    quat = frames.w_positive(frames.euler_to_quaternion(out.true_heading_deg, h.pitch_deg, h.roll_deg))
+    if out.quat_wxyz is None:
+        return quat
+    return np.where(hd.rows_finite(out.quat_wxyz)[:, None], out.quat_wxyz, quat)
+
+
 def run(args: argparse.Namespace) -> int:
-    if args.window < 1:
-        raise ValueError(f"--window must be at least 1, got {args.window}")
+    CoreSettings(window=args.window)  # --window checked (the compass's own check) before the file is read
     calibration = _accepted_calibration(args.calibration) if args.calibration else None
-    declination_deg, expected_ut, expected_dip_deg = _declination_deg(args)
+    earth = _earth(args, calibration)
     table = read_input_told(args.file, InputOptions.from_args(args), "heading")
-    field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)
     gyr = gyro_columns(table)
-    if gyr is None and args.offline:
-        raise ValueError(f"{table.path}: --offline needs gyroscope columns gx,gy,gz (rad/s)")
-    attitude = _tilt(table, field) if gyr is None else _fused(table, gyr, field, args, declination_deg)
-    magnetic = hd.smooth_heading_deg(attitude.heading, args.window)
-    dip = hd.dip_angle_deg(field, attitude.up_force) if attitude.up_force is not None else np.full(len(field), np.nan)
-    expected = expected_ut if expected_ut is not None else ((calibration and calibration.field_strength) or None)
-    flags = np.asarray(hd.disturbance_flags(field, attitude.up_force, expected, expected_dip_deg), dtype=int)
-    flags |= attitude.flags | (int(hd.HeadingFlag.CALIBRATED) if calibration else 0)
+    if args.offline:
+        if gyr is None:
+            raise ValueError(f"{table.path}: --offline needs gyroscope columns gx,gy,gz (rad/s)")
+        field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)
+        out = offline_headings(table, gyr, field, args, earth, calibration is not None)
+    else:
+        out = causal_headings(file_columns(table, gyr, args.rate), calibration, earth, args.window, time.time_ns())
     if calibration and calibration.output_unit != "ut":
         print(
             f"magnet heading: note: the calibration's output unit is {calibration.output_unit!r}, not uT; "
             "field_*_ut columns are in that unit",
             file=sys.stderr,
         )
-    quat = frames.rotate_heading(attitude.quat, declination_deg)
     if args.compare:
-        _compare(args, table, hd.true_heading_deg(magnetic, declination_deg), declination_deg)
+        _compare(args, table, out.true_heading_deg, earth.declination_deg)
+    write_headings(table, out)
+    return 0
+
+
+def write_headings(table: SampleTable, out: HeadingColumns) -> None:
+    """The CSV of ``out`` on stdout (with the file's ``t_s`` when it has one)."""
+    h = out.headings
     header = list(COLUMNS)
     columns = [
-        magnetic,
-        hd.true_heading_deg(magnetic, declination_deg),
-        attitude.pitch,
-        attitude.roll,
-        field[:, 0],
-        field[:, 1],
-        field[:, 2],
-        dip,
-        flags,
-        *quat.T,
+        h.heading_deg,
+        out.true_heading_deg,
+        h.pitch_deg,
+        h.roll_deg,
+        h.field_ut[:, 0],
+        h.field_ut[:, 1],
+        h.field_ut[:, 2],
+        out.dip_deg,
+        h.flags,
+        *_attitude_wxyz(out).T,
     ]
     formats = ["%.4f"] * 7 + ["%.3f", "%d"] + ["%.7f"] * 4  # 4 angles, 3 field components, dip, flags, quaternion
     if "t_s" in table.columns:
@@ -232,4 +284,3 @@ def run(args: argparse.Namespace) -> int:
         columns.insert(0, table.numeric("t_s"))
         formats.insert(0, "%.6f")
     write_csv(sys.stdout, header, columns, fmt=formats)
-    return 0

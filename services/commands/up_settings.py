@@ -9,8 +9,8 @@ from pathlib import Path
 from magnet import wire
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.place import Location
-from services.common.fleet_options import add_drift_arguments, drift_from_args
 from services.common.options import add_options, check_options, from_args, option
+from services.common.places_options import add_drift_arguments, drift_from_args
 from services.common.sim_options import SimulatorSettings
 from services.edge.settings import EdgeSettings
 

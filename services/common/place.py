@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from magnet.geomag import earth_field, parse_location
+from magnet.geomag import earth_field
+from magnet.place import Location
 
 
 def add_field_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,8 +24,7 @@ def expected_field_ut(args: argparse.Namespace) -> float | None:
             raise ValueError(f"--field-ut {args.field_ut} is not a plausible field strength in uT (Earth: 22-67)")
         return float(args.field_ut)
     if args.location:
-        lat, lon, alt_m = parse_location(args.location)
-        return earth_field(lat, lon, alt_m, args.date).total_ut
+        return earth_field(*Location.parse(args.location).as_tuple(), args.date).total_ut
     if args.date:
         raise ValueError("--date needs --location")
     return None
@@ -35,7 +35,7 @@ def place(args: argparse.Namespace) -> tuple[float | None, float | None]:
     if getattr(args, "declination", None) is not None and args.location:
         raise ValueError("give either --declination or --location, not both")
     if args.location:
-        field = earth_field(*parse_location(args.location), args.date)
+        field = earth_field(*Location.parse(args.location).as_tuple(), args.date)
         return field.declination_deg, field.total_ut
     if args.date:
         raise ValueError("--date needs --location")

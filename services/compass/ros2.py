@@ -8,16 +8,19 @@ are built in ``magnet.ros2`` (frames, names, CDR); this module puts them. See ``
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
-from collections import OrderedDict
-from typing import Any
+from collections.abc import Mapping
+from typing import Self
 
 import numpy as np
 import zenoh
 
 from magnet import wire
 from magnet.bounded import Recent
+from magnet.compass import HeadingColumns
+from magnet.drift import Alert
 from magnet.heading import HeadingFlag
 from magnet.ros2 import compass as ros_compass
 from magnet.ros2 import messages, names
@@ -32,7 +35,7 @@ _DISTURBED = int(HeadingFlag.FIELD_DISTURBED | HeadingFlag.DIP_DISTURBED)
 
 
 class _Topic:
-    """One ROS 2 publisher: its key, liveliness token, GID and sequence number."""
+    """One ROS 2 publisher: its key, liveliness token, GID and sequence number; ``close`` undeclares it."""
 
     def __init__(self, owner: Ros2Compass, topic: str, ros_type: str) -> None:
         owner.entities += 1
@@ -40,21 +43,25 @@ class _Topic:
         token = names.endpoint_token(owner.domain, owner.zid, 0, owner.namespace, owner.node, endpoint)
         self.key = names.topic_key(owner.domain, topic, ros_type, endpoint.type_hash)
         self.gid = names.gid_of(token)
-        self.token = owner.session.liveliness().declare_token(token)
+        self._declared = contextlib.ExitStack()
+        self._declared.enter_context(owner.session.liveliness().declare_token(token))
         # a declared publisher: about half the CPU of session.put per message (measured), as rmw_zenoh does
-        self.publisher = owner.session.declare_publisher(self.key, encoding=CDR)
+        self.publisher: zenoh.Publisher = self._declared.enter_context(
+            owner.session.declare_publisher(self.key, encoding=CDR)
+        )
         self.seq = 0
 
     def put(self, payload: bytes, t_ns: int) -> None:
         self.seq += 1
         self.publisher.put(payload, attachment=names.attachment_bytes(self.seq, t_ns, self.gid))
 
-    def undeclare(self) -> None:
-        self.publisher.undeclare()
-        self.token.undeclare()
+    def close(self) -> None:
+        self._declared.close()
 
 
-def build_drain(columns: wire.RawColumns, out: Any, variances: list[float]) -> Any:
+def build_drain(
+    columns: wire.RawColumns, out: HeadingColumns, variances: list[float]
+) -> list[tuple[list[bytes], list[bytes]]]:
     """The CDR of a drain: per device of ``columns``, (MagneticField messages, Imu messages), one per sample
     (``out``: the compass's ``HeadingColumns`` of them; ``variances``: per device, the field's variance in T^2)."""
     h = out.headings
@@ -73,20 +80,22 @@ def build_drain(columns: wire.RawColumns, out: Any, variances: list[float]) -> A
 
 class Ros2Compass:
     """The ROS 2 side of one compass: a node ``<name>`` in ``--ros-namespace``, its publishers made per device as
-    devices appear (at most ``max_devices``), the diagnostics every second."""
+    devices appear (at most ``max_devices``: the least recently seen device leaves the graph), the diagnostics every
+    second. A context manager: leaving it undeclares everything."""
 
-    def __init__(self, session: Any, settings: Ros2Settings, name: str, max_devices: int) -> None:
+    def __init__(self, session: zenoh.Session, settings: Ros2Settings, name: str, max_devices: int) -> None:
         self.session, self.domain, self.namespace = session, settings.domain, settings.namespace
         self.node = names.ros_name_of_device(name)
         self.zid = str(session.info.zid())
         self.entities = 0
-        self.node_token = session.liveliness().declare_token(
-            names.node_token(self.domain, self.zid, 0, self.namespace, self.node)
+        self._declared = contextlib.ExitStack()
+        self._declared.enter_context(
+            session.liveliness().declare_token(names.node_token(self.domain, self.zid, 0, self.namespace, self.node))
         )
-        self.max_devices = max_devices
-        self.devices: OrderedDict[str, tuple[_Topic, _Topic]] = OrderedDict()
+        self.devices: Recent[str, tuple[_Topic, _Topic]] = Recent(max_devices, on_evict=_close_topics)
         self.disturbed: Recent[str, float] = Recent(max_devices)
         self.diagnostics = _Topic(self, DIAGNOSTICS_TOPIC, messages.DIAGNOSTIC_ARRAY)
+        self._declared.callback(self.diagnostics.close)
         self.next_diagnostics = time.monotonic() + DIAGNOSTICS_PERIOD_S
         self.published = 0
         log.info("ROS 2: node %s/%s in domain %d (rmw_zenoh keys)", self.namespace, self.node, self.domain)
@@ -99,14 +108,16 @@ class Ros2Compass:
                 _Topic(self, names.topic_name(self.namespace, device, "imu"), messages.IMU),
             )
             self.devices[device] = topics
-            if len(self.devices) > self.max_devices:  # the least recently seen device leaves the graph
-                for topic in self.devices.popitem(last=False)[1]:
-                    topic.undeclare()
         else:
-            self.devices.move_to_end(device)
+            self.devices.touch(device)
         return topics
 
-    def publish(self, columns: wire.RawColumns, out: Any, calibrations: Any) -> None:
+    def publish(
+        self,
+        columns: wire.RawColumns,
+        out: HeadingColumns,
+        calibrations: Mapping[str, wire.DeviceCalibration],
+    ) -> None:
         """Put a MagneticField and an Imu per sample of ``columns`` (``out``: the compass's ``HeadingColumns`` of
         them; ``calibrations``: the calibrations in force, for the field's covariance)."""
         h = out.headings
@@ -127,7 +138,7 @@ class Ros2Compass:
             flags = np.asarray(h.flags[bounds[i] : bounds[i + 1]], dtype=np.int64)
             self.disturbed[device] = float(np.mean((flags & _DISTURBED) != 0)) if len(flags) else 0.0
 
-    def tick(self, calibrations: Any, open_alerts: list[Any]) -> None:
+    def tick(self, calibrations: Mapping[str, wire.DeviceCalibration], open_alerts: list[Alert]) -> None:
         """Publish the diagnostics when their period has passed."""
         now = time.monotonic()
         if now < self.next_diagnostics or not len(self.disturbed):
@@ -153,9 +164,19 @@ class Ros2Compass:
         t_ns = time.time_ns()
         self.diagnostics.put(messages.diagnostic_array_cdr(t_ns, statuses), t_ns)
 
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
-        for mag, imu in self.devices.values():
-            mag.undeclare()
-            imu.undeclare()
-        self.diagnostics.undeclare()
-        self.node_token.undeclare()
+        for topics in self.devices.values():
+            _close_topics("", topics)
+        self.devices.clear()
+        self._declared.close()
+
+
+def _close_topics(_device: str, topics: tuple[_Topic, _Topic]) -> None:
+    for topic in topics:
+        topic.close()

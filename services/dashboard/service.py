@@ -43,9 +43,10 @@ __all__ = ["add_arguments", "page_address", "run"]
 def _earth(settings: DashboardSettings) -> EarthField | None:
     if not settings.location:
         return None
-    from magnet.geomag import earth_field, parse_location
+    from magnet.geomag import earth_field
+    from magnet.place import Location
 
-    return earth_field(*parse_location(settings.location), settings.date)
+    return earth_field(*Location.parse(settings.location).as_tuple(), settings.date)
 
 
 def page_address(host: str, port: int, token: str) -> str:

@@ -1,7 +1,7 @@
-"""The compass's maths: headings for many samples of many devices at once, and what the compass expects where it is.
+"""Headings from the field and the accelerometer, for many samples of many devices at once, and their smoothing.
 
-Pure numpy: the compass service (``services.compass``) decodes, calls ``compute_headings`` on every sample of a whole
-drain of batches, and publishes.
+``compute_headings`` corrects the field (calibration, motors) and turns it into a tilt-compensated heading (level
+where a sample has no accelerometer); ``smooth_tail`` is the circular sliding mean carried across batches.
 """
 
 from __future__ import annotations
@@ -11,25 +11,6 @@ import dataclasses
 import numpy as np
 
 from magnet import heading as hd
-from magnet.geomag import earth_field, parse_location
-
-
-@dataclasses.dataclass(frozen=True)
-class Earth:
-    """What the compass expects at its location: declination (deg, east +), |B| (uT), dip (deg); None = unknown."""
-
-    declination_deg: float = 0.0
-    total_ut: float | None = None
-    inclination_deg: float | None = None
-
-    @classmethod
-    def from_args(cls, location: str | None, date: str | None) -> Earth:
-        """From ``LAT,LON[,ALT_M]`` and a ``YYYY-MM-DD`` date (None: today) with the WMM; unknown without a location."""
-        if not location:
-            return cls()
-        lat, lon, alt = parse_location(location)
-        field = earth_field(lat, lon, alt, date)
-        return cls(field.declination_deg, field.total_ut, field.inclination_deg)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -50,10 +31,10 @@ def compute_headings(
     offsets: np.ndarray,
     matrices: np.ndarray,
     calibrated: np.ndarray,
-    earth: Earth,
     motor_ut: np.ndarray | None = None,
 ) -> Headings:
-    """Headings for S samples of any devices at once.
+    """Headings for S samples of any devices at once; flags: CALIBRATED only (the disturbance checks come after the
+    attitude is known, ``magnet.heading.disturbance_flags``).
 
     mag_ut (S, 3) raw uT; acc_ms2 (S, 3) m/s^2 with NaN rows where a sample has no accelerometer; offsets (S, 3) and
     matrices (S, 3, 3) the calibration of each sample's device (B = A (u - b), see ``magnet.model``); calibrated (S,)
@@ -68,8 +49,7 @@ def compute_headings(
         tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)
         pitch, roll = hd.pitch_roll_deg(acc_ms2)
     heading = np.where(has_acc & np.isfinite(tilted), tilted, hd.level_heading_deg(field))
-    flags = hd.disturbance_flags(field, acc_ms2, earth.total_ut, earth.inclination_deg)
-    flags |= np.where(calibrated, int(hd.HeadingFlag.CALIBRATED), 0)
+    flags = np.where(calibrated, int(hd.HeadingFlag.CALIBRATED), 0).astype(np.int64)
     return Headings(field, heading, np.where(has_acc, pitch, 0.0), np.where(has_acc, roll, 0.0), flags)
 
 

@@ -1,17 +1,16 @@
-"""The compass's watch over its fleet: each device's place and Earth (``magnet.fleet.Places``) and its drift
-(``magnet.drift.DriftMonitor``); the alerts to publish on ``<prefix>/<device>/alert``. No zenoh inside."""
+"""The compass's watch over its devices: each device's place and Earth (``magnet.compass.places.Places``) and its
+drift (``magnet.drift.DriftMonitor``); the alerts to publish on ``<prefix>/<device>/alert``. Pure."""
 
 from __future__ import annotations
-
-from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 
 from magnet import wire
-from magnet.compass import Earth
-from magnet.drift import DEFAULT_DRIFT, Alert, DriftMonitor, DriftSettings, Reference, alert_from_message
-from magnet.fleet import Places
+from magnet.compass.earth import Earth
+from magnet.compass.places import Places
+from magnet.drift import DEFAULT_DRIFT, Alert, DriftMonitor, DriftSettings, Reference
+from magnet.geomag import DateLike
+from magnet.place import Location
 from magnet.units import ut_per_unit
 
 #: alert events waiting to be published at most (the oldest dropped beyond: the open ones are also queryable)
@@ -19,10 +18,8 @@ MAX_PENDING_ALERTS = 10_000
 #: devices with a drift tracker at most, by default
 MAX_TRACKED = 10_000
 
-__all__ = ["FleetWatch", "alert_from_message"]
 
-
-class FleetWatch:
+class DeviceWatch:
     """Places and drift of the devices a compass serves: reported places (bounded by the ``Places``) and drift
     trackers for at most ``max_devices`` devices (the least recently calibrated forgotten first, counted in
     ``evicted``)."""
@@ -35,24 +32,26 @@ class FleetWatch:
         self.pending: list[Alert] = []
         self.max_devices = max_devices
         self.forgotten_trackers = 0
+        self.date: DateLike = None  # the day of the last step (the model's date where no --date is given)
 
     @property
     def evicted(self) -> int:
         """Reported places and drift trackers forgotten for the bounds."""
         return self.places.reported.evicted + self.forgotten_trackers
 
-    def earths(self, devices: list[str], locations: list[Any] | None) -> list[Earth]:
-        """The Earth of each batch's device, taking the locations the batches report."""
+    def earths(self, devices: list[str], locations: list[Location | None] | None, date: DateLike) -> list[Earth]:
+        """The Earth of each batch's device on ``date``, taking the locations the batches report."""
+        self.date = date
         if locations is not None:
             for device, location in zip(devices, locations):
                 if self.places.report(device, location):
                     self._moved(device)
-        return [self.places.earth(device) for device in devices]
+        return [self.places.earth(device, date) for device in devices]
 
     def _moved(self, device: str) -> None:
         tracker = None if self.monitor is None else self.monitor.trackers.get(device)
         if tracker is not None:
-            earth = self.places.earth(device)
+            earth = self.places.earth(device, self.date)
             tracker.set_model(earth.total_ut, earth.inclination_deg)
 
     def calibration(self, record: wire.DeviceCalibration, now_ns: int) -> None:
@@ -62,7 +61,7 @@ class FleetWatch:
         trackers = self.monitor.trackers
         if record.device in trackers:  # the most recently calibrated last
             trackers[record.device] = trackers.pop(record.device)
-        cal, earth = record.calibration, self.places.earth(record.device)
+        cal, earth = record.calibration, self.places.earth(record.device, self.date)
         in_ut = ut_per_unit(cal.output_unit) == 1.0
         reference = Reference(
             cal.field_strength or None,
@@ -98,10 +97,3 @@ class FleetWatch:
 
     def open_alerts(self) -> list[Alert]:
         return [] if self.monitor is None else self.monitor.open_alerts()
-
-    def describe(self) -> Mapping[str, Any]:
-        return {
-            "places_reported": len(self.places.reported),
-            "fleet_devices": len(self.places.fleet),
-            "open_alerts": len(self.open_alerts()),
-        }

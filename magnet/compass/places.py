@@ -1,11 +1,11 @@
-"""A fleet's places: each device's location and what the World Magnetic Model expects there.
+"""Each device's place and what the World Magnetic Model expects there.
 
 Where a device is comes from, first to last: the ``location`` its own raw messages carry (the edge's ``--location``,
-or its simulator's place), the fleet file (``--fleet FILE.json5``), the service's own ``--location``. From the place
-come the device's declination, expected |B| and dip (``Earth``), looked up once per place rounded to about 1 km
-(``Location.rounded``) and date.
+or its simulator's place), the places file (``--fleet FILE.json5``), the service's own ``--location``. From the place
+come the device's declination, expected |B| and dip (``Earth``, ``magnet.compass.earth``), looked up once per place
+rounded to about 1 km (``Location.rounded``) and date.
 
-Fleet file (JSON5: comments and trailing commas allowed; plain JSON is JSON5)::
+Places file (JSON5: comments and trailing commas allowed; plain JSON is JSON5)::
 
     {
       // device id: where it is and anything worth knowing
@@ -19,31 +19,29 @@ Pure: parses text; the services read the file.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Mapping
 from typing import Any
 
 import json5
 import numpy as np
 
-from magnet import heading as hd
 from magnet.bounded import Recent
-from magnet.compass import Earth
-from magnet.geomag import earth_field
+from magnet.compass.earth import Earth, earth_at
+from magnet.geomag import DateLike
 from magnet.place import Location
 from magnet.wire.keys import validate_device_id
 
-#: a fleet file larger than this is refused before it is parsed (bytes); at most this many devices
-MAX_FLEET_FILE_BYTES = 16 * 1024 * 1024
-MAX_FLEET_DEVICES = 100_000
+#: a places file larger than this is refused before it is parsed (bytes); at most this many devices
+MAX_PLACES_FILE_BYTES = 16 * 1024 * 1024
+MAX_PLACES_DEVICES = 100_000
 MAX_NOTES_CHARS = 1_000
 #: devices whose reported place is remembered at most by default (the least recently reporting forgotten beyond)
 MAX_REPORTED = 100_000
 
 
 @dataclasses.dataclass(frozen=True)
-class FleetEntry:
-    """One device of the fleet file: its location (or None) and free notes."""
+class PlaceEntry:
+    """One device of the places file: its location (or None) and free notes."""
 
     device: str
     location: Location | None = None
@@ -53,22 +51,22 @@ class FleetEntry:
         return {"location": None if self.location is None else self.location.to_wire(), "notes": self.notes}
 
 
-def parse_fleet(text: str, source: str = "fleet file") -> dict[str, FleetEntry]:
-    """device -> FleetEntry from the text of a fleet file; ValueError naming the device and what is wrong."""
-    if len(text.encode()) > MAX_FLEET_FILE_BYTES:
-        raise ValueError(f"{source} is larger than {MAX_FLEET_FILE_BYTES} bytes")
+def parse_places(text: str, source: str = "places file") -> dict[str, PlaceEntry]:
+    """device -> PlaceEntry from the text of a places file; ValueError naming the device and what is wrong."""
+    if len(text.encode()) > MAX_PLACES_FILE_BYTES:
+        raise ValueError(f"{source} is larger than {MAX_PLACES_FILE_BYTES} bytes")
     try:
         data = json5.loads(text)
     except (ValueError, RecursionError) as exc:
         raise ValueError(f"{source} is not JSON5: {exc}") from None
     if not isinstance(data, Mapping):
         raise ValueError(f"{source} must be a map of device id -> {{location, notes}}")
-    if len(data) > MAX_FLEET_DEVICES:
-        raise ValueError(f"{source} lists {len(data)} devices, more than {MAX_FLEET_DEVICES}")
+    if len(data) > MAX_PLACES_DEVICES:
+        raise ValueError(f"{source} lists {len(data)} devices, more than {MAX_PLACES_DEVICES}")
     return {entry.device: entry for entry in (_entry(device, value, source) for device, value in data.items())}
 
 
-def _entry(device: Any, value: Any, source: str) -> FleetEntry:
+def _entry(device: Any, value: Any, source: str) -> PlaceEntry:
     try:
         validate_device_id(device)
         if isinstance(value, (str, list)):
@@ -84,34 +82,26 @@ def _entry(device: Any, value: Any, source: str) -> FleetEntry:
         location = None if value.get("location") is None else Location.parse(value["location"])
     except ValueError as exc:
         raise ValueError(f"{source}: device {device!r}: {exc}") from None
-    return FleetEntry(device, location, notes)
-
-
-@functools.lru_cache(maxsize=4096)
-def _earth(rounded: tuple[float, float, float], date: str | None) -> Earth:
-    field = earth_field(*rounded, date)
-    return Earth(field.declination_deg, field.total_ut, field.inclination_deg)
-
-
-def earth_at(location: Location | None, date: str | None = None) -> Earth:
-    """What the WMM expects at ``location`` (rounded to about 1 km) on ``date`` (None: today); Earth() when None."""
-    return Earth() if location is None else _earth(location.rounded(), date)
+    return PlaceEntry(device, location, notes)
 
 
 class Places:
-    """Each device's place and Earth: reported (raw messages) over fleet file over the service's default."""
+    """Each device's place and Earth: reported (raw messages) over the places file over the service's default.
+
+    ``fleet``: the places file's entries; ``default``: the service's ``--location``; ``date``: its ``--date`` (None:
+    the day each caller passes, else today); ``default_earth``: what to expect at the default place (or with no
+    place) when the caller knows it better than the model (``magnet heading --declination``)."""
 
     def __init__(
         self,
-        fleet: Mapping[str, FleetEntry] | None = None,
+        fleet: Mapping[str, PlaceEntry] | None = None,
         default: Location | None = None,
-        date: str | None = None,
+        date: DateLike = None,
         default_earth: Earth | None = None,
         max_reported: int = MAX_REPORTED,
     ) -> None:
         self.fleet = dict(fleet or {})
-        self.default, self.date = default, date
-        self.default_earth = default_earth if default_earth is not None else earth_at(default, date)
+        self.default, self.date, self.default_earth = default, date, default_earth
         #: places the devices reported, for at most ``max_reported`` devices (the least recently reporting forgotten)
         self.reported: Recent[str, Location] = Recent(max_reported)
 
@@ -132,9 +122,13 @@ class Places:
         entry = self.fleet.get(device)
         return entry.location if entry is not None and entry.location is not None else self.default
 
-    def earth(self, device: str) -> Earth:
+    def earth(self, device: str, date: DateLike = None) -> Earth:
+        """What to expect at the device's place on ``--date``, else on ``date`` (the caller's today)."""
         location = self.location(device)
-        return self.default_earth if location is None or location == self.default else earth_at(location, self.date)
+        when = self.date if self.date is not None else date
+        if location is None or location == self.default:
+            return self.default_earth if self.default_earth is not None else earth_at(self.default, when)
+        return earth_at(location, when)
 
     def notes(self, device: str) -> str:
         entry = self.fleet.get(device)
@@ -165,25 +159,3 @@ class EarthColumns:
         ).reshape(-1, 3)
         per_sample = np.repeat(table, counts, axis=0)
         return cls(per_sample[:, 0], per_sample[:, 1], per_sample[:, 2])
-
-
-def disturbance_flags(
-    field_ut: np.ndarray,
-    acc_ms2: np.ndarray,
-    dip_deg: np.ndarray,
-    earth: EarthColumns,
-    field_tol_pct: float = 15.0,
-    dip_tol_deg: float = 5.0,
-) -> np.ndarray:
-    """FIELD_DISTURBED and DIP_DISTURBED bits (S,) int as ``magnet.heading.disturbance_flags`` sets them, against
-    each sample's own expectation (no bit where it is NaN). field_ut (S, 3) uT; acc_ms2 (S, 3) with NaN rows where
-    absent; dip_deg (S,) (NaN without acc)."""
-    magnitude = hd.row_norm(field_ut)
-    with np.errstate(invalid="ignore"):
-        field_off = np.abs(magnitude - earth.total_ut) > earth.total_ut * field_tol_pct / 100.0
-        dip_off = np.abs(dip_deg - earth.inclination_deg) > dip_tol_deg
-    has_acc = hd.rows_finite(acc_ms2) & (hd.row_norm(np.nan_to_num(acc_ms2)) > 1e-9)
-    return (
-        np.where(field_off, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
-        | np.where(dip_off & has_acc, int(hd.HeadingFlag.DIP_DISTURBED), 0)
-    ).astype(np.int64)

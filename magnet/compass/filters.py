@@ -1,13 +1,15 @@
-"""One gyroscope-aided filter per device for the live compass (DESIGN.md 4b): state kept across batches.
+"""One gyroscope-aided filter per device for the compass (DESIGN.md 4b): state kept across batches.
 
-The compass decodes a drain of raw batches of many devices, computes accelerometer-tilt headings for every sample
-(``magnet.compass.compute_headings``) and then hands the batches that carry a gyroscope to ``FleetFusion.update``,
-which runs each device's ``magnet.fusion.Fusion`` on them, batch after batch, and ``merge`` puts the fused attitude in
-place of the tilt one. The samples of a drain are grouped by device, so that a device's batches that continue one
-another go through vqf in one call (its cost is about 4 us per call plus 0.5 us per sample). Per device:
+The compass computes accelerometer-tilt headings for every sample of a step (``magnet.compass.tilt``) and then hands
+the batches that carry a gyroscope to ``DeviceFilters.update``, which runs each device's ``magnet.fusion.Fusion`` on
+them, batch after batch, and ``merge`` puts the fused attitude in place of the tilt one. The samples of a step are
+grouped by device, so that a device's batches that continue one another go through vqf in one call (its cost is
+about 4 us per call plus 0.5 us per sample). Per device:
 
-- the filter runs at the device's sample period (median step of the batch's ``t_ns``); a period that changes by more
-  than ``PERIOD_TOLERANCE`` gets a new filter;
+- the filter runs at the device's sample period (the mean step of its first batch's ``t_ns``, worked out from whole
+  nanoseconds so that evenly stamped samples give the same period however they are batched: a file as one batch
+  and the same samples as many give the same filter); a period that changes by more than ``PERIOD_TOLERANCE`` gets
+  a new filter;
 - continuity: a batch whose ``seq`` does not follow the last one (lower or equal: the device restarted, or replays)
   or whose first sample comes more than ``MAX_GAP_S`` after the last one (lost batches, a pause) restarts the filter:
   the rotation over a gap is unknown, and a restarted filter takes its tilt from gravity at once and its heading from
@@ -26,7 +28,6 @@ State is bounded: at most ``MAX_DEVICES`` filters, the least recently used forgo
 from __future__ import annotations
 
 import dataclasses
-from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
@@ -34,7 +35,8 @@ import numpy as np
 
 from magnet import frames, fusion
 from magnet import heading as hd
-from magnet.compass import Headings
+from magnet.bounded import Recent
+from magnet.compass.tilt import Headings
 
 #: 2000 deg/s, the widest full scale of common MEMS gyroscopes (ICM-20948, LSM9DS1, MPU-6050): a reading at or beyond
 #: it is saturated, and the rotation while it lasts is unknown
@@ -103,19 +105,13 @@ class FusedColumns:
 
 def _down_and_euler(quat_wxyz: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """NED down in body axes (S, 3) and (heading [0, 360), pitch, roll) in degrees from body -> NED quaternions
-    (S, 4): the entries of ``quaternion_to_matrix`` that ``matrix_to_euler`` and the down direction use, alone."""
-    w, x, y, z = (quat_wxyz[:, k] for k in range(4))
-    scale = 2.0 / (w * w + x * x + y * y + z * z)  # normalises, as quaternion_to_matrix does
-    r20, r21, r22 = scale * (x * z - w * y), scale * (y * z + w * x), 1.0 - scale * (x * x + y * y)
-    r00, r10 = 1.0 - scale * (y * y + z * z), scale * (x * y + w * z)
-    pitch = np.degrees(np.arcsin(np.clip(-r20, -1.0, 1.0)))
-    heading = np.mod(np.degrees(np.arctan2(r10, r00)), 360.0)
-    roll = np.degrees(np.arctan2(r21, r22))
-    return np.stack([r20, r21, r22], axis=-1), (heading, pitch, roll)
+    (S, 4)."""
+    matrix = frames.quaternion_to_matrix(quat_wxyz)
+    return matrix[:, 2, :], frames.matrix_to_euler(matrix)
 
 
 class _Drain(NamedTuple):
-    """One drain's samples grouped by device (``FleetFusion.update``): every array permuted so that each device's
+    """One drain's samples grouped by device (``DeviceFilters.update``): every array permuted so that each device's
     samples follow each other in their original order. inputs: gyroscope, accelerometer and field (S, 3) in vqf's
     frame; usable and saturated (S,) bool; per batch (in the original order): seq, first and last time (ns), count,
     whether its times strictly increase, and where its samples start in the permuted arrays."""
@@ -134,7 +130,7 @@ class _Drain(NamedTuple):
     starts: list[int]
 
 
-class DeviceFusion:
+class DeviceFilter:
     """The filter of one device and what it needs to judge continuity (last seq, last time, period)."""
 
     def __init__(self, params: Mapping[str, Any] | None = None, max_gap_s: float = MAX_GAP_S) -> None:
@@ -148,7 +144,7 @@ class DeviceFusion:
     def _period_s(self, first_ns: int, last_ns: int, count: int) -> float | None:
         """Mean step of the batch's times (or from the last sample for a batch of one); None when unusable."""
         if count >= 2:
-            period = (last_ns - first_ns) * 1e-9 / (count - 1)
+            period = (last_ns - first_ns) / (count - 1) * 1e-9  # exact ns steps give one period, whatever the batch
         elif self.last_t_ns is not None:
             period = (first_ns - self.last_t_ns) * 1e-9
         else:
@@ -234,25 +230,31 @@ class DeviceFusion:
             out[rows], disturbed[rows] = self.filter.update_vqf_frame(gyr, acc, field, t_s, vel)
 
 
-class FleetFusion:
-    """One ``DeviceFusion`` per device, at most ``max_devices`` (least recently used forgotten first)."""
+class DeviceFilters:
+    """One ``DeviceFilter`` per device, at most ``max_devices`` (least recently used forgotten first, counted in
+    ``evicted``)."""
 
     def __init__(
         self, params: Mapping[str, Any] | None = None, max_gap_s: float = MAX_GAP_S, max_devices: int = MAX_DEVICES
     ) -> None:
-        self.params, self.max_gap_s, self.max_devices = dict(params or {}), max_gap_s, max_devices
-        self.devices: OrderedDict[str, DeviceFusion] = OrderedDict()
-        self.evicted = 0  # filters forgotten for the max_devices bound
+        self.params, self.max_gap_s = dict(params or {}), max_gap_s
+        self.devices: Recent[str, DeviceFilter] = Recent(max_devices)
 
-    def _device(self, name: str) -> DeviceFusion:
+    @property
+    def evicted(self) -> int:
+        """Filters forgotten for the ``max_devices`` bound."""
+        return self.devices.evicted
+
+    def forget(self, device: str) -> None:
+        """Start the device's filter again on its next batch."""
+        self.devices.pop(device, None)
+
+    def _device(self, name: str) -> DeviceFilter:
         state = self.devices.get(name)
         if state is None:
-            state = self.devices[name] = DeviceFusion(self.params, self.max_gap_s)
-            while len(self.devices) > self.max_devices:
-                self.devices.popitem(last=False)
-                self.evicted += 1
+            state = self.devices[name] = DeviceFilter(self.params, self.max_gap_s)
         else:
-            self.devices.move_to_end(name)
+            self.devices.touch(name)
         return state
 
     def update(
@@ -337,7 +339,7 @@ def _drain(
     saturated: np.ndarray,
 ) -> _Drain:
     """The drain's samples in vqf's frame (unusable rows zeroed), permuted by ``order`` (None: as they are), and
-    per batch what ``DeviceFusion.update`` judges continuity by, as Python numbers."""
+    per batch what ``DeviceFilter.update`` judges continuity by, as Python numbers."""
     count = int(edges[-1])
     last = np.maximum(edges[1:] - 1, 0)
     first = np.minimum(edges[:-1], max(count - 1, 0))

@@ -1,13 +1,13 @@
-"""``--fleet FILE.json5`` (device -> location, notes; see ``magnet.fleet``) and the drift thresholds, as options of
-the compass and the calibrator, read and checked before a service starts."""
+"""The places file ``--fleet FILE.json5`` (device -> location, notes; see ``magnet.compass.places``) and the drift
+thresholds, as options of the compass and the calibrator, read and checked before a service starts."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from magnet.compass.places import MAX_PLACES_FILE_BYTES, PlaceEntry, parse_places
 from magnet.drift import DriftSettings
-from magnet.fleet import MAX_FLEET_FILE_BYTES, FleetEntry, parse_fleet
 
 
 def add_fleet_argument(parser: argparse.ArgumentParser) -> None:
@@ -15,22 +15,22 @@ def add_fleet_argument(parser: argparse.ArgumentParser) -> None:
         "--fleet",
         type=Path,
         metavar="FILE.json5",
-        help='fleet file: device id -> {location: "LAT,LON[,ALT_M]", notes}; a device\'s own '
+        help='places file: device id -> {location: "LAT,LON[,ALT_M]", notes}; a device\'s own '
         "reported location wins, --location is the default for the others",
     )
 
 
-def read_fleet(path: Path | None) -> dict[str, FleetEntry]:
-    """The fleet file's entries ({} without one); ValueError with the file and what is wrong."""
+def read_fleet(path: Path | None) -> dict[str, PlaceEntry]:
+    """The places file's entries ({} without one); ValueError with the file and what is wrong."""
     if path is None:
         return {}
     try:
-        if path.stat().st_size > MAX_FLEET_FILE_BYTES:
-            raise ValueError(f"--fleet {path}: larger than {MAX_FLEET_FILE_BYTES} bytes")
+        if path.stat().st_size > MAX_PLACES_FILE_BYTES:
+            raise ValueError(f"--fleet {path}: larger than {MAX_PLACES_FILE_BYTES} bytes")
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise ValueError(f"--fleet {path}: cannot read it: {exc}") from None
-    return parse_fleet(text, f"--fleet {path}")
+    return parse_places(text, f"--fleet {path}")
 
 
 #: the drift options: (flag, DriftSettings field it sets, type, metavar, help with {default})

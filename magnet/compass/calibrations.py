@@ -1,0 +1,112 @@
+"""The calibrations a compass applies: which are in force per device, which it refuses and why (not accepted by the
+quality gate, not signed by a trusted key, older than the one in force), and each sample's correction from them.
+
+Pure: records in, decisions out; the compass core (``magnet.compass.core``) counts and logs."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from magnet import signing, wire
+from magnet.bounded import Recent
+
+#: devices remembered as refused between two asks of the calibrators (a flood beyond: one query for all)
+MAX_REFUSED = 1024
+
+_ZERO3, _EYE3 = np.zeros(3), np.eye(3)
+
+
+class CalibrationsInForce:
+    """The calibration in force per device (at most ``max_devices``, the least recently used forgotten first) and
+    the devices whose calibration was refused since the calibrators were last asked."""
+
+    def __init__(self, trusted: signing.TrustedKeys | None, max_devices: int) -> None:
+        self.trusted = trusted or signing.TrustedKeys()
+        self.in_force: Recent[str, wire.DeviceCalibration] = Recent(max_devices)
+        self.refused: Recent[str, bool] = Recent(MAX_REFUSED)
+        self._refused_evicted = 0
+        self.updates = 0  # calibrations that came into force
+
+    def check(self, record: wire.DeviceCalibration) -> None:
+        """WireError unless ``record`` may be applied: accepted by the quality gate (its plausibility was checked
+        when it was read), signed by a trusted key where keys are trusted, and newer than the one in force: a
+        higher version, which the signature covers (``created_ns`` only between equal versions,
+        ``DeviceCalibration.newer_than``)."""
+        if not record.calibration.accepted:
+            raise wire.WireError(
+                "not-accepted",
+                f"calibration {record.id} of {record.device} is marked accepted: false (the quality gate refused it)",
+            )
+        if self.trusted.enabled:
+            try:
+                self.trusted.verify(record.to_record())
+            except signing.SignatureError as exc:
+                raise wire.WireError(exc.cause, f"calibration {record.id} of {record.device}: {exc}") from None
+        current = self.in_force.get(record.device)
+        if current is not None and current.id != record.id and not record.newer_than(current):
+            raise wire.WireError(
+                "stale",
+                f"calibration {record.id} (version {record.version}) of {record.device} is not newer than the one in "
+                f"force ({current.id}, version {current.version})",
+            )
+
+    def put(self, record: wire.DeviceCalibration) -> bool:
+        """Put a checked record in force; True when it is a new calibration for its device (not the one in force
+        again, which only takes the new numbering: a rollback to it)."""
+        current = self.in_force.get(record.device)
+        if current is not None and current.id == record.id:
+            if record.newer_than(current):
+                self.in_force[record.device] = record
+            return False
+        self.in_force[record.device] = record
+        self.updates += 1
+        return True
+
+    def refuse(self, device: str) -> None:
+        """Remember that ``device``'s calibration was just refused (the calibrators are asked again)."""
+        self.refused[device] = True
+
+    def take_refused(self) -> tuple[list[str], bool]:
+        """(the devices refused since the last call, sorted; whether more were refused than remembered), and forget
+        them."""
+        overflow = self.refused.evicted > self._refused_evicted
+        devices = sorted(self.refused)
+        self.refused.clear()
+        self._refused_evicted = self.refused.evicted
+        return devices, overflow
+
+    def of_batches(self, devices: list[str]) -> list[wire.DeviceCalibration | None]:
+        """The calibration in force for each batch's device (None where there is none), marked as just used."""
+        cals = [self.in_force.get(device) for device in devices]
+        for device, cal in zip(devices, cals):
+            if cal is not None:
+                self.in_force.touch(device)
+        return cals
+
+
+def calibration_rows(
+    cals: list[wire.DeviceCalibration | None], counts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per sample: the offset (S, 3), matrix (S, 3, 3) and whether calibrated (S,) of its batch's calibration
+    (identity where none; broadcast views, no copies, when no batch has one)."""
+    total = int(counts.sum())
+    if all(c is None for c in cals):
+        return np.broadcast_to(_ZERO3, (total, 3)), np.broadcast_to(_EYE3, (total, 3, 3)), np.zeros(total, bool)
+    offsets = np.array([c.calibration.offset if c else _ZERO3 for c in cals]).reshape(-1, 3)
+    matrices = np.array([c.calibration.matrix if c else _EYE3 for c in cals]).reshape(-1, 3, 3)
+    calibrated = np.array([c is not None for c in cals], dtype=bool)
+    return np.repeat(offsets, counts, axis=0), np.repeat(matrices, counts, axis=0), np.repeat(calibrated, counts)
+
+
+def motor_rows(cals: list[wire.DeviceCalibration | None], columns: wire.RawColumns) -> np.ndarray | None:
+    """(S, 3) uT the motors add at each sample (``magnet.motor``: the calibration's motor model times the batch's
+    current or throttle; zero where either is unknown), or None when no batch's calibration has a motor model."""
+    if all(c is None or c.calibration.motor is None for c in cals):
+        return None
+    out = np.zeros((int(columns.counts.sum()), 3))
+    bounds = columns.bounds
+    for i, cal in enumerate(cals):
+        if cal is not None and cal.calibration.motor is not None:
+            lo, hi = bounds[i], bounds[i + 1]
+            out[lo:hi] = cal.calibration.motor.offset_ut(columns.current[lo:hi], columns.thr[lo:hi])
+    return out

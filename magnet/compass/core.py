@@ -1,0 +1,285 @@
+"""The compass in one object with one step: ``CompassCore.step(raw, now_ns) -> HeadingColumns``.
+
+A step takes the raw batches of many devices (``wire.RawColumns``, float64) and gives every sample's heading:
+each batch's calibration in force (``calibrations``) and motor model corrects the field; the accelerometer gives a
+tilt-compensated heading (``tilt``); the batches that carry a gyroscope go through their device's filter
+(``filters``); the field and dip are checked against what the World Magnetic Model expects at the device's place
+(``places``, ``earth``; the day from ``now_ns`` unless the places have a fixed date); the heading is smoothed per
+device (``--window``) and turned to true north by the declination; the drift monitor sees the field (``watch``).
+Its parts are small objects the core holds, none inheriting another's state. ``decode`` and ``encode`` are the
+wire's edges (bytes in and out, counted drops); the live service, ``magnet heading`` and the tests all call
+``step``. Pure: no zenoh, no clock (``now_ns`` is given).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from typing import Any
+
+import numpy as np
+
+from magnet import heading as hd
+from magnet import signing, wire
+from magnet.bounded import Recent
+from magnet.compass.calibrations import CalibrationsInForce, calibration_rows, motor_rows
+from magnet.compass.earth import utc_date
+from magnet.compass.filters import DeviceFilters, FusedColumns, merge
+from magnet.compass.keys import DeviceKeys
+from magnet.compass.places import EarthColumns, Places
+from magnet.compass.tilt import Headings, compute_headings, smooth_tail
+from magnet.compass.watch import DeviceWatch
+from magnet.drift import DEFAULT_DRIFT, DriftSettings
+from magnet.frames import rotate_heading, to_magnetic_ned
+from magnet.shard import EVERY_DEVICE, Shard
+
+log = logging.getLogger("magnet.compass")
+
+DEFAULT_MAX_DEVICES = 10_000
+
+
+@dataclasses.dataclass(frozen=True)
+class CompassStatus:
+    """The answer of ``<prefix>/@status/<name>``."""
+
+    name: str
+    received_batches: int
+    received_samples: int
+    published_batches: int
+    calibrations: int
+    calibration_updates: int
+    dropped: dict[str, int]
+    evicted_devices: int = 0
+    shard: str = "0/1"
+
+    def to_dict(self) -> dict[str, Any]:
+        fields = dataclasses.asdict(self)
+        return {"v": wire.RECORD_VERSION, "service": "compass", **fields, "dropped_total": sum(self.dropped.values())}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HeadingColumns:
+    """The headings of the S samples of a ``wire.RawColumns`` (``Headings``: magnetic heading, pitch, roll, field,
+    flags), plus true_heading_deg (S,), dip_deg (S,) (NaN without a tilt), one calibration id (or "") and one
+    declination (deg, of the device's place) per batch, and the attitude (S, 4) body -> NED (true north) where fused
+    (NaN rows elsewhere), or None when no sample was fused."""
+
+    headings: Headings
+    true_heading_deg: np.ndarray
+    dip_deg: np.ndarray
+    calibration_ids: list[str]
+    declinations: list[float]
+    quat_wxyz: np.ndarray | None = None
+
+
+def window_problem(window: Any) -> str | None:
+    """What is wrong with a smoothing window (headings), or None: the one check of ``--window``."""
+    if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+        return "must be a whole number >= 1"
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class CoreSettings:
+    """What the core runs with: the smoothing window (headings, >= 1), the per-device state bound, the shard it
+    serves, the drift thresholds (None: no drift alerts)."""
+
+    window: int = 1
+    max_devices: int = DEFAULT_MAX_DEVICES
+    shard: Shard = EVERY_DEVICE
+    drift: DriftSettings | None = DEFAULT_DRIFT
+
+    def __post_init__(self) -> None:
+        problem = window_problem(self.window)
+        if problem is not None:
+            raise ValueError(f"--window {problem}, got {self.window!r}")
+
+
+class Smoothing:
+    """The circular sliding mean over ``window`` headings per device, across steps (tails of at most
+    ``max_devices`` devices)."""
+
+    def __init__(self, window: int, max_devices: int) -> None:
+        self.window = window
+        self.tails: Recent[str, np.ndarray] = Recent(max_devices)
+
+    def apply(self, devices: list[str], bounds: list[int], heading_deg: np.ndarray) -> np.ndarray:
+        if self.window == 1:
+            return heading_deg
+        parts = []
+        for i, device in enumerate(devices):
+            tail = self.tails.get(device)
+            smoothed, self.tails[device] = smooth_tail(
+                np.empty(0) if tail is None else tail, heading_deg[bounds[i] : bounds[i + 1]], self.window
+            )
+            parts.append(smoothed)
+        return np.concatenate(parts or [np.empty(0)])
+
+
+@dataclasses.dataclass
+class Counters:
+    """What the compass received and published (batches, samples)."""
+
+    received_batches: int = 0
+    received_samples: int = 0
+    published_batches: int = 0
+
+
+class CompassCore:
+    """The compass's state and its step (see the module). ``places``: where each device is (None: nowhere known);
+    ``trusted``: the keys calibrations must be signed by (None: any)."""
+
+    def __init__(
+        self,
+        settings: CoreSettings = CoreSettings(),
+        places: Places | None = None,
+        trusted: signing.TrustedKeys | None = None,
+    ) -> None:
+        self.settings = settings
+        limit = settings.max_devices
+        self.calibrations = CalibrationsInForce(trusted, limit)
+        self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
+        self.filters = DeviceFilters(max_devices=limit)
+        self.smoothing = Smoothing(settings.window, limit)
+        self.keys = DeviceKeys(settings.shard)
+        self.drops = wire.DropCounter()
+        self.counters = Counters()
+        self._evictions_logged = False
+
+    # ------------------------------------------------------------------------------------------ the wire's edges
+    def decode(self, items: list[tuple[str, bytes]], prefix: str) -> wire.RawColumns:
+        """All good raw batches of (key, payload) ``items`` as columns (one numpy pass, float64); malformed ones and
+        those whose key names another device dropped and counted."""
+        columns, errors = wire.decode_raw_many([payload for _, payload in items])
+        refused = set()
+        for index, exc in errors:
+            refused.add(index)
+            self.drops.drop(exc, "raw", log)
+        keys = [key for index, (key, _) in enumerate(items) if index not in refused]
+        mismatch = np.array(
+            [self.keys.device(key, prefix) != device for key, device in zip(keys, columns.devices)], dtype=bool
+        )
+        if mismatch.any():
+            for key, device in zip(np.array(keys)[mismatch], np.array(columns.devices)[mismatch]):
+                self.drops.drop(wire.key_mismatch(key, device), "raw", log)
+            columns = columns.select(~mismatch)
+        return columns
+
+    @staticmethod
+    def encode(raw: wire.RawColumns, out: HeadingColumns) -> list[bytes]:
+        """One heading payload per raw batch of ``raw``, in order (float32 on the wire, from here only)."""
+        h = out.headings
+        return wire.encode_headings(
+            raw,
+            h.heading_deg,
+            out.true_heading_deg,
+            h.pitch_deg,
+            h.roll_deg,
+            h.field_ut,
+            h.flags,
+            out.declinations,
+            out.calibration_ids,
+            out.quat_wxyz,
+        )
+
+    def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> bool:
+        """Apply a calibration message when it is usable (``CalibrationsInForce.check``); else count why, keep the
+        one in force and remember the device so that the calibrators are asked again. True when it is (or already
+        was) in force; False, silently, for another shard's device."""
+        if not self.keys.mine(key_expr, prefix, wire.Kind.CALIBRATION):
+            return False
+        try:
+            record = wire.decode_calibration(payload)
+            wire.check_key(prefix, key_expr, wire.Kind.CALIBRATION, record.device)
+            self.calibrations.check(record)
+        except wire.WireError as exc:
+            self.drops.drop(exc, "calibration", log)
+            device = self.keys.device(key_expr, prefix, wire.Kind.CALIBRATION)
+            if device is not None:
+                self.calibrations.refuse(device)
+            return False
+        if self.calibrations.put(record):
+            self._log_evictions()
+            self.watch.calibration(record, record.created_ns)
+            # the device's filter starts again: its magnetometer state was built on the old correction, and the
+            # field jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust
+            self.filters.forget(record.device)
+            log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
+        return True
+
+    # ------------------------------------------------------------------------------------------------- the step
+    def step(self, raw: wire.RawColumns, now_ns: int) -> HeadingColumns:
+        """Headings for every sample of ``raw`` (see the module); ``now_ns`` the wall clock (ns since the epoch),
+        whose UTC day dates the model where no ``--date`` is fixed. Counts what it received."""
+        cals = self.calibrations.of_batches(raw.devices)
+        offsets, matrices, calibrated = calibration_rows(cals, raw.counts)
+        earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
+        where = EarthColumns.of(earths, raw.counts)
+        out = compute_headings(raw.mag_ut, raw.acc_ms2, offsets, matrices, calibrated, motor_rows(cals, raw))
+        fused = self._fuse(raw, out, where.declination_deg)
+        gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dip = hd.dip_angle_deg(out.field_ut, gravity)
+        flags = hd.disturbance_flags(out.field_ut, gravity, where.total_ut, where.inclination_deg, dip_deg=dip)
+        out, quat = merge(dataclasses.replace(out, flags=out.flags | flags), fused)
+        self.watch.observe(raw.devices, raw.bounds, raw.t_ns, hd.row_norm(out.field_ut), dip)
+        self._log_evictions()
+        self.counters.received_batches += len(raw.devices)
+        self.counters.received_samples += int(raw.counts.sum())
+        out = dataclasses.replace(out, heading_deg=self.smoothing.apply(raw.devices, raw.bounds, out.heading_deg))
+        return HeadingColumns(
+            out,
+            hd.true_heading_deg(out.heading_deg, where.declination_deg),
+            dip,
+            [c.id if c else "" for c in cals],
+            [e.declination_deg for e in earths],
+            None if quat is None else rotate_heading(quat, where.declination_deg),
+        )
+
+    def _fuse(self, raw: wire.RawColumns, out: Headings, declination_deg: np.ndarray) -> FusedColumns:
+        """The per-device filters run on the batches that carry a gyroscope (``magnet.compass.filters``), aided by
+        the velocity where a batch carries one (turned to magnetic north by the declination of the device's place);
+        bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``)."""
+        vel = raw.vel
+        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
+        fused = self.filters.update(
+            raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, out.field_ut, aiding
+        )
+        for cause, count in fused.dropped.items():
+            if self.drops.count(f"raw:{cause}"):
+                log.warning("dropping gyroscope samples (%s); further ones only counted", cause)
+            self.drops.counts[f"raw:{cause}"] += count - 1
+        return fused
+
+    # ------------------------------------------------------------------------------------------------ counters
+    def evicted_count(self) -> int:
+        """Per-device entries forgotten for --max-devices: calibrations, tails, places, drift trackers, filters."""
+        return (
+            self.calibrations.in_force.evicted
+            + self.smoothing.tails.evicted
+            + self.watch.evicted
+            + self.filters.evicted
+        )
+
+    def _log_evictions(self) -> None:
+        if not self._evictions_logged and self.evicted_count():
+            self._evictions_logged = True
+            log.warning(
+                "more than %d devices: the least recently seen are forgotten (counted in status "
+                "evicted_devices; raise --max-devices if they are genuine)",
+                self.settings.max_devices,
+            )
+
+    def status(self, name: str) -> CompassStatus:
+        c = self.counters
+        return CompassStatus(
+            name,
+            c.received_batches,
+            c.received_samples,
+            c.published_batches,
+            len(self.calibrations.in_force),
+            self.calibrations.updates,
+            dict(self.drops.counts),
+            self.evicted_count(),
+            str(self.settings.shard),
+        )
