@@ -26,7 +26,7 @@ class Recent(MutableMapping[K, V]):
         on_evict: Callable[[K, V], None] | None = None,
     ) -> None:
         if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
-            raise ValueError(f"--max-devices must be a whole number >= 1, got {limit!r}")
+            raise ValueError(f"a bound must be a whole number >= 1, got {limit!r}")
         self.limit, self.keep, self.on_evict = limit, keep, on_evict
         self.evicted = 0
         self._items: OrderedDict[K, V] = OrderedDict()

@@ -28,7 +28,7 @@ def test_recent_forgets_the_least_recently_seen_and_keeps_what_must_stay():
     recent["s"] = "session"
     recent["d"] = "x"
     assert "s" in recent and recent.evicted == 3
-    with pytest.raises(ValueError, match="--max-devices"):
+    with pytest.raises(ValueError, match="a bound must be a whole number"):
         Recent(0)
 
 

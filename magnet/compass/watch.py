@@ -28,16 +28,15 @@ class DeviceWatch:
         self, places: Places, drift: DriftSettings | None = DEFAULT_DRIFT, max_devices: int = MAX_TRACKED
     ) -> None:
         self.places = places
-        self.monitor = DriftMonitor(drift) if drift is not None else None
+        self.monitor = DriftMonitor(drift, max_devices) if drift is not None else None
         self.pending: list[Alert] = []
         self.max_devices = max_devices
-        self.forgotten_trackers = 0
         self.date: DateLike = None  # the day of the last step (the model's date where no --date is given)
 
     @property
     def evicted(self) -> int:
         """Reported places and drift trackers forgotten for the bounds."""
-        return self.places.reported.evicted + self.forgotten_trackers
+        return self.places.reported.evicted + (0 if self.monitor is None else self.monitor.trackers.evicted)
 
     def earths(self, devices: list[str], locations: list[Location | None] | None, date: DateLike) -> list[Earth]:
         """The Earth of each batch's device on ``date``, taking the locations the batches report."""
@@ -58,9 +57,6 @@ class DeviceWatch:
         """A calibration came into force: drift is judged against it from now on (open alerts clear)."""
         if self.monitor is None:
             return
-        trackers = self.monitor.trackers
-        if record.device in trackers:  # the most recently calibrated last
-            trackers[record.device] = trackers.pop(record.device)
         cal, earth = record.calibration, self.places.earth(record.device, self.date)
         in_ut = ut_per_unit(cal.output_unit) == 1.0
         reference = Reference(
@@ -72,9 +68,6 @@ class DeviceWatch:
             record.id,
         )
         self._queue(self.monitor.calibration(record.device, reference, now_ns))
-        while len(trackers) > self.max_devices:
-            del trackers[next(iter(trackers))]
-            self.forgotten_trackers += 1
 
     def observe(
         self, devices: list[str], bounds: list[int], t_ns: np.ndarray, strength_ut: np.ndarray, dip_deg: np.ndarray

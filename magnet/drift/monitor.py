@@ -4,23 +4,25 @@ from __future__ import annotations
 
 import numpy as np
 
+from magnet.bounded import Recent
 from magnet.drift.alerts import Alert
 from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings, Reference
 from magnet.drift.tracker import DriftTracker
 
 
 class DriftMonitor:
-    """The drift trackers of many devices: one per device with a calibration in force. Bounded by the devices the
-    caller feeds (the compass's calibrations)."""
+    """The drift trackers of many devices: one per device with a calibration in force, for at most ``max_devices``
+    devices (the least recently calibrated forgotten first, counted in ``trackers.evicted``)."""
 
-    def __init__(self, settings: DriftSettings = DEFAULT_DRIFT) -> None:
+    def __init__(self, settings: DriftSettings = DEFAULT_DRIFT, max_devices: int = 10_000) -> None:
         self.settings = settings
-        self.trackers: dict[str, DriftTracker] = {}
+        self.trackers: Recent[str, DriftTracker] = Recent(max_devices)
 
     def calibration(self, device: str, reference: Reference, now_ns: int) -> list[Alert]:
         """A calibration came into force for ``device``: clear its open alerts and start afresh."""
         old = self.trackers.get(device)
         if old is not None and old.reference.calibration_id == reference.calibration_id:
+            self.trackers.touch(device)
             old.set_model(reference.model_total_ut, reference.model_dip_deg)
             return []
         events = [] if old is None else old.clear_all(now_ns, f"calibration {reference.calibration_id} in force")
