@@ -81,6 +81,24 @@ def test_a_bomb_of_empty_arrays_is_stopped_by_the_count_of_entries(limits):
     assert peak < limits.containers * 100 + 1_000_000 and seconds < 1.0  # unbounded: 180 MB and seconds
 
 
+@pytest.mark.parametrize("limits", [wire.RAW_LIMITS, wire.HEADING_LIMITS, wire.ANY_LIMITS])
+@pytest.mark.parametrize("levels", [1000, 2000])
+def test_nested_array_headers_cut_short_set_nothing_aside(limits, levels):
+    """5 kB of headers that each declare a long array, then nothing: msgpack alone sets aside about 80 kB per
+    level (80 MB, 0.1 s) before it finds the payload cut short; the walk without building refuses it first."""
+    payload = (b"\xdd" + limits.array.to_bytes(4, "big")) * levels
+    exc, seconds, peak = _refusal(lambda p: wire.unpack(p, limits), payload)
+    assert exc.cause == "not-msgpack" and "whole" in str(exc)
+    assert peak < 1_000_000 and seconds < 0.05
+
+
+def test_trailing_bytes_after_a_whole_message_are_refused():
+    payload = wire.pack({"device": "d"}) + b"\x90"
+    with pytest.raises(wire.WireError, match="whole") as info:
+        wire.unpack(payload, wire.RAW_LIMITS)
+    assert info.value.cause == "not-msgpack"
+
+
 def test_honest_messages_of_the_largest_size_pass_the_limits():
     n = wire.MAX_BATCH_SAMPLES
     vec = np.full((n, 3), 12.5)

@@ -16,6 +16,7 @@ both versions (``RECORD_VERSION`` 1, also their JSON form in files and the store
 
 from __future__ import annotations
 
+import io
 import itertools
 import math
 from collections.abc import Mapping
@@ -89,11 +90,41 @@ def _counter(limits: Limits) -> Any:
     return hook
 
 
+#: msgpack nests at most this many containers (its parser's stack); deeper is an error
+MSGPACK_DEPTH = 1024
+#: what msgpack may set aside for arrays it has opened but not filled, at most, before a payload is known whole
+PREALLOCATION_BYTES = 1024 * 1024
+#: the walk reads the payload this much at a time (it holds about this much, not a copy of the payload)
+SKIP_READ_BYTES = 64 * 1024
+
+
+def _incomplete(payload: Payload, limits: Limits) -> bool:
+    """Whether ``payload`` is not one whole msgpack object, found by walking it without building anything
+    (``Unpacker.skip``, in C). msgpack sets aside an array's slots (8 bytes each, up to about 10,000) when it meets
+    the array's header, before its entries: a few kB of nested headers that declare long arrays and are then cut
+    short would make it set aside about 80 kB per level, up to MSGPACK_DEPTH levels (80 MB for 5 kB), only to fail.
+    In a whole payload every declared entry takes a byte at least, so what is set aside is at most 8 bytes per byte
+    of payload. Skipped (free) when even the worst cut-short payload of this size stays within
+    PREALLOCATION_BYTES."""
+    if min(len(payload), MSGPACK_DEPTH) * 8 * limits.array <= PREALLOCATION_BYTES:
+        return False
+    size = len(payload)
+    unpacker = msgpack.Unpacker(io.BytesIO(payload), read_size=min(size, SKIP_READ_BYTES), max_buffer_size=size)
+    try:
+        unpacker.skip()
+    except Exception:  # OutOfData (cut short), StackError (too deep), FormatError ...: msgpack's verdict follows
+        return True
+    return unpacker.tell() != size
+
+
 def _unpackb(payload: Payload, limits: Limits) -> tuple[Any, tuple[str, str] | None]:
     """(object, None) or (None, (cause, text)): the refusal is returned, not raised, so that no exception of
-    msgpack's (and no frame holding the payload) is chained to the caller's WireError. Entries and containers are
-    counted only in payloads larger than their limits: a smaller one cannot hold more (each takes a byte at least),
-    and the common small message pays nothing for the count."""
+    msgpack's (and no frame holding the payload) is chained to the caller's WireError. A payload that is not one
+    whole msgpack object is refused before anything is built (``_incomplete``). Entries and containers are counted
+    only in payloads larger than their limits: a smaller one cannot hold more (each takes a byte at least), and the
+    common small message pays nothing for the count."""
+    if _incomplete(payload, limits):
+        return None, ("not-msgpack", "payload is not one whole msgpack object (cut short, too deep or trailing data)")
     small = len(payload) <= min(limits.items, limits.containers or limits.items)
     hooks = {} if small else dict.fromkeys(("list_hook", "object_hook"), _counter(limits))
     try:
