@@ -13,7 +13,8 @@ import dataclasses
 import logging
 
 from magnet import wire
-from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments, open_session, stop_event
+from services.common.router_stats import open_counting
+from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments, stop_event
 
 log = logging.getLogger("magnet.router")
 
@@ -57,7 +58,7 @@ def run(settings: RouterSettings) -> int:
             DEFAULT_LISTEN,
         )
     stop = stop_event()
-    with open_session(settings.zenoh) as session:
+    with open_counting(settings.zenoh, settings.name) as session:  # denied messages counted, status answered
         token = session.liveliness().declare_token(wire.liveliness_key(settings.zenoh.prefix, "router", settings.name))
         log.info(
             "router %s up (zid %s), listening on %s",
