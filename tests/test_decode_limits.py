@@ -163,6 +163,48 @@ def test_heading_v1_booleans_are_not_numbers(field):
     assert info.value.cause == "bad-shape"
 
 
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("mag_ut", [["1e3", 0.0, 0.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.0]]),  # numpy alone reads "1e3" as 1000
+        ("current_a", ["2.5", 1.0, 1.0]),
+        ("truth", {"heading_deg": ["10", 0.0, 0.0], "pitch_deg": [0.0] * 3, "roll_deg": [0.0] * 3}),
+        ("t_ns", [1, "2", 3]),
+    ],
+)
+def test_raw_v1_strings_are_not_numbers_in_any_array(field, value):
+    """One check of v 1 arrays for every field of both decoders (samples, scalars, truth)."""
+    message = msgpack.unpackb(wire.encode_raw(wire.RawBatch("dev", 1, "s", np.arange(3), np.ones((3, 3))), version=1))
+    message[field] = value
+    with pytest.raises(wire.WireError) as info:
+        wire.decode_raw(msgpack.packb(message))
+    assert info.value.cause == "bad-shape", str(info.value)
+    assert field == "t_ns" or "str where numbers belong" in str(info.value)
+
+
+@pytest.mark.parametrize("field", ["heading_deg", "field_ut", "quat_wxyz"])
+def test_heading_v1_strings_are_not_numbers(field):
+    n = 2
+    zeros, quat = np.zeros(n), np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    field_ut = np.ones((n, 3))
+    batch = wire.HeadingBatch("dev", 1, np.arange(n), zeros, zeros, zeros, zeros, field_ut, 0.0, "c", zeros, quat)
+    message = msgpack.unpackb(wire.encode_heading(batch, version=1))
+    values = message[field]
+    message[field] = ["1", *values[1:]] if field == "heading_deg" else [["1", *values[0][1:]], *values[1:]]
+    with pytest.raises(wire.WireError, match="str where numbers belong"):
+        wire.decode_heading(msgpack.packb(message))
+
+
+def test_integers_beyond_int64_are_out_of_range_in_both_decoders():
+    message = msgpack.unpackb(wire.encode_raw(wire.RawBatch("dev", 1, "s", np.arange(2), np.ones((2, 3))), version=1))
+    message["t_ns"] = [1, 2**64 - 1]
+    payload = msgpack.packb(message)
+    with pytest.raises(wire.WireError) as info:
+        wire.decode_raw(payload)
+    _, errors = wire.decode_raw_many([payload, payload])
+    assert info.value.cause == "out-of-range" and [e.cause for _, e in errors] == ["out-of-range"] * 2
+
+
 def test_real_records_fit_well_within_the_calibration_limits():
     from magnet.calibration import fit
     from magnet.simulator import SensorErrors, SimulatorConfig, simulate

@@ -314,60 +314,114 @@ def number_field(message: Mapping[str, Any], name: str, default: float) -> float
     return float(value)
 
 
-def float_array(
-    value: Any, name: str, shape_tail: tuple[int, ...], limit: float | None, binary: bool = False
-) -> np.ndarray:
-    """float64 array of shape (N, *shape_tail), N <= MAX_BATCH_SAMPLES, finite, |x| <= limit; else WireError.
-    ``value``: lists (v 1) or, ``binary``, a v 2 array map."""
-    if binary:
-        return check_floats(
-            from_bins([check_bin(value, name, FLOAT_DTYPES, shape_tail)], shape_tail, "f8"), name, limit
-        )
+# ------------------------------------------------------------------------- the array checks (both versions)
+
+#: the Python types msgpack gives numbers as: a boolean is not a number here, nor a string (numpy would read true
+#: as 1 and "1e3" as 1000)
+NUMBER_TYPES = frozenset({int, float})
+INTEGER_TYPES = frozenset({int})
+#: the largest integer of an int64 array (t_ns, seq)
+INT64_MAX = 2**63 - 1
+
+
+def _shape_text(tail: tuple[int, ...]) -> str:
+    return f"(N{''.join(f', {k}' for k in tail)})"
+
+
+def _only(values: Any, name: str, rows: bool, types: frozenset[type], what: str) -> None:
+    """WireError ``bad-shape`` unless every one of v 1 ``values`` (or of their rows' entries, ``rows``) is of
+    ``types``. One pass in C (``map(type, ...)``), no per-number Python; call it once the values form an array."""
+    found = set(map(type, itertools.chain.from_iterable(values) if rows else values))
+    if not found <= types:
+        odd = "true/false" if bool in found else ", ".join(sorted(t.__name__ for t in found - types))
+        raise WireError("bad-shape", f"{name} holds {odd} where {what} belong")
+
+
+def numbers(values: Any, name: str, tail: tuple[int, ...] = ()) -> np.ndarray:
+    """The one conversion of a v 1 array of numbers: lists (N numbers, or N rows of ``tail[0]`` numbers) -> float64
+    (N, *tail); WireError ``bad-shape`` when they are not of that shape or not all numbers. The raw decoder passes
+    the rows of many messages at once."""
     try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise WireError("bad-shape", f"{name} is not an array of numbers") from None
-    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
-        raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected (N, {', '.join(map(str, shape_tail))})")
-    if arr.shape[0] > MAX_BATCH_SAMPLES:
-        raise WireError("oversized", f"{name} holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
-    no_booleans(value, name, rows=bool(shape_tail))
-    return check_floats(arr, name, limit)
-
-
-def no_booleans(values: Any, name: str, rows: bool) -> None:
-    """WireError ``bad-shape`` when v 1 ``values`` (numbers, or rows of numbers when ``rows``) hold a boolean: numpy
-    would read true as 1 and false as 0. One pass in C (``map(type, ...)``), no per-number Python. Call it once the
-    values are known to form an array."""
-    flat = itertools.chain.from_iterable(values) if rows else values
-    if bool in set(map(type, flat)):
-        raise WireError("bad-shape", f"{name} holds true/false where numbers belong")
-
-
-def check_floats(arr: np.ndarray, name: str, limit: float | None) -> np.ndarray:
-    """``arr`` if finite and |x| <= limit; WireError ``non-finite`` or ``absurd-magnitude`` otherwise."""
-    if not np.isfinite(arr).all():
-        raise WireError("non-finite", f"{name} holds non-finite values")
-    if limit is not None and arr.size and np.abs(arr).max() > limit:
-        raise WireError("absurd-magnitude", f"{name} holds values beyond +-{limit:g}")
+        arr = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise WireError("bad-shape", f"{name} is not an array of numbers of shape {_shape_text(tail)}") from None
+    if arr.ndim != 1 + len(tail) or arr.shape[1:] != tail:
+        raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected {_shape_text(tail)}")
+    _only(values, name, bool(tail), NUMBER_TYPES, "numbers")
     return arr
 
 
-def int_array(value: Any, name: str, binary: bool = False, dtypes: Mapping[str, np.dtype] = TIME_DTYPES) -> np.ndarray:
-    """int64 array (N,) from a list of integers (v 1) or, ``binary``, a v 2 array map of one of ``dtypes``,
-    N <= MAX_BATCH_SAMPLES; else WireError."""
-    if binary:
-        return from_bins([check_bin(value, name, dtypes, ())], (), "i8")
+def integers(values: Any, name: str) -> np.ndarray:
+    """The one conversion of a v 1 array of integers: a list -> int64 (N,); WireError ``out-of-range`` for integers
+    beyond int64 (they would wrap), ``bad-shape`` for anything else that is not a list of integers."""
     try:
-        arr = np.asarray(value)
+        arr = np.array(values)
     except (TypeError, ValueError, OverflowError):
         raise WireError("bad-shape", f"{name} is not an array of integers") from None
-    if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "iu"):
-        raise WireError("bad-shape", f"{name} must be a list of integers, got shape {arr.shape} dtype {arr.dtype}")
+    kind = arr.dtype.kind
+    if arr.ndim == 1 and (not arr.size or kind == "i" or (kind == "u" and arr.max() <= INT64_MAX)):
+        _only(values, name, False, INTEGER_TYPES, "integers")
+        return arr.astype(np.int64)
+    if arr.ndim == 1 and all(type(x) is int for x in values):
+        raise WireError("out-of-range", f"{name} holds values beyond {INT64_MAX}")
+    raise WireError("bad-shape", f"{name} must be a list of integers, got shape {arr.shape} dtype {arr.dtype}")
+
+
+def value_faults(
+    arr: np.ndarray, name: str, limit: float | None, absent_rows: bool = False
+) -> list[tuple[np.ndarray, str, str]]:
+    """The one check of the values of a float array (N,) or (N, k), per sample: (bad (N,) bool, cause, text) for
+    non-finite values, then (when ``limit``) for values beyond +-limit. ``absent_rows``: a row that is all NaN is a
+    value not known at that sample (raw ``vel_ned_ms``, absent fields), not a fault."""
+    finite = np.isfinite(arr) if arr.ndim == 1 else np.isfinite(arr).all(axis=1)
+    if absent_rows:
+        finite |= np.isnan(arr) if arr.ndim == 1 else np.isnan(arr).all(axis=1)
+    faults = [(~finite, "non-finite", f"{name} holds non-finite values")]
+    if limit is not None:
+        with np.errstate(invalid="ignore"):
+            beyond = np.abs(arr) > limit
+        faults.append(
+            (
+                beyond if arr.ndim == 1 else beyond.any(axis=1),
+                "absurd-magnitude",
+                f"{name} holds values beyond +-{limit:g}",
+            )
+        )
+    return faults
+
+
+def check_floats(arr: np.ndarray, name: str, limit: float | None) -> np.ndarray:
+    """``arr`` if every value is finite and within +-limit (``value_faults``); WireError with the first fault."""
+    for bad, cause, text in value_faults(arr, name, limit):
+        if bad.any():
+            raise WireError(cause, text)
+    return arr
+
+
+def _at_most_a_batch(arr: np.ndarray, name: str) -> np.ndarray:
     if arr.shape[0] > MAX_BATCH_SAMPLES:
         raise WireError("oversized", f"{name} holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
-    no_booleans(value, name, rows=False)
-    return arr.astype(np.int64)
+    return arr
+
+
+def float_array(
+    value: Any, name: str, shape_tail: tuple[int, ...], limit: float | None, binary: bool = False
+) -> np.ndarray:
+    """One message's float64 array of shape (N, *shape_tail), N <= MAX_BATCH_SAMPLES, finite, |x| <= limit; else
+    WireError. ``value``: lists (v 1, ``numbers``) or, ``binary``, a v 2 array map (``check_bin``)."""
+    if binary:
+        arr = from_bins([check_bin(value, name, FLOAT_DTYPES, shape_tail)], shape_tail, "f8")
+    else:
+        arr = _at_most_a_batch(numbers(value, name, shape_tail), name)
+    return check_floats(arr, name, limit)
+
+
+def int_array(value: Any, name: str, binary: bool = False, dtypes: Mapping[str, np.dtype] = TIME_DTYPES) -> np.ndarray:
+    """One message's int64 array (N,) from a list of integers (v 1, ``integers``) or, ``binary``, a v 2 array map
+    of one of ``dtypes``, N <= MAX_BATCH_SAMPLES; else WireError."""
+    if binary:
+        return from_bins([check_bin(value, name, dtypes, ())], (), "i8")
+    return _at_most_a_batch(integers(value, name), name)
 
 
 def check_lengths(n: int, arrays: Mapping[str, np.ndarray]) -> None:

@@ -18,6 +18,7 @@ import numpy as np
 
 from magnet.wire.codec import (
     FLOAT_DTYPES,
+    INT64_MAX,
     MAX_BATCH_SAMPLES,
     TIME_DTYPES,
     Limits,
@@ -25,6 +26,7 @@ from magnet.wire.codec import (
     check_bin,
     from_bins,
     int_field,
+    numbers,
 )
 from magnet.wire.errors import WireError
 from magnet.wire.keys import MAX_DEVICE_ID_CHARS, message_device
@@ -57,8 +59,6 @@ RAW_LIMITS = Limits(
     items=MAX_BATCH_SAMPLES * MAX_ITEMS_PER_SAMPLE + 1024,
     containers=MAX_BATCH_SAMPLES * len(VECTOR_FIELDS) + 64,
 )
-#: the largest ``seq`` and ``t_ns`` (int64)
-INT64_MAX = 2**63 - 1
 
 
 class Header(NamedTuple):
@@ -103,10 +103,10 @@ def _scalar(message: Mapping[str, Any], name: str, low: float, high: float, n: i
         return None
     if binary_message(message):
         arr = from_bins([check_bin(value, name, FLOAT_DTYPES, (), n)], (), "f8")
-    elif type(value) is not list or len(value) != n or not all(type(x) in (int, float) for x in value):
+    elif type(value) is not list or len(value) != n:
         raise WireError("bad-shape", f"{name} must be a list of N = len(t_ns) = {n} numbers")
     else:
-        arr = np.array(value, dtype=np.float64)
+        arr = numbers(value, name)
     if np.isinf(arr).any():  # NaN: not known at that sample (as vel_ned_ms's NaN rows)
         raise WireError("non-finite", f"{name} holds infinite values")
     known = arr[~np.isnan(arr)]
