@@ -17,19 +17,8 @@ from typing import Any
 import numpy as np
 
 from magnet.place import Location
-from magnet.wire.codec import (
-    Bin,
-    Payload,
-    binary_message,
-    check_lengths,
-    detached,
-    float_array,
-    from_bins,
-    integers,
-    numbers,
-    unpack,
-    value_faults,
-)
+from magnet.wire.arrays import Bin, check_lengths, float_array, from_bins, integers, numbers, value_faults
+from magnet.wire.codec import Payload, binary_message, detached, unpack
 from magnet.wire.errors import WireError
 from magnet.wire.raw import (
     TRUTH_FIELDS,

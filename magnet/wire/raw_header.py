@@ -16,18 +16,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from magnet.wire.codec import (
-    FLOAT_DTYPES,
-    INT64_MAX,
-    MAX_BATCH_SAMPLES,
-    TIME_DTYPES,
-    Limits,
-    binary_message,
-    check_bin,
-    from_bins,
-    int_field,
-    numbers,
-)
+from magnet.wire.arrays import FLOAT_DTYPES, INT64_MAX, TIME_DTYPES, check_bin, from_bins, numbers
+from magnet.wire.codec import MAX_BATCH_SAMPLES, Limits, binary_message, int_field
 from magnet.wire.errors import WireError
 from magnet.wire.keys import MAX_DEVICE_ID_CHARS, message_device
 from magnet.wire.raw import SCALAR_FIELDS, TRUTH_FIELDS, VECTOR_FIELDS
