@@ -92,11 +92,23 @@ def test_nested_array_headers_cut_short_set_nothing_aside(limits, levels):
     assert peak < 1_000_000 and seconds < 0.05
 
 
-def test_trailing_bytes_after_a_whole_message_are_refused():
-    payload = wire.pack({"device": "d"}) + b"\x90"
-    with pytest.raises(wire.WireError, match="whole") as info:
-        wire.unpack(payload, wire.RAW_LIMITS)
+@pytest.mark.parametrize("size", [20, 20_000])  # small ones are left to msgpack, larger ones walked first
+def test_trailing_bytes_after_a_whole_message_are_refused(size):
+    payload = wire.pack({"device": "d", "pad": "x" * size}) + b"\x90"
+    with pytest.raises(wire.WireError) as info:
+        wire.unpack(payload, wire.RAW_LIMITS._replace(text=size))
     assert info.value.cause == "not-msgpack"
+
+
+def test_no_array_may_declare_more_entries_than_the_payload_has_bytes():
+    """A small payload is not walked: its arrays are bounded by its size instead (600 bytes of cut-short headers
+    set aside under 1 MB, not 200 levels of 80 kB)."""
+    payload = (b"\xdc" + (10_000).to_bytes(2, "big")) * 200
+    exc, _, _ = _refusal(lambda p: wire.unpack(p, wire.RAW_LIMITS), payload)
+    assert exc.cause == "oversized" and "max_array_len" in str(exc)
+    payload = (b"\xdc" + (200).to_bytes(2, "big")) * 200  # within the size: cut short, a little set aside
+    exc, _, peak = _refusal(lambda p: wire.unpack(p, wire.RAW_LIMITS), payload)
+    assert exc.cause == "not-msgpack" and peak < 1_000_000
 
 
 def test_honest_messages_of_the_largest_size_pass_the_limits():

@@ -89,8 +89,8 @@ def _counter(limits: Limits) -> Any:
 #: msgpack nests at most this many containers (its parser's stack); deeper is an error
 MSGPACK_DEPTH = 1024
 #: what msgpack may set aside for arrays it has opened but not filled, at most, before a payload is known whole
-PREALLOCATION_BYTES = 1024 * 1024
-#: the walk reads the payload this much at a time (it holds about this much, not a copy of the payload)
+PREALLOCATION_BYTES = 2 * 1024 * 1024
+#: the walk reads a larger payload this much at a time (it holds about this much, not a copy of the payload)
 SKIP_READ_BYTES = 64 * 1024
 
 
@@ -100,12 +100,18 @@ def _incomplete(payload: Payload, limits: Limits) -> bool:
     the array's header, before its entries: a few kB of nested headers that declare long arrays and are then cut
     short would make it set aside about 80 kB per level, up to MSGPACK_DEPTH levels (80 MB for 5 kB), only to fail.
     In a whole payload every declared entry takes a byte at least, so what is set aside is at most 8 bytes per byte
-    of payload. Skipped (free) when even the worst cut-short payload of this size stays within
-    PREALLOCATION_BYTES."""
-    if min(len(payload), MSGPACK_DEPTH) * 8 * limits.array <= PREALLOCATION_BYTES:
-        return False
+    of payload. The walk is skipped (free) where even a payload cut short cannot make msgpack set aside more than
+    PREALLOCATION_BYTES: no array may declare more entries than the payload has bytes (``_unpackb``), and a header
+    declaring more than 15 takes 3 bytes, so at most size/3 levels of ``min(array, size)`` slots (fixed arrays of
+    up to 15 add at most 120 kB): the common small message (under about 880 bytes at the raw limits) pays nothing."""
     size = len(payload)
-    unpacker = msgpack.Unpacker(io.BytesIO(payload), read_size=min(size, SKIP_READ_BYTES), max_buffer_size=size)
+    if min(size // 3, MSGPACK_DEPTH) * 8 * min(limits.array, size) <= PREALLOCATION_BYTES:
+        return False
+    if size <= SKIP_READ_BYTES:  # a copy of a small payload costs less than a file to read it from
+        unpacker = msgpack.Unpacker(max_buffer_size=size)
+        unpacker.feed(payload)
+    else:
+        unpacker = msgpack.Unpacker(io.BytesIO(payload), read_size=SKIP_READ_BYTES, max_buffer_size=size)
     try:
         unpacker.skip()
     except Exception:  # OutOfData (cut short), StackError (too deep), FormatError ...: msgpack's verdict follows
@@ -130,7 +136,7 @@ def _unpackb(payload: Payload, limits: Limits) -> tuple[Any, tuple[str, str] | N
             strict_map_key=True,
             max_str_len=limits.text,
             max_bin_len=limits.binary,
-            max_array_len=limits.array,
+            max_array_len=min(limits.array, len(payload)),  # a whole payload has a byte per entry at least
             max_map_len=limits.map,
             max_ext_len=0,
             **hooks,
