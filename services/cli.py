@@ -13,6 +13,8 @@ import logging
 import os
 import sys
 
+from services.common.allocator import give_back_freed_memory
+
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("services.commands.fit", "fit a calibration to a CSV of raw samples"),
@@ -69,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser(argv).parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    give_back_freed_memory()  # before any Zenoh thread allocates: see services/common/allocator.py
     module = importlib.import_module(args._module)
     runner = _handler(module, f"run_{args._name}", "run")
     try:

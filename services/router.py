@@ -14,7 +14,8 @@ import logging
 
 from magnet import wire
 from services.common.options import add_options, check_options, from_args, option
-from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments, open_session, stop_event
+from services.common.router_stats import open_counting
+from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments, stop_event
 
 log = logging.getLogger("magnet.router")
 
@@ -62,7 +63,8 @@ def run(settings: RouterSettings) -> int:
         )
     stop = stop_event()
     token_key = wire.liveliness_key(settings.zenoh.prefix, "router", settings.name)
-    with open_session(settings.zenoh) as session, session.liveliness().declare_token(token_key):
+    # denied messages counted, status answered (services.common.router_stats)
+    with open_counting(settings.zenoh, settings.name) as session, session.liveliness().declare_token(token_key):
         log.info(
             "router %s up (zid %s), listening on %s",
             settings.name,

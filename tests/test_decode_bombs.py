@@ -69,10 +69,30 @@ def _status(service, port):
     return lines[0] if code == 0 and lines else None
 
 
-#: "empty-containers" (2.5 MB within the raw size limit, stopped by the count of containers) is measured by hand
-#: (``-k`` after adding it here): on the loaded 2-core machine RSS grew 23-67 MB per service over runs, the
-#: decoding itself ~4 MB (in process); the rest is the allocator and Zenoh's buffers keeping freed memory
-@pytest.mark.parametrize("kind", ["array"])
+#: "empty-containers": 2.5 MB of empty arrays, within the raw size limit, stopped by the count of containers; the
+#: compass's growth is bounded by its byte-bounded intake (measured +25 MB, most of it Zenoh's receiving buffers)
+def _compass_has_its_intake():
+    """Whether the compass takes raw samples through its byte-bounded intake (services/compass/intake.py)."""
+    from pathlib import Path
+
+    import services.compass.service as service
+
+    return "PayloadIntake" in Path(service.__file__).read_text()
+
+
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "array",
+        pytest.param(
+            "empty-containers",
+            marks=pytest.mark.skipif(
+                not _compass_has_its_intake(),
+                reason="without its byte-bounded intake the compass copies a whole burst of 2.5 MB bombs (+58 MB)",
+            ),
+        ),
+    ],
+)
 def test_msgpack_bombs_are_refused_without_memory_and_headings_keep_flowing(procs, tmp_path, kind):
     cal_port, comp_port, edge_port = procs.start_services()
     wait_for(lambda: _status("calibrator", cal_port) and _status("compass", comp_port), 30, "the services to answer")
@@ -103,7 +123,8 @@ def test_msgpack_bombs_are_refused_without_memory_and_headings_keep_flowing(proc
             30,
             f"the {name} to refuse every bomb",
         )
-        assert status["dropped"].get("raw:oversized", 0) >= BOMBS, status["dropped"]
+        refused = status["dropped"].get("raw:oversized", 0) + status["dropped"].get("raw:queue-full", 0)
+        assert refused >= BOMBS, status["dropped"]  # a burst beyond the compass's queue is dropped before decoding
     after = {name: _memory_mb(procs.procs[name].pid) for name in ports}
     print("bombs", kind, result)
     for name in ports:

@@ -81,6 +81,36 @@ def test_a_bomb_of_empty_arrays_is_stopped_by_the_count_of_entries(limits):
     assert peak < limits.containers * 100 + 1_000_000 and seconds < 1.0  # unbounded: 180 MB and seconds
 
 
+@pytest.mark.parametrize("limits", [wire.RAW_LIMITS, wire.HEADING_LIMITS, wire.ANY_LIMITS])
+@pytest.mark.parametrize("levels", [1000, 2000])
+def test_nested_array_headers_cut_short_set_nothing_aside(limits, levels):
+    """5 kB of headers that each declare a long array, then nothing: msgpack alone sets aside about 80 kB per
+    level (80 MB, 0.1 s) before it finds the payload cut short; the walk without building refuses it first."""
+    payload = (b"\xdd" + limits.array.to_bytes(4, "big")) * levels
+    exc, seconds, peak = _refusal(lambda p: wire.unpack(p, limits), payload)
+    assert exc.cause == "not-msgpack" and "whole" in str(exc)
+    assert peak < 1_000_000 and seconds < 0.05
+
+
+@pytest.mark.parametrize("size", [20, 20_000])  # small ones are left to msgpack, larger ones walked first
+def test_trailing_bytes_after_a_whole_message_are_refused(size):
+    payload = wire.pack({"device": "d", "pad": "x" * size}) + b"\x90"
+    with pytest.raises(wire.WireError) as info:
+        wire.unpack(payload, wire.RAW_LIMITS._replace(text=size))
+    assert info.value.cause == "not-msgpack"
+
+
+def test_no_array_may_declare_more_entries_than_the_payload_has_bytes():
+    """A small payload is not walked: its arrays are bounded by its size instead (600 bytes of cut-short headers
+    set aside under 1 MB, not 200 levels of 80 kB)."""
+    payload = (b"\xdc" + (10_000).to_bytes(2, "big")) * 200
+    exc, _, _ = _refusal(lambda p: wire.unpack(p, wire.RAW_LIMITS), payload)
+    assert exc.cause == "oversized" and "max_array_len" in str(exc)
+    payload = (b"\xdc" + (200).to_bytes(2, "big")) * 200  # within the size: cut short, a little set aside
+    exc, _, peak = _refusal(lambda p: wire.unpack(p, wire.RAW_LIMITS), payload)
+    assert exc.cause == "not-msgpack" and peak < 1_000_000
+
+
 def test_honest_messages_of_the_largest_size_pass_the_limits():
     n = wire.MAX_BATCH_SAMPLES
     vec = np.full((n, 3), 12.5)
@@ -143,6 +173,48 @@ def test_heading_v1_booleans_are_not_numbers(field):
     with pytest.raises(wire.WireError) as info:
         wire.decode_heading(msgpack.packb(message))
     assert info.value.cause == "bad-shape"
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("mag_ut", [["1e3", 0.0, 0.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.0]]),  # numpy alone reads "1e3" as 1000
+        ("current_a", ["2.5", 1.0, 1.0]),
+        ("truth", {"heading_deg": ["10", 0.0, 0.0], "pitch_deg": [0.0] * 3, "roll_deg": [0.0] * 3}),
+        ("t_ns", [1, "2", 3]),
+    ],
+)
+def test_raw_v1_strings_are_not_numbers_in_any_array(field, value):
+    """One check of v 1 arrays for every field of both decoders (samples, scalars, truth)."""
+    message = msgpack.unpackb(wire.encode_raw(wire.RawBatch("dev", 1, "s", np.arange(3), np.ones((3, 3))), version=1))
+    message[field] = value
+    with pytest.raises(wire.WireError) as info:
+        wire.decode_raw(msgpack.packb(message))
+    assert info.value.cause == "bad-shape", str(info.value)
+    assert field == "t_ns" or "str where numbers belong" in str(info.value)
+
+
+@pytest.mark.parametrize("field", ["heading_deg", "field_ut", "quat_wxyz"])
+def test_heading_v1_strings_are_not_numbers(field):
+    n = 2
+    zeros, quat = np.zeros(n), np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    field_ut = np.ones((n, 3))
+    batch = wire.HeadingBatch("dev", 1, np.arange(n), zeros, zeros, zeros, zeros, field_ut, 0.0, "c", zeros, quat)
+    message = msgpack.unpackb(wire.encode_heading(batch, version=1))
+    values = message[field]
+    message[field] = ["1", *values[1:]] if field == "heading_deg" else [["1", *values[0][1:]], *values[1:]]
+    with pytest.raises(wire.WireError, match="str where numbers belong"):
+        wire.decode_heading(msgpack.packb(message))
+
+
+def test_integers_beyond_int64_are_out_of_range_in_both_decoders():
+    message = msgpack.unpackb(wire.encode_raw(wire.RawBatch("dev", 1, "s", np.arange(2), np.ones((2, 3))), version=1))
+    message["t_ns"] = [1, 2**64 - 1]
+    payload = msgpack.packb(message)
+    with pytest.raises(wire.WireError) as info:
+        wire.decode_raw(payload)
+    _, errors = wire.decode_raw_many([payload, payload])
+    assert info.value.cause == "out-of-range" and [e.cause for _, e in errors] == ["out-of-range"] * 2
 
 
 def test_real_records_fit_well_within_the_calibration_limits():

@@ -72,3 +72,13 @@ def test_memory_and_the_report():
     gaps = HeadingGaps()
     text = report(2, ["kill compass"], {"a": 1}, {}, gaps, memory, DropTotals())
     assert "calibrations lost: 1 of 1 published: a" in text and "compass" in text and "400" in text
+
+
+def test_memory_is_kept_per_fault_to_show_what_grows_when():
+    from services.bench.soak_plan import MemoryWatch
+
+    watch = MemoryWatch()
+    for rss, fault in [(60, "warm-up"), (65, "bombs"), (90, "bombs"), (70, "flood"), (300, "flood"), (80, "router")]:
+        watch.sample("compass", rss, warm=True, fault=fault)
+    assert watch.services["compass"].by_fault == {"warm-up": 60, "bombs": 90, "flood": 300, "router": 80}
+    assert watch.services["compass"].high_mb == 300 and watch.services["compass"].last_mb == 80

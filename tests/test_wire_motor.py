@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from magnet import wire
-from magnet.wire.codec import bin_array
+from magnet.wire.arrays import bin_array
 
 
 def _batch(n: int = 4, **extra: np.ndarray) -> wire.RawBatch:

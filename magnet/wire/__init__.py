@@ -16,6 +16,8 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
   size limits, ``pack``/``unpack`` (bounded: ``Limits`` per kind of message, ``RAW_LIMITS``, ``HEADING_LIMITS``,
   ``CALIBRATION_LIMITS``, ...),
   ``plain`` (v 2 arrays as lists, for printing) and the checks of single fields.
+- ``arrays``: the one set of array checks, both versions (v 2 binary array maps, v 1 lists of numbers or integers,
+  the values of float arrays), used by the raw and heading decoders alike.
 - ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; ``raw_decode``: the one raw decoder ``decode_raw_many``
   (``decode_raw`` is it applied to one payload), with the structure checks of one message in ``raw_header``.
   Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``, and optional ``location`` [lat_deg, lon_deg,

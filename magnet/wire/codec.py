@@ -1,14 +1,11 @@
-"""msgpack framing shared by every message: versions, size limits, binary arrays (v 2), and the checks of single
-fields.
+"""msgpack framing shared by every message: versions, size limits, the one bounded ``unpack``, and the checks of
+single fields.
 
 Two versions of the sample messages (raw, heading) are read; v 2 is written:
 
 - v 1: every array is msgpack lists of numbers (``"mag_ut": [[21.3, -4.1, 44.0], ...]``);
-- v 2: every array is one map ``{"dtype": "<f4", "shape": [N, 3], "data": <bin: N*3*4 bytes, little-endian,
-  row-major>}`` (``Bin``), turned into numpy with ``np.frombuffer``, no per-number work. ``dtype`` is a numpy
-  little-endian type string: times ``<i8`` only; measured and computed values ``<f4`` (written) or ``<f8``; flags
-  ``<u1 <u2 <u4 <i4 <i8`` (``<u2`` written). Anything else (another dtype, a shape that is not [N] or [N, k] as the
-  field needs, a byte count that is not N*k*itemsize) is refused with a ``WireError`` like any malformed v 1 array.
+- v 2: every array is one binary array map ``{"dtype", "shape", "data"}`` (see ``magnet.wire.arrays``, which checks
+  the arrays of both versions).
 
 The records (calibration, history, progress, status, calibrate replies) carry no sample arrays and are the same in
 both versions (``RECORD_VERSION`` 1, also their JSON form in files and the store); readers accept either number.
@@ -16,7 +13,7 @@ both versions (``RECORD_VERSION`` 1, also their JSON form in files and the store
 
 from __future__ import annotations
 
-import itertools
+import io
 import math
 from collections.abc import Mapping
 from typing import Any, NamedTuple
@@ -89,11 +86,47 @@ def _counter(limits: Limits) -> Any:
     return hook
 
 
+#: msgpack nests at most this many containers (its parser's stack); deeper is an error
+MSGPACK_DEPTH = 1024
+#: what msgpack may set aside for arrays it has opened but not filled, at most, before a payload is known whole
+PREALLOCATION_BYTES = 2 * 1024 * 1024
+#: the walk reads a larger payload this much at a time (it holds about this much, not a copy of the payload)
+SKIP_READ_BYTES = 64 * 1024
+
+
+def _incomplete(payload: Payload, limits: Limits) -> bool:
+    """Whether ``payload`` is not one whole msgpack object, found by walking it without building anything
+    (``Unpacker.skip``, in C). msgpack sets aside an array's slots (8 bytes each, up to about 10,000) when it meets
+    the array's header, before its entries: a few kB of nested headers that declare long arrays and are then cut
+    short would make it set aside about 80 kB per level, up to MSGPACK_DEPTH levels (80 MB for 5 kB), only to fail.
+    In a whole payload every declared entry takes a byte at least, so what is set aside is at most 8 bytes per byte
+    of payload. The walk is skipped (free) where even a payload cut short cannot make msgpack set aside more than
+    PREALLOCATION_BYTES: no array may declare more entries than the payload has bytes (``_unpackb``), and a header
+    declaring more than 15 takes 3 bytes, so at most size/3 levels of ``min(array, size)`` slots (fixed arrays of
+    up to 15 add at most 120 kB): the common small message (under about 880 bytes at the raw limits) pays nothing."""
+    size = len(payload)
+    if min(size // 3, MSGPACK_DEPTH) * 8 * min(limits.array, size) <= PREALLOCATION_BYTES:
+        return False
+    if size <= SKIP_READ_BYTES:  # a copy of a small payload costs less than a file to read it from
+        unpacker = msgpack.Unpacker(max_buffer_size=size)
+        unpacker.feed(payload)
+    else:
+        unpacker = msgpack.Unpacker(io.BytesIO(payload), read_size=SKIP_READ_BYTES, max_buffer_size=size)
+    try:
+        unpacker.skip()
+    except Exception:  # OutOfData (cut short), StackError (too deep), FormatError ...: msgpack's verdict follows
+        return True
+    return unpacker.tell() != size
+
+
 def _unpackb(payload: Payload, limits: Limits) -> tuple[Any, tuple[str, str] | None]:
     """(object, None) or (None, (cause, text)): the refusal is returned, not raised, so that no exception of
-    msgpack's (and no frame holding the payload) is chained to the caller's WireError. Entries and containers are
-    counted only in payloads larger than their limits: a smaller one cannot hold more (each takes a byte at least),
-    and the common small message pays nothing for the count."""
+    msgpack's (and no frame holding the payload) is chained to the caller's WireError. A payload that is not one
+    whole msgpack object is refused before anything is built (``_incomplete``). Entries and containers are counted
+    only in payloads larger than their limits: a smaller one cannot hold more (each takes a byte at least), and the
+    common small message pays nothing for the count."""
+    if _incomplete(payload, limits):
+        return None, ("not-msgpack", "payload is not one whole msgpack object (cut short, too deep or trailing data)")
     small = len(payload) <= min(limits.items, limits.containers or limits.items)
     hooks = {} if small else dict.fromkeys(("list_hook", "object_hook"), _counter(limits))
     try:
@@ -103,7 +136,7 @@ def _unpackb(payload: Payload, limits: Limits) -> tuple[Any, tuple[str, str] | N
             strict_map_key=True,
             max_str_len=limits.text,
             max_bin_len=limits.binary,
-            max_array_len=limits.array,
+            max_array_len=min(limits.array, len(payload)),  # a whole payload has a byte per entry at least
             max_map_len=limits.map,
             max_ext_len=0,
             **hooks,
@@ -154,97 +187,6 @@ def check_version(message: Mapping[str, Any]) -> int:
     return version
 
 
-# ------------------------------------------------------------------------------------------- binary arrays (v 2)
-
-#: the dtypes a v 2 array may carry, by kind of field (numpy little-endian type strings)
-TIME_DTYPES: dict[str, np.dtype[Any]] = {"<i8": np.dtype("<i8")}
-FLOAT_DTYPES: dict[str, np.dtype[Any]] = {"<f4": np.dtype("<f4"), "<f8": np.dtype("<f8")}
-FLAG_DTYPES: dict[str, np.dtype[Any]] = {name: np.dtype(name) for name in ("<u1", "<u2", "<u4", "<i4", "<i8")}
-#: what v 2 writes, by kind of field
-TIME_DTYPE, FLOAT_DTYPE, FLAG_DTYPE = "<i8", "<f4", "<u2"
-
-
-class Bin(NamedTuple):
-    """A checked v 2 array: its dtype, its number of rows (shape[0]) and its bytes."""
-
-    dtype: np.dtype
-    rows: int
-    data: bytes
-
-
-def bin_array(values: Any, dtype: str) -> dict[str, Any]:
-    """The v 2 map of an array: ``{"dtype", "shape", "data"}`` with the values cast to ``dtype``."""
-    arr = np.ascontiguousarray(values, dtype=dtype)
-    return {"dtype": dtype, "shape": list(arr.shape), "data": arr.tobytes()}
-
-
-def check_bin(
-    value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...], rows: int | None = None
-) -> Bin:
-    """Check a v 2 array map of shape (N, *tail) (tail () or (k,)), N <= MAX_BATCH_SAMPLES (and N == ``rows`` when
-    given), one of ``dtypes``, with exactly N * prod(tail) * itemsize bytes; WireError (``bad-shape``, ``bad-dtype``,
-    ``oversized``) otherwise. Values are not looked at (see ``from_bins``). The hot path of a busy consumer: a few
-    type and size comparisons, nothing per number."""
-    try:
-        dtype = dtypes[value["dtype"]]
-        shape, data = value["shape"], value["data"]
-        n = shape[0]
-        if (
-            type(shape) is list
-            and type(n) is int
-            and len(shape) == 1 + len(tail)
-            and tuple(shape[1:]) == tail
-            and 0 <= n <= MAX_BATCH_SAMPLES
-            and (rows is None or n == rows)
-            and type(data) is bytes
-            and len(data) == n * dtype.itemsize * (tail[0] if tail else 1)
-        ):
-            return Bin(dtype, n, data)
-    except (TypeError, KeyError, IndexError):
-        pass
-    raise _bin_error(value, name, dtypes, tail, rows)
-
-
-def _bin_error(
-    value: Any, name: str, dtypes: Mapping[str, np.dtype], tail: tuple[int, ...], rows: int | None
-) -> WireError:
-    """Why ``check_bin`` refused ``value``."""
-    if type(value) is not dict:
-        return WireError("bad-shape", f"{name} must be a map {{dtype, shape, data}} in v {BINARY_ARRAYS_VERSION}")
-    dtype_name, shape, data = value.get("dtype"), value.get("shape"), value.get("data")
-    dtype = dtypes.get(dtype_name) if type(dtype_name) is str else None
-    if dtype is None:
-        return WireError("bad-dtype", f"{name} has dtype {dtype_name!r}, expected one of {', '.join(dtypes)}")
-    if (
-        type(shape) is not list
-        or len(shape) != 1 + len(tail)
-        or any(type(s) is not int for s in shape)
-        or tuple(shape[1:]) != tail
-        or shape[0] < 0
-    ):
-        return WireError("bad-shape", f"{name} has shape {shape!r}, expected [N{''.join(f', {t}' for t in tail)}]")
-    if shape[0] > MAX_BATCH_SAMPLES:
-        return WireError("oversized", f"{name} holds {shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
-    if rows is not None and shape[0] != rows:
-        return WireError("bad-shape", f"{name} holds {shape[0]} samples but t_ns holds {rows}")
-    size = len(data) if type(data) is bytes else type(data).__name__
-    expected = shape[0] * math.prod(tail) * dtype.itemsize
-    return WireError("bad-shape", f"{name} data holds {size} bytes; dtype and shape say {expected}")
-
-
-def from_bins(bins: list[Bin], tail: tuple[int, ...], out: str) -> np.ndarray:
-    """The rows of checked ``bins`` one after the other as one ``out`` array (S, *tail): their bytes joined and read
-    with ``np.frombuffer`` (one join per run of the same dtype)."""
-    parts, start = [], 0
-    for i in range(1, len(bins) + 1):
-        if i == len(bins) or bins[i].dtype != bins[start].dtype:
-            joined = b"".join(b.data for b in bins[start:i]) if i - start > 1 else bins[start].data
-            parts.append(np.frombuffer(joined, dtype=bins[start].dtype))
-            start = i
-    flat = parts[0] if len(parts) == 1 else np.concatenate(parts) if parts else np.empty(0)
-    return flat.astype(out).reshape(-1, *tail)
-
-
 def binary_message(message: Mapping[str, Any]) -> bool:
     """Whether an unpacked (version-checked) message is v 2."""
     return message["v"] == BINARY_ARRAYS_VERSION
@@ -281,66 +223,3 @@ def number_field(message: Mapping[str, Any], name: str, default: float) -> float
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise WireError("bad-field", f"{name} must be a finite number")
     return float(value)
-
-
-def float_array(
-    value: Any, name: str, shape_tail: tuple[int, ...], limit: float | None, binary: bool = False
-) -> np.ndarray:
-    """float64 array of shape (N, *shape_tail), N <= MAX_BATCH_SAMPLES, finite, |x| <= limit; else WireError.
-    ``value``: lists (v 1) or, ``binary``, a v 2 array map."""
-    if binary:
-        return check_floats(
-            from_bins([check_bin(value, name, FLOAT_DTYPES, shape_tail)], shape_tail, "f8"), name, limit
-        )
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise WireError("bad-shape", f"{name} is not an array of numbers") from None
-    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
-        raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected (N, {', '.join(map(str, shape_tail))})")
-    if arr.shape[0] > MAX_BATCH_SAMPLES:
-        raise WireError("oversized", f"{name} holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
-    no_booleans(value, name, rows=bool(shape_tail))
-    return check_floats(arr, name, limit)
-
-
-def no_booleans(values: Any, name: str, rows: bool) -> None:
-    """WireError ``bad-shape`` when v 1 ``values`` (numbers, or rows of numbers when ``rows``) hold a boolean: numpy
-    would read true as 1 and false as 0. One pass in C (``map(type, ...)``), no per-number Python. Call it once the
-    values are known to form an array."""
-    flat = itertools.chain.from_iterable(values) if rows else values
-    if bool in set(map(type, flat)):
-        raise WireError("bad-shape", f"{name} holds true/false where numbers belong")
-
-
-def check_floats(arr: np.ndarray, name: str, limit: float | None) -> np.ndarray:
-    """``arr`` if finite and |x| <= limit; WireError ``non-finite`` or ``absurd-magnitude`` otherwise."""
-    if not np.isfinite(arr).all():
-        raise WireError("non-finite", f"{name} holds non-finite values")
-    if limit is not None and arr.size and np.abs(arr).max() > limit:
-        raise WireError("absurd-magnitude", f"{name} holds values beyond +-{limit:g}")
-    return arr
-
-
-def int_array(value: Any, name: str, binary: bool = False, dtypes: Mapping[str, np.dtype] = TIME_DTYPES) -> np.ndarray:
-    """int64 array (N,) from a list of integers (v 1) or, ``binary``, a v 2 array map of one of ``dtypes``,
-    N <= MAX_BATCH_SAMPLES; else WireError."""
-    if binary:
-        return from_bins([check_bin(value, name, dtypes, ())], (), "i8")
-    try:
-        arr = np.asarray(value)
-    except (TypeError, ValueError, OverflowError):
-        raise WireError("bad-shape", f"{name} is not an array of integers") from None
-    if arr.ndim != 1 or (arr.size and arr.dtype.kind not in "iu"):
-        raise WireError("bad-shape", f"{name} must be a list of integers, got shape {arr.shape} dtype {arr.dtype}")
-    if arr.shape[0] > MAX_BATCH_SAMPLES:
-        raise WireError("oversized", f"{name} holds {arr.shape[0]} samples, more than {MAX_BATCH_SAMPLES}")
-    no_booleans(value, name, rows=False)
-    return arr.astype(np.int64)
-
-
-def check_lengths(n: int, arrays: Mapping[str, np.ndarray]) -> None:
-    """WireError ``bad-shape`` unless every array holds ``n`` samples."""
-    for name, arr in arrays.items():
-        if arr.shape[0] != n:
-            raise WireError("bad-shape", f"{name} holds {arr.shape[0]} samples but t_ns holds {n}")

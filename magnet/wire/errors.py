@@ -19,9 +19,10 @@ class DropCounter:
     def __init__(self) -> None:
         self.counts: dict[str, int] = {}
 
-    def count(self, cause: str) -> bool:
+    def count(self, cause: str, n: int = 1) -> bool:
+        """Count ``n`` drops of ``cause``; True when it is the first time this cause is seen."""
         first = cause not in self.counts
-        self.counts[cause] = self.counts.get(cause, 0) + 1
+        self.counts[cause] = self.counts.get(cause, 0) + n
         return first
 
     def drop(self, exc: WireError, what: str, logger: logging.Logger) -> None:

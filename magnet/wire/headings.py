@@ -3,7 +3,7 @@
 Message: ``{v, device, seq, t_ns: [N], heading_deg: [N] (magnetic), true_heading_deg: [N], pitch_deg: [N],
 roll_deg: [N], field_ut: [[x, y, z]] * N, declination_deg, calibration_id, flags: [N ints],
 quat_wxyz: [[w, x, y, z]] * N (optional: attitude, body to NED, unit quaternion)}``. In v 2 (written) every array
-is a binary array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N], the angles ``<f4`` [N] (heading_deg and
+is a binary array map (see ``magnet.wire.arrays``): t_ns ``<i8`` [N], the angles ``<f4`` [N] (heading_deg and
 true_heading_deg kept in [0, 360) after rounding to ``<f4``), field_ut ``<f4`` [N, 3], flags ``<u2`` [N], quat_wxyz
 ``<f4`` [N, 4].
 
@@ -23,22 +23,24 @@ import msgpack
 import numpy as np
 
 from magnet.heading import HeadingFlag
-from magnet.wire.codec import (
-    BINARY_ARRAYS_VERSION,
+from magnet.wire.arrays import (
     FLAG_DTYPE,
     FLAG_DTYPES,
     FLOAT_DTYPE,
-    LISTS_VERSION,
-    MAX_BATCH_SAMPLES,
     TIME_DTYPE,
     TIME_DTYPES,
+    check_lengths,
+    float_array,
+    int_array,
+)
+from magnet.wire.codec import (
+    BINARY_ARRAYS_VERSION,
+    LISTS_VERSION,
+    MAX_BATCH_SAMPLES,
     VERSIONS,
     Limits,
     Payload,
     binary_message,
-    check_lengths,
-    float_array,
-    int_array,
     int_field,
     number_field,
     unpack,

@@ -6,7 +6,7 @@ velocity over the ground in m/s, north-east-down, NaN rows where no fix is known
 pitch_deg: [N], roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the
 device is, ``magnet.place.Location``, checked: cause ``bad-location``), current_a: [N] (optional, the battery
 current in A at each sample, for the motors' field), throttle: [N] (optional, 0..1; both NaN where unknown)}``.
-In v 2 (written) every array of samples is a binary array map (see ``magnet.wire.codec``): t_ns ``<i8`` [N],
+In v 2 (written) every array of samples is a binary array map (see ``magnet.wire.arrays``): t_ns ``<i8`` [N],
 mag_ut / acc_ms2 / gyr_rads / vel_ned_ms ``<f4`` [N, 3], truth, current_a and throttle ``<f4`` [N]; ``location``
 (three numbers, not samples) stays a list in both versions.
 
@@ -25,7 +25,8 @@ import msgpack
 import numpy as np
 
 from magnet.place import Location
-from magnet.wire.codec import BINARY_ARRAYS_VERSION, FLOAT_DTYPE, LISTS_VERSION, TIME_DTYPE, VERSIONS, bin_array
+from magnet.wire.arrays import FLOAT_DTYPE, TIME_DTYPE, bin_array
+from magnet.wire.codec import BINARY_ARRAYS_VERSION, LISTS_VERSION, VERSIONS
 from magnet.wire.errors import WireError
 
 #: Magnitudes beyond these are not a magnetometer, an accelerometer or a gyroscope on Earth (a +-8 gauss chip reads

@@ -17,17 +17,8 @@ from typing import Any
 import numpy as np
 
 from magnet.place import Location
-from magnet.wire.codec import (
-    Bin,
-    Payload,
-    binary_message,
-    check_lengths,
-    detached,
-    float_array,
-    from_bins,
-    no_booleans,
-    unpack,
-)
+from magnet.wire.arrays import Bin, check_lengths, float_array, from_bins, integers, numbers, value_faults
+from magnet.wire.codec import Payload, binary_message, detached, unpack
 from magnet.wire.errors import WireError
 from magnet.wire.raw import (
     TRUTH_FIELDS,
@@ -39,32 +30,7 @@ from magnet.wire.raw import (
     nan_rows,
     nan_values,
 )
-from magnet.wire.raw_header import INT64_MAX, RAW_LIMITS, Header, check_header
-
-
-def _stack(parts: list[Any], name: str, rows: int) -> np.ndarray:
-    """float64 (rows, 3) from concatenated [x, y, z] rows; WireError ``bad-shape`` when they are not that."""
-    try:
-        arr = np.array(parts, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        raise WireError("bad-shape", f"{name} is not an array of numbers of shape (N, 3)") from None
-    if arr.shape != (rows, 3):
-        raise WireError("bad-shape", f"{name} has shape {arr.shape}, expected (N, 3)")
-    no_booleans(parts, name, rows=True)
-    return arr
-
-
-def _stack_times(parts: list[Any]) -> np.ndarray:
-    try:
-        arr = np.array(parts)
-    except (TypeError, ValueError, OverflowError):
-        raise WireError("bad-shape", "t_ns is not an array of integers") from None
-    if arr.ndim == 1 and arr.dtype.kind in "iu" and (arr.dtype.kind == "i" or arr.max() <= INT64_MAX):
-        no_booleans(parts, "t_ns", rows=False)
-        return arr.astype(np.int64)
-    if arr.ndim == 1 and all(type(x) is int for x in parts):  # integers beyond int64: they would wrap
-        raise WireError("out-of-range", f"t_ns holds values beyond {INT64_MAX}")
-    raise WireError("bad-shape", f"t_ns must be a list of integers, got dtype {arr.dtype}")
+from magnet.wire.raw_header import RAW_LIMITS, Header, check_header
 
 
 def _gather(values: list[Any], name: str, times: bool) -> np.ndarray:
@@ -81,7 +47,7 @@ def _gather(values: list[Any], name: str, times: bool) -> np.ndarray:
             parts.append(from_bins(run, () if times else (3,), "i8" if times else "f8"))
         else:
             rows = [row for value in run for row in value]
-            parts.append(_stack_times(rows) if times else _stack(rows, name, len(rows)))
+            parts.append(integers(rows, "t_ns") if times else numbers(rows, name, (3,)))
         start = i
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
@@ -113,19 +79,15 @@ def _sample_faults(
     backwards = np.zeros(t_ns.shape, dtype=bool)
     backwards[1:] = t_ns[1:] < t_ns[:-1]
     backwards[starts] = False
-    faults = [
+    per_field = [
+        value_faults(arr, name, limit, absent_rows=True) for arr, (name, limit, _) in zip(vectors, VECTOR_FIELDS)
+    ]
+    return [
         (t_ns < 0, "out-of-range", "t_ns holds negative times"),
         (backwards, "time-backwards", "t_ns decreases within the batch"),
+        *(faults[0] for faults in per_field),  # every field's non-finite values first, then magnitudes
+        *(faults[1] for faults in per_field),
     ]
-    for arr, (name, _, _) in zip(vectors, VECTOR_FIELDS):
-        absent = np.isnan(arr).all(axis=1)
-        faults.append((~absent & ~np.isfinite(arr).all(axis=1), "non-finite", f"{name} holds non-finite values"))
-    for arr, (name, limit, _) in zip(vectors, VECTOR_FIELDS):
-        with np.errstate(invalid="ignore"):
-            faults.append(
-                ((np.abs(arr) > limit).any(axis=1), "absurd-magnitude", f"{name} holds values beyond +-{limit:g}")
-            )
-    return faults
 
 
 def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | None]]:

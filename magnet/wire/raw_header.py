@@ -16,16 +16,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from magnet.wire.codec import (
-    FLOAT_DTYPES,
-    MAX_BATCH_SAMPLES,
-    TIME_DTYPES,
-    Limits,
-    binary_message,
-    check_bin,
-    from_bins,
-    int_field,
-)
+from magnet.wire.arrays import FLOAT_DTYPES, INT64_MAX, TIME_DTYPES, check_bin, from_bins, numbers
+from magnet.wire.codec import MAX_BATCH_SAMPLES, Limits, binary_message, int_field
 from magnet.wire.errors import WireError
 from magnet.wire.keys import MAX_DEVICE_ID_CHARS, message_device
 from magnet.wire.raw import SCALAR_FIELDS, TRUTH_FIELDS, VECTOR_FIELDS
@@ -57,8 +49,6 @@ RAW_LIMITS = Limits(
     items=MAX_BATCH_SAMPLES * MAX_ITEMS_PER_SAMPLE + 1024,
     containers=MAX_BATCH_SAMPLES * len(VECTOR_FIELDS) + 64,
 )
-#: the largest ``seq`` and ``t_ns`` (int64)
-INT64_MAX = 2**63 - 1
 
 
 class Header(NamedTuple):
@@ -103,10 +93,10 @@ def _scalar(message: Mapping[str, Any], name: str, low: float, high: float, n: i
         return None
     if binary_message(message):
         arr = from_bins([check_bin(value, name, FLOAT_DTYPES, (), n)], (), "f8")
-    elif type(value) is not list or len(value) != n or not all(type(x) in (int, float) for x in value):
+    elif type(value) is not list or len(value) != n:
         raise WireError("bad-shape", f"{name} must be a list of N = len(t_ns) = {n} numbers")
     else:
-        arr = np.array(value, dtype=np.float64)
+        arr = numbers(value, name)
     if np.isinf(arr).any():  # NaN: not known at that sample (as vel_ned_ms's NaN rows)
         raise WireError("non-finite", f"{name} holds infinite values")
     known = arr[~np.isnan(arr)]

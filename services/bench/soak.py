@@ -231,7 +231,8 @@ class Soak:
             elapsed = now - self.started
             if now >= next_memory:  # before any fault of this round: "after warm-up" is the second before the first
                 next_memory = now + 0.5
-                self._sample_memory(elapsed >= (self.faults[0].at_s - 1.0 if self.faults else 0.0))
+                warm = elapsed >= (self.faults[0].at_s - 1.0 if self.faults else 0.0)
+                self._sample_memory(warm, observer.fault or "warm-up")
             if pending and elapsed >= pending[0].at_s:
                 fault = pending.pop(0)
                 observer.fault = fault.label
@@ -274,10 +275,10 @@ class Soak:
         if text not in self.notes:
             self.notes.append(text)
 
-    def _sample_memory(self, warm: bool) -> None:
+    def _sample_memory(self, warm: bool, fault: str | None) -> None:
         for name, proc in self.pipeline.procs.items():
             rss = rss_mb(proc.pid) if proc.poll() is None else None
-            self.memory.sample(name, rss, warm)
+            self.memory.sample(name, rss, warm, fault)
             if rss is not None and rss > RSS_CAP_MB:
                 self._note(f"{name} killed and restarted by the soak at {rss:.0f} MB (cap {RSS_CAP_MB:g} MB)")
                 self.pipeline.kill9(name)

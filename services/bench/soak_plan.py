@@ -95,19 +95,23 @@ class Memory:
     high_mb: float = 0.0
     after_warmup_mb: float | None = None
     last_mb: float = 0.0
+    by_fault: dict[str, float] = dataclasses.field(default_factory=dict)  # the highest while each fault was last
 
 
 class MemoryWatch:
-    """RSS samples per service (MB): the highest, the first after warm-up, the last."""
+    """RSS samples per service (MB): the highest, the first after warm-up, the last, and the highest while each kind
+    of fault was the last one inflicted (what grows when)."""
 
     def __init__(self) -> None:
         self.services: dict[str, Memory] = {}
 
-    def sample(self, service: str, rss_mb: float | None, warm: bool) -> None:
+    def sample(self, service: str, rss_mb: float | None, warm: bool, fault: str | None = None) -> None:
         if rss_mb is None:
             return
         memory = self.services.setdefault(service, Memory())
         memory.high_mb = max(memory.high_mb, rss_mb)
+        if fault is not None:
+            memory.by_fault[fault] = max(memory.by_fault.get(fault, 0.0), rss_mb)
         memory.last_mb = rss_mb
         if warm and memory.after_warmup_mb is None:
             memory.after_warmup_mb = rss_mb
@@ -161,6 +165,10 @@ def report(
     for service, m in sorted(memory.services.items()):
         warm = "-" if m.after_warmup_mb is None else f"{m.after_warmup_mb:.0f}"
         lines.append(f"  {service:<16}{m.high_mb:>9.0f}{warm:>15}{m.last_mb:>13.0f}")
+    for service, m in sorted(memory.services.items()):
+        if m.by_fault:
+            highs = ", ".join(f"{fault} {mb:.0f}" for fault, mb in sorted(m.by_fault.items()))
+            lines.append(f"  {service} highest after each fault: {highs}")
     lines.append("messages dropped by cause:")
     for service, counts in drops.totals().items():
         text = ", ".join(f"{cause} {count}" for cause, count in sorted(counts.items())) or "none"
