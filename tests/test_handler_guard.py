@@ -255,17 +255,18 @@ class FakeSample:
 
 def test_compass_survives_a_failing_calibration_handler_and_a_failing_drain(monkeypatch):
     from services.compass import service as compass_service
+    from services.compass.intake import PayloadIntake
 
     loop, compass, session = _compass_loop(monkeypatch)
-    cal, status_q, alert_q, raw = FakeChannel(), FakeChannel(), FakeChannel(), FakeChannel()
+    cal, status_q, alert_q, raw = FakeChannel(), FakeChannel(), FakeChannel(), PayloadIntake()
     monkeypatch.setattr(compass, "accept_calibration", lambda *a: (_ for _ in ()).throw(RuntimeError("bug")))
     cal.items.append(FakeSample(f"{PREFIX}/d1/calibration", b"x"))
     monkeypatch.setattr(compass, "encode", lambda *a: (_ for _ in ()).throw(MemoryError("too big")))
-    raw.items += [FakeSample(f"{PREFIX}/d1/raw", _raw("d1", i)) for i in range(3)]
+    raw.offer_many([FakeSample(f"{PREFIX}/d1/raw", _raw("d1", i)) for i in range(3)])
     ends = compass_service._Ends(raw, cal, status_q, alert_q)  # type: ignore[arg-type]
     loop.step(ends, "c")
     monkeypatch.undo()
-    raw.items.append(FakeSample(f"{PREFIX}/d1/raw", _raw("d1", 9)))
+    raw.offer_many([FakeSample(f"{PREFIX}/d1/raw", _raw("d1", 9))])
     query = FakeQuery(f"{PREFIX}/@status/c")
     status_q.items.append(query)
     loop.step(ends, "c")

@@ -2,7 +2,9 @@
 admitted at a bounded rate, and every message that goes no further is counted by cause.
 
 - ``RawIntake``: a thread of its own (``pump``) moves raw messages from Zenoh's channel to a queue of at most
-  ``max_queue`` messages, counting each; beyond, a message is dropped and counted (``raw:queue-full``). The thread
+  ``max_queue`` messages and ``max_bytes`` bytes (each message counted as its payload plus ``ENTRY_BYTES``), counting
+  each; beyond, a message is dropped and counted (``raw:queue-full``). A payload larger than any raw message may be
+  is dropped without being copied out of Zenoh (``raw:oversized``). The thread
   keeps Zenoh's channel near empty, so Zenoh is not held up (nothing is lost unseen in the transport, queries are
   not stuck behind samples), and the service loop takes the queue a slice at a time, between which it answers
   queries (status, ``@fleet``, calibrations): a flood delays samples, never answers.
@@ -31,41 +33,55 @@ DEFAULT_MAX_QUEUE = 100_000
 #: new device ids admitted per second, and at once after a quiet spell (a fleet starting together)
 DEFAULT_ENROL_RATE = 200.0
 DEFAULT_ENROL_BURST = 2_000
+#: raw payload bytes waiting for the service loop at most (a burst of 2.5 MB messages is a dozen of them, not 100,000)
+DEFAULT_MAX_QUEUE_BYTES = 32 * 1024 * 1024
+#: what a queued message costs beyond its payload: the (key, payload) tuple, the key string, the bytes header
+ENTRY_BYTES = 256
 #: samples moved from Zenoh's channel to the queue at a time
 PUMP_BATCH = 4096
 
 
 class RawIntake:
     """A bounded queue of (key, payload) fed by Zenoh's callback thread and drained by the service loop;
-    ``max_queue`` >= 1 (``--max-queue``, checked with the settings)."""
+    ``max_queue`` >= 1 messages (``--max-queue``, checked with the settings) and ``max_bytes``."""
 
-    def __init__(self, max_queue: int = DEFAULT_MAX_QUEUE) -> None:
-        self.max_queue = max_queue
+    def __init__(
+        self,
+        max_queue: int = DEFAULT_MAX_QUEUE,
+        max_bytes: int = DEFAULT_MAX_QUEUE_BYTES,
+        max_payload: int = wire.RAW_LIMITS.payload_bytes,
+    ) -> None:
+        self.max_queue, self.max_bytes, self.max_payload = max_queue, max_bytes, max_payload
         self.queue: collections.deque[tuple[str, bytes]] = collections.deque()
+        self.queued_bytes = 0  # payloads + ENTRY_BYTES each, now
         self.raw_messages = 0  # every raw message that arrived
         self.queue_full = 0  # of which dropped because the queue was full
+        self.oversized = 0  # of which dropped, uncopied, for being larger than any raw message
         self.high_water = 0  # longest the queue has been
         self._lock = threading.Lock()
 
     def offer(self, key_expr: str, payload: bytes) -> bool:
         """Queue one message (from Zenoh's thread); False (counted) when the queue is full."""
-        with self._lock:
-            self.raw_messages += 1
-            if len(self.queue) >= self.max_queue:
-                self.queue_full += 1
-                return False
-            self.queue.append((key_expr, payload))
-            self.high_water = max(self.high_water, len(self.queue))
-            return True
+        return self.offer_many([(key_expr, payload)]) == 1
 
-    def offer_many(self, items: list[tuple[str, bytes]]) -> None:
-        """Queue messages (``offer`` each, under one lock)."""
+    def offer_many(self, items: list[tuple[str, bytes]]) -> int:
+        """Queue what fits of these messages, in order, under one lock; the others are counted. How many were
+        queued."""
         with self._lock:
-            room = max(0, self.max_queue - len(self.queue))
             self.raw_messages += len(items)
-            self.queue_full += max(0, len(items) - room)
-            self.queue.extend(items[:room])
+            room_messages, room_bytes = self.max_queue - len(self.queue), self.max_bytes - self.queued_bytes
+            queued = 0
+            for item in items:
+                size = len(item[1]) + ENTRY_BYTES
+                if queued >= room_messages or size > room_bytes:
+                    self.queue_full += 1
+                    continue
+                self.queue.append(item)
+                room_bytes -= size
+                self.queued_bytes += size
+                queued += 1
             self.high_water = max(self.high_water, len(self.queue))
+            return queued
 
     def pump(
         self,
@@ -85,14 +101,21 @@ class RawIntake:
                     samples.append(more)
             except closed:
                 return
-            self.offer_many([(str(sample.key_expr), payload_of(sample)) for sample in samples])
+            fit = [sample for sample in samples if len(sample.payload) <= self.max_payload]  # the size, uncopied
+            with self._lock:
+                self.oversized += len(samples) - len(fit)
+                self.raw_messages += len(samples) - len(fit)
+            self.offer_many([(str(sample.key_expr), payload_of(sample)) for sample in fit])
+            del samples, fit
 
     def take(self, limit: int) -> list[tuple[str, bytes]]:
         """Up to ``limit`` queued messages, oldest first."""
         out: list[tuple[str, bytes]] = []
-        queue = self.queue
-        while queue and len(out) < limit:
-            out.append(queue.popleft())
+        with self._lock:
+            queue = self.queue
+            while queue and len(out) < limit:
+                out.append(queue.popleft())
+            self.queued_bytes -= sum(len(payload) for _, payload in out) + ENTRY_BYTES * len(out)
         return out
 
     def __len__(self) -> int:

@@ -70,7 +70,9 @@ __all__ = [
 log = logging.getLogger("magnet.calibrator")
 
 IDLE_SLEEP_S = 0.0005
-CHANNEL_CAPACITY = 65536  # raw messages between Zenoh and the intake's pump (kept near empty by it)
+#: raw messages between Zenoh and the intake's pump (kept near empty by it; a burst of large messages waits in the
+#: intake, bounded in bytes, not here)
+CHANNEL_CAPACITY = 256
 SLICE_S = 0.05  # raw samples taken for at most this long before the queries are answered again
 SLICE_MESSAGES = 50  # raw messages taken from the intake at a time (the slice's end is checked between them)
 ENROL_BURST_S = 10.0  # new device ids admitted at once after a quiet spell: this many seconds of --enrol-rate
@@ -305,6 +307,8 @@ class ServiceLoop:
         )
         if self.intake.queue_full:
             self.calibrator.drops.counts["raw:queue-full"] = self.intake.queue_full
+        if self.intake.oversized:
+            self.calibrator.drops.counts["raw:oversized"] = self.intake.oversized
 
 
 def _loop(stop: threading.Event, loop: ServiceLoop) -> None:

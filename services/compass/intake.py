@@ -27,9 +27,36 @@ import collections
 import logging
 import threading
 from collections.abc import Iterable
-from typing import Any
+from typing import Protocol
 
 from magnet import wire
+
+
+class RawPayload(Protocol):
+    """What the pump reads of a payload (``zenoh.ZBytes``): its size, then its bytes."""
+
+    def __len__(self) -> int: ...
+
+    def to_bytes(self) -> bytes: ...
+
+
+class RawSample(Protocol):
+    """What the pump reads of a sample (``zenoh.Sample``)."""
+
+    @property
+    def key_expr(self) -> object: ...
+
+    @property
+    def payload(self) -> RawPayload: ...
+
+
+class RawChannel(Protocol):
+    """A channel of samples (a ``zenoh.Subscriber``'s handler): ``recv`` waits, ``try_recv`` does not."""
+
+    def recv(self) -> RawSample: ...
+
+    def try_recv(self) -> RawSample | None: ...
+
 
 #: raw payload bytes waiting for the compass loop at most (a 1,000-device fleet at 10 batches/s of 10 samples, about
 #: 450 bytes each in v 2, sends 4.5 MB/s: about 14 s of it)
@@ -60,7 +87,7 @@ class PayloadIntake:
         self._dropped: dict[str, int] = {}  # cause -> count, not yet handed to the service's DropCounter
         self._lock = threading.Lock()
 
-    def offer_many(self, samples: Iterable[Any]) -> None:
+    def offer_many(self, samples: Iterable[RawSample]) -> None:
         """Queue what fits of these Zenoh samples (called by ``pump``; any thread). The size is read before the
         payload is copied: a refused one is never copied."""
         items: list[tuple[str, bytes]] = []
@@ -86,7 +113,7 @@ class PayloadIntake:
             for cause, n in dropped.items():
                 self._dropped[cause] = self._dropped.get(cause, 0) + n
 
-    def pump(self, channel: Any, closed: type[BaseException], batch: int = PUMP_BATCH) -> None:
+    def pump(self, channel: RawChannel, closed: type[BaseException], batch: int = PUMP_BATCH) -> None:
         """Move samples from a Zenoh channel into the queue until the channel closes (``closed`` raised: the
         subscriber was undeclared). Run it on its own thread: ``recv`` waits without the GIL and ``try_recv`` takes
         what else waits, so Zenoh's buffers are let go of at once and the GIL changes hands once per batch."""

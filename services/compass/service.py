@@ -18,6 +18,7 @@ import contextlib
 import datetime
 import gc
 import logging
+import threading
 import time
 from typing import Any
 
@@ -29,6 +30,7 @@ from magnet.compass import CompassCore, Places, earth_at
 from services.common import metrics
 from services.common.guard import Guard
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
+from services.compass.intake import PayloadIntake
 from services.compass.ros2 import Ros2Compass
 from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
 
@@ -47,7 +49,11 @@ DRAIN_SAMPLES = 30_000
 #: the garbage collector's first threshold: a drain makes tens of thousands of short-lived containers (the unpacked
 #: messages); at the default 700 the collector ran several times per drain over every long-lived object
 GC_THRESHOLD = 200_000
-CHANNEL_CAPACITY = 65536  # raw messages queued between zenoh and this loop
+#: raw messages queued between zenoh and the intake's pump (which empties it at once into a queue bounded in bytes,
+#: ``services.compass.intake``): a burst of large messages is held there, not here
+CHANNEL_CAPACITY = 256
+#: raw payload bytes decoded together at most (a drain of 2.5 MB bombs stays a few of them)
+DRAIN_BYTES = 8 * 1024 * 1024
 REQUERY_S = 5.0  # how often to ask again for the calibration of a device that has none
 REQUERY_REFUSED_S = 1.0  # how often at most to ask the calibrators again after refusing a calibration
 IDLE_SLEEP_S = 0.0003
@@ -56,6 +62,7 @@ IDLE_SLEEP_S = 0.0003
 #: before a heading is dropped (default 1 ms). A subscriber that stays slow still loses headings, never the compass's
 #: time for long. A --config file replaces these.
 ZENOH_DEFAULTS = {
+    "transport/link/rx/max_message_size": str(8 * 1024 * 1024),  # no raw message may be larger than 4 MB anyway
     "transport/link/tx/queue/size/data": "16",
     "transport/link/tx/queue/congestion_control/drop/wait_before_drop": "20000",
 }
@@ -102,10 +109,16 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
     with open_session(settings.zenoh, ZENOH_DEFAULTS) as session, contextlib.ExitStack() as declared:
         declared.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "compass", name)))
+        intake = PayloadIntake()
+        raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+        pump = threading.Thread(
+            target=intake.pump, args=(raw_sub.handler, zenoh.ZError), name="raw-intake", daemon=True
+        )
+        declared.callback(pump.join, 2.0)
+        declared.enter_context(raw_sub)  # undeclared before the join above: that ends the pump
+        pump.start()
         ends = _Ends(
-            raw=declared.enter_context(
-                session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
-            ),
+            raw=intake,
             calibrations=declared.enter_context(
                 session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
             ),
@@ -141,7 +154,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
 class _Ends:
     """The compass's declarations the loop drains: raw batches, calibrations, status and alert queries."""
 
-    def __init__(self, raw: Samples, calibrations: Samples, status: Queries, alerts: Queries) -> None:
+    def __init__(self, raw: PayloadIntake, calibrations: Samples, status: Queries, alerts: Queries) -> None:
         self.raw, self.calibrations, self.status, self.alerts = raw, calibrations, status, alerts
 
 
@@ -166,7 +179,8 @@ class _Loop:
             self.guard.answer("query:status", query, self.answer_status, name)
             query.drop()  # finalize now: the asker waits for it
         self.guard.run("alert", self.alerts, ends.alerts)
-        samples = drain(ends.raw, self.drain_limit)
+        ends.raw.hand_over_drops(self.core.drops, log)
+        samples = ends.raw.take(self.drain_limit, DRAIN_BYTES)
         if samples:
             self.guard.run("raw", self.headings_of, samples, count=len(samples))
         return bool(samples)
@@ -208,28 +222,12 @@ class _Loop:
             self._accept(sample)
         self._ask_refused()
 
-    def _payloads(self, samples: list[zenoh.Sample], keys: list[str]) -> list[tuple[str, bytes]]:
-        """(key, payload bytes) of each sample; one larger than any raw message may be is dropped and counted
-        without being copied out of zenoh (a drain of msgpack bombs would otherwise be copied all at once)."""
-        limit = wire.RAW_LIMITS.payload_bytes
-        items = []
-        for sample, key in zip(samples, keys):
-            payload = sample.payload
-            if len(payload) > limit:
-                self.core.drops.drop(
-                    wire.WireError("oversized", f"payload of {len(payload)} bytes exceeds {limit}"), "raw", log
-                )
-            else:
-                items.append((key, payload.to_bytes()))
-        return items
-
-    def headings_of(self, samples: list[zenoh.Sample]) -> None:
-        """Compute and publish the headings of these raw samples (a drain): decode -> step -> encode -> put."""
-        keys = [str(s.key_expr) for s in samples]
+    def headings_of(self, samples: list[tuple[str, bytes]]) -> None:
+        """Compute and publish the headings of these raw (key, payload) pairs (a drain): decode -> step -> encode ->
+        put."""
         if not self.core.keys.shard.everything:  # another shard's devices: dropped by key, before any decoding
-            mine = [i for i, k in enumerate(keys) if self.core.keys.mine(k, self.prefix)]
-            samples, keys = [samples[i] for i in mine], [keys[i] for i in mine]
-        columns = self.core.decode(self._payloads(samples, keys), self.prefix)
+            samples = [item for item in samples if self.core.keys.mine(item[0], self.prefix)]
+        columns = self.core.decode(samples, self.prefix)
         out = self.core.step(columns, time.time_ns())
         for device, payload in zip(columns.devices, self.core.encode(columns, out)):
             key = self.heading_keys.get(device) or self.heading_keys.setdefault(
