@@ -154,14 +154,6 @@ class Collection:
     def coverage(self) -> Coverage:
         return coverage(self.mag[: self.kept] - self.centre)
 
-    @property
-    def size(self) -> int:
-        """The samples a fit would use: the longest run's with ``runs``, else the kept ones."""
-        if self.runs is None:
-            return self.kept
-        run = self.runs.longest()
-        return 0 if run is None else len(run)
-
     def turn_wait(self, min_samples: int) -> str:
         """With ``runs``: why the longest run is not worth fitting yet ("" when it is): fewer than ``min_samples``
         samples, or a turn of less than ``READY_TURN_DEG`` about a second body axis (the fit needs turns about more

@@ -111,7 +111,9 @@ class RecentRuns:
     def longest(self) -> Run | None:
         """The longest run held (the most recent of equals), None when no run has two samples."""
         order = np.arange(self.held) if self.held < len(self.mag) else (self.head + np.arange(self.held)) % self.held
-        _, first, counts = np.unique(self.run[order], return_index=True, return_counts=True)
+        runs = self.run[order]  # non-decreasing in time order: each run is one stretch
+        first = np.concatenate([[0], np.flatnonzero(np.diff(runs)) + 1])
+        counts = np.diff(np.concatenate([first, [len(runs)]]))
         if not len(counts) or counts.max() < 2:
             return None
         best = len(counts) - 1 - int(np.argmax(counts[::-1]))

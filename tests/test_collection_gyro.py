@@ -101,6 +101,7 @@ def _feed(ring: RecentRuns, t_ns: np.ndarray, seq: int) -> None:
 
 def test_the_ring_is_bounded_by_samples_and_keeps_the_newest_in_time_order():
     ring = RecentRuns(capacity=1000)
+    assert ring.longest() is None
     for seq in range(100):  # 2,500 consecutive samples through a ring of 1,000
         _feed(ring, PERIOD_NS * (seq * BATCH + np.arange(BATCH, dtype=np.int64)), seq)
     assert ring.held == len(ring.mag) == 1000 and ring.written == 2500
