@@ -3,21 +3,30 @@
 The direction of each raw reading from the running centre of the cloud (per-axis (max + min) / 2) falls in one of
 ``FINE_BANDS x FINE_SECTORS`` equal-area cells, and a sample is kept only when its cell is still empty (at most
 ``capacity`` samples). Pure numpy; the clock is the caller's (``now_s`` arguments).
+
+A method that fits from the gyroscope (``Method.needs_gyroscope``: gyro-ellipsoid) needs consecutive samples in
+time order with their rates, which the cells lose: its collection also keeps the device's recent samples in a
+bounded ring (``magnet.sample_runs.RecentRuns``, at most ``run_capacity`` samples, 88 bytes each: 2.6 MB per
+device at the default 30,000), cut into runs at every gap in ``t_ns`` or ``seq``, and fits the longest run with
+``gyr=`` and ``period_s=`` (the run's median step of ``t_ns``). The cells still give its coverage for progress.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from magnet.calibration import FitError, fit
+from magnet.calibration import FitError, Method, fit
 from magnet.model import Calibration
 from magnet.quality import Coverage, coverage
+from magnet.sample_runs import RUN_CAPACITY, RecentRuns, Run
 
 FINE_BANDS = 24  # equal-area bands in z (uniform in z = equal area on the sphere) ...
 FINE_SECTORS = 48  # ... times sectors in longitude: 1152 fine cells, one kept sample each
 REBIN_SHIFT_UT = 2.0  # re-sort kept samples into cells when the cloud's centre moved this far
 FIT_EVERY_NEW = 25  # fit again after this many newly kept samples
 FIT_INTERVAL_S = 0.5
+#: a run is fitted from the gyroscope once it turned this far about at least two body axes (deg)
+READY_TURN_DEG = 90.0
 INITIAL_ROOM = 64  # samples' arrays start this small and double up to the capacity (a device that sends one
 # batch costs kilobytes, not the capacity's worth)
 
@@ -35,10 +44,14 @@ def fine_cells(directions: np.ndarray) -> np.ndarray:
 class Collection:
     """Evenly spread samples of one device: mag (K, 3) uT and acc (K, 3) m/s^2 (or none), K <= capacity.
 
-    method: the fit method; session: an operator's session (else automatic collection)."""
+    method: the fit method; session: an operator's session (else automatic collection); a method that needs the
+    gyroscope also keeps ``runs``, the last ``run_capacity`` samples in time order (None for the others)."""
 
-    def __init__(self, method: str, session: bool, capacity: int) -> None:
+    def __init__(self, method: str, session: bool, capacity: int, run_capacity: int = RUN_CAPACITY) -> None:
         self.method, self.session, self.capacity = method, session, capacity
+        self.runs = RecentRuns(run_capacity) if Method.parse(method).needs_gyroscope else None
+        self.no_gyroscope = 0  # batches that came without the gyroscope this collection's method needs
+        self.last_fit_written = 0
         self.mag = np.empty((min(capacity, INITIAL_ROOM), 3))
         self.acc = np.empty((min(capacity, INITIAL_ROOM), 3))
         self.has_acc = True
@@ -57,9 +70,19 @@ class Collection:
         """Running centre of the raw cloud, (max + min) / 2 per axis, uT (zeros before any sample)."""
         return (self.lo + self.hi) / 2 if self.seen else np.zeros(3)
 
-    def add(self, mag: np.ndarray, acc: np.ndarray | None) -> int:
+    def add(
+        self,
+        mag: np.ndarray,
+        acc: np.ndarray | None,
+        gyr_rads: np.ndarray | None = None,
+        t_ns: np.ndarray | None = None,
+        seq: int = 0,
+    ) -> int:
         """Keep the samples of a batch (mag (N, 3) uT, acc (N, 3) or None) whose fine cell is still empty; returns
-        how many were kept."""
+        how many were kept. With ``runs``: the batch's gyr_rads (N, 3) rad/s, t_ns (N,) int ns and number ``seq``
+        go to the ring too; a batch without them is counted in ``no_gyroscope`` and said in ``last_reason``."""
+        if self.runs is not None:
+            self._add_run(self.runs, mag, acc, gyr_rads, t_ns, seq)
         self.seen += len(mag)
         self.lo = np.minimum(self.lo, mag.min(axis=0))
         self.hi = np.maximum(self.hi, mag.max(axis=0))
@@ -83,6 +106,24 @@ class Collection:
             self.acc[self.kept : self.kept + new.size] = acc[new]
         self.kept += new.size
         return int(new.size)
+
+    def _add_run(
+        self,
+        runs: RecentRuns,
+        mag: np.ndarray,
+        acc: np.ndarray | None,
+        gyr: np.ndarray | None,
+        t_ns: np.ndarray | None,
+        seq: int,
+    ) -> None:
+        if gyr is None or t_ns is None:
+            self.no_gyroscope += 1
+            self.last_reason = (
+                f"{self.method} needs a gyroscope: {self.no_gyroscope} raw batch(es) of this device came without "
+                "gyr_rads (send the gyroscope's rates, or calibrate with ellipsoid)"
+            )
+            return
+        runs.add(mag, acc, gyr, t_ns, seq)
 
     def _room_for(self, size: int) -> None:
         """Grow the sample arrays (doubling, at most to the capacity) so that they hold ``size`` samples."""
@@ -113,14 +154,41 @@ class Collection:
     def coverage(self) -> Coverage:
         return coverage(self.mag[: self.kept] - self.centre)
 
+    def turn_wait(self, min_samples: int) -> str:
+        """With ``runs``: why the longest run is not worth fitting yet ("" when it is): fewer than ``min_samples``
+        samples, or a turn of less than ``READY_TURN_DEG`` about a second body axis (the fit needs turns about more
+        than one axis, and refuses anything less at the cost of a fit)."""
+        run = None if self.runs is None else self.runs.longest()
+        if run is None or len(run) < min_samples:
+            if self.no_gyroscope and self.last_reason:
+                return self.last_reason
+            return f"{0 if run is None else len(run)} of {min_samples} consecutive samples with the gyroscope"
+        turned = run.turned_deg()
+        if np.sort(turned)[-2] >= READY_TURN_DEG:
+            return ""
+        return (
+            f"turned {turned[0]:.0f}, {turned[1]:.0f}, {turned[2]:.0f} deg about x, y, z over the last "
+            f"{len(run) * run.period_s:.0f} s: turn the device about every axis"
+        )
+
+    def postpone(self, now_s: float, reason: str) -> None:
+        """Not ready to fit: keep ``reason`` and wait for as many new samples as after a fit."""
+        self.last_reason = reason
+        self.last_fit_kept, self.last_fit_s = self.kept, now_s
+        self.last_fit_written = 0 if self.runs is None else self.runs.written
+
     def fit(self, field_ut: float | None, now_s: float) -> Calibration | None:
         """Fit the kept samples (records the result or the reason); None when no calibration can be computed.
 
         field_ut: the expected |B| in uT or None."""
         self.last_fit_kept, self.last_fit_s = self.kept, now_s
-        mag, acc = self.samples()
         try:
-            self.last_fit = fit(mag, self.method, acc=acc, unit="ut", field_ut=field_ut)
+            if self.runs is None:
+                mag, acc = self.samples()
+                self.last_fit = fit(mag, self.method, acc=acc, unit="ut", field_ut=field_ut)
+            else:
+                self.last_fit_written = self.runs.written
+                self.last_fit = _fit_run(self.runs.longest(), self.method, field_ut)
         except FitError as exc:
             self.last_fit, self.last_reason = None, str(exc)
             return None
@@ -128,9 +196,19 @@ class Collection:
         return self.last_fit
 
     def due(self, min_samples: int, now_s: float) -> bool:
-        """Whether to fit again: enough samples, enough new ones since the last fit, and not too soon."""
-        return (
-            self.kept >= min_samples
-            and self.kept - self.last_fit_kept >= FIT_EVERY_NEW
-            and now_s - self.last_fit_s >= FIT_INTERVAL_S
-        )
+        """Whether to fit again: enough samples, enough new ones since the last fit, and not too soon. With
+        ``runs``: the ring holds ``min_samples``, and a quarter as many new ones as it holds came since the last
+        try (the cost of fitting a growing ring stays a few fits' worth per sample)."""
+        if now_s - self.last_fit_s < FIT_INTERVAL_S:
+            return False
+        if self.runs is None:
+            return self.kept >= min_samples and self.kept - self.last_fit_kept >= FIT_EVERY_NEW
+        fresh = self.runs.written - self.last_fit_written
+        return self.runs.held >= min_samples and fresh >= max(FIT_EVERY_NEW, self.runs.held // 4)
+
+
+def _fit_run(run: Run | None, method: str, field_ut: float | None) -> Calibration:
+    """Fit the consecutive samples of ``run`` with the gyroscope; FitError when there is none."""
+    if run is None:
+        raise FitError(f"{method} has no consecutive samples with the gyroscope yet: keep the device sending")
+    return fit(run.mag, method, acc=run.acc, unit="ut", field_ut=field_ut, gyr=run.gyr_rads, period_s=run.period_s)

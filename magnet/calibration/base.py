@@ -29,6 +29,11 @@ class Method(enum.Enum):
             choices = ", ".join(m.value for m in cls)
             raise ValueError(f"unknown calibration method {value!r}: use one of {choices}") from None
 
+    @property
+    def needs_gyroscope(self) -> bool:
+        """Whether the method fits from the gyroscope's rates (``gyr=`` and ``period_s=``, consecutive samples)."""
+        return self is Method.GYRO_ELLIPSOID
+
 
 class FitError(ValueError):
     """No calibration can be computed from these samples; the message says why and what to do."""

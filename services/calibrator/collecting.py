@@ -1,5 +1,8 @@
 """The collection part of the calibrator: one sample buffer per device (``magnet.collection.Collection``, samples kept
-evenly spread over the sphere, at most ``--max-samples``), for at most ``--max-devices`` devices at once.
+evenly spread over the sphere, at most ``--max-samples``), for at most ``--max-devices`` devices at once. For a
+method that needs the gyroscope (gyro-ellipsoid) each raw batch's ``gyr_rads``, ``t_ns`` and ``seq`` go to the
+collection too (its ring of recent consecutive samples); a batch without a gyroscope is counted (``no_gyroscope``,
+in the status) and said in the device's progress.
 
 A device with no calibration in force gets an automatic collection when automatic calibration is on; an operator's
 session opens one of its own (``services.calibrator.sessions``), which the ``--max-devices`` bound never drops. A due
@@ -29,6 +32,7 @@ class Collections:
         self.by_device: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
         self.received_batches = 0
         self.received_samples = 0
+        self.no_gyroscope = 0  # batches without the gyroscope for a collection whose method needs one
         self._warned = False
 
     def __contains__(self, device: object) -> bool:
@@ -66,21 +70,30 @@ class Collections:
             collection = self.by_device[device] = Collection(self.settings.method, False, self.settings.max_samples)
             self._say_evicted()
         self.by_device.touch(device)
-        collection.add(batch.mag_ut, batch.acc_ms2)
+        if collection.runs is not None and batch.gyr_rads is None:
+            self.no_gyroscope += 1
+        collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
         return collection
 
     def ready(self, collection: Collection, now: float) -> bool:
         """Whether a fit may be tried on a due collection: a session's always; an automatic one once its coverage
-        reached --min-coverage (else the reason is kept on it, and it waits for more cells)."""
-        cov = collection.coverage()
-        if collection.session or cov.fraction >= self.settings.min_coverage:
+        reached --min-coverage, or for a method that needs the gyroscope once its longest run turned about two axes
+        (``Collection.turn_wait``). Else the reason is kept on it, and it waits for more samples."""
+        if collection.session:
             return True
-        collection.last_reason = (
-            f"coverage {cov.fraction:.0%} below {self.settings.min_coverage:.0%}: "
-            f"{', '.join(cov.missing) or 'move through more attitudes'}"
-        )
-        collection.last_fit_kept, collection.last_fit_s = collection.kept, now
-        return False
+        if collection.runs is not None:
+            wait = collection.turn_wait(self.settings.min_samples)
+        else:
+            cov = collection.coverage()
+            wait = (
+                f"coverage {cov.fraction:.0%} below {self.settings.min_coverage:.0%}: "
+                f"{', '.join(cov.missing) or 'move through more attitudes'}"
+                if cov.fraction < self.settings.min_coverage
+                else ""
+            )
+        if wait:
+            collection.postpone(now, wait)
+        return not wait
 
     def open_session(self, device: str, method: str) -> None:
         """A fresh collection for an operator's session with ``method`` (a checked method name)."""

@@ -195,6 +195,7 @@ class Calibrator:
             rejected=fitter.rejected,
             stored=records.stored,
             evicted_devices=collections.evicted,
+            no_gyroscope=collections.no_gyroscope,
             forgotten_devices=self.roster.forgotten,
             takeovers=self.takeovers,
             unverified_records=len(records.unverified),

@@ -57,6 +57,8 @@ def progress_of(
 
 
 def _waiting_reason(collection: Collection, cov: Coverage, min_samples: int) -> str:
+    if collection.runs is not None:
+        return collection.turn_wait(min_samples) or "ready to fit from the gyroscope"
     advice = ", ".join(cov.missing) or "move through more attitudes"
     return f"{collection.kept} of {min_samples} evenly spread samples, coverage {cov.fraction:.0%}: {advice}"
 

@@ -46,6 +46,7 @@ class Counters:
     rejected: int = 0  # fitting
     stored: int = 0  # records
     evicted_devices: int = 0  # collections dropped for --max-devices
+    no_gyroscope: int = 0  # raw batches without the gyroscope their collection's method (gyro-ellipsoid) needs
     forgotten_devices: int = 0  # roster entries (last seen, reported place, open alerts) dropped for --max-devices
     takeovers: int = 0  # times it became the active calibrator of its shard after standing by
     unverified_records: int = 0  # records in force its signing key does not verify (served as stored, unsigned)
