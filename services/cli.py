@@ -66,12 +66,18 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     return parser
 
 
+#: the long-running processes, which receive messages of MBs from the network and must give that memory back (a
+#: one-shot command such as ``fit`` keeps glibc's defaults, which suit numpy's large temporary arrays)
+SERVICES = frozenset({"edge", "calibrator", "compass", "router", "dashboard", "up"})
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(argv).parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    give_back_freed_memory()  # before any Zenoh thread allocates: see services/common/allocator.py
+    if args._name in SERVICES:  # before any Zenoh thread allocates: see services/common/allocator.py
+        give_back_freed_memory()
     module = importlib.import_module(args._module)
     runner = _handler(module, f"run_{args._name}", "run")
     try:

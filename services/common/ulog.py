@@ -13,6 +13,7 @@ PX4 in the body frame. ``--mag N`` is the topic's instance (multi id). Accelerom
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 from pathlib import Path
 from typing import Any
@@ -41,14 +42,22 @@ RELATIVE_INVALID = 2**31 - 1
 
 
 def _parse(path: Path, topics: list[str] | None) -> Any:
-    """pyulog's parse of ``path`` (only ``topics`` when given); ValueError naming the file when it cannot."""
+    """pyulog's parse of ``path`` (only ``topics`` when given); ValueError naming the file when it cannot. The last
+    few parses are kept (keyed by the file's size and modification time): a command that reads a log for its
+    magnetometer and again for the autopilot's attitude parses it once."""
+    stat = path.stat()
+    return _parse_cached(path.resolve(), stat.st_size, stat.st_mtime_ns, None if topics is None else tuple(topics))
+
+
+@functools.lru_cache(maxsize=4)
+def _parse_cached(path: Path, _size: int, _mtime_ns: int, topics: tuple[str, ...] | None) -> Any:
     from pyulog import ULog
 
     quiet = io.StringIO()  # pyulog prints its complaints; they become this function's one error
     with open(path, "rb") as handle:
         try:
             with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-                return ULog(handle, message_name_filter_list=topics)
+                return ULog(handle, message_name_filter_list=None if topics is None else list(topics))
         except Exception as exc:  # pyulog raises whatever its parser meets in a damaged file
             raise ValueError(f"{path}: not a readable PX4 ULog file ({type(exc).__name__}: {exc})") from None
 
