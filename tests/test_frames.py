@@ -24,7 +24,7 @@ def test_pitch_up_raises_the_nose_and_roll_right_lowers_the_right_side():
     assert right[2] > 0  # right wing down
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(angles)
 def test_matrix_to_euler_inverts_euler_to_matrix(ypr):
     r = frames.euler_to_matrix(*ypr)

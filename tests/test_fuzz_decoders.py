@@ -2,8 +2,8 @@
 fields replaced, removed or added by arbitrary values, give the documented error (``WireError`` on the wire,
 ``ValueError`` for records and files, an error reply for a query) or a good result, never another exception.
 
-Each property runs a bounded number of examples (``FUZZ``: 60; ``FUZZ_ALL``: 90 shared by the seven message decoders)
-derived from the test's name (``derandomize``), so the suite is deterministic and takes about 2.5 s of CPU; raise
+Each property runs a bounded number of examples (``FUZZ``: 40; ``FUZZ_ALL``: 60 shared by the seven message decoders)
+derived from the test's name (``derandomize``), so the suite is deterministic and takes about 2 s of CPU; raise
 ``max_examples`` and drop ``derandomize`` locally to search further. Every kind of message is one ``TEMPLATES``
 entry and one ``DECODERS`` entry; every file reader of ``services.common.inputs.READERS`` is fuzzed by suffix."""
 
@@ -31,10 +31,10 @@ from services.common import csvio, jsonio
 from services.common.inputs import READERS, read_input
 
 FUZZ = settings(
-    max_examples=60, deadline=2000, derandomize=True, suppress_health_check=[HealthCheck.too_slow], database=None
+    max_examples=40, deadline=2000, derandomize=True, suppress_health_check=[HealthCheck.too_slow], database=None
 )
 #: the decoders share their examples (each example picks one): a few hundred in all, generation being the cost
-FUZZ_ALL = settings(FUZZ, max_examples=90)
+FUZZ_ALL = settings(FUZZ, max_examples=60)
 
 SCALARS = (
     st.none()

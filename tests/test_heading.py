@@ -50,7 +50,7 @@ def test_tilt_compensated_cardinal_points(magnetic, pitch, roll):
         assert abs(hd.angle_difference_deg(hd.level_heading_deg(body(yaw, pitch, roll)), magnetic)) > 5
 
 
-@settings(max_examples=80, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(st.floats(0, 360), st.floats(-85, 85), st.floats(-180, 180), st.floats(0.2, 5.0))
 def test_tilt_compensation_recovers_any_attitude(yaw, pitch, roll, scale):
     field, acc = body(yaw, pitch, roll), acc_body(yaw, pitch, roll) * scale

@@ -28,7 +28,7 @@ def test_failures_are_reported_per_axis():
         evaluate([1, 1, 1], [1, 1, 1], 8)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(
     st.integers(0, 7),
     st.lists(st.floats(-0.25, 0.25), min_size=3, max_size=3),

@@ -44,7 +44,7 @@ def raw_batches(draw):
     )
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(batch=raw_batches(), version=st.sampled_from(VERSIONS))
 def test_raw_round_trips_in_both_versions(batch, version):
     payload = wire.encode_raw(batch, version=version)
@@ -94,7 +94,7 @@ def heading_batches(draw):
     )
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(batch=heading_batches(), version=st.sampled_from(VERSIONS))
 def test_heading_round_trips_in_both_versions(batch, version):
     back = wire.decode_heading(wire.encode_heading(batch, version=version))
