@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from source_trees import parsed
 
 MAGNET_DIR = Path(__file__).resolve().parents[1] / "magnet"
 FORBIDDEN = ("zenoh", "smbus2", "sqlite3", "_sqlite3")
@@ -82,7 +83,7 @@ def _clock_calls(tree: ast.AST) -> list[str]:
 def test_magnet_imports_no_shell_module_and_neither_reads_the_clock_nor_sleeps():
     problems = []
     for path in _sources():
-        tree = ast.parse(path.read_text(), filename=str(path))
+        tree = parsed(path)
         name = path.relative_to(MAGNET_DIR.parent)
         problems += [f"{name}: imports {mod}" for mod in sorted(_top_level_imports(tree) & FORBIDDEN_SOURCE_IMPORTS)]
         problems += [f"{name}: {call}" for call in _clock_calls(tree)]

@@ -10,6 +10,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from source_trees import parsed
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("magnet", "services")
 MAX_FUNCTION_LINES = 40
@@ -45,7 +47,7 @@ def test_no_function_is_over_40_lines():
     long = [
         f"{path.relative_to(ROOT).as_posix()}:{node.lineno} {node.name} ({length} lines)"
         for path in _sources()
-        for node in _functions(ast.parse(path.read_text(), filename=str(path)))
+        for node in _functions(parsed(path))
         if (length := _code_lines(node)) > MAX_FUNCTION_LINES
     ]
     assert long == [], f"functions over {MAX_FUNCTION_LINES} lines (split them by step):\n" + "\n".join(long)

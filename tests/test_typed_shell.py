@@ -18,6 +18,7 @@ import functools
 from pathlib import Path
 
 import pytest
+from source_trees import parsed
 
 ROOT = Path(__file__).resolve().parents[1]
 SERVICES = ROOT / "services"
@@ -109,7 +110,7 @@ def _files() -> list[Path]:
 @functools.cache
 def _trees() -> tuple[tuple[Path, ast.Module], ...]:
     """Every file of services/ not in NOT_YET, parsed once for both checks."""
-    return tuple((path, ast.parse(path.read_text(), str(path))) for path in _files() if not _not_yet(path))
+    return tuple((path, parsed(path)) for path in _files() if not _not_yet(path))
 
 
 def _not_yet(path: Path) -> bool:
