@@ -27,6 +27,7 @@ import zenoh
 from zenoh.handlers import Handler
 
 from magnet import wire
+from services.common import zenoh_session
 
 #: raw messages waiting for the service loop at most (about 10 s of a 1,000-device fleet at 10 batches/s)
 DEFAULT_MAX_QUEUE = 100_000
@@ -91,22 +92,17 @@ class RawIntake:
         batch: int = PUMP_BATCH,
     ) -> None:
         """Move samples from a Zenoh channel into the queue until the channel closes (``closed`` raised: the
-        subscriber was undeclared). Run on its own thread: ``channel.recv()`` waits without holding the GIL and
-        ``try_recv`` takes what else waits, so Zenoh's threads never wait for Python (queries keep flowing during a
-        flood) and the GIL changes hands once per batch, not per message."""
-        while True:
-            try:
-                samples = [channel.recv()]
-                while len(samples) < batch and (more := channel.try_recv()) is not None:
-                    samples.append(more)
-            except closed:
-                return
-            fit = [sample for sample in samples if len(sample.payload) <= self.max_payload]  # the size, uncopied
-            with self._lock:
-                self.oversized += len(samples) - len(fit)
-                self.raw_messages += len(samples) - len(fit)
-            self.offer_many([(str(sample.key_expr), payload_of(sample)) for sample in fit])
-            del samples, fit
+        subscriber was undeclared), on a thread of its own (``services.common.zenoh_session.pump``), so that Zenoh's
+        threads never wait for Python (queries keep flowing during a flood)."""
+        zenoh_session.pump(channel, closed, lambda samples: self._offer_samples(samples, payload_of), batch)
+
+    def _offer_samples(self, samples: list[zenoh.Sample], payload_of: Callable[[zenoh.Sample], bytes]) -> None:
+        """Queue what fits of these samples; one larger than any raw message is counted and never copied."""
+        fit = [sample for sample in samples if len(sample.payload) <= self.max_payload]  # the size, uncopied
+        with self._lock:
+            self.oversized += len(samples) - len(fit)
+            self.raw_messages += len(samples) - len(fit)
+        self.offer_many([(str(sample.key_expr), payload_of(sample)) for sample in fit])
 
     def take(self, limit: int) -> list[tuple[str, bytes]]:
         """Up to ``limit`` queued messages, oldest first."""

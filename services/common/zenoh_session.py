@@ -17,7 +17,7 @@ import signal
 import socket
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
@@ -214,6 +214,41 @@ class Receiver(Protocol[T_co]):
     """What a zenoh channel gives without blocking: a ``Subscriber``, ``Queryable`` or ``Handler`` (of a ``get``)."""
 
     def try_recv(self) -> T_co | None: ...
+
+
+class Channel(Protocol[T_co]):
+    """A zenoh channel read by a thread of its own: ``recv`` waits (without the GIL), ``try_recv`` does not."""
+
+    def recv(self) -> T_co: ...
+
+    def try_recv(self) -> T_co | None: ...
+
+
+def pump(
+    channel: Channel[T],
+    closed: type[BaseException],
+    handle: Callable[[list[T]], object],
+    batch: int,
+    rest_s: float = 0.0,
+    rest: Callable[[float], None] = time.sleep,
+) -> None:
+    """Hand what arrives on ``channel`` to ``handle`` a batch at a time until the channel closes (``closed`` raised:
+    the subscriber was undeclared); the intakes' thread (``services.calibrator.intake``, ``services.compass.intake``).
+    ``recv`` waits for the first sample without the GIL and ``try_recv`` takes what else waits, up to ``batch``, so
+    Zenoh's buffers are let go of at once and the GIL changes hands once per batch. After a batch under ``batch`` / 8
+    it rests ``rest_s`` (0: never) so that the next one is larger."""
+    while True:
+        try:
+            items = [channel.recv()]
+            while len(items) < batch and (more := channel.try_recv()) is not None:
+                items.append(more)
+        except closed:
+            return
+        handle(items)
+        small = len(items) < batch // 8
+        del items  # Zenoh's samples are not held while resting or waiting
+        if small and rest_s > 0:
+            rest(rest_s)
 
 
 def drain(handler: Receiver[T], limit: int) -> list[T]:

@@ -17,7 +17,7 @@ channel's capacity times the largest message Zenoh reassembles, ``transport/link
 what arrives while the pump waits for the GIL), plus ``max_bytes``, plus one drain being decoded (``take``'s
 ``max_bytes``). See docs/front-door.md, "Memory per service".
 
-Pure queueing (no zenoh import): the pump takes any channel with ``recv``/``try_recv`` and samples with ``key_expr``
+The queueing takes no zenoh type: the pump takes any channel with ``recv``/``try_recv`` and samples with ``key_expr``
 and a ``payload`` that has ``len`` and ``to_bytes``.
 """
 
@@ -31,6 +31,7 @@ from collections.abc import Callable, Iterable
 from typing import Protocol
 
 from magnet import wire
+from services.common import zenoh_session
 
 
 class RawPayload(Protocol):
@@ -51,12 +52,8 @@ class RawSample(Protocol):
     def payload(self) -> RawPayload: ...
 
 
-class RawChannel(Protocol):
-    """A channel of samples (a ``zenoh.Subscriber``'s handler): ``recv`` waits, ``try_recv`` does not."""
-
-    def recv(self) -> RawSample: ...
-
-    def try_recv(self) -> RawSample | None: ...
+#: a channel of samples (a ``zenoh.Subscriber``'s handler)
+RawChannel = zenoh_session.Channel[RawSample]
 
 
 #: raw payload bytes waiting for the compass loop at most (a 1,000-device fleet at 10 batches/s of 10 samples, about
@@ -125,22 +122,10 @@ class PayloadIntake:
         rest: Callable[[float], None] = time.sleep,
     ) -> None:
         """Move samples from a Zenoh channel into the queue until the channel closes (``closed`` raised: the
-        subscriber was undeclared). Run it on its own thread: ``recv`` waits without the GIL and ``try_recv`` takes
-        what else waits, so Zenoh's buffers are let go of at once and the GIL changes hands once per batch. After a
-        small batch it rests ``PUMP_REST_S`` (without the GIL) so that the next one is larger: taking every message
-        as it came made the thread wake thousands of times a second and took the GIL from the compass's maths."""
-        while True:
-            try:
-                samples = [channel.recv()]
-                while len(samples) < batch and (more := channel.try_recv()) is not None:
-                    samples.append(more)
-            except closed:
-                return
-            self.offer_many(samples)
-            small = len(samples) < batch // 8
-            del samples
-            if small:
-                rest(PUMP_REST_S)
+        subscriber was undeclared), on a thread of its own (``services.common.zenoh_session.pump``). After a small
+        batch it rests ``PUMP_REST_S``: taking every message as it came made the thread wake thousands of times a
+        second and took the GIL from the compass's maths."""
+        zenoh_session.pump(channel, closed, self.offer_many, batch, PUMP_REST_S, rest)
 
     def take(self, max_messages: int, max_bytes: int) -> list[tuple[str, bytes]]:
         """The oldest queued messages, up to ``max_messages`` and ``max_bytes`` of payload (at least one when any
