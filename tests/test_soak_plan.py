@@ -13,6 +13,7 @@ from services.bench.soak_plan import (
     MemoryWatch,
     calibrations_lost,
     report,
+    round_of,
     schedule,
 )
 
@@ -62,16 +63,33 @@ def test_drops_add_up_over_the_runs_of_a_service_and_calibrations_lost_are_the_o
 
 def test_memory_and_the_report():
     memory = MemoryWatch()
-    memory.sample("compass", 100.0, warm=False)
-    memory.sample("compass", 150.0, warm=True)
-    memory.sample("compass", 400.0, warm=True)
-    memory.sample("compass", None, warm=True)  # not running at that moment
-    memory.sample("compass", 160.0, warm=True)
+    memory.sample("compass", 100.0, round_no=0)
+    memory.sample("compass", 150.0, round_no=1)
+    memory.sample("compass", 400.0, round_no=1)
+    memory.sample("compass", None, round_no=2)  # not running at that moment
+    memory.sample("compass", 160.0, round_no=2)
     m = memory.services["compass"]
-    assert (m.high_mb, m.after_warmup_mb, m.last_mb) == (400.0, 150.0, 160.0)
+    assert (m.high_mb, m.last_mb, m.by_round) == (400.0, 160.0, {0: 100.0, 1: 400.0, 2: 160.0})
+    assert m.growth_mb == -240.0  # bounded: the later rounds stay below the first
     gaps = HeadingGaps()
     text = report(2, ["kill compass"], {"a": 1}, {}, gaps, memory, DropTotals())
-    assert "calibrations lost: 1 of 1 published: a" in text and "compass" in text and "400" in text
+    assert "calibrations lost: 1 of 1 published: a" in text and "compass" in text and "400" in text and "-240" in text
+
+
+def test_a_leak_shows_as_growth_after_the_first_round_and_a_bound_does_not():
+    leak, bounded = MemoryWatch(), MemoryWatch()
+    for r in range(5):
+        leak.sample("calibrator", 70.0 + 10 * r, round_no=r)
+        bounded.sample("calibrator", 70.0 if r == 0 else 120.0, round_no=r)
+    assert leak.services["calibrator"].growth_mb == 30.0
+    assert bounded.services["calibrator"].growth_mb == 0.0
+    once = MemoryWatch()
+    once.sample("calibrator", 70.0, round_no=1)
+    assert once.services["calibrator"].growth_mb is None  # no second round yet: nothing to say
+
+
+def test_rounds_follow_the_cycle():
+    assert [round_of(n) for n in (0, 1, len(CYCLE), len(CYCLE) + 1, 2 * len(CYCLE) + 1)] == [0, 1, 1, 2, 3]
 
 
 def test_memory_is_kept_per_fault_to_show_what_grows_when():
@@ -79,6 +97,6 @@ def test_memory_is_kept_per_fault_to_show_what_grows_when():
 
     watch = MemoryWatch()
     for rss, fault in [(60, "warm-up"), (65, "bombs"), (90, "bombs"), (70, "flood"), (300, "flood"), (80, "router")]:
-        watch.sample("compass", rss, warm=True, fault=fault)
+        watch.sample("compass", rss, round_no=1, fault=fault)
     assert watch.services["compass"].by_fault == {"warm-up": 60, "bombs": 90, "flood": 300, "router": 80}
     assert watch.services["compass"].high_mb == 300 and watch.services["compass"].last_mb == 80

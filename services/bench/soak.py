@@ -28,7 +28,7 @@ import zenoh
 
 from magnet import wire
 from services.bench.flood import rss_mb
-from services.bench.soak_plan import DropTotals, Fault, HeadingGaps, MemoryWatch, report, schedule
+from services.bench.soak_plan import DropTotals, Fault, HeadingGaps, MemoryWatch, report, round_of, schedule
 from services.common.processes import stop_processes
 from services.common.zenoh_session import ZenohSettings, free_ports, open_session, payload_bytes
 
@@ -229,10 +229,9 @@ class Soak:
         release: float | None = None
         while (now := time.monotonic()) < end:
             elapsed = now - self.started
-            if now >= next_memory:  # before any fault of this round: "after warm-up" is the second before the first
+            if now >= next_memory:
                 next_memory = now + 0.5
-                warm = elapsed >= (self.faults[0].at_s - 1.0 if self.faults else 0.0)
-                self._sample_memory(warm, observer.fault or "warm-up")
+                self._sample_memory(round_of(len(self.done)), observer.fault or "warm-up")
             if pending and elapsed >= pending[0].at_s:
                 fault = pending.pop(0)
                 observer.fault = fault.label
@@ -275,10 +274,10 @@ class Soak:
         if text not in self.notes:
             self.notes.append(text)
 
-    def _sample_memory(self, warm: bool, fault: str | None) -> None:
+    def _sample_memory(self, round_no: int, fault: str | None) -> None:
         for name, proc in self.pipeline.procs.items():
             rss = rss_mb(proc.pid) if proc.poll() is None else None
-            self.memory.sample(name, rss, warm, fault)
+            self.memory.sample(name, rss, round_no, fault)
             if rss is not None and rss > RSS_CAP_MB:
                 self._note(f"{name} killed and restarted by the soak at {rss:.0f} MB (cap {RSS_CAP_MB:g} MB)")
                 self.pipeline.kill9(name)

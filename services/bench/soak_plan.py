@@ -8,7 +8,10 @@ Figures:
   not serve at the end, or serves an older one;
 - longest heading gap: the longest time between two consecutive headings of one device (a device that stops for
   good, as an edge's devices do when it is restarted with new ids, makes no gap), with the fault it followed;
-- memory: resident set (MB) per service, across its restarts: the highest, the first after warm-up and the last;
+- memory: resident set (MB) per service, across its restarts: the highest in each round of the cycle (round 0 is the
+  warm-up, round 1 the first time every kind of fault is inflicted, which fills each bounded table to its bound), the
+  last, and the growth after the first round (the highest of the later rounds minus the highest of round 1): memory
+  that is flat after warm-up shows no growth, a leak shows a growth that rises with the length of the soak;
 - drops: every service's status ``dropped`` counters, summed over its restarts (the last answer of each run).
 """
 
@@ -93,28 +96,40 @@ class HeadingGaps:
 @dataclasses.dataclass
 class Memory:
     high_mb: float = 0.0
-    after_warmup_mb: float | None = None
     last_mb: float = 0.0
+    by_round: dict[int, float] = dataclasses.field(default_factory=dict)  # the highest in each round of the cycle
     by_fault: dict[str, float] = dataclasses.field(default_factory=dict)  # the highest while each fault was last
+
+    @property
+    def growth_mb(self) -> float | None:
+        """The highest after round 1 minus the highest of rounds 0 and 1 (None before a second round)."""
+        later = [mb for r, mb in self.by_round.items() if r > 1]
+        first = [mb for r, mb in self.by_round.items() if r <= 1]
+        return max(later) - max(first) if later and first else None
+
+
+def round_of(faults_done: int) -> int:
+    """The round of the cycle after ``faults_done`` faults: 0 before the first (warm-up), 1 while the first cycle
+    runs, and so on."""
+    return 0 if faults_done == 0 else 1 + (faults_done - 1) // len(CYCLE)
 
 
 class MemoryWatch:
-    """RSS samples per service (MB): the highest, the first after warm-up, the last, and the highest while each kind
-    of fault was the last one inflicted (what grows when)."""
+    """RSS samples per service (MB): the highest, the highest in each round of the cycle, the last, and the highest
+    while each kind of fault was the last one inflicted (what grows when)."""
 
     def __init__(self) -> None:
         self.services: dict[str, Memory] = {}
 
-    def sample(self, service: str, rss_mb: float | None, warm: bool, fault: str | None = None) -> None:
+    def sample(self, service: str, rss_mb: float | None, round_no: int, fault: str | None = None) -> None:
         if rss_mb is None:
             return
         memory = self.services.setdefault(service, Memory())
         memory.high_mb = max(memory.high_mb, rss_mb)
+        memory.by_round[round_no] = max(memory.by_round.get(round_no, 0.0), rss_mb)
         if fault is not None:
             memory.by_fault[fault] = max(memory.by_fault.get(fault, 0.0), rss_mb)
         memory.last_mb = rss_mb
-        if warm and memory.after_warmup_mb is None:
-            memory.after_warmup_mb = rss_mb
 
 
 class DropTotals:
@@ -160,11 +175,12 @@ def report(
         f"calibrations lost: {len(lost)} of {len(published)} published{which}",
         f"longest heading gap: {gap}; {gaps.headings} heading messages",
         "  after each fault: " + (", ".join(f"{f} {s:.2f} s" for f, s in sorted(gaps.by_fault.items())) or "-"),
-        "memory (RSS MB)     highest  after warm-up   at the end",
+        "memory (RSS MB)     highest  at the end  growth after round 1   highest per round (0 = warm-up)",
     ]
     for service, m in sorted(memory.services.items()):
-        warm = "-" if m.after_warmup_mb is None else f"{m.after_warmup_mb:.0f}"
-        lines.append(f"  {service:<16}{m.high_mb:>9.0f}{warm:>15}{m.last_mb:>13.0f}")
+        growth = "-" if m.growth_mb is None else f"{m.growth_mb:+.0f}"
+        rounds = " ".join(f"{m.by_round[r]:.0f}" for r in sorted(m.by_round))
+        lines.append(f"  {service:<16}{m.high_mb:>9.0f}{m.last_mb:>12.0f}{growth:>22}   {rounds}")
     for service, m in sorted(memory.services.items()):
         if m.by_fault:
             highs = ", ".join(f"{fault} {mb:.0f}" for fault, mb in sorted(m.by_fault.items()))
