@@ -1,17 +1,19 @@
 """The schedule and the figures of ``magnet bench soak`` (no processes here: ``services.bench.soak`` runs them).
 
 Schedule: after ``WARMUP_S`` (devices collect and calibrate), one fault every ``SPACING_S`` in the order of
-``CYCLE``, round and round, until ``SETTLE_S`` before the end (the pipeline heals before the figures are read).
+``CYCLE``, round and round, until ``SETTLE_S`` before the end (the pipeline heals before the figures are read). The
+cycle is three rounds; each round kills one service (calibrator, compass, edge in turn) then inflicts bombs, a flood
+of ids, a router restart and a full disk, so each service lives through three rounds of every other fault.
 
 Figures:
 - calibrations lost: devices whose calibration was seen published (its ``created_ns``) and which the calibrator does
   not serve at the end, or serves an older one;
 - longest heading gap: the longest time between two consecutive headings of one device (a device that stops for
   good, as an edge's devices do when it is restarted with new ids, makes no gap), with the fault it followed;
-- memory: resident set (MB) per service, across its restarts: the highest in each round of the cycle (round 0 is the
-  warm-up, round 1 the first time every kind of fault is inflicted, which fills each bounded table to its bound), the
-  last, and the growth after the first round (the highest of the later rounds minus the highest of round 1): memory
-  that is flat after warm-up shows no growth, a leak shows a growth that rises with the length of the soak;
+- memory: resident set (MB) per service, across its restarts: the highest in each round (round 0 is the warm-up;
+  round 1 is the first pass of bombs and flood, which take each bounded table and buffer to its bound), the last,
+  and the growth after the first round (the highest of the later rounds minus the highest of rounds 0 and 1): memory
+  that is flat after warm-up shows no growth; a leak shows in the second and third round of a process's life;
 - drops: every service's status ``dropped`` counters, summed over its restarts (the last answer of each run).
 """
 
@@ -43,15 +45,12 @@ class Fault:
         return f"{self.kind} {self.target}".strip()
 
 
-CYCLE = (
-    Fault("kill", "calibrator"),
-    Fault("bombs"),
-    Fault("kill", "compass"),
-    Fault("flood"),
-    Fault("router"),
-    Fault("kill", "edge"),
-    Fault("full-disk", hold_s=FULL_DISK_HOLD_S),
-)
+#: the faults every round inflicts after its kill, and the service each round kills in turn: a service lives three
+#: rounds between its kills, so memory that grows from round to round in one process shows
+ROUND = (Fault("bombs"), Fault("flood"), Fault("router"), Fault("full-disk", hold_s=FULL_DISK_HOLD_S))
+KILLED_IN_TURN = ("calibrator", "compass", "edge")
+CYCLE = tuple(fault for target in KILLED_IN_TURN for fault in (Fault("kill", target), *ROUND))
+ROUND_LEN = 1 + len(ROUND)
 
 
 def schedule(
@@ -109,9 +108,9 @@ class Memory:
 
 
 def round_of(faults_done: int) -> int:
-    """The round of the cycle after ``faults_done`` faults: 0 before the first (warm-up), 1 while the first cycle
-    runs, and so on."""
-    return 0 if faults_done == 0 else 1 + (faults_done - 1) // len(CYCLE)
+    """The round after ``faults_done`` faults: 0 before the first (warm-up), 1 from the first kill to the next
+    round's kill, and so on."""
+    return 0 if faults_done == 0 else 1 + (faults_done - 1) // ROUND_LEN
 
 
 class MemoryWatch:
