@@ -178,6 +178,15 @@ def test_the_compass_keeps_places_drift_trackers_and_filters_for_at_most_max_dev
     assert len([r for r in caplog.records if "the least recently seen are forgotten" in r.getMessage()]) == 1
 
 
+def test_the_compass_remembers_the_keys_of_at_most_twice_max_devices():
+    # a flood of new ids once grew the key cache to 200,000 entries (about 60 MB) whatever --max-devices said
+    compass = compass_core(Earth(), window=1, max_devices=3)
+    for i in range(20):
+        compass.step(compass.decode([(f"magnet/f{i}/raw", _batch(f"f{i}"))], "magnet"), NOW_NS)
+    assert compass.keys.device("magnet/f19/raw", "magnet") == "f19"
+    assert len(compass.keys._devices) == 6
+
+
 def test_recent_hands_what_it_evicts_to_on_evict_and_get_does_not_touch():
     released: list[tuple[str, int]] = []
     recent: Recent[str, int] = Recent(2, on_evict=lambda key, value: released.append((key, value)))

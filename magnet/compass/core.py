@@ -36,6 +36,8 @@ from magnet.shard import EVERY_DEVICE, Shard
 log = logging.getLogger("magnet.compass")
 
 DEFAULT_MAX_DEVICES = 10_000
+#: key expressions remembered per device bound (a raw key per device, and room for another kind)
+KEYS_PER_DEVICE = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,7 +143,7 @@ class CompassCore:
         self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
         self.filters = DeviceFilters(max_devices=limit)
         self.smoothing = Smoothing(settings.window, limit)
-        self.keys = DeviceKeys(settings.shard)
+        self.keys = DeviceKeys(settings.shard, max_keys=KEYS_PER_DEVICE * limit)
         self.drops = wire.DropCounter()
         self.counters = Counters()
         self._evictions_logged = False
