@@ -13,6 +13,7 @@ import numpy as np
 
 from magnet.model import Calibration, Quality
 from magnet.quality.coverage import coverage, heading_coverage
+from magnet.quality.stats import covariance
 from magnet.units import ut_per_unit
 
 
@@ -27,7 +28,9 @@ class Geometry(enum.Enum):
 def scatter_condition(points: np.ndarray) -> float:
     """sqrt(largest / smallest eigenvalue) of the covariance of points (N, d); inf when they are degenerate."""
     points = np.asarray(points, dtype=float)
-    eig = np.linalg.eigvalsh(np.cov(points, rowvar=False))
+    if len(points) < 2:
+        return math.inf
+    eig = np.linalg.eigvalsh(covariance(points))
     if eig[0] <= eig[-1] * 1e-24 or eig[-1] <= 0:
         return math.inf
     return float(math.sqrt(eig[-1] / eig[0]))

@@ -65,7 +65,21 @@ class MotionEvidence:
 
     @property
     def known(self) -> np.ndarray:
-        return np.all(np.isfinite(self.down), axis=1)
+        return finite_rows(self.down)
+
+
+def finite_rows(rows: np.ndarray) -> np.ndarray:
+    """(N,) bool: the rows of an (N, 3) array whose three values are finite (``np.all(np.isfinite(rows), axis=1)``,
+    several times faster: a reduction along rows of three is slow in numpy)."""
+    finite = np.isfinite(rows)
+    return finite[:, 0] & finite[:, 1] & finite[:, 2]
+
+
+def row_norms(rows: np.ndarray) -> np.ndarray:
+    """(N,) Euclidean lengths of the rows of an (N, 3) array, bit for bit ``np.linalg.norm(rows, axis=1)`` (the
+    same squares summed in the same order), several times faster."""
+    x, y, z = rows[:, 0], rows[:, 1], rows[:, 2]
+    return np.sqrt(x * x + y * y + z * z)
 
 
 def quasi_static(acc: np.ndarray, tol: float = QUASI_STATIC_TOL) -> np.ndarray:
@@ -106,10 +120,10 @@ def _direction_errors_deg(field: np.ndarray, attitude: np.ndarray, stretch: np.n
     """Angle (N,) deg between each earth-frame field direction and the mean direction of its stretch (``stretch``
     (N,) int labels; None: one stretch)."""
     earth = np.einsum("nij,nj->ni", quaternion_to_matrix(attitude), field)
-    unit = earth / np.linalg.norm(earth, axis=1, keepdims=True)
+    unit = earth / row_norms(earth)[:, None]
     labels = np.zeros(len(unit), dtype=int) if stretch is None else np.unique(stretch, return_inverse=True)[1]
     sums = np.column_stack([np.bincount(labels, weights=unit[:, k]) for k in range(3)])
-    mean = sums[labels] / np.linalg.norm(sums[labels], axis=1, keepdims=True)
+    mean = sums[labels] / row_norms(sums[labels])[:, None]
     return np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", unit, mean), -1.0, 1.0)))
 
 
@@ -121,29 +135,37 @@ def direction_spread_deg(field: np.ndarray, attitude: np.ndarray) -> float | Non
     return float(np.sqrt(np.mean(_direction_errors_deg(field, attitude) ** 2)))
 
 
-def _errors_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> np.ndarray | None:
-    """Per-sample departures (deg) from a field constant in the earth frame over the selected rows: the angle to the
-    mean direction with an attitude, else the dip's departure from its mean on the rows where down is known."""
+def _errors_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None) -> np.ndarray | None:
+    """Per-sample departures (deg) from a field constant in the earth frame over the selected rows (None: every
+    row): the angle to the mean direction with an attitude, else the dip's departure from its mean on the rows where
+    down is known."""
     if ev.attitude is not None:
-        if not rows.any():
+        if rows is not None and not rows.any():
             return None
-        index = np.flatnonzero(rows)
+        index = np.arange(len(field)) if rows is None else np.flatnonzero(rows)
         stretch = None if ev.period_s is None else (index * ev.period_s // STRETCH_S).astype(int)
-        return _direction_errors_deg(field[rows], ev.attitude[rows], stretch)
-    down = ev.down[rows]
-    keep = np.all(np.isfinite(down), axis=1) & (np.linalg.norm(field[rows], axis=1) > 0)
-    if keep.sum() < MIN_QUASI_STATIC:
+        chosen, attitude = (field, ev.attitude) if rows is None else (field[rows], ev.attitude[rows])
+        return _direction_errors_deg(chosen, attitude, stretch)
+    chosen, down = (field, ev.down) if rows is None else (field[rows], ev.down[rows])
+    norm = row_norms(chosen)
+    keep = finite_rows(down) & (norm > 0)
+    if np.count_nonzero(keep) < MIN_QUASI_STATIC:
         return None
-    unit = field[rows][keep] / np.linalg.norm(field[rows][keep], axis=1, keepdims=True)
-    dip = np.degrees(np.arcsin(np.clip(np.einsum("ij,ij->i", unit, down[keep]), -1.0, 1.0)))
+    if not keep.all():
+        chosen, down, norm = chosen[keep], down[keep], norm[keep]
+    unit = chosen / norm[:, None]
+    dip = np.degrees(np.arcsin(np.clip(np.einsum("ij,ij->i", unit, down), -1.0, 1.0)))
     return dip - dip.mean()
+
+
+def _rms(errors: np.ndarray | None) -> float | None:
+    return None if errors is None else float(np.sqrt(np.mean(errors**2)))
 
 
 def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None = None) -> float | None:
     """How far the field is from constant in the earth frame (deg; smaller is better) over the selected rows (None:
     every row): direction spread with an attitude, else dip spread on the quasi-static rows."""
-    errors = _errors_deg(field, ev, np.ones(len(field), dtype=bool) if rows is None else rows)
-    return None if errors is None else float(np.sqrt(np.mean(errors**2)))
+    return _rms(_errors_deg(field, ev, rows))
 
 
 def margin_deg(field: np.ndarray, other: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
@@ -151,7 +173,11 @@ def margin_deg(field: np.ndarray, other: np.ndarray, ev: MotionEvidence, rows: n
     more than chance: the per-sample differences of squared departures, averaged over ``MARGIN_CHUNKS`` runs of
     consecutive rows (neighbouring samples are not independent), give the uncertainty of their mean (two standard
     errors), turned into degrees below ``other``'s consistency. None when there are too few rows."""
-    mine, theirs = _errors_deg(field, ev, rows), _errors_deg(other, ev, rows)
+    return _margin(_errors_deg(field, ev, rows), _errors_deg(other, ev, rows))
+
+
+def _margin(mine: np.ndarray | None, theirs: np.ndarray | None) -> float | None:
+    """``margin_deg`` from the departures of the two fields on the same rows."""
     if mine is None or theirs is None or len(mine) < 4 * MARGIN_CHUNKS:
         return None
     chunks = np.array([c.mean() for c in np.array_split(theirs**2 - mine**2, MARGIN_CHUNKS)])
@@ -188,13 +214,15 @@ def motion_figures(
         "reference_holdout_consistency_deg": None,
     }
     if train_candidate is not None and test.any():
-        held = train_candidate.apply(raw)
-        figures["holdout_consistency_deg"] = consistency_deg(held, ev, test)
-        figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field, ev, test)
-        figures["holdout_margin_deg"] = margin_deg(held, ref_field, ev, test)
+        held = _errors_deg(train_candidate.apply(raw), ev, test)  # each field's departures once, for both figures
+        reference_held = _errors_deg(ref_field, ev, test)
+        figures["holdout_consistency_deg"] = _rms(held)
+        figures["reference_holdout_consistency_deg"] = _rms(reference_held)
+        figures["holdout_margin_deg"] = _margin(held, reference_held)
         if reference_name != "no calibration":
-            figures["none_holdout_consistency_deg"] = consistency_deg(raw, ev, test)
-            figures["none_holdout_margin_deg"] = margin_deg(held, np.asarray(raw, dtype=float), ev, test)
+            none_held = _errors_deg(np.asarray(raw, dtype=float), ev, test)
+            figures["none_holdout_consistency_deg"] = _rms(none_held)
+            figures["none_holdout_margin_deg"] = _margin(held, none_held)
     return figures
 
 
