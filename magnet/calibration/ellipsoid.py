@@ -163,7 +163,7 @@ def _ellipsoid_system(columns: np.ndarray, params: np.ndarray) -> tuple[float, n
     for start in range(0, columns.shape[1], SYSTEM_BLOCK):
         d = columns[:, start : start + SYSTEM_BLOCK] - params[:3, None]
         v = matrix @ d  # (3, n): M d_i
-        norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        norm = np.sqrt(np.einsum("ij,ij->j", v, v))
         res = norm - 1.0
         block = k[:, : d.shape[1]]
         n = np.divide(v, norm, out=block[:3])
@@ -175,7 +175,8 @@ def _ellipsoid_system(columns: np.ndarray, params: np.ndarray) -> tuple[float, n
         np.multiply(n[1], d[2], out=block[8])
         block[8] += n[2] * d[1]
         cost += float(res @ res)
-        kkt += block @ block.T
+        kkt[:3] += block[:3] @ block.T  # two products: numpy hands ``block @ block.T`` to a slower syrk
+        kkt[3:] += block[3:] @ block.T
         ke += block @ res
     transform = np.eye(9)
     transform[:3, :3] = -matrix
