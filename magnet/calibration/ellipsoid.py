@@ -39,8 +39,9 @@ def ellipsoid(
     algebraic fit and finds the same minimum in fewer steps. ``tolerance``: see ``_refine_ellipsoid``."""
     check_spread_3d(mag, Method.ELLIPSOID)
     keep = _gross_inliers(mag)
-    offset, shape = _algebraic_ellipsoid(mag[keep]) if start is None else _unit_sphere_form(start)
-    offset, shape = _refine_ellipsoid(mag[keep], offset, shape, tolerance=tolerance)
+    kept = mag if keep.all() else mag[keep]
+    offset, shape = _algebraic_ellipsoid(kept) if start is None else _unit_sphere_form(start)
+    offset, shape = _refine_ellipsoid(kept, offset, shape, tolerance=tolerance)
     inliers = _radial_inliers(mag, offset, shape)
     if not np.array_equal(inliers, keep):
         offset, shape = _refine_ellipsoid(mag[inliers], offset, shape, tolerance=tolerance)

@@ -36,6 +36,7 @@ import numpy as np
 from magnet import frames, fusion
 from magnet.frames import quaternion_to_matrix
 from magnet.model import Calibration, Quality
+from magnet.quality.stats import median
 
 #: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
 QUASI_STATIC_TOL = 0.03
@@ -86,7 +87,7 @@ def quasi_static(acc: np.ndarray, tol: float = QUASI_STATIC_TOL) -> np.ndarray:
     """(N,) bool: samples whose specific force (N, 3) is within ``tol`` of g (the median magnitude)."""
     acc = np.asarray(acc, dtype=float)
     norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))
-    g = float(np.median(norm)) if len(norm) else 0.0
+    g = median(norm) if len(norm) else 0.0
     if g <= 0:
         return np.zeros(len(norm), dtype=bool)
     return np.abs(norm / g - 1.0) <= tol
@@ -139,14 +140,18 @@ def _errors_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None) 
     """Per-sample departures (deg) from a field constant in the earth frame over the selected rows (None: every
     row): the angle to the mean direction with an attitude, else the dip's departure from its mean on the rows where
     down is known."""
+    return _departures_deg(field if rows is None else field[rows], ev, rows)
+
+
+def _departures_deg(chosen: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None) -> np.ndarray | None:
+    """``_errors_deg`` from the field on the selected rows only, chosen (M, 3) (M = rows.sum(), or N)."""
     if ev.attitude is not None:
         if rows is not None and not rows.any():
             return None
-        index = np.arange(len(field)) if rows is None else np.flatnonzero(rows)
+        index = np.arange(len(chosen)) if rows is None else np.flatnonzero(rows)
         stretch = None if ev.period_s is None else (index * ev.period_s // STRETCH_S).astype(int)
-        chosen, attitude = (field, ev.attitude) if rows is None else (field[rows], ev.attitude[rows])
-        return _direction_errors_deg(chosen, attitude, stretch)
-    chosen, down = (field, ev.down) if rows is None else (field[rows], ev.down[rows])
+        return _direction_errors_deg(chosen, ev.attitude if rows is None else ev.attitude[rows], stretch)
+    down = ev.down if rows is None else ev.down[rows]
     norm = row_norms(chosen)
     keep = finite_rows(down) & (norm > 0)
     if np.count_nonzero(keep) < MIN_QUASI_STATIC:
@@ -199,7 +204,8 @@ def motion_figures(
     fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
     reasons name it ("the calibration in force", "no calibration"). With a calibration in force the fit must also
     beat no calibration (``none_*`` figures); each comparison with its margin (``margin_deg``)."""
-    field, ref_field = candidate.apply(raw), reference.apply(raw)
+    raw = np.asarray(raw, dtype=float)
+    field, ref_field = candidate.apply(raw), _corrected(reference, raw)
     dip_spread = dip_spread_deg(field, ev.down)
     figures: dict[str, Any] = {
         "dip_spread_deg": dip_spread,
@@ -214,16 +220,24 @@ def motion_figures(
         "reference_holdout_consistency_deg": None,
     }
     if train_candidate is not None and test.any():
-        held = _errors_deg(train_candidate.apply(raw), ev, test)  # each field's departures once, for both figures
-        reference_held = _errors_deg(ref_field, ev, test)
+        test_raw = raw[test]  # each field on the held-out rows only, and its departures once for both figures
+        held = _departures_deg(train_candidate.apply(test_raw), ev, test)
+        reference_held = _departures_deg(ref_field[test], ev, test)
         figures["holdout_consistency_deg"] = _rms(held)
         figures["reference_holdout_consistency_deg"] = _rms(reference_held)
         figures["holdout_margin_deg"] = _margin(held, reference_held)
         if reference_name != "no calibration":
-            none_held = _errors_deg(np.asarray(raw, dtype=float), ev, test)
+            none_held = _departures_deg(test_raw, ev, test)
             figures["none_holdout_consistency_deg"] = _rms(none_held)
             figures["none_holdout_margin_deg"] = _margin(held, none_held)
     return figures
+
+
+def _corrected(calibration: Calibration, raw: np.ndarray) -> np.ndarray:
+    """``calibration.apply(raw)``, without the product for the identity (no calibration: the same numbers)."""
+    if not calibration.offset.any() and np.array_equal(calibration.matrix, np.eye(3)):
+        return raw
+    return calibration.apply(raw)
 
 
 def _number(quality: Quality | Mapping[str, Any], key: str) -> float | None:

@@ -9,14 +9,18 @@ columns (the same covariance to within a few units in the last place).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
 def median(values: np.ndarray) -> float:
-    """Median of the finite values (N,) (N >= 1), equal to ``float(np.median(values))``."""
+    """Median of values (N,) (N >= 1), equal to ``float(np.median(values))`` (NaN when one of them is NaN)."""
     count = len(values)
     if count == 0:
         raise ValueError("the median of no values is undefined")
+    if np.isnan(values).any():
+        return math.nan
     half = count // 2
     part = np.partition(values, half)
     if count % 2:
@@ -25,7 +29,7 @@ def median(values: np.ndarray) -> float:
 
 
 def column_medians(rows: np.ndarray) -> np.ndarray:
-    """(3,) median of each column of finite rows (N, 3)."""
+    """(3,) median of each column of rows (N, 3)."""
     return np.array([median(column) for column in np.ascontiguousarray(rows.T)])
 
 
