@@ -134,9 +134,11 @@ def fit(
         holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes, shape, test)
     to_ut = ut_per_unit(unit)
     geometry = _METHODS[method][1]
+    corrected = calibration.apply(mag)  # for the figures of assess and of motion
     quality = assess(
         mag,
         calibration,
+        corrected=corrected,
         geometry=geometry,
         acc=None,
         expected_field_ut=field_ut,
@@ -153,6 +155,7 @@ def fit(
             holdout[1] if holdout else None,
             reference or IDENTITY,
             "the calibration in force" if reference else "no calibration",
+            corrected,
         )
         quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:

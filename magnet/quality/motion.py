@@ -86,7 +86,11 @@ def row_norms(rows: np.ndarray) -> np.ndarray:
 def quasi_static(acc: np.ndarray, tol: float = QUASI_STATIC_TOL) -> np.ndarray:
     """(N,) bool: samples whose specific force (N, 3) is within ``tol`` of g (the median magnitude)."""
     acc = np.asarray(acc, dtype=float)
-    norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))
+    return _near_g(np.sqrt(np.einsum("ij,ij->i", acc, acc)), tol)
+
+
+def _near_g(norm: np.ndarray, tol: float) -> np.ndarray:
+    """``quasi_static`` from the magnitudes (N,) of the specific force."""
     g = median(norm) if len(norm) else 0.0
     if g <= 0:
         return np.zeros(len(norm), dtype=bool)
@@ -101,8 +105,10 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
         return MotionEvidence(frames.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity", period_s)
-    down = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
-    return MotionEvidence(np.where(quasi_static(acc)[:, None], down, np.nan), None, "quasi-static samples")
+    norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))
+    down = -acc / norm[:, None]
+    down[~_near_g(norm, QUASI_STATIC_TOL)] = np.nan
+    return MotionEvidence(down, None, "quasi-static samples")
 
 
 def dip_spread_deg(field: np.ndarray, down: np.ndarray) -> float | None:
@@ -113,7 +119,9 @@ def dip_spread_deg(field: np.ndarray, down: np.ndarray) -> float | None:
     keep = np.isfinite(along) & (norm > 0)
     if np.count_nonzero(keep) < MIN_QUASI_STATIC:
         return None
-    dip = np.degrees(np.arcsin(np.clip(along[keep] / norm[keep], -1.0, 1.0)))
+    if not keep.all():
+        along, norm = along[keep], norm[keep]
+    dip = np.degrees(np.arcsin(np.clip(along / norm, -1.0, 1.0)))
     return float(dip.std())
 
 
@@ -199,13 +207,16 @@ def motion_figures(
     train_candidate: Calibration | None,
     reference: Calibration,
     reference_name: str,
+    field: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Quality figures for data in motion: raw (N, 3) samples, test (N,) bool the held-out rows (train_candidate was
     fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
     reasons name it ("the calibration in force", "no calibration"). With a calibration in force the fit must also
-    beat no calibration (``none_*`` figures); each comparison with its margin (``margin_deg``)."""
+    beat no calibration (``none_*`` figures); each comparison with its margin (``margin_deg``). field: candidate's
+    corrected field (N, 3) when the caller has it (None: computed here)."""
     raw = np.asarray(raw, dtype=float)
-    field, ref_field = candidate.apply(raw), _corrected(reference, raw)
+    field = candidate.apply(raw) if field is None else field
+    ref_field = _corrected(reference, raw)
     dip_spread = dip_spread_deg(field, ev.down)
     figures: dict[str, Any] = {
         "dip_spread_deg": dip_spread,
