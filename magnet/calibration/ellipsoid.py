@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from magnet.calibration.base import FitError, Method, Shape, check_spread_3d
-from magnet.quality.stats import column_medians, median
+from magnet.quality.stats import column_medians, median, take_rows
 
 #: a sample farther from the median sample than this many times the median distance is a spike (before any fit)
 GROSS_OUTLIER_FACTOR = 3.0
@@ -39,12 +39,12 @@ def ellipsoid(
     algebraic fit and finds the same minimum in fewer steps. ``tolerance``: see ``_refine_ellipsoid``."""
     check_spread_3d(mag, Method.ELLIPSOID)
     keep = _gross_inliers(mag)
-    kept = mag if keep.all() else mag[keep]
+    kept = mag if keep.all() else take_rows(mag, keep)
     offset, shape = _algebraic_ellipsoid(kept) if start is None else _unit_sphere_form(start)
     offset, shape = _refine_ellipsoid(kept, offset, shape, tolerance=tolerance)
     inliers = _radial_inliers(mag, offset, shape)
     if not np.array_equal(inliers, keep):
-        offset, shape = _refine_ellipsoid(mag[inliers], offset, shape, tolerance=tolerance)
+        offset, shape = _refine_ellipsoid(take_rows(mag, inliers), offset, shape, tolerance=tolerance)
     dropped = int((~inliers).sum())
     radius = float(np.linalg.det(shape) ** (-1.0 / 3.0))
     note = f"{dropped} outlier sample(s) left out of the fit" if dropped else ""

@@ -15,6 +15,7 @@ from magnet.calibration.ellipsoid import ellipsoid
 from magnet.calibration.gyro_ellipsoid import gyro_ellipsoid
 from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
+from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import unit_hint
 
 #: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
@@ -189,7 +190,8 @@ def _gate(quality: Quality, thresholds: GateThresholds | None, method: Method) -
 
 def _holdout_mask(count: int) -> np.ndarray:
     """(count,) bool: every HOLDOUT_EVERY-th block of HOLDOUT_BLOCK samples, the held-out test set."""
-    return (np.arange(count) // HOLDOUT_BLOCK) % HOLDOUT_EVERY == HOLDOUT_EVERY - 1
+    period = np.arange(HOLDOUT_BLOCK * HOLDOUT_EVERY) // HOLDOUT_BLOCK == HOLDOUT_EVERY - 1
+    return np.resize(period, count)  # the pattern repeats every HOLDOUT_EVERY blocks
 
 
 def _holdout(
@@ -210,18 +212,18 @@ def _holdout(
     the held-out residual within 1e-5 uT). ``test``: ``_holdout_mask(len(mag))``, when the caller has it already."""
     test = _holdout_mask(len(mag)) if test is None else test
     train = ~test
-    train_acc = None if acc is None or method not in _READS_ACC else acc[train]  # the others never look at acc
+    train_acc = None if acc is None or method not in _READS_ACC else take_rows(acc, train)  # the others never use it
     try:
         if whole is not None and method in _WARM_STARTED:
-            shape = _WARM_STARTED[method](mag[train], train_acc, robust, whole, HOLDOUT_TOLERANCE)
+            shape = _WARM_STARTED[method](take_rows(mag, train), train_acc, robust, whole, HOLDOUT_TOLERANCE)
             train_cal = _finish(shape, method, unit, field_ut, int(train.sum()))
         else:
             train_cal, _ = fit_shape(
-                mag[train], method, acc=train_acc, unit=unit, field_ut=field_ut, robust_extremes=robust
+                take_rows(mag, train), method, acc=train_acc, unit=unit, field_ut=field_ut, robust_extremes=robust
             )
     except FitError:
         return None
-    return mag[test], train_cal
+    return take_rows(mag, test), train_cal
 
 
 def _gyro_holdout(
@@ -232,7 +234,7 @@ def _gyro_holdout(
         shape = gyro_ellipsoid(mag, gyr, period_s, keep=~test)
     except FitError:
         return None
-    return mag[test], _finish(shape, Method.GYRO_ELLIPSOID, unit, field_ut, int((~test).sum()))
+    return take_rows(mag, test), _finish(shape, Method.GYRO_ELLIPSOID, unit, field_ut, int((~test).sum()))
 
 
 #: the methods whose shape depends on the accelerometer's samples

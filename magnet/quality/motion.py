@@ -36,7 +36,7 @@ import numpy as np
 from magnet import frames, fusion
 from magnet.frames import quaternion_to_matrix
 from magnet.model import Calibration, Quality
-from magnet.quality.stats import median
+from magnet.quality.stats import median, take_rows
 
 #: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
 QUASI_STATIC_TOL = 0.03
@@ -148,7 +148,7 @@ def _errors_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None) 
     """Per-sample departures (deg) from a field constant in the earth frame over the selected rows (None: every
     row): the angle to the mean direction with an attitude, else the dip's departure from its mean on the rows where
     down is known."""
-    return _departures_deg(field if rows is None else field[rows], ev, rows)
+    return _departures_deg(field if rows is None else take_rows(field, rows), ev, rows)
 
 
 def _departures_deg(chosen: np.ndarray, ev: MotionEvidence, rows: np.ndarray | None) -> np.ndarray | None:
@@ -158,14 +158,14 @@ def _departures_deg(chosen: np.ndarray, ev: MotionEvidence, rows: np.ndarray | N
             return None
         index = np.arange(len(chosen)) if rows is None else np.flatnonzero(rows)
         stretch = None if ev.period_s is None else (index * ev.period_s // STRETCH_S).astype(int)
-        return _direction_errors_deg(chosen, ev.attitude if rows is None else ev.attitude[rows], stretch)
-    down = ev.down if rows is None else ev.down[rows]
+        return _direction_errors_deg(chosen, ev.attitude if rows is None else take_rows(ev.attitude, rows), stretch)
+    down = ev.down if rows is None else take_rows(ev.down, rows)
     norm = row_norms(chosen)
     keep = finite_rows(down) & (norm > 0)
     if np.count_nonzero(keep) < MIN_QUASI_STATIC:
         return None
     if not keep.all():
-        chosen, down, norm = chosen[keep], down[keep], norm[keep]
+        chosen, down, norm = take_rows(chosen, keep), take_rows(down, keep), norm[keep]
     unit = chosen / norm[:, None]
     dip = np.degrees(np.arcsin(np.clip(np.einsum("ij,ij->i", unit, down), -1.0, 1.0)))
     return dip - dip.mean()
@@ -231,9 +231,9 @@ def motion_figures(
         "reference_holdout_consistency_deg": None,
     }
     if train_candidate is not None and test.any():
-        test_raw = raw[test]  # each field on the held-out rows only, and its departures once for both figures
+        test_raw = take_rows(raw, test)  # each field on the held-out rows only, its departures once for both
         held = _departures_deg(train_candidate.apply(test_raw), ev, test)
-        reference_held = _departures_deg(ref_field[test], ev, test)
+        reference_held = _departures_deg(take_rows(ref_field, test), ev, test)
         figures["holdout_consistency_deg"] = _rms(held)
         figures["reference_holdout_consistency_deg"] = _rms(reference_held)
         figures["holdout_margin_deg"] = _margin(held, reference_held)

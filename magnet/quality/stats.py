@@ -4,7 +4,9 @@
 partition; ``median`` here gives the same number (bit for bit: the middle value, or the mean of the two middle values
 (a + b) / 2) from one partition at n // 2, whose lower part holds the other middle value as its largest.
 ``np.cov`` of an (N, 3) array copies and reduces it in its row layout; ``covariance`` works on the three contiguous
-columns (the same covariance to within a few units in the last place).
+columns (the same covariance to within a few units in the last place). ``rows[mask]`` of an (N, 3) array copies
+row by row through numpy's general boolean indexing, several times slower than ``np.compress`` (``take_rows``), which
+copies the same rows.
 """
 
 from __future__ import annotations
@@ -38,3 +40,8 @@ def covariance(points: np.ndarray) -> np.ndarray:
     columns = np.ascontiguousarray(np.asarray(points, dtype=float).T)
     centred = columns - columns.mean(axis=1, keepdims=True)
     return (centred @ centred.T) * (1.0 / (len(points) - 1))
+
+
+def take_rows(rows: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``rows[mask]`` for an array (N, ...) and a bool mask (N,): the same copy, faster (see the module docstring)."""
+    return np.compress(mask, rows, axis=0)
