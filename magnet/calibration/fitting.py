@@ -15,6 +15,7 @@ from magnet.calibration.ellipsoid import ellipsoid
 from magnet.calibration.gyro_ellipsoid import gyro_ellipsoid
 from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
+from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import unit_hint
 
 #: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
@@ -127,15 +128,18 @@ def fit(
     )
     mag = np.asarray(mag, dtype=float)
     acc_arr = None if acc is None else np.asarray(acc, dtype=float)
+    test = _holdout_mask(len(mag))
     if method is Method.GYRO_ELLIPSOID and gyr is not None and period_s is not None:
-        holdout = _gyro_holdout(mag, np.asarray(gyr, dtype=float), period_s, unit, field_ut)
+        holdout = _gyro_holdout(mag, np.asarray(gyr, dtype=float), period_s, unit, field_ut, test)
     else:
-        holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes, shape)
+        holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes, shape, test)
     to_ut = ut_per_unit(unit)
     geometry = _METHODS[method][1]
+    corrected = calibration.apply(mag)  # for the figures of assess and of motion
     quality = assess(
         mag,
         calibration,
+        corrected=corrected,
         geometry=geometry,
         acc=None,
         expected_field_ut=field_ut,
@@ -148,10 +152,11 @@ def fit(
             mag,
             calibration,
             ev,
-            _holdout_mask(len(mag)),
+            test,
             holdout[1] if holdout else None,
             reference or IDENTITY,
             "the calibration in force" if reference else "no calibration",
+            corrected,
         )
         quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
@@ -185,7 +190,8 @@ def _gate(quality: Quality, thresholds: GateThresholds | None, method: Method) -
 
 def _holdout_mask(count: int) -> np.ndarray:
     """(count,) bool: every HOLDOUT_EVERY-th block of HOLDOUT_BLOCK samples, the held-out test set."""
-    return (np.arange(count) // HOLDOUT_BLOCK) % HOLDOUT_EVERY == HOLDOUT_EVERY - 1
+    period = np.arange(HOLDOUT_BLOCK * HOLDOUT_EVERY) // HOLDOUT_BLOCK == HOLDOUT_EVERY - 1
+    return np.resize(period, count)  # the pattern repeats every HOLDOUT_EVERY blocks
 
 
 def _holdout(
@@ -196,40 +202,43 @@ def _holdout(
     field_ut: float | None,
     robust: bool,
     whole: Shape | None = None,
+    test: np.ndarray | None = None,
 ) -> tuple[np.ndarray, Calibration] | None:
     """(test samples, calibration fitted on the rest): every HOLDOUT_EVERY-th block of samples is the test set.
 
     ``whole``: the shape fitted to every sample. The iterative methods (``_WARM_STARTED``) start the held-out fit
     from it, and stop at HOLDOUT_TOLERANCE: the fit is still of the training samples alone (the same robust steps,
     the same minimum), found in fewer iterations (docs/front-door.md, "Fit speed": within 1e-4 uT of the cold fit,
-    the held-out residual within 1e-5 uT)."""
-    test = _holdout_mask(len(mag))
-    train_acc = None if acc is None else acc[~test]
+    the held-out residual within 1e-5 uT). ``test``: ``_holdout_mask(len(mag))``, when the caller has it already."""
+    test = _holdout_mask(len(mag)) if test is None else test
+    train = ~test
+    train_acc = None if acc is None or method not in _READS_ACC else take_rows(acc, train)  # the others never use it
     try:
         if whole is not None and method in _WARM_STARTED:
-            shape = _WARM_STARTED[method](mag[~test], train_acc, robust, whole, HOLDOUT_TOLERANCE)
-            train_cal = _finish(shape, method, unit, field_ut, int((~test).sum()))
+            shape = _WARM_STARTED[method](take_rows(mag, train), train_acc, robust, whole, HOLDOUT_TOLERANCE)
+            train_cal = _finish(shape, method, unit, field_ut, int(train.sum()))
         else:
             train_cal, _ = fit_shape(
-                mag[~test], method, acc=train_acc, unit=unit, field_ut=field_ut, robust_extremes=robust
+                take_rows(mag, train), method, acc=train_acc, unit=unit, field_ut=field_ut, robust_extremes=robust
             )
     except FitError:
         return None
-    return mag[test], train_cal
+    return take_rows(mag, test), train_cal
 
 
 def _gyro_holdout(
-    mag: np.ndarray, gyr: np.ndarray, period_s: float, unit: str, field_ut: float | None
+    mag: np.ndarray, gyr: np.ndarray, period_s: float, unit: str, field_ut: float | None, test: np.ndarray
 ) -> tuple[np.ndarray, Calibration] | None:
     """``_holdout`` for gyro-ellipsoid: its windows of consecutive samples are taken inside the kept blocks only."""
-    test = _holdout_mask(len(mag))
     try:
         shape = gyro_ellipsoid(mag, gyr, period_s, keep=~test)
     except FitError:
         return None
-    return mag[test], _finish(shape, Method.GYRO_ELLIPSOID, unit, field_ut, int((~test).sum()))
+    return take_rows(mag, test), _finish(shape, Method.GYRO_ELLIPSOID, unit, field_ut, int((~test).sum()))
 
 
+#: the methods whose shape depends on the accelerometer's samples
+_READS_ACC = frozenset({Method.ELLIPSOID_ALIGN})
 #: methods whose held-out fit starts from the fit of every sample: (mag, acc, robust, start, tolerance) -> Shape
 _WARM_STARTED: dict[Method, Callable[[np.ndarray, np.ndarray | None, bool, Shape, float], Shape]] = {
     Method.ELLIPSOID: ellipsoid,

@@ -64,12 +64,13 @@ def coverage(directions: np.ndarray, *, field_points_down: bool = True) -> Cover
     grouped and ordered by how many cells each phrase would fill.
     """
     vectors = np.asarray(directions, dtype=float).reshape(-1, 3)
-    # zero and non-finite rows ignored; the nearest centre is the largest dot product, which no positive scale of a
-    # row changes: no need to normalise
-    vectors = vectors[np.einsum("ij,ij->i", vectors, vectors) > 0]
     hit = np.zeros(len(_CENTRES), dtype=bool)
     for start in range(0, len(vectors), COVERAGE_CHUNK):  # a chunk at a time: done once every cell is hit
-        hit[np.argmax(vectors[start : start + COVERAGE_CHUNK] @ _CENTRES.T, axis=1)] = True
+        chunk = vectors[start : start + COVERAGE_CHUNK]
+        # zero and non-finite rows ignored (in the chunk: the rest is not looked at once every cell is hit); the
+        # nearest centre is the largest dot product, which no positive scale of a row changes: no need to normalise
+        chunk = chunk[np.einsum("ij,ij->i", chunk, chunk) > 0]
+        hit[np.argmax(chunk @ _CENTRES.T, axis=1)] = True
         if hit.all():
             break
     empty = _CENTRES[~hit] * (1.0 if field_points_down else -1.0)

@@ -13,6 +13,7 @@ import numpy as np
 
 from magnet.model import Calibration, Quality
 from magnet.quality.coverage import coverage, heading_coverage
+from magnet.quality.stats import covariance
 from magnet.units import ut_per_unit
 
 
@@ -27,7 +28,9 @@ class Geometry(enum.Enum):
 def scatter_condition(points: np.ndarray) -> float:
     """sqrt(largest / smallest eigenvalue) of the covariance of points (N, d); inf when they are degenerate."""
     points = np.asarray(points, dtype=float)
-    eig = np.linalg.eigvalsh(np.cov(points, rowvar=False))
+    if len(points) < 2:
+        return math.inf
+    eig = np.linalg.eigvalsh(covariance(points))
     if eig[0] <= eig[-1] * 1e-24 or eig[-1] <= 0:
         return math.inf
     return float(math.sqrt(eig[-1] / eig[0]))
@@ -72,6 +75,7 @@ def assess(
     fitted_radius_ut: float | None = None,
     holdout: tuple[np.ndarray, Calibration] | None = None,
     field_points_down: bool = True,
+    corrected: np.ndarray | None = None,
 ) -> Quality:
     """Figures of merit of ``calibration`` on raw samples (N, 3) in its raw unit.
 
@@ -79,11 +83,11 @@ def assess(
     fitted_radius_ut: the fitted radius before any scaling to the expected field, uT (None when the raw unit has no
     uT scale). holdout: (raw_test (M, 3), calibration fitted without them), scored against its own field strength.
     Returns the ``Quality`` (its map: the keys listed in docs/interfaces.md plus ``geometry`` and ``residual_rms`` in
-    the output unit).
+    the output unit). corrected: ``calibration.apply(raw)`` when the caller has it (None: computed here).
     """
     geometry = Geometry(geometry)
     raw = np.asarray(raw, dtype=float)
-    corrected = calibration.apply(raw)
+    corrected = calibration.apply(raw) if corrected is None else corrected
     to_ut = ut_per_unit(calibration.output_unit)
     res = _residuals(corrected, _reference(corrected, calibration, geometry), geometry, to_ut)
     cov = (

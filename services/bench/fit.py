@@ -36,8 +36,9 @@ def synthetic_tumble(n: int = SAMPLES, seed: int = 0) -> tuple[np.ndarray, np.nd
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(n, 4))
     w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
-    down = np.column_stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])  # world down in body
-    north = np.column_stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)])
+    # world north and down in body axes: the first and last rows of the body-to-world rotation matrix of q
+    down = np.column_stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
+    north = np.column_stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)])
     dip = math.radians(65.0)
     field = 50.0 * (math.cos(dip) * north + math.sin(dip) * down)
     soft = np.eye(3) + np.array([[0.15, 0.05, -0.08], [0.05, -0.12, 0.03], [-0.08, 0.03, 0.1]])
