@@ -7,8 +7,14 @@ its acceleration is known, or when it is ``max_lag_s`` old (a receiver that went
 is fed as acc - R^T a_enu, R the latest attitude this filter gave that sample (carried forward, below). The attitude
 of a sample not yet fed is the filter's latest attitude carried forward by the gyroscope (less the filter's bias
 estimate) over the samples in between: q_i = q_filter * prod_j exp((w_j - b) dt / 2), a fraction of a second of
-integration, so the newest sample is answered at once (causal, no delay on the output). ``VerticalBias`` adds an
-integral term to vqf's heading correction: the gyroscope's bias about the vertical (docs/gyro-calibration.md).
+integration, so the newest sample is answered at once (causal, no delay on the output).
+
+After each piece fed (docs/aiding.md): vqf's rest detection is off while the fixes say the vehicle moves, and
+travel counts towards a new reference field (``travelled``); where the velocity explains the accelerometer (a
+vehicle: ``magnet.fusion_drift.Explained``) vqf's accelerometer time constant is the aided vehicle's
+(``magnet.aiding.vehicle_tau_acc_s``) and a Kalman filter of the heading's drift (``magnet.fusion_drift.HeadingDrift``)
+gives vqf its gyroscope bias and heading correction; elsewhere ``VerticalBias`` adds an integral term to vqf's heading
+correction (docs/gyro-calibration.md).
 """
 
 from __future__ import annotations
