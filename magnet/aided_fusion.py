@@ -237,7 +237,8 @@ class AidedFilter:
         self.filter.setTauAcc(tau)
         self.drift.tau_s = tau
         if not vehicle:
-            self.drift = HeadingDrift(self.drift.tau_s, self.drift.bias_sigma)  # starts afresh when it is needed
+            if self.drift.p is not None:  # starts afresh when it is needed again
+                self.drift = HeadingDrift(self.drift.tau_s, self.drift.bias_sigma)
             more = self.vertical.correction(float(self.filter.getDelta()), up, seconds, disturbed)
             self.filter.setBiasEstimate(bias + more)
             return
