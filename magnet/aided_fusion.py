@@ -7,8 +7,14 @@ its acceleration is known, or when it is ``max_lag_s`` old (a receiver that went
 is fed as acc - R^T a_enu, R the latest attitude this filter gave that sample (carried forward, below). The attitude
 of a sample not yet fed is the filter's latest attitude carried forward by the gyroscope (less the filter's bias
 estimate) over the samples in between: q_i = q_filter * prod_j exp((w_j - b) dt / 2), a fraction of a second of
-integration, so the newest sample is answered at once (causal, no delay on the output). ``VerticalBias`` adds an
-integral term to vqf's heading correction: the gyroscope's bias about the vertical (docs/gyro-calibration.md).
+integration, so the newest sample is answered at once (causal, no delay on the output).
+
+After each piece fed (docs/aiding.md): vqf's rest detection is off while the fixes say the vehicle moves, and
+travel counts towards a new reference field (``travelled``); where the velocity explains the accelerometer (a
+vehicle: ``magnet.fusion_drift.Explained``) vqf's accelerometer time constant is the aided vehicle's
+(``magnet.aiding.vehicle_tau_acc_s``) and a Kalman filter of the heading's drift (``magnet.fusion_drift.HeadingDrift``)
+gives vqf its gyroscope bias and heading correction; elsewhere ``VerticalBias`` adds an integral term to vqf's heading
+correction (docs/gyro-calibration.md).
 """
 
 from __future__ import annotations
@@ -20,8 +26,9 @@ from typing import Any
 import numpy as np
 import vqf
 
-from magnet.aiding import VelocityFixes
+from magnet.aiding import VEHICLE_RESIDUAL_MS2, VelocityFixes, vehicle_tau_acc_s
 from magnet.frames import ned_enu, ned_to_body, quaternion_conjugate, quaternion_multiply, quaternion_to_matrix
+from magnet.fusion_drift import Explained, HeadingDrift
 
 #: the longest piece of samples answered from one filter state when no fix comes (s)
 CHUNK_S = 0.1
@@ -60,6 +67,30 @@ def carry_forward(start: np.ndarray, gyr: np.ndarray, bias: np.ndarray, period_s
                       w * d + x * b - y * a + z * c)  # fmt: skip
         out[i] = (w, x, y, z)
     return out
+
+
+def travelled(filter_: Any, seconds: float) -> None:
+    """Count ``seconds`` of travel towards vqf's acceptance of a new reference field, as vqf counts time turning
+    faster than magNewMinGyr: a local disturbance (a magnet, steel nearby) changes as the vehicle moves past it, so a
+    field that kept its norm and dip while the vehicle travelled is the earth's as surely as one that kept them while
+    it turned. Only while the newest field agrees with the candidate (vqf's own test)."""
+    state, params = filter_.state, filter_.params
+    norm, dip = (float(v) for v in np.asarray(state["magNormDip"], dtype=float).reshape(-1)[:2])
+    cand_norm, cand_dip = float(state["magCandidateNorm"]), float(state["magCandidateDip"])
+    if not state["magDistDetected"] or cand_norm <= 0.0:
+        return
+    agrees = abs(norm - cand_norm) < params["magNormTh"] * cand_norm
+    if agrees and abs(dip - cand_dip) < math.radians(params["magDipTh"]):
+        state["magCandidateT"] = float(state["magCandidateT"]) + seconds
+        filter_.state = state
+
+
+def horizontal_bias_sigma(filter_: Any, up: np.ndarray) -> float:
+    """vqf's uncertainty (rad/s, one sigma per axis) of its gyroscope bias about the two horizontal axes, from its
+    bias covariance (body axes, in (0.01 deg/s)^2) and the earth's up axis in body axes (3,)."""
+    cov = np.asarray(filter_.state["biasP"], dtype=float).reshape(3, 3)
+    variance = max(float(np.trace(cov) - up @ cov @ up), 0.0) / 2.0
+    return math.radians(math.sqrt(variance) / 100.0)
 
 
 class VerticalBias:
@@ -116,11 +147,27 @@ class AidedFilter:
         self.pending = np.zeros((0, 18))
         self.disturbed = False
         self.vertical = VerticalBias(params, period_s)
+        defaults = vqf.VQF(period_s).params
+        self.rest_enabled = bool(params.get("restBiasEstEnabled", True))
+        self.tau_acc_s = float(params.get("tauAcc", defaults["tauAcc"]))
+        bias_sigma = math.radians(float(params.get("biasSigmaInit", defaults["biasSigmaInit"])))
+        self.bias_sigma = bias_sigma
+        self.vehicle_tau_s = min(vehicle_tau_acc_s(VEHICLE_RESIDUAL_MS2, bias_sigma), self.tau_acc_s)
+        self.drift = HeadingDrift(self.tau_acc_s, bias_sigma)
+        self.explained = Explained()
 
     def restart(self) -> None:
+        self.release()
         self.filter.resetState()
         self.fixes, self.pending, self.disturbed = VelocityFixes(), np.zeros((0, 18)), False
         self.vertical = VerticalBias(self.params, self.period_s)
+        self.drift = HeadingDrift(self.drift.tau_s, self.drift.bias_sigma)
+        self.explained = Explained()
+
+    def release(self) -> None:
+        """Give the filter back its own settings (rest detection, tauAcc), for samples fed without aiding."""
+        self.filter.setRestBiasEstEnabled(self.rest_enabled)
+        self.filter.setTauAcc(self.tau_acc_s)
 
     def update(
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray
@@ -165,11 +212,41 @@ class AidedFilter:
         fed, self.pending = table[:count], table[count:].copy()
         acc = fed[:, _ACC] - _in_body(fed[:, _GIVEN], self.fixes.acceleration(fed[:, 0]))
         gyr, field = np.ascontiguousarray(fed[:, _GYR]), np.ascontiguousarray(fed[:, _FIELD])
+        standing = self.fixes.standing(float(fed[0, 0]), float(fed[-1, 0]))
+        self.filter.setRestBiasEstEnabled(self.rest_enabled and standing is not False)
         out = self.filter.updateBatch(gyr, np.ascontiguousarray(acc), field)
+        if standing is False:
+            travelled(self.filter, count * self.period_s)
         self.disturbed = bool(np.asarray(out["magDistDetected"]).reshape(-1)[-1])
-        up = quaternion_to_matrix(np.asarray(self.filter.getQuat6D(), dtype=float)[None])[0, 2]
-        disturbed = bool(np.any(out["magDistDetected"]))
-        more = self.vertical.correction(float(self.filter.getDelta()), up, count * self.period_s, disturbed)
-        self.filter.setBiasEstimate(np.asarray(self.filter.getBiasEstimate()[0], dtype=float) + more)
+        self._heading_loop(fed[:, 0], acc, field, out)
         turn = quaternion_multiply(quaternion_conjugate(fed[-1, _TURN]), self.pending[:, _TURN])
         self.pending[:, _TURN] = turn / np.linalg.norm(turn, axis=1, keepdims=True)  # rounding would compound
+
+    def _heading_loop(self, t_s: np.ndarray, acc: np.ndarray, field: np.ndarray, out: dict[str, Any]) -> None:
+        """After a piece was fed (times (n,) s, the accelerometer fed (n, 3) and the field (n, 3), vqf frames, vqf's
+        outputs): where the velocity explains the accelerometer (``Explained``: a vehicle), vqf's accelerometer time
+        constant for a vehicle and the Kalman filter of its heading's drift (``HeadingDrift``: the bias it learns goes
+        into vqf's, its heading offset into vqf's delta); elsewhere vqf's own tauAcc and the integral term of
+        ``VerticalBias``."""
+        rotations = quaternion_to_matrix(np.asarray(out["quat6D"], dtype=float).reshape(-1, 4))
+        disturbed, up, seconds = bool(np.any(out["magDistDetected"])), rotations[-1, 2], len(t_s) * self.period_s
+        bias = np.asarray(self.filter.getBiasEstimate()[0], dtype=float)
+        residual = self.explained.update(acc, rotations[:, 2], seconds)
+        vehicle = vehicle_tau_acc_s(residual, self.bias_sigma) < self.tau_acc_s
+        tau = self.vehicle_tau_s if vehicle else self.tau_acc_s
+        self.filter.setTauAcc(tau)
+        self.drift.tau_s = tau
+        if not vehicle:
+            if self.drift.p is not None:  # starts afresh when it is needed again
+                self.drift = HeadingDrift(self.drift.tau_s, self.drift.bias_sigma)
+            more = self.vertical.correction(float(self.filter.getDelta()), up, seconds, disturbed)
+            self.filter.setBiasEstimate(bias + more)
+            return
+        self.vertical.delta = None  # vqf's delta is set here: not a drift for the integral term
+        earth = np.einsum("nij,nj->ni", rotations, field)
+        learnt = self.drift.update(t_s, earth, disturbed, up, horizontal_bias_sigma(self.filter, up) * self.drift.tau_s)
+        self.filter.setBiasEstimate(bias + learnt)
+        if self.drift.p is not None and not disturbed:
+            state = self.filter.state
+            state["delta"] = float(self.drift.x[0])
+            self.filter.state = state

@@ -30,12 +30,40 @@ import dataclasses
 
 import numpy as np
 
+from magnet.units import STANDARD_GRAVITY_MS2
+
 #: a receiver's latency: a fix appears this long after the instant it measured (s)
 DELAY_S = 0.1
 #: half the span of the centred difference (s)
 HALF_WINDOW_S = 0.5
 #: fixes kept (a few seconds of them at any common rate)
 MAX_FIXES = 256
+#: a receiver's velocity noise per axis (m/s, one sigma): the figure the time constants below are derived from
+RECEIVER_NOISE_MS = 0.1
+#: what is left of a vehicle's accelerometer once the velocity's acceleration is removed (RMS of 0.1 s means, m/s^2):
+#: the velocity's noise (sqrt(2) 0.1 / 2h = 0.14) and the vibration 0.1 s means leave (road, rotors); it sets the
+#: accelerometer time constant of an aided vehicle (``vehicle_tau_acc_s``: 1.8 s)
+VEHICLE_RESIDUAL_MS2 = 0.4
+#: the speed under which a fix says the vehicle stands still (m/s): five times a receiver's noise
+STANDING_SPEED_MS = 0.5
+
+
+def vehicle_tau_acc_s(residual_ms2: float, bias_sigma_rads: float) -> float:
+    """The accelerometer time constant (s) for a filter whose linear acceleration the velocity removes, given what
+    is left of the accelerometer (RMS m/s^2 of 0.1 s means, ``magnet.fusion_drift.Explained``) and the gyroscope
+    bias's uncertainty (rad/s, one axis).
+
+    vqf low-passes the accelerometer over tauAcc (3 s) so that a vehicle's own accelerations average out. With them
+    removed, what is left, sigma_a (as an angle: / g), is correlated over about the velocity's window 2h. The tilt
+    then has two errors: the gyroscope's bias not yet learnt, b, turns it by b tau before the accelerometer pulls it
+    back, and the residual, low-passed, leaves sigma_a^2 2h / (2 tau). Their sum is least at
+    tau^3 = sigma_a^2 2h / (4 b^2). With b = vqf's biasSigmaInit (0.5 deg/s): a car (0.2 m/s^2 left: the aiding's
+    noise, sqrt(2) 0.1 / 2h = 0.14, and road vibration) 1.1 s, a multirotor (0.45 m/s^2: rotor vibration, bank
+    onsets the 1 s difference smooths) 1.8 s; at 0.9 m/s^2 it reaches vqf's 3 s, where aiding no longer helps the
+    tilt."""
+    window = 2.0 * HALF_WINDOW_S
+    sigma = residual_ms2 / STANDARD_GRAVITY_MS2
+    return float((sigma**2 * window / (4.0 * bias_sigma_rads**2)) ** (1.0 / 3.0))
 
 
 @dataclasses.dataclass
@@ -77,6 +105,14 @@ class VelocityFixes:
     def known_until_s(self) -> float:
         """The latest time whose acceleration is known (the newest fix's time minus h); -inf before two fixes."""
         return float(self.times_s[-1] - self.half_window_s) if len(self.times_s) >= 2 else -np.inf
+
+    def standing(self, start_s: float, end_s: float, max_speed_ms: float = STANDING_SPEED_MS) -> bool | None:
+        """Whether the vehicle stood still from start_s to end_s (s) by the fixes measured within h of them: True
+        when every one is under ``max_speed_ms``, False when one is not, None when there is none."""
+        near = (self.times_s >= start_s - self.half_window_s) & (self.times_s <= end_s + self.half_window_s)
+        if not near.any():
+            return None
+        return bool(np.all(np.linalg.norm(self.values[near], axis=1) < max_speed_ms))
 
     def acceleration(self, t_s: np.ndarray) -> np.ndarray:
         """dv/dt (N, 3) m/s^2 at times t_s (N,): the centred difference over the fixes; zero where the window is

@@ -136,6 +136,8 @@ class Fusion:
 
     def restart(self) -> None:
         """Back to the initial state: attitude, gyro bias and magnetic reference forgotten."""
+        if self._aided is not None:
+            self._aided.release()
         self._filter.resetState()
         self._aided = None
         self.samples = 0
@@ -181,6 +183,8 @@ class Fusion:
         if self._aided is not None and t_s is not None:
             vel = np.full((len(gyr), 3), np.nan) if vel_ned_ms is None else vel_ned_ms
             return self._aided.update(gyr, acc, field, t_s, vel)
+        if self._aided is not None:  # a batch without times after aided ones: vqf with its own settings
+            self._aided.release()
         out = self._filter.updateBatch(gyr, acc, field)
         return out["quat9D"], out["magDistDetected"]
 

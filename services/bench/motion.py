@@ -266,3 +266,26 @@ def run_motion_benchmark() -> str:
         lines.append(f"{trial:<42}{estimator:<34}{rms:>8.3f}")
     lines.append(f"benchmark time {time.perf_counter() - started:.1f} s")
     return "\n".join(lines)
+
+
+def aided_across_seeds(
+    seeds: Iterable[int], trajectories: Iterable[Trajectory] = (Trajectory.CAR, Trajectory.MULTIROTOR)
+) -> str:
+    """The causal velocity-aided heading RMS (deg) of the moving simulator on other seeds (each seed draws another
+    sensor and other flights), one line per seed, as the bench scores its own: whether a figure holds on data the
+    filter was not built on (docs/aiding.md; about 3 s per trajectory and seed):
+    ``python -c "from services.bench import motion; print(motion.aided_across_seeds(range(1, 11)))"``."""
+    chosen = sorted(trajectories, key=lambda t: t.value)
+    lines = ["seed  " + "".join(f"{t.value:>14}" for t in chosen)]
+    for seed in seeds:
+        settings = SimulatorSettings(seed=seed)
+        errors = simulated_sensor(settings)
+        cells = []
+        for trajectory in chosen:
+            run = moving_run(trajectory, errors, settings)
+            field = _simulator_calibration(run, errors, settings)[0].apply(run.mag_ut)
+            scored = (run.t_s >= settings.settle_s) & (np.abs(run.pitch_deg) < MAX_PITCH_DEG)
+            error = hd.angle_difference_deg(_aided(run, field, offline=False), run.magnetic_heading_deg)[scored]
+            cells.append(f"{float(np.sqrt(np.mean(error**2))):>14.3f}")
+        lines.append(f"{seed:<6}" + "".join(cells))
+    return "\n".join(lines)
