@@ -160,4 +160,4 @@ def gyro_ellipsoid(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, keep:
     unit = matrix / np.cbrt(np.linalg.det(matrix))
     radius = float(np.median(np.linalg.norm((mag[used] - offset) @ unit.T, axis=1)))
     note = f"magnetometer {1e3 * lag * period_s:+.0f} ms behind the gyroscope" if lag else ""
-    return Shape(offset, unit, radius, note)
+    return Shape(offset, unit, radius, note, lag * period_s)

@@ -35,6 +35,7 @@ import numpy as np
 
 from magnet import frames, fusion
 from magnet.frames import quaternion_to_matrix
+from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration, Quality
 
 #: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
@@ -55,13 +56,22 @@ class MotionEvidence:
 
     down: (N, 3) unit down direction in body axes (NaN rows where unknown); attitude: (N, 4) body -> earth quats from
     the gyroscope filter, or None without a gyroscope; source: "fused gravity" or "quasi-static samples";
-    period_s: the sample period with a gyroscope (None: the direction is judged over every row at once).
+    period_s: the sample period with a gyroscope (None: the direction is judged over every row at once);
+    gyr_rads: (N, 3) the gyroscope's rates, or None.
     """
 
     down: np.ndarray
     attitude: np.ndarray | None
     source: str
     period_s: float | None = None
+    gyr_rads: np.ndarray | None = None
+
+    def applied(self, calibration: Calibration, raw: np.ndarray) -> np.ndarray:
+        """The field (N, 3) as the compass's filter gets it from ``calibration``: corrected, and turned forward over
+        the magnetometer's delay the record carries (``magnet.mag_delay``) where the rates are known."""
+        field = calibration.apply(raw)
+        lag = record_lag_s(calibration)
+        return field if not lag or self.gyr_rads is None else advance_field(field, self.gyr_rads, lag)
 
     @property
     def known(self) -> np.ndarray:
@@ -85,7 +95,8 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
         if period_s is None:
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
-        return MotionEvidence(frames.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity", period_s)
+        down = frames.down_in_body(fused.quat_wxyz)
+        return MotionEvidence(down, fused.quat_wxyz, "fused gravity", period_s, np.asarray(gyr_rads, dtype=float))
     down = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
     return MotionEvidence(np.where(quasi_static(acc)[:, None], down, np.nan), None, "quasi-static samples")
 
@@ -173,7 +184,7 @@ def motion_figures(
     fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
     reasons name it ("the calibration in force", "no calibration"). With a calibration in force the fit must also
     beat no calibration (``none_*`` figures); each comparison with its margin (``margin_deg``)."""
-    field, ref_field = candidate.apply(raw), reference.apply(raw)
+    field, ref_field = ev.applied(candidate, raw), ev.applied(reference, raw)
     dip_spread = dip_spread_deg(field, ev.down)
     figures: dict[str, Any] = {
         "dip_spread_deg": dip_spread,
@@ -188,7 +199,7 @@ def motion_figures(
         "reference_holdout_consistency_deg": None,
     }
     if train_candidate is not None and test.any():
-        held = train_candidate.apply(raw)
+        held = ev.applied(train_candidate, raw)
         figures["holdout_consistency_deg"] = consistency_deg(held, ev, test)
         figures["reference_holdout_consistency_deg"] = consistency_deg(ref_field, ev, test)
         figures["holdout_margin_deg"] = margin_deg(held, ref_field, ev, test)
