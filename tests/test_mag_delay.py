@@ -86,3 +86,13 @@ def test_the_fit_finds_the_delay_and_the_compass_applies_it(late_run) -> None:
     offline = fusion.fuse_offline(run.gyr_rads, run.acc_ms2, advance_field(field, run.gyr_rads, 0.03), 1 / RATE_HZ)
     plain = fusion.fuse_offline(run.gyr_rads, run.acc_ms2, field, 1 / RATE_HZ)
     assert _rms(run, offline.heading_deg) < 0.6 * _rms(run, plain.heading_deg)
+
+
+def test_the_fit_keeps_the_lag_that_fits_best_even_past_a_bump(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A slow recording's misfit need not fall steadily from no lag to the true one: every lag is tried."""
+    from magnet.calibration import gyro_ellipsoid
+
+    misfit = {0: 0.5, 1: 0.6, -1: 0.7, 2: 0.1, -2: 0.8, 3: 0.3, -3: 0.9}
+    monkeypatch.setattr(gyro_ellipsoid, "_fit_at", lambda *args: (np.eye(3), np.zeros(3), misfit[args[-1]]))
+    lag, (_, _, ratio) = gyro_ellipsoid._best_lag(np.zeros((9, 3)), np.zeros((9, 3, 3)), (None, None), None, 3)
+    assert (lag, ratio) == (2, 0.1)
