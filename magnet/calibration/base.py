@@ -54,12 +54,14 @@ MAX_SCATTER_FOR_3D = 50.0
 
 @dataclasses.dataclass(frozen=True)
 class Shape:
-    """What a method found, before scaling to the output unit: |matrix @ (u - offset)| ~ radius (raw unit)."""
+    """What a method found, before scaling to the output unit: |matrix @ (u - offset)| ~ radius (raw unit).
+    mag_lag_s: how far the magnetometer's readings come behind the gyroscope's (s; gyro-ellipsoid finds it)."""
 
     offset: np.ndarray
     matrix: np.ndarray
     radius: float
     note: str = ""
+    mag_lag_s: float = 0.0
 
 
 def check_samples(mag: np.ndarray, method: Method) -> np.ndarray:

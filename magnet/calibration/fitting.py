@@ -69,6 +69,7 @@ def _finish(shape: Shape, method: Method, unit: str, field_ut: float | None, cou
         sample_count=count,
         unit=unit,
         output_unit=output_unit,
+        quality=Quality(extra={"mag_lag_s": shape.mag_lag_s}) if shape.mag_lag_s else Quality(),
     )
 
 
@@ -161,6 +162,8 @@ def fit(
         quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
         quality = quality.with_extra(note=shape.note)
+    if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.mag_delay)
+        quality = quality.with_extra(mag_lag_s=shape.mag_lag_s)
     accepted, reason = _gate(quality, gate, method)
     hint = None if accepted or geometry is not Geometry.SPHERE else unit_hint(shape.radius, to_ut, field_ut)
     if hint:

@@ -118,17 +118,18 @@ def _fit_at(scaled: np.ndarray, attitudes: np.ndarray, spans: _Spans, used: np.n
 def _best_lag(
     scaled: np.ndarray, attitudes: np.ndarray, spans: _Spans, used: np.ndarray, most: int
 ) -> tuple[int, _Solution]:
-    """(lag, its ``_solve``): from no lag, step by one sample while the misfit (least eigenvalue ratio) falls."""
+    """(lag, its ``_solve``): the lag within +-``most`` samples whose misfit (least eigenvalue ratio) is least, the
+    smaller lag on a tie. Every lag is tried: on a slow recording the misfit is not monotone in the lag, and a walk
+    from none that stops where it first rises can stop at none (BROAD trial 05: none instead of 14 ms, and the
+    record then made heading worse: docs/broad-motion.md)."""
     best = (0, _fit_at(scaled, attitudes, spans, used, 0))
-    for direction in (1, -1):
-        lag = direction
-        while abs(lag) <= most:
+    for lag in (lag for step in range(1, most + 1) for lag in (step, -step)):
+        try:
             trial = _fit_at(scaled, attitudes, spans, used, lag)
-            if trial[2] >= best[1][2]:
-                break
-            best, lag = (lag, trial), lag + direction
-        if best[0] != 0:
-            break
+        except FitError:  # the windows at the ends that a lag pushes out of the samples
+            continue
+        if trial[2] < best[1][2]:
+            best = (lag, trial)
     return best
 
 
@@ -160,4 +161,4 @@ def gyro_ellipsoid(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, keep:
     unit = matrix / np.cbrt(np.linalg.det(matrix))
     radius = float(np.median(np.linalg.norm((mag[used] - offset) @ unit.T, axis=1)))
     note = f"magnetometer {1e3 * lag * period_s:+.0f} ms behind the gyroscope" if lag else ""
-    return Shape(offset, unit, radius, note)
+    return Shape(offset, unit, radius, note, lag * period_s)

@@ -9,6 +9,7 @@ import numpy as np
 
 from magnet import signing, wire
 from magnet.bounded import Recent
+from magnet.mag_delay import record_lag_s
 
 #: devices remembered as refused between two asks of the calibrators (a flood beyond: one query for all)
 MAX_REFUSED = 1024
@@ -96,6 +97,13 @@ def calibration_rows(
     matrices = np.array([c.calibration.matrix if c else _EYE3 for c in cals]).reshape(-1, 3, 3)
     calibrated = np.array([c is not None for c in cals], dtype=bool)
     return np.repeat(offsets, counts, axis=0), np.repeat(matrices, counts, axis=0), np.repeat(calibrated, counts)
+
+
+def lag_rows(cals: list[wire.DeviceCalibration | None], counts: np.ndarray) -> np.ndarray | None:
+    """Per sample (S,) the magnetometer's delay behind the gyroscope (s) its batch's calibration carries
+    (``magnet.mag_delay``), or None when no batch's calibration carries one."""
+    lags = [record_lag_s(c.calibration) if c else 0.0 for c in cals]
+    return np.repeat(np.asarray(lags, dtype=float), counts) if any(lags) else None
 
 
 def motor_rows(cals: list[wire.DeviceCalibration | None], columns: wire.RawColumns) -> np.ndarray | None:

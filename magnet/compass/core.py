@@ -22,7 +22,7 @@ import numpy as np
 from magnet import heading as hd
 from magnet import signing, wire
 from magnet.bounded import Recent
-from magnet.compass.calibrations import CalibrationsInForce, calibration_rows, motor_rows
+from magnet.compass.calibrations import CalibrationsInForce, calibration_rows, lag_rows, motor_rows
 from magnet.compass.earth import utc_date
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
@@ -31,6 +31,7 @@ from magnet.compass.tilt import Headings, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.frames import rotate_heading, to_magnetic_ned
+from magnet.mag_delay import advance_field
 from magnet.shard import EVERY_DEVICE, Shard
 
 log = logging.getLogger("magnet.compass")
@@ -218,7 +219,7 @@ class CompassCore:
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
         out = compute_headings(raw.mag_ut, raw.acc_ms2, offsets, matrices, calibrated, motor_rows(cals, raw))
-        fused = self._fuse(raw, out, where.declination_deg)
+        fused = self._fuse(raw, out, where.declination_deg, lag_rows(cals, raw.counts))
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
             dip = hd.dip_angle_deg(out.field_ut, gravity)
@@ -238,14 +239,19 @@ class CompassCore:
             None if quat is None else rotate_heading(quat, where.declination_deg),
         )
 
-    def _fuse(self, raw: wire.RawColumns, out: Headings, declination_deg: np.ndarray) -> FusedColumns:
+    def _fuse(
+        self, raw: wire.RawColumns, out: Headings, declination_deg: np.ndarray, lags: np.ndarray | None
+    ) -> FusedColumns:
         """The per-device filters run on the batches that carry a gyroscope (``magnet.compass.filters``), aided by
         the velocity where a batch carries one (turned to magnetic north by the declination of the device's place);
-        bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``)."""
+        bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``lags``
+        (S,) s: the magnetometer's delay the calibration carries; the filters get the field turned forward over it
+        (``magnet.mag_delay``)."""
         vel = raw.vel
         aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
+        field = out.field_ut if lags is None else advance_field(out.field_ut, raw.gyr_rads, lags)
         fused = self.filters.update(
-            raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, out.field_ut, aiding
+            raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding
         )
         for cause, count in fused.dropped.items():
             if self.drops.count(f"raw:{cause}"):

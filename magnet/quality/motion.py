@@ -35,6 +35,7 @@ import numpy as np
 
 from magnet import frames, fusion
 from magnet.frames import quaternion_to_matrix
+from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration, Quality
 from magnet.quality.stats import median, take_rows
 
@@ -56,13 +57,29 @@ class MotionEvidence:
 
     down: (N, 3) unit down direction in body axes (NaN rows where unknown); attitude: (N, 4) body -> earth quats from
     the gyroscope filter, or None without a gyroscope; source: "fused gravity" or "quasi-static samples";
-    period_s: the sample period with a gyroscope (None: the direction is judged over every row at once).
+    period_s: the sample period with a gyroscope (None: the direction is judged over every row at once);
+    gyr_rads: (N, 3) the gyroscope's rates, or None.
     """
 
     down: np.ndarray
     attitude: np.ndarray | None
     source: str
     period_s: float | None = None
+    gyr_rads: np.ndarray | None = None
+
+    def applied(self, calibration: Calibration, raw: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """The field as the compass's filter gets it from ``calibration`` for raw samples (K, 3): corrected, and
+        turned forward over the magnetometer's delay the record carries (``magnet.mag_delay``) where the rates are
+        known. rows: (N,) bool, which of the evidence's rows ``raw`` holds (None: all of them)."""
+        return self.turned(calibration, _corrected(calibration, raw), rows)
+
+    def turned(self, calibration: Calibration, field: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """A field (K, 3) corrected by ``calibration`` turned forward over the delay its record carries (the same
+        array when it carries none); rows as in ``applied``."""
+        lag = record_lag_s(calibration)
+        if not lag or self.gyr_rads is None:
+            return field
+        return advance_field(field, self.gyr_rads if rows is None else take_rows(self.gyr_rads, rows), lag)
 
     @property
     def known(self) -> np.ndarray:
@@ -104,7 +121,8 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
         if period_s is None:
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
-        return MotionEvidence(frames.down_in_body(fused.quat_wxyz), fused.quat_wxyz, "fused gravity", period_s)
+        down = frames.down_in_body(fused.quat_wxyz)
+        return MotionEvidence(down, fused.quat_wxyz, "fused gravity", period_s, np.asarray(gyr_rads, dtype=float))
     norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))
     down = -acc / norm[:, None]
     down[~_near_g(norm, QUASI_STATIC_TOL)] = np.nan
@@ -215,8 +233,8 @@ def motion_figures(
     beat no calibration (``none_*`` figures); each comparison with its margin (``margin_deg``). field: candidate's
     corrected field (N, 3) when the caller has it (None: computed here)."""
     raw = np.asarray(raw, dtype=float)
-    field = candidate.apply(raw) if field is None else field
-    ref_field = _corrected(reference, raw)
+    field = ev.turned(candidate, candidate.apply(raw) if field is None else field)
+    ref_field = ev.applied(reference, raw)
     dip_spread = dip_spread_deg(field, ev.down)
     figures: dict[str, Any] = {
         "dip_spread_deg": dip_spread,
@@ -232,7 +250,7 @@ def motion_figures(
     }
     if train_candidate is not None and test.any():
         test_raw = take_rows(raw, test)  # each field on the held-out rows only, its departures once for both
-        held = _departures_deg(train_candidate.apply(test_raw), ev, test)
+        held = _departures_deg(ev.applied(train_candidate, test_raw, test), ev, test)
         reference_held = _departures_deg(take_rows(ref_field, test), ev, test)
         figures["holdout_consistency_deg"] = _rms(held)
         figures["reference_holdout_consistency_deg"] = _rms(reference_held)

@@ -37,6 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-gyro", action="store_true", help="pipeline: devices without gyroscopes (accelerometer tilt, no fusion)"
     )
     parser.add_argument(
+        "--broad-dir",
+        default=None,
+        help="motion: score every BROAD trial (broad_*.npz) of this directory against vqf (docs/broad-motion.md)",
+    )
+    parser.add_argument(
         "--ros2", action="store_true", help="pipeline: the compass's cost of also publishing ROS 2 messages, at --rate"
     )
 
@@ -64,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
         if not args.minutes > 0:
             raise ValueError("--minutes must be positive")
         result = function(minutes=args.minutes)
+    elif args.benchmark == "motion" and getattr(args, "broad_dir", None):
+        result = importlib.import_module("services.bench.motion_broad").run_broad_dir(args.broad_dir)
     elif args.benchmark == "fleet":
         if args.devices < 1:
             raise ValueError("--devices must be positive")

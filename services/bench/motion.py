@@ -32,6 +32,7 @@ from magnet import frames, fusion
 from magnet import heading as hd
 from magnet.calibration import fit
 from magnet.frames import quaternion_to_matrix, to_magnetic_ned
+from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration
 from magnet.simulator import MOVING_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
 
@@ -132,13 +133,16 @@ def broad_rows(data_dir: Path = DATA_DIR, calibrated: bool = False) -> list[tupl
 
 
 def product_field(log: MotionLog, method: str = "ellipsoid") -> tuple[np.ndarray, str]:
-    """The field (N, 3) as the compass would use it after ``magnet fit --method METHOD`` with the motion checks on
-    the log itself: calibrated when the gate accepts the fit, raw when it refuses it; and "accepted" or "refused"."""
+    """The field (N, 3) as the compass's filter gets it after ``magnet fit --method METHOD`` with the motion checks
+    on the log itself: calibrated (and turned forward over the magnetometer's delay the record carries:
+    ``magnet.mag_delay``) when the gate accepts the fit, raw when it refuses it; and "accepted" or "refused"."""
     try:
         calibration = fit(log.mag_ut, method, acc=log.acc_ms2, gyr=log.gyr_rads, period_s=log.period_s)
     except ValueError:
         return log.mag_ut, "refused"
-    return (calibration.apply(log.mag_ut), "accepted") if calibration.accepted else (log.mag_ut, "refused")
+    if not calibration.accepted:
+        return log.mag_ut, "refused"
+    return advance_field(calibration.apply(log.mag_ut), log.gyr_rads, record_lag_s(calibration)), "accepted"
 
 
 @dataclasses.dataclass(frozen=True)

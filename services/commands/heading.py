@@ -32,6 +32,7 @@ from magnet.compass import CompassCore, CoreSettings, Earth, HeadingColumns, Pla
 from magnet.compass.filters import MAX_GAP_S
 from magnet.compass.tilt import Headings
 from magnet.frames import to_magnetic_ned
+from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration
 from magnet.place import Location
 from services.commands.fit import gyro_columns, sample_period_s
@@ -168,9 +169,16 @@ def causal_headings(
 
 
 def offline_headings(
-    table: SampleTable, gyr: np.ndarray, field: np.ndarray, args: argparse.Namespace, earth: Earth, calibrated: bool
+    table: SampleTable,
+    gyr: np.ndarray,
+    field: np.ndarray,
+    args: argparse.Namespace,
+    earth: Earth,
+    calibrated: bool,
+    lag_s: float = 0.0,
 ) -> HeadingColumns:
-    """``--offline``: its own estimator, not the compass's (vqf's offline filter looks ahead over the whole log)."""
+    """``--offline``: its own estimator, not the compass's (vqf's offline filter looks ahead over the whole log);
+    the filter gets the field turned forward over the magnetometer's delay ``lag_s`` (``magnet.mag_delay``)."""
     if table.acc is None:
         raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
     period_s = sample_period_s(table, args.rate)
@@ -179,7 +187,9 @@ def offline_headings(
     if vel is not None:
         t_s = table.numeric("t_s") if "t_s" in table.columns else np.arange(len(vel)) * period_s
         vel = to_magnetic_ned(vel, earth.declination_deg)
-    fused = fusion.fuse_offline(gyr, fusion.acc_in_ms2(table.acc), field, period_s, None, t_s, vel)
+    fused = fusion.fuse_offline(
+        gyr, fusion.acc_in_ms2(table.acc), advance_field(field, gyr, lag_s), period_s, None, t_s, vel
+    )
     down = frames.down_in_body(fused.quat_wxyz)
     dip = hd.dip_angle_deg(field, -down)
     flags = hd.disturbance_flags(field, -down, earth.total_ut, earth.inclination_deg, dip_deg=dip)
@@ -247,7 +257,7 @@ def run(args: argparse.Namespace) -> int:
         if gyr is None:
             raise ValueError(f"{table.path}: --offline needs gyroscope columns gx,gy,gz (rad/s)")
         field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)
-        out = offline_headings(table, gyr, field, args, earth, calibration is not None)
+        out = offline_headings(table, gyr, field, args, earth, calibration is not None, record_lag_s(calibration))
     else:
         out = causal_headings(file_columns(table, gyr, args.rate), calibration, earth, args.window, time.time_ns())
     if calibration and calibration.output_unit != "ut":
