@@ -33,6 +33,12 @@ T_co = TypeVar("T_co", covariant=True)
 
 MODES = ("peer", "client", "router")
 OPEN_RETRY_S = 5.0
+#: set in every session a service opens without a config file (a file's own settings stand). Shared memory off:
+#: with it on (Zenoh 1.10's default), a process that publishes messages of a few kB or more on the same host makes a
+#: 16 MB segment, and every subscriber that received from it keeps that segment mapped after the publisher is gone.
+#: Measured: a bare zenoh-python subscriber grew 19 MB with each new publishing process (337 MB after 15), flat at
+#: 25-32 MB with it off (docs/front-door.md, "Memory per service").
+SESSION_DEFAULTS = {"transport/shared_memory/enabled": "false"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,7 +128,7 @@ def build_config(options: Options, defaults: Mapping[str, str] | None = None) ->
             raise ValueError(f"zenoh config file {path} is not valid: {zenoh_message(exc)}") from None
     else:
         conf = zenoh.Config()
-        for path_key, value in (defaults or {}).items():
+        for path_key, value in {**SESSION_DEFAULTS, **(defaults or {})}.items():
             conf.insert_json5(path_key, value)
     for path_key, value in config_json5(args).items():
         if path_key == "mode" and args.config and not args.mode:
