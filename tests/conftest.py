@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -10,6 +11,21 @@ from helpers import Processes
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DATA_DIR = REPO_ROOT / "data"
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_collection(session: pytest.Session) -> Iterator[None]:
+    """Collecting imports every module the tests use and builds the tests: objects that live to the end of the run.
+    The garbage collector would walk all of them again at each of its full collections (a dozen while collecting,
+    then one every few seconds): it rests while they are made, and afterwards they are moved out of its sight
+    (``gc.freeze``), so its collections see only what the tests themselves make."""
+    gc.disable()
+    try:
+        return (yield)
+    finally:
+        gc.enable()
+        gc.collect()
+        gc.freeze()
 
 
 @pytest.fixture(scope="session")

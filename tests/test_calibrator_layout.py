@@ -6,7 +6,7 @@ import ast
 import re
 from pathlib import Path
 
-from source_trees import parsed
+from source_trees import nodes, parsed
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_MODULE_LINES = 350
@@ -33,7 +33,7 @@ def _imports() -> dict[str, set[str]]:
     graph: dict[str, set[str]] = {}
     for path in sorted((ROOT / "services" / "calibrator").glob("*.py")):
         found: set[str] = set()
-        for node in ast.walk(parsed(path)):
+        for node in nodes(parsed(path)):
             if isinstance(node, ast.ImportFrom) and node.module == "services.calibrator":
                 found |= {alias.name for alias in node.names}
             elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("services.calibrator."):

@@ -207,7 +207,7 @@ def test_devices_interleaved_in_one_drain_fuse_as_each_alone(device):
 def test_compass_aids_with_the_velocity_its_batches_carry_as_magnet_heading_does():
     """One place for velocity aiding: the compass's per-device filter gives what ``fuse_causal`` gives with the
     same velocity turned to magnetic north by the compass's declination, and the car's heading comes back."""
-    run = simulate(SimulatorConfig(trajectory=Trajectory.CAR, rate_hz=RATE_HZ, count=int(40 * RATE_HZ), seed=3))
+    run = simulate(SimulatorConfig(trajectory=Trajectory.CAR, rate_hz=RATE_HZ, count=int(20 * RATE_HZ), seed=3))
     declination = run.earth.declination_deg
     t_ns = 1_000_000_000_000 + np.arange(len(run.t_s), dtype=np.int64) * PERIOD_NS
     raw = [

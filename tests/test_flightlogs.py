@@ -19,7 +19,7 @@ COMPARE = re.compile(r"compare: ([0-9.]+) deg RMS")
 
 @pytest.fixture(scope="module")
 def tlog(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
-    run = simulated_run(count=700)
+    run = simulated_run(count=350, rate_hz=25.0)
     path = tmp_path_factory.mktemp("tlog") / "flight.tlog"
     write_tlog(path, run)
     return path, run

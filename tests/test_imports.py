@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from source_trees import parsed
+from source_trees import nodes, parsed
 
 MAGNET_DIR = Path(__file__).resolve().parents[1] / "magnet"
 FORBIDDEN = ("zenoh", "smbus2", "sqlite3", "_sqlite3")
@@ -60,7 +60,7 @@ def test_no_module_of_magnet_loads_zenoh_smbus2_or_sqlite3():
 
 def _top_level_imports(tree: ast.AST) -> set[str]:
     names = set()
-    for node in ast.walk(tree):
+    for node in nodes(tree):
         if isinstance(node, ast.Import):
             names |= {alias.name.split(".")[0] for alias in node.names}
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -71,7 +71,7 @@ def _top_level_imports(tree: ast.AST) -> set[str]:
 def _clock_calls(tree: ast.AST) -> list[str]:
     return [
         f"line {node.lineno}: time.{node.func.attr}()"
-        for node in ast.walk(tree)
+        for node in nodes(tree)
         if isinstance(node, ast.Call)
         and isinstance(node.func, ast.Attribute)
         and isinstance(node.func.value, ast.Name)

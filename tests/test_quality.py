@@ -32,8 +32,10 @@ def unit_vectors(rng: np.random.Generator, n: int) -> np.ndarray:
 def test_cells_are_nearly_equal_area():
     centres = fibonacci_centres()
     rng = np.random.default_rng(0)
-    cells = np.argmax(unit_vectors(rng, 200_000) @ centres.T, axis=1)
-    share = np.bincount(cells, minlength=CELL_COUNT) / 200_000
+    # 500 directions a cell: each share within about 5 % of its area, against a margin of 40 % (a lat-long grid of
+    # 100 cells gives 0.22 to 1.6, and fails; these cells give 0.88 to 1.12)
+    cells = np.argmax(unit_vectors(rng, 50_000) @ centres.T, axis=1)
+    share = np.bincount(cells, minlength=CELL_COUNT) / 50_000
     assert share.min() > 0.6 / CELL_COUNT and share.max() < 1.4 / CELL_COUNT
 
 

@@ -26,10 +26,9 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 LOCATION = "50.45,30.52"
 
 
-@pytest.fixture(scope="module")
-def tumble(tmp_path_factory):
-    """An emulated LSM303DLH tumbled through known hard and soft iron: (csv, cal.json)."""
-    folder = tmp_path_factory.mktemp("tumble")
+def _tumble(folder: Path, count: int) -> tuple[Path, Path]:
+    """``count`` samples of an emulated LSM303DLH tumbled through known hard and soft iron, and their fit: (csv,
+    cal.json) in ``folder``."""
     csv, cal = folder / "tumble.csv", folder / "tumble.json"
     with open(csv, "w") as out, contextlib.redirect_stdout(out):
         assert (
@@ -42,7 +41,7 @@ def tumble(tmp_path_factory):
                     "--trajectory",
                     "tumble",
                     "--count",
-                    "3000",
+                    str(count),
                     "--hard-iron",
                     "25,-40,12",
                     "--soft-iron",
@@ -57,6 +56,18 @@ def tumble(tmp_path_factory):
         )
     assert main(["fit", str(csv), "--method", "ellipsoid", "--location", LOCATION, "--out", str(cal)]) == 0
     return csv, cal
+
+
+@pytest.fixture(scope="module")
+def tumble(tmp_path_factory):
+    """3000 samples: enough for the figures the reports are checked on."""
+    return _tumble(tmp_path_factory.mktemp("tumble"), 3000)
+
+
+@pytest.fixture
+def short_tumble(tmp_path_factory):
+    """A short tumble and its (accepted) fit, for the refusals, which come before any figure is made."""
+    return _tumble(tmp_path_factory.mktemp("short"), 300)
 
 
 @pytest.mark.integration  # draws a figure: seconds
@@ -145,8 +156,8 @@ def test_a_rejected_fit_still_gets_its_report_and_the_reason(tmp_path, capsys):
     assert page.read_bytes()[:8] == PNG_MAGIC and not (tmp_path / "c.json").exists()
 
 
-def test_bad_report_requests_say_what_is_wrong(tumble, tmp_path, capsys):
-    csv, cal = tumble
+def test_bad_report_requests_say_what_is_wrong(short_tumble, tmp_path, capsys):
+    csv, cal = short_tumble
     assert main(["report", str(csv), "--calibration", str(cal), "--out", str(tmp_path / "r.svg")]) == 2
     assert "must end in .png, .html, .pdf" in capsys.readouterr().err
     assert (

@@ -25,13 +25,16 @@ def run(trajectory, count=3000, rate_hz=100.0, **kw):
 
 
 def integrate(quat0, gyr_rads, rate_hz):
-    """q_k = q_{k-1} exp(gyr_k dt), as a filter integrates."""
-    steps = rotation_vector_to_quaternion(gyr_rads / rate_hz)
-    out = [np.asarray(quat0, dtype=float)]
-    for step in steps[1:]:
-        q = quaternion_multiply(out[-1], step)
-        out.append(q / np.linalg.norm(q))
-    return np.array(out)
+    """q_k = q_{k-1} exp(gyr_k dt), as a filter integrates: q_k = q_0 exp(gyr_1 dt) ... exp(gyr_k dt), every prefix
+    of the product at once (a scan: after the pass of stride d, entry k holds the product of entries k-2d+1..k, in
+    order), then normalised."""
+    out = rotation_vector_to_quaternion(gyr_rads / rate_hz)
+    out[0] = np.asarray(quat0, dtype=float)
+    stride = 1
+    while stride < len(out):
+        out[stride:] = quaternion_multiply(out[:-stride], out[stride:])
+        stride *= 2
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
 def angle_between_deg(qa, qb):

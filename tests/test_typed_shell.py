@@ -18,7 +18,7 @@ import functools
 from pathlib import Path
 
 import pytest
-from source_trees import parsed
+from source_trees import nodes, parsed
 
 ROOT = Path(__file__).resolve().parents[1]
 SERVICES = ROOT / "services"
@@ -76,7 +76,7 @@ def _target_name(target: ast.expr) -> str | None:
 def untyped_zenoh(tree: ast.AST) -> list[tuple[int, str]]:
     """(line, what) of every zenoh-named parameter, attribute, variable or return annotated with ``Any``."""
     found = []
-    for node in ast.walk(tree):
+    for node in nodes(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
             args = node.args
             every = [*args.posonlyargs, *args.args, *args.kwonlyargs, args.vararg, args.kwarg]
@@ -98,7 +98,7 @@ def undeclared_by_hand(tree: ast.AST) -> list[tuple[int, str]]:
     """(line, what) of every ``.undeclare()`` call."""
     return [
         (node.lineno, "undeclare()")
-        for node in ast.walk(tree)
+        for node in nodes(tree)
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "undeclare"
     ]
 
