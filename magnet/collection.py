@@ -9,13 +9,19 @@ time order with their rates, which the cells lose: its collection also keeps the
 bounded ring (``magnet.sample_runs.RecentRuns``, at most ``run_capacity`` samples, 88 bytes each: 2.6 MB per
 device at the default 30,000), cut into runs at every gap in ``t_ns`` or ``seq``, and fits the longest run with
 ``gyr=`` and ``period_s=`` (the run's median step of ``t_ns``). The cells still give its coverage for progress.
+
+``auto`` (``magnet.calibration.choose``) keeps the ring too, made on the first batch that carries the gyroscope (a
+device without one costs what an ellipsoid collection costs): it fits ``fit_auto`` on the longest run once that run
+holds ``MIN_SAMPLES`` of gyro-ellipsoid, else the ellipsoid on the cells; it is ready when either the run turned
+enough or the cells are covered enough, and a batch without the gyroscope is never counted against it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from magnet.calibration import FitError, Method, fit
+from magnet.calibration import MIN_SAMPLES, FitError, Method
+from magnet.calibration.choose import AUTO, fit_choice, parse_choice
 from magnet.model import Calibration
 from magnet.quality import Coverage, coverage
 from magnet.sample_runs import RUN_CAPACITY, RecentRuns, Run
@@ -44,12 +50,15 @@ def fine_cells(directions: np.ndarray) -> np.ndarray:
 class Collection:
     """Evenly spread samples of one device: mag (K, 3) uT and acc (K, 3) m/s^2 (or none), K <= capacity.
 
-    method: the fit method; session: an operator's session (else automatic collection); a method that needs the
-    gyroscope also keeps ``runs``, the last ``run_capacity`` samples in time order (None for the others)."""
+    method: the fit method, or "auto"; session: an operator's session (else automatic collection); a method that
+    needs the gyroscope also keeps ``runs``, the last ``run_capacity`` samples in time order (None for the others;
+    for auto, None until a batch carries the gyroscope)."""
 
     def __init__(self, method: str, session: bool, capacity: int, run_capacity: int = RUN_CAPACITY) -> None:
-        self.method, self.session, self.capacity = method, session, capacity
-        self.runs = RecentRuns(run_capacity) if Method.parse(method).needs_gyroscope else None
+        self.method, self.session, self.capacity = parse_choice(method), session, capacity
+        self.auto = self.method == AUTO
+        self.run_capacity = run_capacity
+        self.runs = None if self.auto or not Method.parse(self.method).needs_gyroscope else RecentRuns(run_capacity)
         self.no_gyroscope = 0  # batches that came without the gyroscope this collection's method needs
         self.last_fit_written = 0
         self.mag = np.empty((min(capacity, INITIAL_ROOM), 3))
@@ -80,7 +89,10 @@ class Collection:
     ) -> int:
         """Keep the samples of a batch (mag (N, 3) uT, acc (N, 3) or None) whose fine cell is still empty; returns
         how many were kept. With ``runs``: the batch's gyr_rads (N, 3) rad/s, t_ns (N,) int ns and number ``seq``
-        go to the ring too; a batch without them is counted in ``no_gyroscope`` and said in ``last_reason``."""
+        go to the ring too; a batch without them is counted in ``no_gyroscope`` and said in ``last_reason`` (not
+        for auto, whose ring is made by the first batch with them)."""
+        if self.auto and self.runs is None and gyr_rads is not None and t_ns is not None:
+            self.runs = RecentRuns(self.run_capacity)
         if self.runs is not None:
             self._add_run(self.runs, mag, acc, gyr_rads, t_ns, seq)
         self.seen += len(mag)
@@ -117,6 +129,8 @@ class Collection:
         seq: int,
     ) -> None:
         if gyr is None or t_ns is None:
+            if self.auto:
+                return  # the cells still take the batch; the fit goes by them when the runs are too short
             self.no_gyroscope += 1
             self.last_reason = (
                 f"{self.method} needs a gyroscope: {self.no_gyroscope} raw batch(es) of this device came without "
@@ -180,15 +194,19 @@ class Collection:
     def fit(self, field_ut: float | None, now_s: float) -> Calibration | None:
         """Fit the kept samples (records the result or the reason); None when no calibration can be computed.
 
-        field_ut: the expected |B| in uT or None."""
+        field_ut: the expected |B| in uT or None. With ``runs``: the longest run with the gyroscope; for auto, only
+        once it holds gyro-ellipsoid's ``MIN_SAMPLES`` (else the cells, by the ellipsoid)."""
         self.last_fit_kept, self.last_fit_s = self.kept, now_s
+        run = None
+        if self.runs is not None:
+            self.last_fit_written = self.runs.written
+            run = self.runs.longest()
         try:
-            if self.runs is None:
+            if self.runs is None or (self.auto and (run is None or len(run) < MIN_SAMPLES[Method.GYRO_ELLIPSOID])):
                 mag, acc = self.samples()
-                self.last_fit = fit(mag, self.method, acc=acc, unit="ut", field_ut=field_ut)
+                self.last_fit = fit_choice(mag, self.method, acc=acc, unit="ut", field_ut=field_ut)
             else:
-                self.last_fit_written = self.runs.written
-                self.last_fit = _fit_run(self.runs.longest(), self.method, field_ut)
+                self.last_fit = _fit_run(run, self.method, field_ut)
         except FitError as exc:
             self.last_fit, self.last_reason = None, str(exc)
             return None
@@ -208,7 +226,10 @@ class Collection:
 
 
 def _fit_run(run: Run | None, method: str, field_ut: float | None) -> Calibration:
-    """Fit the consecutive samples of ``run`` with the gyroscope; FitError when there is none."""
+    """Fit the consecutive samples of ``run`` with the gyroscope (``method``: gyro-ellipsoid or auto); FitError when
+    there is none."""
     if run is None:
         raise FitError(f"{method} has no consecutive samples with the gyroscope yet: keep the device sending")
-    return fit(run.mag, method, acc=run.acc, unit="ut", field_ut=field_ut, gyr=run.gyr_rads, period_s=run.period_s)
+    return fit_choice(
+        run.mag, method, acc=run.acc, unit="ut", field_ut=field_ut, gyr=run.gyr_rads, period_s=run.period_s
+    )

@@ -32,7 +32,7 @@ def test_without_options_the_settings_are_the_dataclass_defaults():
     settings = _settings()
     assert settings == ServiceSettings()
     fitting = settings.fitting
-    assert (fitting.method, fitting.min_coverage) == ("ellipsoid", 0.8)
+    assert (fitting.method, fitting.min_coverage) == ("auto", 0.8)
     assert (fitting.min_samples, fitting.max_samples) == (150, 1500)
     assert fitting.auto and fitting.max_devices == 10_000 and fitting.expected_field_ut is None
     assert (settings.name, settings.devices, settings.shard, settings.enrol_rate, settings.max_queue) == (
@@ -108,6 +108,6 @@ def test_help_states_each_default_once():
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     text = " ".join(parser.format_help().split())
-    for default in ("(default ellipsoid)", "(default 0.8)", "(default 150)", "(default 10000)", "(default 100000)"):
+    for default in ("(default auto)", "(default 0.8)", "(default 150)", "(default 10000)", "(default 100000)"):
         assert text.count(default) == 1, default
     assert f"(default {Path(default_db_path())})" in text and "--no-auto" in text

@@ -14,7 +14,12 @@ Methods (``Method``), each in its module:
 - ``minmax2d``, ``minmax``, ``sphere``: closed-form fits (``closed_form.py``);
 - ``ellipsoid``: algebraic fit refined by Levenberg-Marquardt, spikes left out (``ellipsoid.py``);
 - ``ellipsoid+align``: the ellipsoid, then the magnetometer-accelerometer rotation (``alignment.py``);
-- ``turntable``: see ``magnet.turntable`` (needs the mounting and table angle of every sample).
+- ``turntable``: see ``magnet.turntable`` (needs the mounting and table angle of every sample);
+- ``gyro-ellipsoid``: the ellipsoid held to the gyroscope's turns, and the magnetometer's delay
+  (``gyro_ellipsoid.py``).
+
+``auto`` (``choose.py``) is a choice, not a method: gyro-ellipsoid or ellipsoid, whichever the gate finds better; the
+record names the method that made it.
 
 ``base.py`` holds the method names, the error and the input checks; ``fitting.py`` the method table and the entry
 points ``fit_shape`` and ``fit`` (quality figures, held-out residual and gate).
@@ -24,10 +29,13 @@ from __future__ import annotations
 
 from magnet.calibration.alignment import MAX_ALIGN_CONDITION, MIN_GRAVITY_SPREAD, align_rotation
 from magnet.calibration.base import MAX_SCATTER_FOR_3D, MIN_SAMPLES, FitError, Method, Shape
+from magnet.calibration.choose import AUTO, CHOICES, fit_auto, fit_choice, parse_choice
 from magnet.calibration.ellipsoid import GROSS_OUTLIER_FACTOR, MAX_OUTLIER_FRACTION, OUTLIER_SIGMAS
 from magnet.calibration.fitting import HOLDOUT_BLOCK, HOLDOUT_EVERY, fit, fit_shape
 
 __all__ = [
+    "AUTO",
+    "CHOICES",
     "GROSS_OUTLIER_FACTOR",
     "HOLDOUT_BLOCK",
     "HOLDOUT_EVERY",
@@ -42,5 +50,8 @@ __all__ = [
     "Shape",
     "align_rotation",
     "fit",
+    "fit_auto",
+    "fit_choice",
     "fit_shape",
+    "parse_choice",
 ]

@@ -1,8 +1,9 @@
 """The collection part of the calibrator: one sample buffer per device (``magnet.collection.Collection``, samples kept
 evenly spread over the sphere, at most ``--max-samples``), for at most ``--max-devices`` devices at once. For a
-method that needs the gyroscope (gyro-ellipsoid) each raw batch's ``gyr_rads``, ``t_ns`` and ``seq`` go to the
-collection too (its ring of recent consecutive samples); a batch without a gyroscope is counted (``no_gyroscope``,
-in the status) and said in the device's progress.
+method that needs the gyroscope (gyro-ellipsoid), and for auto once a batch carries one, each raw batch's
+``gyr_rads``, ``t_ns`` and ``seq`` go to the collection too (its ring of recent consecutive samples); a batch without
+a gyroscope for gyro-ellipsoid is counted (``no_gyroscope``, in the status) and said in the device's progress (auto
+then fits the ellipsoid on the cells).
 
 A device with no calibration in force gets an automatic collection when automatic calibration is on; an operator's
 session opens one of its own (``services.calibrator.sessions``), which the ``--max-devices`` bound never drops. A due
@@ -70,7 +71,7 @@ class Collections:
             collection = self.by_device[device] = Collection(self.settings.method, False, self.settings.max_samples)
             self._say_evicted()
         self.by_device.touch(device)
-        if collection.runs is not None and batch.gyr_rads is None:
+        if collection.runs is not None and not collection.auto and batch.gyr_rads is None:
             self.no_gyroscope += 1
         collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
         return collection
@@ -78,19 +79,22 @@ class Collections:
     def ready(self, collection: Collection, now: float) -> bool:
         """Whether a fit may be tried on a due collection: a session's always; an automatic one once its coverage
         reached --min-coverage, or for a method that needs the gyroscope once its longest run turned about two axes
-        (``Collection.turn_wait``). Else the reason is kept on it, and it waits for more samples."""
+        (``Collection.turn_wait``); auto with a gyroscope: either. Else the reason is kept on it, and it waits for
+        more samples."""
         if collection.session:
             return True
+        waits = []
         if collection.runs is not None:
-            wait = collection.turn_wait(self.settings.min_samples)
-        else:
+            waits.append(collection.turn_wait(self.settings.min_samples))
+        if collection.runs is None or collection.auto:  # auto: the run turned enough, or the cells are covered
             cov = collection.coverage()
-            wait = (
+            waits.append(
                 f"coverage {cov.fraction:.0%} below {self.settings.min_coverage:.0%}: "
                 f"{', '.join(cov.missing) or 'move through more attitudes'}"
                 if cov.fraction < self.settings.min_coverage
                 else ""
             )
+        wait = "" if not all(waits) else "; or ".join(waits)
         if wait:
             collection.postpone(now, wait)
         return not wait

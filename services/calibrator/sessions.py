@@ -14,6 +14,7 @@ from typing import Any
 
 from magnet import wire
 from magnet.calibration import Method
+from magnet.calibration.choose import parse_choice
 from magnet.model import Calibration
 from services.calibrator.collecting import Collections
 from services.calibrator.fitting import Fitter
@@ -71,7 +72,7 @@ class Sessions:
         return outcome
 
     def _start(self, device: str, method: str | None) -> Outcome:
-        chosen = Method.parse(method or self.default_method).value
+        chosen = parse_choice(method or self.default_method)
         if chosen == Method.TURNTABLE.value:  # it needs each sample's known heading and the field's components
             return False, TURNTABLE_REFUSED, {}
         if not self.known(device):

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from magnet import signing
-from magnet.calibration import Method
+from magnet.calibration.choose import AUTO, CHOICES, parse_choice
 from magnet.compass.places import PlaceEntry
 from magnet.compass.places import Places as Places  # the roster's type, named here with the rest of the places modules
 from magnet.geomag import earth_field
@@ -42,9 +42,9 @@ def default_db_path() -> Path:
 
 def _method(value: Any) -> str | None:
     try:
-        Method.parse(value)
+        parse_choice(value)
     except ValueError:
-        return f"must be one of {', '.join(m.value for m in Method)}"
+        return f"must be one of {', '.join(CHOICES)}"
     return None
 
 
@@ -54,10 +54,11 @@ class CalibratorSettings:
     the fit's own), coverage and sample counts, automatic or not, devices collected at once."""
 
     method: str = option(
-        "ellipsoid",
+        AUTO,
         "--method",
         check=_method,
-        help="fit method for automatic calibration (sessions may choose another)",
+        help="fit method for automatic calibration (sessions may choose another); auto: gyro-ellipsoid or ellipsoid, "
+        "whichever the gate finds better, ellipsoid for a device without a gyroscope",
     )
     location: Location | None = option(
         None,

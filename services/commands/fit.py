@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from magnet import fusion
-from magnet.calibration import Method, fit
+from magnet.calibration import Method
+from magnet.calibration.choose import AUTO, CHOICES, fit_choice
 from magnet.model import Calibration
 from magnet.units import FieldUnit
 from services.commands.fit_motor import add_motor_arguments, fit_with_motors
@@ -36,9 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--method",
-        required=True,
-        choices=[m.value for m in Method],
-        help="gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate)",
+        default=AUTO,
+        choices=CHOICES,
+        help="auto (the default): with gx,gy,gz and the sample times, fit gyro-ellipsoid and ellipsoid and keep the "
+        "accepted one (both accepted: the one whose field is more constant on held-out data), else ellipsoid; "
+        "gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate)",
     )
     parser.add_argument(
         "--unit", default="ut", choices=[u.value for u in FieldUnit], help="unit of the mx,my,mz columns (default ut)"
@@ -140,15 +143,18 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
         return _fit_turntable(table, args)
     if args.horizontal is not None or args.vertical is not None:
         raise ValueError("--horizontal/--vertical are for --method turntable only")
-    gyr = gyro_columns(table) if table.acc is not None or args.method == Method.GYRO_ELLIPSOID.value else None
+    auto = args.method == AUTO
+    gyr = gyro_columns(table) if table.acc is not None or args.method in (AUTO, Method.GYRO_ELLIPSOID.value) else None
     if gyr is None and args.method == Method.GYRO_ELLIPSOID.value:
         raise ValueError(f"{table.path}: --method gyro-ellipsoid needs the gyroscope columns gx,gy,gz (rad/s)")
+    if auto and gyr is not None and args.rate is None and "t_s" not in table.columns:
+        gyr = None  # auto without the sample times: the ellipsoid, which needs none
     period = sample_period_s(table, args.rate) if gyr is not None else None
     in_force = load_calibration(args.in_force) if args.in_force else None
     field_ut = expected_field_ut(args)
 
     def fit_mag(mag: np.ndarray) -> Calibration:
-        return fit(
+        return fit_choice(
             mag,
             args.method,
             acc=table.acc,

@@ -21,7 +21,7 @@ from typing import Any
 from rich.console import Console
 
 from magnet import signing, wire
-from magnet.calibration import Method
+from magnet.calibration.choose import parse_choice
 from services.commands.remote_view import (
     calibrate_table,
     calibration_table,
@@ -252,7 +252,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     use_local_pipeline(args)
     wire.validate_device_id(args.device)
     if args.method:
-        Method.parse(args.method)  # a method no calibrator knows: one line here, exit 2
+        parse_choice(args.method)  # a method no calibrator knows: one line here, exit 2
     params = f"action={args.action}" + (f";method={args.method}" if args.method else "")
     if args.action == "rollback":
         params += (f";to={args.to}" if args.to else "") + f";by={_who()}"

@@ -241,7 +241,7 @@ def _event(name: str, data: Any) -> str:
 
 def _parse_action(body: bytes) -> tuple[str, str | None, str | None] | Response:
     """(action, method, rollback target id) from a JSON body, or the 400 response saying what is wrong."""
-    from magnet.calibration import Method
+    from magnet.calibration.choose import parse_choice
 
     try:
         data = loads_bounded(body or b"null", "body")
@@ -256,7 +256,7 @@ def _parse_action(body: bytes) -> tuple[str, str | None, str | None] | Response:
         if not isinstance(method, str):
             return error(400, "method must be a string")
         try:
-            method = Method.parse(method).value
+            method = parse_choice(method)
         except ValueError as exc:
             return error(400, str(exc))
     to = data.get("to")
