@@ -134,6 +134,70 @@ def test_a_gap_in_time_or_in_batch_numbers_restarts_the_run(cut):
     assert inside.longest() is not None and len(inside.longest()) == 3
 
 
-def test_a_method_without_the_gyroscope_keeps_no_ring():
+def test_a_method_without_the_gyroscope_keeps_no_ring_and_auto_none_before_a_gyroscope_is_seen():
     assert Collection("ellipsoid", False, 100).runs is None
     assert Collection("gyro-ellipsoid", True, 100).runs is not None
+    assert Collection("auto", True, 100).runs is None
+
+
+# ------------------------------------------------------------------------------------------------------------ auto
+def test_auto_keeps_the_ring_from_the_first_batch_with_a_gyroscope_and_fits_gyro_ellipsoid_on_it(moving):
+    run, truth = moving
+    collections = Collections(CalibratorSettings())  # the default: auto
+    fitted = []
+    for i, batch in enumerate(_batches(run)):
+        collection = collections.receive(batch, calibrated=False)
+        assert collection is not None and collection.runs is not None
+        now = i * BATCH / RATE_HZ
+        if collection.due(150, now) and collections.ready(collection, now):
+            fitted.append(collection.fit(run.earth.total_ut, now))
+    assert collections.no_gyroscope == 0
+    last = fitted[-1]
+    assert last is not None and last.accepted, last.reason
+    assert last.method in ("gyro-ellipsoid", "ellipsoid") and "chosen by auto" in last.reason
+    assert last.quality["auto_other"]["method"] != last.method
+    np.testing.assert_allclose(last.offset, truth.offset, atol=0.1)
+
+
+def test_auto_without_a_gyroscope_costs_no_ring_counts_nothing_and_fits_the_ellipsoid_on_the_cells(moving):
+    run, truth = moving
+    collections = Collections(CalibratorSettings(method="auto"))
+    fitted = []
+    for i, batch in enumerate(_batches(run)):
+        plain = wire.RawBatch(batch.device, batch.seq, "sim", batch.t_ns, batch.mag_ut, None)  # a magnetometer alone
+        collection = collections.receive(plain, calibrated=False)
+        assert collection is not None and collection.runs is None
+        now = i * BATCH / RATE_HZ
+        if collection.due(150, now) and collections.ready(collection, now):
+            fitted.append(collection.fit(run.earth.total_ut, now))
+    assert collections.no_gyroscope == 0 and collection.no_gyroscope == 0
+    assert "gyroscope" not in collection.last_reason
+    first = next(f for f in fitted if f is not None and f.accepted)
+    assert first.method == "ellipsoid" and "auto_other" not in first.quality.extra
+    np.testing.assert_allclose(first.offset, truth.offset, atol=1.0)
+
+
+def test_auto_with_runs_too_short_fits_the_ellipsoid_on_the_cells(moving):
+    run, _ = moving
+    collection = Collection("auto", True, 1500)
+    for k, batch in enumerate(_batches(run)):  # every batch numbered apart: no run longer than a batch
+        collection.add(batch.mag_ut, None, batch.gyr_rads, batch.t_ns, 2 * k)
+    assert collection.runs is not None and len(collection.runs.longest()) == BATCH
+    record = collection.fit(run.earth.total_ut, 1.0)
+    assert record is not None and record.method == "ellipsoid" and record.accepted, collection.last_reason
+    assert "auto_other" not in record.quality.extra  # the cells hold no rates: the ellipsoid alone
+
+
+def test_a_session_may_start_with_auto():
+    from services.calibrator.fitting import Fitter
+    from services.calibrator.sessions import Sessions
+
+    collections = Collections(CalibratorSettings(auto=False))
+    fitter = Fitter(CalibratorSettings(), lambda device: None)
+    sessions = Sessions("ellipsoid", collections, fitter, lambda d: True, lambda d: None, None, lambda: 1.0)
+    ok, message, _ = sessions.act("dev", "start", "AUTO")
+    assert ok and "auto" in message
+    session = collections.get("dev")
+    assert session is not None and session.method == "auto" and session.runs is None
+    with pytest.raises(ValueError, match="auto, minmax2d"):
+        sessions.act("dev", "start", "best")
