@@ -57,3 +57,13 @@ def test_the_calibrator_fits_an_emulated_gyroscope_edge_with_gyro_ellipsoid(proc
         "calibrate", PLAIN, "status", "--json", *NO_SCOUT, *connect_args(cal_port), "--timeout", "2"
     )
     assert code == 0 and "gyro-ellipsoid needs a gyroscope" in json.dumps(lines), lines
+    # a session may choose auto (the default of magnet fit and of the calibrator): the plain device's batches then
+    # go to its sphere cells and are no longer counted as missing a gyroscope
+    code, lines = magnet_json(
+        "calibrate", PLAIN, "start", "--method", "auto", "--json", *NO_SCOUT, *connect_args(cal_port), "--timeout", "2"
+    )
+    assert code == 0 and lines[0]["ok"] and "auto" in lines[0]["message"], lines
+    code, lines = magnet_json(
+        "calibrate", PLAIN, "status", "--json", *NO_SCOUT, *connect_args(cal_port), "--timeout", "2"
+    )
+    assert code == 0 and "gyro-ellipsoid needs a gyroscope" not in json.dumps(lines), lines
