@@ -53,12 +53,6 @@ def parse_choice(value: Method | str) -> str:
         raise ValueError(f"unknown calibration method {value!r}: use one of {', '.join(CHOICES)}") from None
 
 
-def needs_runs(choice: str) -> bool:
-    """Whether a collection for ``choice`` keeps consecutive samples with their rates (gyro-ellipsoid always, auto
-    when the device sends a gyroscope)."""
-    return choice == AUTO or Method.parse(choice).needs_gyroscope
-
-
 def fit_choice(mag: np.ndarray, choice: Method | str, **options: Any) -> Calibration:
     """``fit_auto`` for "auto", else ``fit`` with that method; options: those of ``fit``."""
     chosen = parse_choice(choice)

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from magnet.calibration import Method, fit, fit_shape
+from magnet.calibration import Method, fit, fit_auto, fit_shape
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 
 log = logging.getLogger(__name__)
@@ -87,7 +87,8 @@ def run_fit_benchmark() -> str:
 
 
 def gyro_row(runs: int = 3) -> str:
-    """The gyro-ellipsoid's row: 5 minutes at 100 Hz of a simulated fast tumble, with its gate (ms)."""
+    """The gyro-ellipsoid's row: 5 minutes at 100 Hz of a simulated fast tumble, with its gate (ms); then auto's
+    (both fits with their gates, and the choice) on the same samples."""
     errors = SensorErrors.random(np.random.default_rng(0), 50.0, hard_iron_max_ratio=1.0, soft_iron_max=0.1)
     run = simulate(
         SimulatorConfig(trajectory=Trajectory.FAST_TUMBLE, rate_hz=GYRO_RATE_HZ, count=GYRO_SAMPLES, errors=errors)
@@ -95,9 +96,11 @@ def gyro_row(runs: int = 3) -> str:
     mag, gyr, period = run.mag_ut, run.gyr_rads, 1.0 / GYRO_RATE_HZ
     coefficients = median_ms(lambda: fit_shape(mag, Method.GYRO_ELLIPSOID, gyr=gyr, period_s=period), runs)
     whole, cpu = timed_ms(lambda: fit(mag, Method.GYRO_ELLIPSOID, acc=run.acc_ms2, gyr=gyr, period_s=period), runs)
+    both, both_cpu = timed_ms(lambda: fit_auto(mag, acc=run.acc_ms2, gyr=gyr, period_s=period), runs)
     return (
         f"{Method.GYRO_ELLIPSOID.value:<18}{coefficients:>14.2f}{whole:>18.2f}{cpu:>8.2f}"
-        f"  ({GYRO_SAMPLES:,} samples at {GYRO_RATE_HZ:g} Hz; target under {GYRO_TARGET_MS:g} ms)"
+        f"  ({GYRO_SAMPLES:,} samples at {GYRO_RATE_HZ:g} Hz; target under {GYRO_TARGET_MS:g} ms)\n"
+        f"{'auto':<18}{'':>14}{both:>18.2f}{both_cpu:>8.2f}  (the same samples: gyro-ellipsoid and ellipsoid)"
     )
 
 
