@@ -48,7 +48,9 @@ def test_linear_acceleration_is_what_the_car_loses():
     causal filter's car heading is several times better: the acceleration, not the filter's set-up, is the limit."""
     rows = {
         estimator: rms
-        for _, estimator, rms in motion.simulator_rows(motion.SimulatorSettings(seconds=60.0), [motion.Trajectory.CAR])
+        for _, estimator, rms in motion.simulator_rows(
+            motion.SimulatorSettings(seconds=30.0), [motion.Trajectory.CAR]
+        )  # bound 1.3, 15
     }
     assert rows[motion.BOUND_ESTIMATOR] < 2.0 < 3 * rows[motion.BOUND_ESTIMATOR] < rows["fused causal"]
     assert rows["fused causal, velocity aided"] < rows["fused causal"] / 3  # the GNSS-like velocity gives it back

@@ -21,11 +21,11 @@ from matplotlib.figure import Figure
 
 from magnet.quality import fibonacci_centres
 from services.report.data import ReportData
+from services.report.formats import FORMATS
 
 MAX_POINTS = 6000
 PAIRS = ((0, 1, "x", "y"), (0, 2, "x", "z"), (1, 2, "y", "z"))
 RAW_COLOUR, CAL_COLOUR, BAD_COLOUR = "#e4572e", "#1f77b4", "#bbbbbb"
-FORMATS = (".png", ".html", ".pdf")
 
 
 def _thin(points: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from magnet.model import Calibration
 from services.common.input_options import InputOptions
+from services.report.formats import FORMATS
 
 
 def write_report(
@@ -21,13 +22,13 @@ def write_report(
 ) -> Path:
     """Build and write the report of ``calibration`` on the samples in ``samples_path`` (``options``: which stream
     of a recording; ``command``: tell the user which, under that name); returns the file."""
+    out = Path(out)
+    if out.suffix.lower() not in FORMATS:  # refuse before any work, and before matplotlib is imported
+        raise ValueError(f"report {out}: the file must end in {', '.join(FORMATS)}")
     from services.common.progress import steps
     from services.report.data import build_report, load_samples
-    from services.report.render import FORMATS, write
+    from services.report.render import write
 
-    out = Path(out)
-    if out.suffix.lower() not in FORMATS:  # refuse before any work
-        raise ValueError(f"report {out}: the file must end in {', '.join(FORMATS)}")
     with steps(["report: reading samples", "report: assessing the fit", "report: drawing"]) as step:
         step("report: reading samples")
         samples = load_samples(samples_path, unit or calibration.unit, options, command)
