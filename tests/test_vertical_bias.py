@@ -16,7 +16,7 @@ from magnet.heading import angle_difference_deg
 from magnet.simulator import Trajectory
 from services.bench.motion import SimulatorSettings, moving_run, simulated_sensor
 
-SECONDS = 60.0
+SECONDS = 40.0  # the bias is learnt to 4e-5 rad/s by then; the error ratio 0.34 (0.64 vs 1.95 deg at 60 s)
 SEED = 4
 
 
@@ -58,7 +58,7 @@ def test_a_multirotor_with_a_vertical_gyroscope_bias_converges_sooner(monkeypatc
     without, _ = _heading_errors(run, field)
     scored = (run.t_s >= 10.0) & (np.abs(run.pitch_deg) < 60)
     rms_with, rms_without = (float(np.sqrt(np.mean(e[scored] ** 2))) for e in (with_drift, without))
-    assert rms_with < 0.5 * rms_without, (rms_with, rms_without)  # measured 0.64 vs 1.95 deg
+    assert rms_with < 0.5 * rms_without, (rms_with, rms_without)  # measured 1.06 vs 3.15 deg at 40 s
     assert abs(bias[2] - errors.gyro_bias_rads[2]) < 0.001  # rad/s, the vertical (z) axis learnt
 
 

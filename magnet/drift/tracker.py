@@ -9,6 +9,7 @@ import numpy as np
 
 from magnet.drift.alerts import Alert, AlertKind, advice_for
 from magnet.drift.settings import DEFAULT_DRIFT, NS_PER_DAY, DriftSettings, Reference
+from magnet.quality.stats import median as median_of
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,8 +51,8 @@ def robust_verdict(
     on). Model: |median - model| / model_tolerance, reported as the median. The larger ratio wins."""
     if values.size == 0:
         return None
-    median = float(np.median(values))
-    departure = float(np.median(np.abs(values - reference)))
+    median = median_of(values)  # one partition each: the same numbers as np.median, several times faster
+    departure = median_of(np.abs(values - reference))
     typical = reference + math.copysign(departure, median - reference)
     verdict = Verdict(departure / tolerance, typical, reference)
     if model is not None and model_tolerance > 0:
