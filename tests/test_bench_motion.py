@@ -33,7 +33,7 @@ def test_fusion_beats_accelerometer_tilt_on_every_trial(datasets_dir):
 
 
 def test_simulator_rows_score_against_the_truth():
-    settings = motion.SimulatorSettings(seconds=40.0)
+    settings = motion.SimulatorSettings(seconds=30.0)  # 30 s: tilt 44, causal 0.37, offline 0.07 (40 s: 43, 0.31, 0.08)
     rows = {
         estimator: (trial, rms)
         for trial, estimator, rms in motion.simulator_rows(settings, [motion.Trajectory.FAST_TUMBLE])
@@ -49,8 +49,8 @@ def test_linear_acceleration_is_what_the_car_loses():
     rows = {
         estimator: rms
         for _, estimator, rms in motion.simulator_rows(
-            motion.SimulatorSettings(seconds=30.0), [motion.Trajectory.CAR]
-        )  # bound 1.3, 15
+            motion.SimulatorSettings(seconds=20.0), [motion.Trajectory.CAR]
+        )  # 20 s: bound 1.2, causal 18.3, aided 0.45 (30 s: 1.3, 15.1, 0.32)
     }
     assert rows[motion.BOUND_ESTIMATOR] < 2.0 < 3 * rows[motion.BOUND_ESTIMATOR] < rows["fused causal"]
     assert rows["fused causal, velocity aided"] < rows["fused causal"] / 3  # the GNSS-like velocity gives it back

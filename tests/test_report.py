@@ -19,7 +19,6 @@ import pytest
 from magnet.calibration import fit
 from services.cli import main
 from services.report.data import build_report, load_samples
-from services.report.render import html_page, write
 
 ARTEFACTS = Path(os.environ.get("MAGNET_ARTEFACT_DIR", Path(tempfile.gettempdir()) / "magnet-artefacts")) / "report"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -178,6 +177,8 @@ RECORDINGS = {  # file -> (unit, method, fit every n-th sample)
 @pytest.mark.integration
 @pytest.mark.parametrize("name", sorted(RECORDINGS))
 def test_report_of_each_real_recording(datasets_dir, name):
+    from services.report.render import html_page, write  # matplotlib: imported here, not for the unit tests
+
     unit, method, step = RECORDINGS[name]
     samples = load_samples(datasets_dir / name, unit)
     calibration = fit(samples.raw[::step], method, acc=None if samples.acc is None else samples.acc[::step], unit=unit)
