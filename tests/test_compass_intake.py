@@ -8,6 +8,7 @@ import logging
 import threading
 
 import pytest
+from fake_channel import ClosedError, FakeChannel
 
 from magnet import wire
 from services.compass.intake import ENTRY_BYTES, PayloadIntake
@@ -35,23 +36,6 @@ class Sample:
     def __init__(self, device: str, size: int) -> None:
         self.key_expr = f"magnet/{device}/raw"
         self.payload = Payload(size)
-
-
-class ClosedError(Exception):
-    pass
-
-
-class Channel:
-    def __init__(self, samples):
-        self.samples = list(samples)
-
-    def recv(self):
-        if not self.samples:
-            raise ClosedError
-        return self.samples.pop(0)
-
-    def try_recv(self):
-        return self.samples.pop(0) if self.samples else None
 
 
 def test_oversized_payloads_are_dropped_without_being_copied():
@@ -94,7 +78,7 @@ def test_a_drain_takes_at_most_its_bytes_but_always_one_message_and_frees_the_ro
 def test_the_pump_moves_everything_until_the_channel_closes():
     intake = PayloadIntake(max_bytes=1_000_000, max_payload=1_000)
     samples = [Sample(f"d{i}", 10) for i in range(2_500)]
-    thread = threading.Thread(target=intake.pump, args=(Channel(samples), ClosedError, 1024))
+    thread = threading.Thread(target=intake.pump, args=(FakeChannel(samples), ClosedError, 1024))
     thread.start()
     thread.join(timeout=10)
     assert not thread.is_alive()

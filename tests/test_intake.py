@@ -3,6 +3,8 @@ enrolment bucket admits new ids at its rate, and the service loop answers querie
 
 from __future__ import annotations
 
+from fake_channel import ClosedError, FakeChannel
+
 from services.calibrator.intake import Enrolment, RawIntake, new_device
 
 
@@ -31,29 +33,6 @@ def test_new_device_reads_the_key_and_leaves_malformed_keys_to_the_decoder():
     assert new_device("magnet/b/raw", "magnet", known)
     assert not new_device("magnet/a/raw", "magnet", known)
     assert not new_device("magnet/a/b/raw", "magnet", known)  # malformed: decoded, refused and counted there
-
-
-class ClosedError(Exception):
-    pass
-
-
-class FakeChannel:
-    """recv gives the next sample or raises Closed at the end; try_recv gives None when nothing waits."""
-
-    def __init__(self, samples):
-        self.samples = list(samples)
-
-    def recv(self):
-        if not self.samples:
-            raise ClosedError
-        return self.samples.pop(0)
-
-    def try_recv(self):
-        return self.samples.pop(0) if self.samples and self.samples[0] is not None else self._gap()
-
-    def _gap(self):
-        if self.samples and self.samples[0] is None:
-            self.samples.pop(0)  # a pause: the batch ends here
 
 
 class Sample:
