@@ -115,6 +115,37 @@ class Segments:
         return fields, u, durations
 
 
+def smoother_integral(u: np.ndarray) -> np.ndarray:
+    """Integral of ``smoother`` from 0 to u (u clipped to [0, 1]): u^4 (2.5 - 3 u + u^2); 1/2 over [0, 1]."""
+    u = np.clip(u, 0.0, 1.0)
+    return u**4 * (2.5 + u * (-3.0 + u))
+
+
+def segment_path(plan: Segments, distance_starts: list[float], t: np.ndarray) -> dict[str, np.ndarray]:
+    """A course and speed plan (rows with yaw0, dyaw deg magnetic; v0, dv m/s; each eased by ``smoother``) at times
+    t (N,): course_deg, speed_ms, along_ms2 (dspeed/dt), lateral_ms2 (speed x course rate, + to the right),
+    turn_rads (course rate, rad/s), distance_m along the path from the start (closed form). ``distance_starts``
+    (the distance at each segment's start, [0.0] at first) is the caller's and grows with the plan."""
+    row, u, duration = plan.locate(t)
+    started = t > 0.0
+    turn = np.where(started, np.radians(row["dyaw"]) * smoother_rate(u) / duration, 0.0)
+    speed = row["v0"] + row["dv"] * smoother(u)
+    while len(distance_starts) < len(plan.rows):
+        k = len(distance_starts) - 1
+        row_k = plan.rows[k]
+        distance_starts.append(distance_starts[-1] + plan.durations[k] * (row_k["v0"] + 0.5 * row_k["dv"]))
+    segment = np.searchsorted(np.asarray(plan.starts), np.maximum(t, 0.0), side="right") - 1
+    covered = duration * (row["v0"] * np.clip(u, 0.0, 1.0) + row["dv"] * smoother_integral(u))
+    return {
+        "course_deg": row["yaw0"] + row["dyaw"] * smoother(u),
+        "speed_ms": speed,
+        "along_ms2": np.where(started, row["dv"] * smoother_rate(u) / duration, 0.0),
+        "lateral_ms2": speed * turn,
+        "turn_rads": turn,
+        "distance_m": np.asarray(distance_starts)[segment] + covered,
+    }
+
+
 def _sign(rng: np.random.Generator) -> float:
     return float(rng.choice([-1.0, 1.0]))
 
@@ -251,6 +282,15 @@ class CarModel(MotionModel):
         self.jitter_deg = Tones(rng, 3, 2, (6.0, 15.0), 0.05)
         self.bumps_ms2 = Tones(rng, 1, 3, (8.0, 15.0), 0.3)
         self.yaw0_deg = rng.uniform(0.0, 360.0)
+        self._distance_starts: list[float] = [0.0]
+
+    def path(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """The road's course, speed and distance at t (``segment_path``)."""
+        return segment_path(self.plan, self._distance_starts, np.asarray(t, dtype=float))
+
+    def device_offset(self, t: np.ndarray) -> np.ndarray:
+        """The sensor's offset from the path's point: none (it is the point)."""
+        return np.zeros((np.asarray(t).size, 3))
 
     def _draw(self, rng: np.random.Generator, last: dict[str, Any] | None) -> tuple[float, dict[str, Any]]:
         yaw0 = self.yaw0_deg if last is None else last["yaw0"] + last["dyaw"]
