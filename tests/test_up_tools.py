@@ -73,7 +73,7 @@ def test_get_fleet_and_watch_heading_beside_magnet_up_need_no_options(tmp_path):
             stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, cwd=REPO_ROOT,
         )  # fmt: skip
     try:
-        record_path = runtime / "magnet" / "up.json"
+        record_path = runtime / "magnet" / f"up-{up.pid}.json"
         wait_for(lambda: record_path.exists() or up.poll() is not None, 30, "the runtime file")
         record = json.loads(record_path.read_text())
         assert record["pid"] == up.pid and set(record["ports"]) == {"calibrator", "compass", "edge"}
