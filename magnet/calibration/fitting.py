@@ -166,9 +166,8 @@ def fit(
         quality = quality.with_extra(mag_lag_s=shape.mag_lag_s)
     accepted, reason = _gate(quality, gate, method)
     earth = _outside_the_earth(shape.radius, to_ut, field_ut, geometry)
-    hint = (
-        None if accepted and not earth or geometry is not Geometry.SPHERE else unit_hint(shape.radius, to_ut, field_ut)
-    )
+    advise = geometry is Geometry.SPHERE and (not accepted or earth is not None)
+    hint = unit_hint(shape.radius, to_ut, field_ut) if advise else None
     if earth:
         earth = hint or earth
         accepted, reason, hint = False, earth if accepted else f"{earth}; {reason}", None
