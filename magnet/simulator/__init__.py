@@ -23,7 +23,8 @@ so the exact correction (at 25 C) is B_body = M @ S^-1 @ (mag - h) (``SensorErro
 Modules, by idea:
 - ``errors``: ``SensorErrors``, the errors of one sensor.
 - ``trajectories``: ``Trajectory`` (every name) and the still trajectories (spin, turntable, tumble, tenface).
-- ``motion``: the moving trajectories (multirotor, car, figure8, fast-tumble) with linear acceleration.
+- ``motion``: the moving trajectories (multirotor, car, figure8, fast-tumble) with linear acceleration (``plan``:
+  eased steps, tones and plans of segments they are made of).
 - ``paths``, ``walks``, ``ground``: motions along a path: a person walking or running with a phone (pocket, swinging
   hand, texting, phoning, running) with its gait; a boat and a ground robot that only yaw (``models``: every moving
   model by name).

@@ -25,7 +25,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from magnet.simulator.motion import smoother
+from magnet.simulator.plan import smoother
 
 #: a dipole's field is left out beyond this many closest distances along the path (it is 1/1700 of its peak there)
 REACH = 12.0

@@ -19,8 +19,9 @@ from typing import Any
 import numpy as np
 
 from magnet.frames import euler_to_matrix
-from magnet.simulator.motion import Tones, _sign
 from magnet.simulator.paths import PathModel
+from magnet.simulator.plan import Tones
+from magnet.simulator.plan import random_sign as _sign
 
 
 class BoatModel(PathModel):

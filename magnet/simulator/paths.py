@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from magnet.frames import euler_to_matrix, matrix_to_euler
-from magnet.simulator.motion import MotionModel, Segments, segment_path
+from magnet.simulator.motion import MotionModel
+from magnet.simulator.plan import Segments, segment_path
 
 
 def course_matrix(course_deg: np.ndarray) -> np.ndarray:

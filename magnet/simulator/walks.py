@@ -31,8 +31,9 @@ from typing import Any
 import numpy as np
 
 from magnet.frames import axis_angle_matrix, euler_to_matrix, matrix_to_euler
-from magnet.simulator.motion import Tones, _sign
 from magnet.simulator.paths import PathModel
+from magnet.simulator.plan import Tones
+from magnet.simulator.plan import random_sign as _sign
 
 #: pace -> (speed m/s, step frequency Hz, hip bounce m, course peak rate deg/s) ranges
 PACES = {
