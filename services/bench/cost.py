@@ -26,6 +26,7 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -114,79 +115,116 @@ def _batches(count: int) -> list[slice]:
     return [slice(lo, min(lo + BATCH, count)) for lo in range(0, count - count % BATCH, BATCH)]
 
 
-def stage_costs(log: Log) -> list[tuple[str, float, float | None]]:
-    """(stage, us a sample, vqf's own us a sample on the same samples or None) in live batches of ``BATCH``."""
-    import vqf
+Row = tuple[str, float, float | None]
 
-    from magnet import heading as hd
+
+@dataclasses.dataclass(frozen=True)
+class _Live:
+    """The log cut into live batches: raw batches without and with velocity, their wire payloads, the calibrated
+    field per batch and vqf's inputs per batch (its frame)."""
+
+    parts: list[slice]
+    batches: list[Any]
+    aided: list[Any]
+    payloads: list[bytes]
+    field: list[np.ndarray]
+    vqf_inputs: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+    @property
+    def samples(self) -> int:
+        return len(self.parts) * BATCH
+
+
+def _live(log: Log) -> _Live:
     from magnet import wire
-    from magnet.compass import CompassCore
-    from magnet.fusion import Fusion, to_vqf_frame
+    from magnet.fusion import to_vqf_frame
     from magnet.model import Calibration
-    from services.compass.ros2 import build_drain
 
-    period = 1.0 / RATE_HZ
     parts = _batches(len(log.t_s))
-    samples = len(parts) * BATCH
     t_ns = (1_700_000_000_000_000_000 + np.round(log.t_s * 1e9)).astype(np.int64)
     batches = [
         wire.RawBatch("bench", i, "sim", t_ns[s], log.mag_ut[s], log.acc_ms2[s], gyr_rads=log.gyr_rads[s])
         for i, s in enumerate(parts)
     ]
-    aided_batches = [
-        dataclasses.replace(b, vel_ned_ms=log.vel_ned_ms[s]) for b, s in zip(batches, parts)
-    ]  # the same samples with the receiver's velocity
-    payloads = [wire.encode_raw(b) for b in batches]
-    cal = log.calibration
-    assert isinstance(cal, Calibration)
-    field = [cal.apply(log.mag_ut[s]) for s in parts]
+    aided = [dataclasses.replace(b, vel_ned_ms=log.vel_ned_ms[s]) for b, s in zip(batches, parts)]
+    assert isinstance(log.calibration, Calibration)
+    field = [log.calibration.apply(log.mag_ut[s]) for s in parts]
     gyr, acc, mag = (to_vqf_frame(x) for x in (log.gyr_rads, log.acc_ms2, np.vstack(field)))
-    vqf_inputs = [(gyr[s], acc[s], mag[s]) for s in parts]
+    inputs = [(gyr[s], acc[s], mag[s]) for s in parts]
+    return _Live(parts, batches, aided, [wire.encode_raw(b) for b in batches], field, inputs)
+
+
+def _filter_rows(log: Log, live: _Live) -> list[Row]:
+    """decode, calibration, tilt, fusion and aided fusion, the last two beside vqf alone."""
+    import vqf
+
+    from magnet import heading as hd
+    from magnet import wire
+    from magnet.fusion import Fusion
+
+    period, samples, cal = 1.0 / RATE_HZ, live.samples, log.calibration
 
     def vqf_alone() -> None:
         f = vqf.VQF(period)
-        for g, a, m in vqf_inputs:
+        for g, a, m in live.vqf_inputs:
             f.updateBatch(g, a, m)
 
     def fusion(aided: bool) -> None:
         f = Fusion(period)
-        for (g, a, m), s in zip(vqf_inputs, parts):
+        for (g, a, m), s in zip(live.vqf_inputs, live.parts):
             if aided:
                 f.update_vqf_frame(g, a, m, log.t_s[s], log.vel_ned_ms[s])
             else:
                 f.update_vqf_frame(g, a, m)
 
-    vqf_us = _per_sample_us(vqf_alone, samples)
-    rows: list[tuple[str, float, float | None]] = []
-    rows.append(("decode", _per_sample_us(lambda: [wire.decode_raw_many([p]) for p in payloads], samples), None))
-    rows.append(("calibration", _per_sample_us(lambda: [cal.apply(log.mag_ut[s]) for s in parts], samples), None))
-
     def tilt() -> None:
-        for s, f in zip(parts, field):
+        for s, f in zip(live.parts, live.field):
             hd.tilt_compensated_heading_deg(f, log.acc_ms2[s])
             hd.disturbance_flags(f, log.acc_ms2[s], 50.0, 60.0)
 
-    rows.append(("tilt", _per_sample_us(tilt, samples), None))
-    rows.append(("fusion", _per_sample_us(lambda: fusion(False), samples), vqf_us))
-    rows.append((f"aided fusion (fixes at {LIVE_FIX_HZ:g} Hz)", _per_sample_us(lambda: fusion(True), samples), vqf_us))
-    columns = [wire.RawColumns.from_batches([b]) for b in batches]
-    core = CompassCore()
-    core.calibrations.put(wire.DeviceCalibration("bench", 0, cal))
-    outs = [core.step(c, int(c.t_ns[-1])) for c in columns]
-    rows.append(("encode", _per_sample_us(lambda: [core.encode(c, o) for c, o in zip(columns, outs)], samples), None))
-    rows.append(
-        ("ROS 2", _per_sample_us(lambda: [build_drain(c, o, [0.0]) for c, o in zip(columns, outs)], samples), None)
-    )
+    vqf_us = _per_sample_us(vqf_alone, samples)
+    return [
+        ("decode", _per_sample_us(lambda: [wire.decode_raw_many([p]) for p in live.payloads], samples), None),
+        ("calibration", _per_sample_us(lambda: [cal.apply(log.mag_ut[s]) for s in live.parts], samples), None),  # type: ignore[attr-defined]
+        ("tilt", _per_sample_us(tilt, samples), None),
+        ("fusion", _per_sample_us(lambda: fusion(False), samples), vqf_us),
+        (f"aided fusion (fixes at {LIVE_FIX_HZ:g} Hz)", _per_sample_us(lambda: fusion(True), samples), vqf_us),
+    ]
 
-    def step(many: list[wire.RawBatch]) -> None:
-        live = CompassCore()
-        live.calibrations.put(wire.DeviceCalibration("bench", 0, cal))
+
+def _compass_rows(log: Log, live: _Live) -> list[Row]:
+    """encode, ROS 2 and the compass's whole step with and without velocity."""
+    from magnet import wire
+    from magnet.compass import CompassCore
+    from services.compass.ros2 import build_drain
+
+    def core() -> CompassCore:
+        made = CompassCore()
+        made.calibrations.put(wire.DeviceCalibration("bench", 0, log.calibration))  # type: ignore[arg-type]
+        return made
+
+    columns = [wire.RawColumns.from_batches([b]) for b in live.batches]
+    compass = core()
+    outs = [compass.step(c, int(c.t_ns[-1])) for c in columns]
+
+    def step(many: list[Any]) -> None:
+        running = core()
         for b in many:
-            live.step(wire.RawColumns.from_batches([b]), int(b.t_ns[-1]))
+            running.step(wire.RawColumns.from_batches([b]), int(b.t_ns[-1]))
 
-    rows.append(("compass step, gyro", _per_sample_us(lambda: step(batches), samples), vqf_us))
-    rows.append(("compass step, aided", _per_sample_us(lambda: step(aided_batches), samples), vqf_us))
-    return rows
+    samples = live.samples
+    return [
+        ("encode", _per_sample_us(lambda: [compass.encode(c, o) for c, o in zip(columns, outs)], samples), None),
+        ("ROS 2", _per_sample_us(lambda: [build_drain(c, o, [0.0]) for c, o in zip(columns, outs)], samples), None),
+        ("compass step, gyro", _per_sample_us(lambda: step(live.batches), samples), None),
+        ("compass step, aided", _per_sample_us(lambda: step(live.aided), samples), None),
+    ]
+
+
+def stage_costs(log: Log) -> list[Row]:
+    """(stage, us a sample, vqf's own us a sample on the same samples or None) in live batches of ``BATCH``."""
+    live = _live(log)
+    return _filter_rows(log, live) + _compass_rows(log, live)
 
 
 # ------------------------------------------------------------------------------------------- command line
