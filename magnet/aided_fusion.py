@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 import vqf
 
-from magnet import _kernels
 from magnet.aiding import VEHICLE_RESIDUAL_MS2, VelocityFixes, vehicle_tau_acc_s
+from magnet.compiled import kernels as _kernels
 from magnet.fusion_drift import Explained, HeadingDrift, PieceField
 from magnet.units import STANDARD_GRAVITY_MS2
 

@@ -30,7 +30,7 @@ import dataclasses
 
 import numpy as np
 
-from magnet import _kernels
+from magnet.compiled import kernels as _kernels
 from magnet.units import STANDARD_GRAVITY_MS2
 
 #: a receiver's latency: a fix appears this long after the instant it measured (s)

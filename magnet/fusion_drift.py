@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from magnet import _kernels
+from magnet.compiled import kernels as _kernels
 
 #: white noise of the heading one magnetometer sample gives (deg): 0.3 uT of noise on a 20 uT horizontal field
 HEADING_NOISE_DEG = 1.0

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet import _kernels
+from magnet.compiled import kernels as _kernels
 
 #: the largest delay a record may carry (s); beyond it the value is not a sensor's filter delay and is ignored
 MAX_LAG_S = 0.1
