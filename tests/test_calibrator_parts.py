@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.earth.location import Location
 from magnet.model import Calibration, Quality
-from magnet.place import Location
 from magnet.shard import Shard
 from magnet.simulator import SensorErrors, SimulatorConfig, simulate
 from services.calibrator.collecting import Collections

@@ -30,7 +30,8 @@ HOLDOUT_TOLERANCE = 1e-9
 
 def _turntable(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
     raise FitError(
-        "the turntable method needs the mounting and table angle of every sample: use magnet.turntable.fit_turntable"
+        "the turntable method needs the mounting and table angle of every sample: use "
+        "magnet.calibration.turntable.fit_turntable"
     )
 
 
@@ -162,7 +163,7 @@ def fit(
         quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
         quality = quality.with_extra(note=shape.note)
-    if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.mag_delay)
+    if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.attitude.mag_delay)
         quality = quality.with_extra(mag_lag_s=shape.mag_lag_s)
     accepted, reason = _gate(quality, gate, method)
     hint = None if accepted or geometry is not Geometry.SPHERE else unit_hint(shape.radius, to_ut, field_ut)

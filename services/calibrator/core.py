@@ -23,7 +23,7 @@ from collections.abc import Callable
 from typing import Any
 
 from magnet import signing, wire
-from magnet.collection import Collection
+from magnet.calibration.collection import Collection
 from magnet.model import Calibration
 from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.collecting import Collections

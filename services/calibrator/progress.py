@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from magnet import wire
 from magnet.bounded import Recent
-from magnet.collection import Collection
+from magnet.calibration.collection import Collection
 from magnet.quality import Coverage
 from services.calibrator.status import State
 

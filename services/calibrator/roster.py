@@ -12,7 +12,7 @@ from magnet import wire
 from magnet.bounded import Recent
 from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.drift.alerts import ALERT_LIMITS
-from magnet.place import Location
+from magnet.earth.location import Location
 from services.calibrator.settings import DEFAULT_MAX_DEVICES, Places, make_places
 
 log = logging.getLogger("magnet.calibrator")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet import fusion
+from magnet.attitude import fusion
 from magnet.calibration import Method
 from magnet.calibration.choose import AUTO, CHOICES, fit_choice
 from magnet.model import Calibration
@@ -100,7 +100,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _fit_turntable(table: SampleTable, args: argparse.Namespace) -> Calibration:
-    from magnet.turntable import fit_turntable
+    from magnet.calibration.turntable import fit_turntable
 
     if args.horizontal is None or args.vertical is None:
         raise ValueError("the turntable method needs --horizontal and --vertical (the known field components)")
