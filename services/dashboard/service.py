@@ -24,6 +24,7 @@ from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.zenoh_session import open_session
 from services.dashboard.settings import (
+    DEFAULT_HTTP,
     TOKEN_ENV,
     DashboardSettings,
     add_arguments,
@@ -83,6 +84,8 @@ def serve(settings: DashboardSettings) -> int:
     from services.dashboard.state import FleetState
 
     host, port = settings.address
+    if settings.http is None and f"{host}:{port}" != DEFAULT_HTTP:
+        print(f"magnet dashboard: {DEFAULT_HTTP} is taken (by magnet up's own dashboard?): serving on {host}:{port}")
     token = settings.token or os.environ.get(TOKEN_ENV) or secrets.token_urlsafe(12)
     prefix = settings.zenoh.prefix
     state = FleetState(_earth(settings))
