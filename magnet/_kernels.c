@@ -2,7 +2,7 @@
  *
  * Each function takes numpy arrays (any float64 buffer: C-contiguous or a strided view such as a table's columns)
  * and writes its results into the arrays it is given, or returns a few floats. They are the maths of the Python
- * modules that call them (magnet.aided_fusion, magnet.aiding, magnet.fusion_drift, magnet.mag_delay), written once
+ * modules that call them (magnet.attitude: aided_fusion, aiding, gyro_bias, mag_delay), written once
  * here; tests/test_kernels.py compares each with the same maths written plainly in numpy on random inputs.
  * Quaternions are w, x, y, z; vectors x, y, z; no allocation, no Python objects inside the loops. */
 #define PY_SSIZE_T_CLEAN

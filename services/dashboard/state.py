@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 
 from magnet import wire
+from magnet.attitude.heading import HeadingFlag
 from magnet.drift import Alert
-from magnet.geomag import EarthField
-from magnet.heading import HeadingFlag
+from magnet.earth.geomag import EarthField
 from services.dashboard.figures import (
     covered_cells,
     decimate,
