@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.attitude.heading import dip_angle_deg
 from magnet.drift import Alert, AlertKind
+from magnet.earth.geomag import earth_field
 from magnet.frames import euler_to_matrix, ned_to_body
-from magnet.geomag import earth_field
-from magnet.heading import dip_angle_deg
 from magnet.model import Calibration
 from services.dashboard.app import create_app
 from services.dashboard.figures import acc_direction, covered_cells, dip_deg

@@ -1,5 +1,6 @@
 """The aided filter's learning of the gyroscope's bias from the magnetometer: the Kalman filter of a vehicle's heading
-drift (magnet.fusion_drift.HeadingDrift) and the integral term kept elsewhere (magnet.aided_fusion.VerticalBias)."""
+drift (magnet.attitude.gyro_bias.HeadingDrift) and the integral term kept elsewhere
+(magnet.attitude.aided_fusion.VerticalBias)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from magnet import fusion, fusion_drift
-from magnet.aided_fusion import VerticalBias
+from magnet.attitude import fusion, gyro_bias
+from magnet.attitude.aided_fusion import VerticalBias
+from magnet.attitude.gyro_bias import Explained, HeadingDrift
+from magnet.attitude.heading import angle_difference_deg
 from magnet.frames import to_magnetic_ned
-from magnet.fusion_drift import Explained, HeadingDrift
-from magnet.heading import angle_difference_deg
 from magnet.simulator import Trajectory
 from services.bench.motion import SimulatorSettings, moving_run, simulated_sensor
 
@@ -54,7 +55,7 @@ def test_a_multirotor_with_a_vertical_gyroscope_bias_converges_sooner(monkeypatc
     run = moving_run(Trajectory.MULTIROTOR, errors, settings)
     field = errors.true_calibration(run.earth.total_ut).apply(run.mag_ut)
     with_drift, bias = _heading_errors(run, field)
-    monkeypatch.setattr(fusion_drift.HeadingDrift, "update", lambda self, *args: np.zeros(3))
+    monkeypatch.setattr(gyro_bias.HeadingDrift, "update", lambda self, *args: np.zeros(3))
     without, _ = _heading_errors(run, field)
     scored = (run.t_s >= 10.0) & (np.abs(run.pitch_deg) < 60)
     rms_with, rms_without = (float(np.sqrt(np.mean(e[scored] ** 2))) for e in (with_drift, without))

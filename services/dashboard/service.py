@@ -34,7 +34,7 @@ from services.dashboard.settings import (
 )
 
 if TYPE_CHECKING:
-    from magnet.geomag import EarthField
+    from magnet.earth.geomag import EarthField
 
 log = logging.getLogger("magnet.dashboard")
 
@@ -44,8 +44,8 @@ __all__ = ["add_arguments", "page_address", "run"]
 def _earth(settings: DashboardSettings) -> EarthField | None:
     if not settings.location:
         return None
-    from magnet.geomag import earth_field
-    from magnet.place import Location
+    from magnet.earth.geomag import earth_field
+    from magnet.earth.location import Location
 
     return earth_field(*Location.parse(settings.location).as_tuple(), settings.date)
 

@@ -20,10 +20,10 @@ from typing import Any
 import numpy as np
 
 from magnet import wire
+from magnet.attitude.heading import HeadingFlag
 from magnet.drift import Alert
-from magnet.geomag import EarthField, earth_field
-from magnet.heading import HeadingFlag
-from magnet.place import Location
+from magnet.earth.geomag import EarthField, earth_field
+from magnet.earth.location import Location
 from services.dashboard.figures import (
     covered_cells,
     decimate,

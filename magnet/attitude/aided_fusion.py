@@ -1,5 +1,5 @@
 """The gyroscope-aided filter fed with velocity: vqf run a little behind the newest sample (design: docs/design.md,
-"Heading in motion", velocity aiding; the acceleration itself: ``magnet.aiding``).
+"Heading in motion", velocity aiding; the acceleration itself: ``magnet.attitude.aiding``).
 
 The linear acceleration at time t is known only once a velocity fix after t + h has arrived (a few tenths of a
 second later). So the filter (vqf, in its own frames: z-up body, ENU with magnetic north) is fed a sample only when
@@ -11,10 +11,10 @@ integration, so the newest sample is answered at once (causal, no delay on the o
 
 After each piece fed (docs/aiding.md): vqf's rest detection is off while the fixes say the vehicle moves, and
 travel counts towards a new reference field (``travelled``); where the velocity explains the accelerometer (a
-vehicle: ``magnet.fusion_drift.Explained``) vqf's accelerometer time constant is the aided vehicle's
-(``magnet.aiding.vehicle_tau_acc_s``) and a Kalman filter of the heading's drift (``magnet.fusion_drift.HeadingDrift``)
-gives vqf its gyroscope bias and heading correction; elsewhere ``VerticalBias`` adds an integral term to vqf's heading
-correction (docs/gyro-calibration.md).
+vehicle: ``magnet.attitude.gyro_bias.Explained``) vqf's accelerometer time constant is the aided vehicle's
+(``magnet.attitude.aiding.vehicle_tau_acc_s``) and a Kalman filter of the heading's drift
+(``magnet.attitude.gyro_bias.HeadingDrift``) gives vqf its gyroscope bias and heading correction; elsewhere
+``VerticalBias`` adds an integral term to vqf's heading correction (docs/gyro-calibration.md).
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 import vqf
 
-from magnet.aiding import VEHICLE_RESIDUAL_MS2, VelocityFixes, vehicle_tau_acc_s
+from magnet.attitude.aiding import VEHICLE_RESIDUAL_MS2, VelocityFixes, vehicle_tau_acc_s
+from magnet.attitude.gyro_bias import Explained, HeadingDrift
 from magnet.frames import ned_enu, ned_to_body, quaternion_conjugate, quaternion_multiply, quaternion_to_matrix
-from magnet.fusion_drift import Explained, HeadingDrift
 
 #: the longest piece of samples answered from one filter state when no fix comes (s)
 CHUNK_S = 0.1

@@ -19,8 +19,8 @@ phi' = phi - up . e dt (+ the gyroscope's angle random walk), e' = e (+ a bias r
 The estimated e is handed to vqf's own bias estimate and zeroed here (an error-state filter: one bias estimate,
 vqf's, which its own learning carries on), and phi to vqf's heading correction (delta). Early on e's variance is
 vqf's initial bias uncertainty, so the gain is large and the bias is learnt in seconds; later the gain falls as the
-noise figures say, instead of a fixed integral time (``magnet.aided_fusion.VerticalBias``, kept where the velocity
-does not explain the accelerometer).
+noise figures say, instead of a fixed integral time (``magnet.attitude.aided_fusion.VerticalBias``, kept where the
+velocity does not explain the accelerometer).
 """
 
 from __future__ import annotations

@@ -17,8 +17,8 @@ measures). So:
   the filter never finds rest and never learns the gyroscope's bias about the vertical; h = 0.5 s gives 0.14 m/s^2
   (h = 0.25 s gave 0.28 and a car whose heading drifted by 7 deg);
 - it is known only once a fix at or after t + h has arrived: ``known_until_s``. The filter therefore runs that far
-  behind the newest sample (``magnet.aided_fusion``), and the attitude of the newest samples is carried forward from
-  it with the gyroscope.
+  behind the newest sample (``magnet.attitude.aided_fusion``), and the attitude of the newest samples is carried forward
+  from it with the gyroscope.
 
 Velocities are in magnetic NED (north is the field's, as the filter's): rotate geographic ones with
 ``magnet.frames.to_magnetic_ned`` first. Pure numpy; times in seconds.
@@ -50,7 +50,7 @@ STANDING_SPEED_MS = 0.5
 
 def vehicle_tau_acc_s(residual_ms2: float, bias_sigma_rads: float) -> float:
     """The accelerometer time constant (s) for a filter whose linear acceleration the velocity removes, given what
-    is left of the accelerometer (RMS m/s^2 of 0.1 s means, ``magnet.fusion_drift.Explained``) and the gyroscope
+    is left of the accelerometer (RMS m/s^2 of 0.1 s means, ``magnet.attitude.gyro_bias.Explained``) and the gyroscope
     bias's uncertainty (rad/s, one axis).
 
     vqf low-passes the accelerometer over tauAcc (3 s) so that a vehicle's own accelerations average out. With them
