@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 
 from magnet.calibration.base import FitError, Method
+from magnet.calibration.fit_input import FitInput
 from magnet.calibration.fitting import fit
 from magnet.model import Calibration
-from magnet.quality import GateThresholds
 
 #: the choice that is not a method
 AUTO = "auto"
@@ -53,35 +53,23 @@ def parse_choice(value: Method | str) -> str:
         raise ValueError(f"unknown calibration method {value!r}: use one of {', '.join(CHOICES)}") from None
 
 
-def fit_choice(mag: np.ndarray, choice: Method | str, **options: Any) -> Calibration:
-    """``fit_auto`` for "auto", else ``fit`` with that method; options: those of ``fit``."""
+def fit_choice(data: FitInput, choice: Method | str) -> Calibration:
+    """``fit_auto`` for "auto", else ``fit`` with that method."""
     chosen = parse_choice(choice)
     if chosen == AUTO:
-        return fit_auto(mag, **options)
-    return fit(mag, chosen, **options)
+        return fit_auto(data)
+    return fit(data, chosen)
 
 
-def fit_auto(
-    mag: np.ndarray,
-    *,
-    acc: np.ndarray | None = None,
-    unit: str = "ut",
-    field_ut: float | None = None,
-    gate: GateThresholds | None = None,
-    robust_extremes: bool = False,
-    gyr: np.ndarray | None = None,
-    period_s: float | None = None,
-    reference: Calibration | None = None,
-) -> Calibration:
-    """The better of gyro-ellipsoid and ellipsoid for raw samples mag (N, 3) (the rule: the module docstring);
-    arguments as ``fit``'s. Raises FitError when no calibration can be computed by either."""
-    options: dict[str, Any] = dict(acc=acc, unit=unit, field_ut=field_ut, gate=gate, reference=reference)
-    if gyr is None or period_s is None:
-        return fit(mag, Method.ELLIPSOID, robust_extremes=robust_extremes, **options)
+def fit_auto(data: FitInput) -> Calibration:
+    """The better of gyro-ellipsoid and ellipsoid for ``data`` (the rule: the module docstring). Raises FitError
+    when no calibration can be computed by either."""
+    if not data.has_gyroscope:
+        return fit(data.replace(gyr_rads=None, period_s=None), Method.ELLIPSOID)
     results: dict[Method, Calibration | FitError] = {}
     for method in CANDIDATES:
         try:
-            results[method] = fit(mag, method, gyr=gyr, period_s=period_s, robust_extremes=robust_extremes, **options)
+            results[method] = fit(data, method)
         except FitError as exc:
             results[method] = exc
     records = {method: result for method, result in results.items() if isinstance(result, Calibration)}

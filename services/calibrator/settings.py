@@ -18,10 +18,11 @@ from typing import Any
 
 from magnet import signing
 from magnet.calibration.choose import AUTO, CHOICES, parse_choice
-from magnet.compass.places import PlaceEntry
-from magnet.compass.places import Places as Places  # the roster's type, named here with the rest of the places modules
-from magnet.geomag import earth_field
-from magnet.place import Location
+from magnet.calibrator.settings import DEFAULT_MAX_DEVICES as DEFAULT_MAX_DEVICES  # the option's default, named here
+from magnet.earth.geomag import earth_field
+from magnet.earth.location import Location
+from magnet.earth.places import PlaceEntry
+from magnet.earth.places import Places as Places  # the roster's type, named here with the rest of the places modules
 from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.intake import DEFAULT_ENROL_RATE, DEFAULT_MAX_QUEUE
 from services.common.options import add_options, at_least, check_options, from_args, option, positive, within
@@ -30,7 +31,6 @@ from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 log = logging.getLogger("magnet.calibrator")
 
-DEFAULT_MAX_DEVICES = 10_000
 #: fewest samples kept before a fit (and the least --max-samples may be)
 MIN_SAMPLES = 30
 
@@ -51,7 +51,8 @@ def _method(value: Any) -> str | None:
 @dataclasses.dataclass(frozen=True)
 class CalibratorSettings:
     """How the calibrator fits: method, expected |B| (``--field-ut``, else the model's at ``--location``, else None:
-    the fit's own), coverage and sample counts, automatic or not, devices collected at once."""
+    the fit's own), coverage and sample counts, automatic or not, devices collected at once. What the core reads of
+    them is ``magnet.calibrator.settings.Settings``."""
 
     method: str = option(
         AUTO,
