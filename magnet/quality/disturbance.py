@@ -30,8 +30,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from magnet.attitude.heading import dip_angle_deg, row_norm
 from magnet.frames import quaternion_multiply, quaternion_to_matrix, rotation_vector_to_quaternion
-from magnet.heading import dip_angle_deg, row_norm
 
 
 @dataclasses.dataclass(frozen=True)
