@@ -14,7 +14,11 @@ The rule (``fit_auto``):
   ``holdout_consistency_deg``, deg, lower is better: the figure the gate judges heading by, computed on the same
   held-out rows for both and with the magnetometer delay a gyro-ellipsoid record carries). Without it (no
   accelerometer) the lower held-out |B| residual (``holdout_rms_pct``); a tie or no figure at all: gyro-ellipsoid;
-- neither accepted: the refusal of gyro-ellipsoid (ellipsoid's when gyro-ellipsoid could not be computed), its
+- neither accepted (or, without a gyroscope, the ellipsoid refused): the field ladder
+  (``magnet.calibration.field``): the model the motion identifies (offset, offset+scale, planar or a full
+  ellipsoid), judged by held-out heading consistency; its record when accepted (quality ``auto_other`` names the
+  sphere's method it replaced);
+- none accepted: the refusal of gyro-ellipsoid (ellipsoid's when gyro-ellipsoid could not be computed), its
   reason naming both methods' reasons; FitError (both messages) when neither could be computed.
 
 The chosen record's quality carries ``auto_other``: the other method, whether it was accepted, its held-out
@@ -27,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from magnet.calibration import field
 from magnet.calibration.base import FitError, Method
 from magnet.calibration.fitting import fit
 from magnet.model import Calibration
@@ -72,12 +77,19 @@ def fit_auto(
     gyr: np.ndarray | None = None,
     period_s: float | None = None,
     reference: Calibration | None = None,
+    dip_deg: float | None = None,
 ) -> Calibration:
-    """The better of gyro-ellipsoid and ellipsoid for raw samples mag (N, 3) (the rule: the module docstring);
-    arguments as ``fit``'s. Raises FitError when no calibration can be computed by either."""
+    """The better of gyro-ellipsoid and ellipsoid for raw samples mag (N, 3), else the field ladder's (the rule:
+    the module docstring); arguments as ``fit``'s. Raises FitError when no calibration can be computed by any."""
     options: dict[str, Any] = dict(acc=acc, unit=unit, field_ut=field_ut, gate=gate, reference=reference)
     if gyr is None or period_s is None:
-        return fit(mag, Method.ELLIPSOID, robust_extremes=robust_extremes, **options)
+        try:
+            sphere: Calibration | FitError = fit(mag, Method.ELLIPSOID, robust_extremes=robust_extremes, **options)
+        except FitError as exc:
+            sphere = exc
+        if isinstance(sphere, Calibration) and sphere.accepted:
+            return sphere
+        return _field_fallback(mag, {Method.ELLIPSOID: sphere}, options, None, None, dip_deg)
     results: dict[Method, Calibration | FitError] = {}
     for method in CANDIDATES:
         try:
@@ -85,11 +97,57 @@ def fit_auto(
         except FitError as exc:
             results[method] = exc
     records = {method: result for method, result in results.items() if isinstance(result, Calibration)}
-    if not records:
-        raise FitError(_both_reasons(results))
+    if not any(record.accepted for record in records.values()):
+        return _field_fallback(mag, results, options, gyr, period_s, dip_deg)
     chosen = _choose(records)
     other = Method.ELLIPSOID if chosen is Method.GYRO_ELLIPSOID else Method.GYRO_ELLIPSOID
     return _mark(records[chosen], other, results)
+
+
+def _field_fallback(
+    mag: np.ndarray,
+    results: dict[Method, Calibration | FitError],
+    options: dict[str, Any],
+    gyr: np.ndarray | None,
+    period_s: float | None,
+    dip_deg: float | None,
+) -> Calibration:
+    """The field ladder's record when the sphere's methods (``results``) were refused: accepted, it is returned
+    with ``auto_other`` naming them; refused or impossible, the sphere's refusal as before (its reason ends with
+    the ladder's), FitError when nothing could be computed."""
+    try:
+        inp = field.FieldInput(
+            mag, options["acc"], gyr, period_s, options["unit"], options["field_ut"], dip_deg, options["reference"]
+        )
+        ladder: Calibration | FitError = field.fit_field(inp, gate_thresholds=options["gate"])
+    except FitError as exc:
+        ladder = exc
+    sphere = dict(results)
+    if isinstance(ladder, Calibration) and ladder.accepted:
+        summary = [
+            {"method": method.value, "accepted": False, "reason": _reason(result)[:300]}
+            for method, result in sphere.items()
+        ]
+        quality = ladder.quality.with_extra(auto_other=summary[0], auto_refused=summary)
+        why = "chosen by auto: the sphere's fits were refused"
+        return ladder.replace(quality=quality, reason=f"{ladder.reason}; {why}")
+    records = {method: result for method, result in sphere.items() if isinstance(result, Calibration)}
+    why = f"; the field ladder refused: {_reason(ladder)}"
+    if not records:
+        raise FitError(_all_reasons(sphere) + why)
+    if len(sphere) == 1:
+        only = next(iter(records.values()))
+        return only.replace(reason=only.reason + why)
+    chosen = _choose(records)
+    other = Method.ELLIPSOID if chosen is Method.GYRO_ELLIPSOID else Method.GYRO_ELLIPSOID
+    marked = _mark(records[chosen], other, sphere)
+    return marked.replace(reason=marked.reason + why)
+
+
+def _all_reasons(results: dict[Method, Calibration | FitError]) -> str:
+    if len(results) == len(CANDIDATES):
+        return _both_reasons(results)
+    return "; ".join(f"{method.value} refused: {_reason(result)}" for method, result in results.items())
 
 
 def _choose(records: dict[Method, Calibration]) -> Method:

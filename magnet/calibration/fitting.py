@@ -8,6 +8,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from magnet.calibration import field
 from magnet.calibration.alignment import ellipsoid_align
 from magnet.calibration.base import GYROSCOPE_NEEDED, FitError, Method, Shape, check_acc, check_gyr, check_samples
 from magnet.calibration.closed_form import minmax, minmax2d, sphere
@@ -38,6 +39,10 @@ def _no_gyroscope(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shap
     raise FitError(GYROSCOPE_NEEDED)
 
 
+def _field_only(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+    raise FitError("offset, offset+scale and planar are fitted by fit() (magnet.calibration.field), not as a shape")
+
+
 #: Method -> (shape function (mag, acc, robust) -> Shape, geometry the samples are judged by)
 _METHODS: dict[Method, tuple[Callable[[np.ndarray, np.ndarray | None, bool], Shape], Geometry]] = {
     Method.MINMAX2D: (minmax2d, Geometry.CIRCLE),
@@ -47,6 +52,9 @@ _METHODS: dict[Method, tuple[Callable[[np.ndarray, np.ndarray | None, bool], Sha
     Method.ELLIPSOID_ALIGN: (ellipsoid_align, Geometry.SPHERE),
     Method.TURNTABLE: (_turntable, Geometry.TURNTABLE),
     Method.GYRO_ELLIPSOID: (_no_gyroscope, Geometry.SPHERE),  # with a gyroscope: ``gyro_ellipsoid``
+    Method.OFFSET: (_field_only, Geometry.SPHERE),  # the field ladder's rungs: ``magnet.calibration.field``
+    Method.OFFSET_SCALE: (_field_only, Geometry.SPHERE),
+    Method.PLANAR: (_field_only, Geometry.SPHERE),
 }
 
 
@@ -112,6 +120,7 @@ def fit(
     gyr: np.ndarray | None = None,
     period_s: float | None = None,
     reference: Calibration | None = None,
+    dip_deg: float | None = None,
 ) -> Calibration:
     """Fit a calibration to raw samples mag (N, 3) in ``unit``; acc (N, 3) specific force, any unit, or None.
 
@@ -121,9 +130,17 @@ def fit(
     With acc, the dip and the consistency figures of ``magnet.quality.motion``: gyr (N, 3) rad/s sampled every
     period_s seconds gives the fused gravity and attitude, else the quasi-static samples are used; the fit must make
     the field more constant than ``reference`` (the calibration in force; None: no calibration) on held-out data.
-    Raises FitError when no calibration can be computed.
+    Raises FitError when no calibration can be computed. dip_deg: the WMM's inclination (deg, positive down), the
+    prior of the field ladder's rungs (offset, offset+scale, planar: ``magnet.calibration.field``), which keep the
+    matrix of ``reference`` where they do not estimate it.
     """
     method = Method.parse(method)
+    if method.field_rung:
+        return field.fit_field(
+            field.FieldInput(mag, acc, gyr, period_s, unit, field_ut, dip_deg, reference),
+            rung=method.value,
+            gate_thresholds=gate,
+        )
     calibration, shape = fit_shape(
         mag, method, acc=acc, unit=unit, field_ut=field_ut, robust_extremes=robust_extremes, gyr=gyr, period_s=period_s
     )

@@ -1,0 +1,376 @@
+"""The model ladder: fit what the motion identifies, from the magnetometer, the gyroscope and the Earth's field
+(docs/field-calibration.md).
+
+The correction is B = A (m - o) with A = (I + E) A0: A0 the matrix kept (the calibration in force's, else the
+identity) and E symmetric. The rungs free more of (o, E):
+
+- ``offset``: o alone (3), A0 kept;
+- ``offset+scale``: o and E's diagonal (6): per-axis scale;
+- ``planar``: o and E's horizontal block (xx, yy, xy) (6), for a device kept within ``PLANAR_TILT_DEG`` of level
+  (car, boat, ground robot, a multirotor that only yaws): a level turn shows the horizontal hard and soft iron, the
+  vertical offset comes from the expected dip;
+- ``ellipsoid`` (o and all of E, 9), only when the motion identifies it; above it the methods of the sphere
+  (``ellipsoid``, ``gyro-ellipsoid`` with the magnetometer's lag: ``magnet.calibration.choose``).
+
+One least-squares problem, three kinds of evidence, each block weighted by its own residual spread (re-estimated
+once, so that no constant is tuned to a file):
+
+- magnitude: |A (m - o)| = F, F the expected |B| (WMM; else the cloud's own radius);
+- vertical: d . A (m - o) = v, d the down direction in body axes from the gyroscope + accelerometer filter (or the
+  quasi-static samples); v the vertical field, a parameter held near F sin(dip) by the WMM's dip as a prior (free
+  when the dip is unknown);
+- the gyroscope (Kok and Schon 2016; Vasconcelos et al. 2011): over a window s..e of at most ``gyro_ellipsoid``'s
+  length, the field is constant in the earth frame while the body turns, b(e) = P^T b(s), P the turn the gyroscope
+  measured: linear in o, and it identifies o from turns about two axes, or its horizontal part from yaw alone.
+
+The identifiability rule (``identified_deg``): the information matrix J^T J (weighted) of a rung's free parameters at
+its solution gives their covariance (times ``CORRELATION_S`` / period: neighbouring samples are not independent);
+the largest eigenvalue of the offset's block over the horizontal field, and of E's block, turned into degrees, is
+the heading error the rung's own noise leaves. The richest rung whose figure is within ``IDENTIFIED_DEG`` is fitted;
+none: FitError. Pure numpy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from magnet.calibration.base import FitError
+from magnet.calibration.gyro_ellipsoid import _attitudes, windows
+from magnet.frames import rotation_vector_to_matrix
+
+#: a rung is identified when the heading error its parameters' noise leaves is within this (deg)
+IDENTIFIED_DEG = 1.5
+#: samples closer than this in time are counted as one for the covariance (s): a walk's or a car's attitude and its
+#: residual errors change over a fraction of a second, not sample by sample
+CORRELATION_S = 0.2
+#: at most this many samples enter the magnitude and vertical blocks (every k-th: neighbours carry little more)
+MAX_ROWS = 2500
+#: a device whose down stays within this of its z axis in PLANAR_FRACTION of the samples is planar (deg)
+PLANAR_TILT_DEG = 20.0
+PLANAR_FRACTION = 0.95
+#: what a planar record says
+PLANAR_NOTE = f"planar: within {PLANAR_TILT_DEG:g} deg of level"
+#: the WMM dip's prior on the vertical field: one standard deviation, in uT (local anomalies, the model's error)
+VERTICAL_PRIOR_UT = 1.0
+#: least spread of a block's residuals (uT): the magnetometer's noise floor, so that a perfect block is not infinite
+MIN_SIGMA_UT = 0.2
+#: samples whose magnitude residual exceeds this many block spreads are left out after the first pass
+OUTLIER_SIGMAS = 4.0
+#: at most this many gyroscope windows (spread evenly)
+MAX_WINDOWS = 2000
+#: Gauss-Newton iterations per pass; steps shorter than STEP_TOL (uT, or relative for E) end it early
+ITERATIONS = 15
+STEP_TOL = 1e-6
+
+#: E's symmetric basis: (row, column) of each parameter; the last, ``ISO``, is the identity (an isotropic scale,
+#: which heading does not see: the offset rung frees it so that a sensor's gain error does not bend the offset)
+_E_INDEX = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+ISO = 6
+
+
+@dataclasses.dataclass(frozen=True)
+class Rung:
+    """A model of the ladder: its name (the record's method), the E parameters it frees (indices into
+    ``_E_INDEX``), and what it estimates and keeps, in words."""
+
+    name: str
+    e_free: tuple[int, ...]
+    estimated: tuple[str, ...]
+    kept: tuple[str, ...]
+
+
+OFFSET = Rung("offset", (ISO,), ("offset",), ("matrix (up to its scale)",))
+#: a level device cannot tell its gain from its vertical offset: its offset rung keeps the matrix whole
+LEVEL_OFFSET = Rung("offset", (), ("offset",), ("matrix",))
+SCALE = Rung("offset+scale", (0, 1, 2), ("offset", "per-axis scale"), ("cross-axis terms",))
+PLANAR = Rung("planar", (0, 1, 3), ("offset", "horizontal soft iron"), ("vertical scale and cross-axis terms",))
+FULL = Rung("ellipsoid", (0, 1, 2, 3, 4, 5), ("offset", "soft iron"), ())
+#: the rungs tried from the richest down, for a device that tilts and for one kept level
+LADDER: tuple[Rung, ...] = (FULL, SCALE, OFFSET)
+PLANAR_LADDER: tuple[Rung, ...] = (PLANAR, LEVEL_OFFSET)
+RUNGS: dict[str, Rung] = {r.name: r for r in (OFFSET, SCALE, PLANAR, FULL)}
+
+
+@dataclasses.dataclass(frozen=True)
+class Evidence:
+    """What the fit sees: mag (N, 3) raw; down (N, 3) unit down in body axes (NaN rows unknown) or None; the
+    gyroscope's windows as (starts (M,), ends (M,), P^T (M, 3, 3)) or None; period_s (s) or None; field_ut F;
+    vertical_ut the WMM's F sin(dip) or None (then free); matrix0 (3, 3) and offset0 (3,) the kept calibration."""
+
+    mag: np.ndarray
+    down: np.ndarray | None
+    spans: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    period_s: float | None
+    field_ut: float
+    vertical_ut: float | None
+    matrix0: np.ndarray
+    offset0: np.ndarray
+
+    @property
+    def horizontal_ut(self) -> float:
+        vertical = self.vertical_ut if self.vertical_ut is not None else 0.6 * self.field_ut
+        return max(math.sqrt(max(self.field_ut**2 - vertical**2, 0.0)), 0.1 * self.field_ut)
+
+
+@dataclasses.dataclass(frozen=True)
+class RungFit:
+    """A rung's solution: offset (3,), matrix A (3, 3), the vertical field v (uT), the heading error its noise
+    leaves (deg, ``identified_deg``), the information's eigenvalues (normalised: per parameter, in uT^-2 for o
+    and per unit^2 for E), the residual spread of each block (uT), samples used."""
+
+    rung: Rung
+    offset: np.ndarray
+    matrix: np.ndarray
+    vertical_ut: float
+    identified_deg: float
+    eigenvalues: tuple[float, ...]
+    sigma_ut: dict[str, float]
+    used: int
+
+
+def gyro_spans(
+    gyr_rads: np.ndarray, period_s: float, keep: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The gyroscope's windows (``gyro_ellipsoid.windows``, at most MAX_WINDOWS) with P^T of each, both ends in
+    ``keep`` (None: all); None when there are fewer than 12."""
+    gyr = np.asarray(gyr_rads, dtype=float)
+    starts, ends = windows(gyr, period_s)
+    if keep is not None:
+        ok = keep[starts] & keep[ends]
+        starts, ends = starts[ok], ends[ok]
+    if len(starts) > MAX_WINDOWS:
+        pick = np.linspace(0, len(starts) - 1, MAX_WINDOWS).astype(int)
+        starts, ends = starts[pick], ends[pick]
+    if len(starts) < 12:
+        return None
+    attitudes = _attitudes(rotation_vector_to_matrix(gyr * period_s))
+    back = np.transpose(attitudes[ends], (0, 2, 1)) @ attitudes[starts]
+    return starts, ends, back
+
+
+def is_planar(down: np.ndarray | None) -> bool:
+    """Whether the known down directions (N, 3) stay within PLANAR_TILT_DEG of body z in PLANAR_FRACTION of rows."""
+    if down is None:
+        return False
+    known = np.all(np.isfinite(down), axis=1)
+    if known.sum() < 30:
+        return False
+    cosine = down[known, 2] / np.linalg.norm(down[known], axis=1)
+    return float(np.mean(cosine >= math.cos(math.radians(PLANAR_TILT_DEG)))) >= PLANAR_FRACTION
+
+
+def _basis() -> np.ndarray:
+    out = np.zeros((7, 3, 3))
+    for k, (i, j) in enumerate(_E_INDEX):
+        out[k, i, j] = out[k, j, i] = 1.0
+    out[ISO] = np.eye(3)
+    return out
+
+
+_BASIS = _basis()
+
+
+def _matrix(ev: Evidence, e: np.ndarray) -> np.ndarray:
+    return (np.eye(3) + np.einsum("k,kij->ij", e, _BASIS)) @ ev.matrix0
+
+
+def _residuals(
+    ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray, sigma: dict[str, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(weighted residuals (R,), weighted Jacobian (R, P)) at x = (o (3), E free, v) over the used rows."""
+    free = len(rung.e_free)
+    o, v = x[:3], x[3 + free]
+    e = np.zeros(7)
+    e[list(rung.e_free)] = x[3 : 3 + free]
+    a = _matrix(ev, e)
+    u = (ev.mag - o) @ ev.matrix0.T  # A0 (m - o)
+    b = u + u @ np.einsum("k,kij->ij", e, _BASIS).T
+    # db/do = -A; db/de_k = G_k u
+    db_de = np.einsum("kij,nj->nik", _BASIS[list(rung.e_free)], u) if free else np.zeros((len(u), 3, 0))
+    blocks_r, blocks_j = [], []
+
+    def add(r: np.ndarray, grad_b: np.ndarray, dv: np.ndarray | None, s: float) -> None:
+        # grad_b (R, 3): d r / d b for rows whose b is b[rows]
+        jo = -grad_b @ a
+        je = np.einsum("ni,nik->nk", grad_b, db_de[idx]) if free else np.zeros((len(r), 0))
+        jv = np.zeros((len(r), 1)) if dv is None else dv[:, None]
+        blocks_r.append(r / s)
+        blocks_j.append(np.hstack([jo, je, jv]) / s)
+
+    idx = np.flatnonzero(rows)
+    norm = np.linalg.norm(b[idx], axis=1)
+    add(norm - ev.field_ut, b[idx] / norm[:, None], None, sigma["magnitude"])
+    if ev.down is not None:
+        known = idx[np.all(np.isfinite(ev.down[idx]), axis=1)]
+        if len(known):
+            idx_all = idx
+            idx = known
+            d = ev.down[known]
+            add(np.einsum("ni,ni->n", d, b[known]) - v, d, -np.ones(len(known)), sigma["vertical"])
+            idx = idx_all
+    if ev.spans is not None:
+        starts, ends, back = ev.spans
+        ok = rows[starts] & rows[ends]
+        s_, e_, p_ = starts[ok], ends[ok], back[ok]
+        if len(s_):
+            r = (b[e_] - np.einsum("nij,nj->ni", p_, b[s_])).reshape(-1)
+            jo = (-(np.eye(3)[None] - p_) @ a).reshape(-1, 3)
+            if free:
+                je = (db_de[e_] - np.einsum("nij,njk->nik", p_, db_de[s_])).reshape(-1, free)
+            else:
+                je = np.zeros((len(r), 0))
+            blocks_r.append(r / sigma["gyroscope"])
+            blocks_j.append(np.hstack([jo, je, np.zeros((len(r), 1))]) / sigma["gyroscope"])
+    if ev.vertical_ut is not None:
+        blocks_r.append(np.array([(v - ev.vertical_ut) / VERTICAL_PRIOR_UT]))
+        blocks_j.append(np.concatenate([np.zeros(3 + free), [1.0 / VERTICAL_PRIOR_UT]])[None])
+    return np.concatenate(blocks_r), np.vstack(blocks_j)
+
+
+def _block_spreads(ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray) -> dict[str, float]:
+    """Each block's RMS residual (uT), at least MIN_SIGMA_UT."""
+    unit = {"magnitude": 1.0, "vertical": 1.0, "gyroscope": 1.0}
+    free = len(rung.e_free)
+    e = np.zeros(7)
+    e[list(rung.e_free)] = x[3 : 3 + free]
+    b = (ev.mag - x[:3]) @ _matrix(ev, e).T
+    out = {"magnitude": float(np.sqrt(np.mean((np.linalg.norm(b[rows], axis=1) - ev.field_ut) ** 2)))}
+    if ev.down is not None:
+        known = rows & np.all(np.isfinite(ev.down), axis=1)
+        if known.any():
+            out["vertical"] = float(np.sqrt(np.mean((np.einsum("ni,ni->n", ev.down[known], b[known]) - x[-1]) ** 2)))
+    if ev.spans is not None:
+        starts, ends, back = ev.spans
+        ok = rows[starts] & rows[ends]
+        if ok.any():
+            r = b[ends[ok]] - np.einsum("nij,nj->ni", back[ok], b[starts[ok]])
+            out["gyroscope"] = float(np.sqrt(np.mean(r**2)))
+    return {k: max(out.get(k, unit[k]), MIN_SIGMA_UT) for k in unit}
+
+
+def _solve(ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray, sigma: dict[str, float]) -> np.ndarray:
+    """Gauss-Newton with a little Levenberg-Marquardt damping from x."""
+    damping = 1e-6
+    r, j = _residuals(ev, rung, x, rows, sigma)
+    cost = float(r @ r)
+    for _ in range(ITERATIONS):
+        normal = j.T @ j
+        step = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), -j.T @ r)
+        trial = x + step
+        r2, j2 = _residuals(ev, rung, trial, rows, sigma)
+        cost2 = float(r2 @ r2)
+        if cost2 <= cost:
+            x, r, j, cost = trial, r2, j2, cost2
+            damping = max(damping / 10, 1e-9)
+            if np.max(np.abs(step[:3])) < STEP_TOL * ev.field_ut and np.max(np.abs(step[3:]), initial=0) < STEP_TOL:
+                break
+        else:
+            damping *= 10
+            if damping > 1e6:
+                break
+    return x
+
+
+def _identified_deg(ev: Evidence, rung: Rung, j: np.ndarray, step: int) -> tuple[float, tuple[float, ...]]:
+    """(heading error the parameters' noise leaves, deg; the information's eigenvalues) from the weighted Jacobian
+    of rows ``step`` samples apart."""
+    free = 3 + len(rung.e_free)
+    info = j.T @ j
+    inflation = 1.0 if ev.period_s is None else max(CORRELATION_S / (ev.period_s * step), 1.0)
+    values = np.linalg.eigvalsh(info[:free, :free])
+    try:
+        cov = np.linalg.inv(info) * inflation
+    except np.linalg.LinAlgError:
+        return math.inf, tuple(float(v) for v in values)
+    if not np.all(np.isfinite(cov)) or values[0] <= 0:
+        return math.inf, tuple(float(v) for v in values)
+    offset = float(np.linalg.eigvalsh(cov[:3, :3])[-1]) / ev.horizontal_ut**2
+    shape = [3 + k for k, index in enumerate(rung.e_free) if index != ISO]  # heading does not see the isotropic
+    matrix = float(np.linalg.eigvalsh(cov[np.ix_(shape, shape)])[-1]) if shape else 0.0
+    return math.degrees(math.sqrt(max(offset, 0.0) + max(matrix, 0.0))), tuple(float(v) for v in values)
+
+
+def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | None = None) -> RungFit:
+    """Fit ``rung`` from the offset ``start`` (3,) over ``rows`` (N,) bool (None: all): a first pass with unit
+    spreads, the spreads re-estimated and gross outliers (OUTLIER_SIGMAS) left out, a second pass."""
+    used = np.ones(len(ev.mag), dtype=bool) if rows is None else rows.copy()
+    step = max(1, math.ceil(int(used.sum()) / MAX_ROWS))
+    if step > 1:  # every step-th sample: the gyroscope's windows keep their own ends
+        thin = np.zeros(len(used), dtype=bool)
+        thin[::step] = True
+        if ev.spans is not None:
+            thin[ev.spans[0]] = thin[ev.spans[1]] = True
+        used &= thin
+    v0 = ev.vertical_ut if ev.vertical_ut is not None else 0.0
+    x = np.concatenate([start, np.zeros(len(rung.e_free)), [v0]])
+    sigma = {"magnitude": 1.0, "vertical": 2.0, "gyroscope": 2.0}
+    x = _solve(ev, rung, x, used, sigma)
+    sigma = _block_spreads(ev, rung, x, used)
+    free = len(rung.e_free)
+    e = np.zeros(7)
+    e[list(rung.e_free)] = x[3 : 3 + free]
+    b = (ev.mag - x[:3]) @ _matrix(ev, e).T
+    used &= np.abs(np.linalg.norm(b, axis=1) - ev.field_ut) <= OUTLIER_SIGMAS * sigma["magnitude"]
+    if used.sum() < 30:
+        raise FitError(f"{rung.name}: fewer than 30 samples agree with one field: keep away from iron while moving")
+    x = _solve(ev, rung, x, used, sigma)
+    sigma = _block_spreads(ev, rung, x, used)
+    _, j = _residuals(ev, rung, x, used, sigma)
+    identified, eigen = _identified_deg(ev, rung, j, step)
+    e = np.zeros(7)
+    e[list(rung.e_free)] = x[3 : 3 + free]
+    return RungFit(rung, x[:3].copy(), _matrix(ev, e), float(x[-1]), identified, eigen, sigma, int(used.sum()))
+
+
+def first_offset(ev: Evidence, rows: np.ndarray | None = None) -> np.ndarray:
+    """A starting offset (3,): linear least squares of what is linear in o with A0 kept (the gyroscope's windows
+    and the vertical field), with the sphere of radius F; the kept offset where that is undetermined."""
+    used = np.ones(len(ev.mag), dtype=bool) if rows is None else rows
+    a0 = ev.matrix0
+    rows_j, rows_r = [], []
+    m = ev.mag[used]
+    # the sphere |m - o|^2 = R^2 in A0's frame: 2 u.o' + k = |u|^2, o' = A0 o, k = R^2 - |o'|^2 (algebraic)
+    u = m @ a0.T
+    design = np.hstack([2 * u, np.ones((len(u), 1))])
+    scale = float(np.median(np.linalg.norm(u - np.median(u, axis=0), axis=1))) or 1.0
+    rows_j.append(design / scale)
+    rows_r.append(np.einsum("ij,ij->i", u, u) / scale)
+    if ev.spans is not None:
+        starts, ends, back = ev.spans
+        ok = used[starts] & used[ends]
+        if ok.any():
+            # A0 m(e) - o' = P^T (A0 m(s) - o')  ->  (P^T - I) o' = P^T u(s) - u(e)
+            ue, us = ev.mag[ends[ok]] @ a0.T, ev.mag[starts[ok]] @ a0.T
+            lhs = (back[ok] - np.eye(3)[None]).reshape(-1, 3)
+            rhs = (np.einsum("nij,nj->ni", back[ok], us) - ue).reshape(-1)
+            rows_j.append(np.hstack([lhs, np.zeros((len(lhs), 1))]) * 10.0)
+            rows_r.append(rhs * 10.0)
+    solution, *_ = np.linalg.lstsq(np.vstack(rows_j), np.concatenate(rows_r), rcond=None)
+    offset = np.linalg.solve(a0, solution[:3])
+    if not np.all(np.isfinite(offset)):
+        return ev.offset0.copy()
+    return offset
+
+
+def climb(ev: Evidence, planar: bool, rows: np.ndarray | None = None) -> tuple[RungFit, dict[str, float]]:
+    """(the richest identified rung's fit, every tried rung's ``identified_deg``); FitError when even the offset
+    is not identified."""
+    start = first_offset(ev, rows)
+    tried: dict[str, float] = {}
+    base = fit_rung(ev, OFFSET, start, rows)
+    for rung in PLANAR_LADDER if planar else LADDER:
+        try:
+            result = base if rung is OFFSET else fit_rung(ev, rung, base.offset, rows)
+        except (FitError, np.linalg.LinAlgError):
+            continue
+        tried[rung.name] = result.identified_deg
+        if result.identified_deg <= IDENTIFIED_DEG:
+            return result, tried
+    figures = ", ".join(f"{name} {value:.2g} deg" for name, value in tried.items())
+    raise FitError(
+        f"the motion does not identify even the offset (heading error its noise leaves: {figures}, limit "
+        f"{IDENTIFIED_DEG:g} deg): turn the device through more headings and tilts"
+    )
