@@ -25,8 +25,9 @@ once, so that no constant is tuned to a file):
 
 The identifiability rule (``identified_deg``): the information matrix J^T J (weighted) of a rung's free parameters at
 its solution gives their covariance (times ``CORRELATION_S`` / period: neighbouring samples are not independent);
-the largest eigenvalue of the offset's block over the horizontal field, and of E's block, turned into degrees, is
-the heading error the rung's own noise leaves. The richest rung whose figure is within ``IDENTIFIED_DEG`` is fitted;
+the largest eigenvalue of the offset's block (seen through the mean horizontal projector in body axes: an offset
+error along the vertical bends no heading) over the horizontal field, and of E's block, turned into degrees, is the
+heading error the rung's own noise leaves. The richest rung whose figure is within ``IDENTIFIED_DEG`` is fitted;
 none: FitError. Pure numpy.
 """
 
@@ -69,6 +70,8 @@ STEP_TOL = 1e-6
 #: which heading does not see: the offset rung frees it so that a sensor's gain error does not bend the offset)
 _E_INDEX = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 ISO = 6
+#: then three for the plane square to the device's mean vertical (``Evidence.axis``): p p^T, q q^T, p q^T + q p^T
+LEVEL = (7, 8, 9)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,7 +89,7 @@ OFFSET = Rung("offset", (ISO,), ("offset",), ("matrix (up to its scale)",))
 #: a level device cannot tell its gain from its vertical offset: its offset rung keeps the matrix whole
 LEVEL_OFFSET = Rung("offset", (), ("offset",), ("matrix",))
 SCALE = Rung("offset+scale", (0, 1, 2), ("offset", "per-axis scale"), ("cross-axis terms",))
-PLANAR = Rung("planar", (0, 1, 3), ("offset", "horizontal soft iron"), ("vertical scale and cross-axis terms",))
+PLANAR = Rung("planar", LEVEL, ("offset", "horizontal soft iron"), ("vertical scale and cross-axis terms",))
 FULL = Rung("ellipsoid", (0, 1, 2, 3, 4, 5), ("offset", "soft iron"), ())
 #: the rungs tried from the richest down, for a device that tilts and for one kept level
 LADDER: tuple[Rung, ...] = (FULL, SCALE, OFFSET)
@@ -108,6 +111,11 @@ class Evidence:
     vertical_ut: float | None
     matrix0: np.ndarray
     offset0: np.ndarray
+
+    @property
+    def basis(self) -> np.ndarray:
+        """E's basis (``basis``) with the plane square to the mean down direction."""
+        return basis(mean_down(self.down))
 
     @property
     def horizontal_ut(self) -> float:
@@ -151,30 +159,46 @@ def gyro_spans(
     return starts, ends, back
 
 
+def mean_down(down: np.ndarray | None) -> np.ndarray:
+    """The unit mean of the known down directions (N, 3) in body axes; body z when none is known."""
+    if down is None:
+        return np.array([0.0, 0.0, 1.0])
+    known = down[np.all(np.isfinite(down), axis=1)]
+    total = known.sum(axis=0) if len(known) else np.zeros(3)
+    norm = float(np.linalg.norm(total))
+    return total / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
+
+
 def is_planar(down: np.ndarray | None) -> bool:
-    """Whether the known down directions (N, 3) stay within PLANAR_TILT_DEG of body z in PLANAR_FRACTION of rows."""
+    """Whether the known down directions (N, 3) stay within PLANAR_TILT_DEG of their mean (``mean_down``) in
+    PLANAR_FRACTION of the rows: a vehicle that only yaws, or a phone held the same way while its holder turns."""
     if down is None:
         return False
-    known = np.all(np.isfinite(down), axis=1)
-    if known.sum() < 30:
+    known = down[np.all(np.isfinite(down), axis=1)]
+    if len(known) < 30:
         return False
-    cosine = down[known, 2] / np.linalg.norm(down[known], axis=1)
+    cosine = known @ mean_down(known) / np.linalg.norm(known, axis=1)
     return float(np.mean(cosine >= math.cos(math.radians(PLANAR_TILT_DEG)))) >= PLANAR_FRACTION
 
 
-def _basis() -> np.ndarray:
-    out = np.zeros((7, 3, 3))
+def basis(axis: np.ndarray) -> np.ndarray:
+    """E's basis (10, 3, 3): the six symmetric ones of ``_E_INDEX``, the identity (ISO), and the three of the plane
+    square to ``axis`` (3,) unit (LEVEL)."""
+    out = np.zeros((10, 3, 3))
     for k, (i, j) in enumerate(_E_INDEX):
         out[k, i, j] = out[k, j, i] = 1.0
     out[ISO] = np.eye(3)
+    helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
+    p = np.cross(axis, helper)
+    p /= np.linalg.norm(p)
+    q = np.cross(axis, p)
+    out[LEVEL[0]], out[LEVEL[1]] = np.outer(p, p), np.outer(q, q)
+    out[LEVEL[2]] = np.outer(p, q) + np.outer(q, p)
     return out
 
 
-_BASIS = _basis()
-
-
 def _matrix(ev: Evidence, e: np.ndarray) -> np.ndarray:
-    return (np.eye(3) + np.einsum("k,kij->ij", e, _BASIS)) @ ev.matrix0
+    return (np.eye(3) + np.einsum("k,kij->ij", e, ev.basis)) @ ev.matrix0
 
 
 def _residuals(
@@ -183,13 +207,13 @@ def _residuals(
     """(weighted residuals (R,), weighted Jacobian (R, P)) at x = (o (3), E free, v) over the used rows."""
     free = len(rung.e_free)
     o, v = x[:3], x[3 + free]
-    e = np.zeros(7)
+    e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
     a = _matrix(ev, e)
     u = (ev.mag - o) @ ev.matrix0.T  # A0 (m - o)
-    b = u + u @ np.einsum("k,kij->ij", e, _BASIS).T
+    b = u + u @ np.einsum("k,kij->ij", e, ev.basis).T
     # db/do = -A; db/de_k = G_k u
-    db_de = np.einsum("kij,nj->nik", _BASIS[list(rung.e_free)], u) if free else np.zeros((len(u), 3, 0))
+    db_de = np.einsum("kij,nj->nik", ev.basis[list(rung.e_free)], u) if free else np.zeros((len(u), 3, 0))
     blocks_r, blocks_j = [], []
 
     def add(r: np.ndarray, grad_b: np.ndarray, dv: np.ndarray | None, s: float) -> None:
@@ -234,7 +258,7 @@ def _block_spreads(ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray) ->
     """Each block's RMS residual (uT), at least MIN_SIGMA_UT."""
     unit = {"magnitude": 1.0, "vertical": 1.0, "gyroscope": 1.0}
     free = len(rung.e_free)
-    e = np.zeros(7)
+    e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
     b = (ev.mag - x[:3]) @ _matrix(ev, e).T
     out = {"magnitude": float(np.sqrt(np.mean((np.linalg.norm(b[rows], axis=1) - ev.field_ut) ** 2)))}
@@ -287,10 +311,24 @@ def _identified_deg(ev: Evidence, rung: Rung, j: np.ndarray, step: int) -> tuple
         return math.inf, tuple(float(v) for v in values)
     if not np.all(np.isfinite(cov)) or values[0] <= 0:
         return math.inf, tuple(float(v) for v in values)
-    offset = float(np.linalg.eigvalsh(cov[:3, :3])[-1]) / ev.horizontal_ut**2
+    weight = _horizontal_weight(ev)  # an offset error along the vertical bends no heading
+    offset = float(np.linalg.eigvalsh(weight @ cov[:3, :3] @ weight)[-1]) / ev.horizontal_ut**2
     shape = [3 + k for k, index in enumerate(rung.e_free) if index != ISO]  # heading does not see the isotropic
     matrix = float(np.linalg.eigvalsh(cov[np.ix_(shape, shape)])[-1]) if shape else 0.0
     return math.degrees(math.sqrt(max(offset, 0.0) + max(matrix, 0.0))), tuple(float(v) for v in values)
+
+
+def _horizontal_weight(ev: Evidence) -> np.ndarray:
+    """W (3, 3): the square root of the body-frame horizontal projector averaged over the samples,
+    I - mean(d d^T) (I where down is unknown): an offset error e bends heading by about |W e| / Bh."""
+    if ev.down is None:
+        return np.eye(3)
+    down = ev.down[np.all(np.isfinite(ev.down), axis=1)]
+    if len(down) == 0:
+        return np.eye(3)
+    projector = np.eye(3) - down.T @ down / len(down)
+    values, vectors = np.linalg.eigh(projector)
+    return (vectors * np.sqrt(np.clip(values, 0.0, None))) @ vectors.T
 
 
 def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | None = None) -> RungFit:
@@ -310,7 +348,7 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
     x = _solve(ev, rung, x, used, sigma)
     sigma = _block_spreads(ev, rung, x, used)
     free = len(rung.e_free)
-    e = np.zeros(7)
+    e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
     b = (ev.mag - x[:3]) @ _matrix(ev, e).T
     used &= np.abs(np.linalg.norm(b, axis=1) - ev.field_ut) <= OUTLIER_SIGMAS * sigma["magnitude"]
@@ -320,7 +358,7 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
     sigma = _block_spreads(ev, rung, x, used)
     _, j = _residuals(ev, rung, x, used, sigma)
     identified, eigen = _identified_deg(ev, rung, j, step)
-    e = np.zeros(7)
+    e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
     return RungFit(rung, x[:3].copy(), _matrix(ev, e), float(x[-1]), identified, eigen, sigma, int(used.sum()))
 
@@ -360,10 +398,10 @@ def climb(ev: Evidence, planar: bool, rows: np.ndarray | None = None) -> tuple[R
     is not identified."""
     start = first_offset(ev, rows)
     tried: dict[str, float] = {}
-    base = fit_rung(ev, OFFSET, start, rows)
+    base = fit_rung(ev, LEVEL_OFFSET if planar else OFFSET, start, rows)
     for rung in PLANAR_LADDER if planar else LADDER:
         try:
-            result = base if rung is OFFSET else fit_rung(ev, rung, base.offset, rows)
+            result = base if rung is base.rung else fit_rung(ev, rung, base.offset, rows)
         except (FitError, np.linalg.LinAlgError):
             continue
         tried[rung.name] = result.identified_deg
