@@ -13,6 +13,7 @@ import logging
 import os
 import re
 import sys
+from typing import NoReturn
 
 from services.common.allocator import give_back_freed_memory
 
@@ -65,8 +66,17 @@ def _only_the_chosen(argv: list[str], chosen: str | None) -> bool:
     return all(re.fullmatch(r"-v+|--verbose", word) for word in before)
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose refusal is the one line that matters (``magnet fit: error: argument --method: ...``)
+    and where to read more, not a page of usage before it: the usage is what ``--help`` is for. Exit status 2, as
+    argparse's own refusal."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="magnet", description="Magnetometer calibration and compass service.")
+    parser = OneLineParser(prog="magnet", description="Magnetometer calibration and compass service.")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     chosen = _chosen_command(argv)

@@ -32,3 +32,20 @@ def test_offline_commands_do_not_load_zenoh():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "False"
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["fit", "--method", "bogus", "x.csv"], "argument --method: invalid choice: 'bogus'"),
+        (["fit"], "the following arguments are required: FILE.csv"),
+        (["bogus"], "argument COMMAND: invalid choice: 'bogus'"),
+    ],
+)
+def test_a_wrong_option_value_is_one_line_not_a_page_of_usage(argv, says, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and says in err and "usage:" not in err
+    assert "--help" in err  # where to read the usage

@@ -8,7 +8,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from logfixtures import ARDUPILOT_LOG, PX4_LOG, simulated_run, write_tlog
+from logfixtures import (
+    ARDUPILOT_LOG,
+    DATAFLASH_MAG_LAYOUTS,
+    PX4_LOG,
+    simulated_run,
+    write_dataflash,
+    write_tlog,
+)
 
 from services.cli import main
 from services.common.inputs import InputOptions, read_input, reference_yaw
@@ -116,6 +123,32 @@ def test_ardupilot_compare_names_compass_dec(capsys: pytest.CaptureFixture[str])
     assert main(["heading", str(ARDUPILOT_LOG), "--compare"]) == 0
     err = capsys.readouterr().err
     assert "ATT yaw over 8 samples" in err and "COMPASS_DEC=11.81 deg" in err
+
+
+@pytest.mark.parametrize("layout", ["2013", "2014", "2016", "2020"])
+def test_every_mag_layout_ardupilot_logged_reads_and_fits(layout: str, tmp_path: Path, capsys) -> None:
+    """Old DataFlash logs (issue 27): MAG without motor offsets (2013), MOfsX.. with TimeMS (2014), MOfsX.. with
+    TimeUS (2016), MOX.. with the instance field (2020): each reads back the reading (offsets removed) and fits."""
+    run = simulated_run(count=400, rate_hz=25.0)
+    path = tmp_path / f"old-{layout}.bin"
+    write_dataflash(path, run, layout)
+    table = read_input(path)
+    assert np.abs(table.mag - run.mag_ut).max() <= 0.05 + 1e-9  # milligauss rounding
+    t_s = table.numeric("t_s")
+    assert np.abs((t_s - t_s[0]) - run.t_s).max() < 2e-3  # TimeMS: whole ms
+    assert np.abs(table.acc - run.acc_ms2).max() < 1e-4
+    out = tmp_path / "cal.json"
+    assert main(["fit", str(path), "--method", "ellipsoid", "--field-ut", "50", "--out", str(out)]) == 0
+    assert out.exists() and "Traceback" not in capsys.readouterr().err
+
+
+def test_a_mag_layout_without_a_field_is_one_clear_line(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "odd.bin"
+    write_dataflash(path, simulated_run(count=60, rate_hz=25.0), "unknown")
+    assert "unknown" in DATAFLASH_MAG_LAYOUTS
+    assert main(["fit", str(path), "--out", str(tmp_path / "cal.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "MAG record layout magnet does not know (TimeMS,FldX,FldY,FldZ)" in err[0], err
 
 
 # ----------------------------------------------------------------------------------------------------------- tlog

@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers import NO_SCOUT, connect_args, listen_args, run_magnet
+from helpers import NO_SCOUT, connect_args, free_ports, listen_args, run_magnet
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
@@ -71,3 +71,12 @@ def test_a_recording_reads_back_message_by_message(procs, tmp_path):
     assert table.acc is not None and "gx" in table.columns
     norms = np.linalg.norm(table.mag, axis=1)
     assert 20 < np.median(norms) < 200  # uT again, simulated field plus hard iron
+
+
+def test_a_recording_that_hears_nothing_is_an_error_and_leaves_no_bag(tmp_path):
+    (port,) = free_ports(1)
+    out = tmp_path / "silence.mcap"
+    done = run_magnet("record", "--out", str(out), "--seconds", "1", *NO_SCOUT, *listen_args(port))
+    assert done.returncode == 1, done.stderr
+    assert "heard nothing" in done.stderr and "no bag written" in done.stderr
+    assert not out.exists() and not (tmp_path / "silence.mcap.bag").exists()

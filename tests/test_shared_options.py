@@ -45,6 +45,8 @@ def test_a_bad_stream_option_names_its_flag(argv: list[str], message: str) -> No
         ("udpin:127.0.0.1", "expects udpin:HOST:PORT"),
         ("udpout::14550", "expects udpout:HOST:PORT"),
         ("tcp:h:99999", "port in 1..65535"),
+        ("bogus:thing", "unknown link kind 'bogus'"),  # pymavlink would fail on int('thing')
+        ("COM3", None),
     ],
 )
 def test_a_mavlink_url_is_checked(url: str | None, problem: str | None) -> None:

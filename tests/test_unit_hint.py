@@ -56,3 +56,12 @@ def test_no_unit_advice_for_a_plausible_or_unexplained_radius():
     )
     scales = dict(chip_count_scales())
     assert scales["hmc5883l gain 1"] == pytest.approx(100 / 1090) and scales["ak09918c/icm20948"] == 0.15
+
+
+@pytest.mark.parametrize("factor", [0.01, 1e4])  # gauss read as uT (0.5 "uT"); no unit or chip explains 500,000 uT
+def test_a_radius_no_earth_field_has_is_refused_without_a_location_too(tumble, factor):
+    mag, acc = tumble
+    cal = fit(mag * factor, "ellipsoid", acc=acc)  # no expected field: the Earth's range judges
+    assert not cal.accepted
+    assert ("try --unit gauss" in cal.reason) if factor == 0.01 else ("no Earth field (22-67 uT" in cal.reason)
+    assert fit(mag, "ellipsoid", acc=acc).accepted  # the same motion in uT is accepted

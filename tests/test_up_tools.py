@@ -73,7 +73,7 @@ def test_get_fleet_and_watch_heading_beside_magnet_up_need_no_options(tmp_path):
             stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, cwd=REPO_ROOT,
         )  # fmt: skip
     try:
-        record_path = runtime / "magnet" / "up.json"
+        record_path = runtime / "magnet" / f"up-{up.pid}.json"
         wait_for(lambda: record_path.exists() or up.poll() is not None, 30, "the runtime file")
         record = json.loads(record_path.read_text())
         assert record["pid"] == up.pid and set(record["ports"]) == {"calibrator", "compass", "edge"}
@@ -104,6 +104,10 @@ def test_get_fleet_and_watch_heading_beside_magnet_up_need_no_options(tmp_path):
         assert json.loads(as_json.strip().splitlines()[0])["count"] >= 2, as_json  # --json: JSON even on a terminal
         elsewhere = magnet({**env, "XDG_RUNTIME_DIR": str(tmp_path / "nowhere")}, "get", "fleet", *line)
         assert elsewhere.returncode == 0 and json.loads(elsewhere.stdout.splitlines()[0])["devices"]
+        bag = tmp_path / "up.mcap"  # magnet record finds the pipeline too, and hears its devices
+        recorded = magnet(env, "record", "--out", str(bag), "--seconds", "3")
+        assert recorded.returncode == 0 and bag.exists(), recorded.stderr
+        assert json.loads(recorded.stdout.splitlines()[-1])["written"]["sensor_msgs/msg/MagneticField"] > 0
     finally:
         up.send_signal(signal.SIGTERM)
         up.wait(timeout=30)

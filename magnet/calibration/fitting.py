@@ -17,7 +17,7 @@ from magnet.calibration.gyro_ellipsoid import gyro_ellipsoid
 from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
-from magnet.quality.units_hint import unit_hint
+from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT, unit_hint
 
 #: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
 #: it did not see (blocks, not single samples: neighbours in time are nearly the same reading)
@@ -182,12 +182,32 @@ def fit(
     if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.mag_delay)
         quality = quality.with_extra(mag_lag_s=shape.mag_lag_s)
     accepted, reason = _gate(quality, gate, method)
-    hint = None if accepted or geometry is not Geometry.SPHERE else unit_hint(shape.radius, to_ut, field_ut)
+    earth = _outside_the_earth(shape.radius, to_ut, field_ut, geometry)
+    advise = geometry is Geometry.SPHERE and (not accepted or earth is not None)
+    hint = unit_hint(shape.radius, to_ut, field_ut) if advise else None
+    if earth:
+        earth = hint or earth
+        accepted, reason, hint = False, earth if accepted else f"{earth}; {reason}", None
     if hint:
         reason = f"{hint}; {reason}"
     if shape.note:
         reason = f"{reason}; {shape.note}"
     return calibration.replace(quality=quality, accepted=accepted, reason=reason)
+
+
+def _outside_the_earth(radius: float, to_ut: float | None, field_ut: float | None, geometry: Geometry) -> str | None:
+    """Why a sphere's radius (declared unit; ``to_ut`` uT per unit, None for counts) can be no Earth field when no
+    expected field is known (with one, the gate's radius check judges it): the total field at the surface lies in
+    EARTH_MIN_UT..EARTH_MAX_UT everywhere, so a radius outside it is a wrong unit (gauss read as uT: 0.5 "uT")."""
+    if field_ut is not None or to_ut is None or geometry is not Geometry.SPHERE or not np.isfinite(radius):
+        return None
+    radius_ut = radius * to_ut
+    if EARTH_MIN_UT <= radius_ut <= EARTH_MAX_UT:
+        return None
+    return (
+        f"fitted radius {radius_ut:.3g} uT is no Earth field ({EARTH_MIN_UT:g}-{EARTH_MAX_UT:g} uT anywhere at the "
+        "surface): the samples are in another unit than declared (--unit)"
+    )
 
 
 def _motion_evidence(acc: np.ndarray, gyr: np.ndarray | None, period_s: float | None, n: int) -> motion.MotionEvidence:

@@ -1,5 +1,5 @@
-"""``magnet bench accuracy|fit|pipeline|motion|fleet|dashboard|soak``: benchmarks that print figures (targets live here,
-not in timed tests)."""
+"""``magnet bench accuracy|fit|pipeline|motion|fleet|dashboard|soak|cost``: benchmarks that print figures (targets
+live here, not in timed tests)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "fleet": ("services.bench.fleet_query", "run_fleet_benchmark"),
     "dashboard": ("services.bench.dashboard", "run_dashboard_benchmark"),
     "soak": ("services.bench.soak", "run_soak_benchmark"),
+    "cost": ("services.bench.cost", "run_cost_benchmark"),
 }
 
 
@@ -31,7 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="pipeline: compass shards compared against 1 at the end (default 2; 1: no comparison)",
     )
     parser.add_argument(
-        "--minutes", type=float, default=10.0, help="soak: minutes under the schedule of faults (default 10)"
+        "--minutes",
+        type=float,
+        default=10.0,
+        help="soak: minutes under the schedule of faults; cost: minutes of the simulated log (default 10)",
     )
     parser.add_argument(
         "--no-gyro", action="store_true", help="pipeline: devices without gyroscopes (accelerometer tilt, no fusion)"
@@ -65,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         if args.devices < 1 or args.seconds <= 0:
             raise ValueError("--devices and --seconds must be positive")
         result = function(devices=args.devices, seconds=args.seconds)
-    elif args.benchmark == "soak":
+    elif args.benchmark in ("soak", "cost"):
         if not args.minutes > 0:
             raise ValueError("--minutes must be positive")
         result = function(minutes=args.minutes)

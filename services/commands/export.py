@@ -66,7 +66,9 @@ def _from_device(args: argparse.Namespace) -> Calibration | None:
     """The device's calibration in force, from the calibrator; None when nobody answered."""
     from magnet import wire
     from services.commands.remote import ask
+    from services.common.endpoint import use_local_pipeline
 
+    use_local_pipeline(args)  # no Zenoh option given: the running magnet up, as magnet get finds it
     wire.validate_device_id(args.device)
     replies = ask(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATION.value}")
     if not replies:

@@ -156,6 +156,12 @@ def run_get(args: argparse.Namespace) -> int:
         replies = ask(args, wire.status_key(args.prefix, args.device))
         for reply in replies:
             show(args, reply, status_table)
+        if not replies:
+            print(
+                f"magnet get: no service named {args.device!r} answered for its status (the names are 'calibrator', "
+                "'compass', 'edge-...' or '*' for every one; is the pipeline running and reachable?)",
+                file=sys.stderr,
+            )
         return 0 if replies else 1
     kind = wire.Kind.HISTORY if args.history else wire.Kind.CALIBRATION
     selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if args.history else "")

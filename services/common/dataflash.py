@@ -2,12 +2,13 @@
 
 Magnetometer: the ``MAG`` records of instance ``--mag N`` (field ``I`` in current logs; ``MAG``, ``MAG2``, ``MAG3``
 in old ones). ArduPilot logs the field after its own correction (MagX..Z, milligauss, body frame) together with the
-offsets it added (OfsX..Z) and the motor offsets (MOfsX..Z); the reader undoes the correction
+offsets it added (OfsX..Z) and the motor offsets (MOX..Z in current logs, MOfsX..Z before, none in the oldest:
+``MAG_FORMATS`` lists the layouts ArduPilot has logged); the reader undoes the correction
 (``magnet.autopilot.ardupilot_raw_field``) with the soft-iron matrix and scale factor of the log's ``PARM`` records
 (``COMPASS_DIA*``, ``COMPASS_ODI*``, ``COMPASS_SCALE*``; their first logged values), giving the uncorrected field in
 the body frame. Accelerometer and gyroscope: ``IMU`` instance 0 (m/s^2, rad/s, body frame). Battery current:
 ``BAT`` instance 0 (``Curr``, A; ``CURR`` in very old logs, centiamps). Throttle: ``RCOU`` channels 1-4 (PWM, 1000..2000
-us mapped to 0..1). Times: ``TimeUS``.
+us mapped to 0..1). Times: ``TimeUS`` (``TimeMS`` in logs before 2015).
 """
 
 from __future__ import annotations
@@ -28,7 +29,17 @@ from services.common.input_options import InputOptions
 TYPES = ["MAG", "MAG2", "MAG3", "IMU", "IMU2", "PARM", "BAT", "CURR", "RCOU", "ATT"]
 #: every DataFlash log starts with a FMT record: the two header bytes, then FMT's own type number (128)
 HEADER = bytes([0xA3, 0x95, 0x80])
-MAG_FIELDS = ("MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ", "MOfsX", "MOfsY", "MOfsZ")
+#: RCOU's first four channels as they were named: C1.. (current), Chan1.. (before 2015)
+RCOU_CHANNELS = (("C1", "C2", "C3", "C4"), ("Chan1", "Chan2", "Chan3", "Chan4"))
+#: the MAG layouts ArduPilot has logged (read from its LogStructure.h over the years), oldest first:
+#: (time field, motor offset fields or None), each with MagX..Z and OfsX..Z; a motor offset not logged was zero
+MAG_FORMATS: tuple[tuple[str, tuple[str, str, str] | None], ...] = (
+    ("TimeMS", None),  # 2013: Ihhhhhh, no motor compensation logged
+    ("TimeMS", ("MOfsX", "MOfsY", "MOfsZ")),  # 2013-2015: Ihhhhhhhhh, MAG2
+    ("TimeUS", ("MOfsX", "MOfsY", "MOfsZ")),  # 2015-2019: + Health, S; MAG2, MAG3
+    ("TimeUS", ("MOX", "MOY", "MOZ")),  # 2019-: field I names the instance
+)
+MAG_OFFSETS = ("OfsX", "OfsY", "OfsZ")
 
 
 def _records(path: Path, types: list[str]) -> tuple[dict[str, list[Any]], dict[str, float]]:
@@ -84,7 +95,23 @@ def _columns(records: list[Any], names: tuple[str, ...]) -> np.ndarray:
 
 
 def _times_us(records: list[Any]) -> np.ndarray:
+    """Each record's time in us: ``TimeUS``, or ``TimeMS`` x 1000 in old logs."""
+    if records and "TimeUS" not in records[0].get_fieldnames() and "TimeMS" in records[0].get_fieldnames():
+        return np.array([float(r.TimeMS) * 1000.0 for r in records], dtype=float)
     return np.array([float(r.TimeUS) for r in records], dtype=float)
+
+
+def _mag_columns(path: Path, records: list[Any]) -> np.ndarray:
+    """(N, 9) MagX..Z, offsets, motor offsets (mGauss) of MAG records in any of ``MAG_FORMATS`` (zero motor offsets
+    where the layout logs none); ValueError in one line naming the fields found when the layout is none of them."""
+    names = set(records[0].get_fieldnames())
+    for time_field, motor in reversed(MAG_FORMATS):
+        if {time_field, "MagX", "MagY", "MagZ", *MAG_OFFSETS, *(motor or ())} <= names:
+            zero = np.zeros((len(records), 3))
+            fields = _columns(records, ("MagX", "MagY", "MagZ", *MAG_OFFSETS))
+            return np.hstack([fields, zero if motor is None else _columns(records, motor)])
+    found = ",".join(records[0].get_fieldnames())
+    raise ValueError(f"{path}: a MAG record layout magnet does not know ({found}): no MagX..Z with a time")
 
 
 def _suffix(instance: int) -> str:
@@ -99,7 +126,7 @@ def _mag(path: Path, found: dict[str, list[Any]], params: dict[str, float], inst
         if not instances:
             raise ValueError(f"{path}: this log holds no magnetometer (no MAG records; LOG_BITMASK may leave them out)")
         raise ValueError(f"{path}: no MAG records of instance {instance} (instances: {instances}): pick one with --mag")
-    values = _columns(records, MAG_FIELDS)
+    values = _mag_columns(path, records)
     n = _suffix(instance)
     diagonals = [params.get(f"COMPASS_DIA{n}_{a}", 1.0) for a in "XYZ"]
     offdiagonals = [params.get(f"COMPASS_ODI{n}_{a}", 0.0) for a in "XYZ"]
@@ -131,8 +158,9 @@ def _extra(found: dict[str, list[Any]]) -> tuple[dict[str, Stream], list[str]]:
     elif found.get("CURR"):
         extra["current_a"] = Stream(_times_us(found["CURR"]), _columns(found["CURR"], ("Curr",))[:, 0] / 100.0)
         words.append("CURR current")
-    if found.get("RCOU"):
-        pwm = _columns(found["RCOU"], ("C1", "C2", "C3", "C4")).mean(axis=1)
+    channels = [c for c in RCOU_CHANNELS if found.get("RCOU") and c[0] in found["RCOU"][0].get_fieldnames()]
+    if channels:
+        pwm = _columns(found["RCOU"], channels[0]).mean(axis=1)
         extra["throttle"] = Stream(_times_us(found["RCOU"]), np.clip((pwm - 1000.0) / 1000.0, 0.0, 1.0))
         words.append("RCOU throttle (PWM)")
     return extra, words

@@ -28,6 +28,7 @@ from magnet import wire
 from magnet.bounded import Recent
 from magnet.compass import CompassCore, Places, earth_at
 from services.common import metrics
+from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.compass.intake import PayloadIntake
@@ -85,6 +86,7 @@ def run_compass(args: argparse.Namespace) -> int:
     """``magnet compass``: the settings from the options, then ``run``."""
     if getattr(args, "metrics", None):
         metrics.parse_address(args.metrics)  # a bad address ends here, before anything is opened
+    use_local_pipeline(args)  # no Zenoh option given: serve the running magnet up
     return run(settings_from_args(args), getattr(args, "metrics", None))
 
 

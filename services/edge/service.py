@@ -39,6 +39,7 @@ import zenoh
 
 from magnet import wire
 from services.common import metrics
+from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.zenoh_session import open_session, stop_event
 from services.edge.settings import EdgeSettings, add_arguments
@@ -259,4 +260,5 @@ def add_edge_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "metrics", None):
         metrics.parse_address(args.metrics)  # a bad address ends here, before anything is opened
+    use_local_pipeline(args)  # no Zenoh option given: publish into the running magnet up
     return serve(EdgeSettings.from_args(args), getattr(args, "metrics", None))
