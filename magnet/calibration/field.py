@@ -43,6 +43,11 @@ from magnet.quality.stats import take_rows
 
 #: fewest samples a field fit takes (its windows and blocks need some seconds of data)
 MIN_FIELD_SAMPLES = 200
+#: a field record must make the held-out consistency better than the reference's by this fraction of it too (beside
+#: the comparison's statistical margin): the consistency is judged with the gyroscope filter's own attitude, whose
+#: errors weigh on both sides, so a gain of a few % is not a gain in heading (BROAD trial 01, factory-calibrated: a
+#: field ellipsoid 4 % more consistent made causal heading 17 % worse)
+MIN_GAIN = 0.15
 #: held-out blocks: as ``magnet.calibration.fitting``
 HOLDOUT_BLOCK, HOLDOUT_EVERY = 20, 5
 
@@ -161,16 +166,23 @@ def fit_field(
         tried = {chosen.name: result.identified_deg}
     calibration = _record(result, inp, ev, len(inp.mag))
     test = _holdout_mask(len(inp.mag))
-    holdout = _holdout(inp, ev_motion, result, test)
+    holdout = _holdout(inp, ev, result, test)
     return judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
 
 
+def _kept_spans(
+    spans: tuple[np.ndarray, np.ndarray, np.ndarray], keep: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ok = keep[spans[0]] & keep[spans[1]]
+    return spans[0][ok], spans[1][ok], spans[2][ok]
+
+
 def _holdout(
-    inp: FieldInput, ev_motion: motion.MotionEvidence | None, result: RungFit, test: np.ndarray
+    inp: FieldInput, whole: Evidence, result: RungFit, test: np.ndarray
 ) -> tuple[np.ndarray, Calibration] | None:
     """(held-out raw samples, the same rung fitted without them), None when that fit fails."""
     train = ~test
-    ev, _ = _evidence(inp, ev_motion, train)
+    ev = whole if whole.spans is None else dataclasses.replace(whole, spans=_kept_spans(whole.spans, train))
     try:
         trained = fit_rung(ev, result.rung, result.offset, train)
     except (FitError, np.linalg.LinAlgError):
@@ -245,9 +257,25 @@ def judge(
     quality = quality.with_extra(**extra)
     chosen = dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=math.inf)
     accepted, reason = gate(quality, chosen)
+    small = _small_gain(quality)
+    if accepted and small:
+        accepted, reason = False, small
     if to_ut is None and inp.field_ut is None:
         reason = f"{reason}; radius not checked (raw counts and no expected field)"
     return calibration.replace(quality=quality, accepted=accepted, reason=f"{reason}; {extra['why']}")
+
+
+def _small_gain(quality: Any) -> str | None:
+    """The refusal when the held-out consistency gains less than MIN_GAIN of the reference's (None: enough, or
+    not measured)."""
+    held, ref = quality.get("holdout_consistency_deg"), quality.get("reference_holdout_consistency_deg")
+    if held is None or ref is None or held <= (1.0 - MIN_GAIN) * ref:
+        return None
+    return (
+        f"the fit makes the field only {100 * (1 - held / ref):.0f} % more constant than "
+        f"{quality.get('reference') or 'no calibration'} on held-out data ({held:.2f} deg vs {ref:.2f} deg; a field "
+        f"fit must gain {100 * MIN_GAIN:.0f} %): the calibration in force is good enough"
+    )
 
 
 def _finite(value: float) -> float | None:

@@ -22,7 +22,7 @@ from services.commands.fit_motor import add_motor_arguments, fit_with_motors
 from services.common.csvio import SampleTable
 from services.common.input_options import InputOptions
 from services.common.inputs import add_input_arguments, read_input_told
-from services.common.place import add_field_arguments, expected_field_ut
+from services.common.place import add_field_arguments, expected_dip_deg, expected_field_ut
 from services.common.records import load_calibration, write_atomically
 
 EXIT_REJECTED = 1
@@ -41,7 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=CHOICES,
         help="auto (the default): with gx,gy,gz and the sample times, fit gyro-ellipsoid and ellipsoid and keep the "
         "accepted one (both accepted: the one whose field is more constant on held-out data), else ellipsoid; "
-        "gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate)",
+        "both refused: the model the motion identifies (offset, offset+scale, planar or ellipsoid; --location gives "
+        "the WMM's dip as a prior). gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate); offset, "
+        "offset+scale and planar fit that rung of the field ladder",
     )
     parser.add_argument(
         "--unit", default="ut", choices=[u.value for u in FieldUnit], help="unit of the mx,my,mz columns (default ut)"
@@ -152,6 +154,7 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
     period = sample_period_s(table, args.rate) if gyr is not None else None
     in_force = load_calibration(args.in_force) if args.in_force else None
     field_ut = expected_field_ut(args)
+    dip_deg = expected_dip_deg(args)
 
     def fit_mag(mag: np.ndarray) -> Calibration:
         return fit_choice(
@@ -164,6 +167,7 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
             gyr=gyr,
             period_s=period,
             reference=in_force,
+            dip_deg=dip_deg,
         )
 
     if getattr(args, "motor", None):
