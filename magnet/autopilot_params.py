@@ -15,7 +15,10 @@ raw frame is the body frame as the autopilot's orientation parameter *in force w
 
 Neither autopilot applies a general matrix: the rotation part of A R_f must be the rotation in force (within
 ROTATION_TOLERANCE_DEG) or one of the named orientations (``magnet.frames.ROTATIONS``), which is then exported as
-the orientation parameter; otherwise the export is refused with the angle. ArduPilot's own calibrator refuses
+the orientation parameter. A rotation no symmetric matrix can carry (a gyro-ellipsoid's small alignment of the
+magnetometer to the gyroscope, say) is dropped with its angle in a note when it is at most DROPPED_ROTATION_MAX_DEG
+from the nearest of those (the autopilot's headings then differ from magnet's by at most that angle); a larger one is
+refused with the angle. ArduPilot's own calibrator refuses
 diagonals outside (0.2, 5), off-diagonals beyond +-1 and offsets beyond ``COMPASS_OFFS_MAX`` (default 1800
 mGauss); so does this. A motor-interference model becomes ``COMPASS_MOT*``/``COMPASS_MOTCT`` or
 ``CAL_MAGn_xCOMP``/``CAL_MAG_COMP_TYP`` (``motor_parameters``).
@@ -36,6 +39,9 @@ from magnet.units import ut_per_unit
 
 #: the largest rotation the symmetric matrix may leave out: 0.05 deg changes the field by under 0.09 %
 ROTATION_TOLERANCE_DEG = 0.05
+#: the largest rotation dropped with a note rather than refused: a rotation by an angle moves a heading by at most
+#: that angle, and 1 deg is within what an autopilot's own calibration leaves (its fitness gate is 16 mG, ~1.8 %)
+DROPPED_ROTATION_MAX_DEG = 1.0
 ARDUPILOT_DIAGONAL_RANGE = (0.2, 5.0)
 ARDUPILOT_OFFDIAGONAL_MAX = 1.0
 ARDUPILOT_OFFSETS_MAX_MGAUSS = 1800.0
@@ -91,15 +97,25 @@ def _orientation(rotation: np.ndarray, in_force: int, name: str) -> tuple[int, l
     ValueError naming the angle when it is no named orientation."""
     if float(rotation_angle_deg(rotation_matrix(in_force).T @ rotation)) <= ROTATION_TOLERANCE_DEG:
         return in_force, []
+    away = float(rotation_angle_deg(rotation_matrix(in_force).T @ rotation))
+    if away <= DROPPED_ROTATION_MAX_DEG:
+        note = (
+            f"the record rotates the field by {away:.2f} deg, which the autopilot cannot apply ({name} and a "
+            f"symmetric matrix): dropped, so its headings may differ from magnet's by up to {away:.2f} deg"
+        )
+        return in_force, [note]
     number, angle = nearest_rotation(rotation)
-    if angle > ROTATION_TOLERANCE_DEG:
-        away = float(rotation_angle_deg(rotation_matrix(in_force).T @ rotation))
+    if angle > DROPPED_ROTATION_MAX_DEG:
         raise ValueError(
             f"the calibration matrix rotates the field by {away:.2f} deg, and the autopilot applies only a "
             f"symmetric matrix and a named orientation ({name}); the nearest named orientation, {number}, is "
-            f"{angle:.2f} deg away: fit with a method that gives a symmetric matrix (ellipsoid, sphere, minmax)"
+            f"{angle:.2f} deg away (more than the {DROPPED_ROTATION_MAX_DEG:g} deg that may be dropped): fit with a "
+            "method that gives a symmetric matrix (ellipsoid, sphere, minmax)"
         )
-    return number, [f"{name} changes to {number}: the sensor is mounted differently from the orientation in force"]
+    notes = [f"{name} changes to {number}: the sensor is mounted differently from the orientation in force"]
+    if angle > ROTATION_TOLERANCE_DEG:
+        notes.append(f"a further rotation of {angle:.2f} deg is dropped (the autopilot cannot apply it)")
+    return number, notes
 
 
 def _check_instance(instance: int, count: int, autopilot: Autopilot) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -208,3 +209,10 @@ def _columns(block: np.ndarray) -> np.ndarray | None:
 
 def _values(column: np.ndarray) -> np.ndarray | None:
     return None if np.isnan(column).all() else column
+
+
+def compass_instance(device: str | None) -> int | None:
+    """The compass instance (0-based) a device id of ``MavlinkStream.device`` names (``mav1-mag2``: 2); None for an
+    id of another form."""
+    found = re.fullmatch(r"[A-Za-z0-9_]*\d+-mag(\d)", device or "")
+    return int(found.group(1)) if found else None

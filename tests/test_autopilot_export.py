@@ -222,3 +222,30 @@ def test_motor_model_round_trip_per_autopilot(fitted, kind: str) -> None:
     comp = np.array([px4[f"CAL_MAG1_{a}COMP"] for a in "XYZ"])
     got_px4 = px4_corrected(measured / 100 + power[:, None] * comp, px4, 1, np.eye(3)) * 100
     assert _relative_error(got_px4, want) < 1e-3
+
+
+def test_a_small_rotation_the_autopilot_cannot_apply_is_dropped_with_its_angle(fitted) -> None:
+    calibration, _ = fitted
+    c, s = math.cos(math.radians(0.34)), math.sin(math.radians(0.34))  # a gyro-ellipsoid's alignment, say
+    twisted = calibration.replace(matrix=np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ calibration.matrix)
+    for export, name in ((ardupilot_parameters, "COMPASS_ORIENT"), (px4_parameters, "CAL_MAG0_ROT")):
+        plain, dropped = export(calibration), export(twisted)
+        assert any("rotates the field by 0.34 deg" in note and "dropped" in note for note in dropped.notes)
+        assert not any("rotates" in note for note in plain.notes)
+        values = {p.name: p.value for p in dropped.parameters}
+        assert all(values[p.name] == pytest.approx(p.value, abs=0.02) for p in plain.parameters), name
+        assert not any(p.name.startswith(name) for p in dropped.parameters)  # the orientation stays as it was
+
+
+@pytest.mark.parametrize("fmt, slot", [("px4", "CAL_MAG2_XOFF"), ("ardupilot", "COMPASS_OFS3_X")])
+def test_the_instance_defaults_to_the_devices_own(fitted, tmp_path: Path, capsys, fmt, slot) -> None:
+    calibration, _ = fitted
+    path = _write(calibration, tmp_path / "mav1-mag2.json")
+    import json
+
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "device": "mav1-mag2"}))  # as magnet get calibration prints it
+    assert main(["export", "--calibration", str(path), "--format", fmt]) == 0
+    assert slot in capsys.readouterr().out
+    assert main(["export", "--calibration", str(path), "--format", fmt, "--instance", "0"]) == 0
+    assert slot not in capsys.readouterr().out  # an instance given wins

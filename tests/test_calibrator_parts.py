@@ -1,4 +1,4 @@
-"""Each part of the calibrator through its own public interface, without the composition (``services.calibrator.core``)
+"""Each part of the calibrator through its own public interface, without the composition (``magnet.calibrator.core``)
 and without Zenoh: collection, fitting, records, sessions, progress, status, shard keys and the roster's answer."""
 
 from __future__ import annotations
@@ -7,20 +7,20 @@ import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.calibrator.collecting import Collections
+from magnet.calibrator.fitting import Fitter
+from magnet.calibrator.keys import ShardKeys
+from magnet.calibrator.progress import ProgressTimes, progress_of
+from magnet.calibrator.records import Records
+from magnet.calibrator.roster import Roster
+from magnet.calibrator.roster_reply import roster_reply
+from magnet.calibrator.sessions import Sessions
+from magnet.calibrator.status import State, devices_by_state, state_of
 from magnet.model import Calibration, Quality
 from magnet.place import Location
 from magnet.shard import Shard
 from magnet.simulator import SensorErrors, SimulatorConfig, simulate
-from services.calibrator.collecting import Collections
-from services.calibrator.fitting import Fitter
-from services.calibrator.lease import ShardKeys
-from services.calibrator.progress import ProgressTimes, progress_of
-from services.calibrator.records import Records
-from services.calibrator.roster import Roster
-from services.calibrator.roster_reply import roster_reply
-from services.calibrator.sessions import Sessions
 from services.calibrator.settings import CalibratorSettings
-from services.calibrator.status import State, devices_by_state, state_of
 from services.calibrator.store import CalibrationStore
 
 HARD = np.array([30.0, -12.0, 8.0])

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.calibrator.collecting import Collections
 from magnet.collection import Collection
 from magnet.sample_runs import RecentRuns
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
-from services.calibrator.collecting import Collections
 from services.calibrator.settings import CalibratorSettings
 
 RATE_HZ = 100.0
@@ -189,8 +189,8 @@ def test_auto_with_runs_too_short_fits_the_ellipsoid_on_the_cells(moving):
 
 
 def test_a_session_may_start_with_auto():
-    from services.calibrator.fitting import Fitter
-    from services.calibrator.sessions import Sessions
+    from magnet.calibrator.fitting import Fitter
+    from magnet.calibrator.sessions import Sessions
 
     collections = Collections(CalibratorSettings(auto=False))
     fitter = Fitter(CalibratorSettings(), lambda device: None)

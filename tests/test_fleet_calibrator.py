@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.calibrator.roster import Roster
+from magnet.calibrator.roster_reply import roster_reply
 from magnet.compass.places import Places, parse_places
 from magnet.drift import Alert, AlertKind, advice_for
 from magnet.model import Calibration, Quality
 from magnet.place import Location
-from services.calibrator.roster import Roster
-from services.calibrator.roster_reply import roster_reply
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
 

@@ -20,7 +20,7 @@ from helpers import run_magnet
 from motion_pipeline import Pipeline, joined, received
 
 from magnet.heading import angle_difference_deg
-from magnet.simulator import MOVING_TRAJECTORIES, SimulatedRun
+from magnet.simulator import VEHICLE_TRAJECTORIES, SimulatedRun
 from services.bench import motion
 
 pytestmark = pytest.mark.integration
@@ -93,7 +93,7 @@ def simulator_csvs(tmp_path: Path) -> tuple[Path, dict[str, tuple[Path, Simulate
     tumble = motion.tumble_run(errors, settings)
     tumble_csv = write_sim_csv(tumble, tmp_path / "tumble.csv", gyro=False)
     moving = {}
-    for trajectory in MOVING_TRAJECTORIES:
+    for trajectory in VEHICLE_TRAJECTORIES:
         run = motion.moving_run(trajectory, errors, settings)
         moving[trajectory.value] = (write_sim_csv(run, tmp_path / f"{trajectory.value}.csv", gyro=True), run)
     return tumble_csv, moving

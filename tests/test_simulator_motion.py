@@ -85,8 +85,10 @@ def test_measurements_follow_the_truth_and_the_errors(trajectory):
     np.testing.assert_allclose(r.acc_ms2, r.true_acc_ms2)
     np.testing.assert_allclose(e.true_calibration().apply(r.mag_ut), r.true_field_ut, atol=1e-9)
     np.testing.assert_allclose(r.gyr_rads - r.true_gyr_rads, np.tile(e.gyro_bias_rads, (len(r.t_s), 1)), atol=1e-12)
-    # the device moves: the accelerometer reads more than gravity
-    assert np.linalg.norm(r.lin_acc_ned_ms2, axis=1).max() > 1.0
+    # the device moves: the accelerometer reads more than gravity (a boat's heave and turns, a slow robot's starts,
+    # stops and wheels: tenths of m/s^2)
+    gentle = trajectory in (sim.Trajectory.BOAT, sim.Trajectory.ROBOT)
+    assert np.linalg.norm(r.lin_acc_ned_ms2, axis=1).max() > (0.1 if gentle else 1.0)
 
 
 def test_gyroscope_noise_and_determinism():

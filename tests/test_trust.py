@@ -209,8 +209,8 @@ def test_each_store_failure_says_what_it_is(tmp_path, error, said):
 
 
 def test_a_received_alert_s_advice_comes_from_the_table_never_from_the_message():
+    from magnet.calibrator.roster import Roster
     from magnet.drift import CLEARED_ADVICE, AlertKind, advice_for, alert_from_message
-    from services.calibrator.roster import Roster
 
     planted = {
         "v": 1,

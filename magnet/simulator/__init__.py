@@ -23,7 +23,12 @@ so the exact correction (at 25 C) is B_body = M @ S^-1 @ (mag - h) (``SensorErro
 Modules, by idea:
 - ``errors``: ``SensorErrors``, the errors of one sensor.
 - ``trajectories``: ``Trajectory`` (every name) and the still trajectories (spin, turntable, tumble, tenface).
-- ``motion``: the moving trajectories (multirotor, car, figure8, fast-tumble) with linear acceleration.
+- ``motion``: the moving trajectories (multirotor, car, figure8, fast-tumble) with linear acceleration (``plan``:
+  eased steps, tones and plans of segments they are made of).
+- ``paths``, ``walks``, ``ground``: motions along a path: a person walking or running with a phone (pocket, swinging
+  hand, texting, phoning, running) with its gait; a boat and a ground robot that only yaw (``models``: every moving
+  model by name).
+- ``disturbances``: objects passed on the way (steel doors, parked cars) and a mid-run hard-iron change.
 - ``run``: ``SimulatorConfig``, ``SimulatedRun``, ``simulate``, ``SensorStream`` (one device, any trajectory).
 - ``devices``: ``SimulatedDevices``, many tumbling devices at once.
 - ``motors``: ``Motors``, a vehicle's throttle, battery current and the field they add (``SimulatorConfig.motors``).
@@ -32,8 +37,10 @@ Everything is deterministic from ``seed``.
 """
 
 from magnet.simulator.devices import DevicesBatch, SimulatedDevices
+from magnet.simulator.disturbances import Disturbances, HardIronChange
 from magnet.simulator.errors import REFERENCE_TEMPERATURE_C, SensorErrors
-from magnet.simulator.motion import MODELS, CarModel, FastTumbleModel, Figure8Model, MotionModel, MultirotorModel
+from magnet.simulator.models import MODELS
+from magnet.simulator.motion import CarModel, FastTumbleModel, Figure8Model, MotionModel, MultirotorModel
 from magnet.simulator.motors import Motors
 from magnet.simulator.run import (
     DEFAULT_DATE,
@@ -47,12 +54,16 @@ from magnet.simulator.run import (
 from magnet.simulator.trajectories import (
     GOLDEN_RATIO_MINOR,
     MOVING_TRAJECTORIES,
+    PATH_TRAJECTORIES,
+    PLANAR_TRAJECTORIES,
     TENFACE_STATIONS,
     TUMBLE_CYCLES,
     TUMBLE_PITCH_AMPLITUDE_DEG,
     TURNTABLE_ANGLES_DEG,
     TURNTABLE_ROLL_DEG,
     TURNTABLE_STEP_DEG,
+    VEHICLE_TRAJECTORIES,
+    WALKING_TRAJECTORIES,
     Trajectory,
 )
 
@@ -63,6 +74,8 @@ __all__ = [
     "GOLDEN_RATIO_MINOR",
     "MODELS",
     "MOVING_TRAJECTORIES",
+    "PATH_TRAJECTORIES",
+    "PLANAR_TRAJECTORIES",
     "REFERENCE_TEMPERATURE_C",
     "TENFACE_STATIONS",
     "TUMBLE_CYCLES",
@@ -70,10 +83,14 @@ __all__ = [
     "TURNTABLE_ANGLES_DEG",
     "TURNTABLE_ROLL_DEG",
     "TURNTABLE_STEP_DEG",
+    "VEHICLE_TRAJECTORIES",
+    "WALKING_TRAJECTORIES",
     "CarModel",
     "DevicesBatch",
+    "Disturbances",
     "FastTumbleModel",
     "Figure8Model",
+    "HardIronChange",
     "MotionModel",
     "Motors",
     "MultirotorModel",

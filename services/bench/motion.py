@@ -34,7 +34,7 @@ from magnet.calibration import fit
 from magnet.frames import quaternion_to_matrix, to_magnetic_ned
 from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration
-from magnet.simulator import MOVING_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
+from magnet.simulator import VEHICLE_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
 
 DATA_DIR = Path(__file__).resolve().parents[2] / "data"
 BROAD_TRIALS = ("broad_01_undisturbed_slow_rotation_A.npz", "broad_06_undisturbed_fast_rotation_A.npz")
@@ -215,7 +215,7 @@ def _simulator_calibration(
 
 
 def simulator_rows(
-    settings: SimulatorSettings = SimulatorSettings(), trajectories: Iterable[Trajectory] = MOVING_TRAJECTORIES
+    settings: SimulatorSettings = SimulatorSettings(), trajectories: Iterable[Trajectory] = VEHICLE_TRAJECTORIES
 ) -> list[tuple[str, str, float]]:
     """(trajectory (calibrated on what), estimator, heading RMS deg against the true magnetic heading, no offset
     removed) for the moving trajectories, after the settling time, samples with |pitch| < 60 deg."""

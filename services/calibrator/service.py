@@ -13,8 +13,9 @@ Queryables: see ``services.calibrator.queries``. One thread does the work: a pum
 from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
 between slices of samples; every handler runs through ``services.common.guard``, so no message, query or failing
 store ends it.
-The options and settings are in ``services.calibrator.settings``; the calibrator without zenoh, its parts wired, in
-``services.calibrator.core`` (docs/calibrator.md).
+The options and settings are in ``services.calibrator.settings``; the calibrator's decisions, without zenoh, a
+database or a clock of their own, are ``magnet.calibrator.CalibratorCore``, which ``Calibrator`` gives the clocks
+(docs/calibrator.md).
 """
 
 from __future__ import annotations
@@ -30,12 +31,15 @@ from typing import Any
 import zenoh
 from zenoh.handlers import FifoChannel, Handler
 
-from magnet import wire
+from magnet import signing, wire
+from magnet.calibrator.core import CalibratorCore, Publish
+from magnet.calibrator.roster import Roster
+from magnet.calibrator.status import CalibratorStatus, IntakeFigures, State
+from magnet.calibrator.store import CalibrationStore as Store
+from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator import queries
-from services.calibrator.core import Calibrator, Publish
 from services.calibrator.intake import Enrolment, RawIntake, new_device
 from services.calibrator.lease import Lease, Member
-from services.calibrator.roster import Roster
 from services.calibrator.settings import (
     DEFAULT_MAX_DEVICES,
     CalibratorSettings,
@@ -46,7 +50,6 @@ from services.calibrator.settings import (
     make_places,
     settings_from_args,
 )
-from services.calibrator.status import CalibratorStatus, IntakeFigures, State
 from services.calibrator.store import CalibrationStore
 from services.common import metrics
 from services.common.guard import Guard
@@ -87,6 +90,23 @@ Feed = tuple["Receiver[zenoh.Sample | zenoh.Reply]", Callable[[str, bytes, str],
 LeaseWatch = tuple["zenoh.Subscriber[Handler[zenoh.Sample]]", Lease]
 
 # ------------------------------------------------------------------------------------------------------- shell
+
+
+class Calibrator(CalibratorCore):
+    """``CalibratorCore`` on this process's clocks (monotonic s, wall clock ns) unless others are given."""
+
+    def __init__(
+        self,
+        store: Store,
+        settings: CalibratorSettings,
+        publish: Publish,
+        clock: Callable[[], float] = time.monotonic,
+        clock_ns: Callable[[], int] = time.time_ns,
+        signer: signing.Signer | None = None,
+        roster: Roster | None = None,
+        shard: Shard = EVERY_DEVICE,
+    ) -> None:
+        super().__init__(store, settings, publish, clock, clock_ns, signer, roster, shard)
 
 
 def add_calibrator_arguments(parser: argparse.ArgumentParser) -> None:

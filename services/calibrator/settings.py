@@ -18,6 +18,7 @@ from typing import Any
 
 from magnet import signing
 from magnet.calibration.choose import AUTO, CHOICES, parse_choice
+from magnet.calibrator.settings import DEFAULT_MAX_DEVICES as DEFAULT_MAX_DEVICES  # the option's default, named here
 from magnet.compass.places import PlaceEntry
 from magnet.compass.places import Places as Places  # the roster's type, named here with the rest of the places modules
 from magnet.geomag import earth_field
@@ -30,7 +31,6 @@ from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 log = logging.getLogger("magnet.calibrator")
 
-DEFAULT_MAX_DEVICES = 10_000
 #: fewest samples kept before a fit (and the least --max-samples may be)
 MIN_SAMPLES = 30
 
@@ -51,7 +51,8 @@ def _method(value: Any) -> str | None:
 @dataclasses.dataclass(frozen=True)
 class CalibratorSettings:
     """How the calibrator fits: method, expected |B| (``--field-ut``, else the model's at ``--location``, else None:
-    the fit's own), coverage and sample counts, automatic or not, devices collected at once."""
+    the fit's own), coverage and sample counts, automatic or not, devices collected at once. What the core reads of
+    them is ``magnet.calibrator.settings.Settings``."""
 
     method: str = option(
         AUTO,

@@ -23,7 +23,9 @@ from pathlib import Path
 
 from magnet.autopilot_params import Autopilot, Export, export_parameters
 from magnet.frames import ROTATIONS
+from magnet.mavlink_stream import compass_instance
 from magnet.model import Calibration
+from services.common.jsonio import read_json
 from services.common.mavlink_options import add_mavlink_url_arguments
 from services.common.records import load_calibration, write_atomically
 from services.common.zenoh_session import add_zenoh_arguments
@@ -39,7 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--device", metavar="ID", help="ask the calibrator for this device's calibration in force")
     parser.add_argument("--format", required=True, choices=[a.value for a in Autopilot], help="the autopilot")
     parser.add_argument(
-        "--instance", type=int, default=0, metavar="N", help="compass instance / calibration slot (default 0)"
+        "--instance",
+        type=int,
+        metavar="N",
+        help="compass instance / calibration slot (default: the device's own, mav1-mag2: 2; else 0)",
     )
     parser.add_argument(
         "--rotation-in-force",
@@ -79,6 +84,13 @@ def _from_device(args: argparse.Namespace) -> Calibration | None:
         raise ValueError(f"the calibrator's answer for {args.device} is unusable: {exc}") from None
 
 
+def _device_of(path: str) -> str | None:
+    """The device id a record file names (``magnet get calibration --json`` writes it), if it names one."""
+    data = read_json(path)
+    device = data.get("device") if isinstance(data, dict) else None
+    return device if isinstance(device, str) else None
+
+
 def _value(value: float, integer: bool) -> str:
     return str(round(value)) if integer else f"{value:.9g}"
 
@@ -100,8 +112,10 @@ def render(export: Export, source: str, vehicle_id: int = 1) -> str:
 def run(args: argparse.Namespace) -> int:
     if args.rotation_in_force not in ROTATIONS:
         raise ValueError(f"--rotation-in-force {args.rotation_in_force} is not a named orientation magnet knows")
+    device = args.device
     if args.calibration:
         calibration, source = load_calibration(args.calibration), args.calibration
+        device = _device_of(args.calibration)
     else:
         found = _from_device(args)
         if found is None:
@@ -110,7 +124,12 @@ def run(args: argparse.Namespace) -> int:
         calibration, source = found, f"device {args.device}"
     if not calibration.accepted:
         raise ValueError(f"{source}: this calibration was not accepted ({calibration.reason}): export a good one")
-    export = export_parameters(calibration, args.format, args.instance, args.rotation_in_force)
+    instance = args.instance
+    if instance is None:
+        instance = compass_instance(device) or 0
+        if device is not None:
+            print(f"magnet export: note: instance {instance}, from the device id {device}", file=sys.stderr)
+    export = export_parameters(calibration, args.format, instance, args.rotation_in_force)
     text = render(export, f"{source} (method {calibration.method}, id {calibration.content_id})", args.vehicle_id)
     for note in export.notes:
         print(f"magnet export: note: {note}", file=sys.stderr)

@@ -35,6 +35,7 @@ from magnet.frames import to_magnetic_ned
 from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration
 from magnet.place import Location
+from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT
 from services.commands.fit import gyro_columns, sample_period_s
 from services.common.csvio import SampleTable, write_csv
 from services.common.input_options import InputOptions
@@ -89,6 +90,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="with a gyroscope: the best estimate for a log, from its own estimator (the filter looks ahead, which "
         "the live compass cannot; without it the headings are the live compass's)",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="apply --calibration even when the field it gives these samples is implausible (another device's "
+        "record, or another unit)",
     )
     parser.add_argument(
         "--compare",
@@ -214,6 +221,33 @@ def _accepted_calibration(path: str) -> Calibration:
     return calibration
 
 
+#: the corrected field's median strength may be this far from the expected before the record is called implausible
+#: for the samples (a record fitted on the same sensor lands within a few per cent; another device's hard iron or a
+#: unit off by 100 lands far outside)
+PLAUSIBLE_FIELD_PCT = 25.0
+
+
+def implausible_field(calibration: Calibration, mag: np.ndarray, earth: Earth) -> str | None:
+    """Why ``calibration`` applied to ``mag`` (N, 3) gives no plausible field, or None: the median corrected |B| (uT)
+    against the expected strength (the WMM's, else the record's own), or the Earth's range when neither is known."""
+    if calibration.output_unit != "ut" or not len(mag):
+        return None
+    strength = float(np.nanmedian(np.linalg.norm(calibration.apply(mag), axis=1)))
+    expected = earth.total_ut or calibration.field_strength or None
+    if expected is not None:
+        if abs(strength / expected - 1.0) * 100.0 <= PLAUSIBLE_FIELD_PCT:
+            return None
+        against = f"the expected {expected:.1f} uT"
+    elif EARTH_MIN_UT <= strength <= EARTH_MAX_UT:
+        return None
+    else:
+        against = f"any Earth field ({EARTH_MIN_UT:g}-{EARTH_MAX_UT:g} uT)"
+    return (
+        f"the calibration gives these samples a field of {strength:.3g} uT, not {against}: it is probably another "
+        "device's record or the samples are in another unit (--unit); --force applies it anyway"
+    )
+
+
 def _declination_words(args: argparse.Namespace, declination_deg: float) -> str:
     if args.location:
         return f"{declination_deg:.2f} deg (WMM2025 at --location)"
@@ -252,6 +286,11 @@ def run(args: argparse.Namespace) -> int:
     calibration = _accepted_calibration(args.calibration) if args.calibration else None
     earth = _earth(args, calibration)
     table = read_input_told(args.file, InputOptions.from_args(args), "heading")
+    implausible = implausible_field(calibration, table.mag, earth) if calibration else None
+    if implausible and not args.force:
+        raise ValueError(f"{args.calibration}: {implausible}")
+    if implausible:
+        print(f"magnet heading: warning: {implausible}", file=sys.stderr)
     gyr = gyro_columns(table)
     if args.offline:
         if gyr is None:

@@ -1,11 +1,12 @@
 """The simulator's command-line options, shared by ``magnet sample`` and ``magnet edge``, and what they build.
 
 ``--seed``, ``--trajectory`` (still: spin, turntable, tumble, tenface; moving, with linear acceleration and a gyroscope:
-multirotor, car, figure8, fast-tumble), ``--hard-iron X,Y,Z`` (uT), ``--soft-iron`` (3 diagonal or 9 row-major
-numbers), ``--noise-ut``, ``--gyro-bias X,Y,Z`` (rad/s), ``--gyro-noise`` (rad/s RMS per sample), ``--location
-LAT,LON[,ALT_M]``, ``--date`` (default: the simulator's fixed date, so that the same seed gives the same data on any
-day). Declared once as the fields of ``SimulatorSettings`` (``services.common.options``); a command with other
-defaults subclasses it and redeclares ``seed_option(N)`` / ``noise_option(X)`` (``magnet edge``).
+multirotor, car, figure8, fast-tumble, the walks and the planar boat and robot), ``--hard-iron X,Y,Z`` (uT),
+``--soft-iron`` (3 diagonal or 9 row-major numbers), ``--noise-ut``, ``--gyro-bias X,Y,Z`` (rad/s), ``--gyro-noise``
+(rad/s RMS per sample), ``--location LAT,LON[,ALT_M]``, ``--date`` (default: the simulator's fixed date, so that the
+same seed gives the same data on any day). Declared once as the fields of ``SimulatorSettings``
+(``services.common.options``); a command with other defaults subclasses it and redeclares ``seed_option(N)`` /
+``noise_option(X)`` (``magnet edge``).
 """
 
 from __future__ import annotations
@@ -100,7 +101,8 @@ class SimulatorSettings:
         "--trajectory",
         parse=parse_trajectory,
         show_default=False,
-        help="still: spin, turntable, tumble, tenface; moving: multirotor, car, figure8, fast-tumble (default tumble)",
+        help="still: spin, turntable, tumble, tenface; moving: multirotor, car, figure8, fast-tumble, walk-pocket, "
+        "walk-hand, walk-texting, walk-phoning, running, boat, robot (default tumble)",
         group=GROUP,
     )
     hard_iron_ut: tuple[float, ...] = option(

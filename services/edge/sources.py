@@ -105,7 +105,8 @@ class FleetSource(Unattached):
 
 class StreamSource(Unattached):
     """One simulated device read sample by sample from a ``SensorStream`` (no register emulation); a moving
-    trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope and its GNSS-like velocity."""
+    trajectory (multirotor, car, figure8, fast-tumble, a walk, boat, robot) also sends its gyroscope and its GNSS-like
+    velocity."""
 
     def __init__(self, settings: EdgeSettings) -> None:
         self.stream = _stream(settings)

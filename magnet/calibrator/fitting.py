@@ -2,22 +2,22 @@
 device's place, and judged by the quality gate (``magnet.collection.Collection.fit``, ``magnet.quality``); every
 fit counted. A collection for a method that needs the gyroscope (gyro-ellipsoid) is fitted on its longest run of
 consecutive samples, with their rates and period (``gyr=``, ``period_s=``).
-What passes is signed and stored by ``services.calibrator.records``. No zenoh, no store inside."""
+What passes is signed and stored by ``magnet.calibrator.records``. No zenoh, no store inside."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+from magnet.calibrator.settings import Settings
 from magnet.collection import Collection
 from magnet.model import Calibration
-from services.calibrator.settings import CalibratorSettings
 
 
 class Fitter:
     """Fits collections; ``field_at(device)``: the model |B| (uT) at the device's place, None when unknown (then
     the settings' ``expected_field_ut``, else the fit's own)."""
 
-    def __init__(self, settings: CalibratorSettings, field_at: Callable[[str], float | None]) -> None:
+    def __init__(self, settings: Settings, field_at: Callable[[str], float | None]) -> None:
         self.settings, self.field_at = settings, field_at
         self.fits = self.accepted = self.rejected = 0
 

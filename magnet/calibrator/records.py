@@ -1,6 +1,7 @@
 """The records part of the calibrator: the calibrations in force of its shard's devices, as the store holds them, and
-new ones signed (``services.calibrator.signatures``) and stored (``services.calibrator.store``). A record is signed
-once, when it is made; read back it is served as stored. No zenoh inside: the composition publishes what it stores.
+new ones signed (``magnet.calibrator.signatures``) and stored (any ``magnet.calibrator.store.CalibrationStore``). A
+record is signed once, when it is made; read back it is served as stored. No zenoh inside: the composition publishes
+what it stores.
 """
 
 from __future__ import annotations
@@ -10,10 +11,10 @@ from collections.abc import Callable
 from typing import Any
 
 from magnet import signing, wire
+from magnet.calibrator import signatures
+from magnet.calibrator.store import CalibrationStore
 from magnet.model import Calibration
 from magnet.shard import EVERY_DEVICE, Shard
-from services.calibrator import signatures
-from services.calibrator.store import CalibrationStore
 
 log = logging.getLogger("magnet.calibrator")
 

@@ -1,5 +1,5 @@
 """The one answer for every device a calibrator serves, on ``<prefix>/@fleet`` (``roster_reply``), from its records in
-force, collections and roster (``services.calibrator.roster``).
+force, collections and roster (``magnet.calibrator.roster``).
 
 ``<prefix>/@fleet`` replies once: ``{v, t_ns, count, devices: [{device, state, calibration_id, method, quality:
 {residual_rms_ut, residual_rms_pct, coverage, holdout_rms_ut}, created_ns, age_s, last_seen_ns, location:
@@ -13,8 +13,8 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from magnet import wire
-from services.calibrator.roster import Roster
-from services.calibrator.status import State
+from magnet.calibrator.roster import Roster
+from magnet.calibrator.status import State
 
 QUALITY_FIGURES = ("residual_rms_ut", "residual_rms_pct", "coverage", "holdout_rms_ut")
 

@@ -1,7 +1,9 @@
-"""The calibrator without zenoh: ``Calibrator`` wires its parts together and holds none of their logic.
+"""The calibrator's decisions in one object, the compass's shape (``magnet.compass.CompassCore``): ``CalibratorCore``
+with ``on_raw`` (a raw message in), ``commit`` (a calibration put in force), ``session`` and ``rollback`` (an
+operator's actions), ``status`` (what it says of itself). It holds its parts and none of their logic:
 
-- ``lease.ShardKeys`` and ``active`` (``lease.Lease`` in the service): which devices it serves, and whether it holds
-  the lease of its shard (only then does it collect, store and answer).
+- ``keys.ShardKeys`` and ``active`` (the lease, ``services.calibrator.lease``, is the service's): which devices it
+  serves, and whether it holds the lease of its shard (only then does it collect, store and answer).
 - ``collecting.Collections``: per-device sample buffers and their coverage.
 - ``fitting.Fitter`` and ``records.Records``: fit and gate; sign, store and serve the records in force.
 - ``sessions.Sessions`` and ``rollback``: an operator's actions.
@@ -10,49 +12,53 @@
 
 A raw batch (``on_raw``) is decoded, its device noted in the roster, its samples added to the device's collection;
 a due collection that is ready is fitted, and an accepted automatic fit is signed, stored and published, which ends
-its collection. The shell (``services.calibrator.service``) feeds it and sends what it publishes
-(``publish(kind, device, payload_bytes)``).
+its collection.
+
+Pure: no zenoh, no database, no thread, no clock of its own. What it is given: a store (``store.CalibrationStore``,
+the protocol the service's SQLite file implements), its settings (``settings.Settings``), where its messages go
+(``publish(kind, device, payload_bytes)``), a monotonic clock (s) and a wall clock (ns since the epoch). The shell
+(``services.calibrator.service``) feeds it and sends what it publishes.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-import time
 from collections.abc import Callable
 from typing import Any
 
 from magnet import signing, wire
+from magnet.calibrator.collecting import Collections
+from magnet.calibrator.fitting import Fitter
+from magnet.calibrator.keys import ShardKeys
+from magnet.calibrator.progress import ProgressTimes, progress_of
+from magnet.calibrator.records import Records
+from magnet.calibrator.rollback import roll_back
+from magnet.calibrator.roster import Roster
+from magnet.calibrator.sessions import Outcome, Sessions
+from magnet.calibrator.settings import Settings
+from magnet.calibrator.status import CalibratorStatus, Counters, IntakeFigures, State, devices_by_state, state_of
+from magnet.calibrator.store import CalibrationStore
 from magnet.collection import Collection
 from magnet.model import Calibration
 from magnet.shard import EVERY_DEVICE, Shard
-from services.calibrator.collecting import Collections
-from services.calibrator.fitting import Fitter
-from services.calibrator.lease import ShardKeys
-from services.calibrator.progress import ProgressTimes, progress_of
-from services.calibrator.records import Records
-from services.calibrator.rollback import roll_back
-from services.calibrator.roster import Roster
-from services.calibrator.sessions import Outcome, Sessions
-from services.calibrator.settings import CalibratorSettings
-from services.calibrator.status import CalibratorStatus, Counters, IntakeFigures, State, devices_by_state, state_of
-from services.calibrator.store import CalibrationStore
 
 log = logging.getLogger("magnet.calibrator")
 
 Publish = Callable[[wire.Kind, str, bytes], None]
 
 
-class Calibrator:
-    """The parts of a calibrator, wired (see the module docstring)."""
+class CalibratorCore:
+    """The parts of a calibrator, wired (see the module docstring). ``clock``: monotonic seconds (when collections
+    are due, progress intervals); ``clock_ns``: ns since the epoch (records' ``created_ns``, last seen)."""
 
     def __init__(
         self,
         store: CalibrationStore,
-        settings: CalibratorSettings,
+        settings: Settings,
         publish: Publish,
-        clock: Callable[[], float] = time.monotonic,
-        clock_ns: Callable[[], int] = time.time_ns,
+        clock: Callable[[], float],
+        clock_ns: Callable[[], int],
         signer: signing.Signer | None = None,
         roster: Roster | None = None,
         shard: Shard = EVERY_DEVICE,

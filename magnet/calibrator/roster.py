@@ -1,7 +1,7 @@
 """The roster of the devices a calibrator serves (``Roster``): where each device is (reported, from the fleet file, or
 the default place) and when it was last seen, and the open drift alerts (from the compass,
 ``<prefix>/<device>/alert``). No zenoh sessions inside: the service feeds it. The answer for every device
-(``<prefix>/@fleet``) is ``services.calibrator.roster_reply``.
+(``<prefix>/@fleet``) is ``magnet.calibrator.roster_reply``.
 """
 
 from __future__ import annotations
@@ -10,10 +10,11 @@ import logging
 
 from magnet import wire
 from magnet.bounded import Recent
+from magnet.calibrator.settings import DEFAULT_MAX_DEVICES
+from magnet.compass.places import Places
 from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.drift.alerts import ALERT_LIMITS
 from magnet.place import Location
-from services.calibrator.settings import DEFAULT_MAX_DEVICES, Places, make_places
 
 log = logging.getLogger("magnet.calibrator")
 
@@ -24,7 +25,7 @@ class Roster:
     logged the first time."""
 
     def __init__(self, places: Places | None = None, max_devices: int = DEFAULT_MAX_DEVICES) -> None:
-        self.places = places if places is not None else make_places(max_devices=max_devices)
+        self.places = places if places is not None else Places(max_reported=max_devices)
         self.last_seen_ns: Recent[str, int] = Recent(max_devices)
         self.alerts: Recent[str, dict[AlertKind, Alert]] = Recent(max_devices)
         self.max_devices = max_devices

@@ -2,7 +2,7 @@
 actions start / status / commit / abort). A session collects afresh with its method and stores only on commit; the
 calibration in force stays until then.
 
-Each action returns (ok, message, extra reply fields); the composition (``services.calibrator.core``) adds the
+Each action returns (ok, message, extra reply fields); the composition (``magnet.calibrator.core``) adds the
 device's state and progress to make the reply map. The parts it works with are handed in: the collections, the
 fitter, and the few calls of the composition it needs (``known``, ``state``, ``commit``).
 """
@@ -15,10 +15,10 @@ from typing import Any
 from magnet import wire
 from magnet.calibration import Method
 from magnet.calibration.choose import parse_choice
+from magnet.calibrator.collecting import Collections
+from magnet.calibrator.fitting import Fitter
+from magnet.calibrator.status import State
 from magnet.model import Calibration
-from services.calibrator.collecting import Collections
-from services.calibrator.fitting import Fitter
-from services.calibrator.status import State
 
 #: an action's outcome: (ok, message, extra reply fields)
 Outcome = tuple[bool, str, dict[str, Any]]

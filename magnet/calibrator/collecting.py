@@ -6,7 +6,7 @@ a gyroscope for gyro-ellipsoid is counted (``no_gyroscope``, in the status) and 
 then fits the ellipsoid on the cells).
 
 A device with no calibration in force gets an automatic collection when automatic calibration is on; an operator's
-session opens one of its own (``services.calibrator.sessions``), which the ``--max-devices`` bound never drops. A due
+session opens one of its own (``magnet.calibrator.sessions``), which the ``--max-devices`` bound never drops. A due
 automatic collection is fitted only once its coverage reached ``--min-coverage`` (``ready``); until then the reason
 is kept on the collection and goes out with its progress. The bounded queue and the enrolment rate in front of it
 are ``services.calibrator.intake``. No zenoh, no store inside.
@@ -19,8 +19,8 @@ from collections.abc import Iterator
 
 from magnet import wire
 from magnet.bounded import Recent
+from magnet.calibrator.settings import Settings
 from magnet.collection import Collection
-from services.calibrator.settings import CalibratorSettings
 
 log = logging.getLogger("magnet.calibrator")
 
@@ -28,7 +28,7 @@ log = logging.getLogger("magnet.calibrator")
 class Collections:
     """The collections in progress, by device; counts the raw batches and samples received for them."""
 
-    def __init__(self, settings: CalibratorSettings) -> None:
+    def __init__(self, settings: Settings) -> None:
         self.settings = settings
         self.by_device: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
         self.received_batches = 0

@@ -1,14 +1,14 @@
 """Where the calibration of a device stands (``calibration/progress`` and the replies of ``calibrate``): built from its
 collection in progress or its record in force; published at most every ``PROGRESS_INTERVAL_S`` per device while
-samples arrive, and at once when something was stored (``services.calibrator.core``)."""
+samples arrive, and at once when something was stored (``magnet.calibrator.core``)."""
 
 from __future__ import annotations
 
 from magnet import wire
 from magnet.bounded import Recent
+from magnet.calibrator.status import State
 from magnet.collection import Collection
 from magnet.quality import Coverage
-from services.calibrator.status import State
 
 PROGRESS_INTERVAL_S = 0.5
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import logging
 
-from services.calibrator.records import Records
-from services.calibrator.sessions import Commit, Outcome
+from magnet.calibrator.records import Records
+from magnet.calibrator.sessions import Commit, Outcome
 
 #: a rollback without --to looks this far back in the history for the previous calibration
 ROLLBACK_DEPTH = 1_000
