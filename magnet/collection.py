@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from magnet.calibration import MIN_SAMPLES, FitError, Method
+from magnet.calibration import MIN_SAMPLES, FitError, FitInput, Method
 from magnet.calibration.choose import AUTO, fit_choice, parse_choice
 from magnet.model import Calibration
 from magnet.quality import Coverage, coverage
@@ -204,7 +204,7 @@ class Collection:
         try:
             if self.runs is None or (self.auto and (run is None or len(run) < MIN_SAMPLES[Method.GYRO_ELLIPSOID])):
                 mag, acc = self.samples()
-                self.last_fit = fit_choice(mag, self.method, acc=acc, unit="ut", field_ut=field_ut)
+                self.last_fit = fit_choice(FitInput(mag, acc=acc, field_ut=field_ut), self.method)
             else:
                 self.last_fit = _fit_run(run, self.method, field_ut)
         except FitError as exc:
@@ -230,6 +230,7 @@ def _fit_run(run: Run | None, method: str, field_ut: float | None) -> Calibratio
     there is none."""
     if run is None:
         raise FitError(f"{method} has no consecutive samples with the gyroscope yet: keep the device sending")
-    return fit_choice(
-        run.mag, method, acc=run.acc, unit="ut", field_ut=field_ut, gyr=run.gyr_rads, period_s=run.period_s
+    data = FitInput(
+        run.mag, t_s=run.t_ns * 1e-9, acc=run.acc, gyr_rads=run.gyr_rads, period_s=run.period_s, field_ut=field_ut
     )
+    return fit_choice(data, method)

@@ -27,7 +27,7 @@ from collections.abc import Mapping
 import numpy as np
 import numpy.typing as npt
 
-from magnet.calibration import FitError
+from magnet.calibration.base import FitError
 from magnet.model import Calibration
 from magnet.quality import GateThresholds, Geometry, assess, gate
 

@@ -11,7 +11,7 @@ import pytest
 
 from magnet.autopilot import ardupilot_raw_field, ardupilot_soft_iron
 from magnet.autopilot_params import ardupilot_parameters, px4_parameters
-from magnet.calibration import fit
+from magnet.calibration import FitInput, fit
 from magnet.frames import rotation_matrix
 from magnet.model import Calibration
 from services.cli import main
@@ -25,7 +25,7 @@ def fitted() -> tuple[Calibration, np.ndarray]:
     from logfixtures import simulated_run
 
     run = simulated_run(count=800)
-    return fit(run.mag_ut, "ellipsoid", acc=run.acc_ms2, field_ut=50.0), run.mag_ut
+    return fit(FitInput(run.mag_ut, acc=run.acc_ms2, field_ut=50.0), "ellipsoid"), run.mag_ut
 
 
 def _write(calibration: Calibration, path: Path) -> Path:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from fusion_helpers import RATE_HZ, rotating_device
 
-from magnet.calibration import FitError, fit
+from magnet.calibration import FitError, FitInput, fit
 from magnet.frames import quaternion_multiply, quaternion_to_matrix
 from magnet.model import IDENTITY
 from magnet.quality import motion
@@ -49,9 +49,10 @@ def test_dip_check_uses_quasi_static_samples_so_a_shaken_device_can_be_calibrate
     raw = with_iron(mag)
     shaken_acc = shaken(acc)
     every_sample = motion.dip_spread_deg(
-        fit(raw, "ellipsoid", acc=acc).apply(raw), -shaken_acc / np.linalg.norm(shaken_acc, axis=1, keepdims=True)
+        fit(FitInput(raw, acc=acc), "ellipsoid").apply(raw),
+        -shaken_acc / np.linalg.norm(shaken_acc, axis=1, keepdims=True),
     )
-    calibration = fit(raw, "ellipsoid", acc=shaken_acc)
+    calibration = fit(FitInput(raw, acc=shaken_acc), "ellipsoid")
     assert every_sample > 5.0  # what the old check saw: "hold still"
     assert calibration.accepted, calibration.reason
     assert calibration.quality["dip_source"] == "quasi-static samples"
@@ -62,7 +63,7 @@ def test_dip_check_uses_quasi_static_samples_so_a_shaken_device_can_be_calibrate
 
 def test_with_a_gyroscope_the_dip_uses_fused_gravity_in_every_sample(device):
     gyr, acc, mag, _ = device
-    calibration = fit(with_iron(mag), "ellipsoid", acc=shaken(acc), gyr=gyr, period_s=1 / RATE_HZ)
+    calibration = fit(FitInput(with_iron(mag), acc=shaken(acc), gyr_rads=gyr, period_s=1 / RATE_HZ), "ellipsoid")
     assert calibration.accepted, calibration.reason
     assert calibration.quality["dip_source"] == "fused gravity"
     assert calibration.quality["dip_samples"] == len(mag)
@@ -71,7 +72,7 @@ def test_with_a_gyroscope_the_dip_uses_fused_gravity_in_every_sample(device):
 
 def test_a_fit_that_removes_iron_makes_the_field_constant_in_the_earth_frame(device):
     gyr, acc, mag, _ = device
-    calibration = fit(with_iron(mag), "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ)
+    calibration = fit(FitInput(with_iron(mag), acc=acc, gyr_rads=gyr, period_s=1 / RATE_HZ), "ellipsoid")
     q = calibration.quality
     assert calibration.accepted, calibration.reason
     assert q["consistency"] == "direction" and q["reference"] == "no calibration"
@@ -85,7 +86,7 @@ def test_a_fit_that_soaks_up_a_non_uniform_field_is_refused(device):
     gyr, acc, mag, truth = device
     nose = quaternion_to_matrix(truth)[:, :, 0]
     non_uniform = mag * (1.0 + 0.04 * nose[:, :1] + 0.03 * nose[:, 2:])
-    calibration = fit(non_uniform, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ)
+    calibration = fit(FitInput(non_uniform, acc=acc, gyr_rads=gyr, period_s=1 / RATE_HZ), "ellipsoid")
     assert not calibration.accepted
     assert "more constant than no calibration" in calibration.reason
     assert "never makes heading worse" in calibration.reason
@@ -96,12 +97,13 @@ def test_a_fit_that_soaks_up_a_non_uniform_field_is_refused(device):
 def test_a_fit_must_beat_the_calibration_in_force(device):
     gyr, acc, mag, _ = device
     raw = with_iron(mag)
-    good = fit(raw, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ)
-    poor = fit(raw, "sphere", acc=acc, gyr=gyr, period_s=1 / RATE_HZ, reference=good)
+    good = fit(FitInput(raw, acc=acc, gyr_rads=gyr, period_s=1 / RATE_HZ), "ellipsoid")
+    poor = fit(FitInput(raw, acc=acc, gyr_rads=gyr, period_s=1 / RATE_HZ, reference=good), "sphere")
     assert poor.quality["reference"] == "the calibration in force"
     assert not poor.accepted and "more constant than the calibration in force" in poor.reason
     better = fit(
-        raw, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ, reference=IDENTITY.replace(offset=HARD_IRON_UT)
+        FitInput(raw, acc=acc, gyr_rads=gyr, period_s=1 / RATE_HZ, reference=IDENTITY.replace(offset=HARD_IRON_UT)),
+        "ellipsoid",
     )
     assert better.accepted, better.reason
 
@@ -109,9 +111,9 @@ def test_a_fit_must_beat_the_calibration_in_force(device):
 def test_gyroscope_input_errors_are_fit_errors(device):
     gyr, acc, mag, _ = device
     with pytest.raises(FitError, match="period"):
-        fit(mag, "ellipsoid", acc=acc, gyr=gyr)
+        fit(FitInput(mag, acc=acc, gyr_rads=gyr), "ellipsoid")
     with pytest.raises(FitError, match="shape"):
-        fit(mag, "ellipsoid", acc=acc, gyr=gyr[:10], period_s=0.01)
+        fit(FitInput(mag, acc=acc, gyr_rads=gyr[:10], period_s=0.01), "ellipsoid")
 
 
 def test_direction_spread_is_zero_for_a_constant_earth_field(device):
@@ -127,13 +129,13 @@ def test_a_fit_of_a_sensor_calibrated_already_is_refused_as_no_better_than_chanc
     does not let it through either: a fit must also beat no calibration."""
     gyr, acc, mag, _ = device
     noisy = mag + np.random.default_rng(7).normal(0.0, 0.3, mag.shape)
-    calibration = fit(noisy, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ)
+    calibration = fit(FitInput(noisy, acc=acc, gyr_rads=gyr, period_s=1 / RATE_HZ), "ellipsoid")
     q = calibration.quality
     assert not calibration.accepted and "by more than chance" in calibration.reason
     assert q["holdout_margin_deg"] > 0.0
     assert q["holdout_consistency_deg"] > q["reference_holdout_consistency_deg"] - q["holdout_margin_deg"]
     wrong = IDENTITY.replace(offset=np.array([8.0, 0.0, 0.0]))
-    against_wrong = fit(noisy, "ellipsoid", acc=acc, gyr=gyr, period_s=1 / RATE_HZ, reference=wrong)
+    against_wrong = fit(FitInput(noisy, acc=acc, gyr_rads=gyr, period_s=1 / RATE_HZ, reference=wrong), "ellipsoid")
     assert against_wrong.quality["reference_holdout_consistency_deg"] > 3.0  # it beats the wrong one by far ...
     assert not against_wrong.accepted and "than no calibration" in against_wrong.reason  # ... but not none
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from magnet.calibration import fit
+from magnet.calibration import FitInput, fit
 
 
 def spread_pct(field: np.ndarray) -> float:
@@ -34,7 +34,7 @@ def qmc5883l(datasets_dir: Path) -> np.ndarray:
 
 def test_ck_explorer_ellipsoid(ck_explorer):
     acc, mag = ck_explorer
-    cal = fit(mag, "ellipsoid", acc=acc, unit="gauss")
+    cal = fit(FitInput(mag, acc=acc, unit="gauss"), "ellipsoid")
     spread = spread_pct(cal.apply(mag))
     print(
         f"\nCK-Explorer: raw {spread_pct(mag):.2f} %, ellipsoid {spread:.3f} %, "
@@ -49,7 +49,7 @@ def test_ck_explorer_ellipsoid(ck_explorer):
 
 def test_ck_explorer_minmax(ck_explorer):
     _, mag = ck_explorer
-    cal = fit(mag, "minmax", unit="gauss")
+    cal = fit(FitInput(mag, unit="gauss"), "minmax")
     spread = spread_pct(cal.apply(mag))
     print(f"\nCK-Explorer: minmax {spread:.3f} %")
     assert spread <= 3.0
@@ -57,8 +57,8 @@ def test_ck_explorer_minmax(ck_explorer):
 
 def test_ck_explorer_alignment_keeps_the_fit_and_steadies_the_dip(ck_explorer):
     acc, mag = ck_explorer
-    plain = fit(mag, "ellipsoid", acc=acc, unit="gauss")
-    aligned = fit(mag, "ellipsoid+align", acc=acc, unit="gauss")
+    plain = fit(FitInput(mag, acc=acc, unit="gauss"), "ellipsoid")
+    aligned = fit(FitInput(mag, acc=acc, unit="gauss"), "ellipsoid+align")
     print(
         f"\nCK-Explorer: ellipsoid+align dip spread {aligned.quality['dip_spread_deg']:.3f} deg "
         f"(plain {plain.quality['dip_spread_deg']:.3f}); {aligned.reason}"
@@ -69,9 +69,9 @@ def test_ck_explorer_alignment_keeps_the_fit_and_steadies_the_dip(ck_explorer):
 
 
 def test_qmc5883l_ellipsoid(qmc5883l):
-    cal = fit(qmc5883l, "ellipsoid", unit="counts")
+    cal = fit(FitInput(qmc5883l, unit="counts"), "ellipsoid")
     spread = spread_pct(cal.apply(qmc5883l))
-    minmax = spread_pct(fit(qmc5883l, "minmax", unit="counts").apply(qmc5883l))
+    minmax = spread_pct(fit(FitInput(qmc5883l, unit="counts"), "minmax").apply(qmc5883l))
     print(
         f"\nQMC5883L: raw {spread_pct(qmc5883l):.2f} %, minmax {minmax:.2f} %, ellipsoid {spread:.3f} %, "
         f"soft-iron ratio {cal.quality['soft_iron_condition']:.2f}"
@@ -84,7 +84,7 @@ def test_qmc5883l_ellipsoid(qmc5883l):
 
 
 def test_qmc5883l_scaled_to_an_expected_field(qmc5883l):
-    cal = fit(qmc5883l, "ellipsoid", unit="counts", field_ut=45.0)
+    cal = fit(FitInput(qmc5883l, unit="counts", field_ut=45.0), "ellipsoid")
     assert cal.output_unit == "ut"
     assert np.linalg.norm(cal.apply(qmc5883l), axis=1).mean() == pytest.approx(45.0, rel=0.005)
     assert cal.quality["radius_ratio"] is None  # counts have no uT scale: the raw radius cannot be judged

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.calibration import FitInput
 from magnet.drift.alerts import ALERT_LIMITS
 
 FOUR_MB = 4 * 1024 * 1024
@@ -223,7 +224,7 @@ def test_real_records_fit_well_within_the_calibration_limits():
 
     run = simulate(SimulatorConfig(count=600, seed=1, errors=SensorErrors(hard_iron_ut=np.array([20.0, -5.0, 3.0]))))
     for method in ("ellipsoid", "ellipsoid+align", "minmax2d"):
-        calibration = fit(run.mag_ut, method, acc=run.acc_ms2, field_ut=50.0)
+        calibration = fit(FitInput(run.mag_ut, acc=run.acc_ms2, field_ut=50.0), method)
         calibration = calibration.replace(reason="a reason in words " * 50)
         payload = wire.encode_calibration("d" * 128, calibration, 2**62)
         assert len(payload) * 8 < wire.CALIBRATION_LIMITS.payload_bytes

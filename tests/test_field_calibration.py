@@ -11,14 +11,17 @@ import pytest
 
 from magnet.calibration import FitError, Method, fit, fit_auto
 from magnet.calibration.field import FieldInput, fit_field
+from magnet.calibration.fit_input import FitInput
 from magnet.calibration.ladder import PLANAR_NOTE
 from magnet.frames import euler_to_matrix, matrix_to_euler, rotation_angle_deg
 from magnet.geomag import earth_field
 from magnet.model import IDENTITY, Calibration
+from magnet.place import Location
 
 RATE_HZ = 100.0
 PERIOD_S = 1.0 / RATE_HZ
-EARTH = earth_field(50.45, 30.52, 0.0, "2026-01-01")
+PLACE, DATE = Location(50.45, 30.52, 0.0), "2026-01-01"
+EARTH = earth_field(50.45, 30.52, 0.0, DATE)
 B_NED = np.array(EARTH.ned_ut)
 FIELD_UT = float(np.linalg.norm(B_NED))
 G_NED = np.array([0.0, 0.0, 9.80665])
@@ -79,12 +82,15 @@ def level_turns():
 
 def test_a_level_vehicle_gets_planar_hard_and_soft_iron_and_the_record_says_so(level_turns):
     record = fit_auto(
-        level_turns["mag"],
-        acc=level_turns["acc"],
-        gyr=level_turns["gyr"],
-        period_s=PERIOD_S,
-        field_ut=FIELD_UT,
-        dip_deg=EARTH.inclination_deg,
+        FitInput(
+            level_turns["mag"],
+            acc=level_turns["acc"],
+            gyr_rads=level_turns["gyr"],
+            period_s=PERIOD_S,
+            place=PLACE,
+            date=DATE,
+            field_ut=FIELD_UT,
+        )
     )
     assert record.accepted, record.reason
     assert record.method == "planar"
@@ -124,16 +130,16 @@ def test_a_short_arc_identifies_nothing_and_says_what_to_do():
 
 def test_a_fit_no_better_than_the_calibration_in_force_is_refused(level_turns):
     truth = Calibration(method="truth", offset=HARD_UT, matrix=np.linalg.inv(SOFT), field_strength=FIELD_UT)
-    record = fit(
+    data = FitInput(
         level_turns["mag"],
-        Method.PLANAR,
         acc=level_turns["acc"],
-        gyr=level_turns["gyr"],
+        gyr_rads=level_turns["gyr"],
         period_s=PERIOD_S,
         field_ut=FIELD_UT,
         dip_deg=EARTH.inclination_deg,
         reference=truth,
     )
+    record = fit(data, Method.PLANAR)
     assert not record.accepted
     assert "more constant than the calibration in force" in record.reason
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from magnet import signing, wire
-from magnet.calibration import AUTO, FitError, Method, fit, fit_auto, parse_choice
+from magnet.calibration import AUTO, FitError, FitInput, Method, fit, fit_auto, parse_choice
 from magnet.calibration.choose import _choose
 from magnet.model import KNOWN_METHODS, Calibration
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
@@ -39,12 +39,17 @@ def late_run():
 @pytest.fixture(scope="module")
 def chosen(late_run):
     run, late = late_run
-    return fit_auto(late, acc=run.acc_ms2, gyr=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut)
+    return fit_auto(
+        FitInput(late, acc=run.acc_ms2, gyr_rads=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut)
+    )
 
 
 def test_a_late_magnetometer_with_a_gyroscope_gets_gyro_ellipsoid_and_the_record_says_why(late_run, chosen):
     run, late = late_run
-    plain = fit(late, "ellipsoid", acc=run.acc_ms2, gyr=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut)
+    plain = fit(
+        FitInput(late, acc=run.acc_ms2, gyr_rads=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut),
+        "ellipsoid",
+    )
     assert chosen.accepted, chosen.reason
     assert chosen.method == "gyro-ellipsoid"
     other = chosen.quality["auto_other"]
@@ -74,21 +79,21 @@ def test_the_chosen_record_round_trips_through_file_wire_store_and_signature(cho
 def test_without_a_gyroscope_auto_is_the_ellipsoid_fit():
     errors = SensorErrors(hard_iron_ut=(8.0, -3.0, 5.0), noise_ut=0.2)
     run = simulate(SimulatorConfig(trajectory=Trajectory.TUMBLE, rate_hz=50.0, count=1500, errors=errors))
-    auto = fit_auto(run.mag_ut, acc=run.acc_ms2)
-    plain = fit(run.mag_ut, "ellipsoid", acc=run.acc_ms2)
+    auto = fit_auto(FitInput(run.mag_ut, acc=run.acc_ms2))
+    plain = fit(FitInput(run.mag_ut, acc=run.acc_ms2), "ellipsoid")
     assert auto.method == "ellipsoid" and auto.accepted, auto.reason
     np.testing.assert_array_equal(auto.offset, plain.offset)
     assert auto.reason == plain.reason and "auto_other" not in auto.quality.extra
     # a gyroscope without its sample period is no gyroscope either
-    assert fit_auto(run.mag_ut, acc=run.acc_ms2, gyr=run.gyr_rads).method == "ellipsoid"
+    assert fit_auto(FitInput(run.mag_ut, acc=run.acc_ms2, gyr_rads=run.gyr_rads)).method == "ellipsoid"
 
 
 def test_a_gyro_ellipsoid_that_cannot_be_computed_leaves_the_ellipsoid(late_run):
     run, _ = late_run
     still = np.zeros_like(run.gyr_rads)  # no turn at all: the gyroscope does not determine the calibration
     with pytest.raises(FitError, match="every axis"):
-        fit(run.mag_ut, "gyro-ellipsoid", gyr=still, period_s=PERIOD_S)
-    record = fit_auto(run.mag_ut, gyr=still, period_s=PERIOD_S)
+        fit(FitInput(run.mag_ut, gyr_rads=still, period_s=PERIOD_S), "gyro-ellipsoid")
+    record = fit_auto(FitInput(run.mag_ut, gyr_rads=still, period_s=PERIOD_S))
     assert record.method == "ellipsoid" and record.accepted, record.reason
     other = record.quality["auto_other"]
     assert other["method"] == "gyro-ellipsoid" and other["accepted"] is False and "every axis" in other["error"]
@@ -97,14 +102,16 @@ def test_a_gyro_ellipsoid_that_cannot_be_computed_leaves_the_ellipsoid(late_run)
 
 def test_refused_by_both_says_both_reasons_and_stays_gyro_ellipsoid(late_run):
     run, late = late_run
-    record = fit_auto(late, acc=run.acc_ms2, gyr=run.gyr_rads, period_s=PERIOD_S, field_ut=25.0)  # half the field
+    record = fit_auto(
+        FitInput(late, acc=run.acc_ms2, gyr_rads=run.gyr_rads, period_s=PERIOD_S, field_ut=25.0)
+    )  # half the field
     assert not record.accepted and record.method == "gyro-ellipsoid"
     assert "gyro-ellipsoid refused:" in record.reason and "ellipsoid refused:" in record.reason
     gyro_part, plain_part = record.reason.split(" | ")
     assert "fitted radius" in gyro_part and "fitted radius" in plain_part  # each method's own refusal
     assert record.quality["auto_other"]["accepted"] is False
     with pytest.raises(FitError, match=r"gyro-ellipsoid refused: only 20 samples.*ellipsoid refused: only 20"):
-        fit_auto(late[:20], gyr=run.gyr_rads[:20], period_s=PERIOD_S)
+        fit_auto(FitInput(late[:20], gyr_rads=run.gyr_rads[:20], period_s=PERIOD_S))
 
 
 def test_both_accepted_the_lower_held_out_consistency_wins_a_tie_goes_to_gyro_ellipsoid(chosen):

@@ -4,10 +4,12 @@ figures the gate judges do not move."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from magnet.calibration import Method, fit
+from magnet.calibration import FitInput, Method, fit
 from magnet.calibration import fitting as fitting_module
 from magnet.calibration.ellipsoid import ellipsoid
 from services.bench.fit import synthetic_tumble
@@ -27,9 +29,10 @@ def test_the_warm_started_holdout_fit_matches_a_cold_one(seed):
 @pytest.mark.parametrize("method", [Method.ELLIPSOID, Method.ELLIPSOID_ALIGN])
 def test_quality_figures_and_verdict_are_those_of_the_cold_holdout_fit(method, monkeypatch):
     raw, acc = synthetic_tumble(4000, 3)
-    quick = fit(raw, method, acc=acc)
-    monkeypatch.setattr(fitting_module, "_WARM_STARTED", {})  # every held-out fit from a cold start
-    slow = fit(raw, method, acc=acc)
+    quick = fit(FitInput(raw, acc=acc), method)
+    cold = dataclasses.replace(fitting_module.METHODS[method], held_out=None)
+    monkeypatch.setitem(fitting_module.METHODS, method, cold)  # every held-out fit from a cold start
+    slow = fit(FitInput(raw, acc=acc), method)
     assert quick.accepted == slow.accepted and quick.reason == slow.reason
     a, b = quick.quality.to_dict(), slow.quality.to_dict()
     assert a.keys() == b.keys()

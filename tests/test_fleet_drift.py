@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from magnet import heading as hd
-from magnet.calibration import fit
+from magnet.calibration import FitInput, fit
 from magnet.drift import NS_PER_DAY, NS_PER_S, AlertKind, DriftMonitor, DriftSettings, DriftTracker, Reference
 from magnet.simulator import SimulatedDevices
 
@@ -132,7 +132,7 @@ def test_a_simulated_iron_change_on_a_tumbling_device_alerts_in_time_and_a_recal
         return batch.t_ns, batch.mag_ut[0], batch.acc_ms2[0]
 
     t0, mag0, acc0 = run(180)
-    cal = fit(mag0, "ellipsoid", acc=acc0, field_ut=sim.earth.total_ut)
+    cal = fit(FitInput(mag0, acc=acc0, field_ut=sim.earth.total_ut), "ellipsoid")
     assert cal.accepted, cal.reason
     monitor = DriftMonitor(settings)
     reference = Reference(
@@ -158,7 +158,7 @@ def test_a_simulated_iron_change_on_a_tumbling_device_alerts_in_time_and_a_recal
     assert events and not any(e.cleared for e in events), events
     assert alert_ns - change_ns <= settings.detection_bound_s * NS_PER_S
     t2, mag2, acc2 = run(180)  # recalibrate with the new iron
-    recal = fit(mag2, "ellipsoid", acc=acc2, field_ut=sim.earth.total_ut)
+    recal = fit(FitInput(mag2, acc=acc2, field_ut=sim.earth.total_ut), "ellipsoid")
     assert recal.accepted, recal.reason
     cleared = monitor.calibration(
         "car-1",

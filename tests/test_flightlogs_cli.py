@@ -12,6 +12,7 @@ from helpers import MAGNET, REPO_ROOT, free_ports, listen_args, replay_raw, run_
 from logfixtures import PX4_LOG, simulated_run, write_tlog
 
 from magnet import wire
+from magnet.calibration import FitInput
 
 pytestmark = pytest.mark.integration
 
@@ -43,7 +44,7 @@ def test_export_asks_the_calibrator_for_the_device(tmp_path: Path) -> None:
     from services.calibrator.store import CalibrationStore
 
     run = simulated_run(count=800)
-    calibration = fit(run.mag_ut, "ellipsoid", acc=run.acc_ms2, field_ut=50.0)
+    calibration = fit(FitInput(run.mag_ut, acc=run.acc_ms2, field_ut=50.0), "ellipsoid")
     with CalibrationStore(tmp_path / "c.db") as store:
         store.save(wire.DeviceCalibration("drone-7", 1_700_000_000_000_000_000, calibration))
     port, other = free_ports(2)

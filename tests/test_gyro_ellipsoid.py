@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from magnet.calibration import FitError, Method, fit, fit_shape
+from magnet.calibration import FitError, FitInput, Method, fit, fit_shape
 from magnet.model import KNOWN_METHODS, Calibration
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 from services.cli import main
@@ -34,7 +34,9 @@ def tumbled():
 def test_chosen_by_name_it_recovers_offset_soft_iron_and_the_rotation_into_the_imu_frame(tumbled):
     run, truth = tumbled
     started = time.perf_counter()
-    cal, _ = fit_shape(run.mag_ut, "gyro-ellipsoid", gyr=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut)
+    cal, _ = fit_shape(
+        FitInput(run.mag_ut, gyr_rads=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut), "gyro-ellipsoid"
+    )
     assert time.perf_counter() - started < 1.0  # 5 minutes at 100 Hz
     assert cal.method == Method.GYRO_ELLIPSOID.value == "gyro-ellipsoid"
     np.testing.assert_allclose(cal.offset, truth.offset, atol=0.02)  # uT, hard iron up to the field itself
@@ -45,9 +47,15 @@ def test_chosen_by_name_it_recovers_offset_soft_iron_and_the_rotation_into_the_i
 def test_with_its_gate_it_is_accepted_and_beats_the_plain_ellipsoid_on_held_out_data(tumbled):
     run, _ = tumbled
     part = slice(0, 10_000)  # 100 s (the 5 minutes with the gate: ``magnet bench fit``)
-    kwargs = {"acc": run.acc_ms2[part], "gyr": run.gyr_rads[part], "period_s": PERIOD_S, "field_ut": run.earth.total_ut}
-    gyro = fit(run.mag_ut[part], "gyro-ellipsoid", **kwargs)
-    plain = fit(run.mag_ut[part], "ellipsoid", **kwargs)
+    data = FitInput(
+        run.mag_ut[part],
+        acc=run.acc_ms2[part],
+        gyr_rads=run.gyr_rads[part],
+        period_s=PERIOD_S,
+        field_ut=run.earth.total_ut,
+    )
+    gyro = fit(data, "gyro-ellipsoid")
+    plain = fit(data, "ellipsoid")
     assert gyro.accepted, gyro.reason
     held_gyro, held_plain = gyro.quality["holdout_consistency_deg"], plain.quality["holdout_consistency_deg"]
     # the ellipsoid leaves the 2-4 deg misalignment in; the gyroscope fit takes it out
@@ -62,11 +70,11 @@ def test_with_its_gate_it_is_accepted_and_beats_the_plain_ellipsoid_on_held_out_
 def test_without_a_gyroscope_it_is_refused_with_what_to_do(tumbled):
     run, _ = tumbled
     with pytest.raises(FitError, match=r"gyroscope samples \(gx, gy, gz"):
-        fit(run.mag_ut[:3000], "gyro-ellipsoid", acc=run.acc_ms2[:3000])
+        fit(FitInput(run.mag_ut[:3000], acc=run.acc_ms2[:3000]), "gyro-ellipsoid")
     with pytest.raises(FitError, match="sample period"):
-        fit(run.mag_ut[:3000], "gyro-ellipsoid", gyr=run.gyr_rads[:3000])
+        fit(FitInput(run.mag_ut[:3000], gyr_rads=run.gyr_rads[:3000]), "gyro-ellipsoid")
     with pytest.raises(FitError, match="shape of the magnetometer samples"):
-        fit(run.mag_ut[:3000], "gyro-ellipsoid", gyr=run.gyr_rads[:10], period_s=PERIOD_S)
+        fit(FitInput(run.mag_ut[:3000], gyr_rads=run.gyr_rads[:10], period_s=PERIOD_S), "gyro-ellipsoid")
 
 
 def test_rotation_about_one_axis_is_refused_with_what_to_do():
@@ -76,10 +84,10 @@ def test_rotation_about_one_axis_is_refused_with_what_to_do():
     mag = np.stack([np.cos(angle) * earth[0], -np.sin(angle) * earth[0], np.full_like(t, earth[2])], axis=-1)
     gyr = np.tile([0.0, 0.0, 0.5], (len(t), 1))
     with pytest.raises(FitError, match="every axis"):
-        fit_shape(mag + 10.0, "gyro-ellipsoid", gyr=gyr, period_s=PERIOD_S)
+        fit_shape(FitInput(mag + 10.0, gyr_rads=gyr, period_s=PERIOD_S), "gyro-ellipsoid")
     still = np.zeros_like(gyr)
     with pytest.raises(FitError, match="turn the device about every axis"):
-        fit_shape(mag + 10.0, "gyro-ellipsoid", gyr=still, period_s=PERIOD_S)
+        fit_shape(FitInput(mag + 10.0, gyr_rads=still, period_s=PERIOD_S), "gyro-ellipsoid")
 
 
 def _csv(path: Path, run, columns: str) -> Path:
@@ -121,8 +129,8 @@ def test_in_a_figure8_it_is_accepted_without_full_coverage_and_nearer_the_truth_
     )
     run = simulate(SimulatorConfig(trajectory=Trajectory.FIGURE8, rate_hz=100.0, count=6000, errors=errors, seed=7))
     truth = errors.true_calibration(run.earth.total_ut)
-    kwargs = {"acc": run.acc_ms2, "gyr": run.gyr_rads, "period_s": PERIOD_S, "field_ut": run.earth.total_ut}
-    gyro, plain = fit(run.mag_ut, "gyro-ellipsoid", **kwargs), fit(run.mag_ut, "ellipsoid", **kwargs)
+    data = FitInput(run.mag_ut, acc=run.acc_ms2, gyr_rads=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut)
+    gyro, plain = fit(data, "gyro-ellipsoid"), fit(data, "ellipsoid")
     assert gyro.accepted, gyro.reason
     assert gyro.quality.coverage < 0.6 and not plain.accepted and "coverage" in plain.reason
     gyro_error, plain_error = (np.abs(c.offset - truth.offset).max() for c in (gyro, plain))
@@ -132,7 +140,9 @@ def test_in_a_figure8_it_is_accepted_without_full_coverage_and_nearer_the_truth_
 def test_a_magnetometer_that_lags_the_gyroscope_is_found_out_and_calibrated_all_the_same(tumbled):
     run, truth = tumbled
     late = np.vstack([np.repeat(run.mag_ut[:1], 2, axis=0), run.mag_ut[:-2]])  # each reading 2 samples (20 ms) late
-    cal, shape = fit_shape(late, "gyro-ellipsoid", gyr=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut)
+    cal, shape = fit_shape(
+        FitInput(late, gyr_rads=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut), "gyro-ellipsoid"
+    )
     assert shape.note == "magnetometer +20 ms behind the gyroscope"
     np.testing.assert_allclose(cal.offset, truth.offset, atol=0.05)
     assert np.abs(cal.matrix - truth.matrix).max() < 0.002 * np.abs(truth.matrix).max()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from magnet import fusion, heading, wire
-from magnet.calibration import fit
+from magnet.calibration import FitInput, fit
 from magnet.compass import Earth
 from magnet.frames import rotation_vector_to_matrix
 from magnet.mag_delay import advance_field, record_lag_s
@@ -75,7 +75,7 @@ def _step(run, mag: np.ndarray, calibration: Calibration) -> np.ndarray:
 
 def test_the_fit_finds_the_delay_and_the_compass_applies_it(late_run) -> None:
     run, late = late_run
-    record = fit(late, "gyro-ellipsoid", acc=run.acc_ms2, gyr=run.gyr_rads, period_s=1 / RATE_HZ)
+    record = fit(FitInput(late, acc=run.acc_ms2, gyr_rads=run.gyr_rads, period_s=1 / RATE_HZ), "gyro-ellipsoid")
     assert record.accepted, record.reason
     assert record_lag_s(record) == pytest.approx(LATE / RATE_HZ)
     assert record_lag_s(Calibration.from_dict(record.to_dict())) == record_lag_s(record)  # kept in the record

@@ -12,7 +12,7 @@ import pytest
 from compass_steps import compass_core, heading_batches
 
 from magnet import wire
-from magnet.calibration import FitError, fit
+from magnet.calibration import FitError, FitInput, fit
 from magnet.calibration.motor_fit import fit_motor, fit_with_motor
 from magnet.compass import Earth
 from magnet.frames import ned_to_body_euler
@@ -36,7 +36,7 @@ MOTORS = Motors.with_full_field(10.0, (0.6, -0.5, 0.62))
 def ground_calibration() -> Calibration:
     """The sensor calibrated on the ground, motors off (a tumble)."""
     tumble = simulate(SimulatorConfig(trajectory="tumble", count=3000, errors=ERRORS, seed=1))
-    return fit(tumble.mag_ut, "ellipsoid", field_ut=tumble.earth.total_ut)
+    return fit(FitInput(tumble.mag_ut, field_ut=tumble.earth.total_ut), "ellipsoid")
 
 
 @functools.cache
@@ -71,7 +71,7 @@ def test_joint_fit_of_calibration_and_motors_from_a_tumble_with_motors_running()
     run = simulate(SimulatorConfig(trajectory="tumble", count=6000, errors=ERRORS, seed=2, motors=MOTORS))
     strength = run.earth.total_ut
     calibration, result = fit_with_motor(
-        run.mag_ut, run.current_a, "current", lambda mag: fit(mag, "ellipsoid", field_ut=strength), strength
+        run.mag_ut, run.current_a, "current", lambda mag: fit(FitInput(mag, field_ut=strength), "ellipsoid"), strength
     )
     assert np.abs(result.model.coefficients / np.asarray(MOTORS.ut_per_a) - 1.0).max() < 0.05
     np.testing.assert_allclose(calibration.offset, ERRORS.hard_iron_ut, atol=0.3)

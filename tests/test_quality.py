@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from magnet.calibration import FitError, fit
+from magnet.calibration import FitError, FitInput, fit
 from magnet.model import Calibration
 from magnet.quality import (
     CELL_COUNT,
@@ -102,8 +102,8 @@ def _level_turn(rng: np.random.Generator, n: int = 720) -> np.ndarray:
 def test_level_only_data_refused_by_ellipsoid_accepted_by_minmax2d():
     raw = _level_turn(np.random.default_rng(4))
     with pytest.raises(FitError, match="coplanar"):
-        fit(raw, "ellipsoid")
-    cal = fit(raw, "minmax2d")
+        fit(FitInput(raw), "ellipsoid")
+    cal = fit(FitInput(raw), "minmax2d")
     assert cal.accepted, cal.reason
     assert cal.quality["coverage"] == 1.0
     assert cal.quality["residual_rms_pct"] < 2.5
@@ -114,7 +114,7 @@ def test_slightly_tilted_turn_gets_a_coplanar_refusal_from_the_gate():
     raw = _level_turn(rng)
     raw[:, 2] += 2.0 * np.sin(np.linspace(0, 9 * np.pi, len(raw)))  # a little wobble: 3D fit possible but blind
     try:
-        cal = fit(raw, "ellipsoid")
+        cal = fit(FitInput(raw), "ellipsoid")
     except FitError as exc:
         error = str(exc)
         assert "coplanar" in error or "ellipsoid" in error
@@ -125,10 +125,10 @@ def test_slightly_tilted_turn_gets_a_coplanar_refusal_from_the_gate():
 def test_gate_accepts_a_good_fit_and_lists_failures_with_advice():
     rng = np.random.default_rng(6)
     raw = unit_vectors(rng, 3000) * 50 + [20, 30, -10] + rng.normal(scale=0.3, size=(3000, 3))
-    good = fit(raw, "ellipsoid", field_ut=50.0)
+    good = fit(FitInput(raw, field_ut=50.0), "ellipsoid")
     assert good.accepted and good.reason.startswith("accepted")
     half = raw[raw[:, 0] - 20 < 0]  # the nose never pointed down
-    cal = fit(half, "sphere")
+    cal = fit(FitInput(half), "sphere")
     assert not cal.accepted
     assert "coverage" in cal.reason and "point the nose (x) down" in cal.reason
 
@@ -136,7 +136,7 @@ def test_gate_accepts_a_good_fit_and_lists_failures_with_advice():
 def test_residual_and_radius_checks():
     rng = np.random.default_rng(7)
     raw = unit_vectors(rng, 3000) * 30 + rng.normal(scale=3.0, size=(3000, 3))  # noisy, and weak for 50 uT
-    cal = fit(raw, "ellipsoid", field_ut=50.0)
+    cal = fit(FitInput(raw, field_ut=50.0), "ellipsoid")
     assert not cal.accepted
     assert "residual" in cal.reason
     assert re.search(r"-(39|40) % off the expected 50.0 uT", cal.reason)
@@ -148,7 +148,7 @@ def test_residual_and_radius_checks():
 def test_held_out_residual_is_reported():
     rng = np.random.default_rng(8)
     raw = unit_vectors(rng, 2000) * 50 + rng.normal(scale=0.5, size=(2000, 3))
-    q = fit(raw, "ellipsoid").quality
+    q = fit(FitInput(raw), "ellipsoid").quality
     assert q["holdout_rms_ut"] == pytest.approx(q["residual_rms_ut"], rel=0.3)
     assert q["holdout_rms_pct"] > 0
 
@@ -173,7 +173,7 @@ def test_minmax2d_refuses_a_tilted_ellipse_with_fitting_advice():
     horizontal = np.column_stack([20 * np.cos(heading), -20 * np.sin(heading)])
     cross = np.array([[1.0, 0.25], [0.25, 1.0]])  # cross-axis soft iron: the ellipse's axes are at 45 deg
     raw = np.column_stack([horizontal @ cross.T, np.full(720, 45.0)])
-    cal = fit(raw, "minmax2d")
+    cal = fit(FitInput(raw), "minmax2d")
     assert not cal.accepted
     assert "tilted ellipse" in cal.reason and "use ellipsoid" in cal.reason
 

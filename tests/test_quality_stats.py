@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magnet.calibration import fit
+from magnet.calibration import FitInput, fit
 from magnet.quality.stats import column_medians, covariance, median, take_rows
 from services.bench.fit import synthetic_tumble
 
@@ -39,7 +39,7 @@ def test_take_rows_and_covariance_match_numpy():
 
 def test_the_benchmark_tumble_is_an_ellipsoid_that_the_fit_accepts():
     raw, acc = synthetic_tumble(2000, 0)  # |B| constant: north and down from the same rotation
-    calibration = fit(raw, "ellipsoid+align", acc=acc)
+    calibration = fit(FitInput(raw, acc=acc), "ellipsoid+align")
     assert calibration.accepted, calibration.reason
     assert calibration.quality["residual_rms_ut"] < 0.5  # the noise is 0.3 uT
     np.testing.assert_allclose(calibration.offset, [60.0, -120.0, 35.0], atol=0.1)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from magnet.calibration import fit
+from magnet.calibration import FitInput, fit
 from services.cli import main
 from services.report.data import build_report, load_samples
 
@@ -181,7 +181,9 @@ def test_report_of_each_real_recording(datasets_dir, name):
 
     unit, method, step = RECORDINGS[name]
     samples = load_samples(datasets_dir / name, unit)
-    calibration = fit(samples.raw[::step], method, acc=None if samples.acc is None else samples.acc[::step], unit=unit)
+    calibration = fit(
+        FitInput(samples.raw[::step], acc=None if samples.acc is None else samples.acc[::step], unit=unit), method
+    )
     data = build_report(samples, calibration)
     assert data.spread_after_pct < data.spread_before_pct
     assert 0.3 < data.quality["coverage"] <= 1.0  # the gate figures are in the report

@@ -4,7 +4,7 @@ try (counts at a chip's gain, gauss, milligauss, nT); a plausible radius or an u
 import numpy as np
 import pytest
 
-from magnet.calibration import fit
+from magnet.calibration import FitInput, fit
 from magnet.quality.units_hint import chip_count_scales, unit_hint
 from magnet.simulator import SimulatedDevices
 from magnet.units import ut_per_unit
@@ -21,7 +21,7 @@ def tumble():
 def test_counts_fitted_as_ut_say_to_give_unit_counts_and_name_the_chip(tumble, tmp_path, capsys):
     mag, acc = tumble
     counts = mag * 1090 / 100  # an HMC5883L at gain 1: 1090 LSB per gauss
-    cal = fit(counts, "ellipsoid", acc=acc)
+    cal = fit(FitInput(counts, acc=acc), "ellipsoid")
     assert not cal.accepted
     assert cal.reason.startswith("the fitted radius") and "try --unit mgauss or --unit counts" in cal.reason
     assert "hmc5883l gain 1" in cal.reason
@@ -39,9 +39,9 @@ def test_counts_fitted_as_ut_say_to_give_unit_counts_and_name_the_chip(tumble, t
 )
 def test_gauss_milligauss_and_nanotesla_fitted_as_ut_name_their_unit(tumble, unit_of_data, factor, advice):
     mag, acc = tumble
-    cal = fit(mag * factor, "ellipsoid", acc=acc, field_ut=50.5)
+    cal = fit(FitInput(mag * factor, acc=acc, field_ut=50.5), "ellipsoid")
     assert not cal.accepted and advice in cal.reason.split(";")[0], cal.reason
-    right = fit(mag * factor, "ellipsoid", acc=acc, unit=unit_of_data, field_ut=50.5)
+    right = fit(FitInput(mag * factor, acc=acc, unit=unit_of_data, field_ut=50.5), "ellipsoid")
     assert right.accepted and "the fitted radius" not in right.reason, right.reason
     assert ut_per_unit(unit_of_data) == pytest.approx(1 / factor)
 
@@ -61,7 +61,7 @@ def test_no_unit_advice_for_a_plausible_or_unexplained_radius():
 @pytest.mark.parametrize("factor", [0.01, 1e4])  # gauss read as uT (0.5 "uT"); no unit or chip explains 500,000 uT
 def test_a_radius_no_earth_field_has_is_refused_without_a_location_too(tumble, factor):
     mag, acc = tumble
-    cal = fit(mag * factor, "ellipsoid", acc=acc)  # no expected field: the Earth's range judges
+    cal = fit(FitInput(mag * factor, acc=acc), "ellipsoid")  # no expected field: the Earth's range judges
     assert not cal.accepted
     assert ("try --unit gauss" in cal.reason) if factor == 0.01 else ("no Earth field (22-67 uT" in cal.reason)
-    assert fit(mag, "ellipsoid", acc=acc).accepted  # the same motion in uT is accepted
+    assert fit(FitInput(mag, acc=acc), "ellipsoid").accepted  # the same motion in uT is accepted

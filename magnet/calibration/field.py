@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from magnet.calibration.base import FitError
+from magnet.calibration.fit_input import FitInput
 from magnet.calibration.ladder import (
     IDENTIFIED_DEG,
     PLANAR,
@@ -37,6 +38,7 @@ from magnet.calibration.ladder import (
     gyro_spans,
     is_planar,
 )
+from magnet.geomag import earth_field
 from magnet.model import IDENTITY, Calibration
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
@@ -66,6 +68,15 @@ class FieldInput:
     field_ut: float | None = None
     dip_deg: float | None = None
     reference: Calibration | None = None
+
+    @classmethod
+    def of(cls, data: FitInput) -> FieldInput:
+        """The field fit's input from a fit's (``FitInput``): the dip from ``data.dip_deg``, else the WMM at
+        ``data.place`` and ``data.date`` (None without a place)."""
+        dip = data.dip_deg
+        if dip is None and data.place is not None:
+            dip = earth_field(*data.place.as_tuple(), data.date).inclination_deg
+        return cls(data.mag, data.acc, data.gyr_rads, data.period_s, data.unit, data.field_ut, dip, data.reference)
 
     def __post_init__(self) -> None:
         mag = np.asarray(self.mag, dtype=float)

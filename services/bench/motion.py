@@ -30,7 +30,7 @@ import numpy as np
 
 from magnet import frames, fusion
 from magnet import heading as hd
-from magnet.calibration import fit
+from magnet.calibration import FitInput, fit
 from magnet.frames import quaternion_to_matrix, to_magnetic_ned
 from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration
@@ -137,7 +137,7 @@ def product_field(log: MotionLog, method: str = "ellipsoid") -> tuple[np.ndarray
     on the log itself: calibrated (and turned forward over the magnetometer's delay the record carries:
     ``magnet.mag_delay``) when the gate accepts the fit, raw when it refuses it; and "accepted" or "refused"."""
     try:
-        calibration = fit(log.mag_ut, method, acc=log.acc_ms2, gyr=log.gyr_rads, period_s=log.period_s)
+        calibration = fit(FitInput(log.mag_ut, acc=log.acc_ms2, gyr_rads=log.gyr_rads, period_s=log.period_s), method)
     except ValueError:
         return log.mag_ut, "refused"
     if not calibration.accepted:
@@ -205,13 +205,15 @@ def _simulator_calibration(
     """The fit of the run's own samples (with its gyroscope) when the gate accepts it, else of a still tumble of
     the same sensor."""
     try:
-        own = fit(run.mag_ut, "ellipsoid", acc=run.acc_ms2, gyr=run.gyr_rads, period_s=1.0 / settings.rate_hz)
+        own = fit(
+            FitInput(run.mag_ut, acc=run.acc_ms2, gyr_rads=run.gyr_rads, period_s=1.0 / settings.rate_hz), "ellipsoid"
+        )
         if own.accepted:
             return own, "own data"
     except ValueError:
         pass
     tumble = tumble_run(errors, settings)
-    return fit(tumble.mag_ut, "ellipsoid", acc=tumble.acc_ms2), "tumble"
+    return fit(FitInput(tumble.mag_ut, acc=tumble.acc_ms2), "ellipsoid"), "tumble"
 
 
 def simulator_rows(

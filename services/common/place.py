@@ -30,14 +30,6 @@ def expected_field_ut(args: argparse.Namespace) -> float | None:
     return None
 
 
-def expected_dip_deg(args: argparse.Namespace) -> float | None:
-    """The WMM's dip (inclination, deg, positive down) at --location and --date, or None without --location: the
-    prior of the field ladder's fits (``magnet.calibration.field``)."""
-    if not getattr(args, "location", None):
-        return None
-    return earth_field(*Location.parse(args.location).as_tuple(), args.date).inclination_deg
-
-
 def place(args: argparse.Namespace) -> tuple[float | None, float | None]:
     """(declination deg, expected field uT) from --declination or --location/--date, each None when not given."""
     if getattr(args, "declination", None) is not None and args.location:
