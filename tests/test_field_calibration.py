@@ -12,7 +12,7 @@ import pytest
 from magnet.calibration import FitError, Method, fit, fit_auto
 from magnet.calibration.field import FieldInput, fit_field
 from magnet.calibration.fit_input import FitInput
-from magnet.calibration.ladder import PLANAR_NOTE
+from magnet.calibration.rungs import PLANAR_NOTE
 from magnet.frames import euler_to_matrix, matrix_to_euler, rotation_angle_deg
 from magnet.geomag import earth_field
 from magnet.model import IDENTITY, Calibration

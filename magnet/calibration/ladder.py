@@ -34,14 +34,21 @@ none: FitError. Pure numpy.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 import numpy as np
 
 from magnet.calibration.base import FitError
-from magnet.calibration.gyro_ellipsoid import _attitudes, windows
-from magnet.frames import rotation_vector_to_matrix
+from magnet.calibration.rungs import (
+    ISO,
+    LADDER,
+    LEVEL_OFFSET,
+    OFFSET,
+    PLANAR_LADDER,
+    Evidence,
+    Rung,
+    matrix_of,
+)
 
 #: a rung is identified when the heading error its parameters' noise leaves is within this (deg)
 IDENTIFIED_DEG = 1.5
@@ -50,97 +57,15 @@ IDENTIFIED_DEG = 1.5
 CORRELATION_S = 0.2
 #: at most this many samples enter the magnitude and vertical blocks (every k-th: neighbours carry little more)
 MAX_ROWS = 2500
-#: a device whose down stays within this of its z axis in PLANAR_FRACTION of the samples is planar (deg)
-PLANAR_TILT_DEG = 20.0
-PLANAR_FRACTION = 0.95
-#: what a planar record says
-PLANAR_NOTE = f"planar: within {PLANAR_TILT_DEG:g} deg of level"
 #: the WMM dip's prior on the vertical field: one standard deviation, in uT (local anomalies, the model's error)
 VERTICAL_PRIOR_UT = 1.0
 #: least spread of a block's residuals (uT): the magnetometer's noise floor, so that a perfect block is not infinite
 MIN_SIGMA_UT = 0.2
 #: samples whose magnitude residual exceeds this many block spreads are left out after the first pass
 OUTLIER_SIGMAS = 4.0
-#: at most this many gyroscope windows (spread evenly)
-MAX_WINDOWS = 2000
 #: Gauss-Newton iterations per pass; steps shorter than STEP_TOL (uT, or relative for E) end it early
 ITERATIONS = 15
 STEP_TOL = 1e-6
-
-#: E's symmetric basis: (row, column) of each parameter; the last, ``ISO``, is the identity (an isotropic scale,
-#: which heading does not see: the offset rung frees it so that a sensor's gain error does not bend the offset)
-_E_INDEX = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
-ISO = 6
-#: then three for the plane square to the device's mean vertical (``Evidence.axis``): p p^T, q q^T, p q^T + q p^T
-LEVEL = (7, 8, 9)
-
-
-@dataclasses.dataclass(frozen=True)
-class Rung:
-    """A model of the ladder: its name (the record's method), the E parameters it frees (indices into
-    ``_E_INDEX``), and what it estimates and keeps, in words."""
-
-    name: str
-    e_free: tuple[int, ...]
-    estimated: tuple[str, ...]
-    kept: tuple[str, ...]
-
-
-OFFSET = Rung("offset", (ISO,), ("offset",), ("matrix (up to its scale)",))
-#: a level device cannot tell its gain from its vertical offset: its offset rung keeps the matrix whole
-LEVEL_OFFSET = Rung("offset", (), ("offset",), ("matrix",))
-SCALE = Rung("offset+scale", (0, 1, 2), ("offset", "per-axis scale"), ("cross-axis terms",))
-PLANAR = Rung("planar", LEVEL, ("offset", "horizontal soft iron"), ("vertical scale and cross-axis terms",))
-FULL = Rung("ellipsoid", (0, 1, 2, 3, 4, 5), ("offset", "soft iron"), ())
-#: the rungs tried from the richest down, for a device that tilts and for one kept level
-LADDER: tuple[Rung, ...] = (FULL, SCALE, OFFSET)
-PLANAR_LADDER: tuple[Rung, ...] = (PLANAR, LEVEL_OFFSET)
-RUNGS: dict[str, Rung] = {r.name: r for r in (OFFSET, SCALE, PLANAR, FULL)}
-
-
-@dataclasses.dataclass(frozen=True)
-class Evidence:
-    """What the fit sees: mag (N, 3) raw; down (N, 3) unit down in body axes (NaN rows unknown) or None; the
-    gyroscope's windows as (starts (M,), ends (M,), P^T (M, 3, 3)) or None; period_s (s) or None; field_ut F;
-    vertical_ut the WMM's F sin(dip) or None (then free); matrix0 (3, 3) and offset0 (3,) the kept calibration."""
-
-    mag: np.ndarray
-    down: np.ndarray | None
-    spans: tuple[np.ndarray, np.ndarray, np.ndarray] | None
-    period_s: float | None
-    field_ut: float
-    vertical_ut: float | None
-    matrix0: np.ndarray
-    offset0: np.ndarray
-
-    @functools.cached_property
-    def basis(self) -> np.ndarray:
-        """E's basis (``basis``) with the plane square to the mean down direction."""
-        return basis(mean_down(self.down))
-
-    def only(self, rows: np.ndarray) -> tuple[Evidence, np.ndarray]:
-        """(this evidence on the rows (N,) bool and the ends of the windows whose both ends are among them, the
-        rows' mask in it): the fit then works on those samples alone."""
-        keep = rows.copy()
-        spans = None
-        if self.spans is not None:
-            starts, ends, back = self.spans
-            ok = rows[starts] & rows[ends]
-            spans = (starts[ok], ends[ok], back[ok])
-        index = np.flatnonzero(keep)
-        position = np.full(len(rows), -1)
-        position[index] = np.arange(len(index))
-        if spans is not None:
-            spans = (position[spans[0]], position[spans[1]], spans[2])
-        down = None if self.down is None else self.down[index]
-        smaller = dataclasses.replace(self, mag=self.mag[index], down=down, spans=spans)
-        smaller.__dict__["basis"] = self.basis  # the whole recording's plane
-        return smaller, np.ones(len(index), dtype=bool)
-
-    @property
-    def horizontal_ut(self) -> float:
-        vertical = self.vertical_ut if self.vertical_ut is not None else 0.6 * self.field_ut
-        return max(math.sqrt(max(self.field_ut**2 - vertical**2, 0.0)), 0.1 * self.field_ut)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,118 +84,70 @@ class RungFit:
     used: int
 
 
-def gyro_spans(
-    gyr_rads: np.ndarray, period_s: float, keep: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The gyroscope's windows (``gyro_ellipsoid.windows``, at most MAX_WINDOWS) with P^T of each, both ends in
-    ``keep`` (None: all); None when there are fewer than 12."""
-    gyr = np.asarray(gyr_rads, dtype=float)
-    starts, ends = windows(gyr, period_s)
-    if keep is not None:
-        ok = keep[starts] & keep[ends]
-        starts, ends = starts[ok], ends[ok]
-    if len(starts) > MAX_WINDOWS:
-        pick = np.linspace(0, len(starts) - 1, MAX_WINDOWS).astype(int)
-        starts, ends = starts[pick], ends[pick]
-    if len(starts) < 12:
+@dataclasses.dataclass(frozen=True)
+class _Point:
+    """The model at one parameter vector: A (3, 3), b = A (m - o) (N, 3), db/dE (N, 3, free), v (uT)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    db_de: np.ndarray
+    v: float
+
+    def rows(self, grad_b: np.ndarray, idx: np.ndarray, dv: float, sigma: float) -> np.ndarray:
+        """The weighted Jacobian rows (R, P) of residuals whose gradient in b is grad_b (R, 3) at rows idx."""
+        je = np.einsum("ni,nik->nk", grad_b, self.db_de[idx])
+        return np.hstack([-grad_b @ self.a, je, np.full((len(idx), 1), dv)]) / sigma
+
+
+def _point(ev: Evidence, rung: Rung, x: np.ndarray) -> _Point:
+    free = len(rung.e_free)
+    e = np.zeros(10)
+    e[list(rung.e_free)] = x[3 : 3 + free]
+    u = (ev.mag - x[:3]) @ ev.matrix0.T  # A0 (m - o)
+    b = u + u @ np.einsum("k,kij->ij", e, ev.basis).T
+    db_de = np.einsum("kij,nj->nik", ev.basis[list(rung.e_free)], u)  # db/dE_k = G_k u; db/do = -A
+    return _Point(matrix_of(ev, e), b, db_de, float(x[3 + free]))
+
+
+def _gyroscope_block(
+    ev: Evidence, point: _Point, rows: np.ndarray, sigma: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The windows' residuals b(e) - P^T b(s) (3 M,) and Jacobian (3 M, P), weighted; None without windows."""
+    if ev.spans is None:
         return None
-    attitudes = _attitudes(rotation_vector_to_matrix(gyr * period_s))
-    back = np.transpose(attitudes[ends], (0, 2, 1)) @ attitudes[starts]
-    return starts, ends, back
-
-
-def mean_down(down: np.ndarray | None) -> np.ndarray:
-    """The unit mean of the known down directions (N, 3) in body axes; body z when none is known."""
-    if down is None:
-        return np.array([0.0, 0.0, 1.0])
-    known = down[np.all(np.isfinite(down), axis=1)]
-    total = known.sum(axis=0) if len(known) else np.zeros(3)
-    norm = float(np.linalg.norm(total))
-    return total / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
-
-
-def is_planar(down: np.ndarray | None) -> bool:
-    """Whether the known down directions (N, 3) stay within PLANAR_TILT_DEG of their mean (``mean_down``) in
-    PLANAR_FRACTION of the rows: a vehicle that only yaws, or a phone held the same way while its holder turns."""
-    if down is None:
-        return False
-    known = down[np.all(np.isfinite(down), axis=1)]
-    if len(known) < 30:
-        return False
-    cosine = known @ mean_down(known) / np.linalg.norm(known, axis=1)
-    return float(np.mean(cosine >= math.cos(math.radians(PLANAR_TILT_DEG)))) >= PLANAR_FRACTION
-
-
-def basis(axis: np.ndarray) -> np.ndarray:
-    """E's basis (10, 3, 3): the six symmetric ones of ``_E_INDEX``, the identity (ISO), and the three of the plane
-    square to ``axis`` (3,) unit (LEVEL)."""
-    out = np.zeros((10, 3, 3))
-    for k, (i, j) in enumerate(_E_INDEX):
-        out[k, i, j] = out[k, j, i] = 1.0
-    out[ISO] = np.eye(3)
-    helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
-    p = np.cross(axis, helper)
-    p /= np.linalg.norm(p)
-    q = np.cross(axis, p)
-    out[LEVEL[0]], out[LEVEL[1]] = np.outer(p, p), np.outer(q, q)
-    out[LEVEL[2]] = np.outer(p, q) + np.outer(q, p)
-    return out
-
-
-def _matrix(ev: Evidence, e: np.ndarray) -> np.ndarray:
-    return (np.eye(3) + np.einsum("k,kij->ij", e, ev.basis)) @ ev.matrix0
+    starts, ends, back = ev.spans
+    ok = rows[starts] & rows[ends]
+    s_, e_, p_ = starts[ok], ends[ok], back[ok]
+    if not len(s_):
+        return None
+    r = (point.b[e_] - np.einsum("nij,nj->ni", p_, point.b[s_])).reshape(-1)
+    jo = (-(np.eye(3)[None] - p_) @ point.a).reshape(-1, 3)
+    je = (point.db_de[e_] - np.einsum("nij,njk->nik", p_, point.db_de[s_])).reshape(len(r), -1)
+    return r / sigma, np.hstack([jo, je, np.zeros((len(r), 1))]) / sigma
 
 
 def _residuals(
     ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray, sigma: dict[str, float]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(weighted residuals (R,), weighted Jacobian (R, P)) at x = (o (3), E free, v) over the used rows."""
-    free = len(rung.e_free)
-    o, v = x[:3], x[3 + free]
-    e = np.zeros(10)
-    e[list(rung.e_free)] = x[3 : 3 + free]
-    a = _matrix(ev, e)
-    u = (ev.mag - o) @ ev.matrix0.T  # A0 (m - o)
-    b = u + u @ np.einsum("k,kij->ij", e, ev.basis).T
-    # db/do = -A; db/de_k = G_k u
-    db_de = np.einsum("kij,nj->nik", ev.basis[list(rung.e_free)], u) if free else np.zeros((len(u), 3, 0))
-    blocks_r, blocks_j = [], []
-
-    def add(r: np.ndarray, grad_b: np.ndarray, dv: np.ndarray | None, s: float) -> None:
-        # grad_b (R, 3): d r / d b for rows whose b is b[rows]
-        jo = -grad_b @ a
-        je = np.einsum("ni,nik->nk", grad_b, db_de[idx]) if free else np.zeros((len(r), 0))
-        jv = np.zeros((len(r), 1)) if dv is None else dv[:, None]
-        blocks_r.append(r / s)
-        blocks_j.append(np.hstack([jo, je, jv]) / s)
-
+    """(weighted residuals (R,), weighted Jacobian (R, P)) at x = (o (3), E free, v) over the used rows: the
+    magnitude, the vertical field, the gyroscope's windows and the WMM's prior on v."""
+    point = _point(ev, rung, x)
     idx = np.flatnonzero(rows)
-    norm = np.linalg.norm(b[idx], axis=1)
-    add(norm - ev.field_ut, b[idx] / norm[:, None], None, sigma["magnitude"])
+    norm = np.linalg.norm(point.b[idx], axis=1)
+    blocks_r = [(norm - ev.field_ut) / sigma["magnitude"]]
+    blocks_j = [point.rows(point.b[idx] / norm[:, None], idx, 0.0, sigma["magnitude"])]
     if ev.down is not None:
         known = idx[np.all(np.isfinite(ev.down[idx]), axis=1)]
-        if len(known):
-            idx_all = idx
-            idx = known
-            d = ev.down[known]
-            add(np.einsum("ni,ni->n", d, b[known]) - v, d, -np.ones(len(known)), sigma["vertical"])
-            idx = idx_all
-    if ev.spans is not None:
-        starts, ends, back = ev.spans
-        ok = rows[starts] & rows[ends]
-        s_, e_, p_ = starts[ok], ends[ok], back[ok]
-        if len(s_):
-            r = (b[e_] - np.einsum("nij,nj->ni", p_, b[s_])).reshape(-1)
-            jo = (-(np.eye(3)[None] - p_) @ a).reshape(-1, 3)
-            if free:
-                je = (db_de[e_] - np.einsum("nij,njk->nik", p_, db_de[s_])).reshape(-1, free)
-            else:
-                je = np.zeros((len(r), 0))
-            blocks_r.append(r / sigma["gyroscope"])
-            blocks_j.append(np.hstack([jo, je, np.zeros((len(r), 1))]) / sigma["gyroscope"])
+        d = ev.down[known]
+        blocks_r.append((np.einsum("ni,ni->n", d, point.b[known]) - point.v) / sigma["vertical"])
+        blocks_j.append(point.rows(d, known, -1.0, sigma["vertical"]))
+    gyroscope = _gyroscope_block(ev, point, rows, sigma["gyroscope"])
+    if gyroscope is not None:
+        blocks_r.append(gyroscope[0])
+        blocks_j.append(gyroscope[1])
     if ev.vertical_ut is not None:
-        blocks_r.append(np.array([(v - ev.vertical_ut) / VERTICAL_PRIOR_UT]))
-        blocks_j.append(np.concatenate([np.zeros(3 + free), [1.0 / VERTICAL_PRIOR_UT]])[None])
+        blocks_r.append(np.array([(point.v - ev.vertical_ut) / VERTICAL_PRIOR_UT]))
+        blocks_j.append(np.concatenate([np.zeros(3 + len(rung.e_free)), [1.0 / VERTICAL_PRIOR_UT]])[None])
     return np.concatenate(blocks_r), np.vstack(blocks_j)
 
 
@@ -280,7 +157,7 @@ def _block_spreads(ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray) ->
     free = len(rung.e_free)
     e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
-    b = (ev.mag - x[:3]) @ _matrix(ev, e).T
+    b = (ev.mag - x[:3]) @ matrix_of(ev, e).T
     out = {"magnitude": float(np.sqrt(np.mean((np.linalg.norm(b[rows], axis=1) - ev.field_ut) ** 2)))}
     if ev.down is not None:
         known = rows & np.all(np.isfinite(ev.down), axis=1)
@@ -378,7 +255,7 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
     free = len(rung.e_free)
     e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
-    b = (ev.mag - x[:3]) @ _matrix(ev, e).T
+    b = (ev.mag - x[:3]) @ matrix_of(ev, e).T
     used &= np.abs(np.linalg.norm(b, axis=1) - ev.field_ut) <= OUTLIER_SIGMAS * sigma["magnitude"]
     if used.sum() < 30:
         raise FitError(f"{rung.name}: fewer than 30 samples agree with one field: keep away from iron while moving")
@@ -388,7 +265,7 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
     identified, eigen = _identified_deg(ev, rung, j, step)
     e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
-    return RungFit(rung, x[:3].copy(), _matrix(whole, e), float(x[-1]), identified, eigen, sigma, int(used.sum()))
+    return RungFit(rung, x[:3].copy(), matrix_of(whole, e), float(x[-1]), identified, eigen, sigma, int(used.sum()))
 
 
 def first_offset(ev: Evidence, rows: np.ndarray | None = None) -> np.ndarray:
