@@ -59,6 +59,13 @@ CORRELATION_S = 0.2
 MAX_ROWS = 2500
 #: the WMM dip's prior on the vertical field: one standard deviation, in uT (local anomalies, the model's error)
 VERTICAL_PRIOR_UT = 1.0
+#: a fit whose vertical field ends this far from the WMM's is not identified (uT): the data moved it off its prior,
+#: which only a local minimum far from the truth or a disturbed place does (a car's 35 s without a turn: 47 uT off)
+VERTICAL_LIMIT_UT = 3.0
+#: the prior on each of E's parameters (one standard deviation): a magnetometer's gains and soft iron stay within a
+#: few % of the identity (a phone's 4 %, ``SensorErrors.phone``), and |B| is the WMM's; without it a short arc is fitted
+#: as well by a far centre and a shrunken matrix (a robot's 20 s: A = 0.23 I, the offset 174 uT off)
+E_PRIOR = 0.1
 #: least spread of a block's residuals (uT): the magnetometer's noise floor, so that a perfect block is not infinite
 MIN_SIGMA_UT = 0.2
 #: samples whose magnitude residual exceeds this many block spreads are left out after the first pass
@@ -145,9 +152,13 @@ def _residuals(
     if gyroscope is not None:
         blocks_r.append(gyroscope[0])
         blocks_j.append(gyroscope[1])
+    free = len(rung.e_free)
     if ev.vertical_ut is not None:
         blocks_r.append(np.array([(point.v - ev.vertical_ut) / VERTICAL_PRIOR_UT]))
-        blocks_j.append(np.concatenate([np.zeros(3 + len(rung.e_free)), [1.0 / VERTICAL_PRIOR_UT]])[None])
+        blocks_j.append(np.concatenate([np.zeros(3 + free), [1.0 / VERTICAL_PRIOR_UT]])[None])
+    if free:
+        blocks_r.append(x[3 : 3 + free] / E_PRIOR)
+        blocks_j.append(np.hstack([np.zeros((free, 3)), np.eye(free) / E_PRIOR, np.zeros((free, 1))]))
     return np.concatenate(blocks_r), np.vstack(blocks_j)
 
 
@@ -263,6 +274,8 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
     sigma = _block_spreads(ev, rung, x, used)
     _, j = _residuals(ev, rung, x, used, sigma)
     identified, eigen = _identified_deg(ev, rung, j, step)
+    if ev.vertical_ut is not None and abs(float(x[-1]) - ev.vertical_ut) > VERTICAL_LIMIT_UT:
+        identified = math.inf  # a minimum far from the WMM's dip: the motion did not pin the offset down
     e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
     return RungFit(rung, x[:3].copy(), matrix_of(whole, e), float(x[-1]), identified, eigen, sigma, int(used.sum()))
