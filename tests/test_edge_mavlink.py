@@ -18,7 +18,7 @@ from helpers import REPO_ROOT, connect_args, free_ports, listen_args, liveliness
 from motion_pipeline import PREFIX, Pipeline, _client_config
 
 from magnet import wire
-from magnet.heading import angle_difference_deg
+from magnet.attitude.heading import angle_difference_deg
 
 pytestmark = pytest.mark.integration
 

@@ -1,5 +1,5 @@
 """MAVLink messages, encoded and parsed by pymavlink (the ecosystem's library), into magnet's units, devices, times
-and batches (magnet.mavlink, magnet.mavlink_stream)."""
+and batches (magnet.autopilot.mavlink, magnet.autopilot.mavlink_stream)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from magnet import mavlink, wire
-from magnet.mavlink_stream import MAX_SKEW_NS, MavlinkStream
+from magnet import wire
+from magnet.autopilot import mavlink
+from magnet.autopilot.mavlink_stream import MAX_SKEW_NS, MavlinkStream
 
 G = 9.80665
 NOW = 1_700_000_000_000_000_000
@@ -143,7 +144,7 @@ def test_battery_current_from_a_vehicle_reaches_the_compass_which_takes_the_moto
     """SYS_STATUS current and SCALED_IMU2 field through the stream, the wire and the compass with a motor model."""
     from compass_steps import compass_core, heading_batches
 
-    from magnet.compass import Earth
+    from magnet.earth.expected import Earth
     from magnet.model import IDENTITY
     from magnet.motor import MotorModel
 

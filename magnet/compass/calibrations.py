@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from magnet import signing, wire
+from magnet.attitude.mag_delay import record_lag_s
 from magnet.bounded import Recent
-from magnet.mag_delay import record_lag_s
 
 #: devices remembered as refused between two asks of the calibrators (a flood beyond: one query for all)
 MAX_REFUSED = 1024
@@ -101,7 +101,7 @@ def calibration_rows(
 
 def lag_rows(cals: list[wire.DeviceCalibration | None], counts: np.ndarray) -> np.ndarray | None:
     """Per sample (S,) the magnetometer's delay behind the gyroscope (s) its batch's calibration carries
-    (``magnet.mag_delay``), or None when no batch's calibration carries one."""
+    (``magnet.attitude.mag_delay``), or None when no batch's calibration carries one."""
     lags = [record_lag_s(c.calibration) if c else 0.0 for c in cals]
     return np.repeat(np.asarray(lags, dtype=float), counts) if any(lags) else None
 

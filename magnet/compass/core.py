@@ -19,19 +19,19 @@ from typing import Any
 
 import numpy as np
 
-from magnet import heading as hd
 from magnet import signing, wire
+from magnet.attitude import heading as hd
+from magnet.attitude.mag_delay import advance_field
 from magnet.bounded import Recent
 from magnet.compass.calibrations import CalibrationsInForce, calibration_rows, lag_rows, motor_rows
-from magnet.compass.earth import utc_date
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
-from magnet.compass.places import EarthColumns, Places
 from magnet.compass.tilt import Headings, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
+from magnet.earth.expected import utc_date
+from magnet.earth.places import EarthColumns, Places
 from magnet.frames import rotate_heading, to_magnetic_ned
-from magnet.mag_delay import advance_field
 from magnet.shard import EVERY_DEVICE, Shard
 
 log = logging.getLogger("magnet.compass")
@@ -246,7 +246,7 @@ class CompassCore:
         the velocity where a batch carries one (turned to magnetic north by the declination of the device's place);
         bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``lags``
         (S,) s: the magnetometer's delay the calibration carries; the filters get the field turned forward over it
-        (``magnet.mag_delay``)."""
+        (``magnet.attitude.mag_delay``)."""
         vel = raw.vel
         aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
         field = out.field_ut if lags is None else advance_field(out.field_ut, raw.gyr_rads, lags)

@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 
-from magnet import heading as hd
+from magnet.attitude import heading as hd
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -34,7 +34,7 @@ def compute_headings(
     motor_ut: np.ndarray | None = None,
 ) -> Headings:
     """Headings for S samples of any devices at once; flags: CALIBRATED only (the disturbance checks come after the
-    attitude is known, ``magnet.heading.disturbance_flags``).
+    attitude is known, ``magnet.attitude.heading.disturbance_flags``).
 
     mag_ut (S, 3) raw uT; acc_ms2 (S, 3) m/s^2 with NaN rows where a sample has no accelerometer; offsets (S, 3) and
     matrices (S, 3, 3) the calibration of each sample's device (B = A (u - b), see ``magnet.model``); calibrated (S,)

@@ -1,8 +1,8 @@
 """``magnet edge --mavlink URL``: the magnetometers of MAVLink vehicles (pymavlink connection; the conversion is
-``magnet.mavlink_stream``). One device per vehicle and compass instance, ``<prefix><SYSID>-mag<N>``, appearing as
-their vehicles send; a vehicle silent for ``--vehicle-timeout`` seconds turns its devices unhealthy (the edge's
-unhealthy token per device, as for a dead bus) until it sends again. Bytes that are not MAVLink and messages
-magnet cannot use are dropped and counted (status ``reads.dropped``), with one log line per cause."""
+``magnet.autopilot.mavlink_stream``). One device per vehicle and compass instance, ``<prefix><SYSID>-mag<N>``, appearing
+as their vehicles send; a vehicle silent for ``--vehicle-timeout`` seconds turns its devices unhealthy (the edge's
+unhealthy token per device, as for a dead bus) until it sends again. Bytes that are not MAVLink and messages magnet
+cannot use are dropped and counted (status ``reads.dropped``), with one log line per cause."""
 
 from __future__ import annotations
 
@@ -14,8 +14,9 @@ from typing import Any
 import zenoh
 from pymavlink import mavutil
 
-from magnet import mavlink, wire
-from magnet.mavlink_stream import MavlinkStream
+from magnet import wire
+from magnet.autopilot import mavlink
+from magnet.autopilot.mavlink_stream import MavlinkStream
 from services.edge.settings import EdgeSettings
 from services.edge.source import DeviceEvents, Stop, ticked
 

@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet import mavlink
-from magnet.place import Location
+from magnet.autopilot import mavlink
+from magnet.earth.location import Location
 from magnet.wire.raw import RawBatch
 
 SENSOR = "mavlink"
