@@ -13,10 +13,10 @@ from magnet.calibration import FitError, Method, fit, fit_auto
 from magnet.calibration.field import FieldInput, fit_field
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.rungs import PLANAR_NOTE
+from magnet.earth.geomag import earth_field
+from magnet.earth.location import Location
 from magnet.frames import euler_to_matrix, matrix_to_euler, rotation_angle_deg
-from magnet.geomag import earth_field
 from magnet.model import IDENTITY, Calibration
-from magnet.place import Location
 
 RATE_HZ = 100.0
 PERIOD_S = 1.0 / RATE_HZ

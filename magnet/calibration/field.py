@@ -27,7 +27,7 @@ from magnet.calibration.base import FitError
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, climb, first_offset, fit_rung
 from magnet.calibration.rungs import PLANAR, PLANAR_NOTE, RUNGS, Evidence, gyro_spans, is_planar
-from magnet.geomag import earth_field
+from magnet.earth.geomag import earth_field
 from magnet.model import IDENTITY, Calibration
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
