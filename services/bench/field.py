@@ -34,11 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from magnet import wire
+from magnet.attitude.mag_delay import record_lag_s
 from magnet.calibrator import CalibratorCore
-from magnet.compass import CompassCore, CoreSettings, Places
-from magnet.mag_delay import record_lag_s
+from magnet.compass import CompassCore, CoreSettings
+from magnet.earth.location import Location
+from magnet.earth.places import Places
 from magnet.model import Calibration
-from magnet.place import Location
 from magnet.simulator import SimulatedRun
 from services.bench import field_runs as fr
 from services.calibrator.settings import CalibratorSettings

@@ -19,8 +19,9 @@ import dataclasses
 import numpy as np
 import vqf
 
-from magnet import frames, fusion
-from magnet.heading import angle_difference_deg
+from magnet import frames
+from magnet.attitude import fusion
+from magnet.attitude.heading import angle_difference_deg
 from magnet.simulator import (
     DEFAULT_DATE,
     DEFAULT_LAT_DEG,
