@@ -259,7 +259,7 @@ class Calibration:
         """How far the magnetometer's readings come behind the gyroscope's (s): the quality figure ``mag_lag_s`` a
         gyro-ellipsoid fit writes (the record's wire and store form), typed here; 0.0 when the record carries none or
         an unusable one (not a finite number within +-``MAX_LAG_S``): records come from files and the network. The
-        compass turns the field its filter gets forward over it (``magnet.mag_delay``)."""
+        compass turns the field its filter gets forward over it (``magnet.attitude.mag_delay``)."""
         value = self.quality.get("mag_lag_s")
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             return 0.0

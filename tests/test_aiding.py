@@ -1,14 +1,14 @@
-"""Velocity aiding (magnet.aiding, magnet.aided_fusion) and the simulator's GNSS-like velocity."""
+"""Velocity aiding (magnet.attitude.aiding, magnet.attitude.aided_fusion) and the simulator's GNSS-like velocity."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from magnet import fusion
-from magnet import heading as hd
-from magnet.aided_fusion import carry_forward
-from magnet.aiding import VelocityFixes, vehicle_tau_acc_s
+from magnet.attitude import fusion
+from magnet.attitude import heading as hd
+from magnet.attitude.aided_fusion import carry_forward
+from magnet.attitude.aiding import VelocityFixes, vehicle_tau_acc_s
 from magnet.frames import to_magnetic_ned
 from magnet.simulator import SensorStream, SimulatorConfig, Trajectory, simulate
 from magnet.simulator.gnss import GnssSettings

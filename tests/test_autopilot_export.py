@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from magnet.autopilot import ardupilot_raw_field, ardupilot_soft_iron
-from magnet.autopilot_params import ardupilot_parameters, px4_parameters
+from magnet.autopilot.conventions import ardupilot_raw_field, ardupilot_soft_iron
+from magnet.autopilot.params import ardupilot_parameters, px4_parameters
 from magnet.calibration import FitInput, fit
 from magnet.frames import rotation_matrix
 from magnet.model import Calibration

@@ -5,8 +5,8 @@ import functools
 import numpy as np
 import pytest
 
+from magnet.earth.geomag import earth_field
 from magnet.frames import euler_to_matrix
-from magnet.geomag import earth_field
 from magnet.simulator import SensorErrors
 from services.bench import accuracy as bench
 

@@ -9,12 +9,12 @@ from compass_steps import NOW_NS, compass_core
 
 from magnet import wire
 from magnet.bounded import Recent
+from magnet.calibration.collection import Collection
 from magnet.calibrator.roster import Roster
-from magnet.collection import Collection
-from magnet.compass import Earth
 from magnet.drift import Alert, AlertKind
+from magnet.earth.expected import Earth
+from magnet.earth.location import Location
 from magnet.model import Calibration
-from magnet.place import Location
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
 

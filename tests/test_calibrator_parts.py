@@ -16,8 +16,8 @@ from magnet.calibrator.roster import Roster
 from magnet.calibrator.roster_reply import roster_reply
 from magnet.calibrator.sessions import Sessions
 from magnet.calibrator.status import State, devices_by_state, state_of
+from magnet.earth.location import Location
 from magnet.model import Calibration, Quality
-from magnet.place import Location
 from magnet.shard import Shard
 from magnet.simulator import SensorErrors, SimulatorConfig, simulate
 from services.calibrator.settings import CalibratorSettings

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from magnet.geomag import earth_field
-from magnet.place import Location
+from magnet.earth.geomag import earth_field
+from magnet.earth.location import Location
 from magnet.shard import Shard
 from services.calibrator.settings import (
     CalibratorSettings,

@@ -1,5 +1,5 @@
 """A collection whose method needs the gyroscope (gyro-ellipsoid): its bounded ring of consecutive samples
-(``magnet.sample_runs``), runs cut at gaps, and a fit from simulator batches that recovers the truth."""
+(``magnet.calibration.sample_runs``), runs cut at gaps, and a fit from simulator batches that recovers the truth."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from magnet import wire
+from magnet.calibration.collection import Collection
+from magnet.calibration.sample_runs import RecentRuns
 from magnet.calibrator.collecting import Collections
-from magnet.collection import Collection
-from magnet.sample_runs import RecentRuns
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 from services.calibrator.settings import CalibratorSettings
 

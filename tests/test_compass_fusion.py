@@ -8,11 +8,13 @@ import pytest
 from compass_steps import NOW_NS, compass_core, heading_batches
 from fusion_helpers import RATE_HZ, rotating_device
 
-from magnet import frames, fusion, wire
-from magnet.compass import CompassCore, Earth
+from magnet import frames, wire
+from magnet.attitude import fusion
+from magnet.attitude.heading import HeadingFlag, angle_difference_deg
+from magnet.compass import CompassCore
 from magnet.compass.filters import GYRO_LIMIT_RADS, DeviceFilters
+from magnet.earth.expected import Earth
 from magnet.frames import to_magnetic_ned
-from magnet.heading import HeadingFlag, angle_difference_deg
 from magnet.simulator import SimulatorConfig, Trajectory, simulate
 
 BATCH = 25

@@ -10,10 +10,10 @@ import pytest
 from magnet import wire
 from magnet.calibrator.roster import Roster
 from magnet.calibrator.roster_reply import roster_reply
-from magnet.compass.places import Places, parse_places
 from magnet.drift import Alert, AlertKind, advice_for
+from magnet.earth.location import Location
+from magnet.earth.places import Places, parse_places
 from magnet.model import Calibration, Quality
-from magnet.place import Location
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
 

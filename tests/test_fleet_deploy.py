@@ -8,7 +8,7 @@ import shlex
 import pytest
 from helpers import REPO_ROOT
 
-from magnet.compass.places import parse_places
+from magnet.earth.places import parse_places
 from services.cli import build_parser
 
 SITE = REPO_ROOT / "deploy" / "site"

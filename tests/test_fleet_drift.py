@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magnet import heading as hd
+from magnet.attitude import heading as hd
 from magnet.calibration import FitInput, fit
 from magnet.drift import NS_PER_DAY, NS_PER_S, AlertKind, DriftMonitor, DriftSettings, DriftTracker, Reference
 from magnet.simulator import SimulatedDevices

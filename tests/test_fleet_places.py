@@ -10,13 +10,12 @@ import numpy as np
 import pytest
 from compass_steps import compass_core, heading_batches
 
-from magnet import heading as hd
 from magnet import wire
-from magnet.compass import Earth, Places, earth_at
-from magnet.compass.earth import utc_date
-from magnet.compass.places import parse_places
-from magnet.geomag import earth_field
-from magnet.place import Location
+from magnet.attitude import heading as hd
+from magnet.earth.expected import Earth, earth_at, utc_date
+from magnet.earth.geomag import earth_field
+from magnet.earth.location import Location
+from magnet.earth.places import Places, parse_places
 from magnet.simulator import SimulatedDevices
 
 KYIV, SYDNEY = Location(50.45, 30.52, 180.0), Location(-33.86, 151.21, 20.0)

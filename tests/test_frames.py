@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from magnet import frames
+from magnet.attitude.heading import angle_difference_deg
 from magnet.frames import euler_to_matrix, orientation_matrix, quaternion_to_matrix
-from magnet.heading import angle_difference_deg
 
 angles = st.tuples(st.floats(0, 359.9), st.floats(-89, 89), st.floats(-179.9, 180))
 

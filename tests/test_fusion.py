@@ -1,4 +1,4 @@
-"""magnet.fusion: causal filter across batches, offline, and the motion metric."""
+"""magnet.attitude.fusion: causal filter across batches, offline, and the motion metric."""
 
 from __future__ import annotations
 
@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from fusion_helpers import RATE_HZ, rotating_device
 
-from magnet import frames, fusion
+from magnet import frames
+from magnet.attitude import fusion
+from magnet.attitude.heading import angle_difference_deg, offset_removed_rms_deg
 from magnet.frames import quaternion_to_matrix, rotation_angle_deg
-from magnet.heading import angle_difference_deg, offset_removed_rms_deg
 
 
 def test_fused_attitude_follows_a_moving_device_in_the_project_frames():

@@ -5,8 +5,8 @@ import datetime
 import numpy as np
 import pytest
 
-from magnet.geomag import decimal_year, earth_field
-from magnet.place import Location
+from magnet.earth.geomag import decimal_year, earth_field
+from magnet.earth.location import Location
 
 # NOAA/BGS WMM2025 test values (WMM2025_TestValues.txt): (decimal year, height km, lat, lon, declination deg)
 OFFICIAL = [

@@ -17,7 +17,7 @@ import pytest
 from compass_steps import compass_core
 
 from magnet import wire
-from magnet.compass import Earth
+from magnet.earth.expected import Earth
 from magnet.model import Calibration
 from services.calibrator.intake import Enrolment, RawIntake
 from services.calibrator.service import Calibrator, CalibratorSettings, ServiceLoop, _declare_answers

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from magnet import heading as hd
+from magnet.attitude import heading as hd
 from magnet.frames import euler_to_matrix, ned_to_body
 
 G = 9.80665

@@ -10,7 +10,7 @@ from fusion_helpers import RATE_HZ, rotating_device
 from helpers import run_magnet as magnet
 
 from magnet import frames
-from magnet.heading import HeadingFlag, angle_difference_deg
+from magnet.attitude.heading import HeadingFlag, angle_difference_deg
 
 pytestmark = pytest.mark.integration
 

@@ -1,6 +1,6 @@
-"""The magnetometer's delay behind the gyroscope (``magnet.mag_delay``): found by the gyro-ellipsoid fit, carried by
-its record, and applied by the compass's step and by ``magnet heading --offline`` (the field turned forward by the
-gyroscope's rotation over the delay before the filter uses it)."""
+"""The magnetometer's delay behind the gyroscope (``magnet.attitude.mag_delay``): found by the gyro-ellipsoid fit,
+carried by its record, and applied by the compass's step and by ``magnet heading --offline`` (the field turned forward
+by the gyroscope's rotation over the delay before the filter uses it)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from magnet import fusion, heading, wire
+from magnet import wire
+from magnet.attitude import fusion, heading
+from magnet.attitude.mag_delay import advance_field, record_lag_s
 from magnet.calibration import FitInput, fit
-from magnet.compass import Earth
+from magnet.earth.expected import Earth
 from magnet.frames import rotation_vector_to_matrix
-from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import IDENTITY, Calibration
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 from services.commands.heading import causal_headings

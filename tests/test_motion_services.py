@@ -19,7 +19,7 @@ import pytest
 from helpers import run_magnet
 from motion_pipeline import Pipeline, joined, received
 
-from magnet.heading import angle_difference_deg
+from magnet.attitude.heading import angle_difference_deg
 from magnet.simulator import VEHICLE_TRAJECTORIES, SimulatedRun
 from services.bench import motion
 

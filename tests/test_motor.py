@@ -12,11 +12,11 @@ import pytest
 from compass_steps import compass_core, heading_batches
 
 from magnet import wire
+from magnet.attitude.heading import angle_difference_deg
 from magnet.calibration import FitError, FitInput, fit
 from magnet.calibration.motor_fit import fit_motor, fit_with_motor
-from magnet.compass import Earth
+from magnet.earth.expected import Earth
 from magnet.frames import ned_to_body_euler
-from magnet.heading import angle_difference_deg
 from magnet.model import Calibration
 from magnet.motor import MotorModel, interference_pct
 from magnet.simulator import Motors, SensorErrors, SimulatorConfig, simulate

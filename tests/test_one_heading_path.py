@@ -25,9 +25,10 @@ import zenoh
 from helpers import MAGNET, REPO_ROOT, connect_args, free_ports, listen_args, wait_for_liveliness
 
 from magnet import wire
-from magnet.compass import CompassCore, CoreSettings, Places
-from magnet.heading import HeadingFlag
-from magnet.place import Location
+from magnet.attitude.heading import HeadingFlag
+from magnet.compass import CompassCore, CoreSettings
+from magnet.earth.location import Location
+from magnet.earth.places import Places
 from magnet.simulator import SimulatorConfig, Trajectory, simulate
 from services import cli
 

@@ -1,4 +1,5 @@
-"""The bounded read loop (magnet.readloop) with a fake clock: backoff bounded, errors counted, health and recovery."""
+"""The bounded read loop (magnet.edge.readloop) with a fake clock: backoff bounded, errors counted, health and
+recovery."""
 
 import dataclasses
 import errno
@@ -8,9 +9,9 @@ import pytest
 
 from magnet.drivers.base import NOT_READY, Reading, SensorReadError
 from magnet.drivers.hmc5883l import HMC5883L
+from magnet.edge.readloop import STALLED, ReadLoop
 from magnet.emulators.base import ConstantSource, FaultInjector
 from magnet.emulators.hmc5883l import HMC5883LEmulator
-from magnet.readloop import STALLED, ReadLoop
 from magnet.retry import READ_BACKOFF, RetryPolicy
 
 GOOD = Reading(mag_ut=np.array([20.0, 0.0, 45.0]))

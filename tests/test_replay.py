@@ -1,4 +1,5 @@
-"""Replay of a recording (magnet.replay, ``magnet edge --replay``): pacing with a fake clock, checks, end to end."""
+"""Replay of a recording (magnet.edge.replay, ``magnet edge --replay``): pacing with a fake clock, checks, end to
+end."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import replay_raw
 
-from magnet.replay import MAX_SLEEP_S, Recording, paced_slices
+from magnet.edge.replay import MAX_SLEEP_S, Recording, paced_slices
 from services.cli import main
 from services.edge.sources import read_recording
 

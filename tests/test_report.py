@@ -18,6 +18,7 @@ import pytest
 
 from magnet.calibration import FitInput, fit
 from services.cli import main
+from services.common.records import load_calibration
 from services.report.data import build_report, load_samples
 
 ARTEFACTS = Path(os.environ.get("MAGNET_ARTEFACT_DIR", Path(tempfile.gettempdir()) / "magnet-artefacts")) / "report"
@@ -129,15 +130,26 @@ def test_fit_report_writes_the_same_report_for_the_fit_it_made(tumble, tmp_path)
 
 
 @pytest.mark.integration  # draws a figure: seconds
-def test_a_pdf_report_is_one_page_with_its_text_and_the_gate_in_its_metadata(tumble, capsys):
+def test_a_pdf_report_is_on_a4_with_its_record_and_the_gate_in_its_metadata(tumble, capsys):
     csv, cal = tumble
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
     out = ARTEFACTS / "tumble.pdf"
     assert main(["report", str(csv), "--calibration", str(cal), "--location", LOCATION, "--out", str(out)]) == 0
     assert capsys.readouterr().err == ""  # no progress bar without a terminal
     pdf = out.read_bytes()
-    assert pdf.startswith(b"%PDF-") and pdf.rstrip().endswith(b"%%EOF") and b"/Count 1" in pdf
+    assert pdf.startswith(b"%PDF-") and pdf.rstrip().endswith(b"%%EOF") and b"/Count 2" in pdf
     assert b"/Title (magnet report: tumble.csv)" in pdf and b"/Subject (verdict: accepted; method: ellipsoid" in pdf
+    assert pdf.count(b"/MediaBox [ 0 0 595.44 841.68 ]") == 2  # A4 (8.27 x 11.69 in), both pages
+    record = json.loads(cal.read_text())
+    from services.report.data import build_report, load_samples
+    from services.report.render import summary_lines
+
+    rows = dict(summary_lines(build_report(load_samples(csv, "ut"), load_calibration(str(cal)), None, None), "now"))
+    assert rows["calibration id"] == load_calibration(str(cal)).content_id and rows["report made"] == "now"
+    assert rows["offset b"].startswith(f"{record['offset'][0]:+.4f}") and rows["method"] == "ellipsoid"
+    letter = ARTEFACTS / "tumble-letter.pdf"
+    assert main(["report", str(csv), "--calibration", str(cal), "--paper", "letter", "--out", str(letter)]) == 0
+    assert letter.read_bytes().count(b"/MediaBox [ 0 0 612 792 ]") == 2
 
 
 @pytest.mark.integration  # draws a figure: seconds

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from magnet.selftest import evaluate, expected_counts, limits_counts, temperature_factor, to_calibration
+from magnet.drivers.selftest import evaluate, expected_counts, limits_counts, temperature_factor, to_calibration
 
 
 def test_seed_figures():

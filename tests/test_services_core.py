@@ -7,9 +7,9 @@ import pytest
 from compass_steps import compass_core, heading_batches
 
 from magnet import wire
-from magnet.collection import Collection, fine_cells
-from magnet.compass import Earth
-from magnet.heading import HeadingFlag
+from magnet.attitude.heading import HeadingFlag
+from magnet.calibration.collection import Collection, fine_cells
+from magnet.earth.expected import Earth
 from magnet.model import Calibration
 from magnet.simulator import SensorErrors, SimulatorConfig, simulate
 from services.calibrator.queries import MAX_HISTORY_LIMIT, history_limit

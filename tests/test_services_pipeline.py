@@ -29,7 +29,7 @@ from helpers import (
     wait_for_liveliness,
 )
 
-from magnet.heading import angle_difference_deg
+from magnet.attitude.heading import angle_difference_deg
 
 HARD_IRON = np.array([25.0, -15.0, 10.0])
 SOFT_IRON = "1.10,0.05,0,0.05,0.92,0.02,0,0.02,1.0"

@@ -10,7 +10,7 @@ import pytest
 from compass_steps import compass_core
 
 from magnet import signing, wire
-from magnet.compass import Earth
+from magnet.earth.expected import Earth
 from magnet.model import Calibration
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore

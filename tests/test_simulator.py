@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from magnet import heading as hd
 from magnet import simulator as sim
+from magnet.attitude import heading as hd
 from magnet.frames import euler_to_matrix, ned_to_body, rotation_angle_deg
 
 DATE = "2026-03-01"
@@ -96,7 +96,7 @@ def test_turntable_reproduces_seed_000_equations_exactly():
 
 
 def test_turntable_closed_form_recovers_the_simulated_errors():
-    from magnet.turntable import fit_turntable
+    from magnet.calibration.turntable import fit_turntable
 
     e = errors()
     r = run("turntable", count=26 * 3, errors=e)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from magnet import simulator as sim
+from magnet.attitude.heading import angle_difference_deg
 from magnet.frames import quaternion_to_matrix
-from magnet.heading import angle_difference_deg
 
 DATE = "2026-03-01"
 RATE_HZ = 50.0

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from magnet import simulator as sim
+from magnet.attitude.heading import angle_difference_deg, pitch_roll_deg
 from magnet.frames import (
     ned_to_body,
     quaternion_multiply,
@@ -13,7 +14,6 @@ from magnet.frames import (
     rotation_angle_deg,
     rotation_vector_to_quaternion,
 )
-from magnet.heading import angle_difference_deg, pitch_roll_deg
 
 DATE = "2026-03-01"
 G = 9.80665

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from magnet.calibration import FitError
-from magnet.turntable import closed_form, field_in_sensor, fit_turntable, least_squares
+from magnet.calibration.turntable import closed_form, field_in_sensor, fit_turntable, least_squares
 
 BH, BV = 18964.0, -46962.0  # gammas (nT)
 

@@ -14,7 +14,7 @@ Methods (``Method``), each in its module:
 - ``minmax2d``, ``minmax``, ``sphere``: closed-form fits (``closed_form.py``);
 - ``ellipsoid``: algebraic fit refined by Levenberg-Marquardt, spikes left out (``ellipsoid.py``);
 - ``ellipsoid+align``: the ellipsoid, then the magnetometer-accelerometer rotation (``alignment.py``);
-- ``turntable``: see ``magnet.turntable`` (needs the mounting and table angle of every sample: ``TurntableSetup``);
+- ``turntable``: ``turntable.py`` (needs the mounting and table angle of every sample: ``TurntableSetup``);
 - ``gyro-ellipsoid``: the ellipsoid held to the gyroscope's turns, and the magnetometer's delay
   (``gyro_ellipsoid.py``).
 

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from magnet.earth.location import Location
 from magnet.model import Calibration
-from magnet.place import Location
 from magnet.quality import GateThresholds
 
 

@@ -15,11 +15,11 @@ from magnet.calibration.closed_form import minmax, minmax2d, sphere
 from magnet.calibration.ellipsoid import ellipsoid
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.gyro_ellipsoid import gyro_ellipsoid
+from magnet.calibration.turntable import fit_turntable
 from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT, unit_hint
-from magnet.turntable import fit_turntable
 
 #: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
 #: it did not see (blocks, not single samples: neighbours in time are nearly the same reading)
@@ -68,7 +68,8 @@ def _turntable_shape(data: FitInput) -> Shape:
 
 
 def _turntable(data: FitInput) -> Calibration:
-    """The turntable's own fit, quality and gate (``magnet.turntable.fit_turntable``) from ``data.turntable``."""
+    """The turntable's own fit, quality and gate (``magnet.calibration.turntable.fit_turntable``) from
+    ``data.turntable``."""
     setup = data.turntable
     if setup is None:
         raise FitError(TURNTABLE_NEEDED)
@@ -213,7 +214,7 @@ def fit(data: FitInput, method: Method | str) -> Calibration:
         quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
         quality = quality.with_extra(note=shape.note)
-    if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.mag_delay)
+    if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.attitude.mag_delay)
         quality = quality.with_extra(mag_lag_s=shape.mag_lag_s)
     accepted, reason = _gate(quality, data.gate, method)
     earth = _outside_the_earth(shape.radius, to_ut, field_ut, geometry)

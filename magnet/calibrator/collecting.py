@@ -1,9 +1,9 @@
-"""The collection part of the calibrator: one sample buffer per device (``magnet.collection.Collection``, samples kept
-evenly spread over the sphere, at most ``--max-samples``), for at most ``--max-devices`` devices at once. For a
-method that needs the gyroscope (gyro-ellipsoid), and for auto once a batch carries one, each raw batch's
-``gyr_rads``, ``t_ns`` and ``seq`` go to the collection too (its ring of recent consecutive samples); a batch without
-a gyroscope for gyro-ellipsoid is counted (``no_gyroscope``, in the status) and said in the device's progress (auto
-then fits the ellipsoid on the cells).
+"""The collection part of the calibrator: one sample buffer per device (``magnet.calibration.collection.Collection``,
+samples kept evenly spread over the sphere, at most ``--max-samples``), for at most ``--max-devices`` devices at once.
+For a method that needs the gyroscope (gyro-ellipsoid), and for auto once a batch carries one, each raw batch's
+``gyr_rads``, ``t_ns`` and ``seq`` go to the collection too (its ring of recent consecutive samples); a batch without a
+gyroscope for gyro-ellipsoid is counted (``no_gyroscope``, in the status) and said in the device's progress (auto then
+fits the ellipsoid on the cells).
 
 A device with no calibration in force gets an automatic collection when automatic calibration is on; an operator's
 session opens one of its own (``magnet.calibrator.sessions``), which the ``--max-devices`` bound never drops. A due
@@ -19,8 +19,8 @@ from collections.abc import Iterator
 
 from magnet import wire
 from magnet.bounded import Recent
+from magnet.calibration.collection import Collection
 from magnet.calibrator.settings import Settings
-from magnet.collection import Collection
 
 log = logging.getLogger("magnet.calibrator")
 

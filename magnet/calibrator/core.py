@@ -28,6 +28,7 @@ from collections.abc import Callable
 from typing import Any
 
 from magnet import signing, wire
+from magnet.calibration.collection import Collection
 from magnet.calibrator.collecting import Collections
 from magnet.calibrator.fitting import Fitter
 from magnet.calibrator.keys import ShardKeys
@@ -39,7 +40,6 @@ from magnet.calibrator.sessions import Outcome, Sessions
 from magnet.calibrator.settings import Settings
 from magnet.calibrator.status import CalibratorStatus, Counters, IntakeFigures, State, devices_by_state, state_of
 from magnet.calibrator.store import CalibrationStore
-from magnet.collection import Collection
 from magnet.model import Calibration
 from magnet.shard import EVERY_DEVICE, Shard
 

@@ -1,15 +1,15 @@
 """The fitting part of the calibrator: a collection fitted with its method, scaled to the field expected at the
-device's place, and judged by the quality gate (``magnet.collection.Collection.fit``, ``magnet.quality``); every
-fit counted. A collection for a method that needs the gyroscope (gyro-ellipsoid) is fitted on its longest run of
-consecutive samples, with their rates and period (``gyr=``, ``period_s=``).
-What passes is signed and stored by ``magnet.calibrator.records``. No zenoh, no store inside."""
+device's place, and judged by the quality gate (``magnet.calibration.collection.Collection.fit``, ``magnet.quality``);
+every fit counted. A collection for a method that needs the gyroscope (gyro-ellipsoid) is fitted on its longest run of
+consecutive samples, with their rates and period (``gyr=``, ``period_s=``). What passes is signed and stored by
+``magnet.calibrator.records``. No zenoh, no store inside."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+from magnet.calibration.collection import Collection
 from magnet.calibrator.settings import Settings
-from magnet.collection import Collection
 from magnet.model import Calibration
 
 

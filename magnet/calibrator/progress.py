@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from magnet import wire
 from magnet.bounded import Recent
+from magnet.calibration.collection import Collection
 from magnet.calibrator.status import State
-from magnet.collection import Collection
 from magnet.quality import Coverage
 
 PROGRESS_INTERVAL_S = 0.5

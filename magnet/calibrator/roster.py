@@ -11,10 +11,10 @@ import logging
 from magnet import wire
 from magnet.bounded import Recent
 from magnet.calibrator.settings import DEFAULT_MAX_DEVICES
-from magnet.compass.places import Places
 from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.drift.alerts import ALERT_LIMITS
-from magnet.place import Location
+from magnet.earth.location import Location
+from magnet.earth.places import Places
 
 log = logging.getLogger("magnet.calibrator")
 

@@ -8,7 +8,7 @@ import enum
 from typing import Any
 
 from magnet import wire
-from magnet.collection import Collection
+from magnet.calibration.collection import Collection
 
 
 class State(enum.Enum):

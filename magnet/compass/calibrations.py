@@ -11,8 +11,8 @@ import dataclasses
 import numpy as np
 
 from magnet import signing, wire
+from magnet.attitude.mag_delay import advance_field
 from magnet.bounded import Recent
-from magnet.mag_delay import advance_field
 from magnet.model import Calibration
 
 #: devices remembered as refused between two asks of the calibrators (a flood beyond: one query for all)
@@ -94,7 +94,7 @@ class Correction:
     """Each sample's correction by its batch's record in force, made once per step and applied in one place, as
     PX4's ``calibration::Magnetometer::Correct`` and ArduPilot's ``AP_Compass`` apply theirs: the field
     B = A (u - b) - motors (offset b, matrix A, the motors' field at the sample's current or throttle), and for the
-    attitude filter B turned forward over the magnetometer's lag (``magnet.mag_delay``).
+    attitude filter B turned forward over the magnetometer's lag (``magnet.attitude.mag_delay``).
 
     offsets (S, 3) raw uT, matrices (S, 3, 3) (identity where a batch has no record; broadcast views, no copies,
     when none has), calibrated (S,) bool, motor_ut (S, 3) uT (zero where the record has no motor model or the batch

@@ -20,17 +20,17 @@ from typing import Any
 
 import numpy as np
 
-from magnet import heading as hd
 from magnet import signing, wire
+from magnet.attitude import heading as hd
 from magnet.bounded import Recent
 from magnet.compass.calibrations import CalibrationsInForce, Correction
-from magnet.compass.earth import utc_date
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
-from magnet.compass.places import EarthColumns, Places
 from magnet.compass.tilt import Headings, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
+from magnet.earth.expected import utc_date
+from magnet.earth.places import EarthColumns, Places
 from magnet.frames import rotate_heading, to_magnetic_ned
 from magnet.shard import EVERY_DEVICE, Shard
 

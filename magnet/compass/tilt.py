@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 
-from magnet import heading as hd
+from magnet.attitude import heading as hd
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -27,7 +27,7 @@ class Headings:
 
 def compute_headings(field: np.ndarray, acc_ms2: np.ndarray, calibrated: np.ndarray) -> Headings:
     """Headings for S samples of any devices at once; flags: CALIBRATED only (the disturbance checks come after the
-    attitude is known, ``magnet.heading.disturbance_flags``).
+    attitude is known, ``magnet.attitude.heading.disturbance_flags``).
 
     field (S, 3) uT corrected (``magnet.compass.calibrations.Correction``); acc_ms2 (S, 3) m/s^2 with NaN rows where
     a sample has no accelerometer; calibrated (S,) bool: whether the sample's device has a calibration in force.

@@ -25,7 +25,7 @@ def chip_count_scales() -> list[tuple[str, float]]:
     from magnet.drivers.lsm9ds1 import MAG_RANGES as LSM9_RANGES
     from magnet.drivers.lsm303dlh import LSB_PER_GAUSS as LSM303_LSB_PER_GAUSS
     from magnet.drivers.qmc5883l import RANGES as QMC_RANGES
-    from magnet.selftest import LSB_PER_GAUSS as HMC_LSB_PER_GAUSS
+    from magnet.drivers.selftest import LSB_PER_GAUSS as HMC_LSB_PER_GAUSS
 
     out = [(f"hmc5883l gain {gn}", 100.0 / lsb) for gn, lsb in enumerate(HMC_LSB_PER_GAUSS)]
     out += [(f"lsm303dlh gain {code}", 100.0 / lsb[0]) for code, lsb in sorted(LSM303_LSB_PER_GAUSS.items())]

@@ -1,10 +1,10 @@
 """Physical simulator of a magnetometer + accelerometer + gyroscope moved through known attitudes in the Earth's field.
 
-Truth. The Earth's field comes from WMM2025 (``magnet.geomag``) at a place and date, as a north-east-down (NED) vector
-B_ned in uT. An attitude trajectory gives, per sample, the magnetic heading K of the body x axis (clockwise from
-magnetic north), pitch and roll (Z-Y-X Euler angles, ``magnet.frames``) and the body-to-NED quaternion; the true
-heading is K + declination. Still trajectories keep the device at rest at every sample (the accelerometer reads
-gravity only); moving ones add linear acceleration:
+Truth. The Earth's field comes from WMM2025 (``magnet.earth.geomag``) at a place and date, as a north-east-down (NED)
+vector B_ned in uT. An attitude trajectory gives, per sample, the magnetic heading K of the body x axis (clockwise from
+magnetic north), pitch and roll (Z-Y-X Euler angles, ``magnet.frames``) and the body-to-NED quaternion; the true heading
+is K + declination. Still trajectories keep the device at rest at every sample (the accelerometer reads gravity only);
+moving ones add linear acceleration:
 
     B_body = R^T B_ned,      f_body = R^T (a_lin - g_ned),      R = Rz(true heading) Ry(pitch) Rx(roll)
 

@@ -21,6 +21,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from magnet.earth.geomag import EarthField, earth_field
 from magnet.frames import (
     euler_to_quaternion,
     ned_to_body_euler,
@@ -29,7 +30,6 @@ from magnet.frames import (
     quaternion_to_matrix,
     quaternion_to_rotation_vector,
 )
-from magnet.geomag import EarthField, earth_field
 from magnet.simulator.disturbances import Disturbances, HardIronChange, HasPath, PassingObjects
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.gnss import GnssSettings, gnss_velocity

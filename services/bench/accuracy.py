@@ -26,10 +26,10 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from magnet.attitude.heading import angle_difference_deg, tilt_compensated_heading_deg
 from magnet.calibration import FitInput
+from magnet.earth.geomag import EarthField, earth_field
 from magnet.frames import ned_to_body_euler
-from magnet.geomag import EarthField, earth_field
-from magnet.heading import angle_difference_deg, tilt_compensated_heading_deg
 from magnet.model import Calibration
 from magnet.simulator import (
     DEFAULT_LAT_DEG,

@@ -137,7 +137,7 @@ class _Live:
 
 def _live(log: Log) -> _Live:
     from magnet import wire
-    from magnet.fusion import to_vqf_frame
+    from magnet.attitude.fusion import to_vqf_frame
     from magnet.model import Calibration
 
     parts = _batches(len(log.t_s))
@@ -158,9 +158,9 @@ def _filter_rows(log: Log, live: _Live) -> list[Row]:
     """decode, calibration, tilt, fusion and aided fusion, the last two beside vqf alone."""
     import vqf
 
-    from magnet import heading as hd
     from magnet import wire
-    from magnet.fusion import Fusion
+    from magnet.attitude import heading as hd
+    from magnet.attitude.fusion import Fusion
 
     period, samples, cal = 1.0 / RATE_HZ, live.samples, log.calibration
 

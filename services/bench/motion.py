@@ -6,7 +6,7 @@ the differences; the optical frame's north is arbitrary), only samples marked as
 with |reference pitch| < 60 deg (heading is ill-defined near the vertical), RMS in degrees.
 
 BROAD's body frame is z up (a level IMU reads +g on z): y and z are negated to get the project's (x forward, y
-right, z down). Its reference is IMU -> ENU, converted to body -> NED as vqf's output is (``magnet.fusion``).
+right, z down). Its reference is IMU -> ENU, converted to body -> NED as vqf's output is (``magnet.attitude.fusion``).
 
 Estimators, on the raw data (the sensor is factory-calibrated): accelerometer tilt (today's compass without a
 gyroscope), fused causal (as the compass runs), fused offline (``magnet heading --offline``); then the same two
@@ -14,7 +14,7 @@ fused after ``magnet fit``'s ellipsoid, and after its gyro-ellipsoid, with the m
 accepted, none when refused, as the compass does). Then the moving simulator, every trajectory, against its truth:
 calibrated on its own moving data (ellipsoid) when the gate accepts that, else on a still tumble; no offset removed
 (the simulator's north is north); with the causal and offline filters aided by the run's GNSS-like velocity (10 Hz,
-0.1 m/s noise, 0.1 s late: ``magnet.aiding``) and one more row, the causal filter fed the accelerometer without
+0.1 m/s noise, 0.1 s late: ``magnet.attitude.aiding``) and one more row, the causal filter fed the accelerometer without
 the run's linear acceleration (what velocity aiding could give at best: the gap to "fused causal" is what linear
 acceleration costs).
 """
@@ -28,11 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet import frames, fusion
-from magnet import heading as hd
+from magnet import frames
+from magnet.attitude import fusion
+from magnet.attitude import heading as hd
+from magnet.attitude.mag_delay import advance_field
 from magnet.calibration import FitInput, fit
 from magnet.frames import quaternion_to_matrix, to_magnetic_ned
-from magnet.mag_delay import advance_field
 from magnet.model import Calibration
 from magnet.simulator import VEHICLE_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
 
@@ -108,7 +109,7 @@ def _aided(run: SimulatedRun, field: np.ndarray, offline: bool) -> np.ndarray:
     return fuse(run.gyr_rads, run.acc_ms2, field, period, None, run.t_s, vel).heading_deg
 
 
-#: the moving simulator's estimators with velocity aiding (``magnet.aiding``): name -> heading (N,) deg
+#: the moving simulator's estimators with velocity aiding (``magnet.attitude.aiding``): name -> heading (N,) deg
 AIDED_ESTIMATORS: dict[str, Callable[[SimulatedRun, np.ndarray], np.ndarray]] = {
     "fused causal, velocity aided": lambda run, field: _aided(run, field, offline=False),
     "fused offline, velocity aided": lambda run, field: _aided(run, field, offline=True),
@@ -135,7 +136,8 @@ def broad_rows(data_dir: Path = DATA_DIR, calibrated: bool = False) -> list[tupl
 def product_field(log: MotionLog, method: str = "ellipsoid") -> tuple[np.ndarray, str]:
     """The field (N, 3) as the compass's filter gets it after ``magnet fit --method METHOD`` with the motion checks
     on the log itself: calibrated (and turned forward over the magnetometer's delay the record carries:
-    ``magnet.mag_delay``) when the gate accepts the fit, raw when it refuses it; and "accepted" or "refused"."""
+    ``magnet.attitude.mag_delay``) when the gate accepts the fit, raw when it refuses it; and "accepted" or
+    "refused"."""
     try:
         calibration = fit(FitInput(log.mag_ut, acc=log.acc_ms2, gyr_rads=log.gyr_rads, period_s=log.period_s), method)
     except ValueError:

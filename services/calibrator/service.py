@@ -1,10 +1,10 @@
 """``magnet calibrator``: collect raw samples per device, fit, gate, store (SQLite) and serve calibrations.
 
-Collection (``magnet.collection``) keeps samples evenly spread over the sphere (bounded by ``--max-samples``).
-Without a session, a device that has no calibration is fitted whenever enough new cells filled and coverage reached
-``--min-coverage``; the first fit the quality gate accepts is stored and published, and collection for it ends. An
-operator's session (``calibrate`` queryable: start / status / commit / abort) collects afresh with its method and
-stores only on commit. A rejected fit changes nothing: its reason goes out on ``calibration/progress``.
+Collection (``magnet.calibration.collection``) keeps samples evenly spread over the sphere (bounded by
+``--max-samples``). Without a session, a device that has no calibration is fitted whenever enough new cells filled and
+coverage reached ``--min-coverage``; the first fit the quality gate accepts is stored and published, and collection for
+it ends. An operator's session (``calibrate`` queryable: start / status / commit / abort) collects afresh with its
+method and stores only on commit. A rejected fit changes nothing: its reason goes out on ``calibration/progress``.
 
 Several calibrators may serve one shard: the oldest running holds the lease and alone collects, stores and answers;
 the others stand by and take over when its liveliness token goes away (``services.calibrator.lease``).

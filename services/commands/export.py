@@ -1,6 +1,6 @@
 """``magnet export (--calibration FILE | --device ID) --format ardupilot|px4 [--instance N] [--out FILE]``.
 
-Writes the parameters that make the autopilot apply a calibration (the maths in ``magnet.autopilot_params``):
+Writes the parameters that make the autopilot apply a calibration (the maths in ``magnet.autopilot.params``):
 
 - ``ardupilot``: ``NAME,VALUE`` lines, as Mission Planner saves a .param file and MAVProxy's ``param load`` reads it
   (``#`` lines are comments);
@@ -21,9 +21,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from magnet.autopilot_params import Autopilot, Export, export_parameters
+from magnet.autopilot.mavlink_stream import compass_instance
+from magnet.autopilot.params import Autopilot, Export, export_parameters
 from magnet.frames import ROTATIONS
-from magnet.mavlink_stream import compass_instance
 from magnet.model import Calibration
 from services.common.jsonio import read_json
 from services.common.mavlink_options import add_mavlink_url_arguments

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet import fusion
+from magnet.attitude import fusion
 from magnet.calibration import FitInput, Method, TurntableSetup
 from magnet.calibration.choose import AUTO, CHOICES, fit_choice
+from magnet.earth.location import Location
 from magnet.model import Calibration
-from magnet.place import Location
 from magnet.units import FieldUnit
 from services.commands.fit_motor import add_motor_arguments, fit_with_motors
 from services.common.csvio import SampleTable

@@ -1,17 +1,18 @@
 """``magnet heading``: apply a calibration to a CSV of raw samples and print headings as CSV.
 
 Columns: ``t_s`` (when the input has it), ``heading_deg`` (magnetic), ``true_heading_deg``, ``pitch_deg``,
-``roll_deg``, ``field_x_ut``, ``field_y_ut``, ``field_z_ut``, ``dip_deg``, ``flags`` (magnet.heading.HeadingFlag),
-``qw,qx,qy,qz`` (body -> NED with true north, i.e. the attitude whose heading is ``true_heading_deg``).
+``roll_deg``, ``field_x_ut``, ``field_y_ut``, ``field_z_ut``, ``dip_deg``, ``flags``
+(magnet.attitude.heading.HeadingFlag), ``qw,qx,qy,qz`` (body -> NED with true north, i.e. the attitude whose heading is
+``true_heading_deg``).
 
 The headings come from the live compass's own step (``magnet.compass.CompassCore.step``): the file is one device's
 raw batches (its runs of samples, cut where the time goes backwards or pauses for more than the filter's gap), so
 ``magnet heading`` prints what ``magnet compass`` publishes for the same samples. With ``gx,gy,gz`` (rad/s, body
-frame) and ``ax,ay,az`` the attitude comes from the gyroscope-aided filter (``magnet.fusion``, flag FUSED), causal as
-the live compass runs it; ``--offline`` is a different estimator (it looks ahead: the best estimate for a log, not
-what the compass gives). With ``vn,ve,vd`` (velocity over the ground, m/s, geographic NED; empty or NaN where
-unknown) the filter removes the linear acceleration the velocity implies (``magnet.aiding``). The samples' times
-come from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is tilt-compensated with the
+frame) and ``ax,ay,az`` the attitude comes from the gyroscope-aided filter (``magnet.attitude.fusion``, flag FUSED),
+causal as the live compass runs it; ``--offline`` is a different estimator (it looks ahead: the best estimate for a log,
+not what the compass gives). With ``vn,ve,vd`` (velocity over the ground, m/s, geographic NED; empty or NaN where
+unknown) the filter removes the linear acceleration the velocity implies (``magnet.attitude.aiding``). The samples'
+times come from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is tilt-compensated with the
 accelerometer; without ``ax,ay,az`` it is the level heading and pitch and roll are 0 with the NO_TILT flag. Without
 ``--calibration`` the raw field is used as it is (a factory-calibrated sensor, or a fit that was refused).
 """
@@ -25,16 +26,19 @@ import time
 
 import numpy as np
 
-from magnet import frames, fusion, wire
-from magnet import heading as hd
-from magnet.autopilot import compare_headings
-from magnet.compass import CompassCore, CoreSettings, Earth, HeadingColumns, Places, earth_at
+from magnet import frames, wire
+from magnet.attitude import fusion
+from magnet.attitude import heading as hd
+from magnet.attitude.mag_delay import advance_field, record_lag_s
+from magnet.autopilot.conventions import compare_headings
+from magnet.compass import CompassCore, CoreSettings, HeadingColumns
 from magnet.compass.filters import MAX_GAP_S
 from magnet.compass.tilt import Headings
+from magnet.earth.expected import Earth, earth_at
+from magnet.earth.location import Location
+from magnet.earth.places import Places
 from magnet.frames import to_magnetic_ned
-from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration
-from magnet.place import Location
 from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT
 from services.commands.fit import gyro_columns, sample_period_s
 from services.common.csvio import SampleTable, write_csv
@@ -185,7 +189,7 @@ def offline_headings(
     lag_s: float = 0.0,
 ) -> HeadingColumns:
     """``--offline``: its own estimator, not the compass's (vqf's offline filter looks ahead over the whole log);
-    the filter gets the field turned forward over the magnetometer's delay ``lag_s`` (``magnet.mag_delay``)."""
+    the filter gets the field turned forward over the magnetometer's delay ``lag_s`` (``magnet.attitude.mag_delay``)."""
     if table.acc is None:
         raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
     period_s = sample_period_s(table, args.rate)

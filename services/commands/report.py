@@ -24,6 +24,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="report.html", help="where to write it (.html, .png or .pdf)")
     parser.add_argument("--unit", help="unit of the samples (default: the calibration's)")
     parser.add_argument(
+        "--paper",
+        choices=("a4", "letter"),
+        default="a4",
+        help="a PDF's paper size (default a4): a page with the "
+        "record's id, date, method and coefficients, then the figure",
+    )
+    parser.add_argument(
         "--declination",
         type=float,
         metavar="DEG",
@@ -37,7 +44,15 @@ def run(args: argparse.Namespace) -> int:
     declination, field = place(args)
     calibration = load_calibration(args.calibration)
     path = write_report(
-        args.out, args.file, calibration, args.unit, declination, field, InputOptions.from_args(args), "report"
+        args.out,
+        args.file,
+        calibration,
+        args.unit,
+        declination,
+        field,
+        InputOptions.from_args(args),
+        "report",
+        args.paper,
     )
     print(f"magnet report: {path}")
     return 0

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from magnet import wire
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
-from magnet.place import Location
+from magnet.earth.location import Location
 from services.common.options import add_options, check_options, from_args, option
 from services.common.places_options import add_drift_arguments, drift_from_args
 from services.common.sim_options import SimulatorSettings

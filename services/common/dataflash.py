@@ -4,9 +4,9 @@ Magnetometer: the ``MAG`` records of instance ``--mag N`` (field ``I`` in curren
 in old ones). ArduPilot logs the field after its own correction (MagX..Z, milligauss, body frame) together with the
 offsets it added (OfsX..Z) and the motor offsets (MOX..Z in current logs, MOfsX..Z before, none in the oldest:
 ``MAG_FORMATS`` lists the layouts ArduPilot has logged); the reader undoes the correction
-(``magnet.autopilot.ardupilot_raw_field``) with the soft-iron matrix and scale factor of the log's ``PARM`` records
-(``COMPASS_DIA*``, ``COMPASS_ODI*``, ``COMPASS_SCALE*``; their first logged values), giving the uncorrected field in
-the body frame. Accelerometer and gyroscope: ``IMU`` instance 0 (m/s^2, rad/s, body frame). Battery current:
+(``magnet.autopilot.conventions.ardupilot_raw_field``) with the soft-iron matrix and scale factor of the log's ``PARM``
+records (``COMPASS_DIA*``, ``COMPASS_ODI*``, ``COMPASS_SCALE*``; their first logged values), giving the uncorrected
+field in the body frame. Accelerometer and gyroscope: ``IMU`` instance 0 (m/s^2, rad/s, body frame). Battery current:
 ``BAT`` instance 0 (``Curr``, A; ``CURR`` in very old logs, centiamps). Throttle: ``RCOU`` channels 1-4 (PWM, 1000..2000
 us mapped to 0..1). Times: ``TimeUS`` (``TimeMS`` in logs before 2015).
 """
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.autopilot import UT_PER_MGAUSS, ardupilot_raw_field, ardupilot_scale, ardupilot_soft_iron
+from magnet.autopilot.conventions import UT_PER_MGAUSS, ardupilot_raw_field, ardupilot_scale, ardupilot_soft_iron
 from services.common.csvio import SampleTable
 from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
 from services.common.input_options import InputOptions

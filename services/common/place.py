@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from magnet.geomag import earth_field
-from magnet.place import Location
+from magnet.earth.geomag import earth_field
+from magnet.earth.location import Location
 
 
 def add_field_arguments(parser: argparse.ArgumentParser) -> None:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.place import Location
+from magnet.earth.location import Location
 from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig, Trajectory
 from services.common.options import Check, add_options, check_options, from_args, option
 

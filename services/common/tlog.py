@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.autopilot import UT_PER_GAUSS, UT_PER_MGAUSS
+from magnet.autopilot.conventions import UT_PER_GAUSS, UT_PER_MGAUSS
 from magnet.units import STANDARD_GRAVITY_MS2
 from services.common.csvio import SampleTable
 from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table

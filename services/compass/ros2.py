@@ -18,10 +18,10 @@ import numpy as np
 import zenoh
 
 from magnet import wire
+from magnet.attitude.heading import HeadingFlag
 from magnet.bounded import Recent
 from magnet.compass import HeadingColumns
 from magnet.drift import Alert
-from magnet.heading import HeadingFlag
 from magnet.ros2 import compass as ros_compass
 from magnet.ros2 import messages, names
 from services.common.ros2_options import Ros2Settings

@@ -26,7 +26,9 @@ import zenoh
 
 from magnet import wire
 from magnet.bounded import Recent
-from magnet.compass import CompassCore, Places, earth_at
+from magnet.compass import CompassCore
+from magnet.earth.expected import earth_at
+from magnet.earth.places import Places
 from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard

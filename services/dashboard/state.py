@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 
 from magnet import wire
+from magnet.attitude.heading import HeadingFlag
 from magnet.drift import Alert
-from magnet.geomag import EarthField
-from magnet.heading import HeadingFlag
+from magnet.earth.geomag import EarthField, earth_field
+from magnet.earth.location import Location
 from services.dashboard.figures import (
     covered_cells,
     decimate,
@@ -34,7 +35,9 @@ from services.dashboard.figures import (
 
 TRACE_POINTS = 1500  # raw and calibrated field points kept per watched device
 TRACE_HEADINGS = 6000  # heading samples kept per watched device (60 s at 100 Hz)
-STALE_S = 5.0  # no heading for this long: the row says so
+STALE_S = 5.0  # no heading for this long (and for SILENT_INTERVALS of the device's own interval): the row says so
+SILENT_INTERVALS = 5  # a device whose headings stop for this many of its own intervals between batches is silent
+INTERVAL_WEIGHT = 0.2  # weight of the newest interval in a device's running interval between heading batches
 WATCH_LINGER_S = 15.0  # a device stays watched this long after its last viewer left
 FUSED_FLAG = int(HeadingFlag.FUSED)  # attitude from the gyroscope-aided filter
 
@@ -82,6 +85,8 @@ class DeviceRow:
     declination_deg: float | None = None
     truth_error_deg: float | None = None
     heading_s: float | None = None
+    interval_s: float | None = None  # the device's running interval between heading batches (monotonic s)
+    location: Location | None = None  # where the device says it is (its raw batches), for the expected field
     t_ns: int | None = None
     drift: dict[str, Alert] = dataclasses.field(default_factory=dict)  # open drift alerts by kind
 
@@ -95,12 +100,19 @@ class DeviceRow:
             return "drifted"
         return self.state
 
+    def silent(self, now_s: float) -> bool:
+        """Whether the device's headings stopped: none for SILENT_INTERVALS of its own interval, and at least STALE_S
+        (a vehicle that stops sending while its edge, and so its liveliness token, lives on)."""
+        if self.heading_s is None:
+            return False
+        return now_s - self.heading_s > max(STALE_S, SILENT_INTERVALS * (self.interval_s or 0.0))
+
     def alerts(self, now_s: float, earth: EarthField | None) -> list[str]:
         """Short phrases for what needs a person's attention."""
         out = [f"drift: {kind.replace('_', ' ')}" for kind in sorted(self.drift)]
         if self.alive is False:
             out.append("offline")
-        if self.heading_s is not None and now_s - self.heading_s > STALE_S:
+        if self.silent(now_s):
             out.append("no headings")
         if self.state in ("collecting", "idle", "waiting") and self.heading_s is not None:
             out.append("not calibrated")
@@ -120,7 +132,7 @@ class DeviceRow:
     def to_json(self, now_s: float, earth: EarthField | None) -> dict[str, Any]:
         return {
             "device": self.device,
-            "alive": self.alive,
+            "alive": False if self.alive and self.silent(now_s) else self.alive,
             "sensor": self.sensor,
             "state": self.state,
             "method": self.method,
@@ -185,8 +197,10 @@ class Trace:
 class FleetState:
     """Rows of every device seen, traces of watched devices, the expected field; thread-safe."""
 
-    def __init__(self, earth: EarthField | None = None, clock: Callable[[], float] = time.monotonic) -> None:
-        self.earth, self.clock = earth, clock
+    def __init__(
+        self, earth: EarthField | None = None, clock: Callable[[], float] = time.monotonic, date: Any = None
+    ) -> None:
+        self.earth, self.clock, self.date = earth, clock, date
         self.lock = threading.Lock()
         self.rows: dict[str, DeviceRow] = {}
         self.traces: dict[str, Trace] = {}
@@ -223,8 +237,11 @@ class FleetState:
                 trace.truth[batch.seq] = float(batch.truth["heading_deg"][-1])
                 while len(trace.truth) > 64:
                     trace.truth.pop(next(iter(trace.truth)))
-            if batch.sensor and self.rows.get(batch.device) is not None:
-                self.rows[batch.device].sensor = batch.sensor
+            row = self.rows.get(batch.device)
+            if batch.sensor and row is not None:
+                row.sensor = batch.sensor
+            if batch.location is not None and row is not None and row.location != batch.location:
+                self._row(batch.device).location = batch.location
 
     def on_heading(self, batch: wire.HeadingBatch, quat_wxyz: Any = None) -> None:
         """The last sample of a heading batch goes into the row; a watched device keeps them all. The fused
@@ -239,7 +256,15 @@ class FleetState:
         magnitude, dip = math.sqrt(bx * bx + by * by + bz * bz), dip_deg(bx, by, bz, pitch, roll)
         with self.lock:
             row = self._row(batch.device)
-            row.seq, row.heading_s, row.t_ns = batch.seq, self.clock(), int(batch.t_ns[last])
+            now = self.clock()
+            if row.heading_s is not None:
+                interval = now - row.heading_s
+                row.interval_s = (
+                    interval
+                    if row.interval_s is None
+                    else row.interval_s + INTERVAL_WEIGHT * (interval - row.interval_s)
+                )
+            row.seq, row.heading_s, row.t_ns = batch.seq, now, int(batch.t_ns[last])
             row.heading_deg, row.true_heading_deg = float(batch.heading_deg[last]), float(batch.true_heading_deg[last])
             row.pitch_deg, row.roll_deg, row.flags = pitch, roll, int(batch.flags[last])
             row.field_ut, row.dip_deg = magnitude, _finite(dip)
@@ -334,7 +359,7 @@ class FleetState:
         """(current version, rows changed after ``since``, as JSON maps, sorted by device)."""
         with self.lock:
             now = self.clock()
-            rows = [row.to_json(now, self.earth) for _, row in sorted(self.rows.items()) if row.version > since]
+            rows = [row.to_json(now, self.earth_of(row)) for _, row in sorted(self.rows.items()) if row.version > since]
             return self.version, rows
 
     def summary(self) -> dict[str, Any]:
@@ -342,7 +367,7 @@ class FleetState:
             rows = list(self.rows.values())
             return {
                 "devices": len(rows),
-                "alive": sum(r.alive is True for r in rows),
+                "alive": sum(r.alive is True and not r.silent(self.clock()) for r in rows),
                 "calibrated": sum(r.state == "calibrated" for r in rows),
                 "alerts": sum(len(r.drift) for r in rows),
                 "in_alert": sum(bool(r.drift) for r in rows),
@@ -368,6 +393,16 @@ class FleetState:
                 "alerts_open": alerts,
             }
 
+    def earth_of(self, row: DeviceRow) -> EarthField | None:
+        """The field expected where the device is: the World Magnetic Model at the place it reports, else the
+        dashboard's own (``--location``), else None."""
+        if row.location is None:
+            return self.earth
+        try:
+            return earth_field(*row.location.as_tuple(), self.date)
+        except ValueError:  # a date outside the model: the dashboard's own place
+            return self.earth
+
     def detail(self, device: str, points: int = 600) -> dict[str, Any] | None:
         """The device's row, its recent clouds (at most ``points`` each), headings and covered cells."""
         with self.lock:
@@ -378,7 +413,8 @@ class FleetState:
             raw = np.array(trace.raw if trace else [], dtype=float).reshape(-1, 3)
             calibrated = np.array(trace.calibrated if trace else [], dtype=float).reshape(-1, 3)
             headings = recent_headings(list(trace.headings)) if trace else []
-            out: dict[str, Any] = {"row": row.to_json(self.clock(), self.earth), "earth": earth_json(self.earth)}
+            earth = self.earth_of(row)
+            out: dict[str, Any] = {"row": row.to_json(self.clock(), earth), "earth": earth_json(earth)}
         out.update(
             raw=decimate(raw, points),
             calibrated=decimate(calibrated, points),

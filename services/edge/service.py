@@ -3,7 +3,7 @@ batches of raw samples on ``<prefix>/<device>/raw`` (see ``magnet.wire``).
 
 Sources (``services.edge.sources``; each a ``services.edge.source.Source``, see docs/edge.md):
 - ``--sensor NAME --bus N [--address A]``: a real chip through smbus2, read through the bounded read loop
-  (``magnet.readloop``): a failing bus is retried with a backoff capped at 1 s, every error counted.
+  (``magnet.edge.readloop``): a failing bus is retried with a backoff capped at 1 s, every error counted.
 - ``--sensor NAME --emulate``: the chip's register-level emulator (``magnet.emulators``) read through the same driver,
   its true field from a ``SensorStream`` (simulator) with the given hard iron, soft iron, noise and trajectory;
   ``--emulate-faults P`` (for tests) makes each transfer after set-up fail with probability P.

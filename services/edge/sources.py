@@ -6,8 +6,9 @@ option, its kind to ``services.edge.settings``).
 - ``FleetSource``: N simulated devices, one vectorized step per batch.
 - ``StreamSource``: one simulated device read sample by sample (no register emulation).
 - ``ChipSource``: one chip through its driver (a real bus, or the chip's emulator fed by the simulator), read through
-  the one bounded read loop (``magnet.readloop``): a failing bus backs off, is counted and marks the device unhealthy.
-- ``ReplaySource``: a recording (``--replay FILE.csv``) at its own pace (``magnet.replay``).
+  the one bounded read loop (``magnet.edge.readloop``): a failing bus backs off, is counted and marks the device
+  unhealthy.
+- ``ReplaySource``: a recording (``--replay FILE.csv``) at its own pace (``magnet.edge.replay``).
 - ``MavlinkSource`` (``services.edge.mavlink_source``): MAVLink vehicles (``--mavlink URL``), devices as they appear.
 - ``Ros2Source`` (``services.edge.ros2_source``): a ROS 2 robot's topics over rmw_zenoh (``--ros2``).
 """
@@ -26,9 +27,9 @@ import zenoh
 
 from magnet import wire
 from magnet.drivers import open_sensor
+from magnet.edge.readloop import ReadLoop
+from magnet.edge.replay import Recording, paced_slices
 from magnet.emulators import FaultInjector, emulator_for
-from magnet.readloop import ReadLoop
-from magnet.replay import Recording, paced_slices
 from magnet.retry import READ_BACKOFF
 from magnet.simulator import SensorStream, SimulatedDevices
 from services.common.input_options import InputOptions

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet import heading as hd
+from magnet.attitude import heading as hd
 from magnet.model import Calibration
 from magnet.quality import Geometry, assess, gate
 from services.common.csvio import SampleTable

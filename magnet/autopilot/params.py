@@ -31,7 +31,7 @@ import enum
 
 import numpy as np
 
-from magnet.autopilot import UT_PER_GAUSS, UT_PER_MGAUSS
+from magnet.autopilot.conventions import UT_PER_GAUSS, UT_PER_MGAUSS
 from magnet.frames import nearest_rotation, rotation_angle_deg, rotation_matrix
 from magnet.model import Calibration
 from magnet.motor import CURRENT, THROTTLE

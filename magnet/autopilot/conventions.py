@@ -17,7 +17,7 @@ import dataclasses
 import numpy as np
 import numpy.typing as npt
 
-from magnet.heading import angle_difference_deg
+from magnet.attitude.heading import angle_difference_deg
 
 UT_PER_MGAUSS = 0.1
 UT_PER_GAUSS = 100.0

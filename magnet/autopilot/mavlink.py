@@ -1,6 +1,6 @@
 """MAVLink messages to magnet's units: one message (a dict of its fields, as pymavlink's ``to_dict`` gives) in, the
 numbers magnet uses out. Pure: no sockets, no pymavlink import; the stream of a vehicle (time, batches, place) is
-``magnet.mavlink_stream``. Units and conventions: docs/mavlink.md.
+``magnet.autopilot.mavlink_stream``. Units and conventions: docs/mavlink.md.
 
 - IMU messages (body frame, x forward, y right, z down, as magnet's):
   SCALED_IMU / SCALED_IMU2 / SCALED_IMU3 and RAW_IMU: mag in milligauss (0.1 uT), acceleration in milli-g, rate of
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.place import Location
+from magnet.earth.location import Location
 from magnet.units import STANDARD_GRAVITY_MS2
 
 UT_PER_MILLIGAUSS = 0.1

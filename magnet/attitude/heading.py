@@ -28,7 +28,7 @@ class HeadingFlag(enum.IntFlag):
     NO_TILT = 2  # no usable accelerometer sample: heading assumes the device is level
     FIELD_DISTURBED = 4  # |B| is far from the expected field strength (magnet, iron or bad calibration nearby)
     DIP_DISTURBED = 8  # the angle between field and gravity is far from the expected inclination
-    FUSED = 16  # attitude from the gyroscope-aided filter (magnet.fusion); without it, accelerometer tilt
+    FUSED = 16  # attitude from the gyroscope-aided filter (magnet.attitude.fusion); without it, accelerometer tilt
 
 
 def wrap_deg(angle_deg: npt.ArrayLike) -> np.ndarray:

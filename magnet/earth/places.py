@@ -2,7 +2,7 @@
 
 Where a device is comes from, first to last: the ``location`` its own raw messages carry (the edge's ``--location``,
 or its simulator's place), the places file (``--fleet FILE.json5``), the service's own ``--location``. From the place
-come the device's declination, expected |B| and dip (``Earth``, ``magnet.compass.earth``), looked up once per place
+come the device's declination, expected |B| and dip (``Earth``, ``magnet.earth.expected``), looked up once per place
 rounded to about 1 km (``Location.rounded``) and date.
 
 Places file (JSON5: comments and trailing commas allowed; plain JSON is JSON5)::
@@ -26,9 +26,9 @@ import json5
 import numpy as np
 
 from magnet.bounded import Recent
-from magnet.compass.earth import Earth, earth_at
-from magnet.geomag import DateLike
-from magnet.place import Location
+from magnet.earth.expected import Earth, earth_at
+from magnet.earth.geomag import DateLike
+from magnet.earth.location import Location
 from magnet.wire.keys import validate_device_id
 
 #: a places file larger than this is refused before it is parsed (bytes); at most this many devices

@@ -17,8 +17,8 @@ measures). So:
   the filter never finds rest and never learns the gyroscope's bias about the vertical; h = 0.5 s gives 0.14 m/s^2
   (h = 0.25 s gave 0.28 and a car whose heading drifted by 7 deg);
 - it is known only once a fix at or after t + h has arrived: ``known_until_s``. The filter therefore runs that far
-  behind the newest sample (``magnet.aided_fusion``), and the attitude of the newest samples is carried forward from
-  it with the gyroscope.
+  behind the newest sample (``magnet.attitude.aided_fusion``), and the attitude of the newest samples is carried forward
+  from it with the gyroscope.
 
 Velocities are in magnetic NED (north is the field's, as the filter's): rotate geographic ones with
 ``magnet.frames.to_magnetic_ned`` first. Pure numpy; times in seconds.
@@ -30,6 +30,7 @@ import dataclasses
 
 import numpy as np
 
+from magnet.compiled import kernels as _kernels
 from magnet.units import STANDARD_GRAVITY_MS2
 
 #: a receiver's latency: a fix appears this long after the instant it measured (s)
@@ -50,7 +51,7 @@ STANDING_SPEED_MS = 0.5
 
 def vehicle_tau_acc_s(residual_ms2: float, bias_sigma_rads: float) -> float:
     """The accelerometer time constant (s) for a filter whose linear acceleration the velocity removes, given what
-    is left of the accelerometer (RMS m/s^2 of 0.1 s means, ``magnet.fusion_drift.Explained``) and the gyroscope
+    is left of the accelerometer (RMS m/s^2 of 0.1 s means, ``magnet.attitude.gyro_bias.Explained``) and the gyroscope
     bias's uncertainty (rad/s, one axis).
 
     vqf low-passes the accelerometer over tauAcc (3 s) so that a vehicle's own accelerations average out. With them
@@ -120,8 +121,6 @@ class VelocityFixes:
         t = np.asarray(t_s, dtype=float)
         if len(self.times_s) < 2:
             return np.zeros((len(t), 3))
-        h = self.half_window_s
-        ahead = np.column_stack([np.interp(t + h, self.times_s, self.values[:, k]) for k in range(3)])
-        behind = np.column_stack([np.interp(t - h, self.times_s, self.values[:, k]) for k in range(3)])
-        covered = (t - h >= self.times_s[0]) & (t + h <= self.times_s[-1] + 1e-9)
-        return np.where(covered[:, None], (ahead - behind) / (2.0 * h), 0.0)
+        out = np.empty((len(t), 3))
+        _kernels.centred_difference(self.times_s, self.values, t, self.half_window_s, out)
+        return out

@@ -1,5 +1,6 @@
 """The recent samples of one device in time order, with its gyroscope: what a fit from the gyroscope
-(``gyro-ellipsoid``) needs, which the sphere cells of ``magnet.collection`` (one sample per direction, no order) lose.
+(``gyro-ellipsoid``) needs, which the sphere cells of ``magnet.calibration.collection`` (one sample per direction, no
+order) lose.
 
 A bounded ring of the last ``capacity`` samples; the samples are cut into *runs* of consecutive readings: a run
 restarts where a batch's ``seq`` is not the previous one's plus one (a batch lost, or the edge restarted), or where

@@ -62,7 +62,7 @@ class Location:
         return cls(*numbers)
 
     def as_tuple(self) -> tuple[float, float, float]:
-        """``(lat_deg, lon_deg, alt_m)``, as ``magnet.geomag.earth_field`` takes them."""
+        """``(lat_deg, lon_deg, alt_m)``, as ``magnet.earth.geomag.earth_field`` takes them."""
         return (self.lat_deg, self.lon_deg, self.alt_m)
 
     def to_wire(self) -> list[float]:

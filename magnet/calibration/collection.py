@@ -6,7 +6,7 @@ The direction of each raw reading from the running centre of the cloud (per-axis
 
 A method that fits from the gyroscope (``Method.needs_gyroscope``: gyro-ellipsoid) needs consecutive samples in
 time order with their rates, which the cells lose: its collection also keeps the device's recent samples in a
-bounded ring (``magnet.sample_runs.RecentRuns``, at most ``run_capacity`` samples, 88 bytes each: 2.6 MB per
+bounded ring (``magnet.calibration.sample_runs.RecentRuns``, at most ``run_capacity`` samples, 88 bytes each: 2.6 MB per
 device at the default 30,000), cut into runs at every gap in ``t_ns`` or ``seq``, and fits the longest run with
 ``gyr=`` and ``period_s=`` (the run's median step of ``t_ns``). The cells still give its coverage for progress.
 
@@ -22,9 +22,9 @@ import numpy as np
 
 from magnet.calibration import MIN_SAMPLES, FitError, FitInput, Method
 from magnet.calibration.choose import AUTO, fit_choice, parse_choice
+from magnet.calibration.sample_runs import RUN_CAPACITY, RecentRuns, Run
 from magnet.model import Calibration
 from magnet.quality import Coverage, coverage
-from magnet.sample_runs import RUN_CAPACITY, RecentRuns, Run
 
 FINE_BANDS = 24  # equal-area bands in z (uniform in z = equal area on the sphere) ...
 FINE_SECTORS = 48  # ... times sectors in longitude: 1152 fine cells, one kept sample each

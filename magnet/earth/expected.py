@@ -11,8 +11,8 @@ import dataclasses
 import datetime as _dt
 import functools
 
-from magnet.geomag import DateLike, EarthField, earth_field
-from magnet.place import Location
+from magnet.earth.geomag import DateLike, EarthField, earth_field
+from magnet.earth.location import Location
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,7 +36,8 @@ def _earth(rounded: tuple[float, float, float], date: _dt.date | str | float) ->
 def earth_at(location: Location | None, date: DateLike) -> Earth:
     """What the WMM expects at ``location`` (rounded to about 1 km) on ``date`` (``datetime.date``, ``YYYY-MM-DD`` or
     a decimal year); ``Earth()`` (nothing known) without a location. ValueError for a date outside the model's life.
-    ``date`` None means today as ``magnet.geomag`` reads it (not cached here: a long-running caller passes its own)."""
+    ``date`` None means today as ``magnet.earth.geomag`` reads it (not cached here: a long-running caller passes its
+    own)."""
     if location is None:
         return Earth()
     if date is None:

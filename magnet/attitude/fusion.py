@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import vqf
 
-from magnet.aided_fusion import AidedFilter, body_acceleration
+from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
 
@@ -131,7 +131,9 @@ class Fusion:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
         self._filter = vqf.VQF(self.period_s, **self.params)
-        self._aided: AidedFilter | None = None  # from the first batch with a velocity on (``magnet.aided_fusion``)
+        self._aided: AidedFilter | None = (
+            None  # from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
+        )
         self.samples = 0
 
     def restart(self) -> None:
@@ -152,7 +154,7 @@ class Fusion:
     ) -> Fused:
         """Feed one batch: gyr (N, 3) rad/s, acc (N, 3) m/s^2, mag (N, 3) calibrated field or None; body frame.
         With the field, ``t_s`` (N,) s and ``vel_ned_ms`` (N, 3) m/s in magnetic NED (NaN rows where unknown):
-        velocity aiding (``magnet.aiding``)."""
+        velocity aiding (``magnet.attitude.aiding``)."""
         gyr = _to_vqf(gyr_rads, "gyr_rads")
         if len(gyr) == 0:
             return _empty()
