@@ -27,8 +27,9 @@ import numpy as np
 import vqf
 
 from magnet.attitude.aiding import VEHICLE_RESIDUAL_MS2, VelocityFixes, vehicle_tau_acc_s
-from magnet.attitude.gyro_bias import Explained, HeadingDrift
-from magnet.frames import ned_enu, ned_to_body, quaternion_conjugate, quaternion_multiply, quaternion_to_matrix
+from magnet.attitude.gyro_bias import Explained, HeadingDrift, PieceField
+from magnet.compiled import kernels as _kernels
+from magnet.units import STANDARD_GRAVITY_MS2
 
 #: the longest piece of samples answered from one filter state when no fix comes (s)
 CHUNK_S = 0.1
@@ -42,7 +43,9 @@ BIAS_SETTLE_TAUS = 1.0
 
 def _in_body(quat_vqf: np.ndarray, a_ned: np.ndarray) -> np.ndarray:
     """Accelerations (N, 3) magnetic NED in vqf's body frame (N, 3), by vqf quaternions (N, 4) body -> ENU."""
-    return ned_to_body(quaternion_to_matrix(quat_vqf), ned_enu(a_ned))
+    out = np.empty((len(quat_vqf), 3))
+    _kernels.into_body(quat_vqf, a_ned, out)
+    return out
 
 
 def body_acceleration(quat_vqf: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray) -> np.ndarray:
@@ -57,15 +60,7 @@ def carry_forward(start: np.ndarray, gyr: np.ndarray, bias: np.ndarray, period_s
     """Quaternions (N, 4) from ``start`` (4,) turned by each body rate (N, 3) rad/s less ``bias`` (3,) over one
     period in turn (right products: body-frame rates), as vqf integrates them."""
     out = np.empty((len(gyr), 4))
-    w, x, y, z = (float(v) for v in start)
-    for i, rate in enumerate((np.asarray(gyr, dtype=float) - bias).tolist()):
-        norm = math.sqrt(rate[0] ** 2 + rate[1] ** 2 + rate[2] ** 2)
-        angle = norm * period_s / 2.0
-        c, s = math.cos(angle), (math.sin(angle) / norm if norm > 0 else 0.0)
-        a, b, d = rate[0] * s, rate[1] * s, rate[2] * s
-        w, x, y, z = (w * c - x * a - y * b - z * d, w * a + x * c + y * d - z * b, w * b - x * d + y * c + z * a,
-                      w * d + x * b - y * a + z * c)  # fmt: skip
-        out[i] = (w, x, y, z)
+    _kernels.carry_forward(np.asarray(start, dtype=float), np.asarray(gyr, dtype=float), bias, period_s, out)
     return out
 
 
@@ -74,6 +69,8 @@ def travelled(filter_: Any, seconds: float) -> None:
     faster than magNewMinGyr: a local disturbance (a magnet, steel nearby) changes as the vehicle moves past it, so a
     field that kept its norm and dip while the vehicle travelled is the earth's as surely as one that kept them while
     it turned. Only while the newest field agrees with the candidate (vqf's own test)."""
+    if not filter_.getMagDistDetected():  # no candidate field to count towards (without reading the whole state)
+        return
     state, params = filter_.state, filter_.params
     norm, dip = (float(v) for v in np.asarray(state["magNormDip"], dtype=float).reshape(-1)[:2])
     cand_norm, cand_dip = float(state["magCandidateNorm"]), float(state["magCandidateDip"])
@@ -189,7 +186,7 @@ class AidedFilter:
         self.fixes.observe(rows[:, 0], vel_ned_ms)
         bias = np.asarray(self.filter.getBiasEstimate()[0], dtype=float)
         before = self.pending[-1, _TURN] if len(self.pending) else _IDENTITY
-        rows[:, _TURN] = carry_forward(before, rows[:, _GYR], bias, self.period_s)
+        _kernels.carry_forward(before, rows[:, _GYR], bias, self.period_s, rows[:, _TURN])
         self.pending = np.vstack([self.pending, rows])
         self._give()
         self._feed(float(rows[0, 0]), keep=len(rows))
@@ -198,8 +195,8 @@ class AidedFilter:
 
     def _give(self) -> None:
         """The attitude of every pending sample: the filter's, turned by the sample's turn."""
-        start = np.asarray(self.filter.getQuat9D(), dtype=float)
-        self.pending[:, _GIVEN] = quaternion_multiply(start, self.pending[:, _TURN])
+        start = np.asarray(self.filter.getQuat9D(), dtype=float).reshape(1, 4)
+        _kernels.quaternion_product(start, self.pending[:, _TURN], self.pending[:, _GIVEN])
 
     def _feed(self, now_s: float, keep: int) -> None:
         """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``), in order, but not
@@ -219,8 +216,8 @@ class AidedFilter:
             travelled(self.filter, count * self.period_s)
         self.disturbed = bool(np.asarray(out["magDistDetected"]).reshape(-1)[-1])
         self._heading_loop(fed[:, 0], acc, field, out)
-        turn = quaternion_multiply(quaternion_conjugate(fed[-1, _TURN]), self.pending[:, _TURN])
-        self.pending[:, _TURN] = turn / np.linalg.norm(turn, axis=1, keepdims=True)  # rounding would compound
+        # the turns from the new state: conj(last fed) turn, normalised (rounding would compound)
+        _kernels.quaternion_product(fed[-1:, _TURN], self.pending[:, _TURN], self.pending[:, _TURN], True, True)
 
     def _heading_loop(self, t_s: np.ndarray, acc: np.ndarray, field: np.ndarray, out: dict[str, Any]) -> None:
         """After a piece was fed (times (n,) s, the accelerometer fed (n, 3) and the field (n, 3), vqf frames, vqf's
@@ -228,10 +225,11 @@ class AidedFilter:
         constant for a vehicle and the Kalman filter of its heading's drift (``HeadingDrift``: the bias it learns goes
         into vqf's, its heading offset into vqf's delta); elsewhere vqf's own tauAcc and the integral term of
         ``VerticalBias``."""
-        rotations = quaternion_to_matrix(np.asarray(out["quat6D"], dtype=float).reshape(-1, 4))
-        disturbed, up, seconds = bool(np.any(out["magDistDetected"])), rotations[-1, 2], len(t_s) * self.period_s
+        quat6d = np.asarray(out["quat6D"], dtype=float).reshape(-1, 4)
+        *up_xyz, heading, horizontal, vertical, left = _kernels.piece_figures(quat6d, field, acc, STANDARD_GRAVITY_MS2)
+        disturbed, up, seconds = bool(np.any(out["magDistDetected"])), np.array(up_xyz), len(t_s) * self.period_s
         bias = np.asarray(self.filter.getBiasEstimate()[0], dtype=float)
-        residual = self.explained.update(acc, rotations[:, 2], seconds)
+        residual = self.explained.update(left, seconds)
         vehicle = vehicle_tau_acc_s(residual, self.bias_sigma) < self.tau_acc_s
         tau = self.vehicle_tau_s if vehicle else self.tau_acc_s
         self.filter.setTauAcc(tau)
@@ -243,8 +241,9 @@ class AidedFilter:
             self.filter.setBiasEstimate(bias + more)
             return
         self.vertical.delta = None  # vqf's delta is set here: not a drift for the integral term
-        earth = np.einsum("nij,nj->ni", rotations, field)
-        learnt = self.drift.update(t_s, earth, disturbed, up, horizontal_bias_sigma(self.filter, up) * self.drift.tau_s)
+        figures = PieceField(float(np.mean(t_s)), len(t_s), heading, horizontal, vertical)
+        tilt = horizontal_bias_sigma(self.filter, up) * self.drift.tau_s
+        learnt = self.drift.update(figures, disturbed, up, tilt)
         self.filter.setBiasEstimate(bias + learnt)
         if self.drift.p is not None and not disturbed:
             state = self.filter.state

@@ -30,6 +30,7 @@ import dataclasses
 
 import numpy as np
 
+from magnet.compiled import kernels as _kernels
 from magnet.units import STANDARD_GRAVITY_MS2
 
 #: a receiver's latency: a fix appears this long after the instant it measured (s)
@@ -120,8 +121,6 @@ class VelocityFixes:
         t = np.asarray(t_s, dtype=float)
         if len(self.times_s) < 2:
             return np.zeros((len(t), 3))
-        h = self.half_window_s
-        ahead = np.column_stack([np.interp(t + h, self.times_s, self.values[:, k]) for k in range(3)])
-        behind = np.column_stack([np.interp(t - h, self.times_s, self.values[:, k]) for k in range(3)])
-        covered = (t - h >= self.times_s[0]) & (t + h <= self.times_s[-1] + 1e-9)
-        return np.where(covered[:, None], (ahead - behind) / (2.0 * h), 0.0)
+        out = np.empty((len(t), 3))
+        _kernels.centred_difference(self.times_s, self.values, t, self.half_window_s, out)
+        return out

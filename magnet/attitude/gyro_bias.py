@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from magnet.units import STANDARD_GRAVITY_MS2
+from magnet.compiled import kernels as _kernels
 
 #: white noise of the heading one magnetometer sample gives (deg): 0.3 uT of noise on a 20 uT horizontal field
 HEADING_NOISE_DEG = 1.0
@@ -56,13 +56,27 @@ class Explained:
 
     mean_square: float | None = None
 
-    def update(self, acc: np.ndarray, up: np.ndarray, seconds: float) -> float:
-        """A piece: the accelerometer fed (n, 3) m/s^2 and the vertical (n, 3) (unit, body axes), vqf's frames; its
-        length in seconds. Returns the residual's RMS so far (m/s^2)."""
-        left = float(np.linalg.norm(np.mean(np.asarray(acc) - STANDARD_GRAVITY_MS2 * np.asarray(up), axis=0))) ** 2
+    def update(self, left_ms2: float, seconds: float) -> float:
+        """A piece: |mean(acc - g up)| (m/s^2) over its samples (the accelerometer fed and the vertical, body axes,
+        vqf's frames: ``magnet._kernels.piece_figures``) and its length in seconds. Returns the residual's RMS so
+        far (m/s^2)."""
+        left = float(left_ms2) ** 2
         weight = -math.expm1(-seconds / EXPLAINED_TIME_S)
         self.mean_square = left if self.mean_square is None else self.mean_square + weight * (left - self.mean_square)
         return math.sqrt(self.mean_square)
+
+
+@dataclasses.dataclass(frozen=True)
+class PieceField:
+    """The field over one piece fed to vqf, in the 6D earth frame (ENU, any unit; ``magnet._kernels.piece_figures``
+    gives these): the piece's mean time (s) and sample count, the circular mean of the field's heading
+    atan2(E_east, E_north) (rad), the mean of its horizontal norm and of its up component."""
+
+    t_s: float
+    count: int
+    heading_rad: float
+    horizontal: float
+    vertical: float
 
 
 class HeadingDrift:
@@ -77,18 +91,12 @@ class HeadingDrift:
         self.t_s = 0.0
         self.up = np.array([0.0, 0.0, 1.0])
 
-    def update(
-        self, t_s: np.ndarray, field_earth: np.ndarray, disturbed: bool, up: np.ndarray, tilt_rad: float
-    ) -> np.ndarray:
-        """One piece: sample times (n,) s, the field in the 6D earth frame (n, 3) (ENU, any unit), whether vqf
-        found it disturbed, the earth's up axis in body axes (3,) at the piece's end and the tilt's uncertainty
-        (rad). Returns the bias (3,) rad/s learnt, body axes, to be added to vqf's estimate."""
-        e = np.asarray(field_earth, dtype=float)
-        phi = np.arctan2(e[:, 0], e[:, 1])
-        z = math.atan2(float(np.mean(np.sin(phi))), float(np.mean(np.cos(phi))))
-        t, up = float(np.mean(t_s)), np.asarray(up, dtype=float)
-        horizontal = float(np.mean(np.hypot(e[:, 0], e[:, 1])))
-        dip = min(math.atan2(abs(float(np.mean(e[:, 2]))), horizontal), math.radians(MAX_DIP_DEG))
+    def update(self, piece: PieceField, disturbed: bool, up: np.ndarray, tilt_rad: float) -> np.ndarray:
+        """One piece (``PieceField``), whether vqf found its field disturbed, the earth's up axis in body axes (3,)
+        at the piece's end and the tilt's uncertainty (rad). Returns the bias (3,) rad/s learnt, body axes, to be
+        added to vqf's estimate. The prediction and the update are ``magnet._kernels.drift_step``."""
+        t, up, z = piece.t_s, np.asarray(up, dtype=float), piece.heading_rad
+        dip = min(math.atan2(abs(piece.vertical), piece.horizontal), math.radians(MAX_DIP_DEG))
         sigma_c = math.hypot(math.radians(TILT_ERROR_DEG), tilt_rad) * math.tan(dip)
         if self.p is None:  # starts with the first piece whose field vqf trusts
             if disturbed:
@@ -96,28 +104,14 @@ class HeadingDrift:
             self.x, self.t_s, self.up = np.array([z, 0.0, 0.0, 0.0, 0.0]), t, up
             self.p = np.diag([math.radians(HEADING_NOISE_DEG) ** 2, *[self.bias_sigma**2] * 3, sigma_c**2])
             return np.zeros(3)
-        self._predict(t - self.t_s, sigma_c, (up + self.up) / 2.0)
+        dt = max(t - self.t_s, 0.0)
+        decay = math.exp(-dt / self.tau_s)
+        noise = np.array([ANGLE_RANDOM_WALK**2 * dt, *[BIAS_RANDOM_WALK**2 * dt] * 3, sigma_c**2 * (1.0 - decay**2)])
+        measured = math.radians(HEADING_NOISE_DEG) ** 2 / piece.count
+        _kernels.drift_step(self.x, self.p, dt, self.tau_s, (up + self.up) / 2.0, noise, z, measured, not disturbed)
         self.t_s, self.up = t, up
         if disturbed:
             return np.zeros(3)
-        h = np.array([1.0, 0.0, 0.0, 0.0, 1.0])
-        noise = math.radians(HEADING_NOISE_DEG) ** 2 / len(phi)
-        innovation = math.remainder(z - float(h @ self.x), math.tau)
-        gain = self.p @ h / (float(h @ self.p @ h) + noise)
-        self.x = self.x + gain * innovation
-        self.x[0] = math.remainder(float(self.x[0]), math.tau)
-        self.p = self.p - np.outer(gain, h @ self.p)
         learnt = self.x[1:4].copy()
         self.x[1:4] = 0.0
         return learnt
-
-    def _predict(self, dt: float, sigma_c: float, up: np.ndarray) -> None:
-        assert self.p is not None
-        dt = max(dt, 0.0)
-        decay = math.exp(-dt / self.tau_s)
-        f = np.eye(5)
-        f[0, 1:4] = -dt * up
-        f[4, 4] = decay
-        q = np.diag([ANGLE_RANDOM_WALK**2 * dt, *[BIAS_RANDOM_WALK**2 * dt] * 3, sigma_c**2 * (1.0 - decay**2)])
-        self.x = f @ self.x
-        self.p = f @ self.p @ f.T + q

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.frames import rotation_vector_to_matrix
+from magnet.compiled import kernels as _kernels
 
 #: the largest delay a record may carry (s); beyond it the value is not a sensor's filter delay and is ignored
 MAX_LAG_S = 0.1
@@ -44,10 +44,6 @@ def advance_field(field: np.ndarray, gyr_rads: np.ndarray, lag_s: float | np.nda
     are. A new array; ``field`` is not changed."""
     field = np.asarray(field, dtype=float)
     lags = np.broadcast_to(np.asarray(lag_s, dtype=float), (len(field),))
-    rates = np.asarray(gyr_rads, dtype=float)
-    turn = (lags != 0) & np.all(np.isfinite(rates), axis=1) & np.all(np.isfinite(field), axis=1)
-    out = field.copy()
-    if turn.any():
-        rotation = rotation_vector_to_matrix(-rates[turn] * lags[turn, None])
-        out[turn] = np.einsum("nij,nj->ni", rotation, field[turn])
+    out = np.empty_like(field)
+    _kernels.advance_field(field, np.asarray(gyr_rads, dtype=float), lags, out)  # Rodrigues' formula, row by row
     return out

@@ -11,7 +11,7 @@ import pytest
 
 from magnet.attitude import fusion, gyro_bias
 from magnet.attitude.aided_fusion import VerticalBias
-from magnet.attitude.gyro_bias import Explained, HeadingDrift
+from magnet.attitude.gyro_bias import Explained, HeadingDrift, PieceField
 from magnet.attitude.heading import angle_difference_deg
 from magnet.frames import to_magnetic_ned
 from magnet.simulator import Trajectory
@@ -74,10 +74,18 @@ def test_the_drift_filter_learns_a_steady_turn_of_the_field_as_bias_about_the_ve
         heading = phi - (rate - learnt[2]) * (t - t[0] + 0.01)
         seen = heading + rng.normal(0.0, 0.01, 10)
         field = np.column_stack([np.sin(seen), np.cos(seen), np.full(10, -1.0)])  # dip 45 deg
-        learnt += drift.update(t, field, False, up, 0.0)
+        learnt += drift.update(_piece(t, field), False, up, 0.0)
         phi = float(heading[-1])
     assert learnt[2] == pytest.approx(rate, rel=0.1) and np.abs(learnt[:2]).max() < 1e-9
-    assert not drift.update(np.arange(10) * 0.01 + 10.0, field, True, up, 0.0).any()  # disturbed: not used
+    assert not drift.update(_piece(np.arange(10) * 0.01 + 10.0, field), True, up, 0.0).any()  # disturbed: not used
+
+
+def _piece(t_s: np.ndarray, field_earth: np.ndarray) -> PieceField:
+    """The figures of a piece whose field (n, 3) is already in the earth frame (ENU), written plainly."""
+    phi = np.arctan2(field_earth[:, 0], field_earth[:, 1])
+    heading = math.atan2(float(np.mean(np.sin(phi))), float(np.mean(np.cos(phi))))
+    horizontal = float(np.mean(np.hypot(field_earth[:, 0], field_earth[:, 1])))
+    return PieceField(float(np.mean(t_s)), len(t_s), heading, horizontal, float(np.mean(field_earth[:, 2])))
 
 
 def test_the_velocity_explains_a_vehicles_accelerometer_not_a_waved_hand():
@@ -87,7 +95,12 @@ def test_the_velocity_explains_a_vehicles_accelerometer_not_a_waved_hand():
     still, waved = Explained(), Explained()
     for k in range(600):
         t = 0.1 * k + np.arange(10) * 0.01
-        assert still.update(9.80665 * up, up, 0.1) < 1e-9
+        assert still.update(_left(9.80665 * up, up), 0.1) < 1e-9
         swing = 4.0 * np.column_stack([np.sin(2 * np.pi * t), 0 * t, 0 * t])
-        left = waved.update(9.80665 * up + swing, up, 0.1)
+        left = waved.update(_left(9.80665 * up + swing, up), 0.1)
     assert left == pytest.approx(4.0 / math.sqrt(2.0), rel=0.1)
+
+
+def _left(acc: np.ndarray, up: np.ndarray) -> float:
+    """|mean(acc - g up)| of a piece (m/s^2), written plainly."""
+    return float(np.linalg.norm(np.mean(acc - 9.80665 * up, axis=0)))

@@ -320,3 +320,31 @@ def test_the_heading_plot_gets_the_last_sixty_seconds_thinned():
     span_s = (shown[-1][0] - shown[0][0]) / 1e9
     assert 59.0 <= span_s <= 60.0, span_s
     assert recent_headings([]) == [] and recent_headings(samples[:3]) == samples[:3]
+
+
+def test_a_device_is_judged_against_the_field_where_it_says_it_is():
+    state = FleetState(earth_field(50.45, 30.52, 0.0, "2026-06-01"), date="2026-06-01")  # the dashboard's Kyiv
+    state.watch("mav1-mag0", +1)
+    state.on_heading(heading_batch("mav1-mag0"))
+    assert state.detail("mav1-mag0")["earth"]["total_ut"] == pytest.approx(51.1, abs=0.3)
+    from magnet.earth.location import Location
+
+    zurich = Location(47.37, 8.54, 400.0)
+    raw = wire.RawBatch("mav1-mag0", 2, "mavlink", np.arange(3), np.eye(3) * 40, None, None, location=zurich)
+    state.on_raw(raw)
+    assert state.detail("mav1-mag0")["earth"]["total_ut"] == pytest.approx(48.4, abs=0.3)
+    assert state.detail("mav1-mag0")["earth"]["total_ut"] != state.summary()["earth"]["total_ut"]
+
+
+def test_a_device_whose_headings_stop_is_silent_after_its_own_interval_though_its_token_lives():
+    now = [0.0]
+    state = FleetState(None, clock=lambda: now[0])
+    state.on_alive("mav1-mag0", True)
+    for seq in range(5):  # a batch every 2 s
+        now[0] = 2.0 * seq
+        state.on_heading(heading_batch("mav1-mag0", seq=seq))
+    now[0] = 8.0 + 9.0  # 4.5 intervals: still sending as far as anyone can tell
+    assert state.changes(-1)[1][0]["alive"] is True and state.summary()["alive"] == 1
+    now[0] = 8.0 + 10.5  # more than 5 of its own intervals
+    row = state.rows["mav1-mag0"].to_json(now[0], None)
+    assert row["alive"] is False and "no headings" in row["alerts"] and state.summary()["alive"] == 0
