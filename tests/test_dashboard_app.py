@@ -327,7 +327,7 @@ def test_a_device_is_judged_against_the_field_where_it_says_it_is():
     state.watch("mav1-mag0", +1)
     state.on_heading(heading_batch("mav1-mag0"))
     assert state.detail("mav1-mag0")["earth"]["total_ut"] == pytest.approx(51.1, abs=0.3)
-    from magnet.place import Location
+    from magnet.earth.location import Location
 
     zurich = Location(47.37, 8.54, 400.0)
     raw = wire.RawBatch("mav1-mag0", 2, "mavlink", np.arange(3), np.eye(3) * 40, None, None, location=zurich)
