@@ -47,6 +47,7 @@ from magnet.units import FieldUnit
 #: self-test, a hand-written record, the identity and the simulator's truth); a record naming another is refused
 KNOWN_METHODS = frozenset(
     {"minmax2d", "minmax", "sphere", "ellipsoid", "ellipsoid+align", "turntable", "turntable-lsq", "gyro-ellipsoid"}
+    | {"offset", "offset+scale", "planar"}
     | {"selftest", "manual", "identity", "truth"}
 )
 #: the units a record may name (``magnet.units.FieldUnit``)

@@ -7,6 +7,11 @@ It sends, with pymavlink, what an ArduPilot vehicle sends about its compasses, f
 with PARAM_VALUE from its parameter table (a few ArduPilot compass parameters). At the end (``--duration`` or
 SIGTERM) it writes ``--truth FILE.npz``: per IMU message sent, the compass instance, the field sent (milligauss) and
 the true heading and pitch, so a test can join what the compass published to the truth by the field.
+
+Faults and poses a vehicle shows (issue 27): ``--zero-gyro N`` sends compass N's gyroscope fields as zero during
+the tumble (ArduPilot's SCALED_IMU2 when a second compass has no second IMU beside it); ``--hold-after S
+--hold-yaw D`` ends the tumble after S seconds: the vehicle settles over ``SETTLE_S`` to level at true heading D
+(its gyroscope reading the rates that carry it there) and stays, GLOBAL_POSITION_INT's velocity zero throughout.
 """
 
 from __future__ import annotations
@@ -20,7 +25,16 @@ from typing import Any
 import numpy as np
 from pymavlink import mavutil
 
+from magnet.frames import (
+    euler_to_quaternion,
+    quaternion_conjugate,
+    quaternion_multiply,
+    quaternion_to_euler,
+    quaternion_to_matrix,
+    quaternion_to_rotation_vector,
+)
 from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig
+from magnet.simulator.motion import G_NED
 
 SOFT_0 = ((1.08, 0.03, 0.0), (0.03, 0.95, 0.02), (0.0, 0.02, 1.0))
 SOFT_1 = ((0.96, -0.02, 0.01), (-0.02, 1.05, 0.0), (0.01, 0.0, 1.1))
@@ -45,6 +59,49 @@ PARAMETERS = {
     "COMPASS_MOT_Z": 0.0,
 }
 REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
+SETTLE_S = 2.0  # from the tumble's last attitude to level at --hold-yaw
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
+    dot = float(np.dot(q0, q1))
+    if dot < 0:
+        q1, dot = -q1, -dot
+    angle = math.acos(min(dot, 1.0))
+    if angle < 1e-9:
+        return q0
+    q = (math.sin((1 - s) * angle) * q0 + math.sin(s * angle) * q1) / math.sin(angle)
+    return q / np.linalg.norm(q)
+
+
+class Held:
+    """A compass's stream after the tumble: settles from its last attitude to level at ``yaw_deg`` (true) over
+    ``SETTLE_S`` (smoothstep), then holds; the field, specific force and rates from its errors, with noise."""
+
+    def __init__(self, stream: SensorStream, yaw_deg: float, rate_hz: float, seed: int) -> None:
+        self.stream, self.rate_hz = stream, rate_hz
+        self.errors = _noise(stream.config.errors)
+        self.start = np.array(stream.last_truth["quat_wxyz"], dtype=float)
+        self.end = euler_to_quaternion(yaw_deg, 0.0, 0.0).reshape(4)
+        self.previous, self.k = self.start, 0
+        self.rng = np.random.default_rng(seed + 100)
+        self.b_ned = np.array(stream.earth.ned_ut)
+        self.last_truth: dict[str, Any] = dict(stream.last_truth)
+
+    def measure_imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self.k += 1
+        s = min(1.0, self.k / (SETTLE_S * self.rate_hz))
+        q = _slerp(self.start, self.end, s * s * (3 - 2 * s))
+        turn = quaternion_multiply(quaternion_conjugate(self.previous[None]), q[None])
+        rate = quaternion_to_rotation_vector(turn)[0] * self.rate_hz
+        self.previous = q
+        rotation = quaternion_to_matrix(q[None])[0]
+        e = self.errors
+        mag = e.distortion @ (rotation.T @ self.b_ned) + e.hard_iron_ut + e.noise_ut * self.rng.standard_normal(3)
+        acc = rotation.T @ (-G_NED) + e.acc_noise_ms2 * self.rng.standard_normal(3)
+        gyr = rate + e.gyro_noise_rads * self.rng.standard_normal(3)
+        heading, pitch, roll = (float(v[0]) for v in quaternion_to_euler(q[None]))
+        self.last_truth = {"heading_deg": heading, "pitch_deg": pitch, "roll_deg": roll, "quat_wxyz": tuple(q)}
+        return mag, acc, gyr
 
 
 def _noise(errors: SensorErrors) -> SensorErrors:
@@ -58,7 +115,7 @@ class Vehicle:
         self.args = args
         self.conn = mavutil.mavlink_connection(args.url, source_system=args.sysid, source_component=1)
         rate, count = max(args.rate, 1.0), args.samples
-        self.streams = {
+        self.streams: dict[int, Any] = {
             i: SensorStream(SimulatorConfig(trajectory="tumble", rate_hz=rate, count=count, errors=_noise(e), seed=i))
             for i, e in COMPASSES.items()
         }
@@ -72,11 +129,15 @@ class Vehicle:
     def send_imu(self, k: int) -> None:
         mav = self.conn.mav
         boot_ms = int(k * 1000 / self.args.rate)
+        if self.args.hold_after is not None and k == int(self.args.hold_after * self.args.rate):
+            self.streams = {i: Held(s, self.args.hold_yaw, self.args.rate, i) for i, s in self.streams.items()}
         for instance, stream in self.streams.items():
             mag, acc, gyr = stream.measure_imu()
             m = np.round(mag * 10).astype(int)  # uT -> milligauss
             a = np.round(acc / 9.80665 * 1000).astype(int)  # m/s^2 -> milli-g
             g = np.round(gyr * 1000).astype(int)  # rad/s -> mrad/s
+            if instance == self.args.zero_gyro and not isinstance(stream, Held):
+                g = np.zeros(3, dtype=int)
             if instance == 0:
                 mav.raw_imu_send(boot_ms * 1000, *a, *g, *m)
             else:
@@ -152,6 +213,9 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--armed", action="store_true")
     parser.add_argument("--truth")
+    parser.add_argument("--zero-gyro", type=int, help="this compass's gyroscope fields sent as zero in the tumble")
+    parser.add_argument("--hold-after", type=float, help="seconds of tumble before settling and holding still")
+    parser.add_argument("--hold-yaw", type=float, default=70.0, help="the true heading held (deg)")
     Vehicle(parser.parse_args()).run()
 
 

@@ -1,6 +1,7 @@
 """``magnet edge --mavlink`` against a pymavlink vehicle stand-in (tests/mav_vehicle.py) on loopback, with a
 calibrator and a compass: the vehicle's two compasses appear as devices, are calibrated, and the compass's headings
-agree with the simulator's truth; garbage on the link is dropped and counted; a silent vehicle turns unhealthy."""
+agree with the simulator's truth; the second compass's gyroscope reads zero (ArduPilot's SCALED_IMU2 without a second
+IMU) and is treated as absent; garbage on the link is dropped and counted; a silent vehicle turns unhealthy."""
 
 from __future__ import annotations
 
@@ -98,6 +99,8 @@ def test_mavlink_vehicle_is_calibrated_and_its_headings_match_the_truth(procs, t
             "90",
             "--truth",
             str(tmp_path / "truth.npz"),
+            "--zero-gyro",
+            "1",
         )
         alive = {f"magnet/@alive/device/{d}" for d in DEVICES}
         wait_for(lambda: alive <= liveliness_keys(edge_port), 20, "the vehicle's two devices")
@@ -113,6 +116,7 @@ def test_mavlink_vehicle_is_calibrated_and_its_headings_match_the_truth(procs, t
         wait_for(lambda: unhealthy <= liveliness_keys(edge_port), 10, "the silent vehicle's devices unhealthy")
     code, lines = magnet_json("get", "status", "edge-dev", "--no-multicast-scouting", *connect_args(edge_port))
     assert code == 0 and lines[0]["reads"]["dropped"].get("bad-data", 0) > 0, lines
+    assert lines[0]["reads"]["gyro_absent"] == ["mav1-mag1"], lines  # issue 27, fault 1
     assert lines[0]["healthy"] is False and procs.alive("edge")
     assert procs.log("edge").count("dropping MAVLink input (bad-data)") == 1
     truth = np.load(tmp_path / "truth.npz")["table"]

@@ -165,3 +165,40 @@ def test_battery_current_from_a_vehicle_reaches_the_compass_which_takes_the_moto
     assert compass.accept_calibration(record, "magnet/mav4-mag1/calibration", "magnet")
     [out] = heading_batches(compass, [batch])
     np.testing.assert_allclose(out.field_ut, np.tile(earth, (3, 1)), atol=0.06)  # 0.1 uT steps of milligauss
+
+
+def _turning(s: mav.MAVLink, k: int, gyro: tuple[int, int, int], instance: int = 2) -> mav.MAVLink_message:
+    """SCALED_IMU<instance> k: the field turning 2 deg per message about z, the gyroscope as given (mrad/s)."""
+    angle = np.radians(2.0 * k)
+    field = (int(400 * np.cos(angle)), int(400 * np.sin(angle)), 100)
+    encode = s.scaled_imu2_encode if instance == 1 else s.scaled_imu3_encode
+    return encode(1000 + 20 * k, 0, 0, -1000, *gyro, *field)
+
+
+def test_a_gyroscope_reading_zero_while_the_field_turns_is_absent() -> None:
+    """Fault 1 of issue 27: ArduPilot's SCALED_IMU2 with zero gyro fields (no second IMU): the samples go out without a
+    gyroscope, the device is listed; a real gyroscope that reads zero now and then keeps its zeros."""
+    s = sender()
+    stream = MavlinkStream(batch=30)
+    for k in range(30):
+        for m in parsed(1, _turning(s, k, (0, 0, 0)), _turning(s, k, (0, 0, 35) if k % 3 else (0, 0, 0), 1)):
+            stream.feed(m, NOW + k * 20_000_000)
+    batches = {b.device: b for b in stream.take(NOW + 30 * 20_000_000)}
+    assert batches["mav1-mag2"].gyr_rads is None
+    assert stream.gyro_absent == ["mav1-mag2"]  # zeros while the field turned 56 deg
+    real = batches["mav1-mag1"].gyr_rads
+    assert real is not None and np.isnan(real[0]).all()  # zero before it ever read anything: not yet a gyroscope
+    assert np.isfinite(real[1:]).all() and (real[3::3] == 0).all()  # later zeros are a real gyroscope's
+    for k in range(30, 40):  # it reads a rate: a gyroscope after all
+        for m in parsed(1, _turning(s, k, (0, 0, 35))):
+            stream.feed(m, NOW + k * 20_000_000)
+    assert stream.gyro_absent == []
+
+
+def test_a_still_vehicle_whose_gyroscope_reads_zero_is_not_judged() -> None:
+    s = sender()
+    stream = MavlinkStream(batch=50)
+    for k in range(50):
+        for m in parsed(1, s.scaled_imu2_encode(1000 + 20 * k, 0, 0, -1000, 0, 0, 0, 200, 0, 400)):
+            stream.feed(m, NOW + k * 20_000_000)
+    assert stream.gyro_absent == [] and stream.take(NOW + 10**9)[0].gyr_rads is None

@@ -12,6 +12,13 @@ least 1 ns after the one before it.
 Attachments. A sample carries the vehicle's last velocity (GLOBAL_POSITION_INT), battery current (SYS_STATUS or
 BATTERY_STATUS) and throttle (SERVO_OUTPUT_RAW) when they are at most ``FRESH_NS`` old (wall clock), NaN otherwise;
 a batch carries the last place.
+
+A gyroscope that reads zero. ArduPilot fills the gyroscope fields of SCALED_IMU2/3 with zeros when the compass has
+no IMU of that number beside it. A reading of exactly zero on all three axes is kept only from a gyroscope that has
+read anything else before (a real one at rest rounds to zero now and then); and one that keeps reading exactly zero
+while the field turns by ``ZERO_GYRO_TURN_DEG`` is no gyroscope at all: its samples go out without one (the
+compass and the calibrator then work from the field and the accelerometer), the device is listed in
+``gyro_absent`` until it reads anything else.
 """
 
 from __future__ import annotations
@@ -34,6 +41,8 @@ MAX_SKEW_NS = 2_000_000_000
 FRESH_NS = 1_000_000_000
 #: a device's samples wait at most this long (wall clock) before they go out in a short batch
 MAX_WAIT_NS = 500_000_000
+#: a gyroscope reading exactly zero all the while the field turns this far (deg) is absent
+ZERO_GYRO_TURN_DEG = 30.0
 #: the messages used besides the IMU ones
 OTHER_MESSAGES = frozenset({"HEARTBEAT", "GLOBAL_POSITION_INT", "SYS_STATUS", "BATTERY_STATUS", "SERVO_OUTPUT_RAW"})
 
@@ -54,6 +63,32 @@ class Vehicle:
 
 
 @dataclasses.dataclass
+class GyroCheck:
+    """Whether a device's gyroscope is there (module docstring): ``present`` once it read anything but exactly zero,
+    ``absent`` once it read exactly zero while the field turned ``ZERO_GYRO_TURN_DEG`` from ``start`` (the field's
+    direction, unit (3,), when the zeros began)."""
+
+    present: bool = False
+    absent: bool = False
+    start: np.ndarray | None = None
+
+    def usable(self, gyr_rads: np.ndarray | None, mag_ut: np.ndarray) -> bool:
+        """Judge one sample's gyroscope (rad/s (3,), or None) with its field (uT (3,), not zero): whether to send
+        it."""
+        if gyr_rads is None:
+            return False
+        if gyr_rads.any():
+            self.present, self.absent, self.start = True, False, None
+            return True
+        unit = mag_ut / float(np.linalg.norm(mag_ut))
+        if self.start is None:
+            self.start = unit
+        elif float(unit @ self.start) < np.cos(np.radians(ZERO_GYRO_TURN_DEG)):
+            self.present, self.absent = False, True
+        return self.present
+
+
+@dataclasses.dataclass
 class Pending:
     """A device's samples not yet sent: times (ns) and rows of (mag (3), acc (3), gyr (3), vel (3), current,
     throttle)."""
@@ -64,6 +99,7 @@ class Pending:
     first_ns: int = 0
     seq: int = 0
     last_t_ns: int = -1
+    gyro: GyroCheck = dataclasses.field(default_factory=GyroCheck)
 
 
 class MavlinkStream:
@@ -145,6 +181,7 @@ class MavlinkStream:
         pending = self.pending.setdefault(device, Pending(sysid))
         t_ns = max(self._time(vehicle, sample.boot_ns, now_ns), pending.last_t_ns + 1)
         pending.last_t_ns = t_ns
+        gyr = sample.gyr_rads if pending.gyro.usable(sample.gyr_rads, sample.mag_ut) else None
         if not pending.rows:
             pending.first_ns = now_ns
         nan3 = np.full(3, np.nan)
@@ -152,7 +189,7 @@ class MavlinkStream:
             [
                 sample.mag_ut,
                 nan3 if sample.acc_ms2 is None else sample.acc_ms2,
-                nan3 if sample.gyr_rads is None else sample.gyr_rads,
+                nan3 if gyr is None else gyr,
                 _fresh(vehicle.velocity, now_ns, nan3),
                 [_fresh(vehicle.current, now_ns, np.nan), _fresh(vehicle.throttle, now_ns, np.nan)],
             ]
@@ -191,6 +228,11 @@ class MavlinkStream:
             _values(table[:, 12]),
             _values(table[:, 13]),
         )
+
+    @property
+    def gyro_absent(self) -> list[str]:
+        """The devices whose gyroscope reads exactly zero while their field turns (module docstring), sorted."""
+        return sorted(d for d, p in self.pending.items() if p.gyro.absent)
 
     def health(self, now_ns: int, timeout_ns: int) -> dict[str, bool]:
         """Per device seen: whether its vehicle sent anything in the last ``timeout_ns``."""

@@ -40,8 +40,9 @@ class FitInput:
     of a sample is over the period ending at it), or None; place and date: where and when (the World Magnetic
     Model's), or None; field_ut: the expected |B| in uT (from the place, or given), None: keep the fitted radius;
     gate: the gate's thresholds (None: the defaults); robust_extremes: minmax's spike filter; reference: the
-    calibration in force (None: none); turntable: the turntable method's setup. The arrays are checked by the fit
-    (``magnet.calibration.base``), each against what its method needs."""
+    calibration in force (None: none); turntable: the turntable method's setup; dip_deg: the expected dip (deg, positive
+    down; None: the WMM's at the place, if given), the prior of the field ladder (``magnet.calibration.field``). The
+    arrays are checked by the fit (``magnet.calibration.base``), each against what its method needs."""
 
     mag: np.ndarray
     unit: str = "ut"
@@ -56,6 +57,7 @@ class FitInput:
     robust_extremes: bool = False
     reference: Calibration | None = None
     turntable: TurntableSetup | None = None
+    dip_deg: float | None = None
 
     @property
     def has_gyroscope(self) -> bool:

@@ -9,6 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from magnet.calibration import field
 from magnet.calibration.alignment import ellipsoid_align
 from magnet.calibration.base import GYROSCOPE_NEEDED, FitError, Method, Shape, check_acc, check_gyr, check_samples
 from magnet.calibration.closed_form import minmax, minmax2d, sphere
@@ -86,6 +87,15 @@ def _turntable(data: FitInput) -> Calibration:
     )
 
 
+def _field_shape(data: FitInput) -> Shape:
+    raise FitError("offset, offset+scale and planar are fitted by fit() (magnet.calibration.field), not as a shape")
+
+
+def _field_rung(method: Method) -> Callable[[FitInput], Calibration]:
+    """A rung of the field ladder (``magnet.calibration.field``) as a method that makes its own record."""
+    return lambda data: field.fit_field(field.FieldInput.of(data), rung=method.value, gate_thresholds=data.gate)
+
+
 #: why the turntable method cannot fit samples alone
 TURNTABLE_NEEDED = (
     "the turntable method needs the mounting and table angle of every sample and the known field: give FitInput's "
@@ -117,6 +127,10 @@ METHODS: dict[Method, MethodSpec] = {
     Method.ELLIPSOID_ALIGN: MethodSpec(_closed(ellipsoid_align), Geometry.SPHERE, _warm(ellipsoid_align)),
     Method.TURNTABLE: MethodSpec(_turntable_shape, Geometry.TURNTABLE, whole=_turntable),
     Method.GYRO_ELLIPSOID: MethodSpec(_gyro_ellipsoid, Geometry.SPHERE, _gyro_held_out),
+    **{
+        rung: MethodSpec(_field_shape, Geometry.SPHERE, whole=_field_rung(rung))
+        for rung in (Method.OFFSET, Method.OFFSET_SCALE, Method.PLANAR)
+    },
 }
 
 

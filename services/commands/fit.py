@@ -42,7 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=CHOICES,
         help="auto (the default): with gx,gy,gz and the sample times, fit gyro-ellipsoid and ellipsoid and keep the "
         "accepted one (both accepted: the one whose field is more constant on held-out data), else ellipsoid; "
-        "gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate)",
+        "both refused: the model the motion identifies (offset, offset+scale, planar or ellipsoid; --location gives "
+        "the WMM's dip as a prior). gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate); offset, "
+        "offset+scale and planar fit that rung of the field ladder",
     )
     parser.add_argument(
         "--unit", default="ut", choices=[u.value for u in FieldUnit], help="unit of the mx,my,mz columns (default ut)"

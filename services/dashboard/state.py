@@ -9,7 +9,6 @@ Units: angles in degrees, fields in uT, times ``*_ns`` (wall clock, ns) or ``*_s
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import threading
 import time
@@ -20,10 +19,8 @@ from typing import Any
 import numpy as np
 
 from magnet import wire
-from magnet.attitude.heading import HeadingFlag
 from magnet.drift import Alert
 from magnet.earth.geomag import EarthField, earth_field
-from magnet.earth.location import Location
 from services.dashboard.figures import (
     covered_cells,
     decimate,
@@ -32,151 +29,12 @@ from services.dashboard.figures import (
     quat_of,
     recent_headings,
 )
+from services.dashboard.rows import DeviceRow, finite_or_none
 
 TRACE_POINTS = 1500  # raw and calibrated field points kept per watched device
 TRACE_HEADINGS = 6000  # heading samples kept per watched device (60 s at 100 Hz)
-STALE_S = 5.0  # no heading for this long (and for SILENT_INTERVALS of the device's own interval): the row says so
-SILENT_INTERVALS = 5  # a device whose headings stop for this many of its own intervals between batches is silent
 INTERVAL_WEIGHT = 0.2  # weight of the newest interval in a device's running interval between heading batches
 WATCH_LINGER_S = 15.0  # a device stays watched this long after its last viewer left
-FUSED_FLAG = int(HeadingFlag.FUSED)  # attitude from the gyroscope-aided filter
-
-
-def _finite(value: Any) -> float | None:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        return None
-    return number if np.isfinite(number) else None
-
-
-def _round(value: float | None, digits: int) -> float | None:
-    return None if value is None else round(value, digits)
-
-
-@dataclasses.dataclass
-class DeviceRow:
-    """One device as the fleet table shows it."""
-
-    device: str
-    version: int = 0
-    alive: bool | None = None
-    sensor: str = ""
-    state: str = "waiting"
-    method: str | None = None
-    session: bool = False
-    samples: int | None = None
-    coverage: float | None = None
-    missing: tuple[str, ...] = ()
-    reason: str = ""
-    accepted: bool | None = None
-    residual_ut: float | None = None
-    calibration_id: str = ""
-    calibrated_ns: int | None = None
-    seq: int | None = None
-    heading_deg: float | None = None
-    true_heading_deg: float | None = None
-    pitch_deg: float | None = None
-    roll_deg: float | None = None
-    field_ut: float | None = None
-    dip_deg: float | None = None
-    flags: int = 0
-    quat_wxyz: tuple[float, ...] | None = None
-    declination_deg: float | None = None
-    truth_error_deg: float | None = None
-    heading_s: float | None = None
-    interval_s: float | None = None  # the device's running interval between heading batches (monotonic s)
-    location: Location | None = None  # where the device says it is (its raw batches), for the expected field
-    t_ns: int | None = None
-    drift: dict[str, Alert] = dataclasses.field(default_factory=dict)  # open drift alerts by kind
-
-    def status(self) -> str:
-        """What the state badge says: a calibrated device with an open drift alert is never plainly calibrated. A
-        drift alert is only raised against a calibration in force, so one that arrives before the page has heard of
-        that calibration (a dashboard started late, a busy machine) marks the device drifted too."""
-        if self.session:
-            return "session"
-        if self.drift and self.state in ("calibrated", "waiting"):
-            return "drifted"
-        return self.state
-
-    def silent(self, now_s: float) -> bool:
-        """Whether the device's headings stopped: none for SILENT_INTERVALS of its own interval, and at least STALE_S
-        (a vehicle that stops sending while its edge, and so its liveliness token, lives on)."""
-        if self.heading_s is None:
-            return False
-        return now_s - self.heading_s > max(STALE_S, SILENT_INTERVALS * (self.interval_s or 0.0))
-
-    def alerts(self, now_s: float, earth: EarthField | None) -> list[str]:
-        """Short phrases for what needs a person's attention."""
-        out = [f"drift: {kind.replace('_', ' ')}" for kind in sorted(self.drift)]
-        if self.alive is False:
-            out.append("offline")
-        if self.silent(now_s):
-            out.append("no headings")
-        if self.state in ("collecting", "idle", "waiting") and self.heading_s is not None:
-            out.append("not calibrated")
-        if self.accepted is False and self.state in ("collecting", "session"):
-            out.append("fit rejected")
-        for flag, text in (
-            (HeadingFlag.FIELD_DISTURBED, "field disturbed"),
-            (HeadingFlag.DIP_DISTURBED, "dip disturbed"),
-            (HeadingFlag.NO_TILT, "no tilt"),
-        ):
-            if self.flags & flag:
-                out.append(text)
-        if earth is not None and (earth.blackout or earth.caution):
-            out.append("weak horizontal field")
-        return out
-
-    def to_json(self, now_s: float, earth: EarthField | None) -> dict[str, Any]:
-        return {
-            "device": self.device,
-            "alive": False if self.alive and self.silent(now_s) else self.alive,
-            "sensor": self.sensor,
-            "state": self.state,
-            "method": self.method,
-            "session": self.session,
-            "samples": self.samples,
-            "coverage": _round(self.coverage, 3),
-            "missing": list(self.missing),
-            "reason": self.reason,
-            "accepted": self.accepted,
-            "residual_ut": _round(self.residual_ut, 3),
-            "calibration_id": self.calibration_id,
-            "calibrated_ms": None if self.calibrated_ns is None else self.calibrated_ns // 1_000_000,
-            "seq": self.seq,
-            "t_ms": None if self.t_ns is None else self.t_ns // 1_000_000,
-            "heading_deg": _round(self.heading_deg, 2),
-            "true_heading_deg": _round(self.true_heading_deg, 2),
-            "pitch_deg": _round(self.pitch_deg, 2),
-            "roll_deg": _round(self.roll_deg, 2),
-            "field_ut": _round(self.field_ut, 2),
-            "dip_deg": _round(self.dip_deg, 2),
-            "flags": self.flags,
-            "quat_wxyz": None if self.quat_wxyz is None else [round(q, 5) for q in self.quat_wxyz],
-            "declination_deg": _round(self.declination_deg, 2),
-            "truth_error_deg": _round(self.truth_error_deg, 2),
-            "fused": bool(self.flags & FUSED_FLAG),
-            "alerts": self.alerts(now_s, earth),
-            "status": self.status(),
-            "drift": [drift_json(alert) for _, alert in sorted(self.drift.items())],
-        }
-
-
-DRIFT_UNITS = {"field_strength": "uT", "dip": "deg", "calibration_age": "days"}
-
-
-def drift_json(alert: Alert) -> dict[str, Any]:
-    """One open drift alert for the page: kind, since (ms, wall clock), measured and expected in ``unit``, advice."""
-    return {
-        "kind": alert.kind.value,
-        "since_ms": alert.since_ns // 1_000_000,
-        "measured": round(alert.measured, 2),
-        "expected": round(alert.expected, 2),
-        "unit": DRIFT_UNITS.get(alert.kind.value, ""),
-        "advice": alert.advice,
-    }
 
 
 class Trace:
@@ -267,7 +125,7 @@ class FleetState:
             row.seq, row.heading_s, row.t_ns = batch.seq, now, int(batch.t_ns[last])
             row.heading_deg, row.true_heading_deg = float(batch.heading_deg[last]), float(batch.true_heading_deg[last])
             row.pitch_deg, row.roll_deg, row.flags = pitch, roll, int(batch.flags[last])
-            row.field_ut, row.dip_deg = magnitude, _finite(dip)
+            row.field_ut, row.dip_deg = magnitude, finite_or_none(dip)
             row.declination_deg = batch.declination_deg
             row.quat_wxyz = quat_of(quat_wxyz, last)
             if batch.calibration_id and not row.calibration_id:
@@ -294,11 +152,11 @@ class FleetState:
             row.state, row.session = state, bool(message.get("session", False))
             row.method = message.get("method") or row.method
             row.samples = message.get("samples") if isinstance(message.get("samples"), int) else row.samples
-            row.coverage = _finite(message.get("coverage"))
+            row.coverage = finite_or_none(message.get("coverage"))
             row.missing = tuple(str(m) for m in (message.get("missing") or ()) if isinstance(m, str))[:6]
             row.reason = str(message.get("reason") or "")[:300]
             row.accepted = message.get("accepted") if isinstance(message.get("accepted"), bool) else None
-            row.residual_ut = _finite(message.get("residual_rms_ut"))
+            row.residual_ut = finite_or_none(message.get("residual_rms_ut"))
             if isinstance(message.get("calibration_id"), str):
                 row.calibration_id = message["calibration_id"]
 
@@ -312,8 +170,8 @@ class FleetState:
             row = self._row(message.device)
             row.state, row.session, row.method = "calibrated", False, message.calibration.method
             row.calibration_id, row.calibrated_ns = message.id, message.created_ns
-            row.residual_ut = _finite(quality.get("residual_rms_ut"))
-            row.coverage = _finite(quality.get("coverage"))
+            row.residual_ut = finite_or_none(quality.get("residual_rms_ut"))
+            row.coverage = finite_or_none(quality.get("coverage"))
             row.accepted, row.reason, row.missing = True, message.calibration.reason, ()
             row.samples = message.calibration.sample_count
 

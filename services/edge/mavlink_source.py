@@ -29,7 +29,8 @@ MAX_MESSAGES = 2000
 
 
 class MavlinkStats:
-    """The status's ``reads``: messages, samples, drops by cause, resyncs, vehicles and their health."""
+    """The status's ``reads``: messages, samples, drops by cause, resyncs, vehicles and their health, the devices
+    whose gyroscope reads exactly zero while the field turns (``gyro_absent``: sent without one)."""
 
     def __init__(self, stream: MavlinkStream) -> None:
         self.stream = stream
@@ -48,6 +49,7 @@ class MavlinkStats:
             "resyncs": counts["resyncs"],
             "dropped": dropped,
             "vehicles": sorted(self.stream.vehicles),
+            "gyro_absent": self.stream.gyro_absent,
         }
 
 
@@ -127,3 +129,11 @@ class MavlinkSource:
                 if self.events is not None:
                     self.events.device_health(device, healthy)
         self.stats.healthy = all(self.healthy.values())
+        for device in self.stream.gyro_absent:
+            if f"gyro:{device}" not in self.logged:
+                self.logged.add(f"gyro:{device}")
+                log.warning(
+                    "MAVLink device %s: its gyroscope reads exactly zero while the field turns (no IMU beside this "
+                    "compass): sent without a gyroscope (status reads.gyro_absent)",
+                    device,
+                )
