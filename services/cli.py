@@ -21,7 +21,7 @@ from services.common.allocator import give_back_freed_memory
 COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("services.commands.fit", "fit a calibration to a CSV of raw samples"),
     "heading": ("services.commands.heading", "apply a calibration to a CSV and print headings"),
-    "bench": ("services.bench", "benchmarks that print figures (accuracy, fit, pipeline, motion)"),
+    "bench": ("services.bench", "benchmarks that print figures (accuracy, fit, pipeline, motion, field)"),
     "sample": ("services.commands.sample", "read a sensor (or its emulator) and print CSV"),
     "selftest": ("services.commands.selftest", "run the HMC5883L self-test"),
     "edge": ("services.edge.service", "publish raw samples of one or many devices over Zenoh"),
