@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet.attitude import fusion
 from magnet.calibration import FitInput, Method, TurntableSetup
 from magnet.calibration.choose import AUTO, CHOICES, fit_choice
 from magnet.earth.location import Location
@@ -133,6 +132,8 @@ def sample_period_s(table: SampleTable, rate_hz: float | None) -> float:
             f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
             "(seconds) or give --rate HZ"
         )
+    from magnet.attitude import fusion  # the filter's package: loaded only when the times are needed
+
     return fusion.sample_period_s(table.numeric("t_s"))
 
 
