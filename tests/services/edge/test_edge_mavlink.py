@@ -25,7 +25,7 @@ pytestmark = pytest.mark.integration
 
 LOCATION, DATE = "50.45,30.52", "2026-01-01"  # the stand-in's place (GLOBAL_POSITION_INT) and the simulator's date
 DEVICES = ("mav1-mag0", "mav1-mag1")
-#: the emulated chip through the same services: tests/test_services_pipeline.py asserts 2 deg
+#: the emulated chip through the same services: tests/system/test_services_pipeline.py asserts 2 deg
 REQUIRED_RMS_DEG = 2.0
 #: the compass's filter (the messages carry a gyroscope) starts again when the calibration comes: headings are
 #: scored from this long after the first calibrated one, for SCORED_S; the IMU messages' rate (ArduPilot's usual)

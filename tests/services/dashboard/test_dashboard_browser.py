@@ -37,7 +37,7 @@ from services.common.zenoh_session import free_ports
 
 pytestmark = pytest.mark.integration
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 MAGNET = [sys.executable, "-m", "services.cli"]
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [

@@ -246,7 +246,8 @@ def test_fit_turntable_on_the_seed_table_gives_table_2_and_is_honestly_rejected(
     )
     record = json.loads(result.stdout)
     k = np.linalg.inv(np.array(record["matrix"]))
-    # the printed digits, within the rounding of Table 1 (see tests/test_turntable.py for the exact bound)
+    # the printed digits, within the rounding of Table 1 (see tests/magnet/calibration/test_turntable.py for the
+    # exact bound)
     assert np.allclose(k, SEED_TABLE_2_K, rtol=0.03, atol=3e-9)
     assert np.allclose(record["offset"], SEED_TABLE_2_U0, atol=2e-4)
     # the seed's two mountings disagree by several percent (its own Table 3 spans |T| 47,000-55,000 gamma)

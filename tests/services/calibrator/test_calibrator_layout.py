@@ -9,7 +9,7 @@ from pathlib import Path
 
 from source_trees import nodes, parsed
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 CORE = ROOT / "magnet" / "calibrator"
 SHELL = ROOT / "services" / "calibrator"
 MAX_MODULE_LINES = 350

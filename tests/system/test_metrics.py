@@ -126,7 +126,7 @@ def test_the_grafana_dashboard_queries_only_metrics_the_services_expose():
 
     from services.common import metrics
 
-    dashboard = json.loads((Path(__file__).resolve().parents[1] / "deploy" / "grafana-magnet.json").read_text())
+    dashboard = json.loads((Path(__file__).resolve().parents[2] / "deploy" / "grafana-magnet.json").read_text())
     exposed = set(re.findall(r"``(magnet_\w+)``", metrics.__doc__ or ""))
     queried = {
         re.sub(r"_bucket$", "", name)
