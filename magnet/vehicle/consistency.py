@@ -245,8 +245,8 @@ def _rotation(pair: _Pair, found: _Found) -> tuple[np.ndarray, float, int, float
         return np.eye(3), turned_deg, named, distance
     orient, px4, _ = parameter_names(pair.device)
     if distance > NAMED_TOLERANCE_DEG:
-        found.add(Verdict.CALIBRATION, f"turned {turned_deg:.0f} deg, {distance:.0f} deg from any named rotation: "
-                  "check its mounting")  # fmt: skip
+        fix = f"turned {turned_deg:.0f} deg, {distance:.0f} deg from any named rotation: check its mounting"
+        found.add(Verdict.CALIBRATION, fix)
         return rotation, turned_deg, named, distance
     roll, pitch, yaw = ROTATIONS[named]
     fix = (
