@@ -33,6 +33,9 @@ FIT_EVERY_NEW = 25  # fit again after this many newly kept samples
 FIT_INTERVAL_S = 0.5
 #: a run is fitted from the gyroscope once it turned this far about at least two body axes (deg)
 READY_TURN_DEG = 90.0
+#: ... or, for auto (whose field ladder fits a device that only yaws: ``magnet.calibration.field``), a full turn
+#: about one axis
+PLANAR_READY_TURN_DEG = 360.0
 INITIAL_ROOM = 64  # samples' arrays start this small and double up to the capacity (a device that sends one
 # batch costs kilobytes, not the capacity's worth)
 
@@ -57,6 +60,7 @@ class Collection:
     def __init__(self, method: str, session: bool, capacity: int, run_capacity: int = RUN_CAPACITY) -> None:
         self.method, self.session, self.capacity = parse_choice(method), session, capacity
         self.auto = self.method == AUTO
+        self.in_service = False  # a refresh of a calibrated device (``magnet.calibrator.refresh``)
         self.run_capacity = run_capacity
         self.runs = None if self.auto or not Method.parse(self.method).needs_gyroscope else RecentRuns(run_capacity)
         self.no_gyroscope = 0  # batches that came without the gyroscope this collection's method needs
@@ -178,7 +182,7 @@ class Collection:
                 return self.last_reason
             return f"{0 if run is None else len(run)} of {min_samples} consecutive samples with the gyroscope"
         turned = run.turned_deg()
-        if np.sort(turned)[-2] >= READY_TURN_DEG:
+        if np.sort(turned)[-2] >= READY_TURN_DEG or (self.auto and turned.max() >= PLANAR_READY_TURN_DEG):
             return ""
         return (
             f"turned {turned[0]:.0f}, {turned[1]:.0f}, {turned[2]:.0f} deg about x, y, z over the last "
@@ -191,11 +195,19 @@ class Collection:
         self.last_fit_kept, self.last_fit_s = self.kept, now_s
         self.last_fit_written = 0 if self.runs is None else self.runs.written
 
-    def fit(self, field_ut: float | None, now_s: float) -> Calibration | None:
+    def fit(
+        self,
+        field_ut: float | None,
+        now_s: float,
+        reference: Calibration | None = None,
+        dip_deg: float | None = None,
+    ) -> Calibration | None:
         """Fit the kept samples (records the result or the reason); None when no calibration can be computed.
 
-        field_ut: the expected |B| in uT or None. With ``runs``: the longest run with the gyroscope; for auto, only
-        once it holds gyro-ellipsoid's ``MIN_SAMPLES`` (else the cells, by the ellipsoid)."""
+        field_ut: the expected |B| in uT or None; dip_deg: the expected dip (deg) or None (the field ladder's
+        prior); reference: the calibration in force, which the fit must beat (None: none). With ``runs``: the
+        longest run with the gyroscope; for auto, only once it holds gyro-ellipsoid's ``MIN_SAMPLES`` (else the
+        cells, by the ellipsoid)."""
         self.last_fit_kept, self.last_fit_s = self.kept, now_s
         run = None
         if self.runs is not None:
@@ -204,9 +216,10 @@ class Collection:
         try:
             if self.runs is None or (self.auto and (run is None or len(run) < MIN_SAMPLES[Method.GYRO_ELLIPSOID])):
                 mag, acc = self.samples()
-                self.last_fit = fit_choice(FitInput(mag, acc=acc, field_ut=field_ut), self.method)
+                data = FitInput(mag, acc=acc, field_ut=field_ut, reference=reference, dip_deg=dip_deg)
+                self.last_fit = fit_choice(data, self.method)
             else:
-                self.last_fit = _fit_run(run, self.method, field_ut)
+                self.last_fit = _fit_run(run, self.method, field_ut, reference, dip_deg)
         except FitError as exc:
             self.last_fit, self.last_reason = None, str(exc)
             return None
@@ -225,12 +238,25 @@ class Collection:
         return self.runs.held >= min_samples and fresh >= max(FIT_EVERY_NEW, self.runs.held // 4)
 
 
-def _fit_run(run: Run | None, method: str, field_ut: float | None) -> Calibration:
+def _fit_run(
+    run: Run | None,
+    method: str,
+    field_ut: float | None,
+    reference: Calibration | None = None,
+    dip_deg: float | None = None,
+) -> Calibration:
     """Fit the consecutive samples of ``run`` with the gyroscope (``method``: gyro-ellipsoid or auto); FitError when
     there is none."""
     if run is None:
         raise FitError(f"{method} has no consecutive samples with the gyroscope yet: keep the device sending")
     data = FitInput(
-        run.mag, t_s=run.t_ns * 1e-9, acc=run.acc, gyr_rads=run.gyr_rads, period_s=run.period_s, field_ut=field_ut
+        run.mag,
+        t_s=run.t_ns * 1e-9,
+        acc=run.acc,
+        gyr_rads=run.gyr_rads,
+        period_s=run.period_s,
+        field_ut=field_ut,
+        reference=reference,
+        dip_deg=dip_deg,
     )
     return fit_choice(data, method)

@@ -104,6 +104,13 @@ class Collections:
         self.by_device[device] = Collection(method, True, self.settings.max_samples)
         self._say_evicted()
 
+    def propose(self, device: str, collection: Collection) -> None:
+        """An in-service refresh that passed: its collection becomes a session holding the fit, for a person to
+        commit (``--recalibrate propose``)."""
+        collection.session = True
+        self.by_device[device] = collection
+        self._say_evicted()
+
     def end(self, device: str) -> None:
         """Collection for ``device`` is over (stored, or its session aborted)."""
         self.by_device.pop(device, None)

@@ -34,6 +34,7 @@ from magnet.calibrator.fitting import Fitter
 from magnet.calibrator.keys import ShardKeys
 from magnet.calibrator.progress import ProgressTimes, progress_of
 from magnet.calibrator.records import Records
+from magnet.calibrator.refresh import Mode, Refresher, gain_pct, small_gain
 from magnet.calibrator.rollback import roll_back
 from magnet.calibrator.roster import Roster
 from magnet.calibrator.sessions import Outcome, Sessions
@@ -68,7 +69,8 @@ class CalibratorCore:
         self.shard_keys = ShardKeys(shard)
         self.records = Records(store, signer, shard, clock_ns)
         self.collections = Collections(settings)
-        self.fitter = Fitter(settings, self.roster.field_ut)
+        self.fitter = Fitter(settings, self.roster.field_ut, self.roster.dip_deg)
+        self.refresher = Refresher(settings.recalibrate, settings.max_samples, settings.max_devices)
         self.sessions = Sessions(
             settings.method, self.collections, self.fitter, self.known, self.state, self.commit, clock
         )
@@ -116,6 +118,7 @@ class CalibratorCore:
         self.roster.seen(batch.device, batch.location, self.clock_ns())
         collection = self.collections.receive(batch, batch.device in self.records.in_force)
         if collection is None:
+            self._refresh(batch)
             return
         now = self.clock()
         if collection.due(self.settings.min_samples, now) and self.collections.ready(collection, now):
@@ -135,6 +138,39 @@ class CalibratorCore:
                 collection.last_reason = f"not stored: {exc}"
                 if self.drops.count("store:write-failed"):
                     log.error("%s: %s", device, exc)
+
+    def _refresh(self, batch: wire.RawBatch) -> None:
+        """A calibrated device's batch: into its refresh collection, and when due fitted against the record in force
+        (``magnet.calibrator.refresh``): committed (auto) or proposed as a session (propose) when better by the
+        margin."""
+        device, record = batch.device, self.records.get(batch.device)
+        collection = None if record is None else self.refresher.receive(batch)
+        if record is None or collection is None or not self.refresher.due(collection, self.clock()):
+            return
+        self.refresher.fits += 1
+        result = self.fitter.fit(collection, self.clock(), device, reference=record.calibration)
+        why = collection.last_reason if result is None else small_gain(result)
+        if result is None or why:
+            log.info("%s: no refresh: %s", device, why)
+            return
+        gain = gain_pct(result)
+        if self.refresher.mode is Mode.PROPOSE:
+            self.refresher.restart(device)
+            self.collections.propose(device, collection)
+            self.refresher.proposed += 1
+            log.info("%s: refresh proposed (%.0f %% more consistent): commit it with a session", device, gain or 0)
+            return
+        alerts = self.roster.open_alerts(device)
+        change = {"action": "refresh", "in_service": True, "gain_pct": gain, "resolves": alerts}
+        try:
+            self.commit(device, result, change)
+        except OSError as exc:
+            log.error("%s: refresh not stored: %s", device, exc)
+            return
+        self.refresher.restart(device)
+        self.refresher.refreshed += 1
+        if alerts:
+            log.info("%s: in-service refresh made against drift alert(s) %s", device, ", ".join(alerts))
 
     def commit(
         self, device: str, calibration: Calibration, change: dict[str, Any] | None = None
@@ -204,6 +240,9 @@ class CalibratorCore:
             no_gyroscope=collections.no_gyroscope,
             forgotten_devices=self.roster.forgotten,
             takeovers=self.takeovers,
+            refresh_fits=self.refresher.fits,
+            refreshed=self.refresher.refreshed,
+            proposed=self.refresher.proposed,
             unverified_records=len(records.unverified),
             **dataclasses.asdict(self.intake),
         )

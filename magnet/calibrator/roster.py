@@ -64,6 +64,16 @@ class Roster:
             return None
         return self.places.earth(device).total_ut
 
+    def dip_deg(self, device: str) -> float | None:
+        """The WMM dip (deg) at the device's reported or configured place; None when neither is known."""
+        if device not in self.places.reported and self.places.fleet.get(device) is None:
+            return None
+        return self.places.earth(device).inclination_deg
+
+    def open_alerts(self, device: str) -> list[str]:
+        """The kinds of the device's open drift alerts, sorted (what a refresh may resolve)."""
+        return sorted(kind.value for kind in (self.alerts.get(device) or {}))
+
     def on_alert(self, key_expr: str, payload: bytes, prefix: str) -> None:
         """An alert raised or cleared by a compass; malformed ones dropped and counted."""
         try:

@@ -98,7 +98,9 @@ class Sessions:
         result = self.fitter.fit(collection, self.clock(), device)
         if result is None:
             return False, f"not committed, the calibration in force stays: {collection.last_reason}", {}
-        change = {"action": "session", "by": self.by.get(device, "")}
+        change: dict[str, Any] = {"action": "session", "by": self.by.get(device, "")}
+        if collection.in_service:  # proposed by an in-service refresh (``magnet.calibrator.refresh``)
+            change["in_service"] = True
         try:
             return True, "committed", {"calibration": self.commit(device, result, change).to_record()}
         except OSError as exc:

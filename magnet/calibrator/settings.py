@@ -44,6 +44,11 @@ class Settings(Protocol):
         ...
 
     @property
+    def recalibrate(self) -> str:
+        """In-service recalibration of calibrated devices: "auto", "propose" or "off" (``calibrator.refresh``)."""
+        ...
+
+    @property
     def expected_field_ut(self) -> float | None:
         """|B| (uT) a fit is scaled to when the device's place is unknown; None: the fit's own."""
         ...

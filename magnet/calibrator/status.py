@@ -47,6 +47,9 @@ class Counters:
     stored: int = 0  # records
     evicted_devices: int = 0  # collections dropped for --max-devices
     no_gyroscope: int = 0  # raw batches without the gyroscope their collection's method (gyro-ellipsoid) needs
+    refresh_fits: int = 0  # in-service refreshes fitted (``magnet.calibrator.refresh``)
+    refreshed: int = 0  # ... committed as new versions (--recalibrate auto)
+    proposed: int = 0  # ... opened as sessions for a person to commit (--recalibrate propose)
     forgotten_devices: int = 0  # roster entries (last seen, reported place, open alerts) dropped for --max-devices
     takeovers: int = 0  # times it became the active calibrator of its shard after standing by
     unverified_records: int = 0  # records in force its signing key does not verify (served as stored, unsigned)

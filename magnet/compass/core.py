@@ -1,7 +1,8 @@
 """The compass in one object with one step: ``CompassCore.step(raw, now_ns) -> HeadingColumns``.
 
 A step takes the raw batches of many devices (``wire.RawColumns``, float64) and gives every sample's heading:
-each batch's calibration in force (``calibrations``) and motor model corrects the field; the accelerometer gives a
+each batch's calibration in force corrects the field, offset, matrix, motors and lag in one place
+(``calibrations.Correction``); the accelerometer gives a
 tilt-compensated heading (``tilt``); the batches that carry a gyroscope go through their device's filter
 (``filters``); the field and dip are checked against what the World Magnetic Model expects at the device's place
 (``places``, ``earth``; the day from ``now_ns`` unless the places have a fixed date); the heading is smoothed per
@@ -24,9 +25,8 @@ import numpy as np
 
 from magnet import signing, wire
 from magnet.attitude import heading as hd
-from magnet.attitude.mag_delay import advance_field
 from magnet.bounded import Recent
-from magnet.compass.calibrations import CalibrationsInForce, calibration_rows, lag_rows, motor_rows
+from magnet.compass.calibrations import CalibrationsInForce, Correction
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
 from magnet.compass.tilt import Headings, compute_headings, smooth_tail
@@ -230,11 +230,12 @@ class CompassCore:
         """Headings for every sample of ``raw`` (see the module); ``now_ns`` the wall clock (ns since the epoch),
         whose UTC day dates the model where no ``--date`` is fixed. Counts what it received."""
         cals = self.calibrations.of_batches(raw.devices)
-        offsets, matrices, calibrated = calibration_rows(cals, raw.counts)
+        correction = Correction.of_batches(cals, raw)
+        field, filter_field = correction.apply(raw.mag_ut, raw.gyr_rads)
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
-        out = compute_headings(raw.mag_ut, raw.acc_ms2, offsets, matrices, calibrated, motor_rows(cals, raw))
-        fused = self._fuse(raw, out, where.declination_deg, lag_rows(cals, raw.counts))
+        out = compute_headings(field, raw.acc_ms2, correction.calibrated)
+        fused = self._fuse(raw, filter_field, where.declination_deg)
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
             dip = hd.dip_angle_deg(out.field_ut, gravity)
@@ -255,17 +256,14 @@ class CompassCore:
             None if quat is None else rotate_heading(quat, where.declination_deg),
         )
 
-    def _fuse(
-        self, raw: wire.RawColumns, out: Headings, declination_deg: np.ndarray, lags: np.ndarray | None
-    ) -> FusedColumns:
+    def _fuse(self, raw: wire.RawColumns, field: np.ndarray, declination_deg: np.ndarray) -> FusedColumns:
         """The per-device filters run on the batches that carry a gyroscope (``magnet.compass.filters``), aided by
         the velocity where a batch carries one (turned to magnetic north by the declination of the device's place);
-        bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``lags``
-        (S,) s: the magnetometer's delay the calibration carries; the filters get the field turned forward over it
-        (``magnet.attitude.mag_delay``)."""
+        bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``field``
+        (S, 3) uT: the corrected field as the filters get it (``Correction.apply``: turned forward over the
+        magnetometer's lag the record carries)."""
         vel = raw.vel
         aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
-        field = out.field_ut if lags is None else advance_field(out.field_ut, raw.gyr_rads, lags)
         fused = self.filters.update(
             raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding
         )

@@ -18,6 +18,7 @@ from typing import Any
 
 from magnet import signing
 from magnet.calibration.choose import AUTO, CHOICES, parse_choice
+from magnet.calibrator.refresh import MODES
 from magnet.calibrator.settings import DEFAULT_MAX_DEVICES as DEFAULT_MAX_DEVICES  # the option's default, named here
 from magnet.earth.geomag import earth_field
 from magnet.earth.location import Location
@@ -86,6 +87,14 @@ class CalibratorSettings:
         1500, "--max-samples", check=at_least(MIN_SAMPLES), help="kept samples per device at most"
     )
     auto: bool = option(True, "--auto", negate="--no-auto", help="calibrate only in operator sessions")
+    recalibrate: str = option(
+        "auto",
+        "--recalibrate",
+        choices=MODES,
+        help="after a device's first record, keep fitting it from normal use: auto commits a record that makes "
+        "held-out heading consistency better than the one in force by the margin, propose opens a session for a "
+        "person to commit it, off stops after the first record",
+    )
     max_devices: int = option(
         DEFAULT_MAX_DEVICES,
         "--max-devices",

@@ -108,6 +108,7 @@ def test_help_states_each_default_once():
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     text = " ".join(parser.format_help().split())
-    for default in ("(default auto)", "(default 0.8)", "(default 150)", "(default 10000)", "(default 100000)"):
+    for default in ("(default 0.8)", "(default 150)", "(default 10000)", "(default 100000)"):
         assert text.count(default) == 1, default
+    assert text.count("(default auto)") == 2  # --method and --recalibrate, once each
     assert f"(default {Path(default_db_path())})" in text and "--no-auto" in text

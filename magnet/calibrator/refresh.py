@@ -1,0 +1,98 @@
+"""In-service recalibration (``--recalibrate auto|propose|off``; docs/field-calibration.md, "In service").
+
+After a device's first record the calibrator keeps listening: each calibrated device has a bounded refresh
+collection (``Collection`` with auto, a ring of ``REFRESH_RUN_CAPACITY`` consecutive samples and the sphere cells),
+fitted at most every ``REFRESH_INTERVAL_S`` once the ring holds ``REFRESH_MIN_SAMPLES``. The fit is judged against
+the record in force (``FitInput.reference``: held-out heading consistency, with its margin) and must also gain
+``MIN_GAIN`` of the in-force record's held-out consistency (a refresh that changes little is churn, not a gain).
+
+What passes: ``auto`` commits it as a new version (change ``action: refresh``, ``in_service: true``, ``gain_pct``,
+and ``resolves``: the device's open drift alerts it was made against); ``propose`` turns the refresh collection into
+an operator's session holding the fit (``magnet calibrate DEV commit`` stores it, marked in service); ``off`` keeps
+no refresh collection at all. Memory per device: one ring (88 bytes a sample) and the cells; devices at most
+``max_devices`` (least recently seen dropped). Pure: no clock of its own, no store.
+"""
+
+from __future__ import annotations
+
+import enum
+
+from magnet import wire
+from magnet.bounded import Recent
+from magnet.calibration.collection import Collection
+from magnet.calibration.field import MIN_GAIN
+from magnet.model import Calibration
+
+#: a device's refresh is fitted at most this often (s): the CPU a device costs stays one fit in this time
+REFRESH_INTERVAL_S = 15.0
+#: consecutive samples a refresh ring keeps (2 minutes at 100 Hz; 88 bytes each: about 1 MB per device)
+REFRESH_RUN_CAPACITY = 12_000
+#: samples in the ring before a refresh is tried (20 s at 100 Hz)
+REFRESH_MIN_SAMPLES = 2_000
+#: what ``--recalibrate`` accepts
+MODES = ("auto", "propose", "off")
+
+
+class Mode(enum.Enum):
+    AUTO = "auto"  # commit a better record as a new version
+    PROPOSE = "propose"  # open a session holding it, for a person to commit
+    OFF = "off"  # no refinement after the first record
+
+
+def gain_pct(calibration: Calibration) -> float | None:
+    """How much more constant (%) the fit makes the field than the record in force on held-out data; None when not
+    measured (no accelerometer)."""
+    held, ref = (
+        calibration.quality.get("holdout_consistency_deg"),
+        calibration.quality.get("reference_holdout_consistency_deg"),
+    )
+    if held is None or ref is None or ref <= 0:
+        return None
+    return 100.0 * (1.0 - float(held) / float(ref))
+
+
+def small_gain(calibration: Calibration) -> str | None:
+    """Why an accepted refresh is still not taken: it gains less than MIN_GAIN (None: it gains enough)."""
+    gain = gain_pct(calibration)
+    if gain is None:
+        return "no heading consistency to judge a refresh by (the device sends no accelerometer)"
+    if gain < 100.0 * MIN_GAIN:
+        return f"a refresh gains {gain:.0f} % of held-out consistency, less than {100 * MIN_GAIN:.0f} %"
+    return None
+
+
+class Refresher:
+    """The refresh collections of calibrated devices (module docstring). ``capacity``: the cells' samples
+    (``--max-samples``); ``max_devices``: devices kept at most."""
+
+    def __init__(self, mode: Mode | str, capacity: int, max_devices: int) -> None:
+        self.mode = Mode(mode)
+        self.capacity = capacity
+        self.by_device: Recent[str, Collection] = Recent(max_devices)
+        self.fits = self.refreshed = self.proposed = 0
+
+    def receive(self, batch: wire.RawBatch) -> Collection | None:
+        """Add a calibrated device's batch to its refresh collection (made on its first batch); None when off."""
+        if self.mode is Mode.OFF:
+            return None
+        collection = self.by_device.get(batch.device)
+        if collection is None:
+            collection = Collection("auto", False, self.capacity, REFRESH_RUN_CAPACITY)
+            collection.in_service = True
+            self.by_device[batch.device] = collection
+        self.by_device.touch(batch.device)
+        collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
+        return collection
+
+    def due(self, collection: Collection, now_s: float) -> bool:
+        """Whether to try a refresh now: the interval since the last try passed and the ring (or, without a
+        gyroscope, the cells) holds enough samples."""
+        if now_s - collection.last_fit_s < REFRESH_INTERVAL_S:
+            return False
+        if collection.runs is None:
+            return collection.kept >= min(self.capacity, REFRESH_MIN_SAMPLES)
+        return collection.runs.held >= REFRESH_MIN_SAMPLES
+
+    def restart(self, device: str) -> None:
+        """Forget the device's refresh samples (a new record is in force: what follows is judged against it)."""
+        self.by_device.pop(device, None)
