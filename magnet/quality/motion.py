@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.attitude import fusion
 from magnet.attitude.mag_delay import advance_field
 from magnet.frames import quaternion_to_matrix
 from magnet.model import Calibration, Quality
@@ -121,6 +120,8 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
     if gyr_rads is not None:
         if period_s is None:
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
+        from magnet.attitude import fusion  # vqf's wrapper: only where a gyroscope's attitudes are needed
+
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
         down = frames.down_in_body(fused.quat_wxyz)
         return MotionEvidence(down, fused.quat_wxyz, "fused gravity", period_s, np.asarray(gyr_rads, dtype=float))
