@@ -61,6 +61,7 @@ class Collection:
         self.method, self.session, self.capacity = parse_choice(method), session, capacity
         self.auto = self.method == AUTO
         self.in_service = False  # a refresh of a calibrated device (``magnet.calibrator.refresh``)
+        self.window_s: float | None = None  # fit only the last this many seconds of the run (None: all of it)
         self.run_capacity = run_capacity
         self.runs = None if self.auto or not Method.parse(self.method).needs_gyroscope else RecentRuns(run_capacity)
         self.no_gyroscope = 0  # batches that came without the gyroscope this collection's method needs
@@ -213,6 +214,8 @@ class Collection:
         if self.runs is not None:
             self.last_fit_written = self.runs.written
             run = self.runs.longest()
+            if run is not None and self.window_s is not None:
+                run = run.tail(self.window_s)
         try:
             if self.runs is None or (self.auto and (run is None or len(run) < MIN_SAMPLES[Method.GYRO_ELLIPSOID])):
                 mag, acc = self.samples()

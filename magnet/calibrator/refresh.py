@@ -1,8 +1,9 @@
 """In-service recalibration (``--recalibrate auto|propose|off``; docs/field-calibration.md, "In service").
 
 After a device's first record the calibrator keeps listening: each calibrated device has a bounded refresh
-collection (``Collection`` with auto, a ring of ``REFRESH_RUN_CAPACITY`` consecutive samples and the sphere cells),
-fitted at most every ``REFRESH_INTERVAL_S`` once the ring holds ``REFRESH_MIN_SAMPLES``. The fit is judged against
+collection (``Collection`` with auto, a ring of ``REFRESH_RUN_CAPACITY`` consecutive samples and the sphere
+cells), fitted at most every ``REFRESH_INTERVAL_S`` once its longest run spans ``REFRESH_MIN_S``, on the run's
+last ``REFRESH_WINDOW_S`` seconds. The fit is judged against
 the record in force (``FitInput.reference``: held-out heading consistency, with its margin) and must also gain
 ``MIN_GAIN`` of the in-force record's held-out consistency (a refresh that changes little is churn, not a gain).
 
@@ -25,10 +26,15 @@ from magnet.model import Calibration
 
 #: a device's refresh is fitted at most this often (s): the CPU a device costs stays one fit in this time
 REFRESH_INTERVAL_S = 15.0
-#: consecutive samples a refresh ring keeps (2 minutes at 100 Hz; 88 bytes each: about 1 MB per device)
+#: a refresh fits the last this many seconds of the device's samples: what changed (a new case, a magnet nearby) is
+#: judged on what came after it, not averaged with what came before
+REFRESH_WINDOW_S = 30.0
+#: seconds of consecutive samples before a refresh is tried
+REFRESH_MIN_S = 20.0
+#: consecutive samples a refresh ring keeps at most (a minute at 200 Hz; 88 bytes each: about 1 MB per device)
 REFRESH_RUN_CAPACITY = 12_000
-#: samples in the ring before a refresh is tried (20 s at 100 Hz)
-REFRESH_MIN_SAMPLES = 2_000
+#: without a gyroscope (no ring): kept samples in the cells before a refresh is tried
+REFRESH_MIN_SAMPLES = 300
 #: what ``--recalibrate`` accepts
 MODES = ("auto", "propose", "off")
 
@@ -78,7 +84,7 @@ class Refresher:
         collection = self.by_device.get(batch.device)
         if collection is None:
             collection = Collection("auto", False, self.capacity, REFRESH_RUN_CAPACITY)
-            collection.in_service = True
+            collection.in_service, collection.window_s = True, REFRESH_WINDOW_S
             self.by_device[batch.device] = collection
         self.by_device.touch(batch.device)
         collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
@@ -91,7 +97,8 @@ class Refresher:
             return False
         if collection.runs is None:
             return collection.kept >= min(self.capacity, REFRESH_MIN_SAMPLES)
-        return collection.runs.held >= REFRESH_MIN_SAMPLES
+        run = collection.runs.longest()
+        return run is not None and len(run) * run.period_s >= REFRESH_MIN_S
 
     def restart(self, device: str) -> None:
         """Forget the device's refresh samples (a new record is in force: what follows is judged against it)."""
