@@ -62,6 +62,7 @@ class Collection:
         self.auto = self.method == AUTO
         self.in_service = False  # a refresh of a calibrated device (``magnet.calibrator.refresh``)
         self.window_s: float | None = None  # fit only the last this many seconds of the run (None: all of it)
+        self.tried_ns = -(2**62)  # a refresh's last try: the time of the newest sample then (ns)
         self.run_capacity = run_capacity
         self.runs = None if self.auto or not Method.parse(self.method).needs_gyroscope else RecentRuns(run_capacity)
         self.no_gyroscope = 0  # batches that came without the gyroscope this collection's method needs

@@ -26,6 +26,8 @@ from magnet.model import Calibration
 
 #: a device's refresh is fitted at most this often (s): the CPU a device costs stays one fit in this time
 REFRESH_INTERVAL_S = 15.0
+#: ... and at least this long by the calibrator's clock (s)
+MIN_WALL_S = 1.0
 #: a refresh fits the last this many seconds of the device's samples: what changed (a new case, a magnet nearby) is
 #: judged on what came after it, not averaged with what came before
 REFRESH_WINDOW_S = 30.0
@@ -91,14 +93,22 @@ class Refresher:
         return collection
 
     def due(self, collection: Collection, now_s: float) -> bool:
-        """Whether to try a refresh now: the interval since the last try passed and the ring (or, without a
-        gyroscope, the cells) holds enough samples."""
-        if now_s - collection.last_fit_s < REFRESH_INTERVAL_S:
+        """Whether to try a refresh now: REFRESH_INTERVAL_S of the device's samples (by their times; by the clock
+        without a gyroscope) and MIN_WALL_S of the clock since the last try, and the ring (or, without a
+        gyroscope, the cells) holds enough samples. The samples' time keeps a replay at 10x refreshed as often
+        per sample as live; the clock bounds the CPU of a device sending fast."""
+        if now_s - collection.last_fit_s < (MIN_WALL_S if collection.runs is not None else REFRESH_INTERVAL_S):
             return False
         if collection.runs is None:
             return collection.kept >= min(self.capacity, REFRESH_MIN_SAMPLES)
         run = collection.runs.longest()
-        return run is not None and len(run) * run.period_s >= REFRESH_MIN_S
+        if run is None or len(run) * run.period_s < REFRESH_MIN_S:
+            return False
+        last = int(run.t_ns[-1])
+        if last - collection.tried_ns < REFRESH_INTERVAL_S * 1e9:
+            return False
+        collection.tried_ns = last
+        return True
 
     def restart(self, device: str) -> None:
         """Forget the device's refresh samples (a new record is in force: what follows is judged against it)."""
