@@ -16,26 +16,15 @@ of w). Only the field fed to the orientation filter is turned; the corrected fie
 
 from __future__ import annotations
 
-import math
-from typing import Any
-
 import numpy as np
 
 from magnet.compiled import kernels as _kernels
-
-#: the largest delay a record may carry (s); beyond it the value is not a sensor's filter delay and is ignored
-MAX_LAG_S = 0.1
+from magnet.model import Calibration
 
 
-def record_lag_s(calibration: Any) -> float:
-    """The delay (s) a calibration record carries (its quality figure ``mag_lag_s``), 0.0 when it carries none or an
-    unusable one (not a finite number within +-``MAX_LAG_S``): records come from files and the network."""
-    quality = getattr(calibration, "quality", None)
-    value = None if quality is None else quality.get("mag_lag_s")
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return 0.0
-    lag = float(value)
-    return lag if math.isfinite(lag) and abs(lag) <= MAX_LAG_S else 0.0
+def record_lag_s(calibration: Calibration | None) -> float:
+    """The delay (s) a calibration record carries (``Calibration.mag_lag_s``), 0.0 without a record."""
+    return 0.0 if calibration is None else calibration.mag_lag_s
 
 
 def advance_field(field: np.ndarray, gyr_rads: np.ndarray, lag_s: float | np.ndarray) -> np.ndarray:

@@ -34,8 +34,7 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.attitude import fusion
-from magnet.attitude.mag_delay import advance_field, record_lag_s
+from magnet.attitude.mag_delay import advance_field
 from magnet.frames import quaternion_to_matrix
 from magnet.model import Calibration, Quality
 from magnet.quality.stats import median, take_rows
@@ -77,7 +76,7 @@ class MotionEvidence:
     def turned(self, calibration: Calibration, field: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """A field (K, 3) corrected by ``calibration`` turned forward over the delay its record carries (the same
         array when it carries none); rows as in ``applied``."""
-        lag = record_lag_s(calibration)
+        lag = calibration.mag_lag_s
         if not lag or self.gyr_rads is None:
             return field
         return advance_field(field, self.gyr_rads if rows is None else take_rows(self.gyr_rads, rows), lag)
@@ -121,6 +120,8 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
     if gyr_rads is not None:
         if period_s is None:
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
+        from magnet.attitude import fusion  # vqf's wrapper: only where a gyroscope's attitudes are needed
+
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
         down = frames.down_in_body(fused.quat_wxyz)
         return MotionEvidence(down, fused.quat_wxyz, "fused gravity", period_s, np.asarray(gyr_rads, dtype=float))

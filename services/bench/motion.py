@@ -31,7 +31,7 @@ import numpy as np
 from magnet import frames
 from magnet.attitude import fusion
 from magnet.attitude import heading as hd
-from magnet.attitude.mag_delay import advance_field, record_lag_s
+from magnet.attitude.mag_delay import advance_field
 from magnet.calibration import FitInput, fit
 from magnet.frames import quaternion_to_matrix, to_magnetic_ned
 from magnet.model import Calibration
@@ -144,7 +144,7 @@ def product_field(log: MotionLog, method: str = "ellipsoid") -> tuple[np.ndarray
         return log.mag_ut, "refused"
     if not calibration.accepted:
         return log.mag_ut, "refused"
-    return advance_field(calibration.apply(log.mag_ut), log.gyr_rads, record_lag_s(calibration)), "accepted"
+    return advance_field(calibration.apply(log.mag_ut), log.gyr_rads, calibration.mag_lag_s), "accepted"
 
 
 @dataclasses.dataclass(frozen=True)

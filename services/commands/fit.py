@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet.attitude import fusion
 from magnet.calibration import FitInput, Method, TurntableSetup
 from magnet.calibration.choose import AUTO, CHOICES, fit_choice
 from magnet.earth.location import Location
@@ -133,6 +132,8 @@ def sample_period_s(table: SampleTable, rate_hz: float | None) -> float:
             f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
             "(seconds) or give --rate HZ"
         )
+    from magnet.attitude import fusion  # the filter's package: loaded only when the times are needed
+
     return fusion.sample_period_s(table.numeric("t_s"))
 
 
@@ -198,6 +199,13 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_REJECTED
     if args.out:
         write_atomically(Path(args.out), text)
+        print(f"magnet fit: {summary(calibration)}; written to {args.out}")
     else:
         sys.stdout.write(text)
     return 0
+
+
+def summary(calibration: Calibration) -> str:
+    """One line on an accepted record: method, offset in its unit and the gate's words."""
+    offset = ", ".join(f"{v:.2f}" for v in calibration.offset)
+    return f"{calibration.method}, offset ({offset}) {calibration.unit}, {calibration.reason}"

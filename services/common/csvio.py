@@ -15,6 +15,7 @@ import csv
 import dataclasses
 import io
 import math
+import warnings
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TextIO
@@ -145,9 +146,14 @@ def _find_header(lines: list[str], path: str) -> int:
 
 
 def parse_samples(text: str, path: str = "<input>") -> SampleTable:
-    """Parse CSV ``text`` into a SampleTable (see the module docstring for the format)."""
+    """Parse CSV ``text`` into a SampleTable (see the module docstring for the format). A table of numbers is read
+    by numpy's C reader (``_numbers``); anything else (text columns, empty cells, a row of another length, a value
+    that is refused) by the csv module, cell by cell, which names the line or row and the value at fault."""
     lines = text.splitlines()
     header_index = _find_header(lines, path)
+    table = _numbers(lines, header_index, path)
+    if table is not None:
+        return table
     header, rows = _read_rows(lines, header_index, path)
     if not rows:
         raise ValueError(f"{path}: the header is there but no samples follow it")
@@ -164,6 +170,37 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
     if all(c in columns for c in ACC_COLUMNS):
         acc = np.column_stack([table.numeric(c) for c in ACC_COLUMNS])
     return dataclasses.replace(table, mag=mag, acc=acc)
+
+
+def _numbers(lines: list[str], header_index: int, path: str) -> SampleTable | None:
+    """The table when every row below the header is as many finite numbers as the header names columns (``nan``
+    allowed in ``vn,ve,vd``: no fix yet), no column is named twice and no sensor reading is beyond +-MAX_READING,
+    read by numpy's C reader (``numpy.loadtxt``); else None, and the csv module reads the file and says what is
+    wrong with it."""
+    header = _cells(lines[header_index], path, header_index + 1)
+    if len(set(header)) < len(header) or header_index + 1 == len(lines):
+        return None
+    try:
+        with warnings.catch_warnings():  # blank lines alone: "input contained no data", the csv module says so
+            warnings.simplefilter("ignore", UserWarning)
+            values = np.loadtxt(lines[header_index + 1 :], delimiter=",", quotechar='"', comments=None, ndmin=2)
+    except ValueError:
+        return None
+    if values.shape != (values.shape[0], len(header)) or values.shape[0] == 0:
+        return None
+    sensors = [i for i, name in enumerate(header) if name in (*MAG_COLUMNS, *ACC_COLUMNS, *GYRO_COLUMNS)]
+    held = [i for i, name in enumerate(header) if name in VELOCITY_COLUMNS]
+    others = [i for i in range(len(header)) if i not in held]
+    if not np.isfinite(values[:, others]).all() or np.isinf(values[:, held]).any():
+        return None
+    if (np.abs(values[:, sensors]) > MAX_READING).any():
+        return None
+    columns: dict[str, list[str] | np.ndarray] = {name: values[:, i] for i, name in enumerate(header) if name}
+    acc = (
+        np.column_stack([values[:, header.index(c)] for c in ACC_COLUMNS]) if set(ACC_COLUMNS) <= set(header) else None
+    )
+    mag = np.column_stack([values[:, header.index(c)] for c in MAG_COLUMNS])
+    return SampleTable(path, mag, acc, columns)
 
 
 def _read_rows(lines: list[str], header_index: int, path: str) -> tuple[list[str], list[list[str]]]:

@@ -13,12 +13,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from services.common.csvio import SampleTable, read_samples
-from services.common.flightlogs import ReferenceYaw
 from services.common.input_options import InputOptions as InputOptions  # re-exported for the tests
 from services.common.input_options import Reader
 from services.common.options import add_options
+
+if TYPE_CHECKING:  # the flight-log readers load only for flight logs (magnet fit of a CSV never does)
+    from services.common.flightlogs import ReferenceYaw
 
 #: the default: each reader's own choice of stream
 NO_OPTIONS = InputOptions()
