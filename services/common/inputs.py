@@ -4,14 +4,17 @@
 ``read_input``; each reader returns the same ``SampleTable`` as a CSV gives (``mx,my,mz`` in the file's magnetometer
 unit, optional ``ax,ay,az`` m/s^2, ``gx,gy,gz`` rad/s, ``t_s`` s, ``vn,ve,vd`` m/s NED and other named columns).
 To read a new kind of recording, write a function ``(path, InputOptions) -> SampleTable`` (``Reader``; both in
-``services.common.input_options``, which the readers import) and add its suffixes to ``READERS``. Every reader
+``services.common.input_options``, which the readers import) and add a row per suffix to ``FORMATS`` (the one
+table: suffix, reader, and for a flight log the reader of the autopilot's own heading, ``reference_yaw``). Every reader
 raises ``ValueError`` naming the file and what to do for a file it cannot use.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -55,17 +58,51 @@ def _rosbag(path: Path, options: InputOptions) -> SampleTable:
     return read_rosbag(path, options.topic)
 
 
-#: file suffix (lower case, with the dot) -> its reader; "/" for a directory (a rosbag2 bag)
-READERS: dict[str, Reader] = {
-    ".csv": _csv,
-    ".txt": _csv,
-    ".ulg": _ulog,
-    ".bin": _dataflash,
-    ".tlog": _tlog,
-    ".mcap": _rosbag,
-    ".db3": _rosbag,
-    "/": _rosbag,
+def _ulog_yaw(path: Path) -> ReferenceYaw:
+    from services.common.ulog import ulog_reference_yaw
+
+    return ulog_reference_yaw(path)
+
+
+def _dataflash_yaw(path: Path) -> ReferenceYaw:
+    from services.common.dataflash import dataflash_reference_yaw
+
+    return dataflash_reference_yaw(path)
+
+
+def _tlog_yaw(path: Path) -> ReferenceYaw:
+    from services.common.tlog import tlog_reference_yaw
+
+    return tlog_reference_yaw(path)
+
+
+@dataclasses.dataclass(frozen=True)
+class InputFormat:
+    """A kind of recording: its ``reader`` and, for a flight log, the reader of the autopilot's own heading estimate
+    in it (``reference_yaw``, for ``magnet heading --compare``; None: the file holds none)."""
+
+    reader: Reader
+    reference_yaw: Callable[[Path], ReferenceYaw] | None = None
+
+
+_CSV, _ROSBAG = InputFormat(_csv), InputFormat(_rosbag)
+#: the one table of the files the commands read: suffix (lower case, with the dot; "/" for a directory, a rosbag2
+#: bag) -> its reader and its reference yaw
+FORMATS: dict[str, InputFormat] = {
+    ".csv": _CSV,
+    ".txt": _CSV,
+    ".ulg": InputFormat(_ulog, _ulog_yaw),
+    ".bin": InputFormat(_dataflash, _dataflash_yaw),
+    ".tlog": InputFormat(_tlog, _tlog_yaw),
+    ".mcap": _ROSBAG,
+    ".db3": _ROSBAG,
+    "/": _ROSBAG,
 }
+
+
+def input_format(path: Path) -> InputFormat:
+    """The format of the file (or bag directory) at ``path`` by its suffix: CSV when the suffix is unknown."""
+    return FORMATS.get("/" if path.is_dir() else path.suffix.lower(), _CSV)
 
 
 def add_input_arguments(parser: argparse.ArgumentParser) -> None:
@@ -76,8 +113,7 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
 def read_input(path: str | Path, options: InputOptions = NO_OPTIONS) -> SampleTable:
     """The samples of the recording at ``path``, by its suffix (CSV when unknown); ValueError otherwise."""
     path = Path(path)
-    reader = READERS.get("/" if path.is_dir() else path.suffix.lower(), _csv)
-    return reader(path, options)
+    return input_format(path).reader(path, options)
 
 
 def read_input_told(path: str | Path, options: InputOptions, command: str) -> SampleTable:
@@ -91,17 +127,7 @@ def read_input_told(path: str | Path, options: InputOptions, command: str) -> Sa
 def reference_yaw(path: str | Path) -> ReferenceYaw:
     """The autopilot's own heading estimate in the flight log at ``path``; ValueError for a file that has none."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".ulg":
-        from services.common.ulog import ulog_reference_yaw
-
-        return ulog_reference_yaw(path)
-    if suffix == ".bin":
-        from services.common.dataflash import dataflash_reference_yaw
-
-        return dataflash_reference_yaw(path)
-    if suffix == ".tlog":
-        from services.common.tlog import tlog_reference_yaw
-
-        return tlog_reference_yaw(path)
-    raise ValueError(f"{path}: --compare needs a flight log (.ulg, .bin or .tlog) holding the autopilot's attitude")
+    read = FORMATS.get(path.suffix.lower(), _CSV).reference_yaw
+    if read is None:
+        raise ValueError(f"{path}: --compare needs a flight log (.ulg, .bin or .tlog) holding the autopilot's attitude")
+    return read(path)
