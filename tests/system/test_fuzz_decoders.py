@@ -27,8 +27,8 @@ from magnet.model import Calibration
 from services.calibrator import queries
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
-from services.common import csvio, jsonio
-from services.common.inputs import FORMATS, read_input
+from services.common import jsonio
+from services.common.inputs import FORMATS, csvio, read_input
 
 FUZZ = settings(
     max_examples=40, deadline=2000, derandomize=True, suppress_health_check=[HealthCheck.too_slow], database=None

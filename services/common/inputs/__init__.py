@@ -1,10 +1,12 @@
-"""Recorded inputs of the offline commands: one reader per kind of file, chosen by the file's suffix.
+"""Recorded inputs of the offline commands: one reader per kind of file, chosen by the file's suffix; this package
+is their one home (``csvio``, ``ulog``, ``dataflash``, ``tlog``, ``rosbag_input``, what the flight logs share in
+``flightlogs``, the options in ``input_options``).
 
 ``magnet fit``, ``magnet heading``, ``magnet report`` and ``magnet edge --replay`` read their samples with
 ``read_input``; each reader returns the same ``SampleTable`` as a CSV gives (``mx,my,mz`` in the file's magnetometer
 unit, optional ``ax,ay,az`` m/s^2, ``gx,gy,gz`` rad/s, ``t_s`` s, ``vn,ve,vd`` m/s NED and other named columns).
 To read a new kind of recording, write a function ``(path, InputOptions) -> SampleTable`` (``Reader``; both in
-``services.common.input_options``, which the readers import) and add a row per suffix to ``FORMATS`` (the one
+``services.common.inputs.input_options``, which the readers import) and add a row per suffix to ``FORMATS`` (the one
 table: suffix, reader, and for a flight log the reader of the autopilot's own heading, ``reference_yaw``). Every reader
 raises ``ValueError`` naming the file and what to do for a file it cannot use.
 """
@@ -18,13 +20,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from services.common.csvio import SampleTable, read_samples
-from services.common.input_options import InputOptions as InputOptions  # re-exported for the tests
-from services.common.input_options import Reader
+from services.common.inputs.csvio import SampleTable, read_samples
+from services.common.inputs.input_options import InputOptions as InputOptions  # re-exported for the tests
+from services.common.inputs.input_options import Reader
 from services.common.options import add_options
 
 if TYPE_CHECKING:  # the flight-log readers load only for flight logs (magnet fit of a CSV never does)
-    from services.common.flightlogs import ReferenceYaw
+    from services.common.inputs.flightlogs import ReferenceYaw
 
 #: the default: each reader's own choice of stream
 NO_OPTIONS = InputOptions()
@@ -35,43 +37,43 @@ def _csv(path: Path, options: InputOptions) -> SampleTable:
 
 
 def _ulog(path: Path, options: InputOptions) -> SampleTable:
-    from services.common.ulog import read_ulog  # pyulog is loaded only for a ULog
+    from services.common.inputs.ulog import read_ulog  # pyulog is loaded only for a ULog
 
     return read_ulog(path, options)
 
 
 def _dataflash(path: Path, options: InputOptions) -> SampleTable:
-    from services.common.dataflash import read_dataflash  # pymavlink is loaded only for a log that needs it
+    from services.common.inputs.dataflash import read_dataflash  # pymavlink is loaded only for a log that needs it
 
     return read_dataflash(path, options)
 
 
 def _tlog(path: Path, options: InputOptions) -> SampleTable:
-    from services.common.tlog import read_tlog
+    from services.common.inputs.tlog import read_tlog
 
     return read_tlog(path, options)
 
 
 def _rosbag(path: Path, options: InputOptions) -> SampleTable:
-    from services.common.rosbag_input import read_rosbag
+    from services.common.inputs.rosbag_input import read_rosbag
 
     return read_rosbag(path, options.topic)
 
 
 def _ulog_yaw(path: Path) -> ReferenceYaw:
-    from services.common.ulog import ulog_reference_yaw
+    from services.common.inputs.ulog import ulog_reference_yaw
 
     return ulog_reference_yaw(path)
 
 
 def _dataflash_yaw(path: Path) -> ReferenceYaw:
-    from services.common.dataflash import dataflash_reference_yaw
+    from services.common.inputs.dataflash import dataflash_reference_yaw
 
     return dataflash_reference_yaw(path)
 
 
 def _tlog_yaw(path: Path) -> ReferenceYaw:
-    from services.common.tlog import tlog_reference_yaw
+    from services.common.inputs.tlog import tlog_reference_yaw
 
     return tlog_reference_yaw(path)
 
