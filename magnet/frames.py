@@ -4,9 +4,9 @@ Frames:
 - body, FRD: x forward, y right, z down. Every sensor vector once its chip's axes are mapped (named alignments below).
 - earth, NED: x north, y east, z down. North is geographic unless a name says magnetic (``to_magnetic_ned``).
 - FLU / ENU: body x forward, y left, z up; earth x east, y north, z up. ROS 2's frames (REP-103) and the vqf filter's
-  (``magnet.fusion``; its north is the field's). A body vector FRD -> FLU is (x, -y, -z) (``frd_flu``), an earth
-  vector NED -> ENU is (e, n, -d) (``ned_enu``), an attitude FRD -> NED to FLU -> ENU is ``ned_enu_attitude``: each
-  map is its own inverse.
+  (``magnet.attitude.fusion``; its north is the field's). A body vector FRD -> FLU is (x, -y, -z) (``frd_flu``), an
+  earth vector NED -> ENU is (e, n, -d) (``ned_enu``), an attitude FRD -> NED to FLU -> ENU is ``ned_enu_attitude``:
+  each map is its own inverse.
 
 Rotations: an attitude is the body -> earth rotation R = Rz(yaw) @ Ry(pitch) @ Rx(roll) (aerospace Z-Y-X: yaw is the
 heading of body x clockwise from north, pitch nose up positive, roll right side down positive; degrees), so

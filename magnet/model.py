@@ -47,10 +47,14 @@ from magnet.units import FieldUnit
 #: self-test, a hand-written record, the identity and the simulator's truth); a record naming another is refused
 KNOWN_METHODS = frozenset(
     {"minmax2d", "minmax", "sphere", "ellipsoid", "ellipsoid+align", "turntable", "turntable-lsq", "gyro-ellipsoid"}
+    | {"offset", "offset+scale", "planar"}
     | {"selftest", "manual", "identity", "truth"}
 )
 #: the units a record may name (``magnet.units.FieldUnit``)
 KNOWN_UNITS = frozenset(u.value for u in FieldUnit)
+#: the largest magnetometer delay a record may carry (s, ``Calibration.mag_lag_s``); beyond it the value is not a
+#: sensor's filter delay and is ignored
+MAX_LAG_S = 0.1
 
 
 def _holds_bool(value: Any) -> bool:
@@ -252,6 +256,18 @@ class Calibration:
         return dataclasses.replace(self, **changes)
 
     @property
+    def mag_lag_s(self) -> float:
+        """How far the magnetometer's readings come behind the gyroscope's (s): the quality figure ``mag_lag_s`` a
+        gyro-ellipsoid fit writes (the record's wire and store form), typed here; 0.0 when the record carries none or
+        an unusable one (not a finite number within +-``MAX_LAG_S``): records come from files and the network. The
+        compass turns the field its filter gets forward over it (``magnet.attitude.mag_delay``)."""
+        value = self.quality.get("mag_lag_s")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return 0.0
+        lag = float(value)
+        return lag if math.isfinite(lag) and abs(lag) <= MAX_LAG_S else 0.0
+
+    @property
     def content_id(self) -> str:
         """A stable id for the coefficients: identical method, offset, matrix and units give the same id."""
         content: dict[str, object] = {
@@ -348,6 +364,7 @@ __all__ = [
     "KNOWN_UNITS",
     "MAX_CONDITION",
     "MAX_GAIN",
+    "MAX_LAG_S",
     "MAX_MATRIX_ENTRY",
     "MAX_OFFSET_RAW",
     "MAX_OFFSET_UT",

@@ -1,8 +1,8 @@
 """One retry policy and one health record, for everything that is tried, can fail and is tried again.
 
 Two levels use them: an I2C transfer (``magnet.drivers.base.I2CDevice``: a few quick retries of a glitch, then the
-read fails) and the read loop above the driver (``magnet.readloop.ReadLoop``: a failing sensor is read again after a
-wait that doubles up to a cap, so a dead bus costs about one attempt per ``max_s``). Each level holds one
+read fails) and the read loop above the driver (``magnet.edge.readloop.ReadLoop``: a failing sensor is read again after
+a wait that doubles up to a cap, so a dead bus costs about one attempt per ``max_s``). Each level holds one
 ``RetryPolicy`` (how long to wait, when to give up, when to call it unhealthy) and one ``Health`` (what happened).
 
 Pure: the waits are returned, never slept here; the caller sleeps with its injected ``sleep``.

@@ -13,6 +13,7 @@ import logging
 import os
 import re
 import sys
+from typing import NoReturn
 
 from services.common.allocator import give_back_freed_memory
 
@@ -20,7 +21,7 @@ from services.common.allocator import give_back_freed_memory
 COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("services.commands.fit", "fit a calibration to a CSV of raw samples"),
     "heading": ("services.commands.heading", "apply a calibration to a CSV and print headings"),
-    "bench": ("services.bench", "benchmarks that print figures (accuracy, fit, pipeline, motion)"),
+    "bench": ("services.bench", "benchmarks that print figures (accuracy, fit, pipeline, motion, field)"),
     "sample": ("services.commands.sample", "read a sensor (or its emulator) and print CSV"),
     "selftest": ("services.commands.selftest", "run the HMC5883L self-test"),
     "edge": ("services.edge.service", "publish raw samples of one or many devices over Zenoh"),
@@ -36,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dashboard": ("services.dashboard.service", "serve a live web page of the fleet (and calibration control)"),
     "report": ("services.commands.report", "draw a calibration report (HTML or PNG) from samples and a calibration"),
     "export": ("services.commands.export", "write a calibration as ArduPilot or PX4 parameters (a parameter file)"),
+    "db": ("services.commands.db", "copy a site's calibrations between SQLite and PostgreSQL, or check them all"),
     "record": (
         "services.commands.record",
         "record raw, headings, calibrations and alerts as a ROS 2 bag (MCAP)",
@@ -65,8 +67,17 @@ def _only_the_chosen(argv: list[str], chosen: str | None) -> bool:
     return all(re.fullmatch(r"-v+|--verbose", word) for word in before)
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose refusal is the one line that matters (``magnet fit: error: argument --method: ...``)
+    and where to read more, not a page of usage before it: the usage is what ``--help`` is for. Exit status 2, as
+    argparse's own refusal."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="magnet", description="Magnetometer calibration and compass service.")
+    parser = OneLineParser(prog="magnet", description="Magnetometer calibration and compass service.")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     chosen = _chosen_command(argv)

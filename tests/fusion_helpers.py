@@ -1,4 +1,5 @@
-"""A moving device with a gyroscope whose readings integrate exactly to its attitude (tests of magnet.fusion)."""
+"""A moving device with a gyroscope whose readings integrate exactly to its attitude (tests of
+magnet.attitude.fusion)."""
 
 from __future__ import annotations
 

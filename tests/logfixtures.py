@@ -55,3 +55,61 @@ def write_tlog(
                 log.write(stamp + message.pack(log.mav))
     finally:
         log.close()
+
+
+#: MAG layouts ArduPilot has logged (format characters, columns), as its LogStructure.h defined them over the years
+DATAFLASH_MAG_LAYOUTS = {
+    "2013": ("Ihhhhhh", "TimeMS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ"),
+    "2014": ("Ihhhhhhhhh", "TimeMS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ"),
+    "2016": ("QhhhhhhhhhBI", "TimeUS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ,Health,S"),
+    "2020": ("QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S"),
+    "unknown": ("Ihhh", "TimeMS,FldX,FldY,FldZ"),
+}
+#: the IMU layout of the same years (old logs stamp in ms)
+DATAFLASH_IMU_LAYOUTS = {
+    "TimeMS": ("Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"),
+    "TimeUS": ("QBffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"),
+}
+DATAFLASH_OFFSETS_MG = (-120, 45, 80)  # the offsets ArduPilot added to the reading (OfsX..Z)
+DATAFLASH_MOTOR_MG = (3, -2, 1)  # its motor offsets, where the layout logs them
+
+
+def _dataflash_record(type_id: int, fmt: str, values: list[object]) -> bytes:
+    from pymavlink.DFReader import FORMAT_TO_STRUCT
+
+    layout = "<" + "".join(FORMAT_TO_STRUCT[c][0] for c in fmt)
+    return bytes([0xA3, 0x95, type_id]) + struct.pack(layout, *values)
+
+
+def _dataflash_fmt(type_id: int, name: str, fmt: str, columns: str) -> bytes:
+    from pymavlink.DFReader import FORMAT_TO_STRUCT
+
+    length = 3 + struct.calcsize("<" + "".join(FORMAT_TO_STRUCT[c][0] for c in fmt))
+    return _dataflash_record(0x80, "BBnNZ", [type_id, length, name.encode(), fmt.encode(), columns.encode()])
+
+
+def write_dataflash(path: Path, run: SimulatedRun, layout: str) -> None:
+    """An ArduPilot DataFlash log of ``run`` whose MAG records have ``DATAFLASH_MAG_LAYOUTS[layout]``, packed with
+    pymavlink's DataFlash format characters: FMT records, then per sample a MAG (the reading plus
+    ``DATAFLASH_OFFSETS_MG`` plus the motor offsets where logged, milligauss, as ArduPilot logs its corrected field)
+    and an IMU record (ms or us as the layout's time)."""
+    mag_fmt, mag_cols = DATAFLASH_MAG_LAYOUTS[layout]
+    time_field = mag_cols.split(",")[0]
+    imu_fmt, imu_cols = DATAFLASH_IMU_LAYOUTS[time_field]
+    out = [_dataflash_fmt(0x80, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")]
+    out += [_dataflash_fmt(10, "MAG", mag_fmt, mag_cols), _dataflash_fmt(11, "IMU", imu_fmt, imu_cols)]
+    motor = "MOX" in mag_cols or "MOfsX" in mag_cols
+    for k in range(len(run.t_s)):
+        t_us = 1_000_000 + int(np.rint(run.t_s[k] * 1e6))
+        stamp = [t_us // 1000] if time_field == "TimeMS" else [t_us]
+        reading = np.round(run.mag_ut[k] * 10).astype(int)
+        ofs = np.array(DATAFLASH_OFFSETS_MG) if "OfsX" in mag_cols else np.zeros(3, int)
+        mot = np.array(DATAFLASH_MOTOR_MG) if motor else np.zeros(3, int)
+        logged = (reading + ofs + mot).tolist()
+        fields = [*logged, *ofs.tolist(), *mot.tolist()][: mag_fmt.count("h")] if "OfsX" in mag_cols else logged
+        instance = [0] if ",I," in mag_cols else []
+        tail = [1, t_us] if mag_fmt.endswith("BI") else []
+        out.append(_dataflash_record(10, mag_fmt, [*stamp, *instance, *fields, *tail]))
+        imu_values = [*run.gyr_rads[k].tolist(), *run.acc_ms2[k].tolist()]
+        out.append(_dataflash_record(11, imu_fmt, [*stamp, *([0] if ",I," in imu_cols else []), *imu_values]))
+    path.write_bytes(b"".join(out))

@@ -7,6 +7,15 @@ It sends, with pymavlink, what an ArduPilot vehicle sends about its compasses, f
 with PARAM_VALUE from its parameter table (a few ArduPilot compass parameters). At the end (``--duration`` or
 SIGTERM) it writes ``--truth FILE.npz``: per IMU message sent, the compass instance, the field sent (milligauss) and
 the true heading and pitch, so a test can join what the compass published to the truth by the field.
+
+Faults and poses a vehicle shows (issue 27): ``--zero-gyro N`` sends compass N's gyroscope fields as zero during
+the tumble (ArduPilot's SCALED_IMU2 when a second compass has no second IMU beside it); ``--hold-after S
+--hold-yaw D`` ends the tumble after S seconds: the vehicle settles over ``SETTLE_S`` to level at true heading D
+(its gyroscope reading the rates that carry it there) and stays, GLOBAL_POSITION_INT's velocity zero throughout.
+``--quad``: instead of the tumble, a quadcopter's flight (the simulator's multirotor, its motors' throttle and current)
+with three compasses (``QUAD``): the first as it should be, the second mounted turned 90 deg in yaw, the third beside
+the power wires (SCALED_IMU3); SYS_STATUS (current), SERVO_OUTPUT_RAW (throttle) and GLOBAL_POSITION_INT (velocity)
+at 10 Hz.
 """
 
 from __future__ import annotations
@@ -20,7 +29,17 @@ from typing import Any
 import numpy as np
 from pymavlink import mavutil
 
+from magnet.frames import (
+    euler_to_quaternion,
+    quaternion_conjugate,
+    quaternion_multiply,
+    quaternion_to_euler,
+    quaternion_to_matrix,
+    quaternion_to_rotation_vector,
+)
 from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig
+from magnet.simulator.motion import G_NED
+from magnet.simulator.motors import Motors
 
 SOFT_0 = ((1.08, 0.03, 0.0), (0.03, 0.95, 0.02), (0.0, 0.02, 1.0))
 SOFT_1 = ((0.96, -0.02, 0.01), (-0.02, 1.05, 0.0), (0.01, 0.0, 1.1))
@@ -44,7 +63,56 @@ PARAMETERS = {
     "COMPASS_MOT_Y": 0.0,
     "COMPASS_MOT_Z": 0.0,
 }
+#: the quadcopter's compasses (``--quad``): instance -> (errors, the motors' field at it, uT per A)
+QUAD = {
+    0: (SensorErrors(), (0.0, 0.0, 0.0)),
+    1: (SensorErrors(misalignment_deg=(0.0, 0.0, 90.0)), (0.0, 0.0, 0.0)),  # mounted turned: COMPASS_ORIENT2 = 2
+    2: (SensorErrors(), (0.3, -0.2, 0.25)),  # beside the power wires: 18 uT at the 40 A of full throttle
+}
 REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
+SETTLE_S = 2.0  # from the tumble's last attitude to level at --hold-yaw
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
+    dot = float(np.dot(q0, q1))
+    if dot < 0:
+        q1, dot = -q1, -dot
+    angle = math.acos(min(dot, 1.0))
+    if angle < 1e-9:
+        return q0
+    q = (math.sin((1 - s) * angle) * q0 + math.sin(s * angle) * q1) / math.sin(angle)
+    return q / np.linalg.norm(q)
+
+
+class Held:
+    """A compass's stream after the tumble: settles from its last attitude to level at ``yaw_deg`` (true) over
+    ``SETTLE_S`` (smoothstep), then holds; the field, specific force and rates from its errors, with noise."""
+
+    def __init__(self, stream: SensorStream, yaw_deg: float, rate_hz: float, seed: int) -> None:
+        self.stream, self.rate_hz = stream, rate_hz
+        self.errors = _noise(stream.config.errors)
+        self.start = np.array(stream.last_truth["quat_wxyz"], dtype=float)
+        self.end = euler_to_quaternion(yaw_deg, 0.0, 0.0).reshape(4)
+        self.previous, self.k = self.start, 0
+        self.rng = np.random.default_rng(seed + 100)
+        self.b_ned = np.array(stream.earth.ned_ut)
+        self.last_truth: dict[str, Any] = dict(stream.last_truth)
+
+    def measure_imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self.k += 1
+        s = min(1.0, self.k / (SETTLE_S * self.rate_hz))
+        q = _slerp(self.start, self.end, s * s * (3 - 2 * s))
+        turn = quaternion_multiply(quaternion_conjugate(self.previous[None]), q[None])
+        rate = quaternion_to_rotation_vector(turn)[0] * self.rate_hz
+        self.previous = q
+        rotation = quaternion_to_matrix(q[None])[0]
+        e = self.errors
+        mag = e.distortion @ (rotation.T @ self.b_ned) + e.hard_iron_ut + e.noise_ut * self.rng.standard_normal(3)
+        acc = rotation.T @ (-G_NED) + e.acc_noise_ms2 * self.rng.standard_normal(3)
+        gyr = rate + e.gyro_noise_rads * self.rng.standard_normal(3)
+        heading, pitch, roll = (float(v[0]) for v in quaternion_to_euler(q[None]))
+        self.last_truth = {"heading_deg": heading, "pitch_deg": pitch, "roll_deg": roll, "quat_wxyz": tuple(q)}
+        return mag, acc, gyr
 
 
 def _noise(errors: SensorErrors) -> SensorErrors:
@@ -58,10 +126,17 @@ class Vehicle:
         self.args = args
         self.conn = mavutil.mavlink_connection(args.url, source_system=args.sysid, source_component=1)
         rate, count = max(args.rate, 1.0), args.samples
-        self.streams = {
+        self.streams: dict[int, Any] = {
             i: SensorStream(SimulatorConfig(trajectory="tumble", rate_hz=rate, count=count, errors=_noise(e), seed=i))
             for i, e in COMPASSES.items()
         }
+        if args.quad:  # one flight (one seed) seen by three compasses
+            self.streams = {
+                i: SensorStream(
+                    SimulatorConfig("multirotor", rate_hz=rate, errors=_noise(e), seed=7, motors=Motors(ut_per_a=m))
+                )
+                for i, (e, m) in QUAD.items()
+            }
         self.params = dict(PARAMETERS)
         self.truth: list[tuple[int, int, int, int, float, float]] = []
         self.boot = time.monotonic()
@@ -72,15 +147,21 @@ class Vehicle:
     def send_imu(self, k: int) -> None:
         mav = self.conn.mav
         boot_ms = int(k * 1000 / self.args.rate)
+        if self.args.hold_after is not None and k == int(self.args.hold_after * self.args.rate):
+            self.streams = {i: Held(s, self.args.hold_yaw, self.args.rate, i) for i, s in self.streams.items()}
         for instance, stream in self.streams.items():
             mag, acc, gyr = stream.measure_imu()
             m = np.round(mag * 10).astype(int)  # uT -> milligauss
             a = np.round(acc / 9.80665 * 1000).astype(int)  # m/s^2 -> milli-g
             g = np.round(gyr * 1000).astype(int)  # rad/s -> mrad/s
+            if instance == self.args.zero_gyro and not isinstance(stream, Held):
+                g = np.zeros(3, dtype=int)
             if instance == 0:
                 mav.raw_imu_send(boot_ms * 1000, *a, *g, *m)
-            else:
+            elif instance == 1:
                 mav.scaled_imu2_send(boot_ms, *a, *g, *m)
+            else:
+                mav.scaled_imu3_send(boot_ms, *a, *g, *m)
             truth = stream.last_truth
             self.truth.append((instance, *m.tolist(), truth["heading_deg"], truth["pitch_deg"]))
         if k % max(1, int(self.args.rate / 10)) == 0:
@@ -89,11 +170,14 @@ class Vehicle:
             mav.attitude_send(boot_ms, roll, pitch, yaw, 0, 0, 0)
 
     def send_slow(self, tick: int) -> None:
-        """Every 100 ms: position at 5 Hz, status at 2 Hz, heartbeat at 1 Hz."""
+        """Every 100 ms: position at 5 Hz, status at 2 Hz, heartbeat at 1 Hz (a quadcopter's flight: position,
+        current and throttle at 10 Hz)."""
         mav = self.conn.mav
-        if tick % 2 == 0:
+        if self.args.quad:
+            self.send_flight()
+        if tick % 2 == 0 and not self.args.quad:
             mav.global_position_int_send(self.boot_ms(), 504500000, 305200000, 180000, 0, 0, 0, 0, 0)
-        if tick % 5 == 0:
+        if tick % 5 == 0 and not self.args.quad:
             mav.sys_status_send(0, 0, 0, 500, 16000, 1200, 80, 0, 0, 0, 0, 0, 0)
         if tick % 10 == 0:
             armed = mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.args.armed else 0
@@ -104,6 +188,16 @@ class Vehicle:
                 0,
                 mavutil.mavlink.MAV_STATE_ACTIVE if self.args.armed else mavutil.mavlink.MAV_STATE_STANDBY,
             )
+
+    def send_flight(self) -> None:
+        truth, mav = self.streams[0].last_truth, self.conn.mav
+        if "current_a" not in truth:
+            return
+        vel = [0 if v is None or not math.isfinite(v) else round(v * 100) for v in truth["vel_ned_ms"] or ()]
+        mav.global_position_int_send(self.boot_ms(), 504500000, 305200000, 180000, 0, *(vel or [0, 0, 0]), 0)
+        mav.sys_status_send(0, 0, 0, 500, 16000, round(truth["current_a"] * 100), 80, 0, 0, 0, 0, 0, 0)
+        pwm = round(1000 + 1000 * truth["throttle"])
+        mav.servo_output_raw_send(self.boot_ms() * 1000, 0, pwm, pwm, pwm, pwm, 0, 0, 0, 0)
 
     def send_param(self, name: str) -> None:
         names = list(self.params)
@@ -152,6 +246,10 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--armed", action="store_true")
     parser.add_argument("--truth")
+    parser.add_argument("--zero-gyro", type=int, help="this compass's gyroscope fields sent as zero in the tumble")
+    parser.add_argument("--hold-after", type=float, help="seconds of tumble before settling and holding still")
+    parser.add_argument("--hold-yaw", type=float, default=70.0, help="the true heading held (deg)")
+    parser.add_argument("--quad", action="store_true", help="a quadcopter's flight with three compasses (QUAD)")
     Vehicle(parser.parse_args()).run()
 
 

@@ -88,3 +88,9 @@ def test_magnet_imports_no_shell_module_and_neither_reads_the_clock_nor_sleeps()
         problems += [f"{name}: imports {mod}" for mod in sorted(_top_level_imports(tree) & FORBIDDEN_SOURCE_IMPORTS)]
         problems += [f"{name}: {call}" for call in _clock_calls(tree)]
     assert problems == [], "magnet/ must stay pure (inject clocks and sleeps):\n" + "\n".join(problems)
+
+
+def test_the_guard_covers_every_stage_core():
+    """The decisions of the compass and of the calibrator are among the sources the checks above read."""
+    packages = {path.parent.relative_to(MAGNET_DIR).as_posix() for path in _sources()}
+    assert {"compass", "calibrator"} <= packages

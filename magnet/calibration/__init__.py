@@ -14,15 +14,18 @@ Methods (``Method``), each in its module:
 - ``minmax2d``, ``minmax``, ``sphere``: closed-form fits (``closed_form.py``);
 - ``ellipsoid``: algebraic fit refined by Levenberg-Marquardt, spikes left out (``ellipsoid.py``);
 - ``ellipsoid+align``: the ellipsoid, then the magnetometer-accelerometer rotation (``alignment.py``);
-- ``turntable``: see ``magnet.turntable`` (needs the mounting and table angle of every sample);
+- ``turntable``: ``turntable.py`` (needs the mounting and table angle of every sample: ``TurntableSetup``);
 - ``gyro-ellipsoid``: the ellipsoid held to the gyroscope's turns, and the magnetometer's delay
   (``gyro_ellipsoid.py``).
 
 ``auto`` (``choose.py``) is a choice, not a method: gyro-ellipsoid or ellipsoid, whichever the gate finds better; the
 record names the method that made it.
 
-``base.py`` holds the method names, the error and the input checks; ``fitting.py`` the method table and the entry
-points ``fit_shape`` and ``fit`` (quality figures, held-out residual and gate).
+Every method is fitted from one input, ``FitInput`` (``fit_input.py``: samples, times, gyroscope, accelerometer,
+place and the fit's options). ``base.py`` holds the method names, the error and the input checks; ``fitting.py`` the
+method table ``METHODS`` (one ``MethodSpec`` per method: its fit, geometry and held-out fit) and the entry points
+``fit_shape`` and ``fit`` (quality figures, held-out residual and gate). A new method: a ``Method`` member, a
+function ``FitInput -> Shape`` and one line in ``METHODS``.
 """
 
 from __future__ import annotations
@@ -31,7 +34,8 @@ from magnet.calibration.alignment import MAX_ALIGN_CONDITION, MIN_GRAVITY_SPREAD
 from magnet.calibration.base import MAX_SCATTER_FOR_3D, MIN_SAMPLES, FitError, Method, Shape
 from magnet.calibration.choose import AUTO, CHOICES, fit_auto, fit_choice, parse_choice
 from magnet.calibration.ellipsoid import GROSS_OUTLIER_FACTOR, MAX_OUTLIER_FRACTION, OUTLIER_SIGMAS
-from magnet.calibration.fitting import HOLDOUT_BLOCK, HOLDOUT_EVERY, fit, fit_shape
+from magnet.calibration.fit_input import FitInput, TurntableSetup
+from magnet.calibration.fitting import HOLDOUT_BLOCK, HOLDOUT_EVERY, METHODS, MethodSpec, fit, fit_shape
 
 __all__ = [
     "AUTO",
@@ -42,12 +46,16 @@ __all__ = [
     "MAX_ALIGN_CONDITION",
     "MAX_OUTLIER_FRACTION",
     "MAX_SCATTER_FOR_3D",
+    "METHODS",
     "MIN_GRAVITY_SPREAD",
     "MIN_SAMPLES",
     "OUTLIER_SIGMAS",
     "FitError",
+    "FitInput",
     "Method",
+    "MethodSpec",
     "Shape",
+    "TurntableSetup",
     "align_rotation",
     "fit",
     "fit_auto",

@@ -18,6 +18,9 @@ class Method(enum.Enum):
     ELLIPSOID_ALIGN = "ellipsoid+align"
     TURNTABLE = "turntable"
     GYRO_ELLIPSOID = "gyro-ellipsoid"
+    OFFSET = "offset"
+    OFFSET_SCALE = "offset+scale"
+    PLANAR = "planar"
 
     @classmethod
     def parse(cls, value: Method | str) -> Method:
@@ -34,6 +37,12 @@ class Method(enum.Enum):
         """Whether the method fits from the gyroscope's rates (``gyr=`` and ``period_s=``, consecutive samples)."""
         return self is Method.GYRO_ELLIPSOID
 
+    @property
+    def field_rung(self) -> bool:
+        """Whether the method is a rung of the field ladder (``magnet.calibration.field``): fitted with the
+        gyroscope when there is one, the WMM's dip and the calibration in force's matrix."""
+        return self in (Method.OFFSET, Method.OFFSET_SCALE, Method.PLANAR)
+
 
 class FitError(ValueError):
     """No calibration can be computed from these samples; the message says why and what to do."""
@@ -47,6 +56,9 @@ MIN_SAMPLES: dict[Method, int] = {
     Method.ELLIPSOID: 30,
     Method.ELLIPSOID_ALIGN: 50,
     Method.GYRO_ELLIPSOID: 100,
+    Method.OFFSET: 200,
+    Method.OFFSET_SCALE: 200,
+    Method.PLANAR: 200,
 }
 #: beyond this scatter condition (widest / thinnest spread of the raw cloud) a 3D fit is refused outright
 MAX_SCATTER_FOR_3D = 50.0

@@ -14,7 +14,11 @@ The rule (``fit_auto``):
   ``holdout_consistency_deg``, deg, lower is better: the figure the gate judges heading by, computed on the same
   held-out rows for both and with the magnetometer delay a gyro-ellipsoid record carries). Without it (no
   accelerometer) the lower held-out |B| residual (``holdout_rms_pct``); a tie or no figure at all: gyro-ellipsoid;
-- neither accepted: the refusal of gyro-ellipsoid (ellipsoid's when gyro-ellipsoid could not be computed), its
+- neither accepted (or, without a gyroscope, the ellipsoid refused): the field ladder
+  (``magnet.calibration.field``): the model the motion identifies (offset, offset+scale, planar or a full
+  ellipsoid), judged by held-out heading consistency; its record when accepted (quality ``auto_other`` names the
+  sphere's method it replaced, ``auto_refused`` every one);
+- none accepted: the refusal of gyro-ellipsoid (ellipsoid's when gyro-ellipsoid could not be computed), its
   reason naming both methods' reasons; FitError (both messages) when neither could be computed.
 
 The chosen record's quality carries ``auto_other``: the other method, whether it was accepted, its held-out
@@ -27,10 +31,11 @@ from typing import Any
 
 import numpy as np
 
+from magnet.calibration import field
 from magnet.calibration.base import FitError, Method
+from magnet.calibration.fit_input import FitInput
 from magnet.calibration.fitting import fit
 from magnet.model import Calibration
-from magnet.quality import GateThresholds
 
 #: the choice that is not a method
 AUTO = "auto"
@@ -53,43 +58,73 @@ def parse_choice(value: Method | str) -> str:
         raise ValueError(f"unknown calibration method {value!r}: use one of {', '.join(CHOICES)}") from None
 
 
-def fit_choice(mag: np.ndarray, choice: Method | str, **options: Any) -> Calibration:
-    """``fit_auto`` for "auto", else ``fit`` with that method; options: those of ``fit``."""
+def fit_choice(data: FitInput, choice: Method | str) -> Calibration:
+    """``fit_auto`` for "auto", else ``fit`` with that method."""
     chosen = parse_choice(choice)
     if chosen == AUTO:
-        return fit_auto(mag, **options)
-    return fit(mag, chosen, **options)
+        return fit_auto(data)
+    return fit(data, chosen)
 
 
-def fit_auto(
-    mag: np.ndarray,
-    *,
-    acc: np.ndarray | None = None,
-    unit: str = "ut",
-    field_ut: float | None = None,
-    gate: GateThresholds | None = None,
-    robust_extremes: bool = False,
-    gyr: np.ndarray | None = None,
-    period_s: float | None = None,
-    reference: Calibration | None = None,
-) -> Calibration:
-    """The better of gyro-ellipsoid and ellipsoid for raw samples mag (N, 3) (the rule: the module docstring);
-    arguments as ``fit``'s. Raises FitError when no calibration can be computed by either."""
-    options: dict[str, Any] = dict(acc=acc, unit=unit, field_ut=field_ut, gate=gate, reference=reference)
-    if gyr is None or period_s is None:
-        return fit(mag, Method.ELLIPSOID, robust_extremes=robust_extremes, **options)
+def fit_auto(data: FitInput) -> Calibration:
+    """The better of gyro-ellipsoid and ellipsoid for ``data`` (the rule: the module docstring). Raises FitError
+    when no calibration can be computed by either."""
+    if not data.has_gyroscope:
+        plain = data.replace(gyr_rads=None, period_s=None)
+        try:
+            sphere: Calibration | FitError = fit(plain, Method.ELLIPSOID)
+        except FitError as exc:
+            sphere = exc
+        if isinstance(sphere, Calibration) and sphere.accepted:
+            return sphere
+        return _field_fallback(plain, {Method.ELLIPSOID: sphere})
     results: dict[Method, Calibration | FitError] = {}
     for method in CANDIDATES:
         try:
-            results[method] = fit(mag, method, gyr=gyr, period_s=period_s, robust_extremes=robust_extremes, **options)
+            results[method] = fit(data, method)
         except FitError as exc:
             results[method] = exc
     records = {method: result for method, result in results.items() if isinstance(result, Calibration)}
-    if not records:
-        raise FitError(_both_reasons(results))
+    if not any(record.accepted for record in records.values()):
+        return _field_fallback(data, results)
     chosen = _choose(records)
     other = Method.ELLIPSOID if chosen is Method.GYRO_ELLIPSOID else Method.GYRO_ELLIPSOID
     return _mark(records[chosen], other, results)
+
+
+def _field_fallback(data: FitInput, results: dict[Method, Calibration | FitError]) -> Calibration:
+    """The field ladder's record when the sphere's methods (``results``) were refused: accepted, it is returned
+    with ``auto_other`` and ``auto_refused`` naming them; refused or impossible, the sphere's refusal as before (its
+    reason ends with the ladder's), FitError when nothing could be computed."""
+    try:
+        ladder: Calibration | FitError = field.fit_field(field.FieldInput.of(data), gate_thresholds=data.gate)
+    except FitError as exc:
+        ladder = exc
+    if isinstance(ladder, Calibration) and ladder.accepted:
+        summary = [
+            {"method": method.value, "accepted": False, "reason": _reason(result)[:300]}
+            for method, result in results.items()
+        ]
+        quality = ladder.quality.with_extra(auto_other=summary[0], auto_refused=summary)
+        why = "chosen by auto: the sphere's fits were refused"
+        return ladder.replace(quality=quality, reason=f"{ladder.reason}; {why}")
+    records = {method: result for method, result in results.items() if isinstance(result, Calibration)}
+    why = f"; the field ladder refused: {_reason(ladder)}"
+    if not records:
+        raise FitError(_all_reasons(results) + why)
+    if len(results) == 1:
+        only = next(iter(records.values()))
+        return only.replace(reason=only.reason + why)
+    chosen = _choose(records)
+    other = Method.ELLIPSOID if chosen is Method.GYRO_ELLIPSOID else Method.GYRO_ELLIPSOID
+    marked = _mark(records[chosen], other, results)
+    return marked.replace(reason=marked.reason + why)
+
+
+def _all_reasons(results: dict[Method, Calibration | FitError]) -> str:
+    if len(results) == len(CANDIDATES):
+        return _both_reasons(results)
+    return "; ".join(f"{method.value} refused: {_reason(result)}" for method, result in results.items())
 
 
 def _choose(records: dict[Method, Calibration]) -> Method:

@@ -1,4 +1,5 @@
-"""The method table and the entry points: ``fit_shape`` (the fit alone) and ``fit`` (with quality and gate)."""
+"""The method table (``METHODS``: every method, turntable and gyro-ellipsoid included) and the entry points, each
+taking one ``FitInput``: ``fit_shape`` (the fit alone) and ``fit`` (with quality and gate)."""
 
 from __future__ import annotations
 
@@ -8,15 +9,18 @@ from collections.abc import Callable
 
 import numpy as np
 
+from magnet.calibration import field
 from magnet.calibration.alignment import ellipsoid_align
 from magnet.calibration.base import GYROSCOPE_NEEDED, FitError, Method, Shape, check_acc, check_gyr, check_samples
 from magnet.calibration.closed_form import minmax, minmax2d, sphere
 from magnet.calibration.ellipsoid import ellipsoid
+from magnet.calibration.fit_input import FitInput
 from magnet.calibration.gyro_ellipsoid import gyro_ellipsoid
+from magnet.calibration.turntable import fit_turntable
 from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
-from magnet.quality.units_hint import unit_hint
+from magnet.quality.units_hint import earth_range_refusal, unit_hint
 
 #: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
 #: it did not see (blocks, not single samples: neighbours in time are nearly the same reading)
@@ -28,25 +32,105 @@ HOLDOUT_EVERY = 5
 HOLDOUT_TOLERANCE = 1e-9
 
 
-def _turntable(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
-    raise FitError(
-        "the turntable method needs the mounting and table angle of every sample: use magnet.turntable.fit_turntable"
+def _closed(fn: Callable[[np.ndarray, np.ndarray | None, bool], Shape]) -> Callable[[FitInput], Shape]:
+    """A method of (mag, acc, robust) as a method of the checked input."""
+    return lambda data: fn(data.mag, data.acc, data.robust_extremes)
+
+
+def _rates(data: FitInput) -> tuple[np.ndarray, float]:
+    """The body rates (N, 3) rad/s and their period (s); FitError when the input has none."""
+    if data.gyr_rads is None or data.period_s is None:
+        raise FitError(GYROSCOPE_NEEDED)
+    return np.asarray(data.gyr_rads, dtype=float), data.period_s
+
+
+def _gyro_ellipsoid(data: FitInput) -> Shape:
+    return gyro_ellipsoid(data.mag, *_rates(data))
+
+
+def _gyro_held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:
+    """gyro-ellipsoid's held-out fit: its windows of consecutive samples are taken inside the kept blocks only."""
+    return gyro_ellipsoid(data.mag, *_rates(data), keep=train)
+
+
+def _warm(fn: Callable[[np.ndarray, np.ndarray | None, bool, Shape, float], Shape]) -> HeldOut:
+    """The held-out fit of an iterative method (mag, acc, robust, start, tolerance) -> Shape: started from the fit of
+    every sample, stopped at HOLDOUT_TOLERANCE (the acc rows only for the method that reads them)."""
+
+    def held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:
+        acc = None if data.acc is None or fn is not ellipsoid_align else take_rows(data.acc, train)
+        return fn(take_rows(data.mag, train), acc, data.robust_extremes, whole, HOLDOUT_TOLERANCE)
+
+    return held_out
+
+
+def _turntable_shape(data: FitInput) -> Shape:
+    raise FitError(TURNTABLE_NEEDED)
+
+
+def _turntable(data: FitInput) -> Calibration:
+    """The turntable's own fit, quality and gate (``magnet.calibration.turntable.fit_turntable``) from
+    ``data.turntable``."""
+    setup = data.turntable
+    if setup is None:
+        raise FitError(TURNTABLE_NEEDED)
+    return fit_turntable(
+        data.mag,
+        setup.mounting,
+        setup.heading_deg,
+        setup.horizontal,
+        setup.vertical,
+        setup.variant,
+        unit=data.unit,
+        field_unit=setup.field_unit,
+        gate_thresholds=data.gate,
     )
 
 
-def _no_gyroscope(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
-    raise FitError(GYROSCOPE_NEEDED)
+def _field_shape(data: FitInput) -> Shape:
+    raise FitError("offset, offset+scale and planar are fitted by fit() (magnet.calibration.field), not as a shape")
 
 
-#: Method -> (shape function (mag, acc, robust) -> Shape, geometry the samples are judged by)
-_METHODS: dict[Method, tuple[Callable[[np.ndarray, np.ndarray | None, bool], Shape], Geometry]] = {
-    Method.MINMAX2D: (minmax2d, Geometry.CIRCLE),
-    Method.MINMAX: (minmax, Geometry.SPHERE),
-    Method.SPHERE: (sphere, Geometry.SPHERE),
-    Method.ELLIPSOID: (ellipsoid, Geometry.SPHERE),
-    Method.ELLIPSOID_ALIGN: (ellipsoid_align, Geometry.SPHERE),
-    Method.TURNTABLE: (_turntable, Geometry.TURNTABLE),
-    Method.GYRO_ELLIPSOID: (_no_gyroscope, Geometry.SPHERE),  # with a gyroscope: ``gyro_ellipsoid``
+def _field_rung(method: Method) -> Callable[[FitInput], Calibration]:
+    """A rung of the field ladder (``magnet.calibration.field``) as a method that makes its own record."""
+    return lambda data: field.fit_field(field.FieldInput.of(data), rung=method.value, gate_thresholds=data.gate)
+
+
+#: why the turntable method cannot fit samples alone
+TURNTABLE_NEEDED = (
+    "the turntable method needs the mounting and table angle of every sample and the known field: give FitInput's "
+    "turntable (magnet fit: the mounting and heading_deg columns, --horizontal and --vertical; fit_turntable)"
+)
+
+#: (checked input, the shape fitted to every sample, the training rows (N,) bool) -> the shape of the training rows
+HeldOut = Callable[[FitInput, Shape, np.ndarray], Shape]
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodSpec:
+    """A method in the table: ``shape``, its fit of the checked input; ``geometry``, what its samples are judged by;
+    ``held_out``, its fit of the training rows (None: ``shape`` again on them alone); ``whole``, a method that makes
+    its own record, quality and gate (turntable; None: ``fit``'s)."""
+
+    shape: Callable[[FitInput], Shape]
+    geometry: Geometry
+    held_out: HeldOut | None = None
+    whole: Callable[[FitInput], Calibration] | None = None
+
+
+#: every method: how it fits, what its samples are judged by, how its held-out fit is made
+METHODS: dict[Method, MethodSpec] = {
+    Method.MINMAX2D: MethodSpec(_closed(minmax2d), Geometry.CIRCLE),
+    Method.MINMAX: MethodSpec(_closed(minmax), Geometry.SPHERE),
+    Method.SPHERE: MethodSpec(_closed(sphere), Geometry.SPHERE),
+    Method.ELLIPSOID: MethodSpec(_closed(ellipsoid), Geometry.SPHERE, _warm(ellipsoid)),
+    Method.ELLIPSOID_ALIGN: MethodSpec(_closed(ellipsoid_align), Geometry.SPHERE, _warm(ellipsoid_align)),
+    Method.TURNTABLE: MethodSpec(_turntable_shape, Geometry.TURNTABLE, whole=_turntable),
+    Method.GYRO_ELLIPSOID: MethodSpec(_gyro_ellipsoid, Geometry.SPHERE, _gyro_held_out),
+    **{
+        rung: MethodSpec(_field_shape, Geometry.SPHERE, whole=_field_rung(rung))
+        for rung in (Method.OFFSET, Method.OFFSET_SCALE, Method.PLANAR)
+    },
 }
 
 
@@ -73,69 +157,50 @@ def _finish(shape: Shape, method: Method, unit: str, field_ut: float | None, cou
     )
 
 
-def fit_shape(
-    mag: np.ndarray,
-    method: Method | str,
-    *,
-    acc: np.ndarray | None = None,
-    unit: str = "ut",
-    field_ut: float | None = None,
-    robust_extremes: bool = False,
-    gyr: np.ndarray | None = None,
-    period_s: float | None = None,
-) -> tuple[Calibration, Shape]:
-    """The fit alone, without quality or gate: (record with empty quality, the shape found). Raises FitError.
-
-    gyr (N, 3) rad/s, consecutive samples every period_s seconds: used by ``gyro-ellipsoid`` (which needs them)."""
-    method = Method.parse(method)
-    mag = check_samples(mag, method)
-    acc = check_acc(acc, len(mag), method is Method.ELLIPSOID_ALIGN)
-    rates = check_gyr(gyr, period_s, len(mag), method is Method.GYRO_ELLIPSOID)
+def _checked(data: FitInput, method: Method) -> FitInput:
+    """The input with its arrays checked for ``method`` (``magnet.calibration.base``); FitError naming the problem."""
+    mag = check_samples(data.mag, method)
+    acc = check_acc(data.acc, len(mag), method is Method.ELLIPSOID_ALIGN)
+    rates = check_gyr(data.gyr_rads, data.period_s, len(mag), method is Method.GYRO_ELLIPSOID)
+    field_ut = data.field_ut
     if field_ut is not None and not (math.isfinite(field_ut) and field_ut > 0):
         raise FitError(f"expected field strength must be a positive number of uT, got {field_ut!r}")
-    if method is Method.GYRO_ELLIPSOID and rates is not None and period_s is not None:
-        shape = gyro_ellipsoid(mag, rates, period_s)
-    else:
-        shape = _METHODS[method][0](mag, acc, robust_extremes)
-    return _finish(shape, method, unit, field_ut, len(mag)), shape
+    return data.replace(mag=mag, acc=acc, gyr_rads=rates)
 
 
-def fit(
-    mag: np.ndarray,
-    method: Method | str,
-    *,
-    acc: np.ndarray | None = None,
-    unit: str = "ut",
-    field_ut: float | None = None,
-    gate: GateThresholds | None = None,
-    robust_extremes: bool = False,
-    gyr: np.ndarray | None = None,
-    period_s: float | None = None,
-    reference: Calibration | None = None,
-) -> Calibration:
-    """Fit a calibration to raw samples mag (N, 3) in ``unit``; acc (N, 3) specific force, any unit, or None.
+def fit_shape(data: FitInput, method: Method | str) -> tuple[Calibration, Shape]:
+    """The fit alone, without quality or gate: (record with empty quality, the shape found). Raises FitError."""
+    method = Method.parse(method)
+    checked = _checked(data, method)
+    shape = METHODS[method].shape(checked)
+    return _finish(shape, method, data.unit, data.field_ut, len(checked.mag)), shape
 
-    field_ut: the expected |B| in uT (WMM) or None (keep the fitted radius). Returns the record with ``quality``
+
+def fit(data: FitInput, method: Method | str) -> Calibration:
+    """Fit a calibration to ``data`` (``FitInput``: raw samples mag (N, 3) in its unit, acc, gyr_rads, ...) with
+    ``method``.
+
+    The record is scaled to ``data.field_ut`` (None: the fitted radius) and carries ``quality``
     (``magnet.quality.assess``, including a held-out residual: every 5th block of 20 samples is left out of a
-    second fit and scored) and ``accepted``/``reason`` from ``magnet.quality.gate`` (``gate=None``: default thresholds).
-    With acc, the dip and the consistency figures of ``magnet.quality.motion``: gyr (N, 3) rad/s sampled every
+    second fit and scored) and ``accepted``/``reason`` from ``magnet.quality.gate`` (``data.gate`` None: default
+    thresholds). With acc, the dip and the consistency figures of ``magnet.quality.motion``: gyr_rads sampled every
     period_s seconds gives the fused gravity and attitude, else the quasi-static samples are used; the fit must make
-    the field more constant than ``reference`` (the calibration in force; None: no calibration) on held-out data.
-    Raises FitError when no calibration can be computed.
+    the field more constant than ``data.reference`` (the calibration in force; None: no calibration) on held-out
+    data. A method that makes its own record (turntable) is its own judge. Raises FitError when no calibration can
+    be computed.
     """
     method = Method.parse(method)
-    calibration, shape = fit_shape(
-        mag, method, acc=acc, unit=unit, field_ut=field_ut, robust_extremes=robust_extremes, gyr=gyr, period_s=period_s
-    )
-    mag = np.asarray(mag, dtype=float)
-    acc_arr = None if acc is None else np.asarray(acc, dtype=float)
+    spec = METHODS[method]
+    if spec.whole is not None:
+        return spec.whole(data)
+    calibration, shape = fit_shape(data, method)
+    mag = np.asarray(data.mag, dtype=float)
+    acc_arr = None if data.acc is None else np.asarray(data.acc, dtype=float)
+    gyr, period_s, unit, field_ut = data.gyr_rads, data.period_s, data.unit, data.field_ut
     test = _holdout_mask(len(mag))
-    if method is Method.GYRO_ELLIPSOID and gyr is not None and period_s is not None:
-        holdout = _gyro_holdout(mag, np.asarray(gyr, dtype=float), period_s, unit, field_ut, test)
-    else:
-        holdout = _holdout(mag, method, acc_arr, unit, field_ut, robust_extremes, shape, test)
+    holdout = _holdout(data.replace(mag=mag, acc=acc_arr), method, shape, test)
     to_ut = ut_per_unit(unit)
-    geometry = _METHODS[method][1]
+    geometry = spec.geometry
     corrected = calibration.apply(mag)  # for the figures of assess and of motion
     quality = assess(
         mag,
@@ -149,6 +214,7 @@ def fit(
     )
     if acc_arr is not None and geometry is Geometry.SPHERE:
         ev = _motion_evidence(acc_arr, gyr, period_s, len(mag))
+        reference = data.reference
         figures = motion.motion_figures(
             mag,
             calibration,
@@ -162,10 +228,14 @@ def fit(
         quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     if shape.note:
         quality = quality.with_extra(note=shape.note)
-    if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.mag_delay)
+    if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.attitude.mag_delay)
         quality = quality.with_extra(mag_lag_s=shape.mag_lag_s)
-    accepted, reason = _gate(quality, gate, method)
-    hint = None if accepted or geometry is not Geometry.SPHERE else unit_hint(shape.radius, to_ut, field_ut)
+    accepted, reason = _gate(quality, data.gate, method)
+    sphere = geometry is Geometry.SPHERE
+    earth = earth_range_refusal(shape.radius, to_ut) if sphere and field_ut is None else None
+    hint = unit_hint(shape.radius, to_ut, field_ut) if sphere and not accepted and not earth else None
+    if earth:
+        accepted, reason = False, earth if accepted else f"{earth}; {reason}"
     if hint:
         reason = f"{hint}; {reason}"
     if shape.note:
@@ -197,53 +267,25 @@ def _holdout_mask(count: int) -> np.ndarray:
     return np.resize(period, count)  # the pattern repeats every HOLDOUT_EVERY blocks
 
 
-def _holdout(
-    mag: np.ndarray,
-    method: Method,
-    acc: np.ndarray | None,
-    unit: str,
-    field_ut: float | None,
-    robust: bool,
-    whole: Shape | None = None,
-    test: np.ndarray | None = None,
-) -> tuple[np.ndarray, Calibration] | None:
-    """(test samples, calibration fitted on the rest): every HOLDOUT_EVERY-th block of samples is the test set.
+def _holdout(data: FitInput, method: Method, whole: Shape, test: np.ndarray) -> tuple[np.ndarray, Calibration] | None:
+    """(test samples, calibration fitted on the rest): every HOLDOUT_EVERY-th block of samples is the test set
+    (``test``: ``_holdout_mask(len(mag))``); ``data``: the input, its mag and acc float arrays; None when the
+    training rows cannot be fitted.
 
-    ``whole``: the shape fitted to every sample. The iterative methods (``_WARM_STARTED``) start the held-out fit
-    from it, and stop at HOLDOUT_TOLERANCE: the fit is still of the training samples alone (the same robust steps,
-    the same minimum), found in fewer iterations (docs/front-door.md, "Fit speed": within 1e-4 uT of the cold fit,
-    the held-out residual within 1e-5 uT). ``test``: ``_holdout_mask(len(mag))``, when the caller has it already."""
-    test = _holdout_mask(len(mag)) if test is None else test
+    ``whole``: the shape fitted to every sample. The iterative methods (``_warm``) start the held-out fit from it,
+    and stop at HOLDOUT_TOLERANCE: the fit is still of the training samples alone (the same robust steps, the same
+    minimum), found in fewer iterations (docs/front-door.md, "Fit speed": within 1e-4 uT of the cold fit, the
+    held-out residual within 1e-5 uT). gyro-ellipsoid's windows stay inside the training blocks; the others are
+    fitted again, checked, on the training rows alone."""
     train = ~test
-    train_acc = None if acc is None or method not in _READS_ACC else take_rows(acc, train)  # the others never use it
+    held_out = METHODS[method].held_out
     try:
-        if whole is not None and method in _WARM_STARTED:
-            shape = _WARM_STARTED[method](take_rows(mag, train), train_acc, robust, whole, HOLDOUT_TOLERANCE)
-            train_cal = _finish(shape, method, unit, field_ut, int(train.sum()))
+        if held_out is not None:
+            shape = held_out(data, whole, train)
         else:
-            train_cal, _ = fit_shape(
-                take_rows(mag, train), method, acc=train_acc, unit=unit, field_ut=field_ut, robust_extremes=robust
-            )
+            acc = None if data.acc is None else take_rows(data.acc, train)
+            rows = FitInput(take_rows(data.mag, train), acc=acc, robust_extremes=data.robust_extremes)
+            shape = METHODS[method].shape(_checked(rows, method))
     except FitError:
         return None
-    return take_rows(mag, test), train_cal
-
-
-def _gyro_holdout(
-    mag: np.ndarray, gyr: np.ndarray, period_s: float, unit: str, field_ut: float | None, test: np.ndarray
-) -> tuple[np.ndarray, Calibration] | None:
-    """``_holdout`` for gyro-ellipsoid: its windows of consecutive samples are taken inside the kept blocks only."""
-    try:
-        shape = gyro_ellipsoid(mag, gyr, period_s, keep=~test)
-    except FitError:
-        return None
-    return take_rows(mag, test), _finish(shape, Method.GYRO_ELLIPSOID, unit, field_ut, int((~test).sum()))
-
-
-#: the methods whose shape depends on the accelerometer's samples
-_READS_ACC = frozenset({Method.ELLIPSOID_ALIGN})
-#: methods whose held-out fit starts from the fit of every sample: (mag, acc, robust, start, tolerance) -> Shape
-_WARM_STARTED: dict[Method, Callable[[np.ndarray, np.ndarray | None, bool, Shape, float], Shape]] = {
-    Method.ELLIPSOID: ellipsoid,
-    Method.ELLIPSOID_ALIGN: ellipsoid_align,
-}
+    return take_rows(data.mag, test), _finish(shape, method, data.unit, data.field_ut, int(train.sum()))

@@ -1,15 +1,19 @@
 """The calibrations a compass applies: which are in force per device, which it refuses and why (not accepted by the
-quality gate, not signed by a trusted key, older than the one in force), and each sample's correction from them.
+quality gate, not signed by a trusted key, older than the one in force), and each sample's correction from them
+(``Correction``: offset, matrix, motors and the magnetometer's lag, applied in one place).
 
 Pure: records in, decisions out; the compass core (``magnet.compass.core``) counts and logs."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from magnet import signing, wire
+from magnet.attitude.mag_delay import advance_field
 from magnet.bounded import Recent
-from magnet.mag_delay import record_lag_s
+from magnet.model import Calibration
 
 #: devices remembered as refused between two asks of the calibrators (a flood beyond: one query for all)
 MAX_REFUSED = 1024
@@ -85,36 +89,99 @@ class CalibrationsInForce:
         return cals
 
 
-def calibration_rows(
-    cals: list[wire.DeviceCalibration | None], counts: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per sample: the offset (S, 3), matrix (S, 3, 3) and whether calibrated (S,) of its batch's calibration
-    (identity where none; broadcast views, no copies, when no batch has one)."""
-    total = int(counts.sum())
-    if all(c is None for c in cals):
-        return np.broadcast_to(_ZERO3, (total, 3)), np.broadcast_to(_EYE3, (total, 3, 3)), np.zeros(total, bool)
-    offsets = np.array([c.calibration.offset if c else _ZERO3 for c in cals]).reshape(-1, 3)
-    matrices = np.array([c.calibration.matrix if c else _EYE3 for c in cals]).reshape(-1, 3, 3)
-    calibrated = np.array([c is not None for c in cals], dtype=bool)
-    return np.repeat(offsets, counts, axis=0), np.repeat(matrices, counts, axis=0), np.repeat(calibrated, counts)
+@dataclasses.dataclass(frozen=True, eq=False)
+class Correction:
+    """Each sample's correction by its batch's record in force, made once per step and applied in one place, as
+    PX4's ``calibration::Magnetometer::Correct`` and ArduPilot's ``AP_Compass`` apply theirs: the field
+    B = A (u - b) - motors (offset b, matrix A, the motors' field at the sample's current or throttle), and for the
+    attitude filter B turned forward over the magnetometer's lag (``magnet.attitude.mag_delay``).
+
+    offsets (S, 3) raw uT, matrices (S, 3, 3) (identity where a batch has no record; broadcast views, no copies,
+    when none has), calibrated (S,) bool, motor_ut (S, 3) uT (zero where the record has no motor model or the batch
+    no current or throttle), None when no record has a motor model; lag_s (S,) s, None when no record carries one."""
+
+    offsets: np.ndarray
+    matrices: np.ndarray
+    calibrated: np.ndarray
+    motor_ut: np.ndarray | None = None
+    lag_s: np.ndarray | None = None
+
+    @classmethod
+    def of_batches(cls, cals: list[wire.DeviceCalibration | None], columns: wire.RawColumns) -> Correction:
+        """The correction of every sample of ``columns`` by its batch's record (``cals``, one per batch, None where
+        a device has none), each record read once."""
+        counts = columns.counts
+        total = int(counts.sum())
+        if all(c is None for c in cals):
+            return cls(
+                np.broadcast_to(_ZERO3, (total, 3)), np.broadcast_to(_EYE3, (total, 3, 3)), np.zeros(total, bool)
+            )
+        records = [c.calibration if c else None for c in cals]
+        offsets = np.array([r.offset if r else _ZERO3 for r in records]).reshape(-1, 3)
+        matrices = np.array([r.matrix if r else _EYE3 for r in records]).reshape(-1, 3, 3)
+        calibrated = np.array([r is not None for r in records], dtype=bool)
+        lags = [r.mag_lag_s if r else 0.0 for r in records]
+        return cls(
+            np.repeat(offsets, counts, axis=0),
+            np.repeat(matrices, counts, axis=0),
+            np.repeat(calibrated, counts),
+            _motor_rows(records, columns),
+            np.repeat(np.asarray(lags, dtype=float), counts) if any(lags) else None,
+        )
+
+    def apply(self, mag_ut: np.ndarray, gyr_rads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the corrected field (S, 3) uT the compass publishes, the field (S, 3) its attitude filter gets: turned
+        forward over the lag by the gyroscope's rates gyr_rads (S, 3) rad/s, the same array without a lag) from the
+        raw mag_ut (S, 3) uT."""
+        # no calibration anywhere: identity, the same numbers without the per-sample matrix product
+        field = (
+            np.einsum("sij,sj->si", self.matrices, mag_ut - self.offsets)
+            if self.calibrated.any()
+            else np.array(mag_ut, dtype=float)
+        )
+        if self.motor_ut is not None:
+            field = field - self.motor_ut
+        return field, field if self.lag_s is None else advance_field(field, gyr_rads, self.lag_s)
 
 
-def lag_rows(cals: list[wire.DeviceCalibration | None], counts: np.ndarray) -> np.ndarray | None:
-    """Per sample (S,) the magnetometer's delay behind the gyroscope (s) its batch's calibration carries
-    (``magnet.mag_delay``), or None when no batch's calibration carries one."""
-    lags = [record_lag_s(c.calibration) if c else 0.0 for c in cals]
-    return np.repeat(np.asarray(lags, dtype=float), counts) if any(lags) else None
-
-
-def motor_rows(cals: list[wire.DeviceCalibration | None], columns: wire.RawColumns) -> np.ndarray | None:
-    """(S, 3) uT the motors add at each sample (``magnet.motor``: the calibration's motor model times the batch's
-    current or throttle; zero where either is unknown), or None when no batch's calibration has a motor model."""
-    if all(c is None or c.calibration.motor is None for c in cals):
+def _motor_rows(records: list[Calibration | None], columns: wire.RawColumns) -> np.ndarray | None:
+    """(S, 3) uT the motors add at each sample (``magnet.motor``: the record's motor model times the batch's
+    current or throttle; zero where either is unknown), or None when no batch's record has a motor model."""
+    if all(r is None or r.motor is None for r in records):
         return None
     out = np.zeros((int(columns.counts.sum()), 3))
     bounds = columns.bounds
-    for i, cal in enumerate(cals):
-        if cal is not None and cal.calibration.motor is not None:
+    for i, record in enumerate(records):
+        if record is not None and record.motor is not None:
             lo, hi = bounds[i], bounds[i + 1]
-            out[lo:hi] = cal.calibration.motor.offset_ut(columns.current[lo:hi], columns.thr[lo:hi])
+            out[lo:hi] = record.motor.offset_ut(columns.current[lo:hi], columns.thr[lo:hi])
     return out
+
+
+#: a new record that turns the corrected field by less than this (deg, at any direction of a field of the old
+#: record's strength) and changes its strength by less than RESTART_PCT keeps the device's filter: an in-service
+#: refresh (``magnet.calibrator.refresh``) moves the field by a degree or two, and a filter started again while a
+#: hand swings a phone takes ten seconds and more to find its heading (fieldsim's walk-hand: 22 deg over them)
+RESTART_DEG = 3.0
+RESTART_PCT = 5.0
+_CUBE = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if x or y or z], dtype=float)
+_DIRECTIONS = _CUBE / np.linalg.norm(_CUBE, axis=1)[:, None]
+
+
+def small_change(old: Calibration, new: Calibration) -> bool:
+    """Whether ``new`` corrects every raw reading the old one maps onto a field of its strength, in 26 directions,
+    to within RESTART_DEG of direction and RESTART_PCT of strength (same units, no motors' field in either)."""
+    if (old.unit, old.output_unit) != (new.unit, new.output_unit) or old.motor is not None or new.motor is not None:
+        return False
+    try:
+        inverse = np.linalg.inv(old.matrix)
+    except np.linalg.LinAlgError:
+        return False
+    strength = old.field_strength or 50.0
+    raw = old.offset + (_DIRECTIONS * strength) @ inverse.T
+    before, after = old.apply(raw), new.apply(raw)
+    norm_before, norm_after = np.linalg.norm(before, axis=1), np.linalg.norm(after, axis=1)
+    cosine = np.einsum("ij,ij->i", before, after) / (norm_before * norm_after)
+    angle = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+    ratio = np.abs(norm_after / norm_before - 1.0) * 100.0
+    return bool(np.all(angle < RESTART_DEG) and np.all(ratio < RESTART_PCT))

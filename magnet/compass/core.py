@@ -1,11 +1,14 @@
 """The compass in one object with one step: ``CompassCore.step(raw, now_ns) -> HeadingColumns``.
 
 A step takes the raw batches of many devices (``wire.RawColumns``, float64) and gives every sample's heading:
-each batch's calibration in force (``calibrations``) and motor model corrects the field; the accelerometer gives a
+each batch's calibration in force corrects the field, offset, matrix, motors and lag in one place
+(``calibrations.Correction``); the accelerometer gives a
 tilt-compensated heading (``tilt``); the batches that carry a gyroscope go through their device's filter
 (``filters``); the field and dip are checked against what the World Magnetic Model expects at the device's place
 (``places``, ``earth``; the day from ``now_ns`` unless the places have a fixed date); the heading is smoothed per
-device (``--window``) and turned to true north by the declination; the drift monitor sees the field (``watch``).
+device (``--window``) and turned to true north by the declination; the drift monitor sees the field (``watch``);
+the compasses of a vehicle (``<vehicle>-mag<N>``) are kept for their comparison (``magnet.vehicle``,
+``vehicle_report``).
 Its parts are small objects the core holds, none inheriting another's state. ``decode`` and ``encode`` are the
 wire's edges (bytes in and out, counted drops); the live service, ``magnet heading`` and the tests all call
 ``step``. Pure: no zenoh, no clock (``now_ns`` is given).
@@ -15,24 +18,25 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from magnet import heading as hd
 from magnet import signing, wire
+from magnet.attitude import heading as hd
 from magnet.bounded import Recent
-from magnet.compass.calibrations import CalibrationsInForce, calibration_rows, lag_rows, motor_rows
-from magnet.compass.earth import utc_date
+from magnet.compass.calibrations import CalibrationsInForce, Correction, small_change
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
-from magnet.compass.places import EarthColumns, Places
 from magnet.compass.tilt import Headings, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
+from magnet.earth.expected import utc_date
+from magnet.fleet.places import EarthColumns, Places
 from magnet.frames import rotate_heading, to_magnetic_ned
-from magnet.mag_delay import advance_field
 from magnet.shard import EVERY_DEVICE, Shard
+from magnet.vehicle import VehicleReport, VehicleWindows, judge
 
 log = logging.getLogger("magnet.compass")
 
@@ -128,6 +132,16 @@ class Counters:
     published_batches: int = 0
 
 
+def _correction(cals: list[wire.DeviceCalibration | None]) -> Callable[[int], tuple[np.ndarray, np.ndarray] | None]:
+    """Batch index -> its calibration's (offset, matrix), or None (asked only for the batches of vehicles)."""
+
+    def of(b: int) -> tuple[np.ndarray, np.ndarray] | None:
+        cal = cals[b]
+        return None if cal is None else (np.asarray(cal.calibration.offset), np.asarray(cal.calibration.matrix))
+
+    return of
+
+
 class CompassCore:
     """The compass's state and its step (see the module). ``places``: where each device is (None: nowhere known);
     ``trusted``: the keys calibrations must be signed by (None: any)."""
@@ -144,6 +158,7 @@ class CompassCore:
         self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
         self.filters = DeviceFilters(max_devices=limit)
         self.smoothing = Smoothing(settings.window, limit)
+        self.vehicles = VehicleWindows(limit)
         self.keys = DeviceKeys(settings.shard, max_keys=KEYS_PER_DEVICE * limit)
         self.drops = wire.DropCounter()
         self.counters = Counters()
@@ -201,12 +216,15 @@ class CompassCore:
             if device is not None:
                 self.calibrations.refuse(device)
             return False
+        previous = self.calibrations.in_force.get(record.device)
         if self.calibrations.put(record):
             self._log_evictions()
             self.watch.calibration(record, record.created_ns)
             # the device's filter starts again: its magnetometer state was built on the old correction, and the
-            # field jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust
-            self.filters.forget(record.device)
+            # field jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust;
+            # unless the field hardly moves (an in-service refresh): a restart costs more than it mends
+            if previous is None or not small_change(previous.calibration, record.calibration):
+                self.filters.forget(record.device)
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
 
@@ -215,17 +233,19 @@ class CompassCore:
         """Headings for every sample of ``raw`` (see the module); ``now_ns`` the wall clock (ns since the epoch),
         whose UTC day dates the model where no ``--date`` is fixed. Counts what it received."""
         cals = self.calibrations.of_batches(raw.devices)
-        offsets, matrices, calibrated = calibration_rows(cals, raw.counts)
+        correction = Correction.of_batches(cals, raw)
+        field, filter_field = correction.apply(raw.mag_ut, raw.gyr_rads)
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
-        out = compute_headings(raw.mag_ut, raw.acc_ms2, offsets, matrices, calibrated, motor_rows(cals, raw))
-        fused = self._fuse(raw, out, where.declination_deg, lag_rows(cals, raw.counts))
+        out = compute_headings(field, raw.acc_ms2, correction.calibrated)
+        fused = self._fuse(raw, filter_field, where.declination_deg)
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
             dip = hd.dip_angle_deg(out.field_ut, gravity)
         flags = hd.disturbance_flags(out.field_ut, gravity, where.total_ut, where.inclination_deg, dip_deg=dip)
         out, quat = merge(dataclasses.replace(out, flags=out.flags | flags), fused)
         self.watch.observe(raw.devices, raw.bounds, raw.t_ns, hd.row_norm(out.field_ut), dip)
+        self.vehicles.observe(raw.devices, raw.bounds, raw.t_ns, raw.mag_ut, raw.current, raw.thr, _correction(cals))
         self._log_evictions()
         self.counters.received_batches += len(raw.devices)
         self.counters.received_samples += int(raw.counts.sum())
@@ -239,17 +259,14 @@ class CompassCore:
             None if quat is None else rotate_heading(quat, where.declination_deg),
         )
 
-    def _fuse(
-        self, raw: wire.RawColumns, out: Headings, declination_deg: np.ndarray, lags: np.ndarray | None
-    ) -> FusedColumns:
+    def _fuse(self, raw: wire.RawColumns, field: np.ndarray, declination_deg: np.ndarray) -> FusedColumns:
         """The per-device filters run on the batches that carry a gyroscope (``magnet.compass.filters``), aided by
         the velocity where a batch carries one (turned to magnetic north by the declination of the device's place);
-        bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``lags``
-        (S,) s: the magnetometer's delay the calibration carries; the filters get the field turned forward over it
-        (``magnet.mag_delay``)."""
+        bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``field``
+        (S, 3) uT: the corrected field as the filters get it (``Correction.apply``: turned forward over the
+        magnetometer's lag the record carries)."""
         vel = raw.vel
         aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
-        field = out.field_ut if lags is None else advance_field(out.field_ut, raw.gyr_rads, lags)
         fused = self.filters.update(
             raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding
         )
@@ -258,6 +275,15 @@ class CompassCore:
                 log.warning("dropping gyroscope samples (%s); further ones only counted", cause)
             self.drops.counts[f"raw:{cause}"] += count - 1
         return fused
+
+    def vehicle_report(self, vehicle: str) -> VehicleReport | None:
+        """The compasses of ``vehicle`` judged against each other (``magnet.vehicle.judge``), with the field the WMM
+        expects at the place of its first compass; None for a vehicle not seen."""
+        series = self.vehicles.series(vehicle)
+        if not series:
+            return None
+        earth = self.watch.places.earth(next(iter(series)), self.watch.date)
+        return judge(vehicle, series, earth.total_ut)
 
     # ------------------------------------------------------------------------------------------------ counters
     def evicted_count(self) -> int:

@@ -1,10 +1,10 @@
 """One gyroscope-aided filter per device for the compass (DESIGN.md 4b): state kept across batches.
 
 The compass computes accelerometer-tilt headings for every sample of a step (``magnet.compass.tilt``) and then hands
-the batches that carry a gyroscope to ``DeviceFilters.update``, which runs each device's ``magnet.fusion.Fusion`` on
-them, batch after batch, and ``merge`` puts the fused attitude in place of the tilt one. The samples of a step are
-grouped by device, so that a device's batches that continue one another go through vqf in one call (its cost is
-about 4 us per call plus 0.5 us per sample). Per device:
+the batches that carry a gyroscope to ``DeviceFilters.update``, which runs each device's
+``magnet.attitude.fusion.Fusion`` on them, batch after batch, and ``merge`` puts the fused attitude in place of the tilt
+one. The samples of a step are grouped by device, so that a device's batches that continue one another go through vqf in
+one call (its cost is about 4 us per call plus 0.5 us per sample). Per device:
 
 - the filter runs at the device's sample period (the mean step of its first batch's ``t_ns``, worked out from whole
   nanoseconds so that evenly stamped samples give the same period however they are batched: a file as one batch
@@ -33,8 +33,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from magnet import frames, fusion
-from magnet import heading as hd
+from magnet import frames
+from magnet.attitude import fusion
+from magnet.attitude import heading as hd
 from magnet.bounded import Recent
 from magnet.compass.tilt import Headings
 
@@ -270,8 +271,8 @@ class DeviceFilters:
     ) -> FusedColumns:
         """Fuse every batch b (samples bounds[b] .. bounds[b+1]) that carries a gyroscope (not all-NaN rows), in order;
         S = bounds[-1] samples, arrays (S, 3); ``vel_ned_ms`` (S, 3) m/s magnetic NED (NaN rows where unknown) aids
-        the filters of the devices that send one (``magnet.aided_fusion``). Checks and frame conversions are done
-        once for all samples; each device's batches are grouped, and its filter runs once per run of batches that
+        the filters of the devices that send one (``magnet.attitude.aided_fusion``). Checks and frame conversions are
+        done once for all samples; each device's batches are grouped, and its filter runs once per run of batches that
         continue one another."""
         count = int(bounds[-1])
         edges = np.asarray(bounds, dtype=np.int64)

@@ -1,7 +1,7 @@
 """Headings from the field and the accelerometer, for many samples of many devices at once, and their smoothing.
 
-``compute_headings`` corrects the field (calibration, motors) and turns it into a tilt-compensated heading (level
-where a sample has no accelerometer); ``smooth_tail`` is the circular sliding mean carried across batches.
+``compute_headings`` turns the corrected field into a tilt-compensated heading (level where a sample has no
+accelerometer); ``smooth_tail`` is the circular sliding mean carried across batches.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 
-from magnet import heading as hd
+from magnet.attitude import heading as hd
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -25,25 +25,13 @@ class Headings:
     flags: np.ndarray
 
 
-def compute_headings(
-    mag_ut: np.ndarray,
-    acc_ms2: np.ndarray,
-    offsets: np.ndarray,
-    matrices: np.ndarray,
-    calibrated: np.ndarray,
-    motor_ut: np.ndarray | None = None,
-) -> Headings:
+def compute_headings(field: np.ndarray, acc_ms2: np.ndarray, calibrated: np.ndarray) -> Headings:
     """Headings for S samples of any devices at once; flags: CALIBRATED only (the disturbance checks come after the
-    attitude is known, ``magnet.heading.disturbance_flags``).
+    attitude is known, ``magnet.attitude.heading.disturbance_flags``).
 
-    mag_ut (S, 3) raw uT; acc_ms2 (S, 3) m/s^2 with NaN rows where a sample has no accelerometer; offsets (S, 3) and
-    matrices (S, 3, 3) the calibration of each sample's device (B = A (u - b), see ``magnet.model``); calibrated (S,)
-    bool; motor_ut (S, 3) the motors' field to subtract after the correction (``magnet.motor``), or None.
+    field (S, 3) uT corrected (``magnet.compass.calibrations.Correction``); acc_ms2 (S, 3) m/s^2 with NaN rows where
+    a sample has no accelerometer; calibrated (S,) bool: whether the sample's device has a calibration in force.
     """
-    # no calibration anywhere: identity, the same numbers without the per-sample matrix product
-    field = np.einsum("sij,sj->si", matrices, mag_ut - offsets) if calibrated.any() else np.array(mag_ut, dtype=float)
-    if motor_ut is not None:
-        field = field - motor_ut
     has_acc = hd.rows_finite(acc_ms2)
     with np.errstate(invalid="ignore", divide="ignore"):
         tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)

@@ -12,7 +12,7 @@ Failure policy (chosen once, for every driver):
   transfers in a row it reports ``healthy == False``, and the next good transfer makes it healthy again.
 - ``read()`` raises ``SensorReadError`` (a ``SensorError``, so an ``OSError``) when the retries are exhausted (or the
   error is not transient). What to do about a failing sensor (wait, back off, report) is the caller's:
-  ``magnet.readloop.ReadLoop`` is the one loop that does it, with the same policy type and health record.
+  ``magnet.edge.readloop.ReadLoop`` is the one loop that does it, with the same policy type and health record.
 - Construction (identity check, configuration) raises ``SensorError`` (an ``OSError``) with a message that says what
   to check, because a sensor that cannot be set up is a configuration problem, not a glitch.
 """
@@ -209,7 +209,7 @@ class Sensor:
 
     def read(self) -> Reading:
         """One sample in the body frame; ``SensorReadError`` when the bus failed after the retries (counted in each
-        device's ``health``; what to do next is the read loop's, ``magnet.readloop``)."""
+        device's ``health``; what to do next is the read loop's, ``magnet.edge.readloop``)."""
         try:
             reading = self._read()
         except SensorError as exc:

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, Sensor, SensorError, to_signed
+from magnet.drivers.selftest import LSB_PER_GAUSS, SelfTestResult, evaluate  # GN -> LSB per gauss (Config B)
 from magnet.retry import RetryPolicy
-from magnet.selftest import LSB_PER_GAUSS, SelfTestResult, evaluate  # GN -> LSB per gauss (Config B)
 
 DEFAULT_ADDRESS = 0x1E
 IDENTITY = b"H43"

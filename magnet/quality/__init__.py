@@ -14,6 +14,8 @@ Pure numpy. Every figure is computed on the corrected field ``calibration.apply(
   widest to the thinnest spread of the cloud: ~1-3 for a tumbled sensor, large when the samples lie in a plane).
 - dip spread: standard deviation, in degrees, of the angle between the corrected field and gravity (needs acc).
 - held-out residual: the same residual for samples the fit did not see (the caller fits on one part, scores here).
+- disturbed samples (``field_disturbance``): |B| or dip away from the expected, or a change of the field the
+  gyroscope's rotation does not explain; such samples are left out of a fit and of the compass's filter.
 """
 
 from magnet.quality.coverage import (
@@ -25,6 +27,7 @@ from magnet.quality.coverage import (
     fibonacci_centres,
     heading_coverage,
 )
+from magnet.quality.disturbance import DisturbanceSettings, FieldDisturbance, field_disturbance
 from magnet.quality.figures import Geometry, assess, dip_spread_deg, matrix_condition, scatter_condition
 from magnet.quality.gate import GateThresholds, gate
 from magnet.units import ut_per_unit
@@ -34,12 +37,15 @@ __all__ = [
     "HEADING_SECTORS",
     "MAX_ADVICE",
     "Coverage",
+    "DisturbanceSettings",
+    "FieldDisturbance",
     "GateThresholds",
     "Geometry",
     "assess",
     "coverage",
     "dip_spread_deg",
     "fibonacci_centres",
+    "field_disturbance",
     "gate",
     "heading_coverage",
     "matrix_condition",

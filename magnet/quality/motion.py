@@ -3,8 +3,8 @@
 A moving accelerometer measures gravity plus linear acceleration, so the dip check (angle between field and gravity)
 cannot use every sample. The gravity direction comes from:
 
-- with a gyroscope: the gyroscope + accelerometer filter (``magnet.fusion``, offline, no magnetometer, so it does not
-  depend on the calibration being judged): its attitude gives gravity in every sample, in motion too;
+- with a gyroscope: the gyroscope + accelerometer filter (``magnet.attitude.fusion``, offline, no magnetometer, so it
+  does not depend on the calibration being judged): its attitude gives gravity in every sample, in motion too;
 - without: the quasi-static samples only, whose specific force is within ``QUASI_STATIC_TOL`` of g (the median
   magnitude, so any unit works). A linear acceleration a tilts the measured gravity by up to a / g rad; the
   magnitude test sees its component along gravity, which for the random accelerations of a hand or a vehicle is
@@ -33,9 +33,9 @@ from typing import Any
 
 import numpy as np
 
-from magnet import frames, fusion
+from magnet import frames
+from magnet.attitude.mag_delay import advance_field
 from magnet.frames import quaternion_to_matrix
-from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration, Quality
 from magnet.quality.stats import median, take_rows
 
@@ -69,14 +69,14 @@ class MotionEvidence:
 
     def applied(self, calibration: Calibration, raw: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """The field as the compass's filter gets it from ``calibration`` for raw samples (K, 3): corrected, and
-        turned forward over the magnetometer's delay the record carries (``magnet.mag_delay``) where the rates are
-        known. rows: (N,) bool, which of the evidence's rows ``raw`` holds (None: all of them)."""
+        turned forward over the magnetometer's delay the record carries (``magnet.attitude.mag_delay``) where the rates
+        are known. rows: (N,) bool, which of the evidence's rows ``raw`` holds (None: all of them)."""
         return self.turned(calibration, _corrected(calibration, raw), rows)
 
     def turned(self, calibration: Calibration, field: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """A field (K, 3) corrected by ``calibration`` turned forward over the delay its record carries (the same
         array when it carries none); rows as in ``applied``."""
-        lag = record_lag_s(calibration)
+        lag = calibration.mag_lag_s
         if not lag or self.gyr_rads is None:
             return field
         return advance_field(field, self.gyr_rads if rows is None else take_rows(self.gyr_rads, rows), lag)
@@ -120,6 +120,8 @@ def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: floa
     if gyr_rads is not None:
         if period_s is None:
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
+        from magnet.attitude import fusion  # vqf's wrapper: only where a gyroscope's attitudes are needed
+
         fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
         down = frames.down_in_body(fused.quat_wxyz)
         return MotionEvidence(down, fused.quat_wxyz, "fused gravity", period_s, np.asarray(gyr_rads, dtype=float))

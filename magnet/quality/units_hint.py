@@ -25,7 +25,7 @@ def chip_count_scales() -> list[tuple[str, float]]:
     from magnet.drivers.lsm9ds1 import MAG_RANGES as LSM9_RANGES
     from magnet.drivers.lsm303dlh import LSB_PER_GAUSS as LSM303_LSB_PER_GAUSS
     from magnet.drivers.qmc5883l import RANGES as QMC_RANGES
-    from magnet.selftest import LSB_PER_GAUSS as HMC_LSB_PER_GAUSS
+    from magnet.drivers.selftest import LSB_PER_GAUSS as HMC_LSB_PER_GAUSS
 
     out = [(f"hmc5883l gain {gn}", 100.0 / lsb) for gn, lsb in enumerate(HMC_LSB_PER_GAUSS)]
     out += [(f"lsm303dlh gain {code}", 100.0 / lsb[0]) for code, lsb in sorted(LSM303_LSB_PER_GAUSS.items())]
@@ -66,4 +66,20 @@ def unit_hint(
     return (
         f"the fitted radius {radius_ut:.4g} uT is {ratio:.3g} x {against}: the data are probably not in the unit "
         f"given: try {' or '.join(options)}"
+    )
+
+
+def earth_range_refusal(radius: float, declared_ut_per_unit: float | None) -> str | None:
+    """Why a fitted field strength ``radius`` (in the declared unit, ``declared_ut_per_unit`` uT per unit; None:
+    counts, not judged) can be no Earth field when no expected field is known: the total field at the surface lies in
+    EARTH_MIN_UT..EARTH_MAX_UT everywhere, so a radius outside it is a wrong unit (gauss read as uT: 0.5 "uT"). The
+    refusal names the unit to try where one explains the radius (``unit_hint``); None when the radius is plausible."""
+    if declared_ut_per_unit is None or not math.isfinite(radius) or radius <= 0:
+        return None
+    radius_ut = radius * declared_ut_per_unit
+    if EARTH_MIN_UT <= radius_ut <= EARTH_MAX_UT:
+        return None
+    return unit_hint(radius, declared_ut_per_unit, None) or (
+        f"fitted radius {radius_ut:.3g} uT is no Earth field ({EARTH_MIN_UT:g}-{EARTH_MAX_UT:g} uT anywhere at the "
+        "surface): the samples are in another unit than declared (--unit)"
     )

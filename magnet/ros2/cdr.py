@@ -4,7 +4,8 @@ A ``std_msgs/msg/Header`` followed only by float64 values (MagneticField: 12, Im
 (XCDR1, little-endian): the encapsulation header ``00 01 00 00``; then, counted from the byte after it, the stamp's
 int32 seconds and uint32 nanoseconds, the frame id as a uint32 length (with its terminating NUL), its bytes and the
 NUL, zero padding up to a multiple of 8, and the doubles. So a whole batch is one numpy record array turned into
-bytes and cut per sample, the same bytes rosbags' serialiser gives for each message (``tests/test_ros2_core.py``).
+bytes and cut per sample, the same bytes rosbags' serialiser gives for each message
+(``tests/magnet/ros2/test_ros2_core.py``).
 """
 
 from __future__ import annotations

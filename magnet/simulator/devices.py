@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from magnet.earth.geomag import earth_field
 from magnet.frames import (
     euler_to_quaternion,
     ned_to_body_euler,
@@ -14,7 +15,6 @@ from magnet.frames import (
     quaternion_multiply,
     quaternion_to_rotation_vector,
 )
-from magnet.geomag import earth_field
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.run import DEFAULT_DATE, DEFAULT_LAT_DEG, DEFAULT_LON_DEG
 from magnet.simulator.trajectories import GOLDEN_RATIO_MINOR, TUMBLE_PITCH_AMPLITUDE_DEG, wrap_roll

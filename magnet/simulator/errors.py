@@ -123,3 +123,29 @@ class SensorErrors:
             yaw, pitch, roll = matrix_to_euler(tilt)
             misalignment = (float(roll), float(pitch), float((yaw + 180.0) % 360.0 - 180.0))
         return cls(hard_iron_ut=hard, soft_iron=soft, misalignment_deg=misalignment, **other)
+
+    @classmethod
+    def phone(cls, rng: np.random.Generator, field_ut: float, **other: Any) -> SensorErrors:
+        """A phone's raw magnetometer and IMU: hard iron of 6 to 15 times the field (its speaker, its battery, its
+        case) in a random direction; factory soft iron of a few percent (gains 1 +- 0.04, cross terms up to 0.015,
+        symmetric); misalignment up to 1 deg; 0.5 uT noise; accelerometer noise 0.05 m/s^2; gyroscope bias up to
+        0.5 deg/s per axis and noise 0.003 rad/s. ``other`` overrides any field."""
+        direction = rng.standard_normal(3)
+        hard = direction / np.linalg.norm(direction) * rng.uniform(6.0, 15.0) * field_ut
+        cross = rng.uniform(-0.015, 0.015, 3)
+        soft = np.diag(rng.uniform(0.96, 1.04, 3))
+        soft[0, 1] = soft[1, 0] = cross[0]
+        soft[0, 2] = soft[2, 0] = cross[1]
+        soft[1, 2] = soft[2, 1] = cross[2]
+        tilt = axis_angle_matrix(rng.standard_normal(3), rng.uniform(0.0, 1.0))
+        yaw, pitch, roll = matrix_to_euler(tilt)
+        fields: dict[str, Any] = {
+            "hard_iron_ut": hard,
+            "soft_iron": soft,
+            "misalignment_deg": (float(roll), float(pitch), float((yaw + 180.0) % 360.0 - 180.0)),
+            "noise_ut": 0.5,
+            "acc_noise_ms2": 0.05,
+            "gyro_bias_rads": rng.uniform(-1.0, 1.0, 3) * np.radians(0.5),
+            "gyro_noise_rads": 0.003,
+        }
+        return cls(**{**fields, **other})

@@ -40,6 +40,8 @@ from typing import Any
 import numpy as np
 
 from magnet.frames import euler_to_matrix
+from magnet.simulator.plan import Segments, Tones, plateau, segment_path, smoother, smoother_rate
+from magnet.simulator.plan import random_sign as _sign
 from magnet.units import STANDARD_GRAVITY_MS2
 
 G_NED = np.array([0.0, 0.0, STANDARD_GRAVITY_MS2])  # gravity (acceleration of free fall) in NED, m/s^2
@@ -48,75 +50,6 @@ DRAG_PER_S = 0.4  # multirotor: rotor and body drag per second (30 deg bank -> a
 DRAG_STEP_S = 0.01
 DERIVATIVE_STEP_S = 5e-4
 GRID_KEPT = 512  # multirotor: drag grid points kept (5 s), so times a little in the past cost nothing
-
-
-def smoother(u: np.ndarray) -> np.ndarray:
-    """Quintic smoothstep of u clipped to [0, 1]: 0 -> 1 with zero first and second derivatives at both ends."""
-    u = np.clip(u, 0.0, 1.0)
-    return u**3 * (10.0 + u * (-15.0 + 6.0 * u))
-
-
-def smoother_rate(u: np.ndarray) -> np.ndarray:
-    """d smoother / du (zero outside [0, 1])."""
-    inside = (u > 0.0) & (u < 1.0)
-    return np.where(inside, 30.0 * u**2 * (1.0 - u) ** 2, 0.0)
-
-
-def plateau(u: np.ndarray, edge: float = 0.25) -> np.ndarray:
-    """0 -> 1 over the first ``edge`` of [0, 1], 1, then back to 0 over the last ``edge`` (smooth at every joint)."""
-    return smoother(u / edge) * smoother((1.0 - u) / edge)
-
-
-class Tones:
-    """A sum of sinusoids per axis: ``axes`` x ``count`` tones, frequencies uniform in ``hz``, random phases,
-    ``amplitude`` (per axis or one number) per tone. ``__call__(t)`` -> (N, axes)."""
-
-    def __init__(
-        self, rng: np.random.Generator, axes: int, count: int, hz: tuple[float, float], amplitude: Any
-    ) -> None:
-        self.hz = rng.uniform(hz[0], hz[1], (axes, count))
-        self.phase = rng.uniform(0.0, 2.0 * np.pi, (axes, count))
-        self.amplitude = np.broadcast_to(np.asarray(amplitude, dtype=float), (axes,))[:, None]
-
-    def __call__(self, t: np.ndarray) -> np.ndarray:
-        angle = 2.0 * np.pi * self.hz[None] * np.asarray(t, dtype=float)[:, None, None] + self.phase[None]
-        return np.sum(self.amplitude[None] * np.sin(angle), axis=-1)
-
-
-class Segments:
-    """An endless plan of manoeuvres drawn one after another: ``draw(rng, state) -> (duration_s, row)`` where ``row``
-    is a dict of numbers and ``state`` the previous row (None first). Extended lazily as later times are asked for,
-    so the plan is the same whether it is evaluated at once or block by block."""
-
-    def __init__(
-        self,
-        rng: np.random.Generator,
-        draw: Callable[[np.random.Generator, dict[str, Any] | None], tuple[float, dict[str, Any]]],
-    ) -> None:
-        self.rng, self.draw = rng, draw
-        self.starts: list[float] = [0.0]
-        self.durations: list[float] = []
-        self.rows: list[dict[str, Any]] = []
-
-    def locate(self, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-        """For times t (N,) (negative times are the start): (each row field at its segment (N,), u in [0, 1] within
-        the segment (N,), segment duration (N,))."""
-        t = np.maximum(np.asarray(t, dtype=float), 0.0)
-        latest = float(t.max()) if t.size else 0.0
-        while self.starts[-1] <= latest:
-            duration, row = self.draw(self.rng, self.rows[-1] if self.rows else None)
-            self.durations.append(float(duration))
-            self.rows.append(row)
-            self.starts.append(self.starts[-1] + float(duration))
-        k = np.searchsorted(np.asarray(self.starts), t, side="right") - 1
-        durations = np.asarray(self.durations)[k]
-        u = (t - np.asarray(self.starts)[k]) / durations
-        fields = {name: np.array([row[name] for row in self.rows])[k] for name in self.rows[0]}
-        return fields, u, durations
-
-
-def _sign(rng: np.random.Generator) -> float:
-    return float(rng.choice([-1.0, 1.0]))
 
 
 class MotionModel:
@@ -251,6 +184,15 @@ class CarModel(MotionModel):
         self.jitter_deg = Tones(rng, 3, 2, (6.0, 15.0), 0.05)
         self.bumps_ms2 = Tones(rng, 1, 3, (8.0, 15.0), 0.3)
         self.yaw0_deg = rng.uniform(0.0, 360.0)
+        self._distance_starts: list[float] = [0.0]
+
+    def path(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """The road's course, speed and distance at t (``segment_path``)."""
+        return segment_path(self.plan, self._distance_starts, np.asarray(t, dtype=float))
+
+    def device_offset(self, t: np.ndarray) -> np.ndarray:
+        """The sensor's offset from the path's point: none (it is the point)."""
+        return np.zeros((np.asarray(t).size, 3))
 
     def _draw(self, rng: np.random.Generator, last: dict[str, Any] | None) -> tuple[float, dict[str, Any]]:
         yaw0 = self.yaw0_deg if last is None else last["yaw0"] + last["dyaw"]

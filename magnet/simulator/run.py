@@ -17,10 +17,11 @@ at once (``simulate``) or a few at a time (``SensorStream``). Same seed, same da
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
+from magnet.earth.geomag import EarthField, earth_field
 from magnet.frames import (
     euler_to_quaternion,
     ned_to_body_euler,
@@ -29,15 +30,18 @@ from magnet.frames import (
     quaternion_to_matrix,
     quaternion_to_rotation_vector,
 )
-from magnet.geomag import EarthField, earth_field
+from magnet.simulator.disturbances import Disturbances, HardIronChange, HasPath, PassingObjects
 from magnet.simulator.errors import SensorErrors
 from magnet.simulator.gnss import GnssSettings, gnss_velocity
-from magnet.simulator.motion import G_NED, MODELS
+from magnet.simulator.models import MODELS
+from magnet.simulator.motion import G_NED
 from magnet.simulator.motors import Motors
-from magnet.simulator.trajectories import MIN_COUNT, STILL_TRAJECTORIES, Trajectory, wrap_roll
+from magnet.simulator.trajectories import MIN_COUNT, PATH_TRAJECTORIES, STILL_TRAJECTORIES, Trajectory, wrap_roll
 
 DEFAULT_LAT_DEG = 50.45  # Kyiv, where seed 000's turntable field (Bh 18964 nT, Bv -46962 nT) is typical
 DEFAULT_LON_DEG = 30.52
+#: the same place as ``--location`` text (the default of every command that simulates a device)
+DEFAULT_LOCATION = f"{DEFAULT_LAT_DEG},{DEFAULT_LON_DEG}"
 DEFAULT_DATE = "2026-01-01"
 
 
@@ -57,6 +61,10 @@ class SimulatorConfig:
     seed: int = 0
     motors: Motors | None = None  # the vehicle's motors (``magnet.simulator.motors``): their field, current, throttle
     gnss: GnssSettings = dataclasses.field(default_factory=GnssSettings)
+    #: objects passed on the way (``magnet.simulator.disturbances``; trajectories along a path only), or None
+    disturbances: Disturbances | None = None
+    #: the sensor's hard iron changes mid-run (``magnet.simulator.disturbances``), or None
+    hard_iron_change: HardIronChange | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -74,6 +82,9 @@ class SimulatorConfig:
             )
         if not isinstance(self.errors, SensorErrors):
             raise ValueError("errors must be a SensorErrors")
+        if self.disturbances is not None and self.trajectory not in PATH_TRAJECTORIES:
+            names = ", ".join(sorted(t.value for t in PATH_TRAJECTORIES))
+            raise ValueError(f"disturbances need a trajectory along a path ({names}), not {self.trajectory.value}")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -87,7 +98,9 @@ class SimulatedRun:
     runs); heading_deg (N,) true heading (from geographic north), magnetic_heading_deg (N,) from magnetic north;
     pitch_deg, roll_deg (N,); mounting (N,) "a"/"b" on the turntable else ""; table_deg (N,) the turntable angle
     (NaN elsewhere); temperature_c (N,); earth the field used; errors the sensor's errors; current_a (N,) A and
-    throttle (N,) 0..1 of the motors (None without motors)."""
+    throttle (N,) 0..1 of the motors (None without motors); disturbance_ut (N, 3) the field of the objects passed
+    (``magnet.simulator.disturbances``) in the body frame, uT (zeros without them); hard_iron_ut (N, 3) the hard
+    iron in force at each sample (it changes with ``SimulatorConfig.hard_iron_change``)."""
 
     t_s: np.ndarray
     mag_ut: np.ndarray
@@ -110,6 +123,8 @@ class SimulatedRun:
     current_a: np.ndarray | None = None
     throttle: np.ndarray | None = None
     vel_ned_ms: np.ndarray | None = None
+    disturbance_ut: np.ndarray | None = None
+    hard_iron_ut: np.ndarray | None = None
 
 
 class _Generator:
@@ -119,7 +134,7 @@ class _Generator:
     def __init__(self, config: SimulatorConfig) -> None:
         self.config = config
         self.earth = earth_field(config.lat_deg, config.lon_deg, config.alt_m, config.date)
-        seeds = np.random.SeedSequence(config.seed).spawn(7)
+        seeds = np.random.SeedSequence(config.seed).spawn(8)
         params_rng = np.random.default_rng(seeds[0])
         self.params = {"phases": params_rng.uniform(0.0, 2.0 * np.pi, 3), "senses": params_rng.choice([-1.0, 1.0], 2)}
         self.mag_noise, self.acc_noise, self.spike_mask, self.spike_vector, self.gyr_noise = (
@@ -129,6 +144,10 @@ class _Generator:
         if config.trajectory.moving:
             self.model = MODELS[config.trajectory.value](np.random.default_rng(seeds[6]), self.earth.declination_deg)
         self.b_ned = np.array(self.earth.ned_ut)
+        self.objects: tuple[PassingObjects, HasPath] | None = None
+        if config.disturbances is not None:  # along a path (the config checked): the model has one
+            path_model = cast(HasPath, self.model)
+            self.objects = (PassingObjects(config.disturbances, np.random.default_rng(seeds[7])), path_model)
 
     def _attitude(self, index: np.ndarray) -> tuple[np.ndarray, ...]:
         """(magnetic heading, pitch, roll, mounting, table) at sample indices (may be -1)."""
@@ -164,13 +183,21 @@ class _Generator:
         gain = errors.gain(t_s)
         motors = self.config.motors
         throttle = current = None
-        at_sensor = field
+        disturbance = np.zeros((n, 3))
+        if self.objects is not None:
+            objects, path_model = self.objects
+            disturbance = ned_to_body_euler(objects.field_ned(path_model, t_s), heading, pitch, roll)
+        at_sensor = field + disturbance
         if motors is not None:
             thrust = np.linalg.norm(acc, axis=1) / G_NED[2] if config.trajectory is Trajectory.MULTIROTOR else None
             throttle = motors.throttle(t_s, thrust)
             current = motors.current_a(throttle)
             at_sensor = field + motors.field_ut(current)
-        mag = (at_sensor @ errors.distortion.T) * gain[:, None] + errors.hard_iron_ut
+        hard_iron = np.tile(errors.hard_iron_ut, (n, 1))
+        change = config.hard_iron_change
+        if change is not None:
+            hard_iron[t_s >= change.t_s] = change.hard_iron_ut
+        mag = (at_sensor @ errors.distortion.T) * gain[:, None] + hard_iron
         mag = mag + errors.noise_ut * self.mag_noise.standard_normal((n, 3))
         acc_measured = acc + errors.acc_noise_ms2 * self.acc_noise.standard_normal((n, 3))
         spikes = self.spike_mask.random(n) < errors.spike_probability
@@ -201,6 +228,8 @@ class _Generator:
             current_a=current,
             throttle=throttle,
             vel_ned_ms=None if self.model is None else gnss_velocity(self.model, t_s, config.seed, config.gnss),
+            disturbance_ut=disturbance,
+            hard_iron_ut=hard_iron,
         )
 
 

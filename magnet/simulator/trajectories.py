@@ -16,8 +16,9 @@ function of the sample index with period ``count``:
   its six faces and on four 45-degree edges (pitch +-45, roll +-45) and is turned a full circle about the vertical on
   each; it is set down on the next face between stations (no transition samples).
 
-Moving trajectories (MULTIROTOR, CAR, FIGURE8, FAST_TUMBLE) are functions of time with linear acceleration: see
-``magnet.simulator.motion``.
+Moving trajectories are functions of time with linear acceleration: MULTIROTOR, CAR, FIGURE8, FAST_TUMBLE
+(``magnet.simulator.motion``); the walks WALK_POCKET, WALK_HAND, WALK_TEXTING, WALK_PHONING, RUNNING
+(``magnet.simulator.walks``); the planar BOAT and ROBOT (``magnet.simulator.ground``).
 """
 
 from __future__ import annotations
@@ -57,6 +58,13 @@ class Trajectory(enum.Enum):
     CAR = "car"
     FIGURE8 = "figure8"
     FAST_TUMBLE = "fast-tumble"
+    WALK_POCKET = "walk-pocket"
+    WALK_HAND = "walk-hand"
+    WALK_TEXTING = "walk-texting"
+    WALK_PHONING = "walk-phoning"
+    RUNNING = "running"
+    BOAT = "boat"
+    ROBOT = "robot"
 
     @property
     def moving(self) -> bool:
@@ -64,7 +72,18 @@ class Trajectory(enum.Enum):
         return self in MOVING_TRAJECTORIES
 
 
-MOVING_TRAJECTORIES = frozenset({Trajectory.MULTIROTOR, Trajectory.CAR, Trajectory.FIGURE8, Trajectory.FAST_TUMBLE})
+#: the vehicles and hand motions of ``magnet.simulator.motion`` (what ``magnet bench motion`` scores)
+VEHICLE_TRAJECTORIES = frozenset({Trajectory.MULTIROTOR, Trajectory.CAR, Trajectory.FIGURE8, Trajectory.FAST_TUMBLE})
+#: a person walking or running with a phone (``magnet.simulator.walks``)
+WALKING_TRAJECTORIES = frozenset(
+    {Trajectory.WALK_POCKET, Trajectory.WALK_HAND, Trajectory.WALK_TEXTING, Trajectory.WALK_PHONING, Trajectory.RUNNING}
+)
+#: vehicles that only yaw, with small roll and pitch (``magnet.simulator.ground``, and the car)
+PLANAR_TRAJECTORIES = frozenset({Trajectory.CAR, Trajectory.BOAT, Trajectory.ROBOT})
+MOVING_TRAJECTORIES = VEHICLE_TRAJECTORIES | WALKING_TRAJECTORIES | PLANAR_TRAJECTORIES
+#: the trajectories that follow a path on the ground or water, beside which objects can disturb the field
+#: (``magnet.simulator.disturbances``)
+PATH_TRAJECTORIES = WALKING_TRAJECTORIES | PLANAR_TRAJECTORIES
 
 MIN_COUNT = {
     Trajectory.SPIN: 2,

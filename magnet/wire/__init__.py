@@ -21,7 +21,7 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
 - ``raw``: ``RawBatch``, ``RawColumns``, ``encode_raw``; ``raw_decode``: the one raw decoder ``decode_raw_many``
   (``decode_raw`` is it applied to one payload), with the structure checks of one message in ``raw_header``.
   Optional ``gyr_rads`` (N, 3) rad/s beside ``mag_ut`` and ``acc_ms2``, and optional ``location`` [lat_deg, lon_deg,
-  alt_m] (``magnet.place.Location``; cause ``bad-location``); optional per-sample ``current_a`` (N,) A and
+  alt_m] (``magnet.earth.location.Location``; cause ``bad-location``); optional per-sample ``current_a`` (N,) A and
   ``throttle`` (N,) 0..1 (``SCALAR_FIELDS``) for the motors' field.
 - ``headings``: ``HeadingBatch``, the one heading encoder ``encode_headings`` (``encode_heading`` is it for one
   batch), ``decode_heading``; optional ``quat_wxyz`` and the ``DISTURBED`` flag bits.
@@ -66,6 +66,7 @@ from magnet.wire.keys import (
     status_key,
     validate_device_id,
     validate_prefix,
+    vehicle_key,
 )
 from magnet.wire.raw import (
     MAX_ACC_MS2,
@@ -158,4 +159,5 @@ __all__ = [
     "unpack",
     "validate_device_id",
     "validate_prefix",
+    "vehicle_key",
 ]

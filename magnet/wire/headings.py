@@ -7,7 +7,7 @@ is a binary array map (see ``magnet.wire.arrays``): t_ns ``<i8`` [N], the angles
 true_heading_deg kept in [0, 360) after rounding to ``<f4``), field_ut ``<f4`` [N, 3], flags ``<u2`` [N], quat_wxyz
 ``<f4`` [N, 4].
 
-``flags`` holds ``magnet.heading.HeadingFlag`` bits; the per-sample magnetic disturbance flag is its
+``flags`` holds ``magnet.attitude.heading.HeadingFlag`` bits; the per-sample magnetic disturbance flag is its
 FIELD_DISTURBED (|B| away from the expected field) and DIP_DISTURBED (dip away from the expected inclination) bits,
 ``DISTURBED`` for either.
 """
@@ -22,7 +22,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from magnet.heading import HeadingFlag
+from magnet.attitude.heading import HeadingFlag
 from magnet.wire.arrays import (
     FLAG_DTYPE,
     FLAG_DTYPES,
@@ -73,8 +73,8 @@ HEADING_LIMITS = Limits(
 @dataclasses.dataclass(frozen=True, eq=False)
 class HeadingBatch:
     """N headings of one device, aligned with one raw batch. Angles in degrees, field_ut (N, 3) corrected uT,
-    flags (N,) ``magnet.heading.HeadingFlag`` bits, declination_deg east-positive, quat_wxyz (N, 4) attitude (body
-    to NED) or None."""
+    flags (N,) ``magnet.attitude.heading.HeadingFlag`` bits, declination_deg east-positive, quat_wxyz (N, 4) attitude
+    (body to NED) or None."""
 
     device: str
     seq: int

@@ -4,7 +4,7 @@ Message: ``{v, device, seq, sensor, t_ns: [N ints], mag_ut: [[x, y, z]] * N, acc
 gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), vel_ned_ms: [[n, e, d]] * N (optional, the
 velocity over the ground in m/s, north-east-down, NaN rows where no fix is known), truth: {heading_deg: [N],
 pitch_deg: [N], roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the
-device is, ``magnet.place.Location``, checked: cause ``bad-location``), current_a: [N] (optional, the battery
+device is, ``magnet.earth.location.Location``, checked: cause ``bad-location``), current_a: [N] (optional, the battery
 current in A at each sample, for the motors' field), throttle: [N] (optional, 0..1; both NaN where unknown)}``.
 In v 2 (written) every array of samples is a binary array map (see ``magnet.wire.arrays``): t_ns ``<i8`` [N],
 mag_ut / acc_ms2 / gyr_rads / vel_ned_ms ``<f4`` [N, 3], truth, current_a and throttle ``<f4`` [N]; ``location``
@@ -24,7 +24,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from magnet.place import Location
+from magnet.earth.location import Location
 from magnet.wire.arrays import FLOAT_DTYPE, TIME_DTYPE, bin_array
 from magnet.wire.codec import BINARY_ARRAYS_VERSION, LISTS_VERSION, VERSIONS
 from magnet.wire.errors import WireError

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.place import Location
+from magnet.earth.location import Location
 from magnet.wire.arrays import Bin, check_lengths, float_array, from_bins, integers, numbers, value_faults
 from magnet.wire.codec import Payload, binary_message, detached, unpack
 from magnet.wire.errors import WireError

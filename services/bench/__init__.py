@@ -1,5 +1,5 @@
-"""``magnet bench accuracy|fit|pipeline|motion|fleet|dashboard|soak``: benchmarks that print figures (targets live here,
-not in timed tests)."""
+"""``magnet bench accuracy|fit|pipeline|motion|field|fleet|dashboard|soak|cost``: benchmarks that print figures
+(targets live here, not in timed tests)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,23 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "fit": ("services.bench.fit", "run_fit_benchmark"),
     "pipeline": ("services.bench.pipeline", "run_pipeline_benchmark"),
     "motion": ("services.bench.motion", "run_motion_benchmark"),
+    "field": ("services.bench.field", "run_field_benchmark"),
     "fleet": ("services.bench.fleet_query", "run_fleet_benchmark"),
     "dashboard": ("services.bench.dashboard", "run_dashboard_benchmark"),
     "soak": ("services.bench.soak", "run_soak_benchmark"),
+    "cost": ("services.bench.cost", "run_cost_benchmark"),
 }
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``--seeds``: comma-separated whole numbers >= 0, at least one."""
+    try:
+        seeds = tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seeds must be comma-separated whole numbers, got {text!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"--seeds needs at least one whole number >= 0, got {text!r}")
+    return seeds
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,7 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="pipeline: compass shards compared against 1 at the end (default 2; 1: no comparison)",
     )
     parser.add_argument(
-        "--minutes", type=float, default=10.0, help="soak: minutes under the schedule of faults (default 10)"
+        "--minutes",
+        type=float,
+        default=10.0,
+        help="soak: minutes under the schedule of faults; cost: minutes of the simulated log (default 10)",
     )
     parser.add_argument(
         "--no-gyro", action="store_true", help="pipeline: devices without gyroscopes (accelerometer tilt, no fusion)"
@@ -41,6 +57,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="motion: score every BROAD trial (broad_*.npz) of this directory against vqf (docs/broad-motion.md)",
     )
+    parser.add_argument(
+        "--seeds",
+        type=parse_seeds,
+        default=None,
+        metavar="N,N,...",
+        help="field: the simulator's seeds (default 2026,2027,2028: not the ones tuned on, 1-9)",
+    )
+    parser.add_argument("--json", action="store_true", help="field: every run's figures as JSON instead of the table")
     parser.add_argument(
         "--ros2", action="store_true", help="pipeline: the compass's cost of also publishing ROS 2 messages, at --rate"
     )
@@ -65,12 +89,14 @@ def run(args: argparse.Namespace) -> int:
         if args.devices < 1 or args.seconds <= 0:
             raise ValueError("--devices and --seconds must be positive")
         result = function(devices=args.devices, seconds=args.seconds)
-    elif args.benchmark == "soak":
+    elif args.benchmark in ("soak", "cost"):
         if not args.minutes > 0:
             raise ValueError("--minutes must be positive")
         result = function(minutes=args.minutes)
     elif args.benchmark == "motion" and getattr(args, "broad_dir", None):
         result = importlib.import_module("services.bench.motion_broad").run_broad_dir(args.broad_dir)
+    elif args.benchmark == "field":
+        result = function(**({"seeds": args.seeds} if args.seeds is not None else {}), as_json=args.json)
     elif args.benchmark == "fleet":
         if args.devices < 1:
             raise ValueError("--devices must be positive")

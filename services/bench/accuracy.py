@@ -26,9 +26,10 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from magnet.attitude.heading import angle_difference_deg, tilt_compensated_heading_deg
+from magnet.calibration import FitInput
+from magnet.earth.geomag import EarthField, earth_field
 from magnet.frames import ned_to_body_euler
-from magnet.geomag import EarthField, earth_field
-from magnet.heading import angle_difference_deg, tilt_compensated_heading_deg
 from magnet.model import Calibration
 from magnet.simulator import (
     DEFAULT_LAT_DEG,
@@ -136,8 +137,10 @@ def real_fitter(run: SimulatedRun, method: str, field_ut: float, truth: SensorEr
 
     if method == "gyro-ellipsoid":
         period = float(run.t_s[1] - run.t_s[0])
-        return fit(run.mag_ut, method, acc=run.acc_ms2, field_ut=field_ut, gyr=run.gyr_rads, period_s=period)
-    return fit(run.mag_ut, method, acc=run.acc_ms2, field_ut=field_ut)
+        return fit(
+            FitInput(run.mag_ut, acc=run.acc_ms2, field_ut=field_ut, gyr_rads=run.gyr_rads, period_s=period), method
+        )
+    return fit(FitInput(run.mag_ut, acc=run.acc_ms2, field_ut=field_ut), method)
 
 
 def truth_fitter(run: SimulatedRun, method: str, field_ut: float, truth: SensorErrors) -> Calibration:

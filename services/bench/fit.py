@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from magnet.calibration import Method, fit, fit_auto, fit_shape
+from magnet.calibration import FitInput, Method, fit, fit_auto, fit_shape
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 
 log = logging.getLogger(__name__)
@@ -75,12 +75,13 @@ def run_fit_benchmark() -> str:
         ),
         f"{'method':<18}{'coefficients':>14}{'fit+quality+gate':>18}{'cpu':>8}",
     ]
+    data = FitInput(raw, acc=acc)
     for method in (m for m in Method if m not in (Method.TURNTABLE, Method.GYRO_ELLIPSOID)):
-        coefficients = median_ms(functools.partial(fit_shape, raw, method, acc=acc))
-        whole, cpu = timed_ms(functools.partial(fit, raw, method, acc=acc))
+        coefficients = median_ms(functools.partial(fit_shape, data, method))
+        whole, cpu = timed_ms(functools.partial(fit, data, method))
         log.info("%s: %.2f ms coefficients, %.2f ms with quality", method.value, coefficients, whole)
         lines.append(f"{method.value:<18}{coefficients:>14.2f}{whole:>18.2f}{cpu:>8.2f}")
-    robust = median_ms(lambda: fit_shape(raw, Method.MINMAX, robust_extremes=True), runs=3)
+    robust = median_ms(lambda: fit_shape(FitInput(raw, robust_extremes=True), Method.MINMAX), runs=3)
     lines.append(f"{'minmax (robust)':<18}{robust:>14.2f}{'':>18}")
     lines.append(gyro_row())
     return "\n".join(lines)
@@ -94,9 +95,13 @@ def gyro_row(runs: int = 3) -> str:
         SimulatorConfig(trajectory=Trajectory.FAST_TUMBLE, rate_hz=GYRO_RATE_HZ, count=GYRO_SAMPLES, errors=errors)
     )
     mag, gyr, period = run.mag_ut, run.gyr_rads, 1.0 / GYRO_RATE_HZ
-    coefficients = median_ms(lambda: fit_shape(mag, Method.GYRO_ELLIPSOID, gyr=gyr, period_s=period), runs)
-    whole, cpu = timed_ms(lambda: fit(mag, Method.GYRO_ELLIPSOID, acc=run.acc_ms2, gyr=gyr, period_s=period), runs)
-    both, both_cpu = timed_ms(lambda: fit_auto(mag, acc=run.acc_ms2, gyr=gyr, period_s=period), runs)
+    coefficients = median_ms(
+        lambda: fit_shape(FitInput(mag, gyr_rads=gyr, period_s=period), Method.GYRO_ELLIPSOID), runs
+    )
+    whole, cpu = timed_ms(
+        lambda: fit(FitInput(mag, acc=run.acc_ms2, gyr_rads=gyr, period_s=period), Method.GYRO_ELLIPSOID), runs
+    )
+    both, both_cpu = timed_ms(lambda: fit_auto(FitInput(mag, acc=run.acc_ms2, gyr_rads=gyr, period_s=period)), runs)
     return (
         f"{Method.GYRO_ELLIPSOID.value:<18}{coefficients:>14.2f}{whole:>18.2f}{cpu:>8.2f}"
         f"  ({GYRO_SAMPLES:,} samples at {GYRO_RATE_HZ:g} Hz; target under {GYRO_TARGET_MS:g} ms)\n"

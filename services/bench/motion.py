@@ -6,7 +6,7 @@ the differences; the optical frame's north is arbitrary), only samples marked as
 with |reference pitch| < 60 deg (heading is ill-defined near the vertical), RMS in degrees.
 
 BROAD's body frame is z up (a level IMU reads +g on z): y and z are negated to get the project's (x forward, y
-right, z down). Its reference is IMU -> ENU, converted to body -> NED as vqf's output is (``magnet.fusion``).
+right, z down). Its reference is IMU -> ENU, converted to body -> NED as vqf's output is (``magnet.attitude.fusion``).
 
 Estimators, on the raw data (the sensor is factory-calibrated): accelerometer tilt (today's compass without a
 gyroscope), fused causal (as the compass runs), fused offline (``magnet heading --offline``); then the same two
@@ -14,7 +14,7 @@ fused after ``magnet fit``'s ellipsoid, and after its gyro-ellipsoid, with the m
 accepted, none when refused, as the compass does). Then the moving simulator, every trajectory, against its truth:
 calibrated on its own moving data (ellipsoid) when the gate accepts that, else on a still tumble; no offset removed
 (the simulator's north is north); with the causal and offline filters aided by the run's GNSS-like velocity (10 Hz,
-0.1 m/s noise, 0.1 s late: ``magnet.aiding``) and one more row, the causal filter fed the accelerometer without
+0.1 m/s noise, 0.1 s late: ``magnet.attitude.aiding``) and one more row, the causal filter fed the accelerometer without
 the run's linear acceleration (what velocity aiding could give at best: the gap to "fused causal" is what linear
 acceleration costs).
 """
@@ -28,13 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet import frames, fusion
-from magnet import heading as hd
-from magnet.calibration import fit
+from magnet import frames
+from magnet.attitude import fusion
+from magnet.attitude import heading as hd
+from magnet.attitude.mag_delay import advance_field
+from magnet.calibration import FitInput, fit
 from magnet.frames import quaternion_to_matrix, to_magnetic_ned
-from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration
-from magnet.simulator import MOVING_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
+from magnet.simulator import VEHICLE_TRAJECTORIES, SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
 
 DATA_DIR = Path(__file__).resolve().parents[2] / "data"
 BROAD_TRIALS = ("broad_01_undisturbed_slow_rotation_A.npz", "broad_06_undisturbed_fast_rotation_A.npz")
@@ -108,7 +109,7 @@ def _aided(run: SimulatedRun, field: np.ndarray, offline: bool) -> np.ndarray:
     return fuse(run.gyr_rads, run.acc_ms2, field, period, None, run.t_s, vel).heading_deg
 
 
-#: the moving simulator's estimators with velocity aiding (``magnet.aiding``): name -> heading (N,) deg
+#: the moving simulator's estimators with velocity aiding (``magnet.attitude.aiding``): name -> heading (N,) deg
 AIDED_ESTIMATORS: dict[str, Callable[[SimulatedRun, np.ndarray], np.ndarray]] = {
     "fused causal, velocity aided": lambda run, field: _aided(run, field, offline=False),
     "fused offline, velocity aided": lambda run, field: _aided(run, field, offline=True),
@@ -135,14 +136,15 @@ def broad_rows(data_dir: Path = DATA_DIR, calibrated: bool = False) -> list[tupl
 def product_field(log: MotionLog, method: str = "ellipsoid") -> tuple[np.ndarray, str]:
     """The field (N, 3) as the compass's filter gets it after ``magnet fit --method METHOD`` with the motion checks
     on the log itself: calibrated (and turned forward over the magnetometer's delay the record carries:
-    ``magnet.mag_delay``) when the gate accepts the fit, raw when it refuses it; and "accepted" or "refused"."""
+    ``magnet.attitude.mag_delay``) when the gate accepts the fit, raw when it refuses it; and "accepted" or
+    "refused"."""
     try:
-        calibration = fit(log.mag_ut, method, acc=log.acc_ms2, gyr=log.gyr_rads, period_s=log.period_s)
+        calibration = fit(FitInput(log.mag_ut, acc=log.acc_ms2, gyr_rads=log.gyr_rads, period_s=log.period_s), method)
     except ValueError:
         return log.mag_ut, "refused"
     if not calibration.accepted:
         return log.mag_ut, "refused"
-    return advance_field(calibration.apply(log.mag_ut), log.gyr_rads, record_lag_s(calibration)), "accepted"
+    return advance_field(calibration.apply(log.mag_ut), log.gyr_rads, calibration.mag_lag_s), "accepted"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -205,17 +207,19 @@ def _simulator_calibration(
     """The fit of the run's own samples (with its gyroscope) when the gate accepts it, else of a still tumble of
     the same sensor."""
     try:
-        own = fit(run.mag_ut, "ellipsoid", acc=run.acc_ms2, gyr=run.gyr_rads, period_s=1.0 / settings.rate_hz)
+        own = fit(
+            FitInput(run.mag_ut, acc=run.acc_ms2, gyr_rads=run.gyr_rads, period_s=1.0 / settings.rate_hz), "ellipsoid"
+        )
         if own.accepted:
             return own, "own data"
     except ValueError:
         pass
     tumble = tumble_run(errors, settings)
-    return fit(tumble.mag_ut, "ellipsoid", acc=tumble.acc_ms2), "tumble"
+    return fit(FitInput(tumble.mag_ut, acc=tumble.acc_ms2), "ellipsoid"), "tumble"
 
 
 def simulator_rows(
-    settings: SimulatorSettings = SimulatorSettings(), trajectories: Iterable[Trajectory] = MOVING_TRAJECTORIES
+    settings: SimulatorSettings = SimulatorSettings(), trajectories: Iterable[Trajectory] = VEHICLE_TRAJECTORIES
 ) -> list[tuple[str, str, float]]:
     """(trajectory (calibrated on what), estimator, heading RMS deg against the true magnetic heading, no offset
     removed) for the moving trajectories, after the settling time, samples with |pitch| < 60 deg."""

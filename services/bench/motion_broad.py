@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 import vqf
 
-from magnet import frames, fusion
+from magnet import frames
+from magnet.attitude import fusion
 from services.bench.motion import ESTIMATORS, MotionLog, load_broad, product_field
 
 #: the fits compared with vqf

@@ -1,5 +1,5 @@
-"""Which devices a calibrator serves: the devices of its shard (``ShardKeys``), and one writer per device among the
-calibrators of a shard, a lease held through Zenoh liveliness tokens (``Lease``).
+"""One writer per device among the calibrators of a shard, a lease held through Zenoh liveliness tokens (``Lease``);
+which devices a calibrator serves is ``magnet.calibrator.keys.ShardKeys``.
 
 Every calibrator declares the liveliness token ``<prefix>/@lease/calibrator/<K>-<N>/<started_ns>/<name>`` (its shard
 ``K/N``, its start time in ns since the epoch and its ``--name``) and watches the tokens of its shard. Among the live
@@ -17,15 +17,11 @@ from __future__ import annotations
 import dataclasses
 import logging
 
-from magnet import wire
-from magnet.bounded import Recent
 from magnet.shard import Shard
 
 log = logging.getLogger("magnet.calibrator")
 
 ROLE = "calibrator"
-#: raw keys whose shard is remembered at most (the least recently seen forgotten first)
-MAX_SHARD_KEYS = 200_000
 
 
 def shard_chunk(shard: Shard) -> str:
@@ -112,25 +108,3 @@ class Lease:
 
     def state(self) -> str:
         return "active" if self.active else "standby"
-
-
-class ShardKeys:
-    """Whether a raw key names a device of ``shard``, remembered per key for the last ``limit`` keys seen."""
-
-    def __init__(self, shard: Shard, limit: int = MAX_SHARD_KEYS) -> None:
-        self.shard = shard
-        self.owned: Recent[str, bool] = Recent(limit)
-
-    def owns(self, key_expr: str, prefix: str) -> bool:
-        """Whether the device of ``key_expr`` (``<prefix>/<device>/raw``) is of this shard; a malformed key: True,
-        to be refused and counted by the decoder."""
-        if self.shard.everything:
-            return True
-        owned = self.owned.get(key_expr)
-        if owned is None:
-            try:
-                owned = self.shard.owns(wire.device_from_key(prefix, key_expr, wire.Kind.RAW))
-            except wire.WireError:
-                return True
-            self.owned[key_expr] = owned
-        return owned

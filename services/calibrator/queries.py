@@ -14,8 +14,8 @@ from collections.abc import Callable, Iterable
 import zenoh
 
 from magnet import wire
-from services.calibrator.core import Calibrator
-from services.calibrator.roster_reply import roster_reply
+from magnet.calibrator.core import CalibratorCore
+from magnet.calibrator.roster_reply import roster_reply
 
 #: history replies hold at most this many records
 MAX_HISTORY_LIMIT = 10_000
@@ -35,20 +35,20 @@ def matching_devices(devices: Iterable[str], prefix: str, key_expr: str, kind: w
 
 
 #: how a query is answered: (query, calibrator, prefix)
-Answer = Callable[[zenoh.Query, Calibrator, str], None]
+Answer = Callable[[zenoh.Query, CalibratorCore, str], None]
 
 
 def active_only(answer: Answer) -> Answer:
     """``answer``, given only while the calibrator holds the lease of its shard (else the query goes unanswered)."""
 
-    def when_active(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
+    def when_active(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) -> None:
         if calibrator.active:
             answer(query, calibrator, prefix)
 
     return when_active
 
 
-def answer_calibration(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
+def answer_calibration(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) -> None:
     in_force = calibrator.records.in_force
     for device in matching_devices(in_force, prefix, str(query.key_expr), wire.Kind.CALIBRATION):
         query.reply(wire.key(prefix, device, wire.Kind.CALIBRATION), wire.pack(in_force[device].to_record()))
@@ -65,7 +65,7 @@ def history_limit(text: str | None) -> int:
     return min(max(0, limit), MAX_HISTORY_LIMIT)
 
 
-def answer_history(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
+def answer_history(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) -> None:
     try:
         limit = history_limit(query.parameters.get("limit"))
     except ValueError as exc:
@@ -84,7 +84,7 @@ def answer_history(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> N
         )
 
 
-def answer_calibrate(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
+def answer_calibrate(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) -> None:
     key_expr = str(query.key_expr)
     try:
         device = wire.device_from_key(prefix, key_expr, wire.Kind.CALIBRATE)
@@ -101,8 +101,8 @@ def answer_calibrate(query: zenoh.Query, calibrator: Calibrator, prefix: str) ->
     query.reply(key_expr, wire.pack(reply))
 
 
-def answer_fleet(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
-    """``<prefix>/@fleet``: every device in one reply (``services.calibrator.roster_reply``)."""
+def answer_fleet(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) -> None:
+    """``<prefix>/@fleet``: every device in one reply (``magnet.calibrator.roster_reply``)."""
     reply = roster_reply(
         calibrator.records.in_force, calibrator.collections, calibrator.roster, calibrator.state, calibrator.clock_ns()
     )
@@ -112,7 +112,7 @@ def answer_fleet(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> Non
 def status_answer(name: str) -> Answer:
     """The handler of ``<prefix>/@status/<name>``."""
 
-    def answer_status(query: zenoh.Query, calibrator: Calibrator, prefix: str) -> None:
+    def answer_status(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) -> None:
         query.reply(wire.status_key(prefix, name), wire.pack(calibrator.status(name).to_dict()))
 
     return answer_status

@@ -1,10 +1,11 @@
-"""``magnet calibrator``: collect raw samples per device, fit, gate, store (SQLite) and serve calibrations.
+"""``magnet calibrator``: collect raw samples per device, fit, gate, store (a SQLite file or a PostgreSQL database:
+``--db``, ``services.common.stores``) and serve calibrations.
 
-Collection (``magnet.collection``) keeps samples evenly spread over the sphere (bounded by ``--max-samples``).
-Without a session, a device that has no calibration is fitted whenever enough new cells filled and coverage reached
-``--min-coverage``; the first fit the quality gate accepts is stored and published, and collection for it ends. An
-operator's session (``calibrate`` queryable: start / status / commit / abort) collects afresh with its method and
-stores only on commit. A rejected fit changes nothing: its reason goes out on ``calibration/progress``.
+Collection (``magnet.calibration.collection``) keeps samples evenly spread over the sphere (bounded by
+``--max-samples``). Without a session, a device that has no calibration is fitted whenever enough new cells filled and
+coverage reached ``--min-coverage``; the first fit the quality gate accepts is stored and published, and collection for
+it ends. An operator's session (``calibrate`` queryable: start / status / commit / abort) collects afresh with its
+method and stores only on commit. A rejected fit changes nothing: its reason goes out on ``calibration/progress``.
 
 Several calibrators may serve one shard: the oldest running holds the lease and alone collects, stores and answers;
 the others stand by and take over when its liveliness token goes away (``services.calibrator.lease``).
@@ -13,8 +14,9 @@ Queryables: see ``services.calibrator.queries``. One thread does the work: a pum
 from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
 between slices of samples; every handler runs through ``services.common.guard``, so no message, query or failing
 store ends it.
-The options and settings are in ``services.calibrator.settings``; the calibrator without zenoh, its parts wired, in
-``services.calibrator.core`` (docs/calibrator.md).
+The options and settings are in ``services.calibrator.settings``; the calibrator's decisions, without zenoh, a
+database or a clock of their own, are ``magnet.calibrator.CalibratorCore``, which ``Calibrator`` gives the clocks
+(docs/calibrator.md).
 """
 
 from __future__ import annotations
@@ -30,12 +32,15 @@ from typing import Any
 import zenoh
 from zenoh.handlers import FifoChannel, Handler
 
-from magnet import wire
+from magnet import signing, wire
+from magnet.calibrator.core import CalibratorCore, Publish
+from magnet.calibrator.roster import Roster
+from magnet.calibrator.status import CalibratorStatus, IntakeFigures, State
+from magnet.calibrator.store import CalibrationStore as Store
+from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator import queries
-from services.calibrator.core import Calibrator, Publish
 from services.calibrator.intake import Enrolment, RawIntake, new_device
 from services.calibrator.lease import Lease, Member
-from services.calibrator.roster import Roster
 from services.calibrator.settings import (
     DEFAULT_MAX_DEVICES,
     CalibratorSettings,
@@ -46,10 +51,9 @@ from services.calibrator.settings import (
     make_places,
     settings_from_args,
 )
-from services.calibrator.status import CalibratorStatus, IntakeFigures, State
-from services.calibrator.store import CalibrationStore
 from services.common import metrics
 from services.common.guard import Guard
+from services.common.stores import open_store
 from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 
@@ -89,6 +93,23 @@ LeaseWatch = tuple["zenoh.Subscriber[Handler[zenoh.Sample]]", Lease]
 # ------------------------------------------------------------------------------------------------------- shell
 
 
+class Calibrator(CalibratorCore):
+    """``CalibratorCore`` on this process's clocks (monotonic s, wall clock ns) unless others are given."""
+
+    def __init__(
+        self,
+        store: Store,
+        settings: CalibratorSettings,
+        publish: Publish,
+        clock: Callable[[], float] = time.monotonic,
+        clock_ns: Callable[[], int] = time.time_ns,
+        signer: signing.Signer | None = None,
+        roster: Roster | None = None,
+        shard: Shard = EVERY_DEVICE,
+    ) -> None:
+        super().__init__(store, settings, publish, clock, clock_ns, signer, roster, shard)
+
+
 def add_calibrator_arguments(parser: argparse.ArgumentParser) -> None:
     add_arguments(parser)
     metrics.add_metrics_argument(parser)
@@ -126,7 +147,7 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
     fitting = settings.fitting
     places = make_places(settings.fleet, fitting.location, fitting.max_devices)
     with (
-        CalibrationStore(settings.db_path) as store,
+        open_store(settings.db_path) as store,
         open_session(settings.zenoh) as session,
         ExitStack() as declared,  # every declaration, undeclared in reverse order before the session closes
     ):

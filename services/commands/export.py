@@ -1,6 +1,6 @@
 """``magnet export (--calibration FILE | --device ID) --format ardupilot|px4 [--instance N] [--out FILE]``.
 
-Writes the parameters that make the autopilot apply a calibration (the maths in ``magnet.autopilot_params``):
+Writes the parameters that make the autopilot apply a calibration (the maths in ``magnet.autopilot.params``):
 
 - ``ardupilot``: ``NAME,VALUE`` lines, as Mission Planner saves a .param file and MAVProxy's ``param load`` reads it
   (``#`` lines are comments);
@@ -21,9 +21,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from magnet.autopilot_params import Autopilot, Export, export_parameters
+from magnet.autopilot.mavlink_stream import compass_instance
+from magnet.autopilot.params import Autopilot, Export, export_parameters
 from magnet.frames import ROTATIONS
 from magnet.model import Calibration
+from services.common.jsonio import read_json
 from services.common.mavlink_options import add_mavlink_url_arguments
 from services.common.records import load_calibration, write_atomically
 from services.common.zenoh_session import add_zenoh_arguments
@@ -39,7 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--device", metavar="ID", help="ask the calibrator for this device's calibration in force")
     parser.add_argument("--format", required=True, choices=[a.value for a in Autopilot], help="the autopilot")
     parser.add_argument(
-        "--instance", type=int, default=0, metavar="N", help="compass instance / calibration slot (default 0)"
+        "--instance",
+        type=int,
+        metavar="N",
+        help="compass instance / calibration slot (default: the device's own, mav1-mag2: 2; else 0)",
     )
     parser.add_argument(
         "--rotation-in-force",
@@ -66,7 +71,9 @@ def _from_device(args: argparse.Namespace) -> Calibration | None:
     """The device's calibration in force, from the calibrator; None when nobody answered."""
     from magnet import wire
     from services.commands.remote import ask
+    from services.common.endpoint import use_local_pipeline
 
+    use_local_pipeline(args)  # no Zenoh option given: the running magnet up, as magnet get finds it
     wire.validate_device_id(args.device)
     replies = ask(args, f"{args.prefix}/{args.device}/{wire.Kind.CALIBRATION.value}")
     if not replies:
@@ -75,6 +82,13 @@ def _from_device(args: argparse.Namespace) -> Calibration | None:
         return wire.calibration_from_record(replies[0]).calibration
     except wire.WireError as exc:
         raise ValueError(f"the calibrator's answer for {args.device} is unusable: {exc}") from None
+
+
+def _device_of(path: str) -> str | None:
+    """The device id a record file names (``magnet get calibration --json`` writes it), if it names one."""
+    data = read_json(path)
+    device = data.get("device") if isinstance(data, dict) else None
+    return device if isinstance(device, str) else None
 
 
 def _value(value: float, integer: bool) -> str:
@@ -98,8 +112,10 @@ def render(export: Export, source: str, vehicle_id: int = 1) -> str:
 def run(args: argparse.Namespace) -> int:
     if args.rotation_in_force not in ROTATIONS:
         raise ValueError(f"--rotation-in-force {args.rotation_in_force} is not a named orientation magnet knows")
+    device = args.device
     if args.calibration:
         calibration, source = load_calibration(args.calibration), args.calibration
+        device = _device_of(args.calibration)
     else:
         found = _from_device(args)
         if found is None:
@@ -108,7 +124,13 @@ def run(args: argparse.Namespace) -> int:
         calibration, source = found, f"device {args.device}"
     if not calibration.accepted:
         raise ValueError(f"{source}: this calibration was not accepted ({calibration.reason}): export a good one")
-    export = export_parameters(calibration, args.format, args.instance, args.rotation_in_force)
+    instance = args.instance
+    if instance is None:
+        named = compass_instance(device)
+        instance = named or 0
+        if named is not None:
+            print(f"magnet export: note: instance {instance}, from the device id {device}", file=sys.stderr)
+    export = export_parameters(calibration, args.format, instance, args.rotation_in_force)
     text = render(export, f"{source} (method {calibration.method}, id {calibration.content_id})", args.vehicle_id)
     for note in export.notes:
         print(f"magnet export: note: {note}", file=sys.stderr)

@@ -13,15 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet import fusion
-from magnet.calibration import Method
+from magnet.calibration import FitInput, Method, TurntableSetup
 from magnet.calibration.choose import AUTO, CHOICES, fit_choice
+from magnet.earth.location import Location
 from magnet.model import Calibration
 from magnet.units import FieldUnit
 from services.commands.fit_motor import add_motor_arguments, fit_with_motors
-from services.common.csvio import SampleTable
-from services.common.input_options import InputOptions
 from services.common.inputs import add_input_arguments, read_input_told
+from services.common.inputs.csvio import SampleTable
+from services.common.inputs.input_options import InputOptions
 from services.common.place import add_field_arguments, expected_field_ut
 from services.common.records import load_calibration, write_atomically
 
@@ -41,7 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=CHOICES,
         help="auto (the default): with gx,gy,gz and the sample times, fit gyro-ellipsoid and ellipsoid and keep the "
         "accepted one (both accepted: the one whose field is more constant on held-out data), else ellipsoid; "
-        "gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate)",
+        "both refused: the model the motion identifies (offset, offset+scale, planar or ellipsoid; --location gives "
+        "the WMM's dip as a prior). gyro-ellipsoid needs gx,gy,gz and the sample times (t_s or --rate); offset, "
+        "offset+scale and planar fit that rung of the field ladder",
     )
     parser.add_argument(
         "--unit", default="ut", choices=[u.value for u in FieldUnit], help="unit of the mx,my,mz columns (default ut)"
@@ -99,19 +101,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _fit_turntable(table: SampleTable, args: argparse.Namespace) -> Calibration:
-    from magnet.turntable import fit_turntable
-
+def _turntable_setup(table: SampleTable, args: argparse.Namespace) -> TurntableSetup:
     if args.horizontal is None or args.vertical is None:
         raise ValueError("the turntable method needs --horizontal and --vertical (the known field components)")
-    return fit_turntable(
-        table.mag,
-        table.text("mounting"),
+    return TurntableSetup(
+        np.asarray(table.text("mounting")),
         table.numeric("heading_deg"),
         args.horizontal,
         args.vertical,
         args.turntable_variant,
-        unit=args.unit,
         field_unit=args.field_unit,
     )
 
@@ -134,13 +132,15 @@ def sample_period_s(table: SampleTable, rate_hz: float | None) -> float:
             f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
             "(seconds) or give --rate HZ"
         )
+    from magnet.attitude import fusion  # the filter's package: loaded only when the times are needed
+
     return fusion.sample_period_s(table.numeric("t_s"))
 
 
-def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
-    """Run the chosen method on the samples."""
+def fit_input(table: SampleTable, args: argparse.Namespace) -> FitInput:
+    """The fit's input from the samples and the options (ValueError for options that do not fit the file)."""
     if args.method == Method.TURNTABLE.value:
-        return _fit_turntable(table, args)
+        return FitInput(table.mag, unit=args.unit, turntable=_turntable_setup(table, args))
     if args.horizontal is not None or args.vertical is not None:
         raise ValueError("--horizontal/--vertical are for --method turntable only")
     auto = args.method == AUTO
@@ -152,23 +152,29 @@ def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
     period = sample_period_s(table, args.rate) if gyr is not None else None
     in_force = load_calibration(args.in_force) if args.in_force else None
     field_ut = expected_field_ut(args)
+    return FitInput(
+        table.mag,
+        unit=args.unit,
+        t_s=table.numeric("t_s") if period is not None and args.rate is None else None,  # read for the period
+        acc=table.acc,
+        gyr_rads=gyr,
+        period_s=period,
+        place=Location.parse(args.location) if args.location else None,
+        date=args.date,
+        field_ut=field_ut,
+        robust_extremes=args.robust_extremes,
+        reference=in_force,
+    )
 
-    def fit_mag(mag: np.ndarray) -> Calibration:
-        return fit_choice(
-            mag,
-            args.method,
-            acc=table.acc,
-            unit=args.unit,
-            field_ut=field_ut,
-            robust_extremes=args.robust_extremes,
-            gyr=gyr,
-            period_s=period,
-            reference=in_force,
+
+def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:
+    """Run the chosen method (or auto) on the samples, with the motors' field when asked."""
+    data = fit_input(table, args)
+    if getattr(args, "motor", None) and data.turntable is None:
+        return fit_with_motors(
+            table, args.motor, lambda mag: fit_choice(data.replace(mag=mag), args.method), data.field_ut
         )
-
-    if getattr(args, "motor", None):
-        return fit_with_motors(table, args.motor, fit_mag, field_ut)
-    return fit_mag(table.mag)
+    return fit_choice(data, args.method)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -193,6 +199,13 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_REJECTED
     if args.out:
         write_atomically(Path(args.out), text)
+        print(f"magnet fit: {summary(calibration)}; written to {args.out}")
     else:
         sys.stdout.write(text)
     return 0
+
+
+def summary(calibration: Calibration) -> str:
+    """One line on an accepted record: method, offset in its unit and the gate's words."""
+    offset = ", ".join(f"{v:.2f}" for v in calibration.offset)
+    return f"{calibration.method}, offset ({offset}) {calibration.unit}, {calibration.reason}"

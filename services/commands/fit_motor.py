@@ -11,10 +11,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from magnet.calibration.motor_fit import fit_with_motor
 from magnet.model import Calibration
 from magnet.motor import CURRENT, THROTTLE
-from services.common.csvio import SampleTable
+from services.common.inputs.csvio import SampleTable
 
 COLUMNS = {CURRENT: "current_a", THROTTLE: "throttle"}
 
@@ -35,6 +34,8 @@ def fit_with_motors(
     if column not in table.columns:
         raise ValueError(f"{table.path}: --motor {kind} needs a {column} column (the samples' {kind}); it has none")
     driver = table.numeric(column)
+    from magnet.calibration.motor_fit import fit_with_motor  # only with --motor
+
     calibration, motor = fit_with_motor(table.mag, driver, kind, fit_calibration, earth_ut)
     quality = calibration.quality.with_extra(
         motor_interference_pct=round(motor.interference_pct, 2),

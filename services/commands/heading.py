@@ -1,17 +1,18 @@
 """``magnet heading``: apply a calibration to a CSV of raw samples and print headings as CSV.
 
 Columns: ``t_s`` (when the input has it), ``heading_deg`` (magnetic), ``true_heading_deg``, ``pitch_deg``,
-``roll_deg``, ``field_x_ut``, ``field_y_ut``, ``field_z_ut``, ``dip_deg``, ``flags`` (magnet.heading.HeadingFlag),
-``qw,qx,qy,qz`` (body -> NED with true north, i.e. the attitude whose heading is ``true_heading_deg``).
+``roll_deg``, ``field_x_ut``, ``field_y_ut``, ``field_z_ut``, ``dip_deg``, ``flags``
+(magnet.attitude.heading.HeadingFlag), ``qw,qx,qy,qz`` (body -> NED with true north, i.e. the attitude whose heading is
+``true_heading_deg``).
 
 The headings come from the live compass's own step (``magnet.compass.CompassCore.step``): the file is one device's
 raw batches (its runs of samples, cut where the time goes backwards or pauses for more than the filter's gap), so
 ``magnet heading`` prints what ``magnet compass`` publishes for the same samples. With ``gx,gy,gz`` (rad/s, body
-frame) and ``ax,ay,az`` the attitude comes from the gyroscope-aided filter (``magnet.fusion``, flag FUSED), causal as
-the live compass runs it; ``--offline`` is a different estimator (it looks ahead: the best estimate for a log, not
-what the compass gives). With ``vn,ve,vd`` (velocity over the ground, m/s, geographic NED; empty or NaN where
-unknown) the filter removes the linear acceleration the velocity implies (``magnet.aiding``). The samples' times
-come from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is tilt-compensated with the
+frame) and ``ax,ay,az`` the attitude comes from the gyroscope-aided filter (``magnet.attitude.fusion``, flag FUSED),
+causal as the live compass runs it; ``--offline`` is a different estimator (it looks ahead: the best estimate for a log,
+not what the compass gives). With ``vn,ve,vd`` (velocity over the ground, m/s, geographic NED; empty or NaN where
+unknown) the filter removes the linear acceleration the velocity implies (``magnet.attitude.aiding``). The samples'
+times come from ``--rate HZ`` or else the ``t_s`` column. Without a gyroscope the heading is tilt-compensated with the
 accelerometer; without ``ax,ay,az`` it is the level heading and pitch and roll are 0 with the NO_TILT flag. Without
 ``--calibration`` the raw field is used as it is (a factory-calibrated sensor, or a fit that was refused).
 """
@@ -25,21 +26,24 @@ import time
 
 import numpy as np
 
-from magnet import frames, fusion, wire
-from magnet import heading as hd
-from magnet.autopilot import compare_headings
-from magnet.compass import CompassCore, CoreSettings, Earth, HeadingColumns, Places, earth_at
+from magnet import frames, wire
+from magnet.attitude import fusion
+from magnet.attitude import heading as hd
+from magnet.attitude.mag_delay import advance_field, record_lag_s
+from magnet.autopilot.conventions import compare_headings
+from magnet.compass import CompassCore, CoreSettings, HeadingColumns
 from magnet.compass.filters import MAX_GAP_S
 from magnet.compass.tilt import Headings
+from magnet.earth.expected import Earth, earth_at
+from magnet.fleet.places import Places
 from magnet.frames import to_magnetic_ned
-from magnet.mag_delay import advance_field, record_lag_s
 from magnet.model import Calibration
-from magnet.place import Location
+from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT
 from services.commands.fit import gyro_columns, sample_period_s
-from services.common.csvio import SampleTable, write_csv
-from services.common.input_options import InputOptions
 from services.common.inputs import add_input_arguments, read_input_told, reference_yaw
-from services.common.place import add_field_arguments
+from services.common.inputs.csvio import SampleTable, write_csv
+from services.common.inputs.input_options import InputOptions
+from services.common.place import add_field_arguments, date_needs_location, location_instead_of
 from services.common.records import load_calibration
 
 #: the device the file's samples are, for the compass's core
@@ -91,6 +95,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the live compass cannot; without it the headings are the live compass's)",
     )
     parser.add_argument(
+        "--force",
+        action="store_true",
+        help="apply --calibration even when the field it gives these samples is implausible (another device's "
+        "record, or another unit)",
+    )
+    parser.add_argument(
         "--compare",
         action="store_true",
         help="flight logs: print (stderr) the RMS difference to the autopilot's own logged yaw, after the constant "
@@ -101,12 +111,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _earth(args: argparse.Namespace, calibration: Calibration | None) -> Earth:
     """What to expect: the WMM at --location on --date (default today), or --declination; the field strength is the
     calibration's own where the model gives none."""
-    if args.declination is not None and args.location:
-        raise ValueError("give either --declination or --location, not both")
-    if args.location:
-        return earth_at(Location.parse(args.location), args.date or datetime.date.today())
-    if args.date:
-        raise ValueError("--date needs --location")
+    location = location_instead_of(args, "--declination", args.declination)
+    if location is not None:
+        return earth_at(location, args.date or datetime.date.today())
+    date_needs_location(args)
     if args.declination is not None and not -180 <= args.declination <= 180:
         raise ValueError(f"--declination {args.declination} is outside -180..180 degrees")
     strength = (calibration.field_strength or None) if calibration is not None else None
@@ -178,7 +186,7 @@ def offline_headings(
     lag_s: float = 0.0,
 ) -> HeadingColumns:
     """``--offline``: its own estimator, not the compass's (vqf's offline filter looks ahead over the whole log);
-    the filter gets the field turned forward over the magnetometer's delay ``lag_s`` (``magnet.mag_delay``)."""
+    the filter gets the field turned forward over the magnetometer's delay ``lag_s`` (``magnet.attitude.mag_delay``)."""
     if table.acc is None:
         raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
     period_s = sample_period_s(table, args.rate)
@@ -212,6 +220,33 @@ def _accepted_calibration(path: str) -> Calibration:
             "with better coverage, or leave out --calibration to use the raw field"
         )
     return calibration
+
+
+#: the corrected field's median strength may be this far from the expected before the record is called implausible
+#: for the samples (a record fitted on the same sensor lands within a few per cent; another device's hard iron or a
+#: unit off by 100 lands far outside)
+PLAUSIBLE_FIELD_PCT = 25.0
+
+
+def implausible_field(calibration: Calibration, mag: np.ndarray, earth: Earth) -> str | None:
+    """Why ``calibration`` applied to ``mag`` (N, 3) gives no plausible field, or None: the median corrected |B| (uT)
+    against the expected strength (the WMM's, else the record's own), or the Earth's range when neither is known."""
+    if calibration.output_unit != "ut" or not len(mag):
+        return None
+    strength = float(np.nanmedian(np.linalg.norm(calibration.apply(mag), axis=1)))
+    expected = earth.total_ut or calibration.field_strength or None
+    if expected is not None:
+        if abs(strength / expected - 1.0) * 100.0 <= PLAUSIBLE_FIELD_PCT:
+            return None
+        against = f"the expected {expected:.1f} uT"
+    elif EARTH_MIN_UT <= strength <= EARTH_MAX_UT:
+        return None
+    else:
+        against = f"any Earth field ({EARTH_MIN_UT:g}-{EARTH_MAX_UT:g} uT)"
+    return (
+        f"the calibration gives these samples a field of {strength:.3g} uT, not {against}: it is probably another "
+        "device's record or the samples are in another unit (--unit); --force applies it anyway"
+    )
 
 
 def _declination_words(args: argparse.Namespace, declination_deg: float) -> str:
@@ -252,6 +287,11 @@ def run(args: argparse.Namespace) -> int:
     calibration = _accepted_calibration(args.calibration) if args.calibration else None
     earth = _earth(args, calibration)
     table = read_input_told(args.file, InputOptions.from_args(args), "heading")
+    implausible = implausible_field(calibration, table.mag, earth) if calibration else None
+    if implausible and not args.force:
+        raise ValueError(f"{args.calibration}: {implausible}")
+    if implausible:
+        print(f"magnet heading: warning: {implausible}", file=sys.stderr)
     gyr = gyro_columns(table)
     if args.offline:
         if gyr is None:

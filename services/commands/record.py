@@ -4,8 +4,10 @@ Foxglove and ``ros2 bag`` open it and ``magnet fit/heading/report/edge --replay 
 
 ``--out NAME.mcap`` leaves one MCAP file; any other name leaves a rosbag2 directory (``metadata.yaml`` and the
 ``.mcap``). The topics are listed in ``magnet.ros2.recording``. The calibrations in force when it starts are asked
-for and recorded first. Messages that do not decode are skipped and counted; the summary line says how many of each
-were written.
+for and recorded first (their replies are taken as they come, while the recording runs). Messages that do not decode
+are skipped and counted; the summary line says how many of each were written. Given no Zenoh options it records the
+running ``magnet up`` (``services.common.endpoint``). A recording that heard nothing is an error (exit 1), and its
+empty bag is not left behind.
 """
 
 from __future__ import annotations
@@ -15,17 +17,20 @@ import contextlib
 import json
 import logging
 import shutil
+import sys
 import threading
 import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import zenoh
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from magnet import wire
 from magnet.ros2 import messages, recording
 from magnet.ros2.names import DEFAULT_NAMESPACE, validate_namespace
+from services.common.endpoint import use_local_pipeline
 from services.common.zenoh_session import add_zenoh_arguments, drain, open_session, payload_bytes, stop_event
 
 log = logging.getLogger("magnet.record")
@@ -74,6 +79,21 @@ def _rows(kind: wire.Kind, payload: bytes, namespace: str) -> list[recording.Row
     return recording.alert_rows(message, now, namespace)
 
 
+def _replies(asked: Any, limit: int) -> tuple[list[bytes], bool]:
+    """The calibration replies ``asked`` holds now, and whether its query is finished (its channel closed)."""
+    got: list[bytes] = []
+    while len(got) < limit:
+        try:
+            reply = asked.try_recv()
+        except zenoh.ZError:
+            return got, True
+        if reply is None:
+            return got, False
+        if reply.ok is not None:
+            got.append(payload_bytes(reply.ok))
+    return got, False
+
+
 def _record(args: argparse.Namespace, bag: _Bag, stop: threading.Event) -> Counter[str]:
     dropped: Counter[str] = Counter()
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
@@ -83,9 +103,13 @@ def _record(args: argparse.Namespace, bag: _Bag, stop: threading.Event) -> Count
             k: declared.enter_context(session.declare_subscriber(f"{args.prefix}/{args.devices}/{k.value}"))
             for k in KINDS
         }
-        asked = session.get(f"{args.prefix}/{args.devices}/calibration", timeout=3.0)
-        pending = [(wire.Kind.CALIBRATION, payload_bytes(r.ok)) for r in drain(asked, 10_000) if r.ok is not None]
+        asked: Any = session.get(f"{args.prefix}/{args.devices}/calibration", timeout=3.0)
+        pending: list[tuple[wire.Kind, bytes]] = []
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            if asked is not None:  # the calibrations in force, written first as their replies come
+                in_force, finished = _replies(asked, 10_000)
+                pending += [(wire.Kind.CALIBRATION, payload) for payload in in_force]
+                asked = None if finished else asked
             for kind, sub in subs.items():
                 pending += [(kind, payload_bytes(s)) for s in drain(sub, 10_000)]
             for kind, payload in pending:
@@ -104,6 +128,7 @@ def _record(args: argparse.Namespace, bag: _Bag, stop: threading.Event) -> Count
 
 
 def run(args: argparse.Namespace) -> int:
+    use_local_pipeline(args)
     out: Path = args.out
     try:
         validate_namespace(args.ros_namespace)
@@ -121,6 +146,15 @@ def run(args: argparse.Namespace) -> int:
         dropped = _record(args, bag, stop_event())
     finally:
         bag.writer.close()
+    if not bag.written:
+        shutil.rmtree(directory, ignore_errors=True)
+        heard = f", only {sum(dropped.values())} message(s) that did not decode" if dropped else ""
+        print(
+            f"magnet record: error: heard nothing on {args.prefix}/{args.devices}/...{heard}; no bag written (is a "
+            "pipeline running, magnet up, or reachable with --connect?)",
+            file=sys.stderr,
+        )
+        return 1
     if single:
         (directory / f"{directory.name}.mcap").rename(out)
         shutil.rmtree(directory)

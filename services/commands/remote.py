@@ -29,6 +29,7 @@ from services.commands.remote_view import (
     print_json,
     show,
     status_table,
+    vehicle_table,
     wants_json,
     watch_line,
 )
@@ -89,11 +90,17 @@ def ask(args: argparse.Namespace, selector: str, errors: list[str] | None = None
 def add_get_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "what",
-        choices=["calibration", "status", "fleet"],
-        help="a device's calibration, a service's status counters, or every device in one reply",
+        choices=["calibration", "history", "status", "fleet", "vehicle"],
+        help="a device's calibration, its history (calibration --history: every record, newest first, with what "
+        "made each: a session, a rollback, an in-service refresh), a service's status counters, every device in one "
+        "reply, or a vehicle's compasses compared (which one disagrees, why, the parameter that fixes it: "
+        "docs/vehicles.md)",
     )
     parser.add_argument(
-        "device", nargs="?", help="device id (or '*'); for status: the service name (calibrator, compass, '*')"
+        "device",
+        nargs="?",
+        help="device id (or '*'); for status: the service name (calibrator, compass, '*'); for vehicle: the vehicle "
+        "(MAVLink: mav<SYSID>, or '*')",
     )
     parser.add_argument("--history", action="store_true", help="earlier calibrations too, newest first")
     parser.add_argument("--limit", type=int, default=20, help="with --history: at most this many (default 20)")
@@ -152,13 +159,22 @@ def run_get(args: argparse.Namespace) -> int:
         raise ValueError(f"magnet get {args.what} needs a device id (or '*')")
     if args.device != "*":
         wire.validate_device_id(args.device)
+    if args.what == "vehicle":
+        return _get_vehicle(args)
     if args.what == "status":
         replies = ask(args, wire.status_key(args.prefix, args.device))
         for reply in replies:
             show(args, reply, status_table)
+        if not replies:
+            print(
+                f"magnet get: no service named {args.device!r} answered for its status (the names are 'calibrator', "
+                "'compass', 'edge-...' or '*' for every one; is the pipeline running and reachable?)",
+                file=sys.stderr,
+            )
         return 0 if replies else 1
-    kind = wire.Kind.HISTORY if args.history else wire.Kind.CALIBRATION
-    selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if args.history else "")
+    history = args.history or args.what == "history"
+    kind = wire.Kind.HISTORY if history else wire.Kind.CALIBRATION
+    selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if history else "")
     trusted = signing.TrustedKeys([signing.load_public_key(path.read_bytes(), str(path)) for path in args.trust])
     replies = ask(args, selector)
     if trusted.enabled:
@@ -173,6 +189,19 @@ def run_get(args: argparse.Namespace) -> int:
     for reply in replies:
         show(args, reply, calibration_table)
     return 0
+
+
+def _get_vehicle(args: argparse.Namespace) -> int:
+    replies = ask(args, wire.vehicle_key(args.prefix, args.device))
+    for reply in replies:
+        show(args, reply, vehicle_table)
+    if not replies:
+        print(
+            f"magnet get: no compass knows vehicle {args.device!r} (its compasses are named <vehicle>-mag<N>, as "
+            "magnet edge --mavlink names them; is a compass running, reachable and fed by the vehicle?)",
+            file=sys.stderr,
+        )
+    return 0 if replies else 1
 
 
 # --------------------------------------------------------------------------------------------------------- watch
@@ -210,6 +239,15 @@ def run_watch(args: argparse.Namespace) -> int:
             printed += 1
             if args.count is not None and printed >= args.count:
                 break
+    if printed == 0 and not stop.is_set():
+        # no heading in the time given is an error (nobody publishes); no alert is good news, said all the same
+        trouble = args.what == "heading"
+        print(
+            f"magnet watch: heard no {args.what} on {key}"
+            + (" (is a compass running and reachable?)" if trouble else " (none raised)"),
+            file=sys.stderr,
+        )
+        return 1 if trouble else 0
     return 0
 
 

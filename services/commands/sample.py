@@ -4,7 +4,7 @@ Columns: ``t_s,mx,my,mz`` (uT, body frame), then ``ax,ay,az`` (m/s^2) for sensor
 ``gx,gy,gz`` (rad/s, body frame) for sensors with a gyroscope; with
 ``--emulate`` also the truth ``true_heading_deg,pitch_deg,roll_deg``, and with ``--trajectory turntable`` the
 ``mounting,heading_deg`` (table angle) columns that ``magnet fit --method turntable`` reads. The sensor is read
-through the bounded read loop (``magnet.readloop``): overflowed readings and failed reads are left out, counted and
+through the bounded read loop (``magnet.edge.readloop``): overflowed readings and failed reads are left out, counted and
 reported on stderr; after ``GIVE_UP_AFTER`` failed reads in a row the command stops with a one-line error (exit 2).
 ``--emulate`` never sleeps; real hardware is paced at ``--rate``.
 """
@@ -22,9 +22,9 @@ from typing import Any
 import smbus2
 
 from magnet.drivers import I2CBus, Reading, Sensor, has_accelerometer, has_gyroscope, open_sensor
+from magnet.edge.readloop import ReadLoop
 from magnet.emulators import emulator_for
 from magnet.frames import orientation_matrix
-from magnet.readloop import ReadLoop
 from magnet.retry import RetryPolicy
 from magnet.simulator import SensorStream, Trajectory
 from services.common import sim_options
@@ -119,7 +119,7 @@ def _header(has_acc: bool, emulate: bool, turntable: bool, has_gyr: bool = False
 
 
 def read_loop(sensor: Sensor, settings: SampleSettings, sleep: Callable[[float], None] = time.sleep) -> ReadLoop:
-    """The bounded read loop (``magnet.readloop``) for the command: never sleeps when emulated; gives up after
+    """The bounded read loop (``magnet.edge.readloop``) for the command: never sleeps when emulated; gives up after
     ``GIVE_UP_AFTER`` failed reads in a row with a clear error."""
     poll_s = 0.0 if settings.emulate else min(0.1 / settings.rate_hz, 0.005)
     policy = RetryPolicy(

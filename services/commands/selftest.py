@@ -16,7 +16,7 @@ import numpy as np
 
 from services.common.sim_options import parse_floats
 
-log = logging.getLogger("magnet.selftest")
+log = logging.getLogger("magnet.drivers.selftest")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

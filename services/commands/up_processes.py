@@ -80,19 +80,13 @@ def dashboard_http(settings: UpSettings, spare_port: int) -> tuple[str, str, str
     if not settings.dashboard:
         return None
     import secrets
-    import socket
 
     from services.dashboard.service import page_address
-    from services.dashboard.settings import DEFAULT_HTTP, parse_http
+    from services.dashboard.settings import DEFAULT_HTTP, bindable, parse_http
 
     http = settings.http
-    if http is None:
-        http = DEFAULT_HTTP
-        with socket.socket() as sock:
-            try:
-                sock.bind(parse_http(DEFAULT_HTTP))
-            except OSError:  # 8080 taken (another pipeline, another program): any free port will do
-                http = f"127.0.0.1:{spare_port}"
+    if http is None:  # 8080 unless taken (another pipeline, another program): then any free port will do
+        http = DEFAULT_HTTP if bindable(DEFAULT_HTTP) else f"127.0.0.1:{spare_port}"
     token = secrets.token_urlsafe(12)
     return http, token, page_address(*parse_http(http), token)
 

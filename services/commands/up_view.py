@@ -19,7 +19,7 @@ from magnet.drift import Alert, alert_from_message
 if TYPE_CHECKING:
     from rich.live import Live
 
-NOTE_CHARS = 60
+NOTE_CHARS = 76
 DRIFT_UNITS = {"field_strength": "uT", "dip": "deg", "calibration_age": "days"}
 
 
@@ -93,7 +93,8 @@ def _bar(fraction: float | None, width: int = 20, state: str = "waiting") -> str
 
 
 def _fmt(value: float | None, spec: str) -> str:
-    return "-" if value is None or not np.isfinite(value) else format(value, spec)
+    """``value`` in ``spec`` ("8.1f"), or "-" in the same width when there is none."""
+    return "-".rjust(int(spec.split(".")[0])) if value is None or not np.isfinite(value) else format(value, spec)
 
 
 def alert_cause(alert: Alert) -> str:
@@ -112,31 +113,38 @@ def _note(v: DeviceView) -> str:
     return textwrap.shorten(note, NOTE_CHARS, placeholder=" ...") if note else ""
 
 
-def render_lines(views: dict[str, DeviceView], elapsed_s: float, width: int = 100) -> list[str]:
-    """The view as lines of text (no terminal codes): a header, one line per device, then each open alert's advice
-    wrapped to ``width`` at word boundaries."""
+#: what the columns mean, under the table
+LEGEND = (
+    "hdg: true heading (from true north: the WMM's declination added), deg; err: hdg minus the simulator's true "
+    "heading, deg; resid: the calibration's residual, uT"
+)
+
+
+def render_lines(views: dict[str, DeviceView], elapsed_s: float, width: int = 80) -> list[str]:
+    """The view as lines of text (no terminal codes) that fit 80 columns: a header, one row per device with its note
+    on the line below, each open alert's advice wrapped to ``width`` at word boundaries, and the legend."""
     calibrated = sum(v.state == "calibrated" for v in views.values())
     alerts = sum(len(v.alerts) for v in views.values())
     head = f"magnet up: {len(views)} device(s), {calibrated} calibrated, {alerts} alert(s), {elapsed_s:5.1f} s"
     lines = [
         head + "   (Ctrl-C stops)",
-        (
-            f"{'device':<12} {'state':<11} {'coverage':<31} {'heading':>8} {'pitch':>6} {'roll':>7} "
-            f"{'resid uT':>8} {'err deg':>7}  note"
-        ),
+        f"{'device':<11} {'state':<10} {'coverage':<19} {'hdg':>8} {'pitch':>6} {'roll':>6} {'resid':>6} {'err':>6}",
     ]
     for device in sorted(views):
         v = views[device]
         lines.append(
-            f"{device:<12} {v.status:<11} {_bar(v.coverage, state=v.state):<31} {_fmt(v.true_heading_deg, '8.1f')} "
-            f"{_fmt(v.pitch_deg, '6.1f')} {_fmt(v.roll_deg, '7.1f')} {_fmt(v.residual_ut, '8.2f')} "
-            f"{_fmt(v.error_deg, '7.2f')}  {_note(v)}"
+            f"{device:<11} {v.status:<10} {_bar(v.coverage, width=12, state=v.state):<19} "
+            f"{_fmt(v.true_heading_deg, '8.1f')} {_fmt(v.pitch_deg, '6.1f')} {_fmt(v.roll_deg, '6.1f')} "
+            f"{_fmt(v.residual_ut, '6.2f')} {_fmt(v.error_deg, '6.2f')}"
         )
+        note = _note(v)
+        if note:
+            lines.append(f"  {note}")
     for device in sorted(d for d in views if views[d].alerts):
         for _, alert in sorted(views[device].alerts.items()):
             text = f"ALERT {device}: {alert_cause(alert)}: {alert.advice}"
             lines += textwrap.wrap(text, width, subsequent_indent="    ")
-    return lines
+    return [*lines, *textwrap.wrap(LEGEND, width)]
 
 
 class Viewer:
@@ -184,7 +192,7 @@ class Viewer:
             console = Console(file=self.out)
             self.live = Live(console=console, auto_refresh=False, vertical_overflow="visible")
             self.live.start()
-        width = max(60, self.live.console.width - 1)
+        width = max(60, min(80, self.live.console.width - 1))
         text = Text()
         for line in render_lines(self.views, elapsed_s, width):
             style = "bold red" if line.startswith("ALERT") or " drifted " in line else None

@@ -5,9 +5,9 @@ them) and frees them at once. glibc's defaults keep such memory: after the first
 threshold for ``mmap`` to that size (so later blocks of a few MB come from heaps that shrink only from the top, and
 a burst of bombs leaves them fragmented), and every thread that allocates (Zenoh's receiving threads) may get an
 arena of its own, up to 8 per core. Measured on 20 payloads of 2.5 MB of empty msgpack arrays at a running compass
-and calibrator (``tests/test_decode_bombs.py``): their RSS grew by 49 and 46 MB and stayed there with the defaults;
-24-26 MB with these settings (most of it Zenoh's own receiving buffers, which a bare Zenoh
-subscriber keeps too) (docs/front-door.md, "Memory per service").
+and calibrator (``tests/system/test_decode_bombs.py``): their RSS grew by 49 and 46 MB and stayed there with the
+defaults; 24-26 MB with these settings (most of it Zenoh's own receiving buffers, which a bare Zenoh subscriber keeps
+too) (docs/front-door.md, "Memory per service").
 
 - ``M_MMAP_THRESHOLD`` fixed at ``MMAP_THRESHOLD_BYTES``: every block of 1 MiB or more is its own mapping, returned
   to the system when freed, whatever came before (a fixed value also turns the raising off);

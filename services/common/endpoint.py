@@ -1,11 +1,12 @@
 """Where a running ``magnet up`` can be reached, in a per-user runtime file the client commands read.
 
-``magnet up`` writes ``$XDG_RUNTIME_DIR/magnet/up.json`` (``~/.cache/magnet/up.json`` where that variable is not set;
-folder 0700, file 0600) with ``{"v": 1, "pid", "prefix", "connect": [endpoint, ...], "ports": {service: port},
-"dashboard": address without its token | null}`` and removes it at exit. A client command given none of
-``--connect``, ``--listen`` or ``--config`` reads it (``use_local_pipeline``): when the file is there and the process
-that wrote it still runs, the command connects to the file's endpoints with multicast scouting off (and takes the
-file's prefix when its own is the default). A file left by a pipeline that died is ignored.
+Each ``magnet up`` writes a file of its own, ``$XDG_RUNTIME_DIR/magnet/up-<pid>.json`` (``~/.cache/magnet/`` where
+that variable is not set; folder 0700, file 0600) with ``{"v": 1, "pid", "prefix", "connect": [endpoint, ...],
+"ports": {service: port}, "dashboard": address without its token | null}`` and removes only that file at exit, so
+several pipelines run side by side and none loses its file to another. A command given none of ``--connect``,
+``--listen`` or ``--config`` (``use_local_pipeline``) reaches the newest pipeline whose process still runs, with
+multicast scouting off (and takes its prefix when its own is the default), and names the others when there are
+several. Files left by pipelines that died are ignored.
 """
 
 from __future__ import annotations
@@ -22,15 +23,35 @@ from magnet.wire import DEFAULT_PREFIX, validate_prefix
 
 log = logging.getLogger("magnet.endpoint")
 
-FILE_NAME = "up.json"
 MAX_FILE_BYTES = 16_384
+#: at most this many runtime files are read when looking for a pipeline (newest first)
+MAX_FILES_READ = 64
 
 
-def runtime_file() -> Path:
-    """The per-user runtime file of ``magnet up``."""
+def runtime_dir() -> Path:
+    """The per-user folder of the runtime files."""
     base = os.environ.get("XDG_RUNTIME_DIR")
-    folder = Path(base) / "magnet" if base else Path.home() / ".cache" / "magnet"
-    return folder / FILE_NAME
+    return Path(base) / "magnet" if base else Path.home() / ".cache" / "magnet"
+
+
+def runtime_file(pid: int | None = None) -> Path:
+    """The runtime file of the ``magnet up`` with process id ``pid`` (default: this process)."""
+    return runtime_dir() / f"up-{os.getpid() if pid is None else pid}.json"
+
+
+def _newest_first(folder: Path) -> list[Path]:
+    """The runtime files in ``folder``, newest first (a file that vanishes meanwhile is left out)."""
+    dated = []
+    for path in folder.glob("up-*.json"):
+        with contextlib.suppress(OSError):
+            dated.append((path.stat().st_mtime_ns, path))
+    return [path for _, path in sorted(dated, reverse=True)[:MAX_FILES_READ]]
+
+
+def running_pipelines() -> list[dict[str, Any]]:
+    """The records of every ``magnet up`` of this user that still runs, newest first."""
+    found = (read_runtime_file(path) for path in _newest_first(runtime_dir()))
+    return [record for record in found if record is not None]
 
 
 def connect_endpoints(ports: dict[str, int], services: tuple[str, ...]) -> list[str]:
@@ -87,8 +108,11 @@ def _alive(pid: Any) -> bool:
 
 
 def read_runtime_file(path: Path | None = None, check_alive: bool = True) -> dict[str, Any] | None:
-    """The file's record when it is there, well formed and (``check_alive``) its writer still runs; else None."""
-    path = path or runtime_file()
+    """The file's record when it is there, well formed and (``check_alive``) its writer still runs; else None. Without
+    ``path``: the newest running pipeline's record."""
+    if path is None:
+        running = running_pipelines()
+        return running[0] if running else None
     try:
         if path.stat().st_size > MAX_FILE_BYTES:
             return None
@@ -116,6 +140,14 @@ def use_local_pipeline(args: argparse.Namespace, path: Path | None = None) -> bo
     record = read_runtime_file(path)
     if record is None:
         return False
+    others = [str(other["pid"]) for other in running_pipelines()[1:]] if path is None else []
+    if others:
+        log.warning(
+            "several magnet up pipelines run; reaching the newest (process %s), not process(es) %s: give --connect "
+            "to choose",
+            record["pid"],
+            ", ".join(others),
+        )
     args.connect = list(record["connect"])
     args.no_multicast_scouting = True
     if args.prefix == DEFAULT_PREFIX:

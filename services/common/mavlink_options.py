@@ -23,8 +23,12 @@ def check_url(url: Any) -> str | None:
         return None
     if not url:
         return "needs a URL: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a device"
-    kind, _, rest = url.partition(":")
+    kind, colon, rest = url.partition(":")
     if kind not in NETWORK_LINKS:
+        # a serial device is a path (/dev/ttyACM0, COM3); a word before a colon is a link kind pymavlink would misread
+        if colon and "/" not in kind and not kind.upper().startswith("COM"):
+            kinds = ", ".join(NETWORK_LINKS)
+            return f"has an unknown link kind {kind!r}: use KIND:HOST:PORT with KIND one of {kinds}, or a device path"
         return None
     host, _, port = rest.rpartition(":")
     if not host or not port.isdigit() or not 1 <= int(port) <= 65535:

@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 from magnet.model import Calibration
@@ -32,6 +31,8 @@ def _umask() -> int:
 def write_atomically(path: Path, text: str) -> None:
     """Replace ``path`` with ``text`` so that a crash leaves either the old file or the new one, never half."""
     directory = path.parent if str(path.parent) else Path(".")
+    import tempfile  # (random, hashlib): only when a record is written
+
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=directory)
     try:
         os.fchmod(fd, 0o666 & ~_umask())  # as an ordinary new file (0644 under umask 022), not mkstemp's 0600

@@ -1,6 +1,6 @@
 """``magnet compass``: apply each device's calibration to its raw batches, tilt-compensate with the accelerometer (or
 fuse with the gyroscope), add the WMM declination, and publish one heading message per raw batch on
-``<prefix>/<device>/heading``.
+``<prefix>/<device>/heading`` (and to every other sink turned on: ``services.compass.sinks``).
 
 On start it queries every stored calibration (``<prefix>/*/calibration``) and then follows new ones (subscriber);
 a device with none is asked for again now and then, and meanwhile gets headings from its raw field (flag
@@ -25,14 +25,16 @@ from typing import Any
 import zenoh
 
 from magnet import wire
-from magnet.bounded import Recent
-from magnet.compass import CompassCore, Places, earth_at
+from magnet.compass import CompassCore
+from magnet.earth.expected import earth_at
+from magnet.fleet.places import Places
 from services.common import metrics
+from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.compass.intake import PayloadIntake
-from services.compass.ros2 import Ros2Compass
 from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
+from services.compass.sinks import open_sinks
 
 __all__ = ["CompassSettings", "add_arguments", "build_core", "run", "run_compass"]
 
@@ -78,13 +80,15 @@ def _metrics_status(core: CompassCore, name: str) -> dict[str, Any]:
     for alert in core.watch.open_alerts():
         alerts[alert.kind.value] = alerts.get(alert.kind.value, 0) + 1
     status = core.status(name).to_dict()
-    return {**status, "devices": {"calibrated": status["calibrations"]}, "alerts_open": alerts}
+    vehicles = {v: r.to_dict() for v in core.vehicles.known() if (r := core.vehicle_report(v)) is not None}
+    return {**status, "devices": {"calibrated": status["calibrations"]}, "alerts_open": alerts, "vehicles": vehicles}
 
 
 def run_compass(args: argparse.Namespace) -> int:
     """``magnet compass``: the settings from the options, then ``run``."""
     if getattr(args, "metrics", None):
         metrics.parse_address(args.metrics)  # a bad address ends here, before anything is opened
+    use_local_pipeline(args)  # no Zenoh option given: serve the running magnet up
     return run(settings_from_args(args), getattr(args, "metrics", None))
 
 
@@ -128,6 +132,9 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             alerts=declared.enter_context(
                 session.declare_queryable(f"{prefix}/{devices}/{wire.Kind.ALERT.value}", zenoh.handlers.FifoChannel(64))
             ),
+            vehicles=declared.enter_context(
+                session.declare_queryable(wire.vehicle_key(prefix, "*"), zenoh.handlers.FifoChannel(64))
+            ),
         )
         log.info(
             "compass %s: serving %s/%s (shard %s), declination %.2f deg",
@@ -138,8 +145,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             declination,
         )
         loop = _Loop(session, core, settings)
-        if settings.ros2.enabled:
-            loop.ros2 = declared.enter_context(Ros2Compass(session, settings.ros2, name, settings.max_devices))
+        declared.callback(loop.close)
         metrics.start(metrics_address, "compass", lambda: _metrics_status(core, name))
         gc.collect()
         gc.freeze()  # what exists now (modules, settings, places) lives as long as the process: never scanned again
@@ -152,10 +158,18 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
 
 
 class _Ends:
-    """The compass's declarations the loop drains: raw batches, calibrations, status and alert queries."""
+    """The compass's declarations the loop drains: raw batches, calibrations, status, alert and vehicle queries."""
 
-    def __init__(self, raw: PayloadIntake, calibrations: Samples, status: Queries, alerts: Queries) -> None:
+    def __init__(
+        self,
+        raw: PayloadIntake,
+        calibrations: Samples,
+        status: Queries,
+        alerts: Queries,
+        vehicles: Queries | None = None,
+    ) -> None:
         self.raw, self.calibrations, self.status, self.alerts = raw, calibrations, status, alerts
+        self.vehicles = vehicles
 
 
 class _Loop:
@@ -164,11 +178,10 @@ class _Loop:
     def __init__(self, session: zenoh.Session, core: CompassCore, settings: CompassSettings) -> None:
         self.session, self.core = session, core
         self.prefix, self.devices = settings.zenoh.prefix, settings.devices
-        self.heading_keys: Recent[str, str] = Recent(settings.max_devices)
+        self.sinks = open_sinks(session, settings)
         self.asked = self.asked_refused = time.monotonic()
         self.pending: list[tuple[float, Replies]] = [(self.asked + 3.0, self._ask(3.0))]
         self.drain_limit = MAX_DRAIN
-        self.ros2: Ros2Compass | None = None
         self.guard = Guard("compass", log, core.drops)
 
     def step(self, ends: _Ends, name: str) -> bool:
@@ -179,6 +192,9 @@ class _Loop:
             self.guard.answer("query:status", query, self.answer_status, name)
             query.drop()  # finalize now: the asker waits for it
         self.guard.run("alert", self.alerts, ends.alerts)
+        for query in drain(ends.vehicles, 16) if ends.vehicles is not None else []:
+            self.guard.answer("query:vehicle", query, self.answer_vehicles)
+            query.drop()
         ends.raw.hand_over_drops(self.core.drops, log)
         samples = ends.raw.take(self.drain_limit, DRAIN_BYTES)
         if samples:
@@ -222,22 +238,22 @@ class _Loop:
             self._accept(sample)
         self._ask_refused()
 
+    def close(self) -> None:
+        """Close every sink (the last opened first)."""
+        for sink in reversed(self.sinks):
+            sink.close()
+
     def headings_of(self, samples: list[tuple[str, bytes]]) -> None:
-        """Compute and publish the headings of these raw (key, payload) pairs (a drain): decode -> step -> encode ->
-        put."""
+        """Compute and publish the headings of these raw (key, payload) pairs (a drain): decode -> step -> each
+        sink's publish and tick (``services.compass.sinks``)."""
         if not self.core.keys.shard.everything:  # another shard's devices: dropped by key, before any decoding
             samples = [item for item in samples if self.core.keys.mine(item[0], self.prefix)]
         columns = self.core.decode(samples, self.prefix)
         out = self.core.step(columns, time.time_ns())
-        for device, payload in zip(columns.devices, self.core.encode(columns, out)):
-            key = self.heading_keys.get(device) or self.heading_keys.setdefault(
-                device, wire.key(self.prefix, device, wire.Kind.HEADING)
-            )
-            self.session.put(key, payload)  # measured: a declared publisher per device costs ~5x the CPU
-            self.core.counters.published_batches += 1
-        if self.ros2 is not None:
-            self.ros2.publish(columns, out, self.core.calibrations.in_force)
-            self.ros2.tick(self.core.calibrations.in_force, self.core.watch.open_alerts())
+        for sink in self.sinks:
+            sink.publish(columns, out, self.core)
+        for sink in self.sinks:
+            sink.tick(self.core)
         if len(columns.t_ns):
             metrics.observe_latency((time.time_ns() - int(columns.t_ns.max())) / 1e9)
         self._ask_missing(columns.devices)
@@ -252,6 +268,16 @@ class _Loop:
         for query in drain(queryable, 16):
             self.guard.answer("query:alert", query, self.answer_alerts)
             query.drop()
+
+    def answer_vehicles(self, query: zenoh.Query) -> None:
+        """Each vehicle the query's key matches, its compasses compared (``magnet.vehicle``; docs/vehicles.md)."""
+        asked = zenoh.KeyExpr(str(query.key_expr))
+        for vehicle in self.core.vehicles.known():
+            key = wire.vehicle_key(self.prefix, vehicle)
+            if asked.intersects(zenoh.KeyExpr(key)):
+                report = self.core.vehicle_report(vehicle)
+                if report is not None:
+                    query.reply(key, wire.pack({"v": wire.RECORD_VERSION, **report.to_dict()}))
 
     def answer_alerts(self, query: zenoh.Query) -> None:
         asked = zenoh.KeyExpr(str(query.key_expr))

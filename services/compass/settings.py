@@ -10,10 +10,10 @@ from typing import Any
 
 from magnet import signing
 from magnet.compass.core import DEFAULT_MAX_DEVICES, CoreSettings, window_problem
-from magnet.compass.places import PlaceEntry
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
-from magnet.geomag import earth_field
-from magnet.place import Location
+from magnet.earth.geomag import earth_field
+from magnet.earth.location import Location
+from magnet.fleet.places import PlaceEntry
 from magnet.shard import EVERY_DEVICE, Shard
 from services.common.options import add_options, at_least, check_options, from_args, option
 from services.common.places_options import add_drift_arguments, add_fleet_argument, drift_from_args, read_fleet

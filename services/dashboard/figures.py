@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.geomag import EarthField
+from magnet.earth.geomag import EarthField
 from magnet.quality import fibonacci_centres
 
 CELL_CENTRES = fibonacci_centres()
@@ -21,15 +21,15 @@ HEADING_POINTS = 600  # at most this many heading samples go to the page
 
 def acc_direction(pitch_deg: np.ndarray | float, roll_deg: np.ndarray | float) -> np.ndarray:
     """Specific force direction (N, 3) of a still device at pitch and roll (degrees): (sin p, -sin r cos p,
-    -cos r cos p), as ``magnet.heading.pitch_roll_deg`` inverts it."""
+    -cos r cos p), as ``magnet.attitude.heading.pitch_roll_deg`` inverts it."""
     p, r = np.radians(pitch_deg), np.radians(roll_deg)
     return np.stack([np.sin(p), -np.sin(r) * np.cos(p), -np.cos(r) * np.cos(p)], axis=-1)
 
 
 def dip_deg(bx: float, by: float, bz: float, pitch_deg: float, roll_deg: float) -> float | None:
     """Dip of the field (uT, body frame) below the horizon, degrees, for a device at pitch and roll: asin(B . d / |B|)
-    with d the down direction, -``acc_direction`` (``magnet.heading.dip_angle_deg`` for one sample, without numpy's
-    per-call cost: the ingest runs it for every device several times a second). None for a zero field."""
+    with d the down direction, -``acc_direction`` (``magnet.attitude.heading.dip_angle_deg`` for one sample, without
+    numpy's per-call cost: the ingest runs it for every device several times a second). None for a zero field."""
     p, r = math.radians(pitch_deg), math.radians(roll_deg)
     down = (-math.sin(p), math.sin(r) * math.cos(p), math.cos(r) * math.cos(p))
     norm = math.sqrt(bx * bx + by * by + bz * bz)

@@ -28,7 +28,7 @@ from foxglove.channels import FrameTransformChannel
 from foxglove.messages import FrameTransform, Quaternion, Timestamp, Vector3
 
 from magnet import wire
-from magnet.heading import HeadingFlag
+from magnet.attitude.heading import HeadingFlag
 from magnet.ros2 import compass as ros_compass
 from magnet.ros2.frames import ros_yaw_deg, to_ros
 from magnet.ros2.names import ros_name_of_device

@@ -226,7 +226,11 @@ class Ingest:
             return
         self.asked_s = now
         for kind in (wire.Kind.CALIBRATION, wire.Kind.ALERT):
-            self.pending.append((now + 3.0, self.session.get(wire.key(self.prefix, "*", kind), timeout=3.0)))
+            # no consolidation: a device's open alerts of several kinds share its key, and Zenoh would keep only one
+            asked = self.session.get(
+                wire.key(self.prefix, "*", kind), timeout=3.0, consolidation=zenoh.ConsolidationMode.NONE
+            )
+            self.pending.append((now + 3.0, asked))
 
     def _take_replies(self) -> None:
         still = []

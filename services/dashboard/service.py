@@ -24,6 +24,7 @@ from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.zenoh_session import open_session
 from services.dashboard.settings import (
+    DEFAULT_HTTP,
     TOKEN_ENV,
     DashboardSettings,
     add_arguments,
@@ -33,7 +34,7 @@ from services.dashboard.settings import (
 )
 
 if TYPE_CHECKING:
-    from magnet.geomag import EarthField
+    from magnet.earth.geomag import EarthField
 
 log = logging.getLogger("magnet.dashboard")
 
@@ -43,8 +44,8 @@ __all__ = ["add_arguments", "page_address", "run"]
 def _earth(settings: DashboardSettings) -> EarthField | None:
     if not settings.location:
         return None
-    from magnet.geomag import earth_field
-    from magnet.place import Location
+    from magnet.earth.geomag import earth_field
+    from magnet.earth.location import Location
 
     return earth_field(*Location.parse(settings.location).as_tuple(), settings.date)
 
@@ -83,9 +84,11 @@ def serve(settings: DashboardSettings) -> int:
     from services.dashboard.state import FleetState
 
     host, port = settings.address
+    if settings.http is None and f"{host}:{port}" != DEFAULT_HTTP:
+        print(f"magnet dashboard: {DEFAULT_HTTP} is taken (by magnet up's own dashboard?): serving on {host}:{port}")
     token = settings.token or os.environ.get(TOKEN_ENV) or secrets.token_urlsafe(12)
     prefix = settings.zenoh.prefix
-    state = FleetState(_earth(settings))
+    state = FleetState(_earth(settings), date=settings.date)
     with contextlib.ExitStack() as stack:
         session = stack.enter_context(open_session(settings.zenoh))
         metrics.start(settings.metrics, "dashboard", state.metrics_status)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import ipaddress
+import socket
 
 from services.common import metrics
 from services.common.options import add_options, check_options, from_args, option
@@ -49,11 +50,12 @@ class DashboardSettings:
     """Everything ``magnet dashboard`` runs with; ``metrics`` (``--metrics``, shared with the other services) and
     ``zenoh`` are set from their own options."""
 
-    http: str = option(
-        DEFAULT_HTTP,
+    http: str | None = option(
+        None,
         "--http",
         metavar="HOST:PORT",
-        help=f"where the page is served (default {DEFAULT_HTTP}; loopback unless told otherwise)",
+        help=f"where the page is served (default {DEFAULT_HTTP}, or a free loopback port while that one is taken, "
+        "by magnet up's dashboard say)",
         show_default=False,
     )
     token: str | None = option(
@@ -92,7 +94,7 @@ class DashboardSettings:
 
     def __post_init__(self) -> None:
         check_options(self)
-        parse_http(self.http)
+        parse_http(self.http or DEFAULT_HTTP)
         if self.foxglove is not None:
             parse_http(self.foxglove)
         if self.date and not self.location:
@@ -102,8 +104,32 @@ class DashboardSettings:
 
     @property
     def address(self) -> tuple[str, int]:
-        """(host, port) where the page is served."""
-        return parse_http(self.http)
+        """(host, port) where the page is served: ``--http``, else ``default_http()``'s."""
+        return parse_http(self.http or default_http())
+
+
+def bindable(address: str) -> bool:
+    """Whether a server could listen on ``address`` (HOST:PORT) now; a port left in TIME_WAIT by a server that just
+    stopped counts as free, as it is for the server itself (uvicorn sets SO_REUSEADDR too)."""
+    with socket.socket() as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind(parse_http(address))
+        except OSError:
+            return False
+    return True
+
+
+def free_loopback_port() -> int:
+    """A TCP port free on 127.0.0.1 now."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def default_http(preferred: str = DEFAULT_HTTP) -> str:
+    """``preferred`` while it is free, else a free loopback port (``magnet up``'s dashboard holds 8080, say)."""
+    return preferred if bindable(preferred) else f"127.0.0.1:{free_loopback_port()}"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

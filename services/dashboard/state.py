@@ -9,7 +9,6 @@ Units: angles in degrees, fields in uT, times ``*_ns`` (wall clock, ns) or ``*_s
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import threading
 import time
@@ -21,8 +20,7 @@ import numpy as np
 
 from magnet import wire
 from magnet.drift import Alert
-from magnet.geomag import EarthField
-from magnet.heading import HeadingFlag
+from magnet.earth.geomag import EarthField, earth_field
 from services.dashboard.figures import (
     covered_cells,
     decimate,
@@ -31,140 +29,12 @@ from services.dashboard.figures import (
     quat_of,
     recent_headings,
 )
+from services.dashboard.rows import DeviceRow, finite_or_none
 
 TRACE_POINTS = 1500  # raw and calibrated field points kept per watched device
 TRACE_HEADINGS = 6000  # heading samples kept per watched device (60 s at 100 Hz)
-STALE_S = 5.0  # no heading for this long: the row says so
+INTERVAL_WEIGHT = 0.2  # weight of the newest interval in a device's running interval between heading batches
 WATCH_LINGER_S = 15.0  # a device stays watched this long after its last viewer left
-FUSED_FLAG = int(HeadingFlag.FUSED)  # attitude from the gyroscope-aided filter
-
-
-def _finite(value: Any) -> float | None:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        return None
-    return number if np.isfinite(number) else None
-
-
-def _round(value: float | None, digits: int) -> float | None:
-    return None if value is None else round(value, digits)
-
-
-@dataclasses.dataclass
-class DeviceRow:
-    """One device as the fleet table shows it."""
-
-    device: str
-    version: int = 0
-    alive: bool | None = None
-    sensor: str = ""
-    state: str = "waiting"
-    method: str | None = None
-    session: bool = False
-    samples: int | None = None
-    coverage: float | None = None
-    missing: tuple[str, ...] = ()
-    reason: str = ""
-    accepted: bool | None = None
-    residual_ut: float | None = None
-    calibration_id: str = ""
-    calibrated_ns: int | None = None
-    seq: int | None = None
-    heading_deg: float | None = None
-    true_heading_deg: float | None = None
-    pitch_deg: float | None = None
-    roll_deg: float | None = None
-    field_ut: float | None = None
-    dip_deg: float | None = None
-    flags: int = 0
-    quat_wxyz: tuple[float, ...] | None = None
-    declination_deg: float | None = None
-    truth_error_deg: float | None = None
-    heading_s: float | None = None
-    t_ns: int | None = None
-    drift: dict[str, Alert] = dataclasses.field(default_factory=dict)  # open drift alerts by kind
-
-    def status(self) -> str:
-        """What the state badge says: a calibrated device with an open drift alert is never plainly calibrated. A
-        drift alert is only raised against a calibration in force, so one that arrives before the page has heard of
-        that calibration (a dashboard started late, a busy machine) marks the device drifted too."""
-        if self.session:
-            return "session"
-        if self.drift and self.state in ("calibrated", "waiting"):
-            return "drifted"
-        return self.state
-
-    def alerts(self, now_s: float, earth: EarthField | None) -> list[str]:
-        """Short phrases for what needs a person's attention."""
-        out = [f"drift: {kind.replace('_', ' ')}" for kind in sorted(self.drift)]
-        if self.alive is False:
-            out.append("offline")
-        if self.heading_s is not None and now_s - self.heading_s > STALE_S:
-            out.append("no headings")
-        if self.state in ("collecting", "idle", "waiting") and self.heading_s is not None:
-            out.append("not calibrated")
-        if self.accepted is False and self.state in ("collecting", "session"):
-            out.append("fit rejected")
-        for flag, text in (
-            (HeadingFlag.FIELD_DISTURBED, "field disturbed"),
-            (HeadingFlag.DIP_DISTURBED, "dip disturbed"),
-            (HeadingFlag.NO_TILT, "no tilt"),
-        ):
-            if self.flags & flag:
-                out.append(text)
-        if earth is not None and (earth.blackout or earth.caution):
-            out.append("weak horizontal field")
-        return out
-
-    def to_json(self, now_s: float, earth: EarthField | None) -> dict[str, Any]:
-        return {
-            "device": self.device,
-            "alive": self.alive,
-            "sensor": self.sensor,
-            "state": self.state,
-            "method": self.method,
-            "session": self.session,
-            "samples": self.samples,
-            "coverage": _round(self.coverage, 3),
-            "missing": list(self.missing),
-            "reason": self.reason,
-            "accepted": self.accepted,
-            "residual_ut": _round(self.residual_ut, 3),
-            "calibration_id": self.calibration_id,
-            "calibrated_ms": None if self.calibrated_ns is None else self.calibrated_ns // 1_000_000,
-            "seq": self.seq,
-            "t_ms": None if self.t_ns is None else self.t_ns // 1_000_000,
-            "heading_deg": _round(self.heading_deg, 2),
-            "true_heading_deg": _round(self.true_heading_deg, 2),
-            "pitch_deg": _round(self.pitch_deg, 2),
-            "roll_deg": _round(self.roll_deg, 2),
-            "field_ut": _round(self.field_ut, 2),
-            "dip_deg": _round(self.dip_deg, 2),
-            "flags": self.flags,
-            "quat_wxyz": None if self.quat_wxyz is None else [round(q, 5) for q in self.quat_wxyz],
-            "declination_deg": _round(self.declination_deg, 2),
-            "truth_error_deg": _round(self.truth_error_deg, 2),
-            "fused": bool(self.flags & FUSED_FLAG),
-            "alerts": self.alerts(now_s, earth),
-            "status": self.status(),
-            "drift": [drift_json(alert) for _, alert in sorted(self.drift.items())],
-        }
-
-
-DRIFT_UNITS = {"field_strength": "uT", "dip": "deg", "calibration_age": "days"}
-
-
-def drift_json(alert: Alert) -> dict[str, Any]:
-    """One open drift alert for the page: kind, since (ms, wall clock), measured and expected in ``unit``, advice."""
-    return {
-        "kind": alert.kind.value,
-        "since_ms": alert.since_ns // 1_000_000,
-        "measured": round(alert.measured, 2),
-        "expected": round(alert.expected, 2),
-        "unit": DRIFT_UNITS.get(alert.kind.value, ""),
-        "advice": alert.advice,
-    }
 
 
 class Trace:
@@ -185,8 +55,10 @@ class Trace:
 class FleetState:
     """Rows of every device seen, traces of watched devices, the expected field; thread-safe."""
 
-    def __init__(self, earth: EarthField | None = None, clock: Callable[[], float] = time.monotonic) -> None:
-        self.earth, self.clock = earth, clock
+    def __init__(
+        self, earth: EarthField | None = None, clock: Callable[[], float] = time.monotonic, date: Any = None
+    ) -> None:
+        self.earth, self.clock, self.date = earth, clock, date
         self.lock = threading.Lock()
         self.rows: dict[str, DeviceRow] = {}
         self.traces: dict[str, Trace] = {}
@@ -223,8 +95,11 @@ class FleetState:
                 trace.truth[batch.seq] = float(batch.truth["heading_deg"][-1])
                 while len(trace.truth) > 64:
                     trace.truth.pop(next(iter(trace.truth)))
-            if batch.sensor and self.rows.get(batch.device) is not None:
-                self.rows[batch.device].sensor = batch.sensor
+            row = self.rows.get(batch.device)
+            if batch.sensor and row is not None:
+                row.sensor = batch.sensor
+            if batch.location is not None and row is not None and row.location != batch.location:
+                self._row(batch.device).location = batch.location
 
     def on_heading(self, batch: wire.HeadingBatch, quat_wxyz: Any = None) -> None:
         """The last sample of a heading batch goes into the row; a watched device keeps them all. The fused
@@ -239,10 +114,18 @@ class FleetState:
         magnitude, dip = math.sqrt(bx * bx + by * by + bz * bz), dip_deg(bx, by, bz, pitch, roll)
         with self.lock:
             row = self._row(batch.device)
-            row.seq, row.heading_s, row.t_ns = batch.seq, self.clock(), int(batch.t_ns[last])
+            now = self.clock()
+            if row.heading_s is not None:
+                interval = now - row.heading_s
+                row.interval_s = (
+                    interval
+                    if row.interval_s is None
+                    else row.interval_s + INTERVAL_WEIGHT * (interval - row.interval_s)
+                )
+            row.seq, row.heading_s, row.t_ns = batch.seq, now, int(batch.t_ns[last])
             row.heading_deg, row.true_heading_deg = float(batch.heading_deg[last]), float(batch.true_heading_deg[last])
             row.pitch_deg, row.roll_deg, row.flags = pitch, roll, int(batch.flags[last])
-            row.field_ut, row.dip_deg = magnitude, _finite(dip)
+            row.field_ut, row.dip_deg = magnitude, finite_or_none(dip)
             row.declination_deg = batch.declination_deg
             row.quat_wxyz = quat_of(quat_wxyz, last)
             if batch.calibration_id and not row.calibration_id:
@@ -269,11 +152,11 @@ class FleetState:
             row.state, row.session = state, bool(message.get("session", False))
             row.method = message.get("method") or row.method
             row.samples = message.get("samples") if isinstance(message.get("samples"), int) else row.samples
-            row.coverage = _finite(message.get("coverage"))
+            row.coverage = finite_or_none(message.get("coverage"))
             row.missing = tuple(str(m) for m in (message.get("missing") or ()) if isinstance(m, str))[:6]
             row.reason = str(message.get("reason") or "")[:300]
             row.accepted = message.get("accepted") if isinstance(message.get("accepted"), bool) else None
-            row.residual_ut = _finite(message.get("residual_rms_ut"))
+            row.residual_ut = finite_or_none(message.get("residual_rms_ut"))
             if isinstance(message.get("calibration_id"), str):
                 row.calibration_id = message["calibration_id"]
 
@@ -287,8 +170,8 @@ class FleetState:
             row = self._row(message.device)
             row.state, row.session, row.method = "calibrated", False, message.calibration.method
             row.calibration_id, row.calibrated_ns = message.id, message.created_ns
-            row.residual_ut = _finite(quality.get("residual_rms_ut"))
-            row.coverage = _finite(quality.get("coverage"))
+            row.residual_ut = finite_or_none(quality.get("residual_rms_ut"))
+            row.coverage = finite_or_none(quality.get("coverage"))
             row.accepted, row.reason, row.missing = True, message.calibration.reason, ()
             row.samples = message.calibration.sample_count
 
@@ -334,7 +217,7 @@ class FleetState:
         """(current version, rows changed after ``since``, as JSON maps, sorted by device)."""
         with self.lock:
             now = self.clock()
-            rows = [row.to_json(now, self.earth) for _, row in sorted(self.rows.items()) if row.version > since]
+            rows = [row.to_json(now, self.earth_of(row)) for _, row in sorted(self.rows.items()) if row.version > since]
             return self.version, rows
 
     def summary(self) -> dict[str, Any]:
@@ -342,7 +225,7 @@ class FleetState:
             rows = list(self.rows.values())
             return {
                 "devices": len(rows),
-                "alive": sum(r.alive is True for r in rows),
+                "alive": sum(r.alive is True and not r.silent(self.clock()) for r in rows),
                 "calibrated": sum(r.state == "calibrated" for r in rows),
                 "alerts": sum(len(r.drift) for r in rows),
                 "in_alert": sum(bool(r.drift) for r in rows),
@@ -368,6 +251,16 @@ class FleetState:
                 "alerts_open": alerts,
             }
 
+    def earth_of(self, row: DeviceRow) -> EarthField | None:
+        """The field expected where the device is: the World Magnetic Model at the place it reports, else the
+        dashboard's own (``--location``), else None."""
+        if row.location is None:
+            return self.earth
+        try:
+            return earth_field(*row.location.as_tuple(), self.date)
+        except ValueError:  # a date outside the model: the dashboard's own place
+            return self.earth
+
     def detail(self, device: str, points: int = 600) -> dict[str, Any] | None:
         """The device's row, its recent clouds (at most ``points`` each), headings and covered cells."""
         with self.lock:
@@ -378,7 +271,8 @@ class FleetState:
             raw = np.array(trace.raw if trace else [], dtype=float).reshape(-1, 3)
             calibrated = np.array(trace.calibrated if trace else [], dtype=float).reshape(-1, 3)
             headings = recent_headings(list(trace.headings)) if trace else []
-            out: dict[str, Any] = {"row": row.to_json(self.clock(), self.earth), "earth": earth_json(self.earth)}
+            earth = self.earth_of(row)
+            out: dict[str, Any] = {"row": row.to_json(self.clock(), earth), "earth": earth_json(earth)}
         out.update(
             raw=decimate(raw, points),
             calibrated=decimate(calibrated, points),

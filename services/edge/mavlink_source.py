@@ -1,8 +1,8 @@
 """``magnet edge --mavlink URL``: the magnetometers of MAVLink vehicles (pymavlink connection; the conversion is
-``magnet.mavlink_stream``). One device per vehicle and compass instance, ``<prefix><SYSID>-mag<N>``, appearing as
-their vehicles send; a vehicle silent for ``--vehicle-timeout`` seconds turns its devices unhealthy (the edge's
-unhealthy token per device, as for a dead bus) until it sends again. Bytes that are not MAVLink and messages
-magnet cannot use are dropped and counted (status ``reads.dropped``), with one log line per cause."""
+``magnet.autopilot.mavlink_stream``). One device per vehicle and compass instance, ``<prefix><SYSID>-mag<N>``, appearing
+as their vehicles send; a vehicle silent for ``--vehicle-timeout`` seconds turns its devices unhealthy (the edge's
+unhealthy token per device, as for a dead bus) until it sends again. Bytes that are not MAVLink and messages magnet
+cannot use are dropped and counted (status ``reads.dropped``), with one log line per cause."""
 
 from __future__ import annotations
 
@@ -14,8 +14,9 @@ from typing import Any
 import zenoh
 from pymavlink import mavutil
 
-from magnet import mavlink, wire
-from magnet.mavlink_stream import MavlinkStream
+from magnet import wire
+from magnet.autopilot import mavlink
+from magnet.autopilot.mavlink_stream import MavlinkStream
 from services.edge.settings import EdgeSettings
 from services.edge.source import DeviceEvents, Stop, ticked
 
@@ -28,7 +29,8 @@ MAX_MESSAGES = 2000
 
 
 class MavlinkStats:
-    """The status's ``reads``: messages, samples, drops by cause, resyncs, vehicles and their health."""
+    """The status's ``reads``: messages, samples, drops by cause, resyncs, vehicles and their health, the devices
+    whose gyroscope reads exactly zero while the field turns (``gyro_absent``: sent without one)."""
 
     def __init__(self, stream: MavlinkStream) -> None:
         self.stream = stream
@@ -47,6 +49,7 @@ class MavlinkStats:
             "resyncs": counts["resyncs"],
             "dropped": dropped,
             "vehicles": sorted(self.stream.vehicles),
+            "gyro_absent": self.stream.gyro_absent,
         }
 
 
@@ -126,3 +129,11 @@ class MavlinkSource:
                 if self.events is not None:
                     self.events.device_health(device, healthy)
         self.stats.healthy = all(self.healthy.values())
+        for device in self.stream.gyro_absent:
+            if f"gyro:{device}" not in self.logged:
+                self.logged.add(f"gyro:{device}")
+                log.warning(
+                    "MAVLink device %s: its gyroscope reads exactly zero while the field turns (no IMU beside this "
+                    "compass): sent without a gyroscope (status reads.gyro_absent)",
+                    device,
+                )

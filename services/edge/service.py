@@ -3,7 +3,7 @@ batches of raw samples on ``<prefix>/<device>/raw`` (see ``magnet.wire``).
 
 Sources (``services.edge.sources``; each a ``services.edge.source.Source``, see docs/edge.md):
 - ``--sensor NAME --bus N [--address A]``: a real chip through smbus2, read through the bounded read loop
-  (``magnet.readloop``): a failing bus is retried with a backoff capped at 1 s, every error counted.
+  (``magnet.edge.readloop``): a failing bus is retried with a backoff capped at 1 s, every error counted.
 - ``--sensor NAME --emulate``: the chip's register-level emulator (``magnet.emulators``) read through the same driver,
   its true field from a ``SensorStream`` (simulator) with the given hard iron, soft iron, noise and trajectory;
   ``--emulate-faults P`` (for tests) makes each transfer after set-up fail with probability P.
@@ -39,6 +39,7 @@ import zenoh
 
 from magnet import wire
 from services.common import metrics
+from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.zenoh_session import open_session, stop_event
 from services.edge.settings import EdgeSettings, add_arguments
@@ -259,4 +260,5 @@ def add_edge_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "metrics", None):
         metrics.parse_address(args.metrics)  # a bad address ends here, before anything is opened
+    use_local_pipeline(args)  # no Zenoh option given: publish into the running magnet up
     return serve(EdgeSettings.from_args(args), getattr(args, "metrics", None))

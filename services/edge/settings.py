@@ -14,8 +14,8 @@ from typing import Any
 
 from magnet import wire
 from magnet.drivers import SENSORS, has_gyroscope
-from magnet.place import Location
-from magnet.replay import MAX_SPEED
+from magnet.earth.location import Location
+from magnet.edge.replay import MAX_SPEED
 from services.common.mavlink_options import baud_option, url_option
 from services.common.options import Check, add_options, at_least, check_options, from_args, one_of, option, within
 from services.common.ros2_options import Ros2Settings, add_ros2_arguments

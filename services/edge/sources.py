@@ -6,8 +6,9 @@ option, its kind to ``services.edge.settings``).
 - ``FleetSource``: N simulated devices, one vectorized step per batch.
 - ``StreamSource``: one simulated device read sample by sample (no register emulation).
 - ``ChipSource``: one chip through its driver (a real bus, or the chip's emulator fed by the simulator), read through
-  the one bounded read loop (``magnet.readloop``): a failing bus backs off, is counted and marks the device unhealthy.
-- ``ReplaySource``: a recording (``--replay FILE.csv``) at its own pace (``magnet.replay``).
+  the one bounded read loop (``magnet.edge.readloop``): a failing bus backs off, is counted and marks the device
+  unhealthy.
+- ``ReplaySource``: a recording (``--replay FILE.csv``) at its own pace (``magnet.edge.replay``).
 - ``MavlinkSource`` (``services.edge.mavlink_source``): MAVLink vehicles (``--mavlink URL``), devices as they appear.
 - ``Ros2Source`` (``services.edge.ros2_source``): a ROS 2 robot's topics over rmw_zenoh (``--ros2``).
 """
@@ -26,13 +27,13 @@ import zenoh
 
 from magnet import wire
 from magnet.drivers import open_sensor
+from magnet.edge.readloop import ReadLoop
+from magnet.edge.replay import Recording, paced_slices
 from magnet.emulators import FaultInjector, emulator_for
-from magnet.readloop import ReadLoop
-from magnet.replay import Recording, paced_slices
 from magnet.retry import READ_BACKOFF
 from magnet.simulator import SensorStream, SimulatedDevices
-from services.common.input_options import InputOptions
 from services.common.inputs import read_input
+from services.common.inputs.input_options import InputOptions
 from services.edge.mavlink_source import MavlinkSource
 from services.edge.ros2_source import Ros2Source
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings, SourceKind
@@ -105,7 +106,8 @@ class FleetSource(Unattached):
 
 class StreamSource(Unattached):
     """One simulated device read sample by sample from a ``SensorStream`` (no register emulation); a moving
-    trajectory (multirotor, car, figure8, fast-tumble) also sends its gyroscope and its GNSS-like velocity."""
+    trajectory (multirotor, car, figure8, fast-tumble, a walk, boat, robot) also sends its gyroscope and its GNSS-like
+    velocity."""
 
     def __init__(self, settings: EdgeSettings) -> None:
         self.stream = _stream(settings)

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.text import Text
 
 from magnet.quality import fibonacci_centres
 from services.report.data import ReportData
@@ -212,14 +213,62 @@ def png_bytes(data: ReportData) -> bytes:
     return buffer.getvalue()
 
 
-def pdf_bytes(data: ReportData) -> bytes:
-    """The figure as one PDF page (matplotlib's PDF backend: vector drawing, text kept as text), with the gate's
-    figures and the reason in the document's metadata."""
+#: paper sizes of the PDF report, inches (portrait)
+PAPERS = {"a4": (8.27, 11.69), "letter": (8.5, 11.0)}
+
+
+def summary_lines(data: ReportData, created: str) -> list[tuple[str, str]]:
+    """The first page's rows: what the record is (id, date, method, verdict), its coefficients with their units, and
+    the gate's figures."""
+    cal = data.calibration
+    rows = [
+        ("calibration id", cal.content_id),
+        ("report made", created),
+        ("samples", f"{Path(data.samples.source).name} ({len(data.samples.raw)} samples)"),
+        ("method", cal.method),
+        ("verdict", "accepted" if data.accepted else "rejected"),
+        ("field strength", f"{cal.field_strength:.3f} {cal.output_unit}"),
+        ("offset b", "  ".join(f"{v:+.4f}" for v in cal.offset) + f"  {cal.unit}"),
+    ]
+    rows += [("matrix A" if k == 0 else "", "  ".join(f"{v:+.6f}" for v in row)) for k, row in enumerate(cal.matrix)]
+    rows.append(("correction", f"B = A (u - b): u raw ({cal.unit}), B corrected ({cal.output_unit})"))
+    return rows + [(name, value) for name, value in gate_lines(data) if name not in ("verdict", "method", "samples")]
+
+
+def _summary_page(data: ReportData, size_in: tuple[float, float], created: str) -> Figure:
+    fig = Figure(figsize=size_in)
+    name = Path(data.samples.source).name
+    fig.text(0.08, 0.95, f"magnet calibration report: {name}", fontsize=14, weight="bold", va="top")
+    y = 0.90
+    for label, value in summary_lines(data, created):
+        fig.text(0.08, y, label, fontsize=9, va="top", weight="bold")
+        fig.text(0.32, y, value, fontsize=9, va="top", family="monospace")
+        y -= 0.024
+    fig.text(0.08, y - 0.01, "reason", fontsize=9, va="top", weight="bold")
+    fig.text(0.32, y - 0.01, _wrap(data.reason, 70), fontsize=9, va="top", color="#444444")
+    return fig
+
+
+def pdf_bytes(data: ReportData, paper: str = "a4", created: str = "") -> bytes:
+    """The report on ``paper`` (``PAPERS``): a page with the record's id, date, method, coefficients and the gate's
+    figures, then the figure scaled to the page (matplotlib's PDF backend: vector drawing, text kept as text); the
+    gate's figures and the reason also in the document's metadata."""
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    if paper not in PAPERS:
+        raise ValueError(f"--paper {paper}: choose one of {', '.join(PAPERS)}")
+    size_in = PAPERS[paper]
     buffer = io.BytesIO()
     subject = "; ".join(f"{k}: {v}" for k, v in gate_lines(data))
-    figure(data).savefig(
-        buffer, format="pdf", metadata={"Title": f"magnet report: {Path(data.samples.source).name}", "Subject": subject}
-    )
+    metadata = {"Title": f"magnet report: {Path(data.samples.source).name}", "Subject": subject}
+    with PdfPages(buffer, metadata=metadata) as pages:
+        pages.savefig(_summary_page(data, size_in, created))
+        drawing = figure(data)
+        drawing.set_size_inches(*size_in)
+        drawing.set_dpi(72)
+        for text in drawing.findobj(Text):
+            text.set_fontsize(max(4.0, float(text.get_fontsize()) * 0.55))  # the 16 x 19 inch figure on the page
+        pages.savefig(drawing)
     return buffer.getvalue()
 
 
@@ -246,15 +295,16 @@ pre{{background:#f5f5f5;padding:10px;overflow:auto}}</style></head>
 """
 
 
-def write(path: Path, data: ReportData) -> None:
-    """Write the report as ``.png``, ``.html`` or ``.pdf`` (by the file's suffix)."""
+def write(path: Path, data: ReportData, paper: str = "a4", created: str = "") -> None:
+    """Write the report as ``.png``, ``.html`` or ``.pdf`` (by the file's suffix; a PDF on ``paper``, saying it was
+    made at ``created``)."""
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise ValueError(f"report {path}: the file must end in {', '.join(FORMATS)}")
     if suffix == ".png":
         content = png_bytes(data)
     elif suffix == ".pdf":
-        content = pdf_bytes(data)
+        content = pdf_bytes(data, paper, created)
     else:
         content = html_page(data).encode()
     tmp = path.with_name(f".{path.name}.tmp")

@@ -3,10 +3,11 @@
 
 from __future__ import annotations
 
+import datetime
 from pathlib import Path
 
 from magnet.model import Calibration
-from services.common.input_options import InputOptions
+from services.common.inputs.input_options import InputOptions
 from services.report.formats import FORMATS
 
 
@@ -19,9 +20,11 @@ def write_report(
     expected_field_ut: float | None,
     options: InputOptions | None = None,
     command: str | None = None,
+    paper: str = "a4",
 ) -> Path:
     """Build and write the report of ``calibration`` on the samples in ``samples_path`` (``options``: which stream
-    of a recording; ``command``: tell the user which, under that name); returns the file."""
+    of a recording; ``command``: tell the user which, under that name; a PDF on ``paper``, a4 or letter); returns
+    the file."""
     out = Path(out)
     if out.suffix.lower() not in FORMATS:  # refuse before any work, and before matplotlib is imported
         raise ValueError(f"report {out}: the file must end in {', '.join(FORMATS)}")
@@ -35,5 +38,6 @@ def write_report(
         step("report: assessing the fit")
         data = build_report(samples, calibration, declination_deg, expected_field_ut)
         step("report: drawing")
-        write(out, data)
+        created = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+        write(out, data, paper, created)
     return out

@@ -1,0 +1,380 @@
+/* The per-sample loops of the filters, compiled (docs/cost.md says why C and not numba).
+ *
+ * Each function takes numpy arrays (any float64 buffer: C-contiguous or a strided view such as a table's columns)
+ * and writes its results into the arrays it is given, or returns a few floats. They are the maths of the Python
+ * modules that call them (magnet.attitude: aided_fusion, aiding, gyro_bias, mag_delay), written once
+ * here; tests/test_kernels.py compares each with the same maths written plainly in numpy on random inputs.
+ * Quaternions are w, x, y, z; vectors x, y, z; no allocation, no Python objects inside the loops. */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+
+typedef struct {
+    Py_buffer view;
+    Py_ssize_t rows, cols;
+} Array;
+
+#define AT(a, i, j) (*(double *)((char *)(a).view.buf + (i) * (a).view.strides[0] + (j) * (a).view.strides[1]))
+#define AT1(a, i) (*(double *)((char *)(a).view.buf + (i) * (a).view.strides[0]))
+
+/* A float64 array of ``ndim`` dimensions (1 or 2) with ``cols`` columns (2-D; -1: any); ``rows`` -1: any. */
+static int get_array(PyObject *obj, Array *a, int ndim, Py_ssize_t rows, Py_ssize_t cols, int writable,
+                     const char *name) {
+    int flags = PyBUF_STRIDES | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, &a->view, flags) < 0) {
+        return -1;
+    }
+    const char *format = a->view.format;
+    if (a->view.itemsize != 8 || format == NULL || !(format[0] == 'd' || (format[0] == '<' && format[1] == 'd')) ||
+        a->view.ndim != ndim) {
+        PyErr_Format(PyExc_ValueError, "%s must be a %d-D float64 array", name, ndim);
+        PyBuffer_Release(&a->view);
+        return -1;
+    }
+    a->rows = a->view.shape[0];
+    a->cols = ndim == 2 ? a->view.shape[1] : 1;
+    if ((rows >= 0 && a->rows != rows) || (ndim == 2 && cols >= 0 && a->cols != cols)) {
+        PyErr_Format(PyExc_ValueError, "%s has shape (%zd, %zd), expected (%zd, %zd) (-1: any)", name, a->rows,
+                     a->cols, rows, cols);
+        PyBuffer_Release(&a->view);
+        return -1;
+    }
+    return 0;
+}
+
+static void release(Array *arrays, int count) {
+    for (int i = 0; i < count; i++) {
+        PyBuffer_Release(&arrays[i].view);
+    }
+}
+
+/* p q, Hamilton product. */
+static void quat_mul(const double p[4], const double q[4], double out[4]) {
+    out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3];
+    out[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2];
+    out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1];
+    out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0];
+}
+
+/* The rotation matrix of a quaternion (normalised here), row-major. */
+static void quat_matrix(const double q_in[4], double r[9]) {
+    double n = sqrt(q_in[0] * q_in[0] + q_in[1] * q_in[1] + q_in[2] * q_in[2] + q_in[3] * q_in[3]);
+    double w = q_in[0] / n, x = q_in[1] / n, y = q_in[2] / n, z = q_in[3] / n;
+    r[0] = 1 - 2 * (y * y + z * z);
+    r[1] = 2 * (x * y - w * z);
+    r[2] = 2 * (x * z + w * y);
+    r[3] = 2 * (x * y + w * z);
+    r[4] = 1 - 2 * (x * x + z * z);
+    r[5] = 2 * (y * z - w * x);
+    r[6] = 2 * (x * z - w * y);
+    r[7] = 2 * (y * z + w * x);
+    r[8] = 1 - 2 * (x * x + y * y);
+}
+
+PyDoc_STRVAR(carry_forward_doc,
+             "carry_forward(start, gyr, bias, period_s, out)\n\n"
+             "out (N, 4): quaternion ``start`` (4,) turned by each body rate gyr (N, 3) rad/s less ``bias`` (3,) over "
+             "one period in turn (right products), as vqf integrates them.");
+
+static PyObject *carry_forward(PyObject *self, PyObject *args) {
+    PyObject *o_start, *o_gyr, *o_bias, *o_out;
+    double period;
+    if (!PyArg_ParseTuple(args, "OOOdO", &o_start, &o_gyr, &o_bias, &period, &o_out)) {
+        return NULL;
+    }
+    Array a[4];
+    if (get_array(o_start, &a[0], 1, 4, -1, 0, "start") < 0) return NULL;
+    if (get_array(o_gyr, &a[1], 2, -1, 3, 0, "gyr") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_bias, &a[2], 1, 3, -1, 0, "bias") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_out, &a[3], 2, a[1].rows, 4, 1, "out") < 0) { release(a, 3); return NULL; }
+    double q[4] = {AT1(a[0], 0), AT1(a[0], 1), AT1(a[0], 2), AT1(a[0], 3)};
+    double bias[3] = {AT1(a[2], 0), AT1(a[2], 1), AT1(a[2], 2)};
+    for (Py_ssize_t i = 0; i < a[1].rows; i++) {
+        double r0 = AT(a[1], i, 0) - bias[0], r1 = AT(a[1], i, 1) - bias[1], r2 = AT(a[1], i, 2) - bias[2];
+        double norm = sqrt(r0 * r0 + r1 * r1 + r2 * r2);
+        double angle = norm * period / 2.0;
+        double c = cos(angle), s = norm > 0 ? sin(angle) / norm : 0.0;
+        double turn[4] = {c, r0 * s, r1 * s, r2 * s}, next[4];
+        quat_mul(q, turn, next);
+        for (int k = 0; k < 4; k++) {
+            q[k] = next[k];
+            AT(a[3], i, k) = next[k];
+        }
+    }
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(quaternion_product_doc,
+             "quaternion_product(p, q, out, conjugate_p=False, normalise=False)\n\n"
+             "out (N, 4) = p q row by row: p (1, 4) one quaternion for every row, or (N, 4); q (N, 4). "
+             "``conjugate_p``: p's conjugate; ``normalise``: each product to unit length. ``out`` may be ``q``.");
+
+static PyObject *quaternion_product(PyObject *self, PyObject *args) {
+    PyObject *o_p, *o_q, *o_out;
+    int conjugate = 0, normalise = 0;
+    if (!PyArg_ParseTuple(args, "OOO|pp", &o_p, &o_q, &o_out, &conjugate, &normalise)) {
+        return NULL;
+    }
+    Array a[3];
+    if (get_array(o_q, &a[1], 2, -1, 4, 0, "q") < 0) return NULL;
+    if (get_array(o_p, &a[0], 2, -1, 4, 0, "p") < 0) { PyBuffer_Release(&a[1].view); return NULL; }
+    if (a[0].rows != 1 && a[0].rows != a[1].rows) {
+        release(a, 2);
+        PyErr_SetString(PyExc_ValueError, "p must have one row or as many as q");
+        return NULL;
+    }
+    int p_each = a[0].rows != 1;
+    if (get_array(o_out, &a[2], 2, a[1].rows, 4, 1, "out") < 0) { release(a, 2); return NULL; }
+    double sign = conjugate ? -1.0 : 1.0;
+    for (Py_ssize_t i = 0; i < a[1].rows; i++) {
+        double p[4], q[4], r[4];
+        for (int k = 0; k < 4; k++) {
+            p[k] = AT(a[0], p_each ? i : 0, k) * (k ? sign : 1.0);
+            q[k] = AT(a[1], i, k);
+        }
+        quat_mul(p, q, r);
+        double n = normalise ? sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3]) : 1.0;
+        for (int k = 0; k < 4; k++) {
+            AT(a[2], i, k) = r[k] / n;
+        }
+    }
+    release(a, 3);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(into_body_doc,
+             "into_body(quat_vqf, a_ned, out)\n\n"
+             "out (N, 3) = R^T a: accelerations a_ned (N, 3) magnetic NED turned into vqf's body frame by vqf's "
+             "quaternions (N, 4) body -> ENU (normalised here).");
+
+static PyObject *into_body(PyObject *self, PyObject *args) {
+    PyObject *o_q, *o_a, *o_out;
+    if (!PyArg_ParseTuple(args, "OOO", &o_q, &o_a, &o_out)) {
+        return NULL;
+    }
+    Array a[3];
+    if (get_array(o_q, &a[0], 2, -1, 4, 0, "quat_vqf") < 0) return NULL;
+    if (get_array(o_a, &a[1], 2, a[0].rows, 3, 0, "a_ned") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_out, &a[2], 2, a[0].rows, 3, 1, "out") < 0) { release(a, 2); return NULL; }
+    for (Py_ssize_t i = 0; i < a[0].rows; i++) {
+        double q[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)}, r[9];
+        quat_matrix(q, r);
+        double e = AT(a[1], i, 1), n = AT(a[1], i, 0), u = -AT(a[1], i, 2); /* NED -> ENU */
+        for (int k = 0; k < 3; k++) {
+            AT(a[2], i, k) = r[k] * e + r[3 + k] * n + r[6 + k] * u;
+        }
+    }
+    release(a, 3);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(piece_figures_doc,
+             "piece_figures(quat6d, field, acc, gravity) -> (up_x, up_y, up_z, heading_rad, horizontal, vertical, "
+             "left_ms2)\n\n"
+             "What one piece fed to vqf says, from its 6D quaternions (n, 4) body -> ENU, the field (n, 3) and the "
+             "accelerometer fed (n, 3) in vqf's body frame: the earth's up axis in body axes at the piece's end; the "
+             "field in the 6D earth frame E = R b: the circular mean of its heading atan2(E_east, E_north), the mean "
+             "of its horizontal norm and of E_up; and |mean(acc - gravity up)| (m/s^2).");
+
+static PyObject *piece_figures(PyObject *self, PyObject *args) {
+    PyObject *o_q, *o_field, *o_acc;
+    double gravity;
+    if (!PyArg_ParseTuple(args, "OOOd", &o_q, &o_field, &o_acc, &gravity)) {
+        return NULL;
+    }
+    Array a[3];
+    if (get_array(o_q, &a[0], 2, -1, 4, 0, "quat6d") < 0) return NULL;
+    if (get_array(o_field, &a[1], 2, a[0].rows, 3, 0, "field") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_acc, &a[2], 2, a[0].rows, 3, 0, "acc") < 0) { release(a, 2); return NULL; }
+    Py_ssize_t n = a[0].rows;
+    if (n == 0) {
+        release(a, 3);
+        PyErr_SetString(PyExc_ValueError, "piece_figures needs at least one sample");
+        return NULL;
+    }
+    double sin_sum = 0, cos_sum = 0, horizontal = 0, vertical = 0, left[3] = {0, 0, 0}, up[3] = {0, 0, 1};
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double q[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)}, r[9];
+        quat_matrix(q, r);
+        double b[3] = {AT(a[1], i, 0), AT(a[1], i, 1), AT(a[1], i, 2)}, e[3];
+        for (int k = 0; k < 3; k++) {
+            e[k] = r[3 * k] * b[0] + r[3 * k + 1] * b[1] + r[3 * k + 2] * b[2];
+            up[k] = r[6 + k];
+            left[k] += AT(a[2], i, k) - gravity * up[k];
+        }
+        double phi = atan2(e[0], e[1]);
+        sin_sum += sin(phi);
+        cos_sum += cos(phi);
+        horizontal += hypot(e[0], e[1]);
+        vertical += e[2];
+    }
+    double mean_left = sqrt(left[0] * left[0] + left[1] * left[1] + left[2] * left[2]) / (double)n;
+    PyObject *out = Py_BuildValue("ddddddd", up[0], up[1], up[2], atan2(sin_sum / n, cos_sum / n), horizontal / n,
+                                  vertical / n, mean_left);
+    release(a, 3);
+    return out;
+}
+
+/* np.interp(x, xp, fp) for increasing xp (F >= 1): the ends held. */
+static double interp(double x, const Array *xp, const Array *fp, Py_ssize_t column) {
+    Py_ssize_t count = xp->rows;
+    if (x <= AT1(*xp, 0)) return AT(*fp, 0, column);
+    if (x >= AT1(*xp, count - 1)) return AT(*fp, count - 1, column);
+    Py_ssize_t lo = 0, hi = count - 1; /* xp[lo] <= x < xp[hi] */
+    while (hi - lo > 1) {
+        Py_ssize_t mid = (lo + hi) / 2;
+        if (AT1(*xp, mid) <= x) lo = mid; else hi = mid;
+    }
+    double slope = (AT(*fp, hi, column) - AT(*fp, lo, column)) / (AT1(*xp, hi) - AT1(*xp, lo));
+    return slope * (x - AT1(*xp, lo)) + AT(*fp, lo, column);
+}
+
+PyDoc_STRVAR(centred_difference_doc,
+             "centred_difference(times, values, t, half_window, out)\n\n"
+             "out (n, 3) = (v(t + h) - v(t - h)) / 2h of the fixes (times (F,) increasing, F >= 2, values (F, 3)) "
+             "joined by straight lines (held beyond the ends); 0 where t - h is before the first fix or t + h after "
+             "the last (+1e-9 s).");
+
+static PyObject *centred_difference(PyObject *self, PyObject *args) {
+    PyObject *o_times, *o_values, *o_t, *o_out;
+    double h;
+    if (!PyArg_ParseTuple(args, "OOOdO", &o_times, &o_values, &o_t, &h, &o_out)) {
+        return NULL;
+    }
+    Array a[4];
+    if (get_array(o_times, &a[0], 1, -1, -1, 0, "times") < 0) return NULL;
+    if (get_array(o_values, &a[1], 2, a[0].rows, 3, 0, "values") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_t, &a[2], 1, -1, -1, 0, "t") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_out, &a[3], 2, a[2].rows, 3, 1, "out") < 0) { release(a, 3); return NULL; }
+    if (a[0].rows < 2) {
+        release(a, 4);
+        PyErr_SetString(PyExc_ValueError, "centred_difference needs at least two fixes");
+        return NULL;
+    }
+    double first = AT1(a[0], 0), last = AT1(a[0], a[0].rows - 1);
+    for (Py_ssize_t i = 0; i < a[2].rows; i++) {
+        double t = AT1(a[2], i);
+        int covered = (t - h >= first) && (t + h <= last + 1e-9);
+        for (int k = 0; k < 3; k++) {
+            AT(a[3], i, k) =
+                covered ? (interp(t + h, &a[0], &a[1], k) - interp(t - h, &a[0], &a[1], k)) / (2.0 * h) : 0.0;
+        }
+    }
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(drift_step_doc,
+             "drift_step(x, p, dt, tau_s, up, q_diag, z, noise, update) -> None\n\n"
+             "The heading-drift Kalman filter's step, in place on x (5,) and p (5, 5): the prediction over dt (s, "
+             "0 if negative) with F = I, F[0, 1:4] = -dt up (3,), F[4, 4] = exp(-dt / tau_s) and the process noise "
+             "diag(q_diag (5,)) (already for dt); then, when ``update``, the measurement z (rad) of x[0] + x[4] with "
+             "variance ``noise``, the innovation and x[0] wrapped to [-pi, pi].");
+
+static PyObject *drift_step(PyObject *self, PyObject *args) {
+    PyObject *o_x, *o_p, *o_up, *o_q;
+    double dt, tau, z, noise;
+    int update;
+    if (!PyArg_ParseTuple(args, "OOddOOddp", &o_x, &o_p, &dt, &tau, &o_up, &o_q, &z, &noise, &update)) {
+        return NULL;
+    }
+    Array a[4];
+    if (get_array(o_x, &a[0], 1, 5, -1, 1, "x") < 0) return NULL;
+    if (get_array(o_p, &a[1], 2, 5, 5, 1, "p") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_up, &a[2], 1, 3, -1, 0, "up") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_q, &a[3], 1, 5, -1, 0, "q_diag") < 0) { release(a, 3); return NULL; }
+    double f[5][5] = {{0}}, x[5], p[5][5], fp[5][5];
+    dt = dt > 0.0 ? dt : 0.0;
+    for (int i = 0; i < 5; i++) f[i][i] = 1.0;
+    for (int k = 0; k < 3; k++) f[0][1 + k] = -dt * AT1(a[2], k);
+    f[4][4] = exp(-dt / tau);
+    for (int i = 0; i < 5; i++) {
+        x[i] = 0.0;
+        for (int j = 0; j < 5; j++) x[i] += f[i][j] * AT1(a[0], j);
+    }
+    for (int i = 0; i < 5; i++) {
+        for (int j = 0; j < 5; j++) {
+            fp[i][j] = 0.0;
+            for (int k = 0; k < 5; k++) fp[i][j] += f[i][k] * AT(a[1], k, j);
+        }
+    }
+    for (int i = 0; i < 5; i++) {
+        for (int j = 0; j < 5; j++) {
+            p[i][j] = 0.0;
+            for (int k = 0; k < 5; k++) p[i][j] += fp[i][k] * f[j][k];
+        }
+        p[i][i] += AT1(a[3], i);
+    }
+    if (update) {
+        double innovation = remainder(z - (x[0] + x[4]), 2.0 * M_PI);
+        double s = p[0][0] + p[0][4] + p[4][0] + p[4][4] + noise, gain[5], hp[5];
+        for (int i = 0; i < 5; i++) {
+            gain[i] = (p[i][0] + p[i][4]) / s;
+            hp[i] = p[0][i] + p[4][i];
+        }
+        for (int i = 0; i < 5; i++) x[i] += gain[i] * innovation;
+        x[0] = remainder(x[0], 2.0 * M_PI);
+        for (int i = 0; i < 5; i++) {
+            for (int j = 0; j < 5; j++) p[i][j] -= gain[i] * hp[j];
+        }
+    }
+    for (int i = 0; i < 5; i++) {
+        AT1(a[0], i) = x[i];
+        for (int j = 0; j < 5; j++) AT(a[1], i, j) = p[i][j];
+    }
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(advance_field_doc,
+             "advance_field(field, gyr, lags, out)\n\n"
+             "out (N, 3): each field (N, 3) turned by exp(-[w]x lag), w the body rate gyr (N, 3) rad/s and lag "
+             "lags (N,) s; rows whose lag is 0 or whose rate or field is not finite are copied as they are.");
+
+static PyObject *advance_field(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_gyr, *o_lags, *o_out;
+    if (!PyArg_ParseTuple(args, "OOOO", &o_field, &o_gyr, &o_lags, &o_out)) {
+        return NULL;
+    }
+    Array a[4];
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    if (get_array(o_gyr, &a[1], 2, a[0].rows, 3, 0, "gyr") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_lags, &a[2], 1, a[0].rows, -1, 0, "lags") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_out, &a[3], 2, a[0].rows, 3, 1, "out") < 0) { release(a, 3); return NULL; }
+    for (Py_ssize_t i = 0; i < a[0].rows; i++) {
+        double b[3] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2)}, lag = AT1(a[2], i);
+        double w[3] = {-AT(a[1], i, 0) * lag, -AT(a[1], i, 1) * lag, -AT(a[1], i, 2) * lag};
+        int finite = isfinite(b[0]) && isfinite(b[1]) && isfinite(b[2]) && isfinite(AT(a[1], i, 0)) &&
+                     isfinite(AT(a[1], i, 1)) && isfinite(AT(a[1], i, 2));
+        double angle = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+        if (lag != 0.0 && finite && angle > 0.0) {
+            double k[3] = {w[0] / angle, w[1] / angle, w[2] / angle};
+            double kb[3] = {k[1] * b[2] - k[2] * b[1], k[2] * b[0] - k[0] * b[2], k[0] * b[1] - k[1] * b[0]};
+            double kkb[3] = {k[1] * kb[2] - k[2] * kb[1], k[2] * kb[0] - k[0] * kb[2], k[0] * kb[1] - k[1] * kb[0]};
+            double s = sin(angle), c = 1.0 - cos(angle);
+            for (int j = 0; j < 3; j++) b[j] = b[j] + s * kb[j] + c * kkb[j];
+        }
+        for (int j = 0; j < 3; j++) AT(a[3], i, j) = b[j];
+    }
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+static PyMethodDef methods[] = {
+    {"carry_forward", carry_forward, METH_VARARGS, carry_forward_doc},
+    {"quaternion_product", quaternion_product, METH_VARARGS, quaternion_product_doc},
+    {"into_body", into_body, METH_VARARGS, into_body_doc},
+    {"piece_figures", piece_figures, METH_VARARGS, piece_figures_doc},
+    {"centred_difference", centred_difference, METH_VARARGS, centred_difference_doc},
+    {"drift_step", drift_step, METH_VARARGS, drift_step_doc},
+    {"advance_field", advance_field, METH_VARARGS, advance_field_doc},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "magnet._kernels",
+    "The filters' per-sample loops, compiled (see magnet/_kernels.c).", -1, methods,
+};
+
+PyMODINIT_FUNC PyInit__kernels(void) { return PyModule_Create(&module); }

@@ -1,0 +1,255 @@
+"""Gyroscope-aided attitude and heading: a thin wrapper around the ``vqf`` orientation filter.
+
+Design: docs/design.md, "Heading in motion".
+
+vqf (Laidig and Seel 2023, MIT) fuses gyroscope, accelerometer and magnetometer. Its frames are ROS's, not the
+project's: body FLU (x forward, y left, z up) and earth ENU with y along magnetic north. The inputs are turned into
+FLU here (``magnet.frames.frd_flu``) and its quaternions back into body FRD -> NED (magnetic)
+(``magnet.frames.ned_enu_attitude``), once, at the boundary; the frames and the Euler angles are those of
+``magnet.frames`` (docs/frames.md).
+
+Inputs: gyroscope (N, 3) rad/s, accelerometer (N, 3) m/s^2 (specific force: a level still device reads (0, 0, -g)),
+magnetometer (N, 3) calibrated field (uT; any unit works, vqf uses directions and relative norms), all in the project
+body frame and sampled together at one fixed period (seconds). ``Fusion`` is causal and keeps its state across
+batches (the live compass, one per device); ``fuse_offline`` may look ahead (``offlineVQF``, forward-backward), the
+best estimate for a log.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import vqf
+
+from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
+from magnet.attitude.field_watch import FieldWatch
+from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
+from magnet.units import STANDARD_GRAVITY_MS2
+
+#: sample periods a filter accepts, seconds (10 kHz .. 0.5 Hz)
+MIN_PERIOD_S = 1e-4
+MAX_PERIOD_S = 2.0
+
+
+def acc_in_ms2(acc: np.ndarray) -> np.ndarray:
+    """Accelerometer readings (N, 3) in m/s^2, or in g (recognised by a median magnitude of 0.5 .. 2), as m/s^2.
+
+    The filter's rest detection works in m/s^2; logs in g are common (``magnet heading`` takes either).
+    """
+    arr = np.asarray(acc, dtype=float)
+    median = float(np.median(np.linalg.norm(arr, axis=-1))) if arr.size else 0.0
+    return arr * STANDARD_GRAVITY_MS2 if 0.5 <= median <= 2.0 else arr
+
+
+def sample_period_s(t: np.ndarray, scale: float = 1.0) -> float:
+    """Fixed sample period (seconds) of time stamps ``t`` (N,) in seconds (``scale`` 1) or ns (``scale`` 1e-9).
+
+    The median step, so a few dropped or jittered samples do not matter. ValueError when the stamps do not go
+    forward or give a period outside 0.1 ms .. 2 s.
+    """
+    stamps = np.asarray(t, dtype=float)
+    if stamps.ndim != 1 or stamps.size < 2:
+        raise ValueError("need at least two time stamps to know the sample period")
+    if not np.all(np.isfinite(stamps)):
+        raise ValueError("time stamps hold NaN or infinite values")
+    steps = np.diff(stamps) * scale
+    period = float(np.median(steps))
+    if not MIN_PERIOD_S <= period <= MAX_PERIOD_S:
+        raise ValueError(
+            f"median time step {period:.6g} s is not a usable sample period "
+            f"({MIN_PERIOD_S:g} .. {MAX_PERIOD_S:g} s): are the times in seconds, and increasing?"
+        )
+    return period
+
+
+def _check_period(period_s: float) -> float:
+    period = float(period_s)
+    if not (math.isfinite(period) and MIN_PERIOD_S <= period <= MAX_PERIOD_S):
+        raise ValueError(f"sample period {period_s!r} s is outside {MIN_PERIOD_S:g} .. {MAX_PERIOD_S:g} s")
+    return period
+
+
+def to_vqf_frame(vectors: np.ndarray) -> np.ndarray:
+    """Body vectors (..., 3) (x forward, y right, z down) in vqf's z-up body frame, C-contiguous float64."""
+    return np.ascontiguousarray(frd_flu(vectors))
+
+
+def _to_vqf(vectors: np.ndarray, name: str, count: int | None = None) -> np.ndarray:
+    """(N, 3) body vectors -> C-contiguous float64 in vqf's z-up body frame; ValueError on bad shape or values."""
+    arr = np.asarray(vectors, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3 or (count is not None and len(arr) != count):
+        want = f"({count}, 3)" if count is not None else "(N, 3)"
+        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} holds NaN or infinite values: drop those samples before fusing")
+    return np.ascontiguousarray(frd_flu(arr))
+
+
+@dataclasses.dataclass(frozen=True)
+class Fused:
+    """Fused attitude per sample (N samples).
+
+    quat_wxyz: (N, 4) body -> NED (magnetic north), w >= 0. heading_deg (N,) magnetic heading of body x in [0, 360);
+    pitch_deg, roll_deg (N,). mag_disturbed (N,) bool: vqf's magnetic disturbance detection (|B| or dip away from its
+    reference; the field is then not used for heading). rest (N,) bool: vqf's rest detection. With no magnetometer the
+    heading is the gyroscope's, relative to where the filter started, and mag_disturbed is all False.
+    """
+
+    quat_wxyz: np.ndarray
+    heading_deg: np.ndarray
+    pitch_deg: np.ndarray
+    roll_deg: np.ndarray
+    mag_disturbed: np.ndarray
+    rest: np.ndarray
+
+    @classmethod
+    def from_vqf(cls, out: Mapping[str, Any], with_mag: bool) -> Fused:
+        quat = ned_enu_attitude(np.asarray(out["quat9D" if with_mag else "quat6D"], dtype=float).reshape(-1, 4))
+        heading, pitch, roll = quaternion_to_euler(quat)
+        count = len(quat)
+        disturbed = np.asarray(out["magDistDetected"], dtype=bool).reshape(count) if with_mag else np.zeros(count, bool)
+        rest = np.asarray(out["restDetected"], dtype=bool).reshape(count)
+        return cls(quat, heading, pitch, roll, disturbed, rest)
+
+
+def _empty() -> Fused:
+    zeros = np.zeros(0)
+    return Fused(np.zeros((0, 4)), zeros, zeros, zeros, np.zeros(0, bool), np.zeros(0, bool))
+
+
+class Fusion:
+    """Causal gyroscope + accelerometer (+ magnetometer) filter for one device; state carries across batches.
+
+    ``period_s``: the fixed sample period in seconds. ``params``: vqf parameters by name (its defaults otherwise).
+    ``update`` takes one batch of aligned samples; ``restart`` forgets everything (a gap, a device restart).
+    """
+
+    def __init__(self, period_s: float, params: Mapping[str, Any] | None = None) -> None:
+        self.period_s = _check_period(period_s)
+        self.params = dict(params or {})
+        self._filter = vqf.VQF(self.period_s, **self.params)
+        self._aided: AidedFilter | None = (
+            None  # from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
+        )
+        self.watch = FieldWatch(self.period_s)  # the field's disturbances: left out, the gyroscope holds the heading
+        self.samples = 0
+
+    def restart(self) -> None:
+        """Back to the initial state: attitude, gyro bias and magnetic reference forgotten."""
+        if self._aided is not None:
+            self._aided.release()
+        self._filter.resetState()
+        self._aided = None
+        self.watch.reset()
+        self.samples = 0
+
+    def update(
+        self,
+        gyr_rads: np.ndarray,
+        acc_ms2: np.ndarray,
+        mag: np.ndarray | None = None,
+        t_s: np.ndarray | None = None,
+        vel_ned_ms: np.ndarray | None = None,
+    ) -> Fused:
+        """Feed one batch: gyr (N, 3) rad/s, acc (N, 3) m/s^2, mag (N, 3) calibrated field or None; body frame.
+        With the field, ``t_s`` (N,) s and ``vel_ned_ms`` (N, 3) m/s in magnetic NED (NaN rows where unknown):
+        velocity aiding (``magnet.attitude.aiding``)."""
+        gyr = _to_vqf(gyr_rads, "gyr_rads")
+        if len(gyr) == 0:
+            return _empty()
+        acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
+        field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
+        if field is not None and t_s is not None and vel_ned_ms is not None:
+            quat, disturbed = self.update_vqf_frame(gyr, acc, field, np.asarray(t_s, float), vel_ned_ms)
+            return Fused.from_vqf({"quat9D": quat, "magDistDetected": disturbed, "restDetected": disturbed * 0}, True)
+        watched = np.zeros(len(gyr), dtype=bool) if field is None else self.watch.update(field, gyr)
+        if field is not None and watched.any():
+            field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
+        out = dict(self._filter.updateBatch(gyr, acc, field))
+        self.samples += len(gyr)
+        if field is not None:
+            out["magDistDetected"] = np.asarray(out["magDistDetected"], dtype=bool).reshape(-1) | watched
+        return Fused.from_vqf(out, field is not None)
+
+    def update_vqf_frame(
+        self,
+        gyr: np.ndarray,
+        acc: np.ndarray,
+        field: np.ndarray,
+        t_s: np.ndarray | None = None,
+        vel_ned_ms: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The fast path for many small batches: inputs (N, 3) already in vqf's frame (``to_vqf_frame``), finite,
+        C-contiguous float64; returns vqf's own quaternions (N, 4) (``frames.ned_enu_attitude`` converts them) and
+        its magnetic disturbance flags (N,). With times (N,) s and velocities (N, 3) m/s magnetic NED of which one is
+        known (or after such a batch, until ``restart``): the velocity-aided filter. Samples the watch finds disturbed
+        (``magnet.attitude.field_watch``) reach vqf without their field (a zero vector, which vqf skips: the gyroscope
+        holds the heading) and are flagged disturbed."""
+        self.samples += len(gyr)
+        watched = self.watch.update(field, gyr)
+        if watched.any():
+            field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
+        quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms)
+        return quat, np.asarray(disturbed, dtype=bool) | watched
+
+    def _vqf_frame(
+        self,
+        gyr: np.ndarray,
+        acc: np.ndarray,
+        field: np.ndarray,
+        t_s: np.ndarray | None,
+        vel_ned_ms: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """vqf (or the velocity-aided filter) on one batch, as ``update_vqf_frame``."""
+        if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+            self._aided = AidedFilter(self.period_s, self.params, self._filter)  # carries on from its state
+        if self._aided is not None and t_s is not None:
+            vel = np.full((len(gyr), 3), np.nan) if vel_ned_ms is None else vel_ned_ms
+            return self._aided.update(gyr, acc, field, t_s, vel)
+        if self._aided is not None:  # a batch without times after aided ones: vqf with its own settings
+            self._aided.release()
+        out = self._filter.updateBatch(gyr, acc, field)
+        return out["quat9D"], out["magDistDetected"]
+
+
+def fuse_offline(
+    gyr_rads: np.ndarray,
+    acc_ms2: np.ndarray,
+    mag: np.ndarray | None,
+    period_s: float,
+    params: Mapping[str, Any] | None = None,
+    t_s: np.ndarray | None = None,
+    vel_ned_ms: np.ndarray | None = None,
+) -> Fused:
+    """Best estimate for a whole log (vqf's ``offlineVQF``: looks ahead, forward and backward). Shapes as ``Fusion``.
+    With ``t_s`` and ``vel_ned_ms`` (magnetic NED) the accelerometer is first freed of the linear acceleration the
+    velocity implies (every fix known at once), turned into the body frame by the causal aided attitude."""
+    period = _check_period(period_s)
+    gyr = _to_vqf(gyr_rads, "gyr_rads")
+    if len(gyr) == 0:
+        return _empty()
+    acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
+    field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
+    if field is not None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+        causal = Fusion(period, params)
+        quat, _ = causal.update_vqf_frame(gyr, acc, field, np.asarray(t_s, dtype=float), vel_ned_ms)
+        acc = np.ascontiguousarray(acc - body_acceleration(quat, t_s, vel_ned_ms))
+    out = vqf.offlineVQF(gyr, acc, field, period, dict(params) if params else None)
+    return Fused.from_vqf(out, field is not None)
+
+
+def fuse_causal(
+    gyr_rads: np.ndarray,
+    acc_ms2: np.ndarray,
+    mag: np.ndarray | None,
+    period_s: float,
+    params: Mapping[str, Any] | None = None,
+    t_s: np.ndarray | None = None,
+    vel_ned_ms: np.ndarray | None = None,
+) -> Fused:
+    """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``."""
+    return Fusion(period_s, params).update(gyr_rads, acc_ms2, mag, t_s, vel_ned_ms)

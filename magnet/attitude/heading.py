@@ -1,0 +1,220 @@
+"""Heading, pitch and roll from a (calibrated) magnetometer and an accelerometer, vectorized over samples.
+
+Conventions (docs/design.md, "Conventions"): body x forward, y right, z down. ``acc`` is specific force in m/s^2
+(any unit works where only directions matter): a level, still device reads (0, 0, -g). Pitch is positive nose up, roll
+positive right side down. Heading is in degrees [0, 360), clockwise from north, of the body x axis; magnetic heading
+comes from the field, true heading = magnetic + declination (east positive, seed 001 eq. 1).
+
+Every function takes arrays of shape (..., 3) (a single (3,) sample works too) and returns shape (...).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+#: below this fraction of the norm a vector is treated as missing (no tilt, no horizontal field)
+_TINY = 1e-12
+
+
+class HeadingFlag(enum.IntFlag):
+    """Flags carried by each heading (bit values are part of the wire format)."""
+
+    NONE = 0
+    CALIBRATED = 1  # a calibration was applied
+    NO_TILT = 2  # no usable accelerometer sample: heading assumes the device is level
+    FIELD_DISTURBED = 4  # |B| is far from the expected field strength (magnet, iron or bad calibration nearby)
+    DIP_DISTURBED = 8  # the angle between field and gravity is far from the expected inclination
+    FUSED = 16  # attitude from the gyroscope-aided filter (magnet.attitude.fusion); without it, accelerometer tilt
+
+
+def wrap_deg(angle_deg: npt.ArrayLike) -> np.ndarray:
+    """Angles wrapped to [0, 360)."""
+    wrapped = np.mod(np.asarray(angle_deg, dtype=float), 360.0)
+    return np.where(wrapped >= 360.0, 0.0, wrapped)  # mod of a tiny negative number can round up to 360
+
+
+def angle_difference_deg(a_deg: npt.ArrayLike, b_deg: npt.ArrayLike) -> np.ndarray:
+    """Signed difference a - b wrapped to [-180, 180): the right way to compare two headings."""
+    return np.mod(np.asarray(a_deg, dtype=float) - np.asarray(b_deg, dtype=float) + 180.0, 360.0) - 180.0
+
+
+def pitch_roll_deg(acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pitch and roll (degrees) from specific force ``acc`` (..., 3), the device assumed still.
+
+    With f = acc, the Z-Y-X attitude (see ``magnet.frames``) gives f = g (sin p, -sin r cos p, -cos r cos p), so
+
+        pitch = atan2(f_x, sqrt(f_y^2 + f_z^2))   in [-90, 90]
+        roll  = atan2(-f_y, -f_z)                 in (-180, 180]
+    """
+    f = np.asarray(acc, dtype=float)
+    pitch = np.degrees(np.arctan2(f[..., 0], np.hypot(f[..., 1], f[..., 2])))
+    roll = np.degrees(np.arctan2(-f[..., 1], -f[..., 2]))
+    return pitch, np.where(roll <= -180.0, 180.0, roll)
+
+
+def level_heading_deg(field: np.ndarray) -> np.ndarray:
+    """Magnetic heading of a level device from the field (..., 3) in the body frame (seed 001 eqs. 2-5).
+
+    A level device at heading h sees the horizontal field H as (H cos h, -H sin h) on its x (forward) and y (right)
+    axes, so h = atan2(-B_y, B_x), quadrant-correct, in [0, 360).
+    """
+    b = np.asarray(field, dtype=float)
+    return wrap_deg(np.degrees(np.arctan2(-b[..., 1], b[..., 0])))
+
+
+def row_norm(v: np.ndarray) -> np.ndarray:
+    """|v| of vectors (..., 3), component by component (several times faster than ``np.linalg.norm(axis=-1)`` on
+    (S, 3) arrays)."""
+    return np.sqrt(v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1] + v[..., 2] * v[..., 2])
+
+
+def rows_finite(v: np.ndarray) -> np.ndarray:
+    """(...,) bool: every component of the vectors (..., k) is finite (faster than ``.all(axis=-1)`` for small k)."""
+    finite = np.isfinite(v)
+    out = finite[..., 0].copy()
+    for k in range(1, v.shape[-1]):
+        out &= finite[..., k]
+    return out
+
+
+def _down(acc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The unit down direction -acc / |acc| as three component arrays (...,), NaN where |acc| is tiny."""
+    f = np.asarray(acc, dtype=float)
+    norm = row_norm(f)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(norm > _TINY, -1.0 / norm, np.nan)
+    return f[..., 0] * scale, f[..., 1] * scale, f[..., 2] * scale
+
+
+def _horizontal_frame(field: np.ndarray, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """down (unit), east and north (both of length |B_horizontal|) in body coordinates, each (..., 3)."""
+    b = np.asarray(field, dtype=float)
+    dx, dy, dz = _down(acc)
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    ex, ey, ez = dy * bz - dz * by, dz * bx - dx * bz, dx * by - dy * bx  # east = down x B
+    north = np.stack([ey * dz - ez * dy, ez * dx - ex * dz, ex * dy - ey * dx], axis=-1)  # east x down
+    return np.stack([dx, dy, dz], axis=-1), np.stack([ex, ey, ez], axis=-1), north
+
+
+def tilt_compensated_heading_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """Magnetic heading (degrees, [0, 360)) of a tilted device from the field (..., 3) and specific force (..., 3).
+
+    Cross-product form (no Euler angles, so no singularity short of the x axis pointing straight up or down):
+    with d = -acc / |acc| the down direction in body axes,
+
+        e = d x B   (east, horizontal, |e| = |B_horizontal|)
+        n = e x d   (north, horizontal, same length)
+        heading = atan2(e_x, n_x)
+
+    since the body x axis has components (cos h cos p) on north and (sin h cos p) on east. Samples with a zero
+    accelerometer reading give NaN.
+    """
+    b = np.asarray(field, dtype=float)
+    dx, dy, dz = _down(acc)
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    ex, ey, ez = dy * bz - dz * by, dz * bx - dx * bz, dx * by - dy * bx  # east = down x B
+    return wrap_deg(np.degrees(np.arctan2(ex, ey * dz - ez * dy)))  # north_x = (east x down)_x
+
+
+def heading_uncertainty_deg(field: np.ndarray, acc: np.ndarray, field_error_ut: float) -> np.ndarray:
+    """One-sigma heading uncertainty (degrees) from a field error ``field_error_ut`` (uT, e.g. the calibration's
+    residual RMS) and the horizontal field the device sees: atan(error / |B_horizontal|); 180 where there is no
+    horizontal field."""
+    _, east, _ = _horizontal_frame(field, acc)
+    horizontal = np.linalg.norm(east, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sigma = np.degrees(np.arctan2(float(field_error_ut), horizontal))
+    return np.where(horizontal > _TINY, sigma, 180.0)
+
+
+def true_heading_deg(magnetic_deg: npt.ArrayLike, declination_deg: npt.ArrayLike) -> np.ndarray:
+    """True heading = magnetic heading + declination (east positive), wrapped to [0, 360)."""
+    return wrap_deg(np.asarray(magnetic_deg, dtype=float) + np.asarray(declination_deg, dtype=float))
+
+
+def smooth_heading_deg(heading_deg: np.ndarray, window: int) -> np.ndarray:
+    """Trailing sliding-window circular mean (seed 004's sliding window, done on the circle).
+
+    Output i is the direction of the sum of unit vectors of headings i-window+1 .. i (fewer at the start), so 359 and
+    1 average to 0, never 180. heading (N,) in degrees -> (N,) in [0, 360). ``window`` >= 1 samples.
+    """
+    if isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 1:
+        raise ValueError(f"smoothing window must be a whole number of samples >= 1, got {window!r}")
+    h = np.radians(np.asarray(heading_deg, dtype=float))
+    if h.ndim != 1:
+        raise ValueError(f"headings must be a 1-D array, got shape {h.shape}")
+    sums = []
+    for part in (np.cos(h), np.sin(h)):
+        cumulative = np.concatenate([[0.0], np.cumsum(part)])
+        upper = np.arange(1, h.size + 1)
+        sums.append(cumulative[upper] - cumulative[np.maximum(upper - window, 0)])
+    return wrap_deg(np.degrees(np.arctan2(sums[1], sums[0])))
+
+
+def dip_angle_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """Dip of the field below the horizon, degrees in [-90, 90]: asin(B . d / |B|) with d = -acc / |acc| (down).
+
+    It equals the local inclination whatever the attitude, so it checks both calibration and disturbance.
+    """
+    dx, dy, dz = _down(acc)
+    b = np.asarray(field, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sine = (b[..., 0] * dx + b[..., 1] * dy + b[..., 2] * dz) / row_norm(b)
+    return np.degrees(np.arcsin(np.clip(sine, -1.0, 1.0)))
+
+
+def disturbance_flags(
+    field: np.ndarray,
+    acc: np.ndarray | None,
+    expected_ut: npt.ArrayLike | None,
+    expected_dip_deg: npt.ArrayLike | None,
+    field_tol_pct: float = 15.0,
+    dip_tol_deg: float = 5.0,
+    dip_deg: np.ndarray | None = None,
+) -> np.ndarray:
+    """HeadingFlag bits (int64, shape (...)) for corrected fields (..., 3) in uT and specific force (..., 3) or None
+    (the one disturbance check: the live compass, ``magnet heading`` and the tests all call it).
+
+    ``expected_ut`` and ``expected_dip_deg``: one value or one per sample (...); None, NaN or (for the field) 0 where
+    nothing is expected, which sets no bit. ``dip_deg`` (...): the dip already computed from field and acc, if so.
+    FIELD_DISTURBED: | |B| - expected_ut | > field_tol_pct % of expected_ut.
+    DIP_DISTURBED: |dip - expected_dip_deg| > dip_tol_deg, where there is a tilt.
+    NO_TILT: acc is None, or a sample's acc is zero or not finite. CALIBRATED is the caller's to add.
+    """
+    b = np.asarray(field, dtype=float)
+    flags = np.zeros(b.shape[:-1], dtype=np.int64)
+    if expected_ut is not None:
+        expected = np.asarray(expected_ut, dtype=float)
+        with np.errstate(invalid="ignore"):
+            disturbed = (np.abs(row_norm(b) - expected) > expected * field_tol_pct / 100.0) & (expected > 0)
+        flags |= np.where(disturbed, int(HeadingFlag.FIELD_DISTURBED), 0)
+    if acc is None:
+        return flags | int(HeadingFlag.NO_TILT)
+    f = np.broadcast_to(np.asarray(acc, dtype=float), b.shape)
+    norm = row_norm(f)
+    no_tilt = ~(np.isfinite(norm) & (norm > _TINY))
+    flags |= np.where(no_tilt, int(HeadingFlag.NO_TILT), 0)
+    if expected_dip_deg is not None:
+        dip = dip_angle_deg(b, f) if dip_deg is None else dip_deg
+        with np.errstate(invalid="ignore"):
+            dip_off = np.abs(dip - np.asarray(expected_dip_deg, dtype=float)) > dip_tol_deg
+        flags |= np.where(dip_off & ~no_tilt, int(HeadingFlag.DIP_DISTURBED), 0)
+    return flags
+
+
+def offset_removed_rms_deg(estimate_deg: np.ndarray, reference_deg: np.ndarray) -> float:
+    """RMS (degrees) of estimate - reference after removing one constant offset, their circular mean difference.
+
+    Both (N,) in degrees. The offset absorbs a reference whose north is arbitrary (an optical frame) or a constant
+    declination. NaN when there are no samples.
+    """
+    diff = np.radians(angle_difference_deg(estimate_deg, reference_deg))
+    if diff.size == 0:
+        return math.nan
+    offset = np.arctan2(np.sin(diff).mean(), np.cos(diff).mean())
+    residual = np.mod(diff - offset + np.pi, 2 * np.pi) - np.pi
+    return float(np.degrees(np.sqrt(np.mean(residual**2))))

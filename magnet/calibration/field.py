@@ -1,0 +1,286 @@
+"""Calibration in the field: the model the motion identifies (``magnet.calibration.ladder``), judged by what it does
+to heading (docs/field-calibration.md).
+
+``fit_field`` is what ``auto`` falls back to when the sphere's methods are refused, and what ``--method offset``,
+``offset+scale`` and ``planar`` ask for directly. The record:
+
+- ``method``: the rung fitted ("offset", "offset+scale", "planar" or "ellipsoid");
+- quality ``model`` (the rung), ``estimated`` and ``kept`` (parameters, in words), ``kept_from`` (the calibration in
+  force, or the identity), ``identified_deg`` (each rung tried: the heading error its parameters' noise leaves, deg)
+  and ``information_eigenvalues`` (the chosen rung's), ``why`` (one sentence), ``planar`` ("planar: within 20 deg of
+  level") for a device kept level;
+- judged (``judge``): the held-out heading consistency (``magnet.quality.motion``: every 5th block of 20 samples is
+  left out of a second fit of the same rung and scored) must beat the calibration in force (or none) by its margin;
+  the residual, held-out residual, radius against the WMM and the soft-iron condition are checked as for any fit.
+  Coverage and the scatter of the raw cloud are not asked of these rungs: identifiability stands in for them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from magnet.calibration.base import FitError
+from magnet.calibration.fit_input import FitInput
+from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, climb, first_offset, fit_rung
+from magnet.calibration.rungs import PLANAR, PLANAR_NOTE, RUNGS, Evidence, gyro_spans, is_planar
+from magnet.earth.geomag import earth_field
+from magnet.model import IDENTITY, Calibration
+from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
+from magnet.quality.stats import take_rows
+from magnet.quality.units_hint import earth_range_refusal
+
+#: fewest samples a field fit takes (its windows and blocks need some seconds of data)
+MIN_FIELD_SAMPLES = 200
+#: a field record must make the held-out consistency better than the reference's by this fraction of it too (beside
+#: the comparison's statistical margin): the consistency is judged with the gyroscope filter's own attitude, whose
+#: errors weigh on both sides, so a gain of a few % is not a gain in heading (BROAD trial 01, factory-calibrated: a
+#: field ellipsoid 4 % more consistent made causal heading 17 % worse)
+MIN_GAIN = 0.15
+#: held-out blocks: as ``magnet.calibration.fitting``
+HOLDOUT_BLOCK, HOLDOUT_EVERY = 20, 5
+
+
+@dataclasses.dataclass(frozen=True)
+class FieldInput:
+    """What a field fit takes: mag (N, 3) raw in ``unit``; acc (N, 3) specific force (any unit) or None; gyr (N, 3)
+    rad/s consecutive every period_s seconds, or None; field_ut (WMM |B|, uT) and dip_deg (WMM inclination, deg,
+    positive down) or None; reference: the calibration in force (its matrix is kept by the lower rungs) or None."""
+
+    mag: np.ndarray
+    acc: np.ndarray | None = None
+    gyr: np.ndarray | None = None
+    period_s: float | None = None
+    unit: str = "ut"
+    field_ut: float | None = None
+    dip_deg: float | None = None
+    reference: Calibration | None = None
+
+    @classmethod
+    def of(cls, data: FitInput) -> FieldInput:
+        """The field fit's input from a fit's (``FitInput``): the dip from ``data.dip_deg``, else the WMM at
+        ``data.place`` and ``data.date`` (None without a place)."""
+        dip = data.dip_deg
+        if dip is None and data.place is not None:
+            dip = earth_field(*data.place.as_tuple(), data.date).inclination_deg
+        return cls(data.mag, data.acc, data.gyr_rads, data.period_s, data.unit, data.field_ut, dip, data.reference)
+
+    def __post_init__(self) -> None:
+        mag = np.asarray(self.mag, dtype=float)
+        if mag.ndim != 2 or mag.shape[1] != 3:
+            raise FitError(f"samples must be an (N, 3) array of x, y, z readings, got shape {mag.shape}")
+        if len(mag) < MIN_FIELD_SAMPLES:
+            raise FitError(f"only {len(mag)} samples: a field fit needs {MIN_FIELD_SAMPLES}; keep the device moving")
+        if not np.all(np.isfinite(mag)):
+            raise FitError("samples hold NaN or infinite values: drop them before fitting")
+        for name in ("acc", "gyr"):
+            value = getattr(self, name)
+            if value is not None and np.shape(value) != mag.shape:
+                raise FitError(f"{name} must have the shape of the magnetometer samples {mag.shape}")
+        if self.gyr is not None and not (self.period_s and math.isfinite(self.period_s) and self.period_s > 0):
+            raise FitError("the gyroscope needs its sample period (t_s or a rate), a positive number of seconds")
+        if self.field_ut is not None and not (math.isfinite(self.field_ut) and self.field_ut > 0):
+            raise FitError(f"expected field strength must be a positive number of uT, got {self.field_ut!r}")
+        object.__setattr__(self, "mag", mag)
+
+
+def _work_scale(unit: str) -> float:
+    """Raw unit -> the working unit (uT where the unit converts, else the raw unit)."""
+    return ut_per_unit(unit) or 1.0
+
+
+def _kept(inp: FieldInput, scale: float) -> tuple[np.ndarray, np.ndarray, str]:
+    """(A0 in the working unit, kept offset in it, where A0 comes from)."""
+    ref = inp.reference
+    usable = ref is not None and ref.unit == inp.unit and ref.method not in ("identity",)
+    if not usable or ref is None:
+        return np.eye(3), np.zeros(3), "identity"
+    matrix = np.asarray(ref.matrix, dtype=float) / scale
+    matrix = matrix / np.cbrt(abs(np.linalg.det(matrix)))  # its shape; the scale follows from F
+    return matrix, np.asarray(ref.offset, dtype=float) * scale, "the calibration in force"
+
+
+def _evidence(
+    inp: FieldInput, ev_motion: motion.MotionEvidence | None, rows: np.ndarray | None = None
+) -> tuple[Evidence, str]:
+    scale = _work_scale(inp.unit)
+    mag = inp.mag * scale
+    matrix0, offset0, source = _kept(inp, scale)
+    down = None if ev_motion is None else ev_motion.down
+    spans = None
+    if inp.gyr is not None and inp.period_s is not None:
+        spans = gyro_spans(np.asarray(inp.gyr, dtype=float), inp.period_s, rows)
+    field = inp.field_ut if inp.field_ut is not None and ut_per_unit(inp.unit) else None
+    if field is None:  # the cloud's own radius
+        centre = first_offset(Evidence(mag, None, spans, inp.period_s, 1.0, None, matrix0, offset0))
+        field = float(np.median(np.linalg.norm((mag - centre) @ matrix0.T, axis=1)))
+    vertical = None if inp.dip_deg is None else field * math.sin(math.radians(inp.dip_deg))
+    return Evidence(mag, down, spans, inp.period_s, field, vertical, matrix0, offset0), source
+
+
+def _record(result: RungFit, inp: FieldInput, ev: Evidence, count: int) -> Calibration:
+    """The rung's solution as a record in the raw unit (output uT where known; scaled to field_ut otherwise)."""
+    scale = _work_scale(inp.unit)
+    to_ut = ut_per_unit(inp.unit)
+    matrix = result.matrix * scale
+    output_unit = "ut" if to_ut else inp.unit
+    if not to_ut and inp.field_ut is not None:
+        matrix, output_unit = matrix * inp.field_ut / ev.field_ut, "ut"
+    strength = inp.field_ut if inp.field_ut is not None else ev.field_ut * (to_ut or 1.0) / scale
+    return Calibration(
+        method=result.rung.name,
+        offset=result.offset / scale,
+        matrix=matrix,
+        field_strength=float(strength),
+        sample_count=count,
+        unit=inp.unit,
+        output_unit=output_unit,
+    )
+
+
+def _holdout_mask(count: int) -> np.ndarray:
+    period = np.arange(HOLDOUT_BLOCK * HOLDOUT_EVERY) // HOLDOUT_BLOCK == HOLDOUT_EVERY - 1
+    return np.resize(period, count)
+
+
+def fit_field(
+    inp: FieldInput, *, rung: str | None = None, gate_thresholds: GateThresholds | None = None
+) -> Calibration:
+    """The field fit of ``inp`` (the rung the motion identifies, or ``rung`` by name), with quality and the
+    judgement (module docstring). Raises FitError when no rung can be computed or none is identified."""
+    ev_motion = None
+    if inp.acc is not None:
+        try:
+            ev_motion = motion.evidence(np.asarray(inp.acc, dtype=float), inp.gyr, inp.period_s)
+        except ValueError as exc:
+            raise FitError(str(exc)) from None
+    ev, source = _evidence(inp, ev_motion)
+    planar = is_planar(ev.down)
+    if rung is None:
+        result, tried = climb(ev, planar)
+    else:
+        chosen = RUNGS[rung]
+        result = fit_rung(ev, chosen, first_offset(ev))
+        tried = {chosen.name: result.identified_deg}
+    calibration = _record(result, inp, ev, len(inp.mag))
+    test = _holdout_mask(len(inp.mag))
+    holdout = _holdout(inp, ev, result, test)
+    return judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+
+
+def _kept_spans(
+    spans: tuple[np.ndarray, np.ndarray, np.ndarray], keep: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ok = keep[spans[0]] & keep[spans[1]]
+    return spans[0][ok], spans[1][ok], spans[2][ok]
+
+
+def _holdout(
+    inp: FieldInput, whole: Evidence, result: RungFit, test: np.ndarray
+) -> tuple[np.ndarray, Calibration] | None:
+    """(held-out raw samples, the same rung fitted without them), None when that fit fails."""
+    train = ~test
+    ev = whole if whole.spans is None else dataclasses.replace(whole, spans=_kept_spans(whole.spans, train))
+    try:
+        trained = fit_rung(ev, result.rung, result.offset, train)
+    except (FitError, np.linalg.LinAlgError):
+        return None
+    return take_rows(inp.mag, test), _record(trained, inp, ev, int(train.sum()))
+
+
+def _why(result: RungFit, tried: dict[str, float], planar: bool) -> str:
+    richer = [f"{name} {value:.2g} deg" for name, value in tried.items() if name != result.rung.name]
+    text = (
+        f"{result.rung.name}: the motion identifies {', '.join(result.rung.estimated)} (heading error from its noise "
+        f"{result.identified_deg:.2g} deg <= {IDENTIFIED_DEG:g})"
+    )
+    if richer:
+        text += f"; not identified: {', '.join(richer)}"
+    if planar:
+        text += f"; {PLANAR_NOTE}"
+    return text
+
+
+def judge(
+    inp: FieldInput,
+    calibration: Calibration,
+    result: RungFit,
+    tried: dict[str, float],
+    source: str,
+    planar: bool,
+    ev_motion: motion.MotionEvidence | None,
+    test: np.ndarray,
+    holdout: tuple[np.ndarray, Calibration] | None,
+    thresholds: GateThresholds | None = None,
+) -> Calibration:
+    """The record with its quality and verdict: the figures of ``assess`` and of ``magnet.quality.motion`` (against
+    the calibration in force, else none), gated with coverage and scatter left out (identifiability stands in)."""
+    to_ut = ut_per_unit(inp.unit)
+    corrected = calibration.apply(inp.mag)
+    quality = assess(
+        inp.mag,
+        calibration,
+        corrected=corrected,
+        geometry=Geometry.SPHERE,
+        expected_field_ut=inp.field_ut,
+        fitted_radius_ut=None,
+        holdout=holdout,
+    )
+    if ev_motion is not None:
+        reference = inp.reference
+        figures = motion.motion_figures(
+            inp.mag,
+            calibration,
+            ev_motion,
+            test,
+            holdout[1] if holdout else None,
+            reference or IDENTITY,
+            "the calibration in force" if reference else "no calibration",
+            corrected,
+        )
+        quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
+    extra: dict[str, Any] = {
+        "model": result.rung.name,
+        "estimated": list(result.rung.estimated),
+        "kept": list(result.rung.kept),
+        "kept_from": source,
+        "identified_deg": {name: _finite(value) for name, value in tried.items()},
+        "information_eigenvalues": [_finite(v) for v in result.eigenvalues],
+        "block_spread_ut": dict(result.sigma_ut),
+        "vertical_ut": result.vertical_ut,
+        "why": _why(result, tried, planar),
+    }
+    if planar or result.rung is PLANAR:
+        extra["planar"] = PLANAR_NOTE
+    quality = quality.with_extra(**extra)
+    chosen = dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=math.inf)
+    accepted, reason = gate(quality, chosen)
+    small = _small_gain(quality)
+    if accepted and small:
+        accepted, reason = False, small
+    if inp.field_ut is None and calibration.output_unit == "ut" and to_ut is not None:
+        earth = earth_range_refusal(float(np.median(np.linalg.norm(corrected, axis=1))) / to_ut, to_ut)
+        accepted, reason = (False, earth if accepted else f"{earth}; {reason}") if earth else (accepted, reason)
+    if to_ut is None and inp.field_ut is None:
+        reason = f"{reason}; radius not checked (raw counts and no expected field)"
+    return calibration.replace(quality=quality, accepted=accepted, reason=f"{reason}; {extra['why']}")
+
+
+def _small_gain(quality: Any) -> str | None:
+    """The refusal when the held-out consistency gains less than MIN_GAIN of the reference's (None: enough, or
+    not measured)."""
+    held, ref = quality.get("holdout_consistency_deg"), quality.get("reference_holdout_consistency_deg")
+    if held is None or ref is None or held <= (1.0 - MIN_GAIN) * ref:
+        return None
+    return (
+        f"the fit makes the field only {100 * (1 - held / ref):.0f} % more constant than "
+        f"{quality.get('reference') or 'no calibration'} on held-out data ({held:.2f} deg vs {ref:.2f} deg; a field "
+        f"fit must gain {100 * MIN_GAIN:.0f} %): the calibration in force is good enough"
+    )
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None

@@ -1,0 +1,134 @@
+"""The recent samples of one device in time order, with its gyroscope: what a fit from the gyroscope
+(``gyro-ellipsoid``) needs, which the sphere cells of ``magnet.calibration.collection`` (one sample per direction, no
+order) lose.
+
+A bounded ring of the last ``capacity`` samples; the samples are cut into *runs* of consecutive readings: a run
+restarts where a batch's ``seq`` is not the previous one's plus one (a batch lost, or the edge restarted), or where
+two consecutive ``t_ns`` are not increasing or lie more than ``GAP_PERIODS`` sample periods apart (samples lost, or
+the device stopped). The fit never pairs samples across a restart: it is given the longest run (the most recent
+among equals). Memory per device: ``capacity`` rows of 11 numbers of 8 bytes (mag, acc and gyr 3 each, t_ns, run
+number): 88 bytes a sample, 2.6 MB for the default 30,000 (5 minutes at 100 Hz); the arrays start at
+``INITIAL_ROOM`` rows and double, so a device that sends little costs little. Pure numpy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+#: samples held per device by default: 5 minutes at 100 Hz (2.6 MB)
+RUN_CAPACITY = 30_000
+#: a step between consecutive t_ns longer than this many sample periods starts a new run
+GAP_PERIODS = 2.5
+#: rates below this about an axis (rad/s, 6 deg/s) are not counted as turning about it (noise, bias)
+TURNING_RADS = 0.1
+INITIAL_ROOM = 256
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """Consecutive samples of one device: mag (N, 3) uT, acc (N, 3) m/s^2 or None (a sample came without),
+    gyr_rads (N, 3) rad/s, t_ns (N,) int64, and period_s, the median step of t_ns in seconds."""
+
+    mag: np.ndarray
+    acc: np.ndarray | None
+    gyr_rads: np.ndarray
+    t_ns: np.ndarray
+    period_s: float
+
+    def __len__(self) -> int:
+        return len(self.mag)
+
+    def tail(self, seconds: float) -> Run:
+        """The last ``seconds`` of the run (all of it when shorter)."""
+        count = max(2, round(seconds / self.period_s)) if self.period_s > 0 else len(self)
+        if count >= len(self):
+            return self
+        acc = None if self.acc is None else self.acc[-count:]
+        return Run(self.mag[-count:], acc, self.gyr_rads[-count:], self.t_ns[-count:], self.period_s)
+
+    def turned_deg(self) -> np.ndarray:
+        """(3,) how far the device turned about each body axis, deg: |rate| summed over the samples where it
+        exceeds ``TURNING_RADS`` about that axis (so a gyroscope's noise and bias do not add up)."""
+        rates = np.abs(self.gyr_rads)
+        return np.degrees(np.where(rates > TURNING_RADS, rates, 0.0).sum(axis=0) * self.period_s)
+
+
+class RecentRuns:
+    """The last ``capacity`` samples of one device (mag, acc, gyr, t_ns) in a ring, each tagged with its run."""
+
+    def __init__(self, capacity: int = RUN_CAPACITY) -> None:
+        if capacity < 2:
+            raise ValueError(f"a run ring needs room for at least 2 samples, got {capacity}")
+        self.capacity = capacity
+        rows = min(capacity, INITIAL_ROOM)
+        self.mag, self.acc, self.gyr = np.empty((rows, 3)), np.empty((rows, 3)), np.empty((rows, 3))
+        self.t_ns, self.run = np.empty(rows, dtype=np.int64), np.empty(rows, dtype=np.int64)
+        self.head = self.held = self.written = 0  # next row to write; rows holding samples; samples ever written
+        self.run_no = 0
+        self.last_seq: int | None = None
+        self.last_t_ns: int | None = None
+        self.period_ns: float | None = None
+
+    def add(self, mag: np.ndarray, acc: np.ndarray | None, gyr_rads: np.ndarray, t_ns: np.ndarray, seq: int) -> None:
+        """Append one batch: mag, gyr_rads (N, 3), acc (N, 3) or None, t_ns (N,) int ns, ``seq`` the batch's number."""
+        t = np.asarray(t_ns, dtype=np.int64)
+        if not len(t):
+            return
+        steps = np.diff(t)
+        if (steps > 0).any():
+            self.period_ns = float(np.median(steps[steps > 0]))
+        starts = np.zeros(len(t), dtype=bool)
+        starts[0] = self._restarts(int(t[0]), seq)
+        if self.period_ns is not None:
+            starts[1:] = (steps <= 0) | (steps > GAP_PERIODS * self.period_ns)
+        runs = self.run_no + np.cumsum(starts)
+        self.run_no, self.last_seq, self.last_t_ns = int(runs[-1]), seq, int(t[-1])
+        acc_rows = np.full((len(t), 3), np.nan) if acc is None else acc
+        self._write(mag, acc_rows, gyr_rads, t, runs)
+
+    def _restarts(self, first_t_ns: int, seq: int) -> bool:
+        """Whether a batch starting at ``first_t_ns`` with number ``seq`` cannot follow the last one."""
+        if self.last_seq is None or self.last_t_ns is None or seq != self.last_seq + 1:
+            return True
+        step = first_t_ns - self.last_t_ns
+        return step <= 0 or (self.period_ns is not None and step > GAP_PERIODS * self.period_ns)
+
+    def _write(self, mag: np.ndarray, acc: np.ndarray, gyr: np.ndarray, t: np.ndarray, runs: np.ndarray) -> None:
+        keep = slice(max(0, len(t) - self.capacity), len(t))  # a batch longer than the ring: its newest samples
+        count = len(t[keep])
+        self._room_for(self.held + count)
+        rows = (self.head + np.arange(count)) % len(self.mag)
+        self.mag[rows], self.acc[rows], self.gyr[rows] = mag[keep], acc[keep], gyr[keep]
+        self.t_ns[rows], self.run[rows] = t[keep], runs[keep]
+        self.head = int((self.head + count) % len(self.mag))
+        self.held = min(self.held + count, len(self.mag))
+        self.written += len(t)
+
+    def _room_for(self, size: int) -> None:
+        """Grow the arrays (doubling, at most to the capacity) while the ring has not wrapped yet."""
+        rows = len(self.mag)
+        if size <= rows or rows >= self.capacity:
+            return
+        grow = min(self.capacity, max(size, 2 * rows)) - rows
+        vectors, times = np.empty((grow, 3)), np.empty(grow, dtype=np.int64)
+        self.mag, self.acc, self.gyr = (np.concatenate([a, vectors]) for a in (self.mag, self.acc, self.gyr))
+        self.t_ns, self.run = (np.concatenate([a, times]) for a in (self.t_ns, self.run))
+        self.head = self.held  # not wrapped: the samples are rows 0 .. held - 1
+
+    def longest(self) -> Run | None:
+        """The longest run held (the most recent of equals), None when no run has two samples."""
+        order = np.arange(self.held) if self.held < len(self.mag) else (self.head + np.arange(self.held)) % self.held
+        runs = self.run[order]  # non-decreasing in time order: each run is one stretch
+        first = np.concatenate([[0], np.flatnonzero(np.diff(runs)) + 1])
+        counts = np.diff(np.concatenate([first, [len(runs)]]))
+        if not len(counts) or counts.max() < 2:
+            return None
+        best = len(counts) - 1 - int(np.argmax(counts[::-1]))
+        rows = order[first[best] : first[best] + counts[best]]
+        acc = self.acc[rows]
+        t = self.t_ns[rows]
+        return Run(
+            self.mag[rows], None if np.isnan(acc).any() else acc, self.gyr[rows], t, float(np.median(np.diff(t))) / 1e9
+        )

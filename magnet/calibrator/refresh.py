@@ -1,0 +1,140 @@
+"""In-service recalibration (``--recalibrate auto|propose|off``; docs/field-calibration.md, "In service").
+
+After a device's first record the calibrator keeps listening: each calibrated device has a bounded refresh
+collection (``Collection`` with auto, a ring of ``REFRESH_RUN_CAPACITY`` consecutive samples and the sphere
+cells), fitted at most every ``REFRESH_INTERVAL_S`` once its longest run spans ``REFRESH_MIN_S``, on the run's
+last ``REFRESH_WINDOW_S`` seconds. The fit is judged against
+the record in force (``FitInput.reference``: held-out heading consistency, with its margin) and must also gain
+``MIN_GAIN`` of the in-force record's held-out consistency (a refresh that changes little is churn, not a gain).
+
+What passes: ``auto`` commits it as a new version (change ``action: refresh``, ``in_service: true``, ``gain_pct``,
+and ``resolves``: the device's open drift alerts it was made against); ``propose`` turns the refresh collection into
+an operator's session holding the fit (``magnet calibrate DEV commit`` stores it, marked in service); ``off`` keeps
+no refresh collection at all. Memory per device: one ring (88 bytes a sample) and the cells; devices at most
+``max_devices`` (least recently seen dropped). Pure: no clock of its own, no store.
+"""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+from magnet import wire
+from magnet.bounded import Recent
+from magnet.calibration.collection import Collection
+from magnet.calibration.field import MIN_GAIN
+from magnet.model import Calibration
+
+#: a device's refresh is fitted at most this often (s): the CPU a device costs stays one fit in this time
+REFRESH_INTERVAL_S = 15.0
+#: ... and at least this long by the calibrator's clock (s)
+MIN_WALL_S = 1.0
+#: a refresh fits the last this many seconds of the device's samples: what changed (a new case, a magnet nearby) is
+#: judged on what came after it, not averaged with what came before
+REFRESH_WINDOW_S = 30.0
+#: seconds of consecutive samples before a refresh is tried
+REFRESH_MIN_S = 12.0
+#: consecutive samples a refresh ring keeps at most (a minute at 200 Hz; 88 bytes each: about 1 MB per device)
+REFRESH_RUN_CAPACITY = 12_000
+#: without a gyroscope (no ring): kept samples in the cells before a refresh is tried
+REFRESH_MIN_SAMPLES = 300
+#: the record in force's field strength this far off (%) ...
+CHANGED_PCT = 15.0
+#: ... for this many batches in a row: the device's iron changed, the samples before are dropped
+CHANGED_BATCHES = 4
+#: what ``--recalibrate`` accepts
+MODES = ("auto", "propose", "off")
+
+
+class Mode(enum.Enum):
+    AUTO = "auto"  # commit a better record as a new version
+    PROPOSE = "propose"  # open a session holding it, for a person to commit
+    OFF = "off"  # no refinement after the first record
+
+
+def gain_pct(calibration: Calibration) -> float | None:
+    """How much more constant (%) the fit makes the field than the record in force on held-out data; None when not
+    measured (no accelerometer)."""
+    held, ref = (
+        calibration.quality.get("holdout_consistency_deg"),
+        calibration.quality.get("reference_holdout_consistency_deg"),
+    )
+    if held is None or ref is None or ref <= 0:
+        return None
+    return 100.0 * (1.0 - float(held) / float(ref))
+
+
+def small_gain(calibration: Calibration) -> str | None:
+    """Why an accepted refresh is still not taken: it gains less than MIN_GAIN (None: it gains enough)."""
+    gain = gain_pct(calibration)
+    if gain is None:
+        return "no heading consistency to judge a refresh by (the device sends no accelerometer)"
+    if gain < 100.0 * MIN_GAIN:
+        return f"a refresh gains {gain:.0f} % of held-out consistency, less than {100 * MIN_GAIN:.0f} %"
+    return None
+
+
+class Refresher:
+    """The refresh collections of calibrated devices (module docstring). ``capacity``: the cells' samples
+    (``--max-samples``); ``max_devices``: devices kept at most."""
+
+    def __init__(self, mode: Mode | str, capacity: int, max_devices: int) -> None:
+        self.mode = Mode(mode)
+        self.capacity = capacity
+        self.by_device: Recent[str, Collection] = Recent(max_devices)
+        self.fits = self.refreshed = self.proposed = 0
+
+    def receive(self, batch: wire.RawBatch, in_force: Calibration | None = None) -> Collection | None:
+        """Add a calibrated device's batch to its refresh collection (made on its first batch); None when off.
+        ``in_force``: the record in force; when its field strength is off by CHANGED_PCT for CHANGED_BATCHES
+        batches in a row, the device's iron changed (a new case, a magnet): what came before is dropped, so that
+        the refresh fits what came after the change only."""
+        if self.mode is Mode.OFF:
+            return None
+        collection = self.by_device.get(batch.device)
+        if collection is not None and in_force is not None and self._changed(collection, batch, in_force):
+            self.by_device.pop(batch.device, None)
+            collection = None
+        if collection is None:
+            collection = Collection("auto", False, self.capacity, REFRESH_RUN_CAPACITY)
+            collection.in_service, collection.window_s = True, REFRESH_WINDOW_S
+            self.by_device[batch.device] = collection
+        self.by_device.touch(batch.device)
+        collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
+        return collection
+
+    @staticmethod
+    def _changed(collection: Collection, batch: wire.RawBatch, in_force: Calibration) -> bool:
+        """Whether the record's field strength has been CHANGED_PCT off for CHANGED_BATCHES batches now while the
+        collection still holds samples from before (a collection made after the change is kept)."""
+        strength = in_force.field_strength
+        if not strength or in_force.output_unit != "ut" or in_force.unit != "ut":
+            return False
+        norm = np.linalg.norm(in_force.apply(batch.mag_ut), axis=1)
+        off = abs(float(np.median(norm)) / strength - 1.0) * 100.0 > CHANGED_PCT
+        collection.changed_batches = collection.changed_batches + 1 if off else 0
+        older = collection.seen > (collection.changed_batches + 1) * len(batch)  # samples from before the change
+        return collection.changed_batches >= CHANGED_BATCHES and older
+
+    def due(self, collection: Collection, now_s: float) -> bool:
+        """Whether to try a refresh now: REFRESH_INTERVAL_S of the device's samples (by their times; by the clock
+        without a gyroscope) and MIN_WALL_S of the clock since the last try, and the ring (or, without a
+        gyroscope, the cells) holds enough samples. The samples' time keeps a replay at 10x refreshed as often
+        per sample as live; the clock bounds the CPU of a device sending fast."""
+        if now_s - collection.last_fit_s < (MIN_WALL_S if collection.runs is not None else REFRESH_INTERVAL_S):
+            return False
+        if collection.runs is None:
+            return collection.kept >= min(self.capacity, REFRESH_MIN_SAMPLES)
+        run = collection.runs.longest()
+        if run is None or len(run) * run.period_s < REFRESH_MIN_S:
+            return False
+        last = int(run.t_ns[-1])
+        if last - collection.tried_ns < REFRESH_INTERVAL_S * 1e9:
+            return False
+        collection.tried_ns = last
+        return True
+
+    def restart(self, device: str) -> None:
+        """Forget the device's refresh samples (a new record is in force: what follows is judged against it)."""
+        self.by_device.pop(device, None)

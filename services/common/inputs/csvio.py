@@ -1,0 +1,239 @@
+"""Reading sample CSVs for the offline commands, and writing CSV to a stream.
+
+A sample CSV has a header row naming its columns; any lines before the header (a logger's preamble such as
+``Fs,50.00``) are skipped: the header is the first line that names ``mx``, ``my`` and ``mz``. Columns are matched by
+name, case-insensitively; unknown columns are ignored, a column the commands read may not be named twice. Cells may
+be quoted (``"mx","my","mz"``); values are separated by commas: a file separated otherwise (semicolons, tabs) is
+refused with the separator named. A file over ``MAX_CSV_BYTES`` or not UTF-8 is refused, a field over 128 KiB too,
+and so is a sensor reading (``mx..mz``, ``ax..az``, ``gx..gz``) beyond +-1e9 in any unit. Every problem is a
+``ValueError`` that names the file, the line and what to do.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import math
+import warnings
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+
+MAG_COLUMNS = ("mx", "my", "mz")
+ACC_COLUMNS = ("ax", "ay", "az")
+GYRO_COLUMNS = ("gx", "gy", "gz")
+MAX_PREAMBLE_LINES = 50
+#: no sensor reads beyond this in any unit (nT, counts, m/s^2, rad/s): such a value is a wrong column or a broken file
+MAX_READING = 1e9
+#: the largest sample file read (the file is held in memory as text and rows): an hour at 1 kHz of a dozen columns
+#: is about 200 MB
+MAX_CSV_BYTES = 512 * 1024 * 1024
+#: the csv module's own limit on one field (128 KiB)
+MAX_FIELD_CHARS = csv.field_size_limit()
+#: other separators named when the header is found with one of them
+OTHER_SEPARATORS = {";": "semicolons", "\t": "tabs", "|": "'|'", " ": "spaces"}
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleTable:
+    """Samples read from a CSV.
+
+    mag: (N, 3) raw magnetometer readings in the file's unit. acc: (N, 3) accelerometer readings (any unit; only
+    directions are used) or None when the file has no ``ax,ay,az``. columns: every other column by name, as strings
+    (from a CSV) or as float arrays (N,) (from a recording that holds numbers, see ``services.common.inputs``).
+    note: what a reader wants the user told about where the samples came from ("" for a CSV)."""
+
+    path: str
+    mag: np.ndarray
+    acc: np.ndarray | None
+    columns: dict[str, list[str] | np.ndarray]
+    duplicated: frozenset[str] = frozenset()  # names the header gives more than once: refused when read
+    note: str = ""
+
+    def _column(self, name: str) -> list[str] | np.ndarray:
+        if name in self.duplicated:
+            raise ValueError(f"{self.path}: the header names column {name!r} more than once: keep one of them")
+        if name not in self.columns:
+            raise ValueError(f"{self.path}: column {name!r} is missing (the header must name it)")
+        return self.columns[name]
+
+    def numeric(self, name: str, missing_ok: bool = False) -> np.ndarray:
+        """Column ``name`` as floats, shape (N,); ValueError naming the first bad row. ``missing_ok``: empty and
+        ``nan`` cells are NaN (a value not known at that sample)."""
+        column = self._column(name)
+        if isinstance(column, np.ndarray):
+            return column.astype(np.float64)
+        if missing_ok:
+            column = ["nan" if str(v).strip() in ("", "nan") else v for v in column]
+            known = [i for i, v in enumerate(column) if v != "nan"]
+            out = np.full(len(column), np.nan)
+            out[known] = _floats([column[i] for i in known], name, self.path)
+            return out
+        return _floats(column, name, self.path)
+
+    def vel_ned_ms(self) -> np.ndarray | None:
+        """The velocity columns ``vn,ve,vd`` (N, 3) m/s NED, NaN rows where empty or ``nan`` (no fix yet), or None
+        when the file has none of them; ValueError when it has only some."""
+        present = [c for c in VELOCITY_COLUMNS if c in self.columns]
+        if not present:
+            return None
+        if len(present) < 3:
+            raise ValueError(f"{self.path}: velocity needs all of vn,ve,vd (m/s north, east, down), found {present}")
+        return np.column_stack([self.numeric(c, missing_ok=True) for c in VELOCITY_COLUMNS])
+
+    def text(self, name: str) -> list[str]:
+        return [str(v).strip() for v in self._column(name)]
+
+
+#: velocity over the ground, m/s north, east, down
+VELOCITY_COLUMNS = ("vn", "ve", "vd")
+
+
+def _floats(values: Sequence[str], name: str, path: str) -> np.ndarray:
+    """Floats of one column (N,); ValueError naming the row of a value that is not a finite number, or of a sensor
+    reading beyond +-MAX_READING."""
+    limit = MAX_READING if name in (*MAG_COLUMNS, *ACC_COLUMNS, *GYRO_COLUMNS) else math.inf
+    out = np.empty(len(values))
+    for i, text in enumerate(values):
+        try:
+            out[i] = float(text)
+        except ValueError:
+            raise ValueError(f"{path}: row {i + 1}: {name}={text!r} is not a number") from None
+        if not math.isfinite(out[i]):
+            raise ValueError(f"{path}: row {i + 1}: {name}={text!r} is not finite")
+        if abs(out[i]) > limit:
+            raise ValueError(
+                f"{path}: row {i + 1}: {name}={text!r} is beyond +-{limit:.0e}: no sensor reads that in any "
+                "unit (a wrong column, or a damaged file)"
+            )
+    return out
+
+
+def _cells(line: str, path: str, number: int, delimiter: str = ",") -> list[str]:
+    """The cells of one line (quotes removed), lower case; ValueError for a field over 128 KiB."""
+    try:
+        return [cell.strip().lower() for cell in next(csv.reader([line], delimiter=delimiter), [])]
+    except csv.Error as exc:
+        raise ValueError(f"{path}: line {number}: {_csv_problem(exc)}") from None
+
+
+def _csv_problem(exc: csv.Error) -> str:
+    if "field larger" in str(exc):
+        return f"a field longer than {MAX_FIELD_CHARS // 1024} KiB: not a sample CSV"
+    return f"not CSV ({exc})"
+
+
+def _find_header(lines: list[str], path: str) -> int:
+    for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
+        if set(MAG_COLUMNS) <= set(_cells(line, path, index + 1)):
+            return index
+    if not any(line.strip() for line in lines):
+        raise ValueError(f"{path}: the file is empty: it needs a header row with mx,my,mz and samples below it")
+    for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
+        for separator, words in OTHER_SEPARATORS.items():
+            if set(MAG_COLUMNS) <= set(_cells(line, path, index + 1, separator)):
+                raise ValueError(
+                    f"{path}: line {index + 1} names mx,my,mz separated by {words}, not commas: save the file as "
+                    "comma-separated values (with decimal points)"
+                )
+    raise ValueError(
+        f"{path}: no header row naming mx,my,mz in its first {MAX_PREAMBLE_LINES} lines "
+        "(columns mx,my,mz are required; ax,ay,az optional)"
+    )
+
+
+def parse_samples(text: str, path: str = "<input>") -> SampleTable:
+    """Parse CSV ``text`` into a SampleTable (see the module docstring for the format). A table of numbers is read
+    by numpy's C reader (``_numbers``); anything else (text columns, empty cells, a row of another length, a value
+    that is refused) by the csv module, cell by cell, which names the line or row and the value at fault."""
+    lines = text.splitlines()
+    header_index = _find_header(lines, path)
+    table = _numbers(lines, header_index, path)
+    if table is not None:
+        return table
+    header, rows = _read_rows(lines, header_index, path)
+    if not rows:
+        raise ValueError(f"{path}: the header is there but no samples follow it")
+    for number, row in enumerate(rows, start=1):
+        if len(row) < len(header):
+            raise ValueError(f"{path}: row {number} has {len(row)} values but the header names {len(header)} columns")
+    columns: dict[str, list[str] | np.ndarray] = {
+        name: [row[i] for row in rows] for i, name in enumerate(header) if name
+    }
+    duplicated = frozenset(name for name in columns if header.count(name) > 1)
+    table = SampleTable(path, np.empty((0, 3)), None, columns, duplicated)
+    mag = np.column_stack([table.numeric(c) for c in MAG_COLUMNS])
+    acc = None
+    if all(c in columns for c in ACC_COLUMNS):
+        acc = np.column_stack([table.numeric(c) for c in ACC_COLUMNS])
+    return dataclasses.replace(table, mag=mag, acc=acc)
+
+
+def _numbers(lines: list[str], header_index: int, path: str) -> SampleTable | None:
+    """The table when every row below the header is as many finite numbers as the header names columns (``nan``
+    allowed in ``vn,ve,vd``: no fix yet), no column is named twice and no sensor reading is beyond +-MAX_READING,
+    read by numpy's C reader (``numpy.loadtxt``); else None, and the csv module reads the file and says what is
+    wrong with it."""
+    header = _cells(lines[header_index], path, header_index + 1)
+    if len(set(header)) < len(header) or header_index + 1 == len(lines):
+        return None
+    try:
+        with warnings.catch_warnings():  # blank lines alone: "input contained no data", the csv module says so
+            warnings.simplefilter("ignore", UserWarning)
+            values = np.loadtxt(lines[header_index + 1 :], delimiter=",", quotechar='"', comments=None, ndmin=2)
+    except ValueError:
+        return None
+    if values.shape != (values.shape[0], len(header)) or values.shape[0] == 0:
+        return None
+    sensors = [i for i, name in enumerate(header) if name in (*MAG_COLUMNS, *ACC_COLUMNS, *GYRO_COLUMNS)]
+    held = [i for i, name in enumerate(header) if name in VELOCITY_COLUMNS]
+    others = [i for i in range(len(header)) if i not in held]
+    if not np.isfinite(values[:, others]).all() or np.isinf(values[:, held]).any():
+        return None
+    if (np.abs(values[:, sensors]) > MAX_READING).any():
+        return None
+    columns: dict[str, list[str] | np.ndarray] = {name: values[:, i] for i, name in enumerate(header) if name}
+    acc = (
+        np.column_stack([values[:, header.index(c)] for c in ACC_COLUMNS]) if set(ACC_COLUMNS) <= set(header) else None
+    )
+    mag = np.column_stack([values[:, header.index(c)] for c in MAG_COLUMNS])
+    return SampleTable(path, mag, acc, columns)
+
+
+def _read_rows(lines: list[str], header_index: int, path: str) -> tuple[list[str], list[list[str]]]:
+    """(header names in lower case, the non-blank rows below it); ValueError naming the line of a field over 128
+    KiB or of a line that is not CSV."""
+    reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
+    try:
+        header = [name.strip().lower() for name in next(reader)]
+        rows = [row for row in reader if any(cell.strip() for cell in row)]
+    except csv.Error as exc:
+        raise ValueError(f"{path}: line {header_index + reader.line_num}: {_csv_problem(exc)}") from None
+    return header, rows
+
+
+def read_samples(path: str | Path) -> SampleTable:
+    """Read a sample CSV file; ValueError for a file that is not one (OSError when it cannot be opened)."""
+    path = Path(path)
+    with open(path, "rb") as handle:
+        data = handle.read(MAX_CSV_BYTES + 1)
+    if len(data) > MAX_CSV_BYTES:
+        raise ValueError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MiB: split the recording and fit a part")
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a text CSV file (not UTF-8 at byte {exc.start})") from None
+    del data
+    return parse_samples(text, str(path))
+
+
+def write_csv(
+    stream: TextIO, header: Sequence[str], columns: Iterable[np.ndarray], fmt: str | Sequence[str] = "%.6f"
+) -> None:
+    """Write equal-length columns under ``header`` as CSV rows (``fmt``: one printf format, or one per column)."""
+    matrix = np.column_stack([np.asarray(c, dtype=float) for c in columns])
+    stream.write(",".join(header) + "\n")
+    np.savetxt(stream, matrix, delimiter=",", fmt=fmt)

@@ -1,0 +1,124 @@
+"""In-service recalibration (``magnet.calibrator.refresh``, ``--recalibrate``): a calibrated phone whose hard iron
+changed is refreshed from its normal use (a walk while texting) against the record in force; propose opens a session
+instead; off leaves the record alone; a record that is still right is not replaced."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from memory_store import MemoryStore
+
+from magnet import wire
+from magnet.calibrator import CalibratorCore
+from magnet.calibrator.status import State
+from magnet.frames import quaternion_to_matrix
+from magnet.shard import Shard
+from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
+from services.calibrator.settings import CalibratorSettings
+
+RATE_HZ = 100.0
+NOW_NS = 1_700_000_000_000_000_000
+SECONDS = 50.0
+
+
+class DataClock:
+    """The monotonic clock follows the samples fed (s); the wall clock stands still."""
+
+    def __init__(self) -> None:
+        self.t_s = 0.0
+
+    def monotonic(self) -> float:
+        return self.t_s
+
+    def wall_ns(self) -> int:
+        return NOW_NS
+
+
+@pytest.fixture(scope="module")
+def walk():
+    """A texting walk of a phone whose hard iron is 8 times the field, and the same phone before its hard iron
+    moved by 6 uT (a magnet in a new case): the record in force is the old one."""
+    rng = np.random.default_rng(5)
+    errors = SensorErrors.phone(rng, 50.0)
+    run = simulate(
+        SimulatorConfig(
+            trajectory=Trajectory.WALK_TEXTING,
+            rate_hz=RATE_HZ,
+            count=int(SECONDS * RATE_HZ),
+            errors=errors,
+            seed=11,
+            lat_deg=50.45,
+            lon_deg=30.52,
+        )
+    )
+    old = errors.true_calibration(run.earth.total_ut)
+    old = old.replace(offset=old.offset - np.array([6.0, -4.0, 3.0]))
+    return run, old
+
+
+def _core(clock: DataClock, store: MemoryStore, recalibrate: str) -> CalibratorCore:
+    settings = CalibratorSettings(recalibrate=recalibrate, location=None)
+    return CalibratorCore(store, settings, lambda *a: None, clock.monotonic, clock.wall_ns, None, shard=Shard(0, 1))
+
+
+def _feed(core: CalibratorCore, clock: DataClock, run, batch: int = 50) -> None:
+    for seq, start in enumerate(range(0, len(run.t_s), batch)):
+        part = slice(start, start + batch)
+        t_ns = np.round(run.t_s[part] * 1e9).astype(np.int64)
+        raw = wire.RawBatch("d", seq, "sim", t_ns, run.mag_ut[part], run.acc_ms2[part], gyr_rads=run.gyr_rads[part])
+        clock.t_s = float(run.t_s[part][-1])
+        core.on_raw("magnet/d/raw", wire.encode_raw(raw), "magnet")
+
+
+def _direction_error_deg(calibration, run) -> float:
+    """RMS (deg) of the heading error the calibrated field makes: the angle between its horizontal part and the true
+    field's, both turned into the Earth frame by the true attitude."""
+    rotation = quaternion_to_matrix(run.quat_wxyz)
+    field = np.einsum("nij,nj->ni", rotation, calibration.apply(run.mag_ut))
+    truth = np.einsum("nij,nj->ni", rotation, run.true_field_ut)
+    error = np.arctan2(field[:, 1], field[:, 0]) - np.arctan2(truth[:, 1], truth[:, 0])
+    return float(np.degrees(np.sqrt(np.mean(np.angle(np.exp(1j * error)) ** 2))))
+
+
+def _calibrated(recalibrate: str, in_force) -> tuple[CalibratorCore, MemoryStore, DataClock]:
+    store, clock = MemoryStore(), DataClock()
+    core = _core(clock, store, recalibrate)
+    core.commit("d", in_force, {"action": "manual", "by": "test"})
+    return core, store, clock
+
+
+def test_a_changed_hard_iron_is_refreshed_in_service_and_history_says_so(walk):
+    run, old = walk
+    core, store, clock = _calibrated("auto", old)
+    _feed(core, clock, run)
+    changes = [change for _, change in store.history_changes("d")]
+    assert changes[-1]["action"] == "manual"  # newest first
+    refreshes = [c for c in changes if c["action"] == "refresh"]
+    assert refreshes and all(c["in_service"] for c in refreshes)
+    assert refreshes[0]["gain_pct"] >= 15.0
+    assert core.status("c").counters.refreshed == len(refreshes) >= 1
+    now = core.records.get("d")
+    assert now is not None and now.version == 1 + len(refreshes)
+    assert _direction_error_deg(now.calibration, run) < _direction_error_deg(old, run) / 2
+    assert core.state("d") is State.CALIBRATED  # refreshing does not change what the device's state says
+
+
+def test_propose_opens_a_session_holding_the_refresh_and_off_leaves_the_record(walk):
+    run, old = walk
+    core, store, clock = _calibrated("propose", old)
+    _feed(core, clock, run)
+    assert len(store.history_changes("d")) == 1 and core.state("d") is State.SESSION
+    assert core.status("c").counters.proposed == 1
+    core, store, clock = _calibrated("off", old)
+    _feed(core, clock, run)
+    assert len(store.history_changes("d")) == 1 and core.state("d") is State.CALIBRATED
+    assert core.status("c").counters.refresh_fits == 0
+
+
+def test_a_record_that_is_still_right_is_not_replaced(walk):
+    run, old = walk
+    right = old.replace(offset=old.offset + np.array([6.0, -4.0, 3.0]))
+    core, store, clock = _calibrated("auto", right)
+    _feed(core, clock, run)
+    assert len(store.history_changes("d")) == 1
+    assert core.status("c").counters.refresh_fits >= 1

@@ -1,0 +1,62 @@
+"""``magnet bench field``: its heading error, its baselines and one short run through the services' cores."""
+
+import argparse
+
+import numpy as np
+import pytest
+
+from magnet import frames
+from magnet import simulator as sim
+from services.bench import field, field_runs, parse_seeds
+
+
+def test_heading_error_is_the_turn_about_the_vertical_at_any_attitude():
+    yaw = np.array([10.0, 200.0, 350.0, 45.0])
+    pitch = np.array([0.0, 30.0, 85.0, -89.0])  # up to a phone standing upright
+    roll = np.array([0.0, -40.0, 120.0, 10.0])
+    truth = frames.euler_to_quaternion(yaw, pitch, roll)
+    estimate = frames.rotate_heading(truth, 7.0)  # the same attitude turned 7 deg about the vertical
+    np.testing.assert_allclose(field_runs.heading_error_deg(estimate, truth), 7.0, atol=1e-9)
+    errors = np.array([7.0, 9.0, 5.0, np.nan])
+    assert field_runs.rms_deg(errors, np.ones(4, bool)) == pytest.approx(np.sqrt(8.0 / 3.0))
+    assert field_runs.rms_deg(errors, np.ones(4, bool), offset_removed=False) == pytest.approx(np.sqrt(155.0 / 3.0))
+    assert np.isnan(field_runs.rms_deg(errors, np.zeros(4, bool)))
+
+
+def test_the_plain_sphere_fit_finds_a_phones_hard_iron():
+    errors = sim.SensorErrors.phone(np.random.default_rng(3), 50.0, noise_ut=0.0, soft_iron=np.eye(3))
+    errors = sim.SensorErrors(hard_iron_ut=errors.hard_iron_ut)
+    run = sim.simulate(sim.SimulatorConfig(count=2000, errors=errors))
+    np.testing.assert_allclose(run.mag_ut - field_runs.sphere_fit_field(run.mag_ut), run.mag_ut - run.true_field_ut)
+
+
+def test_a_short_run_through_the_cores_and_the_commands():
+    settings = field_runs.FieldSettings(seconds=30.0)
+    figures = field.score_run("robot", 5, settings)
+    assert figures["motion"] == "robot" and figures["group"] == "planar"
+    # a phone's hard iron (6-15 times the field) makes the raw field useless, a sphere fit mends it
+    assert figures["vqf_raw"] > 10.0 > 3.0 > figures["sphere_vqf"]
+    for key in ("fit_causal", "fit_offline", "vqf_6d", "vqf_6d_offline", "sphere_vqf_offline"):
+        assert np.isfinite(figures[key])
+    assert figures["first_record_s"] is None or 0.0 < figures["first_record_s"] <= 30.0
+    line = field.motion_line("robot", [figures])
+    assert line.startswith("robot") and len(line.split()) == 2 + len(field.COLUMNS)
+
+
+def test_verdicts_count_records_and_compare_disturbed_walks_with_the_gyroscope():
+    rows = [
+        {"motion": "a", "group": "walk", "seed": 1, "first_record_s": 30.0, "live_abs": 2.0, "live": 1.0},
+        {"motion": "a", "group": "walk", "seed": 2, "first_record_s": None, "live_abs": np.nan, "live": np.nan},
+        {"motion": "b", "group": "disturbed", "seed": 1, "live": 9.0, "vqf_6d": 8.0},
+    ]
+    walk, planar, disturbed = field.verdict_lines(rows)
+    assert "1/2 runs with a record within 60 s, 1/2 with live heading within 3 deg" in walk
+    assert planar.startswith("planar: 0/0")
+    assert "worse than 6D: b seed 1" in disturbed
+
+
+def test_seeds_option():
+    assert parse_seeds("1,2, 3") == (1, 2, 3)
+    for bad in ("", "a", "-1"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse_seeds(bad)

@@ -1,0 +1,51 @@
+"""The command table: options before the command, one module imported per command, help for every command."""
+
+import subprocess
+import sys
+
+import pytest
+
+from services.cli import COMMANDS, main
+
+
+def test_verbose_option_may_come_before_the_command(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["-v", "fit", "--help"])
+    assert stop.value.code == 0
+    assert "--method" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_every_command_has_help(command, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([command, "--help"])
+    assert stop.value.code == 0
+    assert f"magnet {command}" in capsys.readouterr().out
+
+
+@pytest.mark.integration  # a fresh interpreter (a process), so that nothing is imported already
+def test_offline_commands_do_not_load_zenoh():
+    code = (
+        "import sys\nfrom services.cli import main\n"
+        "try:\n    main(['fit', '--help'])\nexcept SystemExit:\n    pass\n"
+        "print('zenoh' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == "False"
+
+
+@pytest.mark.parametrize(
+    "argv, says",
+    [
+        (["fit", "--method", "bogus", "x.csv"], "argument --method: invalid choice: 'bogus'"),
+        (["fit"], "the following arguments are required: FILE.csv"),
+        (["bogus"], "argument COMMAND: invalid choice: 'bogus'"),
+    ],
+)
+def test_a_wrong_option_value_is_one_line_not_a_page_of_usage(argv, says, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and says in err and "usage:" not in err
+    assert "--help" in err  # where to read the usage

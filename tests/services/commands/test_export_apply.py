@@ -1,0 +1,112 @@
+"""``apply_params`` (``magnet export --apply``) against the pymavlink vehicle stand-in (tests/mav_vehicle.py): every
+parameter set and read back, old -> new reported; refused while the vehicle is armed, nothing changed."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import REPO_ROOT, free_ports
+
+from services.commands.export_apply import ApplyError, apply_params
+
+pytestmark = pytest.mark.integration
+
+sys.path.insert(0, str(REPO_ROOT / "tests"))
+from mav_vehicle import PARAMETERS  # noqa: E402
+
+WANTED = {
+    "COMPASS_OFS_X": -25.5,
+    "COMPASS_OFS_Y": 12.25,
+    "COMPASS_OFS_Z": -9.0,
+    "COMPASS_DIA_X": 0.93,
+    "COMPASS_DIA_Y": 1.05,
+    "COMPASS_DIA_Z": 1.0,
+    "COMPASS_ODI_X": -0.03,
+    "COMPASS_ODI_Y": 0.0,
+    "COMPASS_ODI_Z": -0.02,
+    "COMPASS_MOTCT": 2.0,
+    "COMPASS_MOT_X": -1.5,
+    "COMPASS_MOT_Y": 1.0,
+    "COMPASS_MOT_Z": -2.0,
+}
+
+
+def stand_in(tmp_path: Path, port: int, *args: str) -> subprocess.Popen[bytes]:
+    # -P: not tests/ first on its path, where tests/magnet/ would stand for the magnet package
+    command = [sys.executable, "-P", str(REPO_ROOT / "tests" / "mav_vehicle.py"), "--url", f"udpout:127.0.0.1:{port}"]
+    extra = ["--rate", "0", "--duration", "30", "--truth", str(tmp_path / "vehicle.npz"), *args]
+    return subprocess.Popen([*command, *extra], cwd=REPO_ROOT)
+
+
+def final_params(proc: subprocess.Popen[bytes], tmp_path: Path) -> dict[str, float]:
+    proc.terminate()
+    assert proc.wait(timeout=10) == 0
+    values = np.load(tmp_path / "vehicle.npz")["params"]
+    return dict(zip(PARAMETERS, values.tolist()))
+
+
+def test_apply_sets_and_reads_back_every_parameter(tmp_path: Path) -> None:
+    [port] = free_ports(1)
+    proc = stand_in(tmp_path, port)
+    try:
+        report = apply_params(f"udpin:127.0.0.1:{port}", WANTED)
+    finally:
+        held = final_params(proc, tmp_path)
+    assert report.sysid == 1 and [c.name for c in report.changes] == list(WANTED)
+    for change in report.changes:
+        assert change.old == PARAMETERS[change.name]
+        assert np.float32(change.read_back) == np.float32(WANTED[change.name])
+        assert np.float32(held[change.name]) == np.float32(WANTED[change.name])
+    assert "COMPASS_OFS_X: 0 -> -25.5" in report.lines() and "COMPASS_DIA_Z: 1 (unchanged)" in report.lines()
+    assert report.to_dict()["unchanged"] == ["COMPASS_DIA_Z", "COMPASS_ODI_Y"]
+
+
+def test_apply_is_refused_while_the_vehicle_is_armed_and_changes_nothing(tmp_path: Path) -> None:
+    [port] = free_ports(1)
+    proc = stand_in(tmp_path, port, "--armed")
+    try:
+        with pytest.raises(ApplyError, match="armed"):
+            apply_params(f"udpin:127.0.0.1:{port}", WANTED)
+    finally:
+        held = final_params(proc, tmp_path)
+    assert held == PARAMETERS
+
+
+def test_apply_names_what_is_wrong(tmp_path: Path) -> None:
+    [port] = free_ports(1)
+    with pytest.raises(ApplyError, match="no vehicle"):
+        apply_params(f"udpin:127.0.0.1:{port}", {"COMPASS_OFS_X": 1.0})
+    with pytest.raises(ApplyError, match=r"1\.\.16"):
+        apply_params(f"udpin:127.0.0.1:{port}", {"A_NAME_FAR_TOO_LONG_X": 1.0})
+    proc = stand_in(tmp_path, port)
+    try:
+        with pytest.raises(ApplyError, match="NO_SUCH_PARAM"):
+            apply_params(f"udpin:127.0.0.1:{port}", {"NO_SUCH_PARAM": 1.0})
+    finally:
+        final_params(proc, tmp_path)
+
+
+def test_export_apply_from_the_command_line(tmp_path: Path) -> None:
+    """``magnet export --calibration cal.json --format ardupilot --apply URL``: the vehicle ends up holding the
+    exported parameters, and the command says what changed."""
+    import json
+
+    from helpers import run_magnet
+
+    cal = {"method": "ellipsoid", "offset": [12.0, -3.5, 7.25], "matrix": [[1.02, 0.01, 0], [0.01, 0.97, 0], [0, 0, 1]]}
+    (tmp_path / "cal.json").write_text(json.dumps(cal))
+    [port] = free_ports(1)
+    proc = stand_in(tmp_path, port)
+    try:
+        args = ["export", "--calibration", str(tmp_path / "cal.json"), "--format", "ardupilot"]
+        result = run_magnet(*args, "--apply", f"udpin:127.0.0.1:{port}", timeout=30)
+    finally:
+        held = final_params(proc, tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "vehicle 1" in result.stdout and "COMPASS_OFS_X: 0 -> -120" in result.stdout
+    assert np.float32(held["COMPASS_OFS_X"]) == np.float32(-120.0)
+    assert np.float32(held["COMPASS_DIA_Y"]) != np.float32(1.0)
