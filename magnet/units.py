@@ -27,11 +27,13 @@ class FieldUnit(enum.Enum):
             raise ValueError(f"unknown field unit {name!r}: use one of {choices}") from None
 
 
+UT_PER_GAUSS = 100.0
+UT_PER_MGAUSS = 0.1
 #: microtesla per one unit; None where the scale is unknown (raw counts).
 UT_PER_UNIT: dict[FieldUnit, float | None] = {
     FieldUnit.UT: 1.0,
-    FieldUnit.GAUSS: 100.0,
-    FieldUnit.MGAUSS: 0.1,
+    FieldUnit.GAUSS: UT_PER_GAUSS,
+    FieldUnit.MGAUSS: UT_PER_MGAUSS,
     FieldUnit.NT: 0.001,
     FieldUnit.COUNTS: None,
 }

@@ -19,8 +19,6 @@ import numpy.typing as npt
 
 from magnet.attitude.heading import angle_difference_deg
 
-UT_PER_MGAUSS = 0.1
-UT_PER_GAUSS = 100.0
 #: ArduPilot applies COMPASS_SCALE only inside this range (outside it, no scaling at all)
 ARDUPILOT_SCALE_RANGE = (0.85, 1.4)
 

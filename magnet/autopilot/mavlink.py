@@ -23,18 +23,16 @@ from typing import Any
 import numpy as np
 
 from magnet.earth.location import Location
-from magnet.units import STANDARD_GRAVITY_MS2
+from magnet.units import STANDARD_GRAVITY_MS2, UT_PER_GAUSS, UT_PER_MGAUSS
 
-UT_PER_MILLIGAUSS = 0.1
-UT_PER_GAUSS = 100.0
 MS2_PER_MILLI_G = STANDARD_GRAVITY_MS2 / 1000.0
 ARMED_FLAG = 128  # MAV_MODE_FLAG_SAFETY_ARMED
 #: the IMU messages: name -> (instance, field scale uT, acc scale m/s^2, gyro scale rad/s, time field, ns per tick)
 IMU_MESSAGES: dict[str, tuple[int | None, float, float, float, str, int]] = {
-    "RAW_IMU": (0, UT_PER_MILLIGAUSS, MS2_PER_MILLI_G, 1e-3, "time_usec", 1_000),
-    "SCALED_IMU": (0, UT_PER_MILLIGAUSS, MS2_PER_MILLI_G, 1e-3, "time_boot_ms", 1_000_000),
-    "SCALED_IMU2": (1, UT_PER_MILLIGAUSS, MS2_PER_MILLI_G, 1e-3, "time_boot_ms", 1_000_000),
-    "SCALED_IMU3": (2, UT_PER_MILLIGAUSS, MS2_PER_MILLI_G, 1e-3, "time_boot_ms", 1_000_000),
+    "RAW_IMU": (0, UT_PER_MGAUSS, MS2_PER_MILLI_G, 1e-3, "time_usec", 1_000),
+    "SCALED_IMU": (0, UT_PER_MGAUSS, MS2_PER_MILLI_G, 1e-3, "time_boot_ms", 1_000_000),
+    "SCALED_IMU2": (1, UT_PER_MGAUSS, MS2_PER_MILLI_G, 1e-3, "time_boot_ms", 1_000_000),
+    "SCALED_IMU3": (2, UT_PER_MGAUSS, MS2_PER_MILLI_G, 1e-3, "time_boot_ms", 1_000_000),
     "HIGHRES_IMU": (None, UT_PER_GAUSS, 1.0, 1.0, "time_usec", 1_000),
 }
 #: HIGHRES_IMU ``fields_updated`` bits of the magnetometer's x, y, z

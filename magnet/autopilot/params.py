@@ -31,11 +31,10 @@ import enum
 
 import numpy as np
 
-from magnet.autopilot.conventions import UT_PER_GAUSS, UT_PER_MGAUSS
 from magnet.frames import nearest_rotation, rotation_angle_deg, rotation_matrix
 from magnet.model import Calibration
 from magnet.motor import CURRENT, THROTTLE
-from magnet.units import ut_per_unit
+from magnet.units import UT_PER_GAUSS, UT_PER_MGAUSS, ut_per_unit
 
 #: the largest rotation the symmetric matrix may leave out: 0.05 deg changes the field by under 0.09 %
 ROTATION_TOLERANCE_DEG = 0.05

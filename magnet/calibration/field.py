@@ -31,6 +31,7 @@ from magnet.earth.geomag import earth_field
 from magnet.model import IDENTITY, Calibration
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
+from magnet.quality.units_hint import earth_range_refusal
 
 #: fewest samples a field fit takes (its windows and blocks need some seconds of data)
 MIN_FIELD_SAMPLES = 200
@@ -260,6 +261,9 @@ def judge(
     small = _small_gain(quality)
     if accepted and small:
         accepted, reason = False, small
+    if inp.field_ut is None and calibration.output_unit == "ut" and to_ut is not None:
+        earth = earth_range_refusal(float(np.median(np.linalg.norm(corrected, axis=1))) / to_ut, to_ut)
+        accepted, reason = (False, earth if accepted else f"{earth}; {reason}") if earth else (accepted, reason)
     if to_ut is None and inp.field_ut is None:
         reason = f"{reason}; radius not checked (raw counts and no expected field)"
     return calibration.replace(quality=quality, accepted=accepted, reason=f"{reason}; {extra['why']}")

@@ -20,7 +20,7 @@ from magnet.calibration.turntable import fit_turntable
 from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
-from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT, unit_hint
+from magnet.quality.units_hint import earth_range_refusal, unit_hint
 
 #: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
 #: it did not see (blocks, not single samples: neighbours in time are nearly the same reading)
@@ -231,32 +231,16 @@ def fit(data: FitInput, method: Method | str) -> Calibration:
     if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.attitude.mag_delay)
         quality = quality.with_extra(mag_lag_s=shape.mag_lag_s)
     accepted, reason = _gate(quality, data.gate, method)
-    earth = _outside_the_earth(shape.radius, to_ut, field_ut, geometry)
-    advise = geometry is Geometry.SPHERE and (not accepted or earth is not None)
-    hint = unit_hint(shape.radius, to_ut, field_ut) if advise else None
+    sphere = geometry is Geometry.SPHERE
+    earth = earth_range_refusal(shape.radius, to_ut) if sphere and field_ut is None else None
+    hint = unit_hint(shape.radius, to_ut, field_ut) if sphere and not accepted and not earth else None
     if earth:
-        earth = hint or earth
-        accepted, reason, hint = False, earth if accepted else f"{earth}; {reason}", None
+        accepted, reason = False, earth if accepted else f"{earth}; {reason}"
     if hint:
         reason = f"{hint}; {reason}"
     if shape.note:
         reason = f"{reason}; {shape.note}"
     return calibration.replace(quality=quality, accepted=accepted, reason=reason)
-
-
-def _outside_the_earth(radius: float, to_ut: float | None, field_ut: float | None, geometry: Geometry) -> str | None:
-    """Why a sphere's radius (declared unit; ``to_ut`` uT per unit, None for counts) can be no Earth field when no
-    expected field is known (with one, the gate's radius check judges it): the total field at the surface lies in
-    EARTH_MIN_UT..EARTH_MAX_UT everywhere, so a radius outside it is a wrong unit (gauss read as uT: 0.5 "uT")."""
-    if field_ut is not None or to_ut is None or geometry is not Geometry.SPHERE or not np.isfinite(radius):
-        return None
-    radius_ut = radius * to_ut
-    if EARTH_MIN_UT <= radius_ut <= EARTH_MAX_UT:
-        return None
-    return (
-        f"fitted radius {radius_ut:.3g} uT is no Earth field ({EARTH_MIN_UT:g}-{EARTH_MAX_UT:g} uT anywhere at the "
-        "surface): the samples are in another unit than declared (--unit)"
-    )
 
 
 def _motion_evidence(acc: np.ndarray, gyr: np.ndarray | None, period_s: float | None, n: int) -> motion.MotionEvidence:

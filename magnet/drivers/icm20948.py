@@ -23,13 +23,13 @@ lies flat, top up, x forward.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
 from magnet.drivers.ak09918c import AK09918C, Mode
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, SensorError
-from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, choose, mounting, words
+from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, InertialOptions, NineAxis, choose, mounting, words
 from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x68
@@ -134,23 +134,11 @@ class ICM20948(NineAxis):
         orientation: Any = None,
         *,
         acc_address: int = DEFAULT_ADDRESS,
-        accel_range_g: int = 4,
-        gyro_range_dps: int = 2000,
-        rate_hz: int = 100,
         mag_rate_hz: int = 100,
         retry: RetryPolicy | None = None,
         sleep: Callable[[float], None] | None = None,
+        **inertial: Unpack[InertialOptions],
     ) -> None:
         mode = choose(mag_rate_hz, MAG_RATES_HZ, "magnetometer rate (Hz)", "AK09916")
-        inertial = ICM20948AccelGyro(
-            bus,
-            acc_address,
-            orientation,
-            accel_range_g=accel_range_g,
-            gyro_range_dps=gyro_range_dps,
-            rate_hz=rate_hz,
-            retry=retry,
-            sleep=sleep,
-        )
-        magnetometer = AK09916(bus, address, orientation, mode=mode, retry=retry, sleep=sleep)
-        super().__init__(magnetometer, inertial)
+        accel_gyro = ICM20948AccelGyro(bus, acc_address, orientation, retry=retry, sleep=sleep, **inertial)
+        super().__init__(AK09916(bus, address, orientation, mode=mode, retry=retry, sleep=sleep), accel_gyro)

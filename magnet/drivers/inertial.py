@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypedDict
 
 import numpy as np
 
@@ -112,6 +112,15 @@ class AccelGyro(Sensor):
         if saturated(accel) or saturated(gyro):
             return Reading(overflow=True)
         return Reading(acc_ms2=accel * self.acc_ms2_per_lsb, gyr_rads=gyro * self.gyr_rads_per_lsb)
+
+
+class InertialOptions(TypedDict, total=False):
+    """What a nine-axis package passes on to its accelerometer + gyroscope (``AccelGyro``'s options; each absent one
+    keeps the chip's default: 4 g, 2000 deg/s, ``DEFAULT_RATE_HZ``)."""
+
+    accel_range_g: int
+    gyro_range_dps: int
+    rate_hz: float
 
 
 class NineAxis(Combined):

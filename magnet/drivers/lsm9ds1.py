@@ -23,12 +23,21 @@ is (-x, -y, -z) of the magnetometer's codes.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, Sensor, SensorError
-from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, choose, mounting, saturated, words
+from magnet.drivers.inertial import (
+    Z_UP_TO_BODY,
+    AccelGyro,
+    InertialOptions,
+    NineAxis,
+    choose,
+    mounting,
+    saturated,
+    words,
+)
 from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x1E  # magnetometer
@@ -161,25 +170,14 @@ class LSM9DS1(NineAxis):
         orientation: Any = None,
         *,
         acc_address: int = DEFAULT_AG_ADDRESS,
-        accel_range_g: int = 4,
-        gyro_range_dps: int = 2000,
-        rate_hz: float = 119,
         range_gauss: int = 4,
         mag_rate_hz: float = 80,
         retry: RetryPolicy | None = None,
         sleep: Callable[[float], None] | None = None,
+        **inertial: Unpack[InertialOptions],
     ) -> None:
-        inertial = LSM9DS1AccelGyro(
-            bus,
-            acc_address,
-            orientation,
-            accel_range_g=accel_range_g,
-            gyro_range_dps=gyro_range_dps,
-            rate_hz=rate_hz,
-            retry=retry,
-            sleep=sleep,
-        )
+        accel_gyro = LSM9DS1AccelGyro(bus, acc_address, orientation, retry=retry, sleep=sleep, **inertial)
         magnetometer = LSM9DS1Magnetometer(
             bus, address, orientation, range_gauss=range_gauss, rate_hz=mag_rate_hz, retry=retry, sleep=sleep
         )
-        super().__init__(magnetometer, inertial)
+        super().__init__(magnetometer, accel_gyro)

@@ -67,3 +67,19 @@ def unit_hint(
         f"the fitted radius {radius_ut:.4g} uT is {ratio:.3g} x {against}: the data are probably not in the unit "
         f"given: try {' or '.join(options)}"
     )
+
+
+def earth_range_refusal(radius: float, declared_ut_per_unit: float | None) -> str | None:
+    """Why a fitted field strength ``radius`` (in the declared unit, ``declared_ut_per_unit`` uT per unit; None:
+    counts, not judged) can be no Earth field when no expected field is known: the total field at the surface lies in
+    EARTH_MIN_UT..EARTH_MAX_UT everywhere, so a radius outside it is a wrong unit (gauss read as uT: 0.5 "uT"). The
+    refusal names the unit to try where one explains the radius (``unit_hint``); None when the radius is plausible."""
+    if declared_ut_per_unit is None or not math.isfinite(radius) or radius <= 0:
+        return None
+    radius_ut = radius * declared_ut_per_unit
+    if EARTH_MIN_UT <= radius_ut <= EARTH_MAX_UT:
+        return None
+    return unit_hint(radius, declared_ut_per_unit, None) or (
+        f"fitted radius {radius_ut:.3g} uT is no Earth field ({EARTH_MIN_UT:g}-{EARTH_MAX_UT:g} uT anywhere at the "
+        "surface): the samples are in another unit than declared (--unit)"
+    )

@@ -45,6 +45,7 @@ from magnet.simulator.motors import Motors
 from magnet.simulator.run import (
     DEFAULT_DATE,
     DEFAULT_LAT_DEG,
+    DEFAULT_LOCATION,
     DEFAULT_LON_DEG,
     SensorStream,
     SimulatedRun,
@@ -70,6 +71,7 @@ from magnet.simulator.trajectories import (
 __all__ = [
     "DEFAULT_DATE",
     "DEFAULT_LAT_DEG",
+    "DEFAULT_LOCATION",
     "DEFAULT_LON_DEG",
     "GOLDEN_RATIO_MINOR",
     "MODELS",

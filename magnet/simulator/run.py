@@ -40,6 +40,8 @@ from magnet.simulator.trajectories import MIN_COUNT, PATH_TRAJECTORIES, STILL_TR
 
 DEFAULT_LAT_DEG = 50.45  # Kyiv, where seed 000's turntable field (Bh 18964 nT, Bv -46962 nT) is typical
 DEFAULT_LON_DEG = 30.52
+#: the same place as ``--location`` text (the default of every command that simulates a device)
+DEFAULT_LOCATION = f"{DEFAULT_LAT_DEG},{DEFAULT_LON_DEG}"
 DEFAULT_DATE = "2026-01-01"
 
 

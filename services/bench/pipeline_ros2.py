@@ -62,7 +62,7 @@ def compare_ros2(run: Callable[..., PipelineRun]) -> None:
 
 def _drain(devices: int = 50, samples: int = 10, rate_hz: float = 50.0) -> tuple[Any, Any, Any]:
     """A compass's drain: one batch of ``samples`` per device (simulated, with gyroscopes), computed; (columns,
-    headings, calibrations in force)."""
+    headings, the compass's core)."""
     import numpy as np
 
     from magnet import wire
@@ -78,7 +78,7 @@ def _drain(devices: int = 50, samples: int = 10, rate_hz: float = 50.0) -> tuple
     ]
     columns = wire.RawColumns.from_batches(batches)
     core = CompassCore()
-    return columns, core.step(columns, int(t_ns[-1])), core.calibrations.in_force
+    return columns, core.step(columns, int(t_ns[-1])), core
 
 
 def publish_cost(repeats: int = 20) -> tuple[float, float]:
@@ -92,7 +92,7 @@ def publish_cost(repeats: int = 20) -> tuple[float, float]:
     from services.common.zenoh_session import add_zenoh_arguments, build_config, free_ports, loopback_arguments
     from services.compass.ros2 import Ros2Compass, build_drain
 
-    columns, out, calibrations = _drain()
+    columns, out, core = _drain()
     messages = 2 * len(columns.t_ns) * repeats
     started = time.process_time()
     for _ in range(repeats):
@@ -104,10 +104,10 @@ def publish_cost(repeats: int = 20) -> tuple[float, float]:
     counter = _Counter()
     with zenoh.open(build_config(args)) as session, counter.attach(session):
         ros = Ros2Compass(session, Ros2Settings(True), "bench", 1000)
-        ros.publish(columns, out, calibrations)  # the publishers declared
+        ros.publish(columns, out, core)  # the publishers declared
         started = time.process_time()
         for _ in range(repeats):
-            ros.publish(columns, out, calibrations)
+            ros.publish(columns, out, core)
         total = time.process_time() - started
         ros.close()
     return 1e6 * build / messages, 1e6 * total / messages

@@ -27,6 +27,7 @@ from typing import Any
 import zenoh
 
 from magnet import wire
+from magnet.simulator import DEFAULT_LOCATION
 from services.bench.flood import rss_mb
 from services.bench.soak_plan import DropTotals, Fault, HeadingGaps, MemoryWatch, report, round_of, schedule
 from services.common.processes import stop_processes
@@ -35,7 +36,7 @@ from services.common.zenoh_session import ZenohSettings, free_ports, open_sessio
 log = logging.getLogger("magnet.bench.soak")
 
 PREFIX = wire.DEFAULT_PREFIX
-LOCATION = "50.45,30.52"
+LOCATION = DEFAULT_LOCATION
 SERVICES = ("router", "calibrator", "compass", "edge")
 DEVICES = 10
 RSS_CAP_MB = 1500.0

@@ -126,8 +126,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{source}: this calibration was not accepted ({calibration.reason}): export a good one")
     instance = args.instance
     if instance is None:
-        instance = compass_instance(device) or 0
-        if device is not None:
+        named = compass_instance(device)
+        instance = named or 0
+        if named is not None:
             print(f"magnet export: note: instance {instance}, from the device id {device}", file=sys.stderr)
     export = export_parameters(calibration, args.format, instance, args.rotation_in_force)
     text = render(export, f"{source} (method {calibration.method}, id {calibration.content_id})", args.vehicle_id)

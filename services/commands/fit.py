@@ -199,6 +199,13 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_REJECTED
     if args.out:
         write_atomically(Path(args.out), text)
+        print(f"magnet fit: {summary(calibration)}; written to {args.out}")
     else:
         sys.stdout.write(text)
     return 0
+
+
+def summary(calibration: Calibration) -> str:
+    """One line on an accepted record: method, offset in its unit and the gate's words."""
+    offset = ", ".join(f"{v:.2f}" for v in calibration.offset)
+    return f"{calibration.method}, offset ({offset}) {calibration.unit}, {calibration.reason}"

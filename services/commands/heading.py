@@ -35,7 +35,6 @@ from magnet.compass import CompassCore, CoreSettings, HeadingColumns
 from magnet.compass.filters import MAX_GAP_S
 from magnet.compass.tilt import Headings
 from magnet.earth.expected import Earth, earth_at
-from magnet.earth.location import Location
 from magnet.earth.places import Places
 from magnet.frames import to_magnetic_ned
 from magnet.model import Calibration
@@ -44,7 +43,7 @@ from services.commands.fit import gyro_columns, sample_period_s
 from services.common.csvio import SampleTable, write_csv
 from services.common.input_options import InputOptions
 from services.common.inputs import add_input_arguments, read_input_told, reference_yaw
-from services.common.place import add_field_arguments
+from services.common.place import add_field_arguments, date_needs_location, location_instead_of
 from services.common.records import load_calibration
 
 #: the device the file's samples are, for the compass's core
@@ -112,12 +111,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _earth(args: argparse.Namespace, calibration: Calibration | None) -> Earth:
     """What to expect: the WMM at --location on --date (default today), or --declination; the field strength is the
     calibration's own where the model gives none."""
-    if args.declination is not None and args.location:
-        raise ValueError("give either --declination or --location, not both")
-    if args.location:
-        return earth_at(Location.parse(args.location), args.date or datetime.date.today())
-    if args.date:
-        raise ValueError("--date needs --location")
+    location = location_instead_of(args, "--declination", args.declination)
+    if location is not None:
+        return earth_at(location, args.date or datetime.date.today())
+    date_needs_location(args)
     if args.declination is not None and not -180 <= args.declination <= 180:
         raise ValueError(f"--declination {args.declination} is outside -180..180 degrees")
     strength = (calibration.field_strength or None) if calibration is not None else None

@@ -216,6 +216,15 @@ def run_watch(args: argparse.Namespace) -> int:
             printed += 1
             if args.count is not None and printed >= args.count:
                 break
+    if printed == 0 and not stop.is_set():
+        # no heading in the time given is an error (nobody publishes); no alert is good news, said all the same
+        trouble = args.what == "heading"
+        print(
+            f"magnet watch: heard no {args.what} on {key}"
+            + (" (is a compass running and reachable?)" if trouble else " (none raised)"),
+            file=sys.stderr,
+        )
+        return 1 if trouble else 0
     return 0
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from magnet import wire
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.location import Location
+from magnet.simulator import DEFAULT_LOCATION
 from services.common.options import add_options, check_options, from_args, option
 from services.common.places_options import add_drift_arguments, drift_from_args
 from services.common.sim_options import SimulatorSettings
@@ -40,7 +41,7 @@ class UpSettings:
     batch: int = option(10, "--batch", help="samples per message")
     speedup: float = option(4.0, "--speedup", help="the emulated devices tumble this many times faster than real time")
     location: str = option(
-        "50.45,30.52", "--location", help="LAT,LON[,ALT_M] of the devices (default Kyiv)", show_default=False
+        DEFAULT_LOCATION, "--location", help="LAT,LON[,ALT_M] of the devices (default Kyiv)", show_default=False
     )
     db: Path | None = option(None, "--db", parse=Path, help="calibration database (default: a temporary directory)")
     duration_s: float | None = option(

@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet.autopilot.conventions import UT_PER_MGAUSS, ardupilot_raw_field, ardupilot_scale, ardupilot_soft_iron
+from magnet.autopilot.conventions import ardupilot_raw_field, ardupilot_scale, ardupilot_soft_iron
+from magnet.units import UT_PER_MGAUSS
 from services.common.csvio import SampleTable
 from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
 from services.common.input_options import InputOptions

@@ -15,28 +15,39 @@ def add_field_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--date", metavar="YYYY-MM-DD", help="date for the World Magnetic Model (default: today)")
 
 
+def location_instead_of(args: argparse.Namespace, flag: str, value: object) -> Location | None:
+    """--location parsed (None when not given); ValueError when ``flag`` (the option --location replaces:
+    --field-ut, --declination) was given too."""
+    if value is not None and args.location:
+        raise ValueError(f"give either {flag} or --location, not both")
+    return Location.parse(args.location) if args.location else None
+
+
+def date_needs_location(args: argparse.Namespace) -> None:
+    """ValueError when --date was given without --location (the date is the World Magnetic Model's)."""
+    if args.date:
+        raise ValueError("--date needs --location")
+
+
 def expected_field_ut(args: argparse.Namespace) -> float | None:
     """The field strength to scale to, in uT: --field-ut, or the WMM at --location, or None."""
-    if args.field_ut is not None and args.location:
-        raise ValueError("give either --field-ut or --location, not both")
+    location = location_instead_of(args, "--field-ut", args.field_ut)
     if args.field_ut is not None:
         if not (0 < args.field_ut < 1000):
             raise ValueError(f"--field-ut {args.field_ut} is not a plausible field strength in uT (Earth: 22-67)")
         return float(args.field_ut)
-    if args.location:
-        return earth_field(*Location.parse(args.location).as_tuple(), args.date).total_ut
-    if args.date:
-        raise ValueError("--date needs --location")
+    if location is not None:
+        return earth_field(*location.as_tuple(), args.date).total_ut
+    date_needs_location(args)
     return None
 
 
 def place(args: argparse.Namespace) -> tuple[float | None, float | None]:
     """(declination deg, expected field uT) from --declination or --location/--date, each None when not given."""
-    if getattr(args, "declination", None) is not None and args.location:
-        raise ValueError("give either --declination or --location, not both")
-    if args.location:
-        field = earth_field(*Location.parse(args.location).as_tuple(), args.date)
+    declination = getattr(args, "declination", None)
+    location = location_instead_of(args, "--declination", declination)
+    if location is not None:
+        field = earth_field(*location.as_tuple(), args.date)
         return field.declination_deg, field.total_ut
-    if args.date:
-        raise ValueError("--date needs --location")
-    return getattr(args, "declination", None), None
+    date_needs_location(args)
+    return declination, None

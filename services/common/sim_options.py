@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from magnet.earth.location import Location
-from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig, Trajectory
+from magnet.simulator import DEFAULT_LOCATION, SensorErrors, SensorStream, SimulatorConfig, Trajectory
 from services.common.options import Check, add_options, check_options, from_args, option
 
 
@@ -50,7 +50,6 @@ def parse_trajectory(text: str) -> Trajectory:
 
 
 #: the simulator's place when no --location is given (Kyiv)
-DEFAULT_LOCATION = "50.45,30.52"
 DEFAULT_PLACE = Location.parse(DEFAULT_LOCATION)
 GROUP = "simulator (with --emulate)"
 

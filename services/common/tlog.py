@@ -21,19 +21,16 @@ from typing import Any
 
 import numpy as np
 
-from magnet.autopilot.conventions import UT_PER_GAUSS, UT_PER_MGAUSS
-from magnet.units import STANDARD_GRAVITY_MS2
+from magnet.autopilot.mavlink import IMU_MESSAGES
 from services.common.csvio import SampleTable
 from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
 from services.common.input_options import InputOptions
 
 IMU_TYPES = {0: ("SCALED_IMU", "RAW_IMU", "HIGHRES_IMU"), 1: ("SCALED_IMU2",), 2: ("SCALED_IMU3",)}
 TYPES = ["SCALED_IMU", "RAW_IMU", "HIGHRES_IMU", "SCALED_IMU2", "SCALED_IMU3", "SYS_STATUS", "VFR_HUD", "ATTITUDE"]
-#: (field unit in uT, accelerometer unit in m/s^2, gyroscope unit in rad/s) per message
-SCALES = {
-    "HIGHRES_IMU": (UT_PER_GAUSS, 1.0, 1.0),
-    "SCALED_IMU": (UT_PER_MGAUSS, STANDARD_GRAVITY_MS2 / 1000.0, 1e-3),
-}
+#: (field unit in uT, accelerometer unit in m/s^2, gyroscope unit in rad/s) per message: MAVLink's own units, as
+#: the live MAVLink source reads them (``magnet.autopilot.mavlink.IMU_MESSAGES``)
+SCALES = {name: IMU_MESSAGES[name][1:4] for name in ("HIGHRES_IMU", "SCALED_IMU")}
 
 
 def _messages(path: Path, types: list[str]) -> dict[str, list[Any]]:

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet.autopilot.conventions import UT_PER_GAUSS
 from magnet.frames import euler_to_matrix, quaternion_to_euler, rotation_matrix
+from magnet.units import UT_PER_GAUSS
 from services.common.csvio import SampleTable
 from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
 from services.common.input_options import InputOptions

@@ -20,11 +20,12 @@ import zenoh
 from magnet import wire
 from magnet.attitude.heading import HeadingFlag
 from magnet.bounded import Recent
-from magnet.compass import HeadingColumns
+from magnet.compass import CompassCore, HeadingColumns
 from magnet.drift import Alert
 from magnet.ros2 import compass as ros_compass
 from magnet.ros2 import messages, names
 from services.common.ros2_options import Ros2Settings
+from services.compass.settings import CompassSettings
 
 log = logging.getLogger("magnet.compass.ros2")
 
@@ -79,9 +80,9 @@ def build_drain(
 
 
 class Ros2Compass:
-    """The ROS 2 side of one compass: a node ``<name>`` in ``--ros-namespace``, its publishers made per device as
-    devices appear (at most ``max_devices``: the least recently seen device leaves the graph), the diagnostics every
-    second. A context manager: leaving it undeclares everything."""
+    """The ROS 2 sink of one compass (``services.compass.sinks.Sink``): a node ``<name>`` in ``--ros-namespace``,
+    its publishers made per device as devices appear (at most ``max_devices``: the least recently seen device leaves
+    the graph), the diagnostics every second. A context manager: leaving it undeclares everything."""
 
     def __init__(self, session: zenoh.Session, settings: Ros2Settings, name: str, max_devices: int) -> None:
         self.session, self.domain, self.namespace = session, settings.domain, settings.namespace
@@ -112,14 +113,17 @@ class Ros2Compass:
             self.devices.touch(device)
         return topics
 
-    def publish(
-        self,
-        columns: wire.RawColumns,
-        out: HeadingColumns,
-        calibrations: Mapping[str, wire.DeviceCalibration],
-    ) -> None:
+    @classmethod
+    def open(cls, session: zenoh.Session, settings: CompassSettings) -> Ros2Compass | None:
+        """The compass's ROS 2 sink (``services.compass.sinks``), None without ``--ros2``."""
+        if not settings.ros2.enabled:
+            return None
+        return cls(session, settings.ros2, settings.name, settings.max_devices)
+
+    def publish(self, columns: wire.RawColumns, out: HeadingColumns, core: CompassCore) -> None:
         """Put a MagneticField and an Imu per sample of ``columns`` (``out``: the compass's ``HeadingColumns`` of
-        them; ``calibrations``: the calibrations in force, for the field's covariance)."""
+        them; the core's calibrations in force give the field's covariance)."""
+        calibrations = core.calibrations.in_force
         h = out.headings
         cals = [calibrations.get(device) for device in columns.devices]
         variances = [
@@ -138,12 +142,16 @@ class Ros2Compass:
             flags = np.asarray(h.flags[bounds[i] : bounds[i + 1]], dtype=np.int64)
             self.disturbed[device] = float(np.mean((flags & _DISTURBED) != 0)) if len(flags) else 0.0
 
-    def tick(self, calibrations: Mapping[str, wire.DeviceCalibration], open_alerts: list[Alert]) -> None:
+    def tick(self, core: CompassCore) -> None:
         """Publish the diagnostics when their period has passed."""
         now = time.monotonic()
         if now < self.next_diagnostics or not len(self.disturbed):
             return
         self.next_diagnostics = now + DIAGNOSTICS_PERIOD_S
+        self.diagnose(core.calibrations.in_force, core.watch.open_alerts())
+
+    def diagnose(self, calibrations: Mapping[str, wire.DeviceCalibration], open_alerts: list[Alert]) -> None:
+        """Put one DiagnosticArray: per device seen, its calibration in force, open alerts and disturbed share."""
         alerts: dict[str, list[str]] = {}
         for alert in open_alerts:
             alerts.setdefault(alert.device, []).append(alert.kind.value)

@@ -1,6 +1,6 @@
 """``magnet compass``: apply each device's calibration to its raw batches, tilt-compensate with the accelerometer (or
 fuse with the gyroscope), add the WMM declination, and publish one heading message per raw batch on
-``<prefix>/<device>/heading``.
+``<prefix>/<device>/heading`` (and to every other sink turned on: ``services.compass.sinks``).
 
 On start it queries every stored calibration (``<prefix>/*/calibration``) and then follows new ones (subscriber);
 a device with none is asked for again now and then, and meanwhile gets headings from its raw field (flag
@@ -25,7 +25,6 @@ from typing import Any
 import zenoh
 
 from magnet import wire
-from magnet.bounded import Recent
 from magnet.compass import CompassCore
 from magnet.earth.expected import earth_at
 from magnet.earth.places import Places
@@ -34,8 +33,8 @@ from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.compass.intake import PayloadIntake
-from services.compass.ros2 import Ros2Compass
 from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
+from services.compass.sinks import open_sinks
 
 __all__ = ["CompassSettings", "add_arguments", "build_core", "run", "run_compass"]
 
@@ -142,8 +141,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             declination,
         )
         loop = _Loop(session, core, settings)
-        if settings.ros2.enabled:
-            loop.ros2 = declared.enter_context(Ros2Compass(session, settings.ros2, name, settings.max_devices))
+        declared.callback(loop.close)
         metrics.start(metrics_address, "compass", lambda: _metrics_status(core, name))
         gc.collect()
         gc.freeze()  # what exists now (modules, settings, places) lives as long as the process: never scanned again
@@ -168,11 +166,10 @@ class _Loop:
     def __init__(self, session: zenoh.Session, core: CompassCore, settings: CompassSettings) -> None:
         self.session, self.core = session, core
         self.prefix, self.devices = settings.zenoh.prefix, settings.devices
-        self.heading_keys: Recent[str, str] = Recent(settings.max_devices)
+        self.sinks = open_sinks(session, settings)
         self.asked = self.asked_refused = time.monotonic()
         self.pending: list[tuple[float, Replies]] = [(self.asked + 3.0, self._ask(3.0))]
         self.drain_limit = MAX_DRAIN
-        self.ros2: Ros2Compass | None = None
         self.guard = Guard("compass", log, core.drops)
 
     def step(self, ends: _Ends, name: str) -> bool:
@@ -226,22 +223,22 @@ class _Loop:
             self._accept(sample)
         self._ask_refused()
 
+    def close(self) -> None:
+        """Close every sink (the last opened first)."""
+        for sink in reversed(self.sinks):
+            sink.close()
+
     def headings_of(self, samples: list[tuple[str, bytes]]) -> None:
-        """Compute and publish the headings of these raw (key, payload) pairs (a drain): decode -> step -> encode ->
-        put."""
+        """Compute and publish the headings of these raw (key, payload) pairs (a drain): decode -> step -> each
+        sink's publish and tick (``services.compass.sinks``)."""
         if not self.core.keys.shard.everything:  # another shard's devices: dropped by key, before any decoding
             samples = [item for item in samples if self.core.keys.mine(item[0], self.prefix)]
         columns = self.core.decode(samples, self.prefix)
         out = self.core.step(columns, time.time_ns())
-        for device, payload in zip(columns.devices, self.core.encode(columns, out)):
-            key = self.heading_keys.get(device) or self.heading_keys.setdefault(
-                device, wire.key(self.prefix, device, wire.Kind.HEADING)
-            )
-            self.session.put(key, payload)  # measured: a declared publisher per device costs ~5x the CPU
-            self.core.counters.published_batches += 1
-        if self.ros2 is not None:
-            self.ros2.publish(columns, out, self.core.calibrations.in_force)
-            self.ros2.tick(self.core.calibrations.in_force, self.core.watch.open_alerts())
+        for sink in self.sinks:
+            sink.publish(columns, out, self.core)
+        for sink in self.sinks:
+            sink.tick(self.core)
         if len(columns.t_ns):
             metrics.observe_latency((time.time_ns() - int(columns.t_ns.max())) / 1e9)
         self._ask_missing(columns.devices)

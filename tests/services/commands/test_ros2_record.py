@@ -80,3 +80,11 @@ def test_a_recording_that_hears_nothing_is_an_error_and_leaves_no_bag(tmp_path):
     assert done.returncode == 1, done.stderr
     assert "heard nothing" in done.stderr and "no bag written" in done.stderr
     assert not out.exists() and not (tmp_path / "silence.mcap.bag").exists()
+
+
+def test_watching_headings_that_never_come_says_so_and_exits_1():
+    (port,) = free_ports(1)
+    done = run_magnet("watch", "heading", "--duration", "1", *NO_SCOUT, *listen_args(port))
+    assert done.returncode == 1 and "heard no heading on magnet/*/heading" in done.stderr and done.stdout == ""
+    quiet = run_magnet("watch", "alert", "--duration", "1", *NO_SCOUT, *listen_args(port))
+    assert quiet.returncode == 0 and "heard no alert" in quiet.stderr  # no alert is good news, said all the same

@@ -104,10 +104,19 @@ def test_get_fleet_and_watch_heading_beside_magnet_up_need_no_options(tmp_path):
         assert json.loads(as_json.strip().splitlines()[0])["count"] >= 2, as_json  # --json: JSON even on a terminal
         elsewhere = magnet({**env, "XDG_RUNTIME_DIR": str(tmp_path / "nowhere")}, "get", "fleet", *line)
         assert elsewhere.returncode == 0 and json.loads(elsewhere.stdout.splitlines()[0])["devices"]
-        bag = tmp_path / "up.mcap"  # magnet record finds the pipeline too, and hears its devices
-        recorded = magnet(env, "record", "--out", str(bag), "--seconds", "3")
+        exported = wait_for(  # export --device finds the pipeline's calibrator (once dev-000 is calibrated)
+            lambda: (lambda done: done if done.returncode == 0 else None)(
+                magnet(env, "export", "--device", "dev-000", "--format", "px4")
+            ),
+            60,
+            "magnet export --device dev-000 with no options",
+        )
+        assert "CAL_MAG0_XOFF" in exported.stdout and "from the device id dev-000" not in exported.stderr
+        bag = tmp_path / "up.mcap"  # magnet record finds the pipeline too, hears its devices, and writes the
+        recorded = magnet(env, "record", "--out", str(bag), "--seconds", "3")  # calibrations in force at its start
         assert recorded.returncode == 0 and bag.exists(), recorded.stderr
-        assert json.loads(recorded.stdout.splitlines()[-1])["written"]["sensor_msgs/msg/MagneticField"] > 0
+        written = json.loads(recorded.stdout.splitlines()[-1])["written"]
+        assert written["sensor_msgs/msg/MagneticField"] > 0 and written["std_msgs/msg/String"] >= 1, written
     finally:
         up.send_signal(signal.SIGTERM)
         up.wait(timeout=30)
