@@ -246,6 +246,13 @@ class DeviceFilters:
         """Filters forgotten for the ``max_devices`` bound."""
         return self.devices.evicted
 
+    def recalibrated(self, device: str) -> None:
+        """A new calibration for the device: its filter forgets the magnetic side only
+        (``fusion.Fusion.restart_magnetometer``); a device without a filter yet starts one on its next batch."""
+        state = self.devices.get(device)
+        if state is not None and state.filter is not None:
+            state.filter.restart_magnetometer()
+
     def forget(self, device: str) -> None:
         """Start the device's filter again on its next batch."""
         self.devices.pop(device, None)
