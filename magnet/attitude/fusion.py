@@ -182,7 +182,8 @@ class Fusion:
         for key in _MAGNETIC_STATE:
             state[key] = fresh[key]
         self._filter.state = state
-        self.watch.reset()
+        if self.watch is not None:
+            self.watch.reset()
 
     def update(
         self,

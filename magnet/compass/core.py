@@ -229,7 +229,7 @@ class CompassCore:
             # jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust (the tilt
             # and the gyroscope's bias are kept); unless the field hardly moves (an in-service refresh)
             if previous is None or not small_change(previous.calibration, record.calibration):
-                self.filters.recalibrated(record.device)
+                self.filters.forget(record.device, magnetic_only=True)
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
 

@@ -246,16 +246,12 @@ class DeviceFilters:
         """Filters forgotten for the ``max_devices`` bound."""
         return self.devices.evicted
 
-    def recalibrated(self, device: str) -> None:
-        """A new calibration for the device: its filter forgets the magnetic side only
-        (``fusion.Fusion.restart_magnetometer``); a device without a filter yet starts one on its next batch."""
-        state = self.devices.get(device)
-        if state is not None and state.filter is not None:
+    def forget(self, device: str, magnetic_only: bool = False) -> None:
+        """Start the device's filter again on its next batch; ``magnetic_only``: its magnetic side only, now (a new
+        calibration: ``Fusion.restart_magnetometer``)."""
+        state = self.devices.get(device) if magnetic_only else self.devices.pop(device, None)
+        if magnetic_only and state is not None and state.filter is not None:
             state.filter.restart_magnetometer()
-
-    def forget(self, device: str) -> None:
-        """Start the device's filter again on its next batch."""
-        self.devices.pop(device, None)
 
     def _device(self, name: str) -> DeviceFilter:
         state = self.devices.get(name)
