@@ -12,6 +12,10 @@ Faults and poses a vehicle shows (issue 27): ``--zero-gyro N`` sends compass N's
 the tumble (ArduPilot's SCALED_IMU2 when a second compass has no second IMU beside it); ``--hold-after S
 --hold-yaw D`` ends the tumble after S seconds: the vehicle settles over ``SETTLE_S`` to level at true heading D
 (its gyroscope reading the rates that carry it there) and stays, GLOBAL_POSITION_INT's velocity zero throughout.
+``--quad``: instead of the tumble, a quadcopter's flight (the simulator's multirotor, its motors' throttle and current)
+with three compasses (``QUAD``): the first as it should be, the second mounted turned 90 deg in yaw, the third beside
+the power wires (SCALED_IMU3); SYS_STATUS (current), SERVO_OUTPUT_RAW (throttle) and GLOBAL_POSITION_INT (velocity)
+at 10 Hz.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from magnet.frames import (
 )
 from magnet.simulator import SensorErrors, SensorStream, SimulatorConfig
 from magnet.simulator.motion import G_NED
+from magnet.simulator.motors import Motors
 
 SOFT_0 = ((1.08, 0.03, 0.0), (0.03, 0.95, 0.02), (0.0, 0.02, 1.0))
 SOFT_1 = ((0.96, -0.02, 0.01), (-0.02, 1.05, 0.0), (0.01, 0.0, 1.1))
@@ -57,6 +62,12 @@ PARAMETERS = {
     "COMPASS_MOT_X": 0.0,
     "COMPASS_MOT_Y": 0.0,
     "COMPASS_MOT_Z": 0.0,
+}
+#: the quadcopter's compasses (``--quad``): instance -> (errors, the motors' field at it, uT per A)
+QUAD = {
+    0: (SensorErrors(), (0.0, 0.0, 0.0)),
+    1: (SensorErrors(misalignment_deg=(0.0, 0.0, 90.0)), (0.0, 0.0, 0.0)),  # mounted turned: COMPASS_ORIENT2 = 2
+    2: (SensorErrors(), (0.3, -0.2, 0.25)),  # beside the power wires: 18 uT at the 40 A of full throttle
 }
 REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
 SETTLE_S = 2.0  # from the tumble's last attitude to level at --hold-yaw
@@ -119,6 +130,13 @@ class Vehicle:
             i: SensorStream(SimulatorConfig(trajectory="tumble", rate_hz=rate, count=count, errors=_noise(e), seed=i))
             for i, e in COMPASSES.items()
         }
+        if args.quad:  # one flight (one seed) seen by three compasses
+            self.streams = {
+                i: SensorStream(
+                    SimulatorConfig("multirotor", rate_hz=rate, errors=_noise(e), seed=7, motors=Motors(ut_per_a=m))
+                )
+                for i, (e, m) in QUAD.items()
+            }
         self.params = dict(PARAMETERS)
         self.truth: list[tuple[int, int, int, int, float, float]] = []
         self.boot = time.monotonic()
@@ -140,8 +158,10 @@ class Vehicle:
                 g = np.zeros(3, dtype=int)
             if instance == 0:
                 mav.raw_imu_send(boot_ms * 1000, *a, *g, *m)
-            else:
+            elif instance == 1:
                 mav.scaled_imu2_send(boot_ms, *a, *g, *m)
+            else:
+                mav.scaled_imu3_send(boot_ms, *a, *g, *m)
             truth = stream.last_truth
             self.truth.append((instance, *m.tolist(), truth["heading_deg"], truth["pitch_deg"]))
         if k % max(1, int(self.args.rate / 10)) == 0:
@@ -150,11 +170,14 @@ class Vehicle:
             mav.attitude_send(boot_ms, roll, pitch, yaw, 0, 0, 0)
 
     def send_slow(self, tick: int) -> None:
-        """Every 100 ms: position at 5 Hz, status at 2 Hz, heartbeat at 1 Hz."""
+        """Every 100 ms: position at 5 Hz, status at 2 Hz, heartbeat at 1 Hz (a quadcopter's flight: position,
+        current and throttle at 10 Hz)."""
         mav = self.conn.mav
-        if tick % 2 == 0:
+        if self.args.quad:
+            self.send_flight()
+        if tick % 2 == 0 and not self.args.quad:
             mav.global_position_int_send(self.boot_ms(), 504500000, 305200000, 180000, 0, 0, 0, 0, 0)
-        if tick % 5 == 0:
+        if tick % 5 == 0 and not self.args.quad:
             mav.sys_status_send(0, 0, 0, 500, 16000, 1200, 80, 0, 0, 0, 0, 0, 0)
         if tick % 10 == 0:
             armed = mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.args.armed else 0
@@ -165,6 +188,16 @@ class Vehicle:
                 0,
                 mavutil.mavlink.MAV_STATE_ACTIVE if self.args.armed else mavutil.mavlink.MAV_STATE_STANDBY,
             )
+
+    def send_flight(self) -> None:
+        truth, mav = self.streams[0].last_truth, self.conn.mav
+        if "current_a" not in truth:
+            return
+        vel = [0 if v is None or not math.isfinite(v) else round(v * 100) for v in truth["vel_ned_ms"] or ()]
+        mav.global_position_int_send(self.boot_ms(), 504500000, 305200000, 180000, 0, *(vel or [0, 0, 0]), 0)
+        mav.sys_status_send(0, 0, 0, 500, 16000, round(truth["current_a"] * 100), 80, 0, 0, 0, 0, 0, 0)
+        pwm = round(1000 + 1000 * truth["throttle"])
+        mav.servo_output_raw_send(self.boot_ms() * 1000, 0, pwm, pwm, pwm, pwm, 0, 0, 0, 0)
 
     def send_param(self, name: str) -> None:
         names = list(self.params)
@@ -216,6 +249,7 @@ def main() -> None:
     parser.add_argument("--zero-gyro", type=int, help="this compass's gyroscope fields sent as zero in the tumble")
     parser.add_argument("--hold-after", type=float, help="seconds of tumble before settling and holding still")
     parser.add_argument("--hold-yaw", type=float, default=70.0, help="the true heading held (deg)")
+    parser.add_argument("--quad", action="store_true", help="a quadcopter's flight with three compasses (QUAD)")
     Vehicle(parser.parse_args()).run()
 
 

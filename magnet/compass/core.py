@@ -6,7 +6,9 @@ each batch's calibration in force corrects the field, offset, matrix, motors and
 tilt-compensated heading (``tilt``); the batches that carry a gyroscope go through their device's filter
 (``filters``); the field and dip are checked against what the World Magnetic Model expects at the device's place
 (``places``, ``earth``; the day from ``now_ns`` unless the places have a fixed date); the heading is smoothed per
-device (``--window``) and turned to true north by the declination; the drift monitor sees the field (``watch``).
+device (``--window``) and turned to true north by the declination; the drift monitor sees the field (``watch``);
+the compasses of a vehicle (``<vehicle>-mag<N>``) are kept for their comparison (``magnet.vehicle``,
+``vehicle_report``).
 Its parts are small objects the core holds, none inheriting another's state. ``decode`` and ``encode`` are the
 wire's edges (bytes in and out, counted drops); the live service, ``magnet heading`` and the tests all call
 ``step``. Pure: no zenoh, no clock (``now_ns`` is given).
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -33,6 +36,7 @@ from magnet.earth.expected import utc_date
 from magnet.earth.places import EarthColumns, Places
 from magnet.frames import rotate_heading, to_magnetic_ned
 from magnet.shard import EVERY_DEVICE, Shard
+from magnet.vehicle import VehicleReport, VehicleWindows, judge
 
 log = logging.getLogger("magnet.compass")
 
@@ -128,6 +132,16 @@ class Counters:
     published_batches: int = 0
 
 
+def _correction(cals: list[wire.DeviceCalibration | None]) -> Callable[[int], tuple[np.ndarray, np.ndarray] | None]:
+    """Batch index -> its calibration's (offset, matrix), or None (asked only for the batches of vehicles)."""
+
+    def of(b: int) -> tuple[np.ndarray, np.ndarray] | None:
+        cal = cals[b]
+        return None if cal is None else (np.asarray(cal.calibration.offset), np.asarray(cal.calibration.matrix))
+
+    return of
+
+
 class CompassCore:
     """The compass's state and its step (see the module). ``places``: where each device is (None: nowhere known);
     ``trusted``: the keys calibrations must be signed by (None: any)."""
@@ -144,6 +158,7 @@ class CompassCore:
         self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
         self.filters = DeviceFilters(max_devices=limit)
         self.smoothing = Smoothing(settings.window, limit)
+        self.vehicles = VehicleWindows(limit)
         self.keys = DeviceKeys(settings.shard, max_keys=KEYS_PER_DEVICE * limit)
         self.drops = wire.DropCounter()
         self.counters = Counters()
@@ -227,6 +242,7 @@ class CompassCore:
         flags = hd.disturbance_flags(out.field_ut, gravity, where.total_ut, where.inclination_deg, dip_deg=dip)
         out, quat = merge(dataclasses.replace(out, flags=out.flags | flags), fused)
         self.watch.observe(raw.devices, raw.bounds, raw.t_ns, hd.row_norm(out.field_ut), dip)
+        self.vehicles.observe(raw.devices, raw.bounds, raw.t_ns, raw.mag_ut, raw.current, raw.thr, _correction(cals))
         self._log_evictions()
         self.counters.received_batches += len(raw.devices)
         self.counters.received_samples += int(raw.counts.sum())
@@ -256,6 +272,15 @@ class CompassCore:
                 log.warning("dropping gyroscope samples (%s); further ones only counted", cause)
             self.drops.counts[f"raw:{cause}"] += count - 1
         return fused
+
+    def vehicle_report(self, vehicle: str) -> VehicleReport | None:
+        """The compasses of ``vehicle`` judged against each other (``magnet.vehicle.judge``), with the field the WMM
+        expects at the place of its first compass; None for a vehicle not seen."""
+        series = self.vehicles.series(vehicle)
+        if not series:
+            return None
+        earth = self.watch.places.earth(next(iter(series)), self.watch.date)
+        return judge(vehicle, series, earth.total_ut)
 
     # ------------------------------------------------------------------------------------------------ counters
     def evicted_count(self) -> int:

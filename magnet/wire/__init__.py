@@ -66,6 +66,7 @@ from magnet.wire.keys import (
     status_key,
     validate_device_id,
     validate_prefix,
+    vehicle_key,
 )
 from magnet.wire.raw import (
     MAX_ACC_MS2,
@@ -158,4 +159,5 @@ __all__ = [
     "unpack",
     "validate_device_id",
     "validate_prefix",
+    "vehicle_key",
 ]

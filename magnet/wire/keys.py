@@ -103,6 +103,11 @@ def status_key(prefix: str, service: str) -> str:
     return f"{prefix}/@status/{service}"
 
 
+def vehicle_key(prefix: str, vehicle: str) -> str:
+    """Queryable key of a vehicle's compasses compared (the compass answers): ``<prefix>/@vehicle/<vehicle>``."""
+    return f"{prefix}/@vehicle/{vehicle}"
+
+
 def liveliness_key(prefix: str, role: str, name: str) -> str:
     """Liveliness token key: ``<prefix>/@alive/<role>/<name>`` (role: edge, device, calibrator, compass, router)."""
     return f"{prefix}/@alive/{role}/{name}"

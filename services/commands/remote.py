@@ -29,6 +29,7 @@ from services.commands.remote_view import (
     print_json,
     show,
     status_table,
+    vehicle_table,
     wants_json,
     watch_line,
 )
@@ -89,11 +90,15 @@ def ask(args: argparse.Namespace, selector: str, errors: list[str] | None = None
 def add_get_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "what",
-        choices=["calibration", "status", "fleet"],
-        help="a device's calibration, a service's status counters, or every device in one reply",
+        choices=["calibration", "status", "fleet", "vehicle"],
+        help="a device's calibration, a service's status counters, every device in one reply, or a vehicle's "
+        "compasses compared (which one disagrees, why, the parameter that fixes it: docs/vehicles.md)",
     )
     parser.add_argument(
-        "device", nargs="?", help="device id (or '*'); for status: the service name (calibrator, compass, '*')"
+        "device",
+        nargs="?",
+        help="device id (or '*'); for status: the service name (calibrator, compass, '*'); for vehicle: the vehicle "
+        "(MAVLink: mav<SYSID>, or '*')",
     )
     parser.add_argument("--history", action="store_true", help="earlier calibrations too, newest first")
     parser.add_argument("--limit", type=int, default=20, help="with --history: at most this many (default 20)")
@@ -152,6 +157,8 @@ def run_get(args: argparse.Namespace) -> int:
         raise ValueError(f"magnet get {args.what} needs a device id (or '*')")
     if args.device != "*":
         wire.validate_device_id(args.device)
+    if args.what == "vehicle":
+        return _get_vehicle(args)
     if args.what == "status":
         replies = ask(args, wire.status_key(args.prefix, args.device))
         for reply in replies:
@@ -179,6 +186,19 @@ def run_get(args: argparse.Namespace) -> int:
     for reply in replies:
         show(args, reply, calibration_table)
     return 0
+
+
+def _get_vehicle(args: argparse.Namespace) -> int:
+    replies = ask(args, wire.vehicle_key(args.prefix, args.device))
+    for reply in replies:
+        show(args, reply, vehicle_table)
+    if not replies:
+        print(
+            f"magnet get: no compass knows vehicle {args.device!r} (its compasses are named <vehicle>-mag<N>, as "
+            "magnet edge --mavlink names them; is a compass running, reachable and fed by the vehicle?)",
+            file=sys.stderr,
+        )
+    return 0 if replies else 1
 
 
 # --------------------------------------------------------------------------------------------------------- watch

@@ -223,3 +223,27 @@ def watch_line(message: Mapping[str, Any]) -> RenderableType:
             f"{message.get('samples', '')} samples  {'; '.join(message.get('missing') or ())}"
         )
     return Text(f"{key}  {json.dumps({k: v for k, v in message.items() if k != 'key'}, sort_keys=True)[:200]}")
+
+
+def vehicle_table(answer: Mapping[str, Any]) -> RenderableType:
+    """``magnet get vehicle``: one row per compass (verdict, angle to the reference, rotation, interference,
+    residual, the parameters to set) and the summary under it."""
+    table = Table(title=f"vehicle {answer.get('vehicle')}", title_justify="left")
+    for name in ("compass", "verdict", "angle", "rotation", "interference", "residual", "set"):
+        table.add_column(name)
+    for c in answer.get("compasses") or []:
+        named = c.get("named_rotation")
+        params = c.get("parameters") or {}
+        table.add_row(
+            str(c.get("device")),
+            Text(str(c.get("verdict")), style=_VERDICT_STYLES.get(str(c.get("verdict")), "")),
+            num(c.get("angle_deg"), 1, "deg"),
+            f"{num(c.get('rotation_deg'), 0, 'deg')}" + (f" (named {named})" if named is not None else ""),
+            num(c.get("interference_pct"), 0, "%"),
+            num(c.get("residual_ut"), 1, "uT"),
+            ", ".join(f"{k}={v:g}" for k, v in params.items()) or "\u2013",
+        )
+    return Group(table, Text(str(answer.get("summary", ""))))
+
+
+_VERDICT_STYLES = {"agrees": "green", "reference": "green", "rotation": "red", "interference": "red"}

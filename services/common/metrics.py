@@ -16,6 +16,11 @@ path), plus one latency histogram fed where the time is measured:
 | ``magnet_latency_seconds`` | histogram | service | compass: sample to heading put; dashboard: sample to arrival |
 | ``magnet_read_errors_total`` | counter | service | sensor read errors (edge) |
 | ``magnet_healthy`` | gauge | service | 1 when the sensor reads (edge) |
+| ``magnet_vehicle_verdict`` | gauge | service, vehicle, device, verdict | 1: its verdict (compass; docs/vehicles.md) |
+| ``magnet_vehicle_angle_degrees`` | gauge | service, vehicle, device | median angle to the reference compass |
+| ``magnet_vehicle_interference_percent`` | gauge | service, vehicle, device | motors' field, % of the Earth's |
+| ``magnet_vehicle_residual_ut`` | gauge | service, vehicle, device | what is left against the reference (uT RMS) |
+| ``magnet_vehicle_anomaly`` | gauge | service, vehicle | 1: all compasses agree, |B| is off the WMM (local anomaly) |
 
 The status of a service is read from the server's thread while the service runs: a reading that races with the
 service (a dictionary changing size) is retried, and a scrape never stops the service.
@@ -143,7 +148,38 @@ def families(service: str, status: Mapping[str, Any]) -> list[Any]:
         healthy = GaugeMetricFamily("magnet_healthy", "1 when the sensor reads", labels=["service"])
         healthy.add_metric([service], float(status["healthy"]))
         out.append(healthy)
+    vehicles = status.get("vehicles")
+    if isinstance(vehicles, Mapping) and vehicles:
+        out += vehicle_families(service, vehicles)
     return out
+
+
+#: per compass of a vehicle: metric name, help, the report's key
+VEHICLE_GAUGES = (
+    ("magnet_vehicle_angle_degrees", "median angle to the vehicle's reference compass", "angle_deg"),
+    ("magnet_vehicle_interference_percent", "motors' field at full throttle, % of the Earth's", "interference_pct"),
+    ("magnet_vehicle_residual_ut", "what is left against the reference compass, uT RMS", "residual_ut"),
+)
+
+
+def vehicle_families(service: str, vehicles: Mapping[str, Any]) -> list[Any]:
+    """Gauges of the compass's vehicle reports (``magnet.vehicle.VehicleReport.to_dict`` per vehicle)."""
+    from prometheus_client.core import GaugeMetricFamily
+
+    labels = ["service", "vehicle", "device"]
+    verdict = GaugeMetricFamily("magnet_vehicle_verdict", "1: the compass's verdict", labels=[*labels, "verdict"])
+    gauges = {key: GaugeMetricFamily(name, text, labels=labels) for name, text, key in VEHICLE_GAUGES}
+    anomaly = GaugeMetricFamily("magnet_vehicle_anomaly", "1: a local anomaly", labels=["service", "vehicle"])
+    for vehicle, report in sorted(vehicles.items()):
+        anomaly.add_metric([service, vehicle], float(bool(report.get("anomaly"))))
+        for compass in report.get("compasses") or []:
+            device = str(compass.get("device"))
+            verdict.add_metric([service, vehicle, device, str(compass.get("verdict"))], 1.0)
+            for key, family in gauges.items():
+                value = compass.get(key)
+                if isinstance(value, (int, float)) and not isinstance(value, bool):
+                    family.add_metric([service, vehicle, device], float(value))
+    return [verdict, *gauges.values(), anomaly]
 
 
 #: the metrics of this process, when --metrics was given (one service per process)

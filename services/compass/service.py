@@ -80,7 +80,8 @@ def _metrics_status(core: CompassCore, name: str) -> dict[str, Any]:
     for alert in core.watch.open_alerts():
         alerts[alert.kind.value] = alerts.get(alert.kind.value, 0) + 1
     status = core.status(name).to_dict()
-    return {**status, "devices": {"calibrated": status["calibrations"]}, "alerts_open": alerts}
+    vehicles = {v: r.to_dict() for v in core.vehicles.known() if (r := core.vehicle_report(v)) is not None}
+    return {**status, "devices": {"calibrated": status["calibrations"]}, "alerts_open": alerts, "vehicles": vehicles}
 
 
 def run_compass(args: argparse.Namespace) -> int:
@@ -131,6 +132,9 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             alerts=declared.enter_context(
                 session.declare_queryable(f"{prefix}/{devices}/{wire.Kind.ALERT.value}", zenoh.handlers.FifoChannel(64))
             ),
+            vehicles=declared.enter_context(
+                session.declare_queryable(wire.vehicle_key(prefix, "*"), zenoh.handlers.FifoChannel(64))
+            ),
         )
         log.info(
             "compass %s: serving %s/%s (shard %s), declination %.2f deg",
@@ -154,10 +158,18 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
 
 
 class _Ends:
-    """The compass's declarations the loop drains: raw batches, calibrations, status and alert queries."""
+    """The compass's declarations the loop drains: raw batches, calibrations, status, alert and vehicle queries."""
 
-    def __init__(self, raw: PayloadIntake, calibrations: Samples, status: Queries, alerts: Queries) -> None:
+    def __init__(
+        self,
+        raw: PayloadIntake,
+        calibrations: Samples,
+        status: Queries,
+        alerts: Queries,
+        vehicles: Queries | None = None,
+    ) -> None:
         self.raw, self.calibrations, self.status, self.alerts = raw, calibrations, status, alerts
+        self.vehicles = vehicles
 
 
 class _Loop:
@@ -180,6 +192,9 @@ class _Loop:
             self.guard.answer("query:status", query, self.answer_status, name)
             query.drop()  # finalize now: the asker waits for it
         self.guard.run("alert", self.alerts, ends.alerts)
+        for query in drain(ends.vehicles, 16) if ends.vehicles is not None else []:
+            self.guard.answer("query:vehicle", query, self.answer_vehicles)
+            query.drop()
         ends.raw.hand_over_drops(self.core.drops, log)
         samples = ends.raw.take(self.drain_limit, DRAIN_BYTES)
         if samples:
@@ -253,6 +268,16 @@ class _Loop:
         for query in drain(queryable, 16):
             self.guard.answer("query:alert", query, self.answer_alerts)
             query.drop()
+
+    def answer_vehicles(self, query: zenoh.Query) -> None:
+        """Each vehicle the query's key matches, its compasses compared (``magnet.vehicle``; docs/vehicles.md)."""
+        asked = zenoh.KeyExpr(str(query.key_expr))
+        for vehicle in self.core.vehicles.known():
+            key = wire.vehicle_key(self.prefix, vehicle)
+            if asked.intersects(zenoh.KeyExpr(key)):
+                report = self.core.vehicle_report(vehicle)
+                if report is not None:
+                    query.reply(key, wire.pack({"v": wire.RECORD_VERSION, **report.to_dict()}))
 
     def answer_alerts(self, query: zenoh.Query) -> None:
         asked = zenoh.KeyExpr(str(query.key_expr))

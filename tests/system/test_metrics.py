@@ -119,6 +119,23 @@ def test_the_families_of_a_status_map_and_bad_addresses():
             parse_address(bad)
 
 
+def test_a_vehicle_report_becomes_gauges_per_compass():
+    compasses = [
+        {"device": "mav1-mag0", "verdict": "reference", "angle_deg": 0.0, "residual_ut": 0.0},
+        {"device": "mav1-mag2", "verdict": "interference", "angle_deg": 9.9, "interference_pct": 34.4},
+    ]
+    status = {"service": "compass", "vehicles": {"mav1": {"anomaly": False, "compasses": compasses}}}
+    samples = {
+        (f.name, tuple(sorted(s.labels.items())), s.value) for f in families("compass", status) for s in f.samples
+    }
+    where = (("device", "mav1-mag2"), ("service", "compass"), ("vehicle", "mav1"))
+    assert ("magnet_vehicle_interference_percent", where, 34.4) in samples
+    assert ("magnet_vehicle_verdict", (*where[:2], ("vehicle", "mav1"), ("verdict", "interference")), 1.0) in {
+        (n, tuple(sorted(lab)), v) for n, lab, v in samples
+    }
+    assert ("magnet_vehicle_anomaly", (("service", "compass"), ("vehicle", "mav1")), 0.0) in samples
+
+
 def test_the_grafana_dashboard_queries_only_metrics_the_services_expose():
     import json
     import re

@@ -36,7 +36,8 @@ WANTED = {
 
 
 def stand_in(tmp_path: Path, port: int, *args: str) -> subprocess.Popen[bytes]:
-    command = [sys.executable, str(REPO_ROOT / "tests" / "mav_vehicle.py"), "--url", f"udpout:127.0.0.1:{port}"]
+    # -P: not tests/ first on its path, where tests/magnet/ would stand for the magnet package
+    command = [sys.executable, "-P", str(REPO_ROOT / "tests" / "mav_vehicle.py"), "--url", f"udpout:127.0.0.1:{port}"]
     extra = ["--rate", "0", "--duration", "30", "--truth", str(tmp_path / "vehicle.npz"), *args]
     return subprocess.Popen([*command, *extra], cwd=REPO_ROOT)
 

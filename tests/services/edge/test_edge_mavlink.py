@@ -47,7 +47,8 @@ class RawBatches:
 
 def vehicle(tmp_path: Path, port: int, *args: str) -> subprocess.Popen[bytes]:
     """The stand-in vehicle sending to 127.0.0.1:port (its output in tmp_path/vehicle.log)."""
-    command = [sys.executable, str(REPO_ROOT / "tests" / "mav_vehicle.py"), "--url", f"udpout:127.0.0.1:{port}"]
+    # -P: not tests/ first on its path, where tests/magnet/ would stand for the magnet package
+    command = [sys.executable, "-P", str(REPO_ROOT / "tests" / "mav_vehicle.py"), "--url", f"udpout:127.0.0.1:{port}"]
     with open(tmp_path / "vehicle.log", "w") as log:
         return subprocess.Popen([*command, *args], stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT)
 
@@ -130,3 +131,37 @@ def test_mavlink_vehicle_is_calibrated_and_its_headings_match_the_truth(procs, t
         print(f"{device}: {sent} samples sent, {got} published, {shown} headings")
         print(f"{device}: true heading RMS {rms:.3f} deg over {errors.size} samples (calibration {cal[device]['id']})")
         assert errors.size > 0.4 * SCORED_S * RATE_HZ and rms < REQUIRED_RMS_DEG
+
+
+def test_a_quadcopters_compasses_are_compared_and_the_two_wrong_ones_named(procs, tmp_path):
+    """Issue 27, item 4: a simulated quadcopter flying with three compasses, the second mounted turned 90 deg in yaw,
+    the third beside the power wires, through ``magnet edge --mavlink`` and a compass: within a minute of flight
+    ``magnet get vehicle mav1`` names both, with COMPASS_ORIENT2 = 2 and the interference in percent."""
+    comp_port, udp, edge_port = free_ports(3)
+    procs.start("compass", "compass", "--location", LOCATION, "--date", DATE, *listen_args(comp_port))
+    wait_for(lambda: "magnet/@alive/compass/compass" in liveliness_keys(comp_port), 30, "the compass")
+    edge_args = ["--mavlink", f"udpin:127.0.0.1:{udp}", "--batch", "25"]
+    procs.start("edge", "edge", *edge_args, *listen_args(edge_port), *connect_args(comp_port))
+    wait_for(lambda: "magnet/@alive/edge/dev" in liveliness_keys(edge_port), 20, "the edge")
+    stand_in = vehicle(tmp_path, udp, "--quad", "--duration", "60")
+    start = time.monotonic()
+
+    def named() -> dict | None:
+        code, lines = magnet_json("get", "vehicle", "mav1", "--no-multicast-scouting", *connect_args(comp_port))
+        if code != 0 or not lines:
+            return None
+        verdicts = {c["device"]: c["verdict"] for c in lines[0]["compasses"]}
+        wanted = {"mav1-mag1": "rotation", "mav1-mag2": "interference"}
+        return lines[0] if all(verdicts.get(d) == v for d, v in wanted.items()) else None
+
+    time.sleep(8.0)  # a first comparison needs samples of the flight's turns and of its throttle's swing
+    report = wait_for(named, 50, "magnet get vehicle mav1 naming both compasses")
+    flown = time.monotonic() - start
+    stand_in.terminate()
+    stand_in.wait(timeout=20)
+    by = {c["device"]: c for c in report["compasses"]}
+    print(f"named after {flown:.0f} s of flight: {report['summary']}")
+    assert flown < 60 and report["reference"] == "mav1-mag0"
+    assert by["mav1-mag1"]["parameters"]["COMPASS_ORIENT2"] == 2 and by["mav1-mag1"]["named_rotation"] == 2
+    assert 20 < by["mav1-mag2"]["interference_pct"] < 50 and "COMPASS_MOT3_X" in by["mav1-mag2"]["parameters"]
+    assert "COMPASS_ORIENT2=2" in report["summary"] and "% of the Earth's field" in report["summary"]
