@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 from helpers import Processes
+from postgres_server import PostgresServer, start_postgres
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DATA_DIR = REPO_ROOT / "data"
@@ -56,3 +57,16 @@ def procs(tmp_path: Path) -> Iterator[Processes]:
     processes = Processes(tmp_path)
     yield processes
     processes.stop_all()
+
+
+@pytest.fixture(scope="session")
+def postgres() -> Iterator[PostgresServer]:
+    """A PostgreSQL server started once for the session (``postgres_server``): initdb, loopback port, stopped at
+    the end. Tests that use it are marked integration."""
+    yield from start_postgres()
+
+
+@pytest.fixture
+def postgres_url(postgres: PostgresServer) -> str:
+    """A new, empty database on the session's server: its URL."""
+    return postgres.new_database()

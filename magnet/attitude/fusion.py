@@ -26,6 +26,7 @@ import numpy as np
 import vqf
 
 from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
+from magnet.attitude.field_watch import FieldWatch
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
 
@@ -134,6 +135,7 @@ class Fusion:
         self._aided: AidedFilter | None = (
             None  # from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
         )
+        self.watch = FieldWatch(self.period_s)  # the field's disturbances: left out, the gyroscope holds the heading
         self.samples = 0
 
     def restart(self) -> None:
@@ -142,6 +144,7 @@ class Fusion:
             self._aided.release()
         self._filter.resetState()
         self._aided = None
+        self.watch.reset()
         self.samples = 0
 
     def update(
@@ -163,8 +166,13 @@ class Fusion:
         if field is not None and t_s is not None and vel_ned_ms is not None:
             quat, disturbed = self.update_vqf_frame(gyr, acc, field, np.asarray(t_s, float), vel_ned_ms)
             return Fused.from_vqf({"quat9D": quat, "magDistDetected": disturbed, "restDetected": disturbed * 0}, True)
-        out = self._filter.updateBatch(gyr, acc, field)
+        watched = np.zeros(len(gyr), dtype=bool) if field is None else self.watch.update(field, gyr)
+        if field is not None and watched.any():
+            field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
+        out = dict(self._filter.updateBatch(gyr, acc, field))
         self.samples += len(gyr)
+        if field is not None:
+            out["magDistDetected"] = np.asarray(out["magDistDetected"], dtype=bool).reshape(-1) | watched
         return Fused.from_vqf(out, field is not None)
 
     def update_vqf_frame(
@@ -178,8 +186,25 @@ class Fusion:
         """The fast path for many small batches: inputs (N, 3) already in vqf's frame (``to_vqf_frame``), finite,
         C-contiguous float64; returns vqf's own quaternions (N, 4) (``frames.ned_enu_attitude`` converts them) and
         its magnetic disturbance flags (N,). With times (N,) s and velocities (N, 3) m/s magnetic NED of which one is
-        known (or after such a batch, until ``restart``): the velocity-aided filter."""
+        known (or after such a batch, until ``restart``): the velocity-aided filter. Samples the watch finds disturbed
+        (``magnet.attitude.field_watch``) reach vqf without their field (a zero vector, which vqf skips: the gyroscope
+        holds the heading) and are flagged disturbed."""
         self.samples += len(gyr)
+        watched = self.watch.update(field, gyr)
+        if watched.any():
+            field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
+        quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms)
+        return quat, np.asarray(disturbed, dtype=bool) | watched
+
+    def _vqf_frame(
+        self,
+        gyr: np.ndarray,
+        acc: np.ndarray,
+        field: np.ndarray,
+        t_s: np.ndarray | None,
+        vel_ned_ms: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """vqf (or the velocity-aided filter) on one batch, as ``update_vqf_frame``."""
         if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
             self._aided = AidedFilter(self.period_s, self.params, self._filter)  # carries on from its state
         if self._aided is not None and t_s is not None:

@@ -1,6 +1,6 @@
 """What the calibrator asks of a store of calibrations (``CalibrationStore``): the store's whole contract, so that
-any store (the service's SQLite file, ``services.calibrator.store``; a PostgreSQL one later; an in-memory fake in
-the tests) serves the same decisions.
+any store (the service's SQLite file, ``services.calibrator.store``; a PostgreSQL database,
+``services.calibrator.pgstore``; an in-memory fake in the tests) serves the same decisions.
 
 The contract:
 

@@ -18,9 +18,10 @@ checks find it in a calibrated field (docs/compass.md, "Disturbances"):
   within the window, so the field must be corrected first (the record at hand, or the fit being judged).
 
 Flagged samples are widened by ``hold_s`` on both sides (a disturbance fades in and out below the thresholds).
-``field_disturbance`` judges a whole log (``magnet fit``: disturbed samples never enter a fit); ``FieldWatch`` is the
-same checks sample by sample, causal, with state across batches (the compass: a disturbed sample is not given to
-the filter, which then holds its heading on the gyroscope).
+``field_disturbance`` judges a whole log (``magnet fit``: disturbed samples never enter a fit);
+``magnet.attitude.field_watch.FieldWatch`` is the steps and magnitude checks causal, batch by batch, against
+references of its own (the compass: a disturbed sample is not given to the filter, which then holds its heading on
+the gyroscope).
 """
 
 from __future__ import annotations
@@ -30,8 +31,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from magnet.attitude.field_watch import integrated_attitude, to_frame
 from magnet.attitude.heading import dip_angle_deg, row_norm
-from magnet.frames import quaternion_multiply, quaternion_to_matrix, rotation_vector_to_quaternion
+from magnet.frames import quaternion_to_matrix
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,27 +74,6 @@ class FieldDisturbance:
     disturbed: np.ndarray
     expected_ut: float
     expected_dip_deg: float
-
-
-def integrated_attitude(gyr_rads: np.ndarray, period_s: float, start: np.ndarray | None = None) -> np.ndarray:
-    """Q (N, 4) wxyz: the attitude from integrating body rates gyr (N, 3) rad/s, q_k = q_{k-1} exp(w_k dt), from
-    ``start`` (the attitude before the first sample; identity by default). All prefix products at once (log2 N
-    passes of a scan)."""
-    out = rotation_vector_to_quaternion(np.asarray(gyr_rads, dtype=float) * period_s)
-    if len(out) == 0:
-        return out
-    if start is not None:
-        out[0] = quaternion_multiply(np.asarray(start, dtype=float), out[0])
-    stride = 1
-    while stride < len(out):
-        out[stride:] = quaternion_multiply(out[:-stride], out[stride:])
-        stride *= 2
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
-
-
-def to_frame(quat_wxyz: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Body vectors (N, 3) in the integrated frame: R(q_k) v_k."""
-    return np.einsum("nij,nj->ni", quaternion_to_matrix(quat_wxyz), vectors)
 
 
 def _moving_mean(values: np.ndarray, width: int) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Magnetic disturbances passed on the way (steel doors, parked cars) and a hard-iron change in the middle of a run.
 
 Passing objects (``Disturbances``): along a path (a trajectory with ``path`` and ``device_offset``: the walks, the
-car, the boat, the robot) an object stands every 15-40 m (``every_m``), beside the path on a random side. Each is
+car, the boat, the robot) an object stands every 15-40 m (``every_m``; the first within 20 m of the start, maybe
+right beside it: ``first_m``), beside the path on a random side. Each is
 a magnetic dipole fixed in the world, of random orientation, whose field at the point of closest approach has the
 magnitude drawn for its kind:
 
@@ -51,10 +52,12 @@ def _range(value: Any, name: str, low: float = 0.0) -> tuple[float, float]:
 
 @dataclasses.dataclass(frozen=True)
 class Disturbances:
-    """Objects passed on the way (see the module docstring): spacing along the path (m), the share of doors, and
-    per kind the distance from the path (m) and the field at closest approach (uT)."""
+    """Objects passed on the way (see the module docstring): spacing along the path (m) and where the first stands
+    (m from the start: a walk may start beside a parked car), the share of doors, and per kind the distance from the
+    path (m) and the field at closest approach (uT)."""
 
     every_m: tuple[float, float] = (15.0, 40.0)
+    first_m: tuple[float, float] = (0.0, 20.0)
     door_share: float = 0.5
     door_m: tuple[float, float] = (0.3, 0.8)
     door_ut: tuple[float, float] = (15.0, 50.0)
@@ -62,6 +65,7 @@ class Disturbances:
     car_ut: tuple[float, float] = (5.0, 20.0)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "first_m", _range(self.first_m, "first_m"))
         for name in ("every_m", "door_m", "car_m"):
             object.__setattr__(self, name, _range(getattr(self, name), name, 0.1))
         for name in ("door_ut", "car_ut"):
@@ -99,7 +103,7 @@ class PassingObjects:
         s = self.settings
         while not self.at_m or self.at_m[-1] <= distance_m:
             rng = self.rng
-            self.at_m.append((self.at_m[-1] if self.at_m else 0.0) + rng.uniform(*s.every_m))
+            self.at_m.append(self.at_m[-1] + rng.uniform(*s.every_m) if self.at_m else rng.uniform(*s.first_m))
             door = rng.random() < s.door_share
             side = float(rng.choice([-1.0, 1.0])) * rng.uniform(*(s.door_m if door else s.car_m))
             below = rng.uniform(-0.3, 0.3) if door else rng.uniform(0.2, 0.8)

@@ -1,4 +1,5 @@
-"""``magnet calibrator``: collect raw samples per device, fit, gate, store (SQLite) and serve calibrations.
+"""``magnet calibrator``: collect raw samples per device, fit, gate, store (a SQLite file or a PostgreSQL database:
+``--db``, ``services.common.stores``) and serve calibrations.
 
 Collection (``magnet.calibration.collection``) keeps samples evenly spread over the sphere (bounded by
 ``--max-samples``). Without a session, a device that has no calibration is fitted whenever enough new cells filled and
@@ -50,9 +51,9 @@ from services.calibrator.settings import (
     make_places,
     settings_from_args,
 )
-from services.calibrator.store import CalibrationStore
 from services.common import metrics
 from services.common.guard import Guard
+from services.common.stores import open_store
 from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 
@@ -146,7 +147,7 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
     fitting = settings.fitting
     places = make_places(settings.fleet, fitting.location, fitting.max_devices)
     with (
-        CalibrationStore(settings.db_path) as store,
+        open_store(settings.db_path) as store,
         open_session(settings.zenoh) as session,
         ExitStack() as declared,  # every declaration, undeclared in reverse order before the session closes
     ):

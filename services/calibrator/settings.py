@@ -28,6 +28,7 @@ from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.intake import DEFAULT_ENROL_RATE, DEFAULT_MAX_QUEUE
 from services.common.options import add_options, at_least, check_options, from_args, option, positive, within
 from services.common.places_options import add_fleet_argument, read_fleet
+from services.common.stores import StoreLocation, parse_db
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 log = logging.getLogger("magnet.calibrator")
@@ -123,8 +124,14 @@ class ServiceSettings:
     (a key expression chunk), the fleet file's entries and the Zenoh options."""
 
     fitting: CalibratorSettings = CalibratorSettings()
-    db: Path | None = option(
-        None, "--db", parse=Path, show_default=False, help=f"SQLite file (default {default_db_path()})"
+    db: StoreLocation | None = option(
+        None,
+        "--db",
+        parse=parse_db,
+        show_default=False,
+        metavar="FILE.sqlite3|postgresql://USER@HOST:PORT/DB",
+        help="where calibrations are stored: a SQLite file (one host) or a PostgreSQL database that calibrators on "
+        f"several hosts share (docs/calibrator.md) (default {default_db_path()})",
     )
     name: str = option("calibrator", "--name", help="service name for liveliness and status")
     devices: str = option("*", "--devices", help="key expression of the devices served")
@@ -165,8 +172,8 @@ class ServiceSettings:
         check_options(self)
 
     @property
-    def db_path(self) -> Path:
-        """--db, else the default in the user's data directory."""
+    def db_path(self) -> StoreLocation:
+        """--db, else the default SQLite file in the user's data directory."""
         return self.db if self.db is not None else default_db_path()
 
 
