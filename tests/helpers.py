@@ -146,10 +146,14 @@ class Processes:
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self._logs = contextlib.ExitStack()
 
-    def start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
+    def start(self, name: str, *args: str, cwd: Path | None = None) -> subprocess.Popen[bytes]:
+        """``magnet ARGS...`` as ``name``, in ``cwd`` (the repository by default; a folder of its own stands for
+        another host's working directory)."""
         # the log stays open while the process runs; stop_all closes it
         log = self._logs.enter_context(open(self.tmp_path / f"{name}.log", "w"))  # noqa: SIM115
-        self.procs[name] = subprocess.Popen([*MAGNET, *args], stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT)
+        self.procs[name] = subprocess.Popen(
+            [*MAGNET, *args], stdout=log, stderr=subprocess.STDOUT, cwd=cwd or REPO_ROOT
+        )
         return self.procs[name]
 
     def start_services(self) -> tuple[int, int, int]:

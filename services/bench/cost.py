@@ -283,7 +283,7 @@ def command_figures(workdir: Path, minutes: float) -> list[str]:
 
 def reader_ms(path: Path, runs: int = 5) -> float:
     """Milliseconds (least of ``runs``) that ``magnet fit``'s reader takes for the CSV at ``path``."""
-    from services.common.csvio import read_samples
+    from services.common.inputs.csvio import read_samples
 
     best = float("inf")
     for _ in range(runs):

@@ -46,8 +46,8 @@ from services.calibrator.settings import CalibratorSettings
 from services.calibrator.store import CalibrationStore
 from services.commands import fit as fit_command
 from services.commands import heading as heading_command
-from services.common.input_options import InputOptions
 from services.common.inputs import read_input
+from services.common.inputs.input_options import InputOptions
 
 PREFIX, DEVICE = "magnet", "phone"
 #: issue 26's targets: a record within this many seconds, causal heading within this many degrees after it

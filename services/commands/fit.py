@@ -19,9 +19,9 @@ from magnet.earth.location import Location
 from magnet.model import Calibration
 from magnet.units import FieldUnit
 from services.commands.fit_motor import add_motor_arguments, fit_with_motors
-from services.common.csvio import SampleTable
-from services.common.input_options import InputOptions
 from services.common.inputs import add_input_arguments, read_input_told
+from services.common.inputs.csvio import SampleTable
+from services.common.inputs.input_options import InputOptions
 from services.common.place import add_field_arguments, expected_field_ut
 from services.common.records import load_calibration, write_atomically
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from magnet.model import Calibration
 from magnet.motor import CURRENT, THROTTLE
-from services.common.csvio import SampleTable
+from services.common.inputs.csvio import SampleTable
 
 COLUMNS = {CURRENT: "current_a", THROTTLE: "throttle"}
 

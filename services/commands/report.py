@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import argparse
 
-from services.common.input_options import InputOptions
 from services.common.inputs import add_input_arguments
+from services.common.inputs.input_options import InputOptions
 from services.common.place import add_field_arguments, place
 from services.common.records import load_calibration
 from services.report.write import write_report

@@ -32,8 +32,8 @@ from magnet.edge.replay import Recording, paced_slices
 from magnet.emulators import FaultInjector, emulator_for
 from magnet.retry import READ_BACKOFF
 from magnet.simulator import SensorStream, SimulatedDevices
-from services.common.input_options import InputOptions
 from services.common.inputs import read_input
+from services.common.inputs.input_options import InputOptions
 from services.edge.mavlink_source import MavlinkSource
 from services.edge.ros2_source import Ros2Source
 from services.edge.settings import SIMULATOR_SENSOR, EdgeSettings, SourceKind

@@ -15,9 +15,9 @@ import numpy as np
 from magnet.attitude import heading as hd
 from magnet.model import Calibration
 from magnet.quality import Geometry, assess, gate
-from services.common.csvio import SampleTable
-from services.common.input_options import InputOptions
 from services.common.inputs import read_input, read_input_told
+from services.common.inputs.csvio import SampleTable
+from services.common.inputs.input_options import InputOptions
 
 TRUTH_COLUMN = "true_heading_deg"  # what ``magnet sample --emulate`` writes
 PITCH_COLUMN = "pitch_deg"

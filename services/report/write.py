@@ -7,7 +7,7 @@ import datetime
 from pathlib import Path
 
 from magnet.model import Calibration
-from services.common.input_options import InputOptions
+from services.common.inputs.input_options import InputOptions
 from services.report.formats import FORMATS
 
 

@@ -5,7 +5,7 @@ fields replaced, removed or added by arbitrary values, give the documented error
 Each property runs a bounded number of examples (``FUZZ``: 40; ``FUZZ_ALL``: 60 shared by the seven message decoders)
 derived from the test's name (``derandomize``), so the suite is deterministic and takes about 2 s of CPU; raise
 ``max_examples`` and drop ``derandomize`` locally to search further. Every kind of message is one ``TEMPLATES``
-entry and one ``DECODERS`` entry; every file reader of ``services.common.inputs.READERS`` is fuzzed by suffix."""
+entry and one ``DECODERS`` entry; every file reader of ``services.common.inputs.FORMATS`` is fuzzed by suffix."""
 
 from __future__ import annotations
 
@@ -27,8 +27,8 @@ from magnet.model import Calibration
 from services.calibrator import queries
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore
-from services.common import csvio, jsonio
-from services.common.inputs import READERS, read_input
+from services.common import jsonio
+from services.common.inputs import FORMATS, csvio, read_input
 
 FUZZ = settings(
     max_examples=40, deadline=2000, derandomize=True, suppress_health_check=[HealthCheck.too_slow], database=None
@@ -216,7 +216,7 @@ def test_file_readers_give_a_value_error():
 
         @FUZZ
         @given(
-            st.sampled_from(sorted(READERS)),
+            st.sampled_from(sorted(FORMATS)),
             st.binary(max_size=300) | CSV_CELLS.map(lambda t: ("mx,my,mz,ax,ay,az,gx,gy,gz,t_s\n" + t).encode()),
         )
         def check(suffix, content):

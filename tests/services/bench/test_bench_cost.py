@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from services.bench import cost
-from services.common.csvio import read_samples
+from services.common.inputs.csvio import read_samples
 
 
 def test_log_csv_is_what_magnet_heading_and_the_floor_read(tmp_path):

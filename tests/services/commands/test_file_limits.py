@@ -14,7 +14,8 @@ import pytest
 from magnet.calibration import Method
 from magnet.model import KNOWN_METHODS, Calibration
 from services.cli import main
-from services.common import csvio, jsonio
+from services.common import jsonio
+from services.common.inputs import csvio
 
 GOOD = Calibration("ellipsoid", [1.0, 2.0, 3.0], np.diag([1.0, 1.1, 0.9])).to_dict()
 

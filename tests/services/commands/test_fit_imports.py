@@ -33,7 +33,7 @@ NOT_LOADED = (
     "services.report",
     "services.router",
     "services.common.zenoh_session",
-    "services.common.flightlogs",
+    "services.common.inputs.flightlogs",
 )
 
 SCRIPT = """

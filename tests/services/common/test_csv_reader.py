@@ -1,11 +1,11 @@
 """The sample CSV reader: numpy's C reader for tables of numbers, the csv module for the rest; both give the same
-table (services.common.csvio)."""
+table (services.common.inputs.csvio)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from services.common.csvio import parse_samples
+from services.common.inputs.csvio import parse_samples
 
 
 def _text(rows: np.ndarray, header: str, extra: str = "") -> str:

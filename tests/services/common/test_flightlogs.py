@@ -220,7 +220,7 @@ def test_bad_logs_are_one_clear_line_and_nothing_is_written(tmp_path: Path, caps
 def test_px4_versions_before_1_12_log_sensor_mag_calibrated() -> None:
     """ver_sw_release is 0xAABBCCTT; pyulog's small sample (v1.11.2) logs sensor_mag equal to vehicle_magnetometer
     (checked by hand), so only v1.12 and later are read as raw."""
-    from services.common.ulog import RAW_SENSOR_MAG_SINCE, px4_version
+    from services.common.inputs.ulog import RAW_SENSOR_MAG_SINCE, px4_version
 
     assert px4_version(0x010B0200) == (1, 11) < RAW_SENSOR_MAG_SINCE
     assert px4_version(0x010F0000) == (1, 15) >= RAW_SENSOR_MAG_SINCE
@@ -250,7 +250,7 @@ class _ULog:
 def test_px4_raw_sensor_mag_is_turned_into_the_body_frame_as_px4_rotates_it() -> None:
     """PX4 (calibration::Magnetometer) rotates a corrected reading by CAL_MAGn_ROT for an external magnetometer and
     by the board rotation (SENS_BOARD_ROT) for an internal one (CAL_MAGn_ROT = -1); yaw 90 takes x to y."""
-    from services.common.ulog import _mag
+    from services.common.inputs.ulog import _mag
 
     raw = np.array([[0.3, 0.0, 0.4], [0.0, 0.2, 0.5]])  # gauss, the board's axes
     params = {"CAL_MAG0_ID": 2222, "CAL_MAG0_ROT": 2, "CAL_MAG1_ID": 1111, "CAL_MAG1_ROT": -1, "SENS_BOARD_ROT": 4}
@@ -275,7 +275,7 @@ class _Record:
 
 def test_current_dataflash_instances_use_the_i_field_and_their_own_parameters() -> None:
     """Instance 1 is corrected with COMPASS_DIA2_*, COMPASS_ODI2_* and COMPASS_SCALE2 (applied: within 0.85..1.4)."""
-    from services.common.dataflash import _mag
+    from services.common.inputs.dataflash import _mag
 
     raw = np.array([100.0, -200.0, 300.0])  # mGauss
     ofs, mot = np.array([-20.0, 10.0, 5.0]), np.array([1.0, 2.0, 3.0])

@@ -7,8 +7,8 @@ import argparse
 
 import pytest
 
-from services.common.input_options import InputOptions
 from services.common.inputs import add_input_arguments
+from services.common.inputs.input_options import InputOptions
 from services.common.mavlink_options import DEFAULT_BAUD, add_mavlink_url_arguments, check_baud, check_url
 
 

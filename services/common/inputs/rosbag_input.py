@@ -14,7 +14,7 @@ from rosbags.rosbag2 import Reader
 
 from magnet.ros2 import messages
 from magnet.ros2.frames import from_ros
-from services.common.csvio import SampleTable
+from services.common.inputs.csvio import SampleTable
 
 PAIR_TOLERANCE_NS = 20_000_000
 

@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from services.common.csvio import SampleTable
+from services.common.inputs.csvio import SampleTable
 from services.common.options import at_least, check_options, from_args, option
 
 

@@ -22,9 +22,9 @@ import numpy as np
 
 from magnet.frames import euler_to_matrix, quaternion_to_euler, rotation_matrix
 from magnet.units import UT_PER_GAUSS
-from services.common.csvio import SampleTable
-from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
-from services.common.input_options import InputOptions
+from services.common.inputs.csvio import SampleTable
+from services.common.inputs.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
+from services.common.inputs.input_options import InputOptions
 
 TOPICS = [
     "sensor_mag",

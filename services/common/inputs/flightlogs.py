@@ -1,11 +1,11 @@
 """What the flight-log readers share: the streams one log gives, turned into the offline commands' ``SampleTable``.
 
-A reader (``services.common.ulog``, ``.dataflash``, ``.tlog``) finds in its log the magnetometer instance asked for
-(uT, body frame FRD, raw where the log has it), the accelerometer (m/s^2) and gyroscope (rad/s) in the body frame,
-battery current (A) and throttle (0..1) where logged, each with its own times; ``to_table`` resamples them all at the
-magnetometer's times (linear interpolation, ``magnet.autopilot.conventions.align``) and names the columns as a CSV
-would: ``t_s`` (s, the log's own clock), ``ax,ay,az``, ``gx,gy,gz``, ``current_a``, ``throttle``. Every problem is a
-``ValueError`` naming the file.
+A reader (``services.common.inputs.ulog``, ``.dataflash``, ``.tlog``) finds in its log the magnetometer instance
+asked for (uT, body frame FRD, raw where the log has it), the accelerometer (m/s^2) and gyroscope (rad/s) in the
+body frame, battery current (A) and throttle (0..1) where logged, each with its own times; ``to_table`` resamples
+them all at the magnetometer's times (linear interpolation, ``magnet.autopilot.conventions.align``) and names the
+columns as a CSV would: ``t_s`` (s, the log's own clock), ``ax,ay,az``, ``gx,gy,gz``, ``current_a``, ``throttle``.
+Every problem is a ``ValueError`` naming the file.
 
 ``ReferenceYaw`` is the autopilot's own heading estimate in the log, for ``magnet heading --compare``.
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from magnet.autopilot.conventions import align, increasing
-from services.common.csvio import SampleTable
+from services.common.inputs.csvio import SampleTable
 
 #: fewer magnetometer samples than this and a log is refused as too short to be of use
 MIN_MAG_SAMPLES = 2

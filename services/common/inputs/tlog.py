@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 
 from magnet.autopilot.mavlink import IMU_MESSAGES
-from services.common.csvio import SampleTable
-from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
-from services.common.input_options import InputOptions
+from services.common.inputs.csvio import SampleTable
+from services.common.inputs.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
+from services.common.inputs.input_options import InputOptions
 
 IMU_TYPES = {0: ("SCALED_IMU", "RAW_IMU", "HIGHRES_IMU"), 1: ("SCALED_IMU2",), 2: ("SCALED_IMU3",)}
 TYPES = ["SCALED_IMU", "RAW_IMU", "HIGHRES_IMU", "SCALED_IMU2", "SCALED_IMU3", "SYS_STATUS", "VFR_HUD", "ATTITUDE"]

@@ -23,9 +23,9 @@ import numpy as np
 
 from magnet.autopilot.conventions import ardupilot_raw_field, ardupilot_scale, ardupilot_soft_iron
 from magnet.units import UT_PER_MGAUSS
-from services.common.csvio import SampleTable
-from services.common.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
-from services.common.input_options import InputOptions
+from services.common.inputs.csvio import SampleTable
+from services.common.inputs.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
+from services.common.inputs.input_options import InputOptions
 
 TYPES = ["MAG", "MAG2", "MAG3", "IMU", "IMU2", "PARM", "BAT", "CURR", "RCOU", "ATT"]
 #: every DataFlash log starts with a FMT record: the two header bytes, then FMT's own type number (128)
