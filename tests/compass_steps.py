@@ -14,7 +14,7 @@ from magnet.compass import CompassCore, CoreSettings, HeadingColumns
 from magnet.compass.core import DEFAULT_MAX_DEVICES
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.expected import Earth
-from magnet.earth.places import Places
+from magnet.fleet.places import Places
 from magnet.shard import EVERY_DEVICE, Shard
 
 #: the wall clock the tests step at: 2026-06-01 (within the World Magnetic Model's life)

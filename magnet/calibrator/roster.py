@@ -14,7 +14,7 @@ from magnet.calibrator.settings import DEFAULT_MAX_DEVICES
 from magnet.drift import Alert, AlertKind, alert_from_message
 from magnet.drift.alerts import ALERT_LIMITS
 from magnet.earth.location import Location
-from magnet.earth.places import Places
+from magnet.fleet.places import Places
 
 log = logging.getLogger("magnet.calibrator")
 

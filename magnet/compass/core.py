@@ -33,7 +33,7 @@ from magnet.compass.tilt import Headings, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.expected import utc_date
-from magnet.earth.places import EarthColumns, Places
+from magnet.fleet.places import EarthColumns, Places
 from magnet.frames import rotate_heading, to_magnetic_ned
 from magnet.shard import EVERY_DEVICE, Shard
 from magnet.vehicle import VehicleReport, VehicleWindows, judge

@@ -1,4 +1,4 @@
-"""The compass's watch over its devices: each device's place and Earth (``magnet.earth.places.Places``) and its
+"""The compass's watch over its devices: each device's place and Earth (``magnet.fleet.places.Places``) and its
 drift (``magnet.drift.DriftMonitor``); the alerts to publish on ``<prefix>/<device>/alert``. Pure."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from magnet.drift import DEFAULT_DRIFT, Alert, DriftMonitor, DriftSettings, Refe
 from magnet.earth.expected import Earth
 from magnet.earth.geomag import DateLike
 from magnet.earth.location import Location
-from magnet.earth.places import Places
+from magnet.fleet.places import Places
 from magnet.units import ut_per_unit
 
 #: alert events waiting to be published at most (the oldest dropped beyond: the open ones are also queryable)

@@ -38,7 +38,7 @@ from magnet.attitude.mag_delay import record_lag_s
 from magnet.calibrator import CalibratorCore
 from magnet.compass import CompassCore, CoreSettings
 from magnet.earth.location import Location
-from magnet.earth.places import Places
+from magnet.fleet.places import Places
 from magnet.model import Calibration
 from magnet.simulator import SimulatedRun
 from services.bench import field_runs as fr

@@ -22,8 +22,8 @@ from magnet.calibrator.refresh import MODES
 from magnet.calibrator.settings import DEFAULT_MAX_DEVICES as DEFAULT_MAX_DEVICES  # the option's default, named here
 from magnet.earth.geomag import earth_field
 from magnet.earth.location import Location
-from magnet.earth.places import PlaceEntry
-from magnet.earth.places import Places as Places  # the roster's type, named here with the rest of the places modules
+from magnet.fleet.places import PlaceEntry
+from magnet.fleet.places import Places as Places  # the roster's type, named here with the rest of the places modules
 from magnet.shard import EVERY_DEVICE, Shard
 from services.calibrator.intake import DEFAULT_ENROL_RATE, DEFAULT_MAX_QUEUE
 from services.common.options import add_options, at_least, check_options, from_args, option, positive, within

@@ -35,7 +35,7 @@ from magnet.compass import CompassCore, CoreSettings, HeadingColumns
 from magnet.compass.filters import MAX_GAP_S
 from magnet.compass.tilt import Headings
 from magnet.earth.expected import Earth, earth_at
-from magnet.earth.places import Places
+from magnet.fleet.places import Places
 from magnet.frames import to_magnetic_ned
 from magnet.model import Calibration
 from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT

@@ -1,4 +1,4 @@
-"""The places file ``--fleet FILE.json5`` (device -> location, notes; see ``magnet.earth.places``) and the drift
+"""The places file ``--fleet FILE.json5`` (device -> location, notes; see ``magnet.fleet.places``) and the drift
 thresholds, as options of the compass and the calibrator, read and checked before a service starts."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from magnet.drift import DriftSettings
-from magnet.earth.places import MAX_PLACES_FILE_BYTES, PlaceEntry, parse_places
+from magnet.fleet.places import MAX_PLACES_FILE_BYTES, PlaceEntry, parse_places
 
 
 def add_fleet_argument(parser: argparse.ArgumentParser) -> None:

@@ -27,7 +27,7 @@ import zenoh
 from magnet import wire
 from magnet.compass import CompassCore
 from magnet.earth.expected import earth_at
-from magnet.earth.places import Places
+from magnet.fleet.places import Places
 from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard

@@ -13,7 +13,7 @@ from magnet.compass.core import DEFAULT_MAX_DEVICES, CoreSettings, window_proble
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.geomag import earth_field
 from magnet.earth.location import Location
-from magnet.earth.places import PlaceEntry
+from magnet.fleet.places import PlaceEntry
 from magnet.shard import EVERY_DEVICE, Shard
 from services.common.options import add_options, at_least, check_options, from_args, option
 from services.common.places_options import add_drift_arguments, add_fleet_argument, drift_from_args, read_fleet

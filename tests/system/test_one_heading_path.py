@@ -28,7 +28,7 @@ from magnet import wire
 from magnet.attitude.heading import HeadingFlag
 from magnet.compass import CompassCore, CoreSettings
 from magnet.earth.location import Location
-from magnet.earth.places import Places
+from magnet.fleet.places import Places
 from magnet.simulator import SimulatorConfig, Trajectory, simulate
 from services import cli
 

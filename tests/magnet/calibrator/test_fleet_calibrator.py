@@ -12,7 +12,7 @@ from magnet.calibrator.roster import Roster
 from magnet.calibrator.roster_reply import roster_reply
 from magnet.drift import Alert, AlertKind, advice_for
 from magnet.earth.location import Location
-from magnet.earth.places import Places, parse_places
+from magnet.fleet.places import Places, parse_places
 from magnet.model import Calibration, Quality
 from services.calibrator.service import Calibrator, CalibratorSettings
 from services.calibrator.store import CalibrationStore

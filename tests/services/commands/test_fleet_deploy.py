@@ -8,7 +8,7 @@ import shlex
 import pytest
 from helpers import REPO_ROOT
 
-from magnet.earth.places import parse_places
+from magnet.fleet.places import parse_places
 from services.cli import build_parser
 
 SITE = REPO_ROOT / "deploy" / "site"

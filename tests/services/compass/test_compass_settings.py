@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from magnet.earth.location import Location
-from magnet.earth.places import PlaceEntry
+from magnet.fleet.places import PlaceEntry
 from magnet.shard import EVERY_DEVICE, Shard
 from services.compass.settings import CompassSettings, add_arguments, settings_from_args
 

@@ -15,7 +15,7 @@ from magnet.attitude import heading as hd
 from magnet.earth.expected import Earth, earth_at, utc_date
 from magnet.earth.geomag import earth_field
 from magnet.earth.location import Location
-from magnet.earth.places import Places, parse_places
+from magnet.fleet.places import Places, parse_places
 from magnet.simulator import SimulatedDevices
 
 KYIV, SYDNEY = Location(50.45, 30.52, 180.0), Location(-33.86, 151.21, 20.0)
