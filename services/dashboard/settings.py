@@ -9,7 +9,7 @@ import dataclasses
 import ipaddress
 import socket
 
-from magnet.earth.places import PlaceEntry
+from magnet.fleet.places import PlaceEntry
 from services.common import metrics
 from services.common.options import add_options, check_options, from_args, option
 from services.common.places_options import add_fleet_argument, read_fleet
