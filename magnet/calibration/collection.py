@@ -33,9 +33,9 @@ FIT_EVERY_NEW = 25  # fit again after this many newly kept samples
 FIT_INTERVAL_S = 0.5
 #: a run is fitted from the gyroscope once it turned this far about at least two body axes (deg)
 READY_TURN_DEG = 90.0
-#: ... or, for auto (whose field ladder fits a device that only yaws: ``magnet.calibration.field``), a full turn
-#: about one axis
-PLANAR_READY_TURN_DEG = 360.0
+#: ... or, for auto (whose field ladder fits a device that only yaws and judges for itself whether the turns identify
+#: the offset: ``magnet.calibration.field``), this far about one axis
+PLANAR_READY_TURN_DEG = 90.0
 INITIAL_ROOM = 64  # samples' arrays start this small and double up to the capacity (a device that sends one
 # batch costs kilobytes, not the capacity's worth)
 
@@ -61,6 +61,9 @@ class Collection:
         self.method, self.session, self.capacity = parse_choice(method), session, capacity
         self.auto = self.method == AUTO
         self.in_service = False  # a refresh of a calibrated device (``magnet.calibrator.refresh``)
+        self.window_s: float | None = None  # fit only the last this many seconds of the run (None: all of it)
+        self.tried_ns = -(2**62)  # a refresh's last try: the time of the newest sample then (ns)
+        self.changed_batches = 0  # a refresh: batches in a row whose field strength the record in force misses
         self.run_capacity = run_capacity
         self.runs = None if self.auto or not Method.parse(self.method).needs_gyroscope else RecentRuns(run_capacity)
         self.no_gyroscope = 0  # batches that came without the gyroscope this collection's method needs
@@ -213,6 +216,8 @@ class Collection:
         if self.runs is not None:
             self.last_fit_written = self.runs.written
             run = self.runs.longest()
+            if run is not None and self.window_s is not None:
+                run = run.tail(self.window_s)
         try:
             if self.runs is None or (self.auto and (run is None or len(run) < MIN_SAMPLES[Method.GYRO_ELLIPSOID])):
                 mag, acc = self.samples()

@@ -66,6 +66,8 @@ VERTICAL_LIMIT_UT = 3.0
 #: few % of the identity (a phone's 4 %, ``SensorErrors.phone``), and |B| is the WMM's; without it a short arc is fitted
 #: as well by a far centre and a shrunken matrix (a robot's 20 s: A = 0.23 I, the offset 174 uT off)
 E_PRIOR = 0.1
+#: the prior on the gyroscope's bias (rad/s, one standard deviation: a phone's reaches 0.5 deg/s, 0.009 rad/s)
+BIAS_PRIOR_RADS = 0.02
 #: least spread of a block's residuals (uT): the magnetometer's noise floor, so that a perfect block is not infinite
 MIN_SIGMA_UT = 0.2
 #: samples whose magnitude residual exceeds this many block spreads are left out after the first pass
@@ -93,17 +95,19 @@ class RungFit:
 
 @dataclasses.dataclass(frozen=True)
 class _Point:
-    """The model at one parameter vector: A (3, 3), b = A (m - o) (N, 3), db/dE (N, 3, free), v (uT)."""
+    """The model at one parameter vector x = (o (3), E free, v, beta (3)): A (3, 3), b = A (m - o) (N, 3),
+    db/dE (N, 3, free), v (uT) and the gyroscope's bias beta (3,) rad/s."""
 
     a: np.ndarray
     b: np.ndarray
     db_de: np.ndarray
     v: float
+    beta: np.ndarray
 
     def rows(self, grad_b: np.ndarray, idx: np.ndarray, dv: float, sigma: float) -> np.ndarray:
         """The weighted Jacobian rows (R, P) of residuals whose gradient in b is grad_b (R, 3) at rows idx."""
         je = np.einsum("ni,nik->nk", grad_b, self.db_de[idx])
-        return np.hstack([-grad_b @ self.a, je, np.full((len(idx), 1), dv)]) / sigma
+        return np.hstack([-grad_b @ self.a, je, np.full((len(idx), 1), dv), np.zeros((len(idx), 3))]) / sigma
 
 
 def _point(ev: Evidence, rung: Rung, x: np.ndarray) -> _Point:
@@ -113,31 +117,59 @@ def _point(ev: Evidence, rung: Rung, x: np.ndarray) -> _Point:
     u = (ev.mag - x[:3]) @ ev.matrix0.T  # A0 (m - o)
     b = u + u @ np.einsum("k,kij->ij", e, ev.basis).T
     db_de = np.einsum("kij,nj->nik", ev.basis[list(rung.e_free)], u)  # db/dE_k = G_k u; db/do = -A
-    return _Point(matrix_of(ev, e), b, db_de, float(x[3 + free]))
+    return _Point(matrix_of(ev, e), b, db_de, float(x[3 + free]), x[4 + free : 7 + free])
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """[w]x (M, 3, 3) of vectors w (M, 3)."""
+    out = np.zeros((len(w), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return out
 
 
 def _gyroscope_block(
     ev: Evidence, point: _Point, rows: np.ndarray, sigma: float
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """The windows' residuals b(e) - P^T b(s) (3 M,) and Jacobian (3 M, P), weighted; None without windows."""
-    if ev.spans is None:
+    """The windows' residuals (3 M,) and Jacobian (3 M, P), weighted; None without windows. With w = P^T b(s), P
+    the turn the gyroscope measured over the window (dt long) and beta its bias, the true turn is about
+    P exp(-[beta dt]x), so the residual is b(e) - w + dt [w]x beta: a gyroscope's bias (a phone's reaches 0.5
+    deg/s) is a parameter, not an error the offset soaks up."""
+    if ev.spans is None or ev.period_s is None:
         return None
     starts, ends, back = ev.spans
     ok = rows[starts] & rows[ends]
     s_, e_, p_ = starts[ok], ends[ok], back[ok]
     if not len(s_):
         return None
-    r = (point.b[e_] - np.einsum("nij,nj->ni", p_, point.b[s_])).reshape(-1)
+    w = np.einsum("nij,nj->ni", p_, point.b[s_])
+    dt = ((e_ - s_) * ev.period_s)[:, None, None]
+    w_cross = _skew(w) * dt
+    r = (point.b[e_] - w + np.einsum("nij,j->ni", w_cross, point.beta)).reshape(-1)
     jo = (-(np.eye(3)[None] - p_) @ point.a).reshape(-1, 3)
     je = (point.db_de[e_] - np.einsum("nij,njk->nik", p_, point.db_de[s_])).reshape(len(r), -1)
-    return r / sigma, np.hstack([jo, je, np.zeros((len(r), 1))]) / sigma
+    jb = w_cross.reshape(-1, 3)
+    return r / sigma, np.hstack([jo, je, np.zeros((len(r), 1)), jb]) / sigma
+
+
+def _priors(ev: Evidence, rung: Rung, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The priors' residuals and Jacobian rows: v near the WMM's (when known), E near zero, beta near zero."""
+    free = len(rung.e_free)
+    size = 3 + free + 4
+    scales = [(3 + k, E_PRIOR) for k in range(free)] + [(4 + free + k, BIAS_PRIOR_RADS) for k in range(3)]
+    rows_r = [x[index] / scale for index, scale in scales]
+    rows_j = [np.eye(size)[index] / scale for index, scale in scales]
+    if ev.vertical_ut is not None:
+        rows_r.append((x[3 + free] - ev.vertical_ut) / VERTICAL_PRIOR_UT)
+        rows_j.append(np.eye(size)[3 + free] / VERTICAL_PRIOR_UT)
+    return np.array(rows_r), np.array(rows_j)
 
 
 def _residuals(
     ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray, sigma: dict[str, float]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(weighted residuals (R,), weighted Jacobian (R, P)) at x = (o (3), E free, v) over the used rows: the
-    magnitude, the vertical field, the gyroscope's windows and the WMM's prior on v."""
+    """(weighted residuals (R,), weighted Jacobian (R, P)) at x = (o (3), E free, v, beta (3)) over the used rows:
+    the magnitude, the vertical field, the gyroscope's windows and the priors."""
     point = _point(ev, rung, x)
     idx = np.flatnonzero(rows)
     norm = np.linalg.norm(point.b[idx], axis=1)
@@ -152,35 +184,23 @@ def _residuals(
     if gyroscope is not None:
         blocks_r.append(gyroscope[0])
         blocks_j.append(gyroscope[1])
-    free = len(rung.e_free)
-    if ev.vertical_ut is not None:
-        blocks_r.append(np.array([(point.v - ev.vertical_ut) / VERTICAL_PRIOR_UT]))
-        blocks_j.append(np.concatenate([np.zeros(3 + free), [1.0 / VERTICAL_PRIOR_UT]])[None])
-    if free:
-        blocks_r.append(x[3 : 3 + free] / E_PRIOR)
-        blocks_j.append(np.hstack([np.zeros((free, 3)), np.eye(free) / E_PRIOR, np.zeros((free, 1))]))
-    return np.concatenate(blocks_r), np.vstack(blocks_j)
+    prior_r, prior_j = _priors(ev, rung, x)
+    return np.concatenate([*blocks_r, prior_r]), np.vstack([*blocks_j, prior_j])
 
 
 def _block_spreads(ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray) -> dict[str, float]:
     """Each block's RMS residual (uT), at least MIN_SIGMA_UT."""
-    unit = {"magnitude": 1.0, "vertical": 1.0, "gyroscope": 1.0}
-    free = len(rung.e_free)
-    e = np.zeros(10)
-    e[list(rung.e_free)] = x[3 : 3 + free]
-    b = (ev.mag - x[:3]) @ matrix_of(ev, e).T
+    point = _point(ev, rung, x)
+    b = point.b
     out = {"magnitude": float(np.sqrt(np.mean((np.linalg.norm(b[rows], axis=1) - ev.field_ut) ** 2)))}
     if ev.down is not None:
         known = rows & np.all(np.isfinite(ev.down), axis=1)
         if known.any():
-            out["vertical"] = float(np.sqrt(np.mean((np.einsum("ni,ni->n", ev.down[known], b[known]) - x[-1]) ** 2)))
-    if ev.spans is not None:
-        starts, ends, back = ev.spans
-        ok = rows[starts] & rows[ends]
-        if ok.any():
-            r = b[ends[ok]] - np.einsum("nij,nj->ni", back[ok], b[starts[ok]])
-            out["gyroscope"] = float(np.sqrt(np.mean(r**2)))
-    return {k: max(out.get(k, unit[k]), MIN_SIGMA_UT) for k in unit}
+            out["vertical"] = float(np.sqrt(np.mean((np.einsum("ni,ni->n", ev.down[known], b[known]) - point.v) ** 2)))
+    gyroscope = _gyroscope_block(ev, point, rows, 1.0)
+    if gyroscope is not None:
+        out["gyroscope"] = float(np.sqrt(np.mean(gyroscope[0] ** 2)))
+    return {k: max(out.get(k, 1.0), MIN_SIGMA_UT) for k in ("magnitude", "vertical", "gyroscope")}
 
 
 def _gram(j: np.ndarray) -> np.ndarray:
@@ -259,7 +279,7 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
             thin[ev.spans[0][ok]] = thin[ev.spans[1][ok]] = True
         ev, used = ev.only(used & thin)
     v0 = ev.vertical_ut if ev.vertical_ut is not None else 0.0
-    x = np.concatenate([start, np.zeros(len(rung.e_free)), [v0]])
+    x = np.concatenate([start, np.zeros(len(rung.e_free)), [v0], np.zeros(3)])
     sigma = {"magnitude": 1.0, "vertical": 2.0, "gyroscope": 2.0}
     x = _solve(ev, rung, x, used, sigma)
     sigma = _block_spreads(ev, rung, x, used)
@@ -274,11 +294,13 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
     sigma = _block_spreads(ev, rung, x, used)
     _, j = _residuals(ev, rung, x, used, sigma)
     identified, eigen = _identified_deg(ev, rung, j, step)
-    if ev.vertical_ut is not None and abs(float(x[-1]) - ev.vertical_ut) > VERTICAL_LIMIT_UT:
+    if ev.vertical_ut is not None and abs(float(x[3 + free]) - ev.vertical_ut) > VERTICAL_LIMIT_UT:
         identified = math.inf  # a minimum far from the WMM's dip: the motion did not pin the offset down
     e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
-    return RungFit(rung, x[:3].copy(), matrix_of(whole, e), float(x[-1]), identified, eigen, sigma, int(used.sum()))
+    return RungFit(
+        rung, x[:3].copy(), matrix_of(whole, e), float(x[3 + free]), identified, eigen, sigma, int(used.sum())
+    )
 
 
 def first_offset(ev: Evidence, rows: np.ndarray | None = None) -> np.ndarray:

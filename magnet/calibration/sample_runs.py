@@ -40,6 +40,14 @@ class Run:
     def __len__(self) -> int:
         return len(self.mag)
 
+    def tail(self, seconds: float) -> Run:
+        """The last ``seconds`` of the run (all of it when shorter)."""
+        count = max(2, round(seconds / self.period_s)) if self.period_s > 0 else len(self)
+        if count >= len(self):
+            return self
+        acc = None if self.acc is None else self.acc[-count:]
+        return Run(self.mag[-count:], acc, self.gyr_rads[-count:], self.t_ns[-count:], self.period_s)
+
     def turned_deg(self) -> np.ndarray:
         """(3,) how far the device turned about each body axis, deg: |rate| summed over the samples where it
         exceeds ``TURNING_RADS`` about that axis (so a gyroscope's noise and bias do not add up)."""

@@ -144,7 +144,7 @@ class CalibratorCore:
         (``magnet.calibrator.refresh``): committed (auto) or proposed as a session (propose) when better by the
         margin."""
         device, record = batch.device, self.records.get(batch.device)
-        collection = None if record is None else self.refresher.receive(batch)
+        collection = None if record is None else self.refresher.receive(batch, record.calibration)
         if record is None or collection is None or not self.refresher.due(collection, self.clock()):
             return
         self.refresher.fits += 1

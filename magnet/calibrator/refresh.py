@@ -1,8 +1,9 @@
 """In-service recalibration (``--recalibrate auto|propose|off``; docs/field-calibration.md, "In service").
 
 After a device's first record the calibrator keeps listening: each calibrated device has a bounded refresh
-collection (``Collection`` with auto, a ring of ``REFRESH_RUN_CAPACITY`` consecutive samples and the sphere cells),
-fitted at most every ``REFRESH_INTERVAL_S`` once the ring holds ``REFRESH_MIN_SAMPLES``. The fit is judged against
+collection (``Collection`` with auto, a ring of ``REFRESH_RUN_CAPACITY`` consecutive samples and the sphere
+cells), fitted at most every ``REFRESH_INTERVAL_S`` once its longest run spans ``REFRESH_MIN_S``, on the run's
+last ``REFRESH_WINDOW_S`` seconds. The fit is judged against
 the record in force (``FitInput.reference``: held-out heading consistency, with its margin) and must also gain
 ``MIN_GAIN`` of the in-force record's held-out consistency (a refresh that changes little is churn, not a gain).
 
@@ -17,6 +18,8 @@ from __future__ import annotations
 
 import enum
 
+import numpy as np
+
 from magnet import wire
 from magnet.bounded import Recent
 from magnet.calibration.collection import Collection
@@ -25,10 +28,21 @@ from magnet.model import Calibration
 
 #: a device's refresh is fitted at most this often (s): the CPU a device costs stays one fit in this time
 REFRESH_INTERVAL_S = 15.0
-#: consecutive samples a refresh ring keeps (2 minutes at 100 Hz; 88 bytes each: about 1 MB per device)
+#: ... and at least this long by the calibrator's clock (s)
+MIN_WALL_S = 1.0
+#: a refresh fits the last this many seconds of the device's samples: what changed (a new case, a magnet nearby) is
+#: judged on what came after it, not averaged with what came before
+REFRESH_WINDOW_S = 30.0
+#: seconds of consecutive samples before a refresh is tried
+REFRESH_MIN_S = 12.0
+#: consecutive samples a refresh ring keeps at most (a minute at 200 Hz; 88 bytes each: about 1 MB per device)
 REFRESH_RUN_CAPACITY = 12_000
-#: samples in the ring before a refresh is tried (20 s at 100 Hz)
-REFRESH_MIN_SAMPLES = 2_000
+#: without a gyroscope (no ring): kept samples in the cells before a refresh is tried
+REFRESH_MIN_SAMPLES = 300
+#: the record in force's field strength this far off (%) ...
+CHANGED_PCT = 15.0
+#: ... for this many batches in a row: the device's iron changed, the samples before are dropped
+CHANGED_BATCHES = 4
 #: what ``--recalibrate`` accepts
 MODES = ("auto", "propose", "off")
 
@@ -71,27 +85,55 @@ class Refresher:
         self.by_device: Recent[str, Collection] = Recent(max_devices)
         self.fits = self.refreshed = self.proposed = 0
 
-    def receive(self, batch: wire.RawBatch) -> Collection | None:
-        """Add a calibrated device's batch to its refresh collection (made on its first batch); None when off."""
+    def receive(self, batch: wire.RawBatch, in_force: Calibration | None = None) -> Collection | None:
+        """Add a calibrated device's batch to its refresh collection (made on its first batch); None when off.
+        ``in_force``: the record in force; when its field strength is off by CHANGED_PCT for CHANGED_BATCHES
+        batches in a row, the device's iron changed (a new case, a magnet): what came before is dropped, so that
+        the refresh fits what came after the change only."""
         if self.mode is Mode.OFF:
             return None
         collection = self.by_device.get(batch.device)
+        if collection is not None and in_force is not None and self._changed(collection, batch, in_force):
+            self.by_device.pop(batch.device, None)
+            collection = None
         if collection is None:
             collection = Collection("auto", False, self.capacity, REFRESH_RUN_CAPACITY)
-            collection.in_service = True
+            collection.in_service, collection.window_s = True, REFRESH_WINDOW_S
             self.by_device[batch.device] = collection
         self.by_device.touch(batch.device)
         collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
         return collection
 
+    @staticmethod
+    def _changed(collection: Collection, batch: wire.RawBatch, in_force: Calibration) -> bool:
+        """Whether the record's field strength has been CHANGED_PCT off for CHANGED_BATCHES batches now while the
+        collection still holds samples from before (a collection made after the change is kept)."""
+        strength = in_force.field_strength
+        if not strength or in_force.output_unit != "ut" or in_force.unit != "ut":
+            return False
+        norm = np.linalg.norm(in_force.apply(batch.mag_ut), axis=1)
+        off = abs(float(np.median(norm)) / strength - 1.0) * 100.0 > CHANGED_PCT
+        collection.changed_batches = collection.changed_batches + 1 if off else 0
+        older = collection.seen > (collection.changed_batches + 1) * len(batch)  # samples from before the change
+        return collection.changed_batches >= CHANGED_BATCHES and older
+
     def due(self, collection: Collection, now_s: float) -> bool:
-        """Whether to try a refresh now: the interval since the last try passed and the ring (or, without a
-        gyroscope, the cells) holds enough samples."""
-        if now_s - collection.last_fit_s < REFRESH_INTERVAL_S:
+        """Whether to try a refresh now: REFRESH_INTERVAL_S of the device's samples (by their times; by the clock
+        without a gyroscope) and MIN_WALL_S of the clock since the last try, and the ring (or, without a
+        gyroscope, the cells) holds enough samples. The samples' time keeps a replay at 10x refreshed as often
+        per sample as live; the clock bounds the CPU of a device sending fast."""
+        if now_s - collection.last_fit_s < (MIN_WALL_S if collection.runs is not None else REFRESH_INTERVAL_S):
             return False
         if collection.runs is None:
             return collection.kept >= min(self.capacity, REFRESH_MIN_SAMPLES)
-        return collection.runs.held >= REFRESH_MIN_SAMPLES
+        run = collection.runs.longest()
+        if run is None or len(run) * run.period_s < REFRESH_MIN_S:
+            return False
+        last = int(run.t_ns[-1])
+        if last - collection.tried_ns < REFRESH_INTERVAL_S * 1e9:
+            return False
+        collection.tried_ns = last
+        return True
 
     def restart(self, device: str) -> None:
         """Forget the device's refresh samples (a new record is in force: what follows is judged against it)."""

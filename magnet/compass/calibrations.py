@@ -156,3 +156,32 @@ def _motor_rows(records: list[Calibration | None], columns: wire.RawColumns) -> 
             lo, hi = bounds[i], bounds[i + 1]
             out[lo:hi] = record.motor.offset_ut(columns.current[lo:hi], columns.thr[lo:hi])
     return out
+
+
+#: a new record that turns the corrected field by less than this (deg, at any direction of a field of the old
+#: record's strength) and changes its strength by less than RESTART_PCT keeps the device's filter: an in-service
+#: refresh (``magnet.calibrator.refresh``) moves the field by a degree or two, and a filter started again while a
+#: hand swings a phone takes ten seconds and more to find its heading (fieldsim's walk-hand: 22 deg over them)
+RESTART_DEG = 3.0
+RESTART_PCT = 5.0
+_CUBE = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if x or y or z], dtype=float)
+_DIRECTIONS = _CUBE / np.linalg.norm(_CUBE, axis=1)[:, None]
+
+
+def small_change(old: Calibration, new: Calibration) -> bool:
+    """Whether ``new`` corrects every raw reading the old one maps onto a field of its strength, in 26 directions,
+    to within RESTART_DEG of direction and RESTART_PCT of strength (same units, no motors' field in either)."""
+    if (old.unit, old.output_unit) != (new.unit, new.output_unit) or old.motor is not None or new.motor is not None:
+        return False
+    try:
+        inverse = np.linalg.inv(old.matrix)
+    except np.linalg.LinAlgError:
+        return False
+    strength = old.field_strength or 50.0
+    raw = old.offset + (_DIRECTIONS * strength) @ inverse.T
+    before, after = old.apply(raw), new.apply(raw)
+    norm_before, norm_after = np.linalg.norm(before, axis=1), np.linalg.norm(after, axis=1)
+    cosine = np.einsum("ij,ij->i", before, after) / (norm_before * norm_after)
+    angle = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+    ratio = np.abs(norm_after / norm_before - 1.0) * 100.0
+    return bool(np.all(angle < RESTART_DEG) and np.all(ratio < RESTART_PCT))

@@ -26,7 +26,7 @@ import numpy as np
 from magnet import signing, wire
 from magnet.attitude import heading as hd
 from magnet.bounded import Recent
-from magnet.compass.calibrations import CalibrationsInForce, Correction
+from magnet.compass.calibrations import CalibrationsInForce, Correction, small_change
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
 from magnet.compass.tilt import Headings, compute_headings, smooth_tail
@@ -216,12 +216,15 @@ class CompassCore:
             if device is not None:
                 self.calibrations.refuse(device)
             return False
+        previous = self.calibrations.in_force.get(record.device)
         if self.calibrations.put(record):
             self._log_evictions()
             self.watch.calibration(record, record.created_ns)
             # the device's filter starts again: its magnetometer state was built on the old correction, and the
-            # field jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust
-            self.filters.forget(record.device)
+            # field jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust;
+            # unless the field hardly moves (an in-service refresh): a restart costs more than it mends
+            if previous is None or not small_change(previous.calibration, record.calibration):
+                self.filters.forget(record.device)
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
 

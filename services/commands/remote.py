@@ -90,9 +90,11 @@ def ask(args: argparse.Namespace, selector: str, errors: list[str] | None = None
 def add_get_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "what",
-        choices=["calibration", "status", "fleet", "vehicle"],
-        help="a device's calibration, a service's status counters, every device in one reply, or a vehicle's "
-        "compasses compared (which one disagrees, why, the parameter that fixes it: docs/vehicles.md)",
+        choices=["calibration", "history", "status", "fleet", "vehicle"],
+        help="a device's calibration, its history (calibration --history: every record, newest first, with what "
+        "made each: a session, a rollback, an in-service refresh), a service's status counters, every device in one "
+        "reply, or a vehicle's compasses compared (which one disagrees, why, the parameter that fixes it: "
+        "docs/vehicles.md)",
     )
     parser.add_argument(
         "device",
@@ -170,8 +172,9 @@ def run_get(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
         return 0 if replies else 1
-    kind = wire.Kind.HISTORY if args.history else wire.Kind.CALIBRATION
-    selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if args.history else "")
+    history = args.history or args.what == "history"
+    kind = wire.Kind.HISTORY if history else wire.Kind.CALIBRATION
+    selector = f"{args.prefix}/{args.device}/{kind.value}" + (f"?limit={args.limit}" if history else "")
     trusted = signing.TrustedKeys([signing.load_public_key(path.read_bytes(), str(path)) for path in args.trust])
     replies = ask(args, selector)
     if trusted.enabled:

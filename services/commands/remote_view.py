@@ -160,10 +160,24 @@ def history_table(answer: Mapping[str, Any]) -> RenderableType:
             "accepted" if record.get("accepted") else "rejected",
         )
     changes = [
-        Text(f"{when(c.get('at_ns'))} {c.get('action')} from {c.get('from_id')} by {c.get('by') or '?'}")
+        Text(
+            f"{when(c.get('at_ns'))} {c.get('action')}{_in_service(c)} from {c.get('from_id')} by {c.get('by') or '?'}"
+        )
         for c in answer.get("changes") or []
     ]
     return Group(table, *changes)
+
+
+def _in_service(change: Mapping[str, Any]) -> str:
+    """ " (made in service, ...)" for a record an in-service refresh made (``magnet.calibrator.refresh``), else ""."""
+    if not change.get("in_service"):
+        return ""
+    gain = change.get("gain_pct")
+    parts = ["made in service"] + ([f"{gain:.0f} % more consistent"] if isinstance(gain, (int, float)) else [])
+    resolves = change.get("resolves") or []
+    if resolves:
+        parts.append(f"resolves drift alert {', '.join(str(a) for a in resolves)}")
+    return f" ({'; '.join(parts)})"
 
 
 def status_table(answer: Mapping[str, Any]) -> RenderableType:

@@ -11,6 +11,7 @@ from memory_store import MemoryStore
 from magnet import wire
 from magnet.calibrator import CalibratorCore
 from magnet.calibrator.status import State
+from magnet.frames import quaternion_to_matrix
 from magnet.shard import Shard
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 from services.calibrator.settings import CalibratorSettings
@@ -70,10 +71,13 @@ def _feed(core: CalibratorCore, clock: DataClock, run, batch: int = 50) -> None:
 
 
 def _direction_error_deg(calibration, run) -> float:
-    """RMS angle (deg) between the calibrated field and the true one, in body axes."""
-    field, truth = calibration.apply(run.mag_ut), run.true_field_ut
-    cosine = np.einsum("ij,ij->i", field, truth) / np.linalg.norm(field, axis=1) / np.linalg.norm(truth, axis=1)
-    return float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(cosine, -1.0, 1.0)) ** 2))))
+    """RMS (deg) of the heading error the calibrated field makes: the angle between its horizontal part and the true
+    field's, both turned into the Earth frame by the true attitude."""
+    rotation = quaternion_to_matrix(run.quat_wxyz)
+    field = np.einsum("nij,nj->ni", rotation, calibration.apply(run.mag_ut))
+    truth = np.einsum("nij,nj->ni", rotation, run.true_field_ut)
+    error = np.arctan2(field[:, 1], field[:, 0]) - np.arctan2(truth[:, 1], truth[:, 0])
+    return float(np.degrees(np.sqrt(np.mean(np.angle(np.exp(1j * error)) ** 2))))
 
 
 def _calibrated(recalibrate: str, in_force) -> tuple[CalibratorCore, MemoryStore, DataClock]:
