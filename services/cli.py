@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dashboard": ("services.dashboard.service", "serve a live web page of the fleet (and calibration control)"),
     "report": ("services.commands.report", "draw a calibration report (HTML or PNG) from samples and a calibration"),
     "export": ("services.commands.export", "write a calibration as ArduPilot or PX4 parameters (a parameter file)"),
+    "db": ("services.commands.db", "copy a site's calibrations between SQLite and PostgreSQL, or check them all"),
     "record": (
         "services.commands.record",
         "record raw, headings, calibrations and alerts as a ROS 2 bag (MCAP)",

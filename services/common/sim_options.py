@@ -18,7 +18,16 @@ from typing import Any
 import numpy as np
 
 from magnet.earth.location import Location
-from magnet.simulator import DEFAULT_LOCATION, SensorErrors, SensorStream, SimulatorConfig, Trajectory
+from magnet.simulator import (
+    DEFAULT_LOCATION,
+    PATH_TRAJECTORIES,
+    Disturbances,
+    HardIronChange,
+    SensorErrors,
+    SensorStream,
+    SimulatorConfig,
+    Trajectory,
+)
 from services.common.options import Check, add_options, check_options, from_args, option
 
 
@@ -60,6 +69,13 @@ def _hard_iron(text: str) -> tuple[float, ...]:
 
 def _soft_iron(text: str) -> tuple[float, ...]:
     return tuple(parse_soft_iron(text).ravel().tolist())
+
+
+def _iron_change(text: str) -> tuple[float, ...]:
+    values = parse_floats(text, (4,), "")
+    if values[0] < 0:
+        raise ValueError(f"T_S must be >= 0 seconds, got {values[0]:g}")
+    return tuple(values.tolist())
 
 
 def _gyro_bias(text: str) -> tuple[float, ...]:
@@ -148,9 +164,25 @@ class SimulatorSettings:
         group=GROUP,
     )
     date: str | None = option(None, "--date", help="YYYY-MM-DD or decimal year (default: the simulator's)", group=GROUP)
+    disturbances: bool = option(
+        False,
+        "--disturbances",
+        help="steel doors and parked cars passed on the way (walks, car, boat, robot; docs/field-motions.md)",
+        group=GROUP,
+    )
+    iron_change: tuple[float, ...] | None = option(
+        None,
+        "--iron-change",
+        metavar="T_S,X,Y,Z",
+        parse=_iron_change,
+        show_default=False,
+        help="from T_S seconds on the hard iron is X,Y,Z uT (an in-service recalibration to make)",
+        group=GROUP,
+    )
 
     def __post_init__(self) -> None:
         check_options(self)
+        self.config_extras()  # a trajectory without a path refuses --disturbances now, not when it first samples
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> SimulatorSettings:
@@ -182,6 +214,17 @@ class SimulatorSettings:
             **({"date": self.date} if self.date else {}),
         }
 
+    def config_extras(self) -> dict[str, Any]:
+        """``disturbances`` and ``hard_iron_change`` of the simulator's config (ValueError: --disturbances with a
+        trajectory that does not follow a path)."""
+        if self.disturbances and self.trajectory not in PATH_TRAJECTORIES:
+            names = ", ".join(sorted(t.value for t in PATH_TRAJECTORIES))
+            raise ValueError(f"--disturbances needs a --trajectory along a path ({names})")
+        change = None
+        if self.iron_change is not None:
+            change = HardIronChange(self.iron_change[0], np.array(self.iron_change[1:]))
+        return {"disturbances": Disturbances() if self.disturbances else None, "hard_iron_change": change}
+
     def sensor_stream(self, count: int, rate_hz: float) -> SensorStream:
         """The simulator's ``SensorStream``: ``count`` samples of trajectory at ``rate_hz``."""
         return SensorStream(
@@ -192,6 +235,7 @@ class SimulatorSettings:
                 errors=self.errors(),
                 seed=self.seed,
                 **self.place(),
+                **self.config_extras(),
             )
         )
 
