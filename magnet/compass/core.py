@@ -29,6 +29,7 @@ from magnet.bounded import Recent
 from magnet.compass.calibrations import CalibrationsInForce, Correction, small_change
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
+from magnet.compass.presence import GONE, CalibratorPresence
 from magnet.compass.tilt import Headings, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift import DEFAULT_DRIFT, DriftSettings
@@ -58,6 +59,9 @@ class CompassStatus:
     dropped: dict[str, int]
     evicted_devices: int = 0
     shard: str = "0/1"
+    calibrators: int = 0  # calibrators alive (their liveliness tokens)
+    calibrators_state: str = "unseen"  # present | gone: the records in force held are kept and applied | unseen
+    calibrators_gone_since_ns: int | None = None  # when the last calibrator went away (ns since the epoch)
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -162,6 +166,7 @@ class CompassCore:
         self.keys = DeviceKeys(settings.shard, max_keys=KEYS_PER_DEVICE * limit)
         self.drops = wire.DropCounter()
         self.counters = Counters()
+        self.calibrators = CalibratorPresence()
         self._evictions_logged = False
 
     # ------------------------------------------------------------------------------------------ the wire's edges
@@ -304,6 +309,17 @@ class CompassCore:
                 self.settings.max_devices,
             )
 
+    def on_calibrator(self, key: str, alive: bool, now_ns: int) -> None:
+        """A calibrator's liveliness token appeared or went away: when the last one goes, the records in force held
+        stay (nothing here drops them) and that is logged and shown in the status."""
+        if not self.calibrators.on_token(key, alive, now_ns):
+            return
+        held = len(self.calibrations.in_force)
+        if self.calibrators.state == GONE:
+            log.warning("every calibrator is gone: the %d calibration(s) in force held are kept and applied", held)
+        else:
+            log.info("a calibrator is back (%s): %d calibration(s) in force held", key, held)
+
     def status(self, name: str) -> CompassStatus:
         c = self.counters
         return CompassStatus(
@@ -316,4 +332,7 @@ class CompassCore:
             dict(self.drops.counts),
             self.evicted_count(),
             str(self.settings.shard),
+            len(self.calibrators.alive),
+            self.calibrators.state,
+            self.calibrators.gone_since_ns,
         )

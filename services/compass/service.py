@@ -135,6 +135,11 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             vehicles=declared.enter_context(
                 session.declare_queryable(wire.vehicle_key(prefix, "*"), zenoh.handlers.FifoChannel(64))
             ),
+            calibrators=declared.enter_context(
+                session.liveliness().declare_subscriber(
+                    wire.liveliness_key(prefix, "calibrator", "*"), zenoh.handlers.FifoChannel(256), history=True
+                )
+            ),
         )
         log.info(
             "compass %s: serving %s/%s (shard %s), declination %.2f deg",
@@ -167,9 +172,10 @@ class _Ends:
         status: Queries,
         alerts: Queries,
         vehicles: Queries | None = None,
+        calibrators: Samples | None = None,
     ) -> None:
         self.raw, self.calibrations, self.status, self.alerts = raw, calibrations, status, alerts
-        self.vehicles = vehicles
+        self.vehicles, self.calibrators = vehicles, calibrators
 
 
 class _Loop:
@@ -188,6 +194,8 @@ class _Loop:
         """One round of the loop, every handler through the guard (none ends the compass); False when no raw
         batches were waiting."""
         self.guard.run("calibration", self.calibrations, ends.calibrations)
+        for token in drain(ends.calibrators, 64) if ends.calibrators is not None else []:
+            self.core.on_calibrator(str(token.key_expr), token.kind == zenoh.SampleKind.PUT, time.time_ns())
         for query in drain(ends.status, 64):
             self.guard.answer("query:status", query, self.answer_status, name)
             query.drop()  # finalize now: the asker waits for it
