@@ -135,11 +135,18 @@ class AidedFilter:
     product from the first pending sample to it)."""
 
     def __init__(
-        self, period_s: float, params: dict[str, Any], start: Any = None, max_lag_s: float = MAX_LAG_S
+        self,
+        period_s: float,
+        params: dict[str, Any],
+        start: Any = None,
+        max_lag_s: float = MAX_LAG_S,
+        fed: bool = False,
     ) -> None:
-        """``start``: a vqf filter to carry on from (the device's filter before its first velocity), else a new one."""
+        """``start``: a vqf filter to carry on from (the device's filter before its first velocity), else a new one;
+        ``fed``: whether that filter has taken samples already (else its attitude is no attitude yet)."""
         self.period_s, self.params, self.max_lag_s = period_s, params, max_lag_s
         self.filter = start if start is not None else vqf.VQF(period_s, **params)
+        self.fed = fed and start is not None
         self.fixes = VelocityFixes()
         self.pending = np.zeros((0, 18))
         self.disturbed = False
@@ -156,6 +163,7 @@ class AidedFilter:
     def restart(self) -> None:
         self.release()
         self.filter.resetState()
+        self.fed = False
         self.fixes, self.pending, self.disturbed = VelocityFixes(), np.zeros((0, 18)), False
         self.vertical = VerticalBias(self.params, self.period_s)
         self.drift = HeadingDrift(self.drift.tau_s, self.drift.bias_sigma)
@@ -189,6 +197,9 @@ class AidedFilter:
         _kernels.carry_forward(before, rows[:, _GYR], bias, self.period_s, rows[:, _TURN])
         self.pending = np.vstack([self.pending, rows])
         self._give()
+        if not self.fed:  # a filter that has taken no sample has no attitude to carry forward: fed at once
+            quat = self._feed(float(rows[0, 0]), keep=0, at_once=True)
+            return quat[-len(rows) :], np.full(len(rows), self.disturbed)
         self._feed(float(rows[0, 0]), keep=len(rows))
         self._give()
         return self.pending[-len(rows) :, _GIVEN].copy(), np.full(len(rows), self.disturbed)
@@ -198,14 +209,20 @@ class AidedFilter:
         start = np.asarray(self.filter.getQuat9D(), dtype=float).reshape(1, 4)
         _kernels.quaternion_product(start, self.pending[:, _TURN], self.pending[:, _GIVEN])
 
-    def _feed(self, now_s: float, keep: int) -> None:
-        """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``), in order, but not
-        the last ``keep`` (the ones being answered); then count the turns of the others from the new filter state."""
+    def _feed(self, now_s: float, keep: int, at_once: bool = False) -> np.ndarray:
+        """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``; all of them
+        ``at_once``), in order, but not the last ``keep`` (the ones being answered); then count the turns of the
+        others from the new filter state. Returns vqf's quaternions (n, 4) of the samples fed.
+
+        At once: a filter that has taken no sample yet answers from no attitude at all (the identity: magnetic east
+        at level), which the gyroscope would carry forward for up to ``max_lag_s`` after every restart (a gap, a new
+        calibration); so its first samples are fed without waiting for their acceleration."""
         table = self.pending
-        ready = (table[:, 0] <= self.fixes.known_until_s) | (table[:, 0] < now_s - self.max_lag_s)
+        ready = (table[:, 0] <= self.fixes.known_until_s) | (table[:, 0] < now_s - self.max_lag_s) | at_once
         count = min(int(np.argmin(ready)) if not ready.all() else len(table), len(table) - keep)
         if count == 0:
-            return
+            return np.zeros((0, 4))
+        self.fed = True
         fed, self.pending = table[:count], table[count:].copy()
         acc = fed[:, _ACC] - _in_body(fed[:, _GIVEN], self.fixes.acceleration(fed[:, 0]))
         gyr, field = np.ascontiguousarray(fed[:, _GYR]), np.ascontiguousarray(fed[:, _FIELD])
@@ -217,7 +234,9 @@ class AidedFilter:
         self.disturbed = bool(np.asarray(out["magDistDetected"]).reshape(-1)[-1])
         self._heading_loop(fed[:, 0], acc, field, out)
         # the turns from the new state: conj(last fed) turn, normalised (rounding would compound)
-        _kernels.quaternion_product(fed[-1:, _TURN], self.pending[:, _TURN], self.pending[:, _TURN], True, True)
+        if len(self.pending):
+            _kernels.quaternion_product(fed[-1:, _TURN], self.pending[:, _TURN], self.pending[:, _TURN], True, True)
+        return np.asarray(out["quat9D"], dtype=float).reshape(-1, 4)
 
     def _heading_loop(self, t_s: np.ndarray, acc: np.ndarray, field: np.ndarray, out: dict[str, Any]) -> None:
         """After a piece was fed (times (n,) s, the accelerometer fed (n, 3) and the field (n, 3), vqf frames, vqf's

@@ -206,7 +206,8 @@ class Fusion:
     ) -> tuple[np.ndarray, np.ndarray]:
         """vqf (or the velocity-aided filter) on one batch, as ``update_vqf_frame``."""
         if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
-            self._aided = AidedFilter(self.period_s, self.params, self._filter)  # carries on from its state
+            had = self.samples > len(gyr)  # carries on from its state, an attitude once it took samples
+            self._aided = AidedFilter(self.period_s, self.params, self._filter, fed=had)
         if self._aided is not None and t_s is not None:
             vel = np.full((len(gyr), 3), np.nan) if vel_ned_ms is None else vel_ned_ms
             return self._aided.update(gyr, acc, field, t_s, vel)

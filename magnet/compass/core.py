@@ -250,7 +250,9 @@ class CompassCore:
         flags = hd.disturbance_flags(out.field_ut, gravity, where.total_ut, where.inclination_deg, dip_deg=dip)
         out, quat = merge(dataclasses.replace(out, flags=out.flags | flags), fused)
         self.watch.observe(raw.devices, raw.bounds, raw.t_ns, hd.row_norm(out.field_ut), dip)
-        self.vehicles.observe(raw.devices, raw.bounds, raw.t_ns, raw.mag_ut, raw.current, raw.thr, _correction(cals))
+        self.vehicles.observe(
+            raw.devices, raw.bounds, raw.t_ns, raw.mag_ut, raw.current, raw.thr, _correction(cals), raw.vehicles
+        )
         self._log_evictions()
         self.counters.received_batches += len(raw.devices)
         self.counters.received_samples += int(raw.counts.sum())

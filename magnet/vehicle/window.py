@@ -37,13 +37,14 @@ class VehicleWindows:
         current_a: np.ndarray,
         throttle: np.ndarray,
         correction: Callable[[int], tuple[np.ndarray, np.ndarray] | None],
+        vehicles: Sequence[str] | None = None,
     ) -> None:
         """One step's samples: batch b (of ``devices``) is samples bounds[b] .. bounds[b+1]; t_ns (S,), mag_ut
         (S, 3) uT as measured, current_a and throttle (S,) with NaN where unknown; ``correction(b)`` batch b's
-        calibration (offset (3,), matrix (3, 3)) or None. Kept: ``compared_field`` of each. Devices outside any
-        vehicle are skipped."""
+        calibration (offset (3,), matrix (3, 3)) or None; ``vehicles`` the vehicle each batch names ("" none), or
+        None. Kept: ``compared_field`` of each. Devices outside any vehicle are skipped."""
         for b, device in enumerate(devices):
-            vehicle = vehicle_of(device)
+            vehicle = vehicle_of(device, "" if vehicles is None else vehicles[b])
             lo, hi = int(bounds[b]), int(bounds[b + 1])
             if vehicle is None or hi <= lo:
                 continue

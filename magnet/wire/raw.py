@@ -5,7 +5,8 @@ gyr_rads: [[x, y, z]] * N (optional, body-frame rate of turn in rad/s), vel_ned_
 velocity over the ground in m/s, north-east-down, NaN rows where no fix is known), truth: {heading_deg: [N],
 pitch_deg: [N], roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the
 device is, ``magnet.earth.location.Location``, checked: cause ``bad-location``), current_a: [N] (optional, the battery
-current in A at each sample, for the motors' field), throttle: [N] (optional, 0..1; both NaN where unknown)}``.
+current in A at each sample, for the motors' field), throttle: [N] (optional, 0..1; both NaN where unknown),
+vehicle: text (optional: the vehicle the device is a compass of, ``magnet edge --vehicle``; docs/vehicles.md)}``.
 In v 2 (written) every array of samples is a binary array map (see ``magnet.wire.arrays``): t_ns ``<i8`` [N],
 mag_ut / acc_ms2 / gyr_rads / vel_ned_ms ``<f4`` [N, 3], truth, current_a and throttle ``<f4`` [N]; ``location``
 (three numbers, not samples) stays a list in both versions.
@@ -59,7 +60,7 @@ class RawBatch:
     truth: {"heading_deg", "pitch_deg", "roll_deg"} -> (N,) degrees, simulator only, else None; gyr_rads (N, 3)
     rad/s body frame or None; location where the device is, or None; vel_ned_ms (N, 3) m/s north-east-down, or
     None (rows may be NaN where no velocity is known); current_a (N,) A battery current and throttle (N,) 0..1 at
-    each sample, or None."""
+    each sample, or None; vehicle: the vehicle the device is a compass of ("" none: ``magnet.vehicle``)."""
 
     device: str
     seq: int
@@ -73,6 +74,7 @@ class RawBatch:
     vel_ned_ms: np.ndarray | None = None
     current_a: np.ndarray | None = None
     throttle: np.ndarray | None = None
+    vehicle: str = ""
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -103,7 +105,8 @@ class RawColumns:
     devices, seqs, sensors: per batch (B); counts (B,) int samples per batch; t_ns (S,) int64; mag_ut (S, 3) uT;
     acc_ms2 (S, 3) m/s^2 and gyr_rads (S, 3) rad/s, with NaN rows for batches that carry none; locations per batch
     (a Location or None), or None when no batch carries one; vel_ned_ms (S, 3) m/s NED, NaN rows where unknown;
-    current_a (S,) A and throttle (S,) 0..1, NaN where unknown."""
+    current_a (S,) A and throttle (S,) 0..1, NaN where unknown; vehicles per batch ("" none), or None when no batch
+    names one."""
 
     devices: list[str]
     seqs: list[int]
@@ -117,6 +120,7 @@ class RawColumns:
     vel_ned_ms: np.ndarray | None = None
     current_a: np.ndarray | None = None
     throttle: np.ndarray | None = None
+    vehicles: list[str] | None = None
 
     def __post_init__(self) -> None:
         n = int(self.t_ns.shape[0])
@@ -158,6 +162,7 @@ class RawColumns:
             np.concatenate([nan_rows(len(b)) if b.vel_ned_ms is None else b.vel_ned_ms for b in batches]),
             _scalars(batches, "current_a"),
             _scalars(batches, "throttle"),
+            _vehicles([b.vehicle for b in batches]),
         )
 
     @property
@@ -185,6 +190,7 @@ class RawColumns:
                     None if np.isnan(vel).all() else vel,
                     _present(self.current[lo:hi]),
                     _present(self.thr[lo:hi]),
+                    "" if self.vehicles is None else self.vehicles[i],
                 )
             )
         return out
@@ -207,7 +213,13 @@ class RawColumns:
             self.vel[per_sample],
             self.current[per_sample],
             self.thr[per_sample],
+            None if self.vehicles is None else _vehicles([self.vehicles[i] for i in pick]),
         )
+
+
+def _vehicles(names: list[str]) -> list[str] | None:
+    """Per-batch vehicles, or None when no batch names one."""
+    return names if any(names) else None
 
 
 def batch_locations(locations: list[Location | None]) -> list[Location | None] | None:
@@ -257,6 +269,8 @@ def encode_raw(batch: RawBatch, version: int = BINARY_ARRAYS_VERSION) -> bytes:
             message[name] = floats(getattr(batch, name))
     if batch.location is not None:
         message["location"] = batch.location.to_wire()
+    if batch.vehicle:
+        message["vehicle"] = batch.vehicle
     if batch.truth is not None:
         message["truth"] = {name: floats(batch.truth[name]) for name in TRUTH_FIELDS}
     return msgpack.packb(message, use_bin_type=True)

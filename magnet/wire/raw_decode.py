@@ -116,6 +116,7 @@ def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | No
         vel_ned_ms,
         current_a,
         throttle,
+        [h.vehicle for h in headers] if any(h.vehicle for h in headers) else None,
     )
     return columns, verdicts
 

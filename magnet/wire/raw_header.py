@@ -25,6 +25,7 @@ from magnet.wire.raw import SCALAR_FIELDS, TRUTH_FIELDS, VECTOR_FIELDS
 #: the fields a raw message may carry; others are ignored, up to MAX_EXTRA_FIELDS of them
 RAW_FIELDS = frozenset(
     {"v", "device", "seq", "sensor", "t_ns", "mag_ut", "acc_ms2", "gyr_rads", "vel_ned_ms", "truth", "location"}
+    | {"vehicle"}
     | {name for name, _, _ in SCALAR_FIELDS}
 )
 MAX_EXTRA_FIELDS = 32
@@ -63,6 +64,7 @@ class Header(NamedTuple):
     present: tuple[bool, ...]  # per VECTOR_FIELDS entry
     arrays: tuple[Any, ...]
     scalars: tuple[np.ndarray | None, ...] = ()
+    vehicle: str = ""
 
 
 def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
@@ -76,6 +78,9 @@ def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
     sensor = message.get("sensor", "")
     if type(sensor) is not str or len(sensor) > MAX_SENSOR_CHARS:
         raise WireError("bad-field", f"sensor must be a string of at most {MAX_SENSOR_CHARS} characters")
+    vehicle = message.get("vehicle", "")
+    if type(vehicle) is not str or len(vehicle) > MAX_DEVICE_ID_CHARS:
+        raise WireError("bad-field", f"vehicle must be a string of at most {MAX_DEVICE_ID_CHARS} characters")
     seq = int_field(message, "seq", 0)
     if not 0 <= seq <= INT64_MAX:
         raise WireError("out-of-range", f"seq must be within 0..{INT64_MAX}, got {seq}")
@@ -83,7 +88,7 @@ def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
     if size is not None and size > MAX_HEADER_BYTES + n * MAX_BYTES_PER_SAMPLE:
         raise WireError("oversized", f"payload of {size} bytes is more than {n} samples can need")
     scalars = tuple(_scalar(message, name, low, high, n) for name, low, high in SCALAR_FIELDS)
-    return Header(device, seq, sensor, n, tuple(a is not None for a in arrays[1:]), tuple(arrays), scalars)
+    return Header(device, seq, sensor, n, tuple(a is not None for a in arrays[1:]), tuple(arrays), scalars, vehicle)
 
 
 def _scalar(message: Mapping[str, Any], name: str, low: float, high: float, n: int) -> np.ndarray | None:

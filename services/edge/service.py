@@ -188,6 +188,7 @@ class Publisher:
         self.block = zenoh.CongestionControl.BLOCK  # raw samples wait for a congested link rather than vanish
         self.version = settings.wire_version
         self.location = settings.location
+        self.vehicle = settings.vehicle
 
     def put(self, batches: list[wire.RawBatch]) -> None:
         tick = time.monotonic()
@@ -202,6 +203,8 @@ class Publisher:
                     batch = dataclasses.replace(batch, t_ns=stamp(len(batch), now_ns, self.sample_ns))
                 if self.location is not None and batch.location is None:
                     batch = dataclasses.replace(batch, location=self.location)
+                if self.vehicle and not batch.vehicle:
+                    batch = dataclasses.replace(batch, vehicle=self.vehicle)
                 key = self.keys.get(batch.device) or self.keys.setdefault(
                     batch.device, wire.key(self.prefix, batch.device, wire.Kind.RAW)
                 )

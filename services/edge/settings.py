@@ -162,6 +162,14 @@ class EdgeSettings:
     device_prefix: str = option(
         "mav", "--device-prefix", help="with --mavlink: device ids start with this", check=_device_prefix
     )
+    vehicle: str = option(
+        "",
+        "--vehicle",
+        metavar="NAME",
+        help="the vehicle these devices are compasses of: the compass compares the compasses of one vehicle "
+        "(magnet get vehicle NAME; MAVLink vehicles are grouped by system id without it)",
+        check=lambda v: None if not v else _device_id(v),
+    )
     vehicle_timeout_s: float = option(
         3.0,
         "--vehicle-timeout",

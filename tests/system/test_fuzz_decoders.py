@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import struct
 import tempfile
 from pathlib import Path
 
@@ -247,5 +248,53 @@ def test_calibration_files_give_a_value_error():
             path.write_bytes(content)
             with contextlib.suppress(ValueError):
                 Calibration.from_dict(jsonio.read_json(path))
+
+        check()
+
+
+def _recordings(root: Path) -> dict[str, bytes]:
+    """Small genuine recordings of every binary kind, and the crafted bombs of ``test_log_bombs.py``."""
+    from logfixtures import ARDUPILOT_LOG, simulated_run, write_tlog
+
+    from tests.services.common import test_log_bombs as bombs
+
+    write_tlog(root / "seed.tlog", simulated_run(count=600), count=100)
+    sane = bombs.ulog_absurd_field().replace(struct.pack("<f", 3e38), struct.pack("<f", 0.4))
+    return {
+        ".ulg": sane,
+        ".bin": ARDUPILOT_LOG.read_bytes()[:16384],
+        ".tlog": (root / "seed.tlog").read_bytes(),
+        ".mcap": bombs.mcap_bomb(16384, 16384),
+        ".db3": bombs.small_db3(root).read_bytes(),
+        ".ulg ": bombs.ulog_nested_bomb(),
+        ".mcap ": bombs.mcap_bomb(1 << 20, 1 << 30),
+    }
+
+
+def test_recordings_with_bytes_changed_give_a_value_error():
+    """Genuine recordings and crafted bombs with 1-8 bytes changed (or cut short): a table or a ValueError naming
+    the file, within the memory ceiling of the bomb tests."""
+    from tests.services.common.test_log_bombs import memory_ceiling
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        seeds = _recordings(root)
+
+        @settings(FUZZ, max_examples=30, deadline=None)
+        @given(
+            st.sampled_from(sorted(seeds)),
+            st.lists(st.tuples(st.floats(0, 1, exclude_max=True), st.integers(0, 255)), min_size=1, max_size=8),
+            st.none() | st.floats(0.05, 1),
+        )
+        def check(kind, changes, cut):
+            content = bytearray(seeds[kind])
+            for where, value in changes:
+                content[int(where * len(content))] = value
+            if cut is not None:
+                content = content[: int(cut * len(content))]
+            path = root / f"f{kind.strip()}"
+            path.write_bytes(bytes(content))
+            with memory_ceiling(), contextlib.suppress(ValueError):
+                read_input(path)
 
         check()

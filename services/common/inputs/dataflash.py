@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import contextlib
 import io
-from collections import defaultdict
+import os
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +26,15 @@ import numpy as np
 from magnet.autopilot.conventions import ardupilot_raw_field, ardupilot_scale, ardupilot_soft_iron
 from magnet.units import UT_PER_MGAUSS
 from services.common.inputs.csvio import SampleTable
-from services.common.inputs.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
+from services.common.inputs.flightlogs import (
+    LogStreams,
+    ReferenceYaw,
+    Stream,
+    Table,
+    described,
+    release_unclosed,
+    to_table,
+)
 from services.common.inputs.input_options import InputOptions
 
 TYPES = ["MAG", "MAG2", "MAG3", "IMU", "IMU2", "PARM", "BAT", "CURR", "RCOU", "ATT"]
@@ -43,9 +53,50 @@ MAG_FORMATS: tuple[tuple[str, tuple[str, str, str] | None], ...] = (
 MAG_OFFSETS = ("OfsX", "OfsY", "OfsZ")
 
 
-def _records(path: Path, types: list[str]) -> tuple[dict[str, list[Any]], dict[str, float]]:
-    """(records of ``types`` by name, PARM name -> first logged value); ValueError naming the file when it is not a
-    DataFlash log pymavlink can read."""
+#: the fields kept of each record type, where a record has them: a record is reduced to these numbers as it is
+#: read (a pymavlink record object is about a kilobyte, its numbers a few dozen bytes), so memory follows what is
+#: kept, not the log's size
+_TIMES = ("TimeUS", "TimeMS")
+KEPT_FIELDS = {
+    "MAG": (*_TIMES, "I", "MagX", "MagY", "MagZ", *MAG_OFFSETS, "MOfsX", "MOfsY", "MOfsZ", "MOX", "MOY", "MOZ"),
+    "IMU": (*_TIMES, "I", "AccX", "AccY", "AccZ", "GyrX", "GyrY", "GyrZ"),
+    "BAT": (*_TIMES, "I", "Curr"),
+    "CURR": (*_TIMES, "Curr"),
+    "RCOU": (*_TIMES, *RCOU_CHANNELS[0], *RCOU_CHANNELS[1]),
+    "ATT": (*_TIMES, "Yaw"),
+}
+KEPT_FIELDS |= {"MAG2": KEPT_FIELDS["MAG"], "MAG3": KEPT_FIELDS["MAG"], "IMU2": KEPT_FIELDS["IMU"]}
+
+
+def _kept_names(kind: str, record: Any) -> tuple[str, ...]:
+    """The fields of ``KEPT_FIELDS[kind]`` that ``record`` has."""
+    present = set(record.get_fieldnames())
+    return tuple(n for n in KEPT_FIELDS[kind] if n in present)
+
+
+@contextlib.contextmanager
+def _silenced() -> Iterator[None]:
+    """Standard output and error silenced, down to the file descriptors: pymavlink's indexer (C) prints each bad
+    header it skips, thousands of lines for a damaged log, which the reader's one error line replaces."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), 2)
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])
+
+
+def _records(path: Path, types: list[str]) -> tuple[dict[str, Table], dict[str, float]]:
+    """(kept numbers of the records of ``types`` by name, PARM name -> first logged value); ValueError naming the
+    file when it is not a DataFlash log pymavlink can read."""
     from pymavlink import mavutil
 
     with open(path, "rb") as handle:
@@ -54,64 +105,70 @@ def _records(path: Path, types: list[str]) -> tuple[dict[str, list[Any]], dict[s
         raise ValueError(f"{path}: the file is empty")
     if start != HEADER:  # checked here: pymavlink's fast indexer prints every bad byte of a foreign file
         raise ValueError(f"{path}: not an ArduPilot DataFlash log (it does not start with a DataFlash FMT record)")
-    found: dict[str, list[Any]] = defaultdict(list)
+    found: dict[str, Table] = {}
     params: dict[str, float] = {}
-    quiet = io.StringIO()  # pymavlink prints each bad header it skips
+    failure = ""
     try:
-        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+        with _silenced():
             log = mavutil.mavlink_connection(str(path))
-            try:
+        try:
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
                 while (record := log.recv_match(type=types)) is not None:
                     kind = record.get_type()
                     if kind == "PARM":
                         params.setdefault(str(record.Name), float(record.Value))
-                    else:
-                        found[kind].append(record)
-            finally:
-                log.close()
+                        continue
+                    if kind not in found:
+                        found[kind] = Table(_kept_names(kind, record), tuple(record.get_fieldnames()))
+                    found[kind].add(record)
+        finally:
+            log.close()
     except Exception as exc:  # pymavlink raises whatever its parser meets in a damaged file
-        raise ValueError(f"{path}: not a readable ArduPilot DataFlash log ({type(exc).__name__}: {exc})") from None
+        failure = f"{type(exc).__name__}: {exc}"
+    if failure:
+        release_unclosed()  # pymavlink leaves its file open when its constructor fails
+        raise ValueError(f"{path}: not a readable ArduPilot DataFlash log ({failure})")
     if not found and not params:
         raise ValueError(f"{path}: no DataFlash records found: not an ArduPilot .bin log, or damaged from its start")
     return found, params
 
 
-def _instance_records(found: dict[str, list[Any]], base: str, instance: int) -> list[Any]:
+def _instance_records(found: dict[str, Table], base: str, instance: int) -> Table | None:
     """The records of ``base`` (MAG, IMU) for one instance: field ``I`` when logged, else MAG, MAG2, MAG3 by name."""
-    records = found.get(base, [])
-    if records and "I" in records[0].get_fieldnames():
-        return [r for r in records if int(r.I) == instance]
-    return found.get(base if instance == 0 else f"{base}{instance + 1}", [])
+    records = found.get(base)
+    if records is not None and "I" in records.names:
+        return records.where(records.column("I") == instance)
+    return found.get(base if instance == 0 else f"{base}{instance + 1}")
 
 
-def _instances(found: dict[str, list[Any]], base: str) -> list[int]:
-    records = found.get(base, [])
-    if records and "I" in records[0].get_fieldnames():
-        return sorted({int(r.I) for r in records})
+def _instances(found: dict[str, Table], base: str) -> list[int]:
+    records = found.get(base)
+    if records is not None and "I" in records.names:
+        return sorted({int(i) for i in records.column("I")})
     return [k for k, name in enumerate((base, f"{base}2", f"{base}3")) if found.get(name)]
 
 
-def _columns(records: list[Any], names: tuple[str, ...]) -> np.ndarray:
-    return np.array([[float(getattr(r, n)) for n in names] for r in records], dtype=float).reshape(-1, len(names))
+def _columns(records: Table, names: tuple[str, ...]) -> np.ndarray:
+    return records.columns(names)
 
 
-def _times_us(records: list[Any]) -> np.ndarray:
+def _times_us(records: Table) -> np.ndarray:
     """Each record's time in us: ``TimeUS``, or ``TimeMS`` x 1000 in old logs."""
-    if records and "TimeUS" not in records[0].get_fieldnames() and "TimeMS" in records[0].get_fieldnames():
-        return np.array([float(r.TimeMS) * 1000.0 for r in records], dtype=float)
-    return np.array([float(r.TimeUS) for r in records], dtype=float)
+    if "TimeUS" not in records.names and "TimeMS" in records.names:
+        return records.column("TimeMS") * 1000.0
+    return records.column("TimeUS")
 
 
-def _mag_columns(path: Path, records: list[Any]) -> np.ndarray:
+def _mag_columns(path: Path, records: Table) -> np.ndarray:
     """(N, 9) MagX..Z, offsets, motor offsets (mGauss) of MAG records in any of ``MAG_FORMATS`` (zero motor offsets
     where the layout logs none); ValueError in one line naming the fields found when the layout is none of them."""
-    names = set(records[0].get_fieldnames())
+    names = set(records.names)
     for time_field, motor in reversed(MAG_FORMATS):
         if {time_field, "MagX", "MagY", "MagZ", *MAG_OFFSETS, *(motor or ())} <= names:
             zero = np.zeros((len(records), 3))
             fields = _columns(records, ("MagX", "MagY", "MagZ", *MAG_OFFSETS))
             return np.hstack([fields, zero if motor is None else _columns(records, motor)])
-    found = ",".join(records[0].get_fieldnames())
+    found = ",".join(records.fields)
     raise ValueError(f"{path}: a MAG record layout magnet does not know ({found}): no MagX..Z with a time")
 
 
@@ -120,7 +177,7 @@ def _suffix(instance: int) -> str:
     return "" if instance == 0 else str(instance + 1)
 
 
-def _mag(path: Path, found: dict[str, list[Any]], params: dict[str, float], instance: int) -> tuple[Stream, str]:
+def _mag(path: Path, found: dict[str, Table], params: dict[str, float], instance: int) -> tuple[Stream, str]:
     records = _instance_records(found, "MAG", instance)
     if not records:
         instances = _instances(found, "MAG")
@@ -147,19 +204,20 @@ def _rounded(values: list[float]) -> list[float]:
     return [round(float(v), 4) for v in values]
 
 
-def _extra(found: dict[str, list[Any]]) -> tuple[dict[str, Stream], list[str]]:
+def _extra(found: dict[str, Table]) -> tuple[dict[str, Stream], list[str]]:
     extra: dict[str, Stream] = {}
     words: list[str] = []
-    battery = found.get("BAT", [])
-    if battery and "I" in battery[0].get_fieldnames():
-        battery = [r for r in battery if int(r.I) == 0]
+    battery = found.get("BAT")
+    if battery is not None and "I" in battery.names:
+        battery = battery.where(battery.column("I") == 0)
     if battery:
         extra["current_a"] = Stream(_times_us(battery), _columns(battery, ("Curr",))[:, 0])
         words.append("BAT current")
     elif found.get("CURR"):
         extra["current_a"] = Stream(_times_us(found["CURR"]), _columns(found["CURR"], ("Curr",))[:, 0] / 100.0)
         words.append("CURR current")
-    channels = [c for c in RCOU_CHANNELS if found.get("RCOU") and c[0] in found["RCOU"][0].get_fieldnames()]
+    rcou = found.get("RCOU")
+    channels = [c for c in RCOU_CHANNELS if rcou and set(c) <= set(rcou.names)]
     if channels:
         pwm = _columns(found["RCOU"], channels[0]).mean(axis=1)
         extra["throttle"] = Stream(_times_us(found["RCOU"]), np.clip((pwm - 1000.0) / 1000.0, 0.0, 1.0))
@@ -191,8 +249,8 @@ def read_dataflash(path: Path, options: InputOptions) -> SampleTable:
 def dataflash_reference_yaw(path: Path) -> ReferenceYaw:
     """ArduPilot's own attitude estimate in the log (``ATT.Yaw``, degrees); ValueError when it is not logged."""
     found, params = _records(path, ["ATT", "PARM"])
-    records = found.get("ATT", [])
-    if len(records) < 2:
+    records = found.get("ATT")
+    if records is None or len(records) < 2:
         raise ValueError(f"{path}: fewer than 2 ATT records: the log holds no attitude estimate to compare with")
     declination = "COMPASS_DEC not in the log's parameters"
     if "COMPASS_DEC" in params:

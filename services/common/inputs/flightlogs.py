@@ -12,13 +12,18 @@ Every problem is a ``ValueError`` naming the file.
 
 from __future__ import annotations
 
+import array
 import dataclasses
+import gc
+import warnings
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from magnet.autopilot.conventions import align, increasing
-from services.common.inputs.csvio import SampleTable
+from services.common.inputs.csvio import MAX_READING, SampleTable
 
 #: fewer magnetometer samples than this and a log is refused as too short to be of use
 MIN_MAG_SAMPLES = 2
@@ -55,6 +60,53 @@ class ReferenceYaw:
     declination: str
 
 
+class Table:
+    """The kept numbers of one record type: ``names`` (the fields its records have, in ``KEPT_FIELDS``' order) and
+    ``rows`` (N, len(names)) float, grown a record at a time in a flat ``array('d')``."""
+
+    def __init__(self, names: tuple[str, ...], fields: tuple[str, ...] = ()) -> None:
+        self.names = names
+        self.fields = fields or names  # every field the records have, kept or not (for messages)
+        self._flat = array.array("d")
+
+    @classmethod
+    def of(cls, names: tuple[str, ...], records: list[Any]) -> Table:
+        """The table of the fields ``names`` that ``records`` have (their attributes, as the first has them)."""
+        table = cls(tuple(n for n in names if records and hasattr(records[0], n)))
+        for record in records:
+            table.add(record)
+        return table
+
+    def add(self, record: Any) -> None:
+        """Append the fields ``names`` of a record (its attributes)."""
+        self._flat.extend(float(getattr(record, name)) for name in self.names)
+
+    def add_row(self, values: Iterable[float]) -> None:
+        self._flat.extend(values)
+
+    def __len__(self) -> int:
+        return len(self._flat) // max(len(self.names), 1)
+
+    def column(self, name: str) -> np.ndarray:
+        return self.columns((name,))[:, 0]
+
+    def columns(self, names: tuple[str, ...]) -> np.ndarray:
+        """(N, len(names)) of the fields ``names``; ValueError naming the first the records lack."""
+        missing = [n for n in names if n not in self.names]
+        if missing:
+            raise ValueError(f"the log's records lack the field {missing[0]} (they have {', '.join(self.names)})")
+        return self.rows[:, [self.names.index(n) for n in names]]
+
+    def where(self, keep: np.ndarray) -> Table:
+        table = Table(self.names, self.fields)
+        table._flat = array.array("d", self.rows[keep].ravel())
+        return table
+
+    @property
+    def rows(self) -> np.ndarray:
+        return np.frombuffer(self._flat, dtype=float).reshape(-1, len(self.names))
+
+
 def _clean(stream: Stream) -> Stream:
     """The samples with finite values and strictly increasing times."""
     values = np.asarray(stream.values, dtype=float)
@@ -65,10 +117,23 @@ def _clean(stream: Stream) -> Stream:
     return Stream(t[keep], values[keep])
 
 
+def _plausible(path: Path, what: str, stream: Stream) -> Stream:
+    """``stream`` when no reading is beyond +-MAX_READING (the CSV reader's check); ValueError naming the first."""
+    beyond = np.abs(stream.values) > MAX_READING
+    if beyond.any():
+        row = int(np.argmax(beyond.reshape(len(beyond), -1).any(axis=1)))
+        raise ValueError(
+            f"{path}: {what} sample {row + 1} (t={stream.t_us[row] / 1e6:.6g} s) reads "
+            f"{np.max(np.abs(stream.values[row])):.3g}, beyond +-{MAX_READING:.0e}: no sensor reads that in any "
+            "unit (a damaged log)"
+        )
+    return stream
+
+
 def to_table(path: Path, streams: LogStreams) -> SampleTable:
     """The SampleTable of ``streams``: every stream resampled at the magnetometer's times; ValueError naming the file
-    when it holds fewer than MIN_MAG_SAMPLES magnetometer samples."""
-    mag = _clean(streams.mag)
+    when it holds fewer than MIN_MAG_SAMPLES magnetometer samples, or a sensor reading beyond +-MAX_READING."""
+    mag = _plausible(path, "magnetometer", _clean(streams.mag))
     if len(mag.t_us) < MIN_MAG_SAMPLES:
         raise ValueError(f"{path}: the log holds {len(mag.t_us)} usable magnetometer samples: nothing to work with")
     t = mag.t_us
@@ -77,7 +142,7 @@ def to_table(path: Path, streams: LogStreams) -> SampleTable:
     for stream, names in ((streams.acc, ("ax", "ay", "az")), (streams.gyr, ("gx", "gy", "gz"))):
         if stream is None:
             continue
-        clean = _clean(stream)
+        clean = _plausible(path, "accelerometer" if names[0] == "ax" else "gyroscope", _clean(stream))
         if len(clean.t_us) < 2:
             continue
         resampled = align(t, clean.t_us, clean.values)
@@ -96,3 +161,11 @@ def to_table(path: Path, streams: LogStreams) -> SampleTable:
 def described(streams: list[str]) -> str:
     """``a, b and c`` for a list of stream descriptions."""
     return streams[0] if len(streams) == 1 else ", ".join(streams[:-1]) + " and " + streams[-1]
+
+
+def release_unclosed() -> None:
+    """Collect what a failed parse left behind (pymavlink's open file, when its constructor raised) without the
+    ResourceWarning the collector would print: the caller reports the failure in its own one line."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ResourceWarning)
+        gc.collect()

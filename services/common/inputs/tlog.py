@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +22,15 @@ import numpy as np
 
 from magnet.autopilot.mavlink import IMU_MESSAGES
 from services.common.inputs.csvio import SampleTable
-from services.common.inputs.flightlogs import LogStreams, ReferenceYaw, Stream, described, to_table
+from services.common.inputs.flightlogs import (
+    LogStreams,
+    ReferenceYaw,
+    Stream,
+    Table,
+    described,
+    release_unclosed,
+    to_table,
+)
 from services.common.inputs.input_options import InputOptions
 
 IMU_TYPES = {0: ("SCALED_IMU", "RAW_IMU", "HIGHRES_IMU"), 1: ("SCALED_IMU2",), 2: ("SCALED_IMU3",)}
@@ -33,35 +40,65 @@ TYPES = ["SCALED_IMU", "RAW_IMU", "HIGHRES_IMU", "SCALED_IMU2", "SCALED_IMU3", "
 SCALES = {name: IMU_MESSAGES[name][1:4] for name in ("HIGHRES_IMU", "SCALED_IMU")}
 
 
-def _messages(path: Path, types: list[str]) -> dict[str, list[Any]]:
-    """The messages of ``types`` by name; ValueError naming the file when pymavlink cannot read it."""
+#: the numbers kept of each message (system id, reception time s, vehicle time us, then its fields): a message is
+#: reduced to them as it is read (a pymavlink message object is about a kilobyte), so memory follows what is kept
+_IMU_FIELDS = tuple(f"{a}{kind}" for kind in ("mag", "acc", "gyro") for a in "xyz")
+KEPT_FIELDS = dict.fromkeys(("SCALED_IMU", "RAW_IMU", "HIGHRES_IMU", "SCALED_IMU2", "SCALED_IMU3"), _IMU_FIELDS)
+KEPT_FIELDS |= {"SYS_STATUS": ("current_battery",), "VFR_HUD": ("throttle",), "ATTITUDE": ("yaw",)}
+HEAD = ("system", "received_s", "t_us")
+
+
+def _row(message: Any, fields: tuple[str, ...]) -> list[float]:
+    """The kept numbers of ``message`` (``HEAD`` and then ``fields``)."""
+    head = [float(message.get_srcSystem()), float(message._timestamp), _time_us(message)]
+    return head + [float(getattr(message, name)) for name in fields]
+
+
+def _messages(path: Path, types: list[str]) -> dict[str, Table]:
+    """The kept numbers of the messages of ``types`` by name; ValueError naming the file when pymavlink cannot read
+    it."""
     from pymavlink import mavutil
 
     if path.stat().st_size == 0:
         raise ValueError(f"{path}: the file is empty")
-    found: dict[str, list[Any]] = defaultdict(list)
+    found: dict[str, Table] = {}
     quiet = io.StringIO()
+    failure = ""
     try:
         with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
             log = mavutil.mavlink_connection(str(path), robust_parsing=True)
             try:
                 while (message := log.recv_match(type=types)) is not None:
-                    found[message.get_type()].append(message)
+                    name = message.get_type()
+                    if name not in found:
+                        found[name] = Table((*HEAD, *KEPT_FIELDS[name]))
+                    found[name].add_row(_row(message, KEPT_FIELDS[name]))
             finally:
                 log.close()
     except Exception as exc:  # pymavlink raises whatever its parser meets in a damaged file
-        raise ValueError(f"{path}: not a readable MAVLink telemetry log ({type(exc).__name__}: {exc})") from None
+        failure = f"{type(exc).__name__}: {exc}"
+    if failure:
+        release_unclosed()  # pymavlink leaves its file open when its constructor fails
+        raise ValueError(f"{path}: not a readable MAVLink telemetry log ({failure})")
     return found
 
 
 def _time_us(message: Any) -> float:
-    """The message's time on the vehicle's clock, in microseconds."""
+    """The message's time on the vehicle's clock, in microseconds (0 for a message that carries none)."""
     if hasattr(message, "time_usec"):
         return float(message.time_usec)
-    return float(message.time_boot_ms) * 1000.0
+    return float(getattr(message, "time_boot_ms", 0)) * 1000.0
 
 
-def _chosen(found: dict[str, list[Any]], path: Path, instance: int) -> tuple[str, list[Any]]:
+def _of_system(table: Table | None, system: int | None = None) -> Table | None:
+    """The rows of ``table`` sent by ``system`` (default: the system of its first row); None when there are none."""
+    if table is None or not len(table):
+        return None
+    systems = table.column("system")
+    return table.where(systems == (systems[0] if system is None else system))
+
+
+def _chosen(found: dict[str, Table], path: Path, instance: int) -> tuple[str, Table]:
     """(message name, its messages from one vehicle) for magnetometer ``instance``; ValueError when absent."""
     names = IMU_TYPES.get(instance, ())
     name = next((n for n in names if found.get(n)), None)
@@ -73,17 +110,17 @@ def _chosen(found: dict[str, list[Any]], path: Path, instance: int) -> tuple[str
                 "messages; not a MAVLink telemetry log, or the vehicle did not send them)"
             )
         raise ValueError(f"{path}: no magnetometer instance {instance} in this log (instances: {present}): use --mag")
-    messages = found[name]
-    system = messages[0].get_srcSystem()
-    return name, [m for m in messages if m.get_srcSystem() == system]
+    messages = _of_system(found[name])
+    assert messages is not None  # found[name] is not empty
+    return name, messages
 
 
-def _streams(name: str, messages: list[Any]) -> tuple[Stream, Stream, Stream]:
+def _streams(name: str, messages: Table) -> tuple[Stream, Stream, Stream]:
     mag_scale, acc_scale, gyr_scale = SCALES.get(name, SCALES["SCALED_IMU"])
-    t = np.array([_time_us(m) for m in messages])
+    t = messages.column("t_us")
 
-    def vectors(prefix: str, suffix: str = "") -> np.ndarray:
-        return np.array([[float(getattr(m, f"{a}{prefix}{suffix}")) for a in "xyz"] for m in messages])
+    def vectors(prefix: str) -> np.ndarray:
+        return messages.columns(tuple(f"{a}{prefix}" for a in "xyz"))
 
     return (
         Stream(t, vectors("mag") * mag_scale),
@@ -92,24 +129,24 @@ def _streams(name: str, messages: list[Any]) -> tuple[Stream, Stream, Stream]:
     )
 
 
-def _clock_offset_us(messages: list[Any]) -> float:
+def _clock_offset_us(messages: Table) -> float:
     """Median of (vehicle time - reception time) in microseconds over ``messages``."""
-    return float(np.median([_time_us(m) - m._timestamp * 1e6 for m in messages]))
+    return float(np.median(messages.column("t_us") - messages.column("received_s") * 1e6))
 
 
-def _extra(found: dict[str, list[Any]], system: int, offset_us: float) -> tuple[dict[str, Stream], list[str]]:
+def _extra(found: dict[str, Table], system: int, offset_us: float) -> tuple[dict[str, Stream], list[str]]:
     extra: dict[str, Stream] = {}
     words = []
-    status = [m for m in found.get("SYS_STATUS", []) if m.get_srcSystem() == system]
-    if status:
-        t = np.array([m._timestamp * 1e6 + offset_us for m in status])
-        current = np.array([float(m.current_battery) for m in status])
+    status = _of_system(found.get("SYS_STATUS"), system)
+    if status is not None and len(status):
+        t = status.column("received_s") * 1e6 + offset_us
+        current = status.column("current_battery")
         extra["current_a"] = Stream(t, np.where(current < 0, np.nan, current / 100.0))
         words.append("SYS_STATUS current")
-    hud = [m for m in found.get("VFR_HUD", []) if m.get_srcSystem() == system]
-    if hud:
-        t = np.array([m._timestamp * 1e6 + offset_us for m in hud])
-        extra["throttle"] = Stream(t, np.clip(np.array([float(m.throttle) for m in hud]) / 100.0, 0.0, 1.0))
+    hud = _of_system(found.get("VFR_HUD"), system)
+    if hud is not None and len(hud):
+        t = hud.column("received_s") * 1e6 + offset_us
+        extra["throttle"] = Stream(t, np.clip(hud.column("throttle") / 100.0, 0.0, 1.0))
         words.append("VFR_HUD throttle")
     return extra, words
 
@@ -120,7 +157,7 @@ def read_tlog(path: Path, options: InputOptions) -> SampleTable:
     instance = options.mag or 0
     name, messages = _chosen(found, path, instance)
     mag, acc, gyr = _streams(name, messages)
-    system = messages[0].get_srcSystem()
+    system = int(messages.column("system")[0])
     extra, words = _extra(found, system, _clock_offset_us(messages))
     note = (
         f"MAVLink telemetry: {name} of system {system} (magnetometer instance {instance}, the field as the "
@@ -131,12 +168,10 @@ def read_tlog(path: Path, options: InputOptions) -> SampleTable:
 
 def tlog_reference_yaw(path: Path) -> ReferenceYaw:
     """The autopilot's attitude estimate in the log (``ATTITUDE.yaw``); ValueError when it was not sent."""
-    found = _messages(path, ["ATTITUDE"])
-    messages = found.get("ATTITUDE", [])
-    if len(messages) < 2:
+    messages = _of_system(_messages(path, ["ATTITUDE"]).get("ATTITUDE"))
+    if messages is None or len(messages) < 2:
         raise ValueError(f"{path}: fewer than 2 ATTITUDE messages: no attitude estimate to compare with")
-    system = messages[0].get_srcSystem()
-    messages = [m for m in messages if m.get_srcSystem() == system]
-    t = np.array([_time_us(m) for m in messages]) / 1e6
-    yaw = np.mod(np.degrees([float(m.yaw) for m in messages]), 360.0)
-    return ReferenceYaw(t, yaw, "ATTITUDE", "not in a telemetry log (the autopilot's own setting)")
+    yaw = np.mod(np.degrees(messages.column("yaw")), 360.0)
+    return ReferenceYaw(
+        messages.column("t_us") / 1e6, yaw, "ATTITUDE", "not in a telemetry log (the autopilot's own setting)"
+    )

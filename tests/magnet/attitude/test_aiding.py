@@ -126,3 +126,35 @@ def test_the_aided_filter_answers_the_same_however_the_samples_are_batched():
     # the attitudes those first samples were given differ, which the acceleration's rotation feels for a moment
     np.testing.assert_allclose(answers[0][100:], answers[2][100:], atol=1e-4)
     np.testing.assert_allclose(answers[1][100:], answers[2][100:], atol=1e-4)
+
+
+def _held(yaw_deg: float, seconds: float, rate_hz: float = 50.0) -> tuple[np.ndarray, ...]:
+    """A vehicle held still and level at magnetic heading ``yaw_deg``: times (s), gyroscope (mrad/s steps of
+    noise, as MAVLink rounds it), accelerometer, field (uT), body frame; velocity zero (a vehicle standing)."""
+    from magnet.frames import euler_to_matrix
+
+    n = int(seconds * rate_hz)
+    rng = np.random.default_rng(9)
+    rotation = euler_to_matrix(yaw_deg, 0.0, 0.0).reshape(3, 3)
+    field = rotation.T @ np.array([18.9, 0.0, 47.0]) + 0.3 * rng.standard_normal((n, 3))
+    acc = np.tile([0.0, 0.0, -9.80665], (n, 1)) + 0.02 * rng.standard_normal((n, 3))
+    gyr = np.round(0.002 * rng.standard_normal((n, 3)) * 1000) / 1000
+    return 1e6 + np.arange(n) / rate_hz, gyr, acc, field
+
+
+def test_a_restarted_aided_filter_answers_from_the_field_not_from_no_attitude() -> None:
+    """Fault 2 of issue 27: held still at a known heading, velocity zero (no fix ever changes, so the aided filter
+    feeds each sample only after MAX_LAG_S): a filter that has taken no sample yet (new, or restarted by a gap or a
+    new calibration) answered that second from the identity, magnetic east at level, carried by the gyroscope: a
+    frozen value 20 deg from the truth here. Now its first samples are fed at once: every answer is the heading."""
+    t, gyr, acc, field = _held(70.0, 6.0)
+    vel = np.zeros((len(t), 3))
+    causal = fusion.Fusion(0.02)
+    headings = []
+    for i in range(0, len(t), 25):
+        if i == 150:
+            causal.restart()  # as the compass does after a gap or on a new calibration
+        out = causal.update(gyr[i : i + 25], acc[i : i + 25], field[i : i + 25], t[i : i + 25], vel[i : i + 25])
+        headings.append(out.heading_deg)
+    errors = np.abs(hd.angle_difference_deg(np.concatenate(headings), 70.0))
+    assert errors.max() < 3.0, (errors.max(), np.argmax(errors))

@@ -123,3 +123,28 @@ def test_the_compass_core_keeps_a_vehicles_compasses_and_judges_them() -> None:
     verdicts = {c.device: c.verdict for c in report.compasses}
     assert verdicts["mav1-mag0"] is Verdict.REFERENCE and verdicts["mav1-mag1"] is Verdict.ROTATION
     assert verdicts["mav1-mag2"] is Verdict.INTERFERENCE and len(verdicts) == 3
+
+
+def test_a_batch_names_its_vehicle_on_the_wire_and_the_compass_groups_by_it() -> None:
+    """``magnet edge --vehicle NAME``: the raw message's optional ``vehicle`` (both wire versions), checked where it
+    enters, carried through the columns, and the compass groups devices of any name by it."""
+    from compass_steps import NOW_NS, compass_core
+
+    from magnet import wire
+
+    t_ns = np.arange(3, dtype=np.int64) + NOW_NS
+    batch = wire.RawBatch("bench-a", 0, "sim", t_ns, np.ones((3, 3)), vehicle="rover7")
+    for version in wire.VERSIONS:
+        assert wire.decode_raw(wire.encode_raw(batch, version)).vehicle == "rover7"
+    plain = wire.RawBatch("bench-b", 0, "sim", t_ns, np.ones((3, 3)))
+    assert b"vehicle" not in wire.encode_raw(plain)  # additive: absent unless named
+    columns, errors = wire.decode_raw_many([wire.encode_raw(batch), wire.encode_raw(plain)])
+    assert not errors and columns.vehicles == ["rover7", ""]
+    assert columns.select(np.array([False, True])).vehicles is None
+    bad = wire.pack({"v": 1, "device": "d", "seq": 0, "t_ns": [1], "mag_ut": [[1.0, 2.0, 3.0]], "vehicle": 7})
+    with pytest.raises(wire.WireError, match="vehicle must be a string"):
+        wire.decode_raw(bad)
+    core = compass_core()
+    core.step(wire.RawColumns.from_batches([batch, plain]), NOW_NS)
+    assert core.vehicles.known() == ["rover7"] and list(core.vehicles.series("rover7")) == ["bench-a"]
+    assert vehicle_of("bench-a", "rover7") == "rover7"

@@ -275,7 +275,8 @@ class _Record:
 
 def test_current_dataflash_instances_use_the_i_field_and_their_own_parameters() -> None:
     """Instance 1 is corrected with COMPASS_DIA2_*, COMPASS_ODI2_* and COMPASS_SCALE2 (applied: within 0.85..1.4)."""
-    from services.common.inputs.dataflash import _mag
+    from services.common.inputs.dataflash import KEPT_FIELDS, _mag
+    from services.common.inputs.flightlogs import Table
 
     raw = np.array([100.0, -200.0, 300.0])  # mGauss
     ofs, mot = np.array([-20.0, 10.0, 5.0]), np.array([1.0, 2.0, 3.0])
@@ -286,7 +287,7 @@ def test_current_dataflash_instances_use_the_i_field_and_their_own_parameters() 
     fields = dict(
         zip(("MagX", "MagY", "MagZ", "OfsX", "OfsY", "OfsZ", "MOfsX", "MOfsY", "MOfsZ"), [*logged, *ofs, *mot])
     )
-    records = [_Record(TimeUS=t, I=i, **fields) for t in (1e6, 2e6) for i in (0, 1)]
+    records = Table.of(KEPT_FIELDS["MAG"], [_Record(TimeUS=t, I=i, **fields) for t in (1e6, 2e6) for i in (0, 1)])
     stream, note = _mag(Path("x.bin"), {"MAG": records}, params, 1)
     assert stream.values == pytest.approx(np.tile(raw / 10, (2, 1)))  # uT
     assert "COMPASS_DIA2_*=[1.1, 0.9, 1.0]" in note and "scale 1.2" in note

@@ -26,6 +26,12 @@ def test_the_defaults_are_the_dataclass_s_alone() -> None:
     assert _settings("--emulate") == EdgeSettings(emulate=True)
 
 
+def test_vehicle_names_the_vehicle_its_devices_are_compasses_of() -> None:
+    assert _settings("--emulate").vehicle == "" and _settings("--emulate", "--vehicle", "rover7").vehicle == "rover7"
+    with pytest.raises(ValueError, match="--vehicle"):
+        _settings("--emulate", "--vehicle", "a/b")
+
+
 def test_every_flag_keeps_its_name_and_default() -> None:
     """The flags are contracts (README, docs, magnet up, tests): these are the defaults they had."""
     settings = _settings("--emulate")
