@@ -70,3 +70,20 @@ def test_versions_are_unique_per_device_and_rows_move_byte_for_byte(name, reques
         with pytest.raises(OSError):
             other.load_rows([StoredRow("e", "x", 1, 1, rows[0].record), rows[0]])  # the second: version 1 of d again
         assert other.count() == 2, "a refused load stores nothing"
+
+
+def test_the_deploy_units_command_is_one_magnet_accepts_with_a_postgresql_store():
+    import re
+    import shlex
+
+    from helpers import REPO_ROOT
+
+    from services.cli import build_parser
+
+    unit = (REPO_ROOT / "deploy" / "postgresql" / "magnet-calibrator.service").read_text()
+    line = next(line for line in unit.splitlines() if line.startswith("ExecStart="))
+    program, *argv = shlex.split(line.removeprefix("ExecStart="))
+    assert program == "/opt/magnet/.venv/bin/magnet" and not re.search(r"%[^%]", line)
+    args = build_parser(argv).parse_args(argv)
+    db = parse_db(args.db)  # what the settings make of the option's text
+    assert isinstance(db, PostgresUrl) and "target_session_attrs=read-write" in db.url
