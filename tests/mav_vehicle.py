@@ -15,7 +15,8 @@ the tumble (ArduPilot's SCALED_IMU2 when a second compass has no second IMU besi
 ``--quad``: instead of the tumble, a quadcopter's flight (the simulator's multirotor, its motors' throttle and current)
 with three compasses (``QUAD``): the first as it should be, the second mounted turned 90 deg in yaw, the third beside
 the power wires (SCALED_IMU3); SYS_STATUS (current), SERVO_OUTPUT_RAW (throttle) and GLOBAL_POSITION_INT (velocity)
-at 10 Hz.
+at 10 Hz. ``--clean``: compasses without errors (as ArduPilot sends a field it has corrected). ``--pause-at S
+--pause-s D``: no IMU message for D seconds from S (a radio dropout; the boot clock goes on).
 """
 
 from __future__ import annotations
@@ -130,6 +131,13 @@ class Vehicle:
             i: SensorStream(SimulatorConfig(trajectory="tumble", rate_hz=rate, count=count, errors=_noise(e), seed=i))
             for i, e in COMPASSES.items()
         }
+        if args.clean:
+            self.streams = {
+                i: SensorStream(
+                    SimulatorConfig("tumble", rate_hz=rate, count=count, errors=_noise(SensorErrors()), seed=i)
+                )
+                for i in COMPASSES
+            }
         if args.quad:  # one flight (one seed) seen by three compasses
             self.streams = {
                 i: SensorStream(
@@ -225,7 +233,11 @@ class Vehicle:
         while not stop and time.monotonic() - start < self.args.duration:
             now = time.monotonic() - start
             while k < now * self.args.rate and self.args.rate > 0:
-                self.send_imu(k)
+                paused = (
+                    self.args.pause_at is not None and 0 <= k / self.args.rate - self.args.pause_at < self.args.pause_s
+                )
+                if not paused:
+                    self.send_imu(k)
                 k += 1
             while tick < now * 10:
                 self.send_slow(tick)
@@ -250,6 +262,9 @@ def main() -> None:
     parser.add_argument("--hold-after", type=float, help="seconds of tumble before settling and holding still")
     parser.add_argument("--hold-yaw", type=float, default=70.0, help="the true heading held (deg)")
     parser.add_argument("--quad", action="store_true", help="a quadcopter's flight with three compasses (QUAD)")
+    parser.add_argument("--clean", action="store_true", help="compasses without errors (a corrected field)")
+    parser.add_argument("--pause-at", type=float, help="seconds into the run: no IMU message for --pause-s")
+    parser.add_argument("--pause-s", type=float, default=1.0)
     Vehicle(parser.parse_args()).run()
 
 
