@@ -82,10 +82,11 @@ def travelled(filter_: Any, seconds: float) -> None:
         filter_.state = state
 
 
-def horizontal_bias_sigma(filter_: Any, up: np.ndarray) -> float:
-    """vqf's uncertainty (rad/s, one sigma per axis) of its gyroscope bias about the two horizontal axes, from its
-    bias covariance (body axes, in (0.01 deg/s)^2) and the earth's up axis in body axes (3,)."""
-    cov = np.asarray(filter_.state["biasP"], dtype=float).reshape(3, 3)
+def horizontal_bias_sigma(state: dict[str, Any], up: np.ndarray) -> float:
+    """vqf's uncertainty (rad/s, one sigma per axis) of its gyroscope bias about the two horizontal axes, from the
+    bias covariance of its state (``VQF.state``: body axes, in (0.01 deg/s)^2) and the earth's up axis in body axes
+    (3,)."""
+    cov = np.asarray(state["biasP"], dtype=float).reshape(3, 3)
     variance = max(float(np.trace(cov) - up @ cov @ up), 0.0) / 2.0
     return math.radians(math.sqrt(variance) / 100.0)
 
@@ -195,7 +196,7 @@ class AidedFilter:
         bias = np.asarray(self.filter.getBiasEstimate()[0], dtype=float)
         before = self.pending[-1, _TURN] if len(self.pending) else _IDENTITY
         _kernels.carry_forward(before, rows[:, _GYR], bias, self.period_s, rows[:, _TURN])
-        self.pending = np.vstack([self.pending, rows])
+        self.pending = np.concatenate((self.pending, rows))
         self._give()
         if not self.fed:  # a filter that has taken no sample has no attitude to carry forward: fed at once
             quat = self._feed(float(rows[0, 0]), keep=0, at_once=True)
@@ -246,7 +247,11 @@ class AidedFilter:
         ``VerticalBias``."""
         quat6d = np.asarray(out["quat6D"], dtype=float).reshape(-1, 4)
         *up_xyz, heading, horizontal, vertical, left = _kernels.piece_figures(quat6d, field, acc, STANDARD_GRAVITY_MS2)
-        disturbed, up, seconds = bool(np.any(out["magDistDetected"])), np.array(up_xyz), len(t_s) * self.period_s
+        disturbed, up, seconds = (
+            bool(np.asarray(out["magDistDetected"]).any()),
+            np.array(up_xyz),
+            len(t_s) * self.period_s,
+        )
         bias = np.asarray(self.filter.getBiasEstimate()[0], dtype=float)
         residual = self.explained.update(left, seconds)
         vehicle = vehicle_tau_acc_s(residual, self.bias_sigma) < self.tau_acc_s
@@ -261,10 +266,10 @@ class AidedFilter:
             return
         self.vertical.delta = None  # vqf's delta is set here: not a drift for the integral term
         figures = PieceField(float(np.mean(t_s)), len(t_s), heading, horizontal, vertical)
-        tilt = horizontal_bias_sigma(self.filter, up) * self.drift.tau_s
-        learnt = self.drift.update(figures, disturbed, up, tilt)
-        self.filter.setBiasEstimate(bias + learnt)
-        if self.drift.p is not None and not disturbed:
-            state = self.filter.state
-            state["delta"] = float(self.drift.x[0])
+        state = self.filter.state  # read once (a dict of vqf's whole state: microseconds), written back at most once
+        learnt = self.drift.update(figures, disturbed, up, horizontal_bias_sigma(state, up) * self.drift.tau_s)
+        if self.drift.p is not None and not disturbed:  # the bias (rad/s, as setBiasEstimate sets it) and the delta
+            state["bias"], state["delta"] = (bias + learnt).tolist(), float(self.drift.x[0])
             self.filter.state = state
+        else:
+            self.filter.setBiasEstimate(bias + learnt)

@@ -84,23 +84,25 @@ class VelocityFixes:
         vel = np.asarray(vel_ned_ms, dtype=float)
         if len(vel) == 0:
             return np.zeros(0, dtype=bool)
-        before = np.vstack([np.full((1, 3), np.nan) if self.held is None else self.held[None], vel[:-1]])
-        return np.all(np.isfinite(vel), axis=1) & np.any(vel != before, axis=1)
+        changed = np.empty(len(vel), dtype=bool)
+        changed[0] = self.held is None or bool((vel[0] != self.held).any())  # nothing held: any finite row is new
+        changed[1:] = (vel[1:] != vel[:-1]).any(axis=1)
+        return np.isfinite(vel).all(axis=1) & changed
 
     def observe(self, t_s: np.ndarray, vel_ned_ms: np.ndarray) -> None:
         """Samples' times (N,) s, increasing, and their held velocity (N, 3) (NaN rows where none is known)."""
         vel = np.asarray(vel_ned_ms, dtype=float)
         if len(vel) == 0:
             return
-        finite = np.all(np.isfinite(vel), axis=1)
         new = self.arrivals(vel)
+        last_finite = bool(np.isfinite(vel[-1]).all())
         if not new.any():
-            self.held = vel[-1] if finite[-1] else self.held
+            self.held = vel[-1] if last_finite else self.held
             return
         measured = np.asarray(t_s, dtype=float)[new] - self.delay_s
         self.times_s = np.concatenate([self.times_s, measured])[-self.max_fixes :]
-        self.values = np.vstack([self.values, vel[new]])[-self.max_fixes :]
-        self.held = vel[-1] if finite[-1] else self.held
+        self.values = np.concatenate((self.values, vel[new]))[-self.max_fixes :]
+        self.held = vel[-1] if last_finite else self.held
 
     @property
     def known_until_s(self) -> float:
@@ -113,7 +115,8 @@ class VelocityFixes:
         near = (self.times_s >= start_s - self.half_window_s) & (self.times_s <= end_s + self.half_window_s)
         if not near.any():
             return None
-        return bool(np.all(np.linalg.norm(self.values[near], axis=1) < max_speed_ms))
+        near_values = self.values[near]
+        return bool((np.sqrt(np.add.reduce(near_values * near_values, axis=1)) < max_speed_ms).all())
 
     def acceleration(self, t_s: np.ndarray) -> np.ndarray:
         """dv/dt (N, 3) m/s^2 at times t_s (N,): the centred difference over the fixes; zero where the window is

@@ -1,6 +1,7 @@
-"""The compass's watch over the field (``FieldWatch``): which samples a passing disturbance (a steel door, a parked car,
-a magnet) changes, causal and batch by batch, so that the attitude filter leaves them out and holds its heading on
-the gyroscope meanwhile (``magnet.attitude.fusion``; docs/compass.md, "Disturbances").
+"""A watch over the field (``FieldWatch``): which samples a passing disturbance (a steel door, a parked car, a magnet)
+changes, causal and batch by batch, so that the attitude filter leaves them out and holds its heading on the
+gyroscope meanwhile (``magnet.attitude.fusion.Fusion(..., watch=True)``, off by default for its cost;
+docs/compass.md, "Disturbances").
 
 The field is turned into the frame the gyroscope's integration holds still (w_k = Q_k b_k, Q_k the attitude
 integrated from the filter's start), where the Earth's field is constant: a change of w over a window that the
@@ -21,28 +22,58 @@ import dataclasses
 import numpy as np
 
 from magnet.attitude.heading import row_norm
-from magnet.frames import quaternion_multiply, quaternion_to_matrix, rotation_vector_to_quaternion
+
+
+def _multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton products of rows (n, 4) wxyz (``frames.quaternion_multiply``, column by column: the watch's hot
+    path runs on batches of a few samples, where numpy's per-call cost is most of the time)."""
+    pw, px, py, pz = p[:, 0], p[:, 1], p[:, 2], p[:, 3]
+    qw, qx, qy, qz = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    out = np.empty((len(p), 4))
+    out[:, 0] = pw * qw - px * qx - py * qy - pz * qz
+    out[:, 1] = pw * qx + px * qw + py * qz - pz * qy
+    out[:, 2] = pw * qy - px * qz + py * qw + pz * qx
+    out[:, 3] = pw * qz + px * qy - py * qx + pz * qw
+    return out
 
 
 def integrated_attitude(gyr_rads: np.ndarray, period_s: float, start: np.ndarray | None = None) -> np.ndarray:
     """Q (N, 4) wxyz: the attitude from integrating body rates gyr (N, 3) rad/s, q_k = q_{k-1} exp(w_k dt), from
     ``start`` (the attitude before the first sample; identity by default). All prefix products at once (log2 N
     passes of a scan)."""
-    out = rotation_vector_to_quaternion(np.asarray(gyr_rads, dtype=float) * period_s)
+    rotation = np.asarray(gyr_rads, dtype=float) * period_s
+    angle = np.sqrt(np.sum(rotation * rotation, axis=1))
+    half = 0.5 * angle
+    scale = np.where(angle > 1e-12, np.sin(half) / np.where(angle > 1e-12, angle, 1.0), 0.5)
+    out = np.empty((len(rotation), 4))
+    out[:, 0] = np.cos(half)
+    out[:, 1:] = rotation * scale[:, None]
     if len(out) == 0:
         return out
     if start is not None:
-        out[0] = quaternion_multiply(np.asarray(start, dtype=float), out[0])
+        out[:1] = _multiply(np.asarray(start, dtype=float).reshape(1, 4), out[:1])
     stride = 1
     while stride < len(out):
-        out[stride:] = quaternion_multiply(out[:-stride], out[stride:])
+        out[stride:] = _multiply(out[:-stride], out[stride:])
         stride *= 2
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
+    return out / np.sqrt(np.sum(out * out, axis=1))[:, None]
 
 
 def to_frame(quat_wxyz: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Body vectors (N, 3) in the integrated frame: R(q_k) v_k."""
-    return np.einsum("nij,nj->ni", quaternion_to_matrix(quat_wxyz), vectors)
+    """Body vectors (N, 3) in the integrated frame: R(q_k) v_k = v + 2 w (u x v) + 2 u x (u x v), u = (x, y, z)."""
+    w, u = quat_wxyz[:, :1], quat_wxyz[:, 1:]
+    v = np.asarray(vectors, dtype=float)
+    t = 2.0 * _cross(u, v)
+    return v + w * t + _cross(u, t)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products (n, 3) (np.cross's general path costs more than the arithmetic here)."""
+    out = np.empty_like(b)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
 
 
 @dataclasses.dataclass(frozen=True)

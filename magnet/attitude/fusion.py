@@ -128,14 +128,16 @@ class Fusion:
     ``update`` takes one batch of aligned samples; ``restart`` forgets everything (a gap, a device restart).
     """
 
-    def __init__(self, period_s: float, params: Mapping[str, Any] | None = None) -> None:
+    def __init__(self, period_s: float, params: Mapping[str, Any] | None = None, watch: bool = False) -> None:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
         self._filter = vqf.VQF(self.period_s, **self.params)
         self._aided: AidedFilter | None = (
             None  # from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
         )
-        self.watch = FieldWatch(self.period_s)  # the field's disturbances: left out, the gyroscope holds the heading
+        #: with ``watch``, the field's disturbances are left out and the gyroscope holds the heading (docs/compass.md,
+        #: "Disturbances"); off by default: numpy on small batches, it costs about 20 times vqf itself
+        self.watch = FieldWatch(self.period_s) if watch else None
         self.samples = 0
 
     def restart(self) -> None:
@@ -144,7 +146,8 @@ class Fusion:
             self._aided.release()
         self._filter.resetState()
         self._aided = None
-        self.watch.reset()
+        if self.watch is not None:
+            self.watch.reset()
         self.samples = 0
 
     def update(
@@ -166,7 +169,7 @@ class Fusion:
         if field is not None and t_s is not None and vel_ned_ms is not None:
             quat, disturbed = self.update_vqf_frame(gyr, acc, field, np.asarray(t_s, float), vel_ned_ms)
             return Fused.from_vqf({"quat9D": quat, "magDistDetected": disturbed, "restDetected": disturbed * 0}, True)
-        watched = np.zeros(len(gyr), dtype=bool) if field is None else self.watch.update(field, gyr)
+        watched = self._watched(field, gyr)
         if field is not None and watched.any():
             field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
         out = dict(self._filter.updateBatch(gyr, acc, field))
@@ -190,11 +193,17 @@ class Fusion:
         (``magnet.attitude.field_watch``) reach vqf without their field (a zero vector, which vqf skips: the gyroscope
         holds the heading) and are flagged disturbed."""
         self.samples += len(gyr)
-        watched = self.watch.update(field, gyr)
+        watched = self._watched(field, gyr)
         if watched.any():
             field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
         quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms)
         return quat, np.asarray(disturbed, dtype=bool) | watched
+
+    def _watched(self, field: np.ndarray | None, gyr: np.ndarray) -> np.ndarray:
+        """(N,) bool: the samples the watch finds disturbed (none without a field or a watch)."""
+        if field is None or self.watch is None:
+            return np.zeros(len(gyr), dtype=bool)
+        return self.watch.update(field, gyr)
 
     def _vqf_frame(
         self,
@@ -251,6 +260,8 @@ def fuse_causal(
     params: Mapping[str, Any] | None = None,
     t_s: np.ndarray | None = None,
     vel_ned_ms: np.ndarray | None = None,
+    watch: bool = False,
 ) -> Fused:
-    """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``."""
-    return Fusion(period_s, params).update(gyr_rads, acc_ms2, mag, t_s, vel_ned_ms)
+    """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``; ``watch``
+    as there."""
+    return Fusion(period_s, params, watch).update(gyr_rads, acc_ms2, mag, t_s, vel_ned_ms)

@@ -18,14 +18,17 @@ which nobody tuned on), one run of a phone-like sensor (120 s at 50 Hz), and:
 Scores: heading RMS in degrees after the settling time (10 s), the error taken about the vertical
 (``field_runs.heading_error_deg``), after the constant offset unless "abs". The table prints each motion's mean over
 the seeds and, per group, how many runs have a record within 60 s and live heading within 3 deg after it, and
-whether the walks through disturbances are no worse than vqf 6D.
+whether the walks through disturbances are no worse than vqf 6D. The runs are scored in ``WORKERS`` processes at
+once (the figures do not depend on it).
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import dataclasses
 import json
+import os
 import tempfile
 import time
 from collections.abc import Sequence
@@ -53,6 +56,8 @@ PREFIX, DEVICE = "magnet", "phone"
 #: issue 26's targets: a record within this many seconds, causal heading within this many degrees after it
 RECORD_WITHIN_S = 60.0
 HEADING_WITHIN_DEG = 3.0
+#: runs scored at once, each in its own process (the runs are independent; the machine's cores bound it)
+WORKERS = 2
 WALL_NS = 1_767_225_600_000_000_000  # 2026-01-01 UTC, the simulator's date: the wall clock of the emulated services
 
 
@@ -184,6 +189,11 @@ def score_run(name: str, seed: int, settings: fr.FieldSettings) -> dict[str, obj
     return figures
 
 
+def _score_job(job: tuple[str, int, fr.FieldSettings]) -> dict[str, object]:
+    """``score_run`` of one (motion, seed, settings), for a worker process."""
+    return score_run(*job)
+
+
 #: the table's columns: (key, header, width, format)
 COLUMNS = (
     ("first_record_s", "1st rec s", 10, "{:>10.1f}"),
@@ -238,7 +248,9 @@ def run_field_benchmark(seeds: Sequence[int] = fr.DEFAULT_SEEDS, as_json: bool =
     """The table (or JSON) of ``magnet bench field`` on ``seeds``."""
     started = time.perf_counter()
     settings = fr.FieldSettings()
-    rows = [score_run(name, seed, settings) for name in fr.MOTIONS for seed in seeds]
+    jobs = [(name, seed, settings) for name in fr.MOTIONS for seed in seeds]
+    with concurrent.futures.ProcessPoolExecutor(max_workers=max(1, min(WORKERS, os.cpu_count() or 1))) as pool:
+        rows = list(pool.map(_score_job, jobs))
     if as_json:
         return json.dumps({"seeds": list(seeds), "settings": dataclasses.asdict(settings), "runs": rows}, indent=1)
     header = f"{'motion':<24}{'fits':<6}" + "".join(f"{title:>{width}}" for _, title, width, _ in COLUMNS)

@@ -66,7 +66,7 @@ def test_the_filter_holds_its_heading_on_the_gyroscope_through_a_turn_of_the_fie
         truth = field_runs.magnetic_truth(run)
         scored = np.zeros(len(field), bool)
         scored[1500:2200] = True
-        ours = fusion.fuse_causal(run.gyr_rads, run.acc_ms2, field, PERIOD_S)
+        ours = fusion.fuse_causal(run.gyr_rads, run.acc_ms2, field, PERIOD_S, watch=True)
         assert ours.mag_disturbed[1550:1700].any()
         gyr, acc, mag = (fusion.to_vqf_frame(x) for x in (run.gyr_rads, run.acc_ms2, field))
         alone = frames.ned_enu_attitude(np.asarray(vqf.VQF(PERIOD_S).updateBatch(gyr, acc, mag)["quat9D"]))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -32,10 +33,11 @@ def tumbled():
 
 def test_chosen_by_name_it_recovers_offset_soft_iron_and_the_rotation_into_the_imu_frame(tumbled):
     run, truth = tumbled
+    started = time.process_time()  # CPU time: a loaded machine (load 13 on 2 cores) stretches the wall clock 5x
     cal, _ = fit_shape(
         FitInput(run.mag_ut, gyr_rads=run.gyr_rads, period_s=PERIOD_S, field_ut=run.earth.total_ut), "gyro-ellipsoid"
     )
-    # its speed (5 minutes at 100 Hz) is a figure of `magnet bench fit`, not a timed test: it failed under load
+    assert time.process_time() - started < 1.0  # 5 minutes at 100 Hz
     assert cal.method == Method.GYRO_ELLIPSOID.value == "gyro-ellipsoid"
     np.testing.assert_allclose(cal.offset, truth.offset, atol=0.02)  # uT, hard iron up to the field itself
     # the matrix holds the 2-4 deg misalignment (an ellipsoid fit cannot see it): recovered to 0.1 %
