@@ -1,4 +1,4 @@
-"""``magnet bench accuracy|fit|pipeline|motion|field|fleet|dashboard|soak|cost``: benchmarks that print figures
+"""``magnet bench accuracy|fit|pipeline|motion|field|fleet|dashboard|soak|cost|store``: benchmarks that print figures
 (targets live here, not in timed tests)."""
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "dashboard": ("services.bench.dashboard", "run_dashboard_benchmark"),
     "soak": ("services.bench.soak", "run_soak_benchmark"),
     "cost": ("services.bench.cost", "run_cost_benchmark"),
+    "store": ("services.bench.store", "run_store_benchmark"),
 }
 
 
@@ -64,6 +65,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N,N,...",
         help="field: the simulator's seeds (default 2026,2027,2028: not the ones tuned on, 1-9)",
     )
+    parser.add_argument(
+        "--db",
+        default=None,
+        metavar="FILE.sqlite3|postgresql://...",
+        help="store: the store measured (an empty PostgreSQL database, or a new SQLite file; default a temporary file)",
+    )
     parser.add_argument("--json", action="store_true", help="field: every run's figures as JSON instead of the table")
     parser.add_argument(
         "--ros2", action="store_true", help="pipeline: the compass's cost of also publishing ROS 2 messages, at --rate"
@@ -97,6 +104,12 @@ def run(args: argparse.Namespace) -> int:
         result = importlib.import_module("services.bench.motion_broad").run_broad_dir(args.broad_dir)
     elif args.benchmark == "field":
         result = function(**({"seeds": args.seeds} if args.seeds is not None else {}), as_json=args.json)
+    elif args.benchmark == "store":
+        from services.common.stores import parse_db
+
+        if args.devices < 1:
+            raise ValueError("--devices must be positive")
+        result = function(devices=args.devices, db=None if args.db is None else parse_db(args.db))
     elif args.benchmark == "fleet":
         if args.devices < 1:
             raise ValueError("--devices must be positive")
