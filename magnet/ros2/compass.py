@@ -13,6 +13,7 @@ from magnet.ros2 import messages
 from magnet.ros2.cdr import stamped_doubles_cdr
 from magnet.ros2.frames import TESLA_PER_UT, to_ros
 from magnet.ros2.names import ros_name_of_device
+from magnet.vehicle import CompassVerdict, VehicleReport, Verdict
 
 __all__ = [
     "DeviceState",
@@ -125,3 +126,24 @@ def device_diagnostic(state: DeviceState) -> messages.DeviceDiagnostic:
     ]
     message = "; ".join(problems) if problems else "calibrated, no alerts"
     return messages.DeviceDiagnostic(state.device, level, message, tuple(values))
+
+
+def vehicle_diagnostic(report: VehicleReport) -> messages.DeviceDiagnostic:
+    """A vehicle's compasses compared (docs/vehicles.md) as one status, named ``vehicle <ID>``: OK when they agree,
+    WARN when one disagrees (its verdict and fix as the message) or the place is a local anomaly, STALE while there
+    are too few samples to compare; one value per compass (its verdict and fix) and the parameters to set."""
+    wrong = report.disagreeing
+    level = 1 if wrong or report.anomaly else 0
+    if report.reference is None:
+        level = 3
+    values = [
+        ("reference", report.reference or ""),
+        ("field_ut", "" if report.field_ut is None else f"{report.field_ut:.1f}"),
+    ]
+    values += [(c.device, _said(c)) for c in report.compasses]
+    values += [(name, f"{value:g}") for c in wrong for name, value in c.parameters.items()]
+    return messages.DeviceDiagnostic(f"vehicle {report.vehicle}", level, report.summary, tuple(values))
+
+
+def _said(compass: CompassVerdict) -> str:
+    return compass.verdict.value if compass.verdict is Verdict.TOO_FEW else f"{compass.verdict.value}: {compass.fix}"

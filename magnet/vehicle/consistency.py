@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.frames import ROTATIONS, nearest_rotation, rotation_angle_deg
+from magnet.frames import ROTATIONS, rotation_angle_deg, rotation_matrix
 from magnet.vehicle.membership import instance_of
 
 ROTATION_MIN_DEG = 20.0
@@ -49,6 +49,19 @@ MIN_SPREAD_DEG = 8.0
 MATCH_S = 0.15
 #: the current must vary at least this much (A, or 0.1 of throttle) to tell interference
 MIN_CURRENT_RANGE_A, MIN_THROTTLE_RANGE = 2.0, 0.1
+
+
+#: the named rotations (numbers (R,), matrices (R, 3, 3)), built once
+_NAMED_NUMBERS = np.array(list(ROTATIONS))
+_NAMED = np.stack([rotation_matrix(int(n)) for n in _NAMED_NUMBERS])
+
+
+def nearest_named(matrix: np.ndarray) -> tuple[int, float]:
+    """(the named rotation nearest ``matrix`` (3, 3), the angle between them in deg): as
+    ``magnet.frames.nearest_rotation``, all at once."""
+    cos = (np.einsum("nij,ij->n", _NAMED, matrix) - 1.0) / 2.0  # trace(N^T M) = sum of N * M
+    best = int(np.argmax(cos))
+    return int(_NAMED_NUMBERS[best]), float(np.degrees(np.arccos(np.clip(cos[best], -1.0, 1.0))))
 
 
 class Verdict(enum.StrEnum):
@@ -240,7 +253,7 @@ def _rotation(pair: _Pair, found: _Found) -> tuple[np.ndarray, float, int, float
         quiet = pair.driver <= np.median(pair.driver)
     rotation = wahba(pair.reference[quiet], pair.field[quiet])
     turned_deg = float(rotation_angle_deg(rotation))
-    named, distance = nearest_rotation(rotation)
+    named, distance = nearest_named(rotation)
     if turned_deg < ROTATION_MIN_DEG or _spread_deg(pair.reference) < MIN_SPREAD_DEG:
         return np.eye(3), turned_deg, named, distance
     orient, px4, _ = parameter_names(pair.device)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Self
 
 import numpy as np
@@ -24,12 +24,15 @@ from magnet.compass import CompassCore, HeadingColumns
 from magnet.drift import Alert
 from magnet.ros2 import compass as ros_compass
 from magnet.ros2 import messages, names
+from magnet.vehicle import VehicleReport
 from services.common.ros2_options import Ros2Settings
 from services.compass.settings import CompassSettings
 
 log = logging.getLogger("magnet.compass.ros2")
 
 DIAGNOSTICS_PERIOD_S = 1.0
+#: vehicles whose compasses are compared in each DiagnosticArray at most (each comparison costs about 2 ms)
+MAX_VEHICLE_DIAGNOSTICS = 16
 DIAGNOSTICS_TOPIC = "/diagnostics"
 CDR = zenoh.Encoding("application/cdr")
 _DISTURBED = int(HeadingFlag.FIELD_DISTURBED | HeadingFlag.DIP_DISTURBED)
@@ -148,10 +151,17 @@ class Ros2Compass:
         if now < self.next_diagnostics or not len(self.disturbed):
             return
         self.next_diagnostics = now + DIAGNOSTICS_PERIOD_S
-        self.diagnose(core.calibrations.in_force, core.watch.open_alerts())
+        reports = [r for v in core.vehicles.known()[:MAX_VEHICLE_DIAGNOSTICS] if (r := core.vehicle_report(v))]
+        self.diagnose(core.calibrations.in_force, core.watch.open_alerts(), reports)
 
-    def diagnose(self, calibrations: Mapping[str, wire.DeviceCalibration], open_alerts: list[Alert]) -> None:
-        """Put one DiagnosticArray: per device seen, its calibration in force, open alerts and disturbed share."""
+    def diagnose(
+        self,
+        calibrations: Mapping[str, wire.DeviceCalibration],
+        open_alerts: list[Alert],
+        vehicles: Sequence[VehicleReport] = (),
+    ) -> None:
+        """Put one DiagnosticArray: per device seen, its calibration in force, open alerts and disturbed share; per
+        vehicle, its compasses compared (``ros_compass.vehicle_diagnostic``)."""
         alerts: dict[str, list[str]] = {}
         for alert in open_alerts:
             alerts.setdefault(alert.device, []).append(alert.kind.value)
@@ -169,6 +179,7 @@ class Ros2Compass:
                 self.disturbed.get(device) or 0.0,
             )
             statuses.append(ros_compass.device_diagnostic(state))
+        statuses += [ros_compass.vehicle_diagnostic(report) for report in vehicles]
         t_ns = time.time_ns()
         self.diagnostics.put(messages.diagnostic_array_cdr(t_ns, statuses), t_ns)
 

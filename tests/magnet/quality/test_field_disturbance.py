@@ -10,7 +10,7 @@ from magnet.quality.disturbance import DisturbanceSettings, field_disturbance, i
 RATE_HZ = 50.0
 
 
-def walk(trajectory="walk-texting", seconds=90.0, seed=1, disturbances=True):
+def walk(trajectory="walk-texting", seconds=60.0, seed=1, disturbances=True):
     errors = sim.SensorErrors.phone(np.random.default_rng(seed), 50.0)
     run = sim.simulate(
         sim.SimulatorConfig(

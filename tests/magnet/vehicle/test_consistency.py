@@ -148,3 +148,39 @@ def test_a_batch_names_its_vehicle_on_the_wire_and_the_compass_groups_by_it() ->
     core.step(wire.RawColumns.from_batches([batch, plain]), NOW_NS)
     assert core.vehicles.known() == ["rover7"] and list(core.vehicles.series("rover7")) == ["bench-a"]
     assert vehicle_of("bench-a", "rover7") == "rover7"
+
+
+def test_the_nearest_named_rotation_is_the_frames_one() -> None:
+    from magnet.frames import euler_to_matrix, nearest_rotation
+    from magnet.vehicle.consistency import nearest_named
+
+    rng = np.random.default_rng(3)
+    for yaw, pitch, roll in rng.uniform(-180, 180, (20, 3)):
+        matrix = euler_to_matrix(yaw, pitch / 2, roll).reshape(3, 3)
+        number, angle = nearest_named(matrix)
+        assert (number, angle) == pytest.approx(nearest_rotation(matrix), abs=1e-6)
+
+
+def test_a_vehicle_is_one_ros2_diagnostic_status() -> None:
+    """A ROS 2 diagnostic status per vehicle (``/diagnostics``): WARN naming the compasses that disagree and the
+    parameters to set; OK when they agree; STALE with too few samples."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from magnet.ros2 import messages
+    from magnet.ros2.compass import vehicle_diagnostic
+
+    series = {
+        "mav1-mag0": flight(SensorErrors(noise_ut=0.3)),
+        "mav1-mag1": flight(SensorErrors(noise_ut=0.3, misalignment_deg=(0.0, 0.0, 90.0))),
+    }
+    status = vehicle_diagnostic(judge("mav1", series, expected_ut()))
+    array = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(
+        messages.diagnostic_array_cdr(5, [status]), messages.DIAGNOSTIC_ARRAY
+    )
+    [read] = array.status
+    values = {v.key: v.value for v in read.values}
+    assert read.level == 1 and read.name == "magnet: vehicle mav1" and "COMPASS_ORIENT2=2" in read.message
+    assert values["COMPASS_ORIENT2"] == "2" and values["mav1-mag1"].startswith("rotation")
+    agreeing = {d: flight(SensorErrors(noise_ut=0.3)) for d in ("mav1-mag0", "mav1-mag1")}
+    assert vehicle_diagnostic(judge("mav1", agreeing, expected_ut())).level == 0
+    assert vehicle_diagnostic(judge("mav1", {"mav1-mag0": agreeing["mav1-mag0"]}, None)).level == 3
