@@ -121,6 +121,25 @@ def _empty() -> Fused:
     return Fused(np.zeros((0, 4)), zeros, zeros, zeros, np.zeros(0, bool), np.zeros(0, bool))
 
 
+#: vqf's state that belongs to the magnetometer (``Fusion.restart_magnetometer``)
+_MAGNETIC_STATE = (
+    "delta",
+    "kMagInit",
+    "lastMagDisAngle",
+    "lastMagCorrAngularRate",
+    "magCandidateDip",
+    "magCandidateNorm",
+    "magCandidateT",
+    "magDistDetected",
+    "magNormDip",
+    "magNormDipLpState",
+    "magRefDip",
+    "magRefNorm",
+    "magRejectT",
+    "magUndisturbedT",
+)
+
+
 class Fusion:
     """Causal gyroscope + accelerometer (+ magnetometer) filter for one device; state carries across batches.
 
@@ -149,6 +168,22 @@ class Fusion:
         if self.watch is not None:
             self.watch.reset()
         self.samples = 0
+
+    def restart_magnetometer(self) -> None:
+        """Forget the magnetic side only (a new calibration put in force): the heading is taken again from the next
+        field sample at once and its references learnt anew, while the tilt and the gyroscope's bias are kept (a
+        whole restart while a hand swings the phone takes ten seconds and more to find the tilt again). With the
+        velocity-aided filter, a whole restart."""
+        if self._aided is not None:
+            self.restart()
+            return
+        fresh = vqf.VQF(self.period_s, **self.params).state
+        state = self._filter.state
+        for key in _MAGNETIC_STATE:
+            state[key] = fresh[key]
+        self._filter.state = state
+        if self.watch is not None:
+            self.watch.reset()
 
     def update(
         self,

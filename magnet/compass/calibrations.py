@@ -162,8 +162,8 @@ def _motor_rows(records: list[Calibration | None], columns: wire.RawColumns) -> 
 #: record's strength) and changes its strength by less than RESTART_PCT keeps the device's filter: an in-service
 #: refresh (``magnet.calibrator.refresh``) moves the field by a degree or two, and a filter started again while a
 #: hand swings a phone takes ten seconds and more to find its heading (fieldsim's walk-hand: 22 deg over them)
-RESTART_DEG = 3.0
-RESTART_PCT = 5.0
+RESTART_DEG = 8.0
+RESTART_PCT = 8.0
 _CUBE = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if x or y or z], dtype=float)
 _DIRECTIONS = _CUBE / np.linalg.norm(_CUBE, axis=1)[:, None]
 

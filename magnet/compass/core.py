@@ -225,11 +225,11 @@ class CompassCore:
         if self.calibrations.put(record):
             self._log_evictions()
             self.watch.calibration(record, record.created_ns)
-            # the device's filter starts again: its magnetometer state was built on the old correction, and the
-            # field jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust;
-            # unless the field hardly moves (an in-service refresh): a restart costs more than it mends
+            # the device's filter forgets its magnetic side: it was built on the old correction, and the field
+            # jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust (the tilt
+            # and the gyroscope's bias are kept); unless the field hardly moves (an in-service refresh)
             if previous is None or not small_change(previous.calibration, record.calibration):
-                self.filters.forget(record.device)
+                self.filters.forget(record.device, magnetic_only=True)
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
 

@@ -246,9 +246,12 @@ class DeviceFilters:
         """Filters forgotten for the ``max_devices`` bound."""
         return self.devices.evicted
 
-    def forget(self, device: str) -> None:
-        """Start the device's filter again on its next batch."""
-        self.devices.pop(device, None)
+    def forget(self, device: str, magnetic_only: bool = False) -> None:
+        """Start the device's filter again on its next batch; ``magnetic_only``: its magnetic side only, now (a new
+        calibration: ``Fusion.restart_magnetometer``)."""
+        state = self.devices.get(device) if magnetic_only else self.devices.pop(device, None)
+        if magnetic_only and state is not None and state.filter is not None:
+            state.filter.restart_magnetometer()
 
     def _device(self, name: str) -> DeviceFilter:
         state = self.devices.get(name)

@@ -1,7 +1,9 @@
 """``magnet edge``'s settings, declared once (``services.common.options``): each field of ``EdgeSettings`` is its
 option (flag, default, help, check); ``add_arguments`` builds the argparse options from them and
-``EdgeSettings.from_args`` reads them back, checked. Which source the options name is ``EdgeSettings.source_kind``
-(``SourceKind``), and the options each kind of source refuses are checked once per kind (``_CHECKS``)."""
+``EdgeSettings.from_args`` reads them back, checked. Each source declares its own options (``MavlinkOptions``,
+``Ros2SourceOptions``, ``ReplayOptions``, ``FleetOptions``, ``SimulatorOptions``, ``ChipOptions``: its flags, whether
+they name it, what it refuses of the others) and ``EdgeSettings`` is all of them beside ``CommonOptions``; which
+source the options name is ``EdgeSettings.source_kind`` (``SourceKind``), through one table, ``SOURCE_OPTIONS``."""
 
 from __future__ import annotations
 
@@ -92,12 +94,32 @@ class EdgeSimulatorSettings(SimulatorSettings):
 
 
 @dataclasses.dataclass(frozen=True)
-class EdgeSettings:
-    """What ``magnet edge`` runs. rate_hz per device; duration_s None: until stopped."""
+class CommonOptions:
+    """What every source takes: the device id, the pace and the messages."""
 
     device: str = option(
         "dev", "--device", help="device id (one key chunk); a fleet uses <ID>-000, ...", check=_device_id
     )
+    rate_hz: float = option(
+        50.0, "--rate", metavar="RATE", help="samples per second per device", check=_in_range(0, MAX_RATE_HZ, " Hz")
+    )
+    batch: int = option(10, "--batch", help="samples per message", check=_whole(1, wire.MAX_BATCH_SAMPLES))
+    duration_s: float | None = option(
+        None, "--duration", parse=float, metavar="SECONDS", help="stop after this many seconds", check=_seconds
+    )
+    wire_version: int = option(
+        wire.BINARY_ARRAYS_VERSION,
+        "--wire",
+        metavar="VERSION",
+        help="message version: 2 binary arrays, 1 lists of numbers for old subscribers",
+        check=lambda v: None if v in wire.VERSIONS else f"must be one of {', '.join(map(str, wire.VERSIONS))}",
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class ChipOptions:
+    """A chip through its driver (``ChipSource``): on a bus, or emulated (and the simulator alone, ``--sensor sim``)."""
+
     sensor: str = option(
         SIMULATOR_SENSOR,
         "--sensor",
@@ -107,24 +129,70 @@ class EdgeSettings:
     bus: int | None = option(None, "--bus", parse=int, help="I2C bus number of a real chip (/dev/i2c-N)")
     address: int | None = option(None, "--address", parse=_address, help="I2C address of a real chip (e.g. 0x1e)")
     emulate: bool = option(False, "--emulate", help="emulate the chip (or the fleet) instead of a bus")
+    emulate_faults: float = option(
+        0.0,
+        "--emulate-faults",
+        metavar="P",
+        help="with --emulate and a chip, for tests: each I2C transfer after set-up fails with EIO "
+        "with probability P (1: a dead bus)",
+        check=within(0, 1, "a probability"),
+    )
+
+    @staticmethod
+    def names_chip(s: EdgeSettings) -> bool:
+        return True  # the last kind: what the options name when no other source is named
+
+    @staticmethod
+    def names_simulator(s: EdgeSettings) -> bool:
+        return s.emulate and s.sensor == SIMULATOR_SENSOR
+
+    @staticmethod
+    def check_chip(s: EdgeSettings) -> None:
+        _check_topics(s)
+        if not s.emulate and s.bus is None:
+            raise ValueError("a real sensor needs --bus N (or --emulate)")
+        ChipOptions.check_simulated(s)
+
+    @staticmethod
+    def check_simulated(s: EdgeSettings) -> None:
+        """What a fleet, the simulator and a chip share: fault injection only on an emulated chip, no speed-up where
+        a gyroscope is simulated."""
+        _check_topics(s)
+        if s.emulate_faults and not s.emulated_chip:
+            raise ValueError("--emulate-faults needs --emulate and a chip (--sensor NAME, not sim, no --devices)")
+        if s.speedup != 1.0 and s.simulated_gyroscope:
+            raise ValueError(
+                "--speedup needs a simulation without a gyroscope: the wire times keep --rate, so sped-up rates "
+                "would not integrate to the attitude; record the run with magnet sample and play it with magnet edge "
+                "--replay FILE.csv --speed X (the recorded times are kept)"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class FleetOptions:
+    """N simulated devices (``FleetSource``)."""
+
     devices: int = option(
         0, "--devices", help="with --emulate: this many simulated devices", check=_whole(0, MAX_DEVICES)
     )
-    rate_hz: float = option(
-        50.0, "--rate", metavar="RATE", help="samples per second per device", check=_in_range(0, MAX_RATE_HZ, " Hz")
-    )
-    batch: int = option(10, "--batch", help="samples per message", check=_whole(1, wire.MAX_BATCH_SAMPLES))
-    duration_s: float | None = option(
-        None, "--duration", parse=float, metavar="SECONDS", help="stop after this many seconds", check=_seconds
-    )
     gyro: bool = option(False, "--gyro", help="with --devices: the simulated devices send a gyroscope too (gyr_rads)")
-    wire_version: int = option(
-        wire.BINARY_ARRAYS_VERSION,
-        "--wire",
-        metavar="VERSION",
-        help="message version: 2 binary arrays, 1 lists of numbers for old subscribers",
-        check=lambda v: None if v in wire.VERSIONS else f"must be one of {', '.join(map(str, wire.VERSIONS))}",
-    )
+
+    @staticmethod
+    def names_fleet(s: EdgeSettings) -> bool:
+        return s.devices > 0
+
+    @staticmethod
+    def check_fleet(s: EdgeSettings) -> None:
+        _check_topics(s)
+        if not s.emulate:
+            raise ValueError("--devices needs --emulate (a simulated fleet)")
+        ChipOptions.check_simulated(s)
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulatorOptions:
+    """The simulated motion every simulated source reads (``StreamSource``, an emulated chip)."""
+
     trajectory_samples: int = option(
         3000, "--trajectory-samples", help="samples per run of the simulated trajectory", check=at_least(1)
     )
@@ -135,14 +203,12 @@ class EdgeSettings:
         "simulated: replay a recording with --speed instead)",
         check=_in_range(0, 1000),
     )
-    emulate_faults: float = option(
-        0.0,
-        "--emulate-faults",
-        metavar="P",
-        help="with --emulate and a chip, for tests: each I2C transfer after set-up fails with EIO "
-        "with probability P (1: a dead bus)",
-        check=within(0, 1, "a probability"),
-    )
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplayOptions:
+    """A recording at its own pace (``ReplaySource``)."""
+
     replay: Path | None = option(
         None,
         "--replay",
@@ -153,6 +219,25 @@ class EdgeSettings:
     speed: float = option(
         1.0, "--speed", help="with --replay: play this many times faster than recorded", check=_in_range(0, MAX_SPEED)
     )
+    mag_instance: int | None = option(
+        None, "--mag", parse=int, metavar="N", help="with --replay of a flight log: the magnetometer instance"
+    )
+
+    @staticmethod
+    def names_replay(s: EdgeSettings) -> bool:
+        return s.replay is not None
+
+    @staticmethod
+    def check_replay(s: EdgeSettings) -> None:
+        _check_topics(s)
+        if s.emulate or s.devices or s.bus is not None:
+            raise ValueError("--replay plays a recording: it takes no --emulate, --devices or --bus")
+
+
+@dataclasses.dataclass(frozen=True)
+class MavlinkOptions:
+    """MAVLink vehicles (``services.edge.mavlink_source.MavlinkSource``)."""
+
     mavlink: str | None = url_option(
         "--mavlink",
         "read MAVLink vehicles' magnetometers: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial "
@@ -177,24 +262,55 @@ class EdgeSettings:
         help="with --mavlink: a vehicle silent this long (s) makes its devices unhealthy",
         check=_in_range(0, 3600, " seconds"),
     )
+
+    @staticmethod
+    def names_mavlink(s: EdgeSettings) -> bool:
+        return s.mavlink is not None
+
+    @staticmethod
+    def check_mavlink(s: EdgeSettings) -> None:
+        if s.emulate or s.devices or s.bus is not None or s.replay is not None:
+            raise ValueError("--mavlink reads vehicles: it takes no --emulate, --devices, --bus or --replay")
+
+
+@dataclasses.dataclass(frozen=True)
+class Ros2SourceOptions:
+    """A ROS 2 robot's topics over rmw_zenoh (``services.edge.ros2_source.Ros2Source``; ``--ros2`` and its domain
+    and namespace are ``EdgeSettings.ros2``)."""
+
     mag_topic: str | None = option(
         None,
         "--mag-topic",
         help="with --ros2, or --replay of a ROS 2 recording: the sensor_msgs/msg/MagneticField topic",
     )
-    mag_instance: int | None = option(
-        None, "--mag", parse=int, metavar="N", help="with --replay of a flight log: the magnetometer instance"
-    )
     imu_topic: str | None = option(
         None, "--imu-topic", help="with --ros2: the sensor_msgs/msg/Imu topic (acceleration, rates)"
     )
+
+    @staticmethod
+    def names_ros2(s: EdgeSettings) -> bool:
+        return s.ros2.enabled
+
+    @staticmethod
+    def check_ros2(s: EdgeSettings) -> None:
+        if not s.mag_topic or s.emulate or s.replay or s.bus is not None:
+            raise ValueError("a ROS 2 source needs --ros2 and --mag-topic, and no --emulate, --replay or --bus")
+
+
+@dataclasses.dataclass(frozen=True)
+class EdgeSettings(
+    Ros2SourceOptions, MavlinkOptions, ReplayOptions, SimulatorOptions, FleetOptions, ChipOptions, CommonOptions
+):
+    """What ``magnet edge`` runs: each source's own options (``SOURCE_OPTIONS``) beside what every source takes.
+    rate_hz per device; duration_s None: until stopped."""
+
     simulator: SimulatorSettings = EdgeSimulatorSettings()
     ros2: Ros2Settings = Ros2Settings()
     zenoh: ZenohSettings = ZenohSettings()
 
     def __post_init__(self) -> None:
         check_options(self)
-        _CHECKS[self.source_kind](self)
+        SOURCE_OPTIONS[self.source_kind].check(self)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> EdgeSettings:
@@ -209,8 +325,9 @@ class EdgeSettings:
 
     @property
     def source_kind(self) -> SourceKind:
-        """Which source the options name: the first row of ``KIND_OF`` that holds."""
-        return next(kind for kind, holds in KIND_OF if holds(self))
+        """Which source the options name: the first of ``SOURCE_OPTIONS`` (in the options' precedence) whose
+        options name it."""
+        return next(kind for kind, source in SOURCE_OPTIONS.items() if source.named(self))
 
     @property
     def sensor_name(self) -> str:
@@ -241,74 +358,29 @@ class EdgeSettings:
         return has_gyroscope(self.sensor)
 
 
-#: which source the options name: the first row that holds (its order is the options' precedence)
-KIND_OF: tuple[tuple[SourceKind, Callable[[EdgeSettings], bool]], ...] = (
-    (SourceKind.MAVLINK, lambda s: s.mavlink is not None),
-    (SourceKind.ROS2, lambda s: s.ros2.enabled),
-    (SourceKind.REPLAY, lambda s: s.replay is not None),
-    (SourceKind.FLEET, lambda s: s.devices > 0),
-    (SourceKind.SIMULATOR, lambda s: s.emulate and s.sensor == SIMULATOR_SENSOR),
-    (SourceKind.CHIP, lambda s: True),
-)
-
-
-def _check_mavlink(s: EdgeSettings) -> None:
-    if s.emulate or s.devices or s.bus is not None or s.replay is not None:
-        raise ValueError("--mavlink reads vehicles: it takes no --emulate, --devices, --bus or --replay")
-
-
-def _check_ros2(s: EdgeSettings) -> None:
-    if not s.mag_topic or s.emulate or s.replay or s.bus is not None:
-        raise ValueError("a ROS 2 source needs --ros2 and --mag-topic, and no --emulate, --replay or --bus")
-
-
 def _check_topics(s: EdgeSettings) -> None:
     if s.imu_topic or (s.mag_topic and s.replay is None):
         raise ValueError("--mag-topic and --imu-topic need --ros2 (or --mag-topic: the topic of a --replay bag)")
 
 
-def _check_replay(s: EdgeSettings) -> None:
-    _check_topics(s)
-    if s.emulate or s.devices or s.bus is not None:
-        raise ValueError("--replay plays a recording: it takes no --emulate, --devices or --bus")
+@dataclasses.dataclass(frozen=True)
+class SourceOptions:
+    """A kind of source's own options: whether the settings name it (``named``) and what it refuses or needs of
+    them (``check``, run after every value is checked)."""
+
+    named: Callable[[EdgeSettings], bool]
+    check: Callable[[EdgeSettings], None]
 
 
-def _check_simulated(s: EdgeSettings) -> None:
-    """What a fleet, the simulator and a chip share: fault injection only on an emulated chip, no speed-up where a
-    gyroscope is simulated."""
-    _check_topics(s)
-    if s.emulate_faults and not s.emulated_chip:
-        raise ValueError("--emulate-faults needs --emulate and a chip (--sensor NAME, not sim, no --devices)")
-    if s.speedup != 1.0 and s.simulated_gyroscope:
-        raise ValueError(
-            "--speedup needs a simulation without a gyroscope: the wire times keep --rate, so sped-up rates would "
-            "not integrate to the attitude; record the run with magnet sample and play it with magnet edge "
-            "--replay FILE.csv --speed X (the recorded times are kept)"
-        )
-
-
-def _check_fleet(s: EdgeSettings) -> None:
-    _check_topics(s)
-    if not s.emulate:
-        raise ValueError("--devices needs --emulate (a simulated fleet)")
-    _check_simulated(s)
-
-
-def _check_chip(s: EdgeSettings) -> None:
-    _check_topics(s)
-    if not s.emulate and s.bus is None:
-        raise ValueError("a real sensor needs --bus N (or --emulate)")
-    _check_simulated(s)
-
-
-#: the options each kind of source refuses or needs, checked after every value is
-_CHECKS: dict[SourceKind, Callable[[EdgeSettings], None]] = {
-    SourceKind.MAVLINK: _check_mavlink,
-    SourceKind.ROS2: _check_ros2,
-    SourceKind.REPLAY: _check_replay,
-    SourceKind.FLEET: _check_fleet,
-    SourceKind.SIMULATOR: _check_simulated,
-    SourceKind.CHIP: _check_chip,
+#: each kind of source and its options, in the options' precedence (the first named is the source; its order is
+#: that of ``SourceKind``): the one table of which options each source declares
+SOURCE_OPTIONS: dict[SourceKind, SourceOptions] = {
+    SourceKind.MAVLINK: SourceOptions(MavlinkOptions.names_mavlink, MavlinkOptions.check_mavlink),
+    SourceKind.ROS2: SourceOptions(Ros2SourceOptions.names_ros2, Ros2SourceOptions.check_ros2),
+    SourceKind.REPLAY: SourceOptions(ReplayOptions.names_replay, ReplayOptions.check_replay),
+    SourceKind.FLEET: SourceOptions(FleetOptions.names_fleet, FleetOptions.check_fleet),
+    SourceKind.SIMULATOR: SourceOptions(ChipOptions.names_simulator, ChipOptions.check_simulated),
+    SourceKind.CHIP: SourceOptions(ChipOptions.names_chip, ChipOptions.check_chip),
 }
 
 

@@ -121,3 +121,29 @@ def test_progress_steps_draw_on_a_terminal_only(capsys):
         step("reading")
         step("fitting")
     assert "fitting" in capsys.readouterr().err
+
+
+def test_the_vehicle_table_names_each_compass_its_verdict_and_the_parameters_to_set():
+    """``magnet get vehicle``: one row per compass, rounded figures with units, the parameters, the summary."""
+    from services.commands.remote_view import vehicle_table
+
+    answer = {
+        "vehicle": "mav1",
+        "summary": "mav1-mag1: rotation (set COMPASS_ORIENT2=2)",
+        "compasses": [
+            {"device": "mav1-mag0", "verdict": "reference", "angle_deg": 0.0, "rotation_deg": 0.0, "parameters": {}},
+            {
+                "device": "mav1-mag1",
+                "verdict": "rotation",
+                "angle_deg": 31.7569,
+                "rotation_deg": 89.93,
+                "named_rotation": 2,
+                "interference_pct": 0.458,
+                "residual_ut": 0.598,
+                "parameters": {"COMPASS_ORIENT2": 2.0, "CAL_MAG1_ROT": 2.0},
+            },
+        ],
+    }
+    out = text(vehicle_table(answer))
+    assert "vehicle mav1" in out and "31.8 deg" in out and "90 deg (named 2)" in out and "0.6 uT" in out
+    assert "COMPASS_ORIENT2=2, CAL_MAG1_ROT=2" in out and "mav1-mag1: rotation (set COMPASS_ORIENT2=2)" in out

@@ -4,6 +4,7 @@ message naming its flag, and the settings built in code are checked the same way
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import pytest
 
@@ -140,3 +141,25 @@ def test_the_ros2_group_says_what_ros2_does_in_the_command() -> None:
     add_ros2_arguments(parser, "publish the headings as ROS 2 topics")
     assert "--ros2: publish the headings as ROS 2 topics" in parser.format_help()
     assert Ros2Settings.from_args(parser.parse_args(["--ros2", "--ros-namespace", "/a"])) == Ros2Settings(True, 0, "/a")
+
+
+def test_each_source_declares_its_own_options_once():
+    from services.edge import settings as edge_settings
+
+    groups = (
+        edge_settings.CommonOptions,
+        edge_settings.ChipOptions,
+        edge_settings.FleetOptions,
+        edge_settings.SimulatorOptions,
+        edge_settings.ReplayOptions,
+        edge_settings.MavlinkOptions,
+        edge_settings.Ros2SourceOptions,
+    )
+    declared = [f.name for group in groups for f in dataclasses.fields(group)]
+    assert len(declared) == len(set(declared))  # no option in two sources' groups
+    nested = {"simulator", "ros2", "zenoh"}
+    assert set(declared) == {f.name for f in dataclasses.fields(EdgeSettings)} - nested
+    assert set(edge_settings.SOURCE_OPTIONS) == set(SourceKind)  # every kind has its options and its check
+    assert _settings("--mavlink", "udpin:127.0.0.1:14550").source_kind is SourceKind.MAVLINK
+    with pytest.raises(ValueError, match="--mavlink reads vehicles"):
+        _settings("--mavlink", "udpin:127.0.0.1:14550", "--emulate")  # the MAVLink source's own check
