@@ -85,6 +85,13 @@ class DashboardSettings:
         metavar="HOST:PORT",
         help="also serve the fleet to the Foxglove app over its WebSocket protocol here (e.g. 127.0.0.1:8765)",
     )
+    allow_host: str | None = option(
+        None,
+        "--allow-host",
+        metavar="NAME[,NAME...]",
+        help="host names the page may be opened by besides the loopback ones and the --http address (a request "
+        "naming another Host, or coming from another site's page, is refused: DNS rebinding)",
+    )
     operator: str | None = option(
         None,
         "--operator",
@@ -104,6 +111,14 @@ class DashboardSettings:
             raise ValueError("--date needs --location")
         if self.metrics:
             metrics.parse_address(self.metrics)
+
+    @property
+    def allowed_hosts(self) -> tuple[str, ...]:
+        """Names a request's Host may give besides the loopback ones: ``--allow-host`` and the ``--http`` host
+        (unless it is a wildcard)."""
+        host = self.address[0]
+        told = tuple(n.strip() for n in (self.allow_host or "").split(",") if n.strip())
+        return told + (() if host in ("0.0.0.0", "::", "") else (host,))
 
     @property
     def address(self) -> tuple[str, int]:
