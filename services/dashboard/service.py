@@ -93,7 +93,8 @@ def serve(settings: DashboardSettings) -> int:
         print(f"magnet dashboard: {DEFAULT_HTTP} is taken (by magnet up's own dashboard?): serving on {host}:{port}")
     token = settings.token or os.environ.get(TOKEN_ENV) or secrets.token_urlsafe(12)
     prefix = settings.zenoh.prefix
-    state = FleetState(_earth(settings), date=settings.date)
+    places = {entry.device: entry.location for entry in settings.places if entry.location is not None}
+    state = FleetState(_earth(settings), date=settings.date, places=places)
     with contextlib.ExitStack() as stack:
         session = stack.enter_context(open_session(settings.zenoh))
         metrics.start(settings.metrics, "dashboard", state.metrics_status)

@@ -9,8 +9,10 @@ import dataclasses
 import ipaddress
 import socket
 
+from magnet.fleet.places import PlaceEntry
 from services.common import metrics
 from services.common.options import add_options, check_options, from_args, option
+from services.common.places_options import add_fleet_argument, read_fleet
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 DEFAULT_HTTP = "127.0.0.1:8080"
@@ -98,6 +100,7 @@ class DashboardSettings:
     )
     metrics: str | None = None
     zenoh: ZenohSettings = ZenohSettings()
+    places: tuple[PlaceEntry, ...] = ()  # the --fleet file's entries: each device's place where it reports none
 
     def __post_init__(self) -> None:
         check_options(self)
@@ -149,9 +152,11 @@ def default_http(preferred: str = DEFAULT_HTTP) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_options(parser, DashboardSettings)
+    add_fleet_argument(parser)
     metrics.add_metrics_argument(parser)
     add_zenoh_arguments(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> DashboardSettings:
-    return from_args(DashboardSettings, args, metrics=args.metrics, zenoh=ZenohSettings.from_args(args))
+    places = tuple(read_fleet(args.fleet).values())
+    return from_args(DashboardSettings, args, metrics=args.metrics, zenoh=ZenohSettings.from_args(args), places=places)

@@ -336,6 +336,10 @@ def test_a_device_is_judged_against_the_field_where_it_says_it_is():
     state.on_raw(raw)
     assert state.detail("mav1-mag0")["earth"]["total_ut"] == pytest.approx(48.4, abs=0.3)
     assert state.detail("mav1-mag0")["earth"]["total_ut"] != state.summary()["earth"]["total_ut"]
+    listed = FleetState(state.earth, date="2026-06-01", places={"boat-1": zurich})  # the places file (--fleet)
+    listed.watch("boat-1", +1)
+    listed.on_heading(heading_batch("boat-1"))
+    assert listed.detail("boat-1")["earth"]["total_ut"] == pytest.approx(48.4, abs=0.3)
 
 
 def test_a_device_whose_headings_stop_is_silent_after_its_own_interval_though_its_token_lives():
