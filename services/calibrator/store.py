@@ -20,6 +20,7 @@ import contextlib
 import errno
 import json
 import logging
+import os
 import sqlite3
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
@@ -55,6 +56,15 @@ _UNIQUE_VERSIONS = (
 class StoreError(OSError):
     """The database cannot be read or written (damaged, not a database, disk full): one line naming the file and
     what to do."""
+
+
+class StoreGoneError(StoreError):
+    """The database file this store opened is no longer at its path (deleted, or replaced by another file or one
+    that is not a database): a row written now would go into a file nobody reads again, so nothing is written."""
+
+
+#: the first 16 bytes of every SQLite database file
+_HEADER = b"SQLite format 3\x00"
 
 
 #: sqlite result codes (``sqlite_errorcode``, low byte) of a full disk, of a file it may not write or a failing disk,
@@ -125,6 +135,59 @@ class CalibrationStore:
         except StoreError:
             self._db.close()
             raise
+        self._gone: str | None = None
+        self._identity = self._stat()
+
+    def _stat(self) -> tuple[int, int] | None:
+        """(device, inode) of the file at the path (None for ``:memory:``); FileNotFoundError when there is none."""
+        if str(self.path) == ":memory:":
+            return None
+        st = os.stat(self.path)
+        return st.st_dev, st.st_ino
+
+    @property
+    def gone(self) -> str | None:
+        """Why the file this store opened is no longer its database (deleted, replaced, not a database), or None
+        while it is. Once gone, gone for good: only a restart opens the file now at the path (the rows written to
+        the old one since it went are lost with it, so none are)."""
+        if self._gone is None and self._identity is not None:
+            self._gone = self._check_file()
+            if self._gone is not None:
+                log.error("%s", self._gone)
+        return self._gone
+
+    def _check_file(self) -> str | None:
+        """The inode and device at the path against the ones opened, and the file's header: None when it is still
+        this store's database, else one line saying what happened and what to do."""
+        what = "restart the calibrator to open (or create) the file now at the path, or restore it from a backup"
+        try:
+            identity = self._stat()
+            with open(self.path, "rb") as file:
+                header = file.read(len(_HEADER))
+        except FileNotFoundError:
+            return (
+                f"calibration database {self.path} was deleted while the calibrator had it open: nothing more is "
+                f"stored; {what}"
+            )
+        except OSError as exc:
+            return f"calibration database {self.path} cannot be checked ({exc}): nothing more is stored; {what}"
+        if identity != self._identity:
+            return (
+                f"calibration database {self.path} was replaced by another file while the calibrator had it open "
+                f"(device/inode {self._identity} -> {identity}): nothing more is stored; {what}"
+            )
+        if header and header != _HEADER:
+            return (
+                f"calibration database {self.path} no longer starts with an SQLite header (overwritten while open): "
+                f"nothing more is stored; {what}"
+            )
+        return None
+
+    def _writable(self) -> None:
+        """StoreGoneError unless the file opened is still the database at the path (``gone``)."""
+        reason = self.gone
+        if reason is not None:
+            raise StoreGoneError(reason)
 
     @contextlib.contextmanager
     def _guard(self, doing: str = "use") -> Iterator[None]:
@@ -181,7 +244,9 @@ class CalibrationStore:
         """Store the record ``make(version)`` builds (and signs) for ``device``, ``version`` being one more than the
         highest stored for it (or than ``floor``, the version of the record in force as its JSON says), read in the
         same write transaction (two calibrators on one file never number two records alike). Returns (record,
-        stored): not stored when identical to the one already in force."""
+        stored): not stored when identical to the one already in force. ``StoreGoneError`` (nothing stored) when the
+        file was deleted or replaced under the open store (``gone``), checked before and after the write."""
+        self._writable()
         with self._guard("write"), self._transaction():
             latest = self._db.execute(
                 "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (device,)
@@ -197,6 +262,7 @@ class CalibrationStore:
             text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
             note = None if change is None else json.dumps(dict(change), sort_keys=True, allow_nan=False)
             self._insert(StoredRow(device, record.id, int(record.created_ns), int(record.version), text, note))
+            self._writable()  # gone during the write: rolled back, not acknowledged
         return record, True
 
     def _insert(self, row: StoredRow) -> None:
@@ -220,10 +286,12 @@ class CalibrationStore:
     def load_rows(self, rows: Iterable[StoredRow]) -> int:
         """Store ``rows`` as they are, in order, in one transaction; how many."""
         count = 0
+        self._writable()
         with self._guard("write"), self._transaction():
             for row in rows:
                 self._insert(row)
                 count += 1
+            self._writable()
         return count
 
     def count(self) -> int:
