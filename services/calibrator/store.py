@@ -20,13 +20,13 @@ import contextlib
 import errno
 import json
 import logging
-import os
 import sqlite3
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 from magnet import wire
+from services.common.dbfile import OpenedFile
 from services.common.stores import PostgresUrl, Store, StoredRow, StoreError, StoreLocation
 
 log = logging.getLogger(__name__)
@@ -56,10 +56,6 @@ _UNIQUE_VERSIONS = (
 class StoreGoneError(StoreError):
     """The database file this store opened is no longer at its path (deleted, or replaced by another file or one
     that is not a database): a row written now would go into a file nobody reads again, so nothing is written."""
-
-
-#: the first 16 bytes of every SQLite database file
-_HEADER = b"SQLite format 3\x00"
 
 
 #: sqlite result codes (``sqlite_errorcode``, low byte) of a full disk, of a file it may not write or a failing disk,
@@ -131,52 +127,17 @@ class CalibrationStore:
             self._db.close()
             raise
         self._gone: str | None = None
-        self._identity = self._stat()
-
-    def _stat(self) -> tuple[int, int] | None:
-        """(device, inode) of the file at the path (None for ``:memory:``); FileNotFoundError when there is none."""
-        if str(self.path) == ":memory:":
-            return None
-        st = os.stat(self.path)
-        return st.st_dev, st.st_ino
+        self._file = OpenedFile(self.path)
 
     @property
     def gone(self) -> str | None:
-        """Why the file this store opened is no longer its database (deleted, replaced, not a database), or None
-        while it is. Once gone, gone for good: only a restart opens the file now at the path (the rows written to
-        the old one since it went are lost with it, so none are)."""
-        if self._gone is None and self._identity is not None:
-            self._gone = self._check_file()
+        """Why the file this store opened is no longer its database (deleted, replaced, overwritten:
+        ``services.common.dbfile``), or None. Gone for good: only a restart opens the file now at the path."""
+        if self._gone is None:
+            self._gone = self._file.check()
             if self._gone is not None:
                 log.error("%s", self._gone)
         return self._gone
-
-    def _check_file(self) -> str | None:
-        """The inode and device at the path against the ones opened, and the file's header: None when it is still
-        this store's database, else one line saying what happened and what to do."""
-        what = "restart the calibrator to open (or create) the file now at the path, or restore it from a backup"
-        try:
-            identity = self._stat()
-            with open(self.path, "rb") as file:
-                header = file.read(len(_HEADER))
-        except FileNotFoundError:
-            return (
-                f"calibration database {self.path} was deleted while the calibrator had it open: nothing more is "
-                f"stored; {what}"
-            )
-        except OSError as exc:
-            return f"calibration database {self.path} cannot be checked ({exc}): nothing more is stored; {what}"
-        if identity != self._identity:
-            return (
-                f"calibration database {self.path} was replaced by another file while the calibrator had it open "
-                f"(device/inode {self._identity} -> {identity}): nothing more is stored; {what}"
-            )
-        if header and header != _HEADER:
-            return (
-                f"calibration database {self.path} no longer starts with an SQLite header (overwritten while open): "
-                f"nothing more is stored; {what}"
-            )
-        return None
 
     def _writable(self) -> None:
         """StoreGoneError unless the file opened is still the database at the path (``gone``)."""
