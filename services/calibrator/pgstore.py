@@ -26,8 +26,7 @@ import psycopg
 
 from magnet import wire
 from magnet.calibrator.store import MakeRecord
-from services.calibrator.store import StoreError
-from services.common.stores import PostgresUrl, StoredRow
+from services.common.stores import PostgresUrl, StoredRow, StoreError
 
 log = logging.getLogger(__name__)
 

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from magnet import wire
-from services.common.stores import StoredRow
+from services.common.stores import PostgresUrl, Store, StoredRow, StoreError, StoreLocation
 
 log = logging.getLogger(__name__)
 
@@ -50,11 +50,6 @@ _UNIQUE_VERSIONS = (
     "CREATE UNIQUE INDEX IF NOT EXISTS calibrations_version_per_device ON calibrations (device, version) "
     "WHERE version > 0"
 )
-
-
-class StoreError(OSError):
-    """The database cannot be read or written (damaged, not a database, disk full): one line naming the file and
-    what to do."""
 
 
 #: sqlite result codes (``sqlite_errorcode``, low byte) of a full disk, of a file it may not write or a failing disk,
@@ -322,3 +317,14 @@ class _Transaction:
         elif getattr(self._db, "in_transaction", True):
             with contextlib.suppress(sqlite3.Error):  # the first error is the one to report
                 self._db.execute("ROLLBACK")
+
+
+def open_store(location: StoreLocation) -> Store:
+    """The store at ``location`` (``services.common.stores.parse_db``), opened (its schema made when new): this
+    SQLite store, or the PostgreSQL one (``services.calibrator.pgstore``, imported only when used); OSError
+    (``StoreError``) naming it when it cannot be."""
+    if isinstance(location, PostgresUrl):
+        from services.calibrator.pgstore import PostgresStore
+
+        return PostgresStore(location)
+    return CalibrationStore(location)

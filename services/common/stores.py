@@ -1,8 +1,9 @@
 """Where a calibrator keeps its calibrations (``--db``): a SQLite file (the default, one host) or a PostgreSQL
 database (``postgresql://USER@HOST:PORT/DB``: calibrators on several hosts, a replicated server). One protocol
 (``magnet.calibrator.store.CalibrationStore``), two implementations with the same schema and semantics:
-``services.calibrator.store`` (SQLite) and ``services.calibrator.pgstore`` (PostgreSQL, psycopg 3, imported only
-when used).
+``services.calibrator.store`` (SQLite, and ``open_store`` for either) and ``services.calibrator.pgstore``
+(PostgreSQL, psycopg 3, imported only when used). This module is what both share (the URL, the rows as stored, the
+error), so neither imports the other's home and nothing here imports a store.
 
 Both also hand out and take in their rows as stored (``StoredRow``: the record's JSON text and its change's, byte for
 byte), which ``magnet db copy`` and ``magnet db check`` use; the calibrator never does.
@@ -18,6 +19,12 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from magnet import wire
+
+
+class StoreError(OSError):
+    """The database cannot be read or written (damaged, not a database, disk full): one line naming the file and
+    what to do."""
+
 
 #: URL schemes of a PostgreSQL database (libpq's two)
 POSTGRES_SCHEMES = ("postgresql", "postgres")
@@ -117,15 +124,3 @@ class Store(RowStore, Protocol):
     def __enter__(self) -> Any: ...
 
     def __exit__(self, *exc: object) -> None: ...
-
-
-def open_store(location: StoreLocation) -> Store:
-    """The store at ``location``, opened (its schema made when new); OSError (``StoreError``) naming it when it
-    cannot be."""
-    if isinstance(location, PostgresUrl):
-        from services.calibrator.pgstore import PostgresStore
-
-        return PostgresStore(location)
-    from services.calibrator.store import CalibrationStore
-
-    return CalibrationStore(location)
