@@ -26,7 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from magnet import wire
-from services.common.stores import PostgresUrl, Store, StoredRow, StoreError, StoreLocation
+from services.common.dbfile import OpenedFile
+from services.common.stores import PostgresUrl, RowCheck, Store, StoredRow, StoreError, StoreLocation
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +51,11 @@ _UNIQUE_VERSIONS = (
     "CREATE UNIQUE INDEX IF NOT EXISTS calibrations_version_per_device ON calibrations (device, version) "
     "WHERE version > 0"
 )
+
+
+class StoreGoneError(StoreError):
+    """The database file this store opened is no longer at its path (deleted, or replaced by another file or one
+    that is not a database): a row written now would go into a file nobody reads again, so nothing is written."""
 
 
 #: sqlite result codes (``sqlite_errorcode``, low byte) of a full disk, of a file it may not write or a failing disk,
@@ -92,7 +98,7 @@ def store_error(path: Path, doing: str, exc: BaseException) -> StoreError:
     return StoreError(describe_failure(path, exc, doing))
 
 
-class CalibrationStore:
+class CalibrationStore(RowCheck):
     """Calibrations per device in one SQLite file. Use from one thread (the service's own).
 
     A damaged file is found when opening (``PRAGMA quick_check``) or when a damaged page is read later: both raise
@@ -102,8 +108,7 @@ class CalibrationStore:
         self.path = Path(path)
         if str(path) != ":memory:":
             self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.skipped_rows = 0
-        self._reported: set[int] = set()
+        RowCheck.__init__(self, self.path)
         try:
             self._db = sqlite3.connect(str(path), isolation_level=None)
         except sqlite3.DatabaseError as exc:
@@ -120,6 +125,24 @@ class CalibrationStore:
         except StoreError:
             self._db.close()
             raise
+        self._gone: str | None = None
+        self._file = OpenedFile(self.path)
+
+    @property
+    def gone(self) -> str | None:
+        """Why the file this store opened is no longer its database (deleted, replaced, overwritten:
+        ``services.common.dbfile``), or None. Gone for good: only a restart opens the file now at the path."""
+        if self._gone is None:
+            self._gone = self._file.check()
+            if self._gone is not None:
+                log.error("%s", self._gone)
+        return self._gone
+
+    def _writable(self) -> None:
+        """StoreGoneError unless the file opened is still the database at the path (``gone``)."""
+        reason = self.gone
+        if reason is not None:
+            raise StoreGoneError(reason)
 
     @contextlib.contextmanager
     def _guard(self, doing: str = "use") -> Iterator[None]:
@@ -176,7 +199,9 @@ class CalibrationStore:
         """Store the record ``make(version)`` builds (and signs) for ``device``, ``version`` being one more than the
         highest stored for it (or than ``floor``, the version of the record in force as its JSON says), read in the
         same write transaction (two calibrators on one file never number two records alike). Returns (record,
-        stored): not stored when identical to the one already in force."""
+        stored): not stored when identical to the one already in force. ``StoreGoneError`` (nothing stored) when the
+        file was deleted or replaced under the open store (``gone``), checked before and after the write."""
+        self._writable()
         with self._guard("write"), self._transaction():
             latest = self._db.execute(
                 "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (device,)
@@ -192,6 +217,7 @@ class CalibrationStore:
             text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
             note = None if change is None else json.dumps(dict(change), sort_keys=True, allow_nan=False)
             self._insert(StoredRow(device, record.id, int(record.created_ns), int(record.version), text, note))
+            self._writable()  # gone during the write: rolled back, not acknowledged
         return record, True
 
     def _insert(self, row: StoredRow) -> None:
@@ -215,10 +241,12 @@ class CalibrationStore:
     def load_rows(self, rows: Iterable[StoredRow]) -> int:
         """Store ``rows`` as they are, in order, in one transaction; how many."""
         count = 0
+        self._writable()
         with self._guard("write"), self._transaction():
             for row in rows:
                 self._insert(row)
                 count += 1
+            self._writable()
         return count
 
     def count(self) -> int:
@@ -233,7 +261,7 @@ class CalibrationStore:
             rows = self._db.execute(
                 "SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,)
             )
-            return next(self._valid(rows), None)
+            return next(self.valid(rows), None)
 
     def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
         """Valid records of ``device``, newest first, at most ``limit``."""
@@ -242,7 +270,7 @@ class CalibrationStore:
             rows = self._db.execute(
                 "SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,)
             )
-            for record in self._valid(rows):
+            for record in self.valid(rows):
                 if limit is not None and len(out) >= max(0, limit):
                     break
                 out.append(record)
@@ -274,7 +302,7 @@ class CalibrationStore:
     def _valid_seq(self, rows: Iterable[tuple[int, str]]) -> Iterable[tuple[int, wire.DeviceCalibration]]:
         """(seq, record) of the rows that pass the entry check (``_valid``)."""
         for seq, text in rows:
-            for record in self._valid([(seq, text)]):
+            for record in self.valid([(seq, text)]):
                 yield seq, record
 
     def all_latest(self) -> dict[str, wire.DeviceCalibration]:
@@ -282,20 +310,9 @@ class CalibrationStore:
         out: dict[str, wire.DeviceCalibration] = {}
         with self._guard("read"):
             rows = self._db.execute("SELECT seq, record FROM calibrations ORDER BY device, seq DESC")
-            for record in self._valid(rows):
+            for record in self.valid(rows):
                 out.setdefault(record.device, record)
         return out
-
-    def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterator[wire.DeviceCalibration]:
-        """The records of ``rows`` (seq, JSON text) that pass the entry check; the others skipped and counted."""
-        for seq, text in rows:
-            try:
-                yield wire.calibration_from_record(json.loads(text))
-            except (ValueError, RecursionError) as exc:  # WireError and JSONDecodeError are ValueErrors
-                self.skipped_rows += 1
-                if seq not in self._reported:
-                    self._reported.add(seq)
-                    log.warning("%s: skipping calibration row %d: %s", self.path, seq, exc)
 
     def _transaction(self) -> _Transaction:
         return _Transaction(self._db)

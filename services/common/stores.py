@@ -12,6 +12,8 @@ byte), which ``magnet db copy`` and ``magnet db check`` use; the calibrator neve
 from __future__ import annotations
 
 import dataclasses
+import json
+import logging
 import re
 import urllib.parse
 from collections.abc import Iterable, Iterator
@@ -24,6 +26,9 @@ from magnet import wire
 class StoreError(OSError):
     """The database cannot be read or written (damaged, not a database, disk full): one line naming the file and
     what to do."""
+
+
+log = logging.getLogger("magnet.store")
 
 
 #: URL schemes of a PostgreSQL database (libpq's two)
@@ -124,3 +129,24 @@ class Store(RowStore, Protocol):
     def __enter__(self) -> Any: ...
 
     def __exit__(self, *exc: object) -> None: ...
+
+
+class RowCheck:
+    """The entry check of stored rows, a base of both stores: a row whose record does not pass it is skipped, counted
+    (``skipped_rows``) and logged once (naming ``where`` and the row), and the rest is served."""
+
+    def __init__(self, where: object) -> None:
+        self.where = where
+        self.skipped_rows = 0
+        self._reported: set[int] = set()
+
+    def valid(self, rows: Iterable[tuple[int, str]]) -> Iterator[wire.DeviceCalibration]:
+        """The records of ``rows`` (seq, JSON text) that pass the entry check."""
+        for seq, text in rows:
+            try:
+                yield wire.calibration_from_record(json.loads(text))
+            except (ValueError, RecursionError) as exc:  # WireError and JSONDecodeError are ValueErrors
+                self.skipped_rows += 1
+                if seq not in self._reported:
+                    self._reported.add(seq)
+                    log.warning("%s: skipping calibration row %d: %s", self.where, seq, exc)

@@ -135,7 +135,10 @@ class Dashboard:
 
     def _device(self, request: Request) -> str | Response:
         """The path's device id if it is valid and known, else the error response."""
-        device = request.path_params["device"]
+        return self._known(request.path_params["device"])
+
+    def _known(self, device: str) -> str | Response:
+        """``device`` if it is a valid id the dashboard has seen, else the error response (400, 404)."""
         try:
             wire.validate_device_id(device)
         except ValueError as exc:
@@ -213,12 +216,9 @@ class Dashboard:
             return refused
         device = request.query_params.get("device") or None
         if device is not None:
-            try:
-                wire.validate_device_id(device)
-            except ValueError as exc:
-                return error(400, str(exc))
-            if not self.state.knows(device):
-                return error(404, f"unknown device {device!r}: no message or liveliness token seen for it")
+            known = self._known(device)
+            if isinstance(known, Response):
+                return known
         if self.streams >= MAX_STREAMS:
             return error(503, f"{MAX_STREAMS} event streams are open already: close a page or try again later")
         return StreamingResponse(
