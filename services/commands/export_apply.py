@@ -253,7 +253,6 @@ def apply_params(url: str, params: Mapping[str, float], *, baud: int = 57600, sy
 def _write_all(link: _Link, params: Mapping[str, float], old: Mapping[str, float]) -> ApplyReport:
     touched: list[str] = []
     read_back: dict[str, float] = {}
-    seen = link.heartbeats
     for name, value in params.items():
         try:
             touched.append(name)
@@ -267,7 +266,8 @@ def _write_all(link: _Link, params: Mapping[str, float], old: Mapping[str, float
             why = f"vehicle {link.sysid} did not take {name} = {sent:g} after {ATTEMPTS} tries ({got})"
             raise _undo(link, old, touched, why)
         read_back[name] = confirmed
-    disarmed = link.disarmed_after(seen)
+    link.drain()
+    disarmed = link.disarmed_after(link.heartbeats)  # a HEARTBEAT sent after the last write
     if not disarmed:
         why = (
             "armed during the writes"
