@@ -381,14 +381,36 @@ static int compare_doubles(const void *a, const void *b) {
     return (x > y) - (x < y);
 }
 
-/* numpy's percentile (linear) of the first n values of v (sorted here, in place), n >= 1. */
-static double percentile_sorted(double *v, Py_ssize_t n, double percent) {
-    qsort(v, (size_t)n, sizeof(double), compare_doubles);
+/* The k-th smallest of v[0 .. n - 1] (0-based), the values reordered so that those after k are not smaller. */
+static double select_kth(double *v, Py_ssize_t n, Py_ssize_t k) {
+    Py_ssize_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        double pivot = v[(lo + hi) / 2];
+        Py_ssize_t i = lo, j = hi;
+        while (i <= j) {
+            while (v[i] < pivot) i++;
+            while (v[j] > pivot) j--;
+            if (i <= j) {
+                double swap = v[i];
+                v[i++] = v[j];
+                v[j--] = swap;
+            }
+        }
+        if (k <= j) hi = j;
+        else if (k >= i) lo = i;
+        else break;
+    }
+    return v[k];
+}
+
+/* numpy's percentile (linear) of the first n values of v (reordered here), n >= 1. */
+static double percentile(double *v, Py_ssize_t n, double percent) {
     double index = percent / 100.0 * (double)(n - 1);
     Py_ssize_t lo = (Py_ssize_t)floor(index);
-    if (lo >= n - 1) return v[n - 1];
-    double t = index - (double)lo;
-    return v[lo] + (v[lo + 1] - v[lo]) * t;
+    if (lo >= n - 1) return select_kth(v, n, n - 1);
+    double low = select_kth(v, n, lo), high = v[lo + 1];
+    for (Py_ssize_t i = lo + 2; i < n; i++) high = v[i] < high ? v[i] : high;
+    return low + (high - low) * (index - (double)lo);
 }
 
 /* The indices of the watch's state vector (magnet.attitude.field_watch.FieldWatch). */
@@ -434,7 +456,7 @@ static void watch_learn(double *state, Array *levels, Array *pending, Array *cal
         }
         if (finite > 0) {
             double level = AT1(*levels, j);
-            AT1(*levels, j) = level + alpha * (percentile_sorted(scratch, finite, 90.0) - level);
+            AT1(*levels, j) = level + alpha * (percentile(scratch, finite, 90.0) - level);
         }
     }
 }
@@ -511,12 +533,12 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
                                 AT(a[1], i, 2) * AT(a[1], i, 2)) * period;
         for (int k = 0; k < 3; k++) AT(a[6], row, k) = world[k];
         AT(a[6], row, 6) = state[W_TURNED];
-        Py_ssize_t first = g + 1 - smooth > 0 ? g + 1 - smooth : 0;
-        for (int k = 0; k < 3; k++) {
-            double sum = 0.0;
-            for (Py_ssize_t m = first; m <= g; m++) sum += AT(a[6], m % keep, k);
-            AT(a[6], row, 3 + k) = sum / (double)(g + 1 - first);
+        Py_ssize_t count = g + 1 < smooth ? g + 1 : smooth; /* the mean of the last ``smooth`` (fewer at first) */
+        double sum[3] = {0.0, 0.0, 0.0};
+        for (Py_ssize_t m = 0, at = row; m < count; m++, at = at ? at - 1 : keep - 1) {
+            for (int k = 0; k < 3; k++) sum[k] += AT(a[6], at, k);
         }
+        for (int k = 0; k < 3; k++) AT(a[6], row, 3 + k) = sum[k] / (double)count;
         /* the statistics against their limits (references as at the block's start) */
         double field_norm = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
         int ready = state[W_SAMPLES] * period >= learn_s && state[W_REFERENCE] > 0.0, raw = 0;
