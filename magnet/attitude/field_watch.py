@@ -1,7 +1,7 @@
 """A watch over the field (``FieldWatch``): which samples a passing disturbance (a steel door, a parked car, a magnet)
 changes, causal and batch by batch, so that the attitude filter leaves them out and holds its heading on the
-gyroscope meanwhile (``magnet.attitude.fusion.Fusion(..., watch=True)``, off by default for its cost;
-docs/compass.md, "Disturbances").
+gyroscope meanwhile (``magnet.attitude.fusion.Fusion``, on by default; docs/compass.md, "Disturbances"). Its
+per-sample loop is compiled (``magnet._kernels.watch_update``, docs/cost.md).
 
 The field is turned into the frame the gyroscope's integration holds still (w_k = Q_k b_k, Q_k the attitude
 integrated from the filter's start), where the Earth's field is constant: a change of w over a window that the
