@@ -28,7 +28,7 @@ from magnet.calibration.fit_input import FitInput
 from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, climb, first_offset, fit_rung
 from magnet.calibration.rungs import PLANAR, PLANAR_NOTE, RUNGS, Evidence, gyro_spans, is_planar
 from magnet.earth.geomag import earth_field
-from magnet.model import IDENTITY, Calibration
+from magnet.model import Calibration
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import earth_range_refusal
@@ -230,18 +230,9 @@ def judge(
         holdout=holdout,
     )
     if ev_motion is not None:
-        reference = inp.reference
-        figures = motion.motion_figures(
-            inp.mag,
-            calibration,
-            ev_motion,
-            test,
-            holdout[1] if holdout else None,
-            reference or IDENTITY,
-            "the calibration in force" if reference else "no calibration",
-            corrected,
+        quality = motion.with_motion_figures(
+            quality, inp.mag, calibration, ev_motion, test, holdout, inp.reference, corrected
         )
-        quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
     extra: dict[str, Any] = {
         "model": result.rung.name,
         "estimated": list(result.rung.estimated),

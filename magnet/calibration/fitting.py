@@ -17,7 +17,7 @@ from magnet.calibration.ellipsoid import ellipsoid
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.gyro_ellipsoid import gyro_ellipsoid
 from magnet.calibration.turntable import fit_turntable
-from magnet.model import IDENTITY, Calibration, Quality
+from magnet.model import Calibration, Quality
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import earth_range_refusal, unit_hint
@@ -214,18 +214,7 @@ def fit(data: FitInput, method: Method | str) -> Calibration:
     )
     if acc_arr is not None and geometry is Geometry.SPHERE:
         ev = _motion_evidence(acc_arr, gyr, period_s, len(mag))
-        reference = data.reference
-        figures = motion.motion_figures(
-            mag,
-            calibration,
-            ev,
-            test,
-            holdout[1] if holdout else None,
-            reference or IDENTITY,
-            "the calibration in force" if reference else "no calibration",
-            corrected,
-        )
-        quality = dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
+        quality = motion.with_motion_figures(quality, mag, calibration, ev, test, holdout, data.reference, corrected)
     if shape.note:
         quality = quality.with_extra(note=shape.note)
     if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.attitude.mag_delay)

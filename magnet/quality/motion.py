@@ -36,7 +36,7 @@ import numpy as np
 from magnet import frames
 from magnet.attitude.mag_delay import advance_field
 from magnet.frames import quaternion_to_matrix
-from magnet.model import Calibration, Quality
+from magnet.model import IDENTITY, Calibration, Quality
 from magnet.quality.stats import median, take_rows
 
 #: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
@@ -262,6 +262,31 @@ def motion_figures(
             figures["none_holdout_consistency_deg"] = _rms(none_held)
             figures["none_holdout_margin_deg"] = _margin(held, none_held)
     return figures
+
+
+def with_motion_figures(
+    quality: Quality,
+    raw: np.ndarray,
+    candidate: Calibration,
+    ev: MotionEvidence,
+    test: np.ndarray,
+    holdout: tuple[np.ndarray, Calibration] | None,
+    reference: Calibration | None,
+    field: np.ndarray | None = None,
+) -> Quality:
+    """``quality`` with the figures of ``motion_figures`` (its dip spread in its own field), judged against
+    ``reference`` (the calibration in force; None: no calibration); ``holdout`` the held-out fit, if any."""
+    figures = motion_figures(
+        raw,
+        candidate,
+        ev,
+        test,
+        holdout[1] if holdout else None,
+        reference or IDENTITY,
+        "the calibration in force" if reference else "no calibration",
+        field,
+    )
+    return dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
 
 
 def _corrected(calibration: Calibration, raw: np.ndarray) -> np.ndarray:

@@ -13,6 +13,10 @@ class WireError(ValueError):
         self.cause = cause
 
 
+#: causes of a message that is well formed but not applied, and the word its log line uses (any other cause: malformed)
+NOT_MALFORMED = {"stale": "stale", "not-accepted": "not-accepted"}
+
+
 class DropCounter:
     """Counts dropped messages by cause. ``count`` returns True the first time a cause is seen (log it then)."""
 
@@ -28,7 +32,8 @@ class DropCounter:
     def drop(self, exc: WireError, what: str, logger: logging.Logger) -> None:
         """Count a dropped ``what`` message (``<what>:<cause>``); log only the first of each cause."""
         if self.count(f"{what}:{exc.cause}"):
-            logger.warning("dropping malformed %s message (%s): %s; further ones only counted", what, exc.cause, exc)
+            word = NOT_MALFORMED.get(exc.cause, "malformed")
+            logger.warning("dropping %s %s message (%s): %s; further ones only counted", word, what, exc.cause, exc)
 
     @property
     def total(self) -> int:

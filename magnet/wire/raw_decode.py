@@ -162,7 +162,8 @@ def decode_messages(
     try:
         columns, verdicts = _numbers(headers)
         columns = dataclasses.replace(columns, locations=batch_locations(locations))
-        columns = columns.select(np.array([v is None for v in verdicts], dtype=bool))
+        if any(v is not None for v in verdicts):  # every batch good (the usual case): no copy
+            columns = columns.select(np.array([v is None for v in verdicts], dtype=bool))
     except WireError:  # rare: some message's numbers are not arrays; judge each alone to name it
         alone = [_alone(h) for h in headers]
         verdicts = [verdict for _, verdict in alone]

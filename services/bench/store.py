@@ -17,7 +17,8 @@ import numpy as np
 
 from magnet import wire
 from magnet.model import Calibration, Quality
-from services.common.stores import StoreLocation, open_store
+from services.calibrator.store import open_store
+from services.common.stores import StoreLocation
 
 QUERIES = 1000
 

@@ -26,8 +26,7 @@ import psycopg
 
 from magnet import wire
 from magnet.calibrator.store import MakeRecord
-from services.calibrator.store import StoreError
-from services.common.stores import PostgresUrl, StoredRow
+from services.common.stores import PostgresUrl, RowCheck, StoredRow, StoreError
 
 log = logging.getLogger(__name__)
 
@@ -82,14 +81,13 @@ def describe_failure(location: PostgresUrl, exc: BaseException, doing: str = "us
     return f"calibration database {location} could not be used ({text}): check the server and the database"
 
 
-class PostgresStore:
+class PostgresStore(RowCheck):
     """Calibrations per device in a PostgreSQL database (see the module docstring)."""
 
     def __init__(self, location: PostgresUrl) -> None:
         self.location = location
         self.path = str(location)  # what the service logs as where it stores
-        self.skipped_rows = 0
-        self._reported: set[int] = set()
+        RowCheck.__init__(self, self.location)
         self._conn: psycopg.Connection[Any] | None = None
         with self._guard("open"):
             conn = self._connection()
@@ -178,7 +176,7 @@ class PostgresStore:
     def latest(self, device: str) -> wire.DeviceCalibration | None:
         """The calibration in force for ``device`` (its newest valid record), or None."""
         rows = self._select("SELECT seq, record FROM calibrations WHERE device = %s ORDER BY seq DESC", (device,))
-        return next(self._valid(rows), None)
+        return next(self.valid(rows), None)
 
     def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
         """Valid records of ``device``, newest first, at most ``limit``."""
@@ -197,7 +195,7 @@ class PostgresStore:
         for seq, text, note in rows:
             if limit is not None and len(out) >= max(0, limit):
                 break
-            for record in self._valid([(seq, text)]):
+            for record in self.valid([(seq, text)]):
                 try:
                     change = None if note is None else json.loads(note)
                 except ValueError:  # a damaged change note does not hide the record
@@ -208,20 +206,9 @@ class PostgresStore:
     def all_latest(self) -> dict[str, wire.DeviceCalibration]:
         """device -> the record in force (its newest valid one), for every device stored."""
         out: dict[str, wire.DeviceCalibration] = {}
-        for record in self._valid(self._select("SELECT seq, record FROM calibrations ORDER BY device, seq DESC")):
+        for record in self.valid(self._select("SELECT seq, record FROM calibrations ORDER BY device, seq DESC")):
             out.setdefault(record.device, record)
         return out
-
-    def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterator[wire.DeviceCalibration]:
-        """The records of ``rows`` (seq, JSON text) that pass the entry check; the others skipped and counted."""
-        for seq, text in rows:
-            try:
-                yield wire.calibration_from_record(json.loads(text))
-            except (ValueError, RecursionError) as exc:
-                self.skipped_rows += 1
-                if seq not in self._reported:
-                    self._reported.add(seq)
-                    log.warning("%s: skipping calibration row %d: %s", self.location, seq, exc)
 
     def rows(self) -> Iterator[StoredRow]:
         """Every row as stored, oldest first."""

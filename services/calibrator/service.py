@@ -51,9 +51,9 @@ from services.calibrator.settings import (
     make_places,
     settings_from_args,
 )
+from services.calibrator.store import open_store
 from services.common import metrics
 from services.common.guard import Guard
-from services.common.stores import open_store
 from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 

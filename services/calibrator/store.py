@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from magnet import wire
-from services.common.stores import StoredRow
+from services.common.stores import PostgresUrl, RowCheck, Store, StoredRow, StoreError, StoreLocation
 
 log = logging.getLogger(__name__)
 
@@ -50,11 +50,6 @@ _UNIQUE_VERSIONS = (
     "CREATE UNIQUE INDEX IF NOT EXISTS calibrations_version_per_device ON calibrations (device, version) "
     "WHERE version > 0"
 )
-
-
-class StoreError(OSError):
-    """The database cannot be read or written (damaged, not a database, disk full): one line naming the file and
-    what to do."""
 
 
 #: sqlite result codes (``sqlite_errorcode``, low byte) of a full disk, of a file it may not write or a failing disk,
@@ -97,7 +92,7 @@ def store_error(path: Path, doing: str, exc: BaseException) -> StoreError:
     return StoreError(describe_failure(path, exc, doing))
 
 
-class CalibrationStore:
+class CalibrationStore(RowCheck):
     """Calibrations per device in one SQLite file. Use from one thread (the service's own).
 
     A damaged file is found when opening (``PRAGMA quick_check``) or when a damaged page is read later: both raise
@@ -107,8 +102,7 @@ class CalibrationStore:
         self.path = Path(path)
         if str(path) != ":memory:":
             self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.skipped_rows = 0
-        self._reported: set[int] = set()
+        RowCheck.__init__(self, self.path)
         try:
             self._db = sqlite3.connect(str(path), isolation_level=None)
         except sqlite3.DatabaseError as exc:
@@ -238,7 +232,7 @@ class CalibrationStore:
             rows = self._db.execute(
                 "SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,)
             )
-            return next(self._valid(rows), None)
+            return next(self.valid(rows), None)
 
     def history(self, device: str, limit: int | None = None) -> list[wire.DeviceCalibration]:
         """Valid records of ``device``, newest first, at most ``limit``."""
@@ -247,7 +241,7 @@ class CalibrationStore:
             rows = self._db.execute(
                 "SELECT seq, record FROM calibrations WHERE device = ? ORDER BY seq DESC", (device,)
             )
-            for record in self._valid(rows):
+            for record in self.valid(rows):
                 if limit is not None and len(out) >= max(0, limit):
                     break
                 out.append(record)
@@ -279,7 +273,7 @@ class CalibrationStore:
     def _valid_seq(self, rows: Iterable[tuple[int, str]]) -> Iterable[tuple[int, wire.DeviceCalibration]]:
         """(seq, record) of the rows that pass the entry check (``_valid``)."""
         for seq, text in rows:
-            for record in self._valid([(seq, text)]):
+            for record in self.valid([(seq, text)]):
                 yield seq, record
 
     def all_latest(self) -> dict[str, wire.DeviceCalibration]:
@@ -287,20 +281,9 @@ class CalibrationStore:
         out: dict[str, wire.DeviceCalibration] = {}
         with self._guard("read"):
             rows = self._db.execute("SELECT seq, record FROM calibrations ORDER BY device, seq DESC")
-            for record in self._valid(rows):
+            for record in self.valid(rows):
                 out.setdefault(record.device, record)
         return out
-
-    def _valid(self, rows: Iterable[tuple[int, str]]) -> Iterator[wire.DeviceCalibration]:
-        """The records of ``rows`` (seq, JSON text) that pass the entry check; the others skipped and counted."""
-        for seq, text in rows:
-            try:
-                yield wire.calibration_from_record(json.loads(text))
-            except (ValueError, RecursionError) as exc:  # WireError and JSONDecodeError are ValueErrors
-                self.skipped_rows += 1
-                if seq not in self._reported:
-                    self._reported.add(seq)
-                    log.warning("%s: skipping calibration row %d: %s", self.path, seq, exc)
 
     def _transaction(self) -> _Transaction:
         return _Transaction(self._db)
@@ -322,3 +305,14 @@ class _Transaction:
         elif getattr(self._db, "in_transaction", True):
             with contextlib.suppress(sqlite3.Error):  # the first error is the one to report
                 self._db.execute("ROLLBACK")
+
+
+def open_store(location: StoreLocation) -> Store:
+    """The store at ``location`` (``services.common.stores.parse_db``), opened (its schema made when new): this
+    SQLite store, or the PostgreSQL one (``services.calibrator.pgstore``, imported only when used); OSError
+    (``StoreError``) naming it when it cannot be."""
+    if isinstance(location, PostgresUrl):
+        from services.calibrator.pgstore import PostgresStore
+
+        return PostgresStore(location)
+    return CalibrationStore(location)

@@ -20,7 +20,8 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from magnet import signing, wire
-from services.common.stores import PostgresUrl, StoredRow, StoreLocation, open_store, parse_db
+from services.calibrator.store import open_store
+from services.common.stores import PostgresUrl, StoredRow, StoreLocation, parse_db
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

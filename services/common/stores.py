@@ -1,8 +1,9 @@
 """Where a calibrator keeps its calibrations (``--db``): a SQLite file (the default, one host) or a PostgreSQL
 database (``postgresql://USER@HOST:PORT/DB``: calibrators on several hosts, a replicated server). One protocol
 (``magnet.calibrator.store.CalibrationStore``), two implementations with the same schema and semantics:
-``services.calibrator.store`` (SQLite) and ``services.calibrator.pgstore`` (PostgreSQL, psycopg 3, imported only
-when used).
+``services.calibrator.store`` (SQLite, and ``open_store`` for either) and ``services.calibrator.pgstore``
+(PostgreSQL, psycopg 3, imported only when used). This module is what both share (the URL, the rows as stored, the
+error), so neither imports the other's home and nothing here imports a store.
 
 Both also hand out and take in their rows as stored (``StoredRow``: the record's JSON text and its change's, byte for
 byte), which ``magnet db copy`` and ``magnet db check`` use; the calibrator never does.
@@ -11,6 +12,8 @@ byte), which ``magnet db copy`` and ``magnet db check`` use; the calibrator neve
 from __future__ import annotations
 
 import dataclasses
+import json
+import logging
 import re
 import urllib.parse
 from collections.abc import Iterable, Iterator
@@ -18,6 +21,15 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from magnet import wire
+
+
+class StoreError(OSError):
+    """The database cannot be read or written (damaged, not a database, disk full): one line naming the file and
+    what to do."""
+
+
+log = logging.getLogger("magnet.store")
+
 
 #: URL schemes of a PostgreSQL database (libpq's two)
 POSTGRES_SCHEMES = ("postgresql", "postgres")
@@ -119,13 +131,22 @@ class Store(RowStore, Protocol):
     def __exit__(self, *exc: object) -> None: ...
 
 
-def open_store(location: StoreLocation) -> Store:
-    """The store at ``location``, opened (its schema made when new); OSError (``StoreError``) naming it when it
-    cannot be."""
-    if isinstance(location, PostgresUrl):
-        from services.calibrator.pgstore import PostgresStore
+class RowCheck:
+    """The entry check of stored rows, a base of both stores: a row whose record does not pass it is skipped, counted
+    (``skipped_rows``) and logged once (naming ``where`` and the row), and the rest is served."""
 
-        return PostgresStore(location)
-    from services.calibrator.store import CalibrationStore
+    def __init__(self, where: object) -> None:
+        self.where = where
+        self.skipped_rows = 0
+        self._reported: set[int] = set()
 
-    return CalibrationStore(location)
+    def valid(self, rows: Iterable[tuple[int, str]]) -> Iterator[wire.DeviceCalibration]:
+        """The records of ``rows`` (seq, JSON text) that pass the entry check."""
+        for seq, text in rows:
+            try:
+                yield wire.calibration_from_record(json.loads(text))
+            except (ValueError, RecursionError) as exc:  # WireError and JSONDecodeError are ValueErrors
+                self.skipped_rows += 1
+                if seq not in self._reported:
+                    self._reported.add(seq)
+                    log.warning("%s: skipping calibration row %d: %s", self.where, seq, exc)

@@ -14,9 +14,15 @@ Routes:
   ``X-Magnet-Token``).
 
 Viewing needs no token when the server listens on a loopback address; on any other address every ``/api`` route
-needs it too (``?token=`` for the stream, which a browser cannot give headers). Bad input gets a 4xx with a JSON
-``{"error": ...}`` and changes nothing: 400 malformed, 401 no or wrong token, 404 unknown device, 502/504 when the
-calibrator refused or did not answer.
+needs it too. The token is taken from a header only, never from the address (addresses end up in logs, histories
+and ``Referer``s; the page reads its stream with ``fetch``, which sends the header). Bad input gets a 4xx with a JSON
+``{"error": ...}`` and changes nothing: 400 malformed, 401 no or wrong token, 404 unknown device, 413 a body over
+``MAX_BODY_BYTES`` (refused by its declared length before it is read, and cut off past it), 502/504 when the
+calibrator refused or did not answer, 503 past ``MAX_STREAMS`` event streams.
+
+Every request (``HostCheck``) must name in ``Host`` a loopback name or one the dashboard was told to answer to
+(``--allow-host``, and the address it listens on), and an ``Origin``, when a browser sends one, must be the page's
+own: a web page elsewhere cannot read the fleet through the operator's browser, even by DNS rebinding (403).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from typing import Any, Protocol
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
+from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
@@ -50,6 +57,10 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 ACTIONS = ("start", "status", "commit", "abort", "rollback")
 CALIBRATION_ID = re.compile(r"[0-9a-f]{8,64}")
 MAX_BODY_BYTES = 4096
+#: event streams at once (each costs a task and a JSON encoding every refresh); past it a new one gets 503
+MAX_STREAMS = 64
+#: names a request's Host may always give
+LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_HISTORY = 100
 DETAIL_EVERY_S = 1.0
 Endpoint = Callable[[Request], Awaitable[Response]]
@@ -94,6 +105,7 @@ class Dashboard:
         self.state, self.control, self.token, self.operator = state, control, token, operator
         self.view_needs_token, self.interval_s = view_needs_token, interval_s
         self.stopping = asyncio.Event()
+        self.streams = 0  # event streams open now
         self.guard = Guard("dashboard", log, state.dropped)  # no failing request ends the server or a stream
 
     def guarded(self, what: str, endpoint: Endpoint) -> Endpoint:
@@ -110,7 +122,7 @@ class Dashboard:
 
     # ---------------------------------------------------------------------------------------------- checks
     def _token_ok(self, request: Request) -> bool:
-        given = request.headers.get("x-magnet-token") or request.query_params.get("token") or ""
+        given = request.headers.get("x-magnet-token") or ""
         auth = request.headers.get("authorization", "")
         if auth.lower().startswith("bearer "):
             given = auth[7:].strip()
@@ -118,12 +130,15 @@ class Dashboard:
 
     def _view_refused(self, request: Request) -> Response | None:
         if self.view_needs_token and not self._token_ok(request):
-            return error(401, "this dashboard listens beyond loopback: give the token (?token=... or a header)")
+            return error(401, "this dashboard listens beyond loopback: give the token (Authorization: Bearer TOKEN)")
         return None
 
     def _device(self, request: Request) -> str | Response:
         """The path's device id if it is valid and known, else the error response."""
-        device = request.path_params["device"]
+        return self._known(request.path_params["device"])
+
+    def _known(self, device: str) -> str | Response:
+        """``device`` if it is a valid id the dashboard has seen, else the error response (400, 404)."""
         try:
             wire.validate_device_id(device)
         except ValueError as exc:
@@ -180,8 +195,8 @@ class Dashboard:
         device = self._device(request)
         if isinstance(device, Response):
             return device
-        body = await request.body()
-        if len(body) > MAX_BODY_BYTES:
+        body = await _bounded_body(request, MAX_BODY_BYTES)
+        if body is None:
             return error(413, f"request body larger than {MAX_BODY_BYTES} bytes")
         parsed = _parse_action(body)
         if isinstance(parsed, Response):
@@ -201,10 +216,11 @@ class Dashboard:
             return refused
         device = request.query_params.get("device") or None
         if device is not None:
-            try:
-                wire.validate_device_id(device)
-            except ValueError as exc:
-                return error(400, str(exc))
+            known = self._known(device)
+            if isinstance(known, Response):
+                return known
+        if self.streams >= MAX_STREAMS:
+            return error(503, f"{MAX_STREAMS} event streams are open already: close a page or try again later")
         return StreamingResponse(
             self._events(device),
             media_type="text/event-stream",
@@ -214,6 +230,7 @@ class Dashboard:
     async def _events(self, device: str | None) -> AsyncIterator[str]:
         version, next_detail = -1, 0.0
         loop = asyncio.get_running_loop()
+        self.streams += 1
         if device:
             self.state.watch(device, +1)
         try:
@@ -231,8 +248,60 @@ class Dashboard:
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self.stopping.wait(), self.interval_s)
         finally:
+            self.streams -= 1
             if device:
                 self.state.watch(device, -1)
+
+
+async def _bounded_body(request: Request, limit: int) -> bytes | None:
+    """The request's body, None when it declares or turns out longer than ``limit`` (not read past it)."""
+    declared = request.headers.get("content-length", "")
+    if declared and (not declared.isdigit() or int(declared) > limit):
+        return None
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > limit:
+            return None
+    return bytes(body)
+
+
+def host_name(value: str) -> str:
+    """The host name of a ``Host`` header value (``name``, ``name:port``, ``[v6]:port``), lower case."""
+    value = value.strip().lower()
+    if value.startswith("["):
+        return value[1 : value.find("]")] if "]" in value else value
+    return value.rsplit(":", 1)[0] if value.count(":") == 1 else value
+
+
+class HostCheck:
+    """ASGI middleware: 403 for a request whose ``Host`` is not one of ``allowed`` names (DNS rebinding), or whose
+    ``Origin`` is not the page's own (``http(s)://`` + the same ``Host``)."""
+
+    def __init__(self, app: Any, allowed: frozenset[str]) -> None:
+        self.app, self.allowed = app, allowed
+
+    def refusal(self, headers: dict[bytes, bytes]) -> str | None:
+        host = headers.get(b"host", b"").decode("latin-1")
+        if host_name(host) not in self.allowed:
+            return f"Host {host!r} is not one this dashboard answers to (give it with --allow-host)"
+        origin = headers.get(b"origin")
+        if origin is not None:
+            text = origin.decode("latin-1").lower()
+            if text not in (f"http://{host.lower()}", f"https://{host.lower()}"):
+                return f"requests from the web page at {text!r} are refused: open the dashboard's own page"
+        return None
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] in ("http", "websocket"):
+            refused = self.refusal(dict(scope.get("headers") or ()))
+            if refused is not None:
+                if scope["type"] == "websocket":
+                    await send({"type": "websocket.close", "code": 1008})
+                    return
+                await error(403, refused)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
 
 
 def _event(name: str, data: Any) -> str:
@@ -272,9 +341,11 @@ def create_app(
     view_needs_token: bool = False,
     interval_s: float = 0.25,
     operator: str = "",
+    allowed_hosts: tuple[str, ...] = (),
 ) -> Starlette:
     """The ASGI app (``app.state.dashboard`` holds the handlers; set ``dashboard.stopping`` to end streams).
-    ``operator``: who the page's commits and rollbacks are recorded as made by (``by``)."""
+    ``operator``: who the page's commits and rollbacks are recorded as made by (``by``); ``allowed_hosts``: names a
+    request's ``Host`` may give besides the loopback ones (``HostCheck``)."""
     dashboard = Dashboard(state, control, token, view_needs_token, interval_s, operator)
     guard = dashboard.guarded
     routes = [
@@ -287,6 +358,7 @@ def create_app(
         Route("/api/devices/{device}/calibrate", guard("http:calibrate", dashboard.calibrate), methods=["POST"]),
         Mount("/static", StaticFiles(directory=STATIC_DIR), name="static"),
     ]
-    app = Starlette(routes=routes)
+    allowed = LOOPBACK_NAMES | {host_name(h) for h in allowed_hosts}
+    app = Starlette(routes=routes, middleware=[Middleware(HostCheck, allowed=allowed)])
     app.state.dashboard = dashboard
     return app

@@ -37,6 +37,11 @@ if TYPE_CHECKING:
     from magnet.earth.geomag import EarthField
 
 log = logging.getLogger("magnet.dashboard")
+#: an idle keep-alive connection is closed after this (a slow or silent client holds no connection for long)
+KEEP_ALIVE_S = 5
+#: connections at once (event streams included, limited further by ``app.MAX_STREAMS``): past it uvicorn answers
+#: 503 at once instead of opening a file and a task per connection until the process's file limit
+MAX_CONNECTIONS = 256
 
 __all__ = ["add_arguments", "page_address", "run"]
 
@@ -88,7 +93,8 @@ def serve(settings: DashboardSettings) -> int:
         print(f"magnet dashboard: {DEFAULT_HTTP} is taken (by magnet up's own dashboard?): serving on {host}:{port}")
     token = settings.token or os.environ.get(TOKEN_ENV) or secrets.token_urlsafe(12)
     prefix = settings.zenoh.prefix
-    state = FleetState(_earth(settings), date=settings.date)
+    places = {entry.device: entry.location for entry in settings.places if entry.location is not None}
+    state = FleetState(_earth(settings), date=settings.date, places=places)
     with contextlib.ExitStack() as stack:
         session = stack.enter_context(open_session(settings.zenoh))
         metrics.start(settings.metrics, "dashboard", state.metrics_status)
@@ -106,6 +112,7 @@ def serve(settings: DashboardSettings) -> int:
             view_needs_token=not is_loopback(host),
             interval_s=settings.refresh_s,
             operator=operator_name(settings.operator),
+            allowed_hosts=settings.allowed_hosts,
         )
         config = uvicorn.Config(
             app,
@@ -114,6 +121,8 @@ def serve(settings: DashboardSettings) -> int:
             log_level="warning",
             access_log=False,
             timeout_graceful_shutdown=1,
+            timeout_keep_alive=KEEP_ALIVE_S,
+            limit_concurrency=MAX_CONNECTIONS,
             lifespan="off",
         )
         server = _Server(config, app.state.dashboard)

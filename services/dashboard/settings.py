@@ -9,8 +9,10 @@ import dataclasses
 import ipaddress
 import socket
 
+from magnet.fleet.places import PlaceEntry
 from services.common import metrics
 from services.common.options import add_options, check_options, from_args, option
+from services.common.places_options import add_fleet_argument, read_fleet
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
 DEFAULT_HTTP = "127.0.0.1:8080"
@@ -83,6 +85,13 @@ class DashboardSettings:
         metavar="HOST:PORT",
         help="also serve the fleet to the Foxglove app over its WebSocket protocol here (e.g. 127.0.0.1:8765)",
     )
+    allow_host: str | None = option(
+        None,
+        "--allow-host",
+        metavar="NAME[,NAME...]",
+        help="host names the page may be opened by besides the loopback ones and the --http address (a request "
+        "naming another Host, or coming from another site's page, is refused: DNS rebinding)",
+    )
     operator: str | None = option(
         None,
         "--operator",
@@ -91,6 +100,7 @@ class DashboardSettings:
     )
     metrics: str | None = None
     zenoh: ZenohSettings = ZenohSettings()
+    places: tuple[PlaceEntry, ...] = ()  # the --fleet file's entries: each device's place where it reports none
 
     def __post_init__(self) -> None:
         check_options(self)
@@ -101,6 +111,14 @@ class DashboardSettings:
             raise ValueError("--date needs --location")
         if self.metrics:
             metrics.parse_address(self.metrics)
+
+    @property
+    def allowed_hosts(self) -> tuple[str, ...]:
+        """Names a request's Host may give besides the loopback ones: ``--allow-host`` and the ``--http`` host
+        (unless it is a wildcard)."""
+        host = self.address[0]
+        told = tuple(n.strip() for n in (self.allow_host or "").split(",") if n.strip())
+        return told + (() if host in ("0.0.0.0", "::", "") else (host,))
 
     @property
     def address(self) -> tuple[str, int]:
@@ -134,9 +152,11 @@ def default_http(preferred: str = DEFAULT_HTTP) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_options(parser, DashboardSettings)
+    add_fleet_argument(parser)
     metrics.add_metrics_argument(parser)
     add_zenoh_arguments(parser)
 
 
 def settings_from_args(args: argparse.Namespace) -> DashboardSettings:
-    return from_args(DashboardSettings, args, metrics=args.metrics, zenoh=ZenohSettings.from_args(args))
+    places = tuple(read_fleet(args.fleet).values())
+    return from_args(DashboardSettings, args, metrics=args.metrics, zenoh=ZenohSettings.from_args(args), places=places)

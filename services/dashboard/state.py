@@ -21,6 +21,7 @@ import numpy as np
 from magnet import wire
 from magnet.drift import Alert
 from magnet.earth.geomag import EarthField, earth_field
+from magnet.earth.location import Location
 from services.dashboard.figures import (
     covered_cells,
     decimate,
@@ -56,9 +57,14 @@ class FleetState:
     """Rows of every device seen, traces of watched devices, the expected field; thread-safe."""
 
     def __init__(
-        self, earth: EarthField | None = None, clock: Callable[[], float] = time.monotonic, date: Any = None
+        self,
+        earth: EarthField | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        date: Any = None,
+        places: Mapping[str, Location] | None = None,
     ) -> None:
         self.earth, self.clock, self.date = earth, clock, date
+        self.places = dict(places or {})  # the places file's locations by device
         self.lock = threading.Lock()
         self.rows: dict[str, DeviceRow] = {}
         self.traces: dict[str, Trace] = {}
@@ -252,12 +258,13 @@ class FleetState:
             }
 
     def earth_of(self, row: DeviceRow) -> EarthField | None:
-        """The field expected where the device is: the World Magnetic Model at the place it reports, else the
-        dashboard's own (``--location``), else None."""
-        if row.location is None:
+        """The field expected where the device is: the World Magnetic Model at the place it reports, else at its
+        place in the places file (``--fleet``), else the dashboard's own (``--location``), else None."""
+        location = row.location or self.places.get(row.device)
+        if location is None:
             return self.earth
         try:
-            return earth_field(*row.location.as_tuple(), self.date)
+            return earth_field(*location.as_tuple(), self.date)
         except ValueError:  # a date outside the model: the dashboard's own place
             return self.earth
 

@@ -312,7 +312,7 @@ class FailingControl:
 def test_dashboard_http_handler_failure_is_a_500_with_json_and_the_next_request_is_served():
     state = FleetState(None)
     state.on_alive("d1", True)
-    client = TestClient(create_app(state, FailingControl(), "tok"))
+    client = TestClient(create_app(state, FailingControl(), "tok"), base_url="http://127.0.0.1")
     headers = {"Authorization": "Bearer tok"}
     first = client.post("/api/devices/d1/calibrate", json={"action": "start"}, headers=headers)
     assert first.status_code == 500 and first.json() == {"error": "zenoh session closed"}

@@ -21,7 +21,12 @@ from magnet.ros2.names import ros_name_of_device
 
 pytestmark = pytest.mark.integration
 
-CLIENT = [sys.executable, str(REPO_ROOT / "tests" / "ros2_sdk_client.py")]
+# -P: the script's folder (tests/, holding tests/magnet/) must not stand in for the magnet package
+CLIENT = [
+    sys.executable,
+    "-P",
+    str(REPO_ROOT / "tests" / "ros2_sdk_client.py"),
+]
 DEVICE = "imu-000"  # not a valid ROS name as it is: mapped to ximu_2d000
 
 

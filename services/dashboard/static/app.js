@@ -39,17 +39,50 @@ function takeToken() {
 }
 
 // ------------------------------------------------------------------------------------------------ stream
-function connect() {
-  if (S.source) S.source.close();
+// The stream is read with fetch (not EventSource) so that the token goes in a header, never in the address.
+async function connect() {
+  if (S.source) S.source.abort();
+  const source = new AbortController();
+  S.source = source;
   const params = new URLSearchParams();
   if (S.device) params.set("device", S.device);
-  if (S.token) params.set("token", S.token);
-  const source = new EventSource(`/api/stream?${params}`);
-  S.source = source;
-  source.onopen = () => setConn(true);
-  source.onerror = () => { setConn(false); S.stats.streamErrors = (S.stats.streamErrors || 0) + 1; };
-  source.addEventListener("fleet", (e) => onFleet(JSON.parse(e.data)));
-  source.addEventListener("device", (e) => onDetail(JSON.parse(e.data)));
+  try {
+    const res = await fetch(`/api/stream?${params}`, {headers: authHeaders(), signal: source.signal});
+    if (!res.ok || !res.body) throw new Error(`HTTP ${res.status}`);
+    setConn(true);
+    const reader = res.body.pipeThrough(new TextDecoderStream()).getReader();
+    let buffer = "";
+    for (;;) {
+      const {value, done} = await reader.read();
+      if (done) break;
+      buffer += value;
+      let cut;
+      while ((cut = buffer.indexOf("\n\n")) >= 0) {
+        onEvent(buffer.slice(0, cut));
+        buffer = buffer.slice(cut + 2);
+      }
+    }
+  } catch (e) {
+    if (source.signal.aborted) return;
+  }
+  if (source.signal.aborted) return;
+  setConn(false);
+  S.stats.streamErrors = (S.stats.streamErrors || 0) + 1;
+  setTimeout(() => { if (S.source === source) connect(); }, 1000);
+}
+
+function onEvent(block) {
+  let name = "message", data = "";
+  for (const line of block.split("\n")) {
+    if (line.startsWith("event: ")) name = line.slice(7);
+    else if (line.startsWith("data: ")) data += line.slice(6);
+  }
+  if (name === "fleet") onFleet(JSON.parse(data));
+  else if (name === "device") onDetail(JSON.parse(data));
+}
+
+function authHeaders() {
+  return S.token ? {"Authorization": `Bearer ${S.token}`} : {};
 }
 
 function setConn(live) {
@@ -520,12 +553,11 @@ function progressRow(reply) {
 async function loadHistory(device, inForceId) {
   const body = $("history-body");
   body.innerHTML = '<tr><td colspan="10" class="muted">asking the calibrator\u2026</td></tr>';
-  const q = S.token ? `&token=${encodeURIComponent(S.token)}` : "";
   const row = S.rows.get(device);
   S.historyLoading = true;
   S.historyFor = inForceId || (row ? row.calibration_id : null);
   try {
-    const res = await fetch(`/api/devices/${encodeURIComponent(device)}/history?limit=10${q}`);
+    const res = await fetch(`/api/devices/${encodeURIComponent(device)}/history?limit=10`, {headers: authHeaders()});
     const data = await res.json();
     if (device !== S.device) return;
     if (!res.ok) { body.innerHTML = `<tr><td colspan="10" class="muted">${esc(data.error)}</td></tr>`; return; }

@@ -117,3 +117,18 @@ def test_the_largest_honest_batch_fits_the_byte_budget():
     )
     payload = wire.encode_raw(batch, version=1)
     assert len(wire.decode_raw(payload)) == n
+
+
+def test_a_stale_calibration_is_not_logged_as_malformed(caplog):
+    """Issue 32: a well-formed calibration older than the one in force was logged as "malformed"."""
+    import logging
+
+    from magnet.wire.errors import DropCounter, WireError
+
+    drops, logger = DropCounter(), logging.getLogger("test.drops")
+    with caplog.at_level(logging.WARNING, logger="test.drops"):
+        drops.drop(WireError("stale", "calibration c1 is not newer than c2"), "calibration", logger)
+        drops.drop(WireError("not-msgpack", "garbage"), "raw", logger)
+    assert "dropping stale calibration message (stale)" in caplog.messages[0]
+    assert "malformed" not in caplog.messages[0] and "dropping malformed raw message" in caplog.messages[1]
+    assert drops.counts == {"calibration:stale": 1, "raw:not-msgpack": 1}

@@ -18,7 +18,8 @@ from helpers import NO_SCOUT, REPO_ROOT, connect_args, free_ports, listen_args, 
 from memory_store import record_of
 
 from magnet import wire
-from services.common.stores import open_store, parse_db
+from services.calibrator.store import open_store
+from services.common.stores import parse_db
 
 pytestmark = pytest.mark.integration
 
@@ -87,7 +88,8 @@ sys.path.insert(0, {tests!r})
 from memory_store import record_of
 
 from magnet import wire
-from services.common.stores import open_store, parse_db
+from services.common.stores import parse_db
+from services.calibrator.store import open_store
 from services.calibrator import pgstore
 
 insert = pgstore.PostgresStore._insert

@@ -11,8 +11,8 @@ from typing import Any
 import pytest
 from memory_store import check_store_contract
 
-from services.calibrator.store import CalibrationStore
-from services.common.stores import open_store, parse_db
+from services.calibrator.store import CalibrationStore, open_store
+from services.common.stores import parse_db
 
 #: name -> a store opened in a test's directory or a new database of the session's PostgreSQL server (the request
 #: gives either), closed after the checks

@@ -10,7 +10,8 @@ import pytest
 from memory_store import record_of
 
 from services.calibrator.settings import ServiceSettings
-from services.common.stores import PostgresUrl, StoredRow, open_store, parse_db
+from services.calibrator.store import open_store
+from services.common.stores import PostgresUrl, StoredRow, parse_db
 
 
 def test_db_is_a_sqlite_file_or_a_postgresql_url_and_nothing_else():

@@ -13,8 +13,9 @@ import pytest
 from memory_store import record_of
 
 from magnet import signing
+from services.calibrator.store import open_store
 from services.cli import main
-from services.common.stores import StoredRow, open_store, parse_db
+from services.common.stores import StoredRow, parse_db
 
 
 def new_site_signer(tmp_path: Path) -> tuple[signing.Signer, Path]:

@@ -74,7 +74,8 @@ def state():
 
 
 def client_for(state, control, view_needs_token=False):
-    return TestClient(create_app(state, control, TOKEN, view_needs_token=view_needs_token, operator="ann@lab"))
+    app = create_app(state, control, TOKEN, view_needs_token=view_needs_token, operator="ann@lab")
+    return TestClient(app, base_url="http://127.0.0.1:8000")
 
 
 def test_page_static_files_and_plotly_from_the_wheel(state):
@@ -170,7 +171,8 @@ def test_viewing_needs_no_token_on_loopback_but_does_elsewhere(state):
     guarded = client_for(state, FakeControl(), view_needs_token=True)
     assert guarded.get("/api/fleet").status_code == 401
     assert guarded.get("/api/stream").status_code == 401
-    assert guarded.get(f"/api/fleet?token={TOKEN}").status_code == 200
+    assert guarded.get(f"/api/fleet?token={TOKEN}").status_code == 401  # never from the address (issue 32)
+    assert guarded.get("/api/fleet", headers={"Authorization": f"Bearer {TOKEN}"}).status_code == 200
     assert guarded.get("/").status_code == 200  # the page itself holds no data
 
 
@@ -334,6 +336,10 @@ def test_a_device_is_judged_against_the_field_where_it_says_it_is():
     state.on_raw(raw)
     assert state.detail("mav1-mag0")["earth"]["total_ut"] == pytest.approx(48.4, abs=0.3)
     assert state.detail("mav1-mag0")["earth"]["total_ut"] != state.summary()["earth"]["total_ut"]
+    listed = FleetState(state.earth, date="2026-06-01", places={"boat-1": zurich})  # the places file (--fleet)
+    listed.watch("boat-1", +1)
+    listed.on_heading(heading_batch("boat-1"))
+    assert listed.detail("boat-1")["earth"]["total_ut"] == pytest.approx(48.4, abs=0.3)
 
 
 def test_a_device_whose_headings_stop_is_silent_after_its_own_interval_though_its_token_lives():
@@ -348,3 +354,64 @@ def test_a_device_whose_headings_stop_is_silent_after_its_own_interval_though_it
     now[0] = 8.0 + 10.5  # more than 5 of its own intervals
     row = state.rows["mav1-mag0"].to_json(now[0], None)
     assert row["alive"] is False and "no headings" in row["alerts"] and state.summary()["alive"] == 0
+
+
+# ---- issue 32: the browser's front door --------------------------------------------------------------------------
+
+
+def test_a_host_the_dashboard_was_not_told_of_is_refused(state):
+    """DNS rebinding: a page at evil.example whose name now resolves to 127.0.0.1 sends Host: evil.example."""
+    client = client_for(state, FakeControl())
+    for host in ("evil.example", "evil.example:8000", "127.0.0.1.evil.example"):
+        refused = client.get("/api/fleet", headers={"Host": host})
+        assert refused.status_code == 403 and "not one this dashboard answers to" in refused.json()["error"]
+    for host in ("127.0.0.1:8000", "localhost:8000", "[::1]:8000", "LOCALHOST"):
+        assert client.get("/api/fleet", headers={"Host": host}).status_code == 200, host
+    told = TestClient(create_app(state, FakeControl(), TOKEN, allowed_hosts=("field-pc",)), base_url="http://field-pc")
+    assert told.get("/api/fleet").status_code == 200
+
+
+def test_a_foreign_origin_is_refused_even_with_the_token(state):
+    client = client_for(state, FakeControl())
+    foreign = {"Origin": "http://evil.example", **GOOD}
+    response = client.post("/api/devices/imu-1/calibrate", headers=foreign, json={"action": "status"})
+    assert response.status_code == 403 and "evil.example" in response.json()["error"]
+    assert client.get("/api/fleet", headers={"Origin": "http://localhost:3000"}).status_code == 403
+    own = {"Origin": "http://127.0.0.1:8000", **GOOD}
+    assert client.post("/api/devices/imu-1/calibrate", headers=own, json={"action": "status"}).status_code == 200
+
+
+def test_the_control_token_is_never_taken_from_the_address(state):
+    client = client_for(state, FakeControl())
+    response = client.post(f"/api/devices/imu-1/calibrate?token={TOKEN}", json={"action": "status"})
+    assert response.status_code == 401
+
+
+def test_a_large_body_is_refused_by_its_declared_length_before_it_is_read(state):
+    client = client_for(state, FakeControl())
+    read = []
+
+    def body():
+        for _ in range(100):
+            read.append(1)
+            yield b" " * 65536
+
+    response = client.post(
+        "/api/devices/imu-1/calibrate", headers={**GOOD, "Content-Length": str(200 * 1024 * 1024)}, content=body()
+    )
+    assert response.status_code == 413 and len(read) <= 1
+
+
+def test_a_stream_for_an_unknown_device_is_refused(state):
+    client = client_for(state, FakeControl())
+    response = client.get("/api/stream?device=ghost-42")
+    assert response.status_code == 404 and "unknown device" in response.json()["error"]
+
+
+def test_event_streams_are_limited(state, monkeypatch):
+    from services.dashboard import app as app_module
+
+    client = client_for(state, FakeControl())
+    client.app.state.dashboard.streams = app_module.MAX_STREAMS
+    response = client.get("/api/stream")
+    assert response.status_code == 503 and "event streams are open already" in response.json()["error"]

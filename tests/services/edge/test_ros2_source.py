@@ -18,7 +18,12 @@ from magnet.ros2 import messages, names
 
 pytestmark = pytest.mark.integration
 
-CLIENT = [sys.executable, str(REPO_ROOT / "tests" / "ros2_sdk_client.py")]
+# -P: the script's folder (tests/, holding tests/magnet/) must not stand in for the magnet package
+CLIENT = [
+    sys.executable,
+    "-P",
+    str(REPO_ROOT / "tests" / "ros2_sdk_client.py"),
+]
 DEVICE = "robot-1"
 
 
