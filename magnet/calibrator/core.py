@@ -49,6 +49,10 @@ log = logging.getLogger("magnet.calibrator")
 Publish = Callable[[wire.Kind, str, bytes], None]
 
 
+#: the session actions that store (or begin what a commit stores): refused while the store is gone, with the reason
+_NEEDS_STORE = {"start": "started", "commit": "committed"}
+
+
 class CalibratorCore:
     """The parts of a calibrator, wired (see the module docstring). ``clock``: monotonic seconds (when collections
     are due, progress intervals); ``clock_ns``: ns since the epoch (records' ``created_ns``, last seen)."""
@@ -207,11 +211,24 @@ class CalibratorCore:
 
     def session(self, device: str, action: str, method: str | None, by: str | None = None) -> dict[str, Any]:
         """Run a session action (``sessions.Sessions.act``); the reply map ``{ok, action, device, state, message,
-        progress, calibration?}``. ValueError for an unknown action or method."""
+        progress, calibration?}``. ValueError for an unknown action or method. While the store is gone
+        (``store_gone``), a start or a commit is refused with the reason: nothing could be stored."""
+        gone = self.store_gone()
+        if gone is not None and action in _NEEDS_STORE:
+            return self._reply(device, action, (False, f"not {_NEEDS_STORE[action]}: {gone}", {}))
         return self._reply(device, action, self.sessions.act(device, action, method, by))
+
+    def store_gone(self) -> str | None:
+        """Why the store can no longer take a record (its file deleted or replaced under it: the SQLite store's
+        ``gone``), or None; a store without that check is never gone."""
+        gone = getattr(self.records.store, "gone", None)
+        return gone if isinstance(gone, str) else None
 
     def rollback(self, device: str, to_id: str | None, by: str | None) -> dict[str, Any]:
         """Put an earlier calibration back in force (``rollback.roll_back``); the reply map, as ``session``'s."""
+        gone = self.store_gone()
+        if gone is not None:
+            return self._reply(device, "rollback", (False, f"not rolled back: {gone}", {}))
         return self._reply(device, "rollback", roll_back(self.records, self.commit, device, to_id, by))
 
     def _reply(self, device: str, action: str, outcome: Outcome) -> dict[str, Any]:
@@ -254,4 +271,5 @@ class CalibratorCore:
             dict(self.drops.counts),
             str(self.shard),
             "active" if self.active else "standby",
+            store_problem=self.store_gone(),
         )

@@ -69,6 +69,7 @@ class CalibratorStatus:
     dropped: dict[str, int]
     shard: str = "0/1"
     lease: str = "active"  # or "standby": another calibrator of the shard holds the lease (services.calibrator.lease)
+    store_problem: str | None = None  # why the store takes no record (its file deleted or replaced), None while it does
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -81,6 +82,8 @@ class CalibratorStatus:
             "dropped_total": sum(self.dropped.values()),
             "shard": self.shard,
             "lease": self.lease,
+            "store": "ok" if self.store_problem is None else "gone",
+            "store_problem": self.store_problem,
         }
 
 

@@ -17,6 +17,10 @@ The contract:
   None where none was recorded); the record in force is the newest (``latest``, ``all_latest``).
 - **Failures**: a store that cannot be read or written raises ``OSError`` (one line naming the store and what to
   do) and changes nothing.
+- **Gone**: a store whose file can be deleted or replaced under it (the SQLite store) says so in an optional ``gone``
+  attribute (why, one line; None while it is its own): then ``append`` raises ``OSError`` before acknowledging
+  anything, the calibrator refuses sessions and commits with that reason and its status says ``store: gone``. A
+  store without the attribute is never gone.
 
 An operator's session (``sessions``) and a rollback (``rollback``) reach the store only through ``append`` (their
 change says ``session`` or ``rollback``, by whom, to which id); a session in progress is not stored.

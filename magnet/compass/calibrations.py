@@ -31,12 +31,26 @@ class CalibrationsInForce:
         self.refused: Recent[str, bool] = Recent(MAX_REFUSED)
         self._refused_evicted = 0
         self.updates = 0  # calibrations that came into force
+        #: the latest ``created_ns`` of a record put in force per device (a rollback puts an older one in force)
+        self.newest_created: Recent[str, int] = Recent(max_devices)
+        self.renumbered = 0  # records put in force although numbered below the one held (``check``: history lost)
+        #: per device whose numbering started again: when its first renumbered record was made (ns); a record made
+        #: before it is from the lost history, however high its version (a replay), and stays refused
+        self.renumbered_at: Recent[str, int] = Recent(max_devices)
 
-    def check(self, record: wire.DeviceCalibration) -> None:
+    def check(self, record: wire.DeviceCalibration) -> str | None:
         """WireError unless ``record`` may be applied: accepted by the quality gate (its plausibility was checked
         when it was read), signed by a trusted key where keys are trusted, and newer than the one in force: a
         higher version, which the signature covers (``created_ns`` only between equal versions,
-        ``DeviceCalibration.newer_than``)."""
+        ``DeviceCalibration.newer_than``).
+
+        One exception, said out loud: a record numbered *below* the one held but made later than any record this
+        compass put in force for the device is what a calibrator that lost its history (its database deleted or
+        replaced, numbering again from 1) sends for an operator's commit. Refusing it as stale would drop every
+        new calibration of the device while the calibrator reports them stored; it is applied, and the returned
+        line (None otherwise) says what happened, for the log and the ``renumbered`` count. A replayed older record
+        (made no later than the newest seen) stays stale, and so, once a device's numbering started again, does any
+        record made before that (the lost history's high versions)."""
         if not record.calibration.accepted:
             raise wire.WireError(
                 "not-accepted",
@@ -48,12 +62,32 @@ class CalibrationsInForce:
             except signing.SignatureError as exc:
                 raise wire.WireError(exc.cause, f"calibration {record.id} of {record.device}: {exc}") from None
         current = self.in_force.get(record.device)
-        if current is not None and current.id != record.id and not record.newer_than(current):
+        restarted_ns = self.renumbered_at.get(record.device)
+        if (
+            restarted_ns is not None
+            and record.created_ns < restarted_ns
+            and (current is None or current.id != record.id)
+        ):
             raise wire.WireError(
                 "stale",
-                f"calibration {record.id} (version {record.version}) of {record.device} is not newer than the one in "
-                f"force ({current.id}, version {current.version})",
+                f"calibration {record.id} (version {record.version}) of {record.device} was made before its "
+                "calibrators' numbering started again (their history was lost): a record of the lost history",
             )
+        if current is None or current.id == record.id or record.newer_than(current):
+            return None
+        newest_ns = max(current.created_ns, self.newest_created.get(record.device, 0))
+        if 0 < record.version < current.version and record.created_ns > newest_ns:
+            return (
+                f"calibration {record.id} of {record.device} is numbered version {record.version}, below the one in "
+                f"force ({current.id}, version {current.version}), but made later than any held: the calibrators' "
+                "history was lost (a database deleted or replaced?); applied as the newer one. Check the "
+                "calibrator's status (store) and restore its database if it was lost"
+            )
+        raise wire.WireError(
+            "stale",
+            f"calibration {record.id} (version {record.version}) of {record.device} is not newer than the one in "
+            f"force ({current.id}, version {current.version})",
+        )
 
     def put(self, record: wire.DeviceCalibration) -> bool:
         """Put a checked record in force; True when it is a new calibration for its device (not the one in force
@@ -63,7 +97,11 @@ class CalibrationsInForce:
             if record.newer_than(current):
                 self.in_force[record.device] = record
             return False
+        if current is not None and record.version < current.version:
+            self.renumbered += 1
+            self.renumbered_at[record.device] = record.created_ns
         self.in_force[record.device] = record
+        self.newest_created[record.device] = max(record.created_ns, self.newest_created.get(record.device, 0))
         self.updates += 1
         return True
 

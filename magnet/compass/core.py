@@ -62,6 +62,8 @@ class CompassStatus:
     calibrators: int = 0  # calibrators alive (their liveliness tokens)
     calibrators_state: str = "unseen"  # present | gone: the records in force held are kept and applied | unseen
     calibrators_gone_since_ns: int | None = None  # when the last calibrator went away (ns since the epoch)
+    #: records applied although numbered below the one held: made later, from calibrators that lost their history
+    calibrations_renumbered: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -214,13 +216,15 @@ class CompassCore:
         try:
             record = wire.decode_calibration(payload)
             wire.check_key(prefix, key_expr, wire.Kind.CALIBRATION, record.device)
-            self.calibrations.check(record)
+            renumbered = self.calibrations.check(record)
         except wire.WireError as exc:
             self.drops.drop(exc, "calibration", log)
             device = self.keys.device(key_expr, prefix, wire.Kind.CALIBRATION)
             if device is not None:
                 self.calibrations.refuse(device)
             return False
+        if renumbered is not None:
+            log.warning("%s", renumbered)
         previous = self.calibrations.in_force.get(record.device)
         if self.calibrations.put(record):
             self._log_evictions()
@@ -337,4 +341,5 @@ class CompassCore:
             len(self.calibrators.alive),
             self.calibrators.state,
             self.calibrators.gone_since_ns,
+            self.calibrations.renumbered,
         )

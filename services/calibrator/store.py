@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from magnet import wire
+from services.common.dbfile import OpenedFile
 from services.common.stores import PostgresUrl, RowCheck, Store, StoredRow, StoreError, StoreLocation
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,11 @@ _UNIQUE_VERSIONS = (
     "CREATE UNIQUE INDEX IF NOT EXISTS calibrations_version_per_device ON calibrations (device, version) "
     "WHERE version > 0"
 )
+
+
+class StoreGoneError(StoreError):
+    """The database file this store opened is no longer at its path (deleted, or replaced by another file or one
+    that is not a database): a row written now would go into a file nobody reads again, so nothing is written."""
 
 
 #: sqlite result codes (``sqlite_errorcode``, low byte) of a full disk, of a file it may not write or a failing disk,
@@ -119,6 +125,24 @@ class CalibrationStore(RowCheck):
         except StoreError:
             self._db.close()
             raise
+        self._gone: str | None = None
+        self._file = OpenedFile(self.path)
+
+    @property
+    def gone(self) -> str | None:
+        """Why the file this store opened is no longer its database (deleted, replaced, overwritten:
+        ``services.common.dbfile``), or None. Gone for good: only a restart opens the file now at the path."""
+        if self._gone is None:
+            self._gone = self._file.check()
+            if self._gone is not None:
+                log.error("%s", self._gone)
+        return self._gone
+
+    def _writable(self) -> None:
+        """StoreGoneError unless the file opened is still the database at the path (``gone``)."""
+        reason = self.gone
+        if reason is not None:
+            raise StoreGoneError(reason)
 
     @contextlib.contextmanager
     def _guard(self, doing: str = "use") -> Iterator[None]:
@@ -175,7 +199,9 @@ class CalibrationStore(RowCheck):
         """Store the record ``make(version)`` builds (and signs) for ``device``, ``version`` being one more than the
         highest stored for it (or than ``floor``, the version of the record in force as its JSON says), read in the
         same write transaction (two calibrators on one file never number two records alike). Returns (record,
-        stored): not stored when identical to the one already in force."""
+        stored): not stored when identical to the one already in force. ``StoreGoneError`` (nothing stored) when the
+        file was deleted or replaced under the open store (``gone``), checked before and after the write."""
+        self._writable()
         with self._guard("write"), self._transaction():
             latest = self._db.execute(
                 "SELECT id FROM calibrations WHERE device = ? ORDER BY seq DESC LIMIT 1", (device,)
@@ -191,6 +217,7 @@ class CalibrationStore(RowCheck):
             text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
             note = None if change is None else json.dumps(dict(change), sort_keys=True, allow_nan=False)
             self._insert(StoredRow(device, record.id, int(record.created_ns), int(record.version), text, note))
+            self._writable()  # gone during the write: rolled back, not acknowledged
         return record, True
 
     def _insert(self, row: StoredRow) -> None:
@@ -214,10 +241,12 @@ class CalibrationStore(RowCheck):
     def load_rows(self, rows: Iterable[StoredRow]) -> int:
         """Store ``rows`` as they are, in order, in one transaction; how many."""
         count = 0
+        self._writable()
         with self._guard("write"), self._transaction():
             for row in rows:
                 self._insert(row)
                 count += 1
+            self._writable()
         return count
 
     def count(self) -> int:

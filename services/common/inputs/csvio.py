@@ -15,6 +15,7 @@ import csv
 import dataclasses
 import io
 import math
+import re
 import warnings
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -236,12 +237,29 @@ def write_csv(
     stream: TextIO, header: Sequence[str], columns: Iterable[np.ndarray], fmt: str | Sequence[str] = "%.6f"
 ) -> None:
     """Write equal-length columns under ``header`` as CSV rows (``fmt``: one printf format, or one per column): the
-    lines ``numpy.savetxt`` writes, formatted WRITE_ROWS rows at a time by one ``%`` (savetxt formats and writes row
-    by row: 1.1 s for 60,000 rows of 14 columns, this 0.2 s)."""
+    lines ``numpy.savetxt`` writes. ``%.<d>f`` and ``%d`` formats are written by ``magnet._kernels.format_rows`` (the
+    same characters; 60,000 rows of 14 columns in a few tens of ms), any other WRITE_ROWS rows at a time by one ``%``
+    (savetxt formats and writes row by row: 1.1 s for those rows, ``%`` 0.2 s)."""
     matrix = np.column_stack([np.asarray(c, dtype=float) for c in columns])
     formats = [fmt] * matrix.shape[1] if isinstance(fmt, str) else list(fmt)
     row = ",".join(formats) + "\n"
     stream.write(",".join(header) + "\n")
+    decimals = [_decimals(f) for f in formats]
+    if all(d is not None for d in decimals):  # the same characters, from magnet._kernels.format_rows (5x faster)
+        from magnet import _kernels
+
+        codes = bytes(255 if d == -1 else d for d in decimals if d is not None)
+        for lo in range(0, len(matrix), WRITE_ROWS * 4):
+            stream.write(_kernels.format_rows(matrix[lo : lo + WRITE_ROWS * 4], codes).decode("ascii"))
+        return
     for lo in range(0, len(matrix), WRITE_ROWS):
         part = matrix[lo : lo + WRITE_ROWS]
         stream.write((row * len(part)) % tuple(part.ravel().tolist()))
+
+
+def _decimals(fmt: str) -> int | None:
+    """The decimals of a ``%.<d>f`` format (d up to 20), -1 for ``%d``, None for any other format (written by ``%``)."""
+    if fmt == "%d":
+        return -1
+    match = re.fullmatch(r"%\.(\d{1,2})f", fmt)
+    return None if match is None or int(match.group(1)) > 20 else int(match.group(1))
