@@ -584,6 +584,8 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
     PyBuffer_Release(&flags);
     release(a, 9);
     Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
