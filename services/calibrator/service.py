@@ -78,6 +78,7 @@ IDLE_SLEEP_S = 0.0005
 #: intake, bounded in bytes, not here)
 CHANNEL_CAPACITY = 256
 SLICE_S = 0.05  # raw samples taken for at most this long before the queries are answered again
+STORE_CHECK_S = 1.0  # how often the loop looks whether its database file was deleted or replaced
 SLICE_MESSAGES = 50  # raw messages taken from the intake at a time (the slice's end is checked between them)
 ENROL_BURST_S = 10.0  # new device ids admitted at once after a quiet spell: this many seconds of --enrol-rate
 LEASE_QUERY_S = 2.0  # how long it waits at start for the lease tokens of its shard
@@ -265,9 +266,14 @@ class ServiceLoop:
         self.feeds, self.lease_watch = feeds, lease_watch
         self.enrolment = enrolment if enrolment is not None else Enrolment()
         self.guard = Guard("calibrator", log, calibrator.drops)
+        self._store_checked_s = 0.0
 
     def step(self) -> bool:
-        """One round; True when raw samples were taken."""
+        """One round; True when raw samples were taken. Once every STORE_CHECK_S, whether the store's file is gone
+        (logged once when it is: ``CalibrationStore.gone``), even when nothing is written or asked."""
+        if (now_s := time.monotonic()) - self._store_checked_s >= STORE_CHECK_S:
+            self._store_checked_s = now_s
+            self.guard.run("store", self.calibrator.store_gone)
         if self.lease_watch is not None:
             self.guard.run("lease", _follow_lease, *self.lease_watch, self.calibrator)
         for handler, take in self.feeds:

@@ -94,6 +94,7 @@ def test_a_running_calibrator_whose_database_is_deleted_refuses_a_commit_with_th
 
     wait_for(status, 30, "the calibrator's status")
     _delete(path)
+    wait_for(lambda: "was deleted" in procs.log("calibrator"), 10, "the calibrator to log it on its own")
     code, [reply] = magnet_json("calibrate", "d1", "commit", *remote)
     assert code != 0 and not reply["ok"] and "was deleted" in reply["message"], reply
     now = status()
