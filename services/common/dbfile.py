@@ -25,7 +25,7 @@ class OpenedFile:
         return st.st_dev, st.st_ino
 
     def check(self) -> str | None:
-        """None while the file at the path is the one opened and starts with ``header`` (or is still empty); else
+        """None while the file at the path is the one opened and starts with ``header``; else
         one line saying what happened and what to do. Two system calls: a ``stat`` and a 16-byte read."""
         if self.identity is None:
             return None
@@ -42,9 +42,9 @@ class OpenedFile:
                 f"calibration database {self.path} was replaced by another file while open (device/inode "
                 f"{self.identity} -> {identity}): nothing more is stored; {_WHAT}"
             )
-        if start and start != self.header:
+        if start != self.header:
             return (
-                f"calibration database {self.path} no longer starts with an SQLite header (overwritten while open): "
-                f"nothing more is stored; {_WHAT}"
+                f"calibration database {self.path} no longer starts with an SQLite header (overwritten or emptied "
+                f"while open): nothing more is stored; {_WHAT}"
             )
         return None

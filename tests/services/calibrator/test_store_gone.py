@@ -35,6 +35,11 @@ def _replace(path):
     os.replace(other, path)
 
 
+def _empty(path):
+    with open(path, "r+b") as handle:
+        handle.truncate(0)
+
+
 def _overwrite_header(path):
     with open(path, "r+b") as handle:
         handle.write(b"not a database!!")
@@ -46,6 +51,7 @@ def _overwrite_header(path):
         (_delete, "was deleted"),
         (_replace, "was replaced"),
         (_overwrite_header, "no longer starts with an SQLite header"),
+        (_empty, "no longer starts with an SQLite header"),
     ],
 )
 def test_a_store_whose_file_is_deleted_or_replaced_acknowledges_nothing_more(tmp_path, damage, said):
