@@ -17,6 +17,11 @@ with three compasses (``QUAD``): the first as it should be, the second mounted t
 the power wires (SCALED_IMU3); SYS_STATUS (current), SERVO_OUTPUT_RAW (throttle) and GLOBAL_POSITION_INT (velocity)
 at 10 Hz. ``--clean``: compasses without errors (as ArduPilot sends a field it has corrected). ``--pause-at S
 --pause-s D``: no IMU message for D seconds from S (a radio dropout; the boot clock goes on).
+
+Parameter faults (issue 32, ``export --apply``): ``--no-confirm NAME`` takes a PARAM_SET of NAME without answering
+it (a read is answered); ``--clamp NAME=MAX`` holds at most MAX in NAME and answers with what it holds;
+``--arm-after-sets N`` arms after its Nth PARAM_SET and says so in a HEARTBEAT at once; ``--camera``: a camera
+(component 100, MAV_TYPE_CAMERA, MAV_AUTOPILOT_INVALID) on the same system sends "disarmed" heartbeats at 10 Hz.
 """
 
 from __future__ import annotations
@@ -146,6 +151,8 @@ class Vehicle:
                 for i, (e, m) in QUAD.items()
             }
         self.params = dict(PARAMETERS)
+        self.sets = 0
+        self.clamp = {n: float(v) for n, v in (c.split("=") for c in args.clamp)}
         self.truth: list[tuple[int, int, int, int, float, float]] = []
         self.boot = time.monotonic()
 
@@ -187,15 +194,29 @@ class Vehicle:
             mav.global_position_int_send(self.boot_ms(), 504500000, 305200000, 180000, 0, 0, 0, 0, 0)
         if tick % 5 == 0 and not self.args.quad:
             mav.sys_status_send(0, 0, 0, 500, 16000, 1200, 80, 0, 0, 0, 0, 0, 0)
+        if self.args.camera:  # the first heartbeat heard
+            self.send_camera_heartbeat()
         if tick % 10 == 0:
-            armed = mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.args.armed else 0
-            mav.heartbeat_send(
-                mavutil.mavlink.MAV_TYPE_QUADROTOR,
-                mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                armed | mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-                0,
-                mavutil.mavlink.MAV_STATE_ACTIVE if self.args.armed else mavutil.mavlink.MAV_STATE_STANDBY,
-            )
+            self.send_heartbeat()
+            if self.args.camera:  # and the last of each second
+                self.send_camera_heartbeat()
+
+    def send_camera_heartbeat(self) -> None:
+        mav = self.conn.mav
+        mav.srcComponent = mavutil.mavlink.MAV_COMP_ID_CAMERA
+        camera, invalid = mavutil.mavlink.MAV_TYPE_CAMERA, mavutil.mavlink.MAV_AUTOPILOT_INVALID
+        mav.heartbeat_send(camera, invalid, 0, 0, mavutil.mavlink.MAV_STATE_ACTIVE)
+        mav.srcComponent = 1
+
+    def send_heartbeat(self) -> None:
+        armed = mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.args.armed else 0
+        self.conn.mav.heartbeat_send(
+            mavutil.mavlink.MAV_TYPE_QUADROTOR,
+            mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+            armed | mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+            0,
+            mavutil.mavlink.MAV_STATE_ACTIVE if self.args.armed else mavutil.mavlink.MAV_STATE_STANDBY,
+        )
 
     def send_flight(self) -> None:
         truth, mav = self.streams[0].last_truth, self.conn.mav
@@ -211,12 +232,20 @@ class Vehicle:
         names = list(self.params)
         self.conn.mav.param_value_send(name.encode(), self.params[name], REAL32, len(names), names.index(name))
 
+    def set_param(self, name: str, value: float) -> None:
+        self.params[name] = min(value, self.clamp.get(name, math.inf))
+        self.sets += 1
+        if name != self.args.no_confirm:
+            self.send_param(name)
+        if self.sets == self.args.arm_after_sets:
+            self.args.armed = True
+            self.send_heartbeat()
+
     def answer(self) -> None:
         while (message := self.conn.recv_match(blocking=False)) is not None:
             kind = message.get_type()
             if kind == "PARAM_SET" and message.param_id in self.params:
-                self.params[message.param_id] = float(message.param_value)
-                self.send_param(message.param_id)
+                self.set_param(message.param_id, float(message.param_value))
             elif kind == "PARAM_REQUEST_READ":
                 names = list(self.params)
                 name = message.param_id if message.param_index < 0 else names[message.param_index]
@@ -265,6 +294,10 @@ def main() -> None:
     parser.add_argument("--clean", action="store_true", help="compasses without errors (a corrected field)")
     parser.add_argument("--pause-at", type=float, help="seconds into the run: no IMU message for --pause-s")
     parser.add_argument("--pause-s", type=float, default=1.0)
+    parser.add_argument("--no-confirm", help="a PARAM_SET of this parameter is taken but never answered")
+    parser.add_argument("--clamp", action="append", default=[], help="NAME=MAX: the most this parameter holds")
+    parser.add_argument("--arm-after-sets", type=int, help="arms after this many PARAM_SETs (a HEARTBEAT at once)")
+    parser.add_argument("--camera", action="store_true", help="a camera on this system sends disarmed heartbeats")
     Vehicle(parser.parse_args()).run()
 
 

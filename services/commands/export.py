@@ -7,8 +7,10 @@ Writes the parameters that make the autopilot apply a calibration (the maths in 
 - ``px4``: QGroundControl's .params layout, one tab-separated ``vehicle-id component-id name value type`` line per
   parameter (type 9 a 32-bit float, 6 a 32-bit integer), after ``#`` comment lines.
 
-``--apply URL`` also sets them on a vehicle over MAVLink (``services.commands.export_apply``): each is read back,
-and a vehicle that is armed is refused; what changed is printed (old -> new).
+``--apply URL`` also sets them on a vehicle over MAVLink (``services.commands.export_apply``) as a transaction: each
+is read back, a vehicle whose autopilot is armed is refused (checked between writes too), and on any failure the old
+values are put back and the error names those restored and any that could not be; what changed is printed
+(old -> new).
 
 ``--device ID`` asks the calibrator for the device's calibration in force (as ``magnet get calibration ID`` does).
 Exit status 0 with the file written; 1 when no calibrator answered; 2 for bad input or a calibration the autopilot

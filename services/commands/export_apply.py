@@ -1,11 +1,14 @@
 """Parameters onto a vehicle over MAVLink: ``apply_params(url, params)`` for ``magnet export --apply URL``.
 
-The exchange (MAVLink's parameter protocol, docs/mavlink.md): wait for the vehicle's HEARTBEAT (its system and
-component id, and ``base_mode``); refuse while it is armed (MAV_MODE_FLAG_SAFETY_ARMED), since a compass changing
-under a flying vehicle's estimator is a hazard; read each parameter's value now (PARAM_REQUEST_READ -> PARAM_VALUE);
-set it (PARAM_SET, as a 32-bit float) and read the vehicle's answer (PARAM_VALUE of that name), retrying a few times;
-a value read back that is not the one sent (as a 32-bit float) is an error. The report lists every parameter with
-its old and new value.
+The exchange (MAVLink's parameter protocol, docs/mavlink.md) is a transaction: wait for the autopilot's HEARTBEAT
+(the first from a component that is not a camera, gimbal or ground station and whose autopilot field is not
+MAV_AUTOPILOT_INVALID: its system and component id, and ``base_mode``); refuse while that component reports armed
+(MAV_MODE_FLAG_SAFETY_ARMED), since a compass changing under a flying vehicle's estimator is a hazard; read every
+parameter's value now (PARAM_REQUEST_READ -> PARAM_VALUE) before writing any; set each (PARAM_SET, as a 32-bit float)
+and read the autopilot's answer (PARAM_VALUE of that name), retrying a few times, the armed flag checked again before
+every write; after the last, its next HEARTBEAT must still say disarmed. A value not confirmed, another value
+confirmed, arming partway or silence: every parameter written is set back to its old value and the error says which
+were restored and which could not be. The report lists every parameter with its old and new value.
 """
 
 from __future__ import annotations
@@ -22,7 +25,13 @@ HEARTBEAT_TIMEOUT_S = 5.0
 ANSWER_TIMEOUT_S = 1.0
 ATTEMPTS = 3
 MAX_NAME_CHARS = 16  # PARAM_SET.param_id is 16 characters
-GCS_TYPES = {mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER}
+CONFIRM_HEARTBEAT_S = 3.0  # after the writes: the autopilot's next HEARTBEAT (1 Hz on ArduPilot and PX4) within this
+#: HEARTBEAT types that are never the autopilot, whatever their autopilot field says
+NOT_AUTOPILOT_TYPES = {
+    getattr(mavutil.mavlink, f"MAV_TYPE_{kind}")
+    for kind in ("GCS", "ONBOARD_CONTROLLER", "CAMERA", "GIMBAL", "ADSB", "ODID", "SERVO", "BATTERY", "LOG")
+    if hasattr(mavutil.mavlink, f"MAV_TYPE_{kind}")
+}
 
 
 class ApplyError(ValueError):
@@ -81,7 +90,9 @@ def _check(params: Mapping[str, float]) -> None:
 
 
 class _Link:
-    """One MAVLink connection to one vehicle (the first that sends a HEARTBEAT), watching its armed flag."""
+    """One MAVLink connection to one vehicle's autopilot component (the first HEARTBEAT from an autopilot: not a
+    camera, gimbal or ground station, its autopilot field not MAV_AUTOPILOT_INVALID), watching that component's armed
+    flag only; parameters are asked of that system and component and their answers taken from it alone."""
 
     def __init__(self, url: str, baud: int, sysid: int | None) -> None:
         try:
@@ -91,20 +102,28 @@ class _Link:
         self.want = sysid
         self.sysid = self.compid = 0
         self.armed = False
+        self.heartbeats = 0  # the autopilot's heartbeats seen so far
+        self.other: float | None = None  # the last value read back that was not the one sent
 
     def close(self) -> None:
         self.conn.close()
 
     def _heartbeat(self, message: Any) -> None:
-        if message.type in GCS_TYPES or (self.want is not None and message.get_srcSystem() != self.want):
+        if message.type in NOT_AUTOPILOT_TYPES or message.autopilot == mavutil.mavlink.MAV_AUTOPILOT_INVALID:
+            return
+        if self.want is not None and message.get_srcSystem() != self.want:
             return
         if not self.sysid:
             self.sysid, self.compid = message.get_srcSystem(), message.get_srcComponent()
-        if message.get_srcSystem() == self.sysid:
+        if (message.get_srcSystem(), message.get_srcComponent()) == (self.sysid, self.compid):
             self.armed = bool(message.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            self.heartbeats += 1
+
+    def _from_autopilot(self, message: Any) -> bool:
+        return (message.get_srcSystem(), message.get_srcComponent()) == (self.sysid, self.compid)
 
     def wait(self, kind: str, timeout_s: float, name: str | None = None) -> Any:
-        """The next message of ``kind`` from the vehicle (PARAM_VALUE: of ``name``), or None after ``timeout_s``;
+        """The next message of ``kind`` from the autopilot (PARAM_VALUE: of ``name``), or None after ``timeout_s``;
         heartbeats seen meanwhile update the armed flag."""
         deadline = time.monotonic() + timeout_s
         while (left := deadline - time.monotonic()) > 0:
@@ -113,14 +132,19 @@ class _Link:
                 return None
             if message.get_type() == "HEARTBEAT":
                 self._heartbeat(message)
-                if kind == "HEARTBEAT" and self.sysid:
+                if kind == "HEARTBEAT" and self.sysid and self._from_autopilot(message):
                     return message
                 continue
-            if message.get_srcSystem() != self.sysid:
+            if not self._from_autopilot(message):
                 continue
             if name is None or message.param_id == name:
                 return message
         return None
+
+    def drain(self) -> None:
+        """Take every message already received (heartbeats update the armed flag) without waiting."""
+        while (message := self.conn.recv_match(type="HEARTBEAT", blocking=False)) is not None:
+            self._heartbeat(message)
 
     def refuse_if_armed(self) -> None:
         if self.armed:
@@ -137,41 +161,119 @@ class _Link:
                 return float(answer.param_value)
         return None
 
-    def set(self, name: str, value: float) -> float:
+    def set(self, name: str, value: float, *, while_disarmed: bool = True, attempts: int = ATTEMPTS) -> float | None:
+        """Send ``name`` = ``value`` (as a 32-bit float) until the autopilot confirms it: the value confirmed, or
+        None (no confirmation, or another value, after ``attempts`` tries; the last other value is in ``other``).
+        ``while_disarmed``: the armed flag is checked (after taking what has arrived) before every try."""
         sent = np.float32(value)
-        for _ in range(ATTEMPTS):
-            self.refuse_if_armed()
+        self.other = None
+        for _ in range(attempts):
+            if while_disarmed:
+                self.drain()
+                if self.armed:
+                    raise _ArmedPartwayError(name)
             self.conn.mav.param_set_send(
                 self.sysid, self.compid, name.encode(), float(sent), mavutil.mavlink.MAV_PARAM_TYPE_REAL32
             )
             answer = self.wait("PARAM_VALUE", ANSWER_TIMEOUT_S, name)
             if answer is not None and np.float32(answer.param_value) == sent:
                 return float(answer.param_value)
-        raise ApplyError(
-            f"vehicle {self.sysid} did not take {name} = {float(sent):g} after {ATTEMPTS} tries "
-            "(no PARAM_VALUE, or another value read back)"
-        )
+            if answer is not None:
+                self.other = float(answer.param_value)
+        return None
+
+    def restore(self, name: str, old: float) -> bool:
+        """Set ``name`` back to ``old``, armed or not; True once the autopilot confirms it holds ``old`` (its answer
+        to the PARAM_SET, or else to a PARAM_REQUEST_READ)."""
+        if self.set(name, old, while_disarmed=False, attempts=1) is not None:
+            return True
+        now = self.read(name)
+        return now is not None and np.float32(now) == np.float32(old)
+
+    def disarmed_after(self, seen: int) -> bool | None:
+        """After the writes: wait for the autopilot's next HEARTBEAT (counted past ``seen``); False if it says
+        armed, None if none came within ``CONFIRM_HEARTBEAT_S``."""
+        deadline = time.monotonic() + CONFIRM_HEARTBEAT_S
+        while self.heartbeats <= seen and (left := deadline - time.monotonic()) > 0:
+            self.wait("HEARTBEAT", left)
+        if self.heartbeats <= seen:
+            return None
+        return not self.armed
+
+
+class _ArmedPartwayError(Exception):
+    """The autopilot reported armed before the write of ``name``."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self.name = name
+
+
+def _undo(link: _Link, old: Mapping[str, float], touched: list[str], why: str) -> ApplyError:
+    """Restore every parameter in ``touched`` (newest first) to its ``old`` value; the error saying ``why``, which
+    were restored and which could not be."""
+    restored: list[str] = []
+    lost: list[str] = []
+    for name in reversed(touched):
+        (restored if link.restore(name, old[name]) else lost).append(name)
+    said = f"{why}; restored to their old values: {', '.join(reversed(restored)) or 'none'}"
+    if lost:
+        was = ", ".join(f"{n} (was {old[n]:g})" for n in reversed(lost))
+        said += f"; NOT restored (check them on the vehicle): {was}"
+    return ApplyError(said)
 
 
 def apply_params(url: str, params: Mapping[str, float], *, baud: int = 57600, sysid: int | None = None) -> ApplyReport:
     """Set ``params`` (name -> value) on the vehicle at ``url`` (a pymavlink URL: udpin:HOST:PORT, udpout:..., tcp:...,
-    or a serial device at ``baud``), reading each back; ``sysid`` picks a vehicle (default: the first heard).
-    ApplyError (a ValueError) when no vehicle answers, it is armed, it has no such parameter, or a value does not
-    stick; parameters set before such an error stay set (the report of a later run shows them unchanged)."""
+    or a serial device at ``baud``) as one transaction; ``sysid`` picks a vehicle (default: the first autopilot heard).
+
+    Every parameter is read first (none written unless all answer); the autopilot component must report disarmed
+    before and between writes and in its first HEARTBEAT after the last one; each write is confirmed by the value
+    read back. On a value not confirmed, another value confirmed, arming partway or no HEARTBEAT after the writes,
+    every parameter written so far (the failing one included) is set back to its old value and ApplyError (a
+    ValueError) names the cause, the parameters restored and any that could not be. ApplyError too when no vehicle
+    answers, it is armed at the start, or it has no such parameter (nothing written then)."""
     _check(params)
     link = _Link(url, baud, sysid)
     try:
         if link.wait("HEARTBEAT", HEARTBEAT_TIMEOUT_S) is None:
             raise ApplyError(f"{url}: no vehicle's HEARTBEAT within {HEARTBEAT_TIMEOUT_S:g} s")
         link.refuse_if_armed()
-        old = {}
+        old: dict[str, float] = {}
         for name in params:
-            old[name] = link.read(name)
-            if old[name] is None:
+            value = link.read(name)
+            if value is None:
                 raise ApplyError(f"vehicle {link.sysid} does not answer for parameter {name}: is it its name?")
-        changes = tuple(
-            ParamChange(name, old[name], float(value), link.set(name, value)) for name, value in params.items()
-        )
-        return ApplyReport(link.sysid, link.compid, changes)
+            old[name] = value
+        return _write_all(link, params, old)
     finally:
         link.close()
+
+
+def _write_all(link: _Link, params: Mapping[str, float], old: Mapping[str, float]) -> ApplyReport:
+    touched: list[str] = []
+    read_back: dict[str, float] = {}
+    seen = link.heartbeats
+    for name, value in params.items():
+        try:
+            touched.append(name)
+            confirmed = link.set(name, value)
+        except _ArmedPartwayError:
+            touched.pop()
+            raise _undo(link, old, touched, f"vehicle {link.sysid} armed partway, before {name}: stopped") from None
+        if confirmed is None:
+            got = "no PARAM_VALUE" if link.other is None else f"it read back {link.other:g}"
+            sent = float(np.float32(value))
+            why = f"vehicle {link.sysid} did not take {name} = {sent:g} after {ATTEMPTS} tries ({got})"
+            raise _undo(link, old, touched, why)
+        read_back[name] = confirmed
+    disarmed = link.disarmed_after(seen)
+    if not disarmed:
+        why = (
+            "armed during the writes"
+            if disarmed is False
+            else f"silent (no HEARTBEAT within {CONFIRM_HEARTBEAT_S:g} s)"
+        )
+        raise _undo(link, old, touched, f"vehicle {link.sysid} {why}: not left half-applied")
+    changes = tuple(ParamChange(name, old[name], float(value), read_back[name]) for name, value in params.items())
+    return ApplyReport(link.sysid, link.compid, changes)

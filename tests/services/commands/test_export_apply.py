@@ -110,3 +110,53 @@ def test_export_apply_from_the_command_line(tmp_path: Path) -> None:
     assert "vehicle 1" in result.stdout and "COMPASS_OFS_X: 0 -> -120" in result.stdout
     assert np.float32(held["COMPASS_OFS_X"]) == np.float32(-120.0)
     assert np.float32(held["COMPASS_DIA_Y"]) != np.float32(1.0)
+
+
+def refused(tmp_path: Path, *args: str, match: str) -> tuple[str, dict[str, float]]:
+    """Apply ``WANTED`` to a stand-in run with ``args``: the ApplyError's message (matching ``match``) and the
+    parameters the vehicle holds at the end."""
+    [port] = free_ports(1)
+    proc = stand_in(tmp_path, port, *args)
+    try:
+        with pytest.raises(ApplyError, match=match) as error:
+            apply_params(f"udpin:127.0.0.1:{port}", WANTED)
+    finally:
+        held = final_params(proc, tmp_path)
+    return str(error.value), held
+
+
+def test_a_value_never_confirmed_restores_everything_written(tmp_path: Path) -> None:
+    """Issue 32: the offsets were left new and the rest old. Now all four written are set back and named."""
+    message, held = refused(tmp_path, "--no-confirm", "COMPASS_DIA_X", match="did not take COMPASS_DIA_X")
+    assert "no PARAM_VALUE" in message and "NOT restored" not in message
+    assert "restored to their old values: COMPASS_OFS_X, COMPASS_OFS_Y, COMPASS_OFS_Z, COMPASS_DIA_X" in message
+    assert held == PARAMETERS
+
+
+def test_another_value_confirmed_restores_everything_written(tmp_path: Path) -> None:
+    message, held = refused(tmp_path, "--clamp", "COMPASS_OFS_Y=10", match="did not take COMPASS_OFS_Y = 12.25")
+    assert "it read back 10" in message and "restored to their old values: COMPASS_OFS_X, COMPASS_OFS_Y" in message
+    assert held == PARAMETERS
+
+
+def test_a_value_that_cannot_be_restored_is_named(tmp_path: Path) -> None:
+    """COMPASS_DIA_X takes 0.93 but holds at most 0.95 after: its old 1 cannot be put back, and the error says so."""
+    clamps = ("--clamp", "COMPASS_DIA_X=0.95", "--clamp", "COMPASS_DIA_Y=1")
+    message, held = refused(tmp_path, *clamps, match="did not take COMPASS_DIA_Y")
+    assert "restored to their old values: COMPASS_OFS_X, COMPASS_OFS_Y, COMPASS_OFS_Z, COMPASS_DIA_Y" in message
+    assert message.endswith("NOT restored (check them on the vehicle): COMPASS_DIA_X (was 1)")
+    assert np.float32(held["COMPASS_DIA_X"]) == np.float32(0.95) and held["COMPASS_OFS_X"] == 0.0
+
+
+def test_arming_partway_stops_and_restores(tmp_path: Path) -> None:
+    """Issue 32: armed after some writes, the rest went on (7 of 10 written while armed). Now it stops at once and
+    sets back what it wrote."""
+    message, held = refused(tmp_path, "--arm-after-sets", "5", match="armed partway")
+    assert "restored to their old values: COMPASS_OFS_X" in message and "NOT restored" not in message
+    assert held == PARAMETERS
+
+
+def test_a_disarmed_camera_does_not_speak_for_an_armed_autopilot(tmp_path: Path) -> None:
+    """Issue 32: a camera on the same system id sending "disarmed" heartbeats let every write through."""
+    message, held = refused(tmp_path, "--armed", "--camera", match="is armed")
+    assert message.startswith("vehicle 1 is armed") and held == PARAMETERS
