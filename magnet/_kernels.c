@@ -2,7 +2,7 @@
  *
  * Each function takes numpy arrays (any float64 buffer: C-contiguous or a strided view such as a table's columns)
  * and writes its results into the arrays it is given, or returns a few floats. They are the maths of the Python
- * modules that call them (magnet.attitude: aided_fusion, aiding, gyro_bias, mag_delay), written once
+ * modules that call them (magnet.attitude: aided_fusion, aiding, gyro_bias, mag_delay, field_watch), written once
  * here; tests/test_kernels.py compares each with the same maths written plainly in numpy on random inputs.
  * Quaternions are w, x, y, z; vectors x, y, z; no allocation, no Python objects inside the loops. */
 #define PY_SSIZE_T_CLEAN
@@ -363,6 +363,229 @@ static PyObject *advance_field(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+
+/* One 1-D array of bools (numpy's '?', one byte), writable, with ``rows`` items. */
+static int get_flags(PyObject *obj, Py_buffer *view, Py_ssize_t rows, const char *name) {
+    if (PyObject_GetBuffer(obj, view, PyBUF_STRIDES | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) {
+        return -1;
+    }
+    if (view->itemsize != 1 || view->format == NULL || view->format[0] != '?' || view->ndim != 1 ||
+        view->shape[0] != rows) {
+        PyErr_Format(PyExc_ValueError, "%s must be a writable 1-D bool array of %zd items", name, rows);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+static int compare_doubles(const void *a, const void *b) {
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* The k-th smallest of v[0 .. n - 1] (0-based), the values reordered so that those after k are not smaller. */
+static double select_kth(double *v, Py_ssize_t n, Py_ssize_t k) {
+    Py_ssize_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        double pivot = v[(lo + hi) / 2];
+        Py_ssize_t i = lo, j = hi;
+        while (i <= j) {
+            while (v[i] < pivot) i++;
+            while (v[j] > pivot) j--;
+            if (i <= j) {
+                double swap = v[i];
+                v[i++] = v[j];
+                v[j--] = swap;
+            }
+        }
+        if (k <= j) hi = j;
+        else if (k >= i) lo = i;
+        else break;
+    }
+    return v[k];
+}
+
+/* numpy's percentile (linear) of the first n values of v (reordered here), n >= 1. */
+static double percentile(double *v, Py_ssize_t n, double percent) {
+    double index = percent / 100.0 * (double)(n - 1);
+    Py_ssize_t lo = (Py_ssize_t)floor(index);
+    if (lo >= n - 1) return select_kth(v, n, n - 1);
+    double low = select_kth(v, n, lo), high = v[lo + 1];
+    for (Py_ssize_t i = lo + 2; i < n; i++) high = v[i] < high ? v[i] : high;
+    return low + (high - low) * (index - (double)lo);
+}
+
+/* The indices of the watch's state vector (magnet.attitude.field_watch.FieldWatch). */
+enum { W_QUAT = 0, W_TURNED = 4, W_SAMPLES, W_REFERENCE, W_HOLD_LEFT, W_RUN, W_PENDING, W_CALM, W_SIZE };
+#define MAX_STEPS 8
+
+/* At a block's end (FieldWatch._learn): the reference |B| towards the block's calm samples' mean (their median
+ * first), the usual levels towards the 90th percentile of each statistic; a field flagged for longer than
+ * max_reject_s is the new normal, learnt again. */
+static void watch_learn(double *state, Array *levels, Array *pending, Array *calm, double period, double tau_s,
+                        double max_reject_s, int steps, double *scratch) {
+    if (state[W_RUN] * period > max_reject_s) {
+        state[W_REFERENCE] = 0.0, state[W_HOLD_LEFT] = 0.0, state[W_RUN] = 0.0;
+        for (int j = 0; j <= steps; j++) AT1(*levels, j) = 0.0;
+    }
+    Py_ssize_t count = (Py_ssize_t)state[W_PENDING], calm_count = (Py_ssize_t)state[W_CALM];
+    state[W_PENDING] = 0.0, state[W_CALM] = 0.0;
+    if (count == 0) return;
+    double seconds = (double)count * period, seen_s = state[W_SAMPLES] * period;
+    double share = seconds / (seen_s > seconds ? seen_s : seconds);
+    double alpha = -expm1(-seconds / tau_s);
+    alpha = alpha > (share < 1.0 ? share : 1.0) ? alpha : (share < 1.0 ? share : 1.0);
+    if (calm_count > 0) {
+        double mean = 0.0;
+        for (Py_ssize_t i = 0; i < calm_count; i++) {
+            scratch[i] = AT1(*calm, i);
+            mean += scratch[i];
+        }
+        mean /= (double)calm_count;
+        if (state[W_REFERENCE] == 0.0) {
+            qsort(scratch, (size_t)calm_count, sizeof(double), compare_doubles);
+            Py_ssize_t half = calm_count / 2;
+            state[W_REFERENCE] = calm_count % 2 ? scratch[half] : (scratch[half - 1] + scratch[half]) / 2.0;
+            alpha = 1.0;
+        }
+        state[W_REFERENCE] += alpha * (mean - state[W_REFERENCE]);
+    }
+    for (int j = 0; j <= steps; j++) {
+        Py_ssize_t finite = 0;
+        for (Py_ssize_t i = 0; i < count; i++) {
+            double value = AT(*pending, i, j);
+            if (isfinite(value)) scratch[finite++] = value;
+        }
+        if (finite > 0) {
+            double level = AT1(*levels, j);
+            AT1(*levels, j) = level + alpha * (percentile(scratch, finite, 90.0) - level);
+        }
+    }
+}
+
+PyDoc_STRVAR(watch_update_doc,
+             "watch_update(field, gyr, flagged, state, levels, ring, pending, calm, widths, floors, period_s, smooth, "
+             "hold, block, relative, field_tol_pct, learn_s, level_tau_s, max_reject_s, turn_floor_rad)\n\n"
+             "FieldWatch.update's per-sample loop (magnet.attitude.field_watch), in place: flagged (n,) bool, the "
+             "samples of field (n, 3) and gyr (n, 3) rad/s that are disturbed. State: ``state`` (11,) the integrated "
+             "attitude wxyz, the radians turned, the samples seen, the reference |B|, the hold left, the flagged run, "
+             "the block's pending and calm counts; ``levels`` (S + 1,) the usual levels; ``ring`` (K, 7) the last K = "
+             "max(widths) + smooth samples' field in the integrated frame, its mean over ``smooth`` samples and the "
+             "radians turned (row = sample index mod K); ``pending`` (block, S + 1) the block's statistics per radian, "
+             "``calm`` (block,) its calm samples' |B|. widths (S,) and floors (S,): the step windows in samples and "
+             "their floors.");
+
+static PyObject *watch_update(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_gyr, *o_flagged, *o_state, *o_levels, *o_ring, *o_pending, *o_calm, *o_widths, *o_floors;
+    double period, relative, tol_pct, learn_s, tau_s, max_reject_s, turn_floor;
+    Py_ssize_t smooth, hold, block;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOdnnndddddd", &o_field, &o_gyr, &o_flagged, &o_state, &o_levels, &o_ring,
+                          &o_pending, &o_calm, &o_widths, &o_floors, &period, &smooth, &hold, &block, &relative,
+                          &tol_pct, &learn_s, &tau_s, &max_reject_s, &turn_floor)) {
+        return NULL;
+    }
+    Array a[9];
+    Py_buffer flags;
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    if (get_array(o_gyr, &a[1], 2, a[0].rows, 3, 0, "gyr") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_widths, &a[2], 1, -1, -1, 0, "widths") < 0) { release(a, 2); return NULL; }
+    int steps = (int)a[2].rows;
+    if (get_array(o_floors, &a[3], 1, steps, -1, 0, "floors") < 0) { release(a, 3); return NULL; }
+    if (get_array(o_state, &a[4], 1, W_SIZE, -1, 1, "state") < 0) { release(a, 4); return NULL; }
+    if (get_array(o_levels, &a[5], 1, steps + 1, -1, 1, "levels") < 0) { release(a, 5); return NULL; }
+    if (get_array(o_ring, &a[6], 2, -1, 7, 1, "ring") < 0) { release(a, 6); return NULL; }
+    if (get_array(o_pending, &a[7], 2, block, steps + 1, 1, "pending") < 0) { release(a, 7); return NULL; }
+    if (get_array(o_calm, &a[8], 1, block, -1, 1, "calm") < 0) { release(a, 8); return NULL; }
+    if (get_flags(o_flagged, &flags, a[0].rows, "flagged") < 0) { release(a, 9); return NULL; }
+    Py_ssize_t widths[MAX_STEPS], keep = a[6].rows, longest = 0;
+    double *scratch = steps <= MAX_STEPS && smooth >= 1 && block >= 1 ? PyMem_Malloc(block * sizeof(double)) : NULL;
+    for (int j = 0; j < steps && j < MAX_STEPS; j++) {
+        widths[j] = (Py_ssize_t)AT1(a[2], j);
+        longest = widths[j] > longest ? widths[j] : longest;
+    }
+    if (scratch == NULL || keep != longest + smooth) {
+        PyMem_Free(scratch);
+        PyBuffer_Release(&flags);
+        release(a, 9);
+        PyErr_Format(PyExc_ValueError, "watch_update needs at most %d steps, smooth and block >= 1 and a ring of "
+                     "max(widths) + smooth rows", MAX_STEPS);
+        return NULL;
+    }
+    double state[W_SIZE];
+    for (int k = 0; k < W_SIZE; k++) state[k] = AT1(a[4], k);
+    char *out = (char *)flags.buf;
+    for (Py_ssize_t i = 0; i < a[0].rows; i++) {
+        /* the attitude integrated from the start, and the field in its frame */
+        double r[3] = {AT(a[1], i, 0) * period, AT(a[1], i, 1) * period, AT(a[1], i, 2) * period};
+        double angle = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+        double s = angle > 1e-12 ? sin(0.5 * angle) / angle : 0.5;
+        double turn[4] = {cos(0.5 * angle), r[0] * s, r[1] * s, r[2] * s}, q[4];
+        quat_mul(&state[W_QUAT], turn, q);
+        double norm_q = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+        for (int k = 0; k < 4; k++) state[W_QUAT + k] = q[k] / norm_q;
+        const double *u = &state[W_QUAT + 1], w = state[W_QUAT];
+        double v[3] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2)};
+        double t[3] = {2.0 * (u[1] * v[2] - u[2] * v[1]), 2.0 * (u[2] * v[0] - u[0] * v[2]),
+                       2.0 * (u[0] * v[1] - u[1] * v[0])};
+        double world[3] = {v[0] + w * t[0] + (u[1] * t[2] - u[2] * t[1]),
+                           v[1] + w * t[1] + (u[2] * t[0] - u[0] * t[2]),
+                           v[2] + w * t[2] + (u[0] * t[1] - u[1] * t[0])};
+        Py_ssize_t g = (Py_ssize_t)state[W_SAMPLES], row = g % keep;
+        state[W_TURNED] += sqrt(AT(a[1], i, 0) * AT(a[1], i, 0) + AT(a[1], i, 1) * AT(a[1], i, 1) +
+                                AT(a[1], i, 2) * AT(a[1], i, 2)) * period;
+        for (int k = 0; k < 3; k++) AT(a[6], row, k) = world[k];
+        AT(a[6], row, 6) = state[W_TURNED];
+        Py_ssize_t count = g + 1 < smooth ? g + 1 : smooth; /* the mean of the last ``smooth`` (fewer at first) */
+        double sum[3] = {0.0, 0.0, 0.0};
+        for (Py_ssize_t m = 0, at = row; m < count; m++, at = at ? at - 1 : keep - 1) {
+            for (int k = 0; k < 3; k++) sum[k] += AT(a[6], at, k);
+        }
+        for (int k = 0; k < 3; k++) AT(a[6], row, 3 + k) = sum[k] / (double)count;
+        /* the statistics against their limits (references as at the block's start) */
+        double field_norm = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        int ready = state[W_SAMPLES] * period >= learn_s && state[W_REFERENCE] > 0.0, raw = 0;
+        Py_ssize_t slot = (Py_ssize_t)state[W_PENDING];
+        for (int j = 0; j < steps; j++) {
+            double statistic = NAN, turned = 1.0;
+            if (g - widths[j] >= smooth - 1) {
+                Py_ssize_t then = (g - widths[j]) % keep;
+                double d[3];
+                for (int k = 0; k < 3; k++) d[k] = AT(a[6], row, 3 + k) - AT(a[6], then, 3 + k);
+                statistic = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                turned = AT(a[6], row, 6) - AT(a[6], then, 6) + turn_floor;
+            }
+            double limit = relative * AT1(a[5], j) * turned;
+            limit = limit > AT1(a[3], j) ? limit : AT1(a[3], j);
+            raw |= statistic > limit;
+            AT(a[7], slot, j) = statistic / turned;
+        }
+        double deviation = fabs(field_norm - state[W_REFERENCE]);
+        double limit = relative * AT1(a[5], steps), floor_ut = tol_pct / 100.0 * state[W_REFERENCE];
+        raw |= deviation > (limit > floor_ut ? limit : floor_ut);
+        AT(a[7], slot, steps) = deviation;
+        raw &= ready;
+        /* held for ``hold`` samples after, and the block's calm samples */
+        int flagged = raw || state[W_HOLD_LEFT] > 0.0;
+        state[W_HOLD_LEFT] = raw ? (double)hold : (state[W_HOLD_LEFT] > 0.0 ? state[W_HOLD_LEFT] - 1.0 : 0.0);
+        state[W_RUN] = flagged ? state[W_RUN] + 1.0 : 0.0;
+        if (!flagged) {
+            AT1(a[8], (Py_ssize_t)state[W_CALM]) = field_norm;
+            state[W_CALM] += 1.0;
+        }
+        state[W_PENDING] += 1.0;
+        out[i * flags.strides[0]] = (char)flagged;
+        state[W_SAMPLES] += 1.0;
+        if ((Py_ssize_t)state[W_SAMPLES] % block == 0) {
+            watch_learn(state, &a[5], &a[7], &a[8], period, tau_s, max_reject_s, steps, scratch);
+        }
+    }
+    for (int k = 0; k < W_SIZE; k++) AT1(a[4], k) = state[k];
+    PyMem_Free(scratch);
+    PyBuffer_Release(&flags);
+    release(a, 9);
+    Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
@@ -462,6 +685,7 @@ static PyMethodDef methods[] = {
     {"centred_difference", centred_difference, METH_VARARGS, centred_difference_doc},
     {"drift_step", drift_step, METH_VARARGS, drift_step_doc},
     {"advance_field", advance_field, METH_VARARGS, advance_field_doc},
+    {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {NULL, NULL, 0, NULL},
 };

@@ -25,4 +25,26 @@ def drift_step(
     update: bool,
 ) -> None: ...
 def advance_field(field: np.ndarray, gyr: np.ndarray, lags: np.ndarray, out: np.ndarray) -> None: ...
+def watch_update(
+    field: np.ndarray,
+    gyr: np.ndarray,
+    flagged: np.ndarray,
+    state: np.ndarray,
+    levels: np.ndarray,
+    ring: np.ndarray,
+    pending: np.ndarray,
+    calm: np.ndarray,
+    widths: np.ndarray,
+    floors: np.ndarray,
+    period_s: float,
+    smooth: int,
+    hold: int,
+    block: int,
+    relative: float,
+    field_tol_pct: float,
+    learn_s: float,
+    level_tau_s: float,
+    max_reject_s: float,
+    turn_floor_rad: float,
+) -> None: ...
 def format_rows(matrix: np.ndarray, decimals: bytes) -> bytes: ...

@@ -1,7 +1,7 @@
 """A watch over the field (``FieldWatch``): which samples a passing disturbance (a steel door, a parked car, a magnet)
 changes, causal and batch by batch, so that the attitude filter leaves them out and holds its heading on the
-gyroscope meanwhile (``magnet.attitude.fusion.Fusion(..., watch=True)``, off by default for its cost;
-docs/compass.md, "Disturbances").
+gyroscope meanwhile (``magnet.attitude.fusion.Fusion``, on by default; docs/compass.md, "Disturbances"). Its
+per-sample loop is compiled (``magnet._kernels.watch_update``, docs/cost.md).
 
 The field is turned into the frame the gyroscope's integration holds still (w_k = Q_k b_k, Q_k the attitude
 integrated from the filter's start), where the Earth's field is constant: a change of w over a window that the
@@ -21,7 +21,7 @@ import dataclasses
 
 import numpy as np
 
-from magnet.attitude.heading import row_norm
+from magnet.compiled import kernels as _kernels
 
 
 def _multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -106,10 +106,19 @@ class FieldWatch:
     disturbed. Its references are its own (learnt from the samples, as vqf learns its own: a calibration's leftover
     error raises the usual levels, and with them what counts as unusual). The samples are judged in blocks of
     ``BLOCK_S`` counted from the start, the references moving at each block's end, so the flags are the same however
-    the samples are batched. State: the integrated attitude, the last seconds of the field in its frame, the
-    references and levels, the hold; bounded."""
+    the samples are batched. Each sample: the attitude integrated from the start (q_k = q_{k-1} exp(w_k dt)), the
+    field in its frame (``to_frame``) and its mean over ``smooth_s``; each step window's change of that mean and the
+    gyroscope's path over the window (+ ``turn_floor_rad``); | |B| - reference |; flagged where a statistic is over
+    max(floor, relative x usual level (x path for steps)) once ``learn_s`` has passed, held ``hold_s`` after. At a
+    block's end the reference |B| moves towards the block's calm samples' mean (their median first) and each usual
+    level towards the 90th percentile of the block's statistics (per radian), with the weight max(1 - exp(-block /
+    level_tau_s), block / seen). The loop is compiled (``magnet._kernels.watch_update``; docs/cost.md). State: the
+    integrated attitude, the last ``max(windows) + smooth`` samples, the references and levels, the hold; bounded."""
 
     BLOCK_S = 0.5
+    #: ``state``'s entries (as magnet/_kernels.c names them): attitude wxyz, radians turned, samples seen, reference
+    #: |B| (uT), hold left, flagged run, the block's pending and calm counts.
+    STATE = ("qw", "qx", "qy", "qz", "turned", "samples", "reference_ut", "hold_left", "flagged_run", "pending", "calm")
 
     def __init__(self, period_s: float, settings: WatchSettings = WatchSettings()) -> None:
         self.period_s, self.settings = float(period_s), settings
@@ -117,107 +126,36 @@ class FieldWatch:
         self.smooth = max(1, round(settings.smooth_s / self.period_s))
         self.hold = round(settings.hold_s / self.period_s)
         self.block = max(1, round(self.BLOCK_S / self.period_s))
+        self._widths = np.asarray(self.widths, dtype=float)
+        self._floors = np.asarray([floor for _, floor in settings.steps], dtype=float)
         self.reset()
 
     def reset(self) -> None:
         """Forget everything (the filter restarted)."""
-        self.quat = np.array([1.0, 0.0, 0.0, 0.0])
-        self.tail = np.zeros((0, 3))
-        self.tail_turn = np.zeros(0)
-        self.turned = 0.0
-        self.samples = 0
-        self.reference_ut = 0.0
-        self.levels = np.zeros(len(self.widths) + 1)  # usual step statistics, then usual | |B| - reference |
-        self.hold_left = 0
-        self.flagged_run = 0  # flagged samples in a row up to the last one
-        self.pending: list[tuple[np.ndarray, np.ndarray]] = []  # this block's statistics and calm norms so far
+        self.state = np.zeros(len(self.STATE))
+        self.state[0] = 1.0
+        self.levels = np.zeros(len(self.widths) + 1)  # usual step statistics (per radian), then usual | |B| - ref |
+        self.ring = np.zeros((max(self.widths) + self.smooth, 7))  # field in the integrated frame, its mean, turned
+        self.pending = np.zeros((self.block, len(self.widths) + 1))  # this block's statistics so far
+        self.calm = np.zeros(self.block)  # this block's calm samples' |B|
 
-    def _statistics(self, field: np.ndarray, gyr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """((n, steps + 1), (n, steps)): each window's change of the smoothed field in the integrated frame (NaN
-        where the history is too short), then | |B| - reference |; and each window's turn (rad, + turn_floor_rad)."""
-        quat = integrated_attitude(gyr, self.period_s, self.quat)
-        self.quat = quat[-1]
-        world = np.concatenate([self.tail, to_frame(quat, field)])
-        travelled = self.turned + np.cumsum(row_norm(gyr)) * self.period_s  # rad turned since the start
-        self.turned = float(travelled[-1])
-        turns = np.concatenate([self.tail_turn, travelled])
-        sums = np.concatenate([np.zeros((1, 3)), np.cumsum(world, axis=0)])
-        index = np.arange(len(world))
-        low = np.maximum(index + 1 - self.smooth, 0)
-        smooth = (sums[index + 1] - sums[low]) / (index + 1 - low)[:, None]
-        new = index[len(self.tail) :]
-        out = np.full((len(field), len(self.widths) + 1), np.nan)
-        turned = np.ones((len(field), len(self.widths)))
-        for j, width in enumerate(self.widths):
-            valid = new - width >= self.smooth - 1
-            now, then = new[valid], new[valid] - width
-            out[valid, j] = row_norm(smooth[now] - smooth[then])
-            turned[valid, j] = turns[now] - turns[then] + self.settings.turn_floor_rad  # the path, not the net turn
-        out[:, -1] = np.abs(row_norm(field) - self.reference_ut)
-        keep = max(self.widths) + self.smooth
-        self.tail, self.tail_turn = world[-keep:], turns[-keep:]
-        return out, turned
-
-    def _held(self, raw: np.ndarray) -> np.ndarray:
-        """Flags held ``hold`` samples after each, across batches."""
-        n = len(raw)
-        index = np.arange(n)
-        last = np.maximum.accumulate(np.where(raw, index, -(self.hold + 1) - n))
-        flagged = raw | (index - last <= self.hold) | (index < self.hold_left)
-        self.hold_left = max(self.hold - (n - 1 - int(last[-1])), self.hold_left - n, 0)
-        return flagged
-
-    def _learn(self) -> None:
-        """At a block's end: move the reference |B| towards its undisturbed samples and the usual levels towards
-        the 90th percentile of all its samples' statistics (a disturbance of a few seconds moves them little, a
-        device that turns faster than before a lot); a field flagged for longer than ``max_reject_s`` is accepted as
-        the new normal and learnt again."""
-        if self.flagged_run * self.period_s > self.settings.max_reject_s:
-            self.reference_ut, self.levels[:], self.hold_left, self.flagged_run = 0.0, 0.0, 0, 0
-        statistics = np.concatenate([part[0] for part in self.pending]) if self.pending else np.zeros((0, 1))
-        norm = np.concatenate([part[1] for part in self.pending]) if self.pending else np.zeros(0)
-        self.pending = []
-        if len(statistics) == 0:
-            return
-        seconds = len(statistics) * self.period_s
-        seen_s = self.samples * self.period_s
-        alpha = max(-np.expm1(-seconds / self.settings.level_tau_s), min(1.0, seconds / max(seen_s, seconds)))
-        if self.reference_ut == 0.0 and norm.size:
-            self.reference_ut, alpha = float(np.median(norm)), 1.0
-        if norm.size:
-            self.reference_ut += alpha * (float(norm.mean()) - self.reference_ut)
-        for j in range(statistics.shape[1]):
-            values = statistics[:, j]
-            values = values[np.isfinite(values)]
-            if values.size:
-                self.levels[j] += alpha * (float(np.percentile(values, 90)) - self.levels[j])
-
-    def _judge(self, field: np.ndarray, gyr: np.ndarray) -> np.ndarray:
-        """Flags of samples within one block (references as at the block's start)."""
-        settings = self.settings
-        statistics, turned = self._statistics(field, gyr)
-        floors = [floor for _, floor in settings.steps] + [settings.field_tol_pct / 100.0 * self.reference_ut]
-        scale = np.column_stack([turned, np.ones(len(field))])  # steps per radian turned; |B| as it is
-        limits = np.maximum(np.asarray(floors), settings.relative * self.levels * scale)
-        ready = self.samples * self.period_s >= settings.learn_s and self.reference_ut > 0.0
-        with np.errstate(invalid="ignore"):
-            flagged = self._held((statistics > limits).any(axis=1) & ready)
-        calm = ~flagged
-        self.pending.append((statistics / scale, row_norm(field[calm])))
-        trailing = len(flagged) if flagged.all() else int(np.argmin(flagged[::-1]))
-        self.flagged_run = self.flagged_run + trailing if flagged.all() else trailing
-        return flagged
+    @property
+    def reference_ut(self) -> float:
+        """The running reference |B| (uT; 0 until learnt)."""
+        return float(self.state[self.STATE.index("reference_ut")])
 
     def update(self, field: np.ndarray, gyr_rads: np.ndarray) -> np.ndarray:
         """(n,) bool: the samples of this batch (field (n, 3) corrected, gyr_rads (n, 3), the same body frame) that
         are disturbed."""
+        field = np.asarray(field, dtype=float)
+        gyr = np.asarray(gyr_rads, dtype=float)
+        if field.ndim != 2 or field.shape[1:] != (3,) or gyr.shape != field.shape:
+            raise ValueError(f"field and gyr_rads must both be (n, 3); got {field.shape} and {gyr.shape}")
         out = np.zeros(len(field), dtype=bool)
-        start = 0
-        while start < len(field):
-            stop = min(len(field), start + self.block - self.samples % self.block)
-            out[start:stop] = self._judge(field[start:stop], gyr_rads[start:stop])
-            self.samples += stop - start
-            if self.samples % self.block == 0:
-                self._learn()
-            start = stop
+        s = self.settings
+        _kernels.watch_update(
+            field, gyr, out, self.state, self.levels, self.ring, self.pending, self.calm, self._widths,
+            self._floors, self.period_s, self.smooth, self.hold, self.block, s.relative, s.field_tol_pct,
+            s.learn_s, s.level_tau_s, s.max_reject_s, s.turn_floor_rad,
+        )  # fmt: skip
         return out

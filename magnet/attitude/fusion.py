@@ -147,15 +147,15 @@ class Fusion:
     ``update`` takes one batch of aligned samples; ``restart`` forgets everything (a gap, a device restart).
     """
 
-    def __init__(self, period_s: float, params: Mapping[str, Any] | None = None, watch: bool = False) -> None:
+    def __init__(self, period_s: float, params: Mapping[str, Any] | None = None, watch: bool = True) -> None:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
         self._filter = vqf.VQF(self.period_s, **self.params)
         self._aided: AidedFilter | None = (
             None  # from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
         )
-        #: with ``watch``, the field's disturbances are left out and the gyroscope holds the heading (docs/compass.md,
-        #: "Disturbances"); off by default: numpy on small batches, it costs about 20 times vqf itself
+        #: with ``watch`` (the default), the field's disturbances are left out and the gyroscope holds the heading
+        #: (docs/compass.md, "Disturbances"); compiled, it costs about a quarter of vqf itself (docs/cost.md)
         self.watch = FieldWatch(self.period_s) if watch else None
         self.samples = 0
 
@@ -269,10 +269,15 @@ def fuse_offline(
     params: Mapping[str, Any] | None = None,
     t_s: np.ndarray | None = None,
     vel_ned_ms: np.ndarray | None = None,
+    watch: bool = False,
 ) -> Fused:
     """Best estimate for a whole log (vqf's ``offlineVQF``: looks ahead, forward and backward). Shapes as ``Fusion``.
     With ``t_s`` and ``vel_ned_ms`` (magnetic NED) the accelerometer is first freed of the linear acceleration the
-    velocity implies (every fix known at once), turned into the body frame by the causal aided attitude."""
+    velocity implies (every fix known at once), turned into the body frame by the causal aided attitude. With
+    ``watch`` (the default) the samples the field's watch flags over the log (``FieldWatch``, as the causal filter
+    runs it) reach ``offlineVQF`` without their field and are flagged disturbed. Off by default: offlineVQF looks
+    ahead and rejects on its own, and the watch's few flags on BROAD (0.3 % of the samples) make it worse there
+    (0.809 -> 0.888 and 0.530 -> 0.536 deg; docs/compass.md, "Disturbances")."""
     period = _check_period(period_s)
     gyr = _to_vqf(gyr_rads, "gyr_rads")
     if len(gyr) == 0:
@@ -283,7 +288,12 @@ def fuse_offline(
         causal = Fusion(period, params)
         quat, _ = causal.update_vqf_frame(gyr, acc, field, np.asarray(t_s, dtype=float), vel_ned_ms)
         acc = np.ascontiguousarray(acc - body_acceleration(quat, t_s, vel_ned_ms))
-    out = vqf.offlineVQF(gyr, acc, field, period, dict(params) if params else None)
+    watched = FieldWatch(period).update(field, gyr) if field is not None and watch else np.zeros(len(gyr), bool)
+    if field is not None and watched.any():
+        field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
+    out = dict(vqf.offlineVQF(gyr, acc, field, period, dict(params) if params else None))
+    if field is not None:
+        out["magDistDetected"] = np.asarray(out["magDistDetected"], dtype=bool).reshape(-1) | watched
     return Fused.from_vqf(out, field is not None)
 
 
@@ -295,7 +305,7 @@ def fuse_causal(
     params: Mapping[str, Any] | None = None,
     t_s: np.ndarray | None = None,
     vel_ned_ms: np.ndarray | None = None,
-    watch: bool = False,
+    watch: bool = True,
 ) -> Fused:
     """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``; ``watch``
     as there."""

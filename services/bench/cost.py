@@ -157,7 +157,7 @@ def _live(log: Log) -> _Live:
 
 
 def _filter_rows(log: Log, live: _Live) -> list[Row]:
-    """decode, calibration, tilt, fusion and aided fusion, the last two beside vqf alone."""
+    """decode, calibration, tilt, fusion (with and without the field's watch) and aided fusion, beside vqf alone."""
     import vqf
 
     from magnet import wire
@@ -171,8 +171,8 @@ def _filter_rows(log: Log, live: _Live) -> list[Row]:
         for g, a, m in live.vqf_inputs:
             f.updateBatch(g, a, m)
 
-    def fusion(aided: bool) -> None:
-        f = Fusion(period)
+    def fusion(aided: bool, watch: bool = True) -> None:
+        f = Fusion(period, watch=watch)
         for (g, a, m), s in zip(live.vqf_inputs, live.parts):
             if aided:
                 f.update_vqf_frame(g, a, m, log.t_s[s], log.vel_ned_ms[s])
@@ -190,6 +190,7 @@ def _filter_rows(log: Log, live: _Live) -> list[Row]:
         ("calibration", _per_sample_us(lambda: [cal.apply(log.mag_ut[s]) for s in live.parts], samples), None),  # type: ignore[attr-defined]
         ("tilt", _per_sample_us(tilt, samples), None),
         ("fusion", _per_sample_us(lambda: fusion(False), samples), vqf_us),
+        ("fusion without the field watch", _per_sample_us(lambda: fusion(False, watch=False), samples), vqf_us),
         (f"aided fusion (fixes at {LIVE_FIX_HZ:g} Hz)", _per_sample_us(lambda: fusion(True), samples), vqf_us),
     ]
 

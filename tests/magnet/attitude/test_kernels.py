@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from magnet import _kernels
+from magnet.attitude.field_watch import FieldWatch, WatchSettings
 
 RNG = np.random.default_rng(28)
 
@@ -155,3 +156,180 @@ def test_bad_arrays_are_refused_with_the_argument_named():
         _kernels.into_body(np.ones((2, 4), dtype=np.float32), np.ones((2, 3)), np.empty((2, 3)))
     with pytest.raises(ValueError, match="one row or as many"):
         _kernels.quaternion_product(np.ones((2, 4)), np.ones((3, 4)), np.empty((3, 4)))
+
+
+def _integrated(gyr: np.ndarray, period_s: float, start: np.ndarray) -> np.ndarray:
+    """q_k = q_{k-1} exp(w_k dt), one product at a time, each normalised."""
+    out, q = [], start
+    for rate in gyr * period_s:
+        angle = np.linalg.norm(rate)
+        axis = rate / angle if angle > 1e-12 else np.zeros(3)
+        q = _product(q, np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis]))
+        q = q / np.linalg.norm(q)
+        out.append(q)
+    return np.array(out).reshape(-1, 4)
+
+
+_SETTINGS = WatchSettings()
+
+
+class _PlainWatch:
+    """FieldWatch as it was written in numpy before it was compiled: the maths, plainly."""
+
+    BLOCK_S = 0.5
+
+    def __init__(self, period_s: float, settings: WatchSettings = _SETTINGS) -> None:
+        self.period_s, self.settings = float(period_s), settings
+        self.widths = [max(1, round(window / self.period_s)) for window, _ in settings.steps]
+        self.smooth = max(1, round(settings.smooth_s / self.period_s))
+        self.hold = round(settings.hold_s / self.period_s)
+        self.block = max(1, round(self.BLOCK_S / self.period_s))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything (the filter restarted)."""
+        self.quat = np.array([1.0, 0.0, 0.0, 0.0])
+        self.tail = np.zeros((0, 3))
+        self.tail_turn = np.zeros(0)
+        self.turned = 0.0
+        self.samples = 0
+        self.reference_ut = 0.0
+        self.levels = np.zeros(len(self.widths) + 1)  # usual step statistics, then usual | |B| - reference |
+        self.hold_left = 0
+        self.flagged_run = 0  # flagged samples in a row up to the last one
+        self.pending: list[tuple[np.ndarray, np.ndarray]] = []  # this block's statistics and calm norms so far
+
+    def _statistics(self, field: np.ndarray, gyr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((n, steps + 1), (n, steps)): each window's change of the smoothed field in the integrated frame (NaN
+        where the history is too short), then | |B| - reference |; and each window's turn (rad, + turn_floor_rad)."""
+        quat = _integrated(gyr, self.period_s, self.quat)
+        self.quat = quat[-1]
+        world = np.concatenate([self.tail, np.einsum("nij,nj->ni", _matrix(quat), field)])
+        travelled = self.turned + np.cumsum(_norm(gyr)) * self.period_s  # rad turned since the start
+        self.turned = float(travelled[-1])
+        turns = np.concatenate([self.tail_turn, travelled])
+        sums = np.concatenate([np.zeros((1, 3)), np.cumsum(world, axis=0)])
+        index = np.arange(len(world))
+        low = np.maximum(index + 1 - self.smooth, 0)
+        smooth = (sums[index + 1] - sums[low]) / (index + 1 - low)[:, None]
+        new = index[len(self.tail) :]
+        out = np.full((len(field), len(self.widths) + 1), np.nan)
+        turned = np.ones((len(field), len(self.widths)))
+        for j, width in enumerate(self.widths):
+            valid = new - width >= self.smooth - 1
+            now, then = new[valid], new[valid] - width
+            out[valid, j] = _norm(smooth[now] - smooth[then])
+            turned[valid, j] = turns[now] - turns[then] + self.settings.turn_floor_rad  # the path, not the net turn
+        out[:, -1] = np.abs(_norm(field) - self.reference_ut)
+        keep = max(self.widths) + self.smooth
+        self.tail, self.tail_turn = world[-keep:], turns[-keep:]
+        return out, turned
+
+    def _held(self, raw: np.ndarray) -> np.ndarray:
+        """Flags held ``hold`` samples after each, across batches."""
+        n = len(raw)
+        index = np.arange(n)
+        last = np.maximum.accumulate(np.where(raw, index, -(self.hold + 1) - n))
+        flagged = raw | (index - last <= self.hold) | (index < self.hold_left)
+        self.hold_left = max(self.hold - (n - 1 - int(last[-1])), self.hold_left - n, 0)
+        return flagged
+
+    def _learn(self) -> None:
+        """At a block's end: move the reference |B| towards its undisturbed samples and the usual levels towards
+        the 90th percentile of all its samples' statistics (a disturbance of a few seconds moves them little, a
+        device that turns faster than before a lot); a field flagged for longer than ``max_reject_s`` is accepted as
+        the new normal and learnt again."""
+        if self.flagged_run * self.period_s > self.settings.max_reject_s:
+            self.reference_ut, self.levels[:], self.hold_left, self.flagged_run = 0.0, 0.0, 0, 0
+        statistics = np.concatenate([part[0] for part in self.pending]) if self.pending else np.zeros((0, 1))
+        norm = np.concatenate([part[1] for part in self.pending]) if self.pending else np.zeros(0)
+        self.pending = []
+        if len(statistics) == 0:
+            return
+        seconds = len(statistics) * self.period_s
+        seen_s = self.samples * self.period_s
+        alpha = max(-np.expm1(-seconds / self.settings.level_tau_s), min(1.0, seconds / max(seen_s, seconds)))
+        if self.reference_ut == 0.0 and norm.size:
+            self.reference_ut, alpha = float(np.median(norm)), 1.0
+        if norm.size:
+            self.reference_ut += alpha * (float(norm.mean()) - self.reference_ut)
+        for j in range(statistics.shape[1]):
+            values = statistics[:, j]
+            values = values[np.isfinite(values)]
+            if values.size:
+                self.levels[j] += alpha * (float(np.percentile(values, 90)) - self.levels[j])
+
+    def _judge(self, field: np.ndarray, gyr: np.ndarray) -> np.ndarray:
+        """Flags of samples within one block (references as at the block's start)."""
+        settings = self.settings
+        statistics, turned = self._statistics(field, gyr)
+        floors = [floor for _, floor in settings.steps] + [settings.field_tol_pct / 100.0 * self.reference_ut]
+        scale = np.column_stack([turned, np.ones(len(field))])  # steps per radian turned; |B| as it is
+        limits = np.maximum(np.asarray(floors), settings.relative * self.levels * scale)
+        ready = self.samples * self.period_s >= settings.learn_s and self.reference_ut > 0.0
+        with np.errstate(invalid="ignore"):
+            flagged = self._held((statistics > limits).any(axis=1) & ready)
+        calm = ~flagged
+        self.pending.append((statistics / scale, _norm(field[calm])))
+        trailing = len(flagged) if flagged.all() else int(np.argmin(flagged[::-1]))
+        self.flagged_run = self.flagged_run + trailing if flagged.all() else trailing
+        return flagged
+
+    def update(self, field: np.ndarray, gyr_rads: np.ndarray) -> np.ndarray:
+        """(n,) bool: the samples of this batch (field (n, 3) corrected, gyr_rads (n, 3), the same body frame) that
+        are disturbed."""
+        out = np.zeros(len(field), dtype=bool)
+        start = 0
+        while start < len(field):
+            stop = min(len(field), start + self.block - self.samples % self.block)
+            out[start:stop] = self._judge(field[start:stop], gyr_rads[start:stop])
+            self.samples += stop - start
+            if self.samples % self.block == 0:
+                self._learn()
+            start = stop
+        return out
+
+
+def _norm(rows: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.sum(np.asarray(rows) ** 2, axis=-1))
+
+
+def _walk_through_disturbances(n: int, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """A device turning at random with an imperfectly calibrated field (uT) that passes a steel door (|B| up), a
+    turn of the field (|B| kept) and a long stay in another place (the new normal)."""
+    gyr = np.cumsum(RNG.normal(0.0, 0.15, (n, 3)), axis=0) * 0.1
+    gyr += RNG.normal(0.0, 0.3, 3)
+    earth = np.array([20.0, 0.0, 45.0])
+    q, field = np.array([1.0, 0.0, 0.0, 0.0]), np.empty((n, 3))
+    turned = _integrated(gyr, period_s, q)
+    for k, quat in enumerate(turned):
+        w, u = quat[0], -quat[1:]  # the earth's field into the body: the conjugate
+        t = 2.0 * np.cross(u, earth)
+        field[k] = earth + w * t + np.cross(u, t)
+    field = field @ (np.eye(3) + RNG.normal(0.0, 0.02, (3, 3))).T + RNG.normal(0.0, 0.3, (n, 3))
+    field[n // 4 : n // 4 + 150] *= 1.4
+    field[n // 2 : n // 2 + 300] = field[n // 2 : n // 2 + 300] @ np.array([[0.87, -0.5, 0], [0.5, 0.87, 0], [0, 0, 1]])
+    field[3 * n // 4 :] *= 1.3
+    return field, gyr
+
+
+@pytest.mark.parametrize("period_s, batch", [(0.01, 1), (0.01, 37), (0.02, 100), (0.01, 4000)])
+def test_watch_update_is_the_plain_watch_whatever_the_batches(period_s, batch):
+    field, gyr = _walk_through_disturbances(4000, period_s)
+    compiled, plain = FieldWatch(period_s), _PlainWatch(period_s)
+    got, want = [], []
+    for start in range(0, len(field), batch):
+        got.append(compiled.update(field[start : start + batch], gyr[start : start + batch]))
+        want.append(plain.update(field[start : start + batch], gyr[start : start + batch]))
+        np.testing.assert_allclose(compiled.levels, plain.levels, rtol=1e-9, atol=1e-9)
+        assert compiled.reference_ut == pytest.approx(plain.reference_ut, rel=1e-9, abs=1e-9)
+    got_flags, want_flags = np.concatenate(got), np.concatenate(want)
+    assert 0.05 < want_flags.mean() < 0.6  # the disturbances are flagged, the rest not: a test that can fail
+    np.testing.assert_array_equal(got_flags, want_flags)
+
+
+def test_watch_update_refuses_a_ring_of_the_wrong_size():
+    watch = FieldWatch(0.01)
+    watch.ring = np.zeros((3, 7))
+    with pytest.raises(ValueError, match="ring"):
+        watch.update(np.zeros((2, 3)), np.zeros((2, 3)))
