@@ -61,6 +61,7 @@ class Collection:
         self.method, self.session, self.capacity = parse_choice(method), session, capacity
         self.auto = self.method == AUTO
         self.in_service = False  # a refresh of a calibrated device (``magnet.calibrator.refresh``)
+        self.travelled = False  # its device moved over the ground meanwhile (``magnet.calibrator.refresh.travels``)
         self.window_s: float | None = None  # fit only the last this many seconds of the run (None: all of it)
         self.tried_ns = -(2**62)  # a refresh's last try: the time of the newest sample then (ns)
         self.changed_batches = 0  # a refresh: batches in a row whose field strength the record in force misses

@@ -34,7 +34,7 @@ from magnet.calibrator.fitting import Fitter
 from magnet.calibrator.keys import ShardKeys
 from magnet.calibrator.progress import ProgressTimes, progress_of
 from magnet.calibrator.records import Records
-from magnet.calibrator.refresh import Mode, Refresher, gain_pct, small_gain
+from magnet.calibrator.refresh import Refresher, gain_pct, small_gain
 from magnet.calibrator.rollback import roll_back
 from magnet.calibrator.roster import Roster
 from magnet.calibrator.sessions import Outcome, Sessions
@@ -158,7 +158,7 @@ class CalibratorCore:
             log.info("%s: no refresh: %s", device, why)
             return
         gain = gain_pct(result)
-        if self.refresher.mode is Mode.PROPOSE:
+        if self.refresher.proposes(collection):
             self.refresher.restart(device)
             self.collections.propose(device, collection)
             self.refresher.proposed += 1

@@ -7,6 +7,11 @@ last ``REFRESH_WINDOW_S`` seconds. The fit is judged against
 the record in force (``FitInput.reference``: held-out heading consistency, with its margin) and must also gain
 ``MIN_GAIN`` of the in-force record's held-out consistency (a refresh that changes little is churn, not a gain).
 
+A device that travels (its batches carry a velocity over TRAVEL_MS) is a vehicle whose linear accelerations the
+judgement's tilt evidence does not model (it has no velocity aiding): measured through the services, a car's
+offset-only refresh looked 70 % more consistent and turned its heading 118 deg wrong. So for a travelling device
+``auto`` proposes the refresh (as ``propose`` does) instead of committing it.
+
 What passes: ``auto`` commits it as a new version (change ``action: refresh``, ``in_service: true``, ``gain_pct``,
 and ``resolves``: the device's open drift alerts it was made against); ``propose`` turns the refresh collection into
 an operator's session holding the fit (``magnet calibrate DEV commit`` stores it, marked in service); ``off`` keeps
@@ -26,6 +31,9 @@ from magnet.calibration.collection import Collection
 from magnet.calibration.field import MIN_GAIN
 from magnet.model import Calibration
 
+#: a device whose batches carry a speed above this (m/s, faster than a person runs) travels: its refreshes are
+#: proposed, not committed
+TRAVEL_MS = 5.0
 #: a device's refresh is fitted at most this often (s): the CPU a device costs stays one fit in this time
 REFRESH_INTERVAL_S = 15.0
 #: ... and at least this long by the calibrator's clock (s)
@@ -101,6 +109,7 @@ class Refresher:
             collection.in_service, collection.window_s = True, REFRESH_WINDOW_S
             self.by_device[batch.device] = collection
         self.by_device.touch(batch.device)
+        collection.travelled = collection.travelled or travels(batch)
         collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
         return collection
 
@@ -116,6 +125,11 @@ class Refresher:
         collection.changed_batches = collection.changed_batches + 1 if off else 0
         older = collection.seen > (collection.changed_batches + 1) * len(batch)  # samples from before the change
         return collection.changed_batches >= CHANGED_BATCHES and older
+
+    def proposes(self, collection: Collection) -> bool:
+        """Whether a refresh that passed is proposed as a session rather than committed: ``propose``, or a device
+        that travelled while its samples were collected (see the module docstring)."""
+        return self.mode is Mode.PROPOSE or collection.travelled
 
     def due(self, collection: Collection, now_s: float) -> bool:
         """Whether to try a refresh now: REFRESH_INTERVAL_S of the device's samples (by their times; by the clock
@@ -138,3 +152,12 @@ class Refresher:
     def restart(self, device: str) -> None:
         """Forget the device's refresh samples (a new record is in force: what follows is judged against it)."""
         self.by_device.pop(device, None)
+
+
+def travels(batch: wire.RawBatch) -> bool:
+    """Whether the batch's velocity (if it carries one) says the device moves faster than TRAVEL_MS."""
+    vel = batch.vel_ned_ms
+    if vel is None:
+        return False
+    speed = np.linalg.norm(np.asarray(vel, dtype=float), axis=1)
+    return bool(np.any(speed[np.isfinite(speed)] > TRAVEL_MS))

@@ -61,11 +61,15 @@ def _core(clock: DataClock, store: MemoryStore, recalibrate: str) -> CalibratorC
     return CalibratorCore(store, settings, lambda *a: None, clock.monotonic, clock.wall_ns, None, shard=Shard(0, 1))
 
 
-def _feed(core: CalibratorCore, clock: DataClock, run, batch: int = 50) -> None:
+def _feed(core: CalibratorCore, clock: DataClock, run, batch: int = 50, speed_ms: float | None = None) -> None:
+    """The run in raw batches; with ``speed_ms`` each batch also carries a velocity of that speed, north."""
     for seq, start in enumerate(range(0, len(run.t_s), batch)):
         part = slice(start, start + batch)
         t_ns = np.round(run.t_s[part] * 1e9).astype(np.int64)
-        raw = wire.RawBatch("d", seq, "sim", t_ns, run.mag_ut[part], run.acc_ms2[part], gyr_rads=run.gyr_rads[part])
+        vel = None if speed_ms is None else np.tile([speed_ms, 0.0, 0.0], (len(t_ns), 1))
+        raw = wire.RawBatch(
+            "d", seq, "sim", t_ns, run.mag_ut[part], run.acc_ms2[part], gyr_rads=run.gyr_rads[part], vel_ned_ms=vel
+        )
         clock.t_s = float(run.t_s[part][-1])
         core.on_raw("magnet/d/raw", wire.encode_raw(raw), "magnet")
 
@@ -122,3 +126,17 @@ def test_a_record_that_is_still_right_is_not_replaced(walk):
     _feed(core, clock, run)
     assert len(store.history_changes("d")) == 1
     assert core.status("c").counters.refresh_fits >= 1
+
+
+def test_a_travelling_device_gets_its_refresh_proposed_not_committed(walk):
+    """A vehicle's linear accelerations can fool the judgement (no velocity aiding in it): measured through the
+    services, a car's refresh turned its heading 118 deg wrong. With a velocity over 5 m/s in its batches the same
+    refresh that is committed for a walker is proposed as a session, and the record in force stays."""
+    run, old = walk
+    core, store, clock = _calibrated("auto", old)
+    _feed(core, clock, run, speed_ms=8.0)  # a car in town
+    assert len(store.history_changes("d")) == 1 and core.state("d") is State.SESSION
+    assert core.status("c").counters.proposed == 1 and core.status("c").counters.refreshed == 0
+    core, store, clock = _calibrated("auto", old)
+    _feed(core, clock, run, speed_ms=1.4)  # a walker's GNSS speed: still committed
+    assert core.status("c").counters.refreshed >= 1
