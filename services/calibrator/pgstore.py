@@ -26,7 +26,7 @@ import psycopg
 
 from magnet import wire
 from magnet.calibrator.store import MakeRecord
-from services.common.stores import PostgresUrl, RowCheck, StoredRow, StoreError
+from services.common.stores import PostgresUrl, RowCheck, StoredRow, StoreError, next_row
 
 log = logging.getLogger(__name__)
 
@@ -148,14 +148,10 @@ class PostgresStore(RowCheck):
                     "SELECT COALESCE(MAX(version), 0) FROM calibrations WHERE device = %s", (device,)
                 ).fetchone()
                 highest = int(highest_row[0]) if highest_row else 0
-                record = make(min(max(highest, floor), wire.MAX_VERSION - 1) + 1)
-                if record.device != device:
-                    raise ValueError(f"a record of {record.device} cannot be stored as one of {device}")
-                if latest is not None and latest[0] == record.id:
+                latest_id = None if latest is None else latest[0]
+                record, row = next_row(device, make, highest, floor, latest_id, change)
+                if row is None:
                     return record, False
-                text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
-                note = None if change is None else json.dumps(dict(change), sort_keys=True, allow_nan=False)
-                row = StoredRow(device, record.id, int(record.created_ns), int(record.version), text, note)
                 self._insert(conn, row)
         return record, True
 

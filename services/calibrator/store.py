@@ -27,7 +27,7 @@ from typing import Any
 
 from magnet import wire
 from services.common.dbfile import OpenedFile
-from services.common.stores import PostgresUrl, RowCheck, Store, StoredRow, StoreError, StoreLocation
+from services.common.stores import PostgresUrl, RowCheck, Store, StoredRow, StoreError, StoreLocation, next_row
 
 log = logging.getLogger(__name__)
 
@@ -209,14 +209,11 @@ class CalibrationStore(RowCheck):
             (highest,) = self._db.execute(
                 "SELECT COALESCE(MAX(version), 0) FROM calibrations WHERE device = ?", (device,)
             ).fetchone()
-            record = make(min(max(int(highest), floor), wire.MAX_VERSION - 1) + 1)
-            if record.device != device:
-                raise ValueError(f"a record of {record.device} cannot be stored as one of {device}")
-            if latest is not None and latest[0] == record.id:
+            latest_id = None if latest is None else latest[0]
+            record, row = next_row(device, make, int(highest), floor, latest_id, change)
+            if row is None:
                 return record, False
-            text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
-            note = None if change is None else json.dumps(dict(change), sort_keys=True, allow_nan=False)
-            self._insert(StoredRow(device, record.id, int(record.created_ns), int(record.version), text, note))
+            self._insert(row)
             self._writable()  # gone during the write: rolled back, not acknowledged
         return record, True
 

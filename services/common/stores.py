@@ -16,7 +16,7 @@ import json
 import logging
 import re
 import urllib.parse
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -89,6 +89,27 @@ class StoredRow:
     version: int
     record: str
     change: str | None = None
+
+
+def next_row(
+    device: str,
+    make: Callable[[int], wire.DeviceCalibration],
+    highest: int,
+    floor: int,
+    latest_id: str | None,
+    change: Mapping[str, Any] | None,
+) -> tuple[wire.DeviceCalibration, StoredRow | None]:
+    """What an append stores, the same in both stores: the record ``make`` builds for the next version (above the
+    device's ``highest`` and ``floor``, below ``wire.MAX_VERSION``) and its row, or None for the row when it is the
+    record already in force (``latest_id``). ValueError for a record of another device."""
+    record = make(min(max(highest, floor), wire.MAX_VERSION - 1) + 1)
+    if record.device != device:
+        raise ValueError(f"a record of {record.device} cannot be stored as one of {device}")
+    if latest_id == record.id:
+        return record, None
+    text = json.dumps(record.to_record(), sort_keys=True, allow_nan=False)
+    note = None if change is None else json.dumps(dict(change), sort_keys=True, allow_nan=False)
+    return record, StoredRow(device, record.id, int(record.created_ns), int(record.version), text, note)
 
 
 class RowStore(Protocol):
