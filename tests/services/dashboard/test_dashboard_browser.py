@@ -19,6 +19,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -137,6 +138,7 @@ def pipeline(tmp_path):
         address = re.search(r"dashboard at (http://\S+)", text).group(1)
         ports = re.search(r"compass 127\.0\.0\.1:(\d+)", text)
         assert address.startswith(f"http://127.0.0.1:{http_port}/?token=")
+        _wait_for_listening(http_port, proc, 30)  # up prints the address as it starts the dashboard's process
         yield address, int(ports.group(1))
     finally:
         proc.send_signal(signal.SIGTERM)
@@ -145,6 +147,20 @@ def pipeline(tmp_path):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def _wait_for_listening(port, proc, timeout_s):
+    """Until 127.0.0.1:port accepts a connection; fails when ``proc`` ends first or after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            if proc.poll() is not None:
+                pytest.fail("magnet up ended before its dashboard listened")
+            time.sleep(0.1)
+    pytest.fail(f"the dashboard did not listen on 127.0.0.1:{port} within {timeout_s} s")
 
 
 def _wait_for(read, pattern, proc, timeout_s):
