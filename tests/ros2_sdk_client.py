@@ -18,10 +18,12 @@ import sys
 import time
 from typing import Any
 
-os.environ["ZENOH_CONFIG_OVERRIDE"] = "scouting/multicast/enabled=false;listen/endpoints=[]"
-
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Nodetype
+
+#: the SDK opens its own Zenoh session from this variable: no multicast, no listening (set only when run as a script,
+#: never on import: a test that imports this module must not pass it on to every service the test run starts after)
+SDK_CONFIG_OVERRIDE = "scouting/multicast/enabled=false;listen/endpoints=[]"
 
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
 
@@ -181,4 +183,5 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
+    os.environ["ZENOH_CONFIG_OVERRIDE"] = SDK_CONFIG_OVERRIDE
     main(sys.argv[1:])
