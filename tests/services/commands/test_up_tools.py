@@ -104,6 +104,15 @@ def test_get_fleet_and_watch_heading_beside_magnet_up_need_no_options(tmp_path):
         assert json.loads(as_json.strip().splitlines()[0])["count"] >= 2, as_json  # --json: JSON even on a terminal
         elsewhere = magnet({**env, "XDG_RUNTIME_DIR": str(tmp_path / "nowhere")}, "get", "fleet", *line)
         assert elsewhere.returncode == 0 and json.loads(elsewhere.stdout.splitlines()[0])["devices"]
+        joined = subprocess.Popen(  # a second compass given no Zenoh option joins the pipeline (so would an edge)
+            [*MAGNET, "compass", "--name", "second"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            stdin=subprocess.DEVNULL, env=env, cwd=REPO_ROOT,
+        )  # fmt: skip
+        try:
+            wait_for(lambda: magnet(env, "get", "status", "second").returncode == 0 or None, 30, "the joined compass")
+        finally:
+            joined.terminate()
+            joined.wait(timeout=15)
         exported = wait_for(  # export --device finds the pipeline's calibrator (once dev-000 is calibrated)
             lambda: (lambda done: done if done.returncode == 0 else None)(
                 magnet(env, "export", "--device", "dev-000", "--format", "px4")
