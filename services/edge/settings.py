@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from magnet import wire
+from magnet.autopilot.mavlink_stream import MAX_PORT_DEVICES
 from magnet.drivers import SENSORS, has_gyroscope
 from magnet.earth.location import Location
 from magnet.edge.replay import MAX_SPEED
@@ -33,6 +34,9 @@ from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 SIMULATOR_SENSOR = "sim"
 MAX_RATE_HZ = 100_000.0
 MAX_DEVICES = 100_000
+#: devices that may appear while an edge runs (MAVLink vehicles' compasses), by default: each is a liveliness token
+#: (two while unhealthy) and a key every subscriber learns; a flood of ids on one port made 15,879 in 2 minutes
+EDGE_DEVICES = 256
 ROS2_WHAT = "read a ROS 2 robot's MagneticField (and Imu) topics over rmw_zenoh (--mag-topic)"
 
 
@@ -113,6 +117,13 @@ class CommonOptions:
         metavar="VERSION",
         help="message version: 2 binary arrays, 1 lists of numbers for old subscribers",
         check=lambda v: None if v in wire.VERSIONS else f"must be one of {', '.join(map(str, wire.VERSIONS))}",
+    )
+    max_devices: int = option(
+        EDGE_DEVICES,
+        "--max-devices",
+        help="devices that may appear while the edge runs (MAVLink vehicles' compasses): a new id beyond them is "
+        "dropped and counted in the status (dropped[devices:limit]); a simulated fleet's --devices are its own",
+        check=_whole(1, MAX_DEVICES),
     )
 
 
@@ -254,6 +265,13 @@ class MavlinkOptions:
         help="the vehicle these devices are compasses of: the compass compares the compasses of one vehicle "
         "(magnet get vehicle NAME; MAVLink vehicles are grouped by system id without it)",
         check=lambda v: None if not v else _device_id(v),
+    )
+    max_port_devices: int = option(
+        MAX_PORT_DEVICES,
+        "--max-port-devices",
+        help="with --mavlink: devices (system id and compass) one connection may make; samples of a new one beyond "
+        "them are dropped and counted (status reads.dropped[device-limit])",
+        check=_whole(1, 65_536),
     )
     vehicle_timeout_s: float = option(
         3.0,
