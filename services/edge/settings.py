@@ -34,9 +34,7 @@ from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 SIMULATOR_SENSOR = "sim"
 MAX_RATE_HZ = 100_000.0
 MAX_DEVICES = 100_000
-#: devices that may appear while an edge runs (MAVLink vehicles' compasses), by default: each is a liveliness token
-#: (two while unhealthy) and a key every subscriber learns; a flood of ids on one port made 15,879 in 2 minutes
-EDGE_DEVICES = 256
+EDGE_DEVICES = 256  # devices that may appear while an edge runs, by default (docs/front-door.md)
 ROS2_WHAT = "read a ROS 2 robot's MagneticField (and Imu) topics over rmw_zenoh (--mag-topic)"
 
 
@@ -85,10 +83,6 @@ def _device_prefix(value: Any) -> str | None:
     return _device_id(f"{value}1-mag0")
 
 
-def _address(text: str) -> int:
-    return int(text, 0)
-
-
 @dataclasses.dataclass(frozen=True)
 class EdgeSimulatorSettings(SimulatorSettings):
     """The simulator as ``magnet edge`` runs it: other defaults than ``magnet sample``'s (seed 1, 0.3 uT noise)."""
@@ -119,12 +113,9 @@ class CommonOptions:
         check=lambda v: None if v in wire.VERSIONS else f"must be one of {', '.join(map(str, wire.VERSIONS))}",
     )
     max_devices: int = option(
-        EDGE_DEVICES,
-        "--max-devices",
-        help="devices that may appear while the edge runs (MAVLink vehicles' compasses): a new id beyond them is "
-        "dropped and counted in the status (dropped[devices:limit]); a simulated fleet's --devices are its own",
-        check=_whole(1, MAX_DEVICES),
-    )
+        EDGE_DEVICES, "--max-devices", help="devices that may appear while running (MAVLink): a new one beyond "
+        "them is dropped and counted (dropped[devices:limit])", check=_whole(1, MAX_DEVICES)
+    )  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,7 +129,7 @@ class ChipOptions:
         check=one_of((*SENSORS, SIMULATOR_SENSOR)),
     )
     bus: int | None = option(None, "--bus", parse=int, help="I2C bus number of a real chip (/dev/i2c-N)")
-    address: int | None = option(None, "--address", parse=_address, help="I2C address of a real chip (e.g. 0x1e)")
+    address: int | None = option(None, "--address", parse=lambda text: int(text, 0), help="I2C address of a real chip (e.g. 0x1e)")
     emulate: bool = option(False, "--emulate", help="emulate the chip (or the fleet) instead of a bus")
     emulate_faults: float = option(
         0.0,
@@ -267,12 +258,9 @@ class MavlinkOptions:
         check=lambda v: None if not v else _device_id(v),
     )
     max_port_devices: int = option(
-        MAX_PORT_DEVICES,
-        "--max-port-devices",
-        help="with --mavlink: devices (system id and compass) one connection may make; samples of a new one beyond "
-        "them are dropped and counted (status reads.dropped[device-limit])",
-        check=_whole(1, 65_536),
-    )
+        MAX_PORT_DEVICES, "--max-port-devices", help="with --mavlink: devices (system id, compass) one connection "
+        "may make; a new one beyond is dropped and counted (reads.dropped[device-limit])", check=_whole(1, 65_536)
+    )  # fmt: skip
     vehicle_timeout_s: float = option(
         3.0,
         "--vehicle-timeout",
