@@ -129,7 +129,9 @@ class ChipOptions:
         check=one_of((*SENSORS, SIMULATOR_SENSOR)),
     )
     bus: int | None = option(None, "--bus", parse=int, help="I2C bus number of a real chip (/dev/i2c-N)")
-    address: int | None = option(None, "--address", parse=lambda text: int(text, 0), help="I2C address of a real chip (e.g. 0x1e)")
+    address: int | None = option(
+        None, "--address", parse=lambda text: int(text, 0), help="I2C address of a real chip (e.g. 0x1e)"
+    )
     emulate: bool = option(False, "--emulate", help="emulate the chip (or the fleet) instead of a bus")
     emulate_faults: float = option(
         0.0,
