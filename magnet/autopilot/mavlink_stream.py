@@ -191,7 +191,7 @@ class MavlinkStream:
             if len(self.pending) >= self.max_devices:
                 raise mavlink.MavlinkError(
                     "device-limit",
-                    f"{device}: a new device beyond the {self.max_devices} this connection may make (--max-port-devices)",
+                    f"{device}: a new device beyond the {self.max_devices} this connection may make",
                 )
             pending = self.pending[device] = Pending(sysid)
         t_ns = max(self._time(vehicle, sample.boot_ns, now_ns), pending.last_t_ns + 1)
