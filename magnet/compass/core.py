@@ -64,6 +64,8 @@ class CompassStatus:
     calibrators_gone_since_ns: int | None = None  # when the last calibrator went away (ns since the epoch)
     #: records applied although numbered below the one held: made later, from calibrators that lost their history
     calibrations_renumbered: int = 0
+    #: the sinks' own counters (``CompassCore.sink_counts``: the ROS 2 sink's topics, evictions, refusals)
+    sinks: dict[str, int] = dataclasses.field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -168,6 +170,7 @@ class CompassCore:
         self.keys = DeviceKeys(settings.shard, max_keys=KEYS_PER_DEVICE * limit)
         self.drops = wire.DropCounter()
         self.counters = Counters()
+        self.sink_counts: dict[str, int] = {}  # what the sinks count of their own (status ``sinks``)
         self.calibrators = CalibratorPresence()
         self._evictions_logged = False
 
@@ -342,4 +345,5 @@ class CompassCore:
             self.calibrators.state,
             self.calibrators.gone_since_ns,
             self.calibrations.renumbered,
+            dict(self.sink_counts),
         )
