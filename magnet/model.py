@@ -52,6 +52,8 @@ KNOWN_METHODS = frozenset(
 )
 #: the units a record may name (``magnet.units.FieldUnit``)
 KNOWN_UNITS = frozenset(u.value for u in FieldUnit)
+#: a sensor's hardware id is an unsigned 32-bit number (``Calibration.hardware_id``)
+MAX_HARDWARE_ID = (1 << 32) - 1
 #: the largest magnetometer delay a record may carry (s, ``Calibration.mag_lag_s``); beyond it the value is not a
 #: sensor's filter delay and is ignored
 MAX_LAG_S = 0.1
@@ -226,6 +228,9 @@ class Calibration:
         reason: why it was rejected (or notes when accepted), in words a person can act on.
         motor: the motors' field (``magnet.motor.MotorModel``: uT per amp or at full throttle, subtracted after the
             correction), or None; written as ``motor_ut_per_a`` or ``motor_ut_per_throttle``.
+        hardware_id: the id the vehicle reported for the sensor the samples came from (ArduPilot's COMPASS_DEV_ID,
+            PX4's CAL_MAGn_ID; 1..2**32-1), or None when not known; a compass applies the record only to batches of
+            that sensor (docs/mavlink.md). Written only when known: records without one read and hash as before.
     """
 
     method: str
@@ -239,9 +244,13 @@ class Calibration:
     accepted: bool = True
     reason: str = ""
     motor: MotorModel | None = None
+    hardware_id: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "offset", _as_vector3(self.offset, "offset"))
+        hw = self.hardware_id
+        if hw is not None and (isinstance(hw, bool) or not isinstance(hw, int) or not 0 < hw <= MAX_HARDWARE_ID):
+            raise ValueError(f"hardware_id must be a whole number 1..{MAX_HARDWARE_ID} or null, got {hw!r}")
         object.__setattr__(self, "matrix", _as_matrix3(self.matrix, "matrix"))
         object.__setattr__(self, "quality", Quality.from_dict(self.quality))
         if not math.isfinite(float(self.field_strength)) or self.field_strength < 0:
@@ -279,6 +288,8 @@ class Calibration:
         }
         if self.motor is not None:  # only then: the ids of records without one stay as they were
             content["motor"] = {self.motor.key: [round(float(x), 12) for x in self.motor.coefficients]}
+        if self.hardware_id is not None:  # likewise: one sensor's record is not another's
+            content["hardware_id"] = int(self.hardware_id)
         digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
         return digest[:16]
 
@@ -296,6 +307,8 @@ class Calibration:
             "accepted": bool(self.accepted),
             "reason": self.reason,
         }
+        if self.hardware_id is not None:
+            out["hardware_id"] = int(self.hardware_id)
         return out if self.motor is None else {**out, **self.motor.to_dict()}
 
     @classmethod
@@ -321,6 +334,7 @@ class Calibration:
             accepted=_flag(data, "accepted"),
             reason=_text(data, "reason", ""),
             motor=motor_from_dict(data),
+            hardware_id=_hardware_id(data),
         )
         return check_plausible(calibration)
 
@@ -349,6 +363,16 @@ def _number(data: Mapping[str, Any], name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
         raise ValueError(f"calibration field {name} must be a finite number >= 0, got {value!r}")
     return float(value)
+
+
+def _hardware_id(data: Mapping[str, Any]) -> int | None:
+    """The optional ``hardware_id`` (absent, null or 0: not known)."""
+    value = data.get("hardware_id")
+    if value is None or value == 0:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_HARDWARE_ID:
+        raise ValueError(f"calibration field hardware_id must be a whole number 1..{MAX_HARDWARE_ID}, got {value!r}")
+    return int(value)
 
 
 def _flag(data: Mapping[str, Any], name: str) -> bool:
