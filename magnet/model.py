@@ -41,6 +41,12 @@ from magnet.plausible import (
     UNKNOWN_SCALE_GAIN,
     check_plausible,
 )
+from magnet.record_fields import MAX_HARDWARE_ID
+from magnet.record_fields import flag as _flag
+from magnet.record_fields import hardware_id as _hardware_id
+from magnet.record_fields import known as _known
+from magnet.record_fields import number as _number
+from magnet.record_fields import text as _text
 from magnet.units import FieldUnit
 
 #: the methods that make records (``magnet.calibration.Method`` values, the turntable's least-squares variant, the
@@ -52,8 +58,6 @@ KNOWN_METHODS = frozenset(
 )
 #: the units a record may name (``magnet.units.FieldUnit``)
 KNOWN_UNITS = frozenset(u.value for u in FieldUnit)
-#: a sensor's hardware id is an unsigned 32-bit number (``Calibration.hardware_id``)
-MAX_HARDWARE_ID = (1 << 32) - 1
 #: the largest magnetometer delay a record may carry (s, ``Calibration.mag_lag_s``); beyond it the value is not a
 #: sensor's filter delay and is ignored
 MAX_LAG_S = 0.1
@@ -337,49 +341,6 @@ class Calibration:
             hardware_id=_hardware_id(data),
         )
         return check_plausible(calibration)
-
-
-def _text(data: Mapping[str, Any], name: str, default: str) -> str:
-    value = data.get(name, default)
-    if value is None:
-        return default
-    if not isinstance(value, str):
-        raise ValueError(f"calibration field {name} must be a string, got {type(value).__name__}")
-    return value
-
-
-def _known(data: Mapping[str, Any], name: str, default: str, known: frozenset[str]) -> str:
-    """A text field that must be one of ``known``; ValueError naming them otherwise."""
-    value = _text(data, name, default)
-    if value not in known:
-        shown = value if len(value) <= 40 else value[:40] + "..."
-        raise ValueError(f"calibration field {name} {shown!r} is not one of {', '.join(sorted(known))}")
-    return value
-
-
-def _number(data: Mapping[str, Any], name: str) -> float:
-    value = data.get(name)
-    value = 0 if value is None else value  # not ``or 0``: false would pass as 0
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"calibration field {name} must be a finite number >= 0, got {value!r}")
-    return float(value)
-
-
-def _hardware_id(data: Mapping[str, Any]) -> int | None:
-    """The optional ``hardware_id`` (absent, null or 0: not known)."""
-    value = data.get("hardware_id")
-    if value is None or value == 0:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_HARDWARE_ID:
-        raise ValueError(f"calibration field hardware_id must be a whole number 1..{MAX_HARDWARE_ID}, got {value!r}")
-    return int(value)
-
-
-def _flag(data: Mapping[str, Any], name: str) -> bool:
-    value = data.get(name, True)
-    if not isinstance(value, bool):
-        raise ValueError(f"calibration field {name} must be true or false, got {value!r}")
-    return value
 
 
 __all__ = [
