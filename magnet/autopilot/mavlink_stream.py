@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from magnet.autopilot import hwid, mavlink
+from magnet.autopilot.gyro_check import GyroCheck
 from magnet.earth.location import Location
 from magnet.wire.raw import RawBatch
 
@@ -50,8 +51,6 @@ MAX_SKEW_NS = 2_000_000_000
 FRESH_NS = 1_000_000_000
 #: a device's samples wait at most this long (wall clock) before they go out in a short batch
 MAX_WAIT_NS = 500_000_000
-#: a gyroscope reading exactly zero all the while the field turns this far (deg) is absent
-ZERO_GYRO_TURN_DEG = 30.0
 #: the messages used besides the IMU ones
 OTHER_MESSAGES = frozenset(
     {"HEARTBEAT", "GLOBAL_POSITION_INT", "SYS_STATUS", "BATTERY_STATUS", "SERVO_OUTPUT_RAW", "PARAM_VALUE"}
@@ -65,6 +64,9 @@ ID_RETRY_NS = 30_000_000_000
 #: Open Drone ID, battery, log)
 NOT_AUTOPILOT_TYPES = frozenset({6, 18, 26, 27, 30, 33, 34, 36, 38})
 MAV_AUTOPILOT_INVALID = 8
+#: devices one connection may make by default (``--max-port-devices``): a port serves a vehicle or a few dozen, each
+#: with up to three compasses; 255 system ids times 256 HIGHRES_IMU ids would be 65,280
+MAX_PORT_DEVICES = 64
 
 
 @dataclasses.dataclass
@@ -93,32 +95,6 @@ class Vehicle:
 
 
 @dataclasses.dataclass
-class GyroCheck:
-    """Whether a device's gyroscope is there (module docstring): ``present`` once it read anything but exactly zero,
-    ``absent`` once it read exactly zero while the field turned ``ZERO_GYRO_TURN_DEG`` from ``start`` (the field's
-    direction, unit (3,), when the zeros began)."""
-
-    present: bool = False
-    absent: bool = False
-    start: np.ndarray | None = None
-
-    def usable(self, gyr_rads: np.ndarray | None, mag_ut: np.ndarray) -> bool:
-        """Judge one sample's gyroscope (rad/s (3,), or None) with its field (uT (3,), not zero): whether to send
-        it."""
-        if gyr_rads is None:
-            return False
-        if gyr_rads.any():
-            self.present, self.absent, self.start = True, False, None
-            return True
-        unit = mag_ut / float(np.linalg.norm(mag_ut))
-        if self.start is None:
-            self.start = unit
-        elif float(unit @ self.start) < np.cos(np.radians(ZERO_GYRO_TURN_DEG)):
-            self.present, self.absent = False, True
-        return self.present
-
-
-@dataclasses.dataclass
 class Pending:
     """A device's samples not yet sent: times (ns) and rows of (mag (3), acc (3), gyr (3), vel (3), current,
     throttle, hardware id (NaN while it is being read)); ``instance`` its compass instance."""
@@ -139,10 +115,15 @@ class MavlinkStream:
     ``feed(message, now_ns)`` takes one message (a dict of its fields with ``mavpackettype`` and ``sysid``);
     ``take(now_ns, flush)`` returns the batches due; ``health(now_ns, timeout_ns)`` says which devices' vehicles
     still send. ``counts`` holds ``messages``, ``samples``, ``ignored`` (types not used), ``resyncs`` and
-    ``dropped:<cause>`` per cause; ``last_error`` the last drop's reason."""
+    ``dropped:<cause>`` per cause; ``last_error`` the last drop's reason.
 
-    def __init__(self, prefix: str = "mav", batch: int = 10, motors: int = 4) -> None:
-        self.prefix, self.batch, self.motors = prefix, batch, motors
+    At most ``max_devices`` devices: a sample of a new device beyond them is dropped and counted
+    (``dropped:device-limit``); the devices already known are unaffected."""
+
+    def __init__(self, prefix: str = "mav", batch: int = 10, motors: int = 4, max_devices: int = MAX_PORT_DEVICES):
+        if isinstance(max_devices, bool) or not isinstance(max_devices, int) or max_devices < 1:
+            raise ValueError(f"max_devices must be a whole number >= 1, got {max_devices!r}")
+        self.prefix, self.batch, self.motors, self.max_devices = prefix, batch, motors, max_devices
         self.vehicles: dict[int, Vehicle] = {}
         self.pending: dict[str, Pending] = {}
         self.counts: collections.Counter[str] = collections.Counter()
@@ -289,7 +270,14 @@ class MavlinkStream:
 
     def _sample(self, sample: mavlink.ImuSample, sysid: int, vehicle: Vehicle, now_ns: int) -> None:
         device = self.device(sysid, sample.instance)
-        pending = self.pending.setdefault(device, Pending(sysid, sample.instance))
+        pending = self.pending.get(device)
+        if pending is None:
+            if len(self.pending) >= self.max_devices:
+                raise mavlink.MavlinkError(
+                    "device-limit",
+                    f"{device}: a new device beyond the {self.max_devices} this connection may make",
+                )
+            pending = self.pending[device] = Pending(sysid, sample.instance)
         t_ns = max(self._time(vehicle, sample.boot_ns, now_ns), pending.last_t_ns + 1)
         known = vehicle.ids.get(sample.instance)
         sensor_id = float(known) if known is not None else (np.nan if vehicle.asking_ns is not None else 0.0)
