@@ -45,6 +45,9 @@ MAX_WAIT_NS = 500_000_000
 ZERO_GYRO_TURN_DEG = 30.0
 #: the messages used besides the IMU ones
 OTHER_MESSAGES = frozenset({"HEARTBEAT", "GLOBAL_POSITION_INT", "SYS_STATUS", "BATTERY_STATUS", "SERVO_OUTPUT_RAW"})
+#: devices one connection may make by default (``--max-port-devices``): a port serves a vehicle or a few dozen, each
+#: with up to three compasses; 255 system ids times 256 HIGHRES_IMU ids would be 65,280
+MAX_PORT_DEVICES = 64
 
 
 @dataclasses.dataclass
@@ -108,10 +111,15 @@ class MavlinkStream:
     ``feed(message, now_ns)`` takes one message (a dict of its fields with ``mavpackettype`` and ``sysid``);
     ``take(now_ns, flush)`` returns the batches due; ``health(now_ns, timeout_ns)`` says which devices' vehicles
     still send. ``counts`` holds ``messages``, ``samples``, ``ignored`` (types not used), ``resyncs`` and
-    ``dropped:<cause>`` per cause; ``last_error`` the last drop's reason."""
+    ``dropped:<cause>`` per cause; ``last_error`` the last drop's reason.
 
-    def __init__(self, prefix: str = "mav", batch: int = 10, motors: int = 4) -> None:
-        self.prefix, self.batch, self.motors = prefix, batch, motors
+    At most ``max_devices`` devices: a sample of a new device beyond them is dropped and counted
+    (``dropped:device-limit``); the devices already known are unaffected."""
+
+    def __init__(self, prefix: str = "mav", batch: int = 10, motors: int = 4, max_devices: int = MAX_PORT_DEVICES):
+        if isinstance(max_devices, bool) or not isinstance(max_devices, int) or max_devices < 1:
+            raise ValueError(f"max_devices must be a whole number >= 1, got {max_devices!r}")
+        self.prefix, self.batch, self.motors, self.max_devices = prefix, batch, motors, max_devices
         self.vehicles: dict[int, Vehicle] = {}
         self.pending: dict[str, Pending] = {}
         self.counts: collections.Counter[str] = collections.Counter()
@@ -178,7 +186,14 @@ class MavlinkStream:
 
     def _sample(self, sample: mavlink.ImuSample, sysid: int, vehicle: Vehicle, now_ns: int) -> None:
         device = self.device(sysid, sample.instance)
-        pending = self.pending.setdefault(device, Pending(sysid))
+        pending = self.pending.get(device)
+        if pending is None:
+            if len(self.pending) >= self.max_devices:
+                raise mavlink.MavlinkError(
+                    "device-limit",
+                    f"{device}: a new device beyond the {self.max_devices} this connection may make",
+                )
+            pending = self.pending[device] = Pending(sysid)
         t_ns = max(self._time(vehicle, sample.boot_ns, now_ns), pending.last_t_ns + 1)
         pending.last_t_ns = t_ns
         gyr = sample.gyr_rads if pending.gyro.usable(sample.gyr_rads, sample.mag_ut) else None

@@ -160,8 +160,7 @@ class Dashboard:
         refused = self._view_refused(request)
         if refused:
             return refused
-        version, rows = self.state.changes(-1)
-        return JSONResponse({"version": version, "rows": rows, "summary": self.state.summary()})
+        return JSONResponse(self.state.fleet(-1) | {"summary": self.state.summary()})
 
     async def device(self, request: Request) -> Response:
         refused = self._view_refused(request)
@@ -236,11 +235,12 @@ class Dashboard:
         try:
             while not self.stopping.is_set():
                 try:
-                    version, rows = self.state.changes(version)
+                    fleet = self.state.fleet(version)
                 except Exception as exc:  # this stream ends (the page reconnects); the server goes on
                     self.guard.failed("http:stream", exc)
                     return
-                yield _event("fleet", {"version": version, "rows": rows, "summary": self.state.summary()})
+                version = fleet["version"]
+                yield _event("fleet", fleet | {"summary": self.state.summary()})
                 if device and loop.time() >= next_detail:
                     next_detail = loop.time() + DETAIL_EVERY_S
                     detail = self.guard.run("http:stream", self.state.detail, device)

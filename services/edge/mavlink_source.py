@@ -62,7 +62,7 @@ class MavlinkSource:
         if not settings.mavlink:
             raise ValueError("a MAVLink source needs --mavlink URL")
         self.settings = settings
-        self.stream = MavlinkStream(settings.device_prefix, settings.batch)
+        self.stream = MavlinkStream(settings.device_prefix, settings.batch, max_devices=settings.max_port_devices)
         self.stats = MavlinkStats(self.stream)
         self.ids: list[str] = []
         self.events: DeviceEvents | None = None
