@@ -2,8 +2,7 @@
 
 A step takes the raw batches of many devices (``wire.RawColumns``, float64) and gives every sample's heading:
 each batch's calibration in force corrects the field, offset, matrix, motors and lag in one place
-(``calibrations.Correction``); the accelerometer gives a
-tilt-compensated heading (``tilt``); the batches that carry a gyroscope go through their device's filter
+(``calibrations.Correction``); the accelerometer gives a tilt-compensated heading (``tilt``); the batches that carry a gyroscope go through their device's filter
 (``filters``); the field and dip are checked against what the World Magnetic Model expects at the device's place
 (``places``, ``earth``; the day from ``now_ns`` unless the places have a fixed date); the heading is smoothed per
 device (``--window``) and turned to true north by the declination; the drift monitor sees the field (``watch``);
@@ -69,8 +68,7 @@ class CompassStatus:
     #: the devices held back now: {device: {"record": id, "sensor": id}} (docs/mavlink.md, hardware ids)
     hardware_mismatches: int = 0
     hardware_mismatched: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
-    #: the sinks' own counters (``CompassCore.sink_counts``: the ROS 2 sink's topics, evictions, refusals)
-    sinks: dict[str, int] = dataclasses.field(default_factory=dict)
+    sinks: dict[str, int] = dataclasses.field(default_factory=dict)  # the sinks' own counts (ROS 2 topics, ...)
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
