@@ -64,6 +64,10 @@ class CompassStatus:
     calibrators_gone_since_ns: int | None = None  # when the last calibrator went away (ns since the epoch)
     #: records applied although numbered below the one held: made later, from calibrators that lost their history
     calibrations_renumbered: int = 0
+    #: batches left uncorrected because their sensor's hardware id is not the one their device's record names, and
+    #: the devices held back now: {device: {"record": id, "sensor": id}} (docs/mavlink.md, hardware ids)
+    hardware_mismatches: int = 0
+    hardware_mismatched: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -170,6 +174,7 @@ class CompassCore:
         self.counters = Counters()
         self.calibrators = CalibratorPresence()
         self._evictions_logged = False
+        self._mismatch_logged: Recent[str, tuple[int, int]] = Recent(limit)
 
     # ------------------------------------------------------------------------------------------ the wire's edges
     def decode(self, items: list[tuple[str, bytes]], prefix: str) -> wire.RawColumns:
@@ -241,7 +246,8 @@ class CompassCore:
     def step(self, raw: wire.RawColumns, now_ns: int) -> HeadingColumns:
         """Headings for every sample of ``raw`` (see the module); ``now_ns`` the wall clock (ns since the epoch),
         whose UTC day dates the model where no ``--date`` is fixed. Counts what it received."""
-        cals = self.calibrations.of_batches(raw.devices)
+        cals = self.calibrations.of_batches(raw.devices, raw.hardware_ids)
+        self._log_mismatches()
         correction = Correction.of_batches(cals, raw)
         field, filter_field = correction.apply(raw.mag_ut, raw.gyr_rads)
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
@@ -306,6 +312,19 @@ class CompassCore:
             + self.filters.evicted
         )
 
+    def _log_mismatches(self) -> None:
+        """One warning per device and pair of ids whose record is held back from another sensor's batches."""
+        for device, (record_id, sensor_id) in self.calibrations.mismatched.items():
+            if self._mismatch_logged.get(device) != (record_id, sensor_id):
+                self._mismatch_logged[device] = (record_id, sensor_id)
+                log.warning(
+                    "%s: its calibration was made for sensor %d but the samples come from sensor %d (a compass "
+                    "missing at boot moves the others up): not applied; counted in status hardware_mismatches",
+                    device,
+                    record_id,
+                    sensor_id,
+                )
+
     def _log_evictions(self) -> None:
         if not self._evictions_logged and self.evicted_count():
             self._evictions_logged = True
@@ -342,4 +361,6 @@ class CompassCore:
             self.calibrators.state,
             self.calibrators.gone_since_ns,
             self.calibrations.renumbered,
+            self.calibrations.hardware_mismatches,
+            self.calibrations.mismatch_report(),
         )

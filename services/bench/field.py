@@ -37,7 +37,6 @@ from pathlib import Path
 import numpy as np
 
 from magnet import wire
-from magnet.attitude.mag_delay import record_lag_s
 from magnet.calibrator import CalibratorCore
 from magnet.compass import CompassCore, CoreSettings
 from magnet.earth.location import Location
@@ -157,10 +156,7 @@ def product(
     causal = heading_command.causal_headings(
         heading_command.file_columns(table, gyr, None), in_force, earth, 1, WALL_NS
     )
-    field = in_force.apply(table.mag) if in_force else np.asarray(table.mag, dtype=float)
-    offline = heading_command.offline_headings(
-        table, gyr, field, heading_args, earth, in_force is not None, record_lag_s(in_force)
-    )
+    offline = heading_command.offline_headings(table, gyr, in_force, heading_args, earth)
     return calibration, heading_command._attitude_wxyz(causal), heading_command._attitude_wxyz(offline)
 
 
