@@ -25,6 +25,7 @@ import numpy as np
 
 from magnet import signing, wire
 from magnet.attitude import heading as hd
+from magnet.attitude.uncertainty import FilterFigures, HeadingUncertainty
 from magnet.bounded import Recent
 from magnet.compass.calibrations import CalibrationsInForce, Correction, small_change
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
@@ -87,6 +88,8 @@ class HeadingColumns:
     calibration_ids: list[str]
     declinations: list[float]
     quat_wxyz: np.ndarray | None = None
+    #: (S,) one sigma of each sample's heading, deg (``magnet.attitude.uncertainty``); None: not computed
+    heading_sigma_deg: np.ndarray | None = None
 
 
 def window_problem(window: Any) -> str | None:
@@ -168,6 +171,7 @@ class CompassCore:
         self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
         self.filters = DeviceFilters(max_devices=limit)
         self.smoothing = Smoothing(settings.window, limit)
+        self.uncertainty = HeadingUncertainty(limit)
         self.vehicles = VehicleWindows(limit)
         self.keys = DeviceKeys(settings.shard, max_keys=KEYS_PER_DEVICE * limit)
         self.drops = wire.DropCounter()
@@ -210,6 +214,7 @@ class CompassCore:
             out.declinations,
             out.calibration_ids,
             out.quat_wxyz,
+            out.heading_sigma_deg,
         )
 
     def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> bool:
@@ -259,6 +264,7 @@ class CompassCore:
             dip = hd.dip_angle_deg(out.field_ut, gravity)
         flags = hd.disturbance_flags(out.field_ut, gravity, where.total_ut, where.inclination_deg, dip_deg=dip)
         out, quat = merge(dataclasses.replace(out, flags=out.flags | flags), fused)
+        sigma = self._sigma(raw, out, quat, fused, where.total_ut, cals)
         self.watch.observe(raw.devices, raw.bounds, raw.t_ns, hd.row_norm(out.field_ut), dip)
         self.vehicles.observe(
             raw.devices, raw.bounds, raw.t_ns, raw.mag_ut, raw.current, raw.thr, _correction(cals), raw.vehicles
@@ -274,6 +280,32 @@ class CompassCore:
             [c.id if c else "" for c in cals],
             [e.declination_deg for e in earths],
             None if quat is None else rotate_heading(quat, where.declination_deg),
+            sigma,
+        )
+
+    def _sigma(
+        self,
+        raw: wire.RawColumns,
+        out: Headings,
+        quat: np.ndarray | None,
+        fused: FusedColumns,
+        expected_ut: np.ndarray,
+        cals: list[wire.DeviceCalibration | None],
+    ) -> np.ndarray:
+        """Each sample's heading sigma (S,) deg (``magnet.attitude.uncertainty``): from the calibration's residual,
+        the field, the flags and, where fused, the device's filter's figures after this step."""
+        figures: list[FilterFigures | None] = []
+        bounds = raw.bounds
+        for b, device in enumerate(raw.devices):
+            state = self.filters.devices.get(device)
+            lo, hi = bounds[b], bounds[b + 1]
+            if state is None or state.filter is None or not fused.fused[lo:hi].any():
+                figures.append(None)
+            else:
+                figures.append(state.filter.figures())
+        residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
+        return self.uncertainty.step(
+            raw.devices, bounds, raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut, residuals, figures
         )
 
     def _fuse(self, raw: wire.RawColumns, field: np.ndarray, declination_deg: np.ndarray) -> FusedColumns:
