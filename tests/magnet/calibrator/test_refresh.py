@@ -148,7 +148,7 @@ def test_a_travelling_device_gets_a_refresh_judged_without_its_velocity_proposed
     assert Refresher("propose", 2000, 4).proposes(collection, aided)  # propose: always a session
     walker = Refresher("auto", 2000, 4).receive(_raw(run, 0, 50, speed_ms=1.4))  # a walker's GNSS speed
     assert walker is not None and not walker.travelled
-    core, store, clock = _calibrated("auto", old)
+    core, _, clock = _calibrated("auto", old)
     _feed(core, clock, run, speed_ms=1.4)
     assert core.status("c").counters.refreshed >= 1
 
