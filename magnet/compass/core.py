@@ -2,12 +2,12 @@
 
 A step takes the raw batches of many devices (``wire.RawColumns``, float64) and gives every sample's heading:
 each batch's calibration in force corrects the field, offset, matrix, motors and lag in one place
-(``calibrations.Correction``); the accelerometer gives a tilt-compensated heading (``tilt``); the batches that carry a gyroscope go through their device's filter
-(``filters``); the field and dip are checked against what the World Magnetic Model expects at the device's place
-(``places``, ``earth``; the day from ``now_ns`` unless the places have a fixed date); the heading is smoothed per
-device (``--window``) and turned to true north by the declination; the drift monitor sees the field (``watch``);
-the compasses of a vehicle (``<vehicle>-mag<N>``) are kept for their comparison (``magnet.vehicle``,
-``vehicle_report``).
+(``calibrations.Correction``); the accelerometer gives a tilt-compensated heading (``tilt``); the batches that carry
+a gyroscope go through their device's filter (``filters``); the field and dip are checked against what the World
+Magnetic Model expects at the device's place (``places``, ``earth``; the day from ``now_ns`` unless the places have
+a fixed date); the heading is smoothed per device (``--window``) and turned to true north by the declination; the
+drift monitor sees the field (``watch``); the compasses of a vehicle (``<vehicle>-mag<N>``) are kept for their
+comparison (``magnet.vehicle``, ``vehicle_report``).
 Its parts are small objects the core holds, none inheriting another's state. ``decode`` and ``encode`` are the
 wire's edges (bytes in and out, counted drops); the live service, ``magnet heading`` and the tests all call
 ``step``. Pure: no zenoh, no clock (``now_ns`` is given).
