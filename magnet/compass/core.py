@@ -297,15 +297,11 @@ class CompassCore:
     ) -> Sigmas:
         """Each sample's heading and tilt sigmas (S,) deg (``magnet.attitude.uncertainty``): from the calibration's
         residual, the field, the flags and, where fused, the device's filter's figures after this step."""
-        figures: list[FilterFigures | None] = []
-        bounds = raw.bounds
-        for b, device in enumerate(raw.devices):
-            state = self.filters.devices.get(device)
-            lo, hi = bounds[b], bounds[b + 1]
-            if state is None or state.filter is None or not fused.fused[lo:hi].any():
-                figures.append(None)
-            else:
-                figures.append(state.filter.figures())
+        bounds, states = raw.bounds, [self.filters.devices.get(device) for device in raw.devices]
+        figures: list[FilterFigures | None] = [
+            s.filter.figures() if s is not None and s.filter is not None and fused.fused[lo:hi].any() else None
+            for s, lo, hi in zip(states, bounds[:-1], bounds[1:])
+        ]
         residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
         return self.uncertainty.step(
             raw.devices, bounds, raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut, residuals, figures
