@@ -28,6 +28,7 @@ import vqf
 from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
 from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.heading_bias import HeadingBias, up_in_body, vertical_sigma_rads
+from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
 
@@ -249,6 +250,18 @@ class Fusion:
             field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
         quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms, watched)
         return quat, np.asarray(disturbed, dtype=bool) | watched
+
+    def figures(self) -> FilterFigures:
+        """What the heading's uncertainty needs of this filter's state now (``magnet.attitude.uncertainty``): vqf's
+        accelerometer time constant in use and its magnetic one (s), its gyroscope bias uncertainty (rad/s), and
+        where velocity aids it, the velocity's acceleration (magnetic NED) and how far it is known."""
+        params = self._filter.params
+        bias_sigma = float(self._filter.getBiasEstimate()[1])
+        figures = FilterFigures(float(params["tauAcc"]), float(params["tauMag"]), bias_sigma)
+        if self._aided is None:
+            return figures
+        fixes = self._aided.fixes
+        return dataclasses.replace(figures, explained=fixes.acceleration, known_until_s=fixes.known_until_s)
 
     def _watched(self, field: np.ndarray | None, gyr: np.ndarray) -> np.ndarray:
         """(N,) bool: the samples the watch finds disturbed (none without a field or a watch)."""

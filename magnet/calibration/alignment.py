@@ -16,7 +16,7 @@ import dataclasses
 import numpy as np
 
 from magnet.calibration.base import FitError, Shape
-from magnet.calibration.ellipsoid import TOLERANCE, ellipsoid
+from magnet.calibration.ellipsoid import ellipsoid
 from magnet.frames import rotation_angle_deg, rotation_vector_to_matrix
 
 #: smallest eigenvalue of the scatter of gravity directions (1/3 for the whole sphere) below which R is unobservable
@@ -25,18 +25,23 @@ MIN_GRAVITY_SPREAD = 0.02
 MAX_ALIGN_CONDITION = 1e6
 
 
-def ellipsoid_align(
-    mag: np.ndarray,
-    acc: np.ndarray | None,
-    robust: bool,
-    start: Shape | None = None,
-    tolerance: float = TOLERANCE,
-) -> Shape:
-    """The ellipsoid (``start``, ``tolerance``: see ``ellipsoid``), then the rotation of the module docstring."""
+def ellipsoid_align(mag: np.ndarray, acc: np.ndarray | None, robust: bool) -> Shape:
+    """The ellipsoid of mag (N, 3) (see ``ellipsoid``), then the rotation of the module docstring (acc (N, 3))."""
+    return aligned(ellipsoid(mag, needs_acc(acc), robust), mag, acc)
+
+
+def needs_acc(acc: np.ndarray | None) -> np.ndarray:
+    """``acc``; FitError when there is none (the rotation is found against gravity)."""
     if acc is None:
         raise FitError("ellipsoid+align needs accelerometer samples (ax, ay, az) beside the field")
-    base = ellipsoid(mag, acc, robust, start, tolerance)
-    gravity = -acc / np.sqrt(np.einsum("ij,ij->i", acc, acc))[:, None]
+    return acc
+
+
+def aligned(base: Shape, mag: np.ndarray, acc: np.ndarray | None) -> Shape:
+    """``base`` (an ellipsoid of mag (N, 3)) turned by the rotation of the module docstring, found against the
+    gravity of acc (N, 3); ``base`` with a note saying why when the rotation is not observable."""
+    down = needs_acc(acc)
+    gravity = -down / np.sqrt(np.einsum("ij,ij->i", down, down))[:, None]
     field = (mag - base.offset) @ base.matrix.T
     field /= np.sqrt(np.einsum("ij,ij->i", field, field))[:, None]
     rotation, why_not = align_rotation(field, gravity)

@@ -10,7 +10,7 @@ from collections.abc import Callable
 import numpy as np
 
 from magnet.calibration import field
-from magnet.calibration.alignment import ellipsoid_align
+from magnet.calibration.alignment import aligned, ellipsoid_align, needs_acc
 from magnet.calibration.base import GYROSCOPE_NEEDED, FitError, Method, Shape, check_acc, check_gyr, check_samples
 from magnet.calibration.closed_form import minmax, minmax2d, sphere
 from magnet.calibration.ellipsoid import ellipsoid
@@ -53,15 +53,15 @@ def _gyro_held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:
     return gyro_ellipsoid(data.mag, *_rates(data), keep=train)
 
 
-def _warm(fn: Callable[[np.ndarray, np.ndarray | None, bool, Shape, float], Shape]) -> HeldOut:
-    """The held-out fit of an iterative method (mag, acc, robust, start, tolerance) -> Shape: started from the fit of
-    every sample, stopped at HOLDOUT_TOLERANCE (the acc rows only for the method that reads them)."""
+def _ellipsoid_held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:
+    """The ellipsoid's held-out fit: started from the fit of every sample, stopped at HOLDOUT_TOLERANCE."""
+    return ellipsoid(take_rows(data.mag, train), None, data.robust_extremes, whole, HOLDOUT_TOLERANCE)
 
-    def held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:
-        acc = None if data.acc is None or fn is not ellipsoid_align else take_rows(data.acc, train)
-        return fn(take_rows(data.mag, train), acc, data.robust_extremes, whole, HOLDOUT_TOLERANCE)
 
-    return held_out
+def _aligned_held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:
+    """ellipsoid+align's held-out fit: its ellipsoid started as the ellipsoid's, then aligned on the same rows."""
+    mag, acc = take_rows(data.mag, train), take_rows(needs_acc(data.acc), train)
+    return aligned(ellipsoid(mag, acc, data.robust_extremes, whole, HOLDOUT_TOLERANCE), mag, acc)
 
 
 def _turntable_shape(data: FitInput) -> Shape:
@@ -123,8 +123,8 @@ METHODS: dict[Method, MethodSpec] = {
     Method.MINMAX2D: MethodSpec(_closed(minmax2d), Geometry.CIRCLE),
     Method.MINMAX: MethodSpec(_closed(minmax), Geometry.SPHERE),
     Method.SPHERE: MethodSpec(_closed(sphere), Geometry.SPHERE),
-    Method.ELLIPSOID: MethodSpec(_closed(ellipsoid), Geometry.SPHERE, _warm(ellipsoid)),
-    Method.ELLIPSOID_ALIGN: MethodSpec(_closed(ellipsoid_align), Geometry.SPHERE, _warm(ellipsoid_align)),
+    Method.ELLIPSOID: MethodSpec(_closed(ellipsoid), Geometry.SPHERE, _ellipsoid_held_out),
+    Method.ELLIPSOID_ALIGN: MethodSpec(_closed(ellipsoid_align), Geometry.SPHERE, _aligned_held_out),
     Method.TURNTABLE: MethodSpec(_turntable_shape, Geometry.TURNTABLE, whole=_turntable),
     Method.GYRO_ELLIPSOID: MethodSpec(_gyro_ellipsoid, Geometry.SPHERE, _gyro_held_out),
     **{

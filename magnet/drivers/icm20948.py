@@ -29,7 +29,16 @@ import numpy as np
 
 from magnet.drivers.ak09918c import AK09918C, Mode
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, SensorError
-from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, InertialOptions, NineAxis, choose, mounting, words
+from magnet.drivers.inertial import (
+    Z_UP_TO_BODY,
+    AccelGyro,
+    ChipSpec,
+    InertialOptions,
+    NineAxis,
+    choose,
+    mounting,
+    words,
+)
 from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x68
@@ -74,12 +83,7 @@ class ICM20948AccelGyro(AccelGyro):
     """The accelerometer + gyroscope: checks WHO_AM_I, wakes the chip, turns the bypass on (so the AK09916 answers
     at 0x0C), sets full scales and rate; ``read()`` gives ``acc_ms2`` and ``gyr_rads`` when RAW_DATA_0_RDY is set."""
 
-    CHIP = "ICM-20948"
-    ACCEL_RANGES = ACCEL_RANGES
-    GYRO_RANGES = GYRO_RANGES
-    OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
-    DEFAULT_ADDRESS = DEFAULT_ADDRESS
-    DEFAULT_RATE_HZ = 100
+    SPEC = ChipSpec("ICM-20948", DEFAULT_ADDRESS, 100, ACCEL_RANGES, GYRO_RANGES, OUTPUT_RATES_HZ)
 
     def _configure(self) -> None:
         device = self.device

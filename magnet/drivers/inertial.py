@@ -55,23 +55,31 @@ def saturated(counts: np.ndarray) -> bool:
     return bool(np.any((counts <= INT16_LIMITS[0]) | (counts >= INT16_LIMITS[1])))
 
 
+@dataclasses.dataclass(frozen=True)
+class ChipSpec:
+    """What an accelerometer + gyroscope chip offers: ``chip`` (its name in messages), ``default_address`` (7-bit
+    I2C), ``default_rate_hz``, ``accel_ranges`` (full scale g -> (register code, scale)), ``gyro_ranges`` (full scale
+    deg/s -> (register code, scale)) and ``output_rates_hz`` (Hz -> register value). The scales are LSB per g and per
+    deg/s, or with ``milli_per_lsb`` mg and mdps per LSB (as ST's datasheets give them)."""
+
+    chip: str
+    default_address: int
+    default_rate_hz: float
+    accel_ranges: Mapping[int, tuple[int, float]]
+    gyro_ranges: Mapping[int, tuple[int, float]]
+    output_rates_hz: Mapping[Any, int]
+    milli_per_lsb: bool = False
+
+
 class AccelGyro(Sensor):
     """Base of the accelerometer + gyroscope drivers: the settings chosen from the chip's tables, the z-up package
     frame, and counts scaled to m/s^2 and rad/s.
 
-    A chip sets ``CHIP`` (its name in messages), ``DEFAULT_ADDRESS``, ``DEFAULT_RATE_HZ``, ``ACCEL_RANGES`` (full
-    scale g -> (register code, scale)), ``GYRO_RANGES`` (full scale deg/s -> (register code, scale)) and
-    ``OUTPUT_RATES_HZ`` (Hz -> register value), and implements ``_configure``; the scales are LSB per g and per
-    deg/s, or with ``MILLI_PER_LSB`` mg and mdps per LSB (as ST's datasheets give them).
+    A chip sets ``SPEC`` (its ``ChipSpec``: name, address, rate and the tables of its settings) and implements
+    ``_configure``.
     """
 
-    CHIP: ClassVar[str]
-    DEFAULT_ADDRESS: ClassVar[int]
-    DEFAULT_RATE_HZ: ClassVar[float]
-    ACCEL_RANGES: ClassVar[Mapping[int, tuple[int, float]]]
-    GYRO_RANGES: ClassVar[Mapping[int, tuple[int, float]]]
-    OUTPUT_RATES_HZ: ClassVar[Mapping[Any, int]]
-    MILLI_PER_LSB: ClassVar[bool] = False
+    SPEC: ClassVar[ChipSpec]
 
     def __init__(
         self,
@@ -86,19 +94,20 @@ class AccelGyro(Sensor):
         sleep: Callable[[float], None] | None = None,
     ) -> None:
         """Choose the full scales and the output rate from the chip's tables (ValueError naming the chip and the
-        values allowed; ``rate_hz`` None: ``DEFAULT_RATE_HZ``), attach the chip at ``address`` (None:
-        ``DEFAULT_ADDRESS``) in the package frame, then ``_configure`` it (``rate_code``: the rate's register value)."""
-        self.accel_fs, accel_scale = choose(accel_range_g, self.ACCEL_RANGES, "accelerometer range (g)", self.CHIP)
-        self.gyro_fs, gyro_scale = choose(gyro_range_dps, self.GYRO_RANGES, "gyroscope range (deg/s)", self.CHIP)
-        rate = self.DEFAULT_RATE_HZ if rate_hz is None else rate_hz
-        self.rate_code: int = choose(rate, self.OUTPUT_RATES_HZ, "output rate (Hz)", self.CHIP)
-        if self.MILLI_PER_LSB:
+        values allowed; ``rate_hz`` None: the spec's default rate), attach the chip at ``address`` (None:
+        the spec's address) in the package frame, then ``_configure`` it (``rate_code``: the rate's register value)."""
+        spec = self.SPEC
+        self.accel_fs, accel_scale = choose(accel_range_g, spec.accel_ranges, "accelerometer range (g)", spec.chip)
+        self.gyro_fs, gyro_scale = choose(gyro_range_dps, spec.gyro_ranges, "gyroscope range (deg/s)", spec.chip)
+        rate = spec.default_rate_hz if rate_hz is None else rate_hz
+        self.rate_code: int = choose(rate, spec.output_rates_hz, "output rate (Hz)", spec.chip)
+        if spec.milli_per_lsb:
             g_per_lsb, dps_per_lsb = accel_scale / 1000.0, gyro_scale / 1000.0
         else:
             g_per_lsb, dps_per_lsb = 1.0 / accel_scale, 1.0 / gyro_scale
         self.acc_ms2_per_lsb = g_per_lsb * STANDARD_GRAVITY_MS2
         self.gyr_rads_per_lsb = dps_per_lsb * RAD_PER_DEG
-        self._attach(bus, self.DEFAULT_ADDRESS if address is None else address, orientation, retry, sleep)
+        self._attach(bus, spec.default_address if address is None else address, orientation, retry, sleep)
         self.rotation = mounting(orientation, Z_UP_TO_BODY)
         self._configure()
 
@@ -116,7 +125,7 @@ class AccelGyro(Sensor):
 
 class InertialOptions(TypedDict, total=False):
     """What a nine-axis package passes on to its accelerometer + gyroscope (``AccelGyro``'s options; each absent one
-    keeps the chip's default: 4 g, 2000 deg/s, ``DEFAULT_RATE_HZ``)."""
+    keeps the chip's default: 4 g, 2000 deg/s, the spec's rate)."""
 
     accel_range_g: int
     gyro_range_dps: int

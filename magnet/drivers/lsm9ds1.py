@@ -31,6 +31,7 @@ from magnet.drivers.base import NOT_READY, I2CBus, Reading, Sensor, SensorError
 from magnet.drivers.inertial import (
     Z_UP_TO_BODY,
     AccelGyro,
+    ChipSpec,
     InertialOptions,
     NineAxis,
     choose,
@@ -89,13 +90,7 @@ class LSM9DS1AccelGyro(AccelGyro):
     """The accelerometer + gyroscope: checks WHO_AM_I, sets block update, auto-increment, axes, full scales and the
     rate; ``read()`` gives ``acc_ms2`` and ``gyr_rads`` once both have new data (XLDA and GDA)."""
 
-    CHIP = "LSM9DS1"
-    ACCEL_RANGES = ACCEL_RANGES
-    GYRO_RANGES = GYRO_RANGES
-    OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
-    DEFAULT_ADDRESS = DEFAULT_AG_ADDRESS
-    DEFAULT_RATE_HZ = 119
-    MILLI_PER_LSB = True
+    SPEC = ChipSpec("LSM9DS1", DEFAULT_AG_ADDRESS, 119, ACCEL_RANGES, GYRO_RANGES, OUTPUT_RATES_HZ, milli_per_lsb=True)
 
     def _configure(self) -> None:
         found = self.device.read_byte(WHO_AM_I)

@@ -20,7 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from magnet.drivers.base import NOT_READY, I2CBus, Reading, Sensor, SensorError
-from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, NineAxis, mounting, words
+from magnet.drivers.inertial import Z_UP_TO_BODY, AccelGyro, ChipSpec, NineAxis, mounting, words
 from magnet.retry import RetryPolicy
 
 DEFAULT_ADDRESS = 0x68
@@ -54,12 +54,7 @@ class MPU6050(AccelGyro):
     scales, turns the auxiliary-bus bypass on and the data-ready flag; ``read()`` gives ``acc_ms2`` and ``gyr_rads``
     when DATA_RDY_INT is set."""
 
-    CHIP = "MPU-6050"
-    ACCEL_RANGES = ACCEL_RANGES
-    GYRO_RANGES = GYRO_RANGES
-    OUTPUT_RATES_HZ = OUTPUT_RATES_HZ
-    DEFAULT_ADDRESS = DEFAULT_ADDRESS
-    DEFAULT_RATE_HZ = 100
+    SPEC = ChipSpec("MPU-6050", DEFAULT_ADDRESS, 100, ACCEL_RANGES, GYRO_RANGES, OUTPUT_RATES_HZ)
 
     def _configure(self) -> None:
         found = self.device.read_byte(WHO_AM_I)

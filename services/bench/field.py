@@ -37,7 +37,6 @@ from pathlib import Path
 import numpy as np
 
 from magnet import wire
-from magnet.attitude.mag_delay import record_lag_s
 from magnet.calibrator import CalibratorCore
 from magnet.compass import CompassCore, CoreSettings
 from magnet.earth.location import Location
@@ -71,8 +70,9 @@ class Live:
     quat_wxyz: np.ndarray
 
 
-def live(run: SimulatedRun, settings: fr.FieldSettings, workdir: Path) -> Live:
-    """Feed the run to the calibrator's and the compass's cores batch by batch (see the module docstring)."""
+def live(run: SimulatedRun, settings: fr.FieldSettings, workdir: Path, velocity: bool = False) -> Live:
+    """Feed the run to the calibrator's and the compass's cores batch by batch (see the module docstring); with
+    ``velocity`` the batches carry the run's GNSS-like velocity (NaN before its first fix), as a vehicle's do."""
     location = Location.parse(settings.location)
     store = CalibrationStore(workdir / "calibrations.db")
     published: list[tuple[wire.Kind, str, bytes]] = []
@@ -101,6 +101,7 @@ def live(run: SimulatedRun, settings: fr.FieldSettings, workdir: Path) -> Live:
             run.acc_ms2[part],
             gyr_rads=run.gyr_rads[part],
             location=location,
+            vel_ned_ms=run.vel_ned_ms[part] if velocity and run.vel_ned_ms is not None else None,
         )
         payload = wire.encode_raw(batch)
         now["t_s"] = float(run.t_s[part][-1])
@@ -115,10 +116,15 @@ def live(run: SimulatedRun, settings: fr.FieldSettings, workdir: Path) -> Live:
     return Live(records[0] if records else None, max(len(records) - 1, 0), quat)
 
 
-def write_run_csv(run: SimulatedRun, path: Path) -> Path:
-    """The run as ``magnet fit`` / ``magnet heading`` read it (t_s, mx..mz uT, ax..az m/s^2, gx..gz rad/s)."""
-    table = np.column_stack([run.t_s, run.mag_ut, run.acc_ms2, run.gyr_rads])
-    np.savetxt(path, table, delimiter=",", header="t_s,mx,my,mz,ax,ay,az,gx,gy,gz", comments="", fmt="%.9g")
+def write_run_csv(run: SimulatedRun, path: Path, velocity: bool = False) -> Path:
+    """The run as ``magnet fit`` / ``magnet heading`` read it (t_s, mx..mz uT, ax..az m/s^2, gx..gz rad/s; with
+    ``velocity`` vn,ve,vd m/s, NaN before the first fix)."""
+    columns = [run.t_s, run.mag_ut, run.acc_ms2, run.gyr_rads]
+    header = "t_s,mx,my,mz,ax,ay,az,gx,gy,gz"
+    if velocity and run.vel_ned_ms is not None:
+        columns, header = [*columns, run.vel_ned_ms], header + ",vn,ve,vd"
+    table = np.column_stack(columns)
+    np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.9g")
     return path
 
 
@@ -129,12 +135,12 @@ def _parsed(add_arguments: object, argv: list[str]) -> argparse.Namespace:
 
 
 def product(
-    run: SimulatedRun, settings: fr.FieldSettings, workdir: Path
+    run: SimulatedRun, settings: fr.FieldSettings, workdir: Path, velocity: bool = False
 ) -> tuple[Calibration | None, np.ndarray, np.ndarray]:
     """``magnet fit`` (default method, --location, --date) on the run, then ``magnet heading`` causal and
     ``--offline`` with the record when accepted: (the record, causal attitude (N, 4), offline attitude (N, 4)), body
     -> NED true north; the record is None when none could be computed."""
-    csv = write_run_csv(run, workdir / "run.csv")
+    csv = write_run_csv(run, workdir / "run.csv", velocity)
     place = [str(csv), "--location", settings.location, "--date", settings.date]
     fit_args = _parsed(fit_command.add_arguments, place)
     table = read_input(csv, InputOptions.from_args(fit_args))
@@ -150,10 +156,7 @@ def product(
     causal = heading_command.causal_headings(
         heading_command.file_columns(table, gyr, None), in_force, earth, 1, WALL_NS
     )
-    field = in_force.apply(table.mag) if in_force else np.asarray(table.mag, dtype=float)
-    offline = heading_command.offline_headings(
-        table, gyr, field, heading_args, earth, in_force is not None, record_lag_s(in_force)
-    )
+    offline = heading_command.offline_headings(table, gyr, in_force, heading_args, earth)
     return calibration, heading_command._attitude_wxyz(causal), heading_command._attitude_wxyz(offline)
 
 
@@ -164,8 +167,8 @@ def score_run(name: str, seed: int, settings: fr.FieldSettings) -> dict[str, obj
     settled = run.t_s >= settings.settle_s
     magnetic = fr.magnetic_truth(run)
     with tempfile.TemporaryDirectory(prefix="magnet-bench-field-") as tmp:
-        in_service = live(run, settings, Path(tmp))
-        calibration, causal, offline = product(run, settings, Path(tmp))
+        in_service = live(run, settings, Path(tmp), velocity=motion.gnss)
+        calibration, causal, offline = product(run, settings, Path(tmp), velocity=motion.gnss)
     after_record = settled & (run.t_s >= (in_service.first_record_s or np.inf))
     live_error = fr.heading_error_deg(in_service.quat_wxyz, run.quat_wxyz)
     figures: dict[str, object] = {

@@ -44,12 +44,14 @@ TUNING_SEEDS = tuple(range(1, 10))
 @dataclasses.dataclass(frozen=True)
 class FieldMotion:
     """One motion of the bench: its trajectory, its group ("walk", "planar", "disturbed", "in service"), whether
-    objects are passed on the way and whether the hard iron changes half-way."""
+    objects are passed on the way, whether the hard iron changes half-way, and whether the device sends its GNSS
+    velocity with its samples (a car's or a boat's navigation does; the compass then aids its filter with it)."""
 
     trajectory: Trajectory
     group: str
     disturbed: bool = False
     iron_change: bool = False
+    gnss: bool = False
 
 
 MOTIONS: dict[str, FieldMotion] = {
@@ -58,8 +60,8 @@ MOTIONS: dict[str, FieldMotion] = {
     "walk-texting": FieldMotion(Trajectory.WALK_TEXTING, "walk"),
     "walk-phoning": FieldMotion(Trajectory.WALK_PHONING, "walk"),
     "running": FieldMotion(Trajectory.RUNNING, "walk"),
-    "car": FieldMotion(Trajectory.CAR, "planar"),
-    "boat": FieldMotion(Trajectory.BOAT, "planar"),
+    "car": FieldMotion(Trajectory.CAR, "planar", gnss=True),
+    "boat": FieldMotion(Trajectory.BOAT, "planar", gnss=True),
     "robot": FieldMotion(Trajectory.ROBOT, "planar"),
     "walk-pocket, doors": FieldMotion(Trajectory.WALK_POCKET, "disturbed", disturbed=True),
     "walk-hand, doors": FieldMotion(Trajectory.WALK_HAND, "disturbed", disturbed=True),

@@ -29,9 +29,9 @@ import numpy as np
 from magnet import frames, wire
 from magnet.attitude import fusion
 from magnet.attitude import heading as hd
-from magnet.attitude.mag_delay import advance_field, record_lag_s
 from magnet.autopilot.conventions import compare_headings
 from magnet.compass import CompassCore, CoreSettings, HeadingColumns
+from magnet.compass.calibrations import Correction
 from magnet.compass.filters import MAX_GAP_S
 from magnet.compass.tilt import Headings
 from magnet.earth.expected import Earth, earth_at
@@ -40,6 +40,7 @@ from magnet.frames import to_magnetic_ned
 from magnet.model import Calibration
 from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT
 from services.commands.fit import gyro_columns, sample_period_s
+from services.commands.fit_motor import COLUMNS as MOTOR_COLUMNS
 from services.common.inputs import add_input_arguments, read_input_told, reference_yaw
 from services.common.inputs.csvio import SampleTable, write_csv
 from services.common.inputs.input_options import InputOptions
@@ -152,6 +153,7 @@ def file_columns(table: SampleTable, gyr: np.ndarray | None, rate_hz: float | No
     counts = sample_runs(t_ns) if count else np.zeros(0, dtype=np.int64)
     nan_rows = np.full((count, 3), np.nan)
     vel = table.vel_ned_ms()
+    motors = {name: table.numeric(name, missing_ok=True) for name in MOTOR_COLUMNS.values() if name in table.columns}
     return wire.RawColumns(
         [FILE_DEVICE] * len(counts),
         list(range(len(counts))),
@@ -163,7 +165,21 @@ def file_columns(table: SampleTable, gyr: np.ndarray | None, rate_hz: float | No
         ["file"] * len(counts),
         None,
         nan_rows if vel is None else vel,
+        motors.get("current_a"),
+        motors.get("throttle"),
     )
+
+
+def file_fields(
+    table: SampleTable, gyr: np.ndarray, calibration: Calibration | None, rate_hz: float | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(the corrected field (N, 3) uT, the field (N, 3) the attitude filter gets) of the file's samples by the
+    record, through the compass's one correction (``magnet.compass.calibrations.Correction``: offset, matrix, the
+    motors' field where the file has ``current_a`` or ``throttle``, and the magnetometer's lag); the raw field twice
+    without a record."""
+    raw = file_columns(table, gyr, rate_hz)
+    record = wire.DeviceCalibration(FILE_DEVICE, 0, calibration) if calibration is not None else None
+    return Correction.of_batches([record] * len(raw.counts), raw).apply(raw.mag_ut, raw.gyr_rads)
 
 
 def causal_headings(
@@ -177,32 +193,25 @@ def causal_headings(
 
 
 def offline_headings(
-    table: SampleTable,
-    gyr: np.ndarray,
-    field: np.ndarray,
-    args: argparse.Namespace,
-    earth: Earth,
-    calibrated: bool,
-    lag_s: float = 0.0,
+    table: SampleTable, gyr: np.ndarray, calibration: Calibration | None, args: argparse.Namespace, earth: Earth
 ) -> HeadingColumns:
-    """``--offline``: its own estimator, not the compass's (vqf's offline filter looks ahead over the whole log);
-    the filter gets the field turned forward over the magnetometer's delay ``lag_s`` (``magnet.attitude.mag_delay``)."""
+    """``--offline``: its own estimator, not the compass's (vqf's offline filter looks ahead over the whole log),
+    on the field the record corrects as the compass does (``file_fields``)."""
     if table.acc is None:
         raise ValueError(f"{table.path}: gx,gy,gz need ax,ay,az too (the filter takes its tilt from gravity)")
+    field, filter_field = file_fields(table, gyr, calibration, args.rate)
     period_s = sample_period_s(table, args.rate)
     vel = table.vel_ned_ms()
     t_s = None
     if vel is not None:
         t_s = table.numeric("t_s") if "t_s" in table.columns else np.arange(len(vel)) * period_s
         vel = to_magnetic_ned(vel, earth.declination_deg)
-    fused = fusion.fuse_offline(
-        gyr, fusion.acc_in_ms2(table.acc), advance_field(field, gyr, lag_s), period_s, None, t_s, vel
-    )
+    fused = fusion.fuse_offline(gyr, fusion.acc_in_ms2(table.acc), filter_field, period_s, None, t_s, vel)
     down = frames.down_in_body(fused.quat_wxyz)
     dip = hd.dip_angle_deg(field, -down)
     flags = hd.disturbance_flags(field, -down, earth.total_ut, earth.inclination_deg, dip_deg=dip)
     flags |= int(hd.HeadingFlag.FUSED) | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
-    flags |= int(hd.HeadingFlag.CALIBRATED) if calibrated else 0
+    flags |= int(hd.HeadingFlag.CALIBRATED) if calibration is not None else 0
     magnetic = hd.smooth_heading_deg(fused.heading_deg, args.window)
     headings = Headings(field, magnetic, fused.pitch_deg, fused.roll_deg, flags)
     quat = frames.rotate_heading(fused.quat_wxyz, earth.declination_deg)
@@ -296,8 +305,7 @@ def run(args: argparse.Namespace) -> int:
     if args.offline:
         if gyr is None:
             raise ValueError(f"{table.path}: --offline needs gyroscope columns gx,gy,gz (rad/s)")
-        field = calibration.apply(table.mag) if calibration else np.asarray(table.mag, dtype=float)
-        out = offline_headings(table, gyr, field, args, earth, calibration is not None, record_lag_s(calibration))
+        out = offline_headings(table, gyr, calibration, args, earth)
     else:
         out = causal_headings(file_columns(table, gyr, args.rate), calibration, earth, args.window, time.time_ns())
     if calibration and calibration.output_unit != "ut":

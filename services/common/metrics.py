@@ -76,16 +76,16 @@ class ServiceMetrics:
         self.server: Any = None
 
     def serve(self, address: str) -> None:
-        from prometheus_client import start_http_server
+        """Serve at ``address`` (``services.common.metrics_http``: bounded connections, each with a timeout)."""
+        from services.common.metrics_http import MetricsServer
 
         host, port = parse_address(address)
-        self.server, _ = start_http_server(port, addr=host, registry=self.registry)
-        log.info("%s metrics at http://%s:%d/metrics", self.service, host, port)
+        self.server = MetricsServer(host, port, self.registry)
+        log.info("%s metrics at http://%s:%d/metrics", self.service, host, self.server.port)
 
     def close(self) -> None:
         if self.server is not None:
-            self.server.shutdown()
-            self.server.server_close()
+            self.server.close()
             self.server = None
 
     def _read(self) -> Mapping[str, Any]:

@@ -160,8 +160,7 @@ class Dashboard:
         refused = self._view_refused(request)
         if refused:
             return refused
-        version, rows = self.state.changes(-1)
-        return JSONResponse({"version": version, "rows": rows, "summary": self.state.summary()})
+        return JSONResponse(self.state.fleet(-1) | {"summary": self.state.summary()})
 
     async def device(self, request: Request) -> Response:
         refused = self._view_refused(request)
@@ -185,6 +184,8 @@ class Dashboard:
         records = [r for a in answers for r in (a.get("records") or []) if isinstance(r, dict)]
         if not answers:
             return error(504, "; ".join(errors) or "no calibrator answered for this device's history")
+        if not records:  # the calibrator answered: none stored
+            return error(404, f"no calibration is stored for {device} (the calibrator has none)")
         changes = [c for a in answers for c in (a.get("changes") or [])]
         return JSONResponse({"device": device, "records": records[:limit], "changes": changes[:limit]})
 
@@ -236,11 +237,12 @@ class Dashboard:
         try:
             while not self.stopping.is_set():
                 try:
-                    version, rows = self.state.changes(version)
+                    fleet = self.state.fleet(version)
                 except Exception as exc:  # this stream ends (the page reconnects); the server goes on
                     self.guard.failed("http:stream", exc)
                     return
-                yield _event("fleet", {"version": version, "rows": rows, "summary": self.state.summary()})
+                version = fleet["version"]
+                yield _event("fleet", fleet | {"summary": self.state.summary()})
                 if device and loop.time() >= next_detail:
                     next_detail = loop.time() + DETAIL_EVERY_S
                     detail = self.guard.run("http:stream", self.state.detail, device)

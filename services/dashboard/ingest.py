@@ -86,6 +86,7 @@ class Ingest:
             self.stop.wait(max(0.0, self.tick_s - (time.monotonic() - started)))
 
     def step(self) -> None:
+        self.state.forget_silent()
         self._follow_watched()
         self._ask_calibrations()
         run = self.guard.run  # each message through the guard: one that makes a handler fail is dropped, counted

@@ -94,7 +94,13 @@ def serve(settings: DashboardSettings) -> int:
     token = settings.token or os.environ.get(TOKEN_ENV) or secrets.token_urlsafe(12)
     prefix = settings.zenoh.prefix
     places = {entry.device: entry.location for entry in settings.places if entry.location is not None}
-    state = FleetState(_earth(settings), date=settings.date, places=places)
+    state = FleetState(
+        _earth(settings),
+        date=settings.date,
+        places=places,
+        max_rows=settings.max_devices,
+        forget_after_s=settings.forget_after_s,
+    )
     with contextlib.ExitStack() as stack:
         session = stack.enter_context(open_session(settings.zenoh))
         metrics.start(settings.metrics, "dashboard", state.metrics_status)

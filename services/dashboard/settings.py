@@ -11,9 +11,10 @@ import socket
 
 from magnet.fleet.places import PlaceEntry
 from services.common import metrics
-from services.common.options import add_options, check_options, from_args, option
+from services.common.options import add_options, at_least, check_options, from_args, option
 from services.common.places_options import add_fleet_argument, read_fleet
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
+from services.dashboard.state import FORGET_AFTER_S, MAX_ROWS
 
 DEFAULT_HTTP = "127.0.0.1:8080"
 TOKEN_ENV = "MAGNET_DASHBOARD_TOKEN"
@@ -41,6 +42,10 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
+
+def _forget_after(value: float) -> str | None:
+    return None if value >= 1 else "must be at least 1 second"
 
 
 def _refresh(value: float) -> str | None:
@@ -97,6 +102,19 @@ class DashboardSettings:
         "--operator",
         metavar="NAME",
         help="name recorded (as 'by') with the commits and rollbacks made from the page (default: user@host)",
+    )
+    max_devices: int = option(
+        MAX_ROWS,
+        "--max-devices",
+        check=at_least(1),
+        help="rows of the fleet table kept at most; beyond, the least recently heard-of device's row is forgotten",
+    )
+    forget_after_s: float = option(
+        FORGET_AFTER_S,
+        "--forget-after",
+        metavar="SECONDS",
+        check=_forget_after,
+        help="forget a device's row when nothing was heard of it for this long and its liveliness token is gone",
     )
     metrics: str | None = None
     zenoh: ZenohSettings = ZenohSettings()

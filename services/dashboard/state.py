@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -36,6 +36,12 @@ TRACE_POINTS = 1500  # raw and calibrated field points kept per watched device
 TRACE_HEADINGS = 6000  # heading samples kept per watched device (60 s at 100 Hz)
 INTERVAL_WEIGHT = 0.2  # weight of the newest interval in a device's running interval between heading batches
 WATCH_LINGER_S = 15.0  # a device stays watched this long after its last viewer left
+#: rows kept at most (``--max-devices``): past it the least recently heard-of device's row is forgotten
+MAX_ROWS = 10_000
+#: a row nothing was heard of for this long (and whose liveliness token is not alive) is forgotten (``--forget-after``)
+FORGET_AFTER_S = 600.0
+#: forgotten devices remembered for the event streams (a stream further behind gets every row again, ``full``)
+GONE_KEPT = 4096
 
 
 class Trace:
@@ -62,24 +68,69 @@ class FleetState:
         clock: Callable[[], float] = time.monotonic,
         date: Any = None,
         places: Mapping[str, Location] | None = None,
+        max_rows: int = MAX_ROWS,
+        forget_after_s: float = FORGET_AFTER_S,
     ) -> None:
+        if max_rows < 1 or not forget_after_s > 0:
+            raise ValueError(f"max_rows must be >= 1 and forget_after_s > 0, got {max_rows} and {forget_after_s}")
         self.earth, self.clock, self.date = earth, clock, date
         self.places = dict(places or {})  # the places file's locations by device
+        self.max_rows, self.forget_after_s = max_rows, forget_after_s
         self.lock = threading.Lock()
-        self.rows: dict[str, DeviceRow] = {}
+        #: rows by device, least recently heard of first (``_seen`` moves a row to the end)
+        self.rows: OrderedDict[str, DeviceRow] = OrderedDict()
+        self.seen_s: dict[str, float] = {}  # device -> when anything was last heard of it (monotonic s)
+        self.gone: deque[tuple[int, str]] = deque(maxlen=GONE_KEPT)  # (version, device) of forgotten rows
+        self.gone_floor = -1  # version of the newest forgotten row no longer in ``gone``
+        self.forgotten = 0  # rows forgotten since the start (silence or the bound)
         self.traces: dict[str, Trace] = {}
         self.version = 0
         self.dropped = wire.DropCounter()
         self.messages = 0
 
     # ---------------------------------------------------------------------------------------------- writing
-    def _row(self, device: str) -> DeviceRow:
+    def _seen(self, device: str) -> DeviceRow | None:
+        """Note that ``device`` was heard of now (its row, if it has one, becomes the most recently seen)."""
         row = self.rows.get(device)
+        if row is not None:
+            self.seen_s[device] = self.clock()
+            self.rows.move_to_end(device)
+        return row
+
+    def _row(self, device: str) -> DeviceRow:
+        row = self._seen(device)
         if row is None:
             row = self.rows[device] = DeviceRow(device)
+            self.seen_s[device] = self.clock()
+            while len(self.rows) > self.max_rows:
+                self._forget(next(iter(self.rows)))
         self.version += 1
         row.version = self.version
         return row
+
+    def _forget(self, device: str) -> None:
+        self.rows.pop(device, None)
+        self.seen_s.pop(device, None)
+        trace = self.traces.get(device)
+        if trace is not None and not trace.viewers:
+            del self.traces[device]
+        self.version += 1
+        if len(self.gone) == self.gone.maxlen:
+            self.gone_floor = self.gone[0][0]
+        self.gone.append((self.version, device))
+        self.forgotten += 1
+
+    def forget_silent(self) -> int:
+        """Forget the rows nothing was heard of for ``forget_after_s`` whose liveliness token is not alive; the
+        number forgotten. Cost: the rows forgotten plus the alive ones among the oldest."""
+        with self.lock:
+            now, before = self.clock(), self.forgotten
+            for device in list(self.rows):
+                if now - self.seen_s.get(device, now) <= self.forget_after_s:
+                    break  # rows are in the order they were last heard of: the rest are more recent
+                if self.rows[device].alive is not True:
+                    self._forget(device)
+            return self.forgotten - before
 
     def on_alive(self, device: str, alive: bool) -> None:
         with self.lock:
@@ -87,7 +138,8 @@ class FleetState:
 
     def on_sensor(self, device: str, sensor: str) -> None:
         with self.lock:
-            if self.rows.get(device) is None or self.rows[device].sensor != sensor:
+            row = self._seen(device)
+            if row is None or row.sensor != sensor:
                 self._row(device).sensor = sensor
 
     def on_raw(self, batch: wire.RawBatch) -> None:
@@ -101,7 +153,7 @@ class FleetState:
                 trace.truth[batch.seq] = float(batch.truth["heading_deg"][-1])
                 while len(trace.truth) > 64:
                     trace.truth.pop(next(iter(trace.truth)))
-            row = self.rows.get(batch.device)
+            row = self._seen(batch.device)
             if batch.sensor and row is not None:
                 row.sensor = batch.sensor
             if batch.location is not None and row is not None and row.location != batch.location:
@@ -170,7 +222,7 @@ class FleetState:
         """A calibration put or answered: a new one ends any collection; the one already shown changes nothing."""
         quality = message.calibration.quality
         with self.lock:
-            known = self.rows.get(message.device)
+            known = self._seen(message.device)  # a calibrator serving its record counts as hearing of it
             if known is not None and known.calibration_id == message.id and known.calibrated_ns == message.created_ns:
                 return
             row = self._row(message.device)
@@ -184,7 +236,7 @@ class FleetState:
     def on_alert(self, alert: Alert) -> None:
         """A drift alert raised (kept, by kind) or cleared (forgotten) by a compass."""
         with self.lock:
-            known = self.rows.get(alert.device)
+            known = self._seen(alert.device)
             if alert.cleared:
                 if known is not None and alert.kind.value in known.drift:
                     del self._row(alert.device).drift[alert.kind.value]
@@ -218,6 +270,17 @@ class FleetState:
     def knows(self, device: str) -> bool:
         with self.lock:
             return device in self.rows
+
+    def fleet(self, since: int) -> dict[str, Any]:
+        """What a page needs to bring its table from version ``since`` to now: ``version``, ``rows`` changed after
+        ``since``, ``gone`` (devices forgotten after it), and ``full`` when the page is further behind than the
+        forgotten devices kept: ``rows`` is then every row and the page drops any other it holds."""
+        with self.lock:
+            full = since < self.gone_floor
+            now, cut = self.clock(), -1 if full else since
+            rows = [row.to_json(now, self.earth_of(row)) for _, row in sorted(self.rows.items()) if row.version > cut]
+            gone = [] if full or since < 0 else [device for version, device in self.gone if version > since]
+            return {"version": self.version, "rows": rows, "gone": gone, "full": full or since < 0}
 
     def changes(self, since: int) -> tuple[int, list[dict[str, Any]]]:
         """(current version, rows changed after ``since``, as JSON maps, sorted by device)."""

@@ -72,6 +72,9 @@ class EdgeStatus:
     def __init__(self, settings: EdgeSettings, source: Source | None = None) -> None:
         self.settings = settings
         self.ids = [settings.device] if source is None else list(source.ids)
+        #: the devices the edge started with (a fleet's, a chip's), then at most --max-devices that appear running
+        self.admitted = set(self.ids)
+        self.limit = len(self.ids) + settings.max_devices
         self.reads: Callable[[], dict[str, Any] | None] = (lambda: None) if source is None else source.status
         self.published_samples = self.published_batches = 0
         self.session: zenoh.Session | None = None
@@ -109,15 +112,35 @@ class EdgeStatus:
         """Declare ``unhealthy_key`` when the sensor turns unhealthy, undeclare it when it recovers."""
         self.device_health(self.settings.device, healthy)
 
+    def admit(self, device: str, n: int = 1) -> bool:
+        """Whether the edge publishes ``device``: one it started with or admitted, or a new one within
+        ``--max-devices`` (admitted now); else False, ``n`` batches of it counted as dropped (``devices:limit``,
+        the first logged). The devices already admitted are never affected."""
+        if device in self.admitted:
+            return True
+        if len(self.admitted) < self.limit:
+            self.admitted.add(device)
+            if device not in self.ids:
+                self.ids.append(device)
+            return True
+        if n and self.guard.drops.count("devices:limit", n):
+            log.warning(
+                "more than %d devices appeared: %s and any other new id dropped (counted in status "
+                "dropped[devices:limit]; raise --max-devices if they are genuine)",
+                self.settings.max_devices,
+                device,
+            )
+        return False
+
     def device_seen(self, device: str) -> None:
-        """A device that appeared while running: declare its liveliness token."""
-        if device not in self.ids:
-            self.ids.append(device)
-        self._token(device, wire.liveliness_key(self.settings.zenoh.prefix, "device", device), True)
+        """A device that appeared while running: declare its liveliness token (within ``--max-devices``)."""
+        if self.admit(device, 0):
+            self._token(device, wire.liveliness_key(self.settings.zenoh.prefix, "device", device), True)
 
     def device_health(self, device: str, healthy: bool) -> None:
-        """Declare ``unhealthy_key`` of one device while it is unhealthy."""
-        self._token(f"{device}/unhealthy", unhealthy_key(self.settings.zenoh.prefix, device), not healthy)
+        """Declare ``unhealthy_key`` of one admitted device while it is unhealthy."""
+        if device in self.admitted:
+            self._token(f"{device}/unhealthy", unhealthy_key(self.settings.zenoh.prefix, device), not healthy)
 
     def as_dict(self) -> dict[str, Any]:
         reads = self.reads()
@@ -205,9 +228,11 @@ class Publisher:
                     batch = dataclasses.replace(batch, location=self.location)
                 if self.vehicle and not batch.vehicle:
                     batch = dataclasses.replace(batch, vehicle=self.vehicle)
-                key = self.keys.get(batch.device) or self.keys.setdefault(
-                    batch.device, wire.key(self.prefix, batch.device, wire.Kind.RAW)
-                )
+                key = self.keys.get(batch.device)
+                if key is None:
+                    if not self.status.admit(batch.device):
+                        continue
+                    key = self.keys[batch.device] = wire.key(self.prefix, batch.device, wire.Kind.RAW)
                 self.session.put(key, wire.encode_raw(batch, self.version), congestion_control=self.block)
                 self.status.published_samples += len(batch)
                 self.status.published_batches += 1

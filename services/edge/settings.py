@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from magnet import wire
+from magnet.autopilot.mavlink_stream import MAX_PORT_DEVICES
 from magnet.drivers import SENSORS, has_gyroscope
 from magnet.earth.location import Location
 from magnet.edge.replay import MAX_SPEED
@@ -33,6 +34,7 @@ from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 SIMULATOR_SENSOR = "sim"
 MAX_RATE_HZ = 100_000.0
 MAX_DEVICES = 100_000
+EDGE_DEVICES = 256  # devices that may appear while an edge runs, by default (docs/front-door.md)
 ROS2_WHAT = "read a ROS 2 robot's MagneticField (and Imu) topics over rmw_zenoh (--mag-topic)"
 
 
@@ -81,10 +83,6 @@ def _device_prefix(value: Any) -> str | None:
     return _device_id(f"{value}1-mag0")
 
 
-def _address(text: str) -> int:
-    return int(text, 0)
-
-
 @dataclasses.dataclass(frozen=True)
 class EdgeSimulatorSettings(SimulatorSettings):
     """The simulator as ``magnet edge`` runs it: other defaults than ``magnet sample``'s (seed 1, 0.3 uT noise)."""
@@ -114,6 +112,10 @@ class CommonOptions:
         help="message version: 2 binary arrays, 1 lists of numbers for old subscribers",
         check=lambda v: None if v in wire.VERSIONS else f"must be one of {', '.join(map(str, wire.VERSIONS))}",
     )
+    max_devices: int = option(
+        EDGE_DEVICES, "--max-devices", help="devices that may appear while running (MAVLink): a new one beyond "
+        "them is dropped and counted (dropped[devices:limit])", check=_whole(1, MAX_DEVICES)
+    )  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,7 +129,9 @@ class ChipOptions:
         check=one_of((*SENSORS, SIMULATOR_SENSOR)),
     )
     bus: int | None = option(None, "--bus", parse=int, help="I2C bus number of a real chip (/dev/i2c-N)")
-    address: int | None = option(None, "--address", parse=_address, help="I2C address of a real chip (e.g. 0x1e)")
+    address: int | None = option(
+        None, "--address", parse=lambda text: int(text, 0), help="I2C address of a real chip (e.g. 0x1e)"
+    )
     emulate: bool = option(False, "--emulate", help="emulate the chip (or the fleet) instead of a bus")
     emulate_faults: float = option(
         0.0,
@@ -255,6 +259,10 @@ class MavlinkOptions:
         "(magnet get vehicle NAME; MAVLink vehicles are grouped by system id without it)",
         check=lambda v: None if not v else _device_id(v),
     )
+    max_port_devices: int = option(
+        MAX_PORT_DEVICES, "--max-port-devices", help="with --mavlink: devices (system id, compass) one connection "
+        "may make; a new one beyond is dropped and counted (reads.dropped[device-limit])", check=_whole(1, 65_536)
+    )  # fmt: skip
     vehicle_timeout_s: float = option(
         3.0,
         "--vehicle-timeout",

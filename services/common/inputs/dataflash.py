@@ -13,11 +13,6 @@ us mapped to 0..1). Times: ``TimeUS`` (``TimeMS`` in logs before 2015).
 
 from __future__ import annotations
 
-import contextlib
-import io
-import os
-import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +27,7 @@ from services.common.inputs.flightlogs import (
     Stream,
     Table,
     described,
-    release_unclosed,
+    read_pymavlink,
     to_table,
 )
 from services.common.inputs.input_options import InputOptions
@@ -74,31 +69,9 @@ def _kept_names(kind: str, record: Any) -> tuple[str, ...]:
     return tuple(n for n in KEPT_FIELDS[kind] if n in present)
 
 
-@contextlib.contextmanager
-def _silenced() -> Iterator[None]:
-    """Standard output and error silenced, down to the file descriptors: pymavlink's indexer (C) prints each bad
-    header it skips, thousands of lines for a damaged log, which the reader's one error line replaces."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 1)
-            os.dup2(null.fileno(), 2)
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            yield
-    finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        os.close(saved[0])
-        os.close(saved[1])
-
-
 def _records(path: Path, types: list[str]) -> tuple[dict[str, Table], dict[str, float]]:
     """(kept numbers of the records of ``types`` by name, PARM name -> first logged value); ValueError naming the
     file when it is not a DataFlash log pymavlink can read."""
-    from pymavlink import mavutil
-
     with open(path, "rb") as handle:
         start = handle.read(3)
     if not start:
@@ -107,27 +80,17 @@ def _records(path: Path, types: list[str]) -> tuple[dict[str, Table], dict[str, 
         raise ValueError(f"{path}: not an ArduPilot DataFlash log (it does not start with a DataFlash FMT record)")
     found: dict[str, Table] = {}
     params: dict[str, float] = {}
-    failure = ""
-    try:
-        with _silenced():
-            log = mavutil.mavlink_connection(str(path))
-        try:
-            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                while (record := log.recv_match(type=types)) is not None:
-                    kind = record.get_type()
-                    if kind == "PARM":
-                        params.setdefault(str(record.Name), float(record.Value))
-                        continue
-                    if kind not in found:
-                        found[kind] = Table(_kept_names(kind, record), tuple(record.get_fieldnames()))
-                    found[kind].add(record)
-        finally:
-            log.close()
-    except Exception as exc:  # pymavlink raises whatever its parser meets in a damaged file
-        failure = f"{type(exc).__name__}: {exc}"
-    if failure:
-        release_unclosed()  # pymavlink leaves its file open when its constructor fails
-        raise ValueError(f"{path}: not a readable ArduPilot DataFlash log ({failure})")
+
+    def take(record: Any) -> None:
+        kind = record.get_type()
+        if kind == "PARM":
+            params.setdefault(str(record.Name), float(record.Value))
+            return
+        if kind not in found:
+            found[kind] = Table(_kept_names(kind, record), tuple(record.get_fieldnames()))
+        found[kind].add(record)
+
+    read_pymavlink(path, types, "ArduPilot DataFlash log", take, quiet_open=True)
     if not found and not params:
         raise ValueError(f"{path}: no DataFlash records found: not an ArduPilot .bin log, or damaged from its start")
     return found, params

@@ -13,10 +13,14 @@ Every problem is a ``ValueError`` naming the file.
 from __future__ import annotations
 
 import array
+import contextlib
 import dataclasses
 import gc
+import io
+import os
+import sys
 import warnings
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -169,3 +173,49 @@ def release_unclosed() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ResourceWarning)
         gc.collect()
+
+
+@contextlib.contextmanager
+def silenced() -> Iterator[None]:
+    """Standard output and error silenced, down to the file descriptors: pymavlink's DataFlash indexer (C) prints
+    each bad header it skips, thousands of lines for a damaged log, which the reader's one error line replaces."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), 2)
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])
+
+
+def read_pymavlink(
+    path: Path, types: list[str], what: str, take: Callable[[Any], None], *, quiet_open: bool = False, **options: Any
+) -> None:
+    """Hand each message of ``types`` in the log at ``path`` to ``take``, in order, through pymavlink's
+    ``mavlink_connection(path, **options)``, with what pymavlink prints silenced (down to the file descriptors while
+    it opens the file when ``quiet_open``: see ``silenced``). Any failure, pymavlink's or ``take``'s, is one
+    ValueError: ``{path}: not a readable {what} (...)``."""
+    from pymavlink import mavutil
+
+    failure = ""
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            with silenced() if quiet_open else contextlib.nullcontext():
+                log = mavutil.mavlink_connection(str(path), **options)
+            try:
+                while (message := log.recv_match(type=types)) is not None:
+                    take(message)
+            finally:
+                log.close()
+    except Exception as exc:  # pymavlink raises whatever its parser meets in a damaged file
+        failure = f"{type(exc).__name__}: {exc}"
+    if failure:
+        release_unclosed()  # pymavlink leaves its file open when its constructor fails
+        raise ValueError(f"{path}: not a readable {what} ({failure})")

@@ -13,24 +13,15 @@ onto the vehicle's clock by the median difference between the two clocks over th
 
 from __future__ import annotations
 
-import contextlib
-import io
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from magnet.autopilot.mavlink import IMU_MESSAGES
+from services.common.inputs import flightlogs
 from services.common.inputs.csvio import SampleTable
-from services.common.inputs.flightlogs import (
-    LogStreams,
-    ReferenceYaw,
-    Stream,
-    Table,
-    described,
-    release_unclosed,
-    to_table,
-)
+from services.common.inputs.flightlogs import ReferenceYaw, Stream, Table
 from services.common.inputs.input_options import InputOptions
 
 IMU_TYPES = {0: ("SCALED_IMU", "RAW_IMU", "HIGHRES_IMU"), 1: ("SCALED_IMU2",), 2: ("SCALED_IMU3",)}
@@ -57,29 +48,17 @@ def _row(message: Any, fields: tuple[str, ...]) -> list[float]:
 def _messages(path: Path, types: list[str]) -> dict[str, Table]:
     """The kept numbers of the messages of ``types`` by name; ValueError naming the file when pymavlink cannot read
     it."""
-    from pymavlink import mavutil
-
     if path.stat().st_size == 0:
         raise ValueError(f"{path}: the file is empty")
     found: dict[str, Table] = {}
-    quiet = io.StringIO()
-    failure = ""
-    try:
-        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-            log = mavutil.mavlink_connection(str(path), robust_parsing=True)
-            try:
-                while (message := log.recv_match(type=types)) is not None:
-                    name = message.get_type()
-                    if name not in found:
-                        found[name] = Table((*HEAD, *KEPT_FIELDS[name]))
-                    found[name].add_row(_row(message, KEPT_FIELDS[name]))
-            finally:
-                log.close()
-    except Exception as exc:  # pymavlink raises whatever its parser meets in a damaged file
-        failure = f"{type(exc).__name__}: {exc}"
-    if failure:
-        release_unclosed()  # pymavlink leaves its file open when its constructor fails
-        raise ValueError(f"{path}: not a readable MAVLink telemetry log ({failure})")
+
+    def take(message: Any) -> None:
+        name = message.get_type()
+        if name not in found:
+            found[name] = Table((*HEAD, *KEPT_FIELDS[name]))
+        found[name].add_row(_row(message, KEPT_FIELDS[name]))
+
+    flightlogs.read_pymavlink(path, types, "MAVLink telemetry log", take, robust_parsing=True)
     return found
 
 
@@ -161,9 +140,9 @@ def read_tlog(path: Path, options: InputOptions) -> SampleTable:
     extra, words = _extra(found, system, _clock_offset_us(messages))
     note = (
         f"MAVLink telemetry: {name} of system {system} (magnetometer instance {instance}, the field as the "
-        f"autopilot sent it); with {described([f'{name} accelerometer and gyroscope', *words])}"
+        f"autopilot sent it); with {flightlogs.described([f'{name} accelerometer and gyroscope', *words])}"
     )
-    return to_table(path, LogStreams(mag, acc, gyr, extra, note))
+    return flightlogs.to_table(path, flightlogs.LogStreams(mag, acc, gyr, extra, note))
 
 
 def tlog_reference_yaw(path: Path) -> ReferenceYaw:

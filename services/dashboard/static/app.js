@@ -99,6 +99,11 @@ function onFleet(msg) {
   const span = st.window.length > 1 ? (now - st.window[0][0]) / 1000 : 0;
   st.eventsPerSec = span ? (st.window.length - 1) / span : 0;
   st.rowsPerSec = span ? st.window.slice(1).reduce((a, w) => a + w[1], 0) / span : 0;
+  const sent = msg.full ? new Set(msg.rows.map((r) => r.device)) : null;
+  const gone = sent ? [...S.rows.keys()].filter((d) => !sent.has(d)) : (msg.gone || []);
+  for (const device of gone) {         // forgotten by the dashboard (silent for long, or past its row limit)
+    S.rows.delete(device); S.trs.delete(device); S.orderAt = 0;
+  }
   for (const row of msg.rows) {
     const known = S.rows.has(row.device);
     S.rows.set(row.device, row);

@@ -202,3 +202,23 @@ def test_a_still_vehicle_whose_gyroscope_reads_zero_is_not_judged() -> None:
         for m in parsed(1, s.scaled_imu2_encode(1000 + 20 * k, 0, 0, -1000, 0, 0, 0, 200, 0, 400)):
             stream.feed(m, NOW + k * 20_000_000)
     assert stream.gyro_absent == [] and stream.take(NOW + 10**9)[0].gyr_rads is None
+
+
+def test_one_connection_makes_at_most_max_devices_and_the_known_ones_go_on() -> None:
+    """Issue 32: one UDP port made 15,879 devices in 2 minutes (255 system ids times HIGHRES_IMU ids). Beyond the
+    bound a new device's samples are dropped and counted; the devices already known keep their batches."""
+    s = sender()
+    stream = MavlinkStream(batch=1, max_devices=3)
+    good = s.scaled_imu_encode(1, 0, 0, -1000, 0, 0, 0, 200, 0, 400)
+    for sysid in range(1, 41):  # 40 vehicles, 2 compasses each: 80 ids
+        for encode in (s.scaled_imu_encode, s.scaled_imu2_encode):
+            msg = encode(1, 0, 0, -1000, 0, 0, 0, 200, 0, 400)
+            for m in parsed(sysid, msg):
+                stream.feed(m, NOW)
+    assert set(stream.pending) == {"mav1-mag0", "mav1-mag1", "mav2-mag0"}
+    assert stream.counts["dropped:device-limit"] == 77 and "beyond the 3" in stream.last_error
+    for m in parsed(1, good):
+        assert stream.feed(m, NOW + 20_000_000) is None  # a known device is never refused
+    assert {b.device for b in stream.take(NOW + 20_000_000)} == {"mav1-mag0", "mav1-mag1", "mav2-mag0"}
+    with pytest.raises(ValueError, match="max_devices"):
+        MavlinkStream(max_devices=0)

@@ -60,3 +60,16 @@ def test_seeds_option():
     for bad in ("", "a", "-1"):
         with pytest.raises(argparse.ArgumentTypeError):
             parse_seeds(bad)
+
+
+def test_vehicles_with_gnss_send_their_velocity(tmp_path):
+    # a car's and a boat's navigation gives the compass its velocity (the filter's tilt then ignores the vehicle's own
+    # accelerations); the walks and the indoor robot send none
+    assert {name for name, motion in field_runs.MOTIONS.items() if motion.gnss} == {"car", "boat"}
+    run = field_runs.field_run(field_runs.MOTIONS["car"], 5, field_runs.FieldSettings(seconds=4.0))
+    with_velocity = field.write_run_csv(run, tmp_path / "car.csv", velocity=True).read_text().splitlines()
+    assert with_velocity[0].endswith(",vn,ve,vd") and len(with_velocity) == len(run.t_s) + 1
+    last = np.array(with_velocity[-1].split(","), dtype=float)
+    np.testing.assert_allclose(last[-3:], run.vel_ned_ms[-1], rtol=1e-6)
+    without = field.write_run_csv(run, tmp_path / "plain.csv").read_text().splitlines()
+    assert without[0] == "t_s,mx,my,mz,ax,ay,az,gx,gy,gz"
