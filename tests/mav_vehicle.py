@@ -24,6 +24,12 @@ the float as ArduPilot sends it. ``--reboot-at S --missing N``: after S seconds 
 starts again from 0) without compass N: the compasses after it move up one instance (as firmware that numbers them as
 found does), each with its own errors and id, and the id parameters say so.
 
+The compass parameters act as ArduPilot's do (issue 27, item 7): each compass's field is sent corrected by its
+``COMPASS_OFS*``, ``COMPASS_DIA*``, ``COMPASS_ODI*``, ``COMPASS_SCALE*`` (all at their defaults: as measured), so a
+test sees what an apply changed; a COMMAND_LONG MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (1: reboot) is acknowledged and the
+vehicle falls silent for ``REBOOT_SILENT_S`` and boots again (refused, MAV_RESULT_DENIED, while armed).
+``--param NAME=VALUE`` sets a parameter at start (a vehicle that holds an older calibration).
+
 Parameter faults (issue 32, ``export --apply``): ``--no-confirm NAME`` takes a PARAM_SET of NAME without answering
 it (a read is answered); ``--clamp NAME=MAX`` holds at most MAX in NAME and answers with what it holds;
 ``--arm-after-sets N`` arms after its Nth PARAM_SET and says so in a HEARTBEAT at once; ``--camera``: a camera
@@ -41,6 +47,7 @@ from typing import Any
 import numpy as np
 from pymavlink import mavutil
 
+from magnet.autopilot.verify import ardupilot_correction
 from magnet.frames import (
     euler_to_quaternion,
     quaternion_conjugate,
@@ -88,7 +95,9 @@ QUAD = {
 }
 REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
 INT32 = mavutil.mavlink.MAV_PARAM_TYPE_INT32
+REBOOT = mavutil.mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN
 SETTLE_S = 2.0  # from the tumble's last attitude to level at --hold-yaw
+REBOOT_SILENT_S = 1.0  # a commanded reboot: nothing sent for this long
 
 
 def _slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
@@ -163,9 +172,13 @@ class Vehicle:
                 for i, (e, m) in QUAD.items()
             }
         self.params = dict(PARAMETERS)
+        self.params.update({n: float(v) for n, v in (p.split("=") for p in args.param)})
+        self.silent_until = 0.0
         self.sensors = {i: SENSOR_IDS[i] for i in self.streams}  # instance -> the id of the compass behind it
         self._say_ids()
         self.boot_k = 0  # the IMU message count at the last boot
+        self.k = 0  # IMU messages so far
+        self.reboots = 0  # commanded reboots
         self.sets = 0
         self.clamp = {n: float(v) for n, v in (c.split("=") for c in args.clamp)}
         self.truth: list[tuple[int, int, int, int, float, float]] = []
@@ -179,9 +192,10 @@ class Vehicle:
         for instance, name in enumerate(("COMPASS_DEV_ID", "COMPASS_DEV_ID2", "COMPASS_DEV_ID3")):
             self.params[name] = float(self.sensors.get(instance, 0))
 
-    def reboot(self, k: int) -> None:
-        """Boot again without compass ``--missing``: the ones after it move up an instance (module docstring)."""
-        kept = [(self.streams[i], self.sensors[i]) for i in sorted(self.streams) if i != self.args.missing]
+    def reboot(self, k: int, missing: int | None) -> None:
+        """Boot again without compass ``missing`` (None: all there): the ones after it move up an instance (module
+        docstring)."""
+        kept = [(self.streams[i], self.sensors[i]) for i in sorted(self.streams) if i != missing]
         self.streams = {i: stream for i, (stream, _) in enumerate(kept)}
         self.sensors = {i: sensor for i, (_, sensor) in enumerate(kept)}
         self._say_ids()
@@ -191,13 +205,15 @@ class Vehicle:
     def send_imu(self, k: int) -> None:
         mav = self.conn.mav
         if self.args.reboot_at is not None and self.boot_k == 0 and k == int(self.args.reboot_at * self.args.rate):
-            self.reboot(k)
+            self.reboot(k, self.args.missing)
+        if time.monotonic() < self.silent_until:
+            return
         boot_ms = int((k - self.boot_k) * 1000 / self.args.rate)
         if self.args.hold_after is not None and k == int(self.args.hold_after * self.args.rate):
             self.streams = {i: Held(s, self.args.hold_yaw, self.args.rate, i) for i, s in self.streams.items()}
         for instance, stream in self.streams.items():
             mag, acc, gyr = stream.measure_imu()
-            m = np.round(mag * 10).astype(int)  # uT -> milligauss
+            m = np.round(self.corrected(instance, mag[None] * 10.0)[0]).astype(int)  # uT -> milligauss, corrected
             a = np.round(acc / 9.80665 * 1000).astype(int)  # m/s^2 -> milli-g
             g = np.round(gyr * 1000).astype(int)  # rad/s -> mrad/s
             if instance == self.args.zero_gyro and not isinstance(stream, Held):
@@ -216,10 +232,16 @@ class Vehicle:
             roll, pitch, yaw = (math.radians(t[name]) for name in ("roll_deg", "pitch_deg", "heading_deg"))
             mav.attitude_send(boot_ms, roll, pitch, yaw, 0, 0, 0)
 
+    def corrected(self, instance: int, reading_mg: np.ndarray) -> np.ndarray:
+        """What ArduPilot sends for compass ``instance``'s readings (N, 3) mGauss: its parameters applied."""
+        return ardupilot_correction(self.params, instance, 0).field(reading_mg)
+
     def send_slow(self, tick: int) -> None:
         """Every 100 ms: position at 5 Hz, status at 2 Hz, heartbeat at 1 Hz (a quadcopter's flight: position,
         current and throttle at 10 Hz)."""
         mav = self.conn.mav
+        if time.monotonic() < self.silent_until:
+            return
         if self.args.quad:
             self.send_flight()
         if tick % 2 == 0 and not self.args.quad:
@@ -274,6 +296,17 @@ class Vehicle:
             self.args.armed = True
             self.send_heartbeat()
 
+    def command_reboot(self) -> None:
+        """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: refused while armed; else acknowledged, then silent, then booted."""
+        mav = mavutil.mavlink
+        if self.args.armed:
+            self.conn.mav.command_ack_send(REBOOT, mav.MAV_RESULT_DENIED)
+            return
+        self.conn.mav.command_ack_send(REBOOT, mav.MAV_RESULT_ACCEPTED)
+        self.reboots += 1
+        self.silent_until = time.monotonic() + REBOOT_SILENT_S
+        self.reboot(self.k, None)
+
     def answer(self) -> None:
         while (message := self.conn.recv_match(blocking=False)) is not None:
             kind = message.get_type()
@@ -284,6 +317,8 @@ class Vehicle:
                 name = message.param_id if message.param_index < 0 else names[message.param_index]
                 if name in self.params:
                     self.send_param(name)
+            elif kind == "COMMAND_LONG" and message.command == REBOOT and round(message.param1) == 1:
+                self.command_reboot()
             elif kind == "PARAM_REQUEST_LIST":
                 for name in self.params:
                     self.send_param(name)
@@ -301,6 +336,7 @@ class Vehicle:
                 if not paused:
                     self.send_imu(k)
                 k += 1
+                self.k = k
             while tick < now * 10:
                 self.send_slow(tick)
                 tick += 1
@@ -313,6 +349,7 @@ class Vehicle:
                 table=table,
                 params=np.array([self.params[n] for n in PARAMETERS]),
                 sensors=np.array(self.sent_by, dtype=np.int64),
+                reboots=np.array(self.reboots),
             )
 
 
@@ -334,6 +371,7 @@ def main() -> None:
     parser.add_argument("--pause-s", type=float, default=1.0)
     parser.add_argument("--reboot-at", type=float, help="seconds into the run: reboot without compass --missing")
     parser.add_argument("--missing", type=int, default=0, help="the compass not found at the reboot")
+    parser.add_argument("--param", action="append", default=[], help="NAME=VALUE: a parameter's value at start")
     parser.add_argument("--no-confirm", help="a PARAM_SET of this parameter is taken but never answered")
     parser.add_argument("--clamp", action="append", default=[], help="NAME=MAX: the most this parameter holds")
     parser.add_argument("--arm-after-sets", type=int, help="arms after this many PARAM_SETs (a HEARTBEAT at once)")
