@@ -22,7 +22,7 @@ import dataclasses
 import logging
 import time
 from collections.abc import Mapping, Sequence
-from typing import Self, TypeVar
+from typing import Self, cast
 
 import numpy as np
 import zenoh
@@ -39,7 +39,6 @@ from services.common.ros2_options import Ros2Settings
 from services.compass.settings import CompassSettings
 
 log = logging.getLogger("magnet.compass.ros2")
-T = TypeVar("T")
 
 DIAGNOSTICS_PERIOD_S = 1.0
 #: a device with topics silent this long (s) may give its slot to a new device when every slot is taken
@@ -291,45 +290,22 @@ def _close_topics(_device: str, topics: tuple[_Topic, _Topic]) -> None:
 
 
 def _select(columns: wire.RawColumns, out: HeadingColumns, keep: list[bool]) -> tuple[wire.RawColumns, HeadingColumns]:
-    """The batches of a drain whose ``keep`` is true: their raw columns and their headings."""
+    """The batches of a drain whose ``keep`` is true: their raw columns and their headings (every field that is per
+    sample, (S, ...), cut to their rows; every list per batch, (B,), to them)."""
     mask = np.asarray(keep, dtype=bool)
     rows = np.repeat(mask, columns.counts)
     index = np.flatnonzero(mask).tolist()
+    samples, batches = len(rows), len(mask)
 
-    def pick(values: list[T] | None) -> list[T] | None:
-        return None if values is None else [values[i] for i in index]
+    def cut(value: object) -> object:
+        if isinstance(value, np.ndarray):
+            return value[rows] if value.shape[:1] == (samples,) else value[mask] if len(value) == batches else value
+        if isinstance(value, list) and len(value) == batches:
+            return [value[i] for i in index]
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            return dataclasses.replace(
+                value, **{f.name: cut(getattr(value, f.name)) for f in dataclasses.fields(value)}
+            )
+        return value
 
-    raw = dataclasses.replace(
-        columns,
-        devices=[columns.devices[i] for i in index],
-        seqs=[columns.seqs[i] for i in index],
-        counts=columns.counts[mask],
-        t_ns=columns.t_ns[rows],
-        mag_ut=columns.mag_ut[rows],
-        acc_ms2=columns.acc_ms2[rows],
-        gyr_rads=columns.gyr_rads[rows],
-        sensors=[columns.sensors[i] for i in index],
-        locations=pick(columns.locations),
-        vel_ned_ms=columns.vel[rows],
-        current_a=columns.current[rows],
-        throttle=columns.thr[rows],
-        vehicles=pick(columns.vehicles),
-    )
-    h = out.headings
-    headings = dataclasses.replace(
-        h,
-        field_ut=h.field_ut[rows],
-        heading_deg=h.heading_deg[rows],
-        pitch_deg=h.pitch_deg[rows],
-        roll_deg=h.roll_deg[rows],
-        flags=h.flags[rows],
-    )
-    return raw, dataclasses.replace(
-        out,
-        headings=headings,
-        true_heading_deg=out.true_heading_deg[rows],
-        dip_deg=out.dip_deg[rows],
-        calibration_ids=[out.calibration_ids[i] for i in index],
-        declinations=[out.declinations[i] for i in index],
-        quat_wxyz=None if out.quat_wxyz is None else out.quat_wxyz[rows],
-    )
+    return cast(wire.RawColumns, cut(columns)), cast(HeadingColumns, cut(out))
