@@ -14,6 +14,7 @@
 typedef struct {
     Py_buffer view;
     Py_ssize_t rows, cols;
+    Py_ssize_t st[2]; /* the strides of an Array over memory of our own (``raw_array``) */
 } Array;
 
 #define AT(a, i, j) (*(double *)((char *)(a).view.buf + (i) * (a).view.strides[0] + (j) * (a).view.strides[1]))
@@ -42,6 +43,17 @@ static int get_array(PyObject *obj, Array *a, int ndim, Py_ssize_t rows, Py_ssiz
         return -1;
     }
     return 0;
+}
+
+/* An Array over ``rows`` x ``cols`` doubles at ``buf``, ``row_items`` doubles from one row to the next. */
+static void raw_array(Array *a, double *buf, Py_ssize_t rows, Py_ssize_t cols, Py_ssize_t row_items) {
+    memset(a, 0, sizeof(*a));
+    a->st[0] = row_items * (Py_ssize_t)sizeof(double);
+    a->st[1] = sizeof(double);
+    a->view.buf = buf;
+    a->view.strides = a->st;
+    a->rows = rows;
+    a->cols = cols;
 }
 
 static void release(Array *arrays, int count) {
@@ -78,6 +90,23 @@ PyDoc_STRVAR(carry_forward_doc,
              "out (N, 4): quaternion ``start`` (4,) turned by each body rate gyr (N, 3) rad/s less ``bias`` (3,) over "
              "one period in turn (right products), as vqf integrates them.");
 
+static void carry_forward_core(const double start[4], const Array *gyr, const double bias[3], double period,
+                               Array *out) {
+    double q[4] = {start[0], start[1], start[2], start[3]};
+    for (Py_ssize_t i = 0; i < gyr->rows; i++) {
+        double r0 = AT(*gyr, i, 0) - bias[0], r1 = AT(*gyr, i, 1) - bias[1], r2 = AT(*gyr, i, 2) - bias[2];
+        double norm = sqrt(r0 * r0 + r1 * r1 + r2 * r2);
+        double angle = norm * period / 2.0;
+        double c = cos(angle), s = norm > 0 ? sin(angle) / norm : 0.0;
+        double turn[4] = {c, r0 * s, r1 * s, r2 * s}, next[4];
+        quat_mul(q, turn, next);
+        for (int k = 0; k < 4; k++) {
+            q[k] = next[k];
+            AT(*out, i, k) = next[k];
+        }
+    }
+}
+
 static PyObject *carry_forward(PyObject *self, PyObject *args) {
     PyObject *o_start, *o_gyr, *o_bias, *o_out;
     double period;
@@ -89,20 +118,9 @@ static PyObject *carry_forward(PyObject *self, PyObject *args) {
     if (get_array(o_gyr, &a[1], 2, -1, 3, 0, "gyr") < 0) { release(a, 1); return NULL; }
     if (get_array(o_bias, &a[2], 1, 3, -1, 0, "bias") < 0) { release(a, 2); return NULL; }
     if (get_array(o_out, &a[3], 2, a[1].rows, 4, 1, "out") < 0) { release(a, 3); return NULL; }
-    double q[4] = {AT1(a[0], 0), AT1(a[0], 1), AT1(a[0], 2), AT1(a[0], 3)};
+    double start[4] = {AT1(a[0], 0), AT1(a[0], 1), AT1(a[0], 2), AT1(a[0], 3)};
     double bias[3] = {AT1(a[2], 0), AT1(a[2], 1), AT1(a[2], 2)};
-    for (Py_ssize_t i = 0; i < a[1].rows; i++) {
-        double r0 = AT(a[1], i, 0) - bias[0], r1 = AT(a[1], i, 1) - bias[1], r2 = AT(a[1], i, 2) - bias[2];
-        double norm = sqrt(r0 * r0 + r1 * r1 + r2 * r2);
-        double angle = norm * period / 2.0;
-        double c = cos(angle), s = norm > 0 ? sin(angle) / norm : 0.0;
-        double turn[4] = {c, r0 * s, r1 * s, r2 * s}, next[4];
-        quat_mul(q, turn, next);
-        for (int k = 0; k < 4; k++) {
-            q[k] = next[k];
-            AT(a[3], i, k) = next[k];
-        }
-    }
+    carry_forward_core(start, &a[1], bias, period, &a[3]);
     release(a, 4);
     Py_RETURN_NONE;
 }
@@ -111,6 +129,24 @@ PyDoc_STRVAR(quaternion_product_doc,
              "quaternion_product(p, q, out, conjugate_p=False, normalise=False)\n\n"
              "out (N, 4) = p q row by row: p (1, 4) one quaternion for every row, or (N, 4); q (N, 4). "
              "``conjugate_p``: p's conjugate; ``normalise``: each product to unit length. ``out`` may be ``q``.");
+
+/* out = p q row by row (p one row or one a row), p conjugated and each product normalised on request. */
+static void quaternion_product_core(const Array *pa, const Array *qa, Array *out, int conjugate, int normalise) {
+    int p_each = pa->rows != 1;
+    double sign = conjugate ? -1.0 : 1.0;
+    for (Py_ssize_t i = 0; i < qa->rows; i++) {
+        double p[4], q[4], r[4];
+        for (int k = 0; k < 4; k++) {
+            p[k] = AT(*pa, p_each ? i : 0, k) * (k ? sign : 1.0);
+            q[k] = AT(*qa, i, k);
+        }
+        quat_mul(p, q, r);
+        double n = normalise ? sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3]) : 1.0;
+        for (int k = 0; k < 4; k++) {
+            AT(*out, i, k) = r[k] / n;
+        }
+    }
+}
 
 static PyObject *quaternion_product(PyObject *self, PyObject *args) {
     PyObject *o_p, *o_q, *o_out;
@@ -126,21 +162,8 @@ static PyObject *quaternion_product(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "p must have one row or as many as q");
         return NULL;
     }
-    int p_each = a[0].rows != 1;
     if (get_array(o_out, &a[2], 2, a[1].rows, 4, 1, "out") < 0) { release(a, 2); return NULL; }
-    double sign = conjugate ? -1.0 : 1.0;
-    for (Py_ssize_t i = 0; i < a[1].rows; i++) {
-        double p[4], q[4], r[4];
-        for (int k = 0; k < 4; k++) {
-            p[k] = AT(a[0], p_each ? i : 0, k) * (k ? sign : 1.0);
-            q[k] = AT(a[1], i, k);
-        }
-        quat_mul(p, q, r);
-        double n = normalise ? sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + r[3] * r[3]) : 1.0;
-        for (int k = 0; k < 4; k++) {
-            AT(a[2], i, k) = r[k] / n;
-        }
-    }
+    quaternion_product_core(&a[0], &a[1], &a[2], conjugate, normalise);
     release(a, 3);
     Py_RETURN_NONE;
 }
@@ -149,6 +172,17 @@ PyDoc_STRVAR(into_body_doc,
              "into_body(quat_vqf, a_ned, out)\n\n"
              "out (N, 3) = R^T a: accelerations a_ned (N, 3) magnetic NED turned into vqf's body frame by vqf's "
              "quaternions (N, 4) body -> ENU (normalised here).");
+
+static void into_body_core(const Array *qa, const Array *aa, Array *out) {
+    for (Py_ssize_t i = 0; i < qa->rows; i++) {
+        double q[4] = {AT(*qa, i, 0), AT(*qa, i, 1), AT(*qa, i, 2), AT(*qa, i, 3)}, r[9];
+        quat_matrix(q, r);
+        double e = AT(*aa, i, 1), n = AT(*aa, i, 0), u = -AT(*aa, i, 2); /* NED -> ENU */
+        for (int k = 0; k < 3; k++) {
+            AT(*out, i, k) = r[k] * e + r[3 + k] * n + r[6 + k] * u;
+        }
+    }
+}
 
 static PyObject *into_body(PyObject *self, PyObject *args) {
     PyObject *o_q, *o_a, *o_out;
@@ -159,14 +193,7 @@ static PyObject *into_body(PyObject *self, PyObject *args) {
     if (get_array(o_q, &a[0], 2, -1, 4, 0, "quat_vqf") < 0) return NULL;
     if (get_array(o_a, &a[1], 2, a[0].rows, 3, 0, "a_ned") < 0) { release(a, 1); return NULL; }
     if (get_array(o_out, &a[2], 2, a[0].rows, 3, 1, "out") < 0) { release(a, 2); return NULL; }
-    for (Py_ssize_t i = 0; i < a[0].rows; i++) {
-        double q[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)}, r[9];
-        quat_matrix(q, r);
-        double e = AT(a[1], i, 1), n = AT(a[1], i, 0), u = -AT(a[1], i, 2); /* NED -> ENU */
-        for (int k = 0; k < 3; k++) {
-            AT(a[2], i, k) = r[k] * e + r[3 + k] * n + r[6 + k] * u;
-        }
-    }
+    into_body_core(&a[0], &a[1], &a[2]);
     release(a, 3);
     Py_RETURN_NONE;
 }
@@ -178,6 +205,31 @@ PyDoc_STRVAR(piece_figures_doc,
              "accelerometer fed (n, 3) in vqf's body frame: the earth's up axis in body axes at the piece's end; the "
              "field in the 6D earth frame E = R b: the circular mean of its heading atan2(E_east, E_north), the mean "
              "of its horizontal norm and of E_up; and |mean(acc - gravity up)| (m/s^2).");
+
+/* out: up (3), heading (rad), horizontal, vertical, left (m/s^2) of n >= 1 samples (see piece_figures_doc). */
+static void piece_figures_core(const Array *qa, const Array *fa, const Array *aa, double gravity, double out[7]) {
+    Py_ssize_t n = qa->rows;
+    double sin_sum = 0, cos_sum = 0, horizontal = 0, vertical = 0, left[3] = {0, 0, 0}, up[3] = {0, 0, 1};
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double q[4] = {AT(*qa, i, 0), AT(*qa, i, 1), AT(*qa, i, 2), AT(*qa, i, 3)}, r[9];
+        quat_matrix(q, r);
+        double b[3] = {AT(*fa, i, 0), AT(*fa, i, 1), AT(*fa, i, 2)}, e[3];
+        for (int k = 0; k < 3; k++) {
+            e[k] = r[3 * k] * b[0] + r[3 * k + 1] * b[1] + r[3 * k + 2] * b[2];
+            up[k] = r[6 + k];
+            left[k] += AT(*aa, i, k) - gravity * up[k];
+        }
+        double phi = atan2(e[0], e[1]);
+        sin_sum += sin(phi);
+        cos_sum += cos(phi);
+        horizontal += hypot(e[0], e[1]);
+        vertical += e[2];
+    }
+    double mean_left = sqrt(left[0] * left[0] + left[1] * left[1] + left[2] * left[2]) / (double)n;
+    double figures[7] = {up[0], up[1], up[2], atan2(sin_sum / n, cos_sum / n), horizontal / n, vertical / n,
+                         mean_left};
+    memcpy(out, figures, sizeof(figures));
+}
 
 static PyObject *piece_figures(PyObject *self, PyObject *args) {
     PyObject *o_q, *o_field, *o_acc;
@@ -195,25 +247,9 @@ static PyObject *piece_figures(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "piece_figures needs at least one sample");
         return NULL;
     }
-    double sin_sum = 0, cos_sum = 0, horizontal = 0, vertical = 0, left[3] = {0, 0, 0}, up[3] = {0, 0, 1};
-    for (Py_ssize_t i = 0; i < n; i++) {
-        double q[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)}, r[9];
-        quat_matrix(q, r);
-        double b[3] = {AT(a[1], i, 0), AT(a[1], i, 1), AT(a[1], i, 2)}, e[3];
-        for (int k = 0; k < 3; k++) {
-            e[k] = r[3 * k] * b[0] + r[3 * k + 1] * b[1] + r[3 * k + 2] * b[2];
-            up[k] = r[6 + k];
-            left[k] += AT(a[2], i, k) - gravity * up[k];
-        }
-        double phi = atan2(e[0], e[1]);
-        sin_sum += sin(phi);
-        cos_sum += cos(phi);
-        horizontal += hypot(e[0], e[1]);
-        vertical += e[2];
-    }
-    double mean_left = sqrt(left[0] * left[0] + left[1] * left[1] + left[2] * left[2]) / (double)n;
-    PyObject *out = Py_BuildValue("ddddddd", up[0], up[1], up[2], atan2(sin_sum / n, cos_sum / n), horizontal / n,
-                                  vertical / n, mean_left);
+    double f[7];
+    piece_figures_core(&a[0], &a[1], &a[2], gravity, f);
+    PyObject *out = Py_BuildValue("ddddddd", f[0], f[1], f[2], f[3], f[4], f[5], f[6]);
     release(a, 3);
     return out;
 }
@@ -238,6 +274,19 @@ PyDoc_STRVAR(centred_difference_doc,
              "joined by straight lines (held beyond the ends); 0 where t - h is before the first fix or t + h after "
              "the last (+1e-9 s).");
 
+/* times (F >= 2,), values (F, 3), t (n,) -> out (n, 3): see centred_difference_doc. */
+static void centred_difference_core(const Array *times, const Array *values, const Array *ta, double h, Array *out) {
+    double first = AT1(*times, 0), last = AT1(*times, times->rows - 1);
+    for (Py_ssize_t i = 0; i < ta->rows; i++) {
+        double t = AT1(*ta, i);
+        int covered = (t - h >= first) && (t + h <= last + 1e-9);
+        for (int k = 0; k < 3; k++) {
+            AT(*out, i, k) =
+                covered ? (interp(t + h, times, values, k) - interp(t - h, times, values, k)) / (2.0 * h) : 0.0;
+        }
+    }
+}
+
 static PyObject *centred_difference(PyObject *self, PyObject *args) {
     PyObject *o_times, *o_values, *o_t, *o_out;
     double h;
@@ -254,15 +303,7 @@ static PyObject *centred_difference(PyObject *self, PyObject *args) {
         PyErr_SetString(PyExc_ValueError, "centred_difference needs at least two fixes");
         return NULL;
     }
-    double first = AT1(a[0], 0), last = AT1(a[0], a[0].rows - 1);
-    for (Py_ssize_t i = 0; i < a[2].rows; i++) {
-        double t = AT1(a[2], i);
-        int covered = (t - h >= first) && (t + h <= last + 1e-9);
-        for (int k = 0; k < 3; k++) {
-            AT(a[3], i, k) =
-                covered ? (interp(t + h, &a[0], &a[1], k) - interp(t - h, &a[0], &a[1], k)) / (2.0 * h) : 0.0;
-        }
-    }
+    centred_difference_core(&a[0], &a[1], &a[2], h, &a[3]);
     release(a, 4);
     Py_RETURN_NONE;
 }
@@ -273,6 +314,9 @@ PyDoc_STRVAR(drift_step_doc,
              "0 if negative) with F = I, F[0, 1:4] = -dt up (3,), F[4, 4] = exp(-dt / tau_s) and the process noise "
              "diag(q_diag (5,)) (already for dt); then, when ``update``, the measurement z (rad) of x[0] + x[4] with "
              "variance ``noise``, the innovation and x[0] wrapped to [-pi, pi].");
+
+static void drift_step_core(double *x_io, double *p_io, double dt, double tau, const double up[3], const double q[5],
+                            double z, double noise, int update);
 
 static PyObject *drift_step(PyObject *self, PyObject *args) {
     PyObject *o_x, *o_p, *o_up, *o_q;
@@ -286,19 +330,38 @@ static PyObject *drift_step(PyObject *self, PyObject *args) {
     if (get_array(o_p, &a[1], 2, 5, 5, 1, "p") < 0) { release(a, 1); return NULL; }
     if (get_array(o_up, &a[2], 1, 3, -1, 0, "up") < 0) { release(a, 2); return NULL; }
     if (get_array(o_q, &a[3], 1, 5, -1, 0, "q_diag") < 0) { release(a, 3); return NULL; }
+    double x0[5], p0[25], up[3], q[5];
+    for (int i = 0; i < 5; i++) {
+        x0[i] = AT1(a[0], i);
+        q[i] = AT1(a[3], i);
+        for (int j = 0; j < 5; j++) p0[5 * i + j] = AT(a[1], i, j);
+    }
+    for (int k = 0; k < 3; k++) up[k] = AT1(a[2], k);
+    drift_step_core(x0, p0, dt, tau, up, q, z, noise, update);
+    for (int i = 0; i < 5; i++) {
+        AT1(a[0], i) = x0[i];
+        for (int j = 0; j < 5; j++) AT(a[1], i, j) = p0[5 * i + j];
+    }
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+/* The step of drift_step_doc on x (5,) and p (25,, row-major) in place. */
+static void drift_step_core(double *x_io, double *p_io, double dt, double tau, const double up[3], const double q[5],
+                            double z, double noise, int update) {
     double f[5][5] = {{0}}, x[5], p[5][5], fp[5][5];
     dt = dt > 0.0 ? dt : 0.0;
     for (int i = 0; i < 5; i++) f[i][i] = 1.0;
-    for (int k = 0; k < 3; k++) f[0][1 + k] = -dt * AT1(a[2], k);
+    for (int k = 0; k < 3; k++) f[0][1 + k] = -dt * up[k];
     f[4][4] = exp(-dt / tau);
     for (int i = 0; i < 5; i++) {
         x[i] = 0.0;
-        for (int j = 0; j < 5; j++) x[i] += f[i][j] * AT1(a[0], j);
+        for (int j = 0; j < 5; j++) x[i] += f[i][j] * x_io[j];
     }
     for (int i = 0; i < 5; i++) {
         for (int j = 0; j < 5; j++) {
             fp[i][j] = 0.0;
-            for (int k = 0; k < 5; k++) fp[i][j] += f[i][k] * AT(a[1], k, j);
+            for (int k = 0; k < 5; k++) fp[i][j] += f[i][k] * p_io[5 * k + j];
         }
     }
     for (int i = 0; i < 5; i++) {
@@ -306,7 +369,7 @@ static PyObject *drift_step(PyObject *self, PyObject *args) {
             p[i][j] = 0.0;
             for (int k = 0; k < 5; k++) p[i][j] += fp[i][k] * f[j][k];
         }
-        p[i][i] += AT1(a[3], i);
+        p[i][i] += q[i];
     }
     if (update) {
         double innovation = remainder(z - (x[0] + x[4]), 2.0 * M_PI);
@@ -322,11 +385,9 @@ static PyObject *drift_step(PyObject *self, PyObject *args) {
         }
     }
     for (int i = 0; i < 5; i++) {
-        AT1(a[0], i) = x[i];
-        for (int j = 0; j < 5; j++) AT(a[1], i, j) = p[i][j];
+        x_io[i] = x[i];
+        for (int j = 0; j < 5; j++) p_io[5 * i + j] = p[i][j];
     }
-    release(a, 4);
-    Py_RETURN_NONE;
 }
 
 PyDoc_STRVAR(advance_field_doc,
@@ -677,6 +738,848 @@ static PyObject *format_rows(PyObject *self, PyObject *args) {
     return out;
 }
 
+/* ------------------------------------------------------------------------------------------------------------
+ * The velocity-aided filter (magnet.attitude.aided_fusion), whole batches at a time, driving vqf's own compiled
+ * filter: the C++ VQF object inside the Python ``vqf.VQF`` it is given, through the functions vqf's wheel exports
+ * (``vqf_bind``). No copy of vqf: the same object, the same machine code as ``VQF.updateBatch``; the Python side
+ * keeps using that object as it did. The aided filter's own state lives in float64 arrays its Python objects hold
+ * (views: ``AidedFilter.state``), laid out by the A_* and S_* indices below, mirrored in aided_fusion.py. */
+#include <dlfcn.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdlib.h>
+
+/* vqf's VQFParams and VQFState (vqf/cpp/vqf.hpp, double precision, motion bias estimation on: the wheel's build).
+ * ``vqf_bind`` checks their sizes against the object's own layout, the tests compare the fields with VQF.state. */
+typedef struct {
+    double tauAcc, tauMag;
+    bool motionBiasEstEnabled, restBiasEstEnabled, magDistRejectionEnabled;
+    double biasSigmaInit, biasForgettingTime, biasClip, biasSigmaMotion, biasVerticalForgettingFactor, biasSigmaRest,
+        restMinT, restFilterTau, restThGyr, restThAcc, magCurrentTau, magRefTau, magNormTh, magDipTh, magNewTime,
+        magNewFirstTime, magNewMinGyr, magMinUndisturbedTime, magMaxRejectionTime, magRejectionFactor;
+} VqfParams;
+
+typedef struct {
+    double gyrQuat[4], accQuat[4], delta;
+    bool restDetected, magDistDetected;
+    double lastAccLp[3], accLpState[6], lastAccCorrAngularRate, kMagInit, lastMagDisAngle, lastMagCorrAngularRate,
+        bias[3], biasP[9], motionBiasEstRLpState[18], motionBiasEstBiasLpState[4], restLastSquaredDeviations[2],
+        restT, restLastGyrLp[3], restGyrLpState[6], restLastAccLp[3], restAccLpState[6], magRefNorm, magRefDip,
+        magUndisturbedT, magRejectT, magCandidateNorm, magCandidateDip, magCandidateT, magNormDip[2],
+        magNormDipLpState[4];
+} VqfState;
+
+static struct {
+    int ready;
+    void (*update_batch)(void *, const double *, const double *, const double *, size_t, double *, double *,
+                         double *, double *, double *, bool *, bool *);
+    void (*get_quat9d)(const void *, double *);
+    double (*get_bias)(const void *, double *);
+    void (*set_bias)(void *, double *, double);
+    double (*get_delta)(const void *);
+    void (*set_tau_acc)(void *, double);
+    void (*set_rest)(void *, bool);
+    const VqfParams *(*get_params)(const void *);
+    const VqfState *(*get_state)(const void *);
+    const void *(*get_coeffs)(const void *);
+} vqf_api;
+
+static const char *vqf_symbols[] = {
+    "_ZN3VQF11updateBatchEPKdS1_S1_mPdS2_S2_S2_S2_PbS3_", "_ZNK3VQF9getQuat9DEPd", "_ZNK3VQF15getBiasEstimateEPd",
+    "_ZN3VQF15setBiasEstimateEPdd", "_ZNK3VQF8getDeltaEv", "_ZN3VQF9setTauAccEd", "_ZN3VQF21setRestBiasEstEnabledEb",
+    "_ZNK3VQF9getParamsEv", "_ZNK3VQF8getStateEv", "_ZNK3VQF9getCoeffsEv",
+};
+
+PyDoc_STRVAR(vqf_bind_doc,
+             "vqf_bind(path)\n\n"
+             "Find vqf's compiled filter in its extension module at ``path`` (``vqf.vqf.__file__``, loaded already): "
+             "the functions of its C++ class VQF that the aided filter calls. RuntimeError when one is missing.");
+
+static PyObject *vqf_bind(PyObject *self, PyObject *args) {
+    const char *path;
+    if (!PyArg_ParseTuple(args, "s", &path)) return NULL;
+    if (vqf_api.ready) Py_RETURN_NONE;
+    void *lib = dlopen(path, RTLD_NOW | RTLD_NOLOAD);
+    if (lib == NULL) lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (lib == NULL) return PyErr_Format(PyExc_RuntimeError, "cannot open vqf's module %s: %s", path, dlerror());
+    void **slots[] = {
+        (void **)&vqf_api.update_batch, (void **)&vqf_api.get_quat9d, (void **)&vqf_api.get_bias,
+        (void **)&vqf_api.set_bias,     (void **)&vqf_api.get_delta,  (void **)&vqf_api.set_tau_acc,
+        (void **)&vqf_api.set_rest,     (void **)&vqf_api.get_params, (void **)&vqf_api.get_state,
+        (void **)&vqf_api.get_coeffs,
+    };
+    for (size_t i = 0; i < sizeof(slots) / sizeof(slots[0]); i++) {
+        *slots[i] = dlsym(lib, vqf_symbols[i]);
+        if (*slots[i] == NULL) {
+            return PyErr_Format(PyExc_RuntimeError,
+                                "vqf's module %s lacks %s: magnet's aided filter needs vqf 2.1 (pip install "
+                                "'vqf>=2.1,<2.2')", path, vqf_symbols[i]);
+        }
+    }
+    vqf_api.ready = 1;
+    Py_RETURN_NONE;
+}
+
+/* The C++ VQF inside a Python vqf.VQF (Cython: the object's one field, ``c_obj``), its layout checked. */
+static void *vqf_object(PyObject *obj) {
+    PyTypeObject *type = Py_TYPE(obj);
+    if (!vqf_api.ready) {
+        PyErr_SetString(PyExc_RuntimeError, "vqf_bind was not called");
+        return NULL;
+    }
+    if (strcmp(type->tp_name, "vqf.vqf.VQF") != 0 || type->tp_basicsize != sizeof(PyObject) + sizeof(void *)) {
+        PyErr_Format(PyExc_TypeError, "expected a vqf.VQF, got %s", type->tp_name);
+        return NULL;
+    }
+    void *vqf = *(void **)((char *)obj + sizeof(PyObject));
+    const char *params = (const char *)vqf_api.get_params(vqf), *state = (const char *)vqf_api.get_state(vqf);
+    const char *coeffs = (const char *)vqf_api.get_coeffs(vqf);
+    if (vqf == NULL || state - params != (ptrdiff_t)sizeof(VqfParams) ||
+        coeffs - state != (ptrdiff_t)sizeof(VqfState)) {
+        PyErr_SetString(PyExc_RuntimeError, "vqf's VQF object is not laid out as magnet was built for (vqf 2.1)");
+        return NULL;
+    }
+    return vqf;
+}
+
+PyDoc_STRVAR(vqf_probe_doc,
+             "vqf_probe(filter) -> dict\n\n"
+             "The fields of a vqf.VQF's state and parameters this module reads or writes, read through its C++ "
+             "object (for tests: they must equal VQF.state and VQF.params).");
+
+static PyObject *vqf_probe(PyObject *self, PyObject *args) {
+    PyObject *obj;
+    if (!PyArg_ParseTuple(args, "O", &obj)) return NULL;
+    void *vqf = vqf_object(obj);
+    if (vqf == NULL) return NULL;
+    const VqfState *s = vqf_api.get_state(vqf);
+    const VqfParams *p = vqf_api.get_params(vqf);
+    PyObject *bias_p = PyList_New(9);
+    if (bias_p == NULL) return NULL;
+    for (int i = 0; i < 9; i++) PyList_SET_ITEM(bias_p, i, PyFloat_FromDouble(s->biasP[i]));
+    return Py_BuildValue("{s:d,s:(ddd),s:N,s:O,s:d,s:d,s:d,s:(dd),s:d,s:d,s:d,s:O}", "delta", s->delta, "bias",
+                         s->bias[0], s->bias[1], s->bias[2], "biasP", bias_p, "magDistDetected",
+                         s->magDistDetected ? Py_True : Py_False, "magCandidateNorm", s->magCandidateNorm,
+                         "magCandidateDip", s->magCandidateDip, "magCandidateT", s->magCandidateT, "magNormDip",
+                         s->magNormDip[0], s->magNormDip[1], "magNormTh", p->magNormTh, "magDipTh", p->magDipTh,
+                         "tauAcc", p->tauAcc, "restBiasEstEnabled", p->restBiasEstEnabled ? Py_True : Py_False);
+}
+
+static double radians(double deg) { return deg * (M_PI / 180.0); }
+
+/* numpy's sum of n doubles ``stride`` apart (its pairwise summation: the same rounding as np.mean). */
+static double pairwise_sum(const double *a, Py_ssize_t n, Py_ssize_t stride) {
+    if (n < 8) {
+        double res = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++) res += a[i * stride];
+        return res;
+    }
+    if (n <= 128) {
+        double r[8], res;
+        Py_ssize_t i;
+        for (int k = 0; k < 8; k++) r[k] = a[k * stride];
+        for (i = 8; i < n - (n % 8); i += 8) {
+            for (int k = 0; k < 8; k++) r[k] += a[(i + k) * stride];
+        }
+        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) res += a[i * stride];
+        return res;
+    }
+    Py_ssize_t n2 = n / 2;
+    n2 -= n2 % 8;
+    return pairwise_sum(a, n2, stride) + pairwise_sum(a + n2 * stride, n - n2, stride);
+}
+
+/* ---- the velocity fixes (aiding.VelocityFixes): times (cap,) and values (cap, 3) buffers, the visible fixes
+ * [start, start + count); meta (6,): start, count, whether a value is held, the held value (3). */
+enum { F_START, F_COUNT, F_HELD_VALID, F_HELD, F_SIZE = 6 };
+
+typedef struct {
+    double *meta, *times, *values;
+    Py_ssize_t cap;
+} Fixes;
+
+/* Whether the held velocity row v is a new fix: finite and unlike the row before (prev; NULL: the held one). */
+static int fix_arrives(const double *meta, const double *v, const double *prev) {
+    if (!(isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]))) return 0;
+    if (prev == NULL) {
+        if (meta[F_HELD_VALID] == 0.0) return 1;
+        prev = meta + F_HELD;
+    }
+    return v[0] != prev[0] || v[1] != prev[1] || v[2] != prev[2];
+}
+
+static void fix_append(Fixes *f, double t, const double *v, Py_ssize_t max_fixes) {
+    Py_ssize_t start = (Py_ssize_t)f->meta[F_START], count = (Py_ssize_t)f->meta[F_COUNT];
+    if (start + count >= f->cap) {
+        memmove(f->times, f->times + start, count * sizeof(double));
+        memmove(f->values, f->values + 3 * start, 3 * count * sizeof(double));
+        start = 0;
+    }
+    f->times[start + count] = t;
+    memcpy(f->values + 3 * (start + count), v, 3 * sizeof(double));
+    count++;
+    if (count > max_fixes) {
+        start += count - max_fixes;
+        count = max_fixes;
+    }
+    f->meta[F_START] = (double)start;
+    f->meta[F_COUNT] = (double)count;
+}
+
+/* observe: n samples' times (t_stride doubles apart) and held velocities (rows v_stride apart). */
+static void fixes_observe_core(Fixes *f, const double *t, Py_ssize_t t_stride, const double *vel,
+                               Py_ssize_t v_stride, Py_ssize_t n, double delay, Py_ssize_t max_fixes) {
+    if (n == 0) return;
+    int first = fix_arrives(f->meta, vel, NULL); /* against the value held before this call */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double *v = vel + i * v_stride;
+        if (i == 0 ? first : fix_arrives(f->meta, v, v - v_stride)) fix_append(f, t[i * t_stride] - delay, v, max_fixes);
+    }
+    const double *last = vel + (n - 1) * v_stride;
+    if (isfinite(last[0]) && isfinite(last[1]) && isfinite(last[2])) {
+        f->meta[F_HELD_VALID] = 1.0;
+        memcpy(f->meta + F_HELD, last, 3 * sizeof(double));
+    }
+}
+
+static double fixes_known_until(const Fixes *f, double h) {
+    Py_ssize_t start = (Py_ssize_t)f->meta[F_START], count = (Py_ssize_t)f->meta[F_COUNT];
+    return count >= 2 ? f->times[start + count - 1] - h : -INFINITY;
+}
+
+/* 1 standing (every fix within h of [start_s, end_s] under max_speed), 0 not, -1 no such fix. */
+static int fixes_standing_core(const Fixes *f, double start_s, double end_s, double h, double max_speed) {
+    Py_ssize_t start = (Py_ssize_t)f->meta[F_START], count = (Py_ssize_t)f->meta[F_COUNT];
+    int any = 0, all = 1;
+    for (Py_ssize_t i = start; i < start + count; i++) {
+        if (f->times[i] >= start_s - h && f->times[i] <= end_s + h) {
+            const double *v = f->values + 3 * i;
+            any = 1;
+            if (!(sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) < max_speed)) all = 0;
+        }
+    }
+    return any ? all : -1;
+}
+
+/* dv/dt at n times (t_stride apart) into out (n, 3) contiguous: zero before two fixes. */
+static void fixes_acceleration(const Fixes *f, const double *t, Py_ssize_t t_stride, Py_ssize_t n, double h,
+                               double *out) {
+    Py_ssize_t start = (Py_ssize_t)f->meta[F_START], count = (Py_ssize_t)f->meta[F_COUNT];
+    if (count < 2) {
+        memset(out, 0, 3 * n * sizeof(double));
+        return;
+    }
+    Array times, values, ta, oa;
+    raw_array(&times, f->times + start, count, 1, 1);
+    raw_array(&values, f->values + 3 * start, count, 3, 3);
+    raw_array(&ta, (double *)t, n, 1, t_stride);
+    raw_array(&oa, out, n, 3, 3);
+    centred_difference_core(&times, &values, &ta, h, &oa);
+}
+
+/* ---- the filters of a piece (gyro_bias.Explained, gyro_bias.HeadingDrift, aided_fusion.VerticalBias) */
+enum { E_VALID, E_MEAN_SQUARE, E_SIZE };
+enum { V_FED_S, V_DELTA_VALID, V_DELTA, V_INTEGRAL_S, V_SETTLE_S, V_SIZE };
+enum { D_STARTED, D_T_S, D_UP, D_TAU_S = 5, D_BIAS_SIGMA, D_X, D_P = 12, D_SIZE = 37 };
+/* the drift filter's noise figures: heading noise (deg), tilt error (deg), angle and bias random walks, max dip */
+enum { K_HEADING_NOISE_DEG, K_TILT_ERROR_DEG, K_ANGLE_WALK, K_BIAS_WALK, K_MAX_DIP_DEG, K_SIZE };
+
+static double explained_core(double *e, double left_ms2, double seconds, double time_s) {
+    double left = pow(left_ms2, 2.0), weight = -expm1(-seconds / time_s);
+    e[E_MEAN_SQUARE] = e[E_VALID] == 0.0 ? left : e[E_MEAN_SQUARE] + weight * (left - e[E_MEAN_SQUARE]);
+    e[E_VALID] = 1.0;
+    return sqrt(e[E_MEAN_SQUARE]);
+}
+
+static void vertical_core(double *v, double delta, const double up[3], double seconds, int disturbed,
+                          double more[3]) {
+    double step = 0.0;
+    v[V_FED_S] += seconds;
+    if (v[V_DELTA_VALID] != 0.0 && !disturbed && v[V_FED_S] >= v[V_SETTLE_S]) {
+        step = remainder(delta - v[V_DELTA], 2.0 * M_PI);
+    }
+    v[V_DELTA] = delta;
+    v[V_DELTA_VALID] = 1.0;
+    double gain = -step / v[V_INTEGRAL_S];
+    for (int k = 0; k < 3; k++) more[k] = gain * up[k];
+}
+
+/* d: the drift filter's D_SIZE numbers; piece: mean time, count, heading, horizontal, vertical. */
+static void drift_core(double *d, const double *k, const double piece[5], int disturbed, const double up[3],
+                       double tilt_rad, double learnt[3]) {
+    double t = piece[0], z = piece[2];
+    double dip = atan2(fabs(piece[4]), piece[3]), max_dip = radians(k[K_MAX_DIP_DEG]);
+    if (max_dip < dip) dip = max_dip;
+    double sigma_c = hypot(radians(k[K_TILT_ERROR_DEG]), tilt_rad) * tan(dip);
+    learnt[0] = learnt[1] = learnt[2] = 0.0;
+    if (d[D_STARTED] == 0.0) {
+        if (disturbed) return;
+        double *p = d + D_P;
+        memset(d + D_X, 0, 5 * sizeof(double));
+        d[D_X] = z;
+        d[D_T_S] = t;
+        memcpy(d + D_UP, up, 3 * sizeof(double));
+        memset(p, 0, 25 * sizeof(double));
+        p[0] = pow(radians(k[K_HEADING_NOISE_DEG]), 2.0);
+        for (int i = 1; i < 4; i++) p[6 * i] = pow(d[D_BIAS_SIGMA], 2.0);
+        p[24] = pow(sigma_c, 2.0);
+        d[D_STARTED] = 1.0;
+        return;
+    }
+    double dt = t - d[D_T_S];
+    if (0.0 > dt) dt = 0.0;
+    double decay = exp(-dt / d[D_TAU_S]);
+    double walk = pow(k[K_BIAS_WALK], 2.0) * dt;
+    double noise[5] = {pow(k[K_ANGLE_WALK], 2.0) * dt, walk, walk, walk,
+                       pow(sigma_c, 2.0) * (1.0 - pow(decay, 2.0))};
+    double measured = pow(radians(k[K_HEADING_NOISE_DEG]), 2.0) / piece[1];
+    double mid[3] = {(up[0] + d[D_UP]) / 2.0, (up[1] + d[D_UP + 1]) / 2.0, (up[2] + d[D_UP + 2]) / 2.0};
+    drift_step_core(d + D_X, d + D_P, dt, d[D_TAU_S], mid, noise, z, measured, !disturbed);
+    d[D_T_S] = t;
+    memcpy(d + D_UP, up, 3 * sizeof(double));
+    if (disturbed) return;
+    for (int i = 0; i < 3; i++) {
+        learnt[i] = d[D_X + 1 + i];
+        d[D_X + 1 + i] = 0.0;
+    }
+}
+
+static void drift_reset(double *d) {
+    double tau = d[D_TAU_S], sigma = d[D_BIAS_SIGMA];
+    memset(d, 0, D_SIZE * sizeof(double));
+    d[D_UP + 2] = 1.0;
+    d[D_TAU_S] = tau;
+    d[D_BIAS_SIGMA] = sigma;
+}
+
+static double vehicle_tau_core(double residual_ms2, double bias_sigma, double half_window_s, double gravity) {
+    double window = 2.0 * half_window_s, sigma = residual_ms2 / gravity;
+    return pow(pow(sigma, 2.0) * window / (4.0 * pow(bias_sigma, 2.0)), 1.0 / 3.0);
+}
+
+/* vqf's bias uncertainty about the horizontal axes (rad/s) from its biasP (9,) and the up axis (3,). */
+static double horizontal_sigma_core(const double *cov, const double up[3]) {
+    double trace = cov[0] + cov[4] + cov[8], row[3], quad = 0.0;
+    for (int j = 0; j < 3; j++) row[j] = up[0] * cov[j] + up[1] * cov[3 + j] + up[2] * cov[6 + j];
+    for (int j = 0; j < 3; j++) quad += row[j] * up[j];
+    double variance = trace - quad;
+    if (0.0 > variance) variance = 0.0;
+    return radians(sqrt(variance / 2.0) / 100.0);
+}
+
+static void travelled_core(void *vqf, double seconds) {
+    VqfState *s = (VqfState *)vqf_api.get_state(vqf);
+    const VqfParams *p = vqf_api.get_params(vqf);
+    if (!s->magDistDetected || s->magCandidateNorm <= 0.0) return;
+    double norm = s->magNormDip[0], dip = s->magNormDip[1];
+    int agrees = fabs(norm - s->magCandidateNorm) < p->magNormTh * s->magCandidateNorm;
+    if (agrees && fabs(dip - s->magCandidateDip) < radians(p->magDipTh)) s->magCandidateT += seconds;
+}
+
+/* ---- the aided filter: settings (S_*) and state (A_*), float64 arrays aided_fusion.AidedFilter keeps */
+enum {
+    S_PERIOD, S_MAX_LAG, S_DELAY, S_HALF_WINDOW, S_MAX_FIXES, S_REST_ENABLED, S_TAU_ACC, S_VEHICLE_TAU, S_GRAVITY,
+    S_STANDING_SPEED, S_CHUNK, S_EXPLAINED_TIME, S_DRIFT_ON, S_DRIFT_FIGURES, S_SIZE = S_DRIFT_FIGURES + K_SIZE
+};
+enum {
+    A_FED, A_DISTURBED, A_PENDING, A_FIXES, A_EXPLAINED = A_FIXES + F_SIZE, A_VERTICAL = A_EXPLAINED + E_SIZE,
+    A_DRIFT = A_VERTICAL + V_SIZE, A_SIZE = A_DRIFT + D_SIZE
+};
+/* a pending row: time, gyroscope, accelerometer, field, the attitude given, the turn since the filter's state */
+enum { R_T = 0, R_GYR = 1, R_ACC = 4, R_FIELD = 7, R_GIVEN = 10, R_TURN = 14, R_SIZE = 18 };
+
+typedef struct {
+    void *vqf;
+    const double *s;
+    double *a;
+    Fixes fixes;
+    double *pending; /* (cap, R_SIZE) */
+    double *scratch; /* 24 doubles a row of ``rows`` (the pending table's rows in this call at most) */
+    Py_ssize_t rows;
+    bool *flags;
+} Aided;
+
+/* The attitude of every pending sample: the filter's, turned by the sample's turn. */
+static void aided_give(Aided *e) {
+    double q9[4];
+    Array p, q, out;
+    Py_ssize_t n = (Py_ssize_t)e->a[A_PENDING];
+    vqf_api.get_quat9d(e->vqf, q9);
+    raw_array(&p, q9, 1, 4, 4);
+    raw_array(&q, e->pending + R_TURN, n, 4, R_SIZE);
+    raw_array(&out, e->pending + R_GIVEN, n, 4, R_SIZE);
+    quaternion_product_core(&p, &q, &out, 0, 0);
+}
+
+/* After a piece was fed (aided_fusion.AidedFilter._heading_loop): times t (n, R_SIZE apart), accelerometer fed,
+ * field, vqf's 6D quaternions, its disturbance flags. */
+static void aided_heading_loop(Aided *e, const double *t, Py_ssize_t n, double *acc, double *field, double *q6,
+                               const bool *dist) {
+    const double *s = e->s;
+    double *drift = e->a + A_DRIFT, f[7], bias[3], up[3];
+    Array qa, fa, aa;
+    raw_array(&qa, q6, n, 4, 4);
+    raw_array(&fa, field, n, 3, 3);
+    raw_array(&aa, acc, n, 3, 3);
+    piece_figures_core(&qa, &fa, &aa, s[S_GRAVITY], f);
+    memcpy(up, f, sizeof(up));
+    int disturbed = 0;
+    for (Py_ssize_t i = 0; i < n; i++) disturbed |= dist[i];
+    double seconds = (double)n * s[S_PERIOD];
+    vqf_api.get_bias(e->vqf, bias);
+    double residual = explained_core(e->a + A_EXPLAINED, f[6], seconds, s[S_EXPLAINED_TIME]);
+    int vehicle = vehicle_tau_core(residual, drift[D_BIAS_SIGMA], s[S_HALF_WINDOW], s[S_GRAVITY]) < s[S_TAU_ACC];
+    double tau = vehicle ? s[S_VEHICLE_TAU] : s[S_TAU_ACC];
+    vqf_api.set_tau_acc(e->vqf, tau);
+    drift[D_TAU_S] = tau;
+    if (!vehicle) {
+        double more[3];
+        if (drift[D_STARTED] != 0.0) drift_reset(drift); /* starts afresh when it is needed again */
+        vertical_core(e->a + A_VERTICAL, vqf_api.get_delta(e->vqf), up, seconds, disturbed, more);
+        for (int k = 0; k < 3; k++) bias[k] = bias[k] + more[k];
+        vqf_api.set_bias(e->vqf, bias, -1.0);
+        return;
+    }
+    e->a[A_VERTICAL + V_DELTA_VALID] = 0.0; /* vqf's delta is set here: not a drift for the integral term */
+    double piece[5] = {pairwise_sum(t, n, R_SIZE) / (double)n, (double)n, f[3], f[4], f[5]}, learnt[3];
+    VqfState *state = (VqfState *)vqf_api.get_state(e->vqf);
+    double tilt = horizontal_sigma_core(state->biasP, up) * drift[D_TAU_S];
+    if (s[S_DRIFT_ON] != 0.0) {
+        drift_core(drift, s + S_DRIFT_FIGURES, piece, disturbed, up, tilt, learnt);
+    } else { /* the drift filter switched off (a comparison): vqf's own bias and delta */
+        learnt[0] = learnt[1] = learnt[2] = 0.0;
+    }
+    for (int k = 0; k < 3; k++) bias[k] = bias[k] + learnt[k];
+    if (drift[D_STARTED] != 0.0 && !disturbed) { /* the bias (as setBiasEstimate sets it) and the delta */
+        memcpy(state->bias, bias, sizeof(bias));
+        state->delta = drift[D_X];
+    } else {
+        vqf_api.set_bias(e->vqf, bias, -1.0);
+    }
+}
+
+/* Feed the leading pending samples whose acceleration is known (aided_fusion.AidedFilter._feed); vqf's 9D
+ * quaternions of those fed into q9_out when not NULL. Returns how many were fed. */
+static Py_ssize_t aided_feed(Aided *e, double now_s, Py_ssize_t keep, int at_once, double *q9_out) {
+    const double *s = e->s;
+    Py_ssize_t total = (Py_ssize_t)e->a[A_PENDING], count = 0;
+    double known = fixes_known_until(&e->fixes, s[S_HALF_WINDOW]), *rows = e->pending;
+    while (count < total && (at_once || rows[count * R_SIZE] <= known || rows[count * R_SIZE] < now_s - s[S_MAX_LAG]))
+        count++;
+    if (count > total - keep) count = total - keep;
+    if (count <= 0) return 0;
+    e->a[A_FED] = 1.0;
+    double *gyr = e->scratch, *acc = gyr + 3 * count, *field = acc + 3 * count, *accel = field + 3 * count;
+    double *q6 = accel + 3 * count, *q9 = q6 + 4 * count;
+    fixes_acceleration(&e->fixes, rows + R_T, R_SIZE, count, s[S_HALF_WINDOW], accel);
+    Array given, ned, body;
+    raw_array(&given, rows + R_GIVEN, count, 4, R_SIZE);
+    raw_array(&ned, accel, count, 3, 3);
+    raw_array(&body, accel, count, 3, 3); /* in place: each row read before it is written */
+    into_body_core(&given, &ned, &body);
+    for (Py_ssize_t i = 0; i < count; i++) {
+        const double *row = rows + i * R_SIZE;
+        for (int k = 0; k < 3; k++) {
+            gyr[3 * i + k] = row[R_GYR + k];
+            acc[3 * i + k] = row[R_ACC + k] - accel[3 * i + k];
+            field[3 * i + k] = row[R_FIELD + k];
+        }
+    }
+    int standing = fixes_standing_core(&e->fixes, rows[R_T], rows[(count - 1) * R_SIZE + R_T], s[S_HALF_WINDOW],
+                                       s[S_STANDING_SPEED]);
+    vqf_api.set_rest(e->vqf, s[S_REST_ENABLED] != 0.0 && standing != 0);
+    vqf_api.update_batch(e->vqf, gyr, acc, field, (size_t)count, q6, q9, NULL, NULL, NULL, NULL, e->flags);
+    if (standing == 0) travelled_core(e->vqf, (double)count * s[S_PERIOD]);
+    e->a[A_DISTURBED] = e->flags[count - 1] ? 1.0 : 0.0;
+    aided_heading_loop(e, rows + R_T, count, acc, field, q6, e->flags);
+    if (q9_out != NULL) memcpy(q9_out, q9, 4 * count * sizeof(double));
+    Py_ssize_t left = total - count;
+    if (left > 0) { /* the turns from the new state: conj(last fed) turn, normalised (rounding would compound) */
+        Array last, turns;
+        raw_array(&last, rows + (count - 1) * R_SIZE + R_TURN, 1, 4, 4);
+        raw_array(&turns, rows + count * R_SIZE + R_TURN, left, 4, R_SIZE);
+        quaternion_product_core(&last, &turns, &turns, 1, 1);
+        memmove(rows, rows + count * R_SIZE, left * R_SIZE * sizeof(double));
+    }
+    e->a[A_PENDING] = (double)left;
+    return count;
+}
+
+/* One piece of a batch (aided_fusion.AidedFilter._chunk): n samples; answers into quat (rows 4 apart), flags. */
+static void aided_chunk(Aided *e, const double *t, Py_ssize_t t_stride, const Array *gyr, const Array *acc,
+                        const Array *field, Py_ssize_t first, const double *vel, Py_ssize_t v_stride, Py_ssize_t n,
+                        double *quat, bool *out_dist) {
+    const double *s = e->s;
+    double bias[3], start[4] = {1.0, 0.0, 0.0, 0.0};
+    fixes_observe_core(&e->fixes, t, t_stride, vel, v_stride, n, s[S_DELAY], (Py_ssize_t)s[S_MAX_FIXES]);
+    vqf_api.get_bias(e->vqf, bias);
+    Py_ssize_t before = (Py_ssize_t)e->a[A_PENDING];
+    double *rows = e->pending + before * R_SIZE;
+    if (before > 0) memcpy(start, rows - R_SIZE + R_TURN, sizeof(start));
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double *row = rows + i * R_SIZE;
+        row[R_T] = t[i * t_stride];
+        for (int k = 0; k < 3; k++) {
+            row[R_GYR + k] = AT(*gyr, first + i, k);
+            row[R_ACC + k] = AT(*acc, first + i, k);
+            row[R_FIELD + k] = AT(*field, first + i, k);
+        }
+        memset(row + R_GIVEN, 0, 8 * sizeof(double));
+    }
+    Array g, turn;
+    raw_array(&g, rows + R_GYR, n, 3, R_SIZE);
+    raw_array(&turn, rows + R_TURN, n, 4, R_SIZE);
+    carry_forward_core(start, &g, bias, s[S_PERIOD], &turn);
+    e->a[A_PENDING] = (double)(before + n);
+    aided_give(e);
+    if (e->a[A_FED] == 0.0) { /* no attitude yet to carry forward: fed at once */
+        Py_ssize_t total = (Py_ssize_t)e->a[A_PENDING];
+        double *q9 = e->scratch + 20 * e->rows; /* past what aided_feed uses of the scratch (20 a row) */
+        aided_feed(e, t[0], 0, 1, q9);
+        memcpy(quat, q9 + 4 * (total - n), 4 * n * sizeof(double));
+    } else {
+        aided_feed(e, t[0], n, 0, NULL);
+        aided_give(e);
+        Py_ssize_t total = (Py_ssize_t)e->a[A_PENDING];
+        for (Py_ssize_t i = 0; i < n; i++) memcpy(quat + 4 * i, e->pending + (total - n + i) * R_SIZE + R_GIVEN, 32);
+    }
+    memset(out_dist, e->a[A_DISTURBED] != 0.0, n);
+}
+
+static int get_state_array(PyObject *obj, Py_buffer *view, Py_ssize_t min_items, const char *name) {
+    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) return -1;
+    if (view->itemsize != 8 || view->format == NULL || strcmp(view->format, "d") != 0 ||
+        view->len / 8 < min_items) {
+        PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous float64 array of at least %zd items", name,
+                     min_items);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+PyDoc_STRVAR(aided_update_doc,
+             "aided_update(filter, settings, state, fix_times, fix_values, pending, t, gyr, acc, field, vel, quat, "
+             "disturbed)\n\n"
+             "One batch of N samples through the velocity-aided filter (magnet.attitude.aided_fusion.AidedFilter."
+             "update, whose docstrings are its specification): ``filter`` the vqf.VQF driven; ``settings`` (S_SIZE,) "
+             "and ``state`` (A_SIZE,) float64 (aided_fusion's layout), ``fix_times`` (C,) and ``fix_values`` "
+             "(C, 3) the fixes' buffers, ``pending`` (P, 18) the pending table with room for N more rows, all "
+             "C-contiguous and updated in place; t (N,) s, gyr, acc, field (N, 3) vqf's frame, vel (N, 3) held "
+             "magnetic NED m/s. Writes vqf's quaternions quat (N, 4) and the flags disturbed (N,) bool.");
+
+static PyObject *aided_update(PyObject *self, PyObject *args) {
+    PyObject *o_filter, *o_settings, *o_state, *o_times, *o_values, *o_pending, *o_t, *o_gyr, *o_acc, *o_field,
+        *o_vel, *o_quat, *o_dist;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOO", &o_filter, &o_settings, &o_state, &o_times, &o_values, &o_pending,
+                          &o_t, &o_gyr, &o_acc, &o_field, &o_vel, &o_quat, &o_dist)) {
+        return NULL;
+    }
+    Aided e;
+    e.vqf = vqf_object(o_filter);
+    if (e.vqf == NULL) return NULL;
+    Py_buffer b[6];
+    int got = 0;
+    Array a[6];
+    int arrays = 0;
+    Py_buffer dist;
+    int have_dist = 0;
+    PyObject *result = NULL;
+    e.scratch = NULL;
+    e.flags = NULL;
+    if (get_state_array(o_settings, &b[got], S_SIZE, "settings") < 0) goto done;
+    got++;
+    if (get_state_array(o_state, &b[got], A_SIZE, "state") < 0) goto done;
+    got++;
+    if (get_state_array(o_times, &b[got], 1, "fix_times") < 0) goto done;
+    got++;
+    if (get_state_array(o_values, &b[got], 3 * (b[2].len / 8), "fix_values") < 0) goto done;
+    got++;
+    if (get_state_array(o_pending, &b[got], 0, "pending") < 0) goto done;
+    got++;
+    if (get_array(o_t, &a[arrays], 1, -1, -1, 0, "t") < 0) goto done;
+    arrays++;
+    Py_ssize_t n = a[0].rows;
+    const char *names[] = {"gyr", "acc", "field", "vel"};
+    PyObject *objs[] = {o_gyr, o_acc, o_field, o_vel};
+    for (int i = 0; i < 4; i++) {
+        if (get_array(objs[i], &a[arrays], 2, n, 3, 0, names[i]) < 0) goto done;
+        arrays++;
+    }
+    if (get_array(o_quat, &a[arrays], 2, n, 4, 1, "quat") < 0) goto done;
+    arrays++;
+    if (get_flags(o_dist, &dist, n, "disturbed") < 0) goto done;
+    have_dist = 1;
+    e.s = b[0].buf;
+    e.a = b[1].buf;
+    e.fixes.meta = e.a + A_FIXES;
+    e.fixes.times = b[2].buf;
+    e.fixes.values = b[3].buf;
+    e.fixes.cap = b[2].len / 8;
+    e.pending = b[4].buf;
+    Py_ssize_t cap = b[4].len / (8 * R_SIZE), held = (Py_ssize_t)e.a[A_PENDING];
+    if (cap < held + n || e.fixes.cap <= (Py_ssize_t)e.s[S_MAX_FIXES]) {
+        PyErr_Format(PyExc_ValueError, "pending has room for %zd rows, %zd needed (or the fixes' buffers are "
+                     "not larger than max_fixes)", cap, held + n);
+        goto done;
+    }
+    e.rows = held + n;
+    e.scratch = PyMem_Malloc((size_t)(held + n) * 24 * sizeof(double) + 1);
+    e.flags = PyMem_Malloc((size_t)(held + n) * sizeof(bool) + 1);
+    if (e.scratch == NULL || e.flags == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    /* pieces start where a fix arrives or a chunk's tick of time begins */
+    const double *t = a[0].view.buf, *vel = a[4].view.buf;
+    Py_ssize_t ts = a[0].view.strides[0] / 8, vs = a[4].view.strides[0] / 8;
+    if (a[4].view.strides[1] != 8) {
+        PyErr_SetString(PyExc_ValueError, "vel's rows must be contiguous");
+        goto done;
+    }
+    if (a[5].view.strides[1] != 8 || a[5].view.strides[0] != 32) {
+        PyErr_SetString(PyExc_ValueError, "quat must be C-contiguous");
+        goto done;
+    }
+    Py_ssize_t lo = 0;
+    for (Py_ssize_t i = 1; i <= n; i++) {
+        if (i < n) {
+            int tick_changes = floor(t[i * ts] / e.s[S_CHUNK]) != floor(t[(i - 1) * ts] / e.s[S_CHUNK]);
+            if (!tick_changes && !fix_arrives(e.fixes.meta, vel + i * vs, vel + (i - 1) * vs)) continue;
+        }
+        double *quat = (double *)a[5].view.buf + 4 * lo;
+        aided_chunk(&e, t + lo * ts, ts, &a[1], &a[2], &a[3], lo, vel + lo * vs, vs, i - lo, quat,
+                    (bool *)dist.buf + lo);
+        lo = i;
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyMem_Free(e.scratch);
+    PyMem_Free(e.flags);
+    if (have_dist) PyBuffer_Release(&dist);
+    release(a, arrays);
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
+/* ---- the same maths for the Python classes that hold one of these filters alone (and their tests) */
+PyDoc_STRVAR(fixes_observe_doc,
+             "fixes_observe(meta, times, values, t, vel, delay_s, max_fixes)\n\n"
+             "aiding.VelocityFixes.observe: meta (6,) start, count, held?, held (3); times (C,) and values (C, 3) the "
+             "buffers (C > max_fixes); t (n,) s, vel (n, 3) held velocities. In place.");
+
+static PyObject *fixes_observe(PyObject *self, PyObject *args) {
+    PyObject *o_meta, *o_times, *o_values, *o_t, *o_vel;
+    double delay;
+    Py_ssize_t max_fixes;
+    if (!PyArg_ParseTuple(args, "OOOOOdn", &o_meta, &o_times, &o_values, &o_t, &o_vel, &delay, &max_fixes)) return NULL;
+    Py_buffer b[3];
+    Array a[2];
+    if (get_state_array(o_meta, &b[0], F_SIZE, "meta") < 0) return NULL;
+    if (get_state_array(o_times, &b[1], max_fixes + 1, "times") < 0) { PyBuffer_Release(&b[0]); return NULL; }
+    if (get_state_array(o_values, &b[2], 3 * (b[1].len / 8), "values") < 0) {
+        PyBuffer_Release(&b[0]);
+        PyBuffer_Release(&b[1]);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    int arrays = 0;
+    if (get_array(o_t, &a[0], 1, -1, -1, 0, "t") < 0) goto done;
+    arrays++;
+    if (get_array(o_vel, &a[1], 2, a[0].rows, 3, 0, "vel") < 0) goto done;
+    arrays++;
+    if (a[1].view.strides[1] != 8) {
+        PyErr_SetString(PyExc_ValueError, "vel's rows must be contiguous");
+        goto done;
+    }
+    Fixes f = {b[0].buf, b[1].buf, b[2].buf, b[1].len / 8};
+    fixes_observe_core(&f, a[0].view.buf, a[0].view.strides[0] / 8, a[1].view.buf, a[1].view.strides[0] / 8,
+                       a[0].rows, delay, max_fixes);
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    release(a, arrays);
+    for (int i = 0; i < 3; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
+PyDoc_STRVAR(fixes_arrivals_doc,
+             "fixes_arrivals(meta, vel, out)\n\n"
+             "aiding.VelocityFixes.arrivals: out (n,) bool, the rows of held velocities vel (n, 3) where a new fix "
+             "appears (finite, unlike the row before; the first row against the value held in meta).");
+
+static PyObject *fixes_arrivals(PyObject *self, PyObject *args) {
+    PyObject *o_meta, *o_vel, *o_out;
+    if (!PyArg_ParseTuple(args, "OOO", &o_meta, &o_vel, &o_out)) return NULL;
+    Py_buffer meta, out;
+    Array vel;
+    if (get_state_array(o_meta, &meta, F_SIZE, "meta") < 0) return NULL;
+    if (get_array(o_vel, &vel, 2, -1, 3, 0, "vel") < 0) { PyBuffer_Release(&meta); return NULL; }
+    if (get_flags(o_out, &out, vel.rows, "out") < 0 || vel.view.strides[1] != 8) {
+        if (!PyErr_Occurred()) {
+            PyBuffer_Release(&out);
+            PyErr_SetString(PyExc_ValueError, "vel's rows must be contiguous");
+        }
+        PyBuffer_Release(&meta);
+        release(&vel, 1);
+        return NULL;
+    }
+    const double *v = vel.view.buf;
+    Py_ssize_t vs = vel.view.strides[0] / 8;
+    for (Py_ssize_t i = 0; i < vel.rows; i++) {
+        ((bool *)out.buf)[i * out.strides[0]] = fix_arrives(meta.buf, v + i * vs, i ? v + (i - 1) * vs : NULL);
+    }
+    PyBuffer_Release(&meta);
+    PyBuffer_Release(&out);
+    release(&vel, 1);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(fixes_standing_doc,
+             "fixes_standing(meta, times, values, start_s, end_s, half_window_s, max_speed) -> int\n\n"
+             "aiding.VelocityFixes.standing: 1 when every fix measured within h of [start_s, end_s] is under "
+             "max_speed (m/s), 0 when one is not, -1 when there is none.");
+
+static PyObject *fixes_standing(PyObject *self, PyObject *args) {
+    PyObject *o_meta, *o_times, *o_values;
+    double start_s, end_s, h, max_speed;
+    if (!PyArg_ParseTuple(args, "OOOdddd", &o_meta, &o_times, &o_values, &start_s, &end_s, &h, &max_speed))
+        return NULL;
+    Py_buffer b[3];
+    if (get_state_array(o_meta, &b[0], F_SIZE, "meta") < 0) return NULL;
+    if (get_state_array(o_times, &b[1], 1, "times") < 0) { PyBuffer_Release(&b[0]); return NULL; }
+    if (get_state_array(o_values, &b[2], 3 * (b[1].len / 8), "values") < 0) {
+        PyBuffer_Release(&b[0]);
+        PyBuffer_Release(&b[1]);
+        return NULL;
+    }
+    Fixes f = {b[0].buf, b[1].buf, b[2].buf, b[1].len / 8};
+    int standing = fixes_standing_core(&f, start_s, end_s, h, max_speed);
+    for (int i = 0; i < 3; i++) PyBuffer_Release(&b[i]);
+    return PyLong_FromLong(standing);
+}
+
+PyDoc_STRVAR(drift_update_doc,
+             "drift_update(drift, figures, t_s, count, heading_rad, horizontal, vertical, disturbed, up, tilt_rad) "
+             "-> (bx, by, bz)\n\n"
+             "gyro_bias.HeadingDrift.update on its numbers drift (37,): started, t_s, up (3), tau_s, bias_sigma, "
+             "x (5), p (25); figures (5,): heading noise (deg), tilt error (deg), angle and bias random walks, the "
+             "steepest dip (deg). Returns the bias learnt (rad/s, body axes).");
+
+static PyObject *drift_update(PyObject *self, PyObject *args) {
+    PyObject *o_drift, *o_figures, *o_up;
+    double piece[5], tilt;
+    int disturbed;
+    if (!PyArg_ParseTuple(args, "OOdddddpOd", &o_drift, &o_figures, &piece[0], &piece[1], &piece[2], &piece[3],
+                          &piece[4], &disturbed, &o_up, &tilt)) {
+        return NULL;
+    }
+    Py_buffer b[2];
+    Array up;
+    if (get_state_array(o_drift, &b[0], D_SIZE, "drift") < 0) return NULL;
+    if (get_state_array(o_figures, &b[1], K_SIZE, "figures") < 0) { PyBuffer_Release(&b[0]); return NULL; }
+    if (get_array(o_up, &up, 1, 3, -1, 0, "up") < 0) {
+        PyBuffer_Release(&b[0]);
+        PyBuffer_Release(&b[1]);
+        return NULL;
+    }
+    double u[3] = {AT1(up, 0), AT1(up, 1), AT1(up, 2)}, learnt[3];
+    drift_core(b[0].buf, b[1].buf, piece, disturbed, u, tilt, learnt);
+    release(&up, 1);
+    PyBuffer_Release(&b[0]);
+    PyBuffer_Release(&b[1]);
+    return Py_BuildValue("ddd", learnt[0], learnt[1], learnt[2]);
+}
+
+PyDoc_STRVAR(explained_update_doc,
+             "explained_update(store, left_ms2, seconds, time_s) -> float\n\n"
+             "gyro_bias.Explained.update on store (2,): whether a mean is held, the mean square; returns the RMS.");
+
+static PyObject *explained_update(PyObject *self, PyObject *args) {
+    PyObject *o_store;
+    double left, seconds, time_s;
+    if (!PyArg_ParseTuple(args, "Oddd", &o_store, &left, &seconds, &time_s)) return NULL;
+    Py_buffer b;
+    if (get_state_array(o_store, &b, E_SIZE, "store") < 0) return NULL;
+    double rms = explained_core(b.buf, left, seconds, time_s);
+    PyBuffer_Release(&b);
+    return PyFloat_FromDouble(rms);
+}
+
+PyDoc_STRVAR(vertical_correction_doc,
+             "vertical_correction(store, delta, up, seconds, disturbed) -> (bx, by, bz)\n\n"
+             "aided_fusion.VerticalBias.correction on store (5,): seconds fed, whether a delta is held, that delta, "
+             "the integral time and the settling time (s).");
+
+static PyObject *vertical_correction(PyObject *self, PyObject *args) {
+    PyObject *o_store, *o_up;
+    double delta, seconds;
+    int disturbed;
+    if (!PyArg_ParseTuple(args, "OdOdp", &o_store, &delta, &o_up, &seconds, &disturbed)) return NULL;
+    Py_buffer b;
+    Array up;
+    if (get_state_array(o_store, &b, V_SIZE, "store") < 0) return NULL;
+    if (get_array(o_up, &up, 1, 3, -1, 0, "up") < 0) { PyBuffer_Release(&b); return NULL; }
+    double u[3] = {AT1(up, 0), AT1(up, 1), AT1(up, 2)}, more[3];
+    vertical_core(b.buf, delta, u, seconds, disturbed, more);
+    release(&up, 1);
+    PyBuffer_Release(&b);
+    return Py_BuildValue("ddd", more[0], more[1], more[2]);
+}
+
+PyDoc_STRVAR(vehicle_tau_acc_doc,
+             "vehicle_tau_acc(residual_ms2, bias_sigma_rads, half_window_s, gravity) -> float\n\n"
+             "aiding.vehicle_tau_acc_s: (sigma^2 2h / (4 b^2))^(1/3), sigma = residual / gravity.");
+
+static PyObject *vehicle_tau_acc(PyObject *self, PyObject *args) {
+    double residual, sigma, h, g;
+    if (!PyArg_ParseTuple(args, "dddd", &residual, &sigma, &h, &g)) return NULL;
+    return PyFloat_FromDouble(vehicle_tau_core(residual, sigma, h, g));
+}
+
+PyDoc_STRVAR(horizontal_bias_sigma_doc,
+             "horizontal_bias_sigma(bias_p, up) -> float\n\n"
+             "aided_fusion.horizontal_bias_sigma: vqf's bias covariance bias_p (9,) (body axes, (0.01 deg/s)^2) and "
+             "the up axis (3,) -> one sigma about the horizontal axes, rad/s.");
+
+static PyObject *horizontal_bias_sigma(PyObject *self, PyObject *args) {
+    PyObject *o_cov, *o_up;
+    if (!PyArg_ParseTuple(args, "OO", &o_cov, &o_up)) return NULL;
+    Array a[2];
+    if (get_array(o_cov, &a[0], 1, 9, -1, 0, "bias_p") < 0) return NULL;
+    if (get_array(o_up, &a[1], 1, 3, -1, 0, "up") < 0) { release(a, 1); return NULL; }
+    double cov[9], up[3];
+    for (int i = 0; i < 9; i++) cov[i] = AT1(a[0], i);
+    for (int i = 0; i < 3; i++) up[i] = AT1(a[1], i);
+    release(a, 2);
+    return PyFloat_FromDouble(horizontal_sigma_core(cov, up));
+}
+
+PyDoc_STRVAR(vqf_travelled_doc,
+             "vqf_travelled(filter, seconds)\n\n"
+             "aided_fusion.travelled on a vqf.VQF's own state.");
+
+static PyObject *vqf_travelled(PyObject *self, PyObject *args) {
+    PyObject *obj;
+    double seconds;
+    if (!PyArg_ParseTuple(args, "Od", &obj, &seconds)) return NULL;
+    void *vqf = vqf_object(obj);
+    if (vqf == NULL) return NULL;
+    travelled_core(vqf, seconds);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(aided_layout_doc, "aided_layout() -> dict: the sizes and indices of the settings and state arrays.");
+
+static PyObject *aided_layout(PyObject *self, PyObject *args) {
+    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i}", "settings", S_SIZE, "state", A_SIZE,
+                         "fixes", A_FIXES, "explained", A_EXPLAINED, "vertical", A_VERTICAL, "drift", A_DRIFT,
+                         "fixes_size", F_SIZE, "explained_size", E_SIZE, "vertical_size", V_SIZE, "drift_size", D_SIZE,
+                         "figures", S_DRIFT_FIGURES, "row", R_SIZE);
+}
+
 static PyMethodDef methods[] = {
     {"carry_forward", carry_forward, METH_VARARGS, carry_forward_doc},
     {"quaternion_product", quaternion_product, METH_VARARGS, quaternion_product_doc},
@@ -687,6 +1590,19 @@ static PyMethodDef methods[] = {
     {"advance_field", advance_field, METH_VARARGS, advance_field_doc},
     {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
+    {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
+    {"vqf_probe", vqf_probe, METH_VARARGS, vqf_probe_doc},
+    {"vqf_travelled", vqf_travelled, METH_VARARGS, vqf_travelled_doc},
+    {"aided_update", aided_update, METH_VARARGS, aided_update_doc},
+    {"aided_layout", aided_layout, METH_NOARGS, aided_layout_doc},
+    {"fixes_observe", fixes_observe, METH_VARARGS, fixes_observe_doc},
+    {"fixes_arrivals", fixes_arrivals, METH_VARARGS, fixes_arrivals_doc},
+    {"fixes_standing", fixes_standing, METH_VARARGS, fixes_standing_doc},
+    {"drift_update", drift_update, METH_VARARGS, drift_update_doc},
+    {"explained_update", explained_update, METH_VARARGS, explained_update_doc},
+    {"vertical_correction", vertical_correction, METH_VARARGS, vertical_correction_doc},
+    {"vehicle_tau_acc", vehicle_tau_acc, METH_VARARGS, vehicle_tau_acc_doc},
+    {"horizontal_bias_sigma", horizontal_bias_sigma, METH_VARARGS, horizontal_bias_sigma_doc},
     {NULL, NULL, 0, NULL},
 };
 

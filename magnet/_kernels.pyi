@@ -1,5 +1,7 @@
 """Types of the compiled kernels (magnet/_kernels.c, where each is documented)."""
 
+from typing import Any
+
 import numpy as np
 
 def carry_forward(start: np.ndarray, gyr: np.ndarray, bias: np.ndarray, period_s: float, out: np.ndarray) -> None: ...
@@ -48,3 +50,59 @@ def watch_update(
     turn_floor_rad: float,
 ) -> None: ...
 def format_rows(matrix: np.ndarray, decimals: bytes) -> bytes: ...
+def vqf_bind(path: str) -> None: ...
+def vqf_probe(filter: object) -> dict[str, Any]: ...
+def vqf_travelled(filter: object, seconds: float) -> None: ...
+def aided_layout() -> dict[str, int]: ...
+def aided_update(
+    filter: object,
+    settings: np.ndarray,
+    state: np.ndarray,
+    fix_times: np.ndarray,
+    fix_values: np.ndarray,
+    pending: np.ndarray,
+    t: np.ndarray,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    field: np.ndarray,
+    vel: np.ndarray,
+    quat: np.ndarray,
+    disturbed: np.ndarray,
+) -> None: ...
+def fixes_observe(
+    meta: np.ndarray,
+    times: np.ndarray,
+    values: np.ndarray,
+    t: np.ndarray,
+    vel: np.ndarray,
+    delay_s: float,
+    max_fixes: int,
+) -> None: ...
+def fixes_arrivals(meta: np.ndarray, vel: np.ndarray, out: np.ndarray) -> None: ...
+def fixes_standing(
+    meta: np.ndarray,
+    times: np.ndarray,
+    values: np.ndarray,
+    start_s: float,
+    end_s: float,
+    half_window_s: float,
+    max_speed: float,
+) -> int: ...
+def drift_update(
+    drift: np.ndarray,
+    figures: np.ndarray,
+    t_s: float,
+    count: float,
+    heading_rad: float,
+    horizontal: float,
+    vertical: float,
+    disturbed: bool,
+    up: np.ndarray,
+    tilt_rad: float,
+) -> tuple[float, float, float]: ...
+def explained_update(store: np.ndarray, left_ms2: float, seconds: float, time_s: float) -> float: ...
+def vertical_correction(
+    store: np.ndarray, delta: float, up: np.ndarray, seconds: float, disturbed: bool
+) -> tuple[float, float, float]: ...
+def vehicle_tau_acc(residual_ms2: float, bias_sigma_rads: float, half_window_s: float, gravity: float) -> float: ...
+def horizontal_bias_sigma(bias_p: np.ndarray, up: np.ndarray) -> float: ...

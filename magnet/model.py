@@ -41,6 +41,12 @@ from magnet.plausible import (
     UNKNOWN_SCALE_GAIN,
     check_plausible,
 )
+from magnet.record_fields import MAX_HARDWARE_ID
+from magnet.record_fields import flag as _flag
+from magnet.record_fields import hardware_id as _hardware_id
+from magnet.record_fields import known as _known
+from magnet.record_fields import number as _number
+from magnet.record_fields import text as _text
 from magnet.units import FieldUnit
 
 #: the methods that make records (``magnet.calibration.Method`` values, the turntable's least-squares variant, the
@@ -226,6 +232,9 @@ class Calibration:
         reason: why it was rejected (or notes when accepted), in words a person can act on.
         motor: the motors' field (``magnet.motor.MotorModel``: uT per amp or at full throttle, subtracted after the
             correction), or None; written as ``motor_ut_per_a`` or ``motor_ut_per_throttle``.
+        hardware_id: the id the vehicle reported for the sensor the samples came from (ArduPilot's COMPASS_DEV_ID,
+            PX4's CAL_MAGn_ID; 1..2**32-1), or None when not known; a compass applies the record only to batches of
+            that sensor (docs/mavlink.md). Written only when known: records without one read and hash as before.
     """
 
     method: str
@@ -239,9 +248,13 @@ class Calibration:
     accepted: bool = True
     reason: str = ""
     motor: MotorModel | None = None
+    hardware_id: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "offset", _as_vector3(self.offset, "offset"))
+        hw = self.hardware_id
+        if hw is not None and (isinstance(hw, bool) or not isinstance(hw, int) or not 0 < hw <= MAX_HARDWARE_ID):
+            raise ValueError(f"hardware_id must be a whole number 1..{MAX_HARDWARE_ID} or null, got {hw!r}")
         object.__setattr__(self, "matrix", _as_matrix3(self.matrix, "matrix"))
         object.__setattr__(self, "quality", Quality.from_dict(self.quality))
         if not math.isfinite(float(self.field_strength)) or self.field_strength < 0:
@@ -279,6 +292,8 @@ class Calibration:
         }
         if self.motor is not None:  # only then: the ids of records without one stay as they were
             content["motor"] = {self.motor.key: [round(float(x), 12) for x in self.motor.coefficients]}
+        if self.hardware_id is not None:  # likewise: one sensor's record is not another's
+            content["hardware_id"] = int(self.hardware_id)
         digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
         return digest[:16]
 
@@ -296,6 +311,8 @@ class Calibration:
             "accepted": bool(self.accepted),
             "reason": self.reason,
         }
+        if self.hardware_id is not None:
+            out["hardware_id"] = int(self.hardware_id)
         return out if self.motor is None else {**out, **self.motor.to_dict()}
 
     @classmethod
@@ -321,41 +338,9 @@ class Calibration:
             accepted=_flag(data, "accepted"),
             reason=_text(data, "reason", ""),
             motor=motor_from_dict(data),
+            hardware_id=_hardware_id(data),
         )
         return check_plausible(calibration)
-
-
-def _text(data: Mapping[str, Any], name: str, default: str) -> str:
-    value = data.get(name, default)
-    if value is None:
-        return default
-    if not isinstance(value, str):
-        raise ValueError(f"calibration field {name} must be a string, got {type(value).__name__}")
-    return value
-
-
-def _known(data: Mapping[str, Any], name: str, default: str, known: frozenset[str]) -> str:
-    """A text field that must be one of ``known``; ValueError naming them otherwise."""
-    value = _text(data, name, default)
-    if value not in known:
-        shown = value if len(value) <= 40 else value[:40] + "..."
-        raise ValueError(f"calibration field {name} {shown!r} is not one of {', '.join(sorted(known))}")
-    return value
-
-
-def _number(data: Mapping[str, Any], name: str) -> float:
-    value = data.get(name)
-    value = 0 if value is None else value  # not ``or 0``: false would pass as 0
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"calibration field {name} must be a finite number >= 0, got {value!r}")
-    return float(value)
-
-
-def _flag(data: Mapping[str, Any], name: str) -> bool:
-    value = data.get(name, True)
-    if not isinstance(value, bool):
-        raise ValueError(f"calibration field {name} must be true or false, got {value!r}")
-    return value
 
 
 __all__ = [

@@ -18,6 +18,18 @@ the power wires (SCALED_IMU3); SYS_STATUS (current), SERVO_OUTPUT_RAW (throttle)
 at 10 Hz. ``--clean``: compasses without errors (as ArduPilot sends a field it has corrected). ``--pause-at S
 --pause-s D``: no IMU message for D seconds from S (a radio dropout; the boot clock goes on).
 
+Hardware ids (issue 27, item 5): the compasses' ids (``SENSOR_IDS``) are parameters as ArduPilot names them
+(``COMPASS_DEV_ID``, ``COMPASS_DEV_ID2``, ``COMPASS_DEV_ID3``), answered as MAV_PARAM_TYPE_INT32 with the integer in
+the float as ArduPilot sends it. ``--reboot-at S --missing N``: after S seconds the vehicle reboots (its boot clock
+starts again from 0) without compass N: the compasses after it move up one instance (as firmware that numbers them as
+found does), each with its own errors and id, and the id parameters say so.
+
+The compass parameters act as ArduPilot's do (issue 27, item 7): each compass's field is sent corrected by its
+``COMPASS_OFS*``, ``COMPASS_DIA*``, ``COMPASS_ODI*``, ``COMPASS_SCALE*`` (all at their defaults: as measured), so a
+test sees what an apply changed; a COMMAND_LONG MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (1: reboot) is acknowledged and the
+vehicle falls silent for ``REBOOT_SILENT_S`` and boots again (refused, MAV_RESULT_DENIED, while armed).
+``--param NAME=VALUE`` sets a parameter at start (a vehicle that holds an older calibration).
+
 Parameter faults (issue 32, ``export --apply``): ``--no-confirm NAME`` takes a PARAM_SET of NAME without answering
 it (a read is answered); ``--clamp NAME=MAX`` holds at most MAX in NAME and answers with what it holds;
 ``--arm-after-sets N`` arms after its Nth PARAM_SET and says so in a HEARTBEAT at once; ``--camera``: a camera
@@ -35,6 +47,7 @@ from typing import Any
 import numpy as np
 from pymavlink import mavutil
 
+from magnet.autopilot.verify import ardupilot_correction
 from magnet.frames import (
     euler_to_quaternion,
     quaternion_conjugate,
@@ -53,7 +66,12 @@ COMPASSES = {  # instance -> its errors (hard iron uT, soft iron)
     0: SensorErrors(hard_iron_ut=(25.0, -12.0, 9.0), soft_iron=SOFT_0),
     1: SensorErrors(hard_iron_ut=(-8.0, 30.0, -14.0), soft_iron=SOFT_1),
 }
+#: each compass's hardware id (ArduPilot's packing: bus type | bus << 3 | address << 8 | devtype << 16)
+SENSOR_IDS = {0: 466441, 1: 131874, 2: 97539}
 PARAMETERS = {
+    "COMPASS_DEV_ID": float(SENSOR_IDS[0]),
+    "COMPASS_DEV_ID2": float(SENSOR_IDS[1]),
+    "COMPASS_DEV_ID3": 0.0,
     "COMPASS_OFS_X": 0.0,
     "COMPASS_OFS_Y": 0.0,
     "COMPASS_OFS_Z": 0.0,
@@ -76,7 +94,10 @@ QUAD = {
     2: (SensorErrors(), (0.3, -0.2, 0.25)),  # beside the power wires: 18 uT at the 40 A of full throttle
 }
 REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
+INT32 = mavutil.mavlink.MAV_PARAM_TYPE_INT32
+REBOOT = mavutil.mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN
 SETTLE_S = 2.0  # from the tumble's last attitude to level at --hold-yaw
+REBOOT_SILENT_S = 1.0  # a commanded reboot: nothing sent for this long
 
 
 def _slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
@@ -151,22 +172,48 @@ class Vehicle:
                 for i, (e, m) in QUAD.items()
             }
         self.params = dict(PARAMETERS)
+        self.params.update({n: float(v) for n, v in (p.split("=") for p in args.param)})
+        self.silent_until = 0.0
+        self.sensors = {i: SENSOR_IDS[i] for i in self.streams}  # instance -> the id of the compass behind it
+        self._say_ids()
+        self.boot_k = 0  # the IMU message count at the last boot
+        self.k = 0  # IMU messages so far
+        self.reboots = 0  # commanded reboots
         self.sets = 0
         self.clamp = {n: float(v) for n, v in (c.split("=") for c in args.clamp)}
         self.truth: list[tuple[int, int, int, int, float, float]] = []
+        self.sent_by: list[int] = []  # per truth row: the id of the compass that sent it
         self.boot = time.monotonic()
 
     def boot_ms(self) -> int:
         return int((time.monotonic() - self.boot) * 1000)
 
+    def _say_ids(self) -> None:
+        for instance, name in enumerate(("COMPASS_DEV_ID", "COMPASS_DEV_ID2", "COMPASS_DEV_ID3")):
+            self.params[name] = float(self.sensors.get(instance, 0))
+
+    def reboot(self, k: int, missing: int | None) -> None:
+        """Boot again without compass ``missing`` (None: all there): the ones after it move up an instance (module
+        docstring)."""
+        kept = [(self.streams[i], self.sensors[i]) for i in sorted(self.streams) if i != missing]
+        self.streams = {i: stream for i, (stream, _) in enumerate(kept)}
+        self.sensors = {i: sensor for i, (_, sensor) in enumerate(kept)}
+        self._say_ids()
+        self.boot_k = k
+        self.boot = time.monotonic()
+
     def send_imu(self, k: int) -> None:
         mav = self.conn.mav
-        boot_ms = int(k * 1000 / self.args.rate)
+        if self.args.reboot_at is not None and self.boot_k == 0 and k == int(self.args.reboot_at * self.args.rate):
+            self.reboot(k, self.args.missing)
+        if time.monotonic() < self.silent_until:
+            return
+        boot_ms = int((k - self.boot_k) * 1000 / self.args.rate)
         if self.args.hold_after is not None and k == int(self.args.hold_after * self.args.rate):
             self.streams = {i: Held(s, self.args.hold_yaw, self.args.rate, i) for i, s in self.streams.items()}
         for instance, stream in self.streams.items():
             mag, acc, gyr = stream.measure_imu()
-            m = np.round(mag * 10).astype(int)  # uT -> milligauss
+            m = np.round(self.corrected(instance, mag[None] * 10.0)[0]).astype(int)  # uT -> milligauss, corrected
             a = np.round(acc / 9.80665 * 1000).astype(int)  # m/s^2 -> milli-g
             g = np.round(gyr * 1000).astype(int)  # rad/s -> mrad/s
             if instance == self.args.zero_gyro and not isinstance(stream, Held):
@@ -179,15 +226,22 @@ class Vehicle:
                 mav.scaled_imu3_send(boot_ms, *a, *g, *m)
             truth = stream.last_truth
             self.truth.append((instance, *m.tolist(), truth["heading_deg"], truth["pitch_deg"]))
+            self.sent_by.append(self.sensors.get(instance, 0))
         if k % max(1, int(self.args.rate / 10)) == 0:
             t = self.streams[0].last_truth
             roll, pitch, yaw = (math.radians(t[name]) for name in ("roll_deg", "pitch_deg", "heading_deg"))
             mav.attitude_send(boot_ms, roll, pitch, yaw, 0, 0, 0)
 
+    def corrected(self, instance: int, reading_mg: np.ndarray) -> np.ndarray:
+        """What ArduPilot sends for compass ``instance``'s readings (N, 3) mGauss: its parameters applied."""
+        return ardupilot_correction(self.params, instance, 0).field(reading_mg)
+
     def send_slow(self, tick: int) -> None:
         """Every 100 ms: position at 5 Hz, status at 2 Hz, heartbeat at 1 Hz (a quadcopter's flight: position,
         current and throttle at 10 Hz)."""
         mav = self.conn.mav
+        if time.monotonic() < self.silent_until:
+            return
         if self.args.quad:
             self.send_flight()
         if tick % 2 == 0 and not self.args.quad:
@@ -230,7 +284,8 @@ class Vehicle:
 
     def send_param(self, name: str) -> None:
         names = list(self.params)
-        self.conn.mav.param_value_send(name.encode(), self.params[name], REAL32, len(names), names.index(name))
+        kind = INT32 if name.startswith("COMPASS_DEV_ID") else REAL32
+        self.conn.mav.param_value_send(name.encode(), self.params[name], kind, len(names), names.index(name))
 
     def set_param(self, name: str, value: float) -> None:
         self.params[name] = min(value, self.clamp.get(name, math.inf))
@@ -240,6 +295,17 @@ class Vehicle:
         if self.sets == self.args.arm_after_sets:
             self.args.armed = True
             self.send_heartbeat()
+
+    def command_reboot(self) -> None:
+        """MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: refused while armed; else acknowledged, then silent, then booted."""
+        mav = mavutil.mavlink
+        if self.args.armed:
+            self.conn.mav.command_ack_send(REBOOT, mav.MAV_RESULT_DENIED)
+            return
+        self.conn.mav.command_ack_send(REBOOT, mav.MAV_RESULT_ACCEPTED)
+        self.reboots += 1
+        self.silent_until = time.monotonic() + REBOOT_SILENT_S
+        self.reboot(self.k, None)
 
     def answer(self) -> None:
         while (message := self.conn.recv_match(blocking=False)) is not None:
@@ -251,6 +317,8 @@ class Vehicle:
                 name = message.param_id if message.param_index < 0 else names[message.param_index]
                 if name in self.params:
                     self.send_param(name)
+            elif kind == "COMMAND_LONG" and message.command == REBOOT and round(message.param1) == 1:
+                self.command_reboot()
             elif kind == "PARAM_REQUEST_LIST":
                 for name in self.params:
                     self.send_param(name)
@@ -268,6 +336,7 @@ class Vehicle:
                 if not paused:
                     self.send_imu(k)
                 k += 1
+                self.k = k
             while tick < now * 10:
                 self.send_slow(tick)
                 tick += 1
@@ -275,7 +344,13 @@ class Vehicle:
             time.sleep(0.002)
         if self.args.truth:
             table: Any = np.array(self.truth) if self.truth else np.empty((0, 6))
-            np.savez(self.args.truth, table=table, params=np.array([self.params[n] for n in PARAMETERS]))
+            np.savez(
+                self.args.truth,
+                table=table,
+                params=np.array([self.params[n] for n in PARAMETERS]),
+                sensors=np.array(self.sent_by, dtype=np.int64),
+                reboots=np.array(self.reboots),
+            )
 
 
 def main() -> None:
@@ -294,6 +369,9 @@ def main() -> None:
     parser.add_argument("--clean", action="store_true", help="compasses without errors (a corrected field)")
     parser.add_argument("--pause-at", type=float, help="seconds into the run: no IMU message for --pause-s")
     parser.add_argument("--pause-s", type=float, default=1.0)
+    parser.add_argument("--reboot-at", type=float, help="seconds into the run: reboot without compass --missing")
+    parser.add_argument("--missing", type=int, default=0, help="the compass not found at the reboot")
+    parser.add_argument("--param", action="append", default=[], help="NAME=VALUE: a parameter's value at start")
     parser.add_argument("--no-confirm", help="a PARAM_SET of this parameter is taken but never answered")
     parser.add_argument("--clamp", action="append", default=[], help="NAME=MAX: the most this parameter holds")
     parser.add_argument("--arm-after-sets", type=int, help="arms after this many PARAM_SETs (a HEARTBEAT at once)")

@@ -19,15 +19,24 @@ vehicle: ``magnet.attitude.gyro_bias.Explained``) vqf's accelerometer time const
 
 from __future__ import annotations
 
-import itertools
+import functools
 import math
+import sys
 from typing import Any
 
 import numpy as np
 import vqf
 
-from magnet.attitude.aiding import VEHICLE_RESIDUAL_MS2, VelocityFixes, vehicle_tau_acc_s
-from magnet.attitude.gyro_bias import Explained, HeadingDrift, PieceField
+from magnet.attitude.aiding import (
+    DELAY_S,
+    HALF_WINDOW_S,
+    MAX_FIXES,
+    STANDING_SPEED_MS,
+    VEHICLE_RESIDUAL_MS2,
+    VelocityFixes,
+    vehicle_tau_acc_s,
+)
+from magnet.attitude.gyro_bias import DRIFT_FIGURES, EXPLAINED_TIME_S, Explained, HeadingDrift
 from magnet.compiled import kernels as _kernels
 from magnet.units import STANDARD_GRAVITY_MS2
 
@@ -68,27 +77,19 @@ def travelled(filter_: Any, seconds: float) -> None:
     """Count ``seconds`` of travel towards vqf's acceptance of a new reference field, as vqf counts time turning
     faster than magNewMinGyr: a local disturbance (a magnet, steel nearby) changes as the vehicle moves past it, so a
     field that kept its norm and dip while the vehicle travelled is the earth's as surely as one that kept them while
-    it turned. Only while the newest field agrees with the candidate (vqf's own test)."""
-    if not filter_.getMagDistDetected():  # no candidate field to count towards (without reading the whole state)
-        return
-    state, params = filter_.state, filter_.params
-    norm, dip = (float(v) for v in np.asarray(state["magNormDip"], dtype=float).reshape(-1)[:2])
-    cand_norm, cand_dip = float(state["magCandidateNorm"]), float(state["magCandidateDip"])
-    if not state["magDistDetected"] or cand_norm <= 0.0:
-        return
-    agrees = abs(norm - cand_norm) < params["magNormTh"] * cand_norm
-    if agrees and abs(dip - cand_dip) < math.radians(params["magDipTh"]):
-        state["magCandidateT"] = float(state["magCandidateT"]) + seconds
-        filter_.state = state
+    it turned. Only while the newest field agrees with the candidate (vqf's own test: its norm within magNormTh of
+    the candidate's, its dip within magDipTh), and while vqf has a candidate (magDistDetected). Compiled
+    (``magnet._kernels.vqf_travelled``, on the vqf object's own state)."""
+    _bind()
+    _kernels.vqf_travelled(filter_, float(seconds))
 
 
 def horizontal_bias_sigma(state: dict[str, Any], up: np.ndarray) -> float:
     """vqf's uncertainty (rad/s, one sigma per axis) of its gyroscope bias about the two horizontal axes, from the
     bias covariance of its state (``VQF.state``: body axes, in (0.01 deg/s)^2) and the earth's up axis in body axes
-    (3,)."""
-    cov = np.asarray(state["biasP"], dtype=float).reshape(3, 3)
-    variance = max(float(np.trace(cov) - up @ cov @ up), 0.0) / 2.0
-    return math.radians(math.sqrt(variance) / 100.0)
+    (3,): sqrt(max(trace(P) - up^T P up, 0) / 2), in rad/s."""
+    cov = np.asarray(state["biasP"], dtype=float).reshape(9)
+    return _kernels.horizontal_bias_sigma(cov, np.asarray(up, dtype=float))
 
 
 class VerticalBias:
@@ -99,41 +100,66 @@ class VerticalBias:
     every change of delta (rad), divided by T_i = ``BIAS_INTEGRAL_TAUS`` tauMag, goes into vqf's own bias estimate
     along the body's up axis, where the drift comes from (one estimate, which vqf's own learning carries on). The
     loop's damping is then sqrt(T_i / tauMag) / 2 = 0.71. Changes while vqf reports a magnetic disturbance, or
-    before ``BIAS_SETTLE_TAUS`` tauMag of samples, are not used."""
+    before ``BIAS_SETTLE_TAUS`` tauMag of samples, are not used.
 
-    def __init__(self, params: dict[str, Any], period_s: float) -> None:
+    Its numbers live in ``store`` (5,): seconds fed, whether a delta is held, that delta, T_i and the settling time
+    (a view into the aided filter's state, whose compiled loop runs the same ``magnet._kernels.vertical_correction``;
+    a new array when alone)."""
+
+    def __init__(self, params: dict[str, Any], period_s: float, store: np.ndarray | None = None) -> None:
         tau = float(params.get("tauMag", vqf.VQF(period_s).params["tauMag"]))
-        self.integral_s, self.settle_s = BIAS_INTEGRAL_TAUS * tau, BIAS_SETTLE_TAUS * tau
-        self.fed_s = 0.0
-        self.delta: float | None = None
+        self.store = np.zeros(5) if store is None else store
+        self.store[:] = [0.0, 0.0, 0.0, BIAS_INTEGRAL_TAUS * tau, BIAS_SETTLE_TAUS * tau]
+
+    @property
+    def integral_s(self) -> float:
+        return float(self.store[3])
+
+    @property
+    def settle_s(self) -> float:
+        return float(self.store[4])
+
+    @property
+    def fed_s(self) -> float:
+        return float(self.store[0])
+
+    @property
+    def delta(self) -> float | None:
+        return float(self.store[2]) if self.store[1] else None
 
     def correction(self, delta: float, up_body: np.ndarray, seconds: float, disturbed: bool) -> np.ndarray:
         """The change (3,) rad/s to vqf's bias estimate after ``seconds`` more of samples fed: vqf's delta (rad)
         then, the earth's up axis in body axes (3,) (vqf frames), and whether the field was disturbed."""
-        self.fed_s += seconds
-        step = 0.0
-        if self.delta is not None and not disturbed and self.fed_s >= self.settle_s:
-            step = math.remainder(delta - self.delta, math.tau)
-        self.delta = delta
-        return -step / self.integral_s * np.asarray(up_body, dtype=float)
+        more = _kernels.vertical_correction(
+            self.store, float(delta), np.asarray(up_body, dtype=float), float(seconds), bool(disturbed)
+        )
+        return np.array(more)
 
 
-_T, _GYR, _ACC, _FIELD, _GIVEN, _TURN = (
-    slice(0, 1),
-    slice(1, 4),
-    slice(4, 7),
-    slice(7, 10),
-    slice(10, 14),
-    slice(14, 18),
-)
-_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+#: whether an aided vehicle's heading drift is learnt (``HeadingDrift``); off only to compare without it
+DRIFT_LEARNING = True
+#: the layout of the aided filter's numbers (``magnet._kernels.aided_layout``: the indices the compiled loop uses)
+_LAYOUT = _kernels.aided_layout()
+#: a pending row: time, gyroscope, accelerometer, field, the attitude last given, the turn since the filter's state
+ROW_SIZE = 18
+
+
+@functools.cache
+def _bind() -> None:
+    """Find vqf's compiled filter (its C++ class, in vqf's own extension module) for the compiled loop."""
+    _kernels.vqf_bind(str(sys.modules[vqf.VQF.__module__].__file__))
 
 
 class AidedFilter:
     """vqf with velocity aiding for one device (see the module docstring). Inputs in vqf's frames; velocities in
-    magnetic NED m/s; times in seconds. ``pending`` (n, 18): the samples not yet fed, each with its time, gyroscope,
-    accelerometer, field, the attitude last given to it and its turn since the filter's state (the gyroscope's
-    product from the first pending sample to it)."""
+    magnetic NED m/s; times in seconds.
+
+    The loop over a batch is compiled (``magnet._kernels.aided_update``, docs/cost.md): it drives ``filter``, this
+    Python ``vqf.VQF`` itself (the C++ object inside it, through the functions vqf's module exports), and keeps the
+    aided filter's own numbers in ``state`` (float64; ``fixes``, ``explained``, ``vertical`` and ``drift`` are views
+    into it, the same classes a test or another user runs alone) and the samples not yet fed in ``pending`` (n, 18):
+    each with its time, gyroscope, accelerometer, field, the attitude last given to it and its turn since the
+    filter's state (the gyroscope's product from the first pending sample to it)."""
 
     def __init__(
         self,
@@ -145,30 +171,69 @@ class AidedFilter:
     ) -> None:
         """``start``: a vqf filter to carry on from (the device's filter before its first velocity), else a new one;
         ``fed``: whether that filter has taken samples already (else its attitude is no attitude yet)."""
+        _bind()
         self.period_s, self.params, self.max_lag_s = period_s, params, max_lag_s
         self.filter = start if start is not None else vqf.VQF(period_s, **params)
-        self.fed = fed and start is not None
-        self.fixes = VelocityFixes()
-        self.pending = np.zeros((0, 18))
-        self.disturbed = False
-        self.vertical = VerticalBias(params, period_s)
         defaults = vqf.VQF(period_s).params
         self.rest_enabled = bool(params.get("restBiasEstEnabled", True))
         self.tau_acc_s = float(params.get("tauAcc", defaults["tauAcc"]))
-        bias_sigma = math.radians(float(params.get("biasSigmaInit", defaults["biasSigmaInit"])))
-        self.bias_sigma = bias_sigma
-        self.vehicle_tau_s = min(vehicle_tau_acc_s(VEHICLE_RESIDUAL_MS2, bias_sigma), self.tau_acc_s)
-        self.drift = HeadingDrift(self.tau_acc_s, bias_sigma)
-        self.explained = Explained()
+        self.bias_sigma = math.radians(float(params.get("biasSigmaInit", defaults["biasSigmaInit"])))
+        self.vehicle_tau_s = min(vehicle_tau_acc_s(VEHICLE_RESIDUAL_MS2, self.bias_sigma), self.tau_acc_s)
+        self.settings = np.zeros(_LAYOUT["settings"])
+        figures = _LAYOUT["figures"]
+        self.settings[:figures] = [
+            period_s,
+            max_lag_s,
+            DELAY_S,
+            HALF_WINDOW_S,
+            MAX_FIXES,
+            self.rest_enabled,
+            self.tau_acc_s,
+            self.vehicle_tau_s,
+            STANDARD_GRAVITY_MS2,
+            STANDING_SPEED_MS,
+            CHUNK_S,
+            EXPLAINED_TIME_S,
+            DRIFT_LEARNING,
+        ]
+        self.settings[figures:] = DRIFT_FIGURES
+        self.state = np.zeros(_LAYOUT["state"])
+        self._fresh()
+        self.state[0] = float(fed and start is not None)
+
+    def _fresh(self) -> None:
+        """The aided filter's own numbers as new (vqf's state is the caller's)."""
+        at, size = _LAYOUT, _LAYOUT
+        self.state[:] = 0.0
+        self.fixes = VelocityFixes(meta=self.state[at["fixes"] : at["fixes"] + size["fixes_size"]])
+        self.explained = Explained(self.state[at["explained"] : at["explained"] + size["explained_size"]])
+        self.vertical = VerticalBias(
+            self.params, self.period_s, self.state[at["vertical"] : at["vertical"] + size["vertical_size"]]
+        )
+        self.drift = HeadingDrift(
+            self.tau_acc_s, self.bias_sigma, self.state[at["drift"] : at["drift"] + size["drift_size"]]
+        )
+        self._pending = np.zeros((0, ROW_SIZE))
+
+    @property
+    def fed(self) -> bool:
+        """Whether the filter has taken samples (else its attitude is no attitude yet)."""
+        return bool(self.state[0])
+
+    @property
+    def disturbed(self) -> bool:
+        """vqf's magnetic disturbance flag after the last piece fed."""
+        return bool(self.state[1])
+
+    @property
+    def pending(self) -> np.ndarray:
+        """The samples not yet fed (n, 18) (see the class docstring; a view)."""
+        return self._pending[: int(self.state[2])]
 
     def restart(self) -> None:
         self.release()
         self.filter.resetState()
-        self.fed = False
-        self.fixes, self.pending, self.disturbed = VelocityFixes(), np.zeros((0, 18)), False
-        self.vertical = VerticalBias(self.params, self.period_s)
-        self.drift = HeadingDrift(self.drift.tau_s, self.drift.bias_sigma)
-        self.explained = Explained()
+        self._fresh()
 
     def release(self) -> None:
         """Give the filter back its own settings (rest detection, tauAcc), for samples fed without aiding."""
@@ -178,98 +243,37 @@ class AidedFilter:
     def update(
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray, t_s: np.ndarray, vel_ned_ms: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """One batch (N samples, vqf frame, C-contiguous float64): (vqf quaternions (N, 4) body -> ENU, magnetic
-        disturbance flags (N,)) for its samples. Taken in pieces that start where a fix arrives or a ``CHUNK_S`` tick
-        of time begins, so that the answers do not depend on how the samples were cut into batches."""
-        rows = np.column_stack([t_s, gyr, acc, field, np.zeros((len(t_s), 8))])
-        tick = np.floor(np.asarray(t_s, dtype=float) / CHUNK_S)
-        cuts = np.flatnonzero(self.fixes.arrivals(vel_ned_ms)[1:] | (tick[1:] != tick[:-1])) + 1
-        bounds = [0, *cuts.tolist(), len(rows)]
-        parts = [self._chunk(rows[a:b], vel_ned_ms[a:b]) for a, b in itertools.pairwise(bounds) if b > a]
-        if not parts:
-            return np.zeros((0, 4)), np.zeros(0, dtype=bool)
-        return np.vstack([q for q, _ in parts]), np.concatenate([d for _, d in parts])
-
-    def _chunk(self, rows: np.ndarray, vel_ned_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """One piece of a batch: rows (n, 18) with time, gyroscope, accelerometer and field filled in."""
-        self.fixes.observe(rows[:, 0], vel_ned_ms)
-        bias = np.asarray(self.filter.getBiasEstimate()[0], dtype=float)
-        before = self.pending[-1, _TURN] if len(self.pending) else _IDENTITY
-        _kernels.carry_forward(before, rows[:, _GYR], bias, self.period_s, rows[:, _TURN])
-        self.pending = np.concatenate((self.pending, rows))
-        self._give()
-        if not self.fed:  # a filter that has taken no sample has no attitude to carry forward: fed at once
-            quat = self._feed(float(rows[0, 0]), keep=0, at_once=True)
-            return quat[-len(rows) :], np.full(len(rows), self.disturbed)
-        self._feed(float(rows[0, 0]), keep=len(rows))
-        self._give()
-        return self.pending[-len(rows) :, _GIVEN].copy(), np.full(len(rows), self.disturbed)
-
-    def _give(self) -> None:
-        """The attitude of every pending sample: the filter's, turned by the sample's turn."""
-        start = np.asarray(self.filter.getQuat9D(), dtype=float).reshape(1, 4)
-        _kernels.quaternion_product(start, self.pending[:, _TURN], self.pending[:, _GIVEN])
-
-    def _feed(self, now_s: float, keep: int, at_once: bool = False) -> np.ndarray:
-        """Feed the pending samples whose acceleration is known (or that waited ``max_lag_s``; all of them
-        ``at_once``), in order, but not the last ``keep`` (the ones being answered); then count the turns of the
-        others from the new filter state. Returns vqf's quaternions (n, 4) of the samples fed.
-
-        At once: a filter that has taken no sample yet answers from no attitude at all (the identity: magnetic east
-        at level), which the gyroscope would carry forward for up to ``max_lag_s`` after every restart (a gap, a new
-        calibration); so its first samples are fed without waiting for their acceleration."""
-        table = self.pending
-        ready = (table[:, 0] <= self.fixes.known_until_s) | (table[:, 0] < now_s - self.max_lag_s) | at_once
-        count = min(int(np.argmin(ready)) if not ready.all() else len(table), len(table) - keep)
-        if count == 0:
-            return np.zeros((0, 4))
-        self.fed = True
-        fed, self.pending = table[:count], table[count:].copy()
-        acc = fed[:, _ACC] - _in_body(fed[:, _GIVEN], self.fixes.acceleration(fed[:, 0]))
-        gyr, field = np.ascontiguousarray(fed[:, _GYR]), np.ascontiguousarray(fed[:, _FIELD])
-        standing = self.fixes.standing(float(fed[0, 0]), float(fed[-1, 0]))
-        self.filter.setRestBiasEstEnabled(self.rest_enabled and standing is not False)
-        out = self.filter.updateBatch(gyr, np.ascontiguousarray(acc), field)
-        if standing is False:
-            travelled(self.filter, count * self.period_s)
-        self.disturbed = bool(np.asarray(out["magDistDetected"]).reshape(-1)[-1])
-        self._heading_loop(fed[:, 0], acc, field, out)
-        # the turns from the new state: conj(last fed) turn, normalised (rounding would compound)
-        if len(self.pending):
-            _kernels.quaternion_product(fed[-1:, _TURN], self.pending[:, _TURN], self.pending[:, _TURN], True, True)
-        return np.asarray(out["quat9D"], dtype=float).reshape(-1, 4)
-
-    def _heading_loop(self, t_s: np.ndarray, acc: np.ndarray, field: np.ndarray, out: dict[str, Any]) -> None:
-        """After a piece was fed (times (n,) s, the accelerometer fed (n, 3) and the field (n, 3), vqf frames, vqf's
-        outputs): where the velocity explains the accelerometer (``Explained``: a vehicle), vqf's accelerometer time
-        constant for a vehicle and the Kalman filter of its heading's drift (``HeadingDrift``: the bias it learns goes
-        into vqf's, its heading offset into vqf's delta); elsewhere vqf's own tauAcc and the integral term of
-        ``VerticalBias``."""
-        quat6d = np.asarray(out["quat6D"], dtype=float).reshape(-1, 4)
-        *up_xyz, heading, horizontal, vertical, left = _kernels.piece_figures(quat6d, field, acc, STANDARD_GRAVITY_MS2)
-        disturbed, up, seconds = (
-            bool(np.asarray(out["magDistDetected"]).any()),
-            np.array(up_xyz),
-            len(t_s) * self.period_s,
+        """One batch (N samples, vqf frame, float64): (vqf quaternions (N, 4) body -> ENU, magnetic disturbance
+        flags (N,)) for its samples. Taken in pieces that start where a fix arrives or a ``CHUNK_S`` tick of time
+        begins, so that the answers do not depend on how the samples were cut into batches. Each piece: its fixes
+        observed; its turns carried forward from the last pending sample's (``carry_forward``, less vqf's bias
+        estimate); the pending samples whose acceleration is known (or that waited ``max_lag_s``; all of them
+        while the filter has taken none) fed to vqf as acc - R^T a (``magnet.attitude.aiding``), vqf's rest
+        detection off while the fixes say the vehicle moves and ``travelled`` counted; after each feed the heading
+        loop (``Explained``, then ``HeadingDrift`` for a vehicle or ``VerticalBias`` elsewhere, module docstring);
+        the piece's samples answered from the filter's state carried forward."""
+        count = len(t_s)
+        held = int(self.state[2])
+        if len(self._pending) < held + count:
+            grown = np.zeros((max(held + count, 2 * len(self._pending)), ROW_SIZE))
+            grown[:held] = self._pending[:held]
+            self._pending = grown
+        quat = np.empty((count, 4))
+        disturbed = np.zeros(count, dtype=bool)
+        vel = np.ascontiguousarray(vel_ned_ms, dtype=float)
+        _kernels.aided_update(
+            self.filter,
+            self.settings,
+            self.state,
+            self.fixes.buffer_times,
+            self.fixes.buffer_values,
+            self._pending,
+            np.asarray(t_s, dtype=float),
+            gyr,
+            acc,
+            field,
+            vel,
+            quat,
+            disturbed,
         )
-        bias = np.asarray(self.filter.getBiasEstimate()[0], dtype=float)
-        residual = self.explained.update(left, seconds)
-        vehicle = vehicle_tau_acc_s(residual, self.bias_sigma) < self.tau_acc_s
-        tau = self.vehicle_tau_s if vehicle else self.tau_acc_s
-        self.filter.setTauAcc(tau)
-        self.drift.tau_s = tau
-        if not vehicle:
-            if self.drift.p is not None:  # starts afresh when it is needed again
-                self.drift = HeadingDrift(self.drift.tau_s, self.drift.bias_sigma)
-            more = self.vertical.correction(float(self.filter.getDelta()), up, seconds, disturbed)
-            self.filter.setBiasEstimate(bias + more)
-            return
-        self.vertical.delta = None  # vqf's delta is set here: not a drift for the integral term
-        figures = PieceField(float(np.mean(t_s)), len(t_s), heading, horizontal, vertical)
-        state = self.filter.state  # read once (a dict of vqf's whole state: microseconds), written back at most once
-        learnt = self.drift.update(figures, disturbed, up, horizontal_bias_sigma(state, up) * self.drift.tau_s)
-        if self.drift.p is not None and not disturbed:  # the bias (rad/s, as setBiasEstimate sets it) and the delta
-            state["bias"], state["delta"] = (bias + learnt).tolist(), float(self.drift.x[0])
-            self.filter.state = state
-        else:
-            self.filter.setBiasEstimate(bias + learnt)
+        return quat, disturbed

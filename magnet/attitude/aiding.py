@@ -26,8 +26,6 @@ Velocities are in magnetic NED (north is the field's, as the filter's): rotate g
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from magnet.compiled import kernels as _kernels
@@ -62,61 +60,82 @@ def vehicle_tau_acc_s(residual_ms2: float, bias_sigma_rads: float) -> float:
     noise, sqrt(2) 0.1 / 2h = 0.14, and road vibration) 1.1 s, a multirotor (0.45 m/s^2: rotor vibration, bank
     onsets the 1 s difference smooths) 1.8 s; at 0.9 m/s^2 it reaches vqf's 3 s, where aiding no longer helps the
     tilt."""
-    window = 2.0 * HALF_WINDOW_S
-    sigma = residual_ms2 / STANDARD_GRAVITY_MS2
-    return float((sigma**2 * window / (4.0 * bias_sigma_rads**2)) ** (1.0 / 3.0))
+    return _kernels.vehicle_tau_acc(float(residual_ms2), float(bias_sigma_rads), HALF_WINDOW_S, STANDARD_GRAVITY_MS2)
 
 
-@dataclasses.dataclass
+#: the numbers of a ``VelocityFixes`` besides its buffers: the first visible fix, their count, whether a value is
+#: held, the held value (3,)
+FIXES_SIZE = 6
+
+
 class VelocityFixes:
     """The velocity fixes seen so far (at most ``max_fixes``, the newest): measured times (F,) s and values (F, 3)
-    m/s. ``observe`` takes held velocity rows as they come; ``acceleration`` gives dv/dt where it is known."""
+    m/s. ``observe`` takes held velocity rows as they come; ``acceleration`` gives dv/dt where it is known.
 
-    delay_s: float = DELAY_S
-    half_window_s: float = HALF_WINDOW_S
-    times_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-    values: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
-    held: np.ndarray | None = None
-    max_fixes: int = MAX_FIXES
+    The fixes live in buffers of twice ``max_fixes`` (moved back to their start when full) and ``meta``
+    (``FIXES_SIZE``,): a view into the aided filter's state, whose compiled loop runs the same kernels
+    (``magnet._kernels.fixes_observe``, ``fixes_standing``, ``centred_difference``), or a new array when alone."""
+
+    def __init__(
+        self,
+        delay_s: float = DELAY_S,
+        half_window_s: float = HALF_WINDOW_S,
+        max_fixes: int = MAX_FIXES,
+        meta: np.ndarray | None = None,
+    ) -> None:
+        if max_fixes < 2:
+            raise ValueError(f"max_fixes must be at least 2, got {max_fixes}")
+        self.delay_s, self.half_window_s, self.max_fixes = float(delay_s), float(half_window_s), int(max_fixes)
+        self.meta = np.zeros(FIXES_SIZE) if meta is None else meta
+        self.meta[:] = 0.0
+        self.buffer_times = np.zeros(2 * self.max_fixes)
+        self.buffer_values = np.zeros((2 * self.max_fixes, 3))
+
+    @property
+    def times_s(self) -> np.ndarray:
+        """The fixes' measured times (F,) s (a view)."""
+        start, count = int(self.meta[0]), int(self.meta[1])
+        return self.buffer_times[start : start + count]
+
+    @property
+    def values(self) -> np.ndarray:
+        """The fixes' values (F, 3) m/s magnetic NED (a view)."""
+        start, count = int(self.meta[0]), int(self.meta[1])
+        return self.buffer_values[start : start + count]
+
+    @property
+    def held(self) -> np.ndarray | None:
+        """The last finite velocity seen (3,), None before one."""
+        return self.meta[3:6].copy() if self.meta[2] else None
 
     def arrivals(self, vel_ned_ms: np.ndarray) -> np.ndarray:
-        """(N,) bool: the rows of held velocities (N, 3) where a new fix appears, after those seen so far."""
-        vel = np.asarray(vel_ned_ms, dtype=float)
-        if len(vel) == 0:
-            return np.zeros(0, dtype=bool)
-        changed = np.empty(len(vel), dtype=bool)
-        changed[0] = self.held is None or bool((vel[0] != self.held).any())  # nothing held: any finite row is new
-        changed[1:] = (vel[1:] != vel[:-1]).any(axis=1)
-        return np.isfinite(vel).all(axis=1) & changed
+        """(N,) bool: the rows of held velocities (N, 3) where a new fix appears (finite and unlike the row before;
+        the first row unlike the value held), after those seen so far."""
+        vel = np.ascontiguousarray(vel_ned_ms, dtype=float)
+        out = np.zeros(len(vel), dtype=bool)
+        _kernels.fixes_arrivals(self.meta, vel.reshape(-1, 3), out)
+        return out
 
     def observe(self, t_s: np.ndarray, vel_ned_ms: np.ndarray) -> None:
-        """Samples' times (N,) s, increasing, and their held velocity (N, 3) (NaN rows where none is known)."""
-        vel = np.asarray(vel_ned_ms, dtype=float)
-        if len(vel) == 0:
-            return
-        new = self.arrivals(vel)
-        last_finite = bool(np.isfinite(vel[-1]).all())
-        if not new.any():
-            self.held = vel[-1] if last_finite else self.held
-            return
-        measured = np.asarray(t_s, dtype=float)[new] - self.delay_s
-        self.times_s = np.concatenate([self.times_s, measured])[-self.max_fixes :]
-        self.values = np.concatenate((self.values, vel[new]))[-self.max_fixes :]
-        self.held = vel[-1] if last_finite else self.held
+        """Samples' times (N,) s, increasing, and their held velocity (N, 3) (NaN rows where none is known): each
+        new fix (``arrivals``) is kept, dated ``delay_s`` before its sample."""
+        vel = np.ascontiguousarray(vel_ned_ms, dtype=float).reshape(-1, 3)
+        t = np.asarray(t_s, dtype=float)
+        _kernels.fixes_observe(self.meta, self.buffer_times, self.buffer_values, t, vel, self.delay_s, self.max_fixes)
 
     @property
     def known_until_s(self) -> float:
         """The latest time whose acceleration is known (the newest fix's time minus h); -inf before two fixes."""
-        return float(self.times_s[-1] - self.half_window_s) if len(self.times_s) >= 2 else -np.inf
+        times = self.times_s
+        return float(times[-1] - self.half_window_s) if len(times) >= 2 else -np.inf
 
     def standing(self, start_s: float, end_s: float, max_speed_ms: float = STANDING_SPEED_MS) -> bool | None:
         """Whether the vehicle stood still from start_s to end_s (s) by the fixes measured within h of them: True
         when every one is under ``max_speed_ms``, False when one is not, None when there is none."""
-        near = (self.times_s >= start_s - self.half_window_s) & (self.times_s <= end_s + self.half_window_s)
-        if not near.any():
-            return None
-        near_values = self.values[near]
-        return bool((np.sqrt(np.add.reduce(near_values * near_values, axis=1)) < max_speed_ms).all())
+        verdict = _kernels.fixes_standing(
+            self.meta, self.buffer_times, self.buffer_values, start_s, end_s, self.half_window_s, max_speed_ms
+        )
+        return None if verdict < 0 else bool(verdict)
 
     def acceleration(self, t_s: np.ndarray) -> np.ndarray:
         """dv/dt (N, 3) m/s^2 at times t_s (N,): the centred difference over the fixes; zero where the window is

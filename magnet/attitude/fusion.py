@@ -27,6 +27,7 @@ import vqf
 
 from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
 from magnet.attitude.field_watch import FieldWatch
+from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
 
@@ -234,6 +235,18 @@ class Fusion:
         quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms)
         return quat, np.asarray(disturbed, dtype=bool) | watched
 
+    def figures(self) -> FilterFigures:
+        """What the heading's uncertainty needs of this filter's state now (``magnet.attitude.uncertainty``): vqf's
+        accelerometer time constant in use and its magnetic one (s), its gyroscope bias uncertainty (rad/s), and
+        where velocity aids it, the velocity's acceleration (magnetic NED) and how far it is known."""
+        params = self._filter.params
+        bias_sigma = float(self._filter.getBiasEstimate()[1])
+        figures = FilterFigures(float(params["tauAcc"]), float(params["tauMag"]), bias_sigma)
+        if self._aided is None:
+            return figures
+        fixes = self._aided.fixes
+        return dataclasses.replace(figures, explained=fixes.acceleration, known_until_s=fixes.known_until_s)
+
     def _watched(self, field: np.ndarray | None, gyr: np.ndarray) -> np.ndarray:
         """(N,) bool: the samples the watch finds disturbed (none without a field or a watch)."""
         if field is None or self.watch is None:
@@ -295,6 +308,29 @@ def fuse_offline(
     if field is not None:
         out["magDistDetected"] = np.asarray(out["magDistDetected"], dtype=bool).reshape(-1) | watched
     return Fused.from_vqf(out, field is not None)
+
+
+def acc_less_velocity(
+    gyr_rads: np.ndarray,
+    acc_ms2: np.ndarray,
+    mag: np.ndarray,
+    period_s: float,
+    t_s: np.ndarray,
+    vel_ned_ms: np.ndarray,
+) -> np.ndarray:
+    """The accelerometer (N, 3) m/s^2 body FRD less the linear acceleration the velocity implies (every fix known at
+    once, ``magnet.attitude.aiding``), turned into the body frame by the causal velocity-aided attitude with the
+    field ``mag`` (N, 3), calibrated (its heading turns the velocity's acceleration into the body; a heading a few
+    degrees off leaves a few % of it). What is left is gravity, for a filter without the magnetometer whose tilt a
+    vehicle's own accelerations should not bend. ``vel_ned_ms`` (N, 3) magnetic NED, NaN rows where unknown (their
+    samples are returned as they are)."""
+    period = _check_period(period_s)
+    gyr = _to_vqf(gyr_rads, "gyr_rads")
+    acc = _to_vqf(acc_in_ms2(acc_ms2), "acc_ms2", len(gyr))
+    field = _to_vqf(mag, "mag", len(gyr))
+    t = np.asarray(t_s, dtype=float)
+    quat, _ = Fusion(period).update_vqf_frame(gyr, acc, field, t, vel_ned_ms)
+    return frd_flu(acc - body_acceleration(quat, t, vel_ned_ms))
 
 
 def fuse_causal(

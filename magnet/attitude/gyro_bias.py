@@ -26,7 +26,6 @@ velocity does not explain the accelerometer).
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -46,24 +45,29 @@ MAX_DIP_DEG = 80.0
 EXPLAINED_TIME_S = 3.0
 
 
-@dataclasses.dataclass
 class Explained:
     """How well the velocity explains the accelerometer: what is left of the accelerometer once the velocity's
     acceleration is taken out, less gravity along the filter's vertical, averaged over each piece (0.1 s: vibration
     averages out), its square averaged over ``EXPLAINED_TIME_S``. A car or a multirotor leaves 0.2-0.5 m/s^2 (the
     aiding's noise, road and rotor vibration); a hand's figure 8 or a tumble off its centre 3-6 m/s^2: motion faster
-    than a 10 Hz velocity with a 1 s difference can follow. ``mean_square`` (m/s^2)^2, None before the first piece."""
+    than a 10 Hz velocity with a 1 s difference can follow. ``mean_square`` (m/s^2)^2, None before the first piece.
 
-    mean_square: float | None = None
+    Its numbers live in ``store`` (2,): whether a mean is held, the mean square (a view into the aided filter's
+    state, whose compiled loop runs the same ``magnet._kernels.explained_update``; a new array when alone)."""
+
+    def __init__(self, store: np.ndarray | None = None) -> None:
+        self.store = np.zeros(2) if store is None else store
+        self.store[:] = 0.0
+
+    @property
+    def mean_square(self) -> float | None:
+        return float(self.store[1]) if self.store[0] else None
 
     def update(self, left_ms2: float, seconds: float) -> float:
         """A piece: |mean(acc - g up)| (m/s^2) over its samples (the accelerometer fed and the vertical, body axes,
         vqf's frames: ``magnet._kernels.piece_figures``) and its length in seconds. Returns the residual's RMS so
         far (m/s^2)."""
-        left = float(left_ms2) ** 2
-        weight = -math.expm1(-seconds / EXPLAINED_TIME_S)
-        self.mean_square = left if self.mean_square is None else self.mean_square + weight * (left - self.mean_square)
-        return math.sqrt(self.mean_square)
+        return _kernels.explained_update(self.store, float(left_ms2), float(seconds), EXPLAINED_TIME_S)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,39 +83,81 @@ class PieceField:
     vertical: float
 
 
+#: the drift filter's figures in the order the compiled step takes them (``magnet._kernels.drift_update``)
+DRIFT_FIGURES = np.array([HEADING_NOISE_DEG, TILT_ERROR_DEG, ANGLE_RANDOM_WALK, BIAS_RANDOM_WALK, MAX_DIP_DEG])
+#: the numbers of one drift filter: started, t_s, up (3), tau_s, bias_sigma, x (5), p (5 x 5)
+DRIFT_SIZE = 37
+
+
 class HeadingDrift:
     """The Kalman filter of the module docstring for one device. ``tau_acc_s``: vqf's tauAcc (s);
     ``bias_sigma_rads``: the initial uncertainty of each axis of the gyroscope bias (rad/s, vqf's biasSigmaInit).
-    State x (5,): phi (rad), the bias left over in body axes (3,) rad/s, c (rad); p (5, 5) its covariance."""
+    State x (5,): phi (rad), the bias left over in body axes (3,) rad/s, c (rad); p (5, 5) its covariance (None
+    before the first piece whose field vqf trusts).
 
-    def __init__(self, tau_acc_s: float, bias_sigma_rads: float) -> None:
-        self.tau_s, self.bias_sigma = float(tau_acc_s), float(bias_sigma_rads)
-        self.x = np.zeros(5)
-        self.p: np.ndarray | None = None
-        self.t_s = 0.0
-        self.up = np.array([0.0, 0.0, 1.0])
+    Its numbers live in ``store`` (``DRIFT_SIZE``,): started, the last piece's time (s), its up axis (3), tau_s,
+    bias_sigma, x, p row-major (a view into the aided filter's state, whose compiled loop runs the same
+    ``magnet._kernels.drift_update``; a new array when alone)."""
+
+    def __init__(self, tau_acc_s: float, bias_sigma_rads: float, store: np.ndarray | None = None) -> None:
+        self.store = np.zeros(DRIFT_SIZE) if store is None else store
+        self.store[:] = 0.0
+        self.store[4] = 1.0  # up: z
+        self.store[5], self.store[6] = float(tau_acc_s), float(bias_sigma_rads)
+
+    def reset(self) -> None:
+        """Forget everything but tau_s and bias_sigma (starts afresh with the next trusted piece)."""
+        self.__init__(self.tau_s, self.bias_sigma, self.store)  # type: ignore[misc]
+
+    @property
+    def tau_s(self) -> float:
+        return float(self.store[5])
+
+    @tau_s.setter
+    def tau_s(self, value: float) -> None:
+        self.store[5] = float(value)
+
+    @property
+    def bias_sigma(self) -> float:
+        return float(self.store[6])
+
+    @property
+    def t_s(self) -> float:
+        return float(self.store[1])
+
+    @property
+    def up(self) -> np.ndarray:
+        return self.store[2:5]
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.store[7:12]
+
+    @property
+    def p(self) -> np.ndarray | None:
+        return self.store[12:37].reshape(5, 5) if self.store[0] else None
 
     def update(self, piece: PieceField, disturbed: bool, up: np.ndarray, tilt_rad: float) -> np.ndarray:
         """One piece (``PieceField``), whether vqf found its field disturbed, the earth's up axis in body axes (3,)
         at the piece's end and the tilt's uncertainty (rad). Returns the bias (3,) rad/s learnt, body axes, to be
-        added to vqf's estimate. The prediction and the update are ``magnet._kernels.drift_step``."""
-        t, up, z = piece.t_s, np.asarray(up, dtype=float), piece.heading_rad
-        dip = min(math.atan2(abs(piece.vertical), piece.horizontal), math.radians(MAX_DIP_DEG))
-        sigma_c = math.hypot(math.radians(TILT_ERROR_DEG), tilt_rad) * math.tan(dip)
-        if self.p is None:  # starts with the first piece whose field vqf trusts
-            if disturbed:
-                return np.zeros(3)
-            self.x, self.t_s, self.up = np.array([z, 0.0, 0.0, 0.0, 0.0]), t, up
-            self.p = np.diag([math.radians(HEADING_NOISE_DEG) ** 2, *[self.bias_sigma**2] * 3, sigma_c**2])
-            return np.zeros(3)
-        dt = max(t - self.t_s, 0.0)
-        decay = math.exp(-dt / self.tau_s)
-        noise = np.array([ANGLE_RANDOM_WALK**2 * dt, *[BIAS_RANDOM_WALK**2 * dt] * 3, sigma_c**2 * (1.0 - decay**2)])
-        measured = math.radians(HEADING_NOISE_DEG) ** 2 / piece.count
-        _kernels.drift_step(self.x, self.p, dt, self.tau_s, (up + self.up) / 2.0, noise, z, measured, not disturbed)
-        self.t_s, self.up = t, up
-        if disturbed:
-            return np.zeros(3)
-        learnt = self.x[1:4].copy()
-        self.x[1:4] = 0.0
-        return learnt
+        added to vqf's estimate.
+
+        The first piece whose field vqf trusts starts the filter: x = (z, 0, 0, 0, 0), p diagonal (the heading's
+        noise, bias_sigma^2 on each bias axis, sigma_c^2). Each later one: sigma_c = hypot(TILT_ERROR, tilt) tan(dip),
+        dip the field's (at most ``MAX_DIP_DEG``); the process noise over dt from the last piece (the random walks,
+        sigma_c^2 (1 - exp(-2 dt / tau))); the step ``magnet._kernels.drift_step`` with the mean of the two up axes
+        and the measurement's variance HEADING_NOISE^2 / count; the bias x[1:4] learnt is handed back and zeroed
+        (none while disturbed). Compiled: ``magnet._kernels.drift_update``."""
+        learnt = _kernels.drift_update(
+            self.store,
+            DRIFT_FIGURES,
+            piece.t_s,
+            float(piece.count),
+            piece.heading_rad,
+            piece.horizontal,
+            piece.vertical,
+            bool(disturbed),
+            np.asarray(up, dtype=float),
+            float(tilt_rad),
+        )
+        return np.array(learnt)

@@ -148,7 +148,8 @@ def armed(message: Mapping[str, Any]) -> bool:
 
 def message_dict(message: Any) -> dict[str, Any]:
     """A parsed MAVLink message (pymavlink's message object: ``to_dict`` and ``get_srcSystem``) as the dict this
-    module reads: its fields, ``mavpackettype`` and ``sysid``."""
+    module reads: its fields, ``mavpackettype``, ``sysid`` and ``compid``."""
     out = dict(message.to_dict())
     out["sysid"] = message.get_srcSystem()
+    out["compid"] = message.get_srcComponent()
     return out

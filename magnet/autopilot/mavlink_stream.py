@@ -19,6 +19,15 @@ read anything else before (a real one at rest rounds to zero now and then); and 
 while the field turns by ``ZERO_GYRO_TURN_DEG`` is no gyroscope at all: its samples go out without one (the
 compass and the calibrator then work from the field and the accelerometer), the device is listed in
 ``gyro_absent`` until it reads anything else.
+
+Hardware ids (docs/mavlink.md). Instance N is a place in the autopilot's list, not a sensor: a compass missing at boot
+moves the ones after it up on some firmware. So the stream asks each vehicle for the id of the sensor behind every
+instance (``magnet.autopilot.hwid``: ArduPilot's COMPASS_DEV_ID.., PX4's CAL_MAGn_ID) when it first hears it and again
+after every reboot (its boot clock going back), once its autopilot's HEARTBEAT named the component to ask, and each
+batch carries the id of its samples' sensor. ``requests``
+says what to ask; the PARAM_VALUE answers come in through ``feed``. While a vehicle's ids are being read (at most
+``ID_WAIT_NS``) its samples wait, so that none goes out under the id of the sensor that had the instance before;
+past that they go out without an id (0) and the ids are asked again every ``ID_RETRY_NS``.
 """
 
 from __future__ import annotations
@@ -31,7 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from magnet.autopilot import mavlink
+from magnet.autopilot import hwid, mavlink
+from magnet.autopilot.gyro_check import GyroCheck
 from magnet.earth.location import Location
 from magnet.wire.raw import RawBatch
 
@@ -41,10 +51,19 @@ MAX_SKEW_NS = 2_000_000_000
 FRESH_NS = 1_000_000_000
 #: a device's samples wait at most this long (wall clock) before they go out in a short batch
 MAX_WAIT_NS = 500_000_000
-#: a gyroscope reading exactly zero all the while the field turns this far (deg) is absent
-ZERO_GYRO_TURN_DEG = 30.0
 #: the messages used besides the IMU ones
-OTHER_MESSAGES = frozenset({"HEARTBEAT", "GLOBAL_POSITION_INT", "SYS_STATUS", "BATTERY_STATUS", "SERVO_OUTPUT_RAW"})
+OTHER_MESSAGES = frozenset(
+    {"HEARTBEAT", "GLOBAL_POSITION_INT", "SYS_STATUS", "BATTERY_STATUS", "SERVO_OUTPUT_RAW", "PARAM_VALUE"}
+)
+#: how long a vehicle's samples wait for its compasses' ids (at first contact and after a reboot)
+ID_WAIT_NS = 2_000_000_000
+#: while the ids are read, the requests go again this often; once given up, the ids are asked again this often
+ID_ASK_NS = 500_000_000
+ID_RETRY_NS = 30_000_000_000
+#: HEARTBEAT types that are not the autopilot (MAV_TYPE: GCS, onboard controller, gimbal, ADS-B, camera, servo,
+#: Open Drone ID, battery, log)
+NOT_AUTOPILOT_TYPES = frozenset({6, 18, 26, 27, 30, 33, 34, 36, 38})
+MAV_AUTOPILOT_INVALID = 8
 #: devices one connection may make by default (``--max-port-devices``): a port serves a vehicle or a few dozen, each
 #: with up to three compasses; 255 system ids times 256 HIGHRES_IMU ids would be 65,280
 MAX_PORT_DEVICES = 64
@@ -63,40 +82,25 @@ class Vehicle:
     current: tuple[float, int] | None = None
     throttle: tuple[float, int] | None = None
     armed: bool = False
-
-
-@dataclasses.dataclass
-class GyroCheck:
-    """Whether a device's gyroscope is there (module docstring): ``present`` once it read anything but exactly zero,
-    ``absent`` once it read exactly zero while the field turned ``ZERO_GYRO_TURN_DEG`` from ``start`` (the field's
-    direction, unit (3,), when the zeros began)."""
-
-    present: bool = False
-    absent: bool = False
-    start: np.ndarray | None = None
-
-    def usable(self, gyr_rads: np.ndarray | None, mag_ut: np.ndarray) -> bool:
-        """Judge one sample's gyroscope (rad/s (3,), or None) with its field (uT (3,), not zero): whether to send
-        it."""
-        if gyr_rads is None:
-            return False
-        if gyr_rads.any():
-            self.present, self.absent, self.start = True, False, None
-            return True
-        unit = mag_ut / float(np.linalg.norm(mag_ut))
-        if self.start is None:
-            self.start = unit
-        elif float(unit @ self.start) < np.cos(np.radians(ZERO_GYRO_TURN_DEG)):
-            self.present, self.absent = False, True
-        return self.present
+    #: the autopilot: its component id and MAV_AUTOPILOT (from its HEARTBEAT), None until heard
+    compid: int | None = None
+    autopilot: int | None = None
+    #: compass instance -> the id of the sensor behind it (0: none in that slot), as read since the last boot
+    ids: dict[int, int] = dataclasses.field(default_factory=dict)
+    #: since when (wall ns) the ids are being read (samples wait), None when not; when they were last asked
+    asking_ns: int | None = None
+    asked_ns: int = 0
+    #: when to ask again after giving up (wall ns), None when not given up
+    retry_ns: int | None = None
 
 
 @dataclasses.dataclass
 class Pending:
     """A device's samples not yet sent: times (ns) and rows of (mag (3), acc (3), gyr (3), vel (3), current,
-    throttle)."""
+    throttle, hardware id (NaN while it is being read)); ``instance`` its compass instance."""
 
     sysid: int
+    instance: int = 0
     times: list[int] = dataclasses.field(default_factory=list)
     rows: list[np.ndarray] = dataclasses.field(default_factory=list)
     first_ns: int = 0
@@ -170,15 +174,95 @@ class MavlinkStream:
             value = mavlink.throttle(message, self.motors)
             if value is not None:
                 vehicle.throttle = (value, now_ns)
+        elif kind == "PARAM_VALUE":
+            self._param(message, sysid, vehicle)
         else:
+            self._heartbeat(message, vehicle, now_ns)
+
+    def _heartbeat(self, message: Mapping[str, Any], vehicle: Vehicle, now_ns: int) -> None:
+        """The autopilot's HEARTBEAT (not a camera's, a gimbal's, a ground station's) says armed and who it is; the
+        first one starts the reading of its compasses' ids."""
+        if message.get("type") in NOT_AUTOPILOT_TYPES or message.get("autopilot") == MAV_AUTOPILOT_INVALID:
+            return
+        compid = message.get("compid", 1)
+        if vehicle.compid is None:
+            vehicle.compid = compid if isinstance(compid, int) else 1
+            autopilot = message.get("autopilot")
+            vehicle.autopilot = autopilot if isinstance(autopilot, int) else None
+            vehicle.asking_ns = now_ns
+        if compid == vehicle.compid:
             vehicle.armed = mavlink.armed(message)
+
+    def _param(self, message: Mapping[str, Any], sysid: int, vehicle: Vehicle) -> None:
+        """A PARAM_VALUE: an id parameter's answer sets the id of its instance (and of the samples waiting for it)."""
+        name = message.get("param_id")
+        instance = hwid.instance_of(name) if isinstance(name, str) else None
+        if instance is None:
+            return
+        autopilot = vehicle.autopilot or hwid.MAV_AUTOPILOT_ARDUPILOTMEGA
+        if name not in hwid.id_params(autopilot):
+            return  # the other autopilot's name
+        value, kind = message.get("param_value"), message.get("param_type", 0)
+        found = hwid.hardware_id(float(value), int(kind)) if isinstance(value, (int, float)) else None
+        if found is None:
+            raise mavlink.MavlinkError("bad-field", f"{name} = {value!r} is not a sensor id")
+        vehicle.ids[instance] = found
+        pending = self.pending.get(self.device(sysid, instance))
+        if pending is not None:
+            _fill_ids(pending, found)
+        if set(vehicle.ids) >= set(hwid.id_params(autopilot).values()):
+            self._ids_read(sysid, vehicle)
+
+    def _ids_read(self, sysid: int, vehicle: Vehicle) -> None:
+        """Reading ids is over (all answered, or given up): samples still waiting go out with what is known (0
+        where nothing is)."""
+        vehicle.asking_ns = None
+        for pending in self.pending.values():
+            if pending.sysid == sysid:
+                _fill_ids(pending, 0)
+
+    def requests(self, now_ns: int) -> list[tuple[int, int, str]]:
+        """What to ask now, as (system id, component id, parameter name): each vehicle's id parameters not yet
+        answered, while its ids are read (every ``ID_ASK_NS``, for at most ``ID_WAIT_NS``) or when a retry is due;
+        a vehicle whose ids did not come within ``ID_WAIT_NS`` stops holding its samples."""
+        self._expire(now_ns)
+        out: list[tuple[int, int, str]] = []
+        for sysid, vehicle in self.vehicles.items():
+            retry = vehicle.retry_ns is not None and now_ns >= vehicle.retry_ns
+            if retry:
+                vehicle.retry_ns = now_ns + ID_RETRY_NS
+            asking = vehicle.asking_ns is not None and now_ns - vehicle.asked_ns >= ID_ASK_NS
+            if not (asking or retry) or vehicle.compid is None:
+                continue  # nothing due, or the autopilot not heard yet (its HEARTBEAT names its component)
+            vehicle.asked_ns = now_ns
+            names = hwid.id_params(vehicle.autopilot or hwid.MAV_AUTOPILOT_ARDUPILOTMEGA)
+            out.extend((sysid, vehicle.compid, n) for n, i in names.items() if i not in vehicle.ids)
+        return out
+
+    def _expire(self, now_ns: int) -> None:
+        """Vehicles whose ids did not all come within ``ID_WAIT_NS``: their samples stop waiting (counted
+        ``id-timeouts``); the ids are asked again after ``ID_RETRY_NS``."""
+        for sysid, vehicle in self.vehicles.items():
+            if vehicle.asking_ns is not None and now_ns - vehicle.asking_ns > ID_WAIT_NS:
+                self.counts["id-timeouts"] += 1
+                self._ids_read(sysid, vehicle)
+                vehicle.retry_ns = now_ns + ID_RETRY_NS
+
+    def hardware_ids(self) -> dict[str, int]:
+        """Per device seen: the id of the sensor behind it now (0: none or not known)."""
+        return {d: self.vehicles[p.sysid].ids.get(p.instance, 0) for d, p in sorted(self.pending.items())}
 
     def _time(self, vehicle: Vehicle, boot_ns: int, now_ns: int) -> int:
         """Wall-clock ns of a vehicle's boot time (see the module docstring)."""
         off = vehicle.offset_ns
-        if off is None or boot_ns < vehicle.last_boot_ns - BACKWARDS_NS or abs(boot_ns + off - now_ns) > MAX_SKEW_NS:
+        rebooted = boot_ns < vehicle.last_boot_ns - BACKWARDS_NS
+        if off is None or rebooted or abs(boot_ns + off - now_ns) > MAX_SKEW_NS:
             if off is not None:
                 self.counts["resyncs"] += 1
+            if rebooted:  # the compasses found at this boot may not be the ones before: their ids are read again
+                vehicle.ids.clear()
+                vehicle.asked_ns, vehicle.retry_ns = 0, None
+                vehicle.asking_ns = now_ns if vehicle.compid is not None else None
             vehicle.offset_ns = off = now_ns - boot_ns
             vehicle.last_boot_ns = boot_ns
         vehicle.last_boot_ns = max(boot_ns, vehicle.last_boot_ns)
@@ -193,8 +277,10 @@ class MavlinkStream:
                     "device-limit",
                     f"{device}: a new device beyond the {self.max_devices} this connection may make",
                 )
-            pending = self.pending[device] = Pending(sysid)
+            pending = self.pending[device] = Pending(sysid, sample.instance)
         t_ns = max(self._time(vehicle, sample.boot_ns, now_ns), pending.last_t_ns + 1)
+        known = vehicle.ids.get(sample.instance)
+        sensor_id = float(known) if known is not None else (np.nan if vehicle.asking_ns is not None else 0.0)
         pending.last_t_ns = t_ns
         gyr = sample.gyr_rads if pending.gyro.usable(sample.gyr_rads, sample.mag_ut) else None
         if not pending.rows:
@@ -206,7 +292,7 @@ class MavlinkStream:
                 nan3 if sample.acc_ms2 is None else sample.acc_ms2,
                 nan3 if gyr is None else gyr,
                 _fresh(vehicle.velocity, now_ns, nan3),
-                [_fresh(vehicle.current, now_ns, np.nan), _fresh(vehicle.throttle, now_ns, np.nan)],
+                [_fresh(vehicle.current, now_ns, np.nan), _fresh(vehicle.throttle, now_ns, np.nan), sensor_id],
             ]
         )
         pending.rows.append(row)
@@ -215,18 +301,24 @@ class MavlinkStream:
 
     def take(self, now_ns: int, flush: bool = False) -> list[RawBatch]:
         """The batches due: every device with ``batch`` samples waiting, or whose oldest waited ``MAX_WAIT_NS``
-        (all of them when ``flush``)."""
+        (all of them when ``flush``); samples whose sensor's id is being read wait (at most ``ID_WAIT_NS``, unless
+        ``flush``), and a batch holds the samples of one sensor only."""
+        self._expire(now_ns)
         out = []
         for device, pending in self.pending.items():
             due = len(pending.rows) >= self.batch or now_ns - pending.first_ns >= MAX_WAIT_NS or flush
-            while pending.rows and due:
+            while pending.rows and due and (flush or not np.isnan(pending.rows[0][14])):
                 out.append(self._batch(device, pending))
                 due = len(pending.rows) >= self.batch or flush
         return out
 
     def _batch(self, device: str, pending: Pending) -> RawBatch:
-        rows, pending.rows = pending.rows[: self.batch], pending.rows[self.batch :]
-        times, pending.times = pending.times[: self.batch], pending.times[self.batch :]
+        first = pending.rows[0][14]
+        count = 1
+        while count < min(self.batch, len(pending.rows)) and _same(pending.rows[count][14], first):
+            count += 1
+        rows, pending.rows = pending.rows[:count], pending.rows[count:]
+        times, pending.times = pending.times[:count], pending.times[count:]
         table = np.array(rows)
         pending.seq += 1
         return RawBatch(
@@ -242,6 +334,7 @@ class MavlinkStream:
             _columns(table[:, 9:12]),
             _values(table[:, 12]),
             _values(table[:, 13]),
+            hardware_id=0 if np.isnan(first) else int(first),
         )
 
     @property
@@ -252,6 +345,18 @@ class MavlinkStream:
     def health(self, now_ns: int, timeout_ns: int) -> dict[str, bool]:
         """Per device seen: whether its vehicle sent anything in the last ``timeout_ns``."""
         return {d: now_ns - self.vehicles[p.sysid].last_seen_ns <= timeout_ns for d, p in self.pending.items()}
+
+
+def _same(a: float, b: float) -> bool:
+    """Two rows' hardware ids are one (NaN, being read, equal to NaN)."""
+    return a == b or (np.isnan(a) and np.isnan(b))
+
+
+def _fill_ids(pending: Pending, sensor_id: int) -> None:
+    """Rows waiting for their sensor's id (NaN) get ``sensor_id``."""
+    for row in pending.rows:
+        if np.isnan(row[14]):
+            row[14] = sensor_id
 
 
 def _fresh(value: tuple[Any, int] | None, now_ns: int, default: Any) -> Any:

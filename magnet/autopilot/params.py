@@ -31,6 +31,7 @@ import enum
 
 import numpy as np
 
+from magnet.autopilot import hwid
 from magnet.frames import nearest_rotation, rotation_angle_deg, rotation_matrix
 from magnet.model import Calibration
 from magnet.motor import CURRENT, THROTTLE
@@ -55,11 +56,14 @@ class Autopilot(enum.Enum):
 
 @dataclasses.dataclass(frozen=True)
 class Parameter:
-    """One autopilot parameter: its name, value and whether the autopilot stores it as an integer."""
+    """One autopilot parameter: its name, value and whether the autopilot stores it as an integer; ``check_only``:
+    the sensor's hardware id, which names the compass the values are for: written in the file, but on a vehicle
+    (``--apply``) read and compared, never set."""
 
     name: str
     value: float
     integer: bool = False
+    check_only: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -178,7 +182,8 @@ def px4_parameters(calibration: Calibration, instance: int = 0, rotation_in_forc
     if number != rotation_in_force:
         parameters.append(Parameter(f"{prefix}ROT", number, integer=True))
         notes.append(f"{prefix}ROT applies to an external magnetometer; an internal one follows SENS_BOARD_ROT")
-    notes.append(f"{prefix}ID must already name the magnetometer (it does after any PX4 calibration of it)")
+    if calibration.hardware_id is None:
+        notes.append(f"{prefix}ID must already name the magnetometer (it does after any PX4 calibration of it)")
     parameters += motor_parameters(calibration, Autopilot.PX4, instance, r_f)
     return Export(Autopilot.PX4, tuple(parameters), tuple(notes))
 
@@ -221,5 +226,24 @@ def export_parameters(
     """The parameters for ``autopilot`` (``ardupilot`` or ``px4``); ValueError when it cannot represent the record."""
     chosen = Autopilot(autopilot)
     if chosen is Autopilot.ARDUPILOT:
-        return ardupilot_parameters(calibration, instance, rotation_in_force)
-    return px4_parameters(calibration, instance, rotation_in_force)
+        export = ardupilot_parameters(calibration, instance, rotation_in_force)
+    else:
+        export = px4_parameters(calibration, instance, rotation_in_force)
+    return with_hardware_id(export, calibration, instance)
+
+
+def with_hardware_id(export: Export, calibration: Calibration, instance: int) -> Export:
+    """``export`` with the sensor's id first (``COMPASS_DEV_IDn``, ``CAL_MAGn_ID``) when the record names its sensor
+    (``Calibration.hardware_id``; docs/mavlink.md): it says which compass the values were fitted for. An id beyond
+    the autopilots' 24 bits (another kind of edge's) is left out, with a note."""
+    sensor = calibration.hardware_id
+    if sensor is None:
+        return export
+    ardupilot = export.autopilot is Autopilot.ARDUPILOT
+    kind = hwid.MAV_AUTOPILOT_ARDUPILOTMEGA if ardupilot else hwid.MAV_AUTOPILOT_PX4
+    name = hwid.id_param(kind, instance)
+    if sensor > hwid.MAX_HARDWARE_ID:
+        return dataclasses.replace(export, notes=(*export.notes, f"hardware id {sensor} is no {name}: not written"))
+    note = f"{name} = {hwid.describe(sensor, kind)}: the compass these values were fitted for"
+    parameters = (Parameter(name, float(sensor), integer=True, check_only=True), *export.parameters)
+    return dataclasses.replace(export, parameters=parameters, notes=(*export.notes, note))

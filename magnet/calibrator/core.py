@@ -14,6 +14,12 @@ A raw batch (``on_raw``) is decoded, its device noted in the roster, its samples
 a due collection that is ready is fitted, and an accepted automatic fit is signed, stored and published, which ends
 its collection.
 
+Hardware ids (docs/mavlink.md). A batch may name the sensor behind its device (``hardware_id``, as a MAVLink vehicle
+reports it). Every record made carries the id of the sensor its samples came from; a collection whose device's sensor
+changes (a compass missing at boot gave the instance to another) starts again, and a device whose record in force
+names another sensor than its batches is collected as one without a calibration: the new sensor gets its own record,
+and the other's is never fitted on, refreshed with or applied to samples that are not its own.
+
 Pure: no zenoh, no database, no thread, no clock of its own. What it is given: a store (``store.CalibrationStore``,
 the protocol the service's SQLite file implements), its settings (``settings.Settings``), where its messages go
 (``publish(kind, device, payload_bytes)``), a monotonic clock (s) and a wall clock (ns since the epoch). The shell
@@ -28,6 +34,7 @@ from collections.abc import Callable
 from typing import Any
 
 from magnet import signing, wire
+from magnet.bounded import Recent
 from magnet.calibration.collection import Collection
 from magnet.calibrator.collecting import Collections
 from magnet.calibrator.fitting import Fitter
@@ -73,7 +80,7 @@ class CalibratorCore:
         self.shard_keys = ShardKeys(shard)
         self.records = Records(store, signer, shard, clock_ns)
         self.collections = Collections(settings)
-        self.fitter = Fitter(settings, self.roster.field_ut, self.roster.dip_deg)
+        self.fitter = Fitter(settings, self.roster.field_ut, self.roster.dip_deg, self.roster.declination_deg)
         self.refresher = Refresher(settings.recalibrate, settings.max_samples, settings.max_devices)
         self.sessions = Sessions(
             settings.method, self.collections, self.fitter, self.known, self.state, self.commit, clock
@@ -83,6 +90,9 @@ class CalibratorCore:
         self.takeovers = 0
         self.intake = IntakeFigures()  # set by the service loop
         self.drops = wire.DropCounter()
+        #: per device, the hardware id its batches last named (module docstring), and how often it changed
+        self.sensors: Recent[str, int] = Recent(settings.max_devices)
+        self.sensor_changes = 0
 
     # ------------------------------------------------------------------------------------------------- lease
     def publish_in_force(self) -> None:
@@ -120,7 +130,8 @@ class CalibratorCore:
             self.drops.drop(exc, "raw", log)
             return
         self.roster.seen(batch.device, batch.location, self.clock_ns())
-        collection = self.collections.receive(batch, batch.device in self.records.in_force)
+        self._sensor(batch)
+        collection = self.collections.receive(batch, self._calibrated(batch))
         if collection is None:
             self._refresh(batch)
             return
@@ -129,6 +140,34 @@ class CalibratorCore:
             self._fitted(batch.device, collection, now)
         if self.progress_times.due(batch.device, now):
             self._report_progress(batch.device)
+
+    def _sensor(self, batch: wire.RawBatch) -> None:
+        """Note the sensor a batch names; when its device's sensor changed, the samples collected so far (another
+        sensor's) are dropped and its refresh starts again."""
+        if not batch.hardware_id:
+            return
+        before = self.sensors.get(batch.device)
+        self.sensors[batch.device] = batch.hardware_id
+        if before is not None and before != batch.hardware_id:
+            self.sensor_changes += 1
+            if batch.device in self.collections:
+                self.collections.end(batch.device)
+            self.refresher.restart(batch.device)
+            log.warning(
+                "%s: its sensor changed from %d to %d (a compass missing at boot?): collection started again",
+                batch.device,
+                before,
+                batch.hardware_id,
+            )
+
+    def _calibrated(self, batch: wire.RawBatch) -> bool:
+        """Whether the device has a record in force for the sensor of this batch (a record or a batch without an
+        id counts as that sensor's)."""
+        record = self.records.get(batch.device)
+        if record is None:
+            return False
+        wanted = record.calibration.hardware_id
+        return wanted is None or not batch.hardware_id or wanted == batch.hardware_id
 
     def _fitted(self, device: str, collection: Collection, now: float) -> None:
         """Fit a ready collection; an accepted automatic fit is stored (a session waits for its commit)."""
@@ -148,6 +187,8 @@ class CalibratorCore:
         (``magnet.calibrator.refresh``): committed (auto) or proposed as a session (propose) when better by the
         margin."""
         device, record = batch.device, self.records.get(batch.device)
+        if not self._calibrated(batch):
+            return  # the record in force is another sensor's
         collection = None if record is None else self.refresher.receive(batch, record.calibration)
         if record is None or collection is None or not self.refresher.due(collection, self.clock()):
             return
@@ -158,7 +199,7 @@ class CalibratorCore:
             log.info("%s: no refresh: %s", device, why)
             return
         gain = gain_pct(result)
-        if self.refresher.proposes(collection):
+        if self.refresher.proposes(collection, result):
             self.refresher.restart(device)
             self.collections.propose(device, collection)
             self.refresher.proposed += 1
@@ -180,7 +221,11 @@ class CalibratorCore:
         self, device: str, calibration: Calibration, change: dict[str, Any] | None = None
     ) -> wire.DeviceCalibration:
         """Store ``calibration`` as the one in force for ``device`` (``records.store_new``: numbered, signed, with
-        ``change``, by default an automatic calibration), publish it, end its collection. OSError: nothing changed."""
+        ``change``, by default an automatic calibration), publish it, end its collection; it names the sensor the
+        device's batches last named unless it names one already. OSError: nothing changed."""
+        sensor = self.sensors.get(device)
+        if calibration.hardware_id is None and sensor:
+            calibration = calibration.replace(hardware_id=sensor)
         record = self.records.store_new(device, calibration, {"action": "auto", "by": "", **(change or {})})
         self.collections.end(device)
         self.publish(wire.Kind.CALIBRATION, device, wire.pack(record.to_record()))

@@ -1,5 +1,6 @@
 """The calibrations a compass applies: which are in force per device, which it refuses and why (not accepted by the
-quality gate, not signed by a trusted key, older than the one in force), and each sample's correction from them
+quality gate, not signed by a trusted key, older than the one in force), which it holds back from a batch of another
+sensor (the record's ``hardware_id`` not the batch's: docs/mavlink.md), and each sample's correction from them
 (``Correction``: offset, matrix, motors and the magnetometer's lag, applied in one place).
 
 Pure: records in, decisions out; the compass core (``magnet.compass.core``) counts and logs."""
@@ -37,6 +38,10 @@ class CalibrationsInForce:
         #: per device whose numbering started again: when its first renumbered record was made (ns); a record made
         #: before it is from the lost history, however high its version (a replay), and stays refused
         self.renumbered_at: Recent[str, int] = Recent(max_devices)
+        #: batches left uncorrected because their sensor is not the one their device's record was made for, and per
+        #: device the last such pair (the record's hardware id, the batch's)
+        self.hardware_mismatches = 0
+        self.mismatched: Recent[str, tuple[int, int]] = Recent(max_devices)
 
     def check(self, record: wire.DeviceCalibration) -> str | None:
         """WireError unless ``record`` may be applied: accepted by the quality gate (its plausibility was checked
@@ -118,13 +123,31 @@ class CalibrationsInForce:
         self._refused_evicted = self.refused.evicted
         return devices, overflow
 
-    def of_batches(self, devices: list[str]) -> list[wire.DeviceCalibration | None]:
-        """The calibration in force for each batch's device (None where there is none), marked as just used."""
+    def of_batches(
+        self, devices: list[str], hardware_ids: list[int] | None = None
+    ) -> list[wire.DeviceCalibration | None]:
+        """The calibration in force for each batch's device (None where there is none), marked as just used; None
+        too where the record names a sensor (``hardware_id``) and the batch another (``hardware_ids``, 0 where not
+        known): a calibration is never moved onto another sensor. Those are counted (``hardware_mismatches``) and
+        remembered per device (``mismatched``) until a batch of the record's sensor, or a record for this one,
+        comes."""
         cals = [self.in_force.get(device) for device in devices]
-        for device, cal in zip(devices, cals):
-            if cal is not None:
-                self.in_force.touch(device)
+        for i, (device, cal) in enumerate(zip(devices, cals)):
+            if cal is None:
+                continue
+            self.in_force.touch(device)
+            wanted, sensor = cal.calibration.hardware_id, 0 if hardware_ids is None else hardware_ids[i]
+            if wanted is not None and sensor and sensor != wanted:
+                cals[i] = None
+                self.hardware_mismatches += 1
+                self.mismatched[device] = (wanted, sensor)
+            elif device in self.mismatched and (sensor or wanted is None):
+                self.mismatched.pop(device, None)
         return cals
+
+    def mismatch_report(self) -> dict[str, dict[str, int]]:
+        """Per device whose record is held back now: ``{"record": its hardware id, "sensor": the batches'}``."""
+        return {d: {"record": r, "sensor": s} for d, (r, s) in sorted(self.mismatched.items())}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

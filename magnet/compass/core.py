@@ -25,6 +25,7 @@ import numpy as np
 
 from magnet import signing, wire
 from magnet.attitude import heading as hd
+from magnet.attitude.uncertainty import FilterFigures, HeadingUncertainty
 from magnet.bounded import Recent
 from magnet.compass.calibrations import CalibrationsInForce, Correction, small_change
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
@@ -64,6 +65,10 @@ class CompassStatus:
     calibrators_gone_since_ns: int | None = None  # when the last calibrator went away (ns since the epoch)
     #: records applied although numbered below the one held: made later, from calibrators that lost their history
     calibrations_renumbered: int = 0
+    #: batches left uncorrected because their sensor's hardware id is not the one their device's record names, and
+    #: the devices held back now: {device: {"record": id, "sensor": id}} (docs/mavlink.md, hardware ids)
+    hardware_mismatches: int = 0
+    hardware_mismatched: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -83,6 +88,8 @@ class HeadingColumns:
     calibration_ids: list[str]
     declinations: list[float]
     quat_wxyz: np.ndarray | None = None
+    #: (S,) one sigma of each sample's heading, deg (``magnet.attitude.uncertainty``); None: not computed
+    heading_sigma_deg: np.ndarray | None = None
 
 
 def window_problem(window: Any) -> str | None:
@@ -164,12 +171,14 @@ class CompassCore:
         self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
         self.filters = DeviceFilters(max_devices=limit)
         self.smoothing = Smoothing(settings.window, limit)
+        self.uncertainty = HeadingUncertainty(limit)
         self.vehicles = VehicleWindows(limit)
         self.keys = DeviceKeys(settings.shard, max_keys=KEYS_PER_DEVICE * limit)
         self.drops = wire.DropCounter()
         self.counters = Counters()
         self.calibrators = CalibratorPresence()
         self._evictions_logged = False
+        self._mismatch_logged: Recent[str, tuple[int, int]] = Recent(limit)
 
     # ------------------------------------------------------------------------------------------ the wire's edges
     def decode(self, items: list[tuple[str, bytes]], prefix: str) -> wire.RawColumns:
@@ -205,6 +214,7 @@ class CompassCore:
             out.declinations,
             out.calibration_ids,
             out.quat_wxyz,
+            out.heading_sigma_deg,
         )
 
     def accept_calibration(self, payload: bytes, key_expr: str, prefix: str) -> bool:
@@ -241,7 +251,8 @@ class CompassCore:
     def step(self, raw: wire.RawColumns, now_ns: int) -> HeadingColumns:
         """Headings for every sample of ``raw`` (see the module); ``now_ns`` the wall clock (ns since the epoch),
         whose UTC day dates the model where no ``--date`` is fixed. Counts what it received."""
-        cals = self.calibrations.of_batches(raw.devices)
+        cals = self.calibrations.of_batches(raw.devices, raw.hardware_ids)
+        self._log_mismatches()
         correction = Correction.of_batches(cals, raw)
         field, filter_field = correction.apply(raw.mag_ut, raw.gyr_rads)
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
@@ -257,6 +268,7 @@ class CompassCore:
             dip = hd.dip_angle_deg(out.field_ut, gravity)
         flags = hd.disturbance_flags(out.field_ut, gravity, where.total_ut, where.inclination_deg, dip_deg=dip)
         out, quat = merge(dataclasses.replace(out, flags=out.flags | flags), fused)
+        sigma = self._sigma(raw, out, quat, fused, where.total_ut, cals)
         self.watch.observe(raw.devices, raw.bounds, raw.t_ns, hd.row_norm(out.field_ut), dip)
         self.vehicles.observe(
             raw.devices, raw.bounds, raw.t_ns, raw.mag_ut, raw.current, raw.thr, _correction(cals), raw.vehicles
@@ -272,6 +284,32 @@ class CompassCore:
             [c.id if c else "" for c in cals],
             [e.declination_deg for e in earths],
             None if quat is None else rotate_heading(quat, where.declination_deg),
+            sigma,
+        )
+
+    def _sigma(
+        self,
+        raw: wire.RawColumns,
+        out: Headings,
+        quat: np.ndarray | None,
+        fused: FusedColumns,
+        expected_ut: np.ndarray,
+        cals: list[wire.DeviceCalibration | None],
+    ) -> np.ndarray:
+        """Each sample's heading sigma (S,) deg (``magnet.attitude.uncertainty``): from the calibration's residual,
+        the field, the flags and, where fused, the device's filter's figures after this step."""
+        figures: list[FilterFigures | None] = []
+        bounds = raw.bounds
+        for b, device in enumerate(raw.devices):
+            state = self.filters.devices.get(device)
+            lo, hi = bounds[b], bounds[b + 1]
+            if state is None or state.filter is None or not fused.fused[lo:hi].any():
+                figures.append(None)
+            else:
+                figures.append(state.filter.figures())
+        residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
+        return self.uncertainty.step(
+            raw.devices, bounds, raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut, residuals, figures
         )
 
     def _fuse(self, raw: wire.RawColumns, field: np.ndarray, declination_deg: np.ndarray) -> FusedColumns:
@@ -310,6 +348,19 @@ class CompassCore:
             + self.filters.evicted
         )
 
+    def _log_mismatches(self) -> None:
+        """One warning per device and pair of ids whose record is held back from another sensor's batches."""
+        for device, (record_id, sensor_id) in self.calibrations.mismatched.items():
+            if self._mismatch_logged.get(device) != (record_id, sensor_id):
+                self._mismatch_logged[device] = (record_id, sensor_id)
+                log.warning(
+                    "%s: its calibration was made for sensor %d but the samples come from sensor %d (a compass "
+                    "missing at boot moves the others up): not applied; counted in status hardware_mismatches",
+                    device,
+                    record_id,
+                    sensor_id,
+                )
+
     def _log_evictions(self) -> None:
         if not self._evictions_logged and self.evicted_count():
             self._evictions_logged = True
@@ -346,4 +397,6 @@ class CompassCore:
             self.calibrators.state,
             self.calibrators.gone_since_ns,
             self.calibrations.renumbered,
+            self.calibrations.hardware_mismatches,
+            self.calibrations.mismatch_report(),
         )

@@ -5,6 +5,9 @@ it has arrived (or at once without an Imu topic, or after ``wait_s`` with none) 
 time within ``tolerance_ns``. Released samples are converted to magnet's frame (``magnet.ros2.frames.from_ros``) and
 cut into batches: ``batch`` samples, or fewer once the oldest has waited ``flush_s``; a batch holds acceleration
 (and rates) only when all its samples have them, so a run with and without is cut where that changes.
+
+A MagneticField stamped at or before the last one taken (a stamp that runs backwards) is dropped and counted
+(``mag-backwards``): the wire's times only go forward, and publishing it would hide a robot whose clock jumps.
 """
 
 from __future__ import annotations
@@ -26,6 +29,15 @@ __all__ = ["Joined", "SamplePairer"]
 #: the Imu samples a list kept sorted by stamp (they may come out of order) and searched by bisection for the nearest
 #: one; each is cut from its front as samples are used, and a sample beyond the bound is refused and counted.
 MAX_PENDING = 100_000
+#: ... and bytes held at most in each buffer: a sample counts ``SAMPLE_BYTES`` (its Python objects: the sample, its
+#: arrays, its list entry) plus its frame id's length. A count alone let 100 kB frame ids make 334 MB of Imu samples.
+MAX_PENDING_BYTES = 16 * 1024 * 1024
+SAMPLE_BYTES = 400
+
+
+def sample_bytes(sample: MagSample | ImuSample) -> int:
+    """What a buffered sample is counted as holding (bytes)."""
+    return SAMPLE_BYTES + len(sample.frame_id)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -51,25 +63,36 @@ class SamplePairer:
         self.imu: list[ImuSample] = []
         self.released: list[tuple[float, MagSample, ImuSample | None]] = []
         self.dropped: dict[str, int] = {}
+        #: bytes held (``sample_bytes``) by the field samples not yet batched, and by the Imu samples
+        self.mag_bytes = self.imu_bytes = 0
+        self.last_mag_ns: int | None = None
 
     def _drop(self, cause: str) -> None:
         self.dropped[cause] = self.dropped.get(cause, 0) + 1
 
     def add_mag(self, sample: MagSample, now_s: float) -> None:
-        if len(self.pending) >= MAX_PENDING:
+        size = sample_bytes(sample)
+        if len(self.pending) >= MAX_PENDING or self.mag_bytes + size > MAX_PENDING_BYTES:
             self._drop("mag-backlog")
             return
+        if self.last_mag_ns is not None and sample.t_ns <= self.last_mag_ns:
+            self._drop("mag-backwards")
+            return
+        self.last_mag_ns = sample.t_ns
+        self.mag_bytes += size
         self.pending.append((now_s, sample))
 
     def add_imu(self, sample: ImuSample) -> None:
         if not self.with_imu:
             return
-        if len(self.imu) >= MAX_PENDING:
+        size = sample_bytes(sample)
+        if len(self.imu) >= MAX_PENDING or self.imu_bytes + size > MAX_PENDING_BYTES:
             self._drop("imu-backlog")
             return
         at = bisect.bisect_right(self.imu_t, sample.t_ns)
         self.imu_t.insert(at, sample.t_ns)
         self.imu.insert(at, sample)
+        self.imu_bytes += size
 
     def _nearest_imu(self, t_ns: int) -> ImuSample | None:
         at = bisect.bisect_left(self.imu_t, t_ns)
@@ -92,6 +115,7 @@ class SamplePairer:
             self.released.append((arrived, mag, self._nearest_imu(mag.t_ns) if self.with_imu else None))
         if self.pending and self.imu_t:  # Imu samples too old to pair with anything still waiting
             keep = bisect.bisect_left(self.imu_t, self.pending[0][1].t_ns - self.tolerance_ns)
+            self.imu_bytes -= sum(map(sample_bytes, self.imu[:keep]))
             del self.imu_t[:keep], self.imu[:keep]
 
     def batches(self, now_s: float, flush: bool = False) -> list[Joined]:
@@ -110,6 +134,7 @@ class SamplePairer:
         has = [imu is not None and imu.acc_ms2 is not None for _, _, imu in self.released[: self.batch]]
         size = next((i for i, h in enumerate(has) if h != has[0]), len(has))
         run, self.released = self.released[:size], self.released[size:]
+        self.mag_bytes -= sum(sample_bytes(mag) for _, mag, _ in run)
         return run
 
 

@@ -2,10 +2,12 @@
 
 Message: ``{v, device, seq, t_ns: [N], heading_deg: [N] (magnetic), true_heading_deg: [N], pitch_deg: [N],
 roll_deg: [N], field_ut: [[x, y, z]] * N, declination_deg, calibration_id, flags: [N ints],
-quat_wxyz: [[w, x, y, z]] * N (optional: attitude, body to NED, unit quaternion)}``. In v 2 (written) every array
-is a binary array map (see ``magnet.wire.arrays``): t_ns ``<i8`` [N], the angles ``<f4`` [N] (heading_deg and
-true_heading_deg kept in [0, 360) after rounding to ``<f4``), field_ut ``<f4`` [N, 3], flags ``<u2`` [N], quat_wxyz
-``<f4`` [N, 4].
+quat_wxyz: [[w, x, y, z]] * N (optional: attitude, body to NED, unit quaternion), heading_sigma_deg: [N] (optional:
+one sigma of each heading, deg, ``magnet.attitude.uncertainty``)}``. In v 2 (written) every array is a binary array
+map (see ``magnet.wire.arrays``): t_ns ``<i8`` [N], the angles ``<f4`` [N] (heading_deg and true_heading_deg kept in
+[0, 360) after rounding to ``<f4``), field_ut ``<f4`` [N, 3], flags ``<u2`` [N], quat_wxyz ``<f4`` [N, 4],
+heading_sigma_deg ``<f4`` [N]. The optional fields come last; a reader that knows them not ignores them (msgpack
+maps are read by key), so a message with a sigma reads as before.
 
 ``flags`` holds ``magnet.attitude.heading.HeadingFlag`` bits; the per-sample magnetic disturbance flag is its
 FIELD_DISTURBED (|B| away from the expected field) and DIP_DISTURBED (dip away from the expected inclination) bits,
@@ -17,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import msgpack
 import numpy as np
@@ -49,6 +51,8 @@ from magnet.wire.errors import WireError
 from magnet.wire.keys import MAX_DEVICE_ID_CHARS, message_device
 from magnet.wire.raw import RawColumns
 
+#: the optional per-sample heading uncertainty (one sigma, deg): a contract name (issue 27)
+SIGMA_FIELD = "heading_sigma_deg"
 ANGLE_FIELDS = ("heading_deg", "true_heading_deg", "pitch_deg", "roll_deg")
 #: flags bits that mark a sample's field as magnetically disturbed
 DISTURBED = int(HeadingFlag.FIELD_DISTURBED | HeadingFlag.DIP_DISTURBED)
@@ -57,7 +61,7 @@ QUAT_NORM_TOLERANCE = 0.01
 #: what msgpack may build of one heading payload (``codec.Limits``), from the message's own maxima: at most 256
 #: bytes a sample (v 1 with float64 everywhere needs about 115) plus a header; arrays of MAX_BATCH_SAMPLES entries;
 #: 64 fields; strings of a device id; a v 2 array of N quaternions in float64; in all, the entries of a v 1 message
-#: (1 time, 4 angles, 4 per field row, 1 flag, 5 per quaternion row: 15 a sample) plus room for the header; and
+#: (1 time, 4 angles, 4 per field row, 1 flag, 5 per quaternion row, 1 sigma: 16 a sample) plus room for the header; and
 #: its arrays and maps (a field row and a quaternion row a sample, and the few of the header)
 HEADING_LIMITS = Limits(
     payload_bytes=16 * 1024 + MAX_BATCH_SAMPLES * 256,
@@ -88,6 +92,7 @@ class HeadingBatch:
     calibration_id: str
     flags: np.ndarray
     quat_wxyz: np.ndarray | None = None
+    heading_sigma_deg: np.ndarray | None = None  # (N,) deg, one sigma; None: a sender that gives none
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -109,6 +114,7 @@ def encode_headings(
     declination_deg: float | Sequence[float],
     calibration_ids: Sequence[str],
     quat_wxyz: np.ndarray | None = None,
+    heading_sigma_deg: np.ndarray | None = None,
     version: int = BINARY_ARRAYS_VERSION,
 ) -> list[bytes]:
     """One heading message per batch of ``columns`` (the one heading encoder), in ``version`` 2 (binary arrays, the
@@ -117,7 +123,8 @@ def encode_headings(
     The arrays are aligned with ``columns``' S samples (angles (S,) deg, field_ut (S, 3) uT, flags (S,) int,
     quat_wxyz (S, 4) or None); each is converted once (to lists, or to little-endian bytes) and sliced per batch.
     A batch whose quaternion rows are not all finite carries no ``quat_wxyz``. ``declination_deg``: one for all, or
-    one per batch (each device's place)."""
+    one per batch (each device's place). ``heading_sigma_deg`` (S,) deg or None: each heading's one sigma (a batch
+    with a sigma that is not finite carries none)."""
     return _encode(
         columns.devices,
         columns.seqs,
@@ -130,6 +137,7 @@ def encode_headings(
         calibration_ids,
         quat_wxyz,
         version,
+        heading_sigma_deg,
     )
 
 
@@ -148,6 +156,7 @@ def encode_heading(batch: HeadingBatch, version: int = BINARY_ARRAYS_VERSION) ->
         [batch.calibration_id],
         batch.quat_wxyz,
         version,
+        batch.heading_sigma_deg,
     )[0]
 
 
@@ -244,13 +253,20 @@ def _encode(
     calibration_ids: Sequence[str],
     quat_wxyz: np.ndarray | None,
     version: int,
+    heading_sigma_deg: np.ndarray | None = None,
 ) -> list[bytes]:
     quat_ok = _quaternions_ok(quat_wxyz, bounds)
+    sigma_ok = _sigmas_ok(heading_sigma_deg, bounds)
     times, angle_columns, field, flag, quat = _columns(version, t_ns, angles, field_ut, flags, quat_wxyz)
+    sigma = None
+    if heading_sigma_deg is not None:
+        column = _Lists if version == LISTS_VERSION else _Bytes
+        sigma = column(heading_sigma_deg, float if version == LISTS_VERSION else FLOAT_DTYPE, (), SIGMA_FIELD)
     declinations = np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),)).tolist()
     if version == BINARY_ARRAYS_VERSION:
         columns = [times, *angle_columns, field]
-        return _encode_binary(devices, seqs, bounds, columns, flag, quat, declinations, calibration_ids, quat_ok)
+        optional = _Optional(quat, quat_ok, sigma, sigma_ok)
+        return _encode_binary(devices, seqs, bounds, columns, flag, optional, declinations, calibration_ids)
     out = []
     for i, (device, seq, cal_id, declination) in enumerate(zip(devices, seqs, calibration_ids, declinations)):
         rows = slice(bounds[i], bounds[i + 1])
@@ -259,11 +275,22 @@ def _encode(
         message.update(field_ut=field[rows], declination_deg=declination, calibration_id=cal_id, flags=flag[rows])
         if quat_ok[i]:
             message["quat_wxyz"] = quat[rows]
+        if sigma is not None and sigma_ok[i]:
+            message[SIGMA_FIELD] = sigma[rows]
         out.append(msgpack.packb(message, use_bin_type=True))
     return out
 
 
 _PACKED_KEYS = {name: msgpack.packb(name) for name in ("v", "device", "seq", "declination_deg", "calibration_id")}
+
+
+class _Optional(NamedTuple):
+    """The optional columns of the v 2 messages and, per batch, whether it carries them."""
+
+    quat: _Bytes | None
+    quat_ok: list[bool]
+    sigma: Any
+    sigma_ok: list[bool]
 
 
 def _encode_binary(
@@ -272,10 +299,9 @@ def _encode_binary(
     bounds: Sequence[int],
     columns: list[_Bytes],
     flag: _Bytes,
-    quat: _Bytes | None,
+    optional: _Optional,
     declinations: list[float],
     calibration_ids: Sequence[str],
-    quat_ok: list[bool],
 ) -> list[bytes]:
     """The v 2 messages of ``_encode``, their msgpack bytes joined from pieces (the same bytes ``msgpack.packb``
     gives for the message map: keys in the same order, the same smallest encodings), a few us per message."""
@@ -284,15 +310,27 @@ def _encode_binary(
     out = []
     for i, (device, seq, cal_id, declination) in enumerate(zip(devices, seqs, calibration_ids, declinations)):
         lo, hi = bounds[i], bounds[i + 1]
-        parts = [b"\x8d" if quat_ok[i] else b"\x8c", version, pack(device), keys["seq"], pack(int(seq))]
+        with_quat, with_sigma = optional.quat_ok[i] and optional.quat is not None, optional.sigma_ok[i]
+        head = bytes((0x8C + with_quat + with_sigma,))
+        parts = [head, version, pack(device), keys["seq"], pack(int(seq))]
         for column in columns:
             parts += column.packed(lo, hi)
         parts += (keys["declination_deg"], pack(declination), keys["calibration_id"], pack(cal_id))
         parts += flag.packed(lo, hi)
-        if quat_ok[i] and quat is not None:
-            parts += quat.packed(lo, hi)
+        if with_quat and optional.quat is not None:
+            parts += optional.quat.packed(lo, hi)
+        if with_sigma:
+            parts += optional.sigma.packed(lo, hi)
         out.append(b"".join(parts))
     return out
+
+
+def _sigmas_ok(sigma_deg: np.ndarray | None, bounds: Sequence[int]) -> list[bool]:
+    """Per batch, whether all its sigmas are finite (False for all without sigmas)."""
+    if sigma_deg is None:
+        return [False] * (len(bounds) - 1)
+    finite = np.isfinite(np.asarray(sigma_deg, dtype=float))
+    return [bool(finite[lo:hi].all()) for lo, hi in itertools.pairwise(bounds)]
 
 
 def _quaternions_ok(quat_wxyz: np.ndarray | None, bounds: Sequence[int]) -> list[bool]:
@@ -315,9 +353,9 @@ def decode_heading(payload: Payload) -> HeadingBatch:
     field = float_array(message.get("field_ut"), "field_ut", (3,), None, binary)
     flags = int_array(message.get("flags"), "flags", binary, FLAG_DTYPES)
     quat = _decode_quaternions(message.get("quat_wxyz"), binary)
-    check_lengths(
-        t_ns.shape[0], {**angles, "field_ut": field, "flags": flags, **({} if quat is None else {"quat_wxyz": quat})}
-    )
+    sigma = _decode_sigma(message.get(SIGMA_FIELD), binary)
+    optional = {name: v for name, v in (("quat_wxyz", quat), (SIGMA_FIELD, sigma)) if v is not None}
+    check_lengths(t_ns.shape[0], {**angles, "field_ut": field, "flags": flags, **optional})
     return HeadingBatch(
         device,
         int_field(message, "seq", 0),
@@ -327,8 +365,18 @@ def decode_heading(payload: Payload) -> HeadingBatch:
         declination_deg=number_field(message, "declination_deg", 0.0),
         calibration_id=str(message.get("calibration_id", "")),
         quat_wxyz=quat,
+        heading_sigma_deg=sigma,
         **angles,
     )
+
+
+def _decode_sigma(value: Any, binary: bool) -> np.ndarray | None:
+    if value is None:
+        return None
+    sigma = float_array(value, SIGMA_FIELD, (), 1e4, binary)
+    if sigma.size and (sigma < 0).any():
+        raise WireError("absurd-magnitude", f"{SIGMA_FIELD} holds negative values")
+    return sigma
 
 
 def _decode_quaternions(value: Any, binary: bool) -> np.ndarray | None:

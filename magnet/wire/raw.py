@@ -6,7 +6,9 @@ velocity over the ground in m/s, north-east-down, NaN rows where no fix is known
 pitch_deg: [N], roll_deg: [N]} (optional, simulator only), location: [lat_deg, lon_deg, alt_m] (optional: where the
 device is, ``magnet.earth.location.Location``, checked: cause ``bad-location``), current_a: [N] (optional, the battery
 current in A at each sample, for the motors' field), throttle: [N] (optional, 0..1; both NaN where unknown),
-vehicle: text (optional: the vehicle the device is a compass of, ``magnet edge --vehicle``; docs/vehicles.md)}``.
+vehicle: text (optional: the vehicle the device is a compass of, ``magnet edge --vehicle``; docs/vehicles.md),
+hardware_id: int (optional, 1..2**32-1: the id the vehicle reports for the sensor behind the device, e.g. ArduPilot's
+COMPASS_DEV_ID; docs/mavlink.md)}``.
 In v 2 (written) every array of samples is a binary array map (see ``magnet.wire.arrays``): t_ns ``<i8`` [N],
 mag_ut / acc_ms2 / gyr_rads / vel_ned_ms ``<f4`` [N, 3], truth, current_a and throttle ``<f4`` [N]; ``location``
 (three numbers, not samples) stays a list in both versions.
@@ -48,6 +50,8 @@ TRUTH_FIELDS = ("heading_deg", "pitch_deg", "roll_deg")
 #: a large multirotor draws a few hundred amps; a regenerating drive may return current (negative)
 MAX_CURRENT_A = 2_000.0
 #: the (N,) per-sample scalars of a raw message (all optional): name, lowest and highest value allowed
+#: a sensor's hardware id (``RawBatch.hardware_id``) is an unsigned 32-bit number
+MAX_HARDWARE_ID = (1 << 32) - 1
 SCALAR_FIELDS: tuple[tuple[str, float, float], ...] = (
     ("current_a", -MAX_CURRENT_A, MAX_CURRENT_A),
     ("throttle", 0.0, 1.0),
@@ -60,7 +64,8 @@ class RawBatch:
     truth: {"heading_deg", "pitch_deg", "roll_deg"} -> (N,) degrees, simulator only, else None; gyr_rads (N, 3)
     rad/s body frame or None; location where the device is, or None; vel_ned_ms (N, 3) m/s north-east-down, or
     None (rows may be NaN where no velocity is known); current_a (N,) A battery current and throttle (N,) 0..1 at
-    each sample, or None; vehicle: the vehicle the device is a compass of ("" none: ``magnet.vehicle``)."""
+    each sample, or None; vehicle: the vehicle the device is a compass of ("" none: ``magnet.vehicle``);
+    hardware_id: the id the vehicle reports for the sensor behind the device (0: not known; docs/mavlink.md)."""
 
     device: str
     seq: int
@@ -75,6 +80,7 @@ class RawBatch:
     current_a: np.ndarray | None = None
     throttle: np.ndarray | None = None
     vehicle: str = ""
+    hardware_id: int = 0
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -106,7 +112,7 @@ class RawColumns:
     acc_ms2 (S, 3) m/s^2 and gyr_rads (S, 3) rad/s, with NaN rows for batches that carry none; locations per batch
     (a Location or None), or None when no batch carries one; vel_ned_ms (S, 3) m/s NED, NaN rows where unknown;
     current_a (S,) A and throttle (S,) 0..1, NaN where unknown; vehicles per batch ("" none), or None when no batch
-    names one."""
+    names one; hardware_ids per batch (0 not known), or None when no batch carries one."""
 
     devices: list[str]
     seqs: list[int]
@@ -121,6 +127,7 @@ class RawColumns:
     current_a: np.ndarray | None = None
     throttle: np.ndarray | None = None
     vehicles: list[str] | None = None
+    hardware_ids: list[int] | None = None
 
     def __post_init__(self) -> None:
         n = int(self.t_ns.shape[0])
@@ -163,6 +170,7 @@ class RawColumns:
             _scalars(batches, "current_a"),
             _scalars(batches, "throttle"),
             _vehicles([b.vehicle for b in batches]),
+            _ids([b.hardware_id for b in batches]),
         )
 
     @property
@@ -191,6 +199,7 @@ class RawColumns:
                     _present(self.current[lo:hi]),
                     _present(self.thr[lo:hi]),
                     "" if self.vehicles is None else self.vehicles[i],
+                    0 if self.hardware_ids is None else self.hardware_ids[i],
                 )
             )
         return out
@@ -214,12 +223,18 @@ class RawColumns:
             self.current[per_sample],
             self.thr[per_sample],
             None if self.vehicles is None else _vehicles([self.vehicles[i] for i in pick]),
+            None if self.hardware_ids is None else _ids([self.hardware_ids[i] for i in pick]),
         )
 
 
 def _vehicles(names: list[str]) -> list[str] | None:
     """Per-batch vehicles, or None when no batch names one."""
     return names if any(names) else None
+
+
+def _ids(ids: list[int]) -> list[int] | None:
+    """Per-batch hardware ids, or None when no batch carries one."""
+    return ids if any(ids) else None
 
 
 def batch_locations(locations: list[Location | None]) -> list[Location | None] | None:
@@ -271,6 +286,8 @@ def encode_raw(batch: RawBatch, version: int = BINARY_ARRAYS_VERSION) -> bytes:
         message["location"] = batch.location.to_wire()
     if batch.vehicle:
         message["vehicle"] = batch.vehicle
+    if batch.hardware_id:
+        message["hardware_id"] = int(batch.hardware_id)
     if batch.truth is not None:
         message["truth"] = {name: floats(batch.truth[name]) for name in TRUTH_FIELDS}
     return msgpack.packb(message, use_bin_type=True)

@@ -117,6 +117,7 @@ def _numbers(headers: Sequence[Header]) -> tuple[RawColumns, list[WireError | No
         current_a,
         throttle,
         [h.vehicle for h in headers] if any(h.vehicle for h in headers) else None,
+        [h.hardware_id for h in headers] if any(h.hardware_id for h in headers) else None,
     )
     return columns, verdicts
 

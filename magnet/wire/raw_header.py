@@ -20,12 +20,12 @@ from magnet.wire.arrays import FLOAT_DTYPES, INT64_MAX, TIME_DTYPES, check_bin, 
 from magnet.wire.codec import MAX_BATCH_SAMPLES, Limits, binary_message, int_field
 from magnet.wire.errors import WireError
 from magnet.wire.keys import MAX_DEVICE_ID_CHARS, message_device
-from magnet.wire.raw import SCALAR_FIELDS, TRUTH_FIELDS, VECTOR_FIELDS
+from magnet.wire.raw import MAX_HARDWARE_ID, SCALAR_FIELDS, TRUTH_FIELDS, VECTOR_FIELDS
 
 #: the fields a raw message may carry; others are ignored, up to MAX_EXTRA_FIELDS of them
 RAW_FIELDS = frozenset(
     {"v", "device", "seq", "sensor", "t_ns", "mag_ut", "acc_ms2", "gyr_rads", "vel_ned_ms", "truth", "location"}
-    | {"vehicle"}
+    | {"vehicle", "hardware_id"}
     | {name for name, _, _ in SCALAR_FIELDS}
 )
 MAX_EXTRA_FIELDS = 32
@@ -65,6 +65,7 @@ class Header(NamedTuple):
     arrays: tuple[Any, ...]
     scalars: tuple[np.ndarray | None, ...] = ()
     vehicle: str = ""
+    hardware_id: int = 0
 
 
 def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
@@ -81,6 +82,9 @@ def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
     vehicle = message.get("vehicle", "")
     if type(vehicle) is not str or len(vehicle) > MAX_DEVICE_ID_CHARS:
         raise WireError("bad-field", f"vehicle must be a string of at most {MAX_DEVICE_ID_CHARS} characters")
+    hardware_id = int_field(message, "hardware_id", 0)
+    if not 0 <= hardware_id <= MAX_HARDWARE_ID:
+        raise WireError("out-of-range", f"hardware_id must be within 0..{MAX_HARDWARE_ID}, got {hardware_id}")
     seq = int_field(message, "seq", 0)
     if not 0 <= seq <= INT64_MAX:
         raise WireError("out-of-range", f"seq must be within 0..{INT64_MAX}, got {seq}")
@@ -88,7 +92,8 @@ def check_header(message: Mapping[str, Any], size: int | None = None) -> Header:
     if size is not None and size > MAX_HEADER_BYTES + n * MAX_BYTES_PER_SAMPLE:
         raise WireError("oversized", f"payload of {size} bytes is more than {n} samples can need")
     scalars = tuple(_scalar(message, name, low, high, n) for name, low, high in SCALAR_FIELDS)
-    return Header(device, seq, sensor, n, tuple(a is not None for a in arrays[1:]), tuple(arrays), scalars, vehicle)
+    present = tuple(a is not None for a in arrays[1:])
+    return Header(device, seq, sensor, n, present, tuple(arrays), scalars, vehicle, hardware_id)
 
 
 def _scalar(message: Mapping[str, Any], name: str, low: float, high: float, n: int) -> np.ndarray | None:

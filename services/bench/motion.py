@@ -272,6 +272,9 @@ def run_motion_benchmark() -> str:
     )
     for trial, estimator, rms in simulator_rows(settings):
         lines.append(f"{trial:<42}{estimator:<34}{rms:>8.3f}")
+    from services.bench.motion_sigma import sigma_lines  # it imports this module
+
+    lines.extend(sigma_lines(settings))
     lines.append(f"benchmark time {time.perf_counter() - started:.1f} s")
     return "\n".join(lines)
 

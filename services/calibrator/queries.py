@@ -71,17 +71,32 @@ def answer_history(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) 
     except ValueError as exc:
         query.reply_err(str(exc).encode())
         return
-    for device in matching_devices(calibrator.records.in_force, prefix, str(query.key_expr), wire.Kind.HISTORY):
+    key_expr = str(query.key_expr)
+    devices = matching_devices(calibrator.records.in_force, prefix, key_expr, wire.Kind.HISTORY)
+    named = named_device(prefix, key_expr, wire.Kind.HISTORY)
+    if named is not None and not devices and calibrator.shard.owns(named):
+        devices = [named]  # one device of this shard asked by name: its history, or that it has none (not silence)
+    for device in devices:
         try:
             rows = calibrator.records.store.history_changes(device, limit=limit)
         except OSError as exc:  # a damaged page: say so, keep serving
             query.reply_err(str(exc).encode())
             return
         records = [record.to_record() for record, _ in rows]  # as stored: signed when made, or not at all
-        query.reply(
-            wire.key(prefix, device, wire.Kind.HISTORY),
-            wire.pack({"device": device, "records": records, "changes": [change for _, change in rows]}),
-        )
+        answer = {"device": device, "records": records, "changes": [change for _, change in rows]}
+        if not records:
+            answer["message"] = f"no calibration is stored for {device}"
+        query.reply(wire.key(prefix, device, wire.Kind.HISTORY), wire.pack(answer))
+
+
+def named_device(prefix: str, key_expr: str, kind: wire.Kind) -> str | None:
+    """The one device a key names (no wildcard) when it is a valid ``<prefix>/<device>/<kind>`` key, else None."""
+    if any(c in key_expr for c in "*$"):
+        return None
+    try:
+        return wire.device_from_key(prefix, key_expr, kind)
+    except wire.WireError:
+        return None
 
 
 def answer_calibrate(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) -> None:

@@ -10,11 +10,16 @@ Writes the parameters that make the autopilot apply a calibration (the maths in 
 ``--apply URL`` also sets them on a vehicle over MAVLink (``services.commands.export_apply``) as a transaction: each
 is read back, a vehicle whose autopilot is armed is refused (checked between writes too), and on any failure the old
 values are put back and the error names those restored and any that could not be; what changed is printed
-(old -> new).
+(old -> new). A record that names its sensor (``hardware_id``) writes the id parameter first (``COMPASS_DEV_IDn``,
+``CAL_MAGn_ID``); ``--apply`` reads it from the vehicle instead of writing it and refuses when it names another sensor.
+After the apply (``services.commands.export_after``): ``--reboot`` reboots the autopilot (refused while armed), else
+a line says it needs one; then its compass is watched for ``--check-s`` seconds (default 60, 0: not) and the command
+says whether the vehicle now agrees with the record (ArduPilot).
 
 ``--device ID`` asks the calibrator for the device's calibration in force (as ``magnet get calibration ID`` does).
 Exit status 0 with the file written; 1 when no calibrator answered; 2 for bad input or a calibration the autopilot
-cannot represent (the reason on stderr; an existing ``--out`` file is left untouched).
+cannot represent (the reason on stderr; an existing ``--out`` file is left untouched); 3 when the parameters were
+applied but the check says the vehicle does not agree.
 """
 
 from __future__ import annotations
@@ -22,6 +27,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from magnet.autopilot.mavlink_stream import compass_instance
 from magnet.autopilot.params import Autopilot, Export, export_parameters
@@ -65,6 +72,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "also set the parameters on a vehicle over MAVLink (pymavlink URL: udpin:HOST:PORT, udpout:..., tcp:..., "
         "or a serial device), reading each back; refused while the vehicle is armed",
         "--apply over a serial device: its baud rate",
+    )
+    parser.add_argument(
+        "--reboot", action="store_true", help="--apply: then reboot the autopilot (refused while it is armed)"
+    )
+    parser.add_argument(
+        "--check-s",
+        type=float,
+        default=60.0,
+        metavar="S",
+        help="--apply: then watch the vehicle's compass this long and say whether it agrees with the record "
+        "(default 60; 0: no check)",
     )
     add_zenoh_arguments(parser)
 
@@ -140,16 +158,46 @@ def run(args: argparse.Namespace) -> int:
         write_atomically(Path(args.out), text)
     elif not args.apply:
         sys.stdout.write(text)
+    if args.reboot and not args.apply:
+        raise ValueError("--reboot goes with --apply URL")
     if args.apply:
-        _apply(args, export)
+        return _apply(args, export, calibration, instance)
     return 0
 
 
-def _apply(args: argparse.Namespace, export: Export) -> None:
-    """Set the exported parameters on the vehicle at ``--apply`` and print what changed (stdout)."""
+def _apply(args: argparse.Namespace, export: Export, calibration: Calibration, instance: int) -> int:
+    """Set the exported parameters on the vehicle at ``--apply`` and print what changed (stdout); then reboot and
+    check it (``export_after``): 0, or 3 when it does not agree."""
+    from services.commands.export_after import after_apply
     from services.commands.export_apply import apply_params
 
-    report = apply_params(args.apply, {p.name: p.value for p in export.parameters}, baud=args.baud)
+    if not np.isfinite(args.check_s) or args.check_s < 0:
+        raise ValueError(f"--check-s must be a number of seconds >= 0, got {args.check_s}")
+
+    values = {p.name: p.value for p in export.parameters if not p.check_only}
+    sensors = {p.name: round(p.value) for p in export.parameters if p.check_only}
+    report = apply_params(args.apply, values, baud=args.baud, sensors=sensors)
     print(f"magnet export: vehicle {report.sysid} (component {report.compid}):")
     for line in report.lines():
         print(f"  {line}")
+    before = {c.name: c.old for c in report.changes if c.old is not None}
+    after = {c.name: c.read_back for c in report.changes}
+    if export.autopilot is not Autopilot.ARDUPILOT:
+        args.check_s = 0.0  # PX4's SCALED_IMU carries the uncorrected reading: nothing of its correction to check
+    if args.check_s:
+        print(f"magnet export: watching vehicle {report.sysid}'s compass {instance} for {args.check_s:g} s", flush=True)
+    done = after_apply(
+        args.apply,
+        args.baud,
+        report.sysid,
+        calibration,
+        instance,
+        before,
+        after,
+        rotation_in_force=args.rotation_in_force,
+        do_reboot=args.reboot,
+        check_s=args.check_s,
+    )
+    for line in done.lines():
+        print(f"magnet export: {line}")
+    return 3 if done.check is not None and done.check.agrees is False else 0

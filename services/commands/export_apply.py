@@ -21,6 +21,8 @@ from typing import Any
 import numpy as np
 from pymavlink import mavutil
 
+from magnet.autopilot import hwid
+
 HEARTBEAT_TIMEOUT_S = 5.0
 ANSWER_TIMEOUT_S = 1.0
 ATTEMPTS = 3
@@ -154,12 +156,33 @@ class _Link:
             )
 
     def read(self, name: str) -> float | None:
+        answer = self.read_message(name)
+        return None if answer is None else float(answer.param_value)
+
+    def read_message(self, name: str) -> Any:
+        """The autopilot's PARAM_VALUE of ``name`` (asked up to ``ATTEMPTS`` times), or None."""
         for _ in range(ATTEMPTS):
             self.conn.mav.param_request_read_send(self.sysid, self.compid, name.encode(), -1)
             answer = self.wait("PARAM_VALUE", ANSWER_TIMEOUT_S, name)
             if answer is not None:
-                return float(answer.param_value)
+                return answer
         return None
+
+    def check_sensor(self, name: str, wanted: int) -> None:
+        """The vehicle's id parameter ``name`` must name sensor ``wanted`` (the record's): ApplyError otherwise,
+        before anything is written (the values would land on another compass)."""
+        answer = self.read_message(name)
+        if answer is None:
+            raise ApplyError(f"vehicle {self.sysid} does not answer for {name}: which compass is this?")
+        held = hwid.hardware_id(float(answer.param_value), int(answer.param_type))
+        if held != wanted:
+            kind = hwid.MAV_AUTOPILOT_PX4 if name.startswith("CAL_MAG") else hwid.MAV_AUTOPILOT_ARDUPILOTMEGA
+            now = "no sensor id" if held is None else hwid.describe(held, kind)
+            raise ApplyError(
+                f"vehicle {self.sysid}'s {name} is {now}, but this calibration was fitted for "
+                f"{hwid.describe(wanted, kind)}: the values would land on another compass (one missing at boot moves "
+                "the others up); nothing written. Export the record of the compass that is there"
+            )
 
     def set(self, name: str, value: float, *, while_disarmed: bool = True, attempts: int = ATTEMPTS) -> float | None:
         """Send ``name`` = ``value`` (as a 32-bit float) until the autopilot confirms it: the value confirmed, or
@@ -223,7 +246,14 @@ def _undo(link: _Link, old: Mapping[str, float], touched: list[str], why: str) -
     return ApplyError(said)
 
 
-def apply_params(url: str, params: Mapping[str, float], *, baud: int = 57600, sysid: int | None = None) -> ApplyReport:
+def apply_params(
+    url: str,
+    params: Mapping[str, float],
+    *,
+    baud: int = 57600,
+    sysid: int | None = None,
+    sensors: Mapping[str, int] | None = None,
+) -> ApplyReport:
     """Set ``params`` (name -> value) on the vehicle at ``url`` (a pymavlink URL: udpin:HOST:PORT, udpout:..., tcp:...,
     or a serial device at ``baud``) as one transaction; ``sysid`` picks a vehicle (default: the first autopilot heard).
 
@@ -232,13 +262,17 @@ def apply_params(url: str, params: Mapping[str, float], *, baud: int = 57600, sy
     read back. On a value not confirmed, another value confirmed, arming partway or no HEARTBEAT after the writes,
     every parameter written so far (the failing one included) is set back to its old value and ApplyError (a
     ValueError) names the cause, the parameters restored and any that could not be. ApplyError too when no vehicle
-    answers, it is armed at the start, or it has no such parameter (nothing written then)."""
+    answers, it is armed at the start, or it has no such parameter (nothing written then). ``sensors``: id parameters
+    (``COMPASS_DEV_IDn``, ``CAL_MAGn_ID``) -> the sensor the values were fitted for: read first, never written; one
+    that names another sensor refuses the whole (nothing written)."""
     _check(params)
     link = _Link(url, baud, sysid)
     try:
         if link.wait("HEARTBEAT", HEARTBEAT_TIMEOUT_S) is None:
             raise ApplyError(f"{url}: no vehicle's HEARTBEAT within {HEARTBEAT_TIMEOUT_S:g} s")
         link.refuse_if_armed()
+        for name, wanted in (sensors or {}).items():
+            link.check_sensor(name, wanted)
         old: dict[str, float] = {}
         for name in params:
             value = link.read(name)

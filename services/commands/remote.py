@@ -179,6 +179,8 @@ def run_get(args: argparse.Namespace) -> int:
     replies = ask(args, selector)
     if trusted.enabled:
         replies = _only_trusted(replies, trusted, args.device)
+    if history:  # a calibrator says a device it serves has none stored (it used to stay silent)
+        replies = [r for r in replies if not (isinstance(r, dict) and not r.get("records"))]
     if not replies:
         print(
             f"magnet get: no {'trusted ' if trusted.enabled else ''}calibration for {args.device} (is a "

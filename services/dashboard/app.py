@@ -184,6 +184,8 @@ class Dashboard:
         records = [r for a in answers for r in (a.get("records") or []) if isinstance(r, dict)]
         if not answers:
             return error(504, "; ".join(errors) or "no calibrator answered for this device's history")
+        if not records:  # the calibrator answered: none stored
+            return error(404, f"no calibration is stored for {device} (the calibrator has none)")
         changes = [c for a in answers for c in (a.get("changes") or [])]
         return JSONResponse({"device": device, "records": records[:limit], "changes": changes[:limit]})
 

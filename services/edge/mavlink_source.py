@@ -2,7 +2,9 @@
 ``magnet.autopilot.mavlink_stream``). One device per vehicle and compass instance, ``<prefix><SYSID>-mag<N>``, appearing
 as their vehicles send; a vehicle silent for ``--vehicle-timeout`` seconds turns its devices unhealthy (the edge's
 unhealthy token per device, as for a dead bus) until it sends again. Bytes that are not MAVLink and messages magnet
-cannot use are dropped and counted (status ``reads.dropped``), with one log line per cause."""
+cannot use are dropped and counted (status ``reads.dropped``), with one log line per cause. The id of the sensor behind
+each compass instance is asked of the vehicle (PARAM_REQUEST_READ of ArduPilot's COMPASS_DEV_ID.., PX4's CAL_MAGn_ID,
+at first contact and after a reboot) and sent with every batch (status ``reads.hardware_ids``; docs/mavlink.md)."""
 
 from __future__ import annotations
 
@@ -50,6 +52,8 @@ class MavlinkStats:
             "dropped": dropped,
             "vehicles": sorted(self.stream.vehicles),
             "gyro_absent": self.stream.gyro_absent,
+            "hardware_ids": self.stream.hardware_ids(),
+            "id_timeouts": counts["id-timeouts"],
         }
 
 
@@ -100,9 +104,21 @@ class MavlinkSource:
             if time.monotonic() >= deadline:
                 break
         now = time.time_ns()
+        self._ask(now)
         out = self.stream.take(now, flush=stop())
         self._devices_and_health(now)
         return out
+
+    def _ask(self, now_ns: int) -> None:
+        """Send the parameter reads the stream wants (its vehicles' compass ids); a link that cannot send is logged
+        once (the samples then go out without ids)."""
+        for sysid, compid, name in self.stream.requests(now_ns):
+            try:
+                self.connection.mav.param_request_read_send(sysid, compid, name.encode(), -1)
+            except OSError as exc:
+                if "ask" not in self.logged:
+                    self.logged.add("ask")
+                    log.warning("cannot ask vehicle %d for %s (%s): compasses go without ids", sysid, name, exc)
 
     def _feed(self, message: Any) -> None:
         try:

@@ -4,7 +4,10 @@ time (``magnet.ros2.pairing``) and fed to the pipeline as raw batches of ``--dev
 
 The source is a ROS 2 node in the graph (its node and subscription liveliness tokens). Malformed CDR, a message of
 another type on the key and absurd values are dropped and counted by cause in the edge's status (``reads.errors``,
-``errors_by_cause``); nothing from the network ends the edge.
+``errors_by_cause``); so are samples the pairing lets go (a backlog beyond its bytes, a field stamp that runs
+backwards), each cause logged once; nothing from the network ends the edge. No MagneticField sample for
+``SILENT_S`` (a wrong ``--mag-topic``, a robot that stopped) makes the source unhealthy (status ``healthy`` false,
+``last_error`` says what to check, the device's unhealthy token) until one arrives.
 """
 
 from __future__ import annotations
@@ -30,6 +33,13 @@ log = logging.getLogger("magnet.edge.ros2")
 ROS2_SENSOR = "ros2"
 POLL_S = 0.002
 CHANNEL = 65536
+PAIRING_DROPS = {
+    "mag-backwards": "a MagneticField stamped at or before the one before it: the robot's clock ran backwards",
+    "mag-backlog": "MagneticField samples waiting beyond the pairing's bound",
+    "imu-backlog": "Imu samples waiting beyond the pairing's bound (no MagneticField of their time?)",
+}
+#: seconds without a MagneticField sample (since the start or the last one) after which the source is unhealthy
+SILENT_S = 10.0
 
 
 def _qualified(namespace: str, topic: str) -> str:
@@ -50,9 +60,13 @@ class Ros2Source:
         self.pairer = SamplePairer(settings.imu_topic is not None, settings.batch)
         self.declared = contextlib.ExitStack()
         self.subs: dict[str, zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]]] = {}
+        self.events: DeviceEvents | None = None
+        self.last_sample_s = time.monotonic()  # the start counts as a sample: SILENT_S to the first
+        self._seen_samples = 0
 
     def attach(self, session: zenoh.Session, events: DeviceEvents) -> None:
         """Declare the subscriptions (data keys of the exact type hash) and the node's liveliness tokens."""
+        self.events = events
         ros = self.settings.ros2
         zid, node = str(session.info.zid()), "magnet_edge_" + names.ros_name_of_device(self.settings.device)
         self.declared.enter_context(
@@ -102,14 +116,44 @@ class Ros2Source:
         if health.errors_by_cause[cause] == 1:
             log.warning("dropping ROS 2 messages (%s); further ones only counted", error)
 
+    def watch(self, now_s: float) -> None:
+        """Health from the field samples (module docstring): unhealthy after ``SILENT_S`` without one, healthy again
+        at the next; each change told to the edge (its unhealthy token) and logged."""
+        health = self.health
+        if health.samples != self._seen_samples:
+            self._seen_samples, self.last_sample_s = health.samples, now_s
+        silent = now_s - self.last_sample_s > SILENT_S
+        if silent == (not health.healthy):
+            return
+        health.healthy = not silent
+        if silent:
+            health.last_error = (
+                f"no MagneticField sample on {self.settings.mag_topic} for {SILENT_S:g} s ({health.samples} in all): "
+                "check --mag-topic (and --ros-namespace, --ros-domain) against `ros2 topic list`, and that the robot "
+                "publishes"
+            )
+            log.warning("ROS 2: %s", health.last_error)
+        else:
+            log.info("ROS 2: MagneticField samples on %s again", self.settings.mag_topic)
+        if self.events is not None:
+            self.events.on_health(health.healthy, health.last_error)
+
+    def _pairing_drops(self) -> None:
+        """The pairing's drops into the status's causes, each cause logged the first time."""
+        for cause, count in self.pairer.dropped.items():
+            if cause not in self.health.errors_by_cause:
+                why = PAIRING_DROPS.get(cause, cause)
+                log.warning("dropping ROS 2 samples (%s: %s); further ones only counted", cause, why)
+            self.health.errors_by_cause[cause] = count
+
     def batches(self, stop: Stop) -> Iterator[list[wire.RawBatch]]:
         """One list of one batch each time a batch fills, until ``stop()``."""
         seq = 0
         while not stop():
             now = time.monotonic()
             got = self._take(messages.IMU, now) + self._take(messages.MAGNETIC_FIELD, now)
-            for cause, count in self.pairer.dropped.items():
-                self.health.errors_by_cause[cause] = count
+            self._pairing_drops()
+            self.watch(now)
             for joined in self.pairer.batches(now):
                 yield [
                     wire.RawBatch(

@@ -1,0 +1,250 @@
+"""A heading's uncertainty: one sigma in degrees on every sample (``heading_sigma_deg``), from physics.
+
+The model, stated once here (docs/vehicles.md, "Heading uncertainty", says it in words). A heading is the direction
+of the horizontal field B_h in a frame the attitude's tilt sets. Four independent sources of error; sigma is the root
+of the sum of their squares (radians, given in degrees, at most 180):
+
+1. **The calibration.** A field error of r uT across the horizontal field turns the heading by r / |B_h| rad; r is
+   the calibration's residual RMS (uT, ``Quality.residual_rms_ut``), or ``UNCALIBRATED_FRACTION`` of |B| without a
+   calibration. A heading from the accelerometer's tilt takes each sample as it comes: r / |B_h|. The gyroscope-aided
+   filter turns its heading towards the field's with its magnetic time constant tau_mag (vqf's tauMag), so errors
+   that change from sample to sample (period T) average down to r / |B_h| sqrt(T / (2 tau_mag)).
+2. **The tilt.** A tilt error e about magnetic north lets the vertical field into the horizontal plane: the heading
+   turns by e B_v / B_h = e tan(dip). The filter's tilt follows its accelerometer's low-pass (vqf: second order, time
+   constant tauAcc; here two first-order stages of tauAcc / sqrt(2), the same fall-off) of what no one explains: the
+   linear acceleration, less the velocity's where a velocity aids the filter, over g, a horizontal vector in the
+   (magnetic) earth frame. The heading sees it through its own magnetic correction (first order, tau_mag), so the
+   tilt's share is |LP_mag(LP_acc(a_h / g) tan(dip))| / sqrt(2) (the two horizontal axes alike). A heading from the
+   accelerometer's tilt has no low-pass: e = | |acc| - g | / g (the linear acceleration along gravity, the only part
+   an accelerometer alone shows); a sample without accelerometer assumes the device level within ``UNLEVEL_DEG``.
+3. **The filter's state.** While the field is not trusted (a disturbance vqf or the field's watch rejects: the
+   FIELD_DISTURBED flag of a fused sample), the gyroscope alone carries the heading: its bias uncertainty b (rad/s,
+   vqf's ``biasSigma``) over the time t since the last trusted field sample gives b t.
+4. **A disturbance** in a heading taken from the field directly (not fused) and flagged FIELD_DISTURBED or
+   DIP_DISTURBED: the disturbing field is at least | |B| - B_expected | (uT), which turns the heading by up to that over
+   |B_h|.
+
+Shapes: S samples of many batches (``bounds``), vectors (S, 3) in the body frame (x forward, y right, z down),
+attitudes (S, 4) body -> magnetic NED. Per-device state (the low-passes, the last trusted time) is kept across steps
+for at most ``max_devices`` devices. Pure numpy: times are the samples' own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from magnet.attitude import heading as hd
+from magnet.bounded import Recent
+from magnet.frames import quaternion_to_matrix
+from magnet.units import STANDARD_GRAVITY_MS2
+
+#: without a calibration, the field's error taken as this fraction of |B| (a factory calibration's hard iron left)
+UNCALIBRATED_FRACTION = 0.1
+#: a sample without accelerometer: the device taken as level within this (deg, one sigma)
+UNLEVEL_DEG = 10.0
+#: the dip beyond which tan(dip) is held (deg): near the magnetic poles a heading has no meaning anyway
+MAX_DIP_DEG = 85.0
+#: a gap between a device's samples beyond which its state starts again (s; the filter restarts after 0.5 s)
+RESTART_GAP_S = 1.0
+#: samples of a device that wait for their velocity's acceleration at most (10 s at 100 Hz)
+MAX_WAITING = 1000
+#: the largest sigma (deg): no heading at all
+MAX_SIGMA_DEG = 180.0
+#: vqf's defaults (s) where no filter's figures are given
+DEFAULT_TAU_ACC_S, DEFAULT_TAU_MAG_S = 3.0, 9.0
+_ONE = np.array([1.0, 0.0, 0.0, 0.0])
+_DISTURBED = int(hd.HeadingFlag.FIELD_DISTURBED | hd.HeadingFlag.DIP_DISTURBED)
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterFigures:
+    """What the model needs of a device's gyroscope-aided filter after a batch: its accelerometer and magnetic time
+    constants (s, in use: an aided vehicle's tauAcc is shorter), its gyroscope bias uncertainty (rad/s, one sigma),
+    and where a velocity aids it, the acceleration the velocity explains (``explained``: times (n,) s -> (n, 3) m/s^2
+    magnetic NED), known up to ``known_until_s`` (s; the samples after it wait, as the filter's do)."""
+
+    tau_acc_s: float = DEFAULT_TAU_ACC_S
+    tau_mag_s: float = DEFAULT_TAU_MAG_S
+    bias_sigma_rads: float = 0.0
+    explained: Callable[[np.ndarray], np.ndarray] | None = None
+    known_until_s: float = math.inf
+
+
+@dataclasses.dataclass
+class _Device:
+    """One device's state: the two accelerometer stages and the magnetic stage (2,) each (north, east), the last
+    sample's time and the last trusted field sample's (ns), the time (s) of the last sample the stages took, and the
+    samples waiting for their velocity's acceleration (times (n,) s, horizontal specific force (n, 2) in g)."""
+
+    acc1: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
+    acc2: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
+    mag: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
+    last_ns: int = 0
+    trusted_ns: int = 0
+    fed_s: float | None = None
+    waiting_t: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    waiting_g: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Geometry:
+    """Per sample (S,): |B_h| (uT), tan(dip) (held at ``MAX_DIP_DEG``), and the down direction in body axes (S, 3)."""
+
+    horizontal_ut: np.ndarray
+    tan_dip: np.ndarray
+    down: np.ndarray
+
+    @classmethod
+    def of(cls, field_ut: np.ndarray, acc_ms2: np.ndarray, rotation: np.ndarray | None, fused: np.ndarray) -> Geometry:
+        """From the field (S, 3) uT, the accelerometer (S, 3) (NaN rows: none), the fused rotations (S, 3, 3) body
+        -> NED (or None) and which samples are fused (S,)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            down = -acc_ms2 / hd.row_norm(acc_ms2)[:, None]
+        if rotation is not None:
+            down = np.where(fused[:, None], rotation[:, 2, :], down)
+        down = np.where(hd.rows_finite(down)[:, None], down, [0.0, 0.0, 1.0])  # no tilt known: level
+        norm = hd.row_norm(field_ut)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sine = np.clip(np.einsum("si,si->s", field_ut, down) / norm, -1.0, 1.0)
+        dip = np.clip(np.nan_to_num(np.arcsin(sine)), -math.radians(MAX_DIP_DEG), math.radians(MAX_DIP_DEG))
+        return cls(norm * np.cos(dip), np.abs(np.tan(dip)), down)
+
+
+class HeadingUncertainty:
+    """The model of the module for the compass: ``step`` gives every sample's sigma (deg), keeping per device the
+    state the filter's part needs."""
+
+    def __init__(self, max_devices: int = 100_000) -> None:
+        self.devices: Recent[str, _Device] = Recent(max_devices)
+
+    @property
+    def evicted(self) -> int:
+        return self.devices.evicted
+
+    def step(
+        self,
+        devices: Sequence[str],
+        bounds: Sequence[int],
+        t_ns: np.ndarray,
+        acc_ms2: np.ndarray,
+        field_ut: np.ndarray,
+        flags: np.ndarray,
+        quat_wxyz: np.ndarray | None,
+        expected_ut: np.ndarray,
+        residuals_ut: Sequence[float | None],
+        figures: Sequence[FilterFigures | None],
+    ) -> np.ndarray:
+        """Sigma (S,) deg of S samples. t_ns (S,) int; acc_ms2 and field_ut (S, 3) (the corrected field; NaN acc
+        rows: no accelerometer); flags (S,) ``HeadingFlag`` bits (FUSED, FIELD_DISTURBED, ...); quat_wxyz (S, 4)
+        body -> magnetic NED where fused (NaN rows elsewhere), None when nothing is fused; expected_ut (S,) the
+        field expected at the place (NaN: unknown); per batch the calibration's residual RMS (uT, None: not
+        calibrated) and the filter's figures (None: not fused)."""
+        flags = np.asarray(flags, dtype=np.int64)
+        fused = (flags & int(hd.HeadingFlag.FUSED)) != 0
+        rotation = None
+        if quat_wxyz is not None and fused.any():
+            rotation = quaternion_to_matrix(
+                np.where(fused[:, None] & hd.rows_finite(quat_wxyz)[:, None], quat_wxyz, _ONE)
+            )
+        geometry = Geometry.of(field_ut, acc_ms2, rotation, fused)
+        counts = np.diff(np.asarray(bounds, dtype=np.int64)).tolist()
+        residual = np.repeat([math.nan if r is None else float(r) for r in residuals_ut], counts)
+        residual = np.where(np.isfinite(residual), residual, UNCALIBRATED_FRACTION * hd.row_norm(field_ut))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            field_rad = residual / geometry.horizontal_ut
+        variance = field_rad**2 + _direct_variance(acc_ms2, field_ut, flags, expected_ut, geometry)
+        if rotation is not None:
+            horizontal = _horizontal_force_g(acc_ms2, rotation)
+            for b, (device, figure) in enumerate(zip(devices, figures)):
+                rows = slice(bounds[b], bounds[b + 1])
+                if figure is not None and fused[rows].any():
+                    filtered = self._filtered(device, rows, t_ns, horizontal, field_rad, flags, geometry, figure)
+                    variance[rows] = np.where(fused[rows], filtered, variance[rows])
+        with np.errstate(invalid="ignore"):
+            sigma = np.degrees(np.sqrt(variance))
+        return np.where(np.isfinite(sigma), np.minimum(sigma, MAX_SIGMA_DEG), MAX_SIGMA_DEG)
+
+    def _filtered(
+        self,
+        device: str,
+        rows: slice,
+        t_ns: np.ndarray,
+        horizontal: np.ndarray,
+        field_rad: np.ndarray,
+        flags: np.ndarray,
+        geometry: Geometry,
+        figures: FilterFigures,
+    ) -> np.ndarray:
+        """The variance (rad^2) of one batch's fused samples (zeros elsewhere in it): calibration, tilt and the
+        filter's state (the module's 1 to 3), advancing the device's state over the batch."""
+        times = np.asarray(t_ns[rows], dtype=np.int64)
+        first, last = int(times[0]), int(times[-1])
+        state = self.devices.get(device)
+        if state is not None:
+            self.devices.touch(device)
+        if state is None or not 0 < (first - state.last_ns) * 1e-9 <= RESTART_GAP_S:
+            self.devices[device] = state = _Device(last_ns=first, trusted_ns=first)
+        seconds = max((last - state.last_ns) * 1e-9, 0.0)
+        period_s = seconds / len(times) if seconds > 0 else 0.01
+        fused = (flags[rows] & int(hd.HeadingFlag.FUSED)) != 0
+        known = fused & hd.rows_finite(horizontal[rows])
+        tan_dip = float(np.mean(geometry.tan_dip[rows][fused])) if fused.any() else 0.0
+        _take(state, times[known] * 1e-9, horizontal[rows][known], tan_dip, figures)
+        tilt = float(np.hypot(*state.mag)) / math.sqrt(2.0)
+        calibration = field_rad[rows] ** 2 * period_s / (2.0 * figures.tau_mag_s)
+        trusted = fused & ((flags[rows] & int(hd.HeadingFlag.FIELD_DISTURBED)) == 0)
+        since = np.maximum.accumulate(np.where(trusted, times, state.trusted_ns))
+        state.trusted_ns, state.last_ns = int(since[-1]), last
+        drift = figures.bias_sigma_rads * (times - since) * 1e-9
+        return np.where(fused, calibration + tilt**2 + drift**2, 0.0)
+
+
+def _take(state: _Device, t_s: np.ndarray, force_g: np.ndarray, tan_dip: float, figures: FilterFigures) -> None:
+    """Queue a batch's samples (times (n,) s, horizontal specific force (n, 2) in g) and run the low-passes over
+    those whose unexplained acceleration is known (all of them without a velocity; ``MAX_WAITING`` at most wait)."""
+    state.waiting_t = np.concatenate([state.waiting_t, t_s])[-MAX_WAITING:]
+    state.waiting_g = np.concatenate([state.waiting_g, force_g])[-MAX_WAITING:]
+    ready = state.waiting_t <= figures.known_until_s
+    if not ready.any():
+        return
+    times, force = state.waiting_t[ready], state.waiting_g[ready]
+    state.waiting_t, state.waiting_g = state.waiting_t[~ready], state.waiting_g[~ready]
+    if figures.explained is not None:
+        force = force - figures.explained(times)[:, :2] / STANDARD_GRAVITY_MS2
+    seconds = float(times[-1] - (times[0] if state.fed_s is None else state.fed_s))
+    state.fed_s = float(times[-1])
+    _advance(state, max(seconds, 0.0), force.mean(axis=0), tan_dip, figures)
+
+
+def _advance(state: _Device, seconds: float, accel_g: np.ndarray, tan_dip: float, figures: FilterFigures) -> None:
+    """The low-passes over ``seconds`` with the mean unexplained horizontal acceleration (2,) in g and tan(dip): two
+    stages of tauAcc / sqrt(2), then the magnetic stage of tau_mag on the tilt times tan(dip)."""
+    keep = math.exp(-seconds * math.sqrt(2.0) / max(figures.tau_acc_s, 1e-3))
+    state.acc1 = accel_g + (state.acc1 - accel_g) * keep
+    state.acc2 = state.acc1 + (state.acc2 - state.acc1) * keep
+    keep_mag = math.exp(-seconds / max(figures.tau_mag_s, 1e-3))
+    target = state.acc2 * tan_dip
+    state.mag = target + (state.mag - target) * keep_mag
+
+
+def _horizontal_force_g(acc_ms2: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """(S, 2) the horizontal (north, east) specific force in the magnetic earth frame, in g (NaN rows: unknown)."""
+    return np.einsum("sij,sj->si", rotation, acc_ms2)[:, :2] / STANDARD_GRAVITY_MS2
+
+
+def _direct_variance(
+    acc_ms2: np.ndarray, field_ut: np.ndarray, flags: np.ndarray, expected_ut: np.ndarray, geometry: Geometry
+) -> np.ndarray:
+    """The variance (rad^2) of the tilt and of a flagged disturbance in headings taken from the field directly (the
+    module's 2 and 4, no filter)."""
+    norm = hd.row_norm(acc_ms2)
+    unlevel = math.radians(UNLEVEL_DEG)
+    tilt = np.where(np.isfinite(norm), np.abs(norm - STANDARD_GRAVITY_MS2) / STANDARD_GRAVITY_MS2, unlevel)
+    flagged = (flags & _DISTURBED) != 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        turn = np.abs(hd.row_norm(field_ut) - np.asarray(expected_ut, dtype=float)) / geometry.horizontal_ut
+    return (tilt * geometry.tan_dip) ** 2 + np.where(flagged & np.isfinite(turn), turn**2, 0.0)

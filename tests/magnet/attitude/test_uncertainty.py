@@ -1,0 +1,112 @@
+"""The heading uncertainty model (``magnet.attitude.uncertainty``): each of its four parts against the physics it
+states, on samples whose answer is known by hand."""
+
+import math
+
+import numpy as np
+import pytest
+
+from magnet.attitude.heading import HeadingFlag
+from magnet.attitude.uncertainty import UNCALIBRATED_FRACTION, UNLEVEL_DEG, FilterFigures, HeadingUncertainty
+
+G = 9.80665
+DIP = math.radians(60.0)
+B_H, B_V = 20.0, 20.0 * math.tan(DIP)  # level device facing north: field (B_h, 0, B_v) in FRD
+FUSED = int(HeadingFlag.FUSED)
+
+
+def _samples(n, acc=(0.0, 0.0, -G)):
+    t_ns = np.arange(n, dtype=np.int64) * 10_000_000 + 10**18
+    field = np.tile([B_H, 0.0, B_V], (n, 1))
+    return t_ns, np.tile(acc, (n, 1)).astype(float), field
+
+
+def _step(model, n, flags, residual, figures=None, quat=None, acc=(0.0, 0.0, -G), expected=np.nan, field=None):
+    t_ns, acc_ms2, f = _samples(n, acc)
+    f = f if field is None else field
+    return model.step(
+        ["d"], [0, n], t_ns, acc_ms2, f, np.full(n, flags), quat, np.full(n, expected), [residual], [figures]
+    )
+
+
+def test_a_level_still_heading_from_the_field_has_the_residual_over_the_horizontal_field():
+    sigma = _step(HeadingUncertainty(), 5, 0, 0.5)
+    np.testing.assert_allclose(sigma, math.degrees(0.5 / B_H))
+
+
+def test_without_calibration_the_error_is_a_tenth_of_the_field_and_without_accelerometer_the_tilt_is_unknown():
+    uncalibrated = _step(HeadingUncertainty(), 3, 0, None)
+    norm = math.hypot(B_H, B_V)
+    np.testing.assert_allclose(uncalibrated, math.degrees(UNCALIBRATED_FRACTION * norm / B_H))
+    no_acc = _step(HeadingUncertainty(), 3, 0, 0.5, acc=(np.nan, np.nan, np.nan))
+    # taken as level: dip seen from a field assumed level is atan(B_v / B_h), the tilt UNLEVEL_DEG
+    tilt = math.radians(UNLEVEL_DEG) * math.tan(DIP)
+    np.testing.assert_allclose(no_acc, math.degrees(math.hypot(0.5 / B_H, tilt)), rtol=1e-9)
+
+
+def test_a_flagged_disturbance_adds_its_field_over_the_horizontal_field():
+    norm = math.hypot(B_H, B_V)
+    quiet = _step(HeadingUncertainty(), 3, 0, 0.5, expected=norm - 10.0)
+    disturbed = _step(HeadingUncertainty(), 3, int(HeadingFlag.FIELD_DISTURBED), 0.5, expected=norm - 10.0)
+    np.testing.assert_allclose(quiet, math.degrees(0.5 / B_H))
+    np.testing.assert_allclose(disturbed, math.degrees(math.hypot(0.5 / B_H, 10.0 / B_H)))
+
+
+def test_an_accelerometer_reading_off_g_tilts_the_heading_from_the_field():
+    sigma = _step(HeadingUncertainty(), 3, 0, 0.0, acc=(0.0, 0.0, -G * 1.05))
+    np.testing.assert_allclose(sigma, math.degrees(0.05 * math.tan(DIP)), rtol=1e-9)
+
+
+def test_fused_the_residual_averages_over_the_magnetic_time_constant():
+    quat = np.tile([1.0, 0, 0, 0], (100, 1))
+    sigma = _step(HeadingUncertainty(), 100, FUSED, 0.5, FilterFigures(tau_mag_s=9.0), quat)
+    np.testing.assert_allclose(sigma[1:], math.degrees(0.5 / B_H * math.sqrt(0.01 / 18.0)), rtol=0.05)
+
+
+def test_fused_while_the_field_is_rejected_the_bias_uncertainty_grows_with_time():
+    model, quat, n = HeadingUncertainty(), np.tile([1.0, 0, 0, 0], (100, 1)), 100
+    figures = FilterFigures(bias_sigma_rads=math.radians(0.5))
+    _step(model, n, FUSED, 0.0, figures, quat)  # one second trusted
+    t_ns, acc, field = _samples(n)
+    t_ns = t_ns + n * 10_000_000
+    flags = np.full(n, FUSED | int(HeadingFlag.FIELD_DISTURBED))
+    sigma = model.step(["d"], [0, n], t_ns, acc, field, flags, quat, np.full(n, np.nan), [0.0], [figures])
+    since = (np.arange(n) + 1) * 0.01
+    np.testing.assert_allclose(sigma, 0.5 * since, rtol=1e-6)
+
+
+@pytest.mark.parametrize("aided", [False, True])
+def test_fused_an_unexplained_horizontal_acceleration_tilts_the_heading_unless_the_velocity_explains_it(aided):
+    """A steady 1 m/s^2 towards east that nothing explains: after many time constants the tilt is a / g about north,
+    and the heading's share e tan(dip) / sqrt(2); explained by the velocity, nothing."""
+    model, n = HeadingUncertainty(), 100
+    quat = np.tile([1.0, 0, 0, 0], (n, 1))
+    explained = (lambda t: np.tile([0.0, 1.0, 0.0], (len(t), 1))) if aided else None
+    figures = FilterFigures(tau_acc_s=1.0, tau_mag_s=2.0, explained=explained, known_until_s=math.inf)
+    t_ns, acc, field = _samples(n, acc=(0.0, 1.0, -G))  # body y is east for a level device facing north
+    for k in range(60):
+        sigma = model.step(
+            ["d"],
+            [0, n],
+            t_ns + k * n * 10_000_000,
+            acc,
+            field,
+            np.full(n, FUSED),
+            quat,
+            np.full(n, np.nan),
+            [0.0],
+            [figures],
+        )
+    expected = 0.0 if aided else math.degrees(1.0 / G * math.tan(DIP) / math.sqrt(2))
+    # the dip seen through a tilted accelerometer moves a little: within 2 %
+    np.testing.assert_allclose(sigma[-1], expected, rtol=0.02, atol=1e-6)
+
+
+def test_samples_not_explained_yet_wait_for_the_velocity():
+    model, n = HeadingUncertainty(), 10
+    quat = np.tile([1.0, 0, 0, 0], (n, 1))
+    t_ns, acc, field = _samples(n, acc=(0.0, 3.0, -G))
+    waiting = FilterFigures(explained=lambda t: np.zeros((len(t), 3)), known_until_s=0.0)
+    model.step(["d"], [0, n], t_ns, acc, field, np.full(n, FUSED), quat, np.full(n, np.nan), [0.0], [waiting])
+    state = model.devices["d"]
+    assert len(state.waiting_t) == n and not state.mag.any()
