@@ -10,8 +10,10 @@ Every function takes arrays of shape (..., 3) (a single (3,) sample works too) a
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -187,6 +189,19 @@ def no_earth_field(field_ut: np.ndarray, expected_ut: npt.ArrayLike | None) -> n
     high = np.where(known, expected * (1.0 + NO_EARTH_FIELD_PCT / 100.0), EARTH_MAX_UT)
     with np.errstate(invalid="ignore"):
         return (norm < low) | (norm > high)
+
+
+def leave_out_no_earth_field(
+    filter_field: np.ndarray, out: Any, uncalibrated: np.ndarray, expected_ut: npt.ArrayLike | None
+) -> tuple[np.ndarray, Any]:
+    """(the field (S, 3) the attitude filter gets, with zero rows where ``no_earth_field`` and ``uncalibrated``
+    (S,) bool; ``out``, headings with a ``flags`` (S,) field, those rows flagged FIELD_DISTURBED): no record, no Earth
+    field, and the filter holds its heading on the gyroscope."""
+    blind = uncalibrated & no_earth_field(out.field_ut, expected_ut)
+    if not blind.any():
+        return filter_field, out
+    flags = out.flags | np.where(blind, int(HeadingFlag.FIELD_DISTURBED), 0)
+    return np.where(blind[:, None], 0.0, filter_field), dataclasses.replace(out, flags=flags)
 
 
 def disturbance_flags(
