@@ -310,6 +310,29 @@ def fuse_offline(
     return Fused.from_vqf(out, field is not None)
 
 
+def acc_less_velocity(
+    gyr_rads: np.ndarray,
+    acc_ms2: np.ndarray,
+    mag: np.ndarray,
+    period_s: float,
+    t_s: np.ndarray,
+    vel_ned_ms: np.ndarray,
+) -> np.ndarray:
+    """The accelerometer (N, 3) m/s^2 body FRD less the linear acceleration the velocity implies (every fix known at
+    once, ``magnet.attitude.aiding``), turned into the body frame by the causal velocity-aided attitude with the
+    field ``mag`` (N, 3), calibrated (its heading turns the velocity's acceleration into the body; a heading a few
+    degrees off leaves a few % of it). What is left is gravity, for a filter without the magnetometer whose tilt a
+    vehicle's own accelerations should not bend. ``vel_ned_ms`` (N, 3) magnetic NED, NaN rows where unknown (their
+    samples are returned as they are)."""
+    period = _check_period(period_s)
+    gyr = _to_vqf(gyr_rads, "gyr_rads")
+    acc = _to_vqf(acc_in_ms2(acc_ms2), "acc_ms2", len(gyr))
+    field = _to_vqf(mag, "mag", len(gyr))
+    t = np.asarray(t_s, dtype=float)
+    quat, _ = Fusion(period).update_vqf_frame(gyr, acc, field, t, vel_ned_ms)
+    return frd_flu(acc - body_acceleration(quat, t, vel_ned_ms))
+
+
 def fuse_causal(
     gyr_rads: np.ndarray,
     acc_ms2: np.ndarray,

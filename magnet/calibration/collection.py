@@ -94,15 +94,17 @@ class Collection:
         gyr_rads: np.ndarray | None = None,
         t_ns: np.ndarray | None = None,
         seq: int = 0,
+        vel_ned_ms: np.ndarray | None = None,
     ) -> int:
         """Keep the samples of a batch (mag (N, 3) uT, acc (N, 3) or None) whose fine cell is still empty; returns
         how many were kept. With ``runs``: the batch's gyr_rads (N, 3) rad/s, t_ns (N,) int ns and number ``seq``
-        go to the ring too; a batch without them is counted in ``no_gyroscope`` and said in ``last_reason`` (not
-        for auto, whose ring is made by the first batch with them)."""
+        go to the ring too (with vel_ned_ms (N, 3) m/s, the velocity over the ground, or None); a batch without
+        them is counted in ``no_gyroscope`` and said in ``last_reason`` (not for auto, whose ring is made by the
+        first batch with them)."""
         if self.auto and self.runs is None and gyr_rads is not None and t_ns is not None:
             self.runs = RecentRuns(self.run_capacity)
         if self.runs is not None:
-            self._add_run(self.runs, mag, acc, gyr_rads, t_ns, seq)
+            self._add_run(self.runs, mag, acc, gyr_rads, t_ns, seq, vel_ned_ms)
         self.seen += len(mag)
         self.lo = np.minimum(self.lo, mag.min(axis=0))
         self.hi = np.maximum(self.hi, mag.max(axis=0))
@@ -135,6 +137,7 @@ class Collection:
         gyr: np.ndarray | None,
         t_ns: np.ndarray | None,
         seq: int,
+        vel_ned_ms: np.ndarray | None = None,
     ) -> None:
         if gyr is None or t_ns is None:
             if self.auto:
@@ -145,7 +148,7 @@ class Collection:
                 "gyr_rads (send the gyroscope's rates, or calibrate with ellipsoid)"
             )
             return
-        runs.add(mag, acc, gyr, t_ns, seq)
+        runs.add(mag, acc, gyr, t_ns, seq, vel_ned_ms)
 
     def _room_for(self, size: int) -> None:
         """Grow the sample arrays (doubling, at most to the capacity) so that they hold ``size`` samples."""
@@ -205,6 +208,7 @@ class Collection:
         now_s: float,
         reference: Calibration | None = None,
         dip_deg: float | None = None,
+        declination_deg: float | None = None,
     ) -> Calibration | None:
         """Fit the kept samples (records the result or the reason); None when no calibration can be computed.
 
@@ -225,7 +229,7 @@ class Collection:
                 data = FitInput(mag, acc=acc, field_ut=field_ut, reference=reference, dip_deg=dip_deg)
                 self.last_fit = fit_choice(data, self.method)
             else:
-                self.last_fit = _fit_run(run, self.method, field_ut, reference, dip_deg)
+                self.last_fit = _fit_run(run, self.method, field_ut, reference, dip_deg, declination_deg)
         except FitError as exc:
             self.last_fit, self.last_reason = None, str(exc)
             return None
@@ -250,6 +254,7 @@ def _fit_run(
     field_ut: float | None,
     reference: Calibration | None = None,
     dip_deg: float | None = None,
+    declination_deg: float | None = None,
 ) -> Calibration:
     """Fit the consecutive samples of ``run`` with the gyroscope (``method``: gyro-ellipsoid or auto); FitError when
     there is none."""
@@ -264,5 +269,7 @@ def _fit_run(
         field_ut=field_ut,
         reference=reference,
         dip_deg=dip_deg,
+        vel_ned_ms=run.vel_ned_ms,
+        declination_deg=declination_deg,
     )
     return fit_choice(data, method)

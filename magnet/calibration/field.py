@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from magnet import frames
 from magnet.calibration.base import FitError
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, climb, first_offset, fit_rung
@@ -48,7 +49,9 @@ HOLDOUT_BLOCK, HOLDOUT_EVERY = 20, 5
 class FieldInput:
     """What a field fit takes: mag (N, 3) raw in ``unit``; acc (N, 3) specific force (any unit) or None; gyr (N, 3)
     rad/s consecutive every period_s seconds, or None; field_ut (WMM |B|, uT) and dip_deg (WMM inclination, deg,
-    positive down) or None; reference: the calibration in force (its matrix is kept by the lower rungs) or None."""
+    positive down) or None; reference: the calibration in force (its matrix is kept by the lower rungs) or None;
+    vel_ned_ms (N, 3) m/s geographic NED, the velocity over the ground (NaN rows where unknown) or None, with
+    declination_deg (WMM, deg; None: taken as 0): the attitude the fit is judged with is then velocity aided."""
 
     mag: np.ndarray
     acc: np.ndarray | None = None
@@ -58,15 +61,30 @@ class FieldInput:
     field_ut: float | None = None
     dip_deg: float | None = None
     reference: Calibration | None = None
+    vel_ned_ms: np.ndarray | None = None
+    declination_deg: float | None = None
 
     @classmethod
     def of(cls, data: FitInput) -> FieldInput:
-        """The field fit's input from a fit's (``FitInput``): the dip from ``data.dip_deg``, else the WMM at
-        ``data.place`` and ``data.date`` (None without a place)."""
-        dip = data.dip_deg
-        if dip is None and data.place is not None:
-            dip = earth_field(*data.place.as_tuple(), data.date).inclination_deg
-        return cls(data.mag, data.acc, data.gyr_rads, data.period_s, data.unit, data.field_ut, dip, data.reference)
+        """The field fit's input from a fit's (``FitInput``): the dip (and declination) from ``data.dip_deg``
+        (``data.declination_deg``), else the WMM at ``data.place`` and ``data.date`` (None without a place)."""
+        dip, declination = data.dip_deg, data.declination_deg
+        if (dip is None or declination is None) and data.place is not None:
+            earth = earth_field(*data.place.as_tuple(), data.date)
+            dip = earth.inclination_deg if dip is None else dip
+            declination = earth.declination_deg if declination is None else declination
+        return cls(
+            data.mag,
+            data.acc,
+            data.gyr_rads,
+            data.period_s,
+            data.unit,
+            data.field_ut,
+            dip,
+            data.reference,
+            data.vel_ned_ms,
+            declination,
+        )
 
     def __post_init__(self) -> None:
         mag = np.asarray(self.mag, dtype=float)
@@ -76,7 +94,7 @@ class FieldInput:
             raise FitError(f"only {len(mag)} samples: a field fit needs {MIN_FIELD_SAMPLES}; keep the device moving")
         if not np.all(np.isfinite(mag)):
             raise FitError("samples hold NaN or infinite values: drop them before fitting")
-        for name in ("acc", "gyr"):
+        for name in ("acc", "gyr", "vel_ned_ms"):
             value = getattr(self, name)
             if value is not None and np.shape(value) != mag.shape:
                 raise FitError(f"{name} must have the shape of the magnetometer samples {mag.shape}")
@@ -157,18 +175,56 @@ def fit_field(
             ev_motion = motion.evidence(np.asarray(inp.acc, dtype=float), inp.gyr, inp.period_s)
         except ValueError as exc:
             raise FitError(str(exc)) from None
+    aided = _aided_evidence(inp)
+    if aided is not None:  # the tilt a vehicle's accelerations do not bend, for the fit and its judgement
+        ev_motion = aided
     ev, source = _evidence(inp, ev_motion)
-    planar = is_planar(ev.down)
-    if rung is None:
-        result, tried = climb(ev, planar)
-    else:
-        chosen = RUNGS[rung]
-        result = fit_rung(ev, chosen, first_offset(ev))
-        tried = {chosen.name: result.identified_deg}
+    result, tried, planar = _fit(ev, rung)
     calibration = _record(result, inp, ev, len(inp.mag))
     test = _holdout_mask(len(inp.mag))
     holdout = _holdout(inp, ev, result, test)
     return judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+
+
+def _fit(ev: Evidence, rung: str | None) -> tuple[RungFit, dict[str, float], bool]:
+    """(the fit: the richest identified rung or the rung named, every tried rung's figure, whether planar)."""
+    planar = is_planar(ev.down)
+    if rung is None:
+        result, tried = climb(ev, planar)
+        return result, tried, planar
+    chosen = RUNGS[rung]
+    result = fit_rung(ev, chosen, first_offset(ev))
+    return result, {chosen.name: result.identified_deg}, planar
+
+
+def _usable(reference: Calibration | None, inp: FieldInput) -> Calibration | None:
+    """The calibration in force when it corrects this input's unit to uT (its heading can aid), else None."""
+    ok = reference is not None and reference.unit == inp.unit and reference.method != "identity"
+    return reference if ok and reference is not None and reference.output_unit == "ut" else None
+
+
+def _aided_evidence(inp: FieldInput) -> motion.MotionEvidence | None:
+    """The velocity-aided motion evidence (``magnet.quality.motion.Aiding``) when the samples carry a velocity (with
+    a gyroscope and an accelerometer) and a calibration is in force, whose heading turns the velocity's acceleration
+    into the body frame; None otherwise.
+
+    Without a calibration in force the evidence stays unaided: the first fit's heading could aid it too, but with
+    the vehicle's accelerations gone the raw field's departures from a constant field are left in the turns alone,
+    and the held-out comparison with no calibration (its margin from the spread over ten runs of samples) then calls
+    a ten-fold gain chance (car, whole run: 0.80 deg against 8.56, margin 8.56)."""
+    reference = _usable(inp.reference, inp)
+    if inp.vel_ned_ms is None or inp.gyr is None or inp.acc is None or inp.period_s is None or reference is None:
+        return None
+    vel = np.asarray(inp.vel_ned_ms, dtype=float)
+    if not np.isfinite(vel).all(axis=1).any():
+        return None
+    t_s = np.arange(len(inp.mag)) * inp.period_s
+    magnetic = frames.to_magnetic_ned(vel, inp.declination_deg or 0.0)
+    aiding = motion.Aiding(t_s, magnetic, reference.apply(inp.mag))
+    try:
+        return motion.evidence(np.asarray(inp.acc, dtype=float), inp.gyr, inp.period_s, aiding)
+    except ValueError as exc:
+        raise FitError(str(exc)) from None
 
 
 def _kept_spans(

@@ -41,8 +41,11 @@ class FitInput:
     Model's), or None; field_ut: the expected |B| in uT (from the place, or given), None: keep the fitted radius;
     gate: the gate's thresholds (None: the defaults); robust_extremes: minmax's spike filter; reference: the
     calibration in force (None: none); turntable: the turntable method's setup; dip_deg: the expected dip (deg, positive
-    down; None: the WMM's at the place, if given), the prior of the field ladder (``magnet.calibration.field``). The
-    arrays are checked by the fit (``magnet.calibration.base``), each against what its method needs."""
+    down; None: the WMM's at the place, if given), the prior of the field ladder (``magnet.calibration.field``);
+    vel_ned_ms (N, 3) m/s geographic NED: the velocity over the ground (NaN rows before a fix) or None, and
+    declination_deg (None: the WMM's at the place, else 0): with them the field ladder's attitude is velocity aided
+    (a vehicle's accelerations do not tilt it). The arrays are checked by the fit (``magnet.calibration.base``), each
+    against what its method needs."""
 
     mag: np.ndarray
     unit: str = "ut"
@@ -58,6 +61,8 @@ class FitInput:
     reference: Calibration | None = None
     turntable: TurntableSetup | None = None
     dip_deg: float | None = None
+    vel_ned_ms: np.ndarray | None = None
+    declination_deg: float | None = None
 
     @property
     def has_gyroscope(self) -> bool:

@@ -6,8 +6,8 @@ A bounded ring of the last ``capacity`` samples; the samples are cut into *runs*
 restarts where a batch's ``seq`` is not the previous one's plus one (a batch lost, or the edge restarted), or where
 two consecutive ``t_ns`` are not increasing or lie more than ``GAP_PERIODS`` sample periods apart (samples lost, or
 the device stopped). The fit never pairs samples across a restart: it is given the longest run (the most recent
-among equals). Memory per device: ``capacity`` rows of 11 numbers of 8 bytes (mag, acc and gyr 3 each, t_ns, run
-number): 88 bytes a sample, 2.6 MB for the default 30,000 (5 minutes at 100 Hz); the arrays start at
+among equals). Memory per device: ``capacity`` rows of 14 numbers of 8 bytes (mag, acc, gyr and velocity 3 each,
+t_ns, run number): 112 bytes a sample, 3.4 MB for the default 30,000 (5 minutes at 100 Hz); the arrays start at
 ``INITIAL_ROOM`` rows and double, so a device that sends little costs little. Pure numpy.
 """
 
@@ -29,13 +29,15 @@ INITIAL_ROOM = 256
 @dataclasses.dataclass(frozen=True)
 class Run:
     """Consecutive samples of one device: mag (N, 3) uT, acc (N, 3) m/s^2 or None (a sample came without),
-    gyr_rads (N, 3) rad/s, t_ns (N,) int64, and period_s, the median step of t_ns in seconds."""
+    gyr_rads (N, 3) rad/s, t_ns (N,) int64, period_s, the median step of t_ns in seconds, and vel_ned_ms (N, 3) m/s
+    geographic NED, the velocity the batches carried (NaN rows where none), or None when no sample had one."""
 
     mag: np.ndarray
     acc: np.ndarray | None
     gyr_rads: np.ndarray
     t_ns: np.ndarray
     period_s: float
+    vel_ned_ms: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.mag)
@@ -46,7 +48,8 @@ class Run:
         if count >= len(self):
             return self
         acc = None if self.acc is None else self.acc[-count:]
-        return Run(self.mag[-count:], acc, self.gyr_rads[-count:], self.t_ns[-count:], self.period_s)
+        vel = None if self.vel_ned_ms is None else self.vel_ned_ms[-count:]
+        return Run(self.mag[-count:], acc, self.gyr_rads[-count:], self.t_ns[-count:], self.period_s, vel)
 
     def turned_deg(self) -> np.ndarray:
         """(3,) how far the device turned about each body axis, deg: |rate| summed over the samples where it
@@ -64,6 +67,7 @@ class RecentRuns:
         self.capacity = capacity
         rows = min(capacity, INITIAL_ROOM)
         self.mag, self.acc, self.gyr = np.empty((rows, 3)), np.empty((rows, 3)), np.empty((rows, 3))
+        self.vel = np.empty((rows, 3))
         self.t_ns, self.run = np.empty(rows, dtype=np.int64), np.empty(rows, dtype=np.int64)
         self.head = self.held = self.written = 0  # next row to write; rows holding samples; samples ever written
         self.run_no = 0
@@ -71,8 +75,17 @@ class RecentRuns:
         self.last_t_ns: int | None = None
         self.period_ns: float | None = None
 
-    def add(self, mag: np.ndarray, acc: np.ndarray | None, gyr_rads: np.ndarray, t_ns: np.ndarray, seq: int) -> None:
-        """Append one batch: mag, gyr_rads (N, 3), acc (N, 3) or None, t_ns (N,) int ns, ``seq`` the batch's number."""
+    def add(
+        self,
+        mag: np.ndarray,
+        acc: np.ndarray | None,
+        gyr_rads: np.ndarray,
+        t_ns: np.ndarray,
+        seq: int,
+        vel_ned_ms: np.ndarray | None = None,
+    ) -> None:
+        """Append one batch: mag, gyr_rads (N, 3), acc (N, 3) or None, t_ns (N,) int ns, ``seq`` the batch's number,
+        vel_ned_ms (N, 3) m/s or None (kept as NaN rows)."""
         t = np.asarray(t_ns, dtype=np.int64)
         if not len(t):
             return
@@ -86,7 +99,8 @@ class RecentRuns:
         runs = self.run_no + np.cumsum(starts)
         self.run_no, self.last_seq, self.last_t_ns = int(runs[-1]), seq, int(t[-1])
         acc_rows = np.full((len(t), 3), np.nan) if acc is None else acc
-        self._write(mag, acc_rows, gyr_rads, t, runs)
+        vel_rows = np.full((len(t), 3), np.nan) if vel_ned_ms is None else vel_ned_ms
+        self._write(mag, acc_rows, gyr_rads, t, runs, vel_rows)
 
     def _restarts(self, first_t_ns: int, seq: int) -> bool:
         """Whether a batch starting at ``first_t_ns`` with number ``seq`` cannot follow the last one."""
@@ -95,12 +109,15 @@ class RecentRuns:
         step = first_t_ns - self.last_t_ns
         return step <= 0 or (self.period_ns is not None and step > GAP_PERIODS * self.period_ns)
 
-    def _write(self, mag: np.ndarray, acc: np.ndarray, gyr: np.ndarray, t: np.ndarray, runs: np.ndarray) -> None:
+    def _write(
+        self, mag: np.ndarray, acc: np.ndarray, gyr: np.ndarray, t: np.ndarray, runs: np.ndarray, vel: np.ndarray
+    ) -> None:
         keep = slice(max(0, len(t) - self.capacity), len(t))  # a batch longer than the ring: its newest samples
         count = len(t[keep])
         self._room_for(self.held + count)
         rows = (self.head + np.arange(count)) % len(self.mag)
         self.mag[rows], self.acc[rows], self.gyr[rows] = mag[keep], acc[keep], gyr[keep]
+        self.vel[rows] = vel[keep]
         self.t_ns[rows], self.run[rows] = t[keep], runs[keep]
         self.head = int((self.head + count) % len(self.mag))
         self.held = min(self.held + count, len(self.mag))
@@ -113,7 +130,9 @@ class RecentRuns:
             return
         grow = min(self.capacity, max(size, 2 * rows)) - rows
         vectors, times = np.empty((grow, 3)), np.empty(grow, dtype=np.int64)
-        self.mag, self.acc, self.gyr = (np.concatenate([a, vectors]) for a in (self.mag, self.acc, self.gyr))
+        self.mag, self.acc, self.gyr, self.vel = (
+            np.concatenate([a, vectors]) for a in (self.mag, self.acc, self.gyr, self.vel)
+        )
         self.t_ns, self.run = (np.concatenate([a, times]) for a in (self.t_ns, self.run))
         self.head = self.held  # not wrapped: the samples are rows 0 .. held - 1
 
@@ -127,8 +146,13 @@ class RecentRuns:
             return None
         best = len(counts) - 1 - int(np.argmax(counts[::-1]))
         rows = order[first[best] : first[best] + counts[best]]
-        acc = self.acc[rows]
+        acc, vel = self.acc[rows], self.vel[rows]
         t = self.t_ns[rows]
         return Run(
-            self.mag[rows], None if np.isnan(acc).any() else acc, self.gyr[rows], t, float(np.median(np.diff(t))) / 1e9
+            self.mag[rows],
+            None if np.isnan(acc).any() else acc,
+            self.gyr[rows],
+            t,
+            float(np.median(np.diff(t))) / 1e9,
+            vel if np.isfinite(vel).all(axis=1).any() else None,
         )

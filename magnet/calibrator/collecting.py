@@ -73,7 +73,7 @@ class Collections:
         self.by_device.touch(device)
         if collection.runs is not None and not collection.auto and batch.gyr_rads is None:
             self.no_gyroscope += 1
-        collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
+        collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq, batch.vel_ned_ms)
         return collection
 
     def ready(self, collection: Collection, now: float) -> bool:

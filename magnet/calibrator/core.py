@@ -80,7 +80,7 @@ class CalibratorCore:
         self.shard_keys = ShardKeys(shard)
         self.records = Records(store, signer, shard, clock_ns)
         self.collections = Collections(settings)
-        self.fitter = Fitter(settings, self.roster.field_ut, self.roster.dip_deg)
+        self.fitter = Fitter(settings, self.roster.field_ut, self.roster.dip_deg, self.roster.declination_deg)
         self.refresher = Refresher(settings.recalibrate, settings.max_samples, settings.max_devices)
         self.sessions = Sessions(
             settings.method, self.collections, self.fitter, self.known, self.state, self.commit, clock
@@ -199,7 +199,7 @@ class CalibratorCore:
             log.info("%s: no refresh: %s", device, why)
             return
         gain = gain_pct(result)
-        if self.refresher.proposes(collection):
+        if self.refresher.proposes(collection, result):
             self.refresher.restart(device)
             self.collections.propose(device, collection)
             self.refresher.proposed += 1

@@ -22,8 +22,10 @@ class Fitter:
         settings: Settings,
         field_at: Callable[[str], float | None],
         dip_at: Callable[[str], float | None] = lambda device: None,
+        declination_at: Callable[[str], float | None] = lambda device: None,
     ) -> None:
         self.settings, self.field_at, self.dip_at = settings, field_at, dip_at
+        self.declination_at = declination_at
         self.fits = self.accepted = self.rejected = 0
 
     def field_ut(self, device: str | None) -> float | None:
@@ -36,9 +38,10 @@ class Fitter:
         """Fit ``collection`` and count it; the calibration when the gate accepts it, else None (the reason is on
         ``collection.last_reason``). ``reference``: the calibration in force, which the fit must beat (an
         in-service refresh, ``magnet.calibrator.refresh``); the dip at the device's place is the field ladder's
-        prior."""
+        prior, its declination turns the velocity a vehicle sends into magnetic north (the fit's aided attitude)."""
         dip = self.dip_at(device) if device else None
-        result = collection.fit(self.field_ut(device), now, reference, dip)
+        declination = self.declination_at(device) if device else None
+        result = collection.fit(self.field_ut(device), now, reference, dip, declination)
         self.fits += 1
         accepted = result is not None and result.accepted
         if accepted:

@@ -7,15 +7,17 @@ last ``REFRESH_WINDOW_S`` seconds. The fit is judged against
 the record in force (``FitInput.reference``: held-out heading consistency, with its margin) and must also gain
 ``MIN_GAIN`` of the in-force record's held-out consistency (a refresh that changes little is churn, not a gain).
 
-A device that travels (its batches carry a velocity over TRAVEL_MS) is a vehicle whose linear accelerations the
-judgement's tilt evidence does not model (it has no velocity aiding): measured through the services, a car's
-offset-only refresh looked 70 % more consistent and turned its heading 118 deg wrong. So for a travelling device
-``auto`` proposes the refresh (as ``propose`` does) instead of committing it.
+A device that travels (its batches carry a velocity over TRAVEL_MS) is a vehicle whose linear accelerations tilt a
+judgement's attitude that has no velocity aiding: measured through the services, a car's offset-only refresh judged
+so looked 70 % more consistent and turned its heading 118 deg wrong. The field ladder judges with the velocity-aided
+attitude when the samples carry the velocity (quality ``dip_source`` "velocity-aided gravity",
+``magnet.calibration.field``); a travelling device's refresh judged so is committed under ``auto``, any other (a
+sphere's method, judged without aiding) is proposed (as ``propose`` does) instead.
 
 What passes: ``auto`` commits it as a new version (change ``action: refresh``, ``in_service: true``, ``gain_pct``,
 and ``resolves``: the device's open drift alerts it was made against); ``propose`` turns the refresh collection into
 an operator's session holding the fit (``magnet calibrate DEV commit`` stores it, marked in service); ``off`` keeps
-no refresh collection at all. Memory per device: one ring (88 bytes a sample) and the cells; devices at most
+no refresh collection at all. Memory per device: one ring (112 bytes a sample) and the cells; devices at most
 ``max_devices`` (least recently seen dropped). Pure: no clock of its own, no store.
 """
 
@@ -30,6 +32,7 @@ from magnet.bounded import Recent
 from magnet.calibration.collection import Collection
 from magnet.calibration.field import MIN_GAIN
 from magnet.model import Calibration
+from magnet.quality.motion import AIDED_SOURCE
 
 #: a device whose batches carry a speed above this (m/s, faster than a person runs) travels: its refreshes are
 #: proposed, not committed
@@ -43,7 +46,7 @@ MIN_WALL_S = 1.0
 REFRESH_WINDOW_S = 30.0
 #: seconds of consecutive samples before a refresh is tried
 REFRESH_MIN_S = 12.0
-#: consecutive samples a refresh ring keeps at most (a minute at 200 Hz; 88 bytes each: about 1 MB per device)
+#: consecutive samples a refresh ring keeps at most (a minute at 200 Hz; 112 bytes each: about 1.3 MB per device)
 REFRESH_RUN_CAPACITY = 12_000
 #: without a gyroscope (no ring): kept samples in the cells before a refresh is tried
 REFRESH_MIN_SAMPLES = 300
@@ -110,7 +113,7 @@ class Refresher:
             self.by_device[batch.device] = collection
         self.by_device.touch(batch.device)
         collection.travelled = collection.travelled or travels(batch)
-        collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq)
+        collection.add(batch.mag_ut, batch.acc_ms2, batch.gyr_rads, batch.t_ns, batch.seq, batch.vel_ned_ms)
         return collection
 
     @staticmethod
@@ -126,10 +129,11 @@ class Refresher:
         older = collection.seen > (collection.changed_batches + 1) * len(batch)  # samples from before the change
         return collection.changed_batches >= CHANGED_BATCHES and older
 
-    def proposes(self, collection: Collection) -> bool:
-        """Whether a refresh that passed is proposed as a session rather than committed: ``propose``, or a device
-        that travelled while its samples were collected (see the module docstring)."""
-        return self.mode is Mode.PROPOSE or collection.travelled
+    def proposes(self, collection: Collection, calibration: Calibration | None = None) -> bool:
+        """Whether a refresh that passed (``calibration``) is proposed as a session rather than committed:
+        ``propose``, or a device that travelled while its samples were collected and whose refresh was not judged
+        with the velocity-aided attitude (see the module docstring)."""
+        return self.mode is Mode.PROPOSE or (collection.travelled and not velocity_aided(calibration))
 
     def due(self, collection: Collection, now_s: float) -> bool:
         """Whether to try a refresh now: REFRESH_INTERVAL_S of the device's samples (by their times; by the clock
@@ -152,6 +156,11 @@ class Refresher:
     def restart(self, device: str) -> None:
         """Forget the device's refresh samples (a new record is in force: what follows is judged against it)."""
         self.by_device.pop(device, None)
+
+
+def velocity_aided(calibration: Calibration | None) -> bool:
+    """Whether the record was judged with the velocity-aided attitude (a vehicle's accelerations removed)."""
+    return calibration is not None and calibration.quality.get("dip_source") == AIDED_SOURCE
 
 
 def travels(batch: wire.RawBatch) -> bool:

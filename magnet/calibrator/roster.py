@@ -70,6 +70,12 @@ class Roster:
             return None
         return self.places.earth(device).inclination_deg
 
+    def declination_deg(self, device: str) -> float | None:
+        """The WMM declination (deg) at the device's reported or configured place; None when neither is known."""
+        if device not in self.places.reported and self.places.fleet.get(device) is None:
+            return None
+        return self.places.earth(device).declination_deg
+
     def open_alerts(self, device: str) -> list[str]:
         """The kinds of the device's open drift alerts, sorted (what a refresh may resolve)."""
         return sorted(kind.value for kind in (self.alerts.get(device) or {}))

@@ -114,17 +114,44 @@ def _near_g(norm: np.ndarray, tol: float) -> np.ndarray:
     return np.abs(norm / g - 1.0) <= tol
 
 
-def evidence(acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: float | None = None) -> MotionEvidence:
-    """Gravity (and attitude, with a gyroscope) for samples with specific force acc (N, 3) and rates gyr (N, 3)."""
+#: the evidence's source when the velocity freed the accelerometer of the device's own acceleration
+AIDED_SOURCE = "velocity-aided gravity"
+
+
+@dataclasses.dataclass(frozen=True)
+class Aiding:
+    """What frees a moving device's accelerometer of its own acceleration: sample times t_s (N,) s, the velocity
+    over the ground vel_ned_ms (N, 3) m/s magnetic NED (NaN rows where unknown) and the field (N, 3) uT corrected by
+    a calibration (the calibration in force, or a first fit), whose heading turns the velocity's acceleration into
+    the body frame."""
+
+    t_s: np.ndarray
+    vel_ned_ms: np.ndarray
+    field_ut: np.ndarray
+
+
+def evidence(
+    acc: np.ndarray, gyr_rads: np.ndarray | None = None, period_s: float | None = None, aiding: Aiding | None = None
+) -> MotionEvidence:
+    """Gravity (and attitude, with a gyroscope) for samples with specific force acc (N, 3) and rates gyr (N, 3).
+    With ``aiding`` (and a gyroscope) the filter is fed the accelerometer less the linear acceleration the velocity
+    implies (``magnet.attitude.fusion.acc_less_velocity``): a car's or a boat's sustained accelerations then do not
+    tilt it (source "velocity-aided gravity")."""
     acc = np.asarray(acc, dtype=float)
     if gyr_rads is not None:
         if period_s is None:
             raise ValueError("a gyroscope needs the sample period (t_s or a rate) to be fused")
         from magnet.attitude import fusion  # vqf's wrapper: only where a gyroscope's attitudes are needed
 
-        fused = fusion.fuse_offline(gyr_rads, fusion.acc_in_ms2(acc), None, period_s)
+        source, acc_ms2 = "fused gravity", fusion.acc_in_ms2(acc)
+        if aiding is not None and np.isfinite(aiding.vel_ned_ms).all(axis=1).any():
+            source = AIDED_SOURCE
+            acc_ms2 = fusion.acc_less_velocity(
+                gyr_rads, acc_ms2, aiding.field_ut, period_s, aiding.t_s, aiding.vel_ned_ms
+            )
+        fused = fusion.fuse_offline(gyr_rads, acc_ms2, None, period_s)
         down = frames.down_in_body(fused.quat_wxyz)
-        return MotionEvidence(down, fused.quat_wxyz, "fused gravity", period_s, np.asarray(gyr_rads, dtype=float))
+        return MotionEvidence(down, fused.quat_wxyz, source, period_s, np.asarray(gyr_rads, dtype=float))
     norm = np.sqrt(np.einsum("ij,ij->i", acc, acc))
     down = -acc / norm[:, None]
     down[~_near_g(norm, QUASI_STATIC_TOL)] = np.nan

@@ -164,6 +164,7 @@ def fit_input(table: SampleTable, args: argparse.Namespace) -> FitInput:
         field_ut=field_ut,
         robust_extremes=args.robust_extremes,
         reference=in_force,
+        vel_ned_ms=table.vel_ned_ms() if gyr is not None else None,  # vn,ve,vd: the field ladder's aided attitude
     )
 
 

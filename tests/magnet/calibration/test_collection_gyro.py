@@ -201,3 +201,20 @@ def test_a_session_may_start_with_auto():
     assert session is not None and session.method == "auto" and session.runs is None
     with pytest.raises(ValueError, match="auto, minmax2d"):
         sessions.act("dev", "start", "best")
+
+
+def test_the_ring_keeps_the_velocity_batches_carry_with_their_samples():
+    ring = RecentRuns(capacity=100)
+    for seq in range(6):  # 150 samples through a ring of 100; the first two batches carry no velocity
+        t_ns = PERIOD_NS * (seq * BATCH + np.arange(BATCH, dtype=np.int64))
+        vel = None if seq < 2 else np.column_stack([t_ns, -t_ns, 0 * t_ns]).astype(float)
+        ring.add(np.ones((BATCH, 3)), None, np.zeros((BATCH, 3)), t_ns, seq, vel)
+    run = ring.longest()
+    assert run is not None and run.vel_ned_ms is not None and len(run.vel_ned_ms) == 100
+    known = np.isfinite(run.vel_ned_ms).all(axis=1)
+    np.testing.assert_array_equal(known, run.t_ns >= PERIOD_NS * 2 * BATCH)
+    np.testing.assert_array_equal(run.vel_ned_ms[known, 0], run.t_ns[known])
+    assert run.tail(0.2).vel_ned_ms is not None and len(run.tail(0.2).vel_ned_ms) == 20
+    plain = RecentRuns(capacity=100)
+    _feed(plain, PERIOD_NS * np.arange(BATCH, dtype=np.int64), 0)
+    assert plain.longest() is not None and plain.longest().vel_ned_ms is None  # no velocity: none

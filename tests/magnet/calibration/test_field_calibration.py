@@ -6,6 +6,8 @@ can show."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -148,3 +150,46 @@ def test_field_methods_are_named_in_records_and_refuse_bad_input():
     assert {"offset", "offset+scale", "planar"} <= {m.value for m in Method if m.field_rung}
     with pytest.raises(FitError, match="200"):
         fit_field(FieldInput(np.zeros((50, 3))))
+
+
+def test_a_vehicles_fit_against_the_record_in_force_is_judged_with_its_velocity_aided_tilt():
+    """A car's sustained accelerations tilt a filter fed the raw accelerometer by several degrees; with the velocity
+    (and the record in force's heading) the fit's down direction is the true one to a degree, and the record says
+    its judgement was aided. Without a record in force the evidence stays unaided (docs/field-calibration.md)."""
+    from magnet import frames
+    from magnet.calibration.field import _aided_evidence
+    from magnet.quality import motion
+    from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
+
+    errors = SensorErrors.phone(np.random.default_rng(16), 50.0)
+    run = simulate(
+        SimulatorConfig(
+            trajectory=Trajectory.CAR, rate_hz=50.0, count=3000, errors=errors, seed=16, lat_deg=50.45, lon_deg=30.52
+        )
+    )
+    in_force = errors.true_calibration(run.earth.total_ut)
+    inp = FieldInput(
+        run.mag_ut,
+        run.acc_ms2,
+        run.gyr_rads,
+        0.02,
+        field_ut=run.earth.total_ut,
+        dip_deg=run.earth.inclination_deg,
+        reference=in_force,
+        vel_ned_ms=run.vel_ned_ms,
+        declination_deg=run.earth.declination_deg,
+    )
+    truth = frames.down_in_body(run.quat_wxyz)
+
+    def tilt_error_deg(ev: motion.MotionEvidence) -> float:
+        cosine = np.clip(np.einsum("ij,ij->i", ev.down, truth), -1.0, 1.0)
+        return float(np.degrees(np.sqrt(np.mean(np.arccos(cosine) ** 2))))
+
+    aided = _aided_evidence(inp)
+    assert aided is not None and aided.source == motion.AIDED_SOURCE
+    unaided = motion.evidence(run.acc_ms2, run.gyr_rads, 0.02)
+    assert tilt_error_deg(aided) < 1.5 < 3.0 < tilt_error_deg(unaided)
+    record = fit_field(inp)
+    assert record.quality.get("dip_source") == motion.AIDED_SOURCE
+    assert _aided_evidence(dataclasses.replace(inp, reference=None)) is None
+    assert _aided_evidence(dataclasses.replace(inp, vel_ned_ms=None)) is None

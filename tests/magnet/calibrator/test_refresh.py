@@ -10,8 +10,12 @@ from memory_store import MemoryStore
 
 from magnet import wire
 from magnet.calibrator import CalibratorCore
+from magnet.calibrator.refresh import Refresher
 from magnet.calibrator.status import State
+from magnet.earth.location import Location
 from magnet.frames import quaternion_to_matrix
+from magnet.model import Quality
+from magnet.quality.motion import AIDED_SOURCE
 from magnet.shard import Shard
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 from services.calibrator.settings import CalibratorSettings
@@ -128,15 +132,73 @@ def test_a_record_that_is_still_right_is_not_replaced(walk):
     assert core.status("c").counters.refresh_fits >= 1
 
 
-def test_a_travelling_device_gets_its_refresh_proposed_not_committed(walk):
-    """A vehicle's linear accelerations can fool the judgement (no velocity aiding in it): measured through the
-    services, a car's refresh turned its heading 118 deg wrong. With a velocity over 5 m/s in its batches the same
-    refresh that is committed for a walker is proposed as a session, and the record in force stays."""
+def test_a_travelling_device_gets_a_refresh_judged_without_its_velocity_proposed_not_committed(walk):
+    """A vehicle's linear accelerations can fool a judgement whose attitude has no velocity aiding: measured through
+    the services, a car's refresh judged so turned its heading 118 deg wrong. A travelling device's (velocity over
+    5 m/s) refresh is committed only when the field ladder judged it with the velocity-aided attitude (quality
+    dip_source); any other is proposed as a session, and the record in force stays."""
     run, old = walk
-    core, store, clock = _calibrated("auto", old)
-    _feed(core, clock, run, speed_ms=8.0)  # a car in town
-    assert len(store.history_changes("d")) == 1 and core.state("d") is State.SESSION
-    assert core.status("c").counters.proposed == 1 and core.status("c").counters.refreshed == 0
-    core, store, clock = _calibrated("auto", old)
-    _feed(core, clock, run, speed_ms=1.4)  # a walker's GNSS speed: still committed
+    refresher = Refresher("auto", 2000, 4)
+    collection = refresher.receive(_raw(run, 0, 50, speed_ms=8.0))
+    assert collection is not None and collection.travelled
+    unaided = old.replace(quality=Quality().with_extra(dip_source="fused gravity"))
+    aided = old.replace(quality=Quality().with_extra(dip_source=AIDED_SOURCE))
+    assert refresher.proposes(collection, unaided) and refresher.proposes(collection, None)
+    assert not refresher.proposes(collection, aided)
+    assert Refresher("propose", 2000, 4).proposes(collection, aided)  # propose: always a session
+    walker = Refresher("auto", 2000, 4).receive(_raw(run, 0, 50, speed_ms=1.4))  # a walker's GNSS speed
+    assert walker is not None and not walker.travelled
+    core, _, clock = _calibrated("auto", old)
+    _feed(core, clock, run, speed_ms=1.4)
     assert core.status("c").counters.refreshed >= 1
+
+
+def test_a_car_whose_hard_iron_moved_is_refreshed_in_service_judged_with_its_velocity():
+    """A car (GNSS velocity in its batches, 60 s of town driving) whose record in force misses a hard-iron change of
+    8 uT: the field ladder judges the refresh with the velocity-aided attitude, so ``auto`` commits it, and it
+    brings the calibrated field's heading error down (11.4 -> 2.2 deg RMS against the truth)."""
+    errors = SensorErrors.phone(np.random.default_rng(16), 50.0)
+    run = simulate(
+        SimulatorConfig(
+            trajectory=Trajectory.CAR, rate_hz=50.0, count=3000, errors=errors, seed=16, lat_deg=50.45, lon_deg=30.52
+        )
+    )
+    old = errors.true_calibration(run.earth.total_ut)
+    old = old.replace(offset=old.offset - np.array([6.0, -4.0, 3.0]))
+    store, clock = MemoryStore(), DataClock()
+    settings = CalibratorSettings(location=Location.parse("50.45,30.52"))
+    core = CalibratorCore(store, settings, lambda *a: None, clock.monotonic, clock.wall_ns, None, shard=Shard(0, 1))
+    core.commit("d", old, {"action": "manual", "by": "test"})
+    for seq, start in enumerate(range(0, len(run.t_s), 25)):
+        part = slice(start, start + 25)
+        raw = wire.RawBatch(
+            "d",
+            seq,
+            "sim",
+            np.round(run.t_s[part] * 1e9).astype(np.int64),
+            run.mag_ut[part],
+            run.acc_ms2[part],
+            gyr_rads=run.gyr_rads[part],
+            vel_ned_ms=run.vel_ned_ms[part],
+        )
+        clock.t_s = float(run.t_s[part][-1])
+        core.on_raw("magnet/d/raw", wire.encode_raw(raw), "magnet")
+    counters = core.status("c").counters
+    assert counters.refreshed >= 1 and counters.proposed == 0
+    now = core.records.get("d")
+    assert now is not None and now.calibration.quality.get("dip_source") == AIDED_SOURCE
+    assert _direction_error_deg(now.calibration, run) < _direction_error_deg(old, run) / 3
+
+
+def _raw(run, seq: int, batch: int, speed_ms: float) -> wire.RawBatch:
+    part = slice(seq * batch, (seq + 1) * batch)
+    return wire.RawBatch(
+        "d",
+        seq,
+        "sim",
+        np.round(run.t_s[part] * 1e9).astype(np.int64),
+        run.mag_ut[part],
+        run.acc_ms2[part],
+        gyr_rads=run.gyr_rads[part],
+        vel_ned_ms=np.tile([speed_ms, 0.0, 0.0], (batch, 1)),
+    )
