@@ -39,10 +39,9 @@ from magnet.fleet.places import Places
 from magnet.frames import to_magnetic_ned
 from magnet.model import Calibration
 from magnet.quality.units_hint import EARTH_MAX_UT, EARTH_MIN_UT
-from services.commands.fit import gyro_columns, sample_period_s
 from services.commands.fit_motor import COLUMNS as MOTOR_COLUMNS
 from services.common.inputs import add_input_arguments, read_input_told, reference_yaw
-from services.common.inputs.csvio import SampleTable, write_csv
+from services.common.inputs.csvio import SampleTable, gyro_columns, sample_period_s, write_csv
 from services.common.inputs.input_options import InputOptions
 from services.common.place import add_field_arguments, date_needs_location, location_instead_of
 from services.common.records import load_calibration
