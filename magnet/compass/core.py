@@ -260,6 +260,7 @@ class CompassCore:
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
         out = compute_headings(field, raw.acc_ms2, correction.calibrated)
+        filter_field, out = hd.leave_out_no_earth_field(filter_field, out, ~correction.calibrated, where.total_ut)
         fused = self._fuse(raw, filter_field, where.declination_deg)
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
