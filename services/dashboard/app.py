@@ -174,9 +174,10 @@ class Dashboard:
         found: dict[str, dict[str, Any]] = {}
         for answer in answers:
             name, compasses = answer.get("vehicle"), answer.get("compasses")
-            known = isinstance(name, str) and isinstance(compasses, list)
-            if known and len(compasses) >= len(found.get(str(name), {}).get("compasses", [])):
-                found[str(name)] = answer
+            if not isinstance(name, str) or not isinstance(compasses, list):
+                continue
+            if len(compasses) >= len(found.get(name, {}).get("compasses", [])):
+                found[name] = answer
         return JSONResponse({"vehicles": [found[v] for v in sorted(found)], "errors": errors[:10]})
 
     async def device(self, request: Request) -> Response:
