@@ -22,14 +22,34 @@ _GUID = "258EAFA5-E914-47DA-95CA-C5AB0DC85B11"  # RFC 6455, section 1.3
 
 
 class FoxgloveClient:
-    def __init__(self, host: str, port: int, timeout_s: float = 10.0) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        timeout_s: float = 10.0,
+        path: str = "/",
+        headers: dict[str, str] | None = None,
+        protocols: tuple[str, ...] = SUBPROTOCOLS,
+    ) -> None:
+        """Connect and upgrade (``headers`` added to the request, ``Host`` replaced when it names one);
+        ConnectionError naming the status line when the server refuses."""
         self.sock = socket.create_connection((host, port), timeout=timeout_s)
         key = base64.b64encode(os.urandom(16)).decode()
-        request = (
-            f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-            f"Sec-WebSocket-Protocol: {', '.join(SUBPROTOCOLS)}\r\n\r\n"
-        )
+        fields = {"Host": f"{host}:{port}", "Upgrade": "websocket", "Connection": "Upgrade"}
+        fields |= {
+            "Sec-WebSocket-Key": key,
+            "Sec-WebSocket-Version": "13",
+            "Sec-WebSocket-Protocol": ", ".join(protocols),
+        }
+        fields |= headers or {}
+        request = f"GET {path} HTTP/1.1\r\n" + "".join(f"{k}: {v}\r\n" for k, v in fields.items()) + "\r\n"
+        try:
+            self._handshake(request, key)
+        except BaseException:
+            self.sock.close()
+            raise
+
+    def _handshake(self, request: str, key: str) -> None:
         self.sock.sendall(request.encode())
         head = b""
         while b"\r\n\r\n" not in head:

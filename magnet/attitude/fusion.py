@@ -27,6 +27,7 @@ import vqf
 
 from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
 from magnet.attitude.field_watch import FieldWatch
+from magnet.attitude.heading_bias import HeadingBias, up_in_body, vertical_sigma_rads
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
@@ -146,9 +147,17 @@ class Fusion:
 
     ``period_s``: the fixed sample period in seconds. ``params``: vqf parameters by name (its defaults otherwise).
     ``update`` takes one batch of aligned samples; ``restart`` forgets everything (a gap, a device restart).
+    With ``heading_bias`` (the default) the gyroscope's bias about the vertical is learnt from vqf's magnetic
+    corrections where no velocity aids the filter (``magnet.attitude.heading_bias``).
     """
 
-    def __init__(self, period_s: float, params: Mapping[str, Any] | None = None, watch: bool = True) -> None:
+    def __init__(
+        self,
+        period_s: float,
+        params: Mapping[str, Any] | None = None,
+        watch: bool = True,
+        heading_bias: bool = True,
+    ) -> None:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
         self._filter = vqf.VQF(self.period_s, **self.params)
@@ -158,6 +167,8 @@ class Fusion:
         #: with ``watch`` (the default), the field's disturbances are left out and the gyroscope holds the heading
         #: (docs/compass.md, "Disturbances"); compiled, it costs about a quarter of vqf itself (docs/cost.md)
         self.watch = FieldWatch(self.period_s) if watch else None
+        self.heading_bias = HeadingBias(self.period_s, self._filter.params["tauMag"]) if heading_bias else None
+        self._up = up_in_body(self._filter.getQuat6D())  # the up axis at the start of the bias loop's piece
         self.samples = 0
 
     def restart(self) -> None:
@@ -168,6 +179,9 @@ class Fusion:
         self._aided = None
         if self.watch is not None:
             self.watch.reset()
+        if self.heading_bias is not None:
+            self.heading_bias.reset()
+        self._up = up_in_body(self._filter.getQuat6D())
         self.samples = 0
 
     def restart_magnetometer(self) -> None:
@@ -185,6 +199,8 @@ class Fusion:
         self._filter.state = state
         if self.watch is not None:
             self.watch.reset()
+        if self.heading_bias is not None:  # the bias it learnt is kept, its loop starts again with the new delta
+            self.heading_bias.reset()
 
     def update(
         self,
@@ -208,7 +224,7 @@ class Fusion:
         watched = self._watched(field, gyr)
         if field is not None and watched.any():
             field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
-        out = dict(self._filter.updateBatch(gyr, acc, field))
+        out = self._vqf(gyr, acc, field, watched)
         self.samples += len(gyr)
         if field is not None:
             out["magDistDetected"] = np.asarray(out["magDistDetected"], dtype=bool).reshape(-1) | watched
@@ -232,7 +248,7 @@ class Fusion:
         watched = self._watched(field, gyr)
         if watched.any():
             field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
-        quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms)
+        quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms, watched)
         return quat, np.asarray(disturbed, dtype=bool) | watched
 
     def figures(self) -> FilterFigures:
@@ -260,8 +276,10 @@ class Fusion:
         field: np.ndarray,
         t_s: np.ndarray | None,
         vel_ned_ms: np.ndarray | None,
+        watched: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """vqf (or the velocity-aided filter) on one batch, as ``update_vqf_frame``."""
+        """vqf (or the velocity-aided filter) on one batch, as ``update_vqf_frame`` (``watched`` (N,): the samples
+        the watch left out)."""
         if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
             had = self.samples > len(gyr)  # carries on from its state, an attitude once it took samples
             self._aided = AidedFilter(self.period_s, self.params, self._filter, fed=had)
@@ -270,8 +288,36 @@ class Fusion:
             return self._aided.update(gyr, acc, field, t_s, vel)
         if self._aided is not None:  # a batch without times after aided ones: vqf with its own settings
             self._aided.release()
-        out = self._filter.updateBatch(gyr, acc, field)
+        out = self._vqf(gyr, acc, field, watched)
         return out["quat9D"], out["magDistDetected"]
+
+    def _vqf(self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray) -> dict[str, Any]:
+        """vqf's ``updateBatch`` on one batch (vqf frames; ``watched`` (N,) the samples the watch left out), cut
+        where the bias loop's pieces end (``magnet.attitude.heading_bias``) when it runs: vqf's outputs (quat6D,
+        quat9D, restDetected, magDistDetected) for the whole batch."""
+        loop = self.heading_bias
+        if loop is None or field is None or self._aided is not None:
+            return dict(self._filter.updateBatch(gyr, acc, field))
+        parts = []
+        start = 0
+        while start < len(gyr):
+            stop = min(start + loop.remaining(), len(gyr))
+            out = self._filter.updateBatch(gyr[start:stop], acc[start:stop], field[start:stop])
+            # vqf's flag (also on until vqf has accepted a reference field: a field not yet judged) or the watch's
+            disturbed = bool(np.any(out["magDistDetected"])) or bool(watched[start:stop].any())
+            loop.observe(gyr[start:stop], self._up, disturbed)
+            if loop.remaining() == 0:
+                self._up = up_in_body(self._filter.getQuat6D())
+                sigma = vertical_sigma_rads(self._filter.state, self._up)
+                change = loop.step(float(self._filter.getDelta()), self._up, sigma)
+                if change.any():
+                    self._filter.setBiasEstimate(np.asarray(self._filter.getBiasEstimate()[0], dtype=float) + change)
+            parts.append(out)
+            start = stop
+        if len(parts) == 1:
+            return dict(parts[0])
+        keys = ("quat6D", "quat9D", "restDetected", "magDistDetected")
+        return {key: np.concatenate([np.asarray(part[key]) for part in parts]) for key in keys}
 
 
 def fuse_offline(

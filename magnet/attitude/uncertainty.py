@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -52,6 +53,8 @@ MAX_DIP_DEG = 85.0
 RESTART_GAP_S = 1.0
 #: samples of a device that wait for their velocity's acceleration at most (10 s at 100 Hz)
 MAX_WAITING = 1000
+#: the least tilt sigma said (deg): an accelerometer's own alignment to its board is seldom better
+MIN_TILT_DEG = 0.1
 #: the largest sigma (deg): no heading at all
 MAX_SIGMA_DEG = 180.0
 #: vqf's defaults (s) where no filter's figures are given
@@ -72,6 +75,15 @@ class FilterFigures:
     bias_sigma_rads: float = 0.0
     explained: Callable[[np.ndarray], np.ndarray] | None = None
     known_until_s: float = math.inf
+
+
+class Sigmas(NamedTuple):
+    """One sigma per sample (S,), deg: of the heading, and of the tilt about each horizontal axis (the module's 2:
+    the filter's low-passed unexplained acceleration over g, or the accelerometer's alone; at least
+    ``MIN_TILT_DEG``)."""
+
+    heading_deg: np.ndarray
+    tilt_deg: np.ndarray
 
 
 @dataclasses.dataclass
@@ -137,12 +149,12 @@ class HeadingUncertainty:
         expected_ut: np.ndarray,
         residuals_ut: Sequence[float | None],
         figures: Sequence[FilterFigures | None],
-    ) -> np.ndarray:
-        """Sigma (S,) deg of S samples. t_ns (S,) int; acc_ms2 and field_ut (S, 3) (the corrected field; NaN acc
-        rows: no accelerometer); flags (S,) ``HeadingFlag`` bits (FUSED, FIELD_DISTURBED, ...); quat_wxyz (S, 4)
-        body -> magnetic NED where fused (NaN rows elsewhere), None when nothing is fused; expected_ut (S,) the
-        field expected at the place (NaN: unknown); per batch the calibration's residual RMS (uT, None: not
-        calibrated) and the filter's figures (None: not fused)."""
+    ) -> Sigmas:
+        """The sigmas (``Sigmas``, (S,) deg each) of S samples. t_ns (S,) int; acc_ms2 and field_ut (S, 3) (the
+        corrected field; NaN acc rows: no accelerometer); flags (S,) ``HeadingFlag`` bits (FUSED, FIELD_DISTURBED,
+        ...); quat_wxyz (S, 4) body -> magnetic NED where fused (NaN rows elsewhere), None when nothing is fused;
+        expected_ut (S,) the field expected at the place (NaN: unknown); per batch the calibration's residual RMS
+        (uT, None: not calibrated) and the filter's figures (None: not fused)."""
         flags = np.asarray(flags, dtype=np.int64)
         fused = (flags & int(hd.HeadingFlag.FUSED)) != 0
         rotation = None
@@ -156,17 +168,24 @@ class HeadingUncertainty:
         residual = np.where(np.isfinite(residual), residual, UNCALIBRATED_FRACTION * hd.row_norm(field_ut))
         with np.errstate(invalid="ignore", divide="ignore"):
             field_rad = residual / geometry.horizontal_ut
-        variance = field_rad**2 + _direct_variance(acc_ms2, field_ut, flags, expected_ut, geometry)
+        tilt = _direct_tilt(acc_ms2)
+        variance = field_rad**2 + (tilt * geometry.tan_dip) ** 2
+        variance += _disturbance_variance(field_ut, flags, expected_ut, geometry)
         if rotation is not None:
             horizontal = _horizontal_force_g(acc_ms2, rotation)
             for b, (device, figure) in enumerate(zip(devices, figures)):
                 rows = slice(bounds[b], bounds[b + 1])
                 if figure is not None and fused[rows].any():
-                    filtered = self._filtered(device, rows, t_ns, horizontal, field_rad, flags, geometry, figure)
+                    filtered, filter_tilt = self._filtered(
+                        device, rows, t_ns, horizontal, field_rad, flags, geometry, figure
+                    )
                     variance[rows] = np.where(fused[rows], filtered, variance[rows])
+                    tilt[rows] = np.where(fused[rows], filter_tilt, tilt[rows])
         with np.errstate(invalid="ignore"):
             sigma = np.degrees(np.sqrt(variance))
-        return np.where(np.isfinite(sigma), np.minimum(sigma, MAX_SIGMA_DEG), MAX_SIGMA_DEG)
+        heading = np.where(np.isfinite(sigma), np.minimum(sigma, MAX_SIGMA_DEG), MAX_SIGMA_DEG)
+        tilt_deg = np.clip(np.nan_to_num(np.degrees(tilt), nan=UNLEVEL_DEG), MIN_TILT_DEG, 90.0)
+        return Sigmas(heading, tilt_deg)
 
     def _filtered(
         self,
@@ -178,9 +197,10 @@ class HeadingUncertainty:
         flags: np.ndarray,
         geometry: Geometry,
         figures: FilterFigures,
-    ) -> np.ndarray:
-        """The variance (rad^2) of one batch's fused samples (zeros elsewhere in it): calibration, tilt and the
-        filter's state (the module's 1 to 3), advancing the device's state over the batch."""
+    ) -> tuple[np.ndarray, float]:
+        """The heading's variance (rad^2) of one batch's fused samples (zeros elsewhere in it): calibration, tilt and
+        the filter's state (the module's 1 to 3), advancing the device's state over the batch; and the filter's tilt
+        error per horizontal axis (rad) after it."""
         times = np.asarray(t_ns[rows], dtype=np.int64)
         first, last = int(times[0]), int(times[-1])
         state = self.devices.get(device)
@@ -200,7 +220,8 @@ class HeadingUncertainty:
         since = np.maximum.accumulate(np.where(trusted, times, state.trusted_ns))
         state.trusted_ns, state.last_ns = int(since[-1]), last
         drift = figures.bias_sigma_rads * (times - since) * 1e-9
-        return np.where(fused, calibration + tilt**2 + drift**2, 0.0)
+        variance = np.where(fused, calibration + tilt**2 + drift**2, 0.0)
+        return variance, math.hypot(*state.acc2) / math.sqrt(2.0)
 
 
 def _take(state: _Device, t_s: np.ndarray, force_g: np.ndarray, tan_dip: float, figures: FilterFigures) -> None:
@@ -236,15 +257,18 @@ def _horizontal_force_g(acc_ms2: np.ndarray, rotation: np.ndarray) -> np.ndarray
     return np.einsum("sij,sj->si", rotation, acc_ms2)[:, :2] / STANDARD_GRAVITY_MS2
 
 
-def _direct_variance(
-    acc_ms2: np.ndarray, field_ut: np.ndarray, flags: np.ndarray, expected_ut: np.ndarray, geometry: Geometry
-) -> np.ndarray:
-    """The variance (rad^2) of the tilt and of a flagged disturbance in headings taken from the field directly (the
-    module's 2 and 4, no filter)."""
+def _direct_tilt(acc_ms2: np.ndarray) -> np.ndarray:
+    """(S,) rad: the tilt error of an attitude from the accelerometer alone (the module's 2, no filter)."""
     norm = hd.row_norm(acc_ms2)
     unlevel = math.radians(UNLEVEL_DEG)
-    tilt = np.where(np.isfinite(norm), np.abs(norm - STANDARD_GRAVITY_MS2) / STANDARD_GRAVITY_MS2, unlevel)
+    return np.where(np.isfinite(norm), np.abs(norm - STANDARD_GRAVITY_MS2) / STANDARD_GRAVITY_MS2, unlevel)
+
+
+def _disturbance_variance(
+    field_ut: np.ndarray, flags: np.ndarray, expected_ut: np.ndarray, geometry: Geometry
+) -> np.ndarray:
+    """(S,) rad^2: a flagged disturbance in a heading taken from the field directly (the module's 4)."""
     flagged = (flags & _DISTURBED) != 0
     with np.errstate(invalid="ignore", divide="ignore"):
         turn = np.abs(hd.row_norm(field_ut) - np.asarray(expected_ut, dtype=float)) / geometry.horizontal_ut
-    return (tilt * geometry.tan_dip) ** 2 + np.where(flagged & np.isfinite(turn), turn**2, 0.0)
+    return np.where(flagged & np.isfinite(turn), turn**2, 0.0)

@@ -25,7 +25,7 @@ import numpy as np
 
 from magnet import signing, wire
 from magnet.attitude import heading as hd
-from magnet.attitude.uncertainty import FilterFigures, HeadingUncertainty
+from magnet.attitude.uncertainty import FilterFigures, HeadingUncertainty, Sigmas
 from magnet.bounded import Recent
 from magnet.compass.calibrations import CalibrationsInForce, Correction, small_change
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
@@ -88,8 +88,10 @@ class HeadingColumns:
     calibration_ids: list[str]
     declinations: list[float]
     quat_wxyz: np.ndarray | None = None
-    #: (S,) one sigma of each sample's heading, deg (``magnet.attitude.uncertainty``); None: not computed
+    #: (S,) one sigma of each sample's heading and of its tilt about each horizontal axis, deg
+    #: (``magnet.attitude.uncertainty``); None: not computed
     heading_sigma_deg: np.ndarray | None = None
+    tilt_sigma_deg: np.ndarray | None = None
 
 
 def window_problem(window: Any) -> str | None:
@@ -258,6 +260,7 @@ class CompassCore:
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
         out = compute_headings(field, raw.acc_ms2, correction.calibrated)
+        filter_field, out = hd.leave_out_no_earth_field(filter_field, out, ~correction.calibrated, where.total_ut)
         fused = self._fuse(raw, filter_field, where.declination_deg)
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -280,7 +283,8 @@ class CompassCore:
             [c.id if c else "" for c in cals],
             [e.declination_deg for e in earths],
             None if quat is None else rotate_heading(quat, where.declination_deg),
-            sigma,
+            sigma.heading_deg,
+            sigma.tilt_deg,
         )
 
     def _sigma(
@@ -291,18 +295,14 @@ class CompassCore:
         fused: FusedColumns,
         expected_ut: np.ndarray,
         cals: list[wire.DeviceCalibration | None],
-    ) -> np.ndarray:
-        """Each sample's heading sigma (S,) deg (``magnet.attitude.uncertainty``): from the calibration's residual,
-        the field, the flags and, where fused, the device's filter's figures after this step."""
-        figures: list[FilterFigures | None] = []
-        bounds = raw.bounds
-        for b, device in enumerate(raw.devices):
-            state = self.filters.devices.get(device)
-            lo, hi = bounds[b], bounds[b + 1]
-            if state is None or state.filter is None or not fused.fused[lo:hi].any():
-                figures.append(None)
-            else:
-                figures.append(state.filter.figures())
+    ) -> Sigmas:
+        """Each sample's heading and tilt sigmas (S,) deg (``magnet.attitude.uncertainty``): from the calibration's
+        residual, the field, the flags and, where fused, the device's filter's figures after this step."""
+        bounds, states = raw.bounds, [self.filters.devices.get(device) for device in raw.devices]
+        figures: list[FilterFigures | None] = [
+            s.filter.figures() if s is not None and s.filter is not None and fused.fused[lo:hi].any() else None
+            for s, lo, hi in zip(states, bounds[:-1], bounds[1:])
+        ]
         residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
         return self.uncertainty.step(
             raw.devices, bounds, raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut, residuals, figures

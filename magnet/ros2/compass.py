@@ -15,12 +15,16 @@ from magnet.ros2.frames import TESLA_PER_UT, to_ros
 from magnet.ros2.names import ros_name_of_device
 from magnet.vehicle import CompassVerdict, VehicleReport, Verdict
 
+#: a heading sigma (deg) beyond which the device's diagnostic warns
+UNCERTAIN_HEADING_DEG = 10.0
+
 __all__ = [
     "DeviceState",
     "attitude_wxyz",
     "device_diagnostic",
     "drain_messages",
     "field_variance_t2",
+    "orientation_variance_rad2",
     "sample_messages",
 ]
 
@@ -35,6 +39,18 @@ def attitude_wxyz(
         return euler
     fused = np.isfinite(quat_wxyz).all(axis=1)
     return np.where(fused[:, None], quat_wxyz, euler)
+
+
+def orientation_variance_rad2(
+    heading_sigma_deg: np.ndarray | None, tilt_sigma_deg: np.ndarray | None
+) -> np.ndarray | None:
+    """(S, 3) rad^2, the orientation's variances about ENU's x, y (the tilt about each horizontal axis) and z (the
+    yaw: the heading's sigma, ``magnet.attitude.uncertainty``), for Imu's ``orientation_covariance``; None when the
+    compass gave no sigma."""
+    if heading_sigma_deg is None or tilt_sigma_deg is None:
+        return None
+    tilt, yaw = np.radians(tilt_sigma_deg) ** 2, np.radians(heading_sigma_deg) ** 2
+    return np.column_stack([tilt, tilt, yaw])
 
 
 def field_variance_t2(residual_rms_ut: float | None) -> float:
@@ -67,15 +83,17 @@ def drain_messages(
     gyr_rads: np.ndarray,
     quat_wxyz: np.ndarray,
     variances_t2: Sequence[float],
+    orientation_variance: np.ndarray | None = None,
 ) -> list[tuple[list[bytes], list[bytes]]]:
     """Per batch (device ``devices[i]``, rows ``bounds[i]:bounds[i+1]``): (MagneticField CDR, Imu CDR) per sample.
     t_ns (S,), field_ut (S, 3) calibrated uT FRD, acc_ms2 and gyr_rads (S, 3) FRD with NaN rows where the device
-    has none, quat_wxyz (S, 4) body FRD -> NED (NaN rows: unknown), one field variance (T^2) per batch. frame_id:
-    the device's ROS name. The frames are converted once for the whole drain."""
+    has none, quat_wxyz (S, 4) body FRD -> NED (NaN rows: unknown), one field variance (T^2) per batch, and the
+    orientation's variances (S, 3) rad^2 about ENU's x, y, z (``orientation_variance_rad2``) or None (unknown).
+    frame_id: the device's ROS name. The frames are converted once for the whole drain."""
     ros = to_ros(field_ut, acc_ms2, gyr_rads, quat_wxyz)
     counts = np.diff(np.asarray(bounds, dtype=np.int64)).astype(np.int64)
     mag = messages.magnetic_field_values(ros.field_t, np.repeat(np.asarray(variances_t2, dtype=float), counts))
-    imu = messages.imu_values(ros.quat_xyzw, ros.gyr_rads, ros.acc_ms2, len(t_ns))
+    imu = messages.imu_values(ros.quat_xyzw, ros.gyr_rads, ros.acc_ms2, len(t_ns), orientation_variance)
     out = []
     for i, device in enumerate(devices):
         lo, hi, frame = bounds[i], bounds[i + 1], ros_name_of_device(device)
@@ -100,11 +118,12 @@ class DeviceState:
     coverage: float | None = None
     alerts: tuple[str, ...] = ()
     disturbed_share: float = 0.0
+    heading_sigma_deg: float | None = None  # the median heading sigma of the last batch (deg)
 
 
 def device_diagnostic(state: DeviceState) -> messages.DeviceDiagnostic:
-    """OK: calibrated, no alert, field undisturbed; WARN: not calibrated, or over half the last samples disturbed;
-    ERROR: a drift alert is open."""
+    """OK: calibrated, no alert, field undisturbed; WARN: not calibrated, over half the last samples disturbed, or the
+    heading's sigma over ``UNCERTAIN_HEADING_DEG``; ERROR: a drift alert is open."""
     problems, level = [], 0
     if not state.calibration_id:
         problems.append("not calibrated")
@@ -112,6 +131,9 @@ def device_diagnostic(state: DeviceState) -> messages.DeviceDiagnostic:
     if state.disturbed_share > 0.5:
         problems.append(f"field disturbed in {state.disturbed_share:.0%} of samples")
         level = 1
+    if state.heading_sigma_deg is not None and state.heading_sigma_deg > UNCERTAIN_HEADING_DEG:
+        problems.append(f"heading uncertain: +-{state.heading_sigma_deg:.3g} deg (one sigma)")
+        level = max(level, 1)
     if state.alerts:
         problems.append("drift: " + ", ".join(state.alerts))
         level = 2
@@ -123,6 +145,7 @@ def device_diagnostic(state: DeviceState) -> messages.DeviceDiagnostic:
         ("coverage", "" if state.coverage is None else f"{state.coverage:.3g}"),
         ("alerts", ",".join(state.alerts)),
         ("disturbed_share", f"{state.disturbed_share:.3g}"),
+        ("heading_sigma_deg", "" if state.heading_sigma_deg is None else f"{state.heading_sigma_deg:.3g}"),
     ]
     message = "; ".join(problems) if problems else "calibrated, no alerts"
     return messages.DeviceDiagnostic(state.device, level, message, tuple(values))

@@ -70,16 +70,28 @@ def magnetic_field_values(field_t: np.ndarray, variance_t2: float | np.ndarray) 
 
 
 def imu_values(
-    quat_xyzw: np.ndarray | None, gyr_rads: np.ndarray | None, acc_ms2: np.ndarray | None, count: int
+    quat_xyzw: np.ndarray | None,
+    gyr_rads: np.ndarray | None,
+    acc_ms2: np.ndarray | None,
+    count: int,
+    orientation_variance: np.ndarray | None = None,
 ) -> np.ndarray:
     """(S, 37) the doubles of Imu: orientation, its covariance, angular velocity, its covariance, linear
     acceleration, its covariance. A row with a NaN (or None for all) is not given: -1 in element 0 of its
-    covariance, zeros (the identity for the orientation) as values; a given one has an unknown (zero) covariance."""
+    covariance, zeros (the identity for the orientation) as values; a given one has an unknown (zero) covariance,
+    except the orientation's where ``orientation_variance`` (S, 3) rad^2 about the parent frame's x, y and z (ENU:
+    the two tilts and the yaw) has a finite row: those on its diagonal (elements 0, 4, 8)."""
     parts = []
     for values, width, missing in ((quat_xyzw, 4, _IDENTITY_XYZW), (gyr_rads, 3, _ZERO3), (acc_ms2, 3, _ZERO3)):
         rows = np.full((count, width), np.nan) if values is None else np.asarray(values, dtype=float)
         given = np.isfinite(rows).all(axis=1)[:, None]
         parts += [np.where(given, rows, missing), np.where(given, _ZERO9, _NOT_GIVEN)]
+    if orientation_variance is not None:
+        variance = np.asarray(orientation_variance, dtype=float).reshape(count, 3)
+        known = np.isfinite(variance).all(axis=1)[:, None] & (parts[1][:, :1] != -1.0)
+        diagonal = np.zeros((count, 9))
+        diagonal[:, [0, 4, 8]] = np.clip(np.nan_to_num(variance), 0.0, None)
+        parts[1] = np.where(known, diagonal, parts[1])
     return np.concatenate(parts, axis=1)
 
 

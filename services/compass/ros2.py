@@ -79,6 +79,7 @@ def build_drain(
         columns.gyr_rads,
         quat,
         variances,
+        ros_compass.orientation_variance_rad2(out.heading_sigma_deg, out.tilt_sigma_deg),
     )
 
 
@@ -98,6 +99,7 @@ class Ros2Compass:
         )
         self.devices: Recent[str, tuple[_Topic, _Topic]] = Recent(max_devices, on_evict=_close_topics)
         self.disturbed: Recent[str, float] = Recent(max_devices)
+        self.sigma: Recent[str, float] = Recent(max_devices)  # the median heading sigma of each device's last batch
         self.diagnostics = _Topic(self, DIAGNOSTICS_TOPIC, messages.DIAGNOSTIC_ARRAY)
         self._declared.callback(self.diagnostics.close)
         self.next_diagnostics = time.monotonic() + DIAGNOSTICS_PERIOD_S
@@ -144,6 +146,9 @@ class Ros2Compass:
             self.published += 2 * len(mag)
             flags = np.asarray(h.flags[bounds[i] : bounds[i + 1]], dtype=np.int64)
             self.disturbed[device] = float(np.mean((flags & _DISTURBED) != 0)) if len(flags) else 0.0
+            sigma = out.heading_sigma_deg
+            if sigma is not None and bounds[i + 1] > bounds[i]:
+                self.sigma[device] = float(np.median(sigma[bounds[i] : bounds[i + 1]]))
 
     def tick(self, core: CompassCore) -> None:
         """Publish the diagnostics when their period has passed."""
@@ -177,6 +182,7 @@ class Ros2Compass:
                 quality.coverage if quality is not None else None,
                 tuple(alerts.get(device, ())),
                 self.disturbed.get(device) or 0.0,
+                self.sigma.get(device),
             )
             statuses.append(ros_compass.device_diagnostic(state))
         statuses += [ros_compass.vehicle_diagnostic(report) for report in vehicles]

@@ -1,5 +1,6 @@
 """``magnet dashboard --foxglove HOST:PORT``: the fleet live in the Foxglove app, over the Foxglove WebSocket protocol
-(foxglove-sdk's server; loopback unless told otherwise).
+(foxglove-sdk's server on a private loopback address, behind ``foxglove_front``, which lets through only upgrades
+with the dashboard's token from a known Host and Origin; loopback unless told otherwise).
 
 Per device (its ROS name, ``magnet.ros2.names``), from each heading batch's last sample:
 
@@ -33,6 +34,7 @@ from magnet.ros2 import compass as ros_compass
 from magnet.ros2.frames import ros_yaw_deg, to_ros
 from magnet.ros2.names import ros_name_of_device
 from services.common.zenoh_session import drain, payload_bytes
+from services.dashboard.foxglove_front import FoxgloveFront, FrontCheck, private_loopback_host
 
 log = logging.getLogger("magnet.dashboard.foxglove")
 
@@ -97,9 +99,20 @@ def heading_views(batch: wire.HeadingBatch) -> tuple[dict[str, Any], dict[str, A
 class FoxgloveBridge:
     """Follows the fleet's headings and alerts on a Zenoh session and logs them to a Foxglove WebSocket server."""
 
-    def __init__(self, session: zenoh.Session, prefix: str, host: str, port: int) -> None:
-        self.server = foxglove.start_server(name="magnet", host=host, port=port)
-        self.port = self.server.port
+    def __init__(
+        self, session: zenoh.Session, prefix: str, host: str, port: int, token: str, allowed: frozenset[str]
+    ) -> None:
+        """Serve at ``host``:``port`` behind the front (``foxglove_front``): only upgrades naming an ``allowed`` host
+        and carrying ``token`` (or its view token) reach the SDK's server, which listens on a private address."""
+        private = private_loopback_host()
+        self.server = foxglove.start_server(name="magnet", host=private, port=0)
+        try:
+            backend = (private, self.server.port)
+            self.front = FoxgloveFront(host, port, backend, FrontCheck(token, allowed))
+        except BaseException:
+            self.server.stop()
+            raise
+        self.port = self.front.port
         self.declared = contextlib.ExitStack()
         fifo = zenoh.handlers.FifoChannel
         self.headings = self.declared.enter_context(session.declare_subscriber(f"{prefix}/*/heading", fifo(8192)))
@@ -180,4 +193,5 @@ class FoxgloveBridge:
         while not self.stop.is_set():
             if not self.step():
                 self.stop.wait(0.01)
+        self.front.close()
         self.server.stop()

@@ -54,6 +54,7 @@ class DeviceRow:
     seq: int | None = None
     heading_deg: float | None = None
     true_heading_deg: float | None = None
+    heading_sigma_deg: float | None = None  # one sigma of the last heading (deg), as the compass sent it
     pitch_deg: float | None = None
     roll_deg: float | None = None
     field_ut: float | None = None
@@ -127,6 +128,7 @@ class DeviceRow:
             "t_ms": None if self.t_ns is None else self.t_ns // 1_000_000,
             "heading_deg": _round(self.heading_deg, 2),
             "true_heading_deg": _round(self.true_heading_deg, 2),
+            "heading_sigma_deg": _round(self.heading_sigma_deg, 2),
             "pitch_deg": _round(self.pitch_deg, 2),
             "roll_deg": _round(self.roll_deg, 2),
             "field_ut": _round(self.field_ut, 2),

@@ -110,7 +110,7 @@ def serve(settings: DashboardSettings) -> int:
         thread.start()
         stack.callback(thread.join, 5)
         stack.callback(ingest.stop.set)
-        _start_foxglove(stack, session, settings)
+        _start_foxglove(stack, session, settings, token)
         app = create_app(
             state,
             Control(session, prefix),
@@ -141,20 +141,32 @@ def serve(settings: DashboardSettings) -> int:
     return 0
 
 
-def _start_foxglove(stack: contextlib.ExitStack, session: zenoh.Session, settings: DashboardSettings) -> None:
-    """The Foxglove bridge in its own thread when ``--foxglove`` is given (``services.dashboard.foxglove``),
-    stopped and its subscribers undeclared when ``stack`` closes."""
+def _start_foxglove(
+    stack: contextlib.ExitStack, session: zenoh.Session, settings: DashboardSettings, token: str
+) -> None:
+    """The Foxglove bridge in its own thread when ``--foxglove`` is given (``services.dashboard.foxglove``), behind
+    the dashboard's token and host names (``foxglove_front``); stopped and its subscribers undeclared when ``stack``
+    closes."""
     if not settings.foxglove:
         return
+    from services.dashboard.app import LOOPBACK_NAMES, host_name
     from services.dashboard.foxglove import FoxgloveBridge
+    from services.dashboard.foxglove_front import view_token
 
     host, port = parse_http(settings.foxglove)
-    bridge = stack.enter_context(FoxgloveBridge(session, settings.zenoh.prefix, host, port))
+    told = {host_name(h) for h in settings.allowed_hosts} | ({host} if host not in ("0.0.0.0", "::", "") else set())
+    allowed = LOOPBACK_NAMES | told
+    bridge = stack.enter_context(FoxgloveBridge(session, settings.zenoh.prefix, host, port, token, allowed))
     thread = threading.Thread(target=bridge.run, name="dashboard-foxglove", daemon=True)
     thread.start()
     stack.callback(thread.join, 5)
     stack.callback(bridge.stop.set)
-    print(f"magnet dashboard: Foxglove WebSocket at ws://{host}:{bridge.port}", flush=True)
+    shown = f"[{host}]" if ":" in host else host
+    print(
+        f"magnet dashboard: Foxglove WebSocket at ws://{shown}:{bridge.port}/?token={view_token(token)}  (give the "
+        "Foxglove app this address; other clients may send the control token in Authorization: Bearer)",
+        flush=True,
+    )
 
 
 class _Server:

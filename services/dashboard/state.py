@@ -182,6 +182,8 @@ class FleetState:
                 )
             row.seq, row.heading_s, row.t_ns = batch.seq, now, int(batch.t_ns[last])
             row.heading_deg, row.true_heading_deg = float(batch.heading_deg[last]), float(batch.true_heading_deg[last])
+            sigma = batch.heading_sigma_deg
+            row.heading_sigma_deg = None if sigma is None else finite_or_none(sigma[last])
             row.pitch_deg, row.roll_deg, row.flags = pitch, roll, int(batch.flags[last])
             row.field_ut, row.dip_deg = magnitude, finite_or_none(dip)
             row.declination_deg = batch.declination_deg

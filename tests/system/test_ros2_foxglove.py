@@ -12,7 +12,10 @@ from foxglove_ws_client import SUBPROTOCOLS, FoxgloveClient
 from helpers import connect_args, free_ports, listen_args, wait_for
 from test_ros2_compass import collect_headings
 
+from services.dashboard.foxglove_front import view_token
+
 pytestmark = pytest.mark.integration
+TOKEN = "fox-token-1"
 
 
 def wait_until(seconds: float):
@@ -34,14 +37,19 @@ def test_a_foxglove_client_subscribes_to_a_devices_heading_and_decodes_it(procs)
     )  # fmt: skip
     procs.start(
         "dashboard", "dashboard", "--http", f"127.0.0.1:{http_port}", "--foxglove", f"127.0.0.1:{fox_port}",
-        *listen_args(dash_port), *connect_args(comp_port),
+        "--token", TOKEN, *listen_args(dash_port), *connect_args(comp_port),
     )  # fmt: skip
     wait_for(lambda: "Foxglove WebSocket" in procs.log("dashboard"), 20, "the Foxglove server")
+    # issue 32: any web page in the operator's browser could read the fleet; now the token and a known Origin
+    for headers in ({}, {"Authorization": f"Bearer {TOKEN}", "Origin": "https://evil.example"}):
+        with pytest.raises(ConnectionError, match=r"40[13]"):
+            FoxgloveClient("127.0.0.1", fox_port, headers=headers)
+    assert f"ws://127.0.0.1:{fox_port}/?token={view_token(TOKEN)}" in procs.log("dashboard")
     ours: dict[int, tuple] = {}
     stop = threading.Event()
     watcher = threading.Thread(target=collect_headings, args=(comp_port, stop, ours, "fox-000"), daemon=True)
     watcher.start()
-    client = FoxgloveClient("127.0.0.1", fox_port)
+    client = FoxgloveClient("127.0.0.1", fox_port, path=f"/?token={view_token(TOKEN)}")  # as the Foxglove app does
     try:
         assert client.protocol in SUBPROTOCOLS
         info, channels = client.wait_for_channel("/magnet/xfox_2d000/heading", 30)

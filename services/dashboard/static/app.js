@@ -323,9 +323,10 @@ function enterDevice(device) {
 
 function showLive(row) {
   if (!dial) { dial = buildDial($("dial")); horizon = buildHorizon($("horizon")); }
-  dial.set(row.true_heading_deg, row.heading_deg);
+  dial.set(row.true_heading_deg, row.heading_deg, row.heading_sigma_deg);
   horizon.set(row.pitch_deg, row.roll_deg);
-  $("v-true").textContent = deg(row.true_heading_deg);
+  $("v-true").textContent = deg(row.true_heading_deg) +
+    (row.heading_sigma_deg == null ? "" : ` \u00b1 ${deg(row.heading_sigma_deg)}`);
   $("v-mag").textContent = deg(row.heading_deg);
   $("v-decl").textContent = deg(row.declination_deg, 2);
   $("v-pitch").textContent = deg(row.pitch_deg);

@@ -10,7 +10,8 @@ function svgEl(tag, attrs, parent) {
   return el;
 }
 
-// A dial of radius 100 with a fixed card (north up) and two needles: true (blue) and magnetic (orange).
+// A dial of radius 100 with a fixed card (north up) and two needles: true (blue) and magnetic (orange), and a
+// wedge of +-sigma (the heading's uncertainty) about the true needle.
 function buildDial(svg) {
   svg.innerHTML = "";
   svgEl("circle", {r: 104, fill: "#11181f", stroke: "#2a3542", "stroke-width": 2}, svg);
@@ -35,13 +36,24 @@ function buildDial(svg) {
       opacity: 0.92}, g);
     return g;
   };
+  // the true heading's one sigma: a wedge of +-sigma about the true needle (hidden when the compass sends none)
+  const spread = svgEl("path", {fill: "#4fa3ff", opacity: 0.22, stroke: "#4fa3ff", "stroke-opacity": 0.5,
+    "stroke-width": 1, visibility: "hidden"}, svg);
   const mag = needle("#ff7a59", 5, 62);
   const tru = needle("#4fa3ff", 7, 78);
   svgEl("circle", {r: 6, fill: "#dbe3ea"}, svg);
   return {
-    set(trueDeg, magDeg) {
+    set(trueDeg, magDeg, sigmaDeg) {
       if (trueDeg != null) tru.setAttribute("transform", `rotate(${trueDeg})`);
       if (magDeg != null) mag.setAttribute("transform", `rotate(${magDeg})`);
+      const shown = trueDeg != null && sigmaDeg != null && sigmaDeg > 0;
+      spread.setAttribute("visibility", shown ? "visible" : "hidden");
+      if (!shown) return;
+      const half = Math.min(sigmaDeg, 179.9) * Math.PI / 180, r = 98;
+      const large = half > Math.PI / 2 ? 1 : 0;
+      spread.setAttribute("d", `M 0 0 L ${-r * Math.sin(half)} ${-r * Math.cos(half)} ` +
+        `A ${r} ${r} 0 ${large} 1 ${r * Math.sin(half)} ${-r * Math.cos(half)} Z`);
+      spread.setAttribute("transform", `rotate(${trueDeg})`);
     },
   };
 }

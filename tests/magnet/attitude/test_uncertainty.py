@@ -26,7 +26,7 @@ def _step(model, n, flags, residual, figures=None, quat=None, acc=(0.0, 0.0, -G)
     f = f if field is None else field
     return model.step(
         ["d"], [0, n], t_ns, acc_ms2, f, np.full(n, flags), quat, np.full(n, expected), [residual], [figures]
-    )
+    ).heading_deg
 
 
 def test_a_level_still_heading_from_the_field_has_the_residual_over_the_horizontal_field():
@@ -70,7 +70,7 @@ def test_fused_while_the_field_is_rejected_the_bias_uncertainty_grows_with_time(
     t_ns, acc, field = _samples(n)
     t_ns = t_ns + n * 10_000_000
     flags = np.full(n, FUSED | int(HeadingFlag.FIELD_DISTURBED))
-    sigma = model.step(["d"], [0, n], t_ns, acc, field, flags, quat, np.full(n, np.nan), [0.0], [figures])
+    sigma, _ = model.step(["d"], [0, n], t_ns, acc, field, flags, quat, np.full(n, np.nan), [0.0], [figures])
     since = (np.arange(n) + 1) * 0.01
     np.testing.assert_allclose(sigma, 0.5 * since, rtol=1e-6)
 
@@ -85,7 +85,7 @@ def test_fused_an_unexplained_horizontal_acceleration_tilts_the_heading_unless_t
     figures = FilterFigures(tau_acc_s=1.0, tau_mag_s=2.0, explained=explained, known_until_s=math.inf)
     t_ns, acc, field = _samples(n, acc=(0.0, 1.0, -G))  # body y is east for a level device facing north
     for k in range(60):
-        sigma = model.step(
+        sigma, tilt = model.step(
             ["d"],
             [0, n],
             t_ns + k * n * 10_000_000,
@@ -100,6 +100,8 @@ def test_fused_an_unexplained_horizontal_acceleration_tilts_the_heading_unless_t
     expected = 0.0 if aided else math.degrees(1.0 / G * math.tan(DIP) / math.sqrt(2))
     # the dip seen through a tilted accelerometer moves a little: within 2 %
     np.testing.assert_allclose(sigma[-1], expected, rtol=0.02, atol=1e-6)
+    # the tilt per horizontal axis: a / g over sqrt(2), or the floor
+    np.testing.assert_allclose(tilt[-1], 0.1 if aided else math.degrees(1.0 / G / math.sqrt(2)), rtol=0.02)
 
 
 def test_samples_not_explained_yet_wait_for_the_velocity():

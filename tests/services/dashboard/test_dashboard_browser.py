@@ -355,6 +355,10 @@ def _check_drift(page):
 def _check_session(page):
     page.click('#fleet-body tr[data-device="dev-001"]', no_wait_after=True)
     page.wait_for_selector("#device-view:not(.hidden)")
+    # the dial shows the heading's one sigma: a wedge about the true needle, and "+-" beside the true heading
+    page.wait_for_function("document.querySelector('#v-true').textContent.includes('\u00b1')", timeout=20_000)
+    assert page.get_attribute("#dial path", "visibility") == "visible"
+    assert re.search(r"\u00b1 [\d.]+\u00b0", page.inner_text("#v-true")), page.inner_text("#v-true")
     page.wait_for_function("document.querySelector('#cloud .main-svg') !== null", timeout=30_000)
     page.wait_for_function("document.querySelectorAll('#history-body tr[data-id]').length >= 1", timeout=20_000)
     before = page.get_attribute("#history-body tr:has(.badge.calibrated:text('in force'))", "data-id")

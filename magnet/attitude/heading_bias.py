@@ -1,0 +1,119 @@
+"""The gyroscope's bias about the vertical, learnt from the magnetometer's heading corrections (``HeadingBias``), for
+the causal filter without velocity aiding (``magnet.attitude.fusion.Fusion``).
+
+vqf learns its gyroscope's bias at rest and, in motion, from the accelerometer, which sees the two horizontal axes
+only: about the vertical a walking phone's bias is never learnt (a phone carried the same way keeps the same body
+axis up). Its 6D attitude then drifts in heading at the bias's rate, and its magnetic correction ``delta`` (the turn
+from 6D to 9D) follows that drift through a proportional loop of time constant tauMag, lagging by rate x tauMag: a
+phone's 0.5 deg/s bias leaves a standing heading error of 4.5 deg, the constant offset of the walks in
+``magnet bench field`` (with the simulator's true calibration and true gyroscope, 1.1 deg; with its gyroscope bias,
+up to 4.4). This adds the loop's integral term (as ``aided_fusion.VerticalBias`` does for the aided filter): every
+change of delta over a piece of samples, divided by T_i = ``INTEGRAL_TAUS`` tauMag, goes into vqf's own bias
+estimate along the body's up axis, where the drift comes from. With T_i = 4 tauMag the loop is critically damped
+(damping sqrt(T_i / tauMag) / 2 = 1): slower than the aided filter's 2 tauMag, and less moved by the heading's
+short errors.
+
+Those short errors come from the tilt. A walker's corner (90 deg at 70-120 deg/s, 1.4-2.4 s) puts a centripetal
+acceleration of v x rate (about 2 m/s^2 walking, 4 running) on the accelerometer, which tilts vqf's attitude by a
+degree or more for a few seconds, and a tilt error turns the field's heading by tilt x tan(dip). So the loop does not
+learn while the body turns about the vertical faster than ``TURN_RATE_DPS`` (its rate averaged over the last two
+pieces, 1 s: a stride or so, over which the gait's own sway cancels), nor for ``AFTER_TURN_S`` after, nor while the
+field is disturbed (vqf's flag or the field's watch), nor before ``SETTLE_TAUS`` tauMag since the filter's magnetic
+side (re)started (vqf's first convergence, or a new calibration, is not a drift).
+
+Nor does it learn where vqf has learnt the bias itself: a device that rested (vqf's rest detection learns all three
+axes to a few 0.01 deg/s) keeps vqf's estimate, which the loop could only make noisier (BROAD's trials start still:
+with the loop on them causal heading went 1.082 -> 1.132 and 0.819 -> 0.842 deg). The loop runs while vqf's own
+uncertainty about the vertical axis exceeds ``MIN_SIGMA_DPS`` (it starts at 0.5 deg/s and, in motion, stays there:
+the accelerometer cannot see that axis).
+
+Pieces are cut at fixed sample counts from the filter's start (``PIECE_S``), so the answers do not depend on how the
+samples come in batches.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+#: the loop's integral time in units of vqf's magnetic time constant tauMag (critical damping at 4)
+INTEGRAL_TAUS = 4.0
+#: the loop starts this many tauMag after the filter's magnetic side (re)started
+SETTLE_TAUS = 1.0
+#: the length of a piece of samples between two steps of the loop (s)
+PIECE_S = 0.5
+#: pieces whose rate about the vertical, over the last two, exceeds this (deg/s) are a turn: not learnt from
+TURN_RATE_DPS = 20.0
+#: nor the pieces this long after a turn (s): the tilt it caused takes vqf's accelerometer time constant to fade
+AFTER_TURN_S = 4.0
+#: the loop runs only while vqf's uncertainty (one sigma) of its bias about the vertical exceeds this (deg/s)
+MIN_SIGMA_DPS = 0.2
+
+
+def up_in_body(quat_vqf: Any) -> np.ndarray:
+    """The earth's up axis (3,) in body axes from a vqf quaternion (4,) wxyz body -> ENU (vqf's frames)."""
+    w, x, y, z = (float(v) for v in np.asarray(quat_vqf, dtype=float).reshape(4))
+    return np.array([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)])
+
+
+def vertical_sigma_rads(state: dict[str, Any], up: np.ndarray) -> float:
+    """vqf's uncertainty (rad/s, one sigma) of its gyroscope bias about ``up`` (3,) (body axes), from the bias
+    covariance of its state (``VQF.state["biasP"]``: body axes, in (0.01 deg/s)^2)."""
+    cov = np.asarray(state["biasP"], dtype=float).reshape(3, 3)
+    return math.radians(math.sqrt(max(float(up @ cov @ up), 0.0)) / 100.0)
+
+
+class HeadingBias:
+    """The loop of the module docstring for one filter. ``period_s``: the sample period (s); ``tau_mag_s``: vqf's
+    tauMag (s). ``piece_samples`` samples make one piece; ``step`` is called at the end of each."""
+
+    def __init__(self, period_s: float, tau_mag_s: float) -> None:
+        self.period_s = float(period_s)
+        self.piece_samples = max(1, round(PIECE_S / self.period_s))
+        self.integral_s = INTEGRAL_TAUS * float(tau_mag_s)
+        self.settle_s = SETTLE_TAUS * float(tau_mag_s)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the loop's state (its delta, the settling time and the turn), not the bias it gave vqf."""
+        self.delta: float | None = None
+        self.fed_s = 0.0
+        self.since_turn_s = math.inf
+        self.rates: list[float] = []
+        self.rate_sum = 0.0
+        self.count = 0
+        self.disturbed = False
+
+    def remaining(self) -> int:
+        """Samples still to come in the current piece."""
+        return self.piece_samples - self.count
+
+    def observe(self, gyr: np.ndarray, up: np.ndarray, disturbed: bool) -> None:
+        """Samples (n, 3) rad/s of the current piece (vqf's body frame), the up axis in body axes at the piece's start
+        (3,), and whether any of them had its field disturbed."""
+        self.rate_sum += float(np.sum(gyr @ up))
+        self.count += len(gyr)
+        self.disturbed = self.disturbed or disturbed
+
+    def step(self, delta: float, up: np.ndarray, sigma_rads: float = math.inf) -> np.ndarray:
+        """At the end of a piece: vqf's delta (rad) now, the up axis (3,) in body axes and vqf's uncertainty (rad/s,
+        one sigma) of its bias about it; returns the change (3,) rad/s to vqf's bias estimate (zeros while the loop
+        does not learn)."""
+        seconds = self.count * self.period_s
+        self.rates = [*self.rates[-1:], self.rate_sum / max(self.count, 1)]
+        turning = abs(sum(self.rates) / len(self.rates)) > math.radians(TURN_RATE_DPS)
+        self.since_turn_s = 0.0 if turning else self.since_turn_s + seconds
+        self.fed_s += seconds
+        learn = (
+            self.delta is not None
+            and not self.disturbed
+            and self.fed_s >= self.settle_s
+            and self.since_turn_s >= AFTER_TURN_S
+            and sigma_rads > math.radians(MIN_SIGMA_DPS)
+        )
+        step = math.remainder(delta - self.delta, math.tau) if learn and self.delta is not None else 0.0
+        self.delta = delta
+        self.rate_sum, self.count, self.disturbed = 0.0, 0, False
+        return -step / self.integral_s * np.asarray(up, dtype=float)
