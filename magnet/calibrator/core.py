@@ -42,7 +42,7 @@ from magnet.calibrator.keys import ShardKeys
 from magnet.calibrator.progress import ProgressTimes, progress_of
 from magnet.calibrator.records import Records
 from magnet.calibrator.refresh import Refresher, gain_pct, small_gain
-from magnet.calibrator.rollback import roll_back
+from magnet.calibrator.rollback import ROLLBACK_DEPTH, roll_back
 from magnet.calibrator.roster import Roster
 from magnet.calibrator.sessions import Outcome, Sessions
 from magnet.calibrator.settings import Settings
@@ -93,6 +93,9 @@ class CalibratorCore:
         #: per device, the hardware id its batches last named (module docstring), and how often it changed
         self.sensors: Recent[str, int] = Recent(settings.max_devices)
         self.sensor_changes = 0
+        #: per device, the sensor whose record was last looked for in its history; records put back so
+        self.sensors_looked: Recent[str, int] = Recent(settings.max_devices)
+        self.sensors_back = 0
 
     # ------------------------------------------------------------------------------------------------- lease
     def publish_in_force(self) -> None:
@@ -131,6 +134,7 @@ class CalibratorCore:
             return
         self.roster.seen(batch.device, batch.location, self.clock_ns())
         self._sensor(batch)
+        self._sensor_back(batch)
         collection = self.collections.receive(batch, self._calibrated(batch))
         if collection is None:
             self._refresh(batch)
@@ -159,6 +163,35 @@ class CalibratorCore:
                 before,
                 batch.hardware_id,
             )
+
+    def _sensor_back(self, batch: wire.RawBatch) -> None:
+        """A device whose record in force is another sensor's: the newest record of its history made here for the
+        batch's sensor is put back in force (once per device and sensor), and what was collected ends."""
+        device, sensor, record = batch.device, batch.hardware_id, self.records.get(batch.device)
+        if not sensor or record is None or record.calibration.hardware_id in (None, sensor):
+            return
+        if self.sensors_looked.get(device) == sensor:
+            return
+        self.sensors_looked[device] = sensor
+        try:
+            history = self.records.store.history(device, limit=ROLLBACK_DEPTH)
+            target = next(
+                (
+                    r
+                    for r in history
+                    if r.calibration.hardware_id == sensor and r.calibration.accepted and self.records.made_here(r)
+                ),
+                None,
+            )
+            if target is None:
+                return
+            self.collections.end(device)
+            self.commit(device, target.calibration, {"action": "sensor-back", "by": "", "to_id": target.id})
+        except OSError as exc:
+            log.error("%s: the record of sensor %d not put back: %s", device, sensor, exc)
+            return
+        self.sensors_back += 1
+        log.info("%s: sensor %d is back: its calibration %s is in force again", device, sensor, target.id)
 
     def _calibrated(self, batch: wire.RawBatch) -> bool:
         """Whether the device has a record in force for the sensor of this batch (a record or a batch without an
@@ -306,6 +339,8 @@ class CalibratorCore:
             refreshed=self.refresher.refreshed,
             proposed=self.refresher.proposed,
             unverified_records=len(records.unverified),
+            sensor_changes=self.sensor_changes,
+            sensors_back=self.sensors_back,
             **dataclasses.asdict(self.intake),
         )
         states = [self.state(d) for d in set(collections) | set(records.in_force)]
