@@ -34,7 +34,6 @@ from collections.abc import Callable
 from typing import Any
 
 from magnet import signing, wire
-from magnet.bounded import Recent
 from magnet.calibration.collection import Collection
 from magnet.calibrator.collecting import Collections
 from magnet.calibrator.fitting import Fitter
@@ -42,8 +41,9 @@ from magnet.calibrator.keys import ShardKeys
 from magnet.calibrator.progress import ProgressTimes, progress_of
 from magnet.calibrator.records import Records
 from magnet.calibrator.refresh import Refresher, gain_pct, small_gain
-from magnet.calibrator.rollback import ROLLBACK_DEPTH, roll_back
+from magnet.calibrator.rollback import roll_back
 from magnet.calibrator.roster import Roster
+from magnet.calibrator.sensors import Sensors
 from magnet.calibrator.sessions import Outcome, Sessions
 from magnet.calibrator.settings import Settings
 from magnet.calibrator.status import CalibratorStatus, Counters, IntakeFigures, State, devices_by_state, state_of
@@ -90,12 +90,7 @@ class CalibratorCore:
         self.takeovers = 0
         self.intake = IntakeFigures()  # set by the service loop
         self.drops = wire.DropCounter()
-        #: per device, the hardware id its batches last named (module docstring), and how often it changed
-        self.sensors: Recent[str, int] = Recent(settings.max_devices)
-        self.sensor_changes = 0
-        #: per device, the sensor whose record was last looked for in its history; records put back so
-        self.sensors_looked: Recent[str, int] = Recent(settings.max_devices)
-        self.sensors_back = 0
+        self.sensors = Sensors(settings.max_devices)
 
     # ------------------------------------------------------------------------------------------------- lease
     def publish_in_force(self) -> None:
@@ -134,7 +129,6 @@ class CalibratorCore:
             return
         self.roster.seen(batch.device, batch.location, self.clock_ns())
         self._sensor(batch)
-        self._sensor_back(batch)
         collection = self.collections.receive(batch, self._calibrated(batch))
         if collection is None:
             self._refresh(batch)
@@ -146,61 +140,26 @@ class CalibratorCore:
             self._report_progress(batch.device)
 
     def _sensor(self, batch: wire.RawBatch) -> None:
-        """Note the sensor a batch names; when its device's sensor changed, the samples collected so far (another
-        sensor's) are dropped and its refresh starts again."""
-        if not batch.hardware_id:
-            return
-        before = self.sensors.get(batch.device)
-        self.sensors[batch.device] = batch.hardware_id
-        if before is not None and before != batch.hardware_id:
-            self.sensor_changes += 1
-            if batch.device in self.collections:
-                self.collections.end(batch.device)
-            self.refresher.restart(batch.device)
-            log.warning(
-                "%s: its sensor changed from %d to %d (a compass missing at boot?): collection started again",
-                batch.device,
-                before,
-                batch.hardware_id,
-            )
-
-    def _sensor_back(self, batch: wire.RawBatch) -> None:
-        """A device whose record in force is another sensor's: the newest record of its history made here for the
-        batch's sensor is put back in force (once per device and sensor), and what was collected ends."""
-        device, sensor, record = batch.device, batch.hardware_id, self.records.get(batch.device)
-        if not sensor or record is None or record.calibration.hardware_id in (None, sensor):
-            return
-        if self.sensors_looked.get(device) == sensor:
-            return
-        self.sensors_looked[device] = sensor
+        """A device whose sensor changed: what was collected (another sensor's samples) ends, its refresh starts
+        again; one whose record in force is another sensor's gets that sensor's record back when its history has one
+        (``magnet.calibrator.sensors``)."""
+        device = batch.device
+        if self.sensors.changed(batch):
+            if device in self.collections:
+                self.collections.end(device)
+            self.refresher.restart(device)
         try:
-            history = self.records.store.history(device, limit=ROLLBACK_DEPTH)
-            target = next(
-                (
-                    r
-                    for r in history
-                    if r.calibration.hardware_id == sensor and r.calibration.accepted and self.records.made_here(r)
-                ),
-                None,
-            )
-            if target is None:
-                return
-            self.collections.end(device)
-            self.commit(device, target.calibration, {"action": "sensor-back", "by": "", "to_id": target.id})
+            target = self.sensors.record_back(self.records, batch)
+            if target is not None:
+                self.collections.end(device)
+                self.commit(device, target.calibration, {"action": "sensor-back", "by": "", "to_id": target.id})
+                self.sensors.back += 1
         except OSError as exc:
-            log.error("%s: the record of sensor %d not put back: %s", device, sensor, exc)
-            return
-        self.sensors_back += 1
-        log.info("%s: sensor %d is back: its calibration %s is in force again", device, sensor, target.id)
+            log.error("%s: the record of sensor %d not put back: %s", device, batch.hardware_id, exc)
 
     def _calibrated(self, batch: wire.RawBatch) -> bool:
-        """Whether the device has a record in force for the sensor of this batch (a record or a batch without an
-        id counts as that sensor's)."""
-        record = self.records.get(batch.device)
-        if record is None:
-            return False
-        wanted = record.calibration.hardware_id
-        return wanted is None or not batch.hardware_id or wanted == batch.hardware_id
+        """Whether the device has a record in force for this batch's sensor."""
+        return self.sensors.matches(self.records.get(batch.device), batch)
 
     def _fitted(self, device: str, collection: Collection, now: float) -> None:
         """Fit a ready collection; an accepted automatic fit is stored (a session waits for its commit)."""
@@ -256,7 +215,7 @@ class CalibratorCore:
         """Store ``calibration`` as the one in force for ``device`` (``records.store_new``: numbered, signed, with
         ``change``, by default an automatic calibration), publish it, end its collection; it names the sensor the
         device's batches last named unless it names one already. OSError: nothing changed."""
-        sensor = self.sensors.get(device)
+        sensor = self.sensors.last.get(device)
         if calibration.hardware_id is None and sensor:
             calibration = calibration.replace(hardware_id=sensor)
         record = self.records.store_new(device, calibration, {"action": "auto", "by": "", **(change or {})})
@@ -339,8 +298,8 @@ class CalibratorCore:
             refreshed=self.refresher.refreshed,
             proposed=self.refresher.proposed,
             unverified_records=len(records.unverified),
-            sensor_changes=self.sensor_changes,
-            sensors_back=self.sensors_back,
+            sensor_changes=self.sensors.changes,
+            sensors_back=self.sensors.back,
             **dataclasses.asdict(self.intake),
         )
         states = [self.state(d) for d in set(collections) | set(records.in_force)]
