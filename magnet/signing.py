@@ -18,11 +18,10 @@ import hashlib
 import json
 import math
 from collections.abc import Iterable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives import serialization
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+if TYPE_CHECKING:  # cryptography is imported where a key is used: a compass with no trusted keys never loads it
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
 SIGNATURE_FIELDS = ("sig", "key_id")
 KEY_ID_HEX = 16
@@ -58,12 +57,17 @@ def canonical_bytes(record: Mapping[str, Any]) -> bytes:
 
 
 def key_id(public_key: Ed25519PublicKey) -> str:
+    from cryptography.hazmat.primitives import serialization
+
     raw = public_key.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
     return hashlib.sha256(raw).hexdigest()[:KEY_ID_HEX]
 
 
 def new_key_pair() -> tuple[bytes, bytes]:
     """A new key pair as PEM: (private PKCS#8, public SubjectPublicKeyInfo)."""
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
     private = Ed25519PrivateKey.generate()
     private_pem = private.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
@@ -76,6 +80,9 @@ def new_key_pair() -> tuple[bytes, bytes]:
 
 def load_private_key(pem: bytes, name: str = "the signing key") -> Ed25519PrivateKey:
     """An Ed25519 private key from PEM; ValueError naming ``name`` when it is not one."""
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
     try:
         key = serialization.load_pem_private_key(pem, password=None)
     except (ValueError, TypeError) as exc:
@@ -87,6 +94,9 @@ def load_private_key(pem: bytes, name: str = "the signing key") -> Ed25519Privat
 
 def load_public_key(pem: bytes, name: str = "the trusted key") -> Ed25519PublicKey:
     """An Ed25519 public key from PEM; ValueError naming ``name`` when it is not one."""
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
+
     try:
         key = serialization.load_pem_public_key(pem)
     except (ValueError, TypeError) as exc:
@@ -138,6 +148,8 @@ class TrustedKeys:
         key = self._keys.get(kid)
         if key is None:
             raise SignatureError("unknown-key", f"the record is signed by key {kid[:KEY_ID_HEX]}, which is not trusted")
+        from cryptography.exceptions import InvalidSignature
+
         try:
             key.verify(base64.b64decode(sig, validate=True), canonical_bytes(record))
         except (InvalidSignature, binascii.Error, ValueError):

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import enum
 
+#: the weakest and strongest total field the Earth has at its surface (uT, WMM)
+EARTH_MIN_UT, EARTH_MAX_UT = 22.0, 67.0
+
 
 class FieldUnit(enum.Enum):
     """Unit of a raw magnetometer column."""

@@ -10,11 +10,15 @@ Every function takes arrays of shape (..., 3) (a single (3,) sample works too) a
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
+from magnet.units import EARTH_MAX_UT, EARTH_MIN_UT
 
 #: below this fraction of the norm a vector is treated as missing (no tilt, no horizontal field)
 _TINY = 1e-12
@@ -165,6 +169,39 @@ def dip_angle_deg(field: np.ndarray, acc: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         sine = (b[..., 0] * dx + b[..., 1] * dy + b[..., 2] * dz) / row_norm(b)
     return np.degrees(np.arcsin(np.clip(sine, -1.0, 1.0)))
+
+
+#: with no calibration in force, a field further than this from the expected strength (%) is no Earth field: a raw
+#: phone magnetometer carries hard iron of 6-15 times the Earth's field, and a filter fed that field turns its heading
+#: with every tilt and turn (39 deg RMS on walks); without it the filter holds its heading on the gyroscope
+NO_EARTH_FIELD_PCT = 30.0
+
+
+def no_earth_field(field_ut: np.ndarray, expected_ut: npt.ArrayLike | None) -> np.ndarray:
+    """(...) bool: the fields (..., 3) uT no Earth field can be: |B| more than NO_EARTH_FIELD_PCT % from the expected
+    strength where one is known (``expected_ut``: one value or one per field, NaN or 0 where unknown), else outside
+    the range the Earth's field has anywhere (EARTH_MIN_UT..EARTH_MAX_UT). The compass and ``magnet heading`` leave
+    such samples out of the attitude filter while no calibration is in force."""
+    norm = row_norm(np.asarray(field_ut, dtype=float))
+    expected = np.broadcast_to(np.asarray(np.nan if expected_ut is None else expected_ut, dtype=float), norm.shape)
+    known = np.isfinite(expected) & (expected > 0)
+    low = np.where(known, expected * (1.0 - NO_EARTH_FIELD_PCT / 100.0), EARTH_MIN_UT)
+    high = np.where(known, expected * (1.0 + NO_EARTH_FIELD_PCT / 100.0), EARTH_MAX_UT)
+    with np.errstate(invalid="ignore"):
+        return (norm < low) | (norm > high)
+
+
+def leave_out_no_earth_field(
+    filter_field: np.ndarray, out: Any, uncalibrated: np.ndarray, expected_ut: npt.ArrayLike | None
+) -> tuple[np.ndarray, Any]:
+    """(the field (S, 3) the attitude filter gets, with zero rows where ``no_earth_field`` and ``uncalibrated``
+    (S,) bool; ``out``, headings with a ``flags`` (S,) field, those rows flagged FIELD_DISTURBED): no record, no Earth
+    field, and the filter holds its heading on the gyroscope."""
+    blind = uncalibrated & no_earth_field(out.field_ut, expected_ut)
+    if not blind.any():
+        return filter_field, out
+    flags = out.flags | np.where(blind, int(HeadingFlag.FIELD_DISTURBED), 0)
+    return np.where(blind[:, None], 0.0, filter_field), dataclasses.replace(out, flags=flags)
 
 
 def disturbance_flags(

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import math
 
-EARTH_MIN_UT, EARTH_MAX_UT = 22.0, 67.0  # weakest and strongest total field at the surface (WMM)
+from magnet.units import EARTH_MAX_UT, EARTH_MIN_UT
+
 UNIT_SCALES_UT = (("gauss", 100.0), ("mgauss", 0.1), ("nt", 0.001), ("ut", 1.0))
 
 

@@ -49,6 +49,7 @@ from services.calibrator.store import CalibrationStore
 from services.commands import fit as fit_command
 from services.commands import heading as heading_command
 from services.common.inputs import read_input
+from services.common.inputs.csvio import gyro_columns
 from services.common.inputs.input_options import InputOptions
 
 PREFIX, DEVICE = "magnet", "phone"
@@ -151,7 +152,7 @@ def product(
     in_force = calibration if calibration is not None and calibration.accepted else None
     heading_args = _parsed(heading_command.add_arguments, [*place, "--offline"])
     earth = heading_command._earth(heading_args, in_force)
-    gyr = fit_command.gyro_columns(table)
+    gyr = gyro_columns(table)
     assert gyr is not None  # the CSV has the gyroscope
     causal = heading_command.causal_headings(
         heading_command.file_columns(table, gyr, None), in_force, earth, 1, WALL_NS

@@ -20,13 +20,12 @@ from magnet.model import Calibration
 from magnet.units import FieldUnit
 from services.commands.fit_motor import add_motor_arguments, fit_with_motors
 from services.common.inputs import add_input_arguments, read_input_told
-from services.common.inputs.csvio import SampleTable
+from services.common.inputs.csvio import SampleTable, gyro_columns, sample_period_s
 from services.common.inputs.input_options import InputOptions
 from services.common.place import add_field_arguments, expected_field_ut
 from services.common.records import load_calibration, write_atomically
 
 EXIT_REJECTED = 1
-GYRO_COLUMNS = ("gx", "gy", "gz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -112,29 +111,6 @@ def _turntable_setup(table: SampleTable, args: argparse.Namespace) -> TurntableS
         args.turntable_variant,
         field_unit=args.field_unit,
     )
-
-
-def gyro_columns(table: SampleTable) -> np.ndarray | None:
-    """gx,gy,gz (N, 3) rad/s when the file has all three, else None."""
-    if not all(c in table.columns for c in GYRO_COLUMNS):
-        return None
-    return np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
-
-
-def sample_period_s(table: SampleTable, rate_hz: float | None) -> float:
-    """The gyroscope's sample period: 1 / --rate, else from the t_s column; ValueError naming both when neither."""
-    if rate_hz is not None:
-        if not 0.5 <= rate_hz <= 10_000:
-            raise ValueError(f"--rate {rate_hz} Hz is outside 0.5 .. 10000 Hz")
-        return 1.0 / rate_hz
-    if "t_s" not in table.columns:
-        raise ValueError(
-            f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
-            "(seconds) or give --rate HZ"
-        )
-    from magnet.attitude import fusion  # the filter's package: loaded only when the times are needed
-
-    return fusion.sample_period_s(table.numeric("t_s"))
 
 
 def fit_input(table: SampleTable, args: argparse.Namespace) -> FitInput:

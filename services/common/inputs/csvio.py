@@ -263,3 +263,26 @@ def _decimals(fmt: str) -> int | None:
         return -1
     match = re.fullmatch(r"%\.(\d{1,2})f", fmt)
     return None if match is None or int(match.group(1)) > 20 else int(match.group(1))
+
+
+def gyro_columns(table: SampleTable) -> np.ndarray | None:
+    """gx,gy,gz (N, 3) rad/s when the file has all three, else None."""
+    if not all(c in table.columns for c in GYRO_COLUMNS):
+        return None
+    return np.column_stack([table.numeric(c) for c in GYRO_COLUMNS])
+
+
+def sample_period_s(table: SampleTable, rate_hz: float | None) -> float:
+    """The gyroscope's sample period: 1 / --rate, else from the t_s column; ValueError naming both when neither."""
+    if rate_hz is not None:
+        if not 0.5 <= rate_hz <= 10_000:
+            raise ValueError(f"--rate {rate_hz} Hz is outside 0.5 .. 10000 Hz")
+        return 1.0 / rate_hz
+    if "t_s" not in table.columns:
+        raise ValueError(
+            f"{table.path}: the gyroscope columns gx,gy,gz need the sample times: add a t_s column "
+            "(seconds) or give --rate HZ"
+        )
+    from magnet.attitude import fusion  # the filter's package: loaded only when the times are needed
+
+    return fusion.sample_period_s(table.numeric("t_s"))

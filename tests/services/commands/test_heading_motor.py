@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from fusion_helpers import RATE_HZ, rotating_device
 
-from magnet.attitude.heading import angle_difference_deg
+from magnet.attitude import fusion
+from magnet.attitude.heading import HeadingFlag, angle_difference_deg
 from magnet.earth.expected import Earth
 from magnet.model import Calibration
 from magnet.motor import MotorModel
@@ -56,3 +57,21 @@ def test_the_motors_field_is_taken_out_on_both_paths(offline: bool):
     assert np.abs(angle_difference_deg(got.heading_deg, want.heading_deg)).max() < 1e-6
     ignored = headings(with_motors, plain)  # the same log without the motor model: degrees off
     assert np.abs(angle_difference_deg(ignored.heading_deg, want.heading_deg)).max() > 2.0
+
+
+@pytest.mark.parametrize("offline", [False, True])
+def test_without_a_record_a_raw_phone_field_is_left_out(offline: bool):
+    """No record and a field no Earth field can be (hard iron six times the Earth's): both paths give the heading
+    of the gyroscope and accelerometer alone, flagged disturbed (fed to vqf it turned with every tilt)."""
+    gyr, acc, mag, _ = rotating_device(seconds=30.0)
+    table = _table(gyr, acc, mag + np.array([250.0, -40.0, 180.0]))
+    earth = Earth(0.0, 49.0, None)
+    if offline:
+        got = heading.offline_headings(table, gyr, None, argparse.Namespace(rate=None, window=1), earth).headings
+        want = fusion.fuse_offline(gyr, acc, None, 1.0 / RATE_HZ)
+    else:
+        got = heading.causal_headings(heading.file_columns(table, gyr, None), None, earth, 1, 0).headings
+        want = fusion.fuse_causal(gyr, acc, None, 1.0 / RATE_HZ)
+    # the file holds 12 digits: vqf's offline pass, forward and back, carries their rounding to a few 0.001 deg
+    assert np.abs(angle_difference_deg(got.heading_deg, want.heading_deg)).max() < 0.01
+    assert np.all(got.flags & HeadingFlag.FIELD_DISTURBED)
