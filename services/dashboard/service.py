@@ -85,6 +85,7 @@ def serve(settings: DashboardSettings) -> int:
     import uvicorn
 
     from services.dashboard.app import create_app
+    from services.dashboard.http_limits import BoundedH11
     from services.dashboard.ingest import Control, Ingest
     from services.dashboard.state import FleetState
 
@@ -129,6 +130,7 @@ def serve(settings: DashboardSettings) -> int:
             timeout_graceful_shutdown=1,
             timeout_keep_alive=KEEP_ALIVE_S,
             limit_concurrency=MAX_CONNECTIONS,
+            http=BoundedH11,  # a deadline for each request head, a write-stall limit (services.dashboard.http_limits)
             lifespan="off",
         )
         server = _Server(config, app.state.dashboard)

@@ -1,0 +1,101 @@
+"""Time limits of the dashboard's HTTP connections (uvicorn's h11 protocol, bounded).
+
+uvicorn closes a keep-alive connection idle after a response, but not one that never sends a request, and it waits
+for a client that stops reading for ever: issue 32 found that event streams had no timeout for slow clients, and
+here 260 connections that never sent a byte stayed open and made uvicorn answer 503 to every request (its
+``limit_concurrency`` counts them). ``BoundedH11`` adds:
+
+- a deadline for every request head: ``HEAD_TIMEOUT_S`` from the connection (or from the end of the last response)
+  to a whole request head, however the bytes trickle in (slowloris), else the connection is closed;
+- at most ``MAX_WAITING`` connections waiting for a head: a new one past it closes the oldest waiting one, so idle
+  connections never fill ``limit_concurrency`` and a real request always gets in;
+- a stall limit for writing: a client that takes nothing for ``STALL_S`` while the server has more to send (the
+  transport's buffer above its high-water mark: an event stream or a large ``/api/fleet`` to a client that stopped
+  reading) is cut off. Its event stream ends and frees its place (``app.MAX_STREAMS``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import OrderedDict
+from typing import Any, ClassVar
+
+from uvicorn.protocols.http.h11_impl import H11Protocol
+
+HEAD_TIMEOUT_S = 10.0
+STALL_S = 10.0
+MAX_WAITING = 128
+
+
+class BoundedH11(H11Protocol):
+    """uvicorn's ``H11Protocol`` with a head deadline, a bound on connections waiting for a head, and a write-stall
+    limit (see the module). Give it as ``uvicorn.Config(http=BoundedH11)``."""
+
+    #: connections waiting for a request head, oldest first (one server per process)
+    waiting: ClassVar[OrderedDict[int, BoundedH11]] = OrderedDict()
+    closed_idle = 0  # connections closed for a late head or to admit a newer one
+    cut_stalled = 0  # connections cut off for not reading
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        self._head_timer: asyncio.TimerHandle | None = None
+        self._stall_timer: asyncio.TimerHandle | None = None
+        super().connection_made(transport)
+        self._arm()
+
+    def _arm(self) -> None:
+        self._disarm()
+        self._head_timer = self.loop.call_later(HEAD_TIMEOUT_S, self._close_idle)
+        waiting = BoundedH11.waiting
+        waiting[id(self)] = self
+        while len(waiting) > MAX_WAITING:
+            waiting.popitem(last=False)[1]._close_idle()
+
+    def _disarm(self) -> None:
+        if self._head_timer is not None:
+            self._head_timer.cancel()
+            self._head_timer = None
+        BoundedH11.waiting.pop(id(self), None)
+
+    def _between_requests(self) -> bool:
+        return self.cycle is None or self.cycle.response_complete
+
+    def _close_idle(self) -> None:
+        self._disarm()
+        if not self.transport.is_closing() and self._between_requests():
+            BoundedH11.closed_idle += 1
+            self.transport.close()
+
+    def handle_events(self) -> None:
+        super().handle_events()
+        if not self._between_requests():
+            self._disarm()  # a request's head arrived: the response is under way
+
+    def on_response_complete(self) -> None:
+        self._arm()  # before uvicorn takes a pipelined request (which disarms again)
+        super().on_response_complete()
+        if self.transport.is_closing():
+            self._disarm()
+
+    def pause_writing(self) -> None:
+        super().pause_writing()
+        if self._stall_timer is None:
+            self._stall_timer = self.loop.call_later(STALL_S, self._cut_stalled)
+
+    def resume_writing(self) -> None:
+        super().resume_writing()
+        if self._stall_timer is not None:
+            self._stall_timer.cancel()
+            self._stall_timer = None
+
+    def _cut_stalled(self) -> None:
+        self._stall_timer = None
+        if not self.transport.is_closing():
+            BoundedH11.cut_stalled += 1
+            self.transport.abort()  # connection_lost follows: the response's sender is told it disconnected
+
+    def connection_lost(self, exc: Any) -> None:
+        self._disarm()
+        if self._stall_timer is not None:
+            self._stall_timer.cancel()
+            self._stall_timer = None
+        super().connection_lost(exc)

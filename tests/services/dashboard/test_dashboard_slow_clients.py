@@ -1,0 +1,120 @@
+"""Slow and idle clients of the dashboard (issue 32: no timeout for slow clients; here 260 connections that never
+sent a byte stayed open and made uvicorn answer 503 to every request). The dashboard's app under uvicorn with the
+service's settings (``services.dashboard.service``), in this process, on 127.0.0.1: event streams whose clients stop
+reading are cut off and free their places; idle connections past ``MAX_WAITING`` close the oldest and a request
+still gets in; a head that never completes is closed after its deadline."""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import threading
+import time
+import urllib.request
+
+import pytest
+import uvicorn
+from test_dashboard_app import FakeControl, heading_batch
+
+from services.common.zenoh_session import free_ports
+from services.dashboard import http_limits, service
+from services.dashboard.app import create_app
+from services.dashboard.http_limits import BoundedH11
+from services.dashboard.state import FleetState
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture
+def dashboard(monkeypatch):
+    monkeypatch.setattr(http_limits, "HEAD_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(http_limits, "STALL_S", 2.0)
+    monkeypatch.setattr(BoundedH11, "waiting", type(BoundedH11.waiting)())
+    state = FleetState(None)
+    for i in range(3000):  # events of about 2 MB: a client that does not read fills its buffers at once
+        state.on_heading(heading_batch(f"d{i:04d}"))
+    app = create_app(state, FakeControl(), "t", view_needs_token=False, interval_s=0.05)
+    (port,) = free_ports(1)
+    config = uvicorn.Config(
+        app, host="127.0.0.1", port=port, log_level="warning", access_log=False, lifespan="off",
+        timeout_keep_alive=service.KEEP_ALIVE_S, limit_concurrency=service.MAX_CONNECTIONS, http=BoundedH11,
+    )  # fmt: skip
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    stop = threading.Event()
+    feeder = threading.Thread(target=_live_fleet, args=(state, stop), daemon=True)  # rows change as in a fleet
+    feeder.start()
+    deadline = time.monotonic() + 20
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    yield port, app.state.dashboard
+    stop.set()
+    feeder.join(10)
+    server.should_exit = True
+    thread.join(10)
+
+
+def _live_fleet(state: FleetState, stop: threading.Event) -> None:
+    """200 devices' rows changed every 0.05 s (events of about 100 kB at the stream's 0.05 s)."""
+    batches = [heading_batch(f"d{i:04d}") for i in range(200)]
+    while not stop.wait(0.05):
+        for batch in batches:
+            state.on_heading(batch)
+
+
+def fleet_status(port: int) -> int:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/fleet", timeout=5) as reply:
+        return reply.status
+
+
+def still_open(sock: socket.socket) -> bool:
+    sock.setblocking(False)
+    try:
+        return sock.recv(1) != b""
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+
+
+def test_streams_of_clients_that_stop_reading_are_cut_off(dashboard):
+    port, app = dashboard
+    slow = []
+    for _ in range(5):
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        sock.connect(("127.0.0.1", port))
+        sock.sendall(b"GET /api/stream HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        slow.append(sock)
+    try:
+        deadline = time.monotonic() + 5
+        while app.streams < 5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert app.streams == 5
+        deadline = time.monotonic() + 30
+        while app.streams and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert app.streams == 0, "streams of clients that read nothing stayed open"  # before: open for ever
+        assert fleet_status(port) == 200
+    finally:
+        for sock in slow:
+            sock.close()
+
+
+def test_idle_connections_never_crowd_out_a_request(dashboard):
+    port, _ = dashboard
+    idle = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(service.MAX_CONNECTIONS + 4)]
+    trickle = socket.create_connection(("127.0.0.1", port), timeout=5)
+    try:
+        time.sleep(0.5)
+        assert fleet_status(port) == 200  # before: 503 (the idle ones filled uvicorn's limit)
+        assert not still_open(idle[0]) and still_open(idle[-1])  # the oldest made room
+        for _ in range(6):  # a head sent a byte at a time (slowloris) is closed at its deadline all the same
+            with contextlib.suppress(OSError):
+                trickle.sendall(b"G")
+            time.sleep(0.5)
+        assert not still_open(trickle) and not still_open(idle[-1])
+    finally:
+        for sock in [*idle, trickle]:
+            sock.close()
