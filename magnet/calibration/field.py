@@ -17,6 +17,7 @@ to heading (docs/field-calibration.md).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 from typing import Any
@@ -24,9 +25,10 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
+from magnet.calibration import candidates
 from magnet.calibration.base import FitError
 from magnet.calibration.fit_input import FitInput
-from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, climb, first_offset, fit_rung
+from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung
 from magnet.calibration.rungs import PLANAR, PLANAR_NOTE, RUNGS, Evidence, gyro_spans, is_planar
 from magnet.earth.geomag import earth_field
 from magnet.model import Calibration
@@ -179,22 +181,22 @@ def fit_field(
     if aided is not None:  # the tilt a vehicle's accelerations do not bend, for the fit and its judgement
         ev_motion = aided
     ev, source = _evidence(inp, ev_motion)
-    result, tried, planar = _fit(ev, rung)
-    calibration = _record(result, inp, ev, len(inp.mag))
     test = _holdout_mask(len(inp.mag))
-    holdout = _holdout(inp, ev, result, test)
-    return judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
-
-
-def _fit(ev: Evidence, rung: str | None) -> tuple[RungFit, dict[str, float], bool]:
-    """(the fit: the richest identified rung or the rung named, every tried rung's figure, whether planar)."""
     planar = is_planar(ev.down)
-    if rung is None:
-        result, tried = climb(ev, planar)
-        return result, tried, planar
-    chosen = RUNGS[rung]
-    result = fit_rung(ev, chosen, first_offset(ev))
-    return result, {chosen.name: result.identified_deg}, planar
+
+    def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
+        calibration = _record(result, inp, ev, len(inp.mag))
+        holdout = _holdout(inp, ev, result, test)
+        return judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+
+    if rung is not None:
+        chosen = RUNGS[rung]
+        result = fit_rung(ev, chosen, first_offset(ev))
+        return judged(result, {chosen.name: result.identified_deg})
+    found, tried = candidates.identified(ev, planar)
+    with contextlib.suppress(FitError, np.linalg.LinAlgError):  # no sphere: the rungs alone
+        found.append(candidates.sphere_fit(ev))
+    return candidates.best([(result, judged(result, tried)) for result in found])
 
 
 def _usable(reference: Calibration | None, inp: FieldInput) -> Calibration | None:
@@ -241,13 +243,19 @@ def _holdout(
     train = ~test
     ev = whole if whole.spans is None else dataclasses.replace(whole, spans=_kept_spans(whole.spans, train))
     try:
-        trained = fit_rung(ev, result.rung, result.offset, train)
+        trained = candidates.refit(ev, result, train)
     except (FitError, np.linalg.LinAlgError):
         return None
     return take_rows(inp.mag, test), _record(trained, inp, ev, int(train.sum()))
 
 
 def _why(result: RungFit, tried: dict[str, float], planar: bool) -> str:
+    if result.rung is candidates.SPHERE:
+        text = (
+            "offset: a plain sphere fit, its radius free (where the motion leaves the vertical offset unknown, the "
+            "scale takes it, which heading at this attitude does not see)"
+        )
+        return f"{text}; {PLANAR_NOTE}" if planar else text
     richer = [f"{name} {value:.2g} deg" for name, value in tried.items() if name != result.rung.name]
     text = (
         f"{result.rung.name}: the motion identifies {', '.join(result.rung.estimated)} (heading error from its noise "
