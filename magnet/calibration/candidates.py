@@ -19,7 +19,17 @@ import numpy as np
 
 from magnet.calibration.base import FitError
 from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung
-from magnet.calibration.rungs import ISO, LADDER, LEVEL_OFFSET, OFFSET, PLANAR_LADDER, Evidence, Rung
+from magnet.calibration.rungs import (
+    ISO,
+    LADDER,
+    LEVEL_OFFSET,
+    OFFSET,
+    PLANAR_LADDER,
+    Evidence,
+    Rung,
+    is_planar,
+    mean_down,
+)
 from magnet.model import Calibration
 
 #: another candidate replaces the richest identified rung only when its held-out heading consistency is lower by more
@@ -42,8 +52,11 @@ def sphere_fit(ev: Evidence, rows: np.ndarray | None = None) -> RungFit:
     radius_sq = float(solution[3] + centre @ centre)
     if not (np.all(np.isfinite(solution)) and radius_sq > 0):
         raise FitError("the samples give no sphere: keep the device turning")
+    scale = ev.field_ut / math.sqrt(radius_sq)
+    if ev.vertical_ut is not None and ev.down is not None and is_planar(ev.down):
+        centre, scale = _pinned(u, ev.down[used], centre, ev.field_ut, ev.vertical_ut, scale)
     offset = np.linalg.solve(ev.matrix0, centre)
-    matrix = ev.matrix0 * (ev.field_ut / math.sqrt(radius_sq))
+    matrix = ev.matrix0 * scale
     b = (ev.mag[used] - offset) @ matrix.T
     vertical = math.nan
     if ev.down is not None:
@@ -53,6 +66,35 @@ def sphere_fit(ev: Evidence, rows: np.ndarray | None = None) -> RungFit:
             vertical = float(np.mean(np.einsum("ni,ni->n", down[known], b[known])))
     spread = float(np.sqrt(np.mean((np.linalg.norm(b, axis=1) - ev.field_ut) ** 2)))
     return RungFit(SPHERE, offset, matrix, vertical, math.nan, (), {"magnitude": spread}, int(used.sum()))
+
+
+def _pinned(
+    u: np.ndarray, down: np.ndarray, centre: np.ndarray, field_ut: float, vertical_ut: float, scale: float
+) -> tuple[np.ndarray, float]:
+    """(centre (3,), scale) moved along the mean down so that the field's mean |B| is field_ut and its mean vertical
+    vertical_ut (the WMM's), the centre's horizontal part kept: a device kept near one attitude shows its horizontal
+    centre, not its vertical one, which the sphere leaves wherever its radius put it (a car: 40 uT off, every dip
+    then 'disturbed'). u (N, 3) the samples in the kept matrix's frame, down (N, 3) body down (NaN rows unknown);
+    the sphere's own (centre, scale) when no move along the vertical gives both."""
+    known = np.all(np.isfinite(down), axis=1)
+    if known.sum() < 30:
+        return centre, scale
+    u, d = u[known], down[known]
+    n = mean_down(d)
+    ratio = vertical_ut / field_ut  # sin(dip) the WMM expects
+
+    def excess(t: float) -> float:  # mean vertical over mean |B| at the centre moved by t along n, less sin(dip)
+        r = u - centre - t * n
+        return float(np.mean(np.einsum("ij,ij->i", d, r)) / np.mean(np.linalg.norm(r, axis=1))) - ratio
+
+    lo, hi = -4.0 * field_ut, 4.0 * field_ut
+    if excess(lo) * excess(hi) > 0:
+        return centre, scale
+    for _ in range(60):  # bisection: the vertical share falls as the centre moves down
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if excess(mid) * excess(lo) > 0 else (lo, mid)
+    moved = centre + 0.5 * (lo + hi) * n
+    return moved, field_ut / float(np.mean(np.linalg.norm(u - moved, axis=1)))
 
 
 def identified(ev: Evidence, planar: bool) -> tuple[list[RungFit], dict[str, float]]:
@@ -87,20 +129,20 @@ def refit(ev: Evidence, result: RungFit, rows: np.ndarray) -> RungFit:
 
 
 def _consistency(record: Calibration) -> float:
-    value = record.quality.get("holdout_consistency_deg")
+    value = record.quality.get("holdout_heading_consistency_deg")
     return math.inf if value is None or not math.isfinite(float(value)) else float(value)
 
 
 def best(records: Sequence[tuple[RungFit, Calibration]]) -> Calibration:
     """The first accepted record (the richest rung), unless another's held-out heading consistency is lower by more
     than SWITCH_GAIN of its own (then the lowest), its quality listing every candidate (``candidates``: model, fit,
-    held-out consistency, accepted); the first
+    held-out heading consistency, accepted); the first
     record (refused) when none was accepted."""
     listed = [
         {
             "model": result.rung.name,
             "fit": "sphere" if result.rung is SPHERE else "ladder",
-            "holdout_consistency_deg": None if math.isinf(_consistency(record)) else _consistency(record),
+            "holdout_heading_consistency_deg": None if math.isinf(_consistency(record)) else _consistency(record),
             "accepted": record.accepted,
         }
         for result, record in records

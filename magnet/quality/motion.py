@@ -11,11 +11,8 @@ cannot use every sample. The gravity direction comes from:
   as large as the rest most of the time.
 
 A gyroscope also lets a fit check itself: the calibrated field, rotated into the earth frame by that same attitude,
-must be constant in direction (constant dip, constant horizontal direction). The gate judges the heading it gives:
-the consistency is the RMS angle about the vertical between each sample's earth-frame horizontal field and their
-mean (``_heading_errors_deg``; ``direction_spread_deg`` is the 3D angle, which at a high dip weighs heading errors
-by cos(dip) and dip errors, which bend no heading, in full: a plain sphere fit with a far centre scored 2.7 deg
-against a planar fit's 1.3, and its headings were 1.5 deg RMS against 3.4). The attitude's heading is the
+must be constant in direction (constant dip, constant horizontal direction). ``direction_spread_deg`` is the RMS angle
+between each sample's earth-frame field direction and their mean direction. The attitude's heading is the
 gyroscope's, so it drifts slowly; the drift is the same for every calibration compared on the same samples, but it
 adds noise to their difference, so the comparisons of the gate take the mean direction over stretches of
 ``STRETCH_S`` seconds (12 deg of drift over 2 minutes leaves 0.12 deg instead of 1.4).
@@ -188,14 +185,25 @@ def _direction_errors_deg(field: np.ndarray, attitude: np.ndarray, stretch: np.n
 
 def _heading_errors_deg(field: np.ndarray, attitude: np.ndarray, stretch: np.ndarray | None = None) -> np.ndarray:
     """Angle (N,) deg about the vertical between each earth-frame field's horizontal direction and the circular mean
-    of its stretch (``stretch`` (N,) int labels; None: one stretch): the heading a compass would take from it, less
-    the stretch's own. Heading, not the direction in 3D: at a dip of 67 deg a heading error weighs only cos(dip) =
-    0.38 in the 3D angle, while a dip error that bends no heading weighs fully."""
+    of its stretch (labels as ``_direction_errors_deg``): the heading a compass takes from it, less the stretch's.
+    Used to choose between accepted candidates (``holdout_heading_consistency_deg``): the 3D angle weighs a heading
+    error by cos(dip) (0.38 at 67 deg) and a dip error that bends no heading in full, and so ranked a plain sphere
+    fit with a far-off vertical offset (2.7 deg, headings 1.5 deg RMS) behind a planar fit (1.3 deg, headings 3.4)."""
     earth = np.einsum("nij,nj->ni", quaternion_to_matrix(attitude), field)
     angle = np.arctan2(earth[:, 1], earth[:, 0])
     labels = np.zeros(len(angle), dtype=int) if stretch is None else np.unique(stretch, return_inverse=True)[1]
     mean = np.arctan2(np.bincount(labels, weights=np.sin(angle)), np.bincount(labels, weights=np.cos(angle)))
     return np.degrees(np.angle(np.exp(1j * (angle - mean[labels]))))
+
+
+def heading_consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
+    """RMS (deg) of ``_heading_errors_deg`` of field (M, 3) on the rows (N,) bool (M = rows.sum()) over stretches
+    of ``STRETCH_S``; None without an attitude or rows."""
+    if ev.attitude is None or not rows.any():
+        return None
+    index = np.flatnonzero(rows)
+    stretch = None if ev.period_s is None else (index * ev.period_s // STRETCH_S).astype(int)
+    return _rms(_heading_errors_deg(field, take_rows(ev.attitude, rows), stretch))
 
 
 def direction_spread_deg(field: np.ndarray, attitude: np.ndarray) -> float | None:
@@ -220,7 +228,7 @@ def _departures_deg(chosen: np.ndarray, ev: MotionEvidence, rows: np.ndarray | N
             return None
         index = np.arange(len(chosen)) if rows is None else np.flatnonzero(rows)
         stretch = None if ev.period_s is None else (index * ev.period_s // STRETCH_S).astype(int)
-        return _heading_errors_deg(chosen, ev.attitude if rows is None else take_rows(ev.attitude, rows), stretch)
+        return _direction_errors_deg(chosen, ev.attitude if rows is None else take_rows(ev.attitude, rows), stretch)
     down = ev.down if rows is None else take_rows(ev.down, rows)
     norm = row_norms(chosen)
     keep = finite_rows(down) & (norm > 0)
@@ -245,22 +253,20 @@ def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | No
 
 def margin_deg(field: np.ndarray, other: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
     """How much better than ``other`` (deg of consistency) ``field`` must be on the rows for the difference to be
-    more than chance: the difference of the two RMS departures over each of ``MARGIN_CHUNKS`` runs of consecutive
-    rows (neighbouring samples are not independent) gives the uncertainty of their mean (two standard errors,
-    ``_margin``). None when there are too few rows."""
+    more than chance: the per-sample differences of squared departures, averaged over ``MARGIN_CHUNKS`` runs of
+    consecutive rows (neighbouring samples are not independent), give the uncertainty of their mean (two standard
+    errors), turned into degrees below ``other``'s consistency. None when there are too few rows."""
     return _margin(_errors_deg(field, ev, rows), _errors_deg(other, ev, rows))
 
 
 def _margin(mine: np.ndarray | None, theirs: np.ndarray | None) -> float | None:
-    """``margin_deg`` from the departures of the two fields on the same rows: two standard errors of the difference
-    of their RMS over ``MARGIN_CHUNKS`` runs of consecutive rows. In degrees per chunk, not squared degrees: a
-    heading's departures have long tails (a field whose horizontal part nearly vanishes turns by tens of degrees),
-    and their squares made one chunk the whole uncertainty."""
+    """``margin_deg`` from the departures of the two fields on the same rows."""
     if mine is None or theirs is None or len(mine) < 4 * MARGIN_CHUNKS:
         return None
-    pairs = zip(np.array_split(theirs, MARGIN_CHUNKS), np.array_split(mine, MARGIN_CHUNKS))
-    chunks = np.array([_rms(t) - _rms(m) for t, m in pairs])  # type: ignore[operator]
-    return 2.0 * float(chunks.std(ddof=1)) / math.sqrt(MARGIN_CHUNKS)
+    chunks = np.array([c.mean() for c in np.array_split(theirs**2 - mine**2, MARGIN_CHUNKS)])
+    uncertainty = 2.0 * float(chunks.std(ddof=1)) / math.sqrt(MARGIN_CHUNKS)
+    reference = float(np.mean(theirs**2))
+    return math.sqrt(reference) - math.sqrt(max(reference - uncertainty, 0.0))
 
 
 def motion_figures(
@@ -286,7 +292,7 @@ def motion_figures(
         "dip_spread_deg": dip_spread,
         "dip_source": ev.source,
         "dip_samples": int(ev.known.sum()),
-        "consistency": "heading" if ev.attitude is not None else "dip",
+        "consistency": "direction" if ev.attitude is not None else "dip",
         # without an attitude the consistency over every row is that same dip spread
         "consistency_deg": consistency_deg(field, ev) if ev.attitude is not None else dip_spread,
         "reference": reference_name,
@@ -296,7 +302,9 @@ def motion_figures(
     }
     if train_candidate is not None and test.any():
         test_raw = take_rows(raw, test)  # each field on the held-out rows only, its departures once for both
-        held = _departures_deg(ev.applied(train_candidate, test_raw, test), ev, test)
+        held_field = ev.applied(train_candidate, test_raw, test)
+        held = _departures_deg(held_field, ev, test)
+        figures["holdout_heading_consistency_deg"] = heading_consistency_deg(held_field, ev, test)
         reference_held = _departures_deg(take_rows(ref_field, test), ev, test)
         figures["holdout_consistency_deg"] = _rms(held)
         figures["reference_holdout_consistency_deg"] = _rms(reference_held)
@@ -351,11 +359,9 @@ def _refusal(quality: Quality | Mapping[str, Any], prefix: str, reference: str) 
     margin = _number(quality, f"{prefix.replace('reference_', '')}holdout_margin_deg") or 0.0
     if held is None or ref is None or held < ref - margin:
         return None
-    what = {
-        "heading": "heading spread in the earth frame",
-        "direction": "direction spread in the earth frame",
-        "dip": "dip spread",
-    }.get(str(quality.get("consistency")), "spread")
+    what = {"direction": "direction spread in the earth frame", "dip": "dip spread"}.get(
+        str(quality.get("consistency")), "spread"
+    )
     return (
         f"the fit does not make the field more constant than {reference} by more than chance ({what} on held-out "
         f"data {held:.2f} deg vs {ref:.2f} deg, margin {margin:.2f} deg), and a calibration never makes heading "

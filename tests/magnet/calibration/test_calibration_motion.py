@@ -75,7 +75,7 @@ def test_a_fit_that_removes_iron_makes_the_field_constant_in_the_earth_frame(dev
     calibration = fit(FitInput(with_iron(mag), acc=acc, gyr_rads=gyr, period_s=1 / RATE_HZ), "ellipsoid")
     q = calibration.quality
     assert calibration.accepted, calibration.reason
-    assert q["consistency"] == "heading" and q["reference"] == "no calibration"
+    assert q["consistency"] == "direction" and q["reference"] == "no calibration"
     assert q["holdout_consistency_deg"] < 0.5 < 10.0 < q["reference_holdout_consistency_deg"]
 
 
@@ -154,8 +154,8 @@ def test_margin_is_small_for_a_clear_gain_and_none_for_too_few_samples(device):
 def test_a_slow_heading_drift_of_the_attitude_is_not_taken_for_an_inconstant_field(device):
     """The gyroscope filter's heading drifts (its bias about the vertical is unknown): over 2 minutes at 0.1 deg/s
     the earth-frame field turns 12 deg about the vertical, the same for every calibration compared. Judged against
-    its mean over stretches of ``STRETCH_S`` the drift is nearly gone (0.29 deg of heading left, 3.46 over the whole
-    recording), and a 2 uT offset error stands out against it (2.53 deg; 4.41 against 3.46 over the whole)."""
+    its mean over stretches of ``STRETCH_S`` the drift is nearly gone (0.12 deg left, 1.41 over the whole
+    recording), and a 2 uT offset error stands out against it (1.59 deg; 2.27 against 1.41 over the whole)."""
     truth = device[3]
     t = np.arange(len(truth)) / RATE_HZ
     half = np.radians(0.1 * t) / 2  # heading drift about down, 0.1 deg/s
@@ -166,6 +166,6 @@ def test_a_slow_heading_drift_of_the_attitude_is_not_taken_for_an_inconstant_fie
     whole = motion.MotionEvidence(np.full((len(t), 3), np.nan), drifting, "fused gravity")
     stretched = motion.MotionEvidence(whole.down, drifting, "fused gravity", 1 / RATE_HZ)
     assert motion.consistency_deg(clean, whole) > 1.0  # the drift, over the whole recording
-    assert motion.consistency_deg(clean, stretched) < 0.35
-    assert motion.consistency_deg(off, stretched) > 5 * motion.consistency_deg(clean, stretched)
+    assert motion.consistency_deg(clean, stretched) < 0.2
+    assert motion.consistency_deg(off, stretched) > 10 * motion.consistency_deg(clean, stretched)
     assert motion.consistency_deg(off, whole) < 2 * motion.consistency_deg(clean, whole)

@@ -107,7 +107,9 @@ def test_a_level_vehicle_gets_planar_hard_and_soft_iron_and_the_record_says_so(l
 def test_a_phone_held_tilted_while_its_holder_turns_is_planar_about_its_own_vertical():
     texting = turning(50.0, 2.0, 40.0, seed=2)
     record = fit_field(_field_input(texting))
-    assert record.method == "planar" and record.accepted, record.reason
+    # planar identified; the offset rung, also identified, is chosen when held-out heading says it is better
+    assert record.quality["identified_deg"]["planar"] <= 1.5
+    assert record.method in ("planar", "offset") and record.accepted, record.reason
     assert record.quality["planar"] == PLANAR_NOTE
     assert heading_error_deg(record, texting) < 3.0  # the noise alone leaves about 0.9 deg
 
