@@ -161,6 +161,8 @@ class Fusion:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
         self._filter = vqf.VQF(self.period_s, **self.params)
+        #: vqf's own accelerometer and magnetic time constants (s), for ``figures``
+        self._taus = (float(self._filter.params["tauAcc"]), float(self._filter.params["tauMag"]))
         self._aided: AidedFilter | None = (
             None  # from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
         )
@@ -255,13 +257,12 @@ class Fusion:
         """What the heading's uncertainty needs of this filter's state now (``magnet.attitude.uncertainty``): vqf's
         accelerometer time constant in use and its magnetic one (s), its gyroscope bias uncertainty (rad/s), and
         where velocity aids it, the velocity's acceleration (magnetic NED) and how far it is known."""
-        params = self._filter.params
         bias_sigma = float(self._filter.getBiasEstimate()[1])
-        figures = FilterFigures(float(params["tauAcc"]), float(params["tauMag"]), bias_sigma)
-        if self._aided is None:
-            return figures
-        fixes = self._aided.fixes
-        return dataclasses.replace(figures, explained=fixes.acceleration, known_until_s=fixes.known_until_s)
+        aided = self._aided
+        if aided is None:
+            return FilterFigures(self._taus[0], self._taus[1], bias_sigma)
+        fixes = aided.fixes
+        return FilterFigures(aided.drift.tau_s, self._taus[1], bias_sigma, fixes.acceleration, fixes.known_until_s)
 
     def _watched(self, field: np.ndarray | None, gyr: np.ndarray) -> np.ndarray:
         """(N,) bool: the samples the watch finds disturbed (none without a field or a watch)."""
