@@ -1100,15 +1100,15 @@ typedef struct {
     bool *flags;
 } Aided;
 
-/* The attitude of every pending sample: the filter's, turned by the sample's turn. */
-static void aided_give(Aided *e) {
+/* The attitude of the pending samples [from, to): the filter's, turned by each sample's turn. Given when it is
+ * used (fed: the rows fed; answered: the piece's rows), as the filter's state then makes it. */
+static void aided_give(Aided *e, Py_ssize_t from, Py_ssize_t to) {
     double q9[4];
     Array p, q, out;
-    Py_ssize_t n = (Py_ssize_t)e->a[A_PENDING];
     vqf_api.get_quat9d(e->vqf, q9);
     raw_array(&p, q9, 1, 4, 4);
-    raw_array(&q, e->pending + R_TURN, n, 4, R_SIZE);
-    raw_array(&out, e->pending + R_GIVEN, n, 4, R_SIZE);
+    raw_array(&q, e->pending + from * R_SIZE + R_TURN, to - from, 4, R_SIZE);
+    raw_array(&out, e->pending + from * R_SIZE + R_GIVEN, to - from, 4, R_SIZE);
     quaternion_product_core(&p, &q, &out, 0, 0);
 }
 
@@ -1169,6 +1169,7 @@ static Py_ssize_t aided_feed(Aided *e, double now_s, Py_ssize_t keep, int at_onc
         count++;
     if (count > total - keep) count = total - keep;
     if (count <= 0) return 0;
+    aided_give(e, 0, count); /* the attitudes the rows fed are given before the feed */
     e->a[A_FED] = 1.0;
     double *gyr = e->scratch, *acc = gyr + 3 * count, *field = acc + 3 * count, *accel = field + 3 * count;
     double *q6 = accel + 3 * count, *q9 = q6 + 4 * count;
@@ -1232,7 +1233,6 @@ static void aided_chunk(Aided *e, const double *t, Py_ssize_t t_stride, const Ar
     raw_array(&turn, rows + R_TURN, n, 4, R_SIZE);
     carry_forward_core(start, &g, bias, s[S_PERIOD], &turn);
     e->a[A_PENDING] = (double)(before + n);
-    aided_give(e);
     if (e->a[A_FED] == 0.0) { /* no attitude yet to carry forward: fed at once */
         Py_ssize_t total = (Py_ssize_t)e->a[A_PENDING];
         double *q9 = e->scratch + 20 * e->rows; /* past what aided_feed uses of the scratch (20 a row) */
@@ -1240,8 +1240,8 @@ static void aided_chunk(Aided *e, const double *t, Py_ssize_t t_stride, const Ar
         memcpy(quat, q9 + 4 * (total - n), 4 * n * sizeof(double));
     } else {
         aided_feed(e, t[0], n, 0, NULL);
-        aided_give(e);
         Py_ssize_t total = (Py_ssize_t)e->a[A_PENDING];
+        aided_give(e, total - n, total);
         for (Py_ssize_t i = 0; i < n; i++) memcpy(quat + 4 * i, e->pending + (total - n + i) * R_SIZE + R_GIVEN, 32);
     }
     memset(out_dist, e->a[A_DISTURBED] != 0.0, n);

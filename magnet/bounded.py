@@ -83,3 +83,67 @@ class Recent(MutableMapping[K, V]):
                     self.on_evict(key, value)
                 return True
         return False
+
+
+class Graded(Recent[K, V]):
+    """A ``Recent`` that evicts newcomers first: a key is on probation until it has been seen (``touch``)
+    ``promote_after`` times since it was inserted; inserting beyond the bound evicts the least recently seen key on
+    probation, and only when none is (or none may go) the least recently seen of all. A flood of keys seen once each
+    (new device ids of one message each) then churns among themselves and never pushes out a key seen again and
+    again (a real device). Both orders are kept in ``OrderedDict``s: eviction stays O(1) as long as keys may go."""
+
+    def __init__(
+        self,
+        limit: int,
+        promote_after: int,
+        keep: Callable[[V], bool] | None = None,
+        on_evict: Callable[[K, V], None] | None = None,
+    ) -> None:
+        super().__init__(limit, keep, on_evict)
+        if isinstance(promote_after, bool) or not isinstance(promote_after, int) or promote_after < 1:
+            raise ValueError(f"promote_after must be a whole number >= 1, got {promote_after!r}")
+        self.promote_after = promote_after
+        self._probation: OrderedDict[K, int] = OrderedDict()  # key -> times seen since inserted
+
+    def touch(self, key: K) -> None:
+        super().touch(key)
+        seen = self._probation.get(key)
+        if seen is not None:
+            if seen + 1 >= self.promote_after:
+                del self._probation[key]
+            else:
+                self._probation[key] = seen + 1
+                self._probation.move_to_end(key)
+
+    def __setitem__(self, key: K, value: V) -> None:
+        if key not in self._items:
+            self._probation[key] = 0
+        super().__setitem__(key, value)
+
+    def __delitem__(self, key: K) -> None:
+        super().__delitem__(key)
+        self._probation.pop(key, None)
+
+    def clear(self) -> None:
+        super().clear()
+        self._probation.clear()
+
+    def _evict_one(self) -> bool:
+        newest = next(reversed(self._items))  # the key being inserted: never its own victim
+        for key in self._probation:
+            value = self._items[key]
+            if key != newest and (self.keep is None or not self.keep(value)):
+                self._drop(key, value)
+                return True
+        for key, value in self._items.items():
+            if self.keep is None or not self.keep(value):
+                self._drop(key, value)
+                return True
+        return False
+
+    def _drop(self, key: K, value: V) -> None:
+        del self._items[key]
+        self._probation.pop(key, None)
+        self.evicted += 1
+        if self.on_evict is not None:
+            self.on_evict(key, value)

@@ -51,8 +51,8 @@ UNLEVEL_DEG = 10.0
 MAX_DIP_DEG = 85.0
 #: a gap between a device's samples beyond which its state starts again (s; the filter restarts after 0.5 s)
 RESTART_GAP_S = 1.0
-#: samples of a device that wait for their velocity's acceleration at most (10 s at 100 Hz)
-MAX_WAITING = 1000
+#: batches of a device that wait for their velocity's acceleration at most
+MAX_WAITING = 200
 #: the least tilt sigma said (deg): an accelerometer's own alignment to its board is seldom better
 MIN_TILT_DEG = 0.1
 #: the largest sigma (deg): no heading at all
@@ -88,18 +88,17 @@ class Sigmas(NamedTuple):
 
 @dataclasses.dataclass
 class _Device:
-    """One device's state: the two accelerometer stages and the magnetic stage (2,) each (north, east), the last
-    sample's time and the last trusted field sample's (ns), the time (s) of the last sample the stages took, and the
-    samples waiting for their velocity's acceleration (times (n,) s, horizontal specific force (n, 2) in g)."""
+    """One device's state: the two accelerometer stages and the magnetic stage, (north, east) each; the last
+    sample's time and the last trusted field sample's (ns); the time (s) the stages last took; and its batches
+    waiting for their velocity's acceleration, as (mean time s, mean north, mean east force in g)."""
 
-    acc1: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
-    acc2: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
-    mag: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
-    last_ns: int = 0
-    trusted_ns: int = 0
+    last_ns: int
+    trusted_ns: int
+    acc1: tuple[float, float] = (0.0, 0.0)
+    acc2: tuple[float, float] = (0.0, 0.0)
+    mag: tuple[float, float] = (0.0, 0.0)
     fed_s: float | None = None
-    waiting_t: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
-    waiting_g: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+    waiting: list[tuple[float, float, float]] = dataclasses.field(default_factory=list)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -126,9 +125,71 @@ class Geometry:
         return cls(norm * np.cos(dip), np.abs(np.tan(dip)), down)
 
 
+class _Batches(NamedTuple):
+    """Per batch (B,) of one step, as Python lists: fused samples, mean tan(dip) over them, the samples whose
+    horizontal force is known, their mean time (s) and mean force (north, east; g), whether a fused sample is not
+    trusted, the first and last time (ns)."""
+
+    fused: list[float]
+    tan_dip: list[float]
+    known: list[float]
+    t_s: list[float]
+    north: list[float]
+    east: list[float]
+    untrusted: list[bool]
+    first_ns: list[int]
+    last_ns: list[int]
+
+    @classmethod
+    def of(
+        cls,
+        bounds: Sequence[int],
+        t_ns: np.ndarray,
+        fused: np.ndarray,
+        trusted: np.ndarray,
+        tan_dip: np.ndarray,
+        horizontal: np.ndarray,
+    ) -> _Batches:
+        edges = np.asarray(bounds, dtype=np.int64)
+        counts = np.diff(edges)
+        nonempty = counts > 0
+        known = fused & hd.rows_finite(horizontal)
+        t_s = (t_ns - t_ns[0]) * 1e-9 if len(t_ns) else np.zeros(0)
+        columns = np.column_stack(
+            [
+                fused,
+                np.where(fused, tan_dip, 0.0),
+                known,
+                np.where(known, t_s, 0.0),
+                np.where(known[:, None], horizontal, 0.0),
+                fused & ~trusted,
+            ]
+        )
+        sums = np.zeros((len(counts), columns.shape[1]))
+        if nonempty.any():
+            sums[nonempty] = np.add.reduceat(columns, edges[:-1][nonempty], axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            tan_mean, means = sums[:, 1] / sums[:, 0], sums[:, 3:6] / sums[:, 2:3]
+        means[:, 0] += float(t_ns[0]) * 1e-9 if len(t_ns) else 0.0
+        last = np.maximum(edges[1:] - 1, 0)
+        first = np.minimum(edges[:-1], max(len(t_ns) - 1, 0))
+        times = t_ns if len(t_ns) else np.zeros(1, dtype=np.int64)
+        return cls(
+            sums[:, 0].tolist(),
+            tan_mean.tolist(),
+            sums[:, 2].tolist(),
+            means[:, 0].tolist(),
+            means[:, 1].tolist(),
+            means[:, 2].tolist(),
+            (sums[:, 6] > 0).tolist(),
+            times[first].tolist(),
+            times[last].tolist(),
+        )
+
+
 class HeadingUncertainty:
-    """The model of the module for the compass: ``step`` gives every sample's sigma (deg), keeping per device the
-    state the filter's part needs."""
+    """The model of the module for the compass: ``step`` gives every sample's sigmas (deg), keeping per device the
+    state the filter's part needs (a few floats: the per-batch work is done for all batches at once)."""
 
     def __init__(self, max_devices: int = 100_000) -> None:
         self.devices: Recent[str, _Device] = Recent(max_devices)
@@ -172,15 +233,16 @@ class HeadingUncertainty:
         variance = field_rad**2 + (tilt * geometry.tan_dip) ** 2
         variance += _disturbance_variance(field_ut, flags, expected_ut, geometry)
         if rotation is not None:
-            horizontal = _horizontal_force_g(acc_ms2, rotation)
-            for b, (device, figure) in enumerate(zip(devices, figures)):
-                rows = slice(bounds[b], bounds[b + 1])
-                if figure is not None and fused[rows].any():
-                    filtered, filter_tilt = self._filtered(
-                        device, rows, t_ns, horizontal, field_rad, flags, geometry, figure
-                    )
-                    variance[rows] = np.where(fused[rows], filtered, variance[rows])
-                    tilt[rows] = np.where(fused[rows], filter_tilt, tilt[rows])
+            trusted = fused & ((flags & int(hd.HeadingFlag.FIELD_DISTURBED)) == 0)
+            batches = _Batches.of(
+                bounds, t_ns, fused, trusted, geometry.tan_dip, _horizontal_force_g(acc_ms2, rotation)
+            )
+            per_batch = self._filtered(devices, batches, figures)
+            filtered = np.repeat(per_batch[:, 0], counts) * field_rad**2 + np.repeat(per_batch[:, 1], counts)
+            drift = self._drift(devices, bounds, t_ns, trusted, batches, figures)
+            use = fused & np.repeat(per_batch[:, 3] > 0, counts)
+            variance = np.where(use, filtered + drift**2, variance)
+            tilt = np.where(use, np.repeat(per_batch[:, 2], counts), tilt)
         with np.errstate(invalid="ignore"):
             sigma = np.degrees(np.sqrt(variance))
         heading = np.where(np.isfinite(sigma), np.minimum(sigma, MAX_SIGMA_DEG), MAX_SIGMA_DEG)
@@ -188,68 +250,90 @@ class HeadingUncertainty:
         return Sigmas(heading, tilt_deg)
 
     def _filtered(
+        self, devices: Sequence[str], batches: _Batches, figures: Sequence[FilterFigures | None]
+    ) -> np.ndarray:
+        """(B, 4) per batch with fused samples and figures: the factor of the residual's variance (T / (2 tau_mag)),
+        the tilt's share of the heading's variance (rad^2), the filter's tilt per horizontal axis (rad), and 1 (0 for
+        the other batches): the module's 1 and 2, advancing each device's state over the batch."""
+        out = np.zeros((len(devices), 4))
+        for b, (device, figure) in enumerate(zip(devices, figures)):
+            if figure is None or not batches.fused[b]:
+                continue
+            first, last = batches.first_ns[b], batches.last_ns[b]
+            state = self.devices.get(device)
+            if state is not None:
+                self.devices.touch(device)
+            if state is None or not 0 < (first - state.last_ns) * 1e-9 <= RESTART_GAP_S:
+                self.devices[device] = state = _Device(first, first)
+            seconds = max((last - state.last_ns) * 1e-9, 0.0)
+            period_s = seconds / batches.fused[b] if seconds > 0 else 0.01
+            state.last_ns = last
+            if batches.known[b]:
+                _take(state, (batches.t_s[b], batches.north[b], batches.east[b]), batches.tan_dip[b], figure)
+            tilt_heading = math.hypot(*state.mag) / math.sqrt(2.0)
+            out[b] = (period_s / (2.0 * figure.tau_mag_s), tilt_heading**2, math.hypot(*state.acc2) / math.sqrt(2.0), 1)
+        return out
+
+    def _drift(
         self,
-        device: str,
-        rows: slice,
+        devices: Sequence[str],
+        bounds: Sequence[int],
         t_ns: np.ndarray,
-        horizontal: np.ndarray,
-        field_rad: np.ndarray,
-        flags: np.ndarray,
-        geometry: Geometry,
-        figures: FilterFigures,
-    ) -> tuple[np.ndarray, float]:
-        """The heading's variance (rad^2) of one batch's fused samples (zeros elsewhere in it): calibration, tilt and
-        the filter's state (the module's 1 to 3), advancing the device's state over the batch; and the filter's tilt
-        error per horizontal axis (rad) after it."""
-        times = np.asarray(t_ns[rows], dtype=np.int64)
-        first, last = int(times[0]), int(times[-1])
-        state = self.devices.get(device)
-        if state is not None:
-            self.devices.touch(device)
-        if state is None or not 0 < (first - state.last_ns) * 1e-9 <= RESTART_GAP_S:
-            self.devices[device] = state = _Device(last_ns=first, trusted_ns=first)
-        seconds = max((last - state.last_ns) * 1e-9, 0.0)
-        period_s = seconds / len(times) if seconds > 0 else 0.01
-        fused = (flags[rows] & int(hd.HeadingFlag.FUSED)) != 0
-        known = fused & hd.rows_finite(horizontal[rows])
-        tan_dip = float(np.mean(geometry.tan_dip[rows][fused])) if fused.any() else 0.0
-        _take(state, times[known] * 1e-9, horizontal[rows][known], tan_dip, figures)
-        tilt = float(np.hypot(*state.mag)) / math.sqrt(2.0)
-        calibration = field_rad[rows] ** 2 * period_s / (2.0 * figures.tau_mag_s)
-        trusted = fused & ((flags[rows] & int(hd.HeadingFlag.FIELD_DISTURBED)) == 0)
-        since = np.maximum.accumulate(np.where(trusted, times, state.trusted_ns))
-        state.trusted_ns, state.last_ns = int(since[-1]), last
-        drift = figures.bias_sigma_rads * (times - since) * 1e-9
-        variance = np.where(fused, calibration + tilt**2 + drift**2, 0.0)
-        return variance, math.hypot(*state.acc2) / math.sqrt(2.0)
+        trusted: np.ndarray,
+        batches: _Batches,
+        figures: Sequence[FilterFigures | None],
+    ) -> np.ndarray:
+        """(S,) rad: the module's 3, the bias uncertainty times the time since the last trusted field sample, and
+        each device's last trusted time carried on (zero in batches whose fused samples are all trusted)."""
+        drift = np.zeros(len(t_ns))
+        for b, (device, figure) in enumerate(zip(devices, figures)):
+            state = self.devices.get(device) if batches.fused[b] else None
+            if state is None or figure is None:
+                continue
+            if not batches.untrusted[b]:
+                state.trusted_ns = batches.last_ns[b]
+                continue
+            rows = slice(bounds[b], bounds[b + 1])
+            times = np.asarray(t_ns[rows], dtype=np.int64)
+            since = np.maximum.accumulate(np.where(trusted[rows], times, state.trusted_ns))
+            state.trusted_ns = int(since[-1])
+            drift[rows] = figure.bias_sigma_rads * (times - since) * 1e-9
+        return drift
 
 
-def _take(state: _Device, t_s: np.ndarray, force_g: np.ndarray, tan_dip: float, figures: FilterFigures) -> None:
-    """Queue a batch's samples (times (n,) s, horizontal specific force (n, 2) in g) and run the low-passes over
-    those whose unexplained acceleration is known (all of them without a velocity; ``MAX_WAITING`` at most wait)."""
-    state.waiting_t = np.concatenate([state.waiting_t, t_s])[-MAX_WAITING:]
-    state.waiting_g = np.concatenate([state.waiting_g, force_g])[-MAX_WAITING:]
-    ready = state.waiting_t <= figures.known_until_s
-    if not ready.any():
-        return
-    times, force = state.waiting_t[ready], state.waiting_g[ready]
-    state.waiting_t, state.waiting_g = state.waiting_t[~ready], state.waiting_g[~ready]
-    if figures.explained is not None:
-        force = force - figures.explained(times)[:, :2] / STANDARD_GRAVITY_MS2
-    seconds = float(times[-1] - (times[0] if state.fed_s is None else state.fed_s))
-    state.fed_s = float(times[-1])
-    _advance(state, max(seconds, 0.0), force.mean(axis=0), tan_dip, figures)
+def _take(state: _Device, batch: tuple[float, float, float], tan_dip: float, figures: FilterFigures) -> None:
+    """Queue a batch's (mean time s, mean north, mean east horizontal specific force in g) and run the low-passes
+    over the queued batches whose unexplained acceleration is known (at once without a velocity; ``MAX_WAITING``
+    batches at most wait)."""
+    if figures.explained is None:
+        ready = [batch]
+    else:
+        state.waiting.append(batch)
+        del state.waiting[:-MAX_WAITING]
+        count = sum(1 for t, _, _ in state.waiting if t <= figures.known_until_s)
+        ready, state.waiting = state.waiting[:count], state.waiting[count:]
+        if ready:
+            explained = figures.explained(np.array([t for t, _, _ in ready])) / STANDARD_GRAVITY_MS2
+            ready = [(t, n - a[0], e - a[1]) for (t, n, e), a in zip(ready, explained.tolist())]
+    for t, north, east in ready:
+        seconds = 0.0 if state.fed_s is None else max(t - state.fed_s, 0.0)
+        state.fed_s = t
+        _advance(state, seconds, north, east, tan_dip, figures)
 
 
-def _advance(state: _Device, seconds: float, accel_g: np.ndarray, tan_dip: float, figures: FilterFigures) -> None:
-    """The low-passes over ``seconds`` with the mean unexplained horizontal acceleration (2,) in g and tan(dip): two
-    stages of tauAcc / sqrt(2), then the magnetic stage of tau_mag on the tilt times tan(dip)."""
+def _advance(state: _Device, seconds: float, north: float, east: float, tan_dip: float, figures: FilterFigures) -> None:
+    """The low-passes over ``seconds`` towards the unexplained horizontal acceleration (north, east; g) and
+    tan(dip): two stages of tauAcc / sqrt(2), then the magnetic stage of tau_mag on the tilt times tan(dip)."""
     keep = math.exp(-seconds * math.sqrt(2.0) / max(figures.tau_acc_s, 1e-3))
-    state.acc1 = accel_g + (state.acc1 - accel_g) * keep
-    state.acc2 = state.acc1 + (state.acc2 - state.acc1) * keep
+    a1 = (north + (state.acc1[0] - north) * keep, east + (state.acc1[1] - east) * keep)
+    a2 = (a1[0] + (state.acc2[0] - a1[0]) * keep, a1[1] + (state.acc2[1] - a1[1]) * keep)
     keep_mag = math.exp(-seconds / max(figures.tau_mag_s, 1e-3))
-    target = state.acc2 * tan_dip
-    state.mag = target + (state.mag - target) * keep_mag
+    m = state.mag
+    state.acc1, state.acc2 = a1, a2
+    state.mag = (
+        a2[0] * tan_dip + (m[0] - a2[0] * tan_dip) * keep_mag,
+        a2[1] * tan_dip + (m[1] - a2[1] * tan_dip) * keep_mag,
+    )
 
 
 def _horizontal_force_g(acc_ms2: np.ndarray, rotation: np.ndarray) -> np.ndarray:

@@ -1,5 +1,6 @@
 """The collection part of the calibrator: one sample buffer per device (``magnet.calibration.collection.Collection``,
-samples kept evenly spread over the sphere, at most ``--max-samples``), for at most ``--max-devices`` devices at once.
+samples kept evenly spread over the sphere, at most ``--max-samples``), for at most ``--max-devices`` devices at once
+(beyond, a newcomer's collection goes first: ``PROMOTE_AFTER_BATCHES``).
 For a method that needs the gyroscope (gyro-ellipsoid), and for auto once a batch carries one, each raw batch's
 ``gyr_rads``, ``t_ns`` and ``seq`` go to the collection too (its ring of recent consecutive samples); a batch without a
 gyroscope for gyro-ellipsoid is counted (``no_gyroscope``, in the status) and said in the device's progress (auto then
@@ -18,11 +19,16 @@ import logging
 from collections.abc import Iterator
 
 from magnet import wire
-from magnet.bounded import Recent
+from magnet.bounded import Graded
 from magnet.calibration.collection import Collection
 from magnet.calibrator.settings import Settings
 
 log = logging.getLogger("magnet.calibrator")
+
+#: a device's collection is on probation until this many raw batches came for it: beyond ``--max-devices`` the
+#: collections on probation are evicted first (a flood of ids of a message or two each churns among itself; a real
+#: device, sending batches again and again, keeps its collection; ``magnet.bounded.Graded``)
+PROMOTE_AFTER_BATCHES = 5
 
 
 class Collections:
@@ -30,7 +36,9 @@ class Collections:
 
     def __init__(self, settings: Settings) -> None:
         self.settings = settings
-        self.by_device: Recent[str, Collection] = Recent(settings.max_devices, keep=lambda c: c.session)
+        self.by_device: Graded[str, Collection] = Graded(
+            settings.max_devices, PROMOTE_AFTER_BATCHES, keep=lambda c: c.session
+        )
         self.received_batches = 0
         self.received_samples = 0
         self.no_gyroscope = 0  # batches without the gyroscope for a collection whose method needs one

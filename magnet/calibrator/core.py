@@ -34,7 +34,6 @@ from collections.abc import Callable
 from typing import Any
 
 from magnet import signing, wire
-from magnet.bounded import Recent
 from magnet.calibration.collection import Collection
 from magnet.calibrator.collecting import Collections
 from magnet.calibrator.fitting import Fitter
@@ -44,6 +43,7 @@ from magnet.calibrator.records import Records
 from magnet.calibrator.refresh import Refresher, gain_pct, small_gain
 from magnet.calibrator.rollback import roll_back
 from magnet.calibrator.roster import Roster
+from magnet.calibrator.sensors import Sensors
 from magnet.calibrator.sessions import Outcome, Sessions
 from magnet.calibrator.settings import Settings
 from magnet.calibrator.status import CalibratorStatus, Counters, IntakeFigures, State, devices_by_state, state_of
@@ -90,9 +90,7 @@ class CalibratorCore:
         self.takeovers = 0
         self.intake = IntakeFigures()  # set by the service loop
         self.drops = wire.DropCounter()
-        #: per device, the hardware id its batches last named (module docstring), and how often it changed
-        self.sensors: Recent[str, int] = Recent(settings.max_devices)
-        self.sensor_changes = 0
+        self.sensors = Sensors(settings.max_devices)
 
     # ------------------------------------------------------------------------------------------------- lease
     def publish_in_force(self) -> None:
@@ -142,32 +140,26 @@ class CalibratorCore:
             self._report_progress(batch.device)
 
     def _sensor(self, batch: wire.RawBatch) -> None:
-        """Note the sensor a batch names; when its device's sensor changed, the samples collected so far (another
-        sensor's) are dropped and its refresh starts again."""
-        if not batch.hardware_id:
-            return
-        before = self.sensors.get(batch.device)
-        self.sensors[batch.device] = batch.hardware_id
-        if before is not None and before != batch.hardware_id:
-            self.sensor_changes += 1
-            if batch.device in self.collections:
-                self.collections.end(batch.device)
-            self.refresher.restart(batch.device)
-            log.warning(
-                "%s: its sensor changed from %d to %d (a compass missing at boot?): collection started again",
-                batch.device,
-                before,
-                batch.hardware_id,
-            )
+        """A device whose sensor changed: what was collected (another sensor's samples) ends, its refresh starts
+        again; one whose record in force is another sensor's gets that sensor's record back when its history has one
+        (``magnet.calibrator.sensors``)."""
+        device = batch.device
+        if self.sensors.changed(batch):
+            if device in self.collections:
+                self.collections.end(device)
+            self.refresher.restart(device)
+        try:
+            target = self.sensors.record_back(self.records, batch)
+            if target is not None:
+                self.collections.end(device)
+                self.commit(device, target.calibration, {"action": "sensor-back", "by": "", "to_id": target.id})
+                self.sensors.back += 1
+        except OSError as exc:
+            log.error("%s: the record of sensor %d not put back: %s", device, batch.hardware_id, exc)
 
     def _calibrated(self, batch: wire.RawBatch) -> bool:
-        """Whether the device has a record in force for the sensor of this batch (a record or a batch without an
-        id counts as that sensor's)."""
-        record = self.records.get(batch.device)
-        if record is None:
-            return False
-        wanted = record.calibration.hardware_id
-        return wanted is None or not batch.hardware_id or wanted == batch.hardware_id
+        """Whether the device has a record in force for this batch's sensor."""
+        return self.sensors.matches(self.records.get(batch.device), batch)
 
     def _fitted(self, device: str, collection: Collection, now: float) -> None:
         """Fit a ready collection; an accepted automatic fit is stored (a session waits for its commit)."""
@@ -223,7 +215,7 @@ class CalibratorCore:
         """Store ``calibration`` as the one in force for ``device`` (``records.store_new``: numbered, signed, with
         ``change``, by default an automatic calibration), publish it, end its collection; it names the sensor the
         device's batches last named unless it names one already. OSError: nothing changed."""
-        sensor = self.sensors.get(device)
+        sensor = self.sensors.last.get(device)
         if calibration.hardware_id is None and sensor:
             calibration = calibration.replace(hardware_id=sensor)
         record = self.records.store_new(device, calibration, {"action": "auto", "by": "", **(change or {})})
@@ -306,6 +298,8 @@ class CalibratorCore:
             refreshed=self.refresher.refreshed,
             proposed=self.refresher.proposed,
             unverified_records=len(records.unverified),
+            sensor_changes=self.sensors.changes,
+            sensors_back=self.sensors.back,
             **dataclasses.asdict(self.intake),
         )
         states = [self.state(d) for d in set(collections) | set(records.in_force)]

@@ -30,7 +30,7 @@ import numpy as np
 from magnet import wire
 from magnet.bounded import Recent
 from magnet.calibration.collection import Collection
-from magnet.calibration.field import MIN_GAIN
+from magnet.calibration.field import COURSE_SOURCE, MIN_GAIN
 from magnet.model import Calibration
 from magnet.quality.motion import AIDED_SOURCE
 
@@ -65,12 +65,13 @@ class Mode(enum.Enum):
 
 
 def gain_pct(calibration: Calibration) -> float | None:
-    """How much more constant (%) the fit makes the field than the record in force on held-out data; None when not
-    measured (no accelerometer)."""
-    held, ref = (
-        calibration.quality.get("holdout_consistency_deg"),
-        calibration.quality.get("reference_holdout_consistency_deg"),
-    )
+    """How much more constant (%) the fit makes the field than the record in force on held-out data (for an offset
+    from the velocity over the ground: how much closer to the WMM's direction); None when not measured (no
+    accelerometer)."""
+    quality = calibration.quality
+    held, ref = quality.get("holdout_consistency_deg"), quality.get("reference_holdout_consistency_deg")
+    if held is None and ref is None:
+        held, ref = quality.get("course_agreement_deg"), quality.get("reference_course_agreement_deg")
     if held is None or ref is None or ref <= 0:
         return None
     return 100.0 * (1.0 - float(held) / float(ref))
@@ -159,8 +160,12 @@ class Refresher:
 
 
 def velocity_aided(calibration: Calibration | None) -> bool:
-    """Whether the record was judged with the velocity-aided attitude (a vehicle's accelerations removed)."""
-    return calibration is not None and calibration.quality.get("dip_source") == AIDED_SOURCE
+    """Whether the record was judged with the velocity-aided attitude (a vehicle's accelerations removed), or fitted
+    and judged with the attitude the velocity over the ground gives (``magnet.calibration.course``)."""
+    if calibration is None:
+        return False
+    quality = calibration.quality
+    return quality.get("dip_source") == AIDED_SOURCE or quality.get("heading_source") == COURSE_SOURCE
 
 
 def travels(batch: wire.RawBatch) -> bool:

@@ -53,6 +53,8 @@ class Counters:
     forgotten_devices: int = 0  # roster entries (last seen, reported place, open alerts) dropped for --max-devices
     takeovers: int = 0  # times it became the active calibrator of its shard after standing by
     unverified_records: int = 0  # records in force its signing key does not verify (served as stored, unsigned)
+    sensor_changes: int = 0  # devices whose batches came from another sensor than before (hardware ids)
+    sensors_back: int = 0  # ... whose sensor's own record was put back in force from the history
     raw_messages: int = 0  # the intake's figures (IntakeFigures)
     queued: int = 0
     queue_high_water: int = 0

@@ -2,13 +2,12 @@
 
 A step takes the raw batches of many devices (``wire.RawColumns``, float64) and gives every sample's heading:
 each batch's calibration in force corrects the field, offset, matrix, motors and lag in one place
-(``calibrations.Correction``); the accelerometer gives a
-tilt-compensated heading (``tilt``); the batches that carry a gyroscope go through their device's filter
-(``filters``); the field and dip are checked against what the World Magnetic Model expects at the device's place
-(``places``, ``earth``; the day from ``now_ns`` unless the places have a fixed date); the heading is smoothed per
-device (``--window``) and turned to true north by the declination; the drift monitor sees the field (``watch``);
-the compasses of a vehicle (``<vehicle>-mag<N>``) are kept for their comparison (``magnet.vehicle``,
-``vehicle_report``).
+(``calibrations.Correction``); the accelerometer gives a tilt-compensated heading (``tilt``); the batches that carry
+a gyroscope go through their device's filter (``filters``); the field and dip are checked against what the World
+Magnetic Model expects at the device's place (``places``, ``earth``; the day from ``now_ns`` unless the places have
+a fixed date); the heading is smoothed per device (``--window``) and turned to true north by the declination; the
+drift monitor sees the field (``watch``); the compasses of a vehicle (``<vehicle>-mag<N>``) are kept for their
+comparison (``magnet.vehicle``, ``vehicle_report``).
 Its parts are small objects the core holds, none inheriting another's state. ``decode`` and ``encode`` are the
 wire's edges (bytes in and out, counted drops); the live service, ``magnet heading`` and the tests all call
 ``step``. Pure: no zenoh, no clock (``now_ns`` is given).
@@ -69,6 +68,7 @@ class CompassStatus:
     #: the devices held back now: {device: {"record": id, "sensor": id}} (docs/mavlink.md, hardware ids)
     hardware_mismatches: int = 0
     hardware_mismatched: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
+    sinks: dict[str, int] = dataclasses.field(default_factory=dict)  # the sinks' own counts (ROS 2 topics, ...)
 
     def to_dict(self) -> dict[str, Any]:
         fields = dataclasses.asdict(self)
@@ -178,6 +178,7 @@ class CompassCore:
         self.keys = DeviceKeys(settings.shard, max_keys=KEYS_PER_DEVICE * limit)
         self.drops = wire.DropCounter()
         self.counters = Counters()
+        self.sink_counts: dict[str, int] = {}  # what the sinks count of their own (status ``sinks``)
         self.calibrators = CalibratorPresence()
         self._evictions_logged = False
         self._mismatch_logged: Recent[str, tuple[int, int]] = Recent(limit)
@@ -395,4 +396,5 @@ class CompassCore:
             self.calibrations.renumbered,
             self.calibrations.hardware_mismatches,
             self.calibrations.mismatch_report(),
+            dict(self.sink_counts),
         )

@@ -4,15 +4,25 @@ Per device: ``sensor_msgs/msg/MagneticField`` on ``<NS>/<device>/mag`` and ``sen
 ``<NS>/<device>/imu``, one message per sample; every second a ``diagnostic_msgs/msg/DiagnosticArray`` on
 ``/diagnostics``. A node token and one publisher token per topic make them appear in the ROS 2 graph. The messages
 are built in ``magnet.ros2`` (frames, names, CDR); this module puts them. See ``docs/ros2.md``.
+
+Shedding load (docs/front-door.md). Declaring a device's topics is the costly part (two publishers, two liveliness
+tokens), and it runs in the compass's loop. So: at most ``--ros2-max-devices`` devices have topics; a new device
+beyond them takes the slot of the least recently published device only when that one has been silent for
+``IDLE_S`` (counted, ``sinks.ros2_topics_evicted``), else its samples stay off ROS 2
+(``dropped[ros2:device-limit]``); each drain declares new topics for at most ``DECLARE_BUDGET_S`` (at least one
+device; the rest wait for a later drain, their samples counted as ``dropped[ros2:declare-budget]``); the devices
+that have topics are published before any new one is declared, and the CDR is built only for the devices published.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import dataclasses
 import logging
 import time
 from collections.abc import Mapping, Sequence
-from typing import Self
+from typing import Self, cast
 
 import numpy as np
 import zenoh
@@ -31,6 +41,10 @@ from services.compass.settings import CompassSettings
 log = logging.getLogger("magnet.compass.ros2")
 
 DIAGNOSTICS_PERIOD_S = 1.0
+#: a device with topics silent this long (s) may give its slot to a new device when every slot is taken
+IDLE_S = 30.0
+#: seconds of new topics' declarations at most per drain
+DECLARE_BUDGET_S = 0.02
 #: vehicles whose compasses are compared in each DiagnosticArray at most (each comparison costs about 2 ms)
 MAX_VEHICLE_DIAGNOSTICS = 16
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -85,8 +99,8 @@ def build_drain(
 
 class Ros2Compass:
     """The ROS 2 sink of one compass (``services.compass.sinks.Sink``): a node ``<name>`` in ``--ros-namespace``,
-    its publishers made per device as devices appear (at most ``max_devices``: the least recently seen device leaves
-    the graph), the diagnostics every second. A context manager: leaving it undeclares everything."""
+    its publishers made per device as devices appear (at most ``max_devices``, the module's shedding), the
+    diagnostics every second. A context manager: leaving it undeclares everything."""
 
     def __init__(self, session: zenoh.Session, settings: Ros2Settings, name: str, max_devices: int) -> None:
         self.session, self.domain, self.namespace = session, settings.domain, settings.namespace
@@ -97,7 +111,10 @@ class Ros2Compass:
         self._declared.enter_context(
             session.liveliness().declare_token(names.node_token(self.domain, self.zid, 0, self.namespace, self.node))
         )
-        self.devices: Recent[str, tuple[_Topic, _Topic]] = Recent(max_devices, on_evict=_close_topics)
+        self.max_devices = max_devices
+        #: device -> (its two topics, when it was last published (monotonic s)), least recently published first
+        self.devices: collections.OrderedDict[str, tuple[tuple[_Topic, _Topic], float]] = collections.OrderedDict()
+        self.evicted = 0
         self.disturbed: Recent[str, float] = Recent(max_devices)
         self.sigma: Recent[str, float] = Recent(max_devices)  # the median heading sigma of each device's last batch
         self.diagnostics = _Topic(self, DIAGNOSTICS_TOPIC, messages.DIAGNOSTIC_ARRAY)
@@ -106,28 +123,93 @@ class Ros2Compass:
         self.published = 0
         log.info("ROS 2: node %s/%s in domain %d (rmw_zenoh keys)", self.namespace, self.node, self.domain)
 
-    def _topics(self, device: str) -> tuple[_Topic, _Topic]:
-        topics = self.devices.get(device)
-        if topics is None:
-            topics = (
+    def _declare(self, device: str, now_s: float) -> bool:
+        """Topics for a new device: in a free slot, or in the slot of the least recently published device when it
+        has been silent for ``IDLE_S`` (counted); False when every slot is in use."""
+        if len(self.devices) >= self.max_devices:
+            oldest, (topics, last_s) = next(iter(self.devices.items()))
+            if now_s - last_s < IDLE_S:
+                return False
+            del self.devices[oldest]
+            self.disturbed.pop(oldest, None)
+            _close_topics(oldest, topics)
+            self.evicted += 1
+        self.devices[device] = (
+            (
                 _Topic(self, names.topic_name(self.namespace, device, "mag"), messages.MAGNETIC_FIELD),
                 _Topic(self, names.topic_name(self.namespace, device, "imu"), messages.IMU),
+            ),
+            now_s,
+        )
+        return True
+
+    def known(self, devices: Sequence[str], now_s: float) -> list[bool]:
+        """Per batch of a drain, whether its device has topics (each such device marked as just published)."""
+        for device in set(devices).intersection(self.devices):
+            self.devices[device] = (self.devices[device][0], now_s)
+            self.devices.move_to_end(device)
+        return [device in self.devices for device in devices]
+
+    def declare_new(self, devices: Sequence[str], known: list[bool], core: CompassCore, now_s: float) -> list[bool]:
+        """Per batch of a drain whose device had no topics (``known`` false), whether it has now: declared while the
+        slots and ``DECLARE_BUDGET_S`` last (one device at least), the others counted as dropped in ``core.drops``
+        (``ros2:device-limit``, ``ros2:declare-budget``; the first of each logged)."""
+        verdict: dict[str, bool] = {}
+        deadline, declared = time.perf_counter() + DECLARE_BUDGET_S, False
+        for device, was_known in zip(devices, known):
+            if was_known or device in verdict:
+                continue
+            if declared and time.perf_counter() >= deadline:  # one new device a drain at least: progress
+                verdict[device] = False
+                self._refused(core, "ros2:declare-budget", device)
+            elif self._declare(device, now_s):
+                verdict[device] = declared = True
+            else:
+                verdict[device] = False
+                self._refused(core, "ros2:device-limit", device)
+        core.sink_counts.update(ros2_topics=len(self.devices), ros2_topics_evicted=self.evicted)
+        return [not was_known and verdict[device] for device, was_known in zip(devices, known)]
+
+    def admit(self, devices: Sequence[str], core: CompassCore, now_s: float) -> list[bool]:
+        """Per batch of a drain, whether it goes to ROS 2 (``known``, then ``declare_new``)."""
+        known = self.known(devices, now_s)
+        return [a or b for a, b in zip(known, self.declare_new(devices, known, core, now_s))]
+
+    def _refused(self, core: CompassCore, cause: str, device: str) -> None:
+        if core.drops.count(cause):
+            log.warning(
+                "ROS 2: %s: %s kept off ROS 2 (%d devices have topics, --ros2-max-devices %d); further ones only "
+                "counted (status dropped[%s])",
+                cause,
+                device,
+                len(self.devices),
+                self.max_devices,
+                cause,
             )
-            self.devices[device] = topics
-        else:
-            self.devices.touch(device)
-        return topics
 
     @classmethod
     def open(cls, session: zenoh.Session, settings: CompassSettings) -> Ros2Compass | None:
         """The compass's ROS 2 sink (``services.compass.sinks``), None without ``--ros2``."""
         if not settings.ros2.enabled:
             return None
-        return cls(session, settings.ros2, settings.name, settings.max_devices)
+        return cls(session, settings.ros2, settings.name, settings.ros2_max_devices)
 
     def publish(self, columns: wire.RawColumns, out: HeadingColumns, core: CompassCore) -> None:
         """Put a MagneticField and an Imu per sample of ``columns`` (``out``: the compass's ``HeadingColumns`` of
-        them; the core's calibrations in force give the field's covariance)."""
+        them; the core's calibrations in force give the field's covariance): the devices that have topics first,
+        then the new ones given topics now (the module's shedding)."""
+        now = time.monotonic()
+        known = self.known(columns.devices, now)
+        self._put(columns, out, core, known)
+        if not all(known):
+            self._put(columns, out, core, self.declare_new(columns.devices, known, core, now))
+
+    def _put(self, columns: wire.RawColumns, out: HeadingColumns, core: CompassCore, chosen: list[bool]) -> None:
+        """Put the messages of the batches ``chosen`` (their devices have topics); the CDR built for them only."""
+        if not any(chosen):
+            return
+        if not all(chosen):
+            columns, out = _select(columns, out, chosen)
         calibrations = core.calibrations.in_force
         h = out.headings
         cals = [calibrations.get(device) for device in columns.devices]
@@ -139,7 +221,7 @@ class Ros2Compass:
         times = columns.t_ns.tolist()
         bounds = columns.bounds
         for i, (device, (mag, imu)) in enumerate(zip(columns.devices, built)):
-            mag_topic, imu_topic = self._topics(device)
+            mag_topic, imu_topic = self.devices[device][0]
             for t, m, u in zip(times[bounds[i] : bounds[i + 1]], mag, imu):
                 mag_topic.put(m, t)
                 imu_topic.put(u, t)
@@ -196,7 +278,7 @@ class Ros2Compass:
         self.close()
 
     def close(self) -> None:
-        for topics in self.devices.values():
+        for topics, _ in self.devices.values():
             _close_topics("", topics)
         self.devices.clear()
         self._declared.close()
@@ -205,3 +287,25 @@ class Ros2Compass:
 def _close_topics(_device: str, topics: tuple[_Topic, _Topic]) -> None:
     for topic in topics:
         topic.close()
+
+
+def _select(columns: wire.RawColumns, out: HeadingColumns, keep: list[bool]) -> tuple[wire.RawColumns, HeadingColumns]:
+    """The batches of a drain whose ``keep`` is true: their raw columns and their headings (every field that is per
+    sample, (S, ...), cut to their rows; every list per batch, (B,), to them)."""
+    mask = np.asarray(keep, dtype=bool)
+    rows = np.repeat(mask, columns.counts)
+    index = np.flatnonzero(mask).tolist()
+    samples, batches = len(rows), len(mask)
+
+    def cut(value: object) -> object:
+        if isinstance(value, np.ndarray):
+            return value[rows] if value.shape[:1] == (samples,) else value[mask] if len(value) == batches else value
+        if isinstance(value, list) and len(value) == batches:
+            return [value[i] for i in index]
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            return dataclasses.replace(
+                value, **{f.name: cut(getattr(value, f.name)) for f in dataclasses.fields(value)}
+            )
+        return value
+
+    return cast(wire.RawColumns, cut(columns)), cast(HeadingColumns, cut(out))

@@ -20,6 +20,10 @@ from services.common.places_options import add_drift_arguments, add_fleet_argume
 from services.common.ros2_options import Ros2Settings, add_ros2_arguments
 from services.common.zenoh_session import ZenohSettings, add_zenoh_arguments
 
+#: devices with ROS 2 topics at most, by default (``--ros2-max-devices``): each is two publishers and two liveliness
+#: tokens, declared in the compass's loop; a flood of 12,000 new ids once held the loop for minutes
+ROS2_MAX_DEVICES = 256
+
 
 def _date_problem(value: Any) -> str | None:
     """A date the World Magnetic Model covers (or None: each day's own)."""
@@ -60,6 +64,13 @@ class CompassSettings:
         check=at_least(1),
         help="devices whose state (calibration, smoothing, keys) is kept at most; beyond, the least "
         "recently seen is forgotten",
+    )
+    ros2_max_devices: int = option(
+        ROS2_MAX_DEVICES,
+        "--ros2-max-devices",
+        check=at_least(1),
+        help="with --ros2: devices with ROS 2 topics at most; a new device beyond takes the slot of one silent for "
+        "a while, else its samples stay off ROS 2 (counted: dropped[ros2:device-limit])",
     )
     trust: tuple[Path, ...] = option(
         (),

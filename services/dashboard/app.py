@@ -4,7 +4,8 @@ and a server-sent event stream.
 Routes:
 
 - ``GET /``: the page; ``GET /static/...``: its files; ``GET /plotly.min.js``: plotly's own bundle (no CDN).
-- ``GET /api/fleet``: every row; ``GET /api/devices/{device}``: one device in detail;
+- ``GET /api/fleet``: every row; ``GET /api/devices/{device}``: one device in detail; ``GET /api/vehicles``: every
+  vehicle's compasses compared (the compasses' ``@vehicle`` queryable, docs/vehicles.md: the vehicle rows and view);
   ``GET /api/devices/{device}/history?limit=N``: its stored calibrations (asks the calibrator).
 - ``GET /api/stream[?device=ID]``: server-sent events: ``fleet`` (rows changed since the last event) every
   ``interval_s``, and ``device`` (the detail of ``device``) every second.
@@ -76,6 +77,8 @@ class Control(Protocol):
     ) -> tuple[list[dict], list[str]]: ...
 
     def history(self, device: str, limit: int) -> tuple[list[dict], list[str]]: ...
+
+    def vehicles(self) -> tuple[list[dict], list[str]]: ...
 
 
 def plotly_js_path() -> Path:
@@ -165,6 +168,21 @@ class Dashboard:
         if refused:
             return refused
         return JSONResponse(self.state.fleet(-1) | {"summary": self.state.summary()})
+
+    async def vehicles(self, request: Request) -> Response:
+        """Every vehicle the compasses compare, by name (with shards, the answer that knows most of its compasses)."""
+        refused = self._view_refused(request)
+        if refused:
+            return refused
+        answers, errors = await run_in_threadpool(self.control.vehicles)
+        found: dict[str, dict[str, Any]] = {}
+        for answer in answers:
+            name, compasses = answer.get("vehicle"), answer.get("compasses")
+            if not isinstance(name, str) or not isinstance(compasses, list):
+                continue
+            if len(compasses) >= len(found.get(name, {}).get("compasses", [])):
+                found[name] = answer
+        return JSONResponse({"vehicles": [found[v] for v in sorted(found)], "errors": errors[:10]})
 
     async def device(self, request: Request) -> Response:
         refused = self._view_refused(request)
@@ -364,6 +382,7 @@ def create_app(
         Route("/", guard("http:index", dashboard.index)),
         Route("/plotly.min.js", guard("http:plotly", dashboard.plotly)),
         Route("/api/fleet", guard("http:fleet", dashboard.fleet)),
+        Route("/api/vehicles", guard("http:vehicles", dashboard.vehicles)),
         Route("/api/stream", guard("http:stream", dashboard.stream)),
         Route("/api/devices/{device}", guard("http:device", dashboard.device)),
         Route("/api/devices/{device}/history", guard("http:history", dashboard.history)),

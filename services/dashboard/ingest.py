@@ -277,3 +277,7 @@ class Control:
 
     def history(self, device: str, limit: int) -> tuple[list[dict[str, Any]], list[str]]:
         return self._ask(f"{wire.key(self.prefix, device, wire.Kind.HISTORY)}?limit={limit}")
+
+    def vehicles(self) -> tuple[list[dict[str, Any]], list[str]]:
+        """Every vehicle's compasses compared, as the compasses answer (docs/vehicles.md)."""
+        return self._ask(wire.vehicle_key(self.prefix, "*"))

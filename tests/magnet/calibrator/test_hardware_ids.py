@@ -49,9 +49,20 @@ def test_every_record_names_its_sensor_and_a_new_sensor_gets_its_own_record() ->
     second = core.records.get("mav1-mag0")
     assert second is not None and second.version == 2 and second.calibration.hardware_id == SECOND
     np.testing.assert_allclose(second.calibration.offset, [-8.0, 25.0, -14.0], atol=1.0)
-    assert core.sensor_changes == 1
+    assert core.sensors.changes == 1
     # both records kept: the first sensor's calibration is in the history, not lost or moved
     assert sorted(r.calibration.hardware_id for r, _ in store.history_changes("mav1-mag0")) == [SECOND, FIRST]
+    # the boot after, the first compass is there again: its record comes back at once, nothing fitted
+    fits = core.fitter.fits
+    for batch in raw_batches(run((30.0, -12.0, 8.0), 4), FIRST, seq0=200)[:3]:
+        core.on_raw("magnet/mav1-mag0/raw", wire.encode_raw(batch), "magnet")
+    back = core.records.get("mav1-mag0")
+    assert back is not None and back.version == 3 and back.id == first.id and core.fitter.fits == fits
+    [(_, change), *_] = store.history_changes("mav1-mag0")
+    assert change is not None and (change["action"], change["to_id"]) == ("sensor-back", first.id)
+    assert core.sensors.back == 1 and "mav1-mag0" not in core.collections
+    status = core.status("c").to_dict()
+    assert (status["sensor_changes"], status["sensors_back"]) == (2, 1)
 
 
 def test_the_compass_applies_a_record_only_to_batches_of_its_sensor_and_says_so() -> None:
