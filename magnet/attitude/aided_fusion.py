@@ -230,6 +230,11 @@ class AidedFilter:
         """The samples not yet fed (n, 18) (see the class docstring; a view)."""
         return self._pending[: int(self.state[2])]
 
+    def sigma_figures(self) -> tuple[float, VelocityFixes]:
+        """For the heading's uncertainty (``magnet.attitude.uncertainty``): the accelerometer time constant in use
+        (s: an aided vehicle's, else vqf's own) and the velocity fixes (their acceleration, how far it is known)."""
+        return self.drift.tau_s, self.fixes
+
     def restart(self) -> None:
         self.release()
         self.filter.resetState()

@@ -261,8 +261,8 @@ class Fusion:
         aided = self._aided
         if aided is None:
             return FilterFigures(self._taus[0], self._taus[1], bias_sigma)
-        fixes = aided.fixes
-        return FilterFigures(aided.drift.tau_s, self._taus[1], bias_sigma, fixes.acceleration, fixes.known_until_s)
+        tau_acc_s, fixes = aided.sigma_figures()
+        return FilterFigures(tau_acc_s, self._taus[1], bias_sigma, fixes.acceleration, fixes.known_until_s)
 
     def _watched(self, field: np.ndarray | None, gyr: np.ndarray) -> np.ndarray:
         """(N,) bool: the samples the watch finds disturbed (none without a field or a watch)."""
