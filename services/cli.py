@@ -15,8 +15,6 @@ import re
 import sys
 from typing import NoReturn
 
-from services.common.allocator import give_back_freed_memory
-
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("services.commands.fit", "fit a calibration to a CSV of raw samples"),
@@ -103,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     if args._name in SERVICES:  # before any Zenoh thread allocates: see services/common/allocator.py
+        from services.common.allocator import give_back_freed_memory  # ctypes: only where a service starts
+
         give_back_freed_memory()
     module = importlib.import_module(args._module)
     runner = _handler(module, f"run_{args._name}", "run")
