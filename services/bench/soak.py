@@ -1,8 +1,10 @@
 """``magnet bench soak --minutes N``: the local pipeline under a schedule of faults, then its figures.
 
 The pipeline of a deployment on loopback: a router (``magnet router`` on 127.0.0.1), and as its clients a
-calibrator, a compass and an edge with 10 simulated devices (a new set of ids each time the edge is restarted, so
-calibrations keep being made). The faults (``services.bench.soak_plan``): kill -9 of each service and its restart,
+calibrator, a compass (``--ros2`` too), an edge with 10 simulated devices (a new set of ids each time the edge is
+restarted, so calibrations keep being made), an edge reading MAVLink on a UDP port (``mavedge``: a real vehicle
+sends to it throughout, ``services.bench.front_loads``) and a dashboard. The faults (``services.bench.soak_plan``):
+kill -9 of each service and its restart,
 a router restart, msgpack bombs (4 MB) on a raw key, a flood of new device ids (``services.bench.flood``), and a full
 disk under the calibrator's database: a tmpfs it mounts when it can (running as root), filled for a few seconds
 (otherwise skipped, and said so). It watches headings and calibrations as a client of the router, the services'
@@ -13,6 +15,7 @@ reported) so that a soak cannot take the machine. Bounded in time; everything un
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import signal
@@ -29,7 +32,21 @@ import zenoh
 from magnet import wire
 from magnet.simulator import DEFAULT_LOCATION
 from services.bench.flood import rss_mb
-from services.bench.soak_plan import DropTotals, Fault, HeadingGaps, MemoryWatch, report, round_of, schedule
+from services.bench.soak_plan import (
+    MAV_FLOOD_COUNT,
+    RESTART_GRACE_S,
+    STREAMS,
+    STREAMS_HOLD_S,
+    DropTotals,
+    Fault,
+    HeadingGaps,
+    MemoryWatch,
+    StatusTimes,
+    front_lines,
+    report,
+    round_of,
+    schedule,
+)
 from services.common.processes import stop_processes
 from services.common.zenoh_session import ZenohSettings, free_ports, open_session, payload_bytes
 
@@ -37,7 +54,10 @@ log = logging.getLogger("magnet.bench.soak")
 
 PREFIX = wire.DEFAULT_PREFIX
 LOCATION = DEFAULT_LOCATION
-SERVICES = ("router", "calibrator", "compass", "edge")
+SERVICES = ("router", "calibrator", "compass", "edge", "mavedge", "dashboard")
+#: the status names of the services that answer one (the edge's: its --device of this run)
+STATUS_NAMES = {"calibrator": "calibrator", "compass": "compass", "mavedge": "edge-mavedge"}
+REAL_VEHICLE = "mav1-mag1"  # the vehicle front_loads sends throughout (system id 1, SCALED_IMU2)
 DEVICES = 10
 RSS_CAP_MB = 1500.0
 TMPFS_SIZE = "16m"
@@ -54,8 +74,10 @@ class Pipeline:
 
     def __init__(self, workdir: Path, db_dir: Path, port: int) -> None:
         self.workdir, self.db_dir, self.port = workdir, db_dir, port
+        self.mav_port, self.http_port = free_ports(2)
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.runs = dict.fromkeys(SERVICES, 0)
+        self.started: dict[str, float] = {}
         self.helpers: list[subprocess.Popen[bytes]] = []
 
     def command(self, name: str) -> list[str]:
@@ -65,7 +87,9 @@ class Pipeline:
         return {
             "router": ["router", "--listen", f"tcp/127.0.0.1:{self.port}", "--no-multicast-scouting"],
             "calibrator": ["calibrator", "--db", str(self.db_dir / "c.db"), place, *sized, *client],
-            "compass": ["compass", place, *sized, *client],
+            "compass": ["compass", place, *sized, "--ros2", *client],
+            "mavedge": ["edge", "--mavlink", f"udpin:127.0.0.1:{self.mav_port}", "--device", "mavedge", *client],
+            "dashboard": ["dashboard", "--http", f"127.0.0.1:{self.http_port}", "--token", "soak", place, *client],
             "edge": [
                 *("edge", "--emulate", "--devices", str(DEVICES), "--device", f"s{self.runs['edge']}", place),
                 *("--rate", "50", "--batch", "10", "--speedup", "4", *client),
@@ -82,6 +106,11 @@ class Pipeline:
                 start_new_session=True,
             )
         self.runs[name] += 1
+        self.started[name] = time.monotonic()
+
+    def in_grace(self, name: str, now: float) -> bool:
+        """Whether ``name`` or the router started within ``RESTART_GRACE_S``."""
+        return any(now - self.started.get(n, -1e9) < RESTART_GRACE_S for n in (name, "router"))
 
     def kill9(self, name: str) -> None:
         """kill -9, then start it again."""
@@ -91,15 +120,16 @@ class Pipeline:
             proc.wait()
         self.start(name)
 
-    def helper(self, *args: str) -> None:
-        """A hostile load process (``services.bench.flood``), left running."""
-        self.helpers.append(
-            subprocess.Popen(
-                [sys.executable, "-m", "services.bench.flood", *args, "--port", str(self.port)],
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
+    def helper(self, *args: str, module: str = "flood", port: int | None = None) -> None:
+        """A hostile load process (``services.bench.<module>``), left running; its JSON line in ``helper-N.json``."""
+        with open(self.workdir / f"helper-{len(self.helpers)}-{args[0]}.json", "w") as out:
+            self.helpers.append(
+                subprocess.Popen(
+                    [sys.executable, "-m", f"services.bench.{module}", *args, "--port", str(port or self.port)],
+                    stdout=out,
+                    stderr=subprocess.DEVNULL,
+                )
             )
-        )
 
     def stop_all(self) -> None:
         stop_processes([*self.helpers, *self.procs.values()])
@@ -156,6 +186,7 @@ class Observer:
         self.gaps = HeadingGaps()
         self.published: dict[str, int] = {}
         self.fault = ""
+        self.vehicle_gap_s, self.vehicle_headings, self._vehicle_last = 0.0, 0, 0.0
         self.lock = threading.Lock()
         self.declared = contextlib.ExitStack()
         for kind, handler in ((wire.Kind.HEADING, self._on_heading), (wire.Kind.CALIBRATION, self._on_calibration)):
@@ -168,9 +199,13 @@ class Observer:
         self.declared.close()
 
     def _on_heading(self, sample: zenoh.Sample) -> None:
-        device = str(sample.key_expr).rsplit("/", 2)[-2]
+        device, now = str(sample.key_expr).rsplit("/", 2)[-2], time.monotonic()
         with self.lock:
-            self.gaps.on_heading(device, time.monotonic(), self.fault)
+            self.gaps.on_heading(device, now, self.fault)
+            if device == REAL_VEHICLE:
+                if self.vehicle_headings:
+                    self.vehicle_gap_s = max(self.vehicle_gap_s, now - self._vehicle_last)
+                self.vehicle_headings, self._vehicle_last = self.vehicle_headings + 1, now
 
     def _on_calibration(self, sample: zenoh.Sample) -> None:
         try:
@@ -209,14 +244,19 @@ class Soak:
         (self.port,) = free_ports(1)
         self.disk = FullDisk(workdir / "db")
         self.pipeline = Pipeline(workdir, self.disk.directory, self.port)
-        self.memory, self.drops = MemoryWatch(), DropTotals()
+        self.memory, self.drops, self.status_times = MemoryWatch(), DropTotals(), StatusTimes()
         self.done: list[str] = []
         self.notes: list[str] = []
+        self.last: dict[str, dict[str, Any]] = {}  # each service's last status answer
+        self.deleted = {"times": 0, "with_file": 0, "while_gone": 0, "gone_seen": 0, "seen_after_s": 0.0}
+        self.delete_at: float | None = None
         self.started = time.monotonic()
 
     def run(self) -> str:
         for name in SERVICES:
             self.pipeline.start(name)
+        seconds = str(self.minutes * 60.0)
+        self.pipeline.helper("vehicle", "--seconds", seconds, module="front_loads", port=self.pipeline.mav_port)
         time.sleep(1.0)
         client = ZenohSettings(mode="client", connect=(f"tcp/127.0.0.1:{self.port}",), no_multicast_scouting=True)
         try:
@@ -227,12 +267,12 @@ class Soak:
             self.pipeline.stop_all()
             self.disk.unmount()
         text = report(self.minutes, self.done, observer.published, served, observer.gaps, self.memory, self.drops)
-        return "\n".join([text, *self.notes])
+        return "\n".join([text, *self.status_times.lines(), *self._front_lines(observer), *self.notes])
 
     def _loop(self, observer: Observer) -> None:
         pending, end = list(self.faults), self.started + self.minutes * 60.0
         next_memory = next_status = 0.0
-        release: float | None = None
+        release: tuple[float, str] | None = None
         while (now := time.monotonic()) < end:
             elapsed = now - self.started
             if now >= next_memory:
@@ -241,31 +281,55 @@ class Soak:
             if pending and elapsed >= pending[0].at_s:
                 fault = pending.pop(0)
                 observer.fault = fault.label
-                release = self._inflict(fault, now) or release
-            if release is not None and now >= release:
-                self.disk.free()
+                release = self._inflict(fault, now, observer) or release
+            if release is not None and now >= release[0]:
+                self._release(release[1], observer)
                 release = None
             if now >= next_status:
                 next_status = now + 2.0
                 self._poll_status(observer)
             time.sleep(0.1)
         if release is not None:
-            self.disk.free()
+            self._release(release[1], observer)
         self._poll_status(observer)
 
-    def _inflict(self, fault: Fault, now: float) -> float | None:
-        """Start ``fault``; the time to free the disk again for a full disk."""
+    def _release(self, kind: str, observer: Observer) -> None:
+        """The end of a held fault: the disk freed, or the calibrator of a deleted database restarted."""
+        if kind == "full-disk":
+            self.disk.free()
+            return
+        with observer.lock:  # calibrations published while the store was gone: into the deleted file
+            self.deleted["while_gone"] += len(observer.published)
+        self.pipeline.kill9("calibrator")  # what an operator does: restart it on a new file
+        self.delete_at = None
+        with observer.lock:
+            observer.published.clear()  # judged from the new file on
+
+    def _inflict(self, fault: Fault, now: float, observer: Observer) -> tuple[float, str] | None:
+        """Start ``fault``; (when to end it, its kind) for a fault held a while."""
         log.info("%.0f s: %s", now - self.started, fault.label)
         self.done.append(fault.label)
-        if fault.kind == "kill":
-            self.pipeline.kill9(fault.target)
-        elif fault.kind == "router":
-            self.pipeline.kill9("router")
-        elif fault.kind == "bombs":
+        if fault.kind in ("kill", "router"):
+            self.pipeline.kill9(fault.target or "router")
+        elif fault.kind == "bombs":  # and 2,000 dashboard event streams
             self.pipeline.helper("bombs", "--count", str(BOMBS), "--size", str(BOMB_BYTES), "--device", "s0-000")
-        elif fault.kind == "flood":
+            http = f"127.0.0.1:{self.pipeline.http_port}"
+            args = ("--count", str(STREAMS), "--seconds", str(STREAMS_HOLD_S), "--http", http)
+            self.pipeline.helper("streams", *args, module="front_loads")
+        elif fault.kind == "flood":  # of ids on Zenoh (the compass's ROS 2 side too) and on the MAVLink port
             start = FLOOD_COUNT * self.done.count("flood")
             self.pipeline.helper("ids", "--count", str(FLOOD_COUNT), "--rate", str(FLOOD_RATE), "--start", str(start))
+            count = str(MAV_FLOOD_COUNT)
+            self.pipeline.helper("mavlink", "--count", count, module="front_loads", port=self.pipeline.mav_port)
+        elif fault.kind == "delete-db":
+            for suffix in ("", "-wal", "-shm"):
+                (self.disk.directory / f"c.db{suffix}").unlink(missing_ok=True)
+            with observer.lock:
+                self.deleted["with_file"] += len(observer.published)
+                observer.published.clear()  # what was stored went with the file; judged from here on
+            self.deleted["times"] += 1
+            self.delete_at = now
+            return now + fault.hold_s, "delete-db"
         elif fault.kind == "full-disk":
             if not self.disk.mounted:
                 self.done[-1] = "full-disk (skipped)"
@@ -273,7 +337,7 @@ class Soak:
                 return None
             written = self.disk.fill()
             self._note(f"full disk: {written >> 20} MB written to fill the tmpfs, held {fault.hold_s:g} s")
-            return now + fault.hold_s
+            return now + fault.hold_s, "full-disk"
         return None
 
     def _note(self, text: str) -> None:
@@ -289,11 +353,34 @@ class Soak:
                 self.pipeline.kill9(name)
 
     def _poll_status(self, observer: Observer) -> None:
-        names = {"calibrator": "calibrator", "compass": "compass", "edge": f"edge-s{self.pipeline.runs['edge'] - 1}"}
+        names = {**STATUS_NAMES, "edge": f"edge-s{self.pipeline.runs['edge'] - 1}"}
         for service, name in names.items():
+            asked = time.monotonic()
             answer = observer.status(name)
-            if answer is not None and isinstance(answer.get("dropped"), dict):
-                self.drops.update(service, self.pipeline.runs[service], answer["dropped"])
+            took = time.monotonic() - asked
+            self.status_times.add(service, None if answer is None else took, self.pipeline.in_grace(service, asked))
+            if answer is None:
+                continue
+            self.last[service] = answer
+            dropped = dict(answer.get("dropped") or {})
+            reads = answer.get("reads")
+            if isinstance(reads, dict) and isinstance(reads.get("dropped"), dict):
+                dropped.update({f"reads:{k}": v for k, v in reads["dropped"].items()})
+            self.drops.update(service, self.pipeline.runs[service], dropped)
+            if service == "calibrator" and answer.get("store") == "gone" and self.delete_at is not None:
+                self.deleted["gone_seen"] += 1
+                self.deleted["seen_after_s"] = max(self.deleted["seen_after_s"], asked - self.delete_at)
+                self.delete_at = None  # seen for this deletion
+
+    def _front_lines(self, observer: Observer) -> list[str]:
+        """The figures of the front door's faults (``soak_plan.front_lines``), from the helpers' JSON lines."""
+        results: dict[str, list[dict[str, Any]]] = {}
+        for path in sorted(self.pipeline.workdir.glob("helper-*.json")):
+            with contextlib.suppress(OSError, ValueError):
+                if text := path.read_text().strip():
+                    results.setdefault(path.stem.split("-", 2)[2], []).append(json.loads(text.splitlines()[-1]))
+        vehicle = (REAL_VEHICLE, observer.vehicle_gap_s, observer.vehicle_headings)
+        return front_lines(self.last, results, self.deleted, vehicle)
 
 
 def run_soak_benchmark(minutes: float = 10.0) -> str:

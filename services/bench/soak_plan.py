@@ -3,7 +3,10 @@
 Schedule: after ``WARMUP_S`` (devices collect and calibrate), one fault every ``SPACING_S`` in the order of
 ``CYCLE``, round and round, until ``SETTLE_S`` before the end (the pipeline heals before the figures are read). The
 cycle is three rounds; each round kills one service (calibrator, compass, edge in turn) then inflicts bombs, a flood
-of ids, a router restart and a full disk, so each service lives through three rounds of every other fault.
+of ids (on Zenoh, which the compass's ROS 2 side takes too: the ROS 2 flood; and on the MAVLink edge's port at
+once), a router restart, a full disk and the calibrator's database deleted (the calibrator restarted after
+``DELETE_HOLD_S``); 2,000 dashboard event streams come with the bombs. So each service lives through three rounds
+of every other fault.
 
 Figures:
 - calibrations lost: devices whose calibration was seen published (its ``created_ns``) and which the calibrator does
@@ -14,7 +17,9 @@ Figures:
   round 1 is the first pass of bombs and flood, which take each bounded table and buffer to its bound), the last,
   and the growth after the first round (the highest of the later rounds minus the highest of rounds 0 and 1): memory
   that is flat after warm-up shows no growth; a leak shows in the second and third round of a process's life;
-- drops: every service's status ``dropped`` counters, summed over its restarts (the last answer of each run).
+- drops: every service's status ``dropped`` counters, summed over its restarts (the last answer of each run);
+- status: every service's status asked every 2 s, answered within ``STATUS_LIMIT_S`` or not (``StatusTimes``; not
+  counted within ``RESTART_GRACE_S`` of the service's or the router's start).
 """
 
 from __future__ import annotations
@@ -28,6 +33,10 @@ WARMUP_S = 25.0
 SPACING_S = 10.0
 SETTLE_S = 20.0
 FULL_DISK_HOLD_S = 6.0
+DELETE_HOLD_S = 5.0
+MAV_FLOOD_COUNT, STREAMS, STREAMS_HOLD_S = 20_000, 2_000, 6.0
+STATUS_LIMIT_S = 1.0
+RESTART_GRACE_S = 6.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,7 +56,15 @@ class Fault:
 
 #: the faults every round inflicts after its kill, and the service each round kills in turn: a service lives three
 #: rounds between its kills, so memory that grows from round to round in one process shows
-ROUND = (Fault("bombs"), Fault("flood"), Fault("router"), Fault("full-disk", hold_s=FULL_DISK_HOLD_S))
+#: (bombs: with 2,000 dashboard event streams; flood: of ids on Zenoh, which the compass's ROS 2 side takes too, and
+#: on the MAVLink edge's port at once; a round of more than six faults would not fit a 3-minute soak)
+ROUND = (
+    Fault("bombs"),
+    Fault("flood"),
+    Fault("router"),
+    Fault("full-disk", hold_s=FULL_DISK_HOLD_S),
+    Fault("delete-db", hold_s=DELETE_HOLD_S),
+)
 KILLED_IN_TURN = ("calibrator", "compass", "edge")
 CYCLE = tuple(fault for target in KILLED_IN_TURN for fault in (Fault("kill", target), *ROUND))
 ROUND_LEN = 1 + len(ROUND)
@@ -131,6 +148,40 @@ class MemoryWatch:
         memory.last_mb = rss_mb
 
 
+class StatusTimes:
+    """Per service: status queries counted (outside a restart's grace), answered within ``STATUS_LIMIT_S``, the
+    slowest answer (s), the unanswered, and those not counted (within ``RESTART_GRACE_S`` of a start)."""
+
+    def __init__(self) -> None:
+        self.asked: dict[str, int] = {}
+        self.in_time: dict[str, int] = {}
+        self.slowest: dict[str, float] = {}
+        self.unanswered: dict[str, int] = {}
+        self.in_grace: dict[str, int] = {}
+
+    def add(self, service: str, seconds: float | None, in_grace: bool) -> None:
+        """One query of ``service``'s status: answered after ``seconds`` (None: not answered)."""
+        if in_grace:
+            self.in_grace[service] = self.in_grace.get(service, 0) + 1
+            return
+        self.asked[service] = self.asked.get(service, 0) + 1
+        if seconds is None:
+            self.unanswered[service] = self.unanswered.get(service, 0) + 1
+            return
+        self.slowest[service] = max(self.slowest.get(service, 0.0), seconds)
+        if seconds <= STATUS_LIMIT_S:
+            self.in_time[service] = self.in_time.get(service, 0) + 1
+
+    def lines(self) -> list[str]:
+        head = f"status answered within {STATUS_LIMIT_S:g} s (not counted: within {RESTART_GRACE_S:g} s of a start):"
+        return [head] + [
+            f"  {service}: {self.in_time.get(service, 0)} of {self.asked[service]}, slowest "
+            f"{self.slowest.get(service, 0.0):.2f} s, unanswered {self.unanswered.get(service, 0)} "
+            f"(not counted {self.in_grace.get(service, 0)})"
+            for service in sorted(self.asked)
+        ]
+
+
 class DropTotals:
     """Drop counters per service, summed over its runs: ``update(service, run, dropped)`` keeps the last answer of
     each run (a restarted service counts from zero)."""
@@ -189,3 +240,38 @@ def report(
         text = ", ".join(f"{cause} {count}" for cause, count in sorted(counts.items())) or "none"
         lines.append(f"  {service}: {text}")
     return "\n".join(lines)
+
+
+def front_lines(
+    last: Mapping[str, Mapping[str, Any]],
+    results: Mapping[str, list[dict[str, Any]]],
+    deleted: Mapping[str, float],
+    vehicle: tuple[str, float, int],
+) -> list[str]:
+    """The figures of the front door's faults: the MAVLink edge (``last``: each service's last status), its real
+    vehicle (device, longest heading gap s, headings), the compass's ROS 2 side, the dashboard's streams
+    (``results``: the helpers' JSON lines by kind), the deleted database (``deleted``: the soak's counts)."""
+    mav, sinks = last.get("mavedge", {}), last.get("compass", {}).get("sinks", {})
+    answered: dict[str, int] = {}
+    for result in results.get("streams", []):
+        for status, n in result.get("answered", {}).items():
+            answered[status] = answered.get(status, 0) + n
+    floods, d = len(results.get("mavlink", [])), deleted
+    return [
+        (
+            f"MAVLink edge: {mav.get('devices', '?')} devices at the end (--max-port-devices 64), {floods} floods of "
+            f"{MAV_FLOOD_COUNT} ids; real vehicle {vehicle[0]}: longest heading gap {vehicle[1]:.2f} s, "
+            f"{vehicle[2]} headings"
+        ),
+        (
+            f"compass ROS 2: {sinks.get('ros2_topics', '?')} devices with topics, "
+            f"{sinks.get('ros2_topics_evicted', '?')} evicted (the last compass run)"
+        ),
+        f"dashboard streams: {len(results.get('streams', []))} rounds of {STREAMS}, answered {answered or '-'}",
+        (
+            f"deleted database: {d['times']:g} times, store 'gone' in the status {d['gone_seen']:g} times (within "
+            f"{d['seen_after_s']:.1f} s of a delete, status asked every 2 s); calibrations published while gone (lost "
+            f"with the file) {d['while_gone']:g}; records that went with the file {d['with_file']:g} (the devices "
+            "calibrate again)"
+        ),
+    ]

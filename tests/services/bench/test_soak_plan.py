@@ -104,3 +104,28 @@ def test_memory_is_kept_per_fault_to_show_what_grows_when():
         watch.sample("compass", rss, round_no=1, fault=fault)
     assert watch.services["compass"].by_fault == {"warm-up": 60, "bombs": 90, "flood": 300, "router": 80}
     assert watch.services["compass"].high_mb == 300 and watch.services["compass"].last_mb == 80
+
+
+def test_the_soak_meets_the_front_doors_faults_and_prints_their_figures():
+    """Issue 32: the soak adds a deleted database, MAVLink and ROS 2 floods and 2,000 dashboard streams, and prints
+    whether status was always answered within 1 s."""
+    from services.bench.soak_plan import STATUS_LIMIT_S, StatusTimes, front_lines
+
+    kinds = {f.kind for f in schedule(3)}
+    assert {"delete-db", "flood", "bombs"} <= kinds
+    times = StatusTimes()
+    for seconds, grace in ((0.2, False), (STATUS_LIMIT_S + 0.5, False), (None, False), (None, True)):
+        times.add("compass", seconds, grace)
+    [head, line] = times.lines()
+    assert "within 1 s" in head and line == "  compass: 1 of 3, slowest 1.50 s, unanswered 1 (not counted 1)"
+    lines = front_lines(
+        {"mavedge": {"devices": 65}, "compass": {"sinks": {"ros2_topics": 256, "ros2_topics_evicted": 3}}},
+        {"mavlink": [{"sent": 20_000}], "streams": [{"answered": {"200": 64, "503": 1936}}]},
+        {"times": 2, "with_file": 7, "while_gone": 0, "gone_seen": 2, "seen_after_s": 1.5},
+        ("mav1-mag1", 0.4, 900),
+    )
+    text = "\n".join(lines)
+    assert (
+        "65 devices" in text and "longest heading gap 0.40 s" in text and "256 devices with topics, 3 evicted" in text
+    )
+    assert "{'200': 64, '503': 1936}" in text and "published while gone (lost with the file) 0" in text
