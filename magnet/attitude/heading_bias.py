@@ -16,16 +16,18 @@ short errors.
 Those short errors come from the tilt. A walker's corner (90 deg at 70-120 deg/s, 1.4-2.4 s) puts a centripetal
 acceleration of v x rate (about 2 m/s^2 walking, 4 running) on the accelerometer, which tilts vqf's attitude by a
 degree or more for a few seconds, and a tilt error turns the field's heading by tilt x tan(dip). So the loop does not
-learn while the body turns about the vertical faster than ``TURN_RATE_DPS`` (its rate averaged over the last two
-pieces, 1 s: a stride or so, over which the gait's own sway cancels), nor for ``AFTER_TURN_S`` after, nor while the
-field is disturbed (vqf's flag or the field's watch), nor before ``SETTLE_TAUS`` tauMag since the filter's magnetic
-side (re)started (vqf's first convergence, or a new calibration, is not a drift).
+learn while the body turns about the vertical faster than ``TURN_RATE_DPS`` (vqf's 6D attitude's turn about the
+vertical over the last two pieces, 1 s: a stride or so, over which the gait's own sway cancels), nor for
+``AFTER_TURN_S`` after, nor while the field is disturbed (vqf's flag or the field's watch), nor before
+``SETTLE_TAUS`` tauMag since the filter's magnetic side (re)started (vqf's first convergence, or a new calibration,
+is not a drift).
 
 Nor does it learn where vqf has learnt the bias itself: a device that rested (vqf's rest detection learns all three
 axes to a few 0.01 deg/s) keeps vqf's estimate, which the loop could only make noisier (BROAD's trials start still:
 with the loop on them causal heading went 1.082 -> 1.132 and 0.819 -> 0.842 deg). The loop runs while vqf's own
-uncertainty about the vertical axis exceeds ``MIN_SIGMA_DPS`` (it starts at 0.5 deg/s and, in motion, stays there:
-the accelerometer cannot see that axis).
+uncertainty of its bias exceeds ``MIN_SIGMA_DPS`` (it starts at 0.5 deg/s and, in motion, stays there:
+the accelerometer cannot see that axis). vqf's own bound on its bias's uncertainty is the largest over its axes, the
+vertical's in motion; it costs nothing to ask.
 
 Pieces are cut at fixed sample counts from the filter's start (``PIECE_S``), so the answers do not depend on how the
 samples come in batches.
@@ -58,16 +60,20 @@ def up_in_body(quat_vqf: Any) -> np.ndarray:
     return np.array([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)])
 
 
-def vertical_sigma_rads(state: dict[str, Any], up: np.ndarray) -> float:
-    """vqf's uncertainty (rad/s, one sigma) of its gyroscope bias about ``up`` (3,) (body axes), from the bias
-    covariance of its state (``VQF.state["biasP"]``: body axes, in (0.01 deg/s)^2)."""
-    cov = np.asarray(state["biasP"], dtype=float).reshape(3, 3)
-    return math.radians(math.sqrt(max(float(up @ cov @ up), 0.0)) / 100.0)
+def vertical_turn_rad(previous_vqf: np.ndarray, now_vqf: np.ndarray) -> float:
+    """The turn (rad) about the earth's vertical from one vqf quaternion (4,) wxyz body -> ENU to another: the twist
+    about z of now * conj(previous), which is defined at any attitude (an upright phone too)."""
+    pw, px, py, pz = (float(v) for v in previous_vqf)
+    nw, nx, ny, nz = (float(v) for v in now_vqf)
+    w = nw * pw + nx * px + ny * py + nz * pz
+    z = -nw * pz - nx * py + ny * px + nz * pw
+    return math.remainder(2.0 * math.atan2(z, w), math.tau)
 
 
 class HeadingBias:
     """The loop of the module docstring for one filter. ``period_s``: the sample period (s); ``tau_mag_s``: vqf's
-    tauMag (s). ``piece_samples`` samples make one piece; ``step`` is called at the end of each."""
+    tauMag (s). ``piece_samples`` samples make one piece; ``observe`` counts each batch's samples in it and ``step``
+    is called at the end of each piece."""
 
     def __init__(self, period_s: float, tau_mag_s: float) -> None:
         self.period_s = float(period_s)
@@ -79,10 +85,10 @@ class HeadingBias:
     def reset(self) -> None:
         """Forget the loop's state (its delta, the settling time and the turn), not the bias it gave vqf."""
         self.delta: float | None = None
+        self.quat: np.ndarray | None = None  # vqf's 6D attitude at the last step
         self.fed_s = 0.0
         self.since_turn_s = math.inf
-        self.rates: list[float] = []
-        self.rate_sum = 0.0
+        self.turns: list[float] = []  # the turns (rad) about the vertical over the last two pieces
         self.count = 0
         self.disturbed = False
 
@@ -90,22 +96,24 @@ class HeadingBias:
         """Samples still to come in the current piece."""
         return self.piece_samples - self.count
 
-    def observe(self, gyr: np.ndarray, up: np.ndarray, disturbed: bool) -> None:
-        """Samples (n, 3) rad/s of the current piece (vqf's body frame), the up axis in body axes at the piece's start
-        (3,), and whether any of them had its field disturbed."""
-        self.rate_sum += float(np.sum(gyr @ up))
-        self.count += len(gyr)
+    def observe(self, count: int, disturbed: bool) -> None:
+        """``count`` more samples of the current piece fed, and whether any of them had its field disturbed."""
+        self.count += count
         self.disturbed = self.disturbed or disturbed
 
-    def step(self, delta: float, up: np.ndarray, sigma_rads: float = math.inf) -> np.ndarray:
-        """At the end of a piece: vqf's delta (rad) now, the up axis (3,) in body axes and vqf's uncertainty (rad/s,
-        one sigma) of its bias about it; returns the change (3,) rad/s to vqf's bias estimate (zeros while the loop
-        does not learn)."""
+    def step(self, delta: float, quat6d_vqf: np.ndarray, sigma_rads: float) -> np.ndarray:
+        """At the end of a piece: vqf's delta (rad) and 6D attitude (4,) (body -> ENU) now, and vqf's bound on the
+        uncertainty of its gyroscope bias (rad/s, one sigma: ``getBiasEstimate``'s, the largest over its axes, which
+        in motion is the vertical's: the accelerometer cannot see it). Returns the change (3,) rad/s to vqf's bias
+        estimate (zeros while the loop does not learn)."""
         seconds = self.count * self.period_s
-        self.rates = [*self.rates[-1:], self.rate_sum / max(self.count, 1)]
-        turning = abs(sum(self.rates) / len(self.rates)) > math.radians(TURN_RATE_DPS)
-        self.since_turn_s = 0.0 if turning else self.since_turn_s + seconds
+        quat = np.asarray(quat6d_vqf, dtype=float).reshape(4)
+        turn = 0.0 if self.quat is None else vertical_turn_rad(self.quat, quat)
+        self.turns = [*self.turns[-1:], turn]
+        rate = abs(sum(self.turns)) / max(len(self.turns) * seconds, 1e-9)
+        self.since_turn_s = 0.0 if rate > math.radians(TURN_RATE_DPS) else self.since_turn_s + seconds
         self.fed_s += seconds
+        up = up_in_body(quat)
         learn = (
             self.delta is not None
             and not self.disturbed
@@ -114,6 +122,6 @@ class HeadingBias:
             and sigma_rads > math.radians(MIN_SIGMA_DPS)
         )
         step = math.remainder(delta - self.delta, math.tau) if learn and self.delta is not None else 0.0
-        self.delta = delta
-        self.rate_sum, self.count, self.disturbed = 0.0, 0, False
-        return -step / self.integral_s * np.asarray(up, dtype=float)
+        self.delta, self.quat = delta, quat
+        self.count, self.disturbed = 0, False
+        return -step / self.integral_s * up

@@ -17,6 +17,7 @@ to heading (docs/field-calibration.md).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 from typing import Any
@@ -24,10 +25,10 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.calibration import course
+from magnet.calibration import candidates, course
 from magnet.calibration.base import FitError
 from magnet.calibration.fit_input import FitInput
-from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, climb, first_offset, fit_rung
+from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung
 from magnet.calibration.rungs import PLANAR, PLANAR_NOTE, RUNGS, Evidence, gyro_spans, is_planar
 from magnet.earth.geomag import earth_field
 from magnet.model import Calibration
@@ -182,23 +183,34 @@ def fit_field(
     if aided is not None:  # the tilt a vehicle's accelerations do not bend, for the fit and its judgement
         ev_motion = aided
     ev, source = _evidence(inp, ev_motion)
-    try:
-        result, tried, planar = _fit(ev, rung)
-    except FitError as refused:
-        course = _course_fit(inp, ev, source, gate_thresholds) if rung is None else None
-        if course is None:
-            raise
-        return course.replace(reason=f"{course.reason}; the magnetometer and gyroscope alone: {refused}")
-    calibration = _record(result, inp, ev, len(inp.mag))
     test = _holdout_mask(len(inp.mag))
-    holdout = _holdout(inp, ev, result, test)
-    judged = judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
-    if judged.accepted or rung is not None:
-        return judged
-    course = _course_fit(inp, ev, source, gate_thresholds)  # the velocity's heading may tell what they could not
-    if course is None or not course.accepted:
-        return judged
-    return course.replace(reason=f"{course.reason}; the magnetometer and gyroscope alone: {judged.reason}")
+    planar = is_planar(ev.down)
+
+    def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
+        calibration = _record(result, inp, ev, len(inp.mag))
+        holdout = _holdout(inp, ev, result, test)
+        return judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+
+    if rung is not None:
+        named = RUNGS[rung]
+        result = fit_rung(ev, named, first_offset(ev))
+        return judged(result, {named.name: result.identified_deg})
+    try:
+        found, tried = candidates.identified(ev, planar)
+    except FitError as refused:
+        fallback = _course_fit(inp, ev, source, gate_thresholds)
+        if fallback is None:
+            raise
+        return fallback.replace(reason=f"{fallback.reason}; the magnetometer and gyroscope alone: {refused}")
+    with contextlib.suppress(FitError, np.linalg.LinAlgError):  # no sphere: the rungs alone
+        found.append(candidates.sphere_fit(ev))
+    chosen = candidates.best([(result, judged(result, tried)) for result in found])
+    if chosen.accepted:
+        return chosen
+    fallback = _course_fit(inp, ev, source, gate_thresholds)  # the velocity's heading may tell what they could not
+    if fallback is None or not fallback.accepted:
+        return chosen
+    return fallback.replace(reason=f"{fallback.reason}; the magnetometer and gyroscope alone: {chosen.reason}")
 
 
 def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThresholds | None) -> Calibration | None:
@@ -213,17 +225,6 @@ def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThre
     chosen = dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=math.inf)
     motion_in = course.Motion(inp.mag, inp.acc, inp.gyr, inp.period_s, inp.vel_ned_ms)
     return course.fit_course(motion_in, place, ev.matrix0, _usable(inp.reference, inp), source, chosen, MIN_GAIN)
-
-
-def _fit(ev: Evidence, rung: str | None) -> tuple[RungFit, dict[str, float], bool]:
-    """(the fit: the richest identified rung or the rung named, every tried rung's figure, whether planar)."""
-    planar = is_planar(ev.down)
-    if rung is None:
-        result, tried = climb(ev, planar)
-        return result, tried, planar
-    chosen = RUNGS[rung]
-    result = fit_rung(ev, chosen, first_offset(ev))
-    return result, {chosen.name: result.identified_deg}, planar
 
 
 def _usable(reference: Calibration | None, inp: FieldInput) -> Calibration | None:
@@ -270,13 +271,19 @@ def _holdout(
     train = ~test
     ev = whole if whole.spans is None else dataclasses.replace(whole, spans=_kept_spans(whole.spans, train))
     try:
-        trained = fit_rung(ev, result.rung, result.offset, train)
+        trained = candidates.refit(ev, result, train)
     except (FitError, np.linalg.LinAlgError):
         return None
     return take_rows(inp.mag, test), _record(trained, inp, ev, int(train.sum()))
 
 
 def _why(result: RungFit, tried: dict[str, float], planar: bool) -> str:
+    if result.rung is candidates.SPHERE:
+        text = (
+            "offset: a plain sphere fit, its radius free (where the motion leaves the vertical offset unknown, the "
+            "scale takes it, which heading at this attitude does not see)"
+        )
+        return f"{text}; {PLANAR_NOTE}" if planar else text
     richer = [f"{name} {value:.2g} deg" for name, value in tried.items() if name != result.rung.name]
     text = (
         f"{result.rung.name}: the motion identifies {', '.join(result.rung.estimated)} (heading error from its noise "

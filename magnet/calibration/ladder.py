@@ -41,10 +41,6 @@ import numpy as np
 from magnet.calibration.base import FitError
 from magnet.calibration.rungs import (
     ISO,
-    LADDER,
-    LEVEL_OFFSET,
-    OFFSET,
-    PLANAR_LADDER,
     Evidence,
     Rung,
     matrix_of,
@@ -331,24 +327,3 @@ def first_offset(ev: Evidence, rows: np.ndarray | None = None) -> np.ndarray:
     if not np.all(np.isfinite(offset)):
         return ev.offset0.copy()
     return offset
-
-
-def climb(ev: Evidence, planar: bool, rows: np.ndarray | None = None) -> tuple[RungFit, dict[str, float]]:
-    """(the richest identified rung's fit, every tried rung's ``identified_deg``); FitError when even the offset
-    is not identified."""
-    start = first_offset(ev, rows)
-    tried: dict[str, float] = {}
-    base = fit_rung(ev, LEVEL_OFFSET if planar else OFFSET, start, rows)
-    for rung in PLANAR_LADDER if planar else LADDER:
-        try:
-            result = base if rung is base.rung else fit_rung(ev, rung, base.offset, rows)
-        except (FitError, np.linalg.LinAlgError):
-            continue
-        tried[rung.name] = result.identified_deg
-        if result.identified_deg <= IDENTIFIED_DEG:
-            return result, tried
-    figures = ", ".join(f"{name} {value:.2g} deg" for name, value in tried.items())
-    raise FitError(
-        f"the motion does not identify even the offset (heading error its noise leaves: {figures}, limit "
-        f"{IDENTIFIED_DEG:g} deg): turn the device through more headings and tilts"
-    )

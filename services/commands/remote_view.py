@@ -139,9 +139,18 @@ def calibration_table(record: Mapping[str, Any]) -> RenderableType:
         ("coverage", pct(quality.get("coverage"))),
         ("signed by", str(record.get("key_id") or "\u2013")),
     ]
+    if isinstance(record.get("hardware_id"), int):  # the sensor it was fitted for (docs/mavlink.md)
+        rows.insert(3, ("sensor", _sensor(record["hardware_id"])))
     for name, value in rows:
         table.add_row(name, value)
     return table
+
+
+def _sensor(hardware_id: int) -> str:
+    """A record's hardware id, decoded as the autopilots pack it when it fits their 24 bits."""
+    from magnet.autopilot.hwid import MAX_HARDWARE_ID, describe
+
+    return describe(hardware_id) if 0 < hardware_id <= MAX_HARDWARE_ID else str(hardware_id)
 
 
 def history_table(answer: Mapping[str, Any]) -> RenderableType:

@@ -107,7 +107,9 @@ def test_a_level_vehicle_gets_planar_hard_and_soft_iron_and_the_record_says_so(l
 def test_a_phone_held_tilted_while_its_holder_turns_is_planar_about_its_own_vertical():
     texting = turning(50.0, 2.0, 40.0, seed=2)
     record = fit_field(_field_input(texting))
-    assert record.method == "planar" and record.accepted, record.reason
+    # planar identified; the offset rung, also identified, is chosen when held-out heading says it is better
+    assert record.quality["identified_deg"]["planar"] <= 1.5
+    assert record.method in ("planar", "offset") and record.accepted, record.reason
     assert record.quality["planar"] == PLANAR_NOTE
     assert heading_error_deg(record, texting) < 3.0  # the noise alone leaves about 0.9 deg
 
@@ -117,9 +119,12 @@ def test_one_slow_turn_identifies_the_offset_alone_and_the_record_says_what_was_
     record = fit_field(_field_input(turn))
     assert record.method == "offset" and record.accepted, record.reason
     assert record.quality["identified_deg"]["planar"] > 1.5 >= record.quality["identified_deg"]["offset"]
-    assert record.quality["estimated"] == ["offset"] and record.quality["kept"] == ["matrix"]
+    # the ladder's offset rung keeps the matrix whole; the plain sphere (its radius free), judged better on held-out
+    # heading here, keeps it up to its scale: either way the matrix kept is the identity's shape
+    assert record.quality["estimated"][0] == "offset" and record.quality["kept"][0].startswith("matrix")
+    assert [c["model"] for c in record.quality["candidates"]] == ["offset", "offset"]
     assert record.quality["kept_from"] == "identity"
-    assert np.array_equal(record.matrix, np.eye(3))
+    assert np.allclose(record.matrix, record.matrix[0, 0] * np.eye(3))
     assert heading_error_deg(record, turn) < 3.0
     assert heading_error_deg(IDENTITY, turn) > 20.0
 

@@ -147,3 +147,11 @@ def test_the_vehicle_table_names_each_compass_its_verdict_and_the_parameters_to_
     out = text(vehicle_table(answer))
     assert "vehicle mav1" in out and "31.8 deg" in out and "90 deg (named 2)" in out and "0.6 uT" in out
     assert "COMPASS_ORIENT2=2, CAL_MAG1_ROT=2" in out and "mav1-mag1: rotation (set COMPASS_ORIENT2=2)" in out
+
+
+def test_a_calibration_names_the_sensor_it_was_fitted_for_when_it_knows_it():
+    record = {"device": "mav1-mag0", "id": "abc", "offset": [0, 0, 0], "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
+    assert "sensor" not in text(calibration_table(record))
+    out = text(calibration_table({**record, "hardware_id": 466441}))
+    assert "sensor" in out and "466441 (I2C bus 1 address 0x1e devtype 0x07)" in out
+    assert "33554432" in text(calibration_table({**record, "hardware_id": 1 << 25}))  # another edge's: as it is
