@@ -32,7 +32,6 @@ import asyncio
 import contextlib
 import hmac
 import importlib.util
-import json
 import logging
 import re
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -50,6 +49,7 @@ from starlette.staticfiles import StaticFiles
 from magnet import wire
 from services.common.guard import Guard, refusal
 from services.common.jsonio import loads_bounded
+from services.dashboard.events import FleetEvents, encode
 from services.dashboard.state import FleetState
 
 log = logging.getLogger("magnet.dashboard")
@@ -60,6 +60,8 @@ CALIBRATION_ID = re.compile(r"[0-9a-f]{8,64}")
 MAX_BODY_BYTES = 4096
 #: event streams at once (each costs a task and a JSON encoding every refresh); past it a new one gets 503
 MAX_STREAMS = 64
+#: an accepted stream keeps its place this long before it starts (a client gone before it did gives it back)
+STARTING_S = 5.0
 #: names a request's Host may always give
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_HISTORY = 100
@@ -109,6 +111,8 @@ class Dashboard:
         self.view_needs_token, self.interval_s = view_needs_token, interval_s
         self.stopping = asyncio.Event()
         self.streams = 0  # event streams open now
+        self.events = FleetEvents(state, interval_s)
+        self.starting: list[float] = []  # when each stream accepted but not started yet was accepted (loop time)
         self.guard = Guard("dashboard", log, state.dropped)  # no failing request ends the server or a stream
 
     def guarded(self, what: str, endpoint: Endpoint) -> Endpoint:
@@ -238,8 +242,13 @@ class Dashboard:
             known = self._known(device)
             if isinstance(known, Response):
                 return known
-        if self.streams >= MAX_STREAMS:
-            return error(503, f"{MAX_STREAMS} event streams are open already: close a page or try again later")
+        now = asyncio.get_running_loop().time()
+        self.starting = [t for t in self.starting if now - t < STARTING_S]  # a stream never started: its place back
+        if self.streams + len(self.starting) >= MAX_STREAMS:  # refused and closed: no lingering keep-alive
+            refused = error(503, f"{MAX_STREAMS} event streams are open already: close a page or try again later")
+            refused.headers["Connection"] = "close"
+            return refused
+        self.starting.append(now)
         return StreamingResponse(
             self._events(device),
             media_type="text/event-stream",
@@ -250,23 +259,25 @@ class Dashboard:
         version, next_detail = -1, 0.0
         loop = asyncio.get_running_loop()
         self.streams += 1
+        if self.starting:
+            self.starting.pop(0)
         if device:
             self.state.watch(device, +1)
         try:
             while not self.stopping.is_set():
                 try:
-                    fleet = self.state.fleet(version)
+                    version, texts = self.events.event(version, loop.time())  # made once a tick for every stream
                 except Exception as exc:  # this stream ends (the page reconnects); the server goes on
                     self.guard.failed("http:stream", exc)
                     return
-                version = fleet["version"]
-                yield _event("fleet", fleet | {"summary": self.state.summary()})
+                for text in texts:
+                    yield text
                 if device and loop.time() >= next_detail:
                     next_detail = loop.time() + DETAIL_EVERY_S
                     detail = self.guard.run("http:stream", self.state.detail, device)
                     yield _event("device", detail if detail is not None else {"device": device, "unknown": True})
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self.stopping.wait(), self.interval_s)
+                    await asyncio.wait_for(self.stopping.wait(), self.events.wait_s(loop.time()))
         finally:
             self.streams -= 1
             if device:
@@ -324,8 +335,7 @@ class HostCheck:
         await self.app(scope, receive, send)
 
 
-def _event(name: str, data: Any) -> str:
-    return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'), allow_nan=False)}\n\n"
+_event = encode
 
 
 def _parse_action(body: bytes) -> tuple[str, str | None, str | None] | Response:

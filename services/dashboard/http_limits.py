@@ -7,8 +7,9 @@ here 260 connections that never sent a byte stayed open and made uvicorn answer 
 
 - a deadline for every request head: ``HEAD_TIMEOUT_S`` from the connection (or from the end of the last response)
   to a whole request head, however the bytes trickle in (slowloris), else the connection is closed;
-- at most ``MAX_WAITING`` connections waiting for a head: a new one past it closes the oldest waiting one, so idle
-  connections never fill ``limit_concurrency`` and a real request always gets in;
+- at most ``MAX_WAITING`` connections waiting for a head: a new one past it closes the oldest waiting one (one that
+  has waited ``MIN_WAIT_S`` at least: a burst of connections sending their heads is not cut), so idle connections
+  never fill ``limit_concurrency`` and a real request always gets in;
 - a stall limit for writing: a client that takes nothing for ``STALL_S`` while the server has more to send (the
   transport's buffer above its high-water mark: an event stream or a large ``/api/fleet`` to a client that stopped
   reading) is cut off. Its event stream ends and frees its place (``app.MAX_STREAMS``).
@@ -25,6 +26,8 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 HEAD_TIMEOUT_S = 10.0
 STALL_S = 10.0
 MAX_WAITING = 128
+#: a waiting connection younger than this is not closed to admit a newer one (its head may be on its way)
+MIN_WAIT_S = 1.0
 
 
 class BoundedH11(H11Protocol):
@@ -45,10 +48,14 @@ class BoundedH11(H11Protocol):
     def _arm(self) -> None:
         self._disarm()
         self._head_timer = self.loop.call_later(HEAD_TIMEOUT_S, self._close_idle)
+        self._armed_s = self.loop.time()
         waiting = BoundedH11.waiting
         waiting[id(self)] = self
         while len(waiting) > MAX_WAITING:
-            waiting.popitem(last=False)[1]._close_idle()
+            oldest = next(iter(waiting.values()))
+            if self._armed_s - oldest._armed_s < MIN_WAIT_S:
+                break  # a burst of new connections whose heads are on their way: none of them is idle yet
+            oldest._close_idle()
 
     def _disarm(self) -> None:
         if self._head_timer is not None:
