@@ -18,7 +18,7 @@ checks find it in a calibrated field (docs/compass.md, "Disturbances"):
   within the window, so the field must be corrected first (the record at hand, or the fit being judged).
 
 Flagged samples are widened by ``hold_s`` on both sides (a disturbance fades in and out below the thresholds).
-``field_disturbance`` judges a whole log (``magnet fit``: disturbed samples never enter a fit);
+``field_disturbance`` judges a whole log (not yet applied by the fits: docs/compass.md, "Disturbances");
 ``magnet.attitude.field_watch.FieldWatch`` is the steps and magnitude checks causal, batch by batch, against
 references of its own (the compass: a disturbed sample is not given to the filter, which then holds its heading on
 the gyroscope).
