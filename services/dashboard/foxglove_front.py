@@ -8,7 +8,8 @@ An upgrade is let through when:
 - ``Host`` names a loopback name, the ``--foxglove`` host (unless a wildcard) or one given with ``--allow-host``
   (DNS rebinding), else 403;
 - ``Origin``, when sent (browsers always send it), is ``http(s)://`` one of those names, any port; else 403. The
-  Foxglove web app's page is ``https://app.foxglove.dev``: give ``--allow-host app.foxglove.dev`` to use it;
+  Foxglove web app's page is ``https://app.foxglove.dev``: give ``--allow-host app.foxglove.dev`` to use it. A
+  non-web origin (``null``, ``file://``: a desktop app's window loaded from files) passes only with the token;
 - the token is given, else 401: the dashboard's control token in ``Authorization: Bearer``, ``X-Magnet-Token`` or
   as a WebSocket subprotocol ``magnet-token.TOKEN`` (headers a native client can send), or, for the Foxglove app,
   whose browser WebSocket can send nothing but its address, the *view token* in the address (``?token=VIEW``). The
@@ -32,10 +33,10 @@ import hashlib
 import hmac
 import logging
 import secrets
-import threading
 from collections import OrderedDict
 from urllib.parse import parse_qs, urlsplit
 
+from services.common.loop_server import LoopServer
 from services.dashboard.app import host_name
 
 log = logging.getLogger("magnet.dashboard.foxglove")
@@ -45,6 +46,8 @@ MAX_HEAD_BYTES = 8192
 MAX_WAITING = 64
 MAX_CLIENTS = 32
 TOKEN_PROTOCOL = "magnet-token."
+#: origins of windows loaded from files (Electron apps' renderers): no site to check, so the token decides
+NON_WEB_ORIGINS = frozenset({"null", "file://"})
 _CHUNK = 65536
 
 
@@ -103,13 +106,18 @@ class FrontCheck:
         if host_name(host) not in self.allowed:
             return 403, f"Host {host!r} is not one this dashboard answers to (give it with --allow-host)"
         origin = request.get("origin")
-        if origin is not None and not self._origin_ok(origin):
+        token_ok = self._token_ok(request)
+        if origin is not None and not self._origin_ok(origin, token_ok):
             return 403, f"connections from the web page at {origin!r} are refused (give its host with --allow-host)"
-        if not self._token_ok(request):
+        if not token_ok:
             return 401, "the Foxglove socket needs the dashboard's token (its view token in the address: ?token=...)"
         return None
 
-    def _origin_ok(self, origin: str) -> bool:
+    def _origin_ok(self, origin: str, token_ok: bool) -> bool:
+        """A web page's origin must name an allowed host; a non-web one (``null``, ``file://``: an app's window
+        loaded from files, such as an Electron desktop app's, but also a sandboxed frame) only with the token."""
+        if origin.strip().lower() in NON_WEB_ORIGINS:
+            return token_ok
         parts = urlsplit(origin.lower())
         return parts.scheme in ("http", "https") and (parts.hostname or "") in self.allowed
 
@@ -138,7 +146,7 @@ class FrontCheck:
         return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
 
 
-class FoxgloveFront:
+class FoxgloveFront(LoopServer):
     """Listens on ``host``:``port`` (0: a free one, ``self.port``) and splices checked upgrades to ``backend``
     (host, port), from a daemon thread of its own; ``close`` stops it."""
 
@@ -147,30 +155,7 @@ class FoxgloveFront:
         self.waiting: OrderedDict[int, asyncio.StreamWriter] = OrderedDict()
         self.clients = 0
         self.refused: dict[int, int] = {}  # HTTP status -> refusals
-        self.loop = asyncio.new_event_loop()
-        self.server = self.loop.run_until_complete(
-            asyncio.start_server(self._serve, host, port, limit=MAX_HEAD_BYTES, backlog=128)
-        )
-        self.port = int(self.server.sockets[0].getsockname()[1])
-        self.thread = threading.Thread(target=self.loop.run_forever, name="foxglove-front", daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        if not self.thread.is_alive():
-            return
-
-        async def stop() -> None:
-            self.server.close()
-            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            self.loop.stop()
-
-        asyncio.run_coroutine_threadsafe(stop(), self.loop)
-        self.thread.join(5)
-        if not self.thread.is_alive():
-            self.loop.close()
+        super().__init__(host, port, "foxglove-front", MAX_HEAD_BYTES)
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         key = id(writer)
