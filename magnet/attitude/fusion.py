@@ -170,6 +170,7 @@ class Fusion:
         #: (docs/compass.md, "Disturbances"); compiled, it costs about a quarter of vqf itself (docs/cost.md)
         self.watch = FieldWatch(self.period_s) if watch else None
         self.heading_bias = HeadingBias(self.period_s, self._filter.params["tauMag"]) if heading_bias else None
+        self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 
     def restart(self) -> None:
@@ -182,6 +183,7 @@ class Fusion:
             self.watch.reset()
         if self.heading_bias is not None:
             self.heading_bias.reset()
+        self._recalibrated = False
         self.samples = 0
 
     def restart_magnetometer(self) -> None:
@@ -201,6 +203,7 @@ class Fusion:
             self.watch.reset()
         if self.heading_bias is not None:  # the bias it learnt is kept, its loop starts again with the new delta
             self.heading_bias.reset()
+        self._recalibrated = True
 
     def update(
         self,
@@ -290,6 +293,17 @@ class Fusion:
         out = self._vqf(gyr, acc, field, watched)
         return out["quat9D"], out["magDistDetected"]
 
+    def _flagged(self, out: Mapping[str, Any]) -> bool:
+        """Whether vqf flagged a sample of its outputs ``out`` disturbed, for the bias loop. vqf flags every field
+        until it has accepted a reference, which after a restart of its magnetic side takes 5 s of turns faster than
+        20 deg/s (a phone held to the ear or for texting waits tens of seconds, corrected at half vqf's gain
+        meanwhile). After a new calibration was put in force (``restart_magnetometer``) those flags do not stop the
+        loop: the record was judged against the Earth's field, and the watch looks for what passes by. Before any
+        (the raw field, or a log fused with its record from the start) they do."""
+        if not bool(out["magDistDetected"].any()):
+            return False
+        return not (self._recalibrated and float(self._filter.getMagRefNorm()) == 0.0)
+
     def _vqf(self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray) -> dict[str, Any]:
         """vqf's ``updateBatch`` on one batch (vqf frames; ``watched`` (N,) the samples the watch left out), cut
         where the bias loop's pieces end (``magnet.attitude.heading_bias``) when it runs: vqf's outputs (quat6D,
@@ -299,7 +313,7 @@ class Fusion:
             return self._filter.updateBatch(gyr, acc, field)
         if loop.remaining() > len(gyr):  # the whole batch within one piece (the usual case: no copies)
             out = self._filter.updateBatch(gyr, acc, field)
-            loop.observe(len(gyr), bool(out["magDistDetected"].any() or watched.any()))
+            loop.observe(len(gyr), self._flagged(out) or bool(watched.any()))
             return out
         parts = []
         start = 0
@@ -307,7 +321,7 @@ class Fusion:
             stop = min(start + loop.remaining(), len(gyr))
             out = self._filter.updateBatch(gyr[start:stop], acc[start:stop], field[start:stop])
             # vqf's flag (also on until vqf has accepted a reference field: a field not yet judged) or the watch's
-            disturbed = bool(out["magDistDetected"].any() or watched[start:stop].any())
+            disturbed = self._flagged(out) or bool(watched[start:stop].any())
             loop.observe(stop - start, disturbed)
             if loop.remaining() == 0:
                 sigma = float(self._filter.getBiasEstimate()[1])

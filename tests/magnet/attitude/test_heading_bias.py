@@ -107,3 +107,17 @@ def test_a_walking_phone_loses_its_standing_heading_offset():
         quat = fusion.Fusion(0.02, heading_bias=on).update(run.gyr_rads, run.acc_ms2, field).quat_wxyz
         errors[on] = fr.rms_deg(fr.heading_error_deg(quat, truth), scored, offset_removed=False)
     assert errors[True] < 0.6 * errors[False], errors
+
+
+def test_vqf_s_flags_stop_the_loop_until_a_calibration_is_put_in_force():
+    """Before any record (the raw field) vqf's flags count; after restart_magnetometer, while vqf has no reference
+    yet (it waits for fast turns), they do not, and once it has one they count again."""
+    filt = fusion.Fusion(0.02)
+    flagged = {"magDistDetected": np.array([False, True])}
+    assert filt._flagged(flagged) and not filt._flagged({"magDistDetected": np.zeros(2, bool)})
+    filt.restart_magnetometer()
+    assert filt._filter.getMagRefNorm() == 0.0 and not filt._flagged(flagged)
+    filt._filter.setMagRef(50.0, 1.1)
+    assert filt._flagged(flagged)
+    filt.restart()
+    assert filt._flagged(flagged)
