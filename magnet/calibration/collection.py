@@ -65,6 +65,7 @@ class Collection:
         self.window_s: float | None = None  # fit only the last this many seconds of the run (None: all of it)
         self.tried_ns = -(2**62)  # a refresh's last try: the time of the newest sample then (ns)
         self.changed_batches = 0  # a refresh: batches in a row whose field strength the record in force misses
+        self.after_change = False  # a refresh collection made after the device's iron changed
         self.run_capacity = run_capacity
         self.runs = None if self.auto or not Method.parse(self.method).needs_gyroscope else RecentRuns(run_capacity)
         self.no_gyroscope = 0  # batches that came without the gyroscope this collection's method needs

@@ -54,6 +54,11 @@ REFRESH_MIN_SAMPLES = 300
 CHANGED_PCT = 15.0
 #: ... for this many batches in a row: the device's iron changed, the samples before are dropped
 CHANGED_BATCHES = 4
+#: after the iron changed the record in force is known wrong: a refresh is tried from this many seconds of samples
+#: after the change, and then this often (s), until one is made (the ladder's identifiability and judgement decide
+#: whether the samples tell enough; the gyroscope holds the heading meanwhile)
+CHANGED_MIN_S = 6.0
+CHANGED_INTERVAL_S = 3.0
 #: what ``--recalibrate`` accepts
 MODES = ("auto", "propose", "off")
 
@@ -105,12 +110,14 @@ class Refresher:
         if self.mode is Mode.OFF:
             return None
         collection = self.by_device.get(batch.device)
-        if collection is not None and in_force is not None and self._changed(collection, batch, in_force):
+        changed = collection is not None and in_force is not None and self._changed(collection, batch, in_force)
+        if changed:
             self.by_device.pop(batch.device, None)
             collection = None
         if collection is None:
             collection = Collection("auto", False, self.capacity, REFRESH_RUN_CAPACITY)
             collection.in_service, collection.window_s = True, REFRESH_WINDOW_S
+            collection.after_change = changed
             self.by_device[batch.device] = collection
         self.by_device.touch(batch.device)
         collection.travelled = collection.travelled or travels(batch)
@@ -146,10 +153,11 @@ class Refresher:
         if collection.runs is None:
             return collection.kept >= min(self.capacity, REFRESH_MIN_SAMPLES)
         run = collection.runs.longest()
-        if run is None or len(run) * run.period_s < REFRESH_MIN_S:
+        changed = collection.after_change
+        if run is None or len(run) * run.period_s < (CHANGED_MIN_S if changed else REFRESH_MIN_S):
             return False
         last = int(run.t_ns[-1])
-        if last - collection.tried_ns < REFRESH_INTERVAL_S * 1e9:
+        if last - collection.tried_ns < (CHANGED_INTERVAL_S if changed else REFRESH_INTERVAL_S) * 1e9:
             return False
         collection.tried_ns = last
         return True

@@ -201,7 +201,8 @@ class Observer:
     def _on_heading(self, sample: zenoh.Sample) -> None:
         device, now = str(sample.key_expr).rsplit("/", 2)[-2], time.monotonic()
         with self.lock:
-            self.gaps.on_heading(device, now, self.fault)
+            if not device.startswith("mav") or device == REAL_VEHICLE:  # the MAVLink flood's ids recur each flood
+                self.gaps.on_heading(device, now, self.fault)
             if device == REAL_VEHICLE:
                 if self.vehicle_headings:
                     self.vehicle_gap_s = max(self.vehicle_gap_s, now - self._vehicle_last)
@@ -358,7 +359,8 @@ class Soak:
             asked = time.monotonic()
             answer = observer.status(name)
             took = time.monotonic() - asked
-            self.status_times.add(service, None if answer is None else took, self.pipeline.in_grace(service, asked))
+            grace = self.pipeline.in_grace(service, asked)
+            self.status_times.add(service, None if answer is None else took, grace, observer.fault or "warm-up")
             if answer is None:
                 continue
             self.last[service] = answer

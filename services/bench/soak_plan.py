@@ -158,19 +158,23 @@ class StatusTimes:
         self.slowest: dict[str, float] = {}
         self.unanswered: dict[str, int] = {}
         self.in_grace: dict[str, int] = {}
+        self.late_after: dict[str, dict[str, int]] = {}  # per service, the faults after which one was late or missed
 
-    def add(self, service: str, seconds: float | None, in_grace: bool) -> None:
-        """One query of ``service``'s status: answered after ``seconds`` (None: not answered)."""
+    def add(self, service: str, seconds: float | None, in_grace: bool, fault: str = "") -> None:
+        """One query of ``service``'s status: answered after ``seconds`` (None: not answered), ``fault`` the last."""
         if in_grace:
             self.in_grace[service] = self.in_grace.get(service, 0) + 1
             return
         self.asked[service] = self.asked.get(service, 0) + 1
+        if seconds is not None:
+            self.slowest[service] = max(self.slowest.get(service, 0.0), seconds)
+        if seconds is not None and seconds <= STATUS_LIMIT_S:
+            self.in_time[service] = self.in_time.get(service, 0) + 1
+            return
         if seconds is None:
             self.unanswered[service] = self.unanswered.get(service, 0) + 1
-            return
-        self.slowest[service] = max(self.slowest.get(service, 0.0), seconds)
-        if seconds <= STATUS_LIMIT_S:
-            self.in_time[service] = self.in_time.get(service, 0) + 1
+        late = self.late_after.setdefault(service, {})
+        late[fault] = late.get(fault, 0) + 1
 
     def lines(self) -> list[str]:
         head = f"status answered within {STATUS_LIMIT_S:g} s (not counted: within {RESTART_GRACE_S:g} s of a start):"
@@ -178,6 +182,7 @@ class StatusTimes:
             f"  {service}: {self.in_time.get(service, 0)} of {self.asked[service]}, slowest "
             f"{self.slowest.get(service, 0.0):.2f} s, unanswered {self.unanswered.get(service, 0)} "
             f"(not counted {self.in_grace.get(service, 0)})"
+            + "".join(f"; late or missed after {f} {n}" for f, n in sorted(self.late_after.get(service, {}).items()))
             for service in sorted(self.asked)
         ]
 

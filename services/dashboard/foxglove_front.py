@@ -8,7 +8,8 @@ An upgrade is let through when:
 - ``Host`` names a loopback name, the ``--foxglove`` host (unless a wildcard) or one given with ``--allow-host``
   (DNS rebinding), else 403;
 - ``Origin``, when sent (browsers always send it), is ``http(s)://`` one of those names, any port; else 403. The
-  Foxglove web app's page is ``https://app.foxglove.dev``: give ``--allow-host app.foxglove.dev`` to use it;
+  Foxglove web app's page is ``https://app.foxglove.dev``: give ``--allow-host app.foxglove.dev`` to use it. A
+  non-web origin (``null``, ``file://``: a desktop app's window loaded from files) passes only with the token;
 - the token is given, else 401: the dashboard's control token in ``Authorization: Bearer``, ``X-Magnet-Token`` or
   as a WebSocket subprotocol ``magnet-token.TOKEN`` (headers a native client can send), or, for the Foxglove app,
   whose browser WebSocket can send nothing but its address, the *view token* in the address (``?token=VIEW``). The
@@ -45,6 +46,8 @@ MAX_HEAD_BYTES = 8192
 MAX_WAITING = 64
 MAX_CLIENTS = 32
 TOKEN_PROTOCOL = "magnet-token."
+#: origins of windows loaded from files (Electron apps' renderers): no site to check, so the token decides
+NON_WEB_ORIGINS = frozenset({"null", "file://"})
 _CHUNK = 65536
 
 
@@ -103,13 +106,18 @@ class FrontCheck:
         if host_name(host) not in self.allowed:
             return 403, f"Host {host!r} is not one this dashboard answers to (give it with --allow-host)"
         origin = request.get("origin")
-        if origin is not None and not self._origin_ok(origin):
+        token_ok = self._token_ok(request)
+        if origin is not None and not self._origin_ok(origin, token_ok):
             return 403, f"connections from the web page at {origin!r} are refused (give its host with --allow-host)"
-        if not self._token_ok(request):
+        if not token_ok:
             return 401, "the Foxglove socket needs the dashboard's token (its view token in the address: ?token=...)"
         return None
 
-    def _origin_ok(self, origin: str) -> bool:
+    def _origin_ok(self, origin: str, token_ok: bool) -> bool:
+        """A web page's origin must name an allowed host; a non-web one (``null``, ``file://``: an app's window
+        loaded from files, such as an Electron desktop app's, but also a sandboxed frame) only with the token."""
+        if origin.strip().lower() in NON_WEB_ORIGINS:
+            return token_ok
         parts = urlsplit(origin.lower())
         return parts.scheme in ("http", "https") and (parts.hostname or "") in self.allowed
 

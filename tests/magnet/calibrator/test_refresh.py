@@ -4,12 +4,15 @@ instead; off leaves the record alone; a record that is still right is not replac
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
+
 import numpy as np
 import pytest
 from memory_store import MemoryStore
 
 from magnet import wire
-from magnet.calibrator import CalibratorCore
+from magnet.calibrator import CalibratorCore, refresh
 from magnet.calibrator.refresh import Refresher
 from magnet.calibrator.status import State
 from magnet.earth.location import Location
@@ -202,3 +205,37 @@ def _raw(run, seq: int, batch: int, speed_ms: float) -> wire.RawBatch:
         gyr_rads=run.gyr_rads[part],
         vel_ned_ms=np.tile([speed_ms, 0.0, 0.0], (batch, 1)),
     )
+
+
+def test_after_the_iron_changes_the_old_samples_go_and_a_refresh_is_tried_sooner_and_more_often(walk):
+    """The record in force misses the field strength for CHANGED_BATCHES batches: what came before is dropped and,
+    the record being known wrong, a refresh is tried from CHANGED_MIN_S of samples on, every CHANGED_INTERVAL_S."""
+    run, old = walk
+    right = old.replace(offset=old.offset + np.array([6.0, -4.0, 3.0]))
+    refresher = Refresher("auto", 2000, 4)
+    shift = np.array([80.0, -60.0, 40.0])  # a magnet in the new case: the field strength is far off
+    first = None
+    for seq in range(40):  # 10 s as it was, then the new iron
+        batch = _raw(run, seq, 50, speed_ms=0.0)
+        if seq >= 20:
+            batch = dataclasses.replace(batch, mag_ut=batch.mag_ut + shift)
+        collection = refresher.receive(batch, right)
+        first = first or collection
+        assert collection is not None
+        if seq < 20 + refresh.CHANGED_BATCHES - 1:
+            assert collection is first and not collection.after_change
+    assert collection is not first and collection.after_change
+    assert collection.runs is not None and collection.runs.written <= 20 * 50  # only what came after the change
+    now = 100.0
+    due = []
+    for seq in range(40, 60):
+        batch = dataclasses.replace(_raw(run, seq, 50, speed_ms=0.0), mag_ut=_raw(run, seq, 50, 0.0).mag_ut + shift)
+        refresher.receive(batch, right)
+        now += 10.0
+        due.append(refresher.due(collection, now))
+    # the collection holds 9 s after the change at the first look (batches 23-40): due at once, under the 12 s an
+    # ordinary refresh waits for; then every 3 s of samples
+    assert refresh.CHANGED_MIN_S < 9.0 < refresh.REFRESH_MIN_S and due[0]
+    times = [(40 + k + 1) * 0.5 for k, d in enumerate(due) if d]  # seconds of the walk when a refresh was due
+    assert len(times) >= 3
+    assert all(b - a == pytest.approx(refresh.CHANGED_INTERVAL_S) for a, b in itertools.pairwise(times))

@@ -66,7 +66,7 @@ def receives_a_heading(client: FoxgloveClient) -> bool:
 @pytest.mark.integration
 def test_a_web_page_elsewhere_or_a_client_without_the_token_is_refused(front):
     assert "403" in refused(front, headers={**BEARER, "Origin": "https://evil.example"})
-    assert "403" in refused(front, headers={**BEARER, "Origin": "null"})  # a sandboxed frame
+    assert "403" in refused(front, headers={"Origin": "null"})  # a sandboxed frame (or a desktop app) without it
     assert "403" in refused(front, headers={**BEARER, "Host": "rebound.evil.example:8765"})  # DNS rebinding
     assert "401" in refused(front)  # no token
     assert "401" in refused(front, headers={"Authorization": "Bearer wrong"})
@@ -87,8 +87,9 @@ def test_a_web_page_elsewhere_or_a_client_without_the_token_is_refused(front):
         {"protocols": (*SUBPROTOCOLS, f"magnet-token.{TOKEN}")},
         {"path": f"/?token={view_token(TOKEN)}", "headers": {"Origin": "https://robot.lan"}},  # the Foxglove app
         {"headers": {**BEARER, "Host": "robot.lan:8765"}},
+        {"path": f"/?token={view_token(TOKEN)}", "headers": {"Origin": "null"}},  # a desktop app's file:// window
     ],
-    ids=["bearer", "x-magnet-token", "subprotocol", "view-token-in-address", "allowed-host"],
+    ids=["bearer", "x-magnet-token", "subprotocol", "view-token-in-address", "allowed-host", "desktop-app"],
 )
 def test_the_token_gets_the_foxglove_handshake_and_a_message(front, how):
     client = FoxgloveClient("127.0.0.1", front.port, **how)

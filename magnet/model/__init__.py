@@ -31,6 +31,12 @@ from typing import Any
 
 import numpy as np
 
+from magnet.model.fields import MAX_HARDWARE_ID
+from magnet.model.fields import flag as _flag
+from magnet.model.fields import hardware_id as _hardware_id
+from magnet.model.fields import known as _known
+from magnet.model.fields import number as _number
+from magnet.model.fields import text as _text
 from magnet.motor import MotorModel, motor_from_dict
 from magnet.plausible import (
     MAX_CONDITION,
@@ -41,12 +47,6 @@ from magnet.plausible import (
     UNKNOWN_SCALE_GAIN,
     check_plausible,
 )
-from magnet.record_fields import MAX_HARDWARE_ID
-from magnet.record_fields import flag as _flag
-from magnet.record_fields import hardware_id as _hardware_id
-from magnet.record_fields import known as _known
-from magnet.record_fields import number as _number
-from magnet.record_fields import text as _text
 from magnet.units import FieldUnit
 
 #: the methods that make records (``magnet.calibration.Method`` values, the turntable's least-squares variant, the
