@@ -27,7 +27,7 @@ import vqf
 
 from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
 from magnet.attitude.field_watch import FieldWatch
-from magnet.attitude.heading_bias import HeadingBias
+from magnet.attitude.heading_bias import HeadingBias, run_pieces
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
@@ -293,47 +293,13 @@ class Fusion:
         out = self._vqf(gyr, acc, field, watched)
         return out["quat9D"], out["magDistDetected"]
 
-    def _flagged(self, out: Mapping[str, Any]) -> bool:
-        """Whether vqf flagged a sample of its outputs ``out`` disturbed, for the bias loop. vqf flags every field
-        until it has accepted a reference, which after a restart of its magnetic side takes 5 s of turns faster than
-        20 deg/s (a phone held to the ear or for texting waits tens of seconds, corrected at half vqf's gain
-        meanwhile). After a new calibration was put in force (``restart_magnetometer``) those flags do not stop the
-        loop: the record was judged against the Earth's field, and the watch looks for what passes by. Before any
-        (the raw field, or a log fused with its record from the start) they do."""
-        if not bool(out["magDistDetected"].any()):
-            return False
-        return not (self._recalibrated and float(self._filter.getMagRefNorm()) == 0.0)
-
     def _vqf(self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray) -> dict[str, Any]:
-        """vqf's ``updateBatch`` on one batch (vqf frames; ``watched`` (N,) the samples the watch left out), cut
-        where the bias loop's pieces end (``magnet.attitude.heading_bias``) when it runs: vqf's outputs (quat6D,
-        quat9D, restDetected, magDistDetected) for the whole batch."""
+        """vqf's ``updateBatch`` on one batch (vqf frames; ``watched`` (N,) the samples the watch left out), with the
+        bias loop where it runs (``heading_bias.run_pieces``): vqf's outputs for the whole batch."""
         loop = self.heading_bias
         if loop is None or field is None or self._aided is not None:
             return self._filter.updateBatch(gyr, acc, field)
-        if loop.remaining() > len(gyr):  # the whole batch within one piece (the usual case: no copies)
-            out = self._filter.updateBatch(gyr, acc, field)
-            loop.observe(len(gyr), self._flagged(out) or bool(watched.any()))
-            return out
-        parts = []
-        start = 0
-        while start < len(gyr):
-            stop = min(start + loop.remaining(), len(gyr))
-            out = self._filter.updateBatch(gyr[start:stop], acc[start:stop], field[start:stop])
-            # vqf's flag (also on until vqf has accepted a reference field: a field not yet judged) or the watch's
-            disturbed = self._flagged(out) or bool(watched[start:stop].any())
-            loop.observe(stop - start, disturbed)
-            if loop.remaining() == 0:
-                sigma = float(self._filter.getBiasEstimate()[1])
-                change = loop.step(float(self._filter.getDelta()), self._filter.getQuat6D(), sigma)
-                if change.any():
-                    self._filter.setBiasEstimate(np.asarray(self._filter.getBiasEstimate()[0], dtype=float) + change)
-            parts.append(out)
-            start = stop
-        if len(parts) == 1:
-            return parts[0]
-        keys = ("quat6D", "quat9D", "restDetected", "magDistDetected")
-        return {key: np.concatenate([np.asarray(part[key]) for part in parts]) for key in keys}
+        return run_pieces(self._filter, loop, (gyr, acc, field), watched, self._recalibrated)
 
 
 def fuse_offline(
