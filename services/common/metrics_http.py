@@ -19,9 +19,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import threading
 from collections import OrderedDict
 from typing import Any
+
+from services.common.loop_server import LoopServer
 
 log = logging.getLogger("magnet.metrics")
 
@@ -31,39 +32,15 @@ MAX_HEAD_BYTES = 8192
 MAX_CONNECTIONS = 64
 
 
-class MetricsServer:
+class MetricsServer(LoopServer):
     """Serves ``registry`` (a prometheus-client ``CollectorRegistry``) at ``http://host:port/metrics`` from a daemon
     thread of its own; ``port`` 0 takes a free one (``self.port`` says which). ``close`` stops it."""
 
     def __init__(self, host: str, port: int, registry: Any, max_connections: int = MAX_CONNECTIONS) -> None:
         self.registry, self.max_connections = registry, max_connections
-        self.loop = asyncio.new_event_loop()
         self.open: OrderedDict[int, asyncio.StreamWriter] = OrderedDict()  # waiting connections, oldest first
         self.closed_oldest = 0  # connections closed to admit a newer one
-        self.server = self.loop.run_until_complete(
-            asyncio.start_server(self._serve, host, port, limit=MAX_HEAD_BYTES, backlog=128)
-        )
-        self.port = int(self.server.sockets[0].getsockname()[1])
-        self.thread = threading.Thread(target=self.loop.run_forever, name="metrics-http", daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        """Stop serving and close every connection (from any thread)."""
-        if not self.thread.is_alive():
-            return
-
-        async def stop() -> None:
-            self.server.close()
-            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            self.loop.stop()
-
-        asyncio.run_coroutine_threadsafe(stop(), self.loop)
-        self.thread.join(5)
-        if not self.thread.is_alive():
-            self.loop.close()
+        super().__init__(host, port, "metrics-http", MAX_HEAD_BYTES)
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         key = id(writer)

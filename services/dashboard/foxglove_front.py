@@ -33,10 +33,10 @@ import hashlib
 import hmac
 import logging
 import secrets
-import threading
 from collections import OrderedDict
 from urllib.parse import parse_qs, urlsplit
 
+from services.common.loop_server import LoopServer
 from services.dashboard.app import host_name
 
 log = logging.getLogger("magnet.dashboard.foxglove")
@@ -146,7 +146,7 @@ class FrontCheck:
         return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
 
 
-class FoxgloveFront:
+class FoxgloveFront(LoopServer):
     """Listens on ``host``:``port`` (0: a free one, ``self.port``) and splices checked upgrades to ``backend``
     (host, port), from a daemon thread of its own; ``close`` stops it."""
 
@@ -155,30 +155,7 @@ class FoxgloveFront:
         self.waiting: OrderedDict[int, asyncio.StreamWriter] = OrderedDict()
         self.clients = 0
         self.refused: dict[int, int] = {}  # HTTP status -> refusals
-        self.loop = asyncio.new_event_loop()
-        self.server = self.loop.run_until_complete(
-            asyncio.start_server(self._serve, host, port, limit=MAX_HEAD_BYTES, backlog=128)
-        )
-        self.port = int(self.server.sockets[0].getsockname()[1])
-        self.thread = threading.Thread(target=self.loop.run_forever, name="foxglove-front", daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        if not self.thread.is_alive():
-            return
-
-        async def stop() -> None:
-            self.server.close()
-            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            self.loop.stop()
-
-        asyncio.run_coroutine_threadsafe(stop(), self.loop)
-        self.thread.join(5)
-        if not self.thread.is_alive():
-            self.loop.close()
+        super().__init__(host, port, "foxglove-front", MAX_HEAD_BYTES)
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         key = id(writer)
