@@ -27,7 +27,7 @@ import vqf
 
 from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
 from magnet.attitude.field_watch import FieldWatch
-from magnet.attitude.heading_bias import HeadingBias
+from magnet.attitude.heading_bias import HeadingBias, run_pieces
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
@@ -170,6 +170,7 @@ class Fusion:
         #: (docs/compass.md, "Disturbances"); compiled, it costs about a quarter of vqf itself (docs/cost.md)
         self.watch = FieldWatch(self.period_s) if watch else None
         self.heading_bias = HeadingBias(self.period_s, self._filter.params["tauMag"]) if heading_bias else None
+        self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 
     def restart(self) -> None:
@@ -182,6 +183,7 @@ class Fusion:
             self.watch.reset()
         if self.heading_bias is not None:
             self.heading_bias.reset()
+        self._recalibrated = False
         self.samples = 0
 
     def restart_magnetometer(self) -> None:
@@ -201,6 +203,7 @@ class Fusion:
             self.watch.reset()
         if self.heading_bias is not None:  # the bias it learnt is kept, its loop starts again with the new delta
             self.heading_bias.reset()
+        self._recalibrated = True
 
     def update(
         self,
@@ -291,35 +294,12 @@ class Fusion:
         return out["quat9D"], out["magDistDetected"]
 
     def _vqf(self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray) -> dict[str, Any]:
-        """vqf's ``updateBatch`` on one batch (vqf frames; ``watched`` (N,) the samples the watch left out), cut
-        where the bias loop's pieces end (``magnet.attitude.heading_bias``) when it runs: vqf's outputs (quat6D,
-        quat9D, restDetected, magDistDetected) for the whole batch."""
+        """vqf's ``updateBatch`` on one batch (vqf frames; ``watched`` (N,) the samples the watch left out), with the
+        bias loop where it runs (``heading_bias.run_pieces``): vqf's outputs for the whole batch."""
         loop = self.heading_bias
         if loop is None or field is None or self._aided is not None:
             return self._filter.updateBatch(gyr, acc, field)
-        if loop.remaining() > len(gyr):  # the whole batch within one piece (the usual case: no copies)
-            out = self._filter.updateBatch(gyr, acc, field)
-            loop.observe(len(gyr), bool(out["magDistDetected"].any() or watched.any()))
-            return out
-        parts = []
-        start = 0
-        while start < len(gyr):
-            stop = min(start + loop.remaining(), len(gyr))
-            out = self._filter.updateBatch(gyr[start:stop], acc[start:stop], field[start:stop])
-            # vqf's flag (also on until vqf has accepted a reference field: a field not yet judged) or the watch's
-            disturbed = bool(out["magDistDetected"].any() or watched[start:stop].any())
-            loop.observe(stop - start, disturbed)
-            if loop.remaining() == 0:
-                sigma = float(self._filter.getBiasEstimate()[1])
-                change = loop.step(float(self._filter.getDelta()), self._filter.getQuat6D(), sigma)
-                if change.any():
-                    self._filter.setBiasEstimate(np.asarray(self._filter.getBiasEstimate()[0], dtype=float) + change)
-            parts.append(out)
-            start = stop
-        if len(parts) == 1:
-            return parts[0]
-        keys = ("quat6D", "quat9D", "restDetected", "magDistDetected")
-        return {key: np.concatenate([np.asarray(part[key]) for part in parts]) for key in keys}
+        return run_pieces(self._filter, loop, (gyr, acc, field), watched, self._recalibrated)
 
 
 def fuse_offline(

@@ -60,6 +60,16 @@ def up_in_body(quat_vqf: Any) -> np.ndarray:
     return np.array([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)])
 
 
+def vqf_flags_count(recalibrated: bool, filter_: Any) -> bool:
+    """Whether a vqf filter's disturbance flags stop the loop. vqf flags every field until it has accepted a
+    reference, which after a restart of its magnetic side takes 5 s of turns faster than 20 deg/s (a phone held to the
+    ear or for texting waits tens of seconds, corrected at half vqf's gain meanwhile). After a new calibration was
+    put in force (``recalibrated``: ``Fusion.restart_magnetometer``) those flags do not stop the loop while vqf has
+    no reference: the record was judged against the Earth's field, and the watch looks for what passes by. Before
+    any (the raw field, or a log fused with its record from the start) they do."""
+    return not (recalibrated and float(filter_.getMagRefNorm()) == 0.0)
+
+
 def vertical_turn_rad(previous_vqf: np.ndarray, now_vqf: np.ndarray) -> float:
     """The turn (rad) about the earth's vertical from one vqf quaternion (4,) wxyz body -> ENU to another: the twist
     about z of now * conj(previous), which is defined at any attitude (an upright phone too)."""
@@ -125,3 +135,43 @@ class HeadingBias:
         self.delta, self.quat = delta, quat
         self.count, self.disturbed = 0, False
         return -step / self.integral_s * up
+
+
+def run_pieces(
+    filter_: Any,
+    loop: HeadingBias,
+    inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
+    watched: np.ndarray,
+    recalibrated: bool,
+) -> dict[str, Any]:
+    """vqf's ``updateBatch`` on one batch of (gyroscope, accelerometer, field) (N, 3) each, vqf frames, cut where the
+    loop's pieces end, the loop stepped there (its change added to vqf's bias estimate). ``watched`` (N,): the samples
+    the field's watch left out; ``recalibrated``: as ``vqf_flags_count``. Returns vqf's outputs (quat6D, quat9D,
+    restDetected, magDistDetected) for the whole batch."""
+    gyr, acc, field = inputs
+
+    def disturbed(out: dict[str, Any], lo: int, hi: int) -> bool:
+        flagged = bool(out["magDistDetected"].any()) and vqf_flags_count(recalibrated, filter_)
+        return flagged or bool(watched[lo:hi].any())
+
+    if loop.remaining() > len(gyr):  # the whole batch within one piece (the usual case: no copies)
+        out = filter_.updateBatch(gyr, acc, field)
+        loop.observe(len(gyr), disturbed(out, 0, len(gyr)))
+        return out
+    parts = []
+    start = 0
+    while start < len(gyr):
+        stop = min(start + loop.remaining(), len(gyr))
+        out = filter_.updateBatch(gyr[start:stop], acc[start:stop], field[start:stop])
+        loop.observe(stop - start, disturbed(out, start, stop))
+        if loop.remaining() == 0:
+            sigma = float(filter_.getBiasEstimate()[1])
+            change = loop.step(float(filter_.getDelta()), filter_.getQuat6D(), sigma)
+            if change.any():
+                filter_.setBiasEstimate(np.asarray(filter_.getBiasEstimate()[0], dtype=float) + change)
+        parts.append(out)
+        start = stop
+    if len(parts) == 1:
+        return dict(parts[0])
+    keys = ("quat6D", "quat9D", "restDetected", "magDistDetected")
+    return {key: np.concatenate([np.asarray(part[key]) for part in parts]) for key in keys}

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from magnet.attitude import fusion, heading_bias
-from magnet.attitude.heading_bias import HeadingBias, up_in_body, vertical_turn_rad
+from magnet.attitude.heading_bias import HeadingBias, up_in_body, vertical_turn_rad, vqf_flags_count
 from services.bench import field_runs as fr
 
 TILT = math.radians(20.0)  # the body's attitude: tilted 20 deg about x, then turned about the vertical
@@ -107,3 +107,16 @@ def test_a_walking_phone_loses_its_standing_heading_offset():
         quat = fusion.Fusion(0.02, heading_bias=on).update(run.gyr_rads, run.acc_ms2, field).quat_wxyz
         errors[on] = fr.rms_deg(fr.heading_error_deg(quat, truth), scored, offset_removed=False)
     assert errors[True] < 0.6 * errors[False], errors
+
+
+def test_vqf_s_flags_stop_the_loop_until_a_calibration_is_put_in_force():
+    """Before any record (the raw field) vqf's flags count; after restart_magnetometer, while vqf has no reference
+    yet (it waits for fast turns), they do not, and once it has one they count again."""
+    filt = fusion.Fusion(0.02)
+    assert vqf_flags_count(filt._recalibrated, filt._filter)
+    filt.restart_magnetometer()
+    assert filt._filter.getMagRefNorm() == 0.0 and not vqf_flags_count(filt._recalibrated, filt._filter)
+    filt._filter.setMagRef(50.0, 1.1)
+    assert vqf_flags_count(filt._recalibrated, filt._filter)
+    filt.restart()
+    assert vqf_flags_count(filt._recalibrated, filt._filter)
