@@ -56,6 +56,9 @@ GC_THRESHOLD = 200_000
 CHANNEL_CAPACITY = 256
 #: raw payload bytes decoded together at most (a drain of 2.5 MB bombs stays a few of them)
 DRAIN_BYTES = 8 * 1024 * 1024
+#: seconds a drain may take: a slower one (a flood of new ids: each new device's state made) shrinks the next, so
+#: the status and the stop signal, seen between drains, wait at most about this long (issue 32)
+STEP_BUDGET_S = 0.25
 REQUERY_S = 5.0  # how often to ask again for the calibration of a device that has none
 REQUERY_REFUSED_S = 1.0  # how often at most to ask the calibrators again after refusing a calibration
 IDLE_SLEEP_S = 0.0003
@@ -187,7 +190,7 @@ class _Loop:
         self.sinks = open_sinks(session, settings)
         self.asked = self.asked_refused = time.monotonic()
         self.pending: list[tuple[float, Replies]] = [(self.asked + 3.0, self._ask(3.0))]
-        self.drain_limit = MAX_DRAIN
+        self.drain_limit = self.time_limit = MAX_DRAIN
         self.guard = Guard("compass", log, core.drops)
 
     def step(self, ends: _Ends, name: str) -> bool:
@@ -204,10 +207,21 @@ class _Loop:
             self.guard.answer("query:vehicle", query, self.answer_vehicles)
             query.drop()
         ends.raw.hand_over_drops(self.core.drops, log)
-        samples = ends.raw.take(self.drain_limit, DRAIN_BYTES)
+        samples = ends.raw.take(min(self.drain_limit, self.time_limit), DRAIN_BYTES)
         if samples:
+            started = time.perf_counter()
             self.guard.run("raw", self.headings_of, samples, count=len(samples))
+            self._pace(len(samples), time.perf_counter() - started)
         return bool(samples)
+
+    def _pace(self, taken: int, took_s: float) -> None:
+        """A drain slower than ``STEP_BUDGET_S`` (thousands of new devices at once) makes the next ones as small as
+        fit the budget (the status and the stop signal are seen between drains); fast ones let it grow back, twice
+        as large each time, up to ``MAX_DRAIN``."""
+        if took_s > STEP_BUDGET_S:
+            self.time_limit = max(100, int(taken * STEP_BUDGET_S / took_s))
+        elif took_s < STEP_BUDGET_S / 2:
+            self.time_limit = min(MAX_DRAIN, 2 * self.time_limit)
 
     def answer_status(self, query: zenoh.Query, name: str) -> None:
         query.reply(wire.status_key(self.prefix, name), wire.pack(self.core.status(name).to_dict()))
