@@ -148,10 +148,26 @@ def families(service: str, status: Mapping[str, Any]) -> list[Any]:
         healthy = GaugeMetricFamily("magnet_healthy", "1 when the sensor reads", labels=["service"])
         healthy.add_metric([service], float(status["healthy"]))
         out.append(healthy)
+    out += ros2_families(service, status.get("sinks"))
     vehicles = status.get("vehicles")
     if isinstance(vehicles, Mapping) and vehicles:
         out += vehicle_families(service, vehicles)
     return out
+
+
+def ros2_families(service: str, sinks: Any) -> list[Any]:
+    """The compass's ROS 2 side (``services.compass.ros2``, status ``sinks``): devices with topics, evictions."""
+    from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
+
+    if not isinstance(sinks, Mapping) or "ros2_topics" not in sinks:
+        return []
+    topics = GaugeMetricFamily("magnet_ros2_devices", "devices with ROS 2 topics", labels=["service"])
+    topics.add_metric([service], float(sinks["ros2_topics"]))
+    evicted = CounterMetricFamily(
+        "magnet_ros2_topics_evicted", "devices whose ROS 2 topics went to a new device", labels=["service"]
+    )
+    evicted.add_metric([service], float(sinks.get("ros2_topics_evicted", 0)))
+    return [topics, evicted]
 
 
 #: per compass of a vehicle: metric name, help, the report's key

@@ -153,3 +153,11 @@ def test_the_grafana_dashboard_queries_only_metrics_the_services_expose():
     }
     assert queried and queried <= exposed, queried - exposed
     assert len({p["id"] for p in dashboard["panels"]}) == len(dashboard["panels"])
+
+
+def test_the_compass_ros2_sides_topics_and_evictions_are_metrics():
+    """Issue 32: ROS 2 topic evictions counted in the status and the metrics."""
+    status = {"service": "compass", "sinks": {"ros2_topics": 256, "ros2_topics_evicted": 69}}
+    samples = {(f.name, s.name, s.value) for f in families("compass", status) for s in f.samples}
+    assert ("magnet_ros2_devices", "magnet_ros2_devices", 256.0) in samples
+    assert ("magnet_ros2_topics_evicted", "magnet_ros2_topics_evicted_total", 69.0) in samples
