@@ -147,8 +147,8 @@ class Fusion:
 
     ``period_s``: the fixed sample period in seconds. ``params``: vqf parameters by name (its defaults otherwise).
     ``update`` takes one batch of aligned samples; ``restart`` forgets everything (a gap, a device restart).
-    With ``heading_bias`` (the default) the gyroscope's bias about the vertical is learnt from vqf's magnetic
-    corrections where no velocity aids the filter (``magnet.attitude.heading_bias``).
+    With ``heading_bias`` (off by default: docs/gyro-calibration.md) the gyroscope's bias about the vertical is learnt
+    from vqf's magnetic corrections where no velocity aids the filter (``magnet.attitude.heading_bias``).
     """
 
     def __init__(
@@ -156,7 +156,7 @@ class Fusion:
         period_s: float,
         params: Mapping[str, Any] | None = None,
         watch: bool = True,
-        heading_bias: bool = True,
+        heading_bias: bool = False,
     ) -> None:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})

@@ -88,8 +88,8 @@ def _walk(seed: int = 1) -> tuple[fr.SimulatedRun, np.ndarray]:
 
 def test_answers_do_not_depend_on_how_the_samples_are_cut_into_batches():
     run, field = _walk()
-    whole = fusion.Fusion(0.02).update(run.gyr_rads, run.acc_ms2, field).quat_wxyz
-    parts = fusion.Fusion(0.02)
+    whole = fusion.Fusion(0.02, heading_bias=True).update(run.gyr_rads, run.acc_ms2, field).quat_wxyz
+    parts = fusion.Fusion(0.02, heading_bias=True)
     pieces = [
         parts.update(run.gyr_rads[s : s + 7], run.acc_ms2[s : s + 7], field[s : s + 7]).quat_wxyz
         for s in range(0, 2996, 7)
@@ -112,7 +112,7 @@ def test_a_walking_phone_loses_its_standing_heading_offset():
 def test_vqf_s_flags_stop_the_loop_until_a_calibration_is_put_in_force():
     """Before any record (the raw field) vqf's flags count; after restart_magnetometer, while vqf has no reference
     yet (it waits for fast turns), they do not, and once it has one they count again."""
-    filt = fusion.Fusion(0.02)
+    filt = fusion.Fusion(0.02, heading_bias=True)
     assert vqf_flags_count(filt._recalibrated, filt._filter)
     filt.restart_magnetometer()
     assert filt._filter.getMagRefNorm() == 0.0 and not vqf_flags_count(filt._recalibrated, filt._filter)
