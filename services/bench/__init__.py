@@ -11,7 +11,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "accuracy": ("services.bench.accuracy", "run_accuracy_benchmark"),
     "fit": ("services.bench.fit", "run_fit_benchmark"),
     "pipeline": ("services.bench.pipeline", "run_pipeline_benchmark"),
-    "motion": ("services.bench.motion", "run_motion_benchmark"),
+    "motion": ("services.bench.motion_table", "run_motion_benchmark"),
     "field": ("services.bench.field", "run_field_benchmark"),
     "fleet": ("services.bench.fleet_query", "run_fleet_benchmark"),
     "dashboard": ("services.bench.dashboard", "run_dashboard_benchmark"),

@@ -22,7 +22,6 @@ acceleration costs).
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -250,33 +249,6 @@ def without_linear_acceleration(run: SimulatedRun) -> np.ndarray:
     """The run's accelerometer readings (N, 3) m/s^2 with its true linear acceleration taken out, in body axes."""
     rotation = quaternion_to_matrix(np.asarray(run.quat_wxyz, dtype=float))
     return run.acc_ms2 - np.einsum("nji,nj->ni", rotation, run.lin_acc_ned_ms2)
-
-
-def run_motion_benchmark() -> str:
-    """The benchmark's table as text (``magnet bench motion``)."""
-    started = time.perf_counter()
-    lines = [
-        "heading RMS in motion (deg); BROAD: offset removed, movement samples with |pitch| < 60 deg",
-        (
-            "(BROAD: 'fused' on the raw field is vqf with its defaults; 'fit accepted/refused': after the product's "
-            "ellipsoid, 'gyro fit': after its gyro-ellipsoid)"
-        ),
-        f"{'recording':<42}{'estimator':<34}{'RMS':>8}",
-    ]
-    for trial, estimator, rms in broad_rows(calibrated=True):
-        lines.append(f"{trial:<42}{estimator:<34}{rms:>8.3f}")
-    settings = SimulatorSettings()
-    lines.append(
-        f"moving simulator, {settings.seconds:g} s at {settings.rate_hz:g} Hz, against the true magnetic "
-        f"heading (no offset removed), after {settings.settle_s:g} s, |pitch| < 60 deg"
-    )
-    for trial, estimator, rms in simulator_rows(settings):
-        lines.append(f"{trial:<42}{estimator:<34}{rms:>8.3f}")
-    from services.bench.motion_sigma import sigma_lines  # it imports this module
-
-    lines.extend(sigma_lines(settings))
-    lines.append(f"benchmark time {time.perf_counter() - started:.1f} s")
-    return "\n".join(lines)
 
 
 def aided_across_seeds(
