@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 import vqf
+from test_kernels import _matrix, _product  # the plain maths the kernels are checked against
 
 from magnet import _kernels
 from magnet.attitude import aided_fusion, fusion
@@ -26,32 +27,6 @@ from magnet.frames import to_magnetic_ned
 from magnet.simulator import SimulatorConfig, Trajectory, simulate
 from magnet.simulator.gnss import GnssSettings
 from magnet.units import STANDARD_GRAVITY_MS2
-
-
-def _product(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
-
-
-def _matrices(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=1,
-    )
 
 
 def _vehicle_tau(residual: float, bias_sigma: float) -> float:
@@ -154,7 +129,7 @@ class _PlainAided:
         fed, self.pending = table[:count], table[count:].copy()
         a_ned = self._acceleration(fed[:, 0])
         a_enu = np.column_stack([a_ned[:, 1], a_ned[:, 0], -a_ned[:, 2]])
-        acc = fed[:, 4:7] - np.einsum("nji,nj->ni", _matrices(fed[:, 10:14]), a_enu)
+        acc = fed[:, 4:7] - np.einsum("nji,nj->ni", _matrix(fed[:, 10:14]), a_enu)
         gyr, field = np.ascontiguousarray(fed[:, 1:4]), np.ascontiguousarray(fed[:, 7:10])
         standing = self._standing(float(fed[0, 0]), float(fed[-1, 0]))
         self.filter.setRestBiasEstEnabled(standing is not False)
@@ -180,7 +155,7 @@ class _PlainAided:
             self.filter.state = state
 
     def _heading_loop(self, t, acc, field, out) -> None:
-        rotations = _matrices(np.asarray(out["quat6D"]))
+        rotations = _matrix(np.asarray(out["quat6D"]))
         earth = np.einsum("nij,nj->ni", rotations, field)
         up = rotations[-1, 2, :]
         phi = np.arctan2(earth[:, 0], earth[:, 1])
