@@ -270,6 +270,14 @@ class MavlinkOptions:
         help="with --mavlink: a vehicle silent this long (s) makes its devices unhealthy",
         check=_in_range(0, 3600, " seconds"),
     )
+    forget_after_s: float = option(
+        60.0,
+        "--forget-after",
+        metavar="S",
+        help="with --mavlink: a device with no sample this long (s) is forgotten: its tokens go and its place "
+        "(--max-port-devices, --max-devices) is free for a new one (reads.forgotten)",
+        check=_in_range(0.1, 86_400, " seconds"),
+    )
 
     @staticmethod
     def names_mavlink(s: EdgeSettings) -> bool:
