@@ -33,7 +33,6 @@ past that they go out without an id (0) and the ids are asked again every ``ID_R
 from __future__ import annotations
 
 import collections
-import dataclasses
 import re
 from collections.abc import Mapping
 from typing import Any
@@ -41,8 +40,7 @@ from typing import Any
 import numpy as np
 
 from magnet.autopilot import hwid, mavlink
-from magnet.autopilot.gyro_check import GyroCheck
-from magnet.earth.location import Location
+from magnet.autopilot.mavlink_vehicle import Pending, Vehicle
 from magnet.wire.raw import RawBatch
 
 SENSOR = "mavlink"
@@ -71,48 +69,6 @@ MAX_PORT_DEVICES = 64
 #: (``--forget-after``): a flood of ids that fell silent no longer keeps a real vehicle that comes later out
 FORGET_NS = 60_000_000_000
 FORGET_CHECK_NS = 1_000_000_000
-
-
-@dataclasses.dataclass
-class Vehicle:
-    """What is known of one vehicle (by MAVLink system id): the clock's offset, the last message (wall ns), its
-    place, velocity, current and throttle with the wall ns each came, whether it is armed."""
-
-    offset_ns: int | None = None
-    last_boot_ns: int = 0
-    last_seen_ns: int = 0
-    location: Location | None = None
-    velocity: tuple[np.ndarray, int] | None = None
-    current: tuple[float, int] | None = None
-    throttle: tuple[float, int] | None = None
-    armed: bool = False
-    #: the autopilot: its component id and MAV_AUTOPILOT (from its HEARTBEAT), None until heard
-    compid: int | None = None
-    autopilot: int | None = None
-    #: compass instance -> the id of the sensor behind it (0: none in that slot), as read since the last boot
-    ids: dict[int, int] = dataclasses.field(default_factory=dict)
-    #: since when (wall ns) the ids are being read (samples wait), None when not; when they were last asked
-    asking_ns: int | None = None
-    asked_ns: int = 0
-    #: when to ask again after giving up (wall ns), None when not given up
-    retry_ns: int | None = None
-
-
-@dataclasses.dataclass
-class Pending:
-    """A device's samples not yet sent: times (ns) and rows of (mag (3), acc (3), gyr (3), vel (3), current,
-    throttle, hardware id (NaN while it is being read)); ``instance`` its compass instance."""
-
-    sysid: int
-    instance: int = 0
-    times: list[int] = dataclasses.field(default_factory=list)
-    rows: list[np.ndarray] = dataclasses.field(default_factory=list)
-    first_ns: int = 0
-    seq: int = 0
-    last_t_ns: int = -1
-    #: wall ns of its last sample (its silence frees its place: ``MavlinkStream.forget``)
-    last_ns: int = 0
-    gyro: GyroCheck = dataclasses.field(default_factory=GyroCheck)
 
 
 class MavlinkStream:
