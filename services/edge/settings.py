@@ -268,7 +268,7 @@ class MavlinkOptions:
         "silent this long (s) makes its devices unhealthy")  # fmt: skip
     forget_after_s: float = option(
         60.0, "--forget-after", metavar="S", check=_in_range(0.1, 86_400, " seconds"), help="with --mavlink: a device "
-        "silent this long (s) is forgotten: its tokens go, its place is free for another (reads.forgotten)")  # fmt: skip
+        "silent this long (s) is forgotten: its tokens go, its place freed (reads.forgotten)")  # fmt: skip
 
     @staticmethod
     def names_mavlink(s: EdgeSettings) -> bool:
