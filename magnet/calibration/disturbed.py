@@ -15,12 +15,21 @@ with the magnetometer) drop nothing. Pure numpy.
 
 from __future__ import annotations
 
+import dataclasses
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+from magnet.calibration.base import FitError
 from magnet.calibration.fit_input import FitInput
 from magnet.earth.geomag import earth_field
 from magnet.model import Calibration
 from magnet.quality.disturbance import disturbed_samples
+
+if TYPE_CHECKING:
+    from magnet.calibration.field import FieldInput
+    from magnet.calibration.rungs import Evidence
+    from magnet.quality.motion import MotionEvidence
 
 #: a correction that finds more than this share of the samples disturbed is not trusted to judge them
 MAX_SHARE = 0.5
@@ -102,3 +111,30 @@ def refined(data: FitInput, first: Calibration) -> FitInput | None:
     if (again & ~before).sum() < REFIT_SHARE * len(again):
         return None
     return data.replace(disturbed=again)
+
+
+def kept_rows(flags: np.ndarray | None) -> np.ndarray | None:
+    """(N,) bool: the rows not flagged (N,), None when none is."""
+    return None if flags is None or not np.any(flags) else ~np.asarray(flags, dtype=bool)
+
+
+def undisturbed(
+    inp: FieldInput, ev: Evidence, ev_motion: MotionEvidence | None, keep: np.ndarray, fewest: int
+) -> tuple[FieldInput, Evidence, MotionEvidence | None]:
+    """A field fit's input, evidence and motion evidence on the kept rows (N,) bool only (the gyroscope's windows
+    whose two ends are kept stay, their turns measured over every sample between); FitError when fewer than
+    ``fewest`` are left."""
+    if keep.sum() < fewest:
+        raise FitError(
+            f"only {int(keep.sum())} samples outside disturbed fields: a field fit needs {fewest}; "
+            "keep away from iron (doors, cars, magnets) while moving"
+        )
+    smaller, _ = ev.only(keep)
+
+    def rows(value: np.ndarray | None) -> np.ndarray | None:
+        return None if value is None else np.asarray(value)[keep]
+
+    kept = dataclasses.replace(
+        inp, mag=inp.mag[keep], acc=rows(inp.acc), gyr=rows(inp.gyr), vel_ned_ms=rows(inp.vel_ned_ms), disturbed=None
+    )
+    return kept, smaller, None if ev_motion is None else ev_motion.rows(keep)

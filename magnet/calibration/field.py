@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.calibration import candidates, course
+from magnet.calibration import candidates, course, disturbed
 from magnet.calibration.base import FitError
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung
@@ -186,25 +186,10 @@ def fit_field(
     aided = _aided_evidence(inp)
     if aided is not None:  # the tilt a vehicle's accelerations do not bend, for the fit and its judgement
         ev_motion = aided
-    whole_input = inp
-    keep = None if inp.disturbed is None or not np.any(inp.disturbed) else ~np.asarray(inp.disturbed, dtype=bool)
+    whole_input, keep = inp, disturbed.kept_rows(inp.disturbed)
     ev, source = _evidence(inp, ev_motion, keep)
     if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
-        if keep.sum() < MIN_FIELD_SAMPLES:
-            raise FitError(
-                f"only {int(keep.sum())} samples outside disturbed fields: a field fit needs {MIN_FIELD_SAMPLES}; "
-                "keep away from iron (doors, cars, magnets) while moving"
-            )
-        ev, _ = ev.only(keep)
-        ev_motion = None if ev_motion is None else ev_motion.rows(keep)
-        inp = dataclasses.replace(
-            inp,
-            mag=inp.mag[keep],
-            acc=None if inp.acc is None else np.asarray(inp.acc)[keep],
-            gyr=None if inp.gyr is None else np.asarray(inp.gyr)[keep],
-            vel_ned_ms=None if inp.vel_ned_ms is None else np.asarray(inp.vel_ned_ms)[keep],
-            disturbed=None,
-        )
+        inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     test = _holdout_mask(len(inp.mag))
     planar = is_planar(ev.down)
 

@@ -212,11 +212,9 @@ def fit(data: FitInput, method: Method | str) -> Calibration:
     acc_arr = None if data.acc is None else np.asarray(data.acc, dtype=float)
     gyr, period_s, unit, field_ut = data.gyr_rads, data.period_s, data.unit, data.field_ut
     keep = disturbed.kept(data)
-    test = _holdout_mask(len(mag))
-    train = ~test if keep is None else ~test & keep
-    holdout = _holdout(data.replace(mag=mag, acc=acc_arr), method, shape, test if keep is None else test & keep, train)
+    holdout, test = _held_out_rows(data.replace(mag=mag, acc=acc_arr), method, shape, keep)
     if keep is not None:  # the figures and the judgement on the undisturbed samples alone
-        mag, test = take_rows(mag, keep), test[keep]
+        mag = take_rows(mag, keep)
     to_ut = ut_per_unit(unit)
     geometry = spec.geometry
     corrected = calibration.apply(mag)  # for the figures of assess and of motion
@@ -270,6 +268,17 @@ def _gate(quality: Quality, thresholds: GateThresholds | None, method: Method) -
     if method is Method.GYRO_ELLIPSOID:
         chosen = dataclasses.replace(chosen, min_coverage=0.0)
     return gate(quality, chosen)
+
+
+def _held_out_rows(
+    data: FitInput, method: Method, whole: Shape, keep: np.ndarray | None
+) -> tuple[tuple[np.ndarray, Calibration] | None, np.ndarray]:
+    """(``_holdout``'s result, the held-out rows among the kept ones): every HOLDOUT_EVERY-th block held out, the
+    disturbed samples (``keep`` False) in neither set."""
+    test = _holdout_mask(len(data.mag))
+    if keep is None:
+        return _holdout(data, method, whole, test), test
+    return _holdout(data, method, whole, test & keep, ~test & keep), test[keep]
 
 
 def _holdout_mask(count: int) -> np.ndarray:

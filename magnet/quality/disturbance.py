@@ -149,6 +149,51 @@ def _step_flags(changes: Sequence[tuple[np.ndarray, int, float | np.ndarray]], n
     return flags
 
 
+def _off_expected(
+    norm: np.ndarray, dip: np.ndarray, reference_ut: float, reference_dip: float, settings: DisturbanceSettings
+) -> tuple[np.ndarray, np.ndarray]:
+    """(|B| off (N,), dip off (N,)): beyond the tolerances, and with ``relative`` beyond that many times the 75th
+    percentile of the deviations too (what the correction usually leaves)."""
+    deviation_ut = np.abs(norm - reference_ut)
+    dip_deviation = np.abs(dip - reference_dip)
+    field_tol, dip_tol = reference_ut * settings.field_tol_pct / 100.0, settings.dip_tol_deg
+    if settings.relative is not None and len(norm):
+        field_tol = max(field_tol, settings.relative * float(np.quantile(deviation_ut, 0.75)))
+        if np.isfinite(dip_deviation).any():
+            dip_tol = max(dip_tol, settings.relative * float(np.nanquantile(dip_deviation, 0.75)))
+    with np.errstate(invalid="ignore"):
+        return deviation_ut > field_tol, dip_deviation > dip_tol
+
+
+def _rotation_steps(
+    field: np.ndarray,
+    norm: np.ndarray,
+    gyr_rads: np.ndarray | None,
+    quat: np.ndarray | None,
+    step_s: float,
+    settings: DisturbanceSettings,
+) -> np.ndarray:
+    """(N,) bool: the steps check (module docstring) of the field (N, 3) with |B| norm (N,), in the gyroscope's
+    integrated frame (quat (N, 4)) or, without one, of |B|."""
+    n = len(field)
+    smooth = max(1, round(settings.smooth_s / step_s))
+    world = _moving_mean(to_frame(quat, field) if quat is not None else norm[:, None], smooth)
+    path = _path_rad(np.asarray(gyr_rads, dtype=float), step_s) if gyr_rads is not None else None
+    changes = []
+    for window_s, floor in settings.steps:
+        width = max(1, round(window_s / step_s))
+        if width < n:
+            change = world[width:] - world[:-width]
+            size = row_norm(change) if quat is not None else np.abs(change[:, 0])
+            threshold: float | np.ndarray = floor
+            if settings.relative is not None and path is not None:
+                turned = _turned(path, width, smooth) + settings.turn_floor_rad
+                level = float(np.quantile(size / turned, 0.9))
+                threshold = np.maximum(floor, settings.relative * level * turned)
+            changes.append((size, width, threshold))
+    return _step_flags(changes, n)
+
+
 def field_disturbance(
     field_ut: np.ndarray,
     *,
@@ -186,34 +231,10 @@ def field_disturbance(
     reference_dip = (
         float(np.median(finite_dip)) if expected_dip_deg is None and finite_dip.size else float(expected_dip_deg or 0)
     )
-    deviation_ut = np.abs(norm - reference_ut)
-    dip_deviation = np.abs(dip - reference_dip)
-    field_tol, dip_tol = reference_ut * settings.field_tol_pct / 100.0, settings.dip_tol_deg
-    if settings.relative is not None and n:  # beyond what the correction usually leaves, too
-        field_tol = max(field_tol, settings.relative * float(np.quantile(deviation_ut, 0.75)))
-        if finite_dip.size:
-            dip_tol = max(dip_tol, settings.relative * float(np.nanquantile(dip_deviation, 0.75)))
-    magnitude = deviation_ut > field_tol
-    with np.errstate(invalid="ignore"):
-        dip_off = dip_deviation > dip_tol
+    magnitude, dip_off = _off_expected(norm, dip, reference_ut, reference_dip, settings)
     if expected_dip_deg is None and not finite_dip.size:
         dip_off = np.zeros(n, dtype=bool)
-    smooth = max(1, round(settings.smooth_s / step_s))
-    world = _moving_mean(to_frame(quat, field) if quat is not None else norm[:, None], smooth)
-    path = _path_rad(np.asarray(gyr_rads, dtype=float), step_s) if gyro else None
-    changes = []
-    for window_s, floor in settings.steps:
-        width = max(1, round(window_s / step_s))
-        if width < n:
-            change = world[width:] - world[:-width]
-            size = row_norm(change) if quat is not None else np.abs(change[:, 0])
-            threshold: float | np.ndarray = floor
-            if settings.relative is not None and path is not None:
-                turned = _turned(path, width, smooth) + settings.turn_floor_rad
-                level = float(np.quantile(size / turned, 0.9))
-                threshold = np.maximum(floor, settings.relative * level * turned)
-            changes.append((size, width, threshold))
-    step = _step_flags(changes, n)
+    step = _rotation_steps(field, norm, gyr_rads, quat, step_s, settings)
     hold = round(settings.hold_s / step_s)
     disturbed = _widen(magnitude | dip_off | step, hold, hold)
     return FieldDisturbance(norm, dip, magnitude, dip_off, step, disturbed, reference_ut, reference_dip)
