@@ -104,9 +104,7 @@ def window_problem(window: Any) -> str | None:
 @dataclasses.dataclass(frozen=True)
 class CoreSettings:
     """What the core runs with: the smoothing window (headings, >= 1), the per-device state bound, the shard it
-    serves, the drift thresholds (None: no drift alerts), and whether each sample's heading and tilt sigmas are worked
-    out (``magnet.attitude.uncertainty``; off: ``HeadingColumns`` carries None, as ``magnet heading``, which does
-    not print them, runs it: a sixth of its step)."""
+    serves, the drift thresholds (None: no drift alerts), whether the sigmas are worked out (off: None)."""
 
     window: int = 1
     max_devices: int = DEFAULT_MAX_DEVICES
@@ -287,8 +285,7 @@ class CompassCore:
             [c.id if c else "" for c in cals],
             [e.declination_deg for e in earths],
             None if quat is None else rotate_heading(quat, where.declination_deg),
-            None if sigma is None else sigma.heading_deg,
-            None if sigma is None else sigma.tilt_deg,
+            *(sigma or (None, None)),
         )
 
     def _sigma(
