@@ -477,7 +477,7 @@ static double percentile(double *v, Py_ssize_t n, double percent) {
 }
 
 /* The indices of the watch's state vector (magnet.attitude.field_watch.FieldWatch). */
-enum { W_QUAT = 0, W_TURNED = 4, W_SAMPLES, W_REFERENCE, W_HOLD_LEFT, W_RUN, W_PENDING, W_CALM, W_SIZE };
+enum { W_QUAT = 0, W_TURNED = 4, W_SAMPLES, W_REFERENCE, W_HOLD_LEFT, W_RUN, W_PENDING, W_CALM, W_SUM, W_SIZE = W_SUM + 3 };
 #define MAX_STEPS 8
 
 /* At a block's end (FieldWatch._learn): the reference |B| towards the block's calm samples' mean (their median
@@ -528,10 +528,10 @@ PyDoc_STRVAR(watch_update_doc,
              "watch_update(field, gyr, flagged, state, levels, ring, pending, calm, widths, floors, period_s, smooth, "
              "hold, block, relative, field_tol_pct, learn_s, level_tau_s, max_reject_s, turn_floor_rad)\n\n"
              "FieldWatch.update's per-sample loop (magnet.attitude.field_watch), in place: flagged (n,) bool, the "
-             "samples of field (n, 3) and gyr (n, 3) rad/s that are disturbed. State: ``state`` (11,) the integrated "
+             "samples of field (n, 3) and gyr (n, 3) rad/s that are disturbed. State: ``state`` (14,) the integrated "
              "attitude wxyz, the radians turned, the samples seen, the reference |B|, the hold left, the flagged run, "
-             "the block's pending and calm counts; ``levels`` (S + 1,) the usual levels; ``ring`` (K, 7) the last K = "
-             "max(widths) + smooth samples' field in the integrated frame, its mean over ``smooth`` samples and the "
+             "the block's pending and calm counts, the running sum (3,) of the last ``smooth`` samples' field in the "
+             "integrated frame; ``levels`` (S + 1,) the usual levels; ``ring`` (K, 7) the last K = max(widths) + smooth samples' field in the integrated frame, its mean over ``smooth`` samples and the "
              "radians turned (row = sample index mod K); ``pending`` (block, S + 1) the block's statistics per radian, "
              "``calm`` (block,) its calm samples' |B|. widths (S,) and floors (S,): the step windows in samples and "
              "their floors.");
@@ -596,10 +596,18 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
                                 AT(a[1], i, 2) * AT(a[1], i, 2)) * period;
         for (int k = 0; k < 3; k++) AT(a[6], row, k) = world[k];
         AT(a[6], row, 6) = state[W_TURNED];
-        Py_ssize_t count = g + 1 < smooth ? g + 1 : smooth; /* the mean of the last ``smooth`` (fewer at first) */
-        double sum[3] = {0.0, 0.0, 0.0};
-        for (Py_ssize_t m = 0, at = row; m < count; m++, at = at ? at - 1 : keep - 1) {
-            for (int k = 0; k < 3; k++) sum[k] += AT(a[6], at, k);
+        /* the mean of the last ``smooth`` (fewer at first): a running sum (the newest in, the one ``smooth``
+         * before out), summed afresh once every ``keep`` samples so that its rounding cannot build up */
+        Py_ssize_t count = g + 1 < smooth ? g + 1 : smooth;
+        double *sum = &state[W_SUM];
+        if (row == 0) {
+            for (int k = 0; k < 3; k++) sum[k] = 0.0;
+            for (Py_ssize_t m = 0, at = row; m < count; m++, at = at ? at - 1 : keep - 1) {
+                for (int k = 0; k < 3; k++) sum[k] += AT(a[6], at, k);
+            }
+        } else {
+            Py_ssize_t out_row = (g - smooth) % keep; /* meaningful only when g >= smooth */
+            for (int k = 0; k < 3; k++) sum[k] += world[k] - (g >= smooth ? AT(a[6], out_row, k) : 0.0);
         }
         for (int k = 0; k < 3; k++) AT(a[6], row, 3 + k) = sum[k] / (double)count;
         /* the statistics against their limits (references as at the block's start) */

@@ -313,9 +313,13 @@ def _walk_through_disturbances(n: int, period_s: float) -> tuple[np.ndarray, np.
     return field, gyr
 
 
-@pytest.mark.parametrize("period_s, batch", [(0.01, 1), (0.01, 37), (0.02, 100), (0.01, 4000)])
-def test_watch_update_is_the_plain_watch_whatever_the_batches(period_s, batch):
-    field, gyr = _walk_through_disturbances(4000, period_s)
+@pytest.mark.parametrize(
+    "period_s, batch, n",
+    # 500 Hz: a mean over 50 samples (a running sum in the kernel, summed afresh every ring's length)
+    [(0.01, 1, 4000), (0.01, 37, 4000), (0.02, 100, 4000), (0.01, 4000, 4000), (0.002, 500, 8000)],
+)
+def test_watch_update_is_the_plain_watch_whatever_the_batches(period_s, batch, n):
+    field, gyr = _walk_through_disturbances(n, period_s)
     compiled, plain = FieldWatch(period_s), _PlainWatch(period_s)
     got, want = [], []
     for start in range(0, len(field), batch):
