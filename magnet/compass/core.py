@@ -306,7 +306,17 @@ class CompassCore:
         ]
         residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
         return self.uncertainty.step(
-            raw.devices, bounds, raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut, residuals, figures
+            raw.devices,
+            bounds,
+            raw.t_ns,
+            raw.acc_ms2,
+            out.field_ut,
+            out.flags,
+            quat,
+            expected_ut,
+            residuals,
+            figures,
+            fused.rotation,
         )
 
     def _fuse(self, raw: wire.RawColumns, field: np.ndarray, declination_deg: np.ndarray) -> FusedColumns:
