@@ -127,8 +127,12 @@ class FieldWatch:
 
     BLOCK_S = 0.5
     #: ``state``'s entries (as magnet/_kernels.c names them): attitude wxyz, radians turned, samples seen, reference
-    #: |B| (uT), hold left, flagged run, the block's pending and calm counts.
-    STATE = ("qw", "qx", "qy", "qz", "turned", "samples", "reference_ut", "hold_left", "flagged_run", "pending", "calm")
+    #: |B| (uT), hold left, flagged run, the block's pending and calm counts, the running sum of the last ``smooth``
+    #: samples' field in the integrated frame (x, y, z; summed afresh every ring's length, so its rounding stays small).
+    STATE = (
+        "qw", "qx", "qy", "qz", "turned", "samples", "reference_ut", "hold_left", "flagged_run", "pending", "calm",
+        "sum_x", "sum_y", "sum_z",
+    )  # fmt: skip
 
     def __init__(self, period_s: float, settings: WatchSettings = WatchSettings()) -> None:
         self.period_s, self.settings = float(period_s), settings

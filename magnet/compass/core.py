@@ -305,9 +305,8 @@ class CompassCore:
             for s, lo, hi in zip(states, bounds[:-1], bounds[1:])
         ]
         residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
-        return self.uncertainty.step(
-            raw.devices, bounds, raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut, residuals, figures
-        )
+        samples = (raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut)
+        return self.uncertainty.step(raw.devices, bounds, *samples, residuals, figures, fused.rotation)
 
     def _fuse(self, raw: wire.RawColumns, field: np.ndarray, declination_deg: np.ndarray) -> FusedColumns:
         """The per-device filters run on the batches that carry a gyroscope (``magnet.compass.filters``), aided by
