@@ -477,7 +477,7 @@ static double percentile(double *v, Py_ssize_t n, double percent) {
 }
 
 /* The indices of the watch's state vector (magnet.attitude.field_watch.FieldWatch). */
-enum { W_QUAT = 0, W_TURNED = 4, W_SAMPLES, W_REFERENCE, W_HOLD_LEFT, W_RUN, W_PENDING, W_CALM, W_SIZE };
+enum { W_QUAT = 0, W_TURNED = 4, W_SAMPLES, W_REFERENCE, W_HOLD_LEFT, W_RUN, W_PENDING, W_CALM, W_SUM, W_SIZE = W_SUM + 3 };
 #define MAX_STEPS 8
 
 /* At a block's end (FieldWatch._learn): the reference |B| towards the block's calm samples' mean (their median
@@ -528,10 +528,10 @@ PyDoc_STRVAR(watch_update_doc,
              "watch_update(field, gyr, flagged, state, levels, ring, pending, calm, widths, floors, period_s, smooth, "
              "hold, block, relative, field_tol_pct, learn_s, level_tau_s, max_reject_s, turn_floor_rad)\n\n"
              "FieldWatch.update's per-sample loop (magnet.attitude.field_watch), in place: flagged (n,) bool, the "
-             "samples of field (n, 3) and gyr (n, 3) rad/s that are disturbed. State: ``state`` (11,) the integrated "
+             "samples of field (n, 3) and gyr (n, 3) rad/s that are disturbed. State: ``state`` (14,) the integrated "
              "attitude wxyz, the radians turned, the samples seen, the reference |B|, the hold left, the flagged run, "
-             "the block's pending and calm counts; ``levels`` (S + 1,) the usual levels; ``ring`` (K, 7) the last K = "
-             "max(widths) + smooth samples' field in the integrated frame, its mean over ``smooth`` samples and the "
+             "the block's pending and calm counts, the running sum (3,) of the last ``smooth`` samples' field in the "
+             "integrated frame; ``levels`` (S + 1,) the usual levels; ``ring`` (K, 7) the last K = max(widths) + smooth samples' field in the integrated frame, its mean over ``smooth`` samples and the "
              "radians turned (row = sample index mod K); ``pending`` (block, S + 1) the block's statistics per radian, "
              "``calm`` (block,) its calm samples' |B|. widths (S,) and floors (S,): the step windows in samples and "
              "their floors.");
@@ -596,10 +596,18 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
                                 AT(a[1], i, 2) * AT(a[1], i, 2)) * period;
         for (int k = 0; k < 3; k++) AT(a[6], row, k) = world[k];
         AT(a[6], row, 6) = state[W_TURNED];
-        Py_ssize_t count = g + 1 < smooth ? g + 1 : smooth; /* the mean of the last ``smooth`` (fewer at first) */
-        double sum[3] = {0.0, 0.0, 0.0};
-        for (Py_ssize_t m = 0, at = row; m < count; m++, at = at ? at - 1 : keep - 1) {
-            for (int k = 0; k < 3; k++) sum[k] += AT(a[6], at, k);
+        /* the mean of the last ``smooth`` (fewer at first): a running sum (the newest in, the one ``smooth``
+         * before out), summed afresh once every ``keep`` samples so that its rounding cannot build up */
+        Py_ssize_t count = g + 1 < smooth ? g + 1 : smooth;
+        double *sum = &state[W_SUM];
+        if (row == 0) {
+            for (int k = 0; k < 3; k++) sum[k] = 0.0;
+            for (Py_ssize_t m = 0, at = row; m < count; m++, at = at ? at - 1 : keep - 1) {
+                for (int k = 0; k < 3; k++) sum[k] += AT(a[6], at, k);
+            }
+        } else {
+            Py_ssize_t out_row = (g - smooth) % keep; /* meaningful only when g >= smooth */
+            for (int k = 0; k < 3; k++) sum[k] += world[k] - (g >= smooth ? AT(a[6], out_row, k) : 0.0);
         }
         for (int k = 0; k < 3; k++) AT(a[6], row, 3 + k) = sum[k] / (double)count;
         /* the statistics against their limits (references as at the block's start) */
@@ -647,6 +655,76 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* numpy's mod (the sign of the divisor; a zero result is +0): np.mod(a, 360.0) as numpy computes it. */
+static double mod_360(double a) {
+    double m = fmod(a, 360.0);
+    if (m != 0.0) {
+        if (m < 0.0) m += 360.0;
+    } else {
+        m = copysign(0.0, 360.0);
+    }
+    return m;
+}
+
+PyDoc_STRVAR(vqf_attitudes_doc,
+             "vqf_attitudes(raw, fused, quat, rotation, down, heading, pitch, roll)\n\n"
+             "vqf's quaternions raw (S, 4) (body FLU -> ENU, NaN rows where nothing was fused) as the compass uses "
+             "them, in one pass (magnet.compass.filters.FusedColumns.from_vqf): fused (S,) bool, the rows that are "
+             "finite; quat (S, 4) body FRD -> NED (frames.ned_enu_attitude: w >= 0); rotation (S, 9) its matrix "
+             "(frames.quaternion_to_matrix, row-major; the identity where not fused); down (S, 3) NED down in body "
+             "axes (the matrix's last row); heading [0, 360), pitch, roll (S,) deg (frames.matrix_to_euler). Rows "
+             "not fused: NaN everywhere but the identity rotation.");
+
+static PyObject *vqf_attitudes(PyObject *self, PyObject *args) {
+    PyObject *o_raw, *o_fused, *o_quat, *o_rotation, *o_down, *o_heading, *o_pitch, *o_roll;
+    if (!PyArg_ParseTuple(args, "OOOOOOOO", &o_raw, &o_fused, &o_quat, &o_rotation, &o_down, &o_heading, &o_pitch,
+                          &o_roll)) {
+        return NULL;
+    }
+    Array a[7];
+    Py_buffer fused;
+    if (get_array(o_raw, &a[0], 2, -1, 4, 0, "raw") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_quat, &a[1], 2, n, 4, 1, "quat") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_rotation, &a[2], 2, n, 9, 1, "rotation") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_down, &a[3], 2, n, 3, 1, "down") < 0) { release(a, 3); return NULL; }
+    if (get_array(o_heading, &a[4], 1, n, -1, 1, "heading") < 0) { release(a, 4); return NULL; }
+    if (get_array(o_pitch, &a[5], 1, n, -1, 1, "pitch") < 0) { release(a, 5); return NULL; }
+    if (get_array(o_roll, &a[6], 1, n, -1, 1, "roll") < 0) { release(a, 6); return NULL; }
+    if (get_flags(o_fused, &fused, n, "fused") < 0) { release(a, 7); return NULL; }
+    const double h = sqrt(0.5), deg = 180.0 / M_PI;
+    char *out = (char *)fused.buf;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double r[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)};
+        int ok = isfinite(r[0]) && isfinite(r[1]) && isfinite(r[2]) && isfinite(r[3]);
+        out[i * fused.strides[0]] = (char)ok;
+        if (!ok) {
+            for (int k = 0; k < 4; k++) AT(a[1], i, k) = NAN;
+            for (int k = 0; k < 9; k++) AT(a[2], i, k) = k % 4 == 0 ? 1.0 : 0.0;
+            for (int k = 0; k < 3; k++) AT(a[3], i, k) = NAN;
+            AT1(a[4], i) = NAN, AT1(a[5], i) = NAN, AT1(a[6], i) = NAN;
+            continue;
+        }
+        /* q_NED_ENU q q_FRD_FLU (frames._NED_ENU_ATTITUDE), then w >= 0 */
+        double q[4] = {-h * r[0] - h * r[3], -h * r[1] - h * r[2], -h * r[1] + h * r[2], -h * r[0] + h * r[3]};
+        if (q[0] < 0) {
+            for (int k = 0; k < 4; k++) q[k] = -q[k];
+        }
+        double m[9];
+        quat_matrix(q, m);
+        for (int k = 0; k < 4; k++) AT(a[1], i, k) = q[k];
+        for (int k = 0; k < 9; k++) AT(a[2], i, k) = m[k];
+        for (int k = 0; k < 3; k++) AT(a[3], i, k) = m[6 + k];
+        double sine = -m[6] < -1.0 ? -1.0 : (-m[6] > 1.0 ? 1.0 : -m[6]);
+        AT1(a[4], i) = mod_360(atan2(m[3], m[0]) * deg);
+        AT1(a[5], i) = asin(sine) * deg;
+        AT1(a[6], i) = atan2(m[7], m[8]) * deg;
+    }
+    PyBuffer_Release(&fused);
+    release(a, 7);
+    Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
@@ -665,13 +743,31 @@ static int room(char **buf, Py_ssize_t *size, Py_ssize_t pos, Py_ssize_t more) {
     return 0;
 }
 
-/* The digits of ``v`` (v >= 0) at ``out``, at least ``width`` of them (zeros in front); returns how many. */
+/* "00" .. "99": two digits a division (the digits' loop was half of ``format_rows``) */
+static const char digit_pairs[] =
+    "00010203040506070809101112131415161718192021222324252627282930313233343536373839404142434445464748495051525354"
+    "555657585960616263646566676869707172737475767778798081828384858687888990919293949596979899";
+
+/* The digits of ``v`` (v >= 0) at ``out``, at least ``width`` of them (zeros in front; width <= 20); returns how
+ * many. */
 static int digits(unsigned long long v, int width, char *out) {
     char tmp[24];
-    int n = 0;
-    do { tmp[n++] = (char)('0' + v % 10); v /= 10; } while (v);
-    while (n < width) tmp[n++] = '0';
-    for (int i = 0; i < n; i++) out[i] = tmp[n - 1 - i];
+    char *p = tmp + sizeof tmp;
+    while (v >= 100) {
+        unsigned q = (unsigned)(v % 100);
+        v /= 100;
+        p -= 2;
+        memcpy(p, digit_pairs + 2 * q, 2);
+    }
+    if (v >= 10) {
+        p -= 2;
+        memcpy(p, digit_pairs + 2 * v, 2);
+    } else {
+        *--p = (char)('0' + v);
+    }
+    int n = (int)(tmp + sizeof tmp - p);
+    while (n < width) { *--p = '0'; n++; }
+    memcpy(out, p, (size_t)n);
     return n;
 }
 
@@ -1589,6 +1685,7 @@ static PyMethodDef methods[] = {
     {"drift_step", drift_step, METH_VARARGS, drift_step_doc},
     {"advance_field", advance_field, METH_VARARGS, advance_field_doc},
     {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
+    {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
     {"vqf_probe", vqf_probe, METH_VARARGS, vqf_probe_doc},

@@ -49,6 +49,16 @@ def watch_update(
     max_reject_s: float,
     turn_floor_rad: float,
 ) -> None: ...
+def vqf_attitudes(
+    raw: np.ndarray,
+    fused: np.ndarray,
+    quat: np.ndarray,
+    rotation: np.ndarray,
+    down: np.ndarray,
+    heading: np.ndarray,
+    pitch: np.ndarray,
+    roll: np.ndarray,
+) -> None: ...
 def format_rows(matrix: np.ndarray, decimals: bytes) -> bytes: ...
 def vqf_bind(path: str) -> None: ...
 def vqf_probe(filter: object) -> dict[str, Any]: ...

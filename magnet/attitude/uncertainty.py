@@ -210,16 +210,20 @@ class HeadingUncertainty:
         expected_ut: np.ndarray,
         residuals_ut: Sequence[float | None],
         figures: Sequence[FilterFigures | None],
+        rotation: np.ndarray | None = None,
     ) -> Sigmas:
         """The sigmas (``Sigmas``, (S,) deg each) of S samples. t_ns (S,) int; acc_ms2 and field_ut (S, 3) (the
         corrected field; NaN acc rows: no accelerometer); flags (S,) ``HeadingFlag`` bits (FUSED, FIELD_DISTURBED,
         ...); quat_wxyz (S, 4) body -> magnetic NED where fused (NaN rows elsewhere), None when nothing is fused;
         expected_ut (S,) the field expected at the place (NaN: unknown); per batch the calibration's residual RMS
-        (uT, None: not calibrated) and the filter's figures (None: not fused)."""
+        (uT, None: not calibrated) and the filter's figures (None: not fused). ``rotation`` (S, 3, 3): the matrices
+        of ``quat_wxyz`` where fused and the identity elsewhere, when the caller has them already (the compass:
+        ``FusedColumns.rotation``); None: made here."""
         flags = np.asarray(flags, dtype=np.int64)
         fused = (flags & int(hd.HeadingFlag.FUSED)) != 0
-        rotation = None
-        if quat_wxyz is not None and fused.any():
+        if quat_wxyz is None or not fused.any():
+            rotation = None
+        elif rotation is None:
             rotation = quaternion_to_matrix(
                 np.where(fused[:, None] & hd.rows_finite(quat_wxyz)[:, None], quat_wxyz, _ONE)
             )
