@@ -85,6 +85,8 @@ class FusedColumns:
 
     def gravity(self, acc_ms2: np.ndarray) -> np.ndarray:
         """Specific force (S, 3) as a still device would read it: -down (unit) where fused, else ``acc_ms2``."""
+        if not self.fused.any():
+            return acc_ms2
         return np.where(self.fused[:, None], -self.down, acc_ms2)
 
     @classmethod
