@@ -851,6 +851,34 @@ static PyObject *sigma_degrees(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(turn_about_down_doc,
+             "turn_about_down(quat, angle_deg, out)\n\n"
+             "out (S, 4): the attitudes quat (S, 4) wxyz body -> NED turned by angle_deg (S,) about NED down "
+             "(frames.rotate_heading: the product (cos h, 0, 0, sin h) q, h half the angle, then w >= 0); NaN rows "
+             "stay NaN.");
+
+static PyObject *turn_about_down(PyObject *self, PyObject *args) {
+    PyObject *o_quat, *o_angle, *o_out;
+    if (!PyArg_ParseTuple(args, "OOO", &o_quat, &o_angle, &o_out)) {
+        return NULL;
+    }
+    Array a[3];
+    if (get_array(o_quat, &a[0], 2, -1, 4, 0, "quat") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_angle, &a[1], 1, n, -1, 0, "angle_deg") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_out, &a[2], 2, n, 4, 1, "out") < 0) { release(a, 2); return NULL; }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double half = AT1(a[1], i) * (M_PI / 180.0) / 2.0;
+        double p[4] = {cos(half), 0.0, 0.0, sin(half)};
+        double q[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)}, r[4];
+        quat_mul(p, q, r);
+        double sign = r[0] < 0 ? -1.0 : 1.0;
+        for (int k = 0; k < 4; k++) AT(a[2], i, k) = r[k] * sign;
+    }
+    release(a, 3);
+    Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
@@ -1796,6 +1824,7 @@ static PyMethodDef methods[] = {
     {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
+    {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
     {"vqf_probe", vqf_probe, METH_VARARGS, vqf_probe_doc},
