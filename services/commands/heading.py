@@ -291,10 +291,12 @@ def _compare(args: argparse.Namespace, table: SampleTable, true_deg: np.ndarray,
 def _attitude_wxyz(out: HeadingColumns) -> np.ndarray:
     """(N, 4) body -> NED (true north): the filter's where it fused, else the one of the heading, pitch and roll."""
     h = out.headings
+    fused = out.quat_wxyz
+    finite = None if fused is None else hd.rows_finite(fused)
+    if fused is not None and finite is not None and finite.all():  # fused on every row: no angles' quaternion used
+        return fused
     quat = frames.w_positive(frames.euler_to_quaternion(out.true_heading_deg, h.pitch_deg, h.roll_deg))
-    if out.quat_wxyz is None:
-        return quat
-    return np.where(hd.rows_finite(out.quat_wxyz)[:, None], out.quat_wxyz, quat)
+    return quat if fused is None or finite is None else np.where(finite[:, None], fused, quat)
 
 
 def run(args: argparse.Namespace) -> int:
