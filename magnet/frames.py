@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from magnet.compiled import kernels
+
 # ------------------------------------------------------------------------------------------ matrices, Euler angles
 
 
@@ -267,7 +269,12 @@ def rotate_heading(quat_wxyz: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarra
     """Quaternions (..., 4) turned by ``angle_deg`` about NED down (magnetic -> true north: the declination); w >= 0."""
     half = np.radians(np.asarray(angle_deg, dtype=float)) / 2
     turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)
-    return w_positive(quaternion_multiply(turn, quat_wxyz))
+    q = np.asarray(quat_wxyz, dtype=float)
+    if q.ndim == 2 and turn.shape in ((4,), q.shape):  # rows (N, 4): the compiled product, the same sums in order
+        out = np.empty(q.shape)
+        kernels.quaternion_product(turn.reshape(-1, 4), q, out)
+        return w_positive(out)
+    return w_positive(quaternion_multiply(turn, q))
 
 
 def to_magnetic_ned(vel_ned_ms: np.ndarray, declination_deg: float | np.ndarray) -> np.ndarray:

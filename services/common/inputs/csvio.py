@@ -207,7 +207,8 @@ def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0)
     """The table when every row below the header is as many finite numbers as the header names columns (``nan``
     allowed in ``vn,ve,vd``: no fix yet), no column is named twice and no sensor reading is beyond +-MAX_READING,
     read by numpy's C reader (``numpy.loadtxt``) from ``rows``: the lines below the header, or a file whose first
-    ``skip`` lines end with the header; else None, and the csv module reads the file and says what is wrong with
+    ``skip`` lines end with the header (decoded as UTF-8, checked before: a byte-order mark is in the header's line
+    or before it, skipped); else None, and the csv module reads the file and says what is wrong with
     it."""
     header = _cells(header_line, path, 1)
     if len(set(header)) < len(header) or (isinstance(rows, list) and not rows):
@@ -216,7 +217,7 @@ def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0)
         with warnings.catch_warnings():  # blank lines alone: "input contained no data", the csv module says so
             warnings.simplefilter("ignore", UserWarning)
             values = np.loadtxt(
-                rows, delimiter=",", quotechar='"', comments=None, ndmin=2, skiprows=skip, encoding="utf-8-sig"
+                rows, delimiter=",", quotechar='"', comments=None, ndmin=2, skiprows=skip, encoding="utf-8"
             )
     except ValueError:
         return None
