@@ -58,6 +58,9 @@ TAU_MAG_FACTOR = 2.0
 HUBER_K = 2.5
 #: the fit needs at least this many seconds of field samples
 MIN_SPAN_S = 20.0
+#: a longer log is cut into equal parts of at most this many seconds, each with its own bias: a gyroscope's bias
+#: moves with its temperature, and over a few minutes it holds
+SEGMENT_S = 300.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,21 +137,30 @@ def offline_correction(
     period_s: float,
     params: dict[str, Any],
     lengthen: bool = True,
-) -> tuple[np.ndarray, dict[str, Any], DriftBias | None]:
+) -> tuple[np.ndarray, dict[str, Any], list[DriftBias]]:
     """For a whole log (vqf's frames, (N, 3) each; zero field rows left out): (the gyroscope (N, 3) less the bias
-    about the vertical, vqf's parameters, with ``lengthen`` tauMag ``TAU_MAG_FACTOR`` times longer, the bias found),
-    from vqf's offline 6D attitude; the inputs unchanged (and None) where vqf learnt the bias itself or the log is too
-    short. ``lengthen`` is for a filter whose tilt the accelerations bend: with the velocity taken off the
-    accelerometer (a vehicle's GNSS) the field's heading has no tilt errors to average out, and tauMag is vqf's
-    (the simulated multirotor of ``magnet bench motion``, aided: 0.10 deg with it, 0.23 lengthened)."""
+    about the vertical, vqf's parameters, with ``lengthen`` tauMag ``TAU_MAG_FACTOR`` times longer, the bias found in
+    each of the log's equal parts of at most ``SEGMENT_S``), from vqf's offline 6D attitude; the inputs unchanged (and
+    no bias) where vqf learnt the bias itself or the log is too short. ``lengthen`` is for a filter whose tilt the
+    accelerations bend: with the velocity taken off the accelerometer (a vehicle's GNSS) the field's heading has no
+    tilt errors to average out, and tauMag is vqf's (the simulated multirotor of ``magnet bench motion``, aided: 0.10
+    deg with it, 0.23 lengthened)."""
     six = vqf.offlineVQF(gyr_vqf, acc_vqf, None, period_s, dict(params) if params else None)
     if learnt_at_rest(six["biasSigma"]):
-        return gyr_vqf, params, None
+        return gyr_vqf, params, []
     quat = np.asarray(six["quat6D"], dtype=float)
-    found = fit_drift(field_angle_rad(quat, field_vqf), up_in_body(quat), period_s)
-    if found is None:
-        return gyr_vqf, params, None
-    gyr = np.ascontiguousarray(gyr_vqf - found.bias_rads)
+    angle, up = field_angle_rad(quat, field_vqf), up_in_body(quat)
+    parts = max(1, math.ceil(len(angle) * period_s / SEGMENT_S))
+    bias = np.zeros_like(gyr_vqf)
+    found = []
+    for rows in np.array_split(np.arange(len(angle)), parts):
+        part = fit_drift(angle[rows], up[rows], period_s)
+        if part is not None:
+            bias[rows] = part.bias_rads
+            found.append(part)
+    if not found:
+        return gyr_vqf, params, []
+    gyr = np.ascontiguousarray(gyr_vqf - bias)
     if not lengthen:
         return gyr, params, found
     tau_mag_s = float(params.get("tauMag", vqf.VQF(period_s).params["tauMag"])) * TAU_MAG_FACTOR
