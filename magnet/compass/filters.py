@@ -261,6 +261,14 @@ class DeviceFilters:
             self.devices.touch(name)
         return state
 
+    def _any_aided(self, groups: Mapping[str, list[int]]) -> bool:
+        """Whether the filter of a device of ``groups`` runs velocity-aided."""
+        for device in groups:
+            state = self.devices.get(device)
+            if state is not None and state.filter is not None and state.filter.aided:
+                return True
+        return False
+
     def update(
         self,
         devices: Sequence[str],
@@ -296,7 +304,10 @@ class DeviceFilters:
         usable = finite & ~saturated & hd.rows_finite(acc_ms2) & hd.rows_finite(field_ut)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
-        if vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+        if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
+            # a drain without any velocity still gives an aided filter its samples' times (velocity unknown): fed
+            # without them, vqf would take them ahead of the samples the aided filter still holds back for their
+            # acceleration (up to a second), and skip those samples' turns (headings 175 deg off for seconds)
             drain = drain._replace(aiding=_aiding(order, t_ns, vel_ned_ms))
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)
