@@ -36,6 +36,10 @@ MAX_CSV_BYTES = 512 * 1024 * 1024
 MAX_FIELD_CHARS = csv.field_size_limit()
 #: rows formatted at once by ``write_csv``
 WRITE_ROWS = 4096
+#: the characters searched for the header without splitting the whole text (``parse_samples`` with a file)
+HEAD_CHARS = 1 << 16
+#: line breaks of ``str.splitlines`` that a file read as text (universal newlines) does not break at
+OTHER_LINE_BREAKS = ("\x0b", "\x0c", "\x1c", "\x1d", "\x1e", "\x85", "\u2028", "\u2029")
 #: other separators named when the header is found with one of them
 OTHER_SEPARATORS = {";": "semicolons", "\t": "tabs", "|": "'|'", " ": "spaces"}
 
@@ -148,13 +152,21 @@ def _find_header(lines: list[str], path: str) -> int:
     )
 
 
-def parse_samples(text: str, path: str = "<input>") -> SampleTable:
+def parse_samples(text: str, path: str = "<input>", file: Path | None = None) -> SampleTable:
     """Parse CSV ``text`` into a SampleTable (see the module docstring for the format). A table of numbers is read
     by numpy's C reader (``_numbers``); anything else (text columns, empty cells, a row of another length, a value
-    that is refused) by the csv module, cell by cell, which names the line or row and the value at fault."""
+    that is refused) by the csv module, cell by cell, which names the line or row and the value at fault. ``file``:
+    the file ``text`` was read from; when its header is among its first ``HEAD_CHARS`` characters and its lines
+    break only where a file's do, numpy reads the table from the file itself (the same lines, without a Python
+    string per line first: a fifth of the reader's time on a 60,000-row log)."""
+    head = _head(text, path) if file is not None else None
+    if file is not None and head is not None:
+        table = _numbers(head[1], file, path, skip=head[0] + 1)
+        if table is not None:
+            return table
     lines = text.splitlines()
     header_index = _find_header(lines, path)
-    table = _numbers(lines, header_index, path)
+    table = _numbers(lines[header_index], lines[header_index + 1 :], path)
     if table is not None:
         return table
     header, rows = _read_rows(lines, header_index, path)
@@ -175,18 +187,37 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
     return dataclasses.replace(table, mag=mag, acc=acc)
 
 
-def _numbers(lines: list[str], header_index: int, path: str) -> SampleTable | None:
+def _head(text: str, path: str) -> tuple[int, str] | None:
+    """(index, line) of the header when it is among the first ``HEAD_CHARS`` characters of ``text`` (the test of
+    ``_find_header``) and ``text`` breaks lines only where a file read as text does; else None."""
+    if not text.isascii() and any(c in text for c in OTHER_LINE_BREAKS[5:]):
+        return None
+    if any(c in text for c in OTHER_LINE_BREAKS[:5]):
+        return None
+    lines = text[:HEAD_CHARS].splitlines()[: MAX_PREAMBLE_LINES + 1]
+    if len(text) > HEAD_CHARS:
+        lines = lines[:-1]  # the last may be cut
+    for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
+        if set(MAG_COLUMNS) <= set(_cells(line, path, index + 1)):
+            return index, line
+    return None
+
+
+def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0) -> SampleTable | None:
     """The table when every row below the header is as many finite numbers as the header names columns (``nan``
     allowed in ``vn,ve,vd``: no fix yet), no column is named twice and no sensor reading is beyond +-MAX_READING,
-    read by numpy's C reader (``numpy.loadtxt``); else None, and the csv module reads the file and says what is
-    wrong with it."""
-    header = _cells(lines[header_index], path, header_index + 1)
-    if len(set(header)) < len(header) or header_index + 1 == len(lines):
+    read by numpy's C reader (``numpy.loadtxt``) from ``rows``: the lines below the header, or a file whose first
+    ``skip`` lines end with the header; else None, and the csv module reads the file and says what is wrong with
+    it."""
+    header = _cells(header_line, path, 1)
+    if len(set(header)) < len(header) or (isinstance(rows, list) and not rows):
         return None
     try:
         with warnings.catch_warnings():  # blank lines alone: "input contained no data", the csv module says so
             warnings.simplefilter("ignore", UserWarning)
-            values = np.loadtxt(lines[header_index + 1 :], delimiter=",", quotechar='"', comments=None, ndmin=2)
+            values = np.loadtxt(
+                rows, delimiter=",", quotechar='"', comments=None, ndmin=2, skiprows=skip, encoding="utf-8-sig"
+            )
     except ValueError:
         return None
     if values.shape != (values.shape[0], len(header)) or values.shape[0] == 0:
@@ -194,15 +225,19 @@ def _numbers(lines: list[str], header_index: int, path: str) -> SampleTable | No
     sensors = [i for i, name in enumerate(header) if name in (*MAG_COLUMNS, *ACC_COLUMNS, *GYRO_COLUMNS)]
     held = [i for i, name in enumerate(header) if name in VELOCITY_COLUMNS]
     others = [i for i in range(len(header)) if i not in held]
-    if not np.isfinite(values[:, others]).all() or np.isinf(values[:, held]).any():
+    finite = np.isfinite(values).all() if not held else np.isfinite(values[:, others]).all()
+    if not finite or np.isinf(values[:, held]).any():
         return None
-    if (np.abs(values[:, sensors]) > MAX_READING).any():
+    widest = np.maximum(-values.min(axis=0), values.max(axis=0))  # |x| per column (NaN in a held column: no fix)
+    if (widest[sensors] > MAX_READING).any():
         return None
     columns: dict[str, list[str] | np.ndarray] = {name: values[:, i] for i, name in enumerate(header) if name}
     acc = (
-        np.column_stack([values[:, header.index(c)] for c in ACC_COLUMNS]) if set(ACC_COLUMNS) <= set(header) else None
+        np.ascontiguousarray(values[:, [header.index(c) for c in ACC_COLUMNS]])
+        if set(ACC_COLUMNS) <= set(header)
+        else None
     )
-    mag = np.column_stack([values[:, header.index(c)] for c in MAG_COLUMNS])
+    mag = np.ascontiguousarray(values[:, [header.index(c) for c in MAG_COLUMNS]])
     return SampleTable(path, mag, acc, columns)
 
 
@@ -230,7 +265,7 @@ def read_samples(path: str | Path) -> SampleTable:
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not a text CSV file (not UTF-8 at byte {exc.start})") from None
     del data
-    return parse_samples(text, str(path))
+    return parse_samples(text, str(path), path)
 
 
 def write_csv(
