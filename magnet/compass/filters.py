@@ -258,11 +258,7 @@ class DeviceFilters:
 
     def _any_aided(self, groups: Mapping[str, list[int]]) -> bool:
         """Whether the filter of a device of ``groups`` runs velocity-aided."""
-        for device in groups:
-            state = self.devices.get(device)
-            if state is not None and state.filter is not None and state.filter.aided:
-                return True
-        return False
+        return any((s := self.devices.get(d)) is not None and s.filter is not None and s.filter.aided for d in groups)
 
     def update(
         self,
@@ -300,9 +296,7 @@ class DeviceFilters:
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
         if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
-            # a drain without any velocity still gives an aided filter its samples' times (velocity unknown): fed
-            # without them, vqf would take them ahead of the samples the aided filter still holds back for their
-            # acceleration (up to a second), and skip those samples' turns (headings 175 deg off for seconds)
+            # an aided filter needs its samples' times with no velocity known too (docs/aiding.md, point 6)
             drain = drain._replace(aiding=_aiding(order, t_ns, vel_ned_ms))
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)
