@@ -725,6 +725,160 @@ static PyObject *vqf_attitudes(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* One 1-D int64 array (numpy's int64: 'l' or 'q', 8 bytes) of ``rows`` items, read only. */
+static int get_int64(PyObject *obj, Py_buffer *view, Py_ssize_t rows, const char *name) {
+    if (PyObject_GetBuffer(obj, view, PyBUF_STRIDES | PyBUF_FORMAT) < 0) {
+        return -1;
+    }
+    const char *f = view->format;
+    char kind = f == NULL ? 0 : (f[0] == '<' || f[0] == '=' ? f[1] : f[0]);
+    if (view->itemsize != 8 || !(kind == 'l' || kind == 'q') || view->ndim != 1 || view->shape[0] != rows) {
+        PyErr_Format(PyExc_ValueError, "%s must be a 1-D int64 array of %zd items", name, rows);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+PyDoc_STRVAR(sigma_direct_doc,
+             "sigma_direct(field, acc, down_fused, fused, flags, expected, residual, disturbed_bits, max_dip_rad, "
+             "uncalibrated_fraction, unlevel_rad, gravity, tan_dip, field_rad, tilt, variance)\n\n"
+             "The per-sample part of magnet.attitude.uncertainty.HeadingUncertainty.step, in one pass: field (S, 3) "
+             "uT, acc (S, 3) (NaN rows: none), down_fused (S, 3) the fused attitude's down in body axes, used where "
+             "fused (S,) bool is set, flags (S,) int64, expected (S,) uT, residual (S,) uT (NaN: no calibration: "
+             "uncalibrated_fraction of |B|). Writes tan_dip (S,) |tan(dip)| (dip held at max_dip_rad), field_rad "
+             "(S,) the residual over |B_h|, tilt (S,) rad the accelerometer's own tilt error (| |acc| - g | / g, "
+             "unlevel_rad without one) and variance (S,) rad^2: field_rad^2 + (tilt tan_dip)^2, plus the flagged "
+             "disturbance's (| |B| - expected | / |B_h|)^2 where a flag of disturbed_bits is set.");
+
+static PyObject *sigma_direct(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_acc, *o_down, *o_fused, *o_flags, *o_expected, *o_residual, *o_tan, *o_rad, *o_tilt,
+        *o_var;
+    long long bits;
+    double max_dip, fraction, unlevel, gravity;
+    if (!PyArg_ParseTuple(args, "OOOOOOOLddddOOOO", &o_field, &o_acc, &o_down, &o_fused, &o_flags, &o_expected,
+                          &o_residual, &bits, &max_dip, &fraction, &unlevel, &gravity, &o_tan, &o_rad, &o_tilt,
+                          &o_var)) {
+        return NULL;
+    }
+    Array a[9];
+    Py_buffer fused, flags;
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_acc, &a[1], 2, n, 3, 0, "acc") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_down, &a[2], 2, n, 3, 0, "down_fused") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_expected, &a[3], 1, n, -1, 0, "expected") < 0) { release(a, 3); return NULL; }
+    if (get_array(o_residual, &a[4], 1, n, -1, 0, "residual") < 0) { release(a, 4); return NULL; }
+    if (get_array(o_tan, &a[5], 1, n, -1, 1, "tan_dip") < 0) { release(a, 5); return NULL; }
+    if (get_array(o_rad, &a[6], 1, n, -1, 1, "field_rad") < 0) { release(a, 6); return NULL; }
+    if (get_array(o_tilt, &a[7], 1, n, -1, 1, "tilt") < 0) { release(a, 7); return NULL; }
+    if (get_array(o_var, &a[8], 1, n, -1, 1, "variance") < 0) { release(a, 8); return NULL; }
+    if (PyObject_GetBuffer(o_fused, &fused, PyBUF_STRIDES | PyBUF_FORMAT) < 0) { release(a, 9); return NULL; }
+    if (fused.itemsize != 1 || fused.format == NULL || fused.format[0] != '?' || fused.ndim != 1 ||
+        fused.shape[0] != n) {
+        PyErr_Format(PyExc_ValueError, "fused must be a 1-D bool array of %zd items", n);
+        PyBuffer_Release(&fused);
+        release(a, 9);
+        return NULL;
+    }
+    if (get_int64(o_flags, &flags, n, "flags") < 0) { PyBuffer_Release(&fused); release(a, 9); return NULL; }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double f[3] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2)};
+        double g[3] = {AT(a[1], i, 0), AT(a[1], i, 1), AT(a[1], i, 2)};
+        double norm_acc = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+        double d[3];
+        if (((char *)fused.buf)[i * fused.strides[0]]) {
+            for (int k = 0; k < 3; k++) d[k] = AT(a[2], i, k);
+        } else {
+            for (int k = 0; k < 3; k++) d[k] = -g[k] / norm_acc;
+        }
+        if (!(isfinite(d[0]) && isfinite(d[1]) && isfinite(d[2]))) { /* no tilt known: level */
+            d[0] = 0.0, d[1] = 0.0, d[2] = 1.0;
+        }
+        double norm = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+        double sine = (f[0] * d[0] + f[1] * d[1] + f[2] * d[2]) / norm;
+        sine = sine < -1.0 ? -1.0 : (sine > 1.0 ? 1.0 : sine);
+        double dip = asin(sine);
+        dip = isnan(dip) ? 0.0 : dip;
+        dip = dip < -max_dip ? -max_dip : (dip > max_dip ? max_dip : dip);
+        double horizontal = norm * cos(dip), tan_dip = fabs(tan(dip));
+        double residual = AT1(a[4], i);
+        residual = isfinite(residual) ? residual : fraction * norm;
+        double field_rad = residual / horizontal;
+        double tilt = isfinite(norm_acc) ? fabs(norm_acc - gravity) / gravity : unlevel;
+        double tilt_share = tilt * tan_dip;
+        double variance = field_rad * field_rad + tilt_share * tilt_share;
+        long long flag = *(long long *)((char *)flags.buf + i * flags.strides[0]);
+        if (flag & bits) {
+            double turn = fabs(norm - AT1(a[3], i)) / horizontal;
+            if (isfinite(turn)) variance += turn * turn;
+        }
+        AT1(a[5], i) = tan_dip, AT1(a[6], i) = field_rad, AT1(a[7], i) = tilt, AT1(a[8], i) = variance;
+    }
+    PyBuffer_Release(&flags);
+    PyBuffer_Release(&fused);
+    release(a, 9);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(sigma_degrees_doc,
+             "sigma_degrees(variance, tilt, max_sigma_deg, unlevel_deg, min_tilt_deg, heading_deg, tilt_deg)\n\n"
+             "The sigmas in degrees (magnet.attitude.uncertainty): heading_deg (S,) sqrt(variance) (S,) rad^2 at "
+             "most max_sigma_deg (that where not finite); tilt_deg (S,) the tilt (S,) rad between min_tilt_deg and "
+             "90 (unlevel_deg where NaN).");
+
+static PyObject *sigma_degrees(PyObject *self, PyObject *args) {
+    PyObject *o_var, *o_tilt, *o_heading, *o_tilt_deg;
+    double max_sigma, unlevel, min_tilt;
+    if (!PyArg_ParseTuple(args, "OOdddOO", &o_var, &o_tilt, &max_sigma, &unlevel, &min_tilt, &o_heading,
+                          &o_tilt_deg)) {
+        return NULL;
+    }
+    Array a[4];
+    if (get_array(o_var, &a[0], 1, -1, -1, 0, "variance") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_tilt, &a[1], 1, n, -1, 0, "tilt") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_heading, &a[2], 1, n, -1, 1, "heading_deg") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_tilt_deg, &a[3], 1, n, -1, 1, "tilt_deg") < 0) { release(a, 3); return NULL; }
+    const double deg = 180.0 / M_PI;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double sigma = sqrt(AT1(a[0], i)) * deg;
+        AT1(a[2], i) = isfinite(sigma) ? (sigma < max_sigma ? sigma : max_sigma) : max_sigma;
+        double tilt = AT1(a[1], i) * deg;
+        AT1(a[3], i) = isnan(tilt) ? unlevel : (tilt < min_tilt ? min_tilt : (tilt > 90.0 ? 90.0 : tilt));
+    }
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(turn_about_down_doc,
+             "turn_about_down(quat, angle_deg, out)\n\n"
+             "out (S, 4): the attitudes quat (S, 4) wxyz body -> NED turned by angle_deg (S,) about NED down "
+             "(frames.rotate_heading: the product (cos h, 0, 0, sin h) q, h half the angle, then w >= 0); NaN rows "
+             "stay NaN.");
+
+static PyObject *turn_about_down(PyObject *self, PyObject *args) {
+    PyObject *o_quat, *o_angle, *o_out;
+    if (!PyArg_ParseTuple(args, "OOO", &o_quat, &o_angle, &o_out)) {
+        return NULL;
+    }
+    Array a[3];
+    if (get_array(o_quat, &a[0], 2, -1, 4, 0, "quat") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_angle, &a[1], 1, n, -1, 0, "angle_deg") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_out, &a[2], 2, n, 4, 1, "out") < 0) { release(a, 2); return NULL; }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double half = AT1(a[1], i) * (M_PI / 180.0) / 2.0;
+        double p[4] = {cos(half), 0.0, 0.0, sin(half)};
+        double q[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)}, r[4];
+        quat_mul(p, q, r);
+        double sign = r[0] < 0 ? -1.0 : 1.0;
+        for (int k = 0; k < 4; k++) AT(a[2], i, k) = r[k] * sign;
+    }
+    release(a, 3);
+    Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
@@ -1686,6 +1840,9 @@ static PyMethodDef methods[] = {
     {"advance_field", advance_field, METH_VARARGS, advance_field_doc},
     {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
     {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
+    {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
+    {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
+    {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
     {"vqf_probe", vqf_probe, METH_VARARGS, vqf_probe_doc},

@@ -59,6 +59,34 @@ def vqf_attitudes(
     pitch: np.ndarray,
     roll: np.ndarray,
 ) -> None: ...
+def sigma_direct(
+    field: np.ndarray,
+    acc: np.ndarray,
+    down_fused: np.ndarray,
+    fused: np.ndarray,
+    flags: np.ndarray,
+    expected: np.ndarray,
+    residual: np.ndarray,
+    disturbed_bits: int,
+    max_dip_rad: float,
+    uncalibrated_fraction: float,
+    unlevel_rad: float,
+    gravity: float,
+    tan_dip: np.ndarray,
+    field_rad: np.ndarray,
+    tilt: np.ndarray,
+    variance: np.ndarray,
+) -> None: ...
+def sigma_degrees(
+    variance: np.ndarray,
+    tilt: np.ndarray,
+    max_sigma_deg: float,
+    unlevel_deg: float,
+    min_tilt_deg: float,
+    heading_deg: np.ndarray,
+    tilt_deg: np.ndarray,
+) -> None: ...
+def turn_about_down(quat: np.ndarray, angle_deg: np.ndarray, out: np.ndarray) -> None: ...
 def format_rows(matrix: np.ndarray, decimals: bytes) -> bytes: ...
 def vqf_bind(path: str) -> None: ...
 def vqf_probe(filter: object) -> dict[str, Any]: ...

@@ -85,6 +85,8 @@ class FusedColumns:
 
     def gravity(self, acc_ms2: np.ndarray) -> np.ndarray:
         """Specific force (S, 3) as a still device would read it: -down (unit) where fused, else ``acc_ms2``."""
+        if not self.fused.any():
+            return acc_ms2
         return np.where(self.fused[:, None], -self.down, acc_ms2)
 
     @classmethod
@@ -351,7 +353,8 @@ def _drain(
         starts = inverse[first]
         usable, saturated = usable[order], saturated[order]
         vectors = (vectors[0][order], vectors[1][order], vectors[2][order])
-    inputs = tuple(fusion.to_vqf_frame(np.where(usable[:, None], x, 0.0)) for x in vectors)
+    every = bool(usable.all())  # (the usual case: no copy with zeros to make)
+    inputs = tuple(fusion.to_vqf_frame(x if every else np.where(usable[:, None], x, 0.0)) for x in vectors)
     return _Drain(
         (inputs[0], inputs[1], inputs[2]),
         None,

@@ -93,6 +93,18 @@ def test_true_heading_adds_declination_and_wraps():
     np.testing.assert_allclose(hd.true_heading_deg(np.array([0.0, 180.0]), 10.0), [10.0, 190.0])
 
 
+def test_wrap_deg_gives_np_mods_very_bits():
+    """wrap_deg's fast path (angles in [-360, 360): adds 360 to the negative ones) against np.mod, the plain maths,
+    bit for bit, signed zeros and the rounding up to 360 included; other angles take np.mod itself."""
+    rng = np.random.default_rng(4)
+    edges = [-0.0, 0.0, -360.0, -1e-17, -1e-300, 359.99999999999994, -180.0, 180.0, -359.9999999999999]
+    for angles in (np.concatenate([rng.uniform(-360, 360, 5000), edges]), np.array([720.5, -1e6, np.nan, 10.0])):
+        plain = np.mod(angles, 360.0)
+        plain = np.where(plain >= 360.0, 0.0, plain)
+        np.testing.assert_array_equal(hd.wrap_deg(angles).view(np.int64), plain.view(np.int64))
+    assert hd.wrap_deg(-1e-17) == 0.0 and hd.wrap_deg(np.zeros(0)).shape == (0,)
+
+
 def test_smoothing_across_north_never_averages_to_south():
     headings = np.array([359.0, 1.0, 359.0, 1.0, 359.0, 1.0])
     smoothed = hd.smooth_heading_deg(headings, 2)

@@ -115,6 +115,18 @@ def test_vqf_attitudes_are_the_frames_conversions_of_the_finite_rows():
     np.testing.assert_array_equal(rotation[~fused], np.broadcast_to(np.eye(3), (int((~fused).sum()), 3, 3)))
 
 
+def test_turn_about_down_is_the_product_with_the_turn_then_w_positive():
+    n = 300
+    quat, angle, out = _quats(n), RNG.uniform(-400.0, 400.0, n), np.empty((n, 4))
+    quat[::9] = np.nan
+    _kernels.turn_about_down(quat, angle, out)
+    half = np.radians(angle) / 2
+    plain = _product(np.stack([np.cos(half), 0 * half, 0 * half, np.sin(half)], -1), quat)
+    plain *= np.where(plain[:, :1] < 0, -1.0, 1.0)
+    np.testing.assert_allclose(out, plain, atol=1e-15)
+    assert np.array_equal(np.isnan(out), np.isnan(plain))
+
+
 def test_piece_figures_are_the_means_of_the_field_in_the_6d_earth_frame():
     q, field, acc = _quats(12), RNG.normal(size=(12, 3)), RNG.normal(size=(12, 3))
     *up, heading, horizontal, vertical, left = _kernels.piece_figures(q, field, acc, 9.8)

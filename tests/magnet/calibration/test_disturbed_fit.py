@@ -81,3 +81,18 @@ def test_nothing_is_dropped_when_asked_or_when_the_gyroscope_explains_nothing(do
     assert disturbed.kept(disturbed.judged(data.replace(drop_disturbed=False))) is None
     frozen = data.replace(gyr_rads=np.zeros_like(data.mag))  # a gyroscope that never turns with the field
     assert not disturbed.mask(frozen).any()
+
+
+def test_the_compass_and_the_fits_share_one_definition():
+    """The watch (the compass, ``magnet heading``) and the fits' whole-log check take their step windows, floors,
+    smoothing and |B| tolerance from the same constants."""
+    from magnet.attitude.field_watch import WatchSettings
+    from magnet.quality.disturbance import DEFAULT, FIT
+
+    watch = WatchSettings()
+    for settings in (DEFAULT, FIT):
+        assert settings.steps == watch.steps
+        assert settings.smooth_s == watch.smooth_s
+        assert settings.field_tol_pct == watch.field_tol_pct
+        assert settings.turn_floor_rad == watch.turn_floor_rad
+    assert FIT.relative == watch.relative
