@@ -315,8 +315,8 @@ class CompassCore:
         bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``field``
         (S, 3) uT: the corrected field as the filters get it (``Correction.apply``: turned forward over the
         magnetometer's lag the record carries)."""
-        vel = raw.vel
-        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
+        vel = raw.vel  # with no velocity known (NaN rows) as it is: a filter already aided still needs the times
+        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else vel
         fused = self.filters.update(
             raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding
         )
