@@ -879,6 +879,45 @@ static PyObject *turn_about_down(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(row_faults_doc,
+             "row_faults(arr, limit, absent_rows, nonfinite, beyond)\n\n"
+             "The raw decoder's value checks (magnet.wire.arrays.value_faults) in one pass over arr (N, k): "
+             "nonfinite (N,) bool, a value of the row is not finite (with absent_rows, unless every one is NaN: a "
+             "value not known at that sample); beyond (N,) bool, a value of the row is beyond +-limit.");
+
+static PyObject *row_faults(PyObject *self, PyObject *args) {
+    PyObject *o_arr, *o_nonfinite, *o_beyond;
+    double limit;
+    int absent_rows;
+    if (!PyArg_ParseTuple(args, "OdpOO", &o_arr, &limit, &absent_rows, &o_nonfinite, &o_beyond)) {
+        return NULL;
+    }
+    Array a;
+    Py_buffer nonfinite, beyond;
+    if (get_array(o_arr, &a, 2, -1, -1, 0, "arr") < 0) return NULL;
+    if (get_flags(o_nonfinite, &nonfinite, a.rows, "nonfinite") < 0) { release(&a, 1); return NULL; }
+    if (get_flags(o_beyond, &beyond, a.rows, "beyond") < 0) {
+        PyBuffer_Release(&nonfinite);
+        release(&a, 1);
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < a.rows; i++) {
+        int finite = 1, all_nan = 1, over = 0;
+        for (Py_ssize_t k = 0; k < a.cols; k++) {
+            double v = AT(a, i, k);
+            finite &= isfinite(v) != 0;
+            all_nan &= isnan(v) != 0;
+            over |= fabs(v) > limit;
+        }
+        ((char *)nonfinite.buf)[i * nonfinite.strides[0]] = (char)!(finite || (absent_rows && all_nan));
+        ((char *)beyond.buf)[i * beyond.strides[0]] = (char)over;
+    }
+    PyBuffer_Release(&beyond);
+    PyBuffer_Release(&nonfinite);
+    release(&a, 1);
+    Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
@@ -1843,6 +1882,7 @@ static PyMethodDef methods[] = {
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
+    {"row_faults", row_faults, METH_VARARGS, row_faults_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
     {"vqf_probe", vqf_probe, METH_VARARGS, vqf_probe_doc},
