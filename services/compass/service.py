@@ -10,7 +10,8 @@ clear). Zenoh delivers into channels; this process's own loop drains them and mo
 and out of the compass's core (``magnet.compass.CompassCore``): decode -> step -> encode -> put, never inside a
 callback; every handler runs through ``services.common.guard`` (a failure drops and counts the messages it held, or
 answers the query with an error; the loop goes on). Counters (received, published, dropped by cause) answer on
-``<prefix>/@status/<name>``. The options are in ``services.compass.settings``; docs/compass.md follows one sample.
+``<prefix>/@status/<name>``, from Zenoh's thread with what the loop last wrote (``services.compass.status_board``: a
+status never waits for a drain). The options are in ``services.compass.settings``; docs/compass.md follows one sample.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from services.common.zenoh_session import drain, open_session, payload_bytes, st
 from services.compass.intake import PayloadIntake
 from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
 from services.compass.sinks import open_sinks
+from services.compass.status_board import StatusBoard
 
 __all__ = ["CompassSettings", "add_arguments", "build_core", "run", "run_compass"]
 
@@ -133,9 +135,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             calibrations=declared.enter_context(
                 session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
             ),
-            status=declared.enter_context(
-                session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64))
-            ),
+            status=None,  # answered from Zenoh's thread (services.compass.status_board)
             alerts=declared.enter_context(
                 session.declare_queryable(f"{prefix}/{devices}/{wire.Kind.ALERT.value}", zenoh.handlers.FifoChannel(64))
             ),
@@ -158,6 +158,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
         )
         loop = _Loop(session, core, settings)
         declared.callback(loop.close)
+        declared.enter_context(session.declare_queryable(wire.status_key(prefix, name), loop.board.answer))
         metrics.start(metrics_address, "compass", lambda: _metrics_status(core, name))
         gc.collect()
         gc.freeze()  # what exists now (modules, settings, places) lives as long as the process: never scanned again
@@ -176,7 +177,7 @@ class _Ends:
         self,
         raw: PayloadIntake,
         calibrations: Samples,
-        status: Queries,
+        status: Queries | None,
         alerts: Queries,
         vehicles: Queries | None = None,
         calibrators: Samples | None = None,
@@ -197,6 +198,9 @@ class _Loop:
         self.joined = False  # a calibrator's token appeared since the last query for every calibration
         self.drain_limit = self.time_limit = MAX_DRAIN
         self.guard = Guard("compass", log, core.drops)
+        #: the status, answered from Zenoh's thread with what the loop last wrote (services.compass.status_board)
+        self.board = StatusBoard(wire.status_key(self.prefix, settings.name), self.guard)
+        self.board.write(core.status(settings.name).to_dict())
 
     def step(self, ends: _Ends, name: str) -> bool:
         """One round of the loop, every handler through the guard (none ends the compass); False when no raw
@@ -207,7 +211,7 @@ class _Loop:
             self.core.on_calibrator(str(token.key_expr), alive, time.time_ns())
             self.joined = self.joined or alive
         self._ask_joined()
-        for query in drain(ends.status, 64):
+        for query in drain(ends.status, 64) if ends.status is not None else []:
             self.guard.answer("query:status", query, self.answer_status, name)
             query.drop()  # finalize now: the asker waits for it
         self.guard.run("alert", self.alerts, ends.alerts)
@@ -220,6 +224,8 @@ class _Loop:
             started = time.perf_counter()
             self.guard.run("raw", self.headings_of, samples, count=len(samples))
             self._pace(len(samples), time.perf_counter() - started)
+        if self.board.due():
+            self.board.write(self.core.status(name).to_dict())
         return bool(samples)
 
     def _pace(self, taken: int, took_s: float) -> None:

@@ -36,10 +36,10 @@ MAX_CSV_BYTES = 512 * 1024 * 1024
 MAX_FIELD_CHARS = csv.field_size_limit()
 #: rows formatted at once by ``write_csv``
 WRITE_ROWS = 4096
-#: the characters searched for the header without splitting the whole text (``parse_samples`` with a file)
+#: the bytes searched for the header by ``read_samples`` before the whole file is decoded (``_file_table``)
 HEAD_CHARS = 1 << 16
-#: line breaks of ``str.splitlines`` that a file read as text (universal newlines) does not break at
-OTHER_LINE_BREAKS = ("\x0b", "\x0c", "\x1c", "\x1d", "\x1e", "\x85", "\u2028", "\u2029")
+#: the ASCII line breaks of ``str.splitlines`` that a file read as text (universal newlines) does not break at
+OTHER_LINE_BREAKS = (b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e")
 #: other separators named when the header is found with one of them
 OTHER_SEPARATORS = {";": "semicolons", "\t": "tabs", "|": "'|'", " ": "spaces"}
 
@@ -152,18 +152,10 @@ def _find_header(lines: list[str], path: str) -> int:
     )
 
 
-def parse_samples(text: str, path: str = "<input>", file: Path | None = None) -> SampleTable:
+def parse_samples(text: str, path: str = "<input>") -> SampleTable:
     """Parse CSV ``text`` into a SampleTable (see the module docstring for the format). A table of numbers is read
     by numpy's C reader (``_numbers``); anything else (text columns, empty cells, a row of another length, a value
-    that is refused) by the csv module, cell by cell, which names the line or row and the value at fault. ``file``:
-    the file ``text`` was read from; when its header is among its first ``HEAD_CHARS`` characters and its lines
-    break only where a file's do, numpy reads the table from the file itself (the same lines, without a Python
-    string per line first: a fifth of the reader's time on a 60,000-row log)."""
-    head = _head(text, path) if file is not None else None
-    if file is not None and head is not None:
-        table = _numbers(head[1], file, path, skip=head[0] + 1)
-        if table is not None:
-            return table
+    that is refused) by the csv module, cell by cell, which names the line or row and the value at fault."""
     lines = text.splitlines()
     header_index = _find_header(lines, path)
     table = _numbers(lines[header_index], lines[header_index + 1 :], path)
@@ -187,19 +179,20 @@ def parse_samples(text: str, path: str = "<input>", file: Path | None = None) ->
     return dataclasses.replace(table, mag=mag, acc=acc)
 
 
-def _head(text: str, path: str) -> tuple[int, str] | None:
-    """(index, line) of the header when it is among the first ``HEAD_CHARS`` characters of ``text`` (the test of
-    ``_find_header``) and ``text`` breaks lines only where a file read as text does; else None."""
-    if not text.isascii() and any(c in text for c in OTHER_LINE_BREAKS[5:]):
+def _file_table(data: bytes, path: Path) -> SampleTable | None:
+    """The table of numbers (``_numbers``) of a file of ``data`` in ASCII (so UTF-8) whose lines break only where a
+    file read as text does (not at the other breaks of ``str.splitlines``) and whose header is among its first
+    ``HEAD_CHARS`` bytes (found as ``_find_header`` finds it), read by numpy from the file itself: the lines
+    ``parse_samples`` reads, without a Python string for the whole text and one per line first (a fifth of the
+    reader's time on a 60,000-row log); else None."""
+    if not data.isascii() or any(c in data for c in OTHER_LINE_BREAKS):
         return None
-    if any(c in text for c in OTHER_LINE_BREAKS[:5]):
-        return None
-    lines = text[:HEAD_CHARS].splitlines()[: MAX_PREAMBLE_LINES + 1]
-    if len(text) > HEAD_CHARS:
+    lines = data[:HEAD_CHARS].decode("ascii").splitlines()[: MAX_PREAMBLE_LINES + 1]
+    if len(data) > HEAD_CHARS:
         lines = lines[:-1]  # the last may be cut
     for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
-        if set(MAG_COLUMNS) <= set(_cells(line, path, index + 1)):
-            return index, line
+        if set(MAG_COLUMNS) <= set(_cells(line, str(path), index + 1)):
+            return _numbers(line, path, str(path), skip=index + 1)
     return None
 
 
@@ -207,8 +200,8 @@ def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0)
     """The table when every row below the header is as many finite numbers as the header names columns (``nan``
     allowed in ``vn,ve,vd``: no fix yet), no column is named twice and no sensor reading is beyond +-MAX_READING,
     read by numpy's C reader (``numpy.loadtxt``) from ``rows``: the lines below the header, or a file whose first
-    ``skip`` lines end with the header; else None, and the csv module reads the file and says what is wrong with
-    it."""
+    ``skip`` lines end with the header (ASCII, checked before); else None, and the csv module reads the file and
+    says what is wrong with it."""
     header = _cells(header_line, path, 1)
     if len(set(header)) < len(header) or (isinstance(rows, list) and not rows):
         return None
@@ -216,7 +209,7 @@ def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0)
         with warnings.catch_warnings():  # blank lines alone: "input contained no data", the csv module says so
             warnings.simplefilter("ignore", UserWarning)
             values = np.loadtxt(
-                rows, delimiter=",", quotechar='"', comments=None, ndmin=2, skiprows=skip, encoding="utf-8-sig"
+                rows, delimiter=",", quotechar='"', comments=None, ndmin=2, skiprows=skip, encoding="utf-8"
             )
     except ValueError:
         return None
@@ -260,12 +253,15 @@ def read_samples(path: str | Path) -> SampleTable:
         data = handle.read(MAX_CSV_BYTES + 1)
     if len(data) > MAX_CSV_BYTES:
         raise ValueError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MiB: split the recording and fit a part")
+    table = _file_table(data, path)
+    if table is not None:
+        return table
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not a text CSV file (not UTF-8 at byte {exc.start})") from None
     del data
-    return parse_samples(text, str(path), path)
+    return parse_samples(text, str(path))
 
 
 def write_csv(

@@ -96,3 +96,17 @@ def test_the_compass_and_the_fits_share_one_definition():
         assert settings.field_tol_pct == watch.field_tol_pct
         assert settings.turn_floor_rad == watch.turn_floor_rad
     assert FIT.relative == watch.relative
+
+
+def test_an_in_service_fit_judges_the_door_with_the_record_in_force(door_walk):
+    """In service the calibrator fits against the record in force (``FitInput.reference``); here one whose offset is
+    6 uT from the truth (the hard iron moved): the door's samples are judged with it and left out, and the new fit
+    finds the offset within 2 uT."""
+    run, data, truth = door_walk
+    in_force = truth.replace(offset=truth.offset - np.array([4.0, -3.0, 3.0]))
+    flags = disturbed.mask(data.replace(reference=in_force))
+    door = np.linalg.norm(run.disturbance_ut, axis=1)
+    assert flags[door > 10.0].mean() > 0.8 and flags[door < 0.2].mean() < 0.1
+    record = fit_choice(data.replace(reference=in_force), "auto")
+    assert record.quality.get("disturbed_samples", 0) >= 100
+    assert np.linalg.norm(record.offset - truth.offset) < 2.0, record.reason
