@@ -56,8 +56,14 @@ MIN_SIGMA_DPS = 0.2
 TAU_MAG_FACTOR = 2.0
 #: Huber's threshold, in robust standard deviations of the residual
 HUBER_K = 2.5
+#: field samples whose strength is further than this fraction from the log's median, or whose dip is further than
+#: this from its median (deg), are left out as disturbed (vqf's magNormTh and magDipTh)
+NORM_TH = 0.1
+DIP_TH_DEG = 10.0
 #: the fit needs at least this many seconds of field samples
 MIN_SPAN_S = 20.0
+#: the field's angle is unwrapped about its circular mean over this many seconds around each sample
+UNWRAP_S = 20.0
 #: a longer log is cut into equal parts of at most this many seconds, each with its own bias: a gyroscope's bias
 #: moves with its temperature, and over a few minutes it holds
 SEGMENT_S = 300.0
@@ -87,10 +93,40 @@ def up_in_body(quat_vqf: np.ndarray) -> np.ndarray:
 
 def field_angle_rad(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
     """(N,) the field's angle (rad) about the earth's up axis in the frame of vqf quaternions (N, 4) wxyz body -> ENU,
-    field (N, 3) body FLU; counter-clockwise from east. NaN where the field is zero (left out)."""
+    field (N, 3) body FLU; counter-clockwise from east. NaN where the field is zero (left out) or disturbed: its
+    strength more than ``NORM_TH`` from the log's median, or its dip more than ``DIP_TH_DEG`` from the median dip
+    (vqf's own thresholds for a disturbance, magNormTh and magDipTh). A steel door passed turns the field's angle by
+    up to a whole turn, which would leave a step of 360 deg in the unwrapped drift (walk-texting past doors, seed 2027:
+    offline heading 1.5 -> 12.3 deg before this)."""
     earth = np.einsum("nij,nj->ni", quaternion_to_matrix(np.asarray(quat_vqf, dtype=float).reshape(-1, 4)), field_vqf)
     angle = np.arctan2(earth[:, 1], earth[:, 0])
-    return np.where(np.any(field_vqf != 0.0, axis=1), angle, np.nan)
+    norm = np.linalg.norm(earth, axis=1)
+    known = norm > 0.0
+    if not known.any():
+        return np.full(len(angle), np.nan)
+    dip = np.degrees(np.arcsin(np.clip(-earth[:, 2] / np.where(known, norm, 1.0), -1.0, 1.0)))
+    usual = known & (np.abs(norm / np.median(norm[known]) - 1.0) <= NORM_TH)
+    usual &= np.abs(dip - np.median(dip[known])) <= DIP_TH_DEG
+    return np.where(usual, angle, np.nan)
+
+
+def unwrapped(angle_rad: np.ndarray, period_s: float) -> np.ndarray:
+    """The angles (N,) rad (NaN rows left out, returned NaN) made continuous: each taken within half a turn of the
+    circular mean of the ``UNWRAP_S`` around it, that mean itself unwrapped. Unwrapping sample by sample would keep
+    every whole turn a passing object makes the field's angle take (a steel door, 55 uT, on walk-texting past doors,
+    seed 2027: a step of 360 deg for the rest of the log); this way such a turn is a stretch of outliers."""
+    known = np.isfinite(angle_rad)
+    cos = np.concatenate([[0.0], np.cumsum(np.where(known, np.cos(np.where(known, angle_rad, 0.0)), 0.0))])
+    sin = np.concatenate([[0.0], np.cumsum(np.where(known, np.sin(np.where(known, angle_rad, 0.0)), 0.0))])
+    half = max(1, round(UNWRAP_S / period_s / 2.0))
+    index = np.arange(len(angle_rad))
+    lo, hi = np.clip(index - half, 0, len(angle_rad)), np.clip(index + half + 1, 0, len(angle_rad))
+    local = np.arctan2(sin[hi] - sin[lo], cos[hi] - cos[lo])
+    out = np.full(len(angle_rad), np.nan)
+    if known.any():
+        centre = np.unwrap(local[known])
+        out[known] = centre + np.remainder(angle_rad[known] - centre + np.pi, 2.0 * np.pi) - np.pi
+    return out
 
 
 def fit_drift(angle_rad: np.ndarray, up: np.ndarray, period_s: float) -> DriftBias | None:
@@ -101,7 +137,7 @@ def fit_drift(angle_rad: np.ndarray, up: np.ndarray, period_s: float) -> DriftBi
     if known.sum() * period_s < MIN_SPAN_S:
         return None
     drift = np.cumsum(up, axis=0) * period_s
-    psi = np.unwrap(angle_rad[known])
+    psi = unwrapped(angle_rad, period_s)[known]
     design = np.column_stack([np.ones(len(psi)), drift[known]])
     prior = np.diag([0.0, 1.0, 1.0, 1.0]) / math.radians(PRIOR_DPS) ** 2
     per_sample = max(1.0, CORRELATION_S / period_s)  # samples that count as one

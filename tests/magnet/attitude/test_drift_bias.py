@@ -91,3 +91,16 @@ def test_a_long_log_gets_a_bias_per_part() -> None:
     assert abs(found[0].along_up_rads - math.radians(0.3)) < math.radians(0.03)
     assert abs(found[2].along_up_rads + math.radians(0.2)) < math.radians(0.03)
     assert np.allclose(out_gyr[-1], gyr[-1] - found[2].bias_rads)
+
+
+def test_a_whole_turn_of_the_field_passing_an_object_leaves_no_step() -> None:
+    """3 s in which a passing object turns the field's angle through a whole turn (as a 55 uT steel door does): the
+    drift before and after it stays one line, and the bias is found as without the object."""
+    angle, up, period = _drift_case(0.3, seed=2)
+    clean = vb.fit_drift(angle, up, period)
+    spun = angle.copy()
+    spun[400:430] -= np.linspace(0.0, 2.0 * np.pi, 30)  # the angle turned once, back where it was after
+    found = vb.fit_drift(np.angle(np.exp(1j * spun)), up, period)
+    assert clean is not None and found is not None
+    assert abs(found.along_up_rads - clean.along_up_rads) < math.radians(0.02)
+    assert found.residual_rad < math.radians(5.0)
