@@ -174,6 +174,12 @@ class Fusion:
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 
+    @property
+    def aided(self) -> bool:
+        """Whether the velocity-aided filter runs (from the first batch with a velocity on, until ``restart``): its
+        samples must then all come with their times, the velocity NaN where unknown (``update_vqf_frame``)."""
+        return self._aided is not None
+
     def restart(self) -> None:
         """Back to the initial state: attitude, gyro bias and magnetic reference forgotten."""
         if self._aided is not None:

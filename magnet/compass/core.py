@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from magnet import signing, wire
+from magnet import vehicle as vehicles  # its comparison loaded when first used (vehicle_report)
 from magnet.attitude import heading as hd
 from magnet.attitude.uncertainty import FilterFigures, HeadingUncertainty, Sigmas
 from magnet.bounded import Recent
@@ -37,7 +38,7 @@ from magnet.earth.expected import utc_date
 from magnet.fleet.places import EarthColumns, Places
 from magnet.frames import rotate_heading, to_magnetic_ned
 from magnet.shard import EVERY_DEVICE, Shard
-from magnet.vehicle import VehicleReport, VehicleWindows, judge
+from magnet.vehicle.window import VehicleWindows
 
 log = logging.getLogger("magnet.compass")
 
@@ -314,8 +315,8 @@ class CompassCore:
         bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``field``
         (S, 3) uT: the corrected field as the filters get it (``Correction.apply``: turned forward over the
         magnetometer's lag the record carries)."""
-        vel = raw.vel
-        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
+        vel = raw.vel  # with no velocity known (NaN rows) as it is: a filter already aided still needs the times
+        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else vel
         fused = self.filters.update(
             raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding
         )
@@ -325,14 +326,14 @@ class CompassCore:
             self.drops.counts[f"raw:{cause}"] += count - 1
         return fused
 
-    def vehicle_report(self, vehicle: str) -> VehicleReport | None:
+    def vehicle_report(self, vehicle: str) -> vehicles.VehicleReport | None:
         """The compasses of ``vehicle`` judged against each other (``magnet.vehicle.judge``), with the field the WMM
         expects at the place of its first compass; None for a vehicle not seen."""
         series = self.vehicles.series(vehicle)
         if not series:
             return None
         earth = self.watch.places.earth(next(iter(series)), self.watch.date)
-        return judge(vehicle, series, earth.total_ut)
+        return vehicles.judge(vehicle, series, earth.total_ut)
 
     # ------------------------------------------------------------------------------------------------ counters
     def evicted_count(self) -> int:

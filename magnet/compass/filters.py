@@ -256,6 +256,10 @@ class DeviceFilters:
             self.devices.touch(name)
         return state
 
+    def _any_aided(self, groups: Mapping[str, list[int]]) -> bool:
+        """Whether the filter of a device of ``groups`` runs velocity-aided."""
+        return any((s := self.devices.get(d)) is not None and s.filter is not None and s.filter.aided for d in groups)
+
     def update(
         self,
         devices: Sequence[str],
@@ -291,7 +295,8 @@ class DeviceFilters:
         usable = finite & ~saturated & hd.rows_finite(acc_ms2) & hd.rows_finite(field_ut)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
-        if vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+        if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
+            # an aided filter needs its samples' times with no velocity known too (docs/aiding.md, point 6)
             drain = drain._replace(aiding=_aiding(order, t_ns, vel_ned_ms))
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)

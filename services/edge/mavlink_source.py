@@ -21,6 +21,7 @@ from pymavlink import mavutil
 from magnet import wire
 from magnet.autopilot import mavlink
 from magnet.autopilot.mavlink_stream import MavlinkStream
+from services.common.allocator import give_back_now
 from services.edge.settings import EdgeSettings
 from services.edge.source import DeviceEvents, Stop, ticked
 
@@ -30,6 +31,8 @@ log = logging.getLogger("magnet.edge")
 POLL_S = 0.05
 #: messages read at most per call
 MAX_MESSAGES = 2000
+#: the freed heap is given back to the system this often (s): a flood of ids leaves it fragmented
+TRIM_S = 10.0
 
 
 class MavlinkStats:
@@ -80,6 +83,7 @@ class MavlinkSource:
         self.events: DeviceEvents | None = None
         self.healthy: dict[str, bool] = {}
         self.logged: set[str] = set()
+        self.trimmed_s = time.monotonic()
         try:
             self.connection = mavutil.mavlink_connection(
                 settings.mavlink, baud=settings.baud, source_system=255, robust_parsing=True, dialect="common"
@@ -115,6 +119,9 @@ class MavlinkSource:
         self._ask(now)
         out = self.stream.take(now, flush=stop())
         self._devices_and_health(now)
+        if time.monotonic() - self.trimmed_s >= TRIM_S:
+            self.trimmed_s = time.monotonic()
+            give_back_now()
         return out
 
     def _ask(self, now_ns: int) -> None:
