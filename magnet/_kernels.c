@@ -879,6 +879,96 @@ static PyObject *turn_about_down(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(row_faults_doc,
+             "row_faults(arr, limit, absent_rows, nonfinite, beyond)\n\n"
+             "The raw decoder's value checks (magnet.wire.arrays.value_faults) in one pass over arr (N, k): "
+             "nonfinite (N,) bool, a value of the row is not finite (with absent_rows, unless every one is NaN: a "
+             "value not known at that sample); beyond (N,) bool, a value of the row is beyond +-limit.");
+
+static PyObject *row_faults(PyObject *self, PyObject *args) {
+    PyObject *o_arr, *o_nonfinite, *o_beyond;
+    double limit;
+    int absent_rows;
+    if (!PyArg_ParseTuple(args, "OdpOO", &o_arr, &limit, &absent_rows, &o_nonfinite, &o_beyond)) {
+        return NULL;
+    }
+    Array a;
+    Py_buffer nonfinite, beyond;
+    if (get_array(o_arr, &a, 2, -1, -1, 0, "arr") < 0) return NULL;
+    if (get_flags(o_nonfinite, &nonfinite, a.rows, "nonfinite") < 0) { release(&a, 1); return NULL; }
+    if (get_flags(o_beyond, &beyond, a.rows, "beyond") < 0) {
+        PyBuffer_Release(&nonfinite);
+        release(&a, 1);
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < a.rows; i++) {
+        int finite = 1, all_nan = 1, over = 0;
+        for (Py_ssize_t k = 0; k < a.cols; k++) {
+            double v = AT(a, i, k);
+            finite &= isfinite(v) != 0;
+            all_nan &= isnan(v) != 0;
+            over |= fabs(v) > limit;
+        }
+        ((char *)nonfinite.buf)[i * nonfinite.strides[0]] = (char)!(finite || (absent_rows && all_nan));
+        ((char *)beyond.buf)[i * beyond.strides[0]] = (char)over;
+    }
+    PyBuffer_Release(&beyond);
+    PyBuffer_Release(&nonfinite);
+    release(&a, 1);
+    Py_RETURN_NONE;
+}
+
+/* -acc / |acc| as heading.py's _down computes it (acc times -1 / |acc|; NaN where |acc| <= 1e-12 or not finite). */
+static void down_of(const double f[3], double d[3]) {
+    double norm = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    double scale = norm > 1e-12 ? -1.0 / norm : NAN;
+    d[0] = f[0] * scale, d[1] = f[1] * scale, d[2] = f[2] * scale;
+}
+
+PyDoc_STRVAR(tilt_heading_doc,
+             "tilt_heading(field, acc, heading, dip)\n\n"
+             "magnet.attitude.heading's per-sample maths over field (N, 3) and acc (N, 3), body frame: heading (N,) "
+             "the tilt-compensated heading in [0, 360) (atan2(e_x, n_x), e = d x B, n = e x d, d = -acc / |acc|; "
+             "NaN without a usable acc), and dip (N,) deg asin(B . d / |B|), unless dip is None.");
+
+static PyObject *tilt_heading(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_acc, *o_heading, *o_dip;
+    if (!PyArg_ParseTuple(args, "OOOO", &o_field, &o_acc, &o_heading, &o_dip)) {
+        return NULL;
+    }
+    Array a[4];
+    int with_heading = o_heading != Py_None, with_dip = o_dip != Py_None, count = 2;
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_acc, &a[1], 2, n, 3, 0, "acc") < 0) { release(a, 1); return NULL; }
+    if (with_heading) {
+        if (get_array(o_heading, &a[count], 1, n, -1, 1, "heading") < 0) { release(a, count); return NULL; }
+        count++;
+    }
+    if (with_dip) {
+        if (get_array(o_dip, &a[count], 1, n, -1, 1, "dip") < 0) { release(a, count); return NULL; }
+        count++;
+    }
+    const double deg = 180.0 / M_PI;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double b[3] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2)};
+        double g[3] = {AT(a[1], i, 0), AT(a[1], i, 1), AT(a[1], i, 2)}, d[3];
+        down_of(g, d);
+        if (with_heading) {
+            double ex = d[1] * b[2] - d[2] * b[1], ey = d[2] * b[0] - d[0] * b[2], ez = d[0] * b[1] - d[1] * b[0];
+            double h = mod_360(atan2(ex, ey * d[2] - ez * d[1]) * deg);
+            AT1(a[2], i) = h >= 360.0 ? 0.0 : h;
+        }
+        if (with_dip) {
+            double sine = (b[0] * d[0] + b[1] * d[1] + b[2] * d[2]) / sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+            sine = sine < -1.0 ? -1.0 : (sine > 1.0 ? 1.0 : sine);
+            AT1(a[count - 1], i) = asin(sine) * deg;
+        }
+    }
+    release(a, count);
+    Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
@@ -933,15 +1023,30 @@ static int fixed(double x, int d, char *out) {
     if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
     if (d <= 9) {
         double scaled = fabs(x) * tens[d];
-        double whole = floor(scaled), frac = scaled - whole;
-        if (scaled < 1e15 && fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
-            unsigned long long r = (unsigned long long)whole + (frac > 0.5);
-            unsigned long long unit = (unsigned long long)tens[d];
-            int n = 0;
-            if (signbit(x)) out[n++] = '-';
-            n += digits(r / unit, 1, out + n);
-            if (d > 0) { out[n++] = '.'; n += digits(r % unit, d, out + n); }
-            return n;
+        if (scaled < 1e15) {
+            /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
+            unsigned long long whole = (unsigned long long)scaled;
+            double frac = scaled - (double)whole;
+            if (fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
+                unsigned long long r = whole + (frac > 0.5), units, decimals;
+                switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
+                    case 0: units = r; decimals = 0; break;
+                    case 1: units = r / 10; decimals = r % 10; break;
+                    case 2: units = r / 100; decimals = r % 100; break;
+                    case 3: units = r / 1000; decimals = r % 1000; break;
+                    case 4: units = r / 10000; decimals = r % 10000; break;
+                    case 5: units = r / 100000; decimals = r % 100000; break;
+                    case 6: units = r / 1000000; decimals = r % 1000000; break;
+                    case 7: units = r / 10000000; decimals = r % 10000000; break;
+                    case 8: units = r / 100000000; decimals = r % 100000000; break;
+                    default: units = r / 1000000000; decimals = r % 1000000000; break;
+                }
+                int n = 0;
+                if (signbit(x)) out[n++] = '-';
+                n += digits(units, 1, out + n);
+                if (d > 0) { out[n++] = '.'; n += digits(decimals, d, out + n); }
+                return n;
+            }
         }
     }
     return snprintf(out, 400, "%.*f", d, x);
@@ -1843,6 +1948,8 @@ static PyMethodDef methods[] = {
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
+    {"row_faults", row_faults, METH_VARARGS, row_faults_doc},
+    {"tilt_heading", tilt_heading, METH_VARARGS, tilt_heading_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
     {"vqf_probe", vqf_probe, METH_VARARGS, vqf_probe_doc},

@@ -158,3 +158,22 @@ def test_heading_uncertainty_grows_as_the_horizontal_field_shrinks():
     assert strong == pytest.approx(np.degrees(np.arctan(0.35 / 20.0)))
     assert weak > 5 * strong
     assert hd.heading_uncertainty_deg(np.array([0.0, 0.0, 45.0]), acc, 0.35) == 180.0
+
+
+def test_the_compiled_tilt_heading_and_dip_are_the_plain_maths():
+    """``tilt_compensated_heading_deg`` and ``dip_angle_deg`` (compiled: ``magnet._kernels.tilt_heading``) against
+    the cross products written plainly in numpy, on random vectors with zero, NaN and broadcast ones."""
+    rng = np.random.default_rng(9)
+    field, acc = rng.normal(0, 40, (2000, 3)), rng.normal(0, 9, (2000, 3))
+    acc[::50], acc[1::50], field[2::50] = 0.0, np.nan, 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        norm = np.linalg.norm(acc, axis=1)
+        d = acc * np.where(norm > 1e-12, -1.0 / norm, np.nan)[:, None]
+        east = np.cross(d, field)
+        plain = np.degrees(np.arctan2(east[:, 0], np.cross(east, d)[:, 0])) % 360.0
+        plain_dip = np.degrees(np.arcsin(np.clip(np.sum(field * d, axis=1) / np.linalg.norm(field, axis=1), -1, 1)))
+    np.testing.assert_allclose(hd.tilt_compensated_heading_deg(field, acc), plain, atol=1e-9)
+    np.testing.assert_allclose(hd.dip_angle_deg(field, acc), plain_dip, atol=1e-9)
+    assert np.array_equal(np.isnan(hd.tilt_compensated_heading_deg(field, acc)), np.isnan(plain))
+    one = hd.tilt_compensated_heading_deg(field[:5], acc[7])  # one accelerometer reading for every field
+    np.testing.assert_allclose(one, [hd.tilt_compensated_heading_deg(f, acc[7]) for f in field[:5]])
