@@ -1023,15 +1023,30 @@ static int fixed(double x, int d, char *out) {
     if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
     if (d <= 9) {
         double scaled = fabs(x) * tens[d];
-        double whole = floor(scaled), frac = scaled - whole;
-        if (scaled < 1e15 && fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
-            unsigned long long r = (unsigned long long)whole + (frac > 0.5);
-            unsigned long long unit = (unsigned long long)tens[d];
-            int n = 0;
-            if (signbit(x)) out[n++] = '-';
-            n += digits(r / unit, 1, out + n);
-            if (d > 0) { out[n++] = '.'; n += digits(r % unit, d, out + n); }
-            return n;
+        if (scaled < 1e15) {
+            /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
+            unsigned long long whole = (unsigned long long)scaled;
+            double frac = scaled - (double)whole;
+            if (fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
+                unsigned long long r = whole + (frac > 0.5), units, decimals;
+                switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
+                    case 0: units = r; decimals = 0; break;
+                    case 1: units = r / 10; decimals = r % 10; break;
+                    case 2: units = r / 100; decimals = r % 100; break;
+                    case 3: units = r / 1000; decimals = r % 1000; break;
+                    case 4: units = r / 10000; decimals = r % 10000; break;
+                    case 5: units = r / 100000; decimals = r % 100000; break;
+                    case 6: units = r / 1000000; decimals = r % 1000000; break;
+                    case 7: units = r / 10000000; decimals = r % 10000000; break;
+                    case 8: units = r / 100000000; decimals = r % 100000000; break;
+                    default: units = r / 1000000000; decimals = r % 1000000000; break;
+                }
+                int n = 0;
+                if (signbit(x)) out[n++] = '-';
+                n += digits(units, 1, out + n);
+                if (d > 0) { out[n++] = '.'; n += digits(decimals, d, out + n); }
+                return n;
+            }
         }
     }
     return snprintf(out, 400, "%.*f", d, x);

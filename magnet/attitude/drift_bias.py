@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -168,23 +169,23 @@ def learnt_at_rest(bias_sigma_rads: np.ndarray | float) -> bool:
 
 def offline_correction(
     gyr_vqf: np.ndarray,
-    acc_vqf: np.ndarray,
     field_vqf: np.ndarray,
     period_s: float,
     params: dict[str, Any],
+    first: Mapping[str, Any],
     lengthen: bool = True,
 ) -> tuple[np.ndarray, dict[str, Any], list[DriftBias]]:
-    """For a whole log (vqf's frames, (N, 3) each; zero field rows left out): (the gyroscope (N, 3) less the bias
-    about the vertical, vqf's parameters, with ``lengthen`` tauMag ``TAU_MAG_FACTOR`` times longer, the bias found in
-    each of the log's equal parts of at most ``SEGMENT_S``), from vqf's offline 6D attitude; the inputs unchanged (and
-    no bias) where vqf learnt the bias itself or the log is too short. ``lengthen`` is for a filter whose tilt the
-    accelerations bend: with the velocity taken off the accelerometer (a vehicle's GNSS) the field's heading has no
-    tilt errors to average out, and tauMag is vqf's (the simulated multirotor of ``magnet bench motion``, aided: 0.10
-    deg with it, 0.23 lengthened)."""
-    six = vqf.offlineVQF(gyr_vqf, acc_vqf, None, period_s, dict(params) if params else None)
-    if learnt_at_rest(six["biasSigma"]):
+    """For a whole log (vqf's frames, (N, 3) each; zero field rows left out) and vqf's offline outputs on it
+    (``first``: its 6D attitude and bias uncertainty, which the field does not touch): (the gyroscope (N, 3) less
+    the bias about the vertical, vqf's parameters, with ``lengthen`` tauMag ``TAU_MAG_FACTOR`` times longer, the bias
+    found in each of the log's equal parts of at most ``SEGMENT_S``); the inputs unchanged (and no bias) where vqf
+    learnt the bias itself or the log is too short. ``lengthen`` is for a filter whose tilt the accelerations bend:
+    with the velocity taken off the accelerometer (a vehicle's GNSS) the field's heading has no tilt errors to average
+    out, and tauMag is vqf's (the simulated multirotor of ``magnet bench motion``, aided: 0.10 deg with it, 0.23
+    lengthened)."""
+    if learnt_at_rest(first["biasSigma"]):
         return gyr_vqf, params, []
-    quat = np.asarray(six["quat6D"], dtype=float)
+    quat = np.asarray(first["quat6D"], dtype=float)
     angle, up = field_angle_rad(quat, field_vqf), up_in_body(quat)
     parts = max(1, math.ceil(len(angle) * period_s / SEGMENT_S))
     bias = np.zeros_like(gyr_vqf)

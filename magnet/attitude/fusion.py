@@ -346,9 +346,11 @@ def fuse_offline(
     if field is not None and watched.any():
         field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
     options = dict(params) if params else {}
-    if field is not None and vertical_bias:
-        gyr, options, _ = offline_correction(gyr, acc, field, period, options, lengthen=not aided)
     out = dict(vqf.offlineVQF(gyr, acc, field, period, options or None))
+    if field is not None and vertical_bias:  # again, with the bias about the vertical its 6D attitude shows
+        gyr, options, found = offline_correction(gyr, field, period, options, out, lengthen=not aided)
+        if found:
+            out = dict(vqf.offlineVQF(gyr, acc, field, period, options or None))
     if field is not None:
         out["magDistDetected"] = np.asarray(out["magDistDetected"], dtype=bool).reshape(-1) | watched
     return Fused.from_vqf(out, field is not None)

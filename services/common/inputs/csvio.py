@@ -271,7 +271,7 @@ def write_csv(
     lines ``numpy.savetxt`` writes. ``%.<d>f`` and ``%d`` formats are written by ``magnet._kernels.format_rows`` (the
     same characters; 60,000 rows of 14 columns in a few tens of ms), any other WRITE_ROWS rows at a time by one ``%``
     (savetxt formats and writes row by row: 1.1 s for those rows, ``%`` 0.2 s)."""
-    matrix = np.column_stack([np.asarray(c, dtype=float) for c in columns])
+    matrix = np.stack([np.asarray(c, dtype=float) for c in columns]).T  # (N, K) view of contiguous columns
     formats = [fmt] * matrix.shape[1] if isinstance(fmt, str) else list(fmt)
     row = ",".join(formats) + "\n"
     stream.write(",".join(header) + "\n")

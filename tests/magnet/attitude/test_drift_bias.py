@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import vqf
 
 from magnet.attitude import drift_bias as vb
 from magnet.attitude import fusion
@@ -55,7 +56,8 @@ def test_a_device_that_rested_keeps_vqfs_own_bias() -> None:
     gyr = np.tile([0.0, 0.0, math.radians(0.3)], (count, 1))  # still, with a bias about the vertical
     acc = np.tile([0.0, 0.0, 9.81], (count, 1))
     field = np.tile([20.0, 0.0, -45.0], (count, 1))
-    out_gyr, params, found = vb.offline_correction(gyr, acc, field, period, {})
+    first = vqf.offlineVQF(gyr, acc, field, period)
+    out_gyr, params, found = vb.offline_correction(gyr, field, period, {}, first)
     assert found == [] and params == {} and out_gyr is gyr
 
 
@@ -86,7 +88,8 @@ def test_a_long_log_gets_a_bias_per_part() -> None:
     acc = np.tile([0.0, 0.0, 9.81], (len(t), 1))
     # the Earth's field (north 20, up -45 uT) in body axes of a level device turned by yaw about z (ENU, FLU)
     field = np.column_stack([20.0 * np.sin(yaw), 20.0 * np.cos(yaw), np.full_like(t, -45.0)])
-    out_gyr, params, found = vb.offline_correction(gyr, acc, field, period, {}, lengthen=False)
+    first = vqf.offlineVQF(gyr, acc, field, period)
+    out_gyr, params, found = vb.offline_correction(gyr, field, period, {}, first, lengthen=False)
     assert params == {} and len(found) == 3
     assert abs(found[0].along_up_rads - math.radians(0.3)) < math.radians(0.03)
     assert abs(found[2].along_up_rads + math.radians(0.2)) < math.radians(0.03)
