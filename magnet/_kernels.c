@@ -477,7 +477,7 @@ static double percentile(double *v, Py_ssize_t n, double percent) {
 }
 
 /* The indices of the watch's state vector (magnet.attitude.field_watch.FieldWatch). */
-enum { W_QUAT = 0, W_TURNED = 4, W_SAMPLES, W_REFERENCE, W_HOLD_LEFT, W_RUN, W_PENDING, W_CALM, W_SIZE };
+enum { W_QUAT = 0, W_TURNED = 4, W_SAMPLES, W_REFERENCE, W_HOLD_LEFT, W_RUN, W_PENDING, W_CALM, W_SUM, W_SIZE = W_SUM + 3 };
 #define MAX_STEPS 8
 
 /* At a block's end (FieldWatch._learn): the reference |B| towards the block's calm samples' mean (their median
@@ -528,10 +528,10 @@ PyDoc_STRVAR(watch_update_doc,
              "watch_update(field, gyr, flagged, state, levels, ring, pending, calm, widths, floors, period_s, smooth, "
              "hold, block, relative, field_tol_pct, learn_s, level_tau_s, max_reject_s, turn_floor_rad)\n\n"
              "FieldWatch.update's per-sample loop (magnet.attitude.field_watch), in place: flagged (n,) bool, the "
-             "samples of field (n, 3) and gyr (n, 3) rad/s that are disturbed. State: ``state`` (11,) the integrated "
+             "samples of field (n, 3) and gyr (n, 3) rad/s that are disturbed. State: ``state`` (14,) the integrated "
              "attitude wxyz, the radians turned, the samples seen, the reference |B|, the hold left, the flagged run, "
-             "the block's pending and calm counts; ``levels`` (S + 1,) the usual levels; ``ring`` (K, 7) the last K = "
-             "max(widths) + smooth samples' field in the integrated frame, its mean over ``smooth`` samples and the "
+             "the block's pending and calm counts, the running sum (3,) of the last ``smooth`` samples' field in the "
+             "integrated frame; ``levels`` (S + 1,) the usual levels; ``ring`` (K, 7) the last K = max(widths) + smooth samples' field in the integrated frame, its mean over ``smooth`` samples and the "
              "radians turned (row = sample index mod K); ``pending`` (block, S + 1) the block's statistics per radian, "
              "``calm`` (block,) its calm samples' |B|. widths (S,) and floors (S,): the step windows in samples and "
              "their floors.");
@@ -596,10 +596,18 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
                                 AT(a[1], i, 2) * AT(a[1], i, 2)) * period;
         for (int k = 0; k < 3; k++) AT(a[6], row, k) = world[k];
         AT(a[6], row, 6) = state[W_TURNED];
-        Py_ssize_t count = g + 1 < smooth ? g + 1 : smooth; /* the mean of the last ``smooth`` (fewer at first) */
-        double sum[3] = {0.0, 0.0, 0.0};
-        for (Py_ssize_t m = 0, at = row; m < count; m++, at = at ? at - 1 : keep - 1) {
-            for (int k = 0; k < 3; k++) sum[k] += AT(a[6], at, k);
+        /* the mean of the last ``smooth`` (fewer at first): a running sum (the newest in, the one ``smooth``
+         * before out), summed afresh once every ``keep`` samples so that its rounding cannot build up */
+        Py_ssize_t count = g + 1 < smooth ? g + 1 : smooth;
+        double *sum = &state[W_SUM];
+        if (row == 0) {
+            for (int k = 0; k < 3; k++) sum[k] = 0.0;
+            for (Py_ssize_t m = 0, at = row; m < count; m++, at = at ? at - 1 : keep - 1) {
+                for (int k = 0; k < 3; k++) sum[k] += AT(a[6], at, k);
+            }
+        } else {
+            Py_ssize_t out_row = (g - smooth) % keep; /* meaningful only when g >= smooth */
+            for (int k = 0; k < 3; k++) sum[k] += world[k] - (g >= smooth ? AT(a[6], out_row, k) : 0.0);
         }
         for (int k = 0; k < 3; k++) AT(a[6], row, 3 + k) = sum[k] / (double)count;
         /* the statistics against their limits (references as at the block's start) */
@@ -647,6 +655,320 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* numpy's mod (the sign of the divisor; a zero result is +0): np.mod(a, 360.0) as numpy computes it. */
+static double mod_360(double a) {
+    double m = fmod(a, 360.0);
+    if (m != 0.0) {
+        if (m < 0.0) m += 360.0;
+    } else {
+        m = copysign(0.0, 360.0);
+    }
+    return m;
+}
+
+PyDoc_STRVAR(vqf_attitudes_doc,
+             "vqf_attitudes(raw, fused, quat, rotation, down, heading, pitch, roll)\n\n"
+             "vqf's quaternions raw (S, 4) (body FLU -> ENU, NaN rows where nothing was fused) as the compass uses "
+             "them, in one pass (magnet.compass.filters.FusedColumns.from_vqf): fused (S,) bool, the rows that are "
+             "finite; quat (S, 4) body FRD -> NED (frames.ned_enu_attitude: w >= 0); rotation (S, 9) its matrix "
+             "(frames.quaternion_to_matrix, row-major; the identity where not fused); down (S, 3) NED down in body "
+             "axes (the matrix's last row); heading [0, 360), pitch, roll (S,) deg (frames.matrix_to_euler). Rows "
+             "not fused: NaN everywhere but the identity rotation.");
+
+static PyObject *vqf_attitudes(PyObject *self, PyObject *args) {
+    PyObject *o_raw, *o_fused, *o_quat, *o_rotation, *o_down, *o_heading, *o_pitch, *o_roll;
+    if (!PyArg_ParseTuple(args, "OOOOOOOO", &o_raw, &o_fused, &o_quat, &o_rotation, &o_down, &o_heading, &o_pitch,
+                          &o_roll)) {
+        return NULL;
+    }
+    Array a[7];
+    Py_buffer fused;
+    if (get_array(o_raw, &a[0], 2, -1, 4, 0, "raw") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_quat, &a[1], 2, n, 4, 1, "quat") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_rotation, &a[2], 2, n, 9, 1, "rotation") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_down, &a[3], 2, n, 3, 1, "down") < 0) { release(a, 3); return NULL; }
+    if (get_array(o_heading, &a[4], 1, n, -1, 1, "heading") < 0) { release(a, 4); return NULL; }
+    if (get_array(o_pitch, &a[5], 1, n, -1, 1, "pitch") < 0) { release(a, 5); return NULL; }
+    if (get_array(o_roll, &a[6], 1, n, -1, 1, "roll") < 0) { release(a, 6); return NULL; }
+    if (get_flags(o_fused, &fused, n, "fused") < 0) { release(a, 7); return NULL; }
+    const double h = sqrt(0.5), deg = 180.0 / M_PI;
+    char *out = (char *)fused.buf;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double r[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)};
+        int ok = isfinite(r[0]) && isfinite(r[1]) && isfinite(r[2]) && isfinite(r[3]);
+        out[i * fused.strides[0]] = (char)ok;
+        if (!ok) {
+            for (int k = 0; k < 4; k++) AT(a[1], i, k) = NAN;
+            for (int k = 0; k < 9; k++) AT(a[2], i, k) = k % 4 == 0 ? 1.0 : 0.0;
+            for (int k = 0; k < 3; k++) AT(a[3], i, k) = NAN;
+            AT1(a[4], i) = NAN, AT1(a[5], i) = NAN, AT1(a[6], i) = NAN;
+            continue;
+        }
+        /* q_NED_ENU q q_FRD_FLU (frames._NED_ENU_ATTITUDE), then w >= 0 */
+        double q[4] = {-h * r[0] - h * r[3], -h * r[1] - h * r[2], -h * r[1] + h * r[2], -h * r[0] + h * r[3]};
+        if (q[0] < 0) {
+            for (int k = 0; k < 4; k++) q[k] = -q[k];
+        }
+        double m[9];
+        quat_matrix(q, m);
+        for (int k = 0; k < 4; k++) AT(a[1], i, k) = q[k];
+        for (int k = 0; k < 9; k++) AT(a[2], i, k) = m[k];
+        for (int k = 0; k < 3; k++) AT(a[3], i, k) = m[6 + k];
+        double sine = -m[6] < -1.0 ? -1.0 : (-m[6] > 1.0 ? 1.0 : -m[6]);
+        AT1(a[4], i) = mod_360(atan2(m[3], m[0]) * deg);
+        AT1(a[5], i) = asin(sine) * deg;
+        AT1(a[6], i) = atan2(m[7], m[8]) * deg;
+    }
+    PyBuffer_Release(&fused);
+    release(a, 7);
+    Py_RETURN_NONE;
+}
+
+/* One 1-D int64 array (numpy's int64: 'l' or 'q', 8 bytes) of ``rows`` items, read only. */
+static int get_int64(PyObject *obj, Py_buffer *view, Py_ssize_t rows, const char *name) {
+    if (PyObject_GetBuffer(obj, view, PyBUF_STRIDES | PyBUF_FORMAT) < 0) {
+        return -1;
+    }
+    const char *f = view->format;
+    char kind = f == NULL ? 0 : (f[0] == '<' || f[0] == '=' ? f[1] : f[0]);
+    if (view->itemsize != 8 || !(kind == 'l' || kind == 'q') || view->ndim != 1 || view->shape[0] != rows) {
+        PyErr_Format(PyExc_ValueError, "%s must be a 1-D int64 array of %zd items", name, rows);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+PyDoc_STRVAR(sigma_direct_doc,
+             "sigma_direct(field, acc, down_fused, fused, flags, expected, residual, disturbed_bits, max_dip_rad, "
+             "uncalibrated_fraction, unlevel_rad, gravity, tan_dip, field_rad, tilt, variance)\n\n"
+             "The per-sample part of magnet.attitude.uncertainty.HeadingUncertainty.step, in one pass: field (S, 3) "
+             "uT, acc (S, 3) (NaN rows: none), down_fused (S, 3) the fused attitude's down in body axes, used where "
+             "fused (S,) bool is set, flags (S,) int64, expected (S,) uT, residual (S,) uT (NaN: no calibration: "
+             "uncalibrated_fraction of |B|). Writes tan_dip (S,) |tan(dip)| (dip held at max_dip_rad), field_rad "
+             "(S,) the residual over |B_h|, tilt (S,) rad the accelerometer's own tilt error (| |acc| - g | / g, "
+             "unlevel_rad without one) and variance (S,) rad^2: field_rad^2 + (tilt tan_dip)^2, plus the flagged "
+             "disturbance's (| |B| - expected | / |B_h|)^2 where a flag of disturbed_bits is set.");
+
+static PyObject *sigma_direct(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_acc, *o_down, *o_fused, *o_flags, *o_expected, *o_residual, *o_tan, *o_rad, *o_tilt,
+        *o_var;
+    long long bits;
+    double max_dip, fraction, unlevel, gravity;
+    if (!PyArg_ParseTuple(args, "OOOOOOOLddddOOOO", &o_field, &o_acc, &o_down, &o_fused, &o_flags, &o_expected,
+                          &o_residual, &bits, &max_dip, &fraction, &unlevel, &gravity, &o_tan, &o_rad, &o_tilt,
+                          &o_var)) {
+        return NULL;
+    }
+    Array a[9];
+    Py_buffer fused, flags;
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_acc, &a[1], 2, n, 3, 0, "acc") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_down, &a[2], 2, n, 3, 0, "down_fused") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_expected, &a[3], 1, n, -1, 0, "expected") < 0) { release(a, 3); return NULL; }
+    if (get_array(o_residual, &a[4], 1, n, -1, 0, "residual") < 0) { release(a, 4); return NULL; }
+    if (get_array(o_tan, &a[5], 1, n, -1, 1, "tan_dip") < 0) { release(a, 5); return NULL; }
+    if (get_array(o_rad, &a[6], 1, n, -1, 1, "field_rad") < 0) { release(a, 6); return NULL; }
+    if (get_array(o_tilt, &a[7], 1, n, -1, 1, "tilt") < 0) { release(a, 7); return NULL; }
+    if (get_array(o_var, &a[8], 1, n, -1, 1, "variance") < 0) { release(a, 8); return NULL; }
+    if (PyObject_GetBuffer(o_fused, &fused, PyBUF_STRIDES | PyBUF_FORMAT) < 0) { release(a, 9); return NULL; }
+    if (fused.itemsize != 1 || fused.format == NULL || fused.format[0] != '?' || fused.ndim != 1 ||
+        fused.shape[0] != n) {
+        PyErr_Format(PyExc_ValueError, "fused must be a 1-D bool array of %zd items", n);
+        PyBuffer_Release(&fused);
+        release(a, 9);
+        return NULL;
+    }
+    if (get_int64(o_flags, &flags, n, "flags") < 0) { PyBuffer_Release(&fused); release(a, 9); return NULL; }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double f[3] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2)};
+        double g[3] = {AT(a[1], i, 0), AT(a[1], i, 1), AT(a[1], i, 2)};
+        double norm_acc = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+        double d[3];
+        if (((char *)fused.buf)[i * fused.strides[0]]) {
+            for (int k = 0; k < 3; k++) d[k] = AT(a[2], i, k);
+        } else {
+            for (int k = 0; k < 3; k++) d[k] = -g[k] / norm_acc;
+        }
+        if (!(isfinite(d[0]) && isfinite(d[1]) && isfinite(d[2]))) { /* no tilt known: level */
+            d[0] = 0.0, d[1] = 0.0, d[2] = 1.0;
+        }
+        double norm = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+        double sine = (f[0] * d[0] + f[1] * d[1] + f[2] * d[2]) / norm;
+        sine = sine < -1.0 ? -1.0 : (sine > 1.0 ? 1.0 : sine);
+        double dip = asin(sine);
+        dip = isnan(dip) ? 0.0 : dip;
+        dip = dip < -max_dip ? -max_dip : (dip > max_dip ? max_dip : dip);
+        double horizontal = norm * cos(dip), tan_dip = fabs(tan(dip));
+        double residual = AT1(a[4], i);
+        residual = isfinite(residual) ? residual : fraction * norm;
+        double field_rad = residual / horizontal;
+        double tilt = isfinite(norm_acc) ? fabs(norm_acc - gravity) / gravity : unlevel;
+        double tilt_share = tilt * tan_dip;
+        double variance = field_rad * field_rad + tilt_share * tilt_share;
+        long long flag = *(long long *)((char *)flags.buf + i * flags.strides[0]);
+        if (flag & bits) {
+            double turn = fabs(norm - AT1(a[3], i)) / horizontal;
+            if (isfinite(turn)) variance += turn * turn;
+        }
+        AT1(a[5], i) = tan_dip, AT1(a[6], i) = field_rad, AT1(a[7], i) = tilt, AT1(a[8], i) = variance;
+    }
+    PyBuffer_Release(&flags);
+    PyBuffer_Release(&fused);
+    release(a, 9);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(sigma_degrees_doc,
+             "sigma_degrees(variance, tilt, max_sigma_deg, unlevel_deg, min_tilt_deg, heading_deg, tilt_deg)\n\n"
+             "The sigmas in degrees (magnet.attitude.uncertainty): heading_deg (S,) sqrt(variance) (S,) rad^2 at "
+             "most max_sigma_deg (that where not finite); tilt_deg (S,) the tilt (S,) rad between min_tilt_deg and "
+             "90 (unlevel_deg where NaN).");
+
+static PyObject *sigma_degrees(PyObject *self, PyObject *args) {
+    PyObject *o_var, *o_tilt, *o_heading, *o_tilt_deg;
+    double max_sigma, unlevel, min_tilt;
+    if (!PyArg_ParseTuple(args, "OOdddOO", &o_var, &o_tilt, &max_sigma, &unlevel, &min_tilt, &o_heading,
+                          &o_tilt_deg)) {
+        return NULL;
+    }
+    Array a[4];
+    if (get_array(o_var, &a[0], 1, -1, -1, 0, "variance") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_tilt, &a[1], 1, n, -1, 0, "tilt") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_heading, &a[2], 1, n, -1, 1, "heading_deg") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_tilt_deg, &a[3], 1, n, -1, 1, "tilt_deg") < 0) { release(a, 3); return NULL; }
+    const double deg = 180.0 / M_PI;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double sigma = sqrt(AT1(a[0], i)) * deg;
+        AT1(a[2], i) = isfinite(sigma) ? (sigma < max_sigma ? sigma : max_sigma) : max_sigma;
+        double tilt = AT1(a[1], i) * deg;
+        AT1(a[3], i) = isnan(tilt) ? unlevel : (tilt < min_tilt ? min_tilt : (tilt > 90.0 ? 90.0 : tilt));
+    }
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(turn_about_down_doc,
+             "turn_about_down(quat, angle_deg, out)\n\n"
+             "out (S, 4): the attitudes quat (S, 4) wxyz body -> NED turned by angle_deg (S,) about NED down "
+             "(frames.rotate_heading: the product (cos h, 0, 0, sin h) q, h half the angle, then w >= 0); NaN rows "
+             "stay NaN.");
+
+static PyObject *turn_about_down(PyObject *self, PyObject *args) {
+    PyObject *o_quat, *o_angle, *o_out;
+    if (!PyArg_ParseTuple(args, "OOO", &o_quat, &o_angle, &o_out)) {
+        return NULL;
+    }
+    Array a[3];
+    if (get_array(o_quat, &a[0], 2, -1, 4, 0, "quat") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_angle, &a[1], 1, n, -1, 0, "angle_deg") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_out, &a[2], 2, n, 4, 1, "out") < 0) { release(a, 2); return NULL; }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double half = AT1(a[1], i) * (M_PI / 180.0) / 2.0;
+        double p[4] = {cos(half), 0.0, 0.0, sin(half)};
+        double q[4] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2), AT(a[0], i, 3)}, r[4];
+        quat_mul(p, q, r);
+        double sign = r[0] < 0 ? -1.0 : 1.0;
+        for (int k = 0; k < 4; k++) AT(a[2], i, k) = r[k] * sign;
+    }
+    release(a, 3);
+    Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(row_faults_doc,
+             "row_faults(arr, limit, absent_rows, nonfinite, beyond)\n\n"
+             "The raw decoder's value checks (magnet.wire.arrays.value_faults) in one pass over arr (N, k): "
+             "nonfinite (N,) bool, a value of the row is not finite (with absent_rows, unless every one is NaN: a "
+             "value not known at that sample); beyond (N,) bool, a value of the row is beyond +-limit.");
+
+static PyObject *row_faults(PyObject *self, PyObject *args) {
+    PyObject *o_arr, *o_nonfinite, *o_beyond;
+    double limit;
+    int absent_rows;
+    if (!PyArg_ParseTuple(args, "OdpOO", &o_arr, &limit, &absent_rows, &o_nonfinite, &o_beyond)) {
+        return NULL;
+    }
+    Array a;
+    Py_buffer nonfinite, beyond;
+    if (get_array(o_arr, &a, 2, -1, -1, 0, "arr") < 0) return NULL;
+    if (get_flags(o_nonfinite, &nonfinite, a.rows, "nonfinite") < 0) { release(&a, 1); return NULL; }
+    if (get_flags(o_beyond, &beyond, a.rows, "beyond") < 0) {
+        PyBuffer_Release(&nonfinite);
+        release(&a, 1);
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < a.rows; i++) {
+        int finite = 1, all_nan = 1, over = 0;
+        for (Py_ssize_t k = 0; k < a.cols; k++) {
+            double v = AT(a, i, k);
+            finite &= isfinite(v) != 0;
+            all_nan &= isnan(v) != 0;
+            over |= fabs(v) > limit;
+        }
+        ((char *)nonfinite.buf)[i * nonfinite.strides[0]] = (char)!(finite || (absent_rows && all_nan));
+        ((char *)beyond.buf)[i * beyond.strides[0]] = (char)over;
+    }
+    PyBuffer_Release(&beyond);
+    PyBuffer_Release(&nonfinite);
+    release(&a, 1);
+    Py_RETURN_NONE;
+}
+
+/* -acc / |acc| as heading.py's _down computes it (acc times -1 / |acc|; NaN where |acc| <= 1e-12 or not finite). */
+static void down_of(const double f[3], double d[3]) {
+    double norm = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    double scale = norm > 1e-12 ? -1.0 / norm : NAN;
+    d[0] = f[0] * scale, d[1] = f[1] * scale, d[2] = f[2] * scale;
+}
+
+PyDoc_STRVAR(tilt_heading_doc,
+             "tilt_heading(field, acc, heading, dip)\n\n"
+             "magnet.attitude.heading's per-sample maths over field (N, 3) and acc (N, 3), body frame: heading (N,) "
+             "the tilt-compensated heading in [0, 360) (atan2(e_x, n_x), e = d x B, n = e x d, d = -acc / |acc|; "
+             "NaN without a usable acc), and dip (N,) deg asin(B . d / |B|), unless dip is None.");
+
+static PyObject *tilt_heading(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_acc, *o_heading, *o_dip;
+    if (!PyArg_ParseTuple(args, "OOOO", &o_field, &o_acc, &o_heading, &o_dip)) {
+        return NULL;
+    }
+    Array a[4];
+    int with_heading = o_heading != Py_None, with_dip = o_dip != Py_None, count = 2;
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_acc, &a[1], 2, n, 3, 0, "acc") < 0) { release(a, 1); return NULL; }
+    if (with_heading) {
+        if (get_array(o_heading, &a[count], 1, n, -1, 1, "heading") < 0) { release(a, count); return NULL; }
+        count++;
+    }
+    if (with_dip) {
+        if (get_array(o_dip, &a[count], 1, n, -1, 1, "dip") < 0) { release(a, count); return NULL; }
+        count++;
+    }
+    const double deg = 180.0 / M_PI;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double b[3] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2)};
+        double g[3] = {AT(a[1], i, 0), AT(a[1], i, 1), AT(a[1], i, 2)}, d[3];
+        down_of(g, d);
+        if (with_heading) {
+            double ex = d[1] * b[2] - d[2] * b[1], ey = d[2] * b[0] - d[0] * b[2], ez = d[0] * b[1] - d[1] * b[0];
+            double h = mod_360(atan2(ex, ey * d[2] - ez * d[1]) * deg);
+            AT1(a[2], i) = h >= 360.0 ? 0.0 : h;
+        }
+        if (with_dip) {
+            double sine = (b[0] * d[0] + b[1] * d[1] + b[2] * d[2]) / sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+            sine = sine < -1.0 ? -1.0 : (sine > 1.0 ? 1.0 : sine);
+            AT1(a[count - 1], i) = asin(sine) * deg;
+        }
+    }
+    release(a, count);
+    Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
@@ -665,13 +987,31 @@ static int room(char **buf, Py_ssize_t *size, Py_ssize_t pos, Py_ssize_t more) {
     return 0;
 }
 
-/* The digits of ``v`` (v >= 0) at ``out``, at least ``width`` of them (zeros in front); returns how many. */
+/* "00" .. "99": two digits a division (the digits' loop was half of ``format_rows``) */
+static const char digit_pairs[] =
+    "00010203040506070809101112131415161718192021222324252627282930313233343536373839404142434445464748495051525354"
+    "555657585960616263646566676869707172737475767778798081828384858687888990919293949596979899";
+
+/* The digits of ``v`` (v >= 0) at ``out``, at least ``width`` of them (zeros in front; width <= 20); returns how
+ * many. */
 static int digits(unsigned long long v, int width, char *out) {
     char tmp[24];
-    int n = 0;
-    do { tmp[n++] = (char)('0' + v % 10); v /= 10; } while (v);
-    while (n < width) tmp[n++] = '0';
-    for (int i = 0; i < n; i++) out[i] = tmp[n - 1 - i];
+    char *p = tmp + sizeof tmp;
+    while (v >= 100) {
+        unsigned q = (unsigned)(v % 100);
+        v /= 100;
+        p -= 2;
+        memcpy(p, digit_pairs + 2 * q, 2);
+    }
+    if (v >= 10) {
+        p -= 2;
+        memcpy(p, digit_pairs + 2 * v, 2);
+    } else {
+        *--p = (char)('0' + v);
+    }
+    int n = (int)(tmp + sizeof tmp - p);
+    while (n < width) { *--p = '0'; n++; }
+    memcpy(out, p, (size_t)n);
     return n;
 }
 
@@ -683,15 +1023,30 @@ static int fixed(double x, int d, char *out) {
     if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
     if (d <= 9) {
         double scaled = fabs(x) * tens[d];
-        double whole = floor(scaled), frac = scaled - whole;
-        if (scaled < 1e15 && fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
-            unsigned long long r = (unsigned long long)whole + (frac > 0.5);
-            unsigned long long unit = (unsigned long long)tens[d];
-            int n = 0;
-            if (signbit(x)) out[n++] = '-';
-            n += digits(r / unit, 1, out + n);
-            if (d > 0) { out[n++] = '.'; n += digits(r % unit, d, out + n); }
-            return n;
+        if (scaled < 1e15) {
+            /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
+            unsigned long long whole = (unsigned long long)scaled;
+            double frac = scaled - (double)whole;
+            if (fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
+                unsigned long long r = whole + (frac > 0.5), units, decimals;
+                switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
+                    case 0: units = r; decimals = 0; break;
+                    case 1: units = r / 10; decimals = r % 10; break;
+                    case 2: units = r / 100; decimals = r % 100; break;
+                    case 3: units = r / 1000; decimals = r % 1000; break;
+                    case 4: units = r / 10000; decimals = r % 10000; break;
+                    case 5: units = r / 100000; decimals = r % 100000; break;
+                    case 6: units = r / 1000000; decimals = r % 1000000; break;
+                    case 7: units = r / 10000000; decimals = r % 10000000; break;
+                    case 8: units = r / 100000000; decimals = r % 100000000; break;
+                    default: units = r / 1000000000; decimals = r % 1000000000; break;
+                }
+                int n = 0;
+                if (signbit(x)) out[n++] = '-';
+                n += digits(units, 1, out + n);
+                if (d > 0) { out[n++] = '.'; n += digits(decimals, d, out + n); }
+                return n;
+            }
         }
     }
     return snprintf(out, 400, "%.*f", d, x);
@@ -1589,6 +1944,12 @@ static PyMethodDef methods[] = {
     {"drift_step", drift_step, METH_VARARGS, drift_step_doc},
     {"advance_field", advance_field, METH_VARARGS, advance_field_doc},
     {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
+    {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
+    {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
+    {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
+    {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
+    {"row_faults", row_faults, METH_VARARGS, row_faults_doc},
+    {"tilt_heading", tilt_heading, METH_VARARGS, tilt_heading_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
     {"vqf_probe", vqf_probe, METH_VARARGS, vqf_probe_doc},

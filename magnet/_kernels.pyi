@@ -49,6 +49,46 @@ def watch_update(
     max_reject_s: float,
     turn_floor_rad: float,
 ) -> None: ...
+def vqf_attitudes(
+    raw: np.ndarray,
+    fused: np.ndarray,
+    quat: np.ndarray,
+    rotation: np.ndarray,
+    down: np.ndarray,
+    heading: np.ndarray,
+    pitch: np.ndarray,
+    roll: np.ndarray,
+) -> None: ...
+def sigma_direct(
+    field: np.ndarray,
+    acc: np.ndarray,
+    down_fused: np.ndarray,
+    fused: np.ndarray,
+    flags: np.ndarray,
+    expected: np.ndarray,
+    residual: np.ndarray,
+    disturbed_bits: int,
+    max_dip_rad: float,
+    uncalibrated_fraction: float,
+    unlevel_rad: float,
+    gravity: float,
+    tan_dip: np.ndarray,
+    field_rad: np.ndarray,
+    tilt: np.ndarray,
+    variance: np.ndarray,
+) -> None: ...
+def sigma_degrees(
+    variance: np.ndarray,
+    tilt: np.ndarray,
+    max_sigma_deg: float,
+    unlevel_deg: float,
+    min_tilt_deg: float,
+    heading_deg: np.ndarray,
+    tilt_deg: np.ndarray,
+) -> None: ...
+def turn_about_down(quat: np.ndarray, angle_deg: np.ndarray, out: np.ndarray) -> None: ...
+def row_faults(arr: np.ndarray, limit: float, absent_rows: bool, nonfinite: np.ndarray, beyond: np.ndarray) -> None: ...
+def tilt_heading(field: np.ndarray, acc: np.ndarray, heading: np.ndarray | None, dip: np.ndarray | None) -> None: ...
 def format_rows(matrix: np.ndarray, decimals: bytes) -> bytes: ...
 def vqf_bind(path: str) -> None: ...
 def vqf_probe(filter: object) -> dict[str, Any]: ...

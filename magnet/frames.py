@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from magnet import _kernels
+
 # ------------------------------------------------------------------------------------------ matrices, Euler angles
 
 
@@ -264,10 +266,16 @@ def ned_enu_attitude(quat_wxyz: np.ndarray) -> np.ndarray:
 
 
 def rotate_heading(quat_wxyz: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarray:
-    """Quaternions (..., 4) turned by ``angle_deg`` about NED down (magnetic -> true north: the declination); w >= 0."""
-    half = np.radians(np.asarray(angle_deg, dtype=float)) / 2
-    turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)
-    return w_positive(quaternion_multiply(turn, quat_wxyz))
+    """Quaternions (..., 4) turned by ``angle_deg`` (broadcast to (...)) about NED down (magnetic -> true north: the
+    declination): the product (cos h, 0, 0, sin h) q, h half the angle, then w >= 0; compiled, one pass
+    (``magnet._kernels.turn_about_down``)."""
+    quat = np.asarray(quat_wxyz, dtype=float)
+    angle = np.asarray(angle_deg, dtype=float)
+    shape = np.broadcast_shapes(quat.shape[:-1], angle.shape)
+    quat = np.broadcast_to(quat, (*shape, 4)).reshape(-1, 4)
+    out = np.empty_like(quat)
+    _kernels.turn_about_down(quat, np.broadcast_to(angle, shape).reshape(-1), out)
+    return out.reshape(*shape, 4)
 
 
 def to_magnetic_ned(vel_ned_ms: np.ndarray, declination_deg: float | np.ndarray) -> np.ndarray:

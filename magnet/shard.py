@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
 import re
 
 _SPEC = re.compile(r"^\s*(\d+)\s*/\s*(\d+)\s*$")
@@ -23,6 +22,8 @@ MAX_SHARDS = 10_000
 
 @functools.lru_cache(maxsize=200_000)
 def _hash64(device: str) -> int:
+    import hashlib  # on the first hash (a sharded compass), not on every import: OpenSSL's hashes take ms to load
+
     return int.from_bytes(hashlib.sha256(device.encode("utf-8")).digest()[:8], "big")
 
 

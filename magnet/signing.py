@@ -14,7 +14,6 @@ from __future__ import annotations
 import base64
 import binascii
 import dataclasses
-import hashlib
 import json
 import math
 from collections.abc import Iterable, Mapping
@@ -57,6 +56,8 @@ def canonical_bytes(record: Mapping[str, Any]) -> bytes:
 
 
 def key_id(public_key: Ed25519PublicKey) -> str:
+    import hashlib
+
     from cryptography.hazmat.primitives import serialization
 
     raw = public_key.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)

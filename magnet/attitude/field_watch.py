@@ -76,6 +76,16 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+#: the one definition of a disturbed field's steps and strength, shared by the watch (the compass, ``magnet heading``)
+#: and ``magnet.quality.disturbance`` (whole logs, the fits): step windows with their floors ((window_s, floor_ut),
+#: ...) between means over SMOOTH_S; |B| beyond FIELD_TOL_PCT % of its reference; a step's level per radian turned
+#: within its window, plus TURN_FLOOR_RAD
+STEPS: tuple[tuple[float, float], ...] = ((0.25, 2.5), (2.0, 3.5))
+SMOOTH_S = 0.1
+FIELD_TOL_PCT = 8.0
+TURN_FLOOR_RAD = 0.25
+
+
 @dataclasses.dataclass(frozen=True)
 class WatchSettings:
     """The causal watch's rules (``FieldWatch``): the step windows with their floors ((window_s, floor_ut), ...)
@@ -89,15 +99,15 @@ class WatchSettings:
     scale error all change the field in the gyroscope's frame in proportion to the turning, so fast turns are
     judged by what the device usually shows when it turns as fast."""
 
-    steps: tuple[tuple[float, float], ...] = ((0.25, 2.5), (2.0, 3.5))
-    smooth_s: float = 0.1
+    steps: tuple[tuple[float, float], ...] = STEPS
+    smooth_s: float = SMOOTH_S
     relative: float = 4.0
-    field_tol_pct: float = 8.0
+    field_tol_pct: float = FIELD_TOL_PCT
     learn_s: float = 5.0
     level_tau_s: float = 20.0
     hold_s: float = 0.5
     max_reject_s: float = 10.0
-    turn_floor_rad: float = 0.25
+    turn_floor_rad: float = TURN_FLOOR_RAD
 
 
 class FieldWatch:
@@ -117,8 +127,12 @@ class FieldWatch:
 
     BLOCK_S = 0.5
     #: ``state``'s entries (as magnet/_kernels.c names them): attitude wxyz, radians turned, samples seen, reference
-    #: |B| (uT), hold left, flagged run, the block's pending and calm counts.
-    STATE = ("qw", "qx", "qy", "qz", "turned", "samples", "reference_ut", "hold_left", "flagged_run", "pending", "calm")
+    #: |B| (uT), hold left, flagged run, the block's pending and calm counts, the running sum of the last ``smooth``
+    #: samples' field in the integrated frame (x, y, z; summed afresh every ring's length, so its rounding stays small).
+    STATE = (
+        "qw", "qx", "qy", "qz", "turned", "samples", "reference_ut", "hold_left", "flagged_run", "pending", "calm",
+        "sum_x", "sum_y", "sum_z",
+    )  # fmt: skip
 
     def __init__(self, period_s: float, settings: WatchSettings = WatchSettings()) -> None:
         self.period_s, self.settings = float(period_s), settings

@@ -26,6 +26,7 @@ import numpy as np
 import vqf
 
 from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
+from magnet.attitude.drift_bias import offline_correction
 from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
 from magnet.attitude.turn_gate import TurnGate, run_gated
@@ -125,21 +126,9 @@ def _empty() -> Fused:
 
 
 #: vqf's state that belongs to the magnetometer (``Fusion.restart_magnetometer``)
-_MAGNETIC_STATE = (
-    "delta",
-    "kMagInit",
-    "lastMagDisAngle",
-    "lastMagCorrAngularRate",
-    "magCandidateDip",
-    "magCandidateNorm",
-    "magCandidateT",
-    "magDistDetected",
-    "magNormDip",
-    "magNormDipLpState",
-    "magRefDip",
-    "magRefNorm",
-    "magRejectT",
-    "magUndisturbedT",
+_MAGNETIC_STATE = tuple(
+    "delta kMagInit lastMagDisAngle lastMagCorrAngularRate magCandidateDip magCandidateNorm magCandidateT "
+    "magDistDetected magNormDip magNormDipLpState magRefDip magRefNorm magRejectT magUndisturbedT".split()
 )
 
 
@@ -178,6 +167,12 @@ class Fusion:
         self.turn_gate = TurnGate(self.period_s) if turn_gate else None
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
+
+    @property
+    def aided(self) -> bool:
+        """Whether the velocity-aided filter runs (from the first batch with a velocity on, until ``restart``): its
+        samples must then all come with their times, the velocity NaN where unknown (``update_vqf_frame``)."""
+        return self._aided is not None
 
     def restart(self) -> None:
         """Back to the initial state: attitude, gyro bias and magnetic reference forgotten."""
@@ -328,6 +323,7 @@ def fuse_offline(
     t_s: np.ndarray | None = None,
     vel_ned_ms: np.ndarray | None = None,
     watch: bool = False,
+    vertical_bias: bool = True,
 ) -> Fused:
     """Best estimate for a whole log (vqf's ``offlineVQF``: looks ahead, forward and backward). Shapes as ``Fusion``.
     With ``t_s`` and ``vel_ned_ms`` (magnetic NED) the accelerometer is first freed of the linear acceleration the
@@ -335,21 +331,31 @@ def fuse_offline(
     ``watch`` (the default) the samples the field's watch flags over the log (``FieldWatch``, as the causal filter
     runs it) reach ``offlineVQF`` without their field and are flagged disturbed. Off by default: offlineVQF looks
     ahead and rejects on its own, and the watch's few flags on BROAD (0.3 % of the samples) make it worse there
-    (0.809 -> 0.888 and 0.530 -> 0.536 deg; docs/compass.md, "Disturbances")."""
+    (0.809 -> 0.888 and 0.530 -> 0.536 deg; docs/compass.md, "Disturbances"). With ``vertical_bias`` (the default)
+    and the field, where vqf cannot learn the gyroscope's bias about the vertical (it never rests), that bias is first
+    found from the field's heading drift over the log and taken off, and without a velocity vqf trusts the field over
+    a longer time (``magnet.attitude.drift_bias.offline_correction``)."""
     period = _check_period(period_s)
     gyr = _to_vqf(gyr_rads, "gyr_rads")
     if len(gyr) == 0:
         return _empty()
     acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
     field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
+    aided = False
     if field is not None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+        aided = True
         causal = Fusion(period, params)
         quat, _ = causal.update_vqf_frame(gyr, acc, field, np.asarray(t_s, dtype=float), vel_ned_ms)
         acc = np.ascontiguousarray(acc - body_acceleration(quat, t_s, vel_ned_ms))
     watched = FieldWatch(period).update(field, gyr) if field is not None and watch else np.zeros(len(gyr), bool)
     if field is not None and watched.any():
         field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
-    out = dict(vqf.offlineVQF(gyr, acc, field, period, dict(params) if params else None))
+    options = dict(params) if params else {}
+    out = dict(vqf.offlineVQF(gyr, acc, field, period, options or None))
+    if field is not None and vertical_bias:  # again, with the bias about the vertical its 6D attitude shows
+        gyr, options, found = offline_correction(gyr, field, period, options, out, lengthen=not aided)
+        if found:
+            out = dict(vqf.offlineVQF(gyr, acc, field, period, options or None))
     if field is not None:
         out["magDistDetected"] = np.asarray(out["magDistDetected"], dtype=bool).reshape(-1) | watched
     return Fused.from_vqf(out, field is not None)

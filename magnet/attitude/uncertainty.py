@@ -26,7 +26,8 @@ of the sum of their squares (radians, given in degrees, at most 180):
 
 Shapes: S samples of many batches (``bounds``), vectors (S, 3) in the body frame (x forward, y right, z down),
 attitudes (S, 4) body -> magnetic NED. Per-device state (the low-passes, the last trusted time) is kept across steps
-for at most ``max_devices`` devices. Pure numpy: times are the samples' own.
+for at most ``max_devices`` devices. Pure (numpy, and the per-sample maths compiled: ``_direct``); times are the
+samples' own.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from magnet import _kernels
 from magnet.attitude import heading as hd
 from magnet.bounded import Recent
 from magnet.frames import quaternion_to_matrix
@@ -99,30 +101,6 @@ class _Device:
     mag: tuple[float, float] = (0.0, 0.0)
     fed_s: float | None = None
     waiting: list[tuple[float, float, float]] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class Geometry:
-    """Per sample (S,): |B_h| (uT), tan(dip) (held at ``MAX_DIP_DEG``), and the down direction in body axes (S, 3)."""
-
-    horizontal_ut: np.ndarray
-    tan_dip: np.ndarray
-    down: np.ndarray
-
-    @classmethod
-    def of(cls, field_ut: np.ndarray, acc_ms2: np.ndarray, rotation: np.ndarray | None, fused: np.ndarray) -> Geometry:
-        """From the field (S, 3) uT, the accelerometer (S, 3) (NaN rows: none), the fused rotations (S, 3, 3) body
-        -> NED (or None) and which samples are fused (S,)."""
-        with np.errstate(invalid="ignore", divide="ignore"):
-            down = -acc_ms2 / hd.row_norm(acc_ms2)[:, None]
-        if rotation is not None:
-            down = np.where(fused[:, None], rotation[:, 2, :], down)
-        down = np.where(hd.rows_finite(down)[:, None], down, [0.0, 0.0, 1.0])  # no tilt known: level
-        norm = hd.row_norm(field_ut)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sine = np.clip(np.einsum("si,si->s", field_ut, down) / norm, -1.0, 1.0)
-        dip = np.clip(np.nan_to_num(np.arcsin(sine)), -math.radians(MAX_DIP_DEG), math.radians(MAX_DIP_DEG))
-        return cls(norm * np.cos(dip), np.abs(np.tan(dip)), down)
 
 
 class _Batches(NamedTuple):
@@ -210,43 +188,37 @@ class HeadingUncertainty:
         expected_ut: np.ndarray,
         residuals_ut: Sequence[float | None],
         figures: Sequence[FilterFigures | None],
+        rotation: np.ndarray | None = None,
     ) -> Sigmas:
         """The sigmas (``Sigmas``, (S,) deg each) of S samples. t_ns (S,) int; acc_ms2 and field_ut (S, 3) (the
         corrected field; NaN acc rows: no accelerometer); flags (S,) ``HeadingFlag`` bits (FUSED, FIELD_DISTURBED,
         ...); quat_wxyz (S, 4) body -> magnetic NED where fused (NaN rows elsewhere), None when nothing is fused;
         expected_ut (S,) the field expected at the place (NaN: unknown); per batch the calibration's residual RMS
-        (uT, None: not calibrated) and the filter's figures (None: not fused)."""
+        (uT, None: not calibrated) and the filter's figures (None: not fused). ``rotation`` (S, 3, 3): the matrices
+        of ``quat_wxyz`` where fused and the identity elsewhere, when the caller has them already (the compass:
+        ``FusedColumns.rotation``); None: made here."""
         flags = np.asarray(flags, dtype=np.int64)
         fused = (flags & int(hd.HeadingFlag.FUSED)) != 0
-        rotation = None
-        if quat_wxyz is not None and fused.any():
+        if quat_wxyz is None or not fused.any():
+            rotation = None
+        elif rotation is None:
             rotation = quaternion_to_matrix(
                 np.where(fused[:, None] & hd.rows_finite(quat_wxyz)[:, None], quat_wxyz, _ONE)
             )
-        geometry = Geometry.of(field_ut, acc_ms2, rotation, fused)
         counts = np.diff(np.asarray(bounds, dtype=np.int64)).tolist()
         residual = np.repeat([math.nan if r is None else float(r) for r in residuals_ut], counts)
-        residual = np.where(np.isfinite(residual), residual, UNCALIBRATED_FRACTION * hd.row_norm(field_ut))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            field_rad = residual / geometry.horizontal_ut
-        tilt = _direct_tilt(acc_ms2)
-        variance = field_rad**2 + (tilt * geometry.tan_dip) ** 2
-        variance += _disturbance_variance(field_ut, flags, expected_ut, geometry)
+        tan_dip, field_rad, tilt, variance = _direct(field_ut, acc_ms2, rotation, fused, flags, expected_ut, residual)
         if rotation is not None:
             trusted = fused & ((flags & int(hd.HeadingFlag.FIELD_DISTURBED)) == 0)
-            batches = _Batches.of(
-                bounds, t_ns, fused, trusted, geometry.tan_dip, _horizontal_force_g(acc_ms2, rotation)
-            )
+            batches = _Batches.of(bounds, t_ns, fused, trusted, tan_dip, _horizontal_force_g(acc_ms2, rotation))
             per_batch = self._filtered(devices, batches, figures)
             filtered = np.repeat(per_batch[:, 0], counts) * field_rad**2 + np.repeat(per_batch[:, 1], counts)
             drift = self._drift(devices, bounds, t_ns, trusted, batches, figures)
             use = fused & np.repeat(per_batch[:, 3] > 0, counts)
             variance = np.where(use, filtered + drift**2, variance)
             tilt = np.where(use, np.repeat(per_batch[:, 2], counts), tilt)
-        with np.errstate(invalid="ignore"):
-            sigma = np.degrees(np.sqrt(variance))
-        heading = np.where(np.isfinite(sigma), np.minimum(sigma, MAX_SIGMA_DEG), MAX_SIGMA_DEG)
-        tilt_deg = np.clip(np.nan_to_num(np.degrees(tilt), nan=UNLEVEL_DEG), MIN_TILT_DEG, 90.0)
+        heading, tilt_deg = np.empty(len(variance)), np.empty(len(variance))
+        _kernels.sigma_degrees(variance, tilt, MAX_SIGMA_DEG, UNLEVEL_DEG, MIN_TILT_DEG, heading, tilt_deg)
         return Sigmas(heading, tilt_deg)
 
     def _filtered(
@@ -341,18 +313,28 @@ def _horizontal_force_g(acc_ms2: np.ndarray, rotation: np.ndarray) -> np.ndarray
     return np.einsum("sij,sj->si", rotation, acc_ms2)[:, :2] / STANDARD_GRAVITY_MS2
 
 
-def _direct_tilt(acc_ms2: np.ndarray) -> np.ndarray:
-    """(S,) rad: the tilt error of an attitude from the accelerometer alone (the module's 2, no filter)."""
-    norm = hd.row_norm(acc_ms2)
-    unlevel = math.radians(UNLEVEL_DEG)
-    return np.where(np.isfinite(norm), np.abs(norm - STANDARD_GRAVITY_MS2) / STANDARD_GRAVITY_MS2, unlevel)
-
-
-def _disturbance_variance(
-    field_ut: np.ndarray, flags: np.ndarray, expected_ut: np.ndarray, geometry: Geometry
+def _direct(
+    field_ut: np.ndarray,
+    acc_ms2: np.ndarray,
+    rotation: np.ndarray | None,
+    fused: np.ndarray,
+    flags: np.ndarray,
+    expected_ut: np.ndarray,
+    residual_ut: np.ndarray,
 ) -> np.ndarray:
-    """(S,) rad^2: a flagged disturbance in a heading taken from the field directly (the module's 4)."""
-    flagged = (flags & _DISTURBED) != 0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        turn = np.abs(hd.row_norm(field_ut) - np.asarray(expected_ut, dtype=float)) / geometry.horizontal_ut
-    return np.where(flagged & np.isfinite(turn), turn**2, 0.0)
+    """(4, S): per sample |tan(dip)| (the dip against the fused down where ``rotation`` (S, 3, 3) is given and the
+    sample ``fused``, else against the accelerometer's, else level; held at ``MAX_DIP_DEG``), the calibration's
+    share r / |B_h| (rad; r the ``residual_ut`` (S,), NaN: ``UNCALIBRATED_FRACTION`` of |B|), the tilt error of an
+    attitude from the accelerometer alone (rad: | |acc| - g | / g, ``UNLEVEL_DEG`` without one) and the variance
+    (rad^2) of a heading taken from the field directly: the module's 1, 2 and 4 (a flagged disturbance:
+    (| |B| - expected | / |B_h|)^2). One compiled pass (``magnet._kernels.sigma_direct``)."""
+    count = len(field_ut)
+    out = np.empty((4, count))
+    down, where = (acc_ms2, np.zeros(count, dtype=bool)) if rotation is None else (rotation[:, 2, :], fused)
+    expected = np.broadcast_to(np.asarray(expected_ut, dtype=float), (count,))
+    _kernels.sigma_direct(
+        np.asarray(field_ut, dtype=float), np.asarray(acc_ms2, dtype=float), down, where, flags, expected,
+        residual_ut, _DISTURBED, math.radians(MAX_DIP_DEG), UNCALIBRATED_FRACTION, math.radians(UNLEVEL_DEG),
+        STANDARD_GRAVITY_MS2, *out,
+    )  # fmt: skip
+    return out

@@ -33,7 +33,6 @@ past that they go out without an id (0) and the ids are asked again every ``ID_R
 from __future__ import annotations
 
 import collections
-import dataclasses
 import re
 from collections.abc import Mapping
 from typing import Any
@@ -41,8 +40,7 @@ from typing import Any
 import numpy as np
 
 from magnet.autopilot import hwid, mavlink
-from magnet.autopilot.gyro_check import GyroCheck
-from magnet.earth.location import Location
+from magnet.autopilot.mavlink_vehicle import Pending, Vehicle
 from magnet.wire.raw import RawBatch
 
 SENSOR = "mavlink"
@@ -67,46 +65,10 @@ MAV_AUTOPILOT_INVALID = 8
 #: devices one connection may make by default (``--max-port-devices``): a port serves a vehicle or a few dozen, each
 #: with up to three compasses; 255 system ids times 256 HIGHRES_IMU ids would be 65,280
 MAX_PORT_DEVICES = 64
-
-
-@dataclasses.dataclass
-class Vehicle:
-    """What is known of one vehicle (by MAVLink system id): the clock's offset, the last message (wall ns), its
-    place, velocity, current and throttle with the wall ns each came, whether it is armed."""
-
-    offset_ns: int | None = None
-    last_boot_ns: int = 0
-    last_seen_ns: int = 0
-    location: Location | None = None
-    velocity: tuple[np.ndarray, int] | None = None
-    current: tuple[float, int] | None = None
-    throttle: tuple[float, int] | None = None
-    armed: bool = False
-    #: the autopilot: its component id and MAV_AUTOPILOT (from its HEARTBEAT), None until heard
-    compid: int | None = None
-    autopilot: int | None = None
-    #: compass instance -> the id of the sensor behind it (0: none in that slot), as read since the last boot
-    ids: dict[int, int] = dataclasses.field(default_factory=dict)
-    #: since when (wall ns) the ids are being read (samples wait), None when not; when they were last asked
-    asking_ns: int | None = None
-    asked_ns: int = 0
-    #: when to ask again after giving up (wall ns), None when not given up
-    retry_ns: int | None = None
-
-
-@dataclasses.dataclass
-class Pending:
-    """A device's samples not yet sent: times (ns) and rows of (mag (3), acc (3), gyr (3), vel (3), current,
-    throttle, hardware id (NaN while it is being read)); ``instance`` its compass instance."""
-
-    sysid: int
-    instance: int = 0
-    times: list[int] = dataclasses.field(default_factory=list)
-    rows: list[np.ndarray] = dataclasses.field(default_factory=list)
-    first_ns: int = 0
-    seq: int = 0
-    last_t_ns: int = -1
-    gyro: GyroCheck = dataclasses.field(default_factory=GyroCheck)
+#: a device whose samples stopped this long (wall clock) gives its place among ``max_devices`` back
+#: (``--forget-after``): a flood of ids that fell silent no longer keeps a real vehicle that comes later out
+FORGET_NS = 60_000_000_000
+FORGET_CHECK_NS = 1_000_000_000
 
 
 class MavlinkStream:
@@ -118,16 +80,31 @@ class MavlinkStream:
     ``dropped:<cause>`` per cause; ``last_error`` the last drop's reason.
 
     At most ``max_devices`` devices: a sample of a new device beyond them is dropped and counted
-    (``dropped:device-limit``); the devices already known are unaffected."""
+    (``dropped:device-limit``); the devices already known are unaffected. A device with no sample for ``forget_ns``
+    (and none waiting) is forgotten (``forget``, counted ``forgotten``): its place is free for a new one, and it is a
+    new device when it sends again."""
 
-    def __init__(self, prefix: str = "mav", batch: int = 10, motors: int = 4, max_devices: int = MAX_PORT_DEVICES):
+    def __init__(
+        self,
+        prefix: str = "mav",
+        batch: int = 10,
+        motors: int = 4,
+        max_devices: int = MAX_PORT_DEVICES,
+        forget_ns: int = FORGET_NS,
+    ):
         if isinstance(max_devices, bool) or not isinstance(max_devices, int) or max_devices < 1:
             raise ValueError(f"max_devices must be a whole number >= 1, got {max_devices!r}")
+        if isinstance(forget_ns, bool) or not isinstance(forget_ns, int) or forget_ns < 1:
+            raise ValueError(f"forget_ns must be a whole number of ns >= 1, got {forget_ns!r}")
         self.prefix, self.batch, self.motors, self.max_devices = prefix, batch, motors, max_devices
+        self.forget_ns = forget_ns
         self.vehicles: dict[int, Vehicle] = {}
         self.pending: dict[str, Pending] = {}
         self.counts: collections.Counter[str] = collections.Counter()
         self.last_error = ""
+        #: devices forgotten since the owner last took them (``take_forgotten``)
+        self.forgotten: list[str] = []
+        self._forget_checked_ns = 0
 
     def device(self, sysid: int, instance: int) -> str:
         """The device id of a vehicle's magnetometer: ``<prefix><sysid>-mag<instance>``."""
@@ -273,6 +250,8 @@ class MavlinkStream:
         pending = self.pending.get(device)
         if pending is None:
             if len(self.pending) >= self.max_devices:
+                self.forget(now_ns)
+            if len(self.pending) >= self.max_devices:
                 raise mavlink.MavlinkError(
                     "device-limit",
                     f"{device}: a new device beyond the {self.max_devices} this connection may make",
@@ -281,7 +260,7 @@ class MavlinkStream:
         t_ns = max(self._time(vehicle, sample.boot_ns, now_ns), pending.last_t_ns + 1)
         known = vehicle.ids.get(sample.instance)
         sensor_id = float(known) if known is not None else (np.nan if vehicle.asking_ns is not None else 0.0)
-        pending.last_t_ns = t_ns
+        pending.last_t_ns, pending.last_ns = t_ns, now_ns
         gyr = sample.gyr_rads if pending.gyro.usable(sample.gyr_rads, sample.mag_ut) else None
         if not pending.rows:
             pending.first_ns = now_ns
@@ -302,8 +281,12 @@ class MavlinkStream:
     def take(self, now_ns: int, flush: bool = False) -> list[RawBatch]:
         """The batches due: every device with ``batch`` samples waiting, or whose oldest waited ``MAX_WAIT_NS``
         (all of them when ``flush``); samples whose sensor's id is being read wait (at most ``ID_WAIT_NS``, unless
-        ``flush``), and a batch holds the samples of one sensor only."""
+        ``flush``), and a batch holds the samples of one sensor only. Devices silent ``forget_ns`` are forgotten
+        (at most once a second: ``take_forgotten`` says which)."""
         self._expire(now_ns)
+        if now_ns - self._forget_checked_ns >= FORGET_CHECK_NS:
+            self._forget_checked_ns = now_ns
+            self.forget(now_ns)
         out = []
         for device, pending in self.pending.items():
             due = len(pending.rows) >= self.batch or now_ns - pending.first_ns >= MAX_WAIT_NS or flush
@@ -336,6 +319,21 @@ class MavlinkStream:
             _values(table[:, 13]),
             hardware_id=0 if np.isnan(first) else int(first),
         )
+
+    def take_forgotten(self) -> list[str]:
+        """The devices forgotten since the last call (the edge frees their tokens and places)."""
+        out, self.forgotten = self.forgotten, []
+        return out
+
+    def forget(self, now_ns: int) -> list[str]:
+        """Forget the devices with no sample for ``forget_ns`` and none waiting to go out; their ids (each counted
+        ``forgotten``). Called by ``take`` (so the edge hears of them), and when a new device finds no place."""
+        gone = [d for d, p in self.pending.items() if not p.rows and now_ns - p.last_ns >= self.forget_ns]
+        for device in gone:
+            del self.pending[device]
+        self.counts["forgotten"] += len(gone)
+        self.forgotten.extend(gone)
+        return gone
 
     @property
     def gyro_absent(self) -> list[str]:

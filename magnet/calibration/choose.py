@@ -21,6 +21,10 @@ The rule (``fit_auto``):
 - none accepted: the refusal of gyro-ellipsoid (ellipsoid's when gyro-ellipsoid could not be computed), its
   reason naming both methods' reasons; FitError (both messages) when neither could be computed.
 
+Before any of it, the samples in a disturbed field are left out (``magnet.calibration.disturbed``): judged with the
+calibration in force, else from the raw field and then once more with the first choice's correction, the choice
+being made again when that finds more.
+
 The chosen record's quality carries ``auto_other``: the other method, whether it was accepted, its held-out
 consistency (deg or None) and, when it could not be computed, why (``error``); its reason ends with the choice.
 """
@@ -31,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.calibration import field
+from magnet.calibration import disturbed, field
 from magnet.calibration.base import FitError, Method
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.fitting import fit
@@ -59,16 +63,39 @@ def parse_choice(value: Method | str) -> str:
 
 
 def fit_choice(data: FitInput, choice: Method | str) -> Calibration:
-    """``fit_auto`` for "auto", else ``fit`` with that method."""
+    """``fit_auto`` for "auto", else ``fit`` with that method, its disturbed samples left out as ``fit_auto``
+    leaves them (``magnet.calibration.disturbed``: once more with the first fit's correction)."""
     chosen = parse_choice(choice)
     if chosen == AUTO:
         return fit_auto(data)
-    return fit(data, chosen)
+    if chosen == Method.TURNTABLE.value:
+        return fit(data, chosen)
+    data = disturbed.judged(data)
+    first = fit(data, chosen)
+    again = disturbed.refined(data, first)
+    if again is None:
+        return first
+    try:
+        return fit(again, chosen)
+    except FitError:  # too few samples left: the first
+        return first
 
 
 def fit_auto(data: FitInput) -> Calibration:
-    """The better of gyro-ellipsoid and ellipsoid for ``data`` (the rule: the module docstring). Raises FitError
-    when no calibration can be computed by either."""
+    """The better of gyro-ellipsoid and ellipsoid for ``data`` (the rule: the module docstring), its disturbed
+    samples left out. Raises FitError when no calibration can be computed by either."""
+    data = disturbed.judged(data)
+    first = _fit_auto(data)
+    again = disturbed.refined(data, first)
+    if again is None:
+        return first
+    try:
+        return _fit_auto(again)
+    except FitError:  # too few samples left: the first
+        return first
+
+
+def _fit_auto(data: FitInput) -> Calibration:
     if not data.has_gyroscope:
         plain = data.replace(gyr_rads=None, period_s=None)
         try:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.calibration import candidates, course
+from magnet.calibration import candidates, course, disturbed
 from magnet.calibration.base import FitError
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung
@@ -67,6 +67,7 @@ class FieldInput:
     reference: Calibration | None = None
     vel_ned_ms: np.ndarray | None = None
     declination_deg: float | None = None
+    disturbed: np.ndarray | None = None
 
     @classmethod
     def of(cls, data: FitInput) -> FieldInput:
@@ -88,6 +89,7 @@ class FieldInput:
             data.reference,
             data.vel_ned_ms,
             declination,
+            data.disturbed if data.drop_disturbed else None,
         )
 
     def __post_init__(self) -> None:
@@ -98,6 +100,8 @@ class FieldInput:
             raise FitError(f"only {len(mag)} samples: a field fit needs {MIN_FIELD_SAMPLES}; keep the device moving")
         if not np.all(np.isfinite(mag)):
             raise FitError("samples hold NaN or infinite values: drop them before fitting")
+        if self.disturbed is not None and np.shape(self.disturbed) != (len(mag),):
+            raise FitError(f"disturbed must be one flag per sample ({len(mag)},)")
         for name in ("acc", "gyr", "vel_ned_ms"):
             value = getattr(self, name)
             if value is not None and np.shape(value) != mag.shape:
@@ -182,14 +186,20 @@ def fit_field(
     aided = _aided_evidence(inp)
     if aided is not None:  # the tilt a vehicle's accelerations do not bend, for the fit and its judgement
         ev_motion = aided
-    ev, source = _evidence(inp, ev_motion)
+    whole_input, keep = inp, disturbed.kept_rows(inp.disturbed)
+    ev, source = _evidence(inp, ev_motion, keep)
+    if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
+        inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     test = _holdout_mask(len(inp.mag))
     planar = is_planar(ev.down)
 
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
         calibration = _record(result, inp, ev, len(inp.mag))
         holdout = _holdout(inp, ev, result, test)
-        return judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+        record = judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+        if keep is None:
+            return record
+        return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))
 
     if rung is not None:
         named = RUNGS[rung]
@@ -198,7 +208,7 @@ def fit_field(
     try:
         found, tried = candidates.identified(ev, planar)
     except FitError as refused:
-        fallback = _course_fit(inp, ev, source, gate_thresholds)
+        fallback = _course_fit(whole_input, ev, source, gate_thresholds)
         if fallback is None:
             raise
         return fallback.replace(reason=f"{fallback.reason}; the magnetometer and gyroscope alone: {refused}")
@@ -207,7 +217,8 @@ def fit_field(
     chosen = candidates.best([(result, judged(result, tried)) for result in found])
     if chosen.accepted:
         return chosen
-    fallback = _course_fit(inp, ev, source, gate_thresholds)  # the velocity's heading may tell what they could not
+    # the velocity's heading may tell what they could not
+    fallback = _course_fit(whole_input, ev, source, gate_thresholds)
     if fallback is None or not fallback.accepted:
         return chosen
     return fallback.replace(reason=f"{fallback.reason}; the magnetometer and gyroscope alone: {chosen.reason}")

@@ -44,8 +44,9 @@ class FitInput:
     down; None: the WMM's at the place, if given), the prior of the field ladder (``magnet.calibration.field``);
     vel_ned_ms (N, 3) m/s geographic NED: the velocity over the ground (NaN rows before a fix) or None, and
     declination_deg (None: the WMM's at the place, else 0): with them the field ladder's attitude is velocity aided
-    (a vehicle's accelerations do not tilt it). The arrays are checked by the fit (``magnet.calibration.base``), each
-    against what its method needs."""
+    (a vehicle's accelerations do not tilt it); disturbed (N,) bool: the samples no fit takes (a disturbed field,
+    ``magnet.calibration.disturbed``; None: judged by the fit itself), drop_disturbed False: keep them all. The
+    arrays are checked by the fit (``magnet.calibration.base``), each against what its method needs."""
 
     mag: np.ndarray
     unit: str = "ut"
@@ -63,6 +64,8 @@ class FitInput:
     dip_deg: float | None = None
     vel_ned_ms: np.ndarray | None = None
     declination_deg: float | None = None
+    disturbed: np.ndarray | None = None
+    drop_disturbed: bool = True
 
     @property
     def has_gyroscope(self) -> bool:

@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from magnet.calibration import field
+from magnet.calibration import disturbed, field
 from magnet.calibration.alignment import aligned, ellipsoid_align, needs_acc
 from magnet.calibration.base import GYROSCOPE_NEEDED, FitError, Method, Shape, check_acc, check_gyr, check_samples
 from magnet.calibration.closed_form import minmax, minmax2d, sphere
@@ -33,8 +33,16 @@ HOLDOUT_TOLERANCE = 1e-9
 
 
 def _closed(fn: Callable[[np.ndarray, np.ndarray | None, bool], Shape]) -> Callable[[FitInput], Shape]:
-    """A method of (mag, acc, robust) as a method of the checked input."""
-    return lambda data: fn(data.mag, data.acc, data.robust_extremes)
+    """A method of (mag, acc, robust) as a method of the checked input, on its undisturbed rows."""
+
+    def shape(data: FitInput) -> Shape:
+        keep = disturbed.kept(data)
+        if keep is None:
+            return fn(data.mag, data.acc, data.robust_extremes)
+        acc = None if data.acc is None else take_rows(data.acc, keep)
+        return fn(take_rows(data.mag, keep), acc, data.robust_extremes)
+
+    return shape
 
 
 def _rates(data: FitInput) -> tuple[np.ndarray, float]:
@@ -45,7 +53,7 @@ def _rates(data: FitInput) -> tuple[np.ndarray, float]:
 
 
 def _gyro_ellipsoid(data: FitInput) -> Shape:
-    return gyro_ellipsoid(data.mag, *_rates(data))
+    return gyro_ellipsoid(data.mag, *_rates(data), keep=disturbed.kept(data))
 
 
 def _gyro_held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:
@@ -93,7 +101,9 @@ def _field_shape(data: FitInput) -> Shape:
 
 def _field_rung(method: Method) -> Callable[[FitInput], Calibration]:
     """A rung of the field ladder (``magnet.calibration.field``) as a method that makes its own record."""
-    return lambda data: field.fit_field(field.FieldInput.of(data), rung=method.value, gate_thresholds=data.gate)
+    return lambda data: field.fit_field(
+        field.FieldInput.of(disturbed.judged(data)), rung=method.value, gate_thresholds=data.gate
+    )
 
 
 #: why the turntable method cannot fit samples alone
@@ -173,7 +183,9 @@ def fit_shape(data: FitInput, method: Method | str) -> tuple[Calibration, Shape]
     method = Method.parse(method)
     checked = _checked(data, method)
     shape = METHODS[method].shape(checked)
-    return _finish(shape, method, data.unit, data.field_ut, len(checked.mag)), shape
+    keep = disturbed.kept(checked)
+    count = len(checked.mag) if keep is None else int(keep.sum())
+    return _finish(shape, method, data.unit, data.field_ut, count), shape
 
 
 def fit(data: FitInput, method: Method | str) -> Calibration:
@@ -193,12 +205,16 @@ def fit(data: FitInput, method: Method | str) -> Calibration:
     spec = METHODS[method]
     if spec.whole is not None:
         return spec.whole(data)
+    if method is not Method.TURNTABLE:
+        data = disturbed.judged(data)
     calibration, shape = fit_shape(data, method)
     mag = np.asarray(data.mag, dtype=float)
     acc_arr = None if data.acc is None else np.asarray(data.acc, dtype=float)
     gyr, period_s, unit, field_ut = data.gyr_rads, data.period_s, data.unit, data.field_ut
-    test = _holdout_mask(len(mag))
-    holdout = _holdout(data.replace(mag=mag, acc=acc_arr), method, shape, test)
+    keep = disturbed.kept(data)
+    holdout, test = _held_out_rows(data.replace(mag=mag, acc=acc_arr), method, shape, keep)
+    if keep is not None:  # the figures and the judgement on the undisturbed samples alone
+        mag = take_rows(mag, keep)
     to_ut = ut_per_unit(unit)
     geometry = spec.geometry
     corrected = calibration.apply(mag)  # for the figures of assess and of motion
@@ -213,8 +229,12 @@ def fit(data: FitInput, method: Method | str) -> Calibration:
         holdout=holdout,
     )
     if acc_arr is not None and geometry is Geometry.SPHERE:
-        ev = _motion_evidence(acc_arr, gyr, period_s, len(mag))
+        ev = _motion_evidence(acc_arr, gyr, period_s, len(acc_arr))  # in time order, every sample
+        if keep is not None:
+            ev = ev.rows(keep)
         quality = motion.with_motion_figures(quality, mag, calibration, ev, test, holdout, data.reference, corrected)
+    if keep is not None:
+        quality = quality.with_extra(disturbed_samples=int((~keep).sum()))
     if shape.note:
         quality = quality.with_extra(note=shape.note)
     if shape.mag_lag_s:  # the compass turns the field forward over it (magnet.attitude.mag_delay)
@@ -250,23 +270,36 @@ def _gate(quality: Quality, thresholds: GateThresholds | None, method: Method) -
     return gate(quality, chosen)
 
 
+def _held_out_rows(
+    data: FitInput, method: Method, whole: Shape, keep: np.ndarray | None
+) -> tuple[tuple[np.ndarray, Calibration] | None, np.ndarray]:
+    """(``_holdout``'s result, the held-out rows among the kept ones): every HOLDOUT_EVERY-th block held out, the
+    disturbed samples (``keep`` False) in neither set."""
+    test = _holdout_mask(len(data.mag))
+    if keep is None:
+        return _holdout(data, method, whole, test), test
+    return _holdout(data, method, whole, test & keep, ~test & keep), test[keep]
+
+
 def _holdout_mask(count: int) -> np.ndarray:
     """(count,) bool: every HOLDOUT_EVERY-th block of HOLDOUT_BLOCK samples, the held-out test set."""
     period = np.arange(HOLDOUT_BLOCK * HOLDOUT_EVERY) // HOLDOUT_BLOCK == HOLDOUT_EVERY - 1
     return np.resize(period, count)  # the pattern repeats every HOLDOUT_EVERY blocks
 
 
-def _holdout(data: FitInput, method: Method, whole: Shape, test: np.ndarray) -> tuple[np.ndarray, Calibration] | None:
-    """(test samples, calibration fitted on the rest): every HOLDOUT_EVERY-th block of samples is the test set
-    (``test``: ``_holdout_mask(len(mag))``); ``data``: the input, its mag and acc float arrays; None when the
-    training rows cannot be fitted.
+def _holdout(
+    data: FitInput, method: Method, whole: Shape, test: np.ndarray, train: np.ndarray | None = None
+) -> tuple[np.ndarray, Calibration] | None:
+    """(test samples, calibration fitted on the training rows, by default the rest): every HOLDOUT_EVERY-th block of
+    samples is the test set (``test``: ``_holdout_mask(len(mag))``, less the disturbed samples, which are in neither
+    set); ``data``: the input, its mag and acc float arrays; None when the training rows cannot be fitted.
 
     ``whole``: the shape fitted to every sample. The iterative methods (``_warm``) start the held-out fit from it,
     and stop at HOLDOUT_TOLERANCE: the fit is still of the training samples alone (the same robust steps, the same
     minimum), found in fewer iterations (docs/front-door.md, "Fit speed": within 1e-4 uT of the cold fit, the
     held-out residual within 1e-5 uT). gyro-ellipsoid's windows stay inside the training blocks; the others are
     fitted again, checked, on the training rows alone."""
-    train = ~test
+    train = ~test if train is None else train
     held_out = METHODS[method].held_out
     try:
         if held_out is not None:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from magnet import signing, wire
+from magnet import vehicle as vehicles  # its comparison loaded when first used (vehicle_report)
 from magnet.attitude import heading as hd
 from magnet.attitude.uncertainty import FilterFigures, HeadingUncertainty, Sigmas
 from magnet.bounded import Recent
@@ -32,12 +33,12 @@ from magnet.compass.keys import DeviceKeys
 from magnet.compass.presence import GONE, CalibratorPresence
 from magnet.compass.tilt import Headings, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
-from magnet.drift import DEFAULT_DRIFT, DriftSettings
+from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.expected import utc_date
 from magnet.fleet.places import EarthColumns, Places
 from magnet.frames import rotate_heading, to_magnetic_ned
 from magnet.shard import EVERY_DEVICE, Shard
-from magnet.vehicle import VehicleReport, VehicleWindows, judge
+from magnet.vehicle.window import VehicleWindows
 
 log = logging.getLogger("magnet.compass")
 
@@ -104,12 +105,13 @@ def window_problem(window: Any) -> str | None:
 @dataclasses.dataclass(frozen=True)
 class CoreSettings:
     """What the core runs with: the smoothing window (headings, >= 1), the per-device state bound, the shard it
-    serves, the drift thresholds (None: no drift alerts)."""
+    serves, the drift thresholds (None: no drift alerts), whether the sigmas are worked out (off: None)."""
 
     window: int = 1
     max_devices: int = DEFAULT_MAX_DEVICES
     shard: Shard = EVERY_DEVICE
     drift: DriftSettings | None = DEFAULT_DRIFT
+    sigmas: bool = True
 
     def __post_init__(self) -> None:
         problem = window_problem(self.window)
@@ -268,7 +270,7 @@ class CompassCore:
             dip = hd.dip_angle_deg(out.field_ut, gravity)
         flags = hd.disturbance_flags(out.field_ut, gravity, where.total_ut, where.inclination_deg, dip_deg=dip)
         out, quat = merge(dataclasses.replace(out, flags=out.flags | flags), fused)
-        sigma = self._sigma(raw, out, quat, fused, where.total_ut, cals)
+        sigma = self._sigma(raw, out, quat, fused, where.total_ut, cals) if self.settings.sigmas else None
         self.watch.observe(raw.devices, raw.bounds, raw.t_ns, hd.row_norm(out.field_ut), dip)
         self.vehicles.observe(
             raw.devices, raw.bounds, raw.t_ns, raw.mag_ut, raw.current, raw.thr, _correction(cals), raw.vehicles
@@ -284,8 +286,7 @@ class CompassCore:
             [c.id if c else "" for c in cals],
             [e.declination_deg for e in earths],
             None if quat is None else rotate_heading(quat, where.declination_deg),
-            sigma.heading_deg,
-            sigma.tilt_deg,
+            *(sigma or (None, None)),
         )
 
     def _sigma(
@@ -305,9 +306,8 @@ class CompassCore:
             for s, lo, hi in zip(states, bounds[:-1], bounds[1:])
         ]
         residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
-        return self.uncertainty.step(
-            raw.devices, bounds, raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut, residuals, figures
-        )
+        samples = (raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut)
+        return self.uncertainty.step(raw.devices, bounds, *samples, residuals, figures, fused.rotation)
 
     def _fuse(self, raw: wire.RawColumns, field: np.ndarray, declination_deg: np.ndarray) -> FusedColumns:
         """The per-device filters run on the batches that carry a gyroscope (``magnet.compass.filters``), aided by
@@ -315,8 +315,8 @@ class CompassCore:
         bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``field``
         (S, 3) uT: the corrected field as the filters get it (``Correction.apply``: turned forward over the
         magnetometer's lag the record carries)."""
-        vel = raw.vel
-        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else None
+        vel = raw.vel  # with no velocity known (NaN rows) as it is: a filter already aided still needs the times
+        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else vel
         fused = self.filters.update(
             raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding
         )
@@ -326,14 +326,14 @@ class CompassCore:
             self.drops.counts[f"raw:{cause}"] += count - 1
         return fused
 
-    def vehicle_report(self, vehicle: str) -> VehicleReport | None:
+    def vehicle_report(self, vehicle: str) -> vehicles.VehicleReport | None:
         """The compasses of ``vehicle`` judged against each other (``magnet.vehicle.judge``), with the field the WMM
         expects at the place of its first compass; None for a vehicle not seen."""
         series = self.vehicles.series(vehicle)
         if not series:
             return None
         earth = self.watch.places.earth(next(iter(series)), self.watch.date)
-        return judge(vehicle, series, earth.total_ut)
+        return vehicles.judge(vehicle, series, earth.total_ut)
 
     # ------------------------------------------------------------------------------------------------ counters
     def evicted_count(self) -> int:

@@ -33,7 +33,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from magnet import frames
+from magnet import _kernels
 from magnet.attitude import fusion
 from magnet.attitude import heading as hd
 from magnet.bounded import Recent
@@ -53,7 +53,9 @@ MAX_DEVICES = 100_000
 class FusedColumns:
     """Fused attitude for S samples of many batches. fused (S,) bool where the filter ran; quat_wxyz (S, 4) body ->
     magnetic NED, heading_deg / pitch_deg / roll_deg (S,) and down (S, 3) (NED down in body axes): NaN where not
-    fused; mag_disturbed (S,) bool. dropped: gyroscope samples dropped by cause; restarts: filters restarted."""
+    fused; mag_disturbed (S,) bool. dropped: gyroscope samples dropped by cause; restarts: filters restarted.
+    rotation: (S, 3, 3) the attitude's matrices body -> magnetic NED (the identity where not fused), or None (not
+    computed: ``magnet.attitude.uncertainty`` makes them)."""
 
     fused: np.ndarray
     quat_wxyz: np.ndarray
@@ -64,6 +66,7 @@ class FusedColumns:
     mag_disturbed: np.ndarray
     dropped: Mapping[str, int]
     restarts: int
+    rotation: np.ndarray | None = None
 
     @classmethod
     def empty(cls, count: int) -> FusedColumns:
@@ -82,33 +85,25 @@ class FusedColumns:
 
     def gravity(self, acc_ms2: np.ndarray) -> np.ndarray:
         """Specific force (S, 3) as a still device would read it: -down (unit) where fused, else ``acc_ms2``."""
+        if not self.fused.any():
+            return acc_ms2
         return np.where(self.fused[:, None], -self.down, acc_ms2)
 
     @classmethod
     def from_vqf(
         cls, raw: np.ndarray, disturbed: np.ndarray, dropped: Mapping[str, int], restarts: int
     ) -> FusedColumns:
-        """From vqf's quaternions (S, 4) (NaN rows where not fused), converted to the project's frames at once."""
-        out = cls.empty(len(raw))
-        fused = hd.rows_finite(raw)
-        if fused.all():
-            out = dataclasses.replace(out, quat_wxyz=frames.ned_enu_attitude(raw))
-            out.down[:], (out.heading_deg[:], out.pitch_deg[:], out.roll_deg[:]) = _down_and_euler(out.quat_wxyz)
-        elif fused.any():
-            quat = frames.ned_enu_attitude(raw[fused])
-            down, (heading, pitch, roll) = _down_and_euler(quat)
-            out.quat_wxyz[fused], out.down[fused] = quat, down
-            out.heading_deg[fused], out.pitch_deg[fused], out.roll_deg[fused] = heading, pitch, roll
-        return dataclasses.replace(
-            out, fused=fused, mag_disturbed=disturbed & fused, dropped=dict(dropped), restarts=restarts
-        )
-
-
-def _down_and_euler(quat_wxyz: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """NED down in body axes (S, 3) and (heading [0, 360), pitch, roll) in degrees from body -> NED quaternions
-    (S, 4)."""
-    matrix = frames.quaternion_to_matrix(quat_wxyz)
-    return matrix[:, 2, :], frames.matrix_to_euler(matrix)
+        """From vqf's quaternions (S, 4) (NaN rows where not fused), converted to the project's frames at once, in
+        one compiled pass (``magnet._kernels.vqf_attitudes``: ``frames.ned_enu_attitude``, ``quaternion_to_matrix``
+        and ``matrix_to_euler``, sample by sample)."""
+        count = len(raw)
+        fused, rotation = np.empty(count, dtype=bool), np.empty((count, 3, 3))
+        quat, down, angles = np.empty((count, 4)), np.empty((count, 3)), np.empty((3, count))
+        _kernels.vqf_attitudes(
+            np.asarray(raw, dtype=float), fused, quat, rotation.reshape(count, 9), down, *angles
+        )  # fmt: skip
+        heading, pitch, roll = angles
+        return cls(fused, quat, heading, pitch, roll, down, disturbed & fused, dict(dropped), restarts, rotation)
 
 
 class _Drain(NamedTuple):
@@ -261,6 +256,10 @@ class DeviceFilters:
             self.devices.touch(name)
         return state
 
+    def _any_aided(self, groups: Mapping[str, list[int]]) -> bool:
+        """Whether the filter of a device of ``groups`` runs velocity-aided."""
+        return any((s := self.devices.get(d)) is not None and s.filter is not None and s.filter.aided for d in groups)
+
     def update(
         self,
         devices: Sequence[str],
@@ -296,7 +295,8 @@ class DeviceFilters:
         usable = finite & ~saturated & hd.rows_finite(acc_ms2) & hd.rows_finite(field_ut)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
-        if vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
+        if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
+            # an aided filter needs its samples' times with no velocity known too (docs/aiding.md, point 6)
             drain = drain._replace(aiding=_aiding(order, t_ns, vel_ned_ms))
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)
@@ -358,7 +358,8 @@ def _drain(
         starts = inverse[first]
         usable, saturated = usable[order], saturated[order]
         vectors = (vectors[0][order], vectors[1][order], vectors[2][order])
-    inputs = tuple(fusion.to_vqf_frame(np.where(usable[:, None], x, 0.0)) for x in vectors)
+    every = bool(usable.all())  # (the usual case: no copy with zeros to make)
+    inputs = tuple(fusion.to_vqf_frame(x if every else np.where(usable[:, None], x, 0.0)) for x in vectors)
     return _Drain(
         (inputs[0], inputs[1], inputs[2]),
         None,

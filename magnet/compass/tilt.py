@@ -36,7 +36,10 @@ def compute_headings(field: np.ndarray, acc_ms2: np.ndarray, calibrated: np.ndar
     with np.errstate(invalid="ignore", divide="ignore"):
         tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)
         pitch, roll = hd.pitch_roll_deg(acc_ms2)
-    heading = np.where(has_acc & np.isfinite(tilted), tilted, hd.level_heading_deg(field))
+    tilt_known = has_acc & np.isfinite(tilted)
+    heading = tilted  # the level heading only where there is no tilt (most samples have one)
+    if not tilt_known.all():
+        heading = np.where(tilt_known, tilted, hd.level_heading_deg(field))
     flags = np.where(calibrated, int(hd.HeadingFlag.CALIBRATED), 0).astype(np.int64)
     return Headings(field, heading, np.where(has_acc, pitch, 0.0), np.where(has_acc, roll, 0.0), flags)
 

@@ -3,15 +3,21 @@ drift (``magnet.drift.DriftMonitor``); the alerts to publish on ``<prefix>/<devi
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from magnet import wire
-from magnet.drift import DEFAULT_DRIFT, Alert, DriftMonitor, DriftSettings, Reference
+from magnet.drift.alerts import Alert
+from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings, Reference
 from magnet.earth.expected import Earth
 from magnet.earth.geomag import DateLike
 from magnet.earth.location import Location
 from magnet.fleet.places import Places
 from magnet.units import ut_per_unit
+
+if TYPE_CHECKING:
+    from magnet.drift.monitor import DriftMonitor
 
 #: alert events waiting to be published at most (the oldest dropped beyond: the open ones are also queryable)
 MAX_PENDING_ALERTS = 10_000
@@ -28,7 +34,11 @@ class DeviceWatch:
         self, places: Places, drift: DriftSettings | None = DEFAULT_DRIFT, max_devices: int = MAX_TRACKED
     ) -> None:
         self.places = places
-        self.monitor = DriftMonitor(drift, max_devices) if drift is not None else None
+        self.monitor: DriftMonitor | None = None
+        if drift is not None:  # the trackers' module only where drift is watched (not in ``magnet heading``)
+            from magnet.drift.monitor import DriftMonitor
+
+            self.monitor = DriftMonitor(drift, max_devices)
         self.pending: list[Alert] = []
         self.max_devices = max_devices
         self.date: DateLike = None  # the day of the last step (the model's date where no --date is given)

@@ -27,6 +27,9 @@ Modules: ``settings`` (``DriftSettings``, ``Reference``), ``alerts`` (``Alert`` 
 
 from __future__ import annotations
 
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from magnet.drift.alerts import (
     ADVICE,
     CLEARED_ADVICE,
@@ -36,9 +39,30 @@ from magnet.drift.alerts import (
     advice_for,
     alert_from_message,
 )
-from magnet.drift.monitor import DriftMonitor
 from magnet.drift.settings import DEFAULT_DRIFT, NS_PER_DAY, NS_PER_S, DriftSettings, Reference
-from magnet.drift.tracker import DriftTracker, Verdict, robust_verdict
+
+if TYPE_CHECKING:
+    from magnet.drift.monitor import DriftMonitor
+    from magnet.drift.tracker import DriftTracker, Verdict, robust_verdict
+
+#: the trackers, loaded on first use (PEP 562): they bring numpy statistics and ``magnet.quality``, which the
+#: commands that import the settings alone (``magnet heading`` through the compass's core) never run
+_LAZY = {
+    "DriftMonitor": "magnet.drift.monitor",
+    "DriftTracker": "magnet.drift.tracker",
+    "Verdict": "magnet.drift.tracker",
+    "robust_verdict": "magnet.drift.tracker",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'magnet.drift' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "ADVICE",

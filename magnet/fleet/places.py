@@ -22,7 +22,6 @@ import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
-import json5
 import numpy as np
 
 from magnet.bounded import Recent
@@ -55,6 +54,8 @@ def parse_places(text: str, source: str = "places file") -> dict[str, PlaceEntry
     """device -> PlaceEntry from the text of a places file; ValueError naming the device and what is wrong."""
     if len(text.encode()) > MAX_PLACES_FILE_BYTES:
         raise ValueError(f"{source} is larger than {MAX_PLACES_FILE_BYTES} bytes")
+    import json5  # only where a places file is read (the compass's start, not every command that imports this)
+
     try:
         data = json5.loads(text)
     except (ValueError, RecursionError) as exc:

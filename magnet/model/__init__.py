@@ -23,7 +23,6 @@ magnitude; and that its method and units are ones a record can name (``KNOWN_MET
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 from collections.abc import Mapping
@@ -294,6 +293,8 @@ class Calibration:
             content["motor"] = {self.motor.key: [round(float(x), 12) for x in self.motor.coefficients]}
         if self.hardware_id is not None:  # likewise: one sensor's record is not another's
             content["hardware_id"] = int(self.hardware_id)
+        import hashlib  # here: loading OpenSSL's hashes is a few ms of every command's start that never needs an id
+
         digest = hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
         return digest[:16]
 

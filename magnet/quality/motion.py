@@ -85,6 +85,13 @@ class MotionEvidence:
     def known(self) -> np.ndarray:
         return finite_rows(self.down)
 
+    def rows(self, keep: np.ndarray) -> MotionEvidence:
+        """This evidence on the rows (N,) bool only (the filter ran over every sample, in time order; the figures
+        are then taken on these rows, e.g. the undisturbed ones)."""
+        attitude = None if self.attitude is None else take_rows(self.attitude, keep)
+        gyr = None if self.gyr_rads is None else take_rows(self.gyr_rads, keep)
+        return dataclasses.replace(self, down=take_rows(self.down, keep), attitude=attitude, gyr_rads=gyr)
+
 
 def finite_rows(rows: np.ndarray) -> np.ndarray:
     """(N,) bool: the rows of an (N, 3) array whose three values are finite (``np.all(np.isfinite(rows), axis=1)``,

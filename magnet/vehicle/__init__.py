@@ -7,9 +7,27 @@ autopilot parameter that fixes it. Pure numpy.
   calibration that no longer fits, a local anomaly).
 """
 
-from magnet.vehicle.consistency import CompassVerdict, Series, VehicleReport, Verdict, judge
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from magnet.vehicle.membership import instance_of, vehicle_of
 from magnet.vehicle.window import VehicleWindows
+
+if TYPE_CHECKING:
+    from magnet.vehicle.consistency import CompassVerdict, Series, VehicleReport, Verdict, judge
+
+#: the comparison, loaded on first use (PEP 562): the compass's core keeps the windows on every step but judges a
+#: vehicle only when asked, and ``magnet heading`` never does (its five dataclasses and enum are a few ms of a start)
+_LAZY = frozenset({"CompassVerdict", "Series", "VehicleReport", "Verdict", "judge"})
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module 'magnet.vehicle' has no attribute {name!r}")
+    value = getattr(importlib.import_module("magnet.vehicle.consistency"), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "CompassVerdict",

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 from collections.abc import Mapping
 from typing import Any
 
@@ -51,17 +52,21 @@ MATCH_S = 0.15
 MIN_CURRENT_RANGE_A, MIN_THROTTLE_RANGE = 2.0, 0.1
 
 
-#: the named rotations (numbers (R,), matrices (R, 3, 3)), built once
-_NAMED_NUMBERS = np.array(list(ROTATIONS))
-_NAMED = np.stack([rotation_matrix(int(n)) for n in _NAMED_NUMBERS])
+@functools.cache
+def _named() -> tuple[np.ndarray, np.ndarray]:
+    """The named rotations (numbers (R,), matrices (R, 3, 3)), built once, when first compared (not on import: the
+    compass and ``magnet heading`` import this module but compare vehicles rarely or never)."""
+    numbers = np.array(list(ROTATIONS))
+    return numbers, np.stack([rotation_matrix(int(n)) for n in numbers])
 
 
 def nearest_named(matrix: np.ndarray) -> tuple[int, float]:
     """(the named rotation nearest ``matrix`` (3, 3), the angle between them in deg): as
     ``magnet.frames.nearest_rotation``, all at once."""
-    cos = (np.einsum("nij,ij->n", _NAMED, matrix) - 1.0) / 2.0  # trace(N^T M) = sum of N * M
+    numbers, named = _named()
+    cos = (np.einsum("nij,ij->n", named, matrix) - 1.0) / 2.0  # trace(N^T M) = sum of N * M
     best = int(np.argmax(cos))
-    return int(_NAMED_NUMBERS[best]), float(np.degrees(np.arccos(np.clip(cos[best], -1.0, 1.0))))
+    return int(numbers[best]), float(np.degrees(np.arccos(np.clip(cos[best], -1.0, 1.0))))
 
 
 class Verdict(enum.StrEnum):

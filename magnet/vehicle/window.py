@@ -6,12 +6,15 @@ first). Pure: the compass feeds it from each step."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from magnet.bounded import Recent
-from magnet.vehicle.consistency import Series
 from magnet.vehicle.membership import vehicle_of
+
+if TYPE_CHECKING:
+    from magnet.vehicle.consistency import Series
 
 #: the span compared (s): a minute of flight and a half
 WINDOW_S = 90.0
@@ -59,6 +62,8 @@ class VehicleWindows:
 
     def series(self, vehicle: str) -> dict[str, Series]:
         """The vehicle's devices and their samples (empty when the vehicle is not known)."""
+        from magnet.vehicle.consistency import Series  # the comparison's module, when a vehicle is judged
+
         table = self.vehicles.get(vehicle) or {}
         return {d: Series(r[:, 0], r[:, 1:4], r[:, 4], r[:, 5]) for d, r in sorted(table.items())}
 

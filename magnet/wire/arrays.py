@@ -19,6 +19,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from magnet import _kernels
 from magnet.wire.codec import BINARY_ARRAYS_VERSION, MAX_BATCH_SAMPLES
 from magnet.wire.errors import WireError
 
@@ -172,28 +173,14 @@ def value_faults(
     """The one check of the values of a float array (N,) or (N, k), per sample: (bad (N,) bool, cause, text) for
     non-finite values, then (when ``limit``) for values beyond +-limit. ``absent_rows``: a row that is all NaN is a
     value not known at that sample (raw ``vel_ned_ms``, absent fields), not a fault."""
-    finite = _per_row(np.isfinite(arr), np.logical_and)
-    if absent_rows:
-        finite |= _per_row(np.isnan(arr), np.logical_and)
-    faults = [(~finite, "non-finite", f"{name} holds non-finite values")]
+    values = np.asarray(arr, dtype=float)
+    rows = values.reshape(-1, 1) if values.ndim == 1 else values.reshape(len(values), -1)
+    nonfinite, beyond = np.empty(len(rows), dtype=bool), np.empty(len(rows), dtype=bool)
+    _kernels.row_faults(rows, math.inf if limit is None else float(limit), absent_rows, nonfinite, beyond)  # one pass
+    faults = [(nonfinite, "non-finite", f"{name} holds non-finite values")]
     if limit is not None:
-        with np.errstate(invalid="ignore"):
-            beyond = np.abs(arr) > limit
-        faults.append((_per_row(beyond, np.logical_or), "absurd-magnitude", f"{name} holds values beyond +-{limit:g}"))
+        faults.append((beyond, "absurd-magnitude", f"{name} holds values beyond +-{limit:g}"))
     return faults
-
-
-def _per_row(mask: np.ndarray, combine: np.ufunc) -> np.ndarray:
-    """(N,) bool: ``mask`` (N,) itself, or its k columns (N, k) combined by ``combine`` (logical and/or): the same as
-    ``.all(axis=1)``/``.any(axis=1)``, several times faster for the few columns of a sample."""
-    if mask.ndim == 1:
-        return mask
-    if mask.shape[1] == 0:
-        return np.full(mask.shape[0], combine is np.logical_and)
-    out = mask[:, 0].copy()
-    for k in range(1, mask.shape[1]):
-        combine(out, mask[:, k], out=out)
-    return out
 
 
 def check_floats(arr: np.ndarray, name: str, limit: float | None) -> np.ndarray:

@@ -7,7 +7,9 @@
 - ``vehicle``: one real vehicle (system id ``--sysid``, compass SCALED_IMU2) turning slowly at 20 Hz for
   ``--seconds``, to the same port: the device the flood must not affect. Prints ``{"sent"}``.
 - ``streams``: ``--count`` dashboard event streams (``GET /api/stream``) opened at once on ``--http HOST:PORT``,
-  held ``--seconds``, then closed. Prints ``{"opened", "answered": {status: n}, "refused"}``.
+  held ``--seconds``, then closed. Prints ``{"opened", "answered": {status: n}, "refused"}``: a status is the HTTP
+  code (``503:connections`` uvicorn's limit of connections, ``503:streams`` the app's limit of event streams), or
+  ``none`` for a connection closed without an answer; ``refused`` counts connections that could not be made.
 
 Loopback only.
 """
@@ -97,6 +99,8 @@ def streams(http: str, count: int, seconds: float) -> dict[str, Any]:
             if sock.fileno() not in first:
                 first[sock.fileno()] = data
                 status = data.split(b" ", 2)[1].decode(errors="replace") if data.startswith(b"HTTP/") else "none"
+                if status == "503":  # whose refusal: uvicorn's connection limit, or the app's limit of streams
+                    status += ":connections" if b"Service Unavailable" in data else ":streams"
                 answered[status] = answered.get(status, 0) + 1
             if not data:
                 selector.unregister(sock)

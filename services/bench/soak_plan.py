@@ -13,10 +13,11 @@ Figures:
   not serve at the end, or serves an older one;
 - longest heading gap: the longest time between two consecutive headings of one device (a device that stops for
   good, as an edge's devices do when it is restarted with new ids, makes no gap), with the fault it followed;
-- memory: resident set (MB) per service, across its restarts: the highest in each round (round 0 is the warm-up;
-  round 1 is the first pass of bombs and flood, which take each bounded table and buffer to its bound), the last,
-  and the growth after the first round (the highest of the later rounds minus the highest of rounds 0 and 1): memory
-  that is flat after warm-up shows no growth; a leak shows in the second and third round of a process's life;
+- memory: resident set (MB) per service, across its restarts: the highest in each round (round 0 is the quiet start;
+  round 1 is the first pass of bombs and flood, which take each bounded table and buffer to its bound), the value
+  after warm-up (the highest of rounds 0 and 1), the last, the highest of the later rounds, and whether it is flat
+  (``FLAT_RULE``: the end and every later round within 10 %, at least 10 MB, of the value after warm-up); a leak
+  shows in the second and third round of a process's life;
 - drops: every service's status ``dropped`` counters, summed over its restarts (the last answer of each run);
 - status: every service's status asked every 2 s, answered within ``STATUS_LIMIT_S`` or not (``StatusTimes``; not
   counted within ``RESTART_GRACE_S`` of the service's or the router's start).
@@ -36,6 +37,13 @@ FULL_DISK_HOLD_S = 6.0
 DELETE_HOLD_S = 5.0
 MAV_FLOOD_COUNT, STREAMS, STREAMS_HOLD_S = 20_000, 2_000, 6.0
 STATUS_LIMIT_S = 1.0
+#: memory is flat after warm-up when the end and every later round's highest are within this fraction (or this many
+#: MB, for the small processes whose RSS moves by a few MB between samples) above the highest of rounds 0 and 1
+FLAT_TOLERANCE, FLAT_FLOOR_MB = 0.10, 10.0
+FLAT_RULE = (
+    f"flat: the end and every later round's highest within {FLAT_TOLERANCE:.0%} (at least {FLAT_FLOOR_MB:g} MB) "
+    "above the highest of rounds 0-1 (warm-up: the quiet start and the first pass of every fault)"
+)
 RESTART_GRACE_S = 6.0
 
 
@@ -115,6 +123,28 @@ class Memory:
     last_mb: float = 0.0
     by_round: dict[int, float] = dataclasses.field(default_factory=dict)  # the highest in each round of the cycle
     by_fault: dict[str, float] = dataclasses.field(default_factory=dict)  # the highest while each fault was last
+
+    @property
+    def warmup_mb(self) -> float | None:
+        """The highest in rounds 0 and 1 (the quiet start, then the first pass of every fault, which takes each
+        bounded table and buffer to its bound): the value memory must stay near after warm-up."""
+        first = [mb for r, mb in self.by_round.items() if r <= 1]
+        return max(first) if first else None
+
+    @property
+    def later_high_mb(self) -> float | None:
+        """The highest after round 1 (None before a second round)."""
+        later = [mb for r, mb in self.by_round.items() if r > 1]
+        return max(later) if later else None
+
+    def flat(self) -> bool | None:
+        """Flat after warm-up (``FLAT_RULE``): the end, and the highest of every later round, within
+        ``FLAT_TOLERANCE`` (or ``FLAT_FLOOR_MB``, whichever is larger) above ``warmup_mb``; None before round 1."""
+        base = self.warmup_mb
+        if base is None or not any(r >= 1 for r in self.by_round):
+            return None
+        bound = base + max(FLAT_TOLERANCE * base, FLAT_FLOOR_MB)
+        return self.last_mb <= bound and (self.later_high_mb or 0.0) <= bound
 
     @property
     def growth_mb(self) -> float | None:
@@ -230,12 +260,17 @@ def report(
         f"calibrations lost: {len(lost)} of {len(published)} published{which}",
         f"longest heading gap: {gap}; {gaps.headings} heading messages",
         "  after each fault: " + (", ".join(f"{f} {s:.2f} s" for f, s in sorted(gaps.by_fault.items())) or "-"),
-        "memory (RSS MB)     highest  at the end  growth after round 1   highest per round (0 = warm-up)",
+        f"memory (RSS MB; {FLAT_RULE}):",
+        "  service       after warm-up  at the end  highest later  flat   highest per round (0 = quiet start)",
     ]
     for service, m in sorted(memory.services.items()):
-        growth = "-" if m.growth_mb is None else f"{m.growth_mb:+.0f}"
+        warm, later = m.warmup_mb, m.later_high_mb
+        verdict = {None: "-", True: "yes", False: "NO"}[m.flat()]
         rounds = " ".join(f"{m.by_round[r]:.0f}" for r in sorted(m.by_round))
-        lines.append(f"  {service:<16}{m.high_mb:>9.0f}{m.last_mb:>12.0f}{growth:>22}   {rounds}")
+        lines.append(
+            f"  {service:<14}{'-' if warm is None else f'{warm:.0f}':>13}{m.last_mb:>12.0f}"
+            f"{'-' if later is None else f'{later:.0f}':>15}  {verdict:<5}  {rounds}"
+        )
     for service, m in sorted(memory.services.items()):
         if m.by_fault:
             highs = ", ".join(f"{fault} {mb:.0f}" for fault, mb in sorted(m.by_fault.items()))
@@ -245,6 +280,29 @@ def report(
         text = ", ".join(f"{cause} {count}" for cause, count in sorted(counts.items())) or "none"
         lines.append(f"  {service}: {text}")
     return "\n".join(lines)
+
+
+def stream_verdict(answered: Mapping[str, int], refused: int) -> str:
+    """What the dashboard's answers to the streams mean: a 503 is a designed refusal (said with a reason and
+    ``Connection: close``; the page's stream retries): ``503:streams`` past the app's ``MAX_STREAMS``,
+    ``503:connections`` past uvicorn's limit of connections; a connection closed without an answer (``none``) or
+    not accepted (``refused``) is a lost request."""
+    served = answered.get("200", 0)
+    designed = sum(n for status, n in answered.items() if status.startswith("503"))
+    lost = answered.get("none", 0) + refused
+    other = sum(answered.values()) - served - designed - answered.get("none", 0)
+    parts = [
+        f"{served} streamed",
+        (
+            f"{designed} refused by design (503: the app's limit of streams {answered.get('503:streams', 0)}, "
+            f"uvicorn's limit of connections {answered.get('503:connections', 0)})"
+        ),
+        f"{lost} lost (closed without an answer {answered.get('none', 0)}, not accepted {refused})",
+    ]
+    if other:
+        parts.append(f"{other} other answers")
+    verdict = "every request answered" if lost == 0 and other == 0 else "NOT every request answered"
+    return f"  dashboard streams: {verdict}: " + ", ".join(parts)
 
 
 def front_lines(
@@ -273,6 +331,7 @@ def front_lines(
             f"{sinks.get('ros2_topics_evicted', '?')} evicted (the last compass run)"
         ),
         f"dashboard streams: {len(results.get('streams', []))} rounds of {STREAMS}, answered {answered or '-'}",
+        stream_verdict(answered, sum(int(r.get("refused", 0)) for r in results.get("streams", []))),
         (
             f"deleted database: {d['times']:g} times, store 'gone' in the status {d['gone_seen']:g} times (within "
             f"{d['seen_after_s']:.1f} s of a delete, status asked every 2 s); calibrations published while gone (lost "

@@ -181,10 +181,10 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
 def _declare(
     declared: ExitStack, session: zenoh.Session, settings: ServiceSettings, calibrator: Calibrator, lease: Lease
 ) -> ServiceLoop:
-    """Declare everything the calibrator needs on ``session`` into ``declared``: its liveliness and lease tokens,
-    the raw subscriber and the pump thread that empties it, the queryables, the alerts; the loop that serves them."""
+    """Declare everything the calibrator needs on ``session`` into ``declared``: its lease token, the raw subscriber
+    and the pump thread that empties it, the queryables, the alerts, then its liveliness token; the loop that serves
+    them."""
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
-    declared.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name)))
     lease_sub = _join_lease(declared, session, lease)
     calibrator.active = lease.active
     intake = RawIntake(settings.max_queue)
@@ -202,6 +202,8 @@ def _declare(
         (alert_sub.handler, calibrator.roster.on_alert),
         (session.get(alert_key, timeout=ALERT_QUERY_S), calibrator.roster.on_alert),  # the alerts open already
     ]
+    # the liveliness token last: who sees it (a compass asks for every record then) finds the queryables declared
+    declared.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name)))
     enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
     return ServiceLoop(calibrator, intake, answers, prefix, feeds, (lease_sub, lease), enrolment)
 

@@ -91,6 +91,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the calibration in force: the fit must make the field more constant than it does "
         "(default: than no calibration)",
     )
+    parser.add_argument(
+        "--keep-disturbed",
+        action="store_true",
+        help="fit every sample, also those in a disturbed field (by default left out: docs/field-calibration.md)",
+    )
     add_motor_arguments(parser)
     parser.add_argument("--out", metavar="cal.json", help="write the record here (default: stdout)")
     parser.add_argument(
@@ -141,6 +146,7 @@ def fit_input(table: SampleTable, args: argparse.Namespace) -> FitInput:
         robust_extremes=args.robust_extremes,
         reference=in_force,
         vel_ned_ms=table.vel_ned_ms() if gyr is not None else None,  # vn,ve,vd: the field ladder's aided attitude
+        drop_disturbed=not getattr(args, "keep_disturbed", False),
     )
 
 

@@ -29,7 +29,6 @@ import numpy as np
 from magnet import frames, wire
 from magnet.attitude import fusion
 from magnet.attitude import heading as hd
-from magnet.autopilot.conventions import compare_headings
 from magnet.compass import CompassCore, CoreSettings, HeadingColumns
 from magnet.compass.calibrations import Correction
 from magnet.compass.filters import MAX_GAP_S
@@ -184,8 +183,9 @@ def file_fields(
 def causal_headings(
     raw: wire.RawColumns, calibration: Calibration | None, earth: Earth, window: int, now_ns: int
 ) -> HeadingColumns:
-    """The live compass's step on the file's columns, with the calibration in force and ``earth`` expected."""
-    core = CompassCore(CoreSettings(window, drift=None), Places(default_earth=earth))
+    """The live compass's step on the file's columns, with the calibration in force and ``earth`` expected (without
+    the sigmas, which the command does not print)."""
+    core = CompassCore(CoreSettings(window, drift=None, sigmas=False), Places(default_earth=earth))
     if calibration is not None:
         core.calibrations.put(wire.DeviceCalibration(FILE_DEVICE, now_ns, calibration))
     return core.step(raw, now_ns)
@@ -273,6 +273,8 @@ def _declination_words(args: argparse.Namespace, declination_deg: float) -> str:
 def _compare(args: argparse.Namespace, table: SampleTable, true_deg: np.ndarray, declination_deg: float) -> None:
     """Print (stderr) how far magnet's headings are from the autopilot's own logged yaw: RMS after the constant
     offset, and the declination each used."""
+    from magnet.autopilot.conventions import compare_headings  # flight logs only
+
     if "t_s" not in table.columns:
         raise ValueError(f"{table.path}: --compare needs the samples' times (t_s)")
     reference = reference_yaw(args.file)
@@ -289,10 +291,12 @@ def _compare(args: argparse.Namespace, table: SampleTable, true_deg: np.ndarray,
 def _attitude_wxyz(out: HeadingColumns) -> np.ndarray:
     """(N, 4) body -> NED (true north): the filter's where it fused, else the one of the heading, pitch and roll."""
     h = out.headings
+    fused = out.quat_wxyz
+    finite = None if fused is None else hd.rows_finite(fused)
+    if fused is not None and finite is not None and finite.all():  # fused on every row: no angles' quaternion used
+        return fused
     quat = frames.w_positive(frames.euler_to_quaternion(out.true_heading_deg, h.pitch_deg, h.roll_deg))
-    if out.quat_wxyz is None:
-        return quat
-    return np.where(hd.rows_finite(out.quat_wxyz)[:, None], out.quat_wxyz, quat)
+    return quat if fused is None or finite is None else np.where(finite[:, None], fused, quat)
 
 
 def run(args: argparse.Namespace) -> int:

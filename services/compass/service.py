@@ -3,12 +3,15 @@ fuse with the gyroscope), add the WMM declination, and publish one heading messa
 ``<prefix>/<device>/heading`` (and to every other sink turned on: ``services.compass.sinks``).
 
 On start it queries every stored calibration (``<prefix>/*/calibration``) and then follows new ones (subscriber);
-a device with none is asked for again now and then, and meanwhile gets headings from its raw field (flag
-CALIBRATED clear). Zenoh delivers into channels; this process's own loop drains them and moves bytes and clocks in
+it asks for every one again when a calibrator's liveliness token appears (one that came up or came back after that
+query: its start-up publication of its records in force reached no link of ours when our session opened first); a
+device with none is asked for again now and then, and meanwhile gets headings from its raw field (flag CALIBRATED
+clear). Zenoh delivers into channels; this process's own loop drains them and moves bytes and clocks in
 and out of the compass's core (``magnet.compass.CompassCore``): decode -> step -> encode -> put, never inside a
 callback; every handler runs through ``services.common.guard`` (a failure drops and counts the messages it held, or
 answers the query with an error; the loop goes on). Counters (received, published, dropped by cause) answer on
-``<prefix>/@status/<name>``. The options are in ``services.compass.settings``; docs/compass.md follows one sample.
+``<prefix>/@status/<name>``, from Zenoh's thread with what the loop last wrote (``services.compass.status_board``: a
+status never waits for a drain). The options are in ``services.compass.settings``; docs/compass.md follows one sample.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from services.common.zenoh_session import drain, open_session, payload_bytes, st
 from services.compass.intake import PayloadIntake
 from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
 from services.compass.sinks import open_sinks
+from services.compass.status_board import StatusBoard
 
 __all__ = ["CompassSettings", "add_arguments", "build_core", "run", "run_compass"]
 
@@ -61,6 +65,8 @@ DRAIN_BYTES = 8 * 1024 * 1024
 STEP_BUDGET_S = 0.25
 REQUERY_S = 5.0  # how often to ask again for the calibration of a device that has none
 REQUERY_REFUSED_S = 1.0  # how often at most to ask the calibrators again after refusing a calibration
+#: how often at most to ask for every calibration again because calibrators' tokens appeared (many at once: one query)
+REQUERY_JOINED_S = 1.0
 IDLE_SLEEP_S = 0.0003
 #: the compass puts a drain's headings at once (thousands of messages): room for them in each link's queue (16
 #: batches of 64 kB, Zenoh's most; its default is 2), and up to 20 ms for a busy machine's sending thread to make room
@@ -129,9 +135,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             calibrations=declared.enter_context(
                 session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
             ),
-            status=declared.enter_context(
-                session.declare_queryable(wire.status_key(prefix, name), zenoh.handlers.FifoChannel(64))
-            ),
+            status=None,  # answered from Zenoh's thread (services.compass.status_board)
             alerts=declared.enter_context(
                 session.declare_queryable(f"{prefix}/{devices}/{wire.Kind.ALERT.value}", zenoh.handlers.FifoChannel(64))
             ),
@@ -154,6 +158,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
         )
         loop = _Loop(session, core, settings)
         declared.callback(loop.close)
+        declared.enter_context(session.declare_queryable(wire.status_key(prefix, name), loop.board.answer))
         metrics.start(metrics_address, "compass", lambda: _metrics_status(core, name))
         gc.collect()
         gc.freeze()  # what exists now (modules, settings, places) lives as long as the process: never scanned again
@@ -172,7 +177,7 @@ class _Ends:
         self,
         raw: PayloadIntake,
         calibrations: Samples,
-        status: Queries,
+        status: Queries | None,
         alerts: Queries,
         vehicles: Queries | None = None,
         calibrators: Samples | None = None,
@@ -188,18 +193,25 @@ class _Loop:
         self.session, self.core = session, core
         self.prefix, self.devices = settings.zenoh.prefix, settings.devices
         self.sinks = open_sinks(session, settings)
-        self.asked = self.asked_refused = time.monotonic()
+        self.asked = self.asked_refused = self.asked_joined = time.monotonic()
         self.pending: list[tuple[float, Replies]] = [(self.asked + 3.0, self._ask(3.0))]
+        self.joined = False  # a calibrator's token appeared since the last query for every calibration
         self.drain_limit = self.time_limit = MAX_DRAIN
         self.guard = Guard("compass", log, core.drops)
+        #: the status, answered from Zenoh's thread with what the loop last wrote (services.compass.status_board)
+        self.board = StatusBoard(wire.status_key(self.prefix, settings.name), self.guard)
+        self.board.write(core.status(settings.name).to_dict())
 
     def step(self, ends: _Ends, name: str) -> bool:
         """One round of the loop, every handler through the guard (none ends the compass); False when no raw
         batches were waiting."""
         self.guard.run("calibration", self.calibrations, ends.calibrations)
         for token in drain(ends.calibrators, 64) if ends.calibrators is not None else []:
-            self.core.on_calibrator(str(token.key_expr), token.kind == zenoh.SampleKind.PUT, time.time_ns())
-        for query in drain(ends.status, 64):
+            alive = token.kind == zenoh.SampleKind.PUT
+            self.core.on_calibrator(str(token.key_expr), alive, time.time_ns())
+            self.joined = self.joined or alive
+        self._ask_joined()
+        for query in drain(ends.status, 64) if ends.status is not None else []:
             self.guard.answer("query:status", query, self.answer_status, name)
             query.drop()  # finalize now: the asker waits for it
         self.guard.run("alert", self.alerts, ends.alerts)
@@ -212,6 +224,8 @@ class _Loop:
             started = time.perf_counter()
             self.guard.run("raw", self.headings_of, samples, count=len(samples))
             self._pace(len(samples), time.perf_counter() - started)
+        if self.board.due():
+            self.board.write(self.core.status(name).to_dict())
         return bool(samples)
 
     def _pace(self, taken: int, took_s: float) -> None:
@@ -240,6 +254,20 @@ class _Loop:
         if overflow or len(refused) > 8:
             refused = [self.devices]
         self.pending += [(now + 2.0, self._ask(2.0, device)) for device in refused]
+
+    def _ask_joined(self) -> None:
+        """Ask for every calibration again when a calibrator's token appeared, at most every REQUERY_JOINED_S (a
+        token seen sooner waits for its turn, never dropped). Its records in force may never have reached this
+        compass: when our session opened before the calibrator listened, the start-up query found nobody, and the
+        calibrator's start-up publication (``publish_in_force``) went out before Zenoh's retry linked us to it (1 s
+        later or more). Raw batches of a device without a record make the compass ask again, but only once they
+        come, and a record held that the calibrator replaced meanwhile would stay. The calibrator declares its
+        token once it answers queries."""
+        now = time.monotonic()
+        if not self.joined or now - self.asked_joined < REQUERY_JOINED_S:
+            return
+        self.joined, self.asked_joined = False, now
+        self.pending.append((now + 2.0, self._ask(2.0)))
 
     def _accept(self, sample: zenoh.Sample) -> None:
         self.guard.run(

@@ -49,7 +49,7 @@ from starlette.staticfiles import StaticFiles
 from magnet import wire
 from services.common.guard import Guard, refusal
 from services.common.jsonio import loads_bounded
-from services.dashboard.events import FleetEvents, encode
+from services.dashboard.events import FleetEvents, encode, pieces
 from services.dashboard.state import FleetState
 
 log = logging.getLogger("magnet.dashboard")
@@ -255,7 +255,7 @@ class Dashboard:
             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
         )
 
-    async def _events(self, device: str | None) -> AsyncIterator[str]:
+    async def _events(self, device: str | None) -> AsyncIterator[str | memoryview]:
         version, next_detail = -1, 0.0
         loop = asyncio.get_running_loop()
         self.streams += 1
@@ -271,7 +271,8 @@ class Dashboard:
                     self.guard.failed("http:stream", exc)
                     return
                 for text in texts:
-                    yield text
+                    for piece in pieces(text):  # each after the last drained (uvicorn's flow control)
+                        yield piece
                 if device and loop.time() >= next_detail:
                     next_detail = loop.time() + DETAIL_EVERY_S
                     detail = self.guard.run("http:stream", self.state.detail, device)

@@ -9,7 +9,8 @@ here 260 connections that never sent a byte stayed open and made uvicorn answer 
   to a whole request head, however the bytes trickle in (slowloris), else the connection is closed;
 - at most ``MAX_WAITING`` connections waiting for a head: a new one past it closes the oldest waiting one (one that
   has waited ``MIN_WAIT_S`` at least: a burst of connections sending their heads is not cut), so idle connections
-  never fill ``limit_concurrency`` and a real request always gets in;
+  never fill ``limit_concurrency`` and a real request always gets in (one closed so whose request is there unread, a
+  burst on a busy machine, is answered 503 first: its client is told, not dropped);
 - a stall limit for writing: a client that takes nothing for ``STALL_S`` while the server has more to send (the
   transport's buffer above its high-water mark: an event stream or a large ``/api/fleet`` to a client that stopped
   reading) is cut off. Its event stream ends and frees its place (``app.MAX_STREAMS``).
@@ -18,6 +19,8 @@ here 260 connections that never sent a byte stayed open and made uvicorn answer 
 from __future__ import annotations
 
 import asyncio
+import os
+import socket
 from collections import OrderedDict
 from typing import Any, ClassVar
 
@@ -28,6 +31,24 @@ STALL_S = 10.0
 MAX_WAITING = 128
 #: a waiting connection younger than this is not closed to admit a newer one (its head may be on its way)
 MIN_WAIT_S = 1.0
+#: what a connection closed to admit a newer one is told when its request is there unread (uvicorn's own 503 words)
+REFUSAL = (
+    b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: text/plain; charset=utf-8\r\nconnection: close\r\n"
+    b"content-length: 45\r\n\r\nService Unavailable: too many waiting clients"
+)
+
+
+def _bytes_waiting(transport: asyncio.BaseTransport) -> bool:
+    """Whether the client sent bytes the server has not read yet (peeked: nothing is taken)."""
+    sock = transport.get_extra_info("socket")
+    if sock is None:
+        return False
+    try:
+        with socket.socket(fileno=os.dup(sock.fileno())) as peek:
+            peek.setblocking(False)
+            return bool(peek.recv(1, socket.MSG_PEEK))
+    except OSError:  # nothing there (BlockingIOError), or the client is gone
+        return False
 
 
 class BoundedH11(H11Protocol):
@@ -37,6 +58,7 @@ class BoundedH11(H11Protocol):
     #: connections waiting for a request head, oldest first (one server per process)
     waiting: ClassVar[OrderedDict[int, BoundedH11]] = OrderedDict()
     closed_idle = 0  # connections closed for a late head or to admit a newer one
+    refused_waiting = 0  # of those, closed for a newer one with their request unread: answered REFUSAL
     cut_stalled = 0  # connections cut off for not reading
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
@@ -55,7 +77,7 @@ class BoundedH11(H11Protocol):
             oldest = next(iter(waiting.values()))
             if self._armed_s - oldest._armed_s < MIN_WAIT_S:
                 break  # a burst of new connections whose heads are on their way: none of them is idle yet
-            oldest._close_idle()
+            oldest._close_idle(refuse=True)
 
     def _disarm(self) -> None:
         if self._head_timer is not None:
@@ -66,10 +88,16 @@ class BoundedH11(H11Protocol):
     def _between_requests(self) -> bool:
         return self.cycle is None or self.cycle.response_complete
 
-    def _close_idle(self) -> None:
+    def _close_idle(self, refuse: bool = False) -> None:
+        """Close a connection waiting for a head; when it is closed to admit a newer one (``refuse``) and its
+        request has arrived but not been read yet (a burst on a busy machine), it is answered ``REFUSAL`` first:
+        its client is told, as by uvicorn's own limit, instead of seeing the connection drop."""
         self._disarm()
         if not self.transport.is_closing() and self._between_requests():
             BoundedH11.closed_idle += 1
+            if refuse and _bytes_waiting(self.transport):
+                BoundedH11.refused_waiting += 1
+                self.transport.write(REFUSAL)
             self.transport.close()
 
     def handle_events(self) -> None:

@@ -20,19 +20,41 @@ import zenoh
 from magnet import wire
 from magnet.drift import alert_from_message
 from services.common import metrics
+from services.common.allocator import give_back_now
 from services.common.guard import Guard
-from services.common.zenoh_session import drain, payload_bytes
+from services.common.zenoh_session import Receiver, drain, payload_bytes
 from services.dashboard.state import FleetState
 
 log = logging.getLogger("magnet.dashboard")
 
 CHANNEL_CAPACITY = 65536
+#: headings and progress wait in rings of this many messages (the oldest go first when a step is late: only each
+#: device's newest is shown); a FIFO of 65,536 held every message of a flood, each pinning Zenoh's receive buffer
+RING_CAPACITY = 4096
+#: the freed heap is given back to the system this often (s): floods and bursts of streams leave it fragmented
+TRIM_S = 10.0
 MAX_DRAIN = 100_000
 QUERY_TIMEOUT_S = 5.0
 REQUERY_S = 10.0
 
 
 Subscriber = zenoh.Subscriber[zenoh.Handler[zenoh.Sample]]
+
+
+def copied(handler: Receiver[zenoh.Sample], limit: int) -> list[tuple[str, bytes]]:
+    """(key, payload) of up to ``limit`` samples a channel holds now, each sample let go as soon as it is copied: a
+    Zenoh sample keeps the receive buffer it came in alive (up to 64 kB for a message of a few hundred bytes), so a
+    step that held a drain's samples while it decoded held megabytes per thousand messages."""
+    out: list[tuple[str, bytes]] = []
+    while len(out) < limit:
+        try:
+            sample = handler.try_recv()
+        except zenoh.ZError:
+            break
+        if sample is None:
+            break
+        out.append((str(sample.key_expr), payload_bytes(sample)))
+    return out
 
 
 class Ingest:
@@ -49,14 +71,15 @@ class Ingest:
                 wire.liveliness_key(prefix, "device", "*"), fifo(CHANNEL_CAPACITY), history=True
             )
         )
-        self.headings = self._subscribe(wire.Kind.HEADING, fifo(CHANNEL_CAPACITY))
-        self.progress = self._subscribe(wire.Kind.PROGRESS, fifo(CHANNEL_CAPACITY))
+        self.headings = self._subscribe(wire.Kind.HEADING, zenoh.handlers.RingChannel(RING_CAPACITY))
+        self.progress = self._subscribe(wire.Kind.PROGRESS, zenoh.handlers.RingChannel(RING_CAPACITY))
         self.calibrations = self._subscribe(wire.Kind.CALIBRATION, fifo(4096))
         self.alerts = self._subscribe(wire.Kind.ALERT, fifo(4096))
         self.raw_any = self._subscribe(wire.Kind.RAW, zenoh.handlers.RingChannel(64))
         self.raw_watched: dict[str, tuple[Subscriber, contextlib.ExitStack]] = {}
         self.pending: list[tuple[float, zenoh.Handler[zenoh.Reply]]] = []
         self.asked_s = -REQUERY_S
+        self.trimmed_s = time.monotonic()
         self.guard = Guard("dashboard", log, state.dropped)
 
     def _declare(self, subscriber: Subscriber) -> Subscriber:
@@ -97,15 +120,19 @@ class Ingest:
         self._take_replies()
         for sample in drain(self.alerts, MAX_DRAIN):
             run("alert", self._on_alert, str(sample.key_expr), payload_bytes(sample))
-        for sample in drain(self.progress, MAX_DRAIN):
-            run("progress", self._on_progress, sample)
+        for key_expr, payload in copied(self.progress, MAX_DRAIN):
+            run("progress", self._on_progress, key_expr, payload)
         raws = drain(self.raw_any, MAX_DRAIN)
         run("raw", self._on_raws, raws, True, count=len(raws))
         for subscriber, _ in list(self.raw_watched.values()):
             raws = drain(subscriber, MAX_DRAIN)
             run("raw", self._on_raws, raws, False, count=len(raws))
-        headings = drain(self.headings, MAX_DRAIN)
+        raws.clear()  # Zenoh's samples go as soon as they are read (each holds its receive buffer)
+        headings = copied(self.headings, MAX_DRAIN)
         run("heading", self._on_headings, headings, count=len(headings))
+        if time.monotonic() - self.trimmed_s >= TRIM_S:
+            self.trimmed_s = time.monotonic()
+            give_back_now()
 
     # ---------------------------------------------------------------------------------------------- messages
     def _drop(self, exc: wire.WireError, what: str) -> None:
@@ -149,10 +176,10 @@ class Ingest:
             return
         self.state.on_alert(alert)
 
-    def _on_progress(self, sample: zenoh.Sample) -> None:
+    def _on_progress(self, key_expr: str, payload: bytes) -> None:
         try:
-            message = wire.decode_progress(payload_bytes(sample))
-            wire.check_key(self.prefix, str(sample.key_expr), wire.Kind.PROGRESS, message["device"])
+            message = wire.decode_progress(payload)
+            wire.check_key(self.prefix, key_expr, wire.Kind.PROGRESS, message["device"])
         except wire.WireError as exc:
             self._drop(exc, "progress")
             return
@@ -178,19 +205,20 @@ class Ingest:
         row = self.state.rows.get(device)
         return row is not None and bool(row.sensor)
 
-    def _on_headings(self, samples: list[zenoh.Sample]) -> None:
-        """Decode the newest message of each device, and every message of a watched device, in arrival order."""
-        latest: dict[str, zenoh.Sample] = {}
-        chosen: list[zenoh.Sample] = []
-        for sample in samples:
-            key_expr = str(sample.key_expr)
+    def _on_headings(self, messages: list[tuple[str, bytes]]) -> None:
+        """Decode the newest message of each device, and every message of a watched device, in arrival order
+        (``messages``: (key, payload), emptied here)."""
+        latest: dict[str, bytes] = {}
+        chosen: list[tuple[str, bytes]] = []
+        for key_expr, payload in messages:
             if key_expr.rsplit("/", 2)[-2] in self.raw_watched:
-                chosen.append(sample)
+                chosen.append((key_expr, payload))
             else:
-                latest[key_expr] = sample
-        self.state.messages += len(samples)
-        for sample in chosen + list(latest.values()):
-            self._on_heading(str(sample.key_expr), payload_bytes(sample))
+                latest[key_expr] = payload
+        self.state.messages += len(messages)
+        messages.clear()
+        for key_expr, payload in chosen + list(latest.items()):
+            self._on_heading(key_expr, payload)
 
     def _on_heading(self, key_expr: str, payload: bytes) -> None:
         try:

@@ -1,10 +1,12 @@
 """``magnet edge --mavlink URL``: the magnetometers of MAVLink vehicles (pymavlink connection; the conversion is
 ``magnet.autopilot.mavlink_stream``). One device per vehicle and compass instance, ``<prefix><SYSID>-mag<N>``, appearing
 as their vehicles send; a vehicle silent for ``--vehicle-timeout`` seconds turns its devices unhealthy (the edge's
-unhealthy token per device, as for a dead bus) until it sends again. Bytes that are not MAVLink and messages magnet
-cannot use are dropped and counted (status ``reads.dropped``), with one log line per cause. The id of the sensor behind
-each compass instance is asked of the vehicle (PARAM_REQUEST_READ of ArduPilot's COMPASS_DEV_ID.., PX4's CAL_MAGn_ID,
-at first contact and after a reboot) and sent with every batch (status ``reads.hardware_ids``; docs/mavlink.md)."""
+unhealthy token per device, as for a dead bus) until it sends again; a device with no sample for ``--forget-after``
+seconds is forgotten (its tokens withdrawn, its place under ``--max-port-devices`` and ``--max-devices`` free).
+Bytes that are not MAVLink and messages magnet cannot use are dropped and counted (status ``reads.dropped``), with one
+log line per cause. The id of the sensor behind each compass instance is asked of the vehicle (PARAM_REQUEST_READ of
+ArduPilot's COMPASS_DEV_ID.., PX4's CAL_MAGn_ID, at first contact and after a reboot) and sent with every batch
+(status ``reads.hardware_ids``; docs/mavlink.md)."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from pymavlink import mavutil
 from magnet import wire
 from magnet.autopilot import mavlink
 from magnet.autopilot.mavlink_stream import MavlinkStream
+from services.common.allocator import give_back_now
 from services.edge.settings import EdgeSettings
 from services.edge.source import DeviceEvents, Stop, ticked
 
@@ -28,6 +31,8 @@ log = logging.getLogger("magnet.edge")
 POLL_S = 0.05
 #: messages read at most per call
 MAX_MESSAGES = 2000
+#: the freed heap is given back to the system this often (s): a flood of ids leaves it fragmented
+TRIM_S = 10.0
 
 
 class MavlinkStats:
@@ -54,6 +59,7 @@ class MavlinkStats:
             "gyro_absent": self.stream.gyro_absent,
             "hardware_ids": self.stream.hardware_ids(),
             "id_timeouts": counts["id-timeouts"],
+            "forgotten": counts["forgotten"],
         }
 
 
@@ -66,12 +72,18 @@ class MavlinkSource:
         if not settings.mavlink:
             raise ValueError("a MAVLink source needs --mavlink URL")
         self.settings = settings
-        self.stream = MavlinkStream(settings.device_prefix, settings.batch, max_devices=settings.max_port_devices)
+        self.stream = MavlinkStream(
+            settings.device_prefix,
+            settings.batch,
+            max_devices=settings.max_port_devices,
+            forget_ns=int(settings.forget_after_s * 1e9),
+        )
         self.stats = MavlinkStats(self.stream)
         self.ids: list[str] = []
         self.events: DeviceEvents | None = None
         self.healthy: dict[str, bool] = {}
         self.logged: set[str] = set()
+        self.trimmed_s = time.monotonic()
         try:
             self.connection = mavutil.mavlink_connection(
                 settings.mavlink, baud=settings.baud, source_system=255, robust_parsing=True, dialect="common"
@@ -107,6 +119,9 @@ class MavlinkSource:
         self._ask(now)
         out = self.stream.take(now, flush=stop())
         self._devices_and_health(now)
+        if time.monotonic() - self.trimmed_s >= TRIM_S:
+            self.trimmed_s = time.monotonic()
+            give_back_now()
         return out
 
     def _ask(self, now_ns: int) -> None:
@@ -131,6 +146,13 @@ class MavlinkSource:
             log.warning("dropping MAVLink input (%s): %s; further ones only counted", cause, self.stream.last_error)
 
     def _devices_and_health(self, now_ns: int) -> None:
+        for device in self.stream.take_forgotten():
+            self.healthy.pop(device, None)
+            if device in self.ids:
+                self.ids.remove(device)
+            log.info("MAVLink device %s forgotten: silent %g s", device, self.settings.forget_after_s)
+            if self.events is not None:
+                self.events.device_gone(device)
         timeout_ns = int(self.settings.vehicle_timeout_s * 1e9)
         for device, healthy in self.stream.health(now_ns, timeout_ns).items():
             if device not in self.healthy:

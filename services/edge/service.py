@@ -74,6 +74,10 @@ class EdgeStatus:
         self.ids = [settings.device] if source is None else list(source.ids)
         #: the devices the edge started with (a fleet's, a chip's), then at most --max-devices that appear running
         self.admitted = set(self.ids)
+        self.started_with = frozenset(self.ids)
+        self.forgotten = 0  # devices forgotten (silent) whose places were freed
+        #: the raw key of each admitted device (the publisher's; dropped with a forgotten device)
+        self.keys: dict[str, str] = {}
         self.limit = len(self.ids) + settings.max_devices
         self.reads: Callable[[], dict[str, Any] | None] = (lambda: None) if source is None else source.status
         self.published_samples = self.published_batches = 0
@@ -142,6 +146,19 @@ class EdgeStatus:
         if device in self.admitted:
             self._token(f"{device}/unhealthy", unhealthy_key(self.settings.zenoh.prefix, device), not healthy)
 
+    def device_gone(self, device: str) -> None:
+        """A device that appeared while running was forgotten by its source (silent): its tokens are withdrawn and
+        its place under ``--max-devices`` is free; one the edge started with keeps both."""
+        if device in self.started_with or device not in self.admitted:
+            return
+        self.admitted.discard(device)
+        self.forgotten += 1
+        if device in self.ids:
+            self.ids.remove(device)
+        self._token(f"{device}/unhealthy", "", False)
+        self._token(device, "", False)
+        self.keys.pop(device, None)
+
     def as_dict(self) -> dict[str, Any]:
         reads = self.reads()
         return {
@@ -159,6 +176,7 @@ class EdgeStatus:
             "last_error": "" if reads is None else reads["last_error"],
             "reads": reads,
             "dropped": dict(self.guard.drops.counts),
+            "forgotten": self.forgotten,
         }
 
     def summary(self, seconds: float) -> dict[str, Any]:
@@ -205,7 +223,8 @@ class Publisher:
         self.session, self.status = session, status
         self.period_s = settings.batch / settings.rate_hz
         self.prefix = settings.zenoh.prefix
-        self.keys = {d: wire.key(self.prefix, d, wire.Kind.RAW) for d in status.ids}
+        self.keys = status.keys  # the status drops a forgotten device's key with its place
+        self.keys.update({d: wire.key(self.prefix, d, wire.Kind.RAW) for d in status.ids})
         self.slots = min(len(status.ids), FLEET_SLOTS) if settings.devices else 1
         self.sample_ns = int(1e9 / settings.rate_hz)
         self.block = zenoh.CongestionControl.BLOCK  # raw samples wait for a congested link rather than vanish

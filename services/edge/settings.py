@@ -264,12 +264,11 @@ class MavlinkOptions:
         "may make; a new one beyond is dropped and counted (reads.dropped[device-limit])", check=_whole(1, 65_536)
     )  # fmt: skip
     vehicle_timeout_s: float = option(
-        3.0,
-        "--vehicle-timeout",
-        metavar="S",
-        help="with --mavlink: a vehicle silent this long (s) makes its devices unhealthy",
-        check=_in_range(0, 3600, " seconds"),
-    )
+        3.0, "--vehicle-timeout", metavar="S", check=_in_range(0, 3600, " seconds"), help="with --mavlink: a vehicle "
+        "silent this long (s) makes its devices unhealthy")  # fmt: skip
+    forget_after_s: float = option(
+        60.0, "--forget-after", metavar="S", check=_in_range(0.1, 86_400, " seconds"), help="with --mavlink: a device "
+        "silent this long (s) is forgotten: its tokens go, its place freed (reads.forgotten)")  # fmt: skip
 
     @staticmethod
     def names_mavlink(s: EdgeSettings) -> bool:

@@ -5,7 +5,8 @@ A source is opened from the settings by its constructor (one row of ``services.e
 
 - ``attach(session, events)``: once the edge's Zenoh session is open. A source that subscribes (ROS 2) declares on
   ``session``; a source whose devices appear while it runs or fail one by one (MAVLink, a chip on a bus) tells
-  ``events`` (the edge's status: liveliness tokens per device and per unhealthy device). Others do nothing.
+  ``events`` (the edge's status: liveliness tokens per device and per unhealthy device, withdrawn when a device
+  is forgotten). Others do nothing.
 - ``batches(stop)``: the batches as they are due, one list per step (a batch per device that has one), until
   ``stop()`` is true or the source ends (a replay at the end of its recording).
 - ``ids``: the devices known now (a MAVLink source adds them as vehicles appear).
@@ -41,6 +42,9 @@ class DeviceEvents(Protocol):
 
     def device_health(self, device: str, healthy: bool) -> None:
         """One device of a source with many turned unhealthy or healthy again."""
+
+    def device_gone(self, device: str) -> None:
+        """A device that appeared while running fell silent and was forgotten: its tokens and place go."""
 
 
 @runtime_checkable

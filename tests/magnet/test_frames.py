@@ -90,6 +90,18 @@ def test_rotate_heading_adds_declination():
     assert heading == pytest.approx(5.0) and (pitch, roll) == pytest.approx((10.0, 5.0))
 
 
+def test_rotate_heading_of_rows_is_the_plain_product():
+    """(N, 4) rows go through the compiled product (``_kernels.quaternion_product``): the very numbers of the product
+    written plainly, one angle for all rows or one a row."""
+    rng = np.random.default_rng(28)
+    quat = rng.normal(size=(2000, 4))
+    for angle in (rng.uniform(-180.0, 180.0, 2000), 12.5, np.zeros(2000)):
+        half = np.radians(np.asarray(angle, dtype=float)) / 2
+        turn = np.stack(np.broadcast_arrays(np.cos(half), 0.0, 0.0, np.sin(half)), axis=-1)
+        plain = frames.w_positive(frames.quaternion_multiply(turn, quat))
+        np.testing.assert_array_equal(frames.rotate_heading(quat, angle), plain)
+
+
 @pytest.mark.parametrize(
     "name,expected",
     [

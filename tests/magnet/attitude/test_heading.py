@@ -93,6 +93,18 @@ def test_true_heading_adds_declination_and_wraps():
     np.testing.assert_allclose(hd.true_heading_deg(np.array([0.0, 180.0]), 10.0), [10.0, 190.0])
 
 
+def test_wrap_deg_gives_np_mods_very_bits():
+    """wrap_deg's fast path (angles in [-360, 360): adds 360 to the negative ones) against np.mod, the plain maths,
+    bit for bit, signed zeros and the rounding up to 360 included; other angles take np.mod itself."""
+    rng = np.random.default_rng(4)
+    edges = [-0.0, 0.0, -360.0, -1e-17, -1e-300, 359.99999999999994, -180.0, 180.0, -359.9999999999999]
+    for angles in (np.concatenate([rng.uniform(-360, 360, 5000), edges]), np.array([720.5, -1e6, np.nan, 10.0])):
+        plain = np.mod(angles, 360.0)
+        plain = np.where(plain >= 360.0, 0.0, plain)
+        np.testing.assert_array_equal(hd.wrap_deg(angles).view(np.int64), plain.view(np.int64))
+    assert hd.wrap_deg(-1e-17) == 0.0 and hd.wrap_deg(np.zeros(0)).shape == (0,)
+
+
 def test_smoothing_across_north_never_averages_to_south():
     headings = np.array([359.0, 1.0, 359.0, 1.0, 359.0, 1.0])
     smoothed = hd.smooth_heading_deg(headings, 2)
@@ -146,3 +158,22 @@ def test_heading_uncertainty_grows_as_the_horizontal_field_shrinks():
     assert strong == pytest.approx(np.degrees(np.arctan(0.35 / 20.0)))
     assert weak > 5 * strong
     assert hd.heading_uncertainty_deg(np.array([0.0, 0.0, 45.0]), acc, 0.35) == 180.0
+
+
+def test_the_compiled_tilt_heading_and_dip_are_the_plain_maths():
+    """``tilt_compensated_heading_deg`` and ``dip_angle_deg`` (compiled: ``magnet._kernels.tilt_heading``) against
+    the cross products written plainly in numpy, on random vectors with zero, NaN and broadcast ones."""
+    rng = np.random.default_rng(9)
+    field, acc = rng.normal(0, 40, (2000, 3)), rng.normal(0, 9, (2000, 3))
+    acc[::50], acc[1::50], field[2::50] = 0.0, np.nan, 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        norm = np.linalg.norm(acc, axis=1)
+        d = acc * np.where(norm > 1e-12, -1.0 / norm, np.nan)[:, None]
+        east = np.cross(d, field)
+        plain = np.degrees(np.arctan2(east[:, 0], np.cross(east, d)[:, 0])) % 360.0
+        plain_dip = np.degrees(np.arcsin(np.clip(np.sum(field * d, axis=1) / np.linalg.norm(field, axis=1), -1, 1)))
+    np.testing.assert_allclose(hd.tilt_compensated_heading_deg(field, acc), plain, atol=1e-9)
+    np.testing.assert_allclose(hd.dip_angle_deg(field, acc), plain_dip, atol=1e-9)
+    assert np.array_equal(np.isnan(hd.tilt_compensated_heading_deg(field, acc)), np.isnan(plain))
+    one = hd.tilt_compensated_heading_deg(field[:5], acc[7])  # one accelerometer reading for every field
+    np.testing.assert_allclose(one, [hd.tilt_compensated_heading_deg(f, acc[7]) for f in field[:5]])

@@ -88,6 +88,45 @@ def test_into_body_is_the_transposed_rotation_of_the_enu_vector():
     np.testing.assert_allclose(out, np.einsum("nji,nj->ni", _matrix(q), enu), atol=1e-13)
 
 
+def test_vqf_attitudes_are_the_frames_conversions_of_the_finite_rows():
+    n = 400
+    raw = _quats(n) * RNG.uniform(0.5, 2.0, (n, 1))
+    raw[::7] = np.nan  # not fused
+    raw[3, 2] = np.inf
+    fused, rotation = np.empty(n, dtype=bool), np.empty((n, 3, 3))
+    quat, down, angles = np.empty((n, 4)), np.empty((n, 3)), np.empty((3, n))
+    _kernels.vqf_attitudes(raw, fused, quat, rotation.reshape(n, 9), down, *angles)
+    want_fused = np.isfinite(raw).all(axis=1)
+    np.testing.assert_array_equal(fused, want_fused)
+    # the plain maths: q_NED_ENU q q_FRD_FLU with w >= 0, its matrix, Z-Y-X Euler angles in degrees
+    h = math.sqrt(0.5)
+    plain = _product(_product(np.array([0.0, h, h, 0.0]), raw[fused]), np.array([0.0, 1.0, 0.0, 0.0]))
+    plain *= np.where(plain[:, :1] < 0, -1.0, 1.0)
+    m = _matrix(plain)
+    np.testing.assert_allclose(quat[fused], plain, atol=1e-15)
+    np.testing.assert_allclose(rotation[fused], m, atol=1e-14)
+    np.testing.assert_array_equal(down[fused], rotation[fused][:, 2, :])
+    heading = np.degrees(np.arctan2(m[:, 1, 0], m[:, 0, 0])) % 360.0
+    np.testing.assert_allclose(angles[0][fused], heading, atol=1e-9)
+    np.testing.assert_allclose(angles[1][fused], np.degrees(np.arcsin(np.clip(-m[:, 2, 0], -1, 1))), atol=1e-9)
+    np.testing.assert_allclose(angles[2][fused], np.degrees(np.arctan2(m[:, 2, 1], m[:, 2, 2])), atol=1e-9)
+    assert ((angles[0][fused] >= 0) & (angles[0][fused] < 360)).all()
+    assert np.isnan(quat[~fused]).all() and np.isnan(down[~fused]).all() and np.isnan(angles[:, ~fused]).all()
+    np.testing.assert_array_equal(rotation[~fused], np.broadcast_to(np.eye(3), (int((~fused).sum()), 3, 3)))
+
+
+def test_turn_about_down_is_the_product_with_the_turn_then_w_positive():
+    n = 300
+    quat, angle, out = _quats(n), RNG.uniform(-400.0, 400.0, n), np.empty((n, 4))
+    quat[::9] = np.nan
+    _kernels.turn_about_down(quat, angle, out)
+    half = np.radians(angle) / 2
+    plain = _product(np.stack([np.cos(half), 0 * half, 0 * half, np.sin(half)], -1), quat)
+    plain *= np.where(plain[:, :1] < 0, -1.0, 1.0)
+    np.testing.assert_allclose(out, plain, atol=1e-15)
+    assert np.array_equal(np.isnan(out), np.isnan(plain))
+
+
 def test_piece_figures_are_the_means_of_the_field_in_the_6d_earth_frame():
     q, field, acc = _quats(12), RNG.normal(size=(12, 3)), RNG.normal(size=(12, 3))
     *up, heading, horizontal, vertical, left = _kernels.piece_figures(q, field, acc, 9.8)
@@ -313,9 +352,13 @@ def _walk_through_disturbances(n: int, period_s: float) -> tuple[np.ndarray, np.
     return field, gyr
 
 
-@pytest.mark.parametrize("period_s, batch", [(0.01, 1), (0.01, 37), (0.02, 100), (0.01, 4000)])
-def test_watch_update_is_the_plain_watch_whatever_the_batches(period_s, batch):
-    field, gyr = _walk_through_disturbances(4000, period_s)
+@pytest.mark.parametrize(
+    "period_s, batch, n",
+    # 500 Hz: a mean over 50 samples (a running sum in the kernel, summed afresh every ring's length)
+    [(0.01, 1, 4000), (0.01, 37, 4000), (0.02, 100, 4000), (0.01, 4000, 4000), (0.002, 500, 8000)],
+)
+def test_watch_update_is_the_plain_watch_whatever_the_batches(period_s, batch, n):
+    field, gyr = _walk_through_disturbances(n, period_s)
     compiled, plain = FieldWatch(period_s), _PlainWatch(period_s)
     got, want = [], []
     for start in range(0, len(field), batch):

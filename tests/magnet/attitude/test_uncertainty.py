@@ -112,3 +112,58 @@ def test_samples_not_explained_yet_wait_for_the_velocity():
     model.step(["d"], [0, n], t_ns, acc, field, np.full(n, FUSED), quat, np.full(n, np.nan), [0.0], [waiting])
     state = model.devices["d"]
     assert len(state.waiting) == 1 and state.mag == (0.0, 0.0)
+
+
+def _plain_direct(field, acc, down_fused, fused, flags, expected, residual):
+    """The module's per-sample part written plainly in numpy (as it was before it was compiled): the dip against the
+    fused down where fused, else the accelerometer's, else level; r / |B_h|; the accelerometer's own tilt error; the
+    flagged disturbance; then the degrees."""
+    from magnet.attitude import uncertainty as u
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        down = -acc / np.linalg.norm(acc, axis=1)[:, None]
+        down = np.where(fused[:, None], down_fused, down)
+        down = np.where(np.isfinite(down).all(axis=1)[:, None], down, [0.0, 0.0, 1.0])
+        norm = np.linalg.norm(field, axis=1)
+        dip = np.nan_to_num(np.arcsin(np.clip(np.sum(field * down, axis=1) / norm, -1.0, 1.0)))
+        dip = np.clip(dip, -math.radians(u.MAX_DIP_DEG), math.radians(u.MAX_DIP_DEG))
+        horizontal, tan_dip = norm * np.cos(dip), np.abs(np.tan(dip))
+        field_rad = np.where(np.isfinite(residual), residual, UNCALIBRATED_FRACTION * norm) / horizontal
+        acc_norm = np.linalg.norm(acc, axis=1)
+        tilt = np.where(np.isfinite(acc_norm), np.abs(acc_norm - G) / G, math.radians(UNLEVEL_DEG))
+        turn = np.abs(norm - expected) / horizontal
+        flagged = (flags & (int(HeadingFlag.FIELD_DISTURBED) | int(HeadingFlag.DIP_DISTURBED))) != 0
+        variance = field_rad**2 + (tilt * tan_dip) ** 2 + np.where(flagged & np.isfinite(turn), turn**2, 0.0)
+        sigma = np.degrees(np.sqrt(variance))
+    heading = np.where(np.isfinite(sigma), np.minimum(sigma, u.MAX_SIGMA_DEG), u.MAX_SIGMA_DEG)
+    tilt_deg = np.clip(np.nan_to_num(np.degrees(tilt), nan=UNLEVEL_DEG), u.MIN_TILT_DEG, 90.0)
+    return np.stack([tan_dip, field_rad, tilt, variance]), heading, tilt_deg
+
+
+def test_the_compiled_per_sample_part_is_the_plain_maths():
+    """``_direct`` (magnet._kernels.sigma_direct) and the degrees (sigma_degrees) against ``_plain_direct`` on random
+    samples with the odd ones in: no accelerometer, a zero one, a zero field, no residual, flagged, fused."""
+    from magnet import _kernels
+    from magnet.attitude import uncertainty as u
+
+    rng = np.random.default_rng(32)
+    n = 3000
+    field, acc = rng.normal(0, 30, (n, 3)), rng.normal(0, 6, (n, 3)) + [0, 0, -G]
+    acc[::11] = np.nan
+    acc[5::97] = 0.0
+    field[7::131] = 0.0
+    rotation = np.stack([np.eye(3)] * n)
+    fused = rng.random(n) < 0.5
+    rotation[fused] = np.linalg.qr(rng.normal(size=(int(fused.sum()), 3, 3)))[0]
+    flags = rng.choice([0, int(HeadingFlag.FIELD_DISTURBED), int(HeadingFlag.DIP_DISTURBED), FUSED], n)
+    expected = np.where(rng.random(n) < 0.2, np.nan, 50.0)
+    residual = np.where(rng.random(n) < 0.3, np.nan, rng.uniform(0.1, 3.0, n))
+    for rot, where in ((rotation, fused), (None, np.zeros(n, bool))):
+        got = u._direct(field, acc, rot, fused, flags.astype(np.int64), expected, residual)
+        want, heading, tilt_deg = _plain_direct(field, acc, rotation[:, 2, :], where, flags, expected, residual)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+        assert np.array_equal(np.isnan(got), np.isnan(want))
+        got_heading, got_tilt = np.empty(n), np.empty(n)
+        _kernels.sigma_degrees(got[3], got[2], u.MAX_SIGMA_DEG, UNLEVEL_DEG, u.MIN_TILT_DEG, got_heading, got_tilt)
+        np.testing.assert_allclose(got_heading, heading, rtol=1e-12)
+        np.testing.assert_allclose(got_tilt, tilt_deg, rtol=1e-12)

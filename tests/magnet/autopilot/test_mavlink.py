@@ -222,3 +222,34 @@ def test_one_connection_makes_at_most_max_devices_and_the_known_ones_go_on() -> 
     assert {b.device for b in stream.take(NOW + 20_000_000)} == {"mav1-mag0", "mav1-mag1", "mav2-mag0"}
     with pytest.raises(ValueError, match="max_devices"):
         MavlinkStream(max_devices=0)
+
+
+def test_a_device_that_falls_silent_gives_its_place_back() -> None:
+    """Issue 32: a flood that filled a port's places kept a real vehicle that came later out until the edge
+    restarted. A device with no sample for ``forget_ns`` is forgotten (counted, listed for the edge) and its place
+    goes to a new device; one that keeps sending keeps its place."""
+    s = sender()
+    second = 1_000_000_000
+    stream = MavlinkStream(batch=1, max_devices=4, forget_ns=60 * second)
+    for sysid in range(2, 42):  # the flood: 40 ids, one message each, at NOW
+        for m in parsed(sysid, s.scaled_imu_encode(1, 0, 0, -1000, 0, 0, 0, 200, 0, 400)):
+            stream.feed(m, NOW)
+    assert len(stream.pending) == 4 and stream.counts["dropped:device-limit"] == 36
+    stream.take(NOW)
+    real = parsed(1, s.scaled_imu2_encode(1, 0, 0, -1000, 0, 0, 0, 200, 0, 400))[0]
+    assert stream.feed(real, NOW + 30 * second) == "device-limit"  # the flood's ids are not silent long enough
+    for m in parsed(2, s.scaled_imu_encode(50_000, 0, 0, -1000, 0, 0, 0, 200, 0, 400)):
+        stream.feed(m, NOW + 50 * second)  # one of them keeps sending
+    stream.take(NOW + 50 * second)
+    assert stream.feed(real, NOW + 61 * second) is None  # the real vehicle gets in after the silence
+    assert set(stream.pending) == {"mav2-mag0", "mav1-mag1"}
+    assert stream.counts["forgotten"] == 3 and sorted(stream.take_forgotten()) == [
+        "mav3-mag0",
+        "mav4-mag0",
+        "mav5-mag0",
+    ]
+    assert [b.device for b in stream.take(NOW + 61 * second)] == ["mav1-mag1"]
+    assert stream.take(NOW + 200 * second) == [] and stream.take_forgotten() == ["mav2-mag0", "mav1-mag1"]
+    assert stream.pending == {} and stream.take_forgotten() == []
+    with pytest.raises(ValueError, match="forget_ns"):
+        MavlinkStream(forget_ns=0)

@@ -132,3 +132,26 @@ def test_a_stale_calibration_is_not_logged_as_malformed(caplog):
     assert "dropping stale calibration message (stale)" in caplog.messages[0]
     assert "malformed" not in caplog.messages[0] and "dropping malformed raw message" in caplog.messages[1]
     assert drops.counts == {"calibration:stale": 1, "raw:not-msgpack": 1}
+
+
+def test_value_faults_are_the_plain_per_row_checks():
+    """``value_faults`` (compiled: ``magnet._kernels.row_faults``) against the checks written plainly in numpy:
+    a row with a non-finite value (unless all NaN, with ``absent_rows``), a row with a value beyond +-limit."""
+    from magnet.wire.arrays import value_faults
+
+    rng = np.random.default_rng(7)
+    arr = rng.normal(0.0, 50.0, (500, 3))
+    arr[rng.random((500, 3)) < 0.05] = np.nan
+    arr[rng.random((500, 3)) < 0.02] = np.inf
+    arr[rng.random((500, 3)) < 0.02] = -np.inf
+    arr[::37] = np.nan  # absent rows
+    for values in (arr, arr[:, 1], arr[:, :0], arr[::2, ::2]):
+        for absent in (False, True):
+            rows = values.reshape(len(values), -1)
+            finite = np.isfinite(rows).all(axis=1) | (absent & np.isnan(rows).all(axis=1))
+            beyond = (np.nan_to_num(np.abs(rows), nan=0.0) > 120.0).any(axis=1)
+            (bad, cause, _), (over, cause_over, text) = value_faults(values, "mag_ut", 120.0, absent)
+            np.testing.assert_array_equal(bad, ~finite)
+            np.testing.assert_array_equal(over, beyond)
+            assert (cause, cause_over, text) == ("non-finite", "absurd-magnitude", "mag_ut holds values beyond +-120")
+            assert len(value_faults(values, "t", None, absent)) == 1

@@ -25,11 +25,6 @@ def _status(name, port):
     return lines[0] if code == 0 and lines else None
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="fails in the full run (83 % through, a clean clone, 2026-12-03: the compass sees the calibrator but holds "
-    "0 calibrations after 60 s); passes alone and after tests/magnet/ros2/test_ros2_core.py: cause not found",
-)
 def test_the_compass_keeps_the_record_in_force_when_every_calibrator_is_gone(procs, tmp_path):
     record = wire.DeviceCalibration(
         "kept", time.time_ns(), Calibration("ellipsoid", np.array([12.0, -7.0, 4.0]), np.eye(3))

@@ -192,7 +192,7 @@ def test_stream_sends_the_fleet_then_only_changed_rows(state):
         events = []
         stream = dashboard._events("imu-1")
         async for text in stream:
-            events.append(text)
+            events.append(text if isinstance(text, str) else bytes(text).decode())  # a fleet event: UTF-8 pieces
             if len(events) == 2:
                 state.on_heading(heading_batch(seq=8, heading=90.0))
             if len(events) >= count:

@@ -88,10 +88,10 @@ def test_fleet_events_are_made_once_a_tick_for_every_stream_and_none_is_missed()
     state.on_heading(heading_batch("b"))
     v1, texts = events.event(first, 0.3)
     _, others = events.event(first, 0.31)  # another stream that had the previous tick: the same text, not made again
-    assert others == texts and '"device":"b"' in texts[0] and events.made == 3
+    assert others == texts and b'"device":"b"' in texts[0] and events.made == 3
     state.on_heading(heading_batch("c"))
     events.event(v1, 0.55)  # tick 2, taken by a stream that kept up
     state.on_heading(heading_batch("d"))
     v3, late = events.event(v1, 0.8)  # a stream that slept through tick 2: ticks 2 and 3 as they were made
-    assert len(late) == 2 and '"device":"c"' in late[0] and '"device":"d"' in late[1] and events.made == 5
+    assert len(late) == 2 and b'"device":"c"' in late[0] and b'"device":"d"' in late[1] and events.made == 5
     assert v3 == state.version

@@ -69,3 +69,32 @@ def test_the_limits_are_options_with_sane_defaults() -> None:
         EdgeSettings(mavlink="udpin:127.0.0.1:14550", max_devices=0)
     with pytest.raises(ValueError, match="--max-port-devices"):
         EdgeSettings(mavlink="udpin:127.0.0.1:14550", max_port_devices=0)
+
+
+def test_a_forgotten_device_frees_its_place_and_tokens_for_a_new_one() -> None:
+    """Issue 32: a flood's ids filled the edge's places and kept a real vehicle that came later out until the edge
+    restarted. A device its source forgot (silent ``--forget-after``) gives its tokens and its place back; a device
+    the edge started with is never forgotten."""
+    settings = EdgeSettings(mavlink="udpin:127.0.0.1:14550", max_devices=3, device="e1")
+    status = EdgeStatus(settings)
+    session = FakeSession()
+    status.open(session)  # type: ignore[arg-type]
+    publisher = Publisher(session, settings, status)  # type: ignore[arg-type]
+    flood = [f"mav{k}-mag0" for k in range(2, 12)]
+    for device in flood:
+        status.device_seen(device)
+        status.device_health(device, False)
+    publisher.put([batch(d) for d in flood])
+    publisher.put([batch("mav1-mag1")])  # the real vehicle, after the flood: no place
+    assert "magnet/mav1-mag1/raw" not in session.puts and status.as_dict()["dropped"] == {"devices:limit": 8}
+    for device in flood:  # the flood falls silent: its source forgets its ids
+        status.device_gone(device)
+    status.device_gone("e1")
+    assert session.tokens == [] and status.admitted == {"e1"} and status.as_dict()["forgotten"] == 3
+    status.device_seen("mav1-mag1")
+    publisher.put([batch("mav1-mag1")])
+    assert session.puts[-1] == "magnet/mav1-mag1/raw" and session.tokens == ["magnet/@alive/device/mav1-mag1"]
+    assert status.admitted == {"e1", "mav1-mag1"} and set(status.keys) == {"e1", "mav1-mag1"}
+    assert EdgeSettings(mavlink="udpin:127.0.0.1:14550").forget_after_s == 60.0
+    with pytest.raises(ValueError, match="--forget-after"):
+        EdgeSettings(mavlink="udpin:127.0.0.1:14550", forget_after_s=0.0)

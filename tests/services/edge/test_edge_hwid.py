@@ -69,6 +69,12 @@ def test_a_compass_missing_at_boot_does_not_move_its_calibration_onto_another_se
             40,
             "a record of the second sensor for mav1-mag0",
         )
+        # the compass applies the new record a moment after the calibrator publishes it: stop the vehicle only then
+        wait_for(
+            lambda: any(b.calibration_id == second["id"] for b in headings.batches("mav1-mag0")),
+            20,
+            "a heading of mav1-mag0 corrected with the second sensor's record",
+        )
         edge = status("edge-dev", edge_port)
         stand_in.terminate()
         assert stand_in.wait(timeout=20) == 0

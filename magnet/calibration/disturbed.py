@@ -1,0 +1,140 @@
+"""Which samples a fit leaves out because the field was disturbed (a steel door, a parked car, a magnet passed on the
+way): the rule is ``magnet.quality.disturbance.disturbed_samples`` (the same steps and |B| tolerance as the compass's
+watch, ``magnet.attitude.field_watch``), judged here for one ``FitInput`` (docs/field-calibration.md, "Disturbed
+samples").
+
+- with a calibration in force (``FitInput.reference``, correcting to uT): the corrected field's |B| and dip against
+  the World Magnetic Model's at the place, and its steps in the frame the gyroscope holds still;
+- without one: the raw field's steps beyond what the gyroscope's turns can make (``raw_steps``); then, in ``auto``,
+  once more with the first fit's correction (``refine``), and the fit is made again when that finds more.
+
+A correction under which more than MAX_SHARE of the samples look disturbed is the one in question, not the field:
+the raw steps are used instead; raw steps over more than MAX_SHARE of the samples (a gyroscope that does not turn
+with the magnetometer) drop nothing. Pure numpy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from magnet.calibration.base import FitError
+from magnet.calibration.fit_input import FitInput
+from magnet.earth.geomag import earth_field
+from magnet.model import Calibration
+from magnet.quality.disturbance import disturbed_samples
+
+if TYPE_CHECKING:
+    from magnet.calibration.field import FieldInput
+    from magnet.calibration.rungs import Evidence
+    from magnet.quality.motion import MotionEvidence
+
+#: a correction that finds more than this share of the samples disturbed is not trusted to judge them
+MAX_SHARE = 0.5
+#: ``refine`` fits again when the first fit's correction finds at least this share of the samples more
+REFIT_SHARE = 0.01
+
+
+def _expected(data: FitInput) -> tuple[float | None, float | None]:
+    """(|B| uT, dip deg) expected at the input's place: the given ones, else the WMM's, else None."""
+    field_ut, dip = data.field_ut, data.dip_deg
+    if (field_ut is None or dip is None) and data.place is not None:
+        earth = earth_field(*data.place.as_tuple(), data.date)
+        field_ut = earth.total_ut if field_ut is None else field_ut
+        dip = earth.inclination_deg if dip is None else dip
+    return field_ut, dip
+
+
+def _usable(correction: Calibration | None, data: FitInput) -> Calibration | None:
+    ok = correction is not None and correction.unit == data.unit and correction.output_unit == "ut"
+    return correction if ok and correction is not None and correction.method != "identity" else None
+
+
+def mask(data: FitInput, correction: Calibration | None = None) -> np.ndarray:
+    """(N,) bool: the input's disturbed samples, judged with ``correction`` (None: the calibration in force, if it
+    corrects to uT), else from the raw field."""
+    field_ut, dip = _expected(data)
+    gyr, period = (data.gyr_rads, data.period_s) if data.has_gyroscope else (None, None)
+    mag = np.asarray(data.mag, dtype=float)
+    chosen = _usable(correction if correction is not None else data.reference, data)
+
+    def flags(correction: Calibration | None) -> np.ndarray:
+        return disturbed_samples(
+            mag,
+            data.unit,
+            acc=data.acc,
+            gyr_rads=gyr,
+            period_s=period,
+            correction=correction,
+            expected_ut=field_ut,
+            expected_dip_deg=dip,
+        )
+
+    raw = flags(None)
+    if raw.mean() > MAX_SHARE:  # the gyroscope does not explain the field: the rule, not the field, is in question
+        raw = np.zeros(len(mag), dtype=bool)
+    if chosen is None:
+        return raw
+    judged = flags(chosen)
+    return raw if judged.mean() > MAX_SHARE else judged | raw
+
+
+def judged(data: FitInput) -> FitInput:
+    """The input with ``disturbed`` set (``mask``), unless it is already or ``drop_disturbed`` is off."""
+    if data.disturbed is not None or not data.drop_disturbed or len(data.mag) == 0:
+        return data
+    try:
+        return data.replace(disturbed=mask(data))
+    except ValueError:  # arrays the fit will refuse with its own message
+        return data
+
+
+def kept(data: FitInput) -> np.ndarray | None:
+    """(N,) bool: the rows a fit takes, None when it takes them all."""
+    if not data.drop_disturbed or data.disturbed is None:
+        return None
+    flags = np.asarray(data.disturbed, dtype=bool)
+    if flags.shape != (len(data.mag),):
+        raise ValueError(f"disturbed must be one flag per sample ({len(data.mag)},), got {flags.shape}")
+    return None if not flags.any() else ~flags
+
+
+def refined(data: FitInput, first: Calibration) -> FitInput | None:
+    """The input with the samples ``first`` (a fit of it, made without a calibration in force) finds disturbed
+    added, when that adds at least REFIT_SHARE of them; None otherwise (nothing to fit again)."""
+    if not data.drop_disturbed or data.reference is not None or _usable(first, data) is None:
+        return None
+    before = np.zeros(len(data.mag), dtype=bool) if data.disturbed is None else np.asarray(data.disturbed, bool)
+    again = mask(data, first) | before
+    if (again & ~before).sum() < REFIT_SHARE * len(again):
+        return None
+    return data.replace(disturbed=again)
+
+
+def kept_rows(flags: np.ndarray | None) -> np.ndarray | None:
+    """(N,) bool: the rows not flagged (N,), None when none is."""
+    return None if flags is None or not np.any(flags) else ~np.asarray(flags, dtype=bool)
+
+
+def undisturbed(
+    inp: FieldInput, ev: Evidence, ev_motion: MotionEvidence | None, keep: np.ndarray, fewest: int
+) -> tuple[FieldInput, Evidence, MotionEvidence | None]:
+    """A field fit's input, evidence and motion evidence on the kept rows (N,) bool only (the gyroscope's windows
+    whose two ends are kept stay, their turns measured over every sample between); FitError when fewer than
+    ``fewest`` are left."""
+    if keep.sum() < fewest:
+        raise FitError(
+            f"only {int(keep.sum())} samples outside disturbed fields: a field fit needs {fewest}; "
+            "keep away from iron (doors, cars, magnets) while moving"
+        )
+    smaller, _ = ev.only(keep)
+
+    def rows(value: np.ndarray | None) -> np.ndarray | None:
+        return None if value is None else np.asarray(value)[keep]
+
+    kept = dataclasses.replace(
+        inp, mag=inp.mag[keep], acc=rows(inp.acc), gyr=rows(inp.gyr), vel_ned_ms=rows(inp.vel_ned_ms), disturbed=None
+    )
+    return kept, smaller, None if ev_motion is None else ev_motion.rows(keep)
