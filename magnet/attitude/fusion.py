@@ -126,10 +126,11 @@ def _empty() -> Fused:
 
 
 #: vqf's state that belongs to the magnetometer (``Fusion.restart_magnetometer``)
-_MAGNETIC_STATE = tuple(
-    "delta kMagInit lastMagDisAngle lastMagCorrAngularRate magCandidateDip magCandidateNorm magCandidateT "
-    "magDistDetected magNormDip magNormDipLpState magRefDip magRefNorm magRejectT magUndisturbedT".split()
-)
+_MAGNETIC_STATE = (
+    "delta", "kMagInit", "lastMagDisAngle", "lastMagCorrAngularRate", "magCandidateDip", "magCandidateNorm",
+    "magCandidateT", "magDistDetected", "magNormDip", "magNormDipLpState", "magRefDip", "magRefNorm", "magRejectT",
+    "magUndisturbedT",
+)  # fmt: skip
 
 
 class Fusion:
