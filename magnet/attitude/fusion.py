@@ -29,6 +29,7 @@ from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
 from magnet.attitude.drift_bias import offline_correction
 from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
+from magnet.attitude.turn_gate import TurnGate, run_gated
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
@@ -126,21 +127,10 @@ def _empty() -> Fused:
 
 #: vqf's state that belongs to the magnetometer (``Fusion.restart_magnetometer``)
 _MAGNETIC_STATE = (
-    "delta",
-    "kMagInit",
-    "lastMagDisAngle",
-    "lastMagCorrAngularRate",
-    "magCandidateDip",
-    "magCandidateNorm",
-    "magCandidateT",
-    "magDistDetected",
-    "magNormDip",
-    "magNormDipLpState",
-    "magRefDip",
-    "magRefNorm",
-    "magRejectT",
+    "delta", "kMagInit", "lastMagDisAngle", "lastMagCorrAngularRate", "magCandidateDip", "magCandidateNorm",
+    "magCandidateT", "magDistDetected", "magNormDip", "magNormDipLpState", "magRefDip", "magRefNorm", "magRejectT",
     "magUndisturbedT",
-)
+)  # fmt: skip
 
 
 class Fusion:
@@ -158,6 +148,7 @@ class Fusion:
         params: Mapping[str, Any] | None = None,
         watch: bool = True,
         heading_bias: bool = False,
+        turn_gate: bool = True,
     ) -> None:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
@@ -171,6 +162,10 @@ class Fusion:
         #: (docs/compass.md, "Disturbances"); compiled, it costs about a quarter of vqf itself (docs/cost.md)
         self.watch = FieldWatch(self.period_s) if watch else None
         self.heading_bias = HeadingBias(self.period_s, self._filter.params["tauMag"]) if heading_bias else None
+        #: with ``turn_gate`` (the default), in a gait (a walker's or runner's steps) the accelerometer is fed a window
+        #: late and left out where the course turned, its centripetal acceleration not taken for gravity
+        #: (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
+        self.turn_gate = TurnGate(self.period_s) if turn_gate else None
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 
@@ -190,6 +185,8 @@ class Fusion:
             self.watch.reset()
         if self.heading_bias is not None:
             self.heading_bias.reset()
+        if self.turn_gate is not None:
+            self.turn_gate.reset()
         self._recalibrated = False
         self.samples = 0
 
@@ -302,7 +299,16 @@ class Fusion:
 
     def _vqf(self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray) -> dict[str, Any]:
         """vqf's ``updateBatch`` on one batch (vqf frames; ``watched`` (N,) the samples the watch left out), with the
-        bias loop where it runs (``heading_bias.run_pieces``): vqf's outputs for the whole batch."""
+        turn gate and the bias loop where they run: vqf's outputs for the whole batch. With the gate, in pieces cut at
+        the gate's blocks (``TurnGate.left_in_block``): it reads vqf's attitude and bias at each block's start."""
+        if self.turn_gate is None:
+            return self._vqf_piece(gyr, acc, field, watched)
+        return run_gated(self.turn_gate, self._filter, self._vqf_piece, (gyr, acc, field), watched)
+
+    def _vqf_piece(
+        self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray
+    ) -> dict[str, Any]:
+        """vqf's ``updateBatch`` on one piece, with the bias loop where it runs (``heading_bias.run_pieces``)."""
         loop = self.heading_bias
         if loop is None or field is None or self._aided is not None:
             return self._filter.updateBatch(gyr, acc, field)
