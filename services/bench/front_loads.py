@@ -9,7 +9,8 @@
 - ``streams``: ``--count`` dashboard event streams (``GET /api/stream``) opened at once on ``--http HOST:PORT``,
   held ``--seconds``, then closed. Prints ``{"opened", "answered": {status: n}, "refused"}``: a status is the HTTP
   code (``503:connections`` uvicorn's limit of connections, ``503:streams`` the app's limit of event streams), or
-  ``none`` for a connection closed without an answer; ``refused`` counts connections that could not be made.
+  ``none`` for a connection closed without an answer, ``silent`` for one that got neither a byte nor a close
+  within ``--seconds``; ``refused`` counts connections that could not be made.
 
 Loopback only.
 """
@@ -106,6 +107,9 @@ def streams(http: str, count: int, seconds: float) -> dict[str, Any]:
                 selector.unregister(sock)
     for sock in opened:
         sock.close()
+    silent = len(opened) - len(first)  # neither a byte nor a close within the hold
+    if silent:
+        answered["silent"] = silent
     return {"opened": len(opened), "answered": answered, "refused": refused}
 
 

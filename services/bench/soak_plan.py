@@ -285,19 +285,23 @@ def report(
 def stream_verdict(answered: Mapping[str, int], refused: int) -> str:
     """What the dashboard's answers to the streams mean: a 503 is a designed refusal (said with a reason and
     ``Connection: close``; the page's stream retries): ``503:streams`` past the app's ``MAX_STREAMS``,
-    ``503:connections`` past uvicorn's limit of connections; a connection closed without an answer (``none``) or
-    not accepted (``refused``) is a lost request."""
+    ``503:connections`` past uvicorn's limit of connections; a connection closed without an answer (``none``), not
+    answered at all within the hold (``silent``) or not accepted (``refused``) is a lost request."""
     served = answered.get("200", 0)
     designed = sum(n for status, n in answered.items() if status.startswith("503"))
-    lost = answered.get("none", 0) + refused
-    other = sum(answered.values()) - served - designed - answered.get("none", 0)
+    unanswered = answered.get("none", 0) + answered.get("silent", 0)
+    lost = unanswered + refused
+    other = sum(answered.values()) - served - designed - unanswered
     parts = [
         f"{served} streamed",
         (
             f"{designed} refused by design (503: the app's limit of streams {answered.get('503:streams', 0)}, "
             f"uvicorn's limit of connections {answered.get('503:connections', 0)})"
         ),
-        f"{lost} lost (closed without an answer {answered.get('none', 0)}, not accepted {refused})",
+        (
+            f"{lost} lost (closed without an answer {answered.get('none', 0)}, no answer within the hold "
+            f"{answered.get('silent', 0)}, not accepted {refused})"
+        ),
     ]
     if other:
         parts.append(f"{other} other answers")

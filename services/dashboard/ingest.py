@@ -5,6 +5,9 @@ alerts (``<prefix>/<device>/alert``, and the compasses' open ones asked for now 
 headings, of which only the newest message of each device is decoded (1,000 devices at 10 Hz cost 4,000 decodes a
 second at a 0.25 s tick, not 10,000). Devices someone is looking at get their own raw subscriber and every heading
 sample. Raw messages of other devices pass through a small ring, read only for the sensor name of a new device.
+Headings and progress wait in rings too (``RING_CAPACITY``), and each sample is copied and let go as it is read
+(``copied``): a Zenoh sample keeps its receive buffer alive, and FIFOs of 65,536 held a flood's worth of them
+(docs/front-door.md). The freed heap is given back every ``TRIM_S``.
 """
 
 from __future__ import annotations

@@ -163,5 +163,6 @@ def test_a_503_is_a_designed_refusal_and_a_stream_closed_without_an_answer_is_lo
     line = stream_verdict({"200": 64, "503:streams": 10, "503:connections": 1926}, 0)
     assert "every request answered" in line and "1936 refused by design" in line
     assert "the app's limit of streams 10, uvicorn's limit of connections 1926" in line and "0 lost" in line
-    line = stream_verdict({"200": 64, "503:connections": 100, "none": 1826}, 10)
-    assert "NOT every request answered" in line and "1836 lost (closed without an answer 1826, not accepted 10)" in line
+    line = stream_verdict({"200": 64, "503:connections": 100, "none": 1826, "silent": 5}, 10)
+    assert "NOT every request answered" in line and "1841 lost (closed without an answer 1826" in line
+    assert "no answer within the hold 5, not accepted 10)" in line
