@@ -27,7 +27,7 @@ from magnet.model import Calibration
 from magnet.quality.disturbance import disturbed_samples
 
 if TYPE_CHECKING:
-    from magnet.calibration.field import FieldInput
+    from magnet.calibration.field_input import FieldInput
     from magnet.calibration.rungs import Evidence
     from magnet.quality.motion import MotionEvidence
 

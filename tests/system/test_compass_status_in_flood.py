@@ -4,13 +4,11 @@ another process at the soak's rate: asked every 0.25 s during the flood, every s
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 
 import pytest
-from helpers import REPO_ROOT, Processes, free_ports, listen_args, wait_for
-from test_ros2_flood import ask_status
+from helpers import Processes, free_ports, listen_args, wait_for
+from test_ros2_flood import ask_status, start_id_flood
 
 from services.common.zenoh_session import ZenohSettings, open_session
 
@@ -25,13 +23,7 @@ def test_compass_status_is_answered_within_1_s_during_a_flood_of_new_ids(procs: 
     client = ZenohSettings(mode="client", connect=(f"tcp/127.0.0.1:{port}",), no_multicast_scouting=True)
     with open_session(client) as session:
         wait_for(lambda: ask_status(session, 2.0)[0], 30, "the compass's status")
-        flood = subprocess.Popen(
-            [sys.executable, "-m", "services.bench.flood", "ids", "--port", str(port)]
-            + ["--count", str(FLOOD_IDS), "--rate", str(FLOOD_RATE)],
-            cwd=REPO_ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-        )
+        flood = start_id_flood(port, FLOOD_IDS, FLOOD_RATE)
         waits: list[float | None] = []
         ages: list[float] = []
         try:

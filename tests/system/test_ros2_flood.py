@@ -29,19 +29,24 @@ def ask_status(session, timeout: float = 5.0) -> tuple[dict | None, float]:
     return None, time.monotonic() - asked
 
 
+def start_id_flood(port: int, count: int, rate: float) -> subprocess.Popen:
+    """``services.bench.flood ids``: ``count`` raw batches of new device ids at ``rate`` a second, into ``port``."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "services.bench.flood", "ids", "--port", str(port)]
+        + ["--count", str(count), "--rate", str(rate)],
+        cwd=REPO_ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+
+
 def test_compass_ros2_flooded_with_new_ids_answers_and_stops_on_sigterm(procs):
     [port] = free_ports(1)
     compass = procs.start("compass", "compass", "--ros2", *listen_args(port))
     client = ZenohSettings(mode="client", connect=(f"tcp/127.0.0.1:{port}",), no_multicast_scouting=True)
     with open_session(client) as session:
         wait_for(lambda: ask_status(session, 2.0)[0], 30, "the compass's status")
-        flood = subprocess.Popen(
-            [sys.executable, "-m", "services.bench.flood", "ids", "--port", str(port)]
-            + ["--count", str(FLOOD_IDS), "--rate", str(FLOOD_RATE)],
-            cwd=REPO_ROOT,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-        )
+        flood = start_id_flood(port, FLOOD_IDS, FLOOD_RATE)
         waits = []
         try:
             while flood.poll() is None:
