@@ -135,7 +135,6 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             calibrations=declared.enter_context(
                 session.declare_subscriber(f"{prefix}/{devices}/calibration", zenoh.handlers.FifoChannel(1024))
             ),
-            status=None,  # answered from Zenoh's thread (services.compass.status_board)
             alerts=declared.enter_context(
                 session.declare_queryable(f"{prefix}/{devices}/{wire.Kind.ALERT.value}", zenoh.handlers.FifoChannel(64))
             ),
@@ -171,18 +170,18 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
 
 
 class _Ends:
-    """The compass's declarations the loop drains: raw batches, calibrations, status, alert and vehicle queries."""
+    """The compass's declarations the loop drains: raw batches, calibrations, alert and vehicle queries (the status
+    is answered from Zenoh's thread: ``services.compass.status_board``)."""
 
     def __init__(
         self,
         raw: PayloadIntake,
         calibrations: Samples,
-        status: Queries | None,
         alerts: Queries,
         vehicles: Queries | None = None,
         calibrators: Samples | None = None,
     ) -> None:
-        self.raw, self.calibrations, self.status, self.alerts = raw, calibrations, status, alerts
+        self.raw, self.calibrations, self.alerts = raw, calibrations, alerts
         self.vehicles, self.calibrators = vehicles, calibrators
 
 
@@ -211,9 +210,6 @@ class _Loop:
             self.core.on_calibrator(str(token.key_expr), alive, time.time_ns())
             self.joined = self.joined or alive
         self._ask_joined()
-        for query in drain(ends.status, 64) if ends.status is not None else []:
-            self.guard.answer("query:status", query, self.answer_status, name)
-            query.drop()  # finalize now: the asker waits for it
         self.guard.run("alert", self.alerts, ends.alerts)
         for query in drain(ends.vehicles, 16) if ends.vehicles is not None else []:
             self.guard.answer("query:vehicle", query, self.answer_vehicles)
@@ -236,9 +232,6 @@ class _Loop:
             self.time_limit = max(100, int(taken * STEP_BUDGET_S / took_s))
         elif took_s < STEP_BUDGET_S / 2:
             self.time_limit = min(MAX_DRAIN, 2 * self.time_limit)
-
-    def answer_status(self, query: zenoh.Query, name: str) -> None:
-        query.reply(wire.status_key(self.prefix, name), wire.pack(self.core.status(name).to_dict()))
 
     def _ask(self, timeout: float, devices: str | None = None) -> Replies:
         return self.session.get(f"{self.prefix}/{devices or self.devices}/calibration", timeout=timeout)

@@ -255,21 +255,23 @@ class FakeSample:
 
 def test_compass_survives_a_failing_calibration_handler_and_a_failing_drain(monkeypatch):
     from services.compass import service as compass_service
+    from services.compass import status_board
     from services.compass.intake import PayloadIntake
 
     loop, compass, session = _compass_loop(monkeypatch)
-    cal, status_q, alert_q, raw = FakeChannel(), FakeChannel(), FakeChannel(), PayloadIntake()
+    cal, alert_q, raw = FakeChannel(), FakeChannel(), PayloadIntake()
     monkeypatch.setattr(compass, "accept_calibration", lambda *a: (_ for _ in ()).throw(RuntimeError("bug")))
     cal.items.append(FakeSample(f"{PREFIX}/d1/calibration", b"x"))
     monkeypatch.setattr(compass, "encode", lambda *a: (_ for _ in ()).throw(MemoryError("too big")))
     raw.offer_many([FakeSample(f"{PREFIX}/d1/raw", _raw("d1", i)) for i in range(3)])
-    ends = compass_service._Ends(raw, cal, status_q, alert_q)  # type: ignore[arg-type]
+    ends = compass_service._Ends(raw, cal, alert_q)  # type: ignore[arg-type]
     loop.step(ends, "c")
     monkeypatch.undo()
+    monkeypatch.setattr(status_board, "REFRESH_S", 0.0)  # the loop writes its status after every step
     raw.offer_many([FakeSample(f"{PREFIX}/d1/raw", _raw("d1", 9))])
-    query = FakeQuery(f"{PREFIX}/@status/c")
-    status_q.items.append(query)
     loop.step(ends, "c")
+    query = FakeQuery(f"{PREFIX}/@status/c")
+    loop.board.answer(query)  # as Zenoh's thread does
     status = query.replies[0][1]
     assert status["dropped"] == {"calibration:handler-RuntimeError": 1, "raw:handler-MemoryError": 3}
     assert session.puts == [f"{PREFIX}/d1/heading"]  # the next drain got its heading

@@ -51,7 +51,7 @@ def test_a_calibrator_token_that_appears_makes_the_compass_ask_for_every_calibra
     loop = _Loop(session, build_core(settings), settings)  # type: ignore[arg-type]
     assert session.asked == ["magnet/*/calibration"], "the start-up query"
     tokens: list[SimpleNamespace] = []
-    ends = _Ends(Raw(), "calibrations", "status", "alerts", "vehicles", "calibrators")  # type: ignore[arg-type]
+    ends = _Ends(Raw(), "calibrations", "alerts", "vehicles", "calibrators")  # type: ignore[arg-type]
 
     def drain(handler: object, limit: int) -> list[object]:
         taken = list(tokens) if handler == "calibrators" else []

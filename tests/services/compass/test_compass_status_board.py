@@ -52,7 +52,7 @@ def test_status_is_answered_while_the_loop_is_stuck_in_a_drain(monkeypatch) -> N
 
     monkeypatch.setattr(loop, "headings_of", stuck)
     monkeypatch.setattr(compass_service, "drain", lambda handler, limit: [])
-    ends = compass_service._Ends(Raw(), [], None, [])  # type: ignore[arg-type]
+    ends = compass_service._Ends(Raw(), [], [])  # type: ignore[arg-type]
     worker = threading.Thread(target=loop.step, args=(ends, settings.name))
     worker.start()
     try:

@@ -44,7 +44,7 @@ def test_the_loop_takes_no_more_than_the_time_limit(monkeypatch) -> None:
     clock = iter([0.0, 2.0, 10.0, 10.01])
     monkeypatch.setattr(compass_service.time, "perf_counter", lambda: next(clock))
     monkeypatch.setattr(loop, "headings_of", lambda samples: None)
-    ends = compass_service._Ends(Raw(), [], [], [])  # type: ignore[arg-type]
+    ends = compass_service._Ends(Raw(), [], [])  # type: ignore[arg-type]
     monkeypatch.setattr(compass_service, "drain", lambda handler, limit: [])
     loop.step(ends, "c")  # 5,000 in 2 s
     loop.step(ends, "c")
