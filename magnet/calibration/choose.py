@@ -70,29 +70,13 @@ def fit_choice(data: FitInput, choice: Method | str) -> Calibration:
         return fit_auto(data)
     if chosen == Method.TURNTABLE.value:
         return fit(data, chosen)
-    data = disturbed.judged(data)
-    first = fit(data, chosen)
-    again = disturbed.refined(data, first)
-    if again is None:
-        return first
-    try:
-        return fit(again, chosen)
-    except FitError:  # too few samples left: the first
-        return first
+    return disturbed.fit_undisturbed(data, lambda undisturbed: fit(undisturbed, chosen))
 
 
 def fit_auto(data: FitInput) -> Calibration:
     """The better of gyro-ellipsoid and ellipsoid for ``data`` (the rule: the module docstring), its disturbed
     samples left out. Raises FitError when no calibration can be computed by either."""
-    data = disturbed.judged(data)
-    first = _fit_auto(data)
-    again = disturbed.refined(data, first)
-    if again is None:
-        return first
-    try:
-        return _fit_auto(again)
-    except FitError:  # too few samples left: the first
-        return first
+    return disturbed.fit_undisturbed(data, _fit_auto)
 
 
 def _fit_auto(data: FitInput) -> Calibration:

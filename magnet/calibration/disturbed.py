@@ -16,6 +16,7 @@ with the magnetometer) drop nothing. Pure numpy.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -98,7 +99,7 @@ def kept(data: FitInput) -> np.ndarray | None:
     flags = np.asarray(data.disturbed, dtype=bool)
     if flags.shape != (len(data.mag),):
         raise ValueError(f"disturbed must be one flag per sample ({len(data.mag)},), got {flags.shape}")
-    return None if not flags.any() else ~flags
+    return kept_rows(flags)
 
 
 def refined(data: FitInput, first: Calibration) -> FitInput | None:
@@ -111,6 +112,20 @@ def refined(data: FitInput, first: Calibration) -> FitInput | None:
     if (again & ~before).sum() < REFIT_SHARE * len(again):
         return None
     return data.replace(disturbed=again)
+
+
+def fit_undisturbed(data: FitInput, fit_once: Callable[[FitInput], Calibration]) -> Calibration:
+    """``fit_once`` on ``data`` with its disturbed samples left out (``judged``), then once more when its result
+    finds more of them (``refined``); the first result when too few samples are left for the second."""
+    data = judged(data)
+    first = fit_once(data)
+    again = refined(data, first)
+    if again is None:
+        return first
+    try:
+        return fit_once(again)
+    except FitError:  # too few samples left: the first
+        return first
 
 
 def kept_rows(flags: np.ndarray | None) -> np.ndarray | None:
