@@ -226,7 +226,9 @@ def _bind() -> None:
     _kernels.vqf_bind(str(sys.modules[vqf.VQF.__module__].__file__))
 
 
-def run_gated_vqf(gate: TurnGate, filter_: Any, samples: tuple[np.ndarray, np.ndarray, np.ndarray | None]) -> dict:
+def run_gated_vqf(
+    gate: TurnGate, filter_: Any, samples: tuple[np.ndarray, np.ndarray, np.ndarray | None]
+) -> dict[str, Any]:
     """``run_gated`` with vqf's ``updateBatch`` for the piece, in one compiled call (``magnet._kernels.gated_run``:
     the same gate, the same vqf object driven through its C++ class): vqf's outputs quat6D, quat9D (N, 4),
     restDetected and magDistDetected (N,) bool for the batch (gyroscope, accelerometer, field or None; (N, 3) each,
