@@ -92,11 +92,26 @@ def streams(http: str, count: int, seconds: float, grace: float = 10.0) -> dict[
         selector.register(sock, selectors.EVENT_READ)
     answered: dict[str, int] = {}
     first: dict[int, bytes] = {}
-    end, late = time.monotonic() + seconds, 0
+    end = time.monotonic() + seconds
     while (left := end - time.monotonic()) > 0:
         for key, _ in selector.select(timeout=min(left, 0.5)):
             _read_answer(cast(socket.socket, key.fileobj), selector, first, answered)
-    waiting = [sock for sock in opened if sock.fileno() not in first]
+    late = _late_answers(opened, selector, first, answered, grace)
+    silent = len(opened) - len(first)  # neither a byte nor a close within the hold and the grace
+    if silent:
+        answered["silent"] = silent
+    return {"opened": len(opened), "answered": answered, "refused": refused, "late": late, "grace_s": grace}
+
+
+def _late_answers(
+    opened: list[socket.socket],
+    selector: selectors.BaseSelector,
+    first: dict[int, bytes],
+    answered: dict[str, int],
+    grace: float,
+) -> int:
+    """Close the answered connections and wait up to ``grace`` s for the first bytes of the others; how many came."""
+    waiting, late = [sock for sock in opened if sock.fileno() not in first], 0
     for sock in opened:
         if sock.fileno() in first:
             with contextlib.suppress(KeyError, ValueError):
@@ -112,10 +127,7 @@ def streams(http: str, count: int, seconds: float, grace: float = 10.0) -> dict[
                 selector.unregister(sock)
     for sock in waiting:
         sock.close()
-    silent = len(opened) - len(first)  # neither a byte nor a close within the hold and the grace
-    if silent:
-        answered["silent"] = silent
-    return {"opened": len(opened), "answered": answered, "refused": refused, "late": late, "grace_s": grace}
+    return late
 
 
 def _read_answer(

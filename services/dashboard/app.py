@@ -50,6 +50,7 @@ from magnet import wire
 from services.common.guard import Guard, refusal
 from services.common.jsonio import loads_bounded
 from services.dashboard.events import FleetEvents, Reader, encode, fleet_body, pieces
+from services.dashboard.hosts import LOOPBACK_NAMES, HostCheck, host_name
 from services.dashboard.state import FleetState
 
 log = logging.getLogger("magnet.dashboard")
@@ -62,8 +63,6 @@ MAX_BODY_BYTES = 4096
 MAX_STREAMS = 64
 #: an accepted stream keeps its place this long before it starts (a client gone before it did gives it back)
 STARTING_S = 5.0
-#: names a request's Host may always give
-LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_HISTORY = 100
 DETAIL_EVERY_S = 1.0
 Endpoint = Callable[[Request], Awaitable[Response]]
@@ -308,44 +307,6 @@ async def _bounded_body(request: Request, limit: int) -> bytes | None:
         if len(body) > limit:
             return None
     return bytes(body)
-
-
-def host_name(value: str) -> str:
-    """The host name of a ``Host`` header value (``name``, ``name:port``, ``[v6]:port``), lower case."""
-    value = value.strip().lower()
-    if value.startswith("["):
-        return value[1 : value.find("]")] if "]" in value else value
-    return value.rsplit(":", 1)[0] if value.count(":") == 1 else value
-
-
-class HostCheck:
-    """ASGI middleware: 403 for a request whose ``Host`` is not one of ``allowed`` names (DNS rebinding), or whose
-    ``Origin`` is not the page's own (``http(s)://`` + the same ``Host``)."""
-
-    def __init__(self, app: Any, allowed: frozenset[str]) -> None:
-        self.app, self.allowed = app, allowed
-
-    def refusal(self, headers: dict[bytes, bytes]) -> str | None:
-        host = headers.get(b"host", b"").decode("latin-1")
-        if host_name(host) not in self.allowed:
-            return f"Host {host!r} is not one this dashboard answers to (give it with --allow-host)"
-        origin = headers.get(b"origin")
-        if origin is not None:
-            text = origin.decode("latin-1").lower()
-            if text not in (f"http://{host.lower()}", f"https://{host.lower()}"):
-                return f"requests from the web page at {text!r} are refused: open the dashboard's own page"
-        return None
-
-    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
-        if scope["type"] in ("http", "websocket"):
-            refused = self.refusal(dict(scope.get("headers") or ()))
-            if refused is not None:
-                if scope["type"] == "websocket":
-                    await send({"type": "websocket.close", "code": 1008})
-                    return
-                await error(403, refused)(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
 
 
 _event = encode

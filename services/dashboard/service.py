@@ -157,9 +157,9 @@ def _start_foxglove(
     closes."""
     if not settings.foxglove:
         return
-    from services.dashboard.app import LOOPBACK_NAMES, host_name
     from services.dashboard.foxglove import FoxgloveBridge
     from services.dashboard.foxglove_front import view_token
+    from services.dashboard.hosts import LOOPBACK_NAMES, host_name
 
     host, port = parse_http(settings.foxglove)
     told = {host_name(h) for h in settings.allowed_hosts} | ({host} if host not in ("0.0.0.0", "::", "") else set())
