@@ -82,7 +82,7 @@ class MavlinkStream:
     At most ``max_devices`` devices: a sample of a new device beyond them is dropped and counted
     (``dropped:device-limit``); the devices already known are unaffected. A device with no sample for ``forget_ns``
     (and none waiting) is forgotten (``forget``, counted ``forgotten``): its place is free for a new one, and it is a
-    new device when it sends again."""
+    new device when it sends again; a vehicle silent that long with no device left is forgotten too."""
 
     def __init__(
         self,
@@ -287,6 +287,7 @@ class MavlinkStream:
         if now_ns - self._forget_checked_ns >= FORGET_CHECK_NS:
             self._forget_checked_ns = now_ns
             self.forget(now_ns)
+            self._forget_vehicles(now_ns)
         out = []
         for device, pending in self.pending.items():
             due = len(pending.rows) >= self.batch or now_ns - pending.first_ns >= MAX_WAIT_NS or flush
@@ -334,6 +335,16 @@ class MavlinkStream:
         self.counts["forgotten"] += len(gone)
         self.forgotten.extend(gone)
         return gone
+
+    def _forget_vehicles(self, now_ns: int) -> None:
+        """Forget the vehicles silent for ``forget_ns`` with no device left (a flood's system ids, and those whose
+        every sample was refused): what was known of them (clock, ids, place) is learnt again if they come back, as
+        after a reboot. Only from ``take``: a sample being fed holds its vehicle."""
+        devices = {p.sysid for p in self.pending.values()}
+        silent = [s for s, v in self.vehicles.items() if now_ns - v.last_seen_ns >= self.forget_ns]
+        for sysid in silent:
+            if sysid not in devices:
+                del self.vehicles[sysid]
 
     @property
     def gyro_absent(self) -> list[str]:

@@ -33,6 +33,29 @@ POLL_S = 0.05
 MAX_MESSAGES = 2000
 #: the freed heap is given back to the system this often (s): a flood of ids leaves it fragmented
 TRIM_S = 10.0
+#: the addresses a UDP server link (``udpin``) remembers at most, the latest senders (its parameter reads go to them)
+MAX_UDP_CLIENTS = 16
+
+
+def shed_link_state(connection: Any) -> None:
+    """Drop what pymavlink keeps per sender and magnet never reads (``MavlinkStream`` keeps what it uses): per system
+    id, the last message of every type and instance (``sysid_state``: two copies per HIGHRES_IMU id, 40,000 messages
+    and 40 MB after one flood of 20,000 (system id, id) pairs, 65,280 pairs possible); per (system, component) the
+    last sequence number (``last_seq``) and every PARAM_VALUE by name (``param_state``: any names a sender makes up);
+    of a UDP server link, every address that ever sent (``clients``: the latest ``MAX_UDP_CLIENTS`` kept). Called
+    after each read, so at most one read's messages (``MAX_MESSAGES``) are held."""
+    states = connection.sysid_state
+    if len(states) > 1 or any(len(state.messages) > 2 for state in states.values()):  # a fresh one holds MAV, HOME
+        connection.sysid_state = {connection.sysid: mavutil.mavfile_state()}
+    connection.last_seq.clear()
+    if len(connection.param_state) > 1 or any(state.params for state in connection.param_state.values()):
+        connection.param_state = {connection.param_sysid: mavutil.param_state()}
+    clients = getattr(connection, "clients", None)
+    if clients is not None and len(clients) > MAX_UDP_CLIENTS:
+        alive = connection.clients_last_alive
+        latest = sorted(clients, key=lambda address: alive.get(address, 0.0))[-MAX_UDP_CLIENTS:]
+        connection.clients = set(latest)
+        connection.clients_last_alive = {address: alive[address] for address in latest if address in alive}
 
 
 class MavlinkStats:
@@ -119,6 +142,7 @@ class MavlinkSource:
         self._ask(now)
         out = self.stream.take(now, flush=stop())
         self._devices_and_health(now)
+        shed_link_state(self.connection)
         if time.monotonic() - self.trimmed_s >= TRIM_S:
             self.trimmed_s = time.monotonic()
             give_back_now()
@@ -148,6 +172,7 @@ class MavlinkSource:
     def _devices_and_health(self, now_ns: int) -> None:
         for device in self.stream.take_forgotten():
             self.healthy.pop(device, None)
+            self.logged.discard(f"gyro:{device}")  # said again if it comes back without one
             if device in self.ids:
                 self.ids.remove(device)
             log.info("MAVLink device %s forgotten: silent %g s", device, self.settings.forget_after_s)

@@ -249,7 +249,8 @@ def test_a_device_that_falls_silent_gives_its_place_back() -> None:
         "mav5-mag0",
     ]
     assert [b.device for b in stream.take(NOW + 61 * second)] == ["mav1-mag1"]
+    assert set(stream.vehicles) == {1, 2}  # the flood's silent system ids forgotten with their devices
     assert stream.take(NOW + 200 * second) == [] and stream.take_forgotten() == ["mav2-mag0", "mav1-mag1"]
-    assert stream.pending == {} and stream.take_forgotten() == []
+    assert stream.pending == {} and stream.take_forgotten() == [] and stream.vehicles == {}
     with pytest.raises(ValueError, match="forget_ns"):
         MavlinkStream(forget_ns=0)
