@@ -1129,6 +1129,7 @@ static struct {
     void (*update_batch)(void *, const double *, const double *, const double *, size_t, double *, double *,
                          double *, double *, double *, bool *, bool *);
     void (*get_quat9d)(const void *, double *);
+    void (*get_quat6d)(const void *, double *);
     double (*get_bias)(const void *, double *);
     void (*set_bias)(void *, double *, double);
     double (*get_delta)(const void *);
@@ -1142,7 +1143,7 @@ static struct {
 static const char *vqf_symbols[] = {
     "_ZN3VQF11updateBatchEPKdS1_S1_mPdS2_S2_S2_S2_PbS3_", "_ZNK3VQF9getQuat9DEPd", "_ZNK3VQF15getBiasEstimateEPd",
     "_ZN3VQF15setBiasEstimateEPdd", "_ZNK3VQF8getDeltaEv", "_ZN3VQF9setTauAccEd", "_ZN3VQF21setRestBiasEstEnabledEb",
-    "_ZNK3VQF9getParamsEv", "_ZNK3VQF8getStateEv", "_ZNK3VQF9getCoeffsEv",
+    "_ZNK3VQF9getParamsEv", "_ZNK3VQF8getStateEv", "_ZNK3VQF9getCoeffsEv", "_ZNK3VQF9getQuat6DEPd",
 };
 
 PyDoc_STRVAR(vqf_bind_doc,
@@ -1161,7 +1162,7 @@ static PyObject *vqf_bind(PyObject *self, PyObject *args) {
         (void **)&vqf_api.update_batch, (void **)&vqf_api.get_quat9d, (void **)&vqf_api.get_bias,
         (void **)&vqf_api.set_bias,     (void **)&vqf_api.get_delta,  (void **)&vqf_api.set_tau_acc,
         (void **)&vqf_api.set_rest,     (void **)&vqf_api.get_params, (void **)&vqf_api.get_state,
-        (void **)&vqf_api.get_coeffs,
+        (void **)&vqf_api.get_coeffs,   (void **)&vqf_api.get_quat6d,
     };
     for (size_t i = 0; i < sizeof(slots) / sizeof(slots[0]); i++) {
         *slots[i] = dlsym(lib, vqf_symbols[i]);
@@ -1926,6 +1927,360 @@ static PyObject *vqf_travelled(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------------------------------------------------
+ * The turn gate (magnet.attitude.turn_gate.TurnGate, whose docstrings are its specification): the accelerometer
+ * fed a window late in a gait and left out where the course turned. ``gate_update`` runs one piece of a block
+ * (TurnGate.update); ``gated_run`` a whole batch through the gate and vqf's own compiled filter (the Python
+ * ``vqf.VQF`` given, as aided_update drives it), its attitude and bias read at each block's start: one call a batch
+ * instead of a Python loop over 0.5 s blocks. The settings and the state are float64 arrays laid out by the T_* and
+ * G_* indices below, mirrored in turn_gate.py; the state's tail holds the last 2 (width - 1) rotations about the
+ * vertical, the last width - 1 specific forces in the integrated frame, and the last gait_width magnitudes, oldest
+ * first. */
+enum {
+    T_PERIOD, T_WIDTH, T_GAIT_WIDTH, T_LAG_LO, T_LAG_HI, T_STRIDE_LO, T_STRIDE_HI, T_MAX_HOLD, T_BLOCK, T_TURN_DEG,
+    T_GAIT_SD, T_GAIT_CORR, T_SIZE
+};
+enum { G_SAMPLES, G_STRIDE, G_RUN, G_IN_GAIT, G_ATTITUDE, G_BIAS = 8, G_HELD = 11, G_RECENT = 15 };
+
+typedef struct {
+    const double *s;
+    double *g;
+    Py_ssize_t width, gait_width, block;
+    double *recent, *earth, *mags; /* views into g */
+    double *seen, *all_earth, *held, *centred; /* scratch for pieces of up to ``block`` samples (centred: gait_width
+                                                * + block) */
+} Gate;
+
+static Py_ssize_t gate_state_size(const double *s) {
+    Py_ssize_t w = (Py_ssize_t)s[T_WIDTH];
+    return G_RECENT + 2 * (w - 1) + 3 * (w - 1) + (Py_ssize_t)s[T_GAIT_WIDTH];
+}
+
+/* The views and the scratch (NULL and an exception on failure); ``gate_free`` releases the scratch. */
+static int gate_open(Gate *e, const double *s, double *g) {
+    e->s = s;
+    e->g = g;
+    e->width = (Py_ssize_t)s[T_WIDTH];
+    e->gait_width = (Py_ssize_t)s[T_GAIT_WIDTH];
+    e->block = (Py_ssize_t)s[T_BLOCK];
+    e->recent = g + G_RECENT;
+    e->earth = e->recent + 2 * (e->width - 1);
+    e->mags = e->earth + 3 * (e->width - 1);
+    Py_ssize_t w = e->width, b = e->block;
+    e->seen = PyMem_Malloc(sizeof(double) * (size_t)(2 * (w - 1) + b + 3 * (w - 1 + b) + 4 * b + e->gait_width + b));
+    if (e->seen == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    e->all_earth = e->seen + 2 * (w - 1) + b;
+    e->held = e->all_earth + 3 * (w - 1 + b);
+    e->centred = e->held + 4 * b;
+    return 0;
+}
+
+static void gate_free(Gate *e) { PyMem_Free(e->seen); }
+
+/* v + w t + u x t, t = 2 u x v: a body vector in the frame a quaternion q (w, u) integrates (field_watch.to_frame). */
+static void to_frame3(const double q[4], const double v[3], double out[3]) {
+    double t0 = 2.0 * (q[2] * v[2] - q[3] * v[1]), t1 = 2.0 * (q[3] * v[0] - q[1] * v[2]),
+           t2 = 2.0 * (q[1] * v[1] - q[2] * v[0]);
+    out[0] = v[0] + q[0] * t0 + (q[2] * t2 - q[3] * t1);
+    out[1] = v[1] + q[0] * t1 + (q[3] * t0 - q[1] * t2);
+    out[2] = v[2] + q[0] * t2 + (q[1] * t1 - q[2] * t0);
+}
+
+/* TurnGate._gait: whether the last gait_width magnitudes are a gait (the stride set where they are). */
+static int gate_gait(Gate *e) {
+    const double *s = e->s, *m = e->mags;
+    Py_ssize_t n = e->gait_width;
+    if (isnan(m[0])) return 0;
+    double mean = pairwise_sum(m, n, 1) / (double)n, power = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        e->centred[i] = m[i] - mean;
+        power += e->centred[i] * e->centred[i];
+    }
+    if (power <= (double)n * (s[T_GAIT_SD] * s[T_GAIT_SD])) return 0;
+    double best = -INFINITY, best_stride = -INFINITY;
+    Py_ssize_t stride = -1;
+    for (Py_ssize_t lag = (Py_ssize_t)s[T_LAG_LO]; lag <= (Py_ssize_t)s[T_LAG_HI] && lag < n; lag++) {
+        double c = 0.0;
+        for (Py_ssize_t i = 0; i + lag < n; i++) c += e->centred[i] * e->centred[i + lag];
+        if (c > best) best = c;
+    }
+    for (Py_ssize_t lag = (Py_ssize_t)s[T_STRIDE_LO]; lag <= (Py_ssize_t)s[T_STRIDE_HI] && lag < n; lag++) {
+        double c = 0.0;
+        for (Py_ssize_t i = 0; i + lag < n; i++) c += e->centred[i] * e->centred[i + lag];
+        if (c > best_stride) {
+            best_stride = c;
+            stride = lag;
+        }
+    }
+    if ((best > best_stride ? best : best_stride) <= s[T_GAIT_CORR] * power) return 0;
+    e->g[G_STRIDE] = (double)(stride < e->width ? stride : e->width);
+    return 1;
+}
+
+/* TurnGate.update on n samples (n within the block): gyr, acc rows 3 doubles apart; writes the accelerometer to feed
+ * into ``fed`` (n, 3) and the samples left out into ``gated`` (n,). Returns whether the block is in a gait (else fed
+ * is acc). ``start`` and ``bias`` are read at a block's start only. */
+static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t n, const double start[4],
+                      const double bias_in[3], double *fed, bool *gated) {
+    const double *s = e->s;
+    double *g = e->g, period = s[T_PERIOD];
+    Py_ssize_t w1 = e->width - 1, gw = e->gait_width;
+    if ((Py_ssize_t)g[G_SAMPLES] % e->block == 0) {
+        memcpy(g + G_ATTITUDE, start, 4 * sizeof(double));
+        memcpy(g + G_BIAS, bias_in, 3 * sizeof(double));
+        g[G_IN_GAIT] = gate_gait(e);
+    }
+    g[G_SAMPLES] += (double)n;
+    const double *bias = g + G_BIAS;
+    double att[4], held[4];
+    memcpy(att, g + G_ATTITUDE, sizeof(att));
+    memcpy(held, g + G_HELD, sizeof(held));
+    memcpy(e->seen, e->recent, sizeof(double) * (size_t)(2 * w1));
+    memcpy(e->all_earth, e->earth, sizeof(double) * (size_t)(3 * w1));
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double *a = acc + 3 * i;
+        double r[3] = {gyr[3 * i] - bias[0], gyr[3 * i + 1] - bias[1], gyr[3 * i + 2] - bias[2]};
+        double norm = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+        double angle = norm * period / 2.0;
+        double c = cos(angle), sn = norm > 0 ? sin(angle) / norm : 0.0;
+        double turn[4] = {c, r[0] * sn, r[1] * sn, r[2] * sn}, next[4], v[3];
+        quat_mul(att, turn, next);
+        memcpy(att, next, sizeof(att));
+        quat_mul(held, turn, next);
+        memcpy(held, next, sizeof(held));
+        memcpy(e->held + 4 * i, held, sizeof(held));
+        to_frame3(att, r, v);
+        e->seen[2 * w1 + i] = v[2] * period;
+        to_frame3(held, a, e->all_earth + 3 * (w1 + i));
+        e->centred[i] = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); /* the magnitudes, for a moment */
+    }
+    if (n > 0) {
+        memcpy(g + G_ATTITUDE, att, sizeof(att));
+        double hn = sqrt(held[0] * held[0] + held[1] * held[1] + held[2] * held[2] + held[3] * held[3]);
+        for (int k = 0; k < 4; k++) g[G_HELD + k] = held[k] / hn;
+    }
+    /* the magnitudes' ring: the last gait_width of old and new */
+    if (n >= gw) {
+        memcpy(e->mags, e->centred + (n - gw), sizeof(double) * (size_t)gw);
+    } else {
+        memmove(e->mags, e->mags + n, sizeof(double) * (size_t)(gw - n));
+        memcpy(e->mags + (gw - n), e->centred, sizeof(double) * (size_t)n);
+    }
+    memcpy(e->recent, e->seen + n, sizeof(double) * (size_t)(2 * w1));
+    memcpy(e->earth, e->all_earth + 3 * n, sizeof(double) * (size_t)(3 * w1));
+    int in_gait = g[G_IN_GAIT] != 0.0;
+    if (!in_gait) {
+        if (n > 0) g[G_RUN] = 0.0;
+        memset(gated, 0, (size_t)n);
+        if (fed != acc) memcpy(fed, acc, sizeof(double) * (size_t)(3 * n));
+        return 0;
+    }
+    /* _turned: the triangle of 2 stride - 1 weights centred on each delayed sample's rotation */
+    Py_ssize_t ns = (Py_ssize_t)g[G_STRIDE], first = (w1 + 1) - ns;
+    double run = g[G_RUN], max_hold = s[T_MAX_HOLD], to_deg = 180.0 / M_PI;
+    for (Py_ssize_t j = 0; j < n; j++) {
+        double turned = 0.0;
+        const double *x = e->seen + first + j;
+        for (Py_ssize_t m = 0; m < 2 * ns - 1; m++) {
+            double weight = (double)(m < ns ? m + 1 : 2 * ns - 1 - m) / (double)ns;
+            turned += x[m] * weight;
+        }
+        int over = fabs(turned * to_deg) > s[T_TURN_DEG];
+        run = over ? run + 1.0 : 0.0;
+        gated[j] = over && run <= max_hold;
+        const double *q = e->held + 4 * j;
+        double inverse[4] = {q[0], -q[1], -q[2], -q[3]}, out[3];
+        to_frame3(inverse, e->all_earth + 3 * j, out);
+        if (isnan(out[0])) memcpy(out, acc + 3 * j, sizeof(out));
+        if (gated[j]) out[0] = out[1] = out[2] = 0.0;
+        memcpy(fed + 3 * j, out, sizeof(out));
+    }
+    g[G_RUN] = run;
+    return 1;
+}
+
+/* A C-contiguous (rows, cols) float64 array (read-only unless ``writable``). */
+static int get_rows(PyObject *obj, Py_buffer *view, Py_ssize_t rows, Py_ssize_t cols, int writable,
+                    const char *name) {
+    int flags = PyBUF_STRIDES | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0) return -1;
+    if (!PyBuffer_IsContiguous(view, 'C') || view->itemsize != 8 || view->format == NULL ||
+        strcmp(view->format, "d") != 0 ||
+        (view->ndim != 2 && !(view->ndim == 1 && cols == 1)) || (rows >= 0 && view->shape[0] != rows) ||
+        (view->ndim == 2 && view->shape[1] != cols)) {
+        PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous float64 array of shape (%zd, %zd) (-1: any)", name,
+                     rows, cols);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+/* The gate's settings (T_SIZE,) and state (its size for them), C-contiguous float64. */
+static int get_gate(PyObject *o_settings, PyObject *o_state, Py_buffer b[2]) {
+    if (get_state_array(o_settings, &b[0], T_SIZE, "settings") < 0) return -1;
+    const double *s = b[0].buf;
+    if (!(s[T_WIDTH] >= 1 && s[T_GAIT_WIDTH] >= 3 && s[T_BLOCK] >= 1)) {
+        PyErr_SetString(PyExc_ValueError, "settings: width, gait_width and block must be positive");
+        PyBuffer_Release(&b[0]);
+        return -1;
+    }
+    if (get_state_array(o_state, &b[1], gate_state_size(s), "state") < 0) {
+        PyBuffer_Release(&b[0]);
+        return -1;
+    }
+    return 0;
+}
+
+PyDoc_STRVAR(gate_update_doc,
+             "gate_update(settings, state, gyr, acc, start, bias, fed, gated) -> bool\n\n"
+             "TurnGate.update on one piece of n samples within a block: settings (T_SIZE,) and state float64 "
+             "(turn_gate.py's layout, updated in place), gyr and acc (n, 3) C-contiguous, vqf's frame, ``start`` (4,) "
+             "vqf's 6D attitude and ``bias`` (3,) rad/s (read at a block's start); writes the accelerometer to feed "
+             "into fed (n, 3) and the samples left out into gated (n,) bool. Returns whether the block is in a gait.");
+
+static PyObject *gate_update(PyObject *self, PyObject *args) {
+    PyObject *o_settings, *o_state, *o_gyr, *o_acc, *o_start, *o_bias, *o_fed, *o_gated;
+    if (!PyArg_ParseTuple(args, "OOOOOOOO", &o_settings, &o_state, &o_gyr, &o_acc, &o_start, &o_bias, &o_fed,
+                          &o_gated)) {
+        return NULL;
+    }
+    Py_buffer b[2], v[6];
+    int got = 0;
+    PyObject *result = NULL;
+    Gate e;
+    e.seen = NULL;
+    if (get_gate(o_settings, o_state, b) < 0) return NULL;
+    if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
+    Py_ssize_t n = v[0].shape[0];
+    got++;
+    if (get_rows(o_acc, &v[got], n, 3, 0, "acc") < 0) goto done;
+    got++;
+    if (get_rows(o_start, &v[got], 4, 1, 0, "start") < 0) goto done;
+    got++;
+    if (get_rows(o_bias, &v[got], 3, 1, 0, "bias") < 0) goto done;
+    got++;
+    if (get_rows(o_fed, &v[got], n, 3, 1, "fed") < 0) goto done;
+    got++;
+    if (PyObject_GetBuffer(o_gated, &v[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) goto done;
+    got++;
+    if (v[5].itemsize != 1 || v[5].format == NULL || v[5].format[0] != '?' || v[5].len != n) {
+        PyErr_Format(PyExc_ValueError, "gated must be a C-contiguous bool array of %zd items", n);
+        goto done;
+    }
+    if (gate_open(&e, b[0].buf, b[1].buf) < 0) goto done;
+    Py_ssize_t left = e.block - (Py_ssize_t)e.g[G_SAMPLES] % e.block;
+    if (n > left) {
+        PyErr_Format(PyExc_ValueError, "a batch for the turn gate must end within its block: %zd samples", left);
+        goto done;
+    }
+    int in_gait = gate_piece(&e, v[0].buf, v[1].buf, n, v[2].buf, v[3].buf, v[4].buf, v[5].buf);
+    result = PyBool_FromLong(in_gait);
+done:
+    if (e.seen != NULL) gate_free(&e);
+    for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
+    PyBuffer_Release(&b[0]);
+    PyBuffer_Release(&b[1]);
+    return result;
+}
+
+PyDoc_STRVAR(gated_run_doc,
+             "gated_run(filter, settings, state, gyr, acc, field, quat6, quat9, rest, disturbed)\n\n"
+             "One batch of N samples through the turn gate and the vqf.VQF ``filter`` (turn_gate.run_gated without "
+             "a bias loop): the batch cut at the gate's blocks, vqf's 6D attitude and bias read at each block's "
+             "start, each piece fed the accelerometer the gate gives (``gate_update``). gyr, acc, field (N, 3) "
+             "C-contiguous, vqf's frame (field None: without the magnetometer); writes vqf's outputs quat6, quat9 "
+             "(N, 4), rest and disturbed (N,) bool.");
+
+static PyObject *gated_run(PyObject *self, PyObject *args) {
+    PyObject *o_filter, *o_settings, *o_state, *o_gyr, *o_acc, *o_field, *o_q6, *o_q9, *o_rest, *o_dist;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOO", &o_filter, &o_settings, &o_state, &o_gyr, &o_acc, &o_field, &o_q6,
+                          &o_q9, &o_rest, &o_dist)) {
+        return NULL;
+    }
+    void *vqf = vqf_object(o_filter);
+    if (vqf == NULL) return NULL;
+    Py_buffer b[2], v[7];
+    int got = 0;
+    PyObject *result = NULL;
+    Gate e;
+    e.seen = NULL;
+    double *fed = NULL;
+    bool *gated = NULL;
+    if (get_gate(o_settings, o_state, b) < 0) return NULL;
+    if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
+    Py_ssize_t n = v[0].shape[0];
+    got++;
+    if (get_rows(o_acc, &v[got], n, 3, 0, "acc") < 0) goto done;
+    got++;
+    if (o_field != Py_None) {
+        if (get_rows(o_field, &v[got], n, 3, 0, "field") < 0) goto done;
+        got++;
+    }
+    const double *field = o_field != Py_None ? v[2].buf : NULL;
+    int q6 = got;
+    if (get_rows(o_q6, &v[got], n, 4, 1, "quat6") < 0) goto done;
+    got++;
+    if (get_rows(o_q9, &v[got], n, 4, 1, "quat9") < 0) goto done;
+    got++;
+    PyObject *flags[2] = {o_rest, o_dist};
+    for (int i = 0; i < 2; i++) {
+        if (PyObject_GetBuffer(flags[i], &v[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) goto done;
+        got++;
+        if (v[got - 1].itemsize != 1 || v[got - 1].format == NULL || v[got - 1].format[0] != '?' ||
+            v[got - 1].len != n) {
+            PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous bool array of %zd items",
+                         i ? "disturbed" : "rest", n);
+            goto done;
+        }
+    }
+    if (gate_open(&e, b[0].buf, b[1].buf) < 0) goto done;
+    fed = PyMem_Malloc(sizeof(double) * (size_t)(3 * e.block) + 1);
+    gated = PyMem_Malloc((size_t)e.block + 1);
+    if (fed == NULL || gated == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    const double *gyr = v[0].buf, *acc = v[1].buf;
+    double *quat6 = v[q6].buf, *quat9 = v[q6 + 1].buf;
+    bool *rest = v[q6 + 2].buf, *dist = v[q6 + 3].buf;
+    double start[4], bias[3];
+    for (Py_ssize_t pos = 0; pos < n;) {
+        Py_ssize_t left = e.block - (Py_ssize_t)e.g[G_SAMPLES] % e.block, k = n - pos < left ? n - pos : left;
+        if (left == e.block) {
+            vqf_api.get_quat6d(vqf, start);
+            vqf_api.get_bias(vqf, bias);
+        }
+        const double *a = acc + 3 * pos;
+        if (gate_piece(&e, gyr + 3 * pos, a, k, start, bias, fed, gated)) a = fed;
+        vqf_api.update_batch(vqf, gyr + 3 * pos, a, field ? field + 3 * pos : NULL, (size_t)k, quat6 + 4 * pos,
+                             quat9 + 4 * pos, NULL, NULL, NULL, rest + pos, dist + pos);
+        pos += k;
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyMem_Free(fed);
+    PyMem_Free(gated);
+    if (e.seen != NULL) gate_free(&e);
+    for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
+    PyBuffer_Release(&b[0]);
+    PyBuffer_Release(&b[1]);
+    return result;
+}
+
+static PyObject *gate_layout(PyObject *self, PyObject *args) {
+    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i}",
+                         "period", T_PERIOD, "width", T_WIDTH, "gait_width", T_GAIT_WIDTH, "lag_lo", T_LAG_LO,
+                         "lag_hi", T_LAG_HI, "stride_lo", T_STRIDE_LO, "stride_hi", T_STRIDE_HI, "max_hold",
+                         T_MAX_HOLD, "block", T_BLOCK, "turn_deg", T_TURN_DEG, "gait_sd", T_GAIT_SD, "gait_corr",
+                         T_GAIT_CORR, "settings", T_SIZE, "samples", G_SAMPLES, "stride", G_STRIDE, "run", G_RUN,
+                         "in_gait", G_IN_GAIT, "attitude", G_ATTITUDE, "bias", G_BIAS, "held", G_HELD);
+}
+
 PyDoc_STRVAR(aided_layout_doc, "aided_layout() -> dict: the sizes and indices of the settings and state arrays.");
 
 static PyObject *aided_layout(PyObject *self, PyObject *args) {
@@ -1964,6 +2319,9 @@ static PyMethodDef methods[] = {
     {"vertical_correction", vertical_correction, METH_VARARGS, vertical_correction_doc},
     {"vehicle_tau_acc", vehicle_tau_acc, METH_VARARGS, vehicle_tau_acc_doc},
     {"horizontal_bias_sigma", horizontal_bias_sigma, METH_VARARGS, horizontal_bias_sigma_doc},
+    {"gate_update", gate_update, METH_VARARGS, gate_update_doc},
+    {"gated_run", gated_run, METH_VARARGS, gated_run_doc},
+    {"gate_layout", gate_layout, METH_NOARGS, "gate_layout() -> dict: the T_* and G_* indices (turn_gate.py)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -146,3 +146,26 @@ def vertical_correction(
 ) -> tuple[float, float, float]: ...
 def vehicle_tau_acc(residual_ms2: float, bias_sigma_rads: float, half_window_s: float, gravity: float) -> float: ...
 def horizontal_bias_sigma(bias_p: np.ndarray, up: np.ndarray) -> float: ...
+def gate_layout() -> dict[str, int]: ...
+def gate_update(
+    settings: np.ndarray,
+    state: np.ndarray,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    start: np.ndarray,
+    bias: np.ndarray,
+    fed: np.ndarray,
+    gated: np.ndarray,
+) -> bool: ...
+def gated_run(
+    filter: object,
+    settings: np.ndarray,
+    state: np.ndarray,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    field: np.ndarray | None,
+    quat6: np.ndarray,
+    quat9: np.ndarray,
+    rest: np.ndarray,
+    disturbed: np.ndarray,
+) -> None: ...

@@ -155,9 +155,8 @@ class Fusion:
         self._filter = vqf.VQF(self.period_s, **self.params)
         #: vqf's own accelerometer and magnetic time constants (s), for ``figures``
         self._taus = (float(self._filter.params["tauAcc"]), float(self._filter.params["tauMag"]))
-        self._aided: AidedFilter | None = (
-            None  # from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
-        )
+        #: from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
+        self._aided: AidedFilter | None = None
         #: with ``watch`` (the default), the field's disturbances are left out and the gyroscope holds the heading
         #: (docs/compass.md, "Disturbances"); compiled, it costs about a quarter of vqf itself (docs/cost.md)
         self.watch = FieldWatch(self.period_s) if watch else None
@@ -165,7 +164,7 @@ class Fusion:
         #: with ``turn_gate`` (the default), in a gait (a walker's or runner's steps) the accelerometer is fed a window
         #: late and left out where the course turned, its centripetal acceleration not taken for gravity
         #: (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
-        self.turn_gate = TurnGate(self.period_s) if turn_gate else None
+        self.turn_gate = TurnGate(self.period_s, filter_params=self.params) if turn_gate else None
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 
@@ -299,11 +298,12 @@ class Fusion:
 
     def _vqf(self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray) -> dict[str, Any]:
         """vqf's ``updateBatch`` on one batch (vqf frames; ``watched`` (N,) the samples the watch left out), with the
-        turn gate and the bias loop where they run: vqf's outputs for the whole batch. With the gate, in pieces cut at
-        the gate's blocks (``TurnGate.left_in_block``): it reads vqf's attitude and bias at each block's start."""
+        turn gate (in pieces cut at its blocks, ``TurnGate.left_in_block``, vqf's attitude and bias read at each one's
+        start; one compiled call without a bias loop) and the bias loop where they run: vqf's outputs for the batch."""
         if self.turn_gate is None:
             return self._vqf_piece(gyr, acc, field, watched)
-        return run_gated(self.turn_gate, self._filter, self._vqf_piece, (gyr, acc, field), watched)
+        alone = self.heading_bias is None or field is None or self._aided is not None  # no bias loop: vqf's batch
+        return run_gated(self.turn_gate, self._filter, None if alone else self._vqf_piece, (gyr, acc, field), watched)
 
     def _vqf_piece(
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray

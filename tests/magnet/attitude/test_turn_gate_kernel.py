@@ -1,0 +1,186 @@
+"""The turn gate's compiled maths (magnet._kernels.gate_update, gated_run) against the gate written plainly here in
+numpy (the Python implementation it replaced), on random walkers' and runners' samples cut into random batches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import vqf
+
+from magnet.attitude.turn_gate import TurnGate, TurnSettings, run_gated
+
+
+def _turned_by(start: np.ndarray, gyr: np.ndarray, bias: np.ndarray, period_s: float) -> np.ndarray:
+    """(n, 4): ``start`` (4,) carried forward by each rate less ``bias`` over one period (right products), plainly."""
+    out, q = np.empty((len(gyr), 4)), start.astype(float)
+    for i, rate in enumerate(gyr - bias):
+        norm = float(np.linalg.norm(rate))
+        half = norm * period_s / 2.0
+        u = rate * (np.sin(half) / norm if norm > 0 else 0.0)
+        turn = np.array([np.cos(half), *u])
+        w, x, y, z = q
+        a, b, c, d = turn
+        q = np.array(
+            [
+                w * a - x * b - y * c - z * d,
+                w * b + x * a + y * d - z * c,
+                w * c - x * d + y * a + z * b,
+                w * d + x * c - y * b + z * a,
+            ]
+        )
+        out[i] = q
+    return out
+
+
+def _to_frame(quat: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Each vector (n, 3) rotated by its quaternion (n, 4) as v + 2 w (u x v) + 2 u x (u x v), plainly."""
+    w, u = quat[:, :1], quat[:, 1:]
+    t = 2.0 * np.cross(u, vectors)
+    return vectors + w * t + np.cross(u, t)
+
+
+class PlainGate:
+    """TurnGate's maths (its docstrings are the specification) in numpy, one block's piece at a time."""
+
+    def __init__(self, gate: TurnGate) -> None:
+        self.g = gate  # its settings only
+        w = gate.width
+        self.recent, self.stride, self.run, self.samples = np.zeros(2 * (w - 1)), w, 0, 0
+        self.earth_acc, self.magnitudes = np.full((w - 1, 3), np.nan), np.full(gate.gait_width, np.nan)
+        self.held, self.attitude, self.bias = np.array([1.0, 0, 0, 0]), np.zeros(4), np.zeros(3)
+        self.in_gait = False
+
+    def update(self, gyr, acc, start, bias):
+        g, period = self.g, self.g.period_s
+        if self.samples % g.block == 0:
+            self.attitude, self.bias, self.in_gait = start, bias, self._gait()
+        self.samples += len(gyr)
+        attitude = _turned_by(self.attitude, gyr, self.bias, period)
+        self.attitude = attitude[-1]
+        seen = np.concatenate([self.recent, _to_frame(attitude, gyr - self.bias)[:, 2] * period])
+        self.recent = seen[len(gyr) :]
+        n = self.stride
+        kernel = np.concatenate([np.arange(1, n + 1), np.arange(n - 1, 0, -1)]) / n
+        first = len(seen) - len(gyr) - (g.width - 1) - (n - 1)
+        turned = np.convolve(seen[first : len(seen) - (g.width - 1) + n - 1], kernel, mode="valid")
+        held = _turned_by(self.held, gyr, self.bias, period)
+        self.held = held[-1] / np.linalg.norm(held[-1])
+        earth = np.concatenate([self.earth_acc, _to_frame(held, acc)])
+        delayed, self.earth_acc = earth[: len(acc)], earth[len(acc) :]
+        self.magnitudes = np.concatenate([self.magnitudes, np.linalg.norm(acc, axis=1)])[-g.gait_width :]
+        gated = np.zeros(len(gyr), dtype=bool)
+        for i, over in enumerate(np.abs(np.degrees(turned)) > g.settings.turn_deg):
+            self.run = self.run + 1 if over and self.in_gait else 0
+            gated[i] = self.run > 0 and self.run <= g.max_hold
+        if not self.in_gait:
+            return acc, gated
+        fed = _to_frame(held * [1.0, -1.0, -1.0, -1.0], delayed)
+        fresh = np.isnan(fed[:, 0])
+        fed[fresh] = acc[fresh]
+        fed[gated] = 0.0
+        return fed, gated
+
+    def _gait(self) -> bool:
+        if np.isnan(self.magnitudes[0]):
+            return False
+        centred = self.magnitudes - self.magnitudes.mean()
+        power = float(centred @ centred)
+        if power <= len(centred) * self.g.settings.gait_sd_ms2**2:
+            return False
+        correlation = np.array([centred[: len(centred) - k] @ centred[k:] for k in range(len(centred))])
+        strides = self.g.stride_lags[self.g.stride_lags < len(centred)]
+        if max(correlation[self.g.lags].max(), correlation[strides].max()) <= self.g.settings.gait_corr * power:
+            return False
+        self.stride = min(self.g.width, int(strides[np.argmax(correlation[strides])]))
+        return True
+
+
+def walker(rng: np.random.Generator, count: int, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Body rates and specific forces (count, 3) of a random walker or runner: straights and corners, a bounce at
+    a random step rate (vanishing for a while: standing), noise; not a physical simulation, just gait-like."""
+    t = np.arange(count) * period_s
+    step_hz, bounce = rng.uniform(1.5, 3.2), rng.uniform(1.5, 6.0)
+    gyr = rng.normal(0.0, 0.05, (count, 3)) + rng.normal(0.0, 0.02, 3)
+    corners = rng.integers(0, count, 6)
+    for c in corners:  # 45 to 180 deg in 0.7 to 2 s
+        width = int(rng.uniform(0.7, 2.0) / period_s)
+        gyr[c : c + width, 2] += np.radians(rng.choice([-1, 1]) * rng.uniform(45, 180)) / (width * period_s)
+    gyr[:, :2] += 0.6 * np.sin(2 * np.pi * step_hz / 2 * t)[:, None] * rng.normal(0, 1, 2)  # the trunk's sway
+    acc = rng.normal(0.0, 0.3, (count, 3))
+    acc[:, 2] += 9.81 + bounce * np.sin(2 * np.pi * step_hz * t) * (t % 30 < 22)  # stands 8 s every 30
+    acc[:, :2] += rng.normal(0, 0.5, 2)  # held tilted
+    return gyr, acc
+
+
+@pytest.mark.parametrize(("period_s", "seed"), [(0.01, 1), (0.02, 2), (0.013, 3), (0.005, 4)])
+def test_gate_update_is_the_plain_gate_whatever_the_batches(period_s, seed):
+    rng = np.random.default_rng(seed)
+    gyr, acc = walker(rng, round(60.0 / period_s), period_s)
+    gate = TurnGate(period_s, TurnSettings(max_hold_s=3.0))
+    plain = PlainGate(gate)
+    fed_c, gated_c, fed_p, gated_p, gaits = [], [], [], [], 0
+    start = 0
+    while start < len(gyr):
+        stop = min(start + int(rng.integers(1, gate.left_in_block() + 1)), len(gyr))
+        q = rng.normal(size=4)
+        q, bias = q / np.linalg.norm(q), rng.normal(0.0, 0.01, 3)
+        for out, (fed, gated) in (
+            ((fed_c, gated_c), gate.update(gyr[start:stop], acc[start:stop], q, bias)),
+            ((fed_p, gated_p), plain.update(gyr[start:stop], acc[start:stop], q, bias)),
+        ):
+            out[0].append(fed)
+            out[1].append(gated)
+        assert (gate.in_gait, gate.stride, gate.run, gate.samples) == (
+            plain.in_gait,
+            plain.stride,
+            plain.run,
+            plain.samples,
+        )
+        gaits += gate.in_gait
+        start = stop
+    assert gaits > 0 and np.concatenate(gated_c).any()  # the gate was at work: gaits, turns left out
+    np.testing.assert_array_equal(np.concatenate(gated_c), np.concatenate(gated_p))
+    np.testing.assert_allclose(np.vstack(fed_c), np.vstack(fed_p), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(gate.recent, plain.recent, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(gate.earth_acc, plain.earth_acc, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(gate.magnitudes, plain.magnitudes, rtol=0, atol=1e-12)
+
+
+def gated_in_batches(compiled: bool, gyr, acc, field, period_s: float) -> list[np.ndarray]:
+    """vqf's quaternions (6D, and 9D with a field) and flags through the gate, in batches of 1 to 150 samples."""
+    gate, filter_ = TurnGate(period_s), vqf.VQF(period_s)
+    rng, parts, start = np.random.default_rng(6), [], 0
+    keys = ("quat6D", "restDetected") + (("quat9D", "magDistDetected") if field is not None else ())
+    while start < len(gyr):
+        rows = slice(start, min(start + int(rng.integers(1, 151)), len(gyr)))
+        piece = None if compiled else (lambda g, a, f, _w: filter_.updateBatch(g, a, f))
+        samples = (gyr[rows], acc[rows], None if field is None else field[rows])
+        out = run_gated(gate, filter_, piece, samples, np.zeros(rows.stop - rows.start, dtype=bool))
+        parts.append([np.asarray(out[key]) for key in keys])
+        start = rows.stop
+    assert gate.samples == len(gyr)
+    return [np.concatenate([part[k] for part in parts]) for k in range(len(keys))]
+
+
+@pytest.mark.parametrize("with_field", [True, False])
+def test_gated_run_drives_vqf_as_the_gate_and_updatebatch_piece_by_piece(with_field):
+    rng = np.random.default_rng(5)
+    gyr, acc = walker(rng, 4000, 0.01)
+    field = np.ascontiguousarray(rng.normal(0, 0.3, (4000, 3)) + [20.0, 0.0, -40.0]) if with_field else None
+    compiled, plain = (gated_in_batches(c, gyr, acc, field, 0.01) for c in (True, False))
+    for c, p in zip(compiled, plain):
+        if c.dtype == bool:
+            np.testing.assert_array_equal(c, p)
+        else:
+            np.testing.assert_allclose(c, p, rtol=0, atol=1e-12)
+
+
+def test_gated_run_refuses_what_it_cannot_read():
+    gate, filter_ = TurnGate(0.01), vqf.VQF(0.01)
+    gyr = np.zeros((10, 3))
+    with pytest.raises(ValueError, match="acc"):
+        run_gated(gate, filter_, None, (gyr, np.zeros((9, 3)), None), np.zeros(10, bool))
+    with pytest.raises(ValueError, match="gyr"):
+        run_gated(gate, filter_, None, (np.zeros((10, 3))[:, ::-1], np.zeros((10, 3)), None), np.zeros(10, bool))
+    with pytest.raises(TypeError, match=r"vqf\.VQF"):
+        run_gated(gate, object(), None, (gyr, gyr, None), np.zeros(10, bool))
