@@ -255,33 +255,12 @@ class HeadingUncertainty:
         in order (a device's batches carry its last trusted time on to its next), the samples all at once: within a
         batch whose times never go back, the last trusted time up to a sample is that of the last trusted sample up
         to it (found for every sample in one pass); elsewhere the running maximum of the batch's trusted times."""
-        count = len(t_ns)
-        drift = np.zeros(count)
-        if not count:
+        drift = np.zeros(len(t_ns))
+        if not len(t_ns):
             return drift
         times = np.asarray(t_ns, dtype=np.int64)
-        edges = np.asarray(bounds, dtype=np.int64)
-        sizes = np.diff(edges)
-        starts = edges[:-1][sizes > 0]
-        # 2 j + 1 at a trusted sample j, 2 s at the start s of a batch: the running maximum is the last trusted sample
-        # since the batch's start (odd), or none yet (even)
-        marks = np.where(trusted, 2 * np.arange(count, dtype=np.int64) + 1, -1)
-        marks[starts] = np.maximum(marks[starts], 2 * starts)
-        last_mark = np.maximum.accumulate(marks)
-        # whether an untrusted sample (where the device's last trusted time before the batch counts) came before or
-        # at each sample of its batch
-        untrusted_seen = np.cumsum(~trusted)
-        carried = untrusted_seen > np.repeat(untrusted_seen[starts] - ~trusted[starts], sizes[sizes > 0])
-        back = np.zeros(count, dtype=bool)  # a time before the one of the sample before in its batch
-        back[1:] = times[1:] < times[:-1]
-        back[starts] = False
-        steady = np.ones(len(devices), dtype=bool)  # per batch: its times never go back
-        steady[sizes > 0] = ~np.logical_or.reduceat(back, starts)
-        # per batch, at its last sample: a trusted sample seen (and the last one's time), an untrusted one seen
-        ends = np.maximum(edges[1:] - 1, 0)
-        end_marks = last_mark[ends]
-        end_trusted, end_times = (end_marks % 2 == 1).tolist(), times[end_marks // 2].tolist()
-        end_carried, steady_list = carried[ends].tolist(), steady.tolist()
+        sizes: np.ndarray = np.diff(np.asarray(bounds, dtype=np.int64))
+        seen = _TrustedSeen.of(times, trusted, sizes)
         init, bias, used = [0] * len(devices), [0.0] * len(devices), [False] * len(devices)
         for b, (device, figure) in enumerate(zip(devices, figures)):
             state = self.devices.get(device) if batches.fused[b] else None
@@ -291,23 +270,57 @@ class HeadingUncertainty:
                 state.trusted_ns = batches.last_ns[b]
                 continue
             init[b], bias[b], used[b] = state.trusted_ns, figure.bias_sigma_rads, True
-            if not steady_list[b]:
+            if not seen.steady[b]:
                 lo, hi = bounds[b], bounds[b + 1]
                 state.trusted_ns = int(np.maximum.accumulate(np.where(trusted[lo:hi], times[lo:hi], init[b]))[-1])
-            elif end_trusted[b]:
-                state.trusted_ns = max(state.trusted_ns, end_times[b]) if end_carried[b] else end_times[b]
+            elif seen.end_trusted[b]:
+                state.trusted_ns = max(state.trusted_ns, seen.end_ns[b]) if seen.end_carried[b] else seen.end_ns[b]
         if not any(used):
             return drift
-        use = np.repeat(used, sizes)
+        use: np.ndarray = np.repeat(np.array(used, dtype=bool), sizes)
         since = np.repeat(np.array(init, dtype=np.int64), sizes)
-        odd = use & (last_mark % 2 == 1)
-        last_trusted = times[last_mark[odd] // 2]
-        since[odd] = np.where(carried[odd], np.maximum(since[odd], last_trusted), last_trusted)
-        for b in np.flatnonzero(np.array(used) & ~steady).tolist():  # a batch whose times go back: the running maximum
+        odd = use & (seen.last_mark % 2 == 1)
+        last_trusted = times[seen.last_mark[odd] // 2]
+        since[odd] = np.where(seen.carried[odd], np.maximum(since[odd], last_trusted), last_trusted)
+        for b in np.flatnonzero(np.array(used) & ~np.array(seen.steady)).tolist():  # times going back: running max
             lo, hi = bounds[b], bounds[b + 1]
             since[lo:hi] = np.maximum.accumulate(np.where(trusted[lo:hi], times[lo:hi], init[b]))
-        drift[use] = np.repeat(bias, sizes)[use] * (times[use] - since[use]) * 1e-9
+        drift[use] = np.repeat(np.array(bias), sizes)[use] * (times[use] - since[use]) * 1e-9
         return drift
+
+
+class _TrustedSeen(NamedTuple):
+    """For ``HeadingUncertainty._drift``, what came before each sample within its batch, all samples at once: the
+    running maximum of 2 j + 1 at trusted samples j and 2 s at each batch's start s (odd: j, the last trusted sample
+    up to it; even: none yet), whether an untrusted sample came at or before it (where the device's last trusted
+    time before the batch counts), and per batch (lists): its times never go back, and at its last sample whether a
+    trusted one was seen, that one's time, whether an untrusted one was seen."""
+
+    last_mark: np.ndarray
+    carried: np.ndarray
+    steady: list[bool]
+    end_trusted: list[bool]
+    end_ns: list[int]
+    end_carried: list[bool]
+
+    @classmethod
+    def of(cls, times: np.ndarray, trusted: np.ndarray, sizes: np.ndarray) -> _TrustedSeen:
+        edges = np.concatenate([[0], np.cumsum(sizes)])
+        starts = edges[:-1][sizes > 0]
+        marks = np.where(trusted, 2 * np.arange(len(times), dtype=np.int64) + 1, -1)
+        marks[starts] = np.maximum(marks[starts], 2 * starts)
+        last_mark = np.maximum.accumulate(marks)
+        untrusted_seen = np.cumsum(~trusted)
+        carried = untrusted_seen > np.repeat(untrusted_seen[starts] - ~trusted[starts], sizes[sizes > 0])
+        back = np.zeros(len(times), dtype=bool)  # a time before the one of the sample before in its batch
+        back[1:] = times[1:] < times[:-1]
+        back[starts] = False
+        steady = np.ones(len(sizes), dtype=bool)
+        steady[sizes > 0] = ~np.logical_or.reduceat(back, starts)
+        ends = np.maximum(edges[1:] - 1, 0)
+        end_marks = last_mark[ends]
+        end_ns = times[end_marks // 2].tolist()
+        return cls(last_mark, carried, steady.tolist(), (end_marks % 2 == 1).tolist(), end_ns, carried[ends].tolist())
 
 
 def _take(state: _Device, batch: tuple[float, float, float], tan_dip: float, figures: FilterFigures) -> None:
