@@ -301,9 +301,13 @@ class CompassCore:
         """Each sample's heading and tilt sigmas (S,) deg (``magnet.attitude.uncertainty``): from the calibration's
         residual, the field, the flags and, where fused, the device's filter's figures after this step."""
         bounds, states = raw.bounds, [self.filters.devices.get(device) for device in raw.devices]
+        any_fused = np.zeros(len(raw.devices), dtype=bool)  # per batch, whether a sample of it was fused
+        nonempty = raw.counts > 0
+        if fused.fused.any() and nonempty.any():
+            any_fused[nonempty] = np.logical_or.reduceat(fused.fused, np.asarray(bounds[:-1])[nonempty])
         figures: list[FilterFigures | None] = [
-            s.filter.figures() if s is not None and s.filter is not None and fused.fused[lo:hi].any() else None
-            for s, lo, hi in zip(states, bounds[:-1], bounds[1:])
+            s.filter.figures() if s is not None and s.filter is not None and fused_b else None
+            for s, fused_b in zip(states, any_fused.tolist())
         ]
         residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
         samples = (raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut)
