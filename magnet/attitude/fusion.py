@@ -158,7 +158,7 @@ class Fusion:
         #: with ``turn_gate`` (the default), in a gait (a walker's or runner's steps) the accelerometer is fed a window
         #: late and left out where the course turned, its centripetal acceleration not taken for gravity
         #: (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
-        self.turn_gate = TurnGate(self.period_s) if turn_gate else None
+        self.turn_gate = TurnGate(self.period_s, filter_params=self.params) if turn_gate else None
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 

@@ -61,14 +61,18 @@ class Place:
 
 @dataclasses.dataclass(frozen=True)
 class Motion:
-    """Consecutive samples: mag (N, 3) uT raw, acc (N, 3) m/s^2 (or g), gyr (N, 3) rad/s, every period_s s, and
-    vel_ned_ms (N, 3) m/s geographic NED as held on the wire (NaN rows before the first fix)."""
+    """Consecutive samples: mag (N, 3) uT raw, acc (N, 3) m/s^2 (or g), gyr (N, 3) rad/s, every period_s s,
+    vel_ned_ms (N, 3) m/s geographic NED as held on the wire (NaN rows before the first fix), and kept (N,) bool: the
+    samples whose field the offset is taken from (None: all; ``magnet.calibration.disturbed``: a field disturbed
+    on the way, a parked car or a bridge passed, enters no fit). The attitude is worked out from every sample, whose
+    gyroscope, accelerometer and velocity a magnetic disturbance does not touch."""
 
     mag: np.ndarray
     acc: np.ndarray
     gyr: np.ndarray
     period_s: float
     vel_ned_ms: np.ndarray
+    kept: np.ndarray | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,21 +175,27 @@ def fit_course(
         return None
     earth = earth_vector_ut(place.field_ut, place.dip_deg, place.declination_deg)
     expected = np.einsum("nji,j->ni", frames.quaternion_to_matrix(aligned.quat_wxyz), earth)  # R^T B, body uT
-    offset = np.mean(samples.mag - expected @ np.linalg.inv(matrix0).T, axis=0)
+    mag = np.asarray(samples.mag, dtype=float)
+    if samples.kept is not None:  # the undisturbed samples' field alone (the attitude is every sample's)
+        kept = np.asarray(samples.kept, dtype=bool)
+        if kept.shape != (len(mag),) or not kept.any():
+            return None
+        mag, expected = mag[kept], expected[kept]
+    offset = np.mean(mag - expected @ np.linalg.inv(matrix0).T, axis=0)
     calibration = Calibration(
         method="offset",
         offset=offset,
         matrix=matrix0,
         field_strength=float(place.field_ut),
-        sample_count=len(samples.mag),
+        sample_count=len(mag),
         unit="ut",
         output_unit="ut",
     )
-    corrected = calibration.apply(samples.mag)
+    corrected = calibration.apply(mag)
     agreement = agreement_deg(corrected, expected)
-    in_force = None if reference is None else agreement_deg(reference.apply(samples.mag), expected)
+    in_force = None if reference is None else agreement_deg(reference.apply(mag), expected)
     quality = assess(
-        samples.mag,
+        mag,
         calibration,
         corrected=corrected,
         geometry=Geometry.SPHERE,

@@ -168,8 +168,12 @@ def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThre
     assert inp.field_ut is not None and inp.dip_deg is not None and inp.declination_deg is not None
     place = course.Place(inp.field_ut, inp.dip_deg, inp.declination_deg)
     chosen = dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=math.inf)
-    motion_in = course.Motion(inp.mag, inp.acc, inp.gyr, inp.period_s, inp.vel_ned_ms)
-    return course.fit_course(motion_in, place, ev.matrix0, _usable(inp.reference, inp), source, chosen, MIN_GAIN)
+    keep = disturbed.kept_rows(inp.disturbed)  # a disturbed field enters this fit neither
+    motion_in = course.Motion(inp.mag, inp.acc, inp.gyr, inp.period_s, inp.vel_ned_ms, keep)
+    record = course.fit_course(motion_in, place, ev.matrix0, _usable(inp.reference, inp), source, chosen, MIN_GAIN)
+    if record is None or keep is None:
+        return record
+    return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))
 
 
 def _usable(reference: Calibration | None, inp: FieldInput) -> Calibration | None:

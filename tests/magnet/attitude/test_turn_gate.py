@@ -3,6 +3,7 @@ runner's corners are not taken for gravity leaning (against the simulator's trut
 
 import numpy as np
 import pytest
+import vqf
 
 from magnet import frames
 from magnet.attitude import fusion
@@ -136,3 +137,32 @@ def test_a_runners_attitude_does_not_depend_on_how_the_samples_are_cut_into_batc
     ]
     assert parts.turn_gate is not None and parts.turn_gate.in_gait  # the gate is at work
     np.testing.assert_allclose(np.vstack(pieces), whole, atol=1e-9)
+
+
+def test_without_the_field_the_answer_is_vqfs_own_6d_attitude():
+    """Until a field reaches the filter the heading is the gyroscope's, whose error is that of vqf's bias about the
+    vertical, not the tilt's: the answer is plain vqf's 6D attitude (the gyroscope alone as any filter has it,
+    whatever the gate does to the tilt beside it), batch by batch; from the first field sample on, the gated
+    filter's."""
+    run = field_runs.field_run(field_runs.MOTIONS["running"], 1, field_runs.FieldSettings(seconds=30.0))
+    gyr, acc = fusion.to_vqf_frame(run.gyr_rads), fusion.to_vqf_frame(run.acc_ms2)
+    plain = frames.ned_enu_attitude(np.asarray(vqf.VQF(PERIOD_S).updateBatch(gyr, acc)["quat6D"]))
+    gated = fusion.Fusion(PERIOD_S)
+    alone = np.vstack(
+        [gated.update(run.gyr_rads[s : s + 25], run.acc_ms2[s : s + 25]).quat_wxyz for s in range(0, 1500, 25)]
+    )
+    assert gated.turn_gate is not None and gated.turn_gate.in_gait  # the gate is at work beside it
+    np.testing.assert_allclose(alone, plain, atol=1e-12)
+    # a field left out everywhere (zero rows: no calibration, or the watch) is no field either
+    blind = fusion.Fusion(PERIOD_S).update(run.gyr_rads, run.acc_ms2, np.zeros_like(run.mag_ut)).quat_wxyz
+    np.testing.assert_allclose(blind, plain, atol=1e-12)
+    # the field from sample 1000 on: plain vqf's answer before it, the gated filter's after (its tilt kept right)
+    field = np.where(np.arange(1500)[:, None] >= 1000, run.true_field_ut, 0.0)
+    late = fusion.Fusion(PERIOD_S)
+    mixed = np.vstack([late.update(run.gyr_rads[s : s + 7], run.acc_ms2[s : s + 7], field[s : s + 7]).quat_wxyz
+                       for s in range(0, 1500, 7)])  # fmt: skip
+    np.testing.assert_allclose(mixed[:1000], plain[:1000], atol=1e-12)
+    assert late.turn_gate is not None and late.turn_gate.alone is not None and late.turn_gate.alone.done
+    whole = fusion.Fusion(PERIOD_S, turn_gate=True).update(run.gyr_rads, run.acc_ms2, field).quat_wxyz
+    np.testing.assert_allclose(mixed, whole, atol=1e-9)
+    assert np.max(np.abs(mixed[1000:] - plain[1000:])) > 1e-3
