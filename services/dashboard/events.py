@@ -56,18 +56,33 @@ def _dumps(data: Any) -> str:
     return json.dumps(data, separators=(",", ":"), allow_nan=False)
 
 
+def _rows_json(rows: list[dict[str, Any]]) -> bytes:
+    return _dumps(rows)[1:-1].encode()
+
+
 def encode_fleet(fleet: dict[str, Any], summary: dict[str, Any]) -> bytes:
-    """The ``fleet`` event of ``FleetState.fleet``'s answer and its ``summary``, as UTF-8 bytes; the rows are encoded
-    ``CHUNK_ROWS`` at a time (the same JSON as one ``json.dumps``)."""
+    """The ``fleet`` event of ``FleetState.fleet``'s answer and its ``summary``, as UTF-8 bytes."""
     rows = fleet["rows"]
-    chunks = [_dumps(rows[i : i + CHUNK_ROWS])[1:-1] for i in range(0, len(rows), CHUNK_ROWS)]
-    rest = {k: v for k, v in fleet.items() if k != "rows"} | {"summary": summary}
-    return f'event: fleet\ndata: {{"rows":[{",".join(chunks)}],{_dumps(rest)[1:]}\n\n'.encode()
+    chunks = [_rows_json(rows[i : i + CHUNK_ROWS]) for i in range(0, len(rows), CHUNK_ROWS)]
+    return _joined({k: v for k, v in fleet.items() if k != "rows"}, chunks, summary)
+
+
+def _joined(rest: dict[str, Any], chunks: list[bytes], summary: dict[str, Any]) -> bytes:
+    tail = _dumps(rest | {"summary": summary})[1:].encode()
+    return b'event: fleet\ndata: {"rows":[' + b",".join(chunks) + b"]," + tail + b"\n\n"
+
+
+def fleet_event(state: FleetState, since: int) -> tuple[int, bytes]:
+    """(the version, the ``fleet`` event) bringing a page from ``since`` (-1: every row): the rows encoded
+    ``CHUNK_ROWS`` at a time as the state makes them (the same JSON as ``encode_fleet`` of ``state.fleet``; the
+    worker gives the GIL up between chunks, and never holds every row's map at once)."""
+    rest, chunks = state.fleet_chunks(since, _rows_json, CHUNK_ROWS)
+    return rest["version"], _joined(rest, chunks, state.summary())
 
 
 def fleet_body(state: FleetState) -> bytes:
-    """``/api/fleet``'s JSON body (every row and the summary), encoded in chunks as ``encode_fleet``."""
-    text = encode_fleet(state.fleet(-1), state.summary())
+    """``/api/fleet``'s JSON body (every row and the summary), made as ``fleet_event``."""
+    text = fleet_event(state, -1)[1]
     return text[len(b"event: fleet\ndata: ") : -2]
 
 
@@ -116,16 +131,13 @@ class FleetEvents:
         the last ``full`` has left the chain (or there is none). The first tick after a start (no chain) makes every
         row only, and a chain from its version: a new stream needs nothing else."""
         if not self.chain:
-            everything = self.state.fleet(-1)
-            text = encode_fleet(everything, self.state.summary())
+            version, text = fleet_event(self.state, -1)
             self.made += 1
-            version = everything["version"]
             with self.lock:  # an empty link: the chain starts at this version (sent to nobody)
                 self.chain, self.version = (Link(version, version, b""),), version
                 self.full, self.wants_full = (version, text), False
             return
-        fleet = self.state.fleet(self.version)
-        link = Link(self.version, fleet["version"], encode_fleet(fleet, self.state.summary()))
+        link = Link(self.version, *fleet_event(self.state, self.version))
         self.made += 1
         with self.lock:
             kept = [*self.chain, link][-KEPT_TICKS:]
@@ -136,12 +148,11 @@ class FleetEvents:
                 self.full = None  # out of the chain: no stream could be brought on from it
             wanted, self.wants_full = self.wants_full, False
         if wanted and self.full is None:
-            everything = self.state.fleet(-1)
-            text = encode_fleet(everything, self.state.summary())
+            version, text = fleet_event(self.state, -1)
             self.made += 1
             with self.lock:
-                if everything["version"] >= self.chain[0].base:
-                    self.full = (everything["version"], text)
+                if version >= self.chain[0].base:
+                    self.full = (version, text)
 
     async def run(self, stopping: asyncio.Event) -> None:
         """Make the events every tick while streams read them (``readers``), in a thread of its own; the loop only

@@ -12,7 +12,15 @@ from test_dashboard_app import TOKEN, FakeControl, heading_batch
 
 from services.dashboard import events as events_module
 from services.dashboard.app import create_app
-from services.dashboard.events import KEPT_TICKS, RESYNCS_TO_CLOSE, FleetEvents, Reader, encode_fleet, fleet_body
+from services.dashboard.events import (
+    KEPT_TICKS,
+    RESYNCS_TO_CLOSE,
+    FleetEvents,
+    Reader,
+    encode_fleet,
+    fleet_body,
+    fleet_event,
+)
 from services.dashboard.state import FleetState
 
 
@@ -120,6 +128,11 @@ def test_rows_encoded_in_chunks_are_the_json_of_one_dumps(count):
     fleet, summary = state.fleet(-1), state.summary()
     assert data_of(encode_fleet(fleet, summary)) == json.loads(json.dumps(fleet | {"summary": summary}))
     assert json.loads(fleet_body(state)) == json.loads(json.dumps(fleet | {"summary": summary}))
+    version, event = fleet_event(state, -1)
+    assert version == fleet["version"] and event == encode_fleet(fleet, summary)
+    if count:
+        state.on_heading(heading_batch("d000", seq=99))  # one row changed: only it
+        assert devices_in(fleet_event(state, version)[1]) == ["d000"]
 
 
 def test_a_burst_of_new_streams_costs_one_encoding_even_when_encoding_takes_longer_than_a_tick():
@@ -128,13 +141,14 @@ def test_a_burst_of_new_streams_costs_one_encoding_even_when_encoding_takes_long
     state = FleetState(None)
     for i in range(60):  # a first event of about 40 kB: one piece
         state.on_heading(heading_batch(f"d{i:03d}"))
-    slow_fleet = state.fleet
+    fleet_chunks = state.fleet_chunks
 
-    def fleet(since):
+    def slow_chunks(*args):
         time.sleep(0.03)  # longer than the 0.01 s tick, as 10,000 rows on a loaded machine
-        return slow_fleet(since)
+        return fleet_chunks(*args)
 
-    state.fleet = fleet
+    state.fleet = lambda since: (time.sleep(0.03), FleetState.fleet(state, since))[1]  # the same, for the old code
+    state.fleet_chunks = slow_chunks
     app = create_app(state, FakeControl(), TOKEN, interval_s=0.01)
     dashboard = app.state.dashboard
 
