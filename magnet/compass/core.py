@@ -318,7 +318,7 @@ class CompassCore:
         vel = raw.vel  # with no velocity known (NaN rows) as it is: a filter already aided still needs the times
         aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else vel
         fused = self.filters.update(
-            raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding
+            raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding, self.settings.sigmas
         )
         for cause, count in fused.dropped.items():
             if self.drops.count(f"raw:{cause}"):
