@@ -670,7 +670,7 @@ PyDoc_STRVAR(vqf_attitudes_doc,
              "vqf_attitudes(raw, fused, quat, rotation, down, heading, pitch, roll)\n\n"
              "vqf's quaternions raw (S, 4) (body FLU -> ENU, NaN rows where nothing was fused) as the compass uses "
              "them, in one pass (magnet.compass.filters.FusedColumns.from_vqf): fused (S,) bool, the rows that are "
-             "finite; quat (S, 4) body FRD -> NED (frames.ned_enu_attitude: w >= 0); rotation (S, 9) its matrix "
+             "finite; quat (S, 4) body FRD -> NED (frames.ned_enu_attitude: w >= 0); rotation (S, 9) its matrix (None: not kept) "
              "(frames.quaternion_to_matrix, row-major; the identity where not fused); down (S, 3) NED down in body "
              "axes (the matrix's last row); heading [0, 360), pitch, roll (S,) deg (frames.matrix_to_euler). Rows "
              "not fused: NaN everywhere but the identity rotation.");
@@ -686,7 +686,13 @@ static PyObject *vqf_attitudes(PyObject *self, PyObject *args) {
     if (get_array(o_raw, &a[0], 2, -1, 4, 0, "raw") < 0) return NULL;
     Py_ssize_t n = a[0].rows;
     if (get_array(o_quat, &a[1], 2, n, 4, 1, "quat") < 0) { release(a, 1); return NULL; }
-    if (get_array(o_rotation, &a[2], 2, n, 9, 1, "rotation") < 0) { release(a, 2); return NULL; }
+    double unkept[9]; /* rotation None: the matrices not kept (every row written here) */
+    if (o_rotation == Py_None) {
+        raw_array(&a[2], unkept, n, 9, 0);
+    } else if (get_array(o_rotation, &a[2], 2, n, 9, 1, "rotation") < 0) {
+        release(a, 2);
+        return NULL;
+    }
     if (get_array(o_down, &a[3], 2, n, 3, 1, "down") < 0) { release(a, 3); return NULL; }
     if (get_array(o_heading, &a[4], 1, n, -1, 1, "heading") < 0) { release(a, 4); return NULL; }
     if (get_array(o_pitch, &a[5], 1, n, -1, 1, "pitch") < 0) { release(a, 5); return NULL; }
@@ -987,31 +993,42 @@ static int room(char **buf, Py_ssize_t *size, Py_ssize_t pos, Py_ssize_t more) {
     return 0;
 }
 
-/* "00" .. "99": two digits a division (the digits' loop was half of ``format_rows``) */
-static const char digit_pairs[] =
-    "00010203040506070809101112131415161718192021222324252627282930313233343536373839404142434445464748495051525354"
-    "555657585960616263646566676869707172737475767778798081828384858687888990919293949596979899";
+/* The number of decimal digits of ``v`` (1 for 0). */
+static int digit_count(unsigned long long v) {
+    int n = 1;
+    while (v >= 10000) { v /= 10000; n += 4; }
+    return v < 10 ? n : v < 100 ? n + 1 : v < 1000 ? n + 2 : n + 3;
+}
 
-/* The digits of ``v`` (v >= 0) at ``out``, at least ``width`` of them (zeros in front; width <= 20); returns how
- * many. */
+/* "0000" .. "9999": four digits a division (made at import, ``PyInit__kernels``) */
+static char digit_quads[40000];
+
+static void make_digit_quads(void) {
+    for (int v = 0; v < 10000; v++) {
+        digit_quads[4 * v] = (char)('0' + v / 1000);
+        digit_quads[4 * v + 1] = (char)('0' + v / 100 % 10);
+        digit_quads[4 * v + 2] = (char)('0' + v / 10 % 10);
+        digit_quads[4 * v + 3] = (char)('0' + v % 10);
+    }
+}
+
+/* The digits of ``v`` (v >= 0) at ``out``, at least ``width`` of them (zeros in front; width <= 20), written from
+ * the last backwards in place, four a division (the copies through a buffer and two digits a division were most of
+ * ``format_rows``); returns how many. */
 static int digits(unsigned long long v, int width, char *out) {
-    char tmp[24];
-    char *p = tmp + sizeof tmp;
-    while (v >= 100) {
-        unsigned q = (unsigned)(v % 100);
-        v /= 100;
-        p -= 2;
-        memcpy(p, digit_pairs + 2 * q, 2);
+    int n = digit_count(v);
+    if (n < width) n = width;
+    char *p = out + n;
+    while (v >= 10000) {
+        unsigned q = (unsigned)(v % 10000);
+        v /= 10000;
+        p -= 4;
+        memcpy(p, digit_quads + 4 * q, 4);
     }
-    if (v >= 10) {
-        p -= 2;
-        memcpy(p, digit_pairs + 2 * v, 2);
-    } else {
-        *--p = (char)('0' + v);
-    }
-    int n = (int)(tmp + sizeof tmp - p);
-    while (n < width) { *--p = '0'; n++; }
-    memcpy(out, p, (size_t)n);
+    int k = v < 10 ? 1 : v < 100 ? 2 : v < 1000 ? 3 : 4;
+    p -= k;
+    for (int i = 0; i < k; i++) p[i] = digit_quads[4 * v + 4 - k + i];
+    while (p > out) *--p = '0';
     return n;
 }
 
@@ -1073,8 +1090,8 @@ static PyObject *format_rows(PyObject *self, PyObject *args) {
     char *buf = PyMem_Malloc(size);
     if (buf == NULL) { release(&a, 1); PyBuffer_Release(&decimals); return PyErr_NoMemory(); }
     for (Py_ssize_t i = 0; i < a.rows; i++) {
+        if (room(&buf, &size, pos, 420 * a.cols) < 0) { PyMem_Free(buf); release(&a, 1); PyBuffer_Release(&decimals); return NULL; }
         for (Py_ssize_t j = 0; j < a.cols; j++) {
-            if (room(&buf, &size, pos, 420) < 0) { PyMem_Free(buf); release(&a, 1); PyBuffer_Release(&decimals); return NULL; }
             double x = AT(a, i, j);
             if (dec[j] < 0 && isfinite(x) && fabs(x) < 9e18) {
                 long long v = (long long)x;
@@ -2192,8 +2209,8 @@ PyDoc_STRVAR(gated_run_doc,
              "One batch of N samples through the turn gate and the vqf.VQF ``filter`` (turn_gate.run_gated without "
              "a bias loop): the batch cut at the gate's blocks, vqf's 6D attitude and bias read at each block's "
              "start, each piece fed the accelerometer the gate gives (``gate_update``). gyr, acc, field (N, 3) "
-             "C-contiguous, vqf's frame (field None: without the magnetometer); writes vqf's outputs quat6, quat9 "
-             "(N, 4), rest and disturbed (N,) bool.");
+             "C-contiguous, vqf's frame (field None: without the magnetometer); writes vqf's outputs quat6 (None: "
+             "not wanted), quat9 (N, 4), rest and disturbed (N,) bool.");
 
 static PyObject *gated_run(PyObject *self, PyObject *args) {
     PyObject *o_filter, *o_settings, *o_state, *o_gyr, *o_acc, *o_field, *o_q6, *o_q9, *o_rest, *o_dist;
@@ -2221,11 +2238,14 @@ static PyObject *gated_run(PyObject *self, PyObject *args) {
         got++;
     }
     const double *field = o_field != Py_None ? v[2].buf : NULL;
-    int q6 = got;
-    if (get_rows(o_q6, &v[got], n, 4, 1, "quat6") < 0) goto done;
-    got++;
+    double *quat6 = NULL;
+    if (o_q6 != Py_None) {
+        if (get_rows(o_q6, &v[got], n, 4, 1, "quat6") < 0) goto done;
+        quat6 = v[got++].buf;
+    }
     if (get_rows(o_q9, &v[got], n, 4, 1, "quat9") < 0) goto done;
-    got++;
+    double *quat9 = v[got++].buf;
+    int flags_at = got;
     PyObject *flags[2] = {o_rest, o_dist};
     for (int i = 0; i < 2; i++) {
         if (PyObject_GetBuffer(flags[i], &v[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) goto done;
@@ -2245,8 +2265,7 @@ static PyObject *gated_run(PyObject *self, PyObject *args) {
         goto done;
     }
     const double *gyr = v[0].buf, *acc = v[1].buf;
-    double *quat6 = v[q6].buf, *quat9 = v[q6 + 1].buf;
-    bool *rest = v[q6 + 2].buf, *dist = v[q6 + 3].buf;
+    bool *rest = v[flags_at].buf, *dist = v[flags_at + 1].buf;
     double start[4], bias[3];
     for (Py_ssize_t pos = 0; pos < n;) {
         Py_ssize_t left = e.block - (Py_ssize_t)e.g[G_SAMPLES] % e.block, k = n - pos < left ? n - pos : left;
@@ -2256,8 +2275,8 @@ static PyObject *gated_run(PyObject *self, PyObject *args) {
         }
         const double *a = acc + 3 * pos;
         if (gate_piece(&e, gyr + 3 * pos, a, k, start, bias, fed, gated)) a = fed;
-        vqf_api.update_batch(vqf, gyr + 3 * pos, a, field ? field + 3 * pos : NULL, (size_t)k, quat6 + 4 * pos,
-                             quat9 + 4 * pos, NULL, NULL, NULL, rest + pos, dist + pos);
+        vqf_api.update_batch(vqf, gyr + 3 * pos, a, field ? field + 3 * pos : NULL, (size_t)k,
+                             quat6 ? quat6 + 4 * pos : NULL, quat9 + 4 * pos, NULL, NULL, NULL, rest + pos, dist + pos);
         pos += k;
     }
     result = Py_None;
@@ -2330,4 +2349,7 @@ static struct PyModuleDef module = {
     "The filters' per-sample loops, compiled (see magnet/_kernels.c).", -1, methods,
 };
 
-PyMODINIT_FUNC PyInit__kernels(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__kernels(void) {
+    make_digit_quads();
+    return PyModule_Create(&module);
+}

@@ -20,13 +20,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import vqf
 
-from magnet.attitude.aided_fusion import AidedFilter, body_acceleration
-from magnet.attitude.drift_bias import offline_correction
 from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
 from magnet.attitude.turn_gate import TurnGate, run_gated
@@ -34,34 +32,32 @@ from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
 
+if TYPE_CHECKING:  # the aided filter and the offline bias are imported where used: `magnet heading` needs neither
+    from magnet.attitude.aided_fusion import AidedFilter
+
 #: sample periods a filter accepts, seconds (10 kHz .. 0.5 Hz)
 MIN_PERIOD_S = 1e-4
 MAX_PERIOD_S = 2.0
 
 
 def acc_in_ms2(acc: np.ndarray) -> np.ndarray:
-    """Accelerometer readings (N, 3) in m/s^2, or in g (recognised by a median magnitude of 0.5 .. 2), as m/s^2.
-
-    The filter's rest detection works in m/s^2; logs in g are common (``magnet heading`` takes either).
-    """
+    """Accelerometer readings (N, 3) in m/s^2, or in g (recognised by a median magnitude of 0.5 .. 2), as m/s^2: the
+    filter's rest detection works in m/s^2; logs in g are common (``magnet heading`` takes either)."""
     arr = np.asarray(acc, dtype=float)
     median = float(np.median(np.linalg.norm(arr, axis=-1))) if arr.size else 0.0
     return arr * STANDARD_GRAVITY_MS2 if 0.5 <= median <= 2.0 else arr
 
 
 def sample_period_s(t: np.ndarray, scale: float = 1.0) -> float:
-    """Fixed sample period (seconds) of time stamps ``t`` (N,) in seconds (``scale`` 1) or ns (``scale`` 1e-9).
-
-    The median step, so a few dropped or jittered samples do not matter. ValueError when the stamps do not go
-    forward or give a period outside 0.1 ms .. 2 s.
-    """
+    """Fixed sample period (seconds) of time stamps ``t`` (N,) in seconds (``scale`` 1) or ns (``scale`` 1e-9): the
+    median step, so a few dropped or jittered samples do not matter. ValueError when the stamps do not go forward or
+    give a period outside 0.1 ms .. 2 s."""
     stamps = np.asarray(t, dtype=float)
     if stamps.ndim != 1 or stamps.size < 2:
         raise ValueError("need at least two time stamps to know the sample period")
     if not np.all(np.isfinite(stamps)):
         raise ValueError("time stamps hold NaN or infinite values")
-    steps = np.diff(stamps) * scale
-    period = float(np.median(steps))
+    period = float(np.median(np.diff(stamps) * scale))
     if not MIN_PERIOD_S <= period <= MAX_PERIOD_S:
         raise ValueError(
             f"median time step {period:.6g} s is not a usable sample period "
@@ -95,13 +91,11 @@ def _to_vqf(vectors: np.ndarray, name: str, count: int | None = None) -> np.ndar
 
 @dataclasses.dataclass(frozen=True)
 class Fused:
-    """Fused attitude per sample (N samples).
-
-    quat_wxyz: (N, 4) body -> NED (magnetic north), w >= 0. heading_deg (N,) magnetic heading of body x in [0, 360);
-    pitch_deg, roll_deg (N,). mag_disturbed (N,) bool: vqf's magnetic disturbance detection (|B| or dip away from its
-    reference; the field is then not used for heading). rest (N,) bool: vqf's rest detection. With no magnetometer the
-    heading is the gyroscope's, relative to where the filter started, and mag_disturbed is all False.
-    """
+    """Fused attitude per sample (N samples). quat_wxyz: (N, 4) body -> NED (magnetic north), w >= 0. heading_deg (N,)
+    magnetic heading of body x in [0, 360); pitch_deg, roll_deg (N,). mag_disturbed (N,) bool: vqf's magnetic
+    disturbance detection (|B| or dip away from its reference; the field is then not used for heading). rest (N,)
+    bool: vqf's rest detection. With no magnetometer the heading is the gyroscope's, relative to where the filter
+    started, and mag_disturbed is all False."""
 
     quat_wxyz: np.ndarray
     heading_deg: np.ndarray
@@ -287,6 +281,8 @@ class Fusion:
         the watch left out)."""
         if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
             had = self.samples > len(gyr)  # carries on from its state, an attitude once it took samples
+            from magnet.attitude.aided_fusion import AidedFilter
+
             self._aided = AidedFilter(self.period_s, self.params, self._filter, fed=had)
         if self._aided is not None and t_s is not None:
             vel = np.full((len(gyr), 3), np.nan) if vel_ned_ms is None else vel_ned_ms
@@ -336,6 +332,8 @@ def fuse_offline(
     and the field, where vqf cannot learn the gyroscope's bias about the vertical (it never rests), that bias is first
     found from the field's heading drift over the log and taken off, and without a velocity vqf trusts the field over
     a longer time (``magnet.attitude.drift_bias.offline_correction``)."""
+    from magnet.attitude import aided_fusion, drift_bias
+
     period = _check_period(period_s)
     gyr = _to_vqf(gyr_rads, "gyr_rads")
     if len(gyr) == 0:
@@ -347,14 +345,14 @@ def fuse_offline(
         aided = True
         causal = Fusion(period, params)
         quat, _ = causal.update_vqf_frame(gyr, acc, field, np.asarray(t_s, dtype=float), vel_ned_ms)
-        acc = np.ascontiguousarray(acc - body_acceleration(quat, t_s, vel_ned_ms))
+        acc = np.ascontiguousarray(acc - aided_fusion.body_acceleration(quat, t_s, vel_ned_ms))
     watched = FieldWatch(period).update(field, gyr) if field is not None and watch else np.zeros(len(gyr), bool)
     if field is not None and watched.any():
         field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
     options = dict(params) if params else {}
     out = dict(vqf.offlineVQF(gyr, acc, field, period, options or None))
     if field is not None and vertical_bias:  # again, with the bias about the vertical its 6D attitude shows
-        gyr, options, found = offline_correction(gyr, field, period, options, out, lengthen=not aided)
+        gyr, options, found = drift_bias.offline_correction(gyr, field, period, options, out, lengthen=not aided)
         if found:
             out = dict(vqf.offlineVQF(gyr, acc, field, period, options or None))
     if field is not None:
@@ -376,6 +374,8 @@ def acc_less_velocity(
     degrees off leaves a few % of it). What is left is gravity, for a filter without the magnetometer whose tilt a
     vehicle's own accelerations should not bend. ``vel_ned_ms`` (N, 3) magnetic NED, NaN rows where unknown (their
     samples are returned as they are)."""
+    from magnet.attitude.aided_fusion import body_acceleration
+
     period = _check_period(period_s)
     gyr = _to_vqf(gyr_rads, "gyr_rads")
     acc = _to_vqf(acc_in_ms2(acc_ms2), "acc_ms2", len(gyr))

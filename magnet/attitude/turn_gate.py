@@ -242,21 +242,22 @@ def run_gated_vqf(
     gate: TurnGate, filter_: Any, samples: tuple[np.ndarray, np.ndarray, np.ndarray | None]
 ) -> dict[str, Any]:
     """``run_gated`` with vqf's ``updateBatch`` for the piece, in one compiled call (``magnet._kernels.gated_run``:
-    the same gate, the same vqf object driven through its C++ class): vqf's outputs quat6D, quat9D (N, 4),
-    restDetected and magDistDetected (N,) bool for the batch (gyroscope, accelerometer, field or None; (N, 3) each,
-    vqf's frames, C-contiguous float64)."""
+    the same gate, the same vqf object driven through its C++ class): vqf's outputs quat9D (N, 4) (and quat6D without
+    a field; with one nobody reads it), restDetected and magDistDetected (N,) bool for the batch (gyroscope,
+    accelerometer, field or None; (N, 3) each, vqf's frames, C-contiguous float64)."""
     _bind()
     gyr, acc, field = samples
     count = len(gyr)
     out = {
-        "quat6D": np.empty((count, 4)),
         "quat9D": np.empty((count, 4)),
         "restDetected": np.empty(count, dtype=bool),
         "magDistDetected": np.empty(count, dtype=bool),
     }
+    if field is None:
+        out["quat6D"] = np.empty((count, 4))
     _kernels.gated_run(
         filter_, gate.settings_array, gate.state, gyr, acc, field,
-        out["quat6D"], out["quat9D"], out["restDetected"], out["magDistDetected"],
+        out.get("quat6D"), out["quat9D"], out["restDetected"], out["magDistDetected"],
     )  # fmt: skip
     return out
 

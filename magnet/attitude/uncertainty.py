@@ -133,19 +133,14 @@ class _Batches(NamedTuple):
         nonempty = counts > 0
         known = fused & hd.rows_finite(horizontal)
         t_s = (t_ns - t_ns[0]) * 1e-9 if len(t_ns) else np.zeros(0)
-        columns = np.column_stack(
-            [
-                fused,
-                np.where(fused, tan_dip, 0.0),
-                known,
-                np.where(known, t_s, 0.0),
-                np.where(known[:, None], horizontal, 0.0),
-                fused & ~trusted,
-            ]
-        )
-        sums = np.zeros((len(counts), columns.shape[1]))
+        rows = np.empty((7, len(t_ns)))  # a row per figure: summed along its contiguous samples (2x the columns')
+        rows[0], rows[2], rows[6] = fused, known, fused & ~trusted
+        np.copyto(rows[1], np.where(fused, tan_dip, 0.0))
+        np.copyto(rows[3], np.where(known, t_s, 0.0))
+        np.copyto(rows[4:6], np.where(known, horizontal.T, 0.0))
+        sums = np.zeros((len(counts), len(rows)))
         if nonempty.any():
-            sums[nonempty] = np.add.reduceat(columns, edges[:-1][nonempty], axis=0)
+            sums[nonempty] = np.add.reduceat(rows, edges[:-1][nonempty], axis=1).T
         with np.errstate(invalid="ignore", divide="ignore"):
             tan_mean, means = sums[:, 1] / sums[:, 0], sums[:, 3:6] / sums[:, 2:3]
         means[:, 0] += float(t_ns[0]) * 1e-9 if len(t_ns) else 0.0
@@ -256,8 +251,17 @@ class HeadingUncertainty:
         figures: Sequence[FilterFigures | None],
     ) -> np.ndarray:
         """(S,) rad: the module's 3, the bias uncertainty times the time since the last trusted field sample, and
-        each device's last trusted time carried on (zero in batches whose fused samples are all trusted)."""
+        each device's last trusted time carried on (zero in batches whose fused samples are all trusted). Per device
+        in order (a device's batches carry its last trusted time on to its next), the samples all at once: within a
+        batch whose times never go back, the last trusted time up to a sample is that of the last trusted sample up
+        to it (found for every sample in one pass); elsewhere the running maximum of the batch's trusted times."""
         drift = np.zeros(len(t_ns))
+        if not len(t_ns):
+            return drift
+        times = np.asarray(t_ns, dtype=np.int64)
+        sizes: np.ndarray = np.diff(np.asarray(bounds, dtype=np.int64))
+        seen = _TrustedSeen.of(times, trusted, sizes)
+        init, bias, used = [0] * len(devices), [0.0] * len(devices), [False] * len(devices)
         for b, (device, figure) in enumerate(zip(devices, figures)):
             state = self.devices.get(device) if batches.fused[b] else None
             if state is None or figure is None:
@@ -265,12 +269,58 @@ class HeadingUncertainty:
             if not batches.untrusted[b]:
                 state.trusted_ns = batches.last_ns[b]
                 continue
-            rows = slice(bounds[b], bounds[b + 1])
-            times = np.asarray(t_ns[rows], dtype=np.int64)
-            since = np.maximum.accumulate(np.where(trusted[rows], times, state.trusted_ns))
-            state.trusted_ns = int(since[-1])
-            drift[rows] = figure.bias_sigma_rads * (times - since) * 1e-9
+            init[b], bias[b], used[b] = state.trusted_ns, figure.bias_sigma_rads, True
+            if not seen.steady[b]:
+                lo, hi = bounds[b], bounds[b + 1]
+                state.trusted_ns = int(np.maximum.accumulate(np.where(trusted[lo:hi], times[lo:hi], init[b]))[-1])
+            elif seen.end_trusted[b]:
+                state.trusted_ns = max(state.trusted_ns, seen.end_ns[b]) if seen.end_carried[b] else seen.end_ns[b]
+        if not any(used):
+            return drift
+        use: np.ndarray = np.repeat(np.array(used, dtype=bool), sizes)
+        since = np.repeat(np.array(init, dtype=np.int64), sizes)
+        odd = use & (seen.last_mark % 2 == 1)
+        last_trusted = times[seen.last_mark[odd] // 2]
+        since[odd] = np.where(seen.carried[odd], np.maximum(since[odd], last_trusted), last_trusted)
+        for b in np.flatnonzero(np.array(used) & ~np.array(seen.steady)).tolist():  # times going back: running max
+            lo, hi = bounds[b], bounds[b + 1]
+            since[lo:hi] = np.maximum.accumulate(np.where(trusted[lo:hi], times[lo:hi], init[b]))
+        drift[use] = np.repeat(np.array(bias), sizes)[use] * (times[use] - since[use]) * 1e-9
         return drift
+
+
+class _TrustedSeen(NamedTuple):
+    """For ``HeadingUncertainty._drift``, what came before each sample within its batch, all samples at once: the
+    running maximum of 2 j + 1 at trusted samples j and 2 s at each batch's start s (odd: j, the last trusted sample
+    up to it; even: none yet), whether an untrusted sample came at or before it (where the device's last trusted
+    time before the batch counts), and per batch (lists): its times never go back, and at its last sample whether a
+    trusted one was seen, that one's time, whether an untrusted one was seen."""
+
+    last_mark: np.ndarray
+    carried: np.ndarray
+    steady: list[bool]
+    end_trusted: list[bool]
+    end_ns: list[int]
+    end_carried: list[bool]
+
+    @classmethod
+    def of(cls, times: np.ndarray, trusted: np.ndarray, sizes: np.ndarray) -> _TrustedSeen:
+        edges = np.concatenate([[0], np.cumsum(sizes)])
+        starts = edges[:-1][sizes > 0]
+        marks = np.where(trusted, 2 * np.arange(len(times), dtype=np.int64) + 1, -1)
+        marks[starts] = np.maximum(marks[starts], 2 * starts)
+        last_mark = np.maximum.accumulate(marks)
+        untrusted_seen = np.cumsum(~trusted)
+        carried = untrusted_seen > np.repeat(untrusted_seen[starts] - ~trusted[starts], sizes[sizes > 0])
+        back = np.zeros(len(times), dtype=bool)  # a time before the one of the sample before in its batch
+        back[1:] = times[1:] < times[:-1]
+        back[starts] = False
+        steady = np.ones(len(sizes), dtype=bool)
+        steady[sizes > 0] = ~np.logical_or.reduceat(back, starts)
+        ends = np.maximum(edges[1:] - 1, 0)
+        end_marks = last_mark[ends]
+        end_ns = times[end_marks // 2].tolist()
+        return cls(last_mark, carried, steady.tolist(), (end_marks % 2 == 1).tolist(), end_ns, carried[ends].tolist())
 
 
 def _take(state: _Device, batch: tuple[float, float, float], tan_dip: float, figures: FilterFigures) -> None:
@@ -310,7 +360,7 @@ def _advance(state: _Device, seconds: float, north: float, east: float, tan_dip:
 
 def _horizontal_force_g(acc_ms2: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """(S, 2) the horizontal (north, east) specific force in the magnetic earth frame, in g (NaN rows: unknown)."""
-    return np.einsum("sij,sj->si", rotation, acc_ms2)[:, :2] / STANDARD_GRAVITY_MS2
+    return np.einsum("sij,sj->si", rotation[:, :2], acc_ms2) / STANDARD_GRAVITY_MS2
 
 
 def _direct(

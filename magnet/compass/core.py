@@ -31,7 +31,7 @@ from magnet.compass.calibrations import CalibrationsInForce, Correction, small_c
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
 from magnet.compass.presence import GONE, CalibratorPresence
-from magnet.compass.tilt import Headings, compute_headings, smooth_tail
+from magnet.compass.tilt import Headings, batches_with, compute_headings, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.expected import utc_date
@@ -302,8 +302,8 @@ class CompassCore:
         residual, the field, the flags and, where fused, the device's filter's figures after this step."""
         bounds, states = raw.bounds, [self.filters.devices.get(device) for device in raw.devices]
         figures: list[FilterFigures | None] = [
-            s.filter.figures() if s is not None and s.filter is not None and fused.fused[lo:hi].any() else None
-            for s, lo, hi in zip(states, bounds[:-1], bounds[1:])
+            s.filter.figures() if s is not None and s.filter is not None and fused_b else None
+            for s, fused_b in zip(states, batches_with(fused.fused, raw.counts))
         ]
         residuals = [None if c is None else c.calibration.quality.residual_rms_ut for c in cals]
         samples = (raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut)
@@ -318,7 +318,7 @@ class CompassCore:
         vel = raw.vel  # with no velocity known (NaN rows) as it is: a filter already aided still needs the times
         aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else vel
         fused = self.filters.update(
-            raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding
+            raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding, self.settings.sigmas
         )
         for cause, count in fused.dropped.items():
             if self.drops.count(f"raw:{cause}"):

@@ -72,16 +72,9 @@ class FusedColumns:
     def empty(cls, count: int) -> FusedColumns:
         nan = np.full(count, np.nan)
         return cls(
-            np.zeros(count, bool),
-            np.full((count, 4), np.nan),
-            nan,
-            nan.copy(),
-            nan.copy(),
-            np.full((count, 3), np.nan),
-            np.zeros(count, bool),
-            {},
-            0,
-        )
+            np.zeros(count, bool), np.full((count, 4), np.nan), nan, nan.copy(), nan.copy(),
+            np.full((count, 3), np.nan), np.zeros(count, bool), {}, 0,
+        )  # fmt: skip
 
     def gravity(self, acc_ms2: np.ndarray) -> np.ndarray:
         """Specific force (S, 3) as a still device would read it: -down (unit) where fused, else ``acc_ms2``."""
@@ -91,16 +84,17 @@ class FusedColumns:
 
     @classmethod
     def from_vqf(
-        cls, raw: np.ndarray, disturbed: np.ndarray, dropped: Mapping[str, int], restarts: int
+        cls, raw: np.ndarray, disturbed: np.ndarray, dropped: Mapping[str, int], restarts: int, rotations: bool = True
     ) -> FusedColumns:
         """From vqf's quaternions (S, 4) (NaN rows where not fused), converted to the project's frames at once, in
         one compiled pass (``magnet._kernels.vqf_attitudes``: ``frames.ned_enu_attitude``, ``quaternion_to_matrix``
-        and ``matrix_to_euler``, sample by sample)."""
+        and ``matrix_to_euler``, sample by sample); the matrices kept with ``rotations`` (for the uncertainty)."""
         count = len(raw)
-        fused, rotation = np.empty(count, dtype=bool), np.empty((count, 3, 3))
+        fused, rotation = np.empty(count, dtype=bool), (np.empty((count, 3, 3)) if rotations else None)
         quat, down, angles = np.empty((count, 4)), np.empty((count, 3)), np.empty((3, count))
         _kernels.vqf_attitudes(
-            np.asarray(raw, dtype=float), fused, quat, rotation.reshape(count, 9), down, *angles
+            np.asarray(raw, dtype=float), fused, quat, None if rotation is None else rotation.reshape(count, 9), down,
+            *angles,
         )  # fmt: skip
         heading, pitch, roll = angles
         return cls(fused, quat, heading, pitch, roll, down, disturbed & fused, dict(dropped), restarts, rotation)
@@ -270,12 +264,13 @@ class DeviceFilters:
         acc_ms2: np.ndarray,
         field_ut: np.ndarray,
         vel_ned_ms: np.ndarray | None = None,
+        rotations: bool = True,
     ) -> FusedColumns:
         """Fuse every batch b (samples bounds[b] .. bounds[b+1]) that carries a gyroscope (not all-NaN rows), in order;
         S = bounds[-1] samples, arrays (S, 3); ``vel_ned_ms`` (S, 3) m/s magnetic NED (NaN rows where unknown) aids
         the filters of the devices that send one (``magnet.attitude.aided_fusion``). Checks and frame conversions are
         done once for all samples; each device's batches are grouped, and its filter runs once per run of batches that
-        continue one another."""
+        continue one another. ``rotations``: the attitudes' matrices kept (``FusedColumns.rotation``)."""
         count = int(bounds[-1])
         edges = np.asarray(bounds, dtype=np.int64)
         sizes = np.diff(edges)
@@ -314,7 +309,7 @@ class DeviceFilters:
             for cause, n in (("gyro-non-finite", (gyro_rows & ~finite).sum()), ("gyro-saturated", saturated.sum()))
             if n
         }
-        return FusedColumns.from_vqf(raw, disturbed, dropped, restarts)
+        return FusedColumns.from_vqf(raw, disturbed, dropped, restarts, rotations)
 
 
 def _device_order(groups: Mapping[str, list[int]], sizes: np.ndarray) -> np.ndarray:

@@ -52,3 +52,13 @@ def smooth_tail(tail: np.ndarray, heading_deg: np.ndarray, window: int) -> tuple
         return heading_deg, tail[:0]
     joined = np.concatenate([tail, heading_deg])
     return hd.smooth_heading_deg(joined, window)[-heading_deg.size :], joined[-(window - 1) :]
+
+
+def batches_with(mask: np.ndarray, counts: np.ndarray) -> list[bool]:
+    """Per batch (counts (B,) samples each, in order), whether any of its samples is set in ``mask`` (S,) bool."""
+    out = np.zeros(len(counts), dtype=bool)
+    nonempty = counts > 0
+    if mask.any() and nonempty.any():
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        out[nonempty] = np.logical_or.reduceat(mask, starts[nonempty])
+    return out.tolist()

@@ -104,6 +104,9 @@ def _bin_error(
 def from_bins(bins: list[Bin], tail: tuple[int, ...], out: str) -> np.ndarray:
     """The rows of checked ``bins`` one after the other as one ``out`` array (S, *tail): their bytes joined and read
     with ``np.frombuffer`` (one join per run of the same dtype)."""
+    if len({b.dtype for b in bins}) == 1:  # one dtype throughout (the usual case): one join
+        joined = b"".join([b.data for b in bins]) if len(bins) > 1 else bins[0].data
+        return np.frombuffer(joined, dtype=bins[0].dtype).astype(out).reshape(-1, *tail)
     parts, start = [], 0
     for i in range(1, len(bins) + 1):
         if i == len(bins) or bins[i].dtype != bins[start].dtype:

@@ -37,6 +37,11 @@ def _gather(values: list[Any], name: str, times: bool) -> np.ndarray:
     """The rows of ``values`` (per message, in order: a list of rows (v 1) or a ``Bin`` (v 2)) as one array: t_ns
     (S,) int64 or (S, 3) float64. Lists in one ``np.array`` per run of v 1 messages, bytes in one ``np.frombuffer``
     per run of v 2 messages. WireError when the lists do not form such an array."""
+    if len({type(value) for value in values}) == 1:  # one version throughout (the usual case): one run
+        if type(values[0]) is Bin:
+            return from_bins(values, () if times else (3,), "i8" if times else "f8")
+        rows = [row for value in values for row in value]
+        return integers(rows, "t_ns") if times else numbers(rows, name, (3,))
     parts: list[np.ndarray] = []
     start = 0
     for i in range(1, len(values) + 1):

@@ -10,7 +10,8 @@
   held ``--seconds``, then closed. Prints ``{"opened", "answered": {status: n}, "refused"}``: a status is the HTTP
   code (``503:connections`` uvicorn's limit of connections, ``503:streams`` the app's limit of event streams), or
   ``none`` for a connection closed without an answer, ``silent`` for one that got neither a byte nor a close
-  within ``--seconds``; ``refused`` counts connections that could not be made.
+  within ``--seconds`` and ``--grace`` more (``late``: answered in the grace, counted by status too); ``refused``
+  counts connections that could not be made.
 
 Loopback only.
 """
@@ -69,8 +70,10 @@ def vehicle(port: int, sysid: int, seconds: float) -> dict[str, Any]:
     return {"sent": sent}
 
 
-def streams(http: str, count: int, seconds: float) -> dict[str, Any]:
-    """``count`` event streams at once; what the dashboard answered each (HTTP status), held ``seconds``."""
+def streams(http: str, count: int, seconds: float, grace: float = 10.0) -> dict[str, Any]:
+    """``count`` event streams at once; what the dashboard answered each (HTTP status), held ``seconds``; a
+    connection with no answer yet at the end of the hold is waited for ``grace`` s more (its answer counted, and in
+    ``late``: slow, not lost) while the others are closed."""
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     with contextlib.suppress(ValueError, OSError):
         resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, min(hard, count + 256)), hard))
@@ -92,25 +95,58 @@ def streams(http: str, count: int, seconds: float) -> dict[str, Any]:
     end = time.monotonic() + seconds
     while (left := end - time.monotonic()) > 0:
         for key, _ in selector.select(timeout=min(left, 0.5)):
-            sock = cast(socket.socket, key.fileobj)
-            try:
-                data = sock.recv(65536)
-            except OSError:
-                data = b""
-            if sock.fileno() not in first:
-                first[sock.fileno()] = data
-                status = data.split(b" ", 2)[1].decode(errors="replace") if data.startswith(b"HTTP/") else "none"
-                if status == "503":  # whose refusal: uvicorn's connection limit, or the app's limit of streams
-                    status += ":connections" if b"Service Unavailable" in data else ":streams"
-                answered[status] = answered.get(status, 0) + 1
-            if not data:
-                selector.unregister(sock)
-    for sock in opened:
-        sock.close()
-    silent = len(opened) - len(first)  # neither a byte nor a close within the hold
+            _read_answer(cast(socket.socket, key.fileobj), selector, first, answered)
+    late = _late_answers(opened, selector, first, answered, grace)
+    silent = len(opened) - len(first)  # neither a byte nor a close within the hold and the grace
     if silent:
         answered["silent"] = silent
-    return {"opened": len(opened), "answered": answered, "refused": refused}
+    return {"opened": len(opened), "answered": answered, "refused": refused, "late": late, "grace_s": grace}
+
+
+def _late_answers(
+    opened: list[socket.socket],
+    selector: selectors.BaseSelector,
+    first: dict[int, bytes],
+    answered: dict[str, int],
+    grace: float,
+) -> int:
+    """Close the answered connections and wait up to ``grace`` s for the first bytes of the others; how many came."""
+    waiting, late = [sock for sock in opened if sock.fileno() not in first], 0
+    for sock in opened:
+        if sock.fileno() in first:
+            with contextlib.suppress(KeyError, ValueError):
+                selector.unregister(sock)
+            sock.close()
+    end = time.monotonic() + grace
+    while (left := end - time.monotonic()) > 0 and len(first) < len(opened):
+        for key, _ in selector.select(timeout=min(left, 0.5)):
+            sock = cast(socket.socket, key.fileobj)
+            late += sock.fileno() not in first
+            _read_answer(sock, selector, first, answered)
+            with contextlib.suppress(KeyError, ValueError):
+                selector.unregister(sock)
+    for sock in waiting:
+        sock.close()
+    return late
+
+
+def _read_answer(
+    sock: socket.socket, selector: selectors.BaseSelector, first: dict[int, bytes], answered: dict[str, int]
+) -> None:
+    """Read what ``sock`` has; its first bytes give its answer (counted in ``answered`` by status)."""
+    try:
+        data = sock.recv(65536)
+    except OSError:
+        data = b""
+    if sock.fileno() not in first:
+        first[sock.fileno()] = data
+        status = data.split(b" ", 2)[1].decode(errors="replace") if data.startswith(b"HTTP/") else "none"
+        if status == "503":  # whose refusal: uvicorn's connection limit, or the app's limit of streams
+            status += ":connections" if b"Service Unavailable" in data else ":streams"
+        answered[status] = answered.get(status, 0) + 1
+    if not data:
+        with contextlib.suppress(KeyError, ValueError):
+            selector.unregister(sock)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -122,13 +158,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=5_000.0)
     parser.add_argument("--sysid", type=int, default=1)
     parser.add_argument("--seconds", type=float, default=8.0)
+    parser.add_argument("--grace", type=float, default=10.0, help="streams: wait this long more for unanswered ones")
     args = parser.parse_args(argv)
     if args.kind == "mavlink":
         result = mavlink_flood(args.port, args.count, args.rate)
     elif args.kind == "vehicle":
         result = vehicle(args.port, args.sysid, args.seconds)
     else:
-        result = streams(args.http, args.count, args.seconds)
+        result = streams(args.http, args.count, args.seconds, args.grace)
     print(json.dumps(result), flush=True)
     return 0
 

@@ -252,6 +252,9 @@ def run_pipeline_benchmark(
 
         compare_ros2(functools.partial(run_once, devices, rate, batch, seconds, gyro=gyro))
         return
+    from services.bench.compass_drain import drain_cost
+
+    print(drain_cost(devices, batch, gyro, rate).line(devices, gyro), flush=True)
     top = ceiling.measure(devices, batch, seconds, gyro)
     print(top.line(), flush=True)
     run = functools.partial(run_once, devices, batch=batch, seconds=seconds, gyro=gyro, ceiling_rate=top.sample_rate)

@@ -51,4 +51,11 @@ class PipelineRun:
             f"{self.target_rate:,.0f} samples/s; in {self.generated_rate:,.0f}/s, out {self.out_rate:,.0f}/s"
             f"{fraction}, lost {self.lost} ({self.loss_fraction:.3%}), latency p50 {self.latency_p50_ms:.2f} ms, "
             f"p99 {self.latency_p99_ms:.2f} ms{'' if self.kept_up else ' (falls behind)'}; load average {self.load:.1f}"
+            f"; compass CPU {self.compass_us_per_sample:.2f} us a sample ({self.compass_cpu_s / self.seconds:.2f} of "
+            f"a core)"
         )
+
+    @property
+    def compass_us_per_sample(self) -> float:
+        """The compass process(es)' CPU (all threads: Zenoh's too) over the samples the edge sent, us."""
+        return 1e6 * self.compass_cpu_s / max(self.samples_in, 1)

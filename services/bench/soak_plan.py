@@ -282,11 +282,12 @@ def report(
     return "\n".join(lines)
 
 
-def stream_verdict(answered: Mapping[str, int], refused: int) -> str:
+def stream_verdict(answered: Mapping[str, int], refused: int, late: int = 0, grace_s: float = 0.0) -> str:
     """What the dashboard's answers to the streams mean: a 503 is a designed refusal (said with a reason and
     ``Connection: close``; the page's stream retries): ``503:streams`` past the app's ``MAX_STREAMS``,
-    ``503:connections`` past uvicorn's limit of connections; a connection closed without an answer (``none``), not
-    answered at all within the hold (``silent``) or not accepted (``refused``) is a lost request."""
+    ``503:connections`` past uvicorn's limit of connections; an answer after the hold (``late``, within ``grace_s``)
+    is slow, not lost, and counted by its status; a connection closed without an answer (``none``), not answered
+    at all within the hold and the grace (``silent``) or not accepted (``refused``) is a lost request."""
     served = answered.get("200", 0)
     designed = sum(n for status, n in answered.items() if status.startswith("503"))
     unanswered = answered.get("none", 0) + answered.get("silent", 0)
@@ -298,9 +299,10 @@ def stream_verdict(answered: Mapping[str, int], refused: int) -> str:
             f"{designed} refused by design (503: the app's limit of streams {answered.get('503:streams', 0)}, "
             f"uvicorn's limit of connections {answered.get('503:connections', 0)})"
         ),
+        f"{late} of these answered only after the hold (within {grace_s:g} s more: slow, not lost)",
         (
-            f"{lost} lost (closed without an answer {answered.get('none', 0)}, no answer within the hold "
-            f"{answered.get('silent', 0)}, not accepted {refused})"
+            f"{lost} lost (closed without an answer {answered.get('none', 0)}, no answer within the hold and the "
+            f"grace {answered.get('silent', 0)}, not accepted {refused})"
         ),
     ]
     if other:
@@ -335,7 +337,12 @@ def front_lines(
             f"{sinks.get('ros2_topics_evicted', '?')} evicted (the last compass run)"
         ),
         f"dashboard streams: {len(results.get('streams', []))} rounds of {STREAMS}, answered {answered or '-'}",
-        stream_verdict(answered, sum(int(r.get("refused", 0)) for r in results.get("streams", []))),
+        stream_verdict(
+            answered,
+            sum(int(r.get("refused", 0)) for r in results.get("streams", [])),
+            sum(int(r.get("late", 0)) for r in results.get("streams", [])),
+            max((float(r.get("grace_s", 0.0)) for r in results.get("streams", [])), default=0.0),
+        ),
         (
             f"deleted database: {d['times']:g} times, store 'gone' in the status {d['gone_seen']:g} times (within "
             f"{d['seen_after_s']:.1f} s of a delete, status asked every 2 s); calibrations published while gone (lost "

@@ -1,15 +1,17 @@
-"""The calibrator's queryables: the record in force, its history, operator sessions and the status counters.
+"""The calibrator's queryables: the record in force, its history, operator sessions and the fleet.
 A calibrator started with ``--shard K/N`` answers only for its own devices (the others' shards answer for theirs).
 
 ``<prefix>/<dev>/calibration`` (record in force), ``<prefix>/<dev>/calibration/history?limit=N`` (``{v, device,
-records: [...]}`` newest first), ``<prefix>/<dev>/calibrate?action=...&method=...``, ``<prefix>/@status/<name>``.
-Each handler answers one query (``reply`` or ``reply_err``); none raises on what a peer sends. A calibrator standing
-by (another of its shard holds the lease, ``services.calibrator.lease``) answers only its status.
+records: [...]}`` newest first), ``<prefix>/<dev>/calibrate?action=...&method=...``, ``<prefix>/@fleet``; the status,
+``<prefix>/@status/<name>``, is answered from Zenoh's thread (``services.common.status_board``). Each handler answers
+one query (``reply`` or ``reply_err``); none raises on what a peer sends. A calibrator standing by (another of its
+shard holds the lease, ``services.calibrator.lease``) answers only its status.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from typing import Any
 
 import zenoh
 
@@ -124,16 +126,7 @@ def answer_fleet(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) ->
     query.reply(f"{prefix}/@fleet", wire.pack(reply))
 
 
-def status_answer(name: str) -> Answer:
-    """The handler of ``<prefix>/@status/<name>``."""
-
-    def answer_status(query: zenoh.Query, calibrator: CalibratorCore, prefix: str) -> None:
-        query.reply(wire.status_key(prefix, name), wire.pack(calibrator.status(name).to_dict()))
-
-    return answer_status
-
-
-#: queried kind -> how to answer (the status queryable is ``status_answer``)
+#: queried kind -> how to answer (the status is answered from Zenoh's thread: ``services.common.status_board``)
 ANSWERS: dict[wire.Kind, Answer] = {
     wire.Kind.CALIBRATION: active_only(answer_calibration),
     wire.Kind.HISTORY: active_only(answer_history),
@@ -141,3 +134,12 @@ ANSWERS: dict[wire.Kind, Answer] = {
 }
 #: the ``<prefix>/@fleet`` handler of the service
 FLEET_ANSWER = active_only(answer_fleet)
+
+
+def metrics_status(calibrator: CalibratorCore, name: str) -> dict[str, Any]:
+    """What ``--metrics`` serves: the status and the alerts open by kind."""
+    alerts: dict[str, int] = {}
+    for open_alerts in list(calibrator.roster.alerts.values()):
+        for kind in list(open_alerts):
+            alerts[kind.value] = alerts.get(kind.value, 0) + 1
+    return {**calibrator.status(name).to_dict(), "alerts_open": alerts}

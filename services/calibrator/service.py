@@ -13,7 +13,7 @@ the others stand by and take over when its liveliness token goes away (``service
 Queryables: see ``services.calibrator.queries``. One thread does the work: a pump thread only moves raw messages
 from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
 between slices of samples; every handler runs through ``services.common.guard``, so no message, query or failing
-store ends it.
+store ends it; the status is answered from Zenoh's thread with what the loop wrote (``services.common.status_board``).
 The options and settings are in ``services.calibrator.settings``; the calibrator's decisions, without zenoh, a
 database or a clock of their own, are ``magnet.calibrator.CalibratorCore``, which ``Calibrator`` gives the clocks
 (docs/calibrator.md).
@@ -27,7 +27,6 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
-from typing import Any
 
 import zenoh
 from zenoh.handlers import FifoChannel, Handler
@@ -54,6 +53,7 @@ from services.calibrator.settings import (
 from services.calibrator.store import open_store
 from services.common import metrics
 from services.common.guard import Guard
+from services.common.status_board import StatusBoard
 from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 
@@ -83,6 +83,7 @@ SLICE_MESSAGES = 50  # raw messages taken from the intake at a time (the slice's
 ENROL_BURST_S = 10.0  # new device ids admitted at once after a quiet spell: this many seconds of --enrol-rate
 LEASE_QUERY_S = 2.0  # how long it waits at start for the lease tokens of its shard
 ALERT_QUERY_S = 3.0  # how long it waits at start for the alerts open already
+STATUS_REFRESH_S = 0.2  # the status is written this often: 3.5 ms for 4,000 devices, 7 % of a core at 20/s
 
 #: a queryable of the service: (what, for the drop counts; how to answer; the queryable)
 Answering = tuple[str, queries.Answer, "zenoh.Queryable[Handler[zenoh.Query]]"]
@@ -123,14 +124,6 @@ def run_calibrator(args: argparse.Namespace) -> int:
     return run(settings_from_args(args), getattr(args, "metrics", None))
 
 
-def _metrics_status(calibrator: Calibrator, name: str) -> dict[str, Any]:
-    alerts: dict[str, int] = {}
-    for open_alerts in list(calibrator.roster.alerts.values()):
-        for kind in list(open_alerts):
-            alerts[kind.value] = alerts.get(kind.value, 0) + 1
-    return {**calibrator.status(name).to_dict(), "alerts_open": alerts}
-
-
 def _publisher(session: zenoh.Session, prefix: str) -> Publish:
     def publish(kind: wire.Kind, device: str, payload: bytes) -> None:
         # no declared publisher per device: a flood of new device ids would hold one each
@@ -160,7 +153,7 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
             roster=Roster(places, fitting.max_devices),
             shard=settings.shard,
         )
-        metrics.start(metrics_address, "calibrator", lambda: _metrics_status(calibrator, settings.name))
+        metrics.start(metrics_address, "calibrator", lambda: queries.metrics_status(calibrator, settings.name))
         loop = _declare(declared, session, settings, calibrator, lease)
         if calibrator.active:
             calibrator.publish_in_force()
@@ -182,8 +175,8 @@ def _declare(
     declared: ExitStack, session: zenoh.Session, settings: ServiceSettings, calibrator: Calibrator, lease: Lease
 ) -> ServiceLoop:
     """Declare everything the calibrator needs on ``session`` into ``declared``: its lease token, the raw subscriber
-    and the pump thread that empties it, the queryables, the alerts, then its liveliness token; the loop that serves
-    them."""
+    and the pump thread that empties it, the queryables, the alerts, the status board's, then its liveliness token;
+    the loop that serves them."""
     prefix, devices, name = settings.zenoh.prefix, settings.devices, settings.name
     lease_sub = _join_lease(declared, session, lease)
     calibrator.active = lease.active
@@ -202,10 +195,12 @@ def _declare(
         (alert_sub.handler, calibrator.roster.on_alert),
         (session.get(alert_key, timeout=ALERT_QUERY_S), calibrator.roster.on_alert),  # the alerts open already
     ]
+    enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
+    loop = ServiceLoop(calibrator, intake, answers, prefix, feeds, (lease_sub, lease), enrolment, name)
+    declared.enter_context(session.declare_queryable(loop.board.key, loop.board.answer))
     # the liveliness token last: who sees it (a compass asks for every record then) finds the queryables declared
     declared.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name)))
-    enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
-    return ServiceLoop(calibrator, intake, answers, prefix, feeds, (lease_sub, lease), enrolment)
+    return loop
 
 
 def _join_lease(declared: ExitStack, session: zenoh.Session, lease: Lease) -> zenoh.Subscriber[Handler[zenoh.Sample]]:
@@ -235,12 +230,11 @@ def _follow_lease(subscriber: zenoh.Subscriber[Handler[zenoh.Sample]], lease: Le
 def _declare_answers(
     declared: ExitStack, session: zenoh.Session, prefix: str, devices: str, name: str
 ) -> list[Answering]:
-    """(what, handler, queryable) for every queryable: the device kinds, its status and the fleet."""
+    """(what, handler, queryable) for every queryable the loop drains: the device kinds and the fleet."""
     asked = [
         (f"query:{kind.value}", queries.ANSWERS[kind], f"{prefix}/{devices}/{kind.value}", 256)
         for kind in queries.ANSWERS
     ]
-    asked.append(("query:status", queries.status_answer(name), wire.status_key(prefix, name), 64))
     asked.append(("query:fleet", queries.FLEET_ANSWER, f"{prefix}/@fleet", 16))
     return [
         (what, answer, declared.enter_context(session.declare_queryable(key, FifoChannel(capacity))))
@@ -252,7 +246,7 @@ class ServiceLoop:
     """One round at a time (``step``): the lease tokens, the ``feeds`` (samples or replies -> handler(key, payload,
     prefix)), the queries, then raw samples from the intake for at most ``SLICE_S``, SLICE_MESSAGES at a time with
     the queries answered after each; every handler run through the guard (``services.common.guard``), so none ends
-    the service. A flood of samples delays samples, not answers."""
+    the service. A flood of samples delays samples, not answers; the status (``board``) is answered without it."""
 
     def __init__(
         self,
@@ -263,12 +257,15 @@ class ServiceLoop:
         feeds: Sequence[Feed] = (),
         lease_watch: LeaseWatch | None = None,
         enrolment: Enrolment | None = None,
+        name: str = "calibrator",
     ) -> None:
         self.calibrator, self.intake, self.answers, self.prefix = calibrator, intake, answers, prefix
         self.feeds, self.lease_watch = feeds, lease_watch
         self.enrolment = enrolment if enrolment is not None else Enrolment()
         self.guard = Guard("calibrator", log, calibrator.drops)
-        self._store_checked_s = 0.0
+        self._store_checked_s, self.name = 0.0, name
+        self.board = StatusBoard(wire.status_key(prefix, name), self.guard, refresh_s=STATUS_REFRESH_S)
+        self.board.write(calibrator.status(name).to_dict())
 
     def step(self) -> bool:
         """One round; True when raw samples were taken. Once every STORE_CHECK_S, whether the store's file is gone
@@ -288,6 +285,8 @@ class ServiceLoop:
 
     def answer_queries(self) -> None:
         self._counters()
+        if self.board.due():  # the status, answered from Zenoh's thread
+            self.board.write(self.calibrator.status(self.name).to_dict())
         for what, answer, queryable in self.answers:
             query: zenoh.Query
             for query in drain(queryable, 64):

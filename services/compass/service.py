@@ -10,7 +10,7 @@ clear). Zenoh delivers into channels; this process's own loop drains them and mo
 and out of the compass's core (``magnet.compass.CompassCore``): decode -> step -> encode -> put, never inside a
 callback; every handler runs through ``services.common.guard`` (a failure drops and counts the messages it held, or
 answers the query with an error; the loop goes on). Counters (received, published, dropped by cause) answer on
-``<prefix>/@status/<name>``, from Zenoh's thread with what the loop last wrote (``services.compass.status_board``: a
+``<prefix>/@status/<name>``, from Zenoh's thread with what the loop last wrote (``services.common.status_board``: a
 status never waits for a drain). The options are in ``services.compass.settings``; docs/compass.md follows one sample.
 """
 
@@ -34,11 +34,11 @@ from magnet.fleet.places import Places
 from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
+from services.common.status_board import StatusBoard
 from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
 from services.compass.intake import PayloadIntake
 from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
 from services.compass.sinks import open_sinks
-from services.compass.status_board import StatusBoard
 
 __all__ = ["CompassSettings", "add_arguments", "build_core", "run", "run_compass"]
 
@@ -182,7 +182,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
 
 class _Ends:
     """The compass's declarations the loop drains: raw batches, calibrations, alert and vehicle queries (the status
-    is answered from Zenoh's thread: ``services.compass.status_board``)."""
+    is answered from Zenoh's thread: ``services.common.status_board``)."""
 
     def __init__(
         self,
@@ -211,7 +211,7 @@ class _Loop:
         self.busy, self.holding = 0.0, False
         self.drained_at: float | None = None  # perf_counter s when the last drain ended
         self.guard = Guard("compass", log, core.drops)
-        #: the status, answered from Zenoh's thread with what the loop last wrote (services.compass.status_board)
+        #: the status, answered from Zenoh's thread with what the loop last wrote (services.common.status_board)
         self.board = StatusBoard(wire.status_key(self.prefix, settings.name), self.guard)
         self.board.write(core.status(settings.name).to_dict())
 

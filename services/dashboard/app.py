@@ -49,7 +49,8 @@ from starlette.staticfiles import StaticFiles
 from magnet import wire
 from services.common.guard import Guard, refusal
 from services.common.jsonio import loads_bounded
-from services.dashboard.events import FleetEvents, encode, pieces
+from services.dashboard.events import FleetEvents, Reader, encode, fleet_body, pieces
+from services.dashboard.hosts import LOOPBACK_NAMES, HostCheck, host_name
 from services.dashboard.state import FleetState
 
 log = logging.getLogger("magnet.dashboard")
@@ -62,8 +63,6 @@ MAX_BODY_BYTES = 4096
 MAX_STREAMS = 64
 #: an accepted stream keeps its place this long before it starts (a client gone before it did gives it back)
 STARTING_S = 5.0
-#: names a request's Host may always give
-LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 MAX_HISTORY = 100
 DETAIL_EVERY_S = 1.0
 Endpoint = Callable[[Request], Awaitable[Response]]
@@ -167,7 +166,8 @@ class Dashboard:
         refused = self._view_refused(request)
         if refused:
             return refused
-        return JSONResponse(self.state.fleet(-1) | {"summary": self.state.summary()})
+        body = await run_in_threadpool(fleet_body, self.state)  # 6 MB for 10,000 rows: not made on the loop
+        return Response(body, media_type="application/json")
 
     async def vehicles(self, request: Request) -> Response:
         """Every vehicle the compasses compare, by name (with shards, the answer that knows most of its compasses)."""
@@ -256,31 +256,42 @@ class Dashboard:
         )
 
     async def _events(self, device: str | None) -> AsyncIterator[str | memoryview]:
-        version, next_detail = -1, 0.0
+        """The stream's events: the fleet's as ``FleetEvents`` made them (this stream only looks them up, so a
+        thousand streams cost the loop no encoding), the device's detail every ``DETAIL_EVERY_S``; an ``event:
+        closed`` with the reason when it cannot keep up."""
+        reader, next_detail = Reader(), 0.0
         loop = asyncio.get_running_loop()
         self.streams += 1
+        self.events.readers += 1
         if self.starting:
             self.starting.pop(0)
         if device:
             self.state.watch(device, +1)
         try:
             while not self.stopping.is_set():
+                self.events.start(self.stopping)
+                ticked = self.events.ticked  # the next tick's (taken before looking: none is missed)
                 try:
-                    version, texts = self.events.event(version, loop.time())  # made once a tick for every stream
+                    texts, closing = self.events.take(reader)
                 except Exception as exc:  # this stream ends (the page reconnects); the server goes on
                     self.guard.failed("http:stream", exc)
+                    return
+                if closing is not None:
+                    self.state.dropped.count("stream:behind")
+                    yield _event("closed", {"reason": closing})
                     return
                 for text in texts:
                     for piece in pieces(text):  # each after the last drained (uvicorn's flow control)
                         yield piece
-                if device and loop.time() >= next_detail:
+                if device and reader.version >= 0 and loop.time() >= next_detail:  # after its first fleet event
                     next_detail = loop.time() + DETAIL_EVERY_S
                     detail = self.guard.run("http:stream", self.state.detail, device)
                     yield _event("device", detail if detail is not None else {"device": device, "unknown": True})
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self.stopping.wait(), self.events.wait_s(loop.time()))
+                    await asyncio.wait_for(ticked.wait(), max(1.0, 4 * self.interval_s))
         finally:
             self.streams -= 1
+            self.events.readers -= 1
             if device:
                 self.state.watch(device, -1)
 
@@ -296,44 +307,6 @@ async def _bounded_body(request: Request, limit: int) -> bytes | None:
         if len(body) > limit:
             return None
     return bytes(body)
-
-
-def host_name(value: str) -> str:
-    """The host name of a ``Host`` header value (``name``, ``name:port``, ``[v6]:port``), lower case."""
-    value = value.strip().lower()
-    if value.startswith("["):
-        return value[1 : value.find("]")] if "]" in value else value
-    return value.rsplit(":", 1)[0] if value.count(":") == 1 else value
-
-
-class HostCheck:
-    """ASGI middleware: 403 for a request whose ``Host`` is not one of ``allowed`` names (DNS rebinding), or whose
-    ``Origin`` is not the page's own (``http(s)://`` + the same ``Host``)."""
-
-    def __init__(self, app: Any, allowed: frozenset[str]) -> None:
-        self.app, self.allowed = app, allowed
-
-    def refusal(self, headers: dict[bytes, bytes]) -> str | None:
-        host = headers.get(b"host", b"").decode("latin-1")
-        if host_name(host) not in self.allowed:
-            return f"Host {host!r} is not one this dashboard answers to (give it with --allow-host)"
-        origin = headers.get(b"origin")
-        if origin is not None:
-            text = origin.decode("latin-1").lower()
-            if text not in (f"http://{host.lower()}", f"https://{host.lower()}"):
-                return f"requests from the web page at {text!r} are refused: open the dashboard's own page"
-        return None
-
-    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
-        if scope["type"] in ("http", "websocket"):
-            refused = self.refusal(dict(scope.get("headers") or ()))
-            if refused is not None:
-                if scope["type"] == "websocket":
-                    await send({"type": "websocket.close", "code": 1008})
-                    return
-                await error(403, refused)(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
 
 
 _event = encode

@@ -1,32 +1,50 @@
-"""The fleet events of the dashboard's event streams, made once a tick for all of them.
+"""The fleet events of the dashboard's event streams: made once a tick for all of them, off the event loop.
 
 Each stream used to ask the state for the rows changed since its own last event and encode them, every refresh:
 the cost grew with the number of streams times the rows changing (issue 32: 2,000 streams took 73 % of a core).
-Now streams wake on a common tick (``interval_s`` boundaries of the loop's clock) and the first to wake makes the
-tick's event: the rows changed since the previous tick's, encoded once, sent as they are to every stream that had
-the previous one. The last ``KEPT_TICKS`` ticks' events are kept: a stream woken late by a busy loop is sent the
-ticks it missed as they were made. A new stream gets every row (made at most once a tick for all new ones), one
-further behind an event of its own (the rows changed since its version); either is then counted as up to the tick's
-version: rows changed in between are sent again with the next tick (a row sent twice is the same row), none is
-missed, and from the next tick it shares the common events.
+Then the streams shared one event a tick, but made it themselves, on the event loop, whichever woke first: with
+10,000 rows a page's first event (every row, 6 MB) took longer than a tick to make on a loaded machine, so every
+new stream found it out of date and made it again, each one blocking the loop for as long (measured in a 5-minute
+soak: the loop stuck in those encodings for minutes, 5,879 of 8,000 streams answered neither 200 nor 503, and the
+dashboard at 781 MB from the 6 MB copies each slow stream held while it sent its own).
 
-Events are UTF-8 bytes, encoded once: every stream sends the same object (a stream sends it in pieces of
-``PIECE_BYTES``, so that a stream whose client reads slowly holds one piece in its transport, not a copy of a fleet
-of 10,000 rows: 64 streams of a 4 MB event took 250 MB at once).
+Now one producer makes the events (``make``, in a worker thread, ``run``), and a stream only looks up what to send
+(``take``): it never encodes, so the loop stays free to accept, refuse and serve whatever the fleet does. Each tick
+``make`` encodes the rows changed since the previous tick (a link of the ``chain``, from one version to the next);
+the chain keeps the last ``KEPT_TICKS`` links within ``KEPT_BYTES``. Every row (``full``) is made only when a stream
+asks for it (a new one, or one further behind than the chain) and the one made before has left the chain, so a
+burst of new streams costs one encoding, not one each. A stream is sent the links after its version (at most the chain:
+``KEPT_BYTES``), or, when it is further behind than the chain, every row again (``full: true``: a counted ``resync``,
+its backlog dropped). A stream that needed ``RESYNCS_TO_CLOSE`` resyncs in a row cannot keep
+up: it is closed with an ``event: closed`` saying why (``closed`` counted), not left to hold events in memory.
+
+Events are UTF-8 bytes, encoded once: every stream sends the same object, in pieces of ``PIECE_BYTES`` (each after
+its transport drained), so a stream whose client reads slowly holds one piece in its transport and at most one
+chain's or one full event's worth of references. Rows are encoded ``CHUNK_ROWS`` at a time so the worker thread lets
+the loop run between chunks (one ``json.dumps`` of 10,000 rows holds the GIL throughout).
 """
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
+import dataclasses
 import json
-from collections import deque
+import threading
 from typing import Any
 
 from services.dashboard.state import FleetState
 
-#: ticks' events kept for streams that woke late
+#: ticks' events kept for streams that woke late (a chain of links from one version to the next)
 KEPT_TICKS = 16
+#: the chain is also kept within this many bytes (a flood changing every row each tick makes links of MBs)
+KEPT_BYTES = 16 * 1024 * 1024
 #: a stream writes an event in pieces of at most this many bytes, each after its transport drained
 PIECE_BYTES = 64 * 1024
+#: rows encoded by one ``json.dumps`` (the producer thread gives the GIL up between chunks)
+CHUNK_ROWS = 200
+#: a stream sent every row again this many times in a row cannot keep up: it is closed, saying so
+RESYNCS_TO_CLOSE = 3
 
 
 def encode(name: str, data: Any) -> str:
@@ -34,44 +52,166 @@ def encode(name: str, data: Any) -> str:
     return f"event: {name}\ndata: {json.dumps(data, separators=(',', ':'), allow_nan=False)}\n\n"
 
 
+def _dumps(data: Any) -> str:
+    return json.dumps(data, separators=(",", ":"), allow_nan=False)
+
+
+def _rows_json(rows: list[dict[str, Any]]) -> bytes:
+    return _dumps(rows)[1:-1].encode()
+
+
+def encode_fleet(fleet: dict[str, Any], summary: dict[str, Any]) -> bytes:
+    """The ``fleet`` event of ``FleetState.fleet``'s answer and its ``summary``, as UTF-8 bytes."""
+    rows = fleet["rows"]
+    chunks = [_rows_json(rows[i : i + CHUNK_ROWS]) for i in range(0, len(rows), CHUNK_ROWS)]
+    return _joined({k: v for k, v in fleet.items() if k != "rows"}, chunks, summary)
+
+
+def _joined(rest: dict[str, Any], chunks: list[bytes], summary: dict[str, Any]) -> bytes:
+    tail = _dumps(rest | {"summary": summary})[1:].encode()
+    return b'event: fleet\ndata: {"rows":[' + b",".join(chunks) + b"]," + tail + b"\n\n"
+
+
+def fleet_event(state: FleetState, since: int) -> tuple[int, bytes]:
+    """(the version, the ``fleet`` event) bringing a page from ``since`` (-1: every row): the rows encoded
+    ``CHUNK_ROWS`` at a time as the state makes them (the same JSON as ``encode_fleet`` of ``state.fleet``; the
+    worker gives the GIL up between chunks, and never holds every row's map at once)."""
+    rest, chunks = state.fleet_chunks(since, _rows_json, CHUNK_ROWS)
+    return rest["version"], _joined(rest, chunks, state.summary())
+
+
+def fleet_body(state: FleetState) -> bytes:
+    """``/api/fleet``'s JSON body (every row and the summary), made as ``fleet_event``."""
+    text = fleet_event(state, -1)[1]
+    return text[len(b"event: fleet\ndata: ") : -2]
+
+
+@dataclasses.dataclass(frozen=True)
+class Link:
+    """A tick's event: the rows changed from version ``base`` to ``version``, encoded."""
+
+    base: int
+    version: int
+    text: bytes
+
+
+@dataclasses.dataclass
+class Reader:
+    """What one stream has had: the version its page is up to (-1: nothing yet), resyncs in a row."""
+
+    version: int = -1
+    resyncs: int = 0
+
+
 class FleetEvents:
-    """The ticks' fleet events, shared (``event``); one per dashboard, used from its event loop only."""
+    """The ticks' fleet events, shared. ``make`` runs in the producer's thread (``run``); ``take`` on the loop."""
 
     def __init__(self, state: FleetState, interval_s: float) -> None:
         self.state, self.interval_s = state, interval_s
-        self.tick, self.version = -1, -1
-        #: the last ticks' events: (the version each brings a page from, to, its text)
-        self.recent: deque[tuple[int, int, bytes]] = deque(maxlen=KEPT_TICKS)
-        self.full_tick, self.full_text = -1, b""  # every row, made at most once a tick for new streams
-        self.made = 0  # events encoded (shared and own): what the streams cost
+        self.lock = threading.Lock()  # swaps of ``chain`` and ``full`` (made in the worker, read on the loop)
+        self.chain: tuple[Link, ...] = ()
+        self.version = -1  # the version the newest link brings a page to
+        self.full: tuple[int, bytes] | None = None  # every row: (its version, the event)
+        self.wants_full = False  # a stream waits for every row
+        self.made = 0  # events encoded: what the streams cost
+        self.resyncs = 0  # streams sent every row again (further behind than the chain)
+        self.closed = 0  # streams closed for not keeping up
+        self.ticked = asyncio.Event()  # set after each tick's making (a new one each tick)
+        self.readers = 0  # streams reading now (counted by the app): the producer runs while there are any
+        self.producer: asyncio.Task[None] | None = None
+        self.executor: concurrent.futures.ThreadPoolExecutor | None = None
 
+    # ---------------------------------------------------------------------------------------------- making
     def wait_s(self, now_s: float) -> float:
         """Seconds from ``now_s`` to just past the next tick."""
         return self.interval_s - now_s % self.interval_s + 0.002
 
-    def event(self, since: int, now_s: float) -> tuple[int, list[bytes]]:
-        """(the version the stream is now up to, the fleet events to send it: none when it had this tick's) for a
-        stream last up to ``since`` (-1: a new stream)."""
-        tick = int(now_s // self.interval_s)
-        if tick != self.tick:
-            fleet = self.state.fleet(self.version)
-            self.recent.append((self.version, fleet["version"], self._encode(fleet)))
-            self.tick, self.version = tick, fleet["version"]
-        if since == self.version and since >= 0:
-            return since, []  # woke twice in one tick
-        if since < 0:
-            if self.full_tick != tick:
-                self.full_tick, self.full_text = tick, self._encode(self.state.fleet(-1))
-            return self.version, [self.full_text]
-        for i, (base, _, _) in enumerate(self.recent):
-            if base == since:  # the ticks it missed (a busy loop wakes streams late), already made
-                return self.version, [text for _, _, text in list(self.recent)[i:]]
-        own = self.state.fleet(since)  # further behind than the ticks kept
-        return min(own["version"], self.version), [self._encode(own)]
-
-    def _encode(self, fleet: dict[str, Any]) -> bytes:
+    def make(self) -> None:
+        """One tick: the link of the rows changed since the last one, and every row when a stream wants them and
+        the last ``full`` has left the chain (or there is none). The first tick after a start (no chain) makes every
+        row only, and a chain from its version: a new stream needs nothing else."""
+        if not self.chain:
+            version, text = fleet_event(self.state, -1)
+            self.made += 1
+            with self.lock:  # an empty link: the chain starts at this version (sent to nobody)
+                self.chain, self.version = (Link(version, version, b""),), version
+                self.full, self.wants_full = (version, text), False
+            return
+        link = Link(self.version, *fleet_event(self.state, self.version))
         self.made += 1
-        return encode("fleet", fleet | {"summary": self.state.summary()}).encode()
+        with self.lock:
+            kept = [*self.chain, link][-KEPT_TICKS:]
+            while len(kept) > 1 and sum(len(k.text) for k in kept) > KEPT_BYTES:
+                kept.pop(0)
+            self.chain, self.version = tuple(kept), link.version
+            if self.full is not None and self.full[0] < self.chain[0].base:
+                self.full = None  # out of the chain: no stream could be brought on from it
+            wanted, self.wants_full = self.wants_full, False
+        if wanted and self.full is None:
+            version, text = fleet_event(self.state, -1)
+            self.made += 1
+            with self.lock:
+                if version >= self.chain[0].base:
+                    self.full = (version, text)
+
+    async def run(self, stopping: asyncio.Event) -> None:
+        """Make the events every tick while streams read them (``readers``), in a thread of its own; the loop only
+        waits for it."""
+        loop = asyncio.get_running_loop()
+        if self.executor is None:
+            self.executor = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="dashboard-events")
+        try:
+            while not stopping.is_set() and self.readers:
+                await loop.run_in_executor(self.executor, self.make)
+                ticked, self.ticked = self.ticked, asyncio.Event()
+                ticked.set()
+                await asyncio.sleep(self.wait_s(loop.time()))
+        finally:
+            if (
+                not self.readers
+            ):  # nobody reads: the events kept go (a flood's links are MBs); a new stream waits a tick
+                with self.lock:
+                    self.chain, self.full = (), None
+            self.ticked.set()
+
+    def start(self, stopping: asyncio.Event) -> None:
+        """The producer, unless it runs already (call from the loop, a stream having been counted in ``readers``)."""
+        if self.producer is None or self.producer.done():
+            self.producer = asyncio.get_running_loop().create_task(self.run(stopping))
+
+    def close(self) -> None:
+        if self.executor is not None:
+            self.executor.shutdown(wait=False)
+            self.executor = None
+
+    # ---------------------------------------------------------------------------------------------- taking
+    def take(self, reader: Reader) -> tuple[list[bytes], str | None]:
+        """(the events to send ``reader`` now, oldest first, and None; or no events and the reason to close it);
+        ``reader.version`` becomes the version they bring its page to. Looks up only: nothing is encoded here."""
+        with self.lock:
+            chain, full = self.chain, self.full
+        if reader.version >= 0 and not (chain and chain[0].base <= reader.version):
+            # further behind than the chain: its backlog is dropped, and it is sent every row again as a new one
+            self.resyncs += 1
+            reader.resyncs += 1
+            if reader.resyncs >= RESYNCS_TO_CLOSE:
+                self.closed += 1
+                return [], (
+                    f"this stream fell behind the fleet's last {KEPT_TICKS} events {RESYNCS_TO_CLOSE} times in a row "
+                    "(its connection reads too slowly): closed; the page connects again"
+                )
+            reader.version = -1
+        if reader.version >= 0:
+            links = [link.text for link in chain if link.version > reader.version]
+            if links:
+                reader.version, reader.resyncs = chain[-1].version, 0
+            return links, None
+        if full is None:  # new (or resynced): every row, made at the next tick
+            self.wants_full = True
+            return [], None
+        version, text = full
+        reader.version = max([version, *(link.version for link in chain)])
+        return [text] + [link.text for link in chain if link.version > version], None
 
 
 def pieces(event: bytes) -> list[memoryview]:

@@ -37,7 +37,7 @@ from collections import OrderedDict
 from urllib.parse import parse_qs, urlsplit
 
 from services.common.loop_server import LoopServer
-from services.dashboard.app import host_name
+from services.dashboard.hosts import host_name
 
 log = logging.getLogger("magnet.dashboard.foxglove")
 

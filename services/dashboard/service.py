@@ -15,6 +15,8 @@ import os
 import secrets
 import sys
 import threading
+import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import zenoh
@@ -42,6 +44,8 @@ KEEP_ALIVE_S = 5
 #: connections at once (event streams included, limited further by ``app.MAX_STREAMS``): past it uvicorn answers
 #: 503 at once instead of opening a file and a task per connection until the process's file limit
 MAX_CONNECTIONS = 256
+#: a message logged over and over (uvicorn's 503s) goes to the log once per this many seconds, with its count
+LOG_EVERY_S = 10.0
 
 __all__ = ["add_arguments", "page_address", "run"]
 
@@ -135,8 +139,10 @@ def serve(settings: DashboardSettings) -> int:
         )
         server = _Server(config, app.state.dashboard)
         print(f"magnet dashboard: {page_address(host, port, token)}  (control token: {token})", flush=True)
+        logging.getLogger("uvicorn.error").addFilter(OncePer(LOG_EVERY_S))  # its 503s: one line per round of them
         with contextlib.suppress(SystemExit):  # uvicorn exits when it cannot bind
             server.run()
+        app.state.dashboard.events.close()
     if not server.started:
         print(f"magnet dashboard: could not serve on {host}:{port} (is the port in use?)", file=sys.stderr)
         return 2
@@ -151,9 +157,9 @@ def _start_foxglove(
     closes."""
     if not settings.foxglove:
         return
-    from services.dashboard.app import LOOPBACK_NAMES, host_name
     from services.dashboard.foxglove import FoxgloveBridge
     from services.dashboard.foxglove_front import view_token
+    from services.dashboard.hosts import LOOPBACK_NAMES, host_name
 
     host, port = parse_http(settings.foxglove)
     told = {host_name(h) for h in settings.allowed_hosts} | ({host} if host not in ("0.0.0.0", "::", "") else set())
@@ -169,6 +175,29 @@ def _start_foxglove(
         "Foxglove app this address; other clients may send the control token in Authorization: Bearer)",
         flush=True,
     )
+
+
+class OncePer(logging.Filter):
+    """Lets a message through once per ``every_s`` seconds, saying how many like it were held back meanwhile:
+    uvicorn logs "Exceeded concurrency limit." for every 503 it answers (2,000 lines for a burst of streams)."""
+
+    def __init__(self, every_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__()
+        self.every_s, self.clock = every_s, clock
+        self.last: dict[str, tuple[float, int]] = {}  # message -> (when last let through, held back since)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message, now = str(record.msg), self.clock()
+        when, held = self.last.get(message, (-1e18, 0))
+        if now - when < self.every_s:
+            self.last[message] = (when, held + 1)
+            return False
+        if held:
+            record.msg = f"{record.msg} ({held} more like it in the last {now - when:.0f} s)"
+        if len(self.last) > 256:
+            self.last.clear()
+        self.last[message] = (now, 0)
+        return True
 
 
 class _Server:

@@ -86,7 +86,7 @@ def calibrator(tmp_path):
 
 def _service(calibrator: Calibrator) -> tuple[ServiceLoop, dict[str, FakeChannel]]:
     answers = _declare_answers(ExitStack(), FakeSession(), PREFIX, "*", "cal")
-    loop = ServiceLoop(calibrator, RawIntake(100), answers, PREFIX, enrolment=Enrolment(1000, 10))
+    loop = ServiceLoop(calibrator, RawIntake(100), answers, PREFIX, enrolment=Enrolment(1000, 10), name="cal")
     return loop, {what: queryable for what, _, queryable in answers}
 
 
@@ -98,8 +98,13 @@ def _ask(loop: ServiceLoop, channels: dict[str, FakeChannel], what: str, query: 
 
 
 def _status(loop: ServiceLoop, channels: dict[str, FakeChannel]) -> dict[str, Any]:
-    query = _ask(loop, channels, "query:status", FakeQuery(f"{PREFIX}/@status/cal"))
-    assert len(query.replies) == 1, query.errors
+    """The status as Zenoh's thread answers it (``loop.board``), as the loop wrote it in its next step."""
+    loop.board.latest = None  # due now (the loop writes it every STATUS_REFRESH_S)
+    loop.step()
+    query = FakeQuery(f"{PREFIX}/@status/cal")
+    loop.board.answer(query)
+    assert query.dropped and len(query.replies) == 1, query.errors
+    assert query.replies[0][0] == f"{PREFIX}/@status/cal"
     return query.replies[0][1]
 
 
@@ -254,8 +259,8 @@ class FakeSample:
 
 
 def test_compass_survives_a_failing_calibration_handler_and_a_failing_drain(monkeypatch):
+    from services.common import status_board
     from services.compass import service as compass_service
-    from services.compass import status_board
     from services.compass.intake import PayloadIntake
 
     loop, compass, session = _compass_loop(monkeypatch)

@@ -79,6 +79,7 @@ function onEvent(block) {
   }
   if (name === "fleet") onFleet(JSON.parse(data));
   else if (name === "device") onDetail(JSON.parse(data));
+  else if (name === "closed") $("conn").title = JSON.parse(data).reason || "";  // the server's reason; we reconnect
 }
 
 function authHeaders() {

@@ -113,6 +113,11 @@ def test_vqf_attitudes_are_the_frames_conversions_of_the_finite_rows():
     assert ((angles[0][fused] >= 0) & (angles[0][fused] < 360)).all()
     assert np.isnan(quat[~fused]).all() and np.isnan(down[~fused]).all() and np.isnan(angles[:, ~fused]).all()
     np.testing.assert_array_equal(rotation[~fused], np.broadcast_to(np.eye(3), (int((~fused).sum()), 3, 3)))
+    # without the matrices (the compass without its sigmas): the same attitudes and angles
+    again = [np.empty(n, dtype=bool), np.empty((n, 4)), np.empty((n, 3)), np.empty((3, n))]
+    _kernels.vqf_attitudes(raw, again[0], again[1], None, again[2], *again[3])
+    for got, want in zip(again, (fused, quat, down, angles)):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_turn_about_down_is_the_product_with_the_turn_then_w_positive():

@@ -147,10 +147,10 @@ def test_gate_update_is_the_plain_gate_whatever_the_batches(period_s, seed):
 
 
 def gated_in_batches(compiled: bool, gyr, acc, field, period_s: float) -> list[np.ndarray]:
-    """vqf's quaternions (6D, and 9D with a field) and flags through the gate, in batches of 1 to 150 samples."""
+    """vqf's quaternions (9D with a field, else 6D) and flags through the gate, in batches of 1 to 150 samples."""
     gate, filter_ = TurnGate(period_s), vqf.VQF(period_s)
     rng, parts, start = np.random.default_rng(6), [], 0
-    keys = ("quat6D", "restDetected") + (("quat9D", "magDistDetected") if field is not None else ())
+    keys = ("quat9D", "restDetected", "magDistDetected") if field is not None else ("quat6D", "restDetected")
     while start < len(gyr):
         rows = slice(start, min(start + int(rng.integers(1, 151)), len(gyr)))
         piece = None if compiled else (lambda g, a, f, _w: filter_.updateBatch(g, a, f))

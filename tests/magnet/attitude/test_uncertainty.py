@@ -1,6 +1,7 @@
 """The heading uncertainty model (``magnet.attitude.uncertainty``): each of its four parts against the physics it
 states, on samples whose answer is known by hand."""
 
+import itertools
 import math
 
 import numpy as np
@@ -167,3 +168,53 @@ def test_the_compiled_per_sample_part_is_the_plain_maths():
         _kernels.sigma_degrees(got[3], got[2], u.MAX_SIGMA_DEG, UNLEVEL_DEG, u.MIN_TILT_DEG, got_heading, got_tilt)
         np.testing.assert_allclose(got_heading, heading, rtol=1e-12)
         np.testing.assert_allclose(got_tilt, tilt_deg, rtol=1e-12)
+
+
+def _drift_plainly(unc, devices, bounds, t_ns, trusted, batches, figures):
+    """The bias drift written plainly: batch by batch, the running maximum of the trusted times (the device's last
+    trusted time before the batch where a sample is not trusted)."""
+    drift = np.zeros(len(t_ns))
+    for b, (device, figure) in enumerate(zip(devices, figures)):
+        state = unc.devices.get(device) if batches.fused[b] else None
+        if state is None or figure is None:
+            continue
+        if not batches.untrusted[b]:
+            state.trusted_ns = batches.last_ns[b]
+            continue
+        rows = slice(bounds[b], bounds[b + 1])
+        since = np.maximum.accumulate(np.where(trusted[rows], t_ns[rows], state.trusted_ns))
+        state.trusted_ns = int(since[-1])
+        drift[rows] = figure.bias_sigma_rads * (t_ns[rows] - since) * 1e-9
+    return drift
+
+
+def test_the_drift_of_a_whole_drain_at_once_is_the_plain_batch_by_batch_maths():
+    from magnet.attitude import uncertainty as unc_module
+
+    rng = np.random.default_rng(28)
+    figure = FilterFigures(tau_mag_s=10.0, tau_acc_s=3.0, bias_sigma_rads=1e-4)
+    for _ in range(400):
+        count = int(rng.integers(1, 10))
+        sizes = rng.integers(0, 8, count)
+        bounds = np.concatenate([[0], np.cumsum(sizes)]).tolist()
+        t_ns = np.cumsum(rng.integers(0, 5, bounds[-1])).astype(np.int64) + 10**18
+        if bounds[-1] > 2 and rng.random() < 0.4:  # times that go back within a batch
+            t_ns[rng.integers(0, bounds[-1], 2)] -= rng.integers(0, 50, 2)
+        trusted = rng.random(bounds[-1]) < rng.random()
+        devices = [f"d{d}" for d in rng.integers(0, 3, count)]
+        last = [int(t_ns[hi - 1]) if hi > lo else 0 for lo, hi in itertools.pairwise(bounds)]
+        fused = [float(n) if rng.random() < 0.9 else 0.0 for n in sizes]
+        untrusted = (rng.random(count) < 0.8).tolist()
+        zeros = [0.0] * count
+        batches = unc_module._Batches(fused, zeros, zeros, zeros, zeros, zeros, untrusted, [0] * count, last)
+        figures = [figure if rng.random() < 0.9 else None for _ in range(count)]
+        whole, plain = HeadingUncertainty(10), HeadingUncertainty(10)
+        for device in set(devices):
+            start = 10**18 - int(rng.integers(0, 20))
+            whole.devices[device] = unc_module._Device(0, start)
+            plain.devices[device] = unc_module._Device(0, start)
+        for _ in range(2):  # the devices' last trusted times carried on to the next drain
+            expected = _drift_plainly(plain, devices, bounds, t_ns, trusted, batches, figures)
+            assert np.array_equal(whole._drift(devices, bounds, t_ns, trusted, batches, figures), expected)
+            carried = {d: whole.devices[d].trusted_ns for d in devices}
+            assert carried == {d: plain.devices[d].trusted_ns for d in devices}

@@ -165,4 +165,15 @@ def test_a_503_is_a_designed_refusal_and_a_stream_closed_without_an_answer_is_lo
     assert "the app's limit of streams 10, uvicorn's limit of connections 1926" in line and "0 lost" in line
     line = stream_verdict({"200": 64, "503:connections": 100, "none": 1826, "silent": 5}, 10)
     assert "NOT every request answered" in line and "1841 lost (closed without an answer 1826" in line
-    assert "no answer within the hold 5, not accepted 10)" in line
+    assert "no answer within the hold and the grace 5, not accepted 10)" in line
+
+
+def test_a_stream_answered_after_the_hold_is_slow_not_lost():
+    from services.bench.soak_plan import front_lines, stream_verdict
+
+    line = stream_verdict({"200": 64, "503:connections": 1936}, 0, late=300, grace_s=10)
+    assert "every request answered" in line and "300 of these answered only after the hold (within 10 s" in line
+    results = {"streams": [{"answered": {"200": 3, "503:connections": 7}, "refused": 0, "late": 2, "grace_s": 10.0}]}
+    deleted = {"times": 0, "with_file": 0, "while_gone": 0, "gone_seen": 0, "seen_after_s": 0.0}
+    lines = front_lines({}, results, deleted, ("v", 0.0, 0))
+    assert any("every request answered" in x and "2 of these answered only after the hold" in x for x in lines)

@@ -49,7 +49,7 @@ def test_write_csv_gives_the_same_lines_through_either_path():
     write_csv(fast, ["a", "flags", "b"], columns, ["%.4f", "%d", "%.7f"])
     write_csv(slow, ["a", "flags", "b"], columns, ["%.4f", "%i", "%.7f"])  # %i: not taken by the kernel
     assert fast.getvalue() == slow.getvalue()
-    assert fast.getvalue().startswith("a,flags,b\n")
+    assert fast.getvalue().startswith("a,flags,b\n") and fast.getvalue().count("\n") == 9001
 
 
 def test_bad_decimals_are_refused():
@@ -57,3 +57,18 @@ def test_bad_decimals_are_refused():
         _kernels.format_rows(np.zeros((2, 1)), bytes([21]))
     with pytest.raises(ValueError, match="float64"):
         _kernels.format_rows(np.zeros((2, 1), dtype=np.float32), bytes([2]))
+
+
+@pytest.mark.parametrize(("encoding", "as_bytes"), [("utf-8", True), ("ascii", True), ("utf-16", False)])
+def test_rows_go_below_a_text_stream_as_bytes_only_where_they_are_its_text(encoding, as_bytes):
+    columns = [np.arange(5000) * 0.37, np.arange(5000) % 7]
+    text = io.StringIO()
+    write_csv(text, ["a", "b"], columns, fmt=["%.3f", "%d"])
+    binary = io.BytesIO()
+    stream = io.TextIOWrapper(binary, encoding=encoding)
+    stream.write("# before\n")  # what the stream holds already goes first
+    write_csv(stream, ["a", "b"], columns, fmt=["%.3f", "%d"])
+    stream.flush()
+    assert binary.getvalue().decode(encoding) == "# before\n" + text.getvalue()
+    assert text.getvalue().count("\n") == 5001 and text.getvalue().endswith("1849.630,1\n")
+    assert (binary.getvalue().count(b"\x00") == 0) == as_bytes

@@ -8,9 +8,9 @@ import threading
 from typing import Any
 
 from magnet import wire
+from services.common.status_board import REFRESH_S
 from services.compass import service as compass_service
 from services.compass.service import CompassSettings, _Loop, build_core
-from services.compass.status_board import REFRESH_S
 
 
 class Session:

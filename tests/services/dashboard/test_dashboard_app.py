@@ -415,3 +415,23 @@ def test_event_streams_are_limited(state, monkeypatch):
     client.app.state.dashboard.streams = app_module.MAX_STREAMS
     response = client.get("/api/stream")
     assert response.status_code == 503 and "event streams are open already" in response.json()["error"]
+
+
+def test_a_message_logged_over_and_over_goes_to_the_log_once_per_period_with_its_count():
+    import logging
+
+    from services.dashboard.service import OncePer
+
+    now = [0.0]
+    once = OncePer(10.0, clock=lambda: now[0])
+
+    def record(msg):
+        return logging.LogRecord("uvicorn.error", logging.WARNING, __file__, 1, msg, None, None)
+
+    assert once.filter(record("Exceeded concurrency limit."))
+    assert not any(once.filter(record("Exceeded concurrency limit.")) for _ in range(1999))
+    assert once.filter(record("another message"))  # each message its own
+    now[0] = 10.5
+    later = record("Exceeded concurrency limit.")
+    assert once.filter(later)
+    assert later.getMessage() == "Exceeded concurrency limit. (1999 more like it in the last 10 s)"

@@ -73,25 +73,3 @@ def test_a_page_further_behind_than_the_forgotten_kept_gets_every_row():
     assert behind["full"] and len(behind["rows"]) == 10 and behind["gone"] == []
     recent = state.fleet(state.version - 5)
     assert not recent["full"] and recent["gone"]
-
-
-def test_fleet_events_are_made_once_a_tick_for_every_stream_and_none_is_missed():
-    from services.dashboard.events import FleetEvents
-
-    state = FleetState(None)
-    state.on_heading(heading_batch("a"))
-    events = FleetEvents(state, 0.25)
-    first, full = events.event(-1, 0.0)  # a new stream: every row
-    second, same = events.event(-1, 0.1)
-    assert same == full and second == first and events.made == 2  # the tick's delta and its full, once each
-    assert events.event(first, 0.2) == (first, [])  # woke twice in one tick: nothing new
-    state.on_heading(heading_batch("b"))
-    v1, texts = events.event(first, 0.3)
-    _, others = events.event(first, 0.31)  # another stream that had the previous tick: the same text, not made again
-    assert others == texts and b'"device":"b"' in texts[0] and events.made == 3
-    state.on_heading(heading_batch("c"))
-    events.event(v1, 0.55)  # tick 2, taken by a stream that kept up
-    state.on_heading(heading_batch("d"))
-    v3, late = events.event(v1, 0.8)  # a stream that slept through tick 2: ticks 2 and 3 as they were made
-    assert len(late) == 2 and b'"device":"c"' in late[0] and b'"device":"d"' in late[1] and events.made == 5
-    assert v3 == state.version

@@ -14,7 +14,6 @@ import foxglove
 import pytest
 from foxglove_ws_client import SUBPROTOCOLS, FoxgloveClient
 
-from services.dashboard.app import LOOPBACK_NAMES
 from services.dashboard.foxglove_front import (
     FoxgloveFront,
     FrontCheck,
@@ -22,6 +21,7 @@ from services.dashboard.foxglove_front import (
     private_loopback_host,
     view_token,
 )
+from services.dashboard.hosts import LOOPBACK_NAMES
 
 TOKEN = "fox-s3cret"
 BEARER = {"Authorization": f"Bearer {TOKEN}"}
