@@ -162,7 +162,7 @@ def file_columns(table: SampleTable, gyr: np.ndarray | None, rate_hz: float | No
         nan_rows if gyr is None else np.asarray(gyr, dtype=np.float64),
         ["file"] * len(counts),
         None,
-        nan_rows if vel is None else vel,
+        np.broadcast_to(np.nan, (count, 3)) if vel is None else vel,  # read only: no 1.4 MB of NaN per 60,000 rows
         motors.get("current_a"),
         motors.get("throttle"),
     )

@@ -287,8 +287,15 @@ def write_csv(
     lines ``numpy.savetxt`` writes. ``%.<d>f`` and ``%d`` formats are written by ``magnet._kernels.format_rows`` (the
     same characters; 60,000 rows of 14 columns in a few tens of ms), any other WRITE_ROWS rows at a time by one ``%``
     (savetxt formats and writes row by row: 1.1 s for those rows, ``%`` 0.2 s)."""
-    matrix = np.stack([np.asarray(c, dtype=float) for c in columns]).T  # (N, K) view of contiguous columns
-    formats = [fmt] * matrix.shape[1] if isinstance(fmt, str) else list(fmt)
+    arrays = [np.asarray(c, dtype=float) for c in columns]
+
+    def rows(lo: int, hi: int) -> np.ndarray:  # (n, K) view of the rows' columns stacked (a chunk at a time: 6.7 MB
+        return np.stack([a[lo:hi] for a in arrays]).T  # of fresh memory for 60,000 rows of 14 at once)
+
+    count = len(arrays[0]) if arrays else 0
+    if any(a.shape != (count,) for a in arrays):
+        raise ValueError(f"columns to write must be 1-D and of one length, got {[a.shape for a in arrays]}")
+    formats = [fmt] * len(arrays) if isinstance(fmt, str) else list(fmt)
     row = ",".join(formats) + "\n"
     stream.write(",".join(header) + "\n")
     decimals = [_decimals(f) for f in formats]
@@ -297,15 +304,15 @@ def write_csv(
 
         codes = bytes(255 if d == -1 else d for d in decimals if d is not None)
         binary = _bytes_below(stream)
-        for lo in range(0, len(matrix), WRITE_ROWS * 4):
-            text = _kernels.format_rows(matrix[lo : lo + WRITE_ROWS * 4], codes)
+        for lo in range(0, count, WRITE_ROWS * 4):
+            text = _kernels.format_rows(rows(lo, lo + WRITE_ROWS * 4), codes)
             if binary is not None:
                 binary.write(text)
             else:
                 stream.write(text.decode("ascii"))
         return
-    for lo in range(0, len(matrix), WRITE_ROWS):
-        part = matrix[lo : lo + WRITE_ROWS]
+    for lo in range(0, count, WRITE_ROWS):
+        part = rows(lo, lo + WRITE_ROWS)
         stream.write((row * len(part)) % tuple(part.ravel().tolist()))
 
 

@@ -49,7 +49,7 @@ def test_write_csv_gives_the_same_lines_through_either_path():
     write_csv(fast, ["a", "flags", "b"], columns, ["%.4f", "%d", "%.7f"])
     write_csv(slow, ["a", "flags", "b"], columns, ["%.4f", "%i", "%.7f"])  # %i: not taken by the kernel
     assert fast.getvalue() == slow.getvalue()
-    assert fast.getvalue().startswith("a,flags,b\n")
+    assert fast.getvalue().startswith("a,flags,b\n") and fast.getvalue().count("\n") == 9001
 
 
 def test_bad_decimals_are_refused():
@@ -70,4 +70,5 @@ def test_rows_go_below_a_text_stream_as_bytes_only_where_they_are_its_text(encod
     write_csv(stream, ["a", "b"], columns, fmt=["%.3f", "%d"])
     stream.flush()
     assert binary.getvalue().decode(encoding) == "# before\n" + text.getvalue()
+    assert text.getvalue().count("\n") == 5001 and text.getvalue().endswith("1849.630,1\n")
     assert (binary.getvalue().count(b"\x00") == 0) == as_bytes
