@@ -1955,22 +1955,22 @@ static PyObject *vqf_travelled(PyObject *self, PyObject *args) {
  * first. */
 enum {
     T_PERIOD, T_WIDTH, T_GAIT_WIDTH, T_LAG_LO, T_LAG_HI, T_STRIDE_LO, T_STRIDE_HI, T_MAX_HOLD, T_BLOCK, T_TURN_DEG,
-    T_GAIT_SD, T_GAIT_CORR, T_SWING_RATE, T_SWING_CORR, T_SWING_HOLD, T_SWING_TAU, T_TAU, T_SIZE
+    T_GAIT_SD, T_GAIT_CORR, T_SIZE
 };
-enum { G_SAMPLES, G_STRIDE, G_RUN, G_IN_GAIT, G_ATTITUDE, G_BIAS = 8, G_HELD = 11, G_SWING = 15, G_RECENT = 16 };
+enum { G_SAMPLES, G_STRIDE, G_RUN, G_IN_GAIT, G_ATTITUDE, G_BIAS = 8, G_HELD = 11, G_RECENT = 15 };
 
 typedef struct {
     const double *s;
     double *g;
     Py_ssize_t width, gait_width, block;
-    double *recent, *earth, *mags, *rates; /* views into g */
+    double *recent, *earth, *mags; /* views into g */
     double *seen, *all_earth, *held, *centred; /* scratch for pieces of up to ``block`` samples (centred: gait_width
                                                 * + block) */
 } Gate;
 
 static Py_ssize_t gate_state_size(const double *s) {
     Py_ssize_t w = (Py_ssize_t)s[T_WIDTH];
-    return G_RECENT + 2 * (w - 1) + 3 * (w - 1) + 4 * (Py_ssize_t)s[T_GAIT_WIDTH];
+    return G_RECENT + 2 * (w - 1) + 3 * (w - 1) + (Py_ssize_t)s[T_GAIT_WIDTH];
 }
 
 /* The views and the scratch (NULL and an exception on failure); ``gate_free`` releases the scratch. */
@@ -1983,7 +1983,6 @@ static int gate_open(Gate *e, const double *s, double *g) {
     e->recent = g + G_RECENT;
     e->earth = e->recent + 2 * (e->width - 1);
     e->mags = e->earth + 3 * (e->width - 1);
-    e->rates = e->mags + e->gait_width;
     Py_ssize_t w = e->width, b = e->block;
     e->seen = PyMem_Malloc(sizeof(double) * (size_t)(2 * (w - 1) + b + 3 * (w - 1 + b) + 4 * b + e->gait_width + b));
     if (e->seen == NULL) {
@@ -2038,31 +2037,6 @@ static int gate_gait(Gate *e) {
     return 1;
 }
 
-/* TurnGate._swing: whether the last gait_width body rates swing (a hand's pendulum): their spread about their mean
- * (RMS of the vector) over swing_rate rad/s, repeating (autocorrelation over swing_corr of their power) at a
- * stride's lag. */
-static int gate_swing(Gate *e) {
-    const double *s = e->s, *r = e->rates;
-    Py_ssize_t n = e->gait_width;
-    if (isnan(r[0])) return 0;
-    double mean[3];
-    for (int k = 0; k < 3; k++) mean[k] = pairwise_sum(r + k, n, 3) / (double)n;
-    double power = 0.0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        for (int k = 0; k < 3; k++) power += (r[3 * i + k] - mean[k]) * (r[3 * i + k] - mean[k]);
-    }
-    if (power <= (double)n * (s[T_SWING_RATE] * s[T_SWING_RATE])) return 0;
-    double best = -INFINITY;
-    for (Py_ssize_t lag = (Py_ssize_t)s[T_STRIDE_LO]; lag <= (Py_ssize_t)s[T_STRIDE_HI] && lag < n; lag++) {
-        double c = 0.0;
-        for (Py_ssize_t i = 0; i + lag < n; i++) {
-            for (int k = 0; k < 3; k++) c += (r[3 * i + k] - mean[k]) * (r[3 * (i + lag) + k] - mean[k]);
-        }
-        if (c > best) best = c;
-    }
-    return best > s[T_SWING_CORR] * power;
-}
-
 /* TurnGate.update on n samples (n within the block): gyr, acc rows 3 doubles apart; writes the accelerometer to feed
  * into ``fed`` (n, 3) and the samples left out into ``gated`` (n,). Returns whether the block is in a gait (else fed
  * is acc). ``start`` and ``bias`` are read at a block's start only. */
@@ -2075,8 +2049,6 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
         memcpy(g + G_ATTITUDE, start, 4 * sizeof(double));
         memcpy(g + G_BIAS, bias_in, 3 * sizeof(double));
         g[G_IN_GAIT] = gate_gait(e);
-        /* G_SWING: the blocks the swing lasts from here, swing_hold blocks from the last one judged a swing */
-        g[G_SWING] = g[G_IN_GAIT] == 0.0 && gate_swing(e) ? s[T_SWING_HOLD] : fmax(g[G_SWING] - 1.0, 0.0);
     }
     g[G_SAMPLES] += (double)n;
     const double *bias = g + G_BIAS;
@@ -2113,13 +2085,6 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
     } else {
         memmove(e->mags, e->mags + n, sizeof(double) * (size_t)(gw - n));
         memcpy(e->mags + (gw - n), e->centred, sizeof(double) * (size_t)n);
-    }
-    /* the body rates' ring likewise */
-    if (n >= gw) {
-        memcpy(e->rates, gyr + 3 * (n - gw), sizeof(double) * (size_t)(3 * gw));
-    } else {
-        memmove(e->rates, e->rates + 3 * n, sizeof(double) * (size_t)(3 * (gw - n)));
-        memcpy(e->rates + 3 * (gw - n), gyr, sizeof(double) * (size_t)(3 * n));
     }
     memcpy(e->recent, e->seen + n, sizeof(double) * (size_t)(2 * w1));
     memcpy(e->earth, e->all_earth + 3 * n, sizeof(double) * (size_t)(3 * w1));
@@ -2310,7 +2275,6 @@ static PyObject *gated_run(PyObject *self, PyObject *args) {
         }
         const double *a = acc + 3 * pos;
         if (gate_piece(&e, gyr + 3 * pos, a, k, start, bias, fed, gated)) a = fed;
-        if (left == e.block) vqf_api.set_tau_acc(vqf, e.g[G_SWING] != 0.0 ? e.s[T_SWING_TAU] : e.s[T_TAU]);
         vqf_api.update_batch(vqf, gyr + 3 * pos, a, field ? field + 3 * pos : NULL, (size_t)k,
                              quat6 ? quat6 + 4 * pos : NULL, quat9 + 4 * pos, NULL, NULL, NULL, rest + pos, dist + pos);
         pos += k;
@@ -2328,16 +2292,12 @@ done:
 }
 
 static PyObject *gate_layout(PyObject *self, PyObject *args) {
-    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,"
-                         "s:i,s:i,s:i,s:i,s:i}",
+    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i}",
                          "period", T_PERIOD, "width", T_WIDTH, "gait_width", T_GAIT_WIDTH, "lag_lo", T_LAG_LO,
                          "lag_hi", T_LAG_HI, "stride_lo", T_STRIDE_LO, "stride_hi", T_STRIDE_HI, "max_hold",
                          T_MAX_HOLD, "block", T_BLOCK, "turn_deg", T_TURN_DEG, "gait_sd", T_GAIT_SD, "gait_corr",
                          T_GAIT_CORR, "settings", T_SIZE, "samples", G_SAMPLES, "stride", G_STRIDE, "run", G_RUN,
-                         "in_gait", G_IN_GAIT, "attitude", G_ATTITUDE, "bias", G_BIAS, "held", G_HELD, "swing",
-                         G_SWING, "recent", G_RECENT, "swing_rate", T_SWING_RATE, "swing_corr",
-                         T_SWING_CORR, "swing_hold", T_SWING_HOLD, "swing_tau", T_SWING_TAU, "tau",
-                         T_TAU);
+                         "in_gait", G_IN_GAIT, "attitude", G_ATTITUDE, "bias", G_BIAS, "held", G_HELD);
 }
 
 PyDoc_STRVAR(aided_layout_doc, "aided_layout() -> dict: the sizes and indices of the settings and state arrays.");

@@ -46,12 +46,7 @@ class TurnSettings:
     ``gait_sd_ms2`` (standard deviation, m/s^2) and repeats itself (normalised autocorrelation over ``gait_corr``) at
     a lag of ``step_s`` (a step). In a gait the accelerometer is fed ``window_s`` late and left out where the rotation
     about the vertical, the mean over the window after the sample less that over the window before, exceeds
-    ``turn_deg`` degrees, for at most ``max_hold_s`` seconds without a break. Swing (outside a gait): over the last
-    ``gait_s`` seconds the body rates spread about their mean by more than ``swing_rads`` (RMS of the vector, rad/s)
-    and repeat themselves (autocorrelation over ``swing_corr`` of their power) at a stride's lag (``stride_s``): a phone swung in a hand. In a swing
-    vqf's accelerometer time constant is ``swing_tau_s`` seconds instead of the filter's own, until ``swing_hold_s``
-    after the last block judged a swing (a swing's judgement misses a block now and then: each switch of the time
-    constant costs vqf's motion bias estimate)."""
+    ``turn_deg`` degrees, for at most ``max_hold_s`` seconds without a break."""
 
     window_s: float = 1.0
     turn_deg: float = 15.0
@@ -61,16 +56,9 @@ class TurnSettings:
     gait_corr: float = 0.5
     step_s: tuple[float, float] = (0.3, 0.7)
     stride_s: tuple[float, float] = (0.55, 1.35)
-    swing_rads: float = 2.2
-    swing_corr: float = 0.25
-    swing_hold_s: float = 3.0
-    swing_tau_s: float = 6.0
 
     def __post_init__(self) -> None:
-        for name in (
-            "window_s", "turn_deg", "max_hold_s", "gait_s", "gait_sd_ms2", "gait_corr", "swing_rads", "swing_corr",
-            "swing_hold_s", "swing_tau_s",
-        ):  # fmt: skip
+        for name in ("window_s", "turn_deg", "max_hold_s", "gait_s", "gait_sd_ms2", "gait_corr"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"TurnSettings.{name} must be a positive number of its unit, got {value!r}")
@@ -132,24 +120,12 @@ class TurnGate:
             ("turn_deg", settings.turn_deg),
             ("gait_sd", settings.gait_sd_ms2),
             ("gait_corr", settings.gait_corr),
-            ("swing_rate", settings.swing_rads),
-            ("swing_corr", settings.swing_corr),
-            ("swing_hold", max(1, round(settings.swing_hold_s / (self.block * self.period_s)))),
-            ("swing_tau", settings.swing_tau_s),
-            ("tau", self.tau_acc_s(filter_params)),
         ):
             self.settings_array[layout[key]] = value
-        recent = layout["recent"]
+        recent = layout["held"] + 4
         self._parts = (recent, recent + 2 * (self.width - 1), recent + 5 * (self.width - 1))
-        self.state = np.zeros(self._parts[2] + 4 * self.gait_width)
+        self.state = np.zeros(self._parts[2] + self.gait_width)
         self.reset()
-
-    @staticmethod
-    def tau_acc_s(filter_params: Mapping[str, Any] | None) -> float:
-        """vqf's accelerometer time constant (s) outside a swing: the filter's own (``filter_params``'s tauAcc, else
-        vqf's default)."""
-        params = dict(filter_params or {})
-        return float(params["tauAcc"]) if "tauAcc" in params else float(vqf.VQF(1.0).params["tauAcc"])
 
     def reset(self) -> None:
         """Forget the past (the filter restarted)."""
@@ -178,17 +154,6 @@ class TurnGate:
         return bool(self.state[_LAYOUT["in_gait"]])
 
     @property
-    def swinging(self) -> bool:
-        """Whether the present block is within a swing (outside a gait; ``TurnSettings``)."""
-        return bool(self.state[_LAYOUT["swing"]])
-
-    @property
-    def filter_tau_s(self) -> float:
-        """vqf's accelerometer time constant (s) for the present block: ``swing_tau_s`` in a swing, else the
-        filter's own."""
-        return float(self.settings_array[_LAYOUT["swing_tau" if self.swinging else "tau"]])
-
-    @property
     def run(self) -> int:
         """Samples gated without a break up to now."""
         return int(self.state[_LAYOUT["run"]])
@@ -206,12 +171,7 @@ class TurnGate:
     @property
     def magnitudes(self) -> np.ndarray:
         """The last ``gait_s`` of |specific force| (gait_width,) m/s^2, oldest first (NaN: not seen)."""
-        return self.state[self._parts[2] : self._parts[2] + self.gait_width]
-
-    @property
-    def rates(self) -> np.ndarray:
-        """The last ``gait_s`` of body rates (gait_width, 3) rad/s, oldest first (NaN: not seen)."""
-        return self.state[self._parts[2] + self.gait_width :].reshape(-1, 3)
+        return self.state[self._parts[2] :]
 
     def left_in_block(self) -> int:
         """Samples until the present block ends (a batch is cut there, vqf's state taken at the next start)."""
@@ -261,7 +221,6 @@ def run_gated(
         part = slice(start, start + gate.left_in_block())
         bias = np.asarray(filter_.getBiasEstimate()[0], dtype=float)
         fed, _ = gate.update(gyr[part], acc[part], np.asarray(filter_.getQuat6D(), dtype=float), bias)
-        filter_.setTauAcc(gate.filter_tau_s)
         outs.append(piece(gyr[part], fed, None if field is None else field[part], watched[part]))
         start = part.stop
     if len(outs) == 1:
