@@ -147,11 +147,8 @@ def fit_field(
         return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))
 
     if rung is not None:
-        named = forced_rung(rung, planar)
-        result = fit_rung(ev, named, first_offset(ev))
-        if planar and named is SCALE and not result.unidentified:
-            result = dataclasses.replace(result, unidentified=LEVEL_GAIN)
-        return judged(result, {named.name: result.identified_deg})
+        result = _forced_fit(ev, rung, planar)
+        return judged(result, {result.rung.name: result.identified_deg})
     try:
         found, tried = candidates.identified(ev, planar)
     except FitError as refused:
@@ -184,6 +181,16 @@ def forced_rung(name: str, planar: bool) -> Rung:
     (``LEVEL_OFFSET``: a level device cannot tell its gain from its vertical offset, which the WMM's dip then holds)."""
     named = RUNGS[name]
     return LEVEL_OFFSET if planar and named is OFFSET else named
+
+
+def _forced_fit(ev: Evidence, name: str, planar: bool) -> RungFit:
+    """The rung ``--method NAME`` asks for (``forced_rung``), fitted; ``unidentified`` set when the ladder's rule
+    does not identify it (a planar device's offset+scale: ``LEVEL_GAIN``)."""
+    named = forced_rung(name, planar)
+    result = fit_rung(ev, named, first_offset(ev))
+    if planar and named is SCALE and not result.unidentified:
+        result = dataclasses.replace(result, unidentified=LEVEL_GAIN)
+    return result
 
 
 def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThresholds | None) -> Calibration | None:
