@@ -268,7 +268,9 @@ def _why(result: RungFit, tried: dict[str, float], planar: bool) -> str:
             "scale takes it, which heading at this attitude does not see)"
         )
         return f"{text}; {PLANAR_NOTE}" if planar else text
-    richer = [f"{name} {value:.2g} deg" for name, value in tried.items() if name != result.rung.name]
+    others = {name: value for name, value in tried.items() if name != result.rung.name}
+    richer = [f"{name} {value:.2g} deg" for name, value in others.items() if not value <= IDENTIFIED_DEG]
+    also = [f"{name} {value:.2g} deg" for name, value in others.items() if value <= IDENTIFIED_DEG]
     if result.unidentified:  # a rung asked for by name that the motion does not identify
         text = (
             f"{result.rung.name} (heading error from its noise {result.identified_deg:.2g} deg, limit "
@@ -281,6 +283,8 @@ def _why(result: RungFit, tried: dict[str, float], planar: bool) -> str:
     )
     if richer:
         text += f"; not identified: {', '.join(richer)}"
+    if also:  # identified too, and judged less good by held-out heading
+        text += f"; also identified: {', '.join(also)}"
     if planar:
         text += f"; {PLANAR_NOTE}"
     return text
