@@ -19,6 +19,7 @@ The one raw decoder is ``magnet.wire.raw_decode``; the structure checks of one m
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import typing
 from collections.abc import Callable, Mapping, Sequence
@@ -173,9 +174,10 @@ class RawColumns:
             _ids([b.hardware_id for b in batches]),
         )
 
-    @property
+    @functools.cached_property
     def bounds(self) -> list[int]:
-        """Sample index where each batch starts, and S at the end: B + 1 ints."""
+        """Sample index where each batch starts, and S at the end: B + 1 ints (made once: a step asks for them
+        several times; not to be changed)."""
         return np.concatenate([[0], np.cumsum(self.counts)]).astype(int).tolist()
 
     def batches(self) -> list[RawBatch]:

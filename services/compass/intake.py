@@ -87,9 +87,7 @@ class PayloadIntake:
         self.raw_messages = 0  # every raw message that reached the pump
         self._dropped: dict[str, int] = {}  # cause -> count, not yet handed to the service's DropCounter
         self._lock = threading.Lock()
-        #: monotonic s when the oldest message waiting was queued (None: none waits), for ``take``'s hold
-        self._since: float | None = None
-        self._arrived = threading.Event()  # set while messages wait (``rest``)
+        self._arrived = threading.Event()  # set while messages wait (``wait``)
 
     def offer_many(self, samples: Iterable[RawSample]) -> None:
         """Queue what fits of these Zenoh samples (called by ``pump``; any thread). The size is read before the
@@ -112,7 +110,6 @@ class PayloadIntake:
         with self._lock:  # only take() runs meanwhile, which frees room: what was reserved is still there
             self.raw_messages += count
             if items and not self.queue:
-                self._since = time.monotonic()
                 self._arrived.set()
             self.queue.extend(items)
             self.queued_bytes += sum(len(payload) for _, payload in items) + ENTRY_BYTES * len(items)
@@ -133,34 +130,25 @@ class PayloadIntake:
         second and took the GIL from the compass's maths."""
         zenoh_session.pump(channel, closed, self.offer_many, batch, PUMP_REST_S, rest)
 
-    def take(self, max_messages: int, max_bytes: int, hold_s: float = 0.0) -> list[tuple[str, bytes]]:
+    def take(self, max_messages: int, max_bytes: int) -> list[tuple[str, bytes]]:
         """The oldest queued messages, up to ``max_messages`` and ``max_bytes`` of payload (at least one when any
-        waits, however large); none while fewer than ``max_messages`` wait and the oldest of them has waited less
-        than ``hold_s`` (a busy compass lets a drain fill: its cost is mostly per drain, not per message)."""
+        waits, however large)."""
         out: list[tuple[str, bytes]] = []
         taken = 0
         with self._lock:
             queue = self.queue
-            since = self._since
-            if hold_s > 0 and len(queue) < max_messages and since is not None and time.monotonic() - since < hold_s:
-                return out
             while queue and len(out) < max_messages and (not out or taken + len(queue[0][1]) <= max_bytes):
                 key, payload = queue.popleft()
                 taken += len(payload)
                 out.append((key, payload))
             self.queued_bytes -= taken + ENTRY_BYTES * len(out)
             if not queue:
-                self._since = None
                 self._arrived.clear()
         return out
 
-    def rest(self, idle_s: float, held_s: float) -> None:
-        """Wait for the compass loop's next round: until a message arrives, at most ``idle_s``, when none waits;
-        ``held_s`` when some wait (``take`` held them back for a larger drain)."""
-        if self._arrived.is_set():
-            time.sleep(held_s)
-        else:
-            self._arrived.wait(idle_s)
+    def wait(self, timeout_s: float) -> bool:
+        """Wait until a message waits, at most ``timeout_s`` (at once when one already does); whether one does."""
+        return self._arrived.wait(timeout_s)
 
     def hand_over_drops(self, drops: wire.DropCounter, log: logging.Logger) -> None:
         """Add the drops counted since the last call to the service's counter (``raw:<cause>``), logging the first

@@ -70,15 +70,6 @@ REQUERY_JOINED_S = 1.0
 #: with no raw message waiting the loop waits this long at most for one (calibrations, tokens and queries are seen
 #: between drains); it wakes as soon as one arrives
 IDLE_WAIT_S = 0.005
-#: a busy compass (its drains took more than BUSY_ON of the wall clock, smoothed) holds raw messages up to HOLD_S
-#: until a whole drain waits, and stops holding below BUSY_OFF: a drain costs about 400 us whatever its size (a few
-#: hundred numpy calls) plus about 50 us a message of 100 samples, so drains of 30 messages (what arrives meanwhile at
-#: 1,000,000 samples/s) cost 60 % more a sample than drains of 300. Idle or lightly loaded, nothing is held (the
-#: latency at ordinary rates stays a few ms); busy, headings wait up to HOLD_S more
-HOLD_S = 0.025
-BUSY_ON, BUSY_OFF = 0.5, 0.25
-BUSY_SMOOTHING = 0.1  # weight of the last drain in the smoothed busy share
-HOLD_POLL_S = 0.005  # while holding, how often the loop looks again
 #: the compass puts a drain's headings at once (thousands of messages): room for them in each link's queue (16
 #: batches of 64 kB, Zenoh's most; its default is 2), and up to 20 ms for a busy machine's sending thread to make room
 #: before a heading is dropped (default 1 ms). A subscriber that stays slow still loses headings, never the compass's
@@ -175,7 +166,7 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
         gc.set_threshold(GC_THRESHOLD, 20, 20)
         while not stop.is_set():
             if not loop.step(ends, name):
-                intake.rest(IDLE_WAIT_S, HOLD_POLL_S)
+                intake.wait(IDLE_WAIT_S)
     log.info("compass stopped: %s", core.status(name).to_dict())
     return 0
 
@@ -207,9 +198,6 @@ class _Loop:
         self.pending: list[tuple[float, Replies]] = [(self.asked + 3.0, self._ask(3.0))]
         self.joined = False  # a calibrator's token appeared since the last query for every calibration
         self.drain_limit = self.time_limit = MAX_DRAIN
-        #: the share of the wall clock the drains took, smoothed (BUSY_SMOOTHING), and whether drains are held
-        self.busy, self.holding = 0.0, False
-        self.drained_at: float | None = None  # perf_counter s when the last drain ended
         self.guard = Guard("compass", log, core.drops)
         #: the status, answered from Zenoh's thread with what the loop last wrote (services.common.status_board)
         self.board = StatusBoard(wire.status_key(self.prefix, settings.name), self.guard)
@@ -229,14 +217,11 @@ class _Loop:
             self.guard.answer("query:vehicle", query, self.answer_vehicles)
             query.drop()
         ends.raw.hand_over_drops(self.core.drops, log)
-        limit = min(self.drain_limit, self.time_limit)
-        samples = ends.raw.take(limit, DRAIN_BYTES, HOLD_S if self.holding else 0.0)
+        samples = ends.raw.take(min(self.drain_limit, self.time_limit), DRAIN_BYTES)
         if samples:
             started = time.perf_counter()
             self.guard.run("raw", self.headings_of, samples, count=len(samples))
-            took_s = time.perf_counter() - started
-            self._pace(len(samples), took_s)
-            self._hold(started, took_s)
+            self._pace(len(samples), time.perf_counter() - started)
         if self.board.due():
             self.board.write(self.core.status(name).to_dict())
         return bool(samples)
@@ -249,15 +234,6 @@ class _Loop:
             self.time_limit = max(100, int(taken * STEP_BUDGET_S / took_s))
         elif took_s < STEP_BUDGET_S / 2:
             self.time_limit = min(MAX_DRAIN, 2 * self.time_limit)
-
-    def _hold(self, started: float, took_s: float) -> None:
-        """Update the smoothed share of the wall clock the drains take (this one: ``took_s`` of the time since the
-        last drain ended) and hold raw messages for larger drains above BUSY_ON, not below BUSY_OFF."""
-        ended = started + took_s
-        if self.drained_at is not None and ended > self.drained_at:
-            self.busy += BUSY_SMOOTHING * (min(1.0, took_s / (ended - self.drained_at)) - self.busy)
-            self.holding = self.busy > (BUSY_OFF if self.holding else BUSY_ON)
-        self.drained_at = ended
 
     def _ask(self, timeout: float, devices: str | None = None) -> Replies:
         return self.session.get(f"{self.prefix}/{devices or self.devices}/calibration", timeout=timeout)

@@ -35,7 +35,7 @@ class Raw:
     def hand_over_drops(self, *args: object) -> None:
         pass
 
-    def take(self, limit: int, max_bytes: int, hold_s: float = 0.0) -> list[tuple[str, bytes]]:
+    def take(self, limit: int, max_bytes: int) -> list[tuple[str, bytes]]:
         return []
 
 

@@ -98,27 +98,14 @@ def test_the_allocator_is_told_to_give_freed_memory_back_on_glibc():
     assert give_back_freed_memory() == (platform.libc_ver()[0] == "glibc")
 
 
-def test_a_held_drain_waits_for_a_whole_drain_or_for_the_hold_and_rest_wakes_on_arrival(monkeypatch):
-    from services.compass import intake as intake_module
-
-    clock = [100.0]
-    monkeypatch.setattr(intake_module.time, "monotonic", lambda: clock[0])
+def test_the_loop_waits_for_an_arrival_and_not_while_messages_wait():
     intake = PayloadIntake(max_bytes=1_000_000, max_payload=1_000)
-    intake.offer_many([Sample("a", 10), Sample("b", 10)])
-    assert intake.take(3, 10**9, hold_s=0.025) == []  # 2 of a drain of 3, held 0 s of 0.025
-    clock[0] += 0.01
-    intake.offer_many([Sample("c", 10)])
-    assert len(intake.take(3, 10**9, hold_s=0.025)) == 3  # a whole drain waits
-    intake.offer_many([Sample("d", 10)])
-    clock[0] += 0.02
-    assert intake.take(3, 10**9, hold_s=0.025) == []
-    clock[0] += 0.01  # the oldest waited the hold: taken, however few
-    assert [key for key, _ in intake.take(3, 10**9, hold_s=0.025)] == ["magnet/d/raw"]
-    intake.offer_many([Sample("e", 10)])
-    assert len(intake.take(3, 10**9)) == 1  # no hold asked: at once
-    slept: list[float] = []
-    monkeypatch.setattr(intake_module.time, "sleep", slept.append)
-    intake.rest(0.0, 0.005)  # nothing waits: waits on the arrival (0 s here), does not sleep
-    intake.offer_many([Sample("f", 10)])
-    intake.rest(10.0, 0.005)  # something waits (held): sleeps the hold's poll, not the idle wait
-    assert slept == [0.005]
+    assert not intake.wait(0.0)  # nothing waits: waited (0 s here) for an arrival
+    arrival = threading.Timer(0.05, intake.offer_many, args=([Sample("a", 10)],))
+    arrival.start()
+    assert intake.wait(10.0)  # woken by the arrival, long before the 10 s
+    arrival.join()
+    intake.offer_many([Sample("b", 10)])
+    assert intake.wait(10.0) and len(intake.take(1, 10**9)) == 1  # one still waits: at once
+    assert intake.wait(10.0) and len(intake.take(5, 10**9)) == 1
+    assert not intake.wait(0.0)  # all taken

@@ -47,7 +47,7 @@ def test_status_is_answered_while_the_loop_is_stuck_in_a_drain(monkeypatch) -> N
         def hand_over_drops(self, *args: object) -> None:
             pass
 
-        def take(self, limit: int, max_bytes: int, hold_s: float = 0.0) -> list[tuple[str, bytes]]:
+        def take(self, limit: int, max_bytes: int) -> list[tuple[str, bytes]]:
             return [("magnet/x/raw", b"")]
 
     monkeypatch.setattr(loop, "headings_of", stuck)

@@ -37,7 +37,7 @@ def test_the_loop_takes_no_more_than_the_time_limit(monkeypatch) -> None:
         def hand_over_drops(self, *args: object) -> None:
             pass
 
-        def take(self, limit: int, max_bytes: int, hold_s: float = 0.0) -> list[tuple[str, bytes]]:
+        def take(self, limit: int, max_bytes: int) -> list[tuple[str, bytes]]:
             asked.append(limit)
             return [("magnet/x/raw", b"")] * min(limit, 5000)
 
@@ -49,20 +49,3 @@ def test_the_loop_takes_no_more_than_the_time_limit(monkeypatch) -> None:
     loop.step(ends, "c")  # 5,000 in 2 s
     loop.step(ends, "c")
     assert asked == [MAX_DRAIN, int(5000 * STEP_BUDGET_S / 2.0)]
-
-
-def test_a_busy_loop_holds_drains_and_stops_when_it_is_no_longer_busy() -> None:
-    settings = CompassSettings()
-    loop = _Loop(Session(), build_core(settings), settings)  # type: ignore[arg-type]
-    now = 0.0
-    for _ in range(30):  # every drain takes 9 ms of each 10: busy
-        loop._hold(now, 0.009)
-        now += 0.01
-    assert loop.holding and loop.busy > compass_service.BUSY_ON
-    loop._hold(now, 0.001)  # one quick drain: between BUSY_OFF and BUSY_ON, still held
-    now += 0.01
-    assert loop.holding
-    for _ in range(30):  # 1 ms of each 10
-        loop._hold(now, 0.001)
-        now += 0.01
-    assert not loop.holding and loop.busy < compass_service.BUSY_OFF
