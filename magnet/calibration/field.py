@@ -30,7 +30,18 @@ from magnet.calibration.base import FitError
 from magnet.calibration.field_input import MIN_FIELD_SAMPLES
 from magnet.calibration.field_input import FieldInput as FieldInput  # the record, named where the fit is
 from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung
-from magnet.calibration.rungs import PLANAR, PLANAR_NOTE, RUNGS, Evidence, gyro_spans, is_planar
+from magnet.calibration.rungs import (
+    LEVEL_OFFSET,
+    OFFSET,
+    PLANAR,
+    PLANAR_NOTE,
+    RUNGS,
+    SCALE,
+    Evidence,
+    Rung,
+    gyro_spans,
+    is_planar,
+)
 from magnet.model import Calibration
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
@@ -136,9 +147,8 @@ def fit_field(
         return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))
 
     if rung is not None:
-        named = RUNGS[rung]
-        result = fit_rung(ev, named, first_offset(ev))
-        return judged(result, {named.name: result.identified_deg})
+        result = _forced_fit(ev, rung, planar)
+        return judged(result, {result.rung.name: result.identified_deg})
     try:
         found, tried = candidates.identified(ev, planar)
     except FitError as refused:
@@ -156,6 +166,31 @@ def fit_field(
     if fallback is None or not fallback.accepted:
         return chosen
     return fallback.replace(reason=f"{fallback.reason}; the magnetometer and gyroscope alone: {chosen.reason}")
+
+
+#: why a planar device's ``offset+scale`` is refused (the ladder does not fit it there)
+LEVEL_GAIN = (
+    "the gain along the device's mean vertical and the offset along it: turns about a vertical held near one attitude "
+    "cannot tell them apart (the ladder fits planar there, which keeps that gain); fit --method planar or offset, or "
+    "tilt the device (roll and pitch by 30 deg or more while turning)"
+)
+
+
+def forced_rung(name: str, planar: bool) -> Rung:
+    """The rung ``--method NAME`` fits: as the ladder fits it, so a planar device's ``offset`` keeps the matrix whole
+    (``LEVEL_OFFSET``: a level device cannot tell its gain from its vertical offset, which the WMM's dip then holds)."""
+    named = RUNGS[name]
+    return LEVEL_OFFSET if planar and named is OFFSET else named
+
+
+def _forced_fit(ev: Evidence, name: str, planar: bool) -> RungFit:
+    """The rung ``--method NAME`` asks for (``forced_rung``), fitted; ``unidentified`` set when the ladder's rule
+    does not identify it (a planar device's offset+scale: ``LEVEL_GAIN``)."""
+    named = forced_rung(name, planar)
+    result = fit_rung(ev, named, first_offset(ev))
+    if planar and named is SCALE and not result.unidentified:
+        result = dataclasses.replace(result, unidentified=LEVEL_GAIN)
+    return result
 
 
 def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThresholds | None) -> Calibration | None:
@@ -233,13 +268,23 @@ def _why(result: RungFit, tried: dict[str, float], planar: bool) -> str:
             "scale takes it, which heading at this attitude does not see)"
         )
         return f"{text}; {PLANAR_NOTE}" if planar else text
-    richer = [f"{name} {value:.2g} deg" for name, value in tried.items() if name != result.rung.name]
+    others = {name: value for name, value in tried.items() if name != result.rung.name}
+    richer = [f"{name} {value:.2g} deg" for name, value in others.items() if not value <= IDENTIFIED_DEG]
+    also = [f"{name} {value:.2g} deg" for name, value in others.items() if value <= IDENTIFIED_DEG]
+    if result.unidentified:  # a rung asked for by name that the motion does not identify
+        text = (
+            f"{result.rung.name} (heading error from its noise {result.identified_deg:.2g} deg, limit "
+            f"{IDENTIFIED_DEG:g}): the motion does not identify {result.unidentified}"
+        )
+        return f"{text}; {PLANAR_NOTE}" if planar else text
     text = (
         f"{result.rung.name}: the motion identifies {', '.join(result.rung.estimated)} (heading error from its noise "
         f"{result.identified_deg:.2g} deg <= {IDENTIFIED_DEG:g})"
     )
     if richer:
         text += f"; not identified: {', '.join(richer)}"
+    if also:  # identified too, and judged less good by held-out heading
+        text += f"; also identified: {', '.join(also)}"
     if planar:
         text += f"; {PLANAR_NOTE}"
     return text
@@ -293,6 +338,9 @@ def judge(
     small = _small_gain(quality)
     if accepted and small:
         accepted, reason = False, small
+    if result.unidentified:  # the identifiability rule, for a rung asked for by name as for the ladder's
+        unknown = f"refused by the identifiability rule ({result.rung.name} asked for)"
+        accepted, reason = False, unknown if accepted or small else f"{unknown}; {reason}"
     if inp.field_ut is None and calibration.output_unit == "ut" and to_ut is not None:
         earth = earth_range_refusal(float(np.median(np.linalg.norm(corrected, axis=1))) / to_ut, to_ut)
         accepted, reason = (False, earth if accepted else f"{earth}; {reason}") if earth else (accepted, reason)

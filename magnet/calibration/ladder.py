@@ -44,6 +44,7 @@ from magnet.calibration.rungs import (
     Evidence,
     Rung,
     matrix_of,
+    mean_down,
 )
 
 #: a rung is identified when the heading error its parameters' noise leaves is within this (deg)
@@ -87,6 +88,9 @@ class RungFit:
     eigenvalues: tuple[float, ...]
     sigma_ut: dict[str, float]
     used: int
+    #: when ``identified_deg`` is over IDENTIFIED_DEG: what the motion left unknown and the motion that would show
+    #: it, in words (``unidentified``); "" otherwise
+    unidentified: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -228,24 +232,66 @@ def _solve(ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray, sigma: dic
     return x
 
 
-def _identified_deg(ev: Evidence, rung: Rung, j: np.ndarray, step: int) -> tuple[float, tuple[float, ...]]:
-    """(heading error the parameters' noise leaves, deg; the information's eigenvalues) from the weighted Jacobian
-    of rows ``step`` samples apart."""
+def _identified_deg(ev: Evidence, rung: Rung, j: np.ndarray, step: int) -> tuple[float, tuple[float, ...], str]:
+    """(heading error the parameters' noise leaves, deg; the information's eigenvalues; what is least identified, in
+    words: ``_weakest``) from the weighted Jacobian of rows ``step`` samples apart."""
     free = 3 + len(rung.e_free)
     info = _gram(j)
     inflation = 1.0 if ev.period_s is None else max(CORRELATION_S / (ev.period_s * step), 1.0)
-    values = np.linalg.eigvalsh(info[:free, :free])
+    values, vectors = np.linalg.eigh(info[:free, :free])
+    eigen = tuple(float(v) for v in values)
     try:
         cov = np.linalg.inv(info) * inflation
     except np.linalg.LinAlgError:
-        return math.inf, tuple(float(v) for v in values)
+        return math.inf, eigen, _weakest(ev, rung, vectors[:, 0])
     if not np.all(np.isfinite(cov)) or values[0] <= 0:
-        return math.inf, tuple(float(v) for v in values)
+        return math.inf, eigen, _weakest(ev, rung, vectors[:, 0])
     weight = _horizontal_weight(ev)  # an offset error along the vertical bends no heading
-    offset = float(np.linalg.eigvalsh(weight @ cov[:3, :3] @ weight)[-1]) / ev.horizontal_ut**2
+    offset_values, offset_vectors = np.linalg.eigh(weight @ cov[:3, :3] @ weight)
+    offset = float(offset_values[-1]) / ev.horizontal_ut**2
     shape = [3 + k for k, index in enumerate(rung.e_free) if index != ISO]  # heading does not see the isotropic
     matrix = float(np.linalg.eigvalsh(cov[np.ix_(shape, shape)])[-1]) if shape else 0.0
-    return math.degrees(math.sqrt(max(offset, 0.0) + max(matrix, 0.0))), tuple(float(v) for v in values)
+    weakest = np.zeros(free)
+    if offset >= matrix:
+        weakest[:3] = offset_vectors[:, -1]
+    else:
+        weakest[3:] = 1.0
+    return math.degrees(math.sqrt(max(offset, 0.0) + max(matrix, 0.0))), eigen, _weakest(ev, rung, weakest)
+
+
+def _body(vector: np.ndarray) -> str:
+    return "(" + ", ".join(f"{value:+.2f}" for value in vector) + ")"
+
+
+def _weakest(ev: Evidence, rung: Rung, direction: np.ndarray) -> str:
+    """What the motion leaves unknown, in words, and the motion that would show it: ``direction`` (3 + free,) in the
+    rung's parameters (o, E free), its offset part in body axes. Along the device's mean vertical (within 45 deg): a
+    tilt shows it; across it: more headings; in E: turns through more headings and tilts, or fewer parameters."""
+    offset = direction[:3]
+    if float(np.linalg.norm(offset)) < 0.5 * float(np.linalg.norm(direction)):
+        return (
+            f"{rung.name}'s soft iron ({', '.join(rung.estimated[1:]) or 'scale'}): turn the device through more "
+            "headings and tilts, or let --method auto fit what the motion identifies"
+        )
+    return _offset_direction(ev, offset / float(np.linalg.norm(offset)))
+
+
+def _offset_direction(ev: Evidence, unit: np.ndarray, note: str = "") -> str:
+    """The offset's direction ``unit`` (3,) in body axes, in words, with what would show it; ``note`` (why it is
+    not identified) follows the direction."""
+    down = mean_down(ev.down)
+    unit = unit if float(unit @ down) >= 0 else -unit
+    if ev.down is not None and float(unit @ down) >= math.cos(math.radians(45.0)):
+        return (
+            f"the offset along the device's mean vertical (body axes {_body(down)}){note}: a device held near one "
+            "attitude cannot tell it from its gain; tilt it (roll and pitch by 30 deg or more while turning)"
+            + (", or give the place (its dip then holds the vertical field)" if ev.vertical_ut is None else "")
+            + ", or let --method auto fit what the motion identifies"
+        )
+    return (
+        f"the offset along body axes {_body(unit)}{note}: turn the device through more headings (a full turn or "
+        "more), or let --method auto fit what the motion identifies"
+    )
 
 
 def _horizontal_weight(ev: Evidence) -> np.ndarray:
@@ -289,13 +335,25 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
     x = _solve(ev, rung, x, used, sigma)
     sigma = _block_spreads(ev, rung, x, used)
     _, j = _residuals(ev, rung, x, used, sigma)
-    identified, eigen = _identified_deg(ev, rung, j, step)
+    identified, eigen, weakest = _identified_deg(ev, rung, j, step)
     if ev.vertical_ut is not None and abs(float(x[3 + free]) - ev.vertical_ut) > VERTICAL_LIMIT_UT:
         identified = math.inf  # a minimum far from the WMM's dip: the motion did not pin the offset down
+        away = float(x[3 + free]) - ev.vertical_ut
+        note = f", its vertical field {away:+.1f} uT from the WMM's dip (limit {VERTICAL_LIMIT_UT:g})"
+        weakest = _offset_direction(ev, mean_down(ev.down), note)
     e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
+    unidentified = weakest if identified > IDENTIFIED_DEG else ""
     return RungFit(
-        rung, x[:3].copy(), matrix_of(whole, e), float(x[3 + free]), identified, eigen, sigma, int(used.sum())
+        rung,
+        x[:3].copy(),
+        matrix_of(whole, e),
+        float(x[3 + free]),
+        identified,
+        eigen,
+        sigma,
+        int(used.sum()),
+        unidentified,
     )
 
 

@@ -274,7 +274,10 @@ class ServiceLoop:
             self._store_checked_s = now_s
             self.guard.run("store", self.calibrator.store_gone)
         if self.lease_watch is not None:
+            was_active = self.calibrator.active
             self.guard.run("lease", _follow_lease, *self.lease_watch, self.calibrator)
+            if self.calibrator.active != was_active:  # a moved lease is on the board at once, not a refresh later
+                self.board.write(self.calibrator.status(self.name).to_dict())
         for handler, take in self.feeds:
             for item in drain(handler, 1000):
                 sample = item.ok if isinstance(item, zenoh.Reply) else item

@@ -48,7 +48,9 @@ def door_walk():
 
 def test_the_doors_samples_are_dropped_and_the_offset_is_right(door_walk):
     """``magnet fit``'s default: the door's samples left out, the offset within 3 uT of the truth (the hard iron is
-    6-15 times the field); the same model fitted to every sample is bent by the door."""
+    6-15 times the field); the same model fitted to every sample is bent by the door, or refused (the offset rung of
+    a level device keeps its matrix whole, as the ladder's does, so the dip holds its vertical offset and the door
+    shows in the residual instead: measured 2.6 uT off, refused)."""
     run, data, truth = door_walk
     door = np.linalg.norm(run.disturbance_ut, axis=1)
     assert 0.02 < np.mean(door > 1.0) < 0.2  # the walk does pass the door
@@ -57,7 +59,7 @@ def test_the_doors_samples_are_dropped_and_the_offset_is_right(door_walk):
     assert np.linalg.norm(record.offset - truth.offset) < 3.0
     assert record.quality.get("disturbed_samples", 0) >= 100
     every_sample = fit_choice(data.replace(drop_disturbed=False), record.method)
-    assert np.linalg.norm(every_sample.offset - truth.offset) > 15.0
+    assert not every_sample.accepted or np.linalg.norm(every_sample.offset - truth.offset) > 15.0
     # the door's strongest samples are among those left out (judged with the record's correction), few others
     flags = disturbed.mask(data, record)
     assert flags[door > 10.0].mean() > 0.8
@@ -156,18 +158,24 @@ def test_a_refused_fit_is_made_again_without_what_a_sphere_finds_disturbed(pocke
 
 
 def test_a_method_asked_for_leaves_the_door_out_by_the_same_rule_as_auto(door_walk):
-    """``magnet fit --method planar`` (a texting walk keeps the phone level; ``fit_choice``, as the command and the
-    calibrator's sessions call it) with no record in force: the door's samples are judged from the raw field, then
-    again with the first fit's correction, which finds the door's weaker edges, as ``auto`` judges them (one rule,
-    ``disturbed.fit_undisturbed``). ``fit`` alone is one pass, the raw field's judgement only. Measured: 341 samples
-    left out (151 by the raw field alone), offset 3.7 uT from the truth; every sample: 9.4 uT, refused."""
+    """``magnet fit --method offset`` (``fit_choice``, as the command and the calibrator's sessions call it) with no
+    record in force: the door's samples are judged from the raw field, then again with the first fit's correction,
+    which finds the door's weaker edges, as ``auto`` judges them (one rule, ``disturbed.fit_undisturbed``). ``fit``
+    alone is one pass, the raw field's judgement only. Measured: 346 samples left out (151 by the raw field alone),
+    offset 1.8 uT from the truth; every sample: 2.6 uT, refused. ``--method planar`` leaves the same samples out
+    (341) but 40 s of this walk do not identify the plane's soft iron (heading error from its noise 3.3 deg, the
+    ladder's limit 1.5; ``auto`` fits the offset here): refused by the identifiability rule, as the ladder would not
+    fit it (it was accepted 3.7 uT from the truth before forced rungs were held to the rule)."""
     run, data, truth = door_walk
-    record = fit_choice(data, "planar")
+    record = fit_choice(data, "offset")
     assert record.accepted, record.reason
     assert np.linalg.norm(record.offset - truth.offset) < 5.0
-    once = fit(data, "planar")
+    once = fit(data, "offset")
     assert record.quality.get("disturbed_samples", 0) > once.quality.get("disturbed_samples", 0) + 100
     door = np.linalg.norm(run.disturbance_ut, axis=1)
     assert record.quality.get("disturbed_samples", 0) > (door > 1.0).sum()
-    every_sample = fit_choice(data.replace(drop_disturbed=False), "planar")
+    every_sample = fit_choice(data.replace(drop_disturbed=False), "offset")
     assert not every_sample.accepted or np.linalg.norm(every_sample.offset - truth.offset) > 8.0
+    planar = fit_choice(data, "planar")
+    assert not planar.accepted and "identifiability rule" in planar.reason, planar.reason
+    assert planar.quality.get("disturbed_samples", 0) > once.quality.get("disturbed_samples", 0) + 100

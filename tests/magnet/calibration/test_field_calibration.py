@@ -135,6 +135,17 @@ def test_a_short_arc_identifies_nothing_and_says_what_to_do():
         fit_field(_field_input(arc))
 
 
+def test_a_rung_asked_for_that_the_motion_does_not_identify_is_refused_saying_what_to_do():
+    """``--method offset`` on a short arc goes through the ladder's identifiability rule: refused (the ladder
+    raises "does not identify" here), naming the offset's direction the arc leaves unknown and the motion to make."""
+    arc = turning(20.0, 0.05, 3.0, seed=3, sway_deg=0.5)
+    record = fit_field(_field_input(arc), rung="offset")
+    assert not record.accepted
+    assert record.reason.startswith("refused by the identifiability rule (offset asked for)"), record.reason
+    assert record.quality["identified_deg"]["offset"] > 1.5
+    assert "the offset along body axes" in record.reason and "more headings" in record.reason
+
+
 def test_a_fit_no_better_than_the_calibration_in_force_is_refused(level_turns):
     truth = Calibration(method="truth", offset=HARD_UT, matrix=np.linalg.inv(SOFT), field_strength=FIELD_UT)
     data = FitInput(

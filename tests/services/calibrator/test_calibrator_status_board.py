@@ -114,3 +114,36 @@ def test_the_loop_writes_its_status_at_most_every_refresh_period(tmp_path: Path)
         starting = Query()
         loop.board.answer(starting)
         assert starting.replies == [] and b"calibrator is starting" in starting.errors[0] and starting.dropped
+
+
+class Tokens:
+    """A liveliness subscriber holding the given token samples (PUT: appeared)."""
+
+    def __init__(self, *keys: str) -> None:
+        import zenoh
+
+        self.samples = [type("Token", (), {"key_expr": key, "kind": zenoh.SampleKind.PUT})() for key in keys]
+
+    def try_recv(self) -> Any:
+        return self.samples.pop(0) if self.samples else None
+
+
+def test_a_lease_that_moves_is_on_the_board_at_once_not_a_refresh_later(tmp_path: Path) -> None:
+    """The secure deployment's standby test asked a second calibrator within the refresh after it stood by and read
+    'active' (its history of lease tokens came after its start): a moved lease is written at once."""
+    from magnet.shard import Shard
+    from services.calibrator.lease import Lease, Member, lease_prefix
+
+    with CalibrationStore(tmp_path / "c.db") as store:
+        loop = service_loop(store)
+        now = [0.0]
+        loop.board.clock = lambda: now[0]
+        shard = Shard(0, 1)
+        lease = Lease(PREFIX, shard, Member(2_000, "cal"))
+        older = f"{lease_prefix(PREFIX, shard)}/1000/cal-0"
+        loop.lease_watch = (Tokens(older), lease)  # type: ignore[assignment]
+        loop.board.write(loop.calibrator.status("cal").to_dict())
+        assert ask(loop).replies[0][1]["lease"] == "active"
+        loop.step()  # the older calibrator's token arrives: this one stands by, well within the refresh period
+        assert not loop.calibrator.active
+        assert ask(loop).replies[0][1]["lease"] == "standby"
