@@ -24,7 +24,7 @@ from services.bench import ceiling
 #: messages a drain takes when the compass is busy (``services.compass.service``: DRAIN_SAMPLES / batch at batch 100)
 DRAIN_MESSAGES = 300
 WARM_ROUNDS = 2
-#: the pipeline bench's calibration (``services.bench.pipeline._calibrate``)
+#: the calibration of every device, here and in the pipeline bench's compasses (``services.bench.pipeline._calibrate``)
 CALIBRATION = Calibration(
     "ellipsoid",
     np.array([5.0, -3.0, 2.0]),

@@ -98,19 +98,11 @@ def _wait_ready(session: zenoh.Session, key: str) -> None:
 def _calibrate(session: zenoh.Session, devices: int, shards: int) -> None:
     """Publish one accepted calibration per device (hard and soft iron, as a calibrator would) and wait until the
     compasses hold them all: the benchmark's compasses apply real calibrations, as in service."""
-    from magnet.model import Calibration
+    from services.bench.compass_drain import CALIBRATION
 
-    calibration = Calibration(
-        "ellipsoid",
-        np.array([5.0, -3.0, 2.0]),
-        np.array([[1.02, 0.01, 0.0], [0.01, 0.98, 0.005], [0.0, 0.005, 1.0]]),
-        field_strength=50.0,
-        accepted=True,
-        reason="benchmark",
-    )
     for d in range(devices):
         device = ceiling.device_name(d)
-        session.put(wire.key("magnet", device, wire.Kind.CALIBRATION), wire.encode_calibration(device, calibration, 1))
+        session.put(wire.key("magnet", device, wire.Kind.CALIBRATION), wire.encode_calibration(device, CALIBRATION, 1))
     deadline = time.monotonic() + STARTUP_TIMEOUT_S
     while time.monotonic() < deadline:
         held = 0
