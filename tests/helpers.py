@@ -203,3 +203,18 @@ def replay_raw(path: Path, device: str, *args: str) -> tuple[list[Any], subproce
         while (sample := subscriber.try_recv()) is not None:
             batches.append(wire.decode_raw(sample.payload.to_bytes()))
     return batches, out
+
+
+def fit_input_of(run: Any, rate_hz: float) -> Any:
+    """The ``magnet.calibration.fit_input.FitInput`` of a simulated run (``magnet.simulator.simulate``): its field,
+    accelerometer and gyroscope at ``rate_hz``, with the WMM's |B| (uT) and dip (deg) at its place as the priors."""
+    from magnet.calibration.fit_input import FitInput
+
+    return FitInput(
+        run.mag_ut,
+        acc=run.acc_ms2,
+        gyr_rads=run.gyr_rads,
+        period_s=1.0 / rate_hz,
+        field_ut=run.earth.total_ut,
+        dip_deg=run.earth.inclination_deg,
+    )

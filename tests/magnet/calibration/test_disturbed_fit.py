@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import fit_input_of
 
 from magnet.calibration import disturbed
 from magnet.calibration.base import FitError
@@ -35,14 +36,7 @@ def door_walk():
             disturbances=door,
         )
     )
-    data = FitInput(
-        run.mag_ut,
-        acc=run.acc_ms2,
-        gyr_rads=run.gyr_rads,
-        period_s=1.0 / RATE_HZ,
-        field_ut=run.earth.total_ut,
-        dip_deg=run.earth.inclination_deg,
-    )
+    data = fit_input_of(run, RATE_HZ)
     return run, data, errors.true_calibration(run.earth.total_ut)
 
 
@@ -124,14 +118,7 @@ def pocket_doors():
     from services.bench import field_runs
 
     run = field_runs.field_run(field_runs.MOTIONS["walk-pocket, doors"], 6, field_runs.FieldSettings(seconds=60.0))
-    data = FitInput(
-        run.mag_ut,
-        acc=run.acc_ms2,
-        gyr_rads=run.gyr_rads,
-        period_s=1.0 / 50.0,
-        field_ut=run.earth.total_ut,
-        dip_deg=run.earth.inclination_deg,
-    )
+    data = fit_input_of(run, 50.0)
     return run, data, run.errors.true_calibration(run.earth.total_ut)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import fit_input_of
 
 from magnet.calibration.choose import fit_choice
 from magnet.calibration.fit_input import FitInput
@@ -25,14 +26,7 @@ def _run(trajectory: Trajectory, seconds: float, seed: int) -> tuple[FitInput, n
         trajectory=trajectory, rate_hz=RATE_HZ, count=int(seconds * RATE_HZ), errors=errors, seed=seed
     )
     run = simulate(config)
-    data = FitInput(
-        run.mag_ut,
-        acc=run.acc_ms2,
-        gyr_rads=run.gyr_rads,
-        period_s=1.0 / RATE_HZ,
-        field_ut=run.earth.total_ut,
-        dip_deg=run.earth.inclination_deg,
-    )
+    data = fit_input_of(run, RATE_HZ)
     return data, errors.true_calibration(run.earth.total_ut).offset
 
 
