@@ -10,7 +10,6 @@ from helpers import fit_input_of
 from magnet.calibration import disturbed
 from magnet.calibration.base import FitError
 from magnet.calibration.choose import fit_choice
-from magnet.calibration.fit_input import FitInput
 from magnet.calibration.fitting import fit
 from magnet.quality.disturbance import raw_steps
 from magnet.simulator import Disturbances, SensorErrors, SimulatorConfig, Trajectory, simulate
