@@ -8,8 +8,8 @@ to heading (docs/field-calibration.md).
 - quality ``model`` (the rung), ``estimated`` and ``kept`` (parameters, in words), ``kept_from`` (the calibration in
   force, or the identity), ``identified_deg`` (each rung tried: the heading error its parameters' noise leaves, deg)
   and ``information_eigenvalues`` (the chosen rung's), ``why`` (one sentence), ``planar`` ("planar: within 20 deg of
-  level") for a device kept level; ``vertical_kept`` (``VERTICAL_KEPT``) when a level device with no place (neither
-  |B| nor dip) kept the calibration in force's vertical offset (with nothing in force it is refused: ``_no_place``);
+  level") for a device kept level; ``vertical_kept`` when a level device with no place (neither |B| nor dip) kept the
+  calibration in force's vertical offset (with nothing in force it is refused: ``magnet.calibration.unplaced``);
 - judged (``judge``): the held-out heading consistency (``magnet.quality.motion``: every 5th block of 20 samples is
   left out of a second fit of the same rung and scored) must beat the calibration in force (or none) by its margin;
   the residual, held-out residual, radius against the WMM and the soft-iron condition are checked as for any fit.
@@ -26,11 +26,11 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.calibration import candidates, course, disturbed
+from magnet.calibration import candidates, course, disturbed, unplaced
 from magnet.calibration.base import FitError
 from magnet.calibration.field_input import MIN_FIELD_SAMPLES
 from magnet.calibration.field_input import FieldInput as FieldInput  # the record, named where the fit is
-from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung, offset_direction
+from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung
 from magnet.calibration.rungs import (
     LEVEL_OFFSET,
     OFFSET,
@@ -42,7 +42,6 @@ from magnet.calibration.rungs import (
     Rung,
     gyro_spans,
     is_planar,
-    mean_down,
 )
 from magnet.model import Calibration
 from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
@@ -124,46 +123,30 @@ def fit_field(
 ) -> Calibration:
     """The field fit of ``inp`` (the rung the motion identifies, or ``rung`` by name), with quality and the
     judgement (module docstring). Raises FitError when no rung can be computed or none is identified."""
-    ev_motion = None
-    if inp.acc is not None:
-        try:
-            ev_motion = motion.evidence(np.asarray(inp.acc, dtype=float), inp.gyr, inp.period_s)
-        except ValueError as exc:
-            raise FitError(str(exc)) from None
-    aided = _aided_evidence(inp)
-    if aided is not None:  # the tilt a vehicle's accelerations do not bend, for the fit and its judgement
-        ev_motion = aided
+    ev_motion = _motion_evidence(inp)
     whole_input, keep = inp, disturbed.kept_rows(inp.disturbed)
     ev, source = _evidence(inp, ev_motion, keep)
     if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     test = _holdout_mask(len(inp.mag))
     planar = is_planar(ev.down)
-    # with neither the dip nor |B| known (no place), nothing in a level motion holds the vertical offset: the
-    # calibration in force's is kept, else the fit is refused (``_no_place``); with |B| alone the ladder's rungs,
-    # their matrix kept, hold it by the magnitude
-    unheld = planar and ev.vertical_ut is None and (inp.field_ut is None or not ut_per_unit(inp.unit))
-    vertical_kept = ""
-    if unheld:
-        ev, vertical_kept = _vertical_kept(ev, source)
+    field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
+    ev, vertical_kept, no_place = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: nothing holds it
 
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
         calibration = _record(result, inp, ev, len(inp.mag))
         holdout = _holdout(inp, ev, result, test)
         record = judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
-        if vertical_kept:
-            record = _with_vertical_kept(record, vertical_kept)
+        record = unplaced.with_vertical_kept(record, vertical_kept)
         if keep is None:
             return record
         return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))
 
     if rung is not None:
-        result = _forced_fit(ev, rung, planar)
-        if unheld and ev.vertical_ut is None and not result.unidentified:  # no place, nothing in force to keep
-            result = dataclasses.replace(result, unidentified=_no_place(ev))
+        result = _forced_fit(ev, rung, planar, no_place)
         return judged(result, {result.rung.name: result.identified_deg})
-    if unheld and ev.vertical_ut is None:
-        raise FitError(f"the motion does not identify {_no_place(ev)}")
+    if no_place:
+        raise FitError(f"the motion does not identify {no_place}")
     try:
         found, tried = candidates.identified(ev, planar)
     except FitError as refused:
@@ -184,42 +167,6 @@ def fit_field(
     return fallback.replace(reason=f"{fallback.reason}; the magnetometer and gyroscope alone: {chosen.reason}")
 
 
-#: what a planar record fitted without a place says in its quality ``vertical_kept`` (and ``kept``)
-VERTICAL_KEPT = "vertical offset kept: no place given (the calibration in force's); give --location"
-
-
-def _no_place(ev: Evidence) -> str:
-    """Why a level device's fit with no place and no calibration in force is refused, and what to do."""
-    note = ", held by neither a place (no WMM |B| or dip) nor a calibration in force"
-    return offset_direction(ev, mean_down(ev.down), note)
-
-
-def _vertical_kept(ev: Evidence, source: str) -> tuple[Evidence, str]:
-    """(the evidence with its vertical field and |B| those of the calibration in force's vertical offset, VERTICAL_KEPT)
-    for a planar device with no place: level turns show the horizontal offset (the gyroscope's windows, the circle)
-    but not the vertical one, which the WMM's dip would hold (on fieldsim's level walks and robot, 120 s, without it:
-    3.4-15.3 uT off, accepted). The horizontal centre is ``first_offset``'s, the vertical the kept offset's, both in the
-    kept matrix's frame; the ladder then holds the vertical field near it as near the WMM's. Unchanged, with "", when
-    there is no calibration in force (the fit is then refused: ``_no_place``)."""
-    if source != "the calibration in force" or ev.down is None:
-        return ev, ""
-    n = mean_down(ev.down)
-    centre = ev.matrix0 @ first_offset(ev)
-    centre = centre + n * float(n @ (ev.matrix0 @ ev.offset0 - centre))
-    b = ev.mag @ ev.matrix0.T - centre
-    known = np.all(np.isfinite(ev.down), axis=1)
-    vertical = float(np.median(np.einsum("ni,ni->n", ev.down[known], b[known])))
-    field = float(np.median(np.linalg.norm(b, axis=1)))
-    return dataclasses.replace(ev, field_ut=field, vertical_ut=vertical), VERTICAL_KEPT
-
-
-def _with_vertical_kept(record: Calibration, note: str) -> Calibration:
-    """The record saying that its vertical offset was kept, and why (quality ``vertical_kept``, ``kept``, reason)."""
-    kept = [*record.quality.get("kept", []), "vertical offset (no place given: the calibration in force's)"]
-    quality = record.quality.with_extra(vertical_kept=note, kept=kept)
-    return record.replace(quality=quality, reason=f"{record.reason}; {note}")
-
-
 #: why a planar device's ``offset+scale`` is refused (the ladder does not fit it there)
 LEVEL_GAIN = (
     "the gain along the device's mean vertical and the offset along it: turns about a vertical held near one attitude "
@@ -235,14 +182,29 @@ def forced_rung(name: str, planar: bool) -> Rung:
     return LEVEL_OFFSET if planar and named is OFFSET else named
 
 
-def _forced_fit(ev: Evidence, name: str, planar: bool) -> RungFit:
+def _forced_fit(ev: Evidence, name: str, planar: bool, no_place: str = "") -> RungFit:
     """The rung ``--method NAME`` asks for (``forced_rung``), fitted; ``unidentified`` set when the ladder's rule
-    does not identify it (a planar device's offset+scale: ``LEVEL_GAIN``)."""
+    does not identify it (a planar device's offset+scale: ``LEVEL_GAIN``; a level device with no place and nothing in
+    force: ``no_place``, from ``unplaced.hold_vertical``)."""
     named = forced_rung(name, planar)
     result = fit_rung(ev, named, first_offset(ev))
     if planar and named is SCALE and not result.unidentified:
         result = dataclasses.replace(result, unidentified=LEVEL_GAIN)
+    if no_place and not result.unidentified:
+        result = dataclasses.replace(result, unidentified=no_place)
     return result
+
+
+def _motion_evidence(inp: FieldInput) -> motion.MotionEvidence | None:
+    """The tilt the fit and its judgement see: velocity aided where it can be (``_aided_evidence``: a vehicle's
+    accelerations do not bend it), else from the gyroscope and accelerometer; None without an accelerometer."""
+    aided = _aided_evidence(inp)
+    if aided is not None or inp.acc is None:
+        return aided
+    try:
+        return motion.evidence(np.asarray(inp.acc, dtype=float), inp.gyr, inp.period_s)
+    except ValueError as exc:
+        raise FitError(str(exc)) from None
 
 
 def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThresholds | None) -> Calibration | None:

@@ -12,10 +12,10 @@ import pytest
 from helpers import fit_input_of
 
 from magnet.calibration.choose import fit_choice
-from magnet.calibration.field import VERTICAL_KEPT
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.fitting import fit
 from magnet.calibration.rungs import mean_down
+from magnet.calibration.unplaced import VERTICAL_KEPT
 from magnet.quality import motion
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 
