@@ -10,10 +10,8 @@ Every function takes arrays of shape (..., 3) (a single (3,) sample works too) a
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -200,16 +198,19 @@ def no_earth_field(field_ut: np.ndarray, expected_ut: npt.ArrayLike | None) -> n
 
 
 def leave_out_no_earth_field(
-    filter_field: np.ndarray, out: Any, uncalibrated: np.ndarray, expected_ut: npt.ArrayLike | None
-) -> tuple[np.ndarray, Any]:
-    """(the field (S, 3) the attitude filter gets, with zero rows where ``no_earth_field`` and ``uncalibrated``
-    (S,) bool; ``out``, headings with a ``flags`` (S,) field, those rows flagged FIELD_DISTURBED): no record, no Earth
-    field, and the filter holds its heading on the gyroscope."""
-    blind = uncalibrated & no_earth_field(out.field_ut, expected_ut)
+    filter_field: np.ndarray,
+    field_ut: np.ndarray,
+    flags: np.ndarray,
+    uncalibrated: np.ndarray,
+    expected_ut: npt.ArrayLike | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(the field (S, 3) the attitude filter gets, with zero rows where ``no_earth_field`` of the corrected
+    ``field_ut`` (S, 3) and ``uncalibrated`` (S,) bool; ``flags`` (S,) int64 with those rows flagged FIELD_DISTURBED):
+    no record, no Earth field, and the filter holds its heading on the gyroscope."""
+    blind = uncalibrated & no_earth_field(field_ut, expected_ut)
     if not blind.any():
-        return filter_field, out
-    flags = out.flags | np.where(blind, int(HeadingFlag.FIELD_DISTURBED), 0)
-    return np.where(blind[:, None], 0.0, filter_field), dataclasses.replace(out, flags=flags)
+        return filter_field, flags
+    return np.where(blind[:, None], 0.0, filter_field), flags | np.where(blind, int(HeadingFlag.FIELD_DISTURBED), 0)
 
 
 def disturbance_flags(

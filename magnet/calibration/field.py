@@ -8,7 +8,8 @@ to heading (docs/field-calibration.md).
 - quality ``model`` (the rung), ``estimated`` and ``kept`` (parameters, in words), ``kept_from`` (the calibration in
   force, or the identity), ``identified_deg`` (each rung tried: the heading error its parameters' noise leaves, deg)
   and ``information_eigenvalues`` (the chosen rung's), ``why`` (one sentence), ``planar`` ("planar: within 20 deg of
-  level") for a device kept level;
+  level") for a device kept level; ``vertical_kept`` when a level device with no place (neither |B| nor dip) kept the
+  calibration in force's vertical offset (with nothing in force it is refused: ``magnet.calibration.unplaced``);
 - judged (``judge``): the held-out heading consistency (``magnet.quality.motion``: every 5th block of 20 samples is
   left out of a second fit of the same rung and scored) must beat the calibration in force (or none) by its margin;
   the residual, held-out residual, radius against the WMM and the soft-iron condition are checked as for any fit.
@@ -25,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.calibration import candidates, course, disturbed
+from magnet.calibration import candidates, course, disturbed, unplaced
 from magnet.calibration.base import FitError
 from magnet.calibration.field_input import MIN_FIELD_SAMPLES
 from magnet.calibration.field_input import FieldInput as FieldInput  # the record, named where the fit is
@@ -122,33 +123,30 @@ def fit_field(
 ) -> Calibration:
     """The field fit of ``inp`` (the rung the motion identifies, or ``rung`` by name), with quality and the
     judgement (module docstring). Raises FitError when no rung can be computed or none is identified."""
-    ev_motion = None
-    if inp.acc is not None:
-        try:
-            ev_motion = motion.evidence(np.asarray(inp.acc, dtype=float), inp.gyr, inp.period_s)
-        except ValueError as exc:
-            raise FitError(str(exc)) from None
-    aided = _aided_evidence(inp)
-    if aided is not None:  # the tilt a vehicle's accelerations do not bend, for the fit and its judgement
-        ev_motion = aided
+    ev_motion = _motion_evidence(inp)
     whole_input, keep = inp, disturbed.kept_rows(inp.disturbed)
     ev, source = _evidence(inp, ev_motion, keep)
     if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     test = _holdout_mask(len(inp.mag))
     planar = is_planar(ev.down)
+    field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
+    ev, vertical_kept, no_place = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: nothing holds it
 
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
         calibration = _record(result, inp, ev, len(inp.mag))
         holdout = _holdout(inp, ev, result, test)
         record = judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+        record = unplaced.with_vertical_kept(record, vertical_kept)
         if keep is None:
             return record
         return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))
 
     if rung is not None:
-        result = _forced_fit(ev, rung, planar)
+        result = _forced_fit(ev, rung, planar, no_place)
         return judged(result, {result.rung.name: result.identified_deg})
+    if no_place:
+        raise FitError(f"the motion does not identify {no_place}")
     try:
         found, tried = candidates.identified(ev, planar)
     except FitError as refused:
@@ -157,7 +155,8 @@ def fit_field(
             raise
         return fallback.replace(reason=f"{fallback.reason}; the magnetometer and gyroscope alone: {refused}")
     with contextlib.suppress(FitError, np.linalg.LinAlgError):  # no sphere: the rungs alone
-        found.append(candidates.sphere_fit(ev))
+        if not planar or ev.vertical_ut is not None:  # its radius free, only the dip moves its vertical centre
+            found.append(candidates.sphere_fit(ev))
     chosen = candidates.best([(result, judged(result, tried)) for result in found])
     if chosen.accepted:
         return chosen
@@ -183,14 +182,29 @@ def forced_rung(name: str, planar: bool) -> Rung:
     return LEVEL_OFFSET if planar and named is OFFSET else named
 
 
-def _forced_fit(ev: Evidence, name: str, planar: bool) -> RungFit:
+def _forced_fit(ev: Evidence, name: str, planar: bool, no_place: str = "") -> RungFit:
     """The rung ``--method NAME`` asks for (``forced_rung``), fitted; ``unidentified`` set when the ladder's rule
-    does not identify it (a planar device's offset+scale: ``LEVEL_GAIN``)."""
+    does not identify it (a planar device's offset+scale: ``LEVEL_GAIN``; a level device with no place and nothing in
+    force: ``no_place``, from ``unplaced.hold_vertical``)."""
     named = forced_rung(name, planar)
     result = fit_rung(ev, named, first_offset(ev))
     if planar and named is SCALE and not result.unidentified:
         result = dataclasses.replace(result, unidentified=LEVEL_GAIN)
+    if no_place and not result.unidentified:
+        result = dataclasses.replace(result, unidentified=no_place)
     return result
+
+
+def _motion_evidence(inp: FieldInput) -> motion.MotionEvidence | None:
+    """The tilt the fit and its judgement see: velocity aided where it can be (``_aided_evidence``: a vehicle's
+    accelerations do not bend it), else from the gyroscope and accelerometer; None without an accelerometer."""
+    aided = _aided_evidence(inp)
+    if aided is not None or inp.acc is None:
+        return aided
+    try:
+        return motion.evidence(np.asarray(inp.acc, dtype=float), inp.gyr, inp.period_s)
+    except ValueError as exc:
+        raise FitError(str(exc)) from None
 
 
 def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThresholds | None) -> Calibration | None:

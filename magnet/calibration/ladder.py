@@ -273,10 +273,10 @@ def _weakest(ev: Evidence, rung: Rung, direction: np.ndarray) -> str:
             f"{rung.name}'s soft iron ({', '.join(rung.estimated[1:]) or 'scale'}): turn the device through more "
             "headings and tilts, or let --method auto fit what the motion identifies"
         )
-    return _offset_direction(ev, offset / float(np.linalg.norm(offset)))
+    return offset_direction(ev, offset / float(np.linalg.norm(offset)))
 
 
-def _offset_direction(ev: Evidence, unit: np.ndarray, note: str = "") -> str:
+def offset_direction(ev: Evidence, unit: np.ndarray, note: str = "") -> str:
     """The offset's direction ``unit`` (3,) in body axes, in words, with what would show it; ``note`` (why it is
     not identified) follows the direction."""
     down = mean_down(ev.down)
@@ -285,7 +285,11 @@ def _offset_direction(ev: Evidence, unit: np.ndarray, note: str = "") -> str:
         return (
             f"the offset along the device's mean vertical (body axes {_body(down)}){note}: a device held near one "
             "attitude cannot tell it from its gain; tilt it (roll and pitch by 30 deg or more while turning)"
-            + (", or give the place (its dip then holds the vertical field)" if ev.vertical_ut is None else "")
+            + (
+                ", or give the place (--location: its dip then holds the vertical field)"
+                if ev.vertical_ut is None
+                else ""
+            )
             + ", or let --method auto fit what the motion identifies"
         )
     return (
@@ -340,7 +344,7 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
         identified = math.inf  # a minimum far from the WMM's dip: the motion did not pin the offset down
         away = float(x[3 + free]) - ev.vertical_ut
         note = f", its vertical field {away:+.1f} uT from the WMM's dip (limit {VERTICAL_LIMIT_UT:g})"
-        weakest = _offset_direction(ev, mean_down(ev.down), note)
+        weakest = offset_direction(ev, mean_down(ev.down), note)
     e = np.zeros(10)
     e[list(rung.e_free)] = x[3 : 3 + free]
     unidentified = weakest if identified > IDENTIFIED_DEG else ""

@@ -31,7 +31,7 @@ from magnet.compass.calibrations import CalibrationsInForce, Correction, small_c
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
 from magnet.compass.presence import GONE, CalibratorPresence
-from magnet.compass.tilt import Headings, batches_with, compute_headings, smooth_tail
+from magnet.compass.tilt import Headings, batches_with, compute_headings, field_flags, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.expected import utc_date
@@ -262,9 +262,9 @@ class CompassCore:
         field, filter_field = correction.apply(raw.mag_ut, raw.gyr_rads)
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
-        out = compute_headings(field, raw.acc_ms2, correction.calibrated)
-        filter_field, out = hd.leave_out_no_earth_field(filter_field, out, ~correction.calibrated, where.total_ut)
+        filter_field, flags = field_flags(filter_field, field, correction.calibrated, where.total_ut)
         fused = self._fuse(raw, filter_field, where.declination_deg)
+        out = compute_headings(field, raw.acc_ms2, flags, fused.fused)  # the accelerometer's tilt where not fused
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
             dip = hd.dip_angle_deg(out.field_ut, gravity)

@@ -312,12 +312,14 @@ class DeviceFilters:
         return FusedColumns.from_vqf(raw, disturbed, dropped, restarts, rotations)
 
 
-def _device_order(groups: Mapping[str, list[int]], sizes: np.ndarray) -> np.ndarray:
+def _device_order(groups: Mapping[str, list[int]], sizes: np.ndarray) -> np.ndarray | None:
     """The sample permutation (S,) that puts each device's samples together (devices in ``groups`` order, batches
-    without a gyroscope last), keeping their order."""
+    without a gyroscope last), keeping their order; None where they already are (one device's file: no copies)."""
     rank = np.full(len(sizes), len(groups), dtype=np.int64)
     for g, batches in enumerate(groups.values()):
         rank[batches] = g
+    if bool((np.diff(rank[sizes > 0]) >= 0).all()):
+        return None
     return np.argsort(np.repeat(rank, sizes), kind="stable")
 
 

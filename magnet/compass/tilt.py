@@ -1,7 +1,8 @@
 """Headings from the field and the accelerometer, for many samples of many devices at once, and their smoothing.
 
 ``compute_headings`` turns the corrected field into a tilt-compensated heading (level where a sample has no
-accelerometer); ``smooth_tail`` is the circular sliding mean carried across batches.
+accelerometer) for the samples the filters did not fuse; ``smooth_tail`` is the circular sliding mean carried across
+batches.
 """
 
 from __future__ import annotations
@@ -25,13 +26,39 @@ class Headings:
     flags: np.ndarray
 
 
-def compute_headings(field: np.ndarray, acc_ms2: np.ndarray, calibrated: np.ndarray) -> Headings:
-    """Headings for S samples of any devices at once; flags: CALIBRATED only (the disturbance checks come after the
-    attitude is known, ``magnet.attitude.heading.disturbance_flags``).
+def field_flags(
+    filter_field: np.ndarray, field: np.ndarray, calibrated: np.ndarray, expected_ut: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(the field (S, 3) uT the filters get, the flags (S,) int64 ``HeadingFlag`` bits): CALIBRATED where
+    ``calibrated`` (S,) bool; where a sample is uncalibrated and its corrected ``field`` (S, 3) uT is no Earth field
+    (``expected_ut`` (S,) uT, NaN where unknown), FIELD_DISTURBED and a zero row for the filter
+    (``magnet.attitude.heading.leave_out_no_earth_field``). The disturbance checks come after the attitude is known
+    (``magnet.attitude.heading.disturbance_flags``)."""
+    flags = np.where(calibrated, int(hd.HeadingFlag.CALIBRATED), 0).astype(np.int64)
+    return hd.leave_out_no_earth_field(filter_field, field, flags, ~calibrated, expected_ut)
+
+
+def compute_headings(field: np.ndarray, acc_ms2: np.ndarray, flags: np.ndarray, fused: np.ndarray) -> Headings:
+    """Headings for S samples of any devices at once, from the accelerometer's tilt where a sample was not fused.
 
     field (S, 3) uT corrected (``magnet.compass.calibrations.Correction``); acc_ms2 (S, 3) m/s^2 with NaN rows where
-    a sample has no accelerometer; calibrated (S,) bool: whether the sample's device has a calibration in force.
+    a sample has no accelerometer; flags (S,) int64 (``field_flags``), kept as they are; fused (S,) bool: the
+    samples whose device's filter gave their attitude (``filters.FusedColumns.fused``), whose heading, pitch and roll
+    ``filters.merge`` puts in: NaN here, the tilt worked out only for the other samples (none when all were fused).
     """
+    if not fused.any():
+        heading, pitch, roll = _tilt_figures(field, acc_ms2)
+        return Headings(field, heading, pitch, roll, flags)
+    heading, pitch, roll = np.full((3, len(fused)), np.nan)
+    rest = ~fused
+    if rest.any():
+        heading[rest], pitch[rest], roll[rest] = _tilt_figures(field[rest], acc_ms2[rest])
+    return Headings(field, heading, pitch, roll, flags)
+
+
+def _tilt_figures(field: np.ndarray, acc_ms2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Magnetic heading, pitch and roll (n,) deg of n samples, each from its own field and accelerometer (n, 3):
+    tilt-compensated where the accelerometer gives a tilt, else level (pitch and roll 0)."""
     has_acc = hd.rows_finite(acc_ms2)
     with np.errstate(invalid="ignore", divide="ignore"):
         tilted = hd.tilt_compensated_heading_deg(field, acc_ms2)
@@ -40,8 +67,7 @@ def compute_headings(field: np.ndarray, acc_ms2: np.ndarray, calibrated: np.ndar
     heading = tilted  # the level heading only where there is no tilt (most samples have one)
     if not tilt_known.all():
         heading = np.where(tilt_known, tilted, hd.level_heading_deg(field))
-    flags = np.where(calibrated, int(hd.HeadingFlag.CALIBRATED), 0).astype(np.int64)
-    return Headings(field, heading, np.where(has_acc, pitch, 0.0), np.where(has_acc, roll, 0.0), flags)
+    return heading, np.where(has_acc, pitch, 0.0), np.where(has_acc, roll, 0.0)
 
 
 def smooth_tail(tail: np.ndarray, heading_deg: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:

@@ -4,7 +4,8 @@ One thread (``Ingest.run``) drains every channel each ``tick_s``: liveliness of 
 alerts (``<prefix>/<device>/alert``, and the compasses' open ones asked for now and then), and
 headings, of which only the newest message of each device is decoded (1,000 devices at 10 Hz cost 4,000 decodes a
 second at a 0.25 s tick, not 10,000). Devices someone is looking at get their own raw subscriber and every heading
-sample. Raw messages of other devices pass through a small ring, read only for the sensor name of a new device.
+sample. Raw messages of other devices pass through a small ring (``RAW_RING_CAPACITY``), read only for the sensor
+name of a new device, each refused by its size before it is copied and let go before the next is taken.
 Headings and progress wait in rings too (``RING_CAPACITY``), and each sample is copied and let go as it is read
 (``copied``): a Zenoh sample keeps its receive buffer alive, and FIFOs of 65,536 held a flood's worth of them
 (docs/front-door.md). The freed heap is given back every ``TRIM_S``.
@@ -36,6 +37,10 @@ CHANNEL_CAPACITY = 65536
 #: Four floods of 20,000 ids (5,000/s) against a dashboard, a compass and a calibrator: RSS peaks 112-215 MB with
 #: rings of 4,096, 97-115 with 1,024, 86-111 with 512 (back to 84-92 after each in every case)
 RING_CAPACITY = 1024
+#: raw messages of devices nobody watches wait in a ring of this many (read only for a new device's sensor name, which
+#: every raw message of it repeats): each Zenoh sample pins its receive buffer, up to 4 MB for the soak's bombs, so
+#: 64 pinned up to 80 MB between two steps (20 bombs); 8 pin at most 32 MB, and a device's next message names it
+RAW_RING_CAPACITY = 8
 #: the freed heap is given back to the system this often (s): floods and bursts of streams leave it fragmented
 TRIM_S = 10.0
 MAX_DRAIN = 100_000
@@ -80,7 +85,7 @@ class Ingest:
         self.progress = self._subscribe(wire.Kind.PROGRESS, zenoh.handlers.RingChannel(RING_CAPACITY))
         self.calibrations = self._subscribe(wire.Kind.CALIBRATION, fifo(4096))
         self.alerts = self._subscribe(wire.Kind.ALERT, fifo(4096))
-        self.raw_any = self._subscribe(wire.Kind.RAW, zenoh.handlers.RingChannel(64))
+        self.raw_any = self._subscribe(wire.Kind.RAW, zenoh.handlers.RingChannel(RAW_RING_CAPACITY))
         self.raw_watched: dict[str, tuple[Subscriber, contextlib.ExitStack]] = {}
         self.pending: list[tuple[float, zenoh.Handler[zenoh.Reply]]] = []
         self.asked_s = -REQUERY_S
@@ -127,12 +132,9 @@ class Ingest:
             run("alert", self._on_alert, str(sample.key_expr), payload_bytes(sample))
         for key_expr, payload in copied(self.progress, MAX_DRAIN):
             run("progress", self._on_progress, key_expr, payload)
-        raws = drain(self.raw_any, MAX_DRAIN)
-        run("raw", self._on_raws, raws, True, count=len(raws))
+        self._take_raws(self.raw_any, True)
         for subscriber, _ in list(self.raw_watched.values()):
-            raws = drain(subscriber, MAX_DRAIN)
-            run("raw", self._on_raws, raws, False, count=len(raws))
-        raws.clear()  # Zenoh's samples go as soon as they are read (each holds its receive buffer)
+            self._take_raws(subscriber, False)
         headings = copied(self.headings, MAX_DRAIN)
         run("heading", self._on_headings, headings, count=len(headings))
         if time.monotonic() - self.trimmed_s >= TRIM_S:
@@ -190,21 +192,37 @@ class Ingest:
             return
         self.state.on_progress(message)
 
-    def _on_raws(self, samples: list[zenoh.Sample], only_new: bool) -> None:
-        for sample in samples:
-            key_expr = str(sample.key_expr)
-            device = self._device(key_expr, wire.Kind.RAW)
-            if device is None or (only_new and (device in self.raw_watched or self._has_sensor(device))):
-                continue
+    def _take_raws(self, handler: Receiver[zenoh.Sample], only_new: bool) -> None:
+        """The raw samples ``handler`` holds now, each handled and let go before the next is taken (a sample holds
+        its receive buffer: a drain of bombs held at once was 4 MB each, plus a copy of each)."""
+        for _ in range(MAX_DRAIN):
             try:
-                batch = wire.decode_raw(payload_bytes(sample))
-                wire.check_key(self.prefix, key_expr, wire.Kind.RAW, batch.device)
-            except wire.WireError as exc:
-                self._drop(exc, "raw")
-                continue
-            self.state.on_sensor(batch.device, batch.sensor)
-            if not only_new:
-                self.state.on_raw(batch)
+                sample = handler.try_recv()
+            except zenoh.ZError:
+                return
+            if sample is None:
+                return
+            self.guard.run("raw", self._on_raw, sample, only_new)
+            del sample
+
+    def _on_raw(self, sample: zenoh.Sample, only_new: bool) -> None:
+        key_expr = str(sample.key_expr)
+        device = self._device(key_expr, wire.Kind.RAW)
+        if device is None or (only_new and (device in self.raw_watched or self._has_sensor(device))):
+            return
+        size = len(sample.payload)
+        if size > wire.RAW_LIMITS.payload_bytes:  # refused before it is copied out of Zenoh (as the compass does)
+            self._drop(wire.WireError("oversized", f"{size} bytes, more than a raw message may be"), "raw")
+            return
+        try:
+            batch = wire.decode_raw(payload_bytes(sample))
+            wire.check_key(self.prefix, key_expr, wire.Kind.RAW, batch.device)
+        except wire.WireError as exc:
+            self._drop(exc, "raw")
+            return
+        self.state.on_sensor(batch.device, batch.sensor)
+        if not only_new:
+            self.state.on_raw(batch)
 
     def _has_sensor(self, device: str) -> bool:
         row = self.state.rows.get(device)

@@ -14,6 +14,9 @@ from helpers import fit_input_of
 from magnet.calibration.choose import fit_choice
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.fitting import fit
+from magnet.calibration.rungs import mean_down
+from magnet.calibration.unplaced import VERTICAL_KEPT
+from magnet.quality import motion
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 
 RATE_HZ = 50.0
@@ -66,3 +69,44 @@ def test_a_tumble_forced_to_any_rung_is_still_accepted():
         assert record.accepted, record.reason
         assert np.linalg.norm(record.offset - truth) < 1.0
         assert "identifiability" not in record.reason
+
+
+@pytest.fixture(scope="module")
+def texting_long():
+    """The bench's level texting walk (120 s, seed 2026), where no place left the vertical offset to chance."""
+    return _run(Trajectory.WALK_TEXTING, 120.0, seed=2026)
+
+
+def test_a_level_walk_with_no_place_and_nothing_in_force_is_refused_saying_give_the_place(texting_long):
+    """With no place (no WMM |B| and dip), nothing holds a level device's vertical offset. Before, ``auto`` took the
+    planar rung 7.5 uT off and a forced ``offset`` 9.3 uT off (robot 8.5-15.3, phoning 4.5-35 on seeds 2026-2028),
+    both accepted; now no record is accepted and the reason says to give the place."""
+    data, truth = texting_long
+    no_place = data.replace(field_ut=None, dip_deg=None)
+    forced = fit_choice(no_place, "offset")
+    assert not forced.accepted
+    assert "identifiability rule" in forced.reason and "give the place" in forced.reason, forced.reason
+    record = fit_choice(no_place, "auto")  # the sphere's methods refused, and the field ladder with them
+    assert not record.accepted
+    assert "the field ladder refused" in record.reason and "give the place" in record.reason, record.reason
+    # |B| known (``--field-ut``, a calibrator's ``--location``) without the dip: the rungs, their matrix kept, hold
+    # the vertical offset by the magnitude (2.4 uT); the plain sphere, its radius free, is not a candidate there
+    with_field = fit_choice(data.replace(dip_deg=None), "auto")
+    assert with_field.accepted and np.linalg.norm(with_field.offset - truth) < 4.0, with_field.reason
+    assert "sphere" not in [c["fit"] for c in with_field.quality["candidates"]]
+
+
+def test_a_level_walk_with_no_place_keeps_the_vertical_offset_in_force_and_says_so(texting_long):
+    """With a calibration in force and no place, its vertical offset is kept (the record says so) and the horizontal
+    one is fitted: the truth's hard iron moved 20 uT across the phone's mean vertical is found again."""
+    data, truth = texting_long
+    down = mean_down(motion.evidence(data.acc, data.gyr_rads, data.period_s).down)
+    across = np.cross(down, [1.0, 0.0, 0.0])
+    true = SensorErrors.phone(np.random.default_rng([2026, 26]), 50.0).true_calibration(50.0)
+    stale = true.replace(method="ellipsoid", offset=truth + 20.0 * across / np.linalg.norm(across))
+    for method in ("auto", "offset"):
+        record = fit_choice(data.replace(field_ut=None, dip_deg=None, reference=stale), method)
+        assert record.accepted, record.reason
+        assert np.linalg.norm(record.offset - truth) < 4.0, (method, record.offset - truth)
+        assert record.quality["vertical_kept"] == VERTICAL_KEPT and "give --location" in record.reason
+        assert any(kept.startswith("vertical offset") for kept in record.quality["kept"])

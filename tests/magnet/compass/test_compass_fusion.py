@@ -12,7 +12,7 @@ from magnet import frames, wire
 from magnet.attitude import fusion
 from magnet.attitude.heading import HeadingFlag, angle_difference_deg
 from magnet.compass import CompassCore
-from magnet.compass.filters import GYRO_LIMIT_RADS, DeviceFilters
+from magnet.compass.filters import GYRO_LIMIT_RADS, DeviceFilters, _device_order
 from magnet.earth.expected import Earth
 from magnet.frames import to_magnetic_ned
 from magnet.simulator import SimulatorConfig, Trajectory, simulate
@@ -237,3 +237,14 @@ def test_compass_aids_with_the_velocity_its_batches_carry_as_magnet_heading_does
     aided_error = angle_difference_deg(joined(out, "heading_deg"), run.magnetic_heading_deg)[scored]
     plain_error = angle_difference_deg(plain.heading_deg, run.magnetic_heading_deg)[scored]
     assert np.sqrt(np.mean(aided_error**2)) < np.sqrt(np.mean(plain_error**2)) / 2
+
+
+def test_the_drains_order_is_none_where_each_devices_samples_already_follow_each_other():
+    """No permutation (and so no copies of the drain) where the stable sort by device would leave every sample in
+    place; otherwise the permutation groups each device's samples, in their order, batches without a gyroscope last."""
+    sizes = np.array([2, 3, 0, 1])
+    assert _device_order({"a": [0, 1], "b": [3]}, sizes) is None  # a, a, (empty), b
+    assert _device_order({"a": [0, 1, 3]}, sizes) is None
+    assert _device_order({"a": [0]}, np.array([2, 1, 0])) is None  # the batch without a gyroscope already last
+    assert _device_order({"a": [0, 3], "b": [1]}, sizes).tolist() == [0, 1, 5, 2, 3, 4]
+    assert _device_order({"a": [1]}, np.array([2, 1])).tolist() == [2, 0, 1]  # no gyroscope first: moved last
