@@ -235,10 +235,17 @@ class AidedFilter:
         (s: an aided vehicle's, else vqf's own) and the velocity fixes (their acceleration, how far it is known)."""
         return self.drift.tau_s, self.fixes
 
-    def restart(self) -> None:
+    def restart(self, keep_fixes: bool = False) -> AidedFilter:
+        """Back to a new filter (itself, returned); ``keep_fixes``: the velocity's fixes kept (they say nothing of
+        the attitude), so that the accelerometer is freed of the acceleration from the first samples the new filter
+        takes (a new record while the car accelerates: docs/field-calibration.md)."""
         self.release()
         self.filter.resetState()
+        kept = (self.fixes.meta.copy(), self.fixes.buffer_times.copy(), self.fixes.buffer_values.copy())
         self._fresh()
+        if keep_fixes:
+            self.fixes.meta[:], self.fixes.buffer_times[:], self.fixes.buffer_values[:] = kept
+        return self
 
     def release(self) -> None:
         """Give the filter back its own settings (rest detection, tauAcc), for samples fed without aiding."""

@@ -184,12 +184,12 @@ class Fusion:
         self.samples = 0
 
     def restart_magnetometer(self) -> None:
-        """Forget the magnetic side only (a new calibration put in force): the heading is taken again from the next
-        field sample at once and its references learnt anew, while the tilt and the gyroscope's bias are kept (a
-        whole restart while a hand swings the phone takes ten seconds and more to find the tilt again). With the
-        velocity-aided filter, a whole restart."""
-        if self._aided is not None:
+        """Forget the magnetic side only (a new calibration put in force): the heading taken again from the next field
+        sample, the tilt and the gyroscope's bias kept (a whole restart takes 10 s and more to find a swinging hand's
+        tilt). Aided: a whole restart, the velocity's fixes kept (docs/field-calibration.md)."""
+        if (aided := self._aided) is not None:
             self.restart()
+            self._aided = aided.restart(keep_fixes=True)
             return
         fresh = vqf.VQF(self.period_s, **self.params).state
         state = self._filter.state
