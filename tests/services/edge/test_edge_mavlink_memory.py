@@ -14,6 +14,7 @@ from helpers import free_ports
 from pymavlink.dialects.v20 import common as mav
 from test_edge_device_limit import FakeSession
 
+from magnet.autopilot import mavlink_stream
 from services.edge.mavlink_source import MAX_UDP_CLIENTS, MavlinkSource
 from services.edge.service import EdgeStatus
 from services.edge.settings import EdgeSettings
@@ -69,7 +70,8 @@ def sizes(source: MavlinkSource, status: EdgeStatus, session: FakeSession) -> di
     }
 
 
-def test_rounds_of_id_floods_leave_the_link_the_stream_and_the_edge_as_they_were() -> None:
+def test_rounds_of_id_floods_leave_the_link_the_stream_and_the_edge_as_they_were(monkeypatch: Any) -> None:
+    monkeypatch.setattr(mavlink_stream, "FORGET_CHECK_NS", 50_000_000)  # the silent ids looked for every 50 ms, not 1 s
     [port] = free_ports(1)
     settings = EdgeSettings(mavlink=f"udpin:127.0.0.1:{port}", device="mavedge", forget_after_s=0.2)
     source = MavlinkSource(settings)
@@ -85,7 +87,7 @@ def test_rounds_of_id_floods_leave_the_link_the_stream_and_the_edge_as_they_were
             seen_devices.append(max(tokens))
             deadline = time.monotonic() + 5
             while (source.stream.pending or status.tokens) and time.monotonic() < deadline:
-                source.take(0, 0, lambda: False)  # the flood's ids silent: forgotten (checked once a second)
+                source.take(0, 0, lambda: False)  # the flood's ids silent: forgotten
             after.append(sizes(source, status, session))
     finally:
         status.close()
