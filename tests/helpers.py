@@ -218,3 +218,24 @@ def fit_input_of(run: Any, rate_hz: float) -> Any:
         field_ut=run.earth.total_ut,
         dip_deg=run.earth.inclination_deg,
     )
+
+
+class StatusQuery:
+    """A Zenoh query as a status board answers it (``services.common.status_board``): the replies unpacked, the
+    errors, whether it was dropped (finalized)."""
+
+    def __init__(self) -> None:
+        self.replies: list[tuple[str, dict[str, Any]]] = []
+        self.errors: list[bytes] = []
+        self.dropped = False
+
+    def reply(self, key: str, payload: bytes) -> None:
+        from magnet import wire
+
+        self.replies.append((key, wire.unpack(payload)))
+
+    def reply_err(self, payload: bytes) -> None:
+        self.errors.append(payload)
+
+    def drop(self) -> None:
+        self.dropped = True

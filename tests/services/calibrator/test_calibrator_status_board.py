@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from helpers import StatusQuery as Query
 
 from magnet import wire
 from services.calibrator.intake import RawIntake
@@ -34,22 +35,6 @@ class Channel:
 class Session:
     def declare_queryable(self, key: str, handler: Any) -> Channel:
         return Channel()
-
-
-class Query:
-    def __init__(self) -> None:
-        self.replies: list[tuple[str, dict[str, Any]]] = []
-        self.errors: list[bytes] = []
-        self.dropped = False
-
-    def reply(self, key: str, payload: bytes) -> None:
-        self.replies.append((key, wire.unpack(payload)))
-
-    def reply_err(self, payload: bytes) -> None:
-        self.errors.append(payload)
-
-    def drop(self) -> None:
-        self.dropped = True
 
 
 def raw(device: str) -> bytes:

@@ -5,7 +5,8 @@ is inside a drain that does not end is answered at once, with the age of what it
 from __future__ import annotations
 
 import threading
-from typing import Any
+
+from helpers import StatusQuery as Query
 
 from magnet import wire
 from services.common.status_board import REFRESH_S
@@ -16,22 +17,6 @@ from services.compass.service import CompassSettings, _Loop, build_core
 class Session:
     def get(self, *args: object, **kwargs: object) -> list[object]:
         return []
-
-
-class Query:
-    def __init__(self) -> None:
-        self.replies: list[tuple[str, dict[str, Any]]] = []
-        self.errors: list[bytes] = []
-        self.dropped = False
-
-    def reply(self, key: str, payload: bytes) -> None:
-        self.replies.append((key, wire.unpack(payload)))
-
-    def reply_err(self, payload: bytes) -> None:
-        self.errors.append(payload)
-
-    def drop(self) -> None:
-        self.dropped = True
 
 
 def test_status_is_answered_while_the_loop_is_stuck_in_a_drain(monkeypatch) -> None:
