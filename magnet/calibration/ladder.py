@@ -296,8 +296,7 @@ def offset_direction(ev: Evidence, unit: np.ndarray, note: str = "") -> str:
             )
         )
     return (
-        f"the offset along body axes {_body(unit)}{note}: turn the device through more headings (a full turn or "
-        "more)"
+        f"the offset along body axes {_body(unit)}{note}: turn the device through more headings (a full turn or more)"
     )
 
 
