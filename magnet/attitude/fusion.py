@@ -25,9 +25,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import vqf
 
+from magnet import _kernels
 from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
-from magnet.attitude.turn_gate import TurnGate, run_gated
+from magnet.attitude.turn_gate import TurnGate, bind_vqf, run_gated
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
 from magnet.units import STANDARD_GRAVITY_MS2
@@ -244,12 +245,53 @@ class Fusion:
         known (or after such a batch, until ``restart``): the velocity-aided filter. Samples the watch finds disturbed
         (``magnet.attitude.field_watch``) reach vqf without their field (a zero vector, which vqf skips: the gyroscope
         holds the heading) and are flagged disturbed."""
+        if self._plain() and (t_s is None or vel_ned_ms is None or not np.isfinite(vel_ned_ms).any()):
+            quat, flags = np.empty((len(gyr), 4)), np.empty(len(gyr), dtype=bool)
+            self.update_rows((gyr, acc, field), 0, len(gyr), quat, flags)
+            return quat, flags
         self.samples += len(gyr)
         watched = self._watched(field, gyr)
         if watched.any():
             field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
         quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms, watched)
         return quat, np.asarray(disturbed, dtype=bool) | watched
+
+    def _plain(self) -> bool:
+        """Whether a batch without a velocity goes through the watch, the turn gate and vqf alone (not aided, no
+        bias loop, the gate's plain companion done): then ``update_rows`` is one compiled call."""
+        gate = self.turn_gate
+        return (
+            self._aided is None
+            and self.heading_bias is None
+            and gate is not None
+            and (gate.alone is None or gate.alone.done)
+        )
+
+    def update_rows(
+        self,
+        inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
+        lo: int,
+        hi: int,
+        quat: np.ndarray,
+        disturbed: np.ndarray,
+    ) -> None:
+        """``update_vqf_frame`` without a velocity on rows lo .. hi of a drain's gyroscope, accelerometer and field
+        (S, 3) each (vqf's frame, finite, C-contiguous float64), its outputs written into rows lo .. hi of ``quat``
+        (S, 4) and ``disturbed`` (S,) bool. The usual case (``_plain``) in one compiled call
+        (``magnet._kernels.fuse_rows``: the field's watch, its flagged samples' field left out, the turn gate and vqf,
+        the same code as ``watch_update`` and ``gated_run``); the compass's filters call this per run of a device's
+        samples."""
+        gate = self.turn_gate
+        if gate is None or not self._plain():
+            gyr, acc, field = (x[lo:hi] for x in inputs)
+            quat[lo:hi], disturbed[lo:hi] = self.update_vqf_frame(gyr, acc, field)
+            return
+        bind_vqf()
+        self.samples += hi - lo
+        watch = None if self.watch is None else self.watch.kernel_args
+        _kernels.fuse_rows(
+            self._filter, gate.settings_array, gate.state, watch, *inputs, lo, hi, quat, disturbed
+        )  # fmt: skip
 
     def figures(self) -> FilterFigures:
         """What the heading's uncertainty needs of this filter's state now (``magnet.attitude.uncertainty``): vqf's

@@ -233,7 +233,7 @@ def run_gated(
 
 
 @functools.cache
-def _bind() -> None:
+def bind_vqf() -> None:
     """Find vqf's compiled filter (its C++ class, in vqf's own extension module) for ``run_gated_vqf``."""
     _kernels.vqf_bind(str(sys.modules[vqf.VQF.__module__].__file__))
 
@@ -245,7 +245,7 @@ def run_gated_vqf(
     the same gate, the same vqf object driven through its C++ class): vqf's outputs quat9D (N, 4) (and quat6D without
     a field; with one nobody reads it), restDetected and magDistDetected (N,) bool for the batch (gyroscope,
     accelerometer, field or None; (N, 3) each, vqf's frames, C-contiguous float64)."""
-    _bind()
+    bind_vqf()
     gyr, acc, field = samples
     count = len(gyr)
     out = {
