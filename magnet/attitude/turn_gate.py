@@ -262,6 +262,20 @@ def run_gated_vqf(
     return out
 
 
+def fuse_rows(
+    gate: TurnGate, filter_: Any, watch: Any, inputs: tuple[np.ndarray, ...], lo: int, hi: int, quat: Any, out: Any
+) -> None:
+    """Rows lo .. hi of a drain's gyroscope, accelerometer and field (S, 3) each (vqf's frames, finite, C-contiguous
+    float64) through the field's ``watch`` (a ``FieldWatch`` or None), its flagged samples' field left out, then
+    ``run_gated_vqf``, in one compiled call (``magnet._kernels.fuse_rows``: the code of ``watch_update`` and
+    ``gated_run``): vqf's quaternions written into rows lo .. hi of ``quat`` (S, 4), its disturbance flags or-ed with
+    the watch's into those of ``out`` (S,) bool. ``Fusion.update_rows`` calls it."""
+    bind_vqf()
+    gyr, acc, field = inputs
+    args = None if watch is None else watch.kernel_args
+    _kernels.fuse_rows(filter_, gate.settings_array, gate.state, args, gyr, acc, field, lo, hi, quat, out)
+
+
 class Alone:
     """vqf without the gate, beside the gated filter until a field reaches it: its 6D attitude is the filter's answer
     until then (docs/compass.md, "Turns of the course").
