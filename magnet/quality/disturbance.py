@@ -41,8 +41,8 @@ import numpy as np
 from magnet.attitude.field_watch import FIELD_TOL_PCT, SMOOTH_S, STEPS, TURN_FLOOR_RAD, integrated_attitude, to_frame
 from magnet.attitude.heading import dip_angle_deg, row_norm
 from magnet.frames import quaternion_to_matrix
-from magnet.order_stats import median, quantile
 from magnet.model import Calibration
+from magnet.order_stats import median, quantile
 from magnet.units import EARTH_MAX_UT, ut_per_unit
 
 
@@ -229,9 +229,7 @@ def field_disturbance(
         dip = dip_angle_deg(field, acc)
     reference_ut = median(norm) if expected_ut is None and n else float(expected_ut or 0.0)
     finite_dip = dip[np.isfinite(dip)]
-    reference_dip = (
-        median(finite_dip) if expected_dip_deg is None and finite_dip.size else float(expected_dip_deg or 0)
-    )
+    reference_dip = median(finite_dip) if expected_dip_deg is None and finite_dip.size else float(expected_dip_deg or 0)
     magnitude, dip_off = _off_expected(norm, dip, reference_ut, reference_dip, settings)
     if expected_dip_deg is None and not finite_dip.size:
         dip_off = np.zeros(n, dtype=bool)

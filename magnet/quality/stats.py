@@ -1,7 +1,7 @@
 """Order statistics and moments the fits and figures take of thousands of samples, computed the fast way.
 
-``median`` and ``column_medians`` (numpy's medians bit for bit, one partition each) live in ``magnet.order_stats``, which
-imports numpy alone, and are named here too.
+``median`` and ``column_medians`` (numpy's medians bit for bit, one partition each) live in
+``magnet.order_stats``, which imports numpy alone, and are named here too.
 ``np.cov`` of an (N, 3) array copies and reduces it in its row layout; ``covariance`` works on the three contiguous
 columns (the same covariance to within a few units in the last place). ``rows[mask]`` of an (N, 3) array copies
 row by row through numpy's general boolean indexing, several times slower than ``np.compress`` (``take_rows``), which

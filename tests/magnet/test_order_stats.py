@@ -42,5 +42,5 @@ def test_quantile_of_nan_is_nan_and_of_nothing_or_beyond_0_1_an_error():
     assert quantile(np.array([4.0, 1.0, 3.0, 2.0]), 0.5) == median(np.array([4.0, 1.0, 3.0, 2.0])) == 2.5
     with pytest.raises(ValueError, match="no values"):
         quantile(np.array([]), 0.5)
-    with pytest.raises(ValueError, match="within 0 .. 1"):
+    with pytest.raises(ValueError, match=r"within 0 \.\. 1"):
         quantile(np.array([1.0]), 1.5)
