@@ -169,3 +169,16 @@ def gated_run(
     rest: np.ndarray,
     disturbed: np.ndarray,
 ) -> None: ...
+def fuse_rows(
+    filter: object,
+    settings: np.ndarray,
+    state: np.ndarray,
+    watch: tuple[Any, ...] | None,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    field: np.ndarray,
+    lo: int,
+    hi: int,
+    quat9: np.ndarray,
+    disturbed: np.ndarray,
+) -> None: ...
