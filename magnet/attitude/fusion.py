@@ -30,6 +30,7 @@ from magnet.attitude.heading_bias import HeadingBias, run_pieces
 from magnet.attitude.turn_gate import TurnGate, fuse_rows, run_gated
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu
+from magnet.order_stats import median
 from magnet.units import STANDARD_GRAVITY_MS2
 
 if TYPE_CHECKING:  # the aided filter and the offline bias are imported where used: `magnet heading` needs neither
@@ -44,8 +45,8 @@ def acc_in_ms2(acc: np.ndarray) -> np.ndarray:
     """Accelerometer readings (N, 3) in m/s^2, or in g (recognised by a median magnitude of 0.5 .. 2), as m/s^2: the
     filter's rest detection works in m/s^2; logs in g are common (``magnet heading`` takes either)."""
     arr = np.asarray(acc, dtype=float)
-    median = float(np.median(np.linalg.norm(arr, axis=-1))) if arr.size else 0.0
-    return arr * STANDARD_GRAVITY_MS2 if 0.5 <= median <= 2.0 else arr
+    typical = median(np.ravel(np.linalg.norm(arr, axis=-1))) if arr.size else 0.0
+    return arr * STANDARD_GRAVITY_MS2 if 0.5 <= typical <= 2.0 else arr
 
 
 def sample_period_s(t: np.ndarray, scale: float = 1.0) -> float:
@@ -57,7 +58,7 @@ def sample_period_s(t: np.ndarray, scale: float = 1.0) -> float:
         raise ValueError("need at least two time stamps to know the sample period")
     if not np.all(np.isfinite(stamps)):
         raise ValueError("time stamps hold NaN or infinite values")
-    period = float(np.median(np.diff(stamps) * scale))
+    period = median(np.diff(stamps) * scale)
     if not MIN_PERIOD_S <= period <= MAX_PERIOD_S:
         raise ValueError(
             f"median time step {period:.6g} s is not a usable sample period "
