@@ -210,6 +210,9 @@ class DeviceFilter:
         if self.filter is None or hi <= lo:
             return
         if drain.unusable_before[hi] == drain.unusable_before[lo]:
+            if drain.aiding is None:  # the usual case: written in place, in one compiled call
+                self.filter.update_rows(drain.inputs, lo, hi, out, disturbed)
+                return
             rows: Any = slice(lo, hi)
             gyr, acc, field = (x[lo:hi] for x in drain.inputs)
         else:

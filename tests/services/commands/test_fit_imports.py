@@ -34,6 +34,7 @@ NOT_LOADED = (
     "services.router",
     "services.common.zenoh_session",
     "services.common.inputs.flightlogs",
+    "numpy.ma",  # np.median, np.quantile and np.unique load it (numpy 2.4): magnet.order_stats instead
 )
 
 SCRIPT = """
