@@ -853,6 +853,95 @@ static PyObject *sigma_direct(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(bias_drift_doc,
+             "bias_drift(t_ns, trusted, bounds, slot, untrusted, bias, slots, drift)\n\n"
+             "The gyroscope's bias drift of magnet.attitude.uncertainty (HeadingUncertainty._drift), batch by batch "
+             "in order: t_ns (S,) int64, trusted (S,) bool, bounds (B + 1,) int64; per batch slot (B,) int64, its "
+             "device's entry in slots (D,) int64 (the device's last trusted time, ns; updated in place) or -1 (not "
+             "fused: skipped), untrusted (B,) bool, bias (B,) rad/s. A batch not untrusted sets its slot to its last "
+             "time; in an untrusted one each sample's since is the running maximum of its time where trusted and of "
+             "the slot's time (at the batch's start) where not, drift (S,) = bias (t - since) 1e-9 rad, and the slot "
+             "takes the last since. Samples of other batches keep their drift.");
+
+static PyObject *bias_drift(PyObject *self, PyObject *args) {
+    PyObject *o_t, *o_trusted, *o_bounds, *o_slot, *o_untrusted, *o_bias, *o_slots, *o_drift;
+    if (!PyArg_ParseTuple(args, "OOOOOOOO", &o_t, &o_trusted, &o_bounds, &o_slot, &o_untrusted, &o_bias, &o_slots,
+                          &o_drift)) {
+        return NULL;
+    }
+    Py_buffer t, trusted, bounds, slot, untrusted, slots;
+    Array a[2];
+    int got = 0, arrays = 0;
+    PyObject *result = NULL;
+    if (get_array(o_drift, &a[0], 1, -1, -1, 1, "drift") < 0) return NULL;
+    arrays++;
+    Py_ssize_t n = a[0].rows;
+    if (get_int64(o_t, &t, n, "t_ns") < 0) goto done;
+    got = 1;
+    if (get_flags(o_trusted, &trusted, n, "trusted") < 0) goto done;
+    got = 2;
+    if (PyObject_GetBuffer(o_bounds, &bounds, PyBUF_STRIDES | PyBUF_FORMAT) < 0) goto done;
+    got = 3;
+    Py_ssize_t count = bounds.ndim == 1 ? bounds.shape[0] - 1 : -1;
+    PyBuffer_Release(&bounds);
+    got = 2;
+    if (count < 0) {
+        PyErr_SetString(PyExc_ValueError, "bounds must be a 1-D int64 array of B + 1 items");
+        goto done;
+    }
+    if (get_int64(o_bounds, &bounds, count + 1, "bounds") < 0) goto done;
+    got = 3;
+    if (get_int64(o_slot, &slot, count, "slot") < 0) goto done;
+    got = 4;
+    if (get_flags(o_untrusted, &untrusted, count, "untrusted") < 0) goto done;
+    got = 5;
+    if (get_array(o_bias, &a[1], 1, count, -1, 0, "bias") < 0) goto done;
+    arrays++;
+    if (PyObject_GetBuffer(o_slots, &slots, PyBUF_STRIDES | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) goto done;
+    got = 6;
+    const char *f = slots.format;
+    char kind = f == NULL ? 0 : (f[0] == '<' || f[0] == '=' ? f[1] : f[0]);
+    if (slots.itemsize != 8 || !(kind == 'l' || kind == 'q') || slots.ndim != 1) {
+        PyErr_SetString(PyExc_ValueError, "slots must be a writable 1-D int64 array");
+        goto done;
+    }
+#define I64(view, i) (*(long long *)((char *)(view).buf + (i) * (view).strides[0]))
+#define B8(view, i) (((char *)(view).buf)[(i) * (view).strides[0]])
+    for (Py_ssize_t b = 0; b < count; b++) {
+        long long lo = I64(bounds, b), hi = I64(bounds, b + 1), k = I64(slot, b);
+        if (lo < 0 || hi > n || lo > hi || k >= slots.shape[0]) {
+            PyErr_Format(PyExc_ValueError, "batch %zd: samples %lld .. %lld or slot %lld out of range", b, lo, hi, k);
+            goto done;
+        }
+        if (k < 0 || hi == lo) continue;
+        if (!B8(untrusted, b)) {
+            I64(slots, k) = I64(t, hi - 1);
+            continue;
+        }
+        long long init = I64(slots, k), since = 0;
+        double bias = AT1(a[1], b);
+        for (long long i = lo; i < hi; i++) {
+            long long value = B8(trusted, i) ? I64(t, i) : init;
+            since = i == lo || value > since ? value : since;
+            AT1(a[0], i) = bias * (double)(I64(t, i) - since) * 1e-9;
+        }
+        I64(slots, k) = since;
+    }
+#undef I64
+#undef B8
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    if (got >= 6) PyBuffer_Release(&slots);
+    if (got >= 5) PyBuffer_Release(&untrusted);
+    if (got >= 4) PyBuffer_Release(&slot);
+    if (got >= 3) PyBuffer_Release(&bounds);
+    if (got >= 2) PyBuffer_Release(&trusted);
+    if (got >= 1) PyBuffer_Release(&t);
+    release(a, arrays);
+    return result;
+}
+
 PyDoc_STRVAR(sigma_degrees_doc,
              "sigma_degrees(variance, tilt, max_sigma_deg, unlevel_deg, min_tilt_deg, heading_deg, tilt_deg)\n\n"
              "The sigmas in degrees (magnet.attitude.uncertainty): heading_deg (S,) sqrt(variance) (S,) rad^2 at "
@@ -2461,6 +2550,7 @@ static PyMethodDef methods[] = {
     {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
     {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
+    {"bias_drift", bias_drift, METH_VARARGS, bias_drift_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
     {"row_faults", row_faults, METH_VARARGS, row_faults_doc},

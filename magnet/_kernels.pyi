@@ -182,3 +182,13 @@ def fuse_rows(
     quat9: np.ndarray,
     disturbed: np.ndarray,
 ) -> None: ...
+def bias_drift(
+    t_ns: np.ndarray,
+    trusted: np.ndarray,
+    bounds: np.ndarray,
+    slot: np.ndarray,
+    untrusted: np.ndarray,
+    bias: np.ndarray,
+    slots: np.ndarray,
+    drift: np.ndarray,
+) -> None: ...
