@@ -102,7 +102,6 @@ def test_the_fitter_scales_to_the_place_else_the_settings_and_counts_each_fit():
     assert (fitter.fits, fitter.accepted, fitter.rejected) == (2, 1, 1)
 
 
-
 def test_a_device_that_reports_no_place_is_fitted_with_the_dip_and_declination_of_the_services_location():
     """``--location`` is the place of the devices that report none: its dip and declination, not only its |B|,
     reach their fits (the ladder's vertical prior; the velocity turned to magnetic north for a vehicle's heading from
@@ -122,6 +121,7 @@ def test_a_device_that_reports_no_place_is_fitted_with_the_dip_and_declination_o
     assert Roster().dip_deg("unplaced") is None and Roster().declination_deg("unplaced") is None  # no place at all
     fitter = Fitter(CalibratorSettings(location=here), roster.field_ut, roster.dip_deg, roster.declination_deg)
     assert fitter.dip_at("unplaced") == roster.dip_deg("unplaced")
+
 
 # ------------------------------------------------------------------------------------------------------- records
 def test_records_number_stamp_and_record_each_change_and_read_back_only_their_shard(store):
