@@ -536,28 +536,35 @@ PyDoc_STRVAR(watch_update_doc,
              "``calm`` (block,) its calm samples' |B|. widths (S,) and floors (S,): the step windows in samples and "
              "their floors.");
 
-static PyObject *watch_update(PyObject *self, PyObject *args) {
-    PyObject *o_field, *o_gyr, *o_flagged, *o_state, *o_levels, *o_ring, *o_pending, *o_calm, *o_widths, *o_floors;
+/* FieldWatch's numbers (``watch_update``'s float and int arguments). */
+typedef struct {
     double period, relative, tol_pct, learn_s, tau_s, max_reject_s, turn_floor;
     Py_ssize_t smooth, hold, block;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOdnnndddddd", &o_field, &o_gyr, &o_flagged, &o_state, &o_levels, &o_ring,
-                          &o_pending, &o_calm, &o_widths, &o_floors, &period, &smooth, &hold, &block, &relative,
-                          &tol_pct, &learn_s, &tau_s, &max_reject_s, &turn_floor)) {
-        return NULL;
-    }
-    Array a[9];
-    Py_buffer flags;
-    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
-    if (get_array(o_gyr, &a[1], 2, a[0].rows, 3, 0, "gyr") < 0) { release(a, 1); return NULL; }
-    if (get_array(o_widths, &a[2], 1, -1, -1, 0, "widths") < 0) { release(a, 2); return NULL; }
+} WatchNumbers;
+
+/* The watch's own arrays a[2] .. a[8] (widths, floors, state, levels, ring, pending, calm) from their objects; on
+ * failure -1, an exception set and nothing held. a[0] and a[1] (field and gyr, n rows) are the caller's. */
+static int watch_arrays(Array a[9], PyObject *o_widths, PyObject *o_floors, PyObject *o_state, PyObject *o_levels,
+                        PyObject *o_ring, PyObject *o_pending, PyObject *o_calm, Py_ssize_t block) {
+    if (get_array(o_widths, &a[2], 1, -1, -1, 0, "widths") < 0) return -1;
     int steps = (int)a[2].rows;
-    if (get_array(o_floors, &a[3], 1, steps, -1, 0, "floors") < 0) { release(a, 3); return NULL; }
-    if (get_array(o_state, &a[4], 1, W_SIZE, -1, 1, "state") < 0) { release(a, 4); return NULL; }
-    if (get_array(o_levels, &a[5], 1, steps + 1, -1, 1, "levels") < 0) { release(a, 5); return NULL; }
-    if (get_array(o_ring, &a[6], 2, -1, 7, 1, "ring") < 0) { release(a, 6); return NULL; }
-    if (get_array(o_pending, &a[7], 2, block, steps + 1, 1, "pending") < 0) { release(a, 7); return NULL; }
-    if (get_array(o_calm, &a[8], 1, block, -1, 1, "calm") < 0) { release(a, 8); return NULL; }
-    if (get_flags(o_flagged, &flags, a[0].rows, "flagged") < 0) { release(a, 9); return NULL; }
+    if (get_array(o_floors, &a[3], 1, steps, -1, 0, "floors") < 0) { release(a + 2, 1); return -1; }
+    if (get_array(o_state, &a[4], 1, W_SIZE, -1, 1, "state") < 0) { release(a + 2, 2); return -1; }
+    if (get_array(o_levels, &a[5], 1, steps + 1, -1, 1, "levels") < 0) { release(a + 2, 3); return -1; }
+    if (get_array(o_ring, &a[6], 2, -1, 7, 1, "ring") < 0) { release(a + 2, 4); return -1; }
+    if (get_array(o_pending, &a[7], 2, block, steps + 1, 1, "pending") < 0) { release(a + 2, 5); return -1; }
+    if (get_array(o_calm, &a[8], 1, block, -1, 1, "calm") < 0) { release(a + 2, 6); return -1; }
+    return 0;
+}
+
+/* FieldWatch.update's loop over the a[0].rows samples of field a[0] and gyr a[1] (the rest as ``watch_arrays``):
+ * out[i * stride] set where sample i is disturbed, the state updated in place. -1 and an exception on bad sizes. */
+static int watch_run(Array *a, const WatchNumbers *nums, char *out, Py_ssize_t stride) {
+    const double period = nums->period, relative = nums->relative, tol_pct = nums->tol_pct,
+                 learn_s = nums->learn_s, tau_s = nums->tau_s, max_reject_s = nums->max_reject_s,
+                 turn_floor = nums->turn_floor;
+    const Py_ssize_t smooth = nums->smooth, hold = nums->hold, block = nums->block;
+    int steps = (int)a[2].rows;
     Py_ssize_t widths[MAX_STEPS], keep = a[6].rows, longest = 0;
     double *scratch = steps <= MAX_STEPS && smooth >= 1 && block >= 1 ? PyMem_Malloc(block * sizeof(double)) : NULL;
     for (int j = 0; j < steps && j < MAX_STEPS; j++) {
@@ -566,15 +573,12 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
     }
     if (scratch == NULL || keep != longest + smooth) {
         PyMem_Free(scratch);
-        PyBuffer_Release(&flags);
-        release(a, 9);
         PyErr_Format(PyExc_ValueError, "watch_update needs at most %d steps, smooth and block >= 1 and a ring of "
                      "max(widths) + smooth rows", MAX_STEPS);
-        return NULL;
+        return -1;
     }
     double state[W_SIZE];
     for (int k = 0; k < W_SIZE; k++) state[k] = AT1(a[4], k);
-    char *out = (char *)flags.buf;
     for (Py_ssize_t i = 0; i < a[0].rows; i++) {
         /* the attitude integrated from the start, and the field in its frame */
         double r[3] = {AT(a[1], i, 0) * period, AT(a[1], i, 1) * period, AT(a[1], i, 2) * period};
@@ -642,7 +646,7 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
             state[W_CALM] += 1.0;
         }
         state[W_PENDING] += 1.0;
-        out[i * flags.strides[0]] = (char)flagged;
+        out[i * stride] = (char)flagged;
         state[W_SAMPLES] += 1.0;
         if ((Py_ssize_t)state[W_SAMPLES] % block == 0) {
             watch_learn(state, &a[5], &a[7], &a[8], period, tau_s, max_reject_s, steps, scratch);
@@ -650,8 +654,30 @@ static PyObject *watch_update(PyObject *self, PyObject *args) {
     }
     for (int k = 0; k < W_SIZE; k++) AT1(a[4], k) = state[k];
     PyMem_Free(scratch);
+    return 0;
+}
+
+static PyObject *watch_update(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_gyr, *o_flagged, *o_state, *o_levels, *o_ring, *o_pending, *o_calm, *o_widths, *o_floors;
+    WatchNumbers w;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOdnnndddddd", &o_field, &o_gyr, &o_flagged, &o_state, &o_levels, &o_ring,
+                          &o_pending, &o_calm, &o_widths, &o_floors, &w.period, &w.smooth, &w.hold, &w.block,
+                          &w.relative, &w.tol_pct, &w.learn_s, &w.tau_s, &w.max_reject_s, &w.turn_floor)) {
+        return NULL;
+    }
+    Array a[9];
+    Py_buffer flags;
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    if (get_array(o_gyr, &a[1], 2, a[0].rows, 3, 0, "gyr") < 0) { release(a, 1); return NULL; }
+    if (watch_arrays(a, o_widths, o_floors, o_state, o_levels, o_ring, o_pending, o_calm, w.block) < 0) {
+        release(a, 2);
+        return NULL;
+    }
+    if (get_flags(o_flagged, &flags, a[0].rows, "flagged") < 0) { release(a, 9); return NULL; }
+    int failed = watch_run(a, &w, (char *)flags.buf, flags.strides[0]);
     PyBuffer_Release(&flags);
     release(a, 9);
+    if (failed) return NULL;
     Py_RETURN_NONE;
 }
 
@@ -825,6 +851,95 @@ static PyObject *sigma_direct(PyObject *self, PyObject *args) {
     PyBuffer_Release(&fused);
     release(a, 9);
     Py_RETURN_NONE;
+}
+
+PyDoc_STRVAR(bias_drift_doc,
+             "bias_drift(t_ns, trusted, bounds, slot, untrusted, bias, slots, drift)\n\n"
+             "The gyroscope's bias drift of magnet.attitude.uncertainty (HeadingUncertainty._drift), batch by batch "
+             "in order: t_ns (S,) int64, trusted (S,) bool, bounds (B + 1,) int64; per batch slot (B,) int64, its "
+             "device's entry in slots (D,) int64 (the device's last trusted time, ns; updated in place) or -1 (not "
+             "fused: skipped), untrusted (B,) bool, bias (B,) rad/s. A batch not untrusted sets its slot to its last "
+             "time; in an untrusted one each sample's since is the running maximum of its time where trusted and of "
+             "the slot's time (at the batch's start) where not, drift (S,) = bias (t - since) 1e-9 rad, and the slot "
+             "takes the last since. Samples of other batches keep their drift.");
+
+static PyObject *bias_drift(PyObject *self, PyObject *args) {
+    PyObject *o_t, *o_trusted, *o_bounds, *o_slot, *o_untrusted, *o_bias, *o_slots, *o_drift;
+    if (!PyArg_ParseTuple(args, "OOOOOOOO", &o_t, &o_trusted, &o_bounds, &o_slot, &o_untrusted, &o_bias, &o_slots,
+                          &o_drift)) {
+        return NULL;
+    }
+    Py_buffer t, trusted, bounds, slot, untrusted, slots;
+    Array a[2];
+    int got = 0, arrays = 0;
+    PyObject *result = NULL;
+    if (get_array(o_drift, &a[0], 1, -1, -1, 1, "drift") < 0) return NULL;
+    arrays++;
+    Py_ssize_t n = a[0].rows;
+    if (get_int64(o_t, &t, n, "t_ns") < 0) goto done;
+    got = 1;
+    if (get_flags(o_trusted, &trusted, n, "trusted") < 0) goto done;
+    got = 2;
+    if (PyObject_GetBuffer(o_bounds, &bounds, PyBUF_STRIDES | PyBUF_FORMAT) < 0) goto done;
+    got = 3;
+    Py_ssize_t count = bounds.ndim == 1 ? bounds.shape[0] - 1 : -1;
+    PyBuffer_Release(&bounds);
+    got = 2;
+    if (count < 0) {
+        PyErr_SetString(PyExc_ValueError, "bounds must be a 1-D int64 array of B + 1 items");
+        goto done;
+    }
+    if (get_int64(o_bounds, &bounds, count + 1, "bounds") < 0) goto done;
+    got = 3;
+    if (get_int64(o_slot, &slot, count, "slot") < 0) goto done;
+    got = 4;
+    if (get_flags(o_untrusted, &untrusted, count, "untrusted") < 0) goto done;
+    got = 5;
+    if (get_array(o_bias, &a[1], 1, count, -1, 0, "bias") < 0) goto done;
+    arrays++;
+    if (PyObject_GetBuffer(o_slots, &slots, PyBUF_STRIDES | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) goto done;
+    got = 6;
+    const char *f = slots.format;
+    char kind = f == NULL ? 0 : (f[0] == '<' || f[0] == '=' ? f[1] : f[0]);
+    if (slots.itemsize != 8 || !(kind == 'l' || kind == 'q') || slots.ndim != 1) {
+        PyErr_SetString(PyExc_ValueError, "slots must be a writable 1-D int64 array");
+        goto done;
+    }
+#define I64(view, i) (*(long long *)((char *)(view).buf + (i) * (view).strides[0]))
+#define B8(view, i) (((char *)(view).buf)[(i) * (view).strides[0]])
+    for (Py_ssize_t b = 0; b < count; b++) {
+        long long lo = I64(bounds, b), hi = I64(bounds, b + 1), k = I64(slot, b);
+        if (lo < 0 || hi > n || lo > hi || k >= slots.shape[0]) {
+            PyErr_Format(PyExc_ValueError, "batch %zd: samples %lld .. %lld or slot %lld out of range", b, lo, hi, k);
+            goto done;
+        }
+        if (k < 0 || hi == lo) continue;
+        if (!B8(untrusted, b)) {
+            I64(slots, k) = I64(t, hi - 1);
+            continue;
+        }
+        long long init = I64(slots, k), since = 0;
+        double bias = AT1(a[1], b);
+        for (long long i = lo; i < hi; i++) {
+            long long value = B8(trusted, i) ? I64(t, i) : init;
+            since = i == lo || value > since ? value : since;
+            AT1(a[0], i) = bias * (double)(I64(t, i) - since) * 1e-9;
+        }
+        I64(slots, k) = since;
+    }
+#undef I64
+#undef B8
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    if (got >= 6) PyBuffer_Release(&slots);
+    if (got >= 5) PyBuffer_Release(&untrusted);
+    if (got >= 4) PyBuffer_Release(&slot);
+    if (got >= 3) PyBuffer_Release(&bounds);
+    if (got >= 2) PyBuffer_Release(&trusted);
+    if (got >= 1) PyBuffer_Release(&t);
+    release(a, arrays);
+    return result;
 }
 
 PyDoc_STRVAR(sigma_degrees_doc,
@@ -2298,6 +2413,42 @@ done:
     return result;
 }
 
+/* gated_run's work on n samples (rows 3 doubles apart; field NULL: without the magnetometer; quat6 NULL: not
+ * wanted), the gate's settings and state already checked (``get_gate``): -1 and an exception on no memory. */
+static int gated_core(void *vqf, const double *settings, double *state, const double *gyr, const double *acc,
+                      const double *field, Py_ssize_t n, double *quat6, double *quat9, bool *rest, bool *dist) {
+    Gate e;
+    int failed = -1;
+    double *fed = NULL;
+    bool *gated = NULL;
+    if (gate_open(&e, settings, state) < 0) return -1;
+    fed = PyMem_Malloc(sizeof(double) * (size_t)(3 * e.block) + 1);
+    gated = PyMem_Malloc((size_t)e.block + 1);
+    if (fed == NULL || gated == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double start[4], bias[3];
+    for (Py_ssize_t pos = 0; pos < n;) {
+        Py_ssize_t left = e.block - (Py_ssize_t)e.g[G_SAMPLES] % e.block, k = n - pos < left ? n - pos : left;
+        if (left == e.block) {
+            vqf_api.get_quat6d(vqf, start);
+            vqf_api.get_bias(vqf, bias);
+        }
+        const double *a = acc + 3 * pos;
+        if (gate_piece(&e, gyr + 3 * pos, a, k, start, bias, fed, gated)) a = fed;
+        vqf_api.update_batch(vqf, gyr + 3 * pos, a, field ? field + 3 * pos : NULL, (size_t)k,
+                             quat6 ? quat6 + 4 * pos : NULL, quat9 + 4 * pos, NULL, NULL, NULL, rest + pos, dist + pos);
+        pos += k;
+    }
+    failed = 0;
+done:
+    PyMem_Free(fed);
+    PyMem_Free(gated);
+    gate_free(&e);
+    return failed;
+}
+
 PyDoc_STRVAR(gated_run_doc,
              "gated_run(filter, settings, state, gyr, acc, field, quat6, quat9, rest, disturbed)\n\n"
              "One batch of N samples through the turn gate and the vqf.VQF ``filter`` (turn_gate.run_gated without "
@@ -2317,10 +2468,6 @@ static PyObject *gated_run(PyObject *self, PyObject *args) {
     Py_buffer b[2], v[7];
     int got = 0;
     PyObject *result = NULL;
-    Gate e;
-    e.seen = NULL;
-    double *fed = NULL;
-    bool *gated = NULL;
     if (get_gate(o_settings, o_state, b) < 0) return NULL;
     if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
     Py_ssize_t n = v[0].shape[0];
@@ -2351,34 +2498,117 @@ static PyObject *gated_run(PyObject *self, PyObject *args) {
             goto done;
         }
     }
-    if (gate_open(&e, b[0].buf, b[1].buf) < 0) goto done;
-    fed = PyMem_Malloc(sizeof(double) * (size_t)(3 * e.block) + 1);
-    gated = PyMem_Malloc((size_t)e.block + 1);
-    if (fed == NULL || gated == NULL) {
-        PyErr_NoMemory();
+    if (gated_core(vqf, b[0].buf, b[1].buf, v[0].buf, v[1].buf, field, n, quat6, quat9, v[flags_at].buf,
+                   v[flags_at + 1].buf) < 0) {
         goto done;
-    }
-    const double *gyr = v[0].buf, *acc = v[1].buf;
-    bool *rest = v[flags_at].buf, *dist = v[flags_at + 1].buf;
-    double start[4], bias[3];
-    for (Py_ssize_t pos = 0; pos < n;) {
-        Py_ssize_t left = e.block - (Py_ssize_t)e.g[G_SAMPLES] % e.block, k = n - pos < left ? n - pos : left;
-        if (left == e.block) {
-            vqf_api.get_quat6d(vqf, start);
-            vqf_api.get_bias(vqf, bias);
-        }
-        const double *a = acc + 3 * pos;
-        if (gate_piece(&e, gyr + 3 * pos, a, k, start, bias, fed, gated)) a = fed;
-        vqf_api.update_batch(vqf, gyr + 3 * pos, a, field ? field + 3 * pos : NULL, (size_t)k,
-                             quat6 ? quat6 + 4 * pos : NULL, quat9 + 4 * pos, NULL, NULL, NULL, rest + pos, dist + pos);
-        pos += k;
     }
     result = Py_None;
     Py_INCREF(result);
 done:
-    PyMem_Free(fed);
-    PyMem_Free(gated);
-    if (e.seen != NULL) gate_free(&e);
+    for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
+    PyBuffer_Release(&b[0]);
+    PyBuffer_Release(&b[1]);
+    return result;
+}
+
+PyDoc_STRVAR(fuse_rows_doc,
+             "fuse_rows(filter, settings, state, watch, gyr, acc, field, lo, hi, quat9, disturbed)\n\n"
+             "Fusion.update_vqf_frame on rows lo .. hi of a drain, in one call (the compass's path, "
+             "magnet.attitude.fusion.Fusion.update_rows): the field's watch (``watch``: None, or FieldWatch's "
+             "kernel_args, the tail of watch_update's arguments from widths on) on those rows' field and gyr, the "
+             "samples it flags fed to vqf without their field (zero rows), then the turn gate and the vqf.VQF "
+             "``filter`` as gated_run (settings and state the gate's). gyr, acc, field (S, 3) C-contiguous, vqf's "
+             "frame; writes vqf's quaternions into quat9 (S, 4) rows lo .. hi and its disturbance flags, or-ed with "
+             "the watch's, into disturbed (S,) bool.");
+
+static PyObject *fuse_rows(PyObject *self, PyObject *args) {
+    PyObject *o_filter, *o_settings, *o_state, *o_watch, *o_gyr, *o_acc, *o_field, *o_q9, *o_dist;
+    Py_ssize_t lo, hi;
+    if (!PyArg_ParseTuple(args, "OOOOOOOnnOO", &o_filter, &o_settings, &o_state, &o_watch, &o_gyr, &o_acc, &o_field,
+                          &lo, &hi, &o_q9, &o_dist)) {
+        return NULL;
+    }
+    void *vqf = vqf_object(o_filter);
+    if (vqf == NULL) return NULL;
+    Py_buffer b[2], v[5];
+    int got = 0, watching = 0;
+    PyObject *result = NULL;
+    char *watched = NULL, *rest = NULL;
+    double *zeroed = NULL;
+    Array wa[9];
+    if (get_gate(o_settings, o_state, b) < 0) return NULL;
+    if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
+    Py_ssize_t count = v[0].shape[0];
+    got++;
+    if (get_rows(o_acc, &v[got], count, 3, 0, "acc") < 0) goto done;
+    got++;
+    if (get_rows(o_field, &v[got], count, 3, 0, "field") < 0) goto done;
+    got++;
+    if (get_rows(o_q9, &v[got], count, 4, 1, "quat9") < 0) goto done;
+    got++;
+    if (PyObject_GetBuffer(o_dist, &v[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) goto done;
+    got++;
+    if (v[4].itemsize != 1 || v[4].format == NULL || v[4].format[0] != '?' || v[4].len != count) {
+        PyErr_Format(PyExc_ValueError, "disturbed must be a C-contiguous bool array of %zd items", count);
+        goto done;
+    }
+    if (!(0 <= lo && lo <= hi && hi <= count)) {
+        PyErr_Format(PyExc_ValueError, "rows %zd .. %zd are not within the %zd samples", lo, hi, count);
+        goto done;
+    }
+    Py_ssize_t n = hi - lo;
+    const double *gyr = (const double *)v[0].buf + 3 * lo, *acc = (const double *)v[1].buf + 3 * lo;
+    const double *field = (const double *)v[2].buf + 3 * lo;
+    watched = PyMem_Calloc((size_t)n + 1, 1);
+    rest = PyMem_Malloc((size_t)n + 1);
+    if (watched == NULL || rest == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    if (o_watch != Py_None) {
+        PyObject *o_widths, *o_floors, *o_wstate, *o_levels, *o_ring, *o_pending, *o_calm;
+        WatchNumbers w;
+        if (!PyTuple_Check(o_watch)) {
+            PyErr_SetString(PyExc_TypeError, "watch must be None or FieldWatch.kernel_args (a tuple)");
+            goto done;
+        }
+        if (!PyArg_ParseTuple(o_watch, "OOOOOOOdnnndddddd", &o_widths, &o_floors, &o_wstate, &o_levels, &o_ring,
+                              &o_pending, &o_calm, &w.period, &w.smooth, &w.hold, &w.block, &w.relative, &w.tol_pct,
+                              &w.learn_s, &w.tau_s, &w.max_reject_s, &w.turn_floor)) {
+            goto done;
+        }
+        raw_array(&wa[0], (double *)field, n, 3, 3);
+        raw_array(&wa[1], (double *)gyr, n, 3, 3);
+        if (watch_arrays(wa, o_widths, o_floors, o_wstate, o_levels, o_ring, o_pending, o_calm, w.block) < 0) {
+            goto done;
+        }
+        watching = 1;
+        if (watch_run(wa, &w, watched, 1) < 0) goto done;
+        Py_ssize_t first = 0;
+        while (first < n && !watched[first]) first++;
+        if (first < n) { /* the flagged samples reach vqf without their field */
+            zeroed = PyMem_Malloc(sizeof(double) * (size_t)(3 * n) + 1);
+            if (zeroed == NULL) {
+                PyErr_NoMemory();
+                goto done;
+            }
+            for (Py_ssize_t i = 0; i < 3 * n; i++) zeroed[i] = watched[i / 3] ? 0.0 : field[i];
+            field = zeroed;
+        }
+    }
+    bool *dist = (bool *)v[4].buf + lo;
+    if (gated_core(vqf, b[0].buf, b[1].buf, gyr, acc, field, n, NULL, (double *)v[3].buf + 4 * lo, (bool *)rest,
+                   dist) < 0) {
+        goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) dist[i] = dist[i] || watched[i];
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    if (watching) release(wa + 2, 7);
+    PyMem_Free(zeroed);
+    PyMem_Free(watched);
+    PyMem_Free(rest);
     for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
     PyBuffer_Release(&b[0]);
     PyBuffer_Release(&b[1]);
@@ -2415,6 +2645,7 @@ static PyMethodDef methods[] = {
     {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
     {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
+    {"bias_drift", bias_drift, METH_VARARGS, bias_drift_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
     {"row_faults", row_faults, METH_VARARGS, row_faults_doc},
@@ -2434,6 +2665,7 @@ static PyMethodDef methods[] = {
     {"vehicle_tau_acc", vehicle_tau_acc, METH_VARARGS, vehicle_tau_acc_doc},
     {"horizontal_bias_sigma", horizontal_bias_sigma, METH_VARARGS, horizontal_bias_sigma_doc},
     {"gate_update", gate_update, METH_VARARGS, gate_update_doc},
+    {"fuse_rows", fuse_rows, METH_VARARGS, fuse_rows_doc},
     {"gated_run", gated_run, METH_VARARGS, gated_run_doc},
     {"gate_layout", gate_layout, METH_NOARGS, "gate_layout() -> dict: the T_* and G_* indices (turn_gate.py)."},
     {NULL, NULL, 0, NULL},

@@ -169,3 +169,26 @@ def gated_run(
     rest: np.ndarray,
     disturbed: np.ndarray,
 ) -> None: ...
+def fuse_rows(
+    filter: object,
+    settings: np.ndarray,
+    state: np.ndarray,
+    watch: tuple[Any, ...] | None,
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    field: np.ndarray,
+    lo: int,
+    hi: int,
+    quat9: np.ndarray,
+    disturbed: np.ndarray,
+) -> None: ...
+def bias_drift(
+    t_ns: np.ndarray,
+    trusted: np.ndarray,
+    bounds: np.ndarray,
+    slot: np.ndarray,
+    untrusted: np.ndarray,
+    bias: np.ndarray,
+    slots: np.ndarray,
+    drift: np.ndarray,
+) -> None: ...

@@ -93,10 +93,17 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 #: the long-running processes, which receive messages of MBs from the network and must give that memory back (a
 #: one-shot command such as ``fit`` keeps glibc's defaults, which suit numpy's large temporary arrays)
 SERVICES = frozenset({"edge", "calibrator", "compass", "router", "dashboard", "up"})
+#: the one-shot commands that work through a file's arrays: glibc told to keep freed memory for the next array (not
+#: to give the heap's top back and fault it in again: services/common/allocator.py, ``keep_freed_memory``)
+ARRAY_COMMANDS = frozenset({"fit", "heading"})
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if _chosen_command(argv) in ARRAY_COMMANDS:
+        from services.common.allocator import keep_freed_memory  # ctypes, which numpy has loaded already
+
+        keep_freed_memory()
     args = build_parser(argv).parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")

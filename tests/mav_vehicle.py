@@ -329,17 +329,21 @@ class Vehicle:
         start, k, tick = time.monotonic(), 0, 0
         while not stop and time.monotonic() - start < self.args.duration:
             now = time.monotonic() - start
-            while k < now * self.args.rate and self.args.rate > 0:
-                paused = (
-                    self.args.pause_at is not None and 0 <= k / self.args.rate - self.args.pause_at < self.args.pause_s
-                )
-                if not paused:
-                    self.send_imu(k)
-                k += 1
-                self.k = k
-            while tick < now * 10:
-                self.send_slow(tick)
-                tick += 1
+            # what is due, in the order of its time: a stand-in that was not scheduled for a while sends the IMU
+            # messages and the slow ones (current, throttle) interleaved as a vehicle would have, not all of one first
+            while (imu_due := self.args.rate > 0 and k < now * self.args.rate) or tick < now * 10:
+                if imu_due and (tick >= now * 10 or k / self.args.rate <= tick / 10):
+                    paused = (
+                        self.args.pause_at is not None
+                        and 0 <= k / self.args.rate - self.args.pause_at < self.args.pause_s
+                    )
+                    if not paused:
+                        self.send_imu(k)
+                    k += 1
+                    self.k = k
+                else:
+                    self.send_slow(tick)
+                    tick += 1
             self.answer()
             time.sleep(0.002)
         if self.args.truth:

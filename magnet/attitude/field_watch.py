@@ -152,6 +152,13 @@ class FieldWatch:
         self.ring = np.zeros((max(self.widths) + self.smooth, 7))  # field in the integrated frame, its mean, turned
         self.pending = np.zeros((self.block, len(self.widths) + 1))  # this block's statistics so far
         self.calm = np.zeros(self.block)  # this block's calm samples' |B|
+        s = self.settings
+        #: the watch's tail of ``watch_update``'s arguments (from widths on), for ``magnet._kernels.fuse_rows``
+        self.kernel_args = (
+            self._widths, self._floors, self.state, self.levels, self.ring, self.pending, self.calm, self.period_s,
+            self.smooth, self.hold, self.block, s.relative, s.field_tol_pct, s.learn_s, s.level_tau_s,
+            s.max_reject_s, s.turn_floor_rad,
+        )  # fmt: skip
 
     @property
     def reference_ut(self) -> float:

@@ -17,7 +17,6 @@ best estimate for a log.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
@@ -26,10 +25,12 @@ import numpy as np
 import vqf
 
 from magnet.attitude.field_watch import FieldWatch
+from magnet.attitude.fused import Fused
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
-from magnet.attitude.turn_gate import TurnGate, run_gated
+from magnet.attitude.turn_gate import TurnGate, fuse_rows, run_gated
 from magnet.attitude.uncertainty import FilterFigures
-from magnet.frames import frd_flu, ned_enu_attitude, quaternion_to_euler
+from magnet.frames import frd_flu
+from magnet.order_stats import median
 from magnet.units import STANDARD_GRAVITY_MS2
 
 if TYPE_CHECKING:  # the aided filter and the offline bias are imported where used: `magnet heading` needs neither
@@ -44,8 +45,8 @@ def acc_in_ms2(acc: np.ndarray) -> np.ndarray:
     """Accelerometer readings (N, 3) in m/s^2, or in g (recognised by a median magnitude of 0.5 .. 2), as m/s^2: the
     filter's rest detection works in m/s^2; logs in g are common (``magnet heading`` takes either)."""
     arr = np.asarray(acc, dtype=float)
-    median = float(np.median(np.linalg.norm(arr, axis=-1))) if arr.size else 0.0
-    return arr * STANDARD_GRAVITY_MS2 if 0.5 <= median <= 2.0 else arr
+    typical = median(np.ravel(np.linalg.norm(arr, axis=-1))) if arr.size else 0.0
+    return arr * STANDARD_GRAVITY_MS2 if 0.5 <= typical <= 2.0 else arr
 
 
 def sample_period_s(t: np.ndarray, scale: float = 1.0) -> float:
@@ -57,7 +58,7 @@ def sample_period_s(t: np.ndarray, scale: float = 1.0) -> float:
         raise ValueError("need at least two time stamps to know the sample period")
     if not np.all(np.isfinite(stamps)):
         raise ValueError("time stamps hold NaN or infinite values")
-    period = float(np.median(np.diff(stamps) * scale))
+    period = median(np.diff(stamps) * scale)
     if not MIN_PERIOD_S <= period <= MAX_PERIOD_S:
         raise ValueError(
             f"median time step {period:.6g} s is not a usable sample period "
@@ -87,36 +88,6 @@ def _to_vqf(vectors: np.ndarray, name: str, count: int | None = None) -> np.ndar
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} holds NaN or infinite values: drop those samples before fusing")
     return np.ascontiguousarray(frd_flu(arr))
-
-
-@dataclasses.dataclass(frozen=True)
-class Fused:
-    """Fused attitude per sample (N samples). quat_wxyz: (N, 4) body -> NED (magnetic north), w >= 0. heading_deg (N,)
-    magnetic heading of body x in [0, 360); pitch_deg, roll_deg (N,). mag_disturbed (N,) bool: vqf's magnetic
-    disturbance detection (|B| or dip away from its reference; the field is then not used for heading). rest (N,)
-    bool: vqf's rest detection. With no magnetometer the heading is the gyroscope's, relative to where the filter
-    started, and mag_disturbed is all False."""
-
-    quat_wxyz: np.ndarray
-    heading_deg: np.ndarray
-    pitch_deg: np.ndarray
-    roll_deg: np.ndarray
-    mag_disturbed: np.ndarray
-    rest: np.ndarray
-
-    @classmethod
-    def from_vqf(cls, out: Mapping[str, Any], with_mag: bool) -> Fused:
-        quat = ned_enu_attitude(np.asarray(out["quat9D" if with_mag else "quat6D"], dtype=float).reshape(-1, 4))
-        heading, pitch, roll = quaternion_to_euler(quat)
-        count = len(quat)
-        disturbed = np.asarray(out["magDistDetected"], dtype=bool).reshape(count) if with_mag else np.zeros(count, bool)
-        rest = np.asarray(out["restDetected"], dtype=bool).reshape(count)
-        return cls(quat, heading, pitch, roll, disturbed, rest)
-
-
-def _empty() -> Fused:
-    zeros = np.zeros(0)
-    return Fused(np.zeros((0, 4)), zeros, zeros, zeros, np.zeros(0, bool), np.zeros(0, bool))
 
 
 #: vqf's state that belongs to the magnetometer (``Fusion.restart_magnetometer``)
@@ -183,13 +154,14 @@ class Fusion:
         self._recalibrated = False
         self.samples = 0
 
-    def restart_magnetometer(self) -> None:
+    def restart_magnetometer(self, keep_fixes: bool = True, quat_vqf: np.ndarray | None = None) -> None:
         """Forget the magnetic side only (a new calibration put in force): the heading taken again from the next field
         sample, the tilt and the gyroscope's bias kept (a whole restart takes 10 s and more to find a swinging hand's
-        tilt). Aided: a whole restart, the velocity's fixes kept (docs/field-calibration.md)."""
+        tilt). Aided: a whole restart (``AidedFilter.restart``'s options; docs/field-calibration.md)."""
         if (aided := self._aided) is not None:
+            before = self._filter.state  # (a copy) its gyroscope bias is kept where an attitude is given
             self.restart()
-            self._aided = aided.restart(keep_fixes=True)
+            self._aided = aided.restart(keep_fixes, quat_vqf, before)
             return
         fresh = vqf.VQF(self.period_s, **self.params).state
         state = self._filter.state
@@ -215,7 +187,7 @@ class Fusion:
         velocity aiding (``magnet.attitude.aiding``)."""
         gyr = _to_vqf(gyr_rads, "gyr_rads")
         if len(gyr) == 0:
-            return _empty()
+            return Fused.empty()
         acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
         field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
         if field is not None and t_s is not None and vel_ned_ms is not None:
@@ -251,6 +223,23 @@ class Fusion:
         quat, disturbed = self._vqf_frame(gyr, acc, field, t_s, vel_ned_ms, watched)
         return quat, np.asarray(disturbed, dtype=bool) | watched
 
+    def update_rows(self, inputs: tuple[np.ndarray, ...], lo: int, hi: int, quat: Any, disturbed: Any) -> None:
+        """``update_vqf_frame`` without a velocity on rows lo .. hi of a drain's gyroscope, accelerometer and field
+        (S, 3) each, written into those rows of ``quat`` (S, 4) and ``disturbed`` (S,) bool. Where only the watch, the
+        turn gate and vqf run (not aided, no bias loop, the gate's companion done): one compiled call, the same code
+        (``turn_gate.fuse_rows``)."""
+        gate = self.turn_gate
+        if (
+            gate is not None
+            and self._aided is None
+            and self.heading_bias is None
+            and (gate.alone is None or gate.alone.done)
+        ):
+            self.samples += hi - lo
+            fuse_rows(gate, self._filter, self.watch, inputs, lo, hi, quat, disturbed)
+        else:
+            quat[lo:hi], disturbed[lo:hi] = self.update_vqf_frame(*(x[lo:hi] for x in inputs))
+
     def figures(self) -> FilterFigures:
         """What the heading's uncertainty needs of this filter's state now (``magnet.attitude.uncertainty``): vqf's
         accelerometer time constant in use and its magnetic one (s), its gyroscope bias uncertainty (rad/s), and
@@ -277,8 +266,7 @@ class Fusion:
         vel_ned_ms: np.ndarray | None,
         watched: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """vqf (or the velocity-aided filter) on one batch, as ``update_vqf_frame`` (``watched`` (N,): the samples
-        the watch left out)."""
+        """vqf (or the aided filter) on one batch, as ``update_vqf_frame`` (``watched`` (N,): the watch's flags)."""
         if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
             had = self.samples > len(gyr)  # carries on from its state, an attitude once it took samples
             from magnet.attitude.aided_fusion import AidedFilter
@@ -337,7 +325,7 @@ def fuse_offline(
     period = _check_period(period_s)
     gyr = _to_vqf(gyr_rads, "gyr_rads")
     if len(gyr) == 0:
-        return _empty()
+        return Fused.empty()
     acc = _to_vqf(acc_ms2, "acc_ms2", len(gyr))
     field = None if mag is None else _to_vqf(mag, "mag", len(gyr))
     aided = False

@@ -280,7 +280,7 @@ def run_gated(
 
 
 @functools.cache
-def _bind() -> None:
+def bind_vqf() -> None:
     """Find vqf's compiled filter (its C++ class, in vqf's own extension module) for ``run_gated_vqf``."""
     _kernels.vqf_bind(str(sys.modules[vqf.VQF.__module__].__file__))
 
@@ -292,7 +292,7 @@ def run_gated_vqf(
     the same gate, the same vqf object driven through its C++ class): vqf's outputs quat9D (N, 4) (and quat6D without
     a field; with one nobody reads it), restDetected and magDistDetected (N,) bool for the batch (gyroscope,
     accelerometer, field or None; (N, 3) each, vqf's frames, C-contiguous float64)."""
-    _bind()
+    bind_vqf()
     gyr, acc, field = samples
     count = len(gyr)
     out = {
@@ -307,6 +307,20 @@ def run_gated_vqf(
         out.get("quat6D"), out["quat9D"], out["restDetected"], out["magDistDetected"],
     )  # fmt: skip
     return out
+
+
+def fuse_rows(
+    gate: TurnGate, filter_: Any, watch: Any, inputs: tuple[np.ndarray, ...], lo: int, hi: int, quat: Any, out: Any
+) -> None:
+    """Rows lo .. hi of a drain's gyroscope, accelerometer and field (S, 3) each (vqf's frames, finite, C-contiguous
+    float64) through the field's ``watch`` (a ``FieldWatch`` or None), its flagged samples' field left out, then
+    ``run_gated_vqf``, in one compiled call (``magnet._kernels.fuse_rows``: the code of ``watch_update`` and
+    ``gated_run``): vqf's quaternions written into rows lo .. hi of ``quat`` (S, 4), its disturbance flags or-ed with
+    the watch's into those of ``out`` (S,) bool. ``Fusion.update_rows`` calls it."""
+    bind_vqf()
+    gyr, acc, field = inputs
+    args = None if watch is None else watch.kernel_args
+    _kernels.fuse_rows(filter_, gate.settings_array, gate.state, args, gyr, acc, field, lo, hi, quat, out)
 
 
 class Alone:

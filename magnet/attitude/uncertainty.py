@@ -250,77 +250,32 @@ class HeadingUncertainty:
         batches: _Batches,
         figures: Sequence[FilterFigures | None],
     ) -> np.ndarray:
-        """(S,) rad: the module's 3, the bias uncertainty times the time since the last trusted field sample, and
-        each device's last trusted time carried on (zero in batches whose fused samples are all trusted). Per device
-        in order (a device's batches carry its last trusted time on to its next), the samples all at once: within a
-        batch whose times never go back, the last trusted time up to a sample is that of the last trusted sample up
-        to it (found for every sample in one pass); elsewhere the running maximum of the batch's trusted times."""
+        """(S,) rad: the module's 3, the bias uncertainty times the time since the last trusted field sample (zero in
+        batches whose fused samples are all trusted), each device's last trusted time carried on from batch to batch
+        and drain to drain: in a batch with an untrusted sample, the running maximum of the trusted samples' times and
+        (where a sample is not trusted) the device's last trusted time before the batch. One compiled pass over the
+        batches in order (``magnet._kernels.bias_drift``), the devices' times in and out."""
         drift = np.zeros(len(t_ns))
-        if not len(t_ns):
-            return drift
-        times = np.asarray(t_ns, dtype=np.int64)
-        sizes: np.ndarray = np.diff(np.asarray(bounds, dtype=np.int64))
-        seen = _TrustedSeen.of(times, trusted, sizes)
-        init, bias, used = [0] * len(devices), [0.0] * len(devices), [False] * len(devices)
+        slot_of: dict[str, int] = {}
+        kept: list[_Device] = []
+        slot, bias = [-1] * len(devices), [0.0] * len(devices)
         for b, (device, figure) in enumerate(zip(devices, figures)):
             state = self.devices.get(device) if batches.fused[b] else None
             if state is None or figure is None:
                 continue
-            if not batches.untrusted[b]:
-                state.trusted_ns = batches.last_ns[b]
-                continue
-            init[b], bias[b], used[b] = state.trusted_ns, figure.bias_sigma_rads, True
-            if not seen.steady[b]:
-                lo, hi = bounds[b], bounds[b + 1]
-                state.trusted_ns = int(np.maximum.accumulate(np.where(trusted[lo:hi], times[lo:hi], init[b]))[-1])
-            elif seen.end_trusted[b]:
-                state.trusted_ns = max(state.trusted_ns, seen.end_ns[b]) if seen.end_carried[b] else seen.end_ns[b]
-        if not any(used):
+            slot[b], bias[b] = slot_of.setdefault(device, len(kept)), figure.bias_sigma_rads
+            if slot[b] == len(kept):
+                kept.append(state)
+        if not kept:
             return drift
-        use: np.ndarray = np.repeat(np.array(used, dtype=bool), sizes)
-        since = np.repeat(np.array(init, dtype=np.int64), sizes)
-        odd = use & (seen.last_mark % 2 == 1)
-        last_trusted = times[seen.last_mark[odd] // 2]
-        since[odd] = np.where(seen.carried[odd], np.maximum(since[odd], last_trusted), last_trusted)
-        for b in np.flatnonzero(np.array(used) & ~np.array(seen.steady)).tolist():  # times going back: running max
-            lo, hi = bounds[b], bounds[b + 1]
-            since[lo:hi] = np.maximum.accumulate(np.where(trusted[lo:hi], times[lo:hi], init[b]))
-        drift[use] = np.repeat(np.array(bias), sizes)[use] * (times[use] - since[use]) * 1e-9
+        times = np.array([s.trusted_ns for s in kept], dtype=np.int64)
+        _kernels.bias_drift(
+            np.asarray(t_ns, dtype=np.int64), trusted, np.asarray(bounds, dtype=np.int64), np.array(slot, np.int64),
+            np.array(batches.untrusted, dtype=bool), np.array(bias), times, drift,
+        )  # fmt: skip
+        for state, carried in zip(kept, times.tolist()):
+            state.trusted_ns = carried
         return drift
-
-
-class _TrustedSeen(NamedTuple):
-    """For ``HeadingUncertainty._drift``, what came before each sample within its batch, all samples at once: the
-    running maximum of 2 j + 1 at trusted samples j and 2 s at each batch's start s (odd: j, the last trusted sample
-    up to it; even: none yet), whether an untrusted sample came at or before it (where the device's last trusted
-    time before the batch counts), and per batch (lists): its times never go back, and at its last sample whether a
-    trusted one was seen, that one's time, whether an untrusted one was seen."""
-
-    last_mark: np.ndarray
-    carried: np.ndarray
-    steady: list[bool]
-    end_trusted: list[bool]
-    end_ns: list[int]
-    end_carried: list[bool]
-
-    @classmethod
-    def of(cls, times: np.ndarray, trusted: np.ndarray, sizes: np.ndarray) -> _TrustedSeen:
-        edges = np.concatenate([[0], np.cumsum(sizes)])
-        starts = edges[:-1][sizes > 0]
-        marks = np.where(trusted, 2 * np.arange(len(times), dtype=np.int64) + 1, -1)
-        marks[starts] = np.maximum(marks[starts], 2 * starts)
-        last_mark = np.maximum.accumulate(marks)
-        untrusted_seen = np.cumsum(~trusted)
-        carried = untrusted_seen > np.repeat(untrusted_seen[starts] - ~trusted[starts], sizes[sizes > 0])
-        back = np.zeros(len(times), dtype=bool)  # a time before the one of the sample before in its batch
-        back[1:] = times[1:] < times[:-1]
-        back[starts] = False
-        steady = np.ones(len(sizes), dtype=bool)
-        steady[sizes > 0] = ~np.logical_or.reduceat(back, starts)
-        ends = np.maximum(edges[1:] - 1, 0)
-        end_marks = last_mark[ends]
-        end_ns = times[end_marks // 2].tolist()
-        return cls(last_mark, carried, steady.tolist(), (end_marks % 2 == 1).tolist(), end_ns, carried[ends].tolist())
 
 
 def _take(state: _Device, batch: tuple[float, float, float], tan_dip: float, figures: FilterFigures) -> None:

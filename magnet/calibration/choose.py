@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.calibration import disturbed, field
+from magnet.calibration import disturbed
 from magnet.calibration.base import FitError, Method
 from magnet.calibration.fit_input import FitInput
 from magnet.calibration.fitting import fit
@@ -106,7 +106,10 @@ def _fit_auto(data: FitInput) -> Calibration:
 def _field_fallback(data: FitInput, results: dict[Method, Calibration | FitError]) -> Calibration:
     """The field ladder's record when the sphere's methods (``results``) were refused: accepted, it is returned
     with ``auto_other`` and ``auto_refused`` naming them; refused or impossible, the sphere's refusal as before (its
-    reason ends with the ladder's), FitError when nothing could be computed."""
+    reason ends with the ladder's), FitError when nothing could be computed. The ladder's modules are imported
+    here, where they are first needed."""
+    from magnet.calibration import field
+
     try:
         ladder: Calibration | FitError = field.fit_field(field.FieldInput.of(data), gate_thresholds=data.gate)
     except FitError as exc:

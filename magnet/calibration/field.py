@@ -30,7 +30,7 @@ from magnet.calibration import candidates, course, disturbed, unplaced
 from magnet.calibration.base import FitError
 from magnet.calibration.field_input import MIN_FIELD_SAMPLES
 from magnet.calibration.field_input import FieldInput as FieldInput  # the record, named where the fit is
-from magnet.calibration.ladder import IDENTIFIED_DEG, RungFit, first_offset, fit_rung
+from magnet.calibration.ladder import AUTO_HINT, IDENTIFIED_DEG, RungFit, first_offset, fit_rung
 from magnet.calibration.rungs import (
     LEVEL_OFFSET,
     OFFSET,
@@ -188,10 +188,12 @@ def _forced_fit(ev: Evidence, name: str, planar: bool, no_place: str = "") -> Ru
     force: ``no_place``, from ``unplaced.hold_vertical``)."""
     named = forced_rung(name, planar)
     result = fit_rung(ev, named, first_offset(ev))
-    if planar and named is SCALE and not result.unidentified:
-        result = dataclasses.replace(result, unidentified=LEVEL_GAIN)
-    if no_place and not result.unidentified:
-        result = dataclasses.replace(result, unidentified=no_place)
+    if result.unidentified:
+        return dataclasses.replace(result, unidentified=result.unidentified + AUTO_HINT)
+    if planar and named is SCALE:
+        return dataclasses.replace(result, unidentified=LEVEL_GAIN)
+    if no_place:
+        return dataclasses.replace(result, unidentified=no_place + AUTO_HINT)
     return result
 
 

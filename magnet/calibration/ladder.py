@@ -259,6 +259,10 @@ def _identified_deg(ev: Evidence, rung: Rung, j: np.ndarray, step: int) -> tuple
     return math.degrees(math.sqrt(max(offset, 0.0) + max(matrix, 0.0))), eigen, _weakest(ev, rung, weakest)
 
 
+#: what a refusal of a rung asked for by name (``--method NAME``) adds to what the motion leaves unknown
+AUTO_HINT = ", or let --method auto fit what the motion identifies"
+
+
 def _body(vector: np.ndarray) -> str:
     return "(" + ", ".join(f"{value:+.2f}" for value in vector) + ")"
 
@@ -271,7 +275,7 @@ def _weakest(ev: Evidence, rung: Rung, direction: np.ndarray) -> str:
     if float(np.linalg.norm(offset)) < 0.5 * float(np.linalg.norm(direction)):
         return (
             f"{rung.name}'s soft iron ({', '.join(rung.estimated[1:]) or 'scale'}): turn the device through more "
-            "headings and tilts, or let --method auto fit what the motion identifies"
+            "headings and tilts"
         )
     return offset_direction(ev, offset / float(np.linalg.norm(offset)))
 
@@ -290,11 +294,9 @@ def offset_direction(ev: Evidence, unit: np.ndarray, note: str = "") -> str:
                 if ev.vertical_ut is None
                 else ""
             )
-            + ", or let --method auto fit what the motion identifies"
         )
     return (
-        f"the offset along body axes {_body(unit)}{note}: turn the device through more headings (a full turn or "
-        "more), or let --method auto fit what the motion identifies"
+        f"the offset along body axes {_body(unit)}{note}: turn the device through more headings (a full turn or more)"
     )
 
 

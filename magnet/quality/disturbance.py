@@ -42,6 +42,7 @@ from magnet.attitude.field_watch import FIELD_TOL_PCT, SMOOTH_S, STEPS, TURN_FLO
 from magnet.attitude.heading import dip_angle_deg, row_norm
 from magnet.frames import quaternion_to_matrix
 from magnet.model import Calibration
+from magnet.order_stats import median, quantile
 from magnet.units import EARTH_MAX_UT, ut_per_unit
 
 
@@ -158,9 +159,9 @@ def _off_expected(
     dip_deviation = np.abs(dip - reference_dip)
     field_tol, dip_tol = reference_ut * settings.field_tol_pct / 100.0, settings.dip_tol_deg
     if settings.relative is not None and len(norm):
-        field_tol = max(field_tol, settings.relative * float(np.quantile(deviation_ut, 0.75)))
+        field_tol = max(field_tol, settings.relative * quantile(deviation_ut, 0.75))
         if np.isfinite(dip_deviation).any():
-            dip_tol = max(dip_tol, settings.relative * float(np.nanquantile(dip_deviation, 0.75)))
+            dip_tol = max(dip_tol, settings.relative * quantile(dip_deviation[~np.isnan(dip_deviation)], 0.75))
     with np.errstate(invalid="ignore"):
         return deviation_ut > field_tol, dip_deviation > dip_tol
 
@@ -188,7 +189,7 @@ def _rotation_steps(
             threshold: float | np.ndarray = floor
             if settings.relative is not None and path is not None:
                 turned = _turned(path, width, smooth) + settings.turn_floor_rad
-                level = float(np.quantile(size / turned, 0.9))
+                level = quantile(size / turned, 0.9)
                 threshold = np.maximum(floor, settings.relative * level * turned)
             changes.append((size, width, threshold))
     return _step_flags(changes, n)
@@ -226,11 +227,9 @@ def field_disturbance(
             averaged = _moving_mean(to_frame(quat, acc), width)
             acc = np.einsum("nji,nj->ni", quaternion_to_matrix(quat), averaged)
         dip = dip_angle_deg(field, acc)
-    reference_ut = float(np.median(norm)) if expected_ut is None and n else float(expected_ut or 0.0)
+    reference_ut = median(norm) if expected_ut is None and n else float(expected_ut or 0.0)
     finite_dip = dip[np.isfinite(dip)]
-    reference_dip = (
-        float(np.median(finite_dip)) if expected_dip_deg is None and finite_dip.size else float(expected_dip_deg or 0)
-    )
+    reference_dip = median(finite_dip) if expected_dip_deg is None and finite_dip.size else float(expected_dip_deg or 0)
     magnitude, dip_off = _off_expected(norm, dip, reference_ut, reference_dip, settings)
     if expected_dip_deg is None and not finite_dip.size:
         dip_off = np.zeros(n, dtype=bool)

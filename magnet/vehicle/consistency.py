@@ -204,10 +204,13 @@ class _Pair:
 
 
 def _pair(device: str, ref: Series, index: np.ndarray, field: np.ndarray, other: Series) -> _Pair:
+    """The pair on the reference's times ``index``; the current (else the throttle) is the driver when it is known
+    on at least ``MIN_SAMPLES`` of them (NaN where unknown: a late or lost SYS_STATUS, left out of the fits) and
+    varies enough."""
     current = np.interp(ref.t_s[index], other.t_s, other.current_a) if len(index) else np.zeros(0)
     throttle = np.interp(ref.t_s[index], other.t_s, other.throttle) if len(index) else np.zeros(0)
-    have_current = np.isfinite(current).mean() > 0.5 if len(current) else False
-    have_throttle = np.isfinite(throttle).mean() > 0.5 if len(throttle) else False
+    have_current = np.isfinite(current).sum() >= MIN_SAMPLES
+    have_throttle = np.isfinite(throttle).sum() >= MIN_SAMPLES
     driver, per, full = None, None, 1.0
     if have_current and np.nanmax(current) - np.nanmin(current) >= MIN_CURRENT_RANGE_A:
         driver, per = current, "A"
@@ -254,8 +257,9 @@ def _rotation(pair: _Pair, found: _Found) -> tuple[np.ndarray, float, int, float
     """Step 1: (the rotation to apply before the next steps (identity unless it is a cause), the rotation found in
     deg, the nearest named rotation and its distance in deg)."""
     quiet = np.ones(len(pair.field), dtype=bool)
-    if pair.driver is not None and np.isfinite(pair.driver).all():
-        quiet = pair.driver <= np.median(pair.driver)
+    if pair.driver is not None:
+        known = np.isfinite(pair.driver)
+        quiet = known & (np.nan_to_num(pair.driver) <= np.median(pair.driver[known]))
     rotation = wahba(pair.reference[quiet], pair.field[quiet])
     turned_deg = float(rotation_angle_deg(rotation))
     named, distance = nearest_named(rotation)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
@@ -177,8 +178,8 @@ class _Bytes:
     def __init__(self, values: np.ndarray, dtype: Any, tail: tuple[int, ...], name: str = "") -> None:
         self.dtype, self.tail, self.name = dtype, list(tail), name
         self.data = np.ascontiguousarray(values, dtype=dtype).tobytes()
-        self.row = int(np.dtype(dtype).itemsize * np.prod(tail, dtype=int))
-        self._heads: dict[int, bytes] = {}
+        self.row = np.dtype(dtype).itemsize * math.prod(tail)
+        self._heads = _HEADS.setdefault((name, np.dtype(dtype).str, tuple(tail)), {})
 
     def __getitem__(self, bounds: slice) -> Any:
         return {
@@ -193,8 +194,16 @@ class _Bytes:
         head = self._heads.get(hi - lo)
         if head is None:
             empty = msgpack.packb({"dtype": self.dtype, "shape": [hi - lo, *self.tail], "data": b""})
-            head = self._heads[hi - lo] = msgpack.packb(self.name) + empty[:-2] + _bin_header((hi - lo) * self.row)
+            head = msgpack.packb(self.name) + empty[:-2] + _bin_header((hi - lo) * self.row)
+            if len(self._heads) < HEADS_KEPT:
+                self._heads[hi - lo] = head
         return head, self.data[lo * self.row : hi * self.row]
+
+
+#: the msgpack bytes before a column's data, per (name, dtype, tail) and rows: made once, not per drain (at most
+#: ``HEADS_KEPT`` row counts per column kept; others made each time)
+_HEADS: dict[tuple[str, str, tuple[int, ...]], dict[int, bytes]] = {}
+HEADS_KEPT = 256
 
 
 def _bin_header(size: int) -> bytes:

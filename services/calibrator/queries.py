@@ -136,10 +136,11 @@ ANSWERS: dict[wire.Kind, Answer] = {
 FLEET_ANSWER = active_only(answer_fleet)
 
 
-def metrics_status(calibrator: CalibratorCore, name: str) -> dict[str, Any]:
-    """What ``--metrics`` serves: the status and the alerts open by kind."""
+def board_status(calibrator: CalibratorCore, name: str) -> dict[str, Any]:
+    """What the loop writes on its status board (from the loop's thread): the status and the alerts open by kind;
+    the status queryable and ``--metrics`` both read it from there."""
     alerts: dict[str, int] = {}
-    for open_alerts in list(calibrator.roster.alerts.values()):
-        for kind in list(open_alerts):
+    for open_alerts in calibrator.roster.alerts.values():
+        for kind in open_alerts:
             alerts[kind.value] = alerts.get(kind.value, 0) + 1
     return {**calibrator.status(name).to_dict(), "alerts_open": alerts}

@@ -12,8 +12,8 @@ the others stand by and take over when its liveliness token goes away (``service
 
 Queryables: see ``services.calibrator.queries``. One thread does the work: a pump thread only moves raw messages
 from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
-between slices of samples; every handler runs through ``services.common.guard``, so no message, query or failing
-store ends it; the status is answered from Zenoh's thread with what the loop wrote (``services.common.status_board``).
+between slices of samples; every handler runs through ``services.common.guard``, so nothing ends it; the status is
+answered from Zenoh's thread, and read by ``--metrics``, from what the loop wrote (``services.common.status_board``).
 The options and settings are in ``services.calibrator.settings``; the calibrator's decisions, without zenoh, a
 database or a clock of their own, are ``magnet.calibrator.CalibratorCore``, which ``Calibrator`` gives the clocks
 (docs/calibrator.md).
@@ -153,8 +153,8 @@ def run(settings: ServiceSettings, metrics_address: str | None = None) -> int:
             roster=Roster(places, fitting.max_devices),
             shard=settings.shard,
         )
-        metrics.start(metrics_address, "calibrator", lambda: queries.metrics_status(calibrator, settings.name))
         loop = _declare(declared, session, settings, calibrator, lease)
+        metrics.start(metrics_address, "calibrator", loop.board.read)  # what the loop wrote, never its state
         if calibrator.active:
             calibrator.publish_in_force()
         log.info(
@@ -260,12 +260,11 @@ class ServiceLoop:
         name: str = "calibrator",
     ) -> None:
         self.calibrator, self.intake, self.answers, self.prefix = calibrator, intake, answers, prefix
-        self.feeds, self.lease_watch = feeds, lease_watch
+        self.feeds, self.lease_watch, self._store_checked_s, self.name = feeds, lease_watch, 0.0, name
         self.enrolment = enrolment if enrolment is not None else Enrolment()
         self.guard = Guard("calibrator", log, calibrator.drops)
-        self._store_checked_s, self.name = 0.0, name
         self.board = StatusBoard(wire.status_key(prefix, name), self.guard, refresh_s=STATUS_REFRESH_S)
-        self.board.write(calibrator.status(name).to_dict())
+        self.write_status()
 
     def step(self) -> bool:
         """One round; True when raw samples were taken. Once every STORE_CHECK_S, whether the store's file is gone
@@ -277,7 +276,7 @@ class ServiceLoop:
             was_active = self.calibrator.active
             self.guard.run("lease", _follow_lease, *self.lease_watch, self.calibrator)
             if self.calibrator.active != was_active:  # a moved lease is on the board at once, not a refresh later
-                self.board.write(self.calibrator.status(self.name).to_dict())
+                self.write_status()
         for handler, take in self.feeds:
             for item in drain(handler, 1000):
                 sample = item.ok if isinstance(item, zenoh.Reply) else item
@@ -286,10 +285,14 @@ class ServiceLoop:
         self.answer_queries()
         return self.samples()
 
+    def write_status(self) -> None:
+        """The status on the board, which Zenoh's thread answers and ``--metrics`` reads: never the state itself."""
+        self.board.write(queries.board_status(self.calibrator, self.name))
+
     def answer_queries(self) -> None:
         self._counters()
         if self.board.due():  # the status, answered from Zenoh's thread
-            self.board.write(self.calibrator.status(self.name).to_dict())
+            self.write_status()
         for what, answer, queryable in self.answers:
             query: zenoh.Query
             for query in drain(queryable, 64):
@@ -332,14 +335,11 @@ class ServiceLoop:
 
     def _counters(self) -> None:
         """The intake's figures into the calibrator's status."""
-        intake = self.intake
-        self.calibrator.intake = IntakeFigures(
-            intake.raw_messages, len(intake), intake.high_water, self.enrolment.admitted
-        )
-        if self.intake.queue_full:
-            self.calibrator.drops.counts["raw:queue-full"] = self.intake.queue_full
-        if self.intake.oversized:
-            self.calibrator.drops.counts["raw:oversized"] = self.intake.oversized
+        intake, admitted = self.intake, self.enrolment.admitted
+        self.calibrator.intake = IntakeFigures(intake.raw_messages, len(intake), intake.high_water, admitted)
+        for cause, count in (("raw:queue-full", intake.queue_full), ("raw:oversized", intake.oversized)):
+            if count:
+                self.calibrator.drops.counts[cause] = count
 
 
 def _loop(stop: threading.Event, loop: ServiceLoop) -> None:

@@ -16,12 +16,17 @@ too) (docs/front-door.md, "Memory per service").
 - ``M_ARENA_MAX`` ``ARENAS``: the receiving threads share arenas instead of keeping their own.
 
 Call ``give_back_freed_memory()`` once, early, before the Zenoh session opens its threads.
+
+A one-shot command that works through a file's arrays (``magnet fit``, ``magnet heading``) wants the opposite:
+``keep_freed_memory()``. With glibc's defaults the top of the heap is given back as soon as 128 kB of it is free, and
+taken again for the next array of a few hundred kB, every page of it faulted in afresh (a few us each on this
+machine's virtual memory): ``magnet fit`` of 10,000 rows made 2,800 more page faults than of 300, its peak memory only
+2 MB higher; ``magnet heading`` of 60,000 samples 15,000 (the floor, loadtxt and vqf, 8,700).
 """
 
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import logging
 
 log = logging.getLogger("magnet.allocator")
@@ -33,10 +38,32 @@ M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_ARENA_MAX = -1, -3, -8
 MMAP_THRESHOLD_BYTES = 1024 * 1024
 TRIM_THRESHOLD_BYTES = 128 * 1024
 ARENAS = 2
+#: a one-shot command's: blocks up to 4 MiB from the heap (a fixed value: not raised to 32 MiB by a freed block, so
+#: the few larger ones, a log's text or columns, are their own mappings), its top given back past 64 MiB free
+KEEP_MMAP_THRESHOLD_BYTES = 4 * 1024 * 1024
+KEEP_TRIM_THRESHOLD_BYTES = 64 * 1024 * 1024
+
+
+def keep_freed_memory() -> bool:
+    """Tell glibc's allocator to keep freed memory for the next arrays (the module docstring, last paragraph): in
+    ``magnet fit`` of 10,000 rows 2,300 fewer page faults, in ``magnet heading`` of 60,000 samples 2,700 fewer, the
+    same peak memory within 2 MB. False (nothing changed) where there is no glibc. Uses the symbols the process has
+    loaded already (``ctypes.CDLL(None)``): no search for the C library, which runs ``ldconfig``."""
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = getattr(libc, "mallopt", None)
+    except OSError:
+        mallopt = None
+    if mallopt is None or not getattr(libc, "gnu_get_libc_version", None):
+        return False
+    settings = ((M_MMAP_THRESHOLD, KEEP_MMAP_THRESHOLD_BYTES), (M_TRIM_THRESHOLD, KEEP_TRIM_THRESHOLD_BYTES))
+    return all(mallopt(ctypes.c_int(param), ctypes.c_int(value)) == 1 for param, value in settings)
 
 
 def give_back_freed_memory() -> bool:
     """Set glibc's allocator as the docstring says; False (and nothing changed) where there is no glibc."""
+    import ctypes.util  # subprocess and shutil: only where a service starts
+
     name = ctypes.util.find_library("c")
     try:
         libc = ctypes.CDLL(name) if name else None
@@ -60,6 +87,8 @@ def give_back_now() -> bool:
     """Give the free memory at the top and in the middle of every heap back to the system now (glibc's
     ``malloc_trim(0)``; a few ms for a heap of hundreds of MB); False where there is no glibc. For a process whose
     bursts leave its heaps fragmented beyond what ``M_TRIM_THRESHOLD`` gives back (the dashboard after floods)."""
+    import ctypes.util
+
     name = ctypes.util.find_library("c")
     try:
         trim = getattr(ctypes.CDLL(name), "malloc_trim", None) if name else None

@@ -52,15 +52,23 @@ class StatusBoard:
         """The loop's status now (from the loop's thread; ``status`` is not changed afterwards)."""
         self.latest = (status, self.clock())
 
+    def read(self) -> dict[str, Any]:
+        """The latest status with its age, as a query is answered (any thread; ``{}`` before the first write): what
+        ``--metrics`` serves, so a scrape never touches the service's state from another thread than its loop's."""
+        latest = self.latest
+        if latest is None:
+            return {}
+        status, written_s = latest
+        return {**status, "status_age_s": round(self.clock() - written_s, 3)}
+
     def answer(self, query: zenoh.Query) -> None:
         """The status queryable's callback (Zenoh's thread): the latest status, with its age; never raises."""
         self.guard.answer("query:status", query, self._reply)
         query.drop()  # finalize now: the asker waits for it
 
     def _reply(self, query: zenoh.Query) -> None:
-        latest = self.latest
-        if latest is None:
+        status = self.read()
+        if not status:
             raise ValueError(f"the {self.guard.service} is starting: ask again in a moment")
-        status, written_s = latest
         self.answered += 1
-        query.reply(self.key, wire.pack({**status, "status_age_s": round(self.clock() - written_s, 3)}))
+        query.reply(self.key, wire.pack(status))

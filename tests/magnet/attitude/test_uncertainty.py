@@ -218,3 +218,19 @@ def test_the_drift_of_a_whole_drain_at_once_is_the_plain_batch_by_batch_maths():
             assert np.array_equal(whole._drift(devices, bounds, t_ns, trusted, batches, figures), expected)
             carried = {d: whole.devices[d].trusted_ns for d in devices}
             assert carried == {d: plain.devices[d].trusted_ns for d in devices}
+
+
+def test_the_compiled_drift_refuses_batches_beyond_the_samples():
+    from magnet import _kernels
+
+    times, drift = np.arange(4, dtype=np.int64), np.zeros(4)
+    args = (
+        np.zeros(4, bool),
+        np.array([0, 2, 6]),
+        np.array([0, 0]),
+        np.ones(2, bool),
+        np.ones(2),
+        np.zeros(1, np.int64),
+    )
+    with pytest.raises(ValueError, match="out of range"):
+        _kernels.bias_drift(times, *args, drift)

@@ -89,6 +89,8 @@ def test_a_level_walk_with_no_place_and_nothing_in_force_is_refused_saying_give_
     record = fit_choice(no_place, "auto")  # the sphere's methods refused, and the field ladder with them
     assert not record.accepted
     assert "the field ladder refused" in record.reason and "give the place" in record.reason, record.reason
+    # only a rung asked for by name is told to let auto fit; auto itself ran here and is not sent back to itself
+    assert "let --method auto" in forced.reason and "let --method auto" not in record.reason, record.reason
     # |B| known (``--field-ut``, a calibrator's ``--location``) without the dip: the rungs, their matrix kept, hold
     # the vertical offset by the magnitude (2.4 uT); the plain sphere, its radius free, is not a candidate there
     with_field = fit_choice(data.replace(dip_deg=None), "auto")

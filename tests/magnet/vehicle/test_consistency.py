@@ -4,6 +4,8 @@ window the compass keeps."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -50,6 +52,31 @@ def test_a_compass_mounted_turned_and_one_beside_the_motors_are_named_with_their
     assert "COMPASS_ORIENT2=2" in report.summary and "mav1-mag2: interference" in report.summary
     assert not report.anomaly
     assert report.to_dict()["compasses"][1]["verdict"] == "rotation"
+
+
+def test_a_current_unknown_on_most_samples_still_names_the_motors_and_the_rotation() -> None:
+    """The edge attaches a current at most a second old: a vehicle whose SYS_STATUS comes late or is lost (a busy
+    link, a stand-in starved of the processor) sends 1.5 s of every 2.5 s without one (nor a throttle: SERVO_OUTPUT_RAW
+    comes with it). The samples with a current
+    are enough: the motors are still the cause, not a calibration (before, under half the samples with a current
+    dropped the current altogether, and the motors' field was called a stale calibration, 13 uT RMS)."""
+    series = {
+        "mav1-mag0": flight(SensorErrors(noise_ut=0.3)),
+        "mav1-mag1": flight(SensorErrors(noise_ut=0.3, misalignment_deg=(0.0, 0.0, 90.0))),
+        "mav1-mag2": flight(SensorErrors(noise_ut=0.3), LOUD),
+    }
+    late = np.arange(600) % 25 < 15  # 60 % of the samples
+    series = {
+        d: dataclasses.replace(
+            s, current_a=np.where(late, np.nan, s.current_a), throttle=np.where(late, np.nan, s.throttle)
+        )
+        for d, s in series.items()
+    }
+    by = {c.device: c for c in judge("mav1", series, expected_ut()).compasses}
+    assert by["mav1-mag1"].causes == (Verdict.ROTATION,) and by["mav1-mag1"].named_rotation == 2
+    motor = by["mav1-mag2"]
+    assert motor.causes == (Verdict.INTERFERENCE,) and motor.motor_per == "A", motor
+    assert 25.0 < (motor.interference_pct or 0) < 45.0 and motor.motor_ut == pytest.approx(LOUD.ut_per_a, abs=0.02)
 
 
 def test_compasses_that_agree_in_a_field_the_wmm_does_not_expect_are_a_local_anomaly() -> None:

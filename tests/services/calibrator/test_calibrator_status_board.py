@@ -132,3 +132,29 @@ def test_a_lease_that_moves_is_on_the_board_at_once_not_a_refresh_later(tmp_path
         loop.step()  # the older calibrator's token arrives: this one stands by, well within the refresh period
         assert not loop.calibrator.active
         assert ask(loop).replies[0][1]["lease"] == "standby"
+
+
+def test_metrics_read_the_board_and_never_the_calibrator_itself(tmp_path: Path) -> None:
+    """Issue 32: ``--metrics`` built the calibrator's status on the metrics server's thread (the calibrator's state
+    read beside the loop that changes it). What it serves now is the board's: what the loop last wrote, the alerts
+    open by kind with it, and how old it is."""
+    from magnet.drift import Alert, AlertKind
+    from services.common.metrics import families
+
+    with CalibrationStore(tmp_path / "c.db") as store:
+        loop = service_loop(store)
+        now = [0.0]
+        loop.board.clock = lambda: now[0]
+        alert = Alert("d1", AlertKind.FIELD_STRENGTH, 1, 60.0, 50.0, "recalibrate")
+        loop.calibrator.roster.on_alert(f"{PREFIX}/d1/alert", wire.pack(alert.to_message()), PREFIX)
+        loop.write_status()
+        asked: list[str] = []
+        loop.calibrator.status = lambda name: asked.append(name)  # type: ignore[assignment,method-assign,return-value]
+        now[0] += 0.7
+        status = loop.board.read()
+        assert asked == []  # read without touching the calibrator
+        assert status["service"] == "calibrator" and status["status_age_s"] == 0.7
+        assert status["alerts_open"] == {AlertKind.FIELD_STRENGTH.value: 1}
+        names = {family.name for family in families("calibrator", status)}
+        assert {"magnet_dropped", "magnet_devices", "magnet_alerts_open"} <= names
+        assert ask(loop).replies[0][1] == status  # the same as the status queryable answers

@@ -49,3 +49,22 @@ def test_a_wrong_option_value_is_one_line_not_a_page_of_usage(argv, says, capsys
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and says in err and "usage:" not in err
     assert "--help" in err  # where to read the usage
+
+
+@pytest.mark.parametrize("command, keeps", [("fit", True), ("heading", True), ("export", False), ("keys", False)])
+def test_the_array_commands_tell_the_allocator_to_keep_freed_memory(command, keeps, monkeypatch):
+    import services.common.allocator as allocator
+
+    calls = []
+    monkeypatch.setattr(allocator, "keep_freed_memory", lambda: calls.append(command) or True)
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    assert calls == ([command] if keeps else [])
+
+
+def test_keep_freed_memory_is_set_on_glibc_and_nothing_elsewhere():
+    import platform
+
+    from services.common.allocator import keep_freed_memory
+
+    assert keep_freed_memory() == (platform.libc_ver()[0] == "glibc")

@@ -34,6 +34,9 @@ NOT_LOADED = (
     "services.router",
     "services.common.zenoh_session",
     "services.common.inputs.flightlogs",
+    "numpy.ma",  # np.median, np.quantile and np.unique load it (numpy 2.4): magnet.order_stats instead
+    "magnet.calibration.field",  # the field ladder: only when the sphere's methods are refused or a rung is asked for
+    "magnet.calibration.ladder",
 )
 
 SCRIPT = """
