@@ -1378,6 +1378,101 @@ static double pairwise_sum(const double *a, Py_ssize_t n, Py_ssize_t stride) {
     return pairwise_sum(a, n2, stride) + pairwise_sum(a + n2 * stride, n - n2, stride);
 }
 
+PyDoc_STRVAR(batch_figures_doc,
+             "batch_figures(bounds, t_ns, fused, trusted, tan_dip, horizontal, out)\n\n"
+             "The per-batch figures of magnet.attitude.uncertainty (_Batches.of) in one pass: batches b of samples "
+             "bounds[b] .. bounds[b + 1] (bounds (B + 1,) int64), t_ns (S,) int64, fused and trusted (S,) bool, "
+             "tan_dip (S,), horizontal (S, 2) (north, east; g). Writes out (B, 7): the fused samples, their mean "
+             "tan_dip, the fused samples whose horizontal force is finite (known), their mean time (s since the "
+             "epoch: the mean of (t - t_ns[0]) 1e-9, plus t_ns[0] 1e-9), mean north and east force, and the fused "
+             "samples not trusted; each sum as numpy's add.reduceat along a row gives it (the first value plus the "
+             "pairwise sum of the rest); an empty batch 0 (its means NaN).");
+
+static PyObject *batch_figures(PyObject *self, PyObject *args) {
+    PyObject *o_bounds, *o_t, *o_fused, *o_trusted, *o_tan, *o_horizontal, *o_out;
+    if (!PyArg_ParseTuple(args, "OOOOOOO", &o_bounds, &o_t, &o_fused, &o_trusted, &o_tan, &o_horizontal, &o_out)) {
+        return NULL;
+    }
+    Py_buffer bounds, t, fused, trusted;
+    Array a[3];
+    int got = 0, arrays = 0;
+    PyObject *result = NULL;
+    double *scratch = NULL;
+    if (get_array(o_tan, &a[0], 1, -1, -1, 0, "tan_dip") < 0) return NULL;
+    arrays++;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_horizontal, &a[1], 2, n, 2, 0, "horizontal") < 0) goto done;
+    arrays++;
+    if (get_array(o_out, &a[2], 2, -1, 7, 1, "out") < 0) goto done;
+    arrays++;
+    Py_ssize_t count = a[2].rows;
+    if (get_int64(o_bounds, &bounds, count + 1, "bounds") < 0) goto done;
+    got = 1;
+    if (get_int64(o_t, &t, n, "t_ns") < 0) goto done;
+    got = 2;
+    if (get_flags(o_fused, &fused, n, "fused") < 0) goto done;
+    got = 3;
+    if (get_flags(o_trusted, &trusted, n, "trusted") < 0) goto done;
+    got = 4;
+#define I64(view, i) (*(long long *)((char *)(view).buf + (i) * (view).strides[0]))
+#define B8(view, i) (((char *)(view).buf)[(i) * (view).strides[0]])
+    Py_ssize_t longest = 0;
+    for (Py_ssize_t b = 0; b < count; b++) {
+        long long lo = I64(bounds, b), hi = I64(bounds, b + 1);
+        if (lo < 0 || hi > n || lo > hi) {
+            PyErr_Format(PyExc_ValueError, "batch %zd: samples %lld .. %lld out of range", b, lo, hi);
+            goto done;
+        }
+        longest = hi - lo > longest ? hi - lo : longest;
+    }
+    scratch = PyMem_Malloc(sizeof(double) * (size_t)(7 * longest + 1));
+    if (scratch == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    long long t0 = n ? I64(t, 0) : 0;
+    for (Py_ssize_t b = 0; b < count; b++) {
+        long long lo = I64(bounds, b), hi = I64(bounds, b + 1);
+        Py_ssize_t m = (Py_ssize_t)(hi - lo);
+        double sums[7] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        if (m > 0) {
+            for (Py_ssize_t j = 0; j < m; j++) { /* the rows of _Batches.of, row r at scratch + r * m */
+                Py_ssize_t i = (Py_ssize_t)lo + j;
+                int f = B8(fused, i) != 0;
+                double north = AT(a[1], i, 0), east = AT(a[1], i, 1);
+                int known = f && isfinite(north) && isfinite(east);
+                scratch[j] = f;
+                scratch[m + j] = f ? AT1(a[0], i) : 0.0;
+                scratch[2 * m + j] = known;
+                scratch[3 * m + j] = known ? (double)(I64(t, i) - t0) * 1e-9 : 0.0;
+                scratch[4 * m + j] = known ? north : 0.0;
+                scratch[5 * m + j] = known ? east : 0.0;
+                scratch[6 * m + j] = f && !B8(trusted, i);
+            }
+            for (int r = 0; r < 7; r++) sums[r] = scratch[r * m] + pairwise_sum(scratch + r * m + 1, m - 1, 1);
+        }
+        AT(a[2], b, 0) = sums[0];
+        AT(a[2], b, 1) = sums[1] / sums[0];
+        AT(a[2], b, 2) = sums[2];
+        AT(a[2], b, 3) = sums[3] / sums[2] + (double)t0 * 1e-9;
+        AT(a[2], b, 4) = sums[4] / sums[2];
+        AT(a[2], b, 5) = sums[5] / sums[2];
+        AT(a[2], b, 6) = sums[6];
+    }
+#undef I64
+#undef B8
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyMem_Free(scratch);
+    if (got >= 4) PyBuffer_Release(&trusted);
+    if (got >= 3) PyBuffer_Release(&fused);
+    if (got >= 2) PyBuffer_Release(&t);
+    if (got >= 1) PyBuffer_Release(&bounds);
+    release(a, arrays);
+    return result;
+}
+
 /* ---- the velocity fixes (aiding.VelocityFixes): times (cap,) and values (cap, 3) buffers, the visible fixes
  * [start, start + count); meta (6,): start, count, whether a value is held, the held value (3). */
 enum { F_START, F_COUNT, F_HELD_VALID, F_HELD, F_SIZE = 6 };
@@ -2645,6 +2740,7 @@ static PyMethodDef methods[] = {
     {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
     {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
+    {"batch_figures", batch_figures, METH_VARARGS, batch_figures_doc},
     {"bias_drift", bias_drift, METH_VARARGS, bias_drift_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},

@@ -192,3 +192,12 @@ def bias_drift(
     slots: np.ndarray,
     drift: np.ndarray,
 ) -> None: ...
+def batch_figures(
+    bounds: np.ndarray,
+    t_ns: np.ndarray,
+    fused: np.ndarray,
+    trusted: np.ndarray,
+    tan_dip: np.ndarray,
+    horizontal: np.ndarray,
+    out: np.ndarray,
+) -> None: ...
