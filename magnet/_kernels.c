@@ -853,6 +853,54 @@ static PyObject *sigma_direct(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(gyro_rows_doc,
+             "gyro_rows(gyr, acc, field, limit, present, finite, saturated, usable)\n\n"
+             "The compass filters' per-sample checks (magnet.compass.filters.DeviceFilters.update) in one pass over "
+             "gyr, acc, field (S, 3): present (S,) bool, a gyroscope row not all NaN; finite, every value of the row "
+             "finite; saturated, finite and a value at or beyond +-limit (rad/s); usable, finite, not saturated and "
+             "acc's and field's rows finite.");
+
+static PyObject *gyro_rows(PyObject *self, PyObject *args) {
+    PyObject *o_gyr, *o_acc, *o_field, *o_out[4];
+    double limit;
+    if (!PyArg_ParseTuple(args, "OOOdOOOO", &o_gyr, &o_acc, &o_field, &limit, &o_out[0], &o_out[1], &o_out[2],
+                          &o_out[3])) {
+        return NULL;
+    }
+    const char *names[4] = {"present", "finite", "saturated", "usable"};
+    Array a[3];
+    Py_buffer out[4];
+    int arrays = 0, got = 0;
+    PyObject *result = NULL;
+    if (get_array(o_gyr, &a[0], 2, -1, 3, 0, "gyr") < 0) return NULL;
+    arrays++;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_acc, &a[1], 2, n, 3, 0, "acc") < 0) goto done;
+    arrays++;
+    if (get_array(o_field, &a[2], 2, n, 3, 0, "field") < 0) goto done;
+    arrays++;
+    for (; got < 4; got++) {
+        if (get_flags(o_out[got], &out[got], n, names[got]) < 0) goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double g[3] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2)};
+        int finite = isfinite(g[0]) && isfinite(g[1]) && isfinite(g[2]);
+        int saturated = finite && (fabs(g[0]) >= limit || fabs(g[1]) >= limit || fabs(g[2]) >= limit);
+        int others = isfinite(AT(a[1], i, 0)) && isfinite(AT(a[1], i, 1)) && isfinite(AT(a[1], i, 2)) &&
+                     isfinite(AT(a[2], i, 0)) && isfinite(AT(a[2], i, 1)) && isfinite(AT(a[2], i, 2));
+        ((char *)out[0].buf)[i * out[0].strides[0]] = !(isnan(g[0]) && isnan(g[1]) && isnan(g[2]));
+        ((char *)out[1].buf)[i * out[1].strides[0]] = (char)finite;
+        ((char *)out[2].buf)[i * out[2].strides[0]] = (char)saturated;
+        ((char *)out[3].buf)[i * out[3].strides[0]] = (char)(finite && !saturated && others);
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    for (int k = 0; k < got; k++) PyBuffer_Release(&out[k]);
+    release(a, arrays);
+    return result;
+}
+
 PyDoc_STRVAR(bias_drift_doc,
              "bias_drift(t_ns, trusted, bounds, slot, untrusted, bias, slots, drift)\n\n"
              "The gyroscope's bias drift of magnet.attitude.uncertainty (HeadingUncertainty._drift), batch by batch "
@@ -2741,6 +2789,7 @@ static PyMethodDef methods[] = {
     {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
     {"batch_figures", batch_figures, METH_VARARGS, batch_figures_doc},
+    {"gyro_rows", gyro_rows, METH_VARARGS, gyro_rows_doc},
     {"bias_drift", bias_drift, METH_VARARGS, bias_drift_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
