@@ -201,3 +201,13 @@ def batch_figures(
     horizontal: np.ndarray,
     out: np.ndarray,
 ) -> None: ...
+def gyro_rows(
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    field: np.ndarray,
+    limit: float,
+    present: np.ndarray,
+    finite: np.ndarray,
+    saturated: np.ndarray,
+    usable: np.ndarray,
+) -> None: ...

@@ -127,8 +127,8 @@ class Fusion:
         self.watch = FieldWatch(self.period_s) if watch else None
         self.heading_bias = HeadingBias(self.period_s, self._filter.params["tauMag"]) if heading_bias else None
         #: with ``turn_gate`` (the default), in a gait (a walker's or runner's steps) the accelerometer is fed a window
-        #: late and left out where the course turned, its centripetal acceleration not taken for gravity
-        #: (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
+        #: late and left out where the course turned (in a swinging hand levelled), its centripetal acceleration not
+        #: taken for gravity (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
         self.turn_gate = TurnGate(self.period_s, filter_params=self.params) if turn_gate else None
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0

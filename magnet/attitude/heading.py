@@ -189,7 +189,8 @@ def no_earth_field(field_ut: np.ndarray, expected_ut: npt.ArrayLike | None) -> n
     the range the Earth's field has anywhere (EARTH_MIN_UT..EARTH_MAX_UT). The compass and ``magnet heading`` leave
     such samples out of the attitude filter while no calibration is in force."""
     norm = row_norm(np.asarray(field_ut, dtype=float))
-    expected = np.broadcast_to(np.asarray(np.nan if expected_ut is None else expected_ut, dtype=float), norm.shape)
+    expected = np.asarray(np.nan if expected_ut is None else expected_ut, dtype=float)
+    expected = expected if expected.shape == norm.shape else np.broadcast_to(expected, norm.shape)
     known = np.isfinite(expected) & (expected > 0)
     low = np.where(known, expected * (1.0 - NO_EARTH_FIELD_PCT / 100.0), EARTH_MIN_UT)
     high = np.where(known, expected * (1.0 + NO_EARTH_FIELD_PCT / 100.0), EARTH_MAX_UT)
@@ -240,7 +241,8 @@ def disturbance_flags(
         flags |= np.where(disturbed, int(HeadingFlag.FIELD_DISTURBED), 0)
     if acc is None:
         return flags | int(HeadingFlag.NO_TILT)
-    f = np.broadcast_to(np.asarray(acc, dtype=float), b.shape)
+    f = np.asarray(acc, dtype=float)
+    f = f if f.shape == b.shape else np.broadcast_to(f, b.shape)
     norm = row_norm(f)
     no_tilt = ~(np.isfinite(norm) & (norm > _TINY))
     flags |= np.where(no_tilt, int(HeadingFlag.NO_TILT), 0)

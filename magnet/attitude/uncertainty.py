@@ -324,7 +324,8 @@ def _direct(
     count = len(field_ut)
     out = np.empty((4, count))
     down, where = (acc_ms2, np.zeros(count, dtype=bool)) if rotation is None else (rotation[:, 2, :], fused)
-    expected = np.broadcast_to(np.asarray(expected_ut, dtype=float), (count,))
+    expected = np.asarray(expected_ut, dtype=float)
+    expected = expected if expected.shape == (count,) else np.broadcast_to(expected, (count,))
     _kernels.sigma_direct(
         np.asarray(field_ut, dtype=float), np.asarray(acc_ms2, dtype=float), down, where, flags, expected,
         residual_ut, _DISTURBED, math.radians(MAX_DIP_DEG), UNCALIBRATED_FRACTION, math.radians(UNLEVEL_DEG),

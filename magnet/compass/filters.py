@@ -285,8 +285,8 @@ class DeviceFilters:
         count = int(bounds[-1])
         edges = np.asarray(bounds, dtype=np.int64)
         sizes = np.diff(edges)
-        isnan = np.isnan(gyr_rads)
-        present = ~(isnan[:, 0] & isnan[:, 1] & isnan[:, 2])
+        present, finite, saturated, usable = np.empty((4, count), dtype=bool)  # the checks in one compiled pass
+        _kernels.gyro_rows(gyr_rads, acc_ms2, field_ut, GYRO_LIMIT_RADS, present, finite, saturated, usable)
         if not present.any():
             return FusedColumns.empty(count)
         with_gyro = np.zeros(len(sizes), dtype=bool)
@@ -295,10 +295,6 @@ class DeviceFilters:
         groups: dict[str, list[int]] = {}
         for b in np.flatnonzero(with_gyro).tolist():
             groups.setdefault(devices[b], []).append(b)
-        finite = hd.rows_finite(gyr_rads)
-        beyond = np.abs(gyr_rads) >= GYRO_LIMIT_RADS
-        saturated = finite & (beyond[:, 0] | beyond[:, 1] | beyond[:, 2])
-        usable = finite & ~saturated & hd.rows_finite(acc_ms2) & hd.rows_finite(field_ut)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
         if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
