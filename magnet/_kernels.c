@@ -853,6 +853,123 @@ static PyObject *sigma_direct(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(gyro_rows_doc,
+             "gyro_rows(gyr, acc, field, limit, present, finite, saturated, usable)\n\n"
+             "The compass filters' per-sample checks (magnet.compass.filters.DeviceFilters.update) in one pass over "
+             "gyr, acc, field (S, 3): present (S,) bool, a gyroscope row not all NaN; finite, every value of the row "
+             "finite; saturated, finite and a value at or beyond +-limit (rad/s); usable, finite, not saturated and "
+             "acc's and field's rows finite.");
+
+static PyObject *gyro_rows(PyObject *self, PyObject *args) {
+    PyObject *o_gyr, *o_acc, *o_field, *o_out[4];
+    double limit;
+    if (!PyArg_ParseTuple(args, "OOOdOOOO", &o_gyr, &o_acc, &o_field, &limit, &o_out[0], &o_out[1], &o_out[2],
+                          &o_out[3])) {
+        return NULL;
+    }
+    const char *names[4] = {"present", "finite", "saturated", "usable"};
+    Array a[3];
+    Py_buffer out[4];
+    int arrays = 0, got = 0;
+    PyObject *result = NULL;
+    if (get_array(o_gyr, &a[0], 2, -1, 3, 0, "gyr") < 0) return NULL;
+    arrays++;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_acc, &a[1], 2, n, 3, 0, "acc") < 0) goto done;
+    arrays++;
+    if (get_array(o_field, &a[2], 2, n, 3, 0, "field") < 0) goto done;
+    arrays++;
+    for (; got < 4; got++) {
+        if (get_flags(o_out[got], &out[got], n, names[got]) < 0) goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double g[3] = {AT(a[0], i, 0), AT(a[0], i, 1), AT(a[0], i, 2)};
+        int finite = isfinite(g[0]) && isfinite(g[1]) && isfinite(g[2]);
+        int saturated = finite && (fabs(g[0]) >= limit || fabs(g[1]) >= limit || fabs(g[2]) >= limit);
+        int others = isfinite(AT(a[1], i, 0)) && isfinite(AT(a[1], i, 1)) && isfinite(AT(a[1], i, 2)) &&
+                     isfinite(AT(a[2], i, 0)) && isfinite(AT(a[2], i, 1)) && isfinite(AT(a[2], i, 2));
+        ((char *)out[0].buf)[i * out[0].strides[0]] = !(isnan(g[0]) && isnan(g[1]) && isnan(g[2]));
+        ((char *)out[1].buf)[i * out[1].strides[0]] = (char)finite;
+        ((char *)out[2].buf)[i * out[2].strides[0]] = (char)saturated;
+        ((char *)out[3].buf)[i * out[3].strides[0]] = (char)(finite && !saturated && others);
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    for (int k = 0; k < got; k++) PyBuffer_Release(&out[k]);
+    release(a, arrays);
+    return result;
+}
+
+PyDoc_STRVAR(disturbance_bits_doc,
+             "disturbance_bits(field, acc, expected, dip, expected_dip, field_tol_pct, dip_tol_deg, tiny, flags)\n\n"
+             "magnet.attitude.heading.disturbance_flags per sample, in one pass: field (S, 3) uT, acc (S, 3) or "
+             "None (no accelerometer: NO_TILT everywhere), expected (S,) uT or None, dip and expected_dip (S,) deg "
+             "or None (no dip check). Writes flags (S,) int64: FIELD_DISTURBED where | |B| - expected | > expected "
+             "field_tol_pct / 100 and expected > 0; NO_TILT where |acc| is not finite or not above tiny; "
+             "DIP_DISTURBED where |dip - expected_dip| > dip_tol_deg and there is a tilt.");
+
+static PyObject *disturbance_bits(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_acc, *o_expected, *o_dip, *o_expected_dip, *o_flags;
+    double tol_pct, dip_tol, tiny;
+    if (!PyArg_ParseTuple(args, "OOOOOdddO", &o_field, &o_acc, &o_expected, &o_dip, &o_expected_dip, &tol_pct,
+                          &dip_tol, &tiny, &o_flags)) {
+        return NULL;
+    }
+    Array a[5];
+    PyObject *objs[4] = {o_acc, o_expected, o_dip, o_expected_dip};
+    const char *names[4] = {"acc", "expected", "dip", "expected_dip"};
+    int have[4] = {0, 0, 0, 0}, arrays = 0;
+    Py_buffer flags;
+    int got_flags = 0;
+    PyObject *result = NULL;
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    arrays = 1;
+    Py_ssize_t n = a[0].rows;
+    for (int k = 0; k < 4; k++) {
+        if (objs[k] == Py_None) {
+            memset(&a[1 + k], 0, sizeof(Array));
+            continue;
+        }
+        if (get_array(objs[k], &a[1 + k], k == 0 ? 2 : 1, n, k == 0 ? 3 : -1, 0, names[k]) < 0) goto done;
+        have[k] = 1;
+    }
+    if (get_int64(o_flags, &flags, n, "flags") < 0) goto done;
+    got_flags = 1;
+    if (flags.readonly) {
+        PyErr_SetString(PyExc_ValueError, "flags must be writable");
+        goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        long long bits = 0;
+        if (have[1]) {
+            double e = AT1(a[2], i);
+            double norm = sqrt(AT(a[0], i, 0) * AT(a[0], i, 0) + AT(a[0], i, 1) * AT(a[0], i, 1) +
+                               AT(a[0], i, 2) * AT(a[0], i, 2));
+            if (fabs(norm - e) > e * tol_pct / 100.0 && e > 0) bits |= 4; /* FIELD_DISTURBED */
+        }
+        if (!have[0]) {
+            bits |= 2; /* NO_TILT */
+        } else {
+            double g = sqrt(AT(a[1], i, 0) * AT(a[1], i, 0) + AT(a[1], i, 1) * AT(a[1], i, 1) +
+                            AT(a[1], i, 2) * AT(a[1], i, 2));
+            int no_tilt = !(isfinite(g) && g > tiny);
+            if (no_tilt) bits |= 2;
+            if (have[2] && have[3] && !no_tilt && fabs(AT1(a[3], i) - AT1(a[4], i)) > dip_tol) bits |= 8;
+        }
+        *(long long *)((char *)flags.buf + i * flags.strides[0]) = bits;
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    if (got_flags) PyBuffer_Release(&flags);
+    for (int k = 0; k < 4; k++) {
+        if (have[k]) PyBuffer_Release(&a[1 + k].view);
+    }
+    release(a, arrays);
+    return result;
+}
+
 PyDoc_STRVAR(bias_drift_doc,
              "bias_drift(t_ns, trusted, bounds, slot, untrusted, bias, slots, drift)\n\n"
              "The gyroscope's bias drift of magnet.attitude.uncertainty (HeadingUncertainty._drift), batch by batch "
@@ -1376,6 +1493,101 @@ static double pairwise_sum(const double *a, Py_ssize_t n, Py_ssize_t stride) {
     Py_ssize_t n2 = n / 2;
     n2 -= n2 % 8;
     return pairwise_sum(a, n2, stride) + pairwise_sum(a + n2 * stride, n - n2, stride);
+}
+
+PyDoc_STRVAR(batch_figures_doc,
+             "batch_figures(bounds, t_ns, fused, trusted, tan_dip, horizontal, out)\n\n"
+             "The per-batch figures of magnet.attitude.uncertainty (_Batches.of) in one pass: batches b of samples "
+             "bounds[b] .. bounds[b + 1] (bounds (B + 1,) int64), t_ns (S,) int64, fused and trusted (S,) bool, "
+             "tan_dip (S,), horizontal (S, 2) (north, east; g). Writes out (B, 7): the fused samples, their mean "
+             "tan_dip, the fused samples whose horizontal force is finite (known), their mean time (s since the "
+             "epoch: the mean of (t - t_ns[0]) 1e-9, plus t_ns[0] 1e-9), mean north and east force, and the fused "
+             "samples not trusted; each sum as numpy's add.reduceat along a row gives it (the first value plus the "
+             "pairwise sum of the rest); an empty batch 0 (its means NaN).");
+
+static PyObject *batch_figures(PyObject *self, PyObject *args) {
+    PyObject *o_bounds, *o_t, *o_fused, *o_trusted, *o_tan, *o_horizontal, *o_out;
+    if (!PyArg_ParseTuple(args, "OOOOOOO", &o_bounds, &o_t, &o_fused, &o_trusted, &o_tan, &o_horizontal, &o_out)) {
+        return NULL;
+    }
+    Py_buffer bounds, t, fused, trusted;
+    Array a[3];
+    int got = 0, arrays = 0;
+    PyObject *result = NULL;
+    double *scratch = NULL;
+    if (get_array(o_tan, &a[0], 1, -1, -1, 0, "tan_dip") < 0) return NULL;
+    arrays++;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_horizontal, &a[1], 2, n, 2, 0, "horizontal") < 0) goto done;
+    arrays++;
+    if (get_array(o_out, &a[2], 2, -1, 7, 1, "out") < 0) goto done;
+    arrays++;
+    Py_ssize_t count = a[2].rows;
+    if (get_int64(o_bounds, &bounds, count + 1, "bounds") < 0) goto done;
+    got = 1;
+    if (get_int64(o_t, &t, n, "t_ns") < 0) goto done;
+    got = 2;
+    if (get_flags(o_fused, &fused, n, "fused") < 0) goto done;
+    got = 3;
+    if (get_flags(o_trusted, &trusted, n, "trusted") < 0) goto done;
+    got = 4;
+#define I64(view, i) (*(long long *)((char *)(view).buf + (i) * (view).strides[0]))
+#define B8(view, i) (((char *)(view).buf)[(i) * (view).strides[0]])
+    Py_ssize_t longest = 0;
+    for (Py_ssize_t b = 0; b < count; b++) {
+        long long lo = I64(bounds, b), hi = I64(bounds, b + 1);
+        if (lo < 0 || hi > n || lo > hi) {
+            PyErr_Format(PyExc_ValueError, "batch %zd: samples %lld .. %lld out of range", b, lo, hi);
+            goto done;
+        }
+        longest = hi - lo > longest ? hi - lo : longest;
+    }
+    scratch = PyMem_Malloc(sizeof(double) * (size_t)(7 * longest + 1));
+    if (scratch == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    long long t0 = n ? I64(t, 0) : 0;
+    for (Py_ssize_t b = 0; b < count; b++) {
+        long long lo = I64(bounds, b), hi = I64(bounds, b + 1);
+        Py_ssize_t m = (Py_ssize_t)(hi - lo);
+        double sums[7] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+        if (m > 0) {
+            for (Py_ssize_t j = 0; j < m; j++) { /* the rows of _Batches.of, row r at scratch + r * m */
+                Py_ssize_t i = (Py_ssize_t)lo + j;
+                int f = B8(fused, i) != 0;
+                double north = AT(a[1], i, 0), east = AT(a[1], i, 1);
+                int known = f && isfinite(north) && isfinite(east);
+                scratch[j] = f;
+                scratch[m + j] = f ? AT1(a[0], i) : 0.0;
+                scratch[2 * m + j] = known;
+                scratch[3 * m + j] = known ? (double)(I64(t, i) - t0) * 1e-9 : 0.0;
+                scratch[4 * m + j] = known ? north : 0.0;
+                scratch[5 * m + j] = known ? east : 0.0;
+                scratch[6 * m + j] = f && !B8(trusted, i);
+            }
+            for (int r = 0; r < 7; r++) sums[r] = scratch[r * m] + pairwise_sum(scratch + r * m + 1, m - 1, 1);
+        }
+        AT(a[2], b, 0) = sums[0];
+        AT(a[2], b, 1) = sums[1] / sums[0];
+        AT(a[2], b, 2) = sums[2];
+        AT(a[2], b, 3) = sums[3] / sums[2] + (double)t0 * 1e-9;
+        AT(a[2], b, 4) = sums[4] / sums[2];
+        AT(a[2], b, 5) = sums[5] / sums[2];
+        AT(a[2], b, 6) = sums[6];
+    }
+#undef I64
+#undef B8
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyMem_Free(scratch);
+    if (got >= 4) PyBuffer_Release(&trusted);
+    if (got >= 3) PyBuffer_Release(&fused);
+    if (got >= 2) PyBuffer_Release(&t);
+    if (got >= 1) PyBuffer_Release(&bounds);
+    release(a, arrays);
+    return result;
 }
 
 /* ---- the velocity fixes (aiding.VelocityFixes): times (cap,) and values (cap, 3) buffers, the visible fixes
@@ -2061,31 +2273,32 @@ static PyObject *vqf_travelled(PyObject *self, PyObject *args) {
 
 /* ------------------------------------------------------------------------------------------------------------
  * The turn gate (magnet.attitude.turn_gate.TurnGate, whose docstrings are its specification): the accelerometer
- * fed a window late in a gait and left out where the course turned. ``gate_update`` runs one piece of a block
+ * fed a window late in a gait and left out where the course turned; in a swing (a limb's periodic rotation outside a
+ * gait) the specific force's stride mean made level where the course turned. ``gate_update`` runs one piece of a block
  * (TurnGate.update); ``gated_run`` a whole batch through the gate and vqf's own compiled filter (the Python
  * ``vqf.VQF`` given, as aided_update drives it), its attitude and bias read at each block's start: one call a batch
  * instead of a Python loop over 0.5 s blocks. The settings and the state are float64 arrays laid out by the T_* and
  * G_* indices below, mirrored in turn_gate.py; the state's tail holds the last 2 (width - 1) rotations about the
  * vertical, the last width - 1 specific forces in the integrated frame, and the last gait_width magnitudes, oldest
- * first. */
+ * first, then the last gait_width body rates (3 each). */
 enum {
     T_PERIOD, T_WIDTH, T_GAIT_WIDTH, T_LAG_LO, T_LAG_HI, T_STRIDE_LO, T_STRIDE_HI, T_MAX_HOLD, T_BLOCK, T_TURN_DEG,
-    T_GAIT_SD, T_GAIT_CORR, T_SIZE
+    T_GAIT_SD, T_GAIT_CORR, T_SWING_SD, T_SWING_MAX, T_SWING_CORR, T_SIZE
 };
-enum { G_SAMPLES, G_STRIDE, G_RUN, G_IN_GAIT, G_ATTITUDE, G_BIAS = 8, G_HELD = 11, G_RECENT = 15 };
+enum { G_SAMPLES, G_STRIDE, G_RUN, G_IN_GAIT, G_ATTITUDE, G_BIAS = 8, G_HELD = 11, G_IN_SWING = 15, G_RECENT = 16 };
 
 typedef struct {
     const double *s;
     double *g;
     Py_ssize_t width, gait_width, block;
-    double *recent, *earth, *mags; /* views into g */
-    double *seen, *all_earth, *held, *centred; /* scratch for pieces of up to ``block`` samples (centred: gait_width
-                                                * + block) */
+    double *recent, *earth, *mags, *rates; /* views into g */
+    double *seen, *all_earth, *held, *centred, *up, *spin; /* scratch for pieces of up to ``block`` samples (centred:
+                                                            * gait_width + block; spin: 3 (gait_width + block)) */
 } Gate;
 
 static Py_ssize_t gate_state_size(const double *s) {
     Py_ssize_t w = (Py_ssize_t)s[T_WIDTH];
-    return G_RECENT + 2 * (w - 1) + 3 * (w - 1) + (Py_ssize_t)s[T_GAIT_WIDTH];
+    return G_RECENT + 2 * (w - 1) + 3 * (w - 1) + 4 * (Py_ssize_t)s[T_GAIT_WIDTH];
 }
 
 /* The views and the scratch (NULL and an exception on failure); ``gate_free`` releases the scratch. */
@@ -2098,8 +2311,10 @@ static int gate_open(Gate *e, const double *s, double *g) {
     e->recent = g + G_RECENT;
     e->earth = e->recent + 2 * (e->width - 1);
     e->mags = e->earth + 3 * (e->width - 1);
-    Py_ssize_t w = e->width, b = e->block;
-    e->seen = PyMem_Malloc(sizeof(double) * (size_t)(2 * (w - 1) + b + 3 * (w - 1 + b) + 4 * b + e->gait_width + b));
+    e->rates = e->mags + e->gait_width;
+    Py_ssize_t w = e->width, b = e->block, gw = e->gait_width;
+    e->seen = PyMem_Malloc(sizeof(double) * (size_t)(2 * (w - 1) + b + 3 * (w - 1 + b) + 4 * b + gw + b + 3 * b +
+                                                     3 * (gw + b)));
     if (e->seen == NULL) {
         PyErr_NoMemory();
         return -1;
@@ -2107,6 +2322,8 @@ static int gate_open(Gate *e, const double *s, double *g) {
     e->all_earth = e->seen + 2 * (w - 1) + b;
     e->held = e->all_earth + 3 * (w - 1 + b);
     e->centred = e->held + 4 * b;
+    e->up = e->centred + gw + b;
+    e->spin = e->up + 3 * b;
     return 0;
 }
 
@@ -2152,9 +2369,81 @@ static int gate_gait(Gate *e) {
     return 1;
 }
 
+/* TurnGate._swing: whether the last gait_width body rates are a swing (the stride set where they are): their spread
+ * about their mean (RMS of the vector) between swing_sd and swing_max, repeating at a stride's lag (the summed
+ * products of the centred rates over swing_corr times their power). */
+static int gate_swing(Gate *e) {
+    const double *s = e->s, *r = e->rates;
+    Py_ssize_t n = e->gait_width;
+    if (isnan(r[0])) return 0;
+    double *x = e->spin, power = 0.0;
+    for (int k = 0; k < 3; k++) {
+        double mean = pairwise_sum(r + k, n, 3) / (double)n;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            x[3 * i + k] = r[3 * i + k] - mean;
+            power += x[3 * i + k] * x[3 * i + k];
+        }
+    }
+    if (power <= (double)n * (s[T_SWING_SD] * s[T_SWING_SD]) || power >= (double)n * (s[T_SWING_MAX] * s[T_SWING_MAX]))
+        return 0;
+    double best = -INFINITY;
+    Py_ssize_t stride = -1;
+    for (Py_ssize_t lag = (Py_ssize_t)s[T_STRIDE_LO]; lag <= (Py_ssize_t)s[T_STRIDE_HI] && lag < n; lag++) {
+        double c = 0.0;
+        for (Py_ssize_t i = 0; i < 3 * (n - lag); i++) c += x[i] * x[i + 3 * lag];
+        if (c > best) {
+            best = c;
+            stride = lag;
+        }
+    }
+    if (best <= s[T_SWING_CORR] * power) return 0;
+    e->g[G_STRIDE] = (double)(stride < e->width ? stride : e->width);
+    return 1;
+}
+
+/* TurnGate._level: in a swing, where the rotation about the vertical over the last two strides (the triangle of
+ * 2 stride - 1 weights ending at each sample) exceeds turn_deg, each sample's specific force less the horizontal
+ * part (square to vqf's vertical) of the mean over the last stride, both in the held frame: the course's own
+ * acceleration taken out, the swing's kept. ``fed`` holds acc on entry. */
+static void gate_level(Gate *e, const double *acc, Py_ssize_t n, double *fed) {
+    const double *s = e->s;
+    double *g = e->g, run = g[G_RUN], max_hold = s[T_MAX_HOLD], to_deg = 180.0 / M_PI;
+    Py_ssize_t w1 = e->width - 1, ns = (Py_ssize_t)g[G_STRIDE];
+    for (Py_ssize_t j = 0; j < n; j++) {
+        double turned = 0.0;
+        const double *x = e->seen + 2 * w1 + j - (2 * ns - 2);
+        for (Py_ssize_t m = 0; m < 2 * ns - 1; m++) {
+            double weight = (double)(m < ns ? m + 1 : 2 * ns - 1 - m) / (double)ns;
+            turned += x[m] * weight;
+        }
+        int over = fabs(turned * to_deg) > s[T_TURN_DEG];
+        run = over ? run + 1.0 : 0.0;
+        if (!(over && run <= max_hold)) continue;
+        double mean[3] = {0.0, 0.0, 0.0};
+        const double *rows = e->all_earth + 3 * (w1 + j - ns + 1);
+        for (Py_ssize_t m = 0; m < ns; m++)
+            for (int k = 0; k < 3; k++) mean[k] += rows[3 * m + k];
+        if (isnan(mean[0] + mean[1] + mean[2])) continue;
+        const double *u = e->up + 3 * j;
+        double uu = u[0] * u[0] + u[1] * u[1] + u[2] * u[2], along = 0.0;
+        for (int k = 0; k < 3; k++) {
+            mean[k] /= (double)ns;
+            along += mean[k] * u[k];
+        }
+        double level[3], out[3];
+        for (int k = 0; k < 3; k++) level[k] = mean[k] - along * u[k] / uu;
+        const double *q = e->held + 4 * j;
+        double inverse[4] = {q[0], -q[1], -q[2], -q[3]};
+        to_frame3(inverse, level, out);
+        for (int k = 0; k < 3; k++) fed[3 * j + k] = acc[3 * j + k] - out[k];
+    }
+    g[G_RUN] = run;
+}
+
 /* TurnGate.update on n samples (n within the block): gyr, acc rows 3 doubles apart; writes the accelerometer to feed
  * into ``fed`` (n, 3) and the samples left out into ``gated`` (n,). Returns whether the block is in a gait (else fed
- * is acc). ``start`` and ``bias`` are read at a block's start only. */
+ * is acc; in a swing fed is acc made level where the course turned, ``gate_level``, and 1 is returned, gated all
+ * false). ``start`` and ``bias`` are read at a block's start only. */
 static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t n, const double start[4],
                       const double bias_in[3], double *fed, bool *gated) {
     const double *s = e->s;
@@ -2163,7 +2452,8 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
     if ((Py_ssize_t)g[G_SAMPLES] % e->block == 0) {
         memcpy(g + G_ATTITUDE, start, 4 * sizeof(double));
         memcpy(g + G_BIAS, bias_in, 3 * sizeof(double));
-        g[G_IN_GAIT] = gate_gait(e);
+        g[G_IN_SWING] = gate_swing(e);
+        g[G_IN_GAIT] = g[G_IN_SWING] == 0.0 && gate_gait(e);
     }
     g[G_SAMPLES] += (double)n;
     const double *bias = g + G_BIAS;
@@ -2188,6 +2478,11 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
         e->seen[2 * w1 + i] = v[2] * period;
         to_frame3(held, a, e->all_earth + 3 * (w1 + i));
         e->centred[i] = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); /* the magnitudes, for a moment */
+        memcpy(e->spin + 3 * gw + 3 * i, gyr + 3 * i, 3 * sizeof(double)); /* the rates, for a moment */
+        /* vqf's vertical (z up in its Earth frame) in the body, then in the held frame */
+        double inverse[4] = {att[0], -att[1], -att[2], -att[3]}, z[3] = {0.0, 0.0, 1.0}, body[3];
+        to_frame3(inverse, z, body);
+        to_frame3(held, body, e->up + 3 * i);
     }
     if (n > 0) {
         memcpy(g + G_ATTITUDE, att, sizeof(att));
@@ -2201,14 +2496,24 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
         memmove(e->mags, e->mags + n, sizeof(double) * (size_t)(gw - n));
         memcpy(e->mags + (gw - n), e->centred, sizeof(double) * (size_t)n);
     }
+    if (n >= gw) {
+        memcpy(e->rates, e->spin + 3 * gw + 3 * (n - gw), sizeof(double) * (size_t)(3 * gw));
+    } else {
+        memmove(e->rates, e->rates + 3 * n, sizeof(double) * (size_t)(3 * (gw - n)));
+        memcpy(e->rates + 3 * (gw - n), e->spin + 3 * gw, sizeof(double) * (size_t)(3 * n));
+    }
     memcpy(e->recent, e->seen + n, sizeof(double) * (size_t)(2 * w1));
     memcpy(e->earth, e->all_earth + 3 * n, sizeof(double) * (size_t)(3 * w1));
     int in_gait = g[G_IN_GAIT] != 0.0;
     if (!in_gait) {
-        if (n > 0) g[G_RUN] = 0.0;
         memset(gated, 0, (size_t)n);
         if (fed != acc) memcpy(fed, acc, sizeof(double) * (size_t)(3 * n));
-        return 0;
+        if (g[G_IN_SWING] == 0.0) {
+            if (n > 0) g[G_RUN] = 0.0;
+            return 0;
+        }
+        gate_level(e, acc, n, fed);
+        return 1;
     }
     /* _turned: the triangle of 2 stride - 1 weights centred on each delayed sample's rotation */
     Py_ssize_t ns = (Py_ssize_t)g[G_STRIDE], first = (w1 + 1) - ns;
@@ -2272,7 +2577,8 @@ PyDoc_STRVAR(gate_update_doc,
              "TurnGate.update on one piece of n samples within a block: settings (T_SIZE,) and state float64 "
              "(turn_gate.py's layout, updated in place), gyr and acc (n, 3) C-contiguous, vqf's frame, ``start`` (4,) "
              "vqf's 6D attitude and ``bias`` (3,) rad/s (read at a block's start); writes the accelerometer to feed "
-             "into fed (n, 3) and the samples left out into gated (n,) bool. Returns whether the block is in a gait.");
+             "into fed (n, 3) and the samples left out into gated (n,) bool. Returns whether the block is in a gait or a "
+             "swing (else fed is acc).");
 
 static PyObject *gate_update(PyObject *self, PyObject *args) {
     PyObject *o_settings, *o_state, *o_gyr, *o_acc, *o_start, *o_bias, *o_fed, *o_gated;
@@ -2522,12 +2828,13 @@ done:
 }
 
 static PyObject *gate_layout(PyObject *self, PyObject *args) {
-    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i}",
+    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i}",
                          "period", T_PERIOD, "width", T_WIDTH, "gait_width", T_GAIT_WIDTH, "lag_lo", T_LAG_LO,
                          "lag_hi", T_LAG_HI, "stride_lo", T_STRIDE_LO, "stride_hi", T_STRIDE_HI, "max_hold",
                          T_MAX_HOLD, "block", T_BLOCK, "turn_deg", T_TURN_DEG, "gait_sd", T_GAIT_SD, "gait_corr",
-                         T_GAIT_CORR, "settings", T_SIZE, "samples", G_SAMPLES, "stride", G_STRIDE, "run", G_RUN,
-                         "in_gait", G_IN_GAIT, "attitude", G_ATTITUDE, "bias", G_BIAS, "held", G_HELD);
+                         T_GAIT_CORR, "swing_sd", T_SWING_SD, "swing_max", T_SWING_MAX, "swing_corr", T_SWING_CORR, "settings", T_SIZE,
+                         "samples", G_SAMPLES, "stride", G_STRIDE, "run", G_RUN, "in_gait", G_IN_GAIT, "attitude",
+                         G_ATTITUDE, "bias", G_BIAS, "held", G_HELD, "in_swing", G_IN_SWING, "recent", G_RECENT);
 }
 
 PyDoc_STRVAR(aided_layout_doc, "aided_layout() -> dict: the sizes and indices of the settings and state arrays.");
@@ -2550,6 +2857,9 @@ static PyMethodDef methods[] = {
     {"watch_update", watch_update, METH_VARARGS, watch_update_doc},
     {"vqf_attitudes", vqf_attitudes, METH_VARARGS, vqf_attitudes_doc},
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
+    {"batch_figures", batch_figures, METH_VARARGS, batch_figures_doc},
+    {"gyro_rows", gyro_rows, METH_VARARGS, gyro_rows_doc},
+    {"disturbance_bits", disturbance_bits, METH_VARARGS, disturbance_bits_doc},
     {"bias_drift", bias_drift, METH_VARARGS, bias_drift_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},

@@ -192,3 +192,33 @@ def bias_drift(
     slots: np.ndarray,
     drift: np.ndarray,
 ) -> None: ...
+def batch_figures(
+    bounds: np.ndarray,
+    t_ns: np.ndarray,
+    fused: np.ndarray,
+    trusted: np.ndarray,
+    tan_dip: np.ndarray,
+    horizontal: np.ndarray,
+    out: np.ndarray,
+) -> None: ...
+def gyro_rows(
+    gyr: np.ndarray,
+    acc: np.ndarray,
+    field: np.ndarray,
+    limit: float,
+    present: np.ndarray,
+    finite: np.ndarray,
+    saturated: np.ndarray,
+    usable: np.ndarray,
+) -> None: ...
+def disturbance_bits(
+    field: np.ndarray,
+    acc: np.ndarray | None,
+    expected: np.ndarray | None,
+    dip: np.ndarray | None,
+    expected_dip: np.ndarray | None,
+    field_tol_pct: float,
+    dip_tol_deg: float,
+    tiny: float,
+    flags: np.ndarray,
+) -> None: ...

@@ -271,11 +271,13 @@ def rotate_heading(quat_wxyz: np.ndarray, angle_deg: npt.ArrayLike) -> np.ndarra
     (``magnet._kernels.turn_about_down``)."""
     quat = np.asarray(quat_wxyz, dtype=float)
     angle = np.asarray(angle_deg, dtype=float)
-    shape = np.broadcast_shapes(quat.shape[:-1], angle.shape)
-    quat = np.broadcast_to(quat, (*shape, 4)).reshape(-1, 4)
+    if quat.ndim != 2 or angle.shape != quat.shape[:1]:  # broadcast (the compass's (S, 4) and (S,) need not be)
+        shape = np.broadcast_shapes(quat.shape[:-1], angle.shape)
+        flat = rotate_heading(np.broadcast_to(quat, (*shape, 4)).reshape(-1, 4), np.broadcast_to(angle, shape).ravel())
+        return flat.reshape(*shape, 4)
     out = np.empty_like(quat)
-    _kernels.turn_about_down(quat, np.broadcast_to(angle, shape).reshape(-1), out)
-    return out.reshape(*shape, 4)
+    _kernels.turn_about_down(quat, angle, out)
+    return out
 
 
 def to_magnetic_ned(vel_ned_ms: np.ndarray, declination_deg: float | np.ndarray) -> np.ndarray:

@@ -235,16 +235,27 @@ class AidedFilter:
         (s: an aided vehicle's, else vqf's own) and the velocity fixes (their acceleration, how far it is known)."""
         return self.drift.tau_s, self.fixes
 
-    def restart(self, keep_fixes: bool = False) -> AidedFilter:
+    def restart(
+        self, keep_fixes: bool = False, quat_vqf: np.ndarray | None = None, before: dict[str, Any] | None = None
+    ) -> AidedFilter:
         """Back to a new filter (itself, returned); ``keep_fixes``: the velocity's fixes kept (they say nothing of
         the attitude), so that the accelerometer is freed of the acceleration from the first samples the new filter
-        takes (a new record while the car accelerates: docs/field-calibration.md)."""
+        takes (a new record while the car accelerates: docs/field-calibration.md); ``quat_vqf`` (4,): the attitude
+        (body -> ENU) it starts from, as if fed (``magnet.compass.replay.start_attitude``), else none; with it the
+        gyroscope's bias and its uncertainty of vqf's state ``before`` (the sensor's, not the record's) are kept."""
         self.release()
         self.filter.resetState()
         kept = (self.fixes.meta.copy(), self.fixes.buffer_times.copy(), self.fixes.buffer_values.copy())
         self._fresh()
         if keep_fixes:
             self.fixes.meta[:], self.fixes.buffer_times[:], self.fixes.buffer_values[:] = kept
+        if quat_vqf is not None:
+            state = self.filter.state
+            state["accQuat"] = np.asarray(quat_vqf, dtype=float)
+            if before is not None:
+                state["bias"], state["biasP"] = before["bias"], before["biasP"]
+            self.filter.state = state
+            self.state[0] = 1.0
         return self
 
     def release(self) -> None:

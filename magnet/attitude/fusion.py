@@ -127,8 +127,8 @@ class Fusion:
         self.watch = FieldWatch(self.period_s) if watch else None
         self.heading_bias = HeadingBias(self.period_s, self._filter.params["tauMag"]) if heading_bias else None
         #: with ``turn_gate`` (the default), in a gait (a walker's or runner's steps) the accelerometer is fed a window
-        #: late and left out where the course turned, its centripetal acceleration not taken for gravity
-        #: (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
+        #: late and left out where the course turned (in a swinging hand levelled), its centripetal acceleration not
+        #: taken for gravity (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
         self.turn_gate = TurnGate(self.period_s, filter_params=self.params) if turn_gate else None
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
@@ -154,13 +154,14 @@ class Fusion:
         self._recalibrated = False
         self.samples = 0
 
-    def restart_magnetometer(self) -> None:
+    def restart_magnetometer(self, keep_fixes: bool = True, quat_vqf: np.ndarray | None = None) -> None:
         """Forget the magnetic side only (a new calibration put in force): the heading taken again from the next field
         sample, the tilt and the gyroscope's bias kept (a whole restart takes 10 s and more to find a swinging hand's
-        tilt). Aided: a whole restart, the velocity's fixes kept (docs/field-calibration.md)."""
+        tilt). Aided: a whole restart (``AidedFilter.restart``'s options; docs/field-calibration.md)."""
         if (aided := self._aided) is not None:
+            before = self._filter.state  # (a copy) its gyroscope bias is kept where an attitude is given
             self.restart()
-            self._aided = aided.restart(keep_fixes=True)
+            self._aided = aided.restart(keep_fixes, quat_vqf, before)
             return
         fresh = vqf.VQF(self.period_s, **self.params).state
         state = self._filter.state
@@ -265,8 +266,7 @@ class Fusion:
         vel_ned_ms: np.ndarray | None,
         watched: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """vqf (or the velocity-aided filter) on one batch, as ``update_vqf_frame`` (``watched`` (N,): the samples
-        the watch left out)."""
+        """vqf (or the aided filter) on one batch, as ``update_vqf_frame`` (``watched`` (N,): the watch's flags)."""
         if self._aided is None and t_s is not None and vel_ned_ms is not None and np.isfinite(vel_ned_ms).any():
             had = self.samples > len(gyr)  # carries on from its state, an attitude once it took samples
             from magnet.attitude.aided_fusion import AidedFilter

@@ -19,6 +19,16 @@ a swinging limb's rotation, which turn back within it, sum to little; a corner o
 60 deg/s and more exceeds it within a fraction of a second. A turn held for longer than ``max_hold_s`` (a device
 spinning on a turntable, a robot turning on the spot, a vehicle circling) gets the accelerometer back: the
 gyroscope alone must not hold the tilt for ever.
+
+A swinging hand is no gait (its |specific force| does not repeat at a step's lag) but its body rates swing: over
+the last ``gait_s`` their spread about their mean (RMS of the vector) is between ``swing_sd_rads`` and
+``swing_max_rads`` and repeats at a stride's lag (a runner's arm swings faster and stays a gait). There leaving
+samples out would cut the arm's own accelerations (10 m/s^2 and more at the ends of the swing, periodic: they
+average out over whole strides only) at arbitrary phases. So in a swing the samples are fed as they come, and where
+the course turned over the last two strides each is *levelled*: less the horizontal part (square to vqf's vertical)
+of the specific force's mean over the last stride, in the frame the gyroscope holds still. Over a stride the arm's
+accelerations cancel and gravity is constant in that frame, so that horizontal part is the course's own
+(centripetal) acceleration; the swing's stays in, as on the straights.
 """
 
 from __future__ import annotations
@@ -46,7 +56,11 @@ class TurnSettings:
     ``gait_sd_ms2`` (standard deviation, m/s^2) and repeats itself (normalised autocorrelation over ``gait_corr``) at
     a lag of ``step_s`` (a step). In a gait the accelerometer is fed ``window_s`` late and left out where the rotation
     about the vertical, the mean over the window after the sample less that over the window before, exceeds
-    ``turn_deg`` degrees, for at most ``max_hold_s`` seconds without a break."""
+    ``turn_deg`` degrees, for at most ``max_hold_s`` seconds without a break. Swing (judged first): over ``gait_s``
+    the body rates' spread (RMS of the vector about its mean) between ``swing_sd_rads`` and ``swing_max_rads``
+    rad/s, repeating (summed products over ``swing_corr`` times the power) at a lag of ``stride_s``; in a swing the
+    samples come as they are, levelled where the rotation about the vertical over the last two strides
+    (triangle-weighted) exceeds ``turn_deg``, for at most ``max_hold_s``."""
 
     window_s: float = 1.0
     turn_deg: float = 15.0
@@ -56,9 +70,22 @@ class TurnSettings:
     gait_corr: float = 0.5
     step_s: tuple[float, float] = (0.3, 0.7)
     stride_s: tuple[float, float] = (0.55, 1.35)
+    swing_sd_rads: float = 2.2
+    swing_max_rads: float = 4.0
+    swing_corr: float = 0.25
 
     def __post_init__(self) -> None:
-        for name in ("window_s", "turn_deg", "max_hold_s", "gait_s", "gait_sd_ms2", "gait_corr"):
+        for name in (
+            "window_s",
+            "turn_deg",
+            "max_hold_s",
+            "gait_s",
+            "gait_sd_ms2",
+            "gait_corr",
+            "swing_sd_rads",
+            "swing_max_rads",
+            "swing_corr",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"TurnSettings.{name} must be a positive number of its unit, got {value!r}")
@@ -75,13 +102,14 @@ class TurnGate:
     caller (``magnet.attitude.fusion.Fusion``) cuts its batches at the blocks' ends (``left_in_block``). At a block's
     start the gate takes vqf's 6D attitude (4,) wxyz (body -> its Earth frame, z up) and its gyroscope bias (3,)
     rad/s, carries them forward through the block with the gyroscope, and judges whether the samples before it
-    (``gait_s``) are a gait. ``update`` takes body rates and specific forces in vqf's frame (n, 3) rad/s and m/s^2
-    and returns the accelerometer to feed vqf. Outside a gait: the samples' own. In a gait: each sample's specific
-    force of ``window_s`` earlier, turned into the body's present axes by the gyroscope's integration between them,
-    or a zero vector where the course turned around that earlier sample. State: the last 2 window - 1 samples'
-    rotations about the vertical (rad), their specific forces in the frame the gyroscope's integration holds still,
-    that integration, the last ``gait_s`` of |specific force|, the block's attitude and bias, the samples gated
-    without a break; bounded.
+    (``gait_s``) are a swing, else a gait. ``update`` takes body rates and specific forces in vqf's frame (n, 3)
+    rad/s and m/s^2 and returns the accelerometer to feed vqf. Outside a gait and a swing: the samples' own. In a
+    gait: each sample's specific force of ``window_s`` earlier, turned into the body's present axes by the
+    gyroscope's integration between them, or a zero vector where the course turned around that earlier sample. In a
+    swing: each sample's own, levelled where the course turned over the two strides before it. State: the last
+    2 window - 1 samples' rotations about the vertical (rad), their specific forces in the frame the gyroscope's
+    integration holds still, that integration, the last ``gait_s`` of |specific force| and of body rates, the
+    block's attitude and bias, the samples gated (or levelled) without a break; bounded.
 
     The per-sample maths is compiled (``magnet._kernels.gate_update``; ``run_gated`` runs a whole batch and vqf in one
     call, ``gated_run``): the settings and the state are float64 arrays (``settings``, ``state``) laid out as the C
@@ -120,11 +148,19 @@ class TurnGate:
             ("turn_deg", settings.turn_deg),
             ("gait_sd", settings.gait_sd_ms2),
             ("gait_corr", settings.gait_corr),
+            ("swing_sd", settings.swing_sd_rads),
+            ("swing_max", settings.swing_max_rads),
+            ("swing_corr", settings.swing_corr),
         ):
             self.settings_array[layout[key]] = value
-        recent = layout["held"] + 4
-        self._parts = (recent, recent + 2 * (self.width - 1), recent + 5 * (self.width - 1))
-        self.state = np.zeros(self._parts[2] + self.gait_width)
+        recent = layout["recent"]
+        self._parts = (
+            recent,
+            recent + 2 * (self.width - 1),
+            recent + 5 * (self.width - 1),
+            recent + 5 * (self.width - 1) + self.gait_width,
+        )
+        self.state = np.zeros(self._parts[3] + 3 * self.gait_width)
         self.reset()
 
     def reset(self) -> None:
@@ -134,7 +170,7 @@ class TurnGate:
         state[layout["stride"]] = self.width  # samples of the last gait's stride (two steps)
         state[layout["held"]] = 1.0  # the gyroscope's integration from the start (its own frame)
         state[layout["attitude"]] = 1.0  # vqf's 6D attitude carried forward through the block
-        state[self._parts[1] :] = np.nan  # the specific forces and magnitudes not seen yet
+        state[self._parts[1] :] = np.nan  # the specific forces, magnitudes and rates not seen yet
         if self.alone is not None:
             self.alone.reset()
 
@@ -145,13 +181,18 @@ class TurnGate:
 
     @property
     def stride(self) -> int:
-        """Samples of the last gait's stride (two steps); ``width`` before any gait."""
+        """Samples of the last gait's or swing's stride (two steps); ``width`` before any."""
         return int(self.state[_LAYOUT["stride"]])
 
     @property
     def in_gait(self) -> bool:
         """Whether the present block is within a gait."""
         return bool(self.state[_LAYOUT["in_gait"]])
+
+    @property
+    def in_swing(self) -> bool:
+        """Whether the present block is within a swing (outside a gait)."""
+        return bool(self.state[_LAYOUT["in_swing"]])
 
     @property
     def run(self) -> int:
@@ -171,7 +212,12 @@ class TurnGate:
     @property
     def magnitudes(self) -> np.ndarray:
         """The last ``gait_s`` of |specific force| (gait_width,) m/s^2, oldest first (NaN: not seen)."""
-        return self.state[self._parts[2] :]
+        return self.state[self._parts[2] : self._parts[3]]
+
+    @property
+    def rates(self) -> np.ndarray:
+        """The last ``gait_s`` of body rates (gait_width, 3) rad/s as measured, oldest first (NaN: not seen)."""
+        return self.state[self._parts[3] :].reshape(-1, 3)
 
     def left_in_block(self) -> int:
         """Samples until the present block ends (a batch is cut there, vqf's state taken at the next start)."""
@@ -181,7 +227,8 @@ class TurnGate:
         self, gyr: np.ndarray, acc: np.ndarray, start_wxyz: np.ndarray, bias: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """(the accelerometer to feed (n, 3), (n,) bool: the samples fed a zero vector because the course turned
-        around the earlier sample fed in their place); see the class docstring. ``start_wxyz`` and ``bias`` are
+        around the earlier sample fed in their place; none in a swing, where samples are levelled instead); see the
+        class docstring. ``start_wxyz`` and ``bias`` are
         read at a block's start only; gyr and acc (n, 3) must not reach past the block's end."""
         gyr = np.ascontiguousarray(gyr, dtype=float)
         acc = np.ascontiguousarray(acc, dtype=float)
@@ -193,11 +240,11 @@ class TurnGate:
             raise ValueError(f"gyr and acc must be (n, 3) each, got {gyr.shape} and {acc.shape}")
         fed, gated = np.empty_like(acc), np.empty(len(acc), dtype=bool)
         start = np.ascontiguousarray(start_wxyz, dtype=float).reshape(4)
-        in_gait = _kernels.gate_update(
+        changed = _kernels.gate_update(
             self.settings_array, self.state, gyr, acc, start, np.ascontiguousarray(bias, dtype=float).reshape(3),
             fed, gated,
         )  # fmt: skip
-        return (fed if in_gait else acc), gated
+        return (fed if changed else acc), gated
 
 
 def run_gated(

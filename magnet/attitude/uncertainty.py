@@ -129,32 +129,20 @@ class _Batches(NamedTuple):
         horizontal: np.ndarray,
     ) -> _Batches:
         edges = np.asarray(bounds, dtype=np.int64)
-        counts = np.diff(edges)
-        nonempty = counts > 0
-        known = fused & hd.rows_finite(horizontal)
-        t_s = (t_ns - t_ns[0]) * 1e-9 if len(t_ns) else np.zeros(0)
-        rows = np.empty((7, len(t_ns)))  # a row per figure: summed along its contiguous samples (2x the columns')
-        rows[0], rows[2], rows[6] = fused, known, fused & ~trusted
-        np.copyto(rows[1], np.where(fused, tan_dip, 0.0))
-        np.copyto(rows[3], np.where(known, t_s, 0.0))
-        np.copyto(rows[4:6], np.where(known, horizontal.T, 0.0))
-        sums = np.zeros((len(counts), len(rows)))
-        if nonempty.any():
-            sums[nonempty] = np.add.reduceat(rows, edges[:-1][nonempty], axis=1).T
-        with np.errstate(invalid="ignore", divide="ignore"):
-            tan_mean, means = sums[:, 1] / sums[:, 0], sums[:, 3:6] / sums[:, 2:3]
-        means[:, 0] += float(t_ns[0]) * 1e-9 if len(t_ns) else 0.0
+        figures = np.empty((len(edges) - 1, 7))  # one compiled pass: the sums along each batch, numpy's reduceat's
+        _kernels.batch_figures(edges, t_ns, fused, trusted, tan_dip, np.ascontiguousarray(horizontal), figures)
         last = np.maximum(edges[1:] - 1, 0)
         first = np.minimum(edges[:-1], max(len(t_ns) - 1, 0))
         times = t_ns if len(t_ns) else np.zeros(1, dtype=np.int64)
+        fused_n, tan_mean, known, t_s, north, east, untrusted = figures.T.tolist()
         return cls(
-            sums[:, 0].tolist(),
-            tan_mean.tolist(),
-            sums[:, 2].tolist(),
-            means[:, 0].tolist(),
-            means[:, 1].tolist(),
-            means[:, 2].tolist(),
-            (sums[:, 6] > 0).tolist(),
+            fused_n,
+            tan_mean,
+            known,
+            t_s,
+            north,
+            east,
+            [u > 0 for u in untrusted],
             times[first].tolist(),
             times[last].tolist(),
         )
@@ -336,7 +324,8 @@ def _direct(
     count = len(field_ut)
     out = np.empty((4, count))
     down, where = (acc_ms2, np.zeros(count, dtype=bool)) if rotation is None else (rotation[:, 2, :], fused)
-    expected = np.broadcast_to(np.asarray(expected_ut, dtype=float), (count,))
+    expected = np.asarray(expected_ut, dtype=float)
+    expected = expected if expected.shape == (count,) else np.broadcast_to(expected, (count,))
     _kernels.sigma_direct(
         np.asarray(field_ut, dtype=float), np.asarray(acc_ms2, dtype=float), down, where, flags, expected,
         residual_ut, _DISTURBED, math.radians(MAX_DIP_DEG), UNCALIBRATED_FRACTION, math.radians(UNLEVEL_DEG),

@@ -22,6 +22,7 @@ import numpy as np
 
 from magnet.calibration import MIN_SAMPLES, FitError, FitInput, Method
 from magnet.calibration.choose import AUTO, fit_choice, parse_choice
+from magnet.calibration.course import MIN_ACCELERATING_S, accelerating_s
 from magnet.calibration.sample_runs import RUN_CAPACITY, RecentRuns, Run
 from magnet.model import Calibration
 from magnet.quality import Coverage, coverage
@@ -191,6 +192,12 @@ class Collection:
             return f"{0 if run is None else len(run)} of {min_samples} consecutive samples with the gyroscope"
         turned = run.turned_deg()
         if np.sort(turned)[-2] >= READY_TURN_DEG or (self.auto and turned.max() >= PLANAR_READY_TURN_DEG):
+            return ""
+        if (
+            self.auto
+            and run.vel_ned_ms is not None
+            and accelerating_s(run.vel_ned_ms, run.period_s) >= (MIN_ACCELERATING_S)
+        ):  # the velocity's accelerations tell the heading as turns would (the course fit: docs/field-calibration.md)
             return ""
         return (
             f"turned {turned[0]:.0f}, {turned[1]:.0f}, {turned[2]:.0f} deg about x, y, z over the last "

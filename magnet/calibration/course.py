@@ -107,6 +107,31 @@ def _smoothed(values: np.ndarray, count: int) -> np.ndarray:
     return np.column_stack([np.convolve(values[:, k], kernel, mode="same") for k in range(values.shape[1])])
 
 
+def _accelerating(
+    vel_ned_ms: np.ndarray, period_s: float
+) -> tuple[VelocityFixes, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The velocity's fixes, their acceleration (N, 3) m/s^2 at each sample, where it is known (N,) bool and where
+    it tells the heading (N,) bool: known and horizontally over ``MIN_ACCELERATION_MS2``; None with fewer than 3
+    fixes."""
+    vel = np.asarray(vel_ned_ms, dtype=float)
+    t_s = np.arange(len(vel)) * period_s
+    fixes = VelocityFixes(max_fixes=len(t_s) + 2)
+    fixes.observe(t_s, vel)
+    if len(fixes.times_s) < 3:
+        return None
+    accel = fixes.acceleration(t_s)
+    known = (t_s >= fixes.times_s[0] + fixes.half_window_s) & (t_s <= fixes.known_until_s)
+    return fixes, accel, known, known & (np.linalg.norm(accel[:, :2], axis=1) > MIN_ACCELERATION_MS2)
+
+
+def accelerating_s(vel_ned_ms: np.ndarray, period_s: float) -> float:
+    """Seconds of consecutive samples (velocity (N, 3) m/s NED as held on the wire, NaN rows before the first fix,
+    every ``period_s`` s) whose velocity's acceleration tells the heading (what ``course_attitude`` needs
+    ``MIN_ACCELERATING_S`` of): the information the velocity holds, as a turn is the gyroscope's."""
+    told = _accelerating(vel_ned_ms, period_s)
+    return 0.0 if told is None else float(told[3].sum() * period_s)
+
+
 def course_attitude(
     gyr_rads: np.ndarray, acc_ms2: np.ndarray, period_s: float, vel_ned_ms: np.ndarray
 ) -> CourseAttitude | None:
@@ -116,14 +141,10 @@ def course_attitude(
     from magnet.attitude import fusion  # vqf's wrapper: only where a gyroscope's attitudes are needed
 
     acc = fusion.acc_in_ms2(np.asarray(acc_ms2, dtype=float))
-    t_s = np.arange(len(acc)) * period_s
-    fixes = VelocityFixes(max_fixes=len(t_s) + 2)
-    fixes.observe(t_s, np.asarray(vel_ned_ms, dtype=float))
-    if len(fixes.times_s) < 3:
+    told = _accelerating(vel_ned_ms, period_s)
+    if told is None:
         return None
-    accel = fixes.acceleration(t_s)
-    known = (t_s >= fixes.times_s[0] + fixes.half_window_s) & (t_s <= fixes.known_until_s)
-    rows = known & (np.linalg.norm(accel[:, :2], axis=1) > MIN_ACCELERATION_MS2)
+    fixes, accel, known, rows = told
     if rows.sum() * period_s < MIN_ACCELERATING_S:
         return None
     window = round(2.0 * fixes.half_window_s / period_s)

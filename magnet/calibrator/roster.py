@@ -65,14 +65,16 @@ class Roster:
         return self.places.earth(device).total_ut
 
     def dip_deg(self, device: str) -> float | None:
-        """The WMM dip (deg) at the device's reported or configured place; None when neither is known."""
-        if device not in self.places.reported and self.places.fleet.get(device) is None:
+        """The WMM dip (deg) at the device's reported or configured place, else at the service's ``--location``;
+        None when none is known."""
+        if self.places.location(device) is None:
             return None
         return self.places.earth(device).inclination_deg
 
     def declination_deg(self, device: str) -> float | None:
-        """The WMM declination (deg) at the device's reported or configured place; None when neither is known."""
-        if device not in self.places.reported and self.places.fleet.get(device) is None:
+        """The WMM declination (deg) at the device's reported or configured place, else at the service's
+        ``--location``; None when none is known."""
+        if self.places.location(device) is None:
             return None
         return self.places.earth(device).declination_deg
 

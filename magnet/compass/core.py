@@ -31,6 +31,7 @@ from magnet.compass.calibrations import CalibrationsInForce, Correction, small_c
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
 from magnet.compass.presence import GONE, CalibratorPresence
+from magnet.compass.replay import corrector
 from magnet.compass.tilt import Headings, batches_with, compute_headings, field_flags, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings
@@ -248,7 +249,7 @@ class CompassCore:
             # jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust (the tilt
             # and the gyroscope's bias are kept); unless the field hardly moves (an in-service refresh)
             if previous is None or not small_change(previous.calibration, record.calibration):
-                self.filters.forget(record.device, magnetic_only=True)
+                self.filters.forget(record.device, magnetic_only=True, correct=corrector(record.calibration))
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
 
@@ -317,9 +318,8 @@ class CompassCore:
         magnetometer's lag the record carries)."""
         vel = raw.vel  # with no velocity known (NaN rows) as it is: a filter already aided still needs the times
         aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else vel
-        fused = self.filters.update(
-            raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding, self.settings.sigmas
-        )
+        columns = (raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding)
+        fused = self.filters.update(*columns, rotations=self.settings.sigmas, raw_ut=raw.mag_ut)
         for cause, count in fused.dropped.items():
             if self.drops.count(f"raw:{cause}"):
                 log.warning("dropping gyroscope samples (%s); further ones only counted", cause)

@@ -1,26 +1,23 @@
 """One gyroscope-aided filter per device for the compass (DESIGN.md 4b): state kept across batches.
 
-The compass computes accelerometer-tilt headings for every sample of a step (``magnet.compass.tilt``) and then hands
-the batches that carry a gyroscope to ``DeviceFilters.update``, which runs each device's
-``magnet.attitude.fusion.Fusion`` on them, batch after batch, and ``merge`` puts the fused attitude in place of the tilt
-one. The samples of a step are grouped by device, so that a device's batches that continue one another go through vqf in
-one call (its cost is about 4 us per call plus 0.5 us per sample). Per device:
+The compass computes accelerometer-tilt headings for every sample of a step (``magnet.compass.tilt``) and hands the
+batches that carry a gyroscope to ``DeviceFilters.update``, which runs each device's ``magnet.attitude.fusion.Fusion``
+on them; ``merge`` puts the fused attitude in place of the tilt one. A device's batches that continue one another go
+through vqf in one call (about 4 us per call plus 0.5 us per sample). Per device:
 
-- the filter runs at the device's sample period (the mean step of its first batch's ``t_ns``, worked out from whole
-  nanoseconds so that evenly stamped samples give the same period however they are batched: a file as one batch
-  and the same samples as many give the same filter); a period that changes by more than ``PERIOD_TOLERANCE`` gets
-  a new filter;
-- continuity: a batch whose ``seq`` does not follow the last one (lower or equal: the device restarted, or replays)
-  or whose first sample comes more than ``MAX_GAP_S`` after the last one (lost batches, a pause) restarts the filter:
-  the rotation over a gap is unknown, and a restarted filter takes its tilt from gravity at once and its heading from
-  the field within seconds, where integrating across the gap would carry an error for tens of seconds;
-- bad gyroscope samples are dropped and counted: non-finite ones are skipped (the filter goes on: one missing sample
-  is a short gap); saturated or absurd ones (a component at or beyond ``GYRO_LIMIT_RADS``) are skipped and restart
-  the filter after them, since the rotation while saturated is unknown. Samples without a finite accelerometer or
-  field reading are not fused either. Samples not fused keep the tilt heading (flag FUSED clear): never NaN.
-- magnetic disturbance: vqf's detection (|B| or dip away from its reference) sets FIELD_DISTURBED, and vqf then
-  leaves the field out of the heading, so a disturbance does not drag it; the compass judges the dip of fused
-  samples against the fused gravity (``FusedColumns.gravity``), not the accelerometer.
+- the filter runs at the device's sample period (the mean step of its first batch's ``t_ns`` in whole ns, so that a
+  file as one batch and the same samples as many give the same filter); a period that changes by more than
+  ``PERIOD_TOLERANCE`` gets a new filter;
+- a batch whose ``seq`` does not follow the last one (the device restarted, or replays) or that comes more than
+  ``MAX_GAP_S`` after the last sample restarts the filter: the rotation over a gap is unknown, and a restarted filter
+  finds its tilt at once and its heading within seconds, where integrating across the gap would carry an error;
+- non-finite gyroscope samples are skipped and counted (a short gap); saturated ones (a component at or beyond
+  ``GYRO_LIMIT_RADS``) are skipped and restart the filter after them. Samples without a finite accelerometer or
+  field are not fused either; samples not fused keep the tilt heading (flag FUSED clear), never NaN;
+- vqf's magnetic disturbance detection sets FIELD_DISTURBED (the field is then left out of the heading); the compass
+  judges the dip of fused samples against the fused gravity (``FusedColumns.gravity``);
+- a new record restarts the filter's magnetic side, or an aided filter's whole state with its last seconds fused
+  again (``magnet.compass.replay``).
 
 State is bounded: at most ``MAX_DEVICES`` filters, the least recently used forgotten first.
 """
@@ -37,6 +34,7 @@ from magnet import _kernels
 from magnet.attitude import fusion
 from magnet.attitude import heading as hd
 from magnet.bounded import Recent
+from magnet.compass import replay
 from magnet.compass.tilt import Headings
 
 #: 2000 deg/s, the widest full scale of common MEMS gyroscopes (ICM-20948, LSM9DS1, MPU-6050): a reading at or beyond
@@ -118,6 +116,7 @@ class _Drain(NamedTuple):
     counts: list[int]
     increasing: list[bool]
     starts: list[int]
+    raw: np.ndarray | None = None  # with ``aiding``: the raw field (S, 3), vqf's frame, permuted (``replay``)
 
 
 class DeviceFilter:
@@ -130,6 +129,8 @@ class DeviceFilter:
         self.last_seq: int | None = None
         self.last_t_ns: int | None = None
         self.restarts = 0
+        #: an aided filter's last seconds, fed again with a new record (``recalibrate``, ``magnet.compass.replay``)
+        self.recent: replay.RecentSamples | None = None
 
     def _period_s(self, first_ns: int, last_ns: int, count: int) -> float | None:
         """Mean step of the batch's times (or from the last sample for a batch of one); None when unusable."""
@@ -155,13 +156,8 @@ class DeviceFilter:
         (S,), both in the drain's permuted order, for the samples it fused."""
         lo = hi = 0  # the pending run of samples, not yet fed to the filter
         for b in batches:
-            start, count, seq, first, last = (
-                drain.starts[b],
-                drain.counts[b],
-                drain.seqs[b],
-                drain.first_ns[b],
-                drain.last_ns[b],
-            )
+            start, count, seq = drain.starts[b], drain.counts[b], drain.seqs[b]
+            first, last = drain.first_ns[b], drain.last_ns[b]
             period = self._period_s(first, last, count)
             if period is None or not drain.increasing[b]:
                 self._run(drain, lo, hi, out, disturbed)
@@ -194,7 +190,15 @@ class DeviceFilter:
             piece = stop + 1
         return start + count
 
+    def recalibrate(self, correct: replay.Corrector | None) -> None:
+        """A new record in force: the filter forgets its magnetic side (``Fusion.restart_magnetometer``), or an aided
+        one's recent samples are fused again with the record's ``correct``ion (``magnet.compass.replay.fuse_again``)."""
+        if self.filter is not None and not replay.fuse_again(self.filter, self.recent, correct):
+            self.filter.restart_magnetometer()
+
     def _restart(self, period_s: float) -> None:
+        if self.recent is not None:
+            self.recent.clear()
         if self.filter is not None and abs(self.filter.period_s - period_s) <= PERIOD_TOLERANCE * period_s:
             self.filter.restart()
         else:
@@ -221,6 +225,8 @@ class DeviceFilter:
         else:
             t_s, vel = drain.aiding[0][rows], drain.aiding[1][rows]
             out[rows], disturbed[rows] = self.filter.update_vqf_frame(gyr, acc, field, t_s, vel)
+            if drain.raw is not None and self.filter.aided:
+                self.recent = replay.kept(self.recent, self.filter.period_s, t_s, vel, gyr, acc, drain.raw[rows])
 
 
 class DeviceFilters:
@@ -238,12 +244,12 @@ class DeviceFilters:
         """Filters forgotten for the ``max_devices`` bound."""
         return self.devices.evicted
 
-    def forget(self, device: str, magnetic_only: bool = False) -> None:
+    def forget(self, device: str, magnetic_only: bool = False, correct: replay.Corrector | None = None) -> None:
         """Start the device's filter again on its next batch; ``magnetic_only``: its magnetic side only, now (a new
-        calibration: ``Fusion.restart_magnetometer``)."""
+        calibration, whose ``correct``ion an aided filter's recent samples are fed again with: ``recalibrate``)."""
         state = self.devices.get(device) if magnetic_only else self.devices.pop(device, None)
-        if magnetic_only and state is not None and state.filter is not None:
-            state.filter.restart_magnetometer()
+        if magnetic_only and state is not None:
+            state.recalibrate(correct)
 
     def _device(self, name: str) -> DeviceFilter:
         state = self.devices.get(name)
@@ -268,17 +274,19 @@ class DeviceFilters:
         field_ut: np.ndarray,
         vel_ned_ms: np.ndarray | None = None,
         rotations: bool = True,
+        raw_ut: np.ndarray | None = None,
     ) -> FusedColumns:
         """Fuse every batch b (samples bounds[b] .. bounds[b+1]) that carries a gyroscope (not all-NaN rows), in order;
         S = bounds[-1] samples, arrays (S, 3); ``vel_ned_ms`` (S, 3) m/s magnetic NED (NaN rows where unknown) aids
         the filters of the devices that send one (``magnet.attitude.aided_fusion``). Checks and frame conversions are
         done once for all samples; each device's batches are grouped, and its filter runs once per run of batches that
-        continue one another. ``rotations``: the attitudes' matrices kept (``FusedColumns.rotation``)."""
+        continue one another. ``rotations``: the attitudes' matrices kept (``FusedColumns.rotation``); ``raw_ut``
+        (S, 3) the raw field, kept by aided filters to fuse again with a new record (``magnet.compass.replay``)."""
         count = int(bounds[-1])
         edges = np.asarray(bounds, dtype=np.int64)
         sizes = np.diff(edges)
-        isnan = np.isnan(gyr_rads)
-        present = ~(isnan[:, 0] & isnan[:, 1] & isnan[:, 2])
+        present, finite, saturated, usable = np.empty((4, count), dtype=bool)  # the checks in one compiled pass
+        _kernels.gyro_rows(gyr_rads, acc_ms2, field_ut, GYRO_LIMIT_RADS, present, finite, saturated, usable)
         if not present.any():
             return FusedColumns.empty(count)
         with_gyro = np.zeros(len(sizes), dtype=bool)
@@ -287,15 +295,12 @@ class DeviceFilters:
         groups: dict[str, list[int]] = {}
         for b in np.flatnonzero(with_gyro).tolist():
             groups.setdefault(devices[b], []).append(b)
-        finite = hd.rows_finite(gyr_rads)
-        beyond = np.abs(gyr_rads) >= GYRO_LIMIT_RADS
-        saturated = finite & (beyond[:, 0] | beyond[:, 1] | beyond[:, 2])
-        usable = finite & ~saturated & hd.rows_finite(acc_ms2) & hd.rows_finite(field_ut)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
         if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
             # an aided filter needs its samples' times with no velocity known too (docs/aiding.md, point 6)
-            drain = drain._replace(aiding=_aiding(order, t_ns, vel_ned_ms))
+            raw = None if raw_ut is None else fusion.to_vqf_frame(raw_ut if order is None else raw_ut[order])
+            drain = drain._replace(aiding=_aiding(order, t_ns, vel_ned_ms), raw=raw)
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)
         restarts = 0
@@ -361,19 +366,10 @@ def _drain(
     every = bool(usable.all())  # (the usual case: no copy with zeros to make)
     inputs = tuple(fusion.to_vqf_frame(x if every else np.where(usable[:, None], x, 0.0)) for x in vectors)
     return _Drain(
-        (inputs[0], inputs[1], inputs[2]),
-        None,
-        usable,
-        saturated,
-        np.concatenate([[0], np.cumsum(~usable)]),
-        batch_saturated.tolist(),
-        [int(s) for s in seqs],
-        t_ns[first].tolist(),
-        t_ns[last].tolist(),
-        np.diff(edges).tolist(),
-        increasing.tolist(),
-        starts.tolist(),
-    )
+        (inputs[0], inputs[1], inputs[2]), None, usable, saturated, np.concatenate([[0], np.cumsum(~usable)]),
+        batch_saturated.tolist(), [int(s) for s in seqs], t_ns[first].tolist(), t_ns[last].tolist(),
+        np.diff(edges).tolist(), increasing.tolist(), starts.tolist(),
+    )  # fmt: skip
 
 
 def merge(headings: Headings, fused: FusedColumns) -> tuple[Headings, np.ndarray | None]:
@@ -384,13 +380,8 @@ def merge(headings: Headings, fused: FusedColumns) -> tuple[Headings, np.ndarray
     f = fused.fused
     if not f.any():
         return headings, None
-    flags = np.where(
-        f,
-        np.asarray(headings.flags)
-        | int(hd.HeadingFlag.FUSED)
-        | np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0),
-        headings.flags,
-    )
+    disturbed = np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
+    flags = np.where(f, np.asarray(headings.flags) | int(hd.HeadingFlag.FUSED) | disturbed, headings.flags)
     return dataclasses.replace(
         headings,
         heading_deg=np.where(f, fused.heading_deg, headings.heading_deg),

@@ -271,7 +271,10 @@ def _encode(
     if heading_sigma_deg is not None:
         column = _Lists if version == LISTS_VERSION else _Bytes
         sigma = column(heading_sigma_deg, float if version == LISTS_VERSION else FLOAT_DTYPE, (), SIGMA_FIELD)
-    declinations = np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),)).tolist()
+    if isinstance(declination_deg, list) and len(declination_deg) == len(devices):  # the compass's: one a batch
+        declinations = [float(d) for d in declination_deg]
+    else:
+        declinations = np.broadcast_to(np.asarray(declination_deg, dtype=float), (len(devices),)).tolist()
     if version == BINARY_ARRAYS_VERSION:
         columns = [times, *angle_columns, field]
         optional = _Optional(quat, quat_ok, sigma, sigma_ok)

@@ -1,5 +1,6 @@
 """The turn gate's compiled maths (magnet._kernels.gate_update, gated_run) against the gate written plainly here in
-numpy (the Python implementation it replaced), on random walkers' and runners' samples cut into random batches."""
+numpy (the Python implementation it replaced, and the swing's levelling written from its docstrings), on random
+walkers', runners' and arm swingers' samples cut into random batches."""
 
 from __future__ import annotations
 
@@ -47,16 +48,19 @@ class PlainGate:
         w = gate.width
         self.recent, self.stride, self.run, self.samples = np.zeros(2 * (w - 1)), w, 0, 0
         self.earth_acc, self.magnitudes = np.full((w - 1, 3), np.nan), np.full(gate.gait_width, np.nan)
+        self.rates = np.full((gate.gait_width, 3), np.nan)
         self.held, self.attitude, self.bias = np.array([1.0, 0, 0, 0]), np.zeros(4), np.zeros(3)
-        self.in_gait = False
+        self.in_gait = self.in_swing = False
 
     def update(self, gyr, acc, start, bias):
         g, period = self.g, self.g.period_s
         if self.samples % g.block == 0:
-            self.attitude, self.bias, self.in_gait = start, bias, self._gait()
+            self.attitude, self.bias, self.in_swing = start, bias, self._swing()
+            self.in_gait = not self.in_swing and self._gait()
         self.samples += len(gyr)
         attitude = _turned_by(self.attitude, gyr, self.bias, period)
         self.attitude = attitude[-1]
+        up_body = _to_frame(attitude * [1.0, -1.0, -1.0, -1.0], np.tile([0.0, 0.0, 1.0], (len(gyr), 1)))
         seen = np.concatenate([self.recent, _to_frame(attitude, gyr - self.bias)[:, 2] * period])
         self.recent = seen[len(gyr) :]
         n = self.stride
@@ -68,6 +72,9 @@ class PlainGate:
         earth = np.concatenate([self.earth_acc, _to_frame(held, acc)])
         delayed, self.earth_acc = earth[: len(acc)], earth[len(acc) :]
         self.magnitudes = np.concatenate([self.magnitudes, np.linalg.norm(acc, axis=1)])[-g.gait_width :]
+        self.rates = np.vstack([self.rates, gyr])[-g.gait_width :]
+        if self.in_swing:
+            return self._level(seen, earth, held, _to_frame(held, up_body), acc), np.zeros(len(gyr), dtype=bool)
         gated = np.zeros(len(gyr), dtype=bool)
         for i, over in enumerate(np.abs(np.degrees(turned)) > g.settings.turn_deg):
             self.run = self.run + 1 if over and self.in_gait else 0
@@ -79,6 +86,40 @@ class PlainGate:
         fed[fresh] = acc[fresh]
         fed[gated] = 0.0
         return fed, gated
+
+    def _level(self, seen, earth, held, up, acc):
+        """In a swing: where the triangle-weighted rotation about the vertical over the last two strides exceeds
+        turn_deg, the specific force less the horizontal part of its mean over the last stride (held frame)."""
+        n, w1, fed = self.stride, self.g.width - 1, acc.copy()
+        kernel = np.concatenate([np.arange(1, n + 1), np.arange(n - 1, 0, -1)]) / n
+        for j in range(len(acc)):
+            turned = seen[2 * w1 + j - (2 * n - 2) : 2 * w1 + j + 1] @ kernel
+            over = abs(np.degrees(turned)) > self.g.settings.turn_deg
+            self.run = self.run + 1 if over else 0
+            if not (over and self.run <= self.g.max_hold):
+                continue
+            mean = earth[w1 + j - n + 1 : w1 + j + 1].mean(axis=0)
+            if np.isnan(mean).any():
+                continue
+            u = up[j] / np.linalg.norm(up[j])
+            level = mean - (mean @ u) * u
+            fed[j] = acc[j] - _to_frame(held[j : j + 1] * [1.0, -1.0, -1.0, -1.0], level[None])[0]
+        return fed
+
+    def _swing(self) -> bool:
+        if np.isnan(self.rates[0, 0]):
+            return False
+        centred = self.rates - self.rates.mean(axis=0)
+        power = float(np.sum(centred * centred))
+        settings = self.g.settings
+        if not settings.swing_sd_rads**2 < power / len(centred) < settings.swing_max_rads**2:
+            return False
+        strides = self.g.stride_lags[self.g.stride_lags < len(centred)]
+        correlation = np.array([np.sum(centred[: len(centred) - k] * centred[k:]) for k in strides])
+        if correlation.max() <= self.g.settings.swing_corr * power:
+            return False
+        self.stride = min(self.g.width, int(strides[np.argmax(correlation)]))
+        return True
 
     def _gait(self) -> bool:
         if np.isnan(self.magnitudes[0]):
@@ -112,13 +153,30 @@ def walker(rng: np.random.Generator, count: int, period_s: float) -> tuple[np.nd
     return gyr, acc
 
 
-@pytest.mark.parametrize(("period_s", "seed"), [(0.01, 1), (0.02, 2), (0.013, 3), (0.005, 4)])
-def test_gate_update_is_the_plain_gate_whatever_the_batches(period_s, seed):
+def swinger(rng: np.random.Generator, count: int, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """A walker's corners (as ``walker``) with an arm's swing: body rates about a random axis at a random stride
+    rate (2.5 to 4 rad/s, stopping for a while), the specific force swinging with it; no steps' bounce."""
+    gyr, acc = walker(rng, count, period_s)
+    t = np.arange(count) * period_s
+    stride_hz, axis = rng.uniform(0.8, 1.6), rng.normal(size=3)
+    swing = rng.uniform(2.5, 4.0) * np.sin(2 * np.pi * stride_hz * t) * (t % 15 < 12)
+    gyr += swing[:, None] * axis / np.linalg.norm(axis)
+    acc[:, 2] = 9.81 + rng.normal(0.0, 0.3, count)
+    acc[:, :2] += 3.0 * np.cos(2 * np.pi * stride_hz * t)[:, None] * rng.normal(0, 1, 2)
+    return gyr, acc
+
+
+@pytest.mark.parametrize(
+    ("period_s", "seed", "moves"),
+    [(0.01, 1, walker), (0.02, 2, walker), (0.013, 3, walker), (0.005, 4, walker), (0.02, 5, swinger),
+     (0.01, 6, swinger)],
+)  # fmt: skip
+def test_gate_update_is_the_plain_gate_whatever_the_batches(period_s, seed, moves):
     rng = np.random.default_rng(seed)
-    gyr, acc = walker(rng, round(60.0 / period_s), period_s)
+    gyr, acc = moves(rng, round((60.0 if moves is walker else 20.0) / period_s), period_s)
     gate = TurnGate(period_s, TurnSettings(max_hold_s=3.0))
     plain = PlainGate(gate)
-    fed_c, gated_c, fed_p, gated_p, gaits = [], [], [], [], 0
+    fed_c, gated_c, fed_p, gated_p, gaits, swings, levelled = [], [], [], [], 0, 0, 0
     start = 0
     while start < len(gyr):
         stop = min(start + int(rng.integers(1, gate.left_in_block() + 1)), len(gyr))
@@ -130,20 +188,27 @@ def test_gate_update_is_the_plain_gate_whatever_the_batches(period_s, seed):
         ):
             out[0].append(fed)
             out[1].append(gated)
-        assert (gate.in_gait, gate.stride, gate.run, gate.samples) == (
+        assert (gate.in_gait, gate.in_swing, gate.stride, gate.run, gate.samples) == (
             plain.in_gait,
+            plain.in_swing,
             plain.stride,
             plain.run,
             plain.samples,
         )
         gaits += gate.in_gait
+        swings += gate.in_swing
+        levelled += int(np.any(fed_c[-1] != acc[start:stop])) if gate.in_swing else 0
         start = stop
-    assert gaits > 0 and np.concatenate(gated_c).any()  # the gate was at work: gaits, turns left out
+    if moves is walker:
+        assert gaits > 0 and np.concatenate(gated_c).any()  # the gate was at work: gaits, turns left out
+    else:  # swings, turns levelled, nothing left out
+        assert swings > 0 and levelled > 0 and not np.concatenate(gated_c).any()
     np.testing.assert_array_equal(np.concatenate(gated_c), np.concatenate(gated_p))
     np.testing.assert_allclose(np.vstack(fed_c), np.vstack(fed_p), rtol=0, atol=1e-9)
     np.testing.assert_allclose(gate.recent, plain.recent, rtol=0, atol=1e-12)
     np.testing.assert_allclose(gate.earth_acc, plain.earth_acc, rtol=0, atol=1e-9)
     np.testing.assert_allclose(gate.magnitudes, plain.magnitudes, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(gate.rates, plain.rates, rtol=0, atol=0)
 
 
 def gated_in_batches(compiled: bool, gyr, acc, field, period_s: float) -> list[np.ndarray]:
@@ -163,9 +228,10 @@ def gated_in_batches(compiled: bool, gyr, acc, field, period_s: float) -> list[n
 
 
 @pytest.mark.parametrize("with_field", [True, False])
-def test_gated_run_drives_vqf_as_the_gate_and_updatebatch_piece_by_piece(with_field):
+@pytest.mark.parametrize("moves", [walker, swinger])
+def test_gated_run_drives_vqf_as_the_gate_and_updatebatch_piece_by_piece(with_field, moves):
     rng = np.random.default_rng(5)
-    gyr, acc = walker(rng, 4000, 0.01)
+    gyr, acc = moves(rng, 4000, 0.01)
     field = np.ascontiguousarray(rng.normal(0, 0.3, (4000, 3)) + [20.0, 0.0, -40.0]) if with_field else None
     compiled, plain = (gated_in_batches(c, gyr, acc, field, 0.01) for c in (True, False))
     for c, p in zip(compiled, plain):

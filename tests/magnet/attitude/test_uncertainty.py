@@ -234,3 +234,43 @@ def test_the_compiled_drift_refuses_batches_beyond_the_samples():
     )
     with pytest.raises(ValueError, match="out of range"):
         _kernels.bias_drift(times, *args, drift)
+
+
+def _batches_plainly(bounds, t_ns, fused, trusted, tan_dip, horizontal):
+    """_Batches.of's figures in numpy (as it was written before it was compiled): the rows summed by reduceat."""
+    edges = np.asarray(bounds, dtype=np.int64)
+    counts = np.diff(edges)
+    nonempty = counts > 0
+    known = fused & np.isfinite(horizontal).all(axis=1)
+    t_s = (t_ns - t_ns[0]) * 1e-9 if len(t_ns) else np.zeros(0)
+    rows = np.empty((7, len(t_ns)))
+    rows[0], rows[2], rows[6] = fused, known, fused & ~trusted
+    rows[1] = np.where(fused, tan_dip, 0.0)
+    rows[3] = np.where(known, t_s, 0.0)
+    rows[4:6] = np.where(known, horizontal.T, 0.0)
+    sums = np.zeros((len(counts), 7))
+    if nonempty.any():
+        sums[nonempty] = np.add.reduceat(rows, edges[:-1][nonempty], axis=1).T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tan_mean, means = sums[:, 1] / sums[:, 0], sums[:, 3:6] / sums[:, 2:3]
+    means[:, 0] += float(t_ns[0]) * 1e-9 if len(t_ns) else 0.0
+    return [sums[:, 0], tan_mean, sums[:, 2], *means.T, sums[:, 6] > 0]
+
+
+def test_the_compiled_batch_figures_are_the_reduceat_sums_bit_for_bit():
+    from magnet.attitude import uncertainty as unc_module
+
+    rng = np.random.default_rng(9)
+    for _ in range(300):
+        sizes = rng.integers(0, 300, int(rng.integers(1, 6)))
+        bounds = np.concatenate([[0], np.cumsum(sizes)])
+        count = int(bounds[-1])
+        t_ns = np.cumsum(rng.integers(1, 3_000_000, count)).astype(np.int64) + 1_780_000_000 * 10**9
+        fused, trusted = rng.random(count) < 0.8, rng.random(count) < rng.random()
+        tan_dip = rng.normal(0, 2, count) * 10 ** rng.uniform(-3, 3, count)
+        horizontal = rng.normal(0, 0.3, (count, 2))
+        horizontal[rng.random(count) < 0.05, int(rng.integers(0, 2))] = np.nan
+        got = unc_module._Batches.of(bounds.tolist(), t_ns, fused, trusted, tan_dip, horizontal)
+        want = _batches_plainly(bounds, t_ns, fused, trusted, tan_dip, horizontal)
+        for g, w in zip(got[:7], want):
+            np.testing.assert_array_equal(np.array(g, dtype=float), np.asarray(w, dtype=float))

@@ -141,3 +141,27 @@ def test_a_car_passing_parked_cars_gets_its_offset_from_the_undisturbed_samples(
     except FitError:
         return
     assert not every_sample.accepted
+
+
+def test_a_straight_driving_car_is_ready_to_fit_once_its_velocity_told_the_heading():
+    """The calibrator tried a fit from the gyroscope's samples only once the device had turned 90 deg: a car that
+    speeds up and slows down on a straight road, whose accelerations against its velocity tell the heading (the
+    course fit above), waited for its turns (car of seed 2035: 60 deg by 24 s, its first record at 77 s). It is
+    ready once ``MIN_ACCELERATING_S`` of its samples accelerate over the velocity's noise; the same samples without
+    the velocity still wait for the turns."""
+    from magnet.calibration.collection import Collection
+    from magnet.calibration.course import MIN_ACCELERATING_S
+
+    settings = field_runs.FieldSettings(seconds=30.0)
+    run = field_runs.field_run(field_runs.MOTIONS["car"], 2026, settings)  # straight north for 85 s
+    assert np.degrees(np.ptp(np.unwrap(np.radians(run.heading_deg)))) < 5.0
+    t_ns = np.round(run.t_s * 1e9).astype(np.int64)
+    aided, plain = Collection("auto", False, 3000), Collection("auto", False, 3000)
+    for seq, start in enumerate(range(0, len(t_ns), 25)):
+        part = slice(start, start + 25)
+        for collection, vel in ((aided, run.vel_ned_ms[part]), (plain, None)):
+            collection.add(run.mag_ut[part], run.acc_ms2[part], run.gyr_rads[part], t_ns[part], seq, vel)
+    aligned = course_attitude(run.gyr_rads, run.acc_ms2, 1.0 / RATE_HZ, run.vel_ned_ms)
+    assert aligned is not None and aligned.accelerating_s >= MIN_ACCELERATING_S  # the heading is told
+    assert aided.turn_wait(300) == ""
+    assert "turned" in plain.turn_wait(300)

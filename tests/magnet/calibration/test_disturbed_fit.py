@@ -39,7 +39,14 @@ def door_walk():
     return run, data, errors.true_calibration(run.earth.total_ut)
 
 
-def test_the_doors_samples_are_dropped_and_the_offset_is_right(door_walk):
+@pytest.fixture(scope="module")
+def every_sample_offset(door_walk):
+    """The door walk's ``offset`` fit on every sample (nothing left out): two tests compare with it."""
+    _, data, _ = door_walk
+    return fit_choice(data.replace(drop_disturbed=False), "offset")
+
+
+def test_the_doors_samples_are_dropped_and_the_offset_is_right(door_walk, every_sample_offset):
     """``magnet fit``'s default: the door's samples left out, the offset within 3 uT of the truth (the hard iron is
     6-15 times the field); the same model fitted to every sample is bent by the door, or refused (the offset rung of
     a level device keeps its matrix whole, as the ladder's does, so the dip holds its vertical offset and the door
@@ -51,7 +58,8 @@ def test_the_doors_samples_are_dropped_and_the_offset_is_right(door_walk):
     assert record.accepted, record.reason
     assert np.linalg.norm(record.offset - truth.offset) < 3.0
     assert record.quality.get("disturbed_samples", 0) >= 100
-    every_sample = fit_choice(data.replace(drop_disturbed=False), record.method)
+    every_sample = every_sample_offset  # the same model (``auto`` fits the offset here) fitted to every sample
+    assert record.method == every_sample.method == "offset"
     assert not every_sample.accepted or np.linalg.norm(every_sample.offset - truth.offset) > 15.0
     # the door's strongest samples are among those left out (judged with the record's correction), few others
     flags = disturbed.mask(data, record)
@@ -143,7 +151,7 @@ def test_a_refused_fit_is_made_again_without_what_a_sphere_finds_disturbed(pocke
         fit_choice(data, "auto")
 
 
-def test_a_method_asked_for_leaves_the_door_out_by_the_same_rule_as_auto(door_walk):
+def test_a_method_asked_for_leaves_the_door_out_by_the_same_rule_as_auto(door_walk, every_sample_offset):
     """``magnet fit --method offset`` (``fit_choice``, as the command and the calibrator's sessions call it) with no
     record in force: the door's samples are judged from the raw field, then again with the first fit's correction,
     which finds the door's weaker edges, as ``auto`` judges them (one rule, ``disturbed.fit_undisturbed``). ``fit``
@@ -160,7 +168,7 @@ def test_a_method_asked_for_leaves_the_door_out_by_the_same_rule_as_auto(door_wa
     assert record.quality.get("disturbed_samples", 0) > once.quality.get("disturbed_samples", 0) + 100
     door = np.linalg.norm(run.disturbance_ut, axis=1)
     assert record.quality.get("disturbed_samples", 0) > (door > 1.0).sum()
-    every_sample = fit_choice(data.replace(drop_disturbed=False), "offset")
+    every_sample = every_sample_offset
     assert not every_sample.accepted or np.linalg.norm(every_sample.offset - truth.offset) > 8.0
     planar = fit_choice(data, "planar")
     assert not planar.accepted and "identifiability rule" in planar.reason, planar.reason

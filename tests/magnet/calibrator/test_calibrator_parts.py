@@ -102,6 +102,27 @@ def test_the_fitter_scales_to_the_place_else_the_settings_and_counts_each_fit():
     assert (fitter.fits, fitter.accepted, fitter.rejected) == (2, 1, 1)
 
 
+def test_a_device_that_reports_no_place_is_fitted_with_the_dip_and_declination_of_the_services_location():
+    """``--location`` is the place of the devices that report none: its dip and declination, not only its |B|,
+    reach their fits (the ladder's vertical prior; the velocity turned to magnetic north for a vehicle's heading from
+    its course). Before, such a device got |B| alone: a car whose hard iron moved 8 uT (tests/magnet/calibrator/
+    test_refresh.py) was refreshed by the ladder with the vertical field guessed (heading error of the field 2.2 deg);
+    with the place's dip the ladder's offset is not identified from 30 s (its heading noise 1.5-2.7 deg, the true
+    horizontal field 0.38 of |B| at a dip of 67.6 deg), and the velocity's course refreshes it: 1.5 deg."""
+    from magnet.fleet.places import Places
+
+    here, there = Location.parse("50.45,30.52"), Location.parse("-33.9,18.4")
+    roster = Roster(Places(default=here))
+    roster.seen("elsewhere", there, 1)
+    assert roster.dip_deg("unplaced") == pytest.approx(roster.places.earth("unplaced").inclination_deg)
+    assert roster.dip_deg("unplaced") == pytest.approx(67.6, abs=1.0)
+    assert roster.declination_deg("unplaced") == pytest.approx(roster.places.earth("unplaced").declination_deg)
+    assert roster.dip_deg("elsewhere") < -50.0  # a reported place comes first
+    assert Roster().dip_deg("unplaced") is None and Roster().declination_deg("unplaced") is None  # no place at all
+    fitter = Fitter(CalibratorSettings(location=here), roster.field_ut, roster.dip_deg, roster.declination_deg)
+    assert fitter.dip_at("unplaced") == roster.dip_deg("unplaced")
+
+
 # ------------------------------------------------------------------------------------------------------- records
 def test_records_number_stamp_and_record_each_change_and_read_back_only_their_shard(store):
     records = Records(store, clock_ns=lambda: 7)
