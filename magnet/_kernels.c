@@ -901,6 +901,75 @@ done:
     return result;
 }
 
+PyDoc_STRVAR(disturbance_bits_doc,
+             "disturbance_bits(field, acc, expected, dip, expected_dip, field_tol_pct, dip_tol_deg, tiny, flags)\n\n"
+             "magnet.attitude.heading.disturbance_flags per sample, in one pass: field (S, 3) uT, acc (S, 3) or "
+             "None (no accelerometer: NO_TILT everywhere), expected (S,) uT or None, dip and expected_dip (S,) deg "
+             "or None (no dip check). Writes flags (S,) int64: FIELD_DISTURBED where | |B| - expected | > expected "
+             "field_tol_pct / 100 and expected > 0; NO_TILT where |acc| is not finite or not above tiny; "
+             "DIP_DISTURBED where |dip - expected_dip| > dip_tol_deg and there is a tilt.");
+
+static PyObject *disturbance_bits(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_acc, *o_expected, *o_dip, *o_expected_dip, *o_flags;
+    double tol_pct, dip_tol, tiny;
+    if (!PyArg_ParseTuple(args, "OOOOOdddO", &o_field, &o_acc, &o_expected, &o_dip, &o_expected_dip, &tol_pct,
+                          &dip_tol, &tiny, &o_flags)) {
+        return NULL;
+    }
+    Array a[5];
+    PyObject *objs[4] = {o_acc, o_expected, o_dip, o_expected_dip};
+    const char *names[4] = {"acc", "expected", "dip", "expected_dip"};
+    int have[4] = {0, 0, 0, 0}, arrays = 0;
+    Py_buffer flags;
+    int got_flags = 0;
+    PyObject *result = NULL;
+    if (get_array(o_field, &a[0], 2, -1, 3, 0, "field") < 0) return NULL;
+    arrays = 1;
+    Py_ssize_t n = a[0].rows;
+    for (int k = 0; k < 4; k++) {
+        if (objs[k] == Py_None) {
+            memset(&a[1 + k], 0, sizeof(Array));
+            continue;
+        }
+        if (get_array(objs[k], &a[1 + k], k == 0 ? 2 : 1, n, k == 0 ? 3 : -1, 0, names[k]) < 0) goto done;
+        have[k] = 1;
+    }
+    if (get_int64(o_flags, &flags, n, "flags") < 0) goto done;
+    got_flags = 1;
+    if (flags.readonly) {
+        PyErr_SetString(PyExc_ValueError, "flags must be writable");
+        goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        long long bits = 0;
+        if (have[1]) {
+            double e = AT1(a[2], i);
+            double norm = sqrt(AT(a[0], i, 0) * AT(a[0], i, 0) + AT(a[0], i, 1) * AT(a[0], i, 1) +
+                               AT(a[0], i, 2) * AT(a[0], i, 2));
+            if (fabs(norm - e) > e * tol_pct / 100.0 && e > 0) bits |= 4; /* FIELD_DISTURBED */
+        }
+        if (!have[0]) {
+            bits |= 2; /* NO_TILT */
+        } else {
+            double g = sqrt(AT(a[1], i, 0) * AT(a[1], i, 0) + AT(a[1], i, 1) * AT(a[1], i, 1) +
+                            AT(a[1], i, 2) * AT(a[1], i, 2));
+            int no_tilt = !(isfinite(g) && g > tiny);
+            if (no_tilt) bits |= 2;
+            if (have[2] && have[3] && !no_tilt && fabs(AT1(a[3], i) - AT1(a[4], i)) > dip_tol) bits |= 8;
+        }
+        *(long long *)((char *)flags.buf + i * flags.strides[0]) = bits;
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    if (got_flags) PyBuffer_Release(&flags);
+    for (int k = 0; k < 4; k++) {
+        if (have[k]) PyBuffer_Release(&a[1 + k].view);
+    }
+    release(a, arrays);
+    return result;
+}
+
 PyDoc_STRVAR(bias_drift_doc,
              "bias_drift(t_ns, trusted, bounds, slot, untrusted, bias, slots, drift)\n\n"
              "The gyroscope's bias drift of magnet.attitude.uncertainty (HeadingUncertainty._drift), batch by batch "
@@ -2790,6 +2859,7 @@ static PyMethodDef methods[] = {
     {"sigma_direct", sigma_direct, METH_VARARGS, sigma_direct_doc},
     {"batch_figures", batch_figures, METH_VARARGS, batch_figures_doc},
     {"gyro_rows", gyro_rows, METH_VARARGS, gyro_rows_doc},
+    {"disturbance_bits", disturbance_bits, METH_VARARGS, disturbance_bits_doc},
     {"bias_drift", bias_drift, METH_VARARGS, bias_drift_doc},
     {"sigma_degrees", sigma_degrees, METH_VARARGS, sigma_degrees_doc},
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},

@@ -211,3 +211,14 @@ def gyro_rows(
     saturated: np.ndarray,
     usable: np.ndarray,
 ) -> None: ...
+def disturbance_bits(
+    field: np.ndarray,
+    acc: np.ndarray | None,
+    expected: np.ndarray | None,
+    dip: np.ndarray | None,
+    expected_dip: np.ndarray | None,
+    field_tol_pct: float,
+    dip_tol_deg: float,
+    tiny: float,
+    flags: np.ndarray,
+) -> None: ...

@@ -120,6 +120,7 @@ class Fusion:
         self._filter = vqf.VQF(self.period_s, **self.params)
         #: vqf's own accelerometer and magnetic time constants (s), for ``figures``
         self._taus = (float(self._filter.params["tauAcc"]), float(self._filter.params["tauMag"]))
+        self._figures: FilterFigures | None = None  # the last ``figures`` without aiding
         #: from the first batch with a velocity on (``magnet.attitude.aided_fusion``)
         self._aided: AidedFilter | None = None
         #: with ``watch`` (the default), the field's disturbances are left out and the gyroscope holds the heading
@@ -247,7 +248,10 @@ class Fusion:
         bias_sigma = float(self._filter.getBiasEstimate()[1])
         aided = self._aided
         if aided is None:
-            return FilterFigures(self._taus[0], self._taus[1], bias_sigma)
+            figures = self._figures  # kept while the bias uncertainty holds (a frozen dataclass costs 1.6 us to make)
+            if figures is None or figures.bias_sigma_rads != bias_sigma:
+                figures = self._figures = FilterFigures(self._taus[0], self._taus[1], bias_sigma)
+            return figures
         tau_acc_s, fixes = aided.sigma_figures()
         return FilterFigures(tau_acc_s, self._taus[1], bias_sigma, fixes.acceleration, fixes.known_until_s)
 

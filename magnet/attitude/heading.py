@@ -233,25 +233,25 @@ def disturbance_flags(
     NO_TILT: acc is None, or a sample's acc is zero or not finite. CALIBRATED is the caller's to add.
     """
     b = np.asarray(field, dtype=float)
-    flags = np.zeros(b.shape[:-1], dtype=np.int64)
-    if expected_ut is not None:
-        expected = np.asarray(expected_ut, dtype=float)
-        with np.errstate(invalid="ignore"):
-            disturbed = (np.abs(row_norm(b) - expected) > expected * field_tol_pct / 100.0) & (expected > 0)
-        flags |= np.where(disturbed, int(HeadingFlag.FIELD_DISTURBED), 0)
-    if acc is None:
-        return flags | int(HeadingFlag.NO_TILT)
-    f = np.asarray(acc, dtype=float)
-    f = f if f.shape == b.shape else np.broadcast_to(f, b.shape)
-    norm = row_norm(f)
-    no_tilt = ~(np.isfinite(norm) & (norm > _TINY))
-    flags |= np.where(no_tilt, int(HeadingFlag.NO_TILT), 0)
-    if expected_dip_deg is not None:
+    shape = b.shape[:-1]
+    f = None if acc is None else np.asarray(acc, dtype=float)
+    f = f if f is None or f.shape == b.shape else np.broadcast_to(f, b.shape)
+    dip = None
+    if f is not None and expected_dip_deg is not None:
         dip = dip_angle_deg(b, f) if dip_deg is None else dip_deg
-        with np.errstate(invalid="ignore"):
-            dip_off = np.abs(dip - np.asarray(expected_dip_deg, dtype=float)) > dip_tol_deg
-        flags |= np.where(dip_off & ~no_tilt, int(HeadingFlag.DIP_DISTURBED), 0)
+    flat = [None if x is None else _samples(x, shape) for x in (expected_ut, dip, expected_dip_deg)]
+    flags = np.empty(shape, dtype=np.int64)
+    _kernels.disturbance_bits(
+        b.reshape(-1, 3), None if f is None else f.reshape(-1, 3), flat[0], flat[1], flat[2] if dip is not None
+        else None, field_tol_pct, dip_tol_deg, _TINY, flags.reshape(-1),
+    )  # fmt: skip
     return flags
+
+
+def _samples(values: npt.ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
+    """``values`` broadcast to ``shape``, flat, float64 (a view where it can be)."""
+    arr = np.asarray(values, dtype=float)
+    return (arr if arr.shape == shape else np.broadcast_to(arr, shape)).reshape(-1)
 
 
 def offset_removed_rms_deg(estimate_deg: np.ndarray, reference_deg: np.ndarray) -> float:

@@ -8,7 +8,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from magnet import wire
-from magnet.drift.alerts import Alert
 from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings, Reference
 from magnet.earth.expected import Earth
 from magnet.earth.geomag import DateLike
@@ -17,6 +16,7 @@ from magnet.fleet.places import Places
 from magnet.units import ut_per_unit
 
 if TYPE_CHECKING:
+    from magnet.drift.alerts import Alert
     from magnet.drift.monitor import DriftMonitor
 
 #: alert events waiting to be published at most (the oldest dropped beyond: the open ones are also queryable)

@@ -30,24 +30,32 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from magnet.drift.alerts import (
-    ADVICE,
-    CLEARED_ADVICE,
-    MAX_ADVICE_CHARS,
-    Alert,
-    AlertKind,
-    advice_for,
-    alert_from_message,
-)
 from magnet.drift.settings import DEFAULT_DRIFT, NS_PER_DAY, NS_PER_S, DriftSettings, Reference
 
 if TYPE_CHECKING:
+    from magnet.drift.alerts import (
+        ADVICE,
+        CLEARED_ADVICE,
+        MAX_ADVICE_CHARS,
+        Alert,
+        AlertKind,
+        advice_for,
+        alert_from_message,
+    )
     from magnet.drift.monitor import DriftMonitor
     from magnet.drift.tracker import DriftTracker, Verdict, robust_verdict
 
-#: the trackers, loaded on first use (PEP 562): they bring numpy statistics and ``magnet.quality``, which the
+#: the alerts and the trackers, loaded on first use (PEP 562): the trackers bring numpy statistics and
+#: ``magnet.quality``, the alerts an enum and the wire's limits, which the
 #: commands that import the settings alone (``magnet heading`` through the compass's core) never run
 _LAZY = {
+    "ADVICE": "magnet.drift.alerts",  # the alerts (an enum, the wire's limits): where an alert is made or read
+    "CLEARED_ADVICE": "magnet.drift.alerts",
+    "MAX_ADVICE_CHARS": "magnet.drift.alerts",
+    "Alert": "magnet.drift.alerts",
+    "AlertKind": "magnet.drift.alerts",
+    "advice_for": "magnet.drift.alerts",
+    "alert_from_message": "magnet.drift.alerts",
     "DriftMonitor": "magnet.drift.monitor",
     "DriftTracker": "magnet.drift.tracker",
     "Verdict": "magnet.drift.tracker",

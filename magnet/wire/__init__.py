@@ -6,7 +6,9 @@ with the device id as one key chunk (see ``Kind``). Decoders turn lists into num
 malformed with ``WireError``, whose ``cause`` is a short token a service counts drops by (``DropCounter``).
 Pure: no sockets, no clocks, no zenoh.
 
-Modules, one idea each (every name is re-exported here, so ``from magnet import wire; wire.X`` works):
+Modules, one idea each (every name is re-exported here, so ``from magnet import wire; wire.X`` works). A module is
+imported when one of its names is first used (PEP 562): ``magnet heading`` reads raw batches and never encodes or
+decodes a message, so it does not load msgpack, the records or the heading encoder (a tenth of its imports).
 
 - ``keys``: ``Kind``, ``key``, ``device_from_key``, ``check_key`` (the one key check), ``validate_device_id``
   (the one id check), ``validate_prefix``, status and liveliness keys.
@@ -29,74 +31,145 @@ Modules, one idea each (every name is re-exported here, so ``from magnet import 
   ``calibration_from_record``) and ``Progress``.
 """
 
-from magnet.wire.codec import (
-    ANY_LIMITS,
-    BINARY_ARRAYS_VERSION,
-    LISTS_VERSION,
-    MAX_BATCH_SAMPLES,
-    MAX_PAYLOAD_BYTES,
-    RECORD_VERSION,
-    VERSIONS,
-    Limits,
-    check_version,
-    detached,
-    pack,
-    plain,
-    unpack,
-)
-from magnet.wire.errors import DropCounter, WireError
-from magnet.wire.headings import (
-    ANGLE_FIELDS,
-    DISTURBED,
-    HEADING_LIMITS,
-    HeadingBatch,
-    decode_heading,
-    encode_heading,
-    encode_headings,
-)
-from magnet.wire.keys import (
-    DEFAULT_PREFIX,
-    Kind,
-    check_key,
-    device_from_key,
-    key,
-    key_mismatch,
-    liveliness_key,
-    message_device,
-    status_key,
-    validate_device_id,
-    validate_prefix,
-    vehicle_key,
-)
-from magnet.wire.raw import (
-    MAX_ACC_MS2,
-    MAX_CURRENT_A,
-    MAX_FIELD_UT,
-    MAX_GYR_RADS,
-    SCALAR_FIELDS,
-    TRUTH_FIELDS,
-    RawBatch,
-    RawColumns,
-    encode_raw,
-    message_location,
-)
-from magnet.wire.raw_decode import decode_messages, decode_raw, decode_raw_many
-from magnet.wire.raw_header import RAW_LIMITS
-from magnet.wire.records import (
-    CALIBRATION_LIMITS,
-    MAX_VERSION,
-    PROGRESS_LIMITS,
-    CalibrationMessage,
-    Collecting,
-    DeviceCalibration,
-    Progress,
-    calibration_from_record,
-    calibration_record,
-    decode_calibration,
-    decode_progress,
-    encode_calibration,
-    encode_progress,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from magnet.wire.codec import (
+        ANY_LIMITS,
+        BINARY_ARRAYS_VERSION,
+        LISTS_VERSION,
+        MAX_BATCH_SAMPLES,
+        MAX_PAYLOAD_BYTES,
+        RECORD_VERSION,
+        VERSIONS,
+        Limits,
+        check_version,
+        detached,
+        pack,
+        plain,
+        unpack,
+    )
+    from magnet.wire.errors import DropCounter, WireError
+    from magnet.wire.headings import (
+        ANGLE_FIELDS,
+        DISTURBED,
+        HEADING_LIMITS,
+        HeadingBatch,
+        decode_heading,
+        encode_heading,
+        encode_headings,
+    )
+    from magnet.wire.keys import (
+        DEFAULT_PREFIX,
+        Kind,
+        check_key,
+        device_from_key,
+        key,
+        key_mismatch,
+        liveliness_key,
+        message_device,
+        status_key,
+        validate_device_id,
+        validate_prefix,
+        vehicle_key,
+    )
+    from magnet.wire.raw import (
+        MAX_ACC_MS2,
+        MAX_CURRENT_A,
+        MAX_FIELD_UT,
+        MAX_GYR_RADS,
+        SCALAR_FIELDS,
+        TRUTH_FIELDS,
+        RawBatch,
+        RawColumns,
+        encode_raw,
+        message_location,
+    )
+    from magnet.wire.raw_decode import decode_messages, decode_raw, decode_raw_many
+    from magnet.wire.raw_header import RAW_LIMITS
+    from magnet.wire.records import (
+        CALIBRATION_LIMITS,
+        MAX_VERSION,
+        PROGRESS_LIMITS,
+        CalibrationMessage,
+        Collecting,
+        DeviceCalibration,
+        Progress,
+        calibration_from_record,
+        calibration_record,
+        decode_calibration,
+        decode_progress,
+        encode_calibration,
+        encode_progress,
+    )
+
+#: the module of each name re-exported here
+_MODULE_OF: dict[str, str] = {
+    "ANY_LIMITS": "codec",
+    "BINARY_ARRAYS_VERSION": "codec",
+    "LISTS_VERSION": "codec",
+    "MAX_BATCH_SAMPLES": "codec",
+    "MAX_PAYLOAD_BYTES": "codec",
+    "RECORD_VERSION": "codec",
+    "VERSIONS": "codec",
+    "Limits": "codec",
+    "check_version": "codec",
+    "detached": "codec",
+    "pack": "codec",
+    "plain": "codec",
+    "unpack": "codec",
+    "DropCounter": "errors",
+    "WireError": "errors",
+    "ANGLE_FIELDS": "headings",
+    "DISTURBED": "headings",
+    "HEADING_LIMITS": "headings",
+    "HeadingBatch": "headings",
+    "decode_heading": "headings",
+    "encode_heading": "headings",
+    "encode_headings": "headings",
+    "DEFAULT_PREFIX": "keys",
+    "Kind": "keys",
+    "check_key": "keys",
+    "device_from_key": "keys",
+    "key": "keys",
+    "key_mismatch": "keys",
+    "liveliness_key": "keys",
+    "message_device": "keys",
+    "status_key": "keys",
+    "validate_device_id": "keys",
+    "validate_prefix": "keys",
+    "vehicle_key": "keys",
+    "MAX_ACC_MS2": "raw",
+    "MAX_CURRENT_A": "raw",
+    "MAX_FIELD_UT": "raw",
+    "MAX_GYR_RADS": "raw",
+    "SCALAR_FIELDS": "raw",
+    "TRUTH_FIELDS": "raw",
+    "RawBatch": "raw",
+    "RawColumns": "raw",
+    "encode_raw": "raw",
+    "message_location": "raw",
+    "decode_messages": "raw_decode",
+    "decode_raw": "raw_decode",
+    "decode_raw_many": "raw_decode",
+    "RAW_LIMITS": "raw_header",
+    "CALIBRATION_LIMITS": "records",
+    "MAX_VERSION": "records",
+    "PROGRESS_LIMITS": "records",
+    "CalibrationMessage": "records",
+    "Collecting": "records",
+    "DeviceCalibration": "records",
+    "Progress": "records",
+    "calibration_from_record": "records",
+    "calibration_record": "records",
+    "decode_calibration": "records",
+    "decode_progress": "records",
+    "encode_calibration": "records",
+    "encode_progress": "records",
+}
 
 __all__ = [
     "ANGLE_FIELDS",
@@ -161,3 +234,20 @@ __all__ = [
     "validate_prefix",
     "vehicle_key",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """A re-exported name, its module imported on first use (then held here: later uses are plain lookups); a
+    module's own name (``wire.raw_header``) imports it."""
+    module = _MODULE_OF.get(name)
+    if module is None:
+        if name in _MODULE_OF.values():
+            return importlib.import_module(f"{__name__}.{name}")
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

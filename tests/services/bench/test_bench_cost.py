@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
+import pytest
 
 from services.bench import cost
 from services.common.inputs.csvio import read_samples
@@ -30,3 +33,14 @@ def test_every_stage_is_timed_beside_vqf_where_it_runs_vqf():
     assert any(name.startswith("aided fusion") for name in names)
     assert all(us > 0 for _, us, _ in rows)
     assert {name for name, _, own in rows if own is not None} >= {"fusion"}
+
+
+def test_the_median_of_pairs_is_the_middle_value_or_the_mean_of_the_two():
+    assert cost._median([3.0, 1.0, 2.0]) == 2.0
+    assert cost._median([4.0, 1.0, 3.0, 2.0]) == 2.5
+
+
+@pytest.mark.integration  # starts processes
+def test_pairs_of_processes_are_timed_in_turn():
+    pairs = cost.process_pairs([sys.executable, "-c", "pass"], [sys.executable, "-c", "pass"], pairs=2)
+    assert len(pairs) == 2 and all(a > 0 and b > 0 for a, b in pairs)
