@@ -1,5 +1,5 @@
 """A travelling vehicle's turns lean its unaided tilt: the field ladder takes a planar vehicle's mean down for its
-vertical evidence (``magnet.calibration.field.level_in_turns``; docs/field-calibration.md, "A boat's turns").
+vertical evidence (``magnet.calibration.level.level_in_turns``; docs/field-calibration.md, "A boat's turns").
 
 The motion is the simulator's boat (tuning seed 1, as ``magnet bench field`` draws its phone-like sensor): 43 s of
 turns of 90-360 deg at 8-15 deg/s at 2-6 m/s, its accelerometer reading the turns' acceleration (0.5 m/s^2 RMS), no
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from magnet import frames
-from magnet.calibration import field
-from magnet.calibration.field import CENTRIPETAL_MS2, FieldInput, centripetal_ms2, fit_field, level_in_turns
+from magnet.calibration import level
+from magnet.calibration.field import FieldInput, fit_field
+from magnet.calibration.level import CENTRIPETAL_MS2, centripetal_ms2, level_in_turns
 from magnet.calibration.rungs import Evidence
 from magnet.simulator import SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
 
@@ -61,7 +62,7 @@ def test_a_boats_turns_do_not_bend_its_first_offset(boat: SimulatedRun, monkeypa
     assert record.accepted, record.reason
     # the field's heading with the true attitude: 0.5 deg; with the filter's down, leaning into the turns, 4.1
     assert heading_error_deg(record.offset, np.asarray(record.matrix), boat) < 2.0
-    monkeypatch.setattr(field, "CENTRIPETAL_MS2", np.inf)  # the lean kept: what the fit did before
+    monkeypatch.setattr(level, "CENTRIPETAL_MS2", np.inf)  # the lean kept: what the fit did before
     leaning = fit_field(_input(boat))
     assert heading_error_deg(leaning.offset, np.asarray(leaning.matrix), boat) > 2.5
 
