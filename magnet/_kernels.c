@@ -1232,8 +1232,9 @@ static int digit_count(unsigned long long v) {
     return v < 10 ? n : v < 100 ? n + 1 : v < 1000 ? n + 2 : n + 3;
 }
 
-/* "0000" .. "9999": four digits a division (made at import, ``PyInit__kernels``) */
-static char digit_quads[40000];
+/* "0000" .. "9999": four digits a step (made at import, ``PyInit__kernels``), and 4 bytes of slack after the last so
+ * that a copy of 4 bytes starting inside the last quad stays inside the table */
+static char digit_quads[40004];
 
 static void make_digit_quads(void) {
     for (int v = 0; v < 10000; v++) {
@@ -1244,12 +1245,21 @@ static void make_digit_quads(void) {
     }
 }
 
-/* The digits of ``v`` (v >= 0) at ``out``, at least ``width`` of them (zeros in front; width <= 20), written from
- * the last backwards in place, four a division (the copies through a buffer and two digits a division were most of
- * ``format_rows``); returns how many. */
-static int digits(unsigned long long v, int width, char *out) {
+/* The last ``n`` (1 to 4) digits of the quad of ``q`` (q < 10^n) at ``out``: one copy of 4 bytes, of which the
+ * 4 - n past the digits are scratch that the caller writes over next (``format_rows`` keeps room for them). */
+static inline char *put_quad_tail(unsigned q, int n, char *out) {
+    memcpy(out, digit_quads + 4 * q + 4 - n, 4);
+    return out + n;
+}
+
+/* The digits of ``v`` at ``out`` (no zeros in front); returns the end. The usual values (below 10^4) in one copy;
+ * larger ones four digits a division, from the last backwards. */
+static inline char *put_digits(unsigned long long v, char *out) {
+    if (v < 10000) {
+        int k = v < 10 ? 1 : v < 100 ? 2 : v < 1000 ? 3 : 4;
+        return put_quad_tail((unsigned)v, k, out);
+    }
     int n = digit_count(v);
-    if (n < width) n = width;
     char *p = out + n;
     while (v >= 10000) {
         unsigned q = (unsigned)(v % 10000);
@@ -1258,46 +1268,66 @@ static int digits(unsigned long long v, int width, char *out) {
         memcpy(p, digit_quads + 4 * q, 4);
     }
     int k = v < 10 ? 1 : v < 100 ? 2 : v < 1000 ? 3 : 4;
-    p -= k;
-    for (int i = 0; i < k; i++) p[i] = digit_quads[4 * v + 4 - k + i];
-    while (p > out) *--p = '0';
-    return n;
+    memcpy(p - k, digit_quads + 4 * v + 4 - k, (size_t)k);
+    return out + n;
 }
 
-/* x with ``d`` decimals at ``out`` (room for 400 bytes); returns the bytes written. Fast integer path where the
- * rounding of x * 10^d cannot differ from that of the exact value; printf (correctly rounded, as Python) elsewhere. */
-static int fixed(double x, int d, char *out) {
+/* ``v`` (v < 10^d, d <= 9) as exactly ``d`` digits (zeros in front) at ``out``; returns the end. */
+static inline char *put_fraction(unsigned long long v, int d, char *out) {
+    switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
+        case 0: return out;
+        case 1: case 2: case 3: case 4: return put_quad_tail((unsigned)v, d, out);
+        case 5: case 6: case 7: case 8:
+            out = put_quad_tail((unsigned)(v / 10000), d - 4, out);
+            return put_quad_tail((unsigned)(v % 10000), 4, out);
+        default:
+            out = put_quad_tail((unsigned)(v / 100000000), 1, out);
+            out = put_quad_tail((unsigned)(v / 10000 % 10000), 4, out);
+            return put_quad_tail((unsigned)(v % 10000), 4, out);
+    }
+}
+
+/* x with ``d`` decimals at ``out`` (room for 400 bytes and 4 of scratch past them); returns the bytes written. Fast
+ * integer path where the rounding of x * 10^d cannot differ from that of the exact value; printf (correctly rounded,
+ * as Python) elsewhere. */
+static inline int fixed(double x, int d, char *out) {
     static const double tens[] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9};
-    if (isnan(x)) { memcpy(out, "nan", 3); return 3; }
-    if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
+    static const unsigned long long powers[] = {1ULL, 10ULL, 100ULL, 1000ULL, 10000ULL, 100000ULL, 1000000ULL,
+                                                10000000ULL, 100000000ULL, 1000000000ULL};
     if (d <= 9) {
         double scaled = fabs(x) * tens[d];
-        if (scaled < 1e15) {
+        if (scaled < 1e15) { /* NaN fails this too */
             /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
             unsigned long long whole = (unsigned long long)scaled;
             double frac = scaled - (double)whole;
             if (fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
                 unsigned long long r = whole + (frac > 0.5), units, decimals;
                 switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
-                    case 0: units = r; decimals = 0; break;
-                    case 1: units = r / 10; decimals = r % 10; break;
-                    case 2: units = r / 100; decimals = r % 100; break;
-                    case 3: units = r / 1000; decimals = r % 1000; break;
-                    case 4: units = r / 10000; decimals = r % 10000; break;
-                    case 5: units = r / 100000; decimals = r % 100000; break;
-                    case 6: units = r / 1000000; decimals = r % 1000000; break;
-                    case 7: units = r / 10000000; decimals = r % 10000000; break;
-                    case 8: units = r / 100000000; decimals = r % 100000000; break;
-                    default: units = r / 1000000000; decimals = r % 1000000000; break;
+                    case 0: units = r; break;
+                    case 1: units = r / 10; break;
+                    case 2: units = r / 100; break;
+                    case 3: units = r / 1000; break;
+                    case 4: units = r / 10000; break;
+                    case 5: units = r / 100000; break;
+                    case 6: units = r / 1000000; break;
+                    case 7: units = r / 10000000; break;
+                    case 8: units = r / 100000000; break;
+                    default: units = r / 1000000000; break;
                 }
-                int n = 0;
-                if (signbit(x)) out[n++] = '-';
-                n += digits(units, 1, out + n);
-                if (d > 0) { out[n++] = '.'; n += digits(decimals, d, out + n); }
-                return n;
+                decimals = r - units * powers[d];
+                char *p = out;
+                if (signbit(x)) *p++ = '-';
+                p = put_digits(units, p);
+                if (d > 0) {
+                    *p++ = '.';
+                    p = put_fraction(decimals, d, p);
+                }
+                return (int)(p - out);
             }
         }
     }
+    if (isnan(x)) { memcpy(out, "nan", 3); return 3; }
+    if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
     return snprintf(out, 400, "%.*f", d, x);
 }
 
@@ -1328,7 +1358,8 @@ static PyObject *format_rows(PyObject *self, PyObject *args) {
             if (dec[j] < 0 && isfinite(x) && fabs(x) < 9e18) {
                 long long v = (long long)x;
                 if (v < 0) { buf[pos++] = '-'; }
-                pos += digits(v < 0 ? (unsigned long long)(-(v + 1)) + 1 : (unsigned long long)v, 1, buf + pos);
+                unsigned long long u = v < 0 ? (unsigned long long)(-(v + 1)) + 1 : (unsigned long long)v;
+                pos = put_digits(u, buf + pos) - buf;
             } else {
                 pos += fixed(x, dec[j] < 0 ? 0 : dec[j], buf + pos);
             }
