@@ -27,6 +27,7 @@ import vqf
 from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.fused import Fused
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
+from magnet.attitude.heading_gate import HeadingGate
 from magnet.attitude.turn_gate import TurnGate, fuse_rows, run_gated
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu
@@ -114,6 +115,7 @@ class Fusion:
         watch: bool = True,
         heading_bias: bool = False,
         turn_gate: bool = True,
+        heading_gate: bool = True,
     ) -> None:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
@@ -131,6 +133,10 @@ class Fusion:
         #: late and left out where the course turned (in a swinging hand levelled), its centripetal acceleration not
         #: taken for gravity (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
         self.turn_gate = TurnGate(self.period_s, filter_params=self.params) if turn_gate else None
+        #: with ``heading_gate`` (the default) and the turn gate, field samples at odds with vqf's heading while the
+        #: device did not turn are left out too: a disturbance that turns the field slowly (a parked car), which the
+        #: watch does not see (``magnet.attitude.heading_gate``; docs/compass.md, "Disturbances")
+        self.heading_gate = HeadingGate(self.period_s) if turn_gate and heading_gate else None
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 
@@ -152,6 +158,8 @@ class Fusion:
             self.heading_bias.reset()
         if self.turn_gate is not None:
             self.turn_gate.reset()
+        if self.heading_gate is not None:  # its blocks are the turn gate's
+            self.heading_gate.reset()
         self._recalibrated = False
         self.samples = 0
 
@@ -237,7 +245,7 @@ class Fusion:
             and (gate.alone is None or gate.alone.done)
         ):
             self.samples += hi - lo
-            fuse_rows(gate, self._filter, self.watch, inputs, lo, hi, quat, disturbed)
+            fuse_rows(gate, self._filter, self.watch, inputs, lo, hi, quat, disturbed, self.heading_gate)
         else:
             quat[lo:hi], disturbed[lo:hi] = self.update_vqf_frame(*(x[lo:hi] for x in inputs))
 
@@ -291,7 +299,10 @@ class Fusion:
         if self.turn_gate is None:
             return self._vqf_piece(gyr, acc, field, watched)
         alone = self.heading_bias is None or field is None or self._aided is not None  # no bias loop: vqf's batch
-        return run_gated(self.turn_gate, self._filter, None if alone else self._vqf_piece, (gyr, acc, field), watched)
+        return run_gated(
+            self.turn_gate, self._filter, None if alone else self._vqf_piece, (gyr, acc, field), watched,
+            self.heading_gate,
+        )  # fmt: skip
 
     def _vqf_piece(
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray
@@ -386,7 +397,8 @@ def fuse_causal(
     t_s: np.ndarray | None = None,
     vel_ned_ms: np.ndarray | None = None,
     watch: bool = True,
+    heading_gate: bool = True,
 ) -> Fused:
     """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``; ``watch``
-    as there."""
-    return Fusion(period_s, params, watch).update(gyr_rads, acc_ms2, mag, t_s, vel_ned_ms)
+    and ``heading_gate`` as there."""
+    return Fusion(period_s, params, watch, heading_gate=heading_gate).update(gyr_rads, acc_ms2, mag, t_s, vel_ned_ms)
