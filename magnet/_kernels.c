@@ -1232,8 +1232,9 @@ static int digit_count(unsigned long long v) {
     return v < 10 ? n : v < 100 ? n + 1 : v < 1000 ? n + 2 : n + 3;
 }
 
-/* "0000" .. "9999": four digits a division (made at import, ``PyInit__kernels``) */
-static char digit_quads[40000];
+/* "0000" .. "9999": four digits a step (made at import, ``PyInit__kernels``), and 4 bytes of slack after the last so
+ * that a copy of 4 bytes starting inside the last quad stays inside the table */
+static char digit_quads[40004];
 
 static void make_digit_quads(void) {
     for (int v = 0; v < 10000; v++) {
@@ -1244,12 +1245,21 @@ static void make_digit_quads(void) {
     }
 }
 
-/* The digits of ``v`` (v >= 0) at ``out``, at least ``width`` of them (zeros in front; width <= 20), written from
- * the last backwards in place, four a division (the copies through a buffer and two digits a division were most of
- * ``format_rows``); returns how many. */
-static int digits(unsigned long long v, int width, char *out) {
+/* The last ``n`` (1 to 4) digits of the quad of ``q`` (q < 10^n) at ``out``: one copy of 4 bytes, of which the
+ * 4 - n past the digits are scratch that the caller writes over next (``format_rows`` keeps room for them). */
+static inline char *put_quad_tail(unsigned q, int n, char *out) {
+    memcpy(out, digit_quads + 4 * q + 4 - n, 4);
+    return out + n;
+}
+
+/* The digits of ``v`` at ``out`` (no zeros in front); returns the end. The usual values (below 10^4) in one copy;
+ * larger ones four digits a division, from the last backwards. */
+static inline char *put_digits(unsigned long long v, char *out) {
+    if (v < 10000) {
+        int k = v < 10 ? 1 : v < 100 ? 2 : v < 1000 ? 3 : 4;
+        return put_quad_tail((unsigned)v, k, out);
+    }
     int n = digit_count(v);
-    if (n < width) n = width;
     char *p = out + n;
     while (v >= 10000) {
         unsigned q = (unsigned)(v % 10000);
@@ -1258,46 +1268,66 @@ static int digits(unsigned long long v, int width, char *out) {
         memcpy(p, digit_quads + 4 * q, 4);
     }
     int k = v < 10 ? 1 : v < 100 ? 2 : v < 1000 ? 3 : 4;
-    p -= k;
-    for (int i = 0; i < k; i++) p[i] = digit_quads[4 * v + 4 - k + i];
-    while (p > out) *--p = '0';
-    return n;
+    memcpy(p - k, digit_quads + 4 * v + 4 - k, (size_t)k);
+    return out + n;
 }
 
-/* x with ``d`` decimals at ``out`` (room for 400 bytes); returns the bytes written. Fast integer path where the
- * rounding of x * 10^d cannot differ from that of the exact value; printf (correctly rounded, as Python) elsewhere. */
-static int fixed(double x, int d, char *out) {
+/* ``v`` (v < 10^d, d <= 9) as exactly ``d`` digits (zeros in front) at ``out``; returns the end. */
+static inline char *put_fraction(unsigned long long v, int d, char *out) {
+    switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
+        case 0: return out;
+        case 1: case 2: case 3: case 4: return put_quad_tail((unsigned)v, d, out);
+        case 5: case 6: case 7: case 8:
+            out = put_quad_tail((unsigned)(v / 10000), d - 4, out);
+            return put_quad_tail((unsigned)(v % 10000), 4, out);
+        default:
+            out = put_quad_tail((unsigned)(v / 100000000), 1, out);
+            out = put_quad_tail((unsigned)(v / 10000 % 10000), 4, out);
+            return put_quad_tail((unsigned)(v % 10000), 4, out);
+    }
+}
+
+/* x with ``d`` decimals at ``out`` (room for 400 bytes and 4 of scratch past them); returns the bytes written. Fast
+ * integer path where the rounding of x * 10^d cannot differ from that of the exact value; printf (correctly rounded,
+ * as Python) elsewhere. */
+static inline int fixed(double x, int d, char *out) {
     static const double tens[] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9};
-    if (isnan(x)) { memcpy(out, "nan", 3); return 3; }
-    if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
+    static const unsigned long long powers[] = {1ULL, 10ULL, 100ULL, 1000ULL, 10000ULL, 100000ULL, 1000000ULL,
+                                                10000000ULL, 100000000ULL, 1000000000ULL};
     if (d <= 9) {
         double scaled = fabs(x) * tens[d];
-        if (scaled < 1e15) {
+        if (scaled < 1e15) { /* NaN fails this too */
             /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
             unsigned long long whole = (unsigned long long)scaled;
             double frac = scaled - (double)whole;
             if (fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
                 unsigned long long r = whole + (frac > 0.5), units, decimals;
                 switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
-                    case 0: units = r; decimals = 0; break;
-                    case 1: units = r / 10; decimals = r % 10; break;
-                    case 2: units = r / 100; decimals = r % 100; break;
-                    case 3: units = r / 1000; decimals = r % 1000; break;
-                    case 4: units = r / 10000; decimals = r % 10000; break;
-                    case 5: units = r / 100000; decimals = r % 100000; break;
-                    case 6: units = r / 1000000; decimals = r % 1000000; break;
-                    case 7: units = r / 10000000; decimals = r % 10000000; break;
-                    case 8: units = r / 100000000; decimals = r % 100000000; break;
-                    default: units = r / 1000000000; decimals = r % 1000000000; break;
+                    case 0: units = r; break;
+                    case 1: units = r / 10; break;
+                    case 2: units = r / 100; break;
+                    case 3: units = r / 1000; break;
+                    case 4: units = r / 10000; break;
+                    case 5: units = r / 100000; break;
+                    case 6: units = r / 1000000; break;
+                    case 7: units = r / 10000000; break;
+                    case 8: units = r / 100000000; break;
+                    default: units = r / 1000000000; break;
                 }
-                int n = 0;
-                if (signbit(x)) out[n++] = '-';
-                n += digits(units, 1, out + n);
-                if (d > 0) { out[n++] = '.'; n += digits(decimals, d, out + n); }
-                return n;
+                decimals = r - units * powers[d];
+                char *p = out;
+                if (signbit(x)) *p++ = '-';
+                p = put_digits(units, p);
+                if (d > 0) {
+                    *p++ = '.';
+                    p = put_fraction(decimals, d, p);
+                }
+                return (int)(p - out);
             }
         }
     }
+    if (isnan(x)) { memcpy(out, "nan", 3); return 3; }
+    if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
     return snprintf(out, 400, "%.*f", d, x);
 }
 
@@ -1328,7 +1358,8 @@ static PyObject *format_rows(PyObject *self, PyObject *args) {
             if (dec[j] < 0 && isfinite(x) && fabs(x) < 9e18) {
                 long long v = (long long)x;
                 if (v < 0) { buf[pos++] = '-'; }
-                pos += digits(v < 0 ? (unsigned long long)(-(v + 1)) + 1 : (unsigned long long)v, 1, buf + pos);
+                unsigned long long u = v < 0 ? (unsigned long long)(-(v + 1)) + 1 : (unsigned long long)v;
+                pos = put_digits(u, buf + pos) - buf;
             } else {
                 pos += fixed(x, dec[j] < 0 ? 0 : dec[j], buf + pos);
             }
@@ -2279,8 +2310,9 @@ static PyObject *vqf_travelled(PyObject *self, PyObject *args) {
  * ``vqf.VQF`` given, as aided_update drives it), its attitude and bias read at each block's start: one call a batch
  * instead of a Python loop over 0.5 s blocks. The settings and the state are float64 arrays laid out by the T_* and
  * G_* indices below, mirrored in turn_gate.py; the state's tail holds the last 2 (width - 1) rotations about the
- * vertical, the last width - 1 specific forces in the integrated frame, and the last gait_width magnitudes, oldest
- * first, then the last gait_width body rates (3 each). */
+ * vertical, the last width - 1 specific forces in the integrated frame, the last gait_width magnitudes and the last
+ * gait_width body rates (3 each), each a ring whose oldest entry is at G_SAMPLES modulo its length (``ring_head``): a
+ * piece writes its own samples only, instead of shifting 60 kB of windows (at 500 Hz) through the cache. */
 enum {
     T_PERIOD, T_WIDTH, T_GAIT_WIDTH, T_LAG_LO, T_LAG_HI, T_STRIDE_LO, T_STRIDE_HI, T_MAX_HOLD, T_BLOCK, T_TURN_DEG,
     T_GAIT_SD, T_GAIT_CORR, T_SWING_SD, T_SWING_MAX, T_SWING_CORR, T_SIZE
@@ -2295,6 +2327,37 @@ typedef struct {
     double *seen, *all_earth, *held, *centred, *up, *spin; /* scratch for pieces of up to ``block`` samples (centred:
                                                             * gait_width + block; spin: 3 (gait_width + block)) */
 } Gate;
+
+/* The scratch of the gate's pieces, kept from call to call (the GIL held: one user at a time): no allocation of
+ * ~90 kB (at 500 Hz) per call, which glibc's heap, trimmed at 128 kB in the services, faulted in afresh. */
+static double *gate_scratch = NULL;
+static size_t gate_scratch_doubles = 0;
+
+/* Where the oldest of a ring of ``length`` entries is after ``samples`` samples (the next entry's place). */
+static Py_ssize_t ring_head(double samples, Py_ssize_t length) {
+    return length > 0 ? (Py_ssize_t)samples % length : 0;
+}
+
+/* A ring of ``length`` rows of ``k`` doubles, oldest at ``head``, into ``out`` oldest first. */
+static void ring_read(const double *ring, Py_ssize_t length, Py_ssize_t k, Py_ssize_t head, double *out) {
+    memcpy(out, ring + k * head, sizeof(double) * (size_t)(k * (length - head)));
+    memcpy(out + k * (length - head), ring, sizeof(double) * (size_t)(k * head));
+}
+
+/* ``n`` new rows of ``k`` doubles appended to a ring of ``length`` rows whose oldest was at ``head`` (the last
+ * ``length`` of them where n is more). */
+static void ring_write(double *ring, Py_ssize_t length, Py_ssize_t k, Py_ssize_t head, const double *rows,
+                       Py_ssize_t n) {
+    if (length <= 0) return;
+    Py_ssize_t skip = n > length ? n - length : 0, at = (head + skip) % length, left = n - skip;
+    while (left > 0) {
+        Py_ssize_t part = length - at < left ? length - at : left;
+        memcpy(ring + k * at, rows + k * skip, sizeof(double) * (size_t)(k * part));
+        skip += part;
+        left -= part;
+        at = 0;
+    }
+}
 
 static Py_ssize_t gate_state_size(const double *s) {
     Py_ssize_t w = (Py_ssize_t)s[T_WIDTH];
@@ -2313,12 +2376,17 @@ static int gate_open(Gate *e, const double *s, double *g) {
     e->mags = e->earth + 3 * (e->width - 1);
     e->rates = e->mags + e->gait_width;
     Py_ssize_t w = e->width, b = e->block, gw = e->gait_width;
-    e->seen = PyMem_Malloc(sizeof(double) * (size_t)(2 * (w - 1) + b + 3 * (w - 1 + b) + 4 * b + gw + b + 3 * b +
-                                                     3 * (gw + b)));
-    if (e->seen == NULL) {
-        PyErr_NoMemory();
-        return -1;
+    size_t need = (size_t)(2 * (w - 1) + b + 3 * (w - 1 + b) + 4 * b + gw + b + 3 * b + 3 * (gw + b));
+    if (need > gate_scratch_doubles) {
+        double *grown = PyMem_Realloc(gate_scratch, sizeof(double) * need);
+        if (grown == NULL) {
+            PyErr_NoMemory();
+            return -1;
+        }
+        gate_scratch = grown;
+        gate_scratch_doubles = need;
     }
+    e->seen = gate_scratch;
     e->all_earth = e->seen + 2 * (w - 1) + b;
     e->held = e->all_earth + 3 * (w - 1 + b);
     e->centred = e->held + 4 * b;
@@ -2327,7 +2395,7 @@ static int gate_open(Gate *e, const double *s, double *g) {
     return 0;
 }
 
-static void gate_free(Gate *e) { PyMem_Free(e->seen); }
+static void gate_free(Gate *e) { e->seen = NULL; } /* the scratch is kept (gate_scratch) */
 
 /* v + w t + u x t, t = 2 u x v: a body vector in the frame a quaternion q (w, u) integrates (field_watch.to_frame). */
 static void to_frame3(const double q[4], const double v[3], double out[3]) {
@@ -2340,7 +2408,7 @@ static void to_frame3(const double q[4], const double v[3], double out[3]) {
 
 /* TurnGate._gait: whether the last gait_width magnitudes are a gait (the stride set where they are). */
 static int gate_gait(Gate *e) {
-    const double *s = e->s, *m = e->mags;
+    const double *s = e->s, *m = e->centred; /* the magnitudes oldest first (gate_piece), centred in place */
     Py_ssize_t n = e->gait_width;
     if (isnan(m[0])) return 0;
     double mean = pairwise_sum(m, n, 1) / (double)n, power = 0.0;
@@ -2373,7 +2441,7 @@ static int gate_gait(Gate *e) {
  * about their mean (RMS of the vector) between swing_sd and swing_max, repeating at a stride's lag (the summed
  * products of the centred rates over swing_corr times their power). */
 static int gate_swing(Gate *e) {
-    const double *s = e->s, *r = e->rates;
+    const double *s = e->s, *r = e->spin; /* the rates oldest first (gate_piece), centred in place */
     Py_ssize_t n = e->gait_width;
     if (isnan(r[0])) return 0;
     double *x = e->spin, power = 0.0;
@@ -2449,10 +2517,14 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
     const double *s = e->s;
     double *g = e->g, period = s[T_PERIOD];
     Py_ssize_t w1 = e->width - 1, gw = e->gait_width;
-    if ((Py_ssize_t)g[G_SAMPLES] % e->block == 0) {
+    double samples = g[G_SAMPLES]; /* before this piece: where each ring's oldest entry is */
+    Py_ssize_t at_recent = ring_head(samples, 2 * w1), at_earth = ring_head(samples, w1), at_gw = ring_head(samples, gw);
+    if ((Py_ssize_t)samples % e->block == 0) {
         memcpy(g + G_ATTITUDE, start, 4 * sizeof(double));
         memcpy(g + G_BIAS, bias_in, 3 * sizeof(double));
+        ring_read(e->rates, gw, 3, at_gw, e->spin);
         g[G_IN_SWING] = gate_swing(e);
+        if (g[G_IN_SWING] == 0.0) ring_read(e->mags, gw, 1, at_gw, e->centred);
         g[G_IN_GAIT] = g[G_IN_SWING] == 0.0 && gate_gait(e);
     }
     g[G_SAMPLES] += (double)n;
@@ -2460,8 +2532,11 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
     double att[4], held[4];
     memcpy(att, g + G_ATTITUDE, sizeof(att));
     memcpy(held, g + G_HELD, sizeof(held));
-    memcpy(e->seen, e->recent, sizeof(double) * (size_t)(2 * w1));
-    memcpy(e->all_earth, e->earth, sizeof(double) * (size_t)(3 * w1));
+    int in_gait = g[G_IN_GAIT] != 0.0, in_swing = g[G_IN_SWING] != 0.0;
+    if (in_gait || in_swing) { /* the windows before the piece, oldest first, ahead of its own samples */
+        ring_read(e->recent, 2 * w1, 1, at_recent, e->seen);
+        ring_read(e->earth, w1, 3, at_earth, e->all_earth);
+    }
     for (Py_ssize_t i = 0; i < n; i++) {
         const double *a = acc + 3 * i;
         double r[3] = {gyr[3 * i] - bias[0], gyr[3 * i + 1] - bias[1], gyr[3 * i + 2] - bias[2]};
@@ -2478,7 +2553,6 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
         e->seen[2 * w1 + i] = v[2] * period;
         to_frame3(held, a, e->all_earth + 3 * (w1 + i));
         e->centred[i] = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]); /* the magnitudes, for a moment */
-        memcpy(e->spin + 3 * gw + 3 * i, gyr + 3 * i, 3 * sizeof(double)); /* the rates, for a moment */
         /* vqf's vertical (z up in its Earth frame) in the body, then in the held frame */
         double inverse[4] = {att[0], -att[1], -att[2], -att[3]}, z[3] = {0.0, 0.0, 1.0}, body[3];
         to_frame3(inverse, z, body);
@@ -2489,26 +2563,15 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
         double hn = sqrt(held[0] * held[0] + held[1] * held[1] + held[2] * held[2] + held[3] * held[3]);
         for (int k = 0; k < 4; k++) g[G_HELD + k] = held[k] / hn;
     }
-    /* the magnitudes' ring: the last gait_width of old and new */
-    if (n >= gw) {
-        memcpy(e->mags, e->centred + (n - gw), sizeof(double) * (size_t)gw);
-    } else {
-        memmove(e->mags, e->mags + n, sizeof(double) * (size_t)(gw - n));
-        memcpy(e->mags + (gw - n), e->centred, sizeof(double) * (size_t)n);
-    }
-    if (n >= gw) {
-        memcpy(e->rates, e->spin + 3 * gw + 3 * (n - gw), sizeof(double) * (size_t)(3 * gw));
-    } else {
-        memmove(e->rates, e->rates + 3 * n, sizeof(double) * (size_t)(3 * (gw - n)));
-        memcpy(e->rates + 3 * (gw - n), e->spin + 3 * gw, sizeof(double) * (size_t)(3 * n));
-    }
-    memcpy(e->recent, e->seen + n, sizeof(double) * (size_t)(2 * w1));
-    memcpy(e->earth, e->all_earth + 3 * n, sizeof(double) * (size_t)(3 * w1));
-    int in_gait = g[G_IN_GAIT] != 0.0;
+    /* the piece's own samples into the rings */
+    ring_write(e->mags, gw, 1, at_gw, e->centred, n);
+    ring_write(e->rates, gw, 3, at_gw, gyr, n);
+    ring_write(e->recent, 2 * w1, 1, at_recent, e->seen + 2 * w1, n);
+    ring_write(e->earth, w1, 3, at_earth, e->all_earth + 3 * w1, n);
     if (!in_gait) {
         memset(gated, 0, (size_t)n);
         if (fed != acc) memcpy(fed, acc, sizeof(double) * (size_t)(3 * n));
-        if (g[G_IN_SWING] == 0.0) {
+        if (!in_swing) {
             if (n > 0) g[G_RUN] = 0.0;
             return 0;
         }

@@ -110,7 +110,8 @@ class TurnGate:
     swing: each sample's own, levelled where the course turned over the two strides before it. State: the last
     2 window - 1 samples' rotations about the vertical (rad), their specific forces in the frame the gyroscope's
     integration holds still, that integration, the last ``gait_s`` of |specific force| and of body rates, the
-    block's attitude and bias, the samples gated (or levelled) without a break; bounded.
+    block's attitude and bias, the samples gated (or levelled) without a break; bounded. The windows are rings in the
+    state (a piece writes its own samples only), read oldest first through the attributes below.
 
     The per-sample maths is compiled (``magnet._kernels.gate_update``; ``run_gated`` runs a whole batch and vqf in one
     call, ``gated_run``): the settings and the state are float64 arrays (``settings``, ``state``) laid out as the C
@@ -200,25 +201,32 @@ class TurnGate:
         """Samples gated without a break up to now."""
         return int(self.state[_LAYOUT["run"]])
 
+    def _ring(self, part: int, columns: int) -> np.ndarray:
+        """Part ``part`` of the state's tail, a ring of rows of ``columns`` whose oldest row is at ``samples``
+        modulo its length (``magnet/_kernels.c``, ``ring_head``), oldest first (a copy)."""
+        stop = self._parts[part + 1] if part + 1 < len(self._parts) else len(self.state)
+        rows = self.state[self._parts[part] : stop].reshape(-1, columns)
+        return np.roll(rows, -(self.samples % len(rows)) if len(rows) else 0, axis=0)
+
     @property
     def recent(self) -> np.ndarray:
-        """The last 2 (width - 1) samples' rotations about the vertical (rad), oldest first (a view)."""
-        return self.state[self._parts[0] : self._parts[1]]
+        """The last 2 (width - 1) samples' rotations about the vertical (rad), oldest first (a copy)."""
+        return self._ring(0, 1).reshape(-1)
 
     @property
     def earth_acc(self) -> np.ndarray:
         """The last width - 1 samples' specific forces (width - 1, 3) in the integrated frame (NaN: not seen)."""
-        return self.state[self._parts[1] : self._parts[2]].reshape(-1, 3)
+        return self._ring(1, 3)
 
     @property
     def magnitudes(self) -> np.ndarray:
         """The last ``gait_s`` of |specific force| (gait_width,) m/s^2, oldest first (NaN: not seen)."""
-        return self.state[self._parts[2] : self._parts[3]]
+        return self._ring(2, 1).reshape(-1)
 
     @property
     def rates(self) -> np.ndarray:
         """The last ``gait_s`` of body rates (gait_width, 3) rad/s as measured, oldest first (NaN: not seen)."""
-        return self.state[self._parts[3] :].reshape(-1, 3)
+        return self._ring(3, 3)
 
     def left_in_block(self) -> int:
         """Samples until the present block ends (a batch is cut there, vqf's state taken at the next start)."""

@@ -31,6 +31,7 @@ from magnet.calibration.base import FitError
 from magnet.calibration.field_input import MIN_FIELD_SAMPLES
 from magnet.calibration.field_input import FieldInput as FieldInput  # the record, named where the fit is
 from magnet.calibration.ladder import AUTO_HINT, IDENTIFIED_DEG, RungFit, first_offset, fit_rung
+from magnet.calibration.level import level_in_turns
 from magnet.calibration.rungs import (
     LEVEL_OFFSET,
     OFFSET,
@@ -132,6 +133,8 @@ def fit_field(
     planar = is_planar(ev.down)
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
     ev, vertical_kept, no_place = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: nothing holds it
+    if planar and (ev_motion is None or ev_motion.source != motion.AIDED_SOURCE):
+        ev = level_in_turns(ev, inp.gyr, inp.vel_ned_ms)
 
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
         calibration = _record(result, inp, ev, len(inp.mag))

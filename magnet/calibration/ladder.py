@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -130,11 +131,10 @@ def _skew(w: np.ndarray) -> np.ndarray:
 
 def _gyroscope_block(
     ev: Evidence, point: _Point, rows: np.ndarray, sigma: float
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """The windows' residuals (3 M,) and Jacobian (3 M, P), weighted; None without windows. With w = P^T b(s), P
-    the turn the gyroscope measured over the window (dt long) and beta its bias, the true turn is about
-    P exp(-[beta dt]x), so the residual is b(e) - w + dt [w]x beta: a gyroscope's bias (a phone's reaches 0.5
-    deg/s) is a parameter, not an error the offset soaks up."""
+) -> tuple[np.ndarray, Callable[[], np.ndarray]] | None:
+    """The windows' residuals (3 M,) and a function making their Jacobian (3 M, P), weighted; None without windows.
+    With w = P^T b(s), P the turn the gyroscope measured over the window (dt long) and beta its bias, the true turn is
+    about P exp(-[beta dt]x): the residual is b(e) - w + dt [w]x beta (a phone's bias reaches 0.5 deg/s)."""
     if ev.spans is None or ev.period_s is None:
         return None
     starts, ends, back = ev.spans
@@ -146,10 +146,13 @@ def _gyroscope_block(
     dt = ((e_ - s_) * ev.period_s)[:, None, None]
     w_cross = _skew(w) * dt
     r = (point.b[e_] - w + np.einsum("nij,j->ni", w_cross, point.beta)).reshape(-1)
-    jo = (-(np.eye(3)[None] - p_) @ point.a).reshape(-1, 3)
-    je = (point.db_de[e_] - np.einsum("nij,njk->nik", p_, point.db_de[s_])).reshape(len(r), -1)
-    jb = w_cross.reshape(-1, 3)
-    return r / sigma, np.hstack([jo, je, np.zeros((len(r), 1)), jb]) / sigma
+
+    def jacobian() -> np.ndarray:
+        jo = (-(np.eye(3)[None] - p_) @ point.a).reshape(-1, 3)
+        je = (point.db_de[e_] - np.einsum("nij,njk->nik", p_, point.db_de[s_])).reshape(len(r), -1)
+        return np.hstack([jo, je, np.zeros((len(r), 1)), w_cross.reshape(-1, 3)]) / sigma
+
+    return r / sigma, jacobian
 
 
 def _priors(ev: Evidence, rung: Rung, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -167,25 +170,26 @@ def _priors(ev: Evidence, rung: Rung, x: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def _residuals(
     ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray, sigma: dict[str, float]
-) -> tuple[np.ndarray, np.ndarray]:
-    """(weighted residuals (R,), weighted Jacobian (R, P)) at x = (o (3), E free, v, beta (3)) over the used rows:
-    the magnitude, the vertical field, the gyroscope's windows and the priors."""
+) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
+    """(weighted residuals (R,), a function making their weighted Jacobian (R, P): a refused trial needs none) at x = (o
+    (3), E free, v, beta (3)) over the used rows: the magnitude, the vertical field, the gyroscope's windows, priors."""
     point = _point(ev, rung, x)
     idx = np.flatnonzero(rows)
     norm = np.linalg.norm(point.b[idx], axis=1)
     blocks_r = [(norm - ev.field_ut) / sigma["magnitude"]]
-    blocks_j = [point.rows(point.b[idx] / norm[:, None], idx, 0.0, sigma["magnitude"])]
+    blocks_j: list[Callable[[], np.ndarray]] = []
+    blocks_j.append(lambda: point.rows(point.b[idx] / norm[:, None], idx, 0.0, sigma["magnitude"]))
     if ev.down is not None:
         known = idx[np.all(np.isfinite(ev.down[idx]), axis=1)]
         d = ev.down[known]
         blocks_r.append((np.einsum("ni,ni->n", d, point.b[known]) - point.v) / sigma["vertical"])
-        blocks_j.append(point.rows(d, known, -1.0, sigma["vertical"]))
+        blocks_j.append(lambda: point.rows(d, known, -1.0, sigma["vertical"]))
     gyroscope = _gyroscope_block(ev, point, rows, sigma["gyroscope"])
     if gyroscope is not None:
         blocks_r.append(gyroscope[0])
         blocks_j.append(gyroscope[1])
     prior_r, prior_j = _priors(ev, rung, x)
-    return np.concatenate([*blocks_r, prior_r]), np.vstack([*blocks_j, prior_j])
+    return np.concatenate([*blocks_r, prior_r]), lambda: np.vstack([*(block() for block in blocks_j), prior_j])
 
 
 def _block_spreads(ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray) -> dict[str, float]:
@@ -210,21 +214,24 @@ def _gram(j: np.ndarray) -> np.ndarray:
 
 
 def _solve(ev: Evidence, rung: Rung, x: np.ndarray, rows: np.ndarray, sigma: dict[str, float]) -> np.ndarray:
-    """Gauss-Newton with a little Levenberg-Marquardt damping from x."""
+    """Gauss-Newton with a little Levenberg-Marquardt damping from x; J and J^T J made only at points stepped from."""
     damping = 1e-6
-    r, j = _residuals(ev, rung, x, rows, sigma)
+    r, jacobian = _residuals(ev, rung, x, rows, sigma)
+    j = jacobian()
     cost = float(np.einsum("r,r->", r, r))
+    normal, gradient = _gram(j), -np.einsum("ri,r->i", j, r)
     for _ in range(ITERATIONS):
-        normal = _gram(j)
-        step = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), -np.einsum("ri,r->i", j, r))
+        step = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), gradient)
         trial = x + step
-        r2, j2 = _residuals(ev, rung, trial, rows, sigma)
+        r2, jacobian = _residuals(ev, rung, trial, rows, sigma)
         cost2 = float(np.einsum("r,r->", r2, r2))
         if cost2 <= cost:
-            x, r, j, cost = trial, r2, j2, cost2
+            x, r, cost = trial, r2, cost2
             damping = max(damping / 10, 1e-9)
             if np.max(np.abs(step[:3])) < STEP_TOL * ev.field_ut and np.max(np.abs(step[3:]), initial=0) < STEP_TOL:
                 break
+            j = jacobian()
+            normal, gradient = _gram(j), -np.einsum("ri,r->i", j, r)
         else:
             damping *= 10
             if damping > 1e6:
@@ -340,7 +347,7 @@ def fit_rung(ev: Evidence, rung: Rung, start: np.ndarray, rows: np.ndarray | Non
         raise FitError(f"{rung.name}: fewer than 30 samples agree with one field: keep away from iron while moving")
     x = _solve(ev, rung, x, used, sigma)
     sigma = _block_spreads(ev, rung, x, used)
-    _, j = _residuals(ev, rung, x, used, sigma)
+    j = _residuals(ev, rung, x, used, sigma)[1]()
     identified, eigen, weakest = _identified_deg(ev, rung, j, step)
     if ev.vertical_ut is not None and abs(float(x[3 + free]) - ev.vertical_ut) > VERTICAL_LIMIT_UT:
         identified = math.inf  # a minimum far from the WMM's dip: the motion did not pin the offset down

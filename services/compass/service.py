@@ -11,7 +11,8 @@ and out of the compass's core (``magnet.compass.CompassCore``): decode -> step -
 callback; every handler runs through ``services.common.guard`` (a failure drops and counts the messages it held, or
 answers the query with an error; the loop goes on). Counters (received, published, dropped by cause) answer on
 ``<prefix>/@status/<name>``, from Zenoh's thread with what the loop last wrote (``services.common.status_board``: a
-status never waits for a drain). The options are in ``services.compass.settings``; docs/compass.md follows one sample.
+status never waits for a drain); ``--metrics`` serves what the loop writes on a second board, never the core. The
+options are in ``services.compass.settings``; docs/compass.md follows one sample.
 """
 
 from __future__ import annotations
@@ -63,6 +64,9 @@ DRAIN_BYTES = 8 * 1024 * 1024
 #: seconds a drain may take: a slower one (a flood of new ids: each new device's state made) shrinks the next, so
 #: the status and the stop signal, seen between drains, wait at most about this long (issue 32)
 STEP_BUDGET_S = 0.25
+#: how often at most the loop writes what --metrics serves (s): scrapes come every few seconds, and a vehicle's report
+#: costs more than the status the status board gets 20 times a second
+METRICS_REFRESH_S = 1.0
 REQUERY_S = 5.0  # how often to ask again for the calibration of a device that has none
 REQUERY_REFUSED_S = 1.0  # how often at most to ask the calibrators again after refusing a calibration
 #: how often at most to ask for every calibration again because calibrators' tokens appeared (many at once: one query)
@@ -86,7 +90,9 @@ def add_compass_arguments(parser: argparse.ArgumentParser) -> None:
     metrics.add_metrics_argument(parser)
 
 
-def _metrics_status(core: CompassCore, name: str) -> dict[str, Any]:
+def metrics_status(core: CompassCore, name: str) -> dict[str, Any]:
+    """What ``--metrics`` serves (made on the loop's thread, written on the loop's metrics board): the status, the
+    open alerts by kind and every vehicle's report."""
     alerts: dict[str, int] = {}
     for alert in core.watch.open_alerts():
         alerts[alert.kind.value] = alerts.get(alert.kind.value, 0) + 1
@@ -157,10 +163,11 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
             settings.shard,
             declination,
         )
-        loop = _Loop(session, core, settings)
+        loop = _Loop(session, core, settings, metrics_address is not None)
         declared.callback(loop.close)
         declared.enter_context(session.declare_queryable(wire.status_key(prefix, name), loop.board.answer))
-        metrics.start(metrics_address, "compass", lambda: _metrics_status(core, name))
+        if loop.metrics_board is not None:  # what the loop wrote, never its state (scrapes run on their own thread)
+            metrics.start(metrics_address, "compass", loop.metrics_board.read)
         gc.collect()
         gc.freeze()  # what exists now (modules, settings, places) lives as long as the process: never scanned again
         gc.set_threshold(GC_THRESHOLD, 20, 20)
@@ -190,7 +197,9 @@ class _Ends:
 class _Loop:
     """One compass loop's session work: calibration queries and their replies, headings published."""
 
-    def __init__(self, session: zenoh.Session, core: CompassCore, settings: CompassSettings) -> None:
+    def __init__(
+        self, session: zenoh.Session, core: CompassCore, settings: CompassSettings, with_metrics: bool = False
+    ) -> None:
         self.session, self.core = session, core
         self.prefix, self.devices = settings.zenoh.prefix, settings.devices
         self.sinks = open_sinks(session, settings)
@@ -202,6 +211,12 @@ class _Loop:
         #: the status, answered from Zenoh's thread with what the loop last wrote (services.common.status_board)
         self.board = StatusBoard(wire.status_key(self.prefix, settings.name), self.guard)
         self.board.write(core.status(settings.name).to_dict())
+        #: what ``--metrics`` serves (status, open alerts, vehicles), written by the loop at most every
+        #: ``METRICS_REFRESH_S`` and only with --metrics: a scrape reads it and never touches the core
+        self.metrics_board: StatusBoard | None = None
+        if with_metrics:
+            self.metrics_board = StatusBoard(self.board.key, self.guard, refresh_s=METRICS_REFRESH_S)
+            self.metrics_board.write(metrics_status(core, settings.name))
 
     def step(self, ends: _Ends, name: str) -> bool:
         """One round of the loop, every handler through the guard (none ends the compass); False when no raw
@@ -224,6 +239,8 @@ class _Loop:
             self._pace(len(samples), time.perf_counter() - started)
         if self.board.due():
             self.board.write(self.core.status(name).to_dict())
+        if self.metrics_board is not None and self.metrics_board.due():
+            self.metrics_board.write(metrics_status(self.core, name))
         return bool(samples)
 
     def _pace(self, taken: int, took_s: float) -> None:

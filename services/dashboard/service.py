@@ -47,6 +47,15 @@ MAX_CONNECTIONS = 256
 #: a message logged over and over (uvicorn's 503s) goes to the log once per this many seconds, with its count
 LOG_EVERY_S = 10.0
 
+#: the batch size the dashboard's links negotiate (bytes; Zenoh's default 65,535): every message received is a slice
+#: of the batch it came in, so a sample waiting in a ring keeps that whole buffer. A flood's headings and progress,
+#: sent a few to a batch, held 64 kB each in the rings of 1,024: the dashboard's RSS rose 13-21 MB within each flood
+#: of 20,000 ids (a reproduction; 20-40 MB in the soak) and 2-4 MB with batches of 8 kB. The dashboard receives small
+#: messages (larger ones, replies and the raw messages it refuses, are cut into fragments and joined again); a
+#: --config file replaces this
+BATCH_BYTES = 8192
+ZENOH_DEFAULTS = {"transport/link/tx/batch_size": str(BATCH_BYTES)}
+
 __all__ = ["add_arguments", "page_address", "run"]
 
 
@@ -107,7 +116,7 @@ def serve(settings: DashboardSettings) -> int:
         forget_after_s=settings.forget_after_s,
     )
     with contextlib.ExitStack() as stack:
-        session = stack.enter_context(open_session(settings.zenoh))
+        session = stack.enter_context(open_session(settings.zenoh, ZENOH_DEFAULTS))
         metrics.start(settings.metrics, "dashboard", state.metrics_status)
         stack.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "dashboard", "dashboard")))
         ingest = stack.enter_context(Ingest(session, prefix, state, tick_s=settings.refresh_s))
