@@ -132,11 +132,12 @@ class Fusion:
         #: with ``turn_gate`` (the default), in a gait (a walker's or runner's steps) the accelerometer is fed a window
         #: late and left out where the course turned (in a swinging hand levelled), its centripetal acceleration not
         #: taken for gravity (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
+        #: with ``heading_gate`` too (the default), field samples at odds with vqf's heading while the device did not
+        #: turn are left out: a slow turn of the field (a parked car) the watch does not see (``magnet.attitude.
+        #: heading_gate``, judged in the turn gate's blocks; docs/compass.md, "Disturbances")
         self.turn_gate = TurnGate(self.period_s, filter_params=self.params) if turn_gate else None
-        #: with ``heading_gate`` (the default) and the turn gate, field samples at odds with vqf's heading while the
-        #: device did not turn are left out too: a disturbance that turns the field slowly (a parked car), which the
-        #: watch does not see (``magnet.attitude.heading_gate``; docs/compass.md, "Disturbances")
-        self.heading_gate = HeadingGate(self.period_s) if turn_gate and heading_gate else None
+        if self.turn_gate is not None and heading_gate:
+            self.turn_gate.heading = HeadingGate(self.period_s)
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 
@@ -158,8 +159,6 @@ class Fusion:
             self.heading_bias.reset()
         if self.turn_gate is not None:
             self.turn_gate.reset()
-        if self.heading_gate is not None:  # its blocks are the turn gate's
-            self.heading_gate.reset()
         self._recalibrated = False
         self.samples = 0
 
@@ -245,7 +244,7 @@ class Fusion:
             and (gate.alone is None or gate.alone.done)
         ):
             self.samples += hi - lo
-            fuse_rows(gate, self._filter, self.watch, inputs, lo, hi, quat, disturbed, self.heading_gate)
+            fuse_rows(gate, self._filter, self.watch, inputs, lo, hi, quat, disturbed)
         else:
             quat[lo:hi], disturbed[lo:hi] = self.update_vqf_frame(*(x[lo:hi] for x in inputs))
 
@@ -299,10 +298,7 @@ class Fusion:
         if self.turn_gate is None:
             return self._vqf_piece(gyr, acc, field, watched)
         alone = self.heading_bias is None or field is None or self._aided is not None  # no bias loop: vqf's batch
-        return run_gated(
-            self.turn_gate, self._filter, None if alone else self._vqf_piece, (gyr, acc, field), watched,
-            self.heading_gate,
-        )  # fmt: skip
+        return run_gated(self.turn_gate, self._filter, None if alone else self._vqf_piece, (gyr, acc, field), watched)
 
     def _vqf_piece(
         self, gyr: np.ndarray, acc: np.ndarray, field: np.ndarray | None, watched: np.ndarray

@@ -32,6 +32,7 @@ and within ``gated_run`` and ``fuse_rows``); tested against the plain maths.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -146,3 +147,16 @@ class HeadingGate:
             np.ascontiguousarray(bias, dtype=float).reshape(3), float(delta_rad), float(k_mag_init), fed, flags,
         )  # fmt: skip
         return (fed if given is not None else None), flags
+
+    def judge(
+        self, filter_: Any, gyr: np.ndarray, field: np.ndarray | None, start_wxyz: np.ndarray, bias: np.ndarray
+    ) -> tuple[np.ndarray | None, np.ndarray]:
+        """``update`` with vqf's ``delta`` and ``kMagInit`` read from ``filter_`` (a ``vqf.VQF``) at a block's start."""
+        at_start = self.samples % self.block == 0
+        delta, init = (float(filter_.getDelta()), float(filter_.state["kMagInit"])) if at_start else (0.0, 0.0)
+        return self.update(gyr, field, start_wxyz, bias, delta, init)
+
+
+def kernel_arrays(gate: HeadingGate | None) -> tuple[Any, Any]:
+    """A heading gate's settings and state for ``magnet._kernels.gated_run`` and ``fuse_rows`` (None, None: none)."""
+    return (None, None) if gate is None else (gate.settings_array, gate.state)
