@@ -7,6 +7,7 @@
  * Quaternions are w, x, y, z; vectors x, y, z; no allocation, no Python objects inside the loops. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -1207,6 +1208,36 @@ static PyObject *tilt_heading(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+PyDoc_STRVAR(column_checks_doc,
+             "column_checks(matrix, out)\n\n"
+             "Per column j of matrix (N, K) float64, in one pass over its rows: out[j, 0] the largest |x| of its finite "
+             "values (0 with none), out[j, 1] how many are NaN, out[j, 2] how many are infinite (out (K, 3) float64). "
+             "What a CSV reader checks of a table of numbers (services.common.inputs.csvio), without three numpy "
+             "reductions along the table's short axis.");
+
+static PyObject *column_checks(PyObject *self, PyObject *args) {
+    PyObject *o_matrix, *o_out;
+    if (!PyArg_ParseTuple(args, "OO", &o_matrix, &o_out)) {
+        return NULL;
+    }
+    Array a[2];
+    if (get_array(o_matrix, &a[0], 2, -1, -1, 0, "matrix") < 0) return NULL;
+    if (get_array(o_out, &a[1], 2, a[0].cols, 3, 1, "out") < 0) { release(a, 1); return NULL; }
+    for (Py_ssize_t j = 0; j < a[0].cols; j++) AT(a[1], j, 0) = AT(a[1], j, 1) = AT(a[1], j, 2) = 0.0;
+    for (Py_ssize_t i = 0; i < a[0].rows; i++) { /* row by row: the table's own order in memory */
+        for (Py_ssize_t j = 0; j < a[0].cols; j++) {
+            double x = fabs(AT(a[0], i, j));
+            if (x <= DBL_MAX) {
+                if (x > AT(a[1], j, 0)) AT(a[1], j, 0) = x;
+            } else {
+                AT(a[1], j, isnan(x) ? 1 : 2) += 1.0;
+            }
+        }
+    }
+    release(a, 2);
+    Py_RETURN_NONE;
+}
+
 PyDoc_STRVAR(format_rows_doc,
              "format_rows(matrix, decimals) -> bytes\n\n"
              "The CSV lines of matrix (N, K) float64: column j printed as Python's '%.{d}f' % x for d = decimals[j] "
@@ -1287,48 +1318,87 @@ static inline char *put_fraction(unsigned long long v, int d, char *out) {
     }
 }
 
-/* x with ``d`` decimals at ``out`` (room for 400 bytes and 4 of scratch past them); returns the bytes written. Fast
- * integer path where the rounding of x * 10^d cannot differ from that of the exact value; printf (correctly rounded,
- * as Python) elsewhere. */
-static inline int fixed(double x, int d, char *out) {
+/* x with ``d`` decimals (d <= 9) at ``out`` where the rounding of x * 10^d cannot differ from that of the exact value
+ * (an integer path); returns the bytes written (at most 26, and 4 of scratch past them), or -1 where it can differ or
+ * x is not finite (``fixed`` then asks printf). Inlined with a constant ``d`` by ``format_column``. */
+static inline __attribute__((always_inline)) int fast_fixed(double x, int d, char *out) {
     static const double tens[] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9};
     static const unsigned long long powers[] = {1ULL, 10ULL, 100ULL, 1000ULL, 10000ULL, 100000ULL, 1000000ULL,
                                                 10000000ULL, 100000000ULL, 1000000000ULL};
-    if (d <= 9) {
-        double scaled = fabs(x) * tens[d];
-        if (scaled < 1e15) { /* NaN fails this too */
-            /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
-            unsigned long long whole = (unsigned long long)scaled;
-            double frac = scaled - (double)whole;
-            if (fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
-                unsigned long long r = whole + (frac > 0.5), units, decimals;
-                switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
-                    case 0: units = r; break;
-                    case 1: units = r / 10; break;
-                    case 2: units = r / 100; break;
-                    case 3: units = r / 1000; break;
-                    case 4: units = r / 10000; break;
-                    case 5: units = r / 100000; break;
-                    case 6: units = r / 1000000; break;
-                    case 7: units = r / 10000000; break;
-                    case 8: units = r / 100000000; break;
-                    default: units = r / 1000000000; break;
-                }
-                decimals = r - units * powers[d];
-                char *p = out;
-                if (signbit(x)) *p++ = '-';
-                p = put_digits(units, p);
-                if (d > 0) {
-                    *p++ = '.';
-                    p = put_fraction(decimals, d, p);
-                }
-                return (int)(p - out);
-            }
-        }
+    double scaled = fabs(x) * tens[d];
+    if (!(scaled < 1e15)) return -1; /* NaN fails this too */
+    /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
+    unsigned long long whole = (unsigned long long)scaled;
+    double frac = scaled - (double)whole;
+    if (!(fabs(frac - 0.5) > scaled * 1e-15 + 1e-12)) return -1;
+    unsigned long long r = whole + (frac > 0.5);
+    unsigned long long units = r / powers[d]; /* a constant divisor once inlined: a multiplication */
+    char *p = out;
+    *p = '-';
+    p += signbit(x) != 0;
+    p = put_digits(units, p);
+    if (d > 0) {
+        *p++ = '.';
+        p = put_fraction(r - units * powers[d], d, p);
     }
+    return (int)(p - out);
+}
+
+/* '%d' % x (Python's: x truncated) at ``out`` for |x| < 9e18; returns the bytes written (at most 20, and 4 of
+ * scratch past them), or -1 for any other x (``fixed`` with 0 decimals then writes it, as Python's '%d' would not:
+ * format_rows' doc). */
+static inline __attribute__((always_inline)) int fast_integer(double x, char *out) {
+    if (!(fabs(x) < 9e18)) return -1;
+    long long v = (long long)x;
+    char *p = out;
+    *p = '-';
+    p += v < 0;
+    return (int)(put_digits(v < 0 ? (unsigned long long)(-(v + 1)) + 1 : (unsigned long long)v, p) - out);
+}
+
+/* x with ``d`` decimals (0 .. 20) at ``out`` (room for 400 bytes and 4 of scratch past them); returns the bytes
+ * written: ``fast_fixed`` where it can, printf (correctly rounded, as Python) elsewhere. */
+static int fixed(double x, int d, char *out) {
+    int n = d <= 9 ? fast_fixed(x, d, out) : -1;
+    if (n >= 0) return n;
     if (isnan(x)) { memcpy(out, "nan", 3); return 3; }
     if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
     return snprintf(out, 400, "%.*f", d, x);
+}
+
+/* ``format_rows`` a block at a time: each value in a slot of its own, column by column (so that each loop has one
+ * constant number of decimals), then the slots' bytes joined row by row */
+#define FORMAT_SLOT 32
+#define FORMAT_BLOCK 256
+
+/* Rows lo .. hi of column j of ``a`` into their slots (row r - lo at ``slots + (r - lo) * stride``), their lengths
+ * into ``lengths`` (same steps); -1 where ``format_rows`` must write the value itself (``fixed``). */
+static void format_column(const Array *a, Py_ssize_t j, Py_ssize_t lo, Py_ssize_t hi, int d, char *slots,
+                          int *lengths, Py_ssize_t step) {
+#define FORMAT_LOOP(CALL)                                                           \
+    for (Py_ssize_t i = lo; i < hi; i++) {                                          \
+        double x = AT(*a, i, j);                                                    \
+        lengths[(i - lo) * step] = CALL(x, slots + (i - lo) * step * FORMAT_SLOT); \
+    }
+#define FORMAT_D(D) \
+    case D: { FORMAT_LOOP(FORMAT_FIXED_##D) break; }
+#define FORMAT_FIXED_0(x, out) fast_fixed(x, 0, out)
+#define FORMAT_FIXED_1(x, out) fast_fixed(x, 1, out)
+#define FORMAT_FIXED_2(x, out) fast_fixed(x, 2, out)
+#define FORMAT_FIXED_3(x, out) fast_fixed(x, 3, out)
+#define FORMAT_FIXED_4(x, out) fast_fixed(x, 4, out)
+#define FORMAT_FIXED_5(x, out) fast_fixed(x, 5, out)
+#define FORMAT_FIXED_6(x, out) fast_fixed(x, 6, out)
+#define FORMAT_FIXED_7(x, out) fast_fixed(x, 7, out)
+#define FORMAT_FIXED_8(x, out) fast_fixed(x, 8, out)
+#define FORMAT_FIXED_9(x, out) fast_fixed(x, 9, out)
+#define FORMAT_NONE(x, out) ((void)(x), (void)(out), -1)
+    switch (d) {
+        case -1: { FORMAT_LOOP(fast_integer) break; }
+        FORMAT_D(0) FORMAT_D(1) FORMAT_D(2) FORMAT_D(3) FORMAT_D(4)
+        FORMAT_D(5) FORMAT_D(6) FORMAT_D(7) FORMAT_D(8) FORMAT_D(9)
+        default: { FORMAT_LOOP(FORMAT_NONE) break; }
+    }
 }
 
 static PyObject *format_rows(PyObject *self, PyObject *args) {
@@ -1348,24 +1418,41 @@ static PyObject *format_rows(PyObject *self, PyObject *args) {
             return NULL;
         }
     }
-    Py_ssize_t size = 64 + a.rows * a.cols * 12, pos = 0;
+    Py_ssize_t size = 64 + a.rows * a.cols * 12, pos = 0, cols = a.cols;
     char *buf = PyMem_Malloc(size);
-    if (buf == NULL) { release(&a, 1); PyBuffer_Release(&decimals); return PyErr_NoMemory(); }
-    for (Py_ssize_t i = 0; i < a.rows; i++) {
-        if (room(&buf, &size, pos, 420 * a.cols) < 0) { PyMem_Free(buf); release(&a, 1); PyBuffer_Release(&decimals); return NULL; }
-        for (Py_ssize_t j = 0; j < a.cols; j++) {
-            double x = AT(a, i, j);
-            if (dec[j] < 0 && isfinite(x) && fabs(x) < 9e18) {
-                long long v = (long long)x;
-                if (v < 0) { buf[pos++] = '-'; }
-                unsigned long long u = v < 0 ? (unsigned long long)(-(v + 1)) + 1 : (unsigned long long)v;
-                pos = put_digits(u, buf + pos) - buf;
-            } else {
-                pos += fixed(x, dec[j] < 0 ? 0 : dec[j], buf + pos);
+    char *slots = PyMem_Malloc((size_t)(FORMAT_BLOCK * (cols ? cols : 1) * FORMAT_SLOT));
+    int *lengths = PyMem_Malloc((size_t)(FORMAT_BLOCK * (cols ? cols : 1)) * sizeof(int));
+    if (buf == NULL || slots == NULL || lengths == NULL) {
+        PyMem_Free(buf), PyMem_Free(slots), PyMem_Free(lengths);
+        release(&a, 1);
+        PyBuffer_Release(&decimals);
+        return PyErr_NoMemory();
+    }
+    for (Py_ssize_t lo = 0; lo < a.rows; lo += FORMAT_BLOCK) {
+        Py_ssize_t hi = lo + FORMAT_BLOCK < a.rows ? lo + FORMAT_BLOCK : a.rows;
+        for (Py_ssize_t j = 0; j < cols; j++) format_column(&a, j, lo, hi, dec[j], slots + j * FORMAT_SLOT, lengths + j, cols);
+        for (Py_ssize_t i = lo; i < hi; i++) {
+            if (room(&buf, &size, pos, 420 * cols) < 0) {
+                PyMem_Free(buf), PyMem_Free(slots), PyMem_Free(lengths);
+                release(&a, 1);
+                PyBuffer_Release(&decimals);
+                return NULL;
             }
-            buf[pos++] = j + 1 < a.cols ? ',' : '\n';
+            const char *slot = slots + (i - lo) * cols * FORMAT_SLOT;
+            const int *length = lengths + (i - lo) * cols;
+            for (Py_ssize_t j = 0; j < cols; j++, slot += FORMAT_SLOT) {
+                if (length[j] >= 0) {
+                    memcpy(buf + pos, slot, FORMAT_SLOT); /* the bytes past its length are written over next */
+                    pos += length[j];
+                } else {
+                    pos += fixed(AT(a, i, j), dec[j] < 0 ? 0 : dec[j], buf + pos);
+                }
+                buf[pos++] = j + 1 < cols ? ',' : '\n';
+            }
         }
     }
+    PyMem_Free(slots);
+    PyMem_Free(lengths);
     PyObject *out = PyBytes_FromStringAndSize(buf, pos);
     PyMem_Free(buf);
     release(&a, 1);
@@ -2928,6 +3015,7 @@ static PyMethodDef methods[] = {
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
     {"row_faults", row_faults, METH_VARARGS, row_faults_doc},
     {"tilt_heading", tilt_heading, METH_VARARGS, tilt_heading_doc},
+    {"column_checks", column_checks, METH_VARARGS, column_checks_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
     {"vqf_probe", vqf_probe, METH_VARARGS, vqf_probe_doc},

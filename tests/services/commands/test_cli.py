@@ -68,3 +68,33 @@ def test_keep_freed_memory_is_set_on_glibc_and_nothing_elsewhere():
     from services.common.allocator import keep_freed_memory
 
     assert keep_freed_memory() == (platform.libc_ver()[0] == "glibc")
+
+
+@pytest.mark.parametrize("command, settles", [("heading", True), ("fit", True), ("export", False)])
+def test_an_array_command_run_as_the_process_loads_without_collections_then_freezes(command, settles, monkeypatch):
+    import gc
+
+    import services.cli as cli
+
+    seen = []
+    real_build = cli.build_parser
+
+    def build(argv):  # what the collector is doing while the command's module loads
+        seen.append(gc.isenabled())
+        return real_build(argv)
+
+    monkeypatch.setattr(cli, "build_parser", build)
+    monkeypatch.setattr(sys, "argv", ["magnet", command, "--help"])
+    gc.unfreeze()
+    try:
+        with pytest.raises(SystemExit):
+            main()  # the process's own command line
+        assert seen == [not settles] and gc.isenabled()
+        assert (gc.get_freeze_count() > 0) == settles
+        gc.unfreeze()
+        with pytest.raises(SystemExit):
+            main([command, "--help"])  # called with its arguments (as here): the collector left alone
+        assert seen[-1] and gc.get_freeze_count() == 0
+    finally:
+        gc.unfreeze()
+        gc.enable()
