@@ -4,9 +4,9 @@ Schedule: after ``WARMUP_S`` (devices collect and calibrate), one fault every ``
 ``CYCLE``, round and round, until ``SETTLE_S`` before the end (the pipeline heals before the figures are read). The
 cycle is three rounds; each round kills one service (calibrator, compass, edge in turn) then inflicts a flood of ids
 (on Zenoh, which the compass's ROS 2 side takes too: the ROS 2 flood; and on the MAVLink edge's port at once), bombs
-(the flood first: so the first round's bombs and streams meet the tables the flood filled), a router restart, a full disk and the calibrator's database deleted (the calibrator restarted after
-``DELETE_HOLD_S``); 2,000 dashboard event streams come with the bombs. So each service lives through three rounds
-of every other fault.
+(the flood first: so the first round's bombs and streams meet the tables the flood filled), a router restart, a
+full disk and the calibrator's database deleted (the calibrator restarted after ``DELETE_HOLD_S``); 2,000 dashboard
+event streams come with the bombs. So each service lives through three rounds of every other fault.
 
 Figures:
 - calibrations lost: devices whose calibration was seen published (its ``created_ns``) and which the calibrator does
