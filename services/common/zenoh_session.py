@@ -148,6 +148,11 @@ def zenoh_message(exc: BaseException) -> str:
     return _RUST_LOCATION.sub("", str(exc)).strip()
 
 
+def session_mode(options: Options) -> str:
+    """The mode a session opened with these options takes (the option, else the config file's, else the default)."""
+    return str(json.loads(build_config(options).get_json("mode")))
+
+
 def open_session(options: Options, defaults: Mapping[str, str] | None = None) -> zenoh.Session:
     """Open a session from the options (``ZenohSettings``, or the parsed options of ``add_zenoh_arguments``) and the
     service's ``defaults`` (see ``build_config``); use it as a context manager so it is closed (or the process never
