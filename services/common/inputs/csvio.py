@@ -26,6 +26,8 @@ from typing import BinaryIO, TextIO
 
 import numpy as np
 
+from magnet import _kernels
+
 MAG_COLUMNS = ("mx", "my", "mz")
 ACC_COLUMNS = ("ax", "ay", "az")
 GYRO_COLUMNS = ("gx", "gy", "gz")
@@ -230,21 +232,15 @@ def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0)
     if values.shape != (values.shape[0], len(header)) or values.shape[0] == 0:
         return None
     sensors = [i for i, name in enumerate(header) if name in (*MAG_COLUMNS, *ACC_COLUMNS, *GYRO_COLUMNS)]
-    held = [i for i, name in enumerate(header) if name in VELOCITY_COLUMNS]
-    others = [i for i in range(len(header)) if i not in held]
-    finite = np.isfinite(values).all() if not held else np.isfinite(values[:, others]).all()
-    if not finite or np.isinf(values[:, held]).any():
-        return None
-    widest = np.maximum(-values.min(axis=0), values.max(axis=0))  # |x| per column (NaN in a held column: no fix)
-    if (widest[sensors] > MAX_READING).any():
+    others = [i for i, name in enumerate(header) if name not in VELOCITY_COLUMNS]  # NaN in vn,ve,vd: no fix yet
+    checks = np.empty((len(header), 3))  # per column: the widest finite |x|, how many NaN, how many infinite
+    _kernels.column_checks(values, checks)  # one pass over the table (three numpy reductions along its short axis)
+    if checks[:, 2].any() or checks[others, 1].any() or (checks[sensors, 0] > MAX_READING).any():
         return None
     columns: dict[str, list[str] | np.ndarray] = {name: values[:, i] for i, name in enumerate(header) if name}
-    acc = (
-        np.ascontiguousarray(values[:, [header.index(c) for c in ACC_COLUMNS]])
-        if set(ACC_COLUMNS) <= set(header)
-        else None
-    )
-    mag = np.ascontiguousarray(values[:, [header.index(c) for c in MAG_COLUMNS]])
+    # (N, 3) copies by ``take``: C-contiguous, a fifth of the time of fancy indexing's
+    acc = values.take([header.index(c) for c in ACC_COLUMNS], axis=1) if set(ACC_COLUMNS) <= set(header) else None
+    mag = values.take([header.index(c) for c in MAG_COLUMNS], axis=1)
     return SampleTable(path, mag, acc, columns)
 
 
@@ -300,8 +296,6 @@ def write_csv(
     stream.write(",".join(header) + "\n")
     decimals = [_decimals(f) for f in formats]
     if all(d is not None for d in decimals):  # the same characters, from magnet._kernels.format_rows (5x faster)
-        from magnet import _kernels
-
         codes = bytes(255 if d == -1 else d for d in decimals if d is not None)
         binary = _bytes_below(stream)
         for lo in range(0, count, WRITE_ROWS * 4):

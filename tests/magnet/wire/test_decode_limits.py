@@ -231,3 +231,26 @@ def test_real_records_fit_well_within_the_calibration_limits():
         record = msgpack.unpackb(payload)
         assert len(record) * 4 < wire.CALIBRATION_LIMITS.map
         assert wire.decode_calibration(payload).calibration.method == method
+
+
+def test_the_kept_walker_gives_a_fresh_unpackers_verdict_whatever_came_before():
+    """The whole-payload walk reuses one Unpacker per thread (codec._walk_small): after payloads cut short, with
+    trailing bytes, too deep or not msgpack at all, each payload still gets the verdict of a fresh Unpacker."""
+    from magnet.wire import codec
+
+    def fresh(payload: bytes) -> bool:
+        unpacker = msgpack.Unpacker(max_buffer_size=len(payload))
+        unpacker.feed(payload)
+        try:
+            unpacker.skip()
+        except Exception:
+            return True
+        return unpacker.tell() != len(payload)
+
+    whole = msgpack.packb({"v": 2, "data": b"x" * 3000, "rows": list(range(300))})
+    deep = b"\x91" * 2000 + b"\xc0"
+    payloads = [whole, whole[:-7], whole + b"\x00", deep, b"\xc1" * 1200, whole, whole[:1500], whole, whole * 2]
+    rng = np.random.default_rng(7)
+    payloads += [bytes(rng.integers(0, 256, 1500, dtype=np.uint8)) for _ in range(20)] + [whole]
+    assert [codec._walk_small(p, len(p)) for p in payloads] == [fresh(p) for p in payloads]
+    assert not codec._walk_small(whole, len(whole)) and codec._WALKER.unpacker is not None  # kept after a whole one

@@ -4,7 +4,9 @@ table (services.common.inputs.csvio)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from magnet import _kernels
 from services.common.inputs.csvio import parse_samples
 
 
@@ -29,3 +31,25 @@ def test_velocity_before_the_first_fix_is_nan_in_both_readers():
     fast, slow = parse_samples(text), parse_samples(text.replace("nan,nan,nan", ",,"))  # empty cells: csv module
     np.testing.assert_array_equal(fast.vel_ned_ms(), [[np.nan] * 3, [1.5, 0.0, 0.0]])
     np.testing.assert_array_equal(slow.vel_ned_ms(), fast.vel_ned_ms())
+
+
+def test_column_checks_are_the_numpy_reductions_they_replace():
+    """``column_checks`` (the CSV reader's one pass over a table) against the plain numpy: per column the widest
+    finite |x|, how many NaN, how many infinite; C-ordered, Fortran-ordered and strided tables."""
+    rng = np.random.default_rng(11)
+    for rows, cols in [(0, 3), (1, 1), (7, 4), (2000, 13)]:
+        table = rng.normal(0.0, 1.0, (rows, cols)) * 10 ** rng.uniform(-5, 12, (rows, cols))
+        mask = rng.random((rows, cols))
+        table[mask < 0.01] = np.nan
+        table[(mask >= 0.01) & (mask < 0.015)] = np.inf
+        table[(mask >= 0.015) & (mask < 0.02)] = -np.inf
+        for view in (table, np.asfortranarray(table), np.repeat(table, 2, axis=1)[:, ::2]):
+            out = np.full((cols, 3), -1.0)
+            _kernels.column_checks(view, out)
+            finite = np.isfinite(view)
+            widest = np.where(finite, np.abs(view), 0.0).max(axis=0, initial=0.0)
+            np.testing.assert_array_equal(out[:, 0], widest)
+            np.testing.assert_array_equal(out[:, 1], np.isnan(view).sum(axis=0))
+            np.testing.assert_array_equal(out[:, 2], np.isinf(view).sum(axis=0))
+    with pytest.raises(ValueError, match="out"):
+        _kernels.column_checks(np.zeros((4, 2)), np.zeros((3, 3)))
