@@ -1318,48 +1318,87 @@ static inline char *put_fraction(unsigned long long v, int d, char *out) {
     }
 }
 
-/* x with ``d`` decimals at ``out`` (room for 400 bytes and 4 of scratch past them); returns the bytes written. Fast
- * integer path where the rounding of x * 10^d cannot differ from that of the exact value; printf (correctly rounded,
- * as Python) elsewhere. */
-static inline int fixed(double x, int d, char *out) {
+/* x with ``d`` decimals (d <= 9) at ``out`` where the rounding of x * 10^d cannot differ from that of the exact value
+ * (an integer path); returns the bytes written (at most 26, and 4 of scratch past them), or -1 where it can differ or
+ * x is not finite (``fixed`` then asks printf). Inlined with a constant ``d`` by ``format_column``. */
+static inline __attribute__((always_inline)) int fast_fixed(double x, int d, char *out) {
     static const double tens[] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9};
     static const unsigned long long powers[] = {1ULL, 10ULL, 100ULL, 1000ULL, 10000ULL, 100000ULL, 1000000ULL,
                                                 10000000ULL, 100000000ULL, 1000000000ULL};
-    if (d <= 9) {
-        double scaled = fabs(x) * tens[d];
-        if (scaled < 1e15) { /* NaN fails this too */
-            /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
-            unsigned long long whole = (unsigned long long)scaled;
-            double frac = scaled - (double)whole;
-            if (fabs(frac - 0.5) > scaled * 1e-15 + 1e-12) {
-                unsigned long long r = whole + (frac > 0.5), units, decimals;
-                switch (d) { /* constant divisors: a multiplication, not a division (tens of cycles) a value */
-                    case 0: units = r; break;
-                    case 1: units = r / 10; break;
-                    case 2: units = r / 100; break;
-                    case 3: units = r / 1000; break;
-                    case 4: units = r / 10000; break;
-                    case 5: units = r / 100000; break;
-                    case 6: units = r / 1000000; break;
-                    case 7: units = r / 10000000; break;
-                    case 8: units = r / 100000000; break;
-                    default: units = r / 1000000000; break;
-                }
-                decimals = r - units * powers[d];
-                char *p = out;
-                if (signbit(x)) *p++ = '-';
-                p = put_digits(units, p);
-                if (d > 0) {
-                    *p++ = '.';
-                    p = put_fraction(decimals, d, p);
-                }
-                return (int)(p - out);
-            }
-        }
+    double scaled = fabs(x) * tens[d];
+    if (!(scaled < 1e15)) return -1; /* NaN fails this too */
+    /* below 2^53 the conversion truncates to floor(scaled) exactly, without a call to floor */
+    unsigned long long whole = (unsigned long long)scaled;
+    double frac = scaled - (double)whole;
+    if (!(fabs(frac - 0.5) > scaled * 1e-15 + 1e-12)) return -1;
+    unsigned long long r = whole + (frac > 0.5);
+    unsigned long long units = r / powers[d]; /* a constant divisor once inlined: a multiplication */
+    char *p = out;
+    *p = '-';
+    p += signbit(x) != 0;
+    p = put_digits(units, p);
+    if (d > 0) {
+        *p++ = '.';
+        p = put_fraction(r - units * powers[d], d, p);
     }
+    return (int)(p - out);
+}
+
+/* '%d' % x (Python's: x truncated) at ``out`` for |x| < 9e18; returns the bytes written (at most 20, and 4 of
+ * scratch past them), or -1 for any other x (``fixed`` with 0 decimals then writes it, as Python's '%d' would not:
+ * format_rows' doc). */
+static inline __attribute__((always_inline)) int fast_integer(double x, char *out) {
+    if (!(fabs(x) < 9e18)) return -1;
+    long long v = (long long)x;
+    char *p = out;
+    *p = '-';
+    p += v < 0;
+    return (int)(put_digits(v < 0 ? (unsigned long long)(-(v + 1)) + 1 : (unsigned long long)v, p) - out);
+}
+
+/* x with ``d`` decimals (0 .. 20) at ``out`` (room for 400 bytes and 4 of scratch past them); returns the bytes
+ * written: ``fast_fixed`` where it can, printf (correctly rounded, as Python) elsewhere. */
+static int fixed(double x, int d, char *out) {
+    int n = d <= 9 ? fast_fixed(x, d, out) : -1;
+    if (n >= 0) return n;
     if (isnan(x)) { memcpy(out, "nan", 3); return 3; }
     if (isinf(x)) { if (x < 0) { memcpy(out, "-inf", 4); return 4; } memcpy(out, "inf", 3); return 3; }
     return snprintf(out, 400, "%.*f", d, x);
+}
+
+/* ``format_rows`` a block at a time: each value in a slot of its own, column by column (so that each loop has one
+ * constant number of decimals), then the slots' bytes joined row by row */
+#define FORMAT_SLOT 32
+#define FORMAT_BLOCK 256
+
+/* Rows lo .. hi of column j of ``a`` into their slots (row r - lo at ``slots + (r - lo) * stride``), their lengths
+ * into ``lengths`` (same steps); -1 where ``format_rows`` must write the value itself (``fixed``). */
+static void format_column(const Array *a, Py_ssize_t j, Py_ssize_t lo, Py_ssize_t hi, int d, char *slots,
+                          int *lengths, Py_ssize_t step) {
+#define FORMAT_LOOP(CALL)                                                           \
+    for (Py_ssize_t i = lo; i < hi; i++) {                                          \
+        double x = AT(*a, i, j);                                                    \
+        lengths[(i - lo) * step] = CALL(x, slots + (i - lo) * step * FORMAT_SLOT); \
+    }
+#define FORMAT_D(D) \
+    case D: { FORMAT_LOOP(FORMAT_FIXED_##D) break; }
+#define FORMAT_FIXED_0(x, out) fast_fixed(x, 0, out)
+#define FORMAT_FIXED_1(x, out) fast_fixed(x, 1, out)
+#define FORMAT_FIXED_2(x, out) fast_fixed(x, 2, out)
+#define FORMAT_FIXED_3(x, out) fast_fixed(x, 3, out)
+#define FORMAT_FIXED_4(x, out) fast_fixed(x, 4, out)
+#define FORMAT_FIXED_5(x, out) fast_fixed(x, 5, out)
+#define FORMAT_FIXED_6(x, out) fast_fixed(x, 6, out)
+#define FORMAT_FIXED_7(x, out) fast_fixed(x, 7, out)
+#define FORMAT_FIXED_8(x, out) fast_fixed(x, 8, out)
+#define FORMAT_FIXED_9(x, out) fast_fixed(x, 9, out)
+#define FORMAT_NONE(x, out) ((void)(x), (void)(out), -1)
+    switch (d) {
+        case -1: { FORMAT_LOOP(fast_integer) break; }
+        FORMAT_D(0) FORMAT_D(1) FORMAT_D(2) FORMAT_D(3) FORMAT_D(4)
+        FORMAT_D(5) FORMAT_D(6) FORMAT_D(7) FORMAT_D(8) FORMAT_D(9)
+        default: { FORMAT_LOOP(FORMAT_NONE) break; }
+    }
 }
 
 static PyObject *format_rows(PyObject *self, PyObject *args) {
@@ -1379,24 +1418,41 @@ static PyObject *format_rows(PyObject *self, PyObject *args) {
             return NULL;
         }
     }
-    Py_ssize_t size = 64 + a.rows * a.cols * 12, pos = 0;
+    Py_ssize_t size = 64 + a.rows * a.cols * 12, pos = 0, cols = a.cols;
     char *buf = PyMem_Malloc(size);
-    if (buf == NULL) { release(&a, 1); PyBuffer_Release(&decimals); return PyErr_NoMemory(); }
-    for (Py_ssize_t i = 0; i < a.rows; i++) {
-        if (room(&buf, &size, pos, 420 * a.cols) < 0) { PyMem_Free(buf); release(&a, 1); PyBuffer_Release(&decimals); return NULL; }
-        for (Py_ssize_t j = 0; j < a.cols; j++) {
-            double x = AT(a, i, j);
-            if (dec[j] < 0 && isfinite(x) && fabs(x) < 9e18) {
-                long long v = (long long)x;
-                if (v < 0) { buf[pos++] = '-'; }
-                unsigned long long u = v < 0 ? (unsigned long long)(-(v + 1)) + 1 : (unsigned long long)v;
-                pos = put_digits(u, buf + pos) - buf;
-            } else {
-                pos += fixed(x, dec[j] < 0 ? 0 : dec[j], buf + pos);
+    char *slots = PyMem_Malloc((size_t)(FORMAT_BLOCK * (cols ? cols : 1) * FORMAT_SLOT));
+    int *lengths = PyMem_Malloc((size_t)(FORMAT_BLOCK * (cols ? cols : 1)) * sizeof(int));
+    if (buf == NULL || slots == NULL || lengths == NULL) {
+        PyMem_Free(buf), PyMem_Free(slots), PyMem_Free(lengths);
+        release(&a, 1);
+        PyBuffer_Release(&decimals);
+        return PyErr_NoMemory();
+    }
+    for (Py_ssize_t lo = 0; lo < a.rows; lo += FORMAT_BLOCK) {
+        Py_ssize_t hi = lo + FORMAT_BLOCK < a.rows ? lo + FORMAT_BLOCK : a.rows;
+        for (Py_ssize_t j = 0; j < cols; j++) format_column(&a, j, lo, hi, dec[j], slots + j * FORMAT_SLOT, lengths + j, cols);
+        for (Py_ssize_t i = lo; i < hi; i++) {
+            if (room(&buf, &size, pos, 420 * cols) < 0) {
+                PyMem_Free(buf), PyMem_Free(slots), PyMem_Free(lengths);
+                release(&a, 1);
+                PyBuffer_Release(&decimals);
+                return NULL;
             }
-            buf[pos++] = j + 1 < a.cols ? ',' : '\n';
+            const char *slot = slots + (i - lo) * cols * FORMAT_SLOT;
+            const int *length = lengths + (i - lo) * cols;
+            for (Py_ssize_t j = 0; j < cols; j++, slot += FORMAT_SLOT) {
+                if (length[j] >= 0) {
+                    memcpy(buf + pos, slot, FORMAT_SLOT); /* the bytes past its length are written over next */
+                    pos += length[j];
+                } else {
+                    pos += fixed(AT(a, i, j), dec[j] < 0 ? 0 : dec[j], buf + pos);
+                }
+                buf[pos++] = j + 1 < cols ? ',' : '\n';
+            }
         }
     }
+    PyMem_Free(slots);
+    PyMem_Free(lengths);
     PyObject *out = PyBytes_FromStringAndSize(buf, pos);
     PyMem_Free(buf);
     release(&a, 1);
@@ -2719,62 +2775,286 @@ done:
     return result;
 }
 
+/* ------------------------------------------------------------------------------------------------------------
+ * The heading gate (magnet.attitude.heading_gate.HeadingGate, whose docstrings are its specification): each field
+ * sample turned into vqf's 6D Earth frame (its attitude and bias read at a block's start, carried forward with the
+ * gyroscope), its heading there against vqf's magnetic heading offset delta (the innovation vqf would correct by),
+ * the sample left out where that disagreement is unusual for this device and the device has not turned about the
+ * vertical lately. Settings H_* and state HS_* float64 arrays; the state's tail: the last turn_width cumulative
+ * rotations about the vertical (a ring), then the block's disagreements (rad, NaN where left out). */
+enum {
+    H_PERIOD, H_BLOCK, H_TURN_WIDTH, H_FLOOR, H_RELATIVE, H_PERCENT, H_TAU, H_LEARN, H_HOLD, H_MAX_RUN, H_TURN,
+    H_SMOOTH, H_SIZE
+};
+enum {
+    HS_SAMPLES, HS_ATTITUDE, HS_BIAS = 5, HS_DELTA = 8, HS_INIT, HS_LEVEL, HS_SEEN, HS_HOLD_LEFT, HS_RUN,
+    HS_ACCEPTING, HS_OVER, HS_TURNED, HS_SMOOTHED, HS_RING
+};
+
+static Py_ssize_t heading_gate_state_size(const double *s) {
+    return HS_RING + (Py_ssize_t)s[H_TURN_WIDTH] + (Py_ssize_t)s[H_BLOCK];
+}
+
+/* At a block's end: the usual disagreement towards the block's 90th percentile (``percent``), an acceptance that
+ * saw no unusual sample in the block ended. */
+static void heading_gate_learn(const double *s, double *h, double *scratch) {
+    Py_ssize_t block = (Py_ssize_t)s[H_BLOCK], finite = 0;
+    double *pending = h + HS_RING + (Py_ssize_t)s[H_TURN_WIDTH];
+    for (Py_ssize_t i = 0; i < block; i++) {
+        if (isfinite(pending[i])) scratch[finite++] = pending[i];
+        pending[i] = NAN;
+    }
+    if (h[HS_ACCEPTING] != 0.0 && h[HS_OVER] == 0.0) h[HS_ACCEPTING] = 0.0;
+    h[HS_OVER] = 0.0;
+    if (finite == 0 || h[HS_INIT] != 0.0 || h[HS_ACCEPTING] != 0.0) return;
+    h[HS_SEEN] += (double)finite;
+    double alpha = -expm1(-(double)block * s[H_PERIOD] / s[H_TAU]), share = (double)block / h[HS_SEEN];
+    alpha = alpha > share ? alpha : share;
+    alpha = alpha < 1.0 ? alpha : 1.0;
+    h[HS_LEVEL] += alpha * (percentile(scratch, finite, s[H_PERCENT]) - h[HS_LEVEL]);
+}
+
+/* HeadingGate.update on n samples within a block: field rows 3 doubles apart (a zero row: left out already);
+ * ``start`` (4,), ``bias`` (3,), ``delta`` and ``init`` (vqf's kMagInit) read at a block's start only. Writes the
+ * field to feed into ``fed`` (n, 3) (may be ``field``) and the samples left out into ``flags`` (n,). Returns
+ * whether any was left out; -1 and an exception on no memory. */
+static int heading_gate_piece(const double *s, double *h, const double *gyr, const double *field, Py_ssize_t n,
+                              const double start[4], const double bias_in[3], double delta, double init,
+                              double *fed, bool *flags) {
+    Py_ssize_t block = (Py_ssize_t)s[H_BLOCK], width = (Py_ssize_t)s[H_TURN_WIDTH];
+    double period = s[H_PERIOD], *ring = h + HS_RING, *pending = ring + width;
+    double *scratch = PyMem_Malloc(sizeof(double) * (size_t)block + 1);
+    if (scratch == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    int any = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t g = (Py_ssize_t)h[HS_SAMPLES];
+        if (g % block == 0) {
+            memcpy(h + HS_ATTITUDE, start, 4 * sizeof(double));
+            memcpy(h + HS_BIAS, bias_in, 3 * sizeof(double));
+            h[HS_DELTA] = delta;
+            h[HS_INIT] = init;
+            if (init != 0.0) { /* the magnetic side (re)starting: nothing usual known yet */
+                h[HS_LEVEL] = 0.0, h[HS_SEEN] = 0.0, h[HS_RUN] = 0.0, h[HS_HOLD_LEFT] = 0.0;
+                h[HS_ACCEPTING] = 0.0, h[HS_OVER] = 0.0, h[HS_SMOOTHED] = NAN;
+            }
+        }
+        static const double none[3] = {0.0, 0.0, 0.0};
+        const double *bias = h + HS_BIAS, *v = field != NULL ? field + 3 * i : none;
+        double r[3] = {gyr[3 * i] - bias[0], gyr[3 * i + 1] - bias[1], gyr[3 * i + 2] - bias[2]};
+        double norm = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+        double angle = norm * period / 2.0, c = cos(angle), sn = norm > 0 ? sin(angle) / norm : 0.0;
+        double turn[4] = {c, r[0] * sn, r[1] * sn, r[2] * sn}, att[4], up[3], earth[3];
+        quat_mul(h + HS_ATTITUDE, turn, att);
+        double an = sqrt(att[0] * att[0] + att[1] * att[1] + att[2] * att[2] + att[3] * att[3]);
+        for (int k = 0; k < 4; k++) h[HS_ATTITUDE + k] = att[k] / an;
+        /* the rotation about the vertical over the last turn_width samples: the largest |now - then| */
+        to_frame3(h + HS_ATTITUDE, r, up);
+        h[HS_TURNED] += up[2] * period;
+        double turned = 0.0;
+        Py_ssize_t back = g < width ? g : width;
+        for (Py_ssize_t m = 1; m <= back; m++) {
+            double d = fabs(h[HS_TURNED] - ring[(g - m) % width]);
+            turned = d > turned ? d : turned;
+        }
+        ring[g % width] = h[HS_TURNED];
+        /* the disagreement: the field's heading in vqf's 6D frame less delta, within -pi .. pi, smoothed (the
+         * weight ``smooth`` a sample: a moment's spike of the magnetometer's lag in a fast turn is no disturbance) */
+        double innovation = NAN;
+        if (v[0] != 0.0 || v[1] != 0.0 || v[2] != 0.0) {
+            to_frame3(h + HS_ATTITUDE, v, earth);
+            double now = remainder(atan2(earth[0], earth[1]) - h[HS_DELTA], 2.0 * M_PI), was = h[HS_SMOOTHED];
+            innovation = isnan(was) ? now : remainder(was + s[H_SMOOTH] * remainder(now - was, 2.0 * M_PI), 2.0 * M_PI);
+            h[HS_SMOOTHED] = innovation;
+        }
+        double limit = s[H_RELATIVE] * h[HS_LEVEL];
+        limit = limit > s[H_FLOOR] ? limit : s[H_FLOOR];
+        int ready = h[HS_INIT] == 0.0 && h[HS_SEEN] * period >= s[H_LEARN] && h[HS_LEVEL] > 0.0;
+        int over = isfinite(innovation) && fabs(innovation) > limit;
+        if (over) h[HS_OVER] = 1.0;
+        int raw = ready && over && turned <= s[H_TURN] && h[HS_ACCEPTING] == 0.0;
+        int flagged = raw || (isfinite(innovation) && h[HS_HOLD_LEFT] > 0.0);
+        if (raw) {
+            h[HS_HOLD_LEFT] = s[H_HOLD];
+        } else if (flagged) {
+            h[HS_HOLD_LEFT] -= 1.0;
+        }
+        h[HS_RUN] = flagged ? h[HS_RUN] + 1.0 : 0.0;
+        if (h[HS_RUN] > s[H_MAX_RUN]) { /* unusual for too long: the field is right, the heading is not */
+            flagged = 0;
+            h[HS_RUN] = 0.0, h[HS_HOLD_LEFT] = 0.0, h[HS_ACCEPTING] = 1.0;
+        }
+        pending[g % block] = flagged ? NAN : fabs(innovation);
+        flags[i] = (bool)flagged;
+        any |= flagged;
+        if (fed != NULL) {
+            for (int k = 0; k < 3; k++) fed[3 * i + k] = flagged ? 0.0 : v[k];
+        }
+        h[HS_SAMPLES] += 1.0;
+        if ((Py_ssize_t)h[HS_SAMPLES] % block == 0) heading_gate_learn(s, h, scratch);
+    }
+    PyMem_Free(scratch);
+    return any;
+}
+
+/* The heading gate's settings (H_SIZE,) and state (its size for them), C-contiguous float64. */
+static int get_heading_gate(PyObject *o_settings, PyObject *o_state, Py_buffer b[2]) {
+    if (get_state_array(o_settings, &b[0], H_SIZE, "heading gate settings") < 0) return -1;
+    const double *s = b[0].buf;
+    if (!(s[H_BLOCK] >= 1 && s[H_TURN_WIDTH] >= 1 && s[H_PERIOD] > 0 && s[H_TAU] > 0)) {
+        PyErr_SetString(PyExc_ValueError, "heading gate settings: block, turn_width, period and tau must be positive");
+        PyBuffer_Release(&b[0]);
+        return -1;
+    }
+    if (get_state_array(o_state, &b[1], heading_gate_state_size(s), "heading gate state") < 0) {
+        PyBuffer_Release(&b[0]);
+        return -1;
+    }
+    return 0;
+}
+
+PyDoc_STRVAR(heading_gate_update_doc,
+             "heading_gate_update(settings, state, gyr, field, start, bias, delta, k_mag_init, fed, flags) -> bool\n\n"
+             "HeadingGate.update on one piece of n samples within a block: settings (H_SIZE,) and state float64 "
+             "(heading_gate.py's layout, updated in place), gyr and field (n, 3) C-contiguous, vqf's frame, ``start`` "
+             "(4,) vqf's 6D attitude, ``bias`` (3,) rad/s, vqf's ``delta`` (rad) and ``kMagInit`` (read at a block's "
+             "start); writes the field to feed into fed (n, 3) and the samples left out into flags (n,) bool. Returns "
+             "whether any was left out.");
+
+static PyObject *heading_gate_update(PyObject *self, PyObject *args) {
+    PyObject *o_settings, *o_state, *o_gyr, *o_field, *o_start, *o_bias, *o_fed, *o_flags;
+    double delta, init;
+    if (!PyArg_ParseTuple(args, "OOOOOOddOO", &o_settings, &o_state, &o_gyr, &o_field, &o_start, &o_bias, &delta,
+                          &init, &o_fed, &o_flags)) {
+        return NULL;
+    }
+    Py_buffer b[2], v[6];
+    int got = 0;
+    PyObject *result = NULL;
+    if (get_heading_gate(o_settings, o_state, b) < 0) return NULL;
+    if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
+    Py_ssize_t n = v[0].shape[0];
+    got++;
+    if (get_rows(o_field, &v[got], n, 3, 0, "field") < 0) goto done;
+    got++;
+    if (get_rows(o_start, &v[got], 4, 1, 0, "start") < 0) goto done;
+    got++;
+    if (get_rows(o_bias, &v[got], 3, 1, 0, "bias") < 0) goto done;
+    got++;
+    if (get_rows(o_fed, &v[got], n, 3, 1, "fed") < 0) goto done;
+    got++;
+    if (PyObject_GetBuffer(o_flags, &v[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) goto done;
+    got++;
+    if (v[5].itemsize != 1 || v[5].format == NULL || v[5].format[0] != '?' || v[5].len != n) {
+        PyErr_Format(PyExc_ValueError, "flags must be a C-contiguous bool array of %zd items", n);
+        goto done;
+    }
+    Py_ssize_t block = (Py_ssize_t)((double *)b[0].buf)[H_BLOCK];
+    if (n > block - (Py_ssize_t)((double *)b[1].buf)[HS_SAMPLES] % block) {
+        PyErr_SetString(PyExc_ValueError, "a piece for the heading gate must end within its block");
+        goto done;
+    }
+    int any = heading_gate_piece(b[0].buf, b[1].buf, v[0].buf, v[1].buf, n, v[2].buf, v[3].buf, delta, init,
+                                 v[4].buf, v[5].buf);
+    if (any < 0) goto done;
+    result = PyBool_FromLong(any);
+done:
+    for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
+    PyBuffer_Release(&b[0]);
+    PyBuffer_Release(&b[1]);
+    return result;
+}
+
 /* gated_run's work on n samples (rows 3 doubles apart; field NULL: without the magnetometer; quat6 NULL: not
  * wanted), the gate's settings and state already checked (``get_gate``): -1 and an exception on no memory. */
 static int gated_core(void *vqf, const double *settings, double *state, const double *gyr, const double *acc,
-                      const double *field, Py_ssize_t n, double *quat6, double *quat9, bool *rest, bool *dist) {
+                      const double *field, Py_ssize_t n, double *quat6, double *quat9, bool *rest, bool *dist,
+                      const double *heading_settings, double *heading_state) {
     Gate e;
     int failed = -1;
-    double *fed = NULL;
-    bool *gated = NULL;
+    double *fed = NULL, *field_fed = NULL;
+    bool *gated = NULL, *left_out = NULL;
     if (gate_open(&e, settings, state) < 0) return -1;
     fed = PyMem_Malloc(sizeof(double) * (size_t)(3 * e.block) + 1);
     gated = PyMem_Malloc((size_t)e.block + 1);
-    if (fed == NULL || gated == NULL) {
+    field_fed = PyMem_Malloc(sizeof(double) * (size_t)(3 * e.block) + 1);
+    left_out = PyMem_Malloc((size_t)e.block + 1);
+    if (fed == NULL || gated == NULL || field_fed == NULL || left_out == NULL) {
         PyErr_NoMemory();
         goto done;
     }
-    double start[4], bias[3];
+    if (heading_settings != NULL &&
+        ((Py_ssize_t)heading_state[HS_SAMPLES] - (Py_ssize_t)e.g[G_SAMPLES]) % e.block != 0) {
+        PyErr_SetString(PyExc_ValueError, "the heading gate's blocks must be the turn gate's (reset them together)");
+        goto done;
+    }
+    double start[4], bias[3], delta = 0.0, init = 0.0;
     for (Py_ssize_t pos = 0; pos < n;) {
         Py_ssize_t left = e.block - (Py_ssize_t)e.g[G_SAMPLES] % e.block, k = n - pos < left ? n - pos : left;
         if (left == e.block) {
             vqf_api.get_quat6d(vqf, start);
             vqf_api.get_bias(vqf, bias);
+            delta = vqf_api.get_delta(vqf);
+            init = vqf_api.get_state(vqf)->kMagInit;
         }
-        const double *a = acc + 3 * pos;
+        const double *a = acc + 3 * pos, *f = field ? field + 3 * pos : NULL;
         if (gate_piece(&e, gyr + 3 * pos, a, k, start, bias, fed, gated)) a = fed;
-        vqf_api.update_batch(vqf, gyr + 3 * pos, a, field ? field + 3 * pos : NULL, (size_t)k,
-                             quat6 ? quat6 + 4 * pos : NULL, quat9 + 4 * pos, NULL, NULL, NULL, rest + pos, dist + pos);
+        int any = 0;
+        if (heading_settings != NULL) {
+            any = heading_gate_piece(heading_settings, heading_state, gyr + 3 * pos, f, k, start, bias, delta, init,
+                                     f ? field_fed : NULL, left_out);
+            if (any < 0) goto done;
+            if (any) f = field_fed;
+        }
+        vqf_api.update_batch(vqf, gyr + 3 * pos, a, f, (size_t)k, quat6 ? quat6 + 4 * pos : NULL, quat9 + 4 * pos,
+                             NULL, NULL, NULL, rest + pos, dist + pos);
+        if (any) {
+            for (Py_ssize_t i = 0; i < k; i++) dist[pos + i] = dist[pos + i] || left_out[i];
+        }
         pos += k;
     }
     failed = 0;
 done:
     PyMem_Free(fed);
     PyMem_Free(gated);
+    PyMem_Free(field_fed);
+    PyMem_Free(left_out);
     gate_free(&e);
     return failed;
 }
 
 PyDoc_STRVAR(gated_run_doc,
-             "gated_run(filter, settings, state, gyr, acc, field, quat6, quat9, rest, disturbed)\n\n"
+             "gated_run(filter, settings, state, gyr, acc, field, quat6, quat9, rest, disturbed, heading_settings, "
+             "heading_state)\n\n"
              "One batch of N samples through the turn gate and the vqf.VQF ``filter`` (turn_gate.run_gated without "
              "a bias loop): the batch cut at the gate's blocks, vqf's 6D attitude and bias read at each block's "
              "start, each piece fed the accelerometer the gate gives (``gate_update``). gyr, acc, field (N, 3) "
              "C-contiguous, vqf's frame (field None: without the magnetometer); writes vqf's outputs quat6 (None: "
-             "not wanted), quat9 (N, 4), rest and disturbed (N,) bool.");
+             "not wanted), quat9 (N, 4), rest and disturbed (N,) bool. heading_settings and heading_state: the "
+             "heading gate's (HeadingGate; None, None: none), the field samples it leaves out fed as zero rows and "
+             "flagged disturbed.");
 
 static PyObject *gated_run(PyObject *self, PyObject *args) {
-    PyObject *o_filter, *o_settings, *o_state, *o_gyr, *o_acc, *o_field, *o_q6, *o_q9, *o_rest, *o_dist;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOO", &o_filter, &o_settings, &o_state, &o_gyr, &o_acc, &o_field, &o_q6,
-                          &o_q9, &o_rest, &o_dist)) {
+    PyObject *o_filter, *o_settings, *o_state, *o_gyr, *o_acc, *o_field, *o_q6, *o_q9, *o_rest, *o_dist, *o_hs, *o_hg;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOO", &o_filter, &o_settings, &o_state, &o_gyr, &o_acc, &o_field, &o_q6,
+                          &o_q9, &o_rest, &o_dist, &o_hs, &o_hg)) {
         return NULL;
     }
     void *vqf = vqf_object(o_filter);
     if (vqf == NULL) return NULL;
-    Py_buffer b[2], v[7];
-    int got = 0;
+    Py_buffer b[2], v[7], hb[2];
+    int got = 0, heading = o_hs != Py_None;
     PyObject *result = NULL;
-    if (get_gate(o_settings, o_state, b) < 0) return NULL;
+    if (heading && get_heading_gate(o_hs, o_hg, hb) < 0) return NULL;
+    if (get_gate(o_settings, o_state, b) < 0) {
+        if (heading) {
+            PyBuffer_Release(&hb[0]);
+            PyBuffer_Release(&hb[1]);
+        }
+        return NULL;
+    }
     if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
     Py_ssize_t n = v[0].shape[0];
     got++;
@@ -2805,7 +3085,7 @@ static PyObject *gated_run(PyObject *self, PyObject *args) {
         }
     }
     if (gated_core(vqf, b[0].buf, b[1].buf, v[0].buf, v[1].buf, field, n, quat6, quat9, v[flags_at].buf,
-                   v[flags_at + 1].buf) < 0) {
+                   v[flags_at + 1].buf, heading ? hb[0].buf : NULL, heading ? hb[1].buf : NULL) < 0) {
         goto done;
     }
     result = Py_None;
@@ -2814,35 +3094,48 @@ done:
     for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
     PyBuffer_Release(&b[0]);
     PyBuffer_Release(&b[1]);
+    if (heading) {
+        PyBuffer_Release(&hb[0]);
+        PyBuffer_Release(&hb[1]);
+    }
     return result;
 }
 
 PyDoc_STRVAR(fuse_rows_doc,
-             "fuse_rows(filter, settings, state, watch, gyr, acc, field, lo, hi, quat9, disturbed)\n\n"
+             "fuse_rows(filter, settings, state, watch, gyr, acc, field, lo, hi, quat9, disturbed, heading_settings, "
+             "heading_state)\n\n"
              "Fusion.update_vqf_frame on rows lo .. hi of a drain, in one call (the compass's path, "
              "magnet.attitude.fusion.Fusion.update_rows): the field's watch (``watch``: None, or FieldWatch's "
              "kernel_args, the tail of watch_update's arguments from widths on) on those rows' field and gyr, the "
              "samples it flags fed to vqf without their field (zero rows), then the turn gate and the vqf.VQF "
              "``filter`` as gated_run (settings and state the gate's). gyr, acc, field (S, 3) C-contiguous, vqf's "
              "frame; writes vqf's quaternions into quat9 (S, 4) rows lo .. hi and its disturbance flags, or-ed with "
-             "the watch's, into disturbed (S,) bool.");
+             "the watch's, into disturbed (S,) bool; heading_settings and heading_state: the heading gate's, as "
+             "gated_run's.");
 
 static PyObject *fuse_rows(PyObject *self, PyObject *args) {
-    PyObject *o_filter, *o_settings, *o_state, *o_watch, *o_gyr, *o_acc, *o_field, *o_q9, *o_dist;
+    PyObject *o_filter, *o_settings, *o_state, *o_watch, *o_gyr, *o_acc, *o_field, *o_q9, *o_dist, *o_hs, *o_hg;
     Py_ssize_t lo, hi;
-    if (!PyArg_ParseTuple(args, "OOOOOOOnnOO", &o_filter, &o_settings, &o_state, &o_watch, &o_gyr, &o_acc, &o_field,
-                          &lo, &hi, &o_q9, &o_dist)) {
+    if (!PyArg_ParseTuple(args, "OOOOOOOnnOOOO", &o_filter, &o_settings, &o_state, &o_watch, &o_gyr, &o_acc,
+                          &o_field, &lo, &hi, &o_q9, &o_dist, &o_hs, &o_hg)) {
         return NULL;
     }
     void *vqf = vqf_object(o_filter);
     if (vqf == NULL) return NULL;
-    Py_buffer b[2], v[5];
-    int got = 0, watching = 0;
+    Py_buffer b[2], v[5], hb[2];
+    int got = 0, watching = 0, heading = o_hs != Py_None;
     PyObject *result = NULL;
     char *watched = NULL, *rest = NULL;
     double *zeroed = NULL;
     Array wa[9];
-    if (get_gate(o_settings, o_state, b) < 0) return NULL;
+    if (heading && get_heading_gate(o_hs, o_hg, hb) < 0) return NULL;
+    if (get_gate(o_settings, o_state, b) < 0) {
+        if (heading) {
+            PyBuffer_Release(&hb[0]);
+            PyBuffer_Release(&hb[1]);
+        }
+        return NULL;
+    }
     if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
     Py_ssize_t count = v[0].shape[0];
     got++;
@@ -2904,7 +3197,7 @@ static PyObject *fuse_rows(PyObject *self, PyObject *args) {
     }
     bool *dist = (bool *)v[4].buf + lo;
     if (gated_core(vqf, b[0].buf, b[1].buf, gyr, acc, field, n, NULL, (double *)v[3].buf + 4 * lo, (bool *)rest,
-                   dist) < 0) {
+                   dist, heading ? hb[0].buf : NULL, heading ? hb[1].buf : NULL) < 0) {
         goto done;
     }
     for (Py_ssize_t i = 0; i < n; i++) dist[i] = dist[i] || watched[i];
@@ -2918,6 +3211,10 @@ done:
     for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
     PyBuffer_Release(&b[0]);
     PyBuffer_Release(&b[1]);
+    if (heading) {
+        PyBuffer_Release(&hb[0]);
+        PyBuffer_Release(&hb[1]);
+    }
     return result;
 }
 
@@ -2929,6 +3226,17 @@ static PyObject *gate_layout(PyObject *self, PyObject *args) {
                          T_GAIT_CORR, "swing_sd", T_SWING_SD, "swing_max", T_SWING_MAX, "swing_corr", T_SWING_CORR, "settings", T_SIZE,
                          "samples", G_SAMPLES, "stride", G_STRIDE, "run", G_RUN, "in_gait", G_IN_GAIT, "attitude",
                          G_ATTITUDE, "bias", G_BIAS, "held", G_HELD, "in_swing", G_IN_SWING, "recent", G_RECENT);
+}
+
+static PyObject *heading_gate_layout(PyObject *self, PyObject *args) {
+    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,"
+                         "s:i,s:i,s:i,s:i,s:i}",
+                         "period", H_PERIOD, "block", H_BLOCK, "turn_width", H_TURN_WIDTH, "floor", H_FLOOR,
+                         "relative", H_RELATIVE, "percent", H_PERCENT, "tau", H_TAU, "learn", H_LEARN, "hold", H_HOLD,
+                         "max_run", H_MAX_RUN, "turn", H_TURN, "smooth", H_SMOOTH, "settings", H_SIZE, "samples", HS_SAMPLES, "attitude",
+                         HS_ATTITUDE, "bias", HS_BIAS, "delta", HS_DELTA, "init", HS_INIT, "level", HS_LEVEL, "seen",
+                         HS_SEEN, "hold_left", HS_HOLD_LEFT, "run", HS_RUN, "accepting", HS_ACCEPTING, "over",
+                         HS_OVER, "turned", HS_TURNED, "smoothed", HS_SMOOTHED, "ring", HS_RING);
 }
 
 PyDoc_STRVAR(aided_layout_doc, "aided_layout() -> dict: the sizes and indices of the settings and state arrays.");
@@ -3084,6 +3392,9 @@ static PyMethodDef methods[] = {
     {"fuse_rows", fuse_rows, METH_VARARGS, fuse_rows_doc},
     {"gated_run", gated_run, METH_VARARGS, gated_run_doc},
     {"gate_layout", gate_layout, METH_NOARGS, "gate_layout() -> dict: the T_* and G_* indices (turn_gate.py)."},
+    {"heading_gate_update", heading_gate_update, METH_VARARGS, heading_gate_update_doc},
+    {"heading_gate_layout", heading_gate_layout, METH_NOARGS,
+     "heading_gate_layout() -> dict: the H_* and HS_* indices (heading_gate.py)."},
     {NULL, NULL, 0, NULL},
 };
 

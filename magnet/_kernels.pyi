@@ -173,6 +173,8 @@ def gated_run(
     quat9: np.ndarray,
     rest: np.ndarray,
     disturbed: np.ndarray,
+    heading_settings: np.ndarray | None,
+    heading_state: np.ndarray | None,
 ) -> None: ...
 def fuse_rows(
     filter: object,
@@ -186,7 +188,22 @@ def fuse_rows(
     hi: int,
     quat9: np.ndarray,
     disturbed: np.ndarray,
+    heading_settings: np.ndarray | None,
+    heading_state: np.ndarray | None,
 ) -> None: ...
+def heading_gate_layout() -> dict[str, int]: ...
+def heading_gate_update(
+    settings: np.ndarray,
+    state: np.ndarray,
+    gyr: np.ndarray,
+    field: np.ndarray,
+    start: np.ndarray,
+    bias: np.ndarray,
+    delta: float,
+    k_mag_init: float,
+    fed: np.ndarray,
+    flags: np.ndarray,
+) -> bool: ...
 def bias_drift(
     t_ns: np.ndarray,
     trusted: np.ndarray,

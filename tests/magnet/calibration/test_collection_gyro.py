@@ -93,6 +93,19 @@ def test_a_level_turn_waits_for_a_turn_about_a_second_axis():
     assert again.turn_wait(150) == ""
 
 
+@pytest.mark.parametrize(("turned_deg", "ready"), [(70.0, True), (40.0, False)])
+def test_auto_tries_a_level_turn_from_a_sixth_of_a_turn(turned_deg: float, ready: bool):
+    """auto's field ladder judges for itself whether a level turn identifies the offset: it is tried from 60 deg
+    about one axis (a boat turning slowly for long counts less than its heading moved: on tuning seed 19, 89 deg
+    counted by 57.5 s against 108 turned, and 90 made it wait until 77 s)."""
+    collection = Collection("auto", False, 1000)
+    n = 2000  # 20 s: turning about z at 0.2 rad/s for as long as the turn takes, the other axes only noise
+    gyr = np.random.default_rng(3).normal(scale=0.01, size=(n, 3))
+    gyr[: int(np.radians(turned_deg) / 0.2 * RATE_HZ), 2] = 0.2
+    collection.add(np.ones((n, 3)), None, gyr, PERIOD_NS * np.arange(n, dtype=np.int64), 0)
+    assert (collection.turn_wait(150) == "") is ready
+
+
 def _feed(ring: RecentRuns, t_ns: np.ndarray, seq: int) -> None:
     n = len(t_ns)
     mag = np.column_stack([t_ns, t_ns, t_ns]).astype(float)  # each row names its time
