@@ -2775,62 +2775,286 @@ done:
     return result;
 }
 
+/* ------------------------------------------------------------------------------------------------------------
+ * The heading gate (magnet.attitude.heading_gate.HeadingGate, whose docstrings are its specification): each field
+ * sample turned into vqf's 6D Earth frame (its attitude and bias read at a block's start, carried forward with the
+ * gyroscope), its heading there against vqf's magnetic heading offset delta (the innovation vqf would correct by),
+ * the sample left out where that disagreement is unusual for this device and the device has not turned about the
+ * vertical lately. Settings H_* and state HS_* float64 arrays; the state's tail: the last turn_width cumulative
+ * rotations about the vertical (a ring), then the block's disagreements (rad, NaN where left out). */
+enum {
+    H_PERIOD, H_BLOCK, H_TURN_WIDTH, H_FLOOR, H_RELATIVE, H_PERCENT, H_TAU, H_LEARN, H_HOLD, H_MAX_RUN, H_TURN,
+    H_SMOOTH, H_SIZE
+};
+enum {
+    HS_SAMPLES, HS_ATTITUDE, HS_BIAS = 5, HS_DELTA = 8, HS_INIT, HS_LEVEL, HS_SEEN, HS_HOLD_LEFT, HS_RUN,
+    HS_ACCEPTING, HS_OVER, HS_TURNED, HS_SMOOTHED, HS_RING
+};
+
+static Py_ssize_t heading_gate_state_size(const double *s) {
+    return HS_RING + (Py_ssize_t)s[H_TURN_WIDTH] + (Py_ssize_t)s[H_BLOCK];
+}
+
+/* At a block's end: the usual disagreement towards the block's 90th percentile (``percent``), an acceptance that
+ * saw no unusual sample in the block ended. */
+static void heading_gate_learn(const double *s, double *h, double *scratch) {
+    Py_ssize_t block = (Py_ssize_t)s[H_BLOCK], finite = 0;
+    double *pending = h + HS_RING + (Py_ssize_t)s[H_TURN_WIDTH];
+    for (Py_ssize_t i = 0; i < block; i++) {
+        if (isfinite(pending[i])) scratch[finite++] = pending[i];
+        pending[i] = NAN;
+    }
+    if (h[HS_ACCEPTING] != 0.0 && h[HS_OVER] == 0.0) h[HS_ACCEPTING] = 0.0;
+    h[HS_OVER] = 0.0;
+    if (finite == 0 || h[HS_INIT] != 0.0 || h[HS_ACCEPTING] != 0.0) return;
+    h[HS_SEEN] += (double)finite;
+    double alpha = -expm1(-(double)block * s[H_PERIOD] / s[H_TAU]), share = (double)block / h[HS_SEEN];
+    alpha = alpha > share ? alpha : share;
+    alpha = alpha < 1.0 ? alpha : 1.0;
+    h[HS_LEVEL] += alpha * (percentile(scratch, finite, s[H_PERCENT]) - h[HS_LEVEL]);
+}
+
+/* HeadingGate.update on n samples within a block: field rows 3 doubles apart (a zero row: left out already);
+ * ``start`` (4,), ``bias`` (3,), ``delta`` and ``init`` (vqf's kMagInit) read at a block's start only. Writes the
+ * field to feed into ``fed`` (n, 3) (may be ``field``) and the samples left out into ``flags`` (n,). Returns
+ * whether any was left out; -1 and an exception on no memory. */
+static int heading_gate_piece(const double *s, double *h, const double *gyr, const double *field, Py_ssize_t n,
+                              const double start[4], const double bias_in[3], double delta, double init,
+                              double *fed, bool *flags) {
+    Py_ssize_t block = (Py_ssize_t)s[H_BLOCK], width = (Py_ssize_t)s[H_TURN_WIDTH];
+    double period = s[H_PERIOD], *ring = h + HS_RING, *pending = ring + width;
+    double *scratch = PyMem_Malloc(sizeof(double) * (size_t)block + 1);
+    if (scratch == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    int any = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t g = (Py_ssize_t)h[HS_SAMPLES];
+        if (g % block == 0) {
+            memcpy(h + HS_ATTITUDE, start, 4 * sizeof(double));
+            memcpy(h + HS_BIAS, bias_in, 3 * sizeof(double));
+            h[HS_DELTA] = delta;
+            h[HS_INIT] = init;
+            if (init != 0.0) { /* the magnetic side (re)starting: nothing usual known yet */
+                h[HS_LEVEL] = 0.0, h[HS_SEEN] = 0.0, h[HS_RUN] = 0.0, h[HS_HOLD_LEFT] = 0.0;
+                h[HS_ACCEPTING] = 0.0, h[HS_OVER] = 0.0, h[HS_SMOOTHED] = NAN;
+            }
+        }
+        static const double none[3] = {0.0, 0.0, 0.0};
+        const double *bias = h + HS_BIAS, *v = field != NULL ? field + 3 * i : none;
+        double r[3] = {gyr[3 * i] - bias[0], gyr[3 * i + 1] - bias[1], gyr[3 * i + 2] - bias[2]};
+        double norm = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+        double angle = norm * period / 2.0, c = cos(angle), sn = norm > 0 ? sin(angle) / norm : 0.0;
+        double turn[4] = {c, r[0] * sn, r[1] * sn, r[2] * sn}, att[4], up[3], earth[3];
+        quat_mul(h + HS_ATTITUDE, turn, att);
+        double an = sqrt(att[0] * att[0] + att[1] * att[1] + att[2] * att[2] + att[3] * att[3]);
+        for (int k = 0; k < 4; k++) h[HS_ATTITUDE + k] = att[k] / an;
+        /* the rotation about the vertical over the last turn_width samples: the largest |now - then| */
+        to_frame3(h + HS_ATTITUDE, r, up);
+        h[HS_TURNED] += up[2] * period;
+        double turned = 0.0;
+        Py_ssize_t back = g < width ? g : width;
+        for (Py_ssize_t m = 1; m <= back; m++) {
+            double d = fabs(h[HS_TURNED] - ring[(g - m) % width]);
+            turned = d > turned ? d : turned;
+        }
+        ring[g % width] = h[HS_TURNED];
+        /* the disagreement: the field's heading in vqf's 6D frame less delta, within -pi .. pi, smoothed (the
+         * weight ``smooth`` a sample: a moment's spike of the magnetometer's lag in a fast turn is no disturbance) */
+        double innovation = NAN;
+        if (v[0] != 0.0 || v[1] != 0.0 || v[2] != 0.0) {
+            to_frame3(h + HS_ATTITUDE, v, earth);
+            double now = remainder(atan2(earth[0], earth[1]) - h[HS_DELTA], 2.0 * M_PI), was = h[HS_SMOOTHED];
+            innovation = isnan(was) ? now : remainder(was + s[H_SMOOTH] * remainder(now - was, 2.0 * M_PI), 2.0 * M_PI);
+            h[HS_SMOOTHED] = innovation;
+        }
+        double limit = s[H_RELATIVE] * h[HS_LEVEL];
+        limit = limit > s[H_FLOOR] ? limit : s[H_FLOOR];
+        int ready = h[HS_INIT] == 0.0 && h[HS_SEEN] * period >= s[H_LEARN] && h[HS_LEVEL] > 0.0;
+        int over = isfinite(innovation) && fabs(innovation) > limit;
+        if (over) h[HS_OVER] = 1.0;
+        int raw = ready && over && turned <= s[H_TURN] && h[HS_ACCEPTING] == 0.0;
+        int flagged = raw || (isfinite(innovation) && h[HS_HOLD_LEFT] > 0.0);
+        if (raw) {
+            h[HS_HOLD_LEFT] = s[H_HOLD];
+        } else if (flagged) {
+            h[HS_HOLD_LEFT] -= 1.0;
+        }
+        h[HS_RUN] = flagged ? h[HS_RUN] + 1.0 : 0.0;
+        if (h[HS_RUN] > s[H_MAX_RUN]) { /* unusual for too long: the field is right, the heading is not */
+            flagged = 0;
+            h[HS_RUN] = 0.0, h[HS_HOLD_LEFT] = 0.0, h[HS_ACCEPTING] = 1.0;
+        }
+        pending[g % block] = flagged ? NAN : fabs(innovation);
+        flags[i] = (bool)flagged;
+        any |= flagged;
+        if (fed != NULL) {
+            for (int k = 0; k < 3; k++) fed[3 * i + k] = flagged ? 0.0 : v[k];
+        }
+        h[HS_SAMPLES] += 1.0;
+        if ((Py_ssize_t)h[HS_SAMPLES] % block == 0) heading_gate_learn(s, h, scratch);
+    }
+    PyMem_Free(scratch);
+    return any;
+}
+
+/* The heading gate's settings (H_SIZE,) and state (its size for them), C-contiguous float64. */
+static int get_heading_gate(PyObject *o_settings, PyObject *o_state, Py_buffer b[2]) {
+    if (get_state_array(o_settings, &b[0], H_SIZE, "heading gate settings") < 0) return -1;
+    const double *s = b[0].buf;
+    if (!(s[H_BLOCK] >= 1 && s[H_TURN_WIDTH] >= 1 && s[H_PERIOD] > 0 && s[H_TAU] > 0)) {
+        PyErr_SetString(PyExc_ValueError, "heading gate settings: block, turn_width, period and tau must be positive");
+        PyBuffer_Release(&b[0]);
+        return -1;
+    }
+    if (get_state_array(o_state, &b[1], heading_gate_state_size(s), "heading gate state") < 0) {
+        PyBuffer_Release(&b[0]);
+        return -1;
+    }
+    return 0;
+}
+
+PyDoc_STRVAR(heading_gate_update_doc,
+             "heading_gate_update(settings, state, gyr, field, start, bias, delta, k_mag_init, fed, flags) -> bool\n\n"
+             "HeadingGate.update on one piece of n samples within a block: settings (H_SIZE,) and state float64 "
+             "(heading_gate.py's layout, updated in place), gyr and field (n, 3) C-contiguous, vqf's frame, ``start`` "
+             "(4,) vqf's 6D attitude, ``bias`` (3,) rad/s, vqf's ``delta`` (rad) and ``kMagInit`` (read at a block's "
+             "start); writes the field to feed into fed (n, 3) and the samples left out into flags (n,) bool. Returns "
+             "whether any was left out.");
+
+static PyObject *heading_gate_update(PyObject *self, PyObject *args) {
+    PyObject *o_settings, *o_state, *o_gyr, *o_field, *o_start, *o_bias, *o_fed, *o_flags;
+    double delta, init;
+    if (!PyArg_ParseTuple(args, "OOOOOOddOO", &o_settings, &o_state, &o_gyr, &o_field, &o_start, &o_bias, &delta,
+                          &init, &o_fed, &o_flags)) {
+        return NULL;
+    }
+    Py_buffer b[2], v[6];
+    int got = 0;
+    PyObject *result = NULL;
+    if (get_heading_gate(o_settings, o_state, b) < 0) return NULL;
+    if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
+    Py_ssize_t n = v[0].shape[0];
+    got++;
+    if (get_rows(o_field, &v[got], n, 3, 0, "field") < 0) goto done;
+    got++;
+    if (get_rows(o_start, &v[got], 4, 1, 0, "start") < 0) goto done;
+    got++;
+    if (get_rows(o_bias, &v[got], 3, 1, 0, "bias") < 0) goto done;
+    got++;
+    if (get_rows(o_fed, &v[got], n, 3, 1, "fed") < 0) goto done;
+    got++;
+    if (PyObject_GetBuffer(o_flags, &v[got], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) goto done;
+    got++;
+    if (v[5].itemsize != 1 || v[5].format == NULL || v[5].format[0] != '?' || v[5].len != n) {
+        PyErr_Format(PyExc_ValueError, "flags must be a C-contiguous bool array of %zd items", n);
+        goto done;
+    }
+    Py_ssize_t block = (Py_ssize_t)((double *)b[0].buf)[H_BLOCK];
+    if (n > block - (Py_ssize_t)((double *)b[1].buf)[HS_SAMPLES] % block) {
+        PyErr_SetString(PyExc_ValueError, "a piece for the heading gate must end within its block");
+        goto done;
+    }
+    int any = heading_gate_piece(b[0].buf, b[1].buf, v[0].buf, v[1].buf, n, v[2].buf, v[3].buf, delta, init,
+                                 v[4].buf, v[5].buf);
+    if (any < 0) goto done;
+    result = PyBool_FromLong(any);
+done:
+    for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
+    PyBuffer_Release(&b[0]);
+    PyBuffer_Release(&b[1]);
+    return result;
+}
+
 /* gated_run's work on n samples (rows 3 doubles apart; field NULL: without the magnetometer; quat6 NULL: not
  * wanted), the gate's settings and state already checked (``get_gate``): -1 and an exception on no memory. */
 static int gated_core(void *vqf, const double *settings, double *state, const double *gyr, const double *acc,
-                      const double *field, Py_ssize_t n, double *quat6, double *quat9, bool *rest, bool *dist) {
+                      const double *field, Py_ssize_t n, double *quat6, double *quat9, bool *rest, bool *dist,
+                      const double *heading_settings, double *heading_state) {
     Gate e;
     int failed = -1;
-    double *fed = NULL;
-    bool *gated = NULL;
+    double *fed = NULL, *field_fed = NULL;
+    bool *gated = NULL, *left_out = NULL;
     if (gate_open(&e, settings, state) < 0) return -1;
     fed = PyMem_Malloc(sizeof(double) * (size_t)(3 * e.block) + 1);
     gated = PyMem_Malloc((size_t)e.block + 1);
-    if (fed == NULL || gated == NULL) {
+    field_fed = PyMem_Malloc(sizeof(double) * (size_t)(3 * e.block) + 1);
+    left_out = PyMem_Malloc((size_t)e.block + 1);
+    if (fed == NULL || gated == NULL || field_fed == NULL || left_out == NULL) {
         PyErr_NoMemory();
         goto done;
     }
-    double start[4], bias[3];
+    if (heading_settings != NULL &&
+        ((Py_ssize_t)heading_state[HS_SAMPLES] - (Py_ssize_t)e.g[G_SAMPLES]) % e.block != 0) {
+        PyErr_SetString(PyExc_ValueError, "the heading gate's blocks must be the turn gate's (reset them together)");
+        goto done;
+    }
+    double start[4], bias[3], delta = 0.0, init = 0.0;
     for (Py_ssize_t pos = 0; pos < n;) {
         Py_ssize_t left = e.block - (Py_ssize_t)e.g[G_SAMPLES] % e.block, k = n - pos < left ? n - pos : left;
         if (left == e.block) {
             vqf_api.get_quat6d(vqf, start);
             vqf_api.get_bias(vqf, bias);
+            delta = vqf_api.get_delta(vqf);
+            init = vqf_api.get_state(vqf)->kMagInit;
         }
-        const double *a = acc + 3 * pos;
+        const double *a = acc + 3 * pos, *f = field ? field + 3 * pos : NULL;
         if (gate_piece(&e, gyr + 3 * pos, a, k, start, bias, fed, gated)) a = fed;
-        vqf_api.update_batch(vqf, gyr + 3 * pos, a, field ? field + 3 * pos : NULL, (size_t)k,
-                             quat6 ? quat6 + 4 * pos : NULL, quat9 + 4 * pos, NULL, NULL, NULL, rest + pos, dist + pos);
+        int any = 0;
+        if (heading_settings != NULL) {
+            any = heading_gate_piece(heading_settings, heading_state, gyr + 3 * pos, f, k, start, bias, delta, init,
+                                     f ? field_fed : NULL, left_out);
+            if (any < 0) goto done;
+            if (any) f = field_fed;
+        }
+        vqf_api.update_batch(vqf, gyr + 3 * pos, a, f, (size_t)k, quat6 ? quat6 + 4 * pos : NULL, quat9 + 4 * pos,
+                             NULL, NULL, NULL, rest + pos, dist + pos);
+        if (any) {
+            for (Py_ssize_t i = 0; i < k; i++) dist[pos + i] = dist[pos + i] || left_out[i];
+        }
         pos += k;
     }
     failed = 0;
 done:
     PyMem_Free(fed);
     PyMem_Free(gated);
+    PyMem_Free(field_fed);
+    PyMem_Free(left_out);
     gate_free(&e);
     return failed;
 }
 
 PyDoc_STRVAR(gated_run_doc,
-             "gated_run(filter, settings, state, gyr, acc, field, quat6, quat9, rest, disturbed)\n\n"
+             "gated_run(filter, settings, state, gyr, acc, field, quat6, quat9, rest, disturbed, heading_settings, "
+             "heading_state)\n\n"
              "One batch of N samples through the turn gate and the vqf.VQF ``filter`` (turn_gate.run_gated without "
              "a bias loop): the batch cut at the gate's blocks, vqf's 6D attitude and bias read at each block's "
              "start, each piece fed the accelerometer the gate gives (``gate_update``). gyr, acc, field (N, 3) "
              "C-contiguous, vqf's frame (field None: without the magnetometer); writes vqf's outputs quat6 (None: "
-             "not wanted), quat9 (N, 4), rest and disturbed (N,) bool.");
+             "not wanted), quat9 (N, 4), rest and disturbed (N,) bool. heading_settings and heading_state: the "
+             "heading gate's (HeadingGate; None, None: none), the field samples it leaves out fed as zero rows and "
+             "flagged disturbed.");
 
 static PyObject *gated_run(PyObject *self, PyObject *args) {
-    PyObject *o_filter, *o_settings, *o_state, *o_gyr, *o_acc, *o_field, *o_q6, *o_q9, *o_rest, *o_dist;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOO", &o_filter, &o_settings, &o_state, &o_gyr, &o_acc, &o_field, &o_q6,
-                          &o_q9, &o_rest, &o_dist)) {
+    PyObject *o_filter, *o_settings, *o_state, *o_gyr, *o_acc, *o_field, *o_q6, *o_q9, *o_rest, *o_dist, *o_hs, *o_hg;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOO", &o_filter, &o_settings, &o_state, &o_gyr, &o_acc, &o_field, &o_q6,
+                          &o_q9, &o_rest, &o_dist, &o_hs, &o_hg)) {
         return NULL;
     }
     void *vqf = vqf_object(o_filter);
     if (vqf == NULL) return NULL;
-    Py_buffer b[2], v[7];
-    int got = 0;
+    Py_buffer b[2], v[7], hb[2];
+    int got = 0, heading = o_hs != Py_None;
     PyObject *result = NULL;
-    if (get_gate(o_settings, o_state, b) < 0) return NULL;
+    if (heading && get_heading_gate(o_hs, o_hg, hb) < 0) return NULL;
+    if (get_gate(o_settings, o_state, b) < 0) {
+        if (heading) {
+            PyBuffer_Release(&hb[0]);
+            PyBuffer_Release(&hb[1]);
+        }
+        return NULL;
+    }
     if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
     Py_ssize_t n = v[0].shape[0];
     got++;
@@ -2861,7 +3085,7 @@ static PyObject *gated_run(PyObject *self, PyObject *args) {
         }
     }
     if (gated_core(vqf, b[0].buf, b[1].buf, v[0].buf, v[1].buf, field, n, quat6, quat9, v[flags_at].buf,
-                   v[flags_at + 1].buf) < 0) {
+                   v[flags_at + 1].buf, heading ? hb[0].buf : NULL, heading ? hb[1].buf : NULL) < 0) {
         goto done;
     }
     result = Py_None;
@@ -2870,35 +3094,48 @@ done:
     for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
     PyBuffer_Release(&b[0]);
     PyBuffer_Release(&b[1]);
+    if (heading) {
+        PyBuffer_Release(&hb[0]);
+        PyBuffer_Release(&hb[1]);
+    }
     return result;
 }
 
 PyDoc_STRVAR(fuse_rows_doc,
-             "fuse_rows(filter, settings, state, watch, gyr, acc, field, lo, hi, quat9, disturbed)\n\n"
+             "fuse_rows(filter, settings, state, watch, gyr, acc, field, lo, hi, quat9, disturbed, heading_settings, "
+             "heading_state)\n\n"
              "Fusion.update_vqf_frame on rows lo .. hi of a drain, in one call (the compass's path, "
              "magnet.attitude.fusion.Fusion.update_rows): the field's watch (``watch``: None, or FieldWatch's "
              "kernel_args, the tail of watch_update's arguments from widths on) on those rows' field and gyr, the "
              "samples it flags fed to vqf without their field (zero rows), then the turn gate and the vqf.VQF "
              "``filter`` as gated_run (settings and state the gate's). gyr, acc, field (S, 3) C-contiguous, vqf's "
              "frame; writes vqf's quaternions into quat9 (S, 4) rows lo .. hi and its disturbance flags, or-ed with "
-             "the watch's, into disturbed (S,) bool.");
+             "the watch's, into disturbed (S,) bool; heading_settings and heading_state: the heading gate's, as "
+             "gated_run's.");
 
 static PyObject *fuse_rows(PyObject *self, PyObject *args) {
-    PyObject *o_filter, *o_settings, *o_state, *o_watch, *o_gyr, *o_acc, *o_field, *o_q9, *o_dist;
+    PyObject *o_filter, *o_settings, *o_state, *o_watch, *o_gyr, *o_acc, *o_field, *o_q9, *o_dist, *o_hs, *o_hg;
     Py_ssize_t lo, hi;
-    if (!PyArg_ParseTuple(args, "OOOOOOOnnOO", &o_filter, &o_settings, &o_state, &o_watch, &o_gyr, &o_acc, &o_field,
-                          &lo, &hi, &o_q9, &o_dist)) {
+    if (!PyArg_ParseTuple(args, "OOOOOOOnnOOOO", &o_filter, &o_settings, &o_state, &o_watch, &o_gyr, &o_acc,
+                          &o_field, &lo, &hi, &o_q9, &o_dist, &o_hs, &o_hg)) {
         return NULL;
     }
     void *vqf = vqf_object(o_filter);
     if (vqf == NULL) return NULL;
-    Py_buffer b[2], v[5];
-    int got = 0, watching = 0;
+    Py_buffer b[2], v[5], hb[2];
+    int got = 0, watching = 0, heading = o_hs != Py_None;
     PyObject *result = NULL;
     char *watched = NULL, *rest = NULL;
     double *zeroed = NULL;
     Array wa[9];
-    if (get_gate(o_settings, o_state, b) < 0) return NULL;
+    if (heading && get_heading_gate(o_hs, o_hg, hb) < 0) return NULL;
+    if (get_gate(o_settings, o_state, b) < 0) {
+        if (heading) {
+            PyBuffer_Release(&hb[0]);
+            PyBuffer_Release(&hb[1]);
+        }
+        return NULL;
+    }
     if (get_rows(o_gyr, &v[got], -1, 3, 0, "gyr") < 0) goto done;
     Py_ssize_t count = v[0].shape[0];
     got++;
@@ -2960,7 +3197,7 @@ static PyObject *fuse_rows(PyObject *self, PyObject *args) {
     }
     bool *dist = (bool *)v[4].buf + lo;
     if (gated_core(vqf, b[0].buf, b[1].buf, gyr, acc, field, n, NULL, (double *)v[3].buf + 4 * lo, (bool *)rest,
-                   dist) < 0) {
+                   dist, heading ? hb[0].buf : NULL, heading ? hb[1].buf : NULL) < 0) {
         goto done;
     }
     for (Py_ssize_t i = 0; i < n; i++) dist[i] = dist[i] || watched[i];
@@ -2974,6 +3211,10 @@ done:
     for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
     PyBuffer_Release(&b[0]);
     PyBuffer_Release(&b[1]);
+    if (heading) {
+        PyBuffer_Release(&hb[0]);
+        PyBuffer_Release(&hb[1]);
+    }
     return result;
 }
 
@@ -2987,6 +3228,17 @@ static PyObject *gate_layout(PyObject *self, PyObject *args) {
                          G_ATTITUDE, "bias", G_BIAS, "held", G_HELD, "in_swing", G_IN_SWING, "recent", G_RECENT);
 }
 
+static PyObject *heading_gate_layout(PyObject *self, PyObject *args) {
+    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,"
+                         "s:i,s:i,s:i,s:i,s:i}",
+                         "period", H_PERIOD, "block", H_BLOCK, "turn_width", H_TURN_WIDTH, "floor", H_FLOOR,
+                         "relative", H_RELATIVE, "percent", H_PERCENT, "tau", H_TAU, "learn", H_LEARN, "hold", H_HOLD,
+                         "max_run", H_MAX_RUN, "turn", H_TURN, "smooth", H_SMOOTH, "settings", H_SIZE, "samples", HS_SAMPLES, "attitude",
+                         HS_ATTITUDE, "bias", HS_BIAS, "delta", HS_DELTA, "init", HS_INIT, "level", HS_LEVEL, "seen",
+                         HS_SEEN, "hold_left", HS_HOLD_LEFT, "run", HS_RUN, "accepting", HS_ACCEPTING, "over",
+                         HS_OVER, "turned", HS_TURNED, "smoothed", HS_SMOOTHED, "ring", HS_RING);
+}
+
 PyDoc_STRVAR(aided_layout_doc, "aided_layout() -> dict: the sizes and indices of the settings and state arrays.");
 
 static PyObject *aided_layout(PyObject *self, PyObject *args) {
@@ -2994,6 +3246,110 @@ static PyObject *aided_layout(PyObject *self, PyObject *args) {
                          "fixes", A_FIXES, "explained", A_EXPLAINED, "vertical", A_VERTICAL, "drift", A_DRIFT,
                          "fixes_size", F_SIZE, "explained_size", E_SIZE, "vertical_size", V_SIZE, "drift_size", D_SIZE,
                          "figures", S_DRIFT_FIGURES, "row", R_SIZE);
+}
+
+/* numpy's einsum "sij,sj->si" for one output (s, i): its sum of products over j = 0..2 as numpy 2 computes it on its
+ * baseline (X86_V2: lanes of two, a product then an add, the remainder loaded with zeros, a horizontal add, then
+ * added to the output's zero), the instructions' operands in the order numpy's own build puts them, which decides
+ * the sign of a NaN where two NaNs meet (tests/magnet/attitude/test_kernels.py compares the numbers bit by bit with
+ * numpy's, NaN's sign included). x86-64 only; elsewhere the same sums in plain C. */
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <emmintrin.h>
+/* a * b, a + b and the horizontal sum, each as one instruction whose first operand is a (its NaN wins) */
+static inline __m128d mul_first(__m128d a, __m128d b) {
+    __asm__("mulpd %1, %0" : "+x"(a) : "x"(b));
+    return a;
+}
+static inline __m128d add_first(__m128d a, __m128d b) {
+    __asm__("addpd %1, %0" : "+x"(a) : "x"(b));
+    return a;
+}
+static inline double lanes_sum(__m128d a) {
+    __asm__("haddpd %0, %0" : "+x"(a));
+    double zero = 0.0;
+    __asm__("addsd %1, %0" : "+x"(zero) : "x"(_mm_cvtsd_f64(a)));
+    return zero;
+}
+static double einsum_row3(const double *m, const double *v) {
+    __m128d acc = _mm_setzero_pd();
+    acc = add_first(acc, mul_first(_mm_loadu_pd(v), _mm_loadu_pd(m)));
+    acc = add_first(acc, mul_first(_mm_set_pd(0.0, m[2]), _mm_set_pd(0.0, v[2])));
+    return lanes_sum(acc);
+}
+#else
+static double einsum_row3(const double *m, const double *v) {
+    double lane0 = 0.0 + v[0] * m[0], lane1 = 0.0 + v[1] * m[1];
+    lane0 = lane0 + m[2] * v[2];
+    lane1 = lane1 + 0.0 * 0.0;
+    return 0.0 + (lane0 + lane1);
+}
+#endif
+
+PyDoc_STRVAR(correct_field_doc,
+             "correct_field(mag, offsets, matrices, bounds, out)\n\n"
+             "Each batch's calibration on its samples (magnet.compass.calibrations.Correction.apply): out (S, 3) = "
+             "A_b (mag - b_b) for the samples bounds[b] .. bounds[b + 1] of batch b, mag (S, 3), offsets (B, 3), "
+             "matrices (B, 9) row-major, bounds (B + 1,) int64: numpy's einsum('sij,sj->si') to the bit, without "
+             "the per-sample copies of the offsets and matrices.");
+
+static PyObject *correct_field(PyObject *self, PyObject *args) {
+    PyObject *o_mag, *o_offsets, *o_matrices, *o_bounds, *o_out;
+    if (!PyArg_ParseTuple(args, "OOOOO", &o_mag, &o_offsets, &o_matrices, &o_bounds, &o_out)) return NULL;
+    Array a[4];
+    Py_buffer bounds;
+    if (get_array(o_mag, &a[0], 2, -1, 3, 0, "mag") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_offsets, &a[1], 2, -1, 3, 0, "offsets") < 0) { release(a, 1); return NULL; }
+    Py_ssize_t count = a[1].rows;
+    if (get_array(o_matrices, &a[2], 2, count, 9, 0, "matrices") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_out, &a[3], 2, n, 3, 1, "out") < 0) { release(a, 3); return NULL; }
+    if (get_int64(o_bounds, &bounds, count + 1, "bounds") < 0) { release(a, 4); return NULL; }
+    PyObject *result = NULL;
+    for (Py_ssize_t b = 0; b < count; b++) {
+        long long lo = *(long long *)((char *)bounds.buf + b * bounds.strides[0]);
+        long long hi = *(long long *)((char *)bounds.buf + (b + 1) * bounds.strides[0]);
+        if (lo < 0 || hi > n || lo > hi) {
+            PyErr_Format(PyExc_ValueError, "batch %zd: samples %lld .. %lld out of range", b, lo, hi);
+            goto done;
+        }
+        double m[9], off[3] = {AT(a[1], b, 0), AT(a[1], b, 1), AT(a[1], b, 2)};
+        for (int k = 0; k < 9; k++) m[k] = AT(a[2], b, k);
+        for (long long i = lo; i < hi; i++) {
+            double d[3] = {AT(a[0], i, 0) - off[0], AT(a[0], i, 1) - off[1], AT(a[0], i, 2) - off[2]};
+            for (int k = 0; k < 3; k++) AT(a[3], i, k) = einsum_row3(m + 3 * k, d);
+        }
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyBuffer_Release(&bounds);
+    release(a, 4);
+    return result;
+}
+
+PyDoc_STRVAR(horizontal_force_doc,
+             "horizontal_force(rotation, acc, scale, out)\n\n"
+             "out (S, 2) = the first two rows of each rotation (S, 9) row-major times acc (S, 3), divided by "
+             "``scale`` (magnet.attitude.uncertainty: the horizontal specific force in g): numpy's "
+             "einsum('sij,sj->si', rotation[:, :2], acc) / scale to the bit.");
+
+static PyObject *horizontal_force(PyObject *self, PyObject *args) {
+    PyObject *o_rotation, *o_acc, *o_out;
+    double scale;
+    if (!PyArg_ParseTuple(args, "OOdO", &o_rotation, &o_acc, &scale, &o_out)) return NULL;
+    Array a[3];
+    if (get_array(o_rotation, &a[0], 2, -1, 9, 0, "rotation") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_acc, &a[1], 2, n, 3, 0, "acc") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_out, &a[2], 2, n, 2, 1, "out") < 0) { release(a, 2); return NULL; }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double m[6], v[3] = {AT(a[1], i, 0), AT(a[1], i, 1), AT(a[1], i, 2)};
+        for (int k = 0; k < 6; k++) m[k] = AT(a[0], i, k);
+        AT(a[2], i, 0) = einsum_row3(m, v) / scale;
+        AT(a[2], i, 1) = einsum_row3(m + 3, v) / scale;
+    }
+    release(a, 3);
+    Py_RETURN_NONE;
 }
 
 static PyMethodDef methods[] = {
@@ -3015,6 +3371,8 @@ static PyMethodDef methods[] = {
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
     {"row_faults", row_faults, METH_VARARGS, row_faults_doc},
     {"tilt_heading", tilt_heading, METH_VARARGS, tilt_heading_doc},
+    {"correct_field", correct_field, METH_VARARGS, correct_field_doc},
+    {"horizontal_force", horizontal_force, METH_VARARGS, horizontal_force_doc},
     {"column_checks", column_checks, METH_VARARGS, column_checks_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},
@@ -3034,6 +3392,9 @@ static PyMethodDef methods[] = {
     {"fuse_rows", fuse_rows, METH_VARARGS, fuse_rows_doc},
     {"gated_run", gated_run, METH_VARARGS, gated_run_doc},
     {"gate_layout", gate_layout, METH_NOARGS, "gate_layout() -> dict: the T_* and G_* indices (turn_gate.py)."},
+    {"heading_gate_update", heading_gate_update, METH_VARARGS, heading_gate_update_doc},
+    {"heading_gate_layout", heading_gate_layout, METH_NOARGS,
+     "heading_gate_layout() -> dict: the H_* and HS_* indices (heading_gate.py)."},
     {NULL, NULL, 0, NULL},
 };
 

@@ -89,6 +89,10 @@ def sigma_degrees(
 def turn_about_down(quat: np.ndarray, angle_deg: np.ndarray, out: np.ndarray) -> None: ...
 def row_faults(arr: np.ndarray, limit: float, absent_rows: bool, nonfinite: np.ndarray, beyond: np.ndarray) -> None: ...
 def tilt_heading(field: np.ndarray, acc: np.ndarray, heading: np.ndarray | None, dip: np.ndarray | None) -> None: ...
+def correct_field(
+    mag: np.ndarray, offsets: np.ndarray, matrices: np.ndarray, bounds: np.ndarray, out: np.ndarray
+) -> None: ...
+def horizontal_force(rotation: np.ndarray, acc: np.ndarray, scale: float, out: np.ndarray) -> None: ...
 def column_checks(matrix: np.ndarray, out: np.ndarray) -> None: ...
 def format_rows(matrix: np.ndarray, decimals: bytes) -> bytes: ...
 def vqf_bind(path: str) -> None: ...
@@ -169,6 +173,8 @@ def gated_run(
     quat9: np.ndarray,
     rest: np.ndarray,
     disturbed: np.ndarray,
+    heading_settings: np.ndarray | None,
+    heading_state: np.ndarray | None,
 ) -> None: ...
 def fuse_rows(
     filter: object,
@@ -182,7 +188,22 @@ def fuse_rows(
     hi: int,
     quat9: np.ndarray,
     disturbed: np.ndarray,
+    heading_settings: np.ndarray | None,
+    heading_state: np.ndarray | None,
 ) -> None: ...
+def heading_gate_layout() -> dict[str, int]: ...
+def heading_gate_update(
+    settings: np.ndarray,
+    state: np.ndarray,
+    gyr: np.ndarray,
+    field: np.ndarray,
+    start: np.ndarray,
+    bias: np.ndarray,
+    delta: float,
+    k_mag_init: float,
+    fed: np.ndarray,
+    flags: np.ndarray,
+) -> bool: ...
 def bias_drift(
     t_ns: np.ndarray,
     trusted: np.ndarray,

@@ -27,6 +27,7 @@ import vqf
 from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.fused import Fused
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
+from magnet.attitude.heading_gate import HeadingGate
 from magnet.attitude.turn_gate import TurnGate, fuse_rows, run_gated
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu
@@ -114,6 +115,7 @@ class Fusion:
         watch: bool = True,
         heading_bias: bool = False,
         turn_gate: bool = True,
+        heading_gate: bool = True,
     ) -> None:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
@@ -130,7 +132,12 @@ class Fusion:
         #: with ``turn_gate`` (the default), in a gait (a walker's or runner's steps) the accelerometer is fed a window
         #: late and left out where the course turned (in a swinging hand levelled), its centripetal acceleration not
         #: taken for gravity (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
+        #: with ``heading_gate`` too (the default), field samples at odds with vqf's heading while the device did not
+        #: turn are left out: a slow turn of the field (a parked car) the watch does not see (``magnet.attitude.
+        #: heading_gate``, judged in the turn gate's blocks; docs/compass.md, "Disturbances")
         self.turn_gate = TurnGate(self.period_s, filter_params=self.params) if turn_gate else None
+        if self.turn_gate is not None and heading_gate:
+            self.turn_gate.heading = HeadingGate(self.period_s)
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
 
@@ -386,7 +393,8 @@ def fuse_causal(
     t_s: np.ndarray | None = None,
     vel_ned_ms: np.ndarray | None = None,
     watch: bool = True,
+    heading_gate: bool = True,
 ) -> Fused:
     """A whole log through a fresh causal filter, as the live compass would see it. Shapes as ``Fusion``; ``watch``
-    as there."""
-    return Fusion(period_s, params, watch).update(gyr_rads, acc_ms2, mag, t_s, vel_ned_ms)
+    and ``heading_gate`` as there."""
+    return Fusion(period_s, params, watch, heading_gate=heading_gate).update(gyr_rads, acc_ms2, mag, t_s, vel_ned_ms)

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import vqf
 
+from magnet.attitude.heading_gate import HeadingGate, kernel_arrays
 from magnet.compiled import kernels as _kernels
 
 #: the indices of the gate's settings and state arrays in ``magnet/_kernels.c``
@@ -122,6 +123,8 @@ class TurnGate:
         self, period_s: float, settings: TurnSettings = TurnSettings(), filter_params: Mapping[str, Any] | None = None
     ) -> None:
         self.period_s, self.settings = float(period_s), settings
+        #: the field's heading gate, judged in this gate's blocks and reset with it (``magnet.attitude.heading_gate``)
+        self.heading: HeadingGate | None = None
         #: with ``filter_params`` (vqf's, as the gated filter's), vqf without the gate (``Alone``): its 6D attitude is
         #: the answer until a field reaches the filter
         self.alone = None if filter_params is None else Alone(self.period_s, filter_params)
@@ -174,6 +177,8 @@ class TurnGate:
         state[self._parts[1] :] = np.nan  # the specific forces, magnitudes and rates not seen yet
         if self.alone is not None:
             self.alone.reset()
+        if self.heading is not None:
+            self.heading.reset()
 
     @property
     def samples(self) -> int:
@@ -266,8 +271,9 @@ def run_gated(
     ``updateBatch`` or its bias loop, with ``watched`` (N,) the samples the field's watch left out) in pieces cut at
     the gate's blocks, each fed the accelerometer the gate gives, reading the attitude and the bias of ``filter_``
     (a ``vqf.VQF``) at each block's start: ``piece``'s outputs for the whole batch (``BATCH_OUTPUTS`` joined).
-    ``piece`` None: vqf's ``updateBatch``, the whole batch in one compiled call (``run_gated_vqf``)."""
-    gyr, acc, field = samples
+    ``piece`` None: vqf's ``updateBatch``, the whole batch in one compiled call (``run_gated_vqf``). The samples the
+    gate's ``heading`` gate leaves out reach the piece as zero rows, flagged disturbed."""
+    gyr, acc, field, heading = *samples, gate.heading
     if piece is None:
         joined = run_gated_vqf(gate, filter_, samples)
         return joined if gate.alone is None else gate.alone.answer(joined, gyr, acc, field)
@@ -275,8 +281,15 @@ def run_gated(
     while start < len(gyr):
         part = slice(start, start + gate.left_in_block())
         bias = np.asarray(filter_.getBiasEstimate()[0], dtype=float)
-        fed, _ = gate.update(gyr[part], acc[part], np.asarray(filter_.getQuat6D(), dtype=float), bias)
-        outs.append(piece(gyr[part], fed, None if field is None else field[part], watched[part]))
+        quat6 = np.asarray(filter_.getQuat6D(), dtype=float)
+        fed, _ = gate.update(gyr[part], acc[part], quat6, bias)
+        piece_field, flags = None if field is None else field[part], np.zeros(len(fed), dtype=bool)
+        if heading is not None:
+            piece_field, flags = heading.judge(filter_, gyr[part], piece_field, quat6, bias)
+        out = piece(gyr[part], fed, piece_field, watched[part] | flags)
+        if flags.any():
+            out = {**out, "magDistDetected": np.asarray(out["magDistDetected"], dtype=bool) | flags}
+        outs.append(out)
         start = part.stop
     if len(outs) == 1:
         joined = outs[0]
@@ -299,7 +312,8 @@ def run_gated_vqf(
     """``run_gated`` with vqf's ``updateBatch`` for the piece, in one compiled call (``magnet._kernels.gated_run``:
     the same gate, the same vqf object driven through its C++ class): vqf's outputs quat9D (N, 4) (and quat6D without
     a field; with one nobody reads it), restDetected and magDistDetected (N,) bool for the batch (gyroscope,
-    accelerometer, field or None; (N, 3) each, vqf's frames, C-contiguous float64)."""
+    accelerometer, field or None; (N, 3) each, vqf's frames, C-contiguous float64); the gate's ``heading`` gate
+    leaves samples out as ``run_gated`` says."""
     bind_vqf()
     gyr, acc, field = samples
     count = len(gyr)
@@ -313,6 +327,7 @@ def run_gated_vqf(
     _kernels.gated_run(
         filter_, gate.settings_array, gate.state, gyr, acc, field,
         out.get("quat6D"), out["quat9D"], out["restDetected"], out["magDistDetected"],
+        *kernel_arrays(gate.heading),
     )  # fmt: skip
     return out
 
@@ -324,11 +339,13 @@ def fuse_rows(
     float64) through the field's ``watch`` (a ``FieldWatch`` or None), its flagged samples' field left out, then
     ``run_gated_vqf``, in one compiled call (``magnet._kernels.fuse_rows``: the code of ``watch_update`` and
     ``gated_run``): vqf's quaternions written into rows lo .. hi of ``quat`` (S, 4), its disturbance flags or-ed with
-    the watch's into those of ``out`` (S,) bool. ``Fusion.update_rows`` calls it."""
+    the watch's into those of ``out`` (S,) bool; the gate's ``heading`` gate leaves samples out too.
+    ``Fusion.update_rows`` calls it."""
     bind_vqf()
     gyr, acc, field = inputs
     args = None if watch is None else watch.kernel_args
-    _kernels.fuse_rows(filter_, gate.settings_array, gate.state, args, gyr, acc, field, lo, hi, quat, out)
+    arrays = kernel_arrays(gate.heading)
+    _kernels.fuse_rows(filter_, gate.settings_array, gate.state, args, gyr, acc, field, lo, hi, quat, out, *arrays)
 
 
 class Alone:

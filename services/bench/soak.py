@@ -5,7 +5,7 @@ calibrator, a compass (``--ros2`` too), an edge with 10 simulated devices (a new
 restarted, so calibrations keep being made), an edge reading MAVLink on a UDP port (``mavedge``: a real vehicle
 sends to it throughout, ``services.bench.front_loads``) and a dashboard. The faults (``services.bench.soak_plan``):
 kill -9 of each service and its restart,
-a router restart, msgpack bombs (4 MB) on a raw key, a flood of new device ids (``services.bench.flood``), and a full
+a router restart, a flood of new device ids (``services.bench.flood``), msgpack bombs (4 MB) on a raw key, and a full
 disk under the calibrator's database: a tmpfs it mounts when it can (running as root), filled for a few seconds
 (otherwise skipped, and said so). It watches headings and calibrations as a client of the router, the services'
 status every 2 s and their memory (/proc) every 0.5 s; a service above ``RSS_CAP_MB`` is killed and restarted (and
