@@ -13,7 +13,7 @@ the others stand by and take over when its liveliness token goes away (``service
 Queryables: see ``services.calibrator.queries``. One thread does the work: a pump thread only moves raw messages
 from Zenoh into a bounded queue (drops counted: ``services.calibrator.intake``), and this loop answers queries
 between slices of samples; every handler runs through ``services.common.guard``, so nothing ends it; the status is
-answered from Zenoh's thread, and read by ``--metrics``, from what the loop wrote (``services.common.status_board``).
+answered from Zenoh's thread (behind a router on a session of its own), and read by ``--metrics``, from the board.
 The options and settings are in ``services.calibrator.settings``; the calibrator's decisions, without zenoh, a
 database or a clock of their own, are ``magnet.calibrator.CalibratorCore``, which ``Calibrator`` gives the clocks
 (docs/calibrator.md).
@@ -54,7 +54,7 @@ from services.calibrator.store import open_store
 from services.common import metrics
 from services.common.guard import Guard
 from services.common.status_board import StatusBoard
-from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, stop_event
+from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, queries_session, stop_event
 from services.security.identities import certificate_identity, check_calibrator_identity
 
 __all__ = [
@@ -197,7 +197,8 @@ def _declare(
     ]
     enrolment = Enrolment(settings.enrol_rate, max(1, int(settings.enrol_rate * ENROL_BURST_S)))
     loop = ServiceLoop(calibrator, intake, answers, prefix, feeds, (lease_sub, lease), enrolment, name)
-    declared.enter_context(session.declare_queryable(loop.board.key, loop.board.answer))
+    status_session = queries_session(declared, session, settings.zenoh)  # behind a router: a link of its own
+    declared.enter_context(status_session.declare_queryable(loop.board.key, loop.board.answer))
     # the liveliness token last: who sees it (a compass asks for every record then) finds the queryables declared
     declared.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "calibrator", name)))
     return loop

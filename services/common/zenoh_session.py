@@ -9,6 +9,7 @@ tcp/127.0.0.1:PORT`` and pass ``--no-multicast-scouting`` (``loopback_arguments`
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import logging
@@ -146,6 +147,23 @@ _RUST_LOCATION = re.compile(r"\s+at\s+\S+\.rs:\d+\.?")
 def zenoh_message(exc: BaseException) -> str:
     """A Zenoh error's message without the Rust source locations it carries (``at /root/.cargo/...rs:447.``)."""
     return _RUST_LOCATION.sub("", str(exc)).strip()
+
+
+def session_mode(options: Options) -> str:
+    """The mode a session opened with these options takes (the option, else the config file's, else the default)."""
+    return str(json.loads(build_config(options).get_json("mode")))
+
+
+def queries_session(stack: contextlib.ExitStack, session: zenoh.Session, options: Options) -> zenoh.Session:
+    """The session a service declares the queryables on that must never wait behind its samples (the calibrator's
+    status). Behind a router (client mode) every message comes to ``session`` on one link, read by one task: when
+    the thread that empties a subscriber's channel is starved of CPU the channel fills, that task waits on it, and a
+    query behind the samples waits too. So a client gets a session of its own, a link of its own (closed by
+    ``stack``, after what is declared on it later); a peer, reached directly by whoever asks on the links it listens
+    on, keeps ``session``."""
+    if session_mode(options) != "client":
+        return session
+    return stack.enter_context(open_session(options))
 
 
 def open_session(options: Options, defaults: Mapping[str, str] | None = None) -> zenoh.Session:

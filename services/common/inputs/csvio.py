@@ -238,12 +238,9 @@ def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0)
     if checks[:, 2].any() or checks[others, 1].any() or (checks[sensors, 0] > MAX_READING).any():
         return None
     columns: dict[str, list[str] | np.ndarray] = {name: values[:, i] for i, name in enumerate(header) if name}
-    acc = (
-        np.ascontiguousarray(values[:, [header.index(c) for c in ACC_COLUMNS]])
-        if set(ACC_COLUMNS) <= set(header)
-        else None
-    )
-    mag = np.ascontiguousarray(values[:, [header.index(c) for c in MAG_COLUMNS]])
+    # (N, 3) copies by ``take``: C-contiguous, a fifth of the time of fancy indexing's
+    acc = values.take([header.index(c) for c in ACC_COLUMNS], axis=1) if set(ACC_COLUMNS) <= set(header) else None
+    mag = values.take([header.index(c) for c in MAG_COLUMNS], axis=1)
     return SampleTable(path, mag, acc, columns)
 
 
