@@ -2853,13 +2853,6 @@ static int heading_gate_piece(const double *s, double *h, const double *gyr, con
         /* the rotation about the vertical over the last turn_width samples: the largest |now - then| */
         to_frame3(h + HS_ATTITUDE, r, up);
         h[HS_TURNED] += up[2] * period;
-        double turned = 0.0;
-        Py_ssize_t back = g < width ? g : width;
-        for (Py_ssize_t m = 1; m <= back; m++) {
-            double d = fabs(h[HS_TURNED] - ring[(g - m) % width]);
-            turned = d > turned ? d : turned;
-        }
-        ring[g % width] = h[HS_TURNED];
         /* the disagreement: the field's heading in vqf's 6D frame less delta, within -pi .. pi, smoothed (the
          * weight ``smooth`` a sample: a moment's spike of the magnetometer's lag in a fast turn is no disturbance) */
         double innovation = NAN;
@@ -2874,7 +2867,18 @@ static int heading_gate_piece(const double *s, double *h, const double *gyr, con
         int ready = h[HS_INIT] == 0.0 && h[HS_SEEN] * period >= s[H_LEARN] && h[HS_LEVEL] > 0.0;
         int over = isfinite(innovation) && fabs(innovation) > limit;
         if (over) h[HS_OVER] = 1.0;
-        int raw = ready && over && turned <= s[H_TURN] && h[HS_ACCEPTING] == 0.0;
+        int raw = ready && over && h[HS_ACCEPTING] == 0.0;
+        if (raw) { /* only then (a scan of the ring a sample was most of the command line's cost): the rotation about
+                    * the vertical over the last turn_width samples, the largest |now - then| */
+            double turned = 0.0;
+            Py_ssize_t back = g < width ? g : width;
+            for (Py_ssize_t m = 1; m <= back; m++) {
+                double d = fabs(h[HS_TURNED] - ring[(g - m) % width]);
+                turned = d > turned ? d : turned;
+            }
+            raw = turned <= s[H_TURN];
+        }
+        ring[g % width] = h[HS_TURNED];
         int flagged = raw || (isfinite(innovation) && h[HS_HOLD_LEFT] > 0.0);
         if (raw) {
             h[HS_HOLD_LEFT] = s[H_HOLD];
