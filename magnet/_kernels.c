@@ -2853,13 +2853,6 @@ static int heading_gate_piece(const double *s, double *h, const double *gyr, con
         /* the rotation about the vertical over the last turn_width samples: the largest |now - then| */
         to_frame3(h + HS_ATTITUDE, r, up);
         h[HS_TURNED] += up[2] * period;
-        double turned = 0.0;
-        Py_ssize_t back = g < width ? g : width;
-        for (Py_ssize_t m = 1; m <= back; m++) {
-            double d = fabs(h[HS_TURNED] - ring[(g - m) % width]);
-            turned = d > turned ? d : turned;
-        }
-        ring[g % width] = h[HS_TURNED];
         /* the disagreement: the field's heading in vqf's 6D frame less delta, within -pi .. pi, smoothed (the
          * weight ``smooth`` a sample: a moment's spike of the magnetometer's lag in a fast turn is no disturbance) */
         double innovation = NAN;
@@ -2874,7 +2867,18 @@ static int heading_gate_piece(const double *s, double *h, const double *gyr, con
         int ready = h[HS_INIT] == 0.0 && h[HS_SEEN] * period >= s[H_LEARN] && h[HS_LEVEL] > 0.0;
         int over = isfinite(innovation) && fabs(innovation) > limit;
         if (over) h[HS_OVER] = 1.0;
-        int raw = ready && over && turned <= s[H_TURN] && h[HS_ACCEPTING] == 0.0;
+        int raw = ready && over && h[HS_ACCEPTING] == 0.0;
+        if (raw) { /* only then (a scan of the ring a sample was most of the command line's cost): the rotation about
+                    * the vertical over the last turn_width samples, the largest |now - then| */
+            double turned = 0.0;
+            Py_ssize_t back = g < width ? g : width;
+            for (Py_ssize_t m = 1; m <= back; m++) {
+                double d = fabs(h[HS_TURNED] - ring[(g - m) % width]);
+                turned = d > turned ? d : turned;
+            }
+            raw = turned <= s[H_TURN];
+        }
+        ring[g % width] = h[HS_TURNED];
         int flagged = raw || (isfinite(innovation) && h[HS_HOLD_LEFT] > 0.0);
         if (raw) {
             h[HS_HOLD_LEFT] = s[H_HOLD];
@@ -3248,6 +3252,110 @@ static PyObject *aided_layout(PyObject *self, PyObject *args) {
                          "figures", S_DRIFT_FIGURES, "row", R_SIZE);
 }
 
+/* numpy's einsum "sij,sj->si" for one output (s, i): its sum of products over j = 0..2 as numpy 2 computes it on its
+ * baseline (X86_V2: lanes of two, a product then an add, the remainder loaded with zeros, a horizontal add, then
+ * added to the output's zero), the instructions' operands in the order numpy's own build puts them, which decides
+ * the sign of a NaN where two NaNs meet (tests/magnet/attitude/test_kernels.py compares the numbers bit by bit with
+ * numpy's, NaN's sign included). x86-64 only; elsewhere the same sums in plain C. */
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <emmintrin.h>
+/* a * b, a + b and the horizontal sum, each as one instruction whose first operand is a (its NaN wins) */
+static inline __m128d mul_first(__m128d a, __m128d b) {
+    __asm__("mulpd %1, %0" : "+x"(a) : "x"(b));
+    return a;
+}
+static inline __m128d add_first(__m128d a, __m128d b) {
+    __asm__("addpd %1, %0" : "+x"(a) : "x"(b));
+    return a;
+}
+static inline double lanes_sum(__m128d a) {
+    __asm__("haddpd %0, %0" : "+x"(a));
+    double zero = 0.0;
+    __asm__("addsd %1, %0" : "+x"(zero) : "x"(_mm_cvtsd_f64(a)));
+    return zero;
+}
+static double einsum_row3(const double *m, const double *v) {
+    __m128d acc = _mm_setzero_pd();
+    acc = add_first(acc, mul_first(_mm_loadu_pd(v), _mm_loadu_pd(m)));
+    acc = add_first(acc, mul_first(_mm_set_pd(0.0, m[2]), _mm_set_pd(0.0, v[2])));
+    return lanes_sum(acc);
+}
+#else
+static double einsum_row3(const double *m, const double *v) {
+    double lane0 = 0.0 + v[0] * m[0], lane1 = 0.0 + v[1] * m[1];
+    lane0 = lane0 + m[2] * v[2];
+    lane1 = lane1 + 0.0 * 0.0;
+    return 0.0 + (lane0 + lane1);
+}
+#endif
+
+PyDoc_STRVAR(correct_field_doc,
+             "correct_field(mag, offsets, matrices, bounds, out)\n\n"
+             "Each batch's calibration on its samples (magnet.compass.calibrations.Correction.apply): out (S, 3) = "
+             "A_b (mag - b_b) for the samples bounds[b] .. bounds[b + 1] of batch b, mag (S, 3), offsets (B, 3), "
+             "matrices (B, 9) row-major, bounds (B + 1,) int64: numpy's einsum('sij,sj->si') to the bit, without "
+             "the per-sample copies of the offsets and matrices.");
+
+static PyObject *correct_field(PyObject *self, PyObject *args) {
+    PyObject *o_mag, *o_offsets, *o_matrices, *o_bounds, *o_out;
+    if (!PyArg_ParseTuple(args, "OOOOO", &o_mag, &o_offsets, &o_matrices, &o_bounds, &o_out)) return NULL;
+    Array a[4];
+    Py_buffer bounds;
+    if (get_array(o_mag, &a[0], 2, -1, 3, 0, "mag") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_offsets, &a[1], 2, -1, 3, 0, "offsets") < 0) { release(a, 1); return NULL; }
+    Py_ssize_t count = a[1].rows;
+    if (get_array(o_matrices, &a[2], 2, count, 9, 0, "matrices") < 0) { release(a, 2); return NULL; }
+    if (get_array(o_out, &a[3], 2, n, 3, 1, "out") < 0) { release(a, 3); return NULL; }
+    if (get_int64(o_bounds, &bounds, count + 1, "bounds") < 0) { release(a, 4); return NULL; }
+    PyObject *result = NULL;
+    for (Py_ssize_t b = 0; b < count; b++) {
+        long long lo = *(long long *)((char *)bounds.buf + b * bounds.strides[0]);
+        long long hi = *(long long *)((char *)bounds.buf + (b + 1) * bounds.strides[0]);
+        if (lo < 0 || hi > n || lo > hi) {
+            PyErr_Format(PyExc_ValueError, "batch %zd: samples %lld .. %lld out of range", b, lo, hi);
+            goto done;
+        }
+        double m[9], off[3] = {AT(a[1], b, 0), AT(a[1], b, 1), AT(a[1], b, 2)};
+        for (int k = 0; k < 9; k++) m[k] = AT(a[2], b, k);
+        for (long long i = lo; i < hi; i++) {
+            double d[3] = {AT(a[0], i, 0) - off[0], AT(a[0], i, 1) - off[1], AT(a[0], i, 2) - off[2]};
+            for (int k = 0; k < 3; k++) AT(a[3], i, k) = einsum_row3(m + 3 * k, d);
+        }
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done:
+    PyBuffer_Release(&bounds);
+    release(a, 4);
+    return result;
+}
+
+PyDoc_STRVAR(horizontal_force_doc,
+             "horizontal_force(rotation, acc, scale, out)\n\n"
+             "out (S, 2) = the first two rows of each rotation (S, 9) row-major times acc (S, 3), divided by "
+             "``scale`` (magnet.attitude.uncertainty: the horizontal specific force in g): numpy's "
+             "einsum('sij,sj->si', rotation[:, :2], acc) / scale to the bit.");
+
+static PyObject *horizontal_force(PyObject *self, PyObject *args) {
+    PyObject *o_rotation, *o_acc, *o_out;
+    double scale;
+    if (!PyArg_ParseTuple(args, "OOdO", &o_rotation, &o_acc, &scale, &o_out)) return NULL;
+    Array a[3];
+    if (get_array(o_rotation, &a[0], 2, -1, 9, 0, "rotation") < 0) return NULL;
+    Py_ssize_t n = a[0].rows;
+    if (get_array(o_acc, &a[1], 2, n, 3, 0, "acc") < 0) { release(a, 1); return NULL; }
+    if (get_array(o_out, &a[2], 2, n, 2, 1, "out") < 0) { release(a, 2); return NULL; }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double m[6], v[3] = {AT(a[1], i, 0), AT(a[1], i, 1), AT(a[1], i, 2)};
+        for (int k = 0; k < 6; k++) m[k] = AT(a[0], i, k);
+        AT(a[2], i, 0) = einsum_row3(m, v) / scale;
+        AT(a[2], i, 1) = einsum_row3(m + 3, v) / scale;
+    }
+    release(a, 3);
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef methods[] = {
     {"carry_forward", carry_forward, METH_VARARGS, carry_forward_doc},
     {"quaternion_product", quaternion_product, METH_VARARGS, quaternion_product_doc},
@@ -3267,6 +3375,8 @@ static PyMethodDef methods[] = {
     {"turn_about_down", turn_about_down, METH_VARARGS, turn_about_down_doc},
     {"row_faults", row_faults, METH_VARARGS, row_faults_doc},
     {"tilt_heading", tilt_heading, METH_VARARGS, tilt_heading_doc},
+    {"correct_field", correct_field, METH_VARARGS, correct_field_doc},
+    {"horizontal_force", horizontal_force, METH_VARARGS, horizontal_force_doc},
     {"column_checks", column_checks, METH_VARARGS, column_checks_doc},
     {"format_rows", format_rows, METH_VARARGS, format_rows_doc},
     {"vqf_bind", vqf_bind, METH_VARARGS, vqf_bind_doc},

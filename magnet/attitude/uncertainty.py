@@ -303,7 +303,9 @@ def _advance(state: _Device, seconds: float, north: float, east: float, tan_dip:
 
 def _horizontal_force_g(acc_ms2: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """(S, 2) the horizontal (north, east) specific force in the magnetic earth frame, in g (NaN rows: unknown)."""
-    return np.einsum("sij,sj->si", rotation[:, :2], acc_ms2) / STANDARD_GRAVITY_MS2
+    out = np.empty((len(acc_ms2), 2))  # numpy's einsum("sij,sj->si", rotation[:, :2], acc_ms2) / g to the bit
+    _kernels.horizontal_force(np.ascontiguousarray(rotation).reshape(-1, 9), acc_ms2, STANDARD_GRAVITY_MS2, out)
+    return out
 
 
 def _direct(

@@ -14,6 +14,7 @@ import numpy as np
 from magnet import signing, wire
 from magnet.attitude.mag_delay import advance_field
 from magnet.bounded import Recent
+from magnet.compiled import kernels as _kernels
 from magnet.model import Calibration
 
 #: devices remembered as refused between two asks of the calibrators (a flood beyond: one query for all)
@@ -157,12 +158,14 @@ class Correction:
     B = A (u - b) - motors (offset b, matrix A, the motors' field at the sample's current or throttle), and for the
     attitude filter B turned forward over the magnetometer's lag (``magnet.attitude.mag_delay``).
 
-    offsets (S, 3) raw uT, matrices (S, 3, 3) (identity where a batch has no record; broadcast views, no copies,
-    when none has), calibrated (S,) bool, motor_ut (S, 3) uT (zero where the record has no motor model or the batch
-    no current or throttle), None when no record has a motor model; lag_s (S,) s, None when no record carries one."""
+    offsets (B, 3) raw uT and matrices (B, 3, 3) per batch (zero and identity where a batch has no record), bounds
+    (B + 1,) int64 where each batch's samples start, calibrated (S,) bool, motor_ut (S, 3) uT (zero where the record
+    has no motor model or the batch no current or throttle), None when no record has a motor model; lag_s (S,) s, None
+    when no record carries one."""
 
     offsets: np.ndarray
     matrices: np.ndarray
+    bounds: np.ndarray
     calibrated: np.ndarray
     motor_ut: np.ndarray | None = None
     lag_s: np.ndarray | None = None
@@ -172,19 +175,19 @@ class Correction:
         """The correction of every sample of ``columns`` by its batch's record (``cals``, one per batch, None where
         a device has none), each record read once."""
         counts = columns.counts
-        total = int(counts.sum())
+        bounds = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         if all(c is None for c in cals):
-            return cls(
-                np.broadcast_to(_ZERO3, (total, 3)), np.broadcast_to(_EYE3, (total, 3, 3)), np.zeros(total, bool)
-            )
+            count = len(cals)
+            return cls(np.zeros((count, 3)), np.broadcast_to(_EYE3, (count, 3, 3)), bounds, np.zeros(bounds[-1], bool))
         records = [c.calibration if c else None for c in cals]
-        offsets = np.array([r.offset if r else _ZERO3 for r in records]).reshape(-1, 3)
-        matrices = np.array([r.matrix if r else _EYE3 for r in records]).reshape(-1, 3, 3)
+        offsets = np.array([r.offset if r else _ZERO3 for r in records], dtype=float).reshape(-1, 3)
+        matrices = np.array([r.matrix if r else _EYE3 for r in records], dtype=float).reshape(-1, 3, 3)
         calibrated = np.array([r is not None for r in records], dtype=bool)
         lags = [r.mag_lag_s if r else 0.0 for r in records]
         return cls(
-            np.repeat(offsets, counts, axis=0),
-            np.repeat(matrices, counts, axis=0),
+            offsets,
+            matrices,
+            bounds,
             np.repeat(calibrated, counts),
             _motor_rows(records, columns),
             np.repeat(np.asarray(lags, dtype=float), counts) if any(lags) else None,
@@ -193,13 +196,15 @@ class Correction:
     def apply(self, mag_ut: np.ndarray, gyr_rads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(the corrected field (S, 3) uT the compass publishes, the field (S, 3) its attitude filter gets: turned
         forward over the lag by the gyroscope's rates gyr_rads (S, 3) rad/s, the same array without a lag) from the
-        raw mag_ut (S, 3) uT."""
+        raw mag_ut (S, 3) uT: each batch's A (u - b), in one compiled pass (``magnet._kernels.correct_field``: numpy's
+        ``einsum`` of the per-sample matrices to the bit, without them)."""
         # no calibration anywhere: identity, the same numbers without the per-sample matrix product
-        field = (
-            np.einsum("sij,sj->si", self.matrices, mag_ut - self.offsets)
-            if self.calibrated.any()
-            else np.array(mag_ut, dtype=float)
-        )
+        if self.calibrated.any():
+            field = np.empty((len(mag_ut), 3))
+            matrices = np.ascontiguousarray(self.matrices).reshape(-1, 9)
+            _kernels.correct_field(np.asarray(mag_ut, dtype=float), self.offsets, matrices, self.bounds, field)
+        else:
+            field = np.array(mag_ut, dtype=float)
         if self.motor_ut is not None:
             field = field - self.motor_ut
         return field, field if self.lag_s is None else advance_field(field, gyr_rads, self.lag_s)

@@ -148,10 +148,12 @@ class MultirotorModel(MotionModel):
         last = self._grid_first + len(self._grid) - 1
         middles = (last + np.arange(max(int(cell.max()) - last, 0)) + 0.5) * h
         forcing = self._thrust(middles, self.rotation(middles)) if middles.size else np.zeros((0, 3))
-        decay, gain = np.exp(-k * h), -np.expm1(-k * h) / k
-        grid = np.concatenate([self._grid, np.empty((middles.size, 3))])
-        for j, u in enumerate(forcing, start=len(self._grid) - 1):
-            grid[j + 1] = decay * grid[j] + gain * u
+        decay, gain = float(np.exp(-k * h)), float(-np.expm1(-k * h) / k)
+        steps, (x, y, z) = [], self._grid[-1].tolist()
+        for ux, uy, uz in forcing.tolist():  # in Python floats: the same products and sums, a tenth of the time
+            x, y, z = decay * x + gain * ux, decay * y + gain * uy, decay * z + gain * uz
+            steps.append((x, y, z))
+        grid = np.concatenate([self._grid, np.array(steps, dtype=float).reshape(-1, 3)])
         first = self._grid_first
         self._grid_first = max(first, first + len(grid) - GRID_KEPT)
         self._grid = grid[self._grid_first - first :].copy()

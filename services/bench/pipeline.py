@@ -31,6 +31,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import msgpack
 import numpy as np
 
 from magnet import wire
@@ -66,12 +67,9 @@ class _Measurer:
                 time.sleep(0.0002)
                 continue
             now = time.time_ns()
-            message = wire.unpack(sample.payload.to_bytes(), wire.HEADING_LIMITS)
-            t_ns = message["t_ns"]
-            if isinstance(t_ns, dict):  # v 2: <i8 bytes
-                t_ns = np.frombuffer(t_ns["data"], dtype="<i8")
-            self.samples += len(t_ns)
-            self.latencies_ns.append(now - int(t_ns[-1]))
+            count, last_ns = heading_times(sample.payload.to_bytes())
+            self.samples += count
+            self.latencies_ns.append(now - last_ns)
             self.last_ns = time.monotonic_ns()
             if self.first_ns is None:
                 self.first_ns = self.last_ns
@@ -84,6 +82,29 @@ class _Measurer:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join()
+
+
+def heading_times(payload: bytes) -> tuple[int, int]:
+    """(samples, the last sample's t_ns) of one heading message: in v 2 read from its ``t_ns`` entry alone, the
+    entries before it skipped unbuilt (4.9 us a message of 100 samples against 13.9 for ``wire.unpack``: at
+    10,000 messages/s the measurer, beside the compass on the same 2 cores, took 0.23 of a core); anything else
+    through ``wire.unpack``."""
+    unpacker = msgpack.Unpacker()
+    unpacker.feed(payload)
+    with contextlib.suppress(Exception):  # not the v 2 layout read here: the whole message below
+        for _ in range(unpacker.read_map_header()):
+            if unpacker.unpack() != "t_ns":
+                unpacker.skip()
+                continue
+            t_ns = unpacker.unpack()
+            if isinstance(t_ns, dict) and t_ns.get("dtype") == "<i8" and len(t_ns.get("data", b"")) >= 8:
+                data = t_ns["data"]
+                return len(data) // 8, int.from_bytes(data[-8:], "little", signed=True)
+            break
+    times = wire.unpack(payload, wire.HEADING_LIMITS)["t_ns"]
+    if isinstance(times, dict):  # v 2: <i8 bytes
+        times = np.frombuffer(times["data"], dtype="<i8")
+    return len(times), int(times[-1])
 
 
 def _wait_ready(session: zenoh.Session, key: str) -> None:

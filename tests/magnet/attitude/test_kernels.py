@@ -388,3 +388,47 @@ def test_watch_update_refuses_a_ring_of_the_wrong_size():
     watch.ring = np.zeros((3, 7))
     with pytest.raises(ValueError, match="ring"):
         watch.update(np.zeros((2, 3)), np.zeros((2, 3)))
+
+
+def _with_specials(x: np.ndarray) -> np.ndarray:
+    """``x`` with a few zeros, negative zeros, NaN (either sign), infinities and subnormals sprinkled in."""
+    where = RNG.random(x.shape)
+    for low, high, value in ((0.0, 0.02, 0.0), (0.02, 0.03, -0.0), (0.03, 0.035, np.nan), (0.035, 0.04, -np.nan),
+                             (0.04, 0.045, np.inf), (0.045, 0.05, -np.inf), (0.05, 0.055, 1e-310)):  # fmt: skip
+        x[(where >= low) & (where < high)] = value
+    return x
+
+
+def test_correct_field_is_numpys_einsum_of_each_batchs_matrix_to_the_bit():
+    """Each batch's A (u - b) (``Correction.apply``) is ``np.einsum('sij,sj->si')`` of the matrices repeated per
+    sample, bit for bit, NaN's sign included; uncalibrated batches (identity, zero offset) too."""
+    count, batches = 60_000, 700
+    mag = _with_specials(RNG.normal(0.0, 50.0, (count, 3)))
+    sizes = RNG.multinomial(count, np.ones(batches) / batches)
+    bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    offsets, matrices = (
+        _with_specials(RNG.normal(0.0, 10.0, (batches, 3))),
+        _with_specials(RNG.normal(size=(batches, 3, 3))),
+    )
+    matrices[::5], offsets[::5] = np.eye(3), 0.0
+    with np.errstate(invalid="ignore"):
+        want = np.einsum("sij,sj->si", np.repeat(matrices, sizes, axis=0), mag - np.repeat(offsets, sizes, axis=0))
+    out = np.empty((count, 3))
+    _kernels.correct_field(mag, offsets, matrices.reshape(batches, 9), bounds, out)
+    assert np.array_equal(out.view(np.uint64), want.view(np.uint64))
+    with pytest.raises(ValueError, match="out of range"):
+        _kernels.correct_field(mag, offsets[:1], matrices[:1].reshape(1, 9), np.array([0, count + 1]), out)
+
+
+def test_horizontal_force_is_numpys_einsum_of_the_first_two_rows_to_the_bit():
+    count = 60_000
+    rotation, acc = _with_specials(RNG.normal(size=(count, 3, 3))), _with_specials(RNG.normal(0.0, 9.0, (count, 3)))
+    with np.errstate(invalid="ignore"):
+        want = np.einsum("sij,sj->si", rotation[:, :2], acc) / 9.80665
+    out = np.empty((count, 2))
+    _kernels.horizontal_force(rotation.reshape(count, 9), acc, 9.80665, out)
+    assert np.array_equal(out.view(np.uint64), want.view(np.uint64))
+    finite, acc_ok = RNG.normal(size=(count, 3, 3)), RNG.normal(0.0, 9.0, (count, 3))  # the maths, plainly
+    plain = np.stack([(finite[:, k] * acc_ok).sum(axis=1) for k in range(2)], axis=1) / 9.80665
+    _kernels.horizontal_force(finite.reshape(count, 9), acc_ok, 9.80665, out)
+    np.testing.assert_allclose(out, plain, rtol=1e-13, atol=1e-13)

@@ -5,6 +5,7 @@ window the compass keeps."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -18,14 +19,23 @@ QUIET = Motors(ut_per_a=(0.0, 0.0, 0.0))
 LOUD = Motors(ut_per_a=(0.3, -0.2, 0.25))  # 0.45 uT/A: 18 uT at the 40 A of full throttle
 
 
+#: each flight simulated once per run (its arrays read-only, so that no test changes another's)
+_FLIGHTS: dict[str, Series] = {}
+
+
 def flight(errors: SensorErrors, motors: Motors = QUIET, count: int = 600) -> Series:
     """A minute of a simulated quadcopter's flight at 10 Hz (the same flight for every compass)."""
     config = SimulatorConfig(trajectory="multirotor", rate_hz=10.0, count=count, errors=errors, seed=4, motors=motors)
-    run = simulate(config)
-    assert run.current_a is not None and run.throttle is not None
-    return Series(run.t_s, run.mag_ut, run.current_a, run.throttle)
+    if repr(config) not in _FLIGHTS:
+        run = simulate(config)
+        assert run.current_a is not None and run.throttle is not None
+        for array in (run.t_s, run.mag_ut, run.current_a, run.throttle):
+            array.setflags(write=False)
+        _FLIGHTS[repr(config)] = Series(run.t_s, run.mag_ut, run.current_a, run.throttle)
+    return _FLIGHTS[repr(config)]
 
 
+@functools.cache
 def expected_ut() -> float:
     return float(np.linalg.norm(simulate(SimulatorConfig(count=100)).true_field_ut[0]))
 
