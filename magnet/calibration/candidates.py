@@ -88,11 +88,13 @@ def _pinned(
         return float(np.mean(np.einsum("ij,ij->i", d, r)) / np.mean(np.linalg.norm(r, axis=1))) - ratio
 
     lo, hi = -4.0 * field_ut, 4.0 * field_ut
-    if excess(lo) * excess(hi) > 0:
+    at_lo = excess(lo)
+    if at_lo * excess(hi) > 0:
         return centre, scale
-    for _ in range(60):  # bisection: the vertical share falls as the centre moves down
+    for _ in range(60):  # bisection: the vertical share falls as the centre moves down (excess at lo kept)
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if excess(mid) * excess(lo) > 0 else (lo, mid)
+        at_mid = excess(mid)
+        lo, hi, at_lo = (mid, hi, at_mid) if at_mid * at_lo > 0 else (lo, mid, at_lo)
     moved = centre + 0.5 * (lo + hi) * n
     return moved, field_ut / float(np.mean(np.linalg.norm(u - moved, axis=1)))
 

@@ -7,7 +7,8 @@ CSV files in a temporary folder. Two tables:
   calibration, tilt, fusion, aided fusion with fixes at 5 Hz, encode of the heading message, the ROS 2 messages,
   and the compass's whole step), each beside vqf's own cost on the same samples (``updateBatch`` per batch);
 - the command line as a user runs it, each a whole process (the least CPU time, user + system, of a few runs; the
-  fit's figures also as the median of pairs run in turn, against the bare start and 300 rows against 10,000):
+  heading with a gyroscope and the fit's figures also as the median of pairs run in turn, against the floor, the
+  bare start, and 300 rows against 10,000):
   ``magnet heading`` with a gyroscope and with ``vn,ve,vd`` on every row (a new fix each sample), beside the floor
   (``numpy.loadtxt`` + vqf's ``updateBatch`` on the same file, a process too); ``magnet fit`` of 300 samples beside
   ``python -c 'import numpy, vqf'``; what 10,000 rows add to ``magnet fit`` over 300, and the CSV reader's share.
@@ -286,17 +287,23 @@ def command_figures(workdir: Path, minutes: float) -> list[str]:
     lines = []
     process = functools.partial(process_s, pycache=workdir / "pycache")
     process([python, "-c", MAGNET, "heading", str(gyro_csv)], runs=1)  # every module compiled once, kept
-    floor = process([python, "-c", FLOOR_SCRIPT, str(gyro_csv)])
+    floor_argv = [python, "-c", FLOOR_SCRIPT, str(gyro_csv)]
+    gyro_argv = [python, "-c", MAGNET, "heading", str(gyro_csv)]
     floor_vel = process([python, "-c", FLOOR_SCRIPT, str(vel_csv)])
-    gyro = process([python, "-c", MAGNET, "heading", str(gyro_csv)])
     vel = process([python, "-c", MAGNET, "heading", str(vel_csv)], runs=1)
-    for name, seconds, base, target in (
-        ("heading, gyroscope", gyro, floor, TARGETS["heading_gyro_x"]),
-        ("heading, vn,ve,vd on every row", vel, floor_vel, TARGETS["heading_velocity_x"]),
+    turns = process_pairs(gyro_argv, floor_argv, pycache=workdir / "pycache")  # the figure nearest the target's edge
+    gyro, floor = min(a for a, _ in turns), min(b for _, b in turns)
+    heading_ratios = [a / b for a, b in turns]
+    in_turn = f"; {len(turns)} pairs in turn: median {_median(heading_ratios):.2f} x "
+    in_turn += f"({min(heading_ratios):.2f}-{max(heading_ratios):.2f})"
+    for name, seconds, base, target, paired in (
+        ("heading, gyroscope", gyro, floor, TARGETS["heading_gyro_x"], in_turn),
+        ("heading, vn,ve,vd on every row", vel, floor_vel, TARGETS["heading_velocity_x"], ""),
     ):
         lines.append(
             f"magnet {name:<31}{seconds:>8.2f} s  {1e6 * seconds / samples:>7.1f} us/sample  "
             f"{seconds / base:>6.2f} x the floor ({base:.2f} s: loadtxt + vqf updateBatch; target <= {target:g} x)"
+            f"{paired}"
         )
     small, large = workdir / "fit_small.csv", workdir / "fit_large.csv"
     write_fit_csv(small, FIT_ROWS_SMALL)
@@ -376,7 +383,7 @@ def run_cost_benchmark(minutes: float = 10.0) -> str:
     return "\n".join(
         [
             "",
-            "the command line (whole processes, CPU seconds: the least of a few runs, the fit's also pairs in turn):",
+            "the command line (whole processes, CPU seconds: least of a few runs; heading and fit also pairs in turn):",
             *commands,
         ]
     )
