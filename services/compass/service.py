@@ -11,8 +11,9 @@ and out of the compass's core (``magnet.compass.CompassCore``): decode -> step -
 callback; every handler runs through ``services.common.guard`` (a failure drops and counts the messages it held, or
 answers the query with an error; the loop goes on). Counters (received, published, dropped by cause) answer on
 ``<prefix>/@status/<name>``, from Zenoh's thread with what the loop last wrote (``services.common.status_board``: a
-status never waits for a drain); ``--metrics`` serves what the loop writes on a second board, never the core. The
-options are in ``services.compass.settings``; docs/compass.md follows one sample.
+status never waits for a drain; behind a router on a session of its own, never behind raw messages); ``--metrics``
+serves what the loop writes on a second board, never the core. The options are in ``services.compass.settings``;
+docs/compass.md follows one sample.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.status_board import StatusBoard
-from services.common.zenoh_session import drain, open_session, payload_bytes, stop_event
+from services.common.zenoh_session import drain, open_session, payload_bytes, queries_session, stop_event
 from services.compass.intake import PayloadIntake
 from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
 from services.compass.sinks import open_sinks
@@ -165,7 +166,8 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
         )
         loop = _Loop(session, core, settings, metrics_address is not None)
         declared.callback(loop.close)
-        declared.enter_context(session.declare_queryable(wire.status_key(prefix, name), loop.board.answer))
+        status_session = queries_session(declared, session, settings.zenoh)  # behind a router: a link of its own
+        declared.enter_context(status_session.declare_queryable(wire.status_key(prefix, name), loop.board.answer))
         if loop.metrics_board is not None:  # what the loop wrote, never its state (scrapes run on their own thread)
             metrics.start(metrics_address, "compass", loop.metrics_board.read)
         gc.collect()
