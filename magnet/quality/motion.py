@@ -267,15 +267,10 @@ def margin_deg(field: np.ndarray, other: np.ndarray, ev: MotionEvidence, rows: n
 
 
 def _margin(mine: np.ndarray | None, theirs: np.ndarray | None) -> float | None:
-    """``margin_deg`` from the departures of the two fields on the same rows; 0 when ``mine`` is better in every run
-    of rows. The two standard errors come from the runs' spread, which a device that turns in a few runs only makes
-    as large as the comparison itself (a ground robot against no calibration, its raw field's spread 18-27 deg, the
-    fit's 0.9: margin 18-27, nothing could beat it); a gain in every one of the independent runs is no chance."""
+    """``margin_deg`` from the departures of the two fields on the same rows."""
     if mine is None or theirs is None or len(mine) < 4 * MARGIN_CHUNKS:
         return None
     chunks = np.array([c.mean() for c in np.array_split(theirs**2 - mine**2, MARGIN_CHUNKS)])
-    if np.all(chunks > 0):  # better in every run: a sign test puts chance at 2^-MARGIN_CHUNKS (1 in 1024)
-        return 0.0
     uncertainty = 2.0 * float(chunks.std(ddof=1)) / math.sqrt(MARGIN_CHUNKS)
     reference = float(np.mean(theirs**2))
     return math.sqrt(reference) - math.sqrt(max(reference - uncertainty, 0.0))
