@@ -75,8 +75,8 @@ def test_the_answers_do_not_depend_on_how_the_samples_are_batched():
             for i in range(0, len(field), size)
         ]
         answers.append((np.concatenate([p.quat_wxyz for p in parts]), np.concatenate([p.mag_disturbed for p in parts])))
-    for quat, flags in answers[1:]:
-        np.testing.assert_array_equal(quat, answers[0][0])
+    for quat, flags in answers[1:]:  # to the last bits: without AVX-512 numpy's SIMD tails differ by batch length
+        np.testing.assert_allclose(quat, answers[0][0], rtol=0.0, atol=1e-12)
         np.testing.assert_array_equal(flags, answers[0][1])
 
 
