@@ -1140,6 +1140,22 @@ static PyObject *row_faults(PyObject *self, PyObject *args) {
         release(&a, 1);
         return NULL;
     }
+    char *out_nonfinite = nonfinite.buf, *out_beyond = beyond.buf;
+    if (a.cols == 3 && a.view.strides[1] == 8 && a.view.strides[0] == 24 && nonfinite.strides[0] == 1 &&
+        beyond.strides[0] == 1) { /* the usual (S, 3) C-contiguous rows: the same tests without the strides' sums */
+        const double *row = a.view.buf;
+        for (Py_ssize_t i = 0; i < a.rows; i++, row += 3) {
+            double x = row[0], y = row[1], z = row[2];
+            int finite = isfinite(x) && isfinite(y) && isfinite(z);
+            int all_nan = isnan(x) && isnan(y) && isnan(z);
+            out_nonfinite[i] = (char)!(finite || (absent_rows && all_nan));
+            out_beyond[i] = (char)(fabs(x) > limit || fabs(y) > limit || fabs(z) > limit);
+        }
+        PyBuffer_Release(&beyond);
+        PyBuffer_Release(&nonfinite);
+        release(&a, 1);
+        Py_RETURN_NONE;
+    }
     for (Py_ssize_t i = 0; i < a.rows; i++) {
         int finite = 1, all_nan = 1, over = 0;
         for (Py_ssize_t k = 0; k < a.cols; k++) {
