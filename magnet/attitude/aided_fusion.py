@@ -44,6 +44,10 @@ from magnet.units import STANDARD_GRAVITY_MS2
 CHUNK_S = 0.1
 #: the longest a sample waits for its acceleration before it is fed as it is (s)
 MAX_LAG_S = 1.0
+#: vqf options for the offline pass of a vehicle with a velocity: it counts time towards accepting a field at any body
+#: rate (vqf's ``magNewMinGyr`` default, 20 deg/s, is a hand's turn; a boat never reaches it and its whole field was
+#: rejected; docs/design.md, "Velocity aiding")
+OFFLINE_VQF_OPTIONS: dict[str, float] = {"magNewMinGyr": 0.0}
 #: the vertical bias loop's integral time, in units of vqf's magnetic time constant tauMag (``VerticalBias``)
 BIAS_INTEGRAL_TAUS = 2.0
 #: the loop starts once this many tauMag of samples were fed (vqf's first magnetic convergence is not a drift)

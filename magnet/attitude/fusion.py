@@ -310,13 +310,6 @@ class Fusion:
         return run_pieces(self._filter, loop, (gyr, acc, field), watched, self._recalibrated)
 
 
-#: deg/s: the body rate above which vqf's offline filter counts time towards accepting a new field (its own default,
-#: 20, is a hand's turn). A vehicle with a velocity turns slower: a boat never reaches it, and vqf rejected its field
-#: over the whole log (heading 4-17 deg off on tuning boats 1-15 with the true field, against 0.7-2.7 with 0);
-#: its field is the record's, and the velocity keeps the tilt out of its turns
-AIDED_NEW_FIELD_MIN_GYR_DPS = 0.0
-
-
 def fuse_offline(
     gyr_rads: np.ndarray,
     acc_ms2: np.ndarray,
@@ -331,14 +324,13 @@ def fuse_offline(
     """Best estimate for a whole log (vqf's ``offlineVQF``: looks ahead, forward and backward). Shapes as ``Fusion``.
     With ``t_s`` and ``vel_ned_ms`` (magnetic NED) the accelerometer is first freed of the linear acceleration the
     velocity implies (every fix known at once), turned into the body frame by the causal aided attitude, and vqf
-    counts time towards accepting the field at any body rate (``AIDED_NEW_FIELD_MIN_GYR_DPS``). With
-    ``watch`` (the default) the samples the field's watch flags over the log (``FieldWatch``, as the causal filter
-    runs it) reach ``offlineVQF`` without their field and are flagged disturbed. Off by default: offlineVQF looks
-    ahead and rejects on its own, and the watch's few flags on BROAD (0.3 % of the samples) make it worse there
-    (0.809 -> 0.888 and 0.530 -> 0.536 deg; docs/compass.md, "Disturbances"). With ``vertical_bias`` (the default)
-    and the field, where vqf cannot learn the gyroscope's bias about the vertical (it never rests), that bias is first
-    found from the field's heading drift over the log and taken off, and without a velocity vqf trusts the field over
-    a longer time (``magnet.attitude.drift_bias.offline_correction``)."""
+    counts time towards accepting the field at any body rate (``aided_fusion.OFFLINE_VQF_OPTIONS``). With ``watch``
+    the samples the field's watch flags (``FieldWatch``, as the causal filter runs it) reach ``offlineVQF`` without
+    their field and are flagged disturbed; off by default: offlineVQF rejects on its own, and the watch's few flags
+    on BROAD make it worse (0.809 -> 0.888, 0.530 -> 0.536 deg; docs/compass.md, "Disturbances"). With
+    ``vertical_bias`` (the default) and the field, where vqf cannot learn the gyroscope's bias about the vertical (it
+    never rests), that bias is first found from the field's heading drift over the log and taken off, and without a
+    velocity vqf trusts the field longer (``magnet.attitude.drift_bias.offline_correction``)."""
     from magnet.attitude import aided_fusion, drift_bias
 
     period = _check_period(period_s)
@@ -356,9 +348,7 @@ def fuse_offline(
     watched = FieldWatch(period).update(field, gyr) if field is not None and watch else np.zeros(len(gyr), bool)
     if field is not None and watched.any():
         field = np.ascontiguousarray(np.where(watched[:, None], 0.0, field))
-    options = dict(params) if params else {}
-    if aided:  # a vehicle turns slower than vqf's 20 deg/s for accepting a field: it would reject it throughout
-        options = {"magNewMinGyr": AIDED_NEW_FIELD_MIN_GYR_DPS, **options}
+    options = {**(aided_fusion.OFFLINE_VQF_OPTIONS if aided else {}), **(params or {})}
     out = dict(vqf.offlineVQF(gyr, acc, field, period, options or None))
     if field is not None and vertical_bias:  # again, with the bias about the vertical its 6D attitude shows
         gyr, options, found = drift_bias.offline_correction(gyr, field, period, options, out, lengthen=not aided)
