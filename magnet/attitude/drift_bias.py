@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -130,14 +130,22 @@ def unwrapped(angle_rad: np.ndarray, period_s: float) -> np.ndarray:
     return out
 
 
-def fit_drift(angle_rad: np.ndarray, up: np.ndarray, period_s: float) -> DriftBias | None:
+def fit_drift(
+    angle_rad: np.ndarray,
+    up: np.ndarray,
+    period_s: float,
+    step_s: np.ndarray | None = None,
+    min_span_s: float = MIN_SPAN_S,
+) -> DriftBias | None:
     """The bias (see the module docstring) from the field's angle (N,) rad in a gyroscope-only attitude (NaN rows left
-    out; wrapped or not) and that attitude's up axis (N, 3) in body axes, samples ``period_s`` apart. None when fewer
-    than ``MIN_SPAN_S`` seconds of field samples are given."""
+    out; wrapped or not) and that attitude's up axis (N, 3) in body axes, samples ``period_s`` apart (or, with
+    ``step_s`` (N,), each that many seconds after the one before: ``period_s`` then their typical step). None when
+    fewer than ``min_span_s`` seconds of field samples are given."""
     known = np.isfinite(angle_rad)
-    if known.sum() * period_s < MIN_SPAN_S:
+    steps = np.full(len(angle_rad), period_s) if step_s is None else np.asarray(step_s, dtype=float)
+    if float(steps[known].sum()) < min_span_s:
         return None
-    drift = np.cumsum(up, axis=0) * period_s
+    drift = np.cumsum(up * steps[:, None], axis=0)
     psi = unwrapped(angle_rad, period_s)[known]
     design = np.column_stack([np.ones(len(psi)), drift[known]])
     prior = np.diag([0.0, 1.0, 1.0, 1.0]) / math.radians(PRIOR_DPS) ** 2
@@ -202,3 +210,115 @@ def offline_correction(
         return gyr, params, found
     tau_mag_s = float(params.get("tauMag", vqf.VQF(period_s).params["tauMag"])) * TAU_MAG_FACTOR
     return gyr, {**params, "tauMag": tau_mag_s}, found
+
+
+#: the causal learner (``CausalDrift``) keeps the last this many seconds before a record (one row per fused batch:
+#: vqf's 6D attitude, the raw field, the gyroscope), and fits a window this long after it when that gave nothing
+CAUSAL_WINDOW_S = 30.0
+#: the history is fitted from this many seconds of it, the filter's first seconds left out (its tilt settling: vqf's
+#: tauAcc is 3 s)
+HISTORY_MIN_S = 8.0
+HISTORY_AFTER_S = 3.0
+#: a bias is taken only when its one-sigma uncertainty is below this (deg/s): from the history before the record
+#: (taken as the record comes, a change of the standing lag costs nothing: the heading is taken afresh there), and
+#: from a window after it (a change then is a step in the heading, worth it only for a well-known bias)
+HISTORY_MAX_SIGMA_DPS = 0.3
+CAUSAL_MAX_SIGMA_DPS = 0.08
+#: windows fitted after a record whose history gave no bias
+CAUSAL_WINDOWS = 1
+#: nor when it is larger than this (deg/s): no phone's gyroscope is that far off once vqf started
+CAUSAL_MAX_DPS = 2.0
+
+
+class CausalDrift:
+    """The gyroscope's bias about the vertical for the causal filter (``Fusion``, as the compass runs it), found when
+    a record is put in force (docs/field-calibration.md, "The gyroscope's bias about the vertical, in service").
+
+    vqf's heading lags a bias about the vertical it has not learnt by bias x tauMag (a phone's 0.5 deg/s: 4.5 deg),
+    which every walk's absolute heading carries. Once a record is known, the field it corrects is constant in the
+    Earth frame, so its angle in vqf's 6D frame drifts at that bias (module docstring). The compass keeps, per batch
+    fused, vqf's 6D attitude and the raw field (``note``, the last ``CAUSAL_WINDOW_S``); when a record comes the raw
+    field is corrected with it, the drift fitted (``fit_drift``) and the bias along the mean up axis handed to vqf
+    (``from_history``) just as its magnetic side restarts: the heading is then taken with the bias already off, a
+    change that costs no step in the heading. Where the history gives none (too short, too uncertain), the first
+    ``CAUSAL_WINDOW_S`` after the record are fitted once (``observe``): a single step, taken only when well known
+    (a loop's many small changes of the standing lag are scatter about the heading's mean). Not where vqf learnt the
+    bias itself (its uncertainty below ``MIN_SIGMA_DPS``: it rested). Memory: the history's rows (one a batch) and
+    one window's samples, then none."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = float(period_s)
+        self.window = max(1, round(CAUSAL_WINDOW_S / self.period_s))
+        self.quats: list[np.ndarray] = []
+        self.fields: list[np.ndarray] = []
+        self.count = 0
+        self.active = False
+        self.windows = 0
+        self.found: DriftBias | None = None
+        #: one row per fused batch: time (s), vqf's 6D attitude (4), raw field (3) and gyroscope (3), vqf's frames
+        self.history: list[np.ndarray] = []
+
+    def note(self, t_s: float, quat6d_vqf: np.ndarray, raw_vqf: np.ndarray, gyr_vqf: np.ndarray) -> None:
+        """One sample of the history (the last of a fused batch); rows older than ``CAUSAL_WINDOW_S`` dropped."""
+        self.history.append(np.concatenate([[t_s], np.ravel(quat6d_vqf), np.ravel(raw_vqf), np.ravel(gyr_vqf)]))
+        while self.history and t_s - float(self.history[0][0]) > CAUSAL_WINDOW_S:
+            self.history.pop(0)
+
+    def from_history(self, correct: Callable[[np.ndarray, np.ndarray], np.ndarray], filter_: Any) -> bool:
+        """A new record's ``correct``ion (raw (N, 3), gyroscope (N, 3) -> field (N, 3), vqf's frames) put on the
+        history's raw field, the drift fitted there and its bias added to ``filter_``'s: before the record's first
+        heading, so that vqf starts from it with no lag to make up. True when a bias was taken."""
+        rows = np.array(self.history).reshape(-1, 11)
+        rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
+        if len(rows) < 3:
+            return False
+        field = correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
+        steps = np.diff(rows[:, 0], prepend=rows[0, 0])
+        period = float(np.median(steps[1:]))
+        quat = rows[:, 1:5]
+        found = fit_drift(field_angle_rad(quat, field), up_in_body(quat), period, steps, HISTORY_MIN_S)
+        if not self._take(found, filter_, HISTORY_MAX_SIGMA_DPS):
+            return False
+        self.history = []  # integrated with the bias before: another drift
+        return True
+
+    def _take(self, found: DriftBias | None, filter_: Any, max_sigma_dps: float = CAUSAL_MAX_SIGMA_DPS) -> bool:
+        bias, sigma = filter_.getBiasEstimate()
+        if (
+            found is None
+            or learnt_at_rest(float(sigma))
+            or found.sigma_rads > math.radians(max_sigma_dps)
+            or abs(found.along_up_rads) > math.radians(CAUSAL_MAX_DPS)
+        ):
+            return False
+        self.found = found
+        filter_.setBiasEstimate(np.asarray(bias, dtype=float) + found.bias_rads)
+        return True
+
+    def start(self) -> None:
+        """A record was put in force: collect new windows."""
+        self.quats, self.fields, self.count, self.active, self.windows = [], [], 0, True, 0
+
+    def stop(self) -> None:
+        """Forget the window and the history (a whole restart: the attitude is lost)."""
+        self.quats, self.fields, self.count, self.active, self.history = [], [], 0, False, []
+
+    def observe(self, quat6d_vqf: np.ndarray, field_vqf: np.ndarray, filter_: Any) -> None:
+        """One piece's vqf 6D attitudes (N, 4) and the field it was fed (N, 3), vqf's frames; at the window's end
+        the drift is fitted and its bias added to ``filter_``'s (a ``vqf.VQF``) estimate."""
+        if not self.active:
+            return
+        self.quats.append(np.asarray(quat6d_vqf, dtype=float).reshape(-1, 4))
+        self.fields.append(np.asarray(field_vqf, dtype=float).reshape(-1, 3))
+        self.count += len(self.quats[-1])
+        if self.count < self.window:
+            return
+        quat, field = np.concatenate(self.quats), np.concatenate(self.fields)
+        self.windows += 1
+        more = self.windows < CAUSAL_WINDOWS
+        self.quats, self.fields, self.count, self.active = [], [], 0, more
+        if learnt_at_rest(float(filter_.getBiasEstimate()[1])):
+            self.active = False
+            return
+        if self._take(fit_drift(field_angle_rad(quat, field), up_in_body(quat), self.period_s), filter_):
+            self.history = []
