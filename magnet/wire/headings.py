@@ -17,7 +17,6 @@ FIELD_DISTURBED (|B| away from the expected field) and DIP_DISTURBED (dip away f
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -341,18 +340,24 @@ def _sigmas_ok(sigma_deg: np.ndarray | None, bounds: Sequence[int]) -> list[bool
     """Per batch, whether all its sigmas are finite (False for all without sigmas)."""
     if sigma_deg is None:
         return [False] * (len(bounds) - 1)
-    finite = np.isfinite(np.asarray(sigma_deg, dtype=float))
-    return [bool(finite[lo:hi].all()) for lo, hi in itertools.pairwise(bounds)]
+    return _batches_all(np.isfinite(np.asarray(sigma_deg, dtype=float)), bounds)
+
+
+def _batches_all(ok: np.ndarray, bounds: Sequence[int]) -> list[bool]:
+    """Per batch (``bounds``' consecutive pairs), whether ``ok`` (S,) bool is true throughout it (an empty batch:
+    True): one pass over the drain, not a reduction a batch (14 us a batch of 100 in the compass's encode)."""
+    if ok.all():
+        return [True] * (len(bounds) - 1)
+    edges = np.asarray(bounds, dtype=np.intp)
+    bad = np.concatenate(([0], np.cumsum(~ok)))
+    return (bad[edges[1:]] == bad[edges[:-1]]).tolist()
 
 
 def _quaternions_ok(quat_wxyz: np.ndarray | None, bounds: Sequence[int]) -> list[bool]:
     """Per batch, whether all its quaternion rows are finite (False for all without quaternions)."""
     if quat_wxyz is None:
         return [False] * (len(bounds) - 1)
-    finite = np.isfinite(np.asarray(quat_wxyz, dtype=float)).all(axis=1)
-    if finite.all():
-        return [True] * (len(bounds) - 1)
-    return [bool(finite[lo:hi].all()) for lo, hi in itertools.pairwise(bounds)]
+    return _batches_all(np.isfinite(np.asarray(quat_wxyz, dtype=float)).all(axis=1), bounds)
 
 
 def decode_heading(payload: Payload) -> HeadingBatch:
