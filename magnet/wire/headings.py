@@ -338,26 +338,21 @@ def _encode_binary(
 
 def _sigmas_ok(sigma_deg: np.ndarray | None, bounds: Sequence[int]) -> list[bool]:
     """Per batch, whether all its sigmas are finite (False for all without sigmas)."""
-    if sigma_deg is None:
-        return [False] * (len(bounds) - 1)
-    return _batches_all(np.isfinite(np.asarray(sigma_deg, dtype=float)), bounds)
-
-
-def _batches_all(ok: np.ndarray, bounds: Sequence[int]) -> list[bool]:
-    """Per batch (``bounds``' consecutive pairs), whether ``ok`` (S,) bool is true throughout it (an empty batch:
-    True): one pass over the drain, not a reduction a batch (14 us a batch of 100 in the compass's encode)."""
-    if ok.all():
-        return [True] * (len(bounds) - 1)
-    edges = np.asarray(bounds, dtype=np.intp)
-    bad = np.concatenate(([0], np.cumsum(~ok)))
-    return (bad[edges[1:]] == bad[edges[:-1]]).tolist()
+    return _batches_all(None if sigma_deg is None else np.isfinite(np.asarray(sigma_deg, dtype=float)), bounds)
 
 
 def _quaternions_ok(quat_wxyz: np.ndarray | None, bounds: Sequence[int]) -> list[bool]:
     """Per batch, whether all its quaternion rows are finite (False for all without quaternions)."""
-    if quat_wxyz is None:
-        return [False] * (len(bounds) - 1)
-    return _batches_all(np.isfinite(np.asarray(quat_wxyz, dtype=float)).all(axis=1), bounds)
+    return _batches_all(None if quat_wxyz is None else np.isfinite(np.asarray(quat_wxyz, dtype=float)).all(1), bounds)
+
+
+def _batches_all(ok: np.ndarray | None, bounds: Sequence[int]) -> list[bool]:
+    """Per batch, whether ``ok`` (S,) is true throughout it (None: False): one count over the drain, not a
+    reduction a batch (these were a quarter of the compass's encode)."""
+    if ok is None or ok.all():
+        return [ok is not None] * (len(bounds) - 1)
+    bad = np.concatenate(([0], np.cumsum(~ok)))[np.asarray(bounds, dtype=np.intp)]
+    return (bad[1:] == bad[:-1]).tolist()
 
 
 def decode_heading(payload: Payload) -> HeadingBatch:
