@@ -2,6 +2,8 @@
 a message without it reads as before, and a reader that does not know it (a map read by key) reads a message with it
 as before."""
 
+import itertools
+
 import msgpack
 import numpy as np
 import pytest
@@ -98,9 +100,9 @@ def test_per_batch_finiteness_is_the_plain_check_of_each_batch():
             values[spots] = rng.choice([np.nan, np.inf, -np.inf], size=int(spots.sum()))
         finite_rows = np.isfinite(quat).all(axis=1)
         assert headings._sigmas_ok(sigma, bounds) == [
-            bool(np.isfinite(sigma[a:b]).all()) for a, b in zip(bounds, bounds[1:])
+            bool(np.isfinite(sigma[a:b]).all()) for a, b in itertools.pairwise(bounds)
         ]
         assert headings._quaternions_ok(quat, bounds) == [
-            bool(finite_rows[a:b].all()) for a, b in zip(bounds, bounds[1:])
+            bool(finite_rows[a:b].all()) for a, b in itertools.pairwise(bounds)
         ]
         assert all(type(v) is bool for v in headings._sigmas_ok(sigma, bounds))
