@@ -224,7 +224,7 @@ def test_beside_the_turn_gate_in_one_compiled_call_the_answers_are_the_piece_by_
         rng, parts, start = np.random.default_rng(7), [], 0
         while start < len(gyr):
             rows = slice(start, min(start + int(rng.integers(1, 151)), len(gyr)))
-            piece = None if compiled else (lambda g, a, f, _w: filter_.updateBatch(g, a, f))
+            piece = None if compiled else (lambda g, a, f, _w, v=filter_: v.updateBatch(g, a, f))
             out = run_gated(
                 gate, filter_, piece, (gyr[rows], acc[rows], mag[rows]), np.zeros(rows.stop - rows.start, bool)
             )
