@@ -246,9 +246,7 @@ class AidedFilter:
         the attitude), so that the accelerometer is freed of the acceleration from the first samples the new filter
         takes (a new record while the car accelerates: docs/field-calibration.md); ``quat_vqf`` (4,): the attitude
         (body -> ENU) it starts from, as if fed (``magnet.compass.replay.start_attitude``), else none; with it the
-        gyroscope's bias of vqf's state ``before`` (the sensor's, not the record's) is kept, and its uncertainty too
-        where that filter had a magnetic reference (else the bias was learnt with an arbitrary heading turning the
-        velocity's acceleration into the body, and starts from vqf's first uncertainty)."""
+        gyroscope's bias and its uncertainty of vqf's state ``before`` (the sensor's, not the record's) are kept."""
         self.release()
         self.filter.resetState()
         kept = (self.fixes.meta.copy(), self.fixes.buffer_times.copy(), self.fixes.buffer_values.copy())
@@ -259,9 +257,7 @@ class AidedFilter:
             state = self.filter.state
             state["accQuat"] = np.asarray(quat_vqf, dtype=float)
             if before is not None:
-                state["bias"] = before["bias"]
-                if float(before["magRefNorm"]) > 0.0:
-                    state["biasP"] = before["biasP"]
+                state["bias"], state["biasP"] = before["bias"], before["biasP"]
             self.filter.state = state
             self.state[0] = 1.0
         return self
