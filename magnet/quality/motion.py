@@ -45,9 +45,6 @@ QUASI_STATIC_TOL = 0.03
 MIN_QUASI_STATIC = 30
 #: runs of consecutive held-out samples whose spread gives the uncertainty of a comparison
 MARGIN_CHUNKS = 10
-#: a comparison's gains are also tested in degrees, chunk by chunk, where the reference's held-out figure is at least
-#: this many times the candidate's (``_margin``): a raw field against a fit made from turns that show its hard iron
-GAIN_RATIO = 4.0
 #: the field's earth-frame direction is compared with its mean over stretches of this many seconds, not over the
 #: whole recording: the gyroscope filter's heading drifts slowly (its bias about the vertical is unknown), and that
 #: drift, the same for every calibration compared, would otherwise swamp their difference
@@ -263,40 +260,20 @@ def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | No
 
 def margin_deg(field: np.ndarray, other: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
     """How much better than ``other`` (deg of consistency) ``field`` must be on the rows for the difference to be
-    more than chance: the rows are cut into ``MARGIN_CHUNKS`` runs of consecutive rows (neighbouring samples are not
-    independent), and in each the gain, ``other``'s RMS departure less ``field``'s, is taken; the margin is two
-    standard errors of their mean, plus whatever the whole rows' gain exceeds that mean by (so that ``field`` passes
-    when both the whole gain and the chunks' mean gain exceed two standard errors). None when there are too few
-    rows."""
+    more than chance: the per-sample differences of squared departures, averaged over ``MARGIN_CHUNKS`` runs of
+    consecutive rows (neighbouring samples are not independent), give the uncertainty of their mean (two standard
+    errors), turned into degrees below ``other``'s consistency. None when there are too few rows."""
     return _margin(_errors_deg(field, ev, rows), _errors_deg(other, ev, rows))
 
 
 def _margin(mine: np.ndarray | None, theirs: np.ndarray | None) -> float | None:
-    """``margin_deg`` from the departures of the two fields on the same rows.
-
-    Two tests, the smaller margin kept. The squared departures' chunk means (two standard errors of their mean,
-    turned into degrees below ``theirs``'s figure). And, where ``theirs`` is at least ``GAIN_RATIO`` times
-    ``mine`` (a raw field against a first fit, not two fits against each other), the gains in degrees, chunk by
-    chunk: a vehicle's raw field departs from constant only in its turns (its hard iron turning with it), 13-50 deg
-    there and under 1 deg on the straights, and the squares' chunk means then spread so widely that two standard
-    errors of them exceeded the raw field's whole figure even where every chunk was 5-50 times better (a robot's fit
-    at 0.9 deg against 21 deg). That margin is two standard errors of the chunks' mean gain, plus whatever the whole
-    rows' gain exceeds that mean by (both must exceed two standard errors)."""
+    """``margin_deg`` from the departures of the two fields on the same rows."""
     if mine is None or theirs is None or len(mine) < 4 * MARGIN_CHUNKS:
         return None
     chunks = np.array([c.mean() for c in np.array_split(theirs**2 - mine**2, MARGIN_CHUNKS)])
     uncertainty = 2.0 * float(chunks.std(ddof=1)) / math.sqrt(MARGIN_CHUNKS)
     reference = float(np.mean(theirs**2))
-    squared = math.sqrt(reference) - math.sqrt(max(reference - uncertainty, 0.0))
-    held = math.sqrt(float(np.mean(mine**2)))
-    if math.sqrt(reference) < GAIN_RATIO * held:
-        return squared
-    theirs_rms = np.array([math.sqrt(c.mean()) for c in np.array_split(theirs**2, MARGIN_CHUNKS)])
-    mine_rms = np.array([math.sqrt(c.mean()) for c in np.array_split(mine**2, MARGIN_CHUNKS)])
-    gains = theirs_rms - mine_rms
-    gain_uncertainty = 2.0 * float(gains.std(ddof=1)) / math.sqrt(MARGIN_CHUNKS)
-    in_degrees = gain_uncertainty + max(0.0, math.sqrt(reference) - held - float(gains.mean()))
-    return min(squared, in_degrees)
+    return math.sqrt(reference) - math.sqrt(max(reference - uncertainty, 0.0))
 
 
 def motion_figures(
