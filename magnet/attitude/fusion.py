@@ -18,13 +18,12 @@ best estimate for a log.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import vqf
 
-from magnet.attitude.drift_bias import CausalDrift
 from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.fused import Fused
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
@@ -117,7 +116,6 @@ class Fusion:
         heading_bias: bool = False,
         turn_gate: bool = True,
         heading_gate: bool = True,
-        drift_bias: bool = True,
     ) -> None:
         self.period_s = _check_period(period_s)
         self.params = dict(params or {})
@@ -131,9 +129,6 @@ class Fusion:
         #: (docs/compass.md, "Disturbances"); compiled, it costs about a quarter of vqf itself (docs/cost.md)
         self.watch = FieldWatch(self.period_s) if watch else None
         self.heading_bias = HeadingBias(self.period_s, self._filter.params["tauMag"]) if heading_bias else None
-        #: with ``drift_bias`` (the default), after each record put in force the gyroscope's bias about the vertical
-        #: is fitted once from the field's drift in the 6D frame (``drift_bias.CausalDrift``), not where aided
-        self.drift = CausalDrift(self.period_s) if drift_bias else None
         #: with ``turn_gate`` (the default), in a gait (a walker's or runner's steps) the accelerometer is fed a window
         #: late and left out where the course turned (in a swinging hand levelled), its centripetal acceleration not
         #: taken for gravity (``magnet.attitude.turn_gate``; docs/compass.md, "Turns of the course")
@@ -162,19 +157,12 @@ class Fusion:
             self.watch.reset()
         if self.heading_bias is not None:
             self.heading_bias.reset()
-        if self.drift is not None:
-            self.drift.stop()
         if self.turn_gate is not None:
             self.turn_gate.reset()
         self._recalibrated = False
         self.samples = 0
 
-    def restart_magnetometer(
-        self,
-        keep_fixes: bool = True,
-        quat_vqf: np.ndarray | None = None,
-        correct: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-    ) -> None:
+    def restart_magnetometer(self, keep_fixes: bool = True, quat_vqf: np.ndarray | None = None) -> None:
         """Forget the magnetic side only (a new calibration put in force): the heading taken again from the next field
         sample, the tilt and the gyroscope's bias kept (a whole restart takes 10 s and more to find a swinging hand's
         tilt). Aided: a whole restart (``AidedFilter.restart``'s options; docs/field-calibration.md)."""
@@ -192,10 +180,6 @@ class Fusion:
             self.watch.reset()
         if self.heading_bias is not None:  # the bias it learnt is kept, its loop starts again with the new delta
             self.heading_bias.reset()
-        if self.drift is not None:  # the bias it found is kept; the new record's history or windows add to it
-            taken = correct is not None and self.drift.from_history(correct, self._filter)
-            self.drift.start()
-            self.drift.active = not taken
         self._recalibrated = True
 
     def update(
@@ -257,7 +241,6 @@ class Fusion:
             gate is not None
             and self._aided is None
             and self.heading_bias is None
-            and not self._drifting
             and (gate.alone is None or gate.alone.done)
         ):
             self.samples += hi - lo
@@ -314,7 +297,7 @@ class Fusion:
         start; one compiled call without a bias loop) and the bias loop where they run: vqf's outputs for the batch."""
         if self.turn_gate is None:
             return self._vqf_piece(gyr, acc, field, watched)
-        alone = (self.heading_bias is None and not self._drifting) or field is None or self._aided is not None
+        alone = self.heading_bias is None or field is None or self._aided is not None  # no bias loop: vqf's batch
         return run_gated(self.turn_gate, self._filter, None if alone else self._vqf_piece, (gyr, acc, field), watched)
 
     def _vqf_piece(
@@ -322,26 +305,9 @@ class Fusion:
     ) -> dict[str, Any]:
         """vqf's ``updateBatch`` on one piece, with the bias loop where it runs (``heading_bias.run_pieces``)."""
         loop = self.heading_bias
-        if field is None or self._aided is not None:
+        if loop is None or field is None or self._aided is not None:
             return self._filter.updateBatch(gyr, acc, field)
-        if loop is None:
-            out = self._filter.updateBatch(gyr, acc, field)
-        else:
-            out = run_pieces(self._filter, loop, (gyr, acc, field), watched, self._recalibrated)
-        if self.drift is not None and self.drift.active:
-            self.drift.observe(out["quat6D"], field, self._filter)
-        return out
-
-    def note_raw(self, raw_vqf: np.ndarray, gyr_vqf: np.ndarray) -> None:
-        """The raw field (3,) and gyroscope (3,) (vqf's frames) of the last sample fed: the drift's history
-        (``drift_bias.CausalDrift.note``; one row per batch), fitted with the next record's correction."""
-        if self.drift is not None and self._aided is None:
-            self.drift.note(self.samples * self.period_s, self._filter.getQuat6D(), raw_vqf, gyr_vqf)
-
-    @property
-    def _drifting(self) -> bool:
-        """Whether the causal drift's window is being collected (the batch then runs in pieces, 6D kept)."""
-        return self.drift is not None and self.drift.active and self._aided is None
+        return run_pieces(self._filter, loop, (gyr, acc, field), watched, self._recalibrated)
 
 
 def fuse_offline(

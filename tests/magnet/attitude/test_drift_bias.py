@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 import vqf
 
+from magnet.attitude import causal_drift as cd
 from magnet.attitude import drift_bias as vb
 from magnet.attitude import fusion
+from magnet.attitude.causal_drift import note_batch, take_drift
 from services.bench import field_runs as fr
 
 
@@ -131,10 +134,10 @@ class _Filter:
         self.bias = np.asarray(bias, dtype=float)
 
 
-def _turning_history(bias_dps: float, seconds: float = 16.0) -> tuple[vb.CausalDrift, np.ndarray]:
+def _turning_history(bias_dps: float, seconds: float = 16.0) -> tuple[cd.CausalDrift, np.ndarray]:
     """A level device turning about the vertical, one history row per 0.5 s: vqf's 6D heading drifting at the
     bias, the raw field the Earth's turned into the body plus a hard iron (returned)."""
-    drift = vb.CausalDrift(0.02)
+    drift = cd.CausalDrift(_Filter())
     earth = np.array([0.0, 19.0, -46.0])  # ENU: north and down
     iron = np.array([150.0, -80.0, 300.0])
     rng = np.random.default_rng(3)
@@ -145,14 +148,14 @@ def _turning_history(bias_dps: float, seconds: float = 16.0) -> tuple[vb.CausalD
         turn = np.array(
             [[math.cos(heading), -math.sin(heading), 0], [math.sin(heading), math.cos(heading), 0], [0, 0, 1]]
         )
-        drift.note(float(t), quat, turn.T @ earth + iron, np.zeros(3))
+        drift.note(float(t), turn.T @ earth + iron, np.zeros(3), quat)
     return drift, iron
 
 
 def test_causal_drift_takes_the_bias_from_the_history_before_a_record() -> None:
     drift, iron = _turning_history(0.4)
-    filter_ = _Filter()
-    assert drift.from_history(lambda raw, gyr: raw - iron, filter_)
+    filter_ = drift.filter
+    assert drift.from_history(lambda raw, gyr: raw - iron)
     assert abs(filter_.bias[2] - math.radians(0.4)) < math.radians(0.05)
     assert np.allclose(filter_.bias[:2], 0.0, atol=1e-9)  # about the up axis only
     assert drift.history == []  # integrated with the old bias: not fitted again
@@ -160,14 +163,13 @@ def test_causal_drift_takes_the_bias_from_the_history_before_a_record() -> None:
 
 def test_causal_drift_leaves_a_bias_that_vqf_learnt_at_rest_or_a_short_history() -> None:
     drift, iron = _turning_history(0.4)
-    rested = _Filter(sigma_dps=0.1)
-    assert not drift.from_history(lambda raw, gyr: raw - iron, rested)
+    rested = drift.filter = _Filter(sigma_dps=0.1)
+    assert not drift.from_history(lambda raw, gyr: raw - iron)
     assert np.all(rested.bias == 0.0)
     short, iron = _turning_history(0.4, seconds=5.0)
-    assert not short.from_history(lambda raw, gyr: raw - iron, _Filter())
-    wrong = _Filter()  # the raw field left uncorrected: the hard iron turns with the body, no drift to fit
-    drift, iron = _turning_history(0.4)
-    assert not drift.from_history(lambda raw, gyr: raw, wrong)
+    assert not short.from_history(lambda raw, gyr: raw - iron)
+    drift, iron = _turning_history(0.4)  # the raw field left uncorrected: the hard iron turns with the body
+    assert not drift.from_history(lambda raw, gyr: raw)
 
 
 def test_the_compass_filter_takes_the_bias_as_a_record_comes() -> None:
@@ -184,13 +186,14 @@ def test_the_compass_filter_takes_the_bias_as_a_record_comes() -> None:
     body = np.column_stack([np.cos(heading) * earth[0], -np.sin(heading) * earth[0], np.full(count, earth[2])])
     raw = body + iron
     filter_ = fusion.Fusion(period)
+    state = types.SimpleNamespace(filter=filter_, drift=None)  # what the compass keeps per device
+    drain = types.SimpleNamespace(raw_source=(raw, None), inputs=(fusion.to_vqf_frame(gyr),))
     for start in range(0, count, 25):
-        part = slice(start, start + 25)
-        filter_.update(gyr[part], acc[part])
-        last = start + 24
-        filter_.note_raw(fusion.to_vqf_frame(raw[last]), fusion.to_vqf_frame(gyr[last]))
+        filter_.update(gyr[start : start + 25], acc[start : start + 25])
+        note_batch(state, drain, start + 24)
     before = np.asarray(filter_._filter.getBiasEstimate()[0])
-    filter_.restart_magnetometer(correct=lambda raw_vqf, gyr_vqf: raw_vqf - fusion.to_vqf_frame(iron))
+    filter_.restart_magnetometer()
+    take_drift(state, lambda raw_vqf, gyr_vqf: raw_vqf - fusion.to_vqf_frame(iron))
     after = np.asarray(filter_._filter.getBiasEstimate()[0])
     # vqf's frame is z up: a bias about FRD z is -0.4 deg/s about its z
     assert abs(math.degrees(after[2]) + 0.4) < 0.05 < abs(math.degrees(before[2]) + 0.4)
