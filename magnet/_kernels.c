@@ -2429,6 +2429,7 @@ typedef struct {
     double *recent, *earth, *mags, *rates; /* views into g */
     double *seen, *all_earth, *held, *centred, *up, *spin; /* scratch for pieces of up to ``block`` samples (centred:
                                                             * gait_width + block; spin: 3 (gait_width + block)) */
+    double *turns; /* each sample's turn (4 doubles), for the heading gate of the same piece (gated_core) */
 } Gate;
 
 /* The scratch of the gate's pieces, kept from call to call (the GIL held: one user at a time): no allocation of
@@ -2479,7 +2480,7 @@ static int gate_open(Gate *e, const double *s, double *g) {
     e->mags = e->earth + 3 * (e->width - 1);
     e->rates = e->mags + e->gait_width;
     Py_ssize_t w = e->width, b = e->block, gw = e->gait_width;
-    size_t need = (size_t)(2 * (w - 1) + b + 3 * (w - 1 + b) + 4 * b + gw + b + 3 * b + 3 * (gw + b));
+    size_t need = (size_t)(2 * (w - 1) + b + 3 * (w - 1 + b) + 4 * b + gw + b + 3 * b + 3 * (gw + b) + 4 * b);
     if (need > gate_scratch_doubles) {
         double *grown = PyMem_Realloc(gate_scratch, sizeof(double) * need);
         if (grown == NULL) {
@@ -2495,6 +2496,7 @@ static int gate_open(Gate *e, const double *s, double *g) {
     e->centred = e->held + 4 * b;
     e->up = e->centred + gw + b;
     e->spin = e->up + 3 * b;
+    e->turns = e->spin + 3 * (gw + b);
     return 0;
 }
 
@@ -2646,7 +2648,8 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
         double norm = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
         double angle = norm * period / 2.0;
         double c = cos(angle), sn = norm > 0 ? sin(angle) / norm : 0.0;
-        double turn[4] = {c, r[0] * sn, r[1] * sn, r[2] * sn}, next[4], v[3];
+        double *turn = e->turns + 4 * i, next[4], v[3];
+        turn[0] = c, turn[1] = r[0] * sn, turn[2] = r[1] * sn, turn[3] = r[2] * sn;
         quat_mul(att, turn, next);
         memcpy(att, next, sizeof(att));
         quat_mul(held, turn, next);
@@ -2811,6 +2814,16 @@ static Py_ssize_t heading_gate_state_size(const double *s) {
     return HS_RING + (Py_ssize_t)s[H_TURN_WIDTH] + (Py_ssize_t)s[H_BLOCK];
 }
 
+/* remainder(x, 2 pi), to the bit, without libm's call where |x| < 9 (all the heading gate sees but NaN): 2 pi is
+ * a double y and pi y / 2 exactly, so within [-pi, pi] the quotient rounds to 0 (a half to even) and the result is
+ * x; for pi < |x| < 9 < 3 pi it rounds to +-1 and x -+ y is exact (Sterbenz: y / 2 <= |x| <= 2 y). */
+static double wrap_pi(double x) {
+    double a = fabs(x);
+    if (a <= M_PI) return x;
+    if (a < 9.0) return x - copysign(2.0 * M_PI, x);
+    return remainder(x, 2.0 * M_PI);
+}
+
 /* At a block's end: the usual disagreement towards the block's 90th percentile (``percent``), an acceptance that
  * saw no unusual sample in the block ended. */
 static void heading_gate_learn(const double *s, double *h, double *scratch) {
@@ -2836,7 +2849,7 @@ static void heading_gate_learn(const double *s, double *h, double *scratch) {
  * whether any was left out; -1 and an exception on no memory. */
 static int heading_gate_piece(const double *s, double *h, const double *gyr, const double *field, Py_ssize_t n,
                               const double start[4], const double bias_in[3], double delta, double init,
-                              double *fed, bool *flags) {
+                              double *fed, bool *flags, const Gate *shared) {
     Py_ssize_t block = (Py_ssize_t)s[H_BLOCK], width = (Py_ssize_t)s[H_TURN_WIDTH];
     double period = s[H_PERIOD], *ring = h + HS_RING, *pending = ring + width;
     double *scratch = PyMem_Malloc(sizeof(double) * (size_t)block + 1);
@@ -2844,7 +2857,7 @@ static int heading_gate_piece(const double *s, double *h, const double *gyr, con
         PyErr_NoMemory();
         return -1;
     }
-    int any = 0;
+    int any = 0, share = 0;
     for (Py_ssize_t i = 0; i < n; i++) {
         Py_ssize_t g = (Py_ssize_t)h[HS_SAMPLES];
         if (g % block == 0) {
@@ -2859,10 +2872,20 @@ static int heading_gate_piece(const double *s, double *h, const double *gyr, con
         }
         static const double none[3] = {0.0, 0.0, 0.0};
         const double *bias = h + HS_BIAS, *v = field != NULL ? field + 3 * i : none;
+        /* the turn gate's turns of the same piece where they are this gate's (the same bias and period: one
+         * sqrt, cos and sin a sample, not two; the bias changes at a block's start only) */
+        if (i == 0 || g % block == 0)
+            share = shared != NULL && shared->s[T_PERIOD] == period &&
+                    memcmp(shared->g + G_BIAS, bias, 3 * sizeof(double)) == 0;
         double r[3] = {gyr[3 * i] - bias[0], gyr[3 * i + 1] - bias[1], gyr[3 * i + 2] - bias[2]};
-        double norm = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
-        double angle = norm * period / 2.0, c = cos(angle), sn = norm > 0 ? sin(angle) / norm : 0.0;
-        double turn[4] = {c, r[0] * sn, r[1] * sn, r[2] * sn}, att[4], up[3], earth[3];
+        double turn[4], att[4], up[3], earth[3];
+        if (share) {
+            memcpy(turn, shared->turns + 4 * i, sizeof(turn));
+        } else {
+            double norm = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+            double angle = norm * period / 2.0, c = cos(angle), sn = norm > 0 ? sin(angle) / norm : 0.0;
+            turn[0] = c, turn[1] = r[0] * sn, turn[2] = r[1] * sn, turn[3] = r[2] * sn;
+        }
         quat_mul(h + HS_ATTITUDE, turn, att);
         double an = sqrt(att[0] * att[0] + att[1] * att[1] + att[2] * att[2] + att[3] * att[3]);
         for (int k = 0; k < 4; k++) h[HS_ATTITUDE + k] = att[k] / an;
@@ -2874,8 +2897,8 @@ static int heading_gate_piece(const double *s, double *h, const double *gyr, con
         double innovation = NAN;
         if (v[0] != 0.0 || v[1] != 0.0 || v[2] != 0.0) {
             to_frame3(h + HS_ATTITUDE, v, earth);
-            double now = remainder(atan2(earth[0], earth[1]) - h[HS_DELTA], 2.0 * M_PI), was = h[HS_SMOOTHED];
-            innovation = isnan(was) ? now : remainder(was + s[H_SMOOTH] * remainder(now - was, 2.0 * M_PI), 2.0 * M_PI);
+            double now = wrap_pi(atan2(earth[0], earth[1]) - h[HS_DELTA]), was = h[HS_SMOOTHED];
+            innovation = isnan(was) ? now : wrap_pi(was + s[H_SMOOTH] * wrap_pi(now - was));
             h[HS_SMOOTHED] = innovation;
         }
         double limit = s[H_RELATIVE] * h[HS_LEVEL];
@@ -2977,7 +3000,7 @@ static PyObject *heading_gate_update(PyObject *self, PyObject *args) {
         goto done;
     }
     int any = heading_gate_piece(b[0].buf, b[1].buf, v[0].buf, v[1].buf, n, v[2].buf, v[3].buf, delta, init,
-                                 v[4].buf, v[5].buf);
+                                 v[4].buf, v[5].buf, NULL);
     if (any < 0) goto done;
     result = PyBool_FromLong(any);
 done:
@@ -3024,7 +3047,7 @@ static int gated_core(void *vqf, const double *settings, double *state, const do
         int any = 0;
         if (heading_settings != NULL) {
             any = heading_gate_piece(heading_settings, heading_state, gyr + 3 * pos, f, k, start, bias, delta, init,
-                                     f ? field_fed : NULL, left_out);
+                                     f ? field_fed : NULL, left_out, &e);
             if (any < 0) goto done;
             if (any) f = field_fed;
         }

@@ -78,7 +78,11 @@ class FusedColumns:
         """Specific force (S, 3) as a still device would read it: -down (unit) where fused, else ``acc_ms2``."""
         if not self.fused.any():
             return acc_ms2
-        return np.where(self.fused[:, None], -self.down, acc_ms2)
+        gravity = np.negative(self.down)  # (np.where over rows of 3 broadcasts: 3-4 times the cost, the same values)
+        if not self.fused.all():
+            rest = ~self.fused
+            gravity[rest] = acc_ms2[rest]
+        return gravity
 
     @classmethod
     def from_vqf(

@@ -51,7 +51,7 @@ from services.calibrator.settings import (
     settings_from_args,
 )
 from services.calibrator.store import open_store
-from services.common import metrics
+from services.common import metrics, zenoh_session
 from services.common.guard import Guard
 from services.common.status_board import StatusBoard
 from services.common.zenoh_session import Receiver, drain, open_session, payload_bytes, queries_session, stop_event
@@ -181,10 +181,10 @@ def _declare(
     lease_sub = _join_lease(declared, session, lease)
     calibrator.active = lease.active
     intake = RawIntake(settings.max_queue)
-    raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", FifoChannel(CHANNEL_CAPACITY))
-    pump = threading.Thread(
-        target=intake.pump, args=(raw_sub.handler, payload_bytes, zenoh.ZError), name="raw-intake", daemon=True
-    )
+    raw_link = zenoh_session.raw_session(declared, session, settings.zenoh)  # behind a router: a link, 8 kB batches
+    raw_sub = raw_link.declare_subscriber(f"{prefix}/{devices}/raw", FifoChannel(CHANNEL_CAPACITY))
+    args = (raw_sub.handler, payload_bytes, zenoh.ZError)
+    pump = threading.Thread(target=intake.pump, args=args, name="raw-intake", daemon=True)
     declared.callback(pump.join, 2.0)
     declared.enter_context(raw_sub)  # undeclared before the join above: that ends the pump
     pump.start()

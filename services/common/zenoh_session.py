@@ -40,6 +40,13 @@ OPEN_RETRY_S = 5.0
 #: Measured: a bare zenoh-python subscriber grew 19 MB with each new publishing process (337 MB after 15), flat at
 #: 25-32 MB with it off (docs/front-door.md, "Memory per service").
 SESSION_DEFAULTS = {"transport/shared_memory/enabled": "false"}
+#: the batch size of a service's raw link (bytes; Zenoh's default 65,535, the link takes the smaller of both sides'
+#: for both directions). Every message Zenoh receives is a slice of the batch it came in, so a raw sample waiting in
+#: the channel before the intake's pump copies it (the pump starved of CPU in a flood) keeps that whole batch alive:
+#: a channel of 256 held 12 MB of 64 kB batches, 1.9 MB of 8 kB ones (``tests/system/test_raw_pinned_buffers.py``).
+#: Larger raw messages arrive in fragments, joined as before.
+RAW_BATCH_BYTES = 8192
+RAW_LINK_DEFAULTS = {"transport/link/tx/batch_size": str(RAW_BATCH_BYTES)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -161,9 +168,25 @@ def queries_session(stack: contextlib.ExitStack, session: zenoh.Session, options
     query behind the samples waits too. So a client gets a session of its own, a link of its own (closed by
     ``stack``, after what is declared on it later); a peer, reached directly by whoever asks on the links it listens
     on, keeps ``session``."""
+    return _session_of_its_own(stack, session, options)
+
+
+def raw_session(
+    stack: contextlib.ExitStack, session: zenoh.Session, options: Options, defaults: Mapping[str, str] | None = None
+) -> zenoh.Session:
+    """The session a service declares its raw subscriber on (the calibrator's, the compass's): behind a router
+    (client mode) one of its own whose link carries batches of ``RAW_BATCH_BYTES`` (``RAW_LINK_DEFAULTS`` over the
+    service's ``defaults``; a ``--config`` file's own settings stand), closed by ``stack`` after what is declared on
+    it later; a peer keeps ``session`` (its links, to every peer, carry the headings it sends too)."""
+    return _session_of_its_own(stack, session, options, {**(defaults or {}), **RAW_LINK_DEFAULTS})
+
+
+def _session_of_its_own(
+    stack: contextlib.ExitStack, session: zenoh.Session, options: Options, defaults: Mapping[str, str] | None = None
+) -> zenoh.Session:
     if session_mode(options) != "client":
         return session
-    return stack.enter_context(open_session(options))
+    return stack.enter_context(open_session(options, defaults))
 
 
 def open_session(options: Options, defaults: Mapping[str, str] | None = None) -> zenoh.Session:

@@ -37,7 +37,14 @@ from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.status_board import StatusBoard
-from services.common.zenoh_session import drain, open_session, payload_bytes, queries_session, stop_event
+from services.common.zenoh_session import (
+    drain,
+    open_session,
+    payload_bytes,
+    queries_session,
+    raw_session,
+    stop_event,
+)
 from services.compass.intake import PayloadIntake
 from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
 from services.compass.sinks import open_sinks
@@ -132,7 +139,8 @@ def run(settings: CompassSettings, metrics_address: str | None = None) -> int:
     with open_session(settings.zenoh, ZENOH_DEFAULTS) as session, contextlib.ExitStack() as declared:
         declared.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "compass", name)))
         intake = PayloadIntake()
-        raw_sub = session.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
+        raw_link = raw_session(declared, session, settings.zenoh, ZENOH_DEFAULTS)  # behind a router: small batches
+        raw_sub = raw_link.declare_subscriber(f"{prefix}/{devices}/raw", zenoh.handlers.FifoChannel(CHANNEL_CAPACITY))
         pump = threading.Thread(
             target=intake.pump, args=(raw_sub.handler, zenoh.ZError), name="raw-intake", daemon=True
         )

@@ -26,6 +26,7 @@ from magnet.drift import alert_from_message
 from services.common import metrics
 from services.common.allocator import give_back_now
 from services.common.guard import Guard
+from services.common.status_board import StatusBoard
 from services.common.zenoh_session import Receiver, drain, payload_bytes
 from services.dashboard.state import FleetState
 
@@ -51,6 +52,9 @@ TRIM_BUSY_S = 1.0
 MAX_DRAIN = 100_000
 QUERY_TIMEOUT_S = 5.0
 REQUERY_S = 10.0
+#: how often at most the ingest writes what --metrics serves (s): scrapes come every few seconds, and the counts walk
+#: every row (10,000 at the default bound)
+METRICS_REFRESH_S = 1.0
 
 
 Subscriber = zenoh.Subscriber[zenoh.Handler[zenoh.Sample]]
@@ -76,8 +80,18 @@ class Ingest:
     """Feeds a FleetState from a zenoh session (``session`` already open; the caller closes it). A context manager:
     its subscribers are undeclared when the ``with`` block ends (after ``stop`` and the end of ``run``)."""
 
-    def __init__(self, session: zenoh.Session, prefix: str, state: FleetState, tick_s: float = 0.25) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        prefix: str,
+        state: FleetState,
+        tick_s: float = 0.25,
+        metrics_board: StatusBoard | None = None,
+    ) -> None:
         self.session, self.prefix, self.state, self.tick_s = session, prefix, state, tick_s
+        #: what ``--metrics`` serves (``FleetState.metrics_status``), written by this thread at most every
+        #: ``METRICS_REFRESH_S`` (None: no --metrics): a scrape reads it and never walks the rows from its own thread
+        self.metrics_board = metrics_board
         self.stop = threading.Event()
         self.declared = contextlib.ExitStack()
         fifo = zenoh.handlers.FifoChannel
@@ -151,6 +165,8 @@ class Ingest:
         if since_s >= TRIM_S or (self.busy and since_s >= TRIM_BUSY_S):
             self.trimmed_s, self.busy = time.monotonic(), False
             give_back_now()
+        if self.metrics_board is not None and self.metrics_board.due():
+            self.metrics_board.write(self.state.metrics_status())
 
     # ---------------------------------------------------------------------------------------------- messages
     def _drop(self, exc: wire.WireError, what: str) -> None:

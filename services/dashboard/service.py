@@ -24,6 +24,8 @@ import zenoh
 from magnet import wire
 from services.common import metrics
 from services.common.endpoint import use_local_pipeline
+from services.common.guard import Guard
+from services.common.status_board import StatusBoard
 from services.common.zenoh_session import open_session
 from services.dashboard.settings import (
     DEFAULT_HTTP,
@@ -37,6 +39,7 @@ from services.dashboard.settings import (
 
 if TYPE_CHECKING:
     from magnet.earth.geomag import EarthField
+    from services.dashboard.state import FleetState
 
 log = logging.getLogger("magnet.dashboard")
 #: an idle keep-alive connection is closed after this (a slow or silent client holds no connection for long)
@@ -117,9 +120,11 @@ def serve(settings: DashboardSettings) -> int:
     )
     with contextlib.ExitStack() as stack:
         session = stack.enter_context(open_session(settings.zenoh, ZENOH_DEFAULTS))
-        metrics.start(settings.metrics, "dashboard", state.metrics_status)
         stack.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "dashboard", "dashboard")))
-        ingest = stack.enter_context(Ingest(session, prefix, state, tick_s=settings.refresh_s))
+        board = _metrics_board(settings, state)
+        ingest = stack.enter_context(Ingest(session, prefix, state, tick_s=settings.refresh_s, metrics_board=board))
+        if board is not None:  # what the ingest thread wrote, never the rows (scrapes run on their own thread)
+            metrics.start(settings.metrics, "dashboard", board.read)
         thread = threading.Thread(target=ingest.run, name="dashboard-ingest", daemon=True)
         thread.start()
         stack.callback(thread.join, 5)
@@ -156,6 +161,18 @@ def serve(settings: DashboardSettings) -> int:
         print(f"magnet dashboard: could not serve on {host}:{port} (is the port in use?)", file=sys.stderr)
         return 2
     return 0
+
+
+def _metrics_board(settings: DashboardSettings, state: FleetState) -> StatusBoard | None:
+    """With ``--metrics``, the board the ingest thread writes ``state.metrics_status()`` on (``ingest
+    .METRICS_REFRESH_S``) and a scrape reads (issue 32: it walked the rows on the metrics server's thread); None
+    without."""
+    from services.dashboard.ingest import METRICS_REFRESH_S
+
+    if not settings.metrics:
+        return None
+    guard = Guard("dashboard", log, state.dropped)
+    return StatusBoard(wire.status_key(settings.zenoh.prefix, "dashboard"), guard, refresh_s=METRICS_REFRESH_S)
 
 
 def _start_foxglove(

@@ -182,3 +182,19 @@ def test_declination_turns_velocities_one_way_and_attitudes_the_other():
     np.testing.assert_allclose(
         nose_magnetic, frames.body_to_ned(euler_to_matrix(40.0, 0, 0), np.array([[1.0, 0, 0]])), atol=1e-12
     )
+
+
+def test_frd_flu_of_many_rows_is_the_broadcast_product_to_the_bit():
+    """(S, 3) rows flipped in one contiguous multiply (S from 64 to 2**15) are numpy's broadcast of (1, -1, -1), bit
+    for bit, with NaN of both signs, zeros of both signs and infinities, contiguous or not; other shapes as before."""
+    rng = np.random.default_rng(28)
+    for rows in (1, 63, 64, 65, 300, 30_000, 32_768, 32_769):
+        x = rng.normal(size=(rows, 3)) * 10.0 ** rng.integers(-300, 300, size=(rows, 3))
+        spots = rng.random(x.shape) < 0.1
+        x[spots] = rng.choice([np.nan, -np.nan, 0.0, -0.0, np.inf, -np.inf], size=int(spots.sum()))
+        for v in (x, x[::-1], np.asfortranarray(x), x[:, :3]):
+            flipped = frames.frd_flu(v)
+            assert flipped.shape == v.shape
+            assert flipped.tobytes() == (v * np.array([1.0, -1.0, -1.0])).tobytes()
+    assert frames.frd_flu(np.ones(3)).tolist() == [1.0, -1.0, -1.0]
+    assert frames.frd_flu(np.ones((2, 5, 3)))[1, 4].tolist() == [1.0, -1.0, -1.0]

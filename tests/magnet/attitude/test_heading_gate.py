@@ -206,3 +206,31 @@ def test_the_compiled_gate_is_the_plain_maths():
     assert flags[800:1100].any()  # the turn that came and went: left out
     assert flags[1200:1500].sum() == 250  # the turn for good: left out for max_reject_s, then taken
     assert not flags[1500:].any()
+
+
+def test_beside_the_turn_gate_in_one_compiled_call_the_answers_are_the_piece_by_piece_ones_to_the_bit():
+    """``gated_run`` hands the turn gate's per-sample turns to the heading gate (one sqrt, cos and sin a sample):
+    vqf's quaternions and flags the same bits as the two gates and vqf's ``updateBatch`` called piece by piece (each
+    gate computing its own turns), batches of 1 to 150 samples, on the walk whose field turns twice."""
+    from magnet.attitude.turn_gate import TurnGate, run_gated
+
+    run, field = walk("walk-texting", 40.0, 1)
+    field = turned_for_good(run, turned_field(run, field, 800, 1100, 40.0), 1200, 50, 40.0)
+    gyr, acc, mag = (np.ascontiguousarray(fusion.to_vqf_frame(x)) for x in (run.gyr_rads, run.acc_ms2, field))
+    answers = []
+    for compiled in (True, False):
+        gate, filter_ = TurnGate(PERIOD_S), vqf.VQF(PERIOD_S)
+        gate.heading = HeadingGate(PERIOD_S)
+        rng, parts, start = np.random.default_rng(7), [], 0
+        while start < len(gyr):
+            rows = slice(start, min(start + int(rng.integers(1, 151)), len(gyr)))
+            piece = None if compiled else (lambda g, a, f, _w, v=filter_: v.updateBatch(g, a, f))
+            out = run_gated(
+                gate, filter_, piece, (gyr[rows], acc[rows], mag[rows]), np.zeros(rows.stop - rows.start, bool)
+            )
+            parts.append((np.asarray(out["quat9D"]), np.asarray(out["magDistDetected"], dtype=bool)))
+            start = rows.stop
+        answers.append([np.concatenate([p[k] for p in parts]) for k in range(2)])
+    np.testing.assert_array_equal(answers[0][0], answers[1][0])
+    np.testing.assert_array_equal(answers[0][1], answers[1][1])
+    assert answers[0][1][800:1100].any()  # the heading gate was at work

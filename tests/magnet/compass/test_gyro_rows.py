@@ -33,3 +33,25 @@ def test_the_compiled_checks_are_the_numpy_ones():
     for got, want in zip(out, _plainly(gyr, acc, field)):
         np.testing.assert_array_equal(got, want)
     assert out[2].sum() > 50 and out[0].sum() < count and out[3].sum() > 1000  # every case met
+
+
+def test_gravity_is_minus_down_where_fused_and_the_accelerometer_elsewhere():
+    """``FusedColumns.gravity`` (a negation and a masked copy) is ``np.where(fused, -down, acc)`` to the bit, NaN rows
+    included, whether none, some or all samples are fused."""
+    from magnet.compass.filters import FusedColumns
+
+    rng = np.random.default_rng(28)
+    for share in (0.0, 0.3, 0.97, 1.0):
+        count = 500
+        columns = FusedColumns.empty(count)
+        fused = rng.random(count) < share
+        down = rng.normal(size=(count, 3))
+        down[rng.random(count) < 0.05] = np.nan
+        acc = rng.normal(size=(count, 3))
+        acc[rng.random(count) < 0.05, 1] = -np.nan
+        columns = FusedColumns(fused, columns.quat_wxyz, columns.heading_deg, columns.pitch_deg, columns.roll_deg,
+                               down, columns.mag_disturbed, {}, 0)  # fmt: skip
+        expected = np.where(fused[:, None], -down, acc)
+        got = columns.gravity(acc)
+        assert got.tobytes() == expected.tobytes()
+        assert not np.shares_memory(got, down)

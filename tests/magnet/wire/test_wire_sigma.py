@@ -2,6 +2,8 @@
 a message without it reads as before, and a reader that does not know it (a map read by key) reads a message with it
 as before."""
 
+import itertools
+
 import msgpack
 import numpy as np
 import pytest
@@ -79,3 +81,28 @@ def test_a_batch_with_a_sigma_that_is_not_finite_carries_none_and_negative_is_re
     message["heading_sigma_deg"] = [-1.0, 2.0]
     with pytest.raises(wire.WireError):
         wire.decode_heading(msgpack.packb(message, use_bin_type=True))
+
+
+def test_per_batch_finiteness_is_the_plain_check_of_each_batch():
+    """The encoders' per-batch 'all finite' (sigma, quaternions) in one pass over the drain, on random drains with
+    empty batches, NaN and infinities anywhere, is each batch's own ``.all()``."""
+    from magnet.wire import headings
+
+    rng = np.random.default_rng(28)
+    for _ in range(200):
+        sizes = rng.integers(0, 6, size=rng.integers(1, 8))
+        bounds = np.concatenate(([0], np.cumsum(sizes))).tolist()
+        total = bounds[-1]
+        sigma = rng.normal(size=total)
+        quat = rng.normal(size=(total, 4))
+        for values in (sigma, quat):
+            spots = rng.random(values.shape) < rng.choice([0.0, 0.05, 0.5])
+            values[spots] = rng.choice([np.nan, np.inf, -np.inf], size=int(spots.sum()))
+        finite_rows = np.isfinite(quat).all(axis=1)
+        assert headings._sigmas_ok(sigma, bounds) == [
+            bool(np.isfinite(sigma[a:b]).all()) for a, b in itertools.pairwise(bounds)
+        ]
+        assert headings._quaternions_ok(quat, bounds) == [
+            bool(finite_rows[a:b].all()) for a, b in itertools.pairwise(bounds)
+        ]
+        assert all(type(v) is bool for v in headings._sigmas_ok(sigma, bounds))
