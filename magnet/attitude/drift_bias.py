@@ -130,14 +130,22 @@ def unwrapped(angle_rad: np.ndarray, period_s: float) -> np.ndarray:
     return out
 
 
-def fit_drift(angle_rad: np.ndarray, up: np.ndarray, period_s: float) -> DriftBias | None:
+def fit_drift(
+    angle_rad: np.ndarray,
+    up: np.ndarray,
+    period_s: float,
+    step_s: np.ndarray | None = None,
+    min_span_s: float = MIN_SPAN_S,
+) -> DriftBias | None:
     """The bias (see the module docstring) from the field's angle (N,) rad in a gyroscope-only attitude (NaN rows left
-    out; wrapped or not) and that attitude's up axis (N, 3) in body axes, samples ``period_s`` apart. None when fewer
-    than ``MIN_SPAN_S`` seconds of field samples are given."""
+    out; wrapped or not) and that attitude's up axis (N, 3) in body axes, samples ``period_s`` apart (or, with
+    ``step_s`` (N,), each that many seconds after the one before: ``period_s`` then their typical step). None when
+    fewer than ``min_span_s`` seconds of field samples are given."""
     known = np.isfinite(angle_rad)
-    if known.sum() * period_s < MIN_SPAN_S:
+    steps = np.full(len(angle_rad), period_s) if step_s is None else np.asarray(step_s, dtype=float)
+    if float(steps[known].sum()) < min_span_s:
         return None
-    drift = np.cumsum(up, axis=0) * period_s
+    drift = np.cumsum(up * steps[:, None], axis=0)
     psi = unwrapped(angle_rad, period_s)[known]
     design = np.column_stack([np.ones(len(psi)), drift[known]])
     prior = np.diag([0.0, 1.0, 1.0, 1.0]) / math.radians(PRIOR_DPS) ** 2

@@ -33,6 +33,7 @@ import numpy as np
 from magnet import _kernels
 from magnet.attitude import fusion
 from magnet.attitude import heading as hd
+from magnet.attitude.causal_drift import note_batch, take_drift
 from magnet.bounded import Recent
 from magnet.compass import replay
 from magnet.compass.tilt import Headings
@@ -121,6 +122,7 @@ class _Drain(NamedTuple):
     increasing: list[bool]
     starts: list[int]
     raw: np.ndarray | None = None  # with ``aiding``: the raw field (S, 3), vqf's frame, permuted (``replay``)
+    raw_source: tuple[np.ndarray, np.ndarray | None] | None = None  # raw field (S, 3) as given, the permutation
 
 
 class DeviceFilter:
@@ -199,6 +201,7 @@ class DeviceFilter:
         one's recent samples are fused again with the record's ``correct``ion (``magnet.compass.replay.fuse_again``)."""
         if self.filter is not None and not replay.fuse_again(self.filter, self.recent, correct):
             self.filter.restart_magnetometer()
+            take_drift(self, correct)  # the bias about the vertical from the last seconds, with the record
 
     def _restart(self, period_s: float) -> None:
         if self.recent is not None:
@@ -216,6 +219,7 @@ class DeviceFilter:
         if drain.unusable_before[hi] == drain.unusable_before[lo]:
             if drain.aiding is None:  # the usual case: written in place, in one compiled call
                 self.filter.update_rows(drain.inputs, lo, hi, out, disturbed)
+                note_batch(self, drain, hi - 1)  # its last sample kept for the bias about the vertical
                 return
             rows: Any = slice(lo, hi)
             gyr, acc, field = (x[lo:hi] for x in drain.inputs)
@@ -301,6 +305,7 @@ class DeviceFilters:
             groups.setdefault(devices[b], []).append(b)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
+        drain = drain if raw_ut is None else drain._replace(raw_source=(raw_ut, order))
         if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
             # an aided filter needs its samples' times with no velocity known too (docs/aiding.md, point 6)
             raw = None if raw_ut is None else fusion.to_vqf_frame(raw_ut if order is None else raw_ut[order])

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 import vqf
 
+from magnet.attitude import causal_drift as cd
 from magnet.attitude import drift_bias as vb
 from magnet.attitude import fusion
+from magnet.attitude.causal_drift import note_batch, take_drift
 from services.bench import field_runs as fr
 
 
@@ -107,3 +110,90 @@ def test_a_whole_turn_of_the_field_passing_an_object_leaves_no_step() -> None:
     assert clean is not None and found is not None
     assert abs(found.along_up_rads - clean.along_up_rads) < math.radians(0.02)
     assert found.residual_rad < math.radians(5.0)
+
+
+def test_fit_drift_with_steps_is_the_plain_fit_when_they_are_even() -> None:
+    angle, up, period = _drift_case(0.3, seed=2)
+    plain = vb.fit_drift(angle, up, period)
+    stepped = vb.fit_drift(angle, up, period, np.full(len(angle), period))
+    assert plain is not None and stepped is not None
+    assert np.allclose(plain.bias_rads, stepped.bias_rads) and math.isclose(plain.sigma_rads, stepped.sigma_rads)
+
+
+class _Filter:
+    """What ``CausalDrift`` asks of vqf: its bias estimate (3,) rad/s and that estimate's one-sigma bound."""
+
+    def __init__(self, sigma_dps: float = 0.5) -> None:
+        self.bias = np.zeros(3)
+        self.sigma = math.radians(sigma_dps)
+
+    def getBiasEstimate(self) -> tuple[np.ndarray, float]:  # noqa: N802 (vqf's name)
+        return self.bias.copy(), self.sigma
+
+    def setBiasEstimate(self, bias: np.ndarray) -> None:  # noqa: N802
+        self.bias = np.asarray(bias, dtype=float)
+
+
+def _turning_history(bias_dps: float, seconds: float = 16.0) -> tuple[cd.CausalDrift, np.ndarray]:
+    """A level device turning about the vertical, one history row per 0.5 s: vqf's 6D heading drifting at the
+    bias, the raw field the Earth's turned into the body plus a hard iron (returned)."""
+    drift = cd.CausalDrift(_Filter())
+    earth = np.array([0.0, 19.0, -46.0])  # ENU: north and down
+    iron = np.array([150.0, -80.0, 300.0])
+    rng = np.random.default_rng(3)
+    for t in np.arange(0.5, seconds + 0.5, 0.5):
+        heading = 1.2 * math.sin(t / 3.0)
+        estimate = heading + math.radians(bias_dps) * t + math.radians(1.0) * rng.standard_normal()
+        quat = np.array([math.cos(estimate / 2), 0.0, 0.0, math.sin(estimate / 2)])  # body -> ENU about up
+        turn = np.array(
+            [[math.cos(heading), -math.sin(heading), 0], [math.sin(heading), math.cos(heading), 0], [0, 0, 1]]
+        )
+        drift.note(float(t), turn.T @ earth + iron, np.zeros(3), quat)
+    return drift, iron
+
+
+def test_causal_drift_takes_the_bias_from_the_history_before_a_record() -> None:
+    drift, iron = _turning_history(0.4)
+    filter_ = drift.filter
+    assert drift.from_history(lambda raw, gyr: raw - iron)
+    assert abs(filter_.bias[2] - math.radians(0.4)) < math.radians(0.05)
+    assert np.allclose(filter_.bias[:2], 0.0, atol=1e-9)  # about the up axis only
+    assert drift.history == []  # integrated with the old bias: not fitted again
+
+
+def test_causal_drift_leaves_a_bias_that_vqf_learnt_at_rest_or_a_short_history() -> None:
+    drift, iron = _turning_history(0.4)
+    rested = drift.filter = _Filter(sigma_dps=0.1)
+    assert not drift.from_history(lambda raw, gyr: raw - iron)
+    assert np.all(rested.bias == 0.0)
+    short, iron = _turning_history(0.4, seconds=5.0)
+    assert not short.from_history(lambda raw, gyr: raw - iron)
+    drift, iron = _turning_history(0.4)  # the raw field left uncorrected: the hard iron turns with the body
+    assert not drift.from_history(lambda raw, gyr: raw)
+
+
+def test_the_compass_filter_takes_the_bias_as_a_record_comes() -> None:
+    """``Fusion`` fed a level device turning about the vertical (FRD, gyroscope with a bias of 0.4 deg/s about its z
+    axis), the raw field noted per batch: the record's correction hands vqf the bias about the vertical."""
+    period, count = 0.02, 1000
+    t = np.arange(count) * period
+    rate = 1.2 * np.cos(t / 3.0) / 3.0  # yaw rate (rad/s) of heading 1.2 sin(t / 3)
+    heading = 1.2 * np.sin(t / 3.0)
+    gyr = np.column_stack([np.zeros(count), np.zeros(count), rate + math.radians(0.4)])
+    acc = np.tile([0.0, 0.0, -9.81], (count, 1))  # FRD specific force of a level device
+    earth = np.array([19.0, 0.0, 46.0])  # NED: north and down
+    iron = np.array([150.0, -80.0, 300.0])
+    body = np.column_stack([np.cos(heading) * earth[0], -np.sin(heading) * earth[0], np.full(count, earth[2])])
+    raw = body + iron
+    filter_ = fusion.Fusion(period)
+    state = types.SimpleNamespace(filter=filter_, drift=None)  # what the compass keeps per device
+    drain = types.SimpleNamespace(raw_source=(raw, None), inputs=(fusion.to_vqf_frame(gyr),))
+    for start in range(0, count, 25):
+        filter_.update(gyr[start : start + 25], acc[start : start + 25])
+        note_batch(state, drain, start + 24)
+    before = np.asarray(filter_._filter.getBiasEstimate()[0])
+    filter_.restart_magnetometer()
+    take_drift(state, lambda raw_vqf, gyr_vqf: raw_vqf - fusion.to_vqf_frame(iron))
+    after = np.asarray(filter_._filter.getBiasEstimate()[0])
+    # vqf's frame is z up: a bias about FRD z is -0.4 deg/s about its z
+    assert abs(math.degrees(after[2]) + 0.4) < 0.05 < abs(math.degrees(before[2]) + 0.4)

@@ -1,0 +1,113 @@
+"""The gyroscope's bias about the vertical for the causal filter, found as each record is put in force
+(``CausalDrift``; docs/field-calibration.md, "The gyroscope's bias about the vertical, in service"): the drift fit of
+``magnet.attitude.drift_bias`` on the last seconds before the record, their raw field corrected with it.
+
+numpy; vqf's frames (body FLU, earth ENU) throughout.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
+from magnet.frames import frd_flu
+
+#: a record's correction: raw field (N, 3) and gyroscope (N, 3) -> field (N, 3), vqf's frames
+Correct = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+#: the history kept before a record (s): one row per fused batch (vqf's 6D attitude, the raw field, the gyroscope)
+HISTORY_S = 30.0
+#: it is fitted from this many seconds of it, the filter's first seconds left out (its tilt settling: vqf's tauAcc is
+#: 3 s)
+HISTORY_MIN_S = 8.0
+HISTORY_AFTER_S = 3.0
+#: a bias is taken only when its one-sigma uncertainty is below this (deg/s)
+HISTORY_MAX_SIGMA_DPS = 0.3
+#: nor when it is larger than this (deg/s): no phone's gyroscope is that far off once vqf started
+MAX_DPS = 2.0
+
+
+class CausalDrift:
+    """The gyroscope's bias about the vertical for the compass's causal filter, found as a record is put in force.
+
+    vqf's heading lags a bias about the vertical it has not learnt by bias x tauMag (a phone's 0.5 deg/s: 4.5 deg),
+    which every walk's absolute heading carries. Once a record is known, the field it corrects is constant in the
+    Earth frame, so its angle in vqf's 6D frame drifts at that bias (``magnet.attitude.drift_bias``). The compass
+    keeps, per batch fused, vqf's 6D attitude and the raw field of its last sample (``note``, the last
+    ``HISTORY_S``); when a record comes the raw field is corrected with it, the drift fitted (``fit_drift``) and the
+    bias along the mean up axis handed to vqf (``from_history``) as its magnetic side restarts: the heading is taken
+    afresh there anyway, so the change costs no step in it (a bias learnt later moves vqf's standing lag, a step of
+    the heading). Not where vqf learnt the bias itself (its uncertainty below ``MIN_SIGMA_DPS``: it rested), nor
+    where the velocity aids the filter. Memory: the history's rows, one a batch. ``filter_``: the ``vqf.VQF``."""
+
+    def __init__(self, filter_: Any) -> None:
+        self.filter = filter_
+        self.found: DriftBias | None = None
+        #: one row per fused batch: time (s), vqf's 6D attitude (4), raw field (3) and gyroscope (3), vqf's frames
+        self.history: list[np.ndarray] = []
+
+    def note(self, t_s: float, raw_vqf: np.ndarray, gyr_vqf: np.ndarray, quat6d_vqf: np.ndarray | None = None) -> None:
+        """One row of the history (the last sample of a fused batch, at ``t_s`` since the filter's start; the 6D
+        attitude vqf's now unless given); rows older than ``HISTORY_S`` dropped, all of them when the time went back
+        (the filter restarted: its attitude was lost)."""
+        if self.history and t_s < float(self.history[-1][0]):
+            self.history = []
+        quat = self.filter.getQuat6D() if quat6d_vqf is None else quat6d_vqf
+        self.history.append(np.concatenate([[t_s], np.ravel(quat), np.ravel(raw_vqf), np.ravel(gyr_vqf)]))
+        while t_s - float(self.history[0][0]) > HISTORY_S:
+            self.history.pop(0)
+
+    def from_history(self, correct: Correct) -> bool:
+        """A new record's ``correct``ion put on the history's raw field, the drift fitted there and its bias added to
+        vqf's estimate. True when a bias was taken."""
+        rows = np.array(self.history).reshape(-1, 11)
+        rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
+        if len(rows) < 3:
+            return False
+        field = correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
+        steps = np.diff(rows[:, 0], prepend=rows[0, 0])
+        quat = rows[:, 1:5]
+        found = fit_drift(
+            field_angle_rad(quat, field), up_in_body(quat), float(np.median(steps[1:])), steps, HISTORY_MIN_S
+        )
+        bias, sigma = self.filter.getBiasEstimate()
+        if (
+            found is None
+            or learnt_at_rest(float(sigma))
+            or found.sigma_rads > math.radians(HISTORY_MAX_SIGMA_DPS)
+            or abs(found.along_up_rads) > math.radians(MAX_DPS)
+        ):
+            return False
+        self.found = found
+        self.filter.setBiasEstimate(np.asarray(bias, dtype=float) + found.bias_rads)
+        self.history = []  # integrated with the bias before: another drift
+        return True
+
+
+def note_batch(state: Any, drain: Any, row: int) -> None:
+    """The compass's device ``state`` (a ``magnet.compass.filters.DeviceFilter``) fed its drain's rows up to ``row``
+    (permuted): that row's raw field (``drain.raw_source``: uT sensor axes and the permutation; None: nothing) and
+    gyroscope noted in the device's ``CausalDrift`` (made on first use, kept as ``state.drift``); not where aided."""
+    fusion = state.filter
+    if drain.raw_source is None or fusion is None or fusion.aided:
+        return
+    drift = getattr(state, "drift", None)
+    if drift is None or drift.filter is not fusion._filter:
+        drift = state.drift = CausalDrift(fusion._filter)
+    raw_ut, order = drain.raw_source
+    index = row if order is None else int(order[row])
+    raw_vqf = np.asarray(frd_flu(np.asarray(raw_ut[index], dtype=float)))
+    drift.note(fusion.samples * fusion.period_s, raw_vqf, drain.inputs[0][row])
+
+
+def take_drift(state: Any, correct: Correct | None) -> None:
+    """A record with its ``correct``ion was put in force on the device ``state``'s filter (after its
+    ``restart_magnetometer``): ``CausalDrift.from_history`` (not where aided, nor without a correction)."""
+    drift = getattr(state, "drift", None)
+    if correct is not None and drift is not None and state.filter is not None and not state.filter.aided:
+        drift.from_history(correct)
