@@ -16,6 +16,11 @@ import re
 import sys
 from typing import NoReturn
 
+#: Before numpy loads: magnet's matrices are small (a fit's design matrix at most some 10,000 x 10, the compass's 3 x 3
+#: a sample), too small for OpenBLAS's threads, which only spin after each call on the other core (``magnet fit`` of
+#: 300 samples 218 -> 130 ms of CPU, and 10,000 rows add 4 ms, not 17; docs/cost.md). A user's own setting wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("services.commands.fit", "fit a calibration to a CSV of raw samples"),
