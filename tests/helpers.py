@@ -239,3 +239,37 @@ class StatusQuery:
 
     def drop(self) -> None:
         self.dropped = True
+
+
+def rss_mb() -> float:
+    """This process's resident memory, MB (/proc/self/statm)."""
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * 4096 / 2**20
+
+
+def held_by_waiting_samples(
+    publisher: Any, handler: Any, count: int, payload: bytes, pause_s: float
+) -> tuple[int, float]:
+    """Three rounds (the first warms the allocator's arenas up) of ``count`` puts of ``payload`` that wait in
+    ``handler`` (a Zenoh channel its service's pump would drain), then drained: (samples taken in the last round, MB
+    given back when they went). ``pause_s`` between puts lets the receiving side read them one batch at a time."""
+    import gc
+
+    from services.common.allocator import give_back_now
+
+    taken, held_mb = 0, 0.0
+    for _ in range(3):
+        for _ in range(count):
+            publisher.put(payload)
+            time.sleep(pause_s)
+        time.sleep(1.0)
+        gc.collect()
+        give_back_now()
+        held_mb = rss_mb()
+        taken = 0
+        while handler.try_recv() is not None:
+            taken += 1
+        gc.collect()
+        give_back_now()
+        held_mb -= rss_mb()
+    return taken, held_mb

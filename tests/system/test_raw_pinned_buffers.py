@@ -11,16 +11,15 @@ back when they are taken and let go. With the service's main session (64 kB batc
 from __future__ import annotations
 
 import contextlib
-import gc
 import time
 from collections.abc import Mapping
 
 import pytest
 import zenoh
-from helpers import free_ports
+from helpers import free_ports, held_by_waiting_samples
 
 from services.calibrator import service as calibrator_service
-from services.common.allocator import give_back_freed_memory, give_back_now
+from services.common.allocator import give_back_freed_memory
 from services.common.zenoh_session import ZenohSettings, open_session, raw_session
 from services.compass import service as compass_service
 
@@ -31,11 +30,6 @@ SERVICES: dict[str, tuple[Mapping[str, str] | None, int]] = {
     "calibrator": (None, calibrator_service.CHANNEL_CAPACITY),
     "compass": (compass_service.ZENOH_DEFAULTS, compass_service.CHANNEL_CAPACITY),
 }
-
-
-def rss_mb() -> float:
-    with open("/proc/self/statm") as statm:
-        return int(statm.read().split()[1]) * 4096 / 2**20
 
 
 @pytest.mark.parametrize("name", sorted(SERVICES))
@@ -59,20 +53,8 @@ def test_raw_samples_waiting_in_the_channel_hold_little_more_than_their_bytes(na
         deadline = time.monotonic() + 10
         while not publisher.matching_status.matching and time.monotonic() < deadline:  # type: ignore[attr-defined]
             time.sleep(0.02)
-        for _ in range(3):  # the first round warms the allocator's arenas up
-            for _ in range(capacity):  # the pump held: the channel fills
-                publisher.put(payload)
-                time.sleep(0.0003)  # the receiving side reads them one batch at a time
-            time.sleep(1.0)
-            gc.collect()
-            give_back_now()
-            held_mb = rss_mb()
-            taken = 0
-            while subscriber.handler.try_recv() is not None:
-                taken += 1
-            gc.collect()
-            give_back_now()
-            held_mb -= rss_mb()
+        # the pump held: the channel fills, then drains
+        taken, held_mb = held_by_waiting_samples(publisher, subscriber.handler, capacity, payload, 0.0003)
     assert taken >= capacity * 0.9, taken
     # 256 samples of 300 bytes: 12 MB held in 64 kB batches (measured), about 2 MB in 8 kB ones
     assert held_mb < 5.0, f"{taken} waiting samples held {held_mb:.1f} MB"

@@ -10,23 +10,17 @@ when they are taken and let go."""
 
 from __future__ import annotations
 
-import gc
 import time
 
 import pytest
 import zenoh
-from helpers import free_ports
+from helpers import free_ports, held_by_waiting_samples
 
-from services.common.allocator import give_back_freed_memory, give_back_now
+from services.common.allocator import give_back_freed_memory
 from services.common.zenoh_session import ZenohSettings, open_session
 from services.dashboard import ingest, service
 
 pytestmark = pytest.mark.integration
-
-
-def rss_mb() -> float:
-    with open("/proc/self/statm") as statm:
-        return int(statm.read().split()[1]) * 4096 / 2**20
 
 
 def test_samples_waiting_in_a_ring_hold_little_more_than_their_bytes() -> None:
@@ -43,20 +37,8 @@ def test_samples_waiting_in_a_ring_hold_little_more_than_their_bytes() -> None:
             deadline = time.monotonic() + 10
             while not publisher.matching_status.matching and time.monotonic() < deadline:
                 time.sleep(0.02)
-            for _ in range(3):  # the first rounds warm the allocator's arenas up
-                for _ in range(capacity):
-                    publisher.put(payload)
-                    time.sleep(0.0002)  # the receiving side reads them one batch at a time
-                time.sleep(1.0)
-                gc.collect()
-                give_back_now()
-                held_mb = rss_mb()
-                taken = 0
-                while subscriber.handler.try_recv() is not None:
-                    taken += 1
-                gc.collect()
-                give_back_now()
-                held_mb -= rss_mb()
+            # the ring fills, then drains
+            taken, held_mb = held_by_waiting_samples(publisher, subscriber.handler, capacity, payload, 0.0002)
             publisher.undeclare()
     assert taken >= capacity * 0.9, taken
     # 1,024 samples of 300 bytes: 64 MB held in 64 kB batches, at most 8 MB in the dashboard's 8 kB ones
