@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
-from magnet.frames import frd_flu
 
 #: a record's correction: raw field (N, 3) and gyroscope (N, 3) -> field (N, 3), vqf's frames
 Correct = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -42,23 +41,23 @@ class CausalDrift:
     ``HISTORY_S``); when a record comes the raw field is corrected with it, the drift fitted (``fit_drift``) and the
     bias along the mean up axis handed to vqf (``from_history``) as its magnetic side restarts: the heading is taken
     afresh there anyway, so the change costs no step in it (a bias learnt later moves vqf's standing lag, a step of
-    the heading). Not where vqf learnt the bias itself (its uncertainty below ``MIN_SIGMA_DPS``: it rested), nor
+    the heading). Not where vqf learnt the bias itself (``drift_bias.learnt_at_rest``: it rested), nor
     where the velocity aids the filter. Memory: the history's rows, one a batch. ``filter_``: the ``vqf.VQF``."""
 
     def __init__(self, filter_: Any) -> None:
         self.filter = filter_
         self.found: DriftBias | None = None
         #: one row per fused batch: time (s), vqf's 6D attitude (4), raw field (3) and gyroscope (3), vqf's frames
-        self.history: list[np.ndarray] = []
+        self.history: list[list[float]] = []
 
-    def note(self, t_s: float, raw_vqf: np.ndarray, gyr_vqf: np.ndarray, quat6d_vqf: np.ndarray | None = None) -> None:
+    def note(self, t_s: float, raw_vqf: Any, gyr_vqf: Any, quat6d_vqf: np.ndarray | None = None) -> None:
         """One row of the history (the last sample of a fused batch, at ``t_s`` since the filter's start; the 6D
         attitude vqf's now unless given); rows older than ``HISTORY_S`` dropped, all of them when the time went back
         (the filter restarted: its attitude was lost)."""
         if self.history and t_s < float(self.history[-1][0]):
             self.history = []
         quat = self.filter.getQuat6D() if quat6d_vqf is None else quat6d_vqf
-        self.history.append(np.concatenate([[t_s], np.ravel(quat), np.ravel(raw_vqf), np.ravel(gyr_vqf)]))
+        self.history.append([t_s, *_floats(quat), *_floats(raw_vqf), *_floats(gyr_vqf)])  # a list: once a batch
         while t_s - float(self.history[0][0]) > HISTORY_S:
             self.history.pop(0)
 
@@ -89,6 +88,11 @@ class CausalDrift:
         return True
 
 
+def _floats(values: Any) -> list[float]:
+    """``values`` (any shape) as a flat list of Python floats."""
+    return np.asarray(values, dtype=float).ravel().tolist()
+
+
 def note_batch(state: Any, drain: Any, row: int) -> None:
     """The compass's device ``state`` (a ``magnet.compass.filters.DeviceFilter``) fed its drain's rows up to ``row``
     (permuted): that row's raw field (``drain.raw_source``: uT sensor axes and the permutation; None: nothing) and
@@ -101,8 +105,8 @@ def note_batch(state: Any, drain: Any, row: int) -> None:
         drift = state.drift = CausalDrift(fusion._filter)
     raw_ut, order = drain.raw_source
     index = row if order is None else int(order[row])
-    raw_vqf = np.asarray(frd_flu(np.asarray(raw_ut[index], dtype=float)))
-    drift.note(fusion.samples * fusion.period_s, raw_vqf, drain.inputs[0][row])
+    x, y, z = raw_ut[index].tolist()
+    drift.note(fusion.samples * fusion.period_s, (x, -y, -z), drain.inputs[0][row])  # FRD -> FLU (``frd_flu``)
 
 
 def take_drift(state: Any, correct: Correct | None) -> None:
