@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
+from magnet.frames import quaternion_to_matrix
 
 #: a record's correction: raw field (N, 3) and gyroscope (N, 3) -> field (N, 3), vqf's frames
 Correct = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -27,6 +28,22 @@ HISTORY_MIN_S = 8.0
 HISTORY_AFTER_S = 3.0
 #: a bias is taken only when its one-sigma uncertainty is below this (deg/s)
 HISTORY_MAX_SIGMA_DPS = 0.3
+#: a new record's heading is taken from this many seconds of the history (``heading_from_history``), from at least
+#: this many rows, those within these of the history's median |B| (fraction) and dip (deg)
+HEADING_S = 6.0
+HEADING_MIN_ROWS = 6
+NORM_TOL = 0.08
+DIP_TOL_DEG = 10.0
+#: where set (``HEADING_FROM_HISTORY``)
+HEADING_FROM_HISTORY = True
+#: after it, vqf's first-heading average (its gain 1/N) goes on as if this many seconds of samples had been fed, as
+#: a tauMag of this plus the time since, up to vqf's own: its rejections and the gates meanwhile on (``kMagInit`` 0)
+HEADING_WORTH_S = 3.0
+#: the fit takes in the record's leftover offset, which turns the field's angle with the course and over a corner
+#: looks like a drift, where the history identifies one: its fitted offset against its uncertainty (chi-squared, 3
+#: degrees of freedom) over ``OFFSET_CHI2`` (95 %); else the drift alone
+OFFSET_FIT = True
+OFFSET_CHI2 = 7.81
 #: nor when it is larger than this (deg/s): no phone's gyroscope is that far off once vqf started
 MAX_DPS = 2.0
 
@@ -49,6 +66,8 @@ class CausalDrift:
         self.found: DriftBias | None = None
         #: one row per fused batch: time (s), vqf's 6D attitude (4), raw field (3) and gyroscope (3), vqf's frames
         self.history: list[list[float]] = []
+        #: after a heading from the history: (time it was taken, vqf's own tauMag), tauMag growing back to it
+        self.ramp: tuple[float, float] | None = None
 
     def note(self, t_s: float, raw_vqf: Any, gyr_vqf: Any, quat6d_vqf: np.ndarray | None = None) -> None:
         """One row of the history (the last sample of a fused batch, at ``t_s`` since the filter's start; the 6D
@@ -56,10 +75,55 @@ class CausalDrift:
         (the filter restarted: its attitude was lost)."""
         if self.history and t_s < float(self.history[-1][0]):
             self.history = []
+        if self.ramp is not None:
+            start, base = self.ramp
+            tau = HEADING_WORTH_S + t_s - start
+            if t_s < start or tau >= base:
+                tau, self.ramp = base, None
+            self.filter.setTauMag(tau)
         quat = self.filter.getQuat6D() if quat6d_vqf is None else quat6d_vqf
         self.history.append([t_s, *_floats(quat), *_floats(raw_vqf), *_floats(gyr_vqf)])  # a list: once a batch
         while t_s - float(self.history[0][0]) > HISTORY_S:
             self.history.pop(0)
+
+    def heading_from_history(self, correct: Correct) -> bool:
+        """A new record's ``correct``ion put on the history's raw field, vqf's magnetic heading offset (``delta``) and
+        its field reference (|B| and dip) set from the last ``HEADING_S`` of it, its rows that agree with the whole
+        history's median |B| and dip (``NORM_TOL``, ``DIP_TOL_DEG``): the heading taken from seconds of field before the
+        record rather than from the samples after it, which an object passed then would bend. True when set (then
+        vqf's first-heading gain is off: ``kMagInit`` 0)."""
+        rows = np.array(self.history).reshape(-1, 11)
+        rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
+        if len(rows) < HEADING_MIN_ROWS:
+            return False
+        field = correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
+        earth = np.einsum("nij,nj->ni", quaternion_to_matrix(rows[:, 1:5]), field)
+        norm = np.linalg.norm(earth, axis=1)
+        if not np.all(norm > 0.0):
+            return False
+        dip = np.arcsin(np.clip(-earth[:, 2] / norm, -1.0, 1.0))  # vqf's: positive where the field points down
+        norm_ref, dip_ref = float(np.median(norm)), float(np.median(dip))
+        agree = (np.abs(norm / norm_ref - 1.0) <= NORM_TOL) & (np.abs(dip - dip_ref) <= math.radians(DIP_TOL_DEG))
+        agree &= rows[:, 0] >= rows[-1, 0] - HEADING_S
+        if int(agree.sum()) < HEADING_MIN_ROWS:
+            return False
+        angle = np.arctan2(earth[agree, 0], earth[agree, 1])  # vqf's delta: the field's angle from north, clockwise
+        centre = math.atan2(float(np.sin(angle).mean()), float(np.cos(angle).mean()))
+        offset = float(np.median(np.remainder(angle - centre + np.pi, 2.0 * np.pi) - np.pi))
+        state = self.filter.state
+        state["delta"] = math.remainder(centre + offset, 2.0 * math.pi)
+        state["kMagInit"] = 0.0
+        for key, value in (("magRefNorm", norm_ref), ("magCandidateNorm", norm_ref)):
+            state[key] = value
+        for key, value in (("magRefDip", dip_ref), ("magCandidateDip", dip_ref)):
+            state[key] = value
+        state["magDistDetected"] = False
+        state["magRejectT"] = 0.0
+        self.filter.state = state
+        if HEADING_WORTH_S > 0.0:  # vqf's first-heading average, the gates on: tauMag = worth + time since
+            self.ramp = (float(rows[-1, 0]), float(self.filter.params["tauMag"]))
+            self.filter.setTauMag(min(HEADING_WORTH_S, self.ramp[1]))
+        return True
 
     def from_history(self, correct: Correct) -> bool:
         """A new record's ``correct``ion put on the history's raw field, the drift fitted there and its bias added to
@@ -71,9 +135,12 @@ class CausalDrift:
         field = correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
         steps = np.diff(rows[:, 0], prepend=rows[0, 0])
         quat = rows[:, 1:5]
-        found = fit_drift(
-            field_angle_rad(quat, field), up_in_body(quat), float(np.median(steps[1:])), steps, HISTORY_MIN_S
-        )
+        angle, up, period = field_angle_rad(quat, field), up_in_body(quat), float(np.median(steps[1:]))
+        found = fit_drift(angle, up, period, steps, HISTORY_MIN_S)
+        if OFFSET_FIT and found is not None:  # the record's leftover offset too, where the history shows one
+            with_offset = fit_drift(angle, up, period, steps, HISTORY_MIN_S, offset_rows(quat, field))
+            if with_offset is not None and with_offset.offset_chi2 > OFFSET_CHI2:
+                found = with_offset
         bias, sigma = self.filter.getBiasEstimate()
         if (
             found is None
@@ -86,6 +153,17 @@ class CausalDrift:
         self.filter.setBiasEstimate(np.asarray(bias, dtype=float) + found.bias_rads)
         self.history = []  # integrated with the bias before: another drift
         return True
+
+
+def offset_rows(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
+    """(N, 3) rad/uT: how the field's angle about the up axis in the frame of vqf quaternions (N, 4) wxyz body -> ENU
+    turns with a body-fixed error (uT, FLU) of the field (N, 3): R^T u / h, u the horizontal unit vector square to the
+    field's horizontal part (h its strength), R body -> earth."""
+    rotation = quaternion_to_matrix(np.asarray(quat_vqf, dtype=float).reshape(-1, 4))
+    earth = np.einsum("nij,nj->ni", rotation, field_vqf)
+    horizontal = np.maximum(np.hypot(earth[:, 0], earth[:, 1]), 1e-9)
+    across = np.column_stack([-earth[:, 1], earth[:, 0], np.zeros(len(earth))]) / horizontal[:, None]
+    return np.einsum("nji,nj->ni", rotation, across) / horizontal[:, None]
 
 
 def _floats(values: Any) -> list[float]:
@@ -114,4 +192,6 @@ def take_drift(state: Any, correct: Correct | None) -> None:
     ``restart_magnetometer``): ``CausalDrift.from_history`` (not where aided, nor without a correction)."""
     drift = getattr(state, "drift", None)
     if correct is not None and drift is not None and state.filter is not None and not state.filter.aided:
+        if HEADING_FROM_HISTORY:
+            drift.heading_from_history(correct)
         drift.from_history(correct)
