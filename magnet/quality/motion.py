@@ -51,13 +51,10 @@ MARGIN_CHUNKS = 10
 #: whole recording: the gyroscope filter's heading drifts slowly (its bias about the vertical is unknown), and that
 #: drift, the same for every calibration compared, would otherwise swamp their difference
 STRETCH_S = 10.0
-#: against no calibration (the raw field), a fit must also make the held-out field this fraction more constant: on a
-#: sensor its maker already calibrated the raw field is near the noise floor, and a gain of a per cent or so is the
-#: fit's own noise (chance passes the two standard errors of ``margin_deg`` one time in forty), not a gain in heading.
-#: The simulator's hand-held wand (tuning seeds 1-99: a maker's calibration leaving under 1 uT and 1 %): the one fit
-#: accepted on less (1.1 %, a sensor left with 0.02 uT and a uniform 0.6 % scale) made causal heading 12 % worse
-#: than vqf on the raw field; the other 98 gained 5.7-60 % and made it 29-77 % better. A raw phone's field gains
-#: tens of times this; against a calibration in force (a refresh in service) the statistical margin alone decides.
+#: against no calibration a fit must also make the held-out field this fraction more constant: a maker-calibrated
+#: sensor's raw field is at the noise floor, where a gain of a per cent is the fit's own noise (chance passes two
+#: standard errors one time in forty). Simulated wand, tuning seeds 1-99 (docs/field-calibration.md): the one fit
+#: accepted on less (1.1 %) made causal heading 12 % worse than vqf raw; the 98 others gained 5.7 % or more.
 MIN_GAIN_OVER_NONE = 0.03
 
 
