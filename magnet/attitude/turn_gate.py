@@ -59,11 +59,10 @@ class TurnSettings:
     about the vertical, the mean over the window after the sample less that over the window before, exceeds
     ``turn_deg`` degrees, for at most ``max_hold_s`` seconds without a break. Swing (judged first): over ``gait_s``
     the body rates' spread (RMS of the vector about its mean) between ``swing_sd_rads`` and ``swing_max_rads``
-    rad/s, repeating (summed products over ``swing_corr`` times the power) at a lag of ``stride_s``, and where the
-    spread is ``swing_gait_rads`` or more (a runner's arm; a device turned fast by hand is no swing) the magnitudes a
-    gait too (then a swing, not a gait; else neither); in a swing the
-    samples come as they are, levelled where the rotation about the vertical over the last two strides
-    (triangle-weighted) exceeds ``turn_deg``, for at most ``max_hold_s``."""
+    rad/s, repeating (summed products over ``swing_corr`` times the power) at a lag of ``stride_s``, the magnitudes a
+    gait too from ``swing_gait_rads`` on (a runner's arm, not a device turned fast by hand); in a swing the samples
+    come as they are, levelled where the rotation about the vertical over the last two strides (triangle-weighted)
+    exceeds ``turn_deg``, for at most ``max_hold_s``."""
 
     window_s: float = 1.0
     turn_deg: float = 15.0
@@ -79,18 +78,7 @@ class TurnSettings:
     swing_gait_rads: float = 4.0
 
     def __post_init__(self) -> None:
-        for name in (
-            "window_s",
-            "turn_deg",
-            "max_hold_s",
-            "gait_s",
-            "gait_sd_ms2",
-            "gait_corr",
-            "swing_sd_rads",
-            "swing_max_rads",
-            "swing_corr",
-            "swing_gait_rads",
-        ):
+        for name in [field.name for field in dataclasses.fields(self) if field.name not in ("step_s", "stride_s")]:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"TurnSettings.{name} must be a positive number of its unit, got {value!r}")
