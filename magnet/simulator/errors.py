@@ -149,3 +149,30 @@ class SensorErrors:
             "gyro_noise_rads": 0.003,
         }
         return cls(**{**fields, **other})
+
+    @classmethod
+    def calibrated(cls, rng: np.random.Generator, field_ut: float, **other: Any) -> SensorErrors:
+        """A magnetometer its maker already calibrated (an IMU box, BROAD's kind): what the maker's calibration
+        leaves, hard iron under 1 uT (uniform 0-1 uT, random direction) and soft iron within 1 % (gains 1 +- 0.01,
+        symmetric cross terms up to 0.005), misalignment up to 0.5 deg; 0.3 uT noise; accelerometer noise
+        0.03 m/s^2; gyroscope bias up to 0.3 deg/s per axis and noise 0.002 rad/s. ``field_ut`` is unused (the
+        residuals do not scale with the field); ``other`` overrides any field."""
+        direction = rng.standard_normal(3)
+        hard = direction / np.linalg.norm(direction) * rng.uniform(0.0, 1.0)
+        cross = rng.uniform(-0.005, 0.005, 3)
+        soft = np.diag(rng.uniform(0.99, 1.01, 3))
+        soft[0, 1] = soft[1, 0] = cross[0]
+        soft[0, 2] = soft[2, 0] = cross[1]
+        soft[1, 2] = soft[2, 1] = cross[2]
+        tilt = axis_angle_matrix(rng.standard_normal(3), rng.uniform(0.0, 0.5))
+        yaw, pitch, roll = matrix_to_euler(tilt)
+        fields: dict[str, Any] = {
+            "hard_iron_ut": hard,
+            "soft_iron": soft,
+            "misalignment_deg": (float(roll), float(pitch), float((yaw + 180.0) % 360.0 - 180.0)),
+            "noise_ut": 0.3,
+            "acc_noise_ms2": 0.03,
+            "gyro_bias_rads": rng.uniform(-1.0, 1.0, 3) * np.radians(0.3),
+            "gyro_noise_rads": 0.002,
+        }
+        return cls(**{**fields, **other})
