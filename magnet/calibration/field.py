@@ -131,23 +131,16 @@ def fit_field(
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     test = _holdout_mask(len(inp.mag))
     planar = is_planar(ev.down)
+    windows, whole_mag = turning.vehicle_turns(whole_input, planar, keep), whole_input.mag
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
     ev, vertical_kept, no_place = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: nothing holds it
     if planar and (ev_motion is None or ev_motion.source != motion.AIDED_SOURCE):
         ev = level_in_turns(ev, inp.gyr, inp.vel_ned_ms)
 
-    # a travelling vehicle's turns lean its unaided tilt, and the held-out heading consistency with it: its candidates
-    # are chosen by how their field turns with the gyroscope (``candidates.best``)
-    windows = _turn_windows(whole_input, keep) if planar and whole_input.vel_ned_ms is not None else None
-
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
-        calibration = _record(result, inp, ev, len(inp.mag))
-        holdout = _holdout(inp, ev, result, test)
+        calibration, holdout = _record(result, inp, ev, len(inp.mag)), _holdout(inp, ev, result, test)
         record = judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
-        record = unplaced.with_vertical_kept(record, vertical_kept)
-        if windows is not None and record.output_unit == "ut":
-            turned = turning.turn_residual_ut(windows, record.apply(whole_input.mag))
-            record = record.replace(quality=record.quality.with_extra(turn_residual_ut=turned))
+        record = turning.with_turn_residual(unplaced.with_vertical_kept(record, vertical_kept), windows, whole_mag)
         if keep is None:
             return record
         return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))
@@ -265,16 +258,6 @@ def _aided_evidence(inp: FieldInput) -> motion.MotionEvidence | None:
         return motion.evidence(np.asarray(inp.acc, dtype=float), inp.gyr, inp.period_s, aiding)
     except ValueError as exc:
         raise FitError(str(exc)) from None
-
-
-def _turn_windows(inp: FieldInput, keep: np.ndarray | None) -> turning.Turns | None:
-    """The gyroscope's long windows over the input's samples (``magnet.calibration.turning``), both ends among the
-    kept rows (None: all); None without a gyroscope or with too few turns. Measured on the bench's live path (tuning
-    seeds): boats better (docs/field-calibration.md, "The field's turn against the gyroscope's"); walks and robots,
-    which send no velocity, moved both ways, so their candidates are chosen as before."""
-    if inp.gyr is None or inp.period_s is None:
-        return None
-    return turning.turns(np.asarray(inp.gyr, dtype=float), inp.period_s, keep)
 
 
 def _kept_spans(

@@ -22,8 +22,10 @@ import math
 
 import numpy as np
 
+from magnet.calibration.field_input import FieldInput
 from magnet.calibration.gyro_ellipsoid import _attitudes
 from magnet.frames import rotation_vector_to_matrix
+from magnet.model import Calibration
 
 #: a window ends once the gyroscope has turned this far since its start ...
 WINDOW_ANGLE_DEG = 90.0
@@ -92,3 +94,25 @@ def turn_residual_ut(windows: Turns, field_ut: np.ndarray) -> float:
     bias, *_ = np.linalg.lstsq(design, -residual.reshape(-1), rcond=None)
     left = residual.reshape(-1) + design @ bias
     return float(np.sqrt(np.mean(left**2)))
+
+
+def vehicle_turns(inp: FieldInput, planar: bool, keep: np.ndarray | None) -> Turns | None:
+    """The windows (``turns``) of a field fit's input when it is a travelling planar device (its samples carry a
+    velocity: a boat, a car), both ends among the kept rows (None: all); None for any other device, without a
+    gyroscope or with too few turns. Such a vehicle's turns lean its unaided tilt, and the held-out heading
+    consistency with it, so its candidates are chosen by how their field turns with the gyroscope
+    (``candidates.best``). Measured on the bench's live path (tuning seeds): boats better; walks and robots, which
+    send no velocity, moved both ways (docs/field-calibration.md, "The field's turn against the gyroscope's"), so
+    theirs are chosen as before."""
+    if inp.gyr is None or inp.period_s is None or inp.vel_ned_ms is None or not planar:
+        return None
+    return turns(np.asarray(inp.gyr, dtype=float), inp.period_s, keep)
+
+
+def with_turn_residual(record: Calibration, windows: Turns | None, raw: np.ndarray) -> Calibration:
+    """The record with quality ``turn_residual_ut`` (``turn_residual_ut`` of its field from the raw samples (N, 3));
+    as it is without windows or when it does not correct to uT."""
+    if windows is None or record.output_unit != "ut":
+        return record
+    turned = turn_residual_ut(windows, record.apply(raw))
+    return record.replace(quality=record.quality.with_extra(turn_residual_ut=turned))
