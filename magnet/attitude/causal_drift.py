@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
+from magnet.frames import quaternion_to_matrix
 
 #: a record's correction: raw field (N, 3) and gyroscope (N, 3) -> field (N, 3), vqf's frames
 Correct = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -26,9 +27,17 @@ HISTORY_S = 30.0
 HISTORY_MIN_S = 8.0
 HISTORY_AFTER_S = 3.0
 #: a bias is taken only when its one-sigma uncertainty is below this (deg/s)
-HISTORY_MAX_SIGMA_DPS = 0.3
+HISTORY_MAX_SIGMA_DPS = 0.25
 #: nor when it is larger than this (deg/s): no phone's gyroscope is that far off once vqf started
 MAX_DPS = 2.0
+#: the fit's prior on the bias (one sigma, deg/s, zero mean): a phone's gyroscope left with up to 0.5 deg/s per axis
+#: after its factory calibration (uniform: 0.29 one sigma); vqf's own 0.5 (``drift_bias.PRIOR_DPS``) let a short
+#: history's noise through whole
+PRIOR_DPS = 0.3
+#: the record's offset error (one sigma per body axis, uT) fitted with the bias: it turns the field's heading by up
+#: to offset / horizontal field (1 uT: 3 deg at 19 uT), and by a different amount on each leg of a walk, so that a
+#: corner in a short history looks like a drift
+OFFSET_SIGMA_UT = 1.0
 
 
 class CausalDrift:
@@ -63,7 +72,10 @@ class CausalDrift:
 
     def from_history(self, correct: Correct) -> bool:
         """A new record's ``correct``ion put on the history's raw field, the drift fitted there and its bias added to
-        vqf's estimate. True when a bias was taken."""
+        vqf's estimate. True when a bias was taken. The fit (``fit_drift``) has the bias's prior (``PRIOR_DPS``) and
+        the record's offset error (``OFFSET_SIGMA_UT``, ``offset_columns``) in it, so that its estimate is shrunk
+        towards zero by as much as the history leaves it uncertain, and a corner's step of the field's angle that a
+        wrong offset makes is not read as a drift; taken where its uncertainty is below ``HISTORY_MAX_SIGMA_DPS``."""
         rows = np.array(self.history).reshape(-1, 11)
         rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
         if len(rows) < 3:
@@ -72,7 +84,14 @@ class CausalDrift:
         steps = np.diff(rows[:, 0], prepend=rows[0, 0])
         quat = rows[:, 1:5]
         found = fit_drift(
-            field_angle_rad(quat, field), up_in_body(quat), float(np.median(steps[1:])), steps, HISTORY_MIN_S
+            field_angle_rad(quat, field),
+            up_in_body(quat),
+            float(np.median(steps[1:])),
+            steps,
+            HISTORY_MIN_S,
+            nuisance=offset_columns(quat, field),
+            nuisance_sigma=OFFSET_SIGMA_UT,
+            prior_dps=PRIOR_DPS,
         )
         bias, sigma = self.filter.getBiasEstimate()
         if (
@@ -86,6 +105,19 @@ class CausalDrift:
         self.filter.setBiasEstimate(np.asarray(bias, dtype=float) + found.bias_rads)
         self.history = []  # integrated with the bias before: another drift
         return True
+
+
+def offset_columns(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
+    """(N, 3) rad per uT: how an offset error (body FLU, uT) of the corrected field turns its angle about the up axis
+    in the frame of vqf quaternions (N, 4) wxyz body -> ENU, at the field (N, 3) body FLU: d(angle) = g . R d(offset),
+    g = (-e_y, e_x, 0) / (e_x^2 + e_y^2), e = R field the field in that frame (zero where it has no horizontal
+    part)."""
+    rotation = quaternion_to_matrix(np.asarray(quat_vqf, dtype=float).reshape(-1, 4))
+    earth = np.einsum("nij,nj->ni", rotation, np.asarray(field_vqf, dtype=float).reshape(-1, 3))
+    horizontal = earth[:, 0] ** 2 + earth[:, 1] ** 2
+    scale = np.where(horizontal > 0.0, 1.0 / np.maximum(horizontal, 1e-300), 0.0)
+    towards = np.column_stack([-earth[:, 1], earth[:, 0], np.zeros(len(earth))]) * scale[:, None]
+    return np.einsum("ni,nij->nj", towards, rotation)
 
 
 def _floats(values: Any) -> list[float]:

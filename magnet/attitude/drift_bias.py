@@ -136,24 +136,39 @@ def fit_drift(
     period_s: float,
     step_s: np.ndarray | None = None,
     min_span_s: float = MIN_SPAN_S,
+    nuisance: np.ndarray | None = None,
+    nuisance_sigma: float | np.ndarray = 1.0,
+    correlation_s: float = CORRELATION_S,
+    prior_dps: float = PRIOR_DPS,
 ) -> DriftBias | None:
     """The bias (see the module docstring) from the field's angle (N,) rad in a gyroscope-only attitude (NaN rows left
     out; wrapped or not) and that attitude's up axis (N, 3) in body axes, samples ``period_s`` apart (or, with
     ``step_s`` (N,), each that many seconds after the one before: ``period_s`` then their typical step). None when
-    fewer than ``min_span_s`` seconds of field samples are given."""
+    fewer than ``min_span_s`` seconds of field samples are given. ``nuisance`` (N, K): more columns of the design,
+    each with a zero-mean prior of one sigma ``nuisance_sigma`` (scalar or (K,), the columns' units), fitted with the
+    bias and marginalised out of its uncertainty (``causal_drift``: the heading errors a record's offset error
+    makes, which a corner turns into a step of the angle). ``correlation_s``, ``prior_dps``: ``CORRELATION_S`` and
+    ``PRIOR_DPS`` unless given."""
     known = np.isfinite(angle_rad)
     steps = np.full(len(angle_rad), period_s) if step_s is None else np.asarray(step_s, dtype=float)
     if float(steps[known].sum()) < min_span_s:
         return None
     drift = np.cumsum(up * steps[:, None], axis=0)
     psi = unwrapped(angle_rad, period_s)[known]
-    design = np.column_stack([np.ones(len(psi)), drift[known]])
-    prior = np.diag([0.0, 1.0, 1.0, 1.0]) / math.radians(PRIOR_DPS) ** 2
-    per_sample = max(1.0, CORRELATION_S / period_s)  # samples that count as one
+    columns = [np.ones(len(psi)), drift[known]]
+    priors = [0.0, *([1.0 / math.radians(prior_dps) ** 2] * 3)]
+    if nuisance is not None:
+        extra = np.asarray(nuisance, dtype=float).reshape(len(angle_rad), -1)[known]
+        columns.append(extra)
+        sigmas = np.broadcast_to(np.asarray(nuisance_sigma, dtype=float), (extra.shape[1],))
+        priors.extend((1.0 / sigmas**2).tolist())
+    design = np.column_stack(columns)
+    prior = np.diag(priors)
+    per_sample = max(1.0, correlation_s / period_s)  # samples that count as one
     weights = np.ones(len(psi))
     spread = math.radians(3.0)
-    solution = np.zeros(4)
-    covariance = np.eye(4)
+    solution = np.zeros(design.shape[1])
+    covariance = np.eye(design.shape[1])
     for _ in range(6):
         weighted = design * weights[:, None]
         information = weighted.T @ design / (spread**2 * per_sample) + prior
@@ -164,8 +179,8 @@ def fit_drift(
         weights = np.minimum(1.0, HUBER_K * spread / np.maximum(np.abs(residual), 1e-12))
     mean_up = np.mean(up[known], axis=0)
     mean_up = mean_up / max(float(np.linalg.norm(mean_up)), 1e-12)
-    sigma = float(np.sqrt(max(float(mean_up @ covariance[1:, 1:] @ mean_up), 0.0)))
-    along = float(mean_up @ solution[1:])
+    sigma = float(np.sqrt(max(float(mean_up @ covariance[1:4, 1:4] @ mean_up), 0.0)))
+    along = float(mean_up @ solution[1:4])
     return DriftBias(along * mean_up, mean_up, sigma, spread)
 
 

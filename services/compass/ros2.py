@@ -321,19 +321,32 @@ def _select(columns: wire.RawColumns, out: HeadingColumns, keep: list[bool]) -> 
     """The batches of a drain whose ``keep`` is true: their raw columns and their headings (every field that is per
     sample, (S, ...), cut to their rows; every list per batch, (B,), to them)."""
     mask = np.asarray(keep, dtype=bool)
-    rows = np.repeat(mask, columns.counts)
-    index = np.flatnonzero(mask).tolist()
-    samples, batches = len(rows), len(mask)
+    cut = _Cut(mask, np.repeat(mask, columns.counts))
+    return cast(wire.RawColumns, cut(columns)), cast(HeadingColumns, cut(out))
 
-    def cut(value: object) -> object:
+
+class _Cut:
+    """``_select``'s cut of one value (an array, a list or a dataclass of them, recursively) to the rows kept.
+
+    A class, not a closure that calls itself: such a closure is a reference cycle (the function holds its own cell),
+    which only the cycle collector frees, and it held the drain's masks until then. The compass raises the collector's
+    first threshold (``service.GC_THRESHOLD``), so those waited for a full collection: in a soak's floods (a drain
+    with unpublished batches each time) 300 of them piled up, several MB (docs/front-door.md)."""
+
+    def __init__(self, mask: np.ndarray, rows: np.ndarray) -> None:
+        self.mask, self.rows = mask, rows
+        self.index = np.flatnonzero(mask).tolist()
+        self.samples, self.batches = len(rows), len(mask)
+
+    def __call__(self, value: object) -> object:
         if isinstance(value, np.ndarray):
-            return value[rows] if value.shape[:1] == (samples,) else value[mask] if len(value) == batches else value
-        if isinstance(value, list) and len(value) == batches:
-            return [value[i] for i in index]
+            if value.shape[:1] == (self.samples,):
+                return value[self.rows]
+            return value[self.mask] if len(value) == self.batches else value
+        if isinstance(value, list) and len(value) == self.batches:
+            return [value[i] for i in self.index]
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             return dataclasses.replace(
-                value, **{f.name: cut(getattr(value, f.name)) for f in dataclasses.fields(value)}
+                value, **{f.name: self(getattr(value, f.name)) for f in dataclasses.fields(value)}
             )
         return value
-
-    return cast(wire.RawColumns, cut(columns)), cast(HeadingColumns, cut(out))
