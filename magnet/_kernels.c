@@ -2418,7 +2418,7 @@ static PyObject *vqf_travelled(PyObject *self, PyObject *args) {
  * piece writes its own samples only, instead of shifting 60 kB of windows (at 500 Hz) through the cache. */
 enum {
     T_PERIOD, T_WIDTH, T_GAIT_WIDTH, T_LAG_LO, T_LAG_HI, T_STRIDE_LO, T_STRIDE_HI, T_MAX_HOLD, T_BLOCK, T_TURN_DEG,
-    T_GAIT_SD, T_GAIT_CORR, T_SWING_SD, T_SWING_MAX, T_SWING_CORR, T_SIZE
+    T_GAIT_SD, T_GAIT_CORR, T_SWING_SD, T_SWING_MAX, T_SWING_CORR, T_SWING_GAIT, T_SIZE
 };
 enum { G_SAMPLES, G_STRIDE, G_RUN, G_IN_GAIT, G_ATTITUDE, G_BIAS = 8, G_HELD = 11, G_IN_SWING = 15, G_RECENT = 16 };
 
@@ -2544,7 +2544,8 @@ static int gate_gait(Gate *e) {
 
 /* TurnGate._swing: whether the last gait_width body rates are a swing (the stride set where they are): their spread
  * about their mean (RMS of the vector) between swing_sd and swing_max, repeating at a stride's lag (the summed
- * products of the centred rates over swing_corr times their power). */
+ * products of the centred rates over swing_corr times their power). 2 where the spread is swing_gait or more (a
+ * runner's arm, or a device turned fast by hand: a swing only where the magnitudes are a gait too), else 1. */
 static int gate_swing(Gate *e) {
     const double *s = e->s, *r = e->spin; /* the rates oldest first (gate_piece), centred in place */
     Py_ssize_t n = e->gait_width;
@@ -2571,7 +2572,7 @@ static int gate_swing(Gate *e) {
     }
     if (best <= s[T_SWING_CORR] * power) return 0;
     e->g[G_STRIDE] = (double)(stride < e->width ? stride : e->width);
-    return 1;
+    return power >= (double)n * (s[T_SWING_GAIT] * s[T_SWING_GAIT]) ? 2 : 1;
 }
 
 /* TurnGate._level: in a swing, where the rotation about the vertical over the last two strides (the triangle of
@@ -2628,9 +2629,18 @@ static int gate_piece(Gate *e, const double *gyr, const double *acc, Py_ssize_t 
         memcpy(g + G_ATTITUDE, start, 4 * sizeof(double));
         memcpy(g + G_BIAS, bias_in, 3 * sizeof(double));
         ring_read(e->rates, gw, 3, at_gw, e->spin);
-        g[G_IN_SWING] = gate_swing(e);
-        if (g[G_IN_SWING] == 0.0) ring_read(e->mags, gw, 1, at_gw, e->centred);
-        g[G_IN_GAIT] = g[G_IN_SWING] == 0.0 && gate_gait(e);
+        double before = g[G_STRIDE];
+        int swing = gate_swing(e);
+        if (swing != 1) ring_read(e->mags, gw, 1, at_gw, e->centred);
+        if (swing == 2) { /* a fast swing: a swing where the magnitudes are a gait (a runner's arm), else neither */
+            double stride = g[G_STRIDE];
+            swing = gate_gait(e) ? 1 : 0;
+            g[G_STRIDE] = swing ? stride : before;
+            g[G_IN_GAIT] = 0.0;
+        } else {
+            g[G_IN_GAIT] = swing == 0 && gate_gait(e);
+        }
+        g[G_IN_SWING] = (double)swing;
     }
     g[G_SAMPLES] += (double)n;
     const double *bias = g + G_BIAS;
@@ -3262,11 +3272,11 @@ done:
 }
 
 static PyObject *gate_layout(PyObject *self, PyObject *args) {
-    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i}",
+    return Py_BuildValue("{s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i,s:i}",
                          "period", T_PERIOD, "width", T_WIDTH, "gait_width", T_GAIT_WIDTH, "lag_lo", T_LAG_LO,
                          "lag_hi", T_LAG_HI, "stride_lo", T_STRIDE_LO, "stride_hi", T_STRIDE_HI, "max_hold",
                          T_MAX_HOLD, "block", T_BLOCK, "turn_deg", T_TURN_DEG, "gait_sd", T_GAIT_SD, "gait_corr",
-                         T_GAIT_CORR, "swing_sd", T_SWING_SD, "swing_max", T_SWING_MAX, "swing_corr", T_SWING_CORR, "settings", T_SIZE,
+                         T_GAIT_CORR, "swing_sd", T_SWING_SD, "swing_max", T_SWING_MAX, "swing_corr", T_SWING_CORR, "swing_gait", T_SWING_GAIT, "settings", T_SIZE,
                          "samples", G_SAMPLES, "stride", G_STRIDE, "run", G_RUN, "in_gait", G_IN_GAIT, "attitude",
                          G_ATTITUDE, "bias", G_BIAS, "held", G_HELD, "in_swing", G_IN_SWING, "recent", G_RECENT);
 }

@@ -27,7 +27,9 @@ HISTORY_S = 30.0
 HISTORY_MIN_S = 8.0
 HISTORY_AFTER_S = 3.0
 #: a bias is taken only when its one-sigma uncertainty is below this (deg/s)
-HISTORY_MAX_SIGMA_DPS = 0.3
+HISTORY_MAX_SIGMA_DPS = 0.25
+#: nor when it is larger than this (deg/s): no phone's gyroscope is that far off once vqf started
+MAX_DPS = 2.0
 #: a new record's heading is taken from this many seconds of the history (``heading_from_history``), from at least
 #: this many rows, those within these of the history's median |B| (fraction) and dip (deg)
 HEADING_S = 6.0
@@ -39,13 +41,18 @@ HEADING_FROM_HISTORY = True
 #: after it, vqf's first-heading average (its gain 1/N) goes on as if this many seconds of samples had been fed, as
 #: a tauMag of this plus the time since, up to vqf's own: its rejections and the gates meanwhile on (``kMagInit`` 0)
 HEADING_WORTH_S = 3.0
-#: the fit takes in the record's leftover offset, which turns the field's angle with the course and over a corner
-#: looks like a drift, where the history identifies one: its fitted offset against its uncertainty (chi-squared, 3
-#: degrees of freedom) over ``OFFSET_CHI2`` (95 %); else the drift alone
-OFFSET_FIT = True
-OFFSET_CHI2 = 7.81
-#: nor when it is larger than this (deg/s): no phone's gyroscope is that far off once vqf started
-MAX_DPS = 2.0
+#: the fit's prior on the bias (one sigma, deg/s, zero mean): a phone's gyroscope left with up to 0.5 deg/s per axis
+#: after its factory calibration (uniform: 0.29 one sigma); vqf's own 0.5 (``drift_bias.PRIOR_DPS``) let a short
+#: history's noise through whole
+PRIOR_DPS = 0.3
+#: the record's offset error (one sigma per body axis, uT) fitted with the bias: it turns the field's heading by up
+#: to offset / horizontal field (1 uT: 3 deg at 19 uT), and by a different amount on each leg of a walk, so that a
+#: corner in a short history looks like a drift
+OFFSET_SIGMA_UT = 1.0
+#: the field's heading errors in a walk are correlated over this long (s): a corner's tilt fades with vqf's tauAcc
+#: (3 s) and the gait's stride comes back within a second or so; ``drift_bias.CORRELATION_S`` (2 s) took a short
+#: history for surer than it was
+CORRELATION_S = 4.0
 
 
 class CausalDrift:
@@ -90,8 +97,9 @@ class CausalDrift:
         """A new record's ``correct``ion put on the history's raw field, vqf's magnetic heading offset (``delta``) and
         its field reference (|B| and dip) set from the last ``HEADING_S`` of it, its rows that agree with the whole
         history's median |B| and dip (``NORM_TOL``, ``DIP_TOL_DEG``): the heading taken from seconds of field before the
-        record rather than from the samples after it, which an object passed then would bend. True when set (then
-        vqf's first-heading gain is off: ``kMagInit`` 0)."""
+        record rather than from the samples after it, which an object passed then would bend. True when set: vqf's
+        first-heading gain is then off (``kMagInit`` 0: it overrides vqf's rejection, and the heading gate stands aside
+        for it), and its average goes on as a tauMag of ``HEADING_WORTH_S`` plus the time since (``note``)."""
         rows = np.array(self.history).reshape(-1, 11)
         rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
         if len(rows) < HEADING_MIN_ROWS:
@@ -120,14 +128,17 @@ class CausalDrift:
         state["magDistDetected"] = False
         state["magRejectT"] = 0.0
         self.filter.state = state
-        if HEADING_WORTH_S > 0.0:  # vqf's first-heading average, the gates on: tauMag = worth + time since
+        if HEADING_WORTH_S > 0.0:
             self.ramp = (float(rows[-1, 0]), float(self.filter.params["tauMag"]))
             self.filter.setTauMag(min(HEADING_WORTH_S, self.ramp[1]))
         return True
 
     def from_history(self, correct: Correct) -> bool:
         """A new record's ``correct``ion put on the history's raw field, the drift fitted there and its bias added to
-        vqf's estimate. True when a bias was taken."""
+        vqf's estimate. True when a bias was taken. The fit (``fit_drift``) has the bias's prior (``PRIOR_DPS``) and
+        the record's offset error (``OFFSET_SIGMA_UT``, ``offset_columns``) in it, so that its estimate is shrunk
+        towards zero by as much as the history leaves it uncertain, and a corner's step of the field's angle that a
+        wrong offset makes is not read as a drift; taken where its uncertainty is below ``HISTORY_MAX_SIGMA_DPS``."""
         rows = np.array(self.history).reshape(-1, 11)
         rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
         if len(rows) < 3:
@@ -135,12 +146,17 @@ class CausalDrift:
         field = correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
         steps = np.diff(rows[:, 0], prepend=rows[0, 0])
         quat = rows[:, 1:5]
-        angle, up, period = field_angle_rad(quat, field), up_in_body(quat), float(np.median(steps[1:]))
-        found = fit_drift(angle, up, period, steps, HISTORY_MIN_S)
-        if OFFSET_FIT and found is not None:  # the record's leftover offset too, where the history shows one
-            with_offset = fit_drift(angle, up, period, steps, HISTORY_MIN_S, offset_rows(quat, field))
-            if with_offset is not None and with_offset.offset_chi2 > OFFSET_CHI2:
-                found = with_offset
+        found = fit_drift(
+            field_angle_rad(quat, field),
+            up_in_body(quat),
+            float(np.median(steps[1:])),
+            steps,
+            HISTORY_MIN_S,
+            nuisance=offset_columns(quat, field),
+            nuisance_sigma=OFFSET_SIGMA_UT,
+            prior_dps=PRIOR_DPS,
+            correlation_s=CORRELATION_S,
+        )
         bias, sigma = self.filter.getBiasEstimate()
         if (
             found is None
@@ -155,15 +171,17 @@ class CausalDrift:
         return True
 
 
-def offset_rows(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
-    """(N, 3) rad/uT: how the field's angle about the up axis in the frame of vqf quaternions (N, 4) wxyz body -> ENU
-    turns with a body-fixed error (uT, FLU) of the field (N, 3): R^T u / h, u the horizontal unit vector square to the
-    field's horizontal part (h its strength), R body -> earth."""
+def offset_columns(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
+    """(N, 3) rad per uT: how an offset error (body FLU, uT) of the corrected field turns its angle about the up axis
+    in the frame of vqf quaternions (N, 4) wxyz body -> ENU, at the field (N, 3) body FLU: d(angle) = g . R d(offset),
+    g = (-e_y, e_x, 0) / (e_x^2 + e_y^2), e = R field the field in that frame (zero where it has no horizontal
+    part)."""
     rotation = quaternion_to_matrix(np.asarray(quat_vqf, dtype=float).reshape(-1, 4))
-    earth = np.einsum("nij,nj->ni", rotation, field_vqf)
-    horizontal = np.maximum(np.hypot(earth[:, 0], earth[:, 1]), 1e-9)
-    across = np.column_stack([-earth[:, 1], earth[:, 0], np.zeros(len(earth))]) / horizontal[:, None]
-    return np.einsum("nji,nj->ni", rotation, across) / horizontal[:, None]
+    earth = np.einsum("nij,nj->ni", rotation, np.asarray(field_vqf, dtype=float).reshape(-1, 3))
+    horizontal = earth[:, 0] ** 2 + earth[:, 1] ** 2
+    scale = np.where(horizontal > 0.0, 1.0 / np.maximum(horizontal, 1e-300), 0.0)
+    towards = np.column_stack([-earth[:, 1], earth[:, 0], np.zeros(len(earth))]) * scale[:, None]
+    return np.einsum("ni,nij->nj", towards, rotation)
 
 
 def _floats(values: Any) -> list[float]:
@@ -189,7 +207,8 @@ def note_batch(state: Any, drain: Any, row: int) -> None:
 
 def take_drift(state: Any, correct: Correct | None) -> None:
     """A record with its ``correct``ion was put in force on the device ``state``'s filter (after its
-    ``restart_magnetometer``): ``CausalDrift.from_history`` (not where aided, nor without a correction)."""
+    ``restart_magnetometer``): ``CausalDrift.heading_from_history`` and ``from_history`` (not where aided, nor
+    without a correction)."""
     drift = getattr(state, "drift", None)
     if correct is not None and drift is not None and state.filter is not None and not state.filter.aided:
         if HEADING_FROM_HISTORY:

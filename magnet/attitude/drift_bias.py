@@ -55,9 +55,6 @@ CORRELATION_S = 2.0
 MIN_SIGMA_DPS = 0.2
 #: with the bias about the vertical estimated, vqf's magnetic time constant tauMag is this many times its own
 TAU_MAG_FACTOR = 2.0
-#: a record's leftover offset (uT, one sigma an axis), where the causal fit takes it in (``fit_drift``'s
-#: ``offset_rows``)
-OFFSET_PRIOR_UT = 2.0
 #: Huber's threshold, in robust standard deviations of the residual
 HUBER_K = 2.5
 #: field samples whose strength is further than this fraction from the log's median, or whose dip is further than
@@ -77,14 +74,12 @@ SEGMENT_S = 300.0
 class DriftBias:
     """The bias found: ``bias_rads`` (3,) body (vqf's FLU axes) rad/s, along ``up`` (3,) the mean earth up axis in
     body axes (unit); ``sigma_rads`` its one-sigma uncertainty (rad/s); ``residual_rad`` the robust spread of the
-    field's heading about the fitted drift (rad). With ``offset_rows``: ``offset_chi2``, the fitted leftover offset
-    against its uncertainty (e^T C^-1 e, 3 degrees of freedom; 0 without)."""
+    field's heading about the fitted drift (rad)."""
 
     bias_rads: np.ndarray
     up: np.ndarray
     sigma_rads: float
     residual_rad: float
-    offset_chi2: float = 0.0
 
     @property
     def along_up_rads(self) -> float:
@@ -141,33 +136,39 @@ def fit_drift(
     period_s: float,
     step_s: np.ndarray | None = None,
     min_span_s: float = MIN_SPAN_S,
-    offset_rows: np.ndarray | None = None,
+    nuisance: np.ndarray | None = None,
+    nuisance_sigma: float | np.ndarray = 1.0,
+    correlation_s: float = CORRELATION_S,
+    prior_dps: float = PRIOR_DPS,
 ) -> DriftBias | None:
     """The bias (see the module docstring) from the field's angle (N,) rad in a gyroscope-only attitude (NaN rows left
     out; wrapped or not) and that attitude's up axis (N, 3) in body axes, samples ``period_s`` apart (or, with
     ``step_s`` (N,), each that many seconds after the one before: ``period_s`` then their typical step). None when
-    fewer than ``min_span_s`` seconds of field samples are given. With ``offset_rows`` (N, 3) rad/uT, the angle's
-    derivative by a body-fixed error of the field's correction (``offset_rows``), that error (uT, prior
-    ``OFFSET_PRIOR_UT`` an axis) is fitted too: a record's leftover offset turns the field's angle with the course,
-    which over a corner looks like a drift."""
+    fewer than ``min_span_s`` seconds of field samples are given. ``nuisance`` (N, K): more columns of the design,
+    each with a zero-mean prior of one sigma ``nuisance_sigma`` (scalar or (K,), the columns' units), fitted with the
+    bias and marginalised out of its uncertainty (``causal_drift``: the heading errors a record's offset error
+    makes, which a corner turns into a step of the angle). ``correlation_s``, ``prior_dps``: ``CORRELATION_S`` and
+    ``PRIOR_DPS`` unless given."""
     known = np.isfinite(angle_rad)
     steps = np.full(len(angle_rad), period_s) if step_s is None else np.asarray(step_s, dtype=float)
     if float(steps[known].sum()) < min_span_s:
         return None
     drift = np.cumsum(up * steps[:, None], axis=0)
     psi = unwrapped(angle_rad, period_s)[known]
-    design = np.column_stack([np.ones(len(psi)), drift[known]])
-    prior_diag = [0.0, *([1.0 / math.radians(PRIOR_DPS) ** 2] * 3)]
-    if offset_rows is not None:
-        design = np.column_stack([design, np.asarray(offset_rows, dtype=float)[known]])
-        prior_diag += [1.0 / OFFSET_PRIOR_UT**2] * 3
-    prior = np.diag(prior_diag)
-    size = len(prior_diag)
-    per_sample = max(1.0, CORRELATION_S / period_s)  # samples that count as one
+    columns = [np.ones(len(psi)), drift[known]]
+    priors = [0.0, *([1.0 / math.radians(prior_dps) ** 2] * 3)]
+    if nuisance is not None:
+        extra = np.asarray(nuisance, dtype=float).reshape(len(angle_rad), -1)[known]
+        columns.append(extra)
+        sigmas = np.broadcast_to(np.asarray(nuisance_sigma, dtype=float), (extra.shape[1],))
+        priors.extend((1.0 / sigmas**2).tolist())
+    design = np.column_stack(columns)
+    prior = np.diag(priors)
+    per_sample = max(1.0, correlation_s / period_s)  # samples that count as one
     weights = np.ones(len(psi))
     spread = math.radians(3.0)
-    solution = np.zeros(size)
-    covariance = np.eye(size)
+    solution = np.zeros(design.shape[1])
+    covariance = np.eye(design.shape[1])
     for _ in range(6):
         weighted = design * weights[:, None]
         information = weighted.T @ design / (spread**2 * per_sample) + prior
@@ -180,11 +181,7 @@ def fit_drift(
     mean_up = mean_up / max(float(np.linalg.norm(mean_up)), 1e-12)
     sigma = float(np.sqrt(max(float(mean_up @ covariance[1:4, 1:4] @ mean_up), 0.0)))
     along = float(mean_up @ solution[1:4])
-    chi2 = 0.0
-    if offset_rows is not None:
-        offset = solution[4:]
-        chi2 = float(offset @ np.linalg.solve(covariance[4:, 4:], offset))
-    return DriftBias(along * mean_up, mean_up, sigma, spread, chi2)
+    return DriftBias(along * mean_up, mean_up, sigma, spread)
 
 
 def learnt_at_rest(bias_sigma_rads: np.ndarray | float) -> bool:

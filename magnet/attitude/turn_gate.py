@@ -22,7 +22,7 @@ gyroscope alone must not hold the tilt for ever.
 
 A swinging hand is no gait (its |specific force| does not repeat at a step's lag) but its body rates swing: over
 the last ``gait_s`` their spread about their mean (RMS of the vector) is between ``swing_sd_rads`` and
-``swing_max_rads`` and repeats at a stride's lag (a runner's arm swings faster and stays a gait). There leaving
+``swing_max_rads`` and repeats at a stride's lag (a runner's arm too, since 4 Dec: 4.6-6.9 rad/s). There leaving
 samples out would cut the arm's own accelerations (10 m/s^2 and more at the ends of the swing, periodic: they
 average out over whole strides only) at arbitrary phases. So in a swing the samples are fed as they come, and where
 the course turned over the last two strides each is *levelled*: less the horizontal part (square to vqf's vertical)
@@ -59,9 +59,10 @@ class TurnSettings:
     about the vertical, the mean over the window after the sample less that over the window before, exceeds
     ``turn_deg`` degrees, for at most ``max_hold_s`` seconds without a break. Swing (judged first): over ``gait_s``
     the body rates' spread (RMS of the vector about its mean) between ``swing_sd_rads`` and ``swing_max_rads``
-    rad/s, repeating (summed products over ``swing_corr`` times the power) at a lag of ``stride_s``; in a swing the
-    samples come as they are, levelled where the rotation about the vertical over the last two strides
-    (triangle-weighted) exceeds ``turn_deg``, for at most ``max_hold_s``."""
+    rad/s, repeating (summed products over ``swing_corr`` times the power) at a lag of ``stride_s``, the magnitudes a
+    gait too from ``swing_gait_rads`` on (a runner's arm, not a device turned fast by hand); in a swing the samples
+    come as they are, levelled where the rotation about the vertical over the last two strides (triangle-weighted)
+    exceeds ``turn_deg``, for at most ``max_hold_s``."""
 
     window_s: float = 1.0
     turn_deg: float = 15.0
@@ -72,21 +73,12 @@ class TurnSettings:
     step_s: tuple[float, float] = (0.3, 0.7)
     stride_s: tuple[float, float] = (0.55, 1.35)
     swing_sd_rads: float = 2.2
-    swing_max_rads: float = 4.0
+    swing_max_rads: float = 8.0
     swing_corr: float = 0.25
+    swing_gait_rads: float = 4.0
 
     def __post_init__(self) -> None:
-        for name in (
-            "window_s",
-            "turn_deg",
-            "max_hold_s",
-            "gait_s",
-            "gait_sd_ms2",
-            "gait_corr",
-            "swing_sd_rads",
-            "swing_max_rads",
-            "swing_corr",
-        ):
+        for name in [field.name for field in dataclasses.fields(self) if field.name not in ("step_s", "stride_s")]:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"TurnSettings.{name} must be a positive number of its unit, got {value!r}")
@@ -155,6 +147,7 @@ class TurnGate:
             ("swing_sd", settings.swing_sd_rads),
             ("swing_max", settings.swing_max_rads),
             ("swing_corr", settings.swing_corr),
+            ("swing_gait", settings.swing_gait_rads),
         ):
             self.settings_array[layout[key]] = value
         recent = layout["recent"]

@@ -36,6 +36,10 @@ from magnet.model import Calibration
 #: than this fraction: the figure is noisy (on a simulated tilted turn, 1.80 deg for the offset rung against 1.94 for
 #: the planar one, whose heading was the better), and the richer model is the one the motion was shown to identify
 SWITCH_GAIN = 0.10
+#: with a gyroscope, another candidate replaces the richest identified rung when the RMS of its field's turn against
+#: the gyroscope's (``magnet.calibration.turning``, quality ``turn_residual_ut``) is lower by more than this fraction:
+#: the residual is mostly the sensor's noise (0.7 uT for a phone's 0.5), an offset a few uT off adds a few %
+TURN_GAIN = 0.05
 #: the plain sphere: the offset and an isotropic scale, by least squares with the radius free (its record is an
 #: "offset" record: the matrix kept up to its scale)
 SPHERE = Rung("offset", (ISO,), ("offset", "scale (the radius free)"), ("matrix (up to its scale)",))
@@ -130,6 +134,13 @@ def refit(ev: Evidence, result: RungFit, rows: np.ndarray) -> RungFit:
     return fit_rung(ev, result.rung, result.offset, rows)
 
 
+def _turn(record: Calibration) -> float:
+    value = record.quality.get("turn_residual_ut")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
+        return math.inf
+    return float(value)
+
+
 def _consistency(record: Calibration) -> float:
     value = record.quality.get("holdout_heading_consistency_deg")
     return math.inf if value is None or not math.isfinite(float(value)) else float(value)
@@ -145,17 +156,25 @@ def best(records: Sequence[tuple[RungFit, Calibration]]) -> Calibration:
             "model": result.rung.name,
             "fit": "sphere" if result.rung is SPHERE else "ladder",
             "holdout_heading_consistency_deg": None if math.isinf(_consistency(record)) else _consistency(record),
+            "turn_residual_ut": None if math.isinf(_turn(record)) else _turn(record),
             "accepted": record.accepted,
         }
         for result, record in records
     ]
     accepted = [record for _, record in records if record.accepted]
     chosen = accepted[0] if accepted else records[0][1]
-    better = min(accepted, key=_consistency) if accepted else chosen
-    if _consistency(better) < (1.0 - SWITCH_GAIN) * _consistency(chosen):
-        chosen = better
+    turned = len(accepted) >= 2 and all(math.isfinite(_turn(record)) for record in accepted)
+    if turned:  # the field's turn against the gyroscope's, which no tilt filter bends
+        better = min(accepted, key=_turn)
+        if _turn(better) < (1.0 - TURN_GAIN) * _turn(chosen):
+            chosen = better
+    else:
+        better = min(accepted, key=_consistency) if accepted else chosen
+        if _consistency(better) < (1.0 - SWITCH_GAIN) * _consistency(chosen):
+            chosen = better
     quality = chosen.quality.with_extra(candidates=listed)
     if len(accepted) < 2:
         return chosen.replace(quality=quality)
-    why = f"chosen by held-out heading consistency among {len(accepted)} accepted candidates"
+    by = "the field's turn against the gyroscope's" if turned else "held-out heading consistency"
+    why = f"chosen by {by} among {len(accepted)} accepted candidates"
     return chosen.replace(quality=quality, reason=f"{chosen.reason}; {why}")

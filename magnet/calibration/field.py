@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.calibration import candidates, course, disturbed, unplaced
+from magnet.calibration import candidates, course, disturbed, turning, unplaced
 from magnet.calibration.base import FitError
 from magnet.calibration.field_input import MIN_FIELD_SAMPLES
 from magnet.calibration.field_input import FieldInput as FieldInput  # the record, named where the fit is
@@ -131,16 +131,16 @@ def fit_field(
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     test = _holdout_mask(len(inp.mag))
     planar = is_planar(ev.down)
+    windows, whole_mag = turning.vehicle_turns(whole_input, planar, keep), whole_input.mag
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
     ev, vertical_kept, no_place = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: nothing holds it
     if planar and (ev_motion is None or ev_motion.source != motion.AIDED_SOURCE):
         ev = level_in_turns(ev, inp.gyr, inp.vel_ned_ms)
 
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
-        calibration = _record(result, inp, ev, len(inp.mag))
-        holdout = _holdout(inp, ev, result, test)
+        calibration, holdout = _record(result, inp, ev, len(inp.mag)), _holdout(inp, ev, result, test)
         record = judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
-        record = unplaced.with_vertical_kept(record, vertical_kept)
+        record = turning.with_turn_residual(unplaced.with_vertical_kept(record, vertical_kept), windows, whole_mag)
         if keep is None:
             return record
         return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))

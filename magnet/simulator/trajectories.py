@@ -18,7 +18,8 @@ function of the sample index with period ``count``:
 
 Moving trajectories are functions of time with linear acceleration: MULTIROTOR, CAR, FIGURE8, FAST_TUMBLE
 (``magnet.simulator.motion``); the walks WALK_POCKET, WALK_HAND, WALK_TEXTING, WALK_PHONING, RUNNING
-(``magnet.simulator.walks``); the planar BOAT and ROBOT (``magnet.simulator.ground``).
+(``magnet.simulator.walks``); the planar BOAT and ROBOT (``magnet.simulator.ground``); the hand-held WAND
+(``magnet.simulator.wand``).
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ class Trajectory(enum.Enum):
     RUNNING = "running"
     BOAT = "boat"
     ROBOT = "robot"
+    WAND = "wand"
 
     @property
     def moving(self) -> bool:
@@ -80,7 +82,9 @@ WALKING_TRAJECTORIES = frozenset(
 )
 #: vehicles that only yaw, with small roll and pitch (``magnet.simulator.ground``, and the car)
 PLANAR_TRAJECTORIES = frozenset({Trajectory.CAR, Trajectory.BOAT, Trajectory.ROBOT})
-MOVING_TRAJECTORIES = VEHICLE_TRAJECTORIES | WALKING_TRAJECTORIES | PLANAR_TRAJECTORIES
+#: an IMU box turned by hand about every axis, with rests, as in the BROAD trials (``magnet.simulator.wand``)
+HAND_TRAJECTORIES = frozenset({Trajectory.WAND})
+MOVING_TRAJECTORIES = VEHICLE_TRAJECTORIES | WALKING_TRAJECTORIES | PLANAR_TRAJECTORIES | HAND_TRAJECTORIES
 #: the trajectories that follow a path on the ground or water, beside which objects can disturb the field
 #: (``magnet.simulator.disturbances``)
 PATH_TRAJECTORIES = WALKING_TRAJECTORIES | PLANAR_TRAJECTORIES

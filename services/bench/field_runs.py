@@ -2,8 +2,11 @@
 
 Motions (``MOTIONS``): the walks (phone in a pocket, a swinging hand, texting, phoning, running), the planar
 vehicles (car, boat, robot), walks past steel doors and parked cars (``magnet.simulator.disturbances``) and a walk
-whose hard iron changes half-way (in-service recalibration). Every run has a phone's raw magnetometer and IMU
-(``SensorErrors.phone``: hard iron 6-15 times the field, factory soft iron), both drawn from the seed.
+whose hard iron changes half-way (in-service recalibration). Every one of these has a phone's raw magnetometer and
+IMU (``SensorErrors.phone``: hard iron 6-15 times the field, factory soft iron), both drawn from the seed. Last, a
+hand-held wand (``magnet.simulator.wand``: an IMU box turned slowly and fast about every axis, with rests, as in the
+BROAD trials) whose magnetometer its maker already calibrated (``SensorErrors.calibrated``: under 1 uT and 1 % left):
+there the raw field is already good, and a fit must not make heading worse than vqf on it.
 
 The heading error of an attitude estimate is the angle about the vertical between it and the truth: the yaw of
 R_est R_true^T. It is defined at any attitude (a phone in a pocket stands upright, where the heading of its x axis
@@ -45,13 +48,16 @@ TUNING_SEEDS = tuple(range(1, 10))
 class FieldMotion:
     """One motion of the bench: its trajectory, its group ("walk", "planar", "disturbed", "in service"), whether
     objects are passed on the way, whether the hard iron changes half-way, and whether the device sends its GNSS
-    velocity with its samples (a car's or a boat's navigation does; the compass then aids its filter with it)."""
+    velocity with its samples (a car's or a boat's navigation does; the compass then aids its filter with it), and
+    its sensor: "phone" (``SensorErrors.phone``, raw) or "calibrated" (``SensorErrors.calibrated``: its maker
+    calibrated it)."""
 
     trajectory: Trajectory
     group: str
     disturbed: bool = False
     iron_change: bool = False
     gnss: bool = False
+    sensor: str = "phone"
 
 
 MOTIONS: dict[str, FieldMotion] = {
@@ -67,6 +73,7 @@ MOTIONS: dict[str, FieldMotion] = {
     "walk-hand, doors": FieldMotion(Trajectory.WALK_HAND, "disturbed", disturbed=True),
     "walk-texting, doors": FieldMotion(Trajectory.WALK_TEXTING, "disturbed", disturbed=True),
     "walk-hand, iron change": FieldMotion(Trajectory.WALK_HAND, "in service", iron_change=True),
+    "wand, calibrated": FieldMotion(Trajectory.WAND, "wand", sensor="calibrated"),
 }
 
 
@@ -90,9 +97,9 @@ class FieldSettings:
 
 def field_run(motion: FieldMotion, seed: int, settings: FieldSettings) -> SimulatedRun:
     """The motion's run for ``seed``: a phone's sensor drawn from the seed, objects on the way when disturbed, a new
-    hard iron (another phone-like one) from half-way when the iron changes."""
+    hard iron (another phone-like one) from half-way when the iron changes; a maker-calibrated sensor for the wand."""
     rng = np.random.default_rng([seed, 26])
-    errors = SensorErrors.phone(rng, 50.0)
+    errors = SensorErrors.calibrated(rng, 50.0) if motion.sensor == "calibrated" else SensorErrors.phone(rng, 50.0)
     change = None
     if motion.iron_change:
         change = HardIronChange(settings.seconds / 2.0, SensorErrors.phone(rng, 50.0).hard_iron_ut)

@@ -6,11 +6,14 @@ Per device: ``sensor_msgs/msg/MagneticField`` on ``<NS>/<device>/mag`` and ``sen
 are built in ``magnet.ros2`` (frames, names, CDR); this module puts them. See ``docs/ros2.md``.
 
 Shedding load (docs/front-door.md). Declaring a device's topics is the costly part (two publishers, two liveliness
-tokens), and it runs in the compass's loop. So: at most ``--ros2-max-devices`` devices have topics; a new device
-beyond them takes the slot of the least recently published device only when that one has been silent for
-``IDLE_S`` (counted, ``sinks.ros2_topics_evicted``), else its samples stay off ROS 2
-(``dropped[ros2:device-limit]``); each drain declares new topics for at most ``DECLARE_BUDGET_S`` (at least one
-device; the rest wait for a later drain, their samples counted as ``dropped[ros2:declare-budget]``); the devices
+tokens), it runs in the compass's loop, and Zenoh 1.10.2 keeps about 2 kB for good in the session (and the router) for
+every publisher and token declared, even once undeclared (eclipse-zenoh/zenoh#1518). So: a device is given topics only
+once it has sent ``PROMOTE_BATCHES`` batches (a flood's ids send one each; its batches before that, in earlier drains,
+are counted as ``dropped[ros2:unproven]``; the devices counted are bounded, the least recently seen forgotten); at most
+``--ros2-max-devices`` devices have topics; a new device beyond them takes the slot of the least recently published
+device only when that one has been silent for ``IDLE_S`` (counted, ``sinks.ros2_topics_evicted``), else its samples stay
+off ROS 2 (``dropped[ros2:device-limit]``); each drain declares new topics for at most ``DECLARE_BUDGET_S`` (at least
+one device; the rest wait for a later drain, their samples counted as ``dropped[ros2:declare-budget]``); the devices
 that have topics are published before any new one is declared, and the CDR is built only for the devices published.
 """
 
@@ -45,6 +48,13 @@ DIAGNOSTICS_PERIOD_S = 1.0
 IDLE_S = 30.0
 #: seconds of new topics' declarations at most per drain
 DECLARE_BUDGET_S = 0.02
+#: batches a device sends before it is given topics: a flood of new ids (one batch each) declares nothing, leaves no
+#: declaration behind in Zenoh and takes no slot a real device waits for; a real device's first drain holds several
+#: batches (20 a second from an edge), so it usually has its topics, and all its batches published, in its first drain
+PROMOTE_BATCHES = 3
+#: devices counted toward PROMOTE_BATCHES at most, per slot of ``--ros2-max-devices`` (the least recently seen
+#: forgotten: in a flood of 5,000 new ids a second, 2,048 counted keep a device sending every 0.4 s or faster)
+CANDIDATES_PER_SLOT = 8
 #: vehicles whose compasses are compared in each DiagnosticArray at most (each comparison costs about 2 ms)
 MAX_VEHICLE_DIAGNOSTICS = 16
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -115,6 +125,8 @@ class Ros2Compass:
         #: device -> (its two topics, when it was last published (monotonic s)), least recently published first
         self.devices: collections.OrderedDict[str, tuple[tuple[_Topic, _Topic], float]] = collections.OrderedDict()
         self.evicted = 0
+        #: device without topics -> the batches it has sent (``PROMOTE_BATCHES``), least recently seen first
+        self.candidates: Recent[str, int] = Recent(CANDIDATES_PER_SLOT * max_devices)
         self.disturbed: Recent[str, float] = Recent(max_devices)
         self.sigma: Recent[str, float] = Recent(max_devices)  # the median heading sigma of each device's last batch
         self.diagnostics = _Topic(self, DIAGNOSTICS_TOPIC, messages.DIAGNOSTIC_ARRAY)
@@ -151,22 +163,38 @@ class Ros2Compass:
         return [device in self.devices for device in devices]
 
     def declare_new(self, devices: Sequence[str], known: list[bool], core: CompassCore, now_s: float) -> list[bool]:
-        """Per batch of a drain whose device had no topics (``known`` false), whether it has now: declared while the
-        slots and ``DECLARE_BUDGET_S`` last (one device at least), the others counted as dropped in ``core.drops``
-        (``ros2:device-limit``, ``ros2:declare-budget``; the first of each logged)."""
+        """Per batch of a drain whose device had no topics (``known`` false), whether it has now: a device that has
+        sent ``PROMOTE_BATCHES`` batches (this drain's counted) is declared while the slots and ``DECLARE_BUDGET_S``
+        last (one device at least), the others counted as dropped in ``core.drops`` (``ros2:unproven`` per batch,
+        ``ros2:device-limit`` and ``ros2:declare-budget`` per device and drain; the first of each logged)."""
         verdict: dict[str, bool] = {}
-        deadline, declared = time.perf_counter() + DECLARE_BUDGET_S, False
+        sent_now = collections.Counter(device for device, was_known in zip(devices, known) if not was_known)
+        deadline, declared, unproven = time.perf_counter() + DECLARE_BUDGET_S, False, 0
         for device, was_known in zip(devices, known):
             if was_known or device in verdict:
                 continue
+            sent = self.candidates.pop(device, 0) + sent_now[device]
+            if sent < PROMOTE_BATCHES:
+                self.candidates[device] = sent
+                verdict[device] = False
+                unproven += sent_now[device]
+                continue
             if declared and time.perf_counter() >= deadline:  # one new device a drain at least: progress
                 verdict[device] = False
+                self.candidates[device] = sent  # proven: declared in a later drain
                 self._refused(core, "ros2:declare-budget", device)
             elif self._declare(device, now_s):
                 verdict[device] = declared = True
             else:
                 verdict[device] = False
+                self.candidates[device] = sent
                 self._refused(core, "ros2:device-limit", device)
+        if unproven and core.drops.count("ros2:unproven", unproven):
+            log.info(
+                "ROS 2: a device is given topics once it has sent %d batches; until then its batches are only "
+                "counted (status dropped[ros2:unproven])",
+                PROMOTE_BATCHES,
+            )
         core.sink_counts.update(ros2_topics=len(self.devices), ros2_topics_evicted=self.evicted)
         return [not was_known and verdict[device] for device, was_known in zip(devices, known)]
 
@@ -293,19 +321,32 @@ def _select(columns: wire.RawColumns, out: HeadingColumns, keep: list[bool]) -> 
     """The batches of a drain whose ``keep`` is true: their raw columns and their headings (every field that is per
     sample, (S, ...), cut to their rows; every list per batch, (B,), to them)."""
     mask = np.asarray(keep, dtype=bool)
-    rows = np.repeat(mask, columns.counts)
-    index = np.flatnonzero(mask).tolist()
-    samples, batches = len(rows), len(mask)
+    cut = _Cut(mask, np.repeat(mask, columns.counts))
+    return cast(wire.RawColumns, cut(columns)), cast(HeadingColumns, cut(out))
 
-    def cut(value: object) -> object:
+
+class _Cut:
+    """``_select``'s cut of one value (an array, a list or a dataclass of them, recursively) to the rows kept.
+
+    A class, not a closure that calls itself: such a closure is a reference cycle (the function holds its own cell),
+    which only the cycle collector frees, and it held the drain's masks until then. The compass raises the collector's
+    first threshold (``service.GC_THRESHOLD``), so those waited for a full collection: in a soak's floods (a drain
+    with unpublished batches each time) 300 of them piled up, several MB (docs/front-door.md)."""
+
+    def __init__(self, mask: np.ndarray, rows: np.ndarray) -> None:
+        self.mask, self.rows = mask, rows
+        self.index = np.flatnonzero(mask).tolist()
+        self.samples, self.batches = len(rows), len(mask)
+
+    def __call__(self, value: object) -> object:
         if isinstance(value, np.ndarray):
-            return value[rows] if value.shape[:1] == (samples,) else value[mask] if len(value) == batches else value
-        if isinstance(value, list) and len(value) == batches:
-            return [value[i] for i in index]
+            if value.shape[:1] == (self.samples,):
+                return value[self.rows]
+            return value[self.mask] if len(value) == self.batches else value
+        if isinstance(value, list) and len(value) == self.batches:
+            return [value[i] for i in self.index]
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             return dataclasses.replace(
-                value, **{f.name: cut(getattr(value, f.name)) for f in dataclasses.fields(value)}
+                value, **{f.name: self(getattr(value, f.name)) for f in dataclasses.fields(value)}
             )
         return value
-
-    return cast(wire.RawColumns, cut(columns)), cast(HeadingColumns, cut(out))

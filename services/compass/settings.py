@@ -69,8 +69,9 @@ class CompassSettings:
         ROS2_MAX_DEVICES,
         "--ros2-max-devices",
         check=at_least(1),
-        help="with --ros2: devices with ROS 2 topics at most; a new device beyond takes the slot of one silent for "
-        "a while, else its samples stay off ROS 2 (counted: dropped[ros2:device-limit])",
+        help="with --ros2: devices with ROS 2 topics at most (a device gets them once it has sent 3 batches); a new "
+        "device beyond takes the slot of one silent for a while, else its samples stay off ROS 2 (counted: "
+        "dropped[ros2:device-limit])",
     )
     trust: tuple[Path, ...] = option(
         (),

@@ -54,8 +54,15 @@ class PlainGate:
     def update(self, gyr, acc, start, bias):
         g, period = self.g, self.g.period_s
         if self.samples % g.block == 0:
-            self.attitude, self.bias, self.in_swing = start, bias, self._swing()
-            self.in_gait = not self.in_swing and self._gait()
+            self.attitude, self.bias, before = start, bias, self.stride
+            swing = self._swing()
+            if swing == 2:  # fast: a swing where the magnitudes are a gait too (their stride not taken), else neither
+                stride = self.stride
+                self.in_swing, self.in_gait = self._gait(), False
+                self.stride = stride if self.in_swing else before
+            else:
+                self.in_swing = swing == 1
+                self.in_gait = not self.in_swing and self._gait()
         self.samples += len(gyr)
         attitude = _turned_by(self.attitude, gyr, self.bias, period)
         self.attitude = attitude[-1]
@@ -105,20 +112,20 @@ class PlainGate:
             fed[j] = acc[j] - _to_frame(held[j : j + 1] * [1.0, -1.0, -1.0, -1.0], level[None])[0]
         return fed
 
-    def _swing(self) -> bool:
+    def _swing(self) -> int:
         if np.isnan(self.rates[0, 0]):
-            return False
+            return 0
         centred = self.rates - self.rates.mean(axis=0)
         power = float(np.sum(centred * centred))
         settings = self.g.settings
         if not settings.swing_sd_rads**2 < power / len(centred) < settings.swing_max_rads**2:
-            return False
+            return 0
         strides = self.g.stride_lags[self.g.stride_lags < len(centred)]
         correlation = np.array([np.sum(centred[: len(centred) - k] * centred[k:]) for k in strides])
         if correlation.max() <= self.g.settings.swing_corr * power:
-            return False
+            return 0
         self.stride = min(self.g.width, int(strides[np.argmax(correlation)]))
-        return True
+        return 2 if power >= len(centred) * settings.swing_gait_rads**2 else 1
 
     def _gait(self) -> bool:
         if np.isnan(self.magnitudes[0]):
@@ -152,27 +159,44 @@ def walker(rng: np.random.Generator, count: int, period_s: float) -> tuple[np.nd
     return gyr, acc
 
 
-def swinger(rng: np.random.Generator, count: int, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+def swinger(
+    rng: np.random.Generator, count: int, period_s: float, peak_rads: tuple[float, float] = (2.5, 4.0)
+) -> tuple[np.ndarray, np.ndarray]:
     """A walker's corners (as ``walker``) with an arm's swing: body rates about a random axis at a random stride
-    rate (2.5 to 4 rad/s, stopping for a while), the specific force swinging with it; no steps' bounce."""
+    rate (``peak_rads``, stopping for a while), the specific force swinging with it; no steps' bounce."""
     gyr, acc = walker(rng, count, period_s)
     t = np.arange(count) * period_s
     stride_hz, axis = rng.uniform(0.8, 1.6), rng.normal(size=3)
-    swing = rng.uniform(2.5, 4.0) * np.sin(2 * np.pi * stride_hz * t) * (t % 15 < 12)
+    swing = rng.uniform(*peak_rads) * np.sin(2 * np.pi * stride_hz * t) * (t % 15 < 12)
     gyr += swing[:, None] * axis / np.linalg.norm(axis)
     acc[:, 2] = 9.81 + rng.normal(0.0, 0.3, count)
     acc[:, :2] += 3.0 * np.cos(2 * np.pi * stride_hz * t)[:, None] * rng.normal(0, 1, 2)
     return gyr, acc
 
 
+def fast_turner(rng: np.random.Generator, count: int, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """A swinger whose rates swing as fast as a runner's arm (7 to 9.5 rad/s peak), without steps: no swing."""
+    return swinger(rng, count, period_s, (7.0, 9.5))
+
+
+def runner(rng: np.random.Generator, count: int, period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """A walker's steps and corners (as ``walker``) with a runner's arm swinging (7 to 9.5 rad/s peak, about a
+    random axis at the stride rate, stopping for a while): a swing, its steps a gait."""
+    gyr, acc = walker(rng, count, period_s)
+    t = np.arange(count) * period_s
+    stride_hz, axis = rng.uniform(1.2, 1.6), rng.normal(size=3)
+    swing = rng.uniform(7.0, 9.5) * np.sin(2 * np.pi * stride_hz * t) * (t % 15 < 12)
+    return gyr + swing[:, None] * axis / np.linalg.norm(axis), acc
+
+
 @pytest.mark.parametrize(
     ("period_s", "seed", "moves"),
     [(0.01, 1, walker), (0.02, 2, walker), (0.013, 3, walker), (0.005, 4, walker), (0.02, 5, swinger),
-     (0.01, 6, swinger)],
+     (0.01, 6, swinger), (0.02, 7, runner), (0.01, 8, fast_turner)],
 )  # fmt: skip
 def test_gate_update_is_the_plain_gate_whatever_the_batches(period_s, seed, moves):
     rng = np.random.default_rng(seed)
-    gyr, acc = moves(rng, round((60.0 if moves is walker else 20.0) / period_s), period_s)
+    gyr, acc = moves(rng, round((20.0 if moves is swinger else 60.0) / period_s), period_s)
     gate = TurnGate(period_s, TurnSettings(max_hold_s=3.0))
     plain = PlainGate(gate)
     fed_c, gated_c, fed_p, gated_p, gaits, swings, levelled = [], [], [], [], 0, 0, 0
@@ -200,6 +224,10 @@ def test_gate_update_is_the_plain_gate_whatever_the_batches(period_s, seed, move
         start = stop
     if moves is walker:
         assert gaits > 0 and np.concatenate(gated_c).any()  # the gate was at work: gaits, turns left out
+    elif moves is runner:  # the arm swinging: a swing, turns levelled; while it stops, a gait
+        assert swings > 0 and levelled > 0 and gaits > 0
+    elif moves is fast_turner:  # rates as fast as a runner's arm, no steps: neither
+        assert swings == 0 and levelled == 0
     else:  # swings, turns levelled, nothing left out
         assert swings > 0 and levelled > 0 and not np.concatenate(gated_c).any()
     np.testing.assert_array_equal(np.concatenate(gated_c), np.concatenate(gated_p))

@@ -169,3 +169,26 @@ def test_a_slow_heading_drift_of_the_attitude_is_not_taken_for_an_inconstant_fie
     assert motion.consistency_deg(clean, stretched) < 0.2
     assert motion.consistency_deg(off, stretched) > 10 * motion.consistency_deg(clean, stretched)
     assert motion.consistency_deg(off, whole) < 2 * motion.consistency_deg(clean, whole)
+
+
+def test_against_no_calibration_a_fit_must_also_gain_three_percent():
+    """A maker-calibrated sensor's raw field is at the noise floor: a fit more constant than it by more than chance
+    but by under ``MIN_GAIN_OVER_NONE`` is refused (its own noise, not a gain in heading); 3 % or more passes.
+    Against a calibration in force only the margin counts (a refresh in service), while the comparison with no
+    calibration it carries too asks for the same least gain."""
+
+    def figures(held, ref, margin, reference="no calibration", **more):
+        return {"consistency": "direction", "reference": reference, "holdout_consistency_deg": held,
+                "reference_holdout_consistency_deg": ref, "holdout_margin_deg": margin, **more}  # fmt: skip
+
+    assert motion.MIN_GAIN_OVER_NONE == 0.03
+    small = motion.check_consistency(figures(0.488, 0.493, 0.004))  # 1 % better, over its 0.8 % margin
+    assert small is not None and "only 1.0 % more constant than no calibration" in small
+    assert "gain 3 %" in small
+    assert motion.check_consistency(figures(0.470, 0.4995, 0.012)) is None  # 5.9 % better: passes
+    chance = motion.check_consistency(figures(0.470, 0.4995, 0.04))  # better by less than the margin: chance
+    assert chance is not None and "by more than chance" in chance
+    in_force = figures(0.488, 0.493, 0.004, "the calibration in force")
+    assert motion.check_consistency(in_force) is None  # a refresh: the margin alone
+    carried = {**in_force, "none_holdout_consistency_deg": 0.495, "none_holdout_margin_deg": 0.004}
+    assert "than no calibration" in (motion.check_consistency(carried) or "")

@@ -73,3 +73,31 @@ def test_vehicles_with_gnss_send_their_velocity(tmp_path):
     np.testing.assert_allclose(last[-3:], run.vel_ned_ms[-1], rtol=1e-6)
     without = field.write_run_csv(run, tmp_path / "plain.csv").read_text().splitlines()
     assert without[0] == "t_s,mx,my,mz,ax,ay,az,gx,gy,gz"
+
+
+def test_the_wand_line_counts_runs_worse_than_vqf_with_the_same_filter():
+    def row(seed, fit_c, fit_o, vqf_c, vqf_o):
+        return {"motion": "wand, calibrated", "group": "wand", "seed": seed, "fit_causal": fit_c,
+                "fit_offline": fit_o, "vqf_raw": vqf_c, "vqf_raw_offline": vqf_o}  # fmt: skip
+
+    rows = [
+        row(1, 1.04, 0.50, 1.0, 0.5),  # within 5 %
+        row(2, 1.06, 0.40, 1.0, 0.5),  # causal worse
+        row(3, 0.90, 0.60, 1.0, 0.5),  # offline worse (against vqf's offline, not its causal)
+        {"motion": "car", "group": "planar", "seed": 1, "fit_causal": 9.0, "vqf_raw": 1.0},
+    ]
+    assert field.worse_than_vqf(rows[0]) == [] and field.worse_than_vqf(rows[1]) == ["c"]
+    assert field.worse_than_vqf(rows[2]) == ["o"]
+    (line,) = field.wand_lines(rows)
+    assert line.startswith("wand: 2/3 runs with fit c or fit o more than 5 % worse than vqf raw")
+    assert "seed 2 c 1.060 vs 1.000" in line and "seed 3 o 0.600 vs 0.500" in line and "seed 1 " not in line
+    assert field.wand_lines(rows[3:]) == []
+    assert field.verdict_lines(rows[:3])[-1] == line  # the bench prints it after the other checks
+
+
+def test_the_wand_is_a_maker_calibrated_sensor_in_the_bench():
+    motion = field_runs.MOTIONS["wand, calibrated"]
+    assert motion.trajectory is sim.Trajectory.WAND and motion.sensor == "calibrated" and motion.group == "wand"
+    run = field_runs.field_run(motion, 1, field_runs.FieldSettings(seconds=4.0))
+    assert np.linalg.norm(run.errors.hard_iron_ut) < 1.0
+    assert all(m.sensor == "phone" for name, m in field_runs.MOTIONS.items() if name != "wand, calibrated")

@@ -1,0 +1,118 @@
+"""The field's turn against the gyroscope's: how well a correction's field turns with the body
+(docs/field-calibration.md, "The field's turn against the gyroscope's").
+
+The Earth's field is constant in the Earth frame while the body turns (Kok and Schon 2016): over a window from sample
+s to sample e, a right correction gives b(e) = P^T b(s), P the turn the gyroscope measured. An offset error d across
+the turns leaves (I - P^T) d in every window, whatever a tilt filter makes of the accelerometer, so over windows of a
+few seconds (a boat's or a car's turn of 10-90 deg) the residual tells a good correction from one a few uT off, where
+the field's 1-s windows of the ladder's gyroscope block turn too little to. The gyroscope's bias beta (a phone's
+reaches 0.5 deg/s) turns the measured P away from the true one by about M beta, M = Q_e^T sum_k Q_k dt (the bias
+integrated in the axes the body had along the window, Q_k sample k's axes in the window's first): for a body that
+turns a quarter turn within the window, M is far from dt I about the horizontal axes. It is fitted by least squares
+for each correction, so that a correction is not blamed for the bias.
+
+``turn_residual_ut``: the RMS residual (uT) after the bias, over windows that turned ``MIN_ANGLE_DEG`` to
+``WINDOW_ANGLE_DEG`` within ``WINDOW_S``, both ends among the rows used. Pure numpy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from magnet.calibration.field_input import FieldInput
+from magnet.calibration.gyro_ellipsoid import _attitudes
+from magnet.frames import rotation_vector_to_matrix
+from magnet.model import Calibration
+
+#: a window ends once the gyroscope has turned this far since its start ...
+WINDOW_ANGLE_DEG = 90.0
+#: ... or after this long (s): a boat turning at 8-15 deg/s turns 50-90 deg in it; the bias is fitted
+WINDOW_S = 6.0
+#: windows that turned less than this are left out (the field's change is then mostly the sensor's noise)
+MIN_ANGLE_DEG = 10.0
+#: at most this many windows (starts spread evenly)
+MAX_WINDOWS = 2000
+#: fewer windows than this give no figure
+MIN_WINDOWS = 30
+
+
+@dataclasses.dataclass(frozen=True)
+class Turns:
+    """The gyroscope's windows: starts (M,) and ends (M,) sample indices, back (M, 3, 3) = P^T (a vector's body-s
+    coordinates -> body-e), bias_gain (M, 3, 3) = M (rad of turn error per rad/s of bias, in body-e axes)."""
+
+    starts: np.ndarray
+    ends: np.ndarray
+    back: np.ndarray
+    bias_gain: np.ndarray
+
+
+def turns(gyr_rads: np.ndarray, period_s: float, rows: np.ndarray | None = None) -> Turns | None:
+    """The windows of the body rates gyr_rads (N, 3) sampled every period_s, both ends in rows (N,) bool (None:
+    all); None when fewer than MIN_WINDOWS."""
+    gyr = np.asarray(gyr_rads, dtype=float)
+    count = len(gyr)
+    if count < 3 or not period_s > 0:
+        return None
+    turned = np.concatenate([[0.0], np.cumsum(np.linalg.norm(gyr[1:], axis=1) * period_s)])
+    starts = np.arange(count - 1)
+    ends = np.searchsorted(turned, turned[starts] + math.radians(WINDOW_ANGLE_DEG))
+    ends = np.minimum(np.minimum(ends, starts + max(1, round(WINDOW_S / period_s))), count - 1)
+    good = (ends > starts) & (turned[ends] - turned[starts] >= math.radians(MIN_ANGLE_DEG))
+    if rows is not None:
+        good &= rows[starts] & rows[ends]
+    starts, ends = starts[good], ends[good]
+    if len(starts) > MAX_WINDOWS:
+        pick = np.linspace(0, len(starts) - 1, MAX_WINDOWS).astype(int)
+        starts, ends = starts[pick], ends[pick]
+    if len(starts) < MIN_WINDOWS:
+        return None
+    attitudes = _attitudes(rotation_vector_to_matrix(gyr * period_s))
+    to_end = np.transpose(attitudes[ends], (0, 2, 1))
+    summed = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(attitudes[:-1], axis=0) * period_s])
+    return Turns(starts, ends, to_end @ attitudes[starts], to_end @ (summed[ends] - summed[starts]))
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """[w]x (M, 3, 3) of vectors w (M, 3)."""
+    out = np.zeros((len(w), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return out
+
+
+def turn_residual_ut(windows: Turns, field_ut: np.ndarray) -> float:
+    """The RMS of b(e) - P^T b(s) + [w]x M beta over the windows (uT), w = P^T b(s), beta the gyroscope's bias
+    fitted by least squares; field_ut (N, 3) a correction's field in uT, in body axes."""
+    field = np.asarray(field_ut, dtype=float)
+    w = np.einsum("nij,nj->ni", windows.back, field[windows.starts])
+    residual = field[windows.ends] - w
+    design = (_skew(w) @ windows.bias_gain).reshape(-1, 3)
+    bias, *_ = np.linalg.lstsq(design, -residual.reshape(-1), rcond=None)
+    left = residual.reshape(-1) + design @ bias
+    return float(np.sqrt(np.mean(left**2)))
+
+
+def vehicle_turns(inp: FieldInput, planar: bool, keep: np.ndarray | None) -> Turns | None:
+    """The windows (``turns``) of a field fit's input when it is a travelling planar device (its samples carry a
+    velocity: a boat, a car), both ends among the kept rows (None: all); None for any other device, without a
+    gyroscope or with too few turns. Such a vehicle's turns lean its unaided tilt, and the held-out heading
+    consistency with it, so its candidates are chosen by how their field turns with the gyroscope
+    (``candidates.best``). Measured on the bench's live path (tuning seeds): boats better; walks and robots, which
+    send no velocity, moved both ways (docs/field-calibration.md, "The field's turn against the gyroscope's"), so
+    theirs are chosen as before."""
+    if inp.gyr is None or inp.period_s is None or inp.vel_ned_ms is None or not planar:
+        return None
+    return turns(np.asarray(inp.gyr, dtype=float), inp.period_s, keep)
+
+
+def with_turn_residual(record: Calibration, windows: Turns | None, raw: np.ndarray) -> Calibration:
+    """The record with quality ``turn_residual_ut`` (``turn_residual_ut`` of its field from the raw samples (N, 3));
+    as it is without windows or when it does not correct to uT."""
+    if windows is None or record.output_unit != "ut":
+        return record
+    turned = turn_residual_ut(windows, record.apply(raw))
+    return record.replace(quality=record.quality.with_extra(turn_residual_ut=turned))
