@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
+from magnet.attitude.mag_gain import note_gain, start_gain
 from magnet.frames import quaternion_to_matrix
 
 #: a record's correction: raw field (N, 3) and gyroscope (N, 3) -> field (N, 3), vqf's frames
@@ -203,12 +204,14 @@ def note_batch(state: Any, drain: Any, row: int) -> None:
     index = row if order is None else int(order[row])
     x, y, z = raw_ut[index].tolist()
     drift.note(fusion.samples * fusion.period_s, (x, -y, -z), drain.inputs[0][row])  # FRD -> FLU (``frd_flu``)
+    note_gain(state)  # the magnetic gain from the drift, once a record is in force (``magnet.attitude.mag_gain``)
 
 
 def take_drift(state: Any, correct: Correct | None) -> None:
     """A record with its ``correct``ion was put in force on the device ``state``'s filter (after its
-    ``restart_magnetometer``): ``CausalDrift.heading_from_history`` and ``from_history`` (not where aided, nor
-    without a correction)."""
+    ``restart_magnetometer``): its magnetic gain started again (``magnet.attitude.mag_gain.start_gain``), then
+    ``CausalDrift.heading_from_history`` and ``from_history`` (not where aided, nor without a correction)."""
+    start_gain(state)
     drift = getattr(state, "drift", None)
     if correct is not None and drift is not None and state.filter is not None and not state.filter.aided:
         if HEADING_FROM_HISTORY:

@@ -28,7 +28,6 @@ from magnet.attitude.field_watch import FieldWatch
 from magnet.attitude.fused import Fused
 from magnet.attitude.heading_bias import HeadingBias, run_pieces
 from magnet.attitude.heading_gate import HeadingGate
-from magnet.attitude.mag_gain import MagneticGain
 from magnet.attitude.turn_gate import TurnGate, fuse_rows, run_gated
 from magnet.attitude.uncertainty import FilterFigures
 from magnet.frames import frd_flu
@@ -141,19 +140,6 @@ class Fusion:
             self.turn_gate.heading = HeadingGate(self.period_s)
         self._recalibrated = False  # a calibration was put in force since the start (``restart_magnetometer``)
         self.samples = 0
-        #: the magnetic gain chosen from the gyroscope's drift (``magnet.attitude.mag_gain``), where the compass
-        #: notes it (``magnet.compass.filters``); back to vqf's tauMag at each restart and new record
-        self.gain: MagneticGain | None = None
-
-    @property
-    def tau_mag_s(self) -> float:
-        """vqf's magnetic time constant as configured (s; ``magnet.attitude.mag_gain`` may set another for a while)."""
-        return self._taus[1]
-
-    @property
-    def recalibrated(self) -> bool:
-        """Whether a calibration was put in force since the start (``restart_magnetometer``)."""
-        return self._recalibrated
 
     @property
     def aided(self) -> bool:
@@ -173,8 +159,6 @@ class Fusion:
             self.heading_bias.reset()
         if self.turn_gate is not None:
             self.turn_gate.reset()
-        if self.gain is not None:
-            self.gain.reset()
         self._recalibrated = False
         self.samples = 0
 
@@ -196,8 +180,6 @@ class Fusion:
             self.watch.reset()
         if self.heading_bias is not None:  # the bias it learnt is kept, its loop starts again with the new delta
             self.heading_bias.reset()
-        if self.gain is not None:
-            self.gain.reset()
         self._recalibrated = True
 
     def update(

@@ -20,8 +20,11 @@ over it gives
 
 held between vqf's own tauMag (never shorter: where the gyroscope drifts nothing changes) and ``MAX_TAU_S``, and
 moved by at most ``STEP`` a batch. sigma_b, the slope's uncertainty, counts the rows correlated over tauMag.
-Nothing changes before ``MIN_SPAN_S`` of rows; a new record or a restart start it again at vqf's tauMag.
+Nothing changes while vqf takes its first heading (``kMagInit``) nor before ``MIN_SPAN_S`` of rows after; a new
+record or a restart start it again at vqf's tauMag. sigma_b counts ``SIGMAS`` times.
 
+The compass runs it per device (``start_gain`` at each record, from ``causal_drift.take_drift``; ``note_gain`` each
+fused batch, from ``causal_drift.note_batch``; a filter restarted (its time going back) or replaced drops it).
 Plain Python, one row a fused batch; memory: a few sums.
 """
 
@@ -40,6 +43,8 @@ MAX_TAU_S = 60.0
 STEP = 1.05
 #: the drift counted as its estimate plus this many of its standard deviations
 SIGMAS = 1.0
+#: whether the compass runs it (``start_gain``)
+ENABLED = True
 
 
 class MagneticGain:
@@ -101,3 +106,33 @@ class MagneticGain:
             self.tau_s = tau
             self.filter.setTauMag(tau)
         return tau
+
+
+def start_gain(state: Any) -> None:
+    """A record was put in force on the compass's device ``state`` (a ``magnet.compass.filters.DeviceFilter``, after
+    its filter's ``restart_magnetometer``): its ``MagneticGain`` from now on (kept as ``state.gain``), vqf's tauMag
+    back to the filter's own first; none where aided or not ``ENABLED``."""
+    stop_gain(state)
+    fusion = state.filter
+    if ENABLED and fusion is not None and not fusion.aided:
+        state.gain = MagneticGain(fusion._filter, fusion._taus[1])
+
+
+def note_gain(state: Any) -> None:
+    """One fused batch of the device ``state``: its gain's row (``MagneticGain.note``), where it has one; dropped
+    where the filter was replaced."""
+    gain, fusion = getattr(state, "gain", None), state.filter
+    if gain is None or fusion is None:
+        return
+    if gain.filter is not fusion._filter or fusion.aided:
+        state.gain = None
+        return
+    gain.note(fusion.samples * fusion.period_s, fusion.period_s)
+
+
+def stop_gain(state: Any) -> None:
+    """The device ``state``'s gain dropped (a new record comes), vqf's tauMag its own again."""
+    gain = getattr(state, "gain", None)
+    if gain is not None:
+        gain.reset()
+    state.gain = None

@@ -34,7 +34,6 @@ from magnet import _kernels
 from magnet.attitude import fusion
 from magnet.attitude import heading as hd
 from magnet.attitude.causal_drift import note_batch, take_drift
-from magnet.attitude.mag_gain import MagneticGain
 from magnet.bounded import Recent
 from magnet.compass import replay
 from magnet.compass.tilt import Headings
@@ -47,8 +46,6 @@ MAX_GAP_S = 0.5
 #: relative change of the sample period beyond which a device gets a new filter
 PERIOD_TOLERANCE = 0.1
 MAX_DEVICES = 100_000
-#: vqf's magnetic gain chosen from the gyroscope's drift once a record is in force (``magnet.attitude.mag_gain``)
-MAGNETIC_GAIN = True
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -206,16 +203,6 @@ class DeviceFilter:
             self.filter.restart_magnetometer()
             take_drift(self, correct)  # the bias about the vertical from the last seconds, with the record
 
-    def _note_gain(self) -> None:
-        """The magnetic gain from the gyroscope's drift (``magnet.attitude.mag_gain``), once a record is in force and
-        not where aided."""
-        fusion_ = self.filter
-        if not MAGNETIC_GAIN or fusion_ is None or fusion_.aided or not fusion_.recalibrated:
-            return
-        if fusion_.gain is None:
-            fusion_.gain = MagneticGain(fusion_._filter, fusion_.tau_mag_s)
-        fusion_.gain.note(fusion_.samples * fusion_.period_s, fusion_.period_s)
-
     def _restart(self, period_s: float) -> None:
         if self.recent is not None:
             self.recent.clear()
@@ -233,7 +220,6 @@ class DeviceFilter:
             if drain.aiding is None:  # the usual case: written in place, in one compiled call
                 self.filter.update_rows(drain.inputs, lo, hi, out, disturbed)
                 note_batch(self, drain, hi - 1)  # its last sample kept for the bias about the vertical
-                self._note_gain()
                 return
             rows: Any = slice(lo, hi)
             gyr, acc, field = (x[lo:hi] for x in drain.inputs)
