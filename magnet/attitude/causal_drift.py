@@ -38,6 +38,10 @@ PRIOR_DPS = 0.3
 #: to offset / horizontal field (1 uT: 3 deg at 19 uT), and by a different amount on each leg of a walk, so that a
 #: corner in a short history looks like a drift
 OFFSET_SIGMA_UT = 1.0
+#: the field's heading errors in a walk are correlated over this long (s): a corner's tilt fades with vqf's tauAcc
+#: (3 s) and the gait's stride comes back within a second or so; ``drift_bias.CORRELATION_S`` (2 s) took a short
+#: history for surer than it was
+CORRELATION_S = 4.0
 
 
 class CausalDrift:
@@ -92,6 +96,7 @@ class CausalDrift:
             nuisance=offset_columns(quat, field),
             nuisance_sigma=OFFSET_SIGMA_UT,
             prior_dps=PRIOR_DPS,
+            correlation_s=CORRELATION_S,
         )
         bias, sigma = self.filter.getBiasEstimate()
         if (

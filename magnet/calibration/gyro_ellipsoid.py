@@ -21,6 +21,9 @@ bias adds an error of about bias / rate: judge the result with the gate like any
 
 from __future__ import annotations
 
+import contextlib
+import math
+
 import numpy as np
 
 from magnet.calibration.base import FitError, Shape
@@ -115,6 +118,60 @@ def _fit_at(scaled: np.ndarray, attitudes: np.ndarray, spans: _Spans, used: np.n
     return _solve(constraint_rows(scaled, attitudes, starts[ok], ends[ok], lag))
 
 
+def _fit_between(
+    scaled: np.ndarray, attitudes: np.ndarray, steps: np.ndarray, spans: _Spans, used: np.ndarray, lag: float
+) -> _Solution:
+    """``_fit_at`` for a lag between whole samples: the magnetometer's sample ceil(lag) later is paired with the
+    attitude ceil(lag) - lag of a sample after the window's ends, the gyroscope's turn over the next sample (``steps``
+    (N, 3), rad: rate x period) taken that far. The gyroscope is interpolated, not the magnetometer: a field averaged
+    between two samples is less noisy and would fit better half-way whatever the lag."""
+    whole = math.ceil(lag)
+    part = whole - lag
+    if part == 0:
+        return _fit_at(scaled, attitudes, spans, used, whole)
+    between = attitudes.copy()
+    between[:-1] = attitudes[:-1] @ rotation_vector_to_matrix(part * steps[1:])
+    starts, ends = spans
+    inside = ends + 1 < len(scaled)  # the last sample has no turn after it
+    return _fit_at(scaled, between, (starts[inside], ends[inside]), used, whole)
+
+
+def _refined_lag(
+    scaled: np.ndarray,
+    attitudes: np.ndarray,
+    steps: np.ndarray,
+    spans: _Spans,
+    used: np.ndarray,
+    best: tuple[int, _Solution],
+    most: int,
+) -> tuple[float, _Solution]:
+    """The best whole lag refined between samples: the misfits at half and one sample either side, the parabola
+    through them, and the fit at its vertex (within +-``most`` samples) when it fits better than the whole lag's (the
+    points beside are the parabola's support, not candidates: the least of many noisy misfits would pick a lag by
+    chance). At 50 Hz a sample is 20 ms, and a magnetometer 8-16 ms late (BROAD's 10-16 ms) is otherwise taken as none
+    or 20 ms, the record then turning the field by the wrong angle in every fast turn (docs/field-calibration.md, "The
+    already calibrated wand")."""
+    centre = float(best[0])
+    misfits = {centre: best[1][2]}
+    for lag in (centre - 1.0, centre - 0.5, centre + 0.5, centre + 1.0):
+        if abs(lag) > most:
+            continue
+        with contextlib.suppress(FitError):  # windows pushed out of the samples
+            misfits[lag] = _fit_between(scaled, attitudes, steps, spans, used, lag)[2]
+    if len(misfits) < 3:
+        return best
+    lags = np.array(sorted(misfits))
+    curve = np.polyfit(lags - centre, [misfits[lag] for lag in lags], 2)
+    if curve[0] <= 0:
+        return best
+    vertex = float(np.clip(centre - curve[1] / (2.0 * curve[0]), max(centre - 1.0, -most), min(centre + 1.0, most)))
+    try:
+        refined = _fit_between(scaled, attitudes, steps, spans, used, vertex)
+    except FitError:
+        return best
+    return (vertex, refined) if refined[2] < best[1][2] else best
+
+
 def _best_lag(
     scaled: np.ndarray, attitudes: np.ndarray, spans: _Spans, used: np.ndarray, most: int
 ) -> tuple[int, _Solution]:
@@ -138,7 +195,8 @@ def gyro_ellipsoid(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, keep:
     raw field mag (N, 3) and body rates gyr (N, 3) rad/s sampled every ``period_s`` seconds (the rate of a sample is
     over the period ending at it), consecutive samples; ``keep`` (N,) bool: compare only kept magnetometer samples
     (None: all). S includes the rotation of the magnetometer's axes into the gyroscope's. The magnetometer's delay
-    behind the gyroscope (within MAX_LAG_S, whole samples) is the one that fits best; the note names it. FitError
+    behind the gyroscope (within MAX_LAG_S: the whole samples, then refined between them) is the one that fits best;
+    the note names it. FitError
     when the rotation cannot determine the calibration."""
     mag, gyr = np.asarray(mag, dtype=float), np.asarray(gyr_rads, dtype=float)
     if mag.shape != gyr.shape or mag.ndim != 2 or mag.shape[1] != 3:
@@ -146,11 +204,12 @@ def gyro_ellipsoid(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, keep:
     used = np.ones(len(mag), dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
     centre = np.median(mag[used], axis=0)
     spread = float(np.median(np.linalg.norm(mag[used] - centre, axis=1))) or 1.0
-    attitudes, spans = (
-        _attitudes(rotation_vector_to_matrix(np.asarray(gyr, dtype=float) * period_s)),
-        windows(gyr, period_s),
-    )
-    lag, (matrix, c, ratio) = _best_lag((mag - centre) / spread, attitudes, spans, used, round(MAX_LAG_S / period_s))
+    steps = np.asarray(gyr, dtype=float) * period_s
+    attitudes, spans = _attitudes(rotation_vector_to_matrix(steps)), windows(gyr, period_s)
+    scaled = (mag - centre) / spread
+    most = round(MAX_LAG_S / period_s)
+    found = _best_lag(scaled, attitudes, spans, used, most)
+    lag, (matrix, c, ratio) = _refined_lag(scaled, attitudes, steps, spans, used, found, most)
     if ratio > NULL_RATIO:
         raise FitError(
             "gyro-ellipsoid: the rotation does not determine the calibration (turn the device about every axis)"

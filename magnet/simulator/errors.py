@@ -37,7 +37,9 @@ class SensorErrors:
     the magnetometer frame in the accelerometer (body) frame; noise_ut per axis (1 sigma); acc_noise_ms2 per axis;
     spike_probability per sample and spike_ut (magnitude of a spike, random direction); gain_tempco_per_k relative gain
     change per kelvin from 25 C; temperature_c at t = 0 and temperature_ramp_k_per_s its drift; gyro_bias_rads (3,)
-    rad/s, constant, added to every gyroscope sample; gyro_noise_rads per axis per sample (1 sigma), rad/s.
+    rad/s, constant, added to every gyroscope sample; gyro_noise_rads per axis per sample (1 sigma), rad/s;
+    mag_lag_s the magnetometer's delay behind the gyroscope and accelerometer (its output filter and sampling): each
+    magnetometer sample reads the field of the attitude that many seconds earlier.
     """
 
     hard_iron_ut: Any = (0.0, 0.0, 0.0)
@@ -52,6 +54,7 @@ class SensorErrors:
     temperature_ramp_k_per_s: float = 0.0
     gyro_bias_rads: Any = (0.0, 0.0, 0.0)
     gyro_noise_rads: float = 0.0
+    mag_lag_s: float = 0.0
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -61,7 +64,7 @@ class SensorErrors:
         set_(self, "gyro_bias_rads", _vector(self.gyro_bias_rads, "gyro_bias_rads", (3,)))
         if abs(np.linalg.det(self.soft_iron)) < 1e-9:
             raise ValueError("soft_iron must be an invertible 3x3 matrix")
-        for name in ("noise_ut", "acc_noise_ms2", "spike_ut", "gyro_noise_rads"):
+        for name in ("noise_ut", "acc_noise_ms2", "spike_ut", "gyro_noise_rads", "mag_lag_s"):
             set_(self, name, _non_negative(getattr(self, name), name))
         probability = _non_negative(self.spike_probability, "spike_probability")
         if probability > 1:
@@ -155,8 +158,9 @@ class SensorErrors:
         """A magnetometer its maker already calibrated (an IMU box, BROAD's kind): what the maker's calibration
         leaves, hard iron under 1 uT (uniform 0-1 uT, random direction) and soft iron within 1 % (gains 1 +- 0.01,
         symmetric cross terms up to 0.005), misalignment up to 0.5 deg; 0.3 uT noise; accelerometer noise
-        0.03 m/s^2; gyroscope bias up to 0.3 deg/s per axis and noise 0.002 rad/s. ``field_ut`` is unused (the
-        residuals do not scale with the field); ``other`` overrides any field."""
+        0.03 m/s^2; gyroscope bias up to 0.3 deg/s per axis and noise 0.002 rad/s; the magnetometer 8-16 ms behind
+        the gyroscope (BROAD's is 10-16 ms: docs/broad-motion.md). ``field_ut`` is unused (the residuals do not
+        scale with the field); ``other`` overrides any field."""
         direction = rng.standard_normal(3)
         hard = direction / np.linalg.norm(direction) * rng.uniform(0.0, 1.0)
         cross = rng.uniform(-0.005, 0.005, 3)
@@ -174,5 +178,6 @@ class SensorErrors:
             "acc_noise_ms2": 0.03,
             "gyro_bias_rads": rng.uniform(-1.0, 1.0, 3) * np.radians(0.3),
             "gyro_noise_rads": 0.002,
+            "mag_lag_s": rng.uniform(0.008, 0.016),
         }
         return cls(**{**fields, **other})

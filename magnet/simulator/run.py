@@ -6,7 +6,7 @@ field B_ned from the WMM; the linear acceleration a_lin (NED, zero for still tra
 w_k = log(q_{k-1}* q_k) / dt (q_{k-1} the attitude one sample period earlier), so that the gyroscope integrates to the
 attitude. Measurements (``SensorErrors``):
 
-    mag = S M^T R^T B_ned * gain(T) + h + noise (+ spikes)
+    mag = S M^T R^T B_ned * gain(T) + h + noise (+ spikes)   (R of the attitude mag_lag_s earlier, if any)
     acc = R^T (a_lin - g_ned) + noise                      g_ned = (0, 0, +9.80665): still and level reads (0, 0, -g)
     gyr = w + gyro bias + noise
 
@@ -180,6 +180,10 @@ class _Generator:
         quat, rate, lin_acc = self._motion(index, heading, pitch, roll)
         field = ned_to_body_euler(self.b_ned, heading, pitch, roll)
         acc = ned_to_body_euler(lin_acc - G_NED, heading, pitch, roll)
+        sensed = field  # what the magnetometer reads: the field of the attitude ``mag_lag_s`` earlier
+        if errors.mag_lag_s:
+            late = self._attitude(index - errors.mag_lag_s * config.rate_hz)
+            sensed = ned_to_body_euler(self.b_ned, late[0] + self.earth.declination_deg, late[1], late[2])
         gain = errors.gain(t_s)
         motors = self.config.motors
         throttle = current = None
@@ -187,12 +191,12 @@ class _Generator:
         if self.objects is not None:
             objects, path_model = self.objects
             disturbance = ned_to_body_euler(objects.field_ned(path_model, t_s), heading, pitch, roll)
-        at_sensor = field + disturbance
+        at_sensor = sensed + disturbance
         if motors is not None:
             thrust = np.linalg.norm(acc, axis=1) / G_NED[2] if config.trajectory is Trajectory.MULTIROTOR else None
             throttle = motors.throttle(t_s, thrust)
             current = motors.current_a(throttle)
-            at_sensor = field + motors.field_ut(current)
+            at_sensor = sensed + motors.field_ut(current)
         hard_iron = np.tile(errors.hard_iron_ut, (n, 1))
         change = config.hard_iron_change
         if change is not None:

@@ -80,3 +80,9 @@ def test_a_maker_calibrated_sensor_leaves_under_1_ut_and_1_percent():
     )
     # the raw field is the Earth's to within a couple of uT
     assert np.percentile(np.linalg.norm(r.mag_ut - r.true_field_ut, axis=1), 95) < 2.5
+
+
+def test_a_late_magnetometer_reads_the_field_of_the_attitude_before():
+    early, late = wand_run(seed=5, seconds=10.0), wand_run(seed=5, seconds=10.0, mag_lag_s=0.02)
+    np.testing.assert_allclose(late.mag_ut[1:], early.true_field_ut[:-1], atol=1e-9)  # one sample at 50 Hz
+    np.testing.assert_array_equal(late.true_field_ut, early.true_field_ut)  # the truth is the field now
