@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
+from magnet.attitude.mag_gain import note_gain, start_gain
 from magnet.frames import quaternion_to_matrix
 
 #: a record's correction: raw field (N, 3) and gyroscope (N, 3) -> field (N, 3), vqf's frames
@@ -30,6 +31,17 @@ HISTORY_AFTER_S = 3.0
 HISTORY_MAX_SIGMA_DPS = 0.25
 #: nor when it is larger than this (deg/s): no phone's gyroscope is that far off once vqf started
 MAX_DPS = 2.0
+#: a new record's heading is taken from this many seconds of the history (``heading_from_history``), from at least
+#: this many rows, those within these of the history's median |B| (fraction) and dip (deg)
+HEADING_S = 6.0
+HEADING_MIN_ROWS = 6
+NORM_TOL = 0.08
+DIP_TOL_DEG = 10.0
+#: where set (``HEADING_FROM_HISTORY``)
+HEADING_FROM_HISTORY = True
+#: after it, vqf's first-heading average (its gain 1/N) goes on as if this many seconds of samples had been fed, as
+#: a tauMag of this plus the time since, up to vqf's own: its rejections and the gates meanwhile on (``kMagInit`` 0)
+HEADING_WORTH_S = 3.0
 #: the fit's prior on the bias (one sigma, deg/s, zero mean): a phone's gyroscope left with up to 0.5 deg/s per axis
 #: after its factory calibration (uniform: 0.29 one sigma); vqf's own 0.5 (``drift_bias.PRIOR_DPS``) let a short
 #: history's noise through whole
@@ -62,6 +74,8 @@ class CausalDrift:
         self.found: DriftBias | None = None
         #: one row per fused batch: time (s), vqf's 6D attitude (4), raw field (3) and gyroscope (3), vqf's frames
         self.history: list[list[float]] = []
+        #: after a heading from the history: (time it was taken, vqf's own tauMag), tauMag growing back to it
+        self.ramp: tuple[float, float] | None = None
 
     def note(self, t_s: float, raw_vqf: Any, gyr_vqf: Any, quat6d_vqf: np.ndarray | None = None) -> None:
         """One row of the history (the last sample of a fused batch, at ``t_s`` since the filter's start; the 6D
@@ -69,10 +83,56 @@ class CausalDrift:
         (the filter restarted: its attitude was lost)."""
         if self.history and t_s < float(self.history[-1][0]):
             self.history = []
+        if self.ramp is not None:
+            start, base = self.ramp
+            tau = HEADING_WORTH_S + t_s - start
+            if t_s < start or tau >= base:
+                tau, self.ramp = base, None
+            self.filter.setTauMag(tau)
         quat = self.filter.getQuat6D() if quat6d_vqf is None else quat6d_vqf
         self.history.append([t_s, *_floats(quat), *_floats(raw_vqf), *_floats(gyr_vqf)])  # a list: once a batch
         while t_s - float(self.history[0][0]) > HISTORY_S:
             self.history.pop(0)
+
+    def heading_from_history(self, correct: Correct) -> bool:
+        """A new record's ``correct``ion put on the history's raw field, vqf's magnetic heading offset (``delta``) and
+        its field reference (|B| and dip) set from the last ``HEADING_S`` of it, its rows that agree with the whole
+        history's median |B| and dip (``NORM_TOL``, ``DIP_TOL_DEG``): the heading taken from seconds of field before the
+        record rather than from the samples after it, which an object passed then would bend. True when set: vqf's
+        first-heading gain is then off (``kMagInit`` 0: it overrides vqf's rejection, and the heading gate stands aside
+        for it), and its average goes on as a tauMag of ``HEADING_WORTH_S`` plus the time since (``note``)."""
+        rows = np.array(self.history).reshape(-1, 11)
+        rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
+        if len(rows) < HEADING_MIN_ROWS:
+            return False
+        field = correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
+        earth = np.einsum("nij,nj->ni", quaternion_to_matrix(rows[:, 1:5]), field)
+        norm = np.linalg.norm(earth, axis=1)
+        if not np.all(norm > 0.0):
+            return False
+        dip = np.arcsin(np.clip(-earth[:, 2] / norm, -1.0, 1.0))  # vqf's: positive where the field points down
+        norm_ref, dip_ref = float(np.median(norm)), float(np.median(dip))
+        agree = (np.abs(norm / norm_ref - 1.0) <= NORM_TOL) & (np.abs(dip - dip_ref) <= math.radians(DIP_TOL_DEG))
+        agree &= rows[:, 0] >= rows[-1, 0] - HEADING_S
+        if int(agree.sum()) < HEADING_MIN_ROWS:
+            return False
+        angle = np.arctan2(earth[agree, 0], earth[agree, 1])  # vqf's delta: the field's angle from north, clockwise
+        centre = math.atan2(float(np.sin(angle).mean()), float(np.cos(angle).mean()))
+        offset = float(np.median(np.remainder(angle - centre + np.pi, 2.0 * np.pi) - np.pi))
+        state = self.filter.state
+        state["delta"] = math.remainder(centre + offset, 2.0 * math.pi)
+        state["kMagInit"] = 0.0
+        for key, value in (("magRefNorm", norm_ref), ("magCandidateNorm", norm_ref)):
+            state[key] = value
+        for key, value in (("magRefDip", dip_ref), ("magCandidateDip", dip_ref)):
+            state[key] = value
+        state["magDistDetected"] = False
+        state["magRejectT"] = 0.0
+        self.filter.state = state
+        if HEADING_WORTH_S > 0.0:
+            self.ramp = (float(rows[-1, 0]), float(self.filter.params["tauMag"]))
+            self.filter.setTauMag(min(HEADING_WORTH_S, self.ramp[1]))
+        return True
 
     def from_history(self, correct: Correct) -> bool:
         """A new record's ``correct``ion put on the history's raw field, the drift fitted there and its bias added to
@@ -144,11 +204,16 @@ def note_batch(state: Any, drain: Any, row: int) -> None:
     index = row if order is None else int(order[row])
     x, y, z = raw_ut[index].tolist()
     drift.note(fusion.samples * fusion.period_s, (x, -y, -z), drain.inputs[0][row])  # FRD -> FLU (``frd_flu``)
+    note_gain(state)  # the magnetic gain from the drift, once a record is in force (``magnet.attitude.mag_gain``)
 
 
 def take_drift(state: Any, correct: Correct | None) -> None:
     """A record with its ``correct``ion was put in force on the device ``state``'s filter (after its
-    ``restart_magnetometer``): ``CausalDrift.from_history`` (not where aided, nor without a correction)."""
+    ``restart_magnetometer``): its magnetic gain started again (``magnet.attitude.mag_gain.start_gain``), then
+    ``CausalDrift.heading_from_history`` and ``from_history`` (not where aided, nor without a correction)."""
+    start_gain(state)
     drift = getattr(state, "drift", None)
     if correct is not None and drift is not None and state.filter is not None and not state.filter.aided:
+        if HEADING_FROM_HISTORY:
+            drift.heading_from_history(correct)
         drift.from_history(correct)
