@@ -71,10 +71,11 @@ class MagneticGain:
     def note(self, t_s: float, period_s: float) -> float:
         """One row: vqf's delta now, at ``t_s``; tauMag set anew where the rule says (returned, s)."""
         delta = float(self.filter.getDelta())
-        if self.filter.state["kMagInit"] != 0.0:  # vqf still takes its first heading from the field
-            self.t0 = None
+        if t_s < self.last_t:  # the filter restarted
+            self.reset()
+        if self.t0 is None and self.filter.state["kMagInit"] != 0.0:  # vqf takes its first heading from the field
             return self.tau_s
-        if self.t0 is None or t_s < self.last_t:
+        if self.t0 is None:
             self.reset()
             self.t0, self.last_delta, self.unwrapped = t_s, delta, delta
         step = delta - self.last_delta
