@@ -7,6 +7,7 @@ import numpy as np
 
 from magnet import frames
 from magnet.frames import quaternion_to_matrix
+from magnet.simulator import SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
 
 RATE_HZ = 100.0
 FIELD_NED_UT = 50.0 * np.array([np.cos(np.radians(65.0)), 0.0, np.sin(np.radians(65.0))])
@@ -59,3 +60,11 @@ def rotating_device(seconds: float = 60.0, seed: int = 0):
         mag + noise.normal(0, 0.1, mag.shape),
         quats,
     )
+
+
+def phone_boat(seconds: float, rate_hz: float, seed: int = 1) -> SimulatedRun:
+    """The simulator's boat with a phone-like sensor drawn as ``magnet bench field`` draws it for ``seed``: turns of
+    90-360 deg at 8-15 deg/s at 2-6 m/s, ``seconds`` long at ``rate_hz``."""
+    errors = SensorErrors.phone(np.random.default_rng([seed, 26]), 50.0)
+    count = int(seconds * rate_hz)
+    return simulate(SimulatorConfig(trajectory=Trajectory.BOAT, rate_hz=rate_hz, count=count, errors=errors, seed=seed))

@@ -133,19 +133,8 @@ class SensorErrors:
         case) in a random direction; factory soft iron of a few percent (gains 1 +- 0.04, cross terms up to 0.015,
         symmetric); misalignment up to 1 deg; 0.5 uT noise; accelerometer noise 0.05 m/s^2; gyroscope bias up to
         0.5 deg/s per axis and noise 0.003 rad/s. ``other`` overrides any field."""
-        direction = rng.standard_normal(3)
-        hard = direction / np.linalg.norm(direction) * rng.uniform(6.0, 15.0) * field_ut
-        cross = rng.uniform(-0.015, 0.015, 3)
-        soft = np.diag(rng.uniform(0.96, 1.04, 3))
-        soft[0, 1] = soft[1, 0] = cross[0]
-        soft[0, 2] = soft[2, 0] = cross[1]
-        soft[1, 2] = soft[2, 1] = cross[2]
-        tilt = axis_angle_matrix(rng.standard_normal(3), rng.uniform(0.0, 1.0))
-        yaw, pitch, roll = matrix_to_euler(tilt)
         fields: dict[str, Any] = {
-            "hard_iron_ut": hard,
-            "soft_iron": soft,
-            "misalignment_deg": (float(roll), float(pitch), float((yaw + 180.0) % 360.0 - 180.0)),
+            **_iron(rng, (6.0, 15.0), field_ut, 0.04, 0.015, 1.0),
             "noise_ut": 0.5,
             "acc_noise_ms2": 0.05,
             "gyro_bias_rads": rng.uniform(-1.0, 1.0, 3) * np.radians(0.5),
@@ -161,19 +150,8 @@ class SensorErrors:
         0.03 m/s^2; gyroscope bias up to 0.3 deg/s per axis and noise 0.002 rad/s; the magnetometer 8-16 ms behind
         the gyroscope (BROAD's is 10-16 ms: docs/broad-motion.md). ``field_ut`` is unused (the residuals do not
         scale with the field); ``other`` overrides any field."""
-        direction = rng.standard_normal(3)
-        hard = direction / np.linalg.norm(direction) * rng.uniform(0.0, 1.0)
-        cross = rng.uniform(-0.005, 0.005, 3)
-        soft = np.diag(rng.uniform(0.99, 1.01, 3))
-        soft[0, 1] = soft[1, 0] = cross[0]
-        soft[0, 2] = soft[2, 0] = cross[1]
-        soft[1, 2] = soft[2, 1] = cross[2]
-        tilt = axis_angle_matrix(rng.standard_normal(3), rng.uniform(0.0, 0.5))
-        yaw, pitch, roll = matrix_to_euler(tilt)
         fields: dict[str, Any] = {
-            "hard_iron_ut": hard,
-            "soft_iron": soft,
-            "misalignment_deg": (float(roll), float(pitch), float((yaw + 180.0) % 360.0 - 180.0)),
+            **_iron(rng, (0.0, 1.0), 1.0, 0.01, 0.005, 0.5),
             "noise_ut": 0.3,
             "acc_noise_ms2": 0.03,
             "gyro_bias_rads": rng.uniform(-1.0, 1.0, 3) * np.radians(0.3),
@@ -181,3 +159,28 @@ class SensorErrors:
             "mag_lag_s": rng.uniform(0.008, 0.016),
         }
         return cls(**{**fields, **other})
+
+
+def _iron(
+    rng: np.random.Generator,
+    hard_range: tuple[float, float],
+    scale_ut: float,
+    gain_spread: float,
+    cross_max: float,
+    tilt_max_deg: float,
+) -> dict[str, Any]:
+    """A sensor's iron and mounting drawn from ``rng`` (in this order, which seeds' runs depend on): hard iron of
+    ``scale_ut`` times a magnitude uniform in ``hard_range``, in a random direction; symmetric soft iron with gains
+    1 +- ``gain_spread`` and cross terms up to ``cross_max``; a misalignment up to ``tilt_max_deg`` about a random
+    axis, as roll, pitch, yaw (deg)."""
+    direction = rng.standard_normal(3)
+    hard = direction / np.linalg.norm(direction) * rng.uniform(*hard_range) * scale_ut
+    cross = rng.uniform(-cross_max, cross_max, 3)
+    soft = np.diag(rng.uniform(1.0 - gain_spread, 1.0 + gain_spread, 3))
+    soft[0, 1] = soft[1, 0] = cross[0]
+    soft[0, 2] = soft[2, 0] = cross[1]
+    soft[1, 2] = soft[2, 1] = cross[2]
+    tilt = axis_angle_matrix(rng.standard_normal(3), rng.uniform(0.0, tilt_max_deg))
+    yaw, pitch, roll = matrix_to_euler(tilt)
+    misalignment_deg = (float(roll), float(pitch), float((yaw + 180.0) % 360.0 - 180.0))
+    return {"hard_iron_ut": hard, "soft_iron": soft, "misalignment_deg": misalignment_deg}

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from fusion_helpers import phone_boat
 
 from magnet import frames
 from magnet.calibration import candidates, level
 from magnet.calibration.field import FieldInput, fit_field
 from magnet.calibration.level import CENTRIPETAL_MS2, centripetal_ms2, level_in_turns
 from magnet.calibration.rungs import Evidence
-from magnet.simulator import SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
+from magnet.simulator import SimulatedRun
 
 RATE_HZ = 50.0
 SECONDS = 43.0
@@ -23,12 +24,7 @@ SECONDS = 43.0
 
 @pytest.fixture(scope="module")
 def boat() -> SimulatedRun:
-    rng = np.random.default_rng([1, 26])
-    errors = SensorErrors.phone(rng, 50.0)
-    config = SimulatorConfig(
-        trajectory=Trajectory.BOAT, rate_hz=RATE_HZ, count=int(SECONDS * RATE_HZ), errors=errors, seed=1
-    )
-    return simulate(config)
+    return phone_boat(SECONDS, RATE_HZ)
 
 
 def _input(run: SimulatedRun) -> FieldInput:

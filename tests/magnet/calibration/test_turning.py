@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from fusion_helpers import phone_boat
 
 from magnet.calibration import candidates, turning
 from magnet.calibration.candidates import SPHERE, best
 from magnet.calibration.ladder import RungFit
 from magnet.calibration.rungs import LEVEL_OFFSET
 from magnet.model import Calibration
-from magnet.simulator import SensorErrors, SimulatedRun, SimulatorConfig, Trajectory, simulate
+from magnet.simulator import SimulatedRun
 
 RATE_HZ = 50.0
 SECONDS = 43.0
@@ -21,12 +22,7 @@ SECONDS = 43.0
 
 @pytest.fixture(scope="module")
 def boat() -> SimulatedRun:
-    rng = np.random.default_rng([1, 26])
-    errors = SensorErrors.phone(rng, 50.0)
-    config = SimulatorConfig(
-        trajectory=Trajectory.BOAT, rate_hz=RATE_HZ, count=int(SECONDS * RATE_HZ), errors=errors, seed=1
-    )
-    return simulate(config)
+    return phone_boat(SECONDS, RATE_HZ)
 
 
 def _true_field(run: SimulatedRun, offset_error_ut: np.ndarray | None = None) -> np.ndarray:
