@@ -134,16 +134,20 @@ def refit(ev: Evidence, result: RungFit, rows: np.ndarray) -> RungFit:
     return fit_rung(ev, result.rung, result.offset, rows)
 
 
-def _turn(record: Calibration) -> float:
-    value = record.quality.get("turn_residual_ut")
+def _figure(record: Calibration, key: str) -> float:
+    """The record's quality figure ``key``; inf where it has none."""
+    value = record.quality.get(key)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
         return math.inf
     return float(value)
 
 
+def _turn(record: Calibration) -> float:
+    return _figure(record, "turn_residual_ut")
+
+
 def _consistency(record: Calibration) -> float:
-    value = record.quality.get("holdout_heading_consistency_deg")
-    return math.inf if value is None or not math.isfinite(float(value)) else float(value)
+    return _figure(record, "holdout_heading_consistency_deg")
 
 
 def best(records: Sequence[tuple[RungFit, Calibration]]) -> Calibration:

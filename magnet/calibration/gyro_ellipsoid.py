@@ -45,7 +45,7 @@ MAX_LAG_S = 0.03
 NULL_RATIO = 0.05
 
 
-def _attitudes(turns: np.ndarray) -> np.ndarray:
+def gyro_attitudes(turns: np.ndarray) -> np.ndarray:
     """Rotations (N, 3, 3) Q_k = turns_1 turns_2 ... turns_k (Q_0 = I): sample k's axes in sample 0's, by a
     prefix product taken in log2(N) batched steps."""
     out = turns.copy()
@@ -57,15 +57,31 @@ def _attitudes(turns: np.ndarray) -> np.ndarray:
     return out
 
 
-def windows(gyr_rads: np.ndarray, period_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """(starts (M,), ends (M,)) sample indices: each window ends where the gyroscope has turned WINDOW_ANGLE_DEG
-    (summed rate) or MAX_WINDOW_S after its start; kept only when it turned at least MIN_WINDOW_ANGLE_DEG."""
+def skew(w: np.ndarray) -> np.ndarray:
+    """[w]x (M, 3, 3) of vectors w (M, 3)."""
+    out = np.zeros((len(w), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return out
+
+
+def windows(
+    gyr_rads: np.ndarray,
+    period_s: float,
+    angle_deg: float = WINDOW_ANGLE_DEG,
+    longest_s: float = MAX_WINDOW_S,
+    least_deg: float = MIN_WINDOW_ANGLE_DEG,
+    every: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(starts (M,), ends (M,)) sample indices: each window ends where the gyroscope has turned ``angle_deg`` (summed
+    rate) or ``longest_s`` after its start; kept only when it turned at least ``least_deg``; a window starts at every
+    ``every``-th sample (None: as many as ``MAX_WINDOWS`` allows)."""
     turned = np.concatenate([[0.0], np.cumsum(np.linalg.norm(gyr_rads[1:], axis=1) * period_s)])
     count = len(turned)
-    starts = np.arange(0, count - 1, max(1, count // MAX_WINDOWS))
-    ends = np.searchsorted(turned, turned[starts] + np.radians(WINDOW_ANGLE_DEG))
-    ends = np.minimum(np.minimum(ends, starts + max(1, round(MAX_WINDOW_S / period_s))), count - 1)
-    good = (ends > starts) & (turned[ends] - turned[starts] >= np.radians(MIN_WINDOW_ANGLE_DEG))
+    starts = np.arange(0, count - 1, max(1, count // MAX_WINDOWS) if every is None else every)
+    ends = np.searchsorted(turned, turned[starts] + np.radians(angle_deg))
+    ends = np.minimum(np.minimum(ends, starts + max(1, round(longest_s / period_s))), count - 1)
+    good = (ends > starts) & (turned[ends] - turned[starts] >= np.radians(least_deg))
     return starts[good], ends[good]
 
 
@@ -74,7 +90,7 @@ def constraint_rows(
 ) -> np.ndarray:
     """The linear constraints (3 M, 12) on x = (A row by row, c), one block of 3 per window s .. e:
     A m(e + lag) - c = P^T (A m(s + lag) - c), P = Q_s^T Q_e the turn the gyroscope measured over it
-    (``_attitudes``), so that b(e) = P^T b(s) exactly for a constant earth field; ``lag`` samples: how far the
+    (``gyro_attitudes``), so that b(e) = P^T b(s) exactly for a constant earth field; ``lag`` samples: how far the
     magnetometer's readings come behind the gyroscope's."""
     count = len(starts)
     if count < 12:
@@ -205,7 +221,7 @@ def gyro_ellipsoid(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, keep:
     centre = np.median(mag[used], axis=0)
     spread = float(np.median(np.linalg.norm(mag[used] - centre, axis=1))) or 1.0
     steps = np.asarray(gyr, dtype=float) * period_s
-    attitudes, spans = _attitudes(rotation_vector_to_matrix(steps)), windows(gyr, period_s)
+    attitudes, spans = gyro_attitudes(rotation_vector_to_matrix(steps)), windows(gyr, period_s)
     scaled = (mag - centre) / spread
     most = round(MAX_LAG_S / period_s)
     found = _best_lag(scaled, attitudes, spans, used, most)

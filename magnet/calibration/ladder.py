@@ -40,6 +40,7 @@ from collections.abc import Callable
 import numpy as np
 
 from magnet.calibration.base import FitError
+from magnet.calibration.gyro_ellipsoid import skew
 from magnet.calibration.rungs import (
     ISO,
     Evidence,
@@ -121,14 +122,6 @@ def _point(ev: Evidence, rung: Rung, x: np.ndarray) -> _Point:
     return _Point(matrix_of(ev, e), b, db_de, float(x[3 + free]), x[4 + free : 7 + free])
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    """[w]x (M, 3, 3) of vectors w (M, 3)."""
-    out = np.zeros((len(w), 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
-    return out
-
-
 def _gyroscope_block(
     ev: Evidence, point: _Point, rows: np.ndarray, sigma: float
 ) -> tuple[np.ndarray, Callable[[], np.ndarray]] | None:
@@ -144,7 +137,7 @@ def _gyroscope_block(
         return None
     w = np.einsum("nij,nj->ni", p_, point.b[s_])
     dt = ((e_ - s_) * ev.period_s)[:, None, None]
-    w_cross = _skew(w) * dt
+    w_cross = skew(w) * dt
     r = (point.b[e_] - w + np.einsum("nij,j->ni", w_cross, point.beta)).reshape(-1)
 
     def jacobian() -> np.ndarray:

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from magnet.calibration.gyro_ellipsoid import _attitudes, windows
+from magnet.calibration.gyro_ellipsoid import gyro_attitudes, windows
 from magnet.frames import rotation_vector_to_matrix
 
 #: a device whose down stays within this of its z axis in PLANAR_FRACTION of the samples is planar (deg)
@@ -111,8 +111,8 @@ def gyro_spans(
         starts, ends = starts[pick], ends[pick]
     if len(starts) < 12:
         return None
-    attitudes = _attitudes(rotation_vector_to_matrix(gyr * period_s))
-    back = np.transpose(attitudes[ends], (0, 2, 1)) @ attitudes[starts]
+    turned = gyro_attitudes(rotation_vector_to_matrix(gyr * period_s))
+    back = np.transpose(turned[ends], (0, 2, 1)) @ turned[starts]
     return starts, ends, back
 
 

@@ -18,12 +18,12 @@ for each correction, so that a correction is not blamed for the bias.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
 from magnet.calibration.field_input import FieldInput
-from magnet.calibration.gyro_ellipsoid import _attitudes
+from magnet.calibration.gyro_ellipsoid import gyro_attitudes, skew
+from magnet.calibration.gyro_ellipsoid import windows as gyro_windows
 from magnet.frames import rotation_vector_to_matrix
 from magnet.model import Calibration
 
@@ -57,31 +57,19 @@ def turns(gyr_rads: np.ndarray, period_s: float, rows: np.ndarray | None = None)
     count = len(gyr)
     if count < 3 or not period_s > 0:
         return None
-    turned = np.concatenate([[0.0], np.cumsum(np.linalg.norm(gyr[1:], axis=1) * period_s)])
-    starts = np.arange(count - 1)
-    ends = np.searchsorted(turned, turned[starts] + math.radians(WINDOW_ANGLE_DEG))
-    ends = np.minimum(np.minimum(ends, starts + max(1, round(WINDOW_S / period_s))), count - 1)
-    good = (ends > starts) & (turned[ends] - turned[starts] >= math.radians(MIN_ANGLE_DEG))
+    starts, ends = gyro_windows(gyr, period_s, WINDOW_ANGLE_DEG, WINDOW_S, MIN_ANGLE_DEG, every=1)
     if rows is not None:
-        good &= rows[starts] & rows[ends]
-    starts, ends = starts[good], ends[good]
+        both = rows[starts] & rows[ends]
+        starts, ends = starts[both], ends[both]
     if len(starts) > MAX_WINDOWS:
         pick = np.linspace(0, len(starts) - 1, MAX_WINDOWS).astype(int)
         starts, ends = starts[pick], ends[pick]
     if len(starts) < MIN_WINDOWS:
         return None
-    attitudes = _attitudes(rotation_vector_to_matrix(gyr * period_s))
-    to_end = np.transpose(attitudes[ends], (0, 2, 1))
-    summed = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(attitudes[:-1], axis=0) * period_s])
-    return Turns(starts, ends, to_end @ attitudes[starts], to_end @ (summed[ends] - summed[starts]))
-
-
-def _skew(w: np.ndarray) -> np.ndarray:
-    """[w]x (M, 3, 3) of vectors w (M, 3)."""
-    out = np.zeros((len(w), 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
-    return out
+    axes = gyro_attitudes(rotation_vector_to_matrix(gyr * period_s))
+    to_end = np.transpose(axes[ends], (0, 2, 1))
+    summed = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(axes[:-1], axis=0) * period_s])
+    return Turns(starts, ends, to_end @ axes[starts], to_end @ (summed[ends] - summed[starts]))
 
 
 def turn_residual_ut(windows: Turns, field_ut: np.ndarray) -> float:
@@ -90,7 +78,7 @@ def turn_residual_ut(windows: Turns, field_ut: np.ndarray) -> float:
     field = np.asarray(field_ut, dtype=float)
     w = np.einsum("nij,nj->ni", windows.back, field[windows.starts])
     residual = field[windows.ends] - w
-    design = (_skew(w) @ windows.bias_gain).reshape(-1, 3)
+    design = (skew(w) @ windows.bias_gain).reshape(-1, 3)
     bias, *_ = np.linalg.lstsq(design, -residual.reshape(-1), rcond=None)
     left = residual.reshape(-1) + design @ bias
     return float(np.sqrt(np.mean(left**2)))
