@@ -212,8 +212,7 @@ def gyro_ellipsoid(mag: np.ndarray, gyr_rads: np.ndarray, period_s: float, keep:
     over the period ending at it), consecutive samples; ``keep`` (N,) bool: compare only kept magnetometer samples
     (None: all). S includes the rotation of the magnetometer's axes into the gyroscope's. The magnetometer's delay
     behind the gyroscope (within MAX_LAG_S: the whole samples, then refined between them) is the one that fits best;
-    the note names it. FitError
-    when the rotation cannot determine the calibration."""
+    the note names it. FitError when the rotation cannot determine the calibration."""
     mag, gyr = np.asarray(mag, dtype=float), np.asarray(gyr_rads, dtype=float)
     if mag.shape != gyr.shape or mag.ndim != 2 or mag.shape[1] != 3:
         raise FitError(f"gyro-ellipsoid needs mag and gyr of the same shape (N, 3), got {mag.shape} and {gyr.shape}")

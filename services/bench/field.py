@@ -254,11 +254,18 @@ def verdict_lines(rows: Sequence[dict[str, object]]) -> list[str]:
     return lines
 
 
+#: per filter ("c" causal, "o" offline): a run's "fit" figure and vqf's on the raw field with the same filter
+AGAINST_VQF = {"c": ("fit_causal", "vqf_raw"), "o": ("fit_offline", "vqf_raw_offline")}
+
+
 def worse_than_vqf(row: dict[str, object]) -> list[str]:
-    """The filters ("c" causal, "o" offline) on which a run's "fit c" / "fit o" is more than ``WORSE_THAN_VQF``
-    worse than vqf on the raw field with the same filter (causal against causal, offline against offline)."""
-    pairs = (("c", "fit_causal", "vqf_raw"), ("o", "fit_offline", "vqf_raw_offline"))
-    return [name for name, ours, theirs in pairs if _number(row[ours]) > (1.0 + WORSE_THAN_VQF) * _number(row[theirs])]
+    """The filters (``AGAINST_VQF``) on which a run's "fit c" / "fit o" is more than ``WORSE_THAN_VQF`` worse than
+    vqf on the raw field with the same filter (causal against causal, offline against offline)."""
+    return [
+        name
+        for name, (ours, theirs) in AGAINST_VQF.items()
+        if _number(row[ours]) > (1.0 + WORSE_THAN_VQF) * _number(row[theirs])
+    ]
 
 
 def _number(value: object) -> float:
@@ -275,7 +282,7 @@ def wand_lines(rows: Sequence[dict[str, object]]) -> list[str]:
     worse = []
     for row in wand:
         for name in worse_than_vqf(row):
-            ours, theirs = ("fit_causal", "vqf_raw") if name == "c" else ("fit_offline", "vqf_raw_offline")
+            ours, theirs = AGAINST_VQF[name]
             mine, vqf_deg = _number(row[ours]), _number(row[theirs])
             worse.append(f"{row['motion']} seed {row['seed']} {name} {mine:.3f} vs {vqf_deg:.3f}")
     count = len({(r["motion"], r["seed"]) for r in wand if worse_than_vqf(r)})
