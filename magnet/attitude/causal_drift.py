@@ -94,6 +94,15 @@ class CausalDrift:
         while t_s - float(self.history[0][0]) > HISTORY_S:
             self.history.pop(0)
 
+    def _corrected(self, correct: Correct) -> tuple[np.ndarray, np.ndarray]:
+        """The history's rows (M, 11) from ``HISTORY_AFTER_S`` on (the filter's first seconds left out) and their raw
+        field corrected with a record's ``correct``ion (M, 3), vqf's frames."""
+        rows = np.array(self.history).reshape(-1, 11)
+        rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
+        if not len(rows):
+            return rows, np.zeros((0, 3))
+        return rows, correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
+
     def heading_from_history(self, correct: Correct) -> bool:
         """A new record's ``correct``ion put on the history's raw field, vqf's magnetic heading offset (``delta``) and
         its field reference (|B| and dip) set from the last ``HEADING_S`` of it, its rows that agree with the whole
@@ -101,11 +110,9 @@ class CausalDrift:
         record rather than from the samples after it, which an object passed then would bend. True when set: vqf's
         first-heading gain is then off (``kMagInit`` 0: it overrides vqf's rejection, and the heading gate stands aside
         for it), and its average goes on as a tauMag of ``HEADING_WORTH_S`` plus the time since (``note``)."""
-        rows = np.array(self.history).reshape(-1, 11)
-        rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
+        rows, field = self._corrected(correct)
         if len(rows) < HEADING_MIN_ROWS:
             return False
-        field = correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
         earth = np.einsum("nij,nj->ni", quaternion_to_matrix(rows[:, 1:5]), field)
         norm = np.linalg.norm(earth, axis=1)
         if not np.all(norm > 0.0):
@@ -140,11 +147,9 @@ class CausalDrift:
         the record's offset error (``OFFSET_SIGMA_UT``, ``offset_columns``) in it, so that its estimate is shrunk
         towards zero by as much as the history leaves it uncertain, and a corner's step of the field's angle that a
         wrong offset makes is not read as a drift; taken where its uncertainty is below ``HISTORY_MAX_SIGMA_DPS``."""
-        rows = np.array(self.history).reshape(-1, 11)
-        rows = rows[rows[:, 0] >= HISTORY_AFTER_S]
+        rows, field = self._corrected(correct)
         if len(rows) < 3:
             return False
-        field = correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
         steps = np.diff(rows[:, 0], prepend=rows[0, 0])
         quat = rows[:, 1:5]
         found = fit_drift(
