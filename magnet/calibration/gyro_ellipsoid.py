@@ -85,6 +85,20 @@ def windows(
     return starts[good], ends[good]
 
 
+def kept_windows(
+    starts: np.ndarray, ends: np.ndarray, keep: np.ndarray | None, most: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The windows (starts (M,), ends (M,)) whose both ends are in ``keep`` (N,) bool (None: all), at most ``most``
+    of them (spread evenly)."""
+    if keep is not None:
+        both = keep[starts] & keep[ends]
+        starts, ends = starts[both], ends[both]
+    if len(starts) > most:
+        pick = np.linspace(0, len(starts) - 1, most).astype(int)
+        starts, ends = starts[pick], ends[pick]
+    return starts, ends
+
+
 def constraint_rows(
     mag: np.ndarray, attitudes: np.ndarray, starts: np.ndarray, ends: np.ndarray, lag: int = 0
 ) -> np.ndarray:

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from magnet.calibration.gyro_ellipsoid import gyro_attitudes, windows
+from magnet.calibration.gyro_ellipsoid import gyro_attitudes, kept_windows, windows
 from magnet.frames import rotation_vector_to_matrix
 
 #: a device whose down stays within this of its z axis in PLANAR_FRACTION of the samples is planar (deg)
@@ -102,13 +102,7 @@ def gyro_spans(
     """The gyroscope's windows (``gyro_ellipsoid.windows``, at most MAX_WINDOWS) with P^T of each, both ends in
     ``keep`` (None: all); None when there are fewer than 12."""
     gyr = np.asarray(gyr_rads, dtype=float)
-    starts, ends = windows(gyr, period_s)
-    if keep is not None:
-        ok = keep[starts] & keep[ends]
-        starts, ends = starts[ok], ends[ok]
-    if len(starts) > MAX_WINDOWS:
-        pick = np.linspace(0, len(starts) - 1, MAX_WINDOWS).astype(int)
-        starts, ends = starts[pick], ends[pick]
+    starts, ends = kept_windows(*windows(gyr, period_s), keep, MAX_WINDOWS)
     if len(starts) < 12:
         return None
     turned = gyro_attitudes(rotation_vector_to_matrix(gyr * period_s))

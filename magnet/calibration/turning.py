@@ -22,7 +22,7 @@ import dataclasses
 import numpy as np
 
 from magnet.calibration.field_input import FieldInput
-from magnet.calibration.gyro_ellipsoid import gyro_attitudes, skew
+from magnet.calibration.gyro_ellipsoid import gyro_attitudes, kept_windows, skew
 from magnet.calibration.gyro_ellipsoid import windows as gyro_windows
 from magnet.frames import rotation_vector_to_matrix
 from magnet.model import Calibration
@@ -58,12 +58,7 @@ def turns(gyr_rads: np.ndarray, period_s: float, rows: np.ndarray | None = None)
     if count < 3 or not period_s > 0:
         return None
     starts, ends = gyro_windows(gyr, period_s, WINDOW_ANGLE_DEG, WINDOW_S, MIN_ANGLE_DEG, every=1)
-    if rows is not None:
-        both = rows[starts] & rows[ends]
-        starts, ends = starts[both], ends[both]
-    if len(starts) > MAX_WINDOWS:
-        pick = np.linspace(0, len(starts) - 1, MAX_WINDOWS).astype(int)
-        starts, ends = starts[pick], ends[pick]
+    starts, ends = kept_windows(starts, ends, rows, MAX_WINDOWS)
     if len(starts) < MIN_WINDOWS:
         return None
     axes = gyro_attitudes(rotation_vector_to_matrix(gyr * period_s))
