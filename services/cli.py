@@ -14,7 +14,7 @@ import logging
 import os
 import re
 import sys
-from typing import NoReturn
+from typing import Any, NoReturn
 
 #: Before numpy loads: magnet's matrices are small (a fit's design matrix at most some 10,000 x 10, the compass's 3 x 3
 #: a sample), too small for OpenBLAS's threads, which only spin after each call on the other core (``magnet fit`` of
@@ -71,10 +71,20 @@ def _only_the_chosen(argv: list[str], chosen: str | None) -> bool:
     return all(re.fullmatch(r"-v+|--verbose", word) for word in before)
 
 
+#: a value that starts with a minus and a digit, alone or as a list (``-33.87,151.21``, ``-25,40,12``, ``-1e-3``): a
+#: value, not an option (argparse knows only single numbers, so ``--location -33.87,151.21`` was refused)
+NEGATIVE_VALUE = re.compile(r"^-\.?\d[\d.eE+-]*(,[-+]?\.?\d[\d.eE+-]*)*$")
+
+
 class OneLineParser(argparse.ArgumentParser):
     """An argument parser whose refusal is the one line that matters (``magnet fit: error: argument --method: ...``)
     and where to read more, not a page of usage before it: the usage is what ``--help`` is for. Exit status 2, as
-    argparse's own refusal."""
+    argparse's own refusal. A word like ``-33.87,151.21`` is a value (``NEGATIVE_VALUE``); the commands' parsers
+    inherit this class (``add_subparsers``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_VALUE
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")

@@ -133,7 +133,7 @@ def fit_field(
     planar = is_planar(ev.down)
     windows, whole_mag = turning.vehicle_turns(whole_input, planar, keep), whole_input.mag
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
-    ev, vertical_kept, no_place = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: nothing holds it
+    ev, vertical_kept = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: what holds it
     if planar and (ev_motion is None or ev_motion.source != motion.AIDED_SOURCE):
         ev = level_in_turns(ev, inp.gyr, inp.vel_ned_ms)
 
@@ -146,10 +146,8 @@ def fit_field(
         return record.replace(quality=record.quality.with_extra(disturbed_samples=int((~keep).sum())))
 
     if rung is not None:
-        result = _forced_fit(ev, rung, planar, no_place)
+        result = _forced_fit(ev, rung, planar)
         return judged(result, {result.rung.name: result.identified_deg})
-    if no_place:
-        raise FitError(f"the motion does not identify {no_place}")
     try:
         found, tried = candidates.identified(ev, planar)
     except FitError as refused:
@@ -185,18 +183,15 @@ def forced_rung(name: str, planar: bool) -> Rung:
     return LEVEL_OFFSET if planar and named is OFFSET else named
 
 
-def _forced_fit(ev: Evidence, name: str, planar: bool, no_place: str = "") -> RungFit:
+def _forced_fit(ev: Evidence, name: str, planar: bool) -> RungFit:
     """The rung ``--method NAME`` asks for (``forced_rung``), fitted; ``unidentified`` set when the ladder's rule
-    does not identify it (a planar device's offset+scale: ``LEVEL_GAIN``; a level device with no place and nothing in
-    force: ``no_place``, from ``unplaced.hold_vertical``)."""
+    does not identify it (a planar device's offset+scale: ``LEVEL_GAIN``)."""
     named = forced_rung(name, planar)
     result = fit_rung(ev, named, first_offset(ev))
     if result.unidentified:
         return dataclasses.replace(result, unidentified=result.unidentified + AUTO_HINT)
     if planar and named is SCALE:
         return dataclasses.replace(result, unidentified=LEVEL_GAIN)
-    if no_place:
-        return dataclasses.replace(result, unidentified=no_place + AUTO_HINT)
     return result
 
 

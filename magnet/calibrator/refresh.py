@@ -86,7 +86,10 @@ def small_gain(calibration: Calibration) -> str | None:
     """Why an accepted refresh is still not taken: it gains less than MIN_GAIN (None: it gains enough)."""
     gain = gain_pct(calibration)
     if gain is None:
-        return "no heading consistency to judge a refresh by (the device sends no accelerometer)"
+        return (
+            "no held-out heading consistency to judge a refresh by (the device sends no accelerometer, or the fit "
+            "without the held-out samples failed)"
+        )
     if gain < 100.0 * MIN_GAIN:
         return f"a refresh gains {gain:.0f} % of held-out consistency, less than {100 * MIN_GAIN:.0f} %"
     return None

@@ -13,7 +13,10 @@ import numpy as np
 
 from magnet import signing, wire
 from magnet.attitude.mag_delay import advance_field
+from magnet.attitude.refresh_shift import shift_heading
 from magnet.bounded import Recent
+from magnet.compass.filters import DeviceFilters
+from magnet.compass.replay import corrector
 from magnet.compiled import kernels as _kernels
 from magnet.model import Calibration
 
@@ -251,3 +254,18 @@ def small_change(old: Calibration, new: Calibration) -> bool:
     angle = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
     ratio = np.abs(norm_after / norm_before - 1.0) * 100.0
     return bool(np.all(angle < RESTART_DEG) and np.all(ratio < RESTART_PCT))
+
+
+def recalibrate_filter(
+    filters: DeviceFilters, previous: wire.DeviceCalibration | None, record: wire.DeviceCalibration
+) -> None:
+    """``record`` came into force for its device (``previous`` was): the device's filter forgets its magnetic side
+    (it was built on the old correction, and the field jumping to the new one would look to vqf like a disturbance it
+    takes tens of seconds to trust; the tilt and the gyroscope's bias are kept), unless the field hardly moves
+    (``small_change``: an in-service refresh), where its heading moves at once by what the record changes
+    (``magnet.attitude.refresh_shift``)."""
+    new = corrector(record.calibration)
+    if previous is None or not small_change(previous.calibration, record.calibration):
+        filters.forget(record.device, magnetic_only=True, correct=new)
+    else:
+        shift_heading(filters.devices.get(record.device), corrector(previous.calibration), new)

@@ -27,11 +27,10 @@ from magnet import vehicle as vehicles  # its comparison loaded when first used 
 from magnet.attitude import heading as hd
 from magnet.attitude.uncertainty import FilterFigures, HeadingUncertainty, Sigmas
 from magnet.bounded import Recent
-from magnet.compass.calibrations import CalibrationsInForce, Correction, small_change
+from magnet.compass.calibrations import CalibrationsInForce, Correction, recalibrate_filter
 from magnet.compass.filters import DeviceFilters, FusedColumns, merge
 from magnet.compass.keys import DeviceKeys
 from magnet.compass.presence import GONE, CalibratorPresence
-from magnet.compass.replay import corrector
 from magnet.compass.tilt import Headings, batches_with, compute_headings, field_flags, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings
@@ -245,11 +244,7 @@ class CompassCore:
         if self.calibrations.put(record):
             self._log_evictions()
             self.watch.calibration(record, record.created_ns)
-            # the device's filter forgets its magnetic side: it was built on the old correction, and the field
-            # jumping to the new one would look to vqf like a disturbance it takes tens of seconds to trust (the tilt
-            # and the gyroscope's bias are kept); unless the field hardly moves (an in-service refresh)
-            if previous is None or not small_change(previous.calibration, record.calibration):
-                self.filters.forget(record.device, magnetic_only=True, correct=corrector(record.calibration))
+            recalibrate_filter(self.filters, previous, record)
             log.info("calibration %s (%s) in force for %s", record.id, record.calibration.method, record.device)
         return True
 

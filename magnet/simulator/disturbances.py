@@ -76,7 +76,8 @@ class Disturbances:
 
 @dataclasses.dataclass(frozen=True)
 class HardIronChange:
-    """From ``t_s`` (seconds from the run's start) on, the hard iron is ``hard_iron_ut`` (3,) uT."""
+    """From ``t_s`` (seconds from the run's start) on, the hard iron is ``hard_iron_ut`` (3,) uT (plus its
+    temperature's change, ``SensorErrors.hard_iron_tempco_ut_per_k``)."""
 
     t_s: float
     hard_iron_ut: Any

@@ -39,7 +39,9 @@ class SensorErrors:
     change per kelvin from 25 C; temperature_c at t = 0 and temperature_ramp_k_per_s its drift; gyro_bias_rads (3,)
     rad/s, constant, added to every gyroscope sample; gyro_noise_rads per axis per sample (1 sigma), rad/s;
     mag_lag_s the magnetometer's delay behind the gyroscope and accelerometer (its output filter and sampling): each
-    magnetometer sample reads the field of the attitude that many seconds earlier.
+    magnetometer sample reads the field of the attitude that many seconds earlier; hard_iron_tempco_ut_per_k (3,)
+    uT/K the hard iron's change per kelvin from 25 C (a phone's board and battery warming: several uT over minutes;
+    ``simulate`` and ``SensorStream``, not ``SimulatedDevices``).
     """
 
     hard_iron_ut: Any = (0.0, 0.0, 0.0)
@@ -55,6 +57,7 @@ class SensorErrors:
     gyro_bias_rads: Any = (0.0, 0.0, 0.0)
     gyro_noise_rads: float = 0.0
     mag_lag_s: float = 0.0
+    hard_iron_tempco_ut_per_k: Any = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -62,6 +65,8 @@ class SensorErrors:
         set_(self, "soft_iron", _vector(self.soft_iron, "soft_iron", (3, 3)))
         set_(self, "misalignment_deg", _vector(self.misalignment_deg, "misalignment_deg", (3,)))
         set_(self, "gyro_bias_rads", _vector(self.gyro_bias_rads, "gyro_bias_rads", (3,)))
+        tempco = _vector(self.hard_iron_tempco_ut_per_k, "hard_iron_tempco_ut_per_k", (3,))
+        set_(self, "hard_iron_tempco_ut_per_k", tempco)
         if abs(np.linalg.det(self.soft_iron)) < 1e-9:
             raise ValueError("soft_iron must be an invertible 3x3 matrix")
         for name in ("noise_ut", "acc_noise_ms2", "spike_ut", "gyro_noise_rads", "mag_lag_s"):
@@ -91,6 +96,12 @@ class SensorErrors:
         """Relative gain (same shape as t_s) from the temperature at time t_s (seconds from the start)."""
         temperature = self.temperature_c + self.temperature_ramp_k_per_s * np.asarray(t_s, dtype=float)
         return 1.0 + self.gain_tempco_per_k * (temperature - REFERENCE_TEMPERATURE_C)
+
+    def hard_iron(self, t_s: np.ndarray) -> np.ndarray:
+        """The hard iron (N, 3) uT at times t_s (N,) s from the start: ``hard_iron_ut`` plus its temperature's
+        change (``hard_iron_tempco_ut_per_k``)."""
+        temperature = self.temperature_c + self.temperature_ramp_k_per_s * np.asarray(t_s, dtype=float)
+        return self.hard_iron_ut + np.outer(temperature - REFERENCE_TEMPERATURE_C, self.hard_iron_tempco_ut_per_k)
 
     def true_calibration(self, field_strength_ut: float = 0.0) -> Calibration:
         """The exact correction at 25 C: B_body = M S^-1 (mag - h), as a calibration record."""

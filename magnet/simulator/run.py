@@ -6,7 +6,7 @@ field B_ned from the WMM; the linear acceleration a_lin (NED, zero for still tra
 w_k = log(q_{k-1}* q_k) / dt (q_{k-1} the attitude one sample period earlier), so that the gyroscope integrates to the
 attitude. Measurements (``SensorErrors``):
 
-    mag = S M^T R^T B_ned * gain(T) + h + noise (+ spikes)   (R of the attitude mag_lag_s earlier, if any)
+    mag = S M^T R^T B_ned * gain(T) + h(T) + noise (+ spikes)   (R of the attitude mag_lag_s earlier, if any)
     acc = R^T (a_lin - g_ned) + noise                      g_ned = (0, 0, +9.80665): still and level reads (0, 0, -g)
     gyr = w + gyro bias + noise
 
@@ -197,10 +197,11 @@ class _Generator:
             throttle = motors.throttle(t_s, thrust)
             current = motors.current_a(throttle)
             at_sensor = sensed + motors.field_ut(current)
-        hard_iron = np.tile(errors.hard_iron_ut, (n, 1))
+        hard_iron = errors.hard_iron(t_s)
         change = config.hard_iron_change
         if change is not None:
-            hard_iron[t_s >= change.t_s] = change.hard_iron_ut
+            after = t_s >= change.t_s  # the new iron, drifting with the temperature as the old one did
+            hard_iron[after] = change.hard_iron_ut + (hard_iron[after] - errors.hard_iron_ut)
         mag = (at_sensor @ errors.distortion.T) * gain[:, None] + hard_iron
         mag = mag + errors.noise_ut * self.mag_noise.standard_normal((n, 3))
         acc_measured = acc + errors.acc_noise_ms2 * self.acc_noise.standard_normal((n, 3))

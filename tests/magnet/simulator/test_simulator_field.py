@@ -140,6 +140,24 @@ def test_hard_iron_changes_mid_run():
     np.testing.assert_allclose(corrected, r.true_field_ut, atol=1e-9)
 
 
+def test_hard_iron_drifts_with_the_temperature():
+    """A phone warming by 0.1 K/s, its hard iron moving by 0.5 uT/K: 2 uT by the end of 40 s, linear in time, and
+    the same drift after a change of iron; refused when not three finite numbers."""
+    tempco = np.array([0.3, -0.4, 0.0])
+    errors = sim.SensorErrors.phone(
+        np.random.default_rng(2), 50.0, noise_ut=0.0, temperature_ramp_k_per_s=0.1, hard_iron_tempco_ut_per_k=tempco
+    )
+    change = sim.HardIronChange(20.0, (100.0, -200.0, 50.0))
+    r = run("walk-pocket", errors=errors, hard_iron_change=change)
+    before, after = r.t_s < 20.0, r.t_s >= 20.0
+    np.testing.assert_allclose(r.hard_iron_ut[before], errors.hard_iron_ut + np.outer(0.1 * r.t_s[before], tempco))
+    np.testing.assert_allclose(r.hard_iron_ut[after], [100.0, -200.0, 50.0] + np.outer(0.1 * r.t_s[after], tempco))
+    corrected = (r.mag_ut - r.hard_iron_ut) @ np.linalg.inv(errors.distortion).T
+    np.testing.assert_allclose(corrected, r.true_field_ut, atol=1e-9)
+    with pytest.raises(ValueError, match="hard_iron_tempco_ut_per_k"):
+        sim.SensorErrors(hard_iron_tempco_ut_per_k=(1.0, np.nan, 0.0))
+
+
 @pytest.mark.parametrize(
     "bad",
     [
