@@ -27,7 +27,10 @@ machine's virtual memory): ``magnet fit`` of 10,000 rows made 2,800 more page fa
 from __future__ import annotations
 
 import ctypes
+import functools
 import logging
+import time
+from collections.abc import Callable
 
 log = logging.getLogger("magnet.allocator")
 
@@ -87,14 +90,56 @@ def give_back_now() -> bool:
     """Give the free memory at the top and in the middle of every heap back to the system now (glibc's
     ``malloc_trim(0)``; a few ms for a heap of hundreds of MB); False where there is no glibc. For a process whose
     bursts leave its heaps fragmented beyond what ``M_TRIM_THRESHOLD`` gives back (the dashboard after floods)."""
-    import ctypes.util
-
-    name = ctypes.util.find_library("c")
-    try:
-        trim = getattr(ctypes.CDLL(name), "malloc_trim", None) if name else None
-    except OSError:
-        trim = None
+    trim = _malloc_trim()
     if trim is None:
         return False
     trim(ctypes.c_size_t(0))
     return True
+
+
+@functools.cache
+def _malloc_trim() -> Callable[[ctypes.c_size_t], int] | None:
+    """glibc's ``malloc_trim`` from the symbols the process has loaded (looked up once: ``find_library`` took 1-22 ms
+    a call, more than the trim)."""
+    try:
+        libc = ctypes.CDLL(None)
+    except OSError:
+        return None
+    trim = getattr(libc, "malloc_trim", None)
+    return trim if trim is not None and getattr(libc, "gnu_get_libc_version", None) else None
+
+
+class BurstTrim:
+    """When to give the freed heap back (``give_back_now``) in a service loop: every ``every_s``, and while a burst
+    lasts (a step that took ``busy_messages`` or more) at most every ``busy_every_s``, once more after it. A flood's
+    drains leave the heap's middle freed but kept (decoded batches, numpy's columns, Zenoh's buffers, between blocks
+    that stay), which only a trim gives back. ``trim`` and ``clock`` are injected for tests."""
+
+    def __init__(
+        self,
+        busy_messages: int,
+        every_s: float = 10.0,
+        busy_every_s: float = 1.0,
+        trim: Callable[[], bool] = give_back_now,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if busy_messages < 1 or not 0 < busy_every_s <= every_s:
+            raise ValueError(
+                f"a burst is at least 1 message and its trims at most as far apart as the period, got busy_messages "
+                f"{busy_messages}, busy_every_s {busy_every_s}, every_s {every_s}"
+            )
+        self.busy_messages, self.every_s, self.busy_every_s = busy_messages, every_s, busy_every_s
+        self.trim, self.clock = trim, clock
+        self.trimmed_s, self.busy, self.trims = clock(), False, 0  # busy: a burst came since the last trim
+
+    def after_step(self, taken: int) -> bool:
+        """Call after each step with the messages it took; whether it trimmed now."""
+        self.busy = self.busy or taken >= self.busy_messages
+        now = self.clock()
+        since_s = now - self.trimmed_s
+        if since_s < self.every_s and not (self.busy and since_s >= self.busy_every_s):
+            return False
+        self.trimmed_s, self.busy = now, False
+        self.trims += 1
+        self.trim()
+        return True

@@ -34,6 +34,7 @@ from magnet.compass import CompassCore
 from magnet.earth.expected import earth_at
 from magnet.fleet.places import Places
 from services.common import metrics
+from services.common.allocator import BurstTrim
 from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.status_board import StatusBoard
@@ -75,6 +76,11 @@ STEP_BUDGET_S = 0.25
 #: how often at most the loop writes what --metrics serves (s): scrapes come every few seconds, and a vehicle's report
 #: costs more than the status the status board gets 20 times a second
 METRICS_REFRESH_S = 1.0
+#: a drain and what still waits of this many raw messages is a burst (a flood, a backlog): the freed heap is given
+#: back at most every ``TRIM_BUSY_S`` while bursts last and once after, and every ``TRIM_S`` anyway
+#: (``allocator.BurstTrim``): a flood's drains left 3-15 MB of the heap's middle freed but kept, more the further
+#: the compass fell behind
+TRIM_BUSY_MESSAGES, TRIM_BUSY_S, TRIM_S = 500, 1.0, 10.0
 REQUERY_S = 5.0  # how often to ask again for the calibration of a device that has none
 REQUERY_REFUSED_S = 1.0  # how often at most to ask the calibrators again after refusing a calibration
 #: how often at most to ask for every calibration again because calibrators' tokens appeared (many at once: one query)
@@ -218,6 +224,7 @@ class _Loop:
         self.joined = False  # a calibrator's token appeared since the last query for every calibration
         self.drain_limit = self.time_limit = MAX_DRAIN
         self.guard = Guard("compass", log, core.drops)
+        self.trim = BurstTrim(TRIM_BUSY_MESSAGES, TRIM_S, TRIM_BUSY_S)
         #: the status, answered from Zenoh's thread with what the loop last wrote (services.common.status_board)
         self.board = StatusBoard(wire.status_key(self.prefix, settings.name), self.guard)
         self.board.write(core.status(settings.name).to_dict())
@@ -247,6 +254,7 @@ class _Loop:
             started = time.perf_counter()
             self.guard.run("raw", self.headings_of, samples, count=len(samples))
             self._pace(len(samples), time.perf_counter() - started)
+        self.trim.after_step(len(samples) + len(ends.raw))  # a backlog is a burst too, however small the drains
         if self.board.due():
             self.board.write(self.core.status(name).to_dict())
         if self.metrics_board is not None and self.metrics_board.due():

@@ -11,7 +11,8 @@ import pytest
 from fake_channel import ClosedError, FakeChannel
 
 from magnet import wire
-from services.compass.intake import ENTRY_BYTES, PayloadIntake
+from services.compass import intake as intake_module
+from services.compass.intake import ENTRY_BYTES, SEGMENT_BYTES, PayloadIntake
 
 LOG = logging.getLogger("test.compass.intake")
 
@@ -38,11 +39,24 @@ class Sample:
         self.payload = Payload(size)
 
 
+class Numbered:
+    """A payload whose bytes say which message it is (to check what comes out, in order)."""
+
+    def __init__(self, i: int, size: int) -> None:
+        self.data = (f"{i}:".encode() + bytes(range(256)) * (size // 256 + 1))[:size]
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
 def test_oversized_payloads_are_dropped_without_being_copied():
     intake = PayloadIntake(max_bytes=10_000, max_payload=1_000)
     Payload.copies = 0
     intake.offer_many([Sample("a", 1_001), Sample("b", 1_000), Sample("c", 4_000_000)])
-    assert Payload.copies == 1 and [key for key, _ in intake.queue] == ["magnet/b/raw"]
+    assert Payload.copies == 1 and [key for key, _ in intake.take(10, 10**9)] == ["magnet/b/raw"]
     drops = wire.DropCounter()
     intake.hand_over_drops(drops, LOG)
     assert drops.counts == {"raw:oversized": 2}
@@ -109,3 +123,36 @@ def test_the_loop_waits_for_an_arrival_and_not_while_messages_wait():
     assert intake.wait(10.0) and len(intake.take(1, 10**9)) == 1  # one still waits: at once
     assert intake.wait(10.0) and len(intake.take(5, 10**9)) == 1
     assert not intake.wait(0.0)  # all taken
+
+
+def test_a_backlog_is_kept_as_bytes_in_segments_each_unmapped_once_read_out():
+    intake = PayloadIntake(max_bytes=16 * 1024 * 1024, max_payload=2_000_000)
+    sizes = [199 + (i % 7) * 50 for i in range(20_000)] + [1_500_000, 40]  # a flood's backlog, then a large one
+    samples = [Sample(f"flood-{i}", 0) for i in range(len(sizes))]
+    for i, (sample, size) in enumerate(zip(samples, sizes)):
+        sample.payload = Numbered(i, size)  # type: ignore[assignment]
+    for start in range(0, len(samples), 1024):
+        intake.offer_many(samples[start : start + 1024])
+    assert len(intake) == len(sizes)
+    segments = len(intake._segments)
+    written = sum(intake_module.HEADER.size + len(s.key_expr) + size for s, size in zip(samples, sizes))
+    assert segments <= written // SEGMENT_BYTES + 3  # 9 MB in segments of 1 MiB (the large one in its own), no more
+    assert not any(isinstance(o, tuple) for o in intake.__dict__.values())  # no object per message
+    out: list[tuple[str, bytes]] = []
+    while batch := intake.take(3_000, 8 * 1024 * 1024):
+        out += batch
+        assert len(intake._segments) <= segments  # read-out segments go as the backlog drains
+    assert out == [(s.key_expr, s.payload.to_bytes()) for s in samples]  # every message, whole and in order
+    assert len(intake) == intake.queued_bytes == 0 and intake.figures()["queue_high_water_bytes"] > 5_000_000
+    kept = list(intake._segments)
+    assert len(kept) == 1 and kept[0].size == SEGMENT_BYTES  # one segment kept for what comes next
+    intake.offer_many([Sample("again", 100)])
+    assert intake._segments[0] is kept[0] and intake.take(5, 10**9) == [("magnet/again/raw", b"x" * 100)]
+
+
+def test_a_long_key_counts_its_own_length():
+    intake = PayloadIntake(max_bytes=10_000, max_payload=1_000)
+    long_device = "d" * 2_000
+    intake.offer_many([Sample(long_device, 10)])
+    assert intake.queued_bytes == 10 + intake_module.HEADER.size + len(f"magnet/{long_device}/raw")
+    assert intake.take(1, 10**9)[0][0] == f"magnet/{long_device}/raw" and intake.queued_bytes == 0

@@ -32,6 +32,9 @@ def test_status_is_answered_while_the_loop_is_stuck_in_a_drain(monkeypatch) -> N
         def hand_over_drops(self, *args: object) -> None:
             pass
 
+        def __len__(self) -> int:  # messages still waiting after a take
+            return 0
+
         def take(self, limit: int, max_bytes: int) -> list[tuple[str, bytes]]:
             return [("magnet/x/raw", b"")]
 

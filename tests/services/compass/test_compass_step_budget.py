@@ -37,6 +37,9 @@ def test_the_loop_takes_no_more_than_the_time_limit(monkeypatch) -> None:
         def hand_over_drops(self, *args: object) -> None:
             pass
 
+        def __len__(self) -> int:  # messages still waiting after a take
+            return 0
+
         def take(self, limit: int, max_bytes: int) -> list[tuple[str, bytes]]:
             asked.append(limit)
             return [("magnet/x/raw", b"")] * min(limit, 5000)
