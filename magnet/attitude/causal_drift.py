@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
+from magnet.attitude.heading_bias import HeadingBias, step_batch
 from magnet.attitude.mag_gain import note_gain, start_gain
 from magnet.frames import quaternion_to_matrix
 
@@ -50,6 +51,11 @@ PRIOR_DPS = 0.3
 #: to offset / horizontal field (1 uT: 3 deg at 19 uT), and by a different amount on each leg of a walk, so that a
 #: corner in a short history looks like a drift
 OFFSET_SIGMA_UT = 1.0
+#: from a record on, the bias about the vertical is also learnt from vqf's magnetic corrections (``HeadingBias``, the
+#: loop's integral term): what the history's fit left of it (0.1-0.3 deg/s on walks) lags vqf's heading by bias x
+#: tauMag, a standing error the constant offset hides and a user sees (docs/field-calibration.md, "The walks' absolute
+#: heading")
+HEADING_LOOP = True
 #: the field's heading errors in a walk are correlated over this long (s): a corner's tilt fades with vqf's tauAcc
 #: (3 s) and the gait's stride comes back within a second or so; ``drift_bias.CORRELATION_S`` (2 s) took a short
 #: history for surer than it was
@@ -195,11 +201,15 @@ def _floats(values: Any) -> list[float]:
     return np.asarray(values, dtype=float).ravel().tolist()
 
 
-def note_batch(state: Any, drain: Any, row: int) -> None:
+def note_batch(state: Any, drain: Any, row: int, disturbed: bool = False) -> None:
     """The compass's device ``state`` (a ``magnet.compass.filters.DeviceFilter``) fed its drain's rows up to ``row``
-    (permuted): that row's raw field (``drain.raw_source``: uT sensor axes and the permutation; None: nothing) and
-    gyroscope noted in the device's ``CausalDrift`` (made on first use, kept as ``state.drift``); not where aided."""
+    (permuted; ``disturbed``: whether any of those just fused was flagged): that row's raw field
+    (``drain.raw_source``: uT sensor axes and the permutation; None: nothing) and gyroscope noted in the device's
+    ``CausalDrift`` (made on first use, kept as ``state.drift``), and its bias loop stepped (``note_loop``); not
+    where aided."""
     fusion = state.filter
+    if fusion is not None and not fusion.aided:
+        note_loop(state, disturbed)
     if drain.raw_source is None or fusion is None or fusion.aided:
         return
     drift = getattr(state, "drift", None)
@@ -215,10 +225,36 @@ def note_batch(state: Any, drain: Any, row: int) -> None:
 def take_drift(state: Any, correct: Correct | None) -> None:
     """A record with its ``correct``ion was put in force on the device ``state``'s filter (after its
     ``restart_magnetometer``): its magnetic gain started again (``magnet.attitude.mag_gain.start_gain``), then
-    ``CausalDrift.heading_from_history`` and ``from_history`` (not where aided, nor without a correction)."""
+    ``CausalDrift.heading_from_history`` and ``from_history`` (not where aided, nor without a correction), and from
+    now on the bias loop (``HEADING_LOOP``: ``magnet.attitude.heading_bias``, where the filter has none yet)."""
     start_gain(state)
+    fusion = state.filter
+    if correct is None or fusion is None or fusion.aided:
+        return
     drift = getattr(state, "drift", None)
-    if correct is not None and drift is not None and state.filter is not None and not state.filter.aided:
+    if drift is not None:
         if HEADING_FROM_HISTORY:
             drift.heading_from_history(correct)
         drift.from_history(correct)
+    if HEADING_LOOP and fusion.heading_bias is None:
+        state.loop = (fusion._filter, fusion.samples, HeadingBias(fusion.period_s, fusion._taus[1]))
+
+
+def note_loop(state: Any, disturbed: bool) -> None:
+    """The device ``state``'s bias loop (``state.loop``: the vqf filter it runs on, that filter's sample count at its
+    last step, the ``HeadingBias``; started by ``take_drift``) stepped over the samples fused since
+    (``heading_bias.step_batch``), once a fused batch: the compass's compiled path stays whole. Dropped where the
+    filter was replaced; started again where it restarted (its sample count went back)."""
+    loop = getattr(state, "loop", None)
+    fusion = state.filter
+    if loop is None or fusion is None:
+        return
+    filter_, seen, heading = loop
+    if filter_ is not fusion._filter:
+        state.loop = None
+        return
+    if fusion.samples < seen:
+        heading.reset()
+        seen = 0
+    step_batch(heading, filter_, fusion.samples - seen, disturbed)
+    state.loop = (filter_, fusion.samples, heading)

@@ -175,3 +175,16 @@ def run_pieces(
         return dict(parts[0])
     keys = ("quat6D", "quat9D", "restDetected", "magDistDetected")
     return {key: np.concatenate([np.asarray(part[key]) for part in parts]) for key in keys}
+
+
+def step_batch(loop: HeadingBias, filter_: Any, count: int, disturbed: bool) -> None:
+    """The loop stepped once over ``count`` samples just fed to the ``vqf.VQF`` ``filter_`` (a piece as long as the
+    batch: the compass's, after a record; ``disturbed``: any of them flagged by vqf or the watch), its change added
+    to vqf's bias estimate. vqf's flags are not counted while it has no field reference (``vqf_flags_count``)."""
+    if count <= 0:
+        return
+    loop.observe(count, disturbed and vqf_flags_count(True, filter_))
+    sigma = float(filter_.getBiasEstimate()[1])
+    change = loop.step(float(filter_.getDelta()), filter_.getQuat6D(), sigma)
+    if change.any():
+        filter_.setBiasEstimate(np.asarray(filter_.getBiasEstimate()[0], dtype=float) + change)

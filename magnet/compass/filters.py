@@ -219,7 +219,7 @@ class DeviceFilter:
         if drain.unusable_before[hi] == drain.unusable_before[lo]:
             if drain.aiding is None:  # the usual case: written in place, in one compiled call
                 self.filter.update_rows(drain.inputs, lo, hi, out, disturbed)
-                note_batch(self, drain, hi - 1)  # its last sample kept for the bias about the vertical
+                note_batch(self, drain, hi - 1, bool(disturbed[lo:hi].any()))  # the bias about the vertical
                 return
             rows: Any = slice(lo, hi)
             gyr, acc, field = (x[lo:hi] for x in drain.inputs)

@@ -197,6 +197,42 @@ def test_the_compass_filter_takes_the_bias_as_a_record_comes() -> None:
     after = np.asarray(filter_._filter.getBiasEstimate()[0])
     # vqf's frame is z up: a bias about FRD z is -0.4 deg/s about its z
     assert abs(math.degrees(after[2]) + 0.4) < 0.05 < abs(math.degrees(before[2]) + 0.4)
+    assert state.loop is not None  # and from the record on the bias loop learns what is left
+
+
+def test_the_bias_loop_starts_with_a_record_and_learns_once_a_batch() -> None:
+    """``take_drift`` starts the bias loop (``causal_drift.HEADING_LOOP``) on a filter without velocity aiding once a
+    record's correction comes (not without one, nor where the filter is aided), and ``note_loop`` steps it once a
+    fused batch: a level device turning at 10 deg/s (no rest, no turn of a corner) with a bias of 0.4 deg/s about
+    the vertical, the true field in force, gets most of the bias into vqf's estimate within 90 s."""
+    period, count = 0.02, 4500
+    t = np.arange(count) * period
+    rate = np.full(count, math.radians(10.0))
+    heading = rate * t
+    gyr = np.column_stack([np.zeros(count), np.zeros(count), rate + math.radians(0.4)])
+    acc = np.tile([0.0, 0.0, -9.81], (count, 1))
+    earth = np.array([19.0, 0.0, 46.0])
+    field = np.column_stack([np.cos(heading) * earth[0], -np.sin(heading) * earth[0], np.full(count, earth[2])])
+    filter_ = fusion.Fusion(period)
+    state = types.SimpleNamespace(filter=filter_, drift=None)
+    take_drift(state, None)
+    assert getattr(state, "loop", None) is None
+    for start in range(0, 250, 25):
+        filter_.update(gyr[start : start + 25], acc[start : start + 25], field[start : start + 25])
+    filter_.restart_magnetometer()
+    take_drift(state, lambda raw_vqf, gyr_vqf: raw_vqf)
+    assert state.loop is not None and filter_.heading_bias is None
+    for start in range(250, count, 25):
+        filter_.update(gyr[start : start + 25], acc[start : start + 25], field[start : start + 25])
+        cd.note_loop(state, False)
+    learnt = -math.degrees(float(filter_._filter.getBiasEstimate()[0][2]))  # vqf's z is up: FRD z's bias negated
+    assert 0.3 < learnt < 0.5  # 0.39
+    aided = fusion.Fusion(period)
+    aided.update(gyr[:10], acc[:10], field[:10], t[:10], np.tile([1.0, 0.0, 0.0], (10, 1)))
+    assert aided.aided
+    aided_state = types.SimpleNamespace(filter=aided, drift=None)
+    take_drift(aided_state, lambda raw_vqf, gyr_vqf: raw_vqf)
+    assert getattr(aided_state, "loop", None) is None
 
 
 def test_a_records_offset_error_at_a_corner_is_not_taken_for_a_bias() -> None:
