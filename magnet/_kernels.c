@@ -1959,7 +1959,12 @@ static void aided_heading_loop(Aided *e, const double *t, Py_ssize_t n, double *
     piece_figures_core(&qa, &fa, &aa, s[S_GRAVITY], f);
     memcpy(up, f, sizeof(up));
     int disturbed = 0;
-    for (Py_ssize_t i = 0; i < n; i++) disturbed |= dist[i];
+    for (Py_ssize_t i = 0; i < n; i++) {
+        /* vqf's flag, or the field watch's: its samples reach vqf as a zero field, which vqf skips without raising
+         * its flag, and whose heading atan2(0, 0) would read as north in the piece's mean */
+        const double *b = field + 3 * i;
+        disturbed |= dist[i] || (b[0] == 0.0 && b[1] == 0.0 && b[2] == 0.0);
+    }
     double seconds = (double)n * s[S_PERIOD];
     vqf_api.get_bias(e->vqf, bias);
     double residual = explained_core(e->a + A_EXPLAINED, f[6], seconds, s[S_EXPLAINED_TIME]);

@@ -162,7 +162,9 @@ class _PlainAided:
         heading = math.atan2(np.mean(np.sin(phi)), np.mean(np.cos(phi)))
         horizontal, vertical = float(np.mean(np.hypot(earth[:, 0], earth[:, 1]))), float(np.mean(earth[:, 2]))
         left = float(np.linalg.norm(np.mean(acc - STANDARD_GRAVITY_MS2 * rotations[:, 2, :], axis=0)))
-        disturbed, seconds = bool(np.asarray(out["magDistDetected"]).any()), len(t) * self.period
+        # vqf's flag, or the field watch's samples (a zero field, which vqf skips without raising its flag)
+        watched = bool(np.any(np.all(field == 0.0, axis=1)))
+        disturbed, seconds = bool(np.asarray(out["magDistDetected"]).any()) or watched, len(t) * self.period
         bias = np.asarray(self.filter.getBiasEstimate()[0])
         weight = -math.expm1(-seconds / EXPLAINED_TIME_S)
         square = left**2
@@ -251,6 +253,39 @@ def test_the_compiled_aided_filter_is_the_plain_one_whatever_the_batches(traject
         lo = part.stop
     assert compiled.drift.p is not None or trajectory is not Trajectory.CAR  # a car's drift filter ran
     np.testing.assert_allclose(compiled.filter.getBiasEstimate()[0], plain.filter.getBiasEstimate()[0], atol=1e-12)
+
+
+def _watched(field: np.ndarray, t: np.ndarray, start_s: float, seconds: float) -> np.ndarray:
+    """The field with the samples of [start_s, start_s + seconds) zeroed, as the field watch hands them to vqf."""
+    return np.where(((t >= start_s) & (t < start_s + seconds))[:, None], 0.0, field)
+
+
+def test_the_compiled_aided_filter_is_the_plain_one_with_watched_samples():
+    gyr, acc, field, t, vel = _vehicle(Trajectory.CAR, 5.0, 11)
+    field = _watched(_watched(field, t, 12.0, 0.6), t, 18.03, 0.05)
+    plain, compiled = _PlainAided(0.01), aided_fusion.AidedFilter(0.01, {})
+    for lo in range(0, len(t), 25):
+        part = slice(lo, lo + 25)
+        q_plain, _ = plain.update(gyr[part], acc[part], field[part], t[part], vel[part])
+        q_compiled, _ = compiled.update(gyr[part], acc[part], field[part], t[part], vel[part])
+        np.testing.assert_allclose(q_compiled, q_plain, atol=1e-9, err_msg=f"samples {part}")
+
+
+def test_samples_the_watch_took_the_field_from_do_not_turn_a_vehicles_heading():
+    """The watch hands vqf a zero field where the field is suspect (vqf skips it, its own flag down); the drift
+    filter's piece heading read those samples as north (atan2(0, 0)): on the bench's boat of seed 88 an in-service
+    record that moved the field by 8 deg had its step watched for 0.6 s, and the heading went 30 deg off."""
+    gyr, acc, field, t, vel = _vehicle(Trajectory.CAR, 5.0, 11)
+    headings = []
+    for given in (field, _watched(field, t, 15.0, 0.6)):
+        aided = aided_fusion.AidedFilter(0.01, {})
+        quat = np.vstack([aided.update(gyr[lo : lo + 25], acc[lo : lo + 25], given[lo : lo + 25], t[lo : lo + 25],
+                                       vel[lo : lo + 25])[0] for lo in range(0, len(t), 25)])  # fmt: skip
+        rotations = _matrix(quat)
+        headings.append(np.degrees(np.arctan2(rotations[:, 1, 0], rotations[:, 0, 0])))
+    after = t >= 15.0
+    apart = np.abs(np.degrees(np.angle(np.exp(1j * np.radians(headings[1][after] - headings[0][after])))))
+    assert apart.max() < 1.0
 
 
 def test_the_vqf_fields_read_through_its_cpp_object_are_its_state():
