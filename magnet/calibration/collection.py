@@ -18,6 +18,8 @@ enough or the cells are covered enough, and a batch without the gyroscope is nev
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from magnet.calibration import MIN_SAMPLES, FitError, FitInput, Method
@@ -69,6 +71,7 @@ class Collection:
         self.tried_ns = -(2**62)  # a refresh's last try: the time of the newest sample then (ns)
         self.changed_batches = 0  # a refresh: batches in a row whose field strength the record in force misses
         self.after_change = False  # a refresh collection made after the device's iron changed
+        self.iron_watch: Any = None  # a refresh: its iron's watch (``magnet.calibrator.iron_moved.IronWatch``)
         self.run_capacity = run_capacity
         self.runs = None if self.auto or not Method.parse(self.method).needs_gyroscope else RecentRuns(run_capacity)
         self.no_gyroscope = 0  # batches that came without the gyroscope this collection's method needs

@@ -7,6 +7,10 @@ last ``REFRESH_WINDOW_S`` seconds. The fit is judged against
 the record in force (``FitInput.reference``: held-out heading consistency, with its margin) and must also gain
 ``MIN_GAIN`` of the in-force record's held-out consistency (a refresh that changes little is churn, not a gain).
 
+The iron changed when the record in force misses the field strength by CHANGED_PCT, or, with a gyroscope, when
+the record's offset error measured from the turns moved by a few uT (``iron_moved``: a phone's board currents, its
+warming): the samples before are then dropped and refreshes tried sooner (CHANGED_MIN_S, CHANGED_INTERVAL_S).
+
 A device that travels (its batches carry a velocity over TRAVEL_MS) is a vehicle whose linear accelerations tilt a
 judgement's attitude that has no velocity aiding: measured through the services, a car's offset-only refresh judged
 so looked 70 % more consistent and turned its heading 118 deg wrong. The field ladder judges with the velocity-aided
@@ -31,6 +35,7 @@ from magnet import wire
 from magnet.bounded import Recent
 from magnet.calibration.collection import Collection
 from magnet.calibration.field import COURSE_SOURCE, MIN_GAIN
+from magnet.calibrator import iron_moved
 from magnet.model import Calibration
 from magnet.quality.motion import AIDED_SOURCE
 
@@ -138,7 +143,7 @@ class Refresher:
         off = abs(float(np.median(norm)) / strength - 1.0) * 100.0 > CHANGED_PCT
         collection.changed_batches = collection.changed_batches + 1 if off else 0
         older = collection.seen > (collection.changed_batches + 1) * len(batch)  # samples from before the change
-        return collection.changed_batches >= CHANGED_BATCHES and older
+        return (collection.changed_batches >= CHANGED_BATCHES or _moved(collection, batch, in_force)) and older
 
     def proposes(self, collection: Collection, calibration: Calibration | None = None) -> bool:
         """Whether a refresh that passed (``calibration``) is proposed as a session rather than committed:
@@ -168,6 +173,22 @@ class Refresher:
     def restart(self, device: str) -> None:
         """Forget the device's refresh samples (a new record is in force: what follows is judged against it)."""
         self.by_device.pop(device, None)
+
+
+def _moved(collection: Collection, batch: wire.RawBatch, in_force: Calibration) -> bool:
+    """Whether the device's hard iron moved by a few uT under the record in force (``iron_moved.IronWatch``, fed
+    every ``iron_moved.BLOCK_S`` of the device's samples from its last run of consecutive samples; never without a
+    gyroscope, nor with a motor model, whose field needs each batch's current)."""
+    if collection.runs is None or in_force.motor is not None or batch.gyr_rads is None:
+        return False
+    watch = collection.iron_watch = collection.iron_watch or iron_moved.IronWatch()
+    if watch.done_ns is not None and int(batch.t_ns[-1]) - watch.done_ns < iron_moved.BLOCK_S * 1e9:
+        return False
+    run = collection.runs.longest()
+    if run is None:
+        return False
+    run = run.tail(iron_moved.BLOCK_S + iron_moved.WINDOW_S + 1.0)
+    return watch.add(in_force.apply(run.mag), run.gyr_rads, run.t_ns, run.period_s)
 
 
 def velocity_aided(calibration: Calibration | None) -> bool:

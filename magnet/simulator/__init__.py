@@ -14,9 +14,9 @@ Sensor model (docs/design.md, "Sensors and the simulator"). M is the magnetomete
 (= accelerometer) frame, from the small angles ``misalignment_deg`` (roll, pitch, yaw); S the soft-iron / gain /
 cross-axis matrix; h the hard iron:
 
-    mag_measured = S @ M^T @ B_body * (1 + tempco * (T - 25 C)) + h + noise (+ occasional spikes)
+    mag_measured = S @ M^T @ B_body * (1 + tempco * (T - 25 C)) + h(T) + noise (+ occasional spikes)
     acc_measured = f_body + noise
-    gyr_measured = w_body + gyro bias + noise
+    gyr_measured = w_body + gyro bias(T) + noise
 
 so the exact correction (at 25 C) is B_body = M @ S^-1 @ (mag - h) (``SensorErrors.true_calibration``).
 

@@ -41,7 +41,8 @@ class SensorErrors:
     mag_lag_s the magnetometer's delay behind the gyroscope and accelerometer (its output filter and sampling): each
     magnetometer sample reads the field of the attitude that many seconds earlier; hard_iron_tempco_ut_per_k (3,)
     uT/K the hard iron's change per kelvin from 25 C (a phone's board and battery warming: several uT over minutes;
-    ``simulate`` and ``SensorStream``, not ``SimulatedDevices``).
+    ``simulate`` and ``SensorStream``, not ``SimulatedDevices``); gyro_bias_tempco_rads_per_k (3,) rad/s per K, the
+    gyroscope's bias's change per kelvin from 25 C (a MEMS gyroscope's 0.01-0.05 deg/s/K; same runs).
     """
 
     hard_iron_ut: Any = (0.0, 0.0, 0.0)
@@ -58,6 +59,7 @@ class SensorErrors:
     gyro_noise_rads: float = 0.0
     mag_lag_s: float = 0.0
     hard_iron_tempco_ut_per_k: Any = (0.0, 0.0, 0.0)
+    gyro_bias_tempco_rads_per_k: Any = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -67,6 +69,8 @@ class SensorErrors:
         set_(self, "gyro_bias_rads", _vector(self.gyro_bias_rads, "gyro_bias_rads", (3,)))
         tempco = _vector(self.hard_iron_tempco_ut_per_k, "hard_iron_tempco_ut_per_k", (3,))
         set_(self, "hard_iron_tempco_ut_per_k", tempco)
+        tempco = _vector(self.gyro_bias_tempco_rads_per_k, "gyro_bias_tempco_rads_per_k", (3,))
+        set_(self, "gyro_bias_tempco_rads_per_k", tempco)
         if abs(np.linalg.det(self.soft_iron)) < 1e-9:
             raise ValueError("soft_iron must be an invertible 3x3 matrix")
         for name in ("noise_ut", "acc_noise_ms2", "spike_ut", "gyro_noise_rads", "mag_lag_s"):
@@ -102,6 +106,12 @@ class SensorErrors:
         change (``hard_iron_tempco_ut_per_k``)."""
         temperature = self.temperature_c + self.temperature_ramp_k_per_s * np.asarray(t_s, dtype=float)
         return self.hard_iron_ut + np.outer(temperature - REFERENCE_TEMPERATURE_C, self.hard_iron_tempco_ut_per_k)
+
+    def gyro_bias(self, t_s: np.ndarray) -> np.ndarray:
+        """The gyroscope's bias (N, 3) rad/s at times t_s (N,) s: ``gyro_bias_rads`` plus its temperature's change
+        (``gyro_bias_tempco_rads_per_k``)."""
+        temperature = self.temperature_c + self.temperature_ramp_k_per_s * np.asarray(t_s, dtype=float)
+        return self.gyro_bias_rads + np.outer(temperature - REFERENCE_TEMPERATURE_C, self.gyro_bias_tempco_rads_per_k)
 
     def true_calibration(self, field_strength_ut: float = 0.0) -> Calibration:
         """The exact correction at 25 C: B_body = M S^-1 (mag - h), as a calibration record."""

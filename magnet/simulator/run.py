@@ -8,7 +8,7 @@ attitude. Measurements (``SensorErrors``):
 
     mag = S M^T R^T B_ned * gain(T) + h(T) + noise (+ spikes)   (R of the attitude mag_lag_s earlier, if any)
     acc = R^T (a_lin - g_ned) + noise                      g_ned = (0, 0, +9.80665): still and level reads (0, 0, -g)
-    gyr = w + gyro bias + noise
+    gyr = w + gyro bias(T) + noise
 
 Noise, spikes and gyroscope noise come from separate generators, so the same samples come out whether they are drawn
 at once (``simulate``) or a few at a time (``SensorStream``). Same seed, same data.
@@ -209,7 +209,7 @@ class _Generator:
         directions = self.spike_vector.standard_normal((n, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
         mag = mag + np.where(spikes[:, None], errors.spike_ut * directions, 0.0)
-        gyr = rate + errors.gyro_bias_rads + errors.gyro_noise_rads * self.gyr_noise.standard_normal((n, 3))
+        gyr = rate + errors.gyro_bias(t_s) + errors.gyro_noise_rads * self.gyr_noise.standard_normal((n, 3))
         temperature = errors.temperature_c + errors.temperature_ramp_k_per_s * t_s
         return SimulatedRun(
             t_s=t_s,

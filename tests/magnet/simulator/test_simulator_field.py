@@ -158,6 +158,22 @@ def test_hard_iron_drifts_with_the_temperature():
         sim.SensorErrors(hard_iron_tempco_ut_per_k=(1.0, np.nan, 0.0))
 
 
+def test_gyroscope_bias_drifts_with_the_temperature():
+    """A gyroscope's bias moving by 0.03 deg/s per kelvin as the phone warms by 0.1 K/s: 0.12 deg/s by 40 s."""
+    tempco = np.radians([0.03, -0.03, 0.02])
+    errors = sim.SensorErrors.phone(
+        np.random.default_rng(2),
+        50.0,
+        gyro_noise_rads=0.0,
+        temperature_ramp_k_per_s=0.1,
+        gyro_bias_tempco_rads_per_k=tempco,
+    )
+    r = run("walk-pocket", errors=errors)
+    np.testing.assert_allclose(r.gyr_rads - r.true_gyr_rads, errors.gyro_bias_rads + np.outer(0.1 * r.t_s, tempco))
+    with pytest.raises(ValueError, match="gyro_bias_tempco_rads_per_k"):
+        sim.SensorErrors(gyro_bias_tempco_rads_per_k=(0.0, 0.0))
+
+
 @pytest.mark.parametrize(
     "bad",
     [
