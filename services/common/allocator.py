@@ -132,9 +132,10 @@ class BurstTrim:
         self.trim, self.clock = trim, clock
         self.trimmed_s, self.busy, self.trims = clock(), False, 0  # busy: a burst came since the last trim
 
-    def after_step(self, taken: int) -> bool:
-        """Call after each step with the messages it took; whether it trimmed now."""
-        self.busy = self.busy or taken >= self.busy_messages
+    def after_step(self, taken: int, burst: bool = False) -> bool:
+        """Call after each step with the messages it took (``burst``: the step saw a burst by another measure, large
+        payloads refused by their size); whether it trimmed now."""
+        self.busy = self.busy or burst or taken >= self.busy_messages
         now = self.clock()
         since_s = now - self.trimmed_s
         if since_s < self.every_s and not (self.busy and since_s >= self.busy_every_s):

@@ -44,9 +44,10 @@ RING_CAPACITY = 1024
 RAW_RING_CAPACITY = 8
 #: the freed heap is given back to the system this often (s): floods and bursts of streams leave it fragmented
 TRIM_S = 10.0
-#: and after a step that took this many messages (a flood's burst) at most every ``TRIM_BUSY_S``, once more after the
-#: burst: a flood of 20,000 ids left 17-30 MB freed but kept (Zenoh's receive buffers, decoded batches) for up to
-#: ``TRIM_S`` after each burst, which the soak saw as a round's highest (a trim costs 2-12 ms)
+#: and after a step that took this many messages (a flood's burst), or refused a raw payload by its size (a bomb of
+#: MBs), at most every ``TRIM_BUSY_S``, once more after the burst: a flood of 20,000 ids left 17-30 MB freed but kept
+#: (Zenoh's receive buffers, decoded batches) for up to ``TRIM_S`` after each burst, which the soak saw as a round's
+#: highest (a trim costs 2-12 ms)
 TRIM_BUSY_MESSAGES = 500
 TRIM_BUSY_S = 1.0
 MAX_DRAIN = 100_000
@@ -109,6 +110,7 @@ class Ingest:
         self.pending: list[tuple[float, zenoh.Handler[zenoh.Reply]]] = []
         self.asked_s = -REQUERY_S
         self.trimmed_s, self.busy = time.monotonic(), False  # busy: a burst came since the last trim
+        self.refused_large = False  # a raw payload over a raw message's size was refused this step (a bomb: MBs)
         self.guard = Guard("dashboard", log, state.dropped)
 
     def _declare(self, subscriber: Subscriber) -> Subscriber:
@@ -160,7 +162,8 @@ class Ingest:
         headings = copied(self.headings, MAX_DRAIN)
         taken += len(headings)
         run("heading", self._on_headings, headings, count=len(headings))
-        self.busy = self.busy or taken >= TRIM_BUSY_MESSAGES
+        self.busy = self.busy or taken >= TRIM_BUSY_MESSAGES or self.refused_large
+        self.refused_large = False
         since_s = time.monotonic() - self.trimmed_s
         if since_s >= TRIM_S or (self.busy and since_s >= TRIM_BUSY_S):
             self.trimmed_s, self.busy = time.monotonic(), False
@@ -240,6 +243,7 @@ class Ingest:
         size = len(sample.payload)
         if size > wire.RAW_LIMITS.payload_bytes:  # refused before it is copied out of Zenoh (as the compass does)
             self._drop(wire.WireError("oversized", f"{size} bytes, more than a raw message may be"), "raw")
+            self.refused_large = True  # Zenoh reassembled its MBs in the heap: given back as after a burst
             return
         try:
             batch = wire.decode_raw(payload_bytes(sample))

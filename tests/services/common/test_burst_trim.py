@@ -64,3 +64,15 @@ def test_give_back_now_is_cheap_after_the_first_call():
     for _ in range(10):
         assert give_back_now() == (platform.libc_ver()[0] == "glibc")
     assert time.perf_counter() - started < 0.5  # the library is looked up once, not every call
+
+
+def test_a_burst_told_by_the_loop_trims_however_few_the_messages():
+    trim, clock, trims = make()
+    clock.now_s += 1.0
+    assert trim.after_step(1, burst=True)  # e.g. bombs of MBs refused by their size: few messages, a heap of MBs
+    clock.now_s += 0.5
+    assert not trim.after_step(2, burst=True)  # more of them, within the second
+    clock.now_s += 0.5
+    assert trim.after_step(0) and len(trims) == 2  # their heap given back once after them
+    clock.now_s += 1.0
+    assert not trim.after_step(0) and len(trims) == 2

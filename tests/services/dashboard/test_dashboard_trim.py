@@ -20,6 +20,9 @@ class Payload:
     def __init__(self, data: bytes) -> None:
         self.data = data
 
+    def __len__(self) -> int:
+        return len(self.data)
+
     def to_bytes(self) -> bytes:
         return self.data
 
@@ -102,3 +105,22 @@ def test_a_burst_gives_the_freed_heap_back_within_a_second_not_the_period(monkey
         feed.step()
         assert len(trims) == 3
     assert (ingest.TRIM_BUSY_MESSAGES, ingest.TRIM_BUSY_S) == (BURST, WITHIN_S)
+
+
+def test_a_bomb_refused_by_its_size_gives_the_heap_back_within_a_second(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A raw payload over a raw message's size is refused uncopied, but Zenoh reassembled its MBs in the heap: the
+    soak's 20 bombs of 4 MB left it freed and kept until the periodic trim, like a flood's burst."""
+    trims: list[float] = []
+    monkeypatch.setattr(ingest, "give_back_now", lambda: trims.append(time.monotonic()) or True)
+    session = Session()
+    state = FleetState()
+    with ingest.Ingest(session, "magnet", state) as feed:  # type: ignore[arg-type]
+        raw_channel = session.channels["magnet/*/raw"]
+        feed.trimmed_s = time.monotonic() - WITHIN_S
+        raw_channel.samples = [Sample("magnet/s0-000/raw", b"\x90" * (wire.RAW_LIMITS.payload_bytes + 1))]
+        feed.step()
+        assert state.dropped.counts.get("raw:oversized") == 1
+        assert len(trims) == 1  # at once (before: only TRIM_S after the last trim)
+        feed.trimmed_s -= WITHIN_S
+        feed.step()
+        assert len(trims) == 1  # no burst since: the period again
