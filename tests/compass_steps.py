@@ -19,6 +19,8 @@ from magnet.shard import EVERY_DEVICE, Shard
 
 #: the wall clock the tests step at: 2026-06-01 (within the World Magnetic Model's life)
 NOW_NS = 1_780_272_000_000_000_000
+#: the simulator's date, 2026-01-01 UTC: the wall clock of ``heading_errors_deg``
+WALL_NS = 1_767_225_600_000_000_000
 
 
 def compass_core(
@@ -67,3 +69,27 @@ def cut(columns: wire.RawColumns, out: HeadingColumns) -> list[wire.HeadingBatch
             columns.devices, columns.seqs, out.calibration_ids, out.declinations, bounds[:-1], bounds[1:]
         )
     ]
+
+
+def heading_errors_deg(run, records: list[tuple[float, bytes]], batch: int = 25) -> np.ndarray:
+    """The compass's heading error (deg, (N,), NaN where not fused) on a simulated ``run`` (t_s, mag_ut, acc_ms2,
+    gyr_rads, quat_wxyz) sent as batches of ``batch`` samples of device "phone" at the place of the simulator's
+    default, each record (encoded calibration message) put in force at its time (s)."""
+    from magnet.earth.location import Location
+    from services.bench import field_runs
+
+    compass = CompassCore(
+        CoreSettings(drift=None, sigmas=False), Places(default=Location.parse("50.45,30.52"), date="2026-01-01")
+    )
+    raw_key, cal_key = wire.key("magnet", "phone", wire.Kind.RAW), wire.key("magnet", "phone", wire.Kind.CALIBRATION)
+    quat = np.full((len(run.t_s), 4), np.nan)
+    pending = list(records)
+    for seq, start in enumerate(range(0, len(run.t_s), batch)):
+        part = slice(start, start + batch)
+        while pending and pending[0][0] <= run.t_s[start]:
+            assert compass.accept_calibration(pending.pop(0)[1], cal_key, "magnet")
+        t_ns = WALL_NS + np.round(run.t_s[part] * 1e9).astype(np.int64)
+        raw = wire.RawBatch("phone", seq, "sim", t_ns, run.mag_ut[part], run.acc_ms2[part], gyr_rads=run.gyr_rads[part])
+        out = compass.step(compass.decode([(raw_key, wire.encode_raw(raw))], "magnet"), int(t_ns[-1]))
+        quat[part] = out.quat_wxyz
+    return field_runs.heading_error_deg(quat, run.quat_wxyz)

@@ -258,3 +258,11 @@ def note_loop(state: Any, disturbed: bool) -> None:
         seen = 0
     step_batch(heading, filter_, fusion.samples - seen, disturbed)
     state.loop = (filter_, fusion.samples, heading)
+
+
+def delta_moved(state: Any, change_rad: float) -> None:
+    """vqf's ``delta`` on the device ``state`` was moved by ``change_rad`` at once (``refresh_shift``: a refresh's
+    new correction): the bias loop's last delta moved with it, so that the step is not read as a drift."""
+    loop = getattr(state, "loop", None)
+    if loop is not None and loop[2].delta is not None:
+        loop[2].delta = math.remainder(loop[2].delta + change_rad, 2.0 * math.pi)

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude.causal_drift import Correct
+from magnet.attitude.causal_drift import Correct, delta_moved
 from magnet.frames import quaternion_to_matrix
 
 #: rows of the history needed (one a fused batch)
@@ -70,7 +70,8 @@ def shift_heading(state: Any, old: Correct | None, new: Correct | None) -> bool:
     weights = np.exp(-(rows[-1, 0] - rows[told, 0]) / max(tau_s, 1e-3))
     change = np.remainder(angle_a[told] - angle_b[told] + np.pi, 2.0 * np.pi) - np.pi
     state_ = vqf.state
-    state_["delta"] = math.remainder(float(state_["delta"]) + float(weights @ change / weights.sum()), 2.0 * math.pi)
+    shift = float(weights @ change / weights.sum())
+    state_["delta"] = math.remainder(float(state_["delta"]) + shift, 2.0 * math.pi)
     ratio = float(np.median(norm_a) / np.median(norm_b))
     turn = float(np.median(dip_a) - np.median(dip_b))
     for key in ("magRefNorm", "magCandidateNorm"):
@@ -78,4 +79,5 @@ def shift_heading(state: Any, old: Correct | None, new: Correct | None) -> bool:
     for key in ("magRefDip", "magCandidateDip"):
         state_[key] = float(state_[key]) + turn
     vqf.state = state_
+    delta_moved(state, shift)  # the bias loop's delta too: a step, not a drift
     return True

@@ -111,5 +111,6 @@ class IronWatch:
         del self.blocks[: max(0, len(self.blocks) - recent - before)]
         if len(self.blocks) < recent + before // 2:
             return False
-        found = change(sum(self.blocks[-recent:]), sum(self.blocks[:-recent]))
+        sums = np.array(self.blocks)
+        found = change(sums[-recent:].sum(axis=0), sums[:-recent].sum(axis=0))
         return found is not None and found[0] > MOVED_UT and found[1] > CHI2

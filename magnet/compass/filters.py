@@ -16,8 +16,8 @@ through vqf in one call (about 4 us per call plus 0.5 us per sample). Per device
   field are not fused either; samples not fused keep the tilt heading (flag FUSED clear), never NaN;
 - vqf's magnetic disturbance detection sets FIELD_DISTURBED (the field is then left out of the heading); the compass
   judges the dip of fused samples against the fused gravity (``FusedColumns.gravity``);
-- a new record restarts the filter's magnetic side, or an aided filter's whole state with its last seconds fused
-  again (``magnet.compass.replay``).
+- a new record restarts the filter's magnetic side, or an aided filter's whole state (``magnet.compass.replay``);
+- samples missing within a batch: the one after them turns over their time too (``magnet.compass.missed``).
 
 State is bounded: at most ``MAX_DEVICES`` filters, the least recently used forgotten first.
 """
@@ -35,7 +35,7 @@ from magnet.attitude import fusion
 from magnet.attitude import heading as hd
 from magnet.attitude.causal_drift import note_batch, take_drift
 from magnet.bounded import Recent
-from magnet.compass import replay
+from magnet.compass import missed, replay
 from magnet.compass.tilt import Headings
 
 #: 2000 deg/s, the widest full scale of common MEMS gyroscopes (ICM-20948, LSM9DS1, MPU-6050): a reading at or beyond
@@ -121,6 +121,7 @@ class _Drain(NamedTuple):
     counts: list[int]
     increasing: list[bool]
     starts: list[int]
+    spans: list[float]  # per batch: the sample periods its samples span after its first (``missed.spanned``)
     raw: np.ndarray | None = None  # with ``aiding``: the raw field (S, 3), vqf's frame, permuted (``replay``)
     raw_source: tuple[np.ndarray, np.ndarray | None] | None = None  # raw field (S, 3) as given, the permutation
 
@@ -138,10 +139,10 @@ class DeviceFilter:
         #: an aided filter's last seconds, fed again with a new record (``recalibrate``, ``magnet.compass.replay``)
         self.recent: replay.RecentSamples | None = None
 
-    def _period_s(self, first_ns: int, last_ns: int, count: int) -> float | None:
-        """Mean step of the batch's times (or from the last sample for a batch of one); None when unusable."""
+    def _period_s(self, first_ns: int, last_ns: int, count: int, span: float) -> float | None:
+        """Mean step of the batch's times over its ``span`` periods (from the last sample for one); None: unusable."""
         if count >= 2:
-            period = (last_ns - first_ns) / (count - 1) * 1e-9  # exact ns steps give one period, whatever the batch
+            period = (last_ns - first_ns) / span * 1e-9  # exact ns steps give one period, whatever the batch
         elif self.last_t_ns is not None:
             period = (first_ns - self.last_t_ns) * 1e-9
         else:
@@ -164,7 +165,7 @@ class DeviceFilter:
         for b in batches:
             start, count, seq = drain.starts[b], drain.counts[b], drain.seqs[b]
             first, last = drain.first_ns[b], drain.last_ns[b]
-            period = self._period_s(first, last, count)
+            period = self._period_s(first, last, count, drain.spans[b])
             if period is None or not drain.increasing[b]:
                 self._run(drain, lo, hi, out, disturbed)
                 self.filter, self.last_seq, self.last_t_ns, lo, hi = None, seq, last, start, start
@@ -304,12 +305,13 @@ class DeviceFilters:
         for b in np.flatnonzero(with_gyro).tolist():
             groups.setdefault(devices[b], []).append(b)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
-        drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated)
+        gyr_rads, spans = missed.spanned(gyr_rads, t_ns, edges)
+        drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated, spans)
         drain = drain if raw_ut is None else drain._replace(raw_source=(raw_ut, order))
         if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
             # an aided filter needs its samples' times with no velocity known too (docs/aiding.md, point 6)
             raw = None if raw_ut is None else fusion.to_vqf_frame(raw_ut if order is None else raw_ut[order])
-            drain = drain._replace(aiding=_aiding(order, t_ns, vel_ned_ms), raw=raw)
+            drain = drain._replace(aiding=replay.aiding_columns(order, t_ns, vel_ned_ms), raw=raw)
         raw = np.full((count, 4), np.nan)
         disturbed = np.zeros(count, dtype=bool)
         restarts = 0
@@ -340,13 +342,6 @@ def _device_order(groups: Mapping[str, list[int]], sizes: np.ndarray) -> np.ndar
     return np.argsort(np.repeat(rank, sizes), kind="stable")
 
 
-def _aiding(order: np.ndarray | None, t_ns: np.ndarray, vel_ned_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Times (S,) s (float64 keeps wall-clock seconds to a microsecond) and velocities (S, 3), permuted as the
-    drain."""
-    t_s = t_ns.astype(float) * 1e-9
-    return (t_s, vel_ned_ms) if order is None else (t_s[order], vel_ned_ms[order])
-
-
 def _drain(
     order: np.ndarray | None,
     edges: np.ndarray,
@@ -355,6 +350,7 @@ def _drain(
     vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
     usable: np.ndarray,
     saturated: np.ndarray,
+    spans: np.ndarray,
 ) -> _Drain:
     """The drain's samples in vqf's frame (unusable rows zeroed), permuted by ``order`` (None: as they are), and
     per batch what ``DeviceFilter.update`` judges continuity by, as Python numbers."""
@@ -377,7 +373,7 @@ def _drain(
     return _Drain(
         (inputs[0], inputs[1], inputs[2]), None, usable, saturated, np.concatenate([[0], np.cumsum(~usable)]),
         batch_saturated.tolist(), [int(s) for s in seqs], t_ns[first].tolist(), t_ns[last].tolist(),
-        np.diff(edges).tolist(), increasing.tolist(), starts.tolist(),
+        np.diff(edges).tolist(), increasing.tolist(), starts.tolist(), spans.tolist(),
     )  # fmt: skip
 
 

@@ -202,3 +202,10 @@ def _two_vector_attitude(force_body: np.ndarray, force_enu: np.ndarray, field_bo
     north = [along[1] + across[1] * np.cos(t) + side[1] * np.sin(t) for t in (phi + spread, phi - spread)]
     turn = phi + spread if north[0] >= north[1] else phi - spread
     return quaternion_multiply(rotation_vector_to_quaternion(u * turn), tilt)
+
+
+def aiding_columns(order: np.ndarray | None, t_ns: np.ndarray, vel_ned_ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An aided filter's times (S,) s (float64 keeps wall-clock seconds to a microsecond) and velocities (S, 3) for a
+    drain of ``magnet.compass.filters``, permuted by its ``order`` (None: as they are)."""
+    t_s = t_ns.astype(float) * 1e-9
+    return (t_s, vel_ned_ms) if order is None else (t_s[order], vel_ned_ms[order])

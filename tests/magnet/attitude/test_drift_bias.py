@@ -6,6 +6,7 @@ import math
 import types
 
 import numpy as np
+import pytest
 import vqf
 
 from magnet.attitude import causal_drift as cd
@@ -233,6 +234,18 @@ def test_the_bias_loop_starts_with_a_record_and_learns_once_a_batch() -> None:
     aided_state = types.SimpleNamespace(filter=aided, drift=None)
     take_drift(aided_state, lambda raw_vqf, gyr_vqf: raw_vqf)
     assert getattr(aided_state, "loop", None) is None
+
+
+def test_a_shift_of_delta_is_not_read_as_a_drift() -> None:
+    """``causal_drift.delta_moved`` (a refresh moved vqf's delta at once, ``refresh_shift``) moves the bias loop's last
+    delta with it, so that its next step sees no change; nothing without a loop."""
+    state = types.SimpleNamespace(filter=fusion.Fusion(0.02), drift=None)
+    cd.delta_moved(state, 0.1)
+    take_drift(state, lambda raw_vqf, gyr_vqf: raw_vqf)
+    heading = state.loop[2]
+    heading.delta = 3.1
+    cd.delta_moved(state, 0.1)
+    assert heading.delta == pytest.approx(3.2 - 2.0 * math.pi)
 
 
 def test_a_records_offset_error_at_a_corner_is_not_taken_for_a_bias() -> None:

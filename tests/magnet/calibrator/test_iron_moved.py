@@ -31,12 +31,10 @@ def _walk(step_ut: float, seed: int = 2, disturbed: bool = False):
 
 def _moved_times(run, record, until_s: float) -> list[float]:
     """The times (s) at which a watch fed the run block by block says the iron moved."""
-    watch, field, found = iron_moved.IronWatch(), record.apply(run.mag_ut), []
+    watch, field = iron_moved.IronWatch(), record.apply(run.mag_ut)
     t_ns = np.round(run.t_s * 1e9).astype(np.int64)
-    for end in range(100, int(until_s * 50), 25):
-        if watch.add(field[:end], run.gyr_rads[:end], t_ns[:end], 0.02):
-            found.append(float(run.t_s[end - 1]))
-    return found
+    ends = range(100, int(until_s * 50), 25)  # a batch of 25 samples at a time
+    return [float(run.t_s[end - 1]) for end in ends if watch.add(field[:end], run.gyr_rads[:end], t_ns[:end], 0.02)]
 
 
 def test_a_step_of_3_ut_is_seen_within_10_s_and_not_before():
