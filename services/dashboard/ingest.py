@@ -24,7 +24,7 @@ import zenoh
 from magnet import wire
 from magnet.drift import alert_from_message
 from services.common import metrics
-from services.common.allocator import give_back_now
+from services.common.allocator import BurstTrim, give_back_now
 from services.common.guard import Guard
 from services.common.status_board import StatusBoard
 from services.common.zenoh_session import Receiver, drain, payload_bytes
@@ -109,7 +109,8 @@ class Ingest:
         self.raw_watched: dict[str, tuple[Subscriber, contextlib.ExitStack]] = {}
         self.pending: list[tuple[float, zenoh.Handler[zenoh.Reply]]] = []
         self.asked_s = -REQUERY_S
-        self.trimmed_s, self.busy = time.monotonic(), False  # busy: a burst came since the last trim
+        #: when the freed heap is given back (``give_back_now`` looked up at each trim: tests replace it)
+        self.trim = BurstTrim(TRIM_BUSY_MESSAGES, TRIM_S, TRIM_BUSY_S, trim=lambda: give_back_now())
         self.refused_large = False  # a raw payload over a raw message's size was refused this step (a bomb: MBs)
         self.guard = Guard("dashboard", log, state.dropped)
 
@@ -162,12 +163,8 @@ class Ingest:
         headings = copied(self.headings, MAX_DRAIN)
         taken += len(headings)
         run("heading", self._on_headings, headings, count=len(headings))
-        self.busy = self.busy or taken >= TRIM_BUSY_MESSAGES or self.refused_large
+        self.trim.after_step(taken, burst=self.refused_large)
         self.refused_large = False
-        since_s = time.monotonic() - self.trimmed_s
-        if since_s >= TRIM_S or (self.busy and since_s >= TRIM_BUSY_S):
-            self.trimmed_s, self.busy = time.monotonic(), False
-            give_back_now()
         if self.metrics_board is not None and self.metrics_board.due():
             self.metrics_board.write(self.state.metrics_status())
 

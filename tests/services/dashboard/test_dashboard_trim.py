@@ -87,7 +87,7 @@ def test_a_burst_gives_the_freed_heap_back_within_a_second_not_the_period(monkey
     state = FleetState()
     with ingest.Ingest(session, "magnet", state) as feed:  # type: ignore[arg-type]
         heading_channel = session.channels["magnet/*/heading"]
-        feed.trimmed_s = time.monotonic() - WITHIN_S  # the last trim a second ago: not due by the period
+        feed.trim.trimmed_s = time.monotonic() - WITHIN_S  # the last trim a second ago: not due by the period
         heading_channel.samples = headings(BURST)
         feed.step()
         assert len(state.rows) == BURST
@@ -95,13 +95,13 @@ def test_a_burst_gives_the_freed_heap_back_within_a_second_not_the_period(monkey
         heading_channel.samples = headings(BURST)
         feed.step()
         assert len(trims) == 1  # not more than once every TRIM_BUSY_S
-        feed.trimmed_s -= WITHIN_S
+        feed.trim.trimmed_s -= WITHIN_S
         feed.step()  # quiet now: once more after the burst
         assert len(trims) == 2
-        feed.trimmed_s -= WITHIN_S
+        feed.trim.trimmed_s -= WITHIN_S
         feed.step()
         assert len(trims) == 2  # quiet steps keep the period
-        feed.trimmed_s -= ingest.TRIM_S
+        feed.trim.trimmed_s -= ingest.TRIM_S
         feed.step()
         assert len(trims) == 3
     assert (ingest.TRIM_BUSY_MESSAGES, ingest.TRIM_BUSY_S) == (BURST, WITHIN_S)
@@ -116,11 +116,11 @@ def test_a_bomb_refused_by_its_size_gives_the_heap_back_within_a_second(monkeypa
     state = FleetState()
     with ingest.Ingest(session, "magnet", state) as feed:  # type: ignore[arg-type]
         raw_channel = session.channels["magnet/*/raw"]
-        feed.trimmed_s = time.monotonic() - WITHIN_S
+        feed.trim.trimmed_s = time.monotonic() - WITHIN_S
         raw_channel.samples = [Sample("magnet/s0-000/raw", b"\x90" * (wire.RAW_LIMITS.payload_bytes + 1))]
         feed.step()
         assert state.dropped.counts.get("raw:oversized") == 1
         assert len(trims) == 1  # at once (before: only TRIM_S after the last trim)
-        feed.trimmed_s -= WITHIN_S
+        feed.trim.trimmed_s -= WITHIN_S
         feed.step()
         assert len(trims) == 1  # no burst since: the period again
