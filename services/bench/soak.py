@@ -349,7 +349,7 @@ class Soak:
     def _sample_memory(self, round_no: int, fault: str | None) -> None:
         for name, proc in self.pipeline.procs.items():
             rss = rss_mb(proc.pid) if proc.poll() is None else None
-            self.memory.sample(name, rss, round_no, fault)
+            self.memory.sample(name, rss, round_no, fault, t_s=time.monotonic() - self.started)
             if rss is not None and rss > RSS_CAP_MB:
                 self._note(f"{name} killed and restarted by the soak at {rss:.0f} MB (cap {RSS_CAP_MB:g} MB)")
                 self.pipeline.kill9(name)
@@ -386,7 +386,13 @@ class Soak:
         return front_lines(self.last, results, self.deleted, vehicle)
 
 
-def run_soak_benchmark(minutes: float = 10.0) -> str:
-    """Run the soak for ``minutes``; the figures as text."""
+def run_soak_benchmark(minutes: float = 10.0, samples: str | None = None) -> str:
+    """Run the soak for ``minutes``; the figures as text. ``samples``: a file for every RSS sample (JSON: service ->
+    [[t_s, round, MB], ...]), to judge the memory again afterwards."""
     with tempfile.TemporaryDirectory(prefix="magnet-soak-") as workdir:
-        return Soak(minutes, Path(workdir)).run()
+        soak = Soak(minutes, Path(workdir))
+        text = soak.run()
+    if samples:
+        series = {name: m.samples for name, m in soak.memory.services.items()}
+        Path(samples).write_text(json.dumps(series))
+    return text
