@@ -238,13 +238,18 @@ def take_drift(state: Any, correct: Correct | None) -> None:
     if correct is None or fusion is None or fusion.aided:
         return
     drift = getattr(state, "drift", None)
+    history, bias = None, None
+    if drift is not None and drift.filter is fusion._filter:
+        history, bias = list(drift.history), np.array(fusion._filter.getBiasEstimate()[0], dtype=float)
     if drift is not None:
         if HEADING_FROM_HISTORY:
             drift.heading_from_history(correct)
         drift.from_history(correct)
     if HEADING_LOOP and fusion.heading_bias is None:
         state.loop = (fusion._filter, fusion.samples, HeadingBias(fusion.period_s, fusion._taus[1]))
-    offset_learn.start(state, correct)
+    offset_learn.start(state, correct, history, bias)
+    if state.offset is not None and state.offset.shifted_rad:
+        delta_moved(state, state.offset.shifted_rad)
 
 
 def note_loop(state: Any, disturbed: bool) -> None:

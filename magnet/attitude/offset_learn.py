@@ -52,8 +52,11 @@ PRIOR_DPS = 0.3
 CORRELATION_S = 4.0
 #: vqf's delta is moved by the change's mean over the rows of this many tauMag before now
 SHIFT_TAUS = 1.0
-#: whether the compass learns it (``start``)
+#: whether the compass learns it (``start``), and whether the rows begin with the seconds before the record
 ENABLED = True
+SEED = True
+#: the filter's first seconds are not among them (its tilt settling: vqf's tauAcc is 3 s)
+SEED_AFTER_S = 3.0
 
 
 class OffsetLearner:
@@ -157,12 +160,29 @@ def offset_columns(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
     return columns(quat_vqf, field_vqf)
 
 
-def start(state: Any, correct: Any) -> None:
+def start(state: Any, correct: Any, history: list[list[float]] | None = None, bias_before: Any = None) -> None:
     """A record with its ``correct``ion was put in force on the device ``state``'s (a ``DeviceFilter``) unaided filter
-    (``causal_drift.take_drift``, after the bias handed over): its learner from now on (``state.offset``)."""
+    (``causal_drift.take_drift``, after the bias handed over): its learner from now on (``state.offset``), its rows
+    begun with the seconds before (``history``: ``CausalDrift``'s rows, time, 6D attitude, raw field, gyroscope;
+    ``bias_before`` vqf's bias estimate over them), fitted at once where they span enough."""
     fusion = state.filter
     ok = ENABLED and correct is not None and fusion is not None and not fusion.aided
-    state.offset = OffsetLearner(fusion._filter, correct) if ok else None
+    state.offset = found = OffsetLearner(fusion._filter, correct) if ok else None
+    if found is None or not history or bias_before is None or not SEED:
+        return
+    before = np.asarray(bias_before, dtype=float) - found.bias0
+    for row in history:
+        if row[0] < SEED_AFTER_S or (found.rows and row[0] - found.rows[-1][0] < ROW_S):
+            continue
+        if found.rows:
+            found.known_rad += float(up_in_body(np.asarray(row[1:5])) @ before) * (row[0] - found.rows[-1][0])
+        found.rows.append([*row[:11], found.known_rad, 1.0])
+    if found.rows and found.rows[-1][0] - found.rows[0][0] >= MIN_SPAN_S:
+        found.last_fit_s = found.rows[-1][0]
+        fitted = found.fit()
+        if fitted is not None:
+            delta_moved = found.move_to(fitted)
+            found.shifted_rad = delta_moved
 
 
 def learner(state: Any) -> OffsetLearner | None:
@@ -184,14 +204,16 @@ def take_off(state: Any, field_vqf: np.ndarray, lo: int, hi: int) -> None:
 
 
 def refresh(state: Any, correct: Any) -> float:
-    """An in-service refresh replaced the record (``correct``: its correction, or None): the learnt offset error, the
-    old record's, no longer taken off (vqf's delta moved by what that changes: returned, rad); the rows kept, fitted
-    from now on with the new correction (dropped without one)."""
+    """An in-service refresh replaced the record (``correct``: its correction, or None): the rows fitted again with
+    the new correction at once and that estimate taken off instead (none where they do not yet span enough), vqf's
+    delta moved by what that changes (returned, rad; the record's own change is ``refresh_shift``'s); the learner
+    dropped without a correction."""
     found = learner(state)
     if found is None:
         return 0.0
-    shift = found.move_to(np.zeros(3))
-    found.correct = correct
     if correct is None:
         state.offset = None
-    return shift
+        return found.move_to(np.zeros(3))
+    found.correct = correct
+    fitted = found.fit() if found.rows and found.rows[-1][0] - found.rows[0][0] >= MIN_SPAN_S else None
+    return found.move_to(np.zeros(3) if fitted is None else fitted)
