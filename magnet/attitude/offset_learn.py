@@ -41,10 +41,10 @@ from magnet.frames import quaternion_to_matrix
 
 #: the rows fitted: those of the last this many seconds (s), one every ``ROW_S`` at most
 WINDOW_S = 120.0
-ROW_S = 0.5
+ROW_S = 1.0
 #: the first fit comes once the rows span this long (s), then one every ``REFIT_S``
 MIN_SPAN_S = 30.0
-REFIT_S = 5.0
+REFIT_S = 10.0
 #: the offset error's prior, one sigma per body axis (uT; ``causal_drift.OFFSET_SIGMA_UT``)
 OFFSET_SIGMA_UT = 1.0
 #: the bias's prior about b_0 (deg/s), and the field heading's correlation time (s), as ``causal_drift``'s fit
