@@ -200,7 +200,8 @@ def take_off(state: Any, field_vqf: np.ndarray, lo: int, hi: int) -> None:
     if found is None or not found.offset_ut.any():
         return
     rows = field_vqf[lo:hi]
-    rows -= np.where(rows.any(axis=1)[:, None], found.offset_ut, 0.0)
+    present = np.any(rows != 0.0, axis=1).reshape(-1, 1)
+    rows -= np.where(present, found.offset_ut, 0.0)
 
 
 def refresh(state: Any, correct: Any) -> float:

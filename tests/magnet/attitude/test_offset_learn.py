@@ -63,3 +63,20 @@ def test_the_heading_with_a_wrong_record_comes_closer_to_the_right_one(walk, mon
     best = _scatter(run, heading_errors_deg(run, _records(right)))
     assert learnt < without - 0.2, (learnt, without, best)
     assert learnt < best + 0.3, (learnt, without, best)
+
+
+def test_take_off_leaves_rows_without_a_field():
+    class Fusion:
+        aided = False
+        _filter = object()
+
+    class State:
+        filter = Fusion()
+
+    state = State()
+    learner = offset_learn.OffsetLearner.__new__(offset_learn.OffsetLearner)
+    learner.filter, learner.offset_ut = state.filter._filter, np.array([1.0, -2.0, 0.5])
+    state.offset = learner
+    field = np.array([[10.0, 0.0, -40.0], [0.0, 0.0, 0.0], [20.0, 5.0, -40.0], [1.0, 1.0, 1.0]])
+    offset_learn.take_off(state, field, 0, 3)
+    assert np.allclose(field, [[9.0, 2.0, -40.5], [0.0, 0.0, 0.0], [19.0, 7.0, -40.5], [1.0, 1.0, 1.0]])
