@@ -51,7 +51,7 @@ OFFSET_SIGMA_UT = 1.0
 PRIOR_DPS = 0.3
 CORRELATION_S = 4.0
 #: vqf's delta is moved by the change's mean over the rows of this many tauMag before now
-SHIFT_TAUS = 1.0
+SHIFT_TAUS = 3.0
 #: whether the compass learns it (``start``), and whether the rows begin with the seconds before the record
 ENABLED = True
 SEED = True
@@ -138,7 +138,7 @@ class OffsetLearner:
             return 0.0  # vqf has not taken its heading yet: it takes it from the field as it now is
         rows = np.array(self.rows)
         tau_s = max(float(self.filter.params["tauMag"]), 1e-3)
-        rows = rows[rows[:, 0] >= rows[-1, 0] - SHIFT_TAUS * tau_s * 3.0]
+        rows = rows[rows[:, 0] >= rows[-1, 0] - SHIFT_TAUS * tau_s]
         field = self.correct(np.ascontiguousarray(rows[:, 5:8]), np.ascontiguousarray(rows[:, 8:11]))
         earth = np.einsum("nij,nj->ni", quaternion_to_matrix(rows[:, 1:5]), field)
         moved = earth - np.einsum("nij,j->ni", quaternion_to_matrix(rows[:, 1:5]), change)
