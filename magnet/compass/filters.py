@@ -16,9 +16,9 @@ go through vqf in one call (about 4 us per call plus 0.5 us per sample). Per dev
   field are not fused either; samples not fused keep the tilt heading (flag FUSED clear), never NaN;
 - vqf's magnetic disturbance detection sets FIELD_DISTURBED (the field is then left out of the heading); the compass
   judges the dip of fused samples against the fused gravity (``FusedColumns.gravity``);
-- a new record restarts the filter's magnetic side, or an aided filter's whole state (``magnet.compass.replay``);
+- a new record restarts the filter's magnetic side (its first heading not from a field away from the record's
+  strength: ``magnet.compass.first_heading``), or an aided filter's whole state (``magnet.compass.replay``);
 - samples missing within a batch: the one after them turns over their time too (``magnet.compass.missed``).
-
 State is bounded: at most ``MAX_DEVICES`` filters, the least recently used forgotten first.
 """
 
@@ -33,6 +33,7 @@ import numpy as np
 from magnet import _kernels
 from magnet.attitude import fusion
 from magnet.attitude.causal_drift import note_batch, take_drift
+from magnet.attitude.offset_learn import take_off
 from magnet.bounded import Recent
 from magnet.compass import missed, replay
 from magnet.compass.first_heading import FirstHeading
@@ -138,8 +139,7 @@ class DeviceFilter:
         self.restarts = 0
         #: an aided filter's last seconds, fed again with a new record (``recalibrate``, ``magnet.compass.replay``)
         self.recent: replay.RecentSamples | None = None
-        #: the first heading after a (re)start not taken from a field away from the record's strength
-        self.first = FirstHeading()
+        self.first = FirstHeading()  # its first heading not taken from a field away from the record's strength
 
     def _period_s(self, first_ns: int, last_ns: int, count: int, span: float) -> float | None:
         """Mean step of the batch's times over its ``span`` periods (from the last sample for one); None: unusable."""
@@ -226,8 +226,7 @@ class DeviceFilter:
             left_out, again = (None, None) if expected is None else self.first.judge(drain.inputs[2], expected, lo, hi)
             stop = hi if again is None else lo + again
             self._fuse(f, drain, lo, stop, out, disturbed)
-            if left_out is not None:
-                disturbed[lo:stop] |= left_out[: stop - lo]
+            disturbed[lo:stop] |= False if left_out is None else left_out[: stop - lo]
             if again is not None:
                 f.restart_magnetometer()
                 self.first.start(f)
@@ -237,6 +236,7 @@ class DeviceFilter:
         """``_run``'s samples through the filter ``f``: in place in one compiled call, or the usable rows."""
         if drain.unusable_before[hi] == drain.unusable_before[lo]:
             if drain.aiding is None:  # the usual case: written in place, in one compiled call
+                take_off(self, drain.inputs[2], lo, hi)  # the record's offset error learnt (``offset_learn``)
                 f.update_rows(drain.inputs, lo, hi, out, disturbed)
                 note_batch(self, drain, hi - 1, bool(disturbed[lo:hi].any()))  # the bias about the vertical
                 return
@@ -248,6 +248,7 @@ class DeviceFilter:
                 return
             gyr, acc, field = (np.ascontiguousarray(x[rows]) for x in drain.inputs)
         if drain.aiding is None:
+            take_off(self, field, 0, len(field))  # (a copy here: the usable rows)
             out[rows], disturbed[rows] = f.update_vqf_frame(gyr, acc, field)
         else:
             t_s, vel = drain.aiding[0][rows], drain.aiding[1][rows]
