@@ -229,7 +229,7 @@ class DeviceFilter:
             disturbed[lo:stop] |= False if left_out is None else left_out[: stop - lo]
             if again is not None:
                 f.restart_magnetometer()
-                self.first.start(f)
+                self.first.start(f, again=True)
             lo = stop
 
     def _fuse(self, f: fusion.Fusion, drain: _Drain, lo: int, hi: int, out: np.ndarray, disturbed: Any) -> None:

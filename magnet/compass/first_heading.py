@@ -9,9 +9,12 @@ came back only at tauMag's pace.
 
 What the record in force knows is the strength of the field it corrects to (``Calibration.field_strength``, else
 the World Magnetic Model's at the place): a sample more than ``TOL_PCT`` % away from it in those seconds is not the
-Earth's field, and is left out (a zero row, which vqf skips; flagged disturbed). When more than half of the samples
-judged so far are away (after ``MIN_JUDGED_S``), the strength is in question rather than the field (another place,
-another scale), and nothing more is left out until the next start. Pure numpy; a few numbers a device.
+Earth's field, and is left out (a zero row, which vqf skips; flagged disturbed) once the field has shown that
+strength (a field never near it is no door: vqf's take stays as it was). Where the first such sample came within
+``EARLY_S`` of the start, the take starts again (once) after ``CALM_S`` back within the strength: the door's fringe,
+within the tolerance but bent, leaves the mean too. When more than half of the samples judged so far are away (after
+``MIN_JUDGED_S``), the strength is in question rather than the field (another place, another scale), and nothing
+more is left out until the next start. Pure numpy; a few numbers a device.
 """
 
 from __future__ import annotations
@@ -49,20 +52,20 @@ class FirstHeading:
     def __init__(self) -> None:
         self.period_s = 0.0
         self.left = self.size = self.judged = self.away = self.calm = 0
-        self.seen_away = False
+        self.seen_away = self.seen_strength = False
         self.calm_needed = self.early = 1
 
-    def start(self, fusion: Fusion) -> None:
+    def start(self, fusion: Fusion, again: bool = False) -> None:
         """A (re)start of the filter's magnetic side: the next tauMag seconds of samples are judged, where vqf takes
         its first heading from them (not where a record's heading came from the device's history: its ``kMagInit``
-        is off then, ``magnet.attitude.causal_drift``)."""
+        is off then, ``magnet.attitude.causal_drift``); ``again``: the take begun again after a door (once only)."""
         self.period_s = fusion.period_s
         taking = float(fusion._filter.state["kMagInit"]) != 0.0
         self.left = self.size = max(1, round(fusion.figures().tau_mag_s / self.period_s)) if taking else 0
         self.judged = self.away = self.calm = 0
-        self.seen_away = False
+        self.seen_away = self.seen_strength = False
         self.calm_needed = max(1, round(CALM_S / self.period_s))
-        self.early = round(EARLY_S / self.period_s)
+        self.early = 0 if again else round(EARLY_S / self.period_s)
 
     def judge(
         self, fields: np.ndarray, expected_ut: np.ndarray, lo: int, hi: int
@@ -89,10 +92,13 @@ class FirstHeading:
         if self.judged * self.period_s >= MIN_JUDGED_S and self.away > MAX_SHARE * self.judged:
             self.left = 0  # the strength is in question: nothing more left out until the next start
             return None, None
-        if not away[:end].any():
+        # left out once the field has shown the strength: a field never near it leaves vqf's take as it was
+        seen = self.seen_strength | np.logical_or.accumulate(known[:end] & ~away[:end])
+        self.seen_strength = bool(seen[-1]) if end else self.seen_strength
+        if not (away[:end] & seen).any():
             return None, restart
         out = np.zeros(len(field), dtype=bool)
-        out[:end] = away[:end]
+        out[:end] = away[:end] & seen
         field[out] = 0.0
         return out, restart
 

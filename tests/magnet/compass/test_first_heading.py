@@ -133,3 +133,12 @@ def test_a_door_late_in_the_take_is_left_out_without_taking_again():
     left_out, again = _judged_in(_take(), fields, np.full(900, STRENGTH_UT), 50)
     assert np.flatnonzero(left_out).tolist() == list(range(500, 650))
     assert again == -1
+
+
+def test_a_door_from_the_first_sample_is_not_left_out_but_the_take_starts_again_after_it():
+    strengths = np.full(900, STRENGTH_UT)
+    strengths[:150] = 1.4 * STRENGTH_UT  # from the start: nothing yet said the strength is the Earth's
+    fields = _fields(strengths)
+    left_out, again = _judged_in(_take(), fields, np.full(900, STRENGTH_UT), 50)
+    assert not left_out.any() and fields.any(axis=1).all()
+    assert again == 149 + round(CALM_S * RATE_HZ)
