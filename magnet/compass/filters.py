@@ -34,6 +34,7 @@ from magnet import _kernels
 from magnet.attitude import fusion
 from magnet.attitude import heading as hd
 from magnet.attitude.causal_drift import note_batch, take_drift
+from magnet.attitude.offset_learn import take_off
 from magnet.bounded import Recent
 from magnet.compass import missed, replay
 from magnet.compass.tilt import Headings
@@ -219,6 +220,7 @@ class DeviceFilter:
             return
         if drain.unusable_before[hi] == drain.unusable_before[lo]:
             if drain.aiding is None:  # the usual case: written in place, in one compiled call
+                take_off(self, drain.inputs[2], lo, hi)  # the record's offset error learnt (``offset_learn``)
                 self.filter.update_rows(drain.inputs, lo, hi, out, disturbed)
                 note_batch(self, drain, hi - 1, bool(disturbed[lo:hi].any()))  # the bias about the vertical
                 return
@@ -230,6 +232,7 @@ class DeviceFilter:
                 return
             gyr, acc, field = (np.ascontiguousarray(x[rows]) for x in drain.inputs)
         if drain.aiding is None:
+            take_off(self, field, 0, len(field))  # (a copy here: the usable rows)
             out[rows], disturbed[rows] = self.filter.update_vqf_frame(gyr, acc, field)
         else:
             t_s, vel = drain.aiding[0][rows], drain.aiding[1][rows]
