@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from magnet.attitude import offset_learn
 from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
 from magnet.attitude.heading_bias import HeadingBias, step_batch
 from magnet.attitude.mag_gain import note_gain, start_gain
@@ -218,7 +219,11 @@ def note_batch(state: Any, drain: Any, row: int, disturbed: bool = False) -> Non
     raw_ut, order = drain.raw_source
     index = row if order is None else int(order[row])
     x, y, z = raw_ut[index].tolist()
-    drift.note(fusion.samples * fusion.period_s, (x, -y, -z), drain.inputs[0][row])  # FRD -> FLU (``frd_flu``)
+    t_s, gyr = fusion.samples * fusion.period_s, drain.inputs[0][row]
+    drift.note(t_s, (x, -y, -z), gyr)  # FRD -> FLU (``frd_flu``)
+    learner = offset_learn.learner(state)  # the record's offset error against the gyroscope (``offset_learn``)
+    if learner is not None and learner.note(t_s, (x, -y, -z), gyr, disturbed):
+        delta_moved(state, learner.shifted_rad)
     note_gain(state)  # the magnetic gain from the drift, once a record is in force (``magnet.attitude.mag_gain``)
 
 
@@ -228,16 +233,23 @@ def take_drift(state: Any, correct: Correct | None) -> None:
     ``CausalDrift.heading_from_history`` and ``from_history`` (not where aided, nor without a correction), and from
     now on the bias loop (``HEADING_LOOP``: ``magnet.attitude.heading_bias``, where the filter has none yet)."""
     start_gain(state)
+    state.offset = None  # the learnt offset error was the old record's
     fusion = state.filter
     if correct is None or fusion is None or fusion.aided:
         return
     drift = getattr(state, "drift", None)
+    history, bias = None, None
+    if drift is not None and drift.filter is fusion._filter:
+        history, bias = list(drift.history), np.array(fusion._filter.getBiasEstimate()[0], dtype=float)
     if drift is not None:
         if HEADING_FROM_HISTORY:
             drift.heading_from_history(correct)
         drift.from_history(correct)
     if HEADING_LOOP and fusion.heading_bias is None:
         state.loop = (fusion._filter, fusion.samples, HeadingBias(fusion.period_s, fusion._taus[1]))
+    offset_learn.start(state, correct, history, bias)
+    if state.offset is not None and state.offset.shifted_rad:
+        delta_moved(state, state.offset.shifted_rad)
 
 
 def note_loop(state: Any, disturbed: bool) -> None:

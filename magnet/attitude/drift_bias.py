@@ -74,12 +74,15 @@ SEGMENT_S = 300.0
 class DriftBias:
     """The bias found: ``bias_rads`` (3,) body (vqf's FLU axes) rad/s, along ``up`` (3,) the mean earth up axis in
     body axes (unit); ``sigma_rads`` its one-sigma uncertainty (rad/s); ``residual_rad`` the robust spread of the
-    field's heading about the fitted drift (rad)."""
+    field's heading about the fitted drift (rad); with ``fit_drift``'s ``nuisance`` columns, their estimate ``nuisance``
+    (K,) and its covariance (K, K), in the columns' units (else None)."""
 
     bias_rads: np.ndarray
     up: np.ndarray
     sigma_rads: float
     residual_rad: float
+    nuisance: np.ndarray | None = None
+    nuisance_covariance: np.ndarray | None = None
 
     @property
     def along_up_rads(self) -> float:
@@ -181,7 +184,9 @@ def fit_drift(
     mean_up = mean_up / max(float(np.linalg.norm(mean_up)), 1e-12)
     sigma = float(np.sqrt(max(float(mean_up @ covariance[1:4, 1:4] @ mean_up), 0.0)))
     along = float(mean_up @ solution[1:4])
-    return DriftBias(along * mean_up, mean_up, sigma, spread)
+    if nuisance is None:
+        return DriftBias(along * mean_up, mean_up, sigma, spread)
+    return DriftBias(along * mean_up, mean_up, sigma, spread, solution[4:].copy(), covariance[4:, 4:].copy())
 
 
 def learnt_at_rest(bias_sigma_rads: np.ndarray | float) -> bool:

@@ -12,6 +12,8 @@ import dataclasses
 import numpy as np
 
 from magnet import signing, wire
+from magnet.attitude import offset_learn
+from magnet.attitude.causal_drift import delta_moved
 from magnet.attitude.mag_delay import advance_field
 from magnet.attitude.refresh_shift import shift_heading
 from magnet.bounded import Recent
@@ -268,4 +270,7 @@ def recalibrate_filter(
     if previous is None or not small_change(previous.calibration, record.calibration):
         filters.forget(record.device, magnetic_only=True, correct=new)
     else:
-        shift_heading(filters.devices.get(record.device), corrector(previous.calibration), new)
+        state = filters.devices.get(record.device)
+        if state is not None:  # the old record's learnt offset error goes with it (``offset_learn``)
+            delta_moved(state, offset_learn.refresh(state, new))
+        shift_heading(state, corrector(previous.calibration), new)

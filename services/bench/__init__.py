@@ -73,6 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--json", action="store_true", help="field: every run's figures as JSON instead of the table")
     parser.add_argument(
+        "--samples", default=None, metavar="FILE.json", help="soak: write every RSS sample to this file (JSON)"
+    )
+    parser.add_argument(
         "--ros2", action="store_true", help="pipeline: the compass's cost of also publishing ROS 2 messages, at --rate"
     )
 
@@ -99,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.benchmark in ("soak", "cost"):
         if not args.minutes > 0:
             raise ValueError("--minutes must be positive")
-        result = function(minutes=args.minutes)
+        extra = {"samples": args.samples} if args.benchmark == "soak" and args.samples else {}
+        result = function(minutes=args.minutes, **extra)
     elif args.benchmark == "motion" and getattr(args, "broad_dir", None):
         result = importlib.import_module("services.bench.motion_broad").run_broad_dir(args.broad_dir)
     elif args.benchmark == "field":

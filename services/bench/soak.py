@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import signal
 import subprocess
 import sys
@@ -32,6 +31,7 @@ import zenoh
 from magnet import wire
 from magnet.simulator import DEFAULT_LOCATION
 from services.bench.flood import rss_mb
+from services.bench.soak_disk import FullDisk
 from services.bench.soak_plan import (
     MAV_FLOOD_COUNT,
     RESTART_GRACE_S,
@@ -60,7 +60,6 @@ STATUS_NAMES = {"calibrator": "calibrator", "compass": "compass", "mavedge": "ed
 REAL_VEHICLE = "mav1-mag1"  # the vehicle front_loads sends throughout (system id 1, SCALED_IMU2)
 DEVICES = 10
 RSS_CAP_MB = 1500.0
-TMPFS_SIZE = "16m"
 BOMBS, BOMB_BYTES = 20, 4_000_000
 FLOOD_COUNT, FLOOD_RATE = 20_000, 5_000.0
 #: the calibrator, compass and dashboard are sized for this many devices (--max-devices): the first flood of ids fills
@@ -136,54 +135,13 @@ class Pipeline:
         stop_processes([*self.helpers, *self.procs.values()])
 
 
-class FullDisk:
-    """A small tmpfs under the calibrator's database when this process may mount one; ``fill`` and ``free``."""
-
-    def __init__(self, directory: Path) -> None:
-        self.directory, self.filler = directory, directory / "filler"
-        self.mounted, self.why_not = False, ""
-        directory.mkdir(parents=True, exist_ok=True)
-        if os.geteuid() != 0:
-            self.why_not = "needs root to mount a tmpfs"
-            return
-        done = subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", f"size={TMPFS_SIZE}", "tmpfs", str(directory)],
-            capture_output=True,
-            text=True,
-        )
-        self.mounted = done.returncode == 0
-        self.why_not = "" if self.mounted else f"mount failed: {done.stderr.strip()}"
-
-    def fill(self) -> int:
-        """Write until the filesystem is full; the bytes written."""
-        written, chunk = 0, b"\0" * (1 << 20)
-        with open(self.filler, "wb") as handle, contextlib.suppress(OSError):
-            while written < (1 << 30):
-                handle.write(chunk)
-                handle.flush()
-                written += len(chunk)
-        with contextlib.suppress(OSError), open(self.filler, "ab") as handle:  # the last partial block
-            while True:
-                handle.write(b"\0" * 4096)
-                handle.flush()
-        return written
-
-    def free(self) -> None:
-        self.filler.unlink(missing_ok=True)
-
-    def unmount(self) -> None:
-        if self.mounted:
-            done = subprocess.run(["umount", str(self.directory)], capture_output=True)
-            if done.returncode != 0:
-                subprocess.run(["umount", "-l", str(self.directory)], capture_output=True)
-            self.mounted = False
-
-
 class Observer:
-    """A client of the router: headings (gaps), calibrations published, status answers (drops)."""
+    """A client of the router: headings (gaps), calibrations published, status answers (drops). ``asking``: the
+    session the status queries go on, one with no subscribers: on ``session`` an answer came behind the headings
+    this process takes (up to 20,000 in seconds during a flood, each a Python callback) on the same link."""
 
-    def __init__(self, session: zenoh.Session) -> None:
-        self.session = session
+    def __init__(self, session: zenoh.Session, asking: zenoh.Session | None = None) -> None:
+        self.session, self.asking = session, asking or session
         self.gaps = HeadingGaps()
         self.published: dict[str, int] = {}
         self.fault = ""
@@ -218,7 +176,7 @@ class Observer:
             self.published[record.device] = max(self.published.get(record.device, -1), int(record.created_ns))
 
     def status(self, name: str) -> dict[str, Any] | None:
-        for reply in self.session.get(wire.status_key(PREFIX, name), timeout=1.0):
+        for reply in self.asking.get(wire.status_key(PREFIX, name), timeout=1.0):
             if reply.ok is not None:
                 try:
                     answer = wire.unpack(payload_bytes(reply.ok))
@@ -262,7 +220,7 @@ class Soak:
         time.sleep(1.0)
         client = ZenohSettings(mode="client", connect=(f"tcp/127.0.0.1:{self.port}",), no_multicast_scouting=True)
         try:
-            with open_session(client) as session, Observer(session) as observer:
+            with open_session(client) as session, open_session(client) as asking, Observer(session, asking) as observer:
                 self._loop(observer)
                 served = observer.served()
         finally:
@@ -349,7 +307,7 @@ class Soak:
     def _sample_memory(self, round_no: int, fault: str | None) -> None:
         for name, proc in self.pipeline.procs.items():
             rss = rss_mb(proc.pid) if proc.poll() is None else None
-            self.memory.sample(name, rss, round_no, fault)
+            self.memory.sample(name, rss, round_no, fault, t_s=time.monotonic() - self.started)
             if rss is not None and rss > RSS_CAP_MB:
                 self._note(f"{name} killed and restarted by the soak at {rss:.0f} MB (cap {RSS_CAP_MB:g} MB)")
                 self.pipeline.kill9(name)
@@ -386,7 +344,13 @@ class Soak:
         return front_lines(self.last, results, self.deleted, vehicle)
 
 
-def run_soak_benchmark(minutes: float = 10.0) -> str:
-    """Run the soak for ``minutes``; the figures as text."""
+def run_soak_benchmark(minutes: float = 10.0, samples: str | None = None) -> str:
+    """Run the soak for ``minutes``; the figures as text. ``samples``: a file for every RSS sample (JSON: service ->
+    [[t_s, round, MB], ...]), to judge the memory again afterwards."""
     with tempfile.TemporaryDirectory(prefix="magnet-soak-") as workdir:
-        return Soak(minutes, Path(workdir)).run()
+        soak = Soak(minutes, Path(workdir))
+        text = soak.run()
+    if samples:
+        series = {name: m.samples for name, m in soak.memory.services.items()}
+        Path(samples).write_text(json.dumps(series))
+    return text

@@ -13,11 +13,11 @@ Figures:
   not serve at the end, or serves an older one;
 - longest heading gap: the longest time between two consecutive headings of one device (a device that stops for
   good, as an edge's devices do when it is restarted with new ids, makes no gap), with the fault it followed;
-- memory: resident set (MB) per service, across its restarts: the highest in each round (round 0 is the quiet start;
-  round 1 is the first pass of bombs and flood, which take each bounded table and buffer to its bound), the value
-  after warm-up (the highest of rounds 0 and 1), the last, the highest of the later rounds, and whether it is flat
-  (``FLAT_RULE``: the end and every later round within 10 %, at least 10 MB, of the value after warm-up); a leak
-  shows in the second and third round of a process's life;
+- memory: resident set (MB) per service, every 0.5 s across its restarts (``services.bench.soak_memory``): each
+  round's median and 90 % quantile (round 0 is the quiet start; round 1 is the first pass of every fault, which takes
+  each bounded table and buffer to its bound: the warm-up), the median of the last 10 s, and whether it is flat
+  (``FLAT_RULE``: every later round's median and quantile and the end within 10 %, at least 10 MB, of round 1's);
+  the highest sample of each round and after each fault are printed, not judged (a burst's peak is not a level);
 - drops: every service's status ``dropped`` counters, summed over its restarts (the last answer of each run);
 - status: every service's status asked every 2 s, answered within ``STATUS_LIMIT_S`` or not (``StatusTimes``; not
   counted within ``RESTART_GRACE_S`` of the service's or the router's start).
@@ -30,6 +30,10 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from services.bench.soak_memory import FLAT_RULE, Memory, MemoryWatch, memory_lines
+
+__all__ = ["FLAT_RULE", "Memory", "MemoryWatch"]  # the memory's figures and rule, kept in services.bench.soak_memory
+
 WARMUP_S = 25.0
 SPACING_S = 10.0
 SETTLE_S = 20.0
@@ -37,13 +41,6 @@ FULL_DISK_HOLD_S = 6.0
 DELETE_HOLD_S = 5.0
 MAV_FLOOD_COUNT, STREAMS, STREAMS_HOLD_S = 20_000, 2_000, 6.0
 STATUS_LIMIT_S = 1.0
-#: memory is flat after warm-up when the end and every later round's highest are within this fraction (or this many
-#: MB, for the small processes whose RSS moves by a few MB between samples) above the highest of rounds 0 and 1
-FLAT_TOLERANCE, FLAT_FLOOR_MB = 0.10, 10.0
-FLAT_RULE = (
-    f"flat: the end and every later round's highest within {FLAT_TOLERANCE:.0%} (at least {FLAT_FLOOR_MB:g} MB) "
-    "above the highest of rounds 0-1 (warm-up: the quiet start and the first pass of every fault)"
-)
 RESTART_GRACE_S = 6.0
 
 
@@ -121,65 +118,10 @@ class HeadingGaps:
             self.longest_s, self.device, self.after = gap, device, fault
 
 
-@dataclasses.dataclass
-class Memory:
-    high_mb: float = 0.0
-    last_mb: float = 0.0
-    by_round: dict[int, float] = dataclasses.field(default_factory=dict)  # the highest in each round of the cycle
-    by_fault: dict[str, float] = dataclasses.field(default_factory=dict)  # the highest while each fault was last
-
-    @property
-    def warmup_mb(self) -> float | None:
-        """The highest in rounds 0 and 1 (the quiet start, then the first pass of every fault, which takes each
-        bounded table and buffer to its bound): the value memory must stay near after warm-up."""
-        first = [mb for r, mb in self.by_round.items() if r <= 1]
-        return max(first) if first else None
-
-    @property
-    def later_high_mb(self) -> float | None:
-        """The highest after round 1 (None before a second round)."""
-        later = [mb for r, mb in self.by_round.items() if r > 1]
-        return max(later) if later else None
-
-    def flat(self) -> bool | None:
-        """Flat after warm-up (``FLAT_RULE``): the end, and the highest of every later round, within
-        ``FLAT_TOLERANCE`` (or ``FLAT_FLOOR_MB``, whichever is larger) above ``warmup_mb``; None before round 1."""
-        base = self.warmup_mb
-        if base is None or not any(r >= 1 for r in self.by_round):
-            return None
-        bound = base + max(FLAT_TOLERANCE * base, FLAT_FLOOR_MB)
-        return self.last_mb <= bound and (self.later_high_mb or 0.0) <= bound
-
-    @property
-    def growth_mb(self) -> float | None:
-        """The highest after round 1 minus the highest of rounds 0 and 1 (None before a second round)."""
-        later = [mb for r, mb in self.by_round.items() if r > 1]
-        first = [mb for r, mb in self.by_round.items() if r <= 1]
-        return max(later) - max(first) if later and first else None
-
-
 def round_of(faults_done: int) -> int:
     """The round after ``faults_done`` faults: 0 before the first (warm-up), 1 from the first kill to the next
     round's kill, and so on."""
     return 0 if faults_done == 0 else 1 + (faults_done - 1) // ROUND_LEN
-
-
-class MemoryWatch:
-    """RSS samples per service (MB): the highest, the highest in each round of the cycle, the last, and the highest
-    while each kind of fault was the last one inflicted (what grows when)."""
-
-    def __init__(self) -> None:
-        self.services: dict[str, Memory] = {}
-
-    def sample(self, service: str, rss_mb: float | None, round_no: int, fault: str | None = None) -> None:
-        if rss_mb is None:
-            return
-        memory = self.services.setdefault(service, Memory())
-        memory.high_mb = max(memory.high_mb, rss_mb)
-        memory.by_round[round_no] = max(memory.by_round.get(round_no, 0.0), rss_mb)
-        if fault is not None:
-            memory.by_fault[fault] = max(memory.by_fault.get(fault, 0.0), rss_mb)
-        memory.last_mb = rss_mb
 
 
 class StatusTimes:
@@ -264,21 +206,8 @@ def report(
         f"calibrations lost: {len(lost)} of {len(published)} published{which}",
         f"longest heading gap: {gap}; {gaps.headings} heading messages",
         "  after each fault: " + (", ".join(f"{f} {s:.2f} s" for f, s in sorted(gaps.by_fault.items())) or "-"),
-        f"memory (RSS MB; {FLAT_RULE}):",
-        "  service       after warm-up  at the end  highest later  flat   highest per round (0 = quiet start)",
     ]
-    for service, m in sorted(memory.services.items()):
-        warm, later = m.warmup_mb, m.later_high_mb
-        verdict = {None: "-", True: "yes", False: "NO"}[m.flat()]
-        rounds = " ".join(f"{m.by_round[r]:.0f}" for r in sorted(m.by_round))
-        lines.append(
-            f"  {service:<14}{'-' if warm is None else f'{warm:.0f}':>13}{m.last_mb:>12.0f}"
-            f"{'-' if later is None else f'{later:.0f}':>15}  {verdict:<5}  {rounds}"
-        )
-    for service, m in sorted(memory.services.items()):
-        if m.by_fault:
-            highs = ", ".join(f"{fault} {mb:.0f}" for fault, mb in sorted(m.by_fault.items()))
-            lines.append(f"  {service} highest after each fault: {highs}")
+    lines.extend(memory_lines(memory))
     lines.append("messages dropped by cause:")
     for service, counts in drops.totals().items():
         text = ", ".join(f"{cause} {count}" for cause, count in sorted(counts.items())) or "none"
@@ -289,9 +218,10 @@ def report(
 def stream_verdict(answered: Mapping[str, int], refused: int, late: int = 0, grace_s: float = 0.0) -> str:
     """What the dashboard's answers to the streams mean: a 503 is a designed refusal (said with a reason and
     ``Connection: close``; the page's stream retries): ``503:streams`` past the app's ``MAX_STREAMS``,
-    ``503:connections`` past uvicorn's limit of connections; an answer after the hold (``late``, within ``grace_s``)
-    is slow, not lost, and counted by its status; a connection closed without an answer (``none``), not answered
-    at all within the hold and the grace (``silent``) or not accepted (``refused``) is a lost request."""
+    ``503:connections`` past the dashboard's limit of connections (refused at accept, or by uvicorn); an answer
+    after the hold (``late``, within ``grace_s``) is slow, not lost, and counted by its status; a connection closed
+    without an answer (``none``), not answered at all within the hold and the grace (``silent``) or not accepted
+    (``refused``) is a lost request."""
     served = answered.get("200", 0)
     designed = sum(n for status, n in answered.items() if status.startswith("503"))
     unanswered = answered.get("none", 0) + answered.get("silent", 0)
@@ -301,7 +231,7 @@ def stream_verdict(answered: Mapping[str, int], refused: int, late: int = 0, gra
         f"{served} streamed",
         (
             f"{designed} refused by design (503: the app's limit of streams {answered.get('503:streams', 0)}, "
-            f"uvicorn's limit of connections {answered.get('503:connections', 0)})"
+            f"the limit of connections {answered.get('503:connections', 0)})"
         ),
         f"{late} of these answered only after the hold (within {grace_s:g} s more: slow, not lost)",
         (

@@ -60,6 +60,25 @@ class BoundedH11(H11Protocol):
     closed_idle = 0  # connections closed for a late head or to admit a newer one
     refused_waiting = 0  # of those, closed for a newer one with their request unread: answered REFUSAL
     cut_stalled = 0  # connections cut off for not reading
+    gate: Any = None  # the ``gate.Gate`` that admitted this connection, told when it closes (None: no gate)
+
+    @classmethod
+    def make_room(cls, wanted: int) -> int:
+        """Close up to ``wanted`` of the oldest connections waiting for a head that have waited ``MIN_WAIT_S``
+        (those with a request unread answered ``REFUSAL``), as a new connection past ``MAX_WAITING`` does; how many
+        were closed. ``gate.Gate`` calls it before refusing a connection at its limit."""
+        closed = 0
+        while closed < wanted and cls.waiting:
+            oldest = next(iter(cls.waiting.values()))
+            if oldest.loop.time() - oldest._armed_s < MIN_WAIT_S:
+                break
+            oldest._close_idle(refuse=True)
+            closed += 1
+        return closed
+
+    def _release(self) -> None:
+        if self.gate is not None:
+            self.gate.release(self)
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         self._head_timer: asyncio.TimerHandle | None = None
@@ -99,6 +118,7 @@ class BoundedH11(H11Protocol):
                 BoundedH11.refused_waiting += 1
                 self.transport.write(REFUSAL)
             self.transport.close()
+            self._release()
 
     def handle_events(self) -> None:
         super().handle_events()
@@ -126,9 +146,11 @@ class BoundedH11(H11Protocol):
         self._stall_timer = None
         if not self.transport.is_closing():
             BoundedH11.cut_stalled += 1
+            self._release()
             self.transport.abort()  # connection_lost follows: the response's sender is told it disconnected
 
     def connection_lost(self, exc: Any) -> None:
+        self._release()
         self._disarm()
         if self._stall_timer is not None:
             self._stall_timer.cancel()

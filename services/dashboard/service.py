@@ -39,13 +39,15 @@ from services.dashboard.settings import (
 
 if TYPE_CHECKING:
     from magnet.earth.geomag import EarthField
+    from services.dashboard.gate import Gate
     from services.dashboard.state import FleetState
 
 log = logging.getLogger("magnet.dashboard")
 #: an idle keep-alive connection is closed after this (a slow or silent client holds no connection for long)
 KEEP_ALIVE_S = 5
-#: connections at once (event streams included, limited further by ``app.MAX_STREAMS``): past it uvicorn answers
-#: 503 at once instead of opening a file and a task per connection until the process's file limit
+#: connections at once (event streams included, limited further by ``app.MAX_STREAMS``): past it a connection is
+#: answered 503 where it is accepted (``gate.Gate``), before uvicorn makes anything for it, instead of a file and a
+#: task per connection until the process's file limit
 MAX_CONNECTIONS = 256
 #: a message logged over and over (uvicorn's 503s) goes to the log once per this many seconds, with its count
 LOG_EVERY_S = 10.0
@@ -101,7 +103,6 @@ def serve(settings: DashboardSettings) -> int:
     import uvicorn
 
     from services.dashboard.app import create_app
-    from services.dashboard.http_limits import BoundedH11
     from services.dashboard.ingest import Control, Ingest
     from services.dashboard.state import FleetState
 
@@ -148,7 +149,7 @@ def serve(settings: DashboardSettings) -> int:
             timeout_graceful_shutdown=1,
             timeout_keep_alive=KEEP_ALIVE_S,
             limit_concurrency=MAX_CONNECTIONS,
-            http=BoundedH11,  # a deadline for each request head, a write-stall limit (services.dashboard.http_limits)
+            http=http_protocol(),  # type: ignore[arg-type]
             lifespan="off",
         )
         server = _Server(config, app.state.dashboard)
@@ -161,6 +162,15 @@ def serve(settings: DashboardSettings) -> int:
         print(f"magnet dashboard: could not serve on {host}:{port} (is the port in use?)", file=sys.stderr)
         return 2
     return 0
+
+
+def http_protocol() -> Gate:
+    """uvicorn's ``http`` for the dashboard: past ``MAX_CONNECTIONS`` refused at accept (``gate.Gate``); each
+    admitted connection with a deadline for its request head and a write-stall limit (``http_limits.BoundedH11``)."""
+    from services.dashboard.gate import Gate
+    from services.dashboard.http_limits import BoundedH11
+
+    return Gate(BoundedH11, MAX_CONNECTIONS)
 
 
 def _metrics_board(settings: DashboardSettings, state: FleetState) -> StatusBoard | None:

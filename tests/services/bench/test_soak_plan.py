@@ -71,34 +71,12 @@ def test_memory_and_the_report():
     memory.sample("compass", 160.0, round_no=2)
     m = memory.services["compass"]
     assert (m.high_mb, m.last_mb, m.by_round) == (400.0, 160.0, {0: 100.0, 1: 400.0, 2: 160.0})
-    assert m.growth_mb == -240.0  # bounded: the later rounds stay below the first
+    assert m.growth_mb == -240.0  # the highest samples: the later rounds' below the first's
+    assert m.flat() is None  # too few samples in round 1 to judge (tests/services/bench/test_soak_memory.py)
     gaps = HeadingGaps()
     text = report(2, ["kill compass"], {"a": 1}, {}, gaps, memory, DropTotals())
     assert "calibrations lost: 1 of 1 published: a" in text and "compass" in text and "400" in text
-    assert m.warmup_mb == 400.0 and m.later_high_mb == 160.0 and m.flat() is True and "yes" in text
-
-
-def test_memory_is_judged_flat_against_the_value_after_warm_up():
-    """The rule: the end and every later round's highest within 10 % (at least 10 MB) above the highest of rounds
-    0 and 1; a process that grows round after round, or ends well above, is not flat; before round 1 nothing is
-    said."""
-    cases = {
-        "bounded": ([60, 200, 190, 205, 210], 200.0, True),
-        "a spike later": ([60, 200, 200, 698, 210], 200.0, False),
-        "ends high": ([60, 200, 210, 215, 219], 260.0, False),
-        "small and noisy": ([47, 52, 57, 60, 56], 56.0, True),  # within 10 MB of 52
-    }
-    watches = {name: MemoryWatch() for name in cases}
-    for name, (rounds, end, flat) in cases.items():
-        for r, mb in enumerate(rounds):
-            watches[name].sample("s", float(mb), round_no=r)
-        watches[name].sample("s", end, round_no=len(rounds) - 1)
-        assert watches[name].services["s"].flat() is flat, name
-    quiet = MemoryWatch()
-    quiet.sample("s", 60.0, round_no=0)
-    assert quiet.services["s"].flat() is None
-    text = report(10, [], {}, {}, HeadingGaps(), watches["a spike later"], DropTotals())
-    assert "NO" in text and "within 10%" in text
+    assert m.warmup_mb == 400.0 and m.later_high_mb == 160.0
 
 
 def test_a_leak_shows_as_growth_after_the_first_round_and_a_bound_does_not():
@@ -162,7 +140,7 @@ def test_a_503_is_a_designed_refusal_and_a_stream_closed_without_an_answer_is_lo
 
     line = stream_verdict({"200": 64, "503:streams": 10, "503:connections": 1926}, 0)
     assert "every request answered" in line and "1936 refused by design" in line
-    assert "the app's limit of streams 10, uvicorn's limit of connections 1926" in line and "0 lost" in line
+    assert "the app's limit of streams 10, the limit of connections 1926" in line and "0 lost" in line
     line = stream_verdict({"200": 64, "503:connections": 100, "none": 1826, "silent": 5}, 10)
     assert "NOT every request answered" in line and "1841 lost (closed without an answer 1826" in line
     assert "no answer within the hold and the grace 5, not accepted 10)" in line

@@ -2,7 +2,8 @@
 sent a byte stayed open and made uvicorn answer 503 to every request). The dashboard's app under uvicorn with the
 service's settings (``services.dashboard.service``), in this process, on 127.0.0.1: event streams whose clients stop
 reading are cut off and free their places; idle connections past ``MAX_WAITING`` close the oldest and a request
-still gets in; a head that never completes is closed after its deadline."""
+still gets in; connections past ``MAX_CONNECTIONS`` at once are answered 503 where they are accepted; a head that
+never completes is closed after its deadline."""
 
 from __future__ import annotations
 
@@ -37,7 +38,8 @@ def dashboard(monkeypatch):
     (port,) = free_ports(1)
     config = uvicorn.Config(
         app, host="127.0.0.1", port=port, log_level="warning", access_log=False, lifespan="off",
-        timeout_keep_alive=service.KEEP_ALIVE_S, limit_concurrency=service.MAX_CONNECTIONS, http=BoundedH11,
+        timeout_keep_alive=service.KEEP_ALIVE_S, limit_concurrency=service.MAX_CONNECTIONS,
+        http=(gate := service.http_protocol()),
     )  # fmt: skip
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, daemon=True)
@@ -48,7 +50,7 @@ def dashboard(monkeypatch):
     deadline = time.monotonic() + 20
     while not server.started and time.monotonic() < deadline:
         time.sleep(0.05)
-    yield port, app.state.dashboard
+    yield port, app.state.dashboard, gate
     stop.set()
     feeder.join(10)
     server.should_exit = True
@@ -79,7 +81,7 @@ def still_open(sock: socket.socket) -> bool:
 
 
 def test_streams_of_clients_that_stop_reading_are_cut_off(dashboard):
-    port, app = dashboard
+    port, app, _ = dashboard
     slow = []
     for _ in range(5):
         sock = socket.socket()
@@ -102,10 +104,20 @@ def test_streams_of_clients_that_stop_reading_are_cut_off(dashboard):
             sock.close()
 
 
+def read_to_close(sock: socket.socket, seconds: float = 5.0) -> bytes:
+    sock.settimeout(seconds)
+    got = b""
+    with contextlib.suppress(OSError):
+        while chunk := sock.recv(4096):
+            got += chunk
+    return got
+
+
 def test_idle_connections_never_crowd_out_a_request(dashboard):
-    port, _ = dashboard
-    idle = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(service.MAX_CONNECTIONS + 4)]
-    trickle = socket.create_connection(("127.0.0.1", port), timeout=5)
+    port, _, _ = dashboard
+    idle = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(service.MAX_CONNECTIONS - 1)]
+    trickle = socket.create_connection(("127.0.0.1", port), timeout=5)  # the limit's last place
+    past = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(4)]  # within 1 s: no room
     try:
         time.sleep(1.5)  # idle a while (a waiting connection is closed for a newer one once it waited 1 s)
         assert fleet_status(port) == 200  # before: 503 (the idle ones filled uvicorn's limit)
@@ -115,8 +127,11 @@ def test_idle_connections_never_crowd_out_a_request(dashboard):
                 trickle.sendall(b"G")
             time.sleep(0.5)
         assert not still_open(trickle) and not still_open(idle[-1])
+        for sock in past:  # refused where accepted (services.dashboard.gate): told 503, then closed
+            answer = read_to_close(sock)
+            assert answer.startswith(b"HTTP/1.1 503 ") and answer.endswith(b"Service Unavailable"), answer
     finally:
-        for sock in [*idle, trickle]:
+        for sock in [*idle, trickle, *past]:
             sock.close()
 
 
@@ -124,7 +139,7 @@ def test_a_flood_of_event_streams_gets_its_bounded_share_and_the_fleet_is_still_
     """``services.bench.stream_flood`` (what ``magnet bench soak`` runs for its 2,000 streams), at 300 streams."""
     from services.bench.stream_flood import hold_streams
 
-    port, app = dashboard
+    port, app, _ = dashboard
     reading = hold_streams(port, 150, seconds=5, rate=100)
     # bounded; on a loaded machine some of the 64 places go to uvicorn's own 503 (its limit of 256 connections)
     # while the flood's connections wait to be read
@@ -142,3 +157,22 @@ def test_a_flood_of_event_streams_gets_its_bounded_share_and_the_fleet_is_still_
     # the refused closed (the streams are cut off once their buffers fill: the first test)
     assert silent["opened"] == 100 and silent["closed_by_server"] >= 100 - silent["streaming"]
     assert silent["fleet_unanswered"] <= 1 and app.events.made < 200  # once a tick (1,500 when per stream)
+
+
+def test_a_burst_past_the_limit_is_refused_where_it_is_accepted_and_every_request_is_answered(dashboard):
+    """The soak's burst (``front_loads streams``), at 800: every connection answered, 200 or 503, and most refused
+    by the gate without a protocol of uvicorn's (before: one made for each of the 800, then uvicorn's 503)."""
+    from services.bench.front_loads import streams
+
+    port, app, gate = dashboard
+    result = streams(f"127.0.0.1:{port}", 800, seconds=4, grace=5)
+    answered = result["answered"]
+    assert result["refused"] == 0 and sum(answered.values()) == 800, result
+    assert set(answered) <= {"200", "503:connections", "503:streams"}, result  # none lost, none silent
+    assert 1 <= answered.get("200", 0) <= MAX_STREAMS
+    assert gate.made + gate.refused == 800 and gate.refused >= 800 - 2 * service.MAX_CONNECTIONS
+    deadline = time.monotonic() + 10
+    while (app.streams or len(gate.admitted)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert app.streams == 0 and len(gate.admitted) == 0  # every place given back
+    assert fleet_status(port) == 200
