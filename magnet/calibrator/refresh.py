@@ -16,7 +16,10 @@ judgement's attitude that has no velocity aiding: measured through the services,
 so looked 70 % more consistent and turned its heading 118 deg wrong. The field ladder judges with the velocity-aided
 attitude when the samples carry the velocity (quality ``dip_source`` "velocity-aided gravity",
 ``magnet.calibration.field``); a travelling device's refresh judged so is committed under ``auto``, any other (a
-sphere's method, judged without aiding) is proposed (as ``propose`` does) instead.
+sphere's method, judged without aiding) is proposed (as ``propose`` does) instead. A travelling level device's
+refresh that the held-out consistency refused may still pass by its field's turn against the gyroscope's
+(``turning.judged_by_turns``): its ``gain_pct`` is then how much lower its turn residual is, and it must reach
+``REFRESH_TURN_GAIN``.
 
 What passes: ``auto`` commits it as a new version (change ``action: refresh``, ``in_service: true``, ``gain_pct``,
 and ``resolves``: the device's open drift alerts it was made against); ``propose`` turns the refresh collection into
@@ -35,6 +38,7 @@ from magnet import wire
 from magnet.bounded import Recent
 from magnet.calibration.collection import Collection
 from magnet.calibration.field import COURSE_SOURCE, MIN_GAIN
+from magnet.calibration.turning import REFRESH_TURN_GAIN
 from magnet.calibrator import iron_moved
 from magnet.model import Calibration
 from magnet.quality.motion import AIDED_SOURCE
@@ -79,6 +83,8 @@ def gain_pct(calibration: Calibration) -> float | None:
     from the velocity over the ground: how much closer to the WMM's direction); None when not measured (no
     accelerometer)."""
     quality = calibration.quality
+    if quality.get("turn_gain_pct") is not None:  # a travelling level device's, judged by its turns
+        return float(quality["turn_gain_pct"])
     held, ref = quality.get("holdout_consistency_deg"), quality.get("reference_holdout_consistency_deg")
     if held is None and ref is None:
         held, ref = quality.get("course_agreement_deg"), quality.get("reference_course_agreement_deg")
@@ -95,6 +101,11 @@ def small_gain(calibration: Calibration) -> str | None:
             "no held-out heading consistency to judge a refresh by (the device sends no accelerometer, or the fit "
             "without the held-out samples failed)"
         )
+    if calibration.quality.get("turn_gain_pct") is not None:
+        if gain < 100.0 * REFRESH_TURN_GAIN:
+            least = 100 * REFRESH_TURN_GAIN
+            return f"a refresh's field turns with the gyroscope {gain:.1f} % better, less than {least:g} %"
+        return None
     if gain < 100.0 * MIN_GAIN:
         return f"a refresh gains {gain:.0f} % of held-out consistency, less than {100 * MIN_GAIN:.0f} %"
     return None

@@ -28,10 +28,11 @@ from magnet.attitude import heading as hd
 from magnet.attitude.uncertainty import FilterFigures, HeadingUncertainty, Sigmas
 from magnet.bounded import Recent
 from magnet.compass.calibrations import CalibrationsInForce, Correction, recalibrate_filter
-from magnet.compass.filters import DeviceFilters, FusedColumns, merge
+from magnet.compass.filters import DeviceFilters, FusedColumns
+from magnet.compass.first_heading import expected_columns
 from magnet.compass.keys import DeviceKeys
 from magnet.compass.presence import GONE, CalibratorPresence
-from magnet.compass.tilt import Headings, batches_with, compute_headings, field_flags, smooth_tail
+from magnet.compass.tilt import Headings, batches_with, compute_headings, field_flags, merge, smooth_tail
 from magnet.compass.watch import DeviceWatch
 from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.expected import utc_date
@@ -259,7 +260,7 @@ class CompassCore:
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
         filter_field, flags = field_flags(filter_field, field, correction.calibrated, where.total_ut)
-        fused = self._fuse(raw, filter_field, where.declination_deg)
+        fused = self._fuse(raw, filter_field, where, cals)
         out = compute_headings(field, raw.acc_ms2, flags, fused.fused)  # the accelerometer's tilt where not fused
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -305,16 +306,20 @@ class CompassCore:
         samples = (raw.t_ns, raw.acc_ms2, out.field_ut, out.flags, quat, expected_ut)
         return self.uncertainty.step(raw.devices, bounds, *samples, residuals, figures, fused.rotation)
 
-    def _fuse(self, raw: wire.RawColumns, field: np.ndarray, declination_deg: np.ndarray) -> FusedColumns:
-        """The per-device filters run on the batches that carry a gyroscope (``magnet.compass.filters``), aided by
-        the velocity where a batch carries one (turned to magnetic north by the declination of the device's place);
-        bad gyroscope samples are counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``field``
-        (S, 3) uT: the corrected field as the filters get it (``Correction.apply``: turned forward over the
-        magnetometer's lag the record carries)."""
+    def _fuse(
+        self, raw: wire.RawColumns, field: np.ndarray, where: EarthColumns, cals: list[wire.DeviceCalibration | None]
+    ) -> FusedColumns:
+        """The devices' filters (``magnet.compass.filters``) on the batches with a gyroscope, aided by a velocity
+        where a batch has one (turned to magnetic north by the declination at ``where``); bad gyroscope samples
+        counted as dropped (``raw:gyro-non-finite``, ``raw:gyro-saturated``). ``field`` (S, 3) uT as the filters get
+        it (``Correction.apply``); each batch's record ``cals`` gives its first heading's |B| (``first_heading``)."""
+        expected_ut = expected_columns(cals, raw.counts, where.total_ut)
         vel = raw.vel  # with no velocity known (NaN rows) as it is: a filter already aided still needs the times
-        aiding = to_magnetic_ned(vel, np.nan_to_num(declination_deg)) if np.isfinite(vel).any() else vel
+        aiding = to_magnetic_ned(vel, np.nan_to_num(where.declination_deg)) if np.isfinite(vel).any() else vel
         columns = (raw.devices, raw.seqs, raw.bounds, raw.t_ns, raw.gyr_rads, raw.acc_ms2, field, aiding)
-        fused = self.filters.update(*columns, rotations=self.settings.sigmas, raw_ut=raw.mag_ut)
+        fused = self.filters.update(
+            *columns, rotations=self.settings.sigmas, raw_ut=raw.mag_ut, expected_ut=expected_ut
+        )
         for cause, count in fused.dropped.items():
             if self.drops.count(f"raw:{cause}"):
                 log.warning("dropping gyroscope samples (%s); further ones only counted", cause)

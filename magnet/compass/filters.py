@@ -2,8 +2,8 @@
 
 The compass computes accelerometer-tilt headings for every sample of a step (``magnet.compass.tilt``) and hands the
 batches that carry a gyroscope to ``DeviceFilters.update``, which runs each device's ``magnet.attitude.fusion.Fusion``
-on them; ``merge`` puts the fused attitude in place of the tilt one. A device's batches that continue one another go
-through vqf in one call (about 4 us per call plus 0.5 us per sample). Per device:
+on them; ``tilt.merge`` puts the fused attitude in place of the tilt one. A device's batches that continue one another
+go through vqf in one call (about 4 us per call plus 0.5 us per sample). Per device:
 
 - the filter runs at the device's sample period (the mean step of its first batch's ``t_ns`` in whole ns, so that a
   file as one batch and the same samples as many give the same filter); a period that changes by more than
@@ -16,9 +16,9 @@ through vqf in one call (about 4 us per call plus 0.5 us per sample). Per device
   field are not fused either; samples not fused keep the tilt heading (flag FUSED clear), never NaN;
 - vqf's magnetic disturbance detection sets FIELD_DISTURBED (the field is then left out of the heading); the compass
   judges the dip of fused samples against the fused gravity (``FusedColumns.gravity``);
-- a new record restarts the filter's magnetic side, or an aided filter's whole state (``magnet.compass.replay``);
+- a new record restarts the filter's magnetic side (its first heading not from a field away from the record's
+  strength: ``magnet.compass.first_heading``), or an aided filter's whole state (``magnet.compass.replay``);
 - samples missing within a batch: the one after them turns over their time too (``magnet.compass.missed``).
-
 State is bounded: at most ``MAX_DEVICES`` filters, the least recently used forgotten first.
 """
 
@@ -32,12 +32,11 @@ import numpy as np
 
 from magnet import _kernels
 from magnet.attitude import fusion
-from magnet.attitude import heading as hd
 from magnet.attitude.causal_drift import note_batch, take_drift
 from magnet.attitude.offset_learn import take_off
 from magnet.bounded import Recent
 from magnet.compass import missed, replay
-from magnet.compass.tilt import Headings
+from magnet.compass.first_heading import FirstHeading
 
 #: 2000 deg/s, the widest full scale of common MEMS gyroscopes (ICM-20948, LSM9DS1, MPU-6050): a reading at or beyond
 #: it is saturated, and the rotation while it lasts is unknown
@@ -125,6 +124,7 @@ class _Drain(NamedTuple):
     spans: list[float]  # per batch: the sample periods its samples span after its first (``missed.spanned``)
     raw: np.ndarray | None = None  # with ``aiding``: the raw field (S, 3), vqf's frame, permuted (``replay``)
     raw_source: tuple[np.ndarray, np.ndarray | None] | None = None  # raw field (S, 3) as given, the permutation
+    expected_ut: np.ndarray | None = None  # (S,) the |B| each sample's record corrects to, uT (``first_heading``)
 
 
 class DeviceFilter:
@@ -139,6 +139,7 @@ class DeviceFilter:
         self.restarts = 0
         #: an aided filter's last seconds, fed again with a new record (``recalibrate``, ``magnet.compass.replay``)
         self.recent: replay.RecentSamples | None = None
+        self.first = FirstHeading()  # its first heading not taken from a field away from the record's strength
 
     def _period_s(self, first_ns: int, last_ns: int, count: int, span: float) -> float | None:
         """Mean step of the batch's times over its ``span`` periods (from the last sample for one); None: unusable."""
@@ -204,6 +205,7 @@ class DeviceFilter:
         if self.filter is not None and not replay.fuse_again(self.filter, self.recent, correct):
             self.filter.restart_magnetometer()
             take_drift(self, correct)  # the bias about the vertical from the last seconds, with the record
+            self.first.start(self.filter)
 
     def _restart(self, period_s: float) -> None:
         if self.recent is not None:
@@ -212,16 +214,30 @@ class DeviceFilter:
             self.filter.restart()
         else:
             self.filter = fusion.Fusion(period_s, self.params)
+        self.first.start(self.filter)
         self.restarts += 1
 
     def _run(self, drain: _Drain, lo: int, hi: int, out: np.ndarray, disturbed: np.ndarray) -> None:
-        """Feed samples lo .. hi of the drain (the usable ones) to the filter."""
-        if self.filter is None or hi <= lo:
-            return
+        """Feed samples lo .. hi of the drain (the usable ones) to the filter; while it takes its first heading, those
+        away from their record's strength without their field, the take begun again after them (``first_heading``)."""
+        f = self.filter
+        expected = None if f is None or f.aided else drain.expected_ut
+        while f is not None and lo < hi:
+            left_out, again = (None, None) if expected is None else self.first.judge(drain.inputs[2], expected, lo, hi)
+            stop = hi if again is None else lo + again
+            self._fuse(f, drain, lo, stop, out, disturbed)
+            disturbed[lo:stop] |= False if left_out is None else left_out[: stop - lo]
+            if again is not None:
+                f.restart_magnetometer()
+                self.first.start(f, again=True)
+            lo = stop
+
+    def _fuse(self, f: fusion.Fusion, drain: _Drain, lo: int, hi: int, out: np.ndarray, disturbed: Any) -> None:
+        """``_run``'s samples through the filter ``f``: in place in one compiled call, or the usable rows."""
         if drain.unusable_before[hi] == drain.unusable_before[lo]:
             if drain.aiding is None:  # the usual case: written in place, in one compiled call
                 take_off(self, drain.inputs[2], lo, hi)  # the record's offset error learnt (``offset_learn``)
-                self.filter.update_rows(drain.inputs, lo, hi, out, disturbed)
+                f.update_rows(drain.inputs, lo, hi, out, disturbed)
                 note_batch(self, drain, hi - 1, bool(disturbed[lo:hi].any()))  # the bias about the vertical
                 return
             rows: Any = slice(lo, hi)
@@ -233,12 +249,12 @@ class DeviceFilter:
             gyr, acc, field = (np.ascontiguousarray(x[rows]) for x in drain.inputs)
         if drain.aiding is None:
             take_off(self, field, 0, len(field))  # (a copy here: the usable rows)
-            out[rows], disturbed[rows] = self.filter.update_vqf_frame(gyr, acc, field)
+            out[rows], disturbed[rows] = f.update_vqf_frame(gyr, acc, field)
         else:
             t_s, vel = drain.aiding[0][rows], drain.aiding[1][rows]
-            out[rows], disturbed[rows] = self.filter.update_vqf_frame(gyr, acc, field, t_s, vel)
-            if drain.raw is not None and self.filter.aided:
-                self.recent = replay.kept(self.recent, self.filter.period_s, t_s, vel, gyr, acc, drain.raw[rows])
+            out[rows], disturbed[rows] = f.update_vqf_frame(gyr, acc, field, t_s, vel)
+            if drain.raw is not None and f.aided:
+                self.recent = replay.kept(self.recent, f.period_s, t_s, vel, gyr, acc, drain.raw[rows])
 
 
 class DeviceFilters:
@@ -287,13 +303,15 @@ class DeviceFilters:
         vel_ned_ms: np.ndarray | None = None,
         rotations: bool = True,
         raw_ut: np.ndarray | None = None,
+        expected_ut: np.ndarray | None = None,
     ) -> FusedColumns:
         """Fuse every batch b (samples bounds[b] .. bounds[b+1]) that carries a gyroscope (not all-NaN rows), in order;
         S = bounds[-1] samples, arrays (S, 3); ``vel_ned_ms`` (S, 3) m/s magnetic NED (NaN rows where unknown) aids
         the filters of the devices that send one (``magnet.attitude.aided_fusion``). Checks and frame conversions are
         done once for all samples; each device's batches are grouped, and its filter runs once per run of batches that
         continue one another. ``rotations``: the attitudes' matrices kept (``FusedColumns.rotation``); ``raw_ut``
-        (S, 3) the raw field, kept by aided filters to fuse again with a new record (``magnet.compass.replay``)."""
+        (S, 3) the raw field, kept by aided filters to fuse again with a new record (``magnet.compass.replay``);
+        ``expected_ut`` (S,) the |B| each sample's record corrects to (``first_heading``; NaN where unknown)."""
         count = int(bounds[-1])
         edges = np.asarray(bounds, dtype=np.int64)
         sizes = np.diff(edges)
@@ -311,6 +329,8 @@ class DeviceFilters:
         gyr_rads, spans = missed.spanned(gyr_rads, t_ns, edges)
         drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated, spans)
         drain = drain if raw_ut is None else drain._replace(raw_source=(raw_ut, order))
+        if expected_ut is not None:
+            drain = drain._replace(expected_ut=expected_ut if order is None else expected_ut[order])
         if vel_ned_ms is not None and (np.isfinite(vel_ned_ms).any() or self._any_aided(groups)):
             # an aided filter needs its samples' times with no velocity known too (docs/aiding.md, point 6)
             raw = None if raw_ut is None else fusion.to_vqf_frame(raw_ut if order is None else raw_ut[order])
@@ -378,22 +398,3 @@ def _drain(
         batch_saturated.tolist(), [int(s) for s in seqs], t_ns[first].tolist(), t_ns[last].tolist(),
         np.diff(edges).tolist(), increasing.tolist(), starts.tolist(), spans.tolist(),
     )  # fmt: skip
-
-
-def merge(headings: Headings, fused: FusedColumns) -> tuple[Headings, np.ndarray | None]:
-    """The compass's headings (``magnet.compass.Headings``, S samples) with the fused attitude where there is one
-    (flag FUSED; FIELD_DISTURBED also where vqf detects a disturbance; the other flags kept), and the fused attitude
-    (S, 4) body -> magnetic NED, NaN rows where not fused, or None when no sample was fused (accelerometer tilt
-    gives no quaternion, which keeps the messages of devices without a gyroscope as they were)."""
-    f = fused.fused
-    if not f.any():
-        return headings, None
-    disturbed = np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
-    flags = np.where(f, np.asarray(headings.flags) | int(hd.HeadingFlag.FUSED) | disturbed, headings.flags)
-    return dataclasses.replace(
-        headings,
-        heading_deg=np.where(f, fused.heading_deg, headings.heading_deg),
-        pitch_deg=np.where(f, fused.pitch_deg, headings.pitch_deg),
-        roll_deg=np.where(f, fused.roll_deg, headings.roll_deg),
-        flags=flags,
-    ), fused.quat_wxyz

@@ -2,16 +2,20 @@
 
 ``compute_headings`` turns the corrected field into a tilt-compensated heading (level where a sample has no
 accelerometer) for the samples the filters did not fuse; ``smooth_tail`` is the circular sliding mean carried across
-batches.
+batches; ``merge`` puts the filters' fused attitude in place of the tilt one.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from magnet.attitude import heading as hd
+
+if TYPE_CHECKING:
+    from magnet.compass.filters import FusedColumns
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -44,7 +48,7 @@ def compute_headings(field: np.ndarray, acc_ms2: np.ndarray, flags: np.ndarray, 
     field (S, 3) uT corrected (``magnet.compass.calibrations.Correction``); acc_ms2 (S, 3) m/s^2 with NaN rows where
     a sample has no accelerometer; flags (S,) int64 (``field_flags``), kept as they are; fused (S,) bool: the
     samples whose device's filter gave their attitude (``filters.FusedColumns.fused``), whose heading, pitch and roll
-    ``filters.merge`` puts in: NaN here, the tilt worked out only for the other samples (none when all were fused).
+    ``merge`` puts in: NaN here, the tilt worked out only for the other samples (none when all were fused).
     """
     if not fused.any():
         heading, pitch, roll = _tilt_figures(field, acc_ms2)
@@ -88,3 +92,22 @@ def batches_with(mask: np.ndarray, counts: np.ndarray) -> list[bool]:
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         out[nonempty] = np.logical_or.reduceat(mask, starts[nonempty])
     return out.tolist()
+
+
+def merge(headings: Headings, fused: FusedColumns) -> tuple[Headings, np.ndarray | None]:
+    """The compass's headings (``magnet.compass.Headings``, S samples) with the fused attitude where there is one
+    (flag FUSED; FIELD_DISTURBED also where vqf detects a disturbance; the other flags kept), and the fused attitude
+    (S, 4) body -> magnetic NED, NaN rows where not fused, or None when no sample was fused (accelerometer tilt
+    gives no quaternion, which keeps the messages of devices without a gyroscope as they were)."""
+    f = fused.fused
+    if not f.any():
+        return headings, None
+    disturbed = np.where(fused.mag_disturbed, int(hd.HeadingFlag.FIELD_DISTURBED), 0)
+    flags = np.where(f, np.asarray(headings.flags) | int(hd.HeadingFlag.FUSED) | disturbed, headings.flags)
+    return dataclasses.replace(
+        headings,
+        heading_deg=np.where(f, fused.heading_deg, headings.heading_deg),
+        pitch_deg=np.where(f, fused.pitch_deg, headings.pitch_deg),
+        roll_deg=np.where(f, fused.roll_deg, headings.roll_deg),
+        flags=flags,
+    ), fused.quat_wxyz
