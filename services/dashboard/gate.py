@@ -76,6 +76,7 @@ class Gate:
         self.protocol, self.limit, self.clock = protocol, limit, clock
         self.admitted: weakref.WeakSet[Any] = weakref.WeakSet()  # made, neither lost nor closing (or dropped)
         self.made = self.refused = 0  # connections admitted (a protocol made), refused at accept
+        self.most = 0  # the most admitted at once
         self._logged_at, self._logged = -1e18, 0
 
     def __call__(self, **kwargs: Any) -> asyncio.Protocol:
@@ -90,6 +91,7 @@ class Gate:
         made.gate = self
         self.made += 1
         self.admitted.add(made)
+        self.most = max(self.most, len(self.admitted))
         return made
 
     def release(self, protocol: Any) -> None:

@@ -33,7 +33,7 @@ def test_connections_past_the_limit_are_refused_without_a_protocol_and_admitted_
     assert all(isinstance(made, Made) and made.gate is gate for made in admitted)
     assert admitted[0].kwargs == {"config": "c", "server_state": "s", "app_state": {}, "_loop": None}
     refused = [gate(config="c", server_state="s", app_state={}, _loop=None) for _ in range(5)]
-    assert all(isinstance(r, Refusal) for r in refused) and (gate.made, gate.refused) == (3, 5)
+    assert all(isinstance(r, Refusal) for r in refused) and (gate.made, gate.refused, gate.most) == (3, 5, 3)
     gate.release(admitted[1])  # closed or lost: its place is free (kept alive here: the loop holds it a while)
     assert isinstance(gate(config="c", server_state="s", app_state={}, _loop=None), Made) and gate.made == 4
 

@@ -160,8 +160,10 @@ def test_a_flood_of_event_streams_gets_its_bounded_share_and_the_fleet_is_still_
 
 
 def test_a_burst_past_the_limit_is_refused_where_it_is_accepted_and_every_request_is_answered(dashboard):
-    """The soak's burst (``front_loads streams``), at 800: every connection answered, 200 or 503, and most refused
-    by the gate without a protocol of uvicorn's (before: one made for each of the 800, then uvicorn's 503)."""
+    """The soak's burst (``front_loads streams``), at 800: every connection answered, 200 or 503, and never more
+    than ``MAX_CONNECTIONS`` of uvicorn's protocols at once (before: one made for each connection accepted, then
+    uvicorn's 503); how many the gate refuses depends on how fast the others are answered (none on a quiet machine,
+    most at load 9)."""
     from services.bench.front_loads import streams
 
     port, app, gate = dashboard
@@ -170,7 +172,7 @@ def test_a_burst_past_the_limit_is_refused_where_it_is_accepted_and_every_reques
     assert result["refused"] == 0 and sum(answered.values()) == 800, result
     assert set(answered) <= {"200", "503:connections", "503:streams"}, result  # none lost, none silent
     assert 1 <= answered.get("200", 0) <= MAX_STREAMS
-    assert gate.made + gate.refused == 800 and gate.refused >= 800 - 2 * service.MAX_CONNECTIONS
+    assert gate.made + gate.refused == 800 and gate.most <= service.MAX_CONNECTIONS
     deadline = time.monotonic() + 10
     while (app.streams or len(gate.admitted)) and time.monotonic() < deadline:
         time.sleep(0.1)
