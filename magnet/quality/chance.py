@@ -2,16 +2,16 @@
 heading"). Both take the held-out departures (M,) deg of the candidate's field ("mine") and of the reference's
 ("theirs") on the same rows, and give the margin (deg) by which mine's RMS must be under theirs.
 
-- ``difference_margin``, for a refresh (against the calibration in force, and against none): both fields' departures
-  are near the noise floor outside what bends them, and the mean of the differences of squares over ``CHUNKS`` runs of
-  consecutive rows (neighbouring samples are not independent) gives its uncertainty (two standard errors).
-- ``ratio_margin``, for a first record (against the raw field): a raw field's departures grow with the turn (the hard
-  iron turns with the device, the Earth's field does not), and so do those of a field with an offset error, so their
-  **ratio** is what stays alike from one turn to the next, while their difference is the turn's size; and a stretch in
-  which the device did not turn holds no evidence at all (every field is constant there, up to its noise). So the rows
-  are cut into ``CHUNKS`` runs of equal shares of the device's rotation, the log of the ratio of the RMS departures
-  taken in each, and two standard errors of their mean is the uncertainty of the whole figure's log ratio. Runs of one
-  turn are not independent of each other, so the gain must also hold on ``MIN_TURNS`` separate stretches (the
+- ``difference_margin``, against a calibration in force: both fields' departures are near the noise floor outside
+  what bends them, and the mean of the differences of squares over ``CHUNKS`` runs of consecutive rows
+  (neighbouring samples are not independent) gives its uncertainty (two standard errors).
+- ``ratio_margin``, against the raw field: a raw field's departures grow with the turn (the hard iron turns with the
+  device, the Earth's field does not), and so do those of a field with an offset error, so their **ratio** is what
+  stays alike from one turn to the next, while their difference is the turn's size; and a stretch in which the
+  device did not turn holds no evidence at all (every field is constant there, up to its noise). So the rows are cut
+  into ``CHUNKS`` runs of equal shares of the device's rotation, the log of the ratio of the RMS departures taken in
+  each, and two standard errors of their mean is the uncertainty of the whole figure's log ratio. Runs of one turn
+  are not independent of each other, so the gain must also hold on ``MIN_TURNS`` separate stretches (the
   ``STRETCH_S`` stretches the departures are measured in) in which the device turned by at least ``MIN_TURN_DEG``:
   over a smaller turn a candidate whose offset bends heading by 3 deg (its field 2 % of |B| off at 67 deg of dip)
   departs by less than the noise (0.02 rad * 0.5 rad = 0.6 deg), so its departures say nothing for it.
