@@ -311,14 +311,13 @@ def motion_figures(
         reference_held = _departures_deg(take_rows(ref_field, test), ev, test)
         figures["holdout_consistency_deg"] = _rms(held)
         figures["reference_holdout_consistency_deg"] = _rms(reference_held)
-        if reference_name == "no calibration":  # a first record: the ratio, with how the device turned
-            turned = chance.turns(ev.attitude, test, ev.period_s, STRETCH_S)
-            figures["holdout_margin_deg"] = chance.margin(held, reference_held, turned)
-        else:  # a refresh: the difference, against the record in force and against none
-            figures["holdout_margin_deg"] = chance.margin(held, reference_held)
+        turned = chance.turns(ev.attitude, test, ev.period_s, STRETCH_S)  # for the comparisons with the raw field
+        raw_reference = reference_name == "no calibration"
+        figures["holdout_margin_deg"] = chance.margin(held, reference_held, turned if raw_reference else None)
+        if not raw_reference:
             none_held = _departures_deg(test_raw, ev, test)
             figures["none_holdout_consistency_deg"] = _rms(none_held)
-            figures["none_holdout_margin_deg"] = chance.margin(held, none_held)
+            figures["none_holdout_margin_deg"] = chance.margin(held, none_held, turned)
     return figures
 
 
