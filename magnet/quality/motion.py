@@ -39,15 +39,14 @@ from magnet import frames
 from magnet.attitude.mag_delay import advance_field
 from magnet.frames import quaternion_to_matrix
 from magnet.model import IDENTITY, Calibration, Quality
-from magnet.quality import chance
 from magnet.quality.stats import median, take_rows
 
 #: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
 QUASI_STATIC_TOL = 0.03
 #: fewest quasi-static samples for a dip spread that means something
 MIN_QUASI_STATIC = 30
-#: runs of held-out samples whose spread gives the uncertainty of a comparison (``chance.CHUNKS``)
-MARGIN_CHUNKS = chance.CHUNKS
+#: runs of consecutive held-out samples whose spread gives the uncertainty of a comparison
+MARGIN_CHUNKS = 10
 #: the field's earth-frame direction is compared with its mean over stretches of this many seconds, not over the
 #: whole recording: the gyroscope filter's heading drifts slowly (its bias about the vertical is unknown), and that
 #: drift, the same for every calibration compared, would otherwise swamp their difference
@@ -268,8 +267,20 @@ def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | No
 
 def margin_deg(field: np.ndarray, other: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
     """How much better than ``other`` (deg of consistency) ``field`` must be on the rows for the difference to be
-    more than chance (``chance.difference_margin``); None when there are too few rows."""
-    return chance.margin(_errors_deg(field, ev, rows), _errors_deg(other, ev, rows))
+    more than chance: the per-sample differences of squared departures, averaged over ``MARGIN_CHUNKS`` runs of
+    consecutive rows (neighbouring samples are not independent), give the uncertainty of their mean (two standard
+    errors), turned into degrees below ``other``'s consistency. None when there are too few rows."""
+    return _margin(_errors_deg(field, ev, rows), _errors_deg(other, ev, rows))
+
+
+def _margin(mine: np.ndarray | None, theirs: np.ndarray | None) -> float | None:
+    """``margin_deg`` from the departures of the two fields on the same rows."""
+    if mine is None or theirs is None or len(mine) < 4 * MARGIN_CHUNKS:
+        return None
+    chunks = np.array([c.mean() for c in np.array_split(theirs**2 - mine**2, MARGIN_CHUNKS)])
+    uncertainty = 2.0 * float(chunks.std(ddof=1)) / math.sqrt(MARGIN_CHUNKS)
+    reference = float(np.mean(theirs**2))
+    return math.sqrt(reference) - math.sqrt(max(reference - uncertainty, 0.0))
 
 
 def motion_figures(
@@ -311,14 +322,11 @@ def motion_figures(
         reference_held = _departures_deg(take_rows(ref_field, test), ev, test)
         figures["holdout_consistency_deg"] = _rms(held)
         figures["reference_holdout_consistency_deg"] = _rms(reference_held)
-        if reference_name == "no calibration":  # a first record: the ratio, with how the device turned
-            turned = chance.turns(ev.attitude, test, ev.period_s, STRETCH_S)
-            figures["holdout_margin_deg"] = chance.margin(held, reference_held, turned)
-        else:  # a refresh: the difference, against the record in force and against none
-            figures["holdout_margin_deg"] = chance.margin(held, reference_held)
+        figures["holdout_margin_deg"] = _margin(held, reference_held)
+        if reference_name != "no calibration":
             none_held = _departures_deg(test_raw, ev, test)
             figures["none_holdout_consistency_deg"] = _rms(none_held)
-            figures["none_holdout_margin_deg"] = chance.margin(held, none_held)
+            figures["none_holdout_margin_deg"] = _margin(held, none_held)
     return figures
 
 
