@@ -71,24 +71,31 @@ class FirstHeading:
         self, fields: np.ndarray, expected_ut: np.ndarray, lo: int, hi: int
     ) -> tuple[np.ndarray | None, int | None]:
         """(left out, restart) for samples lo .. hi of fields (S, 3) uT (zero rows: no field) against expected_ut (S,)
-        uT (NaN or 0 where unknown): those (n = hi - lo,) bool away from the strength, their rows zeroed in
-        ``fields`` (in place), or None when none is (the usual case: the take is over); and the index (from lo) where
-        the take starts again (the filter's magnetic side restarted there, the rest judged after ``start``), or
-        None."""
+        uT (NaN or 0 where unknown; one device's samples of one step, so one value: the first's is taken): those (n =
+        hi - lo,) bool away from the strength, their rows zeroed in ``fields`` (in place), or None when none is (the
+        usual case: the take is over); and the index (from lo) where the take starts again (the filter's magnetic
+        side restarted there, the rest judged after ``start``), or None."""
         field = fields[lo:hi]
         if self.left <= 0 or len(field) == 0:
             return None, None
         take = min(self.left, len(field))
-        norm = np.sqrt(np.einsum("ij,ij->i", field[:take], field[:take]))
-        expected = np.asarray(expected_ut[lo : lo + take], dtype=float)
-        known = (norm > 0) & np.isfinite(expected) & (expected > 0)
-        with np.errstate(invalid="ignore"):
-            away = known & (np.abs(norm - expected) > TOL_PCT / 100.0 * expected)
-        restart = self._calm_again(known, away)
+        strength = float(expected_ut[lo])
+        if not strength > 0.0:  # NaN or 0: no strength to judge by
+            self.left -= take
+            return None, None
+        norm2 = np.einsum("ij,ij->i", field[:take], field[:take])
+        known = norm2 > 0.0
+        low, high = ((1.0 - TOL_PCT / 100.0) * strength) ** 2, ((1.0 + TOL_PCT / 100.0) * strength) ** 2
+        away = known & ((norm2 < low) | (norm2 > high))
+        any_away = bool(away.any())
+        restart = self._calm_again(known, away) if any_away or self.seen_away else None
         end = take if restart is None else restart
         self.left -= end
-        self.judged += int(known[:end].sum())
-        self.away += int(away[:end].sum())
+        self.judged += int(np.count_nonzero(known[:end]))
+        if not any_away:
+            self.seen_strength = self.seen_strength or bool(known[:end].any())
+            return None, restart
+        self.away += int(np.count_nonzero(away[:end]))
         if self.judged * self.period_s >= MIN_JUDGED_S and self.away > MAX_SHARE * self.judged:
             self.left = 0  # the strength is in question: nothing more left out until the next start
             return None, None
