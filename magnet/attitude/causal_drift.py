@@ -14,7 +14,14 @@ from typing import Any
 import numpy as np
 
 from magnet.attitude import offset_learn
-from magnet.attitude.drift_bias import DriftBias, field_angle_rad, fit_drift, learnt_at_rest, up_in_body
+from magnet.attitude.drift_bias import (
+    DriftBias,
+    field_angle_rad,
+    fit_drift,
+    learnt_at_rest,
+    offset_columns,
+    up_in_body,
+)
 from magnet.attitude.heading_bias import HeadingBias, step_batch
 from magnet.attitude.mag_gain import note_gain, start_gain
 from magnet.frames import quaternion_to_matrix
@@ -182,19 +189,6 @@ class CausalDrift:
         self.filter.setBiasEstimate(np.asarray(bias, dtype=float) + found.bias_rads)
         self.history = []  # integrated with the bias before: another drift
         return True
-
-
-def offset_columns(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
-    """(N, 3) rad per uT: how an offset error (body FLU, uT) of the corrected field turns its angle about the up axis
-    in the frame of vqf quaternions (N, 4) wxyz body -> ENU, at the field (N, 3) body FLU: d(angle) = g . R d(offset),
-    g = (-e_y, e_x, 0) / (e_x^2 + e_y^2), e = R field the field in that frame (zero where it has no horizontal
-    part)."""
-    rotation = quaternion_to_matrix(np.asarray(quat_vqf, dtype=float).reshape(-1, 4))
-    earth = np.einsum("nij,nj->ni", rotation, np.asarray(field_vqf, dtype=float).reshape(-1, 3))
-    horizontal = earth[:, 0] ** 2 + earth[:, 1] ** 2
-    scale = np.where(horizontal > 0.0, 1.0 / np.maximum(horizontal, 1e-300), 0.0)
-    towards = np.column_stack([-earth[:, 1], earth[:, 0], np.zeros(len(earth))]) * scale[:, None]
-    return np.einsum("ni,nij->nj", towards, rotation)
 
 
 def _floats(values: Any) -> list[float]:

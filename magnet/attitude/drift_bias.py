@@ -230,3 +230,16 @@ def offline_correction(
         return gyr, params, found
     tau_mag_s = float(params.get("tauMag", vqf.VQF(period_s).params["tauMag"])) * TAU_MAG_FACTOR
     return gyr, {**params, "tauMag": tau_mag_s}, found
+
+
+def offset_columns(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
+    """(N, 3) rad per uT: how an offset error (body FLU, uT) of the corrected field turns its angle about the up axis
+    in the frame of vqf quaternions (N, 4) wxyz body -> ENU, at the field (N, 3) body FLU: d(angle) = g . R d(offset),
+    g = (-e_y, e_x, 0) / (e_x^2 + e_y^2), e = R field the field in that frame (zero where it has no horizontal
+    part)."""
+    rotation = quaternion_to_matrix(np.asarray(quat_vqf, dtype=float).reshape(-1, 4))
+    earth = np.einsum("nij,nj->ni", rotation, np.asarray(field_vqf, dtype=float).reshape(-1, 3))
+    horizontal = earth[:, 0] ** 2 + earth[:, 1] ** 2
+    scale = np.where(horizontal > 0.0, 1.0 / np.maximum(horizontal, 1e-300), 0.0)
+    towards = np.column_stack([-earth[:, 1], earth[:, 0], np.zeros(len(earth))]) * scale[:, None]
+    return np.einsum("ni,nij->nj", towards, rotation)

@@ -3,7 +3,7 @@
 
 A record corrects the field as B = A (u - b). Its offset b is fitted from the samples the calibrator saw, and is off
 by about 1 uT (on ``magnet bench field``'s walks: 0.5-3 uT). An error e (body axes) of the corrected field turns its
-heading by g . R e (``causal_drift.offset_columns``): about e / H_horizontal (3 deg at 19 uT), and by a different
+heading by g . R e (``drift_bias.offset_columns``): about e / H_horizontal (3 deg at 19 uT), and by a different
 amount on each course, so a walk's legs each carry their own heading error. Where the gyroscope drifts little, that
 is more than what the gyroscope alone would have done over the walk.
 
@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude.drift_bias import field_angle_rad, fit_drift, learnt_at_rest
+from magnet.attitude.drift_bias import field_angle_rad, fit_drift, learnt_at_rest, offset_columns
 from magnet.attitude.drift_bias import up_in_body as up_rows
 from magnet.attitude.heading_bias import up_in_body
 from magnet.frames import quaternion_to_matrix
@@ -151,13 +151,6 @@ class OffsetLearner:
         state["delta"] = math.remainder(float(state["delta"]) + shift, 2.0 * math.pi)
         self.filter.state = state
         return shift
-
-
-def offset_columns(quat_vqf: np.ndarray, field_vqf: np.ndarray) -> np.ndarray:
-    """``causal_drift.offset_columns`` (imported late: that module imports this one)."""
-    from magnet.attitude.causal_drift import offset_columns as columns
-
-    return columns(quat_vqf, field_vqf)
 
 
 def start(state: Any, correct: Any, history: list[list[float]] | None = None, bias_before: Any = None) -> None:

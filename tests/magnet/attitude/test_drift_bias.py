@@ -252,7 +252,7 @@ def test_a_records_offset_error_at_a_corner_is_not_taken_for_a_bias() -> None:
     """A level walker, no bias, 16 s of history with a corner of 90 deg in the middle, the record's offset 1 uT off
     along the body's x axis: the field's angle steps by about 3 deg at the corner (1 uT across 19 uT horizontal),
     which a line through 8 s either side reads as a drift of 0.2-0.3 deg/s. With the offset error fitted beside the
-    bias (``causal_drift.offset_columns``) the step is the offset's, and the bias stays near zero."""
+    bias (``drift_bias.offset_columns``) the step is the offset's, and the bias stays near zero."""
     rng = np.random.default_rng(5)
     t = np.arange(0.5, 16.5, 0.5)
     heading = np.where(t < 8.0, 0.0, math.pi / 2)
@@ -264,7 +264,7 @@ def test_a_records_offset_error_at_a_corner_is_not_taken_for_a_bias() -> None:
     angle = vb.field_angle_rad(quat, field) + np.radians(0.5) * rng.standard_normal(len(t))
     up = vb.up_in_body(quat)
     plain = vb.fit_drift(angle, up, 0.5, min_span_s=8.0, prior_dps=cd.PRIOR_DPS)
-    columns = cd.offset_columns(quat, field)
+    columns = vb.offset_columns(quat, field)
     fitted = vb.fit_drift(
         angle, up, 0.5, min_span_s=8.0, prior_dps=cd.PRIOR_DPS, nuisance=columns, nuisance_sigma=cd.OFFSET_SIGMA_UT
     )
