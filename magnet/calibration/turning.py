@@ -127,8 +127,9 @@ def judged_by_turns(
     force); the turn residual ranked those pairs as the truth did (docs/field-calibration.md, "A vehicle's refresh
     judged by its turns")."""
     mine = record.quality.get("turn_residual_ut")
-    usable = reference is not None and reference.output_unit == "ut" and record.output_unit == "ut"
-    if windows is None or mine is None or not usable or reference is None or record.accepted:
+    if windows is None or mine is None or reference is None or record.accepted:
+        return record
+    if reference.output_unit != "ut" or record.output_unit != "ut":
         return record
     theirs = turn_residual_ut(windows, reference.apply(raw))
     gain = 1.0 - float(mine) / theirs

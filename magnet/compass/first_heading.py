@@ -88,7 +88,8 @@ class FirstHeading:
         low, high = ((1.0 - TOL_PCT / 100.0) * strength) ** 2, ((1.0 + TOL_PCT / 100.0) * strength) ** 2
         away = known & ((norm2 < low) | (norm2 > high))
         any_away = bool(away.any())
-        restart = self._calm_again(known, away) if any_away or self.seen_away else None
+        may_restart = self.seen_away or (any_away and self.size - self.left < self.early)  # an early away, or now
+        restart = self._calm_again(known, away) if may_restart else None
         end = take if restart is None else restart
         self.left -= end
         self.judged += int(np.count_nonzero(known[:end]))
