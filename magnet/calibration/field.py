@@ -45,7 +45,7 @@ from magnet.calibration.rungs import (
     is_planar,
 )
 from magnet.model import Calibration
-from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
+from magnet.quality import GateThresholds, Geometry, assess, chance, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import earth_range_refusal
 
@@ -137,9 +137,13 @@ def fit_field(
     if planar and (ev_motion is None or ev_motion.source != motion.AIDED_SOURCE):
         ev = level_in_turns(ev, inp.gyr, inp.vel_ned_ms)
 
+    vehicle = planar and keep is None and chance.vehicle(inp.acc, inp.period_s)  # its turns may vouch for it
+
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
         calibration, holdout = _record(result, inp, ev, len(inp.mag)), _holdout(inp, ev, result, test)
-        record = judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+        record = judge(
+            inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds, vehicle
+        )
         record = turning.with_turn_residual(unplaced.with_vertical_kept(record, vertical_kept), windows, whole_mag)
         if not result.unidentified and inp.field_ut is not None:  # a refresh's turns, where the rule identified it
             record = turning.judged_by_turns(record, windows, whole_mag, _usable(inp.reference, inp), gate_thresholds)
@@ -317,9 +321,11 @@ def judge(
     test: np.ndarray,
     holdout: tuple[np.ndarray, Calibration] | None,
     thresholds: GateThresholds | None = None,
+    level_turns: bool = False,
 ) -> Calibration:
     """The record with its quality and verdict: the figures of ``assess`` and of ``magnet.quality.motion`` (against
-    the calibration in force, else none), gated with coverage and scatter left out (identifiability stands in)."""
+    the calibration in force, else none), gated with coverage and scatter left out (identifiability stands in).
+    level_turns: the comparison with no calibration may stand on the device's turns (``magnet.quality.chance``)."""
     to_ut = ut_per_unit(inp.unit)
     corrected = calibration.apply(inp.mag)
     quality = assess(
@@ -333,7 +339,7 @@ def judge(
     )
     if ev_motion is not None:
         quality = motion.with_motion_figures(
-            quality, inp.mag, calibration, ev_motion, test, holdout, inp.reference, corrected
+            quality, inp.mag, calibration, ev_motion, test, holdout, inp.reference, corrected, level_turns
         )
     extra: dict[str, Any] = {
         "model": result.rung.name,
