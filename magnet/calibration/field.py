@@ -140,10 +140,8 @@ def fit_field(
     vehicle = planar and keep is None and chance.vehicle(inp.acc, inp.period_s)  # its turns may vouch for it
 
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
-        calibration, holdout = _record(result, inp, ev, len(inp.mag)), _holdout(inp, ev, result, test)
-        record = judge(
-            inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds, vehicle
-        )
+        made, holdout = _record(result, inp, ev, len(inp.mag)), _holdout(inp, ev, result, test)
+        record = judge(inp, made, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds, vehicle)
         record = turning.with_turn_residual(unplaced.with_vertical_kept(record, vertical_kept), windows, whole_mag)
         if not result.unidentified and inp.field_ut is not None:  # a refresh's turns, where the rule identified it
             record = turning.judged_by_turns(record, windows, whole_mag, _usable(inp.reference, inp), gate_thresholds)
