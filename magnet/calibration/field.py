@@ -129,15 +129,13 @@ def fit_field(
     ev, source = _evidence(inp, ev_motion, keep)
     if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
-    test = _holdout_mask(len(inp.mag))
-    planar = is_planar(ev.down)
+    planar = is_planar(ev.down)  # a level vehicle's turns may vouch for its first record (``chance.vehicle``):
+    test, vehicle = _holdout_mask(len(inp.mag)), planar and keep is None and chance.vehicle(inp.acc, inp.period_s)
     windows, whole_mag = turning.vehicle_turns(whole_input, planar, keep), whole_input.mag
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
     ev, vertical_kept = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: what holds it
     if planar and (ev_motion is None or ev_motion.source != motion.AIDED_SOURCE):
         ev = level_in_turns(ev, inp.gyr, inp.vel_ned_ms)
-
-    vehicle = planar and keep is None and chance.vehicle(inp.acc, inp.period_s)  # its turns may vouch for it
 
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
         made, holdout = _record(result, inp, ev, len(inp.mag)), _holdout(inp, ev, result, test)
