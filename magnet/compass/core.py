@@ -155,7 +155,7 @@ class CompassCore:
         self.calibrations = CalibrationsInForce(trusted, limit)
         self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
         self.filters = DeviceFilters(max_devices=limit)
-        self.silence = Silence(limit)  # a device silent for a minute: its filter forgotten (magnet.compass.silence)
+        self.silence = Silence(limit)  # silent for a minute: filter forgotten, drift window judged (compass.silence)
         self.smoothing = Smoothing(settings.window, limit)
         self.uncertainty = HeadingUncertainty(limit)
         self.vehicles = VehicleWindows(limit)
@@ -243,6 +243,7 @@ class CompassCore:
         filter_field, flags = field_flags(filter_field, field, correction.calibrated, where.total_ut)
         for device in self.silence.heard(raw.devices, now_ns):
             self.filters.forget(device)
+            self.watch.silent(device)
         fused = self._fuse(raw, filter_field, where, cals)
         out = compute_headings(field, raw.acc_ms2, flags, fused.fused)  # the accelerometer's tilt where not fused
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration

@@ -7,8 +7,10 @@ comes more than ``filters.MAX_GAP_S`` after its last sample. Kept for a device t
 ``--max-devices`` newer devices pushed it out: every edge restarted with new ids (an app reinstalled, the soak's edge
 every third round) left its devices' filters behind, about 1.4 MB for 10 devices each time. So a device not heard of
 for ``SILENT_S`` (the wall clock a step is given) has its filter dropped; its next batch, if one ever comes, starts a
-filter as after any gap. What outlives a gap stays: its record in force, drift tracker, place and vehicle window
-(bounded by ``--max-devices`` as before).
+filter as after any gap. Its drift tracker's open window (up to 4,096 samples of |B| and dip and an array per batch,
+about 100 kB) is judged then and not kept (``DriftTracker.close_window``): the same verdict its next sample, in a later
+window, would have given. What outlives a gap stays: its record in force, drift tracker (baseline, open alerts),
+place and vehicle window (bounded by ``--max-devices`` as before).
 
 Pure; no clock: ``now_ns`` is given.
 """

@@ -88,6 +88,11 @@ class DeviceWatch:
             return
         self._queue(self.monitor.add_columns(devices, bounds, t_ns, strength_ut, dip_deg))
 
+    def silent(self, device: str) -> None:
+        """``device`` fell silent (``magnet.compass.silence``): its drift window judged now, not kept."""
+        if self.monitor is not None:
+            self._queue(self.monitor.silent(device))
+
     def _queue(self, alerts: list[Alert]) -> None:
         self.pending += alerts
         if len(self.pending) > MAX_PENDING_ALERTS:

@@ -54,5 +54,10 @@ class DriftMonitor:
                 events += tracker.add(t_ns[lo:hi], strength_ut[lo:hi], dip_deg[lo:hi])
         return events
 
+    def silent(self, device: str) -> list[Alert]:
+        """``device`` fell silent: its tracker's open window judged now (``DriftTracker.close_window``)."""
+        tracker = self.trackers.get(device)
+        return [] if tracker is None else tracker.close_window()
+
     def open_alerts(self) -> list[Alert]:
         return [alert for tracker in self.trackers.values() for alert in tracker.open_alerts]

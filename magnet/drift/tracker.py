@@ -146,6 +146,12 @@ class DriftTracker:
         window.add(strength_ut, dip_deg, last_ns)
         return True
 
+    def close_window(self) -> list[Alert]:
+        """Judge the open window now, as its next sample in a later window would (the device fell silent: its
+        samples are not kept for a return that may never come); the alerts it opens or clears."""
+        window, self.window = self.window, None
+        return [] if window is None else self._close(window)
+
     def _close(self, window: _Window) -> list[Alert]:
         """Judge a finished window; the alerts it opens or clears."""
         s = self.settings

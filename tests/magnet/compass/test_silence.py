@@ -9,6 +9,7 @@ from compass_steps import NOW_NS, compass_core, heading_batches
 
 from magnet import wire
 from magnet.compass.silence import SILENT_S, Silence
+from magnet.drift import Reference
 from magnet.earth.expected import Earth
 
 PERIOD_NS = 10_000_000
@@ -47,6 +48,20 @@ def test_a_device_back_after_a_silence_starts_a_filter_again():
     assert "phone" not in compass.filters.devices
     out = heading_batches(compass, [_batch("phone", 1)], NOW_NS + int(SILENT_S * SECOND_NS))
     assert np.isfinite(out[0].heading_deg).all() and compass.filters.devices["phone"].restarts == 1
+
+
+def test_a_silent_devices_drift_window_is_judged_and_not_kept():
+    """The open window of a device that stopped (an edge restarted with new ids) held up to 4,096 samples of |B| and
+    dip and an array per batch for good: about 100 kB a device (harness: +1 MB a round for 10 such devices)."""
+    compass = compass_core(Earth(declination_deg=0.0))
+    compass.watch.monitor.calibration("gone", Reference(44.7, 0.5, calibration_id="c1"), NOW_NS)
+    for seq in range(30):
+        heading_batches(compass, [_batch("gone", seq)], NOW_NS + seq * SECOND_NS // 10)
+    tracker = compass.watch.monitor.trackers["gone"]
+    assert tracker.window is not None and tracker.window.count == 300 and tracker.windows_judged == 0
+    heading_batches(compass, [_batch("other", 0)], NOW_NS + int((SILENT_S + 3) * SECOND_NS))
+    assert tracker.window is None and tracker.windows_judged == 1  # judged as its next window would have
+    assert "gone" in compass.watch.monitor.trackers  # the tracker stays: its record, baseline and open alerts
 
 
 def test_silence_gives_each_silent_device_once_least_recently_heard_first():
