@@ -155,7 +155,7 @@ class CompassCore:
         self.calibrations = CalibrationsInForce(trusted, limit)
         self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
         self.filters = DeviceFilters(max_devices=limit)
-        self.silence = Silence(limit)  # silent for a minute: filter forgotten, drift window judged (compass.silence)
+        self.silence = Silence(2 * limit)  # a minute silent: filter forgotten, drift window judged (compass.silence)
         self.smoothing = Smoothing(settings.window, limit)
         self.uncertainty = HeadingUncertainty(limit)
         self.vehicles = VehicleWindows(limit)
@@ -241,10 +241,11 @@ class CompassCore:
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
         filter_field, flags = field_flags(filter_field, field, correction.calibrated, where.total_ut)
-        for device in self.silence.heard(raw.devices, now_ns):
+        fused = self._fuse(raw, filter_field, where, cals)
+        kept = [d for d in raw.devices if d in self.filters.devices or self.watch.tracks(d)]  # a flood's ids: none
+        for device in self.silence.heard(kept, now_ns):
             self.filters.forget(device)
             self.watch.silent(device)
-        fused = self._fuse(raw, filter_field, where, cals)
         out = compute_headings(field, raw.acc_ms2, flags, fused.fused)  # the accelerometer's tilt where not fused
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -28,7 +28,9 @@ SILENT_S = 60.0
 
 class Silence:
     """When each device was last heard of (ns, the wall clock), at most ``max_devices`` (the least recently heard
-    forgotten first, as every other per-device table); ``forgotten`` counts the devices found silent."""
+    forgotten first, as every other per-device table); ``forgotten`` counts the devices found silent. The compass
+    notes only the devices that have a filter or a drift tracker: a flood of new ids (20,000 in seconds, none with
+    either) noted here pushed the devices that had stopped out of this table before they were found silent."""
 
     def __init__(self, max_devices: int, silent_s: float = SILENT_S) -> None:
         if not silent_s > 0:

@@ -88,6 +88,10 @@ class DeviceWatch:
             return
         self._queue(self.monitor.add_columns(devices, bounds, t_ns, strength_ut, dip_deg))
 
+    def tracks(self, device: str) -> bool:
+        """Whether ``device`` has a drift tracker."""
+        return self.monitor is not None and device in self.monitor.trackers
+
     def silent(self, device: str) -> None:
         """``device`` fell silent (``magnet.compass.silence``): its drift window judged now, not kept."""
         if self.monitor is not None:

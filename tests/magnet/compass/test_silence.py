@@ -16,14 +16,14 @@ PERIOD_NS = 10_000_000
 SECOND_NS = 1_000_000_000
 
 
-def _batch(device: str, seq: int, n: int = 10) -> wire.RawBatch:
+def _batch(device: str, seq: int, n: int = 10, gyro: bool = True) -> wire.RawBatch:
     """Batch ``seq`` of a level device turning at 0.2 rad/s with a gyroscope (so it gets a filter), 100 Hz."""
     t_ns = 10**12 + (seq * n + np.arange(n, dtype=np.int64)) * PERIOD_NS
     yaw = 0.2 * (t_ns - 10**12) / 1e9
     mag = np.c_[20 * np.cos(yaw), -20 * np.sin(yaw), np.full(n, 40.0)]
     acc = np.tile([0.0, 0.0, 9.81], (n, 1))
     gyr = np.tile([0.0, 0.0, 0.2], (n, 1))
-    return wire.RawBatch(device, seq, "sim", t_ns, mag, acc, None, gyr)
+    return wire.RawBatch(device, seq, "sim", t_ns, mag, acc, None, gyr if gyro else None)
 
 
 def test_a_flood_of_new_ids_then_silence_leaves_the_filters_of_the_devices_that_send():
@@ -39,6 +39,19 @@ def test_a_flood_of_new_ids_then_silence_leaves_the_filters_of_the_devices_that_
     assert set(compass.filters.devices) == baseline == {"steady"}
     assert compass.silence.forgotten == 200 and len(compass.silence.heard_ns) == 1
     assert compass.filters.devices["steady"].restarts == 1  # the start only: a device that sends keeps its filter
+
+
+def test_a_flood_of_ids_without_state_does_not_push_a_stopped_device_out_before_it_is_silent():
+    """The soak's flood: 20,000 ids with no gyroscope and no record, 10 s after an edge stopped. Noted in a table of
+    --max-devices, they pushed the stopped devices out of it, and their state was never forgotten."""
+    compass = compass_core(Earth(declination_deg=0.0), max_devices=50)
+    heading_batches(compass, [_batch("stopped", 0)], NOW_NS)
+    for k in range(4):
+        flood = [_batch(f"flood-{k}-{i}", 0, 2, gyro=False) for i in range(100)]
+        heading_batches(compass, flood, NOW_NS + (10 + k) * SECOND_NS)
+    assert "stopped" in compass.filters.devices and len(compass.silence.heard_ns) == 1
+    heading_batches(compass, [_batch("other", 0)], NOW_NS + int((SILENT_S + 1) * SECOND_NS))
+    assert "stopped" not in compass.filters.devices and compass.silence.forgotten == 1
 
 
 def test_a_device_back_after_a_silence_starts_a_filter_again():
