@@ -277,7 +277,7 @@ def _fit_run(
         run.mag,
         t_s=run.t_ns * 1e-9,
         acc=run.acc,
-        gyr_rads=run.gyr_rads,
+        gyr_rads=run.turn_rads,
         period_s=run.period_s,
         field_ut=field_ut,
         reference=reference,
