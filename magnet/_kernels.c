@@ -3410,6 +3410,103 @@ static PyObject *horizontal_force(PyObject *self, PyObject *args) {
     Py_RETURN_NONE;
 }
 
+/* The first heading's take (magnet.compass.first_heading.FirstHeading.judge): its state's items. */
+enum {
+    FT_LEFT, FT_SIZE, FT_JUDGED, FT_AWAY, FT_CALM, FT_SEEN_AWAY, FT_SEEN_STRENGTH, FT_CALM_NEEDED, FT_EARLY, FT_PERIOD,
+    FT_SIZE_ALL
+};
+
+PyDoc_STRVAR(first_take_doc,
+             "first_take(field, low2, high2, min_judged_s, max_share, state, out) -> (restart, left_out)\n\n"
+             "One step of a filter's first-heading take over field (n, 3) uT, C-contiguous float64, written in place "
+             "(the rows left out zeroed): |B|^2 outside [low2, high2] uT^2 is away from the record's strength; state "
+             "(FT_SIZE_ALL,) float64 as FirstHeading.state (left, size, judged, away, calm, seen_away, seen_strength, "
+             "calm_needed, early, period_s), updated; out (n,) bool: the samples left out. restart: the index where the "
+             "take starts again, -1: none; left_out: how many were left out (0: out is not written). The maths of "
+             "FirstHeading's docstring; tests compare it with the same written plainly in numpy.");
+
+static PyObject *first_take(PyObject *self, PyObject *args) {
+    PyObject *o_field, *o_state, *o_out;
+    double low2, high2, min_judged_s, max_share;
+    if (!PyArg_ParseTuple(args, "OddddOO", &o_field, &low2, &high2, &min_judged_s, &max_share, &o_state, &o_out)) {
+        return NULL;
+    }
+    Py_buffer v[3];
+    if (get_rows(o_field, &v[0], -1, 3, 1, "field") < 0) return NULL;
+    Py_ssize_t n = v[0].shape[0];
+    if (get_state_array(o_state, &v[1], FT_SIZE_ALL, "state") < 0) {
+        PyBuffer_Release(&v[0]);
+        return NULL;
+    }
+    if (PyObject_GetBuffer(o_out, &v[2], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | PyBUF_WRITABLE) < 0) {
+        PyBuffer_Release(&v[0]);
+        PyBuffer_Release(&v[1]);
+        return NULL;
+    }
+    if (v[2].itemsize != 1 || v[2].format == NULL || v[2].format[0] != '?' || v[2].len != n) {
+        PyErr_Format(PyExc_ValueError, "out must be a C-contiguous bool array of %zd items", n);
+        for (int i = 0; i < 3; i++) PyBuffer_Release(&v[i]);
+        return NULL;
+    }
+    double *field = v[0].buf, *s = v[1].buf;
+    char *flag = v[2].buf; /* 1: known, 2: away; then the samples left out */
+    Py_ssize_t take = (Py_ssize_t)s[FT_LEFT] < n ? (Py_ssize_t)s[FT_LEFT] : n, restart = -1, end, left_out = 0;
+    int any_away = 0;
+    for (Py_ssize_t i = 0; i < take; i++) {
+        const double *b = field + 3 * i;
+        double norm2 = b[0] * b[0] + b[1] * b[1] + b[2] * b[2];
+        int known = norm2 > 0.0, away = known && (norm2 < low2 || norm2 > high2);
+        flag[i] = (char)(known | (away << 1));
+        any_away |= away;
+    }
+    double begun = s[FT_SIZE] - s[FT_LEFT]; /* samples of the take before this step */
+    if (s[FT_SEEN_AWAY] != 0.0 || (any_away && begun < s[FT_EARLY])) { /* an early away, now or before: calm again */
+        double calm = s[FT_CALM];
+        int seen = s[FT_SEEN_AWAY] != 0.0, any_known = 0;
+        for (Py_ssize_t i = 0; i < take && restart < 0; i++) {
+            if (!(flag[i] & 1)) continue;
+            any_known = 1;
+            int away = flag[i] >> 1;
+            calm = away ? 0.0 : calm + 1.0;
+            seen |= away && (double)i + begun < s[FT_EARLY];
+            if (seen && calm >= s[FT_CALM_NEEDED]) restart = i;
+        }
+        if (restart < 0 && any_known) {
+            s[FT_CALM] = calm;
+            s[FT_SEEN_AWAY] = seen;
+        }
+    }
+    end = restart < 0 ? take : restart;
+    s[FT_LEFT] -= (double)end;
+    Py_ssize_t judged = 0, away_count = 0;
+    for (Py_ssize_t i = 0; i < end; i++) {
+        judged += flag[i] & 1;
+        away_count += flag[i] >> 1;
+    }
+    s[FT_JUDGED] += (double)judged;
+    if (any_away) {
+        s[FT_AWAY] += (double)away_count;
+        if (s[FT_JUDGED] * s[FT_PERIOD] >= min_judged_s && s[FT_AWAY] > max_share * s[FT_JUDGED]) {
+            s[FT_LEFT] = 0.0; /* the strength is in question: nothing more left out until the next start */
+            restart = -1;
+        } else { /* left out once the field has shown the strength */
+            int seen = s[FT_SEEN_STRENGTH] != 0.0;
+            for (Py_ssize_t i = 0; i < n; i++) {
+                int away = i < end && (flag[i] >> 1);
+                seen |= i < end && flag[i] == 1;
+                flag[i] = (char)(away && seen);
+                left_out += flag[i];
+                if (flag[i]) field[3 * i] = field[3 * i + 1] = field[3 * i + 2] = 0.0;
+            }
+            s[FT_SEEN_STRENGTH] = seen;
+        }
+    } else {
+        for (Py_ssize_t i = 0; i < end && s[FT_SEEN_STRENGTH] == 0.0; i++) s[FT_SEEN_STRENGTH] = flag[i] & 1;
+    }
+    for (int i = 0; i < 3; i++) PyBuffer_Release(&v[i]);
+    return Py_BuildValue("nn", restart, left_out);
+}
+
 static PyMethodDef methods[] = {
     {"carry_forward", carry_forward, METH_VARARGS, carry_forward_doc},
     {"quaternion_product", quaternion_product, METH_VARARGS, quaternion_product_doc},
@@ -3448,6 +3545,7 @@ static PyMethodDef methods[] = {
     {"horizontal_bias_sigma", horizontal_bias_sigma, METH_VARARGS, horizontal_bias_sigma_doc},
     {"gate_update", gate_update, METH_VARARGS, gate_update_doc},
     {"fuse_rows", fuse_rows, METH_VARARGS, fuse_rows_doc},
+    {"first_take", first_take, METH_VARARGS, first_take_doc},
     {"gated_run", gated_run, METH_VARARGS, gated_run_doc},
     {"gate_layout", gate_layout, METH_NOARGS, "gate_layout() -> dict: the T_* and G_* indices (turn_gate.py)."},
     {"heading_gate_update", heading_gate_update, METH_VARARGS, heading_gate_update_doc},

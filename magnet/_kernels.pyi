@@ -191,6 +191,15 @@ def fuse_rows(
     heading_settings: np.ndarray | None,
     heading_state: np.ndarray | None,
 ) -> None: ...
+def first_take(
+    field: np.ndarray,
+    low2: float,
+    high2: float,
+    min_judged_s: float,
+    max_share: float,
+    state: np.ndarray,
+    out: np.ndarray,
+) -> tuple[int, int]: ...
 def heading_gate_layout() -> dict[str, int]: ...
 def heading_gate_update(
     settings: np.ndarray,

@@ -112,6 +112,14 @@ class HeadingGate:
         self.state[_LAYOUT["smoothed"]] = np.nan
         self.state[_LAYOUT["ring"] + self.turn_width :] = np.nan
 
+    def forget_level(self) -> None:
+        """The usual disagreement forgotten, as when the magnetic side restarts (the heading itself in question: the
+        gyroscope lost a stall's rotation, ``magnet.compass.missed``): nothing is left out until ``learn_s`` of
+        agreeing samples have set it again; the blocks go on as they were."""
+        for key in ("level", "seen", "run", "hold_left", "accepting", "over"):
+            self.state[_LAYOUT[key]] = 0.0
+        self.state[_LAYOUT["smoothed"]] = np.nan
+
     @property
     def samples(self) -> int:
         """Samples judged since the start."""

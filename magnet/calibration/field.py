@@ -45,7 +45,7 @@ from magnet.calibration.rungs import (
     is_planar,
 )
 from magnet.model import Calibration
-from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_per_unit
+from magnet.quality import GateThresholds, Geometry, assess, chance, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import earth_range_refusal
 
@@ -129,8 +129,8 @@ def fit_field(
     ev, source = _evidence(inp, ev_motion, keep)
     if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
-    test = _holdout_mask(len(inp.mag))
-    planar = is_planar(ev.down)
+    planar = is_planar(ev.down)  # a level vehicle's turns may vouch for its first record (``chance.vehicle``):
+    test, vehicle = _holdout_mask(len(inp.mag)), planar and keep is None and chance.vehicle(inp.acc, inp.period_s)
     windows, whole_mag = turning.vehicle_turns(whole_input, planar, keep), whole_input.mag
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
     ev, vertical_kept = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: what holds it
@@ -138,8 +138,8 @@ def fit_field(
         ev = level_in_turns(ev, inp.gyr, inp.vel_ned_ms)
 
     def judged(result: RungFit, tried: dict[str, float]) -> Calibration:
-        calibration, holdout = _record(result, inp, ev, len(inp.mag)), _holdout(inp, ev, result, test)
-        record = judge(inp, calibration, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds)
+        made, holdout = _record(result, inp, ev, len(inp.mag)), _holdout(inp, ev, result, test)
+        record = judge(inp, made, result, tried, source, planar, ev_motion, test, holdout, gate_thresholds, vehicle)
         record = turning.with_turn_residual(unplaced.with_vertical_kept(record, vertical_kept), windows, whole_mag)
         if not result.unidentified and inp.field_ut is not None:  # a refresh's turns, where the rule identified it
             record = turning.judged_by_turns(record, windows, whole_mag, _usable(inp.reference, inp), gate_thresholds)
@@ -317,9 +317,11 @@ def judge(
     test: np.ndarray,
     holdout: tuple[np.ndarray, Calibration] | None,
     thresholds: GateThresholds | None = None,
+    level_turns: bool = False,
 ) -> Calibration:
     """The record with its quality and verdict: the figures of ``assess`` and of ``magnet.quality.motion`` (against
-    the calibration in force, else none), gated with coverage and scatter left out (identifiability stands in)."""
+    the calibration in force, else none), gated with coverage and scatter left out (identifiability stands in).
+    level_turns: the comparison with no calibration may stand on the device's turns (``magnet.quality.chance``)."""
     to_ut = ut_per_unit(inp.unit)
     corrected = calibration.apply(inp.mag)
     quality = assess(
@@ -333,7 +335,7 @@ def judge(
     )
     if ev_motion is not None:
         quality = motion.with_motion_figures(
-            quality, inp.mag, calibration, ev_motion, test, holdout, inp.reference, corrected
+            quality, inp.mag, calibration, ev_motion, test, holdout, inp.reference, corrected, level_turns
         )
     extra: dict[str, Any] = {
         "model": result.rung.name,

@@ -32,7 +32,8 @@ from magnet.compass.filters import DeviceFilters, FusedColumns
 from magnet.compass.first_heading import expected_columns
 from magnet.compass.keys import DeviceKeys
 from magnet.compass.presence import GONE, CalibratorPresence
-from magnet.compass.tilt import Headings, batches_with, compute_headings, field_flags, merge, smooth_tail
+from magnet.compass.silence import Silence
+from magnet.compass.tilt import Headings, Smoothing, batches_with, compute_headings, field_flags, merge
 from magnet.compass.watch import DeviceWatch
 from magnet.drift.settings import DEFAULT_DRIFT, DriftSettings
 from magnet.earth.expected import utc_date
@@ -120,27 +121,6 @@ class CoreSettings:
             raise ValueError(f"--window {problem}, got {self.window!r}")
 
 
-class Smoothing:
-    """The circular sliding mean over ``window`` headings per device, across steps (tails of at most
-    ``max_devices`` devices)."""
-
-    def __init__(self, window: int, max_devices: int) -> None:
-        self.window = window
-        self.tails: Recent[str, np.ndarray] = Recent(max_devices)
-
-    def apply(self, devices: list[str], bounds: list[int], heading_deg: np.ndarray) -> np.ndarray:
-        if self.window == 1:
-            return heading_deg
-        parts = []
-        for i, device in enumerate(devices):
-            tail = self.tails.get(device)
-            smoothed, self.tails[device] = smooth_tail(
-                np.empty(0) if tail is None else tail, heading_deg[bounds[i] : bounds[i + 1]], self.window
-            )
-            parts.append(smoothed)
-        return np.concatenate(parts or [np.empty(0)])
-
-
 @dataclasses.dataclass
 class Counters:
     """What the compass received and published (batches, samples)."""
@@ -175,6 +155,7 @@ class CompassCore:
         self.calibrations = CalibrationsInForce(trusted, limit)
         self.watch = DeviceWatch(places or Places(max_reported=limit), settings.drift, limit)
         self.filters = DeviceFilters(max_devices=limit)
+        self.silence = Silence(limit)  # a device silent for a minute: its filter forgotten (magnet.compass.silence)
         self.smoothing = Smoothing(settings.window, limit)
         self.uncertainty = HeadingUncertainty(limit)
         self.vehicles = VehicleWindows(limit)
@@ -260,6 +241,8 @@ class CompassCore:
         earths = self.watch.earths(raw.devices, raw.locations, utc_date(now_ns))
         where = EarthColumns.of(earths, raw.counts)
         filter_field, flags = field_flags(filter_field, field, correction.calibrated, where.total_ut)
+        for device in self.silence.heard(raw.devices, now_ns):
+            self.filters.forget(device)
         fused = self._fuse(raw, filter_field, where, cals)
         out = compute_headings(field, raw.acc_ms2, flags, fused.fused)  # the accelerometer's tilt where not fused
         gravity = fused.gravity(raw.acc_ms2)  # fused where fused: the accelerometer also reads linear acceleration

@@ -18,7 +18,8 @@ go through vqf in one call (about 4 us per call plus 0.5 us per sample). Per dev
   judges the dip of fused samples against the fused gravity (``FusedColumns.gravity``);
 - a new record restarts the filter's magnetic side (its first heading not from a field away from the record's
   strength: ``magnet.compass.first_heading``), or an aided filter's whole state (``magnet.compass.replay``);
-- samples missing within a batch: the one after them turns over their time too (``magnet.compass.missed``).
+- samples missing within a batch: the one after them turns over their time too, and after a stall the heading
+  gate forgets its level (``magnet.compass.missed``).
 State is bounded: at most ``MAX_DEVICES`` filters, the least recently used forgotten first.
 """
 
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from magnet.attitude.causal_drift import note_batch, take_drift
 from magnet.attitude.offset_learn import take_off
 from magnet.bounded import Recent
 from magnet.compass import missed, replay
+from magnet.compass.drain import Drain, make_drain
 from magnet.compass.first_heading import FirstHeading
 
 #: 2000 deg/s, the widest full scale of common MEMS gyroscopes (ICM-20948, LSM9DS1, MPU-6050): a reading at or beyond
@@ -103,30 +105,6 @@ class FusedColumns:
         return cls(fused, quat, heading, pitch, roll, down, disturbed & fused, dict(dropped), restarts, rotation)
 
 
-class _Drain(NamedTuple):
-    """One drain's samples grouped by device (``DeviceFilters.update``): every array permuted so that each device's
-    samples follow each other in their original order. inputs: gyroscope, accelerometer and field (S, 3) in vqf's
-    frame; usable and saturated (S,) bool; per batch (in the original order): seq, first and last time (ns), count,
-    whether its times strictly increase, and where its samples start in the permuted arrays."""
-
-    inputs: tuple[np.ndarray, np.ndarray, np.ndarray]
-    aiding: tuple[np.ndarray, np.ndarray] | None  # times (S,) s and velocities (S, 3) magnetic NED, or None
-    usable: np.ndarray
-    saturated: np.ndarray
-    unusable_before: np.ndarray  # (S + 1,) int: how many samples before each (permuted) index are not usable
-    batch_saturated: list[bool]
-    seqs: list[int]
-    first_ns: list[int]
-    last_ns: list[int]
-    counts: list[int]
-    increasing: list[bool]
-    starts: list[int]
-    spans: list[float]  # per batch: the sample periods its samples span after its first (``missed.spanned``)
-    raw: np.ndarray | None = None  # with ``aiding``: the raw field (S, 3), vqf's frame, permuted (``replay``)
-    raw_source: tuple[np.ndarray, np.ndarray | None] | None = None  # raw field (S, 3) as given, the permutation
-    expected_ut: np.ndarray | None = None  # (S,) the |B| each sample's record corrects to, uT (``first_heading``)
-
-
 class DeviceFilter:
     """The filter of one device and what it needs to judge continuity (last seq, last time, period)."""
 
@@ -158,7 +136,7 @@ class DeviceFilter:
         same_rate = abs(self.filter.period_s - period_s) <= PERIOD_TOLERANCE * period_s
         return seq > self.last_seq and 0 < step_s <= self.max_gap_s + period_s and same_rate
 
-    def update(self, drain: _Drain, batches: list[int], out: np.ndarray, disturbed: np.ndarray) -> None:
+    def update(self, drain: Drain, batches: list[int], out: np.ndarray, disturbed: np.ndarray) -> None:
         """Fuse this device's ``batches`` (indices into the drain, in order). Consecutive batches that continue one
         another go through vqf in one call (vqf is sample by sample: one call on their samples joined equals one
         call per batch). Writes vqf's quaternions into ``out`` (S, 4) and its disturbance flags into ``disturbed``
@@ -178,6 +156,8 @@ class DeviceFilter:
                 lo = hi = start
             if drain.batch_saturated[b]:
                 lo = hi = self._saturated(drain, lo, hi, start, count, period, out, disturbed)
+            elif drain.batch_stalled[b]:
+                lo, hi = self._stalled(drain, lo, hi, start, count, out, disturbed), start + count
             else:
                 if start != hi:  # not contiguous with the pending run (cannot happen within a device; kept safe)
                     self._run(drain, lo, hi, out, disturbed)
@@ -187,7 +167,7 @@ class DeviceFilter:
         self._run(drain, lo, hi, out, disturbed)
 
     def _saturated(
-        self, drain: _Drain, lo: int, hi: int, start: int, count: int, period: float, out: Any, disturbed: Any
+        self, drain: Drain, lo: int, hi: int, start: int, count: int, period: float, out: Any, disturbed: Any
     ) -> int:
         """A batch with saturated samples: the pending run, then the pieces between them, a restart after each."""
         self._run(drain, lo, hi, out, disturbed)
@@ -198,6 +178,21 @@ class DeviceFilter:
                 self._restart(period)
             piece = stop + 1
         return start + count
+
+    def _stalled(self, drain: Drain, lo: int, hi: int, start: int, count: int, out: Any, disturbed: Any) -> int:
+        """A batch with samples after a stall: the samples before each fused, then the filter started again or the
+        heading gate's usual level forgotten (``missed.start_again``); returns where the pending run now starts."""
+        if start != hi:
+            self._run(drain, lo, hi, out, disturbed)
+            lo = start
+        for stop in (np.flatnonzero(drain.stalled[start : start + count]) + start).tolist():
+            self._run(drain, lo, stop, out, disturbed)
+            if self.filter is not None and missed.start_again(self.filter):
+                self._restart(self.filter.period_s)
+            else:
+                missed.heading_unknown(self.filter)
+            lo = stop
+        return lo
 
     def recalibrate(self, correct: replay.Corrector | None) -> None:
         """A new record in force: the filter forgets its magnetic side (``Fusion.restart_magnetometer``), or an aided
@@ -217,7 +212,7 @@ class DeviceFilter:
         self.first.start(self.filter)
         self.restarts += 1
 
-    def _run(self, drain: _Drain, lo: int, hi: int, out: np.ndarray, disturbed: np.ndarray) -> None:
+    def _run(self, drain: Drain, lo: int, hi: int, out: np.ndarray, disturbed: np.ndarray) -> None:
         """Feed samples lo .. hi of the drain (the usable ones) to the filter; while it takes its first heading, those
         away from their record's strength without their field, the take begun again after them (``first_heading``)."""
         f = self.filter
@@ -232,7 +227,7 @@ class DeviceFilter:
                 self.first.start(f, again=True)
             lo = stop
 
-    def _fuse(self, f: fusion.Fusion, drain: _Drain, lo: int, hi: int, out: np.ndarray, disturbed: Any) -> None:
+    def _fuse(self, f: fusion.Fusion, drain: Drain, lo: int, hi: int, out: np.ndarray, disturbed: Any) -> None:
         """``_run``'s samples through the filter ``f``: in place in one compiled call, or the usable rows."""
         if drain.unusable_before[hi] == drain.unusable_before[lo]:
             if drain.aiding is None:  # the usual case: written in place, in one compiled call
@@ -326,8 +321,8 @@ class DeviceFilters:
         for b in np.flatnonzero(with_gyro).tolist():
             groups.setdefault(devices[b], []).append(b)
         order = None if len(groups) == int(with_gyro.sum()) else _device_order(groups, sizes)
-        gyr_rads, spans = missed.spanned(gyr_rads, t_ns, edges)
-        drain = _drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated, spans)
+        gyr_rads, spans, stalled = missed.spanned(gyr_rads, t_ns, edges)
+        drain = make_drain(order, edges, seqs, t_ns, (gyr_rads, acc_ms2, field_ut), usable, saturated, spans, stalled)
         drain = drain if raw_ut is None else drain._replace(raw_source=(raw_ut, order))
         if expected_ut is not None:
             drain = drain._replace(expected_ut=expected_ut if order is None else expected_ut[order])
@@ -363,38 +358,3 @@ def _device_order(groups: Mapping[str, list[int]], sizes: np.ndarray) -> np.ndar
     if bool((np.diff(rank[sizes > 0]) >= 0).all()):
         return None
     return np.argsort(np.repeat(rank, sizes), kind="stable")
-
-
-def _drain(
-    order: np.ndarray | None,
-    edges: np.ndarray,
-    seqs: Sequence[int],
-    t_ns: np.ndarray,
-    vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
-    usable: np.ndarray,
-    saturated: np.ndarray,
-    spans: np.ndarray,
-) -> _Drain:
-    """The drain's samples in vqf's frame (unusable rows zeroed), permuted by ``order`` (None: as they are), and
-    per batch what ``DeviceFilter.update`` judges continuity by, as Python numbers."""
-    count = int(edges[-1])
-    last = np.maximum(edges[1:] - 1, 0)
-    first = np.minimum(edges[:-1], max(count - 1, 0))
-    steps_bad = np.concatenate([[0], np.cumsum(np.diff(t_ns) <= 0)])
-    increasing = steps_bad[last] - steps_bad[first] == 0
-    starts = edges[:-1]
-    saturated_before = np.concatenate([[0], np.cumsum(saturated)])
-    batch_saturated = saturated_before[edges[1:]] > saturated_before[edges[:-1]]
-    if order is not None:
-        inverse = np.empty(count, dtype=np.int64)
-        inverse[order] = np.arange(count)
-        starts = inverse[first]
-        usable, saturated = usable[order], saturated[order]
-        vectors = (vectors[0][order], vectors[1][order], vectors[2][order])
-    every = bool(usable.all())  # (the usual case: no copy with zeros to make)
-    inputs = tuple(fusion.to_vqf_frame(x if every else np.where(usable[:, None], x, 0.0)) for x in vectors)
-    return _Drain(
-        (inputs[0], inputs[1], inputs[2]), None, usable, saturated, np.concatenate([[0], np.cumsum(~usable)]),
-        batch_saturated.tolist(), [int(s) for s in seqs], t_ns[first].tolist(), t_ns[last].tolist(),
-        np.diff(edges).tolist(), increasing.tolist(), starts.tolist(), spans.tolist(),
-    )  # fmt: skip

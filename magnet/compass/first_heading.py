@@ -14,7 +14,7 @@ strength (a field never near it is no door: vqf's take stays as it was). Where t
 ``EARLY_S`` of the start, the take starts again (once) after ``CALM_S`` back within the strength: the door's fringe,
 within the tolerance but bent, leaves the mean too. When more than half of the samples judged so far are away (after
 ``MIN_JUDGED_S``), the strength is in question rather than the field (another place, another scale), and nothing
-more is left out until the next start. Pure numpy; a few numbers a device.
+more is left out until the next start. A few numbers a device, stepped by one compiled call a batch.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from magnet import _kernels
 from magnet.model import Calibration
 from magnet.units import ut_per_unit
 from magnet.wire import DeviceCalibration
@@ -45,89 +46,60 @@ CALM_S = 1.0
 EARLY_S = 3.0
 
 
+#: FirstHeading.state's items (magnet/_kernels.c's FT_*): samples of the take left and in all, judged, away, the calm
+#: run's length, whether one was away early, whether the field has shown the strength, the calm run needed, the take's
+#: early samples (EARLY_S), the period (s)
+LEFT, SIZE, JUDGED, AWAY, CALM, SEEN_AWAY, SEEN_STRENGTH, CALM_NEEDED, EARLY, PERIOD, STATE_SIZE = range(11)
+LOW2, HIGH2 = (1.0 - TOL_PCT / 100.0) ** 2, (1.0 + TOL_PCT / 100.0) ** 2
+
+
 class FirstHeading:
     """The gate of one device's filter: ``start`` at each (re)start of its magnetic side, ``judge`` on the samples
-    fed to it. ``left`` samples of the take remain (vqf's tauMag over the period)."""
+    fed to it. Its numbers are ``state`` (STATE_SIZE,) float64, stepped by one compiled call a batch
+    (``magnet._kernels.first_take``, the maths of this module's docstring)."""
 
     def __init__(self) -> None:
-        self.period_s = 0.0
-        self.left = self.size = self.judged = self.away = self.calm = 0
-        self.seen_away = self.seen_strength = False
-        self.calm_needed = self.early = 1
+        self.state = np.zeros(STATE_SIZE)
+        self.state[CALM_NEEDED] = self.state[EARLY] = 1.0
+
+    @property
+    def left(self) -> int:
+        """Samples of the take still to come (0: no take)."""
+        return int(self.state[LEFT])
 
     def start(self, fusion: Fusion, again: bool = False) -> None:
         """A (re)start of the filter's magnetic side: the next tauMag seconds of samples are judged, where vqf takes
         its first heading from them (not where a record's heading came from the device's history: its ``kMagInit``
         is off then, ``magnet.attitude.causal_drift``); ``again``: the take begun again after a door (once only)."""
-        self.period_s = fusion.period_s
+        period_s = fusion.period_s
         taking = float(fusion._filter.state["kMagInit"]) != 0.0
-        self.left = self.size = max(1, round(fusion.figures().tau_mag_s / self.period_s)) if taking else 0
-        self.judged = self.away = self.calm = 0
-        self.seen_away = self.seen_strength = False
-        self.calm_needed = max(1, round(CALM_S / self.period_s))
-        self.early = 0 if again else round(EARLY_S / self.period_s)
+        size = max(1, round(fusion.figures().tau_mag_s / period_s)) if taking else 0
+        self.state[:] = 0.0
+        self.state[[LEFT, SIZE, PERIOD]] = size, size, period_s
+        self.state[CALM_NEEDED] = max(1, round(CALM_S / period_s))
+        self.state[EARLY] = 0 if again else round(EARLY_S / period_s)
 
     def judge(
         self, fields: np.ndarray, expected_ut: np.ndarray, lo: int, hi: int
     ) -> tuple[np.ndarray | None, int | None]:
-        """(left out, restart) for samples lo .. hi of fields (S, 3) uT (zero rows: no field) against expected_ut (S,)
-        uT (NaN or 0 where unknown; one device's samples of one step, so one value: the first's is taken): those (n =
-        hi - lo,) bool away from the strength, their rows zeroed in ``fields`` (in place), or None when none is (the
-        usual case: the take is over); and the index (from lo) where the take starts again (the filter's magnetic
-        side restarted there, the rest judged after ``start``), or None."""
-        field = fields[lo:hi]
-        if self.left <= 0 or len(field) == 0:
+        """(left out, restart) for samples lo .. hi of fields (S, 3) uT, C-contiguous (zero rows: no field) against
+        expected_ut (S,) uT (NaN or 0 where unknown; one device's samples of one step, so one value: the first's is
+        taken): those (n = hi - lo,) bool away from the strength, their rows zeroed in ``fields`` (in place), or None
+        when none is (the usual case: the take is over); and the index (from lo) where the take starts again (the
+        filter's magnetic side restarted there, the rest judged after ``start``), or None."""
+        left = self.state[LEFT]
+        if left <= 0 or hi <= lo:
             return None, None
-        take = min(self.left, len(field))
         strength = float(expected_ut[lo])
         if not strength > 0.0:  # NaN or 0: no strength to judge by
-            self.left -= take
+            self.state[LEFT] = max(0.0, left - (hi - lo))
             return None, None
-        norm2 = np.einsum("ij,ij->i", field[:take], field[:take])
-        known = norm2 > 0.0
-        low, high = ((1.0 - TOL_PCT / 100.0) * strength) ** 2, ((1.0 + TOL_PCT / 100.0) * strength) ** 2
-        away = known & ((norm2 < low) | (norm2 > high))
-        any_away = bool(away.any())
-        may_restart = self.seen_away or (any_away and self.size - self.left < self.early)  # an early away, or now
-        restart = self._calm_again(known, away) if may_restart else None
-        end = take if restart is None else restart
-        self.left -= end
-        self.judged += int(np.count_nonzero(known[:end]))
-        if not any_away:
-            self.seen_strength = self.seen_strength or bool(known[:end].any())
-            return None, restart
-        self.away += int(np.count_nonzero(away[:end]))
-        if self.judged * self.period_s >= MIN_JUDGED_S and self.away > MAX_SHARE * self.judged:
-            self.left = 0  # the strength is in question: nothing more left out until the next start
-            return None, None
-        # left out once the field has shown the strength: a field never near it leaves vqf's take as it was
-        seen = self.seen_strength | np.logical_or.accumulate(known[:end] & ~away[:end])
-        self.seen_strength = bool(seen[-1]) if end else self.seen_strength
-        if not (away[:end] & seen).any():
-            return None, restart
-        out = np.zeros(len(field), dtype=bool)
-        out[:end] = away[:end] & seen
-        field[out] = 0.0
-        return out, restart
-
-    def _calm_again(self, known: np.ndarray, away: np.ndarray) -> int | None:
-        """The index (into known (m,) bool) of the sample that ends ``CALM_S`` of known samples within the strength
-        after one away from it (in this batch or carried over), one away having come within ``EARLY_S`` of the take's
-        start; or None. The calm run and whether one was away early are carried to the next batch."""
-        index = np.flatnonzero(known)
-        if index.size == 0:
-            return None
-        flagged = away[index]
-        position = np.arange(index.size)
-        last_away = np.maximum.accumulate(np.where(flagged, position, -1 - self.calm))
-        early = flagged & (index + (self.size - self.left) < self.early)
-        seen = self.seen_away | np.logical_or.accumulate(early)
-        ready = np.flatnonzero(seen & (position - last_away >= self.calm_needed))
-        if ready.size:
-            return int(index[ready[0]])
-        self.calm = int(position[-1] - last_away[-1])
-        self.seen_away = bool(seen[-1])
-        return None
+        out = np.empty(hi - lo, dtype=bool)
+        square = strength * strength
+        restart, left_out = _kernels.first_take(
+            fields[lo:hi], LOW2 * square, HIGH2 * square, MIN_JUDGED_S, MAX_SHARE, self.state, out
+        )
+        return (out if left_out else None), (None if restart < 0 else restart)
 
 
 def expected_columns(

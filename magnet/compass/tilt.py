@@ -2,7 +2,8 @@
 
 ``compute_headings`` turns the corrected field into a tilt-compensated heading (level where a sample has no
 accelerometer) for the samples the filters did not fuse; ``smooth_tail`` is the circular sliding mean carried across
-batches; ``merge`` puts the filters' fused attitude in place of the tilt one.
+batches (``Smoothing`` keeps each device's tail across steps); ``merge`` puts the filters' fused attitude in place
+of the tilt one.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from magnet.attitude import heading as hd
+from magnet.bounded import Recent
 
 if TYPE_CHECKING:
     from magnet.compass.filters import FusedColumns
@@ -111,3 +113,24 @@ def merge(headings: Headings, fused: FusedColumns) -> tuple[Headings, np.ndarray
         roll_deg=np.where(f, fused.roll_deg, headings.roll_deg),
         flags=flags,
     ), fused.quat_wxyz
+
+
+class Smoothing:
+    """The circular sliding mean over ``window`` headings per device, across steps (tails of at most
+    ``max_devices`` devices)."""
+
+    def __init__(self, window: int, max_devices: int) -> None:
+        self.window = window
+        self.tails: Recent[str, np.ndarray] = Recent(max_devices)
+
+    def apply(self, devices: list[str], bounds: list[int], heading_deg: np.ndarray) -> np.ndarray:
+        if self.window == 1:
+            return heading_deg
+        parts = []
+        for i, device in enumerate(devices):
+            tail = self.tails.get(device)
+            smoothed, self.tails[device] = smooth_tail(
+                np.empty(0) if tail is None else tail, heading_deg[bounds[i] : bounds[i + 1]], self.window
+            )
+            parts.append(smoothed)
+        return np.concatenate(parts or [np.empty(0)])

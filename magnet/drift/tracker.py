@@ -74,15 +74,16 @@ class _Window:
         self.last_ns = 0
 
     def add(self, strength: np.ndarray, dip: np.ndarray, last_ns: int) -> None:
-        """|B| (uT) and dip (deg) samples, the last of them at ``last_ns``."""
+        """|B| (uT) and dip (deg) samples, the last of them at ``last_ns``: copied, never kept as views (a batch's
+        samples are a slice of its whole drain's arrays, which a view would keep alive until the window closes, and
+        for good in the last window of a device that stopped: docs/front-door.md, "Memory per service")."""
         self.last_ns = max(self.last_ns, last_ns)
-        if self.stride > 1:
-            strength, dip = strength[:: self.stride], dip[:: self.stride]
+        strength, dip = strength[:: self.stride].copy(), dip[:: self.stride].copy()
         self.strength.append(strength)
         self.dip.append(dip)
         self.count += strength.size
         if self.count > self.cap:
-            joined_s, joined_d = np.concatenate(self.strength)[::2], np.concatenate(self.dip)[::2]
+            joined_s, joined_d = np.concatenate(self.strength)[::2].copy(), np.concatenate(self.dip)[::2].copy()
             self.strength, self.dip, self.count, self.stride = [joined_s], [joined_d], joined_s.size, self.stride * 2
 
     def values(self) -> tuple[np.ndarray, np.ndarray]:

@@ -39,14 +39,15 @@ from magnet import frames
 from magnet.attitude.mag_delay import advance_field
 from magnet.frames import quaternion_to_matrix
 from magnet.model import IDENTITY, Calibration, Quality
+from magnet.quality import chance
 from magnet.quality.stats import median, take_rows
 
 #: |specific force| within this fraction of g (a few % of g: a cheap accelerometer's scale error is about 1 %)
 QUASI_STATIC_TOL = 0.03
 #: fewest quasi-static samples for a dip spread that means something
 MIN_QUASI_STATIC = 30
-#: runs of consecutive held-out samples whose spread gives the uncertainty of a comparison
-MARGIN_CHUNKS = 10
+#: runs of held-out samples whose spread gives the uncertainty of a comparison (``chance.CHUNKS``)
+MARGIN_CHUNKS = chance.CHUNKS
 #: the field's earth-frame direction is compared with its mean over stretches of this many seconds, not over the
 #: whole recording: the gyroscope filter's heading drifts slowly (its bias about the vertical is unknown), and that
 #: drift, the same for every calibration compared, would otherwise swamp their difference
@@ -267,20 +268,8 @@ def consistency_deg(field: np.ndarray, ev: MotionEvidence, rows: np.ndarray | No
 
 def margin_deg(field: np.ndarray, other: np.ndarray, ev: MotionEvidence, rows: np.ndarray) -> float | None:
     """How much better than ``other`` (deg of consistency) ``field`` must be on the rows for the difference to be
-    more than chance: the per-sample differences of squared departures, averaged over ``MARGIN_CHUNKS`` runs of
-    consecutive rows (neighbouring samples are not independent), give the uncertainty of their mean (two standard
-    errors), turned into degrees below ``other``'s consistency. None when there are too few rows."""
-    return _margin(_errors_deg(field, ev, rows), _errors_deg(other, ev, rows))
-
-
-def _margin(mine: np.ndarray | None, theirs: np.ndarray | None) -> float | None:
-    """``margin_deg`` from the departures of the two fields on the same rows."""
-    if mine is None or theirs is None or len(mine) < 4 * MARGIN_CHUNKS:
-        return None
-    chunks = np.array([c.mean() for c in np.array_split(theirs**2 - mine**2, MARGIN_CHUNKS)])
-    uncertainty = 2.0 * float(chunks.std(ddof=1)) / math.sqrt(MARGIN_CHUNKS)
-    reference = float(np.mean(theirs**2))
-    return math.sqrt(reference) - math.sqrt(max(reference - uncertainty, 0.0))
+    more than chance (``chance.difference_margin``); None when there are too few rows."""
+    return chance.margin(_errors_deg(field, ev, rows), _errors_deg(other, ev, rows))
 
 
 def motion_figures(
@@ -292,12 +281,14 @@ def motion_figures(
     reference: Calibration,
     reference_name: str,
     field: np.ndarray | None = None,
+    level_turns: bool = False,
 ) -> dict[str, Any]:
     """Quality figures for data in motion: raw (N, 3) samples, test (N,) bool the held-out rows (train_candidate was
     fitted without them; None when that fit failed), reference the calibration to beat, reference_name how the
     reasons name it ("the calibration in force", "no calibration"). With a calibration in force the fit must also
     beat no calibration (``none_*`` figures); each comparison with its margin (``margin_deg``). field: candidate's
-    corrected field (N, 3) when the caller has it (None: computed here)."""
+    corrected field (N, 3) when the caller has it (None: computed here); level_turns: a level device in an undisturbed
+    field, whose comparison with no calibration may stand on its turns (``chance.margin``)."""
     raw = np.asarray(raw, dtype=float)
     field = ev.turned(candidate, candidate.apply(raw) if field is None else field)
     ref_field = ev.applied(reference, raw)
@@ -322,11 +313,14 @@ def motion_figures(
         reference_held = _departures_deg(take_rows(ref_field, test), ev, test)
         figures["holdout_consistency_deg"] = _rms(held)
         figures["reference_holdout_consistency_deg"] = _rms(reference_held)
-        figures["holdout_margin_deg"] = _margin(held, reference_held)
-        if reference_name != "no calibration":
+        if reference_name == "no calibration":  # a first record: a level device's turns, for ``chance.margin``
+            turned = chance.turns(ev.attitude, test, ev.period_s, STRETCH_S) if level_turns else None
+            figures["holdout_margin_deg"] = chance.margin(held, reference_held, turned)
+        else:
+            figures["holdout_margin_deg"] = chance.margin(held, reference_held)
             none_held = _departures_deg(test_raw, ev, test)
             figures["none_holdout_consistency_deg"] = _rms(none_held)
-            figures["none_holdout_margin_deg"] = _margin(held, none_held)
+            figures["none_holdout_margin_deg"] = chance.margin(held, none_held)
     return figures
 
 
@@ -339,9 +333,11 @@ def with_motion_figures(
     holdout: tuple[np.ndarray, Calibration] | None,
     reference: Calibration | None,
     field: np.ndarray | None = None,
+    level_turns: bool = False,
 ) -> Quality:
     """``quality`` with the figures of ``motion_figures`` (its dip spread in its own field), judged against
-    ``reference`` (the calibration in force; None: no calibration); ``holdout`` the held-out fit, if any."""
+    ``reference`` (the calibration in force; None: no calibration); ``holdout`` the held-out fit, if any; level_turns
+    as ``motion_figures``."""
     figures = motion_figures(
         raw,
         candidate,
@@ -351,6 +347,7 @@ def with_motion_figures(
         reference or IDENTITY,
         "the calibration in force" if reference else "no calibration",
         field,
+        level_turns,
     )
     return dataclasses.replace(quality, dip_spread_deg=figures.pop("dip_spread_deg")).with_extra(**figures)
 

@@ -174,6 +174,38 @@ class RawColumns:
             _ids([b.hardware_id for b in batches]),
         )
 
+    @classmethod
+    def joined(cls, parts: Sequence[RawColumns]) -> RawColumns:
+        """The batches of ``parts``, in order, as one RawColumns (per-batch lists with their absent values filled:
+        None locations, "" vehicles, 0 hardware ids)."""
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            return cls.from_batches([])
+
+        def per_batch(name: str, absent: Any) -> list[Any]:
+            return [v for p in parts for v in (getattr(p, name) or [absent] * len(p.devices))]
+
+        def column(name: str) -> np.ndarray:
+            return np.concatenate([getattr(p, name) for p in parts])
+
+        return cls(
+            per_batch("devices", ""),
+            per_batch("seqs", 0),
+            column("counts"),
+            column("t_ns"),
+            column("mag_ut"),
+            column("acc_ms2"),
+            column("gyr_rads"),
+            per_batch("sensors", ""),
+            batch_locations(per_batch("locations", None)),
+            column("vel_ned_ms"),
+            column("current_a"),
+            column("throttle"),
+            _vehicles(per_batch("vehicles", "")),
+            _ids(per_batch("hardware_ids", 0)),
+        )
+
     @functools.cached_property
     def bounds(self) -> list[int]:
         """Sample index where each batch starts, and S at the end: B + 1 ints (made once: a step asks for them

@@ -32,6 +32,13 @@ from magnet.wire.raw import (
 )
 from magnet.wire.raw_header import RAW_LIMITS, Header, check_header
 
+#: messages unpacked and checked together at most (``decode_raw_many``): each unpacked message is held until its
+#: chunk's columns are made, about 2.3 kB of Python objects for a flood's message of 2 samples, so the compass's drain
+#: of 8,000 new ids held 18 MB of them at once (``magnet.wire`` test ``test_decode_chunks``; docs/front-door.md,
+#: "Memory per service"): the device ids kept from such a drain then pinned that memory's pymalloc arenas after it was
+#: freed. A chunk of this many costs a few numpy calls more than one pass (about 50 us), and holds about 1 MB
+DECODE_CHUNK = 500
+
 
 def _gather(values: list[Any], name: str, times: bool) -> np.ndarray:
     """The rows of ``values`` (per message, in order: a list of rows (v 1) or a ``Bin`` (v 2)) as one array: t_ns
@@ -185,10 +192,21 @@ def decode_messages(
 
 
 def decode_raw_many(payloads: Sequence[Payload]) -> tuple[RawColumns, list[tuple[int, WireError]]]:
-    """Decode many raw payloads at once (the hot path of a busy consumer).
+    """Decode many raw payloads at once (the hot path of a busy consumer), ``DECODE_CHUNK`` at a time.
 
     Returns the good batches as columns, in input order, and (index, WireError) for each payload refused, sorted by
     index. ``truth`` is not decoded."""
+    parts: list[RawColumns] = []
+    errors: list[tuple[int, WireError]] = []
+    for start in range(0, len(payloads), DECODE_CHUNK):
+        columns, refused = _decode_chunk(payloads[start : start + DECODE_CHUNK])
+        parts.append(columns)
+        errors += [(start + index, exc) for index, exc in refused]
+    return RawColumns.joined(parts), errors
+
+
+def _decode_chunk(payloads: Sequence[Payload]) -> tuple[RawColumns, list[tuple[int, WireError]]]:
+    """``decode_raw_many`` of one chunk: every payload unpacked, then their columns made together."""
     messages: list[Mapping[str, Any]] = []
     sizes: list[int] = []
     where: list[int] = []

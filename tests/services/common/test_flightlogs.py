@@ -54,7 +54,7 @@ def test_heading_compare_agrees_with_px4s_own_yaw(capsys: pytest.CaptureFixture[
     assert main(["heading", str(PX4_LOG), "--compare"]) == 0
     err = capsys.readouterr().err
     rms = float(COMPARE.search(err).group(1))  # type: ignore[union-attr]
-    assert rms < 1.0  # the target; vqf on the same data: 0.27 deg
+    assert rms < 0.7  # the target 1.0; 0.85 while its paired stamps (0.75 ms apart) set the period; vqf 0.27
     assert "vehicle_attitude" in err and "ATT_MAG_DECL" in err and "declination: magnet none" in err
     assert "magnet heading: PX4 ULog: sensor_combined" in err  # which stream was used
 
