@@ -7,8 +7,9 @@ The direction of each raw reading from the running centre of the cloud (per-axis
 A method that fits from the gyroscope (``Method.needs_gyroscope``: gyro-ellipsoid) needs consecutive samples in
 time order with their rates, which the cells lose: its collection also keeps the device's recent samples in a
 bounded ring (``magnet.calibration.sample_runs.RecentRuns``, at most ``run_capacity`` samples, 88 bytes each: 2.6 MB per
-device at the default 30,000), cut into runs at every gap in ``t_ns`` or ``seq``, and fits the longest run with
-``gyr=`` and ``period_s=`` (the run's median step of ``t_ns``). The cells still give its coverage for progress.
+device at the default 30,000), cut into runs at every stall in ``t_ns`` or gap in ``seq``, and fits the longest run
+with ``gyr=`` (``Run.turn_rads``: a sample after missing ones over all their periods) and ``period_s=`` (the run's
+median step of ``t_ns``). The cells still give its coverage for progress.
 
 ``auto`` (``magnet.calibration.choose``) keeps the ring too, made on the first batch that carries the gyroscope (a
 device without one costs what an ellipsoid collection costs): it fits ``fit_auto`` on the longest run once that run
@@ -277,7 +278,7 @@ def _fit_run(
         run.mag,
         t_s=run.t_ns * 1e-9,
         acc=run.acc,
-        gyr_rads=run.gyr_rads,
+        gyr_rads=run.turn_rads,
         period_s=run.period_s,
         field_ut=field_ut,
         reference=reference,

@@ -4,11 +4,15 @@ order) lose.
 
 A bounded ring of the last ``capacity`` samples; the samples are cut into *runs* of consecutive readings: a run
 restarts where a batch's ``seq`` is not the previous one's plus one (a batch lost, or the edge restarted), or where
-two consecutive ``t_ns`` are not increasing or lie more than ``GAP_PERIODS`` sample periods apart (samples lost, or
-the device stopped). The fit never pairs samples across a restart: it is given the longest run (the most recent
-among equals). Memory per device: ``capacity`` rows of 14 numbers of 8 bytes (mag, acc, gyr and velocity 3 each,
-t_ns, run number): 112 bytes a sample, 3.4 MB for the default 30,000 (5 minutes at 100 Hz); the arrays start at
-``INITIAL_ROOM`` rows and double, so a device that sends little costs little. Pure numpy.
+two consecutive ``t_ns`` are not increasing or lie more than ``GAP_PERIODS`` sample periods apart (a stall: more than
+``MOST_MISSING`` samples lost, whose rotation is unknown, or the device stopped). The fit never pairs samples across a
+restart: it is given the longest run (the most recent among equals). Within a run a phone drops samples (a busy
+sensor hub: 2 % of them); the sample after k missing ones is taken over its k + 1 periods (``Run.periods``), as the
+compass does (``magnet.compass.missed``), so that the gyroscope's rotation over the run is the device's.
+
+Memory per device: ``capacity`` rows of 14 numbers of 8 bytes (mag, acc, gyr and velocity 3 each, t_ns, run number):
+112 bytes a sample, 3.4 MB for the default 30,000 (5 minutes at 100 Hz); the arrays start at ``INITIAL_ROOM`` rows
+and double, so a device that sends little costs little. Pure numpy.
 """
 
 from __future__ import annotations
@@ -19,8 +23,13 @@ import numpy as np
 
 #: samples held per device by default: 5 minutes at 100 Hz (2.6 MB)
 RUN_CAPACITY = 30_000
+#: missing samples in a row bridged within a run (the compass's ``missed.MOST_MISSING``): the rate after them is
+#: taken as theirs; over a longer stall (a busy phone: 0.2-0.5 s) the rotation is unknown and the run restarts
+MOST_MISSING = 3
+#: a stream whose steps look like gaps more often than this is not one that drops samples: its period is misread
+MOST_GAPS = 0.25
 #: a step between consecutive t_ns longer than this many sample periods starts a new run
-GAP_PERIODS = 2.5
+GAP_PERIODS = MOST_MISSING + 1.5
 #: rates below this about an axis (rad/s, 6 deg/s) are not counted as turning about it (noise, bias)
 TURNING_RADS = 0.1
 INITIAL_ROOM = 256
@@ -29,8 +38,10 @@ INITIAL_ROOM = 256
 @dataclasses.dataclass(frozen=True)
 class Run:
     """Consecutive samples of one device: mag (N, 3) uT, acc (N, 3) m/s^2 or None (a sample came without),
-    gyr_rads (N, 3) rad/s, t_ns (N,) int64, period_s, the median step of t_ns in seconds, and vel_ned_ms (N, 3) m/s
-    geographic NED, the velocity the batches carried (NaN rows where none), or None when no sample had one."""
+    gyr_rads (N, 3) rad/s, t_ns (N,) int64, period_s, the median step of t_ns in seconds, vel_ned_ms (N, 3) m/s
+    geographic NED, the velocity the batches carried (NaN rows where none), or None when no sample had one, and
+    periods (N,) float, the whole periods each sample's step spans (k + 1 after k missing samples; the first 1), or
+    None where none is missing."""
 
     mag: np.ndarray
     acc: np.ndarray | None
@@ -38,9 +49,16 @@ class Run:
     t_ns: np.ndarray
     period_s: float
     vel_ned_ms: np.ndarray | None = None
+    periods: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.mag)
+
+    @property
+    def turn_rads(self) -> np.ndarray:
+        """(N, 3) rad/s: the rates to integrate at one ``period_s`` a sample: ``gyr_rads``, each sample after k
+        missing ones k + 1 times (the rate after a gap is the best estimate of the rate over it)."""
+        return self.gyr_rads if self.periods is None else self.gyr_rads * self.periods[:, None]
 
     def tail(self, seconds: float) -> Run:
         """The last ``seconds`` of the run (all of it when shorter)."""
@@ -49,13 +67,18 @@ class Run:
             return self
         acc = None if self.acc is None else self.acc[-count:]
         vel = None if self.vel_ned_ms is None else self.vel_ned_ms[-count:]
-        return Run(self.mag[-count:], acc, self.gyr_rads[-count:], self.t_ns[-count:], self.period_s, vel)
+        periods = None if self.periods is None else self.periods[-count:]
+        return Run(self.mag[-count:], acc, self.gyr_rads[-count:], self.t_ns[-count:], self.period_s, vel, periods)
 
     def turned_deg(self) -> np.ndarray:
         """(3,) how far the device turned about each body axis, deg: |rate| summed over the samples where it
-        exceeds ``TURNING_RADS`` about that axis (so a gyroscope's noise and bias do not add up)."""
+        exceeds ``TURNING_RADS`` about that axis (so a gyroscope's noise and bias do not add up), over each sample's
+        whole periods."""
         rates = np.abs(self.gyr_rads)
-        return np.degrees(np.where(rates > TURNING_RADS, rates, 0.0).sum(axis=0) * self.period_s)
+        turning = np.where(rates > TURNING_RADS, rates, 0.0)
+        if self.periods is not None:
+            turning = turning * self.periods[:, None]
+        return np.degrees(turning.sum(axis=0) * self.period_s)
 
 
 class RecentRuns:
@@ -148,11 +171,32 @@ class RecentRuns:
         rows = order[first[best] : first[best] + counts[best]]
         acc, vel = self.acc[rows], self.vel[rows]
         t = self.t_ns[rows]
+        period_ns = float(np.median(np.diff(t)))
         return Run(
             self.mag[rows],
             None if np.isnan(acc).any() else acc,
             self.gyr[rows],
             t,
-            float(np.median(np.diff(t))) / 1e9,
+            period_ns / 1e9,
             vel if np.isfinite(vel).all(axis=1).any() else None,
+            whole_periods(t, period_ns),
         )
+
+
+def whole_periods(t_ns: np.ndarray, period_ns: float) -> np.ndarray | None:
+    """(N,) the whole periods of ``period_ns`` each sample's step from the one before spans (t_ns (N,) int ns in
+    time order; the first sample 1), rounded, at least 1 and at most ``MOST_MISSING`` + 1; None where every step is
+    one period (a stream without missing samples is integrated as before, to the bit). Time stamps' jitter moves a
+    step by a fraction and is not a gap. Stamps far from a regular stream (a step under half a period, or more than
+    ``MOST_GAPS`` of the steps looking like gaps: a flight log's come in pairs a fraction of a period apart, and its
+    median step is then the short one) are left as they come: None."""
+    if len(t_ns) < 2 or not period_ns > 0.0:
+        return None
+    ratio = np.diff(np.asarray(t_ns, dtype=np.int64)).astype(float) / period_ns
+    if ratio.min() < 0.5:
+        return None
+    periods = np.clip(np.rint(ratio), 1.0, MOST_MISSING + 1.0)
+    gaps = periods > 1.0
+    if not gaps.any() or gaps.mean() > MOST_GAPS:
+        return None
+    return np.concatenate([[1.0], periods])

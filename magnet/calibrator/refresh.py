@@ -199,7 +199,7 @@ def _moved(collection: Collection, batch: wire.RawBatch, in_force: Calibration) 
     if run is None:
         return False
     run = run.tail(iron_moved.BLOCK_S + iron_moved.WINDOW_S + 1.0)
-    return watch.add(in_force.apply(run.mag), run.gyr_rads, run.t_ns, run.period_s)
+    return watch.add(in_force.apply(run.mag), run.turn_rads, run.t_ns, run.period_s)
 
 
 def velocity_aided(calibration: Calibration | None) -> bool:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from magnet.calibration import FitInput, Method, TurntableSetup
+from magnet.calibration import FitInput, Method, TurntableSetup, sample_runs
 from magnet.calibration.choose import AUTO, CHOICES, fit_choice
 from magnet.earth.location import Location
 from magnet.model import Calibration
@@ -131,6 +131,8 @@ def fit_input(table: SampleTable, args: argparse.Namespace) -> FitInput:
     if auto and gyr is not None and args.rate is None and "t_s" not in table.columns:
         gyr = None  # auto without the sample times: the ellipsoid, which needs none
     period = sample_period_s(table, args.rate) if gyr is not None else None
+    if gyr is not None and period is not None and args.rate is None:
+        gyr = _over_missing(gyr, table.numeric("t_s"), period)
     in_force = load_calibration(args.in_force) if args.in_force else None
     field_ut = expected_field_ut(args)
     return FitInput(
@@ -148,6 +150,14 @@ def fit_input(table: SampleTable, args: argparse.Namespace) -> FitInput:
         vel_ned_ms=table.vel_ned_ms() if gyr is not None else None,  # vn,ve,vd: the field ladder's aided attitude
         drop_disturbed=not getattr(args, "keep_disturbed", False),
     )
+
+
+def _over_missing(gyr_rads: np.ndarray, t_s: np.ndarray, period_s: float) -> np.ndarray:
+    """The rates (N, 3) rad/s with the sample after k missing ones (t_s (N,) s, a step of k + 1 periods of period_s)
+    k + 1 times, up to 3 missing (``sample_runs.whole_periods``, the compass's rule): a file that dropped samples
+    keeps their rotation; one without gaps is read as it is."""
+    periods = sample_runs.whole_periods(np.round(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64), period_s * 1e9)
+    return gyr_rads if periods is None else gyr_rads * periods[:, None]
 
 
 def fit_table(table: SampleTable, args: argparse.Namespace) -> Calibration:

@@ -141,9 +141,9 @@ def test_a_gap_in_time_or_in_batch_numbers_restarts_the_run(cut):
     run = ring.longest()
     assert run is not None and len(run) == 1000  # the longest: the first, not joined across the cut
     np.testing.assert_array_equal(run.t_ns, PERIOD_NS * np.arange(1000))
-    # inside a batch too: a step of 3 periods cuts it
+    # inside a batch too: a stall (a step of 5 periods: 4 samples missing, more than MOST_MISSING) cuts it
     inside = RecentRuns(capacity=100)
-    _feed(inside, PERIOD_NS * np.array([0, 1, 2, 5, 6], dtype=np.int64), 0)
+    _feed(inside, PERIOD_NS * np.array([0, 1, 2, 7, 8], dtype=np.int64), 0)
     assert inside.longest() is not None and len(inside.longest()) == 3
 
 
