@@ -23,8 +23,8 @@ import numpy as np
 
 #: samples held per device by default: 5 minutes at 100 Hz (2.6 MB)
 RUN_CAPACITY = 30_000
-#: missing samples in a row bridged within a run (the compass's ``missed.MOST_MISSING``): the rate after them is
-#: taken as theirs; over a longer stall (a busy phone: 0.2-0.5 s) the rotation is unknown and the run restarts
+#: missing samples in a row bridged within a run, as the compass makes them up (``magnet.compass.missed``): the rate
+#: after them is taken as theirs; over a longer stall (a busy phone: 0.2-0.5 s) the rotation is unknown: a new run
 MOST_MISSING = 3
 #: a stream whose steps look like gaps more often than this is not one that drops samples: its period is misread
 MOST_GAPS = 0.25

@@ -62,11 +62,6 @@ class FirstHeading:
         self.state = np.zeros(STATE_SIZE)
         self.state[CALM_NEEDED] = self.state[EARLY] = 1.0
 
-    @property
-    def left(self) -> int:
-        """Samples of the take still to come (0: no take)."""
-        return int(self.state[LEFT])
-
     def start(self, fusion: Fusion, again: bool = False) -> None:
         """A (re)start of the filter's magnetic side: the next tauMag seconds of samples are judged, where vqf takes
         its first heading from them (not where a record's heading came from the device's history: its ``kMagInit``

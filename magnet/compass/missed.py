@@ -33,11 +33,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from magnet.calibration.sample_runs import MOST_MISSING  # missing samples in a row made up for at most (the runs' too)
+
 if TYPE_CHECKING:
     from magnet.attitude.fusion import Fusion
-
-#: missing samples in a row made up for at most
-MOST_MISSING = 3
 
 
 def spanned(gyr_rads: np.ndarray, t_ns: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
