@@ -26,7 +26,7 @@ def test_held_out_blocks_fall_at_the_same_moments_at_every_rate() -> None:
         # the same blocks of time: every time held out at this rate lies in a block held out at 50 Hz
         assert np.all(np.isin(np.floor(times * 50.0 + 1e-9).astype(int), np.round(at_50 * 50.0).astype(int)))
         assert len(times) / rate == pytest.approx(len(at_50) / 50.0)
-    assert HOLDOUT_BLOCK == round(HOLDOUT_BLOCK_S * 50.0)  # at 50 Hz the blocks are what they were
+    assert round(HOLDOUT_BLOCK_S * 50.0) == HOLDOUT_BLOCK  # at 50 Hz the blocks are what they were
     assert np.array_equal(holdout_mask(1000, 0.02), holdout_mask(1000))
 
 
