@@ -114,8 +114,9 @@ def _record(result: RungFit, inp: FieldInput, ev: Evidence, count: int) -> Calib
     )
 
 
-def _holdout_mask(count: int, period_s: float | None = None) -> np.ndarray:
-    return base.holdout_mask(count, period_s)
+def _holdout_mask(inp: FieldInput) -> np.ndarray:
+    """The input's held-out rows (``base.holdout_mask``: blocks of HOLDOUT_BLOCK_S seconds of its samples)."""
+    return base.holdout_mask(len(inp.mag), inp.period_s)
 
 
 def fit_field(
@@ -129,8 +130,7 @@ def fit_field(
     if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     planar = is_planar(ev.down)  # a level vehicle's turns may vouch for its first record (``chance.vehicle``):
-    test = _holdout_mask(len(inp.mag), inp.period_s)
-    vehicle = planar and keep is None and chance.vehicle(inp.acc, inp.period_s)
+    test, vehicle = _holdout_mask(inp), planar and keep is None and chance.vehicle(inp.acc, inp.period_s)
     windows, whole_mag = turning.vehicle_turns(whole_input, planar, keep), whole_input.mag
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
     ev, vertical_kept = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: what holds it
