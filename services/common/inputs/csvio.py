@@ -5,8 +5,9 @@ A sample CSV has a header row naming its columns; any lines before the header (a
 name, case-insensitively; unknown columns are ignored, a column the commands read may not be named twice. Cells may
 be quoted (``"mx","my","mz"``); values are separated by commas: a file separated otherwise (semicolons, tabs) is
 refused with the separator named. A file over ``MAX_CSV_BYTES`` or not UTF-8 is refused, a field over 128 KiB too,
-and so is a sensor reading (``mx..mz``, ``ax..az``, ``gx..gz``) beyond +-1e9 in any unit. Every problem is a
-``ValueError`` that names the file, the line and what to do.
+and so is a sensor reading (``mx..mz``, ``ax..az``, ``gx..gz``) beyond +-1e9 in any unit. A file whose values are
+not all numbers is read by the csv module, row by row (no row kept, at most ``MAX_TEXT_CELLS`` cells). Every problem
+is a ``ValueError`` that names the file, the line and what to do.
 """
 
 from __future__ import annotations
@@ -14,13 +15,13 @@ from __future__ import annotations
 import codecs
 import csv
 import dataclasses
-import io
+import itertools
 import math
 import os
 import re
 import stat
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import BinaryIO, TextIO
 
@@ -45,6 +46,11 @@ WRITE_ROWS = 4096
 HEAD_CHARS = 1 << 16
 #: the bytes ``_file_table`` checks at a time
 SCAN_BYTES = 1 << 18
+#: the characters of text split into lines at a time (``_lines``)
+LINE_BLOCK_CHARS = 1 << 16
+#: the most cells the csv module's reader takes (a file whose values are not all numbers is read that way; each cell
+#: a string until its column is read whole, about 75 bytes): 2 million (50 Hz, 11 columns, an hour) about 150 MB
+MAX_TEXT_CELLS = 2_000_000
 #: the ASCII line breaks of ``str.splitlines`` that a file read as text (universal newlines) does not break at
 OTHER_LINE_BREAKS = (b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e")
 #: other separators named when the header is found with one of them
@@ -140,11 +146,23 @@ def _csv_problem(exc: csv.Error) -> str:
     return f"not CSV ({exc})"
 
 
-def _find_header(lines: list[str], path: str) -> int:
+def _lines(text: str) -> Iterator[str]:
+    """The lines of ``text.splitlines()``, split ``LINE_BLOCK_CHARS`` at a time: no list of every line (a file of
+    10 million short lines made one of 500 MB)."""
+    start, end = 0, len(text)
+    while start < end:
+        stop = text.find("\n", start + LINE_BLOCK_CHARS)
+        stop = end if stop < 0 else stop + 1  # cut after a line feed: a line's end wherever it is
+        yield from text[start:stop].splitlines()
+        start = stop
+
+
+def _find_header(lines: list[str], path: str, blank: bool) -> int:
+    """The index of the header among ``lines`` (the file's first); ``blank``: the whole file is blank."""
     for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
         if set(MAG_COLUMNS) <= set(_cells(line, path, index + 1)):
             return index
-    if not any(line.strip() for line in lines):
+    if blank:
         raise ValueError(f"{path}: the file is empty: it needs a header row with mx,my,mz and samples below it")
     for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
         for separator, words in OTHER_SEPARATORS.items():
@@ -163,20 +181,12 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
     """Parse CSV ``text`` into a SampleTable (see the module docstring for the format). A table of numbers is read
     by numpy's C reader (``_numbers``); anything else (text columns, empty cells, a row of another length, a value
     that is refused) by the csv module, cell by cell, which names the line or row and the value at fault."""
-    lines = text.splitlines()
-    header_index = _find_header(lines, path)
-    table = _numbers(lines[header_index], lines[header_index + 1 :], path)
+    lines = list(itertools.islice(_lines(text), MAX_PREAMBLE_LINES))
+    header_index = _find_header(lines, path, not text or text.isspace())
+    table = _numbers(lines[header_index], itertools.islice(_lines(text), header_index + 1, None), path)
     if table is not None:
         return table
-    header, rows = _read_rows(lines, header_index, path)
-    if not rows:
-        raise ValueError(f"{path}: the header is there but no samples follow it")
-    for number, row in enumerate(rows, start=1):
-        if len(row) < len(header):
-            raise ValueError(f"{path}: row {number} has {len(row)} values but the header names {len(header)} columns")
-    columns: dict[str, list[str] | np.ndarray] = {
-        name: [row[i] for row in rows] for i, name in enumerate(header) if name
-    }
+    header, columns = _read_columns(text, header_index, path)
     duplicated = frozenset(name for name in columns if header.count(name) > 1)
     table = SampleTable(path, np.empty((0, 3)), None, columns, duplicated)
     mag = np.column_stack([table.numeric(c) for c in MAG_COLUMNS])
@@ -212,14 +222,14 @@ def _file_table(handle: BinaryIO, path: Path) -> SampleTable | None:
     return None
 
 
-def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0) -> SampleTable | None:
+def _numbers(header_line: str, rows: Iterable[str] | Path, path: str, skip: int = 0) -> SampleTable | None:
     """The table when every row below the header is as many finite numbers as the header names columns (``nan``
     allowed in ``vn,ve,vd``: no fix yet), no column is named twice and no sensor reading is beyond +-MAX_READING,
     read by numpy's C reader (``numpy.loadtxt``) from ``rows``: the lines below the header, or a file whose first
     ``skip`` lines end with the header (ASCII, checked before); else None, and the csv module reads the file and
     says what is wrong with it."""
     header = _cells(header_line, path, 1)
-    if len(set(header)) < len(header) or (isinstance(rows, list) and not rows):
+    if len(set(header)) < len(header):
         return None
     try:
         with warnings.catch_warnings():  # blank lines alone: "input contained no data", the csv module says so
@@ -244,16 +254,50 @@ def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0)
     return SampleTable(path, mag, acc, columns)
 
 
-def _read_rows(lines: list[str], header_index: int, path: str) -> tuple[list[str], list[list[str]]]:
-    """(header names in lower case, the non-blank rows below it); ValueError naming the line of a field over 128
-    KiB or of a line that is not CSV."""
-    reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
+def _read_columns(text: str, header_index: int, path: str) -> tuple[list[str], dict[str, list[str] | np.ndarray]]:
+    """(header names in lower case, the named columns of the non-blank rows below it, each as floats when all its
+    cells are finite numbers, sensor readings within +-MAX_READING: what ``SampleTable.numeric`` then gives, else as
+    strings); ValueError naming the line of a field over 128 KiB or of a line that is not CSV, when no row follows
+    the header, the first row shorter than the header, or past ``MAX_TEXT_CELLS`` cells. Rows are not kept: each
+    cell goes into its column as it is read."""
+    reader = csv.reader(line + "\n" for line in itertools.islice(_lines(text), header_index, None))
     try:
         header = [name.strip().lower() for name in next(reader)]
-        rows = [row for row in reader if any(cell.strip() for cell in row)]
+        named = {name: i for i, name in enumerate(header) if name}  # a name given twice: its last column
+        cells: dict[str, list[str]] = {name: [] for name in named}
+        count, short = 0, None
+        for row in reader:
+            if not "".join(row).strip():  # blank: no cell but spaces
+                continue
+            count += 1
+            if len(row) < len(header):
+                short = short or (count, len(row))
+                continue
+            for name, i in named.items():
+                cells[name].append(row[i])
+            if count * len(named) > MAX_TEXT_CELLS:
+                raise ValueError(
+                    f"{path}: more than {MAX_TEXT_CELLS} cells to read one by one (its values are not all numbers: "
+                    "empty cells, text or a bad value): write missing values as nan, or split the recording"
+                )
     except csv.Error as exc:
         raise ValueError(f"{path}: line {header_index + reader.line_num}: {_csv_problem(exc)}") from None
-    return header, rows
+    if not count:
+        raise ValueError(f"{path}: the header is there but no samples follow it")
+    if short is not None:
+        raise ValueError(f"{path}: row {short[0]} has {short[1]} values but the header names {len(header)} columns")
+    return header, {name: _as_floats(name, values) for name, values in cells.items()}
+
+
+def _as_floats(name: str, cells: list[str]) -> list[str] | np.ndarray:
+    """``cells`` as floats when every one is a finite number (within +-MAX_READING for a sensor reading), else as
+    they are (``SampleTable.numeric`` then names the first at fault)."""
+    try:
+        values = np.fromiter(map(float, cells), float, len(cells))
+    except ValueError:
+        return cells
+    limit = MAX_READING if name in (*MAG_COLUMNS, *ACC_COLUMNS, *GYRO_COLUMNS) else math.inf
+    return values if np.isfinite(values).all() and not (np.abs(values) > limit).any() else cells
 
 
 def read_samples(path: str | Path) -> SampleTable:
