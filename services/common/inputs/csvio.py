@@ -4,10 +4,9 @@ A sample CSV has a header row naming its columns; any lines before the header (a
 ``Fs,50.00``) are skipped: the header is the first line that names ``mx``, ``my`` and ``mz``. Columns are matched by
 name, case-insensitively; unknown columns are ignored, a column the commands read may not be named twice. Cells may
 be quoted (``"mx","my","mz"``); values are separated by commas: a file separated otherwise (semicolons, tabs) is
-refused with the separator named. A file over ``MAX_CSV_BYTES`` or not UTF-8 is refused, a field over 128 KiB too,
-and so is a sensor reading (``mx..mz``, ``ax..az``, ``gx..gz``) beyond +-1e9 in any unit. A file whose values are
-not all numbers is read by the csv module, row by row (no row kept, at most ``MAX_TEXT_CELLS`` cells). Every problem
-is a ``ValueError`` that names the file, the line and what to do.
+refused with the separator named. A file over ``MAX_CSV_BYTES`` or not UTF-8 is refused, a field over 128 KiB or a
+line over ``MAX_LINE_CHARS`` too, and so is a sensor reading (``mx..mz``, ``ax..az``, ``gx..gz``) beyond +-1e9 in
+any unit. Values not all numbers: the csv module, no row kept. Every problem is a ``ValueError`` naming the file.
 """
 
 from __future__ import annotations
@@ -48,9 +47,11 @@ HEAD_CHARS = 1 << 16
 SCAN_BYTES = 1 << 18
 #: the characters of text split into lines at a time (``_lines``)
 LINE_BLOCK_CHARS = 1 << 16
-#: the most cells the csv module's reader takes (a file whose values are not all numbers is read that way; each cell
-#: a string until its column is read whole, about 75 bytes): 2 million (50 Hz, 11 columns, an hour) about 150 MB
+#: the longest line read (a line of a sample CSV is a few hundred characters; each cell at most ``MAX_FIELD_CHARS``)
+MAX_LINE_CHARS = 1 << 20
+#: the most cells the csv module's reader takes (about 75 bytes each until read whole; 50 Hz, 11 columns, an hour)
 MAX_TEXT_CELLS = 2_000_000
+TEXT_CELLS = "empty cells, text or a bad value; write missing values as nan, or split the recording"
 #: the ASCII line breaks of ``str.splitlines`` that a file read as text (universal newlines) does not break at
 OTHER_LINE_BREAKS = (b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e")
 #: other separators named when the header is found with one of them
@@ -146,14 +147,20 @@ def _csv_problem(exc: csv.Error) -> str:
     return f"not CSV ({exc})"
 
 
-def _lines(text: str) -> Iterator[str]:
-    """The lines of ``text.splitlines()``, split ``LINE_BLOCK_CHARS`` at a time: no list of every line (a file of
-    10 million short lines made one of 500 MB)."""
-    start, end = 0, len(text)
+def _lines(text: str, path: str) -> Iterator[str]:
+    """``text.splitlines()``, ``LINE_BLOCK_CHARS`` at a time (no list of every line); ValueError naming a line over
+    ``MAX_LINE_CHARS``."""
+    start, end, count = 0, len(text), 0
     while start < end:
         stop = text.find("\n", start + LINE_BLOCK_CHARS)
         stop = end if stop < 0 else stop + 1  # cut after a line feed: a line's end wherever it is
-        yield from text[start:stop].splitlines()
+        if stop - start > LINE_BLOCK_CHARS + MAX_LINE_CHARS:
+            before = text.rfind("\n", start, start + LINE_BLOCK_CHARS)
+            count += len(text[start : before + 1].splitlines()) if before >= 0 else 0
+            raise ValueError(f"{path}: line {count + 1} is longer than {MAX_LINE_CHARS // 2**20} MiB: not a sample CSV")
+        block = text[start:stop].splitlines()
+        count += len(block)
+        yield from block
         start = stop
 
 
@@ -181,9 +188,9 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
     """Parse CSV ``text`` into a SampleTable (see the module docstring for the format). A table of numbers is read
     by numpy's C reader (``_numbers``); anything else (text columns, empty cells, a row of another length, a value
     that is refused) by the csv module, cell by cell, which names the line or row and the value at fault."""
-    lines = list(itertools.islice(_lines(text), MAX_PREAMBLE_LINES))
+    lines = list(itertools.islice(_lines(text, path), MAX_PREAMBLE_LINES))
     header_index = _find_header(lines, path, not text or text.isspace())
-    table = _numbers(lines[header_index], itertools.islice(_lines(text), header_index + 1, None), path)
+    table = _numbers(lines[header_index], itertools.islice(_lines(text, path), header_index + 1, None), path)
     if table is not None:
         return table
     header, columns = _read_columns(text, header_index, path)
@@ -197,19 +204,21 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
 
 
 def _file_table(handle: BinaryIO, path: Path) -> SampleTable | None:
-    """The table of numbers (``_numbers``) of a regular file open in ``handle`` (at its start), in ASCII (so UTF-8),
-    whose lines break only where a file read as text does (not at the other breaks of ``str.splitlines``), not over
-    ``MAX_CSV_BYTES``, and whose header is among its first ``HEAD_CHARS`` bytes (found as ``_find_header`` finds it),
-    read by numpy from the file itself: the lines ``parse_samples`` reads, without a Python string for the whole text
-    and one per line first (a fifth of the reader's time on a 60,000-row log); else None. The checks read the file
-    ``SCAN_BYTES`` at a time into one buffer (the whole file in one bytes object was 7 MB of fresh memory on a
-    60,000-row log, a tenth of ``magnet heading``'s page faults)."""
+    """The table of numbers (``_numbers``) of a regular file open in ``handle`` (at its start), in ASCII, whose lines
+    break only where a file read as text does, none over ``MAX_LINE_CHARS``, not over ``MAX_CSV_BYTES``, its header
+    among its first ``HEAD_CHARS`` bytes, read by numpy from the file itself (no Python string of the text or of each
+    line); else None. The checks read ``SCAN_BYTES`` at a time into one buffer."""
     head = handle.read(HEAD_CHARS)
     size, buffer = len(head), bytearray(SCAN_BYTES)
     chunk: bytes | bytearray = head
+    run = 0  # characters since the last line feed
     while chunk:
         if not chunk.isascii() or any(c in chunk for c in OTHER_LINE_BREAKS) or size > MAX_CSV_BYTES:
             return None
+        first, last = chunk.find(b"\n"), chunk.rfind(b"\n")
+        if run + (first if first >= 0 else len(chunk)) > MAX_LINE_CHARS:
+            return None  # a line too long for numpy's reader to be handed (the csv module's path names it)
+        run = len(chunk) - last - 1 if last >= 0 else run + len(chunk)
         count = handle.readinto(buffer)  # type: ignore[attr-defined]
         size += count
         chunk = buffer if count == len(buffer) else bytes(buffer[:count])
@@ -255,12 +264,10 @@ def _numbers(header_line: str, rows: Iterable[str] | Path, path: str, skip: int 
 
 
 def _read_columns(text: str, header_index: int, path: str) -> tuple[list[str], dict[str, list[str] | np.ndarray]]:
-    """(header names in lower case, the named columns of the non-blank rows below it, each as floats when all its
-    cells are finite numbers, sensor readings within +-MAX_READING: what ``SampleTable.numeric`` then gives, else as
-    strings); ValueError naming the line of a field over 128 KiB or of a line that is not CSV, when no row follows
-    the header, the first row shorter than the header, or past ``MAX_TEXT_CELLS`` cells. Rows are not kept: each
-    cell goes into its column as it is read."""
-    reader = csv.reader(line + "\n" for line in itertools.islice(_lines(text), header_index, None))
+    """(header names in lower case, the named columns of the non-blank rows below it: ``_as_floats``); ValueError
+    naming the line of a field over 128 KiB or not CSV, when no row follows the header, the first row shorter than
+    the header, or past ``MAX_TEXT_CELLS`` cells. No row is kept: each cell goes into its column as it is read."""
+    reader = csv.reader(line + "\n" for line in itertools.islice(_lines(text, path), header_index, None))
     try:
         header = [name.strip().lower() for name in next(reader)]
         named = {name: i for i, name in enumerate(header) if name}  # a name given twice: its last column
@@ -276,10 +283,7 @@ def _read_columns(text: str, header_index: int, path: str) -> tuple[list[str], d
             for name, i in named.items():
                 cells[name].append(row[i])
             if count * len(named) > MAX_TEXT_CELLS:
-                raise ValueError(
-                    f"{path}: more than {MAX_TEXT_CELLS} cells to read one by one (its values are not all numbers: "
-                    "empty cells, text or a bad value): write missing values as nan, or split the recording"
-                )
+                raise ValueError(f"{path}: more than {MAX_TEXT_CELLS} cells that are not all numbers: {TEXT_CELLS}")
     except csv.Error as exc:
         raise ValueError(f"{path}: line {header_index + reader.line_num}: {_csv_problem(exc)}") from None
     if not count:
@@ -290,8 +294,7 @@ def _read_columns(text: str, header_index: int, path: str) -> tuple[list[str], d
 
 
 def _as_floats(name: str, cells: list[str]) -> list[str] | np.ndarray:
-    """``cells`` as floats when every one is a finite number (within +-MAX_READING for a sensor reading), else as
-    they are (``SampleTable.numeric`` then names the first at fault)."""
+    """``cells`` as floats when all are finite numbers (sensors within +-MAX_READING), else as they are."""
     try:
         values = np.fromiter(map(float, cells), float, len(cells))
     except ValueError:
@@ -309,7 +312,9 @@ def read_samples(path: str | Path) -> SampleTable:
             if table is not None:
                 return table
             handle.seek(0)
-        data = handle.read(MAX_CSV_BYTES + 1)
+        data = bytearray()  # read a MiB at a time: read(MAX_CSV_BYTES + 1) set 512 MiB aside at once
+        while len(data) <= MAX_CSV_BYTES and (part := handle.read(1 << 20)):
+            data += part
     if len(data) > MAX_CSV_BYTES:
         raise ValueError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MiB: split the recording and fit a part")
     try:
@@ -323,10 +328,9 @@ def read_samples(path: str | Path) -> SampleTable:
 def write_csv(
     stream: TextIO, header: Sequence[str], columns: Iterable[np.ndarray], fmt: str | Sequence[str] = "%.6f"
 ) -> None:
-    """Write equal-length columns under ``header`` as CSV rows (``fmt``: one printf format, or one per column): the
-    lines ``numpy.savetxt`` writes. ``%.<d>f`` and ``%d`` formats are written by ``magnet._kernels.format_rows`` (the
-    same characters; 60,000 rows of 14 columns in a few tens of ms), any other WRITE_ROWS rows at a time by one ``%``
-    (savetxt formats and writes row by row: 1.1 s for those rows, ``%`` 0.2 s)."""
+    """Write equal-length columns under ``header`` as CSV rows (``fmt``: one printf format, or one per column), the
+    lines ``numpy.savetxt`` writes: ``%.<d>f`` and ``%d`` by ``magnet._kernels.format_rows`` (60,000 rows of 14
+    columns in a few tens of ms), any other WRITE_ROWS rows at a time by one ``%`` (savetxt: 1.1 s for those, 0.2 s)."""
     arrays = [np.asarray(c, dtype=float) for c in columns]
 
     def rows(lo: int, hi: int) -> np.ndarray:  # (n, K) view of the rows' columns stacked (a chunk at a time: 6.7 MB

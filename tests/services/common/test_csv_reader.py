@@ -83,5 +83,21 @@ def test_a_bad_cell_keeps_its_column_as_text_and_is_named_and_the_cells_are_boun
     with pytest.raises(ValueError, match="row 2 has 2 values but the header names 3 columns"):
         parse_samples("mx,my,mz\n1,2,3\n1,2\n,,\nx,1,2\n", "short.csv")
     monkeypatch.setattr(csvio, "MAX_TEXT_CELLS", 8)
-    with pytest.raises(ValueError, match="more than 8 cells to read one by one"):
+    with pytest.raises(ValueError, match="more than 8 cells that are not all numbers"):
         parse_samples(text, "bad.csv")
+
+
+def test_a_line_over_a_mib_is_refused_before_numpy_or_the_csv_module_takes_it(tmp_path):
+    """A 64 MB line of digits (a field over 128 KiB either way) peaked at 485-550 MB: numpy's reader and the line
+    splitting copied it several times before the csv module's field limit. Now the scan of the file and the line
+    splitting refuse a line over ``MAX_LINE_CHARS`` (1 MiB), naming it."""
+    import tracemalloc
+
+    path = tmp_path / "long.csv"
+    path.write_text("mx,my,mz\n1,2,3\n" + "1" * (8 << 20) + "\n")
+    tracemalloc.start()
+    with pytest.raises(ValueError, match=r"long.csv: line 3 is longer than 1 MiB: not a sample CSV"):
+        csvio.read_samples(path)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert peak < 3.5 * (8 << 20), peak  # the bytes read and the text: not the line copied again
