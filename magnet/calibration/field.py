@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.calibration import candidates, course, disturbed, turning, unplaced
+from magnet.calibration import base, candidates, course, disturbed, turning, unplaced
 from magnet.calibration.base import FitError
 from magnet.calibration.field_input import MIN_FIELD_SAMPLES
 from magnet.calibration.field_input import FieldInput as FieldInput  # the record, named where the fit is
@@ -56,8 +56,8 @@ from magnet.quality.units_hint import earth_range_refusal
 MIN_GAIN = 0.15
 #: what a record from the velocity's heading says in its quality ``heading_source``
 COURSE_SOURCE = course.COURSE_SOURCE
-#: held-out blocks: as ``magnet.calibration.fitting``
-HOLDOUT_BLOCK, HOLDOUT_EVERY = 20, 5
+#: held-out blocks: as ``magnet.calibration.fitting`` (``base.holdout_mask``: blocks of HOLDOUT_BLOCK_S seconds)
+HOLDOUT_BLOCK, HOLDOUT_EVERY = base.HOLDOUT_BLOCK, base.HOLDOUT_EVERY
 
 
 def _work_scale(unit: str) -> float:
@@ -114,9 +114,9 @@ def _record(result: RungFit, inp: FieldInput, ev: Evidence, count: int) -> Calib
     )
 
 
-def _holdout_mask(count: int) -> np.ndarray:
-    period = np.arange(HOLDOUT_BLOCK * HOLDOUT_EVERY) // HOLDOUT_BLOCK == HOLDOUT_EVERY - 1
-    return np.resize(period, count)
+def _holdout_mask(inp: FieldInput) -> np.ndarray:
+    """The input's held-out rows (``base.holdout_mask``: blocks of HOLDOUT_BLOCK_S seconds of its samples)."""
+    return base.holdout_mask(len(inp.mag), inp.period_s)
 
 
 def fit_field(
@@ -130,7 +130,7 @@ def fit_field(
     if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     planar = is_planar(ev.down)  # a level vehicle's turns may vouch for its first record (``chance.vehicle``):
-    test, vehicle = _holdout_mask(len(inp.mag)), planar and keep is None and chance.vehicle(inp.acc, inp.period_s)
+    test, vehicle = _holdout_mask(inp), planar and keep is None and chance.vehicle(inp.acc, inp.period_s)
     windows, whole_mag = turning.vehicle_turns(whole_input, planar, keep), whole_input.mag
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
     ev, vertical_kept = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: what holds it
