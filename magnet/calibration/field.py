@@ -45,7 +45,7 @@ from magnet.calibration.rungs import (
     is_planar,
 )
 from magnet.model import Calibration
-from magnet.quality import GateThresholds, Geometry, assess, chance, gate, motion, ut_per_unit
+from magnet.quality import GateThresholds, Geometry, assess, chance, for_travel, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import earth_range_refusal
 
@@ -218,7 +218,7 @@ def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThre
     assert inp.gyr is not None and inp.acc is not None and inp.period_s is not None and inp.vel_ned_ms is not None
     assert inp.field_ut is not None and inp.dip_deg is not None and inp.declination_deg is not None
     place = course.Place(inp.field_ut, inp.dip_deg, inp.declination_deg)
-    chosen = dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=math.inf)
+    chosen = for_travel(thresholds)
     keep = disturbed.kept_rows(inp.disturbed)  # a disturbed field enters this fit neither
     motion_in = course.Motion(inp.mag, inp.acc, inp.gyr, inp.period_s, inp.vel_ned_ms, keep)
     record = course.fit_course(motion_in, place, ev.matrix0, _usable(inp.reference, inp), source, chosen, MIN_GAIN)
@@ -351,7 +351,7 @@ def judge(
     if planar or result.rung is PLANAR:
         extra["planar"] = PLANAR_NOTE
     quality = quality.with_extra(**extra)
-    chosen = dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=math.inf)
+    chosen = for_travel(thresholds)
     accepted, reason = gate(quality, chosen)
     small = _small_gain(quality)
     if accepted and small:
