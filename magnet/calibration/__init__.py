@@ -31,17 +31,27 @@ function ``FitInput -> Shape`` and one line in ``METHODS``.
 from __future__ import annotations
 
 from magnet.calibration.alignment import MAX_ALIGN_CONDITION, MIN_GRAVITY_SPREAD, align_rotation
-from magnet.calibration.base import MAX_SCATTER_FOR_3D, MIN_SAMPLES, FitError, Method, Shape
+from magnet.calibration.base import (
+    HOLDOUT_BLOCK,
+    HOLDOUT_BLOCK_S,
+    HOLDOUT_EVERY,
+    MAX_SCATTER_FOR_3D,
+    MIN_SAMPLES,
+    FitError,
+    Method,
+    Shape,
+)
 from magnet.calibration.choose import AUTO, CHOICES, fit_auto, fit_choice, parse_choice
 from magnet.calibration.ellipsoid import GROSS_OUTLIER_FACTOR, MAX_OUTLIER_FRACTION, OUTLIER_SIGMAS
 from magnet.calibration.fit_input import FitInput, TurntableSetup
-from magnet.calibration.fitting import HOLDOUT_BLOCK, HOLDOUT_EVERY, METHODS, MethodSpec, fit, fit_shape
+from magnet.calibration.fitting import METHODS, MethodSpec, fit, fit_shape
 
 __all__ = [
     "AUTO",
     "CHOICES",
     "GROSS_OUTLIER_FACTOR",
     "HOLDOUT_BLOCK",
+    "HOLDOUT_BLOCK_S",
     "HOLDOUT_EVERY",
     "MAX_ALIGN_CONDITION",
     "MAX_OUTLIER_FRACTION",

@@ -48,6 +48,27 @@ class FitError(ValueError):
     """No calibration can be computed from these samples; the message says why and what to do."""
 
 
+#: samples are taken in blocks of HOLDOUT_BLOCK_S seconds; every HOLDOUT_EVERY-th block is held out to score the fit
+#: on data it did not see (blocks, not single samples: neighbours in time are nearly the same reading). In seconds, so
+#: that the held-out rows fall at the same moments of a motion at every rate: counted as 20 samples, a 100 Hz stream
+#: held out twice as often as a 50 Hz one, and a walk's corner a 50 Hz judgement never saw decided a 100 Hz one
+#: (docs/field-calibration.md, "Sample rates"). HOLDOUT_BLOCK samples where the samples have no period (the
+#: calibrator's sphere cells): 0.4 s at 50 Hz
+HOLDOUT_BLOCK = 20
+HOLDOUT_BLOCK_S = 0.4
+HOLDOUT_EVERY = 5
+
+
+def holdout_mask(count: int, period_s: float | None = None) -> np.ndarray:
+    """(count,) bool: every HOLDOUT_EVERY-th block of HOLDOUT_BLOCK_S seconds of samples ``period_s`` apart (None:
+    of HOLDOUT_BLOCK samples), the held-out test set."""
+    block = HOLDOUT_BLOCK
+    if period_s is not None and period_s > 0 and np.isfinite(period_s):
+        block = max(1, round(HOLDOUT_BLOCK_S / period_s))
+    period = np.arange(block * HOLDOUT_EVERY) // block == HOLDOUT_EVERY - 1
+    return np.resize(period, count)  # the pattern repeats every HOLDOUT_EVERY blocks
+
+
 #: fewest samples each method accepts (several times its parameter count, so that noise averages out)
 MIN_SAMPLES: dict[Method, int] = {
     Method.MINMAX2D: 8,

@@ -71,6 +71,7 @@ class Collection:
         self.window_s: float | None = None  # fit only the last this many seconds of the run (None: all of it)
         self.tried_ns = -(2**62)  # a refresh's last try: the time of the newest sample then (ns)
         self.changed_batches = 0  # a refresh: batches in a row whose field strength the record in force misses
+        self.changed_since_ns = 0  # ... the time of the first sample of the first of them (ns)
         self.after_change = False  # a refresh collection made after the device's iron changed
         self.iron_watch: Any = None  # a refresh: its iron's watch (``magnet.calibrator.iron_moved.IronWatch``)
         self.run_capacity = run_capacity

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from magnet import frames
-from magnet.calibration import candidates, course, disturbed, turning, unplaced
+from magnet.calibration import base, candidates, course, disturbed, turning, unplaced
 from magnet.calibration.base import FitError
 from magnet.calibration.field_input import MIN_FIELD_SAMPLES
 from magnet.calibration.field_input import FieldInput as FieldInput  # the record, named where the fit is
@@ -45,7 +45,7 @@ from magnet.calibration.rungs import (
     is_planar,
 )
 from magnet.model import Calibration
-from magnet.quality import GateThresholds, Geometry, assess, chance, gate, motion, ut_per_unit
+from magnet.quality import GateThresholds, Geometry, assess, chance, for_travel, gate, motion, ut_per_unit
 from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import earth_range_refusal
 
@@ -56,8 +56,8 @@ from magnet.quality.units_hint import earth_range_refusal
 MIN_GAIN = 0.15
 #: what a record from the velocity's heading says in its quality ``heading_source``
 COURSE_SOURCE = course.COURSE_SOURCE
-#: held-out blocks: as ``magnet.calibration.fitting``
-HOLDOUT_BLOCK, HOLDOUT_EVERY = 20, 5
+#: held-out blocks: as ``magnet.calibration.fitting`` (``base.holdout_mask``: blocks of HOLDOUT_BLOCK_S seconds)
+HOLDOUT_BLOCK, HOLDOUT_EVERY = base.HOLDOUT_BLOCK, base.HOLDOUT_EVERY
 
 
 def _work_scale(unit: str) -> float:
@@ -114,9 +114,9 @@ def _record(result: RungFit, inp: FieldInput, ev: Evidence, count: int) -> Calib
     )
 
 
-def _holdout_mask(count: int) -> np.ndarray:
-    period = np.arange(HOLDOUT_BLOCK * HOLDOUT_EVERY) // HOLDOUT_BLOCK == HOLDOUT_EVERY - 1
-    return np.resize(period, count)
+def _holdout_mask(inp: FieldInput) -> np.ndarray:
+    """The input's held-out rows (``base.holdout_mask``: blocks of HOLDOUT_BLOCK_S seconds of its samples)."""
+    return base.holdout_mask(len(inp.mag), inp.period_s)
 
 
 def fit_field(
@@ -130,7 +130,7 @@ def fit_field(
     if keep is not None:  # the undisturbed samples alone, the gyroscope's windows between them kept
         inp, ev, ev_motion = disturbed.undisturbed(inp, ev, ev_motion, keep, MIN_FIELD_SAMPLES)
     planar = is_planar(ev.down)  # a level vehicle's turns may vouch for its first record (``chance.vehicle``):
-    test, vehicle = _holdout_mask(len(inp.mag)), planar and keep is None and chance.vehicle(inp.acc, inp.period_s)
+    test, vehicle = _holdout_mask(inp), planar and keep is None and chance.vehicle(inp.acc, inp.period_s)
     windows, whole_mag = turning.vehicle_turns(whole_input, planar, keep), whole_input.mag
     field_known = inp.field_ut is not None and bool(ut_per_unit(inp.unit))
     ev, vertical_kept = unplaced.hold_vertical(ev, source, planar, field_known)  # no place: what holds it
@@ -218,7 +218,7 @@ def _course_fit(inp: FieldInput, ev: Evidence, source: str, thresholds: GateThre
     assert inp.gyr is not None and inp.acc is not None and inp.period_s is not None and inp.vel_ned_ms is not None
     assert inp.field_ut is not None and inp.dip_deg is not None and inp.declination_deg is not None
     place = course.Place(inp.field_ut, inp.dip_deg, inp.declination_deg)
-    chosen = dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=math.inf)
+    chosen = for_travel(thresholds)
     keep = disturbed.kept_rows(inp.disturbed)  # a disturbed field enters this fit neither
     motion_in = course.Motion(inp.mag, inp.acc, inp.gyr, inp.period_s, inp.vel_ned_ms, keep)
     record = course.fit_course(motion_in, place, ev.matrix0, _usable(inp.reference, inp), source, chosen, MIN_GAIN)
@@ -351,7 +351,7 @@ def judge(
     if planar or result.rung is PLANAR:
         extra["planar"] = PLANAR_NOTE
     quality = quality.with_extra(**extra)
-    chosen = dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=math.inf)
+    chosen = for_travel(thresholds)
     accepted, reason = gate(quality, chosen)
     small = _small_gain(quality)
     if accepted and small:

@@ -11,7 +11,16 @@ import numpy as np
 
 from magnet.calibration import disturbed
 from magnet.calibration.alignment import aligned, ellipsoid_align, needs_acc
-from magnet.calibration.base import GYROSCOPE_NEEDED, FitError, Method, Shape, check_acc, check_gyr, check_samples
+from magnet.calibration.base import (
+    GYROSCOPE_NEEDED,
+    FitError,
+    Method,
+    Shape,
+    check_acc,
+    check_gyr,
+    check_samples,
+    holdout_mask,
+)
 from magnet.calibration.closed_form import minmax, minmax2d, sphere
 from magnet.calibration.ellipsoid import ellipsoid
 from magnet.calibration.fit_input import FitInput
@@ -22,10 +31,6 @@ from magnet.quality import GateThresholds, Geometry, assess, gate, motion, ut_pe
 from magnet.quality.stats import take_rows
 from magnet.quality.units_hint import earth_range_refusal, unit_hint
 
-#: samples are taken in blocks of HOLDOUT_BLOCK; every HOLDOUT_EVERY-th block is held out to score the fit on data
-#: it did not see (blocks, not single samples: neighbours in time are nearly the same reading)
-HOLDOUT_BLOCK = 20
-HOLDOUT_EVERY = 5
 #: the held-out fit of an iterative method stops when a step gains less than this fraction of its cost (the fit of
 #: every sample: ``magnet.calibration.ellipsoid.TOLERANCE``); measured, its offset stays within 1e-4 uT of a fit to
 #: the full tolerance from a cold start
@@ -283,24 +288,23 @@ def _held_out_rows(
 ) -> tuple[tuple[np.ndarray, Calibration] | None, np.ndarray]:
     """(``_holdout``'s result, the held-out rows among the kept ones): every HOLDOUT_EVERY-th block held out, the
     disturbed samples (``keep`` False) in neither set."""
-    test = _holdout_mask(len(data.mag))
+    test = _holdout_mask(len(data.mag), data.period_s)
     if keep is None:
         return _holdout(data, method, whole, test), test
     return _holdout(data, method, whole, test & keep, ~test & keep), test[keep]
 
 
-def _holdout_mask(count: int) -> np.ndarray:
-    """(count,) bool: every HOLDOUT_EVERY-th block of HOLDOUT_BLOCK samples, the held-out test set."""
-    period = np.arange(HOLDOUT_BLOCK * HOLDOUT_EVERY) // HOLDOUT_BLOCK == HOLDOUT_EVERY - 1
-    return np.resize(period, count)  # the pattern repeats every HOLDOUT_EVERY blocks
+def _holdout_mask(count: int, period_s: float | None = None) -> np.ndarray:
+    """(count,) bool: the held-out test set (``base.holdout_mask``: blocks of HOLDOUT_BLOCK_S seconds)."""
+    return holdout_mask(count, period_s)
 
 
 def _holdout(
     data: FitInput, method: Method, whole: Shape, test: np.ndarray, train: np.ndarray | None = None
 ) -> tuple[np.ndarray, Calibration] | None:
     """(test samples, calibration fitted on the training rows, by default the rest): every HOLDOUT_EVERY-th block of
-    samples is the test set (``test``: ``_holdout_mask(len(mag))``, less the disturbed samples, which are in neither
-    set); ``data``: the input, its mag and acc float arrays; None when the training rows cannot be fitted.
+    samples is the test set (``test``: ``_holdout_mask(len(mag), period_s)``, less the disturbed samples, which are in
+    neither set); ``data``: the input, its mag and acc float arrays; None when the training rows cannot be fitted.
 
     ``whole``: the shape fitted to every sample. The iterative methods (``_warm``) start the held-out fit from it,
     and stop at HOLDOUT_TOLERANCE: the fit is still of the training samples alone (the same robust steps, the same

@@ -26,7 +26,7 @@ from magnet.calibration.gyro_ellipsoid import gyro_attitudes, kept_windows, skew
 from magnet.calibration.gyro_ellipsoid import windows as gyro_windows
 from magnet.frames import rotation_vector_to_matrix
 from magnet.model import Calibration
-from magnet.quality import GateThresholds, gate
+from magnet.quality import GateThresholds, for_travel, gate
 
 #: a window ends once the gyroscope has turned this far since its start ...
 WINDOW_ANGLE_DEG = 90.0
@@ -134,9 +134,7 @@ def judged_by_turns(
     theirs = turn_residual_ut(windows, reference.apply(raw))
     gain = 1.0 - float(mine) / theirs
     figures = {key: value for key, value in record.quality.to_dict().items() if key != "holdout_consistency_deg"}
-    accepted, reason = gate(
-        figures, dataclasses.replace(thresholds or GateThresholds(), min_coverage=0.0, max_scatter_condition=np.inf)
-    )
+    accepted, reason = gate(figures, for_travel(thresholds))
     figures_turned = f"{float(mine):.3f} against {theirs:.3f} uT RMS"
     if accepted and gain < REFRESH_TURN_GAIN:
         accepted, reason = (

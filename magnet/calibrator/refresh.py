@@ -61,7 +61,11 @@ REFRESH_RUN_CAPACITY = 12_000
 REFRESH_MIN_SAMPLES = 300
 #: the record in force's field strength this far off (%) ...
 CHANGED_PCT = 15.0
-#: ... for this many batches in a row: the device's iron changed, the samples before are dropped
+#: ... for this long in a row (s, by the samples' times: four of ``magnet bench field``'s batches of 0.5 s): the
+#: device's iron changed, the samples before are dropped. Counted in batches (4) it was 0.2 s of a 200 Hz stream in
+#: ``magnet edge``'s batches of 10 samples, where a door passed looks like a new iron (docs/field-calibration.md,
+#: "Sample rates"); CHANGED_BATCHES is what it was
+CHANGED_S = 2.0
 CHANGED_BATCHES = 4
 #: after the iron changed the record in force is known wrong: a refresh is tried from this many seconds of samples
 #: after the change, and then this often (s), until one is made (the ladder's identifiability and judgement decide
@@ -123,7 +127,7 @@ class Refresher:
 
     def receive(self, batch: wire.RawBatch, in_force: Calibration | None = None) -> Collection | None:
         """Add a calibrated device's batch to its refresh collection (made on its first batch); None when off.
-        ``in_force``: the record in force; when its field strength is off by CHANGED_PCT for CHANGED_BATCHES
+        ``in_force``: the record in force; when its field strength is off by CHANGED_PCT for CHANGED_S seconds of
         batches in a row, the device's iron changed (a new case, a magnet): what came before is dropped, so that
         the refresh fits what came after the change only."""
         if self.mode is Mode.OFF:
@@ -145,16 +149,22 @@ class Refresher:
 
     @staticmethod
     def _changed(collection: Collection, batch: wire.RawBatch, in_force: Calibration) -> bool:
-        """Whether the record's field strength has been CHANGED_PCT off for CHANGED_BATCHES batches now while the
-        collection still holds samples from before (a collection made after the change is kept)."""
+        """Whether the record's field strength has been CHANGED_PCT off for CHANGED_S seconds of batches in a row
+        now (from the first sample of the first such batch to one step after the last sample of this one) while
+        the collection still holds samples from before (a collection made after the change is kept)."""
         strength = in_force.field_strength
         if not strength or in_force.output_unit != "ut" or in_force.unit != "ut":
             return False
         norm = np.linalg.norm(in_force.apply(batch.mag_ut), axis=1)
         off = abs(float(np.median(norm)) / strength - 1.0) * 100.0 > CHANGED_PCT
         collection.changed_batches = collection.changed_batches + 1 if off else 0
+        first, last = int(batch.t_ns[0]), int(batch.t_ns[-1])
+        if collection.changed_batches == 1:
+            collection.changed_since_ns = first
+        step = (last - first) / (len(batch) - 1) if len(batch) > 1 else 0.0
+        long_off = off and last + step - collection.changed_since_ns >= CHANGED_S * 1e9 - 1e6  # 1 ms: jitter
         older = collection.seen > (collection.changed_batches + 1) * len(batch)  # samples from before the change
-        return (collection.changed_batches >= CHANGED_BATCHES or _moved(collection, batch, in_force)) and older
+        return (long_off or _moved(collection, batch, in_force)) and older
 
     def proposes(self, collection: Collection, calibration: Calibration | None = None) -> bool:
         """Whether a refresh that passed (``calibration``) is proposed as a session rather than committed:

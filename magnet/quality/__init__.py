@@ -29,7 +29,7 @@ from magnet.quality.coverage import (
 )
 from magnet.quality.disturbance import DisturbanceSettings, FieldDisturbance, field_disturbance
 from magnet.quality.figures import Geometry, assess, dip_spread_deg, matrix_condition, scatter_condition
-from magnet.quality.gate import GateThresholds, gate
+from magnet.quality.gate import GateThresholds, for_travel, gate
 from magnet.units import ut_per_unit
 
 __all__ = [
@@ -46,6 +46,7 @@ __all__ = [
     "dip_spread_deg",
     "fibonacci_centres",
     "field_disturbance",
+    "for_travel",
     "gate",
     "heading_coverage",
     "matrix_condition",

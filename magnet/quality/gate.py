@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -42,6 +43,27 @@ class GateThresholds:
     max_soft_iron_condition: float = 5.0
     max_scatter_condition: float = 10.0
     max_dip_spread_deg: float = 5.0
+
+
+#: a field fit's |B| residual limits are this many times a tumble's: its samples come from a path through space, where
+#: the local field itself varies (BROAD's motion-capture lab, a factory-calibrated sensor tumbled in one spot: 1.66-1.77
+#: uT against the 1.6 uT limit; a walk crosses the room), and its rung's heading figure already carries the residual's
+#: spread (docs/field-calibration.md, "The field's own variation along a path")
+TRAVEL_RESIDUAL_FACTOR = 2.0
+
+
+def for_travel(thresholds: GateThresholds | None = None) -> GateThresholds:
+    """The gate of a fit from motion through space (the field ladder's rungs, a vehicle's course fit and its refresh
+    judged by turns): no coverage or scatter asked (identifiability stands in for them), the residual limits
+    ``TRAVEL_RESIDUAL_FACTOR`` times ``thresholds``' (default ``GateThresholds()``)."""
+    base = thresholds or GateThresholds()
+    return dataclasses.replace(
+        base,
+        min_coverage=0.0,
+        max_scatter_condition=math.inf,
+        max_residual_ut=TRAVEL_RESIDUAL_FACTOR * base.max_residual_ut,
+        max_residual_pct=TRAVEL_RESIDUAL_FACTOR * base.max_residual_pct,
+    )
 
 
 def _num(quality: QualityLike, key: str) -> float | None:

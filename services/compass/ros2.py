@@ -15,6 +15,11 @@ device only when that one has been silent for ``IDLE_S`` (counted, ``sinks.ros2_
 off ROS 2 (``dropped[ros2:device-limit]``); each drain declares new topics for at most ``DECLARE_BUDGET_S`` (at least
 one device; the rest wait for a later drain, their samples counted as ``dropped[ros2:declare-budget]``); the devices
 that have topics are published before any new one is declared, and the CDR is built only for the devices published.
+
+Zenoh keeps that per key a session ever declared (about 9 kB a device; the same keys again cost nothing) until the
+session closes. So behind a router the sink declares on a session of its own (``opener``), renewed once it declared
+topics for ``DEVICES_PER_SESSION`` devices per slot, the devices that have topics declared again on the new one
+(counted, ``sinks.ros2_sessions_renewed``): new ids (an edge restarted) leave at most that many devices' keys behind.
 """
 
 from __future__ import annotations
@@ -22,9 +27,10 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import functools
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Self, cast
 
 import numpy as np
@@ -39,6 +45,7 @@ from magnet.ros2 import compass as ros_compass
 from magnet.ros2 import messages, names
 from magnet.vehicle import VehicleReport
 from services.common.ros2_options import Ros2Settings
+from services.common.zenoh_session import open_session, session_mode
 from services.compass.settings import CompassSettings
 
 log = logging.getLogger("magnet.compass.ros2")
@@ -55,6 +62,8 @@ PROMOTE_BATCHES = 3
 #: devices counted toward PROMOTE_BATCHES at most, per slot of ``--ros2-max-devices`` (the least recently seen
 #: forgotten: in a flood of 5,000 new ids a second, 2,048 counted keep a device sending every 0.4 s or faster)
 CANDIDATES_PER_SLOT = 8
+#: devices one session of the sink declares topics for, per slot of ``--ros2-max-devices`` (the module): 4.6 MB at most
+DEVICES_PER_SESSION = 2
 #: vehicles whose compasses are compared in each DiagnosticArray at most (each comparison costs about 2 ms)
 MAX_VEHICLE_DIAGNOSTICS = 16
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -112,15 +121,20 @@ class Ros2Compass:
     its publishers made per device as devices appear (at most ``max_devices``, the module's shedding), the
     diagnostics every second. A context manager: leaving it undeclares everything."""
 
-    def __init__(self, session: zenoh.Session, settings: Ros2Settings, name: str, max_devices: int) -> None:
-        self.session, self.domain, self.namespace = session, settings.domain, settings.namespace
+    def __init__(
+        self,
+        session: zenoh.Session,
+        settings: Ros2Settings,
+        name: str,
+        max_devices: int,
+        opener: Callable[[], contextlib.AbstractContextManager[zenoh.Session]] | None = None,  # its own sessions
+    ) -> None:
+        self.domain, self.namespace = settings.domain, settings.namespace
         self.node = names.ros_name_of_device(name)
-        self.zid = str(session.info.zid())
-        self.entities = 0
+        self.opener, self.renewed, self.declared_devices = opener, 0, 0
+        self._own = contextlib.ExitStack()  # the session of its own, when there is an opener
         self._declared = contextlib.ExitStack()
-        self._declared.enter_context(
-            session.liveliness().declare_token(names.node_token(self.domain, self.zid, 0, self.namespace, self.node))
-        )
+        self._open_node(session)
         self.max_devices = max_devices
         #: device -> (its two topics, when it was last published (monotonic s)), least recently published first
         self.devices: collections.OrderedDict[str, tuple[tuple[_Topic, _Topic], float]] = collections.OrderedDict()
@@ -129,11 +143,37 @@ class Ros2Compass:
         self.candidates: Recent[str, int] = Recent(CANDIDATES_PER_SLOT * max_devices)
         self.disturbed: Recent[str, float] = Recent(max_devices)
         self.sigma: Recent[str, float] = Recent(max_devices)  # the median heading sigma of each device's last batch
-        self.diagnostics = _Topic(self, DIAGNOSTICS_TOPIC, messages.DIAGNOSTIC_ARRAY)
-        self._declared.callback(self.diagnostics.close)
         self.next_diagnostics = time.monotonic() + DIAGNOSTICS_PERIOD_S
         self.published = 0
         log.info("ROS 2: node %s/%s in domain %d (rmw_zenoh keys)", self.namespace, self.node, self.domain)
+
+    def _open_node(self, session: zenoh.Session) -> None:
+        """The node's token and the diagnostics' topic on ``session``, or on a new session of its own."""
+        self.session = self._own.enter_context(self.opener()) if self.opener is not None else session
+        self.zid, self.entities = str(self.session.info.zid()), 0
+        token = names.node_token(self.domain, self.zid, 0, self.namespace, self.node)
+        self._declared.enter_context(self.session.liveliness().declare_token(token))
+        self.diagnostics = _Topic(self, DIAGNOSTICS_TOPIC, messages.DIAGNOSTIC_ARRAY)
+        self._declared.callback(self.diagnostics.close)
+
+    def _renew(self) -> None:
+        """A new session of its own (what Zenoh kept for the old one's keys goes), every topic declared again."""
+        for topics, _ in self.devices.values():
+            _close_topics("", topics)
+        self._declared.close()
+        self._own.close()
+        self._open_node(self.session)
+        for device, (_, last_s) in self.devices.items():
+            self.devices[device] = (self._topics(device), last_s)
+        self.declared_devices = len(self.devices)
+        self.renewed += 1
+        log.info("ROS 2: a new session for the sink's topics (%d devices declared again)", len(self.devices))
+
+    def _topics(self, device: str) -> tuple[_Topic, _Topic]:
+        return (
+            _Topic(self, names.topic_name(self.namespace, device, "mag"), messages.MAGNETIC_FIELD),
+            _Topic(self, names.topic_name(self.namespace, device, "imu"), messages.IMU),
+        )
 
     def _declare(self, device: str, now_s: float) -> bool:
         """Topics for a new device: in a free slot, or in the slot of the least recently published device when it
@@ -146,13 +186,10 @@ class Ros2Compass:
             self.disturbed.pop(oldest, None)
             _close_topics(oldest, topics)
             self.evicted += 1
-        self.devices[device] = (
-            (
-                _Topic(self, names.topic_name(self.namespace, device, "mag"), messages.MAGNETIC_FIELD),
-                _Topic(self, names.topic_name(self.namespace, device, "imu"), messages.IMU),
-            ),
-            now_s,
-        )
+        if self.opener is not None and self.declared_devices >= DEVICES_PER_SESSION * self.max_devices:
+            self._renew()
+        self.devices[device] = (self._topics(device), now_s)
+        self.declared_devices += 1
         return True
 
     def known(self, devices: Sequence[str], now_s: float) -> list[bool]:
@@ -195,7 +232,9 @@ class Ros2Compass:
                 "counted (status dropped[ros2:unproven])",
                 PROMOTE_BATCHES,
             )
-        core.sink_counts.update(ros2_topics=len(self.devices), ros2_topics_evicted=self.evicted)
+        core.sink_counts.update(
+            ros2_topics=len(self.devices), ros2_topics_evicted=self.evicted, ros2_sessions_renewed=self.renewed
+        )
         return [not was_known and verdict[device] for device, was_known in zip(devices, known)]
 
     def admit(self, devices: Sequence[str], core: CompassCore, now_s: float) -> list[bool]:
@@ -220,7 +259,9 @@ class Ros2Compass:
         """The compass's ROS 2 sink (``services.compass.sinks``), None without ``--ros2``."""
         if not settings.ros2.enabled:
             return None
-        return cls(session, settings.ros2, settings.name, settings.ros2_max_devices)
+        own = session_mode(settings.zenoh) == "client"  # behind a router: a session of its own, renewed
+        opener = functools.partial(_open_own, settings) if own else None
+        return cls(session, settings.ros2, settings.name, settings.ros2_max_devices, opener)
 
     def publish(self, columns: wire.RawColumns, out: HeadingColumns, core: CompassCore) -> None:
         """Put a MagneticField and an Imu per sample of ``columns`` (``out``: the compass's ``HeadingColumns`` of
@@ -310,6 +351,13 @@ class Ros2Compass:
             _close_topics("", topics)
         self.devices.clear()
         self._declared.close()
+        self._own.close()
+
+
+def _open_own(settings: CompassSettings) -> contextlib.AbstractContextManager[zenoh.Session]:
+    from services.compass.service import ZENOH_DEFAULTS  # the compass's link settings (a cycle at import)
+
+    return open_session(settings.zenoh, ZENOH_DEFAULTS)
 
 
 def _close_topics(_device: str, topics: tuple[_Topic, _Topic]) -> None:

@@ -8,7 +8,9 @@ sample. Raw messages of other devices pass through a small ring (``RAW_RING_CAPA
 name of a new device, each refused by its size before it is copied and let go before the next is taken.
 Headings and progress wait in rings too (``RING_CAPACITY``), and each sample is copied and let go as it is read
 (``copied``): a Zenoh sample keeps its receive buffer alive, and FIFOs of 65,536 held a flood's worth of them
-(docs/front-door.md). The freed heap is given back every ``TRIM_S``.
+(docs/front-door.md). The freed heap is given back every ``TRIM_S``. Zenoh keeps about 0.9 kB in a session for every
+liveliness token key its subscriber was ever told of, until the session closes: with an ``opener`` (behind a router)
+the tokens are taken on a session of their own, renewed after ``TOKENS_PER_SESSION`` of them.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import zenoh
@@ -33,6 +36,10 @@ from services.dashboard.state import FleetState
 log = logging.getLogger("magnet.dashboard")
 
 CHANNEL_CAPACITY = 65536
+#: liveliness samples one session takes before the ingest opens a new one for them (the module; 8,192 token keys are
+#: about 7 MB kept by Zenoh; a MAVLink port's flood made 32,000 before the edge's bounds), beyond twice the tokens
+#: alive (which a new session's history gives again: a fleet of more never renews at every step)
+TOKENS_PER_SESSION = 8192
 #: headings and progress wait in rings of this many messages (the oldest go first when a step is late: only each
 #: device's newest is shown); a FIFO of 65,536 held every message of a flood, each pinning Zenoh's receive buffer.
 #: Four floods of 20,000 ids (5,000/s) against a dashboard, a compass and a calibrator: RSS peaks 112-215 MB with
@@ -88,6 +95,7 @@ class Ingest:
         state: FleetState,
         tick_s: float = 0.25,
         metrics_board: StatusBoard | None = None,
+        opener: Callable[[], contextlib.AbstractContextManager[zenoh.Session]] | None = None,  # the tokens' sessions
     ) -> None:
         self.session, self.prefix, self.state, self.tick_s = session, prefix, state, tick_s
         #: what ``--metrics`` serves (``FleetState.metrics_status``), written by this thread at most every
@@ -96,11 +104,10 @@ class Ingest:
         self.stop = threading.Event()
         self.declared = contextlib.ExitStack()
         fifo = zenoh.handlers.FifoChannel
-        self.alive = self._declare(
-            session.liveliness().declare_subscriber(
-                wire.liveliness_key(prefix, "device", "*"), fifo(CHANNEL_CAPACITY), history=True
-            )
-        )
+        self.opener, self.tokens_seen, self.renewed = opener, 0, 0
+        self.tokens_alive = 0  # puts less deletes since the session opened: its history gives them again
+        self.alive_declared = contextlib.ExitStack()
+        self.alive = self._alive()
         self.headings = self._subscribe(wire.Kind.HEADING, zenoh.handlers.RingChannel(RING_CAPACITY))
         self.progress = self._subscribe(wire.Kind.PROGRESS, zenoh.handlers.RingChannel(RING_CAPACITY))
         self.calibrations = self._subscribe(wire.Kind.CALIBRATION, fifo(4096))
@@ -113,6 +120,29 @@ class Ingest:
         self.trim = BurstTrim(TRIM_BUSY_MESSAGES, TRIM_S, TRIM_BUSY_S, trim=lambda: give_back_now())
         self.refused_large = False  # a raw payload over a raw message's size was refused this step (a bomb: MBs)
         self.guard = Guard("dashboard", log, state.dropped)
+
+    def _alive(self) -> Subscriber:
+        """The devices' tokens (those alive now first: history), on a new session of their own with an opener."""
+        stack, session = contextlib.ExitStack(), self.session
+        if self.opener is not None:
+            session = stack.enter_context(self.opener())
+        channel: zenoh.handlers.FifoChannel[zenoh.Sample] = zenoh.handlers.FifoChannel(CHANNEL_CAPACITY)
+        key = wire.liveliness_key(self.prefix, "device", "*")
+        subscriber = stack.enter_context(session.liveliness().declare_subscriber(key, channel, history=True))
+        self.alive_declared = stack
+        return subscriber
+
+    def _renew_alive(self) -> None:
+        """The tokens on a new session (its history gives the live ones again), the old one's samples taken, then
+        the old closed: what Zenoh kept for every token key it was told of goes with it."""
+        old, old_declared = self.alive, self.alive_declared
+        self.alive = self._alive()
+        for sample in drain(old, MAX_DRAIN):
+            self.guard.run("alive", self._on_alive, sample)
+        old_declared.close()
+        self.tokens_seen = self.tokens_alive = 0
+        self.renewed += 1
+        log.info("a new session for the devices' liveliness tokens (%d renewals)", self.renewed)
 
     def _declare(self, subscriber: Subscriber) -> Subscriber:
         return self.declared.enter_context(subscriber)
@@ -132,6 +162,7 @@ class Ingest:
             watch.close()
         self.raw_watched.clear()
         self.declared.close()
+        self.alive_declared.close()
 
     def run(self) -> None:
         """Drain until ``stop`` is set."""
@@ -147,6 +178,10 @@ class Ingest:
         run = self.guard.run  # each message through the guard: one that makes a handler fail is dropped, counted
         for sample in drain(self.alive, MAX_DRAIN):
             run("alive", self._on_alive, sample)
+            self.tokens_seen += 1
+            self.tokens_alive += 1 if sample.kind == zenoh.SampleKind.PUT else -1
+        if self.opener is not None and self.tokens_seen >= TOKENS_PER_SESSION + 2 * self.tokens_alive:
+            self._renew_alive()
         for sample in drain(self.calibrations, MAX_DRAIN):
             run("calibration", self._on_calibration, str(sample.key_expr), payload_bytes(sample))
         self._take_replies()

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import logging
 import os
 import secrets
@@ -26,7 +27,7 @@ from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
 from services.common.status_board import StatusBoard
-from services.common.zenoh_session import open_session
+from services.common.zenoh_session import open_session, session_mode
 from services.dashboard.settings import (
     DEFAULT_HTTP,
     TOKEN_ENV,
@@ -123,7 +124,11 @@ def serve(settings: DashboardSettings) -> int:
         session = stack.enter_context(open_session(settings.zenoh, ZENOH_DEFAULTS))
         stack.enter_context(session.liveliness().declare_token(wire.liveliness_key(prefix, "dashboard", "dashboard")))
         board = _metrics_board(settings, state)
-        ingest = stack.enter_context(Ingest(session, prefix, state, tick_s=settings.refresh_s, metrics_board=board))
+        own = session_mode(settings.zenoh) == "client"  # behind a router: the tokens on sessions of their own, renewed
+        opener = functools.partial(open_session, settings.zenoh, ZENOH_DEFAULTS) if own else None
+        ingest = stack.enter_context(
+            Ingest(session, prefix, state, tick_s=settings.refresh_s, metrics_board=board, opener=opener)
+        )
         if board is not None:  # what the ingest thread wrote, never the rows (scrapes run on their own thread)
             metrics.start(settings.metrics, "dashboard", board.read)
         thread = threading.Thread(target=ingest.run, name="dashboard-ingest", daemon=True)

@@ -21,6 +21,8 @@ from services.common.inputs.input_options import InputOptions
 
 TRUTH_COLUMN = "true_heading_deg"  # what ``magnet sample --emulate`` writes
 PITCH_COLUMN = "pitch_deg"
+#: the most rows of an .npz recording's array (an hour at 500 Hz; 48 MB of float64 each)
+MAX_NPZ_SAMPLES = 2_000_000
 MAX_SCORED_PITCH_DEG = 70.0  # beyond this the heading of the x axis is poorly defined
 
 
@@ -81,11 +83,7 @@ def load_samples(
     with ``command`` its note goes to stderr under that name) or a BROAD-style .npz (``mag_ut``, ``acc_ms2``)."""
     path = Path(path)
     if path.suffix.lower() == ".npz":
-        with np.load(path) as data:
-            if "mag_ut" not in data.files:
-                raise ValueError(f"{path}: an .npz recording needs a mag_ut array (N x 3, uT)")
-            mag = np.asarray(data["mag_ut"], dtype=float)
-            acc = np.asarray(data["acc_ms2"], dtype=float) if "acc_ms2" in data.files else None
+        mag, acc = _npz_arrays(path)
         keep = np.isfinite(mag).all(axis=1) & (np.isfinite(acc).all(axis=1) if acc is not None else True)
         return Samples(str(path), mag[keep], unit or "ut", None if acc is None else acc[keep])
     options = options or InputOptions()
@@ -93,6 +91,48 @@ def load_samples(
     return Samples(
         str(path), table.mag, unit or "ut", table.acc, _column(table, TRUTH_COLUMN), _column(table, PITCH_COLUMN)
     )
+
+
+def _npz_arrays(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """``mag_ut`` and ``acc_ms2`` (or None) of an .npz recording; ValueError naming the file for one that is not a
+    zip numpy reads, an array that is not (N, 3) numbers, or that claims more than ``MAX_NPZ_SAMPLES`` rows or more
+    bytes than its zip entry holds: each array's header is read before the array (a 2 MB file inflating to 2 GiB,
+    or a header claiming 10^10 rows, made numpy allocate them)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for name in ("mag_ut.npy", "acc_ms2.npy"):
+                if name in archive.namelist():
+                    _check_npy(path, name, archive)
+        with np.load(path, allow_pickle=False) as data:
+            if "mag_ut" not in data.files:
+                raise ValueError(f"{path}: an .npz recording needs a mag_ut array (N x 3, uT)")
+            mag = np.asarray(data["mag_ut"], dtype=float)
+            acc = np.asarray(data["acc_ms2"], dtype=float) if "acc_ms2" in data.files else None
+    except (OSError, EOFError, zipfile.BadZipFile, ValueError) as exc:
+        if isinstance(exc, ValueError) and str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not an .npz recording numpy can read ({type(exc).__name__}: {exc})") from None
+    return mag, acc
+
+
+def _check_npy(path: Path, name: str, archive: Any) -> None:
+    info = archive.getinfo(name)
+    with archive.open(name) as member:
+        version = np.lib.format.read_magic(member)
+        if version not in ((1, 0), (2, 0)):
+            raise ValueError(f"{path}: {name} is an .npy of version {version}; numpy writes 1.0 or 2.0")
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read(member)  # the header only
+    rows = shape[0] if len(shape) == 2 and shape[1] == 3 else -1
+    if rows < 0 or dtype.kind not in "iuf":
+        raise ValueError(f"{path}: {name} must be an N x 3 array of numbers, not {shape} of {dtype}")
+    if rows > MAX_NPZ_SAMPLES or rows * 3 * dtype.itemsize > info.file_size:
+        raise ValueError(
+            f"{path}: {name} claims {rows} rows (its zip entry holds {info.file_size} bytes; at most {MAX_NPZ_SAMPLES} "
+            "rows): a damaged or crafted file"
+        )
 
 
 def _column(table: SampleTable, name: str) -> np.ndarray | None:

@@ -4,9 +4,9 @@ A sample CSV has a header row naming its columns; any lines before the header (a
 ``Fs,50.00``) are skipped: the header is the first line that names ``mx``, ``my`` and ``mz``. Columns are matched by
 name, case-insensitively; unknown columns are ignored, a column the commands read may not be named twice. Cells may
 be quoted (``"mx","my","mz"``); values are separated by commas: a file separated otherwise (semicolons, tabs) is
-refused with the separator named. A file over ``MAX_CSV_BYTES`` or not UTF-8 is refused, a field over 128 KiB too,
-and so is a sensor reading (``mx..mz``, ``ax..az``, ``gx..gz``) beyond +-1e9 in any unit. Every problem is a
-``ValueError`` that names the file, the line and what to do.
+refused with the separator named. A file over ``MAX_CSV_BYTES`` or not UTF-8 is refused, a field over 128 KiB or a
+line over ``MAX_LINE_CHARS`` too, and so is a sensor reading (``mx..mz``, ``ax..az``, ``gx..gz``) beyond +-1e9 in
+any unit. Values not all numbers: the csv module, no row kept. Every problem is a ``ValueError`` naming the file.
 """
 
 from __future__ import annotations
@@ -14,13 +14,13 @@ from __future__ import annotations
 import codecs
 import csv
 import dataclasses
-import io
+import itertools
 import math
 import os
 import re
 import stat
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import BinaryIO, TextIO
 
@@ -45,6 +45,13 @@ WRITE_ROWS = 4096
 HEAD_CHARS = 1 << 16
 #: the bytes ``_file_table`` checks at a time
 SCAN_BYTES = 1 << 18
+#: the characters of text split into lines at a time (``_lines``)
+LINE_BLOCK_CHARS = 1 << 16
+#: the longest line read (a line of a sample CSV is a few hundred characters; each cell at most ``MAX_FIELD_CHARS``)
+MAX_LINE_CHARS = 1 << 20
+#: the most cells the csv module's reader takes (about 75 bytes each until read whole; 50 Hz, 11 columns, an hour)
+MAX_TEXT_CELLS = 2_000_000
+TEXT_CELLS = "empty cells, text or a bad value; write missing values as nan, or split the recording"
 #: the ASCII line breaks of ``str.splitlines`` that a file read as text (universal newlines) does not break at
 OTHER_LINE_BREAKS = (b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e")
 #: other separators named when the header is found with one of them
@@ -140,11 +147,29 @@ def _csv_problem(exc: csv.Error) -> str:
     return f"not CSV ({exc})"
 
 
-def _find_header(lines: list[str], path: str) -> int:
+def _lines(text: str, path: str) -> Iterator[str]:
+    """``text.splitlines()``, ``LINE_BLOCK_CHARS`` at a time (no list of every line); ValueError naming a line over
+    ``MAX_LINE_CHARS``."""
+    start, end, count = 0, len(text), 0
+    while start < end:
+        stop = text.find("\n", start + LINE_BLOCK_CHARS)
+        stop = end if stop < 0 else stop + 1  # cut after a line feed: a line's end wherever it is
+        if stop - start > LINE_BLOCK_CHARS + MAX_LINE_CHARS:
+            before = text.rfind("\n", start, start + LINE_BLOCK_CHARS)
+            count += len(text[start : before + 1].splitlines()) if before >= 0 else 0
+            raise ValueError(f"{path}: line {count + 1} is longer than {MAX_LINE_CHARS // 2**20} MiB: not a sample CSV")
+        block = text[start:stop].splitlines()
+        count += len(block)
+        yield from block
+        start = stop
+
+
+def _find_header(lines: list[str], path: str, blank: bool) -> int:
+    """The index of the header among ``lines`` (the file's first); ``blank``: the whole file is blank."""
     for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
         if set(MAG_COLUMNS) <= set(_cells(line, path, index + 1)):
             return index
-    if not any(line.strip() for line in lines):
+    if blank:
         raise ValueError(f"{path}: the file is empty: it needs a header row with mx,my,mz and samples below it")
     for index, line in enumerate(lines[:MAX_PREAMBLE_LINES]):
         for separator, words in OTHER_SEPARATORS.items():
@@ -163,20 +188,12 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
     """Parse CSV ``text`` into a SampleTable (see the module docstring for the format). A table of numbers is read
     by numpy's C reader (``_numbers``); anything else (text columns, empty cells, a row of another length, a value
     that is refused) by the csv module, cell by cell, which names the line or row and the value at fault."""
-    lines = text.splitlines()
-    header_index = _find_header(lines, path)
-    table = _numbers(lines[header_index], lines[header_index + 1 :], path)
+    lines = list(itertools.islice(_lines(text, path), MAX_PREAMBLE_LINES))
+    header_index = _find_header(lines, path, not text or text.isspace())
+    table = _numbers(lines[header_index], itertools.islice(_lines(text, path), header_index + 1, None), path)
     if table is not None:
         return table
-    header, rows = _read_rows(lines, header_index, path)
-    if not rows:
-        raise ValueError(f"{path}: the header is there but no samples follow it")
-    for number, row in enumerate(rows, start=1):
-        if len(row) < len(header):
-            raise ValueError(f"{path}: row {number} has {len(row)} values but the header names {len(header)} columns")
-    columns: dict[str, list[str] | np.ndarray] = {
-        name: [row[i] for row in rows] for i, name in enumerate(header) if name
-    }
+    header, columns = _read_columns(text, header_index, path)
     duplicated = frozenset(name for name in columns if header.count(name) > 1)
     table = SampleTable(path, np.empty((0, 3)), None, columns, duplicated)
     mag = np.column_stack([table.numeric(c) for c in MAG_COLUMNS])
@@ -187,19 +204,21 @@ def parse_samples(text: str, path: str = "<input>") -> SampleTable:
 
 
 def _file_table(handle: BinaryIO, path: Path) -> SampleTable | None:
-    """The table of numbers (``_numbers``) of a regular file open in ``handle`` (at its start), in ASCII (so UTF-8),
-    whose lines break only where a file read as text does (not at the other breaks of ``str.splitlines``), not over
-    ``MAX_CSV_BYTES``, and whose header is among its first ``HEAD_CHARS`` bytes (found as ``_find_header`` finds it),
-    read by numpy from the file itself: the lines ``parse_samples`` reads, without a Python string for the whole text
-    and one per line first (a fifth of the reader's time on a 60,000-row log); else None. The checks read the file
-    ``SCAN_BYTES`` at a time into one buffer (the whole file in one bytes object was 7 MB of fresh memory on a
-    60,000-row log, a tenth of ``magnet heading``'s page faults)."""
+    """The table of numbers (``_numbers``) of a regular file open in ``handle`` (at its start), in ASCII, whose lines
+    break only where a file read as text does, none over ``MAX_LINE_CHARS``, not over ``MAX_CSV_BYTES``, its header
+    among its first ``HEAD_CHARS`` bytes, read by numpy from the file itself (no Python string of the text or of each
+    line); else None. The checks read ``SCAN_BYTES`` at a time into one buffer."""
     head = handle.read(HEAD_CHARS)
     size, buffer = len(head), bytearray(SCAN_BYTES)
     chunk: bytes | bytearray = head
+    run = 0  # characters since the last line feed
     while chunk:
         if not chunk.isascii() or any(c in chunk for c in OTHER_LINE_BREAKS) or size > MAX_CSV_BYTES:
             return None
+        first, last = chunk.find(b"\n"), chunk.rfind(b"\n")
+        if run + (first if first >= 0 else len(chunk)) > MAX_LINE_CHARS:
+            return None  # a line too long for numpy's reader to be handed (the csv module's path names it)
+        run = len(chunk) - last - 1 if last >= 0 else run + len(chunk)
         count = handle.readinto(buffer)  # type: ignore[attr-defined]
         size += count
         chunk = buffer if count == len(buffer) else bytes(buffer[:count])
@@ -212,14 +231,14 @@ def _file_table(handle: BinaryIO, path: Path) -> SampleTable | None:
     return None
 
 
-def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0) -> SampleTable | None:
+def _numbers(header_line: str, rows: Iterable[str] | Path, path: str, skip: int = 0) -> SampleTable | None:
     """The table when every row below the header is as many finite numbers as the header names columns (``nan``
     allowed in ``vn,ve,vd``: no fix yet), no column is named twice and no sensor reading is beyond +-MAX_READING,
     read by numpy's C reader (``numpy.loadtxt``) from ``rows``: the lines below the header, or a file whose first
     ``skip`` lines end with the header (ASCII, checked before); else None, and the csv module reads the file and
     says what is wrong with it."""
     header = _cells(header_line, path, 1)
-    if len(set(header)) < len(header) or (isinstance(rows, list) and not rows):
+    if len(set(header)) < len(header):
         return None
     try:
         with warnings.catch_warnings():  # blank lines alone: "input contained no data", the csv module says so
@@ -244,16 +263,44 @@ def _numbers(header_line: str, rows: list[str] | Path, path: str, skip: int = 0)
     return SampleTable(path, mag, acc, columns)
 
 
-def _read_rows(lines: list[str], header_index: int, path: str) -> tuple[list[str], list[list[str]]]:
-    """(header names in lower case, the non-blank rows below it); ValueError naming the line of a field over 128
-    KiB or of a line that is not CSV."""
-    reader = csv.reader(io.StringIO("\n".join(lines[header_index:])))
+def _read_columns(text: str, header_index: int, path: str) -> tuple[list[str], dict[str, list[str] | np.ndarray]]:
+    """(header names in lower case, the named columns of the non-blank rows below it: ``_as_floats``); ValueError
+    naming the line of a field over 128 KiB or not CSV, when no row follows the header, the first row shorter than
+    the header, or past ``MAX_TEXT_CELLS`` cells. No row is kept: each cell goes into its column as it is read."""
+    reader = csv.reader(line + "\n" for line in itertools.islice(_lines(text, path), header_index, None))
     try:
         header = [name.strip().lower() for name in next(reader)]
-        rows = [row for row in reader if any(cell.strip() for cell in row)]
+        named = {name: i for i, name in enumerate(header) if name}  # a name given twice: its last column
+        cells: dict[str, list[str]] = {name: [] for name in named}
+        count, short = 0, None
+        for row in reader:
+            if not "".join(row).strip():  # blank: no cell but spaces
+                continue
+            count += 1
+            if len(row) < len(header):
+                short = short or (count, len(row))
+                continue
+            for name, i in named.items():
+                cells[name].append(row[i])
+            if count * len(named) > MAX_TEXT_CELLS:
+                raise ValueError(f"{path}: more than {MAX_TEXT_CELLS} cells that are not all numbers: {TEXT_CELLS}")
     except csv.Error as exc:
         raise ValueError(f"{path}: line {header_index + reader.line_num}: {_csv_problem(exc)}") from None
-    return header, rows
+    if not count:
+        raise ValueError(f"{path}: the header is there but no samples follow it")
+    if short is not None:
+        raise ValueError(f"{path}: row {short[0]} has {short[1]} values but the header names {len(header)} columns")
+    return header, {name: _as_floats(name, values) for name, values in cells.items()}
+
+
+def _as_floats(name: str, cells: list[str]) -> list[str] | np.ndarray:
+    """``cells`` as floats when all are finite numbers (sensors within +-MAX_READING), else as they are."""
+    try:
+        values = np.fromiter(map(float, cells), float, len(cells))
+    except ValueError:
+        return cells
+    limit = MAX_READING if name in (*MAG_COLUMNS, *ACC_COLUMNS, *GYRO_COLUMNS) else math.inf
+    return values if np.isfinite(values).all() and not (np.abs(values) > limit).any() else cells
 
 
 def read_samples(path: str | Path) -> SampleTable:
@@ -265,7 +312,9 @@ def read_samples(path: str | Path) -> SampleTable:
             if table is not None:
                 return table
             handle.seek(0)
-        data = handle.read(MAX_CSV_BYTES + 1)
+        data = bytearray()  # read a MiB at a time: read(MAX_CSV_BYTES + 1) set 512 MiB aside at once
+        while len(data) <= MAX_CSV_BYTES and (part := handle.read(1 << 20)):
+            data += part
     if len(data) > MAX_CSV_BYTES:
         raise ValueError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MiB: split the recording and fit a part")
     try:
@@ -279,10 +328,9 @@ def read_samples(path: str | Path) -> SampleTable:
 def write_csv(
     stream: TextIO, header: Sequence[str], columns: Iterable[np.ndarray], fmt: str | Sequence[str] = "%.6f"
 ) -> None:
-    """Write equal-length columns under ``header`` as CSV rows (``fmt``: one printf format, or one per column): the
-    lines ``numpy.savetxt`` writes. ``%.<d>f`` and ``%d`` formats are written by ``magnet._kernels.format_rows`` (the
-    same characters; 60,000 rows of 14 columns in a few tens of ms), any other WRITE_ROWS rows at a time by one ``%``
-    (savetxt formats and writes row by row: 1.1 s for those rows, ``%`` 0.2 s)."""
+    """Write equal-length columns under ``header`` as CSV rows (``fmt``: one printf format, or one per column), the
+    lines ``numpy.savetxt`` writes: ``%.<d>f`` and ``%d`` by ``magnet._kernels.format_rows`` (60,000 rows of 14
+    columns in a few tens of ms), any other WRITE_ROWS rows at a time by one ``%`` (savetxt: 1.1 s for those, 0.2 s)."""
     arrays = [np.asarray(c, dtype=float) for c in columns]
 
     def rows(lo: int, hi: int) -> np.ndarray:  # (n, K) view of the rows' columns stacked (a chunk at a time: 6.7 MB

@@ -196,19 +196,26 @@ def silenced() -> Iterator[None]:
 
 
 def read_pymavlink(
-    path: Path, types: list[str], what: str, take: Callable[[Any], None], *, quiet_open: bool = False, **options: Any
+    path: Path,
+    types: list[str],
+    what: str,
+    take: Callable[[Any], None],
+    *,
+    quiet_open: bool = False,
+    opener: Callable[[str], Any] | None = None,
+    **options: Any,
 ) -> None:
     """Hand each message of ``types`` in the log at ``path`` to ``take``, in order, through pymavlink's
     ``mavlink_connection(path, **options)``, with what pymavlink prints silenced (down to the file descriptors while
-    it opens the file when ``quiet_open``: see ``silenced``). Any failure, pymavlink's or ``take``'s, is one
-    ValueError: ``{path}: not a readable {what} (...)``."""
+    it opens the file when ``quiet_open``: see ``silenced``); ``opener(path)`` instead when given. Any failure,
+    pymavlink's or ``take``'s, is one ValueError: ``{path}: not a readable {what} (...)``."""
     from pymavlink import mavutil
 
     failure = ""
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             with silenced() if quiet_open else contextlib.nullcontext():
-                log = mavutil.mavlink_connection(str(path), **options)
+                log = opener(str(path)) if opener else mavutil.mavlink_connection(str(path), **options)
             try:
                 while (message := log.recv_match(type=types)) is not None:
                     take(message)

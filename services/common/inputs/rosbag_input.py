@@ -39,6 +39,11 @@ MIN_CHUNK_ALLOWANCE = 64 * 1024
 DECOMPRESSED_PER_FILE_BYTE = 64
 #: ... or this, whichever is larger
 MIN_DECOMPRESSED_BYTES = 256 * 1024 * 1024
+#: records rosbags may parse out of decompressed chunks in one reading (every pass counted: it scans a bag without
+#: an index three times): one per this many bytes of the recording (a real message compresses to 30-80 bytes) ...
+FILE_BYTES_PER_RECORD = 4
+#: ... or this many, whichever is larger (rosbags takes 1.5-3 us a record: a few seconds)
+MIN_RECORDS = 2_000_000
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _FOOTER = 0x02
 
@@ -47,7 +52,8 @@ class ChunkRefusedError(Exception):
     """A chunk of an MCAP file beyond the limits (its words name the chunk, not the file)."""
 
 
-#: bytes one reading may still decompress (set by ``read_rosbag``; None outside a reading: rosbags' own limits)
+#: what one reading may still decompress: [bytes, records, the records allowed] (set by ``read_rosbag``; None
+#: outside a reading: rosbags' own limits)
 _BUDGET: contextvars.ContextVar[list[int] | None] = contextvars.ContextVar("mcap_budget", default=None)
 
 
@@ -66,6 +72,25 @@ def _allowed(size: int, compressed: int) -> None:
         budget[0] -= size
 
 
+def _count_records(chunk: bytes | bytearray) -> None:
+    """Charge the records of a decompressed ``chunk`` to the reading's budget (ChunkRefusedError past it): a chunk
+    within every size limit may still hold millions of records of 9 bytes, each a step of rosbags' Python parser."""
+    budget = _BUDGET.get()
+    if budget is None:
+        return
+    left, position, end = budget[1], 0, len(chunk) - 9
+    length = struct.Struct("<Q").unpack_from
+    while position <= end and left >= 0:
+        position += 9 + length(chunk, position + 1)[0]
+        left -= 1
+    if left < 0:
+        raise ChunkRefusedError(
+            f"its chunks hold more than {budget[2]} records (at most one per {FILE_BYTES_PER_RECORD} bytes of the "
+            f"recording, or {MIN_RECORDS}): a damaged or crafted file"
+        )
+    budget[1] = left
+
+
 def _bounded(decompressor: Callable[[], Any]) -> Callable[[bytes, int], bytes]:
     """A decompressor for rosbags' table that writes no more than the chunk's declared size (ChunkRefusedError when the
     data holds more, or the declared size is beyond the limits)."""
@@ -81,6 +106,7 @@ def _bounded(decompressor: Callable[[], Any]) -> Callable[[bytes, int], bytes]:
             rest = frame.unused_data
         if len(out) > size:
             raise ChunkRefusedError(f"a chunk inflates beyond the {size} bytes it declares: a damaged or crafted file")
+        _count_records(out)
         return bytes(out)
 
     return decompress
@@ -124,7 +150,9 @@ def _size(path: Path) -> int:
 
 @contextlib.contextmanager
 def _budget(path: Path) -> Iterator[None]:
-    token = _BUDGET.set([max(MIN_DECOMPRESSED_BYTES, DECOMPRESSED_PER_FILE_BYTE * _size(path))])
+    size = _size(path)
+    records = max(MIN_RECORDS, size // FILE_BYTES_PER_RECORD)
+    token = _BUDGET.set([max(MIN_DECOMPRESSED_BYTES, DECOMPRESSED_PER_FILE_BYTE * size), records, records])
     try:
         yield
     finally:

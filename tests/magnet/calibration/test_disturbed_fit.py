@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 import pytest
 from helpers import fit_input_of
@@ -15,6 +17,8 @@ from magnet.quality.disturbance import raw_steps
 from magnet.simulator import Disturbances, SensorErrors, SimulatorConfig, Trajectory, simulate
 
 RATE_HZ = 50.0
+#: the gate's module (``magnet.quality.gate`` the name is its function)
+quality_gate = importlib.import_module("magnet.quality.gate")
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +137,8 @@ def test_a_refused_fit_is_made_again_without_what_a_sphere_finds_disturbed(pocke
     """The raw steps find few of the pocket walk's door samples, so the first fit takes them and is refused; a
     plain sphere through the samples, refitted without what it finds disturbed, finds the doors (most of the
     samples over 3 uT, few without one), and the fit on what is left is accepted with its offset within 5 uT of the
-    truth (the hard iron: hundreds of uT). Without the sphere's rounds the fit is refused."""
+    truth (the hard iron: hundreds of uT). Without the sphere's rounds the fit is refused at a tumble's residual
+    limits; at a travelling fit's (``for_travel``) the first fit passes and its own correction finds the doors."""
     run, data, truth = pocket_doors
     door = np.linalg.norm(run.disturbance_ut, axis=1)
     assert np.mean(door > 3.0) > 0.05
@@ -147,6 +152,9 @@ def test_a_refused_fit_is_made_again_without_what_a_sphere_finds_disturbed(pocke
     assert record.accepted, record.reason
     assert np.linalg.norm(record.offset - truth.offset) < 5.0
     monkeypatch.setattr(disturbed, "SPHERE_ROUNDS", 0)
+    alone = fit_choice(data, "auto")  # gated as a fit from a path, the first fit is kept and its correction finds them
+    assert alone.accepted and np.linalg.norm(alone.offset - truth.offset) < 5.0, alone.reason
+    monkeypatch.setattr(quality_gate, "TRAVEL_RESIDUAL_FACTOR", 1.0)  # at a tumble's limits, only the sphere finds them
     with pytest.raises(FitError):
         fit_choice(data, "auto")
 

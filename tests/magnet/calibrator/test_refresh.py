@@ -208,8 +208,9 @@ def _raw(run, seq: int, batch: int, speed_ms: float) -> wire.RawBatch:
 
 
 def test_after_the_iron_changes_the_old_samples_go_and_a_refresh_is_tried_sooner_and_more_often(walk):
-    """The record in force misses the field strength for CHANGED_BATCHES batches: what came before is dropped and,
-    the record being known wrong, a refresh is tried from CHANGED_MIN_S of samples on, every CHANGED_INTERVAL_S."""
+    """The record in force misses the field strength for CHANGED_S (four batches of 0.5 s): what came before is
+    dropped and, the record being known wrong, a refresh is tried from CHANGED_MIN_S of samples on, every
+    CHANGED_INTERVAL_S."""
     run, old = walk
     right = old.replace(offset=old.offset + np.array([6.0, -4.0, 3.0]))
     refresher = Refresher("auto", 2000, 4)
@@ -239,3 +240,25 @@ def test_after_the_iron_changes_the_old_samples_go_and_a_refresh_is_tried_sooner
     times = [(40 + k + 1) * 0.5 for k, d in enumerate(due) if d]  # seconds of the walk when a refresh was due
     assert len(times) >= 3
     assert all(b - a == pytest.approx(refresh.CHANGED_INTERVAL_S) for a, b in itertools.pairwise(times))
+
+
+def test_the_iron_changed_is_judged_in_seconds_not_batches(walk):
+    """In ``magnet edge``'s batches of 10 samples at 200 Hz (here 5 at 100 Hz: 0.05 s) a field strength missed for
+    1 s (a door passed) is no new iron: the collection is kept; missed for CHANGED_S it is. Counted as 4 batches, the
+    iron had changed after 0.2 s."""
+    run, old = walk
+    right = old.replace(offset=old.offset + np.array([6.0, -4.0, 3.0]))
+    refresher = Refresher("auto", 2000, 4)
+    shift = np.array([80.0, -60.0, 40.0])
+    first = None
+    for seq in range(400):  # 10 s as it was, then 1 s off, 5 s as it was, then off for good
+        batch = _raw(run, seq, 5, speed_ms=0.0)
+        off = 200 <= seq < 220 or seq >= 320
+        if off:
+            batch = dataclasses.replace(batch, mag_ut=batch.mag_ut + shift)
+        collection = refresher.receive(batch, right)
+        first = first or collection
+        assert collection is not None
+        if seq < 320 + round(refresh.CHANGED_S / 0.05) - 1:
+            assert collection is first and not collection.after_change, seq
+    assert collection is not first and collection.after_change

@@ -155,6 +155,10 @@ def test_arming_partway_stops_and_restores(tmp_path: Path, sets: int) -> None:
     message, held = refused(tmp_path, "--arm-after-sets", str(sets), match="armed (partway|during the writes)")
     assert "restored to their old values: COMPASS_OFS_X" in message and "NOT restored" not in message
     assert held == PARAMETERS
+    if sets < len(WANTED):  # stopped at the next write (or the one after: the HEARTBEAT may come just after its answer)
+        assert "armed partway, before" in message, message
+        restored = message.split("restored to their old values: ")[1].split(", ")
+        assert sets <= len(restored) <= sets + 1, message
 
 
 def test_a_disarmed_camera_does_not_speak_for_an_armed_autopilot(tmp_path: Path) -> None:

@@ -96,9 +96,9 @@ def _record(op: int, body: bytes, claimed: int | None = None) -> bytes:
     return bytes([op]) + struct.pack("<Q", len(body) if claimed is None else claimed) + body
 
 
-def zstd_zeros(size: int) -> bytes:
-    """A zstd frame of ``size`` zero bytes made of run-length blocks of 128 KiB: 4 bytes a block."""
-    block = 128 * 1024
+def zstd_zeros(size: int, block: int = 128 * 1024) -> bytes:
+    """A zstd frame of ``size`` zero bytes made of run-length blocks of ``block`` bytes (at most 128 KiB): 4 bytes a
+    block."""
     out = bytearray(b"\x28\xb5\x2f\xfd\x00\x38")  # magic, no content size, window 128 KiB
     count = size // block
     for k in range(count):
@@ -106,13 +106,16 @@ def zstd_zeros(size: int) -> bytes:
     return bytes(out)
 
 
-def mcap_bomb(declared: int, inflated: int, record_claim: int | None = None) -> bytes:
-    """An MCAP with one channel and one zstd chunk declaring ``declared`` bytes that inflates to ``inflated``."""
+def mcap_bomb(
+    declared: int, inflated: int, record_claim: int | None = None, chunks: int = 1, block: int = 128 * 1024
+) -> bytes:
+    """An MCAP with one channel and ``chunks`` zstd chunks declaring ``declared`` bytes that inflate to ``inflated``
+    zero bytes each (records of opcode 0 and no content: 9 bytes a record)."""
     out = MCAP_MAGIC + _record(0x01, _text("ros2") + _text(""))
     out += _record(0x04, struct.pack("<HH", 1, 0) + _text("/mag") + _text("cdr") + struct.pack("<I", 0))
-    data = zstd_zeros(inflated)
+    data = zstd_zeros(inflated, block)
     chunk = struct.pack("<QQQI", 0, 1, declared, 0) + _text("zstd") + struct.pack("<Q", len(data)) + data
-    out += _record(0x06, chunk, record_claim)
+    out += _record(0x06, chunk, record_claim) * chunks
     return out + _record(0x0F, struct.pack("<I", 0)) + _record(0x02, struct.pack("<QQI", 0, 0, 0)) + MCAP_MAGIC
 
 
@@ -211,6 +214,19 @@ def test_one_reading_decompresses_a_bounded_total(tmp_path, monkeypatch):
     path = tmp_path / "b.mcap"
     path.write_bytes(mcap_bomb(16384, 16384))
     _refused(path, "decompress to more than 64 times its size")
+
+
+def test_chunks_of_millions_of_tiny_records_are_refused_by_their_count(tmp_path, monkeypatch):
+    """Chunks within every size limit that inflate to records of 9 bytes: a 1 MB file of them held 30 million
+    records, which rosbags parsed one by one in Python (46-56 s, then the decompression budget refused it). The records
+    of every chunk decompressed are counted against one budget per reading (at the real limits: 2.7 s)."""
+    monkeypatch.setattr(rosbag_input, "MIN_RECORDS", 20_000)
+    path = tmp_path / "tiny.mcap"
+    path.write_bytes(mcap_bomb(65_520, 65_520, chunks=4, block=8_190))  # 7,280 records a chunk
+    _refused(path, "its chunks hold more than 20000 records")
+    path.write_bytes(mcap_bomb(65_520, 65_520, chunks=2, block=8_190))  # within: read, then no topic found
+    with pytest.raises(ValueError, match="pick the MagneticField topic"):
+        read_input(path)
 
 
 def test_a_db3_with_damaged_pages_is_one_line(tmp_path):

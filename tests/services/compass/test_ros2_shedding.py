@@ -107,7 +107,7 @@ def test_a_flood_of_new_ids_is_bounded_and_the_real_device_is_published_first(mo
     assert len(sink.devices) == 8 and "real" in sink.devices
     assert core.drops.counts["ros2:device-limit"] == 299 - 6  # 299 new ids, 6 free slots
     status = core.status("compass").to_dict()
-    assert status["sinks"] == {"ros2_topics": 8, "ros2_topics_evicted": 0}
+    assert status["sinks"] == {"ros2_topics": 8, "ros2_topics_evicted": 0, "ros2_sessions_renewed": 0}
     assert session.declarations == 1 + 2 + 4 * 8  # node, diagnostics, 8 devices: never one per id of the flood
     sink.close()
     assert session.declared == set()
@@ -145,7 +145,11 @@ def test_a_silent_device_gives_its_slot_to_a_new_one_and_it_is_counted() -> None
     assert sink.admit(["b"], core, now_s=100.0 + ros2.IDLE_S - 1) == [True]
     assert sink.admit(["c"], core, now_s=100.0 + ros2.IDLE_S + 1) == [True]  # a, silent IDLE_S, made room
     assert list(sink.devices) == ["b", "c"] and sink.evicted == 1
-    assert core.status("x").to_dict()["sinks"] == {"ros2_topics": 2, "ros2_topics_evicted": 1}
+    assert core.status("x").to_dict()["sinks"] == {
+        "ros2_topics": 2,
+        "ros2_topics_evicted": 1,
+        "ros2_sessions_renewed": 0,
+    }
     assert core.drops.counts == {"ros2:device-limit": 1}
     sink.close()
 

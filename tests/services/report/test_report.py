@@ -203,3 +203,60 @@ def test_report_of_each_real_recording(datasets_dir, name):
     write(ARTEFACTS / f"{Path(name).stem}.png", data)
     assert (ARTEFACTS / f"{Path(name).stem}.png").read_bytes()[:8] == PNG_MAGIC
     assert name in html_page(data)
+
+
+def _npz(path: Path, rows: int, data_rows: int, compress: bool = True) -> Path:
+    """An .npz whose mag_ut.npy header claims ``rows`` x 3 float64 and holds ``data_rows`` x 3 of zeros."""
+    import zipfile
+
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with (
+        zipfile.ZipFile(path, "w", compression=method) as archive,
+        archive.open("mag_ut.npy", "w", force_zip64=True) as member,
+    ):
+        header = np.lib.format.header_data_from_array_1_0(np.zeros((1, 3)))
+        header["shape"] = (rows, 3)
+        np.lib.format.write_array_header_1_0(member, header)
+        for lo in range(0, data_rows, 1 << 18):
+            member.write(bytes(24 * min(1 << 18, data_rows - lo)))
+    return path
+
+
+def test_an_npz_claiming_or_inflating_to_more_rows_than_allowed_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    """Issue 32's front door for `magnet report`'s .npz: a header claiming 10^10 rows was a 224 GiB allocation and a
+    traceback; a 2 MB file inflating to 2 GiB of zeros took 8.2 GB and 68 s, then a traceback. Now the arrays'
+    headers are read first (at the real limit, 2,000,000 rows: 70 MB, 2.4 s as a command)."""
+    import services.report.data as report_data
+
+    monkeypatch.setattr(report_data, "MAX_NPZ_SAMPLES", 1000)
+    claims = _npz(tmp_path / "claims.npz", 10**10, 10)
+    with pytest.raises(ValueError, match=r"mag_ut.npy claims 10000000000 rows \(its zip entry holds 368 bytes"):
+        load_samples(claims, None)
+    with pytest.raises(ValueError, match=r"mag_ut\.npy claims 5000 rows"):
+        load_samples(_npz(tmp_path / "inflates.npz", 5000, 5000), None)
+    with pytest.raises(ValueError, match="claims 900 rows"):  # a header claiming more than the entry holds
+        load_samples(_npz(tmp_path / "short.npz", 900, 10), None)
+    (tmp_path / "not.npz").write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(ValueError, match=r"not an \.npz recording numpy can read"):
+        load_samples(tmp_path / "not.npz", None)
+    assert load_samples(_npz(tmp_path / "fine.npz", 900, 900), None).raw.shape == (900, 3)
+
+
+def test_the_coverage_map_finds_its_cells_a_block_of_samples_at_a_time(monkeypatch):
+    """The sphere's map took the nearest of 100 cells for every sample at once: 800 bytes a sample (6.8 GB for a
+    48 MB CSV of 8 million samples). Blocks of HIT_ROWS give the same cells."""
+    from matplotlib.figure import Figure
+
+    from services.report import render
+
+    rng = np.random.default_rng(5)
+    field = rng.normal(size=(5000, 3)) * np.array([1.0, 1.0, 0.1])  # a band around the equator: some cells missed
+
+    def cells(rows: int) -> str:
+        monkeypatch.setattr(render, "HIT_ROWS", rows)
+        fig = Figure()
+        data = type("D", (), {"calibrated": field, "quality": {}})()
+        render._coverage(fig, fig.add_gridspec(1, 1)[0, 0], data)
+        return fig.axes[0].get_legend().get_texts()[0].get_text()
+
+    assert cells(10**9) == cells(777) and cells(777).startswith("covered (")
