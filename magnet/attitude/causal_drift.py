@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from magnet.attitude import offset_learn
+from magnet.attitude import bias_walk, offset_learn
 from magnet.attitude.drift_bias import (
     DriftBias,
     field_angle_rad,
@@ -225,7 +225,8 @@ def take_drift(state: Any, correct: Correct | None) -> None:
     """A record with its ``correct``ion was put in force on the device ``state``'s filter (after its
     ``restart_magnetometer``): its magnetic gain started again (``magnet.attitude.mag_gain.start_gain``), then
     ``CausalDrift.heading_from_history`` and ``from_history`` (not where aided, nor without a correction), and from
-    now on the bias loop (``HEADING_LOOP``: ``magnet.attitude.heading_bias``, where the filter has none yet)."""
+    now on the bias loop (``HEADING_LOOP``: ``magnet.attitude.heading_bias``, where the filter has none yet), its gains
+    and tauMag from the bias's uncertainty (``bias_walk``, where on: the magnetic gain then stopped)."""
     start_gain(state)
     state.offset = None  # the learnt offset error was the old record's
     fusion = state.filter
@@ -240,7 +241,10 @@ def take_drift(state: Any, correct: Correct | None) -> None:
             drift.heading_from_history(correct)
         drift.from_history(correct)
     if HEADING_LOOP and fusion.heading_bias is None:
-        state.loop = (fusion._filter, fusion.samples, HeadingBias(fusion.period_s, fusion._taus[1]))
+        heading = HeadingBias(fusion.period_s, fusion._taus[1])
+        if bias_walk.ENABLED:  # its gains and tauMag from the bias's uncertainty, not the gain from delta's drift
+            heading.walk, state.gain = bias_walk.BiasWalk(), None
+        state.loop = (fusion._filter, fusion.samples, heading)
     offset_learn.start(state, correct, history, bias)
     if state.offset is not None and state.offset.shifted_rad:
         delta_moved(state, state.offset.shifted_rad)

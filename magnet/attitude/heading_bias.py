@@ -40,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from magnet.attitude.bias_walk import BiasWalk
+
 #: the loop's integral time in units of vqf's magnetic time constant tauMag (critical damping at 4)
 INTEGRAL_TAUS = 4.0
 #: the loop starts this many tauMag after the filter's magnetic side (re)started
@@ -90,6 +92,8 @@ class HeadingBias:
         self.piece_samples = max(1, round(PIECE_S / self.period_s))
         self.integral_s = INTEGRAL_TAUS * float(tau_mag_s)
         self.settle_s = SETTLE_TAUS * float(tau_mag_s)
+        #: where set (the compass, ``causal_drift.take_drift``): the gains and tauMag from the bias's uncertainty
+        self.walk: BiasWalk | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -101,6 +105,9 @@ class HeadingBias:
         self.turns: list[float] = []  # the turns (rad) about the vertical over the last two pieces
         self.count = 0
         self.disturbed = False
+        self.learnt = False  # whether the last step learnt
+        if self.walk is not None:
+            self.walk = BiasWalk()
 
     def remaining(self) -> int:
         """Samples still to come in the current piece."""
@@ -132,6 +139,7 @@ class HeadingBias:
             and sigma_rads > math.radians(MIN_SIGMA_DPS)
         )
         step = math.remainder(delta - self.delta, math.tau) if learn and self.delta is not None else 0.0
+        self.learnt = bool(learn)
         self.delta, self.quat = delta, quat
         self.count, self.disturbed = 0, False
         return -step / self.integral_s * up
@@ -180,11 +188,23 @@ def run_pieces(
 def step_batch(loop: HeadingBias, filter_: Any, count: int, disturbed: bool) -> None:
     """The loop stepped once over ``count`` samples just fed to the ``vqf.VQF`` ``filter_`` (a piece as long as the
     batch: the compass's, after a record; ``disturbed``: any of them flagged by vqf or the watch), its change added
-    to vqf's bias estimate. vqf's flags are not counted while it has no field reference (``vqf_flags_count``)."""
+    to vqf's bias estimate. vqf's flags are not counted while it has no field reference (``vqf_flags_count``). With
+    the loop's ``walk`` (``bias_walk``) the change and vqf's tauMag come from the bias's uncertainty instead of the
+    fixed integral time."""
     if count <= 0:
         return
     loop.observe(count, disturbed and vqf_flags_count(True, filter_))
     sigma = float(filter_.getBiasEstimate()[1])
-    change = loop.step(float(filter_.getDelta()), filter_.getQuat6D(), sigma)
+    walk, seconds, previous = loop.walk, loop.count * loop.period_s, loop.delta
+    delta, quat = float(filter_.getDelta()), filter_.getQuat6D()
+    change = loop.step(delta, quat, sigma)
+    if walk is not None:
+        walk.predict(seconds)
+        change = np.zeros(3)
+        if loop.learnt and previous is not None:
+            moved = math.remainder(delta - previous, math.tau)
+            along_up, tau = walk.learn(seconds, moved, float(filter_.params["tauMag"]))
+            change = along_up * up_in_body(quat)
+            filter_.setTauMag(tau)
     if change.any():
         filter_.setBiasEstimate(np.asarray(filter_.getBiasEstimate()[0], dtype=float) + change)

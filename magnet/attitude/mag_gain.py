@@ -24,7 +24,9 @@ Nothing changes while vqf takes its first heading (``kMagInit``) nor before ``MI
 record or a restart start it again at vqf's tauMag. sigma_b counts ``SIGMAS`` times.
 
 The compass runs it per device (``start_gain`` at each record, from ``causal_drift.take_drift``; ``note_gain`` each
-fused batch, from ``causal_drift.note_batch``; a filter restarted (its time going back) or replaced drops it).
+fused batch, from ``causal_drift.note_batch``; a filter restarted (its time going back) or replaced drops it), but
+only where ``magnet.attitude.bias_walk`` is off: that sets tauMag from the bias's uncertainty, which also grows when
+the bias moves after a long still stretch (a slope measured over a minute cannot see that in time).
 Plain Python, one row a fused batch; memory: a few sums.
 """
 

@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from magnet.calibration import disturbed, held
+from magnet.calibration import disturbed
 from magnet.calibration.alignment import aligned, ellipsoid_align, needs_acc
 from magnet.calibration.base import (
     GYROSCOPE_NEEDED,
@@ -58,14 +58,12 @@ def _rates(data: FitInput) -> tuple[np.ndarray, float]:
 
 
 def _gyro_ellipsoid(data: FitInput) -> Shape:
-    """gyro-ellipsoid's windows end on kept rows whose magnetometer reading is fresh (``held``: a held reading is
-    the field of an earlier attitude)."""
-    return gyro_ellipsoid(data.mag, *_rates(data), keep=held.fresh_kept(data.mag, disturbed.kept(data)))
+    return gyro_ellipsoid(data.mag, *_rates(data), keep=disturbed.kept(data))
 
 
 def _gyro_held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:
     """gyro-ellipsoid's held-out fit: its windows of consecutive samples are taken inside the kept blocks only."""
-    return gyro_ellipsoid(data.mag, *_rates(data), keep=held.fresh_kept(data.mag, train))
+    return gyro_ellipsoid(data.mag, *_rates(data), keep=train)
 
 
 def _ellipsoid_held_out(data: FitInput, whole: Shape, train: np.ndarray) -> Shape:

@@ -37,7 +37,8 @@ log = logging.getLogger("magnet.dashboard")
 
 CHANNEL_CAPACITY = 65536
 #: liveliness samples one session takes before the ingest opens a new one for them (the module; 8,192 token keys are
-#: about 7 MB kept by Zenoh; a MAVLink port's flood made 32,000 before the edge's bounds)
+#: about 7 MB kept by Zenoh; a MAVLink port's flood made 32,000 before the edge's bounds), beyond twice the tokens
+#: alive (which a new session's history gives again: a fleet of more never renews at every step)
 TOKENS_PER_SESSION = 8192
 #: headings and progress wait in rings of this many messages (the oldest go first when a step is late: only each
 #: device's newest is shown); a FIFO of 65,536 held every message of a flood, each pinning Zenoh's receive buffer.
@@ -104,6 +105,7 @@ class Ingest:
         self.declared = contextlib.ExitStack()
         fifo = zenoh.handlers.FifoChannel
         self.opener, self.tokens_seen, self.renewed = opener, 0, 0
+        self.tokens_alive = 0  # puts less deletes since the session opened: its history gives them again
         self.alive_declared = contextlib.ExitStack()
         self.alive = self._alive()
         self.headings = self._subscribe(wire.Kind.HEADING, zenoh.handlers.RingChannel(RING_CAPACITY))
@@ -138,7 +140,8 @@ class Ingest:
         for sample in drain(old, MAX_DRAIN):
             self.guard.run("alive", self._on_alive, sample)
         old_declared.close()
-        self.tokens_seen, self.renewed = 0, self.renewed + 1
+        self.tokens_seen = self.tokens_alive = 0
+        self.renewed += 1
         log.info("a new session for the devices' liveliness tokens (%d renewals)", self.renewed)
 
     def _declare(self, subscriber: Subscriber) -> Subscriber:
@@ -176,7 +179,8 @@ class Ingest:
         for sample in drain(self.alive, MAX_DRAIN):
             run("alive", self._on_alive, sample)
             self.tokens_seen += 1
-        if self.opener is not None and self.tokens_seen >= TOKENS_PER_SESSION:
+            self.tokens_alive += 1 if sample.kind == zenoh.SampleKind.PUT else -1
+        if self.opener is not None and self.tokens_seen >= TOKENS_PER_SESSION + 2 * self.tokens_alive:
             self._renew_alive()
         for sample in drain(self.calibrations, MAX_DRAIN):
             run("calibration", self._on_calibration, str(sample.key_expr), payload_bytes(sample))

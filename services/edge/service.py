@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import json
 import logging
 import time
@@ -41,7 +42,7 @@ from magnet import wire
 from services.common import metrics
 from services.common.endpoint import use_local_pipeline
 from services.common.guard import Guard
-from services.common.zenoh_session import open_session, stop_event
+from services.common.zenoh_session import open_session, session_mode, stop_event
 from services.edge.settings import EdgeSettings, add_arguments
 from services.edge.source import Source, stamp
 from services.edge.sources import make_source
@@ -65,6 +66,12 @@ def unhealthy_key(prefix: str, device: str) -> str:
     return wire.liveliness_key(prefix, "device", f"{device}/unhealthy")
 
 
+#: new tokens declared for devices that appear while the edge runs, on one session of their own (behind a router),
+#: before a new one: Zenoh keeps about 1.1 kB per token key a session declared until it closes (docs/front-door.md)
+TOKENS_PER_SESSION = 8192
+Opener = Callable[[], contextlib.AbstractContextManager[zenoh.Session]]
+
+
 class EdgeStatus:
     """The edge's counters and health: answers status queries (from Zenoh's thread), holds the tokens of unhealthy
     devices and of devices that appear while running (the ``DeviceEvents`` a source tells)."""
@@ -84,11 +91,16 @@ class EdgeStatus:
         self.session: zenoh.Session | None = None
         #: devices that appear while running (MAVLink): alive; and ``<device>/unhealthy`` while one is
         self.tokens: dict[str, zenoh.LivelinessToken] = {}
+        self.token_keys: dict[str, str] = {}  # name -> the key of its token (declared again on a new session)
+        self.opener: Opener | None = None
+        self.own, self.declared_tokens, self.renewed = contextlib.ExitStack(), 0, 0
         self.guard = Guard("edge", log)  # no failing status query ends the edge (services.common.guard)
 
-    def open(self, session: zenoh.Session) -> None:
-        """Declare from now on, on ``session``."""
-        self.session = session
+    def open(self, session: zenoh.Session, opener: Opener | None = None) -> None:
+        """Declare from now on, on ``session``; with ``opener`` on sessions of their own, a new one after
+        ``TOKENS_PER_SESSION`` tokens (the tokens declared again on it before the old one closes: none seen to go)."""
+        self.opener = opener
+        self.session = self.own.enter_context(opener()) if opener is not None else session
 
     def close(self) -> None:
         """Undeclare every token still declared; declare nothing more."""
@@ -96,6 +108,7 @@ class EdgeStatus:
         for token in self.tokens.values():
             token.undeclare()  # lifetime: a device's tokens follow what it reports, not a block
         self.tokens.clear()
+        self.own.close()
 
     def answer_status(self, query: zenoh.Query) -> None:
         """Answer one status query (from Zenoh's thread): the counters, or an error reply if that fails."""
@@ -109,8 +122,22 @@ class EdgeStatus:
             return
         if not declared and name in self.tokens:
             self.tokens.pop(name).undeclare()  # lifetime: declared while the device is unhealthy
+            self.token_keys.pop(name, None)
         elif declared and name not in self.tokens:
-            self.tokens[name] = self.session.liveliness().declare_token(key)
+            if self.opener is not None and self.declared_tokens >= TOKENS_PER_SESSION:
+                self._renew(self.opener)
+            self.tokens[name], self.token_keys[name] = self.session.liveliness().declare_token(key), key
+            self.declared_tokens += 1
+
+    def _renew(self, opener: Opener) -> None:
+        old_tokens, old_own, self.own = self.tokens, self.own, contextlib.ExitStack()
+        self.session = self.own.enter_context(opener())
+        self.tokens = {name: self.session.liveliness().declare_token(self.token_keys[name]) for name in old_tokens}
+        for token in old_tokens.values():
+            token.undeclare()  # lifetime: the same keys are alive on the new session already
+        old_own.close()
+        self.declared_tokens, self.renewed = 0, self.renewed + 1  # new ones: those declared again are bounded anyway
+        log.info("a new session for the devices' liveliness tokens (%d declared again)", len(self.tokens))
 
     def on_health(self, healthy: bool, error: str) -> None:
         """Declare ``unhealthy_key`` when the sensor turns unhealthy, undeclare it when it recovers."""
@@ -266,7 +293,8 @@ def serve(settings: EdgeSettings, metrics_address: str | None = None) -> int:
     stop = stop_event()
     with open_session(settings.zenoh) as session, contextlib.ExitStack() as stack:
         stack.callback(source.close)  # last: after the edge's own declarations, before the session closes
-        status.open(session)
+        own = session_mode(settings.zenoh) == "client"  # behind a router: the tokens on sessions of their own
+        status.open(session, functools.partial(open_session, settings.zenoh) if own else None)
         stack.callback(status.close)
         _declare(session, settings, status, stack)
         source.attach(session, status)

@@ -6,10 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from magnet.calibration import HOLDOUT_BLOCK, HOLDOUT_BLOCK_S, FitInput, Method, fit
+from magnet.calibration import HOLDOUT_BLOCK, HOLDOUT_BLOCK_S, FitInput
 from magnet.calibration.base import holdout_mask
 from magnet.calibration.choose import fit_choice
-from magnet.calibration.held import fresh_rows
 from magnet.simulator import SensorErrors, SimulatorConfig, Trajectory, simulate
 
 SEED = 4  # a tuning seed: its texting walk's first corner comes at 12-13.5 s
@@ -56,37 +55,3 @@ def test_a_texting_walk_gets_its_first_record_as_soon_at_every_rate(rate_hz: flo
     record = fit_choice(data, "auto")
     assert record.accepted, record.reason
     assert np.linalg.norm(np.asarray(record.offset) - errors.hard_iron_ut) < 3.0
-
-
-def _held(mag: np.ndarray, every: int) -> np.ndarray:
-    """A magnetometer of 1/every the rows' rate, its last reading repeated on the rows between (a merged log)."""
-    return mag[(np.arange(len(mag)) // every) * every]
-
-
-def test_a_held_magnetometer_is_recognised() -> None:
-    rng = np.random.default_rng(3)
-    mag = 50.0 * rng.standard_normal((2000, 3))
-    assert fresh_rows(mag) is None  # every row its own reading
-    assert fresh_rows(np.round(mag, 1)) is None
-    fresh = fresh_rows(_held(mag, 4))  # 50 Hz in 200 Hz rows
-    assert fresh is not None and fresh.sum() == 500 and np.all(fresh[::4])
-    fresh = fresh_rows(_held(mag, 2))  # 100 Hz in 200 Hz rows
-    assert fresh is not None and fresh.sum() == 1000
-
-
-def test_a_swinging_hand_with_its_magnetometer_held_gets_its_gyro_fit() -> None:
-    """A swinging hand at 200 Hz whose 50 Hz magnetometer is held on the rows between its readings: gyro-ellipsoid
-    pairs the gyroscope's turns with fresh readings only, and finds the hard iron within 0.5 uT (with every row, the
-    held readings are up to 15 ms late, a lag that changes from row to row: "the rotation does not determine the
-    calibration")."""
-    rate_hz, seed = 200.0, 1
-    rng = np.random.default_rng([seed, 26])
-    errors = SensorErrors.phone(rng, 50.0)
-    config = SimulatorConfig(
-        trajectory=Trajectory.WALK_HAND, rate_hz=rate_hz, count=int(40 * rate_hz), errors=errors, seed=seed
-    )
-    run = simulate(config)
-    data = FitInput(_held(run.mag_ut, 4), t_s=run.t_s, acc=run.acc_ms2, gyr_rads=run.gyr_rads, period_s=1 / rate_hz)
-    record = fit(data, Method.GYRO_ELLIPSOID)
-    assert record.accepted, record.reason
-    assert np.linalg.norm(np.asarray(record.offset) - errors.hard_iron_ut) < 0.5

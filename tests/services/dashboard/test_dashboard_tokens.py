@@ -88,3 +88,20 @@ def test_without_an_opener_the_tokens_stay_on_the_given_session() -> None:
             session.tell(Token(f"d{k}", True))
         feed.step()
         assert feed.renewed == 0 and session.open
+
+
+def test_more_tokens_alive_than_a_session_takes_do_not_renew_it_at_every_step(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(ingest, "TOKENS_PER_SESSION", 10)
+    LIVE.clear()
+    LIVE.update(dict.fromkeys((f"d{k}" for k in range(50)), True))  # each new session's history: 50 tokens
+    sessions: list[OwnSession] = []
+
+    def opener() -> OwnSession:
+        sessions.append(OwnSession())
+        return sessions[-1]
+
+    with ingest.Ingest(Session(), "magnet", FleetState(), opener=opener) as feed:  # type: ignore[arg-type]
+        for _ in range(5):
+            feed.step()
+        assert feed.renewed == 0 and len(sessions) == 1
+    LIVE.clear()
