@@ -46,7 +46,7 @@ from magnet.ros2 import messages, names
 from magnet.vehicle import VehicleReport
 from services.common.ros2_options import Ros2Settings
 from services.common.zenoh_session import open_session, session_mode
-from services.compass.settings import CompassSettings
+from services.compass.settings import ZENOH_DEFAULTS, CompassSettings
 
 log = logging.getLogger("magnet.compass.ros2")
 
@@ -355,8 +355,6 @@ class Ros2Compass:
 
 
 def _open_own(settings: CompassSettings) -> contextlib.AbstractContextManager[zenoh.Session]:
-    from services.compass.service import ZENOH_DEFAULTS  # the compass's link settings (a cycle at import)
-
     return open_session(settings.zenoh, ZENOH_DEFAULTS)
 
 

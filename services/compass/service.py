@@ -47,7 +47,13 @@ from services.common.zenoh_session import (
     stop_event,
 )
 from services.compass.intake import PayloadIntake
-from services.compass.settings import CompassSettings, add_arguments, load_trusted_keys, settings_from_args
+from services.compass.settings import (
+    ZENOH_DEFAULTS,
+    CompassSettings,
+    add_arguments,
+    load_trusted_keys,
+    settings_from_args,
+)
 from services.compass.sinks import open_sinks
 
 __all__ = ["CompassSettings", "add_arguments", "build_core", "run", "run_compass"]
@@ -90,15 +96,6 @@ REQUERY_JOINED_S = 1.0
 #: with no raw message waiting the loop waits this long at most for one (calibrations, tokens and queries are seen
 #: between drains); it wakes as soon as one arrives
 IDLE_WAIT_S = 0.005
-#: the compass puts a drain's headings at once (thousands of messages): room for them in each link's queue (16
-#: batches of 64 kB, Zenoh's most; its default is 2), and up to 20 ms for a busy machine's sending thread to make room
-#: before a heading is dropped (default 1 ms). A subscriber that stays slow still loses headings, never the compass's
-#: time for long. A --config file replaces these.
-ZENOH_DEFAULTS = {
-    "transport/link/rx/max_message_size": str(8 * 1024 * 1024),  # no raw message may be larger than 4 MB anyway
-    "transport/link/tx/queue/size/data": "16",
-    "transport/link/tx/queue/congestion_control/drop/wait_before_drop": "20000",
-}
 
 
 def add_compass_arguments(parser: argparse.ArgumentParser) -> None:

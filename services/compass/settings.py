@@ -126,3 +126,14 @@ def settings_from_args(args: argparse.Namespace) -> CompassSettings:
 def load_trusted_keys(paths: tuple[Path, ...] | list[Path]) -> signing.TrustedKeys:
     """The public keys of ``--trust`` files; OSError/ValueError naming a file that cannot be used."""
     return signing.TrustedKeys([signing.load_public_key(path.read_bytes(), str(path)) for path in paths])
+
+
+#: the compass puts a drain's headings at once (thousands of messages): room for them in each link's queue (16
+#: batches of 64 kB, Zenoh's most; its default is 2), and up to 20 ms for a busy machine's sending thread to make room
+#: before a heading is dropped (default 1 ms). A subscriber that stays slow still loses headings, never the compass's
+#: time for long. A --config file replaces these.
+ZENOH_DEFAULTS = {
+    "transport/link/rx/max_message_size": str(8 * 1024 * 1024),  # no raw message may be larger than 4 MB anyway
+    "transport/link/tx/queue/size/data": "16",
+    "transport/link/tx/queue/congestion_control/drop/wait_before_drop": "20000",
+}
